@@ -1,0 +1,264 @@
+"""Joint maximum-likelihood fit of a four-flip recording (all channels, all flips).
+
+Parameters, per channel: a unit sensing direction as a 2-D step in the tangent plane of a
+starting direction (no singularity anywhere on the sphere), the zero-field output and the log
+gain (gains stay positive); shared: dip and field azimuth; then each active effect's block.
+The loss is the chi-square of the outputs weighted by each channel's noise floor,
+
+.. math:: \\chi^2 = \\sum_{i,c} \\left( (v_{ic} - \\hat v_{ic}(p)) / \\sigma_c \\right)^2,
+
+minimised by Levenberg-Marquardt (``scipy.optimize.least_squares``).  Standard errors come from
+the Jacobian at the solution, scaled by the reduced chi-square.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs
+
+from .effects import Effect
+
+__all__ = ["MLFit", "fit_ml", "tangent_basis"]
+
+_BASE_PER_CHANNEL = 4  # u, v, offset, log gain
+_SINGULAR_RCOND = 1e-9
+
+
+def tangent_basis(directions: np.ndarray) -> np.ndarray:
+    """Two orthonormal vectors perpendicular to each direction, shape (c, 2, 3)."""
+    basis = np.empty((len(directions), 2, 3))
+    for i, a in enumerate(directions):
+        helper = np.eye(3)[np.argmin(np.abs(a))]
+        e1 = np.cross(a, helper)
+        e1 /= np.linalg.norm(e1)
+        basis[i] = e1, np.cross(a, e1)
+    return basis
+
+
+@dataclass(frozen=True)
+class MLFit:
+    """Outcome of one joint fit.
+
+    Attributes
+    ----------
+    physics : BenchPhysics
+        Fitted parameters.
+    effects : tuple of Effect
+    names : list of str
+        Fit parameter names (in the fit's scaled units).
+    x : ndarray
+        Fit parameters.
+    covariance : ndarray
+        Scaled covariance of ``x`` (NaN where not determined).
+    direction_covariance : ndarray, shape (c, 3, 3)
+        Covariance of each unit direction.
+    residuals : ndarray, shape (n, c)
+        Measured minus predicted, output units.
+    chi2, dof : float, int
+        Weighted chi-square and degrees of freedom.
+    singular : list of str
+        Parameter combinations the data cannot determine, in words.
+    success : bool
+    message : str
+    """
+
+    physics: BenchPhysics
+    effects: tuple
+    names: list
+    x: np.ndarray
+    covariance: np.ndarray
+    direction_covariance: np.ndarray
+    residuals: np.ndarray
+    chi2: float
+    dof: int
+    singular: list
+    success: bool
+    message: str
+
+    @property
+    def n_params(self) -> int:
+        return len(self.x)
+
+    @property
+    def reduced_chi2(self) -> float:
+        return self.chi2 / max(self.dof, 1)
+
+    @property
+    def sigma(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.covariance))
+
+    def bic(self) -> float:
+        """Bayesian information criterion with the noise floor known: chi2 + k ln(n)."""
+        return self.chi2 + self.n_params * np.log(self.residuals.size)
+
+    def direction_sigma_deg(self) -> np.ndarray:
+        """RMS angular uncertainty of each direction, degrees, shape (c,)."""
+        return np.degrees(np.sqrt(np.trace(self.direction_covariance, axis1=1, axis2=2)))
+
+    def effect_parameters(self, effect: Effect) -> tuple[list, np.ndarray, np.ndarray]:
+        """(names, values, sigmas) of one effect's block in reporting units."""
+        start = self._block_start(effect)
+        n = effect.n_params(len(self.physics.gains))
+        scale = effect.report_scale(self.physics)
+        block = slice(start, start + n)
+        return self.names[block], self.x[block] * scale, self.sigma[block] * np.abs(scale)
+
+    def _block_start(self, effect: Effect) -> int:
+        c = len(self.physics.gains)
+        start = _BASE_PER_CHANNEL * c + 2
+        for e in self.effects:
+            if e is effect:
+                return start
+            start += e.n_params(c)
+        raise KeyError(effect.name)
+
+
+class _Layout:
+    """Packs and unpacks the parameter vector around a starting point."""
+
+    def __init__(self, start: BenchPhysics, effects, samples: BenchSamples, channels):
+        self.start, self.effects, self.samples = start, tuple(effects), samples
+        self.c = len(start.gains)
+        self.basis = tangent_basis(start.directions)
+        self.names = []
+        for ch in channels:
+            self.names += [f"{ch}.dir_u", f"{ch}.dir_v", f"{ch}.offset_fieldunit", f"{ch}.log_gain"]
+        self.names += ["dip_rad", "azimuth_rad"]
+        for e in self.effects:
+            self.names += e.param_names(channels)
+
+    def x0(self, effect_start: dict | None = None) -> np.ndarray:
+        x = np.zeros(len(self.names))
+        x[_BASE_PER_CHANNEL * self.c] = np.radians(self.start.dip_deg)
+        x[_BASE_PER_CHANNEL * self.c + 1] = np.radians(self.start.azimuth_deg)
+        if effect_start:
+            i = _BASE_PER_CHANNEL * self.c + 2
+            for e in self.effects:
+                n = e.n_params(self.c)
+                if e.name in effect_start:
+                    x[i:i + n] = effect_start[e.name]
+                i += n
+        return x
+
+    def directions(self, x) -> tuple[np.ndarray, np.ndarray]:
+        """Unit directions and the un-normalised vectors, shape (c, 3)."""
+        per = x[: _BASE_PER_CHANNEL * self.c].reshape(self.c, _BASE_PER_CHANNEL)
+        n = self.start.directions + np.einsum("ck,ckj->cj", per[:, :2], self.basis)
+        return n / np.linalg.norm(n, axis=1, keepdims=True), n
+
+    def physics(self, x) -> BenchPhysics:
+        per = x[: _BASE_PER_CHANNEL * self.c].reshape(self.c, _BASE_PER_CHANNEL)
+        directions, _ = self.directions(x)
+        start = self.start
+        physics = BenchPhysics(
+            directions=directions,
+            offsets=start.offsets + per[:, 2] * start.gains,
+            gains=start.gains * np.exp(per[:, 3]),
+            dip_deg=float(np.degrees(x[_BASE_PER_CHANNEL * self.c])),
+            azimuth_deg=float(np.degrees(x[_BASE_PER_CHANNEL * self.c + 1])),
+            field_magnitude=start.field_magnitude,
+        )
+        i = _BASE_PER_CHANNEL * self.c + 2
+        for e in self.effects:
+            n = e.n_params(self.c)
+            physics = e.apply(physics, x[i:i + n], self.samples)
+            i += n
+        return physics
+
+
+def fit_ml(
+    samples: BenchSamples,
+    outputs: np.ndarray,
+    channels,
+    start: BenchPhysics,
+    noise: np.ndarray,
+    effects=(),
+    effect_start: dict | None = None,
+) -> MLFit:
+    """Fit the four-flip model with the given effects by weighted least squares.
+
+    Parameters
+    ----------
+    samples : BenchSamples
+    outputs : ndarray, shape (n, c)
+    channels : sequence of str
+    start : BenchPhysics
+        Starting point (directions, offsets, gains, dip, azimuth, field magnitude).
+    noise : ndarray, shape (c,)
+        Per-channel noise sigma used as weights (output units).
+    effects : sequence of Effect
+    effect_start : dict, optional
+        Starting values of effect blocks by name (zero otherwise).
+    """
+    weights = 1.0 / noise
+
+    def solve(layout: _Layout, x):
+        def residual(p):
+            return ((outputs - bench_outputs(layout.physics(p), samples)) * weights).ravel()
+
+        return least_squares(residual, x, method="lm", x_scale="jac")
+
+    first = _Layout(start, effects, samples, channels)
+    res = solve(first, first.x0(effect_start))
+    # re-anchor the tangent planes on the solution and polish there
+    layout = _Layout(_anchor(first, res.x), effects, samples, channels)
+    res = solve(layout, _reanchored(res.x, layout))
+    x = res.x
+    jac = res.jac
+    r = res.fun
+    dof = r.size - x.size
+    chi2 = float(r @ r)
+    cov, singular = _covariance(jac, layout.names)
+    cov *= chi2 / max(dof, 1)
+    physics = layout.physics(x)
+    dir_cov = _direction_covariance(layout, x, cov)
+    residuals = outputs - bench_outputs(physics, samples)
+    return MLFit(physics, layout.effects, layout.names, x, cov, dir_cov, residuals, chi2, dof, singular,
+                 bool(res.success), str(res.message))
+
+
+def _anchor(layout: _Layout, x) -> BenchPhysics:
+    """Starting point moved to the solution's base parameters (effects keep their values)."""
+    per = x[: _BASE_PER_CHANNEL * layout.c].reshape(layout.c, _BASE_PER_CHANNEL)
+    directions, _ = layout.directions(x)
+    s = layout.start
+    return BenchPhysics(directions, s.offsets + per[:, 2] * s.gains, s.gains * np.exp(per[:, 3]),
+                        s.dip_deg, s.azimuth_deg, s.field_magnitude)
+
+
+def _reanchored(x, layout: _Layout) -> np.ndarray:
+    y = x.copy()
+    y[: _BASE_PER_CHANNEL * layout.c] = 0.0
+    return y
+
+
+def _covariance(jac: np.ndarray, names) -> tuple[np.ndarray, list]:
+    """Pseudo-inverse of J^T J; NaN rows/columns for parameters in an undetermined direction."""
+    u, s, vt = np.linalg.svd(jac, full_matrices=False)
+    keep = s > _SINGULAR_RCOND * s[0]
+    inv = (vt[keep].T / s[keep] ** 2) @ vt[keep]
+    singular = []
+    for v in vt[~keep]:
+        involved = [names[i] for i in np.flatnonzero(np.abs(v) > 0.2)]
+        singular.append(" + ".join(involved) if involved else "a combination of parameters")
+        for i in np.flatnonzero(np.abs(v) > 0.2):
+            inv[i, :] = np.nan
+            inv[:, i] = np.nan
+    return inv, singular
+
+
+def _direction_covariance(layout: _Layout, x, cov) -> np.ndarray:
+    """Covariance of each unit direction from its (u, v) block."""
+    dirs, n = layout.directions(x)
+    out = np.empty((layout.c, 3, 3))
+    for c in range(layout.c):
+        norm = np.linalg.norm(n[c])
+        projector = (np.eye(3) - np.outer(dirs[c], dirs[c])) / norm
+        g = projector @ layout.basis[c].T  # (3, 2): d a / d (u, v)
+        block = cov[_BASE_PER_CHANNEL * c:_BASE_PER_CHANNEL * c + 2, _BASE_PER_CHANNEL * c:_BASE_PER_CHANNEL * c + 2]
+        out[c] = g @ block @ g.T
+    return out

@@ -1,0 +1,180 @@
+"""Effects the base four-flip model lacks, as explicit extensions of :class:`BenchPhysics`.
+
+Each effect owns a block of fit parameters (scaled to be of order one or smaller), knows how
+they change the physics, whether a recording can show it at all, and how to report its fitted
+values with units.  The base model is linear channels on an ideal bench.
+
+Identifiability notes (what the bench cannot see):
+
+- ``flip_error``: flip 0 defines the housing frame, so only flips 90, 180 and 270 have errors;
+  a fixed tilt of the turntable axis turns the field the same way at every flip and is absorbed
+  by the dip (and field azimuth): it never shows in the residual.  Only an external reference
+  (IGRF/WMM dip at the site) reveals it.
+- ``platform_field``: its vertical component adds to the Earth's vertical field at every angle
+  and flip, so it is absorbed by the dip and the gains; only the horizontal part is fitted.
+- ``encoder_error``: a constant encoder offset is the field azimuth; harmonics 1..3 are fitted.
+- ``offset_drift`` and ``temperature`` are confounded when the temperature only rises with time;
+  the evidence then favours whichever fits better, and the report says both were candidates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from compass.sim.bench import BenchPhysics, BenchSamples
+
+__all__ = ["Effect", "EFFECTS", "effect_by_name"]
+
+ENCODER_HARMONICS = 3
+DRIFT_DEGREE = 3
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One model extension: its name (SPEC section 4 vocabulary) and parameter block."""
+
+    name: str
+    description: str
+
+    def applicable(self, samples: BenchSamples) -> str | None:
+        """None when the recording can show this effect, else the reason it cannot."""
+        return None
+
+    def n_params(self, n_channels: int) -> int:
+        raise NotImplementedError
+
+    def param_names(self, channels) -> list[str]:
+        raise NotImplementedError
+
+    def apply(self, physics: BenchPhysics, p: np.ndarray, samples: BenchSamples) -> BenchPhysics:
+        raise NotImplementedError
+
+    def report_scale(self, physics: BenchPhysics) -> np.ndarray | float:
+        """Factor from fit parameters to the reported values (units in ``param_names``)."""
+        return 1.0
+
+
+class NonlinearResponse(Effect):
+    def n_params(self, c):
+        return c
+
+    def param_names(self, channels):
+        return [f"{ch}.cubic_rel_per_B2" for ch in channels]
+
+    def apply(self, physics, p, samples):
+        # parameter = c3 |B|^2: relative output change at full field, scale-free
+        return physics.with_(cubic=p / physics.field_magnitude**2)
+
+
+class EncoderError(Effect):
+    def n_params(self, c):
+        return 2 * ENCODER_HARMONICS
+
+    def param_names(self, channels):
+        return [f"encoder.{kind}{k}_deg" for k in range(1, ENCODER_HARMONICS + 1) for kind in ("cos", "sin")]
+
+    def apply(self, physics, p, samples):
+        return physics.with_(encoder_fourier=np.degrees(p.reshape(ENCODER_HARMONICS, 2)))
+
+    def report_scale(self, physics):
+        return np.degrees(1.0)
+
+
+class FlipError(Effect):
+    def n_params(self, c):
+        return 3
+
+    def param_names(self, channels):
+        return ["flip90.error_deg", "flip180.error_deg", "flip270.error_deg"]
+
+    def apply(self, physics, p, samples):
+        return physics.with_(flip_errors_deg=np.degrees(np.concatenate([[0.0], p])))
+
+    def report_scale(self, physics):
+        return np.degrees(1.0)
+
+
+class PlatformField(Effect):
+    def n_params(self, c):
+        return 2
+
+    def param_names(self, channels):
+        return ["platform_field.x_fieldunit", "platform_field.y_fieldunit"]
+
+    def apply(self, physics, p, samples):
+        return physics.with_(platform_field=np.array([p[0], p[1], 0.0]) * physics.field_magnitude)
+
+    def report_scale(self, physics):
+        return physics.field_magnitude
+
+
+class OffsetDrift(Effect):
+    def applicable(self, samples):
+        if samples.t_s is None:
+            return "the recording has no t_s column"
+        if np.ptp(samples.t_s) <= 0:
+            return "t_s never changes"
+        return None
+
+    def n_params(self, c):
+        return DRIFT_DEGREE * c
+
+    def param_names(self, channels):
+        return [f"{ch}.drift_t{k}_fieldunit" for ch in channels for k in range(1, DRIFT_DEGREE + 1)]
+
+    def apply(self, physics, p, samples):
+        t0 = 0.5 * (samples.t_s.min() + samples.t_s.max())
+        half = 0.5 * np.ptp(samples.t_s)
+        drift = p.reshape(-1, DRIFT_DEGREE) * physics.gains[:, None]
+        return physics.with_(drift=drift, drift_t0=t0, drift_scale_s=half)
+
+    def report_scale(self, physics):
+        return 1.0
+
+
+class Temperature(Effect):
+    def applicable(self, samples):
+        if samples.temp_c is None:
+            return "the recording has no temp_c column"
+        if np.ptp(samples.temp_c) < 0.5:
+            return "temp_c varies by less than 0.5 degC"
+        return None
+
+    def n_params(self, c):
+        return 2 * c
+
+    def param_names(self, channels):
+        return [f"{ch}.{kind}" for ch in channels for kind in ("offset_fieldunit_per_degc", "gain_rel_per_degc")]
+
+    def apply(self, physics, p, samples):
+        p = p.reshape(-1, 2)
+        return physics.with_(
+            temp_offset=p[:, 0] * physics.gains,
+            temp_gain=p[:, 1] / 100.0,
+            temp_ref_c=float(np.mean(samples.temp_c)),
+        )
+
+    def report_scale(self, physics):
+        return np.tile([1.0, 0.01], len(physics.gains))
+
+
+EFFECTS: dict[str, Effect] = {
+    e.name: e
+    for e in (
+        NonlinearResponse("nonlinear_response", "output not linear in B.a: odd cubic term per channel"),
+        EncoderError("encoder_error", f"turntable reading error: Fourier series, harmonics 1..{ENCODER_HARMONICS}"),
+        OffsetDrift("offset_drift", f"offsets drift with time: polynomial of degree {DRIFT_DEGREE} in t_s"),
+        PlatformField("platform_field", "constant field fixed to the turntable (horizontal part)"),
+        FlipError("flip_error", "real flip angles of 90/180/270 differ from the recorded ones"),
+        Temperature("temperature", "offset and gain linear in temp_c"),
+    )
+}
+
+
+def effect_by_name(name: str) -> Effect:
+    try:
+        return EFFECTS[name]
+    except KeyError:
+        raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECTS)}") from None

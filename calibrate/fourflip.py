@@ -1,0 +1,273 @@
+"""Four-flip calibration of single-axis magnetic channels (seed 000).
+
+Three estimators, one result type:
+
+- ``patent``: the seed as written.  Output minima are the lowest samples; theta, gamma,
+  elevation, psi by claims 3-4; the dip from the first midpoint crossing after the flip-0
+  minimum (claim 5); the response as the tabulated ``f(beta)`` (claims 6-7).  Two corrections
+  of the text: the seed's ``beta`` drops a sign (its ``cos(beta)`` is ``-B.a/|B|``), and the
+  midpoint value it assumes known is estimated from the 0/180 flip means.  For a channel whose
+  flip-0 curve is flat (near Z) the table is taken from the flip with the largest swing.
+- ``harmonic``: the same formulas with each minimum and crossing located by a least-squares
+  first-harmonic fit of the whole turn.
+- ``ml`` (default): the joint maximum-likelihood fit of :mod:`calibrate._mlfit`, started from
+  the singularity-free vector combination of the harmonics, with standard errors.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import isotonic_regression
+
+from compass.frames import seed_angles
+from compass.io.fourflip import FourFlipRecording
+from compass.response import LinearResponse, TableResponse
+from compass.sim.bench import BenchPhysics, BenchSamples
+
+from . import _harmonic as hm
+from ._mlfit import MLFit, fit_ml
+from .noise import noise_floor
+from .result import CalibrationResult, ChannelCalibration
+
+__all__ = ["METHODS", "calibrate_fourflip", "physics_from_harmonics", "result_from_ml"]
+
+METHODS = ("ml", "harmonic", "patent")
+_TABLE_BINS = 36
+_POORLY_DETERMINED_DEG = 1.0
+
+
+def calibrate_fourflip(
+    rec: FourFlipRecording, *, method: str = "ml", field_ut: float | None = None, dip_sign: float | None = None
+) -> CalibrationResult:
+    """Calibrate every channel of a four-flip recording.
+
+    Parameters
+    ----------
+    rec : FourFlipRecording
+    method : {"ml", "harmonic", "patent"}
+    field_ut : float, optional
+        |B| in microtesla; defaults to the recording's ``field_ut`` metadata.  Without it gains
+        are per |B|.
+    dip_sign : {+1, -1}, optional
+        The data cannot tell the field's sign from the channels' (``(a, B)`` and ``(-a, -B)``
+        give the same outputs); +1 (field points down, northern hemisphere) unless the
+        metadata's ``site_lat_deg`` is negative.
+    """
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+    field_ut = field_ut if field_ut is not None else rec.field_ut
+    if dip_sign is None:
+        lat = rec.metadata.get("site_lat_deg")
+        dip_sign = -1.0 if lat is not None and _float_or_none(lat) is not None and float(lat) < 0 else 1.0
+    samples = BenchSamples.from_recording(rec)
+    noise = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs)
+    noise = np.where(noise > 0, noise, np.std(rec.outputs, axis=0) * 1e-3)
+    if method == "patent":
+        return _seed_rule(rec, samples, noise, field_ut, dip_sign, from_samples=True)
+    if method == "harmonic":
+        return _seed_rule(rec, samples, noise, field_ut, dip_sign, from_samples=False)
+    start = physics_from_harmonics(rec, field_ut, dip_sign)
+    fit = fit_ml(samples, rec.outputs, rec.channels, start, noise)
+    return result_from_ml(fit, rec, noise, field_ut)
+
+
+def _float_or_none(s):
+    try:
+        return float(s)
+    except (TypeError, ValueError):
+        return None
+
+
+def physics_from_harmonics(rec: FourFlipRecording, field_ut, dip_sign) -> BenchPhysics:
+    """Starting point of the joint fit: the vector combination of the four flips' harmonics."""
+    h = hm.fit_harmonics(rec.platform_deg, rec.flip_index, rec.outputs)
+    v = hm.vector_harmonic(h, field_ut or 1.0, dip_sign)
+    return BenchPhysics(v.directions, v.offsets, v.gains, v.dip_deg, v.azimuth_deg, field_ut or 1.0)
+
+
+def result_from_ml(fit: MLFit, rec: FourFlipRecording, noise, field_ut, *, effects=(), diagnosis=None,
+                   extra_warnings=()) -> CalibrationResult:
+    """Package a joint fit as a CalibrationResult (directions, responses, sigmas, warnings)."""
+    phys = fit.physics
+    sigma = fit.sigma
+    per = 4
+    channels = []
+    x_range = _field_range(fit)
+    for c, name in enumerate(rec.channels):
+        off_sigma = float(sigma[per * c + 2] * phys.gains[c]) if np.isfinite(sigma[per * c + 2]) else None
+        gain_sigma = float(sigma[per * c + 3] * phys.gains[c]) if np.isfinite(sigma[per * c + 3]) else None
+        response = _response_from_physics(phys, c, x_range[c])
+        channels.append(ChannelCalibration(name, phys.directions[c], fit.direction_covariance[c], response,
+                                           off_sigma, gain_sigma))
+    dip_index = per * len(rec.channels)
+    dip_sigma = float(np.degrees(sigma[dip_index])) if np.isfinite(sigma[dip_index]) else None
+    warnings = list(extra_warnings)
+    for combo in fit.singular:
+        warnings.append(f"singular covariance: the data cannot separate {combo}"
+                        + (" (no channel ever left the horizontal plane: dip and gain are one number)"
+                           if "dip_rad" in combo else ""))
+    if dip_sigma is not None and dip_sigma > _POORLY_DETERMINED_DEG:
+        warnings.append(f"the dip is poorly determined (+- {dip_sigma:.2g} deg): no channel has much component "
+                        "along housing Y or Z, so dip and gain are nearly one number; calibrate a tilted channel "
+                        "with it or give the gain")
+    if not fit.success:
+        warnings.append(f"the fit did not converge: {fit.message}")
+    parameters = {n: (float(v), float(s)) for n, v, s in zip(fit.names, fit.x, sigma)}
+    return CalibrationResult(
+        method="ml",
+        channels=tuple(channels),
+        dip_deg=phys.dip_deg,
+        dip_sigma_deg=dip_sigma,
+        azimuth_deg=float(np.mod(phys.azimuth_deg, 360.0)),
+        field_ut=field_ut,
+        noise=noise,
+        residuals=fit.residuals,
+        parameters=parameters,
+        effects=tuple(effects),
+        warnings=tuple(warnings),
+        diagnosis=diagnosis,
+        chi2=fit.chi2,
+        dof=fit.dof,
+    )
+
+
+def _field_range(fit: MLFit) -> np.ndarray:
+    """Field components each channel saw, (c, 2) in field units: the calibrated range."""
+    b = fit.physics.field_magnitude
+    return np.tile([-b, b], (len(fit.physics.gains), 1))
+
+
+def _response_from_physics(phys: BenchPhysics, c: int, x_range) -> LinearResponse:
+    from compass.response import CubicResponse
+
+    if phys.cubic is not None:
+        return CubicResponse(float(phys.offsets[c]), float(phys.gains[c]), tuple(x_range), cubic=float(phys.cubic[c]))
+    return LinearResponse(float(phys.offsets[c]), float(phys.gains[c]), tuple(x_range))
+
+
+# ----------------------------------------------------------------------------- seed rule
+
+
+def _seed_rule(rec, samples, noise, field_ut, dip_sign, *, from_samples: bool) -> CalibrationResult:
+    """Seed 000's closed-form rule with minima from samples (patent) or harmonic fits."""
+    b = field_ut or 1.0
+    h = hm.fit_harmonics(rec.platform_deg, rec.flip_index, rec.outputs)
+    if from_samples:
+        minima = hm.sample_minima(rec.platform_deg, rec.flip_index, rec.outputs)
+        means = np.array([rec.outputs[rec.flip_index == k].mean(axis=0) for k in range(4)])
+    else:
+        minima, means = h.minimum_deg, h.mean
+    angles = hm.seed_direction(minima)
+    directions = angles["direction"]
+    midpoint = 0.5 * (means[0] + means[2])  # zero-field output from the 0/180 pair
+    if from_samples:
+        crossing = np.array([_first_crossing(rec, c, minima[0, c], midpoint[c]) for c in range(len(rec.channels))])
+    else:
+        ratio = (h.mean[0] - midpoint) / np.maximum(h.amplitude[0], 1e-300)
+        # |ratio| > 1: the flip-0 curve never reaches the midpoint (tan(dip) tan(elevation) > 1)
+        crossing = np.degrees(np.arccos(np.where(np.abs(ratio) <= 1.0, ratio, np.nan)))
+    dips = hm.seed_dip(angles["elevation_deg"], crossing)
+    conditioning = np.abs(np.sin(2 * np.radians(angles["elevation_deg"])))
+    warnings = [f"channel {name}: its flip-0 output never crosses the midpoint value, so the seed's dip rule "
+                "cannot use it" for name, d in zip(rec.channels, dips) if not np.isfinite(d)]
+    if not np.any(np.isfinite(dips)):
+        raise ValueError("the seed's dip rule has no channel whose flip-0 output crosses its midpoint value; "
+                         "use --method ml")
+    best = int(np.argmax(np.where(np.isfinite(dips), conditioning, -1.0)))
+    dip = float(dips[best])
+    dip = dip if np.sign(dip) == np.sign(dip_sign) or dip == 0 else -dip
+    if conditioning[best] < np.sin(np.radians(20.0)):
+        warnings.append(
+            f"the seed's dip formula is ill-conditioned: every channel is within 10 deg of horizontal or vertical "
+            f"(best: {rec.channels[best]}, elevation {angles['elevation_deg'][best]:.1f} deg)"
+        )
+    channels = []
+    for c, name in enumerate(rec.channels):
+        if from_samples:
+            response = _seed_table(rec, c, directions[c], minima[:, c], dip, b, midpoint[c])
+        else:
+            response = _harmonic_linear(h, c, directions[c], dip, b, midpoint[c])
+        channels.append(ChannelCalibration(name, directions[c], None, response))
+    physics = BenchPhysics(directions, np.array([ch.response.offset for ch in channels]),
+                           np.array([ch.response.gain for ch in channels]), dip, _seed_azimuth(minima, angles), b)
+    from compass.sim.bench import bench_outputs
+
+    residuals = rec.outputs - bench_outputs(physics, samples)
+    extra = {"seed_rule": {"minima_deg": minima.T.tolist(), "dip_per_channel_deg": dips.tolist(),
+                           "dip_from_channel": rec.channels[best], "midpoint_value": midpoint.tolist()}}
+    return CalibrationResult(
+        method="patent" if from_samples else "harmonic",
+        channels=tuple(channels),
+        dip_deg=dip,
+        dip_sigma_deg=None,
+        azimuth_deg=physics.azimuth_deg,
+        field_ut=field_ut,
+        noise=noise,
+        residuals=residuals,
+        warnings=tuple(warnings),
+        extra=extra,
+    )
+
+
+def _seed_azimuth(minima, angles) -> float:
+    """Field azimuth implied by the flip-0 minimum of the best-resolved channel."""
+    c = int(np.argmax(np.cos(np.radians(angles["elevation_deg"]))))
+    return float(np.mod(minima[0, c] - 180.0 + angles["theta_deg"][c], 360.0))
+
+
+def _first_crossing(rec, c, phi_min, midpoint) -> float:
+    """Turntable angle past the flip-0 minimum (counterclockwise) where the output first
+    reaches the midpoint value, from the samples with linear interpolation; degrees."""
+    mask = rec.flip_index == 0
+    rel = np.mod(rec.platform_deg[mask] - phi_min, 360.0)
+    order = np.argsort(rel)
+    rel, v = rel[order], rec.outputs[mask, c][order]
+    above = np.flatnonzero(v >= midpoint)
+    if above.size == 0 or above[0] == 0:
+        return np.nan
+    i = above[0]
+    frac = (midpoint - v[i - 1]) / (v[i] - v[i - 1])
+    return float(rel[i - 1] + frac * (rel[i] - rel[i - 1]))
+
+
+def _flip_elevation(direction, k) -> float:
+    """Elevation (radians) of the direction in flip k (cube turned by k x 90 deg about X)."""
+    kappa = np.radians(90.0 * k)
+    z = np.sin(kappa) * direction[1] + np.cos(kappa) * direction[2]
+    return float(np.arcsin(np.clip(z, -1.0, 1.0)))
+
+
+def _seed_table(rec, c, direction, minima, dip, b, midpoint) -> TableResponse:
+    """Seed 000's tabulated f(beta) (claims 6-7, sign corrected), from the flip with the largest
+    output swing (flip 0 in the seed), made monotone by isotonic regression."""
+    swings = [np.ptp(rec.outputs[rec.flip_index == k, c]) for k in range(4)]
+    k = int(np.argmax(swings)) if swings[0] < 0.5 * max(swings) else 0
+    mask = rec.flip_index == k
+    el = _flip_elevation(direction, k)
+    alpha = np.radians(dip)
+    cos_angle = np.cos(alpha) * np.cos(el) * np.cos(np.radians(rec.platform_deg[mask] - minima[k])) + np.sin(alpha) * np.sin(el)
+    x = -b * cos_angle  # B . a: the seed's beta is measured from -B
+    v = rec.outputs[mask, c]
+    edges = np.linspace(x.min(), x.max(), _TABLE_BINS + 1)
+    which = np.clip(np.digitize(x, edges) - 1, 0, _TABLE_BINS - 1)
+    filled = [i for i in range(_TABLE_BINS) if np.any(which == i)]
+    xt = np.array([x[which == i].mean() for i in filled])
+    vt = np.array([v[which == i].mean() for i in filled])
+    vt = isotonic_regression(vt).x
+    vt = vt + np.linspace(0.0, 1e-9 * max(np.ptp(vt), 1e-12), len(vt))  # strictly increasing for the inverse
+    slope, intercept = np.polyfit(xt, vt, 1)
+    gain = slope if slope > 0 else np.ptp(vt) / max(np.ptp(xt), 1e-12)
+    return TableResponse(float(midpoint), float(gain), (float(xt[0]), float(xt[-1])), x_table=tuple(xt), v_table=tuple(vt))
+
+
+def _harmonic_linear(h, c, direction, dip, b, midpoint) -> LinearResponse:
+    """Linear response from the four amplitudes: ``A_k = K |B| cos(dip) h_k``."""
+    horizontal = np.array([np.cos(_flip_elevation(direction, k)) for k in range(4)])
+    amp = h.amplitude[:, c]
+    gain = np.sqrt(np.sum(amp**2) / np.sum(horizontal**2)) / (b * np.cos(np.radians(dip)))
+    return LinearResponse(float(midpoint), float(gain), (-b, b))
+
+
+def seed_angle_table(result: CalibrationResult) -> dict:
+    """theta, gamma, elevation, psi of every channel, degrees (for reports and tests)."""
+    return {ch.name: seed_angles(ch.direction) for ch in result.channels}

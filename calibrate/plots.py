@@ -1,0 +1,89 @@
+"""Report plots for a person: fitted curves and residuals (matplotlib, Agg backend, no display)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+__all__ = ["plot_fit", "plot_residuals"]
+
+_FLIPS = ("flip 0", "flip 90", "flip 180", "flip 270")
+
+
+def plot_fit(rec, result, path) -> Path:
+    """Measured and fitted output against turntable angle, one panel per channel and flip."""
+    c = len(rec.channels)
+    fig, axes = plt.subplots(c, 4, figsize=(14, 2.6 * c), sharex=True, squeeze=False)
+    fitted = rec.outputs - result.residuals
+    for j, name in enumerate(rec.channels):
+        for k in range(4):
+            ax = axes[j, k]
+            m = rec.flip_index == k
+            order = np.argsort(np.mod(rec.platform_deg[m], 360.0))
+            phi = np.mod(rec.platform_deg[m], 360.0)[order]
+            ax.plot(phi, rec.outputs[m, j][order], ".", ms=2, color="0.5", label="measured")
+            ax.plot(phi, fitted[m, j][order], "-", lw=1.2, color="C0", label=f"fit ({result.method})")
+            if j == 0:
+                ax.set_title(_FLIPS[k])
+            if k == 0:
+                ax.set_ylabel(f"{name} output")
+            if j == c - 1:
+                ax.set_xlabel("turntable angle (deg)")
+    axes[0, 0].legend(loc="best", fontsize=7)
+    fig.suptitle(f"Four-flip calibration: measured and fitted output ({rec.path})", fontsize=10)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plot_residuals(rec, residual_sets: dict, path, noise=None) -> Path:
+    """Residuals against turntable angle (per flip, per channel) and against time.
+
+    Parameters
+    ----------
+    residual_sets : dict of str to ndarray (n, c)
+        Label -> residuals, e.g. {"before": r0, "after": r1}.
+    noise : ndarray (c,), optional
+        Noise floor, drawn as +-1 sigma bands.
+    """
+    c = len(rec.channels)
+    has_time = rec.t_s is not None
+    cols = 5 if has_time else 4
+    fig, axes = plt.subplots(c, cols, figsize=(3.2 * cols, 2.4 * c), squeeze=False)
+    for j, name in enumerate(rec.channels):
+        for k in range(4):
+            ax = axes[j, k]
+            m = rec.flip_index == k
+            order = np.argsort(np.mod(rec.platform_deg[m], 360.0))
+            for i, (label, r) in enumerate(residual_sets.items()):
+                ax.plot(np.mod(rec.platform_deg[m], 360.0)[order], r[m, j][order], ".", ms=1.5,
+                        color=f"C{i}", label=label, alpha=0.7)
+            if noise is not None:
+                ax.axhspan(-noise[j], noise[j], color="0.85", zorder=0)
+            if j == 0:
+                ax.set_title(_FLIPS[k])
+            if k == 0:
+                ax.set_ylabel(f"{name} residual")
+        if has_time:
+            ax = axes[j, 4]
+            for i, (label, r) in enumerate(residual_sets.items()):
+                ax.plot(rec.t_s, r[:, j], ".", ms=1.5, color=f"C{i}", alpha=0.7)
+            if j == 0:
+                ax.set_title("against time")
+            ax.set_xlabel("t (s)")
+    axes[0, 0].legend(loc="best", fontsize=7, markerscale=4)
+    fig.suptitle("Residuals (grey band: noise floor +-1 sigma)", fontsize=10)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _save(fig, path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

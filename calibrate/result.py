@@ -1,0 +1,201 @@
+"""CalibrationResult: what a four-flip calibration found, with its statistics and report."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from compass.frames import seed_angles
+from compass.response import Response
+
+__all__ = ["ChannelCalibration", "CalibrationResult", "FORMAT"]
+
+FORMAT = "compass-calibration/1"
+_ANGLE_KEYS = ("theta_deg", "gamma_deg", "elevation_deg", "psi_deg")
+
+
+@dataclass(frozen=True)
+class ChannelCalibration:
+    """One channel: sensing direction in H, seed angles, response curve.
+
+    Attributes
+    ----------
+    name : str
+    direction : ndarray, shape (3,)
+        Unit sensing direction in the housing frame H.
+    direction_covariance : ndarray, shape (3, 3), or None
+        None when the method gives no uncertainty (``patent``, ``harmonic``).
+    response : Response
+    offset_sigma, gain_sigma : float or None
+        Standard errors, output units and output units per field unit.
+    """
+
+    name: str
+    direction: np.ndarray
+    direction_covariance: np.ndarray | None
+    response: Response
+    offset_sigma: float | None = None
+    gain_sigma: float | None = None
+
+    @property
+    def direction_sigma_deg(self) -> float | None:
+        if self.direction_covariance is None:
+            return None
+        return float(np.degrees(np.sqrt(np.trace(self.direction_covariance))))
+
+    @property
+    def angles_deg(self) -> dict[str, float]:
+        return {k: float(v) for k, v in seed_angles(self.direction).items()}
+
+    @property
+    def angles_sigma_deg(self) -> dict[str, float] | None:
+        """Propagated sigma of theta, gamma, elevation, psi (large where the angle is singular)."""
+        if self.direction_covariance is None or not np.all(np.isfinite(self.direction_covariance)):
+            return None
+        step = 1e-7
+        base = np.array([seed_angles(self.direction)[k] for k in _ANGLE_KEYS])
+        jac = np.empty((4, 3))
+        for j in range(3):
+            d = self.direction.copy()
+            d[j] += step
+            moved = np.array([seed_angles(d)[k] for k in _ANGLE_KEYS])
+            jac[:, j] = (np.mod(moved - base + 180.0, 360.0) - 180.0) / step
+        var = np.einsum("ij,jk,ik->i", jac, self.direction_covariance, jac)
+        return dict(zip(_ANGLE_KEYS, np.sqrt(np.maximum(var, 0.0)).tolist()))
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    """A four-flip calibration.
+
+    Attributes
+    ----------
+    method : str
+        ``patent``, ``harmonic`` or ``ml``.
+    channels : tuple of ChannelCalibration
+    dip_deg, dip_sigma_deg : float, float or None
+    azimuth_deg : float
+        Field azimuth from the turntable zero (nuisance parameter).
+    field_ut : float or None
+        |B| when known; gains are then per microtesla, otherwise per |B|.
+    noise : ndarray, shape (c,)
+        Noise floor per channel estimated from the data, output units.
+    residuals : ndarray, shape (n, c)
+        Measured minus predicted output.
+    parameters : dict
+        Name -> (value, sigma) of every fitted parameter (ml only).
+    effects : tuple of dict
+        ``{"name", "parameters"}`` of effects in the model (SPEC section 4).
+    warnings : tuple of str
+        Plain-words problems a person should read.
+    diagnosis : dict or None
+        The residual diagnosis block (SPEC section 4).
+    chi2, dof : float, int
+    extra : dict
+        Method-specific items written under new keys (e.g. the seed's raw minima).
+    """
+
+    method: str
+    channels: tuple
+    dip_deg: float
+    dip_sigma_deg: float | None
+    azimuth_deg: float
+    field_ut: float | None
+    noise: np.ndarray
+    residuals: np.ndarray
+    parameters: dict = field(default_factory=dict)
+    effects: tuple = ()
+    warnings: tuple = ()
+    diagnosis: dict | None = None
+    chi2: float = float("nan")
+    dof: int = 0
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def residual_rms(self) -> np.ndarray:
+        """Per channel, output units."""
+        return np.sqrt(np.mean(self.residuals**2, axis=0))
+
+    @property
+    def reduced_chi2(self) -> float:
+        return self.chi2 / max(self.dof, 1)
+
+    @property
+    def directions(self) -> np.ndarray:
+        return np.array([c.direction for c in self.channels])
+
+    @property
+    def field_unit(self) -> str:
+        return "uT" if self.field_ut else "|B|"
+
+    def to_json(self) -> dict:
+        """The calibration file of SPEC section 2, as a JSON-ready dictionary."""
+        channels = {}
+        for ch in self.channels:
+            entry = {
+                "direction": [float(v) for v in ch.direction],
+                "direction_sigma_deg": ch.direction_sigma_deg,
+                **ch.angles_deg,
+                "response": ch.response.to_json(),
+            }
+            sig = ch.angles_sigma_deg
+            if sig:
+                entry["angles_sigma_deg"] = sig
+            if ch.direction_covariance is not None:
+                entry["direction_covariance"] = np.asarray(ch.direction_covariance).tolist()
+            if ch.offset_sigma is not None:
+                entry["response_sigma"] = {"offset": ch.offset_sigma, "gain": ch.gain_sigma}
+            channels[ch.name] = entry
+        out = {
+            "format": FORMAT,
+            "channels": channels,
+            "dip_deg": float(self.dip_deg),
+            "dip_sigma_deg": self.dip_sigma_deg,
+            "field_ut": self.field_ut,
+            "effects": list(self.effects),
+            "diagnosis": self.diagnosis,
+            "method": self.method,
+            "field_azimuth_deg": float(self.azimuth_deg),
+            "noise_floor": [float(v) for v in self.noise],
+            "residual_rms": [float(v) for v in self.residual_rms],
+            "warnings": list(self.warnings),
+        }
+        out.update(self.extra)
+        return out
+
+    def report(self) -> str:
+        """A fit report for a person: values with +- sigma, warnings in words."""
+        unit = self.field_unit
+        lines = [f"Four-flip calibration, method {self.method}"]
+        dip_sigma = f" +- {self.dip_sigma_deg:.3f}" if self.dip_sigma_deg is not None and np.isfinite(self.dip_sigma_deg) else ""
+        lines.append(f"  dip {self.dip_deg:.3f}{dip_sigma} deg   field azimuth from turntable zero {self.azimuth_deg:.2f} deg")
+        lines.append(f"  field |B| {self.field_ut:g} uT (gains per uT)" if self.field_ut else
+                     "  field |B| unknown (gains per |B|; give --field-ut or '# field_ut:' to get per uT)")
+        for ch, rms, noise in zip(self.channels, self.residual_rms, self.noise):
+            a = ch.direction
+            lines.append(f"  channel {ch.name}: direction ({a[0]:+.5f}, {a[1]:+.5f}, {a[2]:+.5f})"
+                         + (f" +- {ch.direction_sigma_deg:.4f} deg" if ch.direction_sigma_deg is not None else
+                            "  (no uncertainty: the seed's rule gives none)"))
+            sig = ch.angles_sigma_deg or {}
+            parts = []
+            for key in _ANGLE_KEYS:
+                text = f"{key[:-4]} {ch.angles_deg[key]:+.3f}"
+                s = sig.get(key)
+                if s is not None:
+                    text += f" +- {s:.3f}" if s < 5.0 else " (undefined here)"
+                parts.append(text)
+            lines.append("      " + ", ".join(parts) + " deg")
+            r = ch.response
+            off = f" +- {ch.offset_sigma:.3g}" if ch.offset_sigma is not None else ""
+            gain = f" +- {ch.gain_sigma:.3g}" if ch.gain_sigma is not None else ""
+            lines.append(f"      response {r.model}: offset {r.offset:.6g}{off}, gain {r.gain:.6g}{gain} per {unit}"
+                         f"; residual rms {rms:.3g} (noise floor {noise:.3g})")
+        if self.dof:
+            lines.append(f"  chi2/dof {self.reduced_chi2:.3f} ({self.dof} dof)")
+        for name, (value, sigma) in self.parameters.items():
+            if not name.startswith(tuple(c.name + "." for c in self.channels)) and name not in ("dip_rad", "azimuth_rad"):
+                lines.append(f"  {name} = {value:.4g} +- {sigma:.2g}")
+        for w in self.warnings:
+            lines.append(f"  warning: {w}")
+        return "\n".join(lines)

@@ -1,0 +1,70 @@
+"""``compass calibrate REC.csv --out CAL.json``: fit, diagnose, write the calibration file."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ..io.atomic import atomic_write_text, check_writable
+from ..io.fourflip import fourflip_from_table
+from ..io.table import read_table
+
+
+def register(sub) -> None:
+    p = sub.add_parser("calibrate", help="calibrate from a recording and write a calibration file")
+    p.add_argument("recording", help="recording CSV (four-flip: has flip_deg)")
+    p.add_argument("--out", required=True, help="calibration JSON to write")
+    p.add_argument("--method", choices=("ml", "harmonic", "patent"), default="ml",
+                   help="ml: joint maximum likelihood (default); harmonic: seed formulas on harmonic fits; "
+                        "patent: the seed exactly (lowest samples)")
+    p.add_argument("--no-diagnose", action="store_true", help="skip the residual diagnosis loop")
+    p.add_argument("--report", metavar="DIR", help="also write plots of fit and residuals into DIR")
+    p.add_argument("--field-ut", type=float, default=None, help="|B| in uT (overrides '# field_ut:' metadata)")
+    p.add_argument("--kind", choices=("fourflip",), default=None, help="force the recording kind")
+    p.add_argument("--force", action="store_true", help="overwrite an existing calibration file")
+    p.add_argument("--quiet", action="store_true", help="do not print the fit report")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    calibrate_file(args.recording, args.out, method=args.method, diagnose=not args.no_diagnose,
+                   report=args.report, field_ut=args.field_ut, kind=args.kind, force=args.force, quiet=args.quiet)
+    return 0
+
+
+def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, field_ut=None, kind=None,
+                   force=False, quiet=False):
+    """Calibrate one recording file into a calibration file; returns the CalibrationResult.
+
+    Raises
+    ------
+    RecordingError, BadInput, FileExistsError
+        Bad input (exit status 2 on the command line).
+    """
+    from ..cli import BadInput
+
+    out = check_writable(out, force)
+    table = read_table(recording)
+    kind = kind or ("fourflip" if table.has("flip_deg") else None)
+    if kind is None:
+        raise BadInput(f"{recording}: cannot tell the recording kind from its columns "
+                       f"({', '.join(table.columns)}); a four-flip recording has flip_deg")
+    rec = fourflip_from_table(table)
+    if field_ut is not None and not field_ut > 0:
+        raise BadInput(f"--field-ut must be positive, got {field_ut}")
+
+    from calibrate import calibrate_fourflip
+
+    result = calibrate_fourflip(rec, method=method, field_ut=field_ut)
+    if not quiet:
+        print(result.report())
+    atomic_write_text(out, json.dumps(result.to_json(), indent=2) + "\n")
+    print(f"wrote {out}")
+    if report:
+        from calibrate.plots import plot_fit, plot_residuals
+
+        folder = Path(report)
+        paths = [plot_fit(rec, result, folder / "fit.png"),
+                 plot_residuals(rec, {result.method: result.residuals}, folder / "residuals.png", result.noise)]
+        print("wrote " + ", ".join(str(p) for p in paths))
+    return result

@@ -1,0 +1,155 @@
+"""The four-flip recording of SPEC section 2 (seed 000's bench session)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .table import RecordingError, Table, read_table
+
+__all__ = ["FourFlipRecording", "read_fourflip", "NOMINAL_FLIPS_DEG", "RESERVED_COLUMNS"]
+
+NOMINAL_FLIPS_DEG = (0.0, 90.0, 180.0, 270.0)
+FLIP_TOLERANCE_DEG = 10.0
+"""How far a recorded flip may be from its nominal value."""
+MAX_GAP_DEG = 90.0
+"""Largest turntable gap in one flip that still locates the output minimum."""
+MIN_SAMPLES_PER_FLIP = 8
+RESERVED_COLUMNS = ("flip_deg", "platform_deg", "t_s", "temp_c", "ax", "ay", "az", "gx", "gy", "gz")
+
+
+@dataclass(frozen=True)
+class FourFlipRecording:
+    """A validated four-flip recording.
+
+    Attributes
+    ----------
+    flip_deg : ndarray, shape (n,)
+        Recorded flip angle kappa, degrees (as recorded, near 0/90/180/270).
+    flip_index : ndarray of int, shape (n,)
+        0..3 for the nominal flips 0, 90, 180, 270.
+    platform_deg : ndarray, shape (n,)
+        Turntable reading phi, degrees.
+    outputs : ndarray, shape (n, n_channels)
+        Magnetic channel outputs, any unit.
+    channels : tuple of str
+    t_s, temp_c : ndarray, shape (n,), or None
+    accel : ndarray, shape (n, 3), or None
+        Accelerometer in the housing, if recorded (not used by the magnetic fit).
+    metadata : dict
+    path : str
+    """
+
+    flip_deg: np.ndarray
+    flip_index: np.ndarray
+    platform_deg: np.ndarray
+    outputs: np.ndarray
+    channels: tuple[str, ...]
+    t_s: np.ndarray | None
+    temp_c: np.ndarray | None
+    accel: np.ndarray | None
+    metadata: dict
+    path: str = "<memory>"
+
+    @property
+    def n_samples(self) -> int:
+        return self.outputs.shape[0]
+
+    @property
+    def field_ut(self) -> float | None:
+        value = self.metadata.get("field_ut")
+        try:
+            return float(value) if value is not None else None
+        except ValueError:
+            return None
+
+
+def read_fourflip(path) -> FourFlipRecording:
+    """Read and validate a four-flip recording CSV.
+
+    Raises
+    ------
+    RecordingError
+        Any problem, naming file, row and column: missing ``flip_deg``/``platform_deg``, no
+        magnetic channel, a non-numeric cell, a flip far from 0/90/180/270, a flip missing or with
+        too little turntable coverage, a channel that never changes.
+    """
+    return fourflip_from_table(read_table(path))
+
+
+def fourflip_from_table(table: Table) -> FourFlipRecording:
+    """Validate a parsed table as a four-flip recording (see :func:`read_fourflip`)."""
+    flip = table.column("flip_deg")
+    platform = table.column("platform_deg")
+    channels = tuple(c for c in table.columns if c not in RESERVED_COLUMNS)
+    if not channels:
+        raise RecordingError(
+            table.path,
+            "no magnetic channel column: every column other than "
+            f"{', '.join(RESERVED_COLUMNS)} is a channel",
+            row=table.header_row,
+        )
+    nominal = np.asarray(NOMINAL_FLIPS_DEG)
+    wrapped = np.mod(flip[:, None] - nominal[None, :] + 180.0, 360.0) - 180.0
+    flip_index = np.argmin(np.abs(wrapped), axis=1)
+    off = np.abs(wrapped[np.arange(len(flip)), flip_index])
+    bad = np.flatnonzero(off > FLIP_TOLERANCE_DEG)
+    if bad.size:
+        i = bad[0]
+        raise RecordingError(
+            table.path,
+            f"flip {flip[i]:g} deg is not within {FLIP_TOLERANCE_DEG:g} deg of 0, 90, 180 or 270",
+            row=int(table.rows[i]),
+            column="flip_deg",
+        )
+    _check_coverage(table, flip_index, platform)
+    outputs = np.column_stack([table.column(c) for c in channels])
+    for j, name in enumerate(channels):
+        if np.ptp(outputs[:, j]) == 0.0:
+            raise RecordingError(
+                table.path,
+                f"channel never changes (constant {outputs[0, j]:g}): a dead or disconnected sensor?",
+                column=name,
+            )
+    optional = {c: table.column(c) if table.has(c) else None for c in ("t_s", "temp_c")}
+    accel = None
+    if all(table.has(c) for c in ("ax", "ay", "az")):
+        accel = np.column_stack([table.column(c) for c in ("ax", "ay", "az")])
+    return FourFlipRecording(
+        flip_deg=nominal[flip_index] + wrapped[np.arange(len(flip)), flip_index],
+        flip_index=flip_index,
+        platform_deg=platform,
+        outputs=outputs,
+        channels=channels,
+        t_s=optional["t_s"],
+        temp_c=optional["temp_c"],
+        accel=accel,
+        metadata=dict(table.metadata),
+        path=table.path,
+    )
+
+
+def _check_coverage(table: Table, flip_index: np.ndarray, platform: np.ndarray) -> None:
+    for k, nominal in enumerate(NOMINAL_FLIPS_DEG):
+        mask = flip_index == k
+        rows = table.rows[mask]
+        if mask.sum() < MIN_SAMPLES_PER_FLIP:
+            raise RecordingError(
+                table.path,
+                f"flip {nominal:g} has {mask.sum()} samples; need at least {MIN_SAMPLES_PER_FLIP} "
+                "over a full turn of the turntable",
+                column="flip_deg",
+            )
+        angles = np.sort(np.mod(platform[mask], 360.0))
+        gaps = np.diff(np.concatenate([angles, angles[:1] + 360.0]))
+        worst = int(np.argmax(gaps))
+        if gaps[worst] > MAX_GAP_DEG:
+            start = angles[worst]
+            raise RecordingError(
+                table.path,
+                f"flip {nominal:g}: the turntable never visits {start:.0f}..{(start + gaps[worst]) % 360:.0f} deg "
+                f"(a {gaps[worst]:.0f} deg gap; at most {MAX_GAP_DEG:g} deg allowed to locate the minimum)",
+                row=int(rows[0]),
+                column="platform_deg",
+            )

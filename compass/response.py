@@ -1,0 +1,165 @@
+"""Response curves of single-axis channels and their inverses.
+
+A channel's output ``v`` is a monotone increasing function of the field component along its
+sensing direction, ``x = B . a``, in field units (uT when the calibration knows |B|, otherwise
+units of |B|).  Every response keeps the range of ``x`` it was calibrated over; the inverse flags
+readings outside it instead of extrapolating silently.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.interpolate import PchipInterpolator
+
+__all__ = ["Response", "LinearResponse", "CubicResponse", "TableResponse", "response_from_json"]
+
+_INVERSE_GRID = 2049  # knots of the monotone table used to invert nonlinear curves
+
+
+@dataclass(frozen=True)
+class Response:
+    """Base class: ``v = offset + gain * g(x)`` with ``g`` monotone, ``g(0) = 0``, ``g'(0) = 1``.
+
+    Attributes
+    ----------
+    offset : float
+        Zero-field output (output units).
+    gain : float
+        Output per field unit at zero field, > 0.
+    x_range : tuple of float
+        Field components (field units) the curve was calibrated over.
+    """
+
+    offset: float
+    gain: float
+    x_range: tuple[float, float] = (-np.inf, np.inf)
+
+    model = "linear"
+
+    def shape(self, x: np.ndarray) -> np.ndarray:
+        """The normalised curve g(x); identity for a linear channel."""
+        return x
+
+    def output(self, x) -> np.ndarray:
+        """Output for field components ``x`` (field units), any shape."""
+        return self.offset + self.gain * self.shape(np.asarray(x, dtype=float))
+
+    def field_component(self, v) -> tuple[np.ndarray, np.ndarray]:
+        """Invert the response.
+
+        Returns
+        -------
+        x : ndarray
+            Field component along the sensing direction (field units), same shape as ``v``.
+        in_range : ndarray of bool
+            False where ``x`` lies outside the calibrated range (the value is then extrapolated
+            linearly and must not be trusted).
+        """
+        v = np.asarray(v, dtype=float)
+        x = self._invert((v - self.offset) / self.gain)
+        lo, hi = self.x_range
+        span = hi - lo if np.isfinite(hi - lo) else 0.0
+        margin = 0.02 * span
+        return x, (x >= lo - margin) & (x <= hi + margin)
+
+    def _invert(self, y: np.ndarray) -> np.ndarray:
+        return y
+
+    def to_json(self) -> dict:
+        out = {"model": self.model, "offset": float(self.offset), "gain": float(self.gain)}
+        if np.all(np.isfinite(self.x_range)):
+            out["range"] = [float(self.x_range[0]), float(self.x_range[1])]
+        out.update(self._extra_json())
+        return out
+
+    def _extra_json(self) -> dict:
+        return {}
+
+
+@dataclass(frozen=True)
+class LinearResponse(Response):
+    """``v = offset + gain * x``."""
+
+    model = "linear"
+
+
+@dataclass(frozen=True)
+class _MonotoneResponse(Response):
+    """A nonlinear curve inverted through a dense monotone table over the calibrated range."""
+
+    def _invert(self, y: np.ndarray) -> np.ndarray:
+        lo, hi = self.x_range
+        grid = np.linspace(lo, hi, _INVERSE_GRID)
+        g = self.shape(grid)
+        if np.any(np.diff(g) <= 0):
+            raise ValueError(
+                f"{self.model} response is not monotone over its calibrated range [{lo:.4g}, {hi:.4g}]"
+            )
+        inside = np.interp(y, g, grid)
+        # beyond the table: continue with the end slopes (flagged by field_component)
+        slope_lo = (grid[1] - grid[0]) / (g[1] - g[0])
+        slope_hi = (grid[-1] - grid[-2]) / (g[-1] - g[-2])
+        return np.where(y < g[0], lo + (y - g[0]) * slope_lo,
+                        np.where(y > g[-1], hi + (y - g[-1]) * slope_hi, inside))
+
+
+@dataclass(frozen=True)
+class CubicResponse(_MonotoneResponse):
+    """Odd cubic: ``v = offset + gain * (x + cubic * x**3)``; ``cubic`` in 1/field-unit^2."""
+
+    cubic: float = 0.0
+    model = "cubic"
+
+    def shape(self, x):
+        return x + self.cubic * x**3
+
+    def _extra_json(self):
+        return {"cubic": float(self.cubic)}
+
+
+@dataclass(frozen=True)
+class TableResponse(_MonotoneResponse):
+    """Tabulated curve (seed 000's f(beta)): output at field components ``x_table``.
+
+    ``offset`` and ``gain`` are a straight-line fit to the table; the curve itself is the
+    monotone cubic (PCHIP) through the table's points, made monotone by sorting on output.
+    """
+
+    x_table: tuple[float, ...] = field(default=())
+    v_table: tuple[float, ...] = field(default=())
+    model = "table"
+
+    def shape(self, x):
+        curve = PchipInterpolator(np.asarray(self.x_table), np.asarray(self.v_table), extrapolate=True)
+        return (curve(x) - self.offset) / self.gain
+
+    def _extra_json(self):
+        return {"x": [float(v) for v in self.x_table], "v": [float(v) for v in self.v_table]}
+
+
+def response_from_json(d: dict, where: str = "response") -> Response:
+    """Build a response curve from its calibration-file dictionary.
+
+    Raises
+    ------
+    ValueError
+        Unknown model or missing/invalid keys; the message names ``where``.
+    """
+    try:
+        model = d["model"]
+        offset, gain = float(d["offset"]), float(d["gain"])
+        x_range = tuple(float(v) for v in d.get("range", (-np.inf, np.inf)))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: expected model, offset, gain ({exc})") from None
+    if not gain > 0:
+        raise ValueError(f"{where}: gain must be positive, got {gain}")
+    if model == "linear":
+        return LinearResponse(offset, gain, x_range)
+    if model == "cubic":
+        return CubicResponse(offset, gain, x_range, cubic=float(d.get("cubic", 0.0)))
+    if model == "table":
+        x, v = np.asarray(d["x"], float), np.asarray(d["v"], float)
+        return TableResponse(offset, gain, x_range, x_table=tuple(x), v_table=tuple(v))
+    raise ValueError(f"{where}: unknown response model {model!r} (known: linear, cubic, table)")

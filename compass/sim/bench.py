@@ -1,0 +1,156 @@
+"""Forward model of seed 000's bench: what each channel outputs at a turntable angle and flip.
+
+The same code predicts outputs for the simulator (with the truth) and for the estimators (with
+trial parameters), so a change of convention cannot make them disagree silently.
+
+Model, per sample i and channel c (SPEC section 1):
+
+.. math::
+
+    \\phi_i^{true} = \\phi_i + e(\\phi_i), \\qquad \\kappa_i^{true} = \\kappa_i + \\epsilon_{k(i)}
+
+    B_{H,i} = R_x(\\kappa_i^{true})^T \\left( R_z(\\phi_i^{true})^T B_W + b_p \\right)
+
+    x_{ic} = B_{H,i} \\cdot a_c, \\qquad
+    v_{ic} = V_{0c}(t_i, T_i) + K_c(T_i) \\, (x_{ic} + c_{3c} x_{ic}^3)
+
+with ``e`` the encoder error (Fourier series in the reading), ``epsilon`` the flip errors,
+``b_p`` a field fixed to the turntable (in its frame), ``V0`` drifting with time and temperature,
+``K`` depending on temperature and ``c3`` an odd cubic non-linearity.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..frames import bench_rotation, field_in_bench
+
+__all__ = ["BenchSamples", "BenchPhysics", "true_angles", "housing_field", "bench_outputs", "channel_outputs"]
+
+
+@dataclass(frozen=True)
+class BenchSamples:
+    """Where each sample was taken: the recording's independent variables.
+
+    Attributes
+    ----------
+    platform_deg, flip_deg : ndarray, shape (n,)
+        Recorded turntable reading and flip, degrees.
+    flip_index : ndarray of int, shape (n,)
+        0..3 for nominal flips 0, 90, 180, 270.
+    t_s, temp_c : ndarray, shape (n,), or None
+    """
+
+    platform_deg: np.ndarray
+    flip_deg: np.ndarray
+    flip_index: np.ndarray
+    t_s: np.ndarray | None = None
+    temp_c: np.ndarray | None = None
+
+    @classmethod
+    def from_recording(cls, rec) -> "BenchSamples":
+        return cls(rec.platform_deg, rec.flip_deg, rec.flip_index, rec.t_s, rec.temp_c)
+
+
+@dataclass(frozen=True)
+class BenchPhysics:
+    """Physical parameters of a bench session (truth in the simulator, trial values in a fit).
+
+    Attributes
+    ----------
+    directions : ndarray, shape (c, 3)
+        Unit sensing directions in the housing frame H.
+    offsets, gains : ndarray, shape (c,)
+        Zero-field output V0 (output units) and gain K (output units per field unit).
+    dip_deg, azimuth_deg : float
+        Field dip (> 0 down) and azimuth delta from the turntable zero.
+    field_magnitude : float
+        |B| in field units (uT when known, else 1).
+    cubic : ndarray, shape (c,), optional
+        Odd cubic coefficient c3, 1 / field unit^2 (``nonlinear_response``).
+    encoder_fourier : ndarray, shape (m, 2), optional
+        Encoder error ``e(phi) = sum_k A_k cos(k phi) + B_k sin(k phi)``, degrees, k = 1..m.
+    flip_errors_deg : ndarray, shape (4,), optional
+        True minus recorded flip angle for each nominal flip.
+    platform_field : ndarray, shape (3,), optional
+        Field fixed to the turntable, in the turntable frame, field units.
+    drift : ndarray, shape (c, p), optional
+        Offset change as a polynomial in ``(t_s - drift_t0) / drift_scale_s`` with powers 1..p.
+    drift_t0, drift_scale_s : float
+    temp_offset, temp_gain : ndarray, shape (c,), optional
+        d V0 / d T (output units per degC) and relative gain change per degC, about ``temp_ref_c``.
+    temp_ref_c : float
+    """
+
+    directions: np.ndarray
+    offsets: np.ndarray
+    gains: np.ndarray
+    dip_deg: float
+    azimuth_deg: float
+    field_magnitude: float = 1.0
+    cubic: np.ndarray | None = None
+    encoder_fourier: np.ndarray | None = None
+    flip_errors_deg: np.ndarray | None = None
+    platform_field: np.ndarray | None = None
+    drift: np.ndarray | None = None
+    drift_t0: float = 0.0
+    drift_scale_s: float = 1.0
+    temp_offset: np.ndarray | None = None
+    temp_gain: np.ndarray | None = None
+    temp_ref_c: float = 20.0
+
+    def with_(self, **changes) -> "BenchPhysics":
+        return replace(self, **changes)
+
+
+def true_angles(physics: BenchPhysics, samples: BenchSamples) -> tuple[np.ndarray, np.ndarray]:
+    """Turntable and flip angles after encoder and flip errors, degrees."""
+    phi = samples.platform_deg
+    if physics.encoder_fourier is not None:
+        k = np.arange(1, len(physics.encoder_fourier) + 1)
+        arg = np.radians(phi)[:, None] * k[None, :]
+        phi = phi + np.cos(arg) @ physics.encoder_fourier[:, 0] + np.sin(arg) @ physics.encoder_fourier[:, 1]
+    kappa = samples.flip_deg
+    if physics.flip_errors_deg is not None:
+        kappa = kappa + physics.flip_errors_deg[samples.flip_index]
+    return phi, kappa
+
+
+def housing_field(physics: BenchPhysics, samples: BenchSamples) -> np.ndarray:
+    """The field in the housing frame H at each sample, shape (n, 3), field units."""
+    phi, kappa = true_angles(physics, samples)
+    b_w = field_in_bench(physics.dip_deg, physics.azimuth_deg, physics.field_magnitude)
+    if physics.platform_field is None:
+        return bench_rotation(phi, kappa).apply(b_w, inverse=True)
+    # the platform field turns with the turntable: add it in the turntable frame
+    in_turntable = bench_rotation(phi, 0.0).apply(b_w, inverse=True) + physics.platform_field
+    return bench_rotation(np.zeros_like(phi), kappa).apply(in_turntable, inverse=True)
+
+
+def bench_outputs(physics: BenchPhysics, samples: BenchSamples) -> np.ndarray:
+    """Noise-free channel outputs, shape (n, c)."""
+    return channel_outputs(physics, samples, housing_field(physics, samples) @ physics.directions.T)
+
+
+def channel_outputs(physics: BenchPhysics, samples: BenchSamples, x: np.ndarray) -> np.ndarray:
+    """Outputs for field components ``x`` along each channel's direction, shape (n, c).
+
+    Applies the response (cubic), offset drift and temperature; ``x`` in field units.
+    """
+    if physics.cubic is not None:
+        x = x + physics.cubic[None, :] * x**3
+    gains = np.broadcast_to(physics.gains[None, :], x.shape)
+    offsets = np.broadcast_to(physics.offsets[None, :], x.shape)
+    if physics.drift is not None and samples.t_s is not None:
+        tau = (samples.t_s - physics.drift_t0) / physics.drift_scale_s
+        powers = tau[:, None] ** np.arange(1, physics.drift.shape[1] + 1)[None, :]
+        offsets = offsets + powers @ physics.drift.T
+    if samples.temp_c is not None and (physics.temp_offset is not None or physics.temp_gain is not None):
+        dt = (samples.temp_c - physics.temp_ref_c)[:, None]
+        if physics.temp_offset is not None:
+            offsets = offsets + dt * physics.temp_offset[None, :]
+        if physics.temp_gain is not None:
+            gains = gains * (1.0 + dt * physics.temp_gain[None, :])
+    return offsets + gains * x

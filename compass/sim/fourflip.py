@@ -1,0 +1,240 @@
+"""The virtual bench: simulated four-flip sessions written as SPEC recordings.
+
+Each effect of SPEC section 4 can be switched on; the simulator's own form of an effect is
+deliberately *not* the estimator's (saturation by tanh rather than an odd cubic, warm-up by an
+exponential rather than a polynomial, encoder error with a phase) so that tests do not reward a
+model tuned to its own simulator.  ``field_gradient`` is an effect the estimators do not model
+(a field gradient across the turntable with the sensor off its axis), for honesty tests.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..frames import bench_rotation
+from ..io.atomic import atomic_write_text
+from .bench import BenchPhysics, BenchSamples, channel_outputs, housing_field
+
+__all__ = ["SIM_EFFECTS", "SimulatedSession", "simulate_fourflip", "write_fourflip"]
+
+SIM_EFFECTS = (
+    "nonlinear_response",
+    "encoder_error",
+    "offset_drift",
+    "platform_field",
+    "flip_error",
+    "temperature",
+    "field_gradient",
+)
+
+
+@dataclass(frozen=True)
+class SimulatedSession:
+    """A simulated recording and the truth behind it.
+
+    Attributes
+    ----------
+    samples : BenchSamples
+    outputs : ndarray, shape (n, c)
+    channels : tuple of str
+    metadata : dict
+    truth : dict
+        JSON-ready truth (directions, offsets, gains per field unit, dip, effects with parameters).
+    """
+
+    samples: BenchSamples
+    outputs: np.ndarray
+    channels: tuple[str, ...]
+    metadata: dict
+    truth: dict
+
+
+def _nominal_directions(n_channels: int, rng: np.random.Generator, misalign_deg: float) -> np.ndarray:
+    """Near X, Y, Z (repeating) for three or fewer channels, random for more; perturbed."""
+    base = np.eye(3)[np.arange(n_channels) % 3] if n_channels <= 3 else rng.normal(size=(n_channels, 3))
+    base /= np.linalg.norm(base, axis=1, keepdims=True)
+    tilt = Rotation.from_rotvec(rng.normal(scale=np.radians(misalign_deg) / np.sqrt(2), size=(n_channels, 3)))
+    return tilt.apply(base)
+
+
+def simulate_fourflip(
+    *,
+    seed: int = 0,
+    n_channels: int = 3,
+    effects: tuple[str, ...] = (),
+    noise_ut: float = 0.15,
+    field_ut: float = 50.0,
+    dip_deg: float | None = None,
+    step_deg: float = 1.0,
+    sample_period_s: float = 0.5,
+    misalign_deg: float = 3.0,
+    effect_scale: float = 1.0,
+    directions: np.ndarray | None = None,
+) -> SimulatedSession:
+    """Simulate one four-flip bench session.
+
+    Parameters
+    ----------
+    seed : int
+        Seeds every random draw (geometry, sensor, effect sizes, noise).
+    n_channels : int
+        Number of single-axis channels.
+    effects : tuple of str
+        Names from :data:`SIM_EFFECTS`.
+    noise_ut : float
+        White noise per sample, microtesla equivalent.
+    field_ut, dip_deg : float
+        |B| and dip; dip drawn in [40, 70] deg when None; field azimuth is random.
+    step_deg, sample_period_s : float
+        Turntable step and time per sample; each flip starts at a random turntable angle.
+    misalign_deg : float
+        RMS misalignment of the channels from the housing axes.
+    effect_scale : float
+        Multiplies every effect size (1 gives sizes that move a direction by roughly 0.1-1 deg).
+    directions : ndarray, shape (c, 3), optional
+        Sensing directions to use instead of random ones.
+    """
+    unknown = set(effects) - set(SIM_EFFECTS)
+    if unknown:
+        raise ValueError(f"unknown effect(s) {sorted(unknown)}; known: {', '.join(SIM_EFFECTS)}")
+    rng = np.random.default_rng(seed)
+    if directions is None:
+        directions = _nominal_directions(n_channels, rng, misalign_deg)
+    directions = np.asarray(directions, float)
+    directions = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    n_channels = len(directions)
+    gains_per_ut = rng.uniform(0.018, 0.022, n_channels)  # volts per uT
+    offsets = 2.5 + rng.normal(scale=0.05, size=n_channels)  # volts
+    dip = float(rng.uniform(40.0, 70.0)) if dip_deg is None else float(dip_deg)
+    azimuth = float(rng.uniform(0.0, 360.0))
+
+    n_per_flip = int(round(360.0 / step_deg))
+    platform, flip, flip_index, t_s = [], [], [], []
+    t0 = 0.0
+    for k, kappa in enumerate((0.0, 90.0, 180.0, 270.0)):
+        start = rng.uniform(0.0, 360.0)
+        platform.append(start + step_deg * np.arange(n_per_flip))
+        flip.append(np.full(n_per_flip, kappa))
+        flip_index.append(np.full(n_per_flip, k))
+        t_s.append(t0 + sample_period_s * np.arange(n_per_flip))
+        t0 = t_s[-1][-1] + 45.0  # time to flip the cube
+    samples = BenchSamples(
+        np.mod(np.concatenate(platform), 360.0),
+        np.concatenate(flip),
+        np.concatenate(flip_index),
+        np.concatenate(t_s),
+    )
+    physics = BenchPhysics(directions, offsets, gains_per_ut, dip, azimuth, field_ut)
+    truth_effects = []
+    s = effect_scale
+    t = samples.t_s
+
+    if "encoder_error" in effects:
+        amp = s * np.array([rng.uniform(0.2, 0.4), rng.uniform(0.08, 0.15)])
+        phase = rng.uniform(0.0, 2 * np.pi, 2)
+        fourier = np.column_stack([amp * np.cos(phase), -amp * np.sin(phase)])
+        physics = physics.with_(encoder_fourier=fourier)
+        truth_effects.append({"name": "encoder_error", "parameters": {"fourier_deg": fourier.tolist()}})
+    if "flip_error" in effects:
+        errors = np.concatenate([[0.0], s * rng.choice([-1, 1], 3) * rng.uniform(0.3, 0.7, 3)])
+        physics = physics.with_(flip_errors_deg=errors)
+        truth_effects.append({"name": "flip_error", "parameters": {"flip_errors_deg": errors.tolist()}})
+    if "platform_field" in effects:
+        b_p = s * rng.choice([-1, 1], 3) * rng.uniform(0.3, 0.6, 3)
+        physics = physics.with_(platform_field=b_p)
+        truth_effects.append({"name": "platform_field", "parameters": {"field_ut": b_p.tolist()}})
+
+    temp_c = None
+    if "temperature" in effects:
+        temp_c = 22.0 + 8.0 * (1 - np.exp(-t / 300.0)) + 2.0 * np.sin(2 * np.pi * t / 230.0)
+        temp_offset = s * gains_per_ut * rng.choice([-1, 1], n_channels) * rng.uniform(0.04, 0.08, n_channels)
+        temp_gain = s * rng.choice([-1, 1], n_channels) * rng.uniform(1e-3, 2e-3, n_channels)
+        physics = physics.with_(temp_offset=temp_offset, temp_gain=temp_gain, temp_ref_c=22.0)
+        truth_effects.append(
+            {"name": "temperature", "parameters": {"offset_per_degc": temp_offset.tolist(),
+                                                   "gain_per_degc": temp_gain.tolist(), "ref_c": 22.0}}
+        )
+    samples = BenchSamples(samples.platform_deg, samples.flip_deg, samples.flip_index, t, temp_c)
+
+    b_h = housing_field(physics, samples)
+    if "field_gradient" in effects:
+        b_h = b_h + _gradient_field(physics, samples, rng, s)
+        truth_effects.append({"name": "field_gradient", "parameters": {"modelled_by_estimators": False}})
+    x = b_h @ directions.T
+    if "nonlinear_response" in effects:
+        saturation_ut = rng.uniform(150.0, 200.0, n_channels) / s
+        x = saturation_ut * np.tanh(x / saturation_ut)
+        truth_effects.append({"name": "nonlinear_response", "parameters": {"tanh_saturation_ut": saturation_ut.tolist()}})
+    outputs = channel_outputs(physics.with_(cubic=None), samples, x)
+    if "offset_drift" in effects:
+        amp = s * gains_per_ut * rng.choice([-1, 1], n_channels) * rng.uniform(0.4, 0.8, n_channels)
+        tau = rng.uniform(200.0, 400.0)
+        outputs = outputs + amp[None, :] * np.exp(-t / tau)[:, None]
+        truth_effects.append({"name": "offset_drift", "parameters": {"amplitude": amp.tolist(), "tau_s": tau}})
+
+    noise = noise_ut * gains_per_ut
+    outputs = outputs + rng.normal(size=outputs.shape) * noise[None, :]
+    channels = tuple(f"v{i + 1}" for i in range(n_channels))
+    truth = {
+        "directions": directions.tolist(),
+        "offsets": offsets.tolist(),
+        "gains_per_ut": gains_per_ut.tolist(),
+        "dip_deg": dip,
+        "azimuth_deg": azimuth,
+        "field_ut": field_ut,
+        "noise": noise.tolist(),
+        "noise_ut": noise_ut,
+        "channels": list(channels),
+        "effects": truth_effects,
+        "seed": seed,
+    }
+    metadata = {"field_ut": f"{field_ut:g}", "source": f"compass simulate fourflip --seed {seed}"}
+    return SimulatedSession(samples, outputs, channels, metadata, truth)
+
+
+def _gradient_field(physics, samples, rng, scale) -> np.ndarray:
+    """Field of a constant gradient, sampled at a sensor 5 cm off the turntable axis, in H."""
+    g = rng.normal(size=(3, 3))
+    g = g + g.T
+    g -= np.trace(g) / 3 * np.eye(3)  # curl- and divergence-free
+    g *= scale * 40.0 / np.linalg.norm(g)  # uT per metre
+    offset_h = np.array([0.05, 0.02, 0.0])  # metres, sensor position in H relative to the axis
+    phi, kappa = samples.platform_deg, samples.flip_deg
+    rot = bench_rotation(phi, kappa)
+    position_w = rot.apply(offset_h)
+    return rot.apply(position_w @ g.T, inverse=True)
+
+
+def write_fourflip(session: SimulatedSession, path, *, force: bool = False) -> tuple[Path, Path]:
+    """Write the recording CSV and its truth side file ``<stem>.truth.json``.
+
+    Raises
+    ------
+    FileExistsError
+        If either file exists and ``force`` is False.
+    """
+    path = Path(path)
+    truth_path = path.with_suffix(".truth.json")
+    for p in (path, truth_path):
+        if p.exists() and not force:
+            raise FileExistsError(f"{p} exists; use --force to overwrite")
+    smp = session.samples
+    columns = ["t_s", "flip_deg", "platform_deg"]
+    data = [smp.t_s, smp.flip_deg, smp.platform_deg]
+    if smp.temp_c is not None:
+        columns.append("temp_c")
+        data.append(smp.temp_c)
+    columns += list(session.channels)
+    table = np.column_stack(data + [session.outputs[:, j] for j in range(session.outputs.shape[1])])
+    lines = [f"# {k}: {v}" for k, v in session.metadata.items()]
+    lines.append(",".join(columns))
+    fmt = ["%.3f", "%.1f", "%.4f"] + (["%.3f"] if smp.temp_c is not None else []) + ["%.7f"] * len(session.channels)
+    lines += [",".join(f % v for f, v in zip(fmt, row)) for row in table]
+    atomic_write_text(path, "\n".join(lines) + "\n")
+    atomic_write_text(truth_path, json.dumps(session.truth, indent=2) + "\n")
+    return path, truth_path

@@ -1,0 +1,22 @@
+import numpy as np
+import pytest
+
+from compass.io.fourflip import read_fourflip
+from compass.sim.fourflip import simulate_fourflip, write_fourflip
+
+
+def angle_deg(a, b):
+    """Angle between unit vectors (rows), degrees."""
+    return np.degrees(np.arccos(np.clip(np.sum(np.asarray(a) * np.asarray(b), axis=-1), -1.0, 1.0)))
+
+
+@pytest.fixture
+def write_session(tmp_path):
+    """Simulate, write and read back a four-flip session: returns (recording, truth)."""
+
+    def make(name="rec.csv", **kwargs):
+        session = simulate_fourflip(**kwargs)
+        path, _ = write_fourflip(session, tmp_path / name)
+        return read_fourflip(path), session.truth
+
+    return make

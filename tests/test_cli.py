@@ -1,0 +1,54 @@
+"""The command line end to end: simulate -> calibrate -> calibration file."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+
+from compass.cli import main
+from tests.conftest import angle_deg
+
+
+def test_simulate_calibrate_end_to_end(tmp_path, capsys):
+    rec = tmp_path / "rec.csv"
+    assert main(["simulate", "fourflip", "--out", str(rec), "--seed", "5"]) == 0
+    truth = json.loads(rec.with_suffix(".truth.json").read_text())
+    cal = tmp_path / "cal.json"
+    assert main(["calibrate", str(rec), "--out", str(cal), "--report", str(tmp_path / "rep")]) == 0
+    out = capsys.readouterr().out
+    assert "dip" in out and "+-" in out
+    data = json.loads(cal.read_text())
+    assert data["format"] == "compass-calibration/1"
+    dirs = np.array([data["channels"][c]["direction"] for c in truth["channels"]])
+    sig = np.array([data["channels"][c]["direction_sigma_deg"] for c in truth["channels"]])
+    assert np.all(angle_deg(dirs, truth["directions"]) < 3 * sig)
+    for key in ("theta_deg", "gamma_deg", "elevation_deg", "psi_deg"):
+        assert key in data["channels"]["v1"]
+    assert (tmp_path / "rep" / "fit.png").stat().st_size > 10_000
+
+
+def test_never_overwrites_without_force(tmp_path):
+    rec = tmp_path / "rec.csv"
+    main(["simulate", "fourflip", "--out", str(rec)])
+    cal = tmp_path / "cal.json"
+    cal.write_text("precious")
+    assert main(["calibrate", str(rec), "--out", str(cal), "--quiet"]) == 2
+    assert cal.read_text() == "precious"
+    assert main(["calibrate", str(rec), "--out", str(cal), "--quiet", "--force"]) == 0
+    assert json.loads(cal.read_text())["format"] == "compass-calibration/1"
+
+
+def test_python_dash_m_and_help():
+    out = subprocess.run([sys.executable, "-m", "compass", "calibrate", "--help"], capture_output=True, text=True)
+    assert out.returncode == 0 and "--method" in out.stdout
+
+
+def test_patent_method_writes_table_response(tmp_path):
+    rec = tmp_path / "rec.csv"
+    main(["simulate", "fourflip", "--out", str(rec), "--seed", "2"])
+    cal = tmp_path / "cal.json"
+    assert main(["calibrate", str(rec), "--out", str(cal), "--method", "patent", "--quiet"]) == 0
+    data = json.loads(cal.read_text())
+    assert data["method"] == "patent"
+    assert all(ch["response"]["model"] == "table" for ch in data["channels"].values())

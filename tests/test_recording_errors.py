@@ -1,0 +1,87 @@
+"""Bad four-flip recordings: exit status 2 and one line naming file, row and column."""
+
+import numpy as np
+import pytest
+
+from compass.cli import main
+from compass.io.fourflip import read_fourflip
+from compass.io.table import RecordingError
+
+GOOD_HEADER = "flip_deg,platform_deg,v1"
+
+
+def _rows(n_per_flip=36):
+    rows = []
+    for flip in (0, 90, 180, 270):
+        for i in range(n_per_flip):
+            phi = 10.0 * i
+            rows.append(f"{flip},{phi},{1 + 0.5 * np.cos(np.radians(phi + flip)):.6f}")
+    return rows
+
+
+def _write(tmp_path, lines, name="bad.csv"):
+    p = tmp_path / name
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+CASES = {
+    "empty": ([], "empty file", None, None),
+    "header only": ([GOOD_HEADER], "header only", 1, None),
+    "missing column": (["flip_deg,v1"] + ["0,1.0"] * 3, "missing required column 'platform_deg'", None, None),
+    "non-numeric": ([GOOD_HEADER] + _rows()[:5] + ["0,50,abc"] + _rows()[5:], "expected a number", 7, "v1"),
+    "nan cell": ([GOOD_HEADER, "0,0,nan"] + _rows(), "finite", 2, "v1"),
+    "bad flip": ([GOOD_HEADER] + _rows()[:3] + ["45,30,1.0"] + _rows()[3:], "not within", 5, "flip_deg"),
+    "missing flip": ([GOOD_HEADER] + [r for r in _rows() if not r.startswith("270,")], "flip 270", None, "flip_deg"),
+    "coverage gap": ([GOOD_HEADER] + [r for r in _rows() if not (r.startswith("90,") and 100 < float(r.split(",")[1]) < 250)],
+                     "never visits", None, "platform_deg"),
+    "wrong cell count": ([GOOD_HEADER, "0,1"] + _rows(), "expected 3 cells", 2, None),
+    "no channel": (["flip_deg,platform_deg,t_s", "0,0,0"], "no magnetic channel", 1, None),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_bad_recording_raises_with_location(tmp_path, case):
+    lines, message, row, column = CASES[case]
+    path = _write(tmp_path, lines)
+    with pytest.raises(RecordingError, match=message) as info:
+        read_fourflip(path)
+    assert str(path) in str(info.value)
+    if row is not None:
+        assert info.value.row == row
+    if column is not None:
+        assert info.value.column == column
+
+
+def test_constant_channel(tmp_path):
+    lines = [GOOD_HEADER + ",v2"] + [r + ",0.5" for r in _rows()]
+    with pytest.raises(RecordingError, match="never changes") as info:
+        read_fourflip(_write(tmp_path, lines))
+    assert info.value.column == "v2"
+
+
+def test_binary_garbage(tmp_path):
+    p = tmp_path / "garbage.csv"
+    p.write_bytes(bytes(range(256)) * 4)
+    with pytest.raises(RecordingError, match="binary"):
+        read_fourflip(p)
+
+
+def test_cli_bad_input_exit_2_one_line_no_traceback(tmp_path, capsys):
+    path = _write(tmp_path, [GOOD_HEADER] + _rows()[:5] + ["0,50,abc"] + _rows()[5:])
+    code = main(["calibrate", str(path), "--out", str(tmp_path / "cal.json")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert len(err.strip().splitlines()) == 1
+    assert "row 7" in err and "column 'v1'" in err and "Traceback" not in err
+    assert not (tmp_path / "cal.json").exists()
+
+
+def test_rows_in_any_order_and_comments(tmp_path):
+    rows = _rows()
+    rng = np.random.default_rng(0)
+    shuffled = [rows[i] for i in rng.permutation(len(rows))]
+    rec = read_fourflip(_write(tmp_path, ["# field_ut: 48.5", "# note: bench 2", GOOD_HEADER] + shuffled))
+    assert rec.field_ut == 48.5
+    assert rec.n_samples == len(rows)
+    assert sorted(np.unique(rec.flip_index)) == [0, 1, 2, 3]
