@@ -13,7 +13,7 @@ the Jacobian at the solution, scaled by the reduced chi-square.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -22,7 +22,7 @@ from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs
 
 from .effects import Effect
 
-__all__ = ["MLFit", "fit_ml", "tangent_basis"]
+__all__ = ["MLFit", "fit_ml", "score_effect", "tangent_basis"]
 
 _BASE_PER_CHANNEL = 4  # u, v, offset, log gain
 _SINGULAR_RCOND = 1e-9
@@ -78,6 +78,8 @@ class MLFit:
     singular: list
     success: bool
     message: str
+    jac: np.ndarray = field(repr=False, default=None)
+    layout: "_Layout" = field(repr=False, default=None)
 
     @property
     def n_params(self) -> int:
@@ -107,6 +109,15 @@ class MLFit:
         block = slice(start, start + n)
         return self.names[block], self.x[block] * scale, self.sigma[block] * np.abs(scale)
 
+    def effect_start(self) -> dict:
+        """Fitted effect blocks by name, in fit units (to start a larger fit from this one)."""
+        c = len(self.physics.gains)
+        out = {}
+        for e in self.effects:
+            start = self._block_start(e)
+            out[e.name] = self.x[start:start + e.n_params(c)]
+        return out
+
     def _block_start(self, effect: Effect) -> int:
         c = len(self.physics.gains)
         start = _BASE_PER_CHANNEL * c + 2
@@ -121,7 +132,7 @@ class _Layout:
     """Packs and unpacks the parameter vector around a starting point."""
 
     def __init__(self, start: BenchPhysics, effects, samples: BenchSamples, channels):
-        self.start, self.effects, self.samples = start, tuple(effects), samples
+        self.start, self.effects, self.samples, self.channels = start, tuple(effects), samples, tuple(channels)
         self.c = len(start.gains)
         self.basis = tangent_basis(start.directions)
         self.names = []
@@ -196,17 +207,12 @@ def fit_ml(
     """
     weights = 1.0 / noise
 
-    def solve(layout: _Layout, x):
-        def residual(p):
-            return ((outputs - bench_outputs(layout.physics(p), samples)) * weights).ravel()
+    layout = _Layout(start, effects, samples, channels)
 
-        return least_squares(residual, x, method="lm", x_scale="jac")
+    def residual(p):
+        return ((outputs - bench_outputs(layout.physics(p), samples)) * weights).ravel()
 
-    first = _Layout(start, effects, samples, channels)
-    res = solve(first, first.x0(effect_start))
-    # re-anchor the tangent planes on the solution and polish there
-    layout = _Layout(_anchor(first, res.x), effects, samples, channels)
-    res = solve(layout, _reanchored(res.x, layout))
+    res = least_squares(residual, layout.x0(effect_start), method="lm", x_scale="jac")
     x = res.x
     jac = res.jac
     r = res.fun
@@ -218,22 +224,7 @@ def fit_ml(
     dir_cov = _direction_covariance(layout, x, cov)
     residuals = outputs - bench_outputs(physics, samples)
     return MLFit(physics, layout.effects, layout.names, x, cov, dir_cov, residuals, chi2, dof, singular,
-                 bool(res.success), str(res.message))
-
-
-def _anchor(layout: _Layout, x) -> BenchPhysics:
-    """Starting point moved to the solution's base parameters (effects keep their values)."""
-    per = x[: _BASE_PER_CHANNEL * layout.c].reshape(layout.c, _BASE_PER_CHANNEL)
-    directions, _ = layout.directions(x)
-    s = layout.start
-    return BenchPhysics(directions, s.offsets + per[:, 2] * s.gains, s.gains * np.exp(per[:, 3]),
-                        s.dip_deg, s.azimuth_deg, s.field_magnitude)
-
-
-def _reanchored(x, layout: _Layout) -> np.ndarray:
-    y = x.copy()
-    y[: _BASE_PER_CHANNEL * layout.c] = 0.0
-    return y
+                 bool(res.success), str(res.message), jac=jac, layout=layout)
 
 
 def _covariance(jac: np.ndarray, names) -> tuple[np.ndarray, list]:
@@ -262,3 +253,41 @@ def _direction_covariance(layout: _Layout, x, cov) -> np.ndarray:
         block = cov[_BASE_PER_CHANNEL * c:_BASE_PER_CHANNEL * c + 2, _BASE_PER_CHANNEL * c:_BASE_PER_CHANNEL * c + 2]
         out[c] = g @ block @ g.T
     return out
+
+
+def score_effect(fit: MLFit, outputs: np.ndarray, noise: np.ndarray, effect: Effect,
+                 step: float = 1e-6) -> tuple[float, np.ndarray]:
+    """Score (Lagrange multiplier) test for adding ``effect`` to a fitted model.
+
+    Linearises the effect's parameters at zero around the current solution, removes what the
+    current parameters can already absorb, and returns the chi-square drop a refit would give
+    to first order, with the Gauss-Newton start values of the effect's block.
+
+    Returns
+    -------
+    expected_delta_chi2 : float
+    start : ndarray
+        First-order estimate of the effect's parameters (fit units).
+    """
+    layout = fit.layout
+    samples = layout.samples
+    weights = 1.0 / noise
+    extended = _Layout(layout.start, layout.effects + (effect,), samples, layout.channels)
+    q = effect.n_params(layout.c)
+    x = np.concatenate([fit.x, np.zeros(q)])
+
+    def residual(p):
+        return ((outputs - bench_outputs(extended.physics(p), samples)) * weights).ravel()
+
+    r0 = residual(x)
+    j_e = np.empty((r0.size, q))
+    for i in range(q):
+        xp = x.copy()
+        xp[fit.x.size + i] = step
+        j_e[:, i] = (residual(xp) - r0) / step
+    q_b, _ = np.linalg.qr(np.nan_to_num(fit.jac))
+    j_tilde = j_e - q_b @ (q_b.T @ j_e)
+    coef, *_ = np.linalg.lstsq(j_tilde, r0, rcond=None)
+    explained = j_tilde @ coef
+    # residual = data - model, so the model must move by +explained: parameters step by -coef
+    return float(explained @ explained), -coef

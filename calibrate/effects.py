@@ -163,12 +163,12 @@ class Temperature(Effect):
 EFFECTS: dict[str, Effect] = {
     e.name: e
     for e in (
-        NonlinearResponse("nonlinear_response", "output not linear in B.a: odd cubic term per channel"),
-        EncoderError("encoder_error", f"turntable reading error: Fourier series, harmonics 1..{ENCODER_HARMONICS}"),
-        OffsetDrift("offset_drift", f"offsets drift with time: polynomial of degree {DRIFT_DEGREE} in t_s"),
-        PlatformField("platform_field", "constant field fixed to the turntable (horizontal part)"),
-        FlipError("flip_error", "real flip angles of 90/180/270 differ from the recorded ones"),
-        Temperature("temperature", "offset and gain linear in temp_c"),
+        NonlinearResponse("nonlinear_response", "curves flattened or sharpened toward their extremes (odd harmonics growing with B.a): a curved response"),
+        EncoderError("encoder_error", f"harmonics of the turntable angle shared by every channel and flip (encoder error, harmonics 1..{ENCODER_HARMONICS})"),
+        OffsetDrift("offset_drift", f"a slow trend in time in each channel's offset (polynomial of degree {DRIFT_DEGREE} in t_s)"),
+        PlatformField("platform_field", "per-flip offsets that follow each channel's direction in the turntable frame (a field turning with the turntable)"),
+        FlipError("flip_error", "flip-to-flip inconsistency that turning the 90/180/270 flips by small angles removes"),
+        Temperature("temperature", "offset and gain changes that follow temp_c"),
     )
 }
 

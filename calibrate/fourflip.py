@@ -16,6 +16,8 @@ Three estimators, one result type:
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scipy.optimize import isotonic_regression
 
@@ -26,6 +28,7 @@ from compass.sim.bench import BenchPhysics, BenchSamples
 
 from . import _harmonic as hm
 from ._mlfit import MLFit, fit_ml
+from .diagnose import UNEXPLAINED_WARNING, diagnose_fourflip, examine_residual
 from .noise import noise_floor
 from .result import CalibrationResult, ChannelCalibration
 
@@ -37,7 +40,8 @@ _POORLY_DETERMINED_DEG = 1.0
 
 
 def calibrate_fourflip(
-    rec: FourFlipRecording, *, method: str = "ml", field_ut: float | None = None, dip_sign: float | None = None
+    rec: FourFlipRecording, *, method: str = "ml", field_ut: float | None = None, dip_sign: float | None = None,
+    diagnose: bool = False, progress=None,
 ) -> CalibrationResult:
     """Calibrate every channel of a four-flip recording.
 
@@ -52,6 +56,12 @@ def calibrate_fourflip(
         The data cannot tell the field's sign from the channels' (``(a, B)`` and ``(-a, -B)``
         give the same outputs); +1 (field points down, northern hemisphere) unless the
         metadata's ``site_lat_deg`` is negative.
+    diagnose : bool
+        Run the residual diagnosis loop (:mod:`calibrate.diagnose`): with ``ml`` the final model
+        includes every effect the evidence supports; with the seed's rules the residual is only
+        examined (the loop needs the joint fit).
+    progress : callable, optional
+        Receives one line of text per diagnosis stage.
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
@@ -62,13 +72,25 @@ def calibrate_fourflip(
     samples = BenchSamples.from_recording(rec)
     noise = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs)
     noise = np.where(noise > 0, noise, np.std(rec.outputs, axis=0) * 1e-3)
-    if method == "patent":
-        return _seed_rule(rec, samples, noise, field_ut, dip_sign, from_samples=True)
-    if method == "harmonic":
-        return _seed_rule(rec, samples, noise, field_ut, dip_sign, from_samples=False)
+    if method in ("patent", "harmonic"):
+        result = _seed_rule(rec, samples, noise, field_ut, dip_sign, from_samples=method == "patent")
+        if not diagnose:
+            return result
+        diagnosis = examine_residual(samples, result.residuals, noise)
+        warnings = result.warnings + ((UNEXPLAINED_WARNING,) if diagnosis["unexplained"] else ())
+        return replace(result, diagnosis=diagnosis, warnings=warnings)
     start = physics_from_harmonics(rec, field_ut, dip_sign)
-    fit = fit_ml(samples, rec.outputs, rec.channels, start, noise)
-    return result_from_ml(fit, rec, noise, field_ut)
+    if not diagnose:
+        fit = fit_ml(samples, rec.outputs, rec.channels, start, noise)
+        return result_from_ml(fit, rec, noise, field_ut)
+    _, fit, diagnosis = diagnose_fourflip(rec, start, noise, progress=progress)
+    effects = []
+    for effect in fit.effects:
+        names, values, sigmas = fit.effect_parameters(effect)
+        effects.append({"name": effect.name, "parameters": {
+            n: {"value": float(v), "sigma": float(e)} for n, v, e in zip(names, values, sigmas)}})
+    warnings = (UNEXPLAINED_WARNING,) if diagnosis["unexplained"] else ()
+    return result_from_ml(fit, rec, noise, field_ut, effects=effects, diagnosis=diagnosis, extra_warnings=warnings)
 
 
 def _float_or_none(s):

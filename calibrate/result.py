@@ -193,9 +193,10 @@ class CalibrationResult:
                          f"; residual rms {rms:.3g} (noise floor {noise:.3g})")
         if self.dof:
             lines.append(f"  chi2/dof {self.reduced_chi2:.3f} ({self.dof} dof)")
-        for name, (value, sigma) in self.parameters.items():
-            if not name.startswith(tuple(c.name + "." for c in self.channels)) and name not in ("dip_rad", "azimuth_rad"):
-                lines.append(f"  {name} = {value:.4g} +- {sigma:.2g}")
         for w in self.warnings:
             lines.append(f"  warning: {w}")
+        if self.diagnosis:
+            from .diagnose import format_diagnosis
+
+            lines.append(format_diagnosis(self.diagnosis))
         return "\n".join(lines)

@@ -55,7 +55,8 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
 
     from calibrate import calibrate_fourflip
 
-    result = calibrate_fourflip(rec, method=method, field_ut=field_ut)
+    result = calibrate_fourflip(rec, method=method, field_ut=field_ut, diagnose=diagnose,
+                                progress=None if quiet else (lambda text: print(f"  ... {text}", flush=True)))
     if not quiet:
         print(result.report())
     atomic_write_text(out, json.dumps(result.to_json(), indent=2) + "\n")
@@ -65,6 +66,16 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
 
         folder = Path(report)
         paths = [plot_fit(rec, result, folder / "fit.png"),
-                 plot_residuals(rec, {result.method: result.residuals}, folder / "residuals.png", result.noise)]
+                 plot_residuals(rec, _residual_sets(rec, result), folder / "residuals.png", result.noise)]
         print("wrote " + ", ".join(str(p) for p in paths))
     return result
+
+
+def _residual_sets(rec, result) -> dict:
+    """Residuals before (base model) and after the diagnosis, or the one fit there is."""
+    if not result.diagnosis or len(result.diagnosis["steps"]) < 2:
+        return {result.method: result.residuals}
+    from calibrate import calibrate_fourflip
+
+    base = calibrate_fourflip(rec, method="ml", field_ut=result.field_ut, diagnose=False)
+    return {"before (base model)": base.residuals, "after (" + ", ".join(result.diagnosis["effects"]) + ")": result.residuals}

@@ -22,8 +22,11 @@ with ``e`` the encoder error (Fourier series in the reading), ``epsilon`` the fl
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
+
+from scipy.spatial.transform import Rotation
 
 from ..frames import bench_rotation, field_in_bench
 
@@ -52,6 +55,16 @@ class BenchSamples:
     @classmethod
     def from_recording(cls, rec) -> "BenchSamples":
         return cls(rec.platform_deg, rec.flip_deg, rec.flip_index, rec.t_s, rec.temp_c)
+
+    @cached_property
+    def recorded_rotations(self) -> tuple[np.ndarray, np.ndarray]:
+        """Matrices of ``Rz(phi) Rx(kappa)`` and ``Rx(kappa)`` at the recorded angles, (n, 3, 3) each.
+
+        Cached: fits that leave the angles alone reuse them at every evaluation.
+        """
+        full = bench_rotation(self.platform_deg, self.flip_deg).as_matrix()
+        flip = bench_rotation(np.zeros_like(self.platform_deg), self.flip_deg).as_matrix()
+        return full, flip
 
 
 @dataclass(frozen=True)
@@ -120,13 +133,19 @@ def true_angles(physics: BenchPhysics, samples: BenchSamples) -> tuple[np.ndarra
 
 def housing_field(physics: BenchPhysics, samples: BenchSamples) -> np.ndarray:
     """The field in the housing frame H at each sample, shape (n, 3), field units."""
-    phi, kappa = true_angles(physics, samples)
     b_w = field_in_bench(physics.dip_deg, physics.azimuth_deg, physics.field_magnitude)
-    if physics.platform_field is None:
-        return bench_rotation(phi, kappa).apply(b_w, inverse=True)
-    # the platform field turns with the turntable: add it in the turntable frame
-    in_turntable = bench_rotation(phi, 0.0).apply(b_w, inverse=True) + physics.platform_field
-    return bench_rotation(np.zeros_like(phi), kappa).apply(in_turntable, inverse=True)
+    if physics.encoder_fourier is None and physics.flip_errors_deg is None:
+        full, flip = samples.recorded_rotations
+        b_h = np.einsum("nji,j->ni", full, b_w)
+        if physics.platform_field is not None:
+            b_h = b_h + np.einsum("nji,j->ni", flip, physics.platform_field)
+        return b_h
+    phi, kappa = true_angles(physics, samples)
+    # B_H = Rx(kappa)^T (Rz(phi)^T B_W + b_p): single-axis rotations applied in turn
+    in_turntable = Rotation.from_euler("z", phi[:, None], degrees=True).apply(b_w, inverse=True)
+    if physics.platform_field is not None:
+        in_turntable = in_turntable + physics.platform_field  # turns with the turntable
+    return Rotation.from_euler("x", kappa[:, None], degrees=True).apply(in_turntable, inverse=True)
 
 
 def bench_outputs(physics: BenchPhysics, samples: BenchSamples) -> np.ndarray:
