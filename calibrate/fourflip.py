@@ -31,6 +31,7 @@ from ._mlfit import MLFit, fit_ml
 from .diagnose import UNEXPLAINED_WARNING, diagnose_fourflip, examine_residual
 from .noise import noise_floor
 from .result import CalibrationResult, ChannelCalibration
+from .site_field import compare_with_site
 
 __all__ = ["METHODS", "calibrate_fourflip", "physics_from_harmonics", "result_from_ml"]
 
@@ -67,11 +68,17 @@ def calibrate_fourflip(
         raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     field_ut = field_ut if field_ut is not None else rec.field_ut
     if dip_sign is None:
-        lat = rec.metadata.get("site_lat_deg")
-        dip_sign = -1.0 if lat is not None and _float_or_none(lat) is not None and float(lat) < 0 else 1.0
+        lat = _float_or_none(rec.metadata.get("site_lat_deg"))
+        dip_sign = -1.0 if lat is not None and lat < 0 else 1.0
     samples = BenchSamples.from_recording(rec)
     noise = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs)
     noise = np.where(noise > 0, noise, np.std(rec.outputs, axis=0) * 1e-3)
+    result = _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progress)
+    site = compare_with_site(result.dip_deg, result.dip_sigma_deg, rec.metadata, rec.path)
+    return result if site is None else replace(result, extra={**result.extra, "site_check": site})
+
+
+def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progress) -> CalibrationResult:
     if method in ("patent", "harmonic"):
         result = _seed_rule(rec, samples, noise, field_ut, dip_sign, from_samples=method == "patent")
         if not diagnose:

@@ -199,4 +199,8 @@ class CalibrationResult:
             from .diagnose import format_diagnosis
 
             lines.append(format_diagnosis(self.diagnosis))
+        if "site_check" in self.extra:
+            from .site_field import describe
+
+            lines.append(describe(self.extra["site_check"]))
         return "\n".join(lines)
