@@ -16,7 +16,7 @@ from .io.table import RecordingError
 
 __all__ = ["main", "BadInput"]
 
-SUBCOMMANDS = ("demo", "simulate", "calibrate", "attitude", "live", "device")
+SUBCOMMANDS = ("demo", "simulate", "calibrate", "attitude", "live", "device", "export")
 
 
 class BadInput(ValueError):

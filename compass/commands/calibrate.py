@@ -8,11 +8,12 @@ from pathlib import Path
 from ..io.atomic import atomic_write_text, check_writable
 from ..io.fourflip import fourflip_from_table
 from ..io.table import read_table
+from ..io.tumble import tumble_from_table
 
 
 def register(sub) -> None:
     p = sub.add_parser("calibrate", help="calibrate from a recording and write a calibration file")
-    p.add_argument("recording", help="recording CSV (four-flip: has flip_deg)")
+    p.add_argument("recording", help="recording CSV (four-flip: has flip_deg; tumble: has mx,my,mz)")
     p.add_argument("--out", required=True, help="calibration JSON to write")
     p.add_argument("--method", choices=("ml", "harmonic", "patent"), default="ml",
                    help="ml: joint maximum likelihood (default); harmonic: seed formulas on harmonic fits; "
@@ -20,7 +21,9 @@ def register(sub) -> None:
     p.add_argument("--no-diagnose", action="store_true", help="skip the residual diagnosis loop")
     p.add_argument("--report", metavar="DIR", help="also write plots of fit and residuals into DIR")
     p.add_argument("--field-ut", type=float, default=None, help="|B| in uT (overrides '# field_ut:' metadata)")
-    p.add_argument("--kind", choices=("fourflip",), default=None, help="force the recording kind")
+    p.add_argument("--kind", choices=("fourflip", "tumble"), default=None, help="force the recording kind")
+    p.add_argument("--ellipsoid", choices=("auto", "offset", "diagonal", "full"), default="auto",
+                   help="tumble only: ellipsoid kind (default auto: the determined kind with the lowest BIC)")
     p.add_argument("--force", action="store_true", help="overwrite an existing calibration file")
     p.add_argument("--quiet", action="store_true", help="do not print the fit report")
     p.set_defaults(func=run)
@@ -28,12 +31,13 @@ def register(sub) -> None:
 
 def run(args) -> int:
     calibrate_file(args.recording, args.out, method=args.method, diagnose=not args.no_diagnose,
-                   report=args.report, field_ut=args.field_ut, kind=args.kind, force=args.force, quiet=args.quiet)
+                   report=args.report, field_ut=args.field_ut, kind=args.kind, force=args.force, quiet=args.quiet,
+                   ellipsoid=args.ellipsoid)
     return 0
 
 
 def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, field_ut=None, kind=None,
-                   force=False, quiet=False):
+                   force=False, quiet=False, ellipsoid="auto"):
     """Calibrate one recording file into a calibration file; returns the CalibrationResult.
 
     Raises
@@ -45,13 +49,18 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
 
     out = check_writable(out, force)
     table = read_table(recording)
-    kind = kind or ("fourflip" if table.has("flip_deg") else None)
+    if kind is None and table.has("flip_deg"):
+        kind = "fourflip"
+    elif kind is None and all(table.has(c) for c in ("mx", "my", "mz")):
+        kind = "tumble"
     if kind is None:
         raise BadInput(f"{recording}: cannot tell the recording kind from its columns "
-                       f"({', '.join(table.columns)}); a four-flip recording has flip_deg")
-    rec = fourflip_from_table(table)
+                       f"({', '.join(table.columns)}); a four-flip recording has flip_deg, a tumble mx,my,mz")
     if field_ut is not None and not field_ut > 0:
         raise BadInput(f"--field-ut must be positive, got {field_ut}")
+    if kind == "tumble":
+        return _calibrate_tumble(table, out, field_ut=field_ut, ellipsoid=ellipsoid, quiet=quiet)
+    rec = fourflip_from_table(table)
 
     from calibrate import calibrate_fourflip
 
@@ -79,3 +88,17 @@ def _residual_sets(rec, result) -> dict:
 
     base = calibrate_fourflip(rec, method="ml", field_ut=result.field_ut, diagnose=False)
     return {"before (base model)": base.residuals, "after (" + ", ".join(result.diagnosis["effects"]) + ")": result.residuals}
+
+
+def _calibrate_tumble(table, out, *, field_ut, ellipsoid, quiet):
+    """Tumble recordings (SPEC section 2): ellipsoid, coverage, mag-to-accel rotation."""
+    from calibrate.tumble import calibrate_tumble
+
+    rec = tumble_from_table(table)
+    field_ut = field_ut if field_ut is not None else table.metadata_float("field_ut")
+    result = calibrate_tumble(rec.mag, rec.accel, kind=ellipsoid, field_ut=field_ut, n_repeats=rec.n_repeats)
+    if not quiet:
+        print(result.report())
+    atomic_write_text(out, json.dumps(result.to_json(), indent=2) + "\n")
+    print(f"wrote {out}")
+    return result

@@ -1,0 +1,188 @@
+"""Simulated free-motion (tumble) recordings with known hard iron, soft iron and misalignment.
+
+The housing is turned along a smooth random path (a random walk of angular velocity), so the
+samples come as a hand-held tumble does: in runs, not independently over the sphere.  The
+magnetometer sees the Earth field through a symmetric soft-iron distortion, a hard-iron offset
+and a small rotation relative to the accelerometer (= housing) frame; the accelerometer sees
+gravity plus the path's own linear accelerations.  Disturbances are short bursts of an extra
+field (a passing magnet), not independent single-sample spikes.
+
+Model, with ``R_i = R_world<-housing`` (SPEC section 1, NWU world, FLU housing) and ``C`` the
+rotation taking magnetometer-frame vectors into the housing frame:
+
+.. math:: \\mathrm{raw}_i = W C^T R_i^T B_W + h + n_i, \\qquad a_i = R_i^T (0, 0, g) + \\ell_i + e_i
+
+so the calibration that undoes it is ``soft_iron = W^{-1}``, ``hard_iron = h``,
+``mag_to_accel = C``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..frames import heading_pitch_roll, world_field
+from ..io.atomic import atomic_write_text
+
+__all__ = ["SimulatedTumble", "simulate_tumble", "write_tumble", "COVERAGES"]
+
+COVERAGES = ("full", "upright")
+"""``full``: every orientation; ``upright``: never tilted beyond 60 degrees (never turned over)."""
+
+
+@dataclass(frozen=True)
+class SimulatedTumble:
+    """A simulated tumble and its truth.
+
+    Attributes
+    ----------
+    t_s : ndarray, shape (n,)
+    mag : ndarray, shape (n, 3)
+        Raw magnetometer, microtesla-like units (the simulator's unit is uT).
+    accel : ndarray, shape (n, 3)
+        Accelerometer, g.
+    attitude : Rotation
+        ``R_world<-housing`` of every sample.
+    heading_deg : ndarray, shape (n,)
+        True heading of every sample.
+    truth : dict
+        JSON-ready: ``hard_iron``, ``soft_iron`` (W^{-1}, output in uT), ``mag_to_accel``,
+        ``field_ut``, ``dip_deg``, ``noise_ut``, ``outlier_rows`` (0-based sample indices).
+    """
+
+    t_s: np.ndarray
+    mag: np.ndarray
+    accel: np.ndarray
+    attitude: Rotation
+    heading_deg: np.ndarray
+    truth: dict
+
+
+def _path(rng, n, rate_hz, coverage):
+    """Smooth random attitudes: angular velocity as a damped random walk, rad/s."""
+    dt = 1.0 / rate_hz
+    omega = np.zeros(3)
+    r = Rotation.from_euler("ZYX", [rng.uniform(0, 360), 0, 0], degrees=True)
+    out = []
+    for _ in range(n):
+        omega = 0.98 * omega + rng.normal(scale=0.35, size=3)
+        step = Rotation.from_rotvec(omega * dt)
+        nxt = r * step
+        if coverage == "upright":
+            up = nxt.apply([0.0, 0.0, 1.0], inverse=True)  # world up seen in the housing
+            if up[2] < np.cos(np.radians(60.0)):
+                omega = -omega
+                nxt = r * Rotation.from_rotvec(omega * dt)
+        r = nxt
+        out.append(r.as_quat())
+    return Rotation.from_quat(np.array(out))
+
+
+def simulate_tumble(*, seed: int = 0, n: int = 3000, rate_hz: float = 50.0, field_ut: float = 50.0,
+                    dip_deg: float = 60.0, hard_iron_ut: float = 20.0, soft_iron: float = 0.08,
+                    misalign_deg: float = 2.0, noise_ut: float = 0.3, accel_noise_g: float = 0.005,
+                    motion_g: float = 0.05, outlier_fraction: float = 0.0, outlier_ut: float = 25.0,
+                    coverage: str = "full", hold: int = 1) -> SimulatedTumble:
+    """Simulate a tumble.
+
+    Parameters
+    ----------
+    seed : int
+    n : int
+        Rows written (including held repeats).
+    rate_hz : float
+        Row rate.
+    field_ut, dip_deg : float
+        Earth field magnitude (uT) and dip (deg, > 0 down).
+    hard_iron_ut : float
+        Scale of the random hard-iron offset per axis, uT.
+    soft_iron : float
+        Scale of the symmetric soft-iron distortion ``W - I`` (dimensionless).
+    misalign_deg : float
+        Rotation angle between magnetometer and accelerometer frames, deg (random axis).
+    noise_ut, accel_noise_g : float
+        White noise per axis.
+    motion_g : float
+        Scale of the linear accelerations of the hand (smoothed), g.
+    outlier_fraction : float
+        Fraction of samples inside disturbance bursts (a magnet passing by, 20-sample bursts).
+    outlier_ut : float
+        Size of the disturbing field, uT.
+    coverage : {"full", "upright"}
+    hold : int
+        Magnetometer sample-and-hold: each value repeated on ``hold`` rows (1: no repeats).
+
+    Returns
+    -------
+    SimulatedTumble
+    """
+    if coverage not in COVERAGES:
+        raise ValueError(f"coverage must be one of {COVERAGES}, got {coverage!r}")
+    rng = np.random.default_rng(seed)
+    att = _path(rng, n, rate_hz, coverage)
+    b_world = world_field(dip_deg, field_ut)
+    h = rng.uniform(-1.0, 1.0, 3) * hard_iron_ut
+    sym = rng.normal(size=(3, 3)) * soft_iron
+    w = np.eye(3) + (sym + sym.T) / 2.0
+    c = Rotation.from_rotvec(misalign_deg * np.radians(1.0) * _unit(rng.normal(size=3)))
+    b_housing = att.apply(b_world, inverse=True)
+    b_mag = c.apply(b_housing, inverse=True)
+    mag = b_mag @ w.T + h + rng.normal(scale=noise_ut, size=(n, 3))
+
+    outliers = np.zeros(n, dtype=bool)
+    n_bursts = int(round(outlier_fraction * n / 20))
+    for start in rng.integers(0, max(n - 20, 1), size=n_bursts):
+        mag[start:start + 20] += _unit(rng.normal(size=3)) * outlier_ut * rng.uniform(0.5, 1.5)
+        outliers[start:start + 20] = True
+    if hold > 1:
+        mag = mag[(np.arange(n) // hold) * hold]
+
+    kernel = np.hanning(25)
+    kernel /= kernel.sum()
+    motion = np.column_stack([np.convolve(rng.normal(size=n), kernel, "same") for _ in range(3)])
+    motion *= motion_g / max(np.std(motion), 1e-12)
+    accel = att.apply([0.0, 0.0, 1.0], inverse=True) + motion + rng.normal(scale=accel_noise_g, size=(n, 3))
+
+    heading, _, _ = heading_pitch_roll(att)
+    truth = {
+        "hard_iron": h.tolist(),
+        "soft_iron": np.linalg.inv(w).tolist(),
+        "mag_to_accel": c.as_matrix().tolist(),
+        "misalign_deg": misalign_deg,
+        "field_ut": field_ut,
+        "dip_deg": dip_deg,
+        "noise_ut": noise_ut,
+        "coverage": coverage,
+        "outlier_rows": np.flatnonzero(outliers).tolist(),
+    }
+    return SimulatedTumble(np.arange(n) / rate_hz, mag, accel, att, heading, truth)
+
+
+def write_tumble(sim: SimulatedTumble, path, *, force: bool = False, accel: bool = True) -> tuple[Path, Path]:
+    """Write the recording CSV (SPEC section 2) and its truth side file ``<stem>.truth.json``.
+
+    Raises
+    ------
+    FileExistsError
+        If either file exists and ``force`` is False.
+    """
+    path = Path(path)
+    truth_path = path.with_suffix(".truth.json")
+    for p in (path, truth_path):
+        if p.exists() and not force:
+            raise FileExistsError(f"{p} exists; use --force to overwrite")
+    columns = ["t_s", "mx", "my", "mz"] + (["ax", "ay", "az"] if accel else [])
+    data = np.column_stack([sim.t_s, sim.mag] + ([sim.accel] if accel else []))
+    lines = ["# source: compass simulate tumble", ",".join(columns)]
+    lines += [",".join(f"{v:.5f}" for v in row) for row in data]
+    atomic_write_text(path, "\n".join(lines) + "\n")
+    atomic_write_text(truth_path, json.dumps(sim.truth, indent=2) + "\n")
+    return path, truth_path
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)

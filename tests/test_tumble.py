@@ -1,0 +1,128 @@
+"""Free-motion (tumble) calibration against simulated truth, bad input, and the CLI end to end."""
+
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from calibrate.tumble import calibrate_tumble, field_gravity_angles, static_mask
+from compass.cli import main
+from compass.io.tumble import read_tumble
+from compass.sim.tumble import simulate_tumble, write_tumble
+
+
+def shape(s):
+    s = np.asarray(s, float)
+    return s / np.cbrt(np.linalg.det(s))
+
+
+def test_full_ellipsoid_recovers_truth_despite_outliers():
+    sim = simulate_tumble(seed=3, n=3000, outlier_fraction=0.05, motion_g=0.0)
+    res = calibrate_tumble(sim.mag, sim.accel)
+    assert res.kind == "full"
+    tol_h = 4 * res.fit.hard_iron_sigma + 1e-3
+    assert np.all(np.abs(res.hard_iron - sim.truth["hard_iron"]) < tol_h)
+    assert np.all(np.abs(res.fit.soft_iron - shape(sim.truth["soft_iron"])) < 4 * res.fit.soft_iron_sigma + 1e-4)
+    # the noise sets the residual: rms within 20 % of the injected noise
+    assert abs(np.sqrt(np.mean(res.fit.residuals[res.fit.inliers] ** 2)) / sim.truth["noise_ut"] - 1) < 0.2
+    # most disturbed samples are rejected
+    flagged = ~res.fit.inliers
+    assert flagged[sim.truth["outlier_rows"]].mean() > 0.5
+    # misalignment: the rotation error within 4 sigma (largest axis sigma)
+    mis = res.misalignment
+    err = Rotation.from_matrix(sim.truth["mag_to_accel"]).inv() * mis.rotation
+    assert np.degrees(err.magnitude()) < 4 * np.linalg.norm(mis.rotvec_sigma_deg)
+    assert abs(mis.dip_deg - sim.truth["dip_deg"]) < 4 * mis.dip_sigma_deg + 0.05
+    eig = np.linalg.eigvalsh(res.soft_iron)
+    assert np.all(eig > 0)
+
+
+def test_sphere_truth_chooses_offset_kind():
+    sim = simulate_tumble(seed=4, n=1500, soft_iron=0.0, misalign_deg=0.0)
+    res = calibrate_tumble(sim.mag)
+    assert res.kind == "offset"
+    assert np.all(np.abs(res.hard_iron - sim.truth["hard_iron"]) < 4 * res.fit.hard_iron_sigma + 1e-3)
+    assert res.misalignment is None and res.mag_to_accel is None
+
+
+def test_poor_coverage_warns_in_words_and_falls_back():
+    sim = simulate_tumble(seed=5, n=2000, coverage="upright")
+    res = calibrate_tumble(sim.mag, sim.accel)
+    assert res.kind != "full"
+    assert "+Z" in res.coverage.missing
+    text = " ".join(res.warnings)
+    assert "never pointed along" in text and "+Z" in text
+    assert np.all(np.linalg.eigvalsh(res.soft_iron) > 0) and np.linalg.det(res.soft_iron) > 0
+    # do no harm on the field-gravity angle
+    st = static_mask(sim.accel)
+    raw = np.std(field_gravity_angles(sim.mag - np.mean(sim.mag, axis=0), sim.accel)[st])
+    cal = np.std(field_gravity_angles(res.calibrated(sim.mag), sim.accel, res.misalignment.rotation)[st])
+    assert cal < raw
+
+
+def test_forced_kind_and_known_field():
+    sim = simulate_tumble(seed=6, n=1500)
+    res = calibrate_tumble(sim.mag, kind="diagonal", field_ut=50.0)
+    assert res.kind == "diagonal" and [c.kind for c in res.candidates] == ["offset", "diagonal"]
+    norms = np.linalg.norm(res.calibrated(sim.mag), axis=1)
+    assert abs(np.median(norms) - 50.0) < 1.0
+    with pytest.raises(ValueError, match="kind must be"):
+        calibrate_tumble(sim.mag, kind="sphere")
+
+
+def test_repeated_values_are_dropped(tmp_path):
+    sim = simulate_tumble(seed=7, n=600, hold=5)
+    path, _ = write_tumble(sim, tmp_path / "rec.csv")
+    rec = read_tumble(path)
+    assert len(rec.mag) == 120 and rec.n_repeats == 480
+
+
+def test_cli_end_to_end_and_exports(tmp_path, capsys):
+    sim = simulate_tumble(seed=8, n=1500)
+    rec, _ = write_tumble(sim, tmp_path / "rec.csv")
+    cal = tmp_path / "cal.json"
+    assert main(["calibrate", str(rec), "--out", str(cal)]) == 0
+    data = json.loads(cal.read_text())
+    assert data["format"] == "compass-calibration/1" and data["model"] == "tumble"
+    h, s = np.array(data["hard_iron"]), np.array(data["soft_iron"])
+    assert s.shape == (3, 3) and h.shape == (3,) and data["field_norm"] > 0
+    c = np.array(data["mag_to_accel"])
+    np.testing.assert_allclose(c @ c.T, np.eye(3), atol=1e-9)
+    m = (sim.mag - h) @ s.T
+    assert np.std(np.linalg.norm(m, axis=1)) / data["field_norm"] < 0.02
+    capsys.readouterr()
+    assert main(["export", str(cal), "--format", "ardupilot"]) == 0
+    out = capsys.readouterr().out
+    params = dict(line.split(",") for line in out.splitlines() if not line.startswith("#"))
+    np.testing.assert_allclose([float(params[f"COMPASS_OFS_{a}"]) for a in "XYZ"], -10 * h, atol=1e-3)
+    assert set(params) == {f"COMPASS_{k}_{a}" for k in ("OFS", "DIA", "ODI") for a in "XYZ"}
+    assert main(["export", str(cal), "--format", "fusion"]) == 0
+    assert "softIronMatrix" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "text, expected",
+    [
+        ("mx,my\n1,2\n", "column 'mz'"),
+        ("mx,my,mz,ax,ay\n" + "1,2,3,0,0\n" * 3, "column 'az'"),
+        ("mx,my,mz\n" + "".join(f"{i},1,1\n" for i in range(5)), "at least 12"),
+        ("t_s,mx,my,mz\n" + "".join(f"{t},{t},1,1\n" for t in (0, 1, 2, 1, 4)), "row 5, column 't_s'"),
+        ("mx,my,mz\n1,2,x\n", "row 2, column 'mz'"),
+    ],
+)
+def test_bad_tumble_recordings_exit_2(tmp_path, capsys, text, expected):
+    rec = tmp_path / "bad.csv"
+    rec.write_text(text)
+    assert main(["calibrate", str(rec), "--out", str(tmp_path / "c.json"), "--kind", "tumble"]) == 2
+    err = capsys.readouterr().err
+    assert expected in err and "bad.csv" in err and "Traceback" not in err
+
+
+def test_export_rejects_other_files(tmp_path, capsys):
+    bad = tmp_path / "cal.json"
+    bad.write_text(json.dumps({"format": "other/2"}))
+    assert main(["export", str(bad), "--format", "fusion"]) == 2
+    assert "unknown calibration format" in capsys.readouterr().err
+    bad.write_text(json.dumps({"format": "compass-calibration/1", "channels": {}}))
+    assert main(["export", str(bad), "--format", "fusion"]) == 2
