@@ -112,24 +112,18 @@ def read_table(path) -> Table:
     if not text.strip():
         raise RecordingError(path, "empty file: expected a header row and data rows")
 
+    lines = text.splitlines()
     metadata: dict[str, str] = {}
     header, header_line = None, 0
-    body_lines: list[str] = []
-    body_rows: list[int] = []
-    for number, line in enumerate(text.splitlines(), start=1):
+    for number, line in enumerate(lines, start=1):
         stripped = line.strip()
         if not stripped:
             continue
         if stripped.startswith("#"):
-            key, sep, value = stripped[1:].partition(":")
-            if sep and key.strip():
-                metadata[key.strip()] = value.strip()
+            _add_metadata(stripped, metadata)
             continue
-        if header is None:
-            header, header_line = [c.strip() for c in stripped.split(",")], number
-            continue
-        body_lines.append(stripped)
-        body_rows.append(number)
+        header, header_line = [c.strip() for c in stripped.split(",")], number
+        break
     if header is None:
         raise RecordingError(path, "no header row: expected comma-separated column names")
     for i, name in enumerate(header):
@@ -139,11 +133,51 @@ def read_table(path) -> Table:
             raise RecordingError(path, f"header expected, found a number {name!r}", row=header_line, column=name)
         if header.index(name) != i:
             raise RecordingError(path, "duplicate column name", row=header_line, column=name)
+
+    data = _parse_plain_body(lines[header_line:], len(header))
+    if data is not None:
+        rows = np.arange(header_line + 1, header_line + 1 + len(data))
+        return Table(str(path), tuple(header), data, rows, metadata)
+    body_lines: list[str] = []
+    body_rows: list[int] = []
+    for number, line in enumerate(lines[header_line:], start=header_line + 1):
+        stripped = line.strip()
+        if not stripped:
+            continue
+        if stripped.startswith("#"):
+            _add_metadata(stripped, metadata)
+            continue
+        body_lines.append(stripped)
+        body_rows.append(number)
     if not body_lines:
         raise RecordingError(path, "header only: no data rows", row=header_line)
 
     data = _parse_body(path, header, body_lines, body_rows)
     return Table(str(path), tuple(header), data, np.asarray(body_rows), metadata)
+
+
+def _add_metadata(comment: str, metadata: dict) -> None:
+    key, sep, value = comment[1:].partition(":")
+    if sep and key.strip():
+        metadata[key.strip()] = value.strip()
+
+
+def _parse_plain_body(lines: list[str], n_cols: int) -> np.ndarray | None:
+    """Fast path for a body of data rows only (no comment, no blank line): one ``np.loadtxt``.
+
+    None when the body is anything else or does not parse; the line-by-line path then finds the
+    comments and names the bad cell.
+    """
+    text = "\n".join(lines)
+    if "#" in text or not text.strip():
+        return None
+    try:
+        data = np.loadtxt(io.StringIO(text), delimiter=",", ndmin=2, dtype=float)
+    except ValueError:
+        return None
+    if data.shape != (len(lines), n_cols) or not np.all(np.isfinite(data)):
+        return None
+    return data
 
 
 def _is_number(s: str) -> bool:

@@ -1,0 +1,339 @@
+"""Heading, pitch and roll from the field in H and gravity, with per-row quality (SPEC section 1).
+
+One field vector fixes only two of the three angles: the seed's runtime system (three equations,
+one per field component, for heading, pitch and roll) has rank 2, since turning the housing about
+the field's own direction changes no output.  So :func:`solve_attitude` needs one of
+
+- an accelerometer (``accel``): the optimal two-vector (Wahba) solution, weights from both
+  sensors' noise, full heading/pitch/roll with propagated 1-sigma uncertainties;
+- known pitch and roll (``pitch_deg``, ``roll_deg``): heading only;
+- ``level=True``: pitch = roll = 0 assumed, heading with the worst-case error that a tilt up to
+  ``max_tilt_deg`` would cause, and the tilt the field itself shows (a lower bound);
+
+and refuses otherwise, naming the missing information.
+
+World frame NWU (magnetic north), housing FLU, ``R_world<-housing = Rz(-heading) Ry(-pitch)
+Rx(roll)``; an accelerometer at rest reads +1 g along the housing's up direction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .frames import heading_pitch_roll, r_world_from_housing, world_field
+from .model import SensorModel, _times
+
+__all__ = ["Attitude", "MODES", "solve_attitude", "two_vector_rotation", "level_heading_bound_deg"]
+
+MODES = ("accelerometer", "known_tilt", "level")
+_UP = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass(frozen=True)
+class Attitude:
+    """Attitude per sample and its quality.
+
+    Attributes
+    ----------
+    mode : {"accelerometer", "known_tilt", "level"}
+    heading_deg, pitch_deg, roll_deg : ndarray, shape (n,)
+        SPEC section 1: heading in [0, 360) clockwise from magnetic north, pitch in [-90, 90]
+        (+X up positive), roll in (-180, 180] (right side down positive).
+    heading_sigma_deg : ndarray, shape (n,)
+        Propagated 1-sigma heading error: sensor noise, and the calibration's direction, offset
+        and gain uncertainty where the file gives it (in ``level`` mode without the tilt error,
+        which ``heading_bound_deg`` bounds).  Grows without limit as pitch nears +-90 degrees,
+        where heading is undefined.
+    pitch_sigma_deg, roll_sigma_deg : ndarray, shape (n,), or None
+        ``accelerometer`` mode only.
+    field_ratio : ndarray, shape (n,)
+        Measured |B| over the calibrated |B|.
+    dip_deg : ndarray, shape (n,)
+        Measured angle of the field below the horizontal (from the field-gravity angle); in
+        ``level`` mode below the housing's XY plane.
+    in_range : ndarray of bool, shape (n,)
+        Every channel inside its calibrated range.
+    disturbed : ndarray of bool, shape (n,)
+        |B| or dip differ from the calibration by more than noise and tolerance allow: a magnetic
+        disturbance, an acceleration besides gravity, or (``level``) more tilt than assumed.
+    heading_bound_deg : ndarray, shape (n,), or None
+        ``level`` mode: the largest heading error a tilt up to ``max_tilt_deg`` causes.
+    tilt_min_deg : ndarray, shape (n,), or None
+        ``level`` mode: the tilt the field proves (|apparent dip - dip|); the real tilt is at least this.
+    """
+
+    mode: str
+    heading_deg: np.ndarray
+    pitch_deg: np.ndarray
+    roll_deg: np.ndarray
+    heading_sigma_deg: np.ndarray
+    field_ratio: np.ndarray
+    dip_deg: np.ndarray
+    in_range: np.ndarray
+    disturbed: np.ndarray
+    pitch_sigma_deg: np.ndarray | None = None
+    roll_sigma_deg: np.ndarray | None = None
+    heading_bound_deg: np.ndarray | None = None
+    tilt_min_deg: np.ndarray | None = None
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """Output columns in file order (SPEC section 2's attitude output); absent ones left out."""
+        names = ("heading_deg", "pitch_deg", "roll_deg", "heading_sigma_deg", "pitch_sigma_deg",
+                 "roll_sigma_deg", "heading_bound_deg", "tilt_min_deg", "field_ratio", "dip_deg",
+                 "in_range", "disturbed")
+        return {n: getattr(self, n) for n in names if getattr(self, n) is not None}
+
+
+def two_vector_rotation(up_h, field_h, dip_deg: float, field_weight: float) -> Rotation:
+    """Optimal rotation for the two-vector Wahba problem, closed form, vectorised.
+
+    Minimises ``w_g |z - R u|^2 + w_B |b_W - R m|^2`` over rotations ``R = R_world<-housing``,
+    with ``u``, ``m`` the unit measured up and field directions in H and ``z``, ``b_W`` their
+    NWU references (``b_W`` from the dip).  ``B = sum w r b^T`` has rank 2, so the optimum maps
+    the measured plane's normal ``u x m`` onto the references' normal ``z x b_W``; inside that
+    plane it turns by
+
+    .. math:: \\theta = \\arg\\big( (1 - f) + f e^{i(\\rho - \\beta)} \\big),
+              \\qquad f = \\frac{w_B}{w_g + w_B}
+
+    from the solution that puts ``u`` on ``z`` exactly (TRIAD with gravity first), with
+    ``beta``, ``rho`` the measured and reference angles between the two vectors.  Equal to
+    ``Rotation.align_vectors([z, b_W], [u, m], weights=[w_g, w_B])`` (checked in the tests).
+
+    Parameters
+    ----------
+    up_h, field_h : array_like, shape (n, 3)
+        Measured up (accelerometer) and field directions in H; any length, not parallel.
+    dip_deg : float
+        Reference dip.
+    field_weight : float
+        ``f`` in [0, 1]; 0 aligns ``up_h`` exactly (tilt known or assumed).
+
+    Returns
+    -------
+    Rotation
+        ``R_world<-housing``, n rotations.
+    """
+    return Rotation.from_matrix(_two_vector_matrix(up_h, field_h, dip_deg, field_weight), assume_valid=True)
+
+
+def _two_vector_matrix(up_h, field_h, dip_deg: float, field_weight: float) -> np.ndarray:
+    """The matrix of :func:`two_vector_rotation`, shape (n, 3, 3)."""
+    if not 0.0 <= field_weight <= 1.0:
+        raise ValueError(f"field_weight must be in [0, 1], got {field_weight}")
+    u = _unit(np.atleast_2d(np.asarray(up_h, dtype=float)))
+    m = np.atleast_2d(np.asarray(field_h, dtype=float))
+    mu = _dot(m, u)
+    along = _unit(m - mu[:, None] * u)  # in the plane, perpendicular to u, toward m
+    normal = _cross(u, along)  # = u x m / |u x m|
+    # reference triad: up, north, west = up x b_W / |.|; b_W at angle rho from up toward north
+    rho = np.radians(90.0 + dip_deg)
+    beta = np.arctan2(_dot(m, along), mu)
+    theta = np.angle((1.0 - field_weight) + field_weight * np.exp(1j * (rho - beta)))
+    c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
+    # rows of R: north, west, up = (sin t u + cos t along), normal, (cos t u - sin t along)
+    return np.stack([s * u + c * along, normal, c * u - s * along], axis=1)
+
+
+def solve_attitude(
+    model: SensorModel,
+    raw,
+    *,
+    accel=None,
+    pitch_deg=None,
+    roll_deg=None,
+    level: bool = False,
+    accel_noise_g: float = 0.002,
+    max_tilt_deg: float = 5.0,
+    disturbance_sigma: float = 5.0,
+    field_tolerance: float = 0.02,
+    dip_tolerance_deg: float = 1.0,
+) -> Attitude:
+    """Attitude of every sample from the channel outputs and gravity (or a known/assumed tilt).
+
+    Parameters
+    ----------
+    model : SensorModel
+        Needs ``dip_deg`` and ``noise`` (the calibration's ``noise_floor``).
+    raw : array_like, shape (n, c)
+        Channel outputs in the order of ``model.channels``.
+    accel : array_like, shape (n, 3), optional
+        Accelerometer in H, any unit (specific force: +up at rest).
+    pitch_deg, roll_deg : array_like, shape (n,), optional
+        Known pitch and roll (both or neither), degrees, taken as exact.
+    level : bool
+        Assume pitch = roll = 0.
+    accel_noise_g : float
+        Accelerometer white noise per axis as a fraction of 1 g (default 0.002).
+    max_tilt_deg : float
+        ``level`` mode: the largest tilt the assumption allows, for ``heading_bound_deg``.
+    disturbance_sigma, field_tolerance, dip_tolerance_deg : float
+        A row is ``disturbed`` when ``|field_ratio - 1|`` exceeds ``max(k sigma, field_tolerance)``
+        or the dip error exceeds ``max(k sigma, dip_tolerance_deg)`` (``level``: the tilt it shows
+        exceeds ``max_tilt_deg`` by more than that), ``k = disturbance_sigma``.
+
+    Returns
+    -------
+    Attitude
+
+    Raises
+    ------
+    ValueError
+        No gravity and no tilt (the field alone fixes two angles of three), more than one
+        source of tilt, or a calibration without dip or noise.
+
+    Notes
+    -----
+    With ``R`` the estimate and ``eps`` the world-frame rotation error, the Wahba solution's
+    linearisation gives ``eps = H^-1 sum_i w_i [r_i]x^T dm_i`` with ``H = sum_i w_i (I - r_i r_i^T)``;
+    the measurement errors ``dm_i`` of the unit vectors come from ``model.component_variance`` and
+    ``accel_noise_g``.  The angles' sensitivities to ``eps`` are the inverse Euler-rate relations
+    (``d heading = eps_z + tan(pitch) eps . x_horizontal``), so heading sigma grows as pitch nears
+    +-90 degrees.
+    """
+    sources = [name for name, given in (("accel", accel is not None), ("pitch_deg/roll_deg", pitch_deg is not None
+                                         or roll_deg is not None), ("level", level)) if given]
+    if not sources:
+        raise ValueError("the field alone fixes only two of heading, pitch and roll (the seed's three equations "
+                         "have rank 2): give accelerometer columns ax,ay,az, known pitch_deg and roll_deg "
+                         "columns, or assume a level housing (--level)")
+    if len(sources) > 1:
+        raise ValueError(f"give one source of tilt, got {' and '.join(sources)}")
+    if model.dip_deg is None:
+        raise ValueError("the calibration has no dip_deg: attitude needs the field's reference direction")
+    if model.noise is None:
+        raise ValueError("the calibration has no noise_floor: the solution cannot be weighted nor its "
+                         "uncertainty propagated")
+    if not accel_noise_g > 0:
+        raise ValueError(f"accel_noise_g must be positive, got {accel_noise_g}")
+
+    field, in_range = model.field(raw)
+    n = len(field)
+    var = model.component_variance(field)
+    b_norm = np.sqrt(_dot(field, field))
+    m = field / b_norm[:, None]
+    field_ratio = b_norm / model.field_magnitude
+
+    if accel is not None:
+        a = np.asarray(accel, dtype=float)
+        if a.shape != (n, 3):
+            raise ValueError(f"expected accel of shape ({n}, 3), got {a.shape}")
+        a_norm = np.sqrt(_dot(a, a))
+        if np.any(a_norm == 0):
+            raise ValueError(f"accelerometer reads zero at sample {int(np.argmax(a_norm == 0))}")
+        up, up_var, mode = a / a_norm[:, None], accel_noise_g**2, "accelerometer"
+    elif level:
+        if not 0 <= max_tilt_deg < 90:
+            raise ValueError(f"max_tilt_deg must be in [0, 90), got {max_tilt_deg}")
+        up, up_var, mode = np.tile(_UP, (n, 1)), 0.0, "level"
+    else:
+        if pitch_deg is None or roll_deg is None:
+            raise ValueError("known tilt needs both pitch_deg and roll_deg")
+        up = r_world_from_housing(0.0, pitch_deg, roll_deg).apply(_UP, inverse=True)
+        if up.shape != (n, 3):
+            raise ValueError(f"expected {n} pitch_deg and roll_deg values, got {len(up)}")
+        up_var, mode = 0.0, "known_tilt"
+
+    # Wahba weights from noise: per-axis variance of each unit vector (field: at zero field)
+    field_var = np.sum(model.component_variance(np.zeros(3)) * model.solver**2) / 3.0 / model.field_magnitude**2
+    f = field_var**-1 / (up_var**-1 + field_var**-1) if up_var > 0 else 0.0
+    matrix = _two_vector_matrix(up, m, model.dip_deg, f)
+    heading, pitch, roll = heading_pitch_roll(Rotation.from_matrix(matrix, assume_valid=True))
+
+    def field_quad(v):  # v^T Sigma_B v per row, field units squared
+        return np.einsum("nc,nc->n", var, _times(v, model.solver) ** 2)
+
+    mu = _dot(m, up)
+    dip = np.degrees(np.arcsin(np.clip(-mu, -1.0, 1.0)))
+    # sigma of the dip: d(m.u) = (Q_m u) . dB / |B| + (Q_u m) . du
+    qm = m - mu[:, None] * up
+    dip_sigma = np.degrees(np.sqrt(field_quad(up - mu[:, None] * m) / b_norm**2 + up_var * _dot(qm, qm))
+                           / np.maximum(np.sqrt(1.0 - mu**2), 1e-12))
+    ratio_sigma = np.sqrt(field_quad(m)) / model.field_magnitude
+    field_bad = np.abs(field_ratio - 1.0) > np.maximum(disturbance_sigma * ratio_sigma, field_tolerance)
+    dip_limit = np.maximum(disturbance_sigma * dip_sigma, dip_tolerance_deg)
+    dip_error = np.abs(dip - model.dip_deg)
+
+    if mode == "accelerometer":
+        sig = _wahba_sigmas(matrix, heading, pitch, field_quad, b_norm, up_var, f, model.dip_deg)
+        return Attitude(mode, heading, pitch, roll, sig[0], field_ratio, dip, in_range,
+                        field_bad | (dip_error > dip_limit), pitch_sigma_deg=sig[1], roll_sigma_deg=sig[2])
+    # tilt exact: only the rotation about the vertical is left, fixed by the field's west component
+    heading_sigma = np.degrees(np.sqrt(field_quad(matrix[:, 1, :])) / (b_norm * np.sqrt(1.0 - mu**2)))
+    if mode == "known_tilt":
+        return Attitude(mode, heading, pitch, roll, heading_sigma, field_ratio, dip, in_range,
+                        field_bad | (dip_error > dip_limit))
+    bound = np.full(n, level_heading_bound_deg(model.dip_deg, max_tilt_deg))
+    return Attitude(mode, heading, np.zeros(n), np.zeros(n), heading_sigma, field_ratio, dip, in_range,
+                    field_bad | (dip_error > max_tilt_deg + dip_limit), heading_bound_deg=bound, tilt_min_deg=dip_error)
+
+
+@lru_cache(maxsize=64)
+def level_heading_bound_deg(dip_deg: float, max_tilt_deg: float) -> float:
+    """Largest heading error from assuming a level housing that is tilted by up to ``max_tilt_deg``.
+
+    The level solution reads heading as the azimuth of the field in the housing's XY plane;
+    a tilt ``tau`` moves it by about ``tan(dip) tau`` (first order) and by up to 180 degrees when
+    ``tau`` approaches ``90 - dip``.  Evaluated exactly on a dense grid of headings and tilts of
+    magnitude ``max_tilt_deg`` (the error grows with the tilt), degrees in [0, 180].
+    """
+    if max_tilt_deg == 0:
+        return 0.0
+    tau = np.radians(max_tilt_deg)
+    heading = np.arange(0.0, 360.0, 0.5)
+    pitch = np.degrees(tau * np.sin(np.linspace(-np.pi / 2, np.pi / 2, 361)))
+    roll = np.degrees(np.arccos(np.clip(np.cos(tau) / np.cos(np.radians(pitch)), -1.0, 1.0)))
+    pitch, roll = np.concatenate([pitch, pitch]), np.concatenate([roll, -roll])
+    h, p = np.meshgrid(heading, pitch, indexing="ij")
+    r = np.broadcast_to(roll, h.shape)
+    b = r_world_from_housing(h.ravel(), p.ravel(), r.ravel()).apply(world_field(dip_deg), inverse=True)
+    error = np.degrees(np.arctan2(b[:, 1], b[:, 0])) - h.ravel()
+    return float(np.max(np.abs(np.mod(error + 180.0, 360.0) - 180.0)))
+
+
+def _wahba_sigmas(matrix, heading, pitch, field_quad_h, b_norm, up_var, f, dip_deg) -> list[np.ndarray]:
+    """1-sigma heading, pitch, roll (degrees); see :func:`solve_attitude` Notes.
+
+    ``Cov(eps) = H^-1 (w_g^2 S_g + w_B^2 S_B) H^-1`` with ``S_i = [r_i]x^T Sigma_i [r_i]x``.  An
+    angle with world-frame sensitivity ``j`` (``d angle = j . eps``) and ``g = H^-1 j`` has variance
+    ``w_g^2 sigma_g^2 |g x z|^2 + w_B^2 v^T Sigma_B v / |B|^2`` with ``v = R^T (b_W x g)`` in H
+    (``R^T`` of a world axis is a row of ``R``).
+    """
+    field_ref = world_field(dip_deg)
+    h = (1.0 - f) * (np.eye(3) - np.outer(_UP, _UP)) + f * (np.eye(3) - np.outer(field_ref, field_ref))
+    h_inv = np.linalg.inv(h)
+    cross_h_inv = np.cross(field_ref, h_inv)  # rows: b_W x H^-1 e_k (H^-1 symmetric)
+    psi, theta = np.radians(-heading), np.radians(-pitch)  # scipy's ZYX yaw and pitch
+    cp, sp, ct, tt = np.cos(psi), np.sin(psi), np.cos(theta), np.tan(theta)
+    zero = np.zeros_like(psi)
+    # world-frame rotation error eps -> d yaw, d pitch, d roll (inverse Euler-rate relations)
+    sensitivities = ((tt * cp, tt * sp, zero + 1.0), (-sp, cp, zero), (cp / ct, sp / ct, zero))
+    sigmas = []
+    for j in sensitivities:
+        j = np.stack(j, axis=-1)
+        g = _times(j, h_inv)
+        c = _times(j, cross_h_inv)  # b_W x g, world frame
+        v = c[:, :1] * matrix[:, 0] + c[:, 1:2] * matrix[:, 1] + c[:, 2:] * matrix[:, 2]  # R^T c
+        var = (1.0 - f) ** 2 * up_var * (g[:, 0] ** 2 + g[:, 1] ** 2) + f**2 * field_quad_h(v) / b_norm**2
+        sigmas.append(np.degrees(np.sqrt(var)))
+    return sigmas
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot product of (n, 3) arrays."""
+    return np.einsum("ij,ij->i", a, b)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (n, 3) arrays (three times faster than ``np.cross`` here)."""
+    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
+                     a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=-1)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.sqrt(_dot(v, v))[:, None]

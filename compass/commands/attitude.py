@@ -1,0 +1,126 @@
+"""``compass attitude CAL.json REC.csv --out ATT.csv``: heading, pitch, roll per row, with quality.
+
+Reads the calibration's sensor model and an attitude recording (SPEC section 2: ``t_s``, the
+calibration's channel columns, optional ``ax,ay,az`` and ``gx,gy,gz``; known ``pitch_deg,
+roll_deg`` columns are accepted as the tilt), solves every row (:func:`compass.attitude.solve_attitude`)
+and writes the attitude CSV atomically.
+"""
+
+from __future__ import annotations
+
+
+import numpy as np
+
+from ..io.atomic import atomic_write_text, check_writable
+from ..io.table import RecordingError, read_table
+
+_ACCEL = ("ax", "ay", "az")
+_TILT = ("pitch_deg", "roll_deg")
+_IGNORED = ("t_s", "temp_c", "gx", "gy", "gz")
+_FORMATS = {"in_range": "%d", "disturbed": "%d", "t_s": "%.4f"}
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "attitude", help="heading, pitch and roll from a calibration and an attitude recording",
+        description="Solve heading/pitch/roll per row. Gravity comes from ax,ay,az columns, known pitch_deg,roll_deg "
+                    "columns, or --level; the field alone fixes only two of the three angles.")
+    p.add_argument("calibration", help="calibration JSON (compass calibrate)")
+    p.add_argument("recording", help="attitude recording CSV: the calibration's channel columns, optional t_s, "
+                                     "ax,ay,az (any unit), gx,gy,gz (ignored here), or pitch_deg,roll_deg")
+    p.add_argument("--out", required=True, help="attitude CSV to write")
+    p.add_argument("--level", action="store_true",
+                   help="no accelerometer: assume pitch = roll = 0 and report the heading error a tilt could cause")
+    p.add_argument("--max-tilt-deg", type=float, default=5.0,
+                   help="with --level: the tilt the assumption allows, for heading_bound_deg (default 5)")
+    p.add_argument("--accel-noise-g", type=float, default=0.002,
+                   help="accelerometer white noise per axis as a fraction of 1 g (default 0.002)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    attitude_file(args.calibration, args.recording, args.out, level=args.level, max_tilt_deg=args.max_tilt_deg,
+                  accel_noise_g=args.accel_noise_g, force=args.force)
+    return 0
+
+
+def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0, accel_noise_g=0.002, force=False):
+    """Solve one recording file into an attitude CSV; returns the :class:`~compass.attitude.Attitude`.
+
+    Raises
+    ------
+    RecordingError, BadInput, FileExistsError
+        Bad input (exit status 2 on the command line).
+    """
+    from ..attitude import solve_attitude
+    from ..cli import BadInput
+    from ..model import SensorModel
+
+    out = check_writable(out, force)
+    if not accel_noise_g > 0:
+        raise BadInput(f"--accel-noise-g must be positive, got {accel_noise_g}")
+    if not 0 <= max_tilt_deg < 90:
+        raise BadInput(f"--max-tilt-deg must be in [0, 90), got {max_tilt_deg}")
+    try:
+        model = SensorModel.from_file(calibration)
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    table = read_table(recording)
+    known = set(model.channels) | set(_ACCEL) | set(_TILT) | set(_IGNORED)
+    for name in table.columns:
+        if name not in known:
+            raise RecordingError(table.path, f"column '{name}' is not a channel of {calibration} "
+                                             f"(its channels: {', '.join(model.channels)})",
+                                 row=table.header_row, column=name)
+    raw = np.column_stack([table.column(name) for name in model.channels])
+    accel = _group(table, _ACCEL)
+    tilt = _group(table, _TILT)
+    if accel is not None:
+        _check_rows(table, np.sum(accel**2, axis=1) > 0, "ax", "accelerometer reads zero: expected gravity")
+    if tilt is not None:
+        _check_rows(table, np.abs(tilt[:, 0]) <= 90.0, "pitch_deg", "pitch must be in [-90, 90] degrees")
+    try:
+        result = solve_attitude(model, raw, accel=accel, pitch_deg=None if tilt is None else tilt[:, 0],
+                                roll_deg=None if tilt is None else tilt[:, 1], level=level,
+                                accel_noise_g=accel_noise_g, max_tilt_deg=max_tilt_deg)
+    except ValueError as exc:
+        raise BadInput(f"{recording}: {exc}") from None
+
+    columns = ({"t_s": table.column("t_s")} if table.has("t_s") else {}) | result.columns()
+    metadata = {"calibration": calibration, "recording": recording, "mode": result.mode}
+    if result.mode == "accelerometer":
+        metadata["accel_noise_g"] = f"{accel_noise_g:g}"
+    if result.mode == "level":
+        metadata["max_tilt_deg"] = f"{max_tilt_deg:g}"
+    if model.direction_covariance is None:
+        metadata["note"] = "the calibration gives no direction covariance: sigmas count sensor noise only"
+    atomic_write_text(out, _format_csv(columns, metadata))
+    print(f"wrote {out} ({len(raw)} rows, mode {result.mode}; {int(np.sum(result.disturbed))} disturbed, "
+          f"{int(np.sum(~result.in_range))} out of calibrated range)")
+    return result
+
+
+def _group(table, names) -> np.ndarray | None:
+    """The columns ``names`` together, None when all are absent; RecordingError naming a missing one."""
+    present = [n for n in names if table.has(n)]
+    if not present:
+        return None
+    for name in names:
+        if not table.has(name):
+            raise RecordingError(table.path, f"has {', '.join(present)} but not '{name}': give all of "
+                                             f"{', '.join(names)}", row=table.header_row, column=name)
+    return np.column_stack([table.column(n) for n in names])
+
+
+def _check_rows(table, ok: np.ndarray, column: str, message: str) -> None:
+    if not np.all(ok):
+        raise RecordingError(table.path, message, row=int(table.rows[np.argmin(ok)]), column=column)
+
+
+def _format_csv(columns: dict, metadata: dict) -> str:
+    """CSV text: ``# key: value`` lines, a header, one row per sample (formatted column-wise)."""
+    fmt = ",".join(_FORMATS.get(name, "%.4f") for name in columns)
+    values = [np.asarray(v, dtype=int if v.dtype == bool else float).tolist() for v in columns.values()]
+    lines = [f"# {k}: {v}" for k, v in metadata.items()] + [",".join(columns)]
+    return "\n".join(lines + list(map(fmt.__mod__, zip(*values)))) + "\n"

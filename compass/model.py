@@ -1,0 +1,393 @@
+"""The sensor model: channels, sensing matrix and inverse responses, giving the field in H.
+
+A calibration file (SPEC section 2) describes each single-axis channel ``c`` by a unit sensing
+direction ``a_c`` in the housing frame H and a monotone response ``v_c = f_c(x_c)`` of the field
+component ``x_c = B_H . a_c``.  At runtime the responses are inverted channel by channel and the
+field vector is solved from the stacked components:
+
+.. math::
+
+    x = A B_H, \\qquad A = \\begin{pmatrix} a_1^T \\ \\vdots \\ a_c^T \\end{pmatrix}, \\qquad
+    \\hat B_H = (A^T W A)^{-1} A^T W x, \\quad W = \\mathrm{diag}(\\sigma_{x,c}^{-2})
+
+``A`` (the sensing matrix) is never assumed orthogonal: with three channels this is ``A^{-1} x``,
+with more it is the noise-weighted least-squares solution.  The seed's runtime step writes the
+field as ``sum_c a_c cos(beta_c)``, which is only right for orthonormal axes.
+
+A tumble calibration (``"model": "tumble"``: ``m = soft_iron @ (raw - hard_iron)``, then
+``mag_to_accel @ m`` in the accelerometer frame) is the same model with three linear channels:
+``raw = hard_iron + G B_H`` with ``G = soft_iron^-1 mag_to_accel^T``, so row ``c`` of ``G`` is
+``gain_c a_c``.  Its housing frame is the accelerometer's (or the magnetometer's when
+``mag_to_accel`` is null).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from .response import LinearResponse, Response, response_from_json
+
+__all__ = ["FORMAT", "SensorModel"]
+
+FORMAT = "compass-calibration/1"
+_TUMBLE_CHANNELS = ("mx", "my", "mz")
+_MIN_SINGULAR = 1e-3  # smallest singular value of A (unit rows) accepted: axes must span 3-D
+_SLOPE_STEP = 1e-4  # relative step of the numerical response slope (nonlinear channels only)
+
+
+@dataclass(frozen=True, eq=False)
+class SensorModel:
+    """A calibrated magnetic sensor: the runtime half of a calibration file.
+
+    Build it with :meth:`from_json` / :meth:`from_file`; write it with :meth:`to_json`.
+
+    Attributes
+    ----------
+    channels : tuple of str
+        Channel (column) names, in the order of the rows of ``directions``.
+    directions : ndarray, shape (c, 3)
+        Unit sensing directions in the housing frame H.
+    responses : tuple of Response
+        Each channel's output as a function of its field component (field units).
+    field_magnitude : float
+        Calibrated |B| in field units (uT when ``field_ut`` is known, else 1: units of |B|).
+    field_ut : float or None
+        |B| in microtesla if the calibration knew it.
+    dip_deg : float or None
+        Calibrated dip (> 0: field points down), degrees; None if the calibration has none.
+    noise : ndarray, shape (c,), or None
+        White noise of each channel's output (output units); None when unknown.
+    direction_covariance : ndarray, shape (c, 3, 3), or None
+        Covariance of each sensing direction (rad^2, tangent to the unit sphere); None when the
+        calibration gives none (``patent``, ``harmonic``, tumble).
+    response_sigma : ndarray, shape (c, 2), or None
+        Standard errors of each channel's (offset, gain), output units and output units per
+        field unit; None when unknown.
+    kind : {"channels", "tumble"}
+        The calibration file's form.
+    """
+
+    channels: tuple[str, ...]
+    directions: np.ndarray
+    responses: tuple[Response, ...]
+    field_magnitude: float
+    field_ut: float | None = None
+    dip_deg: float | None = None
+    noise: np.ndarray | None = None
+    direction_covariance: np.ndarray | None = None
+    response_sigma: np.ndarray | None = None
+    kind: str = "channels"
+
+    def __post_init__(self):
+        c = len(self.channels)
+        if c < 3:
+            raise ValueError(f"a field vector needs at least 3 channels, the calibration has {c} "
+                             f"({', '.join(self.channels)})")
+        if np.shape(self.directions) != (c, 3) or len(self.responses) != c:
+            raise ValueError(f"expected {c} directions of shape (3,) and {c} responses, got "
+                             f"{np.shape(self.directions)} and {len(self.responses)}")
+        if not np.all(np.isfinite(self.directions)):
+            raise ValueError("sensing directions must be finite")
+        if not self.field_magnitude > 0:
+            raise ValueError(f"calibrated |B| must be positive, got {self.field_magnitude}")
+        smallest = np.linalg.svd(self.unit_directions, compute_uv=False)[-1]
+        if smallest < _MIN_SINGULAR:
+            raise ValueError(f"the sensing directions of {', '.join(self.channels)} do not span three "
+                             f"dimensions (smallest singular value {smallest:.2g}): the field cannot be solved")
+
+    # ------------------------------------------------------------------ construction
+
+    @classmethod
+    def from_file(cls, path) -> "SensorModel":
+        """Read a calibration file (SPEC section 2).
+
+        Raises
+        ------
+        ValueError
+            Unreadable or not JSON, unknown ``format``, or missing/invalid keys; the message names
+            the file.
+        """
+        path = Path(path)
+        try:
+            d = json.loads(path.read_text(encoding="utf-8"))
+        except OSError as exc:
+            raise ValueError(f"{path}: cannot read calibration file ({exc.strerror})") from None
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"{path}: not a JSON calibration file ({exc})") from None
+        try:
+            return cls.from_json(d)
+        except ValueError as exc:
+            raise ValueError(f"{path}: {exc}") from None
+
+    @classmethod
+    def from_json(cls, d: dict) -> "SensorModel":
+        """Build the model from a calibration file's dictionary (channel or tumble form).
+
+        Raises
+        ------
+        ValueError
+            ``format`` other than ``compass-calibration/1``, or missing/invalid keys.
+        """
+        if not isinstance(d, dict):
+            raise ValueError(f"expected a JSON object, got {type(d).__name__}")
+        fmt = d.get("format")
+        if fmt != FORMAT:
+            raise ValueError(f"unknown calibration format {fmt!r}: this reader knows only {FORMAT!r}")
+        field_ut = _optional_float(d, "field_ut")
+        dip_deg = _optional_float(d, "dip_deg")
+        if d.get("model") == "tumble":
+            return _from_tumble(d, field_ut, dip_deg)
+        if d.get("model") is not None:
+            raise ValueError(f"unknown calibration model {d['model']!r} (known: tumble, or none for channels)")
+        channels = d.get("channels")
+        if not isinstance(channels, dict) or not channels:
+            raise ValueError("expected 'channels': an object of channel name -> direction and response")
+        names, directions, responses, covariances, sigmas = [], [], [], [], []
+        for name, ch in channels.items():
+            where = f"channel '{name}'"
+            if not isinstance(ch, dict):
+                raise ValueError(f"{where}: expected an object with 'direction' and 'response'")
+            try:
+                direction = np.asarray(ch["direction"], dtype=float)
+            except (KeyError, TypeError, ValueError) as exc:
+                raise ValueError(f"{where}: expected 'direction': [x, y, z] ({exc})") from None
+            if direction.shape != (3,) or not np.isclose(np.linalg.norm(direction), 1.0, atol=1e-6):
+                raise ValueError(f"{where}: 'direction' must be a unit vector [x, y, z], got {ch['direction']}")
+            names.append(name)
+            directions.append(direction)
+            responses.append(response_from_json(ch.get("response", {}), where=f"{where} response"))
+            cov = ch.get("direction_covariance")
+            covariances.append(None if cov is None else _matrix(cov, f"{where} direction_covariance"))
+            rs = ch.get("response_sigma")
+            sigmas.append(None if rs is None else (_optional_float(rs, "offset"), _optional_float(rs, "gain")))
+        noise = d.get("noise_floor")
+        return cls(
+            channels=tuple(names),
+            directions=np.array(directions),
+            responses=tuple(responses),
+            field_magnitude=field_ut or 1.0,
+            field_ut=field_ut,
+            dip_deg=dip_deg,
+            noise=None if noise is None else _vector(noise, len(names), "noise_floor"),
+            direction_covariance=None if any(c is None for c in covariances) else np.array(covariances),
+            response_sigma=(None if any(s is None or None in s for s in sigmas) else np.array(sigmas, dtype=float)),
+        )
+
+    def to_json(self) -> dict:
+        """The calibration file's runtime keys (channel form), JSON-ready.
+
+        A tumble model comes back in its equivalent channel form; :meth:`from_json` reads it back
+        to the same model.
+        """
+        channels = {}
+        for c, name in enumerate(self.channels):
+            entry = {"direction": [float(v) for v in self.directions[c]], "response": self.responses[c].to_json()}
+            if self.direction_covariance is not None:
+                entry["direction_covariance"] = self.direction_covariance[c].tolist()
+            if self.response_sigma is not None:
+                entry["response_sigma"] = {"offset": float(self.response_sigma[c, 0]),
+                                           "gain": float(self.response_sigma[c, 1])}
+            channels[name] = entry
+        out = {"format": FORMAT, "channels": channels, "dip_deg": self.dip_deg, "field_ut": self.field_ut}
+        if self.noise is not None:
+            out["noise_floor"] = [float(v) for v in self.noise]
+        return out
+
+    # ------------------------------------------------------------------ derived
+
+    @cached_property
+    def unit_directions(self) -> np.ndarray:
+        """Directions normalised to unit length, shape (c, 3)."""
+        a = np.asarray(self.directions, dtype=float)
+        return a / np.linalg.norm(a, axis=1, keepdims=True)
+
+    @cached_property
+    def gains(self) -> np.ndarray:
+        """Zero-field gain of each channel, output units per field unit, shape (c,)."""
+        return np.array([r.gain for r in self.responses])
+
+    @cached_property
+    def component_noise(self) -> np.ndarray | None:
+        """Noise of each field component at zero field, field units, shape (c,); None if unknown."""
+        return None if self.noise is None else np.asarray(self.noise, float) / self.gains
+
+    @cached_property
+    def solver(self) -> np.ndarray:
+        """The matrix P (3, c) with ``B_H = P x``: ``A^-1`` for three channels, weighted least squares above."""
+        a = self.unit_directions
+        w = np.ones(len(a)) if self.component_noise is None else 1.0 / self.component_noise**2
+        return np.linalg.solve(a.T @ (w[:, None] * a), a.T * w[None, :])
+
+    # ------------------------------------------------------------------ runtime
+
+    def components(self, raw) -> tuple[np.ndarray, np.ndarray]:
+        """Invert every channel's response.
+
+        Parameters
+        ----------
+        raw : array_like, shape (..., c)
+            Channel outputs (output units), channels in the order of :attr:`channels`.
+
+        Returns
+        -------
+        x : ndarray, shape (..., c)
+            Field component along each sensing direction, field units.
+        in_range : ndarray of bool, shape (..., c)
+            False where the component lies outside the channel's calibrated range.
+        """
+        raw = np.asarray(raw, dtype=float)
+        if raw.shape[-1:] != (len(self.channels),):
+            raise ValueError(f"expected raw outputs of shape (..., {len(self.channels)}) for channels "
+                             f"{', '.join(self.channels)}, got {raw.shape}")
+        pairs = [r.field_component(raw[..., c]) for c, r in enumerate(self.responses)]
+        return np.stack([p[0] for p in pairs], axis=-1), np.stack([p[1] for p in pairs], axis=-1)
+
+    def field(self, raw) -> tuple[np.ndarray, np.ndarray]:
+        """Field vector in the housing frame H from channel outputs.
+
+        Parameters
+        ----------
+        raw : array_like, shape (..., c)
+            Channel outputs (output units).
+
+        Returns
+        -------
+        field : ndarray, shape (..., 3)
+            ``B_H`` in field units (uT when :attr:`field_ut` is known, else units of |B|).
+        in_range : ndarray of bool, shape (...)
+            True where every channel is inside its calibrated range.
+
+        Examples
+        --------
+        >>> from compass.response import LinearResponse
+        >>> m = SensorModel(("x", "y", "z"), np.eye(3), (LinearResponse(1.0, 2.0),) * 3, 1.0)
+        >>> m.field([[3.0, 1.0, 1.0]])[0]
+        array([[1., 0., 0.]])
+        """
+        x, ok = self.components(raw)
+        return _times(x, self.solver.T), np.all(ok, axis=-1)
+
+    def component_variance(self, field) -> np.ndarray:
+        """Variance of each field component ``x_c`` as estimated from one sample, field units squared.
+
+        Sums the channel's white noise (through the response's slope at that field) and, when the
+        calibration gives them, the uncertainty of its sensing direction, offset and gain.  The
+        covariance of the field vector is then ``P diag(var) P^T`` with ``P`` = :attr:`solver`:
+
+        .. math::
+
+            \\mathrm{var}_c = \\frac{\\sigma_{v,c}^2}{f_c'(x_c)^2} + B^T \\Sigma_{a_c} B
+                + \\frac{\\sigma_{V0,c}^2 + x_c^2 \\sigma_{K,c}^2}{K_c^2}
+
+        Parameters
+        ----------
+        field : array_like, shape (..., 3)
+            Field in H (field units), e.g. from :meth:`field`.
+
+        Returns
+        -------
+        ndarray, shape (..., c)
+            Zero where nothing is known (no ``noise_floor``, no covariances).
+        """
+        b = np.asarray(field, dtype=float)
+        x = _times(b, self.unit_directions.T)
+        var = np.zeros_like(x)
+        if self.component_noise is not None:
+            var += (self.component_noise / self._relative_slope(x)) ** 2
+        if self.direction_covariance is not None:
+            outer = (b[..., :, None] * b[..., None, :]).reshape(*b.shape[:-1], 9)
+            var += _times(outer, self.direction_covariance.reshape(-1, 9).T)
+        if self.response_sigma is not None:
+            var += (self.response_sigma[:, 0] ** 2 + x**2 * self.response_sigma[:, 1] ** 2) / self.gains**2
+        return var
+
+    def field_covariance(self, field) -> np.ndarray:
+        """Covariance of the estimated field vector in H, ``P diag(var) P^T``, shape (..., 3, 3).
+
+        See :meth:`component_variance`; field units squared.
+        """
+        p = self.solver
+        return np.einsum("ic,...c,jc->...ij", p, self.component_variance(field), p)
+
+    def _relative_slope(self, x: np.ndarray) -> np.ndarray:
+        """``f'(x) / K`` per channel (1 for a linear channel; a central difference otherwise)."""
+        h = _SLOPE_STEP * self.field_magnitude
+        slopes = [np.ones_like(x[..., c]) if isinstance(r, LinearResponse) else
+                  (r.output(x[..., c] + h) - r.output(x[..., c] - h)) / (2 * h * r.gain)
+                  for c, r in enumerate(self.responses)]
+        return np.stack(slopes, axis=-1)
+
+
+def _times(rows: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    """``rows @ matrix`` for many rows (einsum: ``@`` goes through a multithreaded BLAS that
+    slows down many-fold on a busy machine for such thin products)."""
+    return np.einsum("...i,ij->...j", rows, matrix)
+
+
+def _from_tumble(d: dict, field_ut, dip_deg) -> SensorModel:
+    """The channel form of a tumble calibration (see the module docstring)."""
+    soft = _matrix(d.get("soft_iron"), "soft_iron")
+    hard = _vector(d.get("hard_iron"), 3, "hard_iron")
+    field_norm = _optional_float(d, "field_norm")
+    if field_norm is None or not field_norm > 0:
+        raise ValueError(f"tumble calibration: 'field_norm' must be a positive number, got {d.get('field_norm')!r}")
+    rot = np.eye(3) if d.get("mag_to_accel") is None else _matrix(d["mag_to_accel"], "mag_to_accel")
+    if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-6) or np.linalg.det(rot) < 0:
+        raise ValueError("tumble calibration: 'mag_to_accel' must be a rotation matrix")
+    if abs(np.linalg.det(soft)) < 1e-12:
+        raise ValueError("tumble calibration: 'soft_iron' is singular")
+    g = np.linalg.solve(soft, rot.T)  # raw - hard_iron = g @ B_H
+    gains = np.linalg.norm(g, axis=1)
+    span = (-field_norm, field_norm)
+    # per-axis noise in recording units: a list, or calibrate.tumble's scalar under 'diagnosis'
+    noise = d.get("noise_floor", (d.get("diagnosis") or {}).get("noise_floor"))
+    if noise is not None and np.ndim(noise) == 0:
+        noise = [noise] * 3
+    return SensorModel(
+        channels=_TUMBLE_CHANNELS,
+        directions=g / gains[:, None],
+        responses=tuple(LinearResponse(float(o), float(k), span) for o, k in zip(hard, gains)),
+        field_magnitude=field_norm,
+        field_ut=field_ut,
+        dip_deg=dip_deg,
+        noise=None if noise is None else _vector(noise, 3, "noise_floor"),
+        kind="tumble",
+    )
+
+
+def _optional_float(d: dict, key: str) -> float | None:
+    value = d.get(key)
+    if value is None:
+        return None
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"'{key}' must be a number or null, got {value!r}") from None
+    if not np.isfinite(out):
+        raise ValueError(f"'{key}' must be finite, got {value!r}")
+    return out
+
+
+def _vector(value, n: int, key: str) -> np.ndarray:
+    try:
+        out = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        out = None
+    if out is None or out.shape != (n,) or not np.all(np.isfinite(out)):
+        raise ValueError(f"'{key}' must be a list of {n} finite numbers, got {value!r}")
+    return out
+
+
+def _matrix(value, key: str) -> np.ndarray:
+    try:
+        out = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        out = None
+    if out is None or out.shape != (3, 3) or not np.all(np.isfinite(out)):
+        raise ValueError(f"'{key}' must be a 3x3 list of finite numbers, got {value!r}")
+    return out
