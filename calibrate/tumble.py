@@ -99,7 +99,7 @@ class Coverage:
             return f"the field was seen from every side ({100 * self.fraction:.0f} % of the sphere covered)"
         axes = ", ".join(self.missing)
         return (f"the field never pointed along the magnetometer's {axes} "
-                f"axis{'es' if len(self.missing) > 1 else ''} (only {100 * self.fraction:.0f} % of the sphere covered): "
+                f"{'axes' if len(self.missing) > 1 else 'axis'} (only {100 * self.fraction:.0f} % of the sphere covered): "
                 f"turn the device so that each of these axes points along the field in turn (north and, "
                 f"in the northern hemisphere, steeply down) - usually by turning it over")
 
