@@ -25,7 +25,7 @@ from .effects import Effect
 __all__ = ["MLFit", "fit_ml", "score_effect", "tangent_basis"]
 
 _BASE_PER_CHANNEL = 4  # u, v, offset, log gain
-_SINGULAR_RCOND = 1e-9
+_SINGULAR_RCOND = 1e-7
 
 
 def tangent_basis(directions: np.ndarray) -> np.ndarray:
@@ -228,17 +228,25 @@ def fit_ml(
 
 
 def _covariance(jac: np.ndarray, names) -> tuple[np.ndarray, list]:
-    """Pseudo-inverse of J^T J; NaN rows/columns for parameters in an undetermined direction."""
-    u, s, vt = np.linalg.svd(jac, full_matrices=False)
-    keep = s > _SINGULAR_RCOND * s[0]
-    inv = (vt[keep].T / s[keep] ** 2) @ vt[keep]
+    """Inverse of the Fisher matrix J^T J (columns scaled to unit norm, eigen-decomposed).
+
+    Directions of parameter space the data cannot determine (eigenvalues below
+    ``_SINGULAR_RCOND**2`` of the largest) are dropped; parameters involved in them get NaN rows
+    and columns and are named in the returned list.  The small normal matrix keeps this fast and
+    free of multi-threaded BLAS stalls on a busy machine.
+    """
+    scale = np.linalg.norm(jac, axis=0)
+    scale[scale == 0] = 1.0
+    js = jac / scale
+    w, v = np.linalg.eigh(js.T @ js)
+    keep = w > _SINGULAR_RCOND**2 * w.max()
+    inv = (v[:, keep] / w[keep]) @ v[:, keep].T / np.outer(scale, scale)
     singular = []
-    for v in vt[~keep]:
-        involved = [names[i] for i in np.flatnonzero(np.abs(v) > 0.2)]
-        singular.append(" + ".join(involved) if involved else "a combination of parameters")
-        for i in np.flatnonzero(np.abs(v) > 0.2):
-            inv[i, :] = np.nan
-            inv[:, i] = np.nan
+    for vec in v[:, ~keep].T:
+        involved = np.flatnonzero(np.abs(vec) > 0.2)
+        singular.append(" + ".join(names[i] for i in involved) if involved.size else "a combination of parameters")
+        inv[involved, :] = np.nan
+        inv[:, involved] = np.nan
     return inv, singular
 
 
@@ -285,9 +293,11 @@ def score_effect(fit: MLFit, outputs: np.ndarray, noise: np.ndarray, effect: Eff
         xp = x.copy()
         xp[fit.x.size + i] = step
         j_e[:, i] = (residual(xp) - r0) / step
-    q_b, _ = np.linalg.qr(np.nan_to_num(fit.jac))
-    j_tilde = j_e - q_b @ (q_b.T @ j_e)
-    coef, *_ = np.linalg.lstsq(j_tilde, r0, rcond=None)
-    explained = j_tilde @ coef
-    # residual = data - model, so the model must move by +explained: parameters step by -coef
-    return float(explained @ explained), -coef
+    j_b = np.nan_to_num(fit.jac)
+    j_b = j_b / np.where(np.any(j_b, axis=0), np.linalg.norm(j_b, axis=0), 1.0)  # unit columns
+    absorbed, *_ = np.linalg.lstsq(j_b.T @ j_b, j_b.T @ j_e, rcond=None)  # small normal equations
+    j_tilde = j_e - j_b @ absorbed
+    normal, projected = j_tilde.T @ j_tilde, j_tilde.T @ r0
+    coef, *_ = np.linalg.lstsq(normal, projected, rcond=None)
+    # residual = data - model, so the model must move by +J coef: parameters step by -coef
+    return float(projected @ coef), -coef

@@ -83,6 +83,14 @@ class EncoderError(Effect):
 
 
 class FlipError(Effect):
+    """The real flip angles of flips 90, 180, 270 differ from the recorded ones.
+
+    The cube turns about its X edge, which stays on the turntable's X axis, so a face that is
+    not square errs in the flip angle only.  (General pose errors are not identifiable: a
+    rotation of the whole housing frame about Z, compensated by the field azimuth and matching
+    yaws of the flips, leaves every output unchanged.)
+    """
+
     def n_params(self, c):
         return 3
 
@@ -90,7 +98,9 @@ class FlipError(Effect):
         return ["flip90.error_deg", "flip180.error_deg", "flip270.error_deg"]
 
     def apply(self, physics, p, samples):
-        return physics.with_(flip_errors_deg=np.degrees(np.concatenate([[0.0], p])))
+        rotvec = np.zeros((4, 3))
+        rotvec[1:, 0] = np.degrees(p)
+        return physics.with_(flip_rotvec_deg=rotvec)
 
     def report_scale(self, physics):
         return np.degrees(1.0)

@@ -52,9 +52,10 @@ def test_flip_error_parameters_recovered(write_session):
     rec, truth = write_session(seed=204, effects=("flip_error",))
     result = calibrate_fourflip(rec, diagnose=True)
     params = result.effects[0]["parameters"]
-    true_errors = [e for e in truth["effects"] if e["name"] == "flip_error"][0]["parameters"]["flip_errors_deg"][1:]
-    for name, true in zip(("flip90.error_deg", "flip180.error_deg", "flip270.error_deg"), true_errors):
-        assert abs(params[name]["value"] - true) < 4 * params[name]["sigma"]
+    true = [e for e in truth["effects"] if e["name"] == "flip_error"][0]["parameters"]["flip_rotvec_deg"]
+    for k, flip in enumerate((90, 180, 270), start=1):
+        p = params[f"flip{flip}.error_deg"]
+        assert abs(p["value"] - true[k][0]) < 4 * p["sigma"], (flip, p, true[k][0])
 
 
 def test_noise_floor_matches_injected_noise(write_session):

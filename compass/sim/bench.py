@@ -14,7 +14,9 @@ Model, per sample i and channel c (SPEC section 1):
     x_{ic} = B_{H,i} \\cdot a_c, \\qquad
     v_{ic} = V_{0c}(t_i, T_i) + K_c(T_i) \\, (x_{ic} + c_{3c} x_{ic}^3)
 
-with ``e`` the encoder error (Fourier series in the reading), ``epsilon`` the flip errors,
+with ``e`` the encoder error (Fourier series in the reading), ``E_k`` the small rotation by
+which the cube in flip k sits off its nominal pose (faces not square; identity for flip 0, which
+defines the housing frame),
 ``b_p`` a field fixed to the turntable (in its frame), ``V0`` drifting with time and temperature,
 ``K`` depending on temperature and ``c3`` an odd cubic non-linearity.
 """
@@ -30,7 +32,7 @@ from scipy.spatial.transform import Rotation
 
 from ..frames import bench_rotation, field_in_bench
 
-__all__ = ["BenchSamples", "BenchPhysics", "true_angles", "housing_field", "bench_outputs", "channel_outputs"]
+__all__ = ["BenchSamples", "BenchPhysics", "true_platform_deg", "housing_field", "bench_outputs", "channel_outputs"]
 
 
 @dataclass(frozen=True)
@@ -85,8 +87,10 @@ class BenchPhysics:
         Odd cubic coefficient c3, 1 / field unit^2 (``nonlinear_response``).
     encoder_fourier : ndarray, shape (m, 2), optional
         Encoder error ``e(phi) = sum_k A_k cos(k phi) + B_k sin(k phi)``, degrees, k = 1..m.
-    flip_errors_deg : ndarray, shape (4,), optional
-        True minus recorded flip angle for each nominal flip.
+    flip_rotvec_deg : ndarray, shape (4, 3), optional
+        Rotation vector (degrees, bench axes at turntable angle 0) of each flip's pose error
+        ``E_k``: a true pose ``Rz(phi) E_k Rx(kappa)``; its x component is an error of the flip
+        angle itself.
     platform_field : ndarray, shape (3,), optional
         Field fixed to the turntable, in the turntable frame, field units.
     drift : ndarray, shape (c, p), optional
@@ -105,7 +109,7 @@ class BenchPhysics:
     field_magnitude: float = 1.0
     cubic: np.ndarray | None = None
     encoder_fourier: np.ndarray | None = None
-    flip_errors_deg: np.ndarray | None = None
+    flip_rotvec_deg: np.ndarray | None = None
     platform_field: np.ndarray | None = None
     drift: np.ndarray | None = None
     drift_t0: float = 0.0
@@ -118,34 +122,34 @@ class BenchPhysics:
         return replace(self, **changes)
 
 
-def true_angles(physics: BenchPhysics, samples: BenchSamples) -> tuple[np.ndarray, np.ndarray]:
-    """Turntable and flip angles after encoder and flip errors, degrees."""
+def true_platform_deg(physics: BenchPhysics, samples: BenchSamples) -> np.ndarray:
+    """Turntable angle after the encoder error, degrees, shape (n,)."""
     phi = samples.platform_deg
-    if physics.encoder_fourier is not None:
-        k = np.arange(1, len(physics.encoder_fourier) + 1)
-        arg = np.radians(phi)[:, None] * k[None, :]
-        phi = phi + np.cos(arg) @ physics.encoder_fourier[:, 0] + np.sin(arg) @ physics.encoder_fourier[:, 1]
-    kappa = samples.flip_deg
-    if physics.flip_errors_deg is not None:
-        kappa = kappa + physics.flip_errors_deg[samples.flip_index]
-    return phi, kappa
+    if physics.encoder_fourier is None:
+        return phi
+    k = np.arange(1, len(physics.encoder_fourier) + 1)
+    arg = np.radians(phi)[:, None] * k[None, :]
+    return phi + np.cos(arg) @ physics.encoder_fourier[:, 0] + np.sin(arg) @ physics.encoder_fourier[:, 1]
 
 
 def housing_field(physics: BenchPhysics, samples: BenchSamples) -> np.ndarray:
     """The field in the housing frame H at each sample, shape (n, 3), field units."""
     b_w = field_in_bench(physics.dip_deg, physics.azimuth_deg, physics.field_magnitude)
-    if physics.encoder_fourier is None and physics.flip_errors_deg is None:
+    if physics.encoder_fourier is None and physics.flip_rotvec_deg is None:
         full, flip = samples.recorded_rotations
         b_h = np.einsum("nji,j->ni", full, b_w)
         if physics.platform_field is not None:
             b_h = b_h + np.einsum("nji,j->ni", flip, physics.platform_field)
         return b_h
-    phi, kappa = true_angles(physics, samples)
-    # B_H = Rx(kappa)^T (Rz(phi)^T B_W + b_p): single-axis rotations applied in turn
+    # B_H = Rx(kappa)^T E_k^T (Rz(phi)^T B_W + b_p): single-axis rotations applied in turn
+    phi = true_platform_deg(physics, samples)
     in_turntable = Rotation.from_euler("z", phi[:, None], degrees=True).apply(b_w, inverse=True)
     if physics.platform_field is not None:
         in_turntable = in_turntable + physics.platform_field  # turns with the turntable
-    return Rotation.from_euler("x", kappa[:, None], degrees=True).apply(in_turntable, inverse=True)
+    flip = Rotation.from_euler("x", samples.flip_deg[:, None], degrees=True)
+    if physics.flip_rotvec_deg is not None:
+        flip = Rotation.from_rotvec(physics.flip_rotvec_deg, degrees=True)[samples.flip_index] * flip
+    return flip.apply(in_turntable, inverse=True)
 
 
 def bench_outputs(physics: BenchPhysics, samples: BenchSamples) -> np.ndarray:

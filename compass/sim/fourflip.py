@@ -141,9 +141,11 @@ def simulate_fourflip(
         physics = physics.with_(encoder_fourier=fourier)
         truth_effects.append({"name": "encoder_error", "parameters": {"fourier_deg": fourier.tolist()}})
     if "flip_error" in effects:
-        errors = np.concatenate([[0.0], s * rng.choice([-1, 1], 3) * rng.uniform(0.3, 0.7, 3)])
-        physics = physics.with_(flip_errors_deg=errors)
-        truth_effects.append({"name": "flip_error", "parameters": {"flip_errors_deg": errors.tolist()}})
+        # faces not square: the flip angles err (the X edge stays on the turntable's X axis)
+        errors = np.zeros((4, 3))
+        errors[1:, 0] = s * rng.choice([-1, 1], 3) * rng.uniform(0.3, 0.7, 3)
+        physics = physics.with_(flip_rotvec_deg=errors)
+        truth_effects.append({"name": "flip_error", "parameters": {"flip_rotvec_deg": errors.tolist()}})
     if "platform_field" in effects:
         b_p = s * rng.choice([-1, 1], 3) * rng.uniform(0.3, 0.6, 3)
         physics = physics.with_(platform_field=b_p)
