@@ -1,0 +1,151 @@
+"""Benchmark of the runtime solver: attitude accuracy against truth, honesty of sigma, throughput.
+
+For each seed: a simulated four-flip bench session (three channels near X, Y, Z with 3 deg RMS
+misalignment, |B| = 50 uT, dip in [40, 70] deg, noise ``--noise-ut``) is calibrated in-process
+with ``ml`` (the default) and with ``patent`` (seed 000 as written).  The same sensor is then
+moved through ``--n`` random attitudes (heading uniform, pitch and roll uniform in +-80 deg;
+channel noise ``--noise-ut``, accelerometer noise ``--accel-noise-g`` per axis) and solved by
+
+- ``ml``: :func:`compass.attitude.solve_attitude` with the ml calibration; its RMS error is
+  printed beside the RMS of the propagated 1-sigma (``predicted``; ``ratio`` = error/predicted);
+- ``patent``: the same solver and data with the patent-mode calibration;
+- ``ahrs TRIAD``: the peer (``pip install ahrs``, a benchmark extra), fed the accelerometer and
+  the ml calibration's field vectors, with the same references (``--peer-n`` samples: it loops
+  in Python).
+
+Then throughput: samples per second of ``solve_attitude`` in-process for 10^6 samples (best of
+3, wall clock and CPU), and ``compass attitude`` on a 10^6-row CSV (a subprocess, wall clock:
+start-up, read, solve, write).  Targets: heading ratio <= 1.1; patent heading error >= 10x ml;
+>= 10^6 samples/s; CSV < 10 s.
+
+Usage::
+
+    python tools/bench_attitude.py [--seeds 3] [--n 100000] [--noise-ut 0.15] [--accel-noise-g 0.002]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from calibrate import calibrate_fourflip
+from compass.attitude import solve_attitude
+from compass.frames import heading_pitch_roll, world_field
+from compass.io.fourflip import read_fourflip
+from compass.model import SensorModel
+from compass.sim.fourflip import simulate_fourflip, write_fourflip
+from compass.sim.runtime import simulate_runtime, write_runtime
+
+
+def wrap(d):
+    return np.mod(d + 180.0, 360.0) - 180.0
+
+
+def rms(v):
+    return float(np.sqrt(np.mean(np.square(v))))
+
+
+def triad(model: SensorModel, raw, accel):
+    """ahrs' TRIAD on the calibrated field and the accelerometer; None if ahrs is not installed."""
+    try:
+        from ahrs.filters import TRIAD
+    except ImportError:
+        return None
+    field, _ = model.field(raw)
+    peer = TRIAD(v1=np.array([0.0, 0.0, 1.0]), v2=world_field(model.dip_deg))  # our NWU references
+    body_from_world = np.array([peer.estimate(a, b) for a, b in zip(accel, field)])  # A v_ref = w_body
+    return heading_pitch_roll(Rotation.from_matrix(np.transpose(body_from_world, (0, 2, 1))))
+
+
+def accuracy(args, folder: Path):
+    errors = {"ml": [], "patent": [], "ahrs TRIAD": []}
+    sigmas = []
+    for seed in range(args.seed, args.seed + args.seeds):
+        session = simulate_fourflip(seed=seed, noise_ut=args.noise_ut)
+        path, _ = write_fourflip(session, folder / f"bench{seed}.csv", force=True)
+        rec = read_fourflip(path)
+        models = {m: SensorModel.from_json(json.loads(json.dumps(calibrate_fourflip(rec, method=m).to_json())))
+                  for m in ("ml", "patent")}
+        rt = simulate_runtime(session.truth, args.n, seed=1000 + seed, noise_ut=args.noise_ut,
+                              accel_noise_g=args.accel_noise_g)
+        truth = (rt.heading_deg, rt.pitch_deg, rt.roll_deg)
+        for name, model in models.items():
+            att = solve_attitude(model, rt.outputs, accel=rt.accel, accel_noise_g=args.accel_noise_g)
+            errors[name].append(np.stack([wrap(e - t) for e, t in zip((att.heading_deg, att.pitch_deg, att.roll_deg), truth)]))
+            if name == "ml":
+                sigmas.append(np.stack([att.heading_sigma_deg, att.pitch_sigma_deg, att.roll_sigma_deg]))
+        k = args.peer_n
+        peer = triad(models["ml"], rt.outputs[:k], rt.accel[:k])
+        if peer is not None:
+            errors["ahrs TRIAD"].append(np.stack([wrap(e - t[:k]) for e, t in zip(peer, truth)]))
+    return ({k: np.concatenate(v, axis=1) for k, v in errors.items() if v}, np.concatenate(sigmas, axis=1))
+
+
+def throughput(args, folder: Path):
+    session = simulate_fourflip(seed=args.seed, noise_ut=args.noise_ut)
+    model = SensorModel.from_json(json.loads(json.dumps(
+        calibrate_fourflip(read_fourflip(write_fourflip(session, folder / "tp.csv", force=True)[0])).to_json())))
+    rt = simulate_runtime(session.truth, 1_000_000, seed=7, accel_noise_g=args.accel_noise_g)
+    wall, cpu = [], []
+    for _ in range(3):
+        t0, c0 = time.perf_counter(), time.process_time()
+        solve_attitude(model, rt.outputs, accel=rt.accel)
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    cal = folder / "cal.json"
+    cal.write_text(json.dumps(model.to_json()))
+    rec, _ = write_runtime(rt, folder / "rec.csv", force=True)
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "compass", "attitude", str(cal), str(rec), "--out", str(folder / "att.csv"),
+                    "--force"], check=True, stdout=subprocess.DEVNULL)
+    return min(wall), min(cpu), time.perf_counter() - t0
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--seeds", type=int, default=3, help="bench sessions (calibrations), default 3")
+    p.add_argument("--seed", type=int, default=1, help="first seed, default 1")
+    p.add_argument("--n", type=int, default=100_000, help="runtime samples per session, default 100000")
+    p.add_argument("--peer-n", type=int, default=10_000, help="samples through the peer, default 10000")
+    p.add_argument("--noise-ut", type=float, default=0.15, help="channel noise, uT (default 0.15, the bench's)")
+    p.add_argument("--accel-noise-g", type=float, default=0.002, help="accelerometer noise, g (default 0.002)")
+    p.add_argument("--no-throughput", action="store_true", help="skip the 10^6-sample timings")
+    args = p.parse_args(argv)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        errors, sigmas = accuracy(args, folder)
+        predicted = [rms(s) for s in sigmas]
+        print(f"Attitude error vs truth: {args.seeds} calibrations x {args.n} samples, pitch/roll within +-80 deg, "
+              f"noise {args.noise_ut} uT, accelerometer {args.accel_noise_g} g")
+        print(f"{'solver':<14}{'heading RMS':>13}{'pitch RMS':>11}{'roll RMS':>10}  (deg)")
+        for name, err in errors.items():
+            print(f"{name:<14}" + "".join(f"{rms(e):>{w}.4f}" for e, w in zip(err, (13, 11, 10))))
+        print(f"{'predicted':<14}" + "".join(f"{v:>{w}.4f}" for v, w in zip(predicted, (13, 11, 10)))
+              + "   (RMS of the propagated 1-sigma, ml)")
+        ratio = [rms(e) / v for e, v in zip(errors["ml"], predicted)]
+        print(f"{'ml/predicted':<14}" + "".join(f"{v:>{w}.3f}" for v, w in zip(ratio, (13, 11, 10))))
+        patent_factor = rms(errors["patent"][0]) / rms(errors["ml"][0])
+        rows = [("heading RMS / predicted <= 1.1", f"{ratio[0]:.3f}", ratio[0] <= 1.1),
+                ("patent / ml heading RMS >= 10", f"{patent_factor:.1f}", patent_factor >= 10)]
+        if not args.no_throughput:
+            wall, cpu, csv_s = throughput(args, folder)
+            rows += [("samples/s in-process >= 1e6", f"{1e6 / wall:.3g} (wall), {1e6 / cpu:.3g} (CPU)", 1e6 / wall >= 1e6),
+                     ("10^6-row CSV in to CSV out < 10 s", f"{csv_s:.2f} s", csv_s < 10)]
+        print()
+        print(f"{'target':<36}{'measured':>32}  met")
+        for label, value, ok in rows:
+            print(f"{label:<36}{value:>32}  {'yes' if ok else 'NO'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
