@@ -314,8 +314,10 @@ class SensorModel:
         p = self.solver
         return np.einsum("ic,...c,jc->...ij", p, self.component_variance(field), p)
 
-    def _relative_slope(self, x: np.ndarray) -> np.ndarray:
-        """``f'(x) / K`` per channel (1 for a linear channel; a central difference otherwise)."""
+    def _relative_slope(self, x: np.ndarray) -> np.ndarray | float:
+        """``f'(x) / K`` per channel: 1 for linear channels, a central difference otherwise."""
+        if all(isinstance(r, LinearResponse) for r in self.responses):
+            return 1.0
         h = _SLOPE_STEP * self.field_magnitude
         slopes = [np.ones_like(x[..., c]) if isinstance(r, LinearResponse) else
                   (r.output(x[..., c] + h) - r.output(x[..., c] - h)) / (2 * h * r.gain)
