@@ -29,7 +29,7 @@ from compass.sim.bench import BenchPhysics, BenchSamples
 from . import _harmonic as hm
 from ._mlfit import MLFit, fit_ml
 from .diagnose import UNEXPLAINED_WARNING, diagnose_fourflip, examine_residual
-from .noise import noise_floor
+from .noise import SPIKE_SIGMAS, find_spikes, noise_floor
 from .result import CalibrationResult, ChannelCalibration
 from .site_field import compare_with_site
 
@@ -70,12 +70,22 @@ def calibrate_fourflip(
     if dip_sign is None:
         lat = _float_or_none(rec.metadata.get("site_lat_deg"))
         dip_sign = -1.0 if lat is not None and lat < 0 else 1.0
-    samples = BenchSamples.from_recording(rec)
     noise = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs)
     noise = np.where(noise > 0, noise, np.std(rec.outputs, axis=0) * 1e-3)
-    result = _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progress)
+    spikes = find_spikes(rec.platform_deg, rec.flip_index, rec.outputs, noise)
+    if spikes.any():
+        rec = rec.subset(~spikes)
+    result = _estimate(rec, BenchSamples.from_recording(rec), noise, method, field_ut, dip_sign, diagnose, progress)
+    extra = dict(result.extra)
+    warnings = result.warnings
+    if spikes.any():
+        extra["spikes_dropped"] = int(spikes.sum())
+        warnings = warnings + (f"{int(spikes.sum())} sample(s) dropped as spikes (more than {SPIKE_SIGMAS:g} noise "
+                               "sigmas off their neighbours): line or sensor glitches",)
     site = compare_with_site(result.dip_deg, result.dip_sigma_deg, rec.metadata, rec.path)
-    return result if site is None else replace(result, extra={**result.extra, "site_check": site})
+    if site is not None:
+        extra["site_check"] = site
+    return replace(result, extra=extra, warnings=warnings, kept=~spikes if spikes.any() else None)
 
 
 def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progress) -> CalibrationResult:

@@ -94,6 +94,8 @@ class CalibrationResult:
     chi2, dof : float, int
     extra : dict
         Method-specific items written under new keys (e.g. the seed's raw minima).
+    kept : ndarray of bool, shape (n_recorded,), or None
+        Which recorded samples the fit used (None: all); ``residuals`` has one row per kept sample.
     """
 
     method: str
@@ -111,6 +113,11 @@ class CalibrationResult:
     chi2: float = float("nan")
     dof: int = 0
     extra: dict = field(default_factory=dict)
+    kept: np.ndarray | None = None
+
+    def used(self, rec):
+        """The recording as the fit saw it (spikes dropped)."""
+        return rec if self.kept is None else rec.subset(self.kept)
 
     @property
     def residual_rms(self) -> np.ndarray:

@@ -71,3 +71,15 @@ def test_seed_rule_diagnosis_examines_only(write_session):
     rec, _ = write_session(seed=206)
     result = calibrate_fourflip(rec, method="harmonic", diagnose=True)
     assert result.diagnosis["effects"] == [] and "note" in result.diagnosis
+
+
+@pytest.mark.parametrize("step_deg", [1.0, 10.0])
+def test_noise_floor_with_coarse_steps(write_session, step_deg):
+    """Coarse turntable steps: the field's curvature must not pass for noise."""
+    from calibrate.noise import noise_floor
+
+    rec, truth = write_session(seed=207, step_deg=step_deg)
+    floor = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs)
+    n = rec.n_samples
+    # relative standard error of a MAD scale of ~n second differences: about 1.1 * sqrt(3 / n)
+    np.testing.assert_allclose(floor, truth["noise"], rtol=4 * 1.1 * np.sqrt(3.0 / n) + 0.02)

@@ -105,3 +105,26 @@ def test_horizontal_only_channel_reports_singular_dip(write_session):
     result = calibrate_fourflip(rec)
     assert any("dip" in w for w in result.warnings)
     assert result.dip_sigma_deg is None or result.dip_sigma_deg > 1.0
+
+
+def test_spikes_are_dropped_and_reported(write_session):
+    """Line glitches (50-sigma jumps in a few samples) must not bend the fit."""
+    rec, truth = write_session(seed=20)
+    rng = np.random.default_rng(0)
+    rows = rng.choice(rec.n_samples, 6, replace=False)
+    outputs = rec.outputs.copy()
+    outputs[rows, rng.integers(0, 3, 6)] += 50 * np.array(truth["noise"]).max() * rng.choice([-1, 1], 6)
+    spiky = FourFlipRecording(**{**rec.__dict__, "outputs": outputs})
+    result = calibrate_fourflip(spiky, diagnose=True)
+    assert result.extra["spikes_dropped"] == 6
+    assert any("spike" in w for w in result.warnings)
+    sigma = np.array([c.direction_sigma_deg for c in result.channels])
+    assert np.all(angle_deg(result.directions, truth["directions"]) < 3 * sigma)
+    assert result.diagnosis["effects"] == [] and not result.diagnosis["unexplained"]
+    assert result.residuals.shape[0] == rec.n_samples - 6
+
+
+def test_clean_recording_drops_nothing(write_session):
+    rec, _ = write_session(seed=21)
+    result = calibrate_fourflip(rec)
+    assert "spikes_dropped" not in result.extra and result.kept is None

@@ -74,8 +74,9 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
         from calibrate.plots import plot_fit, plot_residuals
 
         folder = Path(report)
-        paths = [plot_fit(rec, result, folder / "fit.png"),
-                 plot_residuals(rec, _residual_sets(rec, result), folder / "residuals.png", result.noise)]
+        used = result.used(rec)
+        paths = [plot_fit(used, result, folder / "fit.png"),
+                 plot_residuals(used, _residual_sets(rec, result), folder / "residuals.png", result.noise)]
         print("wrote " + ", ".join(str(p) for p in paths))
     return result
 

@@ -56,6 +56,13 @@ class FourFlipRecording:
     def n_samples(self) -> int:
         return self.outputs.shape[0]
 
+    def subset(self, keep: np.ndarray) -> "FourFlipRecording":
+        """The recording restricted to the samples where ``keep`` is True."""
+        pick = (lambda a: None if a is None else a[keep])
+        return FourFlipRecording(self.flip_deg[keep], self.flip_index[keep], self.platform_deg[keep],
+                                 self.outputs[keep], self.channels, pick(self.t_s), pick(self.temp_c),
+                                 pick(self.accel), self.metadata, self.path)
+
     @property
     def field_ut(self) -> float | None:
         value = self.metadata.get("field_ut")
