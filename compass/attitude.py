@@ -27,9 +27,8 @@ from scipy.spatial.transform import Rotation
 from .frames import heading_pitch_roll, r_world_from_housing, world_field
 from .model import SensorModel
 
-__all__ = ["Attitude", "MODES", "solve_attitude", "two_vector_rotation", "level_heading_bound_deg"]
+__all__ = ["Attitude", "solve_attitude", "two_vector_rotation", "level_heading_bound_deg"]
 
-MODES = ("accelerometer", "known_tilt", "level")
 _UP = np.array([0.0, 0.0, 1.0])
 
 
