@@ -52,3 +52,10 @@ def test_patent_method_writes_table_response(tmp_path):
     data = json.loads(cal.read_text())
     assert data["method"] == "patent"
     assert all(ch["response"]["model"] == "table" for ch in data["channels"].values())
+
+
+def test_demo_runs_end_to_end(tmp_path, capsys):
+    assert main(["demo", "--workdir", str(tmp_path), "--effect", "flip_error"]) == 0
+    out = capsys.readouterr().out
+    assert "+ flip_error" in out and "heading RMS error" in out
+    assert (tmp_path / "attitude.csv").exists() and (tmp_path / "report" / "residuals.png").exists()
