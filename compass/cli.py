@@ -12,6 +12,7 @@ import importlib
 import os
 import sys
 
+from .io.atomic import OutputError
 from .io.table import RecordingError
 
 __all__ = ["main", "BadInput"]
@@ -45,7 +46,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (RecordingError, BadInput, FileExistsError) as exc:
+    except (RecordingError, BadInput, FileExistsError, OutputError) as exc:
         print(f"compass {args.command}: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

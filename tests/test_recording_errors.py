@@ -85,3 +85,19 @@ def test_rows_in_any_order_and_comments(tmp_path):
     assert rec.field_ut == 48.5
     assert rec.n_samples == len(rows)
     assert sorted(np.unique(rec.flip_index)) == [0, 1, 2, 3]
+
+
+def test_unwritable_output_fails_before_work(tmp_path, capsys):
+    rec = tmp_path / "rec.csv"
+    rec.write_text("\n".join([GOOD_HEADER] + _rows()) + "\n")
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert main(["calibrate", str(rec), "--out", str(blocker / "cal.json"), "--quiet"]) == 2
+    assert "cannot create its folder" in capsys.readouterr().err
+    assert main(["calibrate", str(rec), "--out", str(tmp_path), "--quiet", "--force"]) == 2
+
+
+def test_json_given_as_recording(tmp_path):
+    p = _write(tmp_path, ['{"format": "compass-calibration/1"}'], "cal.json")
+    with pytest.raises(RecordingError, match="JSON"):
+        read_fourflip(p)

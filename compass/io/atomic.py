@@ -6,20 +6,34 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_write_text", "check_writable"]
+__all__ = ["OutputError", "atomic_write_text", "check_writable"]
+
+
+class OutputError(ValueError):
+    """An output path that cannot be written (exit status 2 on the command line)."""
 
 
 def check_writable(path, force: bool) -> Path:
-    """Refuse to overwrite ``path`` unless ``force``.
+    """Refuse to overwrite ``path`` unless ``force``; make sure it can be written (before long work).
 
     Raises
     ------
     FileExistsError
         The file exists and ``force`` is False.
+    OutputError
+        The path is a folder, or its folder cannot be created or written.
     """
     path = Path(path)
     if path.exists() and not force:
         raise FileExistsError(f"{path} exists; use --force to overwrite it")
+    if path.is_dir():
+        raise OutputError(f"{path} is a folder: expected a file name")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot create its folder ({exc.strerror})") from None
+    if not os.access(path.parent, os.W_OK):
+        raise OutputError(f"{path}: its folder is not writable")
     return path
 
 

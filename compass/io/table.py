@@ -111,6 +111,8 @@ def read_table(path) -> Table:
         raise RecordingError(path, "not UTF-8 text: expected a CSV file", row=line) from None
     if not text.strip():
         raise RecordingError(path, "empty file: expected a header row and data rows")
+    if text.lstrip()[:1] in ("{", "["):
+        raise RecordingError(path, "this is JSON (a calibration file?): expected a CSV recording", row=1)
 
     lines = text.splitlines()
     metadata: dict[str, str] = {}
