@@ -13,7 +13,8 @@ from ..io.tumble import tumble_from_table
 
 def register(sub) -> None:
     p = sub.add_parser("calibrate", help="calibrate from a recording and write a calibration file")
-    p.add_argument("recording", help="recording CSV (four-flip: has flip_deg; tumble: has mx,my,mz)")
+    p.add_argument("recording", help="recording CSV (four-flip: has flip_deg; 3-D platform: platform_z_deg; "
+                                     "reference fields: bx_ref; tumble: mx,my,mz)")
     p.add_argument("--out", required=True, help="calibration JSON to write")
     p.add_argument("--method", choices=("ml", "harmonic", "patent"), default="ml",
                    help="ml: joint maximum likelihood (default); harmonic: seed formulas on harmonic fits; "
@@ -21,7 +22,7 @@ def register(sub) -> None:
     p.add_argument("--no-diagnose", action="store_true", help="skip the residual diagnosis loop")
     p.add_argument("--report", metavar="DIR", help="also write plots of fit and residuals into DIR")
     p.add_argument("--field-ut", type=float, default=None, help="|B| in uT (overrides '# field_ut:' metadata)")
-    p.add_argument("--kind", choices=("fourflip", "tumble"), default=None, help="force the recording kind")
+    p.add_argument("--kind", choices=("fourflip", "platform3d", "reference", "tumble"), default=None, help="force the recording kind")
     p.add_argument("--ellipsoid", choices=("auto", "offset", "diagonal", "full"), default="auto",
                    help="tumble only: ellipsoid kind (default auto: the determined kind with the lowest BIC)")
     p.add_argument("--force", action="store_true", help="overwrite an existing calibration file")
@@ -51,15 +52,22 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
     table = read_table(recording)
     if kind is None and table.has("flip_deg"):
         kind = "fourflip"
+    elif kind is None and table.has("platform_z_deg"):
+        kind = "platform3d"
+    elif kind is None and any(c.endswith("bx_ref") for c in table.columns):
+        kind = "reference"
     elif kind is None and all(table.has(c) for c in ("mx", "my", "mz")):
         kind = "tumble"
     if kind is None:
         raise BadInput(f"{recording}: cannot tell the recording kind from its columns "
-                       f"({', '.join(table.columns)}); a four-flip recording has flip_deg, a tumble mx,my,mz")
+                       f"({', '.join(table.columns)}); a four-flip recording has flip_deg, a 3-D platform one "
+                       f"platform_z_deg, a reference-field one bx_ref, a tumble mx,my,mz")
     if field_ut is not None and not field_ut > 0:
         raise BadInput(f"--field-ut must be positive, got {field_ut}")
     if kind == "tumble":
         return _calibrate_tumble(table, out, field_ut=field_ut, ellipsoid=ellipsoid, quiet=quiet)
+    if kind in ("platform3d", "reference"):
+        return _calibrate_other(kind, table, out, field_ut=field_ut, quiet=quiet)
     rec = fourflip_from_table(table)
 
     from calibrate import calibrate_fourflip
@@ -98,6 +106,31 @@ def _calibrate_tumble(table, out, *, field_ut, ellipsoid, quiet):
     rec = tumble_from_table(table)
     field_ut = field_ut if field_ut is not None else table.metadata_float("field_ut")
     result = calibrate_tumble(rec.mag, rec.accel, kind=ellipsoid, field_ut=field_ut, n_repeats=rec.n_repeats)
+    if not quiet:
+        print(result.report())
+    atomic_write_text(out, json.dumps(result.to_json(), indent=2) + "\n")
+    print(f"wrote {out}")
+    return result
+
+
+def _calibrate_other(kind, table, out, *, field_ut, quiet):
+    """3-D platform (seed 001) and reference-field (seed 003) recordings: fit, report, write."""
+    from ..cli import BadInput
+
+    if kind == "platform3d":
+        from calibrate.platform3d import NotIdentifiable as Undetermined
+        from calibrate.platform3d import calibrate_platform3d as fit
+
+        from ..io.platform3d import platform3d_from_table as parse
+    else:
+        from calibrate.reference import DegenerateReference as Undetermined
+        from calibrate.reference import calibrate_reference as fit
+
+        from ..io.reference import reference_from_table as parse
+    try:
+        result = fit(parse(table), field_ut=field_ut)
+    except Undetermined as exc:  # the recording cannot determine the model: bad input
+        raise BadInput(str(exc)) from None
     if not quiet:
         print(result.report())
     atomic_write_text(out, json.dumps(result.to_json(), indent=2) + "\n")

@@ -21,6 +21,14 @@ def register(sub) -> None:
     ff.add_argument("--effect-scale", type=float, default=1.0, help="multiply every effect size")
     ff.add_argument("--force", action="store_true", help="overwrite existing files")
     ff.set_defaults(func=run_fourflip)
+    p3 = kinds.add_parser("platform3d", help="a 3-D platform session with a tilt sensor (seed 001)")
+    p3.add_argument("--out", required=True, help="recording CSV to write; truth goes to <stem>.truth.json")
+    p3.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p3.add_argument("--poses", choices=("grid", "random", "turntable"), default="grid",
+                    help="platform poses (default grid; turntable never tilts and cannot be calibrated)")
+    p3.add_argument("--tilt-axes", type=int, choices=(2, 3), default=2, help="tilt sensor axes (default 2)")
+    p3.add_argument("--force", action="store_true", help="overwrite existing files")
+    p3.set_defaults(func=run_platform3d)
 
 
 def run_fourflip(args) -> int:
@@ -37,4 +45,13 @@ def run_fourflip(args) -> int:
     rec, truth = write_fourflip(session, args.out, force=args.force)
     print(f"wrote {rec} ({session.outputs.shape[0]} samples, {len(session.channels)} channels"
           f"{', effects: ' + ', '.join(args.effect) if args.effect else ''}) and {truth}")
+    return 0
+
+
+def run_platform3d(args) -> int:
+    from ..sim.platform3d import simulate_platform3d, write_platform3d
+
+    sim = simulate_platform3d(seed=args.seed, poses=args.poses, tilt_axes=args.tilt_axes)
+    rec, truth = write_platform3d(sim, args.out, force=args.force)
+    print(f"wrote {rec} ({len(sim.mag)} samples) and {truth}")
     return 0
