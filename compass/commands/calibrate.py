@@ -128,7 +128,7 @@ def _calibrate_other(kind, table, out, *, field_ut, quiet):
 
         from ..io.reference import reference_from_table as parse
     try:
-        result = fit(parse(table), field_ut=field_ut)
+        result = fit(parse(table), **({"field_ut": field_ut} if kind == "platform3d" else {}))
     except Undetermined as exc:  # the recording cannot determine the model: bad input
         raise BadInput(str(exc)) from None
     if not quiet:
