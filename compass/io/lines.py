@@ -1,0 +1,363 @@
+"""The ASCII line protocol of a compass module on a serial line (README, "Live attitude").
+
+A module sends text lines; ``\\n``, ``\\r\\n`` and a lone ``\\r`` all end a line, and spaces
+around cells are ignored.
+
+- A **header line** names the columns, comma separated, as in SPEC section 2's attitude
+  recording: the calibration's channel columns (required), optional ``t_s`` (module clock,
+  seconds), ``ax,ay,az`` (accelerometer in the housing frame H, any unit), ``gx,gy,gz`` (gyro in
+  H, rad/s), ``temp_c``, and ``seq`` (an integer the module increments by one every sample, so
+  the receiver can count samples lost on the line).  Unknown columns are ignored.  A line is a
+  header when its first cell is not a number.  Modules should repeat the header about once a
+  second: a receiver that opens the port mid-stream needs one before it can read samples.
+- A **sample line** has one number a column, in the header's order.  An empty cell in an
+  optional column (``t_s``, ``seq``, ``temp_c``, or any of a group ``ax,ay,az`` / ``gx,gy,gz``)
+  means "not measured this time"; the channel cells are required.
+- Lines starting with ``#`` are comments.
+- Optional NMEA-style checksum: a line may end with ``*hh``, the XOR of every byte before the
+  ``*`` as two hex digits.  When the header carries one, every sample line must carry one.
+
+Everything else is counted and skipped, never raised: garbage (bytes that are not ASCII, a
+header-less or overlong line, a cell that is not a number, a checksum mismatch, too many
+cells), partial lines (fewer cells than the header: a truncated line), samples before any
+header, and samples lost between two ``seq`` values.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["Header", "LineDecoder", "LineStats", "Sample", "checksum", "format_line"]
+
+MAX_LINE_BYTES = 1024
+_GROUPS = {"accel": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz")}
+_SCALARS = ("t_s", "seq", "temp_c")
+
+
+def checksum(payload: bytes) -> int:
+    """XOR of all bytes of ``payload`` (the NMEA checksum), 0..255."""
+    value = 0
+    for byte in payload:
+        value ^= byte
+    return value
+
+
+def format_line(cells, *, with_checksum: bool = True) -> bytes:
+    """One protocol line from cells (strings or numbers), ``\\r\\n`` terminated.
+
+    Examples
+    --------
+    >>> format_line(["t_s", "mx"])
+    b't_s,mx*61\\r\\n'
+    """
+    payload = ",".join(str(c) for c in cells).encode("ascii")
+    if with_checksum:
+        payload += b"*%02X" % checksum(payload)
+    return payload + b"\r\n"
+
+
+@dataclass(frozen=True)
+class Header:
+    """Where each known column sits in a sample line.
+
+    Attributes
+    ----------
+    names : tuple of str
+        The header's cells, stripped.
+    channels : ndarray of int, shape (c,)
+        Cell index of each calibration channel, in the calibration's order.
+    accel, gyro : ndarray of int, shape (3,), or None
+        Cell indices of ``ax,ay,az`` and ``gx,gy,gz``; None when the group is absent or incomplete.
+    t_s, seq, temp_c : int or None
+        Cell index of the optional scalar columns.
+    checksummed : bool
+        The header carried a checksum: sample lines must too.
+    ignored : tuple of str
+        Columns the receiver does not use (unknown, or an incomplete group).
+    """
+
+    names: tuple[str, ...]
+    channels: np.ndarray
+    accel: np.ndarray | None
+    gyro: np.ndarray | None
+    t_s: int | None
+    seq: int | None
+    temp_c: int | None
+    checksummed: bool
+    ignored: tuple[str, ...]
+
+    def describe(self) -> str:
+        """One line for the event log."""
+        parts = [f"header: {','.join(self.names)}"]
+        if self.ignored:
+            parts.append(f"ignoring {','.join(self.ignored)}")
+        if self.accel is None:
+            parts.append("no accelerometer")
+        if self.gyro is None:
+            parts.append("no gyro")
+        return "; ".join(parts)
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One decoded sample line.
+
+    Attributes
+    ----------
+    raw : ndarray, shape (c,)
+        Channel outputs in the calibration's channel order (output units).
+    accel : ndarray, shape (3,), or None
+        Accelerometer in H, any unit (specific force: +up at rest).
+    gyro : ndarray, shape (3,), or None
+        Angular rate of H in H, rad/s.
+    t_s : float or None
+        Module clock, seconds.
+    seq : int or None
+        Module sample counter.
+    temp_c : float or None
+        Sensor temperature, degrees Celsius.
+    """
+
+    raw: np.ndarray
+    accel: np.ndarray | None = None
+    gyro: np.ndarray | None = None
+    t_s: float | None = None
+    seq: int | None = None
+    temp_c: float | None = None
+
+
+@dataclass
+class LineStats:
+    """Counts of what the decoder saw (mutable, updated in place).
+
+    Attributes
+    ----------
+    samples : int
+        Sample lines decoded.
+    headers, comments : int
+        Header and comment lines.
+    garbage : int
+        Lines that are not the protocol (see the module docstring), and overlong byte runs.
+    partial : int
+        Lines with fewer cells than the header, and fragments cut by a (re)connect.
+    unheaded : int
+        Sample lines before any valid header.
+    lost : int
+        Samples missing between consecutive ``seq`` values (never sent on the line).
+    """
+
+    samples: int = 0
+    headers: int = 0
+    comments: int = 0
+    garbage: int = 0
+    partial: int = 0
+    unheaded: int = 0
+    lost: int = 0
+
+    @property
+    def dropped(self) -> int:
+        """Samples the receiver did not get: bad, partial and header-less lines, and ``seq`` gaps."""
+        return self.garbage + self.partial + self.unheaded + self.lost
+
+
+@dataclass
+class LineDecoder:
+    """Split a byte stream into protocol lines and decode them; never raises on input.
+
+    Parameters
+    ----------
+    channels : sequence of str
+        The calibration's channel names (:attr:`compass.model.SensorModel.channels`).
+
+    Attributes
+    ----------
+    stats : LineStats
+    header : Header or None
+        The last valid header.
+    events : list of (str, str)
+        ``(level, text)`` notes for a log ("info", "warn"): headers, rejected headers, garbage
+        seen; :meth:`drain_events` empties it.
+
+    Examples
+    --------
+    >>> d = LineDecoder(("mx", "my", "mz"))
+    >>> d.feed(b"mx,my,mz\\r\\n1, 2, 3\\r\\n4,5\\n")[0].raw
+    array([1., 2., 3.])
+    >>> d.stats.samples, d.stats.partial
+    (1, 1)
+    """
+
+    channels: tuple[str, ...]
+    stats: LineStats = field(default_factory=LineStats)
+    header: Header | None = None
+    events: list = field(default_factory=list)
+    _buffer: bytes = b""
+    _skip_fragment: bool = False
+    _last_seq: int | None = None
+    _bad_at_sample: int = 0  # garbage + partial at the last good sample
+
+    def __post_init__(self):
+        self.channels = tuple(self.channels)
+
+    def resync(self) -> None:
+        """Forget buffered bytes and skip up to the next line end (call after a (re)connect:
+        opening a port drops whatever the module sent before, often mid-line)."""
+        if self._buffer:
+            self.stats.partial += 1
+        self._buffer = b""
+        self._skip_fragment = True
+        self._last_seq = None
+
+    def feed(self, chunk: bytes) -> list[Sample]:
+        """Decode the complete lines in ``chunk`` (plus what earlier chunks left unfinished)."""
+        data = self._buffer + chunk
+        if b"\r" in data:
+            data = data.replace(b"\r", b"\n")
+        lines = data.split(b"\n")
+        self._buffer = lines.pop()
+        if len(self._buffer) > MAX_LINE_BYTES:
+            self.stats.garbage += 1
+            self._buffer = b""
+        if self._skip_fragment and lines:
+            self._skip_fragment = False
+            if lines.pop(0).strip():
+                self.stats.partial += 1
+        out = []
+        for line in lines:
+            sample = self.parse_line(line)
+            if sample is not None:
+                out.append(sample)
+        return out
+
+    def drain_events(self) -> list:
+        """Return and clear the pending ``(level, text)`` events."""
+        events, self.events = self.events, []
+        return events
+
+    def parse_line(self, line: bytes) -> Sample | None:
+        """Decode one line without its terminator; None for headers, comments and bad lines."""
+        if len(line) > MAX_LINE_BYTES:
+            self.stats.garbage += 1
+            return None
+        try:
+            text = line.decode("ascii").strip()
+        except UnicodeDecodeError:
+            self.stats.garbage += 1
+            return None
+        if not text:
+            return None
+        if text[0] == "#":
+            self.stats.comments += 1
+            return None
+        star = text.rfind("*")
+        has_sum = star >= 0
+        if has_sum:
+            try:
+                ok = int(text[star + 1:], 16) == checksum(text[:star].encode("ascii"))
+            except ValueError:
+                ok = False
+            if not ok:
+                self.stats.garbage += 1
+                return None
+            text = text[:star]
+        cells = [c.strip() for c in text.split(",")]
+        if not _is_number(cells[0]) and cells[0] != "":
+            self._read_header(cells, has_sum)
+            return None
+        header = self.header
+        if header is None:
+            self.stats.unheaded += 1
+            return None
+        if header.checksummed and not has_sum:
+            self.stats.partial += 1  # a checksummed module's line cut short
+            return None
+        if len(cells) != len(header.names):
+            if len(cells) < len(header.names):
+                self.stats.partial += 1
+            else:
+                self.stats.garbage += 1
+            return None
+        try:
+            sample = self._decode(header, cells)
+        except ValueError:
+            self.stats.garbage += 1
+            return None
+        self.stats.samples += 1
+        self._bad_at_sample = self.stats.garbage + self.stats.partial
+        return sample
+
+    def _decode(self, header: Header, cells: list[str]) -> Sample:
+        """ValueError when a required cell is empty or a cell is not a finite number."""
+        raw = np.array([float(cells[i]) for i in header.channels])
+        if not np.all(np.isfinite(raw)):
+            raise ValueError("non-finite channel")
+        seq = None
+        if header.seq is not None and cells[header.seq]:
+            seq = int(cells[header.seq])
+            if self._last_seq is not None and seq > self._last_seq + 1:
+                bad_since = self.stats.garbage + self.stats.partial - self._bad_at_sample  # already counted
+                self.stats.lost += max(0, seq - self._last_seq - 1 - bad_since)
+            self._last_seq = seq
+        return Sample(raw, _group(cells, header.accel), _group(cells, header.gyro),
+                      _scalar(cells, header.t_s), seq, _scalar(cells, header.temp_c))
+
+    def _read_header(self, cells: list[str], has_sum: bool) -> None:
+        names = tuple(cells)
+        missing = [c for c in self.channels if c not in names]
+        known = set(self.channels) | set(_SCALARS) | {n for g in _GROUPS.values() for n in g}
+        if missing:
+            if known & set(names):
+                self.events.append(("warn", f"header {','.join(names)} lacks channel(s) {','.join(missing)} of "
+                                            f"the calibration: samples skipped until a complete header"))
+                self.header = None
+            self.stats.garbage += 1
+            return
+        if len(set(names)) != len(names):
+            self.events.append(("warn", f"header {','.join(names)} repeats a column: ignored"))
+            self.stats.garbage += 1
+            return
+        groups = {}
+        ignored = [n for n in names if n not in known]
+        for key, group in _GROUPS.items():
+            present = [n for n in group if n in names]
+            groups[key] = np.array([names.index(n) for n in group]) if len(present) == 3 else None
+            if 0 < len(present) < 3:
+                ignored += present
+        header = Header(names, np.array([names.index(c) for c in self.channels]), groups["accel"], groups["gyro"],
+                        *(names.index(s) if s in names else None for s in _SCALARS), has_sum, tuple(ignored))
+        self.stats.headers += 1
+        if self.header is None or header.names != self.header.names or has_sum != self.header.checksummed:
+            self.events.append(("info", header.describe()))
+        self.header = header
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+def _scalar(cells: list[str], index: int | None) -> float | None:
+    if index is None or not cells[index]:
+        return None
+    value = float(cells[index])
+    if not np.isfinite(value):
+        raise ValueError("non-finite value")
+    return value
+
+
+def _group(cells: list[str], index: np.ndarray | None) -> np.ndarray | None:
+    """Three cells as a vector; None if the group is absent or all its cells are empty."""
+    if index is None:
+        return None
+    texts = [cells[i] for i in index]
+    if not any(texts):
+        return None
+    values = np.array([float(t) for t in texts])  # ValueError on a partly empty group
+    if not np.all(np.isfinite(values)):
+        raise ValueError("non-finite value")
+    return values
