@@ -194,7 +194,7 @@ class LineDecoder:
     header: Header | None = None
     events: list = field(default_factory=list)
     _buffer: bytes = b""
-    _skip_fragment: bool = False
+    _untrusted: bool = False  # the next line may be a fragment (after resync)
     _last_seq: int | None = None
     _bad_at_sample: int = 0  # garbage + partial at the last good sample
 
@@ -202,12 +202,16 @@ class LineDecoder:
         self.channels = tuple(self.channels)
 
     def resync(self) -> None:
-        """Forget buffered bytes and skip up to the next line end (call after a (re)connect:
-        opening a port drops whatever the module sent before, often mid-line)."""
+        """Forget buffered bytes and distrust the next line (call after a (re)connect: opening a
+        port drops whatever the module sent before, so the first line may be the tail of one).
+
+        The next line counts as partial unless it is a header, a comment or carries a valid
+        checksum: a line's tail can have the right number of cells and a cut first number.
+        """
         if self._buffer:
             self.stats.partial += 1
         self._buffer = b""
-        self._skip_fragment = True
+        self._untrusted = True
         self._last_seq = None
 
     def feed(self, chunk: bytes) -> list[Sample]:
@@ -220,10 +224,6 @@ class LineDecoder:
         if len(self._buffer) > MAX_LINE_BYTES:
             self.stats.garbage += 1
             self._buffer = b""
-        if self._skip_fragment and lines:
-            self._skip_fragment = False
-            if lines.pop(0).strip():
-                self.stats.partial += 1
         out = []
         for line in lines:
             sample = self.parse_line(line)
@@ -248,6 +248,7 @@ class LineDecoder:
             return None
         if not text:
             return None
+        untrusted, self._untrusted = self._untrusted, False
         if text[0] == "#":
             self.stats.comments += 1
             return None
@@ -270,8 +271,8 @@ class LineDecoder:
         if header is None:
             self.stats.unheaded += 1
             return None
-        if header.checksummed and not has_sum:
-            self.stats.partial += 1  # a checksummed module's line cut short
+        if (header.checksummed or untrusted) and not has_sum:
+            self.stats.partial += 1  # a line cut short, or possibly the tail of one
             return None
         if len(cells) != len(header.names):
             if len(cells) < len(header.names):

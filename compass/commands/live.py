@@ -1,0 +1,122 @@
+"""``compass live --port PORT_OR_URL --cal CAL.json``: live heading, pitch and roll from a module.
+
+Reads the line protocol (:mod:`compass.io.lines`) from a serial port or pyserial URL, filters
+(:mod:`compass.filter`), prints a one-line readout and optionally records the attitude CSV and a
+Rerun recording.  Ctrl-C (or SIGTERM, or ``--duration``) ends it cleanly: files flushed, summary
+with the dropped-line count printed.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+import time
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "live", help="live attitude from a compass module on a serial port (Kalman filter, optional Rerun)",
+        description="Read a compass module speaking the line protocol (README: 'Live attitude'), fuse with a Kalman "
+                    "filter that rejects magnetic disturbances, and show heading/pitch/roll live.")
+    p.add_argument("--port", required=True,
+                   help="serial device (/dev/ttyUSB0, COM3) or pyserial URL (socket://host:port, rfc2217://...)")
+    p.add_argument("--cal", required=True, help="calibration JSON (compass calibrate) of the module's sensor")
+    p.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200; ignored by ptys and sockets)")
+    p.add_argument("--rerun", metavar="spawn|FILE.rrd",
+                   help="'spawn' opens the Rerun viewer; a file name records to that .rrd file")
+    p.add_argument("--out", help="also write the attitude stream to this CSV file")
+    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    p.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--quiet", action="store_true", help="no live readout and no event lines, only the summary")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..cli import BadInput
+    from ..filter import FilterConfig
+    from ..io.atomic import check_writable
+    from ..live import LiveSession
+    from ..model import SensorModel
+    from ..serial_reader import SerialReader
+
+    try:
+        model = SensorModel.from_file(args.cal)
+        config = FilterConfig.from_model(model)
+    except ValueError as exc:
+        raise BadInput(f"{args.cal}: {exc}" if args.cal not in str(exc) else str(exc)) from None
+    if args.duration is not None and not args.duration > 0:
+        raise BadInput(f"--duration must be positive, got {args.duration}")
+    reader = SerialReader(args.port, baudrate=args.baud)
+    try:
+        reader.check_url()
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    out_path = None if args.out is None else check_writable(args.out, args.force)
+    if args.rerun not in (None, "spawn"):
+        check_writable(args.rerun, args.force)
+    sink = None
+    if args.rerun is not None:
+        try:
+            from ..viz import RerunSink
+        except ImportError:
+            raise BadInput("--rerun needs rerun-sdk: pip install 'compass-toolkit[rerun]'") from None
+        sink = RerunSink(args.rerun)
+
+    tty = sys.stdout.isatty()
+    every_s = 0.1 if tty else 1.0
+
+    def on_event(level, text):
+        if not args.quiet:
+            print(("\r\x1b[K" if tty else "") + f"[{level}] {text}", flush=True)
+
+    out = None if out_path is None else open(out_path, "w", encoding="utf-8", buffering=1 << 16)
+    session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event)
+    stop = threading.Event()
+    previous = _install_stop_handlers(stop)
+    timer = None
+    if args.duration is not None:
+        timer = threading.Timer(args.duration, stop.set)
+        timer.daemon = True
+        timer.start()
+    start = last = time.perf_counter()
+    last_count = 0
+    try:
+        for item in reader.items(stop):
+            session.feed(item)
+            now = time.perf_counter()
+            if now - last >= every_s:
+                rate = (session.decoder.stats.samples - last_count) / (now - last)
+                last, last_count = now, session.decoder.stats.samples
+                if out is not None:
+                    out.flush()
+                if not args.quiet:
+                    print(("\r\x1b[K" if tty else "") + session.readout(rate), end="" if tty else "\n", flush=True)
+    finally:
+        if timer is not None:
+            timer.cancel()
+        reader.close()
+        session.close()
+        if out is not None:
+            out.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        elapsed = time.perf_counter() - start
+        if tty and not args.quiet:
+            print()
+        wrote = [str(p) for p in (out_path, args.rerun) if p is not None and p != "spawn"]
+        print(f"compass live: {elapsed:.1f} s, {reader.disconnects} disconnect(s); {session.summary()}"
+              + (f"; wrote {', '.join(wrote)}" if wrote else ""), flush=True)
+    return 0
+
+
+def _install_stop_handlers(stop: threading.Event) -> dict:
+    """Ctrl-C and SIGTERM set ``stop`` (the loop ends within one read timeout); a second Ctrl-C interrupts."""
+    def handler(signum, frame):
+        if stop.is_set() and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        stop.set()
+
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    return {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}

@@ -1,0 +1,178 @@
+"""The live pipeline: bytes from a port -> protocol lines -> field in H -> filter -> outputs.
+
+:class:`LiveSession` is what ``compass live`` runs, without the terminal: feed it the items of
+:meth:`compass.serial_reader.SerialReader.items` and it decodes, solves, filters and writes the
+attitude CSV and the Rerun recording, counting everything it had to skip.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .filter import AttitudeFilter, Estimate, FilterConfig
+from .io.lines import LineDecoder
+from .serial_reader import Chunk, LinkEvent
+
+__all__ = ["LiveSession", "GATE_CODES", "CSV_COLUMNS"]
+
+GATE_CODES = {"ok": 0, "norm": 1, "dip": 2, "innovation": 3, "absent": 4}
+CSV_COLUMNS = ("t_s", "heading_deg", "pitch_deg", "roll_deg", "heading_sigma_deg", "tilt_sigma_deg", "field_ratio",
+               "dip_deg", "mag_used", "gate", "accel_used", "in_range", "latency_ms")
+_CSV_ROW = "%.4f,%.3f,%.3f,%.3f,%.3f,%.3f,%.4f,%.2f,%d,%d,%d,%d,%.3f\n"
+_LATENCY_WINDOW = 100_000  # samples kept for the latency percentiles
+
+
+@dataclass
+class LiveSession:
+    """Decode, solve and filter a live stream; write the CSV and Rerun outputs.
+
+    Parameters
+    ----------
+    model : compass.model.SensorModel
+    config : FilterConfig, optional
+        Default :meth:`FilterConfig.from_model`.
+    out : text file, optional
+        Receives the attitude CSV (:data:`CSV_COLUMNS`; ``gate`` coded as :data:`GATE_CODES`).
+    sink : compass.viz.RerunSink, optional
+    on_event : callable, optional
+        ``on_event(level, text)`` for every event (link, header, garbage, gate, filter).
+
+    Attributes
+    ----------
+    decoder : LineDecoder
+        Its ``stats`` count samples and dropped lines.
+    estimate : Estimate or None
+        The latest output.
+    in_range : bool
+        Every channel of the latest sample inside its calibrated range.
+    latencies_s : deque of float
+        Chunk received -> estimate available, seconds, for the latest samples.
+    samples : int
+        Estimates produced.
+    unsolved : int
+        Decoded samples that gave no attitude (no accelerometer yet).
+    """
+
+    model: object
+    config: FilterConfig | None = None
+    out: object = None
+    sink: object = None
+    on_event: object = None
+    decoder: LineDecoder = field(init=False)
+    estimate: Estimate | None = None
+    in_range: bool = True
+    latencies_s: deque = field(default_factory=lambda: deque(maxlen=_LATENCY_WINDOW))
+    samples: int = 0
+    unsolved: int = 0
+    _filter: AttitudeFilter | None = None
+    _t0: float | None = None
+    _bad_reported: int = 0
+    _bad_reported_at: float = 0.0
+    _gate: str = "ok"
+
+    def __post_init__(self):
+        self.decoder = LineDecoder(self.model.channels)
+        if self.config is None:
+            self.config = FilterConfig.from_model(self.model)
+        if self.out is not None:
+            self.out.write(f"# gate: {', '.join(f'{v} {k}' for k, v in GATE_CODES.items())}\n"
+                           + ",".join(CSV_COLUMNS) + "\n")
+
+    def feed(self, item: Chunk | LinkEvent) -> None:
+        """Process one item of :meth:`SerialReader.items`."""
+        if isinstance(item, LinkEvent):
+            if item.kind == "connected":
+                self.decoder.resync()
+            self._event("warn" if item.kind == "disconnected" else "info", item.message, item.t_rx)
+            return
+        if self._t0 is None:
+            self._t0 = item.t_rx
+        for sample in self.decoder.feed(item.data):
+            self._sample(sample, item.t_rx)
+        if self.decoder.events:
+            for level, text in self.decoder.drain_events():
+                self._event(level, text, item.t_rx)
+        stats = self.decoder.stats
+        bad = stats.garbage + stats.partial
+        if bad != self._bad_reported and item.t_rx - self._bad_reported_at >= 1.0:
+            self._event("warn", f"line noise: {stats.garbage} garbage and {stats.partial} partial lines so far",
+                        item.t_rx)
+            self._bad_reported, self._bad_reported_at = bad, item.t_rx
+
+    def _sample(self, sample, t_rx: float) -> None:
+        header = self.decoder.header
+        if self._filter is None or self._filter.gyro != (header.gyro is not None):
+            self._filter = AttitudeFilter(self.config, gyro=header.gyro is not None)
+            self._event("info", f"filter: {'gyro (error-state EKF with bias)' if self._filter.gyro else 'two-vector'}"
+                                f"{'' if header.accel is not None else '; no accelerometer: no attitude'}", t_rx)
+        field_h, in_range = self.model.field(sample.raw[None, :])
+        field_h = field_h[0]
+        t_s = sample.t_s if sample.t_s is not None else t_rx - self._t0
+        est = self._filter.step(t_s, sample.accel, sample.gyro, field_h)
+        if self._filter.events:
+            for text in self._filter.drain_events():
+                self._event("warn", text, t_rx)
+        if est is None:
+            self.unsolved += 1
+            return
+        self.estimate, self.in_range = est, bool(in_range[0])
+        self.samples += 1
+        if est.gate != self._gate:
+            self._event("info" if est.mag_used else "warn",
+                        "field used again" if est.mag_used else
+                        f"field rejected ({est.gate}): |B| ratio {est.field_ratio:.3f}, dip {est.dip_deg:.1f} deg", t_rx)
+            self._gate = est.gate
+        if self.sink is not None:
+            self.sink.log(t_s, self.samples, est, field_h / self.config.field_norm, sample.accel)
+        latency = time.perf_counter() - t_rx
+        self.latencies_s.append(latency)
+        if self.out is not None:
+            self.out.write(_CSV_ROW % (t_s, est.heading_deg, est.pitch_deg, est.roll_deg, est.heading_sigma_deg,
+                                       est.tilt_sigma_deg, est.field_ratio, est.dip_deg, est.mag_used,
+                                       GATE_CODES[est.gate], est.accel_used, self.in_range, 1e3 * latency))
+
+    def _event(self, level: str, text: str, t_rx: float) -> None:
+        if self.on_event is not None:
+            self.on_event(level, text)
+        if self.sink is not None:
+            t_s = self.estimate.t_s if self.estimate is not None else 0.0
+            self.sink.event(t_s, self.samples, text, level)
+
+    def readout(self, rate_hz: float) -> str:
+        """The one-line live readout."""
+        stats = self.decoder.stats
+        tail = f"{rate_hz:6.1f} Hz  dropped {stats.dropped}"
+        est = self.estimate
+        if est is None:
+            return f"waiting for samples ({stats.samples} decoded, {stats.unheaded} before a header)  {tail}"
+        flags = [name for name, on in (("MAG-REJECTED:" + est.gate, not est.mag_used),
+                                       ("ACCEL-SKIPPED", not est.accel_used), ("OUT-OF-RANGE", not self.in_range)) if on]
+        return (f"heading {est.heading_deg:6.1f}  pitch {est.pitch_deg:+6.1f}  roll {est.roll_deg:+7.1f} deg  "
+                f"+-{est.heading_sigma_deg:.2f}  |B| {est.field_ratio:.3f}  dip {est.dip_deg:5.1f}  "
+                f"{' '.join(flags) or 'ok':<22} {tail}")
+
+    def latency_ms(self) -> tuple[float, float]:
+        """p50 and p99 of the latency, milliseconds (NaN without samples)."""
+        if not self.latencies_s:
+            return float("nan"), float("nan")
+        p50, p99 = np.percentile(np.fromiter(self.latencies_s, float), [50, 99])
+        return 1e3 * float(p50), 1e3 * float(p99)
+
+    def summary(self) -> str:
+        """One line: samples, dropped lines by cause, latency."""
+        s = self.decoder.stats
+        p50, p99 = self.latency_ms()
+        return (f"{self.samples} attitudes from {s.samples} samples; dropped lines {s.dropped} (garbage {s.garbage}, "
+                f"partial {s.partial}, before a header {s.unheaded}, lost in transit {s.lost}); "
+                f"latency p50 {p50:.2f} ms, p99 {p99:.2f} ms")
+
+    def close(self) -> None:
+        """Flush the outputs (the CSV file stays open: its owner closes it)."""
+        if self.sink is not None:
+            self.sink.close()
+        if self.out is not None:
+            self.out.flush()

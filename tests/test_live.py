@@ -1,0 +1,229 @@
+import io
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from compass.cli import main
+from compass.frames import heading_pitch_roll
+from compass.io.lines import format_line
+from compass.io.table import read_table
+from compass.live import LiveSession
+from compass.serial_reader import Chunk, LinkEvent, SerialReader
+from compass.sim.device import PtyDevice, default_model, scripted_motion, simulate_device
+
+rr = pytest.importorskip("rerun")
+from rerun.chunk import RrdReader  # noqa: E402
+from scipy.spatial.transform import Rotation  # noqa: E402
+
+from compass.viz import ENTITIES, RerunSink  # noqa: E402
+
+
+def wrap(d):
+    return np.mod(np.asarray(d) + 180.0, 360.0) - 180.0
+
+
+def read_column(path, entity, component, index="sample"):
+    """(index values, cell values) of one component, sorted by index."""
+    idx, val = [], []
+    for c in RrdReader(str(path)).stream().filter(content=entity, components=component).to_chunks():
+        rb = c.to_record_batch()
+        if index not in rb.schema.names:
+            continue  # static chunk
+        idx += rb.column(index).to_pylist()
+        val += rb.column(component).to_pylist()
+    order = np.argsort(idx, kind="stable")
+    return np.asarray(idx)[order], [val[i] for i in order]
+
+
+def entity_paths(path):
+    return {c.entity_path for c in RrdReader(str(path)).stream().to_chunks()}
+
+
+def test_session_logs_what_it_writes(tmp_path):
+    model = default_model()
+    device = PtyDevice(model, rate_hz=100.0)
+    samples = simulate_device(model, np.arange(300) / 100.0, seed=1)
+    lines = device._lines(samples, 0)
+    stream = device._header + b"".join(lines[:100]) + b"\x00\xffjunk\r\n" + lines[100][:20] + b"\r\n" + b"".join(lines[101:])
+    out, events = io.StringIO(), []
+    sink = RerunSink(tmp_path / "s.rrd", recording_id="s")
+    session = LiveSession(model, out=out, sink=sink, on_event=lambda level, text: events.append(text))
+    session.feed(LinkEvent("connected", "connected to test", 0.0))
+    for k in range(0, len(stream), 700):  # arbitrary chunk boundaries
+        session.feed(Chunk(time.perf_counter(), stream[k:k + 700]))
+    session.close()
+    stats = session.decoder.stats
+    assert (stats.samples, stats.garbage, stats.partial, stats.lost) == (299, 1, 1, 0)
+
+    rrd = tmp_path / "s.rrd"
+    assert {"/" + e for e in ENTITIES} <= entity_paths(rrd)
+    csv_path = tmp_path / "att.csv"
+    csv_path.write_text(out.getvalue())
+    table = read_table(csv_path)
+    seq, heading = read_column(rrd, "/compass/heading_deg", "Scalars:scalars")
+    assert len(seq) == len(table.data) == 299 and list(seq) == list(range(1, 300))
+    np.testing.assert_allclose([h[0] for h in heading], table.column("heading_deg"), atol=1e-3)  # CSV: 3 decimals
+    _, quat = read_column(rrd, "/world/housing", "Transform3D:quaternion")
+    h, p, r = heading_pitch_roll(Rotation.from_quat(np.array([q[0] for q in quat])))
+    np.testing.assert_allclose(wrap(h - table.column("heading_deg")), 0.0, atol=2e-3)  # float32 quaternions
+    np.testing.assert_allclose(p, table.column("pitch_deg"), atol=2e-3)
+    # the truth: the sample rows are t = seq / 100 of the script
+    settled = table.column("t_s") > 0.5
+    truth_heading = scripted_motion(table.column("t_s"))[0]
+    assert np.sqrt(np.mean(wrap(table.column("heading_deg") - truth_heading)[settled] ** 2)) < 0.5
+    _, field = read_column(rrd, "/world/field", "Arrows3D:vectors")
+    _, gravity = read_column(rrd, "/world/gravity", "Arrows3D:vectors")
+    dip = np.radians(model.dip_deg)
+    np.testing.assert_allclose(np.mean([f[0] for f in field], axis=0), [np.cos(dip), 0, -np.sin(dip)], atol=0.01)
+    np.testing.assert_allclose(np.mean([g[0] for g in gravity], axis=0), [0, 0, -1], atol=0.01)
+    _, gate = read_column(rrd, "/compass/gate", "Scalars:scalars")
+    assert all(g == [1.0] for g in gate)
+    _, texts = read_column(rrd, "/events", "TextLog:text")
+    assert any("header: t_s,seq" in t[0] for t in texts) and any("line noise" in t[0] for t in texts)
+    assert any("connected to test" in t for t in events)
+
+
+def test_reader_reconnects_when_a_socket_peer_returns():
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+
+    def peer():
+        for k in range(2):
+            conn, _ = server.accept()
+            with conn:
+                conn.recv(16)  # wait for the reader: its open() drains earlier bytes
+                conn.sendall(f"mx,my,mz\n{k},2,3\n".encode())
+                time.sleep(0.2)
+
+    thread = threading.Thread(target=peer)
+    thread.start()
+    stop, kinds, data = threading.Event(), [], b""
+    reader = SerialReader(f"socket://127.0.0.1:{port}", read_timeout_s=0.05, retry_s=0.05)
+    deadline = time.monotonic() + 20.0
+    try:
+        for item in reader.items(stop):
+            if isinstance(item, LinkEvent):
+                kinds.append(item.kind)
+                if item.kind == "connected":
+                    reader.port.write(b"hello\n")
+                if kinds.count("connected") == 2 and item.kind == "disconnected" or time.monotonic() > deadline:
+                    break
+            else:
+                data += item.data
+    finally:
+        reader.close()
+        thread.join(5)
+        server.close()
+    assert kinds[:4] == ["connected", "disconnected", "connected", "disconnected"]
+    assert data == b"mx,my,mz\n0,2,3\nmx,my,mz\n1,2,3\n"
+    assert reader.disconnects == 2
+
+
+def _lines_until(stream, predicate, timeout_s, seen):
+    """Read lines from a text stream in a thread until ``predicate(line)``; True if it came."""
+    done = threading.Event()
+
+    def pump():
+        for line in stream:
+            seen.append(line)
+            if predicate(line):
+                done.set()
+                return
+
+    threading.Thread(target=pump, daemon=True).start()
+    return done.wait(timeout_s)
+
+
+def test_pty_device_end_to_end_with_noise_disconnect_and_ctrl_c(tmp_path):
+    cal, link = tmp_path / "cal.json", tmp_path / "compass-dev"
+    rrd, att = tmp_path / "live.rrd", tmp_path / "att.csv"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    device = subprocess.Popen(
+        [sys.executable, "-m", "compass", "device", "--pty", "--save-cal", str(cal), "--link", str(link), "--rate", "100",
+         "--garbage", "0.02", "--truncate", "0.02", "--disconnect-at", "5", "--disconnect-for", "0.8",
+         "--duration", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    live = None
+    try:
+        assert device.stdout.readline().strip() == str(link)
+        live = subprocess.Popen(
+            [sys.executable, "-m", "compass", "live", "--port", str(link), "--cal", str(cal), "--rerun", str(rrd),
+             "--out", str(att)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        seen = []
+        # wait for the reconnect after the module's disconnect, then two more readouts
+        state = {"connects": 0, "after": 0}
+
+        def enough(line):
+            state["connects"] += "] connected to" in line
+            state["after"] += state["connects"] >= 2 and line.startswith("heading")
+            return state["after"] >= 2
+
+        assert _lines_until(live.stdout, enough, 45.0, seen), "".join(seen) + live.stderr.read()
+        live.send_signal(signal.SIGINT)
+        rest, err = live.communicate(timeout=20)
+    finally:
+        for p in (live, device):
+            if p is not None and p.poll() is None:
+                p.send_signal(signal.SIGINT)
+                p.wait(10)
+    assert live.returncode == 0, err
+    output = "".join(seen) + rest
+    summary = output.strip().splitlines()[-1]
+    assert summary.startswith("compass live:") and "1 disconnect(s)" in summary and "wrote" in summary
+    assert "disconnected" in output and "line noise" in output
+    dropped = int(summary.split("dropped lines ")[1].split()[0])
+    assert dropped > 0
+
+    table = read_table(att)  # complete after Ctrl-C: every row parses
+    t = table.column("t_s")
+    assert len(t) > 200 and np.all(np.diff(t) > 0)
+    truth = scripted_motion(t)
+    restart = t[np.argmax(np.diff(t) > 0.5) + 1]  # the first sample after the disconnect
+    settled = (t > t[0] + 1.0) & ((t < 5.0) | (t > restart + 1.0)) & (truth[3] == 0)  # away from the magnet
+    heading_error = wrap(table.column("heading_deg") - truth[0])[settled]
+    assert np.sqrt(np.mean(heading_error**2)) < 1.0
+    np.testing.assert_allclose(table.column("pitch_deg")[settled], truth[1][settled], atol=1.0)
+
+    paths = entity_paths(rrd)
+    assert {"/" + e for e in ENTITIES} <= paths
+    seq, heading = read_column(rrd, "/compass/heading_deg", "Scalars:scalars")
+    assert len(seq) == len(t)
+    np.testing.assert_allclose([h[0] for h in heading], table.column("heading_deg"), atol=1e-3)
+    _, texts = read_column(rrd, "/events", "TextLog:text")
+    texts = [x[0] for x in texts]
+    assert any("disconnected" in x for x in texts) and sum("connected to" in x for x in texts) >= 2
+
+
+def test_live_bad_input_exits_2(tmp_path, capsys):
+    assert main(["live", "--port", "/dev/null", "--cal", str(tmp_path / "missing.json")]) == 2
+    assert "cannot read calibration" in capsys.readouterr().err
+    cal = tmp_path / "cal.json"
+    assert main(["device", "--pty", "--save-cal", str(cal), "--duration", "-1"]) == 2
+    assert main(["live", "--port", "nosuch://x", "--cal", str(cal)]) == 2
+    assert "nosuch" in capsys.readouterr().err
+
+
+def test_live_exits_when_asked_while_the_port_is_absent(tmp_path, capsys):
+    cal = tmp_path / "cal.json"
+    cal.write_text(__import__("json").dumps(default_model().to_json()))
+    assert main(["live", "--port", str(tmp_path / "nothing"), "--cal", str(cal), "--duration", "0.3"]) == 0
+    out = capsys.readouterr().out
+    assert "waiting for" in out and "0 attitudes" in out
+
+
+def test_format_line_round_trip_through_loop_url():
+    reader = SerialReader("loop://")
+    stop = threading.Event()
+    items = reader.items(stop)
+    assert next(items).kind == "connected"
+    reader.port.write(format_line(["mx", "my", "mz"]) + format_line([1, 2, 3]))
+    session = LiveSession(default_model())
+    session.feed(next(items))
+    reader.close()
+    assert session.decoder.stats.samples == 1 and session.decoder.header.checksummed
