@@ -17,7 +17,7 @@ from .io.table import RecordingError
 
 __all__ = ["main", "BadInput"]
 
-SUBCOMMANDS = ("demo", "simulate", "calibrate", "attitude", "live", "device", "export")
+SUBCOMMANDS = ("demo", "simulate", "calibrate", "attitude", "live", "device", "export", "evaluate")
 
 
 class BadInput(ValueError):

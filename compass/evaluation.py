@@ -17,12 +17,15 @@ they are the same for an NWU world (the toolkit's) as for ENU, once both quatern
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["METRIC", "ErrorSeries", "orientation_errors", "error_series"]
+_NO_GATE = 1e9
+"""Gate tolerances that let every field sample in (|B| ratio, degrees, seconds)."""
+
+__all__ = ["METRIC", "ErrorSeries", "PipelineResult", "orientation_errors", "error_series", "initial_field", "run_pipeline"]
 
 METRIC = ("BROAD metric: e = q_est * q_ref^-1 (body->ENU, scalar first); heading 2 atan|e_z/e_w|, "
           "inclination 2 acos sqrt(e_w^2 + e_z^2); RMS over movement == 1, NaN reference rows skipped")
@@ -149,3 +152,118 @@ def error_series(estimate_quat_enu, reference_quat_enu, movement, rate_hz: float
 
 def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x**2)))
+
+
+@dataclass(frozen=True)
+class PipelineResult:
+    """The toolkit's attitude for a recording with IMU columns, and what went into it.
+
+    Attributes
+    ----------
+    quat_enu : ndarray, shape (n, 4)
+        Estimated ``R_ENU<-H``, scalar first (BROAD's convention; NWU is ``Rz(-90 deg)`` of it).
+    field_h_ut : ndarray, shape (n, 3)
+        Field in H after the calibration and the hard-iron track, uT.
+    field_ut, dip_deg : float
+        Reference |B| and dip: from the calibration when it has them, else the initial rest.
+    hard_iron : HardIronTrack or None
+        None when hard-iron tracking was off.
+    disturbed : ndarray of bool, shape (n,)
+        Rows whose field the filter did not use (gate closed, or before it started).
+    method : str
+        Which attitude estimator ran, in words.
+    """
+
+    quat_enu: np.ndarray
+    field_h_ut: np.ndarray
+    field_ut: float
+    dip_deg: float
+    hard_iron: object
+    disturbed: np.ndarray
+    method: str
+
+
+def initial_field(mag_ut, accel, still) -> tuple[float, float, float]:
+    """|B|, dip and per-axis noise of the field over the first half of the initial rest.
+
+    Only the first half is used: a rest phase can end with the set-up for what follows (in BROAD,
+    a magnet attached seconds before the movement starts).
+
+    Parameters
+    ----------
+    mag_ut, accel : array_like, shape (n, 3)
+        Field in H (uT) and specific force in H (any unit).
+    still : array_like of bool, shape (n,)
+        Samples at rest; the first half of the first contiguous run is used.
+
+    Returns
+    -------
+    field_ut, dip_deg, noise_ut : float
+
+    Raises
+    ------
+    ValueError
+        Fewer than 10 samples at rest at the start.
+    """
+    still = np.asarray(still, dtype=bool)
+    n_rest = int(np.argmin(still)) if not still.all() else len(still)
+    if n_rest < 20:
+        raise ValueError(f"needs at least 20 samples at rest at the start to fix |B| and dip, got {n_rest}")
+    m = np.asarray(mag_ut, dtype=float)[:n_rest // 2]
+    a = np.asarray(accel, dtype=float)[:n_rest // 2]
+    m_mean, up = m.mean(axis=0), a.mean(axis=0) / np.linalg.norm(a.mean(axis=0))
+    field = float(np.linalg.norm(m_mean))
+    dip = float(np.degrees(np.arcsin(np.clip(-m_mean @ up / field, -1.0, 1.0))))
+    noise = float(np.median(np.std(m, axis=0)))
+    return field, dip, max(noise, 1e-3 * field)
+
+
+def run_pipeline(trial, model=None, *, gate: bool = True, hard_iron: bool = True) -> PipelineResult:
+    """Attitude of a BROAD-like trial through the toolkit: calibration, hard-iron track, live filter.
+
+    Parameters
+    ----------
+    trial : compass.io.broad.BroadTrial
+        Only its IMU arrays and the ``movement`` flag (to find the initial rest) are used, never the
+        reference.
+    model : SensorModel, optional
+        Calibration of the magnetometer (three channels, in the order x, y, z of ``mag_ut``); its
+        housing frame must be the accelerometer's.  None: the readings are taken as calibrated.
+    gate : bool
+        Keep the filter's magnetic-disturbance gate (False: every field sample is used).
+    hard_iron : bool
+        Track housing-fixed offsets (:func:`compass.hard_iron.track_hard_iron`).
+
+    Returns
+    -------
+    PipelineResult
+
+    Notes
+    -----
+    |B|, dip and the magnetometer noise come from the trial's initial rest (the calibration's dip
+    when it has one); the filter (:func:`compass.filter.run_filter`) runs causally on gyro,
+    accelerometer and the field with :class:`compass.filter.FilterConfig` defaults otherwise.
+    """
+    from .filter import FilterConfig, run_filter
+    from .hard_iron import track_hard_iron
+    from .io.broad import nwu_to_enu
+
+    field = trial.mag_ut if model is None else model.field(trial.mag_ut)[0]
+    field_ut, dip_deg, noise_ut = initial_field(field, trial.accel_m_s2, ~trial.movement)
+    if model is not None and model.dip_deg is not None:
+        dip_deg = model.dip_deg
+    config = FilterConfig(field_norm=field_ut, dip_deg=dip_deg, mag_noise=noise_ut)
+    if not gate:
+        config = replace(config, field_tolerance=_NO_GATE, dip_tolerance_deg=_NO_GATE, heading_tolerance_deg=_NO_GATE,
+                         gate_timeout_s=_NO_GATE)
+    track = None
+    if hard_iron:
+        track = track_hard_iron(field, trial.accel_m_s2, trial.rate_hz, dip_deg=dip_deg)
+        field = track.corrected(field)
+    out = run_filter(trial.t_s, trial.accel_m_s2, trial.gyro_rad_s, field, config)
+    ok = np.all(np.isfinite(out.quat), axis=1)
+    quat = np.full((len(field), 4), np.nan)
+    quat[ok] = nwu_to_enu(Rotation.from_quat(out.quat[ok])).as_quat(scalar_first=True)
+    words = "gyro filter" + (" with magnetic gate" if gate else " without gate") + (" + hard-iron track" if hard_iron else "")
+    return PipelineResult(quat_enu=quat, field_h_ut=field, field_ut=field_ut, dip_deg=dip_deg, hard_iron=track,
+                          disturbed=~out.mag_used, method=words + (", calibrated" if model is not None else ""))

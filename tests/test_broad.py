@@ -116,6 +116,9 @@ def test_reader_rejects_bad_files(tmp_path):
     junk.write_bytes(b"not a mat file at all" * 10)
     with pytest.raises(RecordingError, match="junk.mat"):
         read_broad(junk)
+    junk.write_text("x")  # scipy calls this one truncated
+    with pytest.raises(RecordingError, match="junk.mat"):
+        read_broad(junk)
     n = 20
     good = {"imu_gyr": np.zeros((n, 3)), "imu_acc": np.tile([0, 0, 9.81], (n, 1)), "imu_mag": np.ones((n, 3)),
             "opt_quat": np.tile([1.0, 0, 0, 0], (n, 1)), "opt_pos": np.zeros((n, 3)),
@@ -133,3 +136,53 @@ def test_reader_rejects_bad_files(tmp_path):
         savemat(tmp_path / f"{name}.mat", content)
         with pytest.raises(RecordingError, match=message):
             read_broad(tmp_path / f"{name}.mat")
+
+
+def _crop(src: Path, dst: Path, seconds: float) -> Path:
+    """A shorter copy of a BROAD trial (same variables), to keep the end-to-end test fast."""
+    from scipy.io import loadmat
+
+    d = loadmat(src, squeeze_me=True)
+    n = int(seconds * float(d["sampling_rate"]))
+    out = {k: (v[:n] if k in ("imu_gyr", "imu_acc", "imu_mag", "opt_quat", "opt_pos", "movement") else v)
+           for k, v in d.items() if not k.startswith("__")}
+    savemat(dst, out)
+    return dst
+
+
+MAGNET = BROAD / "32_disturbed_attached_magnet_1cm.mat"
+
+
+@pytest.mark.skipif(not MAGNET.exists(), reason=f"BROAD data not found at {BROAD}")
+def test_evaluate_cli_end_to_end(tmp_path, capsys):
+    from compass.cli import main
+
+    # the magnet is attached at about 38 s, movement starts at 41 s: 75 s hold one hard-iron step
+    trial = _crop(MAGNET, tmp_path / "magnet.mat", 75.0)
+    assert main(["evaluate", str(trial), "--plot", str(tmp_path / "plots")]) == 0
+    out = capsys.readouterr().out
+    assert "BROAD metric" in out and "offset kept" in out and "removed" in out
+    heading = float(out.split("heading RMS ")[1].split()[0])
+    inclination = float(out.split("inclination RMS ")[1].split()[0])
+    assert heading < 10.0 and inclination < 5.0  # without the step tracker this trial is far off (see README)
+    step = out.split("hard-iron steps: ")[1].splitlines()[0]
+    z = float(step.split("(")[1].split(")")[0].split(",")[2])
+    assert 45 < z < 70  # the magnet's field along body z, about 58 uT from the reference
+    assert (tmp_path / "plots" / "magnet_errors.png").stat().st_size > 10_000
+
+
+def test_evaluate_cli_bad_input(tmp_path, capsys):
+    from compass.cli import main
+
+    assert main(["evaluate", str(tmp_path / "missing.mat")]) == 2
+    assert "missing.mat" in capsys.readouterr().err
+    (tmp_path / "junk.mat").write_text("junk")
+    assert main(["evaluate", str(tmp_path / "junk.mat")]) == 2
+    cal = tmp_path / "cal.json"
+    cal.write_text('{"format": "something-else/9"}')
+    assert main(["evaluate", str(tmp_path / "junk.mat"), "--cal", str(cal)]) == 2
+    assert "unknown calibration format" in capsys.readouterr().err
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    assert main(["evaluate", str(tmp_path / "junk.mat"), "--plot", str(afile)]) == 2
+    assert "is a file" in capsys.readouterr().err

@@ -132,13 +132,14 @@ def read_broad(path) -> BroadTrial:
     (285.714..., (56940, 3))
     """
     from scipy.io import loadmat
+    from scipy.io.matlab import MatReadError
 
     path = Path(path)
     if not path.is_file():
         raise RecordingError(path, "no such file")
     try:
         d = loadmat(path, squeeze_me=True)
-    except (OSError, ValueError, TypeError, NotImplementedError) as exc:
+    except (OSError, ValueError, TypeError, NotImplementedError, MatReadError) as exc:
         raise RecordingError(path, f"not a readable MATLAB v5 BROAD trial ({exc})") from None
     missing = [k for k in _REQUIRED if k not in d]
     if missing:
