@@ -12,6 +12,8 @@ Two causal filters share one error convention, the gate and the output:
   (:func:`compass.attitude.two_vector_rotation`): state ``(eps, omega)``, ``omega`` the world-frame
   angular rate (rad/s), a first-order Gauss-Markov process driven by white angular acceleration; the
   measurement is the rotation vector from the estimate to the two-vector solution, world frame.
+  While the gate rejects the field this filter has no heading information: the heading coasts to
+  a stop (rate correlation time ``rate_tau_s``), right for a brief disturbance only.
 
 Measurements (both filters):
 

@@ -50,7 +50,10 @@ class LiveSession:
     in_range : bool
         Every channel of the latest sample inside its calibrated range.
     latencies_s : deque of float
-        Chunk received -> estimate available, seconds, for the latest samples.
+        Chunk read from the port -> estimate available, seconds, for the latest samples (time
+        the bytes waited in the kernel while the session was busy is not included).
+    output_latencies_s : deque of float
+        Chunk read -> CSV row written and Rerun row buffered (or sent), seconds.
     samples : int
         Estimates produced.
     unsolved : int
@@ -66,6 +69,7 @@ class LiveSession:
     estimate: Estimate | None = None
     in_range: bool = True
     latencies_s: deque = field(default_factory=lambda: deque(maxlen=_LATENCY_WINDOW))
+    output_latencies_s: deque = field(default_factory=lambda: deque(maxlen=_LATENCY_WINDOW))
     samples: int = 0
     unsolved: int = 0
     _filter: AttitudeFilter | None = None
@@ -126,14 +130,15 @@ class LiveSession:
                         "field used again" if est.mag_used else
                         f"field rejected ({est.gate}): |B| ratio {est.field_ratio:.3f}, dip {est.dip_deg:.1f} deg", t_rx)
             self._gate = est.gate
-        if self.sink is not None:
-            self.sink.log(t_s, self.samples, est, field_h / self.config.field_norm, sample.accel)
         latency = time.perf_counter() - t_rx
         self.latencies_s.append(latency)
         if self.out is not None:
             self.out.write(_CSV_ROW % (t_s, est.heading_deg, est.pitch_deg, est.roll_deg, est.heading_sigma_deg,
                                        est.tilt_sigma_deg, est.field_ratio, est.dip_deg, est.mag_used,
                                        GATE_CODES[est.gate], est.accel_used, self.in_range, 1e3 * latency))
+        if self.sink is not None:
+            self.sink.log(t_s, self.samples, est, field_h / self.config.field_norm, sample.accel)
+        self.output_latencies_s.append(time.perf_counter() - t_rx)
 
     def _event(self, level: str, text: str, t_rx: float) -> None:
         if self.on_event is not None:
@@ -155,11 +160,12 @@ class LiveSession:
                 f"+-{est.heading_sigma_deg:.2f}  |B| {est.field_ratio:.3f}  dip {est.dip_deg:5.1f}  "
                 f"{' '.join(flags) or 'ok':<22} {tail}")
 
-    def latency_ms(self) -> tuple[float, float]:
-        """p50 and p99 of the latency, milliseconds (NaN without samples)."""
-        if not self.latencies_s:
+    def latency_ms(self, outputs: bool = False) -> tuple[float, float]:
+        """p50 and p99 of the latency to the estimate (``outputs``: to the outputs), ms; NaN without samples."""
+        values = self.output_latencies_s if outputs else self.latencies_s
+        if not values:
             return float("nan"), float("nan")
-        p50, p99 = np.percentile(np.fromiter(self.latencies_s, float), [50, 99])
+        p50, p99 = np.percentile(np.fromiter(values, float), [50, 99])
         return 1e3 * float(p50), 1e3 * float(p99)
 
     def summary(self) -> str:

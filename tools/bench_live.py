@@ -1,0 +1,139 @@
+"""Benchmark of the live pipeline: latency and sustained rate, pty module to attitude.
+
+The module is ``compass device --pty`` in its own process (so it does not share the GIL with the
+receiver); the receiver is :class:`compass.live.LiveSession` fed by :class:`compass.serial_reader.SerialReader`
+in this process, writing the attitude CSV (and, with Rerun on, an .rrd file) to a temporary folder.
+
+- latency: chunk read from the port -> estimate available (decode, field, filter), and -> outputs
+  done (CSV row written, Rerun row buffered or, every 50 ms, the batch sent), p50 and p99, at
+  100 Hz and 1 kHz.  Time bytes wait in the kernel while the receiver is busy is not counted;
+  the sweep's lost-line and backlog criteria catch a receiver that falls behind;
+- sustained rate: the highest rate of a sweep at which the receiver lost no line (no ``seq`` gap:
+  a receiver that falls behind fills the pty and the module drops lines; no garbage or partial
+  line besides the first fragment after opening) and received at >= 97 % of the rate, with
+  Rerun on and off;
+- processing capacity: lines decoded, solved and filtered per second from memory (no port).
+
+Targets (issue 5): p99 < 5 ms at 100 Hz; >= 1 kHz sustained with Rerun recording to a file.
+
+Usage: ``python tools/bench_live.py [--quick]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from compass.live import LiveSession
+from compass.model import SensorModel
+from compass.serial_reader import Chunk, LinkEvent, SerialReader
+from compass.sim.device import PtyDevice, simulate_device
+
+
+def run_port(rate_hz: float, duration_s: float, rerun: bool, folder: Path) -> dict:
+    """Stream ``duration_s`` from a device process at ``rate_hz`` into a LiveSession."""
+    cal, link = folder / f"cal{rate_hz:g}.json", folder / f"dev{rate_hz:g}"
+    device = subprocess.Popen(
+        [sys.executable, "-m", "compass", "device", "--pty", "--save-cal", str(cal), "--force", "--link", str(link),
+         "--rate", str(rate_hz), "--duration", str(duration_s + 4.0)],
+        stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        device.stdout.readline()
+        model = SensorModel.from_file(cal)
+        sink = None
+        if rerun:
+            from compass.viz import RerunSink
+            sink = RerunSink(folder / f"live{rate_hz:g}.rrd")
+        with open(folder / "att.csv", "w", buffering=1 << 16) as out:
+            session = LiveSession(model, out=out, sink=sink)
+            stop = threading.Event()
+            timer = threading.Timer(duration_s + 1.5, stop.set)  # 1.5 s for the first header
+            timer.start()
+            reader = SerialReader(str(link))
+            start = None
+            for item in reader.items(stop):
+                if isinstance(item, LinkEvent) and item.kind == "disconnected":
+                    break
+                session.feed(item)
+                if start is None and session.samples:
+                    start = (time.perf_counter(), session.samples)
+            timer.cancel()
+            reader.close()
+            session.close()
+        end = time.perf_counter()
+    finally:
+        device.terminate()
+        device.wait(10)
+    s = session.decoder.stats
+    p50, p99 = session.latency_ms()
+    out50, out99 = session.latency_ms(outputs=True)
+    received = (session.samples - start[1]) / (end - start[0]) if start else 0.0
+    return {"rate": rate_hz, "rerun": rerun, "samples": session.samples, "received_hz": received,
+            "lost": s.lost, "bad": s.garbage + s.partial, "p50": p50, "p99": p99, "out50": out50, "out99": out99}
+
+
+def sustained(r: dict) -> bool:
+    """No line lost or damaged (one fragment after opening allowed) and the receive rate kept up."""
+    return r["lost"] == 0 and r["bad"] <= 1 and r["received_hz"] >= 0.97 * r["rate"]
+
+
+def capacity(rerun: bool, folder: Path, n: int = 20000) -> float:
+    """Samples per second through decode + field + filter (+ Rerun) from memory."""
+    model = SensorModel.from_file(folder / "cal100.json")
+    device = PtyDevice(model, rate_hz=1000.0)
+    data = device._header + b"".join(device._lines(simulate_device(model, np.arange(n) / 1000.0), 0))
+    sink = None
+    if rerun:
+        from compass.viz import RerunSink
+        sink = RerunSink(folder / "capacity.rrd")
+    with open(os.devnull, "w") as out:
+        session = LiveSession(model, out=out, sink=sink)
+        t0 = time.perf_counter()
+        for k in range(0, len(data), 4096):
+            session.feed(Chunk(time.perf_counter(), data[k:k + 4096]))
+        session.close()
+    return session.samples / (time.perf_counter() - t0)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="shorter runs, smaller sweep")
+    args = parser.parse_args()
+    duration = 3.0 if args.quick else 8.0
+    sweep = (1000, 2000) if args.quick else (1000, 2000, 4000, 8000)
+    print(f"python {sys.version.split()[0]}, {os.cpu_count()} cores; load average {os.getloadavg()[0]:.2f}")
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        print("\n| rate | Rerun | samples | received | to attitude p50 / p99 | to outputs p50 / p99 | lost | bad lines |")
+        print("|---|---|---|---|---|---|---|---|")
+        for rate in (100, 1000):
+            r = run_port(rate, duration, True, folder)
+            print(f"| {rate} Hz | file | {r['samples']} | {r['received_hz']:.0f} Hz | {r['p50']:.2f} / {r['p99']:.2f} ms | "
+                  f"{r['out50']:.2f} / {r['out99']:.2f} ms | {r['lost']} | {r['bad']} |")
+        print("\n| Rerun | sweep (Hz): lost / bad / received Hz | max sustained |")
+        print("|---|---|---|")
+        for rerun in (False, True):
+            cells, best = [], 0
+            for rate in sweep:
+                r = run_port(rate, duration / 2, rerun, folder)
+                cells.append(f"{rate}: {r['lost']}/{r['bad']}/{r['received_hz']:.0f}")
+                if not sustained(r):
+                    break
+                best = rate
+            print(f"| {'file' if rerun else 'off'} | {'; '.join(cells)} | {f'>= {best} Hz' if best else '< ' + str(sweep[0]) + ' Hz'} |")
+        print("\n| Rerun | processing capacity from memory |")
+        print("|---|---|")
+        for rerun in (False, True):
+            print(f"| {'file' if rerun else 'off'} | {capacity(rerun, folder):.0f} samples/s |")
+
+
+if __name__ == "__main__":
+    main()
