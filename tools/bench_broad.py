@@ -166,7 +166,9 @@ def main(argv=None) -> int:
 
     print(METRIC + "; no heading offset removed; group = mean of its trials' RMS")
     if not args.skip_check:
-        worst = check_frames(available)
+        # a calibration (fitted to a real sensor) rightly changes a perfect synthetic field: frames are
+        # checked on the uncalibrated methods, whose conversions the calibrated ones share
+        worst = check_frames({k: v for k, v in available.items() if "cal" not in k})
         print("frame check (still synthetic sensor, 3 orientations), worst error deg: "
               + ", ".join(f"{k} {v:.2f}" for k, v in worst.items()))
         bad = [k for k, v in worst.items() if v > 1.0]
