@@ -65,6 +65,10 @@ OUTLIER_SIGMAS = 4.0
 """Samples farther than this many robust sigmas from the fitted ellipsoid are dropped."""
 MAX_RELATIVE_SIGMA = 0.01
 """A kind is determined when every standard error (offset / field, soft-iron element) is below this."""
+MAX_RADIUS_RATIO = 3.0
+"""A fit whose field norm exceeds this many times the samples' extent (95th percentile of their
+distance from their median) is degenerate: a huge sphere through a nearly flat patch of samples,
+as when the field changed partway (a magnet attached to the device)."""
 FACE_COVERAGE_DEG = 45.0
 """A half-axis counts as seen when some sample's field direction lies within this angle of it."""
 STATIC_TOLERANCE = 0.02
@@ -133,6 +137,8 @@ class KindFit:
         Fit parameters in normalised units: ``(h - centre) / radius``, then the shape of ``L``.
     centre, radius : ndarray (3,), float
         The normalisation (algebraic sphere fit), recording units.
+    degenerate : bool
+        The field norm exceeds ``MAX_RADIUS_RATIO`` times the samples' extent (see ``reason``).
     """
 
     kind: str
@@ -153,6 +159,7 @@ class KindFit:
     params: np.ndarray
     centre: np.ndarray
     radius: float
+    degenerate: bool = False
 
     @property
     def n_params(self) -> int:
@@ -215,6 +222,9 @@ class TumbleResult:
     n_samples, n_repeats : int
         Samples fitted; rows dropped as repeated magnetometer values.
     warnings : tuple of str
+    refused : str
+        Why no kind gives a usable calibration (every kind degenerate), in words; empty when the
+        result is usable.  A refused result must not be written as a calibration file.
     """
 
     fit: KindFit
@@ -226,6 +236,7 @@ class TumbleResult:
     n_samples: int
     n_repeats: int
     warnings: tuple = field(default_factory=tuple)
+    refused: str = ""
 
     @property
     def kind(self) -> str:
@@ -507,6 +518,7 @@ def fit_ellipsoid(mag: np.ndarray, kind: str = "auto") -> tuple[KindFit, tuple, 
     common = fits[-1].inliers
     coverage = sphere_coverage(x[common] - fits[0].hard_iron)
     n = int(np.count_nonzero(common))
+    extent = float(np.percentile(np.linalg.norm(x[common] - np.median(x[common], axis=0), axis=1), 95))
     final = []
     for fit, p in zip(fits, params):
         if not np.array_equal(fit.inliers, common):
@@ -515,12 +527,18 @@ def fit_ellipsoid(mag: np.ndarray, kind: str = "auto") -> tuple[KindFit, tuple, 
         rel = max(np.max(fit.hard_iron_sigma) / fit.field_norm, np.max(fit.soft_iron_sigma),
                   fit.field_norm_sigma / fit.field_norm)
         reason = ""
-        if not np.isfinite(rel) or rel > MAX_RELATIVE_SIGMA:
+        degenerate = not fit.field_norm <= MAX_RADIUS_RATIO * extent
+        if degenerate:
+            reason = (f"degenerate: a sphere of radius {fit.field_norm:.4g} ({fit.field_norm / max(extent, 1e-300):.3g} "
+                      f"times the samples' extent {extent:.4g}) with hard iron {np.linalg.norm(fit.hard_iron):.4g}; "
+                      "the samples lie on no ellipsoid around the device: the field changed during the recording "
+                      "(a magnet or magnetised part attached or moved partway) or the device barely turned")
+        elif not np.isfinite(rel) or rel > MAX_RELATIVE_SIGMA:
             reason = (f"standard errors up to {100 * rel:.2g} % of the field" if np.isfinite(rel)
                       else "singular covariance")
         elif fit.kind != "offset" and coverage.missing:
             reason = f"the field was never along {', '.join(coverage.missing)}"
-        final.append(replace(fit, bic=float(bic), determined=not reason, reason=reason))
+        final.append(replace(fit, bic=float(bic), determined=not reason, reason=reason, degenerate=degenerate))
     if kind != "auto":
         return final[-1], tuple(final), coverage
     usable = [f for f in final if f.determined] or final[:1]
@@ -738,6 +756,11 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: 
         why = full.reason or "the BIC prefers the simpler kind"
         warnings.append(f"used the {chosen.kind} kind: the full ellipsoid is not determined ({why})"
                         if not full.determined else f"used the {chosen.kind} kind ({why})")
+    if chosen.degenerate:
+        refused = (f"no usable calibration: no ellipsoid kind is determined, and the simplest ({chosen.kind}) is "
+                   f"{chosen.reason}")
+        return TumbleResult(chosen, candidates, coverage, None, field_ut, _noise_floor(mag), len(mag), n_repeats,
+                            tuple(warnings + [refused]), refused)
     if not chosen.determined:
         warnings.append(f"the {chosen.kind} kind is poorly determined: {chosen.reason}")
     n_out = int(np.count_nonzero(~chosen.inliers))

@@ -1,5 +1,6 @@
 """Free-motion (tumble) calibration against simulated truth, bad input, and the CLI end to end."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -126,3 +127,21 @@ def test_export_rejects_other_files(tmp_path, capsys):
     assert "unknown calibration format" in capsys.readouterr().err
     bad.write_text(json.dumps({"format": "compass-calibration/1", "channels": {}}))
     assert main(["export", str(bad), "--format", "fusion"]) == 2
+
+
+def test_hard_iron_step_partway_is_refused_not_written(tmp_path, capsys):
+    # a magnet attached halfway through: two spheres, no ellipsoid; the fit must not pass off a huge sphere
+    sim = simulate_tumble(seed=9, n=1500)
+    mag = sim.mag.copy()
+    mag[750:] += np.array([0.6, -0.5, 0.62]) * 150.0
+    res = calibrate_tumble(mag, sim.accel)
+    assert res.refused and "field changed during the recording" in res.refused
+    assert res.refused in res.warnings and res.fit.degenerate and res.misalignment is None
+    stepped = dataclasses.replace(sim, mag=mag)
+    rec, _ = write_tumble(stepped, tmp_path / "step.csv")
+    cal = tmp_path / "cal.json"
+    assert main(["calibrate", str(rec), "--out", str(cal)]) == 2
+    err = capsys.readouterr().err
+    assert "step.csv" in err and "no usable calibration" in err and not cal.exists()
+    # the same device without the magnet is fine
+    assert not calibrate_tumble(sim.mag, sim.accel).refused

@@ -106,6 +106,10 @@ def _calibrate_tumble(table, out, *, field_ut, ellipsoid, quiet):
     rec = tumble_from_table(table)
     field_ut = field_ut if field_ut is not None else table.metadata_float("field_ut")
     result = calibrate_tumble(rec.mag, rec.accel, kind=ellipsoid, field_ut=field_ut, n_repeats=rec.n_repeats)
+    if result.refused:
+        from ..cli import BadInput
+
+        raise BadInput(f"{table.path}: {result.refused}")
     if not quiet:
         print(result.report())
     atomic_write_text(out, json.dumps(result.to_json(), indent=2) + "\n")
