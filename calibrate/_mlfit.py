@@ -26,6 +26,7 @@ __all__ = ["MLFit", "fit_ml", "score_effect", "tangent_basis"]
 
 _BASE_PER_CHANNEL = 4  # u, v, offset, log gain
 _SINGULAR_RCOND = 1e-7
+_MAX_ITERATIONS = 60  # Levenberg-Marquardt iterations (each costs one finite-difference Jacobian)
 
 
 def tangent_basis(directions: np.ndarray) -> np.ndarray:
@@ -212,7 +213,13 @@ def fit_ml(
     def residual(p):
         return ((outputs - bench_outputs(layout.physics(p), samples)) * weights).ravel()
 
-    res = least_squares(residual, layout.x0(effect_start), method="lm", x_scale="jac")
+    x0 = layout.x0(effect_start)
+    if effect_start:
+        # a first-order start can overshoot far outside the linear regime: keep it only if it helps
+        plain = layout.x0()
+        if np.sum(residual(plain) ** 2) < np.sum(residual(x0) ** 2):
+            x0 = plain
+    res = least_squares(residual, x0, method="lm", x_scale="jac", max_nfev=_MAX_ITERATIONS * (x0.size + 1))
     x = res.x
     jac = res.jac
     r = res.fun
@@ -295,9 +302,15 @@ def score_effect(fit: MLFit, outputs: np.ndarray, noise: np.ndarray, effect: Eff
         j_e[:, i] = (residual(xp) - r0) / step
     j_b = np.nan_to_num(fit.jac)
     j_b = j_b / np.where(np.any(j_b, axis=0), np.linalg.norm(j_b, axis=0), 1.0)  # unit columns
-    absorbed, *_ = np.linalg.lstsq(j_b.T @ j_b, j_b.T @ j_e, rcond=None)  # small normal equations
+    absorbed, *_ = np.linalg.lstsq(j_b.T @ j_b, j_b.T @ j_e, rcond=_SINGULAR_RCOND**2)  # small normal equations
     j_tilde = j_e - j_b @ absorbed
-    normal, projected = j_tilde.T @ j_tilde, j_tilde.T @ r0
-    coef, *_ = np.linalg.lstsq(normal, projected, rcond=None)
+    # the effect's directions the current model cannot tell from its own parameters carry no
+    # evidence: drop them (eigenvalues of the scaled normal matrix) and start them at zero
+    scale = np.linalg.norm(j_tilde, axis=0)
+    scale[scale == 0] = 1.0
+    w, v = np.linalg.eigh((j_tilde / scale).T @ (j_tilde / scale))
+    keep = w > _SINGULAR_RCOND**2 * max(w.max(), 1e-300)
+    projected = (j_tilde / scale).T @ r0
+    coef_scaled = (v[:, keep] / w[keep]) @ (v[:, keep].T @ projected)
     # residual = data - model, so the model must move by +J coef: parameters step by -coef
-    return float(projected @ coef), -coef
+    return float(projected @ coef_scaled), -coef_scaled / scale

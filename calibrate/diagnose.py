@@ -29,7 +29,7 @@ from compass.io.fourflip import FourFlipRecording
 from compass.sim.bench import BenchSamples
 
 from ._mlfit import MLFit, fit_ml, score_effect
-from .effects import EFFECTS, Effect
+from .effects import VARIANTS, Effect
 from .noise import noise_floor
 
 __all__ = ["DECISIVE_BIC", "UNEXPLAINED_WARNING", "diagnose_fourflip", "examine_residual", "format_diagnosis",
@@ -47,7 +47,7 @@ STRUCTURE_HARMONICS = 6
 MAX_STEPS = 4
 UNEXPLAINED_WARNING = ("structure remains in the residual above the noise floor: the recording has an effect "
                        "the model lacks (see the diagnosis); the uncertainties are then optimistic")
-MAX_REFITS = 3
+MAX_REFITS = 4
 
 
 def residual_structure(samples: BenchSamples, residuals: np.ndarray, noise: np.ndarray) -> tuple[float, int, float]:
@@ -121,16 +121,15 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
     samples = BenchSamples.from_recording(rec)
     if noise is None:
         noise = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs)
-    names = list(candidates) if candidates is not None else list(EFFECTS)
+    names = list(candidates) if candidates is not None else list(VARIANTS)
     pool: list[Effect] = []
     skipped = {}
     for name in names:
-        effect = EFFECTS[name]
-        reason = effect.applicable(samples)
+        reason = VARIANTS[name][0].applicable(samples)
         if reason:
             skipped[name] = reason
         else:
-            pool.append(effect)
+            pool.extend(VARIANTS[name])
 
     say("fitting the base model")
     base = fit_ml(samples, rec.outputs, rec.channels, start, noise)
@@ -139,8 +138,9 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
               "chi2_per_dof": base.reduced_chi2}]
     rejected = []
     for _ in range(MAX_STEPS):
-        remaining = [e for e in pool if e not in current.effects]
-        if not remaining or _excess(current) <= 0:
+        present = {e.name for e in current.effects}
+        remaining = [e for e in pool if e.name not in present]
+        if not remaining:
             break
         scored = []
         for effect in remaining:
@@ -148,12 +148,12 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
             expected = drop - effect.n_params(len(rec.channels)) * np.log(rec.outputs.size)
             scored.append((expected, drop, effect, block))
         scored.sort(key=lambda item: -item[0])
-        say("score tests: " + ", ".join(f"{e.name} {d:.0f}" for _, d, e, _ in scored))
+        say("score tests (expected chi2 drop): " + ", ".join(f"{e.label} {d:.0f}" for _, d, e, _ in scored))
         best = None
         for expected, drop, effect, block in scored[:MAX_REFITS]:
             if expected <= DECISIVE_BIC:
                 break
-            say(f"refitting with {effect.name}")
+            say(f"refitting with {effect.label}")
             trial = fit_ml(samples, rec.outputs, rec.channels, current.physics, noise,
                            effects=current.effects + (effect,),
                            effect_start={**current.effect_start(), effect.name: block})

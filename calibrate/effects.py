@@ -11,7 +11,8 @@ Identifiability notes (what the bench cannot see):
   by the dip (and field azimuth): it never shows in the residual.  Only an external reference
   (IGRF/WMM dip at the site) reveals it.
 - ``platform_field``: its vertical component adds to the Earth's vertical field at every angle
-  and flip, so it is absorbed by the dip and the gains; only the horizontal part is fitted.
+  and flip (absorbed by the dip and the gains), and its component along the flip axis X adds
+  ``a_x b_x`` in every flip (absorbed by the offsets); only the y component is fitted.
 - ``encoder_error``: a constant encoder offset is the field azimuth; harmonics 1..3 are fitted.
 - ``offset_drift`` and ``temperature`` are confounded when the temperature only rises with time;
   the evidence then favours whichever fits better, and the report says both were candidates.
@@ -25,10 +26,10 @@ import numpy as np
 
 from compass.sim.bench import BenchPhysics, BenchSamples
 
-__all__ = ["Effect", "EFFECTS", "effect_by_name"]
+__all__ = ["Effect", "EFFECTS", "VARIANTS", "effect_by_name"]
 
 ENCODER_HARMONICS = 3
-DRIFT_DEGREE = 3
+MAX_DRIFT_DEGREE = 3
 
 
 @dataclass(frozen=True)
@@ -37,6 +38,11 @@ class Effect:
 
     name: str
     description: str
+
+    @property
+    def label(self) -> str:
+        """The name, with the form where the effect has several."""
+        return self.name
 
     def applicable(self, samples: BenchSamples) -> str | None:
         """None when the recording can show this effect, else the reason it cannot."""
@@ -56,16 +62,28 @@ class Effect:
         return 1.0
 
 
+@dataclass(frozen=True)
 class NonlinearResponse(Effect):
+    """Odd polynomial response per channel: ``x + c3 x^3`` (order 3) or ``+ c5 x^5`` (order 5)."""
+
+    order: int = 3
+
+    @property
+    def label(self):
+        return f"{self.name} (order {self.order})"
+
     def n_params(self, c):
-        return c
+        return c * (self.order - 1) // 2
 
     def param_names(self, channels):
-        return [f"{ch}.cubic_rel_per_B2" for ch in channels]
+        powers = range(3, self.order + 1, 2)
+        return [f"{ch}.x{p}_rel_at_B" for ch in channels for p in powers]
 
     def apply(self, physics, p, samples):
-        # parameter = c3 |B|^2: relative output change at full field, scale-free
-        return physics.with_(cubic=p / physics.field_magnitude**2)
+        # parameters: relative output change at |B| of each power, scale-free
+        b = physics.field_magnitude
+        p = p.reshape(len(physics.gains), -1)
+        return physics.with_(cubic=p[:, 0] / b**2, quintic=p[:, 1] / b**4 if self.order >= 5 else None)
 
 
 class EncoderError(Effect):
@@ -107,20 +125,35 @@ class FlipError(Effect):
 
 
 class PlatformField(Effect):
+    """Field fixed to the turntable; only its y component (turntable frame) shows.
+
+    Seen by a channel in flip k it adds ``(Rx(kappa) a) . b_p``: the x part is ``a_x b_x`` in every
+    flip (an offset) and the z part adds to the Earth's vertical field (the dip and gains).
+    """
+
     def n_params(self, c):
-        return 2
+        return 1
 
     def param_names(self, channels):
-        return ["platform_field.x_fieldunit", "platform_field.y_fieldunit"]
+        return ["platform_field.y_fieldunit"]
 
     def apply(self, physics, p, samples):
-        return physics.with_(platform_field=np.array([p[0], p[1], 0.0]) * physics.field_magnitude)
+        return physics.with_(platform_field=np.array([0.0, p[0], 0.0]) * physics.field_magnitude)
 
     def report_scale(self, physics):
         return physics.field_magnitude
 
 
+@dataclass(frozen=True)
 class OffsetDrift(Effect):
+    """Offsets drifting with time: a polynomial of the given degree in t_s per channel."""
+
+    degree: int = 1
+
+    @property
+    def label(self):
+        return f"{self.name} (degree {self.degree})"
+
     def applicable(self, samples):
         if samples.t_s is None:
             return "the recording has no t_s column"
@@ -129,19 +162,16 @@ class OffsetDrift(Effect):
         return None
 
     def n_params(self, c):
-        return DRIFT_DEGREE * c
+        return self.degree * c
 
     def param_names(self, channels):
-        return [f"{ch}.drift_t{k}_fieldunit" for ch in channels for k in range(1, DRIFT_DEGREE + 1)]
+        return [f"{ch}.drift_t{k}_fieldunit" for ch in channels for k in range(1, self.degree + 1)]
 
     def apply(self, physics, p, samples):
         t0 = 0.5 * (samples.t_s.min() + samples.t_s.max())
         half = 0.5 * np.ptp(samples.t_s)
-        drift = p.reshape(-1, DRIFT_DEGREE) * physics.gains[:, None]
+        drift = p.reshape(-1, self.degree) * physics.gains[:, None]
         return physics.with_(drift=drift, drift_t0=t0, drift_scale_s=half)
-
-    def report_scale(self, physics):
-        return 1.0
 
 
 class Temperature(Effect):
@@ -170,17 +200,25 @@ class Temperature(Effect):
         return np.tile([1.0, 0.01], len(physics.gains))
 
 
-EFFECTS: dict[str, Effect] = {
-    e.name: e
-    for e in (
-        NonlinearResponse("nonlinear_response", "curves flattened or sharpened toward their extremes (odd harmonics growing with B.a): a curved response"),
-        EncoderError("encoder_error", f"harmonics of the turntable angle shared by every channel and flip (encoder error, harmonics 1..{ENCODER_HARMONICS})"),
-        OffsetDrift("offset_drift", f"a slow trend in time in each channel's offset (polynomial of degree {DRIFT_DEGREE} in t_s)"),
-        PlatformField("platform_field", "per-flip offsets that follow each channel's direction in the turntable frame (a field turning with the turntable)"),
-        FlipError("flip_error", "flip-to-flip inconsistency that turning the 90/180/270 flips by small angles removes"),
-        Temperature("temperature", "offset and gain changes that follow temp_c"),
-    )
+_NONLINEAR = "curves flattened or sharpened toward their extremes (odd harmonics growing with B.a): a curved response"
+_DRIFT = "a slow trend in time in each channel's offset"
+VARIANTS: dict[str, tuple[Effect, ...]] = {
+    "nonlinear_response": (NonlinearResponse("nonlinear_response", _NONLINEAR + " (odd cubic)", order=3),
+                           NonlinearResponse("nonlinear_response", _NONLINEAR + " (odd cubic and quintic)", order=5)),
+    "encoder_error": (EncoderError(
+        "encoder_error",
+        f"harmonics of the turntable angle shared by every channel and flip (encoder error, harmonics 1..{ENCODER_HARMONICS})"),),
+    "offset_drift": tuple(OffsetDrift("offset_drift", _DRIFT + f" (polynomial of degree {d} in t_s)", degree=d)
+                          for d in range(1, MAX_DRIFT_DEGREE + 1)),
+    "platform_field": (PlatformField(
+        "platform_field",
+        "per-flip offsets that follow each channel's direction in the turntable frame (a field turning with the turntable)"),),
+    "flip_error": (FlipError("flip_error", "flip-to-flip inconsistency that turning the 90/180/270 flips by small angles removes"),),
+    "temperature": (Temperature("temperature", "offset and gain changes that follow temp_c"),),
 }
+"""Each effect's forms, simplest first; the diagnosis lets the evidence (BIC) choose among them."""
+EFFECTS: dict[str, Effect] = {name: forms[-1] for name, forms in VARIANTS.items()}
+"""Each effect's most general form."""
 
 
 def effect_by_name(name: str) -> Effect:

@@ -23,7 +23,7 @@ from scipy.optimize import isotonic_regression
 
 from compass.frames import seed_angles
 from compass.io.fourflip import FourFlipRecording
-from compass.response import LinearResponse, TableResponse
+from compass.response import CubicResponse, LinearResponse, TableResponse
 from compass.sim.bench import BenchPhysics, BenchSamples
 
 from . import _harmonic as hm
@@ -176,11 +176,11 @@ def _field_range(fit: MLFit) -> np.ndarray:
     return np.tile([-b, b], (len(fit.physics.gains), 1))
 
 
-def _response_from_physics(phys: BenchPhysics, c: int, x_range) -> LinearResponse:
-    from compass.response import CubicResponse
-
+def _response_from_physics(phys: BenchPhysics, c: int, x_range) -> LinearResponse | CubicResponse:
     if phys.cubic is not None:
-        return CubicResponse(float(phys.offsets[c]), float(phys.gains[c]), tuple(x_range), cubic=float(phys.cubic[c]))
+        quintic = float(phys.quintic[c]) if phys.quintic is not None else 0.0
+        return CubicResponse(float(phys.offsets[c]), float(phys.gains[c]), tuple(x_range),
+                             cubic=float(phys.cubic[c]), quintic=quintic)
     return LinearResponse(float(phys.offsets[c]), float(phys.gains[c]), tuple(x_range))
 
 

@@ -107,16 +107,23 @@ class _MonotoneResponse(Response):
 
 @dataclass(frozen=True)
 class CubicResponse(_MonotoneResponse):
-    """Odd cubic: ``v = offset + gain * (x + cubic * x**3)``; ``cubic`` in 1/field-unit^2."""
+    """Odd polynomial: ``v = offset + gain * (x + cubic * x**3 + quintic * x**5)``.
+
+    ``cubic`` in 1/field-unit^2, ``quintic`` in 1/field-unit^4 (zero for a pure cubic).
+    """
 
     cubic: float = 0.0
+    quintic: float = 0.0
     model = "cubic"
 
     def shape(self, x):
-        return x + self.cubic * x**3
+        return x + self.cubic * x**3 + self.quintic * x**5
 
     def _extra_json(self):
-        return {"cubic": float(self.cubic)}
+        out = {"cubic": float(self.cubic)}
+        if self.quintic:
+            out["quintic"] = float(self.quintic)
+        return out
 
 
 @dataclass(frozen=True)
@@ -158,7 +165,8 @@ def response_from_json(d: dict, where: str = "response") -> Response:
     if model == "linear":
         return LinearResponse(offset, gain, x_range)
     if model == "cubic":
-        return CubicResponse(offset, gain, x_range, cubic=float(d.get("cubic", 0.0)))
+        return CubicResponse(offset, gain, x_range, cubic=float(d.get("cubic", 0.0)),
+                             quintic=float(d.get("quintic", 0.0)))
     if model == "table":
         x, v = np.asarray(d["x"], float), np.asarray(d["v"], float)
         return TableResponse(offset, gain, x_range, x_table=tuple(x), v_table=tuple(v))

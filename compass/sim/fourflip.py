@@ -135,7 +135,7 @@ def simulate_fourflip(
     t = samples.t_s
 
     if "encoder_error" in effects:
-        amp = s * np.array([rng.uniform(0.2, 0.4), rng.uniform(0.08, 0.15)])
+        amp = s * np.array([rng.uniform(0.8, 1.6), rng.uniform(0.3, 0.6)])
         phase = rng.uniform(0.0, 2 * np.pi, 2)
         fourier = np.column_stack([amp * np.cos(phase), -amp * np.sin(phase)])
         physics = physics.with_(encoder_fourier=fourier)
@@ -169,7 +169,7 @@ def simulate_fourflip(
         truth_effects.append({"name": "field_gradient", "parameters": {"modelled_by_estimators": False}})
     x = b_h @ directions.T
     if "nonlinear_response" in effects:
-        saturation_ut = rng.uniform(150.0, 200.0, n_channels) / s
+        saturation_ut = rng.uniform(75.0, 100.0, n_channels) / s
         x = saturation_ut * np.tanh(x / saturation_ut)
         truth_effects.append({"name": "nonlinear_response", "parameters": {"tanh_saturation_ut": saturation_ut.tolist()}})
     outputs = channel_outputs(physics.with_(cubic=None), samples, x)
