@@ -134,3 +134,26 @@ def test_bad_recordings_exit_2(tmp_path, capsys, text, expected):
     assert main(["calibrate", str(rec), "--out", str(tmp_path / "c.json")]) == 2
     err = capsys.readouterr().err
     assert expected in err and "bad.csv" in err and "Traceback" not in err
+
+
+def test_attitude_command_reads_the_tilt_sensor(tmp_path):
+    """`compass attitude` with a platform calibration turns ax, ay into 'up' through its tilt sensor."""
+    import csv
+
+    _, _, res = fit(tmp_path, seed=16, tilt_axes=2)
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps(res.to_json()))
+    check = simulate_platform3d(seed=16, tilt_axes=2, poses="random", repeats=1)
+    upright = check.pitch_deg**2 + check.roll_deg**2 < 60.0**2
+    rec = tmp_path / "run.csv"
+    with rec.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["mx", "my", "mz", "ax", "ay"])
+        w.writerows(np.hstack([check.mag[upright], check.tilt[upright]]).tolist())
+    out = tmp_path / "att.csv"
+    assert main(["attitude", str(cal), str(rec), "--out", str(out), "--accel-noise-g", "0.001"]) == 0
+    from compass.io.table import read_table
+
+    heading = read_table(out).column("heading_deg")
+    err = np.mod(heading - check.heading_deg[upright] + 180, 360) - 180
+    assert np.max(np.abs(err)) < 1.0

@@ -74,7 +74,11 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
                                              f"(its channels: {', '.join(model.channels)})",
                                  row=table.header_row, column=name)
     raw = np.column_stack([table.column(name) for name in model.channels])
-    accel = _group(table, _ACCEL)
+    tilt_sensor = _tilt_sensor(calibration)
+    if tilt_sensor is None:
+        accel = _group(table, _ACCEL)
+    else:  # a 3-D platform calibration: ax, ay[, az] are its tilt sensor's raw outputs
+        accel = tilt_sensor.up(_group(table, tilt_sensor.columns))
     tilt = _group(table, _TILT)
     if accel is not None:
         _check_rows(table, np.sum(accel**2, axis=1) > 0, "ax", "accelerometer reads zero: expected gravity")
@@ -99,6 +103,17 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     print(f"wrote {out} ({len(raw)} rows, mode {result.mode}; {int(np.sum(result.disturbed))} disturbed, "
           f"{int(np.sum(~result.in_range))} out of calibrated range)")
     return result
+
+
+def _tilt_sensor(calibration):
+    """The calibrated tilt sensor of a 3-D platform calibration file, or None for other kinds."""
+    import json
+    from pathlib import Path
+
+    from ..io.platform3d import TiltSensor
+
+    data = json.loads(Path(calibration).read_text())
+    return TiltSensor.from_json(data) if isinstance(data, dict) and "tilt_sensor" in data else None
 
 
 def _group(table, names) -> np.ndarray | None:
