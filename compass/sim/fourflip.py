@@ -9,7 +9,6 @@ model tuned to its own simulator.  ``field_gradient`` is an effect the estimator
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,7 +16,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..frames import bench_rotation
-from ..io.atomic import atomic_write_text
+from ._files import csv_text, write_with_truth
 from .bench import BenchPhysics, BenchSamples, channel_outputs, housing_field
 
 __all__ = ["SIM_EFFECTS", "SimulatedSession", "simulate_fourflip", "write_fourflip"]
@@ -220,23 +219,15 @@ def write_fourflip(session: SimulatedSession, path, *, force: bool = False) -> t
     FileExistsError
         If either file exists and ``force`` is False.
     """
-    path = Path(path)
-    truth_path = path.with_suffix(".truth.json")
-    for p in (path, truth_path):
-        if p.exists() and not force:
-            raise FileExistsError(f"{p} exists; use --force to overwrite")
     smp = session.samples
     columns = ["t_s", "flip_deg", "platform_deg"]
     data = [smp.t_s, smp.flip_deg, smp.platform_deg]
+    formats = ["%.3f", "%.1f", "%.4f"]
     if smp.temp_c is not None:
         columns.append("temp_c")
         data.append(smp.temp_c)
+        formats.append("%.3f")
     columns += list(session.channels)
-    table = np.column_stack(data + [session.outputs[:, j] for j in range(session.outputs.shape[1])])
-    lines = [f"# {k}: {v}" for k, v in session.metadata.items()]
-    lines.append(",".join(columns))
-    fmt = ["%.3f", "%.1f", "%.4f"] + (["%.3f"] if smp.temp_c is not None else []) + ["%.7f"] * len(session.channels)
-    lines += [",".join(f % v for f, v in zip(fmt, row)) for row in table]
-    atomic_write_text(path, "\n".join(lines) + "\n")
-    atomic_write_text(truth_path, json.dumps(session.truth, indent=2) + "\n")
-    return path, truth_path
+    formats += ["%.7f"] * len(session.channels)
+    table = np.column_stack(data + [session.outputs])
+    return write_with_truth(path, csv_text(columns, table, formats, session.metadata), session.truth, force=force)

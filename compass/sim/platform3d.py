@@ -17,7 +17,6 @@ so the truth names every quantity the calibration reports.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,7 +24,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..frames import heading_pitch_roll
-from ..io.atomic import atomic_write_text
+from ._files import csv_text, write_with_truth
 from ..io.platform3d import ANGLE_COLUMNS, platform_rotation
 
 __all__ = ["POSE_SETS", "SimulatedPlatform3D", "predict", "up_in_bench", "simulate_platform3d", "write_platform3d",
@@ -199,18 +198,10 @@ def write_platform3d(sim: SimulatedPlatform3D, path, *, force: bool = False,
     FileExistsError
         If either file exists and ``force`` is False.
     """
-    path = Path(path)
-    truth_path = path.with_suffix(".truth.json")
-    for p in (path, truth_path):
-        if p.exists() and not force:
-            raise FileExistsError(f"{p} exists; use --force to overwrite")
     tilt_cols = ["ax", "ay", "az"][: sim.tilt.shape[1]]
-    lines = ["# source: compass simulate platform3d"]
+    metadata = {"source": "compass simulate platform3d"}
     if field_ut_metadata:
-        lines.append(f"# field_ut: {sim.truth['field_ut']}")
-    lines.append(",".join(list(ANGLE_COLUMNS) + ["mx", "my", "mz"] + tilt_cols))
+        metadata["field_ut"] = sim.truth["field_ut"]
+    columns = list(ANGLE_COLUMNS) + ["mx", "my", "mz"] + tilt_cols
     data = np.column_stack([sim.angles_deg, sim.mag, sim.tilt])
-    lines += [",".join(f"{v:.6f}" for v in row) for row in data]
-    atomic_write_text(path, "\n".join(lines) + "\n")
-    atomic_write_text(truth_path, json.dumps(sim.truth, indent=2) + "\n")
-    return path, truth_path
+    return write_with_truth(path, csv_text(columns, data, "%.6f", metadata), sim.truth, force=force)

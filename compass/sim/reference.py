@@ -9,14 +9,13 @@ and the sensor as a whole is turned by about ``misalign_deg``.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..io.atomic import atomic_write_text
+from ._files import csv_text, write_with_truth
 
 __all__ = ["FIELD_SETS", "SimulatedArray", "simulate_reference", "write_reference"]
 
@@ -98,16 +97,8 @@ def write_reference(sim: SimulatedArray, path, *, force: bool = False) -> tuple[
     FileExistsError
         If either file exists and ``force`` is False.
     """
-    path = Path(path)
-    truth_path = path.with_suffix(".truth.json")
-    for p in (path, truth_path):
-        if p.exists() and not force:
-            raise FileExistsError(f"{p} exists; use --force to overwrite")
     names = list(sim.outputs)
     header = ["bx_ref", "by_ref", "bz_ref"] + [f"{s}_{a}" for s in names for a in "xyz"]
     data = np.column_stack([sim.reference] + [sim.outputs[s] for s in names])
-    lines = ["# source: compass simulate reference", ",".join(header)]
-    lines += [",".join(f"{v:.6f}" for v in row) for row in data]
-    atomic_write_text(path, "\n".join(lines) + "\n")
-    atomic_write_text(truth_path, json.dumps(sim.truth, indent=2) + "\n")
-    return path, truth_path
+    text = csv_text(header, data, "%.6f", {"source": "compass simulate reference"})
+    return write_with_truth(path, text, sim.truth, force=force)

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..frames import r_world_from_housing, world_field
-from ..io.atomic import atomic_write_text
+from ._files import csv_text, write_with_truth
 
 __all__ = ["RuntimeSession", "simulate_runtime", "write_runtime"]
 
@@ -118,22 +118,13 @@ def write_runtime(session: RuntimeSession, path, *, force: bool = False) -> tupl
     FileExistsError
         If either file exists and ``force`` is False.
     """
-    path = Path(path)
-    truth_path = path.with_suffix(".truth.csv")
-    for p in (path, truth_path):
-        if p.exists() and not force:
-            raise FileExistsError(f"{p} exists; use --force to overwrite")
     columns = ["t_s", *session.channels]
     data = [session.t_s[:, None], session.outputs]
     if session.accel is not None:
         columns += ["ax", "ay", "az"]
         data.append(session.accel)
-    atomic_write_text(path, _csv(columns, np.hstack(data), ["%.4f"] + ["%.7f"] * (len(columns) - 1)))
+    recording = csv_text(columns, np.hstack(data), ["%.4f"] + ["%.7f"] * (len(columns) - 1))
     truth = np.column_stack([session.t_s, session.heading_deg, session.pitch_deg, session.roll_deg])
-    atomic_write_text(truth_path, _csv(["t_s", "heading_deg", "pitch_deg", "roll_deg"], truth, ["%.4f"] + ["%.6f"] * 3))
-    return path, truth_path
+    truth_text = csv_text(["t_s", "heading_deg", "pitch_deg", "roll_deg"], truth, ["%.4f"] + ["%.6f"] * 3)
+    return write_with_truth(path, recording, truth_text, force=force, truth_suffix=".truth.csv")
 
-
-def _csv(columns, table: np.ndarray, fmt: list[str]) -> str:
-    row = ",".join(fmt)
-    return ",".join(columns) + "\n" + "\n".join(map(row.__mod__, map(tuple, table))) + "\n"

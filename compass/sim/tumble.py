@@ -18,7 +18,6 @@ so the calibration that undoes it is ``soft_iron = W^{-1}``, ``hard_iron = h``,
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,7 +25,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..frames import heading_pitch_roll, world_field
-from ..io.atomic import atomic_write_text
+from ._files import csv_text, write_with_truth
 
 __all__ = ["SimulatedTumble", "simulate_tumble", "write_tumble", "COVERAGES"]
 
@@ -170,18 +169,10 @@ def write_tumble(sim: SimulatedTumble, path, *, force: bool = False, accel: bool
     FileExistsError
         If either file exists and ``force`` is False.
     """
-    path = Path(path)
-    truth_path = path.with_suffix(".truth.json")
-    for p in (path, truth_path):
-        if p.exists() and not force:
-            raise FileExistsError(f"{p} exists; use --force to overwrite")
     columns = ["t_s", "mx", "my", "mz"] + (["ax", "ay", "az"] if accel else [])
     data = np.column_stack([sim.t_s, sim.mag] + ([sim.accel] if accel else []))
-    lines = ["# source: compass simulate tumble", ",".join(columns)]
-    lines += [",".join(f"{v:.5f}" for v in row) for row in data]
-    atomic_write_text(path, "\n".join(lines) + "\n")
-    atomic_write_text(truth_path, json.dumps(sim.truth, indent=2) + "\n")
-    return path, truth_path
+    text = csv_text(columns, data, "%.5f", {"source": "compass simulate tumble"})
+    return write_with_truth(path, text, sim.truth, force=force)
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
