@@ -48,6 +48,8 @@ MAX_STEPS = 4
 UNEXPLAINED_WARNING = ("structure remains in the residual above the noise floor: the recording has an effect "
                        "the model lacks (see the diagnosis); the uncertainties are then optimistic")
 MAX_REFITS = 4
+REFIT_FRACTION = 0.25
+"""Candidates whose score test promises less than this fraction of the best one's are not refitted."""
 
 
 def residual_structure(samples: BenchSamples, residuals: np.ndarray, noise: np.ndarray) -> tuple[float, int, float]:
@@ -151,7 +153,7 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         say("score tests (expected chi2 drop): " + ", ".join(f"{e.label} {d:.0f}" for _, d, e, _ in scored))
         best = None
         for expected, drop, effect, block in scored[:MAX_REFITS]:
-            if expected <= DECISIVE_BIC:
+            if expected <= max(DECISIVE_BIC, REFIT_FRACTION * scored[0][0]):
                 break
             say(f"refitting with {effect.label}")
             trial = fit_ml(samples, rec.outputs, rec.channels, current.physics, noise,

@@ -174,6 +174,27 @@ class OffsetDrift(Effect):
         return physics.with_(drift=drift, drift_t0=t0, drift_scale_s=half)
 
 
+@dataclass(frozen=True)
+class WarmUp(OffsetDrift):
+    """Offsets settling after switch-on: a per-channel amplitude times ``exp(-t / tau)``, one
+    time constant for all channels (one thermal path), ``t`` from the first sample."""
+
+    @property
+    def label(self):
+        return f"{self.name} (warm-up exponential)"
+
+    def n_params(self, c):
+        return c + 1
+
+    def param_names(self, channels):
+        return [f"{ch}.warmup_fieldunit" for ch in channels] + ["warmup.log_tau_over_session"]
+
+    def apply(self, physics, p, samples):
+        session = max(np.ptp(samples.t_s), 1e-9)
+        tau = session * np.exp(np.clip(p[-1], -6.0, 6.0))
+        return physics.with_(warmup=p[:-1] * physics.gains, warmup_tau_s=tau, drift_t0=samples.t_s.min())
+
+
 class Temperature(Effect):
     def applicable(self, samples):
         if samples.temp_c is None:
@@ -209,7 +230,8 @@ VARIANTS: dict[str, tuple[Effect, ...]] = {
         "encoder_error",
         f"harmonics of the turntable angle shared by every channel and flip (encoder error, harmonics 1..{ENCODER_HARMONICS})"),),
     "offset_drift": tuple(OffsetDrift("offset_drift", _DRIFT + f" (polynomial of degree {d} in t_s)", degree=d)
-                          for d in range(1, MAX_DRIFT_DEGREE + 1)),
+                          for d in range(1, MAX_DRIFT_DEGREE + 1))
+                    + (WarmUp("offset_drift", _DRIFT + " (warm-up: exponential settling, one time constant)"),),
     "platform_field": (PlatformField(
         "platform_field",
         "per-flip offsets that follow each channel's direction in the turntable frame (a field turning with the turntable)"),),
@@ -217,8 +239,8 @@ VARIANTS: dict[str, tuple[Effect, ...]] = {
     "temperature": (Temperature("temperature", "offset and gain changes that follow temp_c"),),
 }
 """Each effect's forms, simplest first; the diagnosis lets the evidence (BIC) choose among them."""
-EFFECTS: dict[str, Effect] = {name: forms[-1] for name, forms in VARIANTS.items()}
-"""Each effect's most general form."""
+EFFECTS: dict[str, Effect] = {name: max(forms, key=lambda e: e.n_params(3)) for name, forms in VARIANTS.items()}
+"""Each effect's most general form (the most parameters)."""
 
 
 def effect_by_name(name: str) -> Effect:

@@ -97,6 +97,10 @@ class BenchPhysics:
     drift : ndarray, shape (c, p), optional
         Offset change as a polynomial in ``(t_s - drift_t0) / drift_scale_s`` with powers 1..p.
     drift_t0, drift_scale_s : float
+    warmup : ndarray, shape (c,), optional
+        Warm-up offset: ``warmup * exp(-(t_s - drift_t0) / warmup_tau_s)``, output units
+        (a first-order thermal settling from the start of the session).
+    warmup_tau_s : float
     temp_offset, temp_gain : ndarray, shape (c,), optional
         d V0 / d T (output units per degC) and relative gain change per degC, about ``temp_ref_c``.
     temp_ref_c : float
@@ -116,6 +120,8 @@ class BenchPhysics:
     drift: np.ndarray | None = None
     drift_t0: float = 0.0
     drift_scale_s: float = 1.0
+    warmup: np.ndarray | None = None
+    warmup_tau_s: float = 1.0
     temp_offset: np.ndarray | None = None
     temp_gain: np.ndarray | None = None
     temp_ref_c: float = 20.0
@@ -177,6 +183,9 @@ def channel_outputs(physics: BenchPhysics, samples: BenchSamples, x: np.ndarray)
         tau = (samples.t_s - physics.drift_t0) / physics.drift_scale_s
         powers = tau[:, None] ** np.arange(1, physics.drift.shape[1] + 1)[None, :]
         offsets = offsets + powers @ physics.drift.T
+    if physics.warmup is not None and samples.t_s is not None:
+        settling = np.exp(-(samples.t_s - physics.drift_t0) / physics.warmup_tau_s)
+        offsets = offsets + settling[:, None] * physics.warmup[None, :]
     if samples.temp_c is not None and (physics.temp_offset is not None or physics.temp_gain is not None):
         dt = (samples.temp_c - physics.temp_ref_c)[:, None]
         if physics.temp_offset is not None:
