@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs
+from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, channel_outputs, housing_field
 
 from .effects import Effect
 
@@ -129,6 +129,30 @@ class MLFit:
         raise KeyError(effect.name)
 
 
+class _Predictor:
+    """Predicted outputs, reusing the field in H while only channel parameters change.
+
+    A finite-difference Jacobian perturbs one parameter at a time; most belong to one channel
+    (direction, offset, gain, response, drift) and leave the field in the housing frame as it was.
+    """
+
+    def __init__(self, samples: BenchSamples):
+        self.samples, self._key, self._b_h = samples, None, None
+
+    def __call__(self, physics: BenchPhysics) -> np.ndarray:
+        key = _geometry_key(physics)
+        if key != self._key:
+            self._key, self._b_h = key, housing_field(physics, self.samples)
+        return channel_outputs(physics, self.samples, self._b_h @ physics.directions.T)
+
+
+def _geometry_key(physics: BenchPhysics) -> tuple:
+    """Everything :func:`housing_field` depends on, hashable."""
+    arrays = (physics.encoder_fourier, physics.flip_rotvec_deg, physics.platform_field)
+    return (physics.dip_deg, physics.azimuth_deg, physics.field_magnitude,
+            *(None if a is None else np.asarray(a).tobytes() for a in arrays))
+
+
 class _Layout:
     """Packs and unpacks the parameter vector around a starting point."""
 
@@ -209,9 +233,10 @@ def fit_ml(
     weights = 1.0 / noise
 
     layout = _Layout(start, effects, samples, channels)
+    predict = _Predictor(samples)
 
     def residual(p):
-        return ((outputs - bench_outputs(layout.physics(p), samples)) * weights).ravel()
+        return ((outputs - predict(layout.physics(p))) * weights).ravel()
 
     x0 = layout.x0(effect_start)
     if effect_start:
@@ -290,9 +315,10 @@ def score_effect(fit: MLFit, outputs: np.ndarray, noise: np.ndarray, effect: Eff
     extended = _Layout(layout.start, layout.effects + (effect,), samples, layout.channels)
     q = effect.n_params(layout.c)
     x = np.concatenate([fit.x, np.zeros(q)])
+    predict = _Predictor(samples)
 
     def residual(p):
-        return ((outputs - bench_outputs(extended.physics(p), samples)) * weights).ravel()
+        return ((outputs - predict(extended.physics(p))) * weights).ravel()
 
     r0 = residual(x)
     j_e = np.empty((r0.size, q))

@@ -150,6 +150,9 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
             expected = drop - effect.n_params(len(rec.channels)) * np.log(rec.outputs.size)
             scored.append((expected, drop, effect, block))
         scored.sort(key=lambda item: -item[0])
+        # one form per effect is refitted: the one whose score promises the most evidence
+        seen = set()
+        scored = [item for item in scored if not (item[2].name in seen or seen.add(item[2].name))]
         say("score tests (expected chi2 drop): " + ", ".join(f"{e.label} {d:.0f}" for _, d, e, _ in scored))
         best = None
         for expected, drop, effect, block in scored[:MAX_REFITS]:
