@@ -30,7 +30,8 @@ def scripted(model):
     t = np.arange(0.0, 40.0, 1.0 / RATE_HZ)
     s = simulate_device(model, t, seed=3, gyro_bias=[0.01, -0.02, 0.015])
     field, _ = model.field(s.raw)
-    cfg = FilterConfig.from_model(model)
+    # the simulated field is homogeneous and the calibration exact: no environment heading error
+    cfg = dataclasses.replace(FilterConfig.from_model(model), mag_heading_sigma_deg=0.01)
     tracks = {
         "gyro": run_filter(t, s.accel, s.gyro, field, cfg),
         "gyro, no gate": run_filter(t, s.accel, s.gyro, field, dataclasses.replace(cfg, gate=False)),
@@ -82,8 +83,9 @@ def test_magnet_rejected_by_the_gate_and_not_without(scripted, model):
     ungated = np.abs(wrap(tracks["gyro, no gate"].heading_deg - s.heading_deg))
     assert gated[near].max() < 0.25 * expected
     assert ungated[full].max() > 0.75 * expected
-    # the error without the gate grows into the magnet period; with it, the gate state says why
-    assert ungated[full][-100:].mean() > 3 * ungated[full][:20].mean()
+    # without the gate the filter believes the magnet to the end of the period (a homogeneous simulated
+    # field earns the field a fast heading gain, so it follows the 0.5 s ramp); with it, the gate state says why
+    assert ungated[full][-100:].mean() > 0.75 * expected
     assert (~tracks["gyro"].mag_used[full]).mean() > 0.95
     assert set(tracks["gyro"].gate[full]) <= {"norm", "dip", "innovation"}
     assert tracks["gyro"].field_ratio[full].mean() == pytest.approx(
