@@ -299,9 +299,11 @@ def score_effect(fit: MLFit, outputs: np.ndarray, noise: np.ndarray, effect: Eff
                  step: float = 1e-6) -> tuple[float, np.ndarray]:
     """Score (Lagrange multiplier) test for adding ``effect`` to a fitted model.
 
-    Linearises the effect's parameters at zero around the current solution, removes what the
-    current parameters can already absorb, and returns the chi-square drop a refit would give
-    to first order, with the Gauss-Newton start values of the effect's block.
+    Linearises the effect's parameters at zero size around the current solution, removes what
+    the current parameters can already absorb, and returns the chi-square drop a refit would
+    give to first order, with the Gauss-Newton start values of the effect's block.  An effect
+    with a shape parameter (a time constant) is linearised at each of its
+    :meth:`~calibrate.effects.Effect.score_starts` and the best is kept.
 
     Returns
     -------
@@ -310,28 +312,37 @@ def score_effect(fit: MLFit, outputs: np.ndarray, noise: np.ndarray, effect: Eff
         First-order estimate of the effect's parameters (fit units).
     """
     layout = fit.layout
-    samples = layout.samples
+    extended = _Layout(layout.start, layout.effects + (effect,), layout.samples, layout.channels)
+    predict = _Predictor(layout.samples)
     weights = 1.0 / noise
-    extended = _Layout(layout.start, layout.effects + (effect,), samples, layout.channels)
-    q = effect.n_params(layout.c)
-    x = np.concatenate([fit.x, np.zeros(q)])
-    predict = _Predictor(samples)
 
     def residual(p):
         return ((outputs - predict(extended.physics(p))) * weights).ravel()
 
+    j_b = np.nan_to_num(fit.jac)
+    j_b = j_b / np.where(np.any(j_b, axis=0), np.linalg.norm(j_b, axis=0), 1.0)  # unit columns
+    best = (-np.inf, None)
+    for shape in effect.score_starts(layout.c):
+        x = np.concatenate([fit.x, shape])
+        drop, delta = _linear_score(residual, x, fit.x.size, j_b, step)
+        if drop > best[0]:
+            best = (drop, shape + delta)
+    return best
+
+
+def _linear_score(residual, x, n_fitted: int, j_b: np.ndarray, step: float) -> tuple[float, np.ndarray]:
+    """First-order chi-square drop and parameter step of the block ``x[n_fitted:]``."""
     r0 = residual(x)
+    q = x.size - n_fitted
     j_e = np.empty((r0.size, q))
     for i in range(q):
         xp = x.copy()
-        xp[fit.x.size + i] = step
+        xp[n_fitted + i] += step
         j_e[:, i] = (residual(xp) - r0) / step
-    j_b = np.nan_to_num(fit.jac)
-    j_b = j_b / np.where(np.any(j_b, axis=0), np.linalg.norm(j_b, axis=0), 1.0)  # unit columns
     absorbed, *_ = np.linalg.lstsq(j_b.T @ j_b, j_b.T @ j_e, rcond=_SINGULAR_RCOND**2)  # small normal equations
     j_tilde = j_e - j_b @ absorbed
     # the effect's directions the current model cannot tell from its own parameters carry no
-    # evidence: drop them (eigenvalues of the scaled normal matrix) and start them at zero
+    # evidence (a shape parameter at zero size among them): drop them and leave them as they are
     scale = np.linalg.norm(j_tilde, axis=0)
     scale[scale == 0] = 1.0
     w, v = np.linalg.eigh((j_tilde / scale).T @ (j_tilde / scale))

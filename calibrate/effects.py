@@ -51,6 +51,14 @@ class Effect:
     def n_params(self, n_channels: int) -> int:
         raise NotImplementedError
 
+    def score_starts(self, n_channels: int) -> list[np.ndarray]:
+        """Parameter blocks of zero size at which the score test linearises the effect.
+
+        One zero block for effects linear in their parameters; an effect with a shape parameter
+        (a time constant) gives a few values of it, since at zero size the data say nothing of it.
+        """
+        return [np.zeros(self.n_params(n_channels))]
+
     def param_names(self, channels) -> list[str]:
         raise NotImplementedError
 
@@ -188,6 +196,14 @@ class WarmUp(OffsetDrift):
 
     def param_names(self, channels):
         return [f"{ch}.warmup_fieldunit" for ch in channels] + ["warmup.log_tau_over_session"]
+
+    def score_starts(self, n_channels):
+        starts = []
+        for tau_over_session in (0.1, 0.25, 0.5, 1.0):
+            block = np.zeros(n_channels + 1)
+            block[-1] = np.log(tau_over_session)
+            starts.append(block)
+        return starts
 
     def apply(self, physics, p, samples):
         session = max(np.ptp(samples.t_s), 1e-9)
