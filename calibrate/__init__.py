@@ -1,9 +1,24 @@
-"""Procedures that estimate a sensor model from recordings (seed 000's four-flip bench first).
+"""Procedures that estimate a sensor model from recordings.
 
-Data flows one way: recordings -> ``calibrate`` -> calibration file -> :mod:`compass`.
+Seed 000's four-flip bench (:func:`calibrate_fourflip`, with the residual diagnosis), free
+motion (:func:`calibrate_tumble`), seed 001's 3-D platform (:func:`calibrate_platform3d`) and
+seed 003's reference fields (:func:`calibrate_reference`).  Data flows one way: recordings ->
+``calibrate`` -> calibration file -> :mod:`compass`.
 """
 
 from .fourflip import METHODS, calibrate_fourflip
+from .platform3d import calibrate_platform3d
+from .reference import calibrate_reference
 from .result import FORMAT, CalibrationResult, ChannelCalibration
+from .tumble import calibrate_tumble
 
-__all__ = ["METHODS", "FORMAT", "calibrate_fourflip", "CalibrationResult", "ChannelCalibration"]
+__all__ = [
+    "FORMAT",
+    "METHODS",
+    "CalibrationResult",
+    "ChannelCalibration",
+    "calibrate_fourflip",
+    "calibrate_platform3d",
+    "calibrate_reference",
+    "calibrate_tumble",
+]
