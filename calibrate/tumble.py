@@ -47,6 +47,7 @@ frame", IEEE TAES 47(2), 2011, and Li et al. (magnetometer-accelerometer alignme
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.linalg import sqrtm
@@ -55,6 +56,9 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import median_abs_deviation
 
 from .result import FORMAT
+
+if TYPE_CHECKING:
+    from .tumble_diagnose import TumbleDiagnosis
 
 __all__ = ["KINDS", "Coverage", "KindFit", "Misalignment", "TumbleResult", "sphere_coverage", "fit_ellipsoid",
            "fit_misalignment", "refine_jointly", "calibrate_tumble", "field_gravity_angles", "static_mask"]
@@ -225,6 +229,9 @@ class TumbleResult:
     refused : str
         Why no kind gives a usable calibration (every kind degenerate), in words; empty when the
         result is usable.  A refused result must not be written as a calibration file.
+    diagnosis : TumbleDiagnosis or None
+        The residual diagnosis (:mod:`calibrate.tumble_diagnose`); None when refused.  With claimed
+        effects, ``fit`` is the ellipsoid at their reference time and temperature.
     """
 
     fit: KindFit
@@ -237,6 +244,7 @@ class TumbleResult:
     n_repeats: int
     warnings: tuple = field(default_factory=tuple)
     refused: str = ""
+    diagnosis: TumbleDiagnosis | None = None
 
     @property
     def kind(self) -> str:
@@ -270,12 +278,20 @@ class TumbleResult:
         return (np.asarray(mag, dtype=float) - self.hard_iron) @ self.soft_iron.T
 
     def to_json(self) -> dict:
-        """The calibration file (SPEC section 2, tumble kind), JSON-ready."""
+        """The calibration file (SPEC section 2, tumble kind), JSON-ready.
+
+        ``hard_iron`` is the one at the claimed effects' reference (first sample's ``t_s``, mean
+        ``temp_c``); the effects' parameters are under ``effects``; ``noise_floor`` is the per-axis
+        noise of the raw readings, the diagnosis's that of the radial residual.
+
+        Raises
+        ------
+        ValueError
+            The result is refused (no usable calibration).
+        """
+        if self.refused:
+            raise ValueError(f"a refused tumble calibration has no calibration file: {self.refused}")
         fit, mis = self.fit, self.misalignment
-        rms_before = float(np.sqrt(np.mean(self.candidates[0].residuals[fit.inliers] ** 2)))
-        rms_after = float(np.sqrt(np.mean(fit.residuals[fit.inliers] ** 2)))
-        steps = [{"model": c.kind, "residual_rms": float(np.sqrt(np.mean(c.residuals[fit.inliers] ** 2))),
-                  "bic": _json_float(c.bic), "determined": c.determined} for c in self.candidates]
         return {
             "format": FORMAT,
             "model": "tumble",
@@ -287,12 +303,13 @@ class TumbleResult:
             "dip_deg": None if mis is None else mis.dip_deg,
             "dip_sigma_deg": None if mis is None else _json_float(mis.dip_sigma_deg),
             "channel_columns": ["mx", "my", "mz"],
-            "effects": [],
-            "diagnosis": {"noise_floor": self.noise, "steps": steps, "effects": [],
-                          "residual_rms_before": rms_before, "residual_rms_after": rms_after,
-                          "unexplained": bool(rms_after > 2.0 * self.noise)},
+            "noise_floor": [self.noise] * 3,
+            "effects": list(self.diagnosis.effects),
+            "diagnosis": self.diagnosis.block,
             "tumble": {
                 "kind": fit.kind,
+                "kinds": [{"kind": c.kind, "residual_rms": float(np.sqrt(np.mean(c.residuals[fit.inliers] ** 2))),
+                           "bic": _json_float(c.bic), "determined": c.determined} for c in self.candidates],
                 "hard_iron_sigma": fit.hard_iron_sigma.tolist(),
                 "soft_iron_sigma": (fit.soft_iron_sigma * self.scale).tolist(),
                 "field_norm_recording_units": fit.field_norm,
@@ -334,6 +351,10 @@ class TumbleResult:
                 lines.append("  mag-to-accel rotation vector " + ", ".join(
                     f"{v:+.3f} +- {s:.3f}" for v, s in zip(mis.rotvec_deg, mis.rotvec_sigma_deg)) + " deg")
             lines.append(f"  field-gravity angle spread {mis.spread_before_deg:.3f} -> {mis.spread_after_deg:.3f} deg")
+        if self.diagnosis is not None:
+            from .tumble_diagnose import format_tumble_diagnosis  # it builds on this module
+
+            lines.append(format_tumble_diagnosis(self.diagnosis.block))
         for w in self.warnings:
             lines.append(f"  warning: {w}")
         return "\n".join(lines)
@@ -716,7 +737,8 @@ def _noise_floor(x: np.ndarray) -> float:
 
 
 def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: str = "auto",
-                     field_ut: float | None = None, n_repeats: int = 0) -> TumbleResult:
+                     field_ut: float | None = None, n_repeats: int = 0, t_s: np.ndarray | None = None,
+                     temp_c: np.ndarray | None = None) -> TumbleResult:
     """Calibrate hard and soft iron (and the magnetometer-accelerometer rotation) from a tumble.
 
     Parameters
@@ -731,6 +753,9 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: 
         Known |B|; the file's ``soft_iron`` then gives microtesla.
     n_repeats : int
         Rows dropped upstream as repeats (reported only).
+    t_s, temp_c : ndarray, shape (n,), optional
+        Time (s) and sensor temperature (degC) of each sample: the residual diagnosis then
+        examines a drifting and a temperature-dependent hard iron too.
 
     Returns
     -------
@@ -747,6 +772,7 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: 
     if field_ut is not None and not field_ut > 0:
         raise ValueError(f"field_ut must be positive, got {field_ut}")
     mag = np.asarray(mag, dtype=float)
+    noise = _noise_floor(mag)
     chosen, candidates, coverage = fit_ellipsoid(mag, kind)
     warnings = []
     if coverage.missing:
@@ -759,7 +785,7 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: 
     if chosen.degenerate:
         refused = (f"no usable calibration: no ellipsoid kind is determined, and the simplest ({chosen.kind}) is "
                    f"{chosen.reason}")
-        return TumbleResult(chosen, candidates, coverage, None, field_ut, _noise_floor(mag), len(mag), n_repeats,
+        return TumbleResult(chosen, candidates, coverage, None, field_ut, noise, len(mag), n_repeats,
                             tuple(warnings + [refused]), refused)
     if not chosen.determined:
         warnings.append(f"the {chosen.kind} kind is poorly determined: {chosen.reason}")
@@ -770,6 +796,13 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: 
     offset_rel = np.linalg.norm(chosen.hard_iron) / chosen.field_norm
     if offset_rel > 3.0:
         warnings.append(f"hard iron is {offset_rel:.1f} times the field: the magnetometer may be near saturation")
+    from .tumble_diagnose import UNEXPLAINED_WARNING, diagnose_tumble  # it builds on this module
+
+    # effects the ellipsoid lacks are claimed first; everything after works on the readings they correct
+    diagnosis = diagnose_tumble(mag, chosen, t_s=t_s, temp_c=temp_c, accel=accel, missing=coverage.missing)
+    chosen, mag = diagnosis.fit, diagnosis.raw_at_reference
+    if diagnosis.block["unexplained"]:
+        warnings.append(UNEXPLAINED_WARNING)
     misalignment = None
     if accel is not None:
         keep = chosen.inliers
@@ -782,7 +815,9 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: 
                                    rotvec_sigma_deg=np.full(3, np.nan))
         if misalignment is not None:
             chosen, misalignment = refine_jointly(chosen, mag, accel, misalignment)
+            diagnosis = diagnosis.with_alignment(misalignment, chosen)
+            chosen = diagnosis.fit
         else:
             warnings.append("fewer than 20 quasi-static samples: no magnetometer-accelerometer alignment, no dip")
-    return TumbleResult(chosen, candidates, coverage, misalignment, field_ut, _noise_floor(mag), len(mag), n_repeats,
-                        tuple(warnings))
+    return TumbleResult(chosen, candidates, coverage, misalignment, field_ut, noise, len(mag), n_repeats,
+                        tuple(warnings), diagnosis=diagnosis)

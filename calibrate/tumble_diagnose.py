@@ -1,0 +1,686 @@
+"""Residual diagnosis of a tumble calibration: find what the ellipsoid lacks, add it, report before and after.
+
+The loop of :mod:`calibrate.diagnose` (SPEC section 4), on the radial residual of the ellipsoid,
+
+.. math:: r_i = F \\left( |L^T c(y_i - p_h)| - 1 \\right) \\approx |S\\, c(x_i - h)| - F,
+
+in recording units (``y = (x - centre) / radius`` the normalised raw reading, ``p_h`` the hard iron
+in those units, ``L`` the ellipsoid's shape, ``S`` the soft iron with ``det S = 1``), where ``c`` is
+the chain of corrections of the effects in the model (the identity for the plain ellipsoid):
+
+1. Noise floor from second differences in time of the chosen ellipsoid's radial residual.  Turning
+   the device leaves ``|m|`` unchanged, so the residual carries no motion; whatever the model lacks
+   (a drift, a temperature change, a misfit that depends on the direction) changes slowly from one
+   sample to the next and cancels, while white noise of sigma gives ``6 sigma^2``.
+2. The base fit is the chosen ellipsoid kind, on its inliers, weighted by the floor.
+3. For each candidate form the recording can show, a score (Lagrange-multiplier) test linearises
+   the form's parameters at zero and gives the chi-square drop they could buy after projecting out
+   what the current parameters absorb; the most promising forms (one per effect) are refitted.
+4. The refit with the largest decisive evidence (delta-BIC above
+   :data:`~calibrate.diagnose.DECISIVE_BIC`) is added when it explains a real share
+   (:data:`~calibrate.diagnose.MIN_SHARE`) of the structured residual, its parameters are
+   determined (finite covariance) and, with an accelerometer, it does not widen the spread of the
+   field-gravity angle (the dip deviation, a residual the effect was not fitted to); repeat.
+5. ``unexplained`` is true when the residual still carries structure (:func:`residual_structure`)
+   or its rms exceeds the floor by more than :data:`~calibrate.diagnose.FLOOR_MARGIN`.  If structure
+   remains, the added effects may have absorbed part of something the toolkit does not model (a
+   hard iron that stepped partway is partly a drift): nothing is claimed and the base fit is kept.
+
+Effects, as corrections of ``z = y - p_h`` (normalised units, raw magnetometer frame); every one is
+zero at the reference time ``t_ref`` (the first sample) and temperature ``T_ref`` (the mean of
+``temp_c``), so the file's ``hard_iron`` is the one at ``t_ref`` and ``T_ref``:
+
+``offset_drift`` (linear)
+    ``z - v (t - t_ref) / T`` (``T`` the session length): a hard iron wandering steadily.
+``offset_drift`` (warm-up)
+    ``z - A (1 - exp(-(t - t_ref) / tau))``, one time constant for the three axes (one thermal path).
+``temperature`` (offset; offset and scale)
+    ``(z - k d) / (1 + g d)`` with ``d = (T - T_ref) / span(T)``: hard iron, and per-axis scale, linear
+    in ``temp_c``.
+``nonlinear_response`` (odd cubic)
+    ``z + c z^3`` per axis: a response bending toward the extremes of the range.
+
+The magnetometer-accelerometer rotation (:func:`calibrate.tumble.fit_misalignment`) is fitted after
+the diagnosis, on the corrected readings, and reported as a step of the same form: the field-gravity
+angle's rms about the dip before and after, with its delta-BIC.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from itertools import combinations_with_replacement
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.stats import chi2 as chi2_dist
+from scipy.stats import median_abs_deviation
+
+from .diagnose import DECISIVE_BIC, FLOOR_MARGIN, MAX_REFITS, MAX_STEPS, MIN_SHARE, REFIT_FRACTION, STRUCTURE_P
+from .tumble import (KindFit, Misalignment, _covariance, _propagate, _shape, _sym_sqrt, field_gravity_angles,
+                     static_mask)
+
+__all__ = ["TumbleEffect", "TUMBLE_FORMS", "TumbleDiagnosis", "UNEXPLAINED_WARNING", "diagnose_tumble",
+           "radial_noise_floor", "residual_structure", "format_tumble_diagnosis"]
+
+_AXES = ("mx", "my", "mz")
+WARMUP_TAU_FRACTIONS = (0.03, 0.07, 0.15, 0.3, 0.6)
+"""Time constants (fractions of the session) at which the warm-up's score test is evaluated."""
+STRUCTURE_BLOCKS = 8
+"""Blocks of consecutive samples (and temperature bands) in the structure test."""
+MIN_BLOCK_SAMPLES = 50
+MAX_ANGLE_WIDENING = 0.05
+"""An effect that widens the field-gravity angle spread by more than this fraction is not claimed."""
+UNEXPLAINED_WARNING = ("structure remains in |m| - F above the noise floor that no modelled effect accounts for "
+                       "(a field that changed during the recording, a disturbance, an effect the toolkit does not "
+                       "model): see the diagnosis; the uncertainties are then optimistic")
+_FD_STEP = 1e-6
+_SINGULAR_RCOND = 1e-7
+
+
+@dataclass(frozen=True)
+class _Rows:
+    """Samples the corrections act on: normalised readings and their time and temperature."""
+
+    y: np.ndarray
+    t_s: np.ndarray | None
+    temp_c: np.ndarray | None
+
+    def take(self, mask: np.ndarray) -> "_Rows":
+        return _Rows(self.y[mask], None if self.t_s is None else self.t_s[mask],
+                     None if self.temp_c is None else self.temp_c[mask])
+
+
+@dataclass(frozen=True)
+class _Context:
+    """Constants of a recording the effects are written against (recording units, s, degC)."""
+
+    radius: float
+    t_ref_s: float
+    session_s: float
+    temp_ref_c: float
+    temp_span_c: float
+
+
+@dataclass(frozen=True)
+class TumbleEffect:
+    """One extension of the ellipsoid model: a vocabulary name (SPEC section 4), a form, a correction.
+
+    Parameters are in normalised units (of order one or smaller); :meth:`report` turns them into
+    physical ones.
+    """
+
+    name: str
+    form: str
+    description: str
+
+    @property
+    def label(self) -> str:
+        return f"{self.name} ({self.form})"
+
+    def applicable(self, t_s: np.ndarray | None, temp_c: np.ndarray | None, missing: list) -> str | None:
+        """None when a recording with these columns and this coverage (half-axes the field never
+        came near, e.g. ``["+Z"]``) can show the effect, else the reason it cannot."""
+        return None
+
+    def n_params(self) -> int:
+        raise NotImplementedError
+
+    def score_points(self) -> list[np.ndarray]:
+        """Parameter values (effect switched off) at which the score test is evaluated."""
+        return [np.zeros(self.n_params())]
+
+    def correct(self, z: np.ndarray, q: np.ndarray, rows: _Rows, ctx: _Context) -> np.ndarray:
+        """The reading minus hard iron, shape (n, 3), normalised units, with the effect removed."""
+        raise NotImplementedError
+
+    def reference(self, ctx: _Context) -> dict:
+        """Where the effect is zero (the file's hard iron holds there)."""
+        return {}
+
+    def report(self, q: np.ndarray, sigma: np.ndarray, ctx: _Context) -> dict:
+        """``{name: {"value", "sigma"}}`` in physical units (named in each key)."""
+        raise NotImplementedError
+
+
+def _per_axis(label: str, values, sigmas) -> dict:
+    return {f"{ax}.{label}": {"value": float(v), "sigma": float(s)} for ax, v, s in zip(_AXES, values, sigmas)}
+
+
+class _TimeEffect(TumbleEffect):
+    def applicable(self, t_s, temp_c, missing):
+        if t_s is None:
+            return "the recording has no t_s column"
+        if not np.ptp(t_s) > 0:
+            return "t_s never changes"
+        return None
+
+    def reference(self, ctx):
+        return {"t_s": ctx.t_ref_s}
+
+
+class LinearDrift(_TimeEffect):
+    """Hard iron changing at a constant rate: parameters are the change over the session."""
+
+    def n_params(self):
+        return 3
+
+    def correct(self, z, q, rows, ctx):
+        return z - np.outer((rows.t_s - ctx.t_ref_s) / ctx.session_s, q)
+
+    def report(self, q, sigma, ctx):
+        scale = ctx.radius / ctx.session_s
+        return _per_axis("hard_iron_rate_per_s", q * scale, sigma * scale)
+
+
+class WarmUp(_TimeEffect):
+    """Hard iron settling after switch-on: per-axis change ``A`` and ``log(tau / session)``."""
+
+    def n_params(self):
+        return 4
+
+    def score_points(self):
+        return [np.array([0.0, 0.0, 0.0, np.log(f)]) for f in WARMUP_TAU_FRACTIONS]
+
+    @staticmethod
+    def _tau(q, ctx):
+        return ctx.session_s * np.exp(np.clip(q[3], -6.0, 3.0))
+
+    def correct(self, z, q, rows, ctx):
+        settled = -np.expm1(-(rows.t_s - ctx.t_ref_s) / self._tau(q, ctx))
+        return z - np.outer(settled, q[:3])
+
+    def report(self, q, sigma, ctx):
+        tau = self._tau(q, ctx)
+        out = _per_axis("hard_iron_settled_change", q[:3] * ctx.radius, sigma[:3] * ctx.radius)
+        out["tau_s"] = {"value": float(tau), "sigma": float(tau * sigma[3])}
+        return out
+
+
+@dataclass(frozen=True)
+class Temperature(TumbleEffect):
+    """Hard iron (and, with ``scale``, per-axis scale) linear in ``temp_c``."""
+
+    scale: bool = False
+
+    def applicable(self, t_s, temp_c, missing):
+        if temp_c is None:
+            return "the recording has no temp_c column"
+        if np.ptp(temp_c) < 0.5:
+            return "temp_c varies by less than 0.5 degC"
+        return None
+
+    def n_params(self):
+        return 6 if self.scale else 3
+
+    def correct(self, z, q, rows, ctx):
+        d = ((rows.temp_c - ctx.temp_ref_c) / ctx.temp_span_c)[:, None]
+        z = z - d * q[:3]
+        return z / (1.0 + d * q[3:]) if self.scale else z
+
+    def reference(self, ctx):
+        return {"temp_c": ctx.temp_ref_c}
+
+    def report(self, q, sigma, ctx):
+        scale = ctx.radius / ctx.temp_span_c
+        out = _per_axis("hard_iron_per_degc", q[:3] * scale, sigma[:3] * scale)
+        if self.scale:
+            out.update(_per_axis("scale_rel_per_degc", q[3:] / ctx.temp_span_c, sigma[3:] / ctx.temp_span_c))
+        return out
+
+
+class CubicResponse(TumbleEffect):
+    """Odd cubic per axis about the hard iron: ``z + c z^3`` (``c``: correction at ``|z| = 1``, ~ |B|).
+
+    Only with the field seen along every half-axis: from one side a cubic bends the surface the
+    way a far-away hard iron does, and the two trade off without bound.
+    """
+
+    def applicable(self, t_s, temp_c, missing):
+        if missing:
+            return f"the field was never along {', '.join(missing)}: a cubic response trades off against the hard iron"
+        return None
+
+    def n_params(self):
+        return 3
+
+    def correct(self, z, q, rows, ctx):
+        return z + q * z**3
+
+    def report(self, q, sigma, ctx):
+        return _per_axis("cubic_correction_at_field", q, sigma)
+
+
+_DRIFT = "a hard iron changing with t_s"
+TUMBLE_FORMS: dict[str, tuple[TumbleEffect, ...]] = {
+    "offset_drift": (LinearDrift("offset_drift", "linear", _DRIFT + ", at a constant rate"),
+                     WarmUp("offset_drift", "warm-up", _DRIFT + ", settling exponentially (one time constant)")),
+    "temperature": (Temperature("temperature", "offset", "a hard iron linear in temp_c"),
+                    Temperature("temperature", "offset and scale", "a hard iron and per-axis scale linear in temp_c",
+                                scale=True)),
+    "nonlinear_response": (CubicResponse("nonlinear_response", "odd cubic",
+                                         "|m| bending with the direction beyond any ellipsoid: an odd cubic response per axis"),),
+}
+"""Each effect's forms for the tumble, simplest first; the evidence (BIC) chooses among them."""
+
+
+@dataclass(frozen=True)
+class _Fit:
+    effects: tuple
+    x: np.ndarray
+    jac: np.ndarray
+    covariance: np.ndarray
+    residuals: np.ndarray
+    chi2: float
+    success: bool
+    message: str
+
+    @property
+    def dof(self) -> int:
+        return self.residuals.size - self.x.size
+
+    def bic(self) -> float:
+        """chi2 + k ln n, with the noise floor known."""
+        return self.chi2 + self.x.size * np.log(self.residuals.size)
+
+    def block(self, effect: TumbleEffect, k: int) -> slice:
+        start = k
+        for e in self.effects:
+            if e is effect:
+                return slice(start, start + e.n_params())
+            start += e.n_params()
+        raise KeyError(effect.label)
+
+
+class _Model:
+    """The ellipsoid with a chain of corrections, on fixed rows, weighted by the floor."""
+
+    def __init__(self, fit: KindFit, rows: _Rows, ctx: _Context, floor: float):
+        self.kind, self.k, self.field_norm = fit.kind, fit.n_params, fit.field_norm
+        self.rows, self.ctx, self.floor = rows, ctx, floor
+
+    def corrected(self, x, effects, rows: _Rows) -> np.ndarray:
+        """``c(y - p_h)``, shape (n, 3), normalised units."""
+        z, i = rows.y - x[:3], self.k
+        for e in effects:
+            z = e.correct(z, x[i:i + e.n_params()], rows, self.ctx)
+            i += e.n_params()
+        return z
+
+    def radial(self, x, effects, rows: _Rows) -> np.ndarray:
+        """Radial residual, recording units."""
+        z = self.corrected(x, effects, rows)
+        return self.field_norm * (np.linalg.norm(z @ _shape(self.kind, x[3:self.k]), axis=1) - 1.0)
+
+    def weighted(self, x, effects) -> np.ndarray:
+        return self.radial(x, effects, self.rows) / self.floor
+
+    def fit(self, effects, x0) -> _Fit:
+        res = least_squares(self.weighted, x0, args=(effects,), method="lm", x_scale="jac",
+                            max_nfev=100 * (x0.size + 1))
+        cov = _covariance(res, res.fun.size)
+        return _Fit(tuple(effects), res.x, res.jac, cov, res.fun * self.floor, float(res.fun @ res.fun),
+                    bool(res.success), str(res.message))
+
+    def score(self, fit: _Fit, effect: TumbleEffect) -> tuple[float, np.ndarray]:
+        """Score test for adding ``effect``: (expected chi-square drop, start of its block).
+
+        The effect's Jacobian at each of its score points is projected off the current fit's
+        Jacobian (what the current parameters absorb); directions it cannot tell from them are
+        dropped.  The drop is ``r^T J (J^T J)^{-1} J^T r`` with the projected ``J``; the start is the
+        Gauss-Newton step from the score point.
+        """
+        effects = fit.effects + (effect,)
+        j_b = fit.jac / np.where(np.any(fit.jac, axis=0), np.linalg.norm(fit.jac, axis=0), 1.0)
+        best = (-np.inf, effect.score_points()[0])
+        for q0 in effect.score_points():
+            x = np.concatenate([fit.x, q0])
+            r0 = self.weighted(x, effects)
+            j_e = np.empty((r0.size, q0.size))
+            for i in range(q0.size):
+                xp = x.copy()
+                xp[fit.x.size + i] += _FD_STEP
+                j_e[:, i] = (self.weighted(xp, effects) - r0) / _FD_STEP
+            absorbed, *_ = np.linalg.lstsq(j_b.T @ j_b, j_b.T @ j_e, rcond=_SINGULAR_RCOND**2)
+            j_t = j_e - j_b @ absorbed
+            scale = np.linalg.norm(j_t, axis=0)
+            scale[scale == 0] = 1.0
+            w, v = np.linalg.eigh((j_t / scale).T @ (j_t / scale))
+            keep = w > _SINGULAR_RCOND**2 * max(w.max(), 1e-300)
+            projected = (j_t / scale).T @ r0
+            coef = (v[:, keep] / w[keep]) @ (v[:, keep].T @ projected)
+            drop = float(projected @ coef)
+            if drop > best[0]:
+                best = (drop, q0 - coef / scale)
+        return best
+
+
+@dataclass(frozen=True)
+class TumbleDiagnosis:
+    """Outcome of the residual diagnosis of a tumble fit.
+
+    Attributes
+    ----------
+    fit : KindFit
+        The ellipsoid at the reference condition (hard iron at ``t_ref`` and ``T_ref``), fitted
+        with the claimed effects; the base fit itself when none is claimed.
+    raw_at_reference : ndarray, shape (n, 3)
+        Every raw reading with the claimed effects removed (what the sensor would have read at the
+        reference condition), recording units, magnetometer frame; ``fit.calibrated`` maps it onto
+        the sphere.
+    effects : tuple of dict
+        ``{"name", "form", "reference", "parameters"}`` of each claimed effect: the file's ``effects``.
+    block : dict
+        The SPEC section 4 ``diagnosis`` block.
+    """
+
+    fit: KindFit
+    raw_at_reference: np.ndarray
+    effects: tuple
+    block: dict
+
+    def with_alignment(self, mis: Misalignment, fit: KindFit) -> "TumbleDiagnosis":
+        """Add the magnetometer-accelerometer rotation as a step, and the final fit's residual.
+
+        Parameters
+        ----------
+        mis : Misalignment
+            The rotation's fit (``rotation`` None when it was not applied).
+        fit : KindFit
+            The ellipsoid after the rotation was fitted with it (its residuals on
+            ``raw_at_reference``).
+
+        Notes
+        -----
+        That refit holds the effects fixed, so its standard errors leave out how the ellipsoid
+        trades off against them; with claimed effects each one is kept at least as large as the
+        diagnosis's, which includes that.
+        """
+        if self.effects:
+            fit = replace(fit, hard_iron_sigma=np.fmax(fit.hard_iron_sigma, self.fit.hard_iron_sigma),
+                          soft_iron_sigma=np.fmax(fit.soft_iron_sigma, self.fit.soft_iron_sigma),
+                          field_norm_sigma=float(np.fmax(fit.field_norm_sigma, self.fit.field_norm_sigma)))
+        rms = float(np.sqrt(np.mean(fit.residuals[fit.inliers] ** 2)))
+        applied = mis.rotation is not None
+        evidence = (f"field-gravity angle rms about the dip {mis.spread_before_deg:.3f} -> {mis.spread_after_deg:.3f} deg "
+                    f"over {mis.n_static} quasi-static samples; "
+                    + ("rotation applied" if applied else "rotation not applied, frames taken as aligned"))
+        step = {"model": "mag_to_accel", "residual_rms": rms, "applied": applied,
+                "angle_rms_deg_before": mis.spread_before_deg, "angle_rms_deg_after": mis.spread_after_deg,
+                "evidence": evidence, "delta_bic": -mis.delta_bic}
+        block = dict(self.block, steps=self.block["steps"] + [step], residual_rms_after=rms)
+        block["unexplained"] = _unexplained(block["structure_test"]["p_value"], rms, block["noise_floor"])
+        return replace(self, fit=fit, block=block)
+
+
+def radial_noise_floor(residuals: np.ndarray) -> float:
+    """White-noise sigma of a radial residual from its second differences in time.
+
+    Parameters
+    ----------
+    residuals : ndarray, shape (n,)
+        Radial residual of every sample in recording order, recording units.
+
+    Returns
+    -------
+    float
+        ``MAD(r[i-1] - 2 r[i] + r[i+1]) / sqrt(6)`` (normalised MAD: robust to disturbances and
+        steps), recording units.
+    """
+    d = residuals[:-2] - 2.0 * residuals[1:-1] + residuals[2:]
+    return float(median_abs_deviation(d, scale="normal") / np.sqrt(6.0))
+
+
+def residual_structure(weighted: np.ndarray, directions: np.ndarray, bands) -> tuple[float, int, float]:
+    """Structure left in a radial residual, against white noise at the floor.
+
+    The weighted residual is regressed on cubic and quartic monomials of the field direction (a
+    response no ellipsoid bends to) and, within blocks of equal count along each band (time,
+    temperature), on a constant and the direction (a hard iron or field that changed).  Under white
+    noise the chi-square drop follows chi2(rank).
+
+    Parameters
+    ----------
+    weighted : ndarray, shape (n,)
+        Residual over the noise floor.
+    directions : ndarray, shape (n, 3)
+        Unit field direction of each sample, magnetometer frame.
+    bands : sequence of ndarray, shape (n,)
+        Orderings to block along (``t_s`` or the sample index; ``temp_c``).
+
+    Returns
+    -------
+    delta_chi2 : float
+    dof : int
+    p_value : float
+    """
+    n = len(weighted)
+    cols = [np.prod(directions[:, list(idx)], axis=1)
+            for degree in (3, 4) for idx in combinations_with_replacement(range(3), degree)]
+    local = np.column_stack([np.ones(n), directions])
+    n_blocks = max(2, min(STRUCTURE_BLOCKS, n // MIN_BLOCK_SAMPLES))
+    for key in bands:
+        block = np.argsort(np.argsort(key, kind="stable")) * n_blocks // n
+        cols += [local[:, j] * (block == b) for b in range(n_blocks) for j in range(4)]
+    design = np.column_stack(cols)
+    coef, _, rank, _ = np.linalg.lstsq(design, weighted, rcond=None)
+    drop = float(np.sum((design @ coef) ** 2))
+    return drop, int(rank), float(chi2_dist.sf(drop, rank))
+
+
+def _json_float(v: float) -> float | None:
+    return float(v) if np.isfinite(v) else None
+
+
+def _unexplained(p_value: float, rms: float, floor: float) -> bool:
+    return bool(p_value < STRUCTURE_P or rms > (1.0 + FLOOR_MARGIN) * floor)
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(values**2)))
+
+
+def diagnose_tumble(mag: np.ndarray, fit: KindFit, *, t_s: np.ndarray | None = None,
+                    temp_c: np.ndarray | None = None, accel: np.ndarray | None = None, missing=(),
+                    candidates=None) -> TumbleDiagnosis:
+    """Run the diagnosis loop on a tumble's chosen ellipsoid.
+
+    Parameters
+    ----------
+    mag : ndarray, shape (n, 3)
+        The raw readings ``fit`` was made from, recording units, magnetometer frame, in time order.
+    fit : KindFit
+        The chosen ellipsoid (its kind, normalisation and inliers are kept).
+    t_s, temp_c : ndarray, shape (n,), optional
+        Time (s) and sensor temperature (degC) of each reading.
+    accel : ndarray, shape (n, 3), optional
+        Accelerometer at the same rows, any unit: an effect is claimed only if it does not widen
+        the spread of the field-gravity angle over the quasi-static samples (the dip deviation)
+        by more than :data:`MAX_ANGLE_WIDENING`.
+    missing : sequence of str
+        Half-axes the field never came near (:attr:`calibrate.tumble.Coverage.missing`).
+    candidates : sequence of str, optional
+        Effect names to consider (default: every name in :data:`TUMBLE_FORMS`).
+
+    Returns
+    -------
+    TumbleDiagnosis
+
+    Raises
+    ------
+    ValueError
+        ``t_s`` or ``temp_c`` not of length n, or an unknown candidate name.
+    """
+    mag = np.asarray(mag, dtype=float)
+    n = len(mag)
+    t_s = None if t_s is None else np.asarray(t_s, dtype=float)
+    temp_c = None if temp_c is None else np.asarray(temp_c, dtype=float)
+    for label, v, shape in (("t_s", t_s, (n,)), ("temp_c", temp_c, (n,)), ("accel", accel, (n, 3))):
+        if v is not None and np.shape(v) != shape:
+            raise ValueError(f"{label} must have one value per magnetometer sample {shape}, got shape {np.shape(v)}")
+    names = list(TUMBLE_FORMS) if candidates is None else list(candidates)
+    unknown = [c for c in names if c not in TUMBLE_FORMS]
+    if unknown:
+        raise ValueError(f"unknown tumble effect(s) {unknown}; known: {', '.join(TUMBLE_FORMS)}")
+
+    pool, skipped = [], {}
+    for name in names:
+        reason = TUMBLE_FORMS[name][0].applicable(t_s, temp_c, list(missing))
+        if reason:
+            skipped[name] = reason
+        else:
+            pool.extend(TUMBLE_FORMS[name])
+    ctx = _Context(radius=fit.radius,
+                   t_ref_s=0.0 if t_s is None else float(t_s[0]),
+                   session_s=1.0 if t_s is None else max(float(np.ptp(t_s)), 1e-9),
+                   temp_ref_c=0.0 if temp_c is None else float(np.mean(temp_c)),
+                   temp_span_c=1.0 if temp_c is None else max(float(np.ptp(temp_c)), 1e-9))
+    floor = radial_noise_floor(fit.residuals)
+    all_rows = _Rows((mag - fit.centre) / fit.radius, t_s, temp_c)
+    rows = all_rows.take(fit.inliers)
+    model = _Model(fit, rows, ctx, floor)
+    bands = [np.arange(n)[fit.inliers] if t_s is None else rows.t_s]
+    if temp_c is not None and np.ptp(temp_c) > 0:
+        bands.append(rows.temp_c)
+
+    static = None if accel is None else static_mask(np.asarray(accel, dtype=float))[fit.inliers]
+    accel_rows = None if accel is None else np.asarray(accel, dtype=float)[fit.inliers]
+
+    def angle_spread(f: _Fit) -> float:
+        """Std of the field-gravity angle over the quasi-static inliers, deg (NaN without them)."""
+        if static is None or np.count_nonzero(static) < 20:
+            return float("nan")
+        m = model.corrected(f.x, f.effects, rows)[static] @ _sym_sqrt(fit.kind, f.x[3:model.k])
+        return float(np.std(field_gravity_angles(m, accel_rows[static])))
+
+    base = model.fit((), fit.params)
+    current = base
+    steps = [{"model": "base", "kind": fit.kind, "residual_rms": _rms(base.residuals)}]
+    rejected = []
+    log_n = np.log(base.residuals.size)
+    for _ in range(MAX_STEPS):
+        present = {e.name for e in current.effects}
+        scored = []
+        for effect in (e for e in pool if e.name not in present):
+            drop, start = model.score(current, effect)
+            scored.append((drop - effect.n_params() * log_n, drop, effect, start))
+        scored.sort(key=lambda item: -item[0])
+        seen = set()  # one form per effect is refitted: the one whose score promises the most evidence
+        scored = [item for item in scored if not (item[2].name in seen or seen.add(item[2].name))]
+        best = None
+        for expected, drop, effect, start in scored[:MAX_REFITS]:
+            if expected <= max(DECISIVE_BIC, REFIT_FRACTION * scored[0][0]):
+                break
+            effects = current.effects + (effect,)
+            plain = np.concatenate([current.x, effect.score_points()[0]])
+            x0 = np.concatenate([current.x, start])
+            if np.sum(model.weighted(plain, effects) ** 2) < np.sum(model.weighted(x0, effects) ** 2):
+                x0 = plain  # a first-order start can overshoot: keep it only if it helps
+            trial = model.fit(effects, x0)
+            gain = current.bic() - trial.bic()
+            share = (current.chi2 - trial.chi2) / max(current.chi2 - current.dof, 1e-12)
+            if best is None or gain > best[0]:
+                best = (gain, share, effect, trial, drop)
+        if best is None or best[0] <= DECISIVE_BIC:
+            break
+        gain, share, effect, trial, drop = best
+        if share < MIN_SHARE:
+            rejected.append(f"{effect.label} (delta-BIC {gain:.0f}, but it explains only {100 * share:.0f} % "
+                            "of the structured residual: not claimed)")
+            break
+        if not np.all(np.isfinite(np.diag(trial.covariance))):
+            rejected.append(f"{effect.label} (delta-BIC {gain:.0f}, but the data cannot determine its parameters "
+                            "together with the ellipsoid (singular covariance): not claimed)")
+            break
+        spread = angle_spread(current), angle_spread(trial)
+        if spread[1] > (1.0 + MAX_ANGLE_WIDENING) * spread[0]:
+            rejected.append(f"{effect.label} (delta-BIC {gain:.0f}, but it widens the field-gravity angle spread "
+                            f"from {spread[0]:.3f} to {spread[1]:.3f} deg: not claimed)")
+            break
+        block = trial.block(effect, model.k)
+        steps.append({
+            "added": effect.name,
+            "form": effect.form,
+            "residual_rms": _rms(trial.residuals),
+            "evidence": (f"{effect.description}: score test expected chi2 drop {drop:.0f} for {effect.n_params()} "
+                         f"parameters, refit chi2 {current.chi2:.0f} -> {trial.chi2:.0f}, "
+                         f"{100 * min(share, 1.0):.0f} % of the structured residual explained"),
+            "delta_bic": float(gain),
+            "explained_share": float(min(share, 1.0)),
+            "angle_rms_deg_before": _json_float(spread[0]),
+            "angle_rms_deg_after": _json_float(spread[1]),
+            "parameters": effect.report(trial.x[block], np.sqrt(np.diag(trial.covariance))[block], ctx),
+        })
+        current = trial
+
+    def verdict(f: _Fit):
+        z = model.corrected(f.x, f.effects, rows)
+        structure = residual_structure(f.residuals / floor, z / np.linalg.norm(z, axis=1, keepdims=True), bands)
+        return structure, _unexplained(structure[2], _rms(f.residuals), floor)
+
+    (structure, dof, p_value), unexplained = verdict(current)
+    if unexplained and len(steps) > 1:
+        for step in steps[1:]:
+            rejected.append(f"{step['added']} ({step['form']}; delta-BIC {step['delta_bic']:.0f}, explained "
+                            f"{100 * step['explained_share']:.0f} % of the structured residual, but structure the "
+                            "model lacks remains, so it may be part of that: not claimed)")
+        steps, current = steps[:1], base
+        (structure, dof, p_value), unexplained = verdict(current)
+
+    final_fit, raw_ref, effects = fit, mag, ()
+    if current.effects:
+        k = model.k
+        h, sig_h, s_mat, sig_s, f_norm, sig_f = _propagate(fit.kind, current.x[:k], current.covariance,
+                                                           fit.centre, fit.radius)
+        raw_ref = h + fit.radius * model.corrected(current.x, current.effects, all_rows)
+        resid_all = np.linalg.norm((raw_ref - h) @ s_mat.T, axis=1) - f_norm
+        final_fit = replace(fit, hard_iron=h, hard_iron_sigma=sig_h, soft_iron=s_mat, soft_iron_sigma=sig_s,
+                            field_norm=f_norm, field_norm_sigma=sig_f, residuals=resid_all,
+                            rss=float(np.sum(resid_all[fit.inliers] ** 2)), success=current.success,
+                            message=current.message, params=current.x[:k])
+        effects = tuple({"name": step["added"], "form": step["form"], "reference": e.reference(ctx),
+                         "parameters": step["parameters"]} for step, e in zip(steps[1:], current.effects))
+    block = {
+        "noise_floor": floor,
+        "steps": steps,
+        "effects": [e.name for e in current.effects],
+        "residual_rms_before": steps[0]["residual_rms"],
+        "residual_rms_after": _rms(current.residuals),
+        "unexplained": unexplained,
+        "structure_test": {"delta_chi2": structure, "dof": dof, "p_value": p_value},
+        "not_claimed": rejected,
+        "not_applicable": skipped,
+        "hard_iron_change": {"value": (final_fit.hard_iron - fit.hard_iron).tolist(),
+                             "sigma": final_fit.hard_iron_sigma.tolist()},
+    }
+    return TumbleDiagnosis(final_fit, raw_ref, effects, block)
+
+
+def format_tumble_diagnosis(block: dict, unit: str = "recording units") -> str:
+    """The diagnosis block as lines for a person: each step with its evidence, before and after."""
+    lines = [f"Residual diagnosis of |m| - F (noise floor {block['noise_floor']:.4g} {unit}, from second "
+             "differences of the residual in time)"]
+    for step in block["steps"]:
+        if step.get("model") == "base":
+            lines.append(f"  base model ({step['kind']} ellipsoid): residual rms {step['residual_rms']:.4g}")
+        elif step.get("model") == "mag_to_accel":
+            lines.append(f"  mag-to-accel rotation: residual rms {step['residual_rms']:.4g}, delta-BIC "
+                         f"{step['delta_bic']:.0f}; {step['evidence']}")
+        else:
+            lines.append(f"  + {step['added']} ({step['form']}): residual rms {step['residual_rms']:.4g}, "
+                         f"delta-BIC {step['delta_bic']:.0f}")
+            lines.append(f"      evidence: {step['evidence']}")
+            for name, p in step["parameters"].items():
+                lines.append(f"      {name} = {p['value']:.4g} +- {p['sigma']:.2g}")
+    for text in block["not_claimed"]:
+        lines.append(f"  not claimed: {text}")
+    for name, reason in block["not_applicable"].items():
+        lines.append(f"  {name} not examined: {reason}")
+    if block["effects"]:
+        change = ", ".join(f"{v:+.4g} (sigma {s:.2g})" for v, s in zip(block["hard_iron_change"]["value"],
+                                                                       block["hard_iron_change"]["sigma"]))
+        lines.append(f"  the hard iron moved by {change} {unit}")
+    verdict = ("UNEXPLAINED: structure remains above the noise floor that no modelled effect accounts for"
+               if block["unexplained"] else "explained: the residual is at the noise floor")
+    lines.append(f"  residual rms {block['residual_rms_before']:.4g} -> {block['residual_rms_after']:.4g}; {verdict} "
+                 f"(structure test p = {block['structure_test']['p_value']:.2g})")
+    return "\n".join(lines)
