@@ -107,3 +107,17 @@ def test_bad_time_column_is_rejected():
         diagnose_tumble(sim.mag, res.fit, t_s=sim.t_s[:-1])
     with pytest.raises(ValueError, match="unknown tumble effect"):
         diagnose_tumble(sim.mag, res.fit, candidates=["encoder_error"])
+
+
+def test_cli_passes_time_and_temperature(tmp_path, capsys):
+    """`compass calibrate` on a tumble CSV with t_s and temp_c runs the drift and temperature checks."""
+    from compass.cli import main
+    from compass.sim.tumble import write_tumble
+
+    sim = simulate_tumble(n=N, seed=23, temp_swing_c=10.0, temp_offset_ut_per_c=0.3)
+    rec, _ = write_tumble(sim, tmp_path / "tumble.csv")
+    cal = tmp_path / "cal.json"
+    assert main(["calibrate", str(rec), "--out", str(cal)]) == 0
+    data = json.loads(cal.read_text())
+    assert "temperature" in data["diagnosis"]["effects"]
+    assert "temperature" in capsys.readouterr().out

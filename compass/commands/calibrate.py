@@ -105,7 +105,8 @@ def _calibrate_tumble(table, out, *, field_ut, ellipsoid, quiet):
 
     rec = tumble_from_table(table)
     field_ut = field_ut if field_ut is not None else table.metadata_float("field_ut")
-    result = calibrate_tumble(rec.mag, rec.accel, kind=ellipsoid, field_ut=field_ut, n_repeats=rec.n_repeats)
+    result = calibrate_tumble(rec.mag, rec.accel, kind=ellipsoid, field_ut=field_ut, n_repeats=rec.n_repeats,
+                              t_s=rec.t_s, temp_c=rec.temp_c)
     if result.refused:
         from ..cli import BadInput
 
