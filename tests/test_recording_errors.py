@@ -101,3 +101,26 @@ def test_json_given_as_recording(tmp_path):
     p = _write(tmp_path, ['{"format": "compass-calibration/1"}'], "cal.json")
     with pytest.raises(RecordingError, match="JSON"):
         read_fourflip(p)
+
+
+def test_output_folder_given_without_force_names_the_folder(tmp_path, capsys):
+    rec = tmp_path / "rec.csv"
+    rec.write_text("\n".join([GOOD_HEADER] + _rows()) + "\n")
+    assert main(["calibrate", str(rec), "--out", str(tmp_path), "--quiet"]) == 2
+    assert "is a folder" in capsys.readouterr().err
+
+
+def test_failed_write_is_output_error_and_keeps_old_file(tmp_path, monkeypatch):
+    from compass.io import atomic
+
+    out = tmp_path / "cal.json"
+    out.write_text("precious")
+
+    def refuse(src, dst):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(atomic.os, "replace", refuse)
+    with pytest.raises(atomic.OutputError, match=r"cal\.json: cannot write \(Permission denied\)"):
+        atomic.atomic_write_text(out, "new")
+    assert out.read_text() == "precious"
+    assert [p.name for p in tmp_path.iterdir()] == ["cal.json"]
