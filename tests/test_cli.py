@@ -59,3 +59,21 @@ def test_demo_runs_end_to_end(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "+ flip_error" in out and "heading RMS error" in out
     assert (tmp_path / "attitude.csv").exists() and (tmp_path / "report" / "residuals.png").exists()
+
+
+def test_calibrate_refuses_options_its_kind_would_ignore(tmp_path, capsys):
+    from compass.sim.tumble import simulate_tumble, write_tumble
+
+    tumble = tmp_path / "tumble.csv"
+    write_tumble(simulate_tumble(seed=1, n=300), tumble)
+    cal = tmp_path / "cal.json"
+    for extra, named in ((["--method", "patent"], "--method"), (["--report", str(tmp_path / "rep")], "--report"),
+                         (["--no-diagnose"], "--no-diagnose")):
+        assert main(["calibrate", str(tumble), "--out", str(cal), "--quiet", *extra]) == 2
+        assert f"tumble recording does not use {named}" in capsys.readouterr().err
+    rec = tmp_path / "rec.csv"
+    main(["simulate", "fourflip", "--out", str(rec)])
+    assert main(["calibrate", str(rec), "--out", str(cal), "--quiet", "--ellipsoid", "full"]) == 2
+    assert main(["calibrate", str(rec), "--out", str(cal), "--quiet", "--report", str(rec)]) == 2
+    assert "is a file, expected a folder" in capsys.readouterr().err
+    assert not cal.exists()

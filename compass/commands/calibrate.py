@@ -64,6 +64,10 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
                        f"platform_z_deg, a reference-field one bx_ref, a tumble mx,my,mz")
     if field_ut is not None and not field_ut > 0:
         raise BadInput(f"--field-ut must be positive, got {field_ut}")
+    _refuse_ignored_options(recording, kind, method=method, diagnose=diagnose, report=report, field_ut=field_ut,
+                            ellipsoid=ellipsoid)
+    if report is not None and Path(report).exists() and not Path(report).is_dir():
+        raise BadInput(f"--report {report}: is a file, expected a folder")
     if kind == "tumble":
         return _calibrate_tumble(table, out, field_ut=field_ut, ellipsoid=ellipsoid, quiet=quiet)
     if kind in ("platform3d", "reference"):
@@ -87,6 +91,23 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
                  plot_residuals(used, _residual_sets(rec, result), folder / "residuals.png", result.noise)]
         print("wrote " + ", ".join(str(p) for p in paths))
     return result
+
+
+def _refuse_ignored_options(recording, kind, *, method, diagnose, report, field_ut, ellipsoid) -> None:
+    """BadInput for an option the recording's kind would silently ignore (checked before any work)."""
+    from ..cli import BadInput
+
+    ignored = []
+    if kind != "fourflip":
+        ignored += ["--method"] * (method != "ml") + ["--report"] * (report is not None)
+    if kind == "tumble" and not diagnose:
+        ignored.append("--no-diagnose")  # the tumble fit always runs its diagnosis
+    if kind == "reference" and field_ut is not None:
+        ignored.append("--field-ut")
+    if kind != "tumble" and ellipsoid != "auto":
+        ignored.append("--ellipsoid")
+    if ignored:
+        raise BadInput(f"{recording}: a {kind} recording does not use {', '.join(ignored)}")
 
 
 def _residual_sets(rec, result) -> dict:
