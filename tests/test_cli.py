@@ -77,3 +77,11 @@ def test_calibrate_refuses_options_its_kind_would_ignore(tmp_path, capsys):
     assert main(["calibrate", str(rec), "--out", str(cal), "--quiet", "--report", str(rec)]) == 2
     assert "is a file, expected a folder" in capsys.readouterr().err
     assert not cal.exists()
+
+
+def test_simulate_rejects_impossible_settings(tmp_path, capsys):
+    rec = tmp_path / "rec.csv"
+    for option, value in (("--noise-ut", "-1"), ("--field-ut", "0"), ("--dip-deg", "95"), ("--effect-scale", "-2")):
+        assert main(["simulate", "fourflip", "--out", str(rec), option, value]) == 2
+        assert option in capsys.readouterr().err
+    assert not rec.exists()

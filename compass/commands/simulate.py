@@ -38,6 +38,14 @@ def run_fourflip(args) -> int:
         raise BadInput(f"--channels must be at least 1, got {args.channels}")
     if not 0 < args.step_deg <= 30:
         raise BadInput(f"--step-deg must be in (0, 30], got {args.step_deg}")
+    if not args.noise_ut >= 0:
+        raise BadInput(f"--noise-ut must not be negative, got {args.noise_ut}")
+    if not args.field_ut > 0:
+        raise BadInput(f"--field-ut must be positive, got {args.field_ut}")
+    if args.dip_deg is not None and not -90 <= args.dip_deg <= 90:
+        raise BadInput(f"--dip-deg must be in [-90, 90], got {args.dip_deg}")
+    if not args.effect_scale >= 0:
+        raise BadInput(f"--effect-scale must not be negative, got {args.effect_scale}")
     session = simulate_fourflip(
         seed=args.seed, n_channels=args.channels, effects=tuple(args.effect), noise_ut=args.noise_ut,
         field_ut=args.field_ut, dip_deg=args.dip_deg, step_deg=args.step_deg, effect_scale=args.effect_scale,
