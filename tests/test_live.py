@@ -205,8 +205,14 @@ def test_live_bad_input_exits_2(tmp_path, capsys):
     assert "cannot read calibration" in capsys.readouterr().err
     cal = tmp_path / "cal.json"
     assert main(["device", "--pty", "--save-cal", str(cal), "--duration", "-1"]) == 2
+    assert not cal.exists()  # bad options are refused before anything is written
+    cal.write_text(__import__("json").dumps(default_model().to_json()))
     assert main(["live", "--port", "nosuch://x", "--cal", str(cal)]) == 2
     assert "nosuch" in capsys.readouterr().err
+    keep = tmp_path / "keep.txt"
+    keep.write_text("keep")
+    assert main(["device", "--pty", "--link", str(keep), "--duration", "0.1"]) == 2
+    assert "not a symbolic link" in capsys.readouterr().err and keep.read_text() == "keep"
 
 
 def test_live_exits_when_asked_while_the_port_is_absent(tmp_path, capsys):

@@ -7,6 +7,7 @@ can be injected to exercise a receiver.
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
 
@@ -53,12 +54,12 @@ def run(args) -> int:
             raise BadInput(f"{args.cal}: the calibration has no dip_deg: the module cannot simulate its field")
     else:
         model = default_model()
-    if args.save_cal is not None:
-        atomic_write_text(check_writable(args.save_cal, args.force), json.dumps(model.to_json(), indent=2) + "\n")
     if args.duration is not None and not args.duration > 0:
         raise BadInput(f"--duration must be positive, got {args.duration}")
     if args.disconnect_for <= 0:
         raise BadInput(f"--disconnect-for must be positive, got {args.disconnect_for}")
+    if args.link is not None and os.path.lexists(args.link) and not os.path.islink(args.link):
+        raise BadInput(f"--link {args.link}: exists and is not a symbolic link; it would be replaced")
     try:
         device = PtyDevice(model, rate_hz=args.rate, seed=args.seed, link=args.link, garbage_rate=args.garbage,
                            truncate_rate=args.truncate, disconnect_at_s=args.disconnect_at,
@@ -66,6 +67,8 @@ def run(args) -> int:
                            on_path=lambda path: print(args.link or path, flush=True))
     except ValueError as exc:
         raise BadInput(str(exc)) from None
+    if args.save_cal is not None:
+        atomic_write_text(check_writable(args.save_cal, args.force), json.dumps(model.to_json(), indent=2) + "\n")
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
