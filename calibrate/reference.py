@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import lstsq
 
+from compass.frames import seed_angles
 from compass.io.reference import ReferenceRecording
 
 from .platform3d import axis_geometry
@@ -142,7 +143,9 @@ class ReferenceResult:
         for s in self.sensors:
             g = np.linalg.inv(s.k_matrix)
             for c, name in enumerate(s.channels):
-                entry = {"direction": (g[c] / s.scale[c]).tolist(),
+                direction = g[c] / s.scale[c]
+                entry = {"direction": direction.tolist(),
+                         **{k: float(v) for k, v in seed_angles(direction).items()},
                          "response": {"model": "linear", "offset": float(s.offset[c]), "gain": float(s.scale[c])}}
                 if s.direction_covariance is not None:
                     entry["direction_covariance"] = s.direction_covariance[c].tolist()
@@ -164,13 +167,20 @@ class ReferenceResult:
                 "geometry_sigma": _maybe(s.geometry_sigma),
                 "residual_rms": s.residual_rms.tolist(),
             }
+        rms = float(np.sqrt(np.mean(np.concatenate([s.residuals.ravel() for s in self.sensors]) ** 2)))
         return {
             "format": FORMAT,
             "channels": channels,
             "dip_deg": None,
+            "dip_sigma_deg": None,
             "field_ut": None,
             "noise_floor": noise,
             "effects": [],
+            "diagnosis": {"noise_floor": float(np.mean(noise)), "steps": [{"model": "base", "residual_rms": rms}],
+                          "effects": [], "residual_rms_before": rms, "residual_rms_after": rms,
+                          "unexplained": None,
+                          "not_applicable": {"diagnosis": "the noise floor is estimated from this fit's own residual "
+                                                          "(no repeated fields): nothing to test it against"}},
             "method": "reference",
             "reference": {"sensors": sensors, "n_fields": self.n_fields, "condition": self.condition,
                           "array_spread": self.spread,

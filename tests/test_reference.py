@@ -81,6 +81,13 @@ def test_cli_end_to_end_and_runtime_model(tmp_path, capsys):
     assert "alpha1..3" in capsys.readouterr().out
     data = json.loads(cal.read_text())
     assert set(data["reference"]["sensors"]) == {"s1", "s2"} and data["method"] == "reference"
+    for key in ("dip_deg", "dip_sigma_deg", "field_ut", "effects", "diagnosis"):
+        assert key in data
+    assert data["diagnosis"]["effects"] == [] and data["diagnosis"]["steps"][0]["model"] == "base"
+    for ch in data["channels"].values():  # SPEC section 2: every channel reports seed 000's angles
+        a = np.radians([ch[k] for k in ("theta_deg", "gamma_deg", "elevation_deg", "psi_deg")])
+        assert np.isclose(np.tan(a[2]), np.tan(a[1]) * np.cos(a[0]))
+        assert np.isclose(np.tan(a[3]), np.tan(a[0]) * np.cos(a[1]))
     model = SensorModel.from_file(cal)
     raw = np.hstack([sim.outputs["s1"], sim.outputs["s2"]])
     field, _ = model.field(raw)
