@@ -157,3 +157,16 @@ def test_attitude_command_reads_the_tilt_sensor(tmp_path):
     heading = read_table(out).column("heading_deg")
     err = np.mod(heading - check.heading_deg[upright] + 180, 360) - 180
     assert np.max(np.abs(err)) < 1.0
+
+
+def test_attitude_command_bad_tilt_sensor_exits_2(tmp_path, capsys):
+    _, _, res = fit(tmp_path, seed=16, tilt_axes=2)
+    data = res.to_json()
+    data["tilt_sensor"]["matrix"] = [[1.0]]
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps(data))
+    rec = tmp_path / "run.csv"
+    rec.write_text("mx,my,mz,ax,ay\n1,2,3,0,0\n")
+    assert main(["attitude", str(cal), str(rec), "--out", str(tmp_path / "att.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "cal.json: 'tilt_sensor'" in err and "failed" not in err

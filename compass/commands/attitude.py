@@ -64,8 +64,9 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
         raise BadInput(f"--max-tilt-deg must be in [0, 90), got {max_tilt_deg}")
     try:
         model = SensorModel.from_file(calibration)
+        tilt_sensor = _tilt_sensor(calibration)
     except ValueError as exc:
-        raise BadInput(str(exc)) from None
+        raise BadInput(exc if str(calibration) in str(exc) else f"{calibration}: {exc}") from None
     table = read_table(recording)
     known = set(model.channels) | set(_ACCEL) | set(_TILT) | set(_IGNORED)
     for name in table.columns:
@@ -74,7 +75,6 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
                                              f"(its channels: {', '.join(model.channels)})",
                                  row=table.header_row, column=name)
     raw = np.column_stack([table.column(name) for name in model.channels])
-    tilt_sensor = _tilt_sensor(calibration)
     if tilt_sensor is None:
         accel = _group(table, _ACCEL)
     else:  # a 3-D platform calibration: ax, ay[, az] are its tilt sensor's raw outputs
