@@ -195,7 +195,7 @@ def main(argv=None) -> int:
         print(f"  {trial.name}: " + ", ".join(f"{k} {v[0]:.2f}/{v[1]:.2f}" for k, v in row.items()), flush=True)
 
     width = max(len(n) for n in names)
-    print(f"\nheading RMS / inclination RMS, degrees (BROAD metric, offset kept)")
+    print("\nheading RMS / inclination RMS, degrees (BROAD metric, offset kept)")
     print(f"{'trial':44s} " + " ".join(f"{n:>{max(width, 13)}s}" for n in names))
     for trial, row in results.items():
         print(f"{trial:44s} " + " ".join(f"{row[n][0]:6.2f} /{row[n][1]:5.2f}".rjust(max(width, 13)) for n in names))
