@@ -21,7 +21,6 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import isotonic_regression
 
-from compass.frames import seed_angles
 from compass.io.fourflip import FourFlipRecording
 from compass.response import CubicResponse, LinearResponse, TableResponse
 from compass.sim.bench import BenchPhysics, BenchSamples
@@ -305,8 +304,3 @@ def _harmonic_linear(h, c, direction, dip, b, midpoint) -> LinearResponse:
     amp = h.amplitude[:, c]
     gain = np.sqrt(np.sum(amp**2) / np.sum(horizontal**2)) / (b * np.cos(np.radians(dip)))
     return LinearResponse(float(midpoint), float(gain), (-b, b))
-
-
-def seed_angle_table(result: CalibrationResult) -> dict:
-    """theta, gamma, elevation, psi of every channel, degrees (for reports and tests)."""
-    return {ch.name: seed_angles(ch.direction) for ch in result.channels}
