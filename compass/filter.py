@@ -396,7 +396,7 @@ class AttitudeFilter:
             accel_ok = False
         else:
             self._propagate(dt)
-            self._rest(dt, a, a_norm)
+            self._rest(dt, a)
             accel_ok = self._tilt_update(dt, a)
         matrix = self._matrix
         m_w = matrix @ field_h
@@ -464,7 +464,7 @@ class AttitudeFilter:
         q[3, 3] = q[4, 4] = q[5, 5] = bias_var
         self._kf.predict(F=f, Q=q)
 
-    def _rest(self, dt: float, a, a_norm: float) -> None:
+    def _rest(self, dt: float, a) -> None:
         """VQF's rest detector; at rest the gyro reading measures its bias."""
         if a is None or dt == 0.0:
             return

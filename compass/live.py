@@ -91,7 +91,7 @@ class LiveSession:
         if isinstance(item, LinkEvent):
             if item.kind == "connected":
                 self.decoder.resync()
-            self._event("warn" if item.kind == "disconnected" else "info", item.message, item.t_rx)
+            self._event("warn" if item.kind == "disconnected" else "info", item.message)
             return
         if self._t0 is None:
             self._t0 = item.t_rx
@@ -99,12 +99,11 @@ class LiveSession:
             self._sample(sample, item.t_rx)
         if self.decoder.events:
             for level, text in self.decoder.drain_events():
-                self._event(level, text, item.t_rx)
+                self._event(level, text)
         stats = self.decoder.stats
         bad = stats.garbage + stats.partial
         if bad != self._bad_reported and item.t_rx - self._bad_reported_at >= 1.0:
-            self._event("warn", f"line noise: {stats.garbage} garbage and {stats.partial} partial lines so far",
-                        item.t_rx)
+            self._event("warn", f"line noise: {stats.garbage} garbage and {stats.partial} partial lines so far")
             self._bad_reported, self._bad_reported_at = bad, item.t_rx
 
     def _sample(self, sample, t_rx: float) -> None:
@@ -112,14 +111,14 @@ class LiveSession:
         if self._filter is None or self._filter.gyro != (header.gyro is not None):
             self._filter = AttitudeFilter(self.config, gyro=header.gyro is not None)
             self._event("info", f"filter: {'gyro (error-state EKF with bias)' if self._filter.gyro else 'two-vector'}"
-                                f"{'' if header.accel is not None else '; no accelerometer: no attitude'}", t_rx)
+                                f"{'' if header.accel is not None else '; no accelerometer: no attitude'}")
         field_h, in_range = self.model.field(sample.raw[None, :])
         field_h = field_h[0]
         t_s = sample.t_s if sample.t_s is not None else t_rx - self._t0
         est = self._filter.step(t_s, sample.accel, sample.gyro, field_h)
         if self._filter.events:
             for text in self._filter.drain_events():
-                self._event("warn", text, t_rx)
+                self._event("warn", text)
         if est is None:
             self.unsolved += 1
             return
@@ -140,7 +139,7 @@ class LiveSession:
             self.sink.log(t_s, self.samples, est, field_h / self.config.field_norm, sample.accel)
         self.output_latencies_s.append(time.perf_counter() - t_rx)
 
-    def _event(self, level: str, text: str, t_rx: float) -> None:
+    def _event(self, level: str, text: str) -> None:
         if self.on_event is not None:
             self.on_event(level, text)
         if self.sink is not None:

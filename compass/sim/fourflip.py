@@ -164,7 +164,7 @@ def simulate_fourflip(
 
     b_h = housing_field(physics, samples)
     if "field_gradient" in effects:
-        b_h = b_h + _gradient_field(physics, samples, rng, s)
+        b_h = b_h + _gradient_field(samples, rng, s)
         truth_effects.append({"name": "field_gradient", "parameters": {"modelled_by_estimators": False}})
     x = b_h @ directions.T
     if "nonlinear_response" in effects:
@@ -198,7 +198,7 @@ def simulate_fourflip(
     return SimulatedSession(samples, outputs, channels, metadata, truth)
 
 
-def _gradient_field(physics, samples, rng, scale) -> np.ndarray:
+def _gradient_field(samples, rng, scale) -> np.ndarray:
     """Field of a constant gradient, sampled at a sensor 5 cm off the turntable axis, in H."""
     g = rng.normal(size=(3, 3))
     g = g + g.T
