@@ -127,7 +127,7 @@ class LiveSession:
         if est.gate != self._gate:
             self._event("info" if est.mag_used else "warn",
                         "field used again" if est.mag_used else
-                        f"field rejected ({est.gate}): |B| ratio {est.field_ratio:.3f}, dip {est.dip_deg:.1f} deg", t_rx)
+                        f"field rejected ({est.gate}): |B| ratio {est.field_ratio:.3f}, dip {est.dip_deg:.1f} deg")
             self._gate = est.gate
         latency = time.perf_counter() - t_rx
         self.latencies_s.append(latency)

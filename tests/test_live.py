@@ -233,3 +233,19 @@ def test_format_line_round_trip_through_loop_url():
     session.feed(next(items))
     reader.close()
     assert session.decoder.stats.samples == 1 and session.decoder.header.checksummed
+
+
+def test_session_reports_the_magnet_gate_closing_and_opening():
+    """The scripted magnet (22.5 to 31 s) closes the field gate and the session says so, then reopens it."""
+    model = default_model()
+    device = PtyDevice(model, rate_hz=100.0)
+    lines = device._lines(simulate_device(model, np.arange(2000, 3400) / 100.0, seed=1), 0)
+    stream = device._header + b"".join(lines)
+    events = []
+    session = LiveSession(model, on_event=lambda level, text: events.append((level, text)))
+    for k in range(0, len(stream), 700):
+        session.feed(Chunk(time.perf_counter(), stream[k:k + 700]))
+    session.close()
+    gate = [e for e in events if e[1].startswith("field ")]
+    assert gate[0][0] == "warn" and gate[0][1].startswith("field rejected")
+    assert ("info", "field used again") in gate
