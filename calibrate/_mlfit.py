@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
+from compass.frames import direction_sigma_deg as _direction_sigma_deg
 from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, channel_outputs, housing_field
 
 from .effects import Effect
@@ -100,7 +101,7 @@ class MLFit:
 
     def direction_sigma_deg(self) -> np.ndarray:
         """RMS angular uncertainty of each direction, degrees, shape (c,)."""
-        return np.degrees(np.sqrt(np.trace(self.direction_covariance, axis1=1, axis2=2)))
+        return _direction_sigma_deg(self.direction_covariance)
 
     def effect_parameters(self, effect: Effect) -> tuple[list, np.ndarray, np.ndarray]:
         """(names, values, sigmas) of one effect's block in reporting units."""

@@ -54,7 +54,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from compass.frames import seed_angles
+from compass.frames import direction_sigma_deg, seed_angles
 from compass.io.platform3d import Platform3DRecording
 from compass.sim.platform3d import predict, up_in_bench
 
@@ -201,7 +201,7 @@ class Platform3DResult:
             cov = self.mag_direction_covariance[c]
             channels[name] = {
                 "direction": direction.tolist(),
-                "direction_sigma_deg": float(np.degrees(np.sqrt(np.trace(cov)))),
+                "direction_sigma_deg": float(direction_sigma_deg(cov)),
                 **{k: float(v) for k, v in seed_angles(direction).items()},
                 "direction_covariance": cov.tolist(),
                 "response": {"model": "linear", "offset": float(self.mag_offset[c]), "gain": gain,

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import lstsq
 
-from compass.frames import seed_angles
+from compass.frames import direction_sigma_deg, seed_angles
 from compass.io.reference import ReferenceRecording
 
 from .platform3d import axis_geometry
@@ -149,7 +149,7 @@ class ReferenceResult:
                          "response": {"model": "linear", "offset": float(s.offset[c]), "gain": float(s.scale[c])}}
                 if s.direction_covariance is not None:
                     entry["direction_covariance"] = s.direction_covariance[c].tolist()
-                    entry["direction_sigma_deg"] = float(np.degrees(np.sqrt(np.trace(s.direction_covariance[c]))))
+                    entry["direction_sigma_deg"] = float(direction_sigma_deg(s.direction_covariance[c]))
                     entry["response_sigma"] = {"offset": float(s.offset_sigma[c]), "gain": float(s.scale_sigma[c])}
                 channels[name] = entry
                 noise.append(float(s.residual_rms[c]))

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from compass.frames import direction_sigma_deg as _direction_sigma_deg
 from compass.frames import seed_angles
 from compass.response import Response
 
@@ -42,7 +43,7 @@ class ChannelCalibration:
     def direction_sigma_deg(self) -> float | None:
         if self.direction_covariance is None:
             return None
-        return float(np.degrees(np.sqrt(np.trace(self.direction_covariance))))
+        return float(_direction_sigma_deg(self.direction_covariance))
 
     @property
     def angles_deg(self) -> dict[str, float]:

@@ -17,6 +17,7 @@ __all__ = [
     "bench_rotation",
     "field_in_bench",
     "seed_angles",
+    "direction_sigma_deg",
     "unit_from_seed_angles",
     "r_world_from_housing",
     "heading_pitch_roll",
@@ -77,6 +78,22 @@ def seed_angles(direction) -> dict[str, np.ndarray]:
         "elevation_deg": np.degrees(np.arctan2(z, np.hypot(x, y))),
         "psi_deg": np.degrees(np.arctan2(y, np.hypot(x, z))),
     }
+
+
+def direction_sigma_deg(covariance) -> np.ndarray:
+    """RMS angular uncertainty of unit vectors, degrees: the ``direction_sigma_deg`` of SPEC section 2.
+
+    Parameters
+    ----------
+    covariance : array_like, shape (..., 3, 3)
+        Covariance of each unit vector's components (rank 2: nothing along the vector).
+
+    Returns
+    -------
+    ndarray, shape (...)
+        ``sqrt(trace(covariance))`` in degrees.
+    """
+    return np.degrees(np.sqrt(np.trace(np.asarray(covariance, dtype=float), axis1=-2, axis2=-1)))
 
 
 def unit_from_seed_angles(theta_deg, elevation_deg) -> np.ndarray:
