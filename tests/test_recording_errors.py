@@ -124,3 +124,17 @@ def test_failed_write_is_output_error_and_keeps_old_file(tmp_path, monkeypatch):
         atomic.atomic_write_text(out, "new")
     assert out.read_text() == "precious"
     assert [p.name for p in tmp_path.iterdir()] == ["cal.json"]
+
+
+@pytest.mark.parametrize("header, row", [("t_s,mx,my,mz", "{t},1,2,3"),
+                                         ("t_s,platform_z_deg,platform_y_deg,platform_x_deg,mx,my,mz,ax,ay",
+                                          "{t},0,0,0,1,2,3,0,0")])
+def test_time_going_back_names_its_row(tmp_path, header, row):
+    from compass.io.platform3d import platform3d_from_table
+    from compass.io.table import read_table
+    from compass.io.tumble import tumble_from_table
+
+    parse = tumble_from_table if header.endswith("mz") else platform3d_from_table
+    p = _write(tmp_path, [header] + [row.format(t=t) for t in (0, 1, 2, 1.5, 3)])
+    with pytest.raises(RecordingError, match=r"row 5, column 't_s': t_s must not decrease \(goes from 2.0 to 1.5\)"):
+        parse(read_table(p))

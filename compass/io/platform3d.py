@@ -109,12 +109,7 @@ def platform3d_from_table(table: Table) -> Platform3DRecording:
     mag = np.column_stack([table.column(c) for c in MAG_COLUMNS])
     tilt_columns = ("ax", "ay", "az") if table.has("az") else ("ax", "ay")
     tilt = np.column_stack([table.column(c) for c in tilt_columns])
-    t_s = table.column("t_s") if table.has("t_s") else None
-    if t_s is not None:
-        back = np.flatnonzero(np.diff(t_s) < 0)
-        if back.size:
-            raise RecordingError(table.path, f"t_s must not decrease (goes from {t_s[back[0]]} to {t_s[back[0] + 1]})",
-                                 row=int(table.rows[back[0] + 1]), column="t_s")
+    t_s = table.time_s()
     _, pose = np.unique(np.round(angles, 6), axis=0, return_inverse=True)
     pose = pose.ravel()
     if pose.max() + 1 < MIN_POSES:

@@ -74,6 +74,17 @@ class Table:
             )
         return self.data[:, self.columns.index(name)]
 
+    def time_s(self) -> np.ndarray | None:
+        """The optional ``t_s`` column, None when absent; RecordingError at the first step back in time."""
+        if not self.has("t_s"):
+            return None
+        t_s = self.column("t_s")
+        back = np.flatnonzero(np.diff(t_s) < 0)
+        if back.size:
+            raise RecordingError(self.path, f"t_s must not decrease (goes from {t_s[back[0]]} to {t_s[back[0] + 1]})",
+                                 row=int(self.rows[back[0] + 1]), column="t_s")
+        return t_s
+
     @property
     def header_row(self) -> int:
         return int(self.rows[0]) - 1 if len(self.rows) else 1

@@ -72,12 +72,7 @@ def tumble_from_table(table: Table) -> TumbleRecording:
         raise RecordingError(table.path, f"accelerometer needs ax, ay and az; missing {', '.join(missing)}",
                              row=table.header_row, column=missing[0])
     accel = np.column_stack([table.column(c) for c in ACCEL_COLUMNS]) if present else None
-    t_s = table.column("t_s") if table.has("t_s") else None
-    if t_s is not None:
-        back = np.flatnonzero(np.diff(t_s) < 0)
-        if back.size:
-            raise RecordingError(table.path, f"t_s must not decrease (goes from {t_s[back[0]]} to {t_s[back[0] + 1]})",
-                                 row=int(table.rows[back[0] + 1]), column="t_s")
+    t_s = table.time_s()
     temp_c = table.column("temp_c") if table.has("temp_c") else None
 
     keep = np.ones(len(mag), dtype=bool)
