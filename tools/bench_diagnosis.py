@@ -71,7 +71,6 @@ import numpy as np  # noqa: E402
 from calibrate import calibrate_fourflip  # noqa: E402
 from calibrate._mlfit import _Layout  # noqa: E402
 from calibrate.effects import EFFECTS  # noqa: E402
-from compass.io.fourflip import FourFlipRecording  # noqa: E402
 from compass.sim.bench import BenchPhysics, bench_outputs  # noqa: E402
 from compass.sim.fourflip import SIM_EFFECTS, simulate_fourflip  # noqa: E402
 
@@ -106,34 +105,6 @@ def _alarm(signum, frame):
     raise _TimeLimit
 
 
-def recording_from_session(session) -> FourFlipRecording:
-    """The in-memory recording a CSV of this session would read back as."""
-    s = session.samples
-    return FourFlipRecording(
-        flip_deg=s.flip_deg,
-        flip_index=s.flip_index,
-        platform_deg=s.platform_deg,
-        outputs=session.outputs,
-        channels=session.channels,
-        t_s=s.t_s,
-        temp_c=s.temp_c,
-        accel=None,
-        metadata=dict(session.metadata),
-    )
-
-
-def true_physics(truth: dict) -> BenchPhysics:
-    """The base-model parameters the simulator used (effects left out)."""
-    return BenchPhysics(
-        directions=np.asarray(truth["directions"]),
-        offsets=np.asarray(truth["offsets"]),
-        gains=np.asarray(truth["gains_per_ut"]),
-        dip_deg=float(truth["dip_deg"]),
-        azimuth_deg=float(truth["azimuth_deg"]),
-        field_magnitude=float(truth["field_ut"]),
-    )
-
-
 def cramer_rao_deg(session, effects=()) -> np.ndarray:
     """CRB of each channel's direction angle, degrees, shape (c,).
 
@@ -145,7 +116,7 @@ def cramer_rao_deg(session, effects=()) -> np.ndarray:
     left out by a pseudo-inverse; the directions are never among them.
     """
     truth = session.truth
-    layout = _Layout(true_physics(truth), tuple(effects), session.samples, session.channels)
+    layout = _Layout(session.base_physics(), tuple(effects), session.samples, session.channels)
     x0 = layout.x0()
     weights = 1.0 / np.asarray(truth["noise"])
     jac = np.empty((session.outputs.size, x0.size))
@@ -181,7 +152,7 @@ def run_one(task) -> dict:
     case, seed, scale, time_limit = task
     effects = () if case == "clean" else (case,)
     session = simulate_fourflip(seed=seed, effects=effects, effect_scale=scale)
-    rec = recording_from_session(session)
+    rec = session.recording()
     truth_dirs = np.asarray(session.truth["directions"])
     out = {"case": case, "seed": seed}
     if case == "clean":

@@ -59,8 +59,7 @@ import numpy as np
 
 from calibrate import calibrate_fourflip
 from calibrate._mlfit import _BASE_PER_CHANNEL, _Layout
-from compass.io.fourflip import FourFlipRecording
-from compass.sim.bench import BenchPhysics, bench_outputs
+from compass.sim.bench import bench_outputs
 from compass.sim.fourflip import simulate_fourflip
 
 METHODS = ("patent", "harmonic", "ml")
@@ -75,33 +74,6 @@ TARGET_TIME_S = 0.5
 TARGET_KIND_RATIO = 1.15  # "Y and Z as good as X": Y and Z no worse than this times X
 
 
-def recording_from_session(session) -> FourFlipRecording:
-    """The in-memory recording a CSV of this session would read back as."""
-    s = session.samples
-    return FourFlipRecording(
-        flip_deg=s.flip_deg,
-        flip_index=s.flip_index,
-        platform_deg=s.platform_deg,
-        outputs=session.outputs,
-        channels=session.channels,
-        t_s=s.t_s,
-        temp_c=s.temp_c,
-        accel=None,
-        metadata=dict(session.metadata),
-    )
-
-
-def true_physics(truth: dict) -> BenchPhysics:
-    return BenchPhysics(
-        directions=np.asarray(truth["directions"]),
-        offsets=np.asarray(truth["offsets"]),
-        gains=np.asarray(truth["gains_per_ut"]),
-        dip_deg=float(truth["dip_deg"]),
-        azimuth_deg=float(truth["azimuth_deg"]),
-        field_magnitude=float(truth["field_ut"]),
-    )
-
-
 def cramer_rao(session) -> tuple[np.ndarray, float]:
     """CRB of each channel's direction angle and of the dip, degrees.
 
@@ -109,7 +81,7 @@ def cramer_rao(session) -> tuple[np.ndarray, float]:
     noise, by central differences of the forward model in the fit's own parameterisation.
     """
     truth = session.truth
-    layout = _Layout(true_physics(truth), (), session.samples, session.channels)
+    layout = _Layout(session.base_physics(), (), session.samples, session.channels)
     x0 = layout.x0()
     weights = 1.0 / np.asarray(truth["noise"])
     jac = np.empty((session.outputs.size, x0.size))
@@ -154,7 +126,7 @@ def run(n: int, seed: int, noise_ut: float) -> dict:
     t_start = time.perf_counter()
     for i in range(n):
         session = simulate_fourflip(seed=seed + i, n_channels=3, noise_ut=noise_ut, step_deg=1.0)
-        rec = recording_from_session(session)
+        rec = session.recording()
         truth_dirs = np.asarray(session.truth["directions"])
         crb[i], crb_dip[i] = cramer_rao(session)
         dip_true[i] = session.truth["dip_deg"]

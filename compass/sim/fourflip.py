@@ -16,6 +16,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..frames import bench_rotation
+from ..io.fourflip import FourFlipRecording
 from ._files import csv_text, write_with_truth
 from .bench import BenchPhysics, BenchSamples, channel_outputs, housing_field
 
@@ -51,6 +52,18 @@ class SimulatedSession:
     channels: tuple[str, ...]
     metadata: dict
     truth: dict
+
+    def recording(self) -> FourFlipRecording:
+        """The in-memory recording a CSV of this session reads back as."""
+        s = self.samples
+        return FourFlipRecording(s.flip_deg, s.flip_index, s.platform_deg, self.outputs, self.channels,
+                                 s.t_s, s.temp_c, None, dict(self.metadata))
+
+    def base_physics(self) -> BenchPhysics:
+        """The truth's base-model parameters (effects left out), gains per microtesla."""
+        t = self.truth
+        return BenchPhysics(np.asarray(t["directions"]), np.asarray(t["offsets"]), np.asarray(t["gains_per_ut"]),
+                            float(t["dip_deg"]), float(t["azimuth_deg"]), float(t["field_ut"]))
 
 
 def _nominal_directions(n_channels: int, rng: np.random.Generator, misalign_deg: float) -> np.ndarray:
