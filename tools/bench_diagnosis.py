@@ -71,7 +71,7 @@ import numpy as np  # noqa: E402
 from calibrate import calibrate_fourflip  # noqa: E402
 from calibrate._mlfit import _Layout  # noqa: E402
 from calibrate.effects import EFFECTS  # noqa: E402
-from compass.sim.bench import BenchPhysics, bench_outputs  # noqa: E402
+from compass.sim.bench import bench_outputs  # noqa: E402
 from compass.sim.fourflip import SIM_EFFECTS, simulate_fourflip  # noqa: E402
 
 UNMODELLED = "field_gradient"
