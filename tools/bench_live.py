@@ -32,10 +32,12 @@ from pathlib import Path
 
 import numpy as np
 
+from compass.attitude import solve_attitude
+from compass.filter import FilterConfig, run_filter
 from compass.live import LiveSession
 from compass.model import SensorModel
 from compass.serial_reader import Chunk, LinkEvent, SerialReader
-from compass.sim.device import PtyDevice, simulate_device
+from compass.sim.device import PtyDevice, default_model, simulate_device
 
 
 def run_port(rate_hz: float, duration_s: float, rerun: bool, folder: Path) -> dict:
@@ -103,6 +105,22 @@ def capacity(rerun: bool, folder: Path, n: int = 20000) -> float:
     return session.samples / (time.perf_counter() - t0)
 
 
+def static_noise(seed: int = 5, rate_hz: float = 100.0, duration_s: float = 30.0) -> dict:
+    """Heading standard deviation of a still module: two-vector solution vs the filter (with and
+    without gyro), after 5 s of settling; degrees."""
+    model = default_model()
+    t = np.arange(0.0, duration_s, 1.0 / rate_hz)
+    still = lambda t: (np.full(len(t), 123.0), np.full(len(t), 10.0), np.full(len(t), -5.0), np.zeros(len(t)))  # noqa: E731
+    s = simulate_device(model, t, seed=seed, motion=still)
+    field, _ = model.field(s.raw)
+    settled = t > 5.0
+    out = {"two-vector": np.std(solve_attitude(model, s.raw, accel=s.accel).heading_deg[settled])}
+    for name, gyro in (("filter, gyro", s.gyro), ("filter, no gyro", None)):
+        track = run_filter(t, s.accel, gyro, field, FilterConfig.from_model(model))
+        out[name] = np.std(track.heading_deg[settled])
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="shorter runs, smaller sweep")
@@ -129,6 +147,11 @@ def main() -> None:
                     break
                 best = rate
             print(f"| {'file' if rerun else 'off'} | {'; '.join(cells)} | {f'>= {best} Hz' if best else '< ' + str(sweep[0]) + ' Hz'} |")
+        noise = static_noise()
+        print("\n| still module, 100 Hz, 25 s | heading std | below the two-vector solution |")
+        print("|---|---|---|")
+        for name, std in noise.items():
+            print(f"| {name} | {std:.4f} deg | {noise['two-vector'] / std:.1f}x |")
         print("\n| Rerun | processing capacity from memory |")
         print("|---|---|")
         for rerun in (False, True):
