@@ -72,26 +72,30 @@ class Effect:
 
 @dataclass(frozen=True)
 class NonlinearResponse(Effect):
-    """Odd polynomial response per channel: ``x + c3 x^3`` (order 3) or ``+ c5 x^5`` (order 5)."""
+    """Polynomial response per channel: ``x + sum_k c_k x^k`` over ``powers`` (2, 3 and/or 5).
 
-    order: int = 3
+    Odd powers are the usual saturation; an even power makes the response asymmetric (a
+    sensor whose gain differs for fields along and against its axis).
+    """
+
+    powers: tuple = (3,)
 
     @property
     def label(self):
-        return f"{self.name} (order {self.order})"
+        return f"{self.name} (powers {', '.join(map(str, self.powers))})"
 
     def n_params(self, c):
-        return c * (self.order - 1) // 2
+        return c * len(self.powers)
 
     def param_names(self, channels):
-        powers = range(3, self.order + 1, 2)
-        return [f"{ch}.x{p}_rel_at_B" for ch in channels for p in powers]
+        return [f"{ch}.x{k}_rel_at_B" for ch in channels for k in self.powers]
 
     def apply(self, physics, p, samples):
         # parameters: relative output change at |B| of each power, scale-free
         b = physics.field_magnitude
-        p = p.reshape(len(physics.gains), -1)
-        return physics.with_(cubic=p[:, 0] / b**2, quintic=p[:, 1] / b**4 if self.order >= 5 else None)
+        p = p.reshape(len(physics.gains), len(self.powers))
+        coef = {k: p[:, i] / b ** (k - 1) for i, k in enumerate(self.powers)}
+        return physics.with_(quadratic=coef.get(2), cubic=coef.get(3), quintic=coef.get(5))
 
 
 class EncoderError(Effect):
@@ -237,11 +241,12 @@ class Temperature(Effect):
         return np.tile([1.0, 0.01], len(physics.gains))
 
 
-_NONLINEAR = "curves flattened or sharpened toward their extremes (odd harmonics growing with B.a): a curved response"
+_NONLINEAR = "curves flattened, sharpened or made asymmetric toward their extremes (harmonics growing with B.a): a curved response"
 _DRIFT = "a slow trend in time in each channel's offset"
 VARIANTS: dict[str, tuple[Effect, ...]] = {
-    "nonlinear_response": (NonlinearResponse("nonlinear_response", _NONLINEAR + " (odd cubic)", order=3),
-                           NonlinearResponse("nonlinear_response", _NONLINEAR + " (odd cubic and quintic)", order=5)),
+    "nonlinear_response": (NonlinearResponse("nonlinear_response", _NONLINEAR + " (odd cubic)", powers=(3,)),
+                           NonlinearResponse("nonlinear_response", _NONLINEAR + " (quadratic and cubic)", powers=(2, 3)),
+                           NonlinearResponse("nonlinear_response", _NONLINEAR + " (odd cubic and quintic)", powers=(3, 5))),
     "encoder_error": (EncoderError(
         "encoder_error",
         f"harmonics of the turntable angle shared by every channel and flip (encoder error, harmonics 1..{ENCODER_HARMONICS})"),),

@@ -176,10 +176,10 @@ def _field_range(fit: MLFit) -> np.ndarray:
 
 
 def _response_from_physics(phys: BenchPhysics, c: int, x_range) -> LinearResponse | CubicResponse:
-    if phys.cubic is not None:
-        quintic = float(phys.quintic[c]) if phys.quintic is not None else 0.0
-        return CubicResponse(float(phys.offsets[c]), float(phys.gains[c]), tuple(x_range),
-                             cubic=float(phys.cubic[c]), quintic=quintic)
+    terms = {k: float(v[c]) for k, v in (("quadratic", phys.quadratic), ("cubic", phys.cubic),
+                                         ("quintic", phys.quintic)) if v is not None}
+    if terms:
+        return CubicResponse(float(phys.offsets[c]), float(phys.gains[c]), tuple(x_range), **terms)
     return LinearResponse(float(phys.offsets[c]), float(phys.gains[c]), tuple(x_range))
 
 

@@ -107,22 +107,25 @@ class _MonotoneResponse(Response):
 
 @dataclass(frozen=True)
 class CubicResponse(_MonotoneResponse):
-    """Odd polynomial: ``v = offset + gain * (x + cubic * x**3 + quintic * x**5)``.
+    """Polynomial: ``v = offset + gain * (x + quadratic * x**2 + cubic * x**3 + quintic * x**5)``.
 
-    ``cubic`` in 1/field-unit^2, ``quintic`` in 1/field-unit^4 (zero for a pure cubic).
+    ``quadratic`` in 1/field-unit, ``cubic`` in 1/field-unit^2, ``quintic`` in 1/field-unit^4
+    (zero when absent: a pure odd cubic is the common case, hence the model's name).
     """
 
     cubic: float = 0.0
     quintic: float = 0.0
+    quadratic: float = 0.0
     model = "cubic"
 
     def shape(self, x):
-        return x + self.cubic * x**3 + self.quintic * x**5
+        return x + self.quadratic * x**2 + self.cubic * x**3 + self.quintic * x**5
 
     def _extra_json(self):
         out = {"cubic": float(self.cubic)}
-        if self.quintic:
-            out["quintic"] = float(self.quintic)
+        for key in ("quadratic", "quintic"):
+            if getattr(self, key):
+                out[key] = float(getattr(self, key))
         return out
 
 
@@ -166,7 +169,7 @@ def response_from_json(d: dict, where: str = "response") -> Response:
         return LinearResponse(offset, gain, x_range)
     if model == "cubic":
         return CubicResponse(offset, gain, x_range, cubic=float(d.get("cubic", 0.0)),
-                             quintic=float(d.get("quintic", 0.0)))
+                             quintic=float(d.get("quintic", 0.0)), quadratic=float(d.get("quadratic", 0.0)))
     if model == "table":
         x, v = np.asarray(d["x"], float), np.asarray(d["v"], float)
         return TableResponse(offset, gain, x_range, x_table=tuple(x), v_table=tuple(v))

@@ -83,3 +83,32 @@ def test_noise_floor_with_coarse_steps(write_session, step_deg):
     n = rec.n_samples
     # relative standard error of a MAD scale of ~n second differences: about 1.1 * sqrt(3 / n)
     np.testing.assert_allclose(floor, truth["noise"], rtol=4 * 1.1 * np.sqrt(3.0 / n) + 0.02)
+
+
+def test_asymmetric_response_found_and_inverted_at_runtime(tmp_path):
+    """An even (asymmetric) response term, injected outside the simulator: found, and the runtime
+    model inverts it back to the true field component."""
+    from compass.model import SensorModel
+    from compass.sim.bench import housing_field
+    from compass.sim.fourflip import simulate_fourflip
+
+    session = simulate_fourflip(seed=208)
+    truth = session.base_physics()
+    x = housing_field(truth, session.samples) @ truth.directions.T  # uT along each channel
+    c2 = np.array([2e-4, -1.5e-4, 1e-4])  # 1 % (0.75 %, 0.5 %) output change at 50 uT
+    rec = session.recording()
+    rec = type(rec)(**{**rec.__dict__, "outputs": rec.outputs + truth.gains * c2 * x**2})
+    result = calibrate_fourflip(rec, diagnose=True)
+    assert result.diagnosis["effects"] == ["nonlinear_response"] and not result.diagnosis["unexplained"]
+    sigma = np.array([c.direction_sigma_deg for c in result.channels])
+    assert np.all(angle_deg(result.directions, truth.directions) < 3 * sigma)
+    model = SensorModel.from_json(result.to_json())
+    probe = np.array([[-40.0, 0.0, 40.0]]).T * np.ones(3)  # field components, uT
+    raw = truth.offsets + truth.gains * (probe + c2 * probe**2)
+    recovered = np.column_stack([ch.response.field_component(raw[:, i])[0] for i, ch in enumerate(result.channels)])
+    # tolerance from the fitted curve's own sigmas: relative x^k terms at |B| = 50 uT, evaluated at 40 uT
+    params = result.effects[0]["parameters"]
+    tol = [4 * 50 * np.hypot(params[f"{ch}.x2_rel_at_B"]["sigma"] * 0.8**2, params[f"{ch}.x3_rel_at_B"]["sigma"] * 0.8**3)
+           for ch in session.channels]
+    assert np.all(np.abs(recovered - probe) < np.array(tol)[None, :] + 0.02)
+    assert model.channels == tuple(truth_name for truth_name in session.channels)

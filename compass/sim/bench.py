@@ -12,13 +12,13 @@ Model, per sample i and channel c (SPEC section 1):
     B_{H,i} = R_x(\\kappa_i^{true})^T \\left( R_z(\\phi_i^{true})^T B_W + b_p \\right)
 
     x_{ic} = B_{H,i} \\cdot a_c, \\qquad
-    v_{ic} = V_{0c}(t_i, T_i) + K_c(T_i) \\, (x_{ic} + c_{3c} x_{ic}^3 + c_{5c} x_{ic}^5)
+    v_{ic} = V_{0c}(t_i, T_i) + K_c(T_i) \\, (x_{ic} + c_{2c} x_{ic}^2 + c_{3c} x_{ic}^3 + c_{5c} x_{ic}^5)
 
 with ``e`` the encoder error (Fourier series in the reading), ``E_k`` the small rotation by
 which the cube in flip k sits off its nominal pose (faces not square; identity for flip 0, which
 defines the housing frame),
 ``b_p`` a field fixed to the turntable (in its frame), ``V0`` drifting with time and temperature,
-``K`` depending on temperature and ``c3``, ``c5`` an odd polynomial non-linearity.
+``K`` depending on temperature and ``c2``, ``c3``, ``c5`` a polynomial non-linearity.
 """
 
 from __future__ import annotations
@@ -83,9 +83,9 @@ class BenchPhysics:
         Field dip (> 0 down) and azimuth delta from the turntable zero.
     field_magnitude : float
         |B| in field units (uT when known, else 1).
-    cubic, quintic : ndarray, shape (c,), optional
-        Odd polynomial coefficients c3 (1 / field unit^2) and c5 (1 / field unit^4)
-        (``nonlinear_response``).
+    quadratic, cubic, quintic : ndarray, shape (c,), optional
+        Polynomial coefficients c2 (1 / field unit), c3 (1 / field unit^2) and c5
+        (1 / field unit^4) of the response (``nonlinear_response``).
     encoder_fourier : ndarray, shape (m, 2), optional
         Encoder error ``e(phi) = sum_k A_k cos(k phi) + B_k sin(k phi)``, degrees, k = 1..m.
     flip_rotvec_deg : ndarray, shape (4, 3), optional
@@ -112,6 +112,7 @@ class BenchPhysics:
     dip_deg: float
     azimuth_deg: float
     field_magnitude: float = 1.0
+    quadratic: np.ndarray | None = None
     cubic: np.ndarray | None = None
     quintic: np.ndarray | None = None
     encoder_fourier: np.ndarray | None = None
@@ -170,13 +171,9 @@ def channel_outputs(physics: BenchPhysics, samples: BenchSamples, x: np.ndarray)
 
     Applies the response (cubic), offset drift and temperature; ``x`` in field units.
     """
-    if physics.cubic is not None or physics.quintic is not None:
-        shaped = x.copy()
-        if physics.cubic is not None:
-            shaped += physics.cubic[None, :] * x**3
-        if physics.quintic is not None:
-            shaped += physics.quintic[None, :] * x**5
-        x = shaped
+    terms = [(k, c) for k, c in ((2, physics.quadratic), (3, physics.cubic), (5, physics.quintic)) if c is not None]
+    if terms:
+        x = x + sum(c[None, :] * x**k for k, c in terms)
     gains = np.broadcast_to(physics.gains[None, :], x.shape)
     offsets = np.broadcast_to(physics.offsets[None, :], x.shape)
     if physics.drift is not None and samples.t_s is not None:
