@@ -124,6 +124,12 @@ def real(name, m, a, notes=True):
     m, a = drop_repeats(m, a)
     res = calibrate_tumble(m, a)
     raw = metrics(m, a)
+    if res.refused:
+        print(f"\n{name}: {len(m)} samples after dropping repeats; refused (nothing written): {res.refused}")
+        row("", ["raw"])
+        row("|B| CV, %", [fmt(raw[0])])
+        row("field-gravity angle std, deg", [fmt(raw[1])])
+        return raw, None
     mc = res.calibrated(m)
     ours = metrics(mc if res.misalignment is None or res.misalignment.rotation is None
                    else res.misalignment.rotation.apply(mc), a)
