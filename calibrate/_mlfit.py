@@ -23,7 +23,7 @@ from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, channel
 
 from .effects import Effect
 
-__all__ = ["MLFit", "fit_ml", "score_effect", "tangent_basis"]
+__all__ = ["MLFit", "fit_ml", "linear_score", "score_effect", "tangent_basis", "unit_columns"]
 
 _BASE_PER_CHANNEL = 4  # u, v, offset, log gain
 _SINGULAR_RCOND = 1e-7
@@ -320,19 +320,37 @@ def score_effect(fit: MLFit, outputs: np.ndarray, noise: np.ndarray, effect: Eff
     def residual(p):
         return ((outputs - predict(extended.physics(p))) * weights).ravel()
 
-    j_b = np.nan_to_num(fit.jac)
-    j_b = j_b / np.where(np.any(j_b, axis=0), np.linalg.norm(j_b, axis=0), 1.0)  # unit columns
+    j_b = unit_columns(np.nan_to_num(fit.jac))
     best = (-np.inf, None)
     for shape in effect.score_starts(layout.c):
         x = np.concatenate([fit.x, shape])
-        drop, delta = _linear_score(residual, x, fit.x.size, j_b, step)
+        drop, delta = linear_score(residual, x, fit.x.size, j_b, step)
         if drop > best[0]:
             best = (drop, shape + delta)
     return best
 
 
-def _linear_score(residual, x, n_fitted: int, j_b: np.ndarray, step: float) -> tuple[float, np.ndarray]:
-    """First-order chi-square drop and parameter step of the block ``x[n_fitted:]``."""
+def unit_columns(jac: np.ndarray) -> np.ndarray:
+    """The Jacobian with every non-zero column scaled to unit norm."""
+    return jac / np.where(np.any(jac, axis=0), np.linalg.norm(jac, axis=0), 1.0)
+
+
+def linear_score(residual, x, n_fitted: int, j_b: np.ndarray, step: float = 1e-6) -> tuple[float, np.ndarray]:
+    """First-order chi-square drop and parameter step of the block ``x[n_fitted:]``.
+
+    Parameters
+    ----------
+    residual : callable
+        Weighted residuals of the extended model at a parameter vector.
+    x : ndarray
+        The fitted parameters followed by the candidate block at its score point.
+    n_fitted : int
+        Length of the fitted part.
+    j_b : ndarray, shape (n_residuals, n_fitted)
+        The current fit's Jacobian with unit columns.
+    step : float
+        Finite-difference step of the block's parameters.
+    """
     r0 = residual(x)
     q = x.size - n_fitted
     j_e = np.empty((r0.size, q))

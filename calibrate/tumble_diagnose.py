@@ -55,6 +55,7 @@ from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_dist
 from scipy.stats import median_abs_deviation
 
+from ._mlfit import linear_score, unit_columns
 from .diagnose import DECISIVE_BIC, FLOOR_MARGIN, MAX_REFITS, MAX_STEPS, MIN_SHARE, REFIT_FRACTION, STRUCTURE_P
 from .tumble import (KindFit, Misalignment, _covariance, _propagate, _shape, _sym_sqrt, field_gravity_angles,
                      static_mask)
@@ -74,7 +75,6 @@ UNEXPLAINED_WARNING = ("structure remains in |m| - F above the noise floor that 
                        "(a field that changed during the recording, a disturbance, an effect the toolkit does not "
                        "model): see the diagnosis; the uncertainties are then optimistic")
 _FD_STEP = 1e-6
-_SINGULAR_RCOND = 1e-7
 
 
 @dataclass(frozen=True)
@@ -330,27 +330,13 @@ class _Model:
         Gauss-Newton step from the score point.
         """
         effects = fit.effects + (effect,)
-        j_b = fit.jac / np.where(np.any(fit.jac, axis=0), np.linalg.norm(fit.jac, axis=0), 1.0)
+        j_b = unit_columns(fit.jac)
         best = (-np.inf, effect.score_points()[0])
         for q0 in effect.score_points():
-            x = np.concatenate([fit.x, q0])
-            r0 = self.weighted(x, effects)
-            j_e = np.empty((r0.size, q0.size))
-            for i in range(q0.size):
-                xp = x.copy()
-                xp[fit.x.size + i] += _FD_STEP
-                j_e[:, i] = (self.weighted(xp, effects) - r0) / _FD_STEP
-            absorbed, *_ = np.linalg.lstsq(j_b.T @ j_b, j_b.T @ j_e, rcond=_SINGULAR_RCOND**2)
-            j_t = j_e - j_b @ absorbed
-            scale = np.linalg.norm(j_t, axis=0)
-            scale[scale == 0] = 1.0
-            w, v = np.linalg.eigh((j_t / scale).T @ (j_t / scale))
-            keep = w > _SINGULAR_RCOND**2 * max(w.max(), 1e-300)
-            projected = (j_t / scale).T @ r0
-            coef = (v[:, keep] / w[keep]) @ (v[:, keep].T @ projected)
-            drop = float(projected @ coef)
+            drop, delta = linear_score(lambda p: self.weighted(p, effects), np.concatenate([fit.x, q0]),
+                                       fit.x.size, j_b, _FD_STEP)
             if drop > best[0]:
-                best = (drop, q0 - coef / scale)
+                best = (drop, q0 + delta)
         return best
 
 
