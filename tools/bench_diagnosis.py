@@ -69,9 +69,8 @@ from collections import Counter  # noqa: E402
 import numpy as np  # noqa: E402
 
 from calibrate import calibrate_fourflip  # noqa: E402
-from calibrate._mlfit import _Layout  # noqa: E402
+from calibrate._mlfit import cramer_rao  # noqa: E402
 from calibrate.effects import EFFECTS  # noqa: E402
-from compass.sim.bench import bench_outputs  # noqa: E402
 from compass.sim.fourflip import SIM_EFFECTS, simulate_fourflip  # noqa: E402
 
 UNMODELLED = "field_gradient"
@@ -86,8 +85,6 @@ SHORT = {
     "temperature": "temp",
 }
 KINDS = ("X", "Y", "Z")
-_FD_STEP = 1e-6  # the model is smooth: central differences are exact to ~1e-10 here
-_PER_CHANNEL = 4  # u, v, offset, log gain (calibrate._mlfit layout)
 
 # targets of issue 3
 TARGET_DETECTION = 0.95
@@ -106,32 +103,12 @@ def _alarm(signum, frame):
 
 
 def cramer_rao_deg(session, effects=()) -> np.ndarray:
-    """CRB of each channel's direction angle, degrees, shape (c,).
+    """CRB of each channel's direction angle, degrees, shape (c,), at the truth with its noise.
 
-    Fisher information at the true base parameters with the true per-channel noise, by central
-    differences of the forward model in the fit's own parameterisation.  With ``effects`` (the
-    estimator's :data:`calibrate.effects.EFFECTS`), their parameters are unknowns too, taken at
-    zero: the bound of an estimator that must also fit the effect.  Parameter combinations the
-    data cannot determine at all (e.g. a constant field component absorbed by the offsets) are
-    left out by a pseudo-inverse; the directions are never among them.
+    With ``effects`` (the estimator's :data:`calibrate.effects.EFFECTS`), their parameters are
+    unknowns too, taken at zero: the bound of an estimator that must also fit the effect.
     """
-    truth = session.truth
-    layout = _Layout(session.base_physics(), tuple(effects), session.samples, session.channels)
-    x0 = layout.x0()
-    weights = 1.0 / np.asarray(truth["noise"])
-    jac = np.empty((session.outputs.size, x0.size))
-    for j in range(x0.size):
-        dx = np.zeros_like(x0)
-        dx[j] = _FD_STEP
-        plus = bench_outputs(layout.physics(x0 + dx), session.samples)
-        minus = bench_outputs(layout.physics(x0 - dx), session.samples)
-        jac[:, j] = ((plus - minus) * weights / (2 * _FD_STEP)).ravel()
-    scale = np.linalg.norm(jac, axis=0)
-    scale[scale == 0] = 1.0
-    js = jac / scale
-    cov = np.linalg.pinv(js.T @ js, rcond=1e-12, hermitian=True) / np.outer(scale, scale)
-    i = _PER_CHANNEL * np.arange(layout.c)
-    return np.degrees(np.sqrt(cov[i, i] + cov[i + 1, i + 1]))
+    return cramer_rao(session.base_physics(), session.samples, session.channels, session.truth["noise"], effects)[0]
 
 
 def offset_error_ut(result, truth: dict) -> np.ndarray:

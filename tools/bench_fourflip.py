@@ -58,13 +58,11 @@ import time
 import numpy as np
 
 from calibrate import calibrate_fourflip
-from calibrate._mlfit import _BASE_PER_CHANNEL, _Layout
-from compass.sim.bench import bench_outputs
+from calibrate._mlfit import cramer_rao as cramer_rao_bound
 from compass.sim.fourflip import simulate_fourflip
 
 METHODS = ("patent", "harmonic", "ml")
 KINDS = ("X", "Y", "Z")
-_FD_STEP = 1e-6  # fit units (radians, log gain, offset / gain): central differences, error O(step^2)
 
 # targets of issue 2
 TARGET_CRB = 1.15
@@ -75,28 +73,8 @@ TARGET_KIND_RATIO = 1.15  # "Y and Z as good as X": Y and Z no worse than this t
 
 
 def cramer_rao(session) -> tuple[np.ndarray, float]:
-    """CRB of each channel's direction angle and of the dip, degrees.
-
-    Fisher information of the base model at the true parameters with the true per-channel
-    noise, by central differences of the forward model in the fit's own parameterisation.
-    """
-    truth = session.truth
-    layout = _Layout(session.base_physics(), (), session.samples, session.channels)
-    x0 = layout.x0()
-    weights = 1.0 / np.asarray(truth["noise"])
-    jac = np.empty((session.outputs.size, x0.size))
-    for j in range(x0.size):
-        dx = np.zeros_like(x0)
-        dx[j] = _FD_STEP
-        plus = bench_outputs(layout.physics(x0 + dx), session.samples)
-        minus = bench_outputs(layout.physics(x0 - dx), session.samples)
-        jac[:, j] = ((plus - minus) * weights / (2 * _FD_STEP)).ravel()
-    cov = np.linalg.inv(jac.T @ jac)
-    c = layout.c
-    per = _BASE_PER_CHANNEL  # u, v, offset, log gain per channel, then dip, azimuth
-    direction = np.array([np.sqrt(cov[per * k, per * k] + cov[per * k + 1, per * k + 1]) for k in range(c)])
-    dip = np.sqrt(cov[per * c, per * c])
-    return np.degrees(direction), float(np.degrees(dip))
+    """CRB of each channel's direction angle and of the dip, degrees, at the truth with its noise."""
+    return cramer_rao_bound(session.base_physics(), session.samples, session.channels, session.truth["noise"])
 
 
 def angle_deg(a, b, *, axis: bool = False) -> np.ndarray:
