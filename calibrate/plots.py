@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-__all__ = ["plot_fit", "plot_residuals"]
+__all__ = ["plot_fit", "plot_residuals", "plot_tumble"]
 
 _FLIPS = ("flip 0", "flip 90", "flip 180", "flip 270")
 
@@ -77,6 +77,48 @@ def plot_residuals(rec, residual_sets: dict, path, noise=None) -> Path:
             ax.set_xlabel("t (s)")
     axes[0, 0].legend(loc="best", fontsize=7, markerscale=4)
     fig.suptitle("Residuals (grey band: noise floor +-1 sigma)", fontsize=10)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plot_tumble(mag: np.ndarray, result, path) -> Path:
+    """A tumble calibration for a person: where the field pointed, and |B| before and after.
+
+    Parameters
+    ----------
+    mag : ndarray, shape (n, 3)
+        Raw magnetometer samples the fit used (recording units).
+    result : calibrate.tumble.TumbleResult
+    """
+    calibrated = result.calibrated(mag)
+    norm = np.linalg.norm(calibrated, axis=1)
+    unit = calibrated / norm[:, None]
+    raw_norm = np.linalg.norm(mag - np.median(mag, axis=0), axis=1)
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    ax = axes[0]
+    ax.scatter(np.degrees(np.arctan2(unit[:, 1], unit[:, 0])), np.degrees(np.arcsin(np.clip(unit[:, 2], -1, 1))),
+               s=2, alpha=0.5)
+    ax.set_xlim(-180, 180)
+    ax.set_ylim(-90, 90)
+    ax.set_xlabel("azimuth of the field in the sensor frame (deg)")
+    ax.set_ylabel("elevation (deg)")
+    missing = result.coverage.missing
+    ax.set_title(f"coverage: {result.coverage.fraction:.0%} of the sphere"
+                 + (f"; never along {', '.join(missing)}" if missing else ""))
+    ax = axes[1]
+    ax.plot(raw_norm / np.median(raw_norm), ".", ms=1.5, color="0.6", label="raw (about its median)")
+    ax.plot(norm / np.median(norm), ".", ms=1.5, color="C0", label=f"calibrated ({result.kind})")
+    ax.set_xlabel("sample")
+    ax.set_ylabel("|B| / median")
+    ax.legend(loc="best", fontsize=7, markerscale=5)
+    ax.set_title("field magnitude, before and after")
+    ax = axes[2]
+    for j, name in enumerate("xyz"):
+        ax.plot(mag[:, j], calibrated[:, j], ".", ms=1, label=name)
+    ax.set_xlabel("raw (recording units)")
+    ax.set_ylabel("calibrated")
+    ax.legend(loc="best", fontsize=7, markerscale=5)
+    ax.set_title("per axis: raw against calibrated")
     fig.tight_layout()
     return _save(fig, path)
 

@@ -67,8 +67,7 @@ def test_calibrate_refuses_options_its_kind_would_ignore(tmp_path, capsys):
     tumble = tmp_path / "tumble.csv"
     write_tumble(simulate_tumble(seed=1, n=300), tumble)
     cal = tmp_path / "cal.json"
-    for extra, named in ((["--method", "patent"], "--method"), (["--report", str(tmp_path / "rep")], "--report"),
-                         (["--no-diagnose"], "--no-diagnose")):
+    for extra, named in ((["--method", "patent"], "--method"), (["--no-diagnose"], "--no-diagnose")):
         assert main(["calibrate", str(tumble), "--out", str(cal), "--quiet", *extra]) == 2
         assert f"tumble recording does not use {named}" in capsys.readouterr().err
     rec = tmp_path / "rec.csv"
@@ -85,3 +84,13 @@ def test_simulate_rejects_impossible_settings(tmp_path, capsys):
         assert main(["simulate", "fourflip", "--out", str(rec), option, value]) == 2
         assert option in capsys.readouterr().err
     assert not rec.exists()
+
+
+def test_tumble_report_plot(tmp_path):
+    from compass.sim.tumble import simulate_tumble, write_tumble
+
+    tumble = tmp_path / "tumble.csv"
+    write_tumble(simulate_tumble(seed=2, n=1500), tumble)
+    assert main(["calibrate", str(tumble), "--out", str(tmp_path / "cal.json"), "--quiet",
+                 "--report", str(tmp_path / "rep")]) == 0
+    assert (tmp_path / "rep" / "tumble.png").stat().st_size > 10_000

@@ -69,7 +69,7 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
     if report is not None and Path(report).exists() and not Path(report).is_dir():
         raise BadInput(f"--report {report}: is a file, expected a folder")
     if kind == "tumble":
-        return _calibrate_tumble(table, out, field_ut=field_ut, ellipsoid=ellipsoid, quiet=quiet)
+        return _calibrate_tumble(table, out, field_ut=field_ut, ellipsoid=ellipsoid, quiet=quiet, report=report)
     if kind in ("platform3d", "reference"):
         return _calibrate_other(kind, table, out, field_ut=field_ut, quiet=quiet)
     rec = fourflip_from_table(table)
@@ -99,7 +99,7 @@ def _refuse_ignored_options(recording, kind, *, method, diagnose, report, field_
 
     ignored = []
     if kind != "fourflip":
-        ignored += ["--method"] * (method != "ml") + ["--report"] * (report is not None)
+        ignored += ["--method"] * (method != "ml") + ["--report"] * (report is not None and kind != "tumble")
     if kind == "tumble" and not diagnose:
         ignored.append("--no-diagnose")  # the tumble fit always runs its diagnosis
     if kind == "reference" and field_ut is not None:
@@ -120,7 +120,7 @@ def _residual_sets(rec, result) -> dict:
     return {"before (base model)": base.residuals, "after (" + ", ".join(result.diagnosis["effects"]) + ")": result.residuals}
 
 
-def _calibrate_tumble(table, out, *, field_ut, ellipsoid, quiet):
+def _calibrate_tumble(table, out, *, field_ut, ellipsoid, quiet, report=None):
     """Tumble recordings (SPEC section 2): ellipsoid, coverage, mag-to-accel rotation."""
     from calibrate.tumble import calibrate_tumble
 
@@ -136,6 +136,10 @@ def _calibrate_tumble(table, out, *, field_ut, ellipsoid, quiet):
         print(result.report())
     atomic_write_text(out, json.dumps(result.to_json(), indent=2) + "\n")
     print(f"wrote {out}")
+    if report:
+        from calibrate.plots import plot_tumble
+
+        print(f"wrote {plot_tumble(rec.mag, result, Path(report) / 'tumble.png')}")
     return result
 
 
