@@ -128,13 +128,7 @@ def read_table(path) -> Table:
     lines = text.splitlines()
     metadata: dict[str, str] = {}
     header, header_line = None, 0
-    for number, line in enumerate(lines, start=1):
-        stripped = line.strip()
-        if not stripped:
-            continue
-        if stripped.startswith("#"):
-            _add_metadata(stripped, metadata)
-            continue
+    for number, stripped in _content(lines, 0, metadata):
         header, header_line = [c.strip() for c in stripped.split(",")], number
         break
     if header is None:
@@ -151,17 +145,9 @@ def read_table(path) -> Table:
     if data is not None:
         rows = np.arange(header_line + 1, header_line + 1 + len(data))
         return Table(str(path), tuple(header), data, rows, metadata)
-    body_lines: list[str] = []
-    body_rows: list[int] = []
-    for number, line in enumerate(lines[header_line:], start=header_line + 1):
-        stripped = line.strip()
-        if not stripped:
-            continue
-        if stripped.startswith("#"):
-            _add_metadata(stripped, metadata)
-            continue
-        body_lines.append(stripped)
-        body_rows.append(number)
+    body = list(_content(lines, header_line, metadata))
+    body_rows = [number for number, _ in body]
+    body_lines = [stripped for _, stripped in body]
     if not body_lines:
         raise RecordingError(path, "header only: no data rows", row=header_line)
 
@@ -169,10 +155,22 @@ def read_table(path) -> Table:
     return Table(str(path), tuple(header), data, np.asarray(body_rows), metadata)
 
 
-def _add_metadata(comment: str, metadata: dict) -> None:
-    key, sep, value = comment[1:].partition(":")
-    if sep and key.strip():
-        metadata[key.strip()] = value.strip()
+def _content(lines: list[str], start: int, metadata: dict):
+    """(1-based line number, stripped text) of the data lines from ``lines[start]`` on.
+
+    Blank lines are skipped; ``# key: value`` comments go into ``metadata``, other comments are
+    skipped.
+    """
+    for number, line in enumerate(lines[start:], start=start + 1):
+        stripped = line.strip()
+        if not stripped:
+            continue
+        if stripped.startswith("#"):
+            key, sep, value = stripped[1:].partition(":")
+            if sep and key.strip():
+                metadata[key.strip()] = value.strip()
+            continue
+        yield number, stripped
 
 
 def _parse_plain_body(lines: list[str], n_cols: int) -> np.ndarray | None:
