@@ -20,3 +20,14 @@ def write_session(tmp_path):
         return read_fourflip(path), session.truth
 
     return make
+
+
+def assert_calibrate_refuses(tmp_path, capsys, text: str, expected: str, *extra: str) -> None:
+    """`compass calibrate` on a bad CSV: exit 2, one line naming the file and ``expected``, no traceback."""
+    from compass.cli import main
+
+    rec = tmp_path / "bad.csv"
+    rec.write_text(text)
+    assert main(["calibrate", str(rec), "--out", str(tmp_path / "c.json"), *extra]) == 2
+    err = capsys.readouterr().err
+    assert expected in err and "bad.csv" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1

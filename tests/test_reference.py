@@ -7,6 +7,7 @@ import pytest
 
 from calibrate.reference import DegenerateReference, calibrate_reference
 from compass.cli import main
+from tests.conftest import assert_calibrate_refuses
 from compass.io.reference import read_reference
 from compass.model import SensorModel
 from compass.sim.reference import simulate_reference, write_reference
@@ -106,8 +107,4 @@ def test_cli_end_to_end_and_runtime_model(tmp_path, capsys):
     ],
 )
 def test_bad_recordings_exit_2(tmp_path, capsys, text, expected):
-    rec = tmp_path / "bad.csv"
-    rec.write_text(text)
-    assert main(["calibrate", str(rec), "--out", str(tmp_path / "c.json")]) == 2
-    err = capsys.readouterr().err
-    assert expected in err and "bad.csv" in err and "Traceback" not in err
+    assert_calibrate_refuses(tmp_path, capsys, text, expected)

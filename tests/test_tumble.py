@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from calibrate.tumble import calibrate_tumble, field_gravity_angles, static_mask
 from compass.cli import main
+from tests.conftest import assert_calibrate_refuses
 from compass.io.tumble import read_tumble
 from compass.sim.tumble import simulate_tumble, write_tumble
 
@@ -113,11 +114,7 @@ def test_cli_end_to_end_and_exports(tmp_path, capsys):
     ],
 )
 def test_bad_tumble_recordings_exit_2(tmp_path, capsys, text, expected):
-    rec = tmp_path / "bad.csv"
-    rec.write_text(text)
-    assert main(["calibrate", str(rec), "--out", str(tmp_path / "c.json"), "--kind", "tumble"]) == 2
-    err = capsys.readouterr().err
-    assert expected in err and "bad.csv" in err and "Traceback" not in err
+    assert_calibrate_refuses(tmp_path, capsys, text, expected, "--kind", "tumble")
 
 
 def test_export_rejects_other_files(tmp_path, capsys):
