@@ -77,6 +77,8 @@ FACE_COVERAGE_DEG = 45.0
 """A half-axis counts as seen when some sample's field direction lies within this angle of it."""
 STATIC_TOLERANCE = 0.02
 """Quasi-static samples: | |a| / g - 1 | below this (g = median |a|)."""
+MAX_ANGLE_WIDENING = 0.05
+"""A correction that widens the field-gravity angle spread by more than this fraction is not used."""
 _N_CELLS = 200
 _MAX_NFEV = 400
 _FACES = ("+X", "-X", "+Y", "-Y", "+Z", "-Z")
@@ -230,7 +232,7 @@ class TumbleResult:
         Why no kind gives a usable calibration (every kind degenerate), in words; empty when the
         result is usable.  A refused result must not be written as a calibration file.
     diagnosis : TumbleDiagnosis or None
-        The residual diagnosis (:mod:`calibrate.tumble_diagnose`); None when refused.  With claimed
+        The residual diagnosis (:mod:`calibrate.tumble_diagnose`); None when every kind is degenerate.  With claimed
         effects, ``fit`` is the ellipsoid at their reference time and temperature.
     """
 
@@ -771,7 +773,7 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: 
     """
     if field_ut is not None and not field_ut > 0:
         raise ValueError(f"field_ut must be positive, got {field_ut}")
-    mag = np.asarray(mag, dtype=float)
+    mag = raw = np.asarray(mag, dtype=float)
     noise = _noise_floor(mag)
     chosen, candidates, coverage = fit_ellipsoid(mag, kind)
     warnings = []
@@ -819,5 +821,25 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: 
             chosen = diagnosis.fit
         else:
             warnings.append("fewer than 20 quasi-static samples: no magnetometer-accelerometer alignment, no dip")
+    refused = "" if misalignment is None else _widening(raw, accel, chosen.calibrated(mag), misalignment.rotation)
     return TumbleResult(chosen, candidates, coverage, misalignment, field_ut, noise, len(mag), n_repeats,
-                        tuple(warnings), diagnosis=diagnosis)
+                        tuple(warnings + ([refused] if refused else [])), refused, diagnosis)
+
+
+def _widening(raw: np.ndarray, accel: np.ndarray, mag_cal: np.ndarray, rotation: Rotation | None) -> str:
+    """Why the calibration must not be used when it widens the field-gravity angle spread, else "".
+
+    The angle between the field and gravity is a constant of the site.  On the quasi-static samples
+    the calibrated field must agree with gravity at least as well as the raw readings do: a fit that
+    makes it agree worse (beyond :data:`MAX_ANGLE_WIDENING`) is a compromise between fields that
+    differed during the recording, however well it lowers the |B| spread.
+    """
+    static = static_mask(accel)
+    before = float(np.std(field_gravity_angles(raw[static], accel[static])))
+    after = float(np.std(field_gravity_angles(mag_cal[static], accel[static], rotation)))
+    if after <= (1.0 + MAX_ANGLE_WIDENING) * before:
+        return ""
+    return (f"no usable calibration: it widens the spread of the field-gravity angle over the quasi-static samples "
+            f"from {before:.3g} deg (raw) to {after:.3g} deg, so the raw readings agree better with gravity than the "
+            "calibrated ones: the field changed during the recording (a magnet or magnetised part attached or moved "
+            "partway), which no single ellipsoid describes")

@@ -57,8 +57,8 @@ from scipy.stats import median_abs_deviation
 
 from ._mlfit import linear_score, unit_columns
 from .diagnose import DECISIVE_BIC, FLOOR_MARGIN, MAX_REFITS, MAX_STEPS, MIN_SHARE, REFIT_FRACTION, STRUCTURE_P
-from .tumble import (KindFit, Misalignment, _covariance, _propagate, _shape, _sym_sqrt, field_gravity_angles,
-                     static_mask)
+from .tumble import (MAX_ANGLE_WIDENING, KindFit, Misalignment, _covariance, _propagate, _shape, _sym_sqrt,
+                     field_gravity_angles, static_mask)
 
 __all__ = ["TumbleEffect", "TUMBLE_FORMS", "TumbleDiagnosis", "UNEXPLAINED_WARNING", "diagnose_tumble",
            "radial_noise_floor", "residual_structure", "format_tumble_diagnosis"]
@@ -69,8 +69,6 @@ WARMUP_TAU_FRACTIONS = (0.03, 0.07, 0.15, 0.3, 0.6)
 STRUCTURE_BLOCKS = 8
 """Blocks of consecutive samples (and temperature bands) in the structure test."""
 MIN_BLOCK_SAMPLES = 50
-MAX_ANGLE_WIDENING = 0.05
-"""An effect that widens the field-gravity angle spread by more than this fraction is not claimed."""
 UNEXPLAINED_WARNING = ("structure remains in |m| - F above the noise floor that no modelled effect accounts for "
                        "(a field that changed during the recording, a disturbance, an effect the toolkit does not "
                        "model): see the diagnosis; the uncertainties are then optimistic")

@@ -142,3 +142,19 @@ def test_hard_iron_step_partway_is_refused_not_written(tmp_path, capsys):
     assert "step.csv" in err and "no usable calibration" in err and not cal.exists()
     # the same device without the magnet is fine
     assert not calibrate_tumble(sim.mag, sim.accel).refused
+
+
+def test_fit_that_widens_the_field_gravity_angle_is_refused():
+    # an already calibrated device carried where the field is 20 % weaker halfway through: the raw
+    # readings keep the dip exactly, any single ellipsoid through both spheres bends it
+    sim = simulate_tumble(seed=0, n=2000, hard_iron_ut=0.0, soft_iron=0.0, misalign_deg=0.0, motion_g=0.01)
+    mag = sim.mag.copy()
+    mag[1000:] *= 0.8
+    res = calibrate_tumble(mag, sim.accel)
+    assert "widens the spread of the field-gravity angle" in res.refused and res.refused in res.warnings
+    static = static_mask(sim.accel)
+    raw = np.std(field_gravity_angles(mag[static], sim.accel[static]))
+    fitted = np.std(field_gravity_angles(res.calibrated(mag)[static], sim.accel[static], res.misalignment.rotation))
+    assert fitted > 1.05 * raw
+    # the same device in one field is not refused (do no harm cuts both ways)
+    assert not calibrate_tumble(sim.mag, sim.accel).refused
