@@ -442,8 +442,8 @@ def print_reference(r: dict, refusals: list, n: int, seed: int, n_fields: int, n
           f"{seed + n - 1},")
     print(f"    2 sensors each, {n_fields} random fields of 50 uT +- 30 %, output noise 0.05, gains ~1 per uT, "
           "offsets up to 5")
-    row("metric (RMS over elements, sensors, sessions)", ["ours", "seed (1) as", "raw", "unit"], width=13, first=46)
-    row("", ["(V on B)", "written(B on V)", "(K=I, V0=0)", ""], width=13, first=46)
+    row("metric (RMS over elements, sensors, sessions)", ["ours", "seed (1)", "raw", "unit"], width=13, first=46)
+    row("", ["V on B", "B on V", "K=I, V0=0", ""], width=13, first=46)
     acc, z = r["acc"], r["z"]
     labels = {"K": ("K error", "uT/out"), "V0": ("offset V0 error", "out"), "scale": ("scale factor a,b,c error", "out/uT"),
               "angles": ("axis angles alpha1..gamma3 error", "deg"),
