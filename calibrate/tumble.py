@@ -821,7 +821,9 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: 
             chosen = diagnosis.fit
         else:
             warnings.append("fewer than 20 quasi-static samples: no magnetometer-accelerometer alignment, no dip")
-    refused = "" if misalignment is None else _widening(raw, accel, chosen.calibrated(mag), misalignment.rotation)
+    # the field changed partway: structure in |m| that no effect explains, and gravity agrees less with the result
+    changed = diagnosis.block["unexplained"] and misalignment is not None
+    refused = _widening(raw, accel, chosen.calibrated(mag), misalignment.rotation) if changed else ""
     return TumbleResult(chosen, candidates, coverage, misalignment, field_ut, noise, len(mag), n_repeats,
                         tuple(warnings + ([refused] if refused else [])), refused, diagnosis)
 
@@ -829,10 +831,12 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: 
 def _widening(raw: np.ndarray, accel: np.ndarray, mag_cal: np.ndarray, rotation: Rotation | None) -> str:
     """Why the calibration must not be used when it widens the field-gravity angle spread, else "".
 
-    The angle between the field and gravity is a constant of the site.  On the quasi-static samples
-    the calibrated field must agree with gravity at least as well as the raw readings do: a fit that
-    makes it agree worse (beyond :data:`MAX_ANGLE_WIDENING`) is a compromise between fields that
-    differed during the recording, however well it lowers the |B| spread.
+    The angle between the field and gravity is a constant of the site.  Called when the residual
+    diagnosis left structure in |m| that no effect explains: if then, on the quasi-static samples,
+    the calibrated field also agrees worse with gravity than the raw readings (beyond
+    :data:`MAX_ANGLE_WIDENING`), the fit is a compromise between fields that differed during the
+    recording, however well it lowers the |B| spread.  Either sign alone is not enough: an
+    uncalibrated accelerometer can make a right calibration agree worse with gravity.
     """
     static = static_mask(accel)
     before = float(np.std(field_gravity_angles(raw[static], accel[static])))
