@@ -46,8 +46,17 @@ correction slows to many seconds and the gyro carries the tilt.
 Magnetometer: it corrects heading only (as VQF and x-io Fusion do; a disturbed field cannot tilt
 the estimate): ``psi_meas = eps_z + n_psi``, ``psi_meas`` minus the azimuth (toward West) of the
 field rotated into the world by the estimate, with the sensor noise, the tilt error seen through
-``tan(dip)`` and the environment's heading error (``mag_heading_sigma_deg``: field inhomogeneity
-and calibration residue, correlated over ``tau_v``) in ``var n_psi``.  The heading therefore
+``tan(dip)`` and the environment's heading error (field inhomogeneity, calibration residue,
+latency; correlated over ``tau_v``) in ``var n_psi``.  That heading error is measured, not assumed:
+an error that turns the field's direction by ``delta`` moves its dip by the component in the
+vertical plane and its azimuth by the horizontal one over ``cos(dip)``; for an error with no
+preferred direction the two components have one variance, so
+
+.. math:: \\sigma_\\psi^2 = \\langle (\\delta_{dip} - \\overline{\\delta_{dip}})^2 \\rangle / \\cos^2(dip),
+
+with the dip deviation from the gate's slowly following reference averaged over the accepted
+field (time constant ``field_reference_tau_s``), starting from ``mag_heading_sigma_deg``.  A field
+that keeps its dip as the housing turns is trusted; one whose dip wanders is not.  The heading
 follows the field with a time constant of seconds while the housing turns and slower when still.
 
 At **rest** (gyro and accelerometer steady within 2 deg/s and 0.05 g for 1.5 s and the gyro's
@@ -143,7 +152,8 @@ class FilterConfig:
         environment's heading error as the housing moves.
     mag_heading_sigma_deg : float
         Heading error of the undisturbed field itself (inhomogeneity across the working volume,
-        calibration residue), degrees.
+        calibration residue), degrees: the starting value; the filter then measures it from the
+        field's dip deviation (module docstring).
     field_reference_tau_s : float
         Time constant with which the gate's reference |B| and dip follow the accepted field, seconds.
     angular_accel_noise : float
@@ -242,6 +252,9 @@ class Estimate:
     heading_sigma_deg, tilt_sigma_deg : float
         1-sigma of the world-frame error about the vertical and (rms) about a horizontal axis,
         degrees, from the filter covariance.
+    field_heading_sigma_deg : float
+        Heading error of the accepted field itself as measured so far from the wander of its dip
+        (module docstring), degrees.
     field_ratio : float
         Measured |B| over the reference |B|.
     dip_deg : float
@@ -263,6 +276,7 @@ class Estimate:
     roll_deg: float
     heading_sigma_deg: float
     tilt_sigma_deg: float
+    field_heading_sigma_deg: float
     field_ratio: float
     dip_deg: float
     mag_used: bool
@@ -301,7 +315,8 @@ class AttitudeFilter:
         dip = np.radians(config.dip_deg)
         self._tan_dip2 = float(np.tan(dip)) ** 2
         self._yaw_var = (config.mag_noise / config.field_norm) ** 2 / np.cos(dip) ** 2
-        self._env_var = np.radians(config.mag_heading_sigma_deg) ** 2
+        self._cos_dip2 = float(np.cos(dip)) ** 2
+        self._dip_dev_var = np.radians(config.mag_heading_sigma_deg) ** 2 * self._cos_dip2
         self._kf = KalmanFilter(dim_x=6, dim_z=4)
         self._kf.P = np.diag(_P0_ATTITUDE + [config.gyro_bias_sigma0**2] * 3)
         # preallocated model matrices (filled in place each sample)
@@ -407,7 +422,7 @@ class AttitudeFilter:
             p = self._kf.P
             var = self._yaw_var + self._tan_dip2 * (p[0, 0] + p[1, 1]) / 2.0
             if dt > 0.0:
-                var += self._env_var * 2.0 * self.config.motion_time_s / dt
+                var += self._dip_dev_var / self._cos_dip2 * 2.0 * self.config.motion_time_s / dt
             self._kf.update_sequential(3, innovation, var, self._h_mag)
         self._inject()  # once per sample: the sequential updates share the error state
         self._last = (ratio, dip, mag_ok, gate, accel_ok)
@@ -569,6 +584,7 @@ class AttitudeFilter:
             self._rejected_since = None
             if dt > 0.0:  # the reference follows the accepted field slowly (VQF's magRefTau)
                 alpha = -math.expm1(-dt / cfg.field_reference_tau_s)
+                self._dip_dev_var += alpha * (math.radians(dip - self._ref_dip) ** 2 - self._dip_dev_var)
                 self._ref_norm += alpha * (b_norm - self._ref_norm)
                 self._ref_dip += alpha * (dip - self._ref_dip)
             return "ok", ratio, dip
@@ -603,7 +619,7 @@ class AttitudeFilter:
         ratio, dip, mag_used, gate, accel_used = self._last
         return Estimate(t_s, rotation, float(heading[0]), float(pitch[0]), float(roll[0]),
                         math.degrees(math.sqrt(p[2, 2])), math.degrees(math.sqrt((p[0, 0] + p[1, 1]) / 2.0)),
-                        float(ratio), float(dip), bool(mag_used), gate, bool(accel_used),
+                        math.degrees(math.sqrt(self._dip_dev_var / self._cos_dip2)), float(ratio), float(dip), bool(mag_used), gate, bool(accel_used),
                         self._bias.copy() if self.gyro else None)
 
 
@@ -616,7 +632,8 @@ class FilterTrack:
     t_s : ndarray, shape (n,)
     quat : ndarray, shape (n, 4)
         ``R_world<-housing`` as scipy quaternions (x, y, z, w).
-    heading_deg, pitch_deg, roll_deg, heading_sigma_deg, tilt_sigma_deg, field_ratio, dip_deg : ndarray, shape (n,)
+    heading_deg, pitch_deg, roll_deg, heading_sigma_deg, tilt_sigma_deg, field_heading_sigma_deg, field_ratio, dip_deg : ndarray, shape (n,)
+        As in :class:`Estimate`.
     mag_used, accel_used : ndarray of bool, shape (n,)
     gate : ndarray of str, shape (n,)
     gyro_bias : ndarray, shape (n, 3), or None
@@ -629,6 +646,7 @@ class FilterTrack:
     roll_deg: np.ndarray
     heading_sigma_deg: np.ndarray
     tilt_sigma_deg: np.ndarray
+    field_heading_sigma_deg: np.ndarray
     field_ratio: np.ndarray
     dip_deg: np.ndarray
     mag_used: np.ndarray
@@ -668,7 +686,7 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig) -> FilterTrack:
             raise ValueError(f"expected gyro of shape ({n}, 3), got {gyro.shape}")
     filt = AttitudeFilter(config, gyro=gyro is not None)
     matrices = np.full((n, 3, 3), np.nan)
-    scalars = np.full((n, 4), np.nan)  # heading sigma, tilt sigma, field ratio, dip
+    scalars = np.full((n, 5), np.nan)  # heading, tilt and field heading variance, field ratio, dip
     flags = np.zeros((n, 2), dtype=bool)
     gate = np.full(n, "absent", dtype=object)
     bias = None if gyro is None else np.full((n, 3), np.nan)
@@ -682,7 +700,7 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig) -> FilterTrack:
         matrices[i] = filt._matrix
         p = filt._kf.P
         ratio, dip, mag_used, reason, accel_used = filt._last
-        scalars[i] = p[2, 2], (p[0, 0] + p[1, 1]) / 2.0, ratio, dip
+        scalars[i] = p[2, 2], (p[0, 0] + p[1, 1]) / 2.0, filt._dip_dev_var / filt._cos_dip2, ratio, dip
         flags[i] = mag_used, accel_used
         gate[i] = reason
         if bias is not None:
@@ -694,8 +712,8 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig) -> FilterTrack:
         rotation = Rotation.from_matrix(matrices[ok])
         quat[ok] = rotation.as_quat()
         angles[ok] = np.column_stack(heading_pitch_roll(rotation))
-    sigma = np.sqrt(scalars[:, :2] * rad2)
-    return FilterTrack(t_s, quat, *angles.T, sigma[:, 0], sigma[:, 1], scalars[:, 2], scalars[:, 3],
+    sigma = np.sqrt(scalars[:, :3] * rad2)
+    return FilterTrack(t_s, quat, *angles.T, *sigma.T, scalars[:, 3], scalars[:, 4],
                        flags[:, 0], flags[:, 1], gate.astype(str), bias)
 
 
