@@ -10,6 +10,7 @@ samples (``||a| - 1 g| < 0.02``), before and after.  Run: ``python tools/bench_f
 
 from __future__ import annotations
 
+from itertools import combinations_with_replacement
 from pathlib import Path
 
 import numpy as np
@@ -56,6 +57,36 @@ def metrics(m, a):
     n = np.linalg.norm(m, axis=1)
     st = static_mask(a)
     return 100 * n.std() / n.mean(), float(np.std(field_gravity_angles(m, a)[st]))
+
+
+def orientation_features(u, degree=4):
+    """Monomials of the unit vectors' components up to ``degree`` (a smooth function of direction)."""
+    cols = [np.ones(len(u))]
+    for d in range(1, degree + 1):
+        cols += [np.prod(u[:, c], axis=1) for c in combinations_with_replacement(range(u.shape[1]), d)]
+    return np.column_stack(cols)
+
+
+def calibration_floor(m, a, degree=4):
+    """What no calibration can remove from the field-gravity angle spread (deg, quasi-static samples).
+
+    Any calibration of either sensor (offsets, gains, soft iron, rotations, nonlinearity) turns the
+    angle error into a smooth function of the two sensors' directions.  Fitting the angle on
+    monomials of both unit vectors up to ``degree`` (in-sample, so optimistic) leaves what such a
+    function cannot explain.  Returns that spread, the white part (consecutive differences / sqrt 2)
+    and the spread over the stillest quarter of the samples (smallest accelerometer change).
+    """
+    st = static_mask(a)
+    angle = field_gravity_angles(m, a)[st]
+    um = m[st] / np.linalg.norm(m[st], axis=1, keepdims=True)
+    ua = a[st] / np.linalg.norm(a[st], axis=1, keepdims=True)
+    x = np.hstack([orientation_features(um, degree), orientation_features(ua, degree)[:, 1:]])
+    coef, *_ = np.linalg.lstsq(x, angle, rcond=None)
+    pairs = st[:-1] & st[1:]
+    white = np.std(np.diff(field_gravity_angles(m, a))[pairs]) / np.sqrt(2.0)
+    change = np.linalg.norm(np.gradient(a, axis=0), axis=1)[st]
+    still = change < np.quantile(change, 0.25)
+    return float(np.std(angle - x @ coef)), float(white), float(np.std(angle[still])), x.shape[1]
 
 
 def drop_repeats(m, *others):
@@ -120,7 +151,7 @@ def simulated(seeds=range(5)):
         row(label, [fmt(v) for v in np.nanmean(np.array(acc[key]), axis=0)])
 
 
-def real(name, m, a, notes=True):
+def real(name, m, a, notes=True, floor=False):
     m, a = drop_repeats(m, a)
     res = calibrate_tumble(m, a)
     raw = metrics(m, a)
@@ -145,6 +176,12 @@ def real(name, m, a, notes=True):
     if notes:
         for w in res.warnings:
             print(f"  warning: {w}")
+    if floor:
+        left, white, still, k = calibration_floor(mc if res.misalignment is None or res.misalignment.rotation is None
+                                                  else res.misalignment.rotation.apply(mc), a)
+        print(f"  angle spread no calibration can remove (best smooth function of both directions, {k} terms, "
+              f"in-sample): {left:.3f} deg; of it white (consecutive differences) {white:.3f} deg; "
+              f"spread over the stillest quarter (least accelerometer change) {still:.3f} deg")
     eig = np.linalg.eigvalsh(res.soft_iron)
     print(f"  soft iron eigenvalues {np.round(eig, 4)} (positive definite: {bool(np.all(eig > 0))}), det {np.linalg.det(res.soft_iron):.4f}")
     return raw, ours
@@ -153,7 +190,7 @@ def real(name, m, a, notes=True):
 def main():
     simulated()
     ck = np.loadtxt(DATA / "ck-accmag" / "acc_mag_log.csv", delimiter=",", skiprows=1)
-    real("CK acc_mag_log (real, raw)", ck[:, 3:6], ck[:, 0:3])
+    real("CK acc_mag_log (real, raw)", ck[:, 3:6], ck[:, 0:3], floor=True)
     xio = np.loadtxt(DATA / "xio-fusion" / "sensor_data.csv", delimiter=",", skiprows=1)
     real("x-io Fusion sensor_data (real, never turned over)", xio[:, 7:10], xio[:, 4:7])
     for path in sorted((DATA / "broad").glob("*.mat")):
