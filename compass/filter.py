@@ -47,21 +47,27 @@ Magnetometer: it corrects heading only (as VQF and x-io Fusion do; a disturbed f
 the estimate): ``psi_meas = eps_z + n_psi``, ``psi_meas`` minus the azimuth (toward West) of the
 field rotated into the world by the estimate, with the sensor noise, the tilt error seen through
 ``tan(dip)`` and the environment's heading error (field inhomogeneity, calibration residue,
-latency; correlated over ``tau_v``) in ``var n_psi``.  That heading error is measured, not assumed:
-an error that turns the field's direction by ``delta`` moves its dip by the component in the
-vertical plane and its azimuth by the horizontal one over ``cos(dip)``; for an error with no
+latency; correlated over ``tau_v``) in ``var n_psi``.  The gyro filter measures that heading error
+as it runs: an error that turns the field's direction by ``delta`` moves its dip by the component in
+the vertical plane and its azimuth by the horizontal one over ``cos(dip)``; for an error with no
 preferred direction the two components have one variance, so
 
-.. math:: \\sigma_\\psi^2 = \\langle (\\delta_{dip} - \\overline{\\delta_{dip}})^2 \\rangle / \\cos^2(dip),
+.. math:: \\sigma_\\psi^2 = \\max\\Big(\\sigma_{floor}^2,\\;
+          \\big\\langle (dip - dip_{ref})^2 - \\sigma_n^2 / |B|^2 - P_{tilt} \\big\\rangle / \\cos^2(dip)\\Big),
 
-with the dip deviation from the gate's slowly following reference averaged over the accepted
-field (time constant ``field_reference_tau_s``), starting from ``mag_heading_sigma_deg``.  A field
-that keeps its dip as the housing turns is trusted; one whose dip wanders is not.  The heading
-follows the field with a time constant of seconds while the housing turns and slower when still.
+the deviation of each accepted sample's dip from the gate's slowly following reference, less what
+the sensor noise and the filter's own tilt error (``P_tilt``, the mean of the two horizontal
+variances) put there, averaged with time constant ``field_reference_tau_s``.  A field that keeps
+its dip as the housing turns is trusted; one whose dip wanders is not.  ``mag_heading_sigma_deg``
+is the floor: errors that leave the dip alone are invisible to this measurement (a hard-iron residue
+fixed in a housing held level moves the dip by ``e sin(dip)`` but the heading by ``e / cos(dip)``, so
+near the equator it is under-estimated by up to ``1 / sin(dip)``).  The two-vector filter has no
+such measurement.  The heading follows the field with a time constant of seconds while the housing
+turns and slower when still.
 
 At **rest** (gyro and accelerometer steady within 2 deg/s and 0.05 g for 1.5 s and the gyro's
-low-passed rate below 2 deg/s, VQF's rest detector and bias bound) the gyro reads its bias: a direct bias measurement on every axis, so the heading does
-not drift while the field is rejected.
+low-passed rate below 2 deg/s, VQF's rest detector and bias bound) the gyro reads its bias: a
+direct bias measurement on every axis, so the heading does not drift while the field is rejected.
 
 The **gate** (VQF's and Fusion's magnetic rejection): the field is used only while its magnitude
 and its dip against the filter's own up direction match a reference within tolerances, and (once
@@ -152,8 +158,8 @@ class FilterConfig:
         environment's heading error as the housing moves.
     mag_heading_sigma_deg : float
         Heading error of the undisturbed field itself (inhomogeneity across the working volume,
-        calibration residue), degrees: the starting value; the filter then measures it from the
-        field's dip deviation (module docstring).
+        calibration residue), degrees: the floor; the gyro filter uses the larger of it and the
+        error it measures from the wander of the field's dip (module docstring).
     field_reference_tau_s : float
         Time constant with which the gate's reference |B| and dip follow the accepted field, seconds.
     angular_accel_noise : float
@@ -253,8 +259,9 @@ class Estimate:
         1-sigma of the world-frame error about the vertical and (rms) about a horizontal axis,
         degrees, from the filter covariance.
     field_heading_sigma_deg : float
-        Heading error of the accepted field itself as measured so far from the wander of its dip
-        (module docstring), degrees.
+        Heading error of the accepted field itself, degrees: the larger of ``mag_heading_sigma_deg``
+        and the one measured so far from the wander of its dip (module docstring); NaN for the
+        two-vector filter.
     field_ratio : float
         Measured |B| over the reference |B|.
     dip_deg : float
@@ -316,7 +323,9 @@ class AttitudeFilter:
         self._tan_dip2 = float(np.tan(dip)) ** 2
         self._yaw_var = (config.mag_noise / config.field_norm) ** 2 / np.cos(dip) ** 2
         self._cos_dip2 = float(np.cos(dip)) ** 2
-        self._dip_dev_var = np.radians(config.mag_heading_sigma_deg) ** 2 * self._cos_dip2
+        self._env_floor = np.radians(config.mag_heading_sigma_deg) ** 2
+        self._dip_noise_var = (config.mag_noise / config.field_norm) ** 2
+        self._dip_excess_var = self._env_floor * self._cos_dip2  # dip wander beyond noise and tilt error, rad^2
         self._kf = KalmanFilter(dim_x=6, dim_z=4)
         self._kf.P = np.diag(_P0_ATTITUDE + [config.gyro_bias_sigma0**2] * 3)
         # preallocated model matrices (filled in place each sample)
@@ -354,6 +363,12 @@ class AttitudeFilter:
     def at_rest(self) -> bool:
         """The rest detector holds: the gyro reads its bias."""
         return self._rest_s >= _REST_MIN_S
+
+    @property
+    def field_heading_var(self) -> float:
+        """Heading error variance of the accepted field itself, rad^2: the larger of the configured
+        floor and the one measured from the wander of its dip (gyro filter; module docstring)."""
+        return max(self._env_floor, self._dip_excess_var / self._cos_dip2)
 
     def drain_events(self) -> list[str]:
         """Return and clear the pending event notes."""
@@ -422,7 +437,7 @@ class AttitudeFilter:
             p = self._kf.P
             var = self._yaw_var + self._tan_dip2 * (p[0, 0] + p[1, 1]) / 2.0
             if dt > 0.0:
-                var += self._dip_dev_var / self._cos_dip2 * 2.0 * self.config.motion_time_s / dt
+                var += self.field_heading_var * 2.0 * self.config.motion_time_s / dt
             self._kf.update_sequential(3, innovation, var, self._h_mag)
         self._inject()  # once per sample: the sequential updates share the error state
         self._last = (ratio, dip, mag_ok, gate, accel_ok)
@@ -584,7 +599,10 @@ class AttitudeFilter:
             self._rejected_since = None
             if dt > 0.0:  # the reference follows the accepted field slowly (VQF's magRefTau)
                 alpha = -math.expm1(-dt / cfg.field_reference_tau_s)
-                self._dip_dev_var += alpha * (math.radians(dip - self._ref_dip) ** 2 - self._dip_dev_var)
+                # the dip's wander beyond the white sensor noise (the filter's own tilt error stays in: it is
+                # correlated like the environment's, and moves the heading as much, tan(dip) ~ 1 / cos(dip))
+                excess = math.radians(dip - self._ref_dip) ** 2 - self._dip_noise_var
+                self._dip_excess_var += alpha * (excess - self._dip_excess_var)
                 self._ref_norm += alpha * (b_norm - self._ref_norm)
                 self._ref_dip += alpha * (dip - self._ref_dip)
             return "ok", ratio, dip
@@ -619,8 +637,8 @@ class AttitudeFilter:
         ratio, dip, mag_used, gate, accel_used = self._last
         return Estimate(t_s, rotation, float(heading[0]), float(pitch[0]), float(roll[0]),
                         math.degrees(math.sqrt(p[2, 2])), math.degrees(math.sqrt((p[0, 0] + p[1, 1]) / 2.0)),
-                        math.degrees(math.sqrt(self._dip_dev_var / self._cos_dip2)), float(ratio), float(dip), bool(mag_used), gate, bool(accel_used),
-                        self._bias.copy() if self.gyro else None)
+                        math.degrees(math.sqrt(self.field_heading_var)) if self.gyro else math.nan, float(ratio),
+                        float(dip), bool(mag_used), gate, bool(accel_used), self._bias.copy() if self.gyro else None)
 
 
 @dataclass(frozen=True)
@@ -632,7 +650,8 @@ class FilterTrack:
     t_s : ndarray, shape (n,)
     quat : ndarray, shape (n, 4)
         ``R_world<-housing`` as scipy quaternions (x, y, z, w).
-    heading_deg, pitch_deg, roll_deg, heading_sigma_deg, tilt_sigma_deg, field_heading_sigma_deg, field_ratio, dip_deg : ndarray, shape (n,)
+    heading_deg, pitch_deg, roll_deg : ndarray, shape (n,)
+    heading_sigma_deg, tilt_sigma_deg, field_heading_sigma_deg, field_ratio, dip_deg : ndarray, shape (n,)
         As in :class:`Estimate`.
     mag_used, accel_used : ndarray of bool, shape (n,)
     gate : ndarray of str, shape (n,)
@@ -700,7 +719,8 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig) -> FilterTrack:
         matrices[i] = filt._matrix
         p = filt._kf.P
         ratio, dip, mag_used, reason, accel_used = filt._last
-        scalars[i] = p[2, 2], (p[0, 0] + p[1, 1]) / 2.0, filt._dip_dev_var / filt._cos_dip2, ratio, dip
+        scalars[i] = (p[2, 2], (p[0, 0] + p[1, 1]) / 2.0, filt.field_heading_var if filt.gyro else np.nan,
+                      ratio, dip)
         flags[i] = mag_used, accel_used
         gate[i] = reason
         if bias is not None:

@@ -161,16 +161,23 @@ def wandering_rotation(n, sigma_deg, correlation_samples, seed):
 def test_field_heading_error_is_measured_from_the_wander_of_the_dip(model):
     # a field whose direction wanders by 1.5 deg per axis (a calibration residue that changes as the
     # housing turns): its dip wanders by 1.5 deg, so its heading error is 1.5 deg / cos(dip)
-    t = np.arange(0.0, 120.0, 1.0 / RATE_HZ)  # three passes of the script: the 2 deg start is forgotten
+    t = np.arange(0.0, 120.0, 1.0 / RATE_HZ)  # three passes of the script: the start value is forgotten
     s = simulate_device(model, t, seed=3)
     field, _ = model.field(s.raw)
     phase = t % 40.0
     late = (t > 80.0) & ~((phase > MAGNET_PERIOD_S[0] - 0.5) & (phase < MAGNET_PERIOD_S[1] + 0.5))
     wander = Rotation.from_rotvec(wandering_rotation(len(t), 1.5, RATE_HZ, seed=8))
     expected = 1.5 / np.cos(np.radians(model.dip_deg))
+    cfg = dataclasses.replace(FilterConfig.from_model(model), mag_heading_sigma_deg=0.01)  # a floor out of the way
 
     def measured(h):
-        return np.median(run_filter(t, s.accel, s.gyro, h, FilterConfig.from_model(model)).field_heading_sigma_deg[late])
+        return np.median(run_filter(t, s.accel, s.gyro, h, cfg).field_heading_sigma_deg[late])
 
-    assert measured(wander.apply(field)) == pytest.approx(expected, rel=0.3)
-    assert measured(field) < 0.25 * expected  # the exact field: only noise and the filter's tilt error move its dip
+    # a variance averaged over ~20 correlation times (20 s reference, 1 s wander) scatters by
+    # ~sqrt(2 / 20) ~ 30 %, its square root by ~16 %: twice that
+    assert measured(wander.apply(field)) == pytest.approx(expected, rel=0.35)
+    # the exact field: the white noise is taken out, only the filter's own small tilt error is left
+    assert measured(field) < 0.1 * expected
+    # and the configured value is a floor
+    assert np.all(run_filter(t, s.accel, s.gyro, field, FilterConfig.from_model(model)).field_heading_sigma_deg[late]
+                  >= FilterConfig.from_model(model).mag_heading_sigma_deg - 1e-9)
