@@ -229,8 +229,9 @@ class TumbleResult:
         Samples fitted; rows dropped as repeated magnetometer values.
     warnings : tuple of str
     refused : str
-        Why no kind gives a usable calibration (every kind degenerate), in words; empty when the
-        result is usable.  A refused result must not be written as a calibration file.
+        Why no kind gives a usable calibration (every kind degenerate, or the field changed during
+        the recording: see :func:`calibrate_tumble`), in words; empty when the result is usable.
+        A refused result must not be written as a calibration file.
     diagnosis : TumbleDiagnosis or None
         The residual diagnosis (:mod:`calibrate.tumble_diagnose`); None when every kind is degenerate.  With claimed
         effects, ``fit`` is the ellipsoid at their reference time and temperature.
@@ -762,6 +763,9 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: 
     Returns
     -------
     TumbleResult
+        Refused (``refused`` says why) when every kind is degenerate, or when the residual
+        diagnosis leaves structure in |m| unexplained and, with an accelerometer, the calibrated
+        field agrees worse with gravity than the raw readings (:func:`_widening`).
 
     Examples
     --------
@@ -841,7 +845,7 @@ def _widening(raw: np.ndarray, accel: np.ndarray, mag_cal: np.ndarray, rotation:
     static = static_mask(accel)
     before = float(np.std(field_gravity_angles(raw[static], accel[static])))
     after = float(np.std(field_gravity_angles(mag_cal[static], accel[static], rotation)))
-    if after <= (1.0 + MAX_ANGLE_WIDENING) * before:
+    if not after > (1.0 + MAX_ANGLE_WIDENING) * before:  # also when either is NaN (no quasi-static samples)
         return ""
     return (f"no usable calibration: it widens the spread of the field-gravity angle over the quasi-static samples "
             f"from {before:.3g} deg (raw) to {after:.3g} deg, so the raw readings agree better with gravity than the "
