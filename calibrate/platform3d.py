@@ -58,6 +58,7 @@ from compass.frames import direction_sigma_deg, seed_angles
 from compass.io.platform3d import Platform3DRecording
 from compass.sim.platform3d import predict, up_in_bench
 
+from ._offset_effects import OffsetDiagnosis, Problem, diagnose_offsets, format_offset_diagnosis
 from .result import FORMAT
 
 __all__ = ["NotIdentifiable", "Platform3DResult", "calibrate_platform3d", "axis_geometry"]
@@ -151,6 +152,11 @@ class Platform3DResult:
     success : bool
     message : str
     warnings : tuple of str
+    diagnosis : OffsetDiagnosis or None
+        The residual diagnosis of the magnetometer (:mod:`calibrate._offset_effects`); None when
+        not run.  With claimed effects, ``values`` end with their parameters, ``mag_offset`` is
+        the offset at their reference (the first sample's ``t_s``, the mean ``temp_c``) and the
+        residuals are those of the model with them.
     """
 
     names: tuple
@@ -177,6 +183,7 @@ class Platform3DResult:
     success: bool
     message: str
     warnings: tuple = field(default_factory=tuple)
+    diagnosis: OffsetDiagnosis | None = None
 
     @property
     def sigma(self) -> np.ndarray:
@@ -211,6 +218,14 @@ class Platform3DResult:
             }
         noise = self.noise_mag if self.noise_mag is not None else np.sqrt(np.mean(self.residuals_mag**2, axis=0))
         rms = float(np.sqrt(np.mean(self.residuals_mag**2)))
+        if self.diagnosis is not None:
+            effects, diagnosis = list(self.diagnosis.effects), self.diagnosis.block
+        else:
+            effects = []
+            diagnosis = {"noise_floor": float(np.mean(noise)), "steps": [{"model": "base", "residual_rms": rms}],
+                         "effects": [], "residual_rms_before": rms, "residual_rms_after": rms,
+                         "unexplained": None if self.noise_mag is None else bool(rms > 1.5 * np.mean(noise)),
+                         "not_applicable": {"diagnosis": "not run (calibrate_platform3d(..., diagnose=False))"}}
         d = self.derived
         return {
             "format": FORMAT,
@@ -219,10 +234,8 @@ class Platform3DResult:
             "dip_sigma_deg": d["dip_deg"][1],
             "field_ut": self.field_ut,
             "noise_floor": [float(v) for v in noise],
-            "effects": [],
-            "diagnosis": {"noise_floor": float(np.mean(noise)), "steps": [{"model": "base", "residual_rms": rms}],
-                          "effects": [], "residual_rms_before": rms, "residual_rms_after": rms,
-                          "unexplained": None if self.noise_mag is None else bool(rms > 1.5 * np.mean(noise))},
+            "effects": effects,
+            "diagnosis": diagnosis,
             "method": "platform3d",
             "field_azimuth_deg": d["field_azimuth_deg"][0],
             "tilt_sensor": {
@@ -282,6 +295,8 @@ class Platform3DResult:
                   if abs(corr[i, j]) > 0.9]
         if strong:
             lines.append("  correlations above 0.9: " + "; ".join(f"{a}/{b} {c:+.2f}" for a, b, c in strong))
+        if self.diagnosis is not None:
+            lines.append(format_offset_diagnosis(self.diagnosis.block, "magnetometer output units"))
         for w in self.warnings:
             lines.append(f"  warning: {w}")
         return "\n".join(lines)
@@ -343,7 +358,8 @@ def _pose_hint(rot: Rotation) -> str:
     return ""
 
 
-def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = None) -> Platform3DResult:
+def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = None, diagnose: bool = True,
+                         candidates=None) -> Platform3DResult:
     """Joint fit of magnetometer, tilt sensor, field and base level from a 3-D platform recording.
 
     Parameters
@@ -351,6 +367,12 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
     rec : Platform3DRecording
     field_ut : float, optional
         Known |B| (gains then per uT); default: the metadata's ``field_ut``, else gains per |B|.
+    diagnose : bool
+        Run the residual diagnosis of the magnetometer (SPEC section 4,
+        :func:`calibrate._offset_effects.diagnose_offsets`) and keep the effects it claims.
+    candidates : sequence of str, optional
+        Effects the diagnosis considers (default ``offset_drift``, ``temperature``,
+        ``nonlinear_response``); ``offset_drift`` needs a ``t_s`` column, ``temperature`` a ``temp_c`` one.
 
     Returns
     -------
@@ -371,6 +393,12 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
     covariance is ``(J^T J)^-1 chi2 / dof`` of the weighted fit; derived quantities get theirs by
     propagation through a numerical Jacobian.  The BIC is ``chi2 + p ln(N)`` on the weighted
     residuals.
+
+    The diagnosis works on the magnetometer: its noise floor is the pose-to-pose repeat scatter
+    (without repeats, the first fit's residual, and ``unexplained`` is then null); the platform
+    sets each channel's linear response, so an odd cubic response is identifiable beside the
+    gains.  Claimed effects join the joint fit (their parameters follow the base ones in
+    ``values``) and the reported offsets hold at their reference time and temperature.
     """
     if field_ut is None and "field_ut" in rec.metadata:
         field_ut = float(rec.metadata["field_ut"])
@@ -411,13 +439,25 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
         hint = _pose_hint(rot)
         raise NotIdentifiable(f"{rec.path}: the platform poses do not determine {', '.join(involved)}"
                               + (f": {hint}" if hint else " (they trade off against each other)"))
-    n_obs, k = len(fit.fun), len(fit.x)
+    x, delta, diagnosis = fit.x, np.zeros_like(rec.mag), None
     chi2 = float(np.sum(fit.fun**2))
+    if diagnose:
+        diagnosis = _diagnose(rec, fit.x, n_tilt, magnitude, w_m, w_t, noise_mag is not None,
+                              ("offset_drift", "temperature", "nonlinear_response") if candidates is None else candidates)
+        if diagnosis.effects:
+            x, jac, delta = diagnosis.x, diagnosis.jac, diagnosis.delta
+            names = names + diagnosis.names
+            m, o_m, b_w, a, o_t, u_w = _unpack(x, n_tilt, magnitude)
+            pm, pt = predict(rot, m, o_m, b_w, a, o_t, u_w)
+            chi2 = float(np.sum(((rec.mag - pm - delta) / w_m) ** 2) + np.sum(((pt - rec.tilt) / w_t) ** 2))
+    n_obs, k = len(fit.fun), len(x)
     dof = n_obs - k
     cov = np.linalg.inv(jac.T @ jac) * chi2 / max(dof, 1)
 
-    m, o_m, b_w, a, o_t, u_w = _unpack(fit.x, n_tilt, magnitude)
+    m, o_m, b_w, a, o_t, u_w = _unpack(x, n_tilt, magnitude)
     pm, pt = predict(rot, m, o_m, b_w, a, o_t, u_w)
+    pm = pm + delta
+    i_base_tilt = 14 + 4 * n_tilt
     geo_names = _geometry_names("mag", MAG_CHANNELS) + _geometry_names("tilt", rec.tilt_columns)
     derived_names = geo_names + [f"mag_to_tilt_rotvec_{x}_deg" for x in _AXES] + [
         "dip_deg", "field_azimuth_deg", "base_tilt_x_deg", "base_tilt_y_deg", "field_norm_recording_units"]
@@ -428,11 +468,11 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
         q = Rotation.from_rotvec(gt[-3:], degrees=True) * Rotation.from_rotvec(gm[-3:], degrees=True).inv()
         bhat = bw / np.linalg.norm(bw)
         dip = np.degrees(np.arcsin(np.clip(-bhat @ uw, -1.0, 1.0)))
-        extra = [dip, np.degrees(p[13]), np.degrees(p[-2]), np.degrees(p[-1]),
+        extra = [dip, np.degrees(p[13]), np.degrees(p[i_base_tilt]), np.degrees(p[i_base_tilt + 1]),
                  np.mean(np.linalg.norm(mm, axis=1)) * magnitude]
         return np.concatenate([gm, gt, q.as_rotvec(degrees=True), extra])
 
-    values, dcov = _propagate(derived, fit.x, cov)
+    values, dcov = _propagate(derived, x, cov)
     dsig = np.sqrt(np.clip(np.diag(dcov), 0.0, None))
     derived_table = {name: (float(v), float(s_)) for name, v, s_ in zip(derived_names, values, dsig)}
     derived_table["field_azimuth_deg"] = (float(np.mod(values[derived_names.index("field_azimuth_deg")], 360.0)),
@@ -444,7 +484,7 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
             row = p[3 * c:3 * c + 3]
             return np.concatenate([row / np.linalg.norm(row), [p[9 + c], np.linalg.norm(row)]])
 
-        _, ccov = _propagate(channel, fit.x, cov)
+        _, ccov = _propagate(channel, x, cov)
         dir_cov.append(ccov[:3, :3])
         resp_sig.append(np.sqrt(np.clip(np.diag(ccov)[3:], 0.0, None)))
 
@@ -459,12 +499,32 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
                         "the linear model misses something (nonlinear response, a magnetised platform part, "
                         "platform angle errors); uncertainties are scaled up accordingly")
     return Platform3DResult(
-        names=tuple(names), values=fit.x, covariance=cov, mag_matrix=m, mag_offset=o_m, tilt_matrix=a,
+        names=tuple(names), values=x, covariance=cov, mag_matrix=m, mag_offset=o_m, tilt_matrix=a,
         tilt_offset=o_t, tilt_columns=rec.tilt_columns, field_w=b_w, up_w=u_w, derived=derived_table,
         mag_direction_covariance=np.array(dir_cov), mag_response_sigma=np.array(resp_sig),
         residuals_mag=rec.mag - pm, residuals_tilt=rec.tilt - pt, noise_mag=noise_mag, noise_tilt=noise_tilt,
         field_ut=field_ut, chi2=chi2, dof=dof, bic=chi2 + k * np.log(n_obs), success=bool(fit.success),
-        message=str(fit.message), warnings=tuple(warnings))
+        message=str(fit.message), warnings=tuple(warnings), diagnosis=diagnosis)
+
+
+def _diagnose(rec: Platform3DRecording, p: np.ndarray, n_tilt: int, magnitude: float, w_m, w_t,
+              from_repeats: bool, candidates) -> OffsetDiagnosis:
+    """The residual diagnosis of the magnetometer channels, the tilt sensor kept in the joint fit."""
+    rot = rec.rotation
+
+    def predicted(x):
+        return predict(rot, *_unpack(x, n_tilt, magnitude))
+
+    def linear(x):
+        return predicted(x)[0] - x[9:12]
+
+    def residuals(x, delta):
+        pm, pt = predicted(x)
+        return rec.mag - pm - delta, ((pt - rec.tilt) / w_t).ravel()
+
+    problem = Problem(MAG_CHANNELS, p, linear, residuals, np.asarray(w_m, float), from_repeats, rec.pose,
+                      k_channels=14, offset_index=np.arange(9, 12))
+    return diagnose_offsets(problem, t_s=rec.t_s, temp_c=rec.temp_c, candidates=candidates)
 
 
 def _propagate(f, p: np.ndarray, cov: np.ndarray, step: float = 1e-7) -> tuple[np.ndarray, np.ndarray]:

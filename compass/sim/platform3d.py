@@ -93,7 +93,12 @@ class SimulatedPlatform3D:
         JSON-ready: ``mag_matrix``, ``mag_offset``, ``tilt_matrix``, ``tilt_offset``, ``field_ut``,
         ``dip_deg`` (from the true vertical), ``azimuth_deg`` (field in W from the platform zero),
         ``base_tilt_deg`` (rotation vector ``(tx, ty, 0)`` of the base's level error),
-        ``noise_mag``, ``noise_tilt`` (output units).
+        ``noise_mag``, ``noise_tilt`` (output units); ``drift`` and ``temperature`` (None when not
+        simulated, see :func:`simulate_platform3d`).  ``mag_offset`` holds at ``t_s = 0`` and 25 degC.
+    t_s : ndarray, shape (n,), or None
+        Time of every sample, s (with ``session_s``).
+    temp_c : ndarray, shape (n,), or None
+        Sensor temperature as recorded (0.01 degC steps), with ``temp_swing_c``.
     """
 
     angles_deg: np.ndarray
@@ -103,6 +108,8 @@ class SimulatedPlatform3D:
     pitch_deg: np.ndarray
     roll_deg: np.ndarray
     truth: dict
+    t_s: np.ndarray | None = None
+    temp_c: np.ndarray | None = None
 
 
 def _poses(rng, poses: str, repeats: int) -> np.ndarray:
@@ -129,7 +136,9 @@ def _axes(rng, nonorthogonality_deg: float, misalign_deg: float, n: int) -> np.n
 def simulate_platform3d(*, seed: int = 0, poses: str = "grid", repeats: int = 3, field_ut: float = 50.0,
                         dip_deg: float = 60.0, mag_gain: float = 1.0, tilt_axes: int = 2, tilt_gain: float = 1.0,
                         nonorthogonality_deg: float = 1.0, misalign_deg: float = 2.0, base_tilt_deg: float = 0.2,
-                        noise_ut: float = 0.1, noise_g: float = 0.001) -> SimulatedPlatform3D:
+                        noise_ut: float = 0.1, noise_g: float = 0.001, session_s: float | None = None,
+                        drift_ut: float = 0.0, drift_tau_s: float | None = None, temp_swing_c: float = 0.0,
+                        temp_offset_ut_per_c: float = 0.0) -> SimulatedPlatform3D:
     """Simulate a 3-D platform session.
 
     Parameters
@@ -152,6 +161,19 @@ def simulate_platform3d(*, seed: int = 0, poses: str = "grid", repeats: int = 3,
         Scale of the platform base's level error, degrees.
     noise_ut, noise_g : float
         White noise per axis, uT and g (in output units: times the gains).
+    session_s : float, optional
+        Length of the session, s: the samples get a ``t_s`` column, evenly spaced over it in pose
+        order (a pose's repeats follow each other).
+    drift_ut : float
+        Size of a magnetometer offset drift (random direction), uT: the change over the session
+        when ``drift_tau_s`` is None (constant rate), else the settled change of a warm-up
+        ``1 - exp(-t / drift_tau_s)``.  Needs ``session_s``.
+    drift_tau_s : float, optional
+    temp_swing_c : float
+        Amplitude of a temperature cycle, degC, recorded as ``temp_c``: ``25 + swing sin(4 pi i / (n - 1))``
+        over the samples (two cycles of a chamber, so temperature is not a function of time).
+    temp_offset_ut_per_c : float
+        Size of the magnetometer offsets' temperature coefficient (random direction), uT/degC.
 
     Returns
     -------
@@ -159,6 +181,10 @@ def simulate_platform3d(*, seed: int = 0, poses: str = "grid", repeats: int = 3,
     """
     if tilt_axes not in (2, 3):
         raise ValueError(f"tilt_axes must be 2 or 3, got {tilt_axes}")
+    if drift_ut and session_s is None:
+        raise ValueError("drift_ut needs session_s (the drift is a function of t_s)")
+    if session_s is not None and not session_s > 0:
+        raise ValueError(f"session_s must be positive, got {session_s}")
     rng = np.random.default_rng(seed)
     mag_axes = _axes(rng, nonorthogonality_deg, misalign_deg, 3)
     tilt_axes_h = _axes(rng, nonorthogonality_deg, misalign_deg, tilt_axes)
@@ -179,14 +205,36 @@ def simulate_platform3d(*, seed: int = 0, poses: str = "grid", repeats: int = 3,
     mag, tilt = predict(rot, m, o_m, field_w, a, o_t, up_w)
     mag = mag + rng.normal(scale=noise_ut * mag_gain, size=mag.shape)
     tilt = tilt + rng.normal(scale=noise_g * tilt_gain, size=tilt.shape)
+    # effects beyond the linear model draw from their own generator: the plain session of a seed stays as it was
+    extra = np.random.default_rng([seed, 1])
+    n = len(mag)
+    t_s = None if session_s is None else np.linspace(0.0, session_s, n)
+    drift, temperature, temp_c = None, None, None
+    if drift_ut:
+        change = _unit(extra.normal(size=3)) * drift_ut
+        profile = t_s / session_s if drift_tau_s is None else -np.expm1(-t_s / drift_tau_s)
+        mag = mag + np.outer(profile, change * mag_gain)
+        drift = {"change_ut": change.tolist(), "tau_s": drift_tau_s,
+                 "form": "linear over the session" if drift_tau_s is None else "exponential warm-up"}
+    if temp_swing_c:
+        temp_true = 25.0 + temp_swing_c * np.sin(4.0 * np.pi * np.arange(n) / max(n - 1, 1))
+        k_offset = _unit(extra.normal(size=3)) * temp_offset_ut_per_c
+        mag = mag + np.outer(temp_true - 25.0, k_offset * mag_gain)
+        temp_c = np.round(temp_true, 2)
+        temperature = {"temp_ref_c": 25.0, "offset_ut_per_degc": k_offset.tolist()}
     heading, pitch, roll = heading_pitch_roll(world_from_bench(field_w, up_w) * rot)
     truth = {
         "mag_matrix": m.tolist(), "mag_offset": o_m.tolist(), "tilt_matrix": a.tolist(), "tilt_offset": o_t.tolist(),
         "field_ut": field_ut, "dip_deg": dip_deg, "azimuth_deg": float(np.degrees(np.arctan2(field_w[1], field_w[0]))),
         "base_tilt_deg": base.tolist(),
         "noise_mag": noise_ut * mag_gain, "noise_tilt": noise_g * tilt_gain, "poses": poses,
+        "drift": drift, "temperature": temperature,
     }
-    return SimulatedPlatform3D(angles, mag, tilt, heading, pitch, roll, truth)
+    return SimulatedPlatform3D(angles, mag, tilt, heading, pitch, roll, truth, t_s, temp_c)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
 
 
 def write_platform3d(sim: SimulatedPlatform3D, path, *, force: bool = False,
@@ -202,6 +250,7 @@ def write_platform3d(sim: SimulatedPlatform3D, path, *, force: bool = False,
     metadata = {"source": "compass simulate platform3d"}
     if field_ut_metadata:
         metadata["field_ut"] = sim.truth["field_ut"]
-    columns = list(ANGLE_COLUMNS) + ["mx", "my", "mz"] + tilt_cols
-    data = np.column_stack([sim.angles_deg, sim.mag, sim.tilt])
+    extra = [(name, v) for name, v in (("t_s", sim.t_s), ("temp_c", sim.temp_c)) if v is not None]
+    columns = list(ANGLE_COLUMNS) + ["mx", "my", "mz"] + tilt_cols + [name for name, _ in extra]
+    data = np.column_stack([sim.angles_deg, sim.mag, sim.tilt] + [v for _, v in extra])
     return write_with_truth(path, csv_text(columns, data, "%.6f", metadata), sim.truth, force=force)

@@ -1,0 +1,583 @@
+"""Residual diagnosis of fits made against known inputs: the 3-D platform (seed 001) and reference fields (seed 003).
+
+The loop of :mod:`calibrate.diagnose` (SPEC section 4) for a model whose diagnosed channels read
+
+.. math:: v_{ic} = y_{ic}(p) + o_c + \\Delta_{ic}(q),
+
+``y`` the linear response to the known field (platform pose or applied reference field), ``o`` the
+channel offsets and ``Delta`` the sum of the effects' corrections (zero for the base model):
+
+1. Noise floor per channel: the pooled scatter of repeated samples (the same pose, the same applied
+   field) when the recording has repeats; else the base fit's own residual, and then nothing can be
+   called unexplained (``unexplained: null``) and the evidence is conservative (the floor holds
+   whatever an effect would explain).
+2. Score (Lagrange-multiplier) test of every applicable form (:func:`calibrate._mlfit.linear_score`,
+   the current parameters projected out); the most promising form per effect is refitted.
+3. The refit with the largest decisive evidence (:data:`~calibrate.diagnose.DECISIVE_BIC`) is added
+   when it explains a real share (:data:`~calibrate.diagnose.MIN_SHARE`) of the structured residual
+   and its parameters are determined; repeat (at most :data:`~calibrate.diagnose.MAX_STEPS`).
+4. ``unexplained`` (with a floor from repeats): a lack-of-fit test, the repeat groups' mean
+   residuals against the floor (chi-square on ``groups x channels - parameters`` dof) with
+   p below :data:`~calibrate.diagnose.STRUCTURE_P`, or an rms more than
+   :data:`~calibrate.diagnose.FLOOR_MARGIN` above the floor.  If structure remains, nothing is
+   claimed and the base fit is kept.
+
+Effects (per diagnosed channel, output units; ``tau = (t - t_ref) / T`` with ``t_ref`` the first
+sample and ``T`` the session, ``d = (temp - T_ref) / span`` with ``T_ref`` the mean of ``temp_c``;
+every correction is zero at ``t_ref`` and ``T_ref``, so the file's offsets hold there):
+
+``offset_drift`` (linear, quadratic, cubic)
+    ``sum_k a_ck tau^k``, k = 1..degree.
+``offset_drift`` (warm-up)
+    ``A_c (1 - exp(-(t - t_ref) / tau_s))``, one time constant for every channel.
+``temperature`` (offset; offset and gain)
+    ``k_c d`` and, with the gain, ``g_c d y_c``.
+``nonlinear_response`` (odd cubic)
+    ``c_c y_c^3 / s_c^2`` with ``s_c`` the channel's largest linear response: only where the known
+    inputs set ``y`` (the platform), not in a free tumble.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.stats import chi2 as chi2_dist
+
+from ._mlfit import linear_score, unit_columns
+from .diagnose import DECISIVE_BIC, FLOOR_MARGIN, MAX_REFITS, MAX_STEPS, MIN_SHARE, REFIT_FRACTION, STRUCTURE_P
+from .tumble_diagnose import WARMUP_TAU_FRACTIONS, _json_float, _rms
+
+__all__ = ["OffsetEffect", "FORMS", "Problem", "OffsetDiagnosis", "diagnose_offsets", "pooled_repeat_noise",
+           "lack_of_fit", "format_offset_diagnosis"]
+
+_FD_STEP = 1e-6
+_SINGULAR_COND = 1e12
+
+
+@dataclass(frozen=True)
+class _Context:
+    """Constants the effects are written against (output units, s, degC)."""
+
+    channels: tuple
+    scale: np.ndarray
+    t_s: np.ndarray | None
+    temp_c: np.ndarray | None
+    t_ref_s: float
+    session_s: float
+    temp_ref_c: float
+    temp_span_c: float
+
+    @property
+    def tau(self) -> np.ndarray:
+        return (self.t_s - self.t_ref_s) / self.session_s
+
+    @property
+    def d(self) -> np.ndarray:
+        return (self.temp_c - self.temp_ref_c) / self.temp_span_c
+
+
+@dataclass(frozen=True)
+class OffsetEffect:
+    """One extension of a linear-response model: a vocabulary name (SPEC section 4), a form, a correction.
+
+    Parameters are in units of each channel's full scale (:attr:`_Context.scale`);
+    :meth:`report` turns them into output units.
+    """
+
+    name: str
+    form: str
+    description: str
+
+    @property
+    def label(self) -> str:
+        return f"{self.name} ({self.form})"
+
+    def applicable(self, t_s, temp_c) -> str | None:
+        """None when a recording with these columns can show the effect, else the reason it cannot."""
+        return None
+
+    def n_params(self, c: int) -> int:
+        raise NotImplementedError
+
+    def score_points(self, c: int) -> list:
+        return [np.zeros(self.n_params(c))]
+
+    def delta(self, q: np.ndarray, y: np.ndarray, ctx: _Context) -> np.ndarray:
+        """Change of the predicted outputs, shape (n, c), output units, from the linear responses ``y``."""
+        raise NotImplementedError
+
+    def reference(self, ctx: _Context) -> dict:
+        return {}
+
+    def report(self, q, sigma, ctx: _Context) -> dict:
+        raise NotImplementedError
+
+
+def _per_channel(ctx: _Context, label: str, values, sigmas) -> dict:
+    return {f"{ch}.{label}": {"value": float(v), "sigma": float(s)} for ch, v, s in zip(ctx.channels, values, sigmas)}
+
+
+class _TimeEffect(OffsetEffect):
+    def applicable(self, t_s, temp_c):
+        if t_s is None:
+            return "the recording has no t_s column"
+        if not np.ptp(t_s) > 0:
+            return "t_s never changes"
+        return None
+
+    def reference(self, ctx):
+        return {"t_s": ctx.t_ref_s}
+
+
+@dataclass(frozen=True)
+class PolynomialDrift(_TimeEffect):
+    """Each channel's offset a polynomial in time without constant term (``degree`` coefficients each)."""
+
+    degree: int = 1
+
+    def n_params(self, c):
+        return self.degree * c
+
+    def delta(self, q, y, ctx):
+        powers = ctx.tau[:, None] ** np.arange(1, self.degree + 1)  # (n, degree)
+        return powers @ (q.reshape(self.degree, -1) * ctx.scale)
+
+    def report(self, q, sigma, ctx):
+        out = {}
+        for k in range(1, self.degree + 1):
+            unit = ctx.scale / ctx.session_s**k
+            label = "offset_rate_per_s" if k == 1 else f"offset_per_s{k}"
+            sl = slice((k - 1) * len(ctx.channels), k * len(ctx.channels))
+            out.update(_per_channel(ctx, label, q[sl] * unit, sigma[sl] * unit))
+        return out
+
+
+class WarmUp(_TimeEffect):
+    """Offsets settling exponentially after switch-on: per-channel change, one ``log(tau / session)``."""
+
+    def n_params(self, c):
+        return c + 1
+
+    def score_points(self, c):
+        return [np.concatenate([np.zeros(c), [np.log(f)]]) for f in WARMUP_TAU_FRACTIONS]
+
+    @staticmethod
+    def _tau_s(q, ctx):
+        return ctx.session_s * np.exp(np.clip(q[-1], -6.0, 3.0))
+
+    def delta(self, q, y, ctx):
+        settled = -np.expm1(-(ctx.t_s - ctx.t_ref_s) / self._tau_s(q, ctx))
+        return np.outer(settled, q[:-1] * ctx.scale)
+
+    def report(self, q, sigma, ctx):
+        tau = self._tau_s(q, ctx)
+        out = _per_channel(ctx, "offset_settled_change", q[:-1] * ctx.scale, sigma[:-1] * ctx.scale)
+        out["tau_s"] = {"value": float(tau), "sigma": float(tau * sigma[-1])}
+        return out
+
+
+@dataclass(frozen=True)
+class Temperature(OffsetEffect):
+    """Each channel's offset (and, with ``gain``, its gain) linear in ``temp_c``."""
+
+    gain: bool = False
+
+    def applicable(self, t_s, temp_c):
+        if temp_c is None:
+            return "the recording has no temp_c column"
+        if np.ptp(temp_c) < 0.5:
+            return "temp_c varies by less than 0.5 degC"
+        return None
+
+    def n_params(self, c):
+        return 2 * c if self.gain else c
+
+    def delta(self, q, y, ctx):
+        c = len(ctx.channels)
+        out = np.outer(ctx.d, q[:c] * ctx.scale)
+        return out + ctx.d[:, None] * q[c:] * y if self.gain else out
+
+    def reference(self, ctx):
+        return {"temp_c": ctx.temp_ref_c}
+
+    def report(self, q, sigma, ctx):
+        c = len(ctx.channels)
+        unit = ctx.scale / ctx.temp_span_c
+        out = _per_channel(ctx, "offset_per_degc", q[:c] * unit, sigma[:c] * unit)
+        if self.gain:
+            out.update(_per_channel(ctx, "gain_rel_per_degc", q[c:] / ctx.temp_span_c, sigma[c:] / ctx.temp_span_c))
+        return out
+
+
+class CubicResponse(OffsetEffect):
+    """Odd cubic per channel in its linear response: ``c y^3 / s^2`` (``c``: output change at full scale)."""
+
+    def n_params(self, c):
+        return c
+
+    def delta(self, q, y, ctx):
+        u = y / ctx.scale
+        return q * ctx.scale * u**3
+
+    def report(self, q, sigma, ctx):
+        return _per_channel(ctx, "cubic_at_full_scale", q * ctx.scale, sigma * ctx.scale)
+
+
+_DRIFT = "channel offsets changing with t_s"
+FORMS: dict = {
+    "offset_drift": (PolynomialDrift("offset_drift", "linear", _DRIFT + ", at a constant rate", 1),
+                     PolynomialDrift("offset_drift", "quadratic", _DRIFT + ", quadratic in time", 2),
+                     PolynomialDrift("offset_drift", "cubic", _DRIFT + ", cubic in time", 3),
+                     WarmUp("offset_drift", "warm-up", _DRIFT + ", settling exponentially (one time constant)")),
+    "temperature": (Temperature("temperature", "offset", "channel offsets linear in temp_c"),
+                    Temperature("temperature", "offset and gain", "channel offsets and gains linear in temp_c",
+                                gain=True)),
+    "nonlinear_response": (CubicResponse("nonlinear_response", "odd cubic",
+                                         "outputs bending away from linear in the known field: an odd cubic per "
+                                         "channel"),),
+}
+"""Each effect's forms, simplest first; the score test and the evidence (BIC) choose among them."""
+
+
+@dataclass(frozen=True)
+class Problem:
+    """What a fit hands to the diagnosis.
+
+    Attributes
+    ----------
+    channels : tuple of str
+        The diagnosed output channels (c).
+    x_base : ndarray, shape (k,)
+        The base fit's parameters.
+    linear : callable
+        ``linear(x) -> (n, c)``: each channel's response to the known field, without offset, output units.
+    residuals : callable
+        ``residuals(x, delta) -> (r, other)``: the diagnosed channels' residuals (n, c), output
+        units, with ``delta`` (n, c) added to their prediction, and any other weighted residuals
+        of the joint fit (1-D, possibly empty; e.g. a tilt sensor's).
+    floor : ndarray, shape (c,)
+        Noise floor per channel, output units.
+    floor_from_repeats : bool
+        True when ``floor`` is the scatter of repeated samples (then ``unexplained`` can be judged).
+    groups : ndarray of int, shape (n,)
+        Repeat group of every sample (samples taken under the same known input).
+    k_channels : int
+        Base parameters acting on the diagnosed channels (the lack-of-fit test's dof).
+    offset_index : ndarray of int, shape (c,)
+        Where each channel's offset is in ``x`` (output units).
+    """
+
+    channels: tuple
+    x_base: np.ndarray
+    linear: Callable
+    residuals: Callable
+    floor: np.ndarray
+    floor_from_repeats: bool
+    groups: np.ndarray
+    k_channels: int
+    offset_index: np.ndarray
+
+
+@dataclass(frozen=True)
+class _Fit:
+    effects: tuple
+    x: np.ndarray
+    jac: np.ndarray
+    covariance: np.ndarray
+    channel_residuals: np.ndarray
+    chi2: float
+    n_obs: int
+    success: bool
+    message: str
+
+    @property
+    def dof(self) -> int:
+        return self.n_obs - self.x.size
+
+    def bic(self) -> float:
+        """chi2 + k ln n, with the noise floor known."""
+        return self.chi2 + self.x.size * np.log(self.n_obs)
+
+
+@dataclass(frozen=True)
+class OffsetDiagnosis:
+    """Outcome of the diagnosis.
+
+    Attributes
+    ----------
+    x : ndarray
+        Final parameters: the base ones, then each claimed effect's block (the base fit's when none).
+    jac : ndarray
+        Jacobian of the joint weighted residual at ``x``.
+    delta : ndarray, shape (n, c)
+        The claimed effects' correction of the diagnosed outputs (zeros when none).
+    names : list of str
+        Names of the effect parameters appended to ``x``.
+    effects : tuple of dict
+        ``{"name", "form", "reference", "parameters"}`` of each claimed effect: the file's ``effects``.
+    block : dict
+        The SPEC section 4 ``diagnosis`` block.
+    """
+
+    x: np.ndarray
+    jac: np.ndarray
+    delta: np.ndarray
+    names: list
+    effects: tuple
+    block: dict
+
+
+def pooled_repeat_noise(values: np.ndarray, groups: np.ndarray) -> np.ndarray | None:
+    """Pooled within-group standard deviation per column; None when fewer than 3 repeat dof."""
+    counts = np.bincount(groups)
+    dof = int(np.sum(counts - 1))
+    if dof < 3:
+        return None
+    means = np.array([np.bincount(groups, weights=v) / counts for v in values.T]).T
+    return np.sqrt(np.sum((values - means[groups]) ** 2, axis=0) / dof)
+
+
+def lack_of_fit(weighted: np.ndarray, groups: np.ndarray, k: int) -> tuple[float, int, float]:
+    """Lack-of-fit chi-square of a weighted residual: its repeat groups' means against white noise.
+
+    Parameters
+    ----------
+    weighted : ndarray, shape (n, c)
+        Residual over the noise floor (the floor from the scatter within groups).
+    groups : ndarray of int, shape (n,)
+    k : int
+        Parameters fitted to these channels.
+
+    Returns
+    -------
+    delta_chi2 : float
+        ``sum_g n_g mean_g^2`` over groups and channels.
+    dof : int
+        ``groups x channels - k``.
+    p_value : float
+    """
+    counts = np.bincount(groups)
+    sums = np.array([np.bincount(groups, weights=w) for w in weighted.T]).T
+    stat = float(np.sum(sums**2 / counts[:, None]))
+    dof = int(np.count_nonzero(counts) * weighted.shape[1] - k)
+    return stat, dof, float(chi2_dist.sf(stat, dof)) if dof > 0 else 1.0
+
+
+def _covariance(jac: np.ndarray, chi2: float, dof: int) -> np.ndarray:
+    """``(J^T J)^-1 chi2 / dof`` (column-scaled; inf when singular)."""
+    scale = np.linalg.norm(jac, axis=0)
+    scale[scale == 0] = 1.0
+    jtj = (jac / scale).T @ (jac / scale)
+    if np.linalg.cond(jtj) > _SINGULAR_COND:
+        return np.full(jtj.shape, np.inf)
+    return np.linalg.inv(jtj) / np.outer(scale, scale) * chi2 / max(dof, 1)
+
+
+def diagnose_offsets(problem: Problem, *, t_s=None, temp_c=None, candidates=None) -> OffsetDiagnosis:
+    """Run the diagnosis loop on a fit (see the module docstring).
+
+    Parameters
+    ----------
+    problem : Problem
+    t_s, temp_c : ndarray, shape (n,), optional
+        Time (s) and temperature (degC) of each sample.
+    candidates : sequence of str, optional
+        Effect names to consider (default: ``offset_drift``, ``temperature``).
+
+    Returns
+    -------
+    OffsetDiagnosis
+
+    Raises
+    ------
+    ValueError
+        An unknown candidate name.
+    """
+    names = ["offset_drift", "temperature"] if candidates is None else list(candidates)
+    unknown = [c for c in names if c not in FORMS]
+    if unknown:
+        raise ValueError(f"unknown effect(s) {unknown}; known: {', '.join(FORMS)}")
+    floor = np.asarray(problem.floor, dtype=float)
+    c = len(problem.channels)
+    kb = problem.x_base.size
+    scale = np.max(np.abs(problem.linear(problem.x_base)), axis=0)
+    ctx = _Context(tuple(problem.channels), np.where(scale > 0, scale, 1.0), t_s, temp_c,
+                   t_ref_s=0.0 if t_s is None else float(t_s[0]),
+                   session_s=1.0 if t_s is None else max(float(np.ptp(t_s)), 1e-9),
+                   temp_ref_c=0.0 if temp_c is None else float(np.mean(temp_c)),
+                   temp_span_c=1.0 if temp_c is None else max(float(np.ptp(temp_c)), 1e-9))
+    pool, skipped = [], {}
+    for name in names:
+        reason = FORMS[name][0].applicable(t_s, temp_c)
+        if reason:
+            skipped[name] = reason
+        else:
+            pool.extend(FORMS[name])
+
+    def delta(x, effects):
+        out = np.zeros((len(problem.groups), c))
+        if effects:
+            y, i = problem.linear(x[:kb]), kb
+            for e in effects:
+                out = out + e.delta(x[i:i + e.n_params(c)], y, ctx)
+                i += e.n_params(c)
+        return out
+
+    def weighted(x, effects):
+        r, other = problem.residuals(x[:kb], delta(x, effects))
+        return np.concatenate([(r / floor).ravel(), np.ravel(other)])
+
+    def fit(effects, x0) -> _Fit:
+        res = least_squares(weighted, x0, args=(effects,), method="lm", x_scale="jac", max_nfev=100 * (x0.size + 1))
+        chi2 = float(res.fun @ res.fun)
+        r, _ = problem.residuals(res.x[:kb], delta(res.x, effects))
+        return _Fit(tuple(effects), res.x, res.jac, _covariance(res.jac, chi2, res.fun.size - res.x.size), r, chi2,
+                    res.fun.size, bool(res.success), str(res.message))
+
+    def score(current: _Fit, effect) -> tuple[float, np.ndarray]:
+        effects = current.effects + (effect,)
+        j_b = unit_columns(current.jac)
+        best = (-np.inf, effect.score_points(c)[0])
+        for q0 in effect.score_points(c):
+            drop, step = linear_score(lambda p: weighted(p, effects), np.concatenate([current.x, q0]),
+                                      current.x.size, j_b, _FD_STEP)
+            if drop > best[0]:
+                best = (drop, q0 + step)
+        return best
+
+    def verdict(f: _Fit):
+        if not problem.floor_from_repeats:
+            return None, None
+        k = problem.k_channels + f.x.size - kb
+        structure = lack_of_fit(f.channel_residuals / floor, problem.groups, k)
+        return structure, bool(structure[2] < STRUCTURE_P or _rms(f.channel_residuals) > (1 + FLOOR_MARGIN) * _rms(floor))
+
+    base = fit((), problem.x_base)
+    current = base
+    steps = [{"model": "base", "residual_rms": _rms(base.channel_residuals)}]
+    rejected = []
+    log_n = np.log(base.n_obs)
+    for _ in range(MAX_STEPS):
+        present = {e.name for e in current.effects}
+        scored = []
+        for effect in (e for e in pool if e.name not in present):
+            drop, start = score(current, effect)
+            scored.append((drop - effect.n_params(c) * log_n, drop, effect, start))
+        if not scored:
+            break
+        scored.sort(key=lambda item: -item[0])
+        seen = set()  # one form per effect is refitted: the one whose score promises the most evidence
+        scored = [item for item in scored if not (item[2].name in seen or seen.add(item[2].name))]
+        best = None
+        for expected, drop, effect, start in scored[:MAX_REFITS]:
+            if expected <= max(DECISIVE_BIC, REFIT_FRACTION * scored[0][0]):
+                break
+            effects = current.effects + (effect,)
+            plain = np.concatenate([current.x, effect.score_points(c)[0]])
+            x0 = np.concatenate([current.x, start])
+            if np.sum(weighted(plain, effects) ** 2) < np.sum(weighted(x0, effects) ** 2):
+                x0 = plain  # a first-order start can overshoot: keep it only if it helps
+            trial = fit(effects, x0)
+            gain = current.bic() - trial.bic()
+            share = (current.chi2 - trial.chi2) / max(current.chi2 - current.dof, 1e-12)
+            if best is None or gain > best[0]:
+                best = (gain, share, effect, trial, drop)
+        if best is None or best[0] <= DECISIVE_BIC:
+            break
+        gain, share, effect, trial, drop = best
+        if share < MIN_SHARE:
+            rejected.append(f"{effect.label} (delta-BIC {gain:.0f}, but it explains only {100 * share:.0f} % "
+                            "of the structured residual: not claimed)")
+            break
+        if not np.all(np.isfinite(np.diag(trial.covariance))):
+            rejected.append(f"{effect.label} (delta-BIC {gain:.0f}, but the data cannot determine its parameters "
+                            "together with the base model (singular covariance): not claimed)")
+            break
+        start = trial.x.size - effect.n_params(c)
+        steps.append({
+            "added": effect.name,
+            "form": effect.form,
+            "residual_rms": _rms(trial.channel_residuals),
+            "evidence": (f"{effect.description}: score test expected chi2 drop {drop:.0f} for {effect.n_params(c)} "
+                         f"parameters, refit chi2 {current.chi2:.0f} -> {trial.chi2:.0f}, "
+                         f"{100 * min(share, 1.0):.0f} % of the structured residual explained"),
+            "delta_bic": float(gain),
+            "explained_share": float(min(share, 1.0)),
+            "parameters": effect.report(trial.x[start:], np.sqrt(np.diag(trial.covariance))[start:], ctx),
+        })
+        current = trial
+
+    structure, unexplained = verdict(current)
+    if unexplained and len(steps) > 1:
+        for step in steps[1:]:
+            rejected.append(f"{step['added']} ({step['form']}; delta-BIC {step['delta_bic']:.0f}, explained "
+                            f"{100 * step['explained_share']:.0f} % of the structured residual, but structure the "
+                            "model lacks remains, so it may be part of that: not claimed)")
+        steps, current = steps[:1], base
+        structure, unexplained = verdict(current)
+
+    sig = np.sqrt(np.diag(current.covariance))
+    change = current.x[problem.offset_index] - problem.x_base[problem.offset_index]
+    block = {
+        "noise_floor": _rms(floor),
+        "noise_floor_per_channel": [float(v) for v in floor],
+        "noise_floor_source": ("pooled scatter of repeated samples under the same known input" if
+                               problem.floor_from_repeats else
+                               "the base fit's own residual (no repeated samples): 'unexplained' cannot be judged and "
+                               "the evidence for an effect is conservative"),
+        "steps": steps,
+        "effects": [e.name for e in current.effects],
+        "residual_rms_before": steps[0]["residual_rms"],
+        "residual_rms_after": _rms(current.channel_residuals),
+        "unexplained": unexplained,
+        "structure_test": None if structure is None else
+        {"kind": "lack of fit of the repeat groups' mean residual", "delta_chi2": structure[0], "dof": structure[1],
+         "p_value": structure[2]},
+        "not_claimed": rejected,
+        "not_applicable": skipped,
+        "offset_change": {"channels": list(problem.channels), "value": change.tolist(),
+                          "sigma": [_json_float(v) for v in sig[problem.offset_index]]},
+    }
+    names_out, effects_out, i = [], [], kb
+    for step, e in zip(steps[1:], current.effects):
+        names_out += [f"{e.name}[{j}]" for j in range(e.n_params(c))]
+        effects_out.append({"name": e.name, "form": e.form, "reference": e.reference(ctx),
+                            "parameters": step["parameters"]})
+        i += e.n_params(c)
+    return OffsetDiagnosis(current.x, current.jac, delta(current.x, current.effects), names_out, tuple(effects_out),
+                           block)
+
+
+def format_offset_diagnosis(block: dict, unit: str = "output units") -> str:
+    """The diagnosis block as lines for a person: each step with its evidence, before and after."""
+    lines = [f"Residual diagnosis (noise floor {block['noise_floor']:.4g} {unit}: {block['noise_floor_source']})"]
+    for step in block["steps"]:
+        if step.get("model") == "base":
+            lines.append(f"  base model: residual rms {step['residual_rms']:.4g}")
+            continue
+        lines.append(f"  + {step['added']} ({step['form']}): residual rms {step['residual_rms']:.4g}, "
+                     f"delta-BIC {step['delta_bic']:.0f}")
+        lines.append(f"      evidence: {step['evidence']}")
+        for name, p in step["parameters"].items():
+            lines.append(f"      {name} = {p['value']:.4g} +- {p['sigma']:.2g}")
+    for text in block["not_claimed"]:
+        lines.append(f"  not claimed: {text}")
+    for name, reason in block["not_applicable"].items():
+        lines.append(f"  {name} not examined: {reason}")
+    if block["effects"]:
+        ch = block["offset_change"]
+        moved = ", ".join(f"{n} {v:+.4g}" for n, v in zip(ch["channels"], ch["value"]))
+        lines.append(f"  the offsets (now at the effects' reference) moved by {moved} {unit}")
+    if block["unexplained"] is None:
+        verdict = "not judged: no repeated samples to measure the noise floor independently"
+    elif block["unexplained"]:
+        verdict = "UNEXPLAINED: structure remains above the noise floor that no modelled effect accounts for"
+    else:
+        verdict = "explained: the residual is at the noise floor"
+    test = block["structure_test"]
+    lines.append(f"  residual rms {block['residual_rms_before']:.4g} -> {block['residual_rms_after']:.4g}; {verdict}"
+                 + ("" if test is None else f" (lack-of-fit p = {test['p_value']:.2g})"))
+    return "\n".join(lines)
