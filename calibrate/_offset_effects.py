@@ -312,6 +312,8 @@ class OffsetDiagnosis:
         Final parameters: the base ones, then each claimed effect's block (the base fit's when none).
     jac : ndarray
         Jacobian of the joint weighted residual at ``x``.
+    covariance : ndarray
+        ``(J^T J)^-1 chi2 / dof`` at ``x`` (inf when singular).
     delta : ndarray, shape (n, c)
         The claimed effects' correction of the diagnosed outputs (zeros when none).
     names : list of str
@@ -324,6 +326,7 @@ class OffsetDiagnosis:
 
     x: np.ndarray
     jac: np.ndarray
+    covariance: np.ndarray
     delta: np.ndarray
     names: list
     effects: tuple
@@ -541,14 +544,13 @@ def diagnose_offsets(problem: Problem, *, t_s=None, temp_c=None, candidates=None
         "offset_change": {"channels": list(problem.channels), "value": change.tolist(),
                           "sigma": [_json_float(v) for v in sig[problem.offset_index]]},
     }
-    names_out, effects_out, i = [], [], kb
+    names_out, effects_out = [], []
     for step, e in zip(steps[1:], current.effects):
         names_out += [f"{e.name}[{j}]" for j in range(e.n_params(c))]
         effects_out.append({"name": e.name, "form": e.form, "reference": e.reference(ctx),
                             "parameters": step["parameters"]})
-        i += e.n_params(c)
-    return OffsetDiagnosis(current.x, current.jac, delta(current.x, current.effects), names_out, tuple(effects_out),
-                           block)
+    return OffsetDiagnosis(current.x, current.jac, current.covariance, delta(current.x, current.effects), names_out,
+                           tuple(effects_out), block)
 
 
 def format_offset_diagnosis(block: dict, unit: str = "output units") -> str:

@@ -38,6 +38,7 @@ from scipy.linalg import lstsq
 from compass.frames import direction_sigma_deg, seed_angles
 from compass.io.reference import ReferenceRecording
 
+from ._offset_effects import OffsetDiagnosis, Problem, diagnose_offsets, format_offset_diagnosis, pooled_repeat_noise
 from .platform3d import axis_geometry
 from .result import FORMAT
 
@@ -125,6 +126,13 @@ class ReferenceResult:
         Rms difference between the sensors' calibrated fields and the reference fields over all
         sensors, field units (None with one sensor).
     warnings : tuple of str
+    diagnosis : OffsetDiagnosis or None
+        The residual diagnosis of every sensor's channels (:mod:`calibrate._offset_effects`);
+        None when not run.  With claimed effects the sensors' offsets hold at their reference
+        (the first row's ``t_s``, the mean ``temp_c``) and their residuals are those of the model
+        with them.
+    not_diagnosed : str or None
+        Why the diagnosis did not run, when it did not.
     """
 
     sensors: tuple
@@ -132,6 +140,8 @@ class ReferenceResult:
     condition: float
     spread: float | None
     warnings: tuple = field(default_factory=tuple)
+    diagnosis: OffsetDiagnosis | None = None
+    not_diagnosed: str | None = None
 
     def to_json(self) -> dict:
         """The calibration file (SPEC section 2, channel form), JSON-ready.
@@ -168,6 +178,13 @@ class ReferenceResult:
                 "residual_rms": s.residual_rms.tolist(),
             }
         rms = float(np.sqrt(np.mean(np.concatenate([s.residuals.ravel() for s in self.sensors]) ** 2)))
+        if self.diagnosis is not None:
+            effects, diagnosis = list(self.diagnosis.effects), self.diagnosis.block
+        else:
+            effects = []
+            diagnosis = {"noise_floor": float(np.mean(noise)), "steps": [{"model": "base", "residual_rms": rms}],
+                         "effects": [], "residual_rms_before": rms, "residual_rms_after": rms, "unexplained": None,
+                         "not_applicable": {"diagnosis": self.not_diagnosed or "not run"}}
         return {
             "format": FORMAT,
             "channels": channels,
@@ -175,12 +192,8 @@ class ReferenceResult:
             "dip_sigma_deg": None,
             "field_ut": None,
             "noise_floor": noise,
-            "effects": [],
-            "diagnosis": {"noise_floor": float(np.mean(noise)), "steps": [{"model": "base", "residual_rms": rms}],
-                          "effects": [], "residual_rms_before": rms, "residual_rms_after": rms,
-                          "unexplained": None,
-                          "not_applicable": {"diagnosis": "the noise floor is estimated from this fit's own residual "
-                                                          "(no repeated fields): nothing to test it against"}},
+            "effects": effects,
+            "diagnosis": diagnosis,
             "method": "reference",
             "reference": {"sensors": sensors, "n_fields": self.n_fields, "condition": self.condition,
                           "array_spread": self.spread,
@@ -214,6 +227,10 @@ class ReferenceResult:
                          f"residual rms {pm(s.residual_rms, None, '.3g')}")
         if self.spread is not None:
             lines.append(f"  array: calibrated fields differ from the reference by {self.spread:.3g} rms (field units)")
+        if self.diagnosis is not None:
+            lines.append(format_offset_diagnosis(self.diagnosis.block))
+        elif self.not_diagnosed:
+            lines.append(f"  residual diagnosis not run: {self.not_diagnosed}")
         for w in self.warnings:
             lines.append(f"  warning: {w}")
         return "\n".join(lines)
@@ -265,6 +282,21 @@ def fit_k(name: str, channels: tuple, reference: np.ndarray, outputs: np.ndarray
     g, v0 = coef[:3].T, coef[3]
     residuals = outputs - design @ coef
     dof = n - 4
+    cov = None
+    if dof > 0:
+        s2 = np.sum(residuals**2, axis=0) / dof
+        xtx_inv = np.linalg.inv(design.T @ design)
+        # parameters: G row-major (channel c: entries 3c..3c+2), then V0; channels independent
+        cov = np.zeros((12, 12))
+        for c in range(3):
+            idx = [3 * c, 3 * c + 1, 3 * c + 2, 9 + c]
+            cov[np.ix_(idx, idx)] = s2[c] * xtx_inv
+    return _sensor_k(name, channels, g, v0, cov, residuals, dof)
+
+
+def _sensor_k(name: str, channels: tuple, g: np.ndarray, v0: np.ndarray, cov: np.ndarray | None,
+              residuals: np.ndarray, dof: int) -> SensorK:
+    """A :class:`SensorK` from ``G = K^-1``, ``V0`` and their covariance (G row-major, then V0; None: no sigmas)."""
     k = np.linalg.inv(g)
     geometry = axis_geometry(g)
 
@@ -279,14 +311,7 @@ def fit_k(name: str, channels: tuple, reference: np.ndarray, outputs: np.ndarray
     base = derived(np.concatenate([g.ravel(), v0]))
     sig = None
     unit_cov = None
-    if dof > 0:
-        s2 = np.sum(residuals**2, axis=0) / dof
-        xtx_inv = np.linalg.inv(design.T @ design)
-        # parameters: G row-major (channel c: entries 3c..3c+2), then V0; channels independent
-        cov = np.zeros((12, 12))
-        for c in range(3):
-            idx = [3 * c, 3 * c + 1, 3 * c + 2, 9 + c]
-            cov[np.ix_(idx, idx)] = s2[c] * xtx_inv
+    if cov is not None:
         jac = _jacobian(derived, np.concatenate([g.ravel(), v0]))
         dcov = jac @ cov @ jac.T
         sig = np.sqrt(np.clip(np.diag(dcov), 0.0, None))
@@ -312,12 +337,18 @@ def _jacobian(f, p: np.ndarray) -> np.ndarray:
     return jac
 
 
-def calibrate_reference(rec: ReferenceRecording) -> ReferenceResult:
+def calibrate_reference(rec: ReferenceRecording, *, diagnose: bool = True, candidates=None) -> ReferenceResult:
     """K-matrix calibration of every sensor of an array from known reference fields.
 
     Parameters
     ----------
     rec : ReferenceRecording
+    diagnose : bool
+        Run the residual diagnosis (SPEC section 4, :func:`calibrate._offset_effects.diagnose_offsets`)
+        over every sensor's channels and keep the effects it claims.
+    candidates : sequence of str, optional
+        Effects the diagnosis considers (default ``offset_drift``, needing ``t_s``, and
+        ``temperature``, needing ``temp_c``).
 
     Returns
     -------
@@ -327,6 +358,13 @@ def calibrate_reference(rec: ReferenceRecording) -> ReferenceResult:
     ------
     DegenerateReference
         Fewer than 4 fields or coplanar fields for some sensor (the message names the file).
+
+    Notes
+    -----
+    The diagnosis's noise floor is the pooled scatter of rows that repeat one applied field (the
+    same reference field at every sensor).  Without repeats it is each channel's residual rms of
+    the base fit: the evidence for an effect is then conservative (the floor holds what the effect
+    would explain) and ``unexplained`` is null (nothing to test the residual against).
     """
     conds = {s: _design_check(rec.path, s, rec.reference[s]) for s in rec.sensors}
     sensors = tuple(fit_k(s, rec.channels[s], rec.reference[s], rec.outputs[s]) for s in rec.sensors)
@@ -338,8 +376,63 @@ def calibrate_reference(rec: ReferenceRecording) -> ReferenceResult:
     if rec.reference[rec.sensors[0]].shape[0] == 4:
         warnings.append("exactly 4 reference fields: K and the offsets fit them exactly, so no uncertainty can be "
                         "estimated and no error would show; record more fields")
+    diagnosis, not_diagnosed = None, None
+    outputs = dict(rec.outputs)
+    if not diagnose:
+        not_diagnosed = "not run (calibrate_reference(..., diagnose=False))"
+    elif sensors[0].dof <= 0:
+        not_diagnosed = "exactly 4 reference fields: no residual to examine"
+    else:
+        diagnosis = _diagnose(rec, sensors, candidates)
+        if diagnosis.effects:
+            sensors, outputs = _with_effects(rec, sensors, diagnosis)
     spread = None
     if len(sensors) > 1:
-        diffs = np.concatenate([s.field(rec.outputs[s.name]) - rec.reference[s.name] for s in sensors])
+        diffs = np.concatenate([s.field(outputs[s.name]) - rec.reference[s.name] for s in sensors])
         spread = float(np.sqrt(np.mean(diffs**2)))
-    return ReferenceResult(sensors, len(rec.rows), float(max(conds.values())), spread, tuple(warnings))
+    return ReferenceResult(sensors, len(rec.rows), float(max(conds.values())), spread, tuple(warnings), diagnosis,
+                           not_diagnosed)
+
+
+def _diagnose(rec: ReferenceRecording, sensors: tuple, candidates) -> OffsetDiagnosis:
+    """The residual diagnosis over every sensor's channels (parameters: each sensor's G row-major, then V0)."""
+    n_s = len(sensors)
+    channels = tuple(ch for s in sensors for ch in s.channels)
+    x_base = np.concatenate([np.concatenate([np.linalg.inv(s.k_matrix).ravel(), s.offset]) for s in sensors])
+    refs = [rec.reference[s.name] for s in sensors]
+    measured = np.hstack([rec.outputs[s.name] for s in sensors])
+
+    def linear(x):
+        return np.hstack([ref @ x[12 * i:12 * i + 9].reshape(3, 3).T for i, ref in enumerate(refs)])
+
+    def residuals(x, delta):
+        offsets = np.concatenate([x[12 * i + 9:12 * i + 12] for i in range(n_s)])
+        return measured - linear(x) - offsets - delta, np.empty(0)
+
+    _, groups = np.unique(np.round(np.hstack(refs), 9), axis=0, return_inverse=True)
+    groups = groups.ravel()
+    floor = pooled_repeat_noise(measured, groups)
+    from_repeats = floor is not None
+    if floor is None:
+        groups = np.arange(len(measured))
+        floor = np.concatenate([s.residual_rms for s in sensors])
+    problem = Problem(channels, x_base, linear, residuals, floor, from_repeats, groups, k_channels=12 * n_s,
+                      offset_index=np.concatenate([12 * i + 9 + np.arange(3) for i in range(n_s)]))
+    return diagnose_offsets(problem, t_s=rec.t_s, temp_c=rec.temp_c, candidates=candidates)
+
+
+def _with_effects(rec: ReferenceRecording, sensors: tuple, diagnosis: OffsetDiagnosis) -> tuple[tuple, dict]:
+    """Each sensor refitted with the claimed effects, and its outputs at the effects' reference."""
+    x, cov, c = diagnosis.x, diagnosis.covariance, 3 * len(sensors)
+    n_effect = (x.size - 4 * c) / c  # effect parameters per channel (a shared time constant counts a part)
+    out, corrected = [], {}
+    for i, s in enumerate(sensors):
+        idx = np.arange(12 * i, 12 * i + 12)
+        g, v0 = x[idx[:9]].reshape(3, 3), x[idx[9:]]
+        v_ref = rec.outputs[s.name] - diagnosis.delta[:, 3 * i:3 * i + 3]
+        block = cov[np.ix_(idx, idx)]
+        dof = int(len(v_ref) - 4 - np.ceil(n_effect))
+        out.append(_sensor_k(s.name, s.channels, g, v0, block if np.all(np.isfinite(block)) else None,
+                             v_ref - rec.reference[s.name] @ g.T - v0, dof))
+        corrected[s.name] = v_ref
+    return tuple(out), corrected

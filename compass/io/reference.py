@@ -49,6 +49,8 @@ class ReferenceRecording:
     rows : ndarray of int, shape (n,)
         1-based file line of every row.
     metadata : dict
+    t_s, temp_c : ndarray, shape (n,), or None
+        The optional time (s, non-decreasing) and temperature (degC) columns.
     """
 
     path: str
@@ -58,6 +60,8 @@ class ReferenceRecording:
     reference: dict
     rows: np.ndarray
     metadata: dict
+    t_s: np.ndarray | None = None
+    temp_c: np.ndarray | None = None
 
 
 def read_reference(path) -> ReferenceRecording:
@@ -72,7 +76,7 @@ def reference_from_table(table: Table) -> ReferenceRecording:
     ------
     RecordingError
         A sensor or reference column is missing or unrecognised, no sensor, or fewer than
-        ``MIN_FIELDS`` rows.
+        ``MIN_FIELDS`` rows, or ``t_s`` decreasing.
     """
     cols = set(table.columns)
     groups: dict[str, dict] = {}
@@ -112,4 +116,5 @@ def reference_from_table(table: Table) -> ReferenceRecording:
         raise RecordingError(table.path, f"only {len(table.rows)} reference fields: K and the offsets need at least "
                              f"{MIN_FIELDS} (and more to estimate their uncertainty)", column=_REF[0])
     return ReferenceRecording(table.path, tuple(groups), channels, outputs, reference, np.asarray(table.rows),
-                              dict(table.metadata))
+                              dict(table.metadata), table.time_s(),
+                              table.column("temp_c") if table.has("temp_c") else None)

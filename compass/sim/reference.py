@@ -34,17 +34,27 @@ class SimulatedArray:
     outputs : dict of str to ndarray, shape (n, 3)
         Each sensor's outputs.
     truth : dict
-        JSON-ready, per sensor: ``G`` (= K^-1, output units per uT), ``offset``; and ``noise``.
+        JSON-ready, per sensor: ``G`` (= K^-1, output units per uT), ``offset`` (at ``t_s = 0`` and
+        25 degC), ``drift_change`` and ``temp_offset_per_degc`` (output units; None when not
+        simulated); and ``noise``, ``drift`` (``tau_s``, ``form``), ``temp_ref_c``.
+    t_s : ndarray, shape (n,), or None
+        Time of every row, s (with ``session_s``).
+    temp_c : ndarray, shape (n,), or None
+        Array temperature as recorded (0.01 degC steps), with ``temp_swing_c``.
     """
 
     reference: np.ndarray
     outputs: dict
     truth: dict
+    t_s: np.ndarray | None = None
+    temp_c: np.ndarray | None = None
 
 
 def simulate_reference(*, seed: int = 0, n_sensors: int = 2, n_fields: int = 12, field_ut: float = 50.0,
                        fields: str = "random", gain: float = 1.0, nonorthogonality_deg: float = 1.0,
-                       misalign_deg: float = 3.0, noise: float = 0.05) -> SimulatedArray:
+                       misalign_deg: float = 3.0, noise: float = 0.05, repeats: int = 1,
+                       session_s: float | None = None, drift: float = 0.0, drift_tau_s: float | None = None,
+                       temp_swing_c: float = 0.0, temp_offset_per_c: float = 0.0) -> SimulatedArray:
     """Simulate reference fields applied to an array.
 
     Parameters
@@ -62,6 +72,20 @@ def simulate_reference(*, seed: int = 0, n_sensors: int = 2, n_fields: int = 12,
     nonorthogonality_deg, misalign_deg : float
     noise : float
         White output noise, output units.
+    repeats : int
+        Rows per applied field, one after the other (their scatter measures the noise).
+    session_s : float, optional
+        Length of the session, s: the rows get a ``t_s`` column, evenly spaced over it.
+    drift : float
+        Size of each sensor's offset drift (random direction), output units: the change over the
+        session when ``drift_tau_s`` is None (constant rate), else the settled change of a warm-up
+        ``1 - exp(-t / drift_tau_s)``.  Needs ``session_s``.
+    drift_tau_s : float, optional
+    temp_swing_c : float
+        Amplitude of a temperature cycle, degC, recorded as ``temp_c``: ``25 + swing sin(4 pi i / (n - 1))``
+        over the rows (two cycles, so temperature is not a function of time).
+    temp_offset_per_c : float
+        Size of each sensor's offset temperature coefficient (random direction), output units per degC.
 
     Returns
     -------
@@ -69,6 +93,12 @@ def simulate_reference(*, seed: int = 0, n_sensors: int = 2, n_fields: int = 12,
     """
     if fields not in FIELD_SETS:
         raise ValueError(f"fields must be one of {FIELD_SETS}, got {fields!r}")
+    if repeats < 1:
+        raise ValueError(f"repeats must be at least 1, got {repeats}")
+    if drift and session_s is None:
+        raise ValueError("drift needs session_s (the drift is a function of t_s)")
+    if session_s is not None and not session_s > 0:
+        raise ValueError(f"session_s must be positive, got {session_s}")
     rng = np.random.default_rng(seed)
     truth, outputs = {"noise": noise, "sensors": {}}, {}
     sensors = []
@@ -82,11 +112,35 @@ def simulate_reference(*, seed: int = 0, n_sensors: int = 2, n_fields: int = 12,
     if fields == "coplanar":
         directions[:, 2] = 0.0
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    reference = directions * field_ut * rng.uniform(0.7, 1.3, (n_fields, 1))
+    reference = np.repeat(directions * field_ut * rng.uniform(0.7, 1.3, (n_fields, 1)), repeats, axis=0)
+    n = len(reference)
+    # effects beyond the linear model draw from their own generator: the plain session of a seed stays as it was
+    extra = np.random.default_rng([seed, 1])
+    t_s = None if session_s is None else np.linspace(0.0, session_s, n)
+    temp_true = 25.0 + temp_swing_c * np.sin(4.0 * np.pi * np.arange(n) / max(n - 1, 1))
+    profile = None
+    if drift:
+        profile = t_s / session_s if drift_tau_s is None else -np.expm1(-t_s / drift_tau_s)
+        truth["drift"] = {"tau_s": drift_tau_s,
+                          "form": "linear over the session" if drift_tau_s is None else "exponential warm-up"}
+    if temp_swing_c:
+        truth["temp_ref_c"] = 25.0
     for name, g, v0 in sensors:
-        outputs[name] = reference @ g.T + v0 + rng.normal(scale=noise, size=(n_fields, 3))
-        truth["sensors"][name] = {"G": g.tolist(), "offset": v0.tolist()}
-    return SimulatedArray(reference, outputs, truth)
+        outputs[name] = reference @ g.T + v0 + rng.normal(scale=noise, size=(n, 3))
+        truth["sensors"][name] = {"G": g.tolist(), "offset": v0.tolist(), "drift_change": None,
+                                  "temp_offset_per_degc": None}
+        if drift:
+            change = extra.normal(size=3)
+            change *= drift / np.linalg.norm(change)
+            outputs[name] = outputs[name] + np.outer(profile, change)
+            truth["sensors"][name]["drift_change"] = change.tolist()
+        if temp_swing_c:
+            k = extra.normal(size=3)
+            k *= temp_offset_per_c / np.linalg.norm(k)
+            outputs[name] = outputs[name] + np.outer(temp_true - 25.0, k)
+            truth["sensors"][name]["temp_offset_per_degc"] = k.tolist()
+    temp_c = np.round(temp_true, 2) if temp_swing_c else None
+    return SimulatedArray(reference, outputs, truth, t_s, temp_c)
 
 
 def write_reference(sim: SimulatedArray, path, *, force: bool = False) -> tuple[Path, Path]:
@@ -99,6 +153,8 @@ def write_reference(sim: SimulatedArray, path, *, force: bool = False) -> tuple[
     """
     names = list(sim.outputs)
     header = ["bx_ref", "by_ref", "bz_ref"] + [f"{s}_{a}" for s in names for a in "xyz"]
-    data = np.column_stack([sim.reference] + [sim.outputs[s] for s in names])
+    extra = [(name, v) for name, v in (("t_s", sim.t_s), ("temp_c", sim.temp_c)) if v is not None]
+    header += [name for name, _ in extra]
+    data = np.column_stack([sim.reference] + [sim.outputs[s] for s in names] + [v for _, v in extra])
     text = csv_text(header, data, "%.6f", {"source": "compass simulate reference"})
     return write_with_truth(path, text, sim.truth, force=force)
