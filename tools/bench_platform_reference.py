@@ -40,14 +40,24 @@ seed (``--seed .. --seed + n - 1``), so two runs print the same table apart from
    noise floor, and the hard-iron error (against the truth at the effects' reference time and
    temperature) of the plain ellipsoid and of the final result.
 
+4. **Platform and K-matrix diagnosis**: ``--diag-seeds`` recordings per case of each fit, with
+   ``t_s`` over a 1800 s session and a ``temp_c`` cycle of +-10 degC recorded in every case:
+   clean; an offset drift (2 uT linear on the platform, 0.5 output units on the array); a warm-up
+   (the same with tau 300 s); a temperature coefficient (0.1 uT/degC, 0.03 per degC).  The platform
+   is the default grid (3 samples per pose), the array 24 fields applied 3 times each.  Printed:
+   what the loop named, how often ``unexplained`` was true, the residual rms before and after over
+   the injected noise and over the estimated floor, and the offset error at the effects'
+   reference over its reported sigma (RMS over channels and seeds).
+
 Wall time of every method is printed too (median per call; the machine may be shared, so read
 them as rough).  One BLAS thread, one process.
 
 Usage::
 
-    python tools/bench_platform_reference.py [--quick] [--n 50] [--tumble-seeds 10] [--seed 0] [--fields 12]
+    python tools/bench_platform_reference.py [--quick] [--n 50] [--tumble-seeds 10] [--diag-seeds 10] [--seed 0]
+        [--fields 12] [--only diagnosis]
 
-``--quick``: 10 sessions per seed section and 3 tumbles per case (about 5 s; the full run about 20 s
+``--quick``: 10 sessions per seed section, 3 tumbles and 3 diagnosis recordings per case (about 7 s; the full run about 26 s
 on two CPUs).
 """
 
@@ -574,10 +584,106 @@ def print_tumble(r: dict, n_seeds: int, seed: int) -> None:
     print("  explained; an effect -> exactly it named and explained; the step -> nothing named and unexplained.")
 
 
+# ---------------------------------------------------------------------------------------------- diagnosis
+
+DIAG_CASES = (
+    # label, platform options, array options, expected effect (None: nothing)
+    ("clean", {}, {}, None),
+    ("offset drift (linear)", {"drift_ut": 2.0}, {"drift": 0.5}, "offset_drift"),
+    ("offset drift (warm-up, tau 300 s)", {"drift_ut": 2.0, "drift_tau_s": 300.0},
+     {"drift": 0.5, "drift_tau_s": 300.0}, "offset_drift"),
+    ("temperature (offset)", {"temp_offset_ut_per_c": 0.1}, {"temp_offset_per_c": 0.03}, "temperature"),
+)
+DIAG_SESSION = {"session_s": 1800.0, "temp_swing_c": 10.0}
+DIAG_ARRAY = {"n_fields": 24, "repeats": 3}
+DIAG_EFFECTS = ("offset_drift", "temperature", "nonlinear_response")
+
+
+def offset_error_over_sigma(res, sim, fit_kind: str) -> np.ndarray:
+    """Offset error at the effects' reference (first sample, mean temp_c) over its reported sigma."""
+    temp_ref = None if sim.temp_c is None else float(np.mean(sim.temp_c))
+    if fit_kind == "platform":
+        truth = np.array(sim.truth["mag_offset"])
+        temp = sim.truth["temperature"]
+        if temp is not None:
+            truth = truth + np.array(temp["offset_ut_per_degc"]) * (temp_ref - temp["temp_ref_c"])
+        return (res.mag_offset - truth) / res.mag_response_sigma[:, 0]
+    out = []
+    for s in res.sensors:
+        t = sim.truth["sensors"][s.name]
+        truth = np.array(t["offset"])
+        if t["temp_offset_per_degc"] is not None:
+            truth = truth + np.array(t["temp_offset_per_degc"]) * (temp_ref - sim.truth["temp_ref_c"])
+        out.append((s.offset - truth) / s.offset_sigma)
+    return np.concatenate(out)
+
+
+def run_diagnosis(seeds, workdir: Path) -> dict:
+    out = {}
+    for fit_kind in ("platform", "array"):
+        for label, plat_kw, array_kw, _ in DIAG_CASES:
+            recs = []
+            for seed in seeds:
+                if fit_kind == "platform":
+                    sim = simulate_platform3d(seed=seed, **DIAG_SESSION, **plat_kw)
+                    path, _ = write_platform3d(sim, workdir / f"diag_p_{seed}.csv", force=True)
+                    rec, noise = read_platform3d(path), sim.truth["noise_mag"]
+                    t0 = time.perf_counter()
+                    res = calibrate_platform3d(rec)
+                else:
+                    sim = simulate_reference(seed=seed, **DIAG_ARRAY, **DIAG_SESSION, **array_kw)
+                    path, _ = write_reference(sim, workdir / f"diag_r_{seed}.csv", force=True)
+                    rec, noise = read_reference(path), sim.truth["noise"]
+                    t0 = time.perf_counter()
+                    res = calibrate_reference(rec)
+                elapsed = time.perf_counter() - t0
+                block = res.diagnosis.block
+                recs.append({"named": tuple(block["effects"]), "unexplained": block["unexplained"],
+                             "forms": tuple(st["form"] for st in block["steps"][1:]),
+                             "noise": noise, "floor": block["noise_floor"], "before": block["residual_rms_before"],
+                             "after": block["residual_rms_after"], "z": offset_error_over_sigma(res, sim, fit_kind),
+                             "time": elapsed})
+            out[(fit_kind, label)] = recs
+    return out
+
+
+def print_diagnosis(r: dict, n_seeds: int, seed: int) -> None:
+    print(f"\n(4) Platform (seed 001) and K-matrix (seed 003) residual diagnosis: {n_seeds} seeds per case ({seed}.."
+          f"{seed + n_seeds - 1}); every recording has t_s (1800 s) and a +-10 degC temp_c cycle")
+    print("    platform: simulate_platform3d grid, 3 samples per pose, noise 0.1 uT, calibrate_platform3d; array: "
+          "simulate_reference, 2 sensors, 24 fields x 3, noise 0.05, calibrate_reference")
+    row("fit / true case", ["none", "drift", "temp", "nonlin", "other", "unexpl.", "rms/noise", "rms/noise",
+                            "rms/floor", "offset", "time"], width=10, first=44)
+    row("", ["", "", "", "", "", "", "before", "after", "after", "err/sig", "med ms"], width=10, first=44)
+    for (fit_kind, label), recs in r.items():
+        counts = Counter(rec["named"] for rec in recs)
+        singles = [counts.get((), 0)] + [counts.get((e,), 0) for e in DIAG_EFFECTS]
+        other = sum(v for k, v in counts.items() if len(k) > 1)
+        unexpl = sum(1 for rec in recs if rec["unexplained"])
+        row(f"{fit_kind}: {label}", [str(v) for v in singles] + [
+            str(other), str(unexpl),
+            f"{np.median([rec['before'] / rec['noise'] for rec in recs]):.3f}",
+            f"{np.median([rec['after'] / rec['noise'] for rec in recs]):.3f}",
+            f"{np.median([rec['after'] / rec['floor'] for rec in recs]):.3f}",
+            f"{rms([rec['z'] for rec in recs]):.2f}", median_ms([rec["time"] for rec in recs])], width=10, first=44)
+    forms = Counter((fit_kind, label, f) for (fit_kind, label), recs in r.items() for rec in recs for f in rec["forms"]
+                    if "drift" in label)
+    if forms:
+        print("  drift forms chosen: " + ", ".join(f"{k[0]} {k[1].split(' (')[1].rstrip(')').split(',')[0]} -> {k[2]} x{v}"
+                                                   for k, v in sorted(forms.items())))
+    print("  rms: median over seeds of the diagnosed channels' residual rms over the injected noise (before: base fit; "
+          "after: final) and over")
+    print("  the floor the loop estimated (repeat scatter); offset err/sig: RMS over channels and seeds of the final "
+          "offsets' error at the")
+    print("  effects' reference (first sample, mean temp_c) over their reported sigma (1 when honest). nonlinear_response "
+          "is examined on the")
+    print("  platform only; neither simulator injects it (tests/test_platform3d_diagnose.py bends a recording by hand).")
+
+
 # ---------------------------------------------------------------------------------------------- main
 
 def print_times(*groups) -> None:
-    print("\n(4) Wall time per call, ms (one process, one BLAS thread; fits include their covariance propagation,")
+    print("\n(5) Wall time per call, ms (one process, one BLAS thread; fits include their covariance propagation,")
     print("    calibrate_tumble its diagnosis and joint refinement)")
     row("method", ["median", "max", "calls"], width=12, first=58)
     for times in groups:
@@ -606,7 +712,22 @@ def main(argv=None) -> int:
     parser.add_argument("--tumble-seeds", type=int, default=None, help="tumbles per case (default 10; 3 with --quick)")
     parser.add_argument("--seed", type=int, default=0, help="first seed; session i uses seed + i (default 0)")
     parser.add_argument("--fields", type=int, default=12, help="reference fields per K-matrix session (default 12)")
+    parser.add_argument("--diag-seeds", type=int, default=None,
+                        help="platform/K-matrix diagnosis recordings per case (default 10; 3 with --quick)")
+    parser.add_argument("--only", choices=("diagnosis",), default=None,
+                        help="run only section (4), the platform/K-matrix diagnosis")
     args = parser.parse_args(argv)
+    n_diag = args.diag_seeds if args.diag_seeds is not None else (3 if args.quick else 10)
+    if n_diag < 1:
+        parser.error(f"--diag-seeds must be at least 1, got {n_diag}")
+    if args.only == "diagnosis":
+        print(f"bench_platform_reference (diagnosis only): seed {args.seed}, {n_diag} recordings per case; code "
+              f"{code_version()}")
+        t0 = time.perf_counter()
+        with tempfile.TemporaryDirectory() as tmp:
+            print_diagnosis(run_diagnosis(range(args.seed, args.seed + n_diag), Path(tmp)), n_diag, args.seed)
+        print(f"\nsection: diagnosis {time.perf_counter() - t0:.1f} s")
+        return 0
     n = args.n if args.n is not None else (10 if args.quick else 50)
     n_tumble = args.tumble_seeds if args.tumble_seeds is not None else (3 if args.quick else 10)
     if n < 2 or n_tumble < 1:
@@ -631,10 +752,14 @@ def main(argv=None) -> int:
         refusals = run_refusals(range(args.seed, args.seed + n_ref_seeds), workdir)
         sections.append(("reference", time.perf_counter() - t0))
         print_reference(ref, refusals, n, args.seed, args.fields, n_ref_seeds)
+        t0 = time.perf_counter()
+        diag = run_diagnosis(range(args.seed, args.seed + n_diag), workdir)
+        sections.append(("diagnosis", time.perf_counter() - t0))
     t0 = time.perf_counter()
     tum = run_tumble(range(args.seed, args.seed + n_tumble))
     sections.append(("tumble", time.perf_counter() - t0))
     print_tumble(tum, n_tumble, args.seed)
+    print_diagnosis(diag, n_diag, args.seed)
     print_times(plat["time"], ref["time"],
                 {f"calibrate_tumble, {label.split(' (')[0]}": [rec["time"] for rec in recs] for label, recs in tum.items()})
     print("\nsections: " + ", ".join(f"{k} {v:.1f} s" for k, v in sections)
