@@ -113,3 +113,10 @@ def test_cli_prints_before_and_after(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "Residual diagnosis" in out and "+ temperature" in out and "residual rms" in out
     assert json.loads((tmp_path / "cal.json").read_text())["diagnosis"]["effects"] == ["temperature"]
+
+
+def test_cli_no_diagnose_keeps_the_base_fit(tmp_path, capsys):
+    sim = simulate_reference(seed=38, session_s=SESSION_S, temp_swing_c=10.0, temp_offset_per_c=0.03, **REPEATED)
+    path, _ = write_reference(sim, tmp_path / "rec.csv")
+    assert main(["calibrate", str(path), "--out", str(tmp_path / "cal.json"), "--no-diagnose"]) == 0
+    assert json.loads((tmp_path / "cal.json").read_text())["diagnosis"]["effects"] == []

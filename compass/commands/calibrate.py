@@ -71,7 +71,7 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
     if kind == "tumble":
         return _calibrate_tumble(table, out, field_ut=field_ut, ellipsoid=ellipsoid, quiet=quiet, report=report)
     if kind in ("platform3d", "reference"):
-        return _calibrate_other(kind, table, out, field_ut=field_ut, quiet=quiet)
+        return _calibrate_other(kind, table, out, field_ut=field_ut, diagnose=diagnose, quiet=quiet)
     rec = fourflip_from_table(table)
 
     from calibrate import calibrate_fourflip
@@ -143,7 +143,7 @@ def _calibrate_tumble(table, out, *, field_ut, ellipsoid, quiet, report=None):
     return result
 
 
-def _calibrate_other(kind, table, out, *, field_ut, quiet):
+def _calibrate_other(kind, table, out, *, field_ut, diagnose, quiet):
     """3-D platform (seed 001) and reference-field (seed 003) recordings: fit, report, write."""
     from ..cli import BadInput
 
@@ -158,7 +158,7 @@ def _calibrate_other(kind, table, out, *, field_ut, quiet):
 
         from ..io.reference import reference_from_table as parse
     try:
-        result = fit(parse(table), **({"field_ut": field_ut} if kind == "platform3d" else {}))
+        result = fit(parse(table), diagnose=diagnose, **({"field_ut": field_ut} if kind == "platform3d" else {}))
     except Undetermined as exc:  # the recording cannot determine the model: bad input
         raise BadInput(str(exc)) from None
     if not quiet:
