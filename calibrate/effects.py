@@ -69,6 +69,10 @@ class Effect:
         """Factor from fit parameters to the reported values (units in ``param_names``)."""
         return 1.0
 
+    def reference(self, physics: BenchPhysics) -> dict:
+        """Where the effect is zero, so where the file's responses hold (written with the effect)."""
+        return {}
+
 
 @dataclass(frozen=True)
 class NonlinearResponse(Effect):
@@ -185,6 +189,9 @@ class OffsetDrift(Effect):
         drift = p.reshape(-1, self.degree) * physics.gains[:, None]
         return physics.with_(drift=drift, drift_t0=t0, drift_scale_s=half)
 
+    def reference(self, physics):
+        return {"t_s": float(physics.drift_t0)}  # the session's midpoint
+
 
 @dataclass(frozen=True)
 class WarmUp(OffsetDrift):
@@ -214,6 +221,9 @@ class WarmUp(OffsetDrift):
         tau = session * np.exp(np.clip(p[-1], -6.0, 6.0))
         return physics.with_(warmup=p[:-1] * physics.gains, warmup_tau_s=tau, drift_t0=samples.t_s.min())
 
+    def reference(self, physics):
+        return {"after_warm_up": True}  # the offsets the channels settle to
+
 
 class Temperature(Effect):
     def applicable(self, samples):
@@ -239,6 +249,9 @@ class Temperature(Effect):
 
     def report_scale(self, physics):
         return np.tile([1.0, 0.01], len(physics.gains))
+
+    def reference(self, physics):
+        return {"temp_c": float(physics.temp_ref_c)}
 
 
 _NONLINEAR = "curves flattened, sharpened or made asymmetric toward their extremes (harmonics growing with B.a): a curved response"

@@ -103,8 +103,10 @@ def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progres
     effects = []
     for effect in fit.effects:
         names, values, sigmas = fit.effect_parameters(effect)
-        effects.append({"name": effect.name, "parameters": {
-            n: {"value": float(v), "sigma": float(e)} for n, v, e in zip(names, values, sigmas)}})
+        entry = {"name": effect.name, "parameters": {
+            n: {"value": float(v), "sigma": float(e)} for n, v, e in zip(names, values, sigmas)}}
+        reference = effect.reference(fit.physics)
+        effects.append({**entry, "reference": reference} if reference else entry)
     warnings = (UNEXPLAINED_WARNING,) if diagnosis["unexplained"] else ()
     return result_from_ml(fit, rec, noise, field_ut, effects=effects, diagnosis=diagnosis, extra_warnings=warnings)
 

@@ -155,6 +155,7 @@ def solve_attitude(
     disturbance_sigma: float = 5.0,
     field_tolerance: float = 0.02,
     dip_tolerance_deg: float = 1.0,
+    temp_c=None,
 ) -> Attitude:
     """Attitude of every sample from the channel outputs and gravity (or a known/assumed tilt).
 
@@ -178,6 +179,9 @@ def solve_attitude(
         A row is ``disturbed`` when ``|field_ratio - 1|`` exceeds ``max(k sigma, field_tolerance)``
         or the dip error exceeds ``max(k sigma, dip_tolerance_deg)`` (``level``: the tilt it shows
         exceeds ``max_tilt_deg`` by more than that), ``k = disturbance_sigma``.
+    temp_c : array_like, shape (n,), optional
+        Sensor temperature, degC: applies the calibration's ``temperature`` effect
+        (:meth:`compass.model.SensorModel.field`).
 
     Returns
     -------
@@ -214,7 +218,7 @@ def solve_attitude(
     if not accel_noise_g > 0:
         raise ValueError(f"accel_noise_g must be positive, got {accel_noise_g}")
 
-    field, in_range = model.field(raw)
+    field, in_range = model.field(raw, temp_c)
     n = len(field)
     var = np.ascontiguousarray(model.component_variance(field).T)  # (c, n)
     b = np.ascontiguousarray(field.T)  # component-major (3, n): elementwise work on contiguous rows

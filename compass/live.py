@@ -112,7 +112,10 @@ class LiveSession:
             self._filter = AttitudeFilter(self.config, gyro=header.gyro is not None)
             self._event("info", f"filter: {'gyro (error-state EKF with bias)' if self._filter.gyro else 'two-vector'}"
                                 f"{'' if header.accel is not None else '; no accelerometer: no attitude'}")
-        field_h, in_range = self.model.field(sample.raw[None, :])
+            if self.model.temperature is not None and header.temp_c is None:
+                self._event("warn", "the calibration has a temperature effect but the module sends no temp_c: "
+                                    f"readings are taken as at {self.model.temperature.reference_c:.1f} degC")
+        field_h, in_range = self.model.field(sample.raw[None, :], sample.temp_c)
         field_h = field_h[0]
         t_s = sample.t_s if sample.t_s is not None else t_rx - self._t0
         est = self._filter.step(t_s, sample.accel, sample.gyro, field_h)

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from .response import LinearResponse, Response, response_from_json
+from .temperature import TemperatureCompensation
 
 __all__ = ["FORMAT", "SensorModel"]
 
@@ -70,6 +71,8 @@ class SensorModel:
         field unit; None when unknown.
     kind : {"channels", "tumble"}
         The calibration file's form.
+    temperature : TemperatureCompensation or None
+        The file's ``temperature`` effect: applied when readings come with ``temp_c``.
     """
 
     channels: tuple[str, ...]
@@ -82,6 +85,7 @@ class SensorModel:
     direction_covariance: np.ndarray | None = None
     response_sigma: np.ndarray | None = None
     kind: str = "channels"
+    temperature: TemperatureCompensation | None = None
 
     def __post_init__(self):
         c = len(self.channels)
@@ -166,6 +170,7 @@ class SensorModel:
             rs = ch.get("response_sigma")
             sigmas.append(None if rs is None else (_optional_float(rs, "offset"), _optional_float(rs, "gain")))
         noise = d.get("noise_floor")
+        gains = np.array([r.gain for r in responses])
         return cls(
             channels=tuple(names),
             directions=np.array(directions),
@@ -176,6 +181,7 @@ class SensorModel:
             noise=None if noise is None else _vector(noise, len(names), "noise_floor"),
             direction_covariance=None if any(c is None for c in covariances) else np.array(covariances),
             response_sigma=(None if any(s is None or None in s for s in sigmas) else np.array(sigmas, dtype=float)),
+            temperature=TemperatureCompensation.from_effects(d.get("effects"), names, gains),
         )
 
     def to_json(self) -> dict:
@@ -194,6 +200,8 @@ class SensorModel:
                                            "gain": float(self.response_sigma[c, 1])}
             channels[name] = entry
         out = {"format": FORMAT, "channels": channels, "dip_deg": self.dip_deg, "field_ut": self.field_ut}
+        if self.temperature is not None:
+            out["effects"] = [self.temperature.to_json(self.channels)]
         if self.noise is not None:
             out["noise_floor"] = [float(v) for v in self.noise]
         return out
@@ -212,6 +220,11 @@ class SensorModel:
         return np.array([r.gain for r in self.responses])
 
     @cached_property
+    def zero_outputs(self) -> np.ndarray:
+        """Each channel's output at zero field, output units, shape (c,)."""
+        return np.array([float(r.output(0.0)) for r in self.responses])
+
+    @cached_property
     def component_noise(self) -> np.ndarray | None:
         """Noise of each field component at zero field, field units, shape (c,); None if unknown."""
         return None if self.noise is None else np.asarray(self.noise, float) / self.gains
@@ -225,13 +238,16 @@ class SensorModel:
 
     # ------------------------------------------------------------------ runtime
 
-    def components(self, raw) -> tuple[np.ndarray, np.ndarray]:
+    def components(self, raw, temp_c=None) -> tuple[np.ndarray, np.ndarray]:
         """Invert every channel's response.
 
         Parameters
         ----------
         raw : array_like, shape (..., c)
             Channel outputs (output units), channels in the order of :attr:`channels`.
+        temp_c : float or array_like, shape (...), optional
+            Sensor temperature of each reading, degC: with a :attr:`temperature` effect the
+            readings are first taken back to its reference temperature; ignored without one.
 
         Returns
         -------
@@ -244,16 +260,20 @@ class SensorModel:
         if raw.shape[-1:] != (len(self.channels),):
             raise ValueError(f"expected raw outputs of shape (..., {len(self.channels)}) for channels "
                              f"{', '.join(self.channels)}, got {raw.shape}")
+        if self.temperature is not None and temp_c is not None:
+            raw = self.temperature.to_reference(raw, temp_c, self.zero_outputs)
         pairs = [r.field_component(raw[..., c]) for c, r in enumerate(self.responses)]
         return np.stack([p[0] for p in pairs], axis=-1), np.stack([p[1] for p in pairs], axis=-1)
 
-    def field(self, raw) -> tuple[np.ndarray, np.ndarray]:
+    def field(self, raw, temp_c=None) -> tuple[np.ndarray, np.ndarray]:
         """Field vector in the housing frame H from channel outputs.
 
         Parameters
         ----------
         raw : array_like, shape (..., c)
             Channel outputs (output units).
+        temp_c : float or array_like, shape (...), optional
+            Sensor temperature of each reading, degC (see :meth:`components`).
 
         Returns
         -------
@@ -269,7 +289,7 @@ class SensorModel:
         >>> m.field([[3.0, 1.0, 1.0]])[0]
         array([[1., 0., 0.]])
         """
-        x, ok = self.components(raw)
+        x, ok = self.components(raw, temp_c)
         return _times(x, self.solver.T), np.all(ok, axis=-1)
 
     def component_variance(self, field) -> np.ndarray:
@@ -359,6 +379,7 @@ def _from_tumble(d: dict, field_ut, dip_deg) -> SensorModel:
         dip_deg=dip_deg,
         noise=None if noise is None else _vector(noise, 3, "noise_floor"),
         kind="tumble",
+        temperature=TemperatureCompensation.from_effects(d.get("effects"), _TUMBLE_CHANNELS, gains),
     )
 
 

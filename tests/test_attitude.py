@@ -242,3 +242,31 @@ def test_cli_rejects_unknown_calibration_format(files, tmp_path, capsys):
     (tmp_path / "cal.json").write_text(json.dumps(doc))
     assert main(["attitude", str(tmp_path / "cal.json"), str(rec), "--out", str(tmp_path / "o.csv")]) == 2
     assert "unknown calibration format 'compass-calibration/9'" in capsys.readouterr().err
+
+
+def test_cli_applies_or_warns_about_the_temperature_effect(files, tmp_path, capsys):
+    folder, cal, rec, truth_csv = files
+    d = json.loads(cal.read_text())
+    d["effects"] = [{"name": "temperature", "reference": {"temp_c": 20.0}, "parameters": {
+        f"{c}.offset_per_degc": {"value": 0.01} for c in d["channels"]}}]
+    hot_cal = tmp_path / "cal.json"
+    hot_cal.write_text(json.dumps(d))
+    # the same sensor read at 30 degC: every output 0.1 higher than at the reference
+    lines = rec.read_text().splitlines()
+    header = lines[0].split(",")
+    shifted = [lines[0] + ",temp_c"]
+    for line in lines[1:]:
+        cells = line.split(",")
+        shifted.append(",".join(f"{float(v) + 0.1:.9g}" if name in d["channels"] else v
+                                for name, v in zip(header, cells)) + ",30")
+    hot = tmp_path / "hot.csv"
+    hot.write_text("\n".join(shifted) + "\n")
+    assert main(["attitude", str(hot_cal), str(hot), "--out", str(tmp_path / "a.csv")]) == 0
+    assert main(["attitude", str(cal), str(rec), "--out", str(tmp_path / "b.csv")]) == 0
+    compensated, plain = read_table(tmp_path / "a.csv"), read_table(tmp_path / "b.csv")
+    assert "compensated to 20.00 degC" in compensated.metadata["temperature"]
+    np.testing.assert_allclose(compensated.column("heading_deg"), plain.column("heading_deg"), atol=1e-3)
+    capsys.readouterr()
+    assert main(["attitude", str(hot_cal), str(rec), "--out", str(tmp_path / "c.csv")]) == 0
+    assert "no temp_c column" in capsys.readouterr().out
+    assert "NOT compensated" in read_table(tmp_path / "c.csv").metadata["temperature"]

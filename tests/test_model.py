@@ -151,3 +151,60 @@ def test_from_file_names_the_file(tmp_path):
         SensorModel.from_file(bad)
     with pytest.raises(ValueError, match="missing.json: cannot read"):
         SensorModel.from_file(tmp_path / "missing.json")
+
+
+def test_runtime_takes_readings_back_to_the_calibrated_temperature():
+    # a four-flip calibration that found the temperature effect, then the true sensor read at 10 and
+    # 45 degC (the recording spanned 22-32 degC) in 300 known fields
+    from calibrate import calibrate_fourflip
+    from compass.sim.bench import BenchSamples, channel_outputs
+    from compass.sim.fourflip import simulate_fourflip
+
+    session = simulate_fourflip(seed=0, effects=("temperature",))
+    d = calibrate_fourflip(session.recording(), diagnose=True).to_json()
+    model = SensorModel.from_json(d)
+    effect = next(e for e in d["effects"] if e["name"] == "temperature")
+    truth = session.truth["effects"][0]["parameters"]
+    physics = session.base_physics().with_(temp_offset=np.array(truth["offset_per_degc"]),
+                                           temp_gain=np.array(truth["gain_per_degc"]), temp_ref_c=truth["ref_c"])
+    b = np.random.default_rng(0).normal(size=(300, 3))
+    b *= session.truth["field_ut"] / np.linalg.norm(b, axis=1, keepdims=True)
+    zero = np.zeros(len(b))
+
+    def rms_error(temp, compensate):
+        samples = BenchSamples(zero, zero, zero.astype(int), None, np.full(len(b), temp))
+        v = channel_outputs(physics, samples, b @ physics.directions.T)
+        field = model.field(v, temp if compensate else None)[0]
+        return float(np.sqrt(np.mean(np.sum((field - b) ** 2, axis=1))))
+
+    at_reference = rms_error(effect["reference"]["temp_c"], True)
+    for temp in (10.0, 45.0):
+        dt = temp - effect["reference"]["temp_c"]
+        p = effect["parameters"]
+        # what the effect's own sigmas allow (offset in field units, relative gain at |x| ~ |B| / sqrt 3)
+        var = sum((p[f"{c}.offset_fieldunit_per_degc"]["sigma"] * dt) ** 2
+                  + (p[f"{c}.gain_rel_per_degc"]["sigma"] * dt) ** 2 * session.truth["field_ut"] ** 2 / 3.0
+                  for c in model.channels)
+        allowed = 3.0 * np.sqrt(var + at_reference**2)
+        assert rms_error(temp, True) < allowed < 0.2 * rms_error(temp, False)
+
+
+def test_temperature_compensation_inverts_its_model_in_every_spelling():
+    # v = V0 + dV dT + (1 + g dT)(v_ref - V0): the tumble's and the platform's spellings mean the same
+    tumble = {"format": FORMAT, "model": "tumble", "hard_iron": [5.0, -3.0, 2.0], "soft_iron": np.eye(3).tolist(),
+              "field_norm": 50.0, "mag_to_accel": None, "dip_deg": 60.0,
+              "effects": [{"name": "temperature", "reference": {"temp_c": 25.0}, "parameters": {
+                  f"{c}.{k}": {"value": v} for c, dv, g in (("mx", 0.2, 1e-3), ("my", -0.1, -2e-3), ("mz", 0.05, 0.0))
+                  for k, v in (("hard_iron_per_degc", dv), ("scale_rel_per_degc", g))}}]}
+    model = SensorModel.from_json(tumble)
+    again = SensorModel.from_json(model.to_json())  # written back in the channel spelling
+    b = np.array([[20.0, -30.0, 35.0], [-40.0, 10.0, -28.0]])
+    v_ref = np.array([5.0, -3.0, 2.0]) + b
+    dt = 40.0 - 25.0
+    v = np.array([5.0, -3.0, 2.0]) + np.array([0.2, -0.1, 0.05]) * dt + (1 + np.array([1e-3, -2e-3, 0.0]) * dt) * (v_ref - [5.0, -3.0, 2.0])
+    for m in (model, again):
+        np.testing.assert_allclose(m.field(v, 40.0)[0], b, atol=1e-9)
+        assert np.max(np.abs(m.field(v)[0] - b)) > 1.0  # ignored without temp_c
+    tumble["effects"][0].pop("reference")
+    with pytest.raises(ValueError, match="reference temperature"):
+        SensorModel.from_json(tumble)

@@ -16,7 +16,7 @@ from ..io.table import RecordingError, read_table
 
 _ACCEL = ("ax", "ay", "az")
 _TILT = ("pitch_deg", "roll_deg")
-_IGNORED = ("t_s", "temp_c", "gx", "gy", "gz")
+_IGNORED = ("t_s", "temp_c", "gx", "gy", "gz")  # temp_c is used when the calibration has a temperature effect
 _FORMATS = {"in_range": "%d", "disturbed": "%d", "t_s": "%.4f"}
 
 
@@ -84,10 +84,11 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
         _check_rows(table, np.sum(accel**2, axis=1) > 0, "ax", "accelerometer reads zero: expected gravity")
     if tilt is not None:
         _check_rows(table, np.abs(tilt[:, 0]) <= 90.0, "pitch_deg", "pitch must be in [-90, 90] degrees")
+    temp_c = table.column("temp_c") if table.has("temp_c") else None
     try:
         result = solve_attitude(model, raw, accel=accel, pitch_deg=None if tilt is None else tilt[:, 0],
                                 roll_deg=None if tilt is None else tilt[:, 1], level=level,
-                                accel_noise_g=accel_noise_g, max_tilt_deg=max_tilt_deg)
+                                accel_noise_g=accel_noise_g, max_tilt_deg=max_tilt_deg, temp_c=temp_c)
     except ValueError as exc:
         raise BadInput(f"{recording}: {exc}") from None
 
@@ -97,6 +98,13 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
         metadata["accel_noise_g"] = f"{accel_noise_g:g}"
     if result.mode == "level":
         metadata["max_tilt_deg"] = f"{max_tilt_deg:g}"
+    if model.temperature is not None:
+        metadata["temperature"] = (f"compensated to {model.temperature.reference_c:.2f} degC from temp_c"
+                                   if temp_c is not None else
+                                   f"NOT compensated: the calibration has a temperature effect (reference "
+                                   f"{model.temperature.reference_c:.2f} degC) but the recording no temp_c column")
+        if temp_c is None:
+            print(f"warning: {recording} has no temp_c column: the calibration's temperature effect is not applied")
     if model.direction_covariance is None:
         metadata["note"] = "the calibration gives no direction covariance: sigmas count sensor noise only"
     atomic_write_text(out, _format_csv(columns, metadata))
