@@ -1,6 +1,7 @@
 """Residual diagnosis of fits made against known inputs: the 3-D platform (seed 001) and reference fields (seed 003).
 
-The loop of :mod:`calibrate.diagnose` (SPEC section 4) for a model whose diagnosed channels read
+The loop of :mod:`calibrate.diagnose` (SPEC section 4; steps 2 and 3 and the last part of 4 are
+:func:`calibrate._evidence.select_effects`) for a model whose diagnosed channels read
 
 .. math:: v_{ic} = y_{ic}(p) + o_c + \\Delta_{ic}(q),
 
@@ -13,9 +14,9 @@ channel offsets and ``Delta`` the sum of the effects' corrections (zero for the 
    whatever an effect would explain).
 2. Score (Lagrange-multiplier) test of every applicable form (:func:`calibrate._mlfit.linear_score`,
    the current parameters projected out); the most promising form per effect is refitted.
-3. The refit with the largest decisive evidence (:data:`~calibrate.diagnose.DECISIVE_BIC`) is added
-   when it explains a real share (:data:`~calibrate.diagnose.MIN_SHARE`) of the structured residual
-   and its parameters are determined; repeat (at most :data:`~calibrate.diagnose.MAX_STEPS`).
+3. The refit with the largest decisive evidence (:data:`~calibrate._evidence.DECISIVE_BIC`) is added
+   when it explains a real share (:data:`~calibrate._evidence.MIN_SHARE`) of the structured residual
+   and its parameters are determined; repeat (at most :data:`~calibrate._evidence.MAX_STEPS`).
 4. ``unexplained`` (with a floor from repeats): a lack-of-fit test, the repeat groups' mean
    residuals against the floor (chi-square on ``groups x channels - parameters`` dof) with
    p below :data:`~calibrate.diagnose.STRUCTURE_P`, or an rms more than
@@ -46,8 +47,8 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_dist
 
-from ._mlfit import linear_score, unit_columns
-from .diagnose import DECISIVE_BIC, FLOOR_MARGIN, MAX_REFITS, MAX_STEPS, MIN_SHARE, REFIT_FRACTION, STRUCTURE_P
+from ._evidence import Proposal, determined, gather_forms, linearised_score, refit_from_better_start, select_effects
+from .diagnose import FLOOR_MARGIN, STRUCTURE_P
 from .tumble_diagnose import WARMUP_TAU_FRACTIONS, _json_float, _rms
 
 __all__ = ["OffsetEffect", "FORMS", "Problem", "OffsetDiagnosis", "diagnose_offsets", "pooled_repeat_noise",
@@ -412,13 +413,7 @@ def diagnose_offsets(problem: Problem, *, t_s=None, temp_c=None, candidates=None
                    session_s=1.0 if t_s is None else max(float(np.ptp(t_s)), 1e-9),
                    temp_ref_c=0.0 if temp_c is None else float(np.mean(temp_c)),
                    temp_span_c=1.0 if temp_c is None else max(float(np.ptp(temp_c)), 1e-9))
-    pool, skipped = [], {}
-    for name in names:
-        reason = FORMS[name][0].applicable(t_s, temp_c)
-        if reason:
-            skipped[name] = reason
-        else:
-            pool.extend(FORMS[name])
+    pool, skipped = gather_forms(names, FORMS, lambda e: e.applicable(t_s, temp_c))
 
     def delta(x, effects):
         out = np.zeros((len(problem.groups), c))
@@ -440,17 +435,6 @@ def diagnose_offsets(problem: Problem, *, t_s=None, temp_c=None, candidates=None
         return _Fit(tuple(effects), res.x, res.jac, _covariance(res.jac, chi2, res.fun.size - res.x.size), r, chi2,
                     res.fun.size, bool(res.success), str(res.message))
 
-    def score(current: _Fit, effect) -> tuple[float, np.ndarray]:
-        effects = current.effects + (effect,)
-        j_b = unit_columns(current.jac)
-        best = (-np.inf, effect.score_points(c)[0])
-        for q0 in effect.score_points(c):
-            drop, step = linear_score(lambda p: weighted(p, effects), np.concatenate([current.x, q0]),
-                                      current.x.size, j_b, _FD_STEP)
-            if drop > best[0]:
-                best = (drop, q0 + step)
-        return best
-
     def verdict(f: _Fit):
         if not problem.floor_from_repeats:
             return None, None
@@ -458,69 +442,26 @@ def diagnose_offsets(problem: Problem, *, t_s=None, temp_c=None, candidates=None
         structure = lack_of_fit(f.channel_residuals / floor, problem.groups, k)
         return structure, bool(structure[2] < STRUCTURE_P or _rms(f.channel_residuals) > (1 + FLOOR_MARGIN) * _rms(floor))
 
-    base = fit((), problem.x_base)
-    current = base
-    steps = [{"model": "base", "residual_rms": _rms(base.channel_residuals)}]
-    rejected = []
-    log_n = np.log(base.n_obs)
-    for _ in range(MAX_STEPS):
-        present = {e.name for e in current.effects}
-        scored = []
-        for effect in (e for e in pool if e.name not in present):
-            drop, start = score(current, effect)
-            scored.append((drop - effect.n_params(c) * log_n, drop, effect, start))
-        if not scored:
-            break
-        scored.sort(key=lambda item: -item[0])
-        seen = set()  # one form per effect is refitted: the one whose score promises the most evidence
-        scored = [item for item in scored if not (item[2].name in seen or seen.add(item[2].name))]
-        best = None
-        for expected, drop, effect, start in scored[:MAX_REFITS]:
-            if expected <= max(DECISIVE_BIC, REFIT_FRACTION * scored[0][0]):
-                break
-            effects = current.effects + (effect,)
-            plain = np.concatenate([current.x, effect.score_points(c)[0]])
-            x0 = np.concatenate([current.x, start])
-            if np.sum(weighted(plain, effects) ** 2) < np.sum(weighted(x0, effects) ** 2):
-                x0 = plain  # a first-order start can overshoot: keep it only if it helps
-            trial = fit(effects, x0)
-            gain = current.bic() - trial.bic()
-            share = (current.chi2 - trial.chi2) / max(current.chi2 - current.dof, 1e-12)
-            if best is None or gain > best[0]:
-                best = (gain, share, effect, trial, drop)
-        if best is None or best[0] <= DECISIVE_BIC:
-            break
-        gain, share, effect, trial, drop = best
-        if share < MIN_SHARE:
-            rejected.append(f"{effect.label} (delta-BIC {gain:.0f}, but it explains only {100 * share:.0f} % "
-                            "of the structured residual: not claimed)")
-            break
-        if not np.all(np.isfinite(np.diag(trial.covariance))):
-            rejected.append(f"{effect.label} (delta-BIC {gain:.0f}, but the data cannot determine its parameters "
-                            "together with the base model (singular covariance): not claimed)")
-            break
-        start = trial.x.size - effect.n_params(c)
-        steps.append({
-            "added": effect.name,
-            "form": effect.form,
-            "residual_rms": _rms(trial.channel_residuals),
-            "evidence": (f"{effect.description}: score test expected chi2 drop {drop:.0f} for {effect.n_params(c)} "
-                         f"parameters, refit chi2 {current.chi2:.0f} -> {trial.chi2:.0f}, "
-                         f"{100 * min(share, 1.0):.0f} % of the structured residual explained"),
-            "delta_bic": float(gain),
-            "explained_share": float(min(share, 1.0)),
-            "parameters": effect.report(trial.x[start:], np.sqrt(np.diag(trial.covariance))[start:], ctx),
-        })
-        current = trial
+    def claim(p: Proposal, measured: dict) -> dict:
+        start = p.trial.x.size - p.effect.n_params(c)
+        return {
+            "added": p.effect.name,
+            "form": p.effect.form,
+            "residual_rms": _rms(p.trial.channel_residuals),
+            **p.evidence(p.effect.n_params(c)),
+            "parameters": p.effect.report(p.trial.x[start:], np.sqrt(np.diag(p.trial.covariance))[start:], ctx),
+        }
 
-    structure, unexplained = verdict(current)
-    if unexplained and len(steps) > 1:
-        for step in steps[1:]:
-            rejected.append(f"{step['added']} ({step['form']}; delta-BIC {step['delta_bic']:.0f}, explained "
-                            f"{100 * step['explained_share']:.0f} % of the structured residual, but structure the "
-                            "model lacks remains, so it may be part of that: not claimed)")
-        steps, current = steps[:1], base
-        structure, unexplained = verdict(current)
+    base = fit((), problem.x_base)
+    chosen = select_effects(
+        base, pool,
+        score=lambda current, effect: linearised_score(weighted, current, effect, effect.score_points(c), _FD_STEP),
+        refit=lambda current, effect, start: refit_from_better_start(fit, weighted, current, effect,
+                                                                     effect.score_points(c)[0], start),
+        n_params=lambda e: e.n_params(c), log_n=np.log(base.n_obs),
+        base_step={"model": "base", "residual_rms": _rms(base.channel_residuals)},
+        write_step=claim, verdict=verdict, checks=(determined("the base model"),))
+    current, steps, structure, unexplained = chosen.fit, chosen.steps, chosen.structure, chosen.unexplained
 
     sig = np.sqrt(np.diag(current.covariance))
     change = current.x[problem.offset_index] - problem.x_base[problem.offset_index]
@@ -539,7 +480,7 @@ def diagnose_offsets(problem: Problem, *, t_s=None, temp_c=None, candidates=None
         "structure_test": None if structure is None else
         {"kind": "lack of fit of the repeat groups' mean residual", "delta_chi2": structure[0], "dof": structure[1],
          "p_value": structure[2]},
-        "not_claimed": rejected,
+        "not_claimed": chosen.not_claimed,
         "not_applicable": skipped,
         "offset_change": {"channels": list(problem.channels), "value": change.tolist(),
                           "sigma": [_json_float(v) for v in sig[problem.offset_index]]},

@@ -1,6 +1,7 @@
 """Residual diagnosis: find what the four-flip model lacks, add it, report before and after.
 
-The loop (SPEC section 4):
+The loop (SPEC section 4; steps 3, 4 and 6 are :func:`calibrate._evidence.select_effects`, shared
+with the tumble and the fits against known inputs):
 
 1. Noise floor per channel from second differences of the raw outputs (:mod:`calibrate.noise`);
    it weights the fit and is the yardstick of "explained".
@@ -9,8 +10,9 @@ The loop (SPEC section 4):
    zero around the current fit and measures the chi-square drop its parameters could buy after
    removing what the current parameters already absorb: the residual's structure traced to the
    effect's signature.  The promising candidates are refitted in full.
-4. The candidate with the largest decisive evidence (delta-BIC above :data:`DECISIVE_BIC`) is
-   added, provided it explains a real share (:data:`MIN_SHARE`) of the structured residual; repeat.
+4. The candidate with the largest decisive evidence (delta-BIC above
+   :data:`~calibrate._evidence.DECISIVE_BIC`) is added, provided it explains a real share
+   (:data:`~calibrate._evidence.MIN_SHARE`) of the structured residual; repeat.
 5. ``unexplained`` is true when the final residual still carries structure above the floor:
    a harmonic regression per channel and flip against the turntable angle (and a trend) whose
    chi-square drop is significant, or an rms more than :data:`FLOOR_MARGIN` above the floor.
@@ -28,6 +30,7 @@ from scipy.stats import chi2 as chi2_dist
 from compass.io.fourflip import FourFlipRecording
 from compass.sim.bench import BenchSamples
 
+from ._evidence import DECISIVE_BIC, Proposal, gather_forms, select_effects
 from ._mlfit import MLFit, fit_ml, score_effect
 from .effects import VARIANTS, Effect
 from .noise import noise_floor
@@ -35,21 +38,13 @@ from .noise import noise_floor
 __all__ = ["DECISIVE_BIC", "UNEXPLAINED_WARNING", "diagnose_fourflip", "examine_residual", "format_diagnosis",
            "residual_structure"]
 
-DECISIVE_BIC = 10.0
-"""delta-BIC above which evidence counts as decisive (Kass and Raftery's 'very strong')."""
-MIN_SHARE = 0.3
-"""Smallest share of the structured residual an effect must explain to be tried further."""
 FLOOR_MARGIN = 0.10
 """Residual rms above the noise floor by more than this fraction is unexplained."""
 STRUCTURE_P = 1e-3
 """p-value below which harmonic structure left in the residual is significant."""
 STRUCTURE_HARMONICS = 6
-MAX_STEPS = 4
 UNEXPLAINED_WARNING = ("structure remains in the residual above the noise floor: the recording has an effect "
                        "the model lacks (see the diagnosis); the uncertainties are then optimistic")
-MAX_REFITS = 4
-REFIT_FRACTION = 0.25
-"""Candidates whose score test promises less than this fraction of the best one's are not refitted."""
 
 
 def residual_structure(samples: BenchSamples, residuals: np.ndarray, noise: np.ndarray) -> tuple[float, int, float]:
@@ -85,15 +80,6 @@ def _pooled_rms(values: np.ndarray) -> float:
     return float(np.sqrt(np.mean(values**2)))
 
 
-def _excess(fit: MLFit) -> float:
-    """Chi-square above what white noise at the floor would give."""
-    return max(fit.chi2 - fit.dof, 0.0)
-
-
-def _bic_gain(old: MLFit, new: MLFit) -> float:
-    return old.bic() - new.bic()
-
-
 def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = None, *,
                       candidates=None, progress=None) -> tuple[MLFit, MLFit, dict]:
     """Run the diagnosis loop on a four-flip recording.
@@ -124,83 +110,36 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
     if noise is None:
         noise = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs)
     names = list(candidates) if candidates is not None else list(VARIANTS)
-    pool: list[Effect] = []
-    skipped = {}
-    for name in names:
-        reason = VARIANTS[name][0].applicable(samples)
-        if reason:
-            skipped[name] = reason
-        else:
-            pool.extend(VARIANTS[name])
+    pool, skipped = gather_forms(names, VARIANTS, lambda e: e.applicable(samples))
 
     say("fitting the base model")
     base = fit_ml(samples, rec.outputs, rec.channels, start, noise)
-    current = base
-    steps = [{"model": "base", "residual_rms": _pooled_rms(base.residuals),
-              "chi2_per_dof": base.reduced_chi2}]
-    rejected = []
-    for _ in range(MAX_STEPS):
-        present = {e.name for e in current.effects}
-        remaining = [e for e in pool if e.name not in present]
-        if not remaining:
-            break
-        scored = []
-        for effect in remaining:
-            drop, block = score_effect(current, rec.outputs, noise, effect)
-            expected = drop - effect.n_params(len(rec.channels)) * np.log(rec.outputs.size)
-            scored.append((expected, drop, effect, block))
-        scored.sort(key=lambda item: -item[0])
-        # one form per effect is refitted: the one whose score promises the most evidence
-        seen = set()
-        scored = [item for item in scored if not (item[2].name in seen or seen.add(item[2].name))]
-        say("score tests (expected chi2 drop): " + ", ".join(f"{e.label} {d:.0f}" for _, d, e, _ in scored))
-        best = None
-        for expected, drop, effect, block in scored[:MAX_REFITS]:
-            if expected <= max(DECISIVE_BIC, REFIT_FRACTION * scored[0][0]):
-                break
-            say(f"refitting with {effect.label}")
-            trial = fit_ml(samples, rec.outputs, rec.channels, current.physics, noise,
-                           effects=current.effects + (effect,),
-                           effect_start={**current.effect_start(), effect.name: block})
-            gain = _bic_gain(current, trial)
-            share = (current.chi2 - trial.chi2) / max(_excess(current), 1e-12)
-            if best is None or gain > best[0]:
-                best = (gain, share, effect, trial, drop)
-        if best is None or best[0] <= DECISIVE_BIC:
-            break
-        gain, share, effect, trial, drop = best
-        if share < MIN_SHARE:
-            rejected.append(f"{effect.name} (delta-BIC {gain:.0f}, but it explains only {100 * share:.0f} % "
-                            "of the structured residual: not claimed)")
-            break
-        n = effect.n_params(len(rec.channels))
-        names_e, values, sigmas = trial.effect_parameters(effect)
-        steps.append({
-            "added": effect.name,
-            "residual_rms": _pooled_rms(trial.residuals),
-            "chi2_per_dof": trial.reduced_chi2,
-            "evidence": (f"{effect.description}: score test expected chi2 drop {drop:.0f} for {n} parameters, "
-                         f"refit chi2 {current.chi2:.0f} -> {trial.chi2:.0f}, "
-                         f"{100 * min(share, 1.0):.0f} % of the structured residual explained"),
-            "delta_bic": float(gain),
-            "explained_share": float(min(share, 1.0)),
-            "parameters": {k: {"value": float(v), "sigma": float(s)} for k, v, s in zip(names_e, values, sigmas)},
-        })
-        say(f"added {effect.name} (delta-BIC {gain:.0f})")
-        current = trial
-
     floor = float(np.sqrt(np.mean(noise**2)))
-    structure, dof, p_value, unexplained = _verdict(samples, current, noise, floor)
-    if unexplained and len(steps) > 1:
-        # Structure the model lacks remains.  Whatever the added effects fitted may be partly that
-        # unknown effect (e.g. a field gradient with the sensor off the axis mimics an encoder
-        # error): claim nothing, keep the base model, and say what was tried.
-        for step in steps[1:]:
-            rejected.append(f"{step['added']} (delta-BIC {step['delta_bic']:.0f}, explained "
-                            f"{100 * step['explained_share']:.0f} % of the structured residual, but structure "
-                            "the model lacks remains, so it may be part of that: not claimed)")
-        steps, current = steps[:1], base
-        structure, dof, p_value, unexplained = _verdict(samples, current, noise, floor)
+
+    def refit(current: MLFit, effect: Effect, block: np.ndarray) -> MLFit:
+        return fit_ml(samples, rec.outputs, rec.channels, current.physics, noise,
+                      effects=current.effects + (effect,),
+                      effect_start={**current.effect_start(), effect.name: block})
+
+    def claim(p: Proposal, measured: dict) -> dict:
+        names_e, values, sigmas = p.trial.effect_parameters(p.effect)
+        return {
+            "added": p.effect.name,
+            "residual_rms": _pooled_rms(p.trial.residuals),
+            "chi2_per_dof": p.trial.reduced_chi2,
+            **p.evidence(p.effect.n_params(len(rec.channels))),
+            "parameters": {k: {"value": float(v), "sigma": float(s)} for k, v, s in zip(names_e, values, sigmas)},
+        }
+
+    chosen = select_effects(
+        base, pool,
+        score=lambda current, effect: score_effect(current, rec.outputs, noise, effect),
+        refit=refit, n_params=lambda e: e.n_params(len(rec.channels)), log_n=np.log(rec.outputs.size),
+        base_step={"model": "base", "residual_rms": _pooled_rms(base.residuals), "chi2_per_dof": base.reduced_chi2},
+        write_step=claim, verdict=lambda f: _verdict(samples, f, noise, floor),
+        rejected_as=lambda e: e.name, progress=say)
+    current, steps, rejected, unexplained = chosen.fit, chosen.steps, chosen.not_claimed, chosen.unexplained
+    structure, dof, p_value = chosen.structure
     rms_after = _pooled_rms(current.residuals)
     diagnosis = {
         "noise_floor": floor,
@@ -218,11 +157,11 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
     return base, current, diagnosis
 
 
-def _verdict(samples, fit: MLFit, noise, floor) -> tuple[float, int, float, bool]:
+def _verdict(samples, fit: MLFit, noise, floor) -> tuple[tuple[float, int, float], bool]:
     """Structure test of a fit's residual and whether it is unexplained."""
     structure, dof, p_value = residual_structure(samples, fit.residuals, noise)
     rms = _pooled_rms(fit.residuals)
-    return structure, dof, p_value, bool(p_value < STRUCTURE_P or rms > (1.0 + FLOOR_MARGIN) * floor)
+    return (structure, dof, p_value), bool(p_value < STRUCTURE_P or rms > (1.0 + FLOOR_MARGIN) * floor)
 
 
 def examine_residual(samples: BenchSamples, residuals: np.ndarray, noise: np.ndarray) -> dict:

@@ -1,6 +1,7 @@
 """Residual diagnosis of a tumble calibration: find what the ellipsoid lacks, add it, report before and after.
 
-The loop of :mod:`calibrate.diagnose` (SPEC section 4), on the radial residual of the ellipsoid,
+The loop of :mod:`calibrate.diagnose` (SPEC section 4; steps 3 and 4 and the last part of 5 are
+:func:`calibrate._evidence.select_effects`), on the radial residual of the ellipsoid,
 
 .. math:: r_i = F \\left( |L^T c(y_i - p_h)| - 1 \\right) \\approx |S\\, c(x_i - h)| - F,
 
@@ -17,8 +18,8 @@ the chain of corrections of the effects in the model (the identity for the plain
    the form's parameters at zero and gives the chi-square drop they could buy after projecting out
    what the current parameters absorb; the most promising forms (one per effect) are refitted.
 4. The refit with the largest decisive evidence (delta-BIC above
-   :data:`~calibrate.diagnose.DECISIVE_BIC`) is added when it explains a real share
-   (:data:`~calibrate.diagnose.MIN_SHARE`) of the structured residual, its parameters are
+   :data:`~calibrate._evidence.DECISIVE_BIC`) is added when it explains a real share
+   (:data:`~calibrate._evidence.MIN_SHARE`) of the structured residual, its parameters are
    determined (finite covariance) and, with an accelerometer, it does not widen the spread of the
    field-gravity angle (the dip deviation, a residual the effect was not fitted to); repeat.
 5. ``unexplained`` is true when the residual still carries structure (:func:`residual_structure`)
@@ -55,8 +56,8 @@ from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_dist
 from scipy.stats import median_abs_deviation
 
-from ._mlfit import linear_score, unit_columns
-from .diagnose import DECISIVE_BIC, FLOOR_MARGIN, MAX_REFITS, MAX_STEPS, MIN_SHARE, REFIT_FRACTION, STRUCTURE_P
+from ._evidence import Proposal, determined, gather_forms, linearised_score, refit_from_better_start, select_effects
+from .diagnose import FLOOR_MARGIN, STRUCTURE_P
 from .tumble import (MAX_ANGLE_WIDENING, KindFit, Misalignment, _covariance, _propagate, _shape, _sym_sqrt,
                      field_gravity_angles, static_mask)
 
@@ -327,15 +328,11 @@ class _Model:
         dropped.  The drop is ``r^T J (J^T J)^{-1} J^T r`` with the projected ``J``; the start is the
         Gauss-Newton step from the score point.
         """
-        effects = fit.effects + (effect,)
-        j_b = unit_columns(fit.jac)
-        best = (-np.inf, effect.score_points()[0])
-        for q0 in effect.score_points():
-            drop, delta = linear_score(lambda p: self.weighted(p, effects), np.concatenate([fit.x, q0]),
-                                       fit.x.size, j_b, _FD_STEP)
-            if drop > best[0]:
-                best = (drop, q0 + delta)
-        return best
+        return linearised_score(self.weighted, fit, effect, effect.score_points(), _FD_STEP)
+
+    def refit(self, fit: _Fit, effect: TumbleEffect, start: np.ndarray) -> _Fit:
+        """The fit with ``effect`` added, from ``start`` or the effect switched off, whichever fits better."""
+        return refit_from_better_start(self.fit, self.weighted, fit, effect, effect.score_points()[0], start)
 
 
 @dataclass(frozen=True)
@@ -506,13 +503,7 @@ def diagnose_tumble(mag: np.ndarray, fit: KindFit, *, t_s: np.ndarray | None = N
     if unknown:
         raise ValueError(f"unknown tumble effect(s) {unknown}; known: {', '.join(TUMBLE_FORMS)}")
 
-    pool, skipped = [], {}
-    for name in names:
-        reason = TUMBLE_FORMS[name][0].applicable(t_s, temp_c, list(missing))
-        if reason:
-            skipped[name] = reason
-        else:
-            pool.extend(TUMBLE_FORMS[name])
+    pool, skipped = gather_forms(names, TUMBLE_FORMS, lambda e: e.applicable(t_s, temp_c, list(missing)))
     ctx = _Context(radius=fit.radius,
                    t_ref_s=0.0 if t_s is None else float(t_s[0]),
                    session_s=1.0 if t_s is None else max(float(np.ptp(t_s)), 1e-9),
@@ -536,79 +527,37 @@ def diagnose_tumble(mag: np.ndarray, fit: KindFit, *, t_s: np.ndarray | None = N
         m = model.corrected(f.x, f.effects, rows)[static] @ _sym_sqrt(fit.kind, f.x[3:model.k])
         return float(np.std(field_gravity_angles(m, accel_rows[static])))
 
-    base = model.fit((), fit.params)
-    current = base
-    steps = [{"model": "base", "kind": fit.kind, "residual_rms": _rms(base.residuals)}]
-    rejected = []
-    log_n = np.log(base.residuals.size)
-    for _ in range(MAX_STEPS):
-        present = {e.name for e in current.effects}
-        scored = []
-        for effect in (e for e in pool if e.name not in present):
-            drop, start = model.score(current, effect)
-            scored.append((drop - effect.n_params() * log_n, drop, effect, start))
-        scored.sort(key=lambda item: -item[0])
-        seen = set()  # one form per effect is refitted: the one whose score promises the most evidence
-        scored = [item for item in scored if not (item[2].name in seen or seen.add(item[2].name))]
-        best = None
-        for expected, drop, effect, start in scored[:MAX_REFITS]:
-            if expected <= max(DECISIVE_BIC, REFIT_FRACTION * scored[0][0]):
-                break
-            effects = current.effects + (effect,)
-            plain = np.concatenate([current.x, effect.score_points()[0]])
-            x0 = np.concatenate([current.x, start])
-            if np.sum(model.weighted(plain, effects) ** 2) < np.sum(model.weighted(x0, effects) ** 2):
-                x0 = plain  # a first-order start can overshoot: keep it only if it helps
-            trial = model.fit(effects, x0)
-            gain = current.bic() - trial.bic()
-            share = (current.chi2 - trial.chi2) / max(current.chi2 - current.dof, 1e-12)
-            if best is None or gain > best[0]:
-                best = (gain, share, effect, trial, drop)
-        if best is None or best[0] <= DECISIVE_BIC:
-            break
-        gain, share, effect, trial, drop = best
-        if share < MIN_SHARE:
-            rejected.append(f"{effect.label} (delta-BIC {gain:.0f}, but it explains only {100 * share:.0f} % "
-                            "of the structured residual: not claimed)")
-            break
-        if not np.all(np.isfinite(np.diag(trial.covariance))):
-            rejected.append(f"{effect.label} (delta-BIC {gain:.0f}, but the data cannot determine its parameters "
-                            "together with the ellipsoid (singular covariance): not claimed)")
-            break
-        spread = angle_spread(current), angle_spread(trial)
+    def keeps_the_angle(p: Proposal):
+        spread = angle_spread(p.current), angle_spread(p.trial)
+        measured = {"angle_rms_deg_before": _json_float(spread[0]), "angle_rms_deg_after": _json_float(spread[1])}
         if spread[1] > (1.0 + MAX_ANGLE_WIDENING) * spread[0]:
-            rejected.append(f"{effect.label} (delta-BIC {gain:.0f}, but it widens the field-gravity angle spread "
-                            f"from {spread[0]:.3f} to {spread[1]:.3f} deg: not claimed)")
-            break
-        block = trial.block(effect, model.k)
-        steps.append({
-            "added": effect.name,
-            "form": effect.form,
-            "residual_rms": _rms(trial.residuals),
-            "evidence": (f"{effect.description}: score test expected chi2 drop {drop:.0f} for {effect.n_params()} "
-                         f"parameters, refit chi2 {current.chi2:.0f} -> {trial.chi2:.0f}, "
-                         f"{100 * min(share, 1.0):.0f} % of the structured residual explained"),
-            "delta_bic": float(gain),
-            "explained_share": float(min(share, 1.0)),
-            "angle_rms_deg_before": _json_float(spread[0]),
-            "angle_rms_deg_after": _json_float(spread[1]),
-            "parameters": effect.report(trial.x[block], np.sqrt(np.diag(trial.covariance))[block], ctx),
-        })
-        current = trial
+            return f"it widens the field-gravity angle spread from {spread[0]:.3f} to {spread[1]:.3f} deg", measured
+        return None, measured
+
+    def claim(p: Proposal, measured: dict) -> dict:
+        block = p.trial.block(p.effect, model.k)
+        return {
+            "added": p.effect.name,
+            "form": p.effect.form,
+            "residual_rms": _rms(p.trial.residuals),
+            **p.evidence(p.effect.n_params()),
+            **measured,
+            "parameters": p.effect.report(p.trial.x[block], np.sqrt(np.diag(p.trial.covariance))[block], ctx),
+        }
 
     def verdict(f: _Fit):
         z = model.corrected(f.x, f.effects, rows)
         structure = residual_structure(f.residuals / floor, z / np.linalg.norm(z, axis=1, keepdims=True), bands)
         return structure, _unexplained(structure[2], _rms(f.residuals), floor)
 
-    (structure, dof, p_value), unexplained = verdict(current)
-    if unexplained and len(steps) > 1:
-        for step in steps[1:]:
-            rejected.append(f"{step['added']} ({step['form']}; delta-BIC {step['delta_bic']:.0f}, explained "
-                            f"{100 * step['explained_share']:.0f} % of the structured residual, but structure the "
-                            "model lacks remains, so it may be part of that: not claimed)")
-        steps, current = steps[:1], base
-        (structure, dof, p_value), unexplained = verdict(current)
+    base = model.fit((), fit.params)
+    chosen = select_effects(
+        base, pool, score=model.score, refit=model.refit, n_params=lambda e: e.n_params(),
+        log_n=np.log(base.residuals.size),
+        base_step={"model": "base", "kind": fit.kind, "residual_rms": _rms(base.residuals)},
+        write_step=claim, verdict=verdict, checks=(determined("the ellipsoid"), keeps_the_angle))
+    current, steps = chosen.fit, chosen.steps
+    (structure, dof, p_value), unexplained = chosen.structure, chosen.unexplained
 
     final_fit, raw_ref, effects = fit, mag, ()
     if current.effects:
@@ -631,7 +580,7 @@ def diagnose_tumble(mag: np.ndarray, fit: KindFit, *, t_s: np.ndarray | None = N
         "residual_rms_after": _rms(current.residuals),
         "unexplained": unexplained,
         "structure_test": {"delta_chi2": structure, "dof": dof, "p_value": p_value},
-        "not_claimed": rejected,
+        "not_claimed": chosen.not_claimed,
         "not_applicable": skipped,
         "hard_iron_change": {"value": (final_fit.hard_iron - fit.hard_iron).tolist(),
                              "sigma": final_fit.hard_iron_sigma.tolist()},

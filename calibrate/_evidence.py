@@ -1,0 +1,346 @@
+"""The evidence loop of the residual diagnosis (SPEC section 4), shared by every calibration that runs it.
+
+The four-flip (:mod:`calibrate.diagnose`), the tumble (:mod:`calibrate.tumble_diagnose`) and the
+fits against known inputs (:mod:`calibrate._offset_effects`) differ in their models, their
+effects and their verdicts, but choose effects the same way.  :func:`select_effects` is that
+choice; each caller hands it what differs as small callables:
+
+1. Score every candidate form not yet in the model (``score``: the chi-square drop a refit could
+   buy to first order, and a start for the form's parameters), and rank the forms by the evidence
+   the score promises, ``drop - k ln n`` for ``k`` parameters and ``n`` observations.
+2. Keep the most promising form of each effect and refit the first :data:`MAX_REFITS` in full
+   (``refit``), down to :data:`DECISIVE_BIC` and :data:`REFIT_FRACTION` of the best promise.
+3. Take the refit with the largest delta-BIC; stop unless it is decisive (above
+   :data:`DECISIVE_BIC`).
+4. Veto it, and stop, if it explains less than :data:`MIN_SHARE` of the structured residual
+   (the chi-square above its dof) or one of the caller's ``checks`` objects (e.g. :func:`determined`:
+   a singular covariance; the tumble's: a wider field-gravity angle spread); else record a step
+   (``write_step``) and repeat, at most :data:`MAX_STEPS` times.
+5. Judge the final fit (``verdict``).  If structure remains after effects were added, they may
+   have absorbed part of something the toolkit does not model: none is claimed, each is reported
+   as not claimed, and the base fit is kept and judged again.
+
+A fit is read only through ``effects`` (the effects in it, each with a ``name``), ``chi2``,
+``dof`` and ``bic()`` (chi-square plus ``k ln n``, the noise floor known), and ``covariance``
+for :func:`determined`; an effect through ``name``, ``label`` and ``description``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable, Protocol, Sequence
+
+import numpy as np
+
+from ._mlfit import linear_score, unit_columns
+
+__all__ = ["DECISIVE_BIC", "MIN_SHARE", "MAX_STEPS", "MAX_REFITS", "REFIT_FRACTION", "Fit", "Proposal",
+           "Selection", "Check", "gather_forms", "linearised_score", "refit_from_better_start", "determined",
+           "select_effects"]
+
+DECISIVE_BIC = 10.0
+"""delta-BIC above which evidence counts as decisive (Kass and Raftery's 'very strong')."""
+MIN_SHARE = 0.3
+"""Smallest share of the structured residual an effect must explain to be tried further."""
+MAX_STEPS = 4
+"""Most effects added to one model."""
+MAX_REFITS = 4
+"""Most candidate effects refitted in full per step."""
+REFIT_FRACTION = 0.25
+"""Candidates whose score test promises less than this fraction of the best one's are not refitted."""
+
+
+class Fit(Protocol):
+    """What the loop reads of a fit."""
+
+    effects: tuple
+    chi2: float
+
+    @property
+    def dof(self) -> int: ...
+
+    def bic(self) -> float: ...
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """The best refit of one step of the loop, before the vetoes.
+
+    Attributes
+    ----------
+    effect : object
+        The effect (one form of it) the refit added.
+    current, trial : Fit
+        The fit before and the refit with ``effect``.
+    drop : float
+        The score test's expected chi-square drop.
+    gain : float
+        ``current.bic() - trial.bic()``.
+    share : float
+        ``(current.chi2 - trial.chi2) / (current.chi2 - current.dof)``: the share of the structured
+        residual the effect explains (not clipped; the denominator at least 1e-12).
+    """
+
+    effect: Any
+    current: Any
+    trial: Any
+    drop: float
+    gain: float
+    share: float
+
+    def evidence(self, n_params: int) -> dict:
+        """A step's ``"evidence"`` (one line), ``"delta_bic"`` and ``"explained_share"``, in that order."""
+        explained = min(self.share, 1.0)
+        return {
+            "evidence": (f"{self.effect.description}: score test expected chi2 drop {self.drop:.0f} for {n_params} "
+                         f"parameters, refit chi2 {self.current.chi2:.0f} -> {self.trial.chi2:.0f}, "
+                         f"{100 * explained:.0f} % of the structured residual explained"),
+            "delta_bic": float(self.gain),
+            "explained_share": float(explained),
+        }
+
+
+@dataclass(frozen=True)
+class Selection:
+    """Outcome of :func:`select_effects`.
+
+    Attributes
+    ----------
+    fit : Fit
+        The fit with the claimed effects (the base fit when none is claimed).
+    steps : list of dict
+        The base step, then one per claimed effect (``write_step``'s).
+    not_claimed : list of str
+        Why each effect that was tried and decisive was not claimed, one line each.
+    structure : object
+        The structure test of ``fit`` (the first item ``verdict`` returned).
+    unexplained : bool or None
+        Whether structure remains in ``fit``'s residual (None: not judged).
+    """
+
+    fit: Any
+    steps: list
+    not_claimed: list
+    structure: Any
+    unexplained: bool | None
+
+
+Check = Callable[[Proposal], "tuple[str | None, dict]"]
+"""A veto: ``(reason, measured)``, ``reason`` None to let the proposal through, else the words after
+"but" in the not-claimed line; ``measured``, what it found, is handed to ``write_step``."""
+
+
+def gather_forms(names: Iterable[str], forms: dict, why_not: Callable[[Any], str | None]) -> tuple[list, dict]:
+    """The candidate forms of the named effects the recording can show.
+
+    Parameters
+    ----------
+    names : iterable of str
+        Effect names, keys of ``forms``.
+    forms : dict
+        Each effect name's forms, a sequence.
+    why_not : callable
+        ``why_not(form) -> str | None``: the reason a recording cannot show the effect (asked of its
+        first form), None when it can.
+
+    Returns
+    -------
+    pool : list
+        Every form of every applicable effect, in order.
+    skipped : dict
+        ``{name: reason}`` of the others.
+    """
+    pool, skipped = [], {}
+    for name in names:
+        reason = why_not(forms[name][0])
+        if reason:
+            skipped[name] = reason
+        else:
+            pool.extend(forms[name])
+    return pool, skipped
+
+
+def linearised_score(weighted: Callable, current, effect, points: Sequence[np.ndarray],
+                     step: float) -> tuple[float, np.ndarray]:
+    """Score (Lagrange-multiplier) test for adding ``effect`` to a least-squares fit.
+
+    The effect's Jacobian at each of its score points is projected off the current fit's Jacobian
+    (what the current parameters absorb; :func:`calibrate._mlfit.linear_score`); the best point is kept.
+
+    Parameters
+    ----------
+    weighted : callable
+        ``weighted(x, effects) -> (m,)``: the model's weighted residual.
+    current : Fit
+        With ``x`` (parameters), ``jac`` (m, k) and ``effects``.
+    effect : object
+        The candidate form.
+    points : sequence of ndarray
+        Its parameters with the effect switched off, where the test is evaluated.
+    step : float
+        Finite-difference step of the effect's parameters.
+
+    Returns
+    -------
+    expected_delta_chi2 : float
+    start : ndarray
+        The Gauss-Newton estimate of the effect's parameters from the best point.
+    """
+    effects = current.effects + (effect,)
+    j_b = unit_columns(current.jac)
+    best = (-np.inf, points[0])
+    for q0 in points:
+        drop, delta = linear_score(lambda p: weighted(p, effects), np.concatenate([current.x, q0]),
+                                   current.x.size, j_b, step)
+        if drop > best[0]:
+            best = (drop, q0 + delta)
+    return best
+
+
+def refit_from_better_start(fit: Callable, weighted: Callable, current, effect, plain: np.ndarray,
+                            start: np.ndarray):
+    """Refit with ``effect`` added, from the score test's start or the switched-off one, whichever fits better.
+
+    A first-order start can overshoot: it is kept only if its weighted chi-square is below that of
+    ``plain`` (the effect switched off).
+
+    Parameters
+    ----------
+    fit : callable
+        ``fit(effects, x0) -> Fit``.
+    weighted : callable
+        ``weighted(x, effects) -> (m,)``.
+    current : Fit
+        With ``x`` and ``effects``.
+    effect : object
+    plain, start : ndarray
+        The effect's parameters switched off and from the score test.
+    """
+    effects = current.effects + (effect,)
+    x_plain = np.concatenate([current.x, plain])
+    x0 = np.concatenate([current.x, start])
+    if np.sum(weighted(x_plain, effects) ** 2) < np.sum(weighted(x0, effects) ** 2):
+        x0 = x_plain
+    return fit(effects, x0)
+
+
+def determined(together_with: str) -> Check:
+    """A veto of a refit whose covariance is singular (a non-finite variance).
+
+    Parameters
+    ----------
+    together_with : str
+        What the effect's parameters cannot be told from, in words (e.g. ``"the base model"``).
+    """
+
+    def check(p: Proposal):
+        if not np.all(np.isfinite(np.diag(p.trial.covariance))):
+            return (f"the data cannot determine its parameters together with {together_with} "
+                    "(singular covariance)"), {}
+        return None, {}
+
+    return check
+
+
+def _withdrawn(step: dict) -> str:
+    """The not-claimed line of an added step when structure remains (the form named when the step has one)."""
+    head = f"{step['added']} ({step['form']}; " if "form" in step else f"{step['added']} ("
+    return (f"{head}delta-BIC {step['delta_bic']:.0f}, explained {100 * step['explained_share']:.0f} % of the "
+            "structured residual, but structure the model lacks remains, so it may be part of that: not claimed)")
+
+
+def select_effects(base: Fit, pool: Sequence, *, score: Callable, refit: Callable, n_params: Callable[[Any], int],
+                   log_n: float, base_step: dict, write_step: Callable[[Proposal, dict], dict],
+                   verdict: Callable, checks: Sequence[Check] = (), rejected_as: Callable[[Any], str] | None = None,
+                   progress: Callable[[str], None] | None = None) -> Selection:
+    """Add the effects the evidence supports to a base fit, one at a time (see the module docstring).
+
+    Parameters
+    ----------
+    base : Fit
+        The base model's fit.
+    pool : sequence
+        Candidate forms, simplest first within each effect (:func:`gather_forms`).
+    score : callable
+        ``score(current, effect) -> (expected_delta_chi2, start)``.
+    refit : callable
+        ``refit(current, effect, start) -> Fit``: the model with ``effect`` added, refitted in full.
+    n_params : callable
+        ``n_params(effect) -> int``.
+    log_n : float
+        ``ln`` of the number of observations (the BIC's penalty per parameter).
+    base_step : dict
+        The first step (``{"model": "base", "residual_rms": ...}``).
+    write_step : callable
+        ``write_step(proposal, measured) -> dict``: the step of a claimed effect; ``measured``
+        merges what the ``checks`` returned.
+    verdict : callable
+        ``verdict(fit) -> (structure, unexplained)``.
+    checks : sequence of callable
+        Vetoes after the share's, in order (:data:`Check`).
+    rejected_as : callable, optional
+        How a vetoed effect is named in its not-claimed line (default: its ``label``).
+    progress : callable, optional
+        Called with one line of text per stage.
+
+    Returns
+    -------
+    Selection
+    """
+    say = progress or (lambda text: None)
+    name_of = rejected_as or (lambda e: e.label)
+    current, steps, rejected = base, [base_step], []
+    for _ in range(MAX_STEPS):
+        present = {e.name for e in current.effects}
+        scored = []
+        for effect in (e for e in pool if e.name not in present):
+            drop, start = score(current, effect)
+            scored.append((drop - n_params(effect) * log_n, drop, effect, start))
+        if not scored:
+            break
+        scored.sort(key=lambda item: -item[0])
+        seen = set()  # one form per effect is refitted: the one whose score promises the most evidence
+        scored = [item for item in scored if not (item[2].name in seen or seen.add(item[2].name))]
+        say("score tests (expected chi2 drop): " + ", ".join(f"{e.label} {d:.0f}" for _, d, e, _ in scored))
+        best = None
+        for expected, drop, effect, start in scored[:MAX_REFITS]:
+            if expected <= max(DECISIVE_BIC, REFIT_FRACTION * scored[0][0]):
+                break
+            say(f"refitting with {effect.label}")
+            trial = refit(current, effect, start)
+            gain = current.bic() - trial.bic()
+            share = (current.chi2 - trial.chi2) / max(current.chi2 - current.dof, 1e-12)
+            if best is None or gain > best.gain:
+                best = Proposal(effect, current, trial, drop, gain, share)
+        if best is None or best.gain <= DECISIVE_BIC:
+            break
+        reason, measured = _veto(best, checks)
+        if reason:
+            rejected.append(f"{name_of(best.effect)} (delta-BIC {best.gain:.0f}, but {reason}: not claimed)")
+            break
+        steps.append(write_step(best, measured))
+        say(f"added {best.effect.name} (delta-BIC {best.gain:.0f})")
+        current = best.trial
+
+    structure, unexplained = verdict(current)
+    if unexplained and len(steps) > 1:
+        # Structure the model lacks remains.  Whatever the added effects fitted may be partly that
+        # unknown effect (e.g. a field gradient with the sensor off the axis mimics an encoder
+        # error): claim nothing, keep the base fit, and say what was tried.
+        rejected.extend(_withdrawn(step) for step in steps[1:])
+        steps, current = steps[:1], base
+        structure, unexplained = verdict(current)
+    return Selection(current, steps, rejected, structure, unexplained)
+
+
+def _veto(p: Proposal, checks: Sequence[Check]) -> tuple[str | None, dict]:
+    """The first veto of a proposal (the share first, then ``checks``), and what the checks measured."""
+    if p.share < MIN_SHARE:
+        return f"it explains only {100 * p.share:.0f} % of the structured residual", {}
+    measured = {}
+    for check in checks:
+        reason, found = check(p)
+        if reason:
+            return reason, measured
+        measured.update(found)
+    return None, measured
