@@ -18,7 +18,7 @@ channel noise ``--noise-ut``, accelerometer noise ``--accel-noise-g`` per axis) 
 Then throughput: samples per second of ``solve_attitude`` in-process for 10^6 samples (best of
 3, wall clock and CPU), and ``compass attitude`` on a 10^6-row CSV (a subprocess, wall clock:
 start-up, read, solve, write).  Targets: heading ratio <= 1.1; patent heading error >= 10x ml;
->= 10^6 samples/s; CSV < 10 s.
+>= 10^6 samples/s; CSV < 10 s.  Last, temperature compensation (:func:`temperature`).
 
 Usage::
 
@@ -43,6 +43,7 @@ from compass.attitude import solve_attitude
 from compass.frames import heading_pitch_roll, world_field
 from compass.io.fourflip import read_fourflip
 from compass.model import SensorModel
+from compass.sim.bench import BenchSamples, channel_outputs
 from compass.sim.fourflip import simulate_fourflip, write_fourflip
 from compass.sim.runtime import simulate_runtime, write_runtime
 
@@ -111,6 +112,40 @@ def throughput(args, folder: Path):
     return min(wall), min(cpu), time.perf_counter() - t0
 
 
+def temperature(seeds=range(4), temps=(10.0, 45.0), n=300):
+    """Field error of a four-flip calibration with a temperature effect, read away from its reference.
+
+    The calibration (diagnosis on) of a session whose channels change with ``temp_c`` (22-32 degC);
+    then the true sensor read at ``temps`` in ``n`` random fields of the session's |B|: RMS error of
+    the field vector with ``temp_c`` (compensated) and without, beside what the effect's own sigmas
+    predict (offset and relative gain sigmas times the temperature difference).
+    """
+    print(f"\nTemperature compensation ({len(seeds)} four-flip sessions with a temperature effect, field read at "
+          f"{', '.join(f'{t:g}' for t in temps)} degC, {n} random fields; uT RMS)")
+    print(f"{'seed':<6}{'T degC':>8}{'T - ref':>9}{'compensated':>13}{'predicted':>11}{'ignored':>9}")
+    for seed in seeds:
+        session = simulate_fourflip(seed=seed, effects=("temperature",))
+        d = calibrate_fourflip(session.recording(), diagnose=True).to_json()
+        model = SensorModel.from_json(d)
+        effect = next(e for e in d["effects"] if e["name"] == "temperature")
+        truth = session.truth["effects"][0]["parameters"]
+        physics = session.base_physics().with_(temp_offset=np.array(truth["offset_per_degc"]),
+                                               temp_gain=np.array(truth["gain_per_degc"]), temp_ref_c=truth["ref_c"])
+        b = np.random.default_rng(seed).normal(size=(n, 3))
+        b *= session.truth["field_ut"] / np.linalg.norm(b, axis=1, keepdims=True)
+        zero = np.zeros(n)
+        p = effect["parameters"]
+        for temp in temps:
+            v = channel_outputs(physics, BenchSamples(zero, zero, zero.astype(int), None, np.full(n, temp)),
+                                b @ physics.directions.T)
+            dt = temp - effect["reference"]["temp_c"]
+            predicted = np.sqrt(sum((p[f"{c}.offset_fieldunit_per_degc"]["sigma"] * dt) ** 2
+                                    + (p[f"{c}.gain_rel_per_degc"]["sigma"] * dt) ** 2 * session.truth["field_ut"] ** 2 / 3
+                                    for c in model.channels))
+            errors = [rms(np.linalg.norm(model.field(v, t)[0] - b, axis=1)) for t in (temp, None)]
+            print(f"{seed:<6}{temp:>8.1f}{dt:>9.1f}{errors[0]:>13.3f}{predicted:>11.3f}{errors[1]:>9.3f}")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seeds", type=int, default=3, help="bench sessions (calibrations), default 3")
@@ -120,6 +155,7 @@ def main(argv=None) -> int:
     p.add_argument("--noise-ut", type=float, default=0.15, help="channel noise, uT (default 0.15, the bench's)")
     p.add_argument("--accel-noise-g", type=float, default=0.002, help="accelerometer noise, g (default 0.002)")
     p.add_argument("--no-throughput", action="store_true", help="skip the 10^6-sample timings")
+    p.add_argument("--no-temperature", action="store_true", help="skip the temperature compensation section")
     args = p.parse_args(argv)
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -142,6 +178,8 @@ def main(argv=None) -> int:
             wall, cpu, csv_s = throughput(args, folder)
             rows += [("samples/s in-process >= 1e6", f"{1e6 / wall:.3g} (wall), {1e6 / cpu:.3g} (CPU)", 1e6 / wall >= 1e6),
                      ("10^6-row CSV in to CSV out < 10 s", f"{csv_s:.2f} s", csv_s < 10)]
+        if not args.no_temperature:
+            temperature()
         print()
         print(f"{'target':<36}{'measured':>32}  met")
         for label, value, ok in rows:
