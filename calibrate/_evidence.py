@@ -36,7 +36,7 @@ from ._mlfit import linear_score, unit_columns
 
 __all__ = ["DECISIVE_BIC", "MIN_SHARE", "MAX_STEPS", "MAX_REFITS", "REFIT_FRACTION", "Fit", "Proposal",
            "Selection", "Check", "gather_forms", "linearised_score", "refit_from_better_start", "determined",
-           "select_effects"]
+           "select_effects", "VERDICTS", "added_step_lines", "remark_lines", "residual_line"]
 
 DECISIVE_BIC = 10.0
 """delta-BIC above which evidence counts as decisive (Kass and Raftery's 'very strong')."""
@@ -344,3 +344,30 @@ def _veto(p: Proposal, checks: Sequence[Check]) -> tuple[str | None, dict]:
             return reason, measured
         measured.update(found)
     return None, measured
+
+
+VERDICTS = {True: "UNEXPLAINED: structure remains above the noise floor that no modelled effect accounts for",
+            False: "explained: the residual is at the noise floor"}
+"""A diagnosis block's ``unexplained`` in words, for the reports."""
+
+
+def added_step_lines(step: dict) -> list[str]:
+    """Report lines of an added effect: residual, delta-BIC, evidence and each parameter with its sigma."""
+    form = f" ({step['form']})" if "form" in step else ""
+    lines = [f"  + {step['added']}{form}: residual rms {step['residual_rms']:.4g}, delta-BIC {step['delta_bic']:.0f}",
+             f"      evidence: {step['evidence']}"]
+    return lines + [f"      {name} = {p['value']:.4g} +- {p['sigma']:.2g}"
+                    for name, p in step.get("parameters", {}).items()]
+
+
+def remark_lines(block: dict) -> list[str]:
+    """Report lines of what was not claimed and what could not be examined, and why."""
+    return ([f"  not claimed: {text}" for text in block.get("not_claimed", [])]
+            + [f"  {name} not examined: {reason}" for name, reason in block.get("not_applicable", {}).items()])
+
+
+def residual_line(block: dict, verdict: str, test: str = "structure test") -> str:
+    """The closing report line: residual rms before and after, the verdict, the structure test's p-value."""
+    p = (block.get("structure_test") or {}).get("p_value")
+    return (f"  residual rms {block['residual_rms_before']:.4g} -> {block['residual_rms_after']:.4g}; {verdict}"
+            + ("" if p is None else f" ({test} p = {p:.2g})"))

@@ -47,7 +47,8 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_dist
 
-from ._evidence import Proposal, determined, gather_forms, linearised_score, refit_from_better_start, select_effects
+from ._evidence import (VERDICTS, Proposal, added_step_lines, determined, gather_forms, linearised_score,
+                        refit_from_better_start, remark_lines, residual_line, select_effects)
 from .diagnose import FLOOR_MARGIN, STRUCTURE_P
 from .tumble_diagnose import WARMUP_TAU_FRACTIONS, _json_float, _rms
 
@@ -500,27 +501,14 @@ def format_offset_diagnosis(block: dict, unit: str = "output units") -> str:
     for step in block["steps"]:
         if step.get("model") == "base":
             lines.append(f"  base model: residual rms {step['residual_rms']:.4g}")
-            continue
-        lines.append(f"  + {step['added']} ({step['form']}): residual rms {step['residual_rms']:.4g}, "
-                     f"delta-BIC {step['delta_bic']:.0f}")
-        lines.append(f"      evidence: {step['evidence']}")
-        for name, p in step["parameters"].items():
-            lines.append(f"      {name} = {p['value']:.4g} +- {p['sigma']:.2g}")
-    for text in block["not_claimed"]:
-        lines.append(f"  not claimed: {text}")
-    for name, reason in block["not_applicable"].items():
-        lines.append(f"  {name} not examined: {reason}")
+        else:
+            lines += added_step_lines(step)
+    lines += remark_lines(block)
     if block["effects"]:
         ch = block["offset_change"]
         moved = ", ".join(f"{n} {v:+.4g}" for n, v in zip(ch["channels"], ch["value"]))
         lines.append(f"  the offsets (now at the effects' reference) moved by {moved} {unit}")
-    if block["unexplained"] is None:
-        verdict = "not judged: no repeated samples to measure the noise floor independently"
-    elif block["unexplained"]:
-        verdict = "UNEXPLAINED: structure remains above the noise floor that no modelled effect accounts for"
-    else:
-        verdict = "explained: the residual is at the noise floor"
-    test = block["structure_test"]
-    lines.append(f"  residual rms {block['residual_rms_before']:.4g} -> {block['residual_rms_after']:.4g}; {verdict}"
-                 + ("" if test is None else f" (lack-of-fit p = {test['p_value']:.2g})"))
+    verdict = ("not judged: no repeated samples to measure the noise floor independently"
+               if block["unexplained"] is None else VERDICTS[bool(block["unexplained"])])
+    lines.append(residual_line(block, verdict, "lack-of-fit"))
     return "\n".join(lines)

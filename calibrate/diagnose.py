@@ -30,7 +30,8 @@ from scipy.stats import chi2 as chi2_dist
 from compass.io.fourflip import FourFlipRecording
 from compass.sim.bench import BenchSamples
 
-from ._evidence import DECISIVE_BIC, Proposal, gather_forms, select_effects
+from ._evidence import (DECISIVE_BIC, VERDICTS, Proposal, added_step_lines, gather_forms, remark_lines,
+                        residual_line, select_effects)
 from ._mlfit import MLFit, fit_ml, score_effect
 from .effects import VARIANTS, Effect
 from .noise import noise_floor
@@ -189,22 +190,15 @@ def format_diagnosis(diagnosis: dict, unit: str = "output units") -> str:
     for step in d["steps"]:
         if "model" in step:
             lines.append(f"  base model: residual rms {step['residual_rms']:.4g}")
-            continue
-        lines.append(f"  + {step['added']}: residual rms {step['residual_rms']:.4g}, delta-BIC {step['delta_bic']:.0f}")
-        lines.append(f"      evidence: {step['evidence']}")
-        for name, p in step.get("parameters", {}).items():
-            lines.append(f"      {name} = {p['value']:.4g} +- {p['sigma']:.2g}")
-    for text in d.get("not_claimed", []):
-        lines.append(f"  not claimed: {text}")
+        else:
+            lines += added_step_lines(step)
+    lines += remark_lines(d)
     change = d.get("calibration_change")
     if change and len(d["steps"]) > 1:
         moved = ", ".join(f"{name} {c['direction_change_deg']:.3f} deg (sigma {c['sigma_deg']:.3f})"
                           for name, c in change["channels"].items())
         lines.append(f"  the calibration moved: directions {moved}; dip {change['dip_change_deg']:+.3f} deg")
-    verdict = ("UNEXPLAINED: structure remains above the noise floor that no modelled effect accounts for"
-               if d["unexplained"] else "explained: the residual is at the noise floor")
-    lines.append(f"  residual rms {d['residual_rms_before']:.4g} -> {d['residual_rms_after']:.4g}; {verdict} "
-                 f"(structure test p = {d['structure_test']['p_value']:.2g})")
+    lines.append(residual_line(d, VERDICTS[bool(d["unexplained"])]))
     return "\n".join(lines)
 
 

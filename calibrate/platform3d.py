@@ -58,7 +58,8 @@ from compass.frames import direction_sigma_deg, seed_angles
 from compass.io.platform3d import Platform3DRecording
 from compass.sim.platform3d import predict, up_in_bench
 
-from ._offset_effects import OffsetDiagnosis, Problem, diagnose_offsets, format_offset_diagnosis
+from ._offset_effects import (OffsetDiagnosis, Problem, diagnose_offsets, format_offset_diagnosis,
+                              pooled_repeat_noise)
 from .result import FORMAT
 
 __all__ = ["NotIdentifiable", "Platform3DResult", "calibrate_platform3d", "axis_geometry"]
@@ -337,16 +338,6 @@ def _start(rot: Rotation, mag, tilt, field_magnitude: float, sign: float) -> np.
     return np.concatenate([sol[:3].T.ravel(), sol[3], [el, az], sol_t[:3].T.ravel(), sol_t[3], [0.0, 0.0]])
 
 
-def _pose_noise(values: np.ndarray, pose: np.ndarray) -> np.ndarray | None:
-    """Pooled within-pose standard deviation per column; None when no pose repeats."""
-    counts = np.bincount(pose)
-    dof = int(np.sum(counts - 1))
-    if dof < 3:
-        return None
-    means = np.array([np.bincount(pose, weights=v) / counts for v in values.T]).T
-    return np.sqrt(np.sum((values - means[pose]) ** 2, axis=0) / dof)
-
-
 def _pose_hint(rot: Rotation) -> str:
     """Why the poses may fail, in words (empty when they look rich enough)."""
     up_h = rot.apply([0.0, 0.0, 1.0], inverse=True)
@@ -411,7 +402,7 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
     n_tilt = rec.tilt.shape[1]
     names = _names(rec.tilt_columns)
     p0 = _start(rot, rec.mag, rec.tilt, magnitude, sign)
-    noise_mag, noise_tilt = _pose_noise(rec.mag, rec.pose), _pose_noise(rec.tilt, rec.pose)
+    noise_mag, noise_tilt = pooled_repeat_noise(rec.mag, rec.pose), pooled_repeat_noise(rec.tilt, rec.pose)
 
     def residuals(p, w_m, w_t):
         m, o_m, b_w, a, o_t, u_w = _unpack(p, n_tilt, magnitude)

@@ -56,7 +56,8 @@ from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_dist
 from scipy.stats import median_abs_deviation
 
-from ._evidence import Proposal, determined, gather_forms, linearised_score, refit_from_better_start, select_effects
+from ._evidence import (VERDICTS, Proposal, added_step_lines, determined, gather_forms, linearised_score,
+                        refit_from_better_start, remark_lines, residual_line, select_effects)
 from .diagnose import FLOOR_MARGIN, STRUCTURE_P
 from .tumble import (MAX_ANGLE_WIDENING, KindFit, Misalignment, _covariance, _propagate, _shape, _sym_sqrt,
                      field_gravity_angles, static_mask)
@@ -599,21 +600,11 @@ def format_tumble_diagnosis(block: dict, unit: str = "recording units") -> str:
             lines.append(f"  mag-to-accel rotation: residual rms {step['residual_rms']:.4g}, delta-BIC "
                          f"{step['delta_bic']:.0f}; {step['evidence']}")
         else:
-            lines.append(f"  + {step['added']} ({step['form']}): residual rms {step['residual_rms']:.4g}, "
-                         f"delta-BIC {step['delta_bic']:.0f}")
-            lines.append(f"      evidence: {step['evidence']}")
-            for name, p in step["parameters"].items():
-                lines.append(f"      {name} = {p['value']:.4g} +- {p['sigma']:.2g}")
-    for text in block["not_claimed"]:
-        lines.append(f"  not claimed: {text}")
-    for name, reason in block["not_applicable"].items():
-        lines.append(f"  {name} not examined: {reason}")
+            lines += added_step_lines(step)
+    lines += remark_lines(block)
     if block["effects"]:
         change = ", ".join(f"{v:+.4g} (sigma {s:.2g})" for v, s in zip(block["hard_iron_change"]["value"],
                                                                        block["hard_iron_change"]["sigma"]))
         lines.append(f"  the hard iron moved by {change} {unit}")
-    verdict = ("UNEXPLAINED: structure remains above the noise floor that no modelled effect accounts for"
-               if block["unexplained"] else "explained: the residual is at the noise floor")
-    lines.append(f"  residual rms {block['residual_rms_before']:.4g} -> {block['residual_rms_after']:.4g}; {verdict} "
-                 f"(structure test p = {block['structure_test']['p_value']:.2g})")
+    lines.append(residual_line(block, VERDICTS[bool(block["unexplained"])]))
     return "\n".join(lines)
