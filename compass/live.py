@@ -77,6 +77,8 @@ class LiveSession:
     _bad_reported: int = 0
     _bad_reported_at: float = 0.0
     _gate: str = "ok"
+    _temp_c: float | None = None
+    _header_seen: object = None
 
     def __post_init__(self):
         self.decoder = LineDecoder(self.model.channels)
@@ -112,10 +114,19 @@ class LiveSession:
             self._filter = AttitudeFilter(self.config, gyro=header.gyro is not None)
             self._event("info", f"filter: {'gyro (error-state EKF with bias)' if self._filter.gyro else 'two-vector'}"
                                 f"{'' if header.accel is not None else '; no accelerometer: no attitude'}")
-            if self.model.temperature is not None and header.temp_c is None:
+        effect = self.model.temperature
+        if effect is not None and header is not self._header_seen:
+            self._header_seen = header
+            if effect.reference_c is None:
+                self._event("warn", "the calibration's temperature effect names no reference temperature: "
+                                    "not applied (recalibrate)")
+            elif header.temp_c is None:
                 self._event("warn", "the calibration has a temperature effect but the module sends no temp_c: "
-                                    f"readings are taken as at {self.model.temperature.reference_c:.1f} degC")
-        field_h, in_range = self.model.field(sample.raw[None, :], sample.temp_c)
+                                    f"readings are taken as at {effect.reference_c:.1f} degC")
+        if sample.temp_c is not None:
+            self._temp_c = sample.temp_c  # an empty temp_c cell keeps the last temperature
+        usable = effect is not None and effect.reference_c is not None
+        field_h, in_range = self.model.field(sample.raw[None, :], self._temp_c if usable else None)
         field_h = field_h[0]
         t_s = sample.t_s if sample.t_s is not None else t_rx - self._t0
         est = self._filter.step(t_s, sample.accel, sample.gyro, field_h)

@@ -200,7 +200,7 @@ class SensorModel:
                                            "gain": float(self.response_sigma[c, 1])}
             channels[name] = entry
         out = {"format": FORMAT, "channels": channels, "dip_deg": self.dip_deg, "field_ut": self.field_ut}
-        if self.temperature is not None:
+        if self.temperature is not None and self.temperature.reference_c is not None:
             out["effects"] = [self.temperature.to_json(self.channels)]
         if self.noise is not None:
             out["noise_floor"] = [float(v) for v in self.noise]
@@ -249,6 +249,11 @@ class SensorModel:
             Sensor temperature of each reading, degC: with a :attr:`temperature` effect the
             readings are first taken back to its reference temperature; ignored without one.
 
+        Raises
+        ------
+        ValueError
+            ``temp_c`` given and the temperature effect names no reference temperature.
+
         Returns
         -------
         x : ndarray, shape (..., c)
@@ -260,10 +265,11 @@ class SensorModel:
         if raw.shape[-1:] != (len(self.channels),):
             raise ValueError(f"expected raw outputs of shape (..., {len(self.channels)}) for channels "
                              f"{', '.join(self.channels)}, got {raw.shape}")
+        valid = True
         if self.temperature is not None and temp_c is not None:
-            raw = self.temperature.to_reference(raw, temp_c, self.zero_outputs)
+            raw, valid = self.temperature.to_reference(raw, temp_c, self.zero_outputs)
         pairs = [r.field_component(raw[..., c]) for c, r in enumerate(self.responses)]
-        return np.stack([p[0] for p in pairs], axis=-1), np.stack([p[1] for p in pairs], axis=-1)
+        return np.stack([p[0] for p in pairs], axis=-1), np.stack([p[1] for p in pairs], axis=-1) & valid
 
     def field(self, raw, temp_c=None) -> tuple[np.ndarray, np.ndarray]:
         """Field vector in the housing frame H from channel outputs.

@@ -27,7 +27,9 @@ four-flip                              ``ch.offset_fieldunit_per_degc`` (x gain)
 tumble                                 ``ch.hard_iron_per_degc``                   ``ch.scale_rel_per_degc``
 =====================================  ==========================================  ==============
 
-An ``offset_drift`` effect is not applied at runtime: it is a function of the time within the
+The effect is linear in temperature and was fitted over the calibration's temperature span: far
+outside it the compensation extrapolates.  A channel whose gain factor ``1 + g (T - T_ref)`` falls
+below one half is reported out of range.  An ``offset_drift`` effect is not applied at runtime: it is a function of the time within the
 calibration session, which a later recording does not know; the file's offsets are the ones at the
 effect's ``reference`` (a time of the session, or after the warm-up).
 """
@@ -50,15 +52,16 @@ class TemperatureCompensation:
 
     Attributes
     ----------
-    reference_c : float
-        Temperature the file's responses hold at, degC.
+    reference_c : float or None
+        Temperature the file's responses hold at, degC; None when the file names none (written
+        before the effects carried their reference): the effect is then known but not usable.
     offset_per_degc : ndarray, shape (c,)
         Change of each channel's zero-field output, output units per degC.
     gain_rel_per_degc : ndarray, shape (c,)
         Relative change of each channel's gain, per degC.
     """
 
-    reference_c: float
+    reference_c: float | None
     offset_per_degc: np.ndarray
     gain_rel_per_degc: np.ndarray
 
@@ -78,29 +81,33 @@ class TemperatureCompensation:
         Raises
         ------
         ValueError
-            The effect names no reference temperature, or a parameter is not a number.
+            More than one ``temperature`` effect, a parameter that names no channel of the model or
+            no known coefficient, or one that is not a number.
         """
         found = [e for e in effects or () if isinstance(e, dict) and e.get("name") == "temperature"]
         if not found:
             return None
+        if len(found) > 1:
+            raise ValueError(f"{len(found)} temperature effects: expected one")
         effect = found[0]
         reference = (effect.get("reference") or {}).get("temp_c")
-        if not isinstance(reference, (int, float)) or not np.isfinite(reference):
-            raise ValueError("the temperature effect names no reference temperature ('reference': {'temp_c': ..}): "
-                             "recalibrate with this version to use it")
-        params = effect.get("parameters") or {}
+        usable = isinstance(reference, (int, float)) and np.isfinite(reference)
+        params = dict(effect.get("parameters") or {})
         offset = np.zeros(len(channels))
         gain = np.zeros(len(channels))
         for c, name in enumerate(channels):
             for key, in_field_units in _OFFSET_KEYS:
                 if f"{name}.{key}" in params:
-                    offset[c] = _value(params, f"{name}.{key}") * (gains[c] if in_field_units else 1.0)
+                    offset[c] = _value(params.pop(f"{name}.{key}"), key) * (gains[c] if in_field_units else 1.0)
             for key in _GAIN_KEYS:
                 if f"{name}.{key}" in params:
-                    gain[c] = _value(params, f"{name}.{key}")
-        return cls(float(reference), offset, gain)
+                    gain[c] = _value(params.pop(f"{name}.{key}"), key)
+        if params:
+            raise ValueError(f"temperature effect: {', '.join(sorted(params))} name no channel of the model "
+                             f"({', '.join(channels)}) or no known coefficient")
+        return cls(float(reference) if usable else None, offset, gain)
 
-    def to_reference(self, raw: np.ndarray, temp_c, zero_outputs: np.ndarray) -> np.ndarray:
+    def to_reference(self, raw: np.ndarray, temp_c, zero_outputs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Outputs taken back to the reference temperature (module docstring).
 
         Parameters
@@ -114,10 +121,23 @@ class TemperatureCompensation:
 
         Returns
         -------
-        ndarray, shape (..., c)
+        outputs : ndarray, shape (..., c)
+        valid : ndarray of bool, shape (..., c)
+            False where the gain factor ``1 + g (T - T_ref)`` is below one half (far outside the
+            calibrated temperatures).
+
+        Raises
+        ------
+        ValueError
+            The effect names no reference temperature.
         """
+        if self.reference_c is None:
+            raise ValueError("the calibration's temperature effect names no reference temperature "
+                             "('reference': {'temp_c': ..}): recalibrate to compensate temperature")
         dt = (np.asarray(temp_c, dtype=float) - self.reference_c)[..., None]
-        return zero_outputs + (raw - zero_outputs - dt * self.offset_per_degc) / (1.0 + dt * self.gain_rel_per_degc)
+        factor = 1.0 + dt * self.gain_rel_per_degc
+        valid = factor > 0.5
+        return zero_outputs + (raw - zero_outputs - dt * self.offset_per_degc) / np.where(valid, factor, 1.0), valid
 
     def to_json(self, channels) -> dict:
         """The effect entry in the runtime's own spelling (output units)."""
@@ -128,8 +148,7 @@ class TemperatureCompensation:
         return {"name": "temperature", "parameters": params, "reference": {"temp_c": self.reference_c}}
 
 
-def _value(params: dict, key: str) -> float:
-    entry = params[key]
+def _value(entry, key: str) -> float:
     value = entry.get("value") if isinstance(entry, dict) else entry
     if not isinstance(value, (int, float)) or not np.isfinite(value):
         raise ValueError(f"temperature effect: '{key}' must be a finite number, got {value!r}")

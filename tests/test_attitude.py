@@ -268,5 +268,5 @@ def test_cli_applies_or_warns_about_the_temperature_effect(files, tmp_path, caps
     np.testing.assert_allclose(compensated.column("heading_deg"), plain.column("heading_deg"), atol=1e-3)
     capsys.readouterr()
     assert main(["attitude", str(hot_cal), str(rec), "--out", str(tmp_path / "c.csv")]) == 0
-    assert "no temp_c column" in capsys.readouterr().out
+    assert "no temp_c column" in capsys.readouterr().err
     assert "NOT compensated" in read_table(tmp_path / "c.csv").metadata["temperature"]

@@ -189,22 +189,53 @@ def test_runtime_takes_readings_back_to_the_calibrated_temperature():
         assert rms_error(temp, True) < allowed < 0.2 * rms_error(temp, False)
 
 
+def temperature_effect(reference, spelling):
+    """A temperature effect: per channel (name, offset change, relative gain change) in the given keys."""
+    params = {f"{c}.{k}": {"value": v} for c, dv, g in spelling[1]
+              for k, v in ((spelling[0][0], dv), (spelling[0][1], g))}
+    return {"name": "temperature", "parameters": params, **({"reference": {"temp_c": reference}} if reference else {})}
+
+
 def test_temperature_compensation_inverts_its_model_in_every_spelling():
-    # v = V0 + dV dT + (1 + g dT)(v_ref - V0): the tumble's and the platform's spellings mean the same
-    tumble = {"format": FORMAT, "model": "tumble", "hard_iron": [5.0, -3.0, 2.0], "soft_iron": np.eye(3).tolist(),
-              "field_norm": 50.0, "mag_to_accel": None, "dip_deg": 60.0,
-              "effects": [{"name": "temperature", "reference": {"temp_c": 25.0}, "parameters": {
-                  f"{c}.{k}": {"value": v} for c, dv, g in (("mx", 0.2, 1e-3), ("my", -0.1, -2e-3), ("mz", 0.05, 0.0))
-                  for k, v in (("hard_iron_per_degc", dv), ("scale_rel_per_degc", g))}}]}
-    model = SensorModel.from_json(tumble)
-    again = SensorModel.from_json(model.to_json())  # written back in the channel spelling
-    b = np.array([[20.0, -30.0, 35.0], [-40.0, 10.0, -28.0]])
-    v_ref = np.array([5.0, -3.0, 2.0]) + b
+    # v = V0 + dV dT + (1 + g dT)(v_ref - V0), in output units, whatever the fit's spelling
+    v0, dv, g = np.array([5.0, -3.0, 2.0]), np.array([0.2, -0.1, 0.05]), np.array([1e-3, -2e-3, 0.0])
+    soft = np.array([[1.1, 0.05, 0.0], [0.05, 0.9, 0.02], [0.0, 0.02, 1.0]])
+    tumble = {"format": FORMAT, "model": "tumble", "hard_iron": v0.tolist(), "soft_iron": soft.tolist(),
+              "field_norm": 50.0, "field_ut": 48.0, "mag_to_accel": None, "dip_deg": 60.0,
+              "effects": [temperature_effect(25.0, (("hard_iron_per_degc", "scale_rel_per_degc"),
+                                                    list(zip(("mx", "my", "mz"), dv, g))))]}
+    gains = np.array([0.02, 0.05, 0.5])  # channel form with gains far from 1: output units per field unit
+    channels = {"format": FORMAT, "dip_deg": 60.0, "field_ut": 50.0, "channels": {
+        c: {"direction": d, "response": {"model": "linear", "offset": o, "gain": k}}
+        for c, d, o, k in zip(("a", "b", "c"), np.eye(3).tolist(), v0, gains)}}
+    platform = dict(channels, effects=[temperature_effect(25.0, (("offset_per_degc", "gain_rel_per_degc"),
+                                                                 list(zip("abc", dv, g))))])
+    fourflip = dict(channels, effects=[temperature_effect(25.0, (("offset_fieldunit_per_degc", "gain_rel_per_degc"),
+                                                                 list(zip("abc", dv / gains, g))))])
     dt = 40.0 - 25.0
-    v = np.array([5.0, -3.0, 2.0]) + np.array([0.2, -0.1, 0.05]) * dt + (1 + np.array([1e-3, -2e-3, 0.0]) * dt) * (v_ref - [5.0, -3.0, 2.0])
-    for m in (model, again):
-        np.testing.assert_allclose(m.field(v, 40.0)[0], b, atol=1e-9)
-        assert np.max(np.abs(m.field(v)[0] - b)) > 1.0  # ignored without temp_c
-    tumble["effects"][0].pop("reference")
+    for d in (tumble, platform, fourflip):
+        model = SensorModel.from_json(d)
+        again = SensorModel.from_json(model.to_json())  # written back in the runtime's spelling
+        b = np.random.default_rng(1).normal(0.0, 30.0, (5, 3))
+        v_ref = model.zero_outputs + (b @ model.unit_directions.T) * model.gains
+        v = v0 + dv * dt + (1 + g * dt) * (v_ref - v0)
+        for m in (model, again):
+            np.testing.assert_allclose(m.field(v, 40.0)[0], b, atol=1e-9)
+            assert np.max(np.abs(m.field(v)[0] - b)) > 0.1  # ignored without temp_c
+    # 600 degC below the reference mx's gain factor 1 + 1e-3 dT is negative: out of range, not mirrored
+    _, valid = SensorModel.from_json(tumble).temperature.to_reference(v, 25.0 - 600.0, v0)
+    assert valid.tolist() == [False, True, True]
+
+
+def test_temperature_effect_without_reference_or_with_unknown_keys():
+    d = {"format": FORMAT, "dip_deg": 60.0, "field_ut": None, "channels": {
+        c: {"direction": e, "response": {"model": "linear", "offset": 0.0, "gain": 1.0}}
+        for c, e in zip("abc", np.eye(3).tolist())}}
+    d["effects"] = [temperature_effect(None, (("offset_per_degc", "gain_rel_per_degc"), [("a", 0.1, 0.0)]))]
+    model = SensorModel.from_json(d)  # an older file: loads, usable without temp_c
+    assert model.temperature.reference_c is None and model.field([[1.0, 0.0, 0.0]])[0].shape == (1, 3)
     with pytest.raises(ValueError, match="reference temperature"):
-        SensorModel.from_json(tumble)
+        model.field([[1.0, 0.0, 0.0]], 30.0)
+    d["effects"] = [temperature_effect(20.0, (("offset_per_degc", "gain_rel_per_degc"), [("x", 0.1, 0.0)]))]
+    with pytest.raises(ValueError, match="x.offset_per_degc.*name no channel"):
+        SensorModel.from_json(d)

@@ -8,6 +8,7 @@ and writes the attitude CSV atomically.
 
 from __future__ import annotations
 
+import sys
 
 import numpy as np
 
@@ -16,7 +17,7 @@ from ..io.table import RecordingError, read_table
 
 _ACCEL = ("ax", "ay", "az")
 _TILT = ("pitch_deg", "roll_deg")
-_IGNORED = ("t_s", "temp_c", "gx", "gy", "gz")  # temp_c is used when the calibration has a temperature effect
+_IGNORED = ("t_s", "gx", "gy", "gz")
 _FORMATS = {"in_range": "%d", "disturbed": "%d", "t_s": "%.4f"}
 
 
@@ -68,7 +69,7 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     except ValueError as exc:
         raise BadInput(exc if str(calibration) in str(exc) else f"{calibration}: {exc}") from None
     table = read_table(recording)
-    known = set(model.channels) | set(_ACCEL) | set(_TILT) | set(_IGNORED)
+    known = set(model.channels) | set(_ACCEL) | set(_TILT) | set(_IGNORED) | {"temp_c"}
     for name in table.columns:
         if name not in known:
             raise RecordingError(table.path, f"column '{name}' is not a channel of {calibration} "
@@ -85,6 +86,9 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     if tilt is not None:
         _check_rows(table, np.abs(tilt[:, 0]) <= 90.0, "pitch_deg", "pitch must be in [-90, 90] degrees")
     temp_c = table.column("temp_c") if table.has("temp_c") else None
+    effect = model.temperature
+    if effect is not None and effect.reference_c is None:
+        temp_c = None  # a file written before effects carried their reference: the effect cannot be applied
     try:
         result = solve_attitude(model, raw, accel=accel, pitch_deg=None if tilt is None else tilt[:, 0],
                                 roll_deg=None if tilt is None else tilt[:, 1], level=level,
@@ -98,13 +102,14 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
         metadata["accel_noise_g"] = f"{accel_noise_g:g}"
     if result.mode == "level":
         metadata["max_tilt_deg"] = f"{max_tilt_deg:g}"
-    if model.temperature is not None:
-        metadata["temperature"] = (f"compensated to {model.temperature.reference_c:.2f} degC from temp_c"
-                                   if temp_c is not None else
-                                   f"NOT compensated: the calibration has a temperature effect (reference "
-                                   f"{model.temperature.reference_c:.2f} degC) but the recording no temp_c column")
-        if temp_c is None:
-            print(f"warning: {recording} has no temp_c column: the calibration's temperature effect is not applied")
+    if effect is not None:
+        if temp_c is not None:
+            metadata["temperature"] = f"compensated to {effect.reference_c:.2f} degC from temp_c"
+        else:
+            why = ("its temperature effect names no reference temperature (recalibrate)" if effect.reference_c is None
+                   else f"{recording} has no temp_c column")
+            metadata["temperature"] = f"NOT compensated: {why}"
+            print(f"warning: the calibration's temperature effect is not applied: {why}", file=sys.stderr)
     if model.direction_covariance is None:
         metadata["note"] = "the calibration gives no direction covariance: sigmas count sensor noise only"
     atomic_write_text(out, _format_csv(columns, metadata))
