@@ -371,3 +371,4 @@ def residual_line(block: dict, verdict: str, test: str = "structure test") -> st
     p = (block.get("structure_test") or {}).get("p_value")
     return (f"  residual rms {block['residual_rms_before']:.4g} -> {block['residual_rms_after']:.4g}; {verdict}"
             + ("" if p is None else f" ({test} p = {p:.2g})"))
+

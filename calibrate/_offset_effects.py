@@ -49,6 +49,7 @@ from scipy.stats import chi2 as chi2_dist
 
 from ._evidence import (VERDICTS, Proposal, added_step_lines, determined, gather_forms, linearised_score,
                         refit_from_better_start, remark_lines, residual_line, select_effects)
+from .effects import why_no_temperature, why_no_time
 from .diagnose import FLOOR_MARGIN, STRUCTURE_P
 from .tumble_diagnose import WARMUP_TAU_FRACTIONS, _json_float, _rms
 
@@ -124,11 +125,7 @@ def _per_channel(ctx: _Context, label: str, values, sigmas) -> dict:
 
 class _TimeEffect(OffsetEffect):
     def applicable(self, t_s, temp_c):
-        if t_s is None:
-            return "the recording has no t_s column"
-        if not np.ptp(t_s) > 0:
-            return "t_s never changes"
-        return None
+        return why_no_time(t_s)
 
     def reference(self, ctx):
         return {"t_s": ctx.t_ref_s}
@@ -188,11 +185,7 @@ class Temperature(OffsetEffect):
     gain: bool = False
 
     def applicable(self, t_s, temp_c):
-        if temp_c is None:
-            return "the recording has no temp_c column"
-        if np.ptp(temp_c) < 0.5:
-            return "temp_c varies by less than 0.5 degC"
-        return None
+        return why_no_temperature(temp_c)
 
     def n_params(self, c):
         return 2 * c if self.gain else c

@@ -26,10 +26,28 @@ import numpy as np
 
 from compass.sim.bench import BenchPhysics, BenchSamples
 
-__all__ = ["Effect", "EFFECTS", "VARIANTS", "effect_by_name"]
+__all__ = ["Effect", "EFFECTS", "VARIANTS", "effect_by_name", "why_no_time", "why_no_temperature"]
 
 ENCODER_HARMONICS = 3
 MAX_DRIFT_DEGREE = 3
+
+
+def why_no_time(t_s) -> str | None:
+    """Why a recording cannot show an effect in time (no ``t_s``, or one that never changes), else None."""
+    if t_s is None:
+        return "the recording has no t_s column"
+    if not np.ptp(t_s) > 0:
+        return "t_s never changes"
+    return None
+
+
+def why_no_temperature(temp_c) -> str | None:
+    """Why a recording cannot show a temperature effect (no ``temp_c``, or under 0.5 degC of change), else None."""
+    if temp_c is None:
+        return "the recording has no temp_c column"
+    if np.ptp(temp_c) < 0.5:
+        return "temp_c varies by less than 0.5 degC"
+    return None
 
 
 @dataclass(frozen=True)
@@ -171,11 +189,7 @@ class OffsetDrift(Effect):
         return f"{self.name} (degree {self.degree})"
 
     def applicable(self, samples):
-        if samples.t_s is None:
-            return "the recording has no t_s column"
-        if np.ptp(samples.t_s) <= 0:
-            return "t_s never changes"
-        return None
+        return why_no_time(samples.t_s)
 
     def n_params(self, c):
         return self.degree * c
@@ -227,11 +241,7 @@ class WarmUp(OffsetDrift):
 
 class Temperature(Effect):
     def applicable(self, samples):
-        if samples.temp_c is None:
-            return "the recording has no temp_c column"
-        if np.ptp(samples.temp_c) < 0.5:
-            return "temp_c varies by less than 0.5 degC"
-        return None
+        return why_no_temperature(samples.temp_c)
 
     def n_params(self, c):
         return 2 * c

@@ -58,6 +58,7 @@ from scipy.stats import median_abs_deviation
 
 from ._evidence import (VERDICTS, Proposal, added_step_lines, determined, gather_forms, linearised_score,
                         refit_from_better_start, remark_lines, residual_line, select_effects)
+from .effects import why_no_temperature, why_no_time
 from .diagnose import FLOOR_MARGIN, STRUCTURE_P
 from .tumble import (MAX_ANGLE_WIDENING, KindFit, Misalignment, _covariance, _propagate, _shape, _sym_sqrt,
                      field_gravity_angles, static_mask)
@@ -148,11 +149,7 @@ def _per_axis(label: str, values, sigmas) -> dict:
 
 class _TimeEffect(TumbleEffect):
     def applicable(self, t_s, temp_c, missing):
-        if t_s is None:
-            return "the recording has no t_s column"
-        if not np.ptp(t_s) > 0:
-            return "t_s never changes"
-        return None
+        return why_no_time(t_s)
 
     def reference(self, ctx):
         return {"t_s": ctx.t_ref_s}
@@ -203,11 +200,7 @@ class Temperature(TumbleEffect):
     scale: bool = False
 
     def applicable(self, t_s, temp_c, missing):
-        if temp_c is None:
-            return "the recording has no temp_c column"
-        if np.ptp(temp_c) < 0.5:
-            return "temp_c varies by less than 0.5 degC"
-        return None
+        return why_no_temperature(temp_c)
 
     def n_params(self):
         return 6 if self.scale else 3

@@ -157,24 +157,17 @@ def test_runtime_takes_readings_back_to_the_calibrated_temperature():
     # a four-flip calibration that found the temperature effect, then the true sensor read at 10 and
     # 45 degC (the recording spanned 22-32 degC) in 300 known fields
     from calibrate import calibrate_fourflip
-    from compass.sim.bench import BenchSamples, channel_outputs
     from compass.sim.fourflip import simulate_fourflip
 
     session = simulate_fourflip(seed=0, effects=("temperature",))
     d = calibrate_fourflip(session.recording(), diagnose=True).to_json()
     model = SensorModel.from_json(d)
     effect = next(e for e in d["effects"] if e["name"] == "temperature")
-    truth = session.truth["effects"][0]["parameters"]
-    physics = session.base_physics().with_(temp_offset=np.array(truth["offset_per_degc"]),
-                                           temp_gain=np.array(truth["gain_per_degc"]), temp_ref_c=truth["ref_c"])
     b = np.random.default_rng(0).normal(size=(300, 3))
     b *= session.truth["field_ut"] / np.linalg.norm(b, axis=1, keepdims=True)
-    zero = np.zeros(len(b))
 
     def rms_error(temp, compensate):
-        samples = BenchSamples(zero, zero, zero.astype(int), None, np.full(len(b), temp))
-        v = channel_outputs(physics, samples, b @ physics.directions.T)
-        field = model.field(v, temp if compensate else None)[0]
+        field = model.field(session.outputs_at(b, temp), temp if compensate else None)[0]
         return float(np.sqrt(np.mean(np.sum((field - b) ** 2, axis=1))))
 
     at_reference = rms_error(effect["reference"]["temp_c"], True)

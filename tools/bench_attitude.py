@@ -43,7 +43,6 @@ from compass.attitude import solve_attitude
 from compass.frames import heading_pitch_roll, world_field
 from compass.io.fourflip import read_fourflip
 from compass.model import SensorModel
-from compass.sim.bench import BenchSamples, channel_outputs
 from compass.sim.fourflip import simulate_fourflip, write_fourflip
 from compass.sim.runtime import simulate_runtime, write_runtime
 
@@ -128,16 +127,11 @@ def temperature(seeds=range(4), temps=(10.0, 45.0), n=300):
         d = calibrate_fourflip(session.recording(), diagnose=True).to_json()
         model = SensorModel.from_json(d)
         effect = next(e for e in d["effects"] if e["name"] == "temperature")
-        truth = session.truth["effects"][0]["parameters"]
-        physics = session.base_physics().with_(temp_offset=np.array(truth["offset_per_degc"]),
-                                               temp_gain=np.array(truth["gain_per_degc"]), temp_ref_c=truth["ref_c"])
         b = np.random.default_rng(seed).normal(size=(n, 3))
         b *= session.truth["field_ut"] / np.linalg.norm(b, axis=1, keepdims=True)
-        zero = np.zeros(n)
         p = effect["parameters"]
         for temp in temps:
-            v = channel_outputs(physics, BenchSamples(zero, zero, zero.astype(int), None, np.full(n, temp)),
-                                b @ physics.directions.T)
+            v = session.outputs_at(b, temp)
             dt = temp - effect["reference"]["temp_c"]
             predicted = np.sqrt(sum((p[f"{c}.offset_fieldunit_per_degc"]["sigma"] * dt) ** 2
                                     + (p[f"{c}.gain_rel_per_degc"]["sigma"] * dt) ** 2 * session.truth["field_ut"] ** 2 / 3

@@ -65,6 +65,24 @@ class SimulatedSession:
         return BenchPhysics(np.asarray(t["directions"]), np.asarray(t["offsets"]), np.asarray(t["gains_per_ut"]),
                             float(t["dip_deg"]), float(t["azimuth_deg"]), float(t["field_ut"]))
 
+    def outputs_at(self, field_h, temp_c: float | None = None) -> np.ndarray:
+        """Noise-free outputs of the simulated sensor for fields in H, at a sensor temperature.
+
+        The base model plus the session's ``temperature`` effect (other effects belong to the
+        bench); ``field_h`` in uT, shape (n, 3); ``temp_c`` None reads at the effect's reference.
+        """
+        field_h = np.asarray(field_h, dtype=float)
+        physics = self.base_physics()
+        for effect in self.truth["effects"]:
+            if effect["name"] == "temperature":
+                p = effect["parameters"]
+                physics = physics.with_(temp_offset=np.asarray(p["offset_per_degc"]),
+                                        temp_gain=np.asarray(p["gain_per_degc"]), temp_ref_c=p["ref_c"])
+        zero = np.zeros(len(field_h))
+        samples = BenchSamples(zero, zero, zero.astype(int), None,
+                               None if temp_c is None else np.full(len(field_h), float(temp_c)))
+        return channel_outputs(physics, samples, field_h @ physics.directions.T)
+
 
 def _nominal_directions(n_channels: int, rng: np.random.Generator, misalign_deg: float) -> np.ndarray:
     """Near X, Y, Z (repeating) for three or fewer channels, random for more; perturbed."""
