@@ -36,7 +36,7 @@ from ._mlfit import linear_score, unit_columns
 
 __all__ = ["DECISIVE_BIC", "MIN_SHARE", "MAX_STEPS", "MAX_REFITS", "REFIT_FRACTION", "Fit", "Proposal",
            "Selection", "Check", "gather_forms", "linearised_score", "refit_from_better_start", "determined",
-           "select_effects", "VERDICTS", "added_step_lines", "remark_lines", "residual_line"]
+           "select_effects", "EffectForm", "VERDICTS", "added_step_lines", "remark_lines", "residual_line"]
 
 DECISIVE_BIC = 10.0
 """delta-BIC above which evidence counts as decisive (Kass and Raftery's 'very strong')."""
@@ -48,6 +48,20 @@ MAX_REFITS = 4
 """Most candidate effects refitted in full per step."""
 REFIT_FRACTION = 0.25
 """Candidates whose score test promises less than this fraction of the best one's are not refitted."""
+
+
+@dataclass(frozen=True)
+class EffectForm:
+    """A candidate of the loop: an effect's vocabulary name (SPEC section 4), one of its forms, and
+    what it describes in words (the step's evidence starts with it)."""
+
+    name: str
+    form: str
+    description: str
+
+    @property
+    def label(self) -> str:
+        return f"{self.name} ({self.form})"
 
 
 class Fit(Protocol):

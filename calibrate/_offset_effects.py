@@ -47,7 +47,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_dist
 
-from ._evidence import (VERDICTS, Proposal, added_step_lines, determined, gather_forms, linearised_score,
+from ._evidence import (VERDICTS, EffectForm, Proposal, added_step_lines, determined, gather_forms, linearised_score,
                         refit_from_better_start, remark_lines, residual_line, select_effects)
 from .effects import why_no_temperature, why_no_time
 from .diagnose import FLOOR_MARGIN, STRUCTURE_P
@@ -83,20 +83,12 @@ class _Context:
 
 
 @dataclass(frozen=True)
-class OffsetEffect:
+class OffsetEffect(EffectForm):
     """One extension of a linear-response model: a vocabulary name (SPEC section 4), a form, a correction.
 
     Parameters are in units of each channel's full scale (:attr:`_Context.scale`);
     :meth:`report` turns them into output units.
     """
-
-    name: str
-    form: str
-    description: str
-
-    @property
-    def label(self) -> str:
-        return f"{self.name} ({self.form})"
 
     def applicable(self, t_s, temp_c) -> str | None:
         """None when a recording with these columns can show the effect, else the reason it cannot."""

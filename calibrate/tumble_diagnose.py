@@ -56,7 +56,7 @@ from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_dist
 from scipy.stats import median_abs_deviation
 
-from ._evidence import (VERDICTS, Proposal, added_step_lines, determined, gather_forms, linearised_score,
+from ._evidence import (VERDICTS, EffectForm, Proposal, added_step_lines, determined, gather_forms, linearised_score,
                         refit_from_better_start, remark_lines, residual_line, select_effects)
 from .effects import why_no_temperature, why_no_time
 from .diagnose import FLOOR_MARGIN, STRUCTURE_P
@@ -103,20 +103,12 @@ class _Context:
 
 
 @dataclass(frozen=True)
-class TumbleEffect:
+class TumbleEffect(EffectForm):
     """One extension of the ellipsoid model: a vocabulary name (SPEC section 4), a form, a correction.
 
     Parameters are in normalised units (of order one or smaller); :meth:`report` turns them into
     physical ones.
     """
-
-    name: str
-    form: str
-    description: str
-
-    @property
-    def label(self) -> str:
-        return f"{self.name} ({self.form})"
 
     def applicable(self, t_s: np.ndarray | None, temp_c: np.ndarray | None, missing: list) -> str | None:
         """None when a recording with these columns and this coverage (half-axes the field never
