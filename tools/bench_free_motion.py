@@ -203,11 +203,16 @@ def real(name, m, a, notes=True, floor=False):
         for w in res.warnings:
             print(f"  warning: {w}")
     if floor:
-        left, white, still, k = calibration_floor(mc if res.misalignment is None or res.misalignment.rotation is None
-                                                  else res.misalignment.rotation.apply(mc), a)
-        print(f"  angle spread no further calibration can remove (first order, each direction turned by a cubic of itself, {k} terms, "
-              f"in-sample): {left:.3f} deg; of it white (consecutive differences) {white:.3f} deg; "
+        aligned = mc if res.misalignment is None or res.misalignment.rotation is None else res.misalignment.rotation.apply(mc)
+        left, white, still, k = calibration_floor(aligned, a)
+        print(f"  angle spread no further calibration can remove (first order, each direction turned by a cubic of "
+              f"itself, {k} terms, in-sample): {left:.3f} deg; of it white (consecutive differences) {white:.3f} deg; "
               f"spread over the stillest quarter (least accelerometer change) {still:.3f} deg")
+        box = np.ones(5) / 5.0
+        smooth = [np.column_stack([np.convolve(v[:, j], box, mode="same") for j in range(3)]) for v in (aligned, a)]
+        st = static_mask(a)
+        print(f"  for comparison, noise reduction (not calibration): a 5-sample moving average of both sensors "
+              f"gives {np.std(field_gravity_angles(smooth[0][st], smooth[1][st])):.3f} deg on the same samples")
     eig = np.linalg.eigvalsh(res.soft_iron)
     print(f"  soft iron eigenvalues {np.round(eig, 4)} (positive definite: {bool(np.all(eig > 0))}), det {np.linalg.det(res.soft_iron):.4f}")
     return raw, ours
