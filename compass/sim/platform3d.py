@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 
 from ..frames import heading_pitch_roll
 from ._files import csv_text, write_with_truth
+from ._slow import TEMP_REF_C, chamber_temperature, check_session, drift_profile, session_clock
 from ..io.platform3d import ANGLE_COLUMNS, platform_rotation
 
 __all__ = ["POSE_SETS", "SimulatedPlatform3D", "predict", "up_in_bench", "simulate_platform3d", "write_platform3d",
@@ -181,10 +182,7 @@ def simulate_platform3d(*, seed: int = 0, poses: str = "grid", repeats: int = 3,
     """
     if tilt_axes not in (2, 3):
         raise ValueError(f"tilt_axes must be 2 or 3, got {tilt_axes}")
-    if drift_ut and session_s is None:
-        raise ValueError("drift_ut needs session_s (the drift is a function of t_s)")
-    if session_s is not None and not session_s > 0:
-        raise ValueError(f"session_s must be positive, got {session_s}")
+    check_session(session_s, drift_ut, "drift_ut")
     rng = np.random.default_rng(seed)
     mag_axes = _axes(rng, nonorthogonality_deg, misalign_deg, 3)
     tilt_axes_h = _axes(rng, nonorthogonality_deg, misalign_deg, tilt_axes)
@@ -208,20 +206,19 @@ def simulate_platform3d(*, seed: int = 0, poses: str = "grid", repeats: int = 3,
     # effects beyond the linear model draw from their own generator: the plain session of a seed stays as it was
     extra = np.random.default_rng([seed, 1])
     n = len(mag)
-    t_s = None if session_s is None else np.linspace(0.0, session_s, n)
+    t_s = session_clock(n, session_s)
     drift, temperature, temp_c = None, None, None
     if drift_ut:
         change = _unit(extra.normal(size=3)) * drift_ut
-        profile = t_s / session_s if drift_tau_s is None else -np.expm1(-t_s / drift_tau_s)
+        profile, form = drift_profile(t_s, session_s, drift_tau_s)
         mag = mag + np.outer(profile, change * mag_gain)
-        drift = {"change_ut": change.tolist(), "tau_s": drift_tau_s,
-                 "form": "linear over the session" if drift_tau_s is None else "exponential warm-up"}
+        drift = {"change_ut": change.tolist(), "tau_s": drift_tau_s, "form": form}
     if temp_swing_c:
-        temp_true = 25.0 + temp_swing_c * np.sin(4.0 * np.pi * np.arange(n) / max(n - 1, 1))
+        temp_true = chamber_temperature(n, temp_swing_c)
         k_offset = _unit(extra.normal(size=3)) * temp_offset_ut_per_c
-        mag = mag + np.outer(temp_true - 25.0, k_offset * mag_gain)
+        mag = mag + np.outer(temp_true - TEMP_REF_C, k_offset * mag_gain)
         temp_c = np.round(temp_true, 2)
-        temperature = {"temp_ref_c": 25.0, "offset_ut_per_degc": k_offset.tolist()}
+        temperature = {"temp_ref_c": TEMP_REF_C, "offset_ut_per_degc": k_offset.tolist()}
     heading, pitch, roll = heading_pitch_roll(world_from_bench(field_w, up_w) * rot)
     truth = {
         "mag_matrix": m.tolist(), "mag_offset": o_m.tolist(), "tilt_matrix": a.tolist(), "tilt_offset": o_t.tolist(),

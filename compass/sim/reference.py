@@ -16,6 +16,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ._files import csv_text, write_with_truth
+from ._slow import TEMP_REF_C, chamber_temperature, check_session, drift_profile, session_clock
 
 __all__ = ["FIELD_SETS", "SimulatedArray", "simulate_reference", "write_reference"]
 
@@ -95,10 +96,7 @@ def simulate_reference(*, seed: int = 0, n_sensors: int = 2, n_fields: int = 12,
         raise ValueError(f"fields must be one of {FIELD_SETS}, got {fields!r}")
     if repeats < 1:
         raise ValueError(f"repeats must be at least 1, got {repeats}")
-    if drift and session_s is None:
-        raise ValueError("drift needs session_s (the drift is a function of t_s)")
-    if session_s is not None and not session_s > 0:
-        raise ValueError(f"session_s must be positive, got {session_s}")
+    check_session(session_s, drift, "drift")
     rng = np.random.default_rng(seed)
     truth, outputs = {"noise": noise, "sensors": {}}, {}
     sensors = []
@@ -116,15 +114,14 @@ def simulate_reference(*, seed: int = 0, n_sensors: int = 2, n_fields: int = 12,
     n = len(reference)
     # effects beyond the linear model draw from their own generator: the plain session of a seed stays as it was
     extra = np.random.default_rng([seed, 1])
-    t_s = None if session_s is None else np.linspace(0.0, session_s, n)
-    temp_true = 25.0 + temp_swing_c * np.sin(4.0 * np.pi * np.arange(n) / max(n - 1, 1))
+    t_s = session_clock(n, session_s)
+    temp_true = chamber_temperature(n, temp_swing_c)
     profile = None
     if drift:
-        profile = t_s / session_s if drift_tau_s is None else -np.expm1(-t_s / drift_tau_s)
-        truth["drift"] = {"tau_s": drift_tau_s,
-                          "form": "linear over the session" if drift_tau_s is None else "exponential warm-up"}
+        profile, form = drift_profile(t_s, session_s, drift_tau_s)
+        truth["drift"] = {"tau_s": drift_tau_s, "form": form}
     if temp_swing_c:
-        truth["temp_ref_c"] = 25.0
+        truth["temp_ref_c"] = TEMP_REF_C
     for name, g, v0 in sensors:
         outputs[name] = reference @ g.T + v0 + rng.normal(scale=noise, size=(n, 3))
         truth["sensors"][name] = {"G": g.tolist(), "offset": v0.tolist(), "drift_change": None,
@@ -137,7 +134,7 @@ def simulate_reference(*, seed: int = 0, n_sensors: int = 2, n_fields: int = 12,
         if temp_swing_c:
             k = extra.normal(size=3)
             k *= temp_offset_per_c / np.linalg.norm(k)
-            outputs[name] = outputs[name] + np.outer(temp_true - 25.0, k)
+            outputs[name] = outputs[name] + np.outer(temp_true - TEMP_REF_C, k)
             truth["sensors"][name]["temp_offset_per_degc"] = k.tolist()
     temp_c = np.round(temp_true, 2) if temp_swing_c else None
     return SimulatedArray(reference, outputs, truth, t_s, temp_c)
