@@ -321,11 +321,11 @@ class AttitudeFilter:
         self.events: list[str] = []
         dip = np.radians(config.dip_deg)
         self._tan_dip2 = float(np.tan(dip)) ** 2
-        self._yaw_var = (config.mag_noise / config.field_norm) ** 2 / np.cos(dip) ** 2
         self._cos_dip2 = float(np.cos(dip)) ** 2
         self._env_floor = np.radians(config.mag_heading_sigma_deg) ** 2
         self._dip_noise_var = (config.mag_noise / config.field_norm) ** 2
-        self._dip_excess_var = self._env_floor * self._cos_dip2  # dip wander beyond noise and tilt error, rad^2
+        self._dip_excess_var = self._env_floor * self._cos_dip2  # the dip's wander beyond the sensor noise, rad^2
+        self._yaw_var = self._dip_noise_var / self._cos_dip2  # the sensor noise in heading, rad^2
         self._kf = KalmanFilter(dim_x=6, dim_z=4)
         self._kf.P = np.diag(_P0_ATTITUDE + [config.gyro_bias_sigma0**2] * 3)
         # preallocated model matrices (filled in place each sample)
