@@ -40,7 +40,8 @@ def test_never_overwrites_without_force(tmp_path):
 
 
 def test_python_dash_m_and_help():
-    out = subprocess.run([sys.executable, "-m", "compass", "calibrate", "--help"], capture_output=True, text=True)
+    out = subprocess.run([sys.executable, "-m", "compass", "calibrate", "--help"], capture_output=True, text=True,
+                         timeout=120)
     assert out.returncode == 0 and "--method" in out.stdout
 
 

@@ -1,9 +1,7 @@
 import io
-import os
+import json
 import signal
 import socket
-import subprocess
-import sys
 import threading
 import time
 
@@ -17,6 +15,7 @@ from compass.io.table import read_table
 from compass.live import LiveSession
 from compass.serial_reader import Chunk, LinkEvent, SerialReader
 from compass.sim.device import PtyDevice, default_model, scripted_motion, simulate_device
+from tests._proc import Proc, compass_command
 
 rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
@@ -92,17 +91,19 @@ def test_session_logs_what_it_writes(tmp_path):
 
 def test_reader_reconnects_when_a_socket_peer_returns():
     server = socket.create_server(("127.0.0.1", 0))
+    server.settimeout(10.0)  # the peer thread's every wait is bounded: it always ends
     port = server.getsockname()[1]
 
     def peer():
         for k in range(2):
             conn, _ = server.accept()
             with conn:
+                conn.settimeout(10.0)
                 conn.recv(16)  # wait for the reader: its open() drains earlier bytes
                 conn.sendall(f"mx,my,mz\n{k},2,3\n".encode())
                 time.sleep(0.2)
 
-    thread = threading.Thread(target=peer)
+    thread = threading.Thread(target=peer, daemon=True)
     thread.start()
     stop, kinds, data = threading.Event(), [], b""
     reader = SerialReader(f"socket://127.0.0.1:{port}", read_timeout_s=0.05, retry_s=0.05)
@@ -119,61 +120,40 @@ def test_reader_reconnects_when_a_socket_peer_returns():
                 data += item.data
     finally:
         reader.close()
-        thread.join(5)
+        thread.join(25)
         server.close()
+    assert not thread.is_alive()
     assert kinds[:4] == ["connected", "disconnected", "connected", "disconnected"]
     assert data == b"mx,my,mz\n0,2,3\nmx,my,mz\n1,2,3\n"
     assert reader.disconnects == 2
 
 
-def _lines_until(stream, predicate, timeout_s, seen):
-    """Read lines from a text stream in a thread until ``predicate(line)``; True if it came."""
-    done = threading.Event()
-
-    def pump():
-        for line in stream:
-            seen.append(line)
-            if predicate(line):
-                done.set()
-                return
-
-    threading.Thread(target=pump, daemon=True).start()
-    return done.wait(timeout_s)
-
-
 def test_pty_device_end_to_end_with_noise_disconnect_and_ctrl_c(tmp_path):
+    """`compass live` waits for the port, so the module's disconnect (5 s after it starts) comes after the
+    receiver is running however slow the machine; every wait is bounded and both processes are killed
+    on the way out (the test fails, never hangs)."""
     cal, link = tmp_path / "cal.json", tmp_path / "compass-dev"
     rrd, att = tmp_path / "live.rrd", tmp_path / "att.csv"
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    device = subprocess.Popen(
-        [sys.executable, "-m", "compass", "device", "--pty", "--save-cal", str(cal), "--link", str(link), "--rate", "100",
-         "--garbage", "0.02", "--truncate", "0.02", "--disconnect-at", "5", "--disconnect-for", "0.8",
-         "--duration", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    live = None
-    try:
-        assert device.stdout.readline().strip() == str(link)
-        live = subprocess.Popen(
-            [sys.executable, "-m", "compass", "live", "--port", str(link), "--cal", str(cal), "--rerun", str(rrd),
-             "--out", str(att)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-        seen = []
-        # wait for the reconnect after the module's disconnect, then two more readouts
-        state = {"connects": 0, "after": 0}
+    cal.write_text(json.dumps(default_model().to_json()))
+    with Proc(compass_command("live", "--port", str(link), "--cal", str(cal), "--rerun", str(rrd), "--out", str(att))) as live:
+        assert live.wait_for(lambda line: "waiting for" in line, 60.0), live.transcript()
+        with Proc(compass_command("device", "--pty", "--cal", str(cal), "--link", str(link), "--rate", "100",
+                                  "--garbage", "0.02", "--truncate", "0.02", "--disconnect-at", "5",
+                                  "--disconnect-for", "0.8", "--duration", "60")) as device:
+            # wait for the reconnect after the module's disconnect, then two more readouts
+            state = {"connects": 0, "after": 0}
 
-        def enough(line):
-            state["connects"] += "] connected to" in line
-            state["after"] += state["connects"] >= 2 and line.startswith("heading")
-            return state["after"] >= 2
+            def enough(line):
+                state["connects"] += "] connected to" in line
+                state["after"] += state["connects"] >= 2 and line.startswith("heading")
+                return state["after"] >= 2
 
-        assert _lines_until(live.stdout, enough, 45.0, seen), "".join(seen) + live.stderr.read()
-        live.send_signal(signal.SIGINT)
-        rest, err = live.communicate(timeout=20)
-    finally:
-        for p in (live, device):
-            if p is not None and p.poll() is None:
-                p.send_signal(signal.SIGINT)
-                p.wait(10)
-    assert live.returncode == 0, err
-    output = "".join(seen) + rest
+            assert live.wait_for(enough, 60.0), live.transcript() + device.transcript()
+            returncode = live.stop(signal.SIGINT, 20.0)
+            device.stop(signal.SIGINT, 10.0)
+    err = "".join(live.err)
+    assert returncode == 0, err
+    output = "".join(live.out)
     summary = output.strip().splitlines()[-1]
     assert summary.startswith("compass live:") and "1 disconnect(s)" in summary and "wrote" in summary
     assert "disconnected" in output and "line noise" in output
