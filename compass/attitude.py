@@ -277,8 +277,9 @@ def solve_attitude(
         if up.shape != (n, 3):
             raise ValueError(f"expected {n} pitch_deg and roll_deg values, got {len(up)}")
         up, up_var, mode = np.ascontiguousarray(up.T), 0.0, "known_tilt"
-    if reference is None:
-        reference = reference_from_recording(field, up.T, a_norm)
+    if reference is None or not np.isfinite(reference.field_magnitude):
+        own = reference_from_recording(field, up.T, a_norm)
+        reference = own if reference is None else reference.complete(own)
     ref_dip = reference.dip_deg
     ref_dip_var = np.radians(reference.dip_sigma_deg) ** 2
     field_ratio = b_norm / reference.field_magnitude

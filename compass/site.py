@@ -17,7 +17,7 @@ two-vector weights (:func:`compass.attitude.solve_attitude`), so an uncertain di
 from __future__ import annotations
 
 import datetime as dt
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -210,6 +210,13 @@ class ReferenceField:
     declination_deg: float | None = None
     declination_sigma_deg: float | None = None
 
+    def complete(self, estimate: "ReferenceField") -> "ReferenceField":
+        """This reference with its |B| taken from ``estimate`` when unknown (NaN); else itself."""
+        if np.isfinite(self.field_magnitude):
+            return self
+        return replace(self, field_magnitude=estimate.field_magnitude, field_sigma=estimate.field_sigma,
+                       description=f"{self.description}; |B| {estimate.field_magnitude:.4g} from the {estimate.source}")
+
 
 def known_reference(dip_deg: float, field_magnitude: float, *, dip_sigma_deg: float = 0.0,
                     field_sigma: float = 0.0) -> ReferenceField:
@@ -220,32 +227,26 @@ def known_reference(dip_deg: float, field_magnitude: float, *, dip_sigma_deg: fl
                           f"given: |B| {field_magnitude:.4g} +- {field_sigma:.2g}, dip {dip_deg:.3f} +- {dip_sigma_deg:.3f} deg")
 
 
-def reference_from_site(site: Site, *, field_ut: float | None, source: str = "site",
-                        recording: ReferenceField | None = None) -> ReferenceField:
+def reference_from_site(site: Site, *, field_ut: float | None, source: str = "site") -> ReferenceField:
     """The reference at a site (WMM).
 
     Parameters
     ----------
     site : Site
     field_ut : float or None
-        The sensor model's field unit in microtesla (1 uT when the calibration knew |B|), None when
-        its gains are per unit of the bench's |B|: |B| then comes from ``recording``.
+        The sensor model's field unit in microtesla (1 when the calibration knew |B|), None when its
+        gains are per unit of the bench's |B|: the reference's |B| is then unknown (NaN) and comes
+        from the data (:meth:`ReferenceField.complete`).
     source : str
         ``"site"`` or ``"calibration site"``.
-    recording : ReferenceField, optional
-        The recording's own estimate, for |B| when ``field_ut`` is None.
     """
     f = site.field()
-    if field_ut is not None:
-        magnitude, magnitude_sigma, unit = f.field_ut / field_ut, f.field_sigma_ut / field_ut, "uT"
-    elif recording is not None:
-        magnitude, magnitude_sigma, unit = recording.field_magnitude, recording.field_sigma, "bench |B| (from the recording)"
-    else:
-        raise ValueError("the calibration gives no |B| in uT: |B| at the site needs the recording's own estimate")
+    magnitude, magnitude_sigma = ((np.nan, np.nan) if field_ut is None else
+                                  (f.field_ut / field_ut, f.field_sigma_ut / field_ut))
     text = (f"{source} {site}: {f.model} |B| {f.field_ut:.2f} uT, dip {f.dip_deg:.2f} +- {f.dip_sigma_deg:.2f} deg, "
             f"declination {f.declination_deg:+.2f} +- {f.declination_sigma_deg:.2f} deg"
-            + ("" if unit == "uT" else f"; |B| in {unit}"))
-    return ReferenceField(f.dip_deg, f.dip_sigma_deg, magnitude, magnitude_sigma, source, text,
+            + ("" if field_ut is not None else " (the calibration's unit is the bench's |B|, not the uT)"))
+    return ReferenceField(f.dip_deg, f.dip_sigma_deg, float(magnitude), float(magnitude_sigma), source, text,
                           f.declination_deg, f.declination_sigma_deg)
 
 
@@ -300,3 +301,47 @@ def reference_from_recording(field_h, up_h, accel_norm=None) -> ReferenceField:
     text = (f"recording: median over {n} of {len(b)} rows (quiet, no outliers): |B| {magnitude:.4g} "
             f"+- {magnitude_sigma:.2g}, dip {dip_deg:.3f} +- {dip_sigma:.3f} deg (no site given: no true north)")
     return ReferenceField(dip_deg, dip_sigma, magnitude, magnitude_sigma, "recording", text)
+
+
+class QuietSeed:
+    """The reference field of a live stream, from its first quiet seconds (no site given).
+
+    Collects the field and accelerometer of the first samples; once they span ``seconds`` and at
+    least ten of them read gravity alone, :func:`reference_from_recording` gives the reference.  A
+    stream that never holds still for ``max_seconds`` is estimated from every row it has (the
+    outlier rejection still applies).
+
+    Parameters
+    ----------
+    seconds, max_seconds : float
+        Span of samples to collect before estimating, and the longest wait, seconds.
+    """
+
+    def __init__(self, seconds: float = 1.0, max_seconds: float = 10.0):
+        self.seconds, self.max_seconds = seconds, max_seconds
+        self._t: list[float] = []
+        self._rows: list[np.ndarray] = []
+
+    def add(self, t_s: float, accel, field_h) -> ReferenceField | None:
+        """Add one sample (``accel`` None or zero: skipped); the reference once it is known, else None."""
+        if accel is None or not np.all(np.isfinite(field_h)):
+            return None
+        a = np.asarray(accel, dtype=float)
+        norm = float(np.linalg.norm(a))
+        if not norm > 0:
+            return None
+        self._t.append(t_s)
+        self._rows.append(np.concatenate([a / norm, [norm], np.asarray(field_h, dtype=float)]))
+        span = self._t[-1] - self._t[0]
+        if span < self.seconds:
+            return None
+        rows = np.array(self._rows)
+        try:
+            return reference_from_recording(rows[:, 4:], rows[:, :3], rows[:, 3])
+        except ValueError:
+            if span < self.max_seconds:
+                return None
+        try:
+            return reference_from_recording(rows[:, 4:], rows[:, :3])
+        except ValueError:
+            return None

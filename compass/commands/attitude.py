@@ -14,7 +14,7 @@ import numpy as np
 
 from ..io.atomic import atomic_write_text, check_writable
 from ..io.table import RecordingError, read_table
-from ..site import Site
+from ..site import Site, reference_from_site
 
 _ACCEL = ("ax", "ay", "az")
 _TILT = ("pitch_deg", "roll_deg")
@@ -116,7 +116,8 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     tilt_args = dict(accel=accel, pitch_deg=None if tilt is None else tilt[:, 0],
                      roll_deg=None if tilt is None else tilt[:, 1], level=level)
     try:
-        reference = None if site is None else _site_reference(model, raw, temp_c, tilt_args, site, source)
+        reference = None if site is None else reference_from_site(
+            site, field_ut=None if model.field_ut is None else 1.0, source=source)
         result = solve_attitude(model, raw, **tilt_args, reference=reference, accel_noise_g=accel_noise_g,
                                 max_tilt_deg=max_tilt_deg, temp_c=temp_c)
     except ValueError as exc:
@@ -155,17 +156,6 @@ def _document(calibration) -> dict:
 
     data = json.loads(Path(calibration).read_text(encoding="utf-8"))
     return data if isinstance(data, dict) else {}
-
-
-def _site_reference(model, raw, temp_c, tilt_args, site, source):
-    """The WMM's field at the site; |B| from the recording when the calibration's unit is not the uT."""
-    from ..attitude import solve_attitude
-    from ..site import reference_from_site
-
-    own = None
-    if model.field_ut is None:
-        own = solve_attitude(model, raw, **tilt_args, temp_c=temp_c).reference
-    return reference_from_site(site, field_ut=None if model.field_ut is None else 1.0, source=source, recording=own)
 
 
 def _group(table, names) -> np.ndarray | None:
