@@ -16,6 +16,7 @@ from __future__ import annotations
 import datetime as dt
 
 from compass.io.table import RecordingError
+from compass.site import decimal_year, wmm_field
 
 __all__ = ["WMM_DIP_SIGMA_DEG", "WMM_F_SIGMA_UT", "expected_field", "compare_with_site", "describe"]
 
@@ -25,21 +26,15 @@ WMM_F_SIGMA_UT = 0.145
 
 def _decimal_year(text: str, path: str) -> float:
     try:
-        day = dt.date.fromisoformat(text.strip()[:10])
+        return decimal_year(dt.date.fromisoformat(text.strip()[:10]))
     except ValueError:
         raise RecordingError(path, f"metadata 'date' should be YYYY-MM-DD, got {text!r}") from None
-    start = dt.date(day.year, 1, 1)
-    length = (dt.date(day.year + 1, 1, 1) - start).days
-    return day.year + ((day - start).days + 0.5) / length
 
 
 def expected_field(lat_deg: float, lon_deg: float, decimal_year: float, altitude_km: float = 0.0) -> dict:
-    """Dip (deg, > 0 down), total intensity (uT) and declination (deg) from the WMM."""
-    from pygeomag import GeoMag
-
-    result = GeoMag(base_year=int(decimal_year)).calculate(glat=lat_deg, glon=lon_deg, alt=altitude_km,
-                                                          time=decimal_year, allow_date_outside_lifespan=True)
-    return {"dip_deg": float(result.dip), "field_ut": float(result.f) / 1000.0, "declination_deg": float(result.d)}
+    """Dip (deg, > 0 down), total intensity (uT) and declination (deg) from the WMM (:func:`compass.site.wmm_field`)."""
+    f = wmm_field(lat_deg, lon_deg, decimal_year, altitude_km)
+    return {"dip_deg": f.dip_deg, "field_ut": f.field_ut, "declination_deg": f.declination_deg}
 
 
 def compare_with_site(dip_deg: float, dip_sigma_deg: float | None, metadata: dict, path: str = "<recording>") -> dict | None:

@@ -12,13 +12,18 @@ the field's own direction changes no output.  So :func:`solve_attitude` needs on
 
 and refuses otherwise, naming the missing information.
 
+The field's reference direction is the site's (:mod:`compass.site`), never the bench session's: a
+:class:`~compass.site.ReferenceField` from the WMM at a given site, or estimated from the recording's
+own quiet rows.  Its dip uncertainty enters the two-vector weight (gravity primary: the field then
+fixes heading and an uncertain dip cannot pull the tilt), and ``disturbed`` is judged against it.
+
 World frame NWU (magnetic north), housing FLU, ``R_world<-housing = Rz(-heading) Ry(-pitch)
 Rx(roll)``; an accelerometer at rest reads +1 g along the housing's up direction.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -26,6 +31,7 @@ from scipy.spatial.transform import Rotation
 
 from .frames import heading_pitch_roll, r_world_from_housing, world_field
 from .model import SensorModel
+from .site import ReferenceField, reference_from_recording
 
 __all__ = ["Attitude", "solve_attitude", "two_vector_rotation", "level_heading_bound_deg"]
 
@@ -63,6 +69,11 @@ class Attitude:
         ``level`` mode: the largest heading error a tilt up to ``max_tilt_deg`` causes.
     tilt_min_deg : ndarray, shape (n,), or None
         ``level`` mode: the tilt the field proves (|apparent dip - dip|); the real tilt is at least this.
+    reference : ReferenceField or None
+        The reference field the rows were solved and judged against, and where it came from.
+    heading_true_deg, heading_true_sigma_deg : ndarray, shape (n,), or None
+        With a site (the reference knows the declination): ``heading + declination`` in [0, 360)
+        and its 1-sigma, the WMM's declination uncertainty included.
     """
 
     mode: str
@@ -78,11 +89,14 @@ class Attitude:
     roll_sigma_deg: np.ndarray | None = None
     heading_bound_deg: np.ndarray | None = None
     tilt_min_deg: np.ndarray | None = None
+    reference: ReferenceField | None = None
+    heading_true_deg: np.ndarray | None = None
+    heading_true_sigma_deg: np.ndarray | None = None
 
     def columns(self) -> dict[str, np.ndarray]:
         """Output columns in file order (SPEC section 2's attitude output); absent ones left out."""
         names = ("heading_deg", "pitch_deg", "roll_deg", "heading_sigma_deg", "pitch_sigma_deg",
-                 "roll_sigma_deg", "heading_bound_deg", "tilt_min_deg", "field_ratio", "dip_deg",
+                 "roll_sigma_deg", "heading_true_deg", "heading_true_sigma_deg", "heading_bound_deg", "tilt_min_deg", "field_ratio", "dip_deg",
                  "in_range", "disturbed")
         return {n: getattr(self, n) for n in names if getattr(self, n) is not None}
 
@@ -150,6 +164,7 @@ def solve_attitude(
     pitch_deg=None,
     roll_deg=None,
     level: bool = False,
+    reference: ReferenceField | None = None,
     accel_noise_g: float = 0.002,
     max_tilt_deg: float = 5.0,
     disturbance_sigma: float = 5.0,
@@ -162,7 +177,7 @@ def solve_attitude(
     Parameters
     ----------
     model : SensorModel
-        Needs ``dip_deg`` and ``noise`` (the calibration's ``noise_floor``).
+        Needs ``noise`` (the calibration's ``noise_floor``).  Its ``dip_deg`` (the bench's) is not used.
     raw : array_like, shape (n, c)
         Channel outputs in the order of ``model.channels``.
     accel : array_like, shape (n, 3), optional
@@ -171,6 +186,9 @@ def solve_attitude(
         Known pitch and roll (both or neither), degrees, taken as exact.
     level : bool
         Assume pitch = roll = 0.
+    reference : ReferenceField, optional
+        The site's field (:func:`compass.site.reference_from_site`); default: estimated from the
+        recording's quiet rows (:func:`compass.site.reference_from_recording`).
     accel_noise_g : float
         Accelerometer white noise per axis as a fraction of 1 g (default 0.002).
     max_tilt_deg : float
@@ -178,7 +196,8 @@ def solve_attitude(
     disturbance_sigma, field_tolerance, dip_tolerance_deg : float
         A row is ``disturbed`` when ``|field_ratio - 1|`` exceeds ``max(k sigma, field_tolerance)``
         or the dip error exceeds ``max(k sigma, dip_tolerance_deg)`` (``level``: the tilt it shows
-        exceeds ``max_tilt_deg`` by more than that), ``k = disturbance_sigma``.
+        exceeds ``max_tilt_deg`` by more than that), ``k = disturbance_sigma``; sigma counts the
+        row's noise and calibration uncertainty and the reference's.
     temp_c : array_like, shape (n,), optional
         Sensor temperature, degC: applies the calibration's ``temperature`` effect
         (:meth:`compass.model.SensorModel.field`).
@@ -191,7 +210,8 @@ def solve_attitude(
     ------
     ValueError
         No gravity and no tilt (the field alone fixes two angles of three), more than one
-        source of tilt, or a calibration without dip or noise.
+        source of tilt, a calibration without noise, or no reference and too few quiet rows to
+        estimate one.
 
     Notes
     -----
@@ -201,6 +221,19 @@ def solve_attitude(
     ``accel_noise_g``.  The angles' sensitivities to ``eps`` are the inverse Euler-rate relations
     (``d heading = eps_z + tan(pitch) eps . x_horizontal``), so heading sigma grows as pitch nears
     +-90 degrees.
+
+    **Reference dip uncertainty.**  The solution maps the measured plane's normal ``u x m`` onto
+    the references' (West): that fixes heading and needs no dip.  The dip only sets the rotation
+    ``theta`` inside the plane (about West), which gravity fixes at 0 and the field at
+    ``rho - beta`` (reference minus measured field-gravity angle).  A reference dip error
+    ``delta`` is an error of the field's vote, so the optimal weight of the field is
+
+    .. math:: f = \\frac{\\sigma_g^2}{\\sigma_g^2 + \\sigma_B^2 + \\sigma_{dip}^2}
+
+    (per-axis variances of the unit vectors, rad^2): with ``sigma_dip`` large the solution is
+    gravity first (TRIAD) and the dip cannot pull the tilt.  What is left moves the solution by
+    ``f delta`` about West (``H^-1`` leaves West alone), adding ``f^2 sigma_dip^2 g_W^2`` to the
+    variance of an angle with ``g = H^-1 j``.
     """
     sources = [name for name, given in (("accel", accel is not None), ("pitch_deg/roll_deg", pitch_deg is not None
                                          or roll_deg is not None), ("level", level)) if given]
@@ -210,8 +243,6 @@ def solve_attitude(
                          "columns, or assume a level housing (--level)")
     if len(sources) > 1:
         raise ValueError(f"give one source of tilt, got {' and '.join(sources)}")
-    if model.dip_deg is None:
-        raise ValueError("the calibration has no dip_deg: attitude needs the field's reference direction")
     if model.noise is None:
         raise ValueError("the calibration has no noise_floor: the solution cannot be weighted nor its "
                          "uncertainty propagated")
@@ -224,8 +255,8 @@ def solve_attitude(
     b = np.ascontiguousarray(field.T)  # component-major (3, n): elementwise work on contiguous rows
     b_norm = np.sqrt(_dot(b, b))
     m = b / b_norm
-    field_ratio = b_norm / model.field_magnitude
 
+    a_norm = None
     if accel is not None:
         a = np.asarray(accel, dtype=float)
         if a.shape != (n, 3):
@@ -246,11 +277,18 @@ def solve_attitude(
         if up.shape != (n, 3):
             raise ValueError(f"expected {n} pitch_deg and roll_deg values, got {len(up)}")
         up, up_var, mode = np.ascontiguousarray(up.T), 0.0, "known_tilt"
+    if reference is None or not np.isfinite(reference.field_magnitude):
+        own = reference_from_recording(field, up.T, a_norm)
+        reference = own if reference is None else reference.complete(own)
+    ref_dip = reference.dip_deg
+    ref_dip_var = np.radians(reference.dip_sigma_deg) ** 2
+    field_ratio = b_norm / reference.field_magnitude
 
-    # Wahba weights from noise: per-axis variance of each unit vector (field: at zero field)
-    field_var = np.sum(model.component_variance(np.zeros(3)) * model.solver**2) / 3.0 / model.field_magnitude**2
-    f = field_var**-1 / (up_var**-1 + field_var**-1) if up_var > 0 else 0.0
-    rows = _two_vector_rows(up, m, model.dip_deg, f)
+    # Wahba weights from noise: per-axis variance of each unit vector (field: at zero field), and the
+    # reference dip's variance on the field's side (Notes)
+    field_var = np.sum(model.component_variance(np.zeros(3)) * model.solver**2) / 3.0 / reference.field_magnitude**2
+    f = up_var / (up_var + field_var + ref_dip_var) if up_var > 0 else 0.0
+    rows = _two_vector_rows(up, m, ref_dip, f)
     heading, pitch, roll = heading_pitch_roll(Rotation.from_matrix(_matrix(rows), assume_valid=True))
     solver = model.solver
 
@@ -259,27 +297,42 @@ def solve_attitude(
 
     mu = _dot(m, up)
     dip = np.degrees(np.arcsin(np.clip(-mu, -1.0, 1.0)))
-    # sigma of the dip: d(m.u) = (Q_m u) . dB / |B| + (Q_u m) . du
+    # sigma of the dip: d(m.u) = (Q_m u) . dB / |B| + (Q_u m) . du; the reference's adds
     qm = m - mu * up
-    dip_sigma = np.degrees(np.sqrt(field_quad(up - mu * m) / b_norm**2 + up_var * _dot(qm, qm))
-                           / np.maximum(np.sqrt(1.0 - mu**2), 1e-12))
-    ratio_sigma = np.sqrt(field_quad(m)) / model.field_magnitude
+    dip_sigma = np.degrees(np.sqrt((field_quad(up - mu * m) / b_norm**2 + up_var * _dot(qm, qm))
+                                   / np.maximum(1.0 - mu**2, 1e-24) + ref_dip_var))
+    ratio_sigma = np.hypot(np.sqrt(field_quad(m)) / reference.field_magnitude,
+                           reference.field_sigma / reference.field_magnitude)
     field_bad = np.abs(field_ratio - 1.0) > np.maximum(disturbance_sigma * ratio_sigma, field_tolerance)
     dip_limit = np.maximum(disturbance_sigma * dip_sigma, dip_tolerance_deg)
-    dip_error = np.abs(dip - model.dip_deg)
+    dip_error = np.abs(dip - ref_dip)
 
     if mode == "accelerometer":
-        sig = _wahba_sigmas(rows, heading, pitch, field_quad, b_norm, up_var, f, model.dip_deg)
-        return Attitude(mode, heading, pitch, roll, sig[0], field_ratio, dip, in_range,
-                        field_bad | (dip_error > dip_limit), pitch_sigma_deg=sig[1], roll_sigma_deg=sig[2])
+        sig = _wahba_sigmas(rows, heading, pitch, field_quad, b_norm, up_var, f, ref_dip, ref_dip_var)
+        return _with_true_north(Attitude(mode, heading, pitch, roll, sig[0], field_ratio, dip, in_range,
+                                         field_bad | (dip_error > dip_limit), pitch_sigma_deg=sig[1],
+                                         roll_sigma_deg=sig[2], reference=reference))
     # tilt exact: only the rotation about the vertical is left, fixed by the field's west component
     heading_sigma = np.degrees(np.sqrt(field_quad(rows[1])) / (b_norm * np.sqrt(1.0 - mu**2)))
     if mode == "known_tilt":
-        return Attitude(mode, heading, pitch, roll, heading_sigma, field_ratio, dip, in_range,
-                        field_bad | (dip_error > dip_limit))
-    bound = np.full(n, level_heading_bound_deg(model.dip_deg, max_tilt_deg))
-    return Attitude(mode, heading, np.zeros(n), np.zeros(n), heading_sigma, field_ratio, dip, in_range,
-                    field_bad | (dip_error > max_tilt_deg + dip_limit), heading_bound_deg=bound, tilt_min_deg=dip_error)
+        return _with_true_north(Attitude(mode, heading, pitch, roll, heading_sigma, field_ratio, dip, in_range,
+                                         field_bad | (dip_error > dip_limit), reference=reference))
+    bound = np.full(n, level_heading_bound_deg(ref_dip, max_tilt_deg))
+    return _with_true_north(Attitude(mode, heading, np.zeros(n), np.zeros(n), heading_sigma, field_ratio, dip,
+                                     in_range, field_bad | (dip_error > max_tilt_deg + dip_limit),
+                                     heading_bound_deg=bound, tilt_min_deg=dip_error, reference=reference))
+
+
+def _with_true_north(att: Attitude) -> Attitude:
+    """Add the true heading when the reference knows the declination (SPEC: east-positive,
+    ``heading_true = heading + declination``); its variance adds the declination's."""
+    ref = att.reference
+    if ref is None or ref.declination_deg is None:
+        return att
+    true = np.mod(att.heading_deg + ref.declination_deg, 360.0)
+    true[true >= 360.0] = 0.0
+    sigma = np.hypot(att.heading_sigma_deg, ref.declination_sigma_deg or 0.0)
+    return replace(att, heading_true_deg=true, heading_true_sigma_deg=sigma)
 
 
 @lru_cache(maxsize=64)
@@ -305,13 +358,14 @@ def level_heading_bound_deg(dip_deg: float, max_tilt_deg: float) -> float:
     return float(np.max(np.abs(np.mod(error + 180.0, 360.0) - 180.0)))
 
 
-def _wahba_sigmas(rows, heading, pitch, field_quad, b_norm, up_var, f, dip_deg) -> list[np.ndarray]:
+def _wahba_sigmas(rows, heading, pitch, field_quad, b_norm, up_var, f, dip_deg, dip_var=0.0) -> list[np.ndarray]:
     """1-sigma heading, pitch, roll (degrees); see :func:`solve_attitude` Notes.
 
     ``Cov(eps) = H^-1 (w_g^2 S_g + w_B^2 S_B) H^-1`` with ``S_i = [r_i]x^T Sigma_i [r_i]x``.  An
     angle with world-frame sensitivity ``j`` (``d angle = j . eps``) and ``g = H^-1 j`` has variance
     ``w_g^2 sigma_g^2 |g x z|^2 + w_B^2 v^T Sigma_B v / |B|^2`` with ``v = R^T (b_W x g)`` in H
-    (``R^T`` of a world axis is a row of ``R``: ``rows``).
+    (``R^T`` of a world axis is a row of ``R``: ``rows``), plus ``f^2 sigma_dip^2 g_W^2`` from the
+    reference dip's variance ``dip_var`` (rad^2; :func:`solve_attitude` Notes).
     """
     field_ref = world_field(dip_deg)
     h = (1.0 - f) * (np.eye(3) - np.outer(_UP, _UP)) + f * (np.eye(3) - np.outer(field_ref, field_ref))
@@ -326,7 +380,8 @@ def _wahba_sigmas(rows, heading, pitch, field_quad, b_norm, up_var, f, dip_deg) 
         g_north, g_west = (sum(h_inv[i, k] * j[k] for k in range(3)) for i in (0, 1))
         c = [sum(cross_h_inv[k, i] * j[k] for k in range(3)) for i in range(3)]  # b_W x g, world
         v = c[0] * rows[0] + c[1] * rows[1] + c[2] * rows[2]  # R^T (b_W x g), in H
-        var = (1.0 - f) ** 2 * up_var * (g_north**2 + g_west**2) + f**2 * field_quad(v) / b_norm**2
+        var = ((1.0 - f) ** 2 * up_var * (g_north**2 + g_west**2) + f**2 * field_quad(v) / b_norm**2
+               + f**2 * dip_var * g_west**2)
         sigmas.append(np.degrees(np.sqrt(var)))
     return sigmas
 

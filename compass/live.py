@@ -9,20 +9,22 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .filter import AttitudeFilter, Estimate, FilterConfig
 from .io.lines import LineDecoder
 from .serial_reader import Chunk, LinkEvent
+from .site import QuietSeed
 
 __all__ = ["LiveSession", "GATE_CODES", "CSV_COLUMNS"]
 
 GATE_CODES = {"ok": 0, "norm": 1, "dip": 2, "innovation": 3, "absent": 4}
 CSV_COLUMNS = ("t_s", "heading_deg", "pitch_deg", "roll_deg", "heading_sigma_deg", "tilt_sigma_deg", "field_ratio",
                "dip_deg", "mag_used", "gate", "accel_used", "in_range", "latency_ms")
-_CSV_ROW = "%.4f,%.3f,%.3f,%.3f,%.3f,%.3f,%.4f,%.2f,%d,%d,%d,%d,%.3f\n"
+_CSV_ROW = "%.4f,%.3f,%.3f,%.3f,%.3f,%.3f,%.4f,%.2f,%d,%d,%d,%d,%.3f"
+_TRUE_COLUMNS = ("heading_true_deg", "heading_true_sigma_deg")  # with a site: heading + declination
 _LATENCY_WINDOW = 100_000  # samples kept for the latency percentiles
 
 
@@ -40,6 +42,11 @@ class LiveSession:
     sink : compass.viz.RerunSink, optional
     on_event : callable, optional
         ``on_event(level, text)`` for every event (link, header, garbage, gate, filter).
+    reference : compass.site.ReferenceField, optional
+        The site's field (``--site``): the filter's reference |B| and dip, and with its declination
+        the true heading (``heading_true_deg`` in the readout and the CSV).  Without it the
+        reference is seeded from the stream's first quiet second (:class:`compass.site.QuietSeed`;
+        those samples are held, then solved), never the calibration bench's.
 
     Attributes
     ----------
@@ -51,7 +58,8 @@ class LiveSession:
         Every channel of the latest sample inside its calibrated range.
     latencies_s : deque of float
         Chunk read from the port -> estimate available, seconds, for the latest samples (time
-        the bytes waited in the kernel while the session was busy is not included).
+        the bytes waited in the kernel while the session was busy is not included, nor the
+        samples held for the first quiet second).
     output_latencies_s : deque of float
         Chunk read -> CSV row written and Rerun row buffered (or sent), seconds.
     samples : int
@@ -65,6 +73,7 @@ class LiveSession:
     out: object = None
     sink: object = None
     on_event: object = None
+    reference: object = None
     decoder: LineDecoder = field(init=False)
     estimate: Estimate | None = None
     in_range: bool = True
@@ -79,14 +88,44 @@ class LiveSession:
     _gate: str = "ok"
     _temp_c: float | None = None
     _header_seen: object = None
+    _seed: QuietSeed | None = None
+    _held: list = field(default_factory=list)
 
     def __post_init__(self):
         self.decoder = LineDecoder(self.model.channels)
         if self.config is None:
             self.config = FilterConfig.from_model(self.model)
+        if self.reference is None or not np.isfinite(self.reference.field_magnitude):
+            self._seed = QuietSeed()  # also for a site's |B| in a calibration whose unit is not the uT
+        else:
+            self._use_reference(self.reference)
         if self.out is not None:
             self.out.write(f"# gate: {', '.join(f'{v} {k}' for k, v in GATE_CODES.items())}\n"
-                           + ",".join(CSV_COLUMNS) + "\n")
+                           + ",".join(CSV_COLUMNS + (_TRUE_COLUMNS if self._declination is not None else ())) + "\n")
+
+    @property
+    def _declination(self):
+        return None if self.reference is None else self.reference.declination_deg
+
+    def _use_reference(self, reference) -> None:
+        self.reference = reference
+        self.config = replace(self.config, field_norm=reference.field_magnitude, dip_deg=reference.dip_deg)
+        self._event("info", f"reference field: {reference.description}")
+
+    def _seeding(self, sample, t_rx: float) -> bool:
+        """Hold samples until the first quiet second gives the reference; True once it is known."""
+        self._held.append((sample, t_rx))
+        field_h = self._field(sample)
+        t_s = sample.t_s if sample.t_s is not None else t_rx - self._t0
+        reference = self._seed.add(t_s, sample.accel, field_h)
+        if reference is None:
+            return False
+        self._seed = None
+        self._use_reference(reference if self.reference is None else self.reference.complete(reference))
+        held, self._held = self._held, []
+        for s, t in held:
+            self._sample(s, t, held=True)
+        return True
 
     def feed(self, item: Chunk | LinkEvent) -> None:
         """Process one item of :meth:`SerialReader.items`."""
@@ -108,7 +147,10 @@ class LiveSession:
             self._event("warn", f"line noise: {stats.garbage} garbage and {stats.partial} partial lines so far")
             self._bad_reported, self._bad_reported_at = bad, item.t_rx
 
-    def _sample(self, sample, t_rx: float) -> None:
+    def _sample(self, sample, t_rx: float, held: bool = False) -> None:
+        if self._seed is not None:
+            self._seeding(sample, t_rx)
+            return
         header = self.decoder.header
         if self._filter is None or self._filter.gyro != (header.gyro is not None):
             self._filter = AttitudeFilter(self.config, gyro=header.gyro is not None)
@@ -123,11 +165,7 @@ class LiveSession:
             elif header.temp_c is None:
                 self._event("warn", "the calibration has a temperature effect but the module sends no temp_c: "
                                     f"readings are taken as at {effect.reference_c:.1f} degC")
-        if sample.temp_c is not None:
-            self._temp_c = sample.temp_c  # an empty temp_c cell keeps the last temperature
-        usable = effect is not None and effect.reference_c is not None
-        field_h, in_range = self.model.field(sample.raw[None, :], self._temp_c if usable else None)
-        field_h = field_h[0]
+        field_h, in_range = self._field(sample, with_range=True)
         t_s = sample.t_s if sample.t_s is not None else t_rx - self._t0
         est = self._filter.step(t_s, sample.accel, sample.gyro, field_h)
         if self._filter.events:
@@ -144,14 +182,34 @@ class LiveSession:
                         f"field rejected ({est.gate}): |B| ratio {est.field_ratio:.3f}, dip {est.dip_deg:.1f} deg")
             self._gate = est.gate
         latency = time.perf_counter() - t_rx
-        self.latencies_s.append(latency)
+        if not held:  # samples held for the reference waited for it: out of the percentiles
+            self.latencies_s.append(latency)
         if self.out is not None:
             self.out.write(_CSV_ROW % (t_s, est.heading_deg, est.pitch_deg, est.roll_deg, est.heading_sigma_deg,
                                        est.tilt_sigma_deg, est.field_ratio, est.dip_deg, est.mag_used,
                                        GATE_CODES[est.gate], est.accel_used, self.in_range, 1e3 * latency))
+            if self._declination is not None:
+                self.out.write(",%.3f,%.3f" % self.true_heading())
+            self.out.write("\n")
         if self.sink is not None:
             self.sink.log(t_s, self.samples, est, field_h / self.config.field_norm, sample.accel)
-        self.output_latencies_s.append(time.perf_counter() - t_rx)
+        if not held:
+            self.output_latencies_s.append(time.perf_counter() - t_rx)
+
+    def _field(self, sample, with_range: bool = False):
+        """The sample's field in H (temperature-compensated when the calibration can), and its in-range flags."""
+        effect = self.model.temperature
+        if sample.temp_c is not None:
+            self._temp_c = sample.temp_c  # an empty temp_c cell keeps the last temperature
+        usable = effect is not None and effect.reference_c is not None
+        field_h, in_range = self.model.field(sample.raw[None, :], self._temp_c if usable else None)
+        return (field_h[0], in_range) if with_range else field_h[0]
+
+    def true_heading(self) -> tuple[float, float]:
+        """Heading from true north and its 1-sigma (declination's included), degrees; needs a site."""
+        est, ref = self.estimate, self.reference
+        return (float(np.mod(est.heading_deg + ref.declination_deg, 360.0)),
+                float(np.hypot(est.heading_sigma_deg, ref.declination_sigma_deg)))
 
     def _event(self, level: str, text: str) -> None:
         if self.on_event is not None:
@@ -166,10 +224,12 @@ class LiveSession:
         tail = f"{rate_hz:6.1f} Hz  dropped {stats.dropped}"
         est = self.estimate
         if est is None:
-            return f"waiting for samples ({stats.samples} decoded, {stats.unheaded} before a header)  {tail}"
+            what = "the first quiet second (the site's field)" if self._seed is not None and self._held else "samples"
+            return f"waiting for {what} ({stats.samples} decoded, {stats.unheaded} before a header)  {tail}"
         flags = [name for name, on in (("MAG-REJECTED:" + est.gate, not est.mag_used),
                                        ("ACCEL-SKIPPED", not est.accel_used), ("OUT-OF-RANGE", not self.in_range)) if on]
-        return (f"heading {est.heading_deg:6.1f}  pitch {est.pitch_deg:+6.1f}  roll {est.roll_deg:+7.1f} deg  "
+        true = "" if self._declination is None else f"true {self.true_heading()[0]:6.1f}  "
+        return (f"heading {est.heading_deg:6.1f}  {true}pitch {est.pitch_deg:+6.1f}  roll {est.roll_deg:+7.1f} deg  "
                 f"+-{est.heading_sigma_deg:.2f}  |B| {est.field_ratio:.3f}  dip {est.dip_deg:5.1f}  "
                 f"{' '.join(flags) or 'ok':<22} {tail}")
 

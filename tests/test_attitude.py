@@ -11,6 +11,7 @@ from compass.io.table import read_table
 from compass.model import SensorModel
 from compass.response import LinearResponse
 from compass.sim.fourflip import simulate_fourflip
+from compass.site import known_reference
 from compass.sim.runtime import simulate_runtime, write_runtime
 
 
@@ -55,7 +56,8 @@ def test_spec_angles_round_trip_through_scipy_euler(truth):
     model = true_model(truth)
     x = rot.apply(world_field(truth["dip_deg"], truth["field_ut"]), inverse=True) @ model.unit_directions.T
     raw = np.asarray(truth["offsets"]) + np.asarray(truth["gains_per_ut"]) * x
-    att = solve_attitude(model, raw, accel=rot.apply([0.0, 0.0, 9.81], inverse=True))  # any accel unit
+    att = solve_attitude(model, raw, accel=rot.apply([0.0, 0.0, 9.81], inverse=True),  # any accel unit
+                         reference=known_reference(truth["dip_deg"], truth["field_ut"]))
     np.testing.assert_allclose(wrap(att.heading_deg - h), 0.0, atol=1e-7)
     np.testing.assert_allclose(att.pitch_deg, p, atol=1e-7)
     np.testing.assert_allclose(wrap(att.roll_deg - r), 0.0, atol=1e-7)
@@ -82,7 +84,8 @@ def test_gimbal_lock_neighbourhood_has_no_nan(truth, pitch):
     rot = r_world_from_housing(np.array([40.0, 200.0]), pitch, np.array([10.0, -30.0]))
     x = rot.apply(world_field(truth["dip_deg"], truth["field_ut"]), inverse=True) @ model.unit_directions.T
     raw = np.asarray(truth["offsets"]) + np.asarray(truth["gains_per_ut"]) * x
-    att = solve_attitude(model, raw, accel=rot.apply([0.0, 0.0, 1.0], inverse=True))
+    att = solve_attitude(model, raw, accel=rot.apply([0.0, 0.0, 1.0], inverse=True),
+                         reference=known_reference(truth["dip_deg"], truth["field_ut"]))
     for name, column in att.columns().items():
         assert not np.any(np.isnan(column.astype(float))), name
     np.testing.assert_allclose(att.pitch_deg, pitch, atol=1e-5)
@@ -134,8 +137,10 @@ def test_propagated_sigma_matches_monte_carlo(truth):
 
 def test_doubling_noise_doubles_sigma(truth):
     session = simulate_runtime(truth, 200, seed=8)
-    one = solve_attitude(true_model(truth), session.outputs, accel=session.accel, accel_noise_g=0.002)
-    two = solve_attitude(true_model(truth, 2.0), session.outputs, accel=session.accel, accel_noise_g=0.004)
+    site = known_reference(truth["dip_deg"], truth["field_ut"])
+    one = solve_attitude(true_model(truth), session.outputs, accel=session.accel, accel_noise_g=0.002, reference=site)
+    two = solve_attitude(true_model(truth, 2.0), session.outputs, accel=session.accel, accel_noise_g=0.004,
+                         reference=site)
     np.testing.assert_allclose(two.heading_sigma_deg, 2 * one.heading_sigma_deg, rtol=1e-9)
     np.testing.assert_allclose(two.roll_sigma_deg, 2 * one.roll_sigma_deg, rtol=1e-9)
 
@@ -145,9 +150,16 @@ def test_disturbance_flag_on_injected_field_change(truth):
     extra = np.zeros((n, 3))
     extra[n // 2:] = [0.0, 4.0, -3.0]  # 5 uT (10 % of |B|) from a magnet, second half only
     session = simulate_runtime(truth, n, seed=9, extra_field_ut=extra)
-    att = solve_attitude(true_model(truth), session.outputs, accel=session.accel)
+    att = solve_attitude(true_model(truth), session.outputs, accel=session.accel,
+                         reference=known_reference(truth["dip_deg"], truth["field_ut"]))
     assert att.disturbed[: n // 2].mean() < 0.01
     assert att.disturbed[n // 2:].mean() > 0.99
+    # with nothing said, the reference comes from the recording: robust while the magnet is there for
+    # less than half of it (with half and half, which field is the site's cannot be told)
+    third = simulate_runtime(truth, n, seed=9, extra_field_ut=np.where(np.arange(n)[:, None] < n // 3, extra[-1], 0.0))
+    att = solve_attitude(true_model(truth), third.outputs, accel=third.accel)
+    assert att.reference.source == "recording"
+    assert att.disturbed[n // 3:].mean() < 0.01 and att.disturbed[: n // 3].mean() > 0.99
 
 
 def test_level_mode_error_within_bound(truth):

@@ -189,6 +189,8 @@ def test_live_bad_input_exits_2(tmp_path, capsys):
     cal.write_text(__import__("json").dumps(default_model().to_json()))
     assert main(["live", "--port", "nosuch://x", "--cal", str(cal)]) == 2
     assert "nosuch" in capsys.readouterr().err
+    assert main(["live", "--port", "/dev/null", "--cal", str(cal), "--site", "95,0"]) == 2
+    assert "latitude" in capsys.readouterr().err
     keep = tmp_path / "keep.txt"
     keep.write_text("keep")
     assert main(["device", "--pty", "--link", str(keep), "--duration", "0.1"]) == 2
@@ -229,3 +231,55 @@ def test_session_reports_the_magnet_gate_closing_and_opening():
     gate = [e for e in events if e[1].startswith("field ")]
     assert gate[0][0] == "warn" and gate[0][1].startswith("field rejected")
     assert ("info", "field used again") in gate
+
+
+def _site_stream(dip_deg, field_ut, seconds=12.0):
+    """The default module used at another site: its stream (header and lines) and the calibration model."""
+    from dataclasses import replace
+
+    model = default_model()
+    there = replace(model, dip_deg=dip_deg, field_magnitude=field_ut, field_ut=field_ut)
+    device = PtyDevice(there, rate_hz=100.0)
+    t = np.arange(int(seconds * 100)) / 100.0
+    return model, device._header + b"".join(device._lines(simulate_device(there, t, seed=3), 0)), t
+
+
+def _run(session, stream):
+    for k in range(0, len(stream), 700):
+        session.feed(Chunk(time.perf_counter(), stream[k:k + 700]))
+    session.close()
+
+
+def test_live_at_another_site_seeds_its_reference_from_the_first_quiet_second():
+    from compass.site import known_reference
+
+    model, stream, t = _site_stream(48.0, 45.0)  # the bench: dip 60, |B| 50
+    seeded, out = LiveSession(model, out=io.StringIO()), None
+    _run(seeded, stream)
+    assert abs(seeded.reference.dip_deg - 48.0) < 0.3 and abs(seeded.reference.field_magnitude - 45.0) < 0.3
+    bench = LiveSession(model, reference=known_reference(model.dip_deg, model.field_magnitude), out=io.StringIO())
+    _run(bench, stream)
+    rows = {name: np.array([line.split(",") for line in s.out.getvalue().splitlines()[2:]], dtype=float)
+            for name, s in (("seeded", seeded), ("bench", bench))}
+    assert len(rows["seeded"]) == len(t)  # the held samples are solved too
+    used = {name: r[:, 8].mean() for name, r in rows.items()}  # mag_used
+    assert used["seeded"] > 0.99 and used["bench"] < 0.01  # the bench's dip rejects every sample
+    err = wrap(rows["seeded"][:, 1] - scripted_motion(rows["seeded"][:, 0])[0])
+    assert np.sqrt(np.mean(err[rows["seeded"][:, 0] > 2.0] ** 2)) < 1.0
+
+
+def test_live_with_a_site_writes_true_heading(tmp_path):
+    from compass.site import Site, reference_from_site
+
+    site = Site.parse("47.6,-122.3", "2026-06-01")
+    wmm = site.field()
+    model, stream, t = _site_stream(wmm.dip_deg, wmm.field_ut, seconds=3.0)
+    session = LiveSession(model, out=io.StringIO(), reference=reference_from_site(site, field_ut=1.0))
+    _run(session, stream)
+    (tmp_path / "a.csv").write_text(session.out.getvalue())
+    table = read_table(tmp_path / "a.csv")
+    assert table.columns[-2:] == ("heading_true_deg", "heading_true_sigma_deg") and len(table.data) == len(t)
+    np.testing.assert_allclose(wrap(table.column("heading_true_deg") - table.column("heading_deg")),
+                               wmm.declination_deg, atol=2e-3)
+    assert np.all(table.column("heading_true_sigma_deg") >= wmm.declination_sigma_deg - 1e-3)
+    assert "true" in session.readout(100.0)

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..io.atomic import atomic_write_text, check_writable
 from ..io.table import RecordingError, read_table
+from ..site import Site, reference_from_site
 
 _ACCEL = ("ax", "ay", "az")
 _TILT = ("pitch_deg", "roll_deg")
@@ -34,6 +35,11 @@ def register(sub) -> None:
                    help="no accelerometer: assume pitch = roll = 0 and report the heading error a tilt could cause")
     p.add_argument("--max-tilt-deg", type=float, default=5.0,
                    help="with --level: the tilt the assumption allows, for heading_bound_deg (default 5)")
+    p.add_argument("--site", metavar="LAT,LON[,ALT_M]",
+                   help="where the recording was made (degrees, metres): the reference field and true north come "
+                        "from the World Magnetic Model there (default: the calibration's site block, else the "
+                        "recording's own quiet rows, magnetic heading only)")
+    p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day of the recording (default today, UTC)")
     p.add_argument("--accel-noise-g", type=float, default=0.002,
                    help="accelerometer white noise per axis as a fraction of 1 g (default 0.002)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output file")
@@ -41,13 +47,21 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from ..cli import BadInput
+
+    if args.date is not None and args.site is None:
+        raise BadInput("--date needs --site LAT,LON[,ALT_M]: the date only chooses the field at a site")
     attitude_file(args.calibration, args.recording, args.out, level=args.level, max_tilt_deg=args.max_tilt_deg,
-                  accel_noise_g=args.accel_noise_g, force=args.force)
+                  accel_noise_g=args.accel_noise_g, force=args.force, site=args.site, date=args.date)
     return 0
 
 
-def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0, accel_noise_g=0.002, force=False):
+def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0, accel_noise_g=0.002, force=False,
+                  site=None, date=None):
     """Solve one recording file into an attitude CSV; returns the :class:`~compass.attitude.Attitude`.
+
+    The reference field is the site's: ``site`` (``"LAT,LON[,ALT_M]"`` or a :class:`compass.site.Site`)
+    and ``date``, else the calibration's ``site`` block, else estimated from the recording.
 
     Raises
     ------
@@ -56,6 +70,7 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     """
     from ..attitude import solve_attitude
     from ..cli import BadInput
+    from ..io.platform3d import TiltSensor
     from ..model import SensorModel
 
     out = check_writable(out, force)
@@ -64,8 +79,17 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     if not 0 <= max_tilt_deg < 90:
         raise BadInput(f"--max-tilt-deg must be in [0, 90), got {max_tilt_deg}")
     try:
+        if site is not None and not isinstance(site, Site):
+            site = Site.parse(site, date)
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    try:
         model = SensorModel.from_file(calibration)
-        tilt_sensor = _tilt_sensor(calibration)
+        document = _document(calibration)
+        tilt_sensor = TiltSensor.from_json(document) if "tilt_sensor" in document else None
+        source = "site"
+        if site is None and document.get("site") is not None:
+            site, source = Site.from_json(document["site"]), "calibration site"
     except ValueError as exc:
         raise BadInput(exc if str(calibration) in str(exc) else f"{calibration}: {exc}") from None
     table = read_table(recording)
@@ -89,15 +113,22 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     effect = model.temperature
     if effect is not None and effect.reference_c is None:
         temp_c = None  # a file written before effects carried their reference: the effect cannot be applied
+    tilt_args = dict(accel=accel, pitch_deg=None if tilt is None else tilt[:, 0],
+                     roll_deg=None if tilt is None else tilt[:, 1], level=level)
     try:
-        result = solve_attitude(model, raw, accel=accel, pitch_deg=None if tilt is None else tilt[:, 0],
-                                roll_deg=None if tilt is None else tilt[:, 1], level=level,
-                                accel_noise_g=accel_noise_g, max_tilt_deg=max_tilt_deg, temp_c=temp_c)
+        reference = None if site is None else reference_from_site(
+            site, field_ut=None if model.field_ut is None else 1.0, source=source)
+        result = solve_attitude(model, raw, **tilt_args, reference=reference, accel_noise_g=accel_noise_g,
+                                max_tilt_deg=max_tilt_deg, temp_c=temp_c)
     except ValueError as exc:
         raise BadInput(f"{recording}: {exc}") from None
 
     columns = ({"t_s": table.column("t_s")} if table.has("t_s") else {}) | result.columns()
-    metadata = {"calibration": calibration, "recording": recording, "mode": result.mode}
+    metadata = {"calibration": calibration, "recording": recording, "mode": result.mode,
+                "reference_field": result.reference.description}
+    if result.heading_true_deg is not None:
+        metadata["true_north"] = (f"heading_true_deg = heading_deg + declination {result.reference.declination_deg:+.3f} "
+                                  f"deg (sigma {result.reference.declination_sigma_deg:.2f} deg in heading_true_sigma_deg)")
     if result.mode == "accelerometer":
         metadata["accel_noise_g"] = f"{accel_noise_g:g}"
     if result.mode == "level":
@@ -113,20 +144,18 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     if model.direction_covariance is None:
         metadata["note"] = "the calibration gives no direction covariance: sigmas count sensor noise only"
     atomic_write_text(out, _format_csv(columns, metadata))
-    print(f"wrote {out} ({len(raw)} rows, mode {result.mode}; {int(np.sum(result.disturbed))} disturbed, "
-          f"{int(np.sum(~result.in_range))} out of calibrated range)")
+    print(f"wrote {out} ({len(raw)} rows, mode {result.mode}; {int(np.sum(result.disturbed))} disturbed against the "
+          f"{result.reference.source} reference, {int(np.sum(~result.in_range))} out of calibrated range)")
     return result
 
 
-def _tilt_sensor(calibration):
-    """The calibrated tilt sensor of a 3-D platform calibration file, or None for other kinds."""
+def _document(calibration) -> dict:
+    """The calibration file's JSON object (already validated by :meth:`SensorModel.from_file`)."""
     import json
     from pathlib import Path
 
-    from ..io.platform3d import TiltSensor
-
-    data = json.loads(Path(calibration).read_text())
-    return TiltSensor.from_json(data) if isinstance(data, dict) and "tilt_sensor" in data else None
+    data = json.loads(Path(calibration).read_text(encoding="utf-8"))
+    return data if isinstance(data, dict) else {}
 
 
 def _group(table, names) -> np.ndarray | None:

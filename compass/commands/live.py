@@ -26,6 +26,10 @@ def register(sub) -> None:
     p.add_argument("--rerun", metavar="spawn|FILE.rrd",
                    help="'spawn' opens the Rerun viewer; a file name records to that .rrd file")
     p.add_argument("--out", help="also write the attitude stream to this CSV file")
+    p.add_argument("--site", metavar="LAT,LON[,ALT_M]",
+                   help="where the module is (degrees, metres): reference field and true north from the World "
+                        "Magnetic Model (default: the field of the first quiet second, magnetic heading only)")
+    p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day (default today, UTC)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C)")
     p.add_argument("--quiet", action="store_true", help="no live readout and no event lines, only the summary")
@@ -45,6 +49,7 @@ def run(args) -> int:
         config = FilterConfig.from_model(model)
     except ValueError as exc:
         raise BadInput(f"{args.cal}: {exc}" if args.cal not in str(exc) else str(exc)) from None
+    reference = _site_reference(args, model)
     if args.duration is not None and not args.duration > 0:
         raise BadInput(f"--duration must be positive, got {args.duration}")
     reader = SerialReader(args.port, baudrate=args.baud)
@@ -71,7 +76,7 @@ def run(args) -> int:
             print(("\r\x1b[K" if tty else "") + f"[{level}] {text}", flush=True)
 
     out = None if out_path is None else open(out_path, "w", encoding="utf-8", buffering=1 << 16)
-    session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event)
+    session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event, reference=reference)
     stop = threading.Event()
     previous = _install_stop_handlers(stop)
     timer = None
@@ -108,6 +113,21 @@ def run(args) -> int:
         print(f"compass live: {elapsed:.1f} s, {reader.disconnects} disconnect(s); {session.summary()}"
               + (f"; wrote {', '.join(wrote)}" if wrote else ""), flush=True)
     return 0
+
+
+def _site_reference(args, model):
+    """The WMM's field at ``--site`` (None without one: the session seeds it from the stream)."""
+    from ..cli import BadInput
+    from ..site import Site, reference_from_site
+
+    if args.site is None:
+        if args.date is not None:
+            raise BadInput("--date needs --site LAT,LON[,ALT_M]: the date only chooses the field at a site")
+        return None
+    try:
+        return reference_from_site(Site.parse(args.site, args.date), field_ut=None if model.field_ut is None else 1.0)
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
 
 
 def _install_stop_handlers(stop: threading.Event) -> dict:
