@@ -15,9 +15,10 @@ Adding a kind or a block to the file (the installation of issue 11, for example)
 
 - a kind with its own runtime form: ``MODEL_READERS["installed"] = reader`` where
   ``reader(d: dict) -> SensorModel`` (it may call :func:`from_dict` on a nested base calibration);
-- a block the runtime needs beside the sensor model: ``SECTION_READERS["site"] = reader`` where
-  ``reader(d: dict) -> object`` reads ``d["site"]``; it is called only when the key is present and
-  its result is in :attr:`CalibrationFile.sections`.
+- a block the runtime needs beside the sensor model: ``SECTION_READERS["installation"] = reader``
+  where ``reader(d: dict) -> object`` reads ``d["installation"]``; it is called only when the key
+  is present and its result is in :attr:`CalibrationFile.sections` (``"site"`` is read so, into a
+  :class:`compass.site.Site`).
 
 Readers raise ``ValueError`` (or :class:`CalibrationFileError` with the key) for anything they
 refuse; :func:`load` names the file.
