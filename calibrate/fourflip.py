@@ -27,12 +27,13 @@ from compass.sim.bench import BenchPhysics, BenchSamples
 
 from . import _harmonic as hm
 from ._mlfit import MLFit, fit_ml
+from .contract import Calibrator
 from .diagnose import UNEXPLAINED_WARNING, diagnose_fourflip, examine_residual
 from .noise import SPIKE_SIGMAS, find_spikes, noise_floor
 from .result import CalibrationResult, ChannelCalibration
 from .site_field import compare_with_site
 
-__all__ = ["METHODS", "calibrate_fourflip", "physics_from_harmonics", "result_from_ml"]
+__all__ = ["METHODS", "FourFlipCalibrator", "calibrate_fourflip", "physics_from_harmonics", "result_from_ml"]
 
 METHODS = ("ml", "harmonic", "patent")
 _TABLE_BINS = 36
@@ -85,6 +86,31 @@ def calibrate_fourflip(
     if site is not None:
         extra["site_check"] = site
     return replace(result, extra=extra, warnings=warnings, kept=~spikes if spikes.any() else None)
+
+
+class FourFlipCalibrator(Calibrator):
+    """Seed 000's four-flip calibration of single-axis channels (:func:`calibrate_fourflip`).
+
+    Parameters
+    ----------
+    method : {"ml", "harmonic", "patent"}
+    field_ut : float, optional
+        |B| in uT; default the recording's ``field_ut`` metadata.
+    diagnose : bool
+        Run the residual diagnosis loop (SPEC section 4).
+    progress : callable, optional
+        Receives one line of text per diagnosis stage.
+    """
+
+    kind = "fourflip"
+    draws_plots = True
+
+    def __init__(self, *, method: str = "ml", field_ut: float | None = None, diagnose: bool = True, progress=None):
+        self.method, self.field_ut, self.diagnose, self.progress = method, field_ut, diagnose, progress
+
+    def fit(self, recording: FourFlipRecording) -> CalibrationResult:
+        return calibrate_fourflip(recording, method=self.method, field_ut=self.field_ut, diagnose=self.diagnose,
+                                  progress=self.progress)
 
 
 def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progress) -> CalibrationResult:

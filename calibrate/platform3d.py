@@ -42,7 +42,7 @@ Identifiability (gauge freedoms), and how each is fixed:
   the vertical too (``platform_z_deg`` varies).
 - The poses must turn both vectors through three dimensions of H: a platform that only turns about
   the vertical leaves each sensor's vertical response inseparable from its offset.  The fit checks
-  the scaled Jacobian's singular values and refuses (:class:`NotIdentifiable`) naming the
+  the scaled Jacobian's singular values and refuses (:class:`~calibrate.contract.CannotCalibrate`) naming the
   parameters the poses leave undetermined.
 """
 
@@ -54,24 +54,21 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from compass.frames import direction_sigma_deg, seed_angles
+from compass.calibration_file import channel_entry, header
 from compass.io.platform3d import Platform3DRecording
 from compass.sim.platform3d import predict, up_in_bench
 
+from .contract import (Calibration, Calibrator, CannotCalibrate, metadata_field_ut, require_response,
+                       require_sane_cells)
 from ._offset_effects import (OffsetDiagnosis, Problem, diagnose_offsets, format_offset_diagnosis,
                               pooled_repeat_noise)
-from .result import FORMAT
 
-__all__ = ["NotIdentifiable", "Platform3DResult", "calibrate_platform3d", "axis_geometry"]
+__all__ = ["Platform3DCalibrator", "Platform3DResult", "calibrate_platform3d", "axis_geometry"]
 
 MAG_CHANNELS = ("mx", "my", "mz")
 _AXES = "xyz"
 _MIN_RELATIVE_SINGULAR = 1e-6
 """Smallest singular value of the column-scaled Jacobian, relative to the largest, accepted."""
-
-
-class NotIdentifiable(ValueError):
-    """The recording's poses leave some parameters undetermined (bad input: record more poses)."""
 
 
 def axis_geometry(matrix: np.ndarray) -> np.ndarray:
@@ -110,7 +107,7 @@ def _geometry_names(prefix: str, columns) -> list[str]:
 
 
 @dataclass(frozen=True)
-class Platform3DResult:
+class Platform3DResult(Calibration):
     """A 3-D platform calibration (seed 001) with its statistics.
 
     Attributes
@@ -186,6 +183,13 @@ class Platform3DResult:
     warnings: tuple = field(default_factory=tuple)
     diagnosis: OffsetDiagnosis | None = None
 
+    calibration_kind = "platform3d"
+
+    @property
+    def parameters(self) -> dict:
+        """The derived parameters (scales, non-orthogonality, rotations, dip, ...): name -> (value, sigma)."""
+        return dict(self.derived)
+
     @property
     def sigma(self) -> np.ndarray:
         """Standard errors of :attr:`values`."""
@@ -205,18 +209,11 @@ class Platform3DResult:
         channels = {}
         for c, name in enumerate(MAG_CHANNELS):
             gain = float(np.linalg.norm(self.mag_matrix[c]))
-            direction = self.mag_matrix[c] / gain
-            cov = self.mag_direction_covariance[c]
-            channels[name] = {
-                "direction": direction.tolist(),
-                "direction_sigma_deg": float(direction_sigma_deg(cov)),
-                **{k: float(v) for k, v in seed_angles(direction).items()},
-                "direction_covariance": cov.tolist(),
-                "response": {"model": "linear", "offset": float(self.mag_offset[c]), "gain": gain,
-                             "range": [-float(field_range), float(field_range)]},
-                "response_sigma": {"offset": float(self.mag_response_sigma[c, 0]),
-                                   "gain": float(self.mag_response_sigma[c, 1])},
-            }
+            response = {"model": "linear", "offset": float(self.mag_offset[c]), "gain": gain,
+                        "range": [-float(field_range), float(field_range)]}
+            channels[name] = channel_entry(self.mag_matrix[c] / gain, response,
+                                           covariance=self.mag_direction_covariance[c],
+                                           response_sigma=self.mag_response_sigma[c])
         noise = self.noise_mag if self.noise_mag is not None else np.sqrt(np.mean(self.residuals_mag**2, axis=0))
         rms = float(np.sqrt(np.mean(self.residuals_mag**2)))
         if self.diagnosis is not None:
@@ -228,8 +225,7 @@ class Platform3DResult:
                          "unexplained": None if self.noise_mag is None else bool(rms > 1.5 * np.mean(noise)),
                          "not_applicable": {"diagnosis": "not run (calibrate_platform3d(..., diagnose=False))"}}
         d = self.derived
-        return {
-            "format": FORMAT,
+        return header("platform3d") | {
             "channels": channels,
             "dip_deg": d["dip_deg"][0],
             "dip_sigma_deg": d["dip_deg"][1],
@@ -371,9 +367,10 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
 
     Raises
     ------
-    NotIdentifiable
+    CannotCalibrate
         The poses leave parameters undetermined (the message names them and says which poses
-        are missing).
+        are missing), a channel does not follow the field (constant, or a cell far off; the
+        message names the column), or the ``field_ut`` metadata is not a positive number.
     ValueError
         ``field_ut`` not positive.
 
@@ -391,11 +388,12 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
     gains.  Claimed effects join the joint fit (their parameters follow the base ones in
     ``values``) and the reported offsets hold at their reference time and temperature.
     """
-    if field_ut is None and "field_ut" in rec.metadata:
-        field_ut = float(rec.metadata["field_ut"])
+    if field_ut is None:
+        field_ut = metadata_field_ut(rec.path, rec.metadata)
     if field_ut is not None and not field_ut > 0:
         raise ValueError(f"field_ut must be positive, got {field_ut}")
     magnitude = field_ut or 1.0
+    require_sane_cells(rec.path, MAG_CHANNELS + tuple(rec.tilt_columns), np.hstack([rec.mag, rec.tilt]), rec.rows)
     lat = rec.metadata.get("site_lat_deg")
     sign = -1.0 if lat is not None and float(lat) < 0 else 1.0
     rot = rec.rotation
@@ -428,8 +426,11 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
         null = vec[:, 0]
         involved = [names[j] for j in np.argsort(-np.abs(null)) if abs(null[j]) > 0.2]
         hint = _pose_hint(rot)
-        raise NotIdentifiable(f"{rec.path}: the platform poses do not determine {', '.join(involved)}"
+        raise CannotCalibrate(f"{rec.path}: the platform poses do not determine {', '.join(involved)}"
                               + (f": {hint}" if hint else " (they trade off against each other)"))
+    pm, pt = predict(rot, *_unpack(fit.x, n_tilt, magnitude))
+    require_response(rec.path, MAG_CHANNELS + tuple(rec.tilt_columns), np.hstack([rec.mag, rec.tilt]),
+                     np.hstack([rec.mag - pm, rec.tilt - pt]), rec.rows)
     x, delta, diagnosis = fit.x, np.zeros_like(rec.mag), None
     chi2 = float(np.sum(fit.fun**2))
     if diagnose:
@@ -529,3 +530,23 @@ def _propagate(f, p: np.ndarray, cov: np.ndarray, step: float = 1e-7) -> tuple[n
         h[j] = 1e-3 * scale[j] + step
         jac[:, j] = (f(p + h) - f(p - h)) / (2 * h[j])
     return base, jac @ cov @ jac.T
+
+
+class Platform3DCalibrator(Calibrator):
+    """Seed 001's 3-D platform calibration of magnetometer and tilt sensor (:func:`calibrate_platform3d`).
+
+    Parameters
+    ----------
+    field_ut : float, optional
+        Known |B| (gains then per uT); default the recording's ``# field_ut:`` metadata.
+    diagnose : bool
+        Run the residual diagnosis (SPEC section 4).
+    """
+
+    kind = "platform3d"
+
+    def __init__(self, *, field_ut: float | None = None, diagnose: bool = True):
+        self.field_ut, self.diagnose = field_ut, diagnose
+
+    def fit(self, recording: Platform3DRecording) -> Platform3DResult:
+        return calibrate_platform3d(recording, field_ut=self.field_ut, diagnose=self.diagnose)

@@ -49,10 +49,9 @@ from scipy.ndimage import uniform_filter1d
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from compass.calibration_file import header
 from compass.hard_iron import track_hard_iron
 from compass.io.broad import BroadTrial, enu_to_nwu, read_broad
-
-from .result import FORMAT
 
 __all__ = ["TRAIN", "MIN_GAIN", "Residual", "StaticCorrection", "world_residual", "fit_static", "change_points",
            "run_loop"]
@@ -292,7 +291,7 @@ def calibration_json(correction: StaticCorrection, trials, summary: dict) -> dic
     train = [t for t in trials if t.name[:2] in TRAIN]
     refs = [initial_field(correction.apply(t.mag_ut), t.accel_m_s2, ~t.movement) for t in train]
     field, dip, noise = np.mean(refs, axis=0)
-    return {"format": FORMAT, "model": "tumble", "hard_iron": correction.hard_iron_ut.tolist(),
+    return header("tumble") | {"hard_iron": correction.hard_iron_ut.tolist(),
             "soft_iron": correction.soft_iron.tolist(), "field_norm": float(field),
             "mag_to_accel": correction.rotation.as_matrix().tolist(), "field_ut": float(field), "dip_deg": float(dip),
             "noise_floor": [float(noise)] * 3, "channel_columns": ["mx", "my", "mz"],

@@ -20,7 +20,7 @@ through numerical Jacobians.  With exactly 4 fields nothing is left to estimate 
 
 The design ``[B, 1]`` has rank 4 only when the fields are not coplanar (no plane, through zero
 or not, holds all of them); otherwise the offsets and ``K`` cannot be separated and the fit
-refuses (:class:`DegenerateReference`).
+refuses (:class:`~calibrate.contract.CannotCalibrate`).
 
 The reference fields are given in the array's frame, so every sensor's calibrated field
 ``K_s (V_s - V_0s)`` is in that common frame; each sensor's axes are also reported as scales,
@@ -35,24 +35,20 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import lstsq
 
-from compass.frames import direction_sigma_deg, seed_angles
+from compass.calibration_file import channel_entry, header
 from compass.io.reference import ReferenceRecording
 
 from ._offset_effects import OffsetDiagnosis, Problem, diagnose_offsets, format_offset_diagnosis, pooled_repeat_noise
+from .contract import Calibration, Calibrator, CannotCalibrate, require_response, require_sane_cells
 from .platform3d import axis_geometry
-from .result import FORMAT
 
-__all__ = ["DegenerateReference", "SensorK", "ReferenceResult", "calibrate_reference", "fit_k"]
+__all__ = ["ReferenceCalibrator", "SensorK", "ReferenceResult", "calibrate_reference", "fit_k"]
 
 MAX_CONDITION = 1e8
 """Largest condition number of the column-scaled design ``[B, 1]`` accepted."""
 WARN_CONDITION = 1e3
 """Above this the fields are nearly coplanar: the result is computed, with a warning."""
 _ANGLE_NAMES = tuple(f"{g}{j}" for g in ("alpha", "beta", "gamma") for j in (1, 2, 3))
-
-
-class DegenerateReference(ValueError):
-    """The reference fields cannot determine K and the offsets (too few, or coplanar)."""
 
 
 @dataclass(frozen=True)
@@ -113,7 +109,7 @@ class SensorK:
 
 
 @dataclass(frozen=True)
-class ReferenceResult:
+class ReferenceResult(Calibration):
     """A reference-field (K-matrix) calibration of an array.
 
     Attributes
@@ -143,6 +139,19 @@ class ReferenceResult:
     diagnosis: OffsetDiagnosis | None = None
     not_diagnosed: str | None = None
 
+    calibration_kind = "reference"
+
+    @property
+    def parameters(self) -> dict:
+        """``<sensor>.K[i,j]``, ``<sensor>.offset[c]``: value and sigma (None with exactly 4 fields)."""
+        out = {}
+        for s in self.sensors:
+            for (i, j), v in np.ndenumerate(s.k_matrix):
+                out[f"{s.name}.K[{i},{j}]"] = (float(v), None if s.k_sigma is None else float(s.k_sigma[i, j]))
+            for c, v in enumerate(s.offset):
+                out[f"{s.name}.offset[{c}]"] = (float(v), None if s.offset_sigma is None else float(s.offset_sigma[c]))
+        return out
+
     def to_json(self) -> dict:
         """The calibration file (SPEC section 2, channel form), JSON-ready.
 
@@ -153,15 +162,11 @@ class ReferenceResult:
         for s in self.sensors:
             g = np.linalg.inv(s.k_matrix)
             for c, name in enumerate(s.channels):
-                direction = g[c] / s.scale[c]
-                entry = {"direction": direction.tolist(),
-                         **{k: float(v) for k, v in seed_angles(direction).items()},
-                         "response": {"model": "linear", "offset": float(s.offset[c]), "gain": float(s.scale[c])}}
-                if s.direction_covariance is not None:
-                    entry["direction_covariance"] = s.direction_covariance[c].tolist()
-                    entry["direction_sigma_deg"] = float(direction_sigma_deg(s.direction_covariance[c]))
-                    entry["response_sigma"] = {"offset": float(s.offset_sigma[c]), "gain": float(s.scale_sigma[c])}
-                channels[name] = entry
+                response = {"model": "linear", "offset": float(s.offset[c]), "gain": float(s.scale[c])}
+                known = s.direction_covariance is not None
+                channels[name] = channel_entry(g[c] / s.scale[c], response,
+                                               covariance=s.direction_covariance[c] if known else None,
+                                               response_sigma=(s.offset_sigma[c], s.scale_sigma[c]) if known else None)
                 noise.append(float(s.residual_rms[c]))
             sensors[s.name] = {
                 "channels": list(s.channels),
@@ -185,8 +190,7 @@ class ReferenceResult:
             diagnosis = {"noise_floor": float(np.mean(noise)), "steps": [{"model": "base", "residual_rms": rms}],
                          "effects": [], "residual_rms_before": rms, "residual_rms_after": rms, "unexplained": None,
                          "not_applicable": {"diagnosis": self.not_diagnosed or "not run"}}
-        return {
-            "format": FORMAT,
+        return header("reference") | {
             "channels": channels,
             "dip_deg": None,
             "dip_sigma_deg": None,
@@ -241,10 +245,10 @@ def _maybe(a):
 
 
 def _design_check(path: str, sensor: str, ref: np.ndarray) -> float:
-    """Condition number of the column-scaled design ``[B, 1]``; DegenerateReference when singular."""
+    """Condition number of the column-scaled design ``[B, 1]``; CannotCalibrate when singular."""
     n = len(ref)
     if n < 4:
-        raise DegenerateReference(f"{path}: sensor '{sensor}' has {n} reference fields; K and the offsets need at least 4")
+        raise CannotCalibrate(f"{path}: sensor '{sensor}' has {n} reference fields; K and the offsets need at least 4")
     design = np.hstack([ref, np.ones((n, 1))])
     norms = np.linalg.norm(design, axis=0)
     sv = np.linalg.svd(design / np.where(norms > 0, norms, 1.0), compute_uv=False)
@@ -254,7 +258,7 @@ def _design_check(path: str, sensor: str, ref: np.ndarray) -> float:
         what = ("all reference fields are the same" if centred[0] <= 1e-12 * max(np.abs(ref).max(), 1e-300) else
                 "the reference fields lie on one line" if centred[1] <= 1e-9 * centred[0] else
                 "the reference fields are coplanar (one plane holds them all)")
-        raise DegenerateReference(f"{path}: sensor '{sensor}': {what}, so K and the offsets cannot be separated "
+        raise CannotCalibrate(f"{path}: sensor '{sensor}': {what}, so K and the offsets cannot be separated "
                                   f"(condition number {cond:.3g} of the design [B, 1]); apply fields in at least "
                                   "4 directions that no plane contains")
     return cond
@@ -356,8 +360,9 @@ def calibrate_reference(rec: ReferenceRecording, *, diagnose: bool = True, candi
 
     Raises
     ------
-    DegenerateReference
-        Fewer than 4 fields or coplanar fields for some sensor (the message names the file).
+    CannotCalibrate
+        Fewer than 4 fields or coplanar fields for some sensor, or a channel that does not follow
+        the fields (constant, or a cell far off); the message names the file and the column.
 
     Notes
     -----
@@ -367,7 +372,11 @@ def calibrate_reference(rec: ReferenceRecording, *, diagnose: bool = True, candi
     would explain) and ``unexplained`` is null (nothing to test the residual against).
     """
     conds = {s: _design_check(rec.path, s, rec.reference[s]) for s in rec.sensors}
+    for s in rec.sensors:
+        require_sane_cells(rec.path, rec.channels[s], rec.outputs[s], rec.rows)
     sensors = tuple(fit_k(s, rec.channels[s], rec.reference[s], rec.outputs[s]) for s in rec.sensors)
+    for s in sensors:
+        require_response(rec.path, s.channels, rec.outputs[s.name], s.residuals, rec.rows)
     warnings = []
     worst = max(conds, key=conds.get)
     if conds[worst] > WARN_CONDITION:
@@ -436,3 +445,21 @@ def _with_effects(rec: ReferenceRecording, sensors: tuple, diagnosis: OffsetDiag
                              v_ref - rec.reference[s.name] @ g.T - v0, dof))
         corrected[s.name] = v_ref
     return tuple(out), corrected
+
+
+class ReferenceCalibrator(Calibrator):
+    """Seed 003's K-matrix calibration of a sensor array (:func:`calibrate_reference`).
+
+    Parameters
+    ----------
+    diagnose : bool
+        Run the residual diagnosis (SPEC section 4).
+    """
+
+    kind = "reference"
+
+    def __init__(self, *, diagnose: bool = True):
+        self.diagnose = diagnose
+
+    def fit(self, recording: ReferenceRecording) -> ReferenceResult:
+        return calibrate_reference(recording, diagnose=self.diagnose)

@@ -6,13 +6,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from compass.calibration_file import FORMAT, channel_entry, header
 from compass.frames import direction_sigma_deg as _direction_sigma_deg
 from compass.frames import seed_angles
 from compass.response import Response
 
-__all__ = ["ChannelCalibration", "CalibrationResult", "FORMAT"]
+from .contract import Calibration
 
-FORMAT = "compass-calibration/1"
+__all__ = ["ChannelCalibration", "CalibrationResult", "FORMAT"]
 _ANGLE_KEYS = ("theta_deg", "gamma_deg", "elevation_deg", "psi_deg")
 
 
@@ -67,7 +68,7 @@ class ChannelCalibration:
 
 
 @dataclass(frozen=True)
-class CalibrationResult:
+class CalibrationResult(Calibration):
     """A four-flip calibration.
 
     Attributes
@@ -116,6 +117,8 @@ class CalibrationResult:
     extra: dict = field(default_factory=dict)
     kept: np.ndarray | None = None
 
+    calibration_kind = "fourflip"
+
     def used(self, rec):
         """The recording as the fit saw it (spikes dropped)."""
         return rec if self.kept is None else rec.subset(self.kept)
@@ -141,22 +144,13 @@ class CalibrationResult:
         """The calibration file of SPEC section 2, as a JSON-ready dictionary."""
         channels = {}
         for ch in self.channels:
-            entry = {
-                "direction": [float(v) for v in ch.direction],
-                "direction_sigma_deg": ch.direction_sigma_deg,
-                **ch.angles_deg,
-                "response": ch.response.to_json(),
-            }
+            entry = channel_entry(ch.direction, ch.response.to_json(), covariance=ch.direction_covariance,
+                                  response_sigma=None if ch.offset_sigma is None else (ch.offset_sigma, ch.gain_sigma))
             sig = ch.angles_sigma_deg
             if sig:
                 entry["angles_sigma_deg"] = sig
-            if ch.direction_covariance is not None:
-                entry["direction_covariance"] = np.asarray(ch.direction_covariance).tolist()
-            if ch.offset_sigma is not None:
-                entry["response_sigma"] = {"offset": ch.offset_sigma, "gain": ch.gain_sigma}
             channels[ch.name] = entry
-        out = {
-            "format": FORMAT,
+        out = header("fourflip") | {
             "channels": channels,
             "dip_deg": float(self.dip_deg),
             "dip_sigma_deg": self.dip_sigma_deg,
@@ -171,6 +165,34 @@ class CalibrationResult:
         }
         out.update(self.extra)
         return out
+
+    def plots(self, recording, folder) -> list:
+        """``fit.png`` (outputs against the fit) and ``residuals.png`` (before and after the diagnosis).
+
+        Parameters
+        ----------
+        recording : FourFlipRecording
+            The recording this result was fitted to.
+        folder : path
+        """
+        from pathlib import Path
+
+        from .plots import plot_fit, plot_residuals
+
+        folder = Path(folder)
+        used = self.used(recording)
+        return [plot_fit(used, self, folder / "fit.png"),
+                plot_residuals(used, self._residual_sets(recording), folder / "residuals.png", self.noise)]
+
+    def _residual_sets(self, recording) -> dict:
+        """Residuals before (base model) and after the diagnosis, or the one fit there is."""
+        if not self.diagnosis or len(self.diagnosis["steps"]) < 2:
+            return {self.method: self.residuals}
+        from .fourflip import calibrate_fourflip
+
+        base = calibrate_fourflip(recording, method="ml", field_ut=self.field_ut, diagnose=False)
+        return {"before (base model)": base.residuals,
+                "after (" + ", ".join(self.diagnosis["effects"]) + ")": self.residuals}
 
     def report(self) -> str:
         """A fit report for a person: values with +- sigma, warnings in words."""

@@ -55,12 +55,15 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 from scipy.stats import median_abs_deviation
 
-from .result import FORMAT
+from compass.calibration_file import header
+from compass.io.tumble import TumbleRecording
+
+from .contract import Calibration, Calibrator, CannotCalibrate, metadata_field_ut
 
 if TYPE_CHECKING:
     from .tumble_diagnose import TumbleDiagnosis
 
-__all__ = ["KINDS", "Coverage", "KindFit", "Misalignment", "TumbleResult", "sphere_coverage", "fit_ellipsoid",
+__all__ = ["KINDS", "Coverage", "KindFit", "Misalignment", "TumbleCalibrator", "TumbleResult", "sphere_coverage", "fit_ellipsoid",
            "fit_misalignment", "refine_jointly", "calibrate_tumble", "field_gravity_angles", "static_mask"]
 
 KINDS = ("offset", "diagonal", "full")
@@ -209,7 +212,7 @@ class Misalignment:
 
 
 @dataclass(frozen=True)
-class TumbleResult:
+class TumbleResult(Calibration):
     """A tumble calibration (SPEC section 2, ``"model": "tumble"``).
 
     Attributes
@@ -249,9 +252,30 @@ class TumbleResult:
     refused: str = ""
     diagnosis: TumbleDiagnosis | None = None
 
+    calibration_kind = "tumble"
+
     @property
     def kind(self) -> str:
+        """The chosen ellipsoid kind (``offset``, ``diagonal``, ``full``)."""
         return self.fit.kind
+
+    @property
+    def parameters(self) -> dict:
+        """``hard_iron[i]`` (recording units), ``soft_iron[i,j]`` (file units), ``field_norm``: value and sigma."""
+        fit = self.fit
+        out = {f"hard_iron[{i}]": (float(v), float(e)) for i, (v, e) in enumerate(zip(fit.hard_iron, fit.hard_iron_sigma))}
+        for (i, j), v in np.ndenumerate(self.soft_iron):
+            out[f"soft_iron[{i},{j}]"] = (float(v), float(fit.soft_iron_sigma[i, j] * self.scale))
+        out["field_norm"] = (self.field_norm, None if self.field_ut else float(fit.field_norm_sigma))
+        return out
+
+    def plots(self, recording, folder) -> list:
+        """``tumble.png``: |B| before and after, per sample (:func:`calibrate.plots.plot_tumble`)."""
+        from pathlib import Path
+
+        from .plots import plot_tumble
+
+        return [plot_tumble(recording.mag, self, Path(folder) / "tumble.png")]
 
     @property
     def hard_iron(self) -> np.ndarray:
@@ -295,9 +319,7 @@ class TumbleResult:
         if self.refused:
             raise ValueError(f"a refused tumble calibration has no calibration file: {self.refused}")
         fit, mis = self.fit, self.misalignment
-        return {
-            "format": FORMAT,
-            "model": "tumble",
+        return header("tumble") | {
             "hard_iron": fit.hard_iron.tolist(),
             "soft_iron": self.soft_iron.tolist(),
             "field_norm": self.field_norm,
@@ -851,3 +873,35 @@ def _widening(raw: np.ndarray, accel: np.ndarray, mag_cal: np.ndarray, rotation:
             f"from {before:.3g} deg (raw) to {after:.3g} deg, so the raw readings agree better with gravity than the "
             "calibrated ones: the field changed during the recording (a magnet or magnetised part attached or moved "
             "partway), which no single ellipsoid describes")
+
+
+class TumbleCalibrator(Calibrator):
+    """Free-motion (tumble) calibration: ellipsoid, coverage, magnetometer-accelerometer rotation.
+
+    Parameters
+    ----------
+    ellipsoid : {"auto", "offset", "diagonal", "full"}
+        The ellipsoid kind (auto: the determined kind with the lowest BIC).
+    field_ut : float, optional
+        Known |B| (the file's ``soft_iron`` then gives uT); default the recording's
+        ``# field_ut:`` metadata.
+
+    Notes
+    -----
+    The residual diagnosis always runs (the refusal of a field that changed partway rests on it).
+    """
+
+    kind = "tumble"
+    draws_plots = True
+
+    def __init__(self, *, ellipsoid: str = "auto", field_ut: float | None = None):
+        self.ellipsoid, self.field_ut = ellipsoid, field_ut
+
+    def fit(self, recording: TumbleRecording) -> TumbleResult:
+        field_ut = self.field_ut if self.field_ut is not None else metadata_field_ut(recording.path,
+                                                                                      recording.metadata)
+        result = calibrate_tumble(recording.mag, recording.accel, kind=self.ellipsoid, field_ut=field_ut,
+                                  n_repeats=recording.n_repeats, t_s=recording.t_s, temp_c=recording.temp_c)
+        if result.refused:
+            raise CannotCalibrate(f"{recording.path}: {result.refused}")
+        return result

@@ -23,20 +23,16 @@ A tumble calibration (``"model": "tumble"``: ``m = soft_iron @ (raw - hard_iron)
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from functools import cached_property
-from pathlib import Path
-
 import numpy as np
 
-from .response import LinearResponse, Response, response_from_json
+from .calibration_file import FORMAT, header
+from .response import LinearResponse, Response
 from .temperature import TemperatureCompensation
 
 __all__ = ["FORMAT", "SensorModel"]
 
-FORMAT = "compass-calibration/1"
-_TUMBLE_CHANNELS = ("mx", "my", "mz")
 _MIN_SINGULAR = 1e-3  # smallest singular value of A (unit rows) accepted: axes must span 3-D
 _SLOPE_STEP = 1e-4  # relative step of the numerical response slope (nonlinear channels only)
 
@@ -108,81 +104,31 @@ class SensorModel:
 
     @classmethod
     def from_file(cls, path) -> "SensorModel":
-        """Read a calibration file (SPEC section 2).
+        """Read a calibration file (SPEC section 2) through :func:`compass.calibration_file.load`.
 
         Raises
         ------
-        ValueError
-            Unreadable or not JSON, unknown ``format``, or missing/invalid keys; the message names
-            the file.
+        CalibrationFileError
+            A ``ValueError`` naming the file and the key: unreadable, not JSON, unknown
+            ``format`` or kind, or a missing/invalid key.
         """
-        path = Path(path)
-        try:
-            d = json.loads(path.read_text(encoding="utf-8"))
-        except OSError as exc:
-            raise ValueError(f"{path}: cannot read calibration file ({exc.strerror})") from None
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise ValueError(f"{path}: not a JSON calibration file ({exc})") from None
-        try:
-            return cls.from_json(d)
-        except ValueError as exc:
-            raise ValueError(f"{path}: {exc}") from None
+        from .calibration_file import load
+
+        return load(path).model
 
     @classmethod
     def from_json(cls, d: dict) -> "SensorModel":
-        """Build the model from a calibration file's dictionary (channel or tumble form).
+        """Build the model from a calibration file's dictionary (any kind), validated.
 
         Raises
         ------
-        ValueError
-            ``format`` other than ``compass-calibration/1``, or missing/invalid keys.
+        CalibrationFileError
+            A ``ValueError`` naming the key: ``format`` other than ``compass-calibration/1``,
+            unknown kind, or a missing/invalid key.
         """
-        if not isinstance(d, dict):
-            raise ValueError(f"expected a JSON object, got {type(d).__name__}")
-        fmt = d.get("format")
-        if fmt != FORMAT:
-            raise ValueError(f"unknown calibration format {fmt!r}: this reader knows only {FORMAT!r}")
-        field_ut = _optional_float(d, "field_ut")
-        dip_deg = _optional_float(d, "dip_deg")
-        if d.get("model") == "tumble":
-            return _from_tumble(d, field_ut, dip_deg)
-        if d.get("model") is not None:
-            raise ValueError(f"unknown calibration model {d['model']!r} (known: tumble, or none for channels)")
-        channels = d.get("channels")
-        if not isinstance(channels, dict) or not channels:
-            raise ValueError("expected 'channels': an object of channel name -> direction and response")
-        names, directions, responses, covariances, sigmas = [], [], [], [], []
-        for name, ch in channels.items():
-            where = f"channel '{name}'"
-            if not isinstance(ch, dict):
-                raise ValueError(f"{where}: expected an object with 'direction' and 'response'")
-            try:
-                direction = np.asarray(ch["direction"], dtype=float)
-            except (KeyError, TypeError, ValueError) as exc:
-                raise ValueError(f"{where}: expected 'direction': [x, y, z] ({exc})") from None
-            if direction.shape != (3,) or not np.isclose(np.linalg.norm(direction), 1.0, atol=1e-6):
-                raise ValueError(f"{where}: 'direction' must be a unit vector [x, y, z], got {ch['direction']}")
-            names.append(name)
-            directions.append(direction)
-            responses.append(response_from_json(ch.get("response", {}), where=f"{where} response"))
-            cov = ch.get("direction_covariance")
-            covariances.append(None if cov is None else _matrix(cov, f"{where} direction_covariance"))
-            rs = ch.get("response_sigma")
-            sigmas.append(None if rs is None else (_optional_float(rs, "offset"), _optional_float(rs, "gain")))
-        noise = d.get("noise_floor")
-        gains = np.array([r.gain for r in responses])
-        return cls(
-            channels=tuple(names),
-            directions=np.array(directions),
-            responses=tuple(responses),
-            field_magnitude=field_ut or 1.0,
-            field_ut=field_ut,
-            dip_deg=dip_deg,
-            noise=None if noise is None else _vector(noise, len(names), "noise_floor"),
-            direction_covariance=None if any(c is None for c in covariances) else np.array(covariances),
-            response_sigma=(None if any(s is None or None in s for s in sigmas) else np.array(sigmas, dtype=float)),
-            temperature=TemperatureCompensation.from_effects(d.get("effects"), names, gains),
-        )
+        from .calibration_file import from_dict
+
+        return from_dict(d).model
 
     def to_json(self) -> dict:
         """The calibration file's runtime keys (channel form), JSON-ready.
@@ -199,7 +145,7 @@ class SensorModel:
                 entry["response_sigma"] = {"offset": float(self.response_sigma[c, 0]),
                                            "gain": float(self.response_sigma[c, 1])}
             channels[name] = entry
-        out = {"format": FORMAT, "channels": channels, "dip_deg": self.dip_deg, "field_ut": self.field_ut}
+        out = header("channels") | {"channels": channels, "dip_deg": self.dip_deg, "field_ut": self.field_ut}
         if self.temperature is not None and self.temperature.reference_c is not None:
             out["effects"] = [self.temperature.to_json(self.channels)]
         if self.noise is not None:
@@ -355,68 +301,3 @@ def _times(rows: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     """``rows @ matrix`` for many rows (einsum: ``@`` goes through a multithreaded BLAS that
     slows down many-fold on a busy machine for such thin products)."""
     return np.einsum("...i,ij->...j", rows, matrix)
-
-
-def _from_tumble(d: dict, field_ut, dip_deg) -> SensorModel:
-    """The channel form of a tumble calibration (see the module docstring)."""
-    soft = _matrix(d.get("soft_iron"), "soft_iron")
-    hard = _vector(d.get("hard_iron"), 3, "hard_iron")
-    field_norm = _optional_float(d, "field_norm")
-    if field_norm is None or not field_norm > 0:
-        raise ValueError(f"tumble calibration: 'field_norm' must be a positive number, got {d.get('field_norm')!r}")
-    rot = np.eye(3) if d.get("mag_to_accel") is None else _matrix(d["mag_to_accel"], "mag_to_accel")
-    if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-6) or np.linalg.det(rot) < 0:
-        raise ValueError("tumble calibration: 'mag_to_accel' must be a rotation matrix")
-    if abs(np.linalg.det(soft)) < 1e-12:
-        raise ValueError("tumble calibration: 'soft_iron' is singular")
-    g = np.linalg.solve(soft, rot.T)  # raw - hard_iron = g @ B_H
-    gains = np.linalg.norm(g, axis=1)
-    span = (-field_norm, field_norm)
-    # per-axis noise in recording units: a list, or calibrate.tumble's scalar under 'diagnosis'
-    noise = d.get("noise_floor", (d.get("diagnosis") or {}).get("noise_floor"))
-    if noise is not None and np.ndim(noise) == 0:
-        noise = [noise] * 3
-    return SensorModel(
-        channels=_TUMBLE_CHANNELS,
-        directions=g / gains[:, None],
-        responses=tuple(LinearResponse(float(o), float(k), span) for o, k in zip(hard, gains)),
-        field_magnitude=field_norm,
-        field_ut=field_ut,
-        dip_deg=dip_deg,
-        noise=None if noise is None else _vector(noise, 3, "noise_floor"),
-        kind="tumble",
-        temperature=TemperatureCompensation.from_effects(d.get("effects"), _TUMBLE_CHANNELS, gains),
-    )
-
-
-def _optional_float(d: dict, key: str) -> float | None:
-    value = d.get(key)
-    if value is None:
-        return None
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"'{key}' must be a number or null, got {value!r}") from None
-    if not np.isfinite(out):
-        raise ValueError(f"'{key}' must be finite, got {value!r}")
-    return out
-
-
-def _vector(value, n: int, key: str) -> np.ndarray:
-    try:
-        out = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        out = None
-    if out is None or out.shape != (n,) or not np.all(np.isfinite(out)):
-        raise ValueError(f"'{key}' must be a list of {n} finite numbers, got {value!r}")
-    return out
-
-
-def _matrix(value, key: str) -> np.ndarray:
-    try:
-        out = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        out = None
-    if out is None or out.shape != (3, 3) or not np.all(np.isfinite(out)):
-        raise ValueError(f"'{key}' must be a 3x3 list of finite numbers, got {value!r}")
-    return out

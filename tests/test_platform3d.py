@@ -6,7 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from calibrate.platform3d import NotIdentifiable, axis_geometry, calibrate_platform3d
+from calibrate.contract import CannotCalibrate as NotIdentifiable
+from calibrate.platform3d import axis_geometry, calibrate_platform3d
 from compass.attitude import solve_attitude
 from compass.cli import main
 from tests.conftest import assert_calibrate_refuses

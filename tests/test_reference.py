@@ -5,7 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from calibrate.reference import DegenerateReference, calibrate_reference
+from calibrate.contract import CannotCalibrate as DegenerateReference
+from calibrate.reference import calibrate_reference
 from compass.cli import main
 from tests.conftest import assert_calibrate_refuses
 from compass.io.reference import read_reference

@@ -29,7 +29,7 @@ seed (``--seed .. --seed + n - 1``), so two runs print the same table apart from
    formula (1) taken literally (the known field regressed on the outputs, ``B = K V - B0``,
    written here: the toolkit has no such routine) and the raw sensor (``K = I``, ``V0 = 0``).
    Then the refusal of degenerate fields (``calibrate.reference._design_check``, raising
-   ``DegenerateReference``; the reader's ``MIN_FIELDS`` check comes first for a file) counted
+   ``CannotCalibrate``; the reader's ``MIN_FIELDS`` check comes first for a file) counted
    over seeded coplanar sessions and sessions with 3 and 4 fields, with random fields as control.
 3. **Tumble diagnosis**: 3000-sample simulated tumbles, ``--tumble-seeds`` per case: clean,
    offset drift (warm-up and linear), temperature (offset and gain), and a 2 uT hard-iron step
@@ -79,7 +79,8 @@ import numpy as np  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 from calibrate.platform3d import axis_geometry, calibrate_platform3d  # noqa: E402
-from calibrate.reference import DegenerateReference, calibrate_reference  # noqa: E402
+from calibrate.contract import CannotCalibrate  # noqa: E402
+from calibrate.reference import calibrate_reference  # noqa: E402
 from calibrate.result import FORMAT  # noqa: E402
 from calibrate.tumble import calibrate_tumble  # noqa: E402
 from compass.attitude import solve_attitude  # noqa: E402
@@ -437,8 +438,8 @@ def run_refusals(seeds, workdir: Path) -> list:
                     path, _ = write_reference(sim, workdir / f"deg_{len(out)}_{seed}.csv")
                     rec = read_reference(path)
                 res = calibrate_reference(rec)
-            except DegenerateReference:
-                counts["refused by the fit (DegenerateReference)"] += 1
+            except CannotCalibrate:
+                counts["refused by the fit (CannotCalibrate)"] += 1
             except RecordingError:
                 counts["refused by the reader (RecordingError)"] += 1
             else:
@@ -475,7 +476,7 @@ def print_reference(r: dict, refusals: list, n: int, seed: int, n_fields: int, n
     if r["warnings"]:
         print("  fit warnings: " + "; ".join(f"{k} x{v}" for k, v in r["warnings"].most_common()))
     print(f"\n(2b) Degenerate reference fields, {n_ref_seeds} seeds each (2 sensors): what happens")
-    outcomes = ["refused by the fit (DegenerateReference)", "refused by the reader (RecordingError)",
+    outcomes = ["refused by the fit (CannotCalibrate)", "refused by the reader (RecordingError)",
                 "accepted with a warning", "accepted"]
     row("case", ["fit refused", "reader refused", "warned", "accepted"], width=15, first=34)
     for label, counts in refusals:

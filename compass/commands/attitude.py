@@ -69,9 +69,8 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
         Bad input (exit status 2 on the command line).
     """
     from ..attitude import solve_attitude
+    from ..calibration_file import load
     from ..cli import BadInput
-    from ..io.platform3d import TiltSensor
-    from ..model import SensorModel
 
     out = check_writable(out, force)
     if not accel_noise_g > 0:
@@ -84,14 +83,13 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     except ValueError as exc:
         raise BadInput(str(exc)) from None
     try:
-        model = SensorModel.from_file(calibration)
-        document = _document(calibration)
-        tilt_sensor = TiltSensor.from_json(document) if "tilt_sensor" in document else None
-        source = "site"
-        if site is None and document.get("site") is not None:
-            site, source = Site.from_json(document["site"]), "calibration site"
+        cal = load(calibration)
     except ValueError as exc:
         raise BadInput(exc if str(calibration) in str(exc) else f"{calibration}: {exc}") from None
+    model, tilt_sensor = cal.model, cal.tilt_sensor
+    source = "site"
+    if site is None and cal.sections.get("site") is not None:
+        site, source = cal.sections["site"], "calibration site"
     table = read_table(recording)
     known = set(model.channels) | set(_ACCEL) | set(_TILT) | set(_IGNORED) | {"temp_c"}
     for name in table.columns:
@@ -147,15 +145,6 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     print(f"wrote {out} ({len(raw)} rows, mode {result.mode}; {int(np.sum(result.disturbed))} disturbed against the "
           f"{result.reference.source} reference, {int(np.sum(~result.in_range))} out of calibrated range)")
     return result
-
-
-def _document(calibration) -> dict:
-    """The calibration file's JSON object (already validated by :meth:`SensorModel.from_file`)."""
-    import json
-    from pathlib import Path
-
-    data = json.loads(Path(calibration).read_text(encoding="utf-8"))
-    return data if isinstance(data, dict) else {}
 
 
 def _group(table, names) -> np.ndarray | None:

@@ -1,14 +1,16 @@
-"""``compass calibrate REC.csv --out CAL.json``: fit, diagnose, write the calibration file."""
+"""``compass calibrate REC.csv --out CAL.json``: fit, diagnose, write the calibration file.
+
+The command line layer on top of both packages: it loops over :data:`calibrate.kinds.KINDS` (each
+kind's column sniffer, reader and calibrator) and writes through :mod:`compass.calibration_file`.
+This module is the only one in ``compass`` that imports ``calibrate``.
+"""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from ..io.atomic import atomic_write_text, check_writable
-from ..io.fourflip import fourflip_from_table
 from ..io.table import read_table
-from ..io.tumble import tumble_from_table
 
 
 def register(sub) -> None:
@@ -22,7 +24,8 @@ def register(sub) -> None:
     p.add_argument("--no-diagnose", action="store_true", help="skip the residual diagnosis loop")
     p.add_argument("--report", metavar="DIR", help="also write plots of fit and residuals into DIR")
     p.add_argument("--field-ut", type=float, default=None, help="|B| in uT (overrides '# field_ut:' metadata)")
-    p.add_argument("--kind", choices=("fourflip", "platform3d", "reference", "tumble"), default=None, help="force the recording kind")
+    p.add_argument("--kind", default=None, help="force the recording kind (fourflip, platform3d, reference, tumble, "
+                                                "or any kind in calibrate.kinds.KINDS)")
     p.add_argument("--ellipsoid", choices=("auto", "offset", "diagonal", "full"), default="auto",
                    help="tumble only: ellipsoid kind (default auto: the determined kind with the lowest BIC)")
     p.add_argument("--force", action="store_true", help="overwrite an existing calibration file")
@@ -37,132 +40,64 @@ def run(args) -> int:
     return 0
 
 
+OPTIONS = {"method": ("--method", "ml"), "diagnose": ("--no-diagnose", True), "field_ut": ("--field-ut", None),
+           "ellipsoid": ("--ellipsoid", "auto")}
+"""Calibrator option -> (command-line flag, default): passed to the kinds whose calibrator takes it."""
+
+
 def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, field_ut=None, kind=None,
                    force=False, quiet=False, ellipsoid="auto"):
-    """Calibrate one recording file into a calibration file; returns the CalibrationResult.
+    """Calibrate one recording file into a calibration file; returns the Calibration.
+
+    The kind comes from the columns (:func:`calibrate.kinds.sniff`) unless ``kind`` names one; its
+    calibrator gets the options its constructor takes, and an option it would ignore is refused.
 
     Raises
     ------
     RecordingError, BadInput, FileExistsError
         Bad input (exit status 2 on the command line).
     """
+    from calibrate.contract import CannotCalibrate
+    from calibrate.kinds import KINDS, sniff
+
+    from ..calibration_file import CalibrationFileError, dumps
     from ..cli import BadInput
 
     out = check_writable(out, force)
     table = read_table(recording)
-    if kind is None and table.has("flip_deg"):
-        kind = "fourflip"
-    elif kind is None and table.has("platform_z_deg"):
-        kind = "platform3d"
-    elif kind is None and any(c.endswith("bx_ref") for c in table.columns):
-        kind = "reference"
-    elif kind is None and all(table.has(c) for c in ("mx", "my", "mz")):
-        kind = "tumble"
-    if kind is None:
+    if kind is not None and kind not in KINDS:
+        raise BadInput(f"--kind {kind}: unknown kind; known: {', '.join(KINDS)}")
+    found = KINDS[kind] if kind is not None else sniff(table)
+    if found is None:
         raise BadInput(f"{recording}: cannot tell the recording kind from its columns "
-                       f"({', '.join(table.columns)}); a four-flip recording has flip_deg, a 3-D platform one "
-                       f"platform_z_deg, a reference-field one bx_ref, a tumble mx,my,mz")
+                       f"({', '.join(table.columns)}); " + ", ".join(f"a {k.name} recording has {k.columns}"
+                                                                     for k in KINDS.values()))
     if field_ut is not None and not field_ut > 0:
         raise BadInput(f"--field-ut must be positive, got {field_ut}")
-    _refuse_ignored_options(recording, kind, method=method, diagnose=diagnose, report=report, field_ut=field_ut,
-                            ellipsoid=ellipsoid)
+    given = {"method": method, "diagnose": diagnose, "field_ut": field_ut, "ellipsoid": ellipsoid}
+    takes = found.calibrator.options()
+    ignored = [OPTIONS[name][0] for name, value in given.items() if name not in takes and value != OPTIONS[name][1]]
+    ignored += ["--report"] * (report is not None and not found.calibrator.draws_plots)
+    if ignored:
+        raise BadInput(f"{recording}: a {found.name} recording does not use {', '.join(ignored)}")
     if report is not None and Path(report).exists() and not Path(report).is_dir():
         raise BadInput(f"--report {report}: is a file, expected a folder")
-    if kind == "tumble":
-        return _calibrate_tumble(table, out, field_ut=field_ut, ellipsoid=ellipsoid, quiet=quiet, report=report)
-    if kind in ("platform3d", "reference"):
-        return _calibrate_other(kind, table, out, field_ut=field_ut, diagnose=diagnose, quiet=quiet)
-    rec = fourflip_from_table(table)
-
-    from calibrate import calibrate_fourflip
-
-    result = calibrate_fourflip(rec, method=method, field_ut=field_ut, diagnose=diagnose,
-                                progress=None if quiet else (lambda text: print(f"  ... {text}", flush=True)))
-    if not quiet:
-        print(result.report())
-    atomic_write_text(out, json.dumps(result.to_json(), indent=2) + "\n")
-    print(f"wrote {out}")
-    if report:
-        from calibrate.plots import plot_fit, plot_residuals
-
-        folder = Path(report)
-        used = result.used(rec)
-        paths = [plot_fit(used, result, folder / "fit.png"),
-                 plot_residuals(used, _residual_sets(rec, result), folder / "residuals.png", result.noise)]
-        print("wrote " + ", ".join(str(p) for p in paths))
-    return result
-
-
-def _refuse_ignored_options(recording, kind, *, method, diagnose, report, field_ut, ellipsoid) -> None:
-    """BadInput for an option the recording's kind would silently ignore (checked before any work)."""
-    from ..cli import BadInput
-
-    ignored = []
-    if kind != "fourflip":
-        ignored += ["--method"] * (method != "ml") + ["--report"] * (report is not None and kind != "tumble")
-    if kind == "tumble" and not diagnose:
-        ignored.append("--no-diagnose")  # the tumble fit always runs its diagnosis
-    if kind == "reference" and field_ut is not None:
-        ignored.append("--field-ut")
-    if kind != "tumble" and ellipsoid != "auto":
-        ignored.append("--ellipsoid")
-    if ignored:
-        raise BadInput(f"{recording}: a {kind} recording does not use {', '.join(ignored)}")
-
-
-def _residual_sets(rec, result) -> dict:
-    """Residuals before (base model) and after the diagnosis, or the one fit there is."""
-    if not result.diagnosis or len(result.diagnosis["steps"]) < 2:
-        return {result.method: result.residuals}
-    from calibrate import calibrate_fourflip
-
-    base = calibrate_fourflip(rec, method="ml", field_ut=result.field_ut, diagnose=False)
-    return {"before (base model)": base.residuals, "after (" + ", ".join(result.diagnosis["effects"]) + ")": result.residuals}
-
-
-def _calibrate_tumble(table, out, *, field_ut, ellipsoid, quiet, report=None):
-    """Tumble recordings (SPEC section 2): ellipsoid, coverage, mag-to-accel rotation."""
-    from calibrate.tumble import calibrate_tumble
-
-    rec = tumble_from_table(table)
-    field_ut = field_ut if field_ut is not None else table.metadata_float("field_ut")
-    result = calibrate_tumble(rec.mag, rec.accel, kind=ellipsoid, field_ut=field_ut, n_repeats=rec.n_repeats,
-                              t_s=rec.t_s, temp_c=rec.temp_c)
-    if result.refused:
-        from ..cli import BadInput
-
-        raise BadInput(f"{table.path}: {result.refused}")
-    if not quiet:
-        print(result.report())
-    atomic_write_text(out, json.dumps(result.to_json(), indent=2) + "\n")
-    print(f"wrote {out}")
-    if report:
-        from calibrate.plots import plot_tumble
-
-        print(f"wrote {plot_tumble(rec.mag, result, Path(report) / 'tumble.png')}")
-    return result
-
-
-def _calibrate_other(kind, table, out, *, field_ut, diagnose, quiet):
-    """3-D platform (seed 001) and reference-field (seed 003) recordings: fit, report, write."""
-    from ..cli import BadInput
-
-    if kind == "platform3d":
-        from calibrate.platform3d import NotIdentifiable as Undetermined
-        from calibrate.platform3d import calibrate_platform3d as fit
-
-        from ..io.platform3d import platform3d_from_table as parse
-    else:
-        from calibrate.reference import DegenerateReference as Undetermined
-        from calibrate.reference import calibrate_reference as fit
-
-        from ..io.reference import reference_from_table as parse
+    rec = found.read(table)
+    options = {name: value for name, value in given.items() if name in takes}
+    if "progress" in takes and not quiet:
+        options["progress"] = lambda text: print(f"  ... {text}", flush=True)
     try:
-        result = fit(parse(table), diagnose=diagnose, **({"field_ut": field_ut} if kind == "platform3d" else {}))
-    except Undetermined as exc:  # the recording cannot determine the model: bad input
+        result = found.calibrator(**options).fit(rec)
+        text = dumps(result.to_json())
+    except CannotCalibrate as exc:  # the recording cannot determine the model: bad input
         raise BadInput(str(exc)) from None
+    except CalibrationFileError as exc:  # never write a calibration the runtime would refuse
+        raise BadInput(f"{recording}: the fit gives an unusable calibration, not written: {exc}") from None
     if not quiet:
         print(result.report())
-    atomic_write_text(out, json.dumps(result.to_json(), indent=2) + "\n")
+    atomic_write_text(out, text)
     print(f"wrote {out}")
+    if report:
+        paths = result.plots(rec, report)
+        print("wrote " + ", ".join(str(p) for p in paths))
     return result

@@ -7,7 +7,6 @@ with the calibration and compares them with the truth.
 
 from __future__ import annotations
 
-import json
 import tempfile
 from pathlib import Path
 
@@ -23,6 +22,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from ..calibration_file import load
     from ..sim.fourflip import SIM_EFFECTS, simulate_fourflip, write_fourflip
     from ..sim.runtime import simulate_runtime, write_runtime
     from . import attitude as attitude_cmd
@@ -41,7 +41,7 @@ def run(args) -> int:
     cal_path = folder / "cal.json"
     print("2. calibrating it (joint maximum likelihood, residual diagnosis):")
     calibrate_cmd.calibrate_file(rec_path, cal_path, report=folder / "report", force=True)
-    cal = json.loads(cal_path.read_text())
+    cal = load(cal_path).data
     truth = session.truth
     print("   against the simulator's truth (the estimator never saw it):")
     for name, true_dir in zip(truth["channels"], truth["directions"]):

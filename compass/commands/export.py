@@ -4,6 +4,8 @@
   computes ``softIronMatrix * (uncalibrated - hardIronOffset)``, the same form as the calibration file;
   the magnetometer-to-accelerometer rotation, when fitted, is folded into the matrix
   (``C @ soft_iron``) because Fusion expects the magnetometer in the sensor (accelerometer) frame.
+  The initialisers are fully braced C float literals (``{{{1.0f, 0.0f, ...}, ...}}``: Fusion's types
+  are unions whose first member is the array), so they compile as C and C++ with every warning on.
 - ``ardupilot``: AP_Compass adds ``COMPASS_OFS`` then multiplies by the symmetric matrix of
   ``COMPASS_DIA`` (diagonal) and ``COMPASS_ODI`` (xy, xz, yz), in milligauss.  So
   ``OFS = -hard_iron`` converted to milligauss and the matrix is the soft iron's shape (det 1).
@@ -12,17 +14,17 @@
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
+import sys
 
 import numpy as np
 
 from ..io.atomic import atomic_write_text, check_writable
 
-__all__ = ["register", "export_text"]
+__all__ = ["register", "export_text", "load_tumble", "unit_note"]
 
 FORMATS = ("fusion", "ardupilot")
 _MGAUSS_PER_UNIT = {"uT": 10.0, "nT": 0.01, "gauss": 1000.0, "mgauss": 1.0}
+_EARTH_UT = (20.0, 70.0)  # the Earth's field anywhere, uT (WMM: about 22-67)
 
 
 def register(sub) -> None:
@@ -37,7 +39,11 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    text = export_text(load_tumble(args.calibration), args.format, unit=args.unit)
+    cal = load_tumble(args.calibration)
+    note = unit_note(cal, args.unit)
+    if note:
+        print(f"compass export: warning: {args.calibration}: {note}", file=sys.stderr)
+    text = export_text(cal, args.format, unit=args.unit)
     if args.out:
         out = check_writable(args.out, args.force)
         atomic_write_text(out, text)
@@ -48,30 +54,51 @@ def run(args) -> int:
 
 
 def load_tumble(path) -> dict:
-    """Read a tumble calibration file; BadInput (exit 2) for anything else."""
+    """Read a tumble calibration file through :func:`compass.calibration_file.load`; BadInput (exit 2) else.
+
+    Returns
+    -------
+    dict
+        ``hard_iron`` (3,), ``soft_iron`` (3, 3), ``mag_to_accel`` (3, 3) or None, numpy arrays
+        (validated: finite, soft iron symmetric positive definite, a proper rotation), and
+        ``field_norm_recording_units`` (|B| in the recording's unit, float or None).
+    """
+    from ..calibration_file import load
     from ..cli import BadInput
 
     try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise BadInput(f"{path}: cannot read file ({exc.strerror})") from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise BadInput(f"{path}: not a JSON calibration file ({exc})") from None
-    if not isinstance(data, dict) or data.get("format") != "compass-calibration/1":
-        fmt = data.get("format") if isinstance(data, dict) else None
-        raise BadInput(f"{path}: unknown calibration format {fmt!r}; expected 'compass-calibration/1'")
-    if data.get("model") != "tumble":
+        cal = load(path)
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    if cal.kind != "tumble":
         raise BadInput(f"{path}: export needs a tumble calibration (\"model\": \"tumble\"); this file is "
-                       f"{data.get('model', 'a four-flip calibration')!r}")
-    try:
-        h = np.asarray(data["hard_iron"], dtype=float).reshape(3)
-        s = np.asarray(data["soft_iron"], dtype=float).reshape(3, 3)
-        c = None if data.get("mag_to_accel") is None else np.asarray(data["mag_to_accel"], float).reshape(3, 3)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise BadInput(f"{path}: hard_iron must be 3 numbers, soft_iron and mag_to_accel 3x3 ({exc})") from None
-    if not (np.all(np.isfinite(h)) and np.all(np.isfinite(s)) and np.linalg.det(s) > 0):
-        raise BadInput(f"{path}: soft_iron must be finite with a positive determinant")
-    return {"hard_iron": h, "soft_iron": s, "mag_to_accel": c}
+                       f"a {cal.kind} calibration")
+    d = cal.data
+    c = d.get("mag_to_accel")
+    norm = (d.get("tumble") or {}).get("field_norm_recording_units") if isinstance(d.get("tumble"), dict) else None
+    if norm is None and d.get("field_ut") is None:
+        norm = d["field_norm"]  # no |B| given: the file's field norm is in the recording's unit
+    return {"hard_iron": np.asarray(d["hard_iron"], float), "soft_iron": np.asarray(d["soft_iron"], float),
+            "mag_to_accel": None if c is None else np.asarray(c, float),
+            "field_norm_recording_units": None if not isinstance(norm, (int, float)) else float(norm)}
+
+
+def unit_note(cal: dict, unit: str) -> str:
+    """Words for a field norm that is not Earth's in ``unit`` (25-65 uT), else "".
+
+    The hard-iron offsets are in the recording's unit; exported as ``unit`` they are wrong by the
+    unit's factor when the recording was in another one.
+    """
+    norm = cal.get("field_norm_recording_units")
+    if norm is None:
+        return ""
+    ut = norm * _MGAUSS_PER_UNIT[unit] / _MGAUSS_PER_UNIT["uT"]
+    if _EARTH_UT[0] <= ut <= _EARTH_UT[1]:
+        return ""
+    fits = [u for u, f in _MGAUSS_PER_UNIT.items() if _EARTH_UT[0] <= norm * f / _MGAUSS_PER_UNIT["uT"] <= _EARTH_UT[1]]
+    hint = f"; the recording looks like it is in {' or '.join(fits)} (--unit {fits[0]})" if fits else ""
+    return (f"its field norm is {norm:.4g} in the recording's unit, which as {unit} would be {ut:.4g} uT, not "
+            f"Earth's {_EARTH_UT[0]:g}-{_EARTH_UT[1]:g} uT: the offsets are exported as {unit} all the same{hint}")
 
 
 def export_text(cal: dict, fmt: str, *, unit: str = "uT") -> str:
@@ -80,7 +107,8 @@ def export_text(cal: dict, fmt: str, *, unit: str = "uT") -> str:
     Parameters
     ----------
     cal : dict
-        ``hard_iron`` (3,), ``soft_iron`` (3, 3), ``mag_to_accel`` (3, 3) or None, as numpy arrays.
+        ``hard_iron`` (3,), ``soft_iron`` (3, 3), ``mag_to_accel`` (3, 3) or None, as numpy arrays
+        (:func:`load_tumble`); optional ``field_norm_recording_units`` for the unit check.
     fmt : {"fusion", "ardupilot"}
     unit : str
         Recording unit of the magnetometer (ArduPilot only).
@@ -93,13 +121,16 @@ def export_text(cal: dict, fmt: str, *, unit: str = "uT") -> str:
     if fmt == "fusion":
         m = s if c is None else c @ s
         note = "" if c is None else " (mag-to-accel rotation folded in)"
-        cells = ", ".join(f"{v:.7g}f" for v in m.ravel())
+        unit_line = f"// warning: {unit_note(cal, unit)}\n" if unit_note(cal, unit) else ""
         return (f"// compass export: x-io Fusion, FusionCalibrationMagnetic(m, softIronMatrix, hardIronOffset){note}\n"
-                f"const FusionMatrix softIronMatrix = {{{cells}}};\n"
-                f"const FusionVector hardIronOffset = {{{', '.join(f'{v:.7g}f' for v in h)}}};\n")
+                + unit_line +
+                f"const FusionMatrix softIronMatrix = {_braced(m)};\n"
+                f"const FusionVector hardIronOffset = {_braced(h)};\n")
     shape = s / np.cbrt(np.linalg.det(s))
     ofs = -h * _MGAUSS_PER_UNIT[unit]
     lines = ["# compass export: ArduPilot COMPASS_* (offsets in milligauss, matrix = soft-iron shape, det 1)"]
+    if unit_note(cal, unit):
+        lines.append(f"# warning: {unit_note(cal, unit)}")
     if c is not None:
         angle = np.degrees(np.arccos(np.clip((np.trace(c) - 1.0) / 2.0, -1.0, 1.0)))
         lines.append(f"# not exported: magnetometer-to-accelerometer rotation of {angle:.2f} deg (no ArduPilot parameter)")
@@ -107,3 +138,19 @@ def export_text(cal: dict, fmt: str, *, unit: str = "uT") -> str:
     lines += [f"COMPASS_DIA_{a},{v:.6f}" for a, v in zip("XYZ", np.diag(shape))]
     lines += [f"COMPASS_ODI_{a},{v:.6f}" for a, v in zip("XYZ", (shape[0, 1], shape[0, 2], shape[1, 2]))]
     return "\n".join(lines) + "\n"
+
+
+def c_float(v: float) -> str:
+    """A C ``float`` literal of ``v`` (7 significant digits): ``1.0f``, ``-2.5e-05f``, never ``1f``."""
+    text = f"{float(v):.7g}"
+    if not np.isfinite(v):
+        raise ValueError(f"cannot write {v} as a C float")
+    return (text if any(ch in text for ch in ".e") else text + ".0") + "f"
+
+
+def _braced(a: np.ndarray) -> str:
+    """A fully braced initialiser of a Fusion union whose first member is the array ``a`` (1-D or 2-D)."""
+    def inner(x) -> str:
+        return "{" + ", ".join(inner(v) if np.ndim(v) else c_float(v) for v in x) + "}"
+
+    return "{" + inner(a) + "}"

@@ -1,0 +1,165 @@
+"""The calibration file: one validated reader and writer for every command (issues 12 and 16)."""
+
+import json
+import math
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from compass.calibration_file import CalibrationFileError, dumps, from_dict, kind_of, load
+from compass.cli import main
+from compass.model import SensorModel
+from compass.response import LinearResponse
+
+
+def channel_doc() -> dict:
+    model = SensorModel(("v1", "v2", "v3"), np.eye(3), (LinearResponse(1.0, 2.0, (-1.0, 1.0)),) * 3, 1.0, dip_deg=60.0)
+    return model.to_json() | {"noise_floor": [0.01, 0.01, 0.01]}
+
+
+def tumble_doc() -> dict:
+    return {"format": "compass-calibration/1", "model": "tumble", "hard_iron": [1.0, -2.0, 3.0],
+            "soft_iron": np.diag([1.1, 0.9, 1.0]).tolist(), "field_norm": 50.0, "mag_to_accel": None,
+            "field_ut": 50.0, "dip_deg": 60.0, "noise_floor": [0.3] * 3}
+
+
+def nested(depth: int) -> str:
+    return "[" * depth + "]" * depth
+
+
+def set_key(doc: dict, dotted: str, value) -> dict:
+    *path, last = dotted.split("/")
+    d = doc
+    for k in path:
+        d = d[k]
+    d[last] = value
+    return doc
+
+
+BAD_CHANNEL = [  # (change, key named in the message); every one passed or raised KeyError/TypeError on main
+    ("channels/v1/response/offset", math.nan, "'response.offset' must be finite"),
+    ("channels/v1/response/gain", -2.0, "'response.gain' must be positive"),
+    ("channels/v1/response", {"model": "table", "offset": 0.0, "gain": 1.0, "range": [-1, 1]}, "'response.x'"),
+    ("channels/v1/response", {"model": "table", "offset": 0.0, "gain": 1.0, "range": [-1, 1], "x": 5, "v": 3},
+     "'response.x'"),
+    ("channels/v1/response", {"model": "table", "offset": 0.0, "gain": 1.0, "range": [-1, 1], "x": [0, 1],
+                              "v": [1, 0]}, "'response.v' must increase"),
+    ("channels/v1/response", {"model": "cubic", "offset": 0.0, "gain": 1.0, "range": [-10, 10], "cubic": -1.0},
+     "not monotone"),
+    ("channels/v1/response", ["linear", 0, 1], "'response' must be an object"),
+    ("channels/v1/response", "linear", "'response' must be an object"),
+    ("channels/v1/direction", [1.0, 0.0], "'direction' must be a list of 3 numbers"),
+    ("channels/v1/direction", [math.inf, 0.0, 0.0], "'direction' must be finite"),
+    ("dip_deg", 500.0, "'dip_deg' must be within [-90, 90]"),
+    ("noise_floor", [0.01, -0.01, 0.01], "'noise_floor' must not be negative"),
+    ("field_ut", -50.0, "'field_ut' must be positive"),
+    ("effects", [{"name": "temperature", "reference": [1], "parameters": {}}], "'effects' is malformed"),
+    ("model", "ellipsoid", "unknown calibration model 'ellipsoid'"),
+]
+
+BAD_TUMBLE = [
+    ("soft_iron", [[1.0, 0.2, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], "'soft_iron' must be symmetric"),
+    ("soft_iron", np.diag([1.0, -1.0, 1.0]).tolist(), "'soft_iron' must be positive definite"),
+    ("mag_to_accel", np.diag([1.0, 1.0, -1.0]).tolist(), "'mag_to_accel' must be a proper rotation"),
+    ("mag_to_accel", (2 * np.eye(3)).tolist(), "'mag_to_accel' must be a proper rotation"),
+    ("hard_iron", [1.0, math.nan, 0.0], "'hard_iron' must be finite"),
+    ("field_norm", 0.0, "'field_norm' must be positive"),
+    ("noise_floor", -1.0, "'noise_floor' must not be negative"),
+]
+
+
+@pytest.mark.parametrize("key, value, message", BAD_CHANNEL + [(k, v, m) for k, v, m in BAD_TUMBLE])
+def test_every_bad_value_is_refused_naming_the_file_and_key(tmp_path, key, value, message):
+    doc = set_key(tumble_doc() if any(key == k for k, _, _ in BAD_TUMBLE) else channel_doc(), key, value)
+    path = tmp_path / "cal.json"
+    path.write_text(json.dumps(doc))  # json writes NaN/Infinity literals, as a careless tool would
+    with pytest.raises(CalibrationFileError) as info:
+        load(path)
+    assert str(info.value).startswith(f"{path}: ") and message in str(info.value)
+
+
+@pytest.mark.parametrize("command", ["attitude", "export", "live", "device"])
+def test_every_command_refuses_a_bad_or_deeply_nested_calibration_with_exit_2(tmp_path, capsys, command):
+    rec = tmp_path / "rec.csv"
+    rec.write_text("mx,my,mz\n1,2,3\n")
+    for name, text in (("deep.json", nested(100_000)), ("nan.json", json.dumps(set_key(tumble_doc(), "hard_iron",
+                                                                                         [math.nan, 0, 0])))):
+        cal = tmp_path / name
+        cal.write_text(text)
+        argv = {"attitude": ["attitude", str(cal), str(rec), "--out", str(tmp_path / "att.csv")],
+                "export": ["export", str(cal), "--format", "fusion"],
+                "live": ["live", "--port", "/nonexistent/port", "--cal", str(cal)],
+                "device": ["device", "--pty", "--cal", str(cal), "--save-cal", str(tmp_path / "x.json")]}[command]
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert name in err and "rec.csv" not in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "att.csv").exists()
+
+
+def test_older_files_still_load():
+    old = channel_doc()
+    del old["model"]
+    assert kind_of(old) == "fourflip" and from_dict(old).model.channels == ("v1", "v2", "v3")
+    assert kind_of(old | {"method": "platform3d"}) == "platform3d"
+    assert kind_of(old | {"method": "ml"}) == "fourflip"
+
+
+def test_tilt_sensor_is_read_with_the_model():
+    doc = channel_doc() | {"tilt_sensor": {"columns": ["ax", "ay"], "matrix": [[1, 0, 0], [0, 1, 0]], "offset": [0, 0]}}
+    cal = from_dict(doc)
+    assert cal.tilt_sensor.columns == ("ax", "ay") and cal.model.channels == ("v1", "v2", "v3")
+    doc["tilt_sensor"]["offset"] = [0, math.nan]
+    with pytest.raises(CalibrationFileError, match="'tilt_sensor.offset' must be finite"):
+        from_dict(doc)
+
+
+def test_writer_never_writes_nan_or_infinity():
+    doc = channel_doc() | {"dip_sigma_deg": math.nan, "diagnosis": {"delta_bic": -math.inf}}
+    text = dumps(doc)
+    assert "NaN" not in text and "Infinity" not in text
+    assert json.loads(text)["dip_sigma_deg"] is None
+    with pytest.raises(CalibrationFileError, match="'response.gain' must be finite"):
+        dumps(set_key(channel_doc(), "channels/v2/response/gain", math.inf))
+
+
+# ------------------------------------------------------------------------------- export (issue 15.1)
+
+
+def test_c_float_literals_are_valid():
+    from compass.commands.export import c_float
+
+    assert [c_float(v) for v in (1.0, 0.0, -2.0, 1.5, 1e-5, 1e20)] == ["1.0f", "0.0f", "-2.0f", "1.5f", "1e-05f", "1e+20f"]
+
+
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="no C compiler on this machine")
+@pytest.mark.parametrize("rotated", [False, True])
+def test_fusion_export_compiles(tmp_path, capsys, rotated):
+    doc = tumble_doc() | {"soft_iron": np.eye(3).tolist()}  # the identity wrote {1f, 0f, ...} on main
+    if rotated:
+        doc["mag_to_accel"] = np.eye(3)[[1, 2, 0]].tolist()
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps(doc))
+    out = tmp_path / "cal.h"
+    assert main(["export", str(cal), "--format", "fusion", "--out", str(out)]) == 0
+    source = tmp_path / "main.c"
+    source.write_text("typedef union { float array[3][3]; struct { float xx, xy, xz, yx, yy, yz, zx, zy, zz; } "
+                      "element; } FusionMatrix;\n"  # x-io Fusion's FusionMath.h
+                      "typedef union { float array[3]; struct { float x, y, z; } axis; } FusionVector;\n"
+                      f'#include "{out.name}"\n'
+                      "int main(void) { return (int) (softIronMatrix.array[0][0] + hardIronOffset.array[0]); }\n")
+    done = subprocess.run(["gcc", "-std=c99", "-Wall", "-Werror", "-pedantic", "-c", str(source), "-o",
+                           str(tmp_path / "main.o")], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+
+
+def test_export_says_when_the_field_norm_is_not_in_ut(tmp_path, capsys):
+    doc = tumble_doc() | {"field_ut": None, "field_norm": 0.31, "soft_iron": np.eye(3).tolist()}
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps(doc))
+    assert main(["export", str(cal), "--format", "ardupilot"]) == 0
+    captured = capsys.readouterr()
+    assert "0.31" in captured.err and "gauss" in captured.err and "# warning:" in captured.out
+    assert main(["export", str(cal), "--format", "ardupilot", "--unit", "gauss"]) == 0
+    assert "warning" not in capsys.readouterr().err

@@ -1,0 +1,42 @@
+"""The layering the README states, read from the imports (issue 12, item 6).
+
+Data flows one way: recordings -> ``calibrate`` -> calibration file -> ``compass`` -> attitude.
+``compass`` (the runtime) never imports ``calibrate``; the one exception is the command-line layer
+that runs a calibration, ``compass/commands/calibrate.py``, which sits on top of both.
+"""
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+CLI_ON_TOP = {"compass/commands/calibrate.py"}
+
+
+def imported_modules(path: Path) -> set[str]:
+    """Absolute module names a file imports (relative imports resolved against its package)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    package = path.relative_to(ROOT).with_suffix("").parts[:-1]
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = list(package[:len(package) - node.level + 1]) if node.level else []
+            module = ".".join(base + ([node.module] if node.module else []))
+            names.add(module)
+    return names
+
+
+def test_compass_never_imports_calibrate_except_the_calibrate_command():
+    offenders = {}
+    for path in sorted((ROOT / "compass").rglob("*.py")):
+        rel = path.relative_to(ROOT).as_posix()
+        bad = sorted(m for m in imported_modules(path) if m == "calibrate" or m.startswith("calibrate."))
+        if bad and rel not in CLI_ON_TOP:
+            offenders[rel] = bad
+    assert offenders == {}
+
+
+def test_the_exception_is_real():
+    # the test above must be able to fail: the calibrate command does import calibrate
+    assert any(m.startswith("calibrate") for m in imported_modules(ROOT / "compass/commands/calibrate.py"))
