@@ -127,4 +127,6 @@ class MagneticGate:
         """Heading error variance of the accepted field itself, rad^2: the larger of the configured floor
         and the one measured from the wander of its dip."""
         c = self.coefficients
+        if not self.config.field_error_from_dip:
+            return c.env_floor_var
         return max(c.env_floor_var, state.dip_excess_var / c.cos_dip2)

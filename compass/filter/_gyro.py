@@ -210,7 +210,7 @@ class GyroFilter(AttitudeFilter):
                   and (gx - rx) ** 2 + (gy - ry) ** 2 + (gz - rz) ** 2 < limit2
                   and (ax - cx) ** 2 + (ay - cy) ** 2 + (az - cz) ** 2 < (_REST_ACCEL * s.gravity) ** 2)
         s.rest_s = s.rest_s + dt if steady else 0.0
-        if s.rest_s < self._REST_MIN_S:
+        if s.rest_s < self._REST_MIN_S or not self.config.rest_bias_estimation:
             return
         # the low-passed rate must also agree with the bias estimate (3 sigma): once the bias is known,
         # the onset of a slow turn is not taken for a bias change
@@ -250,7 +250,7 @@ class GyroFilter(AttitudeFilter):
         if not lp_norm > 0 or abs(lp_norm / g - 1.0) > cfg.accel_tolerance:
             return False
         var = cfg.accel_noise**2
-        if dt > 0.0:
+        if dt > 0.0 and cfg.motion_adaptive_accel:
             var += s.residual_var * 2.0 * cfg.motion_time_s / dt
         m = s.matrix
         ux, uy, uz = lx / lp_norm, ly / lp_norm, lz / lp_norm

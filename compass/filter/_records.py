@@ -88,6 +88,14 @@ class FilterConfig:
     field_range : float
         A field sample with ``|B| / reference`` above this is absurd (a magnetometer saturates long
         before): skipped.
+    rest_bias_estimation : bool
+        At rest the gyro reading measures its bias (VQF's ``restBiasEstEnabled``).
+    motion_adaptive_accel : bool
+        The tilt measurement's noise grows with the motion the accelerometer sees (False: the white
+        ``accel_noise`` only).
+    field_error_from_dip : bool
+        The field's heading error is measured from the wander of its dip (False: the floor
+        ``mag_heading_sigma_deg`` only).
     """
 
     field_norm: float
@@ -115,10 +123,13 @@ class FilterConfig:
     gyro_range_rad_s: float = math.radians(4000.0)
     accel_range: float = 64.0
     field_range: float = 10.0
+    rest_bias_estimation: bool = True
+    motion_adaptive_accel: bool = True
+    field_error_from_dip: bool = True
 
     def __post_init__(self):
         for f in fields(self):
-            if f.name in ("dip_deg", "gravity", "gate"):
+            if f.name in ("dip_deg", "gravity") or f.type == "bool":
                 continue
             value = getattr(self, f.name)
             if not (np.isfinite(value) and value > 0):
