@@ -25,7 +25,8 @@ from scipy.spatial.transform import Rotation
 _NO_GATE = 1e9
 """Gate tolerances that let every field sample in (|B| ratio, degrees, seconds)."""
 
-__all__ = ["METRIC", "ErrorSeries", "PipelineResult", "orientation_errors", "error_series", "initial_field", "run_pipeline"]
+__all__ = ["METRIC", "ErrorSeries", "PipelineResult", "orientation_errors", "error_series", "initial_field", "RestNoise", "rest_noise",
+           "run_pipeline"]
 
 METRIC = ("BROAD metric: e = q_est * q_ref^-1 (body->ENU, scalar first); heading 2 atan|e_z/e_w|, "
           "inclination 2 acos sqrt(e_w^2 + e_z^2); RMS over movement == 1, NaN reference rows skipped")
@@ -216,6 +217,51 @@ def initial_field(mag_ut, accel, still) -> tuple[float, float, float]:
     dip = float(np.degrees(np.arcsin(np.clip(-m_mean @ up / field, -1.0, 1.0))))
     noise = float(np.median(np.std(m, axis=0)))
     return field, dip, max(noise, 1e-3 * field)
+
+
+@dataclass(frozen=True)
+class RestNoise:
+    """White noise of the three sensors measured on a recording's initial rest (:func:`rest_noise`).
+
+    Attributes
+    ----------
+    gyro_noise : float
+        Gyro rate noise density, rad/s/sqrt(Hz): the per-axis standard deviation times ``sqrt(dt)``
+        (white noise of density ``n`` sampled at ``1/dt`` has ``sigma = n / sqrt(dt)``), median of the axes.
+    accel_noise : float
+        Accelerometer noise per axis as a fraction of |a| at rest (of g), median of the axes.
+    mag_noise : float
+        Magnetometer noise per axis, field units, median of the axes.
+    samples : int
+        Rest samples used.
+    """
+
+    gyro_noise: float
+    accel_noise: float
+    mag_noise: float
+    samples: int
+
+
+def rest_noise(gyro_rad_s, accel, mag, still, rate_hz: float) -> RestNoise:
+    """Sensor noise from the first half of the initial rest (as :func:`initial_field`), causal.
+
+    The standard deviation about the mean over a few seconds includes the slow part of the noise
+    (bias instability, tremor of a hand-held rest) only to the extent it moves within them.
+
+    Raises
+    ------
+    ValueError
+        Fewer than 20 samples at rest at the start.
+    """
+    still = np.asarray(still, dtype=bool)
+    n_rest = int(np.argmin(still)) if not still.all() else len(still)
+    if n_rest < 20:
+        raise ValueError(f"needs at least 20 samples at rest at the start to measure the noise, got {n_rest}")
+    half = slice(0, n_rest // 2)
+    g, a, m = (np.asarray(v, dtype=float)[half] for v in (gyro_rad_s, accel, mag))
+    return RestNoise(gyro_noise=float(np.median(np.std(g, axis=0))) / np.sqrt(rate_hz),
+                     accel_noise=float(np.median(np.std(a, axis=0)) / np.linalg.norm(a.mean(axis=0))),
+                     mag_noise=float(np.median(np.std(m, axis=0))), samples=n_rest // 2)
 
 
 def run_pipeline(trial, model=None, *, gate: bool = True, hard_iron: bool = True) -> PipelineResult:

@@ -181,3 +181,160 @@ def test_field_heading_error_is_measured_from_the_wander_of_the_dip(model):
     # and the configured value is a floor
     assert np.all(run_filter(t, s.accel, s.gyro, field, FilterConfig.from_model(model)).field_heading_sigma_deg[late]
                   >= FilterConfig.from_model(model).mag_heading_sigma_deg - 1e-9)
+
+
+# ---------------------------------------------------------------- layout, closed forms, bad input
+
+from filterpy.kalman import KalmanFilter  # noqa: E402
+
+from compass.filter import (GateState, GyroFilter, GyroState, MagneticGate, TwoVectorFilter,  # noqa: E402
+                            FilterCoefficients)
+from compass.filter._base import heading_pitch_roll_deg  # noqa: E402
+from compass.filter._kalman import pack, predict_gyro, unpack, update_axis, update_row  # noqa: E402
+from compass.frames import heading_pitch_roll  # noqa: E402
+
+BERLIN = FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.15)
+
+
+def random_covariance(rng):
+    a = rng.normal(size=(6, 6))
+    return a @ a.T + 0.1 * np.eye(6)
+
+
+def test_closed_form_kalman_steps_equal_filterpy():
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        p, a = random_covariance(rng), rng.normal(size=(3, 3))
+        kf = KalmanFilter(dim_x=6, dim_z=1)
+        kf.P = p.copy()
+        f = np.eye(6)
+        f[:3, 3:] = a
+        kf.predict(F=f, Q=np.diag([0.1] * 3 + [0.01] * 3))
+        np.testing.assert_allclose(unpack(predict_gyro(pack(p), tuple(a.ravel()), 0.1, 0.01)), kf.P, rtol=1e-12)
+        h, x, z = rng.normal(size=6), list(rng.normal(size=6)), 0.3
+        kf.P, kf.x = p.copy(), np.array(x)[:, None]
+        kf.update(z, R=0.2, H=h[None, :])
+        new = update_row(pack(p), x, tuple(h), z, 0.2)
+        np.testing.assert_allclose(unpack(new), kf.P, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(x, kf.x[:, 0], rtol=1e-12)
+        y = [0.0] * 6
+        np.testing.assert_allclose(unpack(update_axis(pack(p), y, 4, z, 0.2)),
+                                   unpack(update_row(pack(p), [0.0] * 6, tuple(np.eye(6)[4]), z, 0.2)), rtol=1e-12)
+
+
+def test_closed_form_angles_equal_the_vectorised_ones():
+    rotations = Rotation.random(200, random_state=4)
+    expected = np.column_stack(heading_pitch_roll(rotations))
+    got = np.array([heading_pitch_roll_deg(tuple(m.ravel())) for m in rotations.as_matrix()])
+    np.testing.assert_allclose(wrap(got - expected), 0.0, atol=1e-9)
+
+
+def test_attitude_filter_makes_the_two_kinds():
+    assert type(AttitudeFilter(BERLIN, gyro=True)) is GyroFilter
+    assert type(AttitudeFilter(BERLIN, gyro=False)) is TwoVectorFilter
+    assert type(GyroFilter(BERLIN)) is GyroFilter
+    with pytest.raises(ValueError, match="gyro=True filter"):
+        GyroFilter(BERLIN, gyro=False)
+
+
+def _samples(model, seconds=6.0, seed=3):
+    t = np.arange(0.0, seconds, 1.0 / RATE_HZ)
+    s = simulate_device(model, t, seed=seed, gyro_bias=[0.01, -0.02, 0.015])
+    return t, s.accel, s.gyro, model.field(s.raw)[0]
+
+
+@pytest.mark.parametrize("gyro", [True, False])
+def test_state_read_set_reset_replays_exactly(model, gyro):
+    t, acc, gyr, field = _samples(model)
+    f = AttitudeFilter(FilterConfig.from_model(model), gyro=gyro)
+    half = len(t) // 2
+    for row in zip(t[:half], acc[:half], gyr[:half], field[:half]):
+        f.update(*row)
+    saved = f.state
+    first = [f.step(*row).heading_deg for row in zip(t[half:], acc[half:], gyr[half:], field[half:])]
+    f.state = saved
+    again = [f.step(*row).heading_deg for row in zip(t[half:], acc[half:], gyr[half:], field[half:])]
+    assert first == again
+    assert saved.covariance_matrix.shape == (6, 6) and np.allclose(saved.covariance_matrix, saved.covariance_matrix.T)
+    f.reset()
+    assert not f.initialised and f.skipped.total == 0
+    fresh = AttitudeFilter(FilterConfig.from_model(model), gyro=gyro)
+    assert [f.update(*r) for r in zip(t[:50], acc[:50], gyr[:50], field[:50])] \
+        == [fresh.update(*r) for r in zip(t[:50], acc[:50], gyr[:50], field[:50])]
+    assert f.matrix == fresh.matrix
+    with pytest.raises(TypeError, match="State"):
+        f.state = GateState.initial(BERLIN, FilterCoefficients.from_config(BERLIN))
+
+
+def test_gate_alone():
+    cfg = dataclasses.replace(BERLIN, gate_timeout_s=2.0)
+    gate = MagneticGate(cfg, FilterCoefficients.from_config(cfg))
+    state = GateState.initial(cfg, gate.coefficients)
+    assert gate.check(state, 0.0, 0.01, 0.0, 60.0, 0.0, True) == "absent"
+    assert gate.check(state, 0.0, 0.01, 56.0, 60.0, 0.0, True) == "norm"  # 12 % > 10 %
+    assert gate.check(state, 0.0, 0.01, 50.0, 71.0, 0.0, True) == "dip"
+    assert gate.check(state, 0.0, 0.01, 50.0, 60.0, np.radians(11.0), True) == "innovation"
+    assert gate.check(state, 0.0, 0.01, 50.0, 60.0, np.radians(11.0), False) == "ok"  # not settled yet
+    # an accepted field moves the reference by dt / tau of the way
+    before = state.ref_norm
+    gate.check(state, 0.0, 0.2, 54.0, 60.0, 0.0, True)
+    assert state.ref_norm - before == pytest.approx(4.0 * -np.expm1(-0.2 / cfg.field_reference_tau_s))
+    # a rejection longer than the timeout adopts the field
+    reasons = [gate.check(state, t, 0.1, 70.0, 50.0, 0.0, True) for t in np.arange(1.0, 3.5, 0.1)]
+    assert reasons[0] == "norm" and MagneticGate.ADOPTED in reasons
+    assert state.ref_norm == 70.0 and state.ref_dip_deg == 50.0
+    # without the gate every field is used and the reference stays
+    free = MagneticGate(dataclasses.replace(cfg, gate=False), gate.coefficients)
+    assert free.check(state, 0.0, 0.01, 500.0, 0.0, 3.0, True) == "ok" and state.ref_norm == 70.0
+
+
+@pytest.mark.parametrize("gyro", [True, False])
+@pytest.mark.parametrize("channel, value, reason", [
+    ("gyro", 1e300, "gyro out of range"), ("gyro", np.nan, "gyro not finite"),
+    ("accel", 1e300, "accel out of range"), ("accel", np.inf, "accel not finite"),
+    ("field", 1e300, "field out of range"), ("field", np.nan, "field not finite"),
+    ("t_s", np.nan, "t_s not finite")])
+def test_a_bad_sample_is_skipped_counted_and_never_disables_a_sensor(model, gyro, channel, value, reason):
+    if gyro is False and channel == "gyro":
+        pytest.skip("the two-vector filter ignores the gyro")
+    t, acc, gyr, field = _samples(model)
+    cfg = FilterConfig.from_model(model)
+    bad = 300
+    columns = {"t_s": t.copy(), "accel": acc.copy(), "gyro": gyr.copy(), "field": field.copy()}
+    if channel == "t_s":
+        columns["t_s"][bad] = value
+    else:
+        columns[channel][bad, 0] = value
+    f = AttitudeFilter(cfg, gyro=gyro)
+    out = [f.step(*row) for row in zip(columns["t_s"], columns["accel"], columns["gyro"] if gyro else [None] * len(t),
+                                       columns["field"])]
+    assert f.skipped.as_dict() == {reason: 1}
+    if channel == "t_s":
+        assert out[bad] is None
+    else:
+        assert out[bad].skipped == reason
+        assert not (channel == "accel" and out[bad].accel_used) and not (channel == "field" and out[bad].mag_used)
+    later = out[bad + 1:]
+    assert all(e.accel_used for e in later[-100:]) and all(e.mag_used for e in later[-100:])
+    assert all(e.skipped == "" for e in later)
+    # the same as the clean run with that sample's part absent (the gyro: its last rate held)
+    ref = AttitudeFilter(cfg, gyro=gyro)
+    for i, row in enumerate(zip(t, acc, gyr if gyro else [None] * len(t), field)):
+        if i == bad:
+            if channel == "t_s":
+                continue
+            row = tuple(None if name == channel else v for name, v in zip(("t_s", "accel", "gyro", "field"), row))
+        ref.update(*row)
+    np.testing.assert_allclose(np.reshape(f.matrix, (3, 3)), np.reshape(ref.matrix, (3, 3)), atol=1e-12)
+    assert np.isfinite(f.estimate().heading_deg)
+
+
+def test_gravity_relearnt_after_an_absurd_first_accelerometer_sample(model):
+    t, acc, gyr, field = _samples(model)
+    acc = acc.copy()
+    acc[0] = (0.0, 0.0, 1e10)  # finite, absurd, and the first: taken as gravity at first
+    f = AttitudeFilter(FilterConfig.from_model(model), gyro=True)
+    for row in zip(t, acc, gyr, field):
+        f.update(*row)
+    assert f.state.gravity == pytest.approx(1.0, rel=0.01)
+    assert any("re-learnt" in e for e in f.events) and f.diagnostics.accel_used

@@ -1,0 +1,295 @@
+"""The gyro filter: a multiplicative (error-state) Kalman filter with gyro-bias states.
+
+The per-sample path is closed-form arithmetic on Python floats (:mod:`._kalman` for the
+covariance): no generic filterpy call, no numpy array and no Rotation object per sample.  The model is in :mod:`compass.filter`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ._base import _P0_ATTITUDE, AttitudeFilter, exp_matrix, mat_mul
+from ._kalman import pack, predict_gyro, unpack, update_axis, update_row
+from ._gate import GateState
+from ._records import _REST_RATE_SIGMA, _REST_TAU_S, Diagnostics, SkipCounts
+
+__all__ = ["GyroFilter", "GyroState"]
+
+_REST_GYRO = math.radians(2.0)  # VQF's rest detector: rate deviation, rad/s
+_REST_ACCEL = 0.05  # and specific-force deviation, fraction of g
+_ORTHONORMALISE_EVERY = 1000  # samples between re-orthonormalisations of the nominal matrix
+
+
+@dataclass(slots=True)
+class GyroState:
+    """Everything the gyro filter carries from one sample to the next (readable, settable, resettable).
+
+    Attributes
+    ----------
+    t_s : float or None
+        Time of the last sample, s.
+    matrix : tuple of 9 floats, or None
+        Nominal ``R_world<-housing``, row-major; None before the first attitude.
+    covariance : tuple of 21 floats
+        Covariance of the error state ``(eps, db)`` (world-frame rotation, rad; housing-frame gyro
+        bias error, rad/s), its upper triangle row by row (:attr:`covariance_matrix` for the 6x6 array).
+    bias_rad_s : tuple of 3 floats
+        Gyro bias in H, rad/s.
+    rate_rad_s : tuple of 3 floats
+        Last good gyro reading in H, rad/s (held when a sample has none).
+    gravity : float or None
+        |a| at rest, accelerometer units.
+    acc_lp : tuple of 3 floats, or None
+        The specific force low-passed in the inertial frame, seen in H.
+    acc_lp_age_s : float
+        Mean age of the low-pass's content, s (its sensitivity to a bias error).
+    residual_var : float
+        Variance of what the low-pass leaves of the motion acceleration, (fraction of g)^2.
+    rest_gyro, rest_acc : tuple of 3 floats, or None
+        The rest detector's low-passed gyro and accelerometer.
+    rest_s : float
+        How long the rest detector has held, s.
+    accel_bad_s : float
+        How long the accelerometer has been out of range, s.
+    steps : int
+        Propagation steps (for the periodic re-orthonormalisation).
+    gate : GateState
+    skipped : SkipCounts
+    diagnostics : Diagnostics
+        The latest sample's.
+    """
+
+    t_s: float | None
+    matrix: tuple | None
+    covariance: tuple
+    bias_rad_s: tuple
+    rate_rad_s: tuple
+    gravity: float | None
+    acc_lp: tuple | None
+    acc_lp_age_s: float
+    residual_var: float
+    rest_gyro: tuple | None
+    rest_acc: tuple | None
+    rest_s: float
+    accel_bad_s: float
+    steps: int
+    gate: GateState
+    skipped: SkipCounts = field(default_factory=SkipCounts)
+    diagnostics: Diagnostics = field(default_factory=Diagnostics)
+
+    @property
+    def covariance_matrix(self) -> np.ndarray:
+        """The covariance as a symmetric 6x6 array."""
+        return unpack(self.covariance)
+
+
+class GyroFilter(AttitudeFilter):
+    """The gyro filter (see :mod:`compass.filter`); ``AttitudeFilter(config, gyro=True)`` makes one."""
+
+    gyro = True
+
+    def _initial_state(self) -> GyroState:
+        cfg = self.config
+        p = pack(np.diag(_P0_ATTITUDE + (cfg.gyro_bias_sigma0**2,) * 3))
+        return GyroState(None, None, p, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), cfg.gravity, None, 0.0, 0.0, None, None,
+                         0.0, 0.0, 0, GateState.initial(cfg, self.coefficients))
+
+    def _bind(self) -> None:
+        self._gyro_range2 = self.config.gyro_range_rad_s**2
+        self._x = [0.0] * 6  # the error state (eps, db), folded into the nominal state after each sample
+
+    @property
+    def at_rest(self) -> bool:
+        """The rest detector holds: the gyro reads its bias."""
+        return self._s.rest_s >= self._REST_MIN_S
+
+    @property
+    def field_heading_var(self) -> float:
+        return self.gate.field_heading_var(self._s.gate)
+
+    @property
+    def gyro_bias(self) -> tuple:
+        return self._s.bias_rad_s
+
+    def update(self, t_s: float, accel, gyro, field_h) -> bool:
+        s = self._s
+        d = s.diagnostics
+        d.skipped = ""
+        if not math.isfinite(t_s):
+            self._skip("t_s not finite")
+            return False
+        dt = 0.0 if s.t_s is None else max(t_s - s.t_s, 0.0)
+        if gyro is not None:
+            w = self._vector(gyro, "gyro", 0.0, self._gyro_range2)
+            if w is not None:
+                s.rate_rad_s = w[:3]
+        a, b = self._screen(t_s, accel, field_h, dt)
+        s.t_s = t_s
+        if s.matrix is not None and dt > self.config.max_gap_s:
+            self.events.append(f"filter restarted after a {dt:.2f} s gap in the samples")
+            s.matrix = None
+        if s.matrix is None:
+            if a is None or b is None or b[3] == 0.0:
+                return False
+            self._start(a, b)
+            dt = 0.0
+        if dt > 0.0:
+            self._propagate(dt)
+        if a is not None:
+            if dt > 0.0:
+                self._rest(dt, a)
+            d.accel_used = self._tilt(dt, a)
+        else:
+            d.accel_used = False
+        self._heading(t_s, dt, b)
+        self._inject()
+        return True
+
+    # ------------------------------------------------------------------ the steps of one sample
+    def _start(self, a, b) -> None:
+        """Attitude from the two-vector solution (gravity first); attitude covariance reset, bias kept."""
+        from ..attitude import two_vector_rotation
+
+        s = self._s
+        norm = math.sqrt(a[3])
+        m = two_vector_rotation(np.array(a[:3]) / norm, np.array(b[:3]), s.gate.ref_dip_deg, 0.0)[0].as_matrix()
+        s.matrix = tuple(m.ravel().tolist())
+        p0, p1, p2 = _P0_ATTITUDE
+        s.covariance = (p0, 0.0, 0.0, 0.0, 0.0, 0.0, p1, 0.0, 0.0, 0.0, 0.0, p2, 0.0, 0.0, 0.0) + s.covariance[15:]
+        self._x[:] = [0.0] * 6
+        s.acc_lp = a[:3]
+        s.acc_lp_age_s = 0.0
+        s.residual_var = 0.0
+        s.rest_gyro, s.rest_acc, s.rest_s = s.rate_rad_s, a[:3], 0.0
+
+    def _restart_accel(self, a) -> None:
+        s = self._s
+        if s.acc_lp is not None:
+            s.acc_lp, s.acc_lp_age_s, s.residual_var = a[:3], 0.0, 0.0
+        s.rest_acc, s.rest_s = a[:3], 0.0
+
+    def _propagate(self, dt: float) -> None:
+        """Nominal attitude by the exact exponential of the bias-corrected rate; inertial low-pass; covariance."""
+        s, cfg = self._s, self.config
+        (gx, gy, gz), (bx, by, bz) = s.rate_rad_s, s.bias_rad_s
+        wx, wy, wz = gx - bx, gy - by, gz - bz
+        e = exp_matrix(wx * dt, wy * dt, wz * dt)
+        m = mat_mul(s.matrix, e)
+        s.steps += 1
+        if s.steps % _ORTHONORMALISE_EVERY == 0:
+            u, _, vt = np.linalg.svd(np.reshape(m, (3, 3)))
+            m = tuple((u @ vt).ravel().tolist())
+        s.matrix = m
+        if s.acc_lp is not None:  # a vector fixed in the inertial frame, seen from the turned housing: e^T v
+            vx, vy, vz = s.acc_lp
+            s.acc_lp = (e[0] * vx + e[3] * vy + e[6] * vz, e[1] * vx + e[4] * vy + e[7] * vz,
+                        e[2] * vx + e[5] * vy + e[8] * vz)
+        # P <- F P F^T + Q, F = [[I, -R dt], [0, I]]
+        q_att = (cfg.gyro_noise**2 + self.coefficients.scale_var * (wx * wx + wy * wy + wz * wz)) * dt
+        m0, m1, m2, m3, m4, m5, m6, m7, m8 = m
+        n = -dt
+        s.covariance = predict_gyro(s.covariance, (m0 * n, m1 * n, m2 * n, m3 * n, m4 * n, m5 * n, m6 * n, m7 * n, m8 * n),
+                                    q_att, cfg.gyro_bias_walk**2 * dt)
+
+    def _rest(self, dt: float, a) -> None:
+        """VQF's rest detector; at rest the gyro reading measures its bias."""
+        s = self._s
+        alpha = -math.expm1(-dt / _REST_TAU_S)
+        (gx, gy, gz), (rx, ry, rz) = s.rate_rad_s, s.rest_gyro
+        rx, ry, rz = rx + alpha * (gx - rx), ry + alpha * (gy - ry), rz + alpha * (gz - rz)
+        s.rest_gyro = (rx, ry, rz)
+        ax, ay, az, _ = a
+        cx, cy, cz = s.rest_acc
+        cx, cy, cz = cx + alpha * (ax - cx), cy + alpha * (ay - cy), cz + alpha * (az - cz)
+        s.rest_acc = (cx, cy, cz)
+        limit2 = _REST_GYRO**2
+        steady = (rx * rx + ry * ry + rz * rz < limit2  # a slow steady turn is no rest (VQF's biasClip)
+                  and (gx - rx) ** 2 + (gy - ry) ** 2 + (gz - rz) ** 2 < limit2
+                  and (ax - cx) ** 2 + (ay - cy) ** 2 + (az - cz) ** 2 < (_REST_ACCEL * s.gravity) ** 2)
+        s.rest_s = s.rest_s + dt if steady else 0.0
+        if s.rest_s < self._REST_MIN_S or not self.config.rest_bias_estimation:
+            return
+        # the low-passed rate must also agree with the bias estimate (3 sigma): once the bias is known,
+        # the onset of a slow turn is not taken for a bias change
+        p, (bx, by, bz) = s.covariance, s.bias_rad_s
+        floor = self.coefficients.rest_floor_var
+        if (rx - bx) ** 2 > 9.0 * (p[15] + floor) or (ry - by) ** 2 > 9.0 * (p[18] + floor) \
+                or (rz - bz) ** 2 > 9.0 * (p[20] + floor):
+            return
+        var = self.coefficients.rest_rate_var_density / dt + _REST_RATE_SIGMA**2
+        x = self._x
+        p = update_axis(p, x, 3, gx - bx, var)
+        p = update_axis(p, x, 4, gy - by, var)
+        s.covariance = update_axis(p, x, 5, gz - bz, var)
+
+    def _tilt(self, dt: float, a) -> bool:
+        """Tilt from the specific force low-passed in the inertial frame (:mod:`compass.filter`).
+
+        The measurement ``R u - z`` (``u`` the low-passed direction) is taken in the world frame, where
+        its model ``[z]x eps + age [z]x R db`` has two rows; its third, along the vertical, carries no
+        information (the same posterior as the three housing-frame rows with isotropic noise).
+        """
+        s, cfg, c = self._s, self.config, self.coefficients
+        g = s.gravity
+        ax, ay, az, _ = a
+        lx, ly, lz = s.acc_lp
+        if dt > 0.0:
+            alpha = -math.expm1(-dt / cfg.accel_time_constant_s)
+            lx, ly, lz = lx + alpha * (ax - lx), ly + alpha * (ay - ly), lz + alpha * (az - lz)
+            s.acc_lp = (lx, ly, lz)
+            s.acc_lp_age_s = (1.0 - alpha) * (s.acc_lp_age_s + dt)
+            lp_norm = math.sqrt(lx * lx + ly * ly + lz * lz)
+            raw2 = (ax - lx) ** 2 + (ay - ly) ** 2 + (az - lz) ** 2
+            residual = (lp_norm / g - 1.0) ** 2 + raw2 / (g * g) * c.attenuation2
+            s.residual_var += -math.expm1(-dt / cfg.motion_time_s) * (residual - s.residual_var)
+        else:
+            lp_norm = math.sqrt(lx * lx + ly * ly + lz * lz)
+        if not lp_norm > 0 or abs(lp_norm / g - 1.0) > cfg.accel_tolerance:
+            return False
+        var = cfg.accel_noise**2
+        if dt > 0.0 and cfg.motion_adaptive_accel:
+            var += s.residual_var * 2.0 * cfg.motion_time_s / dt
+        m = s.matrix
+        ux, uy, uz = lx / lp_norm, ly / lp_norm, lz / lp_norm
+        d0 = m[0] * ux + m[1] * uy + m[2] * uz  # R u - z, x and y
+        d1 = m[3] * ux + m[4] * uy + m[5] * uz
+        age = s.acc_lp_age_s
+        p, x = s.covariance, self._x
+        p = update_row(p, x, (0.0, -1.0, 0.0, -age * m[3], -age * m[4], -age * m[5]), d0, var)
+        s.covariance = update_row(p, x, (1.0, 0.0, 0.0, age * m[0], age * m[1], age * m[2]), d1, var)
+        return True
+
+    def _heading(self, t_s: float, dt: float, b) -> None:
+        """Gate the field; when accepted, correct the heading (only) with its azimuth."""
+        s, c, d = self._s, self.coefficients, self._s.diagnostics
+        if b is None:
+            d.field_ratio, d.dip_deg, d.mag_used, d.gate = math.nan, math.nan, False, "absent"
+            return
+        m = s.matrix
+        bx, by, bz, _ = b
+        innovation = -math.atan2(m[3] * bx + m[4] * by + m[5] * bz, m[0] * bx + m[1] * by + m[2] * bz)
+        d.mag_used = self._gate_field(t_s, dt, b, innovation) == "ok"
+        if d.mag_used:
+            p = s.covariance
+            var = c.yaw_var + c.tan_dip2 * (p[0] + p[6]) / 2.0
+            if dt > 0.0:
+                var += self.field_heading_var * 2.0 * self.config.motion_time_s / dt
+            s.covariance = update_axis(p, self._x, 2, innovation, var)
+
+    def _inject(self) -> None:
+        """Fold the error state into the nominal attitude and bias, reset it to zero."""
+        s, x = self._s, self._x
+        e0, e1, e2, d0, d1, d2 = x
+        if e0 or e1 or e2:
+            s.matrix = mat_mul(exp_matrix(e0, e1, e2), s.matrix)
+        if d0 or d1 or d2:
+            bx, by, bz = s.bias_rad_s
+            s.bias_rad_s = (bx + d0, by + d1, bz + d2)
+            if s.acc_lp is not None:  # the part of the low-pass's turn error that db explains
+                (vx, vy, vz), age = s.acc_lp, s.acc_lp_age_s
+                s.acc_lp = (vx - age * (vy * d2 - vz * d1), vy - age * (vz * d0 - vx * d2),
+                            vz - age * (vx * d1 - vy * d0))
+        x[:] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)

@@ -1,0 +1,131 @@
+"""Closed-form Kalman steps for a 6-state error filter, on Python floats.
+
+The covariance is packed as its upper triangle, 21 floats row by row
+(``p00 p01 p02 p03 p04 p05 p11 p12 ... p55``), in a tuple.  For a 6x6 matrix a numpy call costs
+about a microsecond whatever it computes, and filterpy's generic ``KalmanFilter.update_sequential``
+adds reshapes, an inverse and copies per call; the arithmetic of one scalar-measurement update is
+about 60 multiply-adds, which CPython does in about a microsecond on local variables.  So the
+per-sample path is written out here, one textbook step per function; ``tests/test_filter.py``
+checks each against filterpy.
+"""
+
+from __future__ import annotations
+
+from operator import itemgetter
+
+import numpy as np
+
+__all__ = ["pack", "unpack", "predict_gyro", "update_row", "update_axis"]
+
+_UPPER = [(i, j) for i in range(6) for j in range(i, 6)]
+_INDEX = {ij: k for k, ij in enumerate(_UPPER)} | {(j, i): k for k, (i, j) in enumerate(_UPPER)}
+_COLUMN = [itemgetter(*(_INDEX[i, j] for j in range(6))) for i in range(6)]  # column i of P from the packed form
+
+
+def pack(matrix) -> tuple:
+    """The packed upper triangle (21 floats) of a symmetric 6x6 matrix (its mean with its transpose)."""
+    m = np.asarray(matrix, dtype=float)
+    m = (m + m.T) / 2.0
+    return tuple(float(m[i, j]) for i, j in _UPPER)
+
+
+def unpack(p: tuple) -> np.ndarray:
+    """The symmetric 6x6 matrix of a packed upper triangle."""
+    m = np.empty((6, 6))
+    for k, (i, j) in enumerate(_UPPER):
+        m[i, j] = m[j, i] = p[k]
+    return m
+
+
+def predict_gyro(p: tuple, a: tuple, q_att: float, q_bias: float) -> tuple:
+    """``F P F^T + Q`` with ``F = [[I, A], [0, I]]``, ``Q = diag(q_att I, q_bias I)``.
+
+    Parameters
+    ----------
+    p : tuple of 21 floats
+        Packed covariance of ``(eps, db)``.
+    a : tuple of 9 floats
+        ``A`` row-major (the gyro filter's ``-R dt``: a bias error ``db`` turns the attitude by ``-R db dt``).
+    q_att, q_bias : float
+        Process noise variance of each attitude and each bias component.
+
+    Returns
+    -------
+    tuple of 21 floats
+
+    Notes
+    -----
+    With ``M = P_ab + A P_bb``: ``P_aa <- P_aa + A P_ba + M A^T``, ``P_ab <- M``, ``P_bb`` unchanged.
+    """
+    (p00, p01, p02, p03, p04, p05, p11, p12, p13, p14, p15, p22, p23, p24, p25,
+     p33, p34, p35, p44, p45, p55) = p
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
+    # M = P_ab + A P_bb
+    m00 = p03 + a0 * p33 + a1 * p34 + a2 * p35
+    m01 = p04 + a0 * p34 + a1 * p44 + a2 * p45
+    m02 = p05 + a0 * p35 + a1 * p45 + a2 * p55
+    m10 = p13 + a3 * p33 + a4 * p34 + a5 * p35
+    m11 = p14 + a3 * p34 + a4 * p44 + a5 * p45
+    m12 = p15 + a3 * p35 + a4 * p45 + a5 * p55
+    m20 = p23 + a6 * p33 + a7 * p34 + a8 * p35
+    m21 = p24 + a6 * p34 + a7 * p44 + a8 * p45
+    m22 = p25 + a6 * p35 + a7 * p45 + a8 * p55
+    # (A P_ba)_ij = A_i . (P_ab row j); (M A^T)_ij = M_i . A_j
+    return (
+        p00 + a0 * p03 + a1 * p04 + a2 * p05 + m00 * a0 + m01 * a1 + m02 * a2 + q_att,
+        p01 + a0 * p13 + a1 * p14 + a2 * p15 + m00 * a3 + m01 * a4 + m02 * a5,
+        p02 + a0 * p23 + a1 * p24 + a2 * p25 + m00 * a6 + m01 * a7 + m02 * a8,
+        m00, m01, m02,
+        p11 + a3 * p13 + a4 * p14 + a5 * p15 + m10 * a3 + m11 * a4 + m12 * a5 + q_att,
+        p12 + a3 * p23 + a4 * p24 + a5 * p25 + m10 * a6 + m11 * a7 + m12 * a8,
+        m10, m11, m12,
+        p22 + a6 * p23 + a7 * p24 + a8 * p25 + m20 * a6 + m21 * a7 + m22 * a8 + q_att,
+        m20, m21, m22,
+        p33 + q_bias, p34, p35, p44 + q_bias, p45, p55 + q_bias)
+
+
+def update_row(p: tuple, x: list, h: tuple, z: float, var: float) -> tuple:
+    """Scalar measurement ``z = h . x_true + n`` with ``var n = var``.
+
+    ``x`` (the error state accumulated so far this sample; the innovation is ``z - h . x``) is
+    updated in place; the updated packed covariance is returned.
+    """
+    (p00, p01, p02, p03, p04, p05, p11, p12, p13, p14, p15, p22, p23, p24, p25,
+     p33, p34, p35, p44, p45, p55) = p
+    h0, h1, h2, h3, h4, h5 = h
+    c = (p00 * h0 + p01 * h1 + p02 * h2 + p03 * h3 + p04 * h4 + p05 * h5,
+         p01 * h0 + p11 * h1 + p12 * h2 + p13 * h3 + p14 * h4 + p15 * h5,
+         p02 * h0 + p12 * h1 + p22 * h2 + p23 * h3 + p24 * h4 + p25 * h5,
+         p03 * h0 + p13 * h1 + p23 * h2 + p33 * h3 + p34 * h4 + p35 * h5,
+         p04 * h0 + p14 * h1 + p24 * h2 + p34 * h3 + p44 * h4 + p45 * h5,
+         p05 * h0 + p15 * h1 + p25 * h2 + p35 * h3 + p45 * h4 + p55 * h5)
+    s = c[0] * h0 + c[1] * h1 + c[2] * h2 + c[3] * h3 + c[4] * h4 + c[5] * h5 + var
+    nu = z - (x[0] * h0 + x[1] * h1 + x[2] * h2 + x[3] * h3 + x[4] * h4 + x[5] * h5)
+    return _downdate(p, x, c, s, nu)
+
+
+def update_axis(p: tuple, x: list, i: int, z: float, var: float) -> tuple:
+    """:func:`update_row` with ``h = e_i`` (a direct measurement of component ``i``)."""
+    c = _COLUMN[i](p)
+    return _downdate(p, x, c, c[i] + var, z - x[i])
+
+
+def _downdate(p: tuple, x: list, c: tuple, s: float, nu: float) -> tuple:
+    """``K = c / s`` (``c = P h``); ``x += K nu``; returns ``P - K c^T``."""
+    (p00, p01, p02, p03, p04, p05, p11, p12, p13, p14, p15, p22, p23, p24, p25,
+     p33, p34, p35, p44, p45, p55) = p
+    c0, c1, c2, c3, c4, c5 = c
+    inv = 1.0 / s
+    k0, k1, k2, k3, k4, k5 = c0 * inv, c1 * inv, c2 * inv, c3 * inv, c4 * inv, c5 * inv
+    x[0] += k0 * nu
+    x[1] += k1 * nu
+    x[2] += k2 * nu
+    x[3] += k3 * nu
+    x[4] += k4 * nu
+    x[5] += k5 * nu
+    return (p00 - k0 * c0, p01 - k0 * c1, p02 - k0 * c2, p03 - k0 * c3, p04 - k0 * c4, p05 - k0 * c5,
+            p11 - k1 * c1, p12 - k1 * c2, p13 - k1 * c3, p14 - k1 * c4, p15 - k1 * c5,
+            p22 - k2 * c2, p23 - k2 * c3, p24 - k2 * c4, p25 - k2 * c5,
+            p33 - k3 * c3, p34 - k3 * c4, p35 - k3 * c5,
+            p44 - k4 * c4, p45 - k4 * c5,
+            p55 - k5 * c5)

@@ -1,0 +1,331 @@
+"""The filter's records, as VQF lays out its own: what a user tunes (:class:`FilterConfig`, VQF's
+``Params``), what is derived from it once (:class:`FilterCoefficients`), what one sample reports
+(:class:`Diagnostics`, :class:`Estimate`) and what bad input it skipped (:class:`SkipCounts`).
+The per-sample state records live beside their filters (``GyroState``, ``TwoVectorState``)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+__all__ = ["FilterConfig", "FilterCoefficients", "Diagnostics", "SkipCounts", "Estimate", "SKIP_REASONS"]
+
+_SCALE_CORRELATION_S = 1.0  # a scale-factor error persists while the housing keeps turning
+_REST_TAU_S = 0.5  # low-pass of VQF's rest detector, s
+_REST_RATE_SIGMA = 1e-3  # residual true rate "at rest" (tremor, Earth's rotation), rad/s
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """Noise model, gate, input ranges and reference field of the attitude filter (VQF's ``Params``).
+
+    Nothing here is fitted to a data set: the defaults are generic MEMS figures and VQF's published
+    time constants and thresholds; pass your sensors' data-sheet values where you know them.
+
+    Attributes
+    ----------
+    field_norm : float
+        Reference |B|, field units (the unit of ``field_h``).
+    dip_deg : float
+        Reference dip, degrees (> 0: field points down).
+    mag_noise : float
+        White noise of each field component, field units, per sample.
+    accel_noise : float
+        White noise of each component of the unit accelerometer vector (fraction of g), per sample.
+    gyro_noise : float
+        Gyro rate noise density, rad/s/sqrt(Hz) (per-sample sigma = density * sqrt(rate)).
+    gyro_bias_walk : float
+        Gyro bias random walk, rad/s^2/sqrt(Hz).
+    gyro_bias_sigma0 : float
+        Initial 1-sigma of each bias component, rad/s.
+    gyro_scale_error : float
+        Relative scale-factor and cross-axis error of the gyro (fraction of the rate).
+    accel_time_constant_s : float
+        Low-pass of the specific force in the inertial frame, seconds (VQF's ``tauAcc``).
+    motion_time_s : float
+        Time scale on which the housing's velocity varies (hand-held motion), seconds: the
+        correlation time of what the low-pass leaves of the motion acceleration, and of the
+        environment's heading error as the housing moves.
+    mag_heading_sigma_deg : float
+        Heading error of the undisturbed field itself (inhomogeneity across the working volume,
+        calibration residue), degrees: the floor; the gyro filter uses the larger of it and the
+        error it measures from the wander of the field's dip (module docstring).
+    field_reference_tau_s : float
+        Time constant with which the gate's reference |B| and dip follow the accepted field, seconds.
+    angular_accel_noise : float
+        Without gyro: white angular acceleration driving the constant-rate model, rad/s^2/sqrt(Hz).
+    rate_tau_s : float
+        Without gyro: correlation time of the angular rate (a first-order Gauss-Markov rate, so a
+        heading coasts to a stop while the field is rejected), seconds.
+    gravity : float or None
+        |a| at rest in the accelerometer's unit; None learns it from the samples (first sample,
+        then the average at rest).
+    accel_tolerance : float
+        Use the (low-passed) accelerometer only while ``| |a| / gravity - 1 |`` is below this.
+    field_tolerance : float
+        Gate: largest accepted ``| |B| / reference - 1 |`` (VQF: 0.1).
+    dip_tolerance_deg : float
+        Gate: largest accepted dip error against the reference, degrees (VQF: 10).
+    heading_tolerance_deg : float
+        Gate: largest accepted heading innovation, degrees, checked once the heading 1-sigma is
+        below a third of it.
+    gate : bool
+        Gate the field at all (False: every field sample updates the heading; for comparisons).
+    gate_timeout_s : float
+        A continuous rejection this long adopts the current field as the reference, seconds.
+    max_gap_s : float
+        A time step longer than this restarts the attitude from the next two-vector solution
+        (the gyro bias is kept), seconds.
+    gyro_range_rad_s : float
+        A gyro sample whose |omega| exceeds this is absurd (beyond any MEMS gyro's range, 4000 deg/s
+        by default): skipped, the last good rate is held, rad/s.
+    accel_range : float
+        An accelerometer sample with ``|a| / gravity`` above this (64: four times the common 16 g
+        full scale) or exactly zero is absurd: skipped.  (Near-zero specific force is real: free fall.)
+    field_range : float
+        A field sample with ``|B| / reference`` above this is absurd (a magnetometer saturates long
+        before): skipped.
+    rest_bias_estimation : bool
+        At rest the gyro reading measures its bias (VQF's ``restBiasEstEnabled``).
+    motion_adaptive_accel : bool
+        The tilt measurement's noise grows with the motion the accelerometer sees (False: the white
+        ``accel_noise`` only).
+    field_error_from_dip : bool
+        The field's heading error is measured from the wander of its dip (False: the floor
+        ``mag_heading_sigma_deg`` only).
+    """
+
+    field_norm: float
+    dip_deg: float
+    mag_noise: float
+    accel_noise: float = 0.005
+    gyro_noise: float = 3e-4
+    gyro_bias_walk: float = 1e-4
+    gyro_bias_sigma0: float = 0.05
+    gyro_scale_error: float = 0.005
+    accel_time_constant_s: float = 3.0
+    motion_time_s: float = 1.0
+    mag_heading_sigma_deg: float = 2.0
+    field_reference_tau_s: float = 20.0
+    angular_accel_noise: float = 0.1
+    rate_tau_s: float = 1.0
+    gravity: float | None = None
+    accel_tolerance: float = 0.1
+    field_tolerance: float = 0.1
+    dip_tolerance_deg: float = 10.0
+    heading_tolerance_deg: float = 10.0
+    gate: bool = True
+    gate_timeout_s: float = 20.0
+    max_gap_s: float = 0.5
+    gyro_range_rad_s: float = math.radians(4000.0)
+    accel_range: float = 64.0
+    field_range: float = 10.0
+    rest_bias_estimation: bool = True
+    motion_adaptive_accel: bool = True
+    field_error_from_dip: bool = True
+
+    def __post_init__(self):
+        for f in fields(self):
+            if f.name in ("dip_deg", "gravity") or f.type == "bool":
+                continue
+            value = getattr(self, f.name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"FilterConfig.{f.name} must be a positive number, got {value!r}")
+        for name in ("accel_range", "field_range"):
+            if not getattr(self, name) > 1.0:
+                raise ValueError(f"FilterConfig.{name} must be above 1, got {getattr(self, name)!r}")
+        if not -90.0 < self.dip_deg < 90.0:
+            raise ValueError(f"FilterConfig.dip_deg must be in (-90, 90), got {self.dip_deg!r}")
+        if self.gravity is not None and not (np.isfinite(self.gravity) and self.gravity > 0):
+            raise ValueError(f"FilterConfig.gravity must be positive or None, got {self.gravity!r}")
+
+    @classmethod
+    def from_model(cls, model) -> "FilterConfig":
+        """Reference field and magnetometer noise from a :class:`compass.model.SensorModel`.
+
+        Change other fields with ``dataclasses.replace``.
+
+        Raises
+        ------
+        ValueError
+            The calibration has no dip or no noise floor.
+        """
+        if model.dip_deg is None:
+            raise ValueError("the calibration has no dip_deg: the filter needs the field's reference direction")
+        if model.noise is None:
+            raise ValueError("the calibration has no noise_floor: the filter cannot weight the magnetometer")
+        noise = float(np.sqrt(np.trace(model.field_covariance(np.zeros(3))) / 3.0))
+        return cls(field_norm=model.field_magnitude, dip_deg=model.dip_deg, mag_noise=noise)
+
+
+@dataclass(frozen=True)
+class FilterCoefficients:
+    """What the filter derives once from its :class:`FilterConfig` (VQF's ``Coefficients``).
+
+    Variances in rad^2 unless said; the per-step factors that depend on the sample interval are
+    computed per sample (the interval is the samples' own, not fixed).
+
+    Attributes
+    ----------
+    tan_dip2, cos_dip2 : float
+        ``tan^2`` and ``cos^2`` of the reference dip.
+    env_floor_var : float
+        ``mag_heading_sigma_deg`` squared, rad^2: the floor of the field's own heading error.
+    dip_noise_var : float
+        The sensor noise in the field's direction, ``(mag_noise / field_norm)^2``, rad^2.
+    yaw_var : float
+        The sensor noise in heading, ``dip_noise_var / cos^2(dip)``, rad^2.
+    rest_floor_var : float
+        Variance of the rest detector's low-passed rate about the true bias, (rad/s)^2.
+    rest_rate_var_density : float
+        ``gyro_noise^2``: the rest measurement's variance times dt, (rad/s)^2 s.
+    settled_var : float
+        Heading variance below which the innovation gate applies, rad^2.
+    adopt_var : float
+        Heading variance added when the gate adopts a new reference, rad^2.
+    scale_var : float
+        ``gyro_scale_error^2`` times its correlation time, s.
+    attenuation2 : float
+        The inertial low-pass's attenuation of motion at the motion time scale, squared.
+    """
+
+    tan_dip2: float
+    cos_dip2: float
+    env_floor_var: float
+    dip_noise_var: float
+    yaw_var: float
+    rest_floor_var: float
+    rest_rate_var_density: float
+    settled_var: float
+    adopt_var: float
+    scale_var: float
+    attenuation2: float
+
+    @classmethod
+    def from_config(cls, config: FilterConfig) -> "FilterCoefficients":
+        dip = math.radians(config.dip_deg)
+        cos_dip2 = math.cos(dip) ** 2
+        dip_noise_var = (config.mag_noise / config.field_norm) ** 2
+        return cls(
+            tan_dip2=math.tan(dip) ** 2, cos_dip2=cos_dip2,
+            env_floor_var=math.radians(config.mag_heading_sigma_deg) ** 2,
+            dip_noise_var=dip_noise_var, yaw_var=dip_noise_var / cos_dip2,
+            rest_floor_var=config.gyro_noise**2 / (2.0 * _REST_TAU_S) + _REST_RATE_SIGMA**2,
+            rest_rate_var_density=config.gyro_noise**2,
+            settled_var=math.radians(config.heading_tolerance_deg / 3.0) ** 2,
+            adopt_var=math.radians(3.0 * config.heading_tolerance_deg) ** 2,
+            scale_var=config.gyro_scale_error**2 * _SCALE_CORRELATION_S,
+            attenuation2=(config.motion_time_s / (2.0 * math.pi * config.accel_time_constant_s)) ** 2)
+
+
+SKIP_REASONS = ("t_s not finite", "gyro not finite", "gyro out of range", "accel not finite", "accel out of range",
+                "field not finite", "field out of range")
+"""Why a sample (or one sensor's part of it) was skipped, never fused."""
+
+
+@dataclass(slots=True)
+class SkipCounts:
+    """Samples (or one sensor's part of them) skipped as bad input, by reason (:data:`SKIP_REASONS`).
+
+    A non-finite value or one beyond the sensor's range is never fused and never disables the
+    sensor: the next good sample is used as usual.
+    """
+
+    t_s_not_finite: int = 0
+    gyro_not_finite: int = 0
+    gyro_out_of_range: int = 0
+    accel_not_finite: int = 0
+    accel_out_of_range: int = 0
+    field_not_finite: int = 0
+    field_out_of_range: int = 0
+
+    def count(self, reason: str) -> None:
+        """Count one skip for ``reason`` (one of :data:`SKIP_REASONS`)."""
+        name = reason.replace(" ", "_")
+        setattr(self, name, getattr(self, name) + 1)
+
+    @property
+    def total(self) -> int:
+        return sum(getattr(self, f.name) for f in fields(self))
+
+    def as_dict(self) -> dict[str, int]:
+        """``{reason: count}`` for the reasons that occurred."""
+        return {r: getattr(self, r.replace(" ", "_")) for r in SKIP_REASONS if getattr(self, r.replace(" ", "_"))}
+
+
+@dataclass(slots=True)
+class Diagnostics:
+    """What the filter did with the latest sample (updated in place each sample: copy to keep).
+
+    Attributes
+    ----------
+    field_ratio : float
+        Measured |B| over the gate's reference |B|.
+    dip_deg : float
+        Measured dip against the filter's up direction, degrees.
+    mag_used : bool
+        The gate let the field in and the heading update was applied.
+    gate : str
+        ``"ok"``, or why the field was not used: ``"norm"``, ``"dip"``, ``"innovation"``, ``"absent"``.
+    accel_used : bool
+        The accelerometer (tilt) update was applied.
+    skipped : str
+        ``""``, or the reasons (:data:`SKIP_REASONS`, comma-separated) this sample's parts were skipped.
+    """
+
+    field_ratio: float = 1.0
+    dip_deg: float = 0.0
+    mag_used: bool = False
+    gate: str = "absent"
+    accel_used: bool = False
+    skipped: str = ""
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The filter's output after one sample.
+
+    Attributes
+    ----------
+    t_s : float
+        Sample time, seconds.
+    matrix : ndarray, shape (3, 3)
+        ``R_world<-housing`` (NWU world, FLU housing); :attr:`rotation` is the same as a Rotation.
+    heading_deg, pitch_deg, roll_deg : float
+        SPEC section 1 angles.
+    heading_sigma_deg, tilt_sigma_deg : float
+        1-sigma of the world-frame error about the vertical and (rms) about a horizontal axis,
+        degrees, from the filter covariance.
+    field_heading_sigma_deg : float
+        Heading error of the accepted field itself, degrees: the larger of ``mag_heading_sigma_deg``
+        and the one measured so far from the wander of its dip (module docstring); NaN for the
+        two-vector filter.
+    field_ratio, dip_deg, mag_used, gate, accel_used, skipped
+        As in :class:`Diagnostics`.
+    gyro_bias : ndarray, shape (3,), or None
+        Estimated gyro bias in H, rad/s (gyro filter only).
+    """
+
+    t_s: float
+    matrix: np.ndarray
+    heading_deg: float
+    pitch_deg: float
+    roll_deg: float
+    heading_sigma_deg: float
+    tilt_sigma_deg: float
+    field_heading_sigma_deg: float
+    field_ratio: float
+    dip_deg: float
+    mag_used: bool
+    gate: str
+    accel_used: bool
+    gyro_bias: np.ndarray | None
+    skipped: str = ""
+
+    @property
+    def rotation(self) -> Rotation:
+        """``R_world<-housing`` as a scipy Rotation."""
+        return Rotation.from_matrix(self.matrix)
