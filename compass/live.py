@@ -246,8 +246,8 @@ class LiveSession:
         s = self.decoder.stats
         p50, p99 = self.latency_ms()
         return (f"{self.samples} attitudes from {s.samples} samples; dropped lines {s.dropped} (garbage {s.garbage}, "
-                f"partial {s.partial}, before a header {s.unheaded}, lost in transit {s.lost}); "
-                f"latency p50 {p50:.2f} ms, p99 {p99:.2f} ms")
+                f"invalid {s.invalid}, partial {s.partial}, before a header {s.unheaded}, repeated seq {s.repeated}, "
+                f"lost in transit {s.lost}); latency p50 {p50:.2f} ms, p99 {p99:.2f} ms")
 
     def close(self) -> None:
         """Flush the outputs (the CSV file stays open: its owner closes it)."""

@@ -46,12 +46,12 @@ def test_garbage_partial_unheaded_comments_counted_never_raised():
                     b"\xff\xfe1,2,3\n", b"1,2,nan\n", noise + b"\n", b"4,5,6\n")
     assert [s.raw.tolist() for s in out] == [[4, 5, 6]]
     s = d.stats
-    assert (s.unheaded, s.comments, s.partial, s.garbage) == (1, 1, 1, 5)
+    assert (s.unheaded, s.comments, s.partial, s.garbage, s.invalid) == (1, 1, 1, 4, 1)  # nan: invalid
     assert s.dropped == 7
 
 
 def test_overlong_line_without_terminator_is_dropped():
-    d, out = decode(b"mx,my,mz\n", b"7" * 5000, b"\n1,2,3\n")
+    d, out = decode(b"mx,my,mz\n", b"7" * 50_000, b"\n1,2,3\n")
     assert len(out) == 1 and d.stats.garbage == 1
 
 
@@ -73,6 +73,59 @@ def test_header_without_a_channel_stops_samples_until_a_good_one():
     d, out = decode(b"mx,my,mz\n1,2,3\n", b"mx,my,ax,ay,az\n1,2,3,4,5\n", b"mx,my,mz\n7,8,9\n")
     assert len(out) == 2 and d.stats.unheaded == 1
     assert any(level == "warn" and "lacks channel(s) mz" in text for level, text in d.drain_events())
+
+
+def test_an_overlong_line_counts_once_however_it_is_chunked():
+    """16.9: one 1 MB line arriving in 64 KiB reads was counted as ~500 garbage lines."""
+    line = b"7," * (1 << 19) + b"\n"
+    chunks = [b"mx,my,mz\n1,2,3\n"] + [line[k:k + 65536] for k in range(0, len(line), 65536)] + [b"4,5,6\n"]
+    d, out = decode(*chunks)
+    assert [s.raw.tolist() for s in out] == [[1, 2, 3], [4, 5, 6]]
+    assert d.stats.garbage == 1 and d.stats.dropped == 1
+
+
+def test_a_header_missing_a_channel_counts_its_samples_once():
+    """16.9: the samples under such a header were counted both as header-less and as a seq gap."""
+    good = b"seq,mx,my,mz\n" + b"".join(b"%d,1,2,3\n" % i for i in range(10))
+    lacking = b"seq,mx,my\n" + b"".join(b"%d,1,2\n" % i for i in range(10, 20))
+    d, out = decode(good, lacking, good.replace(b"0,1,2,3", b"X").replace(b"X", b"20,1,2,3"))
+    s = d.stats
+    assert (s.unheaded, s.lost, s.garbage, s.rejected_headers) == (10, 0, 0, 1)
+    assert s.dropped == 10 and d.mismatch is None  # one such header may be a mangled line
+
+
+def test_the_same_header_lacking_a_channel_twice_is_a_mismatch():
+    d, _ = decode(b"t_s,mx,my\n0,1,2\n", b"t_s,mx,my\n0.1,1,2\n")
+    assert d.mismatch == (("t_s", "mx", "my"), ("mz",)) and d.stats.garbage == 0
+
+
+def test_repeated_seq_is_skipped_and_counted():
+    d, out = decode(b"seq,mx,my,mz\n1,1,2,3\n2,1,2,3\n2,1,2,3\n3,1,2,3\n")
+    assert [s.seq for s in out] == [1, 2, 3] and d.stats.repeated == 1 and d.stats.lost == 0
+
+
+def test_a_seq_gap_across_a_reconnect_is_lost_in_transit():
+    """16.9: a 2 s outage at 100 Hz (the module unplugged) was reported as 'lost in transit 0'."""
+    before = b"seq,mx,my,mz\n" + b"".join(b"%d,1,2,3\n" % i for i in range(100))
+    after = b"2,3\nseq,mx,my,mz\n" + b"".join(b"%d,1,2,3\n" % i for i in range(303, 310))
+    d = LineDecoder(CHANNELS)
+    d.feed(before)
+    d.resync()
+    d.feed(after)
+    assert d.stats.partial == 1 and d.stats.lost == 202  # the cut fragment is one of the 203
+    assert d.stats.dropped == 203
+
+
+def test_a_t_s_gap_counts_lost_samples_when_there_is_no_seq():
+    rate = 100.0
+    t = np.r_[np.arange(100), np.arange(303, 320)] / rate
+    d, out = decode(b"t_s,mx,my,mz\n" + b"".join(b"%.2f,1,2,3\n" % x for x in t))
+    assert len(out) == len(t) and d.stats.lost == 203
+
+
+def test_a_module_restarting_its_counter_loses_nothing():
+    d, out = decode(b"seq,mx,my,mz\n7,1,2,3\n8,1,2,3\n0,1,2,3\n1,1,2,3\n")
+    assert len(out) == 4 and d.stats.lost == 0 and d.stats.repeated == 0
 
 
 def test_resync_drops_the_fragment_after_a_reconnect():

@@ -135,7 +135,8 @@ def test_pty_device_end_to_end_with_noise_disconnect_and_ctrl_c(tmp_path):
     cal, link = tmp_path / "cal.json", tmp_path / "compass-dev"
     rrd, att = tmp_path / "live.rrd", tmp_path / "att.csv"
     cal.write_text(json.dumps(default_model().to_json()))
-    with Proc(compass_command("live", "--port", str(link), "--cal", str(cal), "--rerun", str(rrd), "--out", str(att))) as live:
+    with Proc(compass_command("live", "--port", str(link), "--cal", str(cal), "--rerun", str(rrd), "--out", str(att),
+                              "--wait", "60")) as live:
         assert live.wait_for(lambda line: "waiting for" in line, 60.0), live.transcript()
         with Proc(compass_command("device", "--pty", "--cal", str(cal), "--link", str(link), "--rate", "100",
                                   "--garbage", "0.02", "--truncate", "0.02", "--disconnect-at", "5",
@@ -197,12 +198,14 @@ def test_live_bad_input_exits_2(tmp_path, capsys):
     assert "not a symbolic link" in capsys.readouterr().err and keep.read_text() == "keep"
 
 
-def test_live_exits_when_asked_while_the_port_is_absent(tmp_path, capsys):
+def test_live_exits_when_asked_while_waiting_for_the_port(tmp_path, capsys):
     cal = tmp_path / "cal.json"
-    cal.write_text(__import__("json").dumps(default_model().to_json()))
-    assert main(["live", "--port", str(tmp_path / "nothing"), "--cal", str(cal), "--duration", "0.3"]) == 0
-    out = capsys.readouterr().out
-    assert "waiting for" in out and "0 attitudes" in out
+    cal.write_text(json.dumps(default_model().to_json()))
+    port = tmp_path / "nothing"
+    assert main(["live", "--port", str(port), "--cal", str(cal), "--wait", "60", "--duration", "0.3"]) == 1
+    captured = capsys.readouterr()
+    assert "waiting for" in captured.out and "0 attitudes" in captured.out
+    assert f"no sample arrived from {port}" in captured.err and "never opened" in captured.err
 
 
 def test_format_line_round_trip_through_loop_url():

@@ -58,9 +58,9 @@ def evaluate_file(trial_path, *, cal=None, plot=None, gate=True, hard_iron=True)
             model = SensorModel.from_file(cal)
         except ValueError as exc:
             raise BadInput(str(exc)) from None
-        if len(model.channels) != 3:
-            raise BadInput(f"{cal}: expected a three-axis magnetometer calibration, got channels "
-                           f"{', '.join(model.channels)}")
+        if model.kind != "tumble":  # a bench calibration's channels are another sensor, not BROAD's imu_mag
+            raise BadInput(f"{cal}: expected a tumble calibration of the trial's magnetometer (mx,my,mz), got a "
+                           f"bench calibration of channels {', '.join(model.channels)}")
     trial = read_broad(trial_path)
     try:
         result = run_pipeline(trial, model, gate=gate, hard_iron=hard_iron)

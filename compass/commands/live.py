@@ -32,6 +32,9 @@ def register(sub) -> None:
     p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day (default today, UTC)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--wait", type=float, default=0.0, metavar="S",
+                   help="keep trying to open the port this long before giving up (default 0: a port that cannot "
+                        "be opened is an error); once connected, a lost port is always waited for")
     p.add_argument("--quiet", action="store_true", help="no live readout and no event lines, only the summary")
     p.set_defaults(func=run)
 
@@ -42,7 +45,7 @@ def run(args) -> int:
     from ..io.atomic import check_writable
     from ..live import LiveSession
     from ..model import SensorModel
-    from ..serial_reader import SerialReader
+    from ..serial_reader import PortUnavailable, SerialReader
 
     try:
         model = SensorModel.from_file(args.cal)
@@ -52,7 +55,9 @@ def run(args) -> int:
     reference = _site_reference(args, model)
     if args.duration is not None and not args.duration > 0:
         raise BadInput(f"--duration must be positive, got {args.duration}")
-    reader = SerialReader(args.port, baudrate=args.baud)
+    if not args.wait >= 0:
+        raise BadInput(f"--wait must be zero or positive, got {args.wait}")
+    reader = SerialReader(args.port, baudrate=args.baud, first_open_s=args.wait)
     try:
         reader.check_url()
     except ValueError as exc:
@@ -89,6 +94,10 @@ def run(args) -> int:
     try:
         for item in reader.items(stop):
             session.feed(item)
+            mismatch = session.decoder.mismatch
+            if mismatch is not None:
+                raise BadInput(f"{args.port}: the module's header {','.join(mismatch[0])} lacks the calibration's "
+                               f"channel(s) {','.join(mismatch[1])} ({args.cal}): is it the right calibration?")
             now = time.perf_counter()
             if now - last >= every_s:
                 rate = (session.decoder.stats.samples - last_count) / (now - last)
@@ -97,6 +106,8 @@ def run(args) -> int:
                     out.flush()
                 if not args.quiet:
                     print(("\r\x1b[K" if tty else "") + session.readout(rate), end="" if tty else "\n", flush=True)
+    except PortUnavailable as exc:
+        raise BadInput(f"{exc}: check the name, or --wait S for a port that is not there yet") from None
     finally:
         if timer is not None:
             timer.cancel()
@@ -112,6 +123,13 @@ def run(args) -> int:
         wrote = [str(p) for p in (out_path, args.rerun) if p is not None and p != "spawn"]
         print(f"compass live: {elapsed:.1f} s, {reader.disconnects} disconnect(s); {session.summary()}"
               + (f"; wrote {', '.join(wrote)}" if wrote else ""), flush=True)
+    if session.decoder.stats.samples == 0:
+        s = session.decoder.stats
+        why = ("the port never opened" if not reader.connected_once else
+               f"{s.rejected_headers} unusable header(s), {s.bad_lines} bad line(s)" if s.rejected_headers or s.bad_lines
+               else "nothing arrived: check the module, its baud rate and that it sends the header")
+        print(f"compass live: no sample arrived from {args.port} in {elapsed:.1f} s ({why})", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -19,21 +19,27 @@ around cells are ignored.
 
 Everything else is counted and skipped, never raised: garbage (bytes that are not ASCII, a
 header-less or overlong line, a cell that is not a number, a checksum mismatch, too many
-cells), partial lines (fewer cells than the header: a truncated line), samples before any
-header, and samples lost between two ``seq`` values.
+cells), invalid samples (a well-formed line with a non-finite number), partial lines (fewer
+cells than the header: a truncated line), samples before any usable header, repeated ``seq``
+values, and samples lost in transit: the gap between two ``seq`` values, or without ``seq`` the
+gap in ``t_s`` against the module's own sample interval (also across a reconnect), less the
+lines already counted as bad in between.  An overlong line counts once however long it is.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 
 __all__ = ["Header", "LineDecoder", "LineStats", "Sample", "checksum", "format_line"]
 
-MAX_LINE_BYTES = 1024
+MAX_LINE_BYTES = 8192  # a 150-column header is about 1.2 KiB
 _GROUPS = {"accel": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz")}
 _SCALARS = ("t_s", "seq", "temp_c")
+_DT_WINDOW = 32  # t_s steps kept to estimate the module's sample interval
+_DT_MIN_STEPS = 8  # steps needed before a t_s gap is counted
 
 
 def checksum(payload: bytes) -> int:
@@ -138,28 +144,43 @@ class LineStats:
         Sample lines decoded.
     headers, comments : int
         Header and comment lines.
+    rejected_headers : int
+        Header lines the receiver cannot use (a calibration channel missing, a repeated column).
     garbage : int
-        Lines that are not the protocol (see the module docstring), and overlong byte runs.
+        Lines that are not the protocol (see the module docstring); an overlong line counts once.
+    invalid : int
+        Well-formed sample lines with a non-finite number (nan, inf): never used.
     partial : int
         Lines with fewer cells than the header, and fragments cut by a (re)connect.
     unheaded : int
-        Sample lines before any valid header.
+        Sample lines before any usable header (or after one that lacks a calibration channel).
+    repeated : int
+        Samples whose ``seq`` repeats the previous one (skipped: never used twice).
     lost : int
-        Samples missing between consecutive ``seq`` values (never sent on the line).
+        Samples never received: missing ``seq`` values, or without ``seq`` the gap in ``t_s``
+        against the module's sample interval, less the bad lines received in between.
     """
 
     samples: int = 0
     headers: int = 0
     comments: int = 0
+    rejected_headers: int = 0
     garbage: int = 0
+    invalid: int = 0
     partial: int = 0
     unheaded: int = 0
+    repeated: int = 0
     lost: int = 0
 
     @property
+    def bad_lines(self) -> int:
+        """Sample lines received but not used: garbage, invalid, partial, header-less, repeated."""
+        return self.garbage + self.invalid + self.partial + self.unheaded + self.repeated
+
+    @property
     def dropped(self) -> int:
-        """Samples the receiver did not get: bad, partial and header-less lines, and ``seq`` gaps."""
-        return self.garbage + self.partial + self.unheaded + self.lost
+        """Samples the receiver did not use: bad lines and samples lost in transit."""
+        return self.bad_lines + self.lost
 
 
 @dataclass
@@ -176,6 +197,10 @@ class LineDecoder:
     stats : LineStats
     header : Header or None
         The last valid header.
+    mismatch : tuple of (tuple of str, tuple of str) or None
+        ``(header names, missing channels)`` once the same header lacking calibration channels
+        came twice in a row with no usable header between (a module that does not send the
+        calibration's channels; a single mangled header does not count).
     events : list of (str, str)
         ``(level, text)`` notes for a log ("info", "warn"): headers, rejected headers, garbage
         seen; :meth:`drain_events` empties it.
@@ -193,10 +218,15 @@ class LineDecoder:
     stats: LineStats = field(default_factory=LineStats)
     header: Header | None = None
     events: list = field(default_factory=list)
+    mismatch: tuple | None = None
     _buffer: bytes = b""
+    _skipping: bool = False  # inside an overlong line (already counted): drop bytes until its end
     _untrusted: bool = False  # the next line may be a fragment (after resync)
     _last_seq: int | None = None
-    _bad_at_sample: int = 0  # garbage + partial at the last good sample
+    _last_t_s: float | None = None
+    _dt_s: deque = field(default_factory=lambda: deque(maxlen=_DT_WINDOW))
+    _bad_at_sample: int = 0  # bad lines at the last good sample
+    _last_rejected: tuple | None = None
 
     def __post_init__(self):
         self.channels = tuple(self.channels)
@@ -211,8 +241,9 @@ class LineDecoder:
         if self._buffer:
             self.stats.partial += 1
         self._buffer = b""
+        self._skipping = False
         self._untrusted = True
-        self._last_seq = None
+        # the seq and t_s of the last sample are kept: a gap across the reconnect is samples lost
 
     def feed(self, chunk: bytes) -> list[Sample]:
         """Decode the complete lines in ``chunk`` (plus what earlier chunks left unfinished)."""
@@ -221,8 +252,13 @@ class LineDecoder:
             data = data.replace(b"\r", b"\n")
         lines = data.split(b"\n")
         self._buffer = lines.pop()
+        if self._skipping and lines:
+            lines.pop(0)  # the end of an overlong line, counted when it began
+            self._skipping = False
         if len(self._buffer) > MAX_LINE_BYTES:
-            self.stats.garbage += 1
+            if not self._skipping:
+                self.stats.garbage += 1
+            self._skipping = True
             self._buffer = b""
         out = []
         for line in lines:
@@ -282,43 +318,73 @@ class LineDecoder:
             return None
         try:
             sample = self._decode(header, cells)
+        except _NotFinite:
+            self.stats.invalid += 1
+            return None
         except ValueError:
             self.stats.garbage += 1
             return None
+        if not self._count_gap(sample):
+            self.stats.repeated += 1
+            return None
         self.stats.samples += 1
-        self._bad_at_sample = self.stats.garbage + self.stats.partial
+        self._bad_at_sample = self.stats.bad_lines
         return sample
 
     def _decode(self, header: Header, cells: list[str]) -> Sample:
-        """ValueError when a required cell is empty or a cell is not a finite number."""
+        """ValueError when a required cell is empty or a cell is not a number; _NotFinite for nan/inf."""
         raw = np.array([float(cells[i]) for i in header.channels])
+        seq = int(cells[header.seq]) if header.seq is not None and cells[header.seq] else None
+        sample = Sample(raw, _group(cells, header.accel), _group(cells, header.gyro), _scalar(cells, header.t_s), seq,
+                        _scalar(cells, header.temp_c))
         if not np.all(np.isfinite(raw)):
-            raise ValueError("non-finite channel")
-        seq = None
-        if header.seq is not None and cells[header.seq]:
-            seq = int(cells[header.seq])
-            if self._last_seq is not None and seq > self._last_seq + 1:
-                bad_since = self.stats.garbage + self.stats.partial - self._bad_at_sample  # already counted
-                self.stats.lost += max(0, seq - self._last_seq - 1 - bad_since)
-            self._last_seq = seq
-        return Sample(raw, _group(cells, header.accel), _group(cells, header.gyro),
-                      _scalar(cells, header.t_s), seq, _scalar(cells, header.temp_c))
+            raise _NotFinite("non-finite channel")
+        return sample
+
+    def _count_gap(self, sample: Sample) -> bool:
+        """Count samples lost before ``sample`` (``seq``, else ``t_s`` gaps); False if its ``seq`` repeats."""
+        missing = 0
+        if sample.seq is not None:
+            if sample.seq == self._last_seq:
+                return False
+            if self._last_seq is not None and sample.seq > self._last_seq:
+                missing = sample.seq - self._last_seq - 1
+            self._last_seq = sample.seq  # a smaller seq: the module restarted its counter
+        elif sample.t_s is not None and self._last_t_s is not None:
+            dt_s = sample.t_s - self._last_t_s
+            if len(self._dt_s) >= _DT_MIN_STEPS and dt_s > 0:
+                step_s = float(np.median(self._dt_s))
+                missing = max(0, int(round(dt_s / step_s)) - 1) if dt_s > 1.5 * step_s else 0
+            if dt_s > 0 and not missing:
+                self._dt_s.append(dt_s)
+        if sample.t_s is not None:
+            self._last_t_s = sample.t_s
+        if missing:
+            already = self.stats.bad_lines - self._bad_at_sample  # bad lines since the last sample: counted
+            self.stats.lost += max(0, missing - already)
+        return True
 
     def _read_header(self, cells: list[str], has_sum: bool) -> None:
         names = tuple(cells)
         missing = [c for c in self.channels if c not in names]
         known = set(self.channels) | set(_SCALARS) | {n for g in _GROUPS.values() for n in g}
         if missing:
-            if known & set(names):
-                self.events.append(("warn", f"header {','.join(names)} lacks channel(s) {','.join(missing)} of "
-                                            f"the calibration: samples skipped until a complete header"))
-                self.header = None
-            self.stats.garbage += 1
+            if not known & set(names):
+                self.stats.garbage += 1  # not a header: text where a sample should be
+                return
+            self.events.append(("warn", f"header {','.join(names)} lacks channel(s) {','.join(missing)} of "
+                                        f"the calibration: samples skipped until a complete header"))
+            self.header = None
+            self.stats.rejected_headers += 1
+            if self._last_rejected == names:
+                self.mismatch = (names, tuple(missing))
+            self._last_rejected = names
             return
         if len(set(names)) != len(names):
             self.events.append(("warn", f"header {','.join(names)} repeats a column: ignored"))
-            self.stats.garbage += 1
+            self.stats.rejected_headers += 1
             return
+        self._last_rejected = None
         groups = {}
         ignored = [n for n in names if n not in known]
         for key, group in _GROUPS.items():
@@ -342,12 +408,16 @@ def _is_number(cell: str) -> bool:
     return True
 
 
+class _NotFinite(ValueError):
+    """A well-formed number that is nan or infinite."""
+
+
 def _scalar(cells: list[str], index: int | None) -> float | None:
     if index is None or not cells[index]:
         return None
     value = float(cells[index])
     if not np.isfinite(value):
-        raise ValueError("non-finite value")
+        raise _NotFinite("non-finite value")
     return value
 
 
@@ -360,5 +430,5 @@ def _group(cells: list[str], index: np.ndarray | None) -> np.ndarray | None:
         return None
     values = np.array([float(t) for t in texts])  # ValueError on a partly empty group
     if not np.all(np.isfinite(values)):
-        raise ValueError("non-finite value")
+        raise _NotFinite("non-finite value")
     return values
