@@ -11,8 +11,8 @@ from compass.cli import main
 from compass.io.fourflip import read_fourflip
 from compass.io.table import read_table
 from compass.model import SensorModel
-from compass.response import LinearResponse
 from compass.sim.fourflip import simulate_fourflip, write_fourflip
+from compass.sim.installation import true_model
 from compass.sim.runtime import simulate_runtime, write_runtime
 from compass.site import Site, known_reference, reference_from_recording, wmm_field
 
@@ -47,13 +47,6 @@ def test_bad_site_text(text, message):
         Site.parse(text, "2026-01-01")
     with pytest.raises(ValueError, match="YYYY-MM-DD"):
         Site.parse("31.8,117.3", "1/2/2026")
-
-
-def true_model(truth) -> SensorModel:
-    field = truth["field_ut"]
-    responses = tuple(LinearResponse(o, g, (-field, field)) for o, g in zip(truth["offsets"], truth["gains_per_ut"]))
-    return SensorModel(tuple(truth["channels"]), np.array(truth["directions"]), responses, field, field,
-                       truth["dip_deg"], np.array(truth["noise"]))
 
 
 @pytest.fixture(scope="module")
@@ -174,3 +167,22 @@ def test_cli_bad_site_exit_2(benches, tmp_path, capsys, args, message):
     assert main(["attitude", str(cal), str(rec), "--out", str(tmp_path / "o.csv"), *args]) == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_simulated_installation_frames():
+    """A clean product (no iron) gives back the product's attitude; a yaw of the housing in the product
+    (counterclockwise seen from above) lowers the housing's heading by yaw when level."""
+    from compass.frames import heading_pitch_roll, r_world_from_housing
+    from compass.sim.installation import Installation, simulate_installation
+
+    truth = simulate_fourflip(seed=29).truth
+    model = true_model(truth)
+    for yaw in (0.0, 7.0):
+        rec = simulate_installation(truth, Installation(np.zeros(3), np.eye(3), yaw), kind="runtime", n=2000,
+                                    max_tilt_deg=30.0, seed=30)
+        att = solve_attitude(model, rec.outputs, accel=rec.accel)
+        housing = r_world_from_housing(rec.heading_deg, rec.pitch_deg, rec.roll_deg) * Installation(
+            np.zeros(3), np.eye(3), yaw).alignment
+        assert rms(wrap(att.heading_deg - heading_pitch_roll(housing)[0])) < 1.2 * rms(att.heading_sigma_deg)
+    level = heading_pitch_roll(r_world_from_housing(100.0, 0.0, 0.0) * Installation(np.zeros(3), np.eye(3), 7.0).alignment)
+    assert level[0][0] == pytest.approx(93.0)
