@@ -192,7 +192,8 @@ class LiveSession:
                 self.out.write(",%.3f,%.3f" % self.true_heading())
             self.out.write("\n")
         if self.sink is not None:
-            self.sink.log(t_s, self.samples, est, field_h / self.config.field_norm, sample.accel)
+            self.sink.log(t_s, self.samples, est, field_h / self.config.field_norm, sample.accel, raw=sample.raw,
+                          gyro=sample.gyro, gate_code=GATE_CODES[est.gate], in_range=self.in_range)
         if not held:
             self.output_latencies_s.append(time.perf_counter() - t_rx)
 

@@ -18,31 +18,15 @@ from compass.sim.device import PtyDevice, default_model, scripted_motion, simula
 from tests._proc import Proc, compass_command
 
 rr = pytest.importorskip("rerun")
-from rerun.chunk import RrdReader  # noqa: E402
+from rrd_read import entity_paths, read_column, scalars  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
+from compass.filter import FilterConfig  # noqa: E402
 from compass.viz import ENTITIES, RerunSink  # noqa: E402
 
 
 def wrap(d):
     return np.mod(np.asarray(d) + 180.0, 360.0) - 180.0
-
-
-def read_column(path, entity, component, index="sample"):
-    """(index values, cell values) of one component, sorted by index."""
-    idx, val = [], []
-    for c in RrdReader(str(path)).stream().filter(content=entity, components=component).to_chunks():
-        rb = c.to_record_batch()
-        if index not in rb.schema.names:
-            continue  # static chunk
-        idx += rb.column(index).to_pylist()
-        val += rb.column(component).to_pylist()
-    order = np.argsort(idx, kind="stable")
-    return np.asarray(idx)[order], [val[i] for i in order]
-
-
-def entity_paths(path):
-    return {c.entity_path for c in RrdReader(str(path)).stream().to_chunks()}
 
 
 def test_session_logs_what_it_writes(tmp_path):
@@ -52,7 +36,7 @@ def test_session_logs_what_it_writes(tmp_path):
     lines = device._lines(samples, 0)
     stream = device._header + b"".join(lines[:100]) + b"\x00\xffjunk\r\n" + lines[100][:20] + b"\r\n" + b"".join(lines[101:])
     out, events = io.StringIO(), []
-    sink = RerunSink(tmp_path / "s.rrd", recording_id="s")
+    sink = RerunSink.for_model(tmp_path / "s.rrd", model, FilterConfig.from_model(model), recording_id="s")
     session = LiveSession(model, out=out, sink=sink, on_event=lambda level, text: events.append(text))
     session.feed(LinkEvent("connected", "connected to test", 0.0))
     for k in range(0, len(stream), 700):  # arbitrary chunk boundaries
@@ -69,24 +53,50 @@ def test_session_logs_what_it_writes(tmp_path):
     seq, heading = read_column(rrd, "/compass/heading_deg", "Scalars:scalars")
     assert len(seq) == len(table.data) == 299 and list(seq) == list(range(1, 300))
     np.testing.assert_allclose([h[0] for h in heading], table.column("heading_deg"), atol=1e-3)  # CSV: 3 decimals
-    _, quat = read_column(rrd, "/world/housing", "Transform3D:quaternion")
+    frames, quat = read_column(rrd, "/world/housing", "Transform3D:quaternion")
     h, p, r = heading_pitch_roll(Rotation.from_quat(np.array([q[0] for q in quat])))
-    np.testing.assert_allclose(wrap(h - table.column("heading_deg")), 0.0, atol=2e-3)  # float32 quaternions
-    np.testing.assert_allclose(p, table.column("pitch_deg"), atol=2e-3)
+    rows = frames - 1  # sample numbers count from 1
+    np.testing.assert_allclose(wrap(h - table.column("heading_deg")[rows]), 0.0, atol=2e-3)  # float32 quaternions
+    np.testing.assert_allclose(p, table.column("pitch_deg")[rows], atol=2e-3)
     # the truth: the sample rows are t = seq / 100 of the script
     settled = table.column("t_s") > 0.5
     truth_heading = scripted_motion(table.column("t_s"))[0]
     assert np.sqrt(np.mean(wrap(table.column("heading_deg") - truth_heading)[settled] ** 2)) < 0.5
-    _, field = read_column(rrd, "/world/field", "Arrows3D:vectors")
-    _, gravity = read_column(rrd, "/world/gravity", "Arrows3D:vectors")
+    # 3-D views at display rate: the field in the world, gravity in the housing turned back by the housing
+    frames, field = read_column(rrd, "/world/field", "Arrows3D:vectors")
+    assert 0 < len(frames) < 299 / 2  # 100 Hz decimated to 30 frames a second
     dip = np.radians(model.dip_deg)
     np.testing.assert_allclose(np.mean([f[0] for f in field], axis=0), [np.cos(dip), 0, -np.sin(dip)], atol=0.01)
-    np.testing.assert_allclose(np.mean([g[0] for g in gravity], axis=0), [0, 0, -1], atol=0.01)
-    _, gate = read_column(rrd, "/compass/gate", "Scalars:scalars")
-    assert all(g == [1.0] for g in gate)
+    seq_g, gravity = read_column(rrd, "/housing/gravity", "Arrows3D:vectors")
+    seq_q, quat = read_column(rrd, "/world/housing", "Transform3D:quaternion")
+    assert list(seq_g) == list(seq_q) == list(frames)
+    down_w = Rotation.from_quat(np.array([q[0] for q in quat])).apply(np.array([g[0] for g in gravity]))
+    np.testing.assert_allclose(np.mean(down_w, axis=0), [0, 0, -1], atol=0.01)
+    # in the housing, the gate's cone (drawn in the world under housing/expected = R^-1) holds the field
+    _, q_inv = read_column(rrd, "/housing/expected", "Transform3D:quaternion")
+    r_inv = Rotation.from_quat(np.array([q[0] for q in q_inv]))
+    r = Rotation.from_quat(np.array([q[0] for q in quat]))
+    assert np.max((r_inv * r).magnitude()) < 1e-5
+    _, field_h = read_column(rrd, "/housing/field", "Arrows3D:vectors")
+    cone_axis = r_inv.apply([np.cos(dip), 0, -np.sin(dip)])
+    field_h = np.array([f[0] for f in field_h])
+    off_axis = np.degrees(np.arccos(np.sum(cone_axis * field_h, axis=1) / np.linalg.norm(field_h, axis=1)))
+    assert np.max(off_axis) < FilterConfig.from_model(model).dip_tolerance_deg
+    # the CSV's names and meanings: gate 0 is "field used"; the sigma band is the angle -+ its sigma
+    _, gate = scalars(rrd, "/compass/gate")
+    np.testing.assert_array_equal(gate[:, 0], table.column("gate"))
+    assert np.all(gate == 0)
+    _, band = scalars(rrd, "/compass/heading_deg/sigma_band")
+    sigma = table.column("heading_sigma_deg")
+    np.testing.assert_allclose(band, table.column("heading_deg")[:, None] + sigma[:, None] * [-1, 1], atol=2e-3)
+    _, raw = scalars(rrd, "/raw/mag")
+    np.testing.assert_allclose(raw, np.delete(samples.raw, 100, axis=0), rtol=1e-4, atol=1e-4)  # line 100 was cut
     _, texts = read_column(rrd, "/events", "TextLog:text")
     assert any("header: t_s,seq" in t[0] for t in texts) and any("line noise" in t[0] for t in texts)
     assert any("connected to test" in t for t in events)
+    t_events, _ = read_column(rrd, "/events", "TextLog:text", index="t")
+    t_first, _ = read_column(rrd, "/compass/heading_deg", "Scalars:scalars", index="t")
+    assert min(t_events) >= min(t_first)  # the events timeline starts at the first sample
 
 
 def test_reader_reconnects_when_a_socket_peer_returns():

@@ -53,7 +53,7 @@ def run_port(rate_hz: float, duration_s: float, rerun: bool, folder: Path) -> di
         sink = None
         if rerun:
             from compass.viz import RerunSink
-            sink = RerunSink(folder / f"live{rate_hz:g}.rrd")
+            sink = RerunSink.for_model(folder / f"live{rate_hz:g}.rrd", model, FilterConfig.from_model(model))
         with open(folder / "att.csv", "w", buffering=1 << 16) as out:
             session = LiveSession(model, out=out, sink=sink)
             stop = threading.Event()
@@ -95,7 +95,7 @@ def capacity(rerun: bool, folder: Path, n: int = 20000) -> float:
     sink = None
     if rerun:
         from compass.viz import RerunSink
-        sink = RerunSink(folder / "capacity.rrd")
+        sink = RerunSink.for_model(folder / "capacity.rrd", model, FilterConfig.from_model(model))
     with open(os.devnull, "w") as out:
         session = LiveSession(model, out=out, sink=sink)
         t0 = time.perf_counter()

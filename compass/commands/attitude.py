@@ -15,10 +15,12 @@ import numpy as np
 from ..io.atomic import atomic_write_text, check_writable
 from ..io.table import RecordingError, read_table
 from ..site import Site, reference_from_site
+from ..viz import add_rerun_option, check_rerun_target
 
 _ACCEL = ("ax", "ay", "az")
 _TILT = ("pitch_deg", "roll_deg")
-_IGNORED = ("t_s", "gx", "gy", "gz")
+_GYRO = ("gx", "gy", "gz")
+_IGNORED = ("t_s", *_GYRO)
 _FORMATS = {"in_range": "%d", "disturbed": "%d", "t_s": "%.4f"}
 
 
@@ -43,6 +45,7 @@ def register(sub) -> None:
     p.add_argument("--accel-noise-g", type=float, default=0.002,
                    help="accelerometer white noise per axis as a fraction of 1 g (default 0.002)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    add_rerun_option(p)
     p.set_defaults(func=run)
 
 
@@ -52,12 +55,12 @@ def run(args) -> int:
     if args.date is not None and args.site is None:
         raise BadInput("--date needs --site LAT,LON[,ALT_M]: the date only chooses the field at a site")
     attitude_file(args.calibration, args.recording, args.out, level=args.level, max_tilt_deg=args.max_tilt_deg,
-                  accel_noise_g=args.accel_noise_g, force=args.force, site=args.site, date=args.date)
+                  accel_noise_g=args.accel_noise_g, force=args.force, site=args.site, date=args.date, rerun=args.rerun)
     return 0
 
 
 def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0, accel_noise_g=0.002, force=False,
-                  site=None, date=None):
+                  site=None, date=None, rerun=None):
     """Solve one recording file into an attitude CSV; returns the :class:`~compass.attitude.Attitude`.
 
     The reference field is the site's: ``site`` (``"LAT,LON[,ALT_M]"`` or a :class:`compass.site.Site`)
@@ -73,6 +76,7 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     from ..cli import BadInput
 
     out = check_writable(out, force)
+    rerun = check_rerun_target(rerun, force)
     if not accel_noise_g > 0:
         raise BadInput(f"--accel-noise-g must be positive, got {accel_noise_g}")
     if not 0 <= max_tilt_deg < 90:
@@ -144,6 +148,11 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     atomic_write_text(out, _format_csv(columns, metadata))
     print(f"wrote {out} ({len(raw)} rows, mode {result.mode}; {int(np.sum(result.disturbed))} disturbed against the "
           f"{result.reference.source} reference, {int(np.sum(~result.in_range))} out of calibrated range)")
+    if rerun is not None:
+        from ..viz.attitude import record_attitude
+
+        record_attitude(rerun, result, model, t_s=columns.get("t_s"), raw=raw, accel=accel, gyro=_group(table, _GYRO))
+        print(f"wrote {rerun}")
     return result
 
 

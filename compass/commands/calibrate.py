@@ -11,6 +11,7 @@ from pathlib import Path
 
 from ..io.atomic import atomic_write_text, check_writable
 from ..io.table import read_table
+from ..viz import add_rerun_option, check_rerun_target
 
 
 def register(sub) -> None:
@@ -30,14 +31,28 @@ def register(sub) -> None:
                    help="tumble only: ellipsoid kind (default auto: the determined kind with the lowest BIC)")
     p.add_argument("--force", action="store_true", help="overwrite an existing calibration file")
     p.add_argument("--quiet", action="store_true", help="do not print the fit report")
+    add_rerun_option(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    calibrate_file(args.recording, args.out, method=args.method, diagnose=not args.no_diagnose,
-                   report=args.report, field_ut=args.field_ut, kind=args.kind, force=args.force, quiet=args.quiet,
-                   ellipsoid=args.ellipsoid)
+    target = check_rerun_target(args.rerun, args.force)
+    result = calibrate_file(args.recording, args.out, method=args.method, diagnose=not args.no_diagnose,
+                            report=args.report, field_ut=args.field_ut, kind=args.kind, force=args.force,
+                            quiet=args.quiet, ellipsoid=args.ellipsoid)
+    if target is not None:
+        from ..viz.calibration import record_calibration
+
+        record_calibration(target, args.recording, result, base_residuals=_base_residuals(result))
+        print(f"wrote {target}")
     return 0
+
+
+def _base_residuals(result):
+    """Four-flip: ``recording -> the base model's residuals`` (the replay's "before"), None without effects."""
+    if result.calibration_kind != "fourflip":
+        return None
+    return lambda recording: result._residual_sets(recording).get("before (base model)")
 
 
 OPTIONS = {"method": ("--method", "ml"), "diagnose": ("--no-diagnose", True), "field_ut": ("--field-ut", None),

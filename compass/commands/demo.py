@@ -40,7 +40,7 @@ def run(args) -> int:
           + (f" (effects the estimator is not told about: {', '.join(args.effect)})" if args.effect else ""))
     cal_path = folder / "cal.json"
     print("2. calibrating it (joint maximum likelihood, residual diagnosis):")
-    calibrate_cmd.calibrate_file(rec_path, cal_path, report=folder / "report", force=True)
+    cal_result = calibrate_cmd.calibrate_file(rec_path, cal_path, report=folder / "report", force=True)
     cal = load(cal_path).data
     truth = session.truth
     print("   against the simulator's truth (the estimator never saw it):")
@@ -59,5 +59,24 @@ def run(args) -> int:
           f"(propagated 1-sigma {np.sqrt(np.mean(att.heading_sigma_deg**2)):.3f} deg), "
           f"pitch {np.sqrt(np.mean((att.pitch_deg - runtime.pitch_deg) ** 2)):.3f} deg, "
           f"roll {np.sqrt(np.mean((att.roll_deg - runtime.roll_deg) ** 2)):.3f} deg")
+    _record(folder / "demo.rrd", rec_path, cal_result, cal_path, att, runtime)
     print(f"files in {folder} (plots in {folder / 'report'})")
     return 0
+
+
+def _record(path, rec_path, cal_result, cal_path, att, runtime) -> None:
+    """demo.rrd: the calibration, the attitude and its errors in Rerun (when rerun-sdk is installed)."""
+    try:
+        from ..viz.demo import record_demo
+    except ImportError:
+        print("4. (pip install 'compass-toolkit[rerun]' to also get demo.rrd, the whole run in the Rerun viewer)")
+        return
+    from ..model import SensorModel
+    from .calibrate import _base_residuals
+
+    record_demo(path, rec_path, cal_result, att, SensorModel.from_file(cal_path), t_s=runtime.t_s,
+                raw=runtime.outputs, accel=runtime.accel, truth_heading_deg=runtime.heading_deg,
+                truth_pitch_deg=runtime.pitch_deg, truth_roll_deg=runtime.roll_deg,
+                base_residuals=_base_residuals(cal_result))
+    print(f"4. wrote {path}: the calibration, the attitude and its errors against the truth; open it with "
+          f"`rerun {path}` (pip install 'compass-toolkit[rerun]' installs the viewer)")

@@ -24,6 +24,9 @@ def register(sub) -> None:
     p.add_argument("--rate", type=float, default=100.0, help="samples per second (default 100)")
     p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     p.add_argument("--no-gyro", action="store_true", help="send no gx,gy,gz columns")
+    p.add_argument("--motion", choices=("script", "tumble"), default="script",
+                   help="script: the 40 s attitude script with a magnet (default); tumble: every orientation, for "
+                        "a free-motion calibration (compass live --calibrate tumble)")
     p.add_argument("--link", help="keep a symbolic link with this name to the current pty (stable across disconnects)")
     p.add_argument("--garbage", type=float, default=0.0, metavar="P",
                    help="probability per sample of a line of random bytes (default 0)")
@@ -43,7 +46,7 @@ def run(args) -> int:
     from ..cli import BadInput
     from ..io.atomic import atomic_write_text, check_writable
     from ..model import SensorModel
-    from ..sim.device import PtyDevice, default_model
+    from ..sim.device import MOTIONS, PtyDevice, default_model
 
     if args.cal is not None:
         try:
@@ -63,7 +66,7 @@ def run(args) -> int:
     try:
         device = PtyDevice(model, rate_hz=args.rate, seed=args.seed, link=args.link, garbage_rate=args.garbage,
                            truncate_rate=args.truncate, disconnect_at_s=args.disconnect_at,
-                           disconnect_for_s=args.disconnect_for, gyro=not args.no_gyro,
+                           disconnect_for_s=args.disconnect_for, gyro=not args.no_gyro, motion=MOTIONS[args.motion],
                            on_path=lambda path: print(args.link or path, flush=True))
     except ValueError as exc:
         raise BadInput(str(exc)) from None

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..viz import add_rerun_option, check_rerun_target
+
 SEGMENT_S = 20.0
 
 
@@ -26,11 +28,21 @@ def register(sub) -> None:
     p.add_argument("--plot", metavar="DIR", help="write DIR/<trial>_errors.png: errors over time")
     p.add_argument("--no-gate", action="store_true", help="use every field sample (no magnetic-disturbance gate)")
     p.add_argument("--no-hard-iron", action="store_true", help="do not track hard-iron steps")
+    add_rerun_option(p)
+    p.add_argument("--force", action="store_true", help="overwrite an existing --rerun file")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    evaluate_file(args.trial, cal=args.cal, plot=args.plot, gate=not args.no_gate, hard_iron=not args.no_hard_iron)
+    target = check_rerun_target(args.rerun, args.force)
+    errors, result = evaluate_file(args.trial, cal=args.cal, plot=args.plot, gate=not args.no_gate,
+                                   hard_iron=not args.no_hard_iron)
+    if target is not None:
+        from ..io.broad import read_broad
+        from ..viz.attitude import record_evaluation
+
+        record_evaluation(target, read_broad(args.trial), result, errors)
+        print(f"  wrote {target}")
     return 0
 
 

@@ -13,6 +13,8 @@ import sys
 import threading
 import time
 
+from ..viz import add_rerun_option, check_rerun_target
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -21,10 +23,10 @@ def register(sub) -> None:
                     "filter that rejects magnetic disturbances, and show heading/pitch/roll live.")
     p.add_argument("--port", required=True,
                    help="serial device (/dev/ttyUSB0, COM3) or pyserial URL (socket://host:port, rfc2217://...)")
-    p.add_argument("--cal", required=True, help="calibration JSON (compass calibrate) of the module's sensor")
+    p.add_argument("--cal", help="calibration JSON (compass calibrate) of the module's sensor (required unless "
+                                 "--calibrate)")
     p.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200; ignored by ptys and sockets)")
-    p.add_argument("--rerun", metavar="spawn|FILE.rrd",
-                   help="'spawn' opens the Rerun viewer; a file name records to that .rrd file")
+    add_rerun_option(p)
     p.add_argument("--out", help="also write the attitude stream to this CSV file")
     p.add_argument("--site", metavar="LAT,LON[,ALT_M]",
                    help="where the module is (degrees, metres): reference field and true north from the World "
@@ -36,6 +38,12 @@ def register(sub) -> None:
                    help="keep trying to open the port this long before giving up (default 0: a port that cannot "
                         "be opened is an error); once connected, a lost port is always waited for")
     p.add_argument("--quiet", action="store_true", help="no live readout and no event lines, only the summary")
+    p.add_argument("--calibrate", choices=("tumble",),
+                   help="tumble: calibrate the module while you turn it through every orientation (coverage and fit "
+                        "shown live); writes --out CAL.json when the coverage is enough, or on Ctrl-C")
+    p.add_argument("--min-coverage", type=float, default=0.8,
+                   help="--calibrate tumble: fraction of the sphere to cover, with every axis along the field once "
+                        "(default 0.8)")
     p.set_defaults(func=run)
 
 
@@ -47,6 +55,12 @@ def run(args) -> int:
     from ..model import SensorModel
     from ..serial_reader import PortUnavailable, SerialReader
 
+    if args.calibrate == "tumble":
+        from ._live_tumble import run_tumble
+
+        return run_tumble(args)
+    if args.cal is None:
+        raise BadInput("--cal CAL.json is required (or --calibrate tumble to make one)")
     try:
         model = SensorModel.from_file(args.cal)
         config = FilterConfig.from_model(model)
@@ -63,15 +77,12 @@ def run(args) -> int:
     except ValueError as exc:
         raise BadInput(str(exc)) from None
     out_path = None if args.out is None else check_writable(args.out, args.force)
-    if args.rerun not in (None, "spawn"):
-        check_writable(args.rerun, args.force)
+    check_rerun_target(args.rerun, args.force)
     sink = None
     if args.rerun is not None:
-        try:
-            from ..viz import RerunSink
-        except ImportError:
-            raise BadInput("--rerun needs rerun-sdk: pip install 'compass-toolkit[rerun]'") from None
-        sink = RerunSink(args.rerun)
+        from ..viz import RerunSink
+
+        sink = RerunSink.for_model(args.rerun, model, config)
 
     tty = sys.stdout.isatty()
     every_s = 0.1 if tty else 1.0

@@ -39,7 +39,8 @@ from ..io.lines import format_line
 from ..model import SensorModel
 from ..response import LinearResponse
 
-__all__ = ["DeviceSamples", "PtyDevice", "default_model", "scripted_motion", "simulate_device", "MAGNET_PERIOD_S"]
+__all__ = ["DeviceSamples", "PtyDevice", "default_model", "scripted_motion", "tumble_motion", "simulate_device",
+           "MAGNET_PERIOD_S", "MOTIONS"]
 
 PERIOD_S = 40.0
 MAGNET_PERIOD_S = (22.5, 31.0)  # magnet fully present between these times (plus 0.5 s ramps outside)
@@ -75,6 +76,24 @@ def scripted_motion(t_s) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
     lo, hi = MAGNET_PERIOD_S
     magnet = _ease(t, lo - 0.5, lo) - _ease(t, hi, hi + 0.5)
     return np.mod(heading, 360.0), pitch, roll, magnet
+
+
+def tumble_motion(t_s) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A brisk tumble for a free-motion calibration, no magnet.
+
+    Heading turns steadily (90 deg/s), pitch swings +-80 degrees (5.3 s) and roll +-170 degrees
+    (3.7 s, so the module is turned over twice a period); the incommensurate periods fill the
+    sphere of field directions: 60 % of it in 15 s, 88 % in 30 s (200 cells). Same returns as
+    :func:`scripted_motion` (magnet always 0).
+    """
+    t = np.asarray(t_s, dtype=float)
+    heading = np.mod(90.0 * t, 360.0)
+    pitch = 80.0 * np.sin(2.0 * np.pi * t / 5.3)
+    roll = 170.0 * np.sin(2.0 * np.pi * t / 3.7)
+    return heading, pitch, roll, np.zeros(t.shape)
+
+
+MOTIONS = {"script": scripted_motion, "tumble": tumble_motion}
 
 
 @dataclass(frozen=True)
@@ -186,6 +205,9 @@ class PtyDevice:
         absent meanwhile, as a device node is when a USB cable is out).
     gyro : bool
         Send ``gx,gy,gz``.
+    motion : callable
+        ``motion(t_s) -> (heading_deg, pitch_deg, roll_deg, magnet)``: :func:`scripted_motion`
+        (default) or :func:`tumble_motion`.
 
     Attributes
     ----------
@@ -205,6 +227,7 @@ class PtyDevice:
     disconnect_at_s: float | None = None
     disconnect_for_s: float = 1.0
     gyro: bool = True
+    motion: object = scripted_motion
     path: str | None = None
     counts: dict = field(default_factory=lambda: dict.fromkeys(
         ("samples", "garbage", "truncated", "overflow", "disconnects"), 0))
@@ -262,7 +285,8 @@ class PtyDevice:
                     t = t[t < duration_s]
                     if not len(t):
                         break
-                samples = simulate_device(self.model, t, seed=self.seed + sent, rate_hz=self.rate_hz,
+                samples = simulate_device(self.model, t, motion=self.motion, seed=self.seed + sent,
+                                          rate_hz=self.rate_hz,
                                           gyro_bias=np.random.default_rng(self.seed).normal(0.0, 0.01, 3))
                 for i, line in enumerate(self._lines(samples, sent)):
                     t_i = t[i]

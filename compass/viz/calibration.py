@@ -1,0 +1,438 @@
+"""Calibrations in Rerun: the four-flip session replayed, the tumble before and after, the platform
+and reference fits, the diagnosis steps, and the live tumble's coverage.
+
+Inputs are plain arrays and the calibration file's dict (SPEC section 2; ``to_json()`` of any
+result), so this module does not depend on how ``calibrate`` computes them.
+
+Entities (timelines ``sample``: the replay order, and ``t`` when the recording has ``t_s``):
+
+=============================================== ===================================================
+entity                                          content
+=============================================== ===================================================
+``bench/field``                                 the fitted Earth field in the bench frame (static)
+``bench/turntable``                             ``Transform3D`` Rz(platform_deg); a ring marks it
+``bench/turntable/cube``                        ``Transform3D`` Rx(flip_deg); the housing (FLU)
+``bench/turntable/cube/directions``             fitted sensing directions, labelled (static)
+``bench/turntable/cube/direction_cones``        their 3-sigma uncertainty cones (static)
+``fourflip/<channel>/measured``, ``/fit``       output, recording units
+``fourflip/<channel>/residual``                 measured - fit: ``after`` (the final model) and,
+                                                with effects added, ``before`` (base model)
+``fourflip/<channel>/residual/noise_band``      -+ the noise floor from the data
+``fourflip/platform_deg``, ``fourflip/flip_deg`` the bench's angles
+``tumble/raw/samples``, ``/ellipsoid``          raw samples coloured by coverage, fitted ellipsoid
+``tumble/calibrated/samples``, ``/sphere``      calibrated samples, sphere of radius field_norm
+``tumble/coverage``                             the sphere's cells: red (few samples) to green
+``tumble/live``, ``tumble/coverage_fraction``,   live tumble: samples so far about the current hard
+``tumble/hard_iron/<axis>``                     iron, coverage, the fit converging (+-1 sigma)
+``tumble/field_ratio``                          |m| / field_norm: ``raw`` (about the hard iron,
+                                                gain-normalised) and ``calibrated``
+``<kind>/<channel>/residual``                   platform3d, reference: residual per channel
+``diagnosis/residual_rms``                      ``BarChart``: each diagnosis step's residual rms
+``diagnosis/log``                               ``TextLog``: the steps, evidence, verdict
+=============================================== ===================================================
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+from scipy.spatial.transform import Rotation
+
+from ..frames import field_in_bench
+from ._drawing import AXIS_COLORS, FIELD_COLOR, cone_strips, log_housing
+from ._stream import columns_index
+
+__all__ = ["log_calibration", "log_calibration_result", "record_calibration", "calibration_views", "log_fourflip",
+           "log_tumble", "log_fit_residuals", "log_diagnosis", "LiveTumbleRecording", "coverage_cells"]
+
+_MEASURED, _FIT = [120, 120, 120], [30, 120, 220]
+_BEFORE, _AFTER = [230, 120, 40], [30, 120, 220]
+_SIGMAS = 3.0  # uncertainty cones: this many sigma
+
+
+def calibration_views(kind: str, channels=()) -> rrb.Container:
+    """The layout of a calibration of ``kind`` (``fourflip``, ``tumble``, ``platform3d``, ``reference``)."""
+    diagnosis = rrb.Vertical(rrb.BarChartView(origin="/diagnosis/residual_rms",
+                                              name="diagnosis: residual rms per step (last: final model)"),
+                             rrb.TextLogView(origin="/diagnosis/log", name="diagnosis steps"))
+    if kind == "fourflip":
+        rows = [rrb.Horizontal(rrb.TimeSeriesView(origin=f"/fourflip/{ch}", name=f"{ch}: measured and fit",
+                                                  contents=["$origin/measured", "$origin/fit"]),
+                               rrb.TimeSeriesView(origin=f"/fourflip/{ch}/residual",
+                                                  name=f"{ch}: residual before/after, noise band"))
+                for ch in channels]
+        rows.append(rrb.TimeSeriesView(name="bench angles (deg)",
+                                       contents=["/fourflip/platform_deg", "/fourflip/flip_deg"]))
+        return rrb.Horizontal(
+            rrb.Spatial3DView(origin="/bench", name="cube on the turntable; sensing directions, 3-sigma cones"),
+            rrb.Vertical(*rows), diagnosis, column_shares=[2, 3, 1], name="four-flip calibration")
+    if kind == "tumble":
+        return rrb.Horizontal(
+            rrb.Vertical(rrb.Horizontal(
+                rrb.Spatial3DView(origin="/tumble/raw", name="raw, on the fitted ellipsoid (colour: coverage)"),
+                rrb.Spatial3DView(origin="/tumble/calibrated", name="calibrated, on the sphere")),
+                rrb.TimeSeriesView(origin="/tumble/field_ratio", name="|m| / field_norm: raw and calibrated"),
+                row_shares=[3, 1]),
+            rrb.Vertical(rrb.Spatial3DView(origin="/tumble/coverage", name="coverage: cells seen (green)"),
+                         diagnosis), column_shares=[3, 1], name="tumble calibration")
+    residuals = rrb.Vertical(*(rrb.TimeSeriesView(origin=f"/{kind}/{ch}", name=f"{ch}: residual") for ch in channels))
+    parts = [rrb.Spatial3DView(origin="/platform3d/bench", name="housing in each pose")] if kind == "platform3d" else []
+    return rrb.Horizontal(*parts, residuals, diagnosis, name=f"{kind} calibration")
+
+
+def log_calibration(rec, kind: str, calibration: dict, **arrays) -> None:
+    """Log one calibration; ``arrays`` are those :func:`log_fourflip`, :func:`log_tumble` or
+    :func:`log_fit_residuals` take for ``kind``."""
+    {"fourflip": log_fourflip, "tumble": log_tumble}.get(kind, log_fit_residuals)(rec, calibration, **arrays)
+    log_diagnosis(rec, calibration.get("diagnosis"))
+
+
+def log_fourflip(rec, calibration: dict, *, platform_deg, flip_deg, outputs, residuals, t_s=None,
+                 base_residuals=None, frames: int = 720) -> None:
+    """The four-flip session replayed: the cube turning, outputs with fit and residuals.
+
+    Parameters
+    ----------
+    calibration : dict
+        The four-flip calibration file (``channels`` with ``direction`` and
+        ``direction_covariance``, ``dip_deg``, ``field_azimuth_deg``, ``noise_floor``).
+    platform_deg, flip_deg : ndarray (n,)
+        The samples the fit used, degrees.
+    outputs, residuals : ndarray (n, c)
+        Measured outputs and measured minus fitted (the final model), in channel order.
+    t_s : ndarray (n,), optional
+    base_residuals : ndarray (n, c), optional
+        Residuals of the base model, when the diagnosis added effects.
+    frames : int
+        At most this many samples drawn in 3-D.
+    """
+    names = list(calibration["channels"])
+    order = np.argsort(t_s, kind="stable") if t_s is not None else np.lexsort((np.mod(platform_deg, 360.0), flip_deg))
+    sample = np.arange(len(order))
+    t = None if t_s is None else np.asarray(t_s, dtype=float)[order]
+    index = columns_index(t, sample)
+    outputs, residuals = np.asarray(outputs, dtype=float)[order], np.asarray(residuals, dtype=float)[order]
+    noise = np.broadcast_to(np.asarray(calibration.get("noise_floor", np.nan), dtype=float), (len(names),))
+    for j, name in enumerate(names):
+        rec.log(f"fourflip/{name}/measured", rr.SeriesPoints(names=["measured"], colors=[_MEASURED], marker_sizes=[1.0]),
+                static=True)
+        rec.log(f"fourflip/{name}/fit", rr.SeriesLines(names=["fit"], colors=[_FIT]), static=True)
+        rec.send_columns(f"fourflip/{name}/measured", indexes=index, columns=rr.Scalars.columns(scalars=outputs[:, j]))
+        rec.send_columns(f"fourflip/{name}/fit", indexes=index,
+                         columns=rr.Scalars.columns(scalars=outputs[:, j] - residuals[:, j]))
+        parts = [residuals[:, j]] if base_residuals is None else [np.asarray(base_residuals)[order, j], residuals[:, j]]
+        labels = ["residual"] if base_residuals is None else ["before (base model)", "after"]
+        rec.log(f"fourflip/{name}/residual", rr.SeriesPoints(names=labels, colors=[_BEFORE, _AFTER][-len(parts):],
+                                                            marker_sizes=[1.0] * len(parts)), static=True)
+        rec.send_columns(f"fourflip/{name}/residual", indexes=index,
+                         columns=rr.Scalars.columns(scalars=np.column_stack(parts)))
+        rec.log(f"fourflip/{name}/residual/noise_band", rr.SeriesLines(names=["-noise", "+noise"],
+                                                                       colors=[[160, 160, 160]] * 2), static=True)
+        rec.send_columns(f"fourflip/{name}/residual/noise_band", indexes=index, columns=rr.Scalars.columns(
+            scalars=np.broadcast_to([-noise[j], noise[j]], (len(sample), 2))))
+    phi, kappa = np.asarray(platform_deg, dtype=float)[order], np.asarray(flip_deg, dtype=float)[order]
+    for name, values in (("platform_deg", phi), ("flip_deg", kappa)):
+        rec.send_columns(f"fourflip/{name}", indexes=index, columns=rr.Scalars.columns(scalars=values))
+    _log_bench(rec, calibration, names)
+    keep = np.unique(np.linspace(0, len(sample) - 1, min(frames, len(sample))).astype(int))
+    subset = columns_index(None if t is None else t[keep], keep)
+    # R_W<-H = Rz(phi) Rx(kappa) (SPEC section 1): the turntable turns the cube's flip
+    turntable = Rotation.from_euler("z", phi[keep][:, None], degrees=True)
+    cube = Rotation.from_euler("x", kappa[keep][:, None], degrees=True)
+    rec.send_columns("bench/turntable", indexes=subset, columns=rr.Transform3D.columns(quaternion=turntable.as_quat()))
+    rec.send_columns("bench/turntable/cube", indexes=subset, columns=rr.Transform3D.columns(quaternion=cube.as_quat()))
+
+
+def _log_bench(rec, calibration: dict, names) -> None:
+    """The static parts of the bench: field, turntable ring, housing, directions and their cones."""
+    field_w = field_in_bench(calibration["dip_deg"], calibration.get("field_azimuth_deg", 0.0), 1.5)
+    rec.log("bench/field", rr.Arrows3D(vectors=[field_w], colors=[FIELD_COLOR],
+                                       labels=[f"field, dip {calibration['dip_deg']:.2f} deg"]), static=True)
+    phi = np.linspace(0.0, 2.0 * np.pi, 73)
+    ring = np.column_stack([1.4 * np.cos(phi), 1.4 * np.sin(phi), np.full(phi.shape, -0.3)])
+    rec.log("bench/turntable/ring", rr.LineStrips3D([ring, [[0.0, 0.0, -0.3], [1.4, 0.0, -0.3]]],
+                                                    colors=[[120, 120, 120]], labels=["turntable", "zero"]), static=True)
+    log_housing(rec, "bench/turntable/cube", color=(200, 200, 200), label="cube (housing)", scale=0.6)
+    directions, strips, labels = [], [], []
+    for j, name in enumerate(names):
+        ch = calibration["channels"][name]
+        a = np.asarray(ch["direction"], dtype=float)
+        sigma = ch.get("direction_sigma_deg")
+        directions.append(a)
+        labels.append(f"{name}" + ("" if sigma is None else f" +-{sigma:.3f} deg"))
+        if sigma is not None:
+            strips += cone_strips(a, np.radians(_SIGMAS * sigma), 1.2)
+    colors = [AXIS_COLORS[j % 3] for j in range(len(names))]
+    rec.log("bench/turntable/cube/directions", rr.Arrows3D(vectors=1.2 * np.array(directions), colors=colors,
+                                                           labels=labels, show_labels=True), static=True)
+    if strips:
+        rec.log("bench/turntable/cube/direction_cones", rr.LineStrips3D(strips, colors=[[240, 200, 60]]), static=True)
+
+
+def log_diagnosis(rec, diagnosis: dict | None) -> None:
+    """The diagnosis block (SPEC section 4): each step's residual rms as bars, the steps in words."""
+    if not diagnosis or not diagnosis.get("steps"):
+        return
+    steps = diagnosis["steps"]
+    rms = []
+    for step in steps:
+        value = step.get("residual_rms")
+        rms.append(float(np.sqrt(np.mean(np.square(value)))) if value is not None else np.nan)
+    rec.log("diagnosis/residual_rms", rr.BarChart(np.array(rms), color=[30, 120, 220]), static=True)
+    floor = diagnosis.get("noise_floor")
+    lines = [f"noise floor {np.sqrt(np.mean(np.square(floor))):.4g}" if floor is not None else "no noise floor"]
+    for k, step in enumerate(steps):
+        what = step.get("added") or step.get("model", "step")
+        lines.append(f"step {k}: {what}: residual rms {rms[k]:.4g}"
+                     + (f"; {step['evidence']}" if step.get("evidence") else ""))
+    verdict = diagnosis.get("unexplained")
+    lines.append("effects: " + (", ".join(diagnosis.get("effects", [])) or "none")
+                 + {True: "; structure above the floor remains UNEXPLAINED", False: "; residual at the noise floor",
+                    None: "; no floor to judge by"}[verdict])
+    rec.set_time("sample", sequence=0)  # at the start of the replay, so the whole story is in view
+    for line in lines:
+        rec.log("diagnosis/log", rr.TextLog(line))
+
+
+def coverage_cells(n_cells: int) -> np.ndarray:
+    """Centres of ``n_cells`` near-equal-area cells on the unit sphere (Fibonacci lattice), (n, 3)."""
+    i = np.arange(n_cells) + 0.5
+    z = 1.0 - 2.0 * i / n_cells
+    phi = np.pi * (1.0 + 5.0**0.5) * i
+    r = np.sqrt(1.0 - z**2)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+def _cell_counts(directions: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(cell of each direction, samples per cell)."""
+    cell = np.argmax(directions @ cells.T, axis=1)
+    return cell, np.bincount(cell, minlength=len(cells))
+
+
+def _coverage_colors(counts: np.ndarray) -> np.ndarray:
+    """Red (empty or one sample) through yellow to green (well covered), per count."""
+    level = np.clip(np.log1p(counts) / np.log1p(20.0), 0.0, 1.0)[:, None]
+    red, green = np.array([220, 50, 40]), np.array([40, 190, 70])
+    return np.where(counts[:, None] == 0, [90, 90, 90], (1 - level) * red + level * green).astype(np.uint8)
+
+
+def log_tumble(rec, calibration: dict, *, mag, t_s=None, coverage_words: str | None = None,
+               n_cells: int = 200) -> None:
+    """The tumble before and after: raw points on the fitted ellipsoid, calibrated on the sphere.
+
+    Parameters
+    ----------
+    calibration : dict
+        The tumble calibration file: ``hard_iron``, ``soft_iron`` (``m = S (raw - h)``),
+        ``field_norm``.
+    mag : ndarray (n, 3)
+        Raw magnetometer samples, recording units.
+    coverage_words : str, optional
+        What the coverage misses, in words (logged to the diagnosis log).
+    n_cells : int
+        Cells of the coverage sphere.
+    """
+    mag = np.asarray(mag, dtype=float)
+    hard = np.asarray(calibration["hard_iron"], dtype=float)
+    soft = np.asarray(calibration["soft_iron"], dtype=float)
+    norm = float(calibration["field_norm"])
+    m = (mag - hard) @ soft.T
+    cells = coverage_cells(n_cells)
+    cell, counts = _cell_counts(m / np.linalg.norm(m, axis=1, keepdims=True), cells)
+    point_colors = _coverage_colors(counts)[cell]
+    scale = 1.0 / norm  # draw both clouds at unit size: the raw one about its hard iron
+    raw_scaled = (mag - hard) * (scale * abs(np.linalg.det(soft)) ** (1 / 3))
+    rec.log("tumble/raw/samples", rr.Points3D(raw_scaled, colors=point_colors, radii=0.01), static=True)
+    u, sv, vt = np.linalg.svd(np.linalg.inv(soft))
+    if np.linalg.det(u) < 0:
+        u[:, -1] *= -1
+    rec.log("tumble/raw/ellipsoid", rr.Ellipsoids3D(
+        half_sizes=[sv * norm * scale * abs(np.linalg.det(soft)) ** (1 / 3)], quaternions=[Rotation.from_matrix(u).as_quat()],
+        colors=[[200, 200, 200, 60]], labels=["fitted ellipsoid (about the hard iron)"]), static=True)
+    rec.log("tumble/calibrated/samples", rr.Points3D(m * scale, colors=point_colors, radii=0.01), static=True)
+    rec.log("tumble/calibrated/sphere", rr.Ellipsoids3D(half_sizes=[[1.0, 1.0, 1.0]], colors=[[200, 200, 200, 60]],
+                                                        labels=[f"|m| = field_norm ({norm:.4g})"]), static=True)
+    for path in ("tumble/raw/axes", "tumble/calibrated/axes"):
+        rec.log(path, rr.Arrows3D(vectors=1.3 * np.eye(3), colors=AXIS_COLORS, labels=["+X", "+Y", "+Z"]), static=True)
+    rec.log("tumble/coverage", rr.Points3D(cells, colors=_coverage_colors(counts), radii=0.06,
+                                           labels=[f"{c} samples" for c in counts], show_labels=False), static=True)
+    sample = np.arange(len(mag))
+    index = columns_index(t_s, sample)
+    raw_ratio = np.linalg.norm(mag - hard, axis=1)
+    rec.log("tumble/field_ratio", rr.SeriesPoints(names=["raw (about the hard iron, over its median)", "calibrated"],
+                                                  colors=[_BEFORE, _AFTER], marker_sizes=[1.0, 1.0]), static=True)
+    rec.send_columns("tumble/field_ratio", indexes=index, columns=rr.Scalars.columns(
+        scalars=np.column_stack([raw_ratio / np.median(raw_ratio), np.linalg.norm(m, axis=1) / norm])))
+    if coverage_words:
+        rec.set_time("sample", sequence=0)
+        rec.log("diagnosis/log", rr.TextLog(f"coverage: {coverage_words}"))
+
+
+def log_fit_residuals(rec, calibration: dict, *, prefix: str, residuals: dict, t_s=None) -> None:
+    """Residuals of a platform (seed 001) or reference-field (seed 003) fit, one series per channel.
+
+    Parameters
+    ----------
+    prefix : str
+        Entity prefix: the kind (``platform3d``, ``reference``).
+    residuals : dict of str to ndarray (n,)
+        Channel name -> measured minus fitted, in sample order.
+    """
+    for name, values in residuals.items():
+        values = np.asarray(values, dtype=float)
+        rec.log(f"{prefix}/{name}", rr.SeriesPoints(names=[name], marker_sizes=[1.0]), static=True)
+        rec.send_columns(f"{prefix}/{name}", indexes=columns_index(t_s, np.arange(len(values))),
+                         columns=rr.Scalars.columns(scalars=values))
+
+
+class LiveTumbleRecording:
+    """The live tumble calibration (``compass live --calibrate tumble``) as MotionCal shows it.
+
+    Every :meth:`update` logs the raw samples so far about the current hard iron (coloured by the
+    coverage of their cell), the coverage sphere's cells, the coverage fraction and the fit's hard
+    iron with its sigma band; :meth:`event` logs a line (what is missing, link events);
+    :meth:`close` adds the final calibration (:func:`log_tumble`) and the layout.
+
+    Parameters
+    ----------
+    target : str or path
+        ``spawn`` or an .rrd file.
+    n_cells : int
+        Cells of the coverage sphere.
+    max_points : int
+        At most this many samples drawn per update (evenly spread).
+    """
+
+    def __init__(self, target, *, n_cells: int = 200, max_points: int = 3000):
+        from ._stream import Recording
+
+        self.recording = Recording(target, application_id="compass_live_tumble")
+        self.rec, self.cells, self.max_points = self.recording.rec, coverage_cells(n_cells), max_points
+        self.rec.log("tumble/coverage_fraction", rr.SeriesLines(names=["coverage"]), static=True)
+        for axis in "xyz":
+            self.rec.log(f"tumble/hard_iron/{axis}", rr.SeriesLines(names=[f"hard iron {axis}"]), static=True)
+            self.rec.log(f"tumble/hard_iron/{axis}/sigma_band", rr.SeriesLines(
+                names=["-1 sigma", "+1 sigma"], colors=[[150, 150, 150]] * 2), static=True)
+
+    @staticmethod
+    def views() -> rrb.Container:
+        return rrb.Horizontal(
+            rrb.Spatial3DView(origin="/tumble/live", name="samples so far, about the hard iron (colour: coverage)"),
+            rrb.Vertical(rrb.Spatial3DView(origin="/tumble/coverage", name="coverage: cells seen (green)"),
+                         rrb.TimeSeriesView(origin="/tumble/coverage_fraction", name="coverage fraction"),
+                         rrb.TimeSeriesView(origin="/tumble/hard_iron", name="hard iron +-1 sigma (converging)")),
+            rrb.TextLogView(origin="/events", name="what is still missing"), column_shares=[2, 2, 1],
+            name="live tumble calibration")
+
+    def _time(self, collector) -> None:
+        rows = collector.rows
+        self.rec.set_time("sample", sequence=len(rows))
+        if rows:
+            self.rec.set_time("t", duration=float(rows[-1][0]))
+
+    def update(self, collector) -> None:
+        """Log the state of a :class:`compass.commands._live_tumble.TumbleCollector`."""
+        if collector.coverage is None:
+            return
+        rec = self.rec
+        self._time(collector)
+        mag = collector.samples[:, 1:4]
+        mag = mag[np.unique(np.linspace(0, len(mag) - 1, min(len(mag), self.max_points)).astype(int))]
+        fit = collector.fit
+        d = mag - (fit.hard_iron if fit is not None else np.median(mag, axis=0))
+        norm = np.linalg.norm(d, axis=1, keepdims=True)
+        cell, counts = _cell_counts(d / norm, self.cells)
+        rec.log("tumble/live", rr.Points3D(d / np.median(norm), colors=_coverage_colors(counts)[cell], radii=0.01))
+        rec.log("tumble/coverage", rr.Points3D(self.cells, colors=_coverage_colors(counts), radii=0.06))
+        rec.log("tumble/coverage_fraction", rr.Scalars(collector.coverage.fraction))
+        if fit is not None:
+            for k, axis in enumerate("xyz"):
+                h, s = fit.hard_iron[k], fit.hard_iron_sigma[k]
+                rec.log(f"tumble/hard_iron/{axis}", rr.Scalars(h))
+                rec.log(f"tumble/hard_iron/{axis}/sigma_band", rr.Scalars([h - s, h + s]))
+
+    def event(self, collector, text: str) -> None:
+        self._time(collector)
+        self.rec.log("events", rr.TextLog(text))
+
+    def close(self, result, mag) -> None:
+        """Add the calibration (None: none was written), send the layout, finish the file."""
+        views = [self.views()]
+        if result is not None:
+            self.rec.set_time("sample", sequence=0)
+            log_calibration(self.rec, "tumble", result.to_json(), mag=mag, coverage_words=result.coverage.words())
+            views.append(calibration_views("tumble"))
+        self.rec.send_blueprint(rrb.Blueprint(rrb.Tabs(*views), collapse_panels=False))
+        self.recording.close()
+
+
+def log_calibration_result(rec, result, recording_path, *, base_residuals=None) -> rrb.Container:
+    """Log a calibration result of any kind; returns its views (for a blueprint).
+
+    Parameters
+    ----------
+    result : calibrate.contract.Calibration
+        The fit's result: ``calibration_kind``, ``to_json()`` and per kind ``residuals`` and
+        ``used(recording)`` (four-flip), ``coverage`` (tumble), ``residuals_mag`` (3-D platform),
+        ``sensors`` with their ``residuals`` (reference fields).
+    recording_path : path
+        The recording the result was fitted to (read again here).
+    base_residuals : callable, optional
+        Four-flip: ``base_residuals(recording)`` gives the base model's residuals (n, c), or
+        None when the diagnosis added nothing.
+    """
+    from ..io.table import read_table
+
+    calibration = result.to_json()
+    table = read_table(recording_path)
+    kind = result.calibration_kind
+    if kind == "tumble":
+        from ..io.tumble import tumble_from_table
+
+        recording = tumble_from_table(table)
+        channels, arrays = ("mx", "my", "mz"), dict(mag=recording.mag, t_s=recording.t_s,
+                                                     coverage_words=result.coverage.words())
+    elif kind == "platform3d":
+        from ..io.platform3d import platform3d_from_table
+
+        recording, channels = platform3d_from_table(table), ("mx", "my", "mz")
+        arrays = dict(prefix=kind, residuals=dict(zip(channels, result.residuals_mag.T)))
+        _log_platform_poses(rec, recording.angles_deg)
+    elif kind == "reference":
+        residuals = {f"{s.name}/{c}": r for s in result.sensors for c, r in zip(s.channels, s.residuals.T)}
+        channels, arrays = tuple(residuals), dict(prefix=kind, residuals=residuals)
+    elif kind == "fourflip":
+        from ..io.fourflip import fourflip_from_table
+
+        recording = fourflip_from_table(table)
+        used = result.used(recording)
+        channels = used.channels
+        arrays = dict(platform_deg=used.platform_deg, flip_deg=used.flip_deg, outputs=used.outputs,
+                      residuals=result.residuals, t_s=used.t_s,
+                      base_residuals=None if base_residuals is None else base_residuals(recording))
+    else:  # a kind this module does not draw yet: its diagnosis only
+        log_diagnosis(rec, calibration.get("diagnosis"))
+        return rrb.Vertical(rrb.BarChartView(origin="/diagnosis/residual_rms"), rrb.TextLogView(origin="/diagnosis/log"),
+                            name=f"{kind} calibration")
+    log_calibration(rec, kind, calibration, **arrays)
+    return calibration_views(kind, channels)
+
+
+def record_calibration(target, recording_path, result, *, base_residuals=None,
+                       application_id: str = "compass_calibrate") -> None:
+    """Write one calibration to ``target`` (.rrd or ``spawn``) with its layout
+    (:func:`log_calibration_result`)."""
+    from ._stream import Recording
+
+    with Recording(target, application_id=application_id) as out:
+        views = log_calibration_result(out.rec, result, recording_path, base_residuals=base_residuals)
+        out.rec.send_blueprint(rrb.Blueprint(views, collapse_panels=False))
+
+
+def _log_platform_poses(rec, angles_deg) -> None:
+    """The housing turned through the platform's poses (``R_W<-H = Rz(z) Ry(y) Rx(x)``)."""
+    log_housing(rec, "platform3d/bench/housing", label="housing")
+    r = Rotation.from_euler("ZYX", np.asarray(angles_deg, dtype=float), degrees=True)
+    rec.send_columns("platform3d/bench/housing", indexes=columns_index(None, np.arange(len(r))),
+                     columns=rr.Transform3D.columns(quaternion=r.as_quat()))

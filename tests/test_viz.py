@@ -1,0 +1,202 @@
+"""Rerun output of every command: read each recording back and check entities, components, timelines
+and the blueprint against what the command computed (rerun-sdk 0.41, ``rerun.chunk.RrdReader``)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from compass.cli import main
+from compass.io.table import read_table
+from compass.viz import spawn_problem
+
+rr = pytest.importorskip("rerun")
+from rrd_read import blueprint_views, entity_paths, read_column, read_static, scalars, timelines  # noqa: E402
+from scipy.spatial.transform import Rotation  # noqa: E402
+
+
+def views_by_name(path):
+    return {v.get("name"): v for v in blueprint_views(path)}
+
+
+def test_spawn_is_refused_where_no_viewer_can_open(tmp_path, capsys, monkeypatch):
+    assert "no display" in spawn_problem({"PATH": "/usr/bin"}) or "linux" not in __import__("sys").platform
+    assert "not on PATH" in spawn_problem({"DISPLAY": ":0", "PATH": str(tmp_path)})
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr("sys.platform", "linux")
+    cal = tmp_path / "cal.json"
+    from compass.sim.device import default_model
+
+    cal.write_text(json.dumps(default_model().to_json()))
+    # refused at once (before the port is opened), one line, exit 2, naming the way out
+    assert main(["live", "--port", str(tmp_path / "no-such-port"), "--cal", str(cal), "--rerun", "spawn"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "no display" in err and "--rerun out.rrd" in err
+    # a mistyped 'spawn' does not become a file; an existing file is not overwritten without --force
+    assert main(["live", "--port", "x", "--cal", str(cal), "--rerun", "spwan"]) == 2
+    assert "ending in .rrd" in capsys.readouterr().err and not (tmp_path / "spwan").exists()
+    (tmp_path / "old.rrd").write_text("keep")
+    assert main(["live", "--port", "x", "--cal", str(cal), "--rerun", str(tmp_path / "old.rrd")]) == 2
+    assert (tmp_path / "old.rrd").read_text() == "keep"
+
+
+@pytest.fixture(scope="module")
+def fourflip(tmp_path_factory):
+    """A four-flip recording with an offset drift the diagnosis adds, calibrated with --rerun."""
+    folder = tmp_path_factory.mktemp("fourflip")
+    rec, cal, rrd = folder / "bench.csv", folder / "cal.json", folder / "cal.rrd"
+    assert main(["simulate", "fourflip", "--out", str(rec), "--seed", "4", "--effect", "offset_drift"]) == 0
+    assert main(["calibrate", str(rec), "--out", str(cal), "--quiet", "--rerun", str(rrd)]) == 0
+    return rec, json.loads(cal.read_text()), rrd
+
+
+def test_calibrate_fourflip_replays_the_session(fourflip):
+    rec, cal, rrd = fourflip
+    names = list(cal["channels"])
+    paths = entity_paths(rrd)
+    for name in names:
+        assert {f"/fourflip/{name}/measured", f"/fourflip/{name}/fit", f"/fourflip/{name}/residual",
+                f"/fourflip/{name}/residual/noise_band"} <= paths
+    assert {"/bench/field", "/bench/turntable", "/bench/turntable/cube", "/bench/turntable/cube/directions",
+            "/bench/turntable/cube/direction_cones", "/diagnosis/residual_rms", "/diagnosis/log"} <= paths
+    assert {"sample", "t"} <= timelines(rrd, "/fourflip/v1/measured")
+    table = read_table(rec)
+    order = np.argsort(table.column("t_s"), kind="stable")
+    # measured = the recording (replayed in time order); fit + residual(after) = measured
+    _, measured = scalars(rrd, "/fourflip/v1/measured")
+    _, fit = scalars(rrd, "/fourflip/v1/fit")
+    _, residual = scalars(rrd, "/fourflip/v1/residual")
+    assert residual.shape[1] == 2  # the diagnosis added an effect: before (base model) and after
+    np.testing.assert_allclose(measured[:, 0], table.column("v1")[order], rtol=1e-6)
+    np.testing.assert_allclose(fit[:, 0] + residual[:, 1], measured[:, 0], atol=1e-5)
+    # before/after are the diagnosis's first and last steps (rms over every channel, as the file gives it)
+    both = np.concatenate([scalars(rrd, f"/fourflip/{n}/residual")[1] for n in names])
+    steps = cal["diagnosis"]["steps"]
+    np.testing.assert_allclose(np.sqrt(np.mean(both**2, axis=0)), [steps[0]["residual_rms"],
+                                                                  cal["diagnosis"]["residual_rms_after"]], rtol=1e-3)
+    # the cube turns as the bench did: R_W<-H = Rz(phi) Rx(kappa) at each drawn sample
+    seq, q_table = read_column(rrd, "/bench/turntable", "Transform3D:quaternion")
+    _, q_cube = read_column(rrd, "/bench/turntable/cube", "Transform3D:quaternion")
+    phi = table.column("platform_deg")[order][seq]
+    kappa = table.column("flip_deg")[order][seq]
+    r = Rotation.from_quat([q[0] for q in q_table]) * Rotation.from_quat([q[0] for q in q_cube])
+    expected = Rotation.from_euler("ZX", np.column_stack([phi, kappa]), degrees=True)
+    assert np.max((r.inv() * expected).magnitude()) < 1e-5
+    # sensing directions as fitted, one labelled arrow each
+    (arrows,) = [read_static(rrd, "/bench/turntable/cube/directions", "Arrows3D:vectors")]
+    directions = np.array(arrows[-1]) / 1.2
+    np.testing.assert_allclose(directions, [cal["channels"][n]["direction"] for n in names], atol=1e-6)
+    # the diagnosis: one bar per step, the last at the final residual
+    (bars,) = read_static(rrd, "/diagnosis/residual_rms", "BarChart:values")[-1:]
+    assert len(cal["diagnosis"]["steps"]) >= 2
+    _, log = read_column(rrd, "/diagnosis/log", "TextLog:text")
+    assert any("offset_drift" in t[0] for t in log)
+    views = views_by_name(rrd)
+    assert views["cube on the turntable; sensing directions, 3-sigma cones"]["class"] == "3D"
+    assert views["v1: residual before/after, noise band"]["origin"] == "/fourflip/v1/residual"
+    assert {v["class"] for v in views.values()} == {"3D", "TimeSeries", "BarChart", "TextLog"}
+
+
+def test_calibrate_tumble_point_clouds(tmp_path):
+    from compass.sim.tumble import simulate_tumble, write_tumble
+
+    rec, _ = write_tumble(simulate_tumble(seed=2, n=1500), tmp_path / "tumble.csv")
+    rrd, cal = tmp_path / "t.rrd", tmp_path / "cal.json"
+    assert main(["calibrate", str(rec), "--out", str(cal), "--quiet", "--rerun", str(rrd)]) == 0
+    paths = entity_paths(rrd)
+    assert {"/tumble/raw/samples", "/tumble/raw/ellipsoid", "/tumble/calibrated/samples", "/tumble/calibrated/sphere",
+            "/tumble/coverage", "/tumble/field_ratio", "/diagnosis/log"} <= paths
+    calibrated = np.array(read_static(rrd, "/tumble/calibrated/samples", "Points3D:positions")[-1])
+    raw = np.array(read_static(rrd, "/tumble/raw/samples", "Points3D:positions")[-1])
+    assert len(calibrated) == len(raw) == len(read_table(rec).data)
+    # after: on the unit sphere within the noise; before: off it by the soft iron
+    spread = np.std(np.linalg.norm(calibrated, axis=1))
+    assert abs(np.median(np.linalg.norm(calibrated, axis=1)) - 1.0) < 0.01 and spread < 0.02
+    assert np.std(np.linalg.norm(raw, axis=1)) > 2 * spread
+    _, ratio = scalars(rrd, "/tumble/field_ratio")
+    assert ratio.shape == (len(raw), 2)
+    views = views_by_name(rrd)
+    assert views["raw, on the fitted ellipsoid (colour: coverage)"]["origin"] == "/tumble/raw"
+
+
+def test_calibrate_platform_and_reference(tmp_path):
+    from compass.sim.platform3d import simulate_platform3d, write_platform3d
+    from compass.sim.reference import simulate_reference, write_reference
+
+    for name, (sim, write) in {"platform": (simulate_platform3d, write_platform3d),
+                               "reference": (simulate_reference, write_reference)}.items():
+        rec, _ = write(sim(seed=1), tmp_path / f"{name}.csv")
+        rrd = tmp_path / f"{name}.rrd"
+        assert main(["calibrate", str(rec), "--out", str(tmp_path / f"{name}.json"), "--quiet", "--rerun", str(rrd)]) == 0
+        paths = entity_paths(rrd)
+        kind = "platform3d" if name == "platform" else "reference"
+        series = sorted(p for p in paths if p.startswith(f"/{kind}/") and "bench" not in p)
+        assert len(series) >= 3 and "/diagnosis/residual_rms" in paths
+        _, residual = scalars(rrd, series[0])
+        assert len(residual) == len(read_table(rec).data)
+    assert "/platform3d/bench/housing" in entity_paths(tmp_path / "platform.rrd")
+
+
+def test_attitude_rerun_matches_the_csv(tmp_path):
+    from compass.sim.fourflip import simulate_fourflip, write_fourflip
+    from compass.sim.runtime import simulate_runtime, write_runtime
+
+    session = simulate_fourflip(seed=2)
+    bench, _ = write_fourflip(session, tmp_path / "bench.csv")
+    cal = tmp_path / "cal.json"
+    assert main(["calibrate", str(bench), "--out", str(cal), "--quiet", "--no-diagnose"]) == 0
+    run, _ = write_runtime(simulate_runtime(session.truth, 200, seed=3), tmp_path / "run.csv")
+    att, rrd = tmp_path / "att.csv", tmp_path / "att.rrd"
+    assert main(["attitude", str(cal), str(run), "--out", str(att), "--rerun", str(rrd)]) == 0
+    table = read_table(att)
+    for name in ("heading_deg", "pitch_deg", "roll_deg", "field_ratio", "dip_deg", "in_range", "disturbed"):
+        _, values = scalars(rrd, f"/compass/{name}")
+        np.testing.assert_allclose(values[:, 0], table.column(name), atol=1e-3)
+    _, band = scalars(rrd, "/compass/pitch_deg/sigma_band")
+    np.testing.assert_allclose(band[:, 1] - band[:, 0], 2 * table.column("pitch_sigma_deg"), atol=1e-3)
+    _, limits = scalars(rrd, "/compass/dip_deg/gate_limits")
+    dip = json.loads(cal.read_text())["dip_deg"]
+    assert np.all(limits[:, 0] < dip) and np.all(dip < limits[:, 1])
+    _, raw = scalars(rrd, "/raw/mag")
+    assert raw.shape == (200, 3)
+    paths = entity_paths(rrd)
+    assert {"/world/housing", "/world/housing/body", "/world/housing/axes", "/housing/field", "/housing/expected/field_gate",
+            "/housing/expected", "/housing/gravity", "/housing/expected/gravity_gate"} <= paths
+    (labels,) = read_static(rrd, "/world/housing/axes", "Arrows3D:labels")[-1:]
+    assert labels == ["X forward", "Y left", "Z up"]
+    views = views_by_name(rrd)
+    assert views["heading (deg), +-1 sigma"]["origin"] == "/compass/heading_deg"
+    assert views["in the housing: field and gravity against the gate's cones"]["origin"] == "/housing"
+
+
+def test_demo_writes_a_recording_with_calibration_attitude_and_errors(tmp_path, capsys):
+    assert main(["demo", "--workdir", str(tmp_path)]) == 0
+    rrd = tmp_path / "demo.rrd"
+    assert f"rerun {rrd}" in capsys.readouterr().out
+    paths = entity_paths(rrd)
+    assert {"/fourflip/v1/residual", "/bench/turntable/cube", "/world/housing", "/world/beside/truth",
+            "/errors/heading_deg", "/errors/heading_deg/sigma_band", "/compass/heading_deg"} <= paths
+    _, error = scalars(rrd, "/errors/heading_deg")
+    _, band = scalars(rrd, "/errors/heading_deg/sigma_band")
+    assert np.sqrt(np.mean(error**2)) < 2 * np.sqrt(np.mean(band[:, 1] ** 2))  # errors as large as their sigma
+    origins = {v.get("origin") for v in blueprint_views(rrd)}
+    assert {"/bench", "/world", "/errors/heading_deg", "/compass/heading_deg", "/diagnosis/residual_rms"} <= origins
+
+
+def test_evaluate_rerun_two_housings_and_errors(tmp_path, capsys):
+    from test_broad import MAGNET, _crop
+
+    if not MAGNET.exists():
+        pytest.skip("BROAD data not found")
+    trial, rrd = _crop(MAGNET, tmp_path / "magnet.mat", 45.0), tmp_path / "eval.rrd"
+    assert main(["evaluate", str(trial), "--rerun", str(rrd)]) == 0
+    out = capsys.readouterr().out
+    paths = entity_paths(rrd)
+    assert {"/world/estimate", "/world/beside/truth", "/errors/heading_deg", "/errors/inclination_deg",
+            "/compass/field_ratio", "/compass/disturbed", "/events"} <= paths
+    _, heading = scalars(rrd, "/errors/heading_deg", index="t")
+    rms = float(out.split("heading RMS ")[1].split()[0])
+    scored = heading[np.isfinite(heading[:, 0]), 0]  # NaN outside the movement phase (not scored)
+    np.testing.assert_allclose(np.sqrt(np.mean(scored**2)), rms, atol=0.01)  # the printed figure
+    assert "BarChart" not in {v["class"] for v in blueprint_views(rrd)}
