@@ -45,12 +45,12 @@ from typing import Callable
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.stats import chi2 as chi2_dist
 
 from ._evidence import (VERDICTS, EffectForm, Proposal, added_step_lines, determined, gather_forms, linearised_score,
                         refit_from_better_start, remark_lines, residual_line, select_effects)
 from .effects import why_no_temperature, why_no_time
 from .diagnose import FLOOR_MARGIN, STRUCTURE_P
+from .noise import chi2_sf
 from .tumble_diagnose import WARMUP_TAU_FRACTIONS, _json_float, _rms
 
 __all__ = ["OffsetEffect", "FORMS", "Problem", "OffsetDiagnosis", "diagnose_offsets", "pooled_repeat_noise",
@@ -353,7 +353,7 @@ def lack_of_fit(weighted: np.ndarray, groups: np.ndarray, k: int) -> tuple[float
     sums = np.array([np.bincount(groups, weights=w) for w in weighted.T]).T
     stat = float(np.sum(sums**2 / counts[:, None]))
     dof = int(np.count_nonzero(counts) * weighted.shape[1] - k)
-    return stat, dof, float(chi2_dist.sf(stat, dof)) if dof > 0 else 1.0
+    return stat, dof, chi2_sf(stat, dof) if dof > 0 else 1.0
 
 
 def _covariance(jac: np.ndarray, chi2: float, dof: int) -> np.ndarray:

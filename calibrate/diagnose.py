@@ -25,7 +25,6 @@ with the tumble and the fits against known inputs):
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
 
 from compass.io.fourflip import FourFlipRecording
 from compass.sim.bench import BenchSamples
@@ -34,7 +33,7 @@ from ._evidence import (DECISIVE_BIC, VERDICTS, Proposal, added_step_lines, gath
                         residual_line, select_effects)
 from ._mlfit import MLFit, fit_ml, score_effect
 from .effects import VARIANTS, Effect
-from .noise import noise_floor
+from .noise import chi2_sf, noise_floor
 
 __all__ = ["DECISIVE_BIC", "UNEXPLAINED_WARNING", "diagnose_fourflip", "examine_residual", "format_diagnosis",
            "residual_structure"]
@@ -74,7 +73,7 @@ def residual_structure(samples: BenchSamples, residuals: np.ndarray, noise: np.n
         coef, *_ = np.linalg.lstsq(design, w, rcond=None)
         total += float(np.sum((design @ coef) ** 2))
         dof += design.shape[1] * w.shape[1]
-    return total, dof, float(chi2_dist.sf(total, dof))
+    return total, dof, chi2_sf(total, dof)
 
 
 def _pooled_rms(values: np.ndarray) -> float:

@@ -53,12 +53,12 @@ import numpy as np
 from scipy.linalg import sqrtm
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
-from scipy.stats import median_abs_deviation
 
 from compass.calibration_file import header
 from compass.io.tumble import TumbleRecording
 
 from .contract import Calibration, Calibrator, CannotCalibrate, metadata_field_ut
+from .noise import robust_sigma
 
 if TYPE_CHECKING:
     from .tumble_diagnose import TumbleDiagnosis
@@ -462,11 +462,11 @@ def _fit_kind(kind, y, p0, inlier_mask=None):
     if inlier_mask is None:
         first = least_squares(_residual, p0, args=(kind, y), loss="soft_l1", f_scale=0.02, method="trf", tr_solver="lsmr",
                               max_nfev=_MAX_NFEV)
-        sigma = max(median_abs_deviation(_residual(first.x, kind, y), scale="normal"), 1e-9)
+        sigma = max(robust_sigma(_residual(first.x, kind, y)), 1e-9)
         robust = least_squares(_residual, first.x, args=(kind, y), loss="soft_l1", f_scale=2.0 * sigma,
                                method="trf", tr_solver="lsmr", max_nfev=_MAX_NFEV)
         r = _residual(robust.x, kind, y)
-        sigma = max(median_abs_deviation(r, scale="normal"), 1e-9)
+        sigma = max(robust_sigma(r), 1e-9)
         inlier_mask = np.abs(r - np.median(r)) < OUTLIER_SIGMAS * sigma
         start = robust.x
     final = least_squares(_residual, start, args=(kind, y[inlier_mask]), method="lm", max_nfev=_MAX_NFEV)
@@ -648,11 +648,11 @@ def fit_misalignment(mag_cal: np.ndarray, accel: np.ndarray) -> Misalignment | N
         mm = Rotation.from_rotvec(p[:3]).apply(m)
         return np.arccos(np.clip(np.sum(mm * a, axis=1), -1.0, 1.0)) - p[3]
 
-    sigma = max(median_abs_deviation(angle0, scale="normal"), 1e-6)
+    sigma = max(robust_sigma(angle0), 1e-6)
     p0 = np.array([0.0, 0.0, 0.0, np.median(angle0)])
     robust = least_squares(resid, p0, loss="soft_l1", f_scale=2.0 * sigma, tr_solver="lsmr")
     r = resid(robust.x)
-    sigma = max(median_abs_deviation(r, scale="normal"), 1e-9)
+    sigma = max(robust_sigma(r), 1e-9)
     keep = np.abs(r - np.median(r)) < OUTLIER_SIGMAS * sigma
     m, a = m[keep], a[keep]
     final = least_squares(resid, robust.x, method="lm")
@@ -718,7 +718,7 @@ def refine_jointly(fit: KindFit, mag: np.ndarray, accel: np.ndarray, first: Misa
     a_unit = accel[static] / np.linalg.norm(accel[static], axis=1, keepdims=True)
     ys = y[static]
     with_rot = first.rotation is not None
-    sigma_r = max(median_abs_deviation(_residual(fit.params, kind, y[inl]), scale="normal"), 1e-9)
+    sigma_r = max(robust_sigma(_residual(fit.params, kind, y[inl])), 1e-9)
 
     def angles(q):
         mm = (ys - q[:3]) @ _sym_sqrt(kind, q[3:k])
@@ -728,7 +728,7 @@ def refine_jointly(fit: KindFit, mag: np.ndarray, accel: np.ndarray, first: Misa
         return np.arccos(np.clip(cos, -1.0, 1.0)) - q[-1]
 
     q0 = np.concatenate([fit.params, np.radians(first.rotvec_deg) if with_rot else [], [np.radians(90.0 + first.dip_deg)]])
-    sigma_a = max(median_abs_deviation(angles(q0), scale="normal"), 1e-9)
+    sigma_a = max(robust_sigma(angles(q0)), 1e-9)
     use_r, use_a = np.ones(len(y[inl]), bool), np.ones(len(ys), bool)
 
     def resid(q):
@@ -758,7 +758,7 @@ def refine_jointly(fit: KindFit, mag: np.ndarray, accel: np.ndarray, first: Misa
 def _noise_floor(x: np.ndarray) -> float:
     """Per-axis white-noise sigma from second differences of consecutive samples (median over axes)."""
     d = x[:-2] - 2.0 * x[1:-1] + x[2:]
-    return float(np.median(median_abs_deviation(d, axis=0, scale="normal")) / np.sqrt(6.0))
+    return float(np.median(robust_sigma(d)) / np.sqrt(6.0))
 
 
 def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: str = "auto",

@@ -53,13 +53,12 @@ from itertools import combinations_with_replacement
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.stats import chi2 as chi2_dist
-from scipy.stats import median_abs_deviation
 
 from ._evidence import (VERDICTS, EffectForm, Proposal, added_step_lines, determined, gather_forms, linearised_score,
                         refit_from_better_start, remark_lines, residual_line, select_effects)
 from .effects import why_no_temperature, why_no_time
 from .diagnose import FLOOR_MARGIN, STRUCTURE_P
+from .noise import chi2_sf, robust_sigma
 from .tumble import (MAX_ANGLE_WIDENING, KindFit, Misalignment, _covariance, _propagate, _shape, _sym_sqrt,
                      field_gravity_angles, static_mask)
 
@@ -394,7 +393,7 @@ def radial_noise_floor(residuals: np.ndarray) -> float:
         steps), recording units.
     """
     d = residuals[:-2] - 2.0 * residuals[1:-1] + residuals[2:]
-    return float(median_abs_deviation(d, scale="normal") / np.sqrt(6.0))
+    return float(robust_sigma(d) / np.sqrt(6.0))
 
 
 def residual_structure(weighted: np.ndarray, directions: np.ndarray, bands) -> tuple[float, int, float]:
@@ -431,7 +430,7 @@ def residual_structure(weighted: np.ndarray, directions: np.ndarray, bands) -> t
     design = np.column_stack(cols)
     coef, _, rank, _ = np.linalg.lstsq(design, weighted, rcond=None)
     drop = float(np.sum((design @ coef) ** 2))
-    return drop, int(rank), float(chi2_dist.sf(drop, rank))
+    return drop, int(rank), chi2_sf(drop, rank)
 
 
 def _json_float(v: float) -> float | None:
