@@ -118,6 +118,7 @@ class GyroFilter(AttitudeFilter):
         s = self._s
         d = s.diagnostics
         d.skipped = ""
+        t_s = float(t_s)  # a numpy scalar would make every later operation a slow numpy one
         if not math.isfinite(t_s):
             self._skip("t_s not finite")
             return False
@@ -269,7 +270,13 @@ class GyroFilter(AttitudeFilter):
             d.field_ratio, d.dip_deg, d.mag_used, d.gate = math.nan, math.nan, False, "absent"
             return
         m = s.matrix
-        bx, by, bz, _ = b
+        bx, by, bz, b2 = b
+        tau = self.config.mag_latency_s
+        if tau > 0.0:  # the field read tau late: a world-fixed vector turns in H as dh/dt = h x omega
+            (gx, gy, gz), (cx, cy, cz) = s.rate_rad_s, s.bias_rad_s
+            wx, wy, wz = gx - cx, gy - cy, gz - cz
+            bx, by, bz = bx + tau * (by * wz - bz * wy), by + tau * (bz * wx - bx * wz), bz + tau * (bx * wy - by * wx)
+            b = (bx, by, bz, b2)
         innovation = -math.atan2(m[3] * bx + m[4] * by + m[5] * bz, m[0] * bx + m[1] * by + m[2] * bz)
         d.mag_used = self._gate_field(t_s, dt, b, innovation) == "ok"
         if d.mag_used:

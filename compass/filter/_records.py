@@ -88,6 +88,9 @@ class FilterConfig:
     field_range : float
         A field sample with ``|B| / reference`` above this is absurd (a magnetometer saturates long
         before): skipped.
+    mag_latency_s : float
+        The magnetometer's reading is this late against the gyro and accelerometer, s (gyro filter:
+        the field is turned forward by the gyro's rotation over it, to first order; 0 = none).
     rest_bias_estimation : bool
         At rest the gyro reading measures its bias (VQF's ``restBiasEstEnabled``).
     motion_adaptive_accel : bool
@@ -123,13 +126,14 @@ class FilterConfig:
     gyro_range_rad_s: float = math.radians(4000.0)
     accel_range: float = 64.0
     field_range: float = 10.0
+    mag_latency_s: float = 0.0
     rest_bias_estimation: bool = True
     motion_adaptive_accel: bool = True
     field_error_from_dip: bool = True
 
     def __post_init__(self):
         for f in fields(self):
-            if f.name in ("dip_deg", "gravity") or f.type == "bool":
+            if f.name in ("dip_deg", "gravity", "mag_latency_s") or f.type == "bool":
                 continue
             value = getattr(self, f.name)
             if not (np.isfinite(value) and value > 0):
@@ -137,6 +141,8 @@ class FilterConfig:
         for name in ("accel_range", "field_range"):
             if not getattr(self, name) > 1.0:
                 raise ValueError(f"FilterConfig.{name} must be above 1, got {getattr(self, name)!r}")
+        if not (np.isfinite(self.mag_latency_s) and self.mag_latency_s >= 0.0):
+            raise ValueError(f"FilterConfig.mag_latency_s must be a non-negative number, got {self.mag_latency_s!r}")
         if not -90.0 < self.dip_deg < 90.0:
             raise ValueError(f"FilterConfig.dip_deg must be in (-90, 90), got {self.dip_deg!r}")
         if self.gravity is not None and not (np.isfinite(self.gravity) and self.gravity > 0):

@@ -86,6 +86,7 @@ class TwoVectorFilter(AttitudeFilter):
         s, cfg = self._s, self.config
         d = s.diagnostics
         d.skipped = ""
+        t_s = float(t_s)  # a numpy scalar would make every later operation a slow numpy one
         if not math.isfinite(t_s):
             self._skip("t_s not finite")
             return False
