@@ -21,12 +21,12 @@ from scipy.optimize import least_squares
 from compass.frames import direction_sigma_deg as _direction_sigma_deg
 from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, channel_outputs, housing_field
 
+from .diagnosis.evidence import SINGULAR_RCOND, linear_score, unit_columns
 from .effects import Effect
 
-__all__ = ["MLFit", "cramer_rao", "fit_ml", "linear_score", "score_effect", "tangent_basis", "unit_columns"]
+__all__ = ["MLFit", "cramer_rao", "fit_ml", "score_effect", "tangent_basis"]
 
 _BASE_PER_CHANNEL = 4  # u, v, offset, log gain
-_SINGULAR_RCOND = 1e-7
 _MAX_ITERATIONS = 60  # Levenberg-Marquardt iterations (each costs one finite-difference Jacobian)
 
 
@@ -264,7 +264,7 @@ def _covariance(jac: np.ndarray, names) -> tuple[np.ndarray, list]:
     """Inverse of the Fisher matrix J^T J (columns scaled to unit norm, eigen-decomposed).
 
     Directions of parameter space the data cannot determine (eigenvalues below
-    ``_SINGULAR_RCOND**2`` of the largest) are dropped; parameters involved in them get NaN rows
+    ``SINGULAR_RCOND**2`` of the largest) are dropped; parameters involved in them get NaN rows
     and columns and are named in the returned list.  The small normal matrix keeps this fast and
     free of multi-threaded BLAS stalls on a busy machine.
     """
@@ -272,7 +272,7 @@ def _covariance(jac: np.ndarray, names) -> tuple[np.ndarray, list]:
     scale[scale == 0] = 1.0
     js = jac / scale
     w, v = np.linalg.eigh(js.T @ js)
-    keep = w > _SINGULAR_RCOND**2 * w.max()
+    keep = w > SINGULAR_RCOND**2 * w.max()
     inv = (v[:, keep] / w[keep]) @ v[:, keep].T / np.outer(scale, scale)
     singular = []
     for vec in v[:, ~keep].T:
@@ -360,45 +360,3 @@ def cramer_rao(physics: BenchPhysics, samples: BenchSamples, channels, noise: np
     i = _BASE_PER_CHANNEL * np.arange(layout.c)
     dip = _BASE_PER_CHANNEL * layout.c
     return np.degrees(np.sqrt(cov[i, i] + cov[i + 1, i + 1])), float(np.degrees(np.sqrt(cov[dip, dip])))
-
-
-def unit_columns(jac: np.ndarray) -> np.ndarray:
-    """The Jacobian with every non-zero column scaled to unit norm."""
-    return jac / np.where(np.any(jac, axis=0), np.linalg.norm(jac, axis=0), 1.0)
-
-
-def linear_score(residual, x, n_fitted: int, j_b: np.ndarray, step: float = 1e-6) -> tuple[float, np.ndarray]:
-    """First-order chi-square drop and parameter step of the block ``x[n_fitted:]``.
-
-    Parameters
-    ----------
-    residual : callable
-        Weighted residuals of the extended model at a parameter vector.
-    x : ndarray
-        The fitted parameters followed by the candidate block at its score point.
-    n_fitted : int
-        Length of the fitted part.
-    j_b : ndarray, shape (n_residuals, n_fitted)
-        The current fit's Jacobian with unit columns.
-    step : float
-        Finite-difference step of the block's parameters.
-    """
-    r0 = residual(x)
-    q = x.size - n_fitted
-    j_e = np.empty((r0.size, q))
-    for i in range(q):
-        xp = x.copy()
-        xp[n_fitted + i] += step
-        j_e[:, i] = (residual(xp) - r0) / step
-    absorbed, *_ = np.linalg.lstsq(j_b.T @ j_b, j_b.T @ j_e, rcond=_SINGULAR_RCOND**2)  # small normal equations
-    j_tilde = j_e - j_b @ absorbed
-    # the effect's directions the current model cannot tell from its own parameters carry no
-    # evidence (a shape parameter at zero size among them): drop them and leave them as they are
-    scale = np.linalg.norm(j_tilde, axis=0)
-    scale[scale == 0] = 1.0
-    w, v = np.linalg.eigh((j_tilde / scale).T @ (j_tilde / scale))
-    keep = w > _SINGULAR_RCOND**2 * max(w.max(), 1e-300)
-    projected = (j_tilde / scale).T @ r0
-    coef_scaled = (v[:, keep] / w[keep]) @ (v[:, keep].T @ projected)
-    # residual = data - model, so the model must move by +J coef: parameters step by -coef
-    return float(projected @ coef_scaled), -coef_scaled / scale

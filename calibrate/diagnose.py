@@ -1,6 +1,6 @@
 """Residual diagnosis: find what the four-flip model lacks, add it, report before and after.
 
-The loop (SPEC section 4; steps 3, 4 and 6 are :func:`calibrate._evidence.select_effects`, shared
+The loop (SPEC section 4; steps 3, 4 and 6 are :func:`calibrate.diagnosis.evidence.select_effects`, shared
 with the tumble and the fits against known inputs):
 
 1. Noise floor per channel from second differences of the raw outputs (:mod:`calibrate.noise`);
@@ -11,11 +11,11 @@ with the tumble and the fits against known inputs):
    removing what the current parameters already absorb: the residual's structure traced to the
    effect's signature.  The promising candidates are refitted in full.
 4. The candidate with the largest decisive evidence (delta-BIC above
-   :data:`~calibrate._evidence.DECISIVE_BIC`) is added, provided it explains a real share
-   (:data:`~calibrate._evidence.MIN_SHARE`) of the structured residual; repeat.
+   :data:`~calibrate.diagnosis.evidence.DECISIVE_BIC`) is added, provided it explains a real share
+   (:data:`~calibrate.diagnosis.evidence.MIN_SHARE`) of the structured residual; repeat.
 5. ``unexplained`` is true when the final residual still carries structure above the floor:
    a harmonic regression per channel and flip against the turntable angle (and a trend) whose
-   chi-square drop is significant, or an rms more than :data:`FLOOR_MARGIN` above the floor.
+   chi-square drop is significant, or an rms more than :data:`~calibrate.diagnosis.evidence.FLOOR_MARGIN` above the floor.
 6. Effects are claimed only when, with them, the residual is explained.  If structure remains,
    the added effects may have absorbed part of an effect the toolkit does not model (a field
    gradient with the sensor off the turntable axis mimics an encoder error), so none is claimed,
@@ -29,19 +29,15 @@ import numpy as np
 from compass.io.fourflip import FourFlipRecording
 from compass.sim.bench import BenchSamples
 
-from ._evidence import (DECISIVE_BIC, VERDICTS, Proposal, added_step_lines, gather_forms, remark_lines,
-                        residual_line, select_effects)
 from ._mlfit import MLFit, fit_ml, score_effect
+from .diagnosis.evidence import DECISIVE_BIC, Proposal, gather_forms, is_unexplained, select_effects
+from .diagnosis.report import format_diagnosis
 from .effects import VARIANTS, Effect
 from .noise import chi2_sf, noise_floor
 
 __all__ = ["DECISIVE_BIC", "UNEXPLAINED_WARNING", "diagnose_fourflip", "examine_residual", "format_diagnosis",
            "residual_structure"]
 
-FLOOR_MARGIN = 0.10
-"""Residual rms above the noise floor by more than this fraction is unexplained."""
-STRUCTURE_P = 1e-3
-"""p-value below which harmonic structure left in the residual is significant."""
 STRUCTURE_HARMONICS = 6
 UNEXPLAINED_WARNING = ("structure remains in the residual above the noise floor: the recording has an effect "
                        "the model lacks (see the diagnosis); the uncertainties are then optimistic")
@@ -161,7 +157,7 @@ def _verdict(samples, fit: MLFit, noise, floor) -> tuple[tuple[float, int, float
     """Structure test of a fit's residual and whether it is unexplained."""
     structure, dof, p_value = residual_structure(samples, fit.residuals, noise)
     rms = _pooled_rms(fit.residuals)
-    return (structure, dof, p_value), bool(p_value < STRUCTURE_P or rms > (1.0 + FLOOR_MARGIN) * floor)
+    return (structure, dof, p_value), is_unexplained(p_value, rms, floor)
 
 
 def examine_residual(samples: BenchSamples, residuals: np.ndarray, noise: np.ndarray) -> dict:
@@ -176,29 +172,10 @@ def examine_residual(samples: BenchSamples, residuals: np.ndarray, noise: np.nda
         "effects": [],
         "residual_rms_before": rms,
         "residual_rms_after": rms,
-        "unexplained": bool(p_value < STRUCTURE_P or rms > (1.0 + FLOOR_MARGIN) * floor),
+        "unexplained": is_unexplained(p_value, rms, floor),
         "structure_test": {"delta_chi2": structure, "dof": dof, "p_value": p_value},
         "note": "the seed's rules are examined, not extended: the loop that adds effects runs with --method ml",
     }
-
-
-def format_diagnosis(diagnosis: dict, unit: str = "output units") -> str:
-    """The diagnosis as lines for a person: each step, the effect's evidence, before and after."""
-    d = diagnosis
-    lines = [f"Residual diagnosis (noise floor {d['noise_floor']:.4g} {unit}, estimated from the data)"]
-    for step in d["steps"]:
-        if "model" in step:
-            lines.append(f"  base model: residual rms {step['residual_rms']:.4g}")
-        else:
-            lines += added_step_lines(step)
-    lines += remark_lines(d)
-    change = d.get("calibration_change")
-    if change and len(d["steps"]) > 1:
-        moved = ", ".join(f"{name} {c['direction_change_deg']:.3f} deg (sigma {c['sigma_deg']:.3f})"
-                          for name, c in change["channels"].items())
-        lines.append(f"  the calibration moved: directions {moved}; dip {change['dip_change_deg']:+.3f} deg")
-    lines.append(residual_line(d, VERDICTS[bool(d["unexplained"])]))
-    return "\n".join(lines)
 
 
 def _calibration_change(base: MLFit, final: MLFit, channels) -> dict:

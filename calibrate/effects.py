@@ -26,28 +26,12 @@ import numpy as np
 
 from compass.sim.bench import BenchPhysics, BenchSamples
 
-__all__ = ["Effect", "EFFECTS", "VARIANTS", "effect_by_name", "why_no_time", "why_no_temperature"]
+from .diagnosis.forms import warm_up_tau_s, why_no_temperature, why_no_time
+
+__all__ = ["Effect", "EFFECTS", "VARIANTS", "effect_by_name"]
 
 ENCODER_HARMONICS = 3
 MAX_DRIFT_DEGREE = 3
-
-
-def why_no_time(t_s) -> str | None:
-    """Why a recording cannot show an effect in time (no ``t_s``, or one that never changes), else None."""
-    if t_s is None:
-        return "the recording has no t_s column"
-    if not np.ptp(t_s) > 0:
-        return "t_s never changes"
-    return None
-
-
-def why_no_temperature(temp_c) -> str | None:
-    """Why a recording cannot show a temperature effect (no ``temp_c``, or under 0.5 degC of change), else None."""
-    if temp_c is None:
-        return "the recording has no temp_c column"
-    if np.ptp(temp_c) < 0.5:
-        return "temp_c varies by less than 0.5 degC"
-    return None
 
 
 @dataclass(frozen=True)
@@ -232,7 +216,7 @@ class WarmUp(OffsetDrift):
 
     def apply(self, physics, p, samples):
         session = max(np.ptp(samples.t_s), 1e-9)
-        tau = session * np.exp(np.clip(p[-1], -6.0, 6.0))
+        tau = warm_up_tau_s(session, p[-1], high=6.0)
         return physics.with_(warmup=p[:-1] * physics.gains, warmup_tau_s=tau, drift_t0=samples.t_s.min())
 
     def reference(self, physics):

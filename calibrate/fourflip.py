@@ -125,7 +125,7 @@ def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progres
     if not diagnose:
         fit = fit_ml(samples, rec.outputs, rec.channels, start, noise)
         return result_from_ml(fit, rec, noise, field_ut)
-    _, fit, diagnosis = diagnose_fourflip(rec, start, noise, progress=progress)
+    base, fit, diagnosis = diagnose_fourflip(rec, start, noise, progress=progress)
     effects = []
     for effect in fit.effects:
         names, values, sigmas = fit.effect_parameters(effect)
@@ -134,7 +134,8 @@ def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progres
         reference = effect.reference(fit.physics)
         effects.append({**entry, "reference": reference} if reference else entry)
     warnings = (UNEXPLAINED_WARNING,) if diagnosis["unexplained"] else ()
-    return result_from_ml(fit, rec, noise, field_ut, effects=effects, diagnosis=diagnosis, extra_warnings=warnings)
+    result = result_from_ml(fit, rec, noise, field_ut, effects=effects, diagnosis=diagnosis, extra_warnings=warnings)
+    return replace(result, base_residuals=base.residuals) if fit.effects else result
 
 
 def _float_or_none(s):

@@ -60,7 +60,7 @@ from compass.sim.platform3d import predict, up_in_bench
 
 from .contract import (Calibration, Calibrator, CannotCalibrate, metadata_field_ut, require_response,
                        require_sane_cells)
-from ._offset_effects import (OffsetDiagnosis, Problem, diagnose_offsets, format_offset_diagnosis,
+from .diagnosis.offsets import (OffsetDiagnosis, Problem, diagnose_offsets,
                               pooled_repeat_noise)
 
 __all__ = ["Platform3DCalibrator", "Platform3DResult", "calibrate_platform3d", "axis_geometry"]
@@ -151,7 +151,7 @@ class Platform3DResult(Calibration):
     message : str
     warnings : tuple of str
     diagnosis : OffsetDiagnosis or None
-        The residual diagnosis of the magnetometer (:mod:`calibrate._offset_effects`); None when
+        The residual diagnosis of the magnetometer (:mod:`calibrate.diagnosis.offsets`); None when
         not run.  With claimed effects, ``values`` end with their parameters, ``mag_offset`` is
         the offset at their reference (the first sample's ``t_s``, the mean ``temp_c``) and the
         residuals are those of the model with them.
@@ -293,7 +293,7 @@ class Platform3DResult(Calibration):
         if strong:
             lines.append("  correlations above 0.9: " + "; ".join(f"{a}/{b} {c:+.2f}" for a, b, c in strong))
         if self.diagnosis is not None:
-            lines.append(format_offset_diagnosis(self.diagnosis.block, "magnetometer output units"))
+            lines.append(self.diagnosis.format("magnetometer output units"))
         for w in self.warnings:
             lines.append(f"  warning: {w}")
         return "\n".join(lines)
@@ -356,7 +356,7 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
         Known |B| (gains then per uT); default: the metadata's ``field_ut``, else gains per |B|.
     diagnose : bool
         Run the residual diagnosis of the magnetometer (SPEC section 4,
-        :func:`calibrate._offset_effects.diagnose_offsets`) and keep the effects it claims.
+        :func:`calibrate.diagnosis.offsets.diagnose_offsets`) and keep the effects it claims.
     candidates : sequence of str, optional
         Effects the diagnosis considers (default ``offset_drift``, ``temperature``,
         ``nonlinear_response``); ``offset_drift`` needs a ``t_s`` column, ``temperature`` a ``temp_c`` one.

@@ -38,7 +38,7 @@ from scipy.linalg import lstsq
 from compass.calibration_file import channel_entry, header
 from compass.io.reference import ReferenceRecording
 
-from ._offset_effects import OffsetDiagnosis, Problem, diagnose_offsets, format_offset_diagnosis, pooled_repeat_noise
+from .diagnosis.offsets import OffsetDiagnosis, Problem, diagnose_offsets, pooled_repeat_noise
 from .contract import Calibration, Calibrator, CannotCalibrate, require_response, require_sane_cells
 from .platform3d import axis_geometry
 
@@ -123,7 +123,7 @@ class ReferenceResult(Calibration):
         sensors, field units (None with one sensor).
     warnings : tuple of str
     diagnosis : OffsetDiagnosis or None
-        The residual diagnosis of every sensor's channels (:mod:`calibrate._offset_effects`);
+        The residual diagnosis of every sensor's channels (:mod:`calibrate.diagnosis.offsets`);
         None when not run.  With claimed effects the sensors' offsets hold at their reference
         (the first row's ``t_s``, the mean ``temp_c``) and their residuals are those of the model
         with them.
@@ -232,7 +232,7 @@ class ReferenceResult(Calibration):
         if self.spread is not None:
             lines.append(f"  array: calibrated fields differ from the reference by {self.spread:.3g} rms (field units)")
         if self.diagnosis is not None:
-            lines.append(format_offset_diagnosis(self.diagnosis.block))
+            lines.append(self.diagnosis.format())
         elif self.not_diagnosed:
             lines.append(f"  residual diagnosis not run: {self.not_diagnosed}")
         for w in self.warnings:
@@ -348,7 +348,7 @@ def calibrate_reference(rec: ReferenceRecording, *, diagnose: bool = True, candi
     ----------
     rec : ReferenceRecording
     diagnose : bool
-        Run the residual diagnosis (SPEC section 4, :func:`calibrate._offset_effects.diagnose_offsets`)
+        Run the residual diagnosis (SPEC section 4, :func:`calibrate.diagnosis.offsets.diagnose_offsets`)
         over every sensor's channels and keep the effects it claims.
     candidates : sequence of str, optional
         Effects the diagnosis considers (default ``offset_drift``, needing ``t_s``, and

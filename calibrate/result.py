@@ -98,6 +98,8 @@ class CalibrationResult(Calibration):
         Method-specific items written under new keys (e.g. the seed's raw minima).
     kept : ndarray of bool, shape (n_recorded,), or None
         Which recorded samples the fit used (None: all); ``residuals`` has one row per kept sample.
+    base_residuals : ndarray, shape (n, c), or None
+        The base model's residuals when the diagnosis added effects (for the report's plot).
     """
 
     method: str
@@ -116,6 +118,7 @@ class CalibrationResult(Calibration):
     dof: int = 0
     extra: dict = field(default_factory=dict)
     kept: np.ndarray | None = None
+    base_residuals: np.ndarray | None = None
 
     calibration_kind = "fourflip"
 
@@ -182,16 +185,13 @@ class CalibrationResult(Calibration):
         folder = Path(folder)
         used = self.used(recording)
         return [plot_fit(used, self, folder / "fit.png"),
-                plot_residuals(used, self._residual_sets(recording), folder / "residuals.png", self.noise)]
+                plot_residuals(used, self._residual_sets(), folder / "residuals.png", self.noise)]
 
-    def _residual_sets(self, recording) -> dict:
+    def _residual_sets(self) -> dict:
         """Residuals before (base model) and after the diagnosis, or the one fit there is."""
-        if not self.diagnosis or len(self.diagnosis["steps"]) < 2:
+        if self.base_residuals is None:
             return {self.method: self.residuals}
-        from .fourflip import calibrate_fourflip
-
-        base = calibrate_fourflip(recording, method="ml", field_ut=self.field_ut, diagnose=False)
-        return {"before (base model)": base.residuals,
+        return {"before (base model)": self.base_residuals,
                 "after (" + ", ".join(self.diagnosis["effects"]) + ")": self.residuals}
 
     def report(self) -> str:
@@ -226,7 +226,7 @@ class CalibrationResult(Calibration):
         for w in self.warnings:
             lines.append(f"  warning: {w}")
         if self.diagnosis:
-            from .diagnose import format_diagnosis
+            from .diagnosis.report import format_diagnosis
 
             lines.append(format_diagnosis(self.diagnosis))
         if "site_check" in self.extra:

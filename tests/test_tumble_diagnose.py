@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from calibrate.tumble import calibrate_tumble
-from calibrate.tumble_diagnose import diagnose_tumble
+from calibrate.tumble.diagnosis import diagnose_tumble
 from compass.model import SensorModel
 from compass.sim.tumble import simulate_tumble
 

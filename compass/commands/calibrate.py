@@ -2,7 +2,7 @@
 
 The command line layer on top of both packages: it loops over :data:`calibrate.kinds.KINDS` (each
 kind's column sniffer, reader and calibrator) and writes through :mod:`compass.calibration_file`.
-This module is the only one in ``compass`` that imports ``calibrate``.
+Only the command layer (``compass/commands/``) imports ``calibrate``.
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ def _base_residuals(result):
     """Four-flip: ``recording -> the base model's residuals`` (the replay's "before"), None without effects."""
     if result.calibration_kind != "fourflip":
         return None
-    return lambda recording: result._residual_sets(recording).get("before (base model)")
+    return lambda recording: result.base_residuals
 
 
 OPTIONS = {"method": ("--method", "ml"), "diagnose": ("--no-diagnose", True), "field_ut": ("--field-ut", None),

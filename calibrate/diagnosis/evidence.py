@@ -1,7 +1,7 @@
 """The evidence loop of the residual diagnosis (SPEC section 4), shared by every calibration that runs it.
 
-The four-flip (:mod:`calibrate.diagnose`), the tumble (:mod:`calibrate.tumble_diagnose`) and the
-fits against known inputs (:mod:`calibrate._offset_effects`) differ in their models, their
+The four-flip (:mod:`calibrate.diagnose`), the tumble (:mod:`calibrate.tumble.diagnosis`) and the
+fits against known inputs (:mod:`calibrate.diagnosis.offsets`) differ in their models, their
 effects and their verdicts, but choose effects the same way.  :func:`select_effects` is that
 choice; each caller hands it what differs as small callables:
 
@@ -32,12 +32,18 @@ from typing import Any, Callable, Iterable, Protocol, Sequence
 
 import numpy as np
 
-from ._mlfit import linear_score, unit_columns
 
-__all__ = ["DECISIVE_BIC", "MIN_SHARE", "MAX_STEPS", "MAX_REFITS", "REFIT_FRACTION", "Fit", "Proposal",
-           "Selection", "Check", "gather_forms", "linearised_score", "refit_from_better_start", "determined",
-           "select_effects", "EffectForm", "VERDICTS", "added_step_lines", "remark_lines", "residual_line"]
+__all__ = ["DECISIVE_BIC", "FLOOR_MARGIN", "MIN_SHARE", "MAX_STEPS", "MAX_REFITS", "REFIT_FRACTION", "SINGULAR_RCOND",
+           "STRUCTURE_P", "Fit", "Proposal", "Selection", "Check", "gather_forms", "linearised_score",
+           "refit_from_better_start", "determined", "select_effects", "EffectForm", "VERDICTS", "added_step_lines",
+           "remark_lines", "residual_line", "is_unexplained", "linear_score", "unit_columns"]
 
+SINGULAR_RCOND = 1e-7
+"""Eigenvalues of a scaled normal matrix below ``SINGULAR_RCOND**2`` of the largest are singular."""
+FLOOR_MARGIN = 0.10
+"""Residual rms above the noise floor by more than this fraction is unexplained."""
+STRUCTURE_P = 1e-3
+"""p-value below which structure left in the residual is significant."""
 DECISIVE_BIC = 10.0
 """delta-BIC above which evidence counts as decisive (Kass and Raftery's 'very strong')."""
 MIN_SHARE = 0.3
@@ -179,7 +185,7 @@ def linearised_score(weighted: Callable, current, effect, points: Sequence[np.nd
     """Score (Lagrange-multiplier) test for adding ``effect`` to a least-squares fit.
 
     The effect's Jacobian at each of its score points is projected off the current fit's Jacobian
-    (what the current parameters absorb; :func:`calibrate._mlfit.linear_score`); the best point is kept.
+    (what the current parameters absorb; :func:`linear_score`); the best point is kept.
 
     Parameters
     ----------
@@ -386,3 +392,49 @@ def residual_line(block: dict, verdict: str, test: str = "structure test") -> st
     return (f"  residual rms {block['residual_rms_before']:.4g} -> {block['residual_rms_after']:.4g}; {verdict}"
             + ("" if p is None else f" ({test} p = {p:.2g})"))
 
+
+def is_unexplained(p_value: float, rms: float, floor: float) -> bool:
+    """Whether a residual is unexplained: structure (p below :data:`STRUCTURE_P`) or an rms above the floor by more than :data:`FLOOR_MARGIN`."""
+    return bool(p_value < STRUCTURE_P or rms > (1.0 + FLOOR_MARGIN) * floor)
+
+
+def unit_columns(jac: np.ndarray) -> np.ndarray:
+    """The Jacobian with every non-zero column scaled to unit norm."""
+    return jac / np.where(np.any(jac, axis=0), np.linalg.norm(jac, axis=0), 1.0)
+
+
+def linear_score(residual, x, n_fitted: int, j_b: np.ndarray, step: float = 1e-6) -> tuple[float, np.ndarray]:
+    """First-order chi-square drop and parameter step of the block ``x[n_fitted:]``.
+
+    Parameters
+    ----------
+    residual : callable
+        Weighted residuals of the extended model at a parameter vector.
+    x : ndarray
+        The fitted parameters followed by the candidate block at its score point.
+    n_fitted : int
+        Length of the fitted part.
+    j_b : ndarray, shape (n_residuals, n_fitted)
+        The current fit's Jacobian with unit columns.
+    step : float
+        Finite-difference step of the block's parameters.
+    """
+    r0 = residual(x)
+    q = x.size - n_fitted
+    j_e = np.empty((r0.size, q))
+    for i in range(q):
+        xp = x.copy()
+        xp[n_fitted + i] += step
+        j_e[:, i] = (residual(xp) - r0) / step
+    absorbed, *_ = np.linalg.lstsq(j_b.T @ j_b, j_b.T @ j_e, rcond=SINGULAR_RCOND**2)  # small normal equations
+    j_tilde = j_e - j_b @ absorbed
+    # the effect's directions the current model cannot tell from its own parameters carry no
+    # evidence (a shape parameter at zero size among them): drop them and leave them as they are
+    scale = np.linalg.norm(j_tilde, axis=0)
+    scale[scale == 0] = 1.0
+    w, v = np.linalg.eigh((j_tilde / scale).T @ (j_tilde / scale))
+    keep = w > SINGULAR_RCOND**2 * max(w.max(), 1e-300)
+    projected = (j_tilde / scale).T @ r0
+    coef_scaled = (v[:, keep] / w[keep]) @ (v[:, keep].T @ projected)
+    # residual = data - model, so the model must move by +J coef: parameters step by -coef
+    return float(projected @ coef_scaled), -coef_scaled / scale

@@ -1,7 +1,7 @@
 """Residual diagnosis of a tumble calibration: find what the ellipsoid lacks, add it, report before and after.
 
 The loop of :mod:`calibrate.diagnose` (SPEC section 4; steps 3 and 4 and the last part of 5 are
-:func:`calibrate._evidence.select_effects`), on the radial residual of the ellipsoid,
+:func:`calibrate.diagnosis.evidence.select_effects`), on the radial residual of the ellipsoid,
 
 .. math:: r_i = F \\left( |L^T c(y_i - p_h)| - 1 \\right) \\approx |S\\, c(x_i - h)| - F,
 
@@ -18,12 +18,12 @@ the chain of corrections of the effects in the model (the identity for the plain
    the form's parameters at zero and gives the chi-square drop they could buy after projecting out
    what the current parameters absorb; the most promising forms (one per effect) are refitted.
 4. The refit with the largest decisive evidence (delta-BIC above
-   :data:`~calibrate._evidence.DECISIVE_BIC`) is added when it explains a real share
-   (:data:`~calibrate._evidence.MIN_SHARE`) of the structured residual, its parameters are
+   :data:`~calibrate.diagnosis.evidence.DECISIVE_BIC`) is added when it explains a real share
+   (:data:`~calibrate.diagnosis.evidence.MIN_SHARE`) of the structured residual, its parameters are
    determined (finite covariance) and, with an accelerometer, it does not widen the spread of the
    field-gravity angle (the dip deviation, a residual the effect was not fitted to); repeat.
 5. ``unexplained`` is true when the residual still carries structure (:func:`residual_structure`)
-   or its rms exceeds the floor by more than :data:`~calibrate.diagnose.FLOOR_MARGIN`.  If structure
+   or its rms exceeds the floor by more than :data:`~calibrate.diagnosis.evidence.FLOOR_MARGIN`.  If structure
    remains, the added effects may have absorbed part of something the toolkit does not model (a
    hard iron that stepped partway is partly a drift): nothing is claimed and the base fit is kept.
 
@@ -41,7 +41,7 @@ zero at the reference time ``t_ref`` (the first sample) and temperature ``T_ref`
 ``nonlinear_response`` (odd cubic)
     ``z + c z^3`` per axis: a response bending toward the extremes of the range.
 
-The magnetometer-accelerometer rotation (:func:`calibrate.tumble.fit_misalignment`) is fitted after
+The magnetometer-accelerometer rotation (:func:`calibrate.tumble.alignment.fit_misalignment`) is fitted after
 the diagnosis, on the corrected readings, and reported as a step of the same form: the field-gravity
 angle's rms about the dip before and after, with its delta-BIC.
 """
@@ -54,20 +54,18 @@ from itertools import combinations_with_replacement
 import numpy as np
 from scipy.optimize import least_squares
 
-from ._evidence import (VERDICTS, EffectForm, Proposal, added_step_lines, determined, gather_forms, linearised_score,
-                        refit_from_better_start, remark_lines, residual_line, select_effects)
-from .effects import why_no_temperature, why_no_time
-from .diagnose import FLOOR_MARGIN, STRUCTURE_P
-from .noise import chi2_sf, robust_sigma
-from .tumble import (MAX_ANGLE_WIDENING, KindFit, Misalignment, _covariance, _propagate, _shape, _sym_sqrt,
-                     field_gravity_angles, static_mask)
+from ..diagnosis.evidence import (EffectForm, Proposal, determined, gather_forms, is_unexplained, linearised_score,
+                                  refit_from_better_start, select_effects)
+from ..diagnosis.forms import WARMUP_TAU_FRACTIONS, json_float, rms, settled, warm_up_tau_s, why_no_temperature, why_no_time
+from ..diagnosis.report import Diagnosis
+from ..noise import chi2_sf, robust_sigma
+from .alignment import MAX_ANGLE_WIDENING, Misalignment, field_gravity_angles, static_mask
+from .ellipsoid import KindFit, fit_covariance, propagate, shape_matrix, sym_sqrt
 
 __all__ = ["TumbleEffect", "TUMBLE_FORMS", "TumbleDiagnosis", "UNEXPLAINED_WARNING", "diagnose_tumble",
-           "radial_noise_floor", "residual_structure", "format_tumble_diagnosis"]
+           "radial_noise_floor", "residual_structure"]
 
 _AXES = ("mx", "my", "mz")
-WARMUP_TAU_FRACTIONS = (0.03, 0.07, 0.15, 0.3, 0.6)
-"""Time constants (fractions of the session) at which the warm-up's score test is evaluated."""
 STRUCTURE_BLOCKS = 8
 """Blocks of consecutive samples (and temperature bands) in the structure test."""
 MIN_BLOCK_SAMPLES = 50
@@ -169,16 +167,11 @@ class WarmUp(_TimeEffect):
     def score_points(self):
         return [np.array([0.0, 0.0, 0.0, np.log(f)]) for f in WARMUP_TAU_FRACTIONS]
 
-    @staticmethod
-    def _tau(q, ctx):
-        return ctx.session_s * np.exp(np.clip(q[3], -6.0, 3.0))
-
     def correct(self, z, q, rows, ctx):
-        settled = -np.expm1(-(rows.t_s - ctx.t_ref_s) / self._tau(q, ctx))
-        return z - np.outer(settled, q[:3])
+        return z - np.outer(settled(rows.t_s, ctx.t_ref_s, warm_up_tau_s(ctx.session_s, q[3])), q[:3])
 
     def report(self, q, sigma, ctx):
-        tau = self._tau(q, ctx)
+        tau = warm_up_tau_s(ctx.session_s, q[3])
         out = _per_axis("hard_iron_settled_change", q[:3] * ctx.radius, sigma[:3] * ctx.radius)
         out["tau_s"] = {"value": float(tau), "sigma": float(tau * sigma[3])}
         return out
@@ -293,7 +286,7 @@ class _Model:
     def radial(self, x, effects, rows: _Rows) -> np.ndarray:
         """Radial residual, recording units."""
         z = self.corrected(x, effects, rows)
-        return self.field_norm * (np.linalg.norm(z @ _shape(self.kind, x[3:self.k]), axis=1) - 1.0)
+        return self.field_norm * (np.linalg.norm(z @ shape_matrix(self.kind, x[3:self.k]), axis=1) - 1.0)
 
     def weighted(self, x, effects) -> np.ndarray:
         return self.radial(x, effects, self.rows) / self.floor
@@ -301,7 +294,7 @@ class _Model:
     def fit(self, effects, x0) -> _Fit:
         res = least_squares(self.weighted, x0, args=(effects,), method="lm", x_scale="jac",
                             max_nfev=100 * (x0.size + 1))
-        cov = _covariance(res, res.fun.size)
+        cov = fit_covariance(res, res.fun.size)
         return _Fit(tuple(effects), res.x, res.jac, cov, res.fun * self.floor, float(res.fun @ res.fun),
                     bool(res.success), str(res.message))
 
@@ -321,7 +314,7 @@ class _Model:
 
 
 @dataclass(frozen=True)
-class TumbleDiagnosis:
+class TumbleDiagnosis(Diagnosis):
     """Outcome of the residual diagnosis of a tumble fit.
 
     Attributes
@@ -374,7 +367,7 @@ class TumbleDiagnosis:
                 "angle_rms_deg_before": mis.spread_before_deg, "angle_rms_deg_after": mis.spread_after_deg,
                 "evidence": evidence, "delta_bic": -mis.delta_bic}
         block = dict(self.block, steps=self.block["steps"] + [step], residual_rms_after=rms)
-        block["unexplained"] = _unexplained(block["structure_test"]["p_value"], rms, block["noise_floor"])
+        block["unexplained"] = is_unexplained(block["structure_test"]["p_value"], rms, block["noise_floor"])
         return replace(self, fit=fit, block=block)
 
 
@@ -431,18 +424,6 @@ def residual_structure(weighted: np.ndarray, directions: np.ndarray, bands) -> t
     coef, _, rank, _ = np.linalg.lstsq(design, weighted, rcond=None)
     drop = float(np.sum((design @ coef) ** 2))
     return drop, int(rank), chi2_sf(drop, rank)
-
-
-def _json_float(v: float) -> float | None:
-    return float(v) if np.isfinite(v) else None
-
-
-def _unexplained(p_value: float, rms: float, floor: float) -> bool:
-    return bool(p_value < STRUCTURE_P or rms > (1.0 + FLOOR_MARGIN) * floor)
-
-
-def _rms(values: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(values**2)))
 
 
 def diagnose_tumble(mag: np.ndarray, fit: KindFit, *, t_s: np.ndarray | None = None,
@@ -509,12 +490,12 @@ def diagnose_tumble(mag: np.ndarray, fit: KindFit, *, t_s: np.ndarray | None = N
         """Std of the field-gravity angle over the quasi-static inliers, deg (NaN without them)."""
         if static is None or np.count_nonzero(static) < 20:
             return float("nan")
-        m = model.corrected(f.x, f.effects, rows)[static] @ _sym_sqrt(fit.kind, f.x[3:model.k])
+        m = model.corrected(f.x, f.effects, rows)[static] @ sym_sqrt(fit.kind, f.x[3:model.k])
         return float(np.std(field_gravity_angles(m, accel_rows[static])))
 
     def keeps_the_angle(p: Proposal):
         spread = angle_spread(p.current), angle_spread(p.trial)
-        measured = {"angle_rms_deg_before": _json_float(spread[0]), "angle_rms_deg_after": _json_float(spread[1])}
+        measured = {"angle_rms_deg_before": json_float(spread[0]), "angle_rms_deg_after": json_float(spread[1])}
         if spread[1] > (1.0 + MAX_ANGLE_WIDENING) * spread[0]:
             return f"it widens the field-gravity angle spread from {spread[0]:.3f} to {spread[1]:.3f} deg", measured
         return None, measured
@@ -524,7 +505,7 @@ def diagnose_tumble(mag: np.ndarray, fit: KindFit, *, t_s: np.ndarray | None = N
         return {
             "added": p.effect.name,
             "form": p.effect.form,
-            "residual_rms": _rms(p.trial.residuals),
+            "residual_rms": rms(p.trial.residuals),
             **p.evidence(p.effect.n_params()),
             **measured,
             "parameters": p.effect.report(p.trial.x[block], np.sqrt(np.diag(p.trial.covariance))[block], ctx),
@@ -533,13 +514,13 @@ def diagnose_tumble(mag: np.ndarray, fit: KindFit, *, t_s: np.ndarray | None = N
     def verdict(f: _Fit):
         z = model.corrected(f.x, f.effects, rows)
         structure = residual_structure(f.residuals / floor, z / np.linalg.norm(z, axis=1, keepdims=True), bands)
-        return structure, _unexplained(structure[2], _rms(f.residuals), floor)
+        return structure, is_unexplained(structure[2], rms(f.residuals), floor)
 
     base = model.fit((), fit.params)
     chosen = select_effects(
         base, pool, score=model.score, refit=model.refit, n_params=lambda e: e.n_params(),
         log_n=np.log(base.residuals.size),
-        base_step={"model": "base", "kind": fit.kind, "residual_rms": _rms(base.residuals)},
+        base_step={"model": "base", "kind": fit.kind, "residual_rms": rms(base.residuals)},
         write_step=claim, verdict=verdict, checks=(determined("the ellipsoid"), keeps_the_angle))
     current, steps = chosen.fit, chosen.steps
     (structure, dof, p_value), unexplained = chosen.structure, chosen.unexplained
@@ -547,7 +528,7 @@ def diagnose_tumble(mag: np.ndarray, fit: KindFit, *, t_s: np.ndarray | None = N
     final_fit, raw_ref, effects = fit, mag, ()
     if current.effects:
         k = model.k
-        h, sig_h, s_mat, sig_s, f_norm, sig_f = _propagate(fit.kind, current.x[:k], current.covariance,
+        h, sig_h, s_mat, sig_s, f_norm, sig_f = propagate(fit.kind, current.x[:k], current.covariance,
                                                            fit.centre, fit.radius)
         raw_ref = h + fit.radius * model.corrected(current.x, current.effects, all_rows)
         resid_all = np.linalg.norm((raw_ref - h) @ s_mat.T, axis=1) - f_norm
@@ -558,11 +539,13 @@ def diagnose_tumble(mag: np.ndarray, fit: KindFit, *, t_s: np.ndarray | None = N
         effects = tuple({"name": step["added"], "form": step["form"], "reference": e.reference(ctx),
                          "parameters": step["parameters"]} for step, e in zip(steps[1:], current.effects))
     block = {
+        "subject": "|m| - F",
         "noise_floor": floor,
+        "noise_floor_source": "from second differences of the residual in time",
         "steps": steps,
         "effects": [e.name for e in current.effects],
         "residual_rms_before": steps[0]["residual_rms"],
-        "residual_rms_after": _rms(current.residuals),
+        "residual_rms_after": rms(current.residuals),
         "unexplained": unexplained,
         "structure_test": {"delta_chi2": structure, "dof": dof, "p_value": p_value},
         "not_claimed": chosen.not_claimed,
@@ -571,24 +554,3 @@ def diagnose_tumble(mag: np.ndarray, fit: KindFit, *, t_s: np.ndarray | None = N
                              "sigma": final_fit.hard_iron_sigma.tolist()},
     }
     return TumbleDiagnosis(final_fit, raw_ref, effects, block)
-
-
-def format_tumble_diagnosis(block: dict, unit: str = "recording units") -> str:
-    """The diagnosis block as lines for a person: each step with its evidence, before and after."""
-    lines = [f"Residual diagnosis of |m| - F (noise floor {block['noise_floor']:.4g} {unit}, from second "
-             "differences of the residual in time)"]
-    for step in block["steps"]:
-        if step.get("model") == "base":
-            lines.append(f"  base model ({step['kind']} ellipsoid): residual rms {step['residual_rms']:.4g}")
-        elif step.get("model") == "mag_to_accel":
-            lines.append(f"  mag-to-accel rotation: residual rms {step['residual_rms']:.4g}, delta-BIC "
-                         f"{step['delta_bic']:.0f}; {step['evidence']}")
-        else:
-            lines += added_step_lines(step)
-    lines += remark_lines(block)
-    if block["effects"]:
-        change = ", ".join(f"{v:+.4g} (sigma {s:.2g})" for v, s in zip(block["hard_iron_change"]["value"],
-                                                                       block["hard_iron_change"]["sigma"]))
-        lines.append(f"  the hard iron moved by {change} {unit}")
-    lines.append(residual_line(block, VERDICTS[bool(block["unexplained"])]))
-    return "\n".join(lines)

@@ -1,7 +1,7 @@
 """Residual diagnosis of fits made against known inputs: the 3-D platform (seed 001) and reference fields (seed 003).
 
 The loop of :mod:`calibrate.diagnose` (SPEC section 4; steps 2 and 3 and the last part of 4 are
-:func:`calibrate._evidence.select_effects`) for a model whose diagnosed channels read
+:func:`calibrate.diagnosis.evidence.select_effects`) for a model whose diagnosed channels read
 
 .. math:: v_{ic} = y_{ic}(p) + o_c + \\Delta_{ic}(q),
 
@@ -12,15 +12,15 @@ channel offsets and ``Delta`` the sum of the effects' corrections (zero for the 
    field) when the recording has repeats; else the base fit's own residual, and then nothing can be
    called unexplained (``unexplained: null``) and the evidence is conservative (the floor holds
    whatever an effect would explain).
-2. Score (Lagrange-multiplier) test of every applicable form (:func:`calibrate._mlfit.linear_score`,
+2. Score (Lagrange-multiplier) test of every applicable form (:func:`calibrate.diagnosis.evidence.linear_score`,
    the current parameters projected out); the most promising form per effect is refitted.
-3. The refit with the largest decisive evidence (:data:`~calibrate._evidence.DECISIVE_BIC`) is added
-   when it explains a real share (:data:`~calibrate._evidence.MIN_SHARE`) of the structured residual
-   and its parameters are determined; repeat (at most :data:`~calibrate._evidence.MAX_STEPS`).
+3. The refit with the largest decisive evidence (:data:`~calibrate.diagnosis.evidence.DECISIVE_BIC`) is added
+   when it explains a real share (:data:`~calibrate.diagnosis.evidence.MIN_SHARE`) of the structured residual
+   and its parameters are determined; repeat (at most :data:`~calibrate.diagnosis.evidence.MAX_STEPS`).
 4. ``unexplained`` (with a floor from repeats): a lack-of-fit test, the repeat groups' mean
    residuals against the floor (chi-square on ``groups x channels - parameters`` dof) with
-   p below :data:`~calibrate.diagnose.STRUCTURE_P`, or an rms more than
-   :data:`~calibrate.diagnose.FLOOR_MARGIN` above the floor.  If structure remains, nothing is
+   p below :data:`~calibrate.diagnosis.evidence.STRUCTURE_P`, or an rms more than
+   :data:`~calibrate.diagnosis.evidence.FLOOR_MARGIN` above the floor.  If structure remains, nothing is
    claimed and the base fit is kept.
 
 Effects (per diagnosed channel, output units; ``tau = (t - t_ref) / T`` with ``t_ref`` the first
@@ -46,15 +46,14 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import least_squares
 
-from ._evidence import (VERDICTS, EffectForm, Proposal, added_step_lines, determined, gather_forms, linearised_score,
-                        refit_from_better_start, remark_lines, residual_line, select_effects)
-from .effects import why_no_temperature, why_no_time
-from .diagnose import FLOOR_MARGIN, STRUCTURE_P
-from .noise import chi2_sf
-from .tumble_diagnose import WARMUP_TAU_FRACTIONS, _json_float, _rms
+from ..noise import chi2_sf
+from .evidence import (EffectForm, Proposal, determined, gather_forms, linearised_score, refit_from_better_start,
+                       select_effects, is_unexplained)
+from .forms import WARMUP_TAU_FRACTIONS, json_float, rms, settled, warm_up_tau_s, why_no_temperature, why_no_time
+from .report import Diagnosis
 
 __all__ = ["OffsetEffect", "FORMS", "Problem", "OffsetDiagnosis", "diagnose_offsets", "pooled_repeat_noise",
-           "lack_of_fit", "format_offset_diagnosis"]
+           "lack_of_fit"]
 
 _FD_STEP = 1e-6
 _SINGULAR_COND = 1e12
@@ -155,16 +154,11 @@ class WarmUp(_TimeEffect):
     def score_points(self, c):
         return [np.concatenate([np.zeros(c), [np.log(f)]]) for f in WARMUP_TAU_FRACTIONS]
 
-    @staticmethod
-    def _tau_s(q, ctx):
-        return ctx.session_s * np.exp(np.clip(q[-1], -6.0, 3.0))
-
     def delta(self, q, y, ctx):
-        settled = -np.expm1(-(ctx.t_s - ctx.t_ref_s) / self._tau_s(q, ctx))
-        return np.outer(settled, q[:-1] * ctx.scale)
+        return np.outer(settled(ctx.t_s, ctx.t_ref_s, warm_up_tau_s(ctx.session_s, q[-1])), q[:-1] * ctx.scale)
 
     def report(self, q, sigma, ctx):
-        tau = self._tau_s(q, ctx)
+        tau = warm_up_tau_s(ctx.session_s, q[-1])
         out = _per_channel(ctx, "offset_settled_change", q[:-1] * ctx.scale, sigma[:-1] * ctx.scale)
         out["tau_s"] = {"value": float(tau), "sigma": float(tau * sigma[-1])}
         return out
@@ -290,7 +284,7 @@ class _Fit:
 
 
 @dataclass(frozen=True)
-class OffsetDiagnosis:
+class OffsetDiagnosis(Diagnosis):
     """Outcome of the diagnosis.
 
     Attributes
@@ -426,14 +420,14 @@ def diagnose_offsets(problem: Problem, *, t_s=None, temp_c=None, candidates=None
             return None, None
         k = problem.k_channels + f.x.size - kb
         structure = lack_of_fit(f.channel_residuals / floor, problem.groups, k)
-        return structure, bool(structure[2] < STRUCTURE_P or _rms(f.channel_residuals) > (1 + FLOOR_MARGIN) * _rms(floor))
+        return structure, is_unexplained(structure[2], rms(f.channel_residuals), rms(floor))
 
     def claim(p: Proposal, measured: dict) -> dict:
         start = p.trial.x.size - p.effect.n_params(c)
         return {
             "added": p.effect.name,
             "form": p.effect.form,
-            "residual_rms": _rms(p.trial.channel_residuals),
+            "residual_rms": rms(p.trial.channel_residuals),
             **p.evidence(p.effect.n_params(c)),
             "parameters": p.effect.report(p.trial.x[start:], np.sqrt(np.diag(p.trial.covariance))[start:], ctx),
         }
@@ -445,14 +439,14 @@ def diagnose_offsets(problem: Problem, *, t_s=None, temp_c=None, candidates=None
         refit=lambda current, effect, start: refit_from_better_start(fit, weighted, current, effect,
                                                                      effect.score_points(c)[0], start),
         n_params=lambda e: e.n_params(c), log_n=np.log(base.n_obs),
-        base_step={"model": "base", "residual_rms": _rms(base.channel_residuals)},
+        base_step={"model": "base", "residual_rms": rms(base.channel_residuals)},
         write_step=claim, verdict=verdict, checks=(determined("the base model"),))
     current, steps, structure, unexplained = chosen.fit, chosen.steps, chosen.structure, chosen.unexplained
 
     sig = np.sqrt(np.diag(current.covariance))
     change = current.x[problem.offset_index] - problem.x_base[problem.offset_index]
     block = {
-        "noise_floor": _rms(floor),
+        "noise_floor": rms(floor),
         "noise_floor_per_channel": [float(v) for v in floor],
         "noise_floor_source": ("pooled scatter of repeated samples under the same known input" if
                                problem.floor_from_repeats else
@@ -461,15 +455,15 @@ def diagnose_offsets(problem: Problem, *, t_s=None, temp_c=None, candidates=None
         "steps": steps,
         "effects": [e.name for e in current.effects],
         "residual_rms_before": steps[0]["residual_rms"],
-        "residual_rms_after": _rms(current.channel_residuals),
+        "residual_rms_after": rms(current.channel_residuals),
         "unexplained": unexplained,
         "structure_test": None if structure is None else
-        {"kind": "lack of fit of the repeat groups' mean residual", "delta_chi2": structure[0], "dof": structure[1],
+        {"name": "lack-of-fit", "kind": "lack of fit of the repeat groups' mean residual", "delta_chi2": structure[0], "dof": structure[1],
          "p_value": structure[2]},
         "not_claimed": chosen.not_claimed,
         "not_applicable": skipped,
         "offset_change": {"channels": list(problem.channels), "value": change.tolist(),
-                          "sigma": [_json_float(v) for v in sig[problem.offset_index]]},
+                          "sigma": [json_float(v) for v in sig[problem.offset_index]]},
     }
     names_out, effects_out = [], []
     for step, e in zip(steps[1:], current.effects):
@@ -478,22 +472,3 @@ def diagnose_offsets(problem: Problem, *, t_s=None, temp_c=None, candidates=None
                             "parameters": step["parameters"]})
     return OffsetDiagnosis(current.x, current.jac, current.covariance, delta(current.x, current.effects), names_out,
                            tuple(effects_out), block)
-
-
-def format_offset_diagnosis(block: dict, unit: str = "output units") -> str:
-    """The diagnosis block as lines for a person: each step with its evidence, before and after."""
-    lines = [f"Residual diagnosis (noise floor {block['noise_floor']:.4g} {unit}: {block['noise_floor_source']})"]
-    for step in block["steps"]:
-        if step.get("model") == "base":
-            lines.append(f"  base model: residual rms {step['residual_rms']:.4g}")
-        else:
-            lines += added_step_lines(step)
-    lines += remark_lines(block)
-    if block["effects"]:
-        ch = block["offset_change"]
-        moved = ", ".join(f"{n} {v:+.4g}" for n, v in zip(ch["channels"], ch["value"]))
-        lines.append(f"  the offsets (now at the effects' reference) moved by {moved} {unit}")
-    verdict = ("not judged: no repeated samples to measure the noise floor independently"
-               if block["unexplained"] is None else VERDICTS[bool(block["unexplained"])])
-    lines.append(residual_line(block, verdict, "lack-of-fit"))
-    return "\n".join(lines)

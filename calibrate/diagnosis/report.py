@@ -1,0 +1,78 @@
+"""One diagnosis record and one formatter for every kind's residual diagnosis (SPEC section 4)."""
+
+from __future__ import annotations
+
+from .evidence import VERDICTS, added_step_lines, remark_lines, residual_line
+
+__all__ = ["Diagnosis", "format_diagnosis"]
+
+_NOT_JUDGED = "not judged: no repeated samples to measure the noise floor independently"
+
+
+class Diagnosis:
+    """Base of every kind's diagnosis record.
+
+    A record has ``block`` (the calibration file's ``diagnosis``, SPEC section 4: ``noise_floor``,
+    ``steps``, ``effects``, ``residual_rms_before``, ``residual_rms_after``, ``unexplained``) and
+    ``effects`` (the file's ``effects`` entries: ``{"name", "form", "reference", "parameters"}``),
+    besides what its kind's model needs (the fit with the effects).
+    """
+
+    block: dict
+    effects: tuple
+
+    @property
+    def unexplained(self) -> bool | None:
+        """Structure above the noise floor that no modelled effect explains; None: not judged."""
+        return self.block["unexplained"]
+
+    def format(self, unit: str = "output units") -> str:
+        """The block in words (:func:`format_diagnosis`)."""
+        return format_diagnosis(self.block, unit)
+
+
+def format_diagnosis(block: dict, unit: str = "output units") -> str:
+    """Any kind's diagnosis block as lines for a person: each step with its evidence, before and after.
+
+    Parameters
+    ----------
+    block : dict
+        The diagnosis block (SPEC section 4).  Kind-specific keys it reads when present:
+        ``subject`` (what the residual is), ``noise_floor_source``, ``structure_test.name``, a base
+        step's ``kind`` (the tumble's ellipsoid), ``mag_to_accel`` steps, and what moved:
+        ``calibration_change`` (four-flip), ``offset_change`` (fits against known inputs),
+        ``hard_iron_change`` (tumble).
+    unit : str
+        The unit of the residual.
+    """
+    subject = f" of {block['subject']}" if block.get("subject") else ""
+    source = block.get("noise_floor_source", "estimated from the data")
+    lines = [f"Residual diagnosis{subject} (noise floor {block['noise_floor']:.4g} {unit}, {source})"]
+    for step in block["steps"]:
+        if step.get("model") == "base":
+            kind = f" ({step['kind']} ellipsoid)" if "kind" in step else ""
+            lines.append(f"  base model{kind}: residual rms {step['residual_rms']:.4g}")
+        elif step.get("model") == "mag_to_accel":
+            lines.append(f"  mag-to-accel rotation: residual rms {step['residual_rms']:.4g}, delta-BIC "
+                         f"{step['delta_bic']:.0f}; {step['evidence']}")
+        else:
+            lines += added_step_lines(step)
+    lines += remark_lines(block)
+    added = len(block["steps"]) > 1 and block["effects"]
+    change = block.get("calibration_change")
+    if change and len(block["steps"]) > 1:
+        moved = ", ".join(f"{name} {c['direction_change_deg']:.3f} deg (sigma {c['sigma_deg']:.3f})"
+                          for name, c in change["channels"].items())
+        lines.append(f"  the calibration moved: directions {moved}; dip {change['dip_change_deg']:+.3f} deg")
+    if added and "offset_change" in block:
+        ch = block["offset_change"]
+        moved = ", ".join(f"{n} {v:+.4g}" for n, v in zip(ch["channels"], ch["value"]))
+        lines.append(f"  the offsets (now at the effects' reference) moved by {moved} {unit}")
+    if added and "hard_iron_change" in block:
+        ch = block["hard_iron_change"]
+        moved = ", ".join(f"{v:+.4g} (sigma {s:.2g})" for v, s in zip(ch["value"], ch["sigma"]))
+        lines.append(f"  the hard iron moved by {moved} {unit}")
+    verdict = _NOT_JUDGED if block["unexplained"] is None else VERDICTS[bool(block["unexplained"])]
+    test = (block.get("structure_test") or {}).get("name", "structure test")
+    lines.append(residual_line(block, verdict, test))
+    return "\n".join(lines)

@@ -1,0 +1,78 @@
+"""How much of the sphere a tumble covered: the field directions seen, per face of the magnetometer."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+FACE_COVERAGE_DEG = 45.0
+"""A half-axis counts as seen when some sample's field direction lies within this angle of it."""
+
+
+_N_CELLS = 200
+
+
+_FACES = ("+X", "-X", "+Y", "-Y", "+Z", "-Z")
+
+
+@dataclass(frozen=True)
+class Coverage:
+    """How much of the sphere of field directions the samples cover (magnetometer frame).
+
+    Attributes
+    ----------
+    fraction : float
+        Fraction of ``_N_CELLS`` equal-area cells (nearest Fibonacci-sphere centre) holding a sample.
+    faces_seen : dict of str to bool
+        Whether the field came within ``FACE_COVERAGE_DEG`` of each half-axis ``+X .. -Z``.
+    """
+
+    fraction: float
+    faces_seen: dict
+
+    @property
+    def missing(self) -> list[str]:
+        return [f for f, seen in self.faces_seen.items() if not seen]
+
+    def words(self) -> str:
+        """What is missing, for a person holding the device."""
+        if not self.missing:
+            return f"the field was seen from every side ({100 * self.fraction:.0f} % of the sphere covered)"
+        axes = ", ".join(self.missing)
+        return (f"the field never pointed along the magnetometer's {axes} "
+                f"{'axes' if len(self.missing) > 1 else 'axis'} (only {100 * self.fraction:.0f} % of the sphere covered): "
+                f"turn the device so that each of these axes points along the field in turn (north and, "
+                f"in the northern hemisphere, steeply down) - usually by turning it over")
+
+
+def _fibonacci_sphere(n: int) -> np.ndarray:
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    phi = np.pi * (1.0 + 5.0**0.5) * i
+    r = np.sqrt(1.0 - z**2)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+def sphere_coverage(directions: np.ndarray) -> Coverage:
+    """Coverage of the sphere by field directions.
+
+    Parameters
+    ----------
+    directions : ndarray, shape (n, 3)
+        Field directions in the magnetometer frame (need not be unit).
+
+    Returns
+    -------
+    Coverage
+    """
+    u = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    cells = _fibonacci_sphere(_N_CELLS)
+    hit = np.unique(np.argmax(u @ cells.T, axis=1))
+    best = np.max(u, axis=0), np.max(-u, axis=0)
+    cos_lim = np.cos(np.radians(FACE_COVERAGE_DEG))
+    seen = {}
+    for k, axis in enumerate("XYZ"):
+        seen[f"+{axis}"] = bool(best[0][k] >= cos_lim)
+        seen[f"-{axis}"] = bool(best[1][k] >= cos_lim)
+    return Coverage(len(hit) / _N_CELLS, {f: seen[f] for f in _FACES})

@@ -1,0 +1,276 @@
+"""Ellipsoid fits of a tumble (hard and soft iron): the three kinds, their statistics and the automatic choice.
+
+See :mod:`calibrate.tumble` for the model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.linalg import sqrtm
+from scipy.optimize import least_squares
+
+from ..noise import robust_sigma
+from .coverage import Coverage, sphere_coverage
+
+KINDS = ("offset", "diagonal", "full")
+
+
+_N_PARAMS = {"offset": 4, "diagonal": 6, "full": 9}
+
+
+OUTLIER_SIGMAS = 4.0
+"""Samples farther than this many robust sigmas from the fitted ellipsoid are dropped."""
+
+
+MAX_RELATIVE_SIGMA = 0.01
+"""A kind is determined when every standard error (offset / field, soft-iron element) is below this."""
+
+
+MAX_RADIUS_RATIO = 3.0
+"""A fit whose field norm exceeds this many times the samples' extent (95th percentile of their
+distance from their median) is degenerate: a huge sphere through a nearly flat patch of samples,
+as when the field changed partway (a magnet attached to the device)."""
+
+
+MAX_NFEV = 400
+
+
+@dataclass(frozen=True)
+class KindFit:
+    """One ellipsoid kind fitted to the samples.
+
+    Attributes
+    ----------
+    kind : str
+    hard_iron, hard_iron_sigma : ndarray, shape (3,)
+        Offset ``h`` and its standard error, recording units.
+    soft_iron, soft_iron_sigma : ndarray, shape (3, 3)
+        ``S`` normalised to ``det S = 1`` and its element-wise standard error.
+    field_norm, field_norm_sigma : float
+        Geometric-mean radius ``F``, recording units.
+    residuals : ndarray, shape (n,)
+        ``|S (x - h)| - F`` of every sample (outliers included), recording units.
+    inliers : ndarray of bool, shape (n,)
+    rss : float
+        Sum of squared residuals over ``inliers``.
+    bic : float
+        On the common sample set of the comparison (NaN if not compared).
+    determined : bool
+    reason : str
+        Why the kind is not determined (empty if it is).
+    success : bool
+    message : str
+    params : ndarray
+        Fit parameters in normalised units: ``(h - centre) / radius``, then the shape of ``L``.
+    centre, radius : ndarray (3,), float
+        The normalisation (algebraic sphere fit), recording units.
+    degenerate : bool
+        The field norm exceeds ``MAX_RADIUS_RATIO`` times the samples' extent (see ``reason``).
+    """
+
+    kind: str
+    hard_iron: np.ndarray
+    hard_iron_sigma: np.ndarray
+    soft_iron: np.ndarray
+    soft_iron_sigma: np.ndarray
+    field_norm: float
+    field_norm_sigma: float
+    residuals: np.ndarray
+    inliers: np.ndarray
+    rss: float
+    bic: float
+    determined: bool
+    reason: str
+    success: bool
+    message: str
+    params: np.ndarray
+    centre: np.ndarray
+    radius: float
+    degenerate: bool = False
+
+    @property
+    def n_params(self) -> int:
+        return _N_PARAMS[self.kind]
+
+    def calibrated(self, mag: np.ndarray) -> np.ndarray:
+        """``S (x - h)``, shape (n, 3), recording units (det S = 1)."""
+        return (np.asarray(mag, dtype=float) - self.hard_iron) @ self.soft_iron.T
+
+
+def shape_matrix(kind: str, p: np.ndarray) -> np.ndarray:
+    """Lower-triangular L (S^2 / F^2 = L L^T) from the shape parameters."""
+    if kind == "offset":
+        return np.exp(p[0]) * np.eye(3)
+    if kind == "diagonal":
+        return np.diag(np.exp(p[:3]))
+    low = np.diag(np.exp(p[:3]))
+    low[1, 0], low[2, 0], low[2, 1] = p[3:6]
+    return low
+
+
+def _shape_params(kind: str, m: np.ndarray) -> np.ndarray:
+    """Start values for ``kind`` from a positive-definite ``S^2 / F^2`` matrix ``m``."""
+    if kind == "offset":
+        return np.array([0.5 * np.log(np.mean(np.diag(m)))])
+    if kind == "diagonal":
+        return 0.5 * np.log(np.diag(m))
+    low = np.linalg.cholesky(m)
+    return np.concatenate([np.log(np.diag(low)), [low[1, 0], low[2, 0], low[2, 1]]])
+
+
+def radial_residual(p, kind, y):
+    low = shape_matrix(kind, p[3:])
+    return np.linalg.norm((y - p[:3]) @ low, axis=1) - 1.0
+
+
+def _unpack(kind, p, centre, radius):
+    """(h, S det 1, F) in recording units from normalised parameters."""
+    low = shape_matrix(kind, p[3:])
+    a = np.real(sqrtm(low @ low.T)) / radius  # S / F, maps raw units onto the unit sphere
+    a = (a + a.T) / 2.0
+    f_norm = np.linalg.det(a) ** (-1.0 / 3.0)
+    return centre + radius * p[:3], a * f_norm, f_norm
+
+
+def _fit_kind(kind, y, p0, inlier_mask=None):
+    """Robust fit, trimming, then a plain refit on the inliers; normalised units."""
+    start = p0
+    if inlier_mask is None:
+        first = least_squares(radial_residual, p0, args=(kind, y), loss="soft_l1", f_scale=0.02, method="trf", tr_solver="lsmr",
+                              max_nfev=MAX_NFEV)
+        sigma = max(robust_sigma(radial_residual(first.x, kind, y)), 1e-9)
+        robust = least_squares(radial_residual, first.x, args=(kind, y), loss="soft_l1", f_scale=2.0 * sigma,
+                               method="trf", tr_solver="lsmr", max_nfev=MAX_NFEV)
+        r = radial_residual(robust.x, kind, y)
+        sigma = max(robust_sigma(r), 1e-9)
+        inlier_mask = np.abs(r - np.median(r)) < OUTLIER_SIGMAS * sigma
+        start = robust.x
+    final = least_squares(radial_residual, start, args=(kind, y[inlier_mask]), method="lm", max_nfev=MAX_NFEV)
+    return final, inlier_mask
+
+
+def _algebraic_start(x: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre and radius of the linear least-squares sphere ``|x|^2 = 2 c.x + k``."""
+    design = np.column_stack([2.0 * x, np.ones(len(x))])
+    sol, *_ = np.linalg.lstsq(design, np.sum(x**2, axis=1), rcond=None)
+    centre = sol[:3]
+    return centre, float(np.sqrt(max(sol[3] + centre @ centre, 1e-30)))
+
+
+def fit_covariance(res, n_obs: int) -> np.ndarray:
+    """Parameter covariance from the Jacobian, scaled by the reduced chi-square (inf if singular)."""
+    k = len(res.x)
+    jtj = res.jac.T @ res.jac
+    if np.linalg.cond(jtj) > 1e12:
+        return np.full((k, k), np.inf)
+    return np.linalg.inv(jtj) * float(np.sum(res.fun**2)) / max(n_obs - k, 1)
+
+
+def propagate(kind, p, cov, centre, radius):
+    """Standard errors of h, S (det 1) and F from the covariance of the normalised parameters."""
+    k = _N_PARAMS[kind]
+    h, s, f_norm = _unpack(kind, p, centre, radius)
+    sig_h = radius * np.sqrt(np.clip(np.diag(cov)[:3], 0.0, None))
+    grads_s, grads_f = np.empty((9, k)), np.empty(k)
+    for j in range(k):
+        step = np.zeros(k)
+        step[j] = 1e-6
+        _, s_j, f_j = _unpack(kind, p + step, centre, radius)
+        grads_s[:, j] = (s_j - s).ravel() / 1e-6
+        grads_f[j] = (f_j - f_norm) / 1e-6
+    cov = cov[:k, :k]
+    with np.errstate(invalid="ignore"):
+        sig_s = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", grads_s, cov, grads_s), 0.0, None)).reshape(3, 3)
+        sig_f = float(np.sqrt(max(grads_f @ cov @ grads_f, 0.0)))
+    return h, sig_h, s, sig_s, f_norm, sig_f
+
+
+def _kind_fit(kind, x, y, centre, radius, p0, inliers) -> KindFit:
+    res, inliers = _fit_kind(kind, y, p0, inliers)
+    h, sig_h, s, sig_s, f_norm, sig_f = propagate(kind, res.x, fit_covariance(res, int(np.count_nonzero(inliers))),
+                                                   centre, radius)
+    resid_all = np.linalg.norm((x - h) @ s.T, axis=1) - f_norm
+    return KindFit(kind, h, sig_h, s, sig_s, f_norm, sig_f, resid_all, inliers, float(np.sum(resid_all[inliers] ** 2)),
+                   np.nan, True, "", bool(res.success), res.message, res.x, centre, radius)
+
+
+def fit_ellipsoid(mag: np.ndarray, kind: str = "auto") -> tuple[KindFit, tuple, Coverage]:
+    """Fit the ellipsoid kinds and choose one.
+
+    Parameters
+    ----------
+    mag : ndarray, shape (n, 3)
+        Raw magnetometer samples (repeats removed), recording units, magnetometer frame.
+    kind : {"auto", "offset", "diagonal", "full"}
+        ``auto`` takes the determined kind with the lowest BIC; a named kind is fitted as asked
+        (the result warns through ``determined`` when the data do not support it).
+
+    Returns
+    -------
+    chosen : KindFit
+    candidates : tuple of KindFit
+        The kinds fitted, simplest first, with BIC on a common sample set.
+    coverage : Coverage
+        Of the field directions about the offset-only centre.
+
+    Raises
+    ------
+    ValueError
+        ``kind`` unknown, or fewer samples than the full kind's parameters.
+    """
+    if kind not in ("auto",) + KINDS:
+        raise ValueError(f"kind must be 'auto' or one of {KINDS}, got {kind!r}")
+    x = np.asarray(mag, dtype=float)
+    if len(x) < 12:
+        raise ValueError(f"a tumble calibration needs at least 12 samples, got {len(x)}")
+    centre, radius = _algebraic_start(x)
+    y = (x - centre) / radius
+    names = KINDS if kind == "auto" else KINDS[: KINDS.index(kind) + 1]
+
+    # each kind starts from the previous one; the most flexible kind's trimming sets the common samples
+    fits, params = [], []
+    p = np.zeros(4)
+    for name in names:
+        if params:
+            low = shape_matrix(names[len(params) - 1], params[-1][3:])
+            p = np.concatenate([params[-1][:3], _shape_params(name, low @ low.T)])
+        fit = _kind_fit(name, x, y, centre, radius, p, None)
+        fits.append(fit)
+        params.append(fit.params)
+    common = fits[-1].inliers
+    coverage = sphere_coverage(x[common] - fits[0].hard_iron)
+    n = int(np.count_nonzero(common))
+    extent = float(np.percentile(np.linalg.norm(x[common] - np.median(x[common], axis=0), axis=1), 95))
+    final = []
+    for fit, p in zip(fits, params):
+        if not np.array_equal(fit.inliers, common):
+            fit = _kind_fit(fit.kind, x, y, centre, radius, p, common)
+        bic = n * np.log(fit.rss / n) + fit.n_params * np.log(n)
+        rel = max(np.max(fit.hard_iron_sigma) / fit.field_norm, np.max(fit.soft_iron_sigma),
+                  fit.field_norm_sigma / fit.field_norm)
+        reason = ""
+        degenerate = not fit.field_norm <= MAX_RADIUS_RATIO * extent
+        if degenerate:
+            reason = (f"degenerate: a sphere of radius {fit.field_norm:.4g} ({fit.field_norm / max(extent, 1e-300):.3g} "
+                      f"times the samples' extent {extent:.4g}) with hard iron {np.linalg.norm(fit.hard_iron):.4g}; "
+                      "the samples lie on no ellipsoid around the device: the field changed during the recording "
+                      "(a magnet or magnetised part attached or moved partway) or the device barely turned")
+        elif not np.isfinite(rel) or rel > MAX_RELATIVE_SIGMA:
+            reason = (f"standard errors up to {100 * rel:.2g} % of the field" if np.isfinite(rel)
+                      else "singular covariance")
+        elif fit.kind != "offset" and coverage.missing:
+            reason = f"the field was never along {', '.join(coverage.missing)}"
+        final.append(replace(fit, bic=float(bic), determined=not reason, reason=reason, degenerate=degenerate))
+    if kind != "auto":
+        return final[-1], tuple(final), coverage
+    usable = [f for f in final if f.determined] or final[:1]
+    return min(usable, key=lambda f: f.bic), tuple(final), coverage
+
+
+def sym_sqrt(kind, p_shape):
+    """Symmetric positive-definite ``A`` with ``A^2 = L L^T`` (the calibration's shape, normalised units)."""
+    low = shape_matrix(kind, p_shape)
+    w, v = np.linalg.eigh(low @ low.T)
+    return (v * np.sqrt(w)) @ v.T

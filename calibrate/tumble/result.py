@@ -1,0 +1,190 @@
+"""TumbleResult: what a tumble calibration found, its file, report and plots."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from compass.calibration_file import header
+
+from ..contract import Calibration
+from ..diagnosis.forms import json_float
+from .alignment import Misalignment
+from .coverage import Coverage
+from .ellipsoid import KindFit
+
+if TYPE_CHECKING:
+    from .diagnosis import TumbleDiagnosis
+
+@dataclass(frozen=True)
+class TumbleResult(Calibration):
+    """A tumble calibration (SPEC section 2, ``"model": "tumble"``).
+
+    Attributes
+    ----------
+    fit : KindFit
+        The chosen ellipsoid.
+    candidates : tuple of KindFit
+        Every kind tried, for the report and the BIC comparison.
+    coverage : Coverage
+    misalignment : Misalignment or None
+        None without an accelerometer (or too few quasi-static samples).
+    field_ut : float or None
+        When known, ``soft_iron`` is scaled so that the calibrated field is in microtesla.
+    noise : float
+        White-noise sigma per axis from second differences of consecutive samples, recording units.
+    n_samples, n_repeats : int
+        Samples fitted; rows dropped as repeated magnetometer values.
+    warnings : tuple of str
+    refused : str
+        Why no kind gives a usable calibration (every kind degenerate, or the field changed during
+        the recording: see :func:`calibrate_tumble`), in words; empty when the result is usable.
+        A refused result must not be written as a calibration file.
+    diagnosis : TumbleDiagnosis or None
+        The residual diagnosis (:mod:`calibrate.tumble.diagnosis`); None when every kind is degenerate.  With claimed
+        effects, ``fit`` is the ellipsoid at their reference time and temperature.
+    """
+
+    fit: KindFit
+    candidates: tuple
+    coverage: Coverage
+    misalignment: Misalignment | None
+    field_ut: float | None
+    noise: float
+    n_samples: int
+    n_repeats: int
+    warnings: tuple = field(default_factory=tuple)
+    refused: str = ""
+    diagnosis: TumbleDiagnosis | None = None
+
+    calibration_kind = "tumble"
+
+    @property
+    def kind(self) -> str:
+        """The chosen ellipsoid kind (``offset``, ``diagonal``, ``full``)."""
+        return self.fit.kind
+
+    @property
+    def parameters(self) -> dict:
+        """``hard_iron[i]`` (recording units), ``soft_iron[i,j]`` (file units), ``field_norm``: value and sigma."""
+        fit = self.fit
+        out = {f"hard_iron[{i}]": (float(v), float(e)) for i, (v, e) in enumerate(zip(fit.hard_iron, fit.hard_iron_sigma))}
+        for (i, j), v in np.ndenumerate(self.soft_iron):
+            out[f"soft_iron[{i},{j}]"] = (float(v), float(fit.soft_iron_sigma[i, j] * self.scale))
+        out["field_norm"] = (self.field_norm, None if self.field_ut else float(fit.field_norm_sigma))
+        return out
+
+    def plots(self, recording, folder) -> list:
+        """``tumble.png``: |B| before and after, per sample (:func:`calibrate.plots.plot_tumble`)."""
+        from pathlib import Path
+
+        from ..plots import plot_tumble
+
+        return [plot_tumble(recording.mag, self, Path(folder) / "tumble.png")]
+
+    @property
+    def hard_iron(self) -> np.ndarray:
+        return self.fit.hard_iron
+
+    @property
+    def scale(self) -> float:
+        """Factor from det-1 units to the file's units (``field_ut / F`` when |B| is known, else 1)."""
+        return self.field_ut / self.fit.field_norm if self.field_ut else 1.0
+
+    @property
+    def soft_iron(self) -> np.ndarray:
+        """``S`` as written to the file: det 1, or scaled to microtesla when |B| is known."""
+        return self.fit.soft_iron * self.scale
+
+    @property
+    def field_norm(self) -> float:
+        return float(self.field_ut) if self.field_ut else self.fit.field_norm
+
+    @property
+    def mag_to_accel(self) -> np.ndarray | None:
+        m = self.misalignment
+        return None if m is None or m.rotation is None else m.rotation.as_matrix()
+
+    def calibrated(self, mag: np.ndarray) -> np.ndarray:
+        """``m = soft_iron @ (raw - hard_iron)``, shape (n, 3), magnetometer frame, file units."""
+        return (np.asarray(mag, dtype=float) - self.hard_iron) @ self.soft_iron.T
+
+    def to_json(self) -> dict:
+        """The calibration file (SPEC section 2, tumble kind), JSON-ready.
+
+        ``hard_iron`` is the one at the claimed effects' reference (first sample's ``t_s``, mean
+        ``temp_c``); the effects' parameters are under ``effects``; ``noise_floor`` is the per-axis
+        noise of the raw readings, the diagnosis's that of the radial residual.
+
+        Raises
+        ------
+        ValueError
+            The result is refused (no usable calibration).
+        """
+        if self.refused:
+            raise ValueError(f"a refused tumble calibration has no calibration file: {self.refused}")
+        fit, mis = self.fit, self.misalignment
+        return header("tumble") | {
+            "hard_iron": fit.hard_iron.tolist(),
+            "soft_iron": self.soft_iron.tolist(),
+            "field_norm": self.field_norm,
+            "mag_to_accel": None if self.mag_to_accel is None else self.mag_to_accel.tolist(),
+            "field_ut": self.field_ut,
+            "dip_deg": None if mis is None else mis.dip_deg,
+            "dip_sigma_deg": None if mis is None else json_float(mis.dip_sigma_deg),
+            "channel_columns": ["mx", "my", "mz"],
+            "noise_floor": [self.noise] * 3,
+            "effects": list(self.diagnosis.effects),
+            "diagnosis": self.diagnosis.block,
+            "tumble": {
+                "kind": fit.kind,
+                "kinds": [{"kind": c.kind, "residual_rms": float(np.sqrt(np.mean(c.residuals[fit.inliers] ** 2))),
+                           "bic": json_float(c.bic), "determined": c.determined} for c in self.candidates],
+                "hard_iron_sigma": fit.hard_iron_sigma.tolist(),
+                "soft_iron_sigma": (fit.soft_iron_sigma * self.scale).tolist(),
+                "field_norm_recording_units": fit.field_norm,
+                "field_norm_sigma_recording_units": fit.field_norm_sigma,
+                "coverage_fraction": self.coverage.fraction,
+                "coverage_missing": self.coverage.missing,
+                "n_samples": self.n_samples,
+                "n_repeats_dropped": self.n_repeats,
+                "n_outliers": int(np.count_nonzero(~fit.inliers)),
+                "misalignment_rotvec_deg": None if mis is None else [json_float(v) for v in mis.rotvec_deg],
+                "misalignment_rotvec_sigma_deg": None if mis is None else [json_float(v) for v in mis.rotvec_sigma_deg],
+                "field_gravity_angle_spread_deg": None if mis is None else
+                {"before": mis.spread_before_deg, "after": mis.spread_after_deg, "n_static": mis.n_static},
+            },
+            "warnings": list(self.warnings),
+        }
+
+    def report(self) -> str:
+        """A fit report for a person: values +- sigma, the kinds compared, coverage and warnings in words."""
+        fit = self.fit
+        lines = [f"Tumble calibration: {fit.kind} ellipsoid from {self.n_samples} samples "
+                 f"({self.n_repeats} repeated rows dropped, {np.count_nonzero(~fit.inliers)} outliers)"]
+        lines.append("  hard iron " + ", ".join(f"{v:.5g} +- {s:.2g}" for v, s in zip(fit.hard_iron, fit.hard_iron_sigma))
+                     + " (recording units)")
+        unit = "uT" if self.field_ut else "recording units"
+        lines.append(f"  field norm {self.field_norm:.5g} {unit}; soft iron (det 1 shape):")
+        for row, srow in zip(fit.soft_iron, fit.soft_iron_sigma):
+            lines.append("    " + "  ".join(f"{v:+.5f} +- {s:.1g}" for v, s in zip(row, srow)))
+        lines.append("  kinds: " + "; ".join(
+            f"{c.kind} BIC {c.bic:.1f} rms {np.sqrt(np.mean(c.residuals[fit.inliers] ** 2)):.3g}"
+            + ("" if c.determined else f" (not determined: {c.reason})") for c in self.candidates))
+        lines.append(f"  noise floor {self.noise:.3g} per axis; coverage: {self.coverage.words()}")
+        mis = self.misalignment
+        if mis is not None:
+            lines.append(f"  dip {mis.dip_deg:.3f} +- {mis.dip_sigma_deg:.3f} deg from {mis.n_static} quasi-static samples")
+            if mis.rotation is None:
+                lines.append(f"  mag-to-accel rotation not supported by the data (delta BIC {mis.delta_bic:+.1f}); frames taken as aligned")
+            else:
+                lines.append("  mag-to-accel rotation vector " + ", ".join(
+                    f"{v:+.3f} +- {s:.3f}" for v, s in zip(mis.rotvec_deg, mis.rotvec_sigma_deg)) + " deg")
+            lines.append(f"  field-gravity angle spread {mis.spread_before_deg:.3f} -> {mis.spread_after_deg:.3f} deg")
+        if self.diagnosis is not None:
+            lines.append(self.diagnosis.format("recording units"))
+        for w in self.warnings:
+            lines.append(f"  warning: {w}")
+        return "\n".join(lines)
