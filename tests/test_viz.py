@@ -128,7 +128,8 @@ def test_calibrate_platform_and_reference(tmp_path):
                                "reference": (simulate_reference, write_reference)}.items():
         rec, _ = write(sim(seed=1), tmp_path / f"{name}.csv")
         rrd = tmp_path / f"{name}.rrd"
-        assert main(["calibrate", str(rec), "--out", str(tmp_path / f"{name}.json"), "--quiet", "--rerun", str(rrd)]) == 0
+        cal = tmp_path / f"{name}.json"
+        assert main(["calibrate", str(rec), "--out", str(cal), "--quiet", "--rerun", str(rrd)]) == 0
         paths = entity_paths(rrd)
         kind = "platform3d" if name == "platform" else "reference"
         series = sorted(p for p in paths if p.startswith(f"/{kind}/") and "bench" not in p)
@@ -167,7 +168,8 @@ def test_attitude_rerun_matches_the_csv(tmp_path):
     _, raw = scalars(rrd, "/raw/mag")
     assert raw.shape == (200, 3)
     paths = entity_paths(rrd)
-    assert {"/world/housing", "/world/housing/body", "/world/housing/axes", "/housing/field", "/housing/expected/field_gate",
+    assert {"/world/housing", "/world/housing/body", "/world/housing/axes", "/housing/field",
+            "/housing/expected/field_gate",
             "/housing/expected", "/housing/gravity", "/housing/expected/gravity_gate"} <= paths
     (labels,) = read_static(rrd, "/world/housing/axes", "Arrows3D:labels")[-1:]
     assert labels == ["X forward", "Y left", "Z up"]
@@ -188,7 +190,8 @@ def test_demo_writes_a_recording_with_calibration_attitude_and_errors(tmp_path, 
     _, band = scalars(rrd, "/errors/heading_deg/sigma_band")
     assert np.sqrt(np.mean(error**2)) < 2 * np.sqrt(np.mean(band[:, 1] ** 2))  # errors as large as their sigma
     origins = {v.get("origin") for v in blueprint_views(rrd)}
-    assert {"/bench", "/world", "/housing", "/errors/heading_deg", "/compass/field_ratio", "/diagnosis/residual_rms"} <= origins
+    assert {"/bench", "/world", "/housing", "/errors/heading_deg", "/compass/field_ratio",
+            "/diagnosis/residual_rms"} <= origins
 
 
 def test_evaluate_rerun_two_housings_and_errors(tmp_path, capsys):

@@ -159,7 +159,8 @@ def send_attitude(rec, index, columns: dict, *, field_limits=None, dip_limits=No
             continue
         value = np.asarray(columns[name], dtype=float)
         rec.send_columns(f"{compass}/{name}", indexes=index, columns=rr.Scalars.columns(scalars=value))
-        sigma = columns.get(sigma_of[name], columns.get("tilt_sigma_deg") if name in ("pitch_deg", "roll_deg") else None)
+        tilt = columns.get("tilt_sigma_deg") if name in ("pitch_deg", "roll_deg") else None
+        sigma = columns.get(sigma_of[name], tilt)
         if sigma is not None:
             band = value[:, None] + np.asarray(sigma, dtype=float)[:, None] * np.array([-1.0, 1.0])
             rec.send_columns(f"{compass}/{name}/sigma_band", indexes=index, columns=rr.Scalars.columns(scalars=band))
@@ -223,7 +224,8 @@ def evaluation_views() -> rrb.Container:
     return rrb.Horizontal(
         rrb.Spatial3DView(origin="/world", name="estimate (blue) and truth (grey), NWU"),
         rrb.Vertical(
-            rrb.TimeSeriesView(origin="/errors", name="BROAD errors (deg): heading, heading offset removed, inclination"),
+            rrb.TimeSeriesView(origin="/errors",
+                               name="BROAD errors (deg): heading, heading offset removed, inclination"),
             rrb.TimeSeriesView(origin="/compass/field_ratio", name="|B| / reference (after the hard-iron track)"),
             rrb.TimeSeriesView(name="field rejected (1) / movement phase (1)",
                                contents=["/compass/disturbed", "/compass/movement"])),
@@ -264,7 +266,8 @@ def log_evaluation(rec, *, t_s, quat_enu, ref_quat_enu, errors, field_h_ut, fiel
         r = nwu_from_enu * Rotation.from_quat(q[ok][:, [1, 2, 3, 0]])
         rec.send_columns(f"world/{name}", indexes=_index(np.asarray(t_s)[keep][ok], None),
                          columns=rr.Transform3D.columns(quaternion=r.as_quat()))
-    for name, values in (("heading_deg", errors.heading_deg), ("heading_offset_removed_deg", errors.heading_offset_removed_deg),
+    for name, values in (("heading_deg", errors.heading_deg),
+                         ("heading_offset_removed_deg", errors.heading_offset_removed_deg),
                          ("inclination_deg", errors.inclination_deg)):
         rec.send_columns(f"errors/{name}", indexes=index,
                          columns=rr.Scalars.columns(scalars=np.where(movement, values, np.nan)))
@@ -302,7 +305,8 @@ def record_attitude(target, attitude, model, *, t_s=None, raw=None, accel=None, 
     defaults = inspect.signature(solve_attitude).parameters
     with Recording(target, application_id=application_id) as out:
         log_attitude(out.rec, attitude, t_s=t_s, raw=raw, accel=accel, gyro=gyro,
-                     dip_deg=reference_dip(attitude, model), channels=model.channels, field_tolerance=defaults["field_tolerance"].default,
+                     dip_deg=reference_dip(attitude, model), channels=model.channels,
+                     field_tolerance=defaults["field_tolerance"].default,
                      dip_tolerance_deg=defaults["dip_tolerance_deg"].default)
         out.rec.set_time("sample", sequence=0)
         out.rec.log("events", rr.TextLog(f"mode {attitude.mode}: {int(np.sum(attitude.disturbed))} of "
