@@ -15,7 +15,9 @@ in this process, writing the attitude CSV (and, with Rerun on, an .rrd file) to 
 - processing capacity: lines decoded, solved and filtered per second from memory (no port), with
   Rerun off, with :class:`compass.viz.RerunSink` (batched ``send_columns``, 3-D frames at 30 per
   second of sample time) and with a baseline that logs every sample with ``rr.log``; the cost of
-  Rerun per sample is the difference of the inverse rates.
+  Rerun per sample is the difference of the inverse rates;
+- the sinks alone: the session's outputs replayed into each sink, CPU time per sample (Rerun's
+  threads included), which a loaded machine disturbs less than the rates above.
 
 Targets (issue 5): p99 < 5 ms at 100 Hz; >= 1 kHz sustained with Rerun recording to a file;
 (issue 13) keeping up with 2 kHz with Rerun on.
@@ -145,6 +147,49 @@ def capacity(sink_kind: str, folder: Path, n: int = 20000) -> float:
     return session.samples / (time.perf_counter() - t0)
 
 
+class _Collect:
+    """A sink that keeps what it is given (to replay it into a real sink, timed alone)."""
+
+    def __init__(self):
+        self.calls = []
+
+    def log(self, *args, **kwargs):
+        self.calls.append((args, kwargs))
+
+    def set_reference(self, *args):
+        pass
+
+    def event(self, *args):
+        pass
+
+    def close(self):
+        pass
+
+
+def sink_cpu_us(folder: Path, n: int = 20000) -> dict:
+    """CPU time per sample (this process, Rerun's threads included) of each sink alone, microseconds:
+    the session's outputs are collected once, then replayed into each sink (log + close)."""
+    model = SensorModel.from_file(folder / "cal100.json")
+    device = PtyDevice(model, rate_hz=1000.0)
+    data = device._header + b"".join(device._lines(simulate_device(model, np.arange(n) / 1000.0), 0))
+    collect = _Collect()
+    session = LiveSession(model, sink=collect)
+    for k in range(0, len(data), 4096):
+        session.feed(Chunk(time.perf_counter(), data[k:k + 4096]))
+    from compass.viz import RerunSink
+
+    out = {}
+    for kind in SINKS[1:]:
+        sink = (RerunSink.for_model(folder / "cpu.rrd", model, session.config) if kind == "file"
+                else PerSampleSink(folder / "cpu_per_sample.rrd"))
+        t0 = time.process_time()
+        for args, kwargs in collect.calls:
+            sink.log(*args, **kwargs)
+        sink.close()
+        out[kind] = 1e6 * (time.process_time() - t0) / len(collect.calls)
+    return out
+
+
 def static_noise(seed: int = 5, rate_hz: float = 100.0, duration_s: float = 30.0) -> dict:
     """Heading standard deviation of a still module: two-vector solution vs the filter (with and
     without gyro), after 5 s of settling; degrees."""
@@ -204,6 +249,11 @@ def main() -> None:
             rate = np.median(runs[kind])
             cost = "-" if kind == "off" else f"{1e6 * (1.0 / rate - 1.0 / off):.0f} us"
             print(f"| {kind} | {rate:.0f} samples/s | {cost} |")
+        cpu = sink_cpu_us(folder, 10000 if args.quick else 20000)
+        print("\n| Rerun sink alone | CPU per sample | CPU share at 2 kHz |")
+        print("|---|---|---|")
+        for kind, us in cpu.items():
+            print(f"| {kind} | {us:.1f} us | {100 * us * 2000 / 1e6:.0f} % |")
 
 
 if __name__ == "__main__":
