@@ -111,6 +111,8 @@ class LiveSession:
         self.reference = reference
         self.config = replace(self.config, field_norm=reference.field_magnitude, dip_deg=reference.dip_deg)
         self._event("info", f"reference field: {reference.description}")
+        if self.sink is not None:
+            self.sink.set_reference(reference.dip_deg, reference.description)
 
     def _seeding(self, sample, t_rx: float) -> bool:
         """Hold samples until the first quiet second gives the reference; True once it is known."""
@@ -193,7 +195,8 @@ class LiveSession:
             self.out.write("\n")
         if self.sink is not None:
             self.sink.log(t_s, self.samples, est, field_h / self.config.field_norm, sample.accel, raw=sample.raw,
-                          gyro=sample.gyro, gate_code=GATE_CODES[est.gate], in_range=self.in_range)
+                          gyro=sample.gyro, gate_code=GATE_CODES[est.gate], in_range=self.in_range,
+                          **({"true_heading": self.true_heading()} if self._declination is not None else {}))
         if not held:
             self.output_latencies_s.append(time.perf_counter() - t_rx)
 

@@ -128,7 +128,8 @@ def test_calibrate_platform_and_reference(tmp_path):
                                "reference": (simulate_reference, write_reference)}.items():
         rec, _ = write(sim(seed=1), tmp_path / f"{name}.csv")
         rrd = tmp_path / f"{name}.rrd"
-        assert main(["calibrate", str(rec), "--out", str(tmp_path / f"{name}.json"), "--quiet", "--rerun", str(rrd)]) == 0
+        cal = tmp_path / f"{name}.json"
+        assert main(["calibrate", str(rec), "--out", str(cal), "--quiet", "--rerun", str(rrd)]) == 0
         paths = entity_paths(rrd)
         kind = "platform3d" if name == "platform" else "reference"
         series = sorted(p for p in paths if p.startswith(f"/{kind}/") and "bench" not in p)
@@ -148,25 +149,33 @@ def test_attitude_rerun_matches_the_csv(tmp_path):
     assert main(["calibrate", str(bench), "--out", str(cal), "--quiet", "--no-diagnose"]) == 0
     run, _ = write_runtime(simulate_runtime(session.truth, 200, seed=3), tmp_path / "run.csv")
     att, rrd = tmp_path / "att.csv", tmp_path / "att.rrd"
-    assert main(["attitude", str(cal), str(run), "--out", str(att), "--rerun", str(rrd)]) == 0
+    assert main(["attitude", str(cal), str(run), "--out", str(att), "--rerun", str(rrd), "--site", "48.1,11.6",
+                 "--date", "2026-06-01"]) == 0
     table = read_table(att)
-    for name in ("heading_deg", "pitch_deg", "roll_deg", "field_ratio", "dip_deg", "in_range", "disturbed"):
+    for name in ("heading_deg", "pitch_deg", "roll_deg", "heading_true_deg", "field_ratio", "dip_deg", "in_range",
+                 "disturbed"):
         _, values = scalars(rrd, f"/compass/{name}")
         np.testing.assert_allclose(values[:, 0], table.column(name), atol=1e-3)
     _, band = scalars(rrd, "/compass/pitch_deg/sigma_band")
     np.testing.assert_allclose(band[:, 1] - band[:, 0], 2 * table.column("pitch_sigma_deg"), atol=1e-3)
+    _, band = scalars(rrd, "/compass/heading_true_deg/sigma_band")
+    np.testing.assert_allclose(band[:, 1] - band[:, 0], 2 * table.column("heading_true_sigma_deg"), atol=1e-3)
     _, limits = scalars(rrd, "/compass/dip_deg/gate_limits")
-    dip = json.loads(cal.read_text())["dip_deg"]
-    assert np.all(limits[:, 0] < dip) and np.all(dip < limits[:, 1])
+    site_dip = float(table.metadata["reference_field"].split("dip ")[1].split()[0])  # the gate is about the site's
+    np.testing.assert_allclose(limits.mean(axis=1), site_dip, atol=0.01)
+    measured = table.column("dip_deg")  # the simulated field is not Munich's: outside the limits, all disturbed
+    assert np.all((measured < limits[:, 0]) | (measured > limits[:, 1])) and np.all(table.column("disturbed") == 1)
     _, raw = scalars(rrd, "/raw/mag")
     assert raw.shape == (200, 3)
     paths = entity_paths(rrd)
-    assert {"/world/housing", "/world/housing/body", "/world/housing/axes", "/housing/field", "/housing/expected/field_gate",
+    assert {"/world/housing", "/world/housing/body", "/world/housing/axes", "/housing/field",
+            "/housing/expected/field_gate",
             "/housing/expected", "/housing/gravity", "/housing/expected/gravity_gate"} <= paths
     (labels,) = read_static(rrd, "/world/housing/axes", "Arrows3D:labels")[-1:]
     assert labels == ["X forward", "Y left", "Z up"]
     views = views_by_name(rrd)
-    assert views["heading (deg), +-1 sigma"]["origin"] == "/compass/heading_deg"
+    heading_view = views["heading (deg), +-1 sigma; from true north with a site"]
+    assert heading_view["class"] == "TimeSeries" and "/compass/heading_deg/**" in heading_view["contents"]
     assert views["in the housing: field and gravity against the gate's cones"]["origin"] == "/housing"
 
 
@@ -181,7 +190,8 @@ def test_demo_writes_a_recording_with_calibration_attitude_and_errors(tmp_path, 
     _, band = scalars(rrd, "/errors/heading_deg/sigma_band")
     assert np.sqrt(np.mean(error**2)) < 2 * np.sqrt(np.mean(band[:, 1] ** 2))  # errors as large as their sigma
     origins = {v.get("origin") for v in blueprint_views(rrd)}
-    assert {"/bench", "/world", "/errors/heading_deg", "/compass/heading_deg", "/diagnosis/residual_rms"} <= origins
+    assert {"/bench", "/world", "/housing", "/errors/heading_deg", "/compass/field_ratio",
+            "/diagnosis/residual_rms"} <= origins
 
 
 def test_evaluate_rerun_two_housings_and_errors(tmp_path, capsys):

@@ -12,9 +12,15 @@ in this process, writing the attitude CSV (and, with Rerun on, an .rrd file) to 
   a receiver that falls behind fills the pty and the module drops lines; no garbage or partial
   line besides the first fragment after opening) and received at >= 97 % of the rate, with
   Rerun on and off;
-- processing capacity: lines decoded, solved and filtered per second from memory (no port).
+- processing capacity: lines decoded, solved and filtered per second from memory (no port), with
+  Rerun off, with :class:`compass.viz.RerunSink` (batched ``send_columns``, 3-D frames at 30 per
+  second of sample time) and with a baseline that logs every sample with ``rr.log``; the cost of
+  Rerun per sample is the difference of the inverse rates;
+- the sinks alone: the session's outputs replayed into each sink, CPU time per sample (Rerun's
+  threads included), which a loaded machine disturbs less than the rates above.
 
-Targets (issue 5): p99 < 5 ms at 100 Hz; >= 1 kHz sustained with Rerun recording to a file.
+Targets (issue 5): p99 < 5 ms at 100 Hz; >= 1 kHz sustained with Rerun recording to a file;
+(issue 13) keeping up with 2 kHz with Rerun on.
 
 Usage: ``python tools/bench_live.py [--quick]``
 """
@@ -87,15 +93,51 @@ def sustained(r: dict) -> bool:
     return r["lost"] == 0 and r["bad"] <= 1 and r["received_hz"] >= 0.97 * r["rate"]
 
 
-def capacity(rerun: bool, folder: Path, n: int = 20000) -> float:
+class PerSampleSink:
+    """Baseline for the Rerun cost: every sample logged with ``rr.log`` as it comes (``set_time``,
+    the housing, the field arrow, six scalars), the way a first version would, without batches,
+    decimation or a layout."""
+
+    def __init__(self, path):
+        import rerun as rr
+
+        self.rr, self.rec = rr, rr.RecordingStream("bench_per_sample")
+        self.rec.save(path)
+
+    def log(self, t_s, sample, estimate, field_h, accel, **_):
+        rr, rec, e = self.rr, self.rec, estimate
+        rec.set_time("t", duration=t_s)
+        rec.set_time("sample", sequence=sample)
+        rec.log("world/housing", rr.Transform3D(quaternion=e.rotation.as_quat()))
+        rec.log("world/field", rr.Arrows3D(vectors=[e.rotation.apply(field_h)]))
+        for name in ("heading_deg", "pitch_deg", "roll_deg", "field_ratio", "dip_deg"):
+            rec.log(f"compass/{name}", rr.Scalars(getattr(e, name)))
+        rec.log("compass/mag_used", rr.Scalars(float(e.mag_used)))
+
+    def set_reference(self, *_):
+        pass
+
+    def event(self, t_s, sample, text, level="info"):
+        self.rec.log("events", self.rr.TextLog(text))
+
+    def close(self):
+        self.rec.disconnect()
+
+
+SINKS = ("off", "file", "per-sample rr.log")
+
+
+def capacity(sink_kind: str, folder: Path, n: int = 20000) -> float:
     """Samples per second through decode + field + filter (+ Rerun) from memory."""
     model = SensorModel.from_file(folder / "cal100.json")
     device = PtyDevice(model, rate_hz=1000.0)
     data = device._header + b"".join(device._lines(simulate_device(model, np.arange(n) / 1000.0), 0))
     sink = None
-    if rerun:
+    if sink_kind == "file":
         from compass.viz import RerunSink
         sink = RerunSink.for_model(folder / "capacity.rrd", model, FilterConfig.from_model(model))
+    elif sink_kind != "off":
+        sink = PerSampleSink(folder / "per_sample.rrd")
     with open(os.devnull, "w") as out:
         session = LiveSession(model, out=out, sink=sink)
         t0 = time.perf_counter()
@@ -103,6 +145,49 @@ def capacity(rerun: bool, folder: Path, n: int = 20000) -> float:
             session.feed(Chunk(time.perf_counter(), data[k:k + 4096]))
         session.close()
     return session.samples / (time.perf_counter() - t0)
+
+
+class _Collect:
+    """A sink that keeps what it is given (to replay it into a real sink, timed alone)."""
+
+    def __init__(self):
+        self.calls = []
+
+    def log(self, *args, **kwargs):
+        self.calls.append((args, kwargs))
+
+    def set_reference(self, *args):
+        pass
+
+    def event(self, *args):
+        pass
+
+    def close(self):
+        pass
+
+
+def sink_cpu_us(folder: Path, n: int = 20000) -> dict:
+    """CPU time per sample (this process, Rerun's threads included) of each sink alone, microseconds:
+    the session's outputs are collected once, then replayed into each sink (log + close)."""
+    model = SensorModel.from_file(folder / "cal100.json")
+    device = PtyDevice(model, rate_hz=1000.0)
+    data = device._header + b"".join(device._lines(simulate_device(model, np.arange(n) / 1000.0), 0))
+    collect = _Collect()
+    session = LiveSession(model, sink=collect)
+    for k in range(0, len(data), 4096):
+        session.feed(Chunk(time.perf_counter(), data[k:k + 4096]))
+    from compass.viz import RerunSink
+
+    out = {}
+    for kind in SINKS[1:]:
+        sink = (RerunSink.for_model(folder / "cpu.rrd", model, session.config) if kind == "file"
+                else PerSampleSink(folder / "cpu_per_sample.rrd"))
+        t0 = time.process_time()
+        for args, kwargs in collect.calls:
+            sink.log(*args, **kwargs)
+        sink.close()
+        out[kind] = 1e6 * (time.process_time() - t0) / len(collect.calls)
+    return out
 
 
 def static_noise(seed: int = 5, rate_hz: float = 100.0, duration_s: float = 30.0) -> dict:
@@ -152,10 +237,23 @@ def main() -> None:
         print("|---|---|---|")
         for name, std in noise.items():
             print(f"| {name} | {std:.4f} deg | {noise['two-vector'] / std:.1f}x |")
-        print("\n| Rerun | processing capacity from memory |")
-        print("|---|---|")
-        for rerun in (False, True):
-            print(f"| {'file' if rerun else 'off'} | {capacity(rerun, folder):.0f} samples/s |")
+        repeats = 3 if args.quick else 5
+        runs = {kind: [] for kind in SINKS}
+        for _ in range(repeats):  # interleaved, so a change in the machine's load hits every kind alike
+            for kind in SINKS:
+                runs[kind].append(capacity(kind, folder, 10000 if args.quick else 20000))
+        off = np.median(runs["off"])
+        print(f"\n| Rerun | processing capacity from memory (median of {repeats}) | Rerun's cost per sample |")
+        print("|---|---|---|")
+        for kind in SINKS:
+            rate = np.median(runs[kind])
+            cost = "-" if kind == "off" else f"{1e6 * (1.0 / rate - 1.0 / off):.0f} us"
+            print(f"| {kind} | {rate:.0f} samples/s | {cost} |")
+        cpu = sink_cpu_us(folder, 10000 if args.quick else 20000)
+        print("\n| Rerun sink alone | CPU per sample | CPU share at 2 kHz |")
+        print("|---|---|---|")
+        for kind, us in cpu.items():
+            print(f"| {kind} | {us:.1f} us | {100 * us * 2000 / 1e6:.0f} % |")
 
 
 if __name__ == "__main__":

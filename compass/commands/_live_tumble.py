@@ -106,7 +106,8 @@ class TumbleCollector:
         if self.coverage is None:
             return f"tumble: {n} samples; turn the module slowly through every orientation"
         c, fit = self.coverage, self.fit
-        text = f"tumble: {n} samples, {100 * c.fraction:.0f} % of the sphere covered (need {100 * self.min_coverage:.0f} %)"
+        text = (f"tumble: {n} samples, {100 * c.fraction:.0f} % of the sphere covered "
+                f"(need {100 * self.min_coverage:.0f} %)")
         if c.missing:
             text += f"; never along the field yet: {', '.join(c.missing)}"
         if fit is not None:

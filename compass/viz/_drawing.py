@@ -35,7 +35,8 @@ def log_housing(rec, path: str, *, color=(90, 140, 220), label: str | None = Non
         Size factor (the body is 1.1 long at scale 1).
     """
     body = [label or "housing", "nose (+X)", "top (+Z)"]
-    rec.log(f"{path}/body", rr.Boxes3D(centers=scale * np.array(_BODY_CENTERS), half_sizes=scale * np.array(_BODY_HALF_SIZES),
+    rec.log(f"{path}/body", rr.Boxes3D(centers=scale * np.array(_BODY_CENTERS),
+                                        half_sizes=scale * np.array(_BODY_HALF_SIZES),
                                         colors=[color] * 3, labels=body, show_labels=False,
                                         fill_mode=rr.components.FillMode.Solid), static=True)
     rec.log(f"{path}/axes", rr.Arrows3D(vectors=scale * 0.9 * np.eye(3), colors=AXIS_COLORS, labels=AXIS_LABELS,

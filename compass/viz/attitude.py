@@ -20,7 +20,8 @@ entity                              content
                                     tolerance, rings at |B| ratio 1 and 1 -+ its tolerance (static)
 ``housing/gravity``                 measured gravity (down) in H, over g
 ``housing/expected/gravity_gate``   cone about down, half angle asin(accel tolerance) (static)
-``compass/heading_deg`` ...         ``Scalars``: heading_deg, pitch_deg, roll_deg, field_ratio,
+``compass/heading_deg`` ...         ``Scalars``: heading_deg, pitch_deg, roll_deg, heading_true_deg
+                                    (with a site), field_ratio,
                                     dip_deg, gate (CSV code: 0 used, 1 |B|, 2 dip, 3 innovation,
                                     4 no field), mag_used, accel_used, in_range, disturbed
 ``compass/<angle>/sigma_band``      ``Scalars`` x2: the angle -1 sigma and +1 sigma
@@ -38,13 +39,13 @@ import rerun.blueprint as rrb
 
 from ._drawing import FIELD_COLOR, GRAVITY_COLOR, cone_strips, log_housing
 
-__all__ = ["attitude_views", "log_attitude_statics", "send_attitude", "send_raw", "send_frames",
+__all__ = ["attitude_views", "log_attitude_statics", "log_reference", "send_attitude", "send_raw", "send_frames",
            "log_attitude", "log_evaluation", "evaluation_views", "record_attitude", "record_evaluation",
-           "GATE_LEGEND", "FLAGS"]
+           "reference_dip", "GATE_LEGEND", "FLAGS"]
 
 GATE_LEGEND = "gate: 0 used, 1 |B| off, 2 dip off, 3 heading innovation, 4 no field"
 FLAGS = ("gate", "mag_used", "accel_used", "in_range", "disturbed")
-_ANGLES = ("heading_deg", "pitch_deg", "roll_deg")
+_ANGLES = ("heading_deg", "pitch_deg", "roll_deg", "heading_true_deg")
 _BAND = [[150, 150, 150]] * 2
 _LIMIT = [[220, 60, 60]] * 2
 
@@ -56,7 +57,8 @@ def attitude_views(*, world: str = "/world", housing: str = "/housing", compass:
         rrb.Spatial3DView(origin=world, name="world (north X, west Y, up Z)"),
         rrb.Spatial3DView(origin=housing, name="in the housing: field and gravity against the gate's cones"))
     series = rrb.Vertical(
-        rrb.TimeSeriesView(origin=f"{compass}/heading_deg", name="heading (deg), +-1 sigma"),
+        rrb.TimeSeriesView(name="heading (deg), +-1 sigma; from true north with a site",
+                           contents=[f"{compass}/heading_deg/**", f"{compass}/heading_true_deg/**"]),
         rrb.TimeSeriesView(name="pitch, roll (deg), +-1 sigma",
                            contents=[f"{compass}/pitch_deg/**", f"{compass}/roll_deg/**"]),
         rrb.TimeSeriesView(origin=f"{compass}/field_ratio", name="|B| / reference, gate limits"),
@@ -74,22 +76,14 @@ def log_attitude_statics(rec, *, dip_deg: float, channels, field_tolerance: floa
     """Styles, names and the fixed shapes (housings, reference field, the gate's cones)."""
     log_housing(rec, "world/housing", label="housing (estimate)")
     log_housing(rec, "housing", color=(170, 170, 170), label="housing")
-    dip = np.radians(dip_deg)
-    reference = [np.cos(dip), 0.0, -np.sin(dip)]
-    rec.log("world/reference_field", rr.Arrows3D(vectors=[reference], colors=[[200, 200, 200]],
-                                                 labels=[f"reference field, dip {dip_deg:.1f} deg"]), static=True)
     rec.log("world/field", rr.Arrows3D.from_fields(colors=[FIELD_COLOR], labels=["measured field"]), static=True)
     for name, color in (("field", FIELD_COLOR), ("gravity", GRAVITY_COLOR)):
         rec.log(f"housing/{name}", rr.Arrows3D.from_fields(colors=[color], labels=[f"measured {name}"]), static=True)
-    field_cone = cone_strips(reference, np.radians(dip_tolerance_deg), 1.0)
-    field_cone += [cone_strips(reference, np.radians(dip_tolerance_deg), r)[0] for r in (1 - field_tolerance,
-                                                                                       1 + field_tolerance)]
-    rec.log("housing/expected/field_gate", rr.LineStrips3D(field_cone, colors=[FIELD_COLOR], radii=[0.004]),
-            static=True)
+    log_reference(rec, dip_deg=dip_deg, field_tolerance=field_tolerance, dip_tolerance_deg=dip_tolerance_deg)
     rec.log("housing/expected/gravity_gate", rr.LineStrips3D(
         cone_strips([0.0, 0.0, -1.0], np.arcsin(min(accel_tolerance, 0.99)), 1.0), colors=[GRAVITY_COLOR],
         radii=[0.004]), static=True)
-    for name, color in zip(_ANGLES, ([30, 120, 220], [30, 160, 60], [200, 80, 30])):
+    for name, color in zip(_ANGLES, ([30, 120, 220], [30, 160, 60], [200, 80, 30], [120, 60, 200])):
         rec.log(f"compass/{name}", rr.SeriesLines(names=[name], colors=[color]), static=True)
         rec.log(f"compass/{name}/sigma_band", rr.SeriesLines(names=["-1 sigma", "+1 sigma"], colors=_BAND,
                                                              widths=[0.5, 0.5]), static=True)
@@ -102,6 +96,25 @@ def log_attitude_statics(rec, *, dip_deg: float, channels, field_tolerance: floa
     rec.log("raw/mag", rr.SeriesLines(names=list(channels)), static=True)
     rec.log("raw/accel", rr.SeriesLines(names=["ax", "ay", "az"]), static=True)
     rec.log("raw/gyro", rr.SeriesLines(names=["gx", "gy", "gz"]), static=True)
+
+
+def log_reference(rec, *, dip_deg: float, field_tolerance: float, dip_tolerance_deg: float,
+                  description: str | None = None) -> None:
+    """The reference field (static): its arrow in the world and the field gate's cone about it.
+
+    Logged again when the reference changes (``compass live`` learns it from a site or from the
+    stream's first quiet second).
+    """
+    dip = np.radians(dip_deg)
+    reference = [np.cos(dip), 0.0, -np.sin(dip)]
+    label = f"reference field, dip {dip_deg:.1f} deg" + (f" ({description})" if description else "")
+    rec.log("world/reference_field", rr.Arrows3D(vectors=[reference], colors=[[200, 200, 200]], labels=[label]),
+            static=True)
+    field_cone = cone_strips(reference, np.radians(dip_tolerance_deg), 1.0)
+    field_cone += [cone_strips(reference, np.radians(dip_tolerance_deg), r)[0] for r in (1 - field_tolerance,
+                                                                                       1 + field_tolerance)]
+    rec.log("housing/expected/field_gate", rr.LineStrips3D(field_cone, colors=[FIELD_COLOR], radii=[0.004]),
+            static=True)
 
 
 def send_frames(rec, index, rotation, field_h, down_h=None) -> None:
@@ -139,13 +152,15 @@ def send_attitude(rec, index, columns: dict, *, field_limits=None, dip_limits=No
     field_limits, dip_limits : (float, float), optional
         The gate's limits on ``field_ratio`` and ``dip_deg`` (a band about the reference).
     """
-    sigma_of = {"heading_deg": "heading_sigma_deg", "pitch_deg": "pitch_sigma_deg", "roll_deg": "roll_sigma_deg"}
+    sigma_of = {"heading_deg": "heading_sigma_deg", "pitch_deg": "pitch_sigma_deg", "roll_deg": "roll_sigma_deg",
+                "heading_true_deg": "heading_true_sigma_deg"}
     for name in _ANGLES:
         if name not in columns:
             continue
         value = np.asarray(columns[name], dtype=float)
         rec.send_columns(f"{compass}/{name}", indexes=index, columns=rr.Scalars.columns(scalars=value))
-        sigma = columns.get(sigma_of[name], columns.get("tilt_sigma_deg") if name != "heading_deg" else None)
+        tilt = columns.get("tilt_sigma_deg") if name in ("pitch_deg", "roll_deg") else None
+        sigma = columns.get(sigma_of[name], tilt)
         if sigma is not None:
             band = value[:, None] + np.asarray(sigma, dtype=float)[:, None] * np.array([-1.0, 1.0])
             rec.send_columns(f"{compass}/{name}/sigma_band", indexes=index, columns=rr.Scalars.columns(scalars=band))
@@ -209,7 +224,8 @@ def evaluation_views() -> rrb.Container:
     return rrb.Horizontal(
         rrb.Spatial3DView(origin="/world", name="estimate (blue) and truth (grey), NWU"),
         rrb.Vertical(
-            rrb.TimeSeriesView(origin="/errors", name="BROAD errors (deg): heading, heading offset removed, inclination"),
+            rrb.TimeSeriesView(origin="/errors",
+                               name="BROAD errors (deg): heading, heading offset removed, inclination"),
             rrb.TimeSeriesView(origin="/compass/field_ratio", name="|B| / reference (after the hard-iron track)"),
             rrb.TimeSeriesView(name="field rejected (1) / movement phase (1)",
                                contents=["/compass/disturbed", "/compass/movement"])),
@@ -250,7 +266,8 @@ def log_evaluation(rec, *, t_s, quat_enu, ref_quat_enu, errors, field_h_ut, fiel
         r = nwu_from_enu * Rotation.from_quat(q[ok][:, [1, 2, 3, 0]])
         rec.send_columns(f"world/{name}", indexes=_index(np.asarray(t_s)[keep][ok], None),
                          columns=rr.Transform3D.columns(quaternion=r.as_quat()))
-    for name, values in (("heading_deg", errors.heading_deg), ("heading_offset_removed_deg", errors.heading_offset_removed_deg),
+    for name, values in (("heading_deg", errors.heading_deg),
+                         ("heading_offset_removed_deg", errors.heading_offset_removed_deg),
                          ("inclination_deg", errors.inclination_deg)):
         rec.send_columns(f"errors/{name}", indexes=index,
                          columns=rr.Scalars.columns(scalars=np.where(movement, values, np.nan)))
@@ -287,8 +304,9 @@ def record_attitude(target, attitude, model, *, t_s=None, raw=None, accel=None, 
 
     defaults = inspect.signature(solve_attitude).parameters
     with Recording(target, application_id=application_id) as out:
-        log_attitude(out.rec, attitude, t_s=t_s, raw=raw, accel=accel, gyro=gyro, dip_deg=_reference_dip(attitude, model),
-                     channels=model.channels, field_tolerance=defaults["field_tolerance"].default,
+        log_attitude(out.rec, attitude, t_s=t_s, raw=raw, accel=accel, gyro=gyro,
+                     dip_deg=reference_dip(attitude, model), channels=model.channels,
+                     field_tolerance=defaults["field_tolerance"].default,
                      dip_tolerance_deg=defaults["dip_tolerance_deg"].default)
         out.rec.set_time("sample", sequence=0)
         out.rec.log("events", rr.TextLog(f"mode {attitude.mode}: {int(np.sum(attitude.disturbed))} of "
@@ -319,7 +337,7 @@ def record_evaluation(target, trial, result, errors, *, application_id: str = "c
         out.rec.send_blueprint(rrb.Blueprint(evaluation_views(), collapse_panels=False))
 
 
-def _reference_dip(attitude, model) -> float:
+def reference_dip(attitude, model) -> float:
     """The dip the solution was judged against: its reference field's, else the calibration's."""
     reference = getattr(attitude, "reference", None)
     return float(reference.dip_deg) if reference is not None else float(model.dip_deg)

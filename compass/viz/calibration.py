@@ -115,8 +115,8 @@ def log_fourflip(rec, calibration: dict, *, platform_deg, flip_deg, outputs, res
     outputs, residuals = np.asarray(outputs, dtype=float)[order], np.asarray(residuals, dtype=float)[order]
     noise = np.broadcast_to(np.asarray(calibration.get("noise_floor", np.nan), dtype=float), (len(names),))
     for j, name in enumerate(names):
-        rec.log(f"fourflip/{name}/measured", rr.SeriesPoints(names=["measured"], colors=[_MEASURED], marker_sizes=[1.0]),
-                static=True)
+        rec.log(f"fourflip/{name}/measured",
+                rr.SeriesPoints(names=["measured"], colors=[_MEASURED], marker_sizes=[1.0]), static=True)
         rec.log(f"fourflip/{name}/fit", rr.SeriesLines(names=["fit"], colors=[_FIT]), static=True)
         rec.send_columns(f"fourflip/{name}/measured", indexes=index, columns=rr.Scalars.columns(scalars=outputs[:, j]))
         rec.send_columns(f"fourflip/{name}/fit", indexes=index,
@@ -151,8 +151,9 @@ def _log_bench(rec, calibration: dict, names) -> None:
                                        labels=[f"field, dip {calibration['dip_deg']:.2f} deg"]), static=True)
     phi = np.linspace(0.0, 2.0 * np.pi, 73)
     ring = np.column_stack([1.4 * np.cos(phi), 1.4 * np.sin(phi), np.full(phi.shape, -0.3)])
-    rec.log("bench/turntable/ring", rr.LineStrips3D([ring, [[0.0, 0.0, -0.3], [1.4, 0.0, -0.3]]],
-                                                    colors=[[120, 120, 120]], labels=["turntable", "zero"]), static=True)
+    zero = [[0.0, 0.0, -0.3], [1.4, 0.0, -0.3]]
+    rec.log("bench/turntable/ring", rr.LineStrips3D([ring, zero], colors=[[120, 120, 120]], labels=["turntable", "zero"]),
+            static=True)
     log_housing(rec, "bench/turntable/cube", color=(200, 200, 200), label="cube (housing)", scale=0.6)
     directions, strips, labels = [], [], []
     for j, name in enumerate(names):
@@ -241,16 +242,16 @@ def log_tumble(rec, calibration: dict, *, mag, t_s=None, coverage_words: str | N
     cells = coverage_cells(n_cells)
     cell, counts = _cell_counts(m / np.linalg.norm(m, axis=1, keepdims=True), cells)
     point_colors = _coverage_colors(counts)[cell]
-    scale = 1.0 / norm  # draw both clouds at unit size: the raw one about its hard iron
-    raw_scaled = (mag - hard) * (scale * abs(np.linalg.det(soft)) ** (1 / 3))
-    rec.log("tumble/raw/samples", rr.Points3D(raw_scaled, colors=point_colors, radii=0.01), static=True)
-    u, sv, vt = np.linalg.svd(np.linalg.inv(soft))
+    # both clouds at unit size: the raw one about the hard iron, scaled by det(S)^(1/3) / |m|
+    raw_unit = abs(np.linalg.det(soft)) ** (1 / 3) / norm
+    rec.log("tumble/raw/samples", rr.Points3D((mag - hard) * raw_unit, colors=point_colors, radii=0.01), static=True)
+    u, sv, _ = np.linalg.svd(np.linalg.inv(soft))  # raw - h = S^-1 m: axes u, half sizes sv |m|
     if np.linalg.det(u) < 0:
         u[:, -1] *= -1
     rec.log("tumble/raw/ellipsoid", rr.Ellipsoids3D(
-        half_sizes=[sv * norm * scale * abs(np.linalg.det(soft)) ** (1 / 3)], quaternions=[Rotation.from_matrix(u).as_quat()],
+        half_sizes=[sv * norm * raw_unit], quaternions=[Rotation.from_matrix(u).as_quat()],
         colors=[[200, 200, 200, 60]], labels=["fitted ellipsoid (about the hard iron)"]), static=True)
-    rec.log("tumble/calibrated/samples", rr.Points3D(m * scale, colors=point_colors, radii=0.01), static=True)
+    rec.log("tumble/calibrated/samples", rr.Points3D(m / norm, colors=point_colors, radii=0.01), static=True)
     rec.log("tumble/calibrated/sphere", rr.Ellipsoids3D(half_sizes=[[1.0, 1.0, 1.0]], colors=[[200, 200, 200, 60]],
                                                         labels=[f"|m| = field_norm ({norm:.4g})"]), static=True)
     for path in ("tumble/raw/axes", "tumble/calibrated/axes"):
@@ -413,8 +414,8 @@ def log_calibration_result(rec, result, recording_path, *, base_residuals=None) 
                       base_residuals=None if base_residuals is None else base_residuals(recording))
     else:  # a kind this module does not draw yet: its diagnosis only
         log_diagnosis(rec, calibration.get("diagnosis"))
-        return rrb.Vertical(rrb.BarChartView(origin="/diagnosis/residual_rms"), rrb.TextLogView(origin="/diagnosis/log"),
-                            name=f"{kind} calibration")
+        return rrb.Vertical(rrb.BarChartView(origin="/diagnosis/residual_rms"),
+                            rrb.TextLogView(origin="/diagnosis/log"), name=f"{kind} calibration")
     log_calibration(rec, kind, calibration, **arrays)
     return calibration_views(kind, channels)
 

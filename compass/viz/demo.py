@@ -10,7 +10,7 @@ import rerun.blueprint as rrb
 from ..frames import r_world_from_housing
 from ._drawing import log_housing
 from ._stream import Recording, columns_index
-from .attitude import _reference_dip, attitude_views, log_attitude
+from .attitude import reference_dip, attitude_views, log_attitude
 from .calibration import log_calibration_result
 
 __all__ = ["record_demo", "errors_views"]
@@ -55,7 +55,8 @@ def record_demo(path, recording_path, calibration_result, attitude, model, *, t_
     with Recording(path, application_id="compass_demo") as out:
         rec = out.rec
         calibration = log_calibration_result(rec, calibration_result, recording_path, base_residuals=base_residuals)
-        log_attitude(rec, attitude, t_s=t_s, raw=raw, accel=accel, dip_deg=_reference_dip(attitude, model), channels=model.channels,
+        log_attitude(rec, attitude, t_s=t_s, raw=raw, accel=accel, dip_deg=reference_dip(attitude, model),
+                     channels=model.channels,
                      field_tolerance=defaults["field_tolerance"].default,
                      dip_tolerance_deg=defaults["dip_tolerance_deg"].default)
         index = columns_index(t_s, np.arange(len(t_s)))

@@ -17,7 +17,7 @@ import rerun.blueprint as rrb
 from scipy.spatial.transform import Rotation
 
 from ._stream import Recording, columns_index
-from .attitude import attitude_views, log_attitude_statics, send_attitude, send_frames, send_raw
+from .attitude import attitude_views, log_attitude_statics, log_reference, send_attitude, send_frames, send_raw
 
 __all__ = ["RerunSink", "ENTITIES", "live_blueprint"]
 
@@ -29,7 +29,7 @@ ENTITIES = ("world/housing", "world/housing/body", "world/housing/axes", "world/
                 "roll_deg/sigma_band", "field_ratio", "field_ratio/gate_limits", "dip_deg", "dip_deg/gate_limits",
                 "gate", "mag_used", "accel_used", "in_range")))
 _FLOAT_COLUMNS = ("heading_deg", "pitch_deg", "roll_deg", "heading_sigma_deg", "tilt_sigma_deg", "field_ratio",
-                  "dip_deg", "gate", "mag_used", "accel_used", "in_range")
+                  "dip_deg", "gate", "mag_used", "accel_used", "in_range", "heading_true_deg", "heading_true_sigma_deg")
 
 
 def live_blueprint() -> rrb.Blueprint:
@@ -90,8 +90,14 @@ class RerunSink:
         return cls(target, channels=model.channels, dip_deg=config.dip_deg, field_tolerance=config.field_tolerance,
                    dip_tolerance_deg=config.dip_tolerance_deg, accel_tolerance=config.accel_tolerance, **options)
 
+    def set_reference(self, dip_deg: float, description: str | None = None) -> None:
+        """The filter's reference field changed (a site's, or the first quiet second's): redraw it."""
+        self.dip_deg = float(dip_deg)
+        log_reference(self.rec, dip_deg=self.dip_deg, field_tolerance=self.field_tolerance,
+                      dip_tolerance_deg=self.dip_tolerance_deg, description=description)
+
     def log(self, t_s: float, sample: int, estimate, field_h, accel, *, raw=None, gyro=None, gate_code: int = 0,
-            in_range: bool = True) -> None:
+            in_range: bool = True, true_heading=(np.nan, np.nan)) -> None:
         """Buffer one sample; sends the buffer when it is ``flush_s`` old.
 
         Parameters
@@ -112,10 +118,12 @@ class RerunSink:
         gate_code : int
             The CSV's ``gate`` code of this estimate.
         in_range : bool
+        true_heading : (float, float)
+            ``heading_true_deg`` and its sigma (with a site), degrees; NaN without.
         """
         e = estimate
         self._rows.append((t_s, sample, e.heading_deg, e.pitch_deg, e.roll_deg, e.heading_sigma_deg, e.tilt_sigma_deg,
-                           e.field_ratio, e.dip_deg, gate_code, e.mag_used, e.accel_used, in_range))
+                           e.field_ratio, e.dip_deg, gate_code, e.mag_used, e.accel_used, in_range, *true_heading))
         self._raw.append(raw)
         self._accel.append(accel)
         self._gyro.append(gyro)
@@ -154,7 +162,10 @@ class RerunSink:
         rows, raw, accel, gyro = np.array(self._rows, dtype=float), self._raw, self._accel, self._gyro
         self._rows, self._raw, self._accel, self._gyro = [], [], [], []
         index = columns_index(rows[:, 0], rows[:, 1].astype(np.int64))
-        send_attitude(self.rec, index, dict(zip(_FLOAT_COLUMNS, rows[:, 2:].T)),
+        columns = dict(zip(_FLOAT_COLUMNS, rows[:, 2:].T))
+        if np.all(np.isnan(columns["heading_true_deg"])):
+            del columns["heading_true_deg"], columns["heading_true_sigma_deg"]
+        send_attitude(self.rec, index, columns,
                       field_limits=(1 - self.field_tolerance, 1 + self.field_tolerance),
                       dip_limits=(self.dip_deg - self.dip_tolerance_deg, self.dip_deg + self.dip_tolerance_deg))
         send_raw(self.rec, index, mag=None if raw[0] is None else _stack(raw, len(raw[0])),
