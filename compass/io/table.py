@@ -25,6 +25,7 @@ Memory: the body is parsed by ``np.loadtxt`` from a stream of lines, so reading 
 
 from __future__ import annotations
 
+import codecs
 import math
 import re
 from dataclasses import dataclass, field
@@ -295,7 +296,7 @@ def read_table(path, options: ReadOptions | None = None) -> Table:
         except RecordingError:
             raise
         except UnicodeDecodeError:
-            raise RecordingError(path, "not UTF-8 text: expected a CSV file", row=lines.number + 1) from None
+            raise _not_utf8(path) from None
         except ValueError:
             _scan_for_bad_cell(path, header, sep, decimal_comma, header_line)
             raise RecordingError(path, "could not parse the data rows as numbers") from None
@@ -333,7 +334,7 @@ class _Lines:
         try:
             line = next(self.stream)
         except UnicodeDecodeError:
-            raise RecordingError(self.path, "not UTF-8 text: expected a CSV file", row=self.number + 1) from None
+            raise _not_utf8(self.path) from None
         self.number += 1
         return line
 
@@ -415,6 +416,22 @@ def _sniff(path: Path) -> None:
     if b"\x00" in head:
         raise RecordingError(path, "binary data (NUL bytes): expected a text CSV file",
                              row=head[: head.index(b"\x00")].count(b"\n") + 1)
+
+
+def _not_utf8(path) -> RecordingError:
+    """The error for a file that is not UTF-8, at the line of its first bad byte."""
+    row = None
+    with open(path, "rb") as f:
+        done = 0
+        decoder = codecs.getincrementaldecoder("utf-8")()
+        for block in iter(lambda: f.read(1 << 20), b""):
+            try:
+                decoder.decode(block)
+            except UnicodeDecodeError as exc:
+                row = done + block[: exc.start].count(b"\n") + 1
+                break
+            done += block.count(b"\n")
+    return RecordingError(path, "not UTF-8 text: save the CSV as UTF-8 (or ASCII)", row=row)
 
 
 def _separator(header: str) -> str | None:
@@ -549,11 +566,12 @@ def _interpret(table: Table, options: ReadOptions, meta_rows: dict) -> Table:
                 raise RecordingError(path, f"two columns are named '{canon}' (names match without regard to case)",
                                      row=table.header_line, column=name)
             header[i] = canon
-    for i, name in enumerate(header):
-        if header.index(name) != i:
-            raise RecordingError(path, f"two columns are named '{name}' (after mapping names and case: "
-                                       f"'{table.columns[header.index(name)]}' and '{table.columns[i]}')",
-                                 row=table.header_line, column=name)
+    folded = [name.lower() for name in header]
+    for i, name in enumerate(folded):
+        if folded.index(name) != i:
+            raise RecordingError(path, f"two columns are named '{header[i]}' (names match without regard to case; "
+                                       f"in the header: '{table.columns[folded.index(name)]}' and '{table.columns[i]}')",
+                                 row=table.header_line, column=header[i])
     original = {new: original[old] for new, old in zip(header, table.columns)}
     data = table.data
     converted = _convert_units(table, header, data, options, named_units)
