@@ -2,7 +2,14 @@
 
 Exit status 0 on success, 2 on bad input (one line naming file, row and column), 1 on other
 failures.  Set ``COMPASS_DEBUG=1`` to see tracebacks.  Each subcommand lives in
-``compass/commands/<name>.py`` with a ``register(subparsers)`` function.
+``compass/commands/<name>.py`` with a ``register(subparsers)`` function; a command module imports
+numpy at most at module level and everything heavier (scipy, the simulators, the fits, matplotlib,
+rerun) inside the function that runs it, so ``compass --help`` answers quickly
+(``tools/bench_startup.py`` measures it).
+
+Warnings the readers raise about a recording (:class:`compass.io.units.RecordingWarning`: a unit
+that looks wrong, a column ignored) are printed as one line each on stderr when the command ends;
+bad input prints its one line only.
 """
 
 from __future__ import annotations
@@ -11,11 +18,9 @@ import argparse
 import importlib
 import os
 import sys
+import warnings
 
-from .io.atomic import OutputError
-from .io.table import RecordingError
-
-__all__ = ["main", "BadInput"]
+__all__ = ["main", "BadInput", "version"]
 
 SUBCOMMANDS = ("demo", "simulate", "calibrate", "attitude", "live", "device", "export", "evaluate")
 
@@ -24,11 +29,34 @@ class BadInput(ValueError):
     """A user error the command line reports in one line with exit status 2."""
 
 
+def version() -> str:
+    """The installed distribution's version (``compass --version``)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+
+    try:
+        return dist_version("compass-toolkit")
+    except PackageNotFoundError:  # running from a source tree that was never installed
+        return "unknown (not installed)"
+
+
+class _Version(argparse.Action):
+    """``--version`` that looks the version up only when asked (importlib.metadata is not free)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"compass {version()}")
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="compass",
         description="Calibrate three-axis compasses on a bench (four-flip turntable method) and read attitude.",
     )
+    parser.add_argument("--version", action=_Version, help="print the version and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in SUBCOMMANDS:
         try:
@@ -41,22 +69,39 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _bad_input_types() -> tuple:
+    from .io.atomic import OutputError
+    from .io.table import RecordingError
+
+    return (RecordingError, BadInput, FileExistsError, OutputError)
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except (RecordingError, BadInput, FileExistsError, OutputError) as exc:
-        print(f"compass {args.command}: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"compass {args.command}: interrupted", file=sys.stderr)
-        return 130
-    except Exception as exc:  # other failures: one line, exit 1
-        if os.environ.get("COMPASS_DEBUG"):
-            raise
-        print(f"compass {args.command}: failed: {type(exc).__name__}: {exc}", file=sys.stderr)
-        return 1
+    from .io.units import RecordingWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", RecordingWarning)
+        try:
+            status = int(args.func(args) or 0)
+        except _bad_input_types() as exc:  # the one line says it all: no warnings around it
+            print(f"compass {args.command}: {exc}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            status = 130
+            print(f"compass {args.command}: interrupted", file=sys.stderr)
+        except Exception as exc:  # other failures: one line, exit 1
+            if os.environ.get("COMPASS_DEBUG"):
+                raise
+            print(f"compass {args.command}: failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+            status = 1
+    for w in caught:
+        if issubclass(w.category, RecordingWarning):
+            print(f"compass {args.command}: warning: {w.message}", file=sys.stderr)
+        else:
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    return status
 
 
 if __name__ == "__main__":

@@ -230,7 +230,7 @@ def test_cli_level_mode_columns(files, tmp_path):
 
 
 @pytest.mark.parametrize("edit, args, message", [
-    (lambda lines: [lines[0].replace("v2", "w2")] + lines[1:], [], "column 'w2' is not a channel"),
+    (lambda lines: [lines[0].replace("v2", "w2")] + lines[1:], [], "column 'v2': missing required column 'v2'"),
     (lambda lines: lines[:5] + [lines[5].replace(lines[5].split(",")[2], "abc", 1)] + lines[6:], [],
      "row 6, column 'v2': expected a number"),
     (lambda lines: [",".join(line.split(",")[:4]) for line in lines], [], "fixes only two of heading, pitch and roll"),

@@ -101,9 +101,11 @@ def test_cli_end_to_end_and_runtime_model(tmp_path, capsys):
     [
         ("bx_ref,by_ref,bz_ref,mx,my,mz\n" + "1,0,0,1,2,3\n0,1,0,1,2,3\n0,0,1,1,2,3\n", "at least 4"),
         ("bx_ref,by_ref,bz_ref,s1_x,s1_y\n1,0,0,1,2\n", "column 's1_z'"),
-        ("bx_ref,by_ref,bz_ref,mx,my,mz,volts\n1,0,0,1,2,3,4\n", "column 'volts'"),
-        ("bx_ref,by_ref,bz_ref,mx,my,mz\n" + "".join(f"{i},{2 * i},{3 * i},{i},1,1\n" for i in range(6)), "one line"),
-        ("bx_ref,by_ref,bz_ref,mx,my,mz\n" + "".join(f"{i},{i % 2},0,{i},1,1\n" for i in range(6)), "coplanar"),
+        ("bx_ref,by_ref,bz_ref,mx,my,mz,volts\n1,0,0,1,2,3,4\n", "at least 4"),  # volts ignored, with a warning
+        ("bx_ref,by_ref,bz_ref,mx,my,mz\n" + "".join(f"{i},{2 * i},{3 * i},{i},{i % 2},{i % 3}\n" for i in range(6)),
+         "one line"),
+        ("bx_ref,by_ref,bz_ref,mx,my,mz\n" + "".join(f"{i},{i % 2},0,{i},{i % 2},{i % 3}\n" for i in range(6)),
+         "coplanar"),
         ("bx_ref,by_ref,bz_ref,mx,my,mz\n1,0,0,1,2,3\n0,1,0,1,2,?\n", "row 3, column 'mz'"),
     ],
 )

@@ -13,7 +13,8 @@ import sys
 import numpy as np
 
 from ..io.atomic import atomic_write_text, check_writable
-from ..io.table import RecordingError, read_table
+from ..io.table import ReadOptions, RecordingError, add_read_arguments, read_table
+from ..io.units import check_accel_up, check_two_axis_tilt
 from ..site import Site, reference_from_site
 from ..viz import add_rerun_option, check_rerun_target
 
@@ -46,6 +47,7 @@ def register(sub) -> None:
                    help="accelerometer white noise per axis as a fraction of 1 g (default 0.002)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output file")
     add_rerun_option(p)
+    add_read_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -55,12 +57,13 @@ def run(args) -> int:
     if args.date is not None and args.site is None:
         raise BadInput("--date needs --site LAT,LON[,ALT_M]: the date only chooses the field at a site")
     attitude_file(args.calibration, args.recording, args.out, level=args.level, max_tilt_deg=args.max_tilt_deg,
-                  accel_noise_g=args.accel_noise_g, force=args.force, site=args.site, date=args.date, rerun=args.rerun)
+                  accel_noise_g=args.accel_noise_g, force=args.force, site=args.site, date=args.date, rerun=args.rerun,
+                  read_options=ReadOptions.from_args(args))
     return 0
 
 
 def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0, accel_noise_g=0.002, force=False,
-                  site=None, date=None, rerun=None):
+                  site=None, date=None, rerun=None, read_options=None):
     """Solve one recording file into an attitude CSV; returns the :class:`~compass.attitude.Attitude`.
 
     The reference field is the site's: ``site`` (``"LAT,LON[,ALT_M]"`` or a :class:`compass.site.Site`)
@@ -94,18 +97,18 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     source = "site"
     if site is None and cal.sections.get("site") is not None:
         site, source = cal.sections["site"], "calibration site"
-    table = read_table(recording)
-    known = set(model.channels) | set(_ACCEL) | set(_TILT) | set(_IGNORED) | {"temp_c"}
-    for name in table.columns:
-        if name not in known:
-            raise RecordingError(table.path, f"column '{name}' is not a channel of {calibration} "
-                                             f"(its channels: {', '.join(model.channels)})",
-                                 row=table.header_row, column=name)
+    table = read_table(recording, read_options)
+    table.ignore_unknown(set(model.channels) | set(_ACCEL) | set(_TILT) | set(_IGNORED) | {"temp_c"},
+                         what=f"{calibration} (its channels: {', '.join(model.channels)})")
     raw = np.column_stack([table.column(name) for name in model.channels])
     if tilt_sensor is None:
         accel = _group(table, _ACCEL)
+        if accel is not None:
+            check_accel_up(accel, table.rows, where=table.path)
     else:  # a 3-D platform calibration: ax, ay[, az] are its tilt sensor's raw outputs
         accel = tilt_sensor.up(_group(table, tilt_sensor.columns))
+        check_two_axis_tilt(tilt_sensor.upside_down_rows(_group(table, tilt_sensor.columns), model.field(raw)[0],
+                                                         model.dip_deg), len(raw), where=table.path)
     tilt = _group(table, _TILT)
     if accel is not None:
         _check_rows(table, np.sum(accel**2, axis=1) > 0, "ax", "accelerometer reads zero: expected gravity")

@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..io.atomic import atomic_write_text, check_writable
-from ..io.table import read_table
+from ..io.table import ReadOptions, add_read_arguments, read_table
 from ..viz import add_rerun_option, check_rerun_target
 
 
@@ -32,6 +32,7 @@ def register(sub) -> None:
     p.add_argument("--force", action="store_true", help="overwrite an existing calibration file")
     p.add_argument("--quiet", action="store_true", help="do not print the fit report")
     add_rerun_option(p)
+    add_read_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -39,7 +40,7 @@ def run(args) -> int:
     target = check_rerun_target(args.rerun, args.force)
     result = calibrate_file(args.recording, args.out, method=args.method, diagnose=not args.no_diagnose,
                             report=args.report, field_ut=args.field_ut, kind=args.kind, force=args.force,
-                            quiet=args.quiet, ellipsoid=args.ellipsoid)
+                            quiet=args.quiet, ellipsoid=args.ellipsoid, read_options=ReadOptions.from_args(args))
     if target is not None:
         from ..viz.calibration import record_calibration
 
@@ -61,7 +62,7 @@ OPTIONS = {"method": ("--method", "ml"), "diagnose": ("--no-diagnose", True), "f
 
 
 def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, field_ut=None, kind=None,
-                   force=False, quiet=False, ellipsoid="auto"):
+                   force=False, quiet=False, ellipsoid="auto", read_options=None):
     """Calibrate one recording file into a calibration file; returns the Calibration.
 
     The kind comes from the columns (:func:`calibrate.kinds.sniff`) unless ``kind`` names one; its
@@ -79,7 +80,7 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
     from ..cli import BadInput
 
     out = check_writable(out, force)
-    table = read_table(recording)
+    table = read_table(recording, read_options)
     if kind is not None and kind not in KINDS:
         raise BadInput(f"--kind {kind}: unknown kind; known: {', '.join(KINDS)}")
     found = KINDS[kind] if kind is not None else sniff(table)

@@ -1,16 +1,21 @@
-"""``compass simulate fourflip``: write a simulated bench session and its truth."""
+"""``compass simulate fourflip|platform3d|tumble|reference|runtime``: a simulated recording and its truth.
+
+Each kind writes SPEC section 2's recording and, beside it, the truth the simulator used
+(``<stem>.truth.json``; ``<stem>.truth.csv`` for the runtime kind's true angles).  The simulators
+are imported when a kind runs, not when the parser is built.
+"""
 
 from __future__ import annotations
 
-from ..sim.fourflip import SIM_EFFECTS, simulate_fourflip, write_fourflip
+SIM_EFFECTS = ("nonlinear_response", "encoder_error", "offset_drift", "platform_field", "flip_error", "temperature",
+               "field_gradient")
+"""The four-flip simulator's effects (``compass.sim.fourflip.SIM_EFFECTS``, checked equal in the tests)."""
 
 
 def register(sub) -> None:
     p = sub.add_parser("simulate", help="write simulated recordings (with their truth beside them)")
     kinds = p.add_subparsers(dest="kind", required=True, metavar="KIND")
-    ff = kinds.add_parser("fourflip", help="a four-flip turntable session (seed 000)")
-    ff.add_argument("--out", required=True, help="recording CSV to write; truth goes to <stem>.truth.json")
-    ff.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    ff = _kind(kinds, "fourflip", "a four-flip turntable session (seed 000)", run_fourflip)
     ff.add_argument("--channels", type=int, default=3, help="number of single-axis channels (default 3)")
     ff.add_argument("--effect", action="append", default=[], choices=SIM_EFFECTS,
                     help="inject an effect (repeatable); the truth file records its parameters")
@@ -19,29 +24,61 @@ def register(sub) -> None:
     ff.add_argument("--dip-deg", type=float, default=None, help="dip, deg (default: random 40..70)")
     ff.add_argument("--step-deg", type=float, default=1.0, help="turntable step, deg (default 1)")
     ff.add_argument("--effect-scale", type=float, default=1.0, help="multiply every effect size")
-    ff.add_argument("--force", action="store_true", help="overwrite existing files")
-    ff.set_defaults(func=run_fourflip)
-    p3 = kinds.add_parser("platform3d", help="a 3-D platform session with a tilt sensor (seed 001)")
-    p3.add_argument("--out", required=True, help="recording CSV to write; truth goes to <stem>.truth.json")
-    p3.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p3 = _kind(kinds, "platform3d", "a 3-D platform session with a tilt sensor (seed 001)", run_platform3d)
     p3.add_argument("--poses", choices=("grid", "random", "turntable"), default="grid",
                     help="platform poses (default grid; turntable never tilts and cannot be calibrated)")
     p3.add_argument("--tilt-axes", type=int, choices=(2, 3), default=2, help="tilt sensor axes (default 2)")
-    p3.add_argument("--force", action="store_true", help="overwrite existing files")
-    p3.set_defaults(func=run_platform3d)
+    tu = _kind(kinds, "tumble", "a free-motion (tumble) session: magnetometer with hard and soft iron, "
+                                "accelerometer", run_tumble)
+    tu.add_argument("--samples", type=int, default=3000, help="rows (default 3000)")
+    tu.add_argument("--rate-hz", type=float, default=50.0, help="row rate, Hz (default 50)")
+    tu.add_argument("--field-ut", type=float, default=50.0, help="|B|, uT (default 50)")
+    tu.add_argument("--coverage", choices=("full", "upright"), default="full",
+                    help="full: every orientation (default); upright: never turned over")
+    tu.add_argument("--no-accel", action="store_true", help="record no accelerometer")
+    rf = _kind(kinds, "reference", "reference fields applied to a sensor array (seed 003)", run_reference)
+    rf.add_argument("--sensors", type=int, default=2, help="three-axis sensors in the array (default 2)")
+    rf.add_argument("--fields", type=int, default=12, help="reference fields applied (default 12)")
+    rf.add_argument("--repeats", type=int, default=1, help="rows per field (default 1)")
+    rf.add_argument("--field-ut", type=float, default=50.0, help="field magnitude, uT (default 50)")
+    ru = _kind(kinds, "runtime", "an attitude recording of a bench-calibrated sensor in random attitudes "
+                                 "(true angles in <stem>.truth.csv)", run_runtime)
+    ru.add_argument("--truth", metavar="BENCH.truth.json",
+                    help="the sensor: a four-flip truth file (compass simulate fourflip writes one beside its "
+                         "recording; default: the four-flip simulator's sensor for --seed)")
+    ru.add_argument("--samples", type=int, default=1000, help="rows (default 1000)")
+    ru.add_argument("--max-tilt-deg", type=float, default=80.0, help="largest pitch and roll, deg (default 80)")
+    ru.add_argument("--no-accel", action="store_true", help="record no accelerometer")
+
+
+def _kind(kinds, name: str, help_text: str, func):
+    p = kinds.add_parser(name, help=help_text)
+    p.add_argument("--out", required=True, help="recording CSV to write; the truth goes beside it (<stem>.truth.*)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--force", action="store_true", help="overwrite existing files")
+    p.set_defaults(func=func)
+    return p
+
+
+def _positive(name: str, value, *, at_least=None) -> None:
+    from ..cli import BadInput
+
+    ok = value >= at_least if at_least is not None else value > 0
+    if not ok:
+        raise BadInput(f"{name} must be {'at least ' + str(at_least) if at_least is not None else 'positive'}, "
+                       f"got {value}")
 
 
 def run_fourflip(args) -> int:
     from ..cli import BadInput
+    from ..sim.fourflip import simulate_fourflip, write_fourflip
 
-    if args.channels < 1:
-        raise BadInput(f"--channels must be at least 1, got {args.channels}")
+    _positive("--channels", args.channels, at_least=1)
     if not 0 < args.step_deg <= 30:
         raise BadInput(f"--step-deg must be in (0, 30], got {args.step_deg}")
     if not args.noise_ut >= 0:
         raise BadInput(f"--noise-ut must not be negative, got {args.noise_ut}")
-    if not args.field_ut > 0:
-        raise BadInput(f"--field-ut must be positive, got {args.field_ut}")
+    _positive("--field-ut", args.field_ut)
     if args.dip_deg is not None and not -90 <= args.dip_deg <= 90:
         raise BadInput(f"--dip-deg must be in [-90, 90], got {args.dip_deg}")
     if not args.effect_scale >= 0:
@@ -62,4 +99,61 @@ def run_platform3d(args) -> int:
     sim = simulate_platform3d(seed=args.seed, poses=args.poses, tilt_axes=args.tilt_axes)
     rec, truth = write_platform3d(sim, args.out, force=args.force)
     print(f"wrote {rec} ({len(sim.mag)} samples) and {truth}")
+    return 0
+
+
+def run_tumble(args) -> int:
+    from ..sim.tumble import simulate_tumble, write_tumble
+
+    _positive("--samples", args.samples, at_least=12)
+    _positive("--rate-hz", args.rate_hz)
+    _positive("--field-ut", args.field_ut)
+    sim = simulate_tumble(seed=args.seed, n=args.samples, rate_hz=args.rate_hz, field_ut=args.field_ut,
+                          coverage=args.coverage)
+    rec, truth = write_tumble(sim, args.out, force=args.force, accel=not args.no_accel)
+    print(f"wrote {rec} ({len(sim.mag)} samples, coverage {args.coverage}) and {truth}")
+    return 0
+
+
+def run_reference(args) -> int:
+    from ..sim.reference import simulate_reference, write_reference
+
+    _positive("--sensors", args.sensors, at_least=1)
+    _positive("--fields", args.fields, at_least=1)
+    _positive("--repeats", args.repeats, at_least=1)
+    _positive("--field-ut", args.field_ut)
+    sim = simulate_reference(seed=args.seed, n_sensors=args.sensors, n_fields=args.fields, repeats=args.repeats,
+                             field_ut=args.field_ut)
+    rec, truth = write_reference(sim, args.out, force=args.force)
+    print(f"wrote {rec} ({len(sim.reference)} rows, {args.sensors} sensors) and {truth}")
+    return 0
+
+
+def run_runtime(args) -> int:
+    import json
+    from pathlib import Path
+
+    from ..cli import BadInput
+    from ..sim.runtime import simulate_runtime, write_runtime
+
+    _positive("--samples", args.samples, at_least=1)
+    if not 0 <= args.max_tilt_deg <= 90:
+        raise BadInput(f"--max-tilt-deg must be in [0, 90], got {args.max_tilt_deg}")
+    if args.truth is None:
+        from ..sim.fourflip import simulate_fourflip
+
+        truth = simulate_fourflip(seed=args.seed).truth
+    else:
+        try:
+            truth = json.loads(Path(args.truth).read_text())
+        except (OSError, ValueError) as exc:
+            raise BadInput(f"{args.truth}: cannot read a four-flip truth file ({exc})") from None
+        needed = ("directions", "offsets", "gains_per_ut", "dip_deg", "field_ut", "channels", "noise_ut")
+        if not isinstance(truth, dict) or any(k not in truth for k in needed):
+            raise BadInput(f"{args.truth}: not a four-flip truth file (needs {', '.join(needed)}; "
+                           "compass simulate fourflip writes one beside its recording)")
+    session = simulate_runtime(truth, args.samples, seed=args.seed, max_tilt_deg=args.max_tilt_deg,
+                               accel_noise_g=None if args.no_accel else 0.002)
+    rec, true_angles = write_runtime(session, args.out, force=args.force)
+    print(f"wrote {rec} ({args.samples} samples, channels {', '.join(session.channels)}) and {true_angles}")
     return 0

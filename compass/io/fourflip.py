@@ -6,7 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .table import RecordingError, Table, read_table
+from .table import ReadOptions, RecordingError, Table, read_table
+from .units import looks_like_radians
 
 __all__ = ["FourFlipRecording", "read_fourflip", "NOMINAL_FLIPS_DEG", "RESERVED_COLUMNS"]
 
@@ -16,6 +17,8 @@ FLIP_TOLERANCE_DEG = 10.0
 MAX_GAP_DEG = 90.0
 """Largest turntable gap in one flip that still locates the output minimum."""
 MIN_SAMPLES_PER_FLIP = 8
+_RADIANS_HINT = ("; {column} never leaves 0..2*pi: radians? The column is in degrees; convert it, or name the "
+                 "unit with --angle-unit rad")
 RESERVED_COLUMNS = ("flip_deg", "platform_deg", "t_s", "temp_c", "ax", "ay", "az", "gx", "gy", "gz")
 
 
@@ -65,14 +68,12 @@ class FourFlipRecording:
 
     @property
     def field_ut(self) -> float | None:
+        """``# field_ut:`` metadata, |B| in uT (validated positive by the reader), None when absent."""
         value = self.metadata.get("field_ut")
-        try:
-            return float(value) if value is not None else None
-        except ValueError:
-            return None
+        return float(value) if value is not None else None
 
 
-def read_fourflip(path) -> FourFlipRecording:
+def read_fourflip(path, options: ReadOptions | None = None) -> FourFlipRecording:
     """Read and validate a four-flip recording CSV.
 
     Raises
@@ -82,7 +83,7 @@ def read_fourflip(path) -> FourFlipRecording:
         magnetic channel, a non-numeric cell, a flip far from 0/90/180/270, a flip missing or with
         too little turntable coverage, a channel that never changes.
     """
-    return fourflip_from_table(read_table(path))
+    return fourflip_from_table(read_table(path, options))
 
 
 def fourflip_from_table(table: Table) -> FourFlipRecording:
@@ -106,11 +107,12 @@ def fourflip_from_table(table: Table) -> FourFlipRecording:
         i = bad[0]
         raise RecordingError(
             table.path,
-            f"flip {flip[i]:g} deg is not within {FLIP_TOLERANCE_DEG:g} deg of 0, 90, 180 or 270",
+            f"flip {flip[i]:g} deg is not within {FLIP_TOLERANCE_DEG:g} deg of 0, 90, 180 or 270"
+            + (_RADIANS_HINT.format(column="flip_deg") if looks_like_radians(flip) else ""),
             row=int(table.rows[i]),
             column="flip_deg",
         )
-    _check_coverage(table, flip_index, platform)
+    _check_coverage(table, flip_index, platform, looks_like_radians(flip), looks_like_radians(platform))
     outputs = np.column_stack([table.column(c) for c in channels])
     for j, name in enumerate(channels):
         if np.ptp(outputs[:, j]) == 0.0:
@@ -137,7 +139,8 @@ def fourflip_from_table(table: Table) -> FourFlipRecording:
     )
 
 
-def _check_coverage(table: Table, flip_index: np.ndarray, platform: np.ndarray) -> None:
+def _check_coverage(table: Table, flip_index: np.ndarray, platform: np.ndarray, flip_radians: bool,
+                    platform_radians: bool) -> None:
     for k, nominal in enumerate(NOMINAL_FLIPS_DEG):
         mask = flip_index == k
         rows = table.rows[mask]
@@ -145,7 +148,7 @@ def _check_coverage(table: Table, flip_index: np.ndarray, platform: np.ndarray) 
             raise RecordingError(
                 table.path,
                 f"flip {nominal:g} has {mask.sum()} samples; need at least {MIN_SAMPLES_PER_FLIP} "
-                "over a full turn of the turntable",
+                "over a full turn of the turntable" + (_RADIANS_HINT.format(column="flip_deg") if flip_radians else ""),
                 column="flip_deg",
             )
         angles = np.sort(np.mod(platform[mask], 360.0))
@@ -156,7 +159,8 @@ def _check_coverage(table: Table, flip_index: np.ndarray, platform: np.ndarray) 
             raise RecordingError(
                 table.path,
                 f"flip {nominal:g}: the turntable never visits {start:.0f}..{(start + gaps[worst]) % 360:.0f} deg "
-                f"(a {gaps[worst]:.0f} deg gap; at most {MAX_GAP_DEG:g} deg allowed to locate the minimum)",
+                f"(a {gaps[worst]:.0f} deg gap; at most {MAX_GAP_DEG:g} deg allowed to locate the minimum)"
+                + (_RADIANS_HINT.format(column="platform_deg") if platform_radians else ""),
                 row=int(rows[0]),
                 column="platform_deg",
             )

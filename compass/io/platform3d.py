@@ -34,7 +34,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .table import RecordingError, Table, read_table
+from .table import ReadOptions, RecordingError, Table, read_table
+from .units import looks_like_radians, note
 
 __all__ = ["ANGLE_COLUMNS", "MAG_COLUMNS", "Platform3DRecording", "TiltSensor", "platform3d_from_table",
            "read_platform3d", "platform_rotation"]
@@ -91,9 +92,9 @@ class Platform3DRecording:
         return platform_rotation(*self.angles_deg.T)
 
 
-def read_platform3d(path) -> Platform3DRecording:
+def read_platform3d(path, options: ReadOptions | None = None) -> Platform3DRecording:
     """Read and validate a 3-D platform recording; see :func:`platform3d_from_table`."""
-    return platform3d_from_table(read_table(path))
+    return platform3d_from_table(read_table(path, options))
 
 
 def platform3d_from_table(table: Table) -> Platform3DRecording:
@@ -102,19 +103,29 @@ def platform3d_from_table(table: Table) -> Platform3DRecording:
     Raises
     ------
     RecordingError
-        A required column is missing, ``az`` without ``ax, ay``, ``t_s`` decreasing, or fewer
-        than ``MIN_POSES`` distinct poses.
+        A required column is missing, ``az`` without ``ax, ay``, a magnetometer or tilt channel
+        that never changes, or fewer than ``MIN_POSES`` distinct poses.
+
+    Warns
+    -----
+    RecordingWarning
+        Columns ignored; platform angles that never leave 2*pi (radians?).
     """
     angles = np.column_stack([table.column(c) for c in ANGLE_COLUMNS])
     mag = np.column_stack([table.column(c) for c in MAG_COLUMNS])
     tilt_columns = ("ax", "ay", "az") if table.has("az") else ("ax", "ay")
     tilt = np.column_stack([table.column(c) for c in tilt_columns])
+    table.ignore_unknown(ANGLE_COLUMNS + MAG_COLUMNS + tilt_columns + ("t_s", "temp_c"), what="a 3-D platform calibration")
+    if looks_like_radians(angles) and np.ptp(angles[:, 0]) > 1.0:
+        note(f"{table.path}: the platform angles never leave 0..2*pi: radians? The columns are in degrees; convert "
+             "them, or name the unit with --angle-unit rad")
     t_s = table.time_s()
     _, pose = np.unique(np.round(angles, 6), axis=0, return_inverse=True)
     pose = pose.ravel()
     if pose.max() + 1 < MIN_POSES:
         raise RecordingError(table.path, f"only {pose.max() + 1} distinct platform poses; the 3-D platform "
                              f"calibration needs at least {MIN_POSES}", column=ANGLE_COLUMNS[0])
+    table.check_constant(MAG_COLUMNS + tilt_columns)
     return Platform3DRecording(table.path, angles, mag, tilt, tilt_columns, pose, np.asarray(table.rows),
                                t_s, table.column("temp_c") if table.has("temp_c") else None, dict(table.metadata))
 
@@ -183,7 +194,40 @@ class TiltSensor:
             raise ValueError(f"expected tilt outputs of shape (n, {len(self.columns)}), got {x.shape}")
         if len(self.columns) == 3:
             return np.linalg.solve(self.matrix, x.T).T
+        p, normal, height = self._two_axis(x)
+        return p + height[:, None] * normal
+
+    def _two_axis(self, x):
+        """Minimum-norm part, the axes' common normal (``n . z_H > 0``) and the height along it."""
         p = x @ np.linalg.pinv(self.matrix).T
         normal = np.cross(self.matrix[0], self.matrix[1])
         normal /= np.linalg.norm(normal) * (1.0 if normal[2] >= 0 else -1.0)
-        return p + np.sqrt(np.clip(1.0 - np.sum(p**2, axis=1), 0.0, None))[:, None] * normal
+        return p, normal, np.sqrt(np.clip(1.0 - np.sum(p**2, axis=1), 0.0, None))
+
+    def upside_down_rows(self, raw, field_h, dip_deg: float, *, tolerance_deg: float = 5.0) -> int:
+        """How many rows a two-axis sensor reads upright but the field says are upside down.
+
+        For each row the dip ``asin(-B.f / |B||f|)`` is computed with the upright solution of
+        :meth:`up` and with its mirror (``az < 0``); a row counts when the upright dip misses the
+        calibration's by more than ``tolerance_deg`` and the mirror's is closer.  Always 0 for a
+        three-axis sensor.
+
+        Parameters
+        ----------
+        raw : array_like, shape (n, 2)
+        field_h : ndarray, shape (n, 3)
+            Field in H (the calibration's sensor model), any unit.
+        dip_deg : float
+            The calibration's dip.
+        """
+        if len(self.columns) == 3 or dip_deg is None:
+            return 0
+        p, normal, height = self._two_axis(np.atleast_2d(np.asarray(raw, dtype=float)) - self.offset)
+        b = field_h / np.linalg.norm(field_h, axis=1, keepdims=True)
+
+        def miss(f):
+            f = f / np.linalg.norm(f, axis=1, keepdims=True)
+            return np.abs(np.degrees(np.arcsin(np.clip(-np.sum(b * f, axis=1), -1, 1))) - dip_deg)
+
+        upright, mirror = miss(p + height[:, None] * normal), miss(p - height[:, None] * normal)
+        return int(np.count_nonzero((upright > tolerance_deg) & (mirror < upright)))

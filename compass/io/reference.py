@@ -11,7 +11,7 @@ reference field):
   differs from the common one (a magnet source is not uniform over the array);
 - ``t_s``, ``temp_c`` (optional).
 
-Any other column is an error.  At least ``MIN_FIELDS`` rows; whether the fields span enough
+Any other column is ignored, with a warning.  At least ``MIN_FIELDS`` rows; whether the fields span enough
 directions is checked by the fit (:func:`calibrate.reference.calibrate_reference`).
 """
 
@@ -21,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .table import RecordingError, Table, read_table
+from .table import ReadOptions, RecordingError, Table, read_table
+from .units import note
 
 __all__ = ["MIN_FIELDS", "ReferenceRecording", "read_reference", "reference_from_table"]
 
@@ -64,9 +65,9 @@ class ReferenceRecording:
     temp_c: np.ndarray | None = None
 
 
-def read_reference(path) -> ReferenceRecording:
+def read_reference(path, options: ReadOptions | None = None) -> ReferenceRecording:
     """Read and validate a reference-field recording; see :func:`reference_from_table`."""
-    return reference_from_table(read_table(path))
+    return reference_from_table(read_table(path, options))
 
 
 def reference_from_table(table: Table) -> ReferenceRecording:
@@ -75,11 +76,12 @@ def reference_from_table(table: Table) -> ReferenceRecording:
     Raises
     ------
     RecordingError
-        A sensor or reference column is missing or unrecognised, no sensor, or fewer than
-        ``MIN_FIELDS`` rows, or ``t_s`` decreasing.
+        A sensor or reference column is missing, a sensor output that never changes, no
+        sensor, or fewer than ``MIN_FIELDS`` rows.
     """
     cols = set(table.columns)
     groups: dict[str, dict] = {}
+    ignored = []
     for name in table.columns:
         if name in _REF or name in _OPTIONAL:
             continue
@@ -90,9 +92,10 @@ def reference_from_table(table: Table) -> ReferenceRecording:
         if sep and suffix in ("x", "y", "z") and stem:
             groups.setdefault(stem, {})[suffix] = name
         elif not (name.endswith(_REF) and name[: -len("bx_ref")].rstrip("_")):
-            raise RecordingError(table.path, "unrecognised column: expected bx_ref,by_ref,bz_ref, sensor columns "
-                                 "mx,my,mz or <name>_x,<name>_y,<name>_z, <name>_bx_ref.., t_s, temp_c",
-                                 row=table.header_row, column=name)
+            ignored.append(name)
+    if ignored:
+        note(f"{table.path}: ignored column{'s' * (len(ignored) > 1)} {', '.join(ignored)} (expected bx_ref,by_ref,"
+             "bz_ref, sensor columns mx,my,mz or <name>_x,<name>_y,<name>_z, <name>_bx_ref.., t_s, temp_c)")
     if not groups:
         raise RecordingError(table.path, "no sensor columns (mx,my,mz or <name>_x,<name>_y,<name>_z)",
                              row=table.header_row)
@@ -115,6 +118,7 @@ def reference_from_table(table: Table) -> ReferenceRecording:
     if len(table.rows) < MIN_FIELDS:
         raise RecordingError(table.path, f"only {len(table.rows)} reference fields: K and the offsets need at least "
                              f"{MIN_FIELDS} (and more to estimate their uncertainty)", column=_REF[0])
+    table.check_constant([c for names in channels.values() for c in names])
     return ReferenceRecording(table.path, tuple(groups), channels, outputs, reference, np.asarray(table.rows),
                               dict(table.metadata), table.time_s(),
                               table.column("temp_c") if table.has("temp_c") else None)

@@ -2,17 +2,55 @@
 
 Every problem is reported as a :class:`RecordingError` naming the file, the row (1-based line
 number in the file) and the column, so the command line can print one line and exit 2.
+
+Real logs are read as they come:
+
+- the separator is the header's: comma, semicolon, tab (or blanks); with a semicolon or tab a
+  decimal comma (``1,5``) is read as a decimal point, with a comma separator it is named in the
+  message;
+- names are matched without regard to case (``MX`` is ``mx``) and with quotes and blanks stripped;
+- ``--columns mx=NAME,...`` (:class:`ReadOptions`) or a ``# columns: mx=NAME,...`` metadata line
+  gives the toolkit's name of a column; headers in the style of x-io Fusion's logs
+  (``Time (s)``, ``Gyroscope X (deg/s)``, ``Accelerometer X (g)``, ``Magnetometer X (uT)``) are
+  mapped to ``t_s, gx.., ax.., mx..`` with the units they name;
+- units named (:mod:`compass.io.units`) are converted to SPEC's: gyro to rad/s, ``*_deg`` columns
+  from radians, magnetometer to uT, the accelerometer's sign;
+- every cell must be a finite number (Python's ``1_5`` is not) of magnitude at most
+  :data:`~compass.io.units.MAX_ABS_VALUE`; ``t_s`` must not decrease; ``# field_ut:`` must be a
+  positive number.
+
+Memory: the body is parsed by ``np.loadtxt`` from a stream of lines, so reading takes about what
+``np.loadtxt`` takes (``tools/bench_scale.py``).
 """
 
 from __future__ import annotations
 
-import io
-from dataclasses import dataclass
+import codecs
+import math
+import re
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["RecordingError", "Table", "read_table"]
+from . import units
+from .units import note
+
+__all__ = ["RecordingError", "Table", "ReadOptions", "read_table", "add_read_arguments", "VOCABULARY"]
+
+VOCABULARY = ("t_s", "temp_c", "flip_deg", "platform_deg", "platform_z_deg", "platform_y_deg", "platform_x_deg",
+              "mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz", "bx_ref", "by_ref", "bz_ref", "pitch_deg",
+              "roll_deg", "heading_ref_deg")
+"""Column names SPEC gives a meaning (matched without regard to case)."""
+_GYRO, _ACCEL, _MAG = ("gx", "gy", "gz"), ("ax", "ay", "az"), ("mx", "my", "mz")
+_LOG_SENSORS = {"gyroscope": "g", "gyro": "g", "gyr": "g", "accelerometer": "a", "accel": "a", "acc": "a",
+                "magnetometer": "m", "mag": "m"}
+_LOG_NAME = re.compile(r"^(?P<sensor>[a-z]+)[ _]?(?P<axis>[xyz])\s*(?:\((?P<unit>[^)]*)\))?$", re.IGNORECASE)
+_TIME_NAME = re.compile(r"^time\s*\((?P<unit>s|ms|us)\)$", re.IGNORECASE)
+_NUMBER = re.compile(r"^\s*[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?\s*$|^\s*[+-]?(?:nan|inf|infinity)\s*$",
+                     re.IGNORECASE)
+_DECIMAL_COMMA = re.compile(r"^\s*[+-]?\d+,\d+(?:[eE][+-]?\d+)?\s*$")
+_SNIFF_BYTES = 1 << 16
 
 
 class RecordingError(ValueError):
@@ -41,6 +79,91 @@ class RecordingError(ValueError):
 
 
 @dataclass(frozen=True)
+class ReadOptions:
+    """What the user says about a recording's columns and units (command-line options).
+
+    Attributes
+    ----------
+    columns : dict of str to str
+        The toolkit's name -> the file's name (``--columns mx=MagX,my=MagY``); a ``-`` before the
+        file's name negates the column (``az=-AccZ``: a Z-down board).  Overrides the file's
+        ``# columns:`` line.
+    gyro_unit : {"rad/s", "deg/s"} or None
+        None: the header's unit if it names one, else SPEC's rad/s.
+    accel_unit : {"g", "m/s2"} or None
+        None: the header's unit, else the recording's (any unit, SPEC).
+    mag_unit : {"uT", "nT", "G", "mG"} or None
+        None: the header's unit, else free.  A named unit is converted to uT.
+    angle_unit : {"deg", "rad"}
+        Unit of the ``*_deg`` columns as recorded (converted to degrees).
+    accel_sign : {1, -1}
+        -1 negates ``ax, ay, az`` (an accelerometer that reads gravity instead of specific force).
+    """
+
+    columns: dict = field(default_factory=dict)
+    gyro_unit: str | None = None
+    accel_unit: str | None = None
+    mag_unit: str | None = None
+    angle_unit: str = "deg"
+    accel_sign: int = 1
+
+    @classmethod
+    def from_args(cls, args) -> "ReadOptions":
+        """The options :func:`add_read_arguments` registered, from parsed arguments."""
+        return cls(columns=getattr(args, "columns", None) or {}, gyro_unit=getattr(args, "gyro_unit", None),
+                   accel_unit=getattr(args, "accel_unit", None), mag_unit=getattr(args, "mag_unit", None),
+                   angle_unit=getattr(args, "angle_unit", "deg"), accel_sign=getattr(args, "accel_sign", 1))
+
+
+def parse_column_map(text: str, *, source: str = "--columns") -> dict:
+    """``"mx=Mag X,my=Mag Y"`` -> ``{"mx": "Mag X", "my": "Mag Y"}``.
+
+    Raises
+    ------
+    ValueError
+        An item without ``=``, an empty name, or a toolkit name given twice.
+    """
+    mapping: dict[str, str] = {}
+    for item in text.split(","):
+        ours, sep, theirs = item.partition("=")
+        ours, theirs = ours.strip(), theirs.strip().strip('"').strip()
+        if not sep or not ours or not theirs:
+            raise ValueError(f"{source}: expected NAME=COLUMN items separated by commas (mx=MagX,my=MagY), got {item!r}")
+        if ours in mapping:
+            raise ValueError(f"{source}: '{ours}' is mapped twice")
+        mapping[ours] = theirs
+    return mapping
+
+
+def add_read_arguments(parser) -> None:
+    """Register the reading options (:class:`ReadOptions`) on a command that reads recordings."""
+    import argparse
+
+    def column_map(text):
+        try:
+            return parse_column_map(text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    g = parser.add_argument_group("reading the recording (columns and units)")
+    g.add_argument("--columns", type=column_map, metavar="NAME=COLUMN,...",
+                   help="which file column is which, e.g. mx='Mag X',my='Mag Y',mz='Mag Z',t_s=time (also a "
+                        "'# columns: ...' line in the file); names match without regard to case; az=-AccZ "
+                        "negates a column")
+    g.add_argument("--gyro-unit", choices=tuple(units.GYRO_UNITS), default=None,
+                   help="unit of gx,gy,gz (default: the header's, else rad/s as SPEC says)")
+    g.add_argument("--accel-unit", choices=tuple(units.ACCEL_UNITS), default=None,
+                   help="unit of ax,ay,az (default: the header's, else any unit); checked against |g|")
+    g.add_argument("--accel-sign", type=int, choices=(1, -1), default=1,
+                   help="-1: the accelerometer reads gravity (-1 g on Z when level) instead of specific force")
+    g.add_argument("--mag-unit", choices=tuple(units.MAG_UNITS), default=None,
+                   help="unit of mx,my,mz (default: the header's, else free); converted to uT and checked against "
+                        "the Earth's 25-65 uT")
+    g.add_argument("--angle-unit", choices=tuple(units.ANGLE_UNITS), default="deg",
+                   help="unit of the *_deg columns as recorded (default deg)")
+
+
+@dataclass(frozen=True)
 class Table:
     """A parsed numeric CSV.
 
@@ -48,13 +171,19 @@ class Table:
     ----------
     path : str
     columns : tuple of str
-        Header names, stripped.
+        Column names: the toolkit's names where mapped or recognised, else as in the header.
     data : ndarray, shape (n_rows, n_columns)
-        Finite floats.
+        Finite floats, in SPEC's units where a unit was named (see :attr:`units`).
     rows : ndarray of int, shape (n_rows,)
         1-based file line number of each data row (for error messages).
     metadata : dict of str to str
         ``# key: value`` comment lines.
+    header_line : int
+        1-based line of the header row.
+    original : dict of str to str
+        Each column's name as the header spells it.
+    units : dict of str to str
+        Units named for a column (``{"gx": "deg/s"}``), by the user or the header.
     """
 
     path: str
@@ -62,161 +191,480 @@ class Table:
     data: np.ndarray
     rows: np.ndarray
     metadata: dict
+    header_line: int = 1
+    original: dict = field(default_factory=dict)
+    units: dict = field(default_factory=dict)
+
+    def _index(self, name: str) -> int | None:
+        if name in self.columns:
+            return self.columns.index(name)
+        folded = [i for i, c in enumerate(self.columns) if c.lower() == name.lower()]
+        return folded[0] if len(folded) == 1 else None
 
     def has(self, name: str) -> bool:
-        return name in self.columns
+        return self._index(name) is not None
 
     def column(self, name: str) -> np.ndarray:
-        """One column's values; RecordingError naming the column if it is missing."""
-        if name not in self.columns:
-            raise RecordingError(
-                self.path, f"missing required column '{name}' (header has: {', '.join(self.columns)})", row=self.header_row
-            )
-        return self.data[:, self.columns.index(name)]
+        """One column's values (name matched without regard to case); RecordingError naming it if missing."""
+        i = self._index(name)
+        if i is None:
+            raise RecordingError(self.path, f"missing required column '{name}' (header has: {', '.join(self.columns)})",
+                                 row=self.header_row, column=name)
+        return self.data[:, i]
 
     def time_s(self) -> np.ndarray | None:
-        """The optional ``t_s`` column, None when absent; RecordingError at the first step back in time."""
-        if not self.has("t_s"):
-            return None
-        t_s = self.column("t_s")
-        back = np.flatnonzero(np.diff(t_s) < 0)
-        if back.size:
-            raise RecordingError(self.path, f"t_s must not decrease (goes from {t_s[back[0]]} to {t_s[back[0] + 1]})",
-                                 row=int(self.rows[back[0] + 1]), column="t_s")
-        return t_s
+        """The optional ``t_s`` column (checked non-decreasing on reading), None when absent."""
+        return self.column("t_s") if self.has("t_s") else None
 
     @property
     def header_row(self) -> int:
-        return int(self.rows[0]) - 1 if len(self.rows) else 1
+        return self.header_line
 
     def metadata_float(self, key: str) -> float | None:
-        """A numeric metadata value, or None when absent; RecordingError when not a number."""
+        """A numeric metadata value, or None when absent; RecordingError when not a finite number."""
         if key not in self.metadata:
             return None
-        try:
-            return float(self.metadata[key])
-        except ValueError:
-            raise RecordingError(self.path, f"metadata '{key}' should be a number, got {self.metadata[key]!r}") from None
+        value = _strict_float(self.metadata[key])
+        if value is None or not math.isfinite(value):
+            raise RecordingError(self.path, f"metadata '{key}' should be a finite number, got {self.metadata[key]!r}")
+        return value
+
+    def ignore_unknown(self, known, *, what: str) -> None:
+        """Note (do not refuse) the columns not in ``known``: the live protocol ignores them too."""
+        known = {k.lower() for k in known}
+        extra = [c for c in self.columns if c.lower() not in known]
+        if extra:
+            note(f"{self.path}: ignored column{'s' * (len(extra) > 1)} {', '.join(extra)} (not used by {what})")
+
+    def check_constant(self, names) -> None:
+        """RecordingError naming the first of ``names`` whose value never changes (a dead channel)."""
+        for name in names:
+            if self.has(name):
+                v = self.column(name)
+                if len(v) > 1 and np.ptp(v) == 0.0:
+                    raise RecordingError(self.path, f"never changes (constant {v[0]:g} in all {len(v)} rows): "
+                                                    "a dead or disconnected sensor?", column=name)
 
 
-def read_table(path) -> Table:
+def read_table(path, options: ReadOptions | None = None) -> Table:
     """Read and validate a numeric CSV recording.
+
+    Parameters
+    ----------
+    path : str or Path
+    options : ReadOptions, optional
+        Column mapping and units named by the user.
 
     Raises
     ------
     RecordingError
-        Unreadable or binary file, no header, no data rows, duplicate column, wrong number of
-        cells, or a cell that is not a finite number.
+        Unreadable, binary or UTF-16 file, a folder, no header, no data rows, duplicate column, a
+        mapped column that is absent, wrong number of cells, a cell that is not a finite number or
+        is beyond ``MAX_ABS_VALUE``, ``t_s`` decreasing, a ``field_ut`` that is not a positive number.
     """
+    options = options or ReadOptions()
     path = Path(path)
+    _sniff(path)
     try:
-        raw = path.read_bytes()
+        stream = open(path, encoding="utf-8-sig", newline=None)  # noqa: SIM115 (closed below)
     except OSError as exc:
         raise RecordingError(path, f"cannot read file ({exc.strerror})") from None
-    if b"\x00" in raw:
-        raise RecordingError(path, "binary data (NUL bytes): expected a text CSV file")
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        line = raw[: exc.start].count(b"\n") + 1
-        raise RecordingError(path, "not UTF-8 text: expected a CSV file", row=line) from None
-    if not text.strip():
-        raise RecordingError(path, "empty file: expected a header row and data rows")
-    if text.lstrip()[:1] in ("{", "["):
-        raise RecordingError(path, "this is JSON (a calibration file?): expected a CSV recording", row=1)
-
-    lines = text.splitlines()
-    metadata: dict[str, str] = {}
-    header, header_line = None, 0
-    for number, stripped in _content(lines, 0, metadata):
-        header, header_line = [c.strip() for c in stripped.split(",")], number
-        break
-    if header is None:
-        raise RecordingError(path, "no header row: expected comma-separated column names")
-    for i, name in enumerate(header):
-        if not name:
-            raise RecordingError(path, f"empty column name at position {i + 1}", row=header_line)
-        if _is_number(name):
-            raise RecordingError(path, f"header expected, found a number {name!r}", row=header_line, column=name)
-        if header.index(name) != i:
-            raise RecordingError(path, "duplicate column name", row=header_line, column=name)
-
-    data = _parse_plain_body(lines[header_line:], len(header))
-    if data is not None:
-        rows = np.arange(header_line + 1, header_line + 1 + len(data))
-        return Table(str(path), tuple(header), data, rows, metadata)
-    body = list(_content(lines, header_line, metadata))
-    body_rows = [number for number, _ in body]
-    body_lines = [stripped for _, stripped in body]
-    if not body_lines:
-        raise RecordingError(path, "header only: no data rows", row=header_line)
-
-    data = _parse_body(path, header, body_lines, body_rows)
-    return Table(str(path), tuple(header), data, np.asarray(body_rows), metadata)
+    with stream:
+        lines = _Lines(path, stream)
+        metadata, meta_rows = {}, {}
+        header_text, header_line = None, 0
+        for number, stripped in lines.content(metadata, meta_rows):
+            header_text, header_line = stripped, number
+            break
+        if header_text is None:
+            raise RecordingError(path, "no header row: expected comma-separated column names" if lines.any_text
+                                 else "empty file: expected a header row and data rows")
+        if header_text[:1] in ("{", "["):
+            raise RecordingError(path, "this is JSON (a calibration file?): expected a CSV recording", row=header_line)
+        sep = _separator(header_text)
+        header = [_unquote(c) for c in (header_text.split(sep) if sep else header_text.split())]
+        _check_header(path, header, header_line)
+        first = lines.peek_data()
+        if first is None:
+            raise RecordingError(path, "header only: no data rows", row=header_line)
+        decimal_comma = sep not in (",", None) and any(_DECIMAL_COMMA.match(c) for c in first[1].split(sep))
+        try:
+            data = np.loadtxt(lines.data(decimal_comma), delimiter=sep, ndmin=2, dtype=float, comments=None)
+        except _BadCell as exc:
+            _locate_bad_cell(path, header, sep, decimal_comma, exc.row, exc.line)
+            raise RecordingError(path, "could not parse the row as numbers", row=exc.row) from None
+        except RecordingError:
+            raise
+        except UnicodeDecodeError:
+            raise _not_utf8(path) from None
+        except ValueError:
+            _scan_for_bad_cell(path, header, sep, decimal_comma, header_line)
+            raise RecordingError(path, "could not parse the data rows as numbers") from None
+        rows = lines.rows()
+    if data.shape[1] != len(header):
+        _scan_for_bad_cell(path, header, sep, decimal_comma, header_line)
+        raise RecordingError(path, f"expected {len(header)} cells a row, found {data.shape[1]}", row=int(rows[0]))
+    _check_values(path, header, data, rows)
+    return _interpret(Table(str(path), tuple(header), data, rows, metadata, header_line), options, meta_rows)
 
 
-def _content(lines: list[str], start: int, metadata: dict):
-    """(1-based line number, stripped text) of the data lines from ``lines[start]`` on.
+class _BadCell(Exception):
+    """Raised from inside the line stream: a line that ``np.loadtxt`` would accept but we do not."""
 
-    Blank lines are skipped; ``# key: value`` comments go into ``metadata``, other comments are
-    skipped.
+    def __init__(self, row: int, line: str):
+        self.row, self.line = row, line
+
+
+class _Lines:
+    """The file's lines, numbered, read once as a stream (no list of the whole file).
+
+    :meth:`content` yields the lines before the header; :meth:`data` yields the body's data
+    lines for ``np.loadtxt`` and remembers the numbers of the lines it skipped (blank, comment),
+    from which :meth:`rows` rebuilds each data row's line number.
     """
-    for number, line in enumerate(lines[start:], start=start + 1):
-        stripped = line.strip()
+
+    def __init__(self, path, stream):
+        self.path, self.stream, self.number, self.any_text = path, stream, 0, False
+        self.skipped: list[int] = []
+        self.first_data = self.last_data = None
+        self._peeked = None
+        self.metadata, self.meta_rows = None, None
+
+    def _next(self):
+        try:
+            line = next(self.stream)
+        except UnicodeDecodeError:
+            raise _not_utf8(self.path) from None
+        self.number += 1
+        return line
+
+    def content(self, metadata, meta_rows):
+        """(line number, stripped line) of non-blank, non-comment lines; metadata collected."""
+        self.metadata, self.meta_rows = metadata, meta_rows
+        while True:
+            try:
+                line = self._next()
+            except StopIteration:
+                return
+            stripped = line.strip()
+            self.any_text |= bool(stripped)
+            if self._comment(stripped):
+                continue
+            yield self.number, stripped
+
+    def _comment(self, stripped: str) -> bool:
         if not stripped:
-            continue
+            return True
         if stripped.startswith("#"):
             key, sep, value = stripped[1:].partition(":")
             if sep and key.strip():
-                metadata[key.strip()] = value.strip()
-            continue
-        yield number, stripped
+                self.metadata[key.strip()] = value.strip()
+                self.meta_rows[key.strip()] = self.number
+            return True
+        return False
+
+    def peek_data(self):
+        """The first data line after the header, (number, stripped), without consuming it."""
+        while True:
+            try:
+                line = self._next()
+            except StopIteration:
+                return None
+            stripped = line.strip()
+            if self._comment(stripped):
+                self.skipped.append(self.number)
+                continue
+            self._peeked = (self.number, stripped)
+            self.first_data = self.number
+            return self._peeked
+
+    def data(self, decimal_comma: bool):
+        if self._peeked is not None:
+            yield self._check(*self._peeked, decimal_comma)
+        for line in self.stream:
+            self.number += 1
+            stripped = line.strip()
+            if self._comment(stripped):
+                self.skipped.append(self.number)
+                continue
+            yield self._check(self.number, stripped, decimal_comma)
+
+    def _check(self, number: int, stripped: str, decimal_comma: bool) -> str:
+        if "_" in stripped:  # float("1_5") is 15 in Python; not a number in a CSV
+            raise _BadCell(number, stripped)
+        self.last_data = number
+        return stripped.replace(",", ".") if decimal_comma else stripped
+
+    def rows(self) -> np.ndarray:
+        rows = np.arange(self.first_data, self.last_data + 1)
+        if self.skipped:
+            rows = np.setdiff1d(rows, np.asarray(self.skipped), assume_unique=True)
+        return rows
 
 
-def _parse_plain_body(lines: list[str], n_cols: int) -> np.ndarray | None:
-    """Fast path for a body of data rows only (no comment, no blank line): one ``np.loadtxt``.
-
-    None when the body is anything else or does not parse; the line-by-line path then finds the
-    comments and names the bad cell.
-    """
-    text = "\n".join(lines)
-    if "#" in text or not text.strip():
-        return None
+def _sniff(path: Path) -> None:
+    """RecordingError for a folder, an unreadable, binary or UTF-16 file (before any text is decoded)."""
+    if path.is_dir():
+        raise RecordingError(path, "is a folder: expected a CSV file")
     try:
-        data = np.loadtxt(io.StringIO(text), delimiter=",", ndmin=2, dtype=float)
-    except ValueError:
-        return None
-    if data.shape != (len(lines), n_cols) or not np.all(np.isfinite(data)):
-        return None
+        with open(path, "rb") as f:
+            head = f.read(_SNIFF_BYTES)
+    except OSError as exc:
+        raise RecordingError(path, f"cannot read file ({exc.strerror})") from None
+    if head[:2] in (b"\xff\xfe", b"\xfe\xff"):
+        raise RecordingError(path, "UTF-16 text: save the CSV as UTF-8 (or ASCII)", row=1)
+    if b"\x00" in head:
+        raise RecordingError(path, "binary data (NUL bytes): expected a text CSV file",
+                             row=head[: head.index(b"\x00")].count(b"\n") + 1)
+
+
+def _not_utf8(path) -> RecordingError:
+    """The error for a file that is not UTF-8, at the line of its first bad byte."""
+    row = None
+    with open(path, "rb") as f:
+        done = 0
+        decoder = codecs.getincrementaldecoder("utf-8")()
+        for block in iter(lambda: f.read(1 << 20), b""):
+            try:
+                decoder.decode(block)
+            except UnicodeDecodeError as exc:
+                row = done + block[: exc.start].count(b"\n") + 1
+                break
+            done += block.count(b"\n")
+    return RecordingError(path, "not UTF-8 text: save the CSV as UTF-8 (or ASCII)", row=row)
+
+
+def _separator(header: str) -> str | None:
+    """The header's separator: semicolon or tab when present (spreadsheets), else comma; None
+    (blanks) for a header of blank-separated names without any of them."""
+    for sep in (";", "\t", ","):
+        if sep in header:
+            return sep
+    return None if len(header.split()) > 1 else ","
+
+
+def _unquote(name: str) -> str:
+    name = name.strip()
+    if len(name) >= 2 and name[0] == name[-1] and name[0] in "\"'":
+        name = name[1:-1].strip()
+    return name
+
+
+def _check_header(path, header, row) -> None:
+    for i, name in enumerate(header):
+        if not name:
+            raise RecordingError(path, f"empty column name at position {i + 1}", row=row)
+        if _strict_float(name) is not None:
+            raise RecordingError(path, f"header expected, found a number {name!r} (the file needs a header row "
+                                       "naming its columns, or a '# columns:' line is not enough)", row=row, column=name)
+        if header.index(name) != i:
+            raise RecordingError(path, "duplicate column name", row=row, column=name)
+
+
+def _strict_float(cell: str) -> float | None:
+    """The number a CSV cell spells (decimal point, optional exponent, nan/inf), None if none.
+
+    Stricter than ``float()``: no ``1_5`` (Python reads 15), no hexadecimal, no blanks inside.
+    """
+    return float(cell) if _NUMBER.match(cell) else None
+
+
+def _split(line: str, sep, decimal_comma: bool) -> list[str]:
+    cells = line.split(sep) if sep else line.split()
+    return [c.replace(",", ".") for c in cells] if decimal_comma else cells
+
+
+def _locate_bad_cell(path, header, sep, decimal_comma, row, line) -> None:
+    """RecordingError for the first bad cell of one line (or its cell count)."""
+    cells = _split(line, sep, decimal_comma)
+    if len(cells) != len(header):
+        hint = ""
+        if sep == "," and len(cells) > len(header):
+            hint = ("; decimal commas with a comma separator? Save the file with ';' between cells (decimal commas "
+                    "are then read) or with decimal points")
+        raise RecordingError(path, f"expected {len(header)} cells, found {len(cells)}{hint}", row=row)
+    for name, cell in zip(header, cells):
+        if _strict_float(cell) is None:
+            what = cell.strip()
+            hint = " (digit separators such as '_' are not read)" if "_" in what else ""
+            raise RecordingError(path, f"expected a number, found {what!r}{hint}", row=row, column=name)
+
+
+def _scan_for_bad_cell(path, header, sep, decimal_comma, header_line) -> None:
+    """Find and raise the first bad line after the header (the slow path, only after a failure)."""
+    with open(path, encoding="utf-8-sig", newline=None, errors="replace") as stream:
+        for number, line in enumerate(stream, start=1):
+            stripped = line.strip()
+            if number <= header_line or not stripped or stripped.startswith("#"):
+                continue
+            _locate_bad_cell(path, header, sep, decimal_comma, number, stripped)
+
+
+def _check_values(path, header, data, rows) -> None:
+    """RecordingError at the first non-finite cell, or the first beyond ``MAX_ABS_VALUE``."""
+    lo, hi = data.min(), data.max()  # NaN propagates; no copy of the data
+    if -units.MAX_ABS_VALUE <= lo and hi <= units.MAX_ABS_VALUE:
+        return
+    finite = np.isfinite(data)
+    if not finite.all():
+        i, j = np.argwhere(~finite)[0]
+        raise RecordingError(path, f"expected a finite number, found {data[i, j]!r}", row=int(rows[i]),
+                             column=header[j])
+    big = np.abs(data) > units.MAX_ABS_VALUE
+    if big.any():
+        i, j = np.argwhere(big)[0]
+        raise RecordingError(path, f"{data[i, j]:g} is beyond {units.MAX_ABS_VALUE:g} in magnitude, which no sensor "
+                                   "output, time or angle reaches in any unit (a 32-bit ADC counts to 4.3e9; 45 T, the "
+                                   "strongest steady laboratory field, is 4.5e10 nT): a corrupted cell?",
+                             row=int(rows[i]), column=header[j])
+
+
+def _interpret(table: Table, options: ReadOptions, meta_rows: dict) -> Table:
+    """Names and units: mapping, log headers, case; conversions to SPEC's units; t_s and field_ut."""
+    path, header = table.path, list(table.columns)
+    original = dict(zip(header, header))
+    named_units: dict[str, str] = {}
+    mapping, source = dict(options.columns), "--columns"
+    if not mapping and "columns" in table.metadata:
+        try:
+            mapping, source = parse_column_map(table.metadata["columns"], source="'# columns:'"), "'# columns:' line"
+        except ValueError as exc:
+            raise RecordingError(path, str(exc), row=meta_rows.get("columns")) from None
+    negate = []
+    for ours, theirs in mapping.items():
+        sign = -1 if theirs.startswith("-") and theirs not in header else 1
+        theirs = theirs[1:].strip() if sign < 0 else theirs
+        matches = [i for i, c in enumerate(header) if c == theirs] or \
+                  [i for i, c in enumerate(header) if c.lower() == theirs.lower()]
+        if len(matches) != 1:
+            raise RecordingError(path, f"{source} maps {ours} to '{theirs}', which the header does not have "
+                                       f"(header has: {', '.join(header)})", row=table.header_line, column=theirs)
+        header[matches[0]] = ours
+        if sign < 0:
+            negate.append(matches[0])
+    if negate:
+        table.data[:, negate] *= -1.0
+    recognised: dict[str, list] = {}
+    for i, name in enumerate(header):
+        if name in mapping:
+            continue
+        canon, unit = _log_name(name)
+        if canon is not None and canon not in header:
+            header[i] = canon
+            recognised.setdefault(canon[0] if canon != "t_s" else canon, []).append((canon, name, unit))
+            if unit:
+                named_units[canon] = unit
+    if recognised:
+        groups = [f"{','.join(c for c, _, _ in cols)} = '{cols[0][1]}'{'...' * (len(cols) > 1)}"
+                  for cols in recognised.values()]
+        note(f"{path}: read the log's header as {'; '.join(groups)} (units as the header names them)")
+    vocabulary = {v.lower(): v for v in VOCABULARY}
+    for i, name in enumerate(header):
+        canon = vocabulary.get(name.lower())
+        if canon is not None and canon != name:
+            if canon in header:
+                raise RecordingError(path, f"two columns are named '{canon}' (names match without regard to case)",
+                                     row=table.header_line, column=name)
+            header[i] = canon
+    folded = [name.lower() for name in header]
+    for i, name in enumerate(folded):
+        if folded.index(name) != i:
+            raise RecordingError(path, f"two columns are named '{header[i]}' (names match without regard to case; "
+                                       f"in the header: '{table.columns[folded.index(name)]}' and '{table.columns[i]}')",
+                                 row=table.header_line, column=header[i])
+    original = {new: original[old] for new, old in zip(header, table.columns)}
+    data = table.data
+    converted = _convert_units(table, header, data, options, named_units)
+    table = Table(path, tuple(header), converted, table.rows, table.metadata, table.header_line, original, named_units)
+    _check_time(table)
+    _check_field_ut(table, meta_rows)
+    return table
+
+
+def _log_name(name: str) -> tuple[str | None, str | None]:
+    """A log header's sensor column as (toolkit name, unit): ``"Gyroscope X (deg/s)"`` -> ``("gx", "deg/s")``."""
+    m = _TIME_NAME.match(name)
+    if m:
+        return "t_s", m.group("unit")
+    m = _LOG_NAME.match(name)
+    if not m or m.group("sensor").lower() not in _LOG_SENSORS:
+        return None, None
+    letter = _LOG_SENSORS[m.group("sensor").lower()]
+    kind = {"g": "gyro", "a": "accel", "m": "mag"}[letter]
+    unit = units.unit_of_header(kind, m.group("unit")) if m.group("unit") else None
+    return letter + m.group("axis").lower(), unit
+
+
+def _convert_units(table: Table, header, data, options: ReadOptions, named: dict) -> np.ndarray:
+    """Scale columns to SPEC's units (in place on ``data``, which the table owns)."""
+    path = table.path
+
+    def scale(cols, factor):
+        idx = [header.index(c) for c in cols if c in header]
+        if idx and factor != 1.0:
+            data[:, idx] *= factor
+
+    for group, unit_option, table_units, kind in ((_GYRO, options.gyro_unit, units.GYRO_UNITS, "gyro"),
+                                                  (_ACCEL, options.accel_unit, units.ACCEL_UNITS, "accel"),
+                                                  (_MAG, options.mag_unit, units.MAG_UNITS, "mag")):
+        header_unit = next((named[c] for c in group if c in named), None)
+        unit = unit_option or header_unit
+        for c in group:
+            named.pop(c, None)
+        if unit is None or not any(c in header for c in group):
+            continue
+        if kind == "accel":
+            named.update({c: unit for c in group if c in header})
+            continue  # the accelerometer keeps its unit (any unit, SPEC); the unit is used for checks
+        scale(group, table_units[unit])
+        named.update({c: unit for c in group if c in header})
+    if "t_s" in named and named["t_s"] != "s":
+        scale(("t_s",), {"ms": 1e-3, "us": 1e-6}[named["t_s"]])
+    if options.accel_sign == -1:
+        scale(_ACCEL, -1.0)
+    if options.angle_unit != "deg":
+        scale([c for c in header if c.endswith("_deg")], units.ANGLE_UNITS[options.angle_unit])
+    _check_accel_unit(path, header, data, named.get("ax"))
+    if all(c in header for c in _GYRO + _ACCEL + ("t_s",)):
+        cols = lambda names: data[:, [header.index(c) for c in names]]  # noqa: E731
+        units.check_gyro_unit(data[:, header.index("t_s")], cols(_GYRO), cols(_ACCEL),
+                              named=options.gyro_unit is not None or "gx" in named, where=path)
     return data
 
 
-def _is_number(s: str) -> bool:
-    try:
-        float(s)
-    except ValueError:
-        return False
-    return True
+def _check_accel_unit(path, header, data, unit) -> None:
+    """Warn when the accelerometer's typical |a| is not 1 g in the unit named."""
+    if unit is None or not all(c in header for c in _ACCEL):
+        return
+    norm = float(np.median(np.linalg.norm(data[:, [header.index(c) for c in _ACCEL]], axis=1)))
+    g = norm * units.ACCEL_UNITS[unit]
+    if not 0.8 <= g <= 1.25:
+        other = [u for u, f in units.ACCEL_UNITS.items() if 0.8 <= norm * f <= 1.25]
+        hint = f"; in {other[0]} it would be 1 g: --accel-unit {other[0]}" if other else ""
+        note(f"{path}: the accelerometer's median |a| is {norm:.3g} {unit} = {g:.3g} g, not 1 g{hint}")
 
 
-def _parse_body(path, header, lines, rows) -> np.ndarray:
-    n_cols = len(header)
-    try:
-        data = np.loadtxt(io.StringIO("\n".join(lines)), delimiter=",", ndmin=2, dtype=float)
-        if data.shape[1] == n_cols and np.all(np.isfinite(data)):
-            return data
-    except ValueError:
-        pass
-    # slow path: find the first bad cell and name it
-    for line, row in zip(lines, rows):
-        cells = line.split(",")
-        if len(cells) != n_cols:
-            raise RecordingError(path, f"expected {n_cols} cells, found {len(cells)}", row=row)
-        for name, cell in zip(header, cells):
-            try:
-                value = float(cell)
-            except ValueError:
-                raise RecordingError(path, f"expected a number, found {cell.strip()!r}", row=row, column=name) from None
-            if not np.isfinite(value):
-                raise RecordingError(path, f"expected a finite number, found {cell.strip()!r}", row=row, column=name)
-    raise RecordingError(path, "could not parse the data rows as numbers")
+def _check_time(table: Table) -> None:
+    if not table.has("t_s"):
+        return
+    t_s = table.column("t_s")
+    back = np.flatnonzero(t_s[1:] < t_s[:-1])
+    if back.size:
+        i = back[0]
+        raise RecordingError(table.path, f"t_s must not decrease (goes from {t_s[i]} to {t_s[i + 1]})",
+                             row=int(table.rows[i + 1]), column="t_s")
+
+
+def _check_field_ut(table: Table, meta_rows: dict) -> None:
+    """``# field_ut:`` must be |B| in uT: a positive finite number; warn outside the Earth's range."""
+    if "field_ut" not in table.metadata:
+        return
+    text = table.metadata["field_ut"]
+    value = _strict_float(text)
+    if value is None or not math.isfinite(value) or value <= 0:
+        raise RecordingError(table.path, f"metadata 'field_ut' must be |B| in uT, a positive number, got {text!r}",
+                             row=meta_rows.get("field_ut"), column="field_ut")
+    lo, hi = units.EARTH_FIELD_UT
+    if not 0.5 * lo <= value <= 2 * hi:
+        note(f"{table.path}: metadata field_ut {value:g} uT is not the Earth's {lo:g}-{hi:g} uT (gauss or nT?); "
+             "a coil's field may be")

@@ -12,7 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .table import RecordingError, Table, read_table
+from . import units
+from .table import ReadOptions, RecordingError, Table, read_table
 
 __all__ = ["TumbleRecording", "read_tumble", "tumble_from_table", "MAG_COLUMNS", "ACCEL_COLUMNS"]
 
@@ -51,9 +52,9 @@ class TumbleRecording:
     metadata: dict
 
 
-def read_tumble(path) -> TumbleRecording:
+def read_tumble(path, options: ReadOptions | None = None) -> TumbleRecording:
     """Read and validate a tumble recording; see :func:`tumble_from_table`."""
-    return tumble_from_table(read_table(path))
+    return tumble_from_table(read_table(path, options))
 
 
 def tumble_from_table(table: Table) -> TumbleRecording:
@@ -62,10 +63,18 @@ def tumble_from_table(table: Table) -> TumbleRecording:
     Raises
     ------
     RecordingError
-        A magnetometer column is missing, the accelerometer columns are incomplete, ``t_s``
-        decreases, or fewer than ``MIN_SAMPLES`` distinct magnetometer samples remain.
+        A magnetometer column is missing or constant, the accelerometer columns are incomplete,
+        or fewer than ``MIN_SAMPLES`` distinct magnetometer samples remain.
+
+    Warns
+    -----
+    RecordingWarning
+        Columns ignored; an accelerometer that reads -1 g on Z at the start's rest
+        (:func:`compass.io.units.check_accel_up`); a field strength that is not the Earth's in the
+        magnetometer unit named (:func:`compass.io.units.check_field_magnitude`).
     """
     mag = np.column_stack([table.column(c) for c in MAG_COLUMNS])
+    table.ignore_unknown(MAG_COLUMNS + ACCEL_COLUMNS + ("t_s", "temp_c"), what="a tumble calibration")
     present = [c for c in ACCEL_COLUMNS if table.has(c)]
     if present and len(present) < 3:
         missing = [c for c in ACCEL_COLUMNS if c not in present]
@@ -83,6 +92,22 @@ def tumble_from_table(table: Table) -> TumbleRecording:
         raise RecordingError(table.path, f"only {np.count_nonzero(keep)} distinct magnetometer samples "
                              f"(after dropping repeated values); a tumble calibration needs at least {MIN_SAMPLES}",
                              column="mx")
+    table.check_constant(MAG_COLUMNS)
     accel, t_s, temp_c = (None if a is None else a[keep] for a in (accel, t_s, temp_c))
+    if accel is not None:
+        units.check_accel_up(accel, table.rows[keep], where=table.path)
+    units.check_field_magnitude(sphere_radius(mag[keep]), "uT" if "mx" in table.units else None, where=table.path,
+                                what="the magnetometer's field strength (sphere fit radius)")
     return TumbleRecording(table.path, mag[keep], accel, t_s, temp_c, table.rows[keep],
                            int(np.count_nonzero(~keep)), dict(table.metadata))
+
+
+def sphere_radius(mag: np.ndarray) -> float:
+    """Radius of the sphere fitted to the samples (algebraic least squares: ``|m|^2 = 2 m.c + k``).
+
+    A first look at the field strength in the recording's unit, for the unit check; the
+    calibration proper fits an ellipsoid.
+    """
+    design = np.column_stack([2.0 * mag, np.ones(len(mag))])
+    solution = np.linalg.lstsq(design, np.einsum("ij,ij->i", mag, mag), rcond=None)[0]
+    return float(np.sqrt(max(solution[3] + solution[:3] @ solution[:3], 0.0)))

@@ -1,0 +1,234 @@
+"""Units of a recording's columns: named, converted, and checked against the physics.
+
+SPEC section 2 fixes few units (``t_s`` seconds, ``*_deg`` degrees, ``gx,gy,gz`` rad/s, the
+accelerometer "any unit" but reading specific force, +1 g up for a level housing at rest) and
+leaves the magnetic channels free.  Real logs bring deg/s gyros, m/s^2 accelerometers, gauss
+magnetometers and radians.  This module converts what the user (``--gyro-unit``,
+``--accel-unit``, ``--mag-unit``, ``--angle-unit``, ``--accel-sign``) or the log's own header
+(``Gyroscope X (deg/s)``) names, and checks the assumptions that can be checked from the data,
+with a :class:`RecordingWarning` that says what was seen and which option names the unit:
+
+- a gyro in deg/s read as rad/s turns 57 times more than the accelerometer sees the housing turn
+  (:func:`gyro_turn_ratio`);
+- a magnetometer in uT reads Earth's 25-65 uT (:func:`check_field_magnitude`);
+- angles in degrees that never leave 0..2*pi are radians (:func:`looks_like_radians`);
+- an accelerometer that reads -1 g on Z while the recording starts at rest (:func:`check_accel_up`);
+- a two-axis tilt sensor cannot tell upright from upside down (:func:`check_two_axis_tilt`).
+
+A warning never changes the data: the user names the unit and runs again.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+__all__ = ["RecordingWarning", "GYRO_UNITS", "ACCEL_UNITS", "MAG_UNITS", "ANGLE_UNITS", "STANDARD_GRAVITY",
+           "EARTH_FIELD_UT", "MAX_ABS_VALUE", "unit_of_header", "gyro_turn_ratio", "check_gyro_unit",
+           "check_field_magnitude", "looks_like_radians", "check_accel_up", "check_two_axis_tilt", "note"]
+
+STANDARD_GRAVITY = 9.80665
+"""m/s^2 per g."""
+GYRO_UNITS = {"rad/s": 1.0, "deg/s": np.pi / 180.0}
+"""Gyro units and their factor to rad/s (SPEC's unit)."""
+ACCEL_UNITS = {"g": 1.0, "m/s2": 1.0 / STANDARD_GRAVITY}
+"""Accelerometer units and their factor to g."""
+MAG_UNITS = {"uT": 1.0, "nT": 1e-3, "G": 100.0, "mG": 0.1}
+"""Magnetometer units and their factor to uT."""
+ANGLE_UNITS = {"deg": 1.0, "rad": 180.0 / np.pi}
+"""Units of the ``*_deg`` columns and their factor to degrees."""
+EARTH_FIELD_UT = (25.0, 65.0)
+"""The Earth's field strength at the surface, uT (World Magnetic Model: 22-67 at the extremes)."""
+MAX_ABS_VALUE = 1e12
+"""Largest magnitude a recording's cell may have.  No sensor output, time or angle reaches it in
+any unit: a 32-bit ADC counts to 4.3e9, the strongest steady laboratory field (45 T) is 4.5e10 nT,
+and a Unix time in seconds is 1.8e9.  A larger value is a corrupted cell (or a time in ns), and
+its square would already lose the precision every fit needs."""
+
+_UNIT_SPELLINGS = {
+    "gyro": {"rad/s": "rad/s", "rads": "rad/s", "rad/sec": "rad/s", "deg/s": "deg/s", "dps": "deg/s",
+             "deg/sec": "deg/s", "°/s": "deg/s"},
+    "accel": {"g": "g", "m/s2": "m/s2", "m/s^2": "m/s2", "m/s²": "m/s2", "mps2": "m/s2"},
+    "mag": {"ut": "uT", "µt": "uT", "μt": "uT", "nt": "nT", "g": "G", "gauss": "G", "mg": "mG", "mgauss": "mG"},
+}
+
+
+class RecordingWarning(UserWarning):
+    """Something in a recording the user should know: a unit that looks wrong, a column ignored.
+
+    The command line prints each as one line ``compass CMD: warning: ...`` on stderr.
+    """
+
+
+def note(message: str) -> None:
+    """Issue a :class:`RecordingWarning` (attributed to the caller's caller)."""
+    warnings.warn(message, RecordingWarning, stacklevel=3)
+
+
+def unit_of_header(kind: str, text: str) -> str | None:
+    """The unit a log's header names for a sensor (``"deg/s"`` from ``"Gyroscope X (deg/s)"``'s
+    ``"deg/s"``), None when it is not one of ours (``a.u.``, counts)."""
+    key = text.strip().replace(" ", "")
+    spellings = _UNIT_SPELLINGS[kind]
+    return spellings.get(key if kind == "accel" else key.lower(), spellings.get(key))
+
+
+def gyro_turn_ratio(t_s, gyro_rad_s, accel, *, window_s: float = 0.25, min_tilt_deg: float = 5.0) -> float | None:
+    """How much more the gyro says the housing turned than the accelerometer saw it tilt.
+
+    Over windows of ``window_s``, the integrated angular rate ``|sum(omega dt)|`` (the rotation
+    angle, exact for a fixed axis, to second order otherwise) is at least the angle between the
+    accelerometer's directions at the two ends (a turn about the vertical tilts nothing), and on a
+    hand-moved housing not many times more.  A gyro in deg/s read as rad/s gives about 57.3, one in
+    rad/s read as deg/s about 1/57.3.
+
+    Parameters
+    ----------
+    t_s : ndarray, shape (n,)
+        Non-decreasing time, s.
+    gyro_rad_s : ndarray, shape (n, 3)
+        Angular rate in the unit assumed (rad/s).
+    accel : ndarray, shape (n, 3)
+        Accelerometer, any unit.
+    window_s : float
+    min_tilt_deg : float
+        Windows where the accelerometer turns less are not used (noise and hand acceleration).
+
+    Returns
+    -------
+    float or None
+        The median ratio over the windows where the housing tilted (both ends quasi-static, within
+        5 % of the median ``|a|``), None when fewer than 5 such windows exist.
+    """
+    t_s, gyro, accel = (np.asarray(a, dtype=float) for a in (t_s, gyro_rad_s, accel))
+    if len(t_s) < 3 or not t_s[-1] > t_s[0]:
+        return None
+    dt = np.diff(t_s, prepend=t_s[0])
+    turned = np.cumsum(gyro * dt[:, None], axis=0)
+    norm = np.linalg.norm(accel, axis=1)
+    still = np.abs(norm - np.median(norm)) < 0.05 * np.median(norm)
+    end = np.searchsorted(t_s, t_s + window_s)
+    start = np.flatnonzero((end < len(t_s)) & still)
+    start = start[still[end[start]]]
+    if start.size == 0:
+        return None
+    stop = end[start]
+    unit = accel / np.where(norm > 0, norm, 1.0)[:, None]
+    tilt = np.degrees(np.arccos(np.clip(np.sum(unit[start] * unit[stop], axis=1), -1.0, 1.0)))
+    turn = np.degrees(np.linalg.norm(turned[stop] - turned[start], axis=1))
+    used = tilt > min_tilt_deg
+    if np.count_nonzero(used) < 5:
+        return None
+    return float(np.median(turn[used] / tilt[used]))
+
+
+def check_gyro_unit(t_s, gyro_rad_s, accel, *, named: bool, where: str) -> float | None:
+    """Warn when the gyro's turn does not match the accelerometer's (:func:`gyro_turn_ratio`).
+
+    ``named``: the user or the file named the unit (the warning then says the name looks wrong).
+    Returns the ratio.
+    """
+    ratio = gyro_turn_ratio(t_s, gyro_rad_s, accel)
+    if ratio is None:
+        return None
+    source = "as named" if named else "SPEC's unit, the default"
+    if ratio > 15.0:
+        note(f"{where}: the gyro gx,gy,gz read in rad/s ({source}) turns {ratio:.0f} times more than the "
+             f"accelerometer sees the housing tilt (a deg/s gyro read as rad/s gives 57): if it is in deg/s, "
+             f"say so with --gyro-unit deg/s")
+    elif ratio < 1.0 / 15.0:
+        note(f"{where}: the gyro gx,gy,gz read in rad/s ({source}) turns {1 / ratio:.0f} times less than the "
+             f"accelerometer sees the housing tilt (a rad/s gyro read as deg/s gives 1/57): if it is in rad/s, "
+             f"say so with --gyro-unit rad/s")
+    return ratio
+
+
+def check_field_magnitude(field_norm: float, unit: str | None, *, where: str, what: str) -> None:
+    """Warn when a magnetometer's field strength is not the Earth's in the unit named.
+
+    Parameters
+    ----------
+    field_norm : float
+        The field strength the data give (e.g. a sphere fit's radius), in the recording's unit.
+    unit : str or None
+        The magnetometer unit named (``MAG_UNITS``), None when the unit is free.  When None, a
+        strength of 0.25-0.65 (gauss) or 25000-65000 (nT) is pointed out, since naming the unit then
+        gives results in uT.
+    """
+    lo, hi = EARTH_FIELD_UT
+    if not np.isfinite(field_norm) or field_norm <= 0:
+        return
+    if unit is not None:
+        ut = field_norm * MAG_UNITS[unit]
+        if not 0.5 * lo <= ut <= 2.0 * hi:
+            guesses = [u for u, f in MAG_UNITS.items() if lo <= field_norm * f <= hi]
+            hint = f" ({field_norm:.3g} {guesses[0]} would be)" if guesses else ""
+            note(f"{where}: {what} is {field_norm:.3g} {unit} = {ut:.3g} uT, not the Earth's {lo:g}-{hi:g} uT{hint}: "
+                 f"is the magnetometer unit right (--mag-unit)? Iron nearby or a coil also change it")
+        return
+    for name in ("G", "nT"):
+        if lo <= field_norm * MAG_UNITS[name] <= hi:
+            note(f"{where}: {what} is {field_norm:.3g} in the recording's unit, the Earth's field if the unit is "
+                 f"{name}: name it with --mag-unit {name} to get results in uT (the unit is free otherwise)")
+
+
+def looks_like_radians(values) -> bool:
+    """True when angles said to be in degrees never leave [-2*pi, 2*pi] but do vary.
+
+    A turntable turned through a full circle in degrees leaves that interval; a few degrees of
+    real motion stay inside it, so callers apply this to columns that must span more than 2*pi
+    degrees when read correctly.
+    """
+    v = np.asarray(values, dtype=float)
+    return bool(v.size and np.all(np.abs(v) <= 2 * np.pi + 1e-6) and np.ptp(v) > 0.5)
+
+
+def check_accel_up(accel, rows, *, where: str, still_fraction: float = 0.05, min_rows: int = 10) -> None:
+    """Warn when the accelerometer reads -1 g on Z while the recording starts at rest.
+
+    SPEC: accelerometers read specific force, ``(0, 0, +1 g)`` for a level housing at rest.  A
+    tumble or attitude recording usually starts with the housing lying still and face up; one
+    that starts with ``az`` near ``-|a|`` either started upside down or reads gravity instead
+    (or has Z pointing down, as FRD and NED boards do).  Only the start is tested: a tumble turns
+    every face down later, legitimately.
+
+    Parameters
+    ----------
+    accel : ndarray, shape (n, 3)
+        As recorded (after any ``--accel-sign``), any unit.
+    rows : ndarray of int, shape (n,)
+        File line of every sample (for the message).
+    """
+    accel = np.asarray(accel, dtype=float)
+    n = len(accel)
+    head = max(min_rows, int(still_fraction * n))
+    if n < min_rows:
+        return
+    a = accel[:head]
+    norm = np.linalg.norm(a, axis=1)
+    ref = np.median(np.linalg.norm(accel, axis=1))
+    still = np.abs(norm - ref) < 0.05 * ref
+    if np.count_nonzero(still) < min_rows // 2:
+        return
+    z = np.median(a[still, 2] / norm[still])
+    if z < -0.9:
+        az = float(np.median(a[still, 2]))
+        note(f"{where}: the accelerometer reads az = {az:.3g} (|a| = {ref:.3g}) while still at the start "
+             f"(rows {int(rows[0])}-{int(rows[head - 1])}); SPEC's accelerometer reads specific force, +1 g on +Z "
+             f"for a level housing at rest. If the housing lay face up there, this one reads gravity or its Z axis "
+             f"points down: negate ax,ay,az with --accel-sign -1, or, for a board whose Y and Z point right and down "
+             f"(FRD), map both sensors with --columns ay=-ay,az=-az,my=-my,mz=-mz; if it really started upside "
+             f"down, ignore this")
+
+
+def check_two_axis_tilt(n_flipped: int, n_rows: int, *, where: str) -> None:
+    """Say that a two-axis tilt sensor's ``az`` is assumed positive, and how many rows contradict it.
+
+    ``n_flipped``: rows whose field agrees with the calibration only if the housing is upside down.
+    """
+    if n_flipped == 0:
+        return
+    note(f"{where}: the calibration's tilt sensor has two axes (ax, ay) and cannot tell an upright housing from "
+         f"one upside down; az is assumed positive (upper side up), but in {n_flipped} of {n_rows} rows the field "
+         f"fits the calibration only upside down: record az, or keep the housing upright")

@@ -1,0 +1,281 @@
+"""Benchmark of time and memory against recording size: a 50 MB recording of each kind.
+
+For each kind (four-flip, tumble, 3-D platform, reference fields, attitude) a seeded simulated
+recording of about ``--mb`` megabytes is written (the simulators' sessions, made longer: a finer
+turntable step, more repeats per pose or field, a tumble path replayed with fresh noise), then
+each step runs in its own child process, which reports its peak resident memory (``VmHWM``) as
+it ends and is killed after ``--timeout`` seconds:
+
+- ``np.loadtxt``: the file parsed by numpy alone (the reference the reader is held to: within 2x);
+- ``read_table``: the toolkit's reader (this tree, and the baseline revision in the same run);
+- the command: ``compass calibrate REC --out CAL --quiet`` (``compass attitude CAL REC --out ATT``
+  for the attitude recording), this tree and the baseline.
+
+Targets (issue 16.7): every kind under a minute and under 1 GB; the reader within 2x of
+``np.loadtxt``'s memory (issue 15.7).  With ``--profile`` the slowest command that ran out of time
+is profiled in-process on a recording a tenth the size (cProfile, top functions by cumulative time).
+
+Usage: ``python tools/bench_scale.py [--quick] [--mb 50] [--timeout 120] [--baseline REF|none] [--kinds ...]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+KINDS = ("fourflip", "tumble", "platform3d", "reference", "attitude")
+
+
+# ---- recordings --------------------------------------------------------------------------------
+
+def _write(path: Path, columns, data: np.ndarray, fmt: str, metadata: dict) -> None:
+    with open(path, "w") as f:
+        for k, v in metadata.items():
+            f.write(f"# {k}: {v}\n")
+        np.savetxt(f, data, fmt=fmt, delimiter=",", header=",".join(columns), comments="")
+
+
+def _header_lines(path: Path) -> int:
+    """Lines up to and including the header (metadata comments, then the header)."""
+    with open(path) as f:
+        return next(i for i, line in enumerate(f, start=1) if not line.startswith("#"))
+
+
+def _rows_for(mb: float, bytes_per_row: float) -> int:
+    return max(int(mb * 1e6 / bytes_per_row), 100)
+
+
+def make_recording(kind: str, folder: Path, mb: float) -> tuple[Path, int]:
+    """A seeded recording of about ``mb`` MB; returns (path, rows)."""
+    path = folder / f"{kind}.csv"
+    rng = np.random.default_rng(1)
+    if kind == "fourflip":
+        from compass.sim.fourflip import simulate_fourflip
+
+        rows = _rows_for(mb, 44.0)
+        s = simulate_fourflip(seed=1, step_deg=4 * 360.0 / rows)
+        data = np.column_stack([s.samples.flip_deg, s.samples.platform_deg, s.outputs])
+        _write(path, ["flip_deg", "platform_deg", *s.channels], data, "%.4f", {"field_ut": 50})
+    elif kind == "tumble":
+        from compass.sim.tumble import simulate_tumble
+
+        rows = _rows_for(mb, 70.0)
+        base = simulate_tumble(seed=1, n=min(rows, 20000))
+        reps = -(-rows // len(base.t_s))
+        mag = np.tile(base.mag, (reps, 1))[:rows] + rng.normal(scale=0.3, size=(rows, 3))
+        accel = np.tile(base.accel, (reps, 1))[:rows] + rng.normal(scale=0.005, size=(rows, 3))
+        t_s = np.arange(rows) * (base.t_s[1] - base.t_s[0])
+        _write(path, ["t_s", "mx", "my", "mz", "ax", "ay", "az"], np.column_stack([t_s, mag, accel]), "%.5f", {})
+    elif kind == "platform3d":
+        from compass.sim.platform3d import simulate_platform3d
+
+        rows = _rows_for(mb, 78.0)
+        s = simulate_platform3d(seed=1, repeats=max(rows // 144, 1))
+        rows = len(s.mag)
+        _write(path, ["platform_z_deg", "platform_y_deg", "platform_x_deg", "mx", "my", "mz", "ax", "ay"],
+               np.column_stack([s.angles_deg, s.mag, s.tilt]), "%.6f", {"field_ut": 50})
+    elif kind == "reference":
+        from compass.sim.reference import simulate_reference
+
+        rows = _rows_for(mb, 90.0)
+        s = simulate_reference(seed=1, n_sensors=1, n_fields=1000, repeats=max(rows // 1000, 1))
+        rows = len(s.reference)
+        _write(path, ["bx_ref", "by_ref", "bz_ref", "s1_x", "s1_y", "s1_z"],
+               np.column_stack([s.reference, s.outputs["s1"]]), "%.6f", {})
+    else:
+        raise ValueError(kind)
+    return path, rows
+
+
+def make_attitude(folder: Path, mb: float, env: dict) -> tuple[Path, Path, int]:
+    """A four-flip calibration (1-degree bench) and an attitude recording of its sensor."""
+    from compass.sim.fourflip import simulate_fourflip, write_fourflip
+    from compass.sim.runtime import simulate_runtime
+
+    session = simulate_fourflip(seed=2)
+    bench, _ = write_fourflip(session, folder / "bench.csv")
+    cal = folder / "bench.json"
+    subprocess.run([sys.executable, "-m", "compass", "calibrate", str(bench), "--out", str(cal), "--quiet"],
+                   env=env, check=True, capture_output=True, timeout=600)
+    rows = _rows_for(mb, 66.0)
+    run = simulate_runtime(session.truth, rows, seed=3)
+    path = folder / "attitude.csv"
+    _write(path, ["t_s", *run.channels, "ax", "ay", "az"], np.column_stack([run.t_s, run.outputs, run.accel]),
+           "%.5f", {})
+    return cal, path, rows
+
+
+# ---- child processes ---------------------------------------------------------------------------
+
+_HWM_WRAPPER = """
+import os, runpy, sys
+def report():
+    with open('/proc/self/status') as f:
+        hwm = next(line.split()[1] for line in f if line.startswith('VmHWM:'))
+    with open(os.environ['BENCH_HWM_FILE'], 'w') as f:
+        f.write(hwm)
+mode, target, *sys.argv[1:] = sys.argv[1:]
+try:
+    if mode == '-m':
+        sys.argv[0] = target
+        runpy.run_module(target, run_name='__main__', alter_sys=True)
+    else:
+        exec(compile(target, '<bench>', 'exec'), {'__name__': '__main__'})
+except SystemExit:
+    pass
+finally:
+    report()
+"""
+
+
+def run_child(argv, env, timeout_s: float) -> dict:
+    """Run one Python process; its wall time, peak RSS (MB), exit status; killed at the timeout.
+
+    ``argv`` is ``["-m", module, args...]`` or ``["-c", code]``.  The peak is the process's own
+    ``VmHWM`` (read from ``/proc/self/status`` as it ends): ``ru_maxrss`` of a child would count the
+    pages it shared with this (larger) process between fork and exec.
+    """
+    with tempfile.TemporaryFile() as log, tempfile.NamedTemporaryFile("r") as hwm:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, "-c", _HWM_WRAPPER, *argv], stdout=log, stderr=subprocess.STDOUT,
+                                env=dict(env, BENCH_HWM_FILE=hwm.name), cwd=tempfile.gettempdir())
+        polled_kb, killed = 0.0, False
+        while proc.poll() is None:  # the high-water mark so far, for a process killed at the timeout
+            polled_kb = max(polled_kb, _vm_hwm_kb(proc.pid))
+            if time.perf_counter() - t0 > timeout_s:
+                proc.kill()
+                killed = True
+                break
+            time.sleep(0.2)
+        code = proc.wait()
+        seconds = time.perf_counter() - t0
+        log.seek(0)
+        tail = log.read().decode(errors="replace").strip().splitlines()[-1:] or [""]
+        peak_kb = hwm.read().strip()
+    return {"s": seconds, "mb": (float(peak_kb) if peak_kb else polled_kb) / 1024.0, "code": code,
+            "timeout": killed, "tail": tail[0]}
+
+
+def _vm_hwm_kb(pid: int) -> float:
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            return float(next(line.split()[1] for line in f if line.startswith("VmHWM:")))
+    except (OSError, StopIteration):
+        return 0.0
+
+
+def tree_env(tree: Path | None) -> dict:
+    env = dict(os.environ, MPLBACKEND="Agg")
+    if tree is not None:
+        env["PYTHONPATH"] = str(tree) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def export_tree(ref: str, folder: Path) -> Path:
+    tree = folder / "baseline"
+    tree.mkdir()
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", ref], check=True, capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
+    return tree
+
+
+def fmt(r: dict | None) -> str:
+    if r is None:
+        return "-"
+    if r["timeout"]:
+        return f"> {r['s']:.0f} s (killed), >= {r['mb']:.0f} MB"
+    if r["code"] != 0:
+        return f"exit {r['code']} ({r['s']:.1f} s, {r['mb']:.0f} MB)"
+    return f"{r['s']:.1f} s, {r['mb']:.0f} MB"
+
+
+def profile(kind: str, rec: Path, cal: Path | None, folder: Path) -> None:
+    """cProfile of this tree's command on ``rec`` in-process; prints the top 15 by cumulative time."""
+    import cProfile
+    import pstats
+
+    from compass.cli import main
+
+    out = folder / f"profile_{kind}.out"
+    argv = (["attitude", str(cal), str(rec), "--out", str(out), "--force"] if kind == "attitude"
+            else ["calibrate", str(rec), "--out", str(out), "--quiet", "--force"])
+    prof = cProfile.Profile()
+    t0 = time.perf_counter()
+    prof.runcall(main, argv)
+    print(f"\nprofile of {kind} on {rec.stat().st_size / 1e6:.1f} MB ({time.perf_counter() - t0:.1f} s), "
+          "top 15 by cumulative time:")
+    pstats.Stats(prof).sort_stats("cumulative").print_stats(15)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="5 MB recordings, 60 s timeout")
+    parser.add_argument("--mb", type=float, default=50.0, help="recording size, MB (default 50)")
+    parser.add_argument("--timeout", type=float, default=120.0, help="seconds before a command is killed")
+    parser.add_argument("--baseline", default="main", help="git revision to compare with ('none' to skip)")
+    parser.add_argument("--kinds", nargs="+", choices=KINDS, default=list(KINDS))
+    parser.add_argument("--profile", action="store_true",
+                        help="profile (in-process, a tenth the size) each kind whose command ran out of time or over 60 s")
+    args = parser.parse_args()
+    mb, timeout = (5.0, 60.0) if args.quick else (args.mb, args.timeout)
+    results = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        trees = [("this tree", None)]
+        if args.baseline != "none":
+            trees.append((f"baseline {args.baseline}", export_tree(args.baseline, folder)))
+        for kind in args.kinds:
+            t0 = time.perf_counter()
+            cal = None
+            if kind == "attitude":
+                cal, rec, rows = make_attitude(folder, mb, tree_env(None))
+            else:
+                rec, rows = make_recording(kind, folder, mb)
+            size = rec.stat().st_size / 1e6
+            print(f"{kind}: {size:.1f} MB, {rows} rows (written in {time.perf_counter() - t0:.1f} s)", flush=True)
+            row = {"size": size, "rows": rows}
+            skip = _header_lines(rec)
+            row["loadtxt"] = run_child(["-c", f"import numpy as np; np.loadtxt({str(rec)!r}, delimiter=',', "
+                                              f"skiprows={skip}, ndmin=2)"], tree_env(None), timeout)
+            for label, tree in trees:
+                row[f"read {label}"] = run_child(["-c", f"from compass.io.table import read_table; "
+                                                        f"read_table({str(rec)!r})"], tree_env(tree), timeout)
+                out = folder / f"out_{kind}_{label.split()[0]}"
+                argv = (["-m", "compass", "attitude", str(cal), str(rec), "--out", str(out) + ".csv"]
+                        if kind == "attitude" else
+                        ["-m", "compass", "calibrate", str(rec), "--out", str(out) + ".json", "--quiet"])
+                row[f"command {label}"] = run_child(argv, tree_env(tree), timeout)
+                r = row[f"command {label}"]
+                print(f"  {label}: read {fmt(row[f'read {label}'])}; command {fmt(r)}"
+                      + (f"  [{r['tail'][:120]}]" if r["code"] != 0 and not r["timeout"] else ""), flush=True)
+            results[kind] = row
+            if args.profile and (row["command this tree"]["timeout"] or row["command this tree"]["s"] > 60):
+                small = folder / "small"
+                small.mkdir(exist_ok=True)
+                small_cal, small_rec, _ = (make_attitude(small, mb / 10, tree_env(None)) if kind == "attitude"
+                                           else (None, *make_recording(kind, small, mb / 10)))
+                profile(kind, small_rec, small_cal, folder)
+    labels = [label for label, _ in trees]
+    print(f"\nscale: ~{mb:g} MB recordings, one child process per cell, peak RSS its VmHWM, killed after {timeout:g} s")
+    print("targets: command < 60 s and < 1024 MB; reader < 2x np.loadtxt's memory")
+    head = ["kind", "MB", "rows", "np.loadtxt"] + [f"read_table ({lb})" for lb in labels] \
+        + [f"command ({lb})" for lb in labels] + ["reader/loadtxt memory"]
+    print(" | ".join(head))
+    for kind, row in results.items():
+        ratio = row["read this tree"]["mb"] / row["loadtxt"]["mb"] if row["loadtxt"]["mb"] else float("nan")
+        cells = [kind, f"{row['size']:.1f}", str(row["rows"]), fmt(row["loadtxt"])] \
+            + [fmt(row[f"read {lb}"]) for lb in labels] + [fmt(row[f"command {lb}"]) for lb in labels] + [f"{ratio:.2f}"]
+        print(" | ".join(cells))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
