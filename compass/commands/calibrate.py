@@ -29,6 +29,12 @@ def register(sub) -> None:
                                                 "or any kind in calibrate.kinds.KINDS)")
     p.add_argument("--ellipsoid", choices=("auto", "offset", "diagonal", "full"), default="auto",
                    help="tumble only: ellipsoid kind (default auto: the determined kind with the lowest BIC)")
+    p.add_argument("--base", metavar="BENCH.json",
+                   help="the recording is an installation (the module turned in its product, a tumble or a swing): "
+                        "calibrate the product's iron on top of this bench calibration")
+    p.add_argument("--site", metavar="LAT,LON[,ALT_M]", help="with --base: where the installation was recorded "
+                   "(the WMM's |B| and dip; written into the file for the runtime)")
+    p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day (default today, UTC)")
     p.add_argument("--force", action="store_true", help="overwrite an existing calibration file")
     p.add_argument("--quiet", action="store_true", help="do not print the fit report")
     add_rerun_option(p)
@@ -39,7 +45,8 @@ def run(args) -> int:
     target = check_rerun_target(args.rerun, args.force)
     result = calibrate_file(args.recording, args.out, method=args.method, diagnose=not args.no_diagnose,
                             report=args.report, field_ut=args.field_ut, kind=args.kind, force=args.force,
-                            quiet=args.quiet, ellipsoid=args.ellipsoid)
+                            quiet=args.quiet, ellipsoid=args.ellipsoid, base=args.base, site=args.site,
+                            date=args.date)
     if target is not None:
         from ..viz.calibration import record_calibration
 
