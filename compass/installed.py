@@ -135,26 +135,36 @@ def installed_model(base: SensorModel, hard_iron, soft_iron, covariance=None, al
 
 
 def from_installed_json(d: dict) -> SensorModel:
-    """The runtime model of an installed calibration file's dictionary.
+    """The runtime model of an installed calibration file's dictionary (the bench's read by
+    :func:`compass.calibration_file.from_dict`).
 
     Raises
     ------
-    ValueError
-        Missing or invalid ``base`` or ``installation``.
+    CalibrationFileError
+        Missing or invalid ``base`` or ``installation``, naming the key.
     """
+    from .calibration_file import CalibrationFileError, from_dict
+
     base_doc, inst = d.get("base"), d.get("installation")
-    if not isinstance(base_doc, dict) or not isinstance(inst, dict):
-        raise ValueError("installed calibration: expected 'base' (the bench calibration) and 'installation' objects")
-    base = SensorModel.from_json(base_doc)
+    if not isinstance(base_doc, dict):
+        raise CalibrationFileError("must be the bench calibration (an object)", key="base")
+    if not isinstance(inst, dict):
+        raise CalibrationFileError("must be an object with hard_iron_ut and soft_iron", key="installation")
+    try:
+        base = from_dict(base_doc)
+    except CalibrationFileError as exc:
+        raise CalibrationFileError(exc.reason, key=f"base.{exc.key}" if exc.key else "base") from None
+    if base.kind == "installed":
+        raise CalibrationFileError("must be a bench calibration, not another installed one", key="base")
     hard = _array(inst, "hard_iron_ut", (3,))
     soft = _array(inst, "soft_iron", (3, 3))
     if not np.allclose(soft, soft.T, atol=1e-9) or np.linalg.eigvalsh(soft).min() <= 0:
-        raise ValueError("installation: 'soft_iron' must be symmetric positive definite")
+        raise CalibrationFileError("must be symmetric positive definite", key="installation.soft_iron")
     cov = None if inst.get("covariance") is None else _array(inst, "covariance", (9, 9))
     align = None if inst.get("alignment") is None else _array(inst, "alignment", (3, 3))
     if align is not None and (not np.allclose(align @ align.T, np.eye(3), atol=1e-6) or np.linalg.det(align) < 0):
-        raise ValueError("installation: 'alignment' must be a rotation matrix")
-    return installed_model(base, hard, soft, cov, align)
+        raise CalibrationFileError("must be a rotation matrix", key="installation.alignment")
+    return installed_model(base.model, hard, soft, cov, align)
 
 
 def accel_to_product(document: dict, accel):
@@ -167,10 +177,12 @@ def accel_to_product(document: dict, accel):
 
 
 def _array(d: dict, key: str, shape) -> np.ndarray:
+    from .calibration_file import CalibrationFileError
+
     try:
         out = np.asarray(d[key], dtype=float)
     except (KeyError, TypeError, ValueError):
         out = None
     if out is None or out.shape != shape or not np.all(np.isfinite(out)):
-        raise ValueError(f"installation: '{key}' must be finite numbers of shape {shape}, got {d.get(key)!r}")
+        raise CalibrationFileError(f"must be finite numbers of shape {shape}", key=f"installation.{key}")
     return out

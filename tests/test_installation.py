@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from calibrate import calibrate_fourflip
-from calibrate.installation import InstallationCalibrator, InstallationRefused, deviation_card
+from calibrate.contract import CannotCalibrate
+from calibrate.installation import InstallationCalibrator, deviation_card
 from compass.attitude import solve_attitude
 from compass.cli import main
 from compass.installed import installed_model
@@ -42,7 +43,7 @@ def fit(bench, rec, **options):
     model, doc, _, folder = bench
     path, _ = write_installation(rec, folder / f"inst_{rec.kind}_{rec.truth['seed']}.csv", force=True)
     parsed = installation_from_table(read_table(path), model.channels)
-    return InstallationCalibrator(base=model, base_document=doc, **options).fit(parsed)
+    return InstallationCalibrator(base=folder / "bench.json", **options).fit(parsed)
 
 
 def at_another_site(bench, inst, result, tilt=30.0):
@@ -92,7 +93,7 @@ def test_level_swing_finds_the_horizontal_hard_iron_and_names_what_it_cannot_see
     # the deviation card: the bench model alone deviates once a turn (hard iron), the plot is written
     card = result.card_before
     assert max(abs(card.coefficients_deg["B"]), abs(card.coefficients_deg["C"])) > 3.0
-    assert [p.name for p in result.plots(folder / "report")] == ["deviation_card.png"]
+    assert [p.name for p in result.plots(None, folder / "report")] == ["deviation_card.png"]
 
 
 def test_tilted_swing_with_heading_reference_fits_the_yaw(bench):
@@ -138,7 +139,7 @@ def test_refuses_a_recording_without_a_turn(bench):
 
     still = replace(rec, outputs=np.repeat(rec.outputs[:1], 200, axis=0) + 1e-4 * np.arange(200)[:, None],
                     accel=np.repeat(rec.accel[:1], 200, axis=0))
-    with pytest.raises(InstallationRefused, match="turned through only"):
+    with pytest.raises(CannotCalibrate, match="turned through only"):
         fit(bench, still)
 
 
@@ -173,8 +174,9 @@ def test_cli_installation_end_to_end(bench, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--site", "1,2"], "go with --base"),
+    (["--site", "1,2"], "cannot tell the recording kind"),
     (["--base", "MISSING.json"], "cannot read calibration"),
+    (["--base", "BENCH", "--site", "95,0"], "latitude"),
     (["--base", "BENCH", "--date", "2026-01-01"], "--date needs --site"),
 ])
 def test_cli_installation_bad_input(bench, tmp_path, capsys, args, message):

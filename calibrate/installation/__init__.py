@@ -7,7 +7,6 @@ the installed calibration file).
 """
 
 from .card import DeviationCard, deviation_card
-from .fit import InstallationCalibration, InstallationCalibrator, InstallationRefused
+from .fit import InstallationCalibration, InstallationCalibrator
 
-__all__ = ["DeviationCard", "deviation_card", "InstallationCalibration", "InstallationCalibrator",
-           "InstallationRefused"]
+__all__ = ["DeviationCard", "deviation_card", "InstallationCalibration", "InstallationCalibrator"]

@@ -47,12 +47,14 @@ from scipy.spatial.transform import Rotation
 from compass.attitude import two_vector_rotation
 from compass.frames import heading_pitch_roll
 from compass.installed import SOFT_IRON_ENTRIES, installed_model, soft_iron_basis
+from compass.calibration_file import header
 from compass.model import SensorModel
 
 from .._evidence import DECISIVE_BIC
+from ..contract import Calibration, Calibrator, CannotCalibrate
 from .card import DeviationCard, deviation_card
 
-__all__ = ["InstallationRefused", "InstallationCalibrator", "InstallationCalibration", "PARAMETERS"]
+__all__ = ["InstallationCalibrator", "InstallationCalibration", "PARAMETERS"]
 
 PRIOR_HARD_IRON_UT = 20.0
 PRIOR_SOFT_IRON = 0.05
@@ -78,10 +80,6 @@ _WORDS = {
     "scale": ("the overall scale of the soft iron: it trades with |B| at the site, so trace(S) = 3 is assumed "
               "(give --site to tie |B| to the WMM's); heading and tilt do not depend on it"),
 }
-
-
-class InstallationRefused(ValueError):
-    """The recording cannot calibrate the installation (says why)."""
 
 
 @dataclass(frozen=True)
@@ -111,7 +109,7 @@ class _Fit:
 
 
 @dataclass(frozen=True)
-class InstallationCalibration:
+class InstallationCalibration(Calibration):
     """The installation calibrated on top of a bench model (SPEC section 2's installed file).
 
     Attributes
@@ -168,6 +166,25 @@ class InstallationCalibration:
     base_document: dict = field(repr=False)
     site: dict | None = None
 
+    calibration_kind = "installed"
+
+    @property
+    def parameters(self) -> dict:
+        """Name -> (value, sigma): hard iron (field units), soft-iron entries, |B|, dip, yaw."""
+        out = {name: (float(v), float(s)) for name, v, s in zip(
+            PARAMETERS, np.concatenate([self.hard_iron_ut, _entries(self.soft_iron)]),
+            np.concatenate([self.hard_iron_sigma_ut, self.soft_iron_sigma]))}
+        out["field_magnitude"] = (self.field_magnitude, None)
+        out["dip_deg"] = (self.dip_deg, self.dip_sigma_deg)
+        if self.yaw_deg is not None:
+            out["yaw_deg"] = (self.yaw_deg, self.yaw_sigma_deg)
+        return out
+
+    @property
+    def warnings(self) -> tuple:
+        """What the rotations did not determine, in words."""
+        return tuple(f"not determined by this recording: {w}" for w in self.undetermined)
+
     @property
     def alignment(self) -> np.ndarray | None:
         return None if self.yaw_deg is None else Rotation.from_euler("z", self.yaw_deg, degrees=True).as_matrix()
@@ -175,9 +192,7 @@ class InstallationCalibration:
     def to_json(self) -> dict:
         """The installed calibration file (SPEC section 2)."""
         sigma = {name: float(s) for name, s in zip(PARAMETERS, np.sqrt(np.diag(self.covariance)))}
-        out = {
-            "format": "compass-calibration/1",
-            "model": "installed",
+        out = header("installed") | {
             "base": self.base_document,
             "installation": {
                 "kind": self.kind,
@@ -194,11 +209,11 @@ class InstallationCalibration:
                 "deviation_card": None if self.card_before is None else {
                     "before": self.card_before.to_json(),
                     "after": None if self.card_after is None else self.card_after.to_json()},
-                "diagnosis": self.diagnosis,
             },
             "dip_deg": self.dip_deg,
             "dip_sigma_deg": self.dip_sigma_deg,
             "field_ut": self.base_document.get("field_ut"),
+            "diagnosis": self.diagnosis,
         }
         if self.site is not None:
             out["site"] = self.site
@@ -232,7 +247,7 @@ class InstallationCalibration:
         lines += [f"    {line}" for line in d.get("remarks", [])]
         return "\n".join(lines)
 
-    def plots(self, folder) -> list:
+    def plots(self, recording=None, folder=".") -> list:
         """Write the deviation card (a swing) into ``folder``; returns the paths written."""
         from pathlib import Path
 
@@ -253,29 +268,32 @@ def _entries(soft: np.ndarray) -> np.ndarray:
     return np.array([d[0, 0], d[1, 1], d[2, 2], d[0, 1], d[0, 2], d[1, 2]])
 
 
-class InstallationCalibrator:
+class InstallationCalibrator(Calibrator):
     """Fit the installation of a bench-calibrated module in its product (module docstring).
 
     Parameters
     ----------
-    base : SensorModel
-        The bench calibration's model.
-    base_document : dict
-        The bench calibration file, kept whole in the result.
-    site : compass.site.Site, optional
-        Where the installation was recorded: the WMM's |B| and dip become priors, the ``site``
-        block is written, and a true ``heading_ref_deg`` is turned magnetic.
+    base : str, Path or compass.calibration_file.CalibrationFile, optional
+        The bench calibration (``--base``); default the recording's ``# base:`` metadata (a path
+        relative to the recording).
+    site : str or compass.site.Site, optional
+        Where the installation was recorded (``LAT,LON[,ALT_M]``): the WMM's |B| and dip become
+        priors, the ``site`` block is written, and a true ``heading_ref_deg`` is turned magnetic.
+    date : str, optional
+        With ``site``: the day, ``YYYY-MM-DD`` (default today, UTC).
     accel_noise_g : float
         Accelerometer white noise per axis, fraction of g.
     diagnose : bool
         Run the residual diagnosis.
     """
 
-    def __init__(self, *, base: SensorModel, base_document: dict, site=None, accel_noise_g: float = 0.002,
-                 diagnose: bool = True):
+    kind = "installed"
+    draws_plots = True
+
+    def __init__(self, *, base=None, site=None, date=None, accel_noise_g: float = 0.002, diagnose: bool = True):
         self.base = base
-        self.base_document = base_document
         self.site = site
+        self.date = date
         self.accel_noise_g = accel_noise_g
         self.diagnose = diagnose
 
@@ -284,27 +302,34 @@ class InstallationCalibrator:
 
         Raises
         ------
-        InstallationRefused
-            Too few quiet rows, a turn too small to say anything, or a true heading reference without a site.
+        CannotCalibrate
+            No bench calibration, one that is not the recording's sensor, too few quiet rows, a turn
+            too small to say anything, or a true heading reference without a site.
         """
-        base = self.base
-        if base.noise is None:
-            raise InstallationRefused("the bench calibration has no noise_floor: the rows cannot be weighted")
+        bench, site = _bench(self.base, rec), _site(self.site, self.date)
+        base, base_document = bench.model, bench.data
+        missing = [c for c in base.channels if c not in rec.channels]
+        extra = [c for c in rec.channels if c not in base.channels]
+        if missing or extra:
+            raise CannotCalibrate(f"{rec.path}: its channels ({', '.join(rec.channels)}) are not the bench "
+                                  f"calibration's ({', '.join(base.channels)})")
+        order = [rec.channels.index(c) for c in base.channels]
+        rec = replace(rec, channels=base.channels, raw=rec.raw[:, order])
         b, in_range = base.field(rec.raw, rec.temp_c)
         a_norm = np.linalg.norm(rec.accel, axis=1)
         quiet = (np.abs(a_norm / np.median(a_norm) - 1.0) < _QUIET) & np.all(np.isfinite(b), axis=1)
         if np.sum(quiet) < 30:
-            raise InstallationRefused(f"{rec.path}: only {int(np.sum(quiet))} rows read gravity alone (|a| within "
+            raise CannotCalibrate(f"{rec.path}: only {int(np.sum(quiet))} rows read gravity alone (|a| within "
                                       f"2 % of g); turn the product slowly and record at rest")
         p = base.solver
         sigma_b = float(np.sqrt(np.trace(p @ np.diag(base.component_noise**2) @ p.T) / 3.0))
         u = rec.accel / a_norm[:, None]
         heading_ref, declination = rec.heading_ref_deg, None
         if heading_ref is not None and rec.heading_ref_true:
-            if self.site is None:
-                raise InstallationRefused(f"{rec.path}: heading_ref_deg is a true heading (# heading_ref: true): give "
+            if site is None:
+                raise CannotCalibrate(f"{rec.path}: heading_ref_deg is a true heading (# heading_ref: true): give "
                                           f"--site so that the declination can be taken off")
-            declination = self.site.field().declination_deg
+            declination = site.field().declination_deg
             heading_ref = heading_ref - declination
         effects = {}
         if rec.t_s is not None and np.ptp(rec.t_s[quiet]) > 0:
@@ -317,9 +342,9 @@ class InstallationCalibrator:
                      None if heading_ref is None else heading_ref[quiet], effects)
         turn = _turn_deg(data.b, data.u)
         if turn < 90.0:
-            raise InstallationRefused(f"{rec.path}: the field turned through only {turn:.0f} deg about the vertical: "
+            raise CannotCalibrate(f"{rec.path}: the field turned through only {turn:.0f} deg about the vertical: "
                                       f"a swing needs a full turn of heading, a tumble every orientation")
-        priors = self._priors()
+        priors = _priors(base, site)
         base_fit = _fit(data, (), priors)
         if data.heading_ref is not None:  # weigh the reference by its own noise, from what the fit leaves of it
             data = replace(data, heading_sigma_deg=max(base_fit.heading_rms_deg, 0.01))
@@ -327,51 +352,89 @@ class InstallationCalibrator:
         current, steps, not_claimed = base_fit, [{"model": "base", "residual_rms": base_fit.residual_rms_ut}], []
         if self.diagnose:
             current, steps, not_claimed = _diagnose(data, priors, base_fit, steps)
-        return self._result(rec, data, current, steps, not_claimed, quiet, b, in_range, priors)
+        return _result(rec, data, current, steps, not_claimed, quiet, in_range, priors, base, base_document, site)
 
-    # ------------------------------------------------------------------ internals
+def _bench(base, rec):
+    """The bench calibration: ``base`` (path or loaded file), else the recording's ``# base:`` metadata."""
+    from pathlib import Path
 
-    def _priors(self) -> dict:
-        priors = {}
-        if self.site is not None:
-            f = self.site.field()
-            if self.base.field_ut is not None:
-                priors["field"] = (f.field_ut, f.field_sigma_ut)
-            priors["dip"] = (f.dip_deg, f.dip_sigma_deg)
-        return priors
+    from compass.calibration_file import CalibrationFile, CalibrationFileError, load
 
-    def _result(self, rec, data, fit, steps, not_claimed, quiet, b, in_range, priors) -> InstallationCalibration:
-        x, cov = fit.x, fit.covariance
-        h, d = x[:3], x[3:9]
-        soft = np.eye(3) + np.einsum("k,kij->ij", d, soft_iron_basis())
-        cov9 = cov[:9, :9]
-        sig = np.sqrt(np.diag(cov))
-        yaw = None if data.heading_ref is None else float(x[11])
-        yaw_sigma = None if yaw is None else float(sig[11])
-        undetermined = _undetermined(fit, scale_free="field" not in priors)
-        alignment = None if yaw is None else Rotation.from_euler("z", yaw, degrees=True).as_matrix()
-        model = installed_model(self.base, h, soft, cov9, alignment)
-        card_before = card_after = None
-        if rec.kind == "swing":
-            card_before, card_after = _cards(self.base, model, rec, quiet, data, alignment)
-        noise_floor = data.sigma_b
-        dof = fit.n_rows - 1
-        unexplained = bool(fit.chi2_mag > dof + 5.0 * np.sqrt(2.0 * dof))
-        remarks = list(not_claimed)
-        if unexplained:
-            remarks.append("the |B| residual stays above the bench's noise floor: structure the installation model "
-                           "does not explain (a nonlinear or field-dependent iron, a field that changed during the "
-                           "recording, or a bench model that does not fit this sensor)")
-        diagnosis = {"noise_floor": noise_floor,
-                     "noise_floor_source": "the bench calibration's channel noise, through its sensing matrix",
-                     "steps": steps, "effects": list(fit.effects),
-                     "residual_rms_before": steps[0]["residual_rms"], "residual_rms_after": fit.residual_rms_ut,
-                     "unexplained": unexplained, "remarks": remarks,
-                     "rows_used": int(np.sum(quiet)), "rows_out_of_range": int(np.sum(~in_range))}
-        return InstallationCalibration(
-            rec.kind, h, sig[:3], soft, sig[3:9], cov9, float(x[9]), float(x[10]), float(sig[10]), yaw, yaw_sigma,
-            undetermined, card_before, card_after, diagnosis, int(np.sum(quiet)), fit.residual_rms_ut, model,
-            self.base_document, None if self.site is None else self.site.to_json())
+    if isinstance(base, CalibrationFile):
+        bench = base
+    else:
+        if base is None:
+            if not rec.metadata.get("base"):
+                raise CannotCalibrate(f"{rec.path}: an installation is calibrated on top of a bench calibration: "
+                                      f"give --base BENCH.json (or '# base: BENCH.json' in the recording)")
+            base = Path(rec.path).parent / rec.metadata["base"].strip()
+        try:
+            bench = load(base)
+        except CalibrationFileError as exc:
+            raise CannotCalibrate(f"--base {exc}") from None
+    if bench.kind == "installed":
+        raise CannotCalibrate(f"{bench.path}: already an installed calibration; give the bench calibration as --base")
+    if bench.model.noise is None:
+        raise CannotCalibrate(f"{bench.path}: the bench calibration has no noise_floor: the rows cannot be weighted")
+    return bench
+
+
+def _site(site, date):
+    from compass.site import Site
+
+    if site is None:
+        if date is not None:
+            raise CannotCalibrate("--date needs --site LAT,LON[,ALT_M]: the date only chooses the field at a site")
+        return None
+    try:
+        return site if isinstance(site, Site) else Site.parse(site, date)
+    except ValueError as exc:
+        raise CannotCalibrate(str(exc)) from None
+
+
+def _priors(base: SensorModel, site) -> dict:
+    priors = {}
+    if site is not None:
+        f = site.field()
+        if base.field_ut is not None:
+            priors["field"] = (f.field_ut, f.field_sigma_ut)
+        priors["dip"] = (f.dip_deg, f.dip_sigma_deg)
+    return priors
+
+
+def _result(rec, data, fit, steps, not_claimed, quiet, in_range, priors, base, base_document,
+            site) -> InstallationCalibration:
+    x, cov = fit.x, fit.covariance
+    h, d = x[:3], x[3:9]
+    soft = np.eye(3) + np.einsum("k,kij->ij", d, soft_iron_basis())
+    cov9 = cov[:9, :9]
+    sig = np.sqrt(np.diag(cov))
+    yaw = None if data.heading_ref is None else float(x[11])
+    yaw_sigma = None if yaw is None else float(sig[11])
+    undetermined = _undetermined(fit, scale_free="field" not in priors)
+    alignment = None if yaw is None else Rotation.from_euler("z", yaw, degrees=True).as_matrix()
+    model = installed_model(base, h, soft, cov9, alignment)
+    card_before = card_after = None
+    if rec.kind == "swing":
+        card_before, card_after = _cards(base, model, rec, quiet, data, alignment)
+    noise_floor = data.sigma_b
+    dof = fit.n_rows - 1
+    unexplained = bool(fit.chi2_mag > dof + 5.0 * np.sqrt(2.0 * dof))
+    remarks = list(not_claimed)
+    if unexplained:
+        remarks.append("the |B| residual stays above the bench's noise floor: structure the installation model "
+                       "does not explain (a nonlinear or field-dependent iron, a field that changed during the "
+                       "recording, or a bench model that does not fit this sensor)")
+    diagnosis = {"noise_floor": noise_floor,
+                 "noise_floor_source": "the bench calibration's channel noise, through its sensing matrix",
+                 "steps": steps, "effects": list(fit.effects),
+                 "residual_rms_before": steps[0]["residual_rms"], "residual_rms_after": fit.residual_rms_ut,
+                 "unexplained": unexplained, "remarks": remarks,
+                 "rows_used": int(np.sum(quiet)), "rows_out_of_range": int(np.sum(~in_range))}
+    return InstallationCalibration(
+        rec.kind, h, sig[:3], soft, sig[3:9], cov9, float(x[9]), float(x[10]), float(sig[10]), yaw, yaw_sigma,
+        undetermined, card_before, card_after, diagnosis, int(np.sum(quiet)), fit.residual_rms_ut, model,
+        base_document, None if site is None else site.to_json())
 
 
 def _turn_deg(b: np.ndarray, u: np.ndarray) -> float:

@@ -63,12 +63,13 @@ def _base_residuals(result):
 
 
 OPTIONS = {"method": ("--method", "ml"), "diagnose": ("--no-diagnose", True), "field_ut": ("--field-ut", None),
-           "ellipsoid": ("--ellipsoid", "auto")}
+           "ellipsoid": ("--ellipsoid", "auto"), "base": ("--base", None), "site": ("--site", None),
+           "date": ("--date", None)}
 """Calibrator option -> (command-line flag, default): passed to the kinds whose calibrator takes it."""
 
 
 def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, field_ut=None, kind=None,
-                   force=False, quiet=False, ellipsoid="auto"):
+                   force=False, quiet=False, ellipsoid="auto", base=None, site=None, date=None):
     """Calibrate one recording file into a calibration file; returns the Calibration.
 
     The kind comes from the columns (:func:`calibrate.kinds.sniff`) unless ``kind`` names one; its
@@ -89,6 +90,8 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
     table = read_table(recording)
     if kind is not None and kind not in KINDS:
         raise BadInput(f"--kind {kind}: unknown kind; known: {', '.join(KINDS)}")
+    if base is not None and kind is None:
+        kind = "installed"  # --base: the recording is an installation on top of that bench calibration
     found = KINDS[kind] if kind is not None else sniff(table)
     if found is None:
         raise BadInput(f"{recording}: cannot tell the recording kind from its columns "
@@ -96,7 +99,8 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
                                                                      for k in KINDS.values()))
     if field_ut is not None and not field_ut > 0:
         raise BadInput(f"--field-ut must be positive, got {field_ut}")
-    given = {"method": method, "diagnose": diagnose, "field_ut": field_ut, "ellipsoid": ellipsoid}
+    given = {"method": method, "diagnose": diagnose, "field_ut": field_ut, "ellipsoid": ellipsoid, "base": base,
+             "site": site, "date": date}
     takes = found.calibrator.options()
     ignored = [OPTIONS[name][0] for name, value in given.items() if name not in takes and value != OPTIONS[name][1]]
     ignored += ["--report"] * (report is not None and not found.calibrator.draws_plots)

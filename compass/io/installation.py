@@ -4,7 +4,8 @@ Columns: the bench calibration's channel columns, ``ax,ay,az`` (the module's acc
 unit), optional ``t_s``, ``temp_c`` and ``heading_ref_deg`` (a known magnetic heading of the
 product's forward axis for that row; ``# heading_ref: true`` says it is a true heading).  The kind
 is ``# kind: tumble|swing`` in the metadata, else told from the accelerometer: a swing keeps the up
-direction within 30 degrees of its mean.
+direction within 30 degrees of its mean.  ``# base: BENCH.json`` may name the bench calibration
+(relative to the recording) when ``--base`` does not.
 """
 
 from __future__ import annotations
@@ -60,13 +61,17 @@ class InstallationRecording:
     metadata: dict
 
 
-def read_installation(path, channels) -> InstallationRecording:
-    """Read and validate an installation recording for a bench calibration with ``channels``."""
+def read_installation(path, channels=None) -> InstallationRecording:
+    """Read and validate an installation recording (see :func:`installation_from_table`)."""
     return installation_from_table(read_table(path), channels)
 
 
-def installation_from_table(table: Table, channels) -> InstallationRecording:
+def installation_from_table(table: Table, channels=None) -> InstallationRecording:
     """Validate a parsed table as an installation recording.
+
+    ``channels``: the bench calibration's channel names; default every column that is not
+    ``ax,ay,az,t_s,temp_c,heading_ref_deg`` (or a gyro), in file order (the calibrator matches
+    them to its bench calibration's).
 
     Raises
     ------
@@ -74,6 +79,10 @@ def installation_from_table(table: Table, channels) -> InstallationRecording:
         A channel or accelerometer column missing, an unknown column, a zero accelerometer row,
         fewer than 30 rows, or a ``kind``/``heading_ref`` metadata value not understood.
     """
+    if channels is None:
+        channels = tuple(c for c in table.columns if c not in _ACCEL and c not in _OTHER)
+        if not channels:
+            raise RecordingError(table.path, "no channel columns besides ax,ay,az", row=table.header_row)
     known = set(channels) | set(_ACCEL) | set(_OTHER)
     for name in table.columns:
         if name not in known:
