@@ -188,3 +188,22 @@ def test_cli_installation_bad_input(bench, tmp_path, capsys, args, message):
     assert main(["calibrate", str(rec_path), "--out", str(tmp_path / "o.json"), *args]) == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_export_of_the_installed_calibration_reproduces_its_field(bench, tmp_path, capsys):
+    import re
+
+    from compass.calibration_file import load
+
+    _, _, truth, folder = bench
+    rec_path, _ = write_installation(simulate_installation(truth, random_installation(59), n=1500, seed=60),
+                                     tmp_path / "install.csv", base=folder / "bench.json")
+    out = tmp_path / "installed.json"
+    assert main(["calibrate", str(rec_path), "--out", str(out), "--quiet"]) == 0  # '# base:' names the bench
+    capsys.readouterr()
+    assert main(["export", str(out), "--format", "fusion"]) == 0
+    numbers = [float(v) for v in re.findall(r"-?\d+\.\d*(?:e-?\d+)?(?=f)", capsys.readouterr().out)]
+    matrix, offset = np.array(numbers[:9]).reshape(3, 3), np.array(numbers[9:12])
+    model = load(out).model
+    raw = np.asarray(truth["offsets"]) + np.random.default_rng(61).normal(scale=0.5, size=(20, 3))
+    np.testing.assert_allclose((raw - offset) @ matrix.T, model.field(raw)[0], rtol=2e-5, atol=2e-4)
