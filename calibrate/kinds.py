@@ -21,12 +21,14 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from compass.io.fourflip import fourflip_from_table
+from compass.io.installation import installation_from_table
 from compass.io.platform3d import platform3d_from_table
 from compass.io.reference import reference_from_table
 from compass.io.tumble import tumble_from_table
 
 from .contract import Calibrator
 from .fourflip import FourFlipCalibrator
+from .installation import InstallationCalibrator
 from .platform3d import Platform3DCalibrator
 from .reference import ReferenceCalibrator
 from .tumble import TumbleCalibrator
@@ -75,6 +77,8 @@ def sniff(table) -> Kind | None:
     return next((k for k in KINDS.values() if k.sniff(table)), None)
 
 
+register(Kind("installed", "a bench calibration (--base BENCH.json or '# base:' metadata) and ax,ay,az",
+              lambda t: bool(t.metadata.get("base")), installation_from_table, InstallationCalibrator))
 register(Kind("fourflip", "flip_deg", lambda t: t.has("flip_deg"), fourflip_from_table, FourFlipCalibrator))
 register(Kind("platform3d", "platform_z_deg", lambda t: t.has("platform_z_deg"), platform3d_from_table,
               Platform3DCalibrator))

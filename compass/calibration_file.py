@@ -524,12 +524,19 @@ def _tilt_sensor(d: dict):
     return TiltSensor.from_json(d)
 
 
+def _installed_model(d: dict):
+    from .installed import from_installed_json  # the bench model inside its product (issue 11)
+
+    return from_installed_json(d)
+
+
 MODEL_READERS: dict[str, Callable[[dict], Any]] = {
     "fourflip": _channel_model,
     "platform3d": _channel_model,
     "reference": _channel_model,
     "channels": _channel_model,
     "tumble": _tumble_model,
+    "installed": _installed_model,
 }
 """Kind -> reader of its sensor model (``reader(d) -> SensorModel``)."""
 

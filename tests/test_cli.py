@@ -60,6 +60,12 @@ def test_demo_runs_end_to_end(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "+ flip_error" in out and "heading RMS error" in out
     assert (tmp_path / "attitude.csv").exists() and (tmp_path / "report" / "residuals.png").exists()
+    # on from the bench: installed and used at another site, as good as the true installed sensor
+    import re
+
+    pairs = re.findall(r"installed, .*?heading RMS error ([\d.]+) deg \(true installed sensor: ([\d.]+)", out)
+    assert len(pairs) == 2 and all(float(ours) <= 1.3 * float(best) + 0.02 for ours, best in pairs)
+    assert "true heading RMS error" in out and (tmp_path / "installed.json").exists()
 
 
 def test_calibrate_refuses_options_its_kind_would_ignore(tmp_path, capsys):

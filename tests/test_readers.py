@@ -121,7 +121,8 @@ def test_attitude_ignores_an_unknown_column_with_a_note(tmp_path, capsys):
     rec, _ = write_fourflip(session, tmp_path / "bench.csv")
     cal = tmp_path / "cal.json"
     assert main(["calibrate", str(rec), "--out", str(cal), "--quiet"]) == 0
-    rows = np.column_stack([np.arange(5), session.outputs[:5], np.tile([0.0, 0.0, 1.0], (5, 1))])
+    # 20 rows: without --site the site's field is estimated from the recording's quiet rows (>= 10)
+    rows = np.column_stack([np.arange(20), session.outputs[:20], np.tile([0.0, 0.0, 1.0], (20, 1))])
     att = _csv(tmp_path / "att.csv", ["seq", *session.channels, "ax", "ay", "az"], rows)
     capsys.readouterr()
     status, _, err = _run(capsys, "attitude", cal, att, "--out", tmp_path / "o.csv")

@@ -77,6 +77,7 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     from ..attitude import solve_attitude
     from ..calibration_file import load
     from ..cli import BadInput
+    from ..installed import accel_to_product
 
     out = check_writable(out, force)
     rerun = check_rerun_target(rerun, force)
@@ -109,6 +110,7 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
         accel = tilt_sensor.up(_group(table, tilt_sensor.columns))
         check_two_axis_tilt(tilt_sensor.upside_down_rows(_group(table, tilt_sensor.columns), model.field(raw)[0],
                                                          model.dip_deg), len(raw), where=table.path)
+    accel = accel_to_product(cal.data, accel)  # an installed file with an alignment: the product's frame
     tilt = _group(table, _TILT)
     if accel is not None:
         _check_rows(table, np.sum(accel**2, axis=1) > 0, "ax", "accelerometer reads zero: expected gravity")

@@ -29,6 +29,12 @@ def register(sub) -> None:
                                                 "or any kind in calibrate.kinds.KINDS)")
     p.add_argument("--ellipsoid", choices=("auto", "offset", "diagonal", "full"), default="auto",
                    help="tumble only: ellipsoid kind (default auto: the determined kind with the lowest BIC)")
+    p.add_argument("--base", metavar="BENCH.json",
+                   help="the recording is an installation (the module turned in its product, a tumble or a swing): "
+                        "calibrate the product's iron on top of this bench calibration")
+    p.add_argument("--site", metavar="LAT,LON[,ALT_M]", help="with --base: where the installation was recorded "
+                   "(the WMM's |B| and dip; written into the file for the runtime)")
+    p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day (default today, UTC)")
     p.add_argument("--force", action="store_true", help="overwrite an existing calibration file")
     p.add_argument("--quiet", action="store_true", help="do not print the fit report")
     add_rerun_option(p)
@@ -40,7 +46,8 @@ def run(args) -> int:
     target = check_rerun_target(args.rerun, args.force)
     result = calibrate_file(args.recording, args.out, method=args.method, diagnose=not args.no_diagnose,
                             report=args.report, field_ut=args.field_ut, kind=args.kind, force=args.force,
-                            quiet=args.quiet, ellipsoid=args.ellipsoid, read_options=ReadOptions.from_args(args))
+                            quiet=args.quiet, ellipsoid=args.ellipsoid, read_options=ReadOptions.from_args(args),
+                            base=args.base, site=args.site, date=args.date)
     if target is not None:
         from ..viz.calibration import record_calibration
 
@@ -57,12 +64,14 @@ def _base_residuals(result):
 
 
 OPTIONS = {"method": ("--method", "ml"), "diagnose": ("--no-diagnose", True), "field_ut": ("--field-ut", None),
-           "ellipsoid": ("--ellipsoid", "auto")}
+           "ellipsoid": ("--ellipsoid", "auto"), "base": ("--base", None), "site": ("--site", None),
+           "date": ("--date", None)}
 """Calibrator option -> (command-line flag, default): passed to the kinds whose calibrator takes it."""
 
 
 def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, field_ut=None, kind=None,
-                   force=False, quiet=False, ellipsoid="auto", read_options=None):
+                   force=False, quiet=False, ellipsoid="auto", read_options=None, base=None, site=None,
+                   date=None):
     """Calibrate one recording file into a calibration file; returns the Calibration.
 
     The kind comes from the columns (:func:`calibrate.kinds.sniff`) unless ``kind`` names one; its
@@ -83,6 +92,8 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
     table = read_table(recording, read_options)
     if kind is not None and kind not in KINDS:
         raise BadInput(f"--kind {kind}: unknown kind; known: {', '.join(KINDS)}")
+    if base is not None and kind is None:
+        kind = "installed"  # --base: the recording is an installation on top of that bench calibration
     found = KINDS[kind] if kind is not None else sniff(table)
     if found is None:
         raise BadInput(f"{recording}: cannot tell the recording kind from its columns "
@@ -90,7 +101,8 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
                                                                      for k in KINDS.values()))
     if field_ut is not None and not field_ut > 0:
         raise BadInput(f"--field-ut must be positive, got {field_ut}")
-    given = {"method": method, "diagnose": diagnose, "field_ut": field_ut, "ellipsoid": ellipsoid}
+    given = {"method": method, "diagnose": diagnose, "field_ut": field_ut, "ellipsoid": ellipsoid, "base": base,
+             "site": site, "date": date}
     takes = found.calibrator.options()
     ignored = [OPTIONS[name][0] for name, value in given.items() if name not in takes and value != OPTIONS[name][1]]
     ignored += ["--report"] * (report is not None and not found.calibrator.draws_plots)

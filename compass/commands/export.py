@@ -1,4 +1,7 @@
-"""``compass export CAL.json --format fusion|ardupilot``: a tumble calibration in firmware terms.
+"""``compass export CAL.json --format fusion|ardupilot``: a calibration in firmware terms.
+
+A tumble calibration, or any three linear channels of the channel form (a bench calibration, an
+installed one: :func:`channel_form`), as a matrix and an offset from raw counts to the field in H.
 
 - ``fusion``: x-io Fusion's ``FusionCalibrationMagnetic(uncalibrated, softIronMatrix, hardIronOffset)``
   computes ``softIronMatrix * (uncalibrated - hardIronOffset)``, the same form as the calibration file;
@@ -20,7 +23,7 @@ import numpy as np
 
 from ..io.atomic import atomic_write_text, check_writable
 
-__all__ = ["register", "export_text", "load_tumble", "unit_note"]
+__all__ = ["register", "export_text", "load_tumble", "channel_form", "unit_note"]
 
 FORMATS = ("fusion", "ardupilot")
 _MGAUSS_PER_UNIT = {"uT": 10.0, "nT": 0.01, "gauss": 1000.0, "mgauss": 1.0}
@@ -28,8 +31,9 @@ _EARTH_UT = (20.0, 70.0)  # the Earth's field anywhere, uT (WMM: about 22-67)
 
 
 def register(sub) -> None:
-    p = sub.add_parser("export", help="write a tumble calibration as firmware parameters (x-io Fusion, ArduPilot)")
-    p.add_argument("calibration", help="calibration JSON written by 'compass calibrate' from a tumble recording")
+    p = sub.add_parser("export", help="write a calibration as firmware parameters (x-io Fusion, ArduPilot)")
+    p.add_argument("calibration", help="calibration JSON written by 'compass calibrate': tumble, or three linear "
+                                       "channels (bench, installed)")
     p.add_argument("--format", required=True, choices=FORMATS, help="fusion: C initialisers; ardupilot: .param lines")
     p.add_argument("--unit", choices=tuple(_MGAUSS_PER_UNIT), default="uT",
                    help="unit of the recording's mx,my,mz (ardupilot offsets are in milligauss; default uT)")
@@ -71,8 +75,10 @@ def load_tumble(path) -> dict:
     except ValueError as exc:
         raise BadInput(str(exc)) from None
     if cal.kind != "tumble":
-        raise BadInput(f"{path}: export needs a tumble calibration (\"model\": \"tumble\"); this file is "
-                       f"a {cal.kind} calibration")
+        try:
+            return channel_form(cal.model)
+        except ValueError as exc:
+            raise BadInput(f"{path}: a {cal.kind} calibration cannot be exported: {exc}") from None
     d = cal.data
     c = d.get("mag_to_accel")
     norm = (d.get("tumble") or {}).get("field_norm_recording_units") if isinstance(d.get("tumble"), dict) else None
@@ -81,6 +87,36 @@ def load_tumble(path) -> dict:
     return {"hard_iron": np.asarray(d["hard_iron"], float), "soft_iron": np.asarray(d["soft_iron"], float),
             "mag_to_accel": None if c is None else np.asarray(c, float),
             "field_norm_recording_units": None if not isinstance(norm, (int, float)) else float(norm)}
+
+
+def channel_form(model) -> dict:
+    """The firmware form of a channel-form model (bench or installed): ``raw = o + G B_H``, so
+    ``B_H = G^-1 (raw - o)`` with ``G = diag(gain) A`` (rows: each channel's gain times its direction).
+
+    ``G^-1`` is split into a rotation times a symmetric matrix (polar decomposition,
+    ``scipy.linalg.polar``): the symmetric part is the soft iron, the rotation goes where the
+    tumble's magnetometer-to-accelerometer rotation goes (folded in for Fusion, reported for
+    ArduPilot).
+
+    Raises
+    ------
+    ValueError
+        Not three channels, or a nonlinear response (no matrix and offset reproduce it).
+    """
+    from scipy.linalg import polar
+
+    from ..response import LinearResponse
+
+    if len(model.channels) != 3:
+        raise ValueError(f"firmware takes three axes; this sensor has {len(model.channels)} channels "
+                         f"({', '.join(model.channels)})")
+    nonlinear = [c for c, r in zip(model.channels, model.responses) if not isinstance(r, LinearResponse)]
+    if nonlinear:
+        raise ValueError(f"channel(s) {', '.join(nonlinear)} have a nonlinear response, which a matrix and an offset "
+                         f"cannot reproduce: export is for linear channels")
+    rotation, soft = polar(np.linalg.inv(model.gains[:, None] * model.unit_directions), side="right")
+    return {"hard_iron": model.zero_outputs, "soft_iron": soft, "mag_to_accel": rotation,
+            "field_norm_recording_units": None}
 
 
 def unit_note(cal: dict, unit: str) -> str:

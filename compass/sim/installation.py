@@ -185,9 +185,10 @@ def simulate_installation(truth: dict, installation: Installation, *, kind: str 
                               np.mod(heading, 360.0), pitch, roll, reference, info)
 
 
-def write_installation(rec: InstalledRecording, path, *, force: bool = False):
+def write_installation(rec: InstalledRecording, path, *, base=None, force: bool = False):
     """Write SPEC's installation recording (``t_s``, channels, ``ax,ay,az``, optional ``heading_ref_deg``)
-    and ``<stem>.truth.json`` (installation, site field, the product's attitude per row)."""
+    and ``<stem>.truth.json`` (installation, site field, the product's attitude per row); ``base``
+    (a path relative to the recording) goes into its ``# base:`` metadata."""
     columns = ["t_s", *rec.channels, "ax", "ay", "az"]
     data = [rec.t_s[:, None], rec.outputs, rec.accel]
     formats = ["%.4f"] + ["%.7f"] * (len(rec.channels) + 3)
@@ -196,6 +197,8 @@ def write_installation(rec: InstalledRecording, path, *, force: bool = False):
         data.append(rec.heading_ref_deg[:, None])
         formats.append("%.4f")
     metadata = {"kind": rec.kind, "source": f"compass.sim.installation ({rec.kind}, seed {rec.truth['seed']})"}
+    if base is not None:
+        metadata["base"] = str(base)
     text = csv_text(columns, np.hstack(data), formats, metadata)
     truth = rec.truth | {"heading_deg": rec.heading_deg.tolist(), "pitch_deg": np.asarray(rec.pitch_deg).tolist(),
                          "roll_deg": np.asarray(rec.roll_deg).tolist()}

@@ -1,0 +1,12 @@
+"""Installation calibration: the bench-calibrated module inside its product (SPEC section 2).
+
+:class:`InstallationCalibrator` fits the product's hard and soft iron in the housing frame (and,
+with a known heading, the housing's yaw in the product) on top of a bench calibration, from a
+tumble or a swing; :class:`InstallationCalibration` is the result (report, deviation-card plot,
+the installed calibration file).
+"""
+
+from .card import DeviationCard, deviation_card
+from .fit import InstallationCalibration, InstallationCalibrator
+
+__all__ = ["DeviationCard", "deviation_card", "InstallationCalibration", "InstallationCalibrator"]

@@ -1,0 +1,188 @@
+"""The runtime half of an installed calibration: the bench sensor inside its product (SPEC section 2).
+
+An installed calibration file (``"model": "installed"``) holds the bench calibration whole under
+``"base"`` and the product's iron under ``"installation"``: in the housing frame H the bench model
+measures ``B_seen = S B_H + h`` (``soft_iron`` S, ``hard_iron_ut`` h).  Channel ``c`` of the bench
+(direction ``a``, response ``f``) reads ``v = f(a . B_seen) = f(k a' . B_H + a . h)`` with
+
+.. math:: a' = S^T a / k, \\qquad k = |S^T a|,
+
+so the installed sensor is again a set of single-axis channels: direction ``a'``, response
+``f(k x' + a . h)`` (for a linear channel: offset ``V0 + K a . h``, gain ``K k``).  Everything that
+reads a calibration then works unchanged.  The bench's uncertainty (direction covariance, offset
+and gain sigmas) is carried through this map, and the installation's own (covariance of ``h`` and
+of the six soft-iron entries) is added: ``da' = (I - a' a'^T) dS a / k``, ``dk = a' . dS a``,
+``dV0 = K a . dh`` (cross-correlations between bench and installation are neglected: they come
+from independent recordings).
+
+With an ``alignment`` (``R_product<-housing``) the installed model is written in the product's
+frame: directions ``A a'``; the module's accelerometer must be turned the same way
+(:func:`accel_to_product`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .model import SensorModel
+from .response import LinearResponse, Response
+
+__all__ = ["SOFT_IRON_ENTRIES", "installed_model", "from_installed_json", "accel_to_product", "soft_iron_basis"]
+
+SOFT_IRON_ENTRIES = ("xx", "yy", "zz", "xy", "xz", "yz")
+"""The six entries of the symmetric soft-iron deviation ``S - I``, in parameter order."""
+
+
+def soft_iron_basis() -> np.ndarray:
+    """``E`` (6, 3, 3): ``S - I = sum_k d_k E_k`` for the entries :data:`SOFT_IRON_ENTRIES`."""
+    basis = np.zeros((6, 3, 3))
+    for k, (i, j) in enumerate(((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))):
+        basis[k, i, j] = basis[k, j, i] = 1.0
+    return basis
+
+
+@dataclass(frozen=True)
+class ShiftedResponse(Response):
+    """A bench response read through the installation: ``v = base(scale x + shift)``.
+
+    Only for nonlinear bench channels (a linear one becomes a :class:`LinearResponse`).  It has no
+    record of its own in a file: the installed file keeps the bench calibration and the installation.
+    """
+
+    base: Response | None = None
+    scale: float = 1.0
+    shift: float = 0.0
+    model = "installed"
+
+    def output(self, x):
+        return self.base.output(self.scale * np.asarray(x, dtype=float) + self.shift)
+
+    def field_component(self, v):
+        x, ok = self.base.field_component(v)
+        return (x - self.shift) / self.scale, ok
+
+    def to_json(self) -> dict:
+        raise ValueError("a nonlinear bench channel inside an installation has no response record of its own: "
+                         "write the installed file (base + installation) instead")
+
+
+def installed_model(base: SensorModel, hard_iron, soft_iron, covariance=None, alignment=None) -> SensorModel:
+    """The bench model ``base`` inside its product (module docstring).
+
+    Parameters
+    ----------
+    base : SensorModel
+        The bench calibration's model (housing frame H).
+    hard_iron : array_like, shape (3,)
+        ``h`` in H, the base model's field units.
+    soft_iron : array_like, shape (3, 3)
+        ``S`` in H (symmetric).
+    covariance : array_like, shape (9, 9), optional
+        Covariance of ``(h_x, h_y, h_z, d_xx, d_yy, d_zz, d_xy, d_xz, d_yz)`` (field units^2, 1).
+    alignment : array_like, shape (3, 3), optional
+        ``R_product<-housing``: the model is then in the product's frame.
+
+    Returns
+    -------
+    SensorModel
+        Channel form, same channel names, noise and temperature effect.
+    """
+    h = np.asarray(hard_iron, dtype=float)
+    s = np.asarray(soft_iron, dtype=float)
+    a = base.unit_directions
+    w = a @ s  # rows: S^T a (S symmetric or not: a . S B = (S^T a) . B)
+    k = np.linalg.norm(w, axis=1)
+    directions = w / k[:, None]
+    shift = a @ h
+    responses = []
+    for c, r in enumerate(base.responses):
+        lo, hi = r.x_range
+        span = ((lo - shift[c]) / k[c], (hi - shift[c]) / k[c])
+        if isinstance(r, LinearResponse):
+            responses.append(LinearResponse(r.offset + r.gain * shift[c], r.gain * k[c], span))
+        else:
+            responses.append(ShiftedResponse(float(r.output(shift[c])), r.gain * k[c], span, base=r, scale=k[c],
+                                             shift=shift[c]))
+    project = np.eye(3)[None] - directions[:, :, None] * directions[:, None, :]  # (c, 3, 3)
+    direction_cov = None
+    if base.direction_covariance is not None:
+        jac = project @ s.T[None] / k[:, None, None]
+        direction_cov = jac @ base.direction_covariance @ jac.transpose(0, 2, 1)
+    response_sigma = None if base.response_sigma is None else base.response_sigma * np.array([1.0, 1.0])
+    if response_sigma is not None:
+        response_sigma = np.column_stack([response_sigma[:, 0], response_sigma[:, 1] * k])
+    if covariance is not None:
+        cov = np.asarray(covariance, dtype=float)
+        cov_h, cov_d = cov[:3, :3], cov[3:, 3:]
+        e_a = np.einsum("kij,cj->cik", soft_iron_basis(), a)  # (c, 3, 6): dS a = E(a) dd
+        spread = e_a @ cov_d @ e_a.transpose(0, 2, 1)  # covariance of dS a, (c, 3, 3)
+        added = project @ spread @ project / k[:, None, None] ** 2
+        direction_cov = added if direction_cov is None else direction_cov + added
+        gains = base.gains
+        offset_var = gains**2 * np.einsum("ci,ij,cj->c", a, cov_h, a)
+        gain_var = gains**2 * np.einsum("ci,cij,cj->c", directions, spread, directions)
+        old = np.zeros((len(a), 2)) if response_sigma is None else response_sigma
+        response_sigma = np.sqrt(old**2 + np.column_stack([offset_var, gain_var]))
+    if alignment is not None:
+        rot = np.asarray(alignment, dtype=float)
+        directions = directions @ rot.T
+        if direction_cov is not None:
+            direction_cov = rot[None] @ direction_cov @ rot.T[None]
+    return replace(base, directions=directions, responses=tuple(responses), direction_covariance=direction_cov,
+                   response_sigma=response_sigma, kind="installed")
+
+
+def from_installed_json(d: dict) -> SensorModel:
+    """The runtime model of an installed calibration file's dictionary (the bench's read by
+    :func:`compass.calibration_file.from_dict`).
+
+    Raises
+    ------
+    CalibrationFileError
+        Missing or invalid ``base`` or ``installation``, naming the key.
+    """
+    from .calibration_file import CalibrationFileError, from_dict
+
+    base_doc, inst = d.get("base"), d.get("installation")
+    if not isinstance(base_doc, dict):
+        raise CalibrationFileError("must be the bench calibration (an object)", key="base")
+    if not isinstance(inst, dict):
+        raise CalibrationFileError("must be an object with hard_iron_ut and soft_iron", key="installation")
+    try:
+        base = from_dict(base_doc)
+    except CalibrationFileError as exc:
+        raise CalibrationFileError(exc.reason, key=f"base.{exc.key}" if exc.key else "base") from None
+    if base.kind == "installed":
+        raise CalibrationFileError("must be a bench calibration, not another installed one", key="base")
+    hard = _array(inst, "hard_iron_ut", (3,))
+    soft = _array(inst, "soft_iron", (3, 3))
+    if not np.allclose(soft, soft.T, atol=1e-9) or np.linalg.eigvalsh(soft).min() <= 0:
+        raise CalibrationFileError("must be symmetric positive definite", key="installation.soft_iron")
+    cov = None if inst.get("covariance") is None else _array(inst, "covariance", (9, 9))
+    align = None if inst.get("alignment") is None else _array(inst, "alignment", (3, 3))
+    if align is not None and (not np.allclose(align @ align.T, np.eye(3), atol=1e-6) or np.linalg.det(align) < 0):
+        raise CalibrationFileError("must be a rotation matrix", key="installation.alignment")
+    return installed_model(base.model, hard, soft, cov, align)
+
+
+def accel_to_product(document: dict, accel):
+    """The module's accelerometer (H) in the product's frame, for an installed file with an alignment;
+    unchanged otherwise."""
+    inst = document.get("installation") if document.get("model") == "installed" else None
+    if accel is None or not isinstance(inst, dict) or inst.get("alignment") is None:
+        return accel
+    return np.asarray(accel, dtype=float) @ np.asarray(inst["alignment"], dtype=float).T
+
+
+def _array(d: dict, key: str, shape) -> np.ndarray:
+    from .calibration_file import CalibrationFileError
+
+    try:
+        out = np.asarray(d[key], dtype=float)
+    except (KeyError, TypeError, ValueError):
+        out = None
+    if out is None or out.shape != shape or not np.all(np.isfinite(out)):
+        raise CalibrationFileError(f"must be finite numbers of shape {shape}", key=f"installation.{key}")
+    return out

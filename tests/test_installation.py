@@ -1,0 +1,209 @@
+"""Installation calibration: the bench model inside its product, from a tumble or a swing."""
+
+import json
+
+import numpy as np
+import pytest
+
+from calibrate import calibrate_fourflip
+from calibrate.contract import CannotCalibrate
+from calibrate.installation import InstallationCalibrator, deviation_card
+from compass.attitude import solve_attitude
+from compass.cli import main
+from compass.installed import installed_model
+from compass.io.fourflip import read_fourflip
+from compass.io.installation import installation_from_table
+from compass.io.table import read_table
+from compass.model import SensorModel
+from compass.sim.fourflip import simulate_fourflip, write_fourflip
+from compass.sim.installation import random_installation, simulate_installation, true_model, write_installation
+from compass.sim.runtime import write_runtime
+
+
+def wrap(d):
+    return np.mod(d + 180.0, 360.0) - 180.0
+
+
+def rms(v):
+    return float(np.sqrt(np.mean(np.square(v))))
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("bench")
+    session = simulate_fourflip(seed=41, dip_deg=58.0)
+    path, _ = write_fourflip(session, folder / "bench.csv")
+    cal = calibrate_fourflip(read_fourflip(path), diagnose=True)
+    doc = cal.to_json()
+    (folder / "bench.json").write_text(json.dumps(doc))
+    return SensorModel.from_json(doc), doc, session.truth, folder
+
+
+def fit(bench, rec, **options):
+    model, doc, _, folder = bench
+    path, _ = write_installation(rec, folder / f"inst_{rec.kind}_{rec.truth['seed']}.csv", force=True)
+    parsed = installation_from_table(read_table(path), model.channels)
+    return InstallationCalibrator(base=folder / "bench.json", **options).fit(parsed)
+
+
+def at_another_site(bench, inst, result, tilt=30.0):
+    """Heading RMS at another site (dip 12 deg lower, |B| 10 % lower): installed vs the true installation."""
+    model, _, truth, _ = bench
+    run = simulate_installation(truth, inst, kind="runtime", n=3000, dip_deg=truth["dip_deg"] - 12.0,
+                                field_ut=0.9 * truth["field_ut"], max_tilt_deg=tilt, seed=43)
+    best = installed_model(true_model(truth), inst.hard_iron_ut, inst.soft_iron)
+    errors = [rms(wrap(solve_attitude(m, run.outputs, accel=run.accel).heading_deg - run.heading_deg))
+              for m in (result.model, best, model)]
+    return errors, solve_attitude(result.model, run.outputs, accel=run.accel).disturbed.mean()
+
+
+def test_tumble_finds_the_iron_and_travels(bench):
+    _, _, truth, _ = bench
+    inst = random_installation(42)
+    result = fit(bench, simulate_installation(truth, inst, kind="tumble", n=2000, seed=44))
+    z = (result.hard_iron_ut - inst.hard_iron_ut) / result.hard_iron_sigma_ut
+    assert np.all(np.abs(z) < 5.0)
+    # soft iron: the off-diagonal entries (the diagonal's trace is the assumed scale)
+    true_d = inst.soft_iron - np.eye(3)
+    for k, (i, j) in enumerate(((0, 1), (0, 2), (1, 2)), start=3):
+        assert abs(result.soft_iron[i, j] - true_d[i, j]) < 5 * result.soft_iron_sigma[k] + 1e-4
+    assert result.diagnosis["effects"] == [] and result.diagnosis["unexplained"] is False
+    assert any("scale" in w for w in result.undetermined) and len(result.undetermined) == 1
+    (installed, best, bench_only), disturbed = at_another_site(bench, inst, result)
+    assert installed <= 1.3 * best + 0.02 and bench_only > 5 * best and disturbed <= 0.01
+
+
+def test_level_swing_finds_the_horizontal_hard_iron_and_names_what_it_cannot_see(bench):
+    _, _, truth, folder = bench
+    inst = random_installation(45)
+    result = fit(bench, simulate_installation(truth, inst, kind="swing", n=2000, max_tilt_deg=0.0, seed=46))
+    assert result.kind == "swing"
+    z = (result.hard_iron_ut[:2] - inst.hard_iron_ut[:2]) / result.hard_iron_sigma_ut[:2]
+    assert np.all(np.abs(z) < 2.5)
+    assert result.hard_iron_sigma_ut[2] > 10.0  # held at its prior
+    assert any("vertical hard iron" in w for w in result.undetermined)
+    assert any("S_zz" in w for w in result.undetermined)
+    # its own site, level: as good as the true installation
+    model, _, _, _ = bench
+    run = simulate_installation(truth, inst, kind="runtime", n=2000, max_tilt_deg=0.0, seed=47)
+    best = installed_model(true_model(truth), inst.hard_iron_ut, inst.soft_iron)
+    ours, true = (rms(wrap(solve_attitude(m, run.outputs, accel=run.accel).heading_deg - run.heading_deg))
+                  for m in (result.model, best))
+    assert ours <= 1.3 * true + 0.02
+    # the deviation card: the bench model alone deviates once a turn (hard iron), the plot is written
+    card = result.card_before
+    assert max(abs(card.coefficients_deg["B"]), abs(card.coefficients_deg["C"])) > 3.0
+    assert [p.name for p in result.plots(None, folder / "report")] == ["deviation_card.png"]
+
+
+def test_tilted_swing_with_heading_reference_fits_the_yaw(bench):
+    _, _, truth, _ = bench
+    inst = random_installation(48, yaw_deg=4.0)
+    rec = simulate_installation(truth, inst, kind="swing", n=2000, max_tilt_deg=10.0, heading_ref_sigma_deg=0.3,
+                                seed=49)
+    result = fit(bench, rec)
+    assert abs(result.yaw_deg - 4.0) < 4 * result.yaw_sigma_deg + 0.01
+    assert np.all(np.abs(result.hard_iron_ut - inst.hard_iron_ut) < 5 * result.hard_iron_sigma_ut)
+    after = result.card_after
+    assert after is not None and after.residual_rms_deg < 0.6 and abs(after.coefficients_deg["A"]) < 0.1
+
+
+def test_drifting_hard_iron_is_named(bench):
+    _, _, truth, _ = bench
+    inst = random_installation(50)
+    rec = simulate_installation(truth, inst, kind="tumble", n=2000, seed=51)
+    gains = np.asarray(truth["gains_per_ut"])
+    drift = np.outer(np.linspace(-1.0, 1.0, len(rec.t_s)), [1.5, -1.0, 0.8]) @ np.asarray(truth["directions"]).T
+    from dataclasses import replace
+
+    result = fit(bench, replace(rec, outputs=rec.outputs + gains * drift))
+    assert result.diagnosis["effects"] == ["offset_drift"]
+    assert result.diagnosis["residual_rms_after"] < 0.5 * result.diagnosis["residual_rms_before"]
+
+
+def test_deviation_card_coefficients():
+    psi = np.arange(0.0, 360.0, 5.0)
+    truth = {"A": 0.5, "B": -3.0, "C": 2.0, "D": 0.7, "E": -0.4}
+    r = np.radians(psi)
+    dev = (truth["A"] + truth["B"] * np.sin(r) + truth["C"] * np.cos(r) + truth["D"] * np.sin(2 * r)
+           + truth["E"] * np.cos(2 * r))
+    card = deviation_card(psi + dev, psi)
+    for k, v in truth.items():
+        assert card.coefficients_deg[k] == pytest.approx(v, abs=1e-9)
+
+
+def test_refuses_a_recording_without_a_turn(bench):
+    _, _, truth, _ = bench
+    rec = simulate_installation(truth, random_installation(52), kind="swing", n=200, max_tilt_deg=0.0, seed=53)
+    from dataclasses import replace
+
+    still = replace(rec, outputs=np.repeat(rec.outputs[:1], 200, axis=0) + 1e-4 * np.arange(200)[:, None],
+                    accel=np.repeat(rec.accel[:1], 200, axis=0))
+    with pytest.raises(CannotCalibrate, match="turned through only"):
+        fit(bench, still)
+
+
+def test_cli_installation_end_to_end(bench, tmp_path, capsys):
+    model, doc, truth, folder = bench
+    inst = random_installation(54)
+    from compass.site import Site
+
+    wmm = Site.parse("47.6,-122.3", "2026-06-01").field()  # the installation is done where the product is used
+    rec_path, _ = write_installation(simulate_installation(truth, inst, kind="tumble", n=1500, seed=55,
+                                                           dip_deg=wmm.dip_deg, field_ut=wmm.field_ut),
+                                     tmp_path / "install.csv")
+    out = tmp_path / "installed.json"
+    assert main(["calibrate", str(rec_path), "--base", str(folder / "bench.json"), "--out", str(out),
+                 "--site", "47.6,-122.3", "--date", "2026-06-01", "--quiet"]) == 0
+    installed = json.loads(out.read_text())
+    assert installed["model"] == "installed" and installed["base"] == doc and installed["site"]["model"] == "WMM2025"
+    assert installed["installation"]["kind"] == "tumble"
+    # the runtime reads it: at the site, true north from the file's site block
+    wmm_there = {"dip_deg": installed["site"]["dip_deg"], "field_ut": installed["site"]["field_ut"]}
+    run = simulate_installation(truth, inst, kind="runtime", n=1000, max_tilt_deg=40.0, seed=56, **wmm_there)
+    from compass.sim.runtime import RuntimeSession
+
+    session = RuntimeSession(run.t_s, run.channels, run.outputs, run.accel, run.heading_deg, run.pitch_deg,
+                             run.roll_deg, np.zeros((len(run.t_s), 3)))
+    att_rec, truth_csv = write_runtime(session, tmp_path / "run.csv")
+    assert main(["attitude", str(out), str(att_rec), "--out", str(tmp_path / "att.csv")]) == 0
+    table = read_table(tmp_path / "att.csv")
+    assert table.metadata["reference_field"].startswith("calibration site")
+    assert rms(wrap(table.column("heading_deg") - run.heading_deg)) < 0.6
+    assert table.column("disturbed").mean() <= 0.01 and "heading_true_deg" in table.columns
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--site", "1,2"], "cannot tell the recording kind"),
+    (["--base", "MISSING.json"], "cannot read calibration"),
+    (["--base", "BENCH", "--site", "95,0"], "latitude"),
+    (["--base", "BENCH", "--date", "2026-01-01"], "--date needs --site"),
+])
+def test_cli_installation_bad_input(bench, tmp_path, capsys, args, message):
+    _, _, truth, folder = bench
+    rec_path, _ = write_installation(simulate_installation(truth, random_installation(57), n=100, seed=58),
+                                     tmp_path / "install.csv")
+    args = [str(folder / "bench.json") if a == "BENCH" else str(tmp_path / a) if a.endswith(".json") else a
+            for a in args]
+    assert main(["calibrate", str(rec_path), "--out", str(tmp_path / "o.json"), *args]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_export_of_the_installed_calibration_reproduces_its_field(bench, tmp_path, capsys):
+    import re
+
+    from compass.calibration_file import load
+
+    _, _, truth, folder = bench
+    rec_path, _ = write_installation(simulate_installation(truth, random_installation(59), n=1500, seed=60),
+                                     tmp_path / "install.csv", base=folder / "bench.json")
+    out = tmp_path / "installed.json"
+    assert main(["calibrate", str(rec_path), "--out", str(out), "--quiet"]) == 0  # '# base:' names the bench
+    capsys.readouterr()
+    assert main(["export", str(out), "--format", "fusion"]) == 0
+    numbers = [float(v) for v in re.findall(r"-?\d+\.\d*(?:e-?\d+)?(?=f)", capsys.readouterr().out)]
+    matrix, offset = np.array(numbers[:9]).reshape(3, 3), np.array(numbers[9:12])
+    model = load(out).model
+    raw = np.asarray(truth["offsets"]) + np.random.default_rng(61).normal(scale=0.5, size=(20, 3))
+    np.testing.assert_allclose((raw - offset) @ matrix.T, model.field(raw)[0], rtol=2e-5, atol=2e-4)
