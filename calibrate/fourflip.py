@@ -119,7 +119,8 @@ def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progres
         if not diagnose:
             return result
         diagnosis = examine_residual(samples, result.residuals, noise)
-        warnings = result.warnings + ((UNEXPLAINED_WARNING,) if diagnosis["unexplained"] else ())
+        warnings = result.warnings + ((_seed_rule_warning(rec, samples, noise, method, field_ut, dip_sign),)
+                                      if diagnosis["unexplained"] else ())
         return replace(result, diagnosis=diagnosis, warnings=warnings)
     start = physics_from_harmonics(rec, field_ut, dip_sign)
     if not diagnose:
@@ -136,6 +137,21 @@ def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progres
     warnings = (UNEXPLAINED_WARNING,) if diagnosis["unexplained"] else ()
     result = result_from_ml(fit, rec, noise, field_ut, effects=effects, diagnosis=diagnosis, extra_warnings=warnings)
     return replace(result, base_residuals=base.residuals) if fit.effects else result
+
+
+def _seed_rule_warning(rec, samples, noise, method, field_ut, dip_sign) -> str:
+    """Why a seed rule's residual is above the floor: the recording, or the rule's own estimate.
+
+    The joint fit (``ml``) is run: when it leaves the residual at the noise floor, the structure
+    is the rule's misestimate (a minimum picked on a flat curve, a channel's direction reversed),
+    not an effect the recording has.
+    """
+    ml = fit_ml(samples, rec.outputs, rec.channels, physics_from_harmonics(rec, field_ut, dip_sign), noise)
+    if examine_residual(samples, ml.residuals, noise)["unexplained"]:
+        return UNEXPLAINED_WARNING
+    return (f"the {method} estimate leaves structure in the residual above the noise floor, but the joint fit "
+            "(--method ml) of the same recording is at the floor: the misfit is this method's estimate (a "
+            "minimum picked on a flat curve, a direction reversed), not an effect of the recording; use --method ml")
 
 
 def _float_or_none(s):

@@ -128,3 +128,18 @@ def test_clean_recording_drops_nothing(write_session):
     rec, _ = write_session(seed=21)
     result = calibrate_fourflip(rec)
     assert "spikes_dropped" not in result.extra and result.kept is None
+
+
+@pytest.mark.parametrize("method", ["patent", "harmonic"])
+def test_seed_rules_blame_their_estimate_not_a_clean_recording(write_session, method):
+    # issue 15.4: a seed rule's misfit was reported as "an effect the model lacks" although the joint
+    # fit of the same clean recording is at the noise floor
+    from calibrate.diagnose import UNEXPLAINED_WARNING
+
+    rec, _ = write_session(seed=2)
+    res = calibrate_fourflip(rec, method=method, diagnose=True)
+    assert res.diagnosis["unexplained"]
+    assert UNEXPLAINED_WARNING not in res.warnings and any("--method ml" in w for w in res.warnings)
+    # an effect the recording has is still the recording's
+    rec, _ = write_session(name="nonlinear.csv", seed=2, effects=("nonlinear_response",))
+    assert UNEXPLAINED_WARNING in calibrate_fourflip(rec, method=method, diagnose=True).warnings
