@@ -1,6 +1,6 @@
 """The evidence loop of the residual diagnosis (SPEC section 4), shared by every calibration that runs it.
 
-The four-flip (:mod:`calibrate.diagnose`), the tumble (:mod:`calibrate.tumble.diagnosis`) and the
+The four-flip (:mod:`calibrate.fourflip.diagnosis`), the tumble (:mod:`calibrate.tumble.diagnosis`) and the
 fits against known inputs (:mod:`calibrate.diagnosis.offsets`) differ in their models, their
 effects and their verdicts, but choose effects the same way.  :func:`select_effects` is that
 choice; each caller hands it what differs as small callables:

@@ -1,6 +1,6 @@
 """Residual diagnosis of fits made against known inputs: the 3-D platform (seed 001) and reference fields (seed 003).
 
-The loop of :mod:`calibrate.diagnose` (SPEC section 4; steps 2 and 3 and the last part of 4 are
+The loop of :mod:`calibrate.fourflip.diagnosis` (SPEC section 4; steps 2 and 3 and the last part of 4 are
 :func:`calibrate.diagnosis.evidence.select_effects`) for a model whose diagnosed channels read
 
 .. math:: v_{ic} = y_{ic}(p) + o_c + \\Delta_{ic}(q),

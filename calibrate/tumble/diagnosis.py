@@ -1,6 +1,6 @@
 """Residual diagnosis of a tumble calibration: find what the ellipsoid lacks, add it, report before and after.
 
-The loop of :mod:`calibrate.diagnose` (SPEC section 4; steps 3 and 4 and the last part of 5 are
+The loop of :mod:`calibrate.fourflip.diagnosis` (SPEC section 4; steps 3 and 4 and the last part of 5 are
 :func:`calibrate.diagnosis.evidence.select_effects`), on the radial residual of the ellipsoid,
 
 .. math:: r_i = F \\left( |L^T c(y_i - p_h)| - 1 \\right) \\approx |S\\, c(x_i - h)| - F,

@@ -10,7 +10,7 @@ Three estimators, one result type:
   flip-0 curve is flat (near Z) the table is taken from the flip with the largest swing.
 - ``harmonic``: the same formulas with each minimum and crossing located by a least-squares
   first-harmonic fit of the whole turn.
-- ``ml`` (default): the joint maximum-likelihood fit of :mod:`calibrate._mlfit`, started from
+- ``ml`` (default): the joint maximum-likelihood fit of :mod:`calibrate.fourflip._mlfit`, started from
   the singularity-free vector combination of the harmonics, with standard errors.
 """
 
@@ -27,11 +27,11 @@ from compass.sim.bench import BenchPhysics, BenchSamples
 
 from . import _harmonic as hm
 from ._mlfit import MLFit, fit_ml
-from .contract import Calibrator
-from .diagnose import UNEXPLAINED_WARNING, diagnose_fourflip, examine_residual
-from .noise import SPIKE_SIGMAS, find_spikes, noise_floor
+from ..contract import Calibrator
+from .diagnosis import UNEXPLAINED_WARNING, diagnose_fourflip, examine_residual
+from ..noise import SPIKE_SIGMAS, find_spikes, noise_floor
 from .result import CalibrationResult, ChannelCalibration
-from .site_field import compare_with_site
+from ..site_field import compare_with_site
 
 __all__ = ["METHODS", "FourFlipCalibrator", "calibrate_fourflip", "physics_from_harmonics", "result_from_ml"]
 
@@ -58,7 +58,7 @@ def calibrate_fourflip(
         give the same outputs); +1 (field points down, northern hemisphere) unless the
         metadata's ``site_lat_deg`` is negative.
     diagnose : bool
-        Run the residual diagnosis loop (:mod:`calibrate.diagnose`): with ``ml`` the final model
+        Run the residual diagnosis loop (:mod:`calibrate.fourflip.diagnosis`): with ``ml`` the final model
         includes every effect the evidence supports; with the seed's rules the residual is only
         examined (the loop needs the joint fit).
     progress : callable, optional
