@@ -6,14 +6,12 @@ seed 003's reference fields (:func:`calibrate_reference`).  Data flows one way: 
 ``calibrate`` -> calibration file -> :mod:`compass`.
 """
 
-from .fourflip import METHODS, calibrate_fourflip
+from .fourflip import METHODS, CalibrationResult, ChannelCalibration, calibrate_fourflip
 from .platform3d import calibrate_platform3d
 from .reference import calibrate_reference
-from .result import FORMAT, CalibrationResult, ChannelCalibration
 from .tumble import calibrate_tumble
 
 __all__ = [
-    "FORMAT",
     "METHODS",
     "CalibrationResult",
     "ChannelCalibration",

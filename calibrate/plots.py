@@ -40,7 +40,7 @@ def plot_fit(rec, result, path) -> Path:
     return _save(fig, path)
 
 
-def plot_residuals(rec, residual_sets: dict, path, noise=None) -> Path:
+def plot_residuals(rec, residual_sets: dict, path, noise=None, unit: str = "output units") -> Path:
     """Residuals against turntable angle (per flip, per channel) and against time.
 
     Parameters
@@ -49,6 +49,8 @@ def plot_residuals(rec, residual_sets: dict, path, noise=None) -> Path:
         Label -> residuals, e.g. {"before": r0, "after": r1}.
     noise : ndarray (c,), optional
         Noise floor, drawn as +-1 sigma bands.
+    unit : str
+        The channels' output unit (the recording's), for the axis labels.
     """
     c = len(rec.channels)
     has_time = rec.t_s is not None
@@ -67,14 +69,17 @@ def plot_residuals(rec, residual_sets: dict, path, noise=None) -> Path:
             if j == 0:
                 ax.set_title(_FLIPS[k])
             if k == 0:
-                ax.set_ylabel(f"{name} residual")
+                ax.set_ylabel(f"{name} residual ({unit})")
+            if j == c - 1:
+                ax.set_xlabel("platform_deg (turntable angle, deg)")
         if has_time:
             ax = axes[j, 4]
             for i, (label, r) in enumerate(residual_sets.items()):
                 ax.plot(rec.t_s, r[:, j], ".", ms=1.5, color=f"C{i}", alpha=0.7)
             if j == 0:
                 ax.set_title("against time")
-            ax.set_xlabel("t (s)")
+            if j == c - 1:
+                ax.set_xlabel("t_s (s)")
     axes[0, 0].legend(loc="best", fontsize=7, markerscale=4)
     fig.suptitle("Residuals (grey band: noise floor +-1 sigma)", fontsize=10)
     fig.tight_layout()
@@ -93,7 +98,7 @@ def plot_tumble(mag: np.ndarray, result, path) -> Path:
     calibrated = result.calibrated(mag)
     norm = np.linalg.norm(calibrated, axis=1)
     unit = calibrated / norm[:, None]
-    raw_norm = np.linalg.norm(mag - np.median(mag, axis=0), axis=1)
+    raw_norm = np.linalg.norm(mag, axis=1)  # as recorded: no centring (a hard iron shows as a wide spread)
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     ax = axes[0]
     ax.scatter(np.degrees(np.arctan2(unit[:, 1], unit[:, 0])), np.degrees(np.arcsin(np.clip(unit[:, 2], -1, 1))),
@@ -106,10 +111,10 @@ def plot_tumble(mag: np.ndarray, result, path) -> Path:
     ax.set_title(f"coverage: {result.coverage.fraction:.0%} of the sphere"
                  + (f"; never along {', '.join(missing)}" if missing else ""))
     ax = axes[1]
-    ax.plot(raw_norm / np.median(raw_norm), ".", ms=1.5, color="0.6", label="raw (about its median)")
+    ax.plot(raw_norm / np.median(raw_norm), ".", ms=1.5, color="0.6", label="raw |m|, as recorded")
     ax.plot(norm / np.median(norm), ".", ms=1.5, color="C0", label=f"calibrated ({result.kind})")
     ax.set_xlabel("sample")
-    ax.set_ylabel("|B| / median")
+    ax.set_ylabel("|m| / its median")
     ax.legend(loc="best", fontsize=7, markerscale=5)
     ax.set_title("field magnitude, before and after")
     ax = axes[2]

@@ -40,7 +40,6 @@ Data: BROAD (Laidig, Caruso, Cereatti, Seel, Data 6(7):72, 2021, doi:10.3390/dat
 from __future__ import annotations
 
 import argparse
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,7 +48,7 @@ from scipy.ndimage import uniform_filter1d
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from compass.calibration_file import header
+from compass.calibration_file import header, write
 from compass.hard_iron import track_hard_iron
 from compass.io.broad import BroadTrial, enu_to_nwu, read_broad
 
@@ -312,7 +311,7 @@ def main(argv=None) -> int:
     lines, correction, summary = run_loop(trials)
     print("\n".join(lines))
     if args.out:
-        Path(args.out).write_text(json.dumps(calibration_json(correction, trials, summary), indent=2))
+        write(args.out, calibration_json(correction, trials, summary), force=True)
         print(f"wrote {args.out}")
     return 0
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from calibrate import calibrate_fourflip
-from calibrate.effects import EFFECTS
+from calibrate.fourflip.effects import EFFECTS
 from tests.conftest import angle_deg
 
 

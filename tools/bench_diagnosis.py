@@ -32,10 +32,10 @@ The CRB is that of the base model at the TRUE parameters with the TRUE per-chann
 .. math:: F = J^T J, \\qquad J_{(ic),j} = \\frac{1}{\\sigma_c}
           \\frac{\\partial \\hat v_{ic}}{\\partial p_j},
 
-in the parameterisation of :mod:`calibrate._mlfit` (per channel a tangent-plane step (u, v),
+in the parameterisation of :mod:`calibrate.fourflip._mlfit` (per channel a tangent-plane step (u, v),
 offset, log gain; shared dip and azimuth), by central differences of
 :func:`compass.sim.bench.bench_outputs`.  The direction's CRB is ``sqrt(trace)`` of its (u, v)
-block of ``inv(F)``, as :meth:`calibrate._mlfit.MLFit.direction_sigma_deg` computes its sigma.
+block of ``inv(F)``, as :meth:`calibrate.fourflip._mlfit.MLFit.direction_sigma_deg` computes its sigma.
 The ratio after/CRB is ``sqrt(mean((error / CRB)^2))`` over channels and recordings (1 for an
 efficient estimator of the clean model), with its Monte Carlo standard error.
 
@@ -69,8 +69,8 @@ from collections import Counter  # noqa: E402
 import numpy as np  # noqa: E402
 
 from calibrate import calibrate_fourflip  # noqa: E402
-from calibrate._mlfit import cramer_rao  # noqa: E402
-from calibrate.effects import EFFECTS  # noqa: E402
+from calibrate.fourflip._mlfit import cramer_rao  # noqa: E402
+from calibrate.fourflip.effects import EFFECTS  # noqa: E402
 from compass.sim.fourflip import SIM_EFFECTS, simulate_fourflip  # noqa: E402
 
 UNMODELLED = "field_gradient"
@@ -105,7 +105,7 @@ def _alarm(signum, frame):
 def cramer_rao_deg(session, effects=()) -> np.ndarray:
     """CRB of each channel's direction angle, degrees, shape (c,), at the truth with its noise.
 
-    With ``effects`` (the estimator's :data:`calibrate.effects.EFFECTS`), their parameters are
+    With ``effects`` (the estimator's :data:`calibrate.fourflip.effects.EFFECTS`), their parameters are
     unknowns too, taken at zero: the bound of an estimator that must also fit the effect.
     """
     return cramer_rao(session.base_physics(), session.samples, session.channels, session.truth["noise"], effects)[0]

@@ -15,7 +15,7 @@ in-process.  It prints, side by side:
 
   .. math:: F = J^T J, \\qquad J_{(ic),j} = \\frac{1}{\\sigma_c} \\frac{\\partial \\hat v_{ic}}{\\partial p_j},
 
-  in the parameterisation of :mod:`calibrate._mlfit` (per channel a tangent-plane step (u, v),
+  in the parameterisation of :mod:`calibrate.fourflip._mlfit` (per channel a tangent-plane step (u, v),
   offset, log gain; shared dip and field azimuth) so that the direction's CRB is
   ``sqrt(trace of its (u, v) block of inv(F))``, the same formula as ``direction_sigma_deg``;
 - ``ml/CRB``: ``sqrt(mean((err / crb)^2))`` over recordings (1 for an efficient estimator);
@@ -58,7 +58,7 @@ import time
 import numpy as np
 
 from calibrate import calibrate_fourflip
-from calibrate._mlfit import cramer_rao as cramer_rao_bound
+from calibrate.fourflip._mlfit import cramer_rao as cramer_rao_bound
 from compass.sim.fourflip import simulate_fourflip
 
 METHODS = ("patent", "harmonic", "ml")

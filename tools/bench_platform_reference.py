@@ -81,7 +81,7 @@ from scipy.spatial.transform import Rotation  # noqa: E402
 from calibrate.platform3d import axis_geometry, calibrate_platform3d  # noqa: E402
 from calibrate.contract import CannotCalibrate  # noqa: E402
 from calibrate.reference import calibrate_reference  # noqa: E402
-from calibrate.result import FORMAT  # noqa: E402
+from compass.calibration_file import FORMAT  # noqa: E402
 from calibrate.tumble import calibrate_tumble  # noqa: E402
 from compass.attitude import solve_attitude  # noqa: E402
 from compass.io.platform3d import TiltSensor, platform_rotation, read_platform3d  # noqa: E402

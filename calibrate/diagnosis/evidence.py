@@ -1,6 +1,6 @@
 """The evidence loop of the residual diagnosis (SPEC section 4), shared by every calibration that runs it.
 
-The four-flip (:mod:`calibrate.diagnose`), the tumble (:mod:`calibrate.tumble.diagnosis`) and the
+The four-flip (:mod:`calibrate.fourflip.diagnosis`), the tumble (:mod:`calibrate.tumble.diagnosis`) and the
 fits against known inputs (:mod:`calibrate.diagnosis.offsets`) differ in their models, their
 effects and their verdicts, but choose effects the same way.  :func:`select_effects` is that
 choice; each caller hands it what differs as small callables:
@@ -34,7 +34,7 @@ import numpy as np
 
 
 __all__ = ["DECISIVE_BIC", "FLOOR_MARGIN", "MIN_SHARE", "MAX_STEPS", "MAX_REFITS", "REFIT_FRACTION", "SINGULAR_RCOND",
-           "STRUCTURE_P", "Fit", "Proposal", "Selection", "Check", "gather_forms", "linearised_score",
+           "STRUCTURE_P", "Fit", "FitRecord", "Proposal", "Selection", "Check", "gather_forms", "linearised_score",
            "refit_from_better_start", "determined", "select_effects", "EffectForm", "VERDICTS", "added_step_lines",
            "remark_lines", "residual_line", "is_unexplained", "linear_score", "unit_columns"]
 
@@ -70,8 +70,47 @@ class EffectForm:
         return f"{self.name} ({self.form})"
 
 
+@dataclass(frozen=True)
+class FitRecord:
+    """A fit of a model with effects, as the loop and the kinds' diagnoses keep it.
+
+    Attributes
+    ----------
+    effects : tuple
+        The effects in the model.
+    x, jac, covariance : ndarray
+        Parameters, Jacobian of the weighted residual, covariance.
+    residuals : ndarray
+        The residual in the kind's own units (what its report shows).
+    chi2 : float
+        Of the weighted residual.
+    n_obs : int
+        Number of weighted residuals.
+    success : bool
+    message : str
+    """
+
+    effects: tuple
+    x: np.ndarray
+    jac: np.ndarray
+    covariance: np.ndarray
+    residuals: np.ndarray
+    chi2: float
+    n_obs: int
+    success: bool
+    message: str
+
+    @property
+    def dof(self) -> int:
+        return self.n_obs - self.x.size
+
+    def bic(self) -> float:
+        """chi2 + k ln n, with the noise floor known."""
+        return self.chi2 + self.x.size * np.log(self.n_obs)
+
+
 class Fit(Protocol):
-    """What the loop reads of a fit."""
+    """What the loop reads of a fit (:class:`FitRecord` is one)."""
 
     effects: tuple
     chi2: float

@@ -1,6 +1,6 @@
 """Residual diagnosis of fits made against known inputs: the 3-D platform (seed 001) and reference fields (seed 003).
 
-The loop of :mod:`calibrate.diagnose` (SPEC section 4; steps 2 and 3 and the last part of 4 are
+The loop of :mod:`calibrate.fourflip.diagnosis` (SPEC section 4; steps 2 and 3 and the last part of 4 are
 :func:`calibrate.diagnosis.evidence.select_effects`) for a model whose diagnosed channels read
 
 .. math:: v_{ic} = y_{ic}(p) + o_c + \\Delta_{ic}(q),
@@ -47,8 +47,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..noise import chi2_sf
-from .evidence import (EffectForm, Proposal, determined, gather_forms, linearised_score, refit_from_better_start,
-                       select_effects, is_unexplained)
+from .evidence import (EffectForm, FitRecord, Proposal, determined, gather_forms, is_unexplained, linearised_score,
+                       refit_from_better_start, select_effects)
 from .forms import WARMUP_TAU_FRACTIONS, json_float, rms, settled, warm_up_tau_s, why_no_temperature, why_no_time
 from .report import Diagnosis
 
@@ -263,27 +263,6 @@ class Problem:
 
 
 @dataclass(frozen=True)
-class _Fit:
-    effects: tuple
-    x: np.ndarray
-    jac: np.ndarray
-    covariance: np.ndarray
-    channel_residuals: np.ndarray
-    chi2: float
-    n_obs: int
-    success: bool
-    message: str
-
-    @property
-    def dof(self) -> int:
-        return self.n_obs - self.x.size
-
-    def bic(self) -> float:
-        """chi2 + k ln n, with the noise floor known."""
-        return self.chi2 + self.x.size * np.log(self.n_obs)
-
-
-@dataclass(frozen=True)
 class OffsetDiagnosis(Diagnosis):
     """Outcome of the diagnosis.
 
@@ -408,26 +387,26 @@ def diagnose_offsets(problem: Problem, *, t_s=None, temp_c=None, candidates=None
         r, other = problem.residuals(x[:kb], delta(x, effects))
         return np.concatenate([(r / floor).ravel(), np.ravel(other)])
 
-    def fit(effects, x0) -> _Fit:
+    def fit(effects, x0) -> FitRecord:
         res = least_squares(weighted, x0, args=(effects,), method="lm", x_scale="jac", max_nfev=100 * (x0.size + 1))
         chi2 = float(res.fun @ res.fun)
         r, _ = problem.residuals(res.x[:kb], delta(res.x, effects))
-        return _Fit(tuple(effects), res.x, res.jac, _covariance(res.jac, chi2, res.fun.size - res.x.size), r, chi2,
+        return FitRecord(tuple(effects), res.x, res.jac, _covariance(res.jac, chi2, res.fun.size - res.x.size), r, chi2,
                     res.fun.size, bool(res.success), str(res.message))
 
-    def verdict(f: _Fit):
+    def verdict(f: FitRecord):
         if not problem.floor_from_repeats:
             return None, None
         k = problem.k_channels + f.x.size - kb
-        structure = lack_of_fit(f.channel_residuals / floor, problem.groups, k)
-        return structure, is_unexplained(structure[2], rms(f.channel_residuals), rms(floor))
+        structure = lack_of_fit(f.residuals / floor, problem.groups, k)
+        return structure, is_unexplained(structure[2], rms(f.residuals), rms(floor))
 
     def claim(p: Proposal, measured: dict) -> dict:
         start = p.trial.x.size - p.effect.n_params(c)
         return {
             "added": p.effect.name,
             "form": p.effect.form,
-            "residual_rms": rms(p.trial.channel_residuals),
+            "residual_rms": rms(p.trial.residuals),
             **p.evidence(p.effect.n_params(c)),
             "parameters": p.effect.report(p.trial.x[start:], np.sqrt(np.diag(p.trial.covariance))[start:], ctx),
         }
@@ -439,7 +418,7 @@ def diagnose_offsets(problem: Problem, *, t_s=None, temp_c=None, candidates=None
         refit=lambda current, effect, start: refit_from_better_start(fit, weighted, current, effect,
                                                                      effect.score_points(c)[0], start),
         n_params=lambda e: e.n_params(c), log_n=np.log(base.n_obs),
-        base_step={"model": "base", "residual_rms": rms(base.channel_residuals)},
+        base_step={"model": "base", "residual_rms": rms(base.residuals)},
         write_step=claim, verdict=verdict, checks=(determined("the base model"),))
     current, steps, structure, unexplained = chosen.fit, chosen.steps, chosen.structure, chosen.unexplained
 
@@ -455,7 +434,7 @@ def diagnose_offsets(problem: Problem, *, t_s=None, temp_c=None, candidates=None
         "steps": steps,
         "effects": [e.name for e in current.effects],
         "residual_rms_before": steps[0]["residual_rms"],
-        "residual_rms_after": rms(current.channel_residuals),
+        "residual_rms_after": rms(current.residuals),
         "unexplained": unexplained,
         "structure_test": None if structure is None else
         {"name": "lack-of-fit", "kind": "lack of fit of the repeat groups' mean residual", "delta_chi2": structure[0], "dof": structure[1],

@@ -1,6 +1,6 @@
 """Residual diagnosis of a tumble calibration: find what the ellipsoid lacks, add it, report before and after.
 
-The loop of :mod:`calibrate.diagnose` (SPEC section 4; steps 3 and 4 and the last part of 5 are
+The loop of :mod:`calibrate.fourflip.diagnosis` (SPEC section 4; steps 3 and 4 and the last part of 5 are
 :func:`calibrate.diagnosis.evidence.select_effects`), on the radial residual of the ellipsoid,
 
 .. math:: r_i = F \\left( |L^T c(y_i - p_h)| - 1 \\right) \\approx |S\\, c(x_i - h)| - F,
@@ -54,8 +54,8 @@ from itertools import combinations_with_replacement
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..diagnosis.evidence import (EffectForm, Proposal, determined, gather_forms, is_unexplained, linearised_score,
-                                  refit_from_better_start, select_effects)
+from ..diagnosis.evidence import (EffectForm, FitRecord, Proposal, determined, gather_forms, is_unexplained,
+                                  linearised_score, refit_from_better_start, select_effects)
 from ..diagnosis.forms import WARMUP_TAU_FRACTIONS, json_float, rms, settled, warm_up_tau_s, why_no_temperature, why_no_time
 from ..diagnosis.report import Diagnosis
 from ..noise import chi2_sf, robust_sigma
@@ -240,24 +240,8 @@ TUMBLE_FORMS: dict[str, tuple[TumbleEffect, ...]] = {
 """Each effect's forms for the tumble, simplest first; the evidence (BIC) chooses among them."""
 
 
-@dataclass(frozen=True)
-class _Fit:
-    effects: tuple
-    x: np.ndarray
-    jac: np.ndarray
-    covariance: np.ndarray
-    residuals: np.ndarray
-    chi2: float
-    success: bool
-    message: str
-
-    @property
-    def dof(self) -> int:
-        return self.residuals.size - self.x.size
-
-    def bic(self) -> float:
-        """chi2 + k ln n, with the noise floor known."""
-        return self.chi2 + self.x.size * np.log(self.residuals.size)
+class _Fit(FitRecord):
+    """A tumble fit: the shared record, and where an effect's parameters sit in ``x``."""
 
     def block(self, effect: TumbleEffect, k: int) -> slice:
         start = k
@@ -296,7 +280,7 @@ class _Model:
                             max_nfev=100 * (x0.size + 1))
         cov = fit_covariance(res, res.fun.size)
         return _Fit(tuple(effects), res.x, res.jac, cov, res.fun * self.floor, float(res.fun @ res.fun),
-                    bool(res.success), str(res.message))
+                    res.fun.size, bool(res.success), str(res.message))
 
     def score(self, fit: _Fit, effect: TumbleEffect) -> tuple[float, np.ndarray]:
         """Score test for adding ``effect``: (expected chi-square drop, start of its block).

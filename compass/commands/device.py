@@ -41,10 +41,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    import json
-
+    from ..calibration_file import write as write_calibration
     from ..cli import BadInput
-    from ..io.atomic import atomic_write_text, check_writable
     from ..model import SensorModel
     from ..sim.device import MOTIONS, PtyDevice, default_model
 
@@ -71,7 +69,7 @@ def run(args) -> int:
     except ValueError as exc:
         raise BadInput(str(exc)) from None
     if args.save_cal is not None:
-        atomic_write_text(check_writable(args.save_cal, args.force), json.dumps(model.to_json(), indent=2) + "\n")
+        write_calibration(args.save_cal, model.to_json(), force=args.force)
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:

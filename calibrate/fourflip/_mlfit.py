@@ -21,7 +21,7 @@ from scipy.optimize import least_squares
 from compass.frames import direction_sigma_deg as _direction_sigma_deg
 from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, channel_outputs, housing_field
 
-from .diagnosis.evidence import SINGULAR_RCOND, linear_score, unit_columns
+from ..diagnosis.evidence import SINGULAR_RCOND, linear_score, unit_columns
 from .effects import Effect
 
 __all__ = ["MLFit", "cramer_rao", "fit_ml", "score_effect", "tangent_basis"]
@@ -304,7 +304,7 @@ def score_effect(fit: MLFit, outputs: np.ndarray, noise: np.ndarray, effect: Eff
     the current parameters can already absorb, and returns the chi-square drop a refit would
     give to first order, with the Gauss-Newton start values of the effect's block.  An effect
     with a shape parameter (a time constant) is linearised at each of its
-    :meth:`~calibrate.effects.Effect.score_starts` and the best is kept.
+    :meth:`~calibrate.fourflip.effects.Effect.score_starts` and the best is kept.
 
     Returns
     -------

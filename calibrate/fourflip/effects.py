@@ -26,7 +26,7 @@ import numpy as np
 
 from compass.sim.bench import BenchPhysics, BenchSamples
 
-from .diagnosis.forms import warm_up_tau_s, why_no_temperature, why_no_time
+from ..diagnosis.forms import warm_up_tau_s, why_no_temperature, why_no_time
 
 __all__ = ["Effect", "EFFECTS", "VARIANTS", "effect_by_name"]
 

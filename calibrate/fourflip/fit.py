@@ -10,7 +10,7 @@ Three estimators, one result type:
   flip-0 curve is flat (near Z) the table is taken from the flip with the largest swing.
 - ``harmonic``: the same formulas with each minimum and crossing located by a least-squares
   first-harmonic fit of the whole turn.
-- ``ml`` (default): the joint maximum-likelihood fit of :mod:`calibrate._mlfit`, started from
+- ``ml`` (default): the joint maximum-likelihood fit of :mod:`calibrate.fourflip._mlfit`, started from
   the singularity-free vector combination of the harmonics, with standard errors.
 """
 
@@ -27,11 +27,11 @@ from compass.sim.bench import BenchPhysics, BenchSamples
 
 from . import _harmonic as hm
 from ._mlfit import MLFit, fit_ml
-from .contract import Calibrator
-from .diagnose import UNEXPLAINED_WARNING, diagnose_fourflip, examine_residual
-from .noise import SPIKE_SIGMAS, find_spikes, noise_floor
+from ..contract import Calibrator
+from .diagnosis import UNEXPLAINED_WARNING, diagnose_fourflip, examine_residual
+from ..noise import SPIKE_SIGMAS, find_spikes, noise_floor
 from .result import CalibrationResult, ChannelCalibration
-from .site_field import compare_with_site
+from ..site_field import compare_with_site
 
 __all__ = ["METHODS", "FourFlipCalibrator", "calibrate_fourflip", "physics_from_harmonics", "result_from_ml"]
 
@@ -58,7 +58,7 @@ def calibrate_fourflip(
         give the same outputs); +1 (field points down, northern hemisphere) unless the
         metadata's ``site_lat_deg`` is negative.
     diagnose : bool
-        Run the residual diagnosis loop (:mod:`calibrate.diagnose`): with ``ml`` the final model
+        Run the residual diagnosis loop (:mod:`calibrate.fourflip.diagnosis`): with ``ml`` the final model
         includes every effect the evidence supports; with the seed's rules the residual is only
         examined (the loop needs the joint fit).
     progress : callable, optional
@@ -119,7 +119,8 @@ def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progres
         if not diagnose:
             return result
         diagnosis = examine_residual(samples, result.residuals, noise)
-        warnings = result.warnings + ((UNEXPLAINED_WARNING,) if diagnosis["unexplained"] else ())
+        warnings = result.warnings + ((_seed_rule_warning(rec, samples, noise, method, field_ut, dip_sign),)
+                                      if diagnosis["unexplained"] else ())
         return replace(result, diagnosis=diagnosis, warnings=warnings)
     start = physics_from_harmonics(rec, field_ut, dip_sign)
     if not diagnose:
@@ -136,6 +137,21 @@ def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progres
     warnings = (UNEXPLAINED_WARNING,) if diagnosis["unexplained"] else ()
     result = result_from_ml(fit, rec, noise, field_ut, effects=effects, diagnosis=diagnosis, extra_warnings=warnings)
     return replace(result, base_residuals=base.residuals) if fit.effects else result
+
+
+def _seed_rule_warning(rec, samples, noise, method, field_ut, dip_sign) -> str:
+    """Why a seed rule's residual is above the floor: the recording, or the rule's own estimate.
+
+    The joint fit (``ml``) is run: when it leaves the residual at the noise floor, the structure
+    is the rule's misestimate (a minimum picked on a flat curve, a channel's direction reversed),
+    not an effect the recording has.
+    """
+    ml = fit_ml(samples, rec.outputs, rec.channels, physics_from_harmonics(rec, field_ut, dip_sign), noise)
+    if examine_residual(samples, ml.residuals, noise)["unexplained"]:
+        return UNEXPLAINED_WARNING
+    return (f"the {method} estimate leaves structure in the residual above the noise floor, but the joint fit "
+            "(--method ml) of the same recording is at the floor: the misfit is this method's estimate (a "
+            "minimum picked on a flat curve, a direction reversed), not an effect of the recording; use --method ml")
 
 
 def _float_or_none(s):

@@ -6,14 +6,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from compass.calibration_file import FORMAT, channel_entry, header
+from compass.calibration_file import channel_entry, header
 from compass.frames import direction_sigma_deg as _direction_sigma_deg
 from compass.frames import seed_angles
 from compass.response import Response
 
-from .contract import Calibration
+from ..contract import Calibration
 
-__all__ = ["ChannelCalibration", "CalibrationResult", "FORMAT"]
+__all__ = ["ChannelCalibration", "CalibrationResult"]
 _ANGLE_KEYS = ("theta_deg", "gamma_deg", "elevation_deg", "psi_deg")
 
 
@@ -180,7 +180,7 @@ class CalibrationResult(Calibration):
         """
         from pathlib import Path
 
-        from .plots import plot_fit, plot_residuals
+        from ..plots import plot_fit, plot_residuals
 
         folder = Path(folder)
         used = self.used(recording)
@@ -226,11 +226,11 @@ class CalibrationResult(Calibration):
         for w in self.warnings:
             lines.append(f"  warning: {w}")
         if self.diagnosis:
-            from .diagnosis.report import format_diagnosis
+            from ..diagnosis.report import format_diagnosis
 
             lines.append(format_diagnosis(self.diagnosis))
         if "site_check" in self.extra:
-            from .site_field import describe
+            from ..site_field import describe
 
             lines.append(describe(self.extra["site_check"]))
         return "\n".join(lines)

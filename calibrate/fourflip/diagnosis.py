@@ -30,10 +30,10 @@ from compass.io.fourflip import FourFlipRecording
 from compass.sim.bench import BenchSamples
 
 from ._mlfit import MLFit, fit_ml, score_effect
-from .diagnosis.evidence import DECISIVE_BIC, Proposal, gather_forms, is_unexplained, select_effects
-from .diagnosis.report import format_diagnosis
+from ..diagnosis.evidence import DECISIVE_BIC, Proposal, gather_forms, is_unexplained, select_effects
+from ..diagnosis.report import format_diagnosis
 from .effects import VARIANTS, Effect
-from .noise import chi2_sf, noise_floor
+from ..noise import chi2_sf, noise_floor
 
 __all__ = ["DECISIVE_BIC", "UNEXPLAINED_WARNING", "diagnose_fourflip", "examine_residual", "format_diagnosis",
            "residual_structure"]
