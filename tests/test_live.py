@@ -89,6 +89,8 @@ def test_session_logs_what_it_writes(tmp_path):
     _, band = scalars(rrd, "/compass/heading_deg/sigma_band")
     sigma = table.column("heading_sigma_deg")
     np.testing.assert_allclose(band, table.column("heading_deg")[:, None] + sigma[:, None] * [-1, 1], atol=2e-3)
+    _, latency = scalars(rrd, "/compass/latency_ms")
+    np.testing.assert_allclose(latency[:, 0], table.column("latency_ms"), atol=1e-3)
     _, raw = scalars(rrd, "/raw/mag")
     np.testing.assert_allclose(raw, np.delete(samples.raw, 100, axis=0), rtol=1e-4, atol=1e-4)  # line 100 was cut
     _, texts = read_column(rrd, "/events", "TextLog:text")
