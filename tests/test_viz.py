@@ -84,12 +84,13 @@ def test_calibrate_fourflip_replays_the_session(fourflip):
     expected = Rotation.from_euler("ZX", np.column_stack([phi, kappa]), degrees=True)
     assert np.max((r.inv() * expected).magnitude()) < 1e-5
     # sensing directions as fitted, one labelled arrow each
-    (arrows,) = [read_static(rrd, "/bench/turntable/cube/directions", "Arrows3D:vectors")]
-    directions = np.array(arrows[-1]) / 1.2
+    directions = np.array(read_static(rrd, "/bench/turntable/cube/directions", "Arrows3D:vectors")[-1]) / 1.2
     np.testing.assert_allclose(directions, [cal["channels"][n]["direction"] for n in names], atol=1e-6)
     # the diagnosis: one bar per step, the last at the final residual
-    (bars,) = read_static(rrd, "/diagnosis/residual_rms", "BarChart:values")[-1:]
-    assert len(cal["diagnosis"]["steps"]) >= 2
+    (tensor,) = read_static(rrd, "/diagnosis/residual_rms", "BarChart:values")[-1]
+    steps = cal["diagnosis"]["steps"]
+    assert len(steps) >= 2 and tensor["shape"] == [len(steps)]
+    np.testing.assert_allclose(tensor["buffer"], [step["residual_rms"] for step in steps], rtol=1e-6)
     _, log = read_column(rrd, "/diagnosis/log", "TextLog:text")
     assert any("offset_drift" in t[0] for t in log)
     views = views_by_name(rrd)
