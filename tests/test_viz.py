@@ -11,7 +11,8 @@ from compass.io.table import read_table
 from compass.viz import spawn_problem
 
 rr = pytest.importorskip("rerun")
-from rrd_read import blueprint_views, entity_paths, read_column, read_static, scalars, timelines  # noqa: E402
+from rrd_read import (blueprint_timeline, blueprint_views, entity_paths, read_column, read_static,  # noqa: E402
+                      scalars, timelines)
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 
@@ -190,6 +191,7 @@ def test_demo_writes_a_recording_with_calibration_attitude_and_errors(tmp_path, 
     _, error = scalars(rrd, "/errors/heading_deg")
     _, band = scalars(rrd, "/errors/heading_deg/sigma_band")
     assert np.sqrt(np.mean(error**2)) < 2 * np.sqrt(np.mean(band[:, 1] ** 2))  # errors as large as their sigma
+    assert blueprint_timeline(rrd) == "sample"  # the replay's order, shared by the calibration and the attitude
     origins = {v.get("origin") for v in blueprint_views(rrd)}
     assert {"/bench", "/world", "/housing", "/errors/heading_deg", "/compass/field_ratio",
             "/diagnosis/residual_rms"} <= origins

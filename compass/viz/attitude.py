@@ -314,7 +314,7 @@ def record_attitude(target, attitude, model, *, t_s=None, raw=None, accel=None, 
         out.rec.log("events", rr.TextLog(f"mode {attitude.mode}: {int(np.sum(attitude.disturbed))} of "
                                          f"{len(attitude.disturbed)} rows disturbed, "
                                          f"{int(np.sum(~attitude.in_range))} out of calibrated range"))
-        out.rec.send_blueprint(rrb.Blueprint(attitude_views(), collapse_panels=False))
+        out.rec.send_blueprint(rrb.Blueprint(attitude_views(), rrb.TimePanel(timeline="sample")))
 
 
 def record_evaluation(target, trial, result, errors, *, application_id: str = "compass_evaluate") -> None:
@@ -336,7 +336,7 @@ def record_evaluation(target, trial, result, errors, *, application_id: str = "c
                        errors=errors, field_h_ut=result.field_h_ut, field_ut=result.field_ut,
                        disturbed=result.disturbed, movement=trial.movement,
                        events=[(errors.t_s[0], f"{trial.name}: {result.method}")] + events)
-        out.rec.send_blueprint(rrb.Blueprint(evaluation_views(), collapse_panels=False))
+        out.rec.send_blueprint(rrb.Blueprint(evaluation_views(), rrb.TimePanel(timeline="t")))
 
 
 def reference_dip(attitude, model) -> float:

@@ -35,7 +35,7 @@ _FLOAT_COLUMNS = ("heading_deg", "pitch_deg", "roll_deg", "heading_sigma_deg", "
 
 def live_blueprint() -> rrb.Blueprint:
     """The layout of a live recording (:func:`compass.viz.attitude.attitude_views`)."""
-    return rrb.Blueprint(attitude_views(), rrb.TimePanel(timeline="t"), collapse_panels=False)
+    return rrb.Blueprint(attitude_views(), rrb.TimePanel(timeline="t"))
 
 
 class RerunSink:
