@@ -196,6 +196,7 @@ class LiveSession:
         if self.sink is not None:
             self.sink.log(t_s, self.samples, est, field_h / self.config.field_norm, sample.accel, raw=sample.raw,
                           gyro=sample.gyro, gate_code=GATE_CODES[est.gate], in_range=self.in_range,
+                          latency_ms=1e3 * latency,
                           **({"true_heading": self.true_heading()} if self._declination is not None else {}))
         if not held:
             self.output_latencies_s.append(time.perf_counter() - t_rx)

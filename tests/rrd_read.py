@@ -70,3 +70,14 @@ def blueprint_views(path):
                 value = rb.column(column).to_pylist()[-1]
                 view[name] = value if column == "ViewContents:query" else value[0]
     return list(views.values())
+
+
+def blueprint_timeline(path):
+    """The timeline the blueprint's time panel shows, or None."""
+    reader = RrdReader(str(path))
+    (store,) = reader.blueprints()
+    for c in reader.stream(store=store).to_chunks():
+        rb = c.to_record_batch()
+        if "TimePanelBlueprint:timeline" in rb.schema.names:
+            return rb.column("TimePanelBlueprint:timeline").to_pylist()[-1][0]
+    return None

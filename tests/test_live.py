@@ -18,7 +18,7 @@ from compass.sim.device import PtyDevice, default_model, scripted_motion, simula
 from tests._proc import Proc, compass_command
 
 rr = pytest.importorskip("rerun")
-from rrd_read import entity_paths, read_column, scalars  # noqa: E402
+from rrd_read import blueprint_views, entity_paths, read_column, read_static, scalars  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 from compass.filter import FilterConfig  # noqa: E402
@@ -89,11 +89,18 @@ def test_session_logs_what_it_writes(tmp_path):
     _, band = scalars(rrd, "/compass/heading_deg/sigma_band")
     sigma = table.column("heading_sigma_deg")
     np.testing.assert_allclose(band, table.column("heading_deg")[:, None] + sigma[:, None] * [-1, 1], atol=2e-3)
+    _, latency = scalars(rrd, "/compass/latency_ms")
+    np.testing.assert_allclose(latency[:, 0], table.column("latency_ms"), atol=1e-3)
     _, raw = scalars(rrd, "/raw/mag")
     np.testing.assert_allclose(raw, np.delete(samples.raw, 100, axis=0), rtol=1e-4, atol=1e-4)  # line 100 was cut
     _, texts = read_column(rrd, "/events", "TextLog:text")
     assert any("header: t_s,seq" in t[0] for t in texts) and any("line noise" in t[0] for t in texts)
     assert any("connected to test" in t for t in events)
+    # the reference the session learnt (first quiet second) is the one drawn, and the layout came along
+    (label,) = read_static(rrd, "/world/reference_field", "Arrows3D:labels")[-1]
+    assert f"dip {session.reference.dip_deg:.1f} deg" in label and session.reference.description in label
+    origins = {v.get("origin") for v in blueprint_views(rrd)}
+    assert {"/world", "/housing", "/compass/field_ratio", "/compass/dip_deg", "/raw/mag", "/events"} <= origins
     t_events, _ = read_column(rrd, "/events", "TextLog:text", index="t")
     t_first, _ = read_column(rrd, "/compass/heading_deg", "Scalars:scalars", index="t")
     assert min(t_events) >= min(t_first)  # the events timeline starts at the first sample

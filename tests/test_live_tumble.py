@@ -1,13 +1,10 @@
 """`compass live --calibrate tumble` against the simulated module (`compass device --pty --motion tumble`)."""
 
 import json
-import os
-import signal
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+from _proc import Proc, compass_command
 
 from compass.cli import main
 from compass.model import SensorModel
@@ -20,29 +17,16 @@ from rrd_read import blueprint_views, entity_paths, read_column, scalars  # noqa
 def test_live_tumble_reaches_the_offline_hard_iron(tmp_path):
     cal, link = tmp_path / "dev.json", tmp_path / "dev"
     out, rrd = tmp_path / "live.json", tmp_path / "live.rrd"
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    device = subprocess.Popen(
-        [sys.executable, "-m", "compass", "device", "--pty", "--motion", "tumble", "--save-cal", str(cal), "--link",
-         str(link), "--rate", "100", "--seed", "3", "--duration", "90"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    live = None
-    try:
-        assert device.stdout.readline().strip() == str(link)
-        live = subprocess.Popen(
-            [sys.executable, "-m", "compass", "live", "--port", str(link), "--calibrate", "tumble", "--out", str(out),
-             "--rerun", str(rrd), "--min-coverage", "0.5", "--duration", "60"],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-        stdout, stderr = live.communicate(timeout=90)
-    finally:
-        for p in (live, device):
-            if p is not None and p.poll() is None:
-                p.send_signal(signal.SIGINT)
-                try:
-                    p.wait(10)
-                except subprocess.TimeoutExpired:
-                    p.kill()
-                    p.wait(5)
-    assert live.returncode == 0, stderr
+    with Proc(compass_command("device", "--pty", "--motion", "tumble", "--save-cal", str(cal), "--link", str(link),
+                              "--rate", "100", "--seed", "3", "--duration", "90"), kill_after_s=120) as device:
+        assert device.wait_for(lambda line: line.strip() == str(link), 30.0), device.transcript()
+        with Proc(compass_command("live", "--port", str(link), "--calibrate", "tumble", "--out", str(out), "--rerun",
+                                  str(rrd), "--min-coverage", "0.5", "--duration", "60"), kill_after_s=100) as live:
+            live.wait_for(lambda line: line.startswith("wrote") and line.strip().endswith(".rrd"), 90.0)
+            status = live.stop(sig=0, timeout_s=20.0)  # it ends by itself (coverage, or --duration): wait for it
+            stdout = "".join(live.out)
+        device.stop()
+    assert status == 0, live.transcript()
     assert "coverage reached" in stdout and "never along the field yet" in stdout  # said in words while turning
     live_cal = json.loads(out.read_text())
     live_h, live_sigma = np.array(live_cal["hard_iron"]), np.array(live_cal["tumble"]["hard_iron_sigma"])

@@ -11,7 +11,8 @@ from compass.io.table import read_table
 from compass.viz import spawn_problem
 
 rr = pytest.importorskip("rerun")
-from rrd_read import blueprint_views, entity_paths, read_column, read_static, scalars, timelines  # noqa: E402
+from rrd_read import (blueprint_timeline, blueprint_views, entity_paths, read_column, read_static,  # noqa: E402
+                      scalars, timelines)
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 
@@ -84,12 +85,13 @@ def test_calibrate_fourflip_replays_the_session(fourflip):
     expected = Rotation.from_euler("ZX", np.column_stack([phi, kappa]), degrees=True)
     assert np.max((r.inv() * expected).magnitude()) < 1e-5
     # sensing directions as fitted, one labelled arrow each
-    (arrows,) = [read_static(rrd, "/bench/turntable/cube/directions", "Arrows3D:vectors")]
-    directions = np.array(arrows[-1]) / 1.2
+    directions = np.array(read_static(rrd, "/bench/turntable/cube/directions", "Arrows3D:vectors")[-1]) / 1.2
     np.testing.assert_allclose(directions, [cal["channels"][n]["direction"] for n in names], atol=1e-6)
     # the diagnosis: one bar per step, the last at the final residual
-    (bars,) = read_static(rrd, "/diagnosis/residual_rms", "BarChart:values")[-1:]
-    assert len(cal["diagnosis"]["steps"]) >= 2
+    (tensor,) = read_static(rrd, "/diagnosis/residual_rms", "BarChart:values")[-1]
+    steps = cal["diagnosis"]["steps"]
+    assert len(steps) >= 2 and tensor["shape"] == [len(steps)]
+    np.testing.assert_allclose(tensor["buffer"], [step["residual_rms"] for step in steps], rtol=1e-6)
     _, log = read_column(rrd, "/diagnosis/log", "TextLog:text")
     assert any("offset_drift" in t[0] for t in log)
     views = views_by_name(rrd)
@@ -189,6 +191,7 @@ def test_demo_writes_a_recording_with_calibration_attitude_and_errors(tmp_path, 
     _, error = scalars(rrd, "/errors/heading_deg")
     _, band = scalars(rrd, "/errors/heading_deg/sigma_band")
     assert np.sqrt(np.mean(error**2)) < 2 * np.sqrt(np.mean(band[:, 1] ** 2))  # errors as large as their sigma
+    assert blueprint_timeline(rrd) == "sample"  # the replay's order, shared by the calibration and the attitude
     origins = {v.get("origin") for v in blueprint_views(rrd)}
     assert {"/bench", "/world", "/housing", "/errors/heading_deg", "/compass/field_ratio",
             "/diagnosis/residual_rms"} <= origins

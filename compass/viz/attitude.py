@@ -23,7 +23,8 @@ entity                              content
 ``compass/heading_deg`` ...         ``Scalars``: heading_deg, pitch_deg, roll_deg, heading_true_deg
                                     (with a site), field_ratio,
                                     dip_deg, gate (CSV code: 0 used, 1 |B|, 2 dip, 3 innovation,
-                                    4 no field), mag_used, accel_used, in_range, disturbed
+                                    4 no field), mag_used, accel_used, in_range, disturbed,
+                                    latency_ms (live)
 ``compass/<angle>/sigma_band``      ``Scalars`` x2: the angle -1 sigma and +1 sigma
 ``compass/field_ratio/gate_limits`` ``Scalars`` x2: the gate's limits (also ``dip_deg``)
 ``raw/mag``, ``raw/accel``,         ``Scalars``: the recording's columns (channel names, ax..az,
@@ -66,7 +67,8 @@ def attitude_views(*, world: str = "/world", housing: str = "/housing", compass:
         rrb.TimeSeriesView(name=GATE_LEGEND, contents=[f"{compass}/{f}" for f in FLAGS]),
         rrb.Tabs(rrb.TimeSeriesView(origin=f"{raw}/mag", name="raw magnetometer channels"),
                  rrb.TimeSeriesView(origin=f"{raw}/accel", name="raw accelerometer"),
-                 rrb.TimeSeriesView(origin=f"{raw}/gyro", name="raw gyro (rad/s)")))
+                 rrb.TimeSeriesView(origin=f"{raw}/gyro", name="raw gyro (rad/s)"),
+                 rrb.TimeSeriesView(origin=f"{compass}/latency_ms", name="live: latency, port to estimate (ms)")))
     return rrb.Horizontal(spatial, series, rrb.TextLogView(origin=events, name="events"), column_shares=[2, 3, 1],
                           name="attitude")
 
@@ -172,7 +174,7 @@ def send_attitude(rec, index, columns: dict, *, field_limits=None, dip_limits=No
         if limits is not None:
             band = np.broadcast_to(np.asarray(limits, dtype=float), (len(value), 2))
             rec.send_columns(f"{compass}/{name}/gate_limits", indexes=index, columns=rr.Scalars.columns(scalars=band))
-    for name in FLAGS:
+    for name in (*FLAGS, "latency_ms"):
         if name in columns:
             rec.send_columns(f"{compass}/{name}", indexes=index,
                              columns=rr.Scalars.columns(scalars=np.asarray(columns[name], dtype=float)))
@@ -312,7 +314,7 @@ def record_attitude(target, attitude, model, *, t_s=None, raw=None, accel=None, 
         out.rec.log("events", rr.TextLog(f"mode {attitude.mode}: {int(np.sum(attitude.disturbed))} of "
                                          f"{len(attitude.disturbed)} rows disturbed, "
                                          f"{int(np.sum(~attitude.in_range))} out of calibrated range"))
-        out.rec.send_blueprint(rrb.Blueprint(attitude_views(), collapse_panels=False))
+        out.rec.send_blueprint(rrb.Blueprint(attitude_views(), rrb.TimePanel(timeline="sample")))
 
 
 def record_evaluation(target, trial, result, errors, *, application_id: str = "compass_evaluate") -> None:
@@ -334,7 +336,7 @@ def record_evaluation(target, trial, result, errors, *, application_id: str = "c
                        errors=errors, field_h_ut=result.field_h_ut, field_ut=result.field_ut,
                        disturbed=result.disturbed, movement=trial.movement,
                        events=[(errors.t_s[0], f"{trial.name}: {result.method}")] + events)
-        out.rec.send_blueprint(rrb.Blueprint(evaluation_views(), collapse_panels=False))
+        out.rec.send_blueprint(rrb.Blueprint(evaluation_views(), rrb.TimePanel(timeline="t")))
 
 
 def reference_dip(attitude, model) -> float:

@@ -364,7 +364,7 @@ class LiveTumbleRecording:
             self.rec.set_time("sample", sequence=0)
             log_calibration(self.rec, "tumble", result.to_json(), mag=mag, coverage_words=result.coverage.words())
             views.append(calibration_views("tumble"))
-        self.rec.send_blueprint(rrb.Blueprint(rrb.Tabs(*views), collapse_panels=False))
+        self.rec.send_blueprint(rrb.Blueprint(rrb.Tabs(*views), rrb.TimePanel(timeline="sample")))
         self.recording.close()
 
 
@@ -428,7 +428,7 @@ def record_calibration(target, recording_path, result, *, base_residuals=None,
 
     with Recording(target, application_id=application_id) as out:
         views = log_calibration_result(out.rec, result, recording_path, base_residuals=base_residuals)
-        out.rec.send_blueprint(rrb.Blueprint(views, collapse_panels=False))
+        out.rec.send_blueprint(rrb.Blueprint(views, rrb.TimePanel(timeline="sample")))
 
 
 def _log_platform_poses(rec, angles_deg) -> None:

@@ -79,4 +79,4 @@ def record_demo(path, recording_path, calibration_result, attitude, model, *, t_
                 rec.send_columns(f"errors/{name}/sigma_band", indexes=index, columns=rr.Scalars.columns(
                     scalars=np.asarray(sigma[name])[:, None] * [-1.0, 1.0]))
         rec.send_blueprint(rrb.Blueprint(rrb.Tabs(calibration, attitude_views(), errors_views(), active_tab=0),
-                                         collapse_panels=False))
+                                         rrb.TimePanel(timeline="sample")))

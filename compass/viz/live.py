@@ -27,14 +27,15 @@ ENTITIES = ("world/housing", "world/housing/body", "world/housing/axes", "world/
             "raw/mag", "raw/accel", *(f"compass/{name}" for name in (
                 "heading_deg", "pitch_deg", "roll_deg", "heading_deg/sigma_band", "pitch_deg/sigma_band",
                 "roll_deg/sigma_band", "field_ratio", "field_ratio/gate_limits", "dip_deg", "dip_deg/gate_limits",
-                "gate", "mag_used", "accel_used", "in_range")))
+                "gate", "mag_used", "accel_used", "in_range", "latency_ms")))
 _FLOAT_COLUMNS = ("heading_deg", "pitch_deg", "roll_deg", "heading_sigma_deg", "tilt_sigma_deg", "field_ratio",
-                  "dip_deg", "gate", "mag_used", "accel_used", "in_range", "heading_true_deg", "heading_true_sigma_deg")
+                  "dip_deg", "gate", "mag_used", "accel_used", "in_range", "latency_ms", "heading_true_deg",
+                  "heading_true_sigma_deg")
 
 
 def live_blueprint() -> rrb.Blueprint:
     """The layout of a live recording (:func:`compass.viz.attitude.attitude_views`)."""
-    return rrb.Blueprint(attitude_views(), rrb.TimePanel(timeline="t"), collapse_panels=False)
+    return rrb.Blueprint(attitude_views(), rrb.TimePanel(timeline="t"))
 
 
 class RerunSink:
@@ -97,7 +98,7 @@ class RerunSink:
                       dip_tolerance_deg=self.dip_tolerance_deg, description=description)
 
     def log(self, t_s: float, sample: int, estimate, field_h, accel, *, raw=None, gyro=None, gate_code: int = 0,
-            in_range: bool = True, true_heading=(np.nan, np.nan)) -> None:
+            in_range: bool = True, latency_ms: float = np.nan, true_heading=(np.nan, np.nan)) -> None:
         """Buffer one sample; sends the buffer when it is ``flush_s`` old.
 
         Parameters
@@ -118,12 +119,15 @@ class RerunSink:
         gate_code : int
             The CSV's ``gate`` code of this estimate.
         in_range : bool
+        latency_ms : float
+            The CSV's ``latency_ms``: chunk read from the port to this estimate, ms.
         true_heading : (float, float)
             ``heading_true_deg`` and its sigma (with a site), degrees; NaN without.
         """
         e = estimate
         self._rows.append((t_s, sample, e.heading_deg, e.pitch_deg, e.roll_deg, e.heading_sigma_deg, e.tilt_sigma_deg,
-                           e.field_ratio, e.dip_deg, gate_code, e.mag_used, e.accel_used, in_range, *true_heading))
+                           e.field_ratio, e.dip_deg, gate_code, e.mag_used, e.accel_used, in_range, latency_ms,
+                           *true_heading))
         self._raw.append(raw)
         self._accel.append(accel)
         self._gyro.append(gyro)
