@@ -106,6 +106,18 @@ def test_tilted_swing_with_heading_reference_fits_the_yaw(bench):
     assert np.all(np.abs(result.hard_iron_ut - inst.hard_iron_ut) < 5 * result.hard_iron_sigma_ut)
     after = result.card_after
     assert after is not None and after.residual_rms_deg < 0.6 and abs(after.coefficients_deg["A"]) < 0.1
+    # compass attitude reads the alignment: the product's heading, not the housing's
+    from compass.calibration_file import dumps
+
+    folder = bench[3]
+    (folder / "aligned.json").write_text(dumps(result.to_json()))
+    run = simulate_installation(truth, inst, kind="runtime", n=1000, max_tilt_deg=20.0, seed=62)
+    run_path, _ = write_installation(run, folder / "aligned_run.csv", force=True)
+    assert main(["attitude", str(folder / "aligned.json"), str(run_path), "--out", str(folder / "aligned_att.csv"),
+                 "--force"]) == 0
+    table = read_table(folder / "aligned_att.csv")
+    assert rms(wrap(table.column("heading_deg") - run.heading_deg)) < 0.6
+    assert rms(table.column("pitch_deg") - run.pitch_deg) < 0.3
 
 
 def test_drifting_hard_iron_is_named(bench):
