@@ -344,7 +344,9 @@ class InstallationCalibrator(Calibrator):
         if turn < 90.0:
             raise CannotCalibrate(f"{rec.path}: the field turned through only {turn:.0f} deg about the vertical: "
                                       f"a swing needs a full turn of heading, a tumble every orientation")
-        priors = _priors(base, site)
+        # a level swing holds the vertical hard and soft iron at zero: the site's |B| and dip would then
+        # be met by bending the horizontal soft iron instead, so they are not used as priors there
+        priors = {} if _is_level(data) else _priors(base, site)
         base_fit = _fit(data, (), priors)
         if data.heading_ref is not None:  # weigh the reference by its own noise, from what the fit leaves of it
             data = replace(data, heading_sigma_deg=max(base_fit.heading_rms_deg, 0.01))
@@ -569,9 +571,7 @@ def _undetermined_mask(data: _Data, effects: tuple, priors: dict, x: np.ndarray)
     soft-iron entry to ``5 sigma_b / |B|``): a flat direction can span several parameters.
     """
     mask = np.zeros(len(x), dtype=bool)
-    mean_up = data.u.mean(axis=0)
-    mean_up /= np.linalg.norm(mean_up)
-    if np.sqrt(np.mean(np.arccos(np.clip(data.u @ mean_up, -1.0, 1.0)) ** 2)) < np.radians(_LEVEL_DEG):
+    if _is_level(data):
         mask[[2, 5]] = True  # hard_iron_z, soft_iron_zz
     jac = _jacobian(x, data, effects, priors)
     limit = UNDETERMINED_NOISE * data.sigma_b * np.array([1.0] * 3 + [1.0 / x[9]] * 6)
@@ -584,6 +584,13 @@ def _undetermined_mask(data: _Data, effects: tuple, priors: dict, x: np.ndarray)
         if ratio[worst] <= 1.0:
             return mask
         mask[worst] = True
+
+
+def _is_level(data: _Data) -> bool:
+    """The up direction stays within :data:`_LEVEL_DEG` (RMS) of its mean: a level swing."""
+    mean_up = data.u.mean(axis=0)
+    mean_up /= np.linalg.norm(mean_up)
+    return bool(np.sqrt(np.mean(np.arccos(np.clip(data.u @ mean_up, -1.0, 1.0)) ** 2)) < np.radians(_LEVEL_DEG))
 
 
 def _bic(fit: _Fit) -> float:
