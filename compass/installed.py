@@ -29,7 +29,8 @@ import numpy as np
 from .model import SensorModel
 from .response import LinearResponse, Response
 
-__all__ = ["SOFT_IRON_ENTRIES", "installed_model", "from_installed_json", "accel_to_product", "soft_iron_basis"]
+__all__ = ["SOFT_IRON_ENTRIES", "installed_model", "from_installed_json", "alignment_of", "accel_to_product",
+           "soft_iron_basis"]
 
 SOFT_IRON_ENTRIES = ("xx", "yy", "zz", "xy", "xz", "yz")
 """The six entries of the symmetric soft-iron deviation ``S - I``, in parameter order."""
@@ -167,13 +168,21 @@ def from_installed_json(d: dict) -> SensorModel:
     return installed_model(base.model, hard, soft, cov, align)
 
 
+def alignment_of(document: dict) -> np.ndarray | None:
+    """``R_product<-housing`` of an installed calibration file's dictionary with an alignment, else None."""
+    inst = document.get("installation") if document.get("model") == "installed" else None
+    if not isinstance(inst, dict) or inst.get("alignment") is None:
+        return None
+    return np.asarray(inst["alignment"], dtype=float)
+
+
 def accel_to_product(document: dict, accel):
     """The module's accelerometer (H) in the product's frame, for an installed file with an alignment;
     unchanged otherwise."""
-    inst = document.get("installation") if document.get("model") == "installed" else None
-    if accel is None or not isinstance(inst, dict) or inst.get("alignment") is None:
+    rotation = alignment_of(document)
+    if accel is None or rotation is None:
         return accel
-    return np.asarray(accel, dtype=float) @ np.asarray(inst["alignment"], dtype=float).T
+    return np.asarray(accel, dtype=float) @ rotation.T
 
 
 def _array(d: dict, key: str, shape) -> np.ndarray:

@@ -47,6 +47,9 @@ class LiveSession:
         the true heading (``heading_true_deg`` in the readout and the CSV).  Without it the
         reference is seeded from the stream's first quiet second (:class:`compass.site.QuietSeed`;
         those samples are held, then solved), never the calibration bench's.
+    to_product : ndarray, shape (3, 3), optional
+        ``R_product<-housing`` of an installed calibration with an alignment (its model is in the
+        product's frame): the module's accelerometer and gyro are turned by it.
 
     Attributes
     ----------
@@ -74,6 +77,7 @@ class LiveSession:
     sink: object = None
     on_event: object = None
     reference: object = None
+    to_product: object = None
     decoder: LineDecoder = field(init=False)
     estimate: Estimate | None = None
     in_range: bool = True
@@ -139,6 +143,9 @@ class LiveSession:
         if self._t0 is None:
             self._t0 = item.t_rx
         for sample in self.decoder.feed(item.data):
+            if self.to_product is not None:  # an installed model in the product's frame
+                sample = replace(sample, **{k: None if getattr(sample, k) is None else self.to_product @ getattr(sample, k)
+                                            for k in ("accel", "gyro")})
             self._sample(sample, item.t_rx)
         if self.decoder.events:
             for level, text in self.decoder.drain_events():

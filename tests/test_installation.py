@@ -106,6 +106,18 @@ def test_tilted_swing_with_heading_reference_fits_the_yaw(bench):
     assert np.all(np.abs(result.hard_iron_ut - inst.hard_iron_ut) < 5 * result.hard_iron_sigma_ut)
     after = result.card_after
     assert after is not None and after.residual_rms_deg < 0.6 and abs(after.coefficients_deg["A"]) < 0.1
+    # compass attitude reads the alignment: the product's heading, not the housing's
+    from compass.calibration_file import dumps
+
+    folder = bench[3]
+    (folder / "aligned.json").write_text(dumps(result.to_json()))
+    run = simulate_installation(truth, inst, kind="runtime", n=1000, max_tilt_deg=20.0, seed=62)
+    run_path, _ = write_installation(run, folder / "aligned_run.csv", force=True)
+    assert main(["attitude", str(folder / "aligned.json"), str(run_path), "--out", str(folder / "aligned_att.csv"),
+                 "--force"]) == 0
+    table = read_table(folder / "aligned_att.csv")
+    assert rms(wrap(table.column("heading_deg") - run.heading_deg)) < 0.6
+    assert rms(table.column("pitch_deg") - run.pitch_deg) < 0.3
 
 
 def test_drifting_hard_iron_is_named(bench):
@@ -207,3 +219,19 @@ def test_export_of_the_installed_calibration_reproduces_its_field(bench, tmp_pat
     model = load(out).model
     raw = np.asarray(truth["offsets"]) + np.random.default_rng(61).normal(scale=0.5, size=(20, 3))
     np.testing.assert_allclose((raw - offset) @ matrix.T, model.field(raw)[0], rtol=2e-5, atol=2e-4)
+
+
+def test_level_swing_with_a_site_fits_the_same_iron(bench):
+    """A level swing holds its vertical iron: the site's |B| and dip are not bent into the horizontal soft iron."""
+    from compass.site import Site
+
+    _, _, truth, _ = bench
+    site = Site.parse("47.6,-122.3", "2026-06-01")
+    wmm = site.field()
+    inst = random_installation(63)
+    rec = simulate_installation(truth, inst, kind="swing", n=1500, max_tilt_deg=0.0, seed=64, dip_deg=wmm.dip_deg,
+                                field_ut=wmm.field_ut)
+    plain, with_site = fit(bench, rec), fit(bench, rec, site=site)
+    np.testing.assert_allclose(with_site.hard_iron_ut, plain.hard_iron_ut, atol=1e-6)
+    np.testing.assert_allclose(with_site.soft_iron, plain.soft_iron, atol=1e-9)
+    assert with_site.site["model"] == "WMM2025" and any("vertical hard iron" in w for w in with_site.undetermined)

@@ -303,3 +303,21 @@ def test_live_with_a_site_writes_true_heading(tmp_path):
                                wmm.declination_deg, atol=2e-3)
     assert np.all(table.column("heading_true_sigma_deg") >= wmm.declination_sigma_deg - 1e-3)
     assert "true" in session.readout(100.0)
+
+
+def test_live_turns_the_module_into_the_product_frame_of_an_installed_calibration():
+    from compass.frames import r_world_from_housing
+    from compass.installed import installed_model
+
+    model, stream, t = _site_stream(60.0, 50.0, seconds=8.0)
+    yaw = Rotation.from_euler("z", 7.0, degrees=True)  # R_product<-housing
+    product = installed_model(model, np.zeros(3), np.eye(3), alignment=yaw.as_matrix())
+    session = LiveSession(product, out=io.StringIO(), to_product=yaw.as_matrix())
+    _run(session, stream)
+    rows = np.array([line.split(",") for line in session.out.getvalue().splitlines()[2:]], dtype=float)
+    h, p, r, _ = scripted_motion(rows[:, 0])
+    truth = r_world_from_housing(h, p, r) * yaw.inv()  # R_world<-product
+    est = r_world_from_housing(rows[:, 1], rows[:, 2], rows[:, 3])
+    settled = rows[:, 0] > 2.0
+    error = np.degrees((est[settled].inv() * truth[settled]).magnitude())
+    assert np.sqrt(np.mean(error**2)) < 0.5

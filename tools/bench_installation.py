@@ -115,6 +115,36 @@ def site_section(sensors: int, n: int) -> None:
           f"{1e6 * np.median(t_solve) / n:.2f} us/row")
 
 
+def independent_section(sensors: int, n: int) -> None:
+    """The site part on benches from tools/bench_independent_sim.py (its own rotation code and effects)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from bench_independent_sim import FIELD_UT, GAIN, NOISE_UT, session
+
+    print(f"\n== Site, benches from the independent simulator (tools/bench_independent_sim.py), used with dip 12 deg "
+          f"lower and |B| 10 % lower, nothing said ({sensors} seeds x 3 cases, {n} rows) ==")
+    print(f"{'case':<16} {'nothing said':>12} {'true TRIAD':>10} {'target met':>10} {'disturbed max':>13}")
+    for case, size in (("clean", 0.0), ("odd cubic 1 %", 0.01), ("cross-talk 2 %", 0.02)):
+        ours, best, dist = [], [], []
+        for seed in range(sensors):
+            rec, directions = session(seed, case, size)
+            model = SensorModel.from_json(calibrate_fourflip(rec, diagnose=True).to_json())
+            truth = {"directions": directions.tolist(), "offsets": [1.5] * 3, "gains_per_ut": [GAIN] * 3,
+                     "dip_deg": model.dip_deg - 12.0, "field_ut": 0.9 * FIELD_UT, "channels": list(rec.channels),
+                     "noise_ut": NOISE_UT, "noise": [GAIN * NOISE_UT] * 3, "effects": []}
+            run = simulate_runtime(truth, n, seed=50 + seed)
+            att = solve_attitude(model, run.outputs, accel=run.accel)
+            ours.append(rms(wrap(att.heading_deg - run.heading_deg)))
+            best.append(rms(wrap(triad_heading(true_model(truth), run.outputs, run.accel, truth["dip_deg"])
+                                 - run.heading_deg)))
+            dist.append(att.disturbed.mean())
+        ours, best = np.array(ours), np.array(best)
+        print(f"{case:<16} {rms(ours):>12.3f} {rms(best):>10.3f} {int(np.sum(ours <= 1.3 * best + 0.02)):>7}/{sensors}"
+              f" {100 * max(dist):>12.2f}%")
+
+
 INSTALL_CASES = (("tumble", "tumble", 0.0), ("level swing", "swing", 0.0), ("swing +-10", "swing", 10.0))
 
 
@@ -209,6 +239,7 @@ def main() -> None:
     start = time.perf_counter()
     if args.only in (None, "site"):
         site_section(sensors, n)
+        independent_section(min(sensors, 8), n)
     if args.only in (None, "installation"):
         installation_section(sensors, n)
     print(f"\ntotal {time.perf_counter() - start:.0f} s")

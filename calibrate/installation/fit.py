@@ -344,15 +344,17 @@ class InstallationCalibrator(Calibrator):
         if turn < 90.0:
             raise CannotCalibrate(f"{rec.path}: the field turned through only {turn:.0f} deg about the vertical: "
                                       f"a swing needs a full turn of heading, a tumble every orientation")
-        priors = _priors(base, site)
+        # a level swing holds the vertical hard and soft iron at zero: the site's |B| and dip would then
+        # be met by bending the horizontal soft iron instead, so they are not used as priors there
+        priors = {} if _is_level(data) else _priors(base, site)
         base_fit = _fit(data, (), priors)
         if data.heading_ref is not None:  # weigh the reference by its own noise, from what the fit leaves of it
             data = replace(data, heading_sigma_deg=max(base_fit.heading_rms_deg, 0.01))
             base_fit = _fit(data, (), priors, base_fit.x, base_fit.fixed)
-        current, steps, not_claimed = base_fit, [{"model": "base", "residual_rms": base_fit.residual_rms_ut}], []
+        current, steps, remarks = base_fit, [{"model": "base", "residual_rms": base_fit.residual_rms_ut}], []
         if self.diagnose:
-            current, steps, not_claimed = _diagnose(data, priors, base_fit, steps)
-        return _result(rec, data, current, steps, not_claimed, quiet, in_range, priors, base, base_document, site)
+            current, steps, remarks = _diagnose(data, priors, base_fit, steps)
+        return _result(rec, data, current, steps, remarks, quiet, in_range, priors, base, base_document, site)
 
 def _bench(base, rec):
     """The bench calibration: ``base`` (path or loaded file), else the recording's ``# base:`` metadata."""
@@ -402,7 +404,7 @@ def _priors(base: SensorModel, site) -> dict:
     return priors
 
 
-def _result(rec, data, fit, steps, not_claimed, quiet, in_range, priors, base, base_document,
+def _result(rec, data, fit, steps, remarks, quiet, in_range, priors, base, base_document,
             site) -> InstallationCalibration:
     x, cov = fit.x, fit.covariance
     h, d = x[:3], x[3:9]
@@ -420,7 +422,7 @@ def _result(rec, data, fit, steps, not_claimed, quiet, in_range, priors, base, b
     noise_floor = data.sigma_b
     dof = fit.n_rows - 1
     unexplained = bool(fit.chi2_mag > dof + 5.0 * np.sqrt(2.0 * dof))
-    remarks = list(not_claimed)
+    remarks = list(remarks)
     if unexplained:
         remarks.append("the |B| residual stays above the bench's noise floor: structure the installation model "
                        "does not explain (a nonlinear or field-dependent iron, a field that changed during the "
@@ -466,7 +468,9 @@ def _field_h(x: np.ndarray, data: _Data, effects: tuple) -> np.ndarray:
     return np.linalg.solve(soft, (data.b - offset).T).T
 
 
-def _residuals(x: np.ndarray, data: _Data, effects: tuple, priors: dict, with_priors: bool = True) -> np.ndarray:
+def _residuals(x: np.ndarray, data: _Data, effects: tuple, priors: dict) -> np.ndarray:
+    """Whitened residuals: |B| and field-gravity angle per row, the heading reference per row when
+    recorded, then the priors (module docstring)."""
     h, d, f, dip, yaw, _ = _split(x, data, effects)
     bh = _field_h(x, data, effects)
     nb = np.linalg.norm(bh, axis=1)
@@ -479,15 +483,14 @@ def _residuals(x: np.ndarray, data: _Data, effects: tuple, priors: dict, with_pr
     if yaw is not None:
         heading = _product_heading(data.u, bh, dip, yaw)
         parts.append((np.mod(heading - data.heading_ref + 180.0, 360.0) - 180.0) / data.heading_sigma_deg)
-    if with_priors:
-        parts.append(h / PRIOR_HARD_IRON_UT)
-        parts.append(d / PRIOR_SOFT_IRON)
-        if "field" in priors:
-            parts.append(np.atleast_1d((f - priors["field"][0]) / priors["field"][1]))
-        else:  # the scale of S trades with |B|: fixed by trace(S) = 3
-            parts.append(np.atleast_1d((d[0] + d[1] + d[2]) / _TRACE_TOLERANCE))
-        if "dip" in priors:
-            parts.append(np.atleast_1d((dip - priors["dip"][0]) / priors["dip"][1]))
+    parts.append(h / PRIOR_HARD_IRON_UT)
+    parts.append(d / PRIOR_SOFT_IRON)
+    if "field" in priors:
+        parts.append(np.atleast_1d((f - priors["field"][0]) / priors["field"][1]))
+    else:  # the scale of S trades with |B|: fixed by trace(S) = 3
+        parts.append(np.atleast_1d((d[0] + d[1] + d[2]) / _TRACE_TOLERANCE))
+    if "dip" in priors:
+        parts.append(np.atleast_1d((dip - priors["dip"][0]) / priors["dip"][1]))
     return np.concatenate(parts)
 
 
@@ -568,9 +571,7 @@ def _undetermined_mask(data: _Data, effects: tuple, priors: dict, x: np.ndarray)
     soft-iron entry to ``5 sigma_b / |B|``): a flat direction can span several parameters.
     """
     mask = np.zeros(len(x), dtype=bool)
-    mean_up = data.u.mean(axis=0)
-    mean_up /= np.linalg.norm(mean_up)
-    if np.sqrt(np.mean(np.arccos(np.clip(data.u @ mean_up, -1.0, 1.0)) ** 2)) < np.radians(_LEVEL_DEG):
+    if _is_level(data):
         mask[[2, 5]] = True  # hard_iron_z, soft_iron_zz
     jac = _jacobian(x, data, effects, priors)
     limit = UNDETERMINED_NOISE * data.sigma_b * np.array([1.0] * 3 + [1.0 / x[9]] * 6)
@@ -585,13 +586,21 @@ def _undetermined_mask(data: _Data, effects: tuple, priors: dict, x: np.ndarray)
         mask[worst] = True
 
 
+def _is_level(data: _Data) -> bool:
+    """The up direction stays within :data:`_LEVEL_DEG` (RMS) of its mean: a level swing."""
+    mean_up = data.u.mean(axis=0)
+    mean_up /= np.linalg.norm(mean_up)
+    return bool(np.sqrt(np.mean(np.arccos(np.clip(data.u @ mean_up, -1.0, 1.0)) ** 2)) < np.radians(_LEVEL_DEG))
+
+
 def _bic(fit: _Fit) -> float:
     return fit.chi2_data + len(fit.x) * np.log(fit.n_obs)
 
 
 def _diagnose(data: _Data, priors: dict, base: _Fit, steps: list):
-    """Add a drifting or temperature-dependent hard iron while the evidence is decisive."""
-    current, not_claimed = base, []
+    """Add a drifting or temperature-dependent hard iron while the evidence is decisive; the
+    candidates tried and not decisive are named with their delta-BIC."""
+    current, remarks = base, []
     for _ in range(len(data.effects)):
         trials = []
         for name in data.effects:
@@ -605,13 +614,14 @@ def _diagnose(data: _Data, priors: dict, base: _Fit, steps: list):
             break
         gain, name, trial = max(trials, key=lambda t: t[0])
         if gain <= DECISIVE_BIC:
+            remarks += [f"{n} tried: delta-BIC {g:.1f}, not decisive (above {DECISIVE_BIC:g} is)" for g, n, _ in trials]
             break
         words = {"offset_drift": "the hard iron drifts with time (linear in t_s)",
                  "temperature": "the hard iron changes with temp_c (linear)"}[name]
         steps.append({"added": name, "residual_rms": trial.residual_rms_ut, "delta_bic": float(gain),
                       "evidence": f"{words}: chi2 {current.chi2_data:.0f} -> {trial.chi2_data:.0f} for 3 parameters"})
         current = trial
-    return current, steps, not_claimed
+    return current, steps, remarks
 
 
 def _undetermined(fit: _Fit, scale_free: bool) -> tuple:

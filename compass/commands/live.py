@@ -92,7 +92,8 @@ def run(args) -> int:
             print(("\r\x1b[K" if tty else "") + f"[{level}] {text}", flush=True)
 
     out = None if out_path is None else open(out_path, "w", encoding="utf-8", buffering=1 << 16)
-    session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event, reference=reference)
+    session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event, reference=reference,
+                          to_product=_to_product(args.cal))
     stop = threading.Event()
     previous = _install_stop_handlers(stop)
     timer = None
@@ -142,6 +143,14 @@ def run(args) -> int:
         print(f"compass live: no sample arrived from {args.port} in {elapsed:.1f} s ({why})", file=sys.stderr)
         return 1
     return 0
+
+
+def _to_product(path):
+    """``R_product<-housing`` of an installed calibration with an alignment, else None."""
+    from ..calibration_file import load
+    from ..installed import alignment_of
+
+    return alignment_of(load(path).data)
 
 
 def _site_reference(args, model):
