@@ -111,8 +111,11 @@ CANDIDATES = {  # name: (FilterConfig changes, hard-iron tracker on, noise from 
     "- inertial low-pass": ({"accel_time_constant_s": 0.01}, True, False),
     "- gyro scale-error noise": ({"gyro_scale_error": 1e-9}, True, False),
     "noise from rest": ({}, True, True),
+    "mag_latency_s 0.014": ({"mag_latency_s": 0.014}, True, False),  # calibrate.realdata's loop, on 01 and 02
     "motion_time_s 0.5": ({"motion_time_s": 0.5}, True, False),
     "motion_time_s 2": ({"motion_time_s": 2.0}, True, False),
+    "field_error_time_s 0.5": ({"field_error_time_s": 0.5}, True, False),
+    "field_error_time_s 2": ({"field_error_time_s": 2.0}, True, False),
     "accel_time_constant_s 1.5": ({"accel_time_constant_s": 1.5}, True, False),
     "accel_time_constant_s 6": ({"accel_time_constant_s": 6.0}, True, False),
     "mag_heading_sigma_deg 1": ({"mag_heading_sigma_deg": 1.0}, True, False),
