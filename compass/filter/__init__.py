@@ -47,7 +47,7 @@ Magnetometer: it corrects heading only (as VQF and x-io Fusion do; a disturbed f
 the estimate): ``psi_meas = eps_z + n_psi``, ``psi_meas`` minus the azimuth (toward West) of the
 field rotated into the world by the estimate, with the sensor noise, the tilt error seen through
 ``tan(dip)`` and the environment's heading error (field inhomogeneity, calibration residue,
-latency; correlated over ``tau_v``) in ``var n_psi``.  The gyro filter measures that heading error
+latency; correlated over ``field_error_time_s``) in ``var n_psi``.  The gyro filter measures that heading error
 as it runs: an error that turns the field's direction by ``delta`` moves its dip by the component in
 the vertical plane and its azimuth by the horizontal one over ``cos(dip)``; for an error with no
 preferred direction the two components have one variance, so

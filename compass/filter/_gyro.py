@@ -283,7 +283,7 @@ class GyroFilter(AttitudeFilter):
             p = s.covariance
             var = c.yaw_var + c.tan_dip2 * (p[0] + p[6]) / 2.0
             if dt > 0.0:
-                var += self.field_heading_var * 2.0 * self.config.motion_time_s / dt
+                var += self.field_heading_var * 2.0 * self.config.field_error_time_s / dt
             s.covariance = update_axis(p, self._x, 2, innovation, var)
 
     def _inject(self) -> None:

@@ -47,8 +47,10 @@ class FilterConfig:
         Low-pass of the specific force in the inertial frame, seconds (VQF's ``tauAcc``).
     motion_time_s : float
         Time scale on which the housing's velocity varies (hand-held motion), seconds: the
-        correlation time of what the low-pass leaves of the motion acceleration, and of the
-        environment's heading error as the housing moves.
+        correlation time of what the low-pass leaves of the motion acceleration.
+    field_error_time_s : float
+        Correlation time of the field's own heading error (calibration residue, inhomogeneity) as the
+        housing moves and turns, seconds: how often the field brings independent heading information.
     mag_heading_sigma_deg : float
         Heading error of the undisturbed field itself (inhomogeneity across the working volume,
         calibration residue), degrees: the floor; the gyro filter uses the larger of it and the
@@ -111,6 +113,7 @@ class FilterConfig:
     gyro_scale_error: float = 0.005
     accel_time_constant_s: float = 3.0
     motion_time_s: float = 1.0
+    field_error_time_s: float = 1.0
     mag_heading_sigma_deg: float = 2.0
     field_reference_tau_s: float = 20.0
     angular_accel_noise: float = 0.1
