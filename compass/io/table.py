@@ -242,8 +242,8 @@ class Table:
             if self.has(name):
                 v = self.column(name)
                 if len(v) > 1 and np.ptp(v) == 0.0:
-                    raise RecordingError(self.path, f"never changes (constant {v[0]:g} in all {len(v)} rows): "
-                                                    "a dead or disconnected sensor?", column=name)
+                    raise RecordingError(self.path, f"is constant ({v[0]:g} in all {len(v)} rows): the channel never "
+                                                    "changes, a dead or disconnected sensor?", column=name)
 
 
 def read_table(path, options: ReadOptions | None = None) -> Table:
