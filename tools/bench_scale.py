@@ -21,16 +21,16 @@ Usage: ``python tools/bench_scale.py [--quick] [--mb 50] [--timeout 120] [--base
 from __future__ import annotations
 
 import argparse
-import os
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+import numpy as np
+from _baseline import export_tree, tree_env
+
 KINDS = ("fourflip", "tumble", "platform3d", "reference", "attitude")
 
 
@@ -170,21 +170,6 @@ def _vm_hwm_kb(pid: int) -> float:
             return float(next(line.split()[1] for line in f if line.startswith("VmHWM:")))
     except (OSError, StopIteration):
         return 0.0
-
-
-def tree_env(tree: Path | None) -> dict:
-    env = dict(os.environ, MPLBACKEND="Agg")
-    if tree is not None:
-        env["PYTHONPATH"] = str(tree) + os.pathsep + env.get("PYTHONPATH", "")
-    return env
-
-
-def export_tree(ref: str, folder: Path) -> Path:
-    tree = folder / "baseline"
-    tree.mkdir()
-    archive = subprocess.run(["git", "-C", str(ROOT), "archive", ref], check=True, capture_output=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
-    return tree
 
 
 def fmt(r: dict | None) -> str:

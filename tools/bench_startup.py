@@ -21,7 +21,6 @@ Usage: ``python tools/bench_startup.py [--quick] [--baseline REF|none]``
 from __future__ import annotations
 
 import argparse
-import os
 import selectors
 import subprocess
 import sys
@@ -29,7 +28,8 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from _baseline import export_tree, tree_env
+
 TIMEOUT_S = 120.0
 
 
@@ -63,25 +63,6 @@ def first_line_s(argv, env, cwd, *, timeout_s=TIMEOUT_S, stop_after_first=False)
 def median_min(values):
     values = sorted(values)
     return values[len(values) // 2], values[0]
-
-
-def tree_env(tree: Path | None) -> dict:
-    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", MPLBACKEND="Agg")
-    if tree is not None:
-        env["PYTHONPATH"] = str(tree) + os.pathsep + env.get("PYTHONPATH", "")
-    return env
-
-
-def export_tree(ref: str, folder: Path) -> Path:
-    """``git archive REF`` unpacked into ``folder`` (the baseline's source)."""
-    tree = folder / "baseline"
-    tree.mkdir()
-    archive = subprocess.run(["git", "-C", str(ROOT), "archive", ref], check=True, capture_output=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
-    # compile once so the first timed run does not pay for writing bytecode
-    subprocess.run([sys.executable, "-m", "compileall", "-q", str(tree / "compass"), str(tree / "calibrate")],
-                   check=True, capture_output=True)
-    return tree
 
 
 def prepare_inputs(work: Path, env: dict) -> dict:
@@ -130,11 +111,11 @@ def measure(trees: list, work: Path, inputs: dict, repeats: int) -> dict:
     out: dict[str, dict] = {label: {} for label, _ in trees}
     helps = [["--help"]] + [[c, "--help"] for c in ("calibrate", "attitude", "simulate", "live", "device", "export",
                                                      "evaluate", "demo")]
-    device, _ = start_device(work, tree_env(None))
+    device, _ = start_device(work, tree_env(None, PYTHONDONTWRITEBYTECODE="1"))
     try:
         for r in range(repeats):
             for label, tree in trees:
-                env, res = tree_env(tree), out[label]
+                env, res = tree_env(tree, PYTHONDONTWRITEBYTECODE="1"), out[label]
                 for argv in helps:
                     _, total, _ = first_line_s(py + argv, env, work)
                     res.setdefault("help: compass " + " ".join(argv), []).append(total)
@@ -165,7 +146,7 @@ def import_costs(tree: Path | None, work: Path) -> list[tuple[str, float]]:
     rows = []
     for name, code in targets.items():
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-c", code], env=tree_env(tree), cwd=work, check=True, capture_output=True,
+        subprocess.run([sys.executable, "-c", code], env=tree_env(tree, PYTHONDONTWRITEBYTECODE="1"), cwd=work, check=True, capture_output=True,
                        timeout=TIMEOUT_S)
         rows.append((name, time.perf_counter() - t0))
     return rows
@@ -179,7 +160,7 @@ def main() -> int:
     repeats = 3 if args.quick else 7
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        inputs = prepare_inputs(work, tree_env(None))
+        inputs = prepare_inputs(work, tree_env(None, PYTHONDONTWRITEBYTECODE="1"))
         trees = [("this tree", None)]
         if args.baseline != "none":
             trees.insert(0, (f"baseline {args.baseline}", export_tree(args.baseline, work)))

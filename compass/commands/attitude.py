@@ -13,7 +13,7 @@ import sys
 import numpy as np
 
 from ..io.atomic import atomic_write_text, check_writable
-from ..io.table import ReadOptions, RecordingError, add_read_arguments, read_table
+from ..io.table import ReadOptions, RecordingError, add_read_arguments, format_table, read_table
 from ..io.units import check_accel_up, check_two_axis_tilt
 from ..site import Site, reference_from_site
 from ..viz import add_rerun_option, check_rerun_target
@@ -179,8 +179,5 @@ def _check_rows(table, ok: np.ndarray, column: str, message: str) -> None:
 
 
 def _format_csv(columns: dict, metadata: dict) -> str:
-    """CSV text: ``# key: value`` lines, a header, one row per sample (formatted column-wise)."""
-    fmt = ",".join(_FORMATS.get(name, "%.4f") for name in columns)
-    values = [np.asarray(v, dtype=int if v.dtype == bool else float).tolist() for v in columns.values()]
-    lines = [f"# {k}: {v}" for k, v in metadata.items()] + [",".join(columns)]
-    return "\n".join(lines + list(map(fmt.__mod__, zip(*values)))) + "\n"
+    """CSV text: ``# key: value`` lines, a header, one row per sample (formatted block by block)."""
+    return format_table(columns, metadata, _FORMATS)

@@ -26,6 +26,7 @@ Memory: the body is parsed by ``np.loadtxt`` from a stream of lines, so reading 
 from __future__ import annotations
 
 import codecs
+import itertools
 import math
 import re
 from dataclasses import dataclass, field
@@ -36,7 +37,7 @@ import numpy as np
 from . import units
 from .units import note
 
-__all__ = ["RecordingError", "Table", "ReadOptions", "read_table", "add_read_arguments", "VOCABULARY"]
+__all__ = ["RecordingError", "Table", "ReadOptions", "read_table", "add_read_arguments", "format_table", "VOCABULARY"]
 
 VOCABULARY = ("t_s", "temp_c", "flip_deg", "platform_deg", "platform_z_deg", "platform_y_deg", "platform_x_deg",
               "mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz", "bx_ref", "by_ref", "bz_ref", "pitch_deg",
@@ -242,8 +243,8 @@ class Table:
             if self.has(name):
                 v = self.column(name)
                 if len(v) > 1 and np.ptp(v) == 0.0:
-                    raise RecordingError(self.path, f"never changes (constant {v[0]:g} in all {len(v)} rows): "
-                                                    "a dead or disconnected sensor?", column=name)
+                    raise RecordingError(self.path, f"is constant ({v[0]:g} in all {len(v)} rows): the channel never "
+                                                    "changes, a dead or disconnected sensor?", column=name)
 
 
 def read_table(path, options: ReadOptions | None = None) -> Table:
@@ -288,24 +289,85 @@ def read_table(path, options: ReadOptions | None = None) -> Table:
         if first is None:
             raise RecordingError(path, "header only: no data rows", row=header_line)
         decimal_comma = sep not in (",", None) and any(_DECIMAL_COMMA.match(c) for c in first[1].split(sep))
-        try:
-            data = np.loadtxt(lines.data(decimal_comma), delimiter=sep, ndmin=2, dtype=float, comments=None)
-        except _BadCell as exc:
-            _locate_bad_cell(path, header, sep, decimal_comma, exc.row, exc.line)
-            raise RecordingError(path, "could not parse the row as numbers", row=exc.row) from None
-        except RecordingError:
-            raise
-        except UnicodeDecodeError:
-            raise _not_utf8(path) from None
-        except ValueError:
-            _scan_for_bad_cell(path, header, sep, decimal_comma, header_line)
-            raise RecordingError(path, "could not parse the data rows as numbers") from None
-        rows = lines.rows()
+        data = None
+        if not decimal_comma and not lines.skipped:  # numpy's reader straight over the rest of the stream
+            try:
+                data = np.loadtxt(itertools.chain([first[1]], lines.stream), delimiter=sep, ndmin=2, dtype=float,
+                                  comments="#")
+            except UnicodeDecodeError:
+                raise _not_utf8(path) from None
+            except ValueError:  # the numbering pass below finds and names the bad cell
+                data = None
+            last = _last_content_line(path)
+            if data is not None and data.shape[0] == last - first[0] + 1:  # no line skipped: rows in order
+                rows = np.arange(first[0], last + 1)
+            else:
+                data = None
+    if data is None:  # decimal commas, or blank or comment lines among the rows: number every line
+        with open(path, encoding="utf-8-sig", newline=None) as stream:
+            lines = _Lines(path, stream)
+            for _ in lines.content(metadata, meta_rows):
+                break
+            lines.peek_data()
+            data = _load(path, header, sep, decimal_comma, header_line, lines.data(decimal_comma))
+            rows = lines.rows()
     if data.shape[1] != len(header):
         _scan_for_bad_cell(path, header, sep, decimal_comma, header_line)
         raise RecordingError(path, f"expected {len(header)} cells a row, found {data.shape[1]}", row=int(rows[0]))
     _check_values(path, header, data, rows)
     return _interpret(Table(str(path), tuple(header), data, rows, metadata, header_line), options, meta_rows)
+
+
+def _load(path, header, sep, decimal_comma, header_line, lines) -> np.ndarray:
+    """``np.loadtxt`` over the data lines ``lines``; on failure the first bad cell is found and named."""
+    try:
+        return np.loadtxt(lines, delimiter=sep, ndmin=2, dtype=float, comments=None)
+    except _BadCell as exc:
+        _locate_bad_cell(path, header, sep, decimal_comma, exc.row, exc.line)
+        raise RecordingError(path, "could not parse the row as numbers", row=exc.row) from None
+    except RecordingError:
+        raise
+    except UnicodeDecodeError:
+        raise _not_utf8(path) from None
+    except ValueError:
+        _scan_for_bad_cell(path, header, sep, decimal_comma, header_line)
+        raise RecordingError(path, "could not parse the data rows as numbers") from None
+
+
+def _last_content_line(path) -> int:
+    """1-based number of the file's last line that is not blank (newlines counted in blocks)."""
+    count, tail = 0, b""
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            count += block.count(b"\n")
+            tail = (tail + block)[-(1 << 16):]
+    return count - tail[len(tail.rstrip()):].count(b"\n") + 1
+
+
+def format_table(columns: dict, metadata: dict | None = None, formats: dict | None = None, *,
+                 default: str = "%.4f", block_rows: int = 1 << 15) -> str:
+    """CSV text that :func:`read_table` reads back: ``# key: value`` lines, a header, the rows.
+
+    Parameters
+    ----------
+    columns : dict of str to array_like, each shape (n,)
+        Column name -> values (bool columns are written as 0/1).
+    metadata : dict, optional
+    formats : dict of str to str, optional
+        printf format per column; ``default`` for the others.
+    block_rows : int
+        Rows formatted at a time: the Python floats and row strings of one block are alive at once,
+        not those of the whole table (about 30 bytes per cell instead of 130).
+    """
+    formats = formats or {}
+    row_format = ",".join(formats.get(name, default) for name in columns)
+    arrays = [np.asarray(v, dtype=int if np.asarray(v).dtype == bool else None) for v in columns.values()]
+    parts = ["".join(f"# {k}: {v}\n" for k, v in (metadata or {}).items()) + ",".join(columns) + "\n"]
+    n = len(arrays[0]) if arrays else 0
+    for start in range(0, n, block_rows):
+        block = [a[start:start + block_rows].tolist() for a in arrays]
+        parts.append("\n".join(map(row_format.__mod__, zip(*block))) + "\n")
+    return "".join(parts)
 
 
 class _BadCell(Exception):
