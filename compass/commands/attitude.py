@@ -22,7 +22,7 @@ _ACCEL = ("ax", "ay", "az")
 _TILT = ("pitch_deg", "roll_deg")
 _GYRO = ("gx", "gy", "gz")
 _IGNORED = ("t_s", *_GYRO)
-_FORMATS = {"in_range": "%d", "disturbed": "%d", "t_s": "%.4f"}
+_FORMATS = {"in_range": "%d", "disturbed": "%d", "skipped": "%d", "t_s": "%.4f"}
 
 
 def register(sub) -> None:
@@ -152,13 +152,25 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
         metadata["note"] = "the calibration gives no direction covariance: sigmas count sensor noise only"
     atomic_write_text(out, _format_csv(columns, metadata))
     print(f"wrote {out} ({len(raw)} rows, mode {result.mode}; {int(np.sum(result.disturbed))} disturbed against the "
-          f"{result.reference.source} reference, {int(np.sum(~result.in_range))} out of calibrated range)")
+          f"{result.reference.source} reference, {int(np.sum(~result.in_range))} out of calibrated range"
+          f"{_skipped_note(result.skipped)})")
     if rerun is not None:
         from ..viz.attitude import record_attitude
 
         record_attitude(rerun, result, model, t_s=columns.get("t_s"), raw=raw, accel=accel, gyro=_group(table, _GYRO))
         print(f"wrote {rerun}")
     return result
+
+
+def _skipped_note(skipped) -> str:
+    """``, N skipped (reason k, ...)`` for rows never solved (``skipped`` column: the reason's code)."""
+    from ..sample_check import SKIP_REASONS
+
+    if skipped is None or not skipped.any():
+        return ""
+    codes, counts = np.unique(skipped[skipped > 0], return_counts=True)
+    return (f", {int(counts.sum())} skipped (" + ", ".join(f"{SKIP_REASONS[c]} {k}" for c, k in zip(codes, counts))
+            + "): angles nan, see the skipped column")
 
 
 def _group(table, names) -> np.ndarray | None:
