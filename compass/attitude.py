@@ -34,9 +34,13 @@ from .model import SensorModel
 from .sample_check import skip_codes
 from .site import ReferenceField, reference_from_recording
 
-__all__ = ["Attitude", "solve_attitude", "two_vector_rotation", "level_heading_bound_deg"]
+__all__ = ["Attitude", "UnusableCalibration", "solve_attitude", "two_vector_rotation", "level_heading_bound_deg"]
 
 _UP = np.array([0.0, 0.0, 1.0])
+
+
+class UnusableCalibration(ValueError):
+    """The calibration, not the recording, makes every row unusable (the command names the calibration file)."""
 
 
 @dataclass(frozen=True)
@@ -257,10 +261,13 @@ def solve_attitude(
         raise ValueError(f"accel_noise_g must be positive, got {accel_noise_g}")
 
     field, in_range = model.field(raw, temp_c)
-    skipped = _skipped_rows(field, accel)
+    skipped = _skipped_rows(field, accel, model.field_magnitude)
     if skipped.any():  # solve the rows that may be used; the others are flagged, never solved nor averaged
         keep = skipped == 0
         if not keep.any():
+            if np.all(np.isfinite(np.asarray(raw, dtype=float))):
+                raise UnusableCalibration("the calibration turns every reading into a non-finite or absurd field (its "
+                                          "offsets or gains are out of any sensible range)")
             raise ValueError("no row can be used: every reading is non-finite or absurd")
 
         def rows_of(x):
@@ -310,6 +317,9 @@ def solve_attitude(
     # reference dip's variance on the field's side (Notes)
     field_var = np.sum(model.component_variance(np.zeros(3)) * model.solver**2) / 3.0 / reference.field_magnitude**2
     f = up_var / (up_var + field_var + ref_dip_var) if up_var > 0 else 0.0
+    if not (np.isfinite(f) and np.isfinite(field_var)):
+        raise UnusableCalibration(f"the calibration's noise_floor and gains give a field noise of {field_var:g} "
+                                  "(rad^2): out of any sensible range")
     rows = _two_vector_rows(up, m, ref_dip, f)
     heading, pitch, roll = heading_pitch_roll(Rotation.from_matrix(_matrix(rows), assume_valid=True))
     solver = model.solver
@@ -345,14 +355,16 @@ def solve_attitude(
                                      heading_bound_deg=bound, tilt_min_deg=dip_error, reference=reference))
 
 
-def _skipped_rows(field: np.ndarray, accel) -> np.ndarray:
-    """Per row, the reason code it must not be solved (0: fine), judged against the recording's typical |B| and |a|."""
+def _skipped_rows(field: np.ndarray, accel, field_magnitude) -> np.ndarray:
+    """Per row, the reason code it must not be solved (0: fine): |B| against the calibration's (else the
+    recording's typical |B|), |a| against the recording's typical |a|."""
     with np.errstate(over="ignore", invalid="ignore"):
         b = np.linalg.norm(field, axis=1)
         a = None if accel is None else np.linalg.norm(np.asarray(accel, dtype=float), axis=1)
         typical = [float(np.median(x[np.isfinite(x)])) if x is not None and np.isfinite(x).any() else np.nan
                    for x in (b, a)]
-    return skip_codes(field, typical[0], accel, typical[1])
+    known = field_magnitude is not None and np.isfinite(field_magnitude) and field_magnitude > 0
+    return skip_codes(field, field_magnitude if known else typical[0], accel, typical[1])
 
 
 def _with_skipped(att: Attitude, keep: np.ndarray, skipped: np.ndarray, in_range: np.ndarray) -> Attitude:

@@ -74,7 +74,7 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     RecordingError, BadInput, FileExistsError
         Bad input (exit status 2 on the command line).
     """
-    from ..attitude import solve_attitude
+    from ..attitude import UnusableCalibration, solve_attitude
     from ..calibration_file import load
     from ..cli import BadInput
     from ..installed import accel_to_product
@@ -95,6 +95,9 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     except ValueError as exc:
         raise BadInput(exc if str(calibration) in str(exc) else f"{calibration}: {exc}") from None
     model, tilt_sensor = cal.model, cal.tilt_sensor
+    if model.noise is None:  # the calibration's fault, not the recording's (16.6)
+        raise BadInput(f"{calibration}: the calibration has no noise_floor: the solution cannot be weighted nor "
+                       f"its uncertainty propagated")
     source = "site"
     if site is None and cal.sections.get("site") is not None:
         site, source = cal.sections["site"], "calibration site"
@@ -127,6 +130,11 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
             site, field_ut=None if model.field_ut is None else 1.0, source=source)
         result = solve_attitude(model, raw, **tilt_args, reference=reference, accel_noise_g=accel_noise_g,
                                 max_tilt_deg=max_tilt_deg, temp_c=temp_c)
+    except UnusableCalibration as exc:
+        raise BadInput(f"{calibration}: {exc}") from None
+    except np.linalg.LinAlgError as exc:  # the model's weighted solver: the calibration's numbers, not the rows
+        raise BadInput(f"{calibration}: unusable calibration ({exc}): its noise_floor or directions are out of "
+                       f"any sensible range") from None
     except ValueError as exc:
         raise BadInput(f"{recording}: {exc}") from None
 
