@@ -8,10 +8,12 @@
   every number is finite and whose attitudes are finite.
 """
 
+import atexit
 import copy
 import json
 import math
 import os
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -140,6 +142,7 @@ _RECORDINGS = {}
 def _recording_for(kind: str) -> Path:
     if kind not in _RECORDINGS:
         folder = Path(tempfile.mkdtemp(prefix="compass-fuzz-"))
+        atexit.register(shutil.rmtree, folder, True)  # shared by the examples, removed when the run ends
         _RECORDINGS[kind] = _recording(BASES[kind], folder / f"{kind}.csv")
     return _RECORDINGS[kind]
 
