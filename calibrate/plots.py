@@ -10,6 +10,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from compass.io.atomic import save_figure  # noqa: E402
+
 __all__ = ["plot_fit", "plot_residuals", "plot_tumble"]
 
 _FLIPS = ("flip 0", "flip 90", "flip 180", "flip 270")
@@ -131,6 +133,6 @@ def plot_tumble(mag: np.ndarray, result, path) -> Path:
 def _save(fig, path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)  # atomic, the user's umask; --force is checked by the command
     plt.close(fig)
     return path

@@ -23,7 +23,7 @@ Rx(roll)``; an accelerometer at rest reads +1 g along the housing's up direction
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from functools import lru_cache
 
 import numpy as np
@@ -31,11 +31,16 @@ from scipy.spatial.transform import Rotation
 
 from .frames import heading_pitch_roll, r_world_from_housing, world_field
 from .model import SensorModel
+from .sample_check import skip_codes
 from .site import ReferenceField, reference_from_recording
 
-__all__ = ["Attitude", "solve_attitude", "two_vector_rotation", "level_heading_bound_deg"]
+__all__ = ["Attitude", "UnusableCalibration", "solve_attitude", "two_vector_rotation", "level_heading_bound_deg"]
 
 _UP = np.array([0.0, 0.0, 1.0])
+
+
+class UnusableCalibration(ValueError):
+    """The calibration, not the recording, makes every row unusable (the command names the calibration file)."""
 
 
 @dataclass(frozen=True)
@@ -74,6 +79,10 @@ class Attitude:
     heading_true_deg, heading_true_sigma_deg : ndarray, shape (n,), or None
         With a site (the reference knows the declination): ``heading + declination`` in [0, 360)
         and its 1-sigma, the WMM's declination uncertainty included.
+    skipped : ndarray of int, shape (n,), or None
+        Rows never solved, by reason (:data:`compass.sample_check.SKIP_REASONS`: a non-finite or
+        absurd field or accelerometer reading); their angles and sigmas are NaN and they count
+        as ``disturbed``.  None: every row was solved.
     """
 
     mode: str
@@ -92,13 +101,15 @@ class Attitude:
     reference: ReferenceField | None = None
     heading_true_deg: np.ndarray | None = None
     heading_true_sigma_deg: np.ndarray | None = None
+    skipped: np.ndarray | None = None
 
     def columns(self) -> dict[str, np.ndarray]:
         """Output columns in file order (SPEC section 2's attitude output); absent ones left out."""
         names = ("heading_deg", "pitch_deg", "roll_deg", "heading_sigma_deg", "pitch_sigma_deg",
                  "roll_sigma_deg", "heading_true_deg", "heading_true_sigma_deg", "heading_bound_deg", "tilt_min_deg", "field_ratio", "dip_deg",
                  "in_range", "disturbed")
-        return {n: getattr(self, n) for n in names if getattr(self, n) is not None}
+        skipped = np.zeros(len(self.heading_deg), dtype=int) if self.skipped is None else self.skipped
+        return {n: getattr(self, n) for n in names if getattr(self, n) is not None} | {"skipped": skipped}
 
 
 def two_vector_rotation(up_h, field_h, dip_deg: float, field_weight: float) -> Rotation:
@@ -250,6 +261,24 @@ def solve_attitude(
         raise ValueError(f"accel_noise_g must be positive, got {accel_noise_g}")
 
     field, in_range = model.field(raw, temp_c)
+    skipped = _skipped_rows(field, accel, model.field_magnitude)
+    if skipped.any():  # solve the rows that may be used; the others are flagged, never solved nor averaged
+        keep = skipped == 0
+        if not keep.any():
+            if np.all(np.isfinite(np.asarray(raw, dtype=float))):
+                raise UnusableCalibration("the calibration turns every reading into a non-finite or absurd field (its "
+                                          "offsets or gains are out of any sensible range)")
+            raise ValueError("no row can be used: every reading is non-finite or absurd")
+
+        def rows_of(x):
+            return None if x is None or np.ndim(x) == 0 else np.asarray(x)[keep]
+
+        solved = solve_attitude(model, np.asarray(raw)[keep], accel=rows_of(accel), pitch_deg=rows_of(pitch_deg),
+                                roll_deg=rows_of(roll_deg), level=level, reference=reference,
+                                accel_noise_g=accel_noise_g, max_tilt_deg=max_tilt_deg,
+                                disturbance_sigma=disturbance_sigma, field_tolerance=field_tolerance,
+                                dip_tolerance_deg=dip_tolerance_deg, temp_c=rows_of(temp_c))
+        return _with_skipped(solved, keep, skipped, in_range)
     n = len(field)
     var = np.ascontiguousarray(model.component_variance(field).T)  # (c, n)
     b = np.ascontiguousarray(field.T)  # component-major (3, n): elementwise work on contiguous rows
@@ -288,6 +317,9 @@ def solve_attitude(
     # reference dip's variance on the field's side (Notes)
     field_var = np.sum(model.component_variance(np.zeros(3)) * model.solver**2) / 3.0 / reference.field_magnitude**2
     f = up_var / (up_var + field_var + ref_dip_var) if up_var > 0 else 0.0
+    if not (np.isfinite(f) and np.isfinite(field_var)):
+        raise UnusableCalibration(f"the calibration's noise_floor and gains give a field noise of {field_var:g} "
+                                  "(rad^2): out of any sensible range")
     rows = _two_vector_rows(up, m, ref_dip, f)
     heading, pitch, roll = heading_pitch_roll(Rotation.from_matrix(_matrix(rows), assume_valid=True))
     solver = model.solver
@@ -321,6 +353,31 @@ def solve_attitude(
     return _with_true_north(Attitude(mode, heading, np.zeros(n), np.zeros(n), heading_sigma, field_ratio, dip,
                                      in_range, field_bad | (dip_error > max_tilt_deg + dip_limit),
                                      heading_bound_deg=bound, tilt_min_deg=dip_error, reference=reference))
+
+
+def _skipped_rows(field: np.ndarray, accel, field_magnitude) -> np.ndarray:
+    """Per row, the reason code it must not be solved (0: fine): |B| against the calibration's (else the
+    recording's typical |B|), |a| against the recording's typical |a|."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        b = np.linalg.norm(field, axis=1)
+        a = None if accel is None else np.linalg.norm(np.asarray(accel, dtype=float), axis=1)
+        typical = [float(np.median(x[np.isfinite(x)])) if x is not None and np.isfinite(x).any() else np.nan
+                   for x in (b, a)]
+    known = field_magnitude is not None and np.isfinite(field_magnitude) and field_magnitude > 0
+    return skip_codes(field, field_magnitude if known else typical[0], accel, typical[1])
+
+
+def _with_skipped(att: Attitude, keep: np.ndarray, skipped: np.ndarray, in_range: np.ndarray) -> Attitude:
+    """``att`` (solved on the rows ``keep``) spread over every row: the skipped ones NaN and disturbed."""
+    def spread(name, value):
+        if name == "in_range":
+            return in_range
+        full = np.ones(len(keep), dtype=bool) if name == "disturbed" else np.full(len(keep), np.nan)
+        full[keep] = value
+        return full
+    arrays = {f.name: spread(f.name, getattr(att, f.name)) for f in fields(att)
+              if isinstance(getattr(att, f.name), np.ndarray)}
+    return replace(att, **arrays, skipped=skipped)
 
 
 def _with_true_north(att: Attitude) -> Attitude:

@@ -218,7 +218,7 @@ def load(path) -> CalibrationFile:
     except UnicodeDecodeError as exc:
         raise CalibrationFileError(f"not a JSON calibration file (not UTF-8 text: {exc.reason})", path=path) from None
     try:
-        d = json.loads(text)
+        d = json.loads(text, parse_int=_parse_int)
     except json.JSONDecodeError as exc:
         raise CalibrationFileError(f"not a JSON calibration file ({exc})", path=path) from None
     except RecursionError:
@@ -228,6 +228,11 @@ def load(path) -> CalibrationFile:
     except CalibrationFileError as exc:
         raise exc.in_file(path) from None
     return CalibrationFile(cal.kind, cal.model, cal.tilt_sensor, cal.sections, cal.data, str(path))
+
+
+def _parse_int(text: str) -> int | float:
+    """A JSON integer; one beyond any float is infinite (then refused as not finite), never an OverflowError."""
+    return int(text) if len(text.lstrip("-")) <= 308 else math.inf
 
 
 def kind_of(d: dict) -> str:

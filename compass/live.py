@@ -15,6 +15,7 @@ import numpy as np
 
 from .filter import AttitudeFilter, Estimate, FilterConfig
 from .io.lines import LineDecoder
+from .sample_check import SKIP_REASONS, skip_codes
 from .serial_reader import Chunk, LinkEvent
 from .site import QuietSeed
 
@@ -26,6 +27,7 @@ CSV_COLUMNS = ("t_s", "heading_deg", "pitch_deg", "roll_deg", "heading_sigma_deg
 _CSV_ROW = "%.4f,%.3f,%.3f,%.3f,%.3f,%.3f,%.4f,%.2f,%d,%d,%d,%d,%.3f"
 _TRUE_COLUMNS = ("heading_true_deg", "heading_true_sigma_deg")  # with a site: heading + declination
 _LATENCY_WINDOW = 100_000  # samples kept for the latency percentiles
+_ACCEL_WINDOW = 256  # accepted accelerometer magnitudes kept for the typical |a| (any unit)
 
 
 @dataclass
@@ -69,6 +71,10 @@ class LiveSession:
         Estimates produced.
     unsolved : int
         Decoded samples that gave no attitude (no accelerometer yet).
+    skipped : dict of str to int
+        Readings never fused, by reason: the filter's screen (:data:`compass.filter.SKIP_REASONS`:
+        a non-finite or out-of-range sensor part is skipped, the rest of the sample used) and,
+        while the reference is seeded, :func:`compass.sample_check.skip_codes` (the whole sample).
     """
 
     model: object
@@ -85,6 +91,8 @@ class LiveSession:
     output_latencies_s: deque = field(default_factory=lambda: deque(maxlen=_LATENCY_WINDOW))
     samples: int = 0
     unsolved: int = 0
+    skipped: dict = field(default_factory=dict)
+    _accel_norms: deque = field(default_factory=lambda: deque(maxlen=_ACCEL_WINDOW))
     _filter: AttitudeFilter | None = None
     _t0: float | None = None
     _bad_reported: int = 0
@@ -120,8 +128,10 @@ class LiveSession:
 
     def _seeding(self, sample, t_rx: float) -> bool:
         """Hold samples until the first quiet second gives the reference; True once it is known."""
-        self._held.append((sample, t_rx))
         field_h = self._field(sample)
+        if not self._fusable(sample, field_h):
+            return False
+        self._held.append((sample, t_rx))
         t_s = sample.t_s if sample.t_s is not None else t_rx - self._t0
         reference = self._seed.add(t_s, sample.accel, field_h)
         if reference is None:
@@ -180,6 +190,9 @@ class LiveSession:
         if self._filter.events:
             for text in self._filter.drain_events():
                 self._event("warn", text)
+        if self._filter.diagnostics.skipped:  # a non-finite or out-of-range reading: never fused (the filter's screen)
+            for reason in self._filter.diagnostics.skipped.split(","):
+                self._count_skip(reason.strip())
         if est is None:
             self.unsolved += 1
             return
@@ -207,6 +220,24 @@ class LiveSession:
                           **({"true_heading": self.true_heading()} if self._declination is not None else {}))
         if not held:
             self.output_latencies_s.append(time.perf_counter() - t_rx)
+
+    def _fusable(self, sample, field_h) -> bool:
+        """While the reference is being seeded (before any filter sees the samples): False, and counted, for a
+        reading that must not enter it (:mod:`compass.sample_check`); the filter screens the later ones."""
+        scale = float(np.median(self._accel_norms)) if len(self._accel_norms) >= 8 else None
+        code = int(skip_codes(field_h[None, :], self.config.field_norm, _row(sample.accel), scale,
+                              _row(sample.gyro))[0])
+        if code:
+            self._count_skip(SKIP_REASONS[code])
+            return False
+        if sample.accel is not None:
+            self._accel_norms.append(float(np.linalg.norm(sample.accel)))
+        return True
+
+    def _count_skip(self, reason: str) -> None:
+        self.skipped[reason] = self.skipped.get(reason, 0) + 1
+        if self.skipped[reason] == 1:
+            self._event("warn", f"sample skipped, never fused: {reason} (counted in the summary)")
 
     def _field(self, sample, with_range: bool = False):
         """The sample's field in H (temperature-compensated when the calibration can), and its in-range flags."""
@@ -254,12 +285,14 @@ class LiveSession:
         return 1e3 * float(p50), 1e3 * float(p99)
 
     def summary(self) -> str:
-        """One line: samples, dropped lines by cause, latency."""
+        """One line: samples, dropped lines by cause, samples not fused by reason, latency."""
         s = self.decoder.stats
         p50, p99 = self.latency_ms()
+        skipped = "".join(f", {reason} {n}" for reason, n in self.skipped.items())
         return (f"{self.samples} attitudes from {s.samples} samples; dropped lines {s.dropped} (garbage {s.garbage}, "
                 f"invalid {s.invalid}, partial {s.partial}, before a header {s.unheaded}, repeated seq {s.repeated}, "
-                f"lost in transit {s.lost}); latency p50 {p50:.2f} ms, p99 {p99:.2f} ms")
+                f"lost in transit {s.lost}); not fused {sum(self.skipped.values())}{skipped}; "
+                f"latency p50 {p50:.2f} ms, p99 {p99:.2f} ms")
 
     def close(self) -> None:
         """Flush the outputs (the CSV file stays open: its owner closes it)."""
@@ -267,3 +300,7 @@ class LiveSession:
             self.sink.close()
         if self.out is not None:
             self.out.flush()
+
+
+def _row(vector) -> np.ndarray | None:
+    return None if vector is None else np.asarray(vector, dtype=float)[None, :]

@@ -62,13 +62,16 @@ def _live_on_socket(monkeypatch, lines: bytes, cal, *extra):
     return status, thread.is_alive(), errors
 
 
-def test_a_module_without_the_calibrations_channels_is_refused_naming_them(monkeypatch, cal, capsys):
+def test_a_module_without_the_calibrations_channels_is_refused_naming_them(tmp_path, monkeypatch, cal, capsys):
     header = b"t_s,seq,mx,my,ax,ay,az\r\n"  # the calibration's channels are mx,my,mz: mz is missing
     rows = b"".join(b"%.2f,%d,1,2,0,0,1\r\n" % (i / 100, i) for i in range(150))
-    status, alive, errors = _live_on_socket(monkeypatch, header + rows + header + rows, cal, "--duration", "20")
+    att = tmp_path / "att.csv"
+    status, alive, errors = _live_on_socket(monkeypatch, header + rows + header + rows, cal, "--duration", "20",
+                                            "--out", str(att))
     err = capsys.readouterr().err.strip()
     assert status == 2 and not alive and not errors
     assert len(err.splitlines()) == 1 and "lacks the calibration's channel(s) mz" in err and str(cal) in err
+    assert not att.exists() and not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]  # no output
 
 
 def test_no_sample_in_the_session_is_said_and_not_a_success(monkeypatch, cal, capsys):

@@ -22,7 +22,7 @@ _ACCEL = ("ax", "ay", "az")
 _TILT = ("pitch_deg", "roll_deg")
 _GYRO = ("gx", "gy", "gz")
 _IGNORED = ("t_s", *_GYRO)
-_FORMATS = {"in_range": "%d", "disturbed": "%d", "t_s": "%.4f"}
+_FORMATS = {"in_range": "%d", "disturbed": "%d", "skipped": "%d", "t_s": "%.4f"}
 
 
 def register(sub) -> None:
@@ -74,7 +74,7 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     RecordingError, BadInput, FileExistsError
         Bad input (exit status 2 on the command line).
     """
-    from ..attitude import solve_attitude
+    from ..attitude import UnusableCalibration, solve_attitude
     from ..calibration_file import load
     from ..cli import BadInput
     from ..installed import accel_to_product
@@ -95,6 +95,9 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     except ValueError as exc:
         raise BadInput(exc if str(calibration) in str(exc) else f"{calibration}: {exc}") from None
     model, tilt_sensor = cal.model, cal.tilt_sensor
+    if model.noise is None:  # the calibration's fault, not the recording's (16.6)
+        raise BadInput(f"{calibration}: the calibration has no noise_floor: the solution cannot be weighted nor "
+                       f"its uncertainty propagated")
     source = "site"
     if site is None and cal.sections.get("site") is not None:
         site, source = cal.sections["site"], "calibration site"
@@ -127,6 +130,11 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
             site, field_ut=None if model.field_ut is None else 1.0, source=source)
         result = solve_attitude(model, raw, **tilt_args, reference=reference, accel_noise_g=accel_noise_g,
                                 max_tilt_deg=max_tilt_deg, temp_c=temp_c)
+    except UnusableCalibration as exc:
+        raise BadInput(f"{calibration}: {exc}") from None
+    except np.linalg.LinAlgError as exc:  # the model's weighted solver: the calibration's numbers, not the rows
+        raise BadInput(f"{calibration}: unusable calibration ({exc}): its noise_floor or directions are out of "
+                       f"any sensible range") from None
     except ValueError as exc:
         raise BadInput(f"{recording}: {exc}") from None
 
@@ -152,13 +160,25 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
         metadata["note"] = "the calibration gives no direction covariance: sigmas count sensor noise only"
     atomic_write_text(out, _format_csv(columns, metadata))
     print(f"wrote {out} ({len(raw)} rows, mode {result.mode}; {int(np.sum(result.disturbed))} disturbed against the "
-          f"{result.reference.source} reference, {int(np.sum(~result.in_range))} out of calibrated range)")
+          f"{result.reference.source} reference, {int(np.sum(~result.in_range))} out of calibrated range"
+          f"{_skipped_note(result.skipped)})")
     if rerun is not None:
         from ..viz.attitude import record_attitude
 
         record_attitude(rerun, result, model, t_s=columns.get("t_s"), raw=raw, accel=accel, gyro=_group(table, _GYRO))
         print(f"wrote {rerun}")
     return result
+
+
+def _skipped_note(skipped) -> str:
+    """``, N skipped (reason k, ...)`` for rows never solved (``skipped`` column: the reason's code)."""
+    from ..sample_check import SKIP_REASONS
+
+    if skipped is None or not skipped.any():
+        return ""
+    codes, counts = np.unique(skipped[skipped > 0], return_counts=True)
+    return (f", {int(counts.sum())} skipped (" + ", ".join(f"{SKIP_REASONS[c]} {k}" for c, k in zip(codes, counts))
+            + "): angles nan, see the skipped column")
 
 
 def _group(table, names) -> np.ndarray | None:

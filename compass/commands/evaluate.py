@@ -29,14 +29,14 @@ def register(sub) -> None:
     p.add_argument("--no-gate", action="store_true", help="use every field sample (no magnetic-disturbance gate)")
     p.add_argument("--no-hard-iron", action="store_true", help="do not track hard-iron steps")
     add_rerun_option(p)
-    p.add_argument("--force", action="store_true", help="overwrite an existing --rerun file")
+    p.add_argument("--force", action="store_true", help="overwrite an existing --rerun file or plot")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     target = check_rerun_target(args.rerun, args.force)
     errors, result = evaluate_file(args.trial, cal=args.cal, plot=args.plot, gate=not args.no_gate,
-                                   hard_iron=not args.no_hard_iron)
+                                   hard_iron=not args.no_hard_iron, force=args.force)
     if target is not None:
         from ..io.broad import read_broad
         from ..viz.attitude import record_evaluation
@@ -46,7 +46,7 @@ def run(args) -> int:
     return 0
 
 
-def evaluate_file(trial_path, *, cal=None, plot=None, gate=True, hard_iron=True):
+def evaluate_file(trial_path, *, cal=None, plot=None, gate=True, hard_iron=True, force=False):
     """Evaluate one trial, print the report, optionally plot; returns ``(ErrorSeries, PipelineResult)``.
 
     Raises
@@ -56,6 +56,7 @@ def evaluate_file(trial_path, *, cal=None, plot=None, gate=True, hard_iron=True)
     """
     from ..cli import BadInput
     from ..evaluation import METRIC, error_series, run_pipeline
+    from ..io.atomic import check_writable
     from ..io.broad import read_broad
     from ..model import SensorModel
 
@@ -74,6 +75,8 @@ def evaluate_file(trial_path, *, cal=None, plot=None, gate=True, hard_iron=True)
             raise BadInput(f"{cal}: expected a tumble calibration of the trial's magnetometer (mx,my,mz), got a "
                            f"bench calibration of channels {', '.join(model.channels)}")
     trial = read_broad(trial_path)
+    if plot_dir is not None:
+        check_writable(plot_dir / f"{trial.name}_errors.png", force)
     try:
         result = run_pipeline(trial, model, gate=gate, hard_iron=hard_iron)
         errors = error_series(result.quat_enu, trial.ref_quat_enu, trial.movement, trial.rate_hz)
@@ -119,6 +122,8 @@ def _plot(folder: Path, trial, errors, result) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from ..io.atomic import save_figure
+
     folder.mkdir(parents=True, exist_ok=True)
     t = errors.t_s
     fig, axes = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
@@ -141,6 +146,6 @@ def _plot(folder: Path, trial, errors, result) -> Path:
     fig.suptitle(f"{trial.name}: {result.method} (BROAD metric, movement phase)", fontsize=10)
     fig.tight_layout()
     path = folder / f"{trial.name}_errors.png"
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path

@@ -8,6 +8,7 @@ with the dropped-line count printed.
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import sys
 import threading
@@ -50,10 +51,10 @@ def register(sub) -> None:
 def run(args) -> int:
     from ..cli import BadInput
     from ..filter import FilterConfig
-    from ..io.atomic import check_writable
+    from ..io.atomic import atomic_open, check_writable
     from ..live import LiveSession
     from ..model import SensorModel
-    from ..serial_reader import PortUnavailable, SerialReader
+    from ..serial_reader import SerialReader
 
     if args.calibrate == "tumble":
         from ._live_tumble import run_tumble
@@ -91,9 +92,37 @@ def run(args) -> int:
         if not args.quiet:
             print(("\r\x1b[K" if tty else "") + f"[{level}] {text}", flush=True)
 
-    out = None if out_path is None else open(out_path, "w", encoding="utf-8", buffering=1 << 16)
-    session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event, reference=reference,
-                          to_product=_to_product(args.cal))
+    session, failed, start = None, True, time.perf_counter()
+    try:
+        with contextlib.ExitStack() as outputs:  # --out is renamed into place only when the session ends well
+            out = None if out_path is None else outputs.enter_context(atomic_open(out_path, "w"))
+            session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event, reference=reference,
+                                  to_product=_to_product(args.cal))
+            _run_session(args, reader, session, out, tty, every_s)
+            failed = False
+    finally:
+        if session is not None:
+            elapsed = time.perf_counter() - start
+            if tty and not args.quiet:
+                print()
+            wrote = [] if failed else [str(p) for p in (out_path, args.rerun) if p is not None and p != "spawn"]
+            print(f"compass live: {elapsed:.1f} s, {reader.disconnects} disconnect(s); {session.summary()}"
+                  + (f"; wrote {', '.join(wrote)}" if wrote else ""), flush=True)
+    if session.decoder.stats.samples == 0:
+        s = session.decoder.stats
+        why = ("the port never opened" if not reader.connected_once else
+               f"{s.rejected_headers} unusable header(s), {s.bad_lines} bad line(s)" if s.rejected_headers or s.bad_lines
+               else "nothing arrived: check the module, its baud rate and that it sends the header")
+        print(f"compass live: no sample arrived from {args.port} in {elapsed:.1f} s ({why})", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _run_session(args, reader, session, out, tty: bool, every_s: float) -> None:
+    """Feed the reader's items to the session until stopped (Ctrl-C, SIGTERM, --duration); print the readout."""
+    from ..cli import BadInput
+    from ..serial_reader import PortUnavailable
+
     stop = threading.Event()
     previous = _install_stop_handlers(stop)
     timer = None
@@ -101,7 +130,7 @@ def run(args) -> int:
         timer = threading.Timer(args.duration, stop.set)
         timer.daemon = True
         timer.start()
-    start = last = time.perf_counter()
+    last = time.perf_counter()
     last_count = 0
     try:
         for item in reader.items(stop):
@@ -125,24 +154,8 @@ def run(args) -> int:
             timer.cancel()
         reader.close()
         session.close()
-        if out is not None:
-            out.close()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-        elapsed = time.perf_counter() - start
-        if tty and not args.quiet:
-            print()
-        wrote = [str(p) for p in (out_path, args.rerun) if p is not None and p != "spawn"]
-        print(f"compass live: {elapsed:.1f} s, {reader.disconnects} disconnect(s); {session.summary()}"
-              + (f"; wrote {', '.join(wrote)}" if wrote else ""), flush=True)
-    if session.decoder.stats.samples == 0:
-        s = session.decoder.stats
-        why = ("the port never opened" if not reader.connected_once else
-               f"{s.rejected_headers} unusable header(s), {s.bad_lines} bad line(s)" if s.rejected_headers or s.bad_lines
-               else "nothing arrived: check the module, its baud rate and that it sends the header")
-        print(f"compass live: no sample arrived from {args.port} in {elapsed:.1f} s ({why})", file=sys.stderr)
-        return 1
-    return 0
 
 
 def _to_product(path):

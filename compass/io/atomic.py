@@ -1,12 +1,22 @@
-"""Atomic file writes: a reader never sees half a file, a crash never leaves one."""
+"""Atomic file writes: a reader never sees half a file, a crash never leaves one behind for long.
+
+Every output goes to a temporary file in the target's folder, named ``.NAME.PID.RANDOM.tmp``, is
+flushed to disk and renamed over the target in one step (``os.replace``).  The result has the mode
+a plain ``open()`` would give it: ``0o666`` less the user's umask for a new file, the old file's
+mode when ``--force`` replaces one.  A writer killed in the write window (``kill -9``) leaves its
+temporary file; the next write to the same target removes the ones whose writer process is gone
+(only files of this naming pattern, and never one whose process still runs).
+"""
 
 from __future__ import annotations
 
+import contextlib
 import os
+import stat
 import tempfile
 from pathlib import Path
 
-__all__ = ["OutputError", "atomic_write_text", "check_writable"]
+__all__ = ["OutputError", "atomic_open", "atomic_write_text", "check_writable", "save_figure"]
 
 
 class OutputError(ValueError):
@@ -37,8 +47,53 @@ def check_writable(path, force: bool) -> Path:
     return path
 
 
+@contextlib.contextmanager
+def atomic_open(path, mode: str = "w"):
+    """Open a temporary file that replaces ``path`` when the block ends without an exception.
+
+    Parameters
+    ----------
+    path : path-like
+        The target.  Its folder is created if needed.
+    mode : {"w", "wb"}
+        Text (UTF-8) or binary.
+
+    Yields
+    ------
+    file object
+        Write to it; on an exception (including ``KeyboardInterrupt``) the temporary file is
+        removed and ``path`` is left as it was.
+
+    Raises
+    ------
+    OutputError
+        The folder cannot be created or written, or the file cannot be replaced.
+    """
+    if mode not in ("w", "wb"):
+        raise ValueError(f"mode must be 'w' or 'wb', got {mode!r}")
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_temporaries(path)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp")
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write ({exc.strerror})") from None
+    try:
+        with os.fdopen(fd, mode, **({"encoding": "utf-8"} if mode == "w" else {})) as fh:
+            yield fh
+            fh.flush()
+            os.fchmod(fh.fileno(), _mode_for(path))
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException as exc:
+        Path(tmp).unlink(missing_ok=True)
+        if isinstance(exc, OSError) and not isinstance(exc, OutputError):
+            raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
+        raise
+
+
 def atomic_write_text(path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename.
+    """Write ``text`` to ``path`` atomically (see :func:`atomic_open`).
 
     Raises
     ------
@@ -46,20 +101,66 @@ def atomic_write_text(path, text: str) -> None:
         The folder cannot be created or written, or the file cannot be replaced (the old
         file, if any, is left as it was).
     """
+    with atomic_open(path, "w") as fh:
+        fh.write(text)
+
+
+def save_figure(fig, path, **savefig_kwargs) -> Path:
+    """Save a matplotlib figure to ``path`` atomically, in the format its suffix names; returns the path.
+
+    Refusing an existing file without ``--force`` is the command's job (:func:`check_writable`,
+    before the long work).
+    """
     path = Path(path)
+    savefig_kwargs.setdefault("format", path.suffix.lstrip(".").lower() or "png")
+    with atomic_open(path, "wb") as fh:
+        fig.savefig(fh, **savefig_kwargs)
+    return path
+
+
+def remove_stale_temporaries(path) -> list[Path]:
+    """Remove ``.NAME.PID.*.tmp`` files of ``path`` left by writers that are gone; returns them."""
+    path = Path(path)
+    prefix = f".{path.name}."
+    removed = []
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    except OSError as exc:
-        raise OutputError(f"{path}: cannot write ({exc.strerror})") from None
+        candidates = list(path.parent.glob(f"{_glob_escape(prefix)}*.tmp"))
+    except OSError:
+        return removed
+    for candidate in candidates:
+        pid_text = candidate.name[len(prefix):].split(".", 1)[0]
+        if not pid_text.isdigit() or _process_exists(int(pid_text)):
+            continue
+        try:
+            if stat.S_ISREG(candidate.lstat().st_mode):
+                candidate.unlink()
+                removed.append(candidate)
+        except OSError:
+            pass  # gone meanwhile, or not ours to remove
+    return removed
+
+
+def _process_exists(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException as exc:
-        Path(tmp).unlink(missing_ok=True)
-        if isinstance(exc, OSError):
-            raise OutputError(f"{path}: cannot write ({exc.strerror})") from None
-        raise
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True  # someone else's process (or an impossible pid): leave its file alone
+    return True
+
+
+def _mode_for(path: Path) -> int:
+    """The mode ``open(path, "w")`` would leave: the old file's, else 0o666 less the umask."""
+    try:
+        return stat.S_IMODE(path.stat().st_mode)
+    except OSError:
+        umask = os.umask(0o022)
+        os.umask(umask)
+        return 0o666 & ~umask
+
+
+def _glob_escape(text: str) -> str:
+    return "".join(f"[{c}]" if c in "*?[" else c for c in text)

@@ -1,0 +1,93 @@
+"""Readings that must never be fused: not finite, or beyond anything the sensors can read.
+
+A well-formed line can still carry a reading no filter should see: ``1e300`` from a firmware bug,
+a NaN from a calibration, a field a thousand times the Earth's.  :func:`skip_codes` flags them per
+sample, with the reason; the callers (``compass live``, ``compass attitude``) skip those samples,
+count the reasons and say so.  The limits are deliberately far from any physical reading, so a
+real disturbance (a magnet, a shock) is never skipped here: judging those is the filter's and the
+disturbance flag's job.
+
+- field: ``|B|`` more than :data:`FIELD_RATIO_LIMIT` times the expected ``|B|`` (the Earth's field
+  is 25-65 uT; a hundred times that is a magnet on the sensor, far beyond its calibrated range);
+- accelerometer (any unit): ``|a|`` more than :data:`ACCEL_RATIO_LIMIT` times its typical
+  magnitude (gravity, in whatever unit the module sends), or zero;
+- gyro (rad/s): ``|w|`` above :data:`GYRO_LIMIT_RAD_S` (MEMS gyros saturate below 70 rad/s).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["SKIP_REASONS", "FIELD_RATIO_LIMIT", "ACCEL_RATIO_LIMIT", "GYRO_LIMIT_RAD_S", "skip_codes"]
+
+SKIP_REASONS = ("ok", "field not finite", "field out of range", "accel not finite or out of range",
+                "gyro not finite or out of range")
+"""Reason of each code :func:`skip_codes` returns (index = code)."""
+FIELD_RATIO_LIMIT = 100.0
+ACCEL_RATIO_LIMIT = 1000.0
+GYRO_LIMIT_RAD_S = 1e4
+
+
+def skip_codes(field, field_scale: float, accel=None, accel_scale: float | None = None, gyro=None) -> np.ndarray:
+    """Per sample: 0 when it may be fused, else the code of the first reason (:data:`SKIP_REASONS`).
+
+    Parameters
+    ----------
+    field : array_like, shape (n, 3)
+        Field in the housing frame H, the calibration's unit.
+    field_scale : float
+        Expected ``|B|``, same unit (the reference's, or a robust typical value); NaN: only
+        non-finite fields are flagged.
+    accel : array_like, shape (n, 3), optional
+        Accelerometer in H, any unit; rows of NaN mean "not measured" and pass.
+    accel_scale : float, optional
+        Typical ``|a|`` (gravity) in the accelerometer's unit; without it only non-finite and zero
+        readings are flagged.
+    gyro : array_like, shape (n, 3), optional
+        Angular rate, rad/s; rows of NaN mean "not measured" and pass.
+
+    Returns
+    -------
+    ndarray of int, shape (n,)
+
+    Examples
+    --------
+    >>> skip_codes([[20.0, 0, -40], [1e300, 0, 0], [np.nan, 0, 0]], 50.0).tolist()
+    [0, 2, 1]
+    """
+    field = np.atleast_2d(np.asarray(field, dtype=float))
+    codes = np.zeros(len(field), dtype=int)
+    with np.errstate(over="ignore", invalid="ignore"):
+        b = np.linalg.norm(field, axis=1)
+        if np.isfinite(field_scale) and field_scale > 0:
+            codes[~(b <= FIELD_RATIO_LIMIT * field_scale)] = 2
+        codes[~np.all(np.isfinite(field), axis=1)] = 1
+        for values, code, bad in ((accel, 3, _accel_bad(accel, accel_scale)), (gyro, 4, _gyro_bad(gyro))):
+            if values is not None:
+                codes[(codes == 0) & bad] = code
+    return codes
+
+
+def _measured(values) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, norms) with rows all-NaN ('not measured') given norm NaN."""
+    v = np.atleast_2d(np.asarray(values, dtype=float))
+    return v, np.linalg.norm(v, axis=1)
+
+
+def _accel_bad(accel, scale) -> np.ndarray | None:
+    if accel is None:
+        return None
+    a, norm = _measured(accel)
+    absent = np.all(np.isnan(a), axis=1)
+    bad = ~np.all(np.isfinite(a), axis=1) | (norm == 0)
+    if scale is not None and np.isfinite(scale) and scale > 0:
+        bad |= norm > ACCEL_RATIO_LIMIT * scale
+    return bad & ~absent
+
+
+def _gyro_bad(gyro) -> np.ndarray | None:
+    if gyro is None:
+        return None
+    w, norm = _measured(gyro)
+    absent = np.all(np.isnan(w), axis=1)
+    return (~np.all(np.isfinite(w), axis=1) | (norm > GYRO_LIMIT_RAD_S)) & ~absent
