@@ -135,8 +135,8 @@ def test_an_error_inside_the_write_leaves_nothing(tmp_path):
     assert not target.exists() and temporaries(tmp_path) == []
 
 
-def test_live_out_is_written_atomically_with_the_umask(tmp_path, umask_027, monkeypatch):
-    """`compass live --out` went through a plain open(): a crash left half a file, --force truncated at once."""
+def test_live_out_is_streamed_with_the_umask(tmp_path, umask_027, monkeypatch):
+    """`compass live --out` is a stream written as it goes (a crash keeps what was recorded), with the umask."""
     from tests.test_live_mistakes import _live_on_socket
     from compass.sim.device import PtyDevice, default_model, simulate_device
 

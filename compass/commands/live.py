@@ -51,7 +51,7 @@ def register(sub) -> None:
 def run(args) -> int:
     from ..cli import BadInput
     from ..filter import FilterConfig
-    from ..io.atomic import atomic_open, check_writable
+    from ..io.atomic import check_writable
     from ..live import LiveSession
     from ..model import SensorModel
     from ..serial_reader import SerialReader
@@ -92,20 +92,27 @@ def run(args) -> int:
         if not args.quiet:
             print(("\r\x1b[K" if tty else "") + f"[{level}] {text}", flush=True)
 
-    session, failed, start = None, True, time.perf_counter()
+    session, failed, out, start = None, True, None, time.perf_counter()
     try:
-        with contextlib.ExitStack() as outputs:  # --out is renamed into place only when the session ends well
-            out = None if out_path is None else outputs.enter_context(atomic_open(out_path, "w"))
+        with contextlib.ExitStack() as outputs:
+            # --out is a stream, written as it goes (tail -f follows it; a crash keeps what was recorded):
+            # not atomic on purpose, unlike the files a command produces at once
+            if out_path is not None:
+                out = outputs.enter_context(open(out_path, "w", encoding="utf-8", buffering=1 << 16))
             session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event, reference=reference,
                                   to_product=_to_product(args.cal))
             _run_session(args, reader, session, out, tty, every_s)
             failed = False
     finally:
+        recorded = session is not None and session.decoder.stats.samples > 0
+        if out is not None and not recorded:
+            out_path.unlink(missing_ok=True)  # opened by this run and holding no sample: leave nothing behind
         if session is not None:
             elapsed = time.perf_counter() - start
             if tty and not args.quiet:
                 print()
-            wrote = [] if failed else [str(p) for p in (out_path, args.rerun) if p is not None and p != "spawn"]
+            kept = (out_path if recorded else None,) if failed else (out_path if recorded else None, args.rerun)
+            wrote = [str(p) for p in kept if p is not None and p != "spawn"]
             print(f"compass live: {elapsed:.1f} s, {reader.disconnects} disconnect(s); {session.summary()}"
                   + (f"; wrote {', '.join(wrote)}" if wrote else ""), flush=True)
     if session.decoder.stats.samples == 0:
