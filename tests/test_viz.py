@@ -213,3 +213,19 @@ def test_evaluate_rerun_two_housings_and_errors(tmp_path, capsys):
     scored = heading[np.isfinite(heading[:, 0]), 0]  # NaN outside the movement phase (not scored)
     np.testing.assert_allclose(np.sqrt(np.mean(scored**2)), rms, atol=0.01)  # the printed figure
     assert "BarChart" not in {v["class"] for v in blueprint_views(rrd)}
+
+
+def test_rrd_written_atomically_keeps_the_old_mode_and_clears_stale_temporaries(tmp_path):
+    from compass.sim.fourflip import simulate_fourflip, write_fourflip
+
+    rec, _ = write_fourflip(simulate_fourflip(seed=5), tmp_path / "bench.csv")
+    rrd = tmp_path / "cal.rrd"
+    rrd.write_text("old")
+    rrd.chmod(0o640)
+    stale = tmp_path / ".cal.rrd.999999999.abc.tmp"  # left by a writer that is gone (no such pid)
+    stale.write_text("half a file")
+    assert main(["calibrate", str(rec), "--out", str(tmp_path / "c.json"), "--quiet", "--no-diagnose",
+                 "--rerun", str(rrd), "--force"]) == 0
+    assert (rrd.stat().st_mode & 0o777) == 0o640 and not stale.exists()
+    assert "/fourflip/v1/measured" in entity_paths(rrd)
+    assert [p.name for p in tmp_path.glob(".cal.rrd.*")] == []

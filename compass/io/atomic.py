@@ -16,7 +16,8 @@ import stat
 import tempfile
 from pathlib import Path
 
-__all__ = ["OutputError", "atomic_open", "atomic_write_text", "check_writable", "save_figure"]
+__all__ = ["OutputError", "atomic_open", "atomic_write_text", "check_writable", "save_figure", "output_mode",
+           "remove_stale_temporaries"]
 
 
 class OutputError(ValueError):
@@ -82,7 +83,7 @@ def atomic_open(path, mode: str = "w"):
         with os.fdopen(fd, mode, **({"encoding": "utf-8"} if mode == "w" else {})) as fh:
             yield fh
             fh.flush()
-            os.fchmod(fh.fileno(), _mode_for(path))
+            os.fchmod(fh.fileno(), output_mode(path))
             os.fsync(fh.fileno())
         os.replace(tmp, path)
     except BaseException as exc:
@@ -152,7 +153,7 @@ def _process_exists(pid: int) -> bool:
     return True
 
 
-def _mode_for(path: Path) -> int:
+def output_mode(path: Path) -> int:
     """The mode ``open(path, "w")`` would leave: the old file's, else 0o666 less the umask."""
     try:
         return stat.S_IMODE(path.stat().st_mode)

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
+from ..io.atomic import output_mode, remove_stale_temporaries
 from ._target import SPAWN
 
 __all__ = ["Recording", "columns_index"]
@@ -47,7 +48,8 @@ class Recording:
             self.rec.spawn(default_blueprint=blueprint)
         else:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(dir=self.path.parent, prefix=f".{self.path.name}.", suffix=".tmp")
+            remove_stale_temporaries(self.path)  # ours too: .NAME.PID.*.tmp, as compass.io.atomic names them
+            fd, tmp = tempfile.mkstemp(dir=self.path.parent, prefix=f".{self.path.name}.{os.getpid()}.", suffix=".tmp")
             os.close(fd)
             self._tmp = Path(tmp)
             self.rec.save(self._tmp, default_blueprint=blueprint)
@@ -57,9 +59,7 @@ class Recording:
         """Flush, write the footer and move the file into place."""
         self.rec.disconnect()
         if self._tmp is not None:
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(self._tmp, 0o666 & ~umask)  # as an ordinary file (mkstemp made it private)
+            os.chmod(self._tmp, output_mode(self.path))  # as open() would leave it (mkstemp made it private)
             os.replace(self._tmp, self.path)
             self._tmp = None
 
