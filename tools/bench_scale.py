@@ -123,16 +123,18 @@ def report():
     with open(os.environ['BENCH_HWM_FILE'], 'w') as f:
         f.write(hwm)
 mode, target, *sys.argv[1:] = sys.argv[1:]
+code = 0
 try:
     if mode == '-m':
         sys.argv[0] = target
         runpy.run_module(target, run_name='__main__', alter_sys=True)
     else:
         exec(compile(target, '<bench>', 'exec'), {'__name__': '__main__'})
-except SystemExit:
-    pass
+except SystemExit as exc:
+    code = exc.code
 finally:
     report()
+sys.exit(code)
 """
 
 
