@@ -102,15 +102,19 @@ def make_attitude(folder: Path, mb: float, env: dict) -> tuple[Path, Path, int]:
 
     session = simulate_fourflip(seed=2)
     bench, _ = write_fourflip(session, folder / "bench.csv")
-    cal = folder / "bench.json"
-    subprocess.run([sys.executable, "-m", "compass", "calibrate", str(bench), "--out", str(cal), "--quiet"],
-                   env=env, check=True, capture_output=True, timeout=600)
+    cal = _calibrate(bench, folder / "bench.json", env)
     rows = _rows_for(mb, 66.0)
     run = simulate_runtime(session.truth, rows, seed=3)
     path = folder / "attitude.csv"
     _write(path, ["t_s", *run.channels, "ax", "ay", "az"], np.column_stack([run.t_s, run.outputs, run.accel]),
            "%.5f", {})
     return cal, path, rows
+
+
+def _calibrate(bench: Path, cal: Path, env: dict) -> Path:
+    subprocess.run([sys.executable, "-m", "compass", "calibrate", str(bench), "--out", str(cal), "--quiet"],
+                   env=env, check=True, capture_output=True, timeout=600, cwd=tempfile.gettempdir())
+    return cal
 
 
 # ---- child processes ---------------------------------------------------------------------------
@@ -123,16 +127,18 @@ def report():
     with open(os.environ['BENCH_HWM_FILE'], 'w') as f:
         f.write(hwm)
 mode, target, *sys.argv[1:] = sys.argv[1:]
+code = 0
 try:
     if mode == '-m':
         sys.argv[0] = target
         runpy.run_module(target, run_name='__main__', alter_sys=True)
     else:
         exec(compile(target, '<bench>', 'exec'), {'__name__': '__main__'})
-except SystemExit:
-    pass
+except SystemExit as exc:
+    code = exc.code
 finally:
     report()
+sys.exit(code)
 """
 
 
@@ -234,6 +240,8 @@ def main() -> int:
                 row[f"read {label}"] = run_child(["-c", f"from compass.io.table import read_table; "
                                                         f"read_table({str(rec)!r})"], tree_env(tree), timeout)
                 out = folder / f"out_{kind}_{label.split()[0]}"
+                if kind == "attitude" and tree is not None:  # each tree reads its own calibration file format
+                    cal = _calibrate(folder / "bench.csv", out.with_suffix(".cal.json"), tree_env(tree))
                 argv = (["-m", "compass", "attitude", str(cal), str(rec), "--out", str(out) + ".csv"]
                         if kind == "attitude" else
                         ["-m", "compass", "calibrate", str(rec), "--out", str(out) + ".json", "--quiet"])
