@@ -28,7 +28,7 @@ seed (``--seed .. --seed + n - 1``), so two runs print the same table apart from
    held-out noise-free fields of 50 uT, beside two baselines in the same table: the seed's
    formula (1) taken literally (the known field regressed on the outputs, ``B = K V - B0``,
    written here: the toolkit has no such routine) and the raw sensor (``K = I``, ``V0 = 0``).
-   Then the refusal of degenerate fields (``calibrate.reference._design_check``, raising
+   Then the refusal of degenerate fields (``calibrate.reference.fit._design_check``, raising
    ``CannotCalibrate``; the reader's ``MIN_FIELDS`` check comes first for a file) counted
    over seeded coplanar sessions and sessions with 3 and 4 fields, with random fields as control.
 3. **Tumble diagnosis**: 3000-sample simulated tumbles, ``--tumble-seeds`` per case: clean,
@@ -481,7 +481,7 @@ def print_reference(r: dict, refusals: list, n: int, seed: int, n_fields: int, n
     row("case", ["fit refused", "reader refused", "warned", "accepted"], width=15, first=34)
     for label, counts in refusals:
         row(label, [str(counts.get(o, 0)) for o in outcomes], width=15, first=34)
-    print("  the fit's check: calibrate.reference._design_check (fewer than 4 fields, or the column-scaled design [B, 1] "
+    print("  the fit's check: calibrate.reference.fit._design_check (fewer than 4 fields, or the column-scaled design [B, 1] "
           "with condition > 1e8);")
     print("  the reader's: compass.io.reference MIN_FIELDS = 4.  The simulator has no 'nearly coplanar' or 'collinear' "
           "option: not counted.")
