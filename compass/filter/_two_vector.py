@@ -6,7 +6,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from filterpy.common import Q_continuous_white_noise
 from scipy.spatial.transform import Rotation
 
 from ._base import _P0_ATTITUDE, AttitudeFilter, exp_matrix, mat_mul
@@ -132,6 +131,8 @@ class TwoVectorFilter(AttitudeFilter):
             decay = math.exp(-dt / cfg.rate_tau_s)
             self._f[:3, 3:] = np.eye(3) * cfg.rate_tau_s * (1.0 - decay)
             self._f[3:, 3:] = np.eye(3) * decay
+            from filterpy.common import Q_continuous_white_noise  # 0.5 s to import: only when dt changes
+
             self._q = Q_continuous_white_noise(dim=2, dt=dt, spectral_density=cfg.angular_accel_noise**2,
                                                block_size=3, order_by_dim=False)
             self._dt, self._moved, self._decay = dt, cfg.rate_tau_s * (1.0 - decay), decay
