@@ -52,6 +52,9 @@ class LiveSession:
     to_product : ndarray, shape (3, 3), optional
         ``R_product<-housing`` of an installed calibration with an alignment (its model is in the
         product's frame): the module's accelerometer and gyro are turned by it.
+    gyro_rad_s_per_unit : float
+        What one unit of the module's gyro is in rad/s (``--gyro-unit``: 1 for rad/s, pi/180 for
+        deg/s); the line protocol's default unit is rad/s.
 
     Attributes
     ----------
@@ -84,6 +87,7 @@ class LiveSession:
     on_event: object = None
     reference: object = None
     to_product: object = None
+    gyro_rad_s_per_unit: float = 1.0
     decoder: LineDecoder = field(init=False)
     estimate: Estimate | None = None
     in_range: bool = True
@@ -153,6 +157,8 @@ class LiveSession:
         if self._t0 is None:
             self._t0 = item.t_rx
         for sample in self.decoder.feed(item.data):
+            if sample.gyro is not None and self.gyro_rad_s_per_unit != 1.0:
+                sample = replace(sample, gyro=self.gyro_rad_s_per_unit * sample.gyro)
             if self.to_product is not None:  # an installed model in the product's frame
                 sample = replace(sample, **{k: None if getattr(sample, k) is None else self.to_product @ getattr(sample, k)
                                             for k in ("accel", "gyro")})

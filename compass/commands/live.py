@@ -33,6 +33,9 @@ def register(sub) -> None:
                    help="where the module is (degrees, metres): reference field and true north from the World "
                         "Magnetic Model (default: the field of the first quiet second, magnetic heading only)")
     p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day (default today, UTC)")
+    p.add_argument("--gyro-unit", choices=("rad/s", "deg/s"), default="rad/s",
+                   help="unit of the module's gx,gy,gz (default rad/s, the line protocol's); a gyro in deg/s "
+                        "taken as rad/s turns the attitude 57 times too fast")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C)")
     p.add_argument("--wait", type=float, default=0.0, metavar="S",
@@ -52,6 +55,7 @@ def run(args) -> int:
     from ..cli import BadInput
     from ..filter import FilterConfig
     from ..io.atomic import check_writable
+    from ..io.units import GYRO_UNITS
     from ..live import LiveSession
     from ..model import SensorModel
     from ..serial_reader import SerialReader
@@ -100,7 +104,7 @@ def run(args) -> int:
             if out_path is not None:
                 out = outputs.enter_context(open(out_path, "w", encoding="utf-8", buffering=1 << 16))
             session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event, reference=reference,
-                                  to_product=_to_product(args.cal))
+                                  to_product=_to_product(args.cal), gyro_rad_s_per_unit=GYRO_UNITS[args.gyro_unit])
             _run_session(args, reader, session, out, tty, every_s)
             failed = False
     finally:
