@@ -12,8 +12,6 @@ checks, refusals and diagnosis).
 
 from __future__ import annotations
 
-import signal
-import threading
 import time
 from pathlib import Path
 
@@ -141,7 +139,7 @@ def run_tumble(args) -> int:
     from ..serial_reader import SerialReader
     from ..viz import check_rerun_target
     from . import calibrate as calibrate_cmd
-    from .live import _install_stop_handlers
+    from .live import stop_when_asked
 
     if args.out is None:
         raise BadInput("--calibrate tumble needs --out CAL.json (the calibration to write)")
@@ -166,37 +164,27 @@ def run_tumble(args) -> int:
         view = LiveTumbleRecording(target)
 
     collector = TumbleCollector(min_coverage=args.min_coverage)
-    stop = threading.Event()
-    previous = _install_stop_handlers(stop)
-    timer = None
-    if args.duration is not None:
-        timer = threading.Timer(args.duration, stop.set)
-        timer.daemon = True
-        timer.start()
     last, said, result = time.perf_counter(), None, None
     try:
-        for item in reader.items(stop):
-            for level, text in collector.feed(item):
-                _say(args, view, collector, f"[{level}] {text}")
-            now = time.perf_counter()
-            if now - last >= 1.0:
-                last = now
-                collector.update()
-                if not args.quiet:
-                    print(collector.readout(), flush=True)
-                if collector.coverage is not None and collector.coverage.missing != said:
-                    said = collector.coverage.missing  # say it in words when the missing axes change
-                    _say(args, view, collector, collector.coverage.words())
-                if view is not None:
-                    view.update(collector)
-                if collector.enough:
-                    break
+        with stop_when_asked(args.duration) as stop:
+            for item in reader.items(stop):
+                for level, text in collector.feed(item):
+                    _say(args, view, collector, f"[{level}] {text}")
+                now = time.perf_counter()
+                if now - last >= 1.0:
+                    last = now
+                    collector.update()
+                    if not args.quiet:
+                        print(collector.readout(), flush=True)
+                    if collector.coverage is not None and collector.coverage.missing != said:
+                        said = collector.coverage.missing  # say it in words when the missing axes change
+                        _say(args, view, collector, collector.coverage.words())
+                    if view is not None:
+                        view.update(collector)
+                    if collector.enough:
+                        break
     finally:
-        if timer is not None:
-            timer.cancel()
         reader.close()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
         try:
             if len(collector.rows) < _MIN_SAMPLES:
                 raise BadInput(f"{args.port}: {len(collector.rows)} samples with {', '.join(_CHANNELS)} received; "

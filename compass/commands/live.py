@@ -134,39 +134,29 @@ def _run_session(args, reader, session, out, tty: bool, every_s: float) -> None:
     from ..cli import BadInput
     from ..serial_reader import PortUnavailable
 
-    stop = threading.Event()
-    previous = _install_stop_handlers(stop)
-    timer = None
-    if args.duration is not None:
-        timer = threading.Timer(args.duration, stop.set)
-        timer.daemon = True
-        timer.start()
     last = time.perf_counter()
     last_count = 0
     try:
-        for item in reader.items(stop):
-            session.feed(item)
-            mismatch = session.decoder.mismatch
-            if mismatch is not None:
-                raise BadInput(f"{args.port}: the module's header {','.join(mismatch[0])} lacks the calibration's "
-                               f"channel(s) {','.join(mismatch[1])} ({args.cal}): is it the right calibration?")
-            now = time.perf_counter()
-            if now - last >= every_s:
-                rate = (session.decoder.stats.samples - last_count) / (now - last)
-                last, last_count = now, session.decoder.stats.samples
-                if out is not None:
-                    out.flush()
-                if not args.quiet:
-                    print(("\r\x1b[K" if tty else "") + session.readout(rate), end="" if tty else "\n", flush=True)
+        with stop_when_asked(args.duration) as stop:
+            for item in reader.items(stop):
+                session.feed(item)
+                mismatch = session.decoder.mismatch
+                if mismatch is not None:
+                    raise BadInput(f"{args.port}: the module's header {','.join(mismatch[0])} lacks the calibration's "
+                                   f"channel(s) {','.join(mismatch[1])} ({args.cal}): is it the right calibration?")
+                now = time.perf_counter()
+                if now - last >= every_s:
+                    rate = (session.decoder.stats.samples - last_count) / (now - last)
+                    last, last_count = now, session.decoder.stats.samples
+                    if out is not None:
+                        out.flush()
+                    if not args.quiet:
+                        print(("\r\x1b[K" if tty else "") + session.readout(rate), end="" if tty else "\n", flush=True)
     except PortUnavailable as exc:
         raise BadInput(f"{exc}: check the name, or --wait S for a port that is not there yet") from None
     finally:
-        if timer is not None:
-            timer.cancel()
         reader.close()
         session.close()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
 
 
 def _to_product(path):
@@ -192,13 +182,29 @@ def _site_reference(args, model):
         raise BadInput(str(exc)) from None
 
 
-def _install_stop_handlers(stop: threading.Event) -> dict:
-    """Ctrl-C and SIGTERM set ``stop`` (the loop ends within one read timeout); a second Ctrl-C interrupts."""
+@contextlib.contextmanager
+def stop_when_asked(duration_s: float | None):
+    """An event that Ctrl-C, SIGTERM or ``duration_s`` seconds set (the reading loop ends within one
+    read timeout); a second Ctrl-C interrupts.  The signal handlers are restored and the timer
+    cancelled when the block ends.  Off the main thread only the timer sets it."""
+    stop = threading.Event()
+
     def handler(signum, frame):
         if stop.is_set() and signum == signal.SIGINT:
             raise KeyboardInterrupt
         stop.set()
 
-    if threading.current_thread() is not threading.main_thread():
-        return {}
-    return {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous = ({} if threading.current_thread() is not threading.main_thread() else
+                {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)})
+    timer = None
+    if duration_s is not None:
+        timer = threading.Timer(duration_s, stop.set)
+        timer.daemon = True
+        timer.start()
+    try:
+        yield stop
+    finally:
+        if timer is not None:
+            timer.cancel()
+        for sig, handler_before in previous.items():
+            signal.signal(sig, handler_before)
