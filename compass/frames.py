@@ -14,6 +14,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 __all__ = [
+    "sphere_cells",
     "bench_rotation",
     "field_in_bench",
     "seed_angles",
@@ -128,3 +129,16 @@ def world_field(dip_deg: float, magnitude: float = 1.0) -> np.ndarray:
     """Earth field in the NWU world frame (magnetic north), shape (3,)."""
     dip = np.radians(dip_deg)
     return magnitude * np.array([np.cos(dip), 0.0, -np.sin(dip)])
+
+
+def sphere_cells(n_cells: int) -> np.ndarray:
+    """Centres of ``n_cells`` near-equal-area cells on the unit sphere (Fibonacci lattice), shape (n, 3).
+
+    Coverage of a free-motion calibration counts the cells the field's direction has visited
+    (frame-free: directions in whatever frame the caller's vectors are).
+    """
+    i = np.arange(n_cells) + 0.5
+    z = 1.0 - 2.0 * i / n_cells
+    phi = np.pi * (1.0 + 5.0**0.5) * i
+    r = np.sqrt(1.0 - z**2)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])

@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from compass.frames import sphere_cells
+
 FACE_COVERAGE_DEG = 45.0
 """A half-axis counts as seen when some sample's field direction lies within this angle of it."""
 
@@ -46,14 +48,6 @@ class Coverage:
                 f"in the northern hemisphere, steeply down) - usually by turning it over")
 
 
-def _fibonacci_sphere(n: int) -> np.ndarray:
-    i = np.arange(n) + 0.5
-    z = 1.0 - 2.0 * i / n
-    phi = np.pi * (1.0 + 5.0**0.5) * i
-    r = np.sqrt(1.0 - z**2)
-    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
-
-
 def sphere_coverage(directions: np.ndarray) -> Coverage:
     """Coverage of the sphere by field directions.
 
@@ -67,7 +61,7 @@ def sphere_coverage(directions: np.ndarray) -> Coverage:
     Coverage
     """
     u = directions / np.linalg.norm(directions, axis=1, keepdims=True)
-    cells = _fibonacci_sphere(_N_CELLS)
+    cells = sphere_cells(_N_CELLS)
     hit = np.unique(np.argmax(u @ cells.T, axis=1))
     best = np.max(u, axis=0), np.max(-u, axis=0)
     cos_lim = np.cos(np.radians(FACE_COVERAGE_DEG))

@@ -39,12 +39,12 @@ import rerun as rr
 import rerun.blueprint as rrb
 from scipy.spatial.transform import Rotation
 
-from ..frames import field_in_bench
+from ..frames import field_in_bench, sphere_cells
 from ._drawing import AXIS_COLORS, FIELD_COLOR, cone_strips, log_housing
 from ._stream import columns_index
 
 __all__ = ["log_calibration", "log_calibration_result", "record_calibration", "calibration_views", "log_fourflip",
-           "log_tumble", "log_fit_residuals", "log_diagnosis", "LiveTumbleRecording", "coverage_cells"]
+           "log_tumble", "log_fit_residuals", "log_diagnosis", "LiveTumbleRecording"]
 
 _MEASURED, _FIT = [120, 120, 120], [30, 120, 220]
 _BEFORE, _AFTER = [230, 120, 40], [30, 120, 220]
@@ -196,15 +196,6 @@ def log_diagnosis(rec, diagnosis: dict | None) -> None:
         rec.log("diagnosis/log", rr.TextLog(line))
 
 
-def coverage_cells(n_cells: int) -> np.ndarray:
-    """Centres of ``n_cells`` near-equal-area cells on the unit sphere (Fibonacci lattice), (n, 3)."""
-    i = np.arange(n_cells) + 0.5
-    z = 1.0 - 2.0 * i / n_cells
-    phi = np.pi * (1.0 + 5.0**0.5) * i
-    r = np.sqrt(1.0 - z**2)
-    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
-
-
 def _cell_counts(directions: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(cell of each direction, samples per cell)."""
     cell = np.argmax(directions @ cells.T, axis=1)
@@ -239,7 +230,7 @@ def log_tumble(rec, calibration: dict, *, mag, t_s=None, coverage_words: str | N
     soft = np.asarray(calibration["soft_iron"], dtype=float)
     norm = float(calibration["field_norm"])
     m = (mag - hard) @ soft.T
-    cells = coverage_cells(n_cells)
+    cells = sphere_cells(n_cells)
     cell, counts = _cell_counts(m / np.linalg.norm(m, axis=1, keepdims=True), cells)
     point_colors = _coverage_colors(counts)[cell]
     # both clouds at unit size: the raw one about the hard iron, scaled by det(S)^(1/3) / |m|
@@ -309,7 +300,7 @@ class LiveTumbleRecording:
         from ._stream import Recording
 
         self.recording = Recording(target, application_id="compass_live_tumble")
-        self.rec, self.cells, self.max_points = self.recording.rec, coverage_cells(n_cells), max_points
+        self.rec, self.cells, self.max_points = self.recording.rec, sphere_cells(n_cells), max_points
         self.rec.log("tumble/coverage_fraction", rr.SeriesLines(names=["coverage"]), static=True)
         for axis in "xyz":
             self.rec.log(f"tumble/hard_iron/{axis}", rr.SeriesLines(names=[f"hard iron {axis}"]), static=True)
