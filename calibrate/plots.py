@@ -12,7 +12,7 @@ import numpy as np  # noqa: E402
 
 from compass.io.atomic import save_figure  # noqa: E402
 
-__all__ = ["plot_fit", "plot_residuals", "plot_tumble"]
+__all__ = ["plot_fit", "plot_residuals", "plot_tumble", "plot_platform3d"]
 
 _FLIPS = ("flip 0", "flip 90", "flip 180", "flip 270")
 
@@ -126,6 +126,47 @@ def plot_tumble(mag: np.ndarray, result, path) -> Path:
     ax.set_ylabel("calibrated")
     ax.legend(loc="best", fontsize=7, markerscale=5)
     ax.set_title("per axis: raw against calibrated")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plot_platform3d(rec, result, path) -> Path:
+    """3-D platform residuals: every magnetometer and tilt-sensor channel against the outer gimbal angle
+    and, when the recording has ``t_s``, against time, with the noise floor (repeated poses) as a band.
+
+    Parameters
+    ----------
+    rec : compass.io.platform3d.Platform3DRecording
+    result : calibrate.platform3d.Platform3DResult
+        Fitted to ``rec``; its residuals are those of the final model (after the diagnosis).
+    """
+    channels = [("mx", "my", "mz")[i] for i in range(3)] + list(rec.tilt_columns)
+    residuals = np.column_stack([result.residuals_mag, result.residuals_tilt])
+    noise = [result.noise_mag, result.noise_tilt]
+    noise = None if any(n is None for n in noise) else np.concatenate(noise)
+    units = ["magnetometer output"] * 3 + ["tilt-sensor output"] * len(rec.tilt_columns)
+    has_time = rec.t_s is not None
+    cols = 2 if has_time else 1
+    fig, axes = plt.subplots(len(channels), cols, figsize=(5.5 * cols, 1.9 * len(channels)), squeeze=False,
+                             sharex="col")
+    outer = np.mod(rec.angles_deg[:, 0], 360.0)
+    for j, name in enumerate(channels):
+        for k, (x, label) in enumerate([(outer, "platform_z_deg (outer gimbal, deg)")]
+                                       + ([(rec.t_s, "t_s (s)")] if has_time else [])):
+            ax = axes[j, k]
+            if noise is not None:
+                ax.axhspan(-noise[j], noise[j], color="0.85", zorder=0, label="noise floor (+-1 sigma)")
+            ax.plot(x, residuals[:, j], ".", ms=2, color="C0", label="residual")
+            ax.axhline(0.0, color="0.4", lw=0.6)
+            if k == 0:
+                ax.set_ylabel(f"{name} residual\n({units[j]})", fontsize=8)
+            if j == len(channels) - 1:
+                ax.set_xlabel(label)
+    axes[0, 0].legend(loc="best", fontsize=7)
+    claimed = [] if result.diagnosis is None else [e["name"] for e in result.diagnosis.effects]
+    effects = ", ".join(claimed) or "none"
+    fig.suptitle(f"3-D platform calibration: residuals of the final model (effects added: {effects}; {rec.path})",
+                 fontsize=9)
     fig.tight_layout()
     return _save(fig, path)
 

@@ -117,3 +117,25 @@ def test_cli_prints_before_and_after(tmp_path, capsys):
     assert "Residual diagnosis" in out and "+ offset_drift" in out and "explained: the residual is at the noise floor" in out
     data = json.loads((tmp_path / "cal.json").read_text())
     assert data["diagnosis"]["effects"] == ["offset_drift"] and data["effects"][0]["name"] == "offset_drift"
+
+
+def test_report_plots_the_residuals_and_names_the_effect(tmp_path, monkeypatch, capsys):
+    """`compass calibrate P3.csv --report DIR` (issue 15.6: it was refused for the 3-D platform)."""
+    import matplotlib.figure
+
+    titles = []
+    suptitle = matplotlib.figure.Figure.suptitle
+    monkeypatch.setattr(matplotlib.figure.Figure, "suptitle",
+                        lambda self, text, **kw: titles.append(text) or suptitle(self, text, **kw))
+    sim = simulate_platform3d(seed=28, session_s=SESSION_S, drift_ut=2.0)
+    path, _ = write_platform3d(sim, tmp_path / "rec.csv")
+    report = tmp_path / "report"
+    assert main(["calibrate", str(path), "--out", str(tmp_path / "cal.json"), "--report", str(report), "--quiet"]) == 0
+    plot = report / "platform_residuals.png"
+    assert plot.read_bytes().startswith(b"\x89PNG") and "effects added: offset_drift" in titles[-1]
+    # never overwritten without --force, refused before the fit
+    before = plot.read_bytes()
+    capsys.readouterr()
+    assert main(["calibrate", str(path), "--out", str(tmp_path / "cal2.json"), "--report", str(report), "--quiet"]) == 2
+    assert "platform_residuals.png" in capsys.readouterr().err and plot.read_bytes() == before
+    assert not (tmp_path / "cal2.json").exists()

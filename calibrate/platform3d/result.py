@@ -197,6 +197,21 @@ class Platform3DResult(Calibration):
             "warnings": list(self.warnings),
         }
 
+    def plots(self, recording, folder) -> list:
+        """``platform_residuals.png``: each channel's residual against the outer gimbal angle and time.
+
+        Parameters
+        ----------
+        recording : compass.io.platform3d.Platform3DRecording
+            The recording this result was fitted to.
+        folder : path
+        """
+        from pathlib import Path
+
+        from ..plots import plot_platform3d
+
+        return [plot_platform3d(recording, self, Path(folder) / "platform_residuals.png")]
+
     def report(self) -> str:
         """A fit report for a person: values +- sigma, strong correlations, warnings in words."""
         unit = "uT" if self.field_ut else "|B|"

@@ -68,7 +68,8 @@ OPTIONS = {"method": ("--method", "ml"), "diagnose": ("--no-diagnose", True), "f
            "date": ("--date", None)}
 """Calibrator option -> (command-line flag, default): passed to the kinds whose calibrator takes it."""
 
-REPORT_PLOTS = {"fourflip": ("fit.png", "residuals.png"), "tumble": ("tumble.png",)}
+REPORT_PLOTS = {"fourflip": ("fit.png", "residuals.png"), "tumble": ("tumble.png",),
+                "platform3d": ("platform_residuals.png",)}
 """The files each kind's ``plots()`` writes into ``--report DIR``: checked against --force before the fit."""
 
 
