@@ -204,14 +204,11 @@ def initial_field(mag_ut, accel, still) -> tuple[float, float, float]:
     Raises
     ------
     ValueError
-        Fewer than 10 samples at rest at the start.
+        Fewer than 20 samples at rest at the start.
     """
-    still = np.asarray(still, dtype=bool)
-    n_rest = int(np.argmin(still)) if not still.all() else len(still)
-    if n_rest < 20:
-        raise ValueError(f"needs at least 20 samples at rest at the start to fix |B| and dip, got {n_rest}")
-    m = np.asarray(mag_ut, dtype=float)[:n_rest // 2]
-    a = np.asarray(accel, dtype=float)[:n_rest // 2]
+    half = _first_half_of_rest(still, "to fix |B| and dip")
+    m = np.asarray(mag_ut, dtype=float)[half]
+    a = np.asarray(accel, dtype=float)[half]
     m_mean, up = m.mean(axis=0), a.mean(axis=0) / np.linalg.norm(a.mean(axis=0))
     field = float(np.linalg.norm(m_mean))
     dip = float(np.degrees(np.arcsin(np.clip(-m_mean @ up / field, -1.0, 1.0))))
@@ -253,15 +250,11 @@ def rest_noise(gyro_rad_s, accel, mag, still, rate_hz: float) -> RestNoise:
     ValueError
         Fewer than 20 samples at rest at the start.
     """
-    still = np.asarray(still, dtype=bool)
-    n_rest = int(np.argmin(still)) if not still.all() else len(still)
-    if n_rest < 20:
-        raise ValueError(f"needs at least 20 samples at rest at the start to measure the noise, got {n_rest}")
-    half = slice(0, n_rest // 2)
+    half = _first_half_of_rest(still, "to measure the noise")
     g, a, m = (np.asarray(v, dtype=float)[half] for v in (gyro_rad_s, accel, mag))
     return RestNoise(gyro_noise=float(np.median(np.std(g, axis=0))) / np.sqrt(rate_hz),
                      accel_noise=float(np.median(np.std(a, axis=0)) / np.linalg.norm(a.mean(axis=0))),
-                     mag_noise=float(np.median(np.std(m, axis=0))), samples=n_rest // 2)
+                     mag_noise=float(np.median(np.std(m, axis=0))), samples=half.stop)
 
 
 def run_pipeline(trial, model=None, *, gate: bool = True, hard_iron: bool = True) -> PipelineResult:
@@ -313,3 +306,18 @@ def run_pipeline(trial, model=None, *, gate: bool = True, hard_iron: bool = True
     words = "gyro filter" + (" with magnetic gate" if gate else " without gate") + (" + hard-iron track" if hard_iron else "")
     return PipelineResult(quat_enu=quat, field_h_ut=field, field_ut=field_ut, dip_deg=dip_deg, hard_iron=track,
                           disturbed=~out.mag_used, method=words + (", calibrated" if model is not None else ""))
+
+
+def _first_half_of_rest(still, purpose: str) -> slice:
+    """The first half of the trial's initial rest (the other half is left to the filter's start-up).
+
+    Raises
+    ------
+    ValueError
+        Fewer than 20 samples at rest at the start (``purpose`` says what for).
+    """
+    still = np.asarray(still, dtype=bool)
+    n_rest = int(np.argmin(still)) if not still.all() else len(still)
+    if n_rest < 20:
+        raise ValueError(f"needs at least 20 samples at rest at the start {purpose}, got {n_rest}")
+    return slice(0, n_rest // 2)

@@ -186,3 +186,25 @@ def test_evaluate_cli_bad_input(tmp_path, capsys):
     afile.write_text("x")
     assert main(["evaluate", str(tmp_path / "junk.mat"), "--plot", str(afile)]) == 2
     assert "is a file" in capsys.readouterr().err
+
+
+def test_rest_noise_measures_injected_white_noise():
+    """evaluation.rest_noise (bench_broad's noise table): white noise of known size on a still sensor comes
+    back within its sampling scatter (std of n samples: relative 1/sqrt(2 n) per axis, median of three)."""
+    from compass.evaluation import rest_noise
+
+    rng = np.random.default_rng(5)
+    rate_hz, n = 286.0, 2000  # BROAD's rate; 1000 samples in the first half of the rest
+    gyro_density, accel_sigma, mag_sigma = 1e-4, 0.05, 0.7  # rad/s/sqrt(Hz), m/s^2, uT
+    gyro = rng.normal(0.0, gyro_density * np.sqrt(rate_hz), (n, 3))
+    accel = np.array([0.0, 0.0, 9.81]) + rng.normal(0.0, accel_sigma, (n, 3))
+    mag = np.array([20.0, 0.0, -45.0]) + rng.normal(0.0, mag_sigma, (n, 3))
+    still = np.r_[np.ones(n, bool), np.zeros(10, bool)]
+    got = rest_noise(np.r_[gyro, gyro[:10]], np.r_[accel, accel[:10]], np.r_[mag, mag[:10]], still, rate_hz)
+    tolerance = 4.0 / np.sqrt(2 * n // 2)  # 4 sigma of one axis' relative scatter
+    assert got.samples == n // 2
+    assert got.gyro_noise == pytest.approx(gyro_density, rel=tolerance)
+    assert got.accel_noise == pytest.approx(accel_sigma / 9.81, rel=tolerance)
+    assert got.mag_noise == pytest.approx(mag_sigma, rel=tolerance)
+    with pytest.raises(ValueError, match="at least 20 samples at rest"):
+        rest_noise(gyro, accel, mag, np.r_[np.ones(10, bool), np.zeros(n - 10, bool)], rate_hz)
