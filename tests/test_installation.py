@@ -235,3 +235,27 @@ def test_level_swing_with_a_site_fits_the_same_iron(bench):
     np.testing.assert_allclose(with_site.hard_iron_ut, plain.hard_iron_ut, atol=1e-6)
     np.testing.assert_allclose(with_site.soft_iron, plain.soft_iron, atol=1e-9)
     assert with_site.site["model"] == "WMM2025" and any("vertical hard iron" in w for w in with_site.undetermined)
+
+
+def test_simulate_installation_command_and_calibrate_on_top_of_the_bench(tmp_path, capsys):
+    """`compass simulate installation` writes SPEC's installation recording for a bench truth; the
+    installed calibration finds the product's iron and yaw within 4 sigma of the truth beside it."""
+    bench_csv, bench_cal = tmp_path / "bench.csv", tmp_path / "bench.json"
+    assert main(["simulate", "fourflip", "--out", str(bench_csv), "--seed", "3"]) == 0
+    assert main(["calibrate", str(bench_csv), "--out", str(bench_cal), "--quiet"]) == 0
+    swing = tmp_path / "swing.csv"
+    assert main(["simulate", "installation", "--truth", str(tmp_path / "bench.truth.json"), "--base", str(bench_cal),
+                 "--kind", "swing", "--max-tilt-deg", "10", "--heading-ref-sigma-deg", "0.3", "--yaw-deg", "3",
+                 "--out", str(swing), "--seed", "4"]) == 0
+    assert main(["calibrate", str(swing), "--out", str(tmp_path / "inst.json"), "--base", str(bench_cal),
+                 "--quiet"]) == 0
+    truth = json.loads((tmp_path / "swing.truth.json").read_text())["installation"]
+    inst = json.loads((tmp_path / "inst.json").read_text())["installation"]
+    found = np.array(inst["hard_iron_ut"])
+    sigma = np.array([inst["sigma"][f"hard_iron_{axis}"] for axis in "xyz"])
+    assert np.all(np.abs(found - truth["hard_iron_ut"]) < 4 * sigma)
+    assert abs(inst["yaw_deg"] - truth["yaw_deg"]) < 4 * inst["yaw_sigma_deg"]
+    # bad options: exit 2, one line, nothing written
+    capsys.readouterr()
+    assert main(["simulate", "installation", "--out", str(tmp_path / "bad.csv"), "--soft-iron", "0.9"]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1 and not (tmp_path / "bad.csv").exists()

@@ -1,4 +1,4 @@
-"""``compass simulate fourflip|platform3d|tumble|reference|runtime``: a simulated recording and its truth.
+"""``compass simulate fourflip|platform3d|tumble|reference|runtime|installation``: a simulated recording and its truth.
 
 Each kind writes SPEC section 2's recording and, beside it, the truth the simulator used
 (``<stem>.truth.json``; ``<stem>.truth.csv`` for the runtime kind's true angles).  The simulators
@@ -49,6 +49,26 @@ def register(sub) -> None:
     ru.add_argument("--samples", type=int, default=1000, help="rows (default 1000)")
     ru.add_argument("--max-tilt-deg", type=float, default=80.0, help="largest pitch and roll, deg (default 80)")
     ru.add_argument("--no-accel", action="store_true", help="record no accelerometer")
+    ins = _kind(kinds, "installation", "a bench-calibrated sensor built into a product with its own iron "
+                                       "(SPEC's installation recording: tumble, swing, or runtime rows to check "
+                                       "an installed calibration)", run_installation)
+    ins.add_argument("--truth", metavar="BENCH.truth.json",
+                     help="the sensor: a four-flip truth file (default: the four-flip simulator's sensor for --seed)")
+    ins.add_argument("--kind", choices=("tumble", "swing", "runtime"), default="tumble",
+                     help="tumble: every orientation (default); swing: heading through 360 deg within "
+                          "--max-tilt-deg (0: level); runtime: random headings within --max-tilt-deg")
+    ins.add_argument("--samples", type=int, default=2000, help="rows (default 2000)")
+    ins.add_argument("--max-tilt-deg", type=float, default=10.0,
+                     help="swing and runtime: largest pitch and roll, deg (default 10)")
+    ins.add_argument("--hard-iron-ut", type=float, default=6.0,
+                     help="the product's hard iron, uT (about; random direction; default 6)")
+    ins.add_argument("--soft-iron", type=float, default=0.03,
+                     help="the product's symmetric soft iron, entries about this far from the identity (default 0.03)")
+    ins.add_argument("--yaw-deg", type=float, default=0.0, help="the housing turned in the product, deg (default 0)")
+    ins.add_argument("--heading-ref-sigma-deg", type=float, default=None,
+                     help="also write heading_ref_deg, the product's true heading with this noise, deg")
+    ins.add_argument("--base", metavar="BENCH.json",
+                     help="the bench calibration, named in the recording's '# base:' metadata")
 
 
 def _kind(kinds, name: str, help_text: str, func):
@@ -129,29 +149,57 @@ def run_reference(args) -> int:
     return 0
 
 
-def run_runtime(args) -> int:
+def _bench_truth(args) -> dict:
+    """The bench sensor: ``--truth`` (a four-flip truth file) or the four-flip simulator's for ``--seed``."""
     import json
     from pathlib import Path
 
+    from ..cli import BadInput
+
+    if args.truth is None:
+        from ..sim.fourflip import simulate_fourflip
+
+        return simulate_fourflip(seed=args.seed).truth
+    try:
+        truth = json.loads(Path(args.truth).read_text())
+    except (OSError, ValueError) as exc:
+        raise BadInput(f"{args.truth}: cannot read a four-flip truth file ({exc})") from None
+    needed = ("directions", "offsets", "gains_per_ut", "dip_deg", "field_ut", "channels", "noise_ut")
+    if not isinstance(truth, dict) or any(k not in truth for k in needed):
+        raise BadInput(f"{args.truth}: not a four-flip truth file (needs {', '.join(needed)}; "
+                       "compass simulate fourflip writes one beside its recording)")
+    return truth
+
+
+def run_installation(args) -> int:
+    from ..cli import BadInput
+    from ..sim.installation import random_installation, simulate_installation, write_installation
+
+    _positive("--samples", args.samples, at_least=1)
+    if not 0 <= args.max_tilt_deg <= 90:
+        raise BadInput(f"--max-tilt-deg must be in [0, 90], got {args.max_tilt_deg}")
+    if args.hard_iron_ut < 0 or not 0 <= args.soft_iron < 0.5:
+        raise BadInput("--hard-iron-ut must be >= 0 and --soft-iron in [0, 0.5)")
+    if args.heading_ref_sigma_deg is not None and not args.heading_ref_sigma_deg >= 0:
+        raise BadInput(f"--heading-ref-sigma-deg must be >= 0, got {args.heading_ref_sigma_deg}")
+    truth = _bench_truth(args)
+    installation = random_installation(args.seed, hard_iron_ut=args.hard_iron_ut, soft_iron=args.soft_iron,
+                                       yaw_deg=args.yaw_deg)
+    rec = simulate_installation(truth, installation, kind=args.kind, n=args.samples, max_tilt_deg=args.max_tilt_deg,
+                                heading_ref_sigma_deg=args.heading_ref_sigma_deg, seed=args.seed)
+    path, truth_path = write_installation(rec, args.out, base=args.base, force=args.force)
+    print(f"wrote {path} ({args.kind}, {args.samples} samples, channels {', '.join(rec.channels)}) and {truth_path}")
+    return 0
+
+
+def run_runtime(args) -> int:
     from ..cli import BadInput
     from ..sim.runtime import simulate_runtime, write_runtime
 
     _positive("--samples", args.samples, at_least=1)
     if not 0 <= args.max_tilt_deg <= 90:
         raise BadInput(f"--max-tilt-deg must be in [0, 90], got {args.max_tilt_deg}")
-    if args.truth is None:
-        from ..sim.fourflip import simulate_fourflip
-
-        truth = simulate_fourflip(seed=args.seed).truth
-    else:
-        try:
-            truth = json.loads(Path(args.truth).read_text())
-        except (OSError, ValueError) as exc:
-            raise BadInput(f"{args.truth}: cannot read a four-flip truth file ({exc})") from None
-        needed = ("directions", "offsets", "gains_per_ut", "dip_deg", "field_ut", "channels", "noise_ut")
-        if not isinstance(truth, dict) or any(k not in truth for k in needed):
-            raise BadInput(f"{args.truth}: not a four-flip truth file (needs {', '.join(needed)}; "
-                           "compass simulate fourflip writes one beside its recording)")
+    truth = _bench_truth(args)
     session = simulate_runtime(truth, args.samples, seed=args.seed, max_tilt_deg=args.max_tilt_deg,
                                accel_noise_g=None if args.no_accel else 0.002)
     rec, true_angles = write_runtime(session, args.out, force=args.force)
