@@ -13,6 +13,8 @@ FACE_COVERAGE_DEG = 45.0
 
 
 _N_CELLS = 200
+_CHUNK_ROWS = 16384
+"""Directions per block when finding their nearest cells (a block's products take _CHUNK_ROWS x _N_CELLS x 8 bytes)."""
 
 
 _FACES = ("+X", "-X", "+Y", "-Y", "+Z", "-Z")
@@ -62,11 +64,13 @@ def sphere_coverage(directions: np.ndarray) -> Coverage:
     """
     u = directions / np.linalg.norm(directions, axis=1, keepdims=True)
     cells = sphere_cells(_N_CELLS)
-    hit = np.unique(np.argmax(u @ cells.T, axis=1))
+    hit = np.zeros(_N_CELLS, dtype=bool)
+    for start in range(0, len(u), _CHUNK_ROWS):  # the (rows x cells) products a chunk at a time: memory flat in n
+        hit[np.argmax(u[start:start + _CHUNK_ROWS] @ cells.T, axis=1)] = True
     best = np.max(u, axis=0), np.max(-u, axis=0)
     cos_lim = np.cos(np.radians(FACE_COVERAGE_DEG))
     seen = {}
     for k, axis in enumerate("XYZ"):
         seen[f"+{axis}"] = bool(best[0][k] >= cos_lim)
         seen[f"-{axis}"] = bool(best[1][k] >= cos_lim)
-    return Coverage(len(hit) / _N_CELLS, {f: seen[f] for f in _FACES})
+    return Coverage(int(np.count_nonzero(hit)) / _N_CELLS, {f: seen[f] for f in _FACES})

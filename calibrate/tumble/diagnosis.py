@@ -69,6 +69,8 @@ _AXES = ("mx", "my", "mz")
 STRUCTURE_BLOCKS = 8
 """Blocks of consecutive samples (and temperature bands) in the structure test."""
 MIN_BLOCK_SAMPLES = 50
+_STRUCTURE_CHUNK_ROWS = 8192
+"""Rows per chunk of the structure regression (a chunk's design takes 8192 x ~90 x 8 bytes, 6 MB)."""
 UNEXPLAINED_WARNING = ("structure remains in |m| - F above the noise floor that no modelled effect accounts for "
                        "(a field that changed during the recording, a disturbance, an effect the toolkit does not "
                        "model): see the diagnosis; the uncertainties are then optimistic")
@@ -373,6 +375,16 @@ def radial_noise_floor(residuals: np.ndarray) -> float:
     return float(robust_sigma(d) / np.sqrt(6.0))
 
 
+def _structure_design(directions: np.ndarray, blocks, n_blocks: int) -> np.ndarray:
+    """Columns of :func:`residual_structure`'s regression for some rows: monomials, then block-local terms."""
+    cols = [np.prod(directions[:, list(idx)], axis=1)
+            for degree in (3, 4) for idx in combinations_with_replacement(range(3), degree)]
+    local = np.column_stack([np.ones(len(directions)), directions])
+    for block in blocks:
+        cols += [local[:, j] * (block == b) for b in range(n_blocks) for j in range(4)]
+    return np.column_stack(cols)
+
+
 def residual_structure(weighted: np.ndarray, directions: np.ndarray, bands) -> tuple[float, int, float]:
     """Structure left in a radial residual, against white noise at the floor.
 
@@ -397,16 +409,21 @@ def residual_structure(weighted: np.ndarray, directions: np.ndarray, bands) -> t
     p_value : float
     """
     n = len(weighted)
-    cols = [np.prod(directions[:, list(idx)], axis=1)
-            for degree in (3, 4) for idx in combinations_with_replacement(range(3), degree)]
-    local = np.column_stack([np.ones(n), directions])
     n_blocks = max(2, min(STRUCTURE_BLOCKS, n // MIN_BLOCK_SAMPLES))
-    for key in bands:
-        block = np.argsort(np.argsort(key, kind="stable")) * n_blocks // n
-        cols += [local[:, j] * (block == b) for b in range(n_blocks) for j in range(4)]
-    design = np.column_stack(cols)
-    coef, _, rank, _ = np.linalg.lstsq(design, weighted, rcond=None)
-    drop = float(np.sum((design @ coef) ** 2))
+    blocks = [np.argsort(np.argsort(key, kind="stable")) * n_blocks // n for key in bands]
+    # R of the QR factorisation of [design | weighted], a chunk of rows at a time (memory flat in n):
+    # R has the design's singular values and R^T R its normal equations, so the least squares below
+    # is the one on the whole design, rank threshold included
+    r_aug = np.zeros((0, 0))
+    for start in range(0, n, _STRUCTURE_CHUNK_ROWS):
+        rows = slice(start, start + _STRUCTURE_CHUNK_ROWS)
+        chunk = np.column_stack([_structure_design(directions[rows], [block[rows] for block in blocks], n_blocks),
+                                 weighted[rows]])
+        r_aug = np.linalg.qr(np.vstack([r_aug.reshape(-1, chunk.shape[1]), chunk]), mode="r")
+    k = r_aug.shape[1] - 1
+    r_design = r_aug[:k, :k]
+    coef, _, rank, _ = np.linalg.lstsq(r_design, r_aug[:k, k], rcond=np.finfo(float).eps * max(n, k))
+    drop = float(np.sum((r_design @ coef) ** 2))
     return drop, int(rank), chi2_sf(drop, rank)
 
 

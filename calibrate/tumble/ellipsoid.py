@@ -122,7 +122,33 @@ def _shape_params(kind: str, m: np.ndarray) -> np.ndarray:
 
 def radial_residual(p, kind, y):
     low = shape_matrix(kind, p[3:])
-    return np.linalg.norm((y - p[:3]) @ low, axis=1) - 1.0
+    z = (y - p[:3]) @ low
+    return np.sqrt(np.einsum("ij,ij->i", z, z)) - 1.0
+
+
+def radial_jacobian(p, kind, y):
+    """Analytic Jacobian of :func:`radial_residual`, shape (n, 3 + shape parameters).
+
+    With ``d = y - h``, ``z = d L`` and ``u = z / |z|``: ``dr/dh = -L u`` and ``dr/dL_ij = d_i u_j``;
+    the diagonal of ``L`` is ``exp`` of its parameter, so ``dr/dp_k = d_k u_k L_kk`` there.
+    """
+    low = shape_matrix(kind, p[3:])
+    d = y - p[:3]
+    z = d @ low
+    norm = np.sqrt(np.einsum("ij,ij->i", z, z))
+    u = z / norm[:, None]
+    jac = np.empty((len(y), len(p)))
+    jac[:, :3] = -(u @ low.T)
+    if kind == "offset":
+        jac[:, 3] = norm
+    elif kind == "diagonal":
+        jac[:, 3:6] = z * u
+    else:
+        jac[:, 3:6] = d * u * np.diag(low)
+        jac[:, 6] = d[:, 1] * u[:, 0]
+        jac[:, 7] = d[:, 2] * u[:, 0]
+        jac[:, 8] = d[:, 2] * u[:, 1]
+    return jac
 
 
 def _unpack(kind, p, centre, radius):
@@ -138,16 +164,17 @@ def _fit_kind(kind, y, p0, inlier_mask=None):
     """Robust fit, trimming, then a plain refit on the inliers; normalised units."""
     start = p0
     if inlier_mask is None:
-        first = least_squares(radial_residual, p0, args=(kind, y), loss="soft_l1", f_scale=0.02, method="trf", tr_solver="lsmr",
-                              max_nfev=MAX_NFEV)
+        first = least_squares(radial_residual, p0, jac=radial_jacobian, args=(kind, y), loss="soft_l1", f_scale=0.02,
+                              method="trf", tr_solver="lsmr", max_nfev=MAX_NFEV)
         sigma = max(robust_sigma(radial_residual(first.x, kind, y)), 1e-9)
-        robust = least_squares(radial_residual, first.x, args=(kind, y), loss="soft_l1", f_scale=2.0 * sigma,
+        robust = least_squares(radial_residual, first.x, jac=radial_jacobian, args=(kind, y), loss="soft_l1", f_scale=2.0 * sigma,
                                method="trf", tr_solver="lsmr", max_nfev=MAX_NFEV)
         r = radial_residual(robust.x, kind, y)
         sigma = max(robust_sigma(r), 1e-9)
         inlier_mask = np.abs(r - np.median(r)) < OUTLIER_SIGMAS * sigma
         start = robust.x
-    final = least_squares(radial_residual, start, args=(kind, y[inlier_mask]), method="lm", max_nfev=MAX_NFEV)
+    final = least_squares(radial_residual, start, jac=radial_jacobian, args=(kind, y[inlier_mask]), method="lm",
+                          max_nfev=MAX_NFEV)
     return final, inlier_mask
 
 
