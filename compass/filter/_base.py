@@ -224,6 +224,40 @@ class AttitudeFilter:
                         math.degrees(math.sqrt(self.field_heading_var)), d.field_ratio, d.dip_deg, d.mag_used,
                         d.gate, d.accel_used, None if bias is None else np.array(bias), d.skipped)
 
+    def _begin(self, t_s, accel, gyro, field_h):
+        """What every :meth:`update` starts with: the time step, the screened readings, a (re)start.
+
+        Returns
+        -------
+        (t_s, dt, a, b) or None
+            ``t_s`` as a Python float, ``dt`` the step (0 on a (re)start; the filter restarts after a
+            gap longer than ``max_gap_s``), ``a``/``b`` the screened accelerometer and field readings
+            (``(x, y, z, |v|^2)`` or None); None when the time is not finite or the filter cannot
+            start yet (no gravity or no field).
+        """
+        s = self._s
+        s.diagnostics.skipped = ""
+        t_s = float(t_s)  # a numpy scalar would make every later operation a slow numpy one
+        if not math.isfinite(t_s):
+            self._skip("t_s not finite")
+            return None
+        dt = 0.0 if s.t_s is None else max(t_s - s.t_s, 0.0)
+        if gyro is not None and self.gyro:
+            w = self._vector(gyro, "gyro", 0.0, self._gyro_range2)
+            if w is not None:
+                s.rate_rad_s = w[:3]
+        a, b = self._screen(t_s, accel, field_h, dt)
+        s.t_s = t_s
+        if s.matrix is not None and dt > self.config.max_gap_s:
+            self.events.append(f"filter restarted after a {dt:.2f} s gap in the samples")
+            s.matrix = None
+        if s.matrix is None:
+            if a is None or b is None or b[3] == 0.0:
+                return None
+            self._start(a, b)
+            dt = 0.0
+        return t_s, dt, a, b
+
     # ------------------------------------------------------------------ input screening
     def _skip(self, reason: str) -> None:
         self._s.skipped.count(reason)

@@ -115,28 +115,11 @@ class GyroFilter(AttitudeFilter):
         return self._s.bias_rad_s
 
     def update(self, t_s: float, accel, gyro, field_h) -> bool:
-        s = self._s
-        d = s.diagnostics
-        d.skipped = ""
-        t_s = float(t_s)  # a numpy scalar would make every later operation a slow numpy one
-        if not math.isfinite(t_s):
-            self._skip("t_s not finite")
+        begun = self._begin(t_s, accel, gyro, field_h)
+        if begun is None:
             return False
-        dt = 0.0 if s.t_s is None else max(t_s - s.t_s, 0.0)
-        if gyro is not None:
-            w = self._vector(gyro, "gyro", 0.0, self._gyro_range2)
-            if w is not None:
-                s.rate_rad_s = w[:3]
-        a, b = self._screen(t_s, accel, field_h, dt)
-        s.t_s = t_s
-        if s.matrix is not None and dt > self.config.max_gap_s:
-            self.events.append(f"filter restarted after a {dt:.2f} s gap in the samples")
-            s.matrix = None
-        if s.matrix is None:
-            if a is None or b is None or b[3] == 0.0:
-                return False
-            self._start(a, b)
-            dt = 0.0
+        t_s, dt, a, b = begun
+        d = self._s.diagnostics
         if dt > 0.0:
             self._propagate(dt)
         if a is not None:

@@ -82,24 +82,12 @@ class TwoVectorFilter(AttitudeFilter):
         self._dt = None
 
     def update(self, t_s: float, accel, gyro, field_h) -> bool:
+        begun = self._begin(t_s, accel, gyro, field_h)  # the gyro is not used (gyro is False)
+        if begun is None:
+            return False
+        t_s, dt, a, b = begun
         s, cfg = self._s, self.config
         d = s.diagnostics
-        d.skipped = ""
-        t_s = float(t_s)  # a numpy scalar would make every later operation a slow numpy one
-        if not math.isfinite(t_s):
-            self._skip("t_s not finite")
-            return False
-        dt = 0.0 if s.t_s is None else max(t_s - s.t_s, 0.0)
-        a, b = self._screen(t_s, accel, field_h, dt)
-        s.t_s = t_s
-        if s.matrix is not None and dt > cfg.max_gap_s:
-            self.events.append(f"filter restarted after a {dt:.2f} s gap in the samples")
-            s.matrix = None
-        if s.matrix is None:
-            if a is None or b is None or b[3] == 0.0:
-                return False
-            self._start(a, b)
-            dt = 0.0
         if dt > 0.0:
             self._predict(dt)
         x = s.rate_rad_s
