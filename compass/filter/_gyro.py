@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ._base import _P0_ATTITUDE, AttitudeFilter, exp_matrix, mat_mul
-from ._kalman import pack, predict_gyro, unpack, update_axis, update_row
+from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_row
 from ._gate import GateState
 from ._records import _REST_RATE_SIGMA, _REST_TAU_S, Diagnostics, SkipCounts
 
@@ -24,7 +24,7 @@ _ORTHONORMALISE_EVERY = 1000  # samples between re-orthonormalisations of the no
 
 
 @dataclass(slots=True)
-class GyroState:
+class GyroState(PackedCovariance):
     """Everything the gyro filter carries from one sample to the next (readable, settable, resettable).
 
     Attributes
@@ -79,11 +79,6 @@ class GyroState:
     gate: GateState
     skipped: SkipCounts = field(default_factory=SkipCounts)
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
-
-    @property
-    def covariance_matrix(self) -> np.ndarray:
-        """The covariance as a symmetric 6x6 array."""
-        return unpack(self.covariance)
 
 
 class GyroFilter(AttitudeFilter):

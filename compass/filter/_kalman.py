@@ -37,6 +37,18 @@ def unpack(p: tuple) -> np.ndarray:
     return m
 
 
+
+class PackedCovariance:
+    """Mixin of the filters' state records: ``covariance`` packed (upper triangle, row by row), read
+    back as the symmetric array by :attr:`covariance_matrix`."""
+
+    __slots__ = ()
+
+    @property
+    def covariance_matrix(self) -> np.ndarray:
+        """The covariance as a symmetric 6x6 array."""
+        return unpack(self.covariance)
+
 def predict_gyro(p: tuple, a: tuple, q_att: float, q_bias: float) -> tuple:
     """``F P F^T + Q`` with ``F = [[I, A], [0, I]]``, ``Q = diag(q_att I, q_bias I)``.
 

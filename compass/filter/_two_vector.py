@@ -9,7 +9,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ._base import _P0_ATTITUDE, AttitudeFilter, exp_matrix, mat_mul
-from ._kalman import pack, unpack, update_axis
+from ._kalman import PackedCovariance, pack, unpack, update_axis
 from ._gate import GateState
 from ._records import Diagnostics, SkipCounts
 
@@ -19,7 +19,7 @@ _P0_RATE = 0.5**2  # initial angular rate variance, (rad/s)^2
 
 
 @dataclass(slots=True)
-class TwoVectorState:
+class TwoVectorState(PackedCovariance):
     """Everything the two-vector filter carries from one sample to the next.
 
     Attributes
@@ -51,11 +51,6 @@ class TwoVectorState:
     gate: GateState
     skipped: SkipCounts = field(default_factory=SkipCounts)
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
-
-    @property
-    def covariance_matrix(self) -> np.ndarray:
-        """The covariance as a symmetric 6x6 array."""
-        return unpack(self.covariance)
 
 
 class TwoVectorFilter(AttitudeFilter):
