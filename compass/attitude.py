@@ -262,6 +262,9 @@ def solve_attitude(
 
     field, in_range = model.field(raw, temp_c)
     skipped = _skipped_rows(field, accel, model.field_magnitude)
+    options = dict(level=level, reference=reference, accel_noise_g=accel_noise_g, max_tilt_deg=max_tilt_deg,
+                   disturbance_sigma=disturbance_sigma, field_tolerance=field_tolerance,
+                   dip_tolerance_deg=dip_tolerance_deg)
     if skipped.any():  # solve the rows that may be used; the others are flagged, never solved nor averaged
         keep = skipped == 0
         if not keep.any():
@@ -273,12 +276,16 @@ def solve_attitude(
         def rows_of(x):
             return None if x is None or np.ndim(x) == 0 else np.asarray(x)[keep]
 
-        solved = solve_attitude(model, np.asarray(raw)[keep], accel=rows_of(accel), pitch_deg=rows_of(pitch_deg),
-                                roll_deg=rows_of(roll_deg), level=level, reference=reference,
-                                accel_noise_g=accel_noise_g, max_tilt_deg=max_tilt_deg,
-                                disturbance_sigma=disturbance_sigma, field_tolerance=field_tolerance,
-                                dip_tolerance_deg=dip_tolerance_deg, temp_c=rows_of(temp_c))
+        solved = _solve(model, field[keep], in_range[keep], accel=rows_of(accel), pitch_deg=rows_of(pitch_deg),
+                        roll_deg=rows_of(roll_deg), **options)
         return _with_skipped(solved, keep, skipped, in_range)
+    return _solve(model, field, in_range, accel=accel, pitch_deg=pitch_deg, roll_deg=roll_deg, **options)
+
+
+def _solve(model: SensorModel, field: np.ndarray, in_range: np.ndarray, *, accel, pitch_deg, roll_deg, level: bool,
+           reference, accel_noise_g: float, max_tilt_deg: float, disturbance_sigma: float, field_tolerance: float,
+           dip_tolerance_deg: float) -> Attitude:
+    """:func:`solve_attitude` on rows whose field (in H, shape (n, 3)) is already solved and usable."""
     n = len(field)
     var = np.ascontiguousarray(model.component_variance(field).T)  # (c, n)
     b = np.ascontiguousarray(field.T)  # component-major (3, n): elementwise work on contiguous rows

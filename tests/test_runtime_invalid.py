@@ -86,3 +86,17 @@ def test_attitude_flags_an_absurd_row_instead_of_reporting_it_undisturbed(tmp_pa
     assert np.all(np.isfinite(table["field_ratio"][ok])) and np.all(np.isfinite(table["heading_deg"][ok]))
     assert not np.isfinite(table["heading_deg"][100]) and not np.isfinite(table["field_ratio"][100])
     assert "1 skipped" in capsys.readouterr().out
+
+
+def test_attitude_skips_once_however_many_rows_are_absurd():
+    """Skipped rows are flagged once against the whole recording's typical |a| and |B|: a subset whose
+    median differs no longer flags again (solving the kept rows twice raised a TypeError, exit 1)."""
+    from compass.attitude import solve_attitude
+
+    model = default_model()
+    s = simulate_device(model, np.arange(30) / 100.0, seed=3)
+    scale = np.r_[np.ones(12), np.full(6, 2000.0), np.full(12, 1e7)]  # the median |a| is absurd itself
+    att = solve_attitude(model, s.raw, accel=s.accel * scale[:, None])
+    flagged = att.skipped != 0
+    assert np.all(np.isnan(att.heading_deg[flagged])) and np.all(np.isfinite(att.heading_deg[~flagged]))
+    assert np.all(att.disturbed[flagged] == 1) and flagged.any() and not flagged.all()
