@@ -130,22 +130,21 @@ class LiveSession:
         if self.sink is not None:
             self.sink.set_reference(reference.dip_deg, reference.description)
 
-    def _seeding(self, sample, t_rx: float) -> bool:
-        """Hold samples until the first quiet second gives the reference; True once it is known."""
+    def _seeding(self, sample, t_rx: float) -> None:
+        """Hold samples until the first quiet second gives the reference, then solve them."""
         field_h = self._field(sample)
         if not self._fusable(sample, field_h):
-            return False
+            return
         self._held.append((sample, t_rx))
         t_s = sample.t_s if sample.t_s is not None else t_rx - self._t0
         reference = self._seed.add(t_s, sample.accel, field_h)
         if reference is None:
-            return False
+            return
         self._seed = None
         self._use_reference(reference if self.reference is None else self.reference.complete(reference))
         held, self._held = self._held, []
         for s, t in held:
             self._sample(s, t, held=True)
-        return True
 
     def feed(self, item: Chunk | LinkEvent) -> None:
         """Process one item of :meth:`SerialReader.items`."""
@@ -173,7 +172,9 @@ class LiveSession:
             self._bad_reported, self._bad_reported_at = bad, item.t_rx
 
     def _sample(self, sample, t_rx: float, held: bool = False) -> None:
-        if self._seed is not None:
+        if self._seed is not None and self.decoder.header.accel is not None:
+            # without an accelerometer there is no attitude, and nothing to seed the reference from: the
+            # filter is made at once and says so (holding the samples would grow without end)
             self._seeding(sample, t_rx)
             return
         header = self.decoder.header

@@ -321,6 +321,7 @@ class QuietSeed:
         self.seconds, self.max_seconds = seconds, max_seconds
         self._t: list[float] = []
         self._rows: list[np.ndarray] = []
+        self._next_try_s = seconds  # span at which to try again (every 0.1 s of data, not every sample)
 
     def add(self, t_s: float, accel, field_h) -> ReferenceField | None:
         """Add one sample (``accel`` None or zero: skipped); the reference once it is known, else None."""
@@ -333,8 +334,9 @@ class QuietSeed:
         self._t.append(t_s)
         self._rows.append(np.concatenate([a / norm, [norm], np.asarray(field_h, dtype=float)]))
         span = self._t[-1] - self._t[0]
-        if span < self.seconds:
+        if span < self._next_try_s:
             return None
+        self._next_try_s = span + 0.1
         rows = np.array(self._rows)
         try:
             return reference_from_recording(rows[:, 4:], rows[:, :3], rows[:, 3])

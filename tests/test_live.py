@@ -353,3 +353,18 @@ def test_a_gyro_in_deg_per_s_with_its_unit_named_gives_the_rad_per_s_attitude():
     # the rounding of rad/s (5e-6 rad/s over 6 s is 2e-3 deg) several times over
     np.testing.assert_allclose(wrap(headings(in_deg_s, np.pi / 180.0) - reference), 0.0, atol=0.05)
     assert np.max(np.abs(wrap(headings(in_deg_s, 1.0) - reference))) > 1.0  # unnamed, the attitude spins
+
+
+def test_a_module_without_accelerometer_holds_nothing_and_says_there_is_no_attitude():
+    """No ax,ay,az: nothing to seed the site's field from, so no sample is held (they piled up for ever)."""
+    model = default_model()
+    samples = simulate_device(model, np.arange(2000) / 100.0, seed=1)
+    stream = format_line(["t_s", "seq", *model.channels]) + b"".join(
+        format_line([f"{t:.4f}", i, *(f"{v:.7g}" for v in raw)]) for i, (t, raw) in enumerate(zip(samples.t_s, samples.raw)))
+    events = []
+    session = LiveSession(model, out=io.StringIO(), on_event=lambda level, text: events.append(text))
+    for k in range(0, len(stream), 700):
+        session.feed(Chunk(time.perf_counter(), stream[k:k + 700]))
+    session.close()
+    assert session.decoder.stats.samples == 2000 and session._held == []
+    assert any("no accelerometer: no attitude" in e for e in events)

@@ -28,6 +28,7 @@ lines already counted as bad in between.  An overlong line counts once however l
 
 from __future__ import annotations
 
+import statistics
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -353,7 +354,7 @@ class LineDecoder:
         elif sample.t_s is not None and self._last_t_s is not None:
             dt_s = sample.t_s - self._last_t_s
             if len(self._dt_s) >= _DT_MIN_STEPS and dt_s > 0:
-                step_s = float(np.median(self._dt_s))
+                step_s = statistics.median(self._dt_s)  # a plain median: np.median costs 9 us a sample
                 missing = max(0, int(round(dt_s / step_s)) - 1) if dt_s > 1.5 * step_s else 0
             if dt_s > 0 and not missing:
                 self._dt_s.append(dt_s)
