@@ -57,7 +57,8 @@ def run(args) -> int:
     from ..io.atomic import check_writable
     from ..io.units import GYRO_UNITS
     from ..live import LiveSession
-    from ..model import SensorModel
+    from ..calibration_file import load
+    from ..installed import alignment_of
     from ..serial_reader import SerialReader
 
     if args.calibrate == "tumble":
@@ -67,7 +68,8 @@ def run(args) -> int:
     if args.cal is None:
         raise BadInput("--cal CAL.json is required (or --calibrate tumble to make one)")
     try:
-        model = SensorModel.from_file(args.cal)
+        cal = load(args.cal)
+        model, to_product = cal.model, alignment_of(cal.data)
         config = FilterConfig.from_model(model)
     except ValueError as exc:
         raise BadInput(f"{args.cal}: {exc}" if args.cal not in str(exc) else str(exc)) from None
@@ -104,11 +106,11 @@ def run(args) -> int:
             if out_path is not None:
                 out = outputs.enter_context(open(out_path, "w", encoding="utf-8", buffering=1 << 16))
             session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event, reference=reference,
-                                  to_product=_to_product(args.cal), gyro_rad_s_per_unit=GYRO_UNITS[args.gyro_unit])
+                                  to_product=to_product, gyro_rad_s_per_unit=GYRO_UNITS[args.gyro_unit])
             _run_session(args, reader, session, out, tty, every_s)
             failed = False
     finally:
-        recorded = session is not None and session.decoder.stats.samples > 0
+        recorded = session is not None and session.samples > 0  # rows written, not lines decoded
         if out is not None and not recorded:
             out_path.unlink(missing_ok=True)  # opened by this run and holding no sample: leave nothing behind
         if session is not None:
@@ -157,14 +159,6 @@ def _run_session(args, reader, session, out, tty: bool, every_s: float) -> None:
     finally:
         reader.close()
         session.close()
-
-
-def _to_product(path):
-    """``R_product<-housing`` of an installed calibration with an alignment, else None."""
-    from ..calibration_file import load
-    from ..installed import alignment_of
-
-    return alignment_of(load(path).data)
 
 
 def _site_reference(args, model):
