@@ -62,12 +62,13 @@ class Calibrator(abc.ABC):
     ----------
     kind : str
         The calibration kind (the file's ``"model"``).
-    draws_plots : bool
-        Whether its results draw report plots (``compass calibrate --report``).
+    plot_files : tuple of str
+        The files its results' ``plots()`` write into ``compass calibrate --report DIR`` (none: the
+        kind draws no report); the command refuses to overwrite them without ``--force``.
     """
 
     kind: ClassVar[str]
-    draws_plots: ClassVar[bool] = False
+    plot_files: ClassVar[tuple[str, ...]] = ()
 
     @abc.abstractmethod
     def fit(self, recording) -> Calibration:

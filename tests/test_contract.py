@@ -5,6 +5,7 @@ attitude, and its result honours the :class:`calibrate.contract.Calibration` con
 """
 
 import json
+from pathlib import Path
 from dataclasses import replace
 
 import numpy as np
@@ -101,6 +102,9 @@ def test_kind_fits_writes_reads_back_and_solves_attitude(tmp_path, name):
     assert isinstance(result.warnings, tuple) and all(isinstance(w, str) for w in result.warnings)
     assert result.parameters and all(len(v) == 2 and np.isfinite(v[0]) for v in result.parameters.values())
     assert isinstance(result.report(), str) and result.report()
+    # it draws only what its calibrator declares (compass calibrate checks those names against --force)
+    written = result.plots(kind.read(table), tmp_path / "plots")
+    assert {p.name for p in map(Path, written)} <= set(kind.calibrator.plot_files)
     doc = result.to_json()
     assert doc["format"] == FORMAT and doc[KIND_KEY] == name
     for key in ("noise_floor", "steps", "effects", "residual_rms_before", "residual_rms_after", "unexplained"):

@@ -247,8 +247,14 @@ def test_simulate_installation_command_and_calibrate_on_top_of_the_bench(tmp_pat
     assert main(["simulate", "installation", "--truth", str(tmp_path / "bench.truth.json"), "--base", str(bench_cal),
                  "--kind", "swing", "--max-tilt-deg", "10", "--heading-ref-sigma-deg", "0.3", "--yaw-deg", "3",
                  "--out", str(swing), "--seed", "4"]) == 0
+    report = tmp_path / "rep"
     assert main(["calibrate", str(swing), "--out", str(tmp_path / "inst.json"), "--base", str(bench_cal),
-                 "--quiet"]) == 0
+                 "--report", str(report), "--quiet"]) == 0
+    card = (report / "deviation_card.png").read_bytes()
+    capsys.readouterr()
+    assert main(["calibrate", str(swing), "--out", str(tmp_path / "inst2.json"), "--base", str(bench_cal),
+                 "--report", str(report), "--quiet"]) == 2  # the card is never overwritten without --force
+    assert "deviation_card.png" in capsys.readouterr().err and (report / "deviation_card.png").read_bytes() == card
     truth = json.loads((tmp_path / "swing.truth.json").read_text())["installation"]
     inst = json.loads((tmp_path / "inst.json").read_text())["installation"]
     found = np.array(inst["hard_iron_ut"])

@@ -103,7 +103,7 @@ class FourFlipCalibrator(Calibrator):
     """
 
     kind = "fourflip"
-    draws_plots = True
+    plot_files = ("fit.png", "residuals.png")
 
     def __init__(self, *, method: str = "ml", field_ut: float | None = None, diagnose: bool = True, progress=None):
         self.method, self.field_ut, self.diagnose, self.progress = method, field_ut, diagnose, progress

@@ -288,7 +288,7 @@ class InstallationCalibrator(Calibrator):
     """
 
     kind = "installed"
-    draws_plots = True
+    plot_files = ("deviation_card.png",)
 
     def __init__(self, *, base=None, site=None, date=None, accel_noise_g: float = 0.002, diagnose: bool = True):
         self.base = base

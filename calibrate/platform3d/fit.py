@@ -262,7 +262,7 @@ class Platform3DCalibrator(Calibrator):
     """
 
     kind = "platform3d"
-    draws_plots = True
+    plot_files = ("platform_residuals.png",)
 
     def __init__(self, *, field_ut: float | None = None, diagnose: bool = True):
         self.field_ut, self.diagnose = field_ut, diagnose

@@ -152,7 +152,7 @@ class TumbleCalibrator(Calibrator):
     """
 
     kind = "tumble"
-    draws_plots = True
+    plot_files = ("tumble.png",)
 
     def __init__(self, *, ellipsoid: str = "auto", field_ut: float | None = None):
         self.ellipsoid, self.field_ut = ellipsoid, field_ut

@@ -68,10 +68,6 @@ OPTIONS = {"method": ("--method", "ml"), "diagnose": ("--no-diagnose", True), "f
            "date": ("--date", None)}
 """Calibrator option -> (command-line flag, default): passed to the kinds whose calibrator takes it."""
 
-REPORT_PLOTS = {"fourflip": ("fit.png", "residuals.png"), "tumble": ("tumble.png",),
-                "platform3d": ("platform_residuals.png",)}
-"""The files each kind's ``plots()`` writes into ``--report DIR``: checked against --force before the fit."""
-
 
 def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, field_ut=None, kind=None,
                    force=False, quiet=False, ellipsoid="auto", read_options=None, base=None, site=None,
@@ -109,12 +105,12 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
              "site": site, "date": date}
     takes = found.calibrator.options()
     ignored = [OPTIONS[name][0] for name, value in given.items() if name not in takes and value != OPTIONS[name][1]]
-    ignored += ["--report"] * (report is not None and not found.calibrator.draws_plots)
+    ignored += ["--report"] * (report is not None and not found.calibrator.plot_files)
     if ignored:
         raise BadInput(f"{recording}: a {found.name} recording does not use {', '.join(ignored)}")
     if report is not None and Path(report).exists() and not Path(report).is_dir():
         raise BadInput(f"--report {report}: is a file, expected a folder")
-    for name in REPORT_PLOTS.get(found.name, ()) if report is not None else ():
+    for name in found.calibrator.plot_files if report is not None else ():
         check_writable(Path(report) / name, force)  # plots are never overwritten without --force either
     rec = found.read(table)
     options = {name: value for name, value in given.items() if name in takes}
