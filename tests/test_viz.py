@@ -229,3 +229,19 @@ def test_rrd_written_atomically_keeps_the_old_mode_and_clears_stale_temporaries(
     assert (rrd.stat().st_mode & 0o777) == 0o640 and not stale.exists()
     assert "/fourflip/v1/measured" in entity_paths(rrd)
     assert [p.name for p in tmp_path.glob(".cal.rrd.*")] == []
+
+
+def test_calibrate_rerun_reads_the_recording_with_the_same_column_mapping(tmp_path):
+    """`--columns` reached the fit but not the replay (which read the file again): exit 2 after the fit."""
+    from compass.sim.tumble import simulate_tumble, write_tumble
+
+    rec, _ = write_tumble(simulate_tumble(seed=2, n=1500), tmp_path / "tumble.csv")
+    lines = rec.read_text().splitlines()
+    header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    lines[header] = lines[header].replace("mx", "MagA").replace("my", "MagB").replace("mz", "MagC")
+    rec.write_text("\n".join(lines) + "\n")
+    rrd = tmp_path / "t.rrd"
+    assert main(["calibrate", str(rec), "--out", str(tmp_path / "cal.json"), "--quiet", "--rerun", str(rrd),
+                 "--columns", "mx=MagA,my=MagB,mz=MagC"]) == 0
+    raw = np.array(read_static(rrd, "/tumble/raw/samples", "Points3D:positions")[-1])
+    assert len(raw) == 1500

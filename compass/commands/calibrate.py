@@ -44,14 +44,16 @@ def register(sub) -> None:
 
 def run(args) -> int:
     target = check_rerun_target(args.rerun, args.force)
+    read_options = ReadOptions.from_args(args)
     result = calibrate_file(args.recording, args.out, method=args.method, diagnose=not args.no_diagnose,
                             report=args.report, field_ut=args.field_ut, kind=args.kind, force=args.force,
-                            quiet=args.quiet, ellipsoid=args.ellipsoid, read_options=ReadOptions.from_args(args),
+                            quiet=args.quiet, ellipsoid=args.ellipsoid, read_options=read_options,
                             base=args.base, site=args.site, date=args.date)
     if target is not None:
         from ..viz.calibration import record_calibration
 
-        record_calibration(target, args.recording, result, base_residuals=_base_residuals(result))
+        record_calibration(target, args.recording, result, base_residuals=_base_residuals(result),
+                           read_options=read_options)
         print(f"wrote {target}")
     return 0
 

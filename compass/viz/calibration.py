@@ -359,7 +359,7 @@ class LiveTumbleRecording:
         self.recording.close()
 
 
-def log_calibration_result(rec, result, recording_path, *, base_residuals=None) -> rrb.Container:
+def log_calibration_result(rec, result, recording_path, *, base_residuals=None, read_options=None) -> rrb.Container:
     """Log a calibration result of any kind; returns its views (for a blueprint).
 
     Parameters
@@ -369,7 +369,8 @@ def log_calibration_result(rec, result, recording_path, *, base_residuals=None) 
         ``used(recording)`` (four-flip), ``coverage`` (tumble), ``residuals_mag`` (3-D platform),
         ``sensors`` with their ``residuals`` (reference fields).
     recording_path : path
-        The recording the result was fitted to (read again here).
+        The recording the result was fitted to (read again here, with the fit's ``read_options``:
+        column mapping and units, :class:`compass.io.table.ReadOptions`).
     base_residuals : callable, optional
         Four-flip: ``base_residuals(recording)`` gives the base model's residuals (n, c), or
         None when the diagnosis added nothing.
@@ -377,7 +378,7 @@ def log_calibration_result(rec, result, recording_path, *, base_residuals=None) 
     from ..io.table import read_table
 
     calibration = result.to_json()
-    table = read_table(recording_path)
+    table = read_table(recording_path, read_options)
     kind = result.calibration_kind
     if kind == "tumble":
         from ..io.tumble import tumble_from_table
@@ -411,14 +412,15 @@ def log_calibration_result(rec, result, recording_path, *, base_residuals=None) 
     return calibration_views(kind, channels)
 
 
-def record_calibration(target, recording_path, result, *, base_residuals=None,
+def record_calibration(target, recording_path, result, *, base_residuals=None, read_options=None,
                        application_id: str = "compass_calibrate") -> None:
     """Write one calibration to ``target`` (.rrd or ``spawn``) with its layout
     (:func:`log_calibration_result`)."""
     from ._stream import Recording
 
     with Recording(target, application_id=application_id) as out:
-        views = log_calibration_result(out.rec, result, recording_path, base_residuals=base_residuals)
+        views = log_calibration_result(out.rec, result, recording_path, base_residuals=base_residuals,
+                                       read_options=read_options)
         out.rec.send_blueprint(rrb.Blueprint(views, rrb.TimePanel(timeline="sample")))
 
 
