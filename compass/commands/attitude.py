@@ -110,9 +110,8 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
         if accel is not None:
             check_accel_up(accel, table.rows, where=table.path)
     else:  # a 3-D platform calibration: ax, ay[, az] are its tilt sensor's raw outputs
-        accel = tilt_sensor.up(_group(table, tilt_sensor.columns))
-        check_two_axis_tilt(tilt_sensor.upside_down_rows(_group(table, tilt_sensor.columns), model.field(raw)[0],
-                                                         model.dip_deg), len(raw), where=table.path)
+        tilt_raw = _group(table, tilt_sensor.columns)
+        accel = tilt_sensor.up(tilt_raw)
     accel = accel_to_product(cal.data, accel)  # an installed file with an alignment: the product's frame
     tilt = _group(table, _TILT)
     if accel is not None:
@@ -138,6 +137,9 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     except ValueError as exc:
         raise BadInput(f"{recording}: {exc}") from None
 
+    if tilt_sensor is not None and len(tilt_sensor.columns) == 2:  # judged against the dip the rows were solved with
+        check_two_axis_tilt(tilt_sensor.upside_down_rows(tilt_raw, model.field(raw, temp_c)[0],
+                                                         result.reference.dip_deg), len(raw), where=table.path)
     columns = ({"t_s": table.column("t_s")} if table.has("t_s") else {}) | result.columns()
     metadata = {"calibration": calibration, "recording": recording, "mode": result.mode,
                 "reference_field": result.reference.description}
