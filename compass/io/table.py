@@ -221,15 +221,6 @@ class Table:
     def header_row(self) -> int:
         return self.header_line
 
-    def metadata_float(self, key: str) -> float | None:
-        """A numeric metadata value, or None when absent; RecordingError when not a finite number."""
-        if key not in self.metadata:
-            return None
-        value = _strict_float(self.metadata[key])
-        if value is None or not math.isfinite(value):
-            raise RecordingError(self.path, f"metadata '{key}' should be a finite number, got {self.metadata[key]!r}")
-        return value
-
     def ignore_unknown(self, known, *, what: str) -> None:
         """Note (do not refuse) the columns not in ``known``: the live protocol ignores them too."""
         known = {k.lower() for k in known}
