@@ -24,6 +24,15 @@ def test_a_mistyped_port_is_refused_at_once_naming_it(tmp_path, cal, capsys):
     assert len(err.splitlines()) == 1 and f"cannot open port {port}" in err and "Traceback" not in err
 
 
+def test_a_mistyped_port_is_refused_at_once_by_the_live_tumble_calibration_too(tmp_path, capsys):
+    port = tmp_path / "ttyUSB9"  # it waited for the port until --duration, then blamed too few samples
+    assert main(["live", "--port", str(port), "--calibrate", "tumble", "--out", str(tmp_path / "cal.json"),
+                 "--duration", "30"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"cannot open port {port}" in err and "Traceback" not in err
+    assert not (tmp_path / "cal.json").exists()
+
+
 def _serve(lines: bytes, server: socket.socket, errors: list) -> None:
     """One connection: wait for the reader's hello, send ``lines``, hold the line until it closes."""
     try:

@@ -136,10 +136,10 @@ def run_tumble(args) -> int:
     """``compass live --calibrate tumble``: collect, show, then calibrate (see the module docstring)."""
     from ..cli import BadInput
     from ..io.atomic import check_writable
-    from ..serial_reader import SerialReader
+    from ..serial_reader import PortUnavailable
     from ..viz import check_rerun_target
     from . import calibrate as calibrate_cmd
-    from .live import stop_when_asked
+    from .live import open_reader, port_unavailable, stop_when_asked
 
     if args.out is None:
         raise BadInput("--calibrate tumble needs --out CAL.json (the calibration to write)")
@@ -147,13 +147,7 @@ def run_tumble(args) -> int:
         raise BadInput("--calibrate tumble calibrates the module from scratch: leave out --cal")
     if not 0.0 < args.min_coverage <= 1.0:
         raise BadInput(f"--min-coverage must be in (0, 1], got {args.min_coverage}")
-    if args.duration is not None and not args.duration > 0:
-        raise BadInput(f"--duration must be positive, got {args.duration}")
-    reader = SerialReader(args.port, baudrate=args.baud)
-    try:
-        reader.check_url()
-    except ValueError as exc:
-        raise BadInput(str(exc)) from None
+    reader = open_reader(args)
     out = check_writable(args.out, args.force)
     recording = check_writable(recording_path(out), args.force)
     target = check_rerun_target(args.rerun, args.force)
@@ -164,7 +158,7 @@ def run_tumble(args) -> int:
         view = LiveTumbleRecording(target)
 
     collector = TumbleCollector(min_coverage=args.min_coverage)
-    last, said, result = time.perf_counter(), None, None
+    last, said, result, port_error = time.perf_counter(), None, None, None
     try:
         with stop_when_asked(args.duration) as stop:
             for item in reader.items(stop):
@@ -183,9 +177,13 @@ def run_tumble(args) -> int:
                         view.update(collector)
                     if collector.enough:
                         break
+    except PortUnavailable as exc:
+        port_error = port_unavailable(exc)
     finally:
         reader.close()
         try:
+            if port_error is not None:  # said as the port's fault, not as too few samples
+                raise port_error
             if len(collector.rows) < _MIN_SAMPLES:
                 raise BadInput(f"{args.port}: {len(collector.rows)} samples with {', '.join(_CHANNELS)} received; "
                                f"a tumble calibration needs at least {_MIN_SAMPLES}")

@@ -59,7 +59,6 @@ def run(args) -> int:
     from ..live import LiveSession
     from ..calibration_file import load
     from ..installed import alignment_of
-    from ..serial_reader import SerialReader
 
     if args.calibrate == "tumble":
         from ._live_tumble import run_tumble
@@ -74,15 +73,7 @@ def run(args) -> int:
     except ValueError as exc:
         raise BadInput(f"{args.cal}: {exc}" if args.cal not in str(exc) else str(exc)) from None
     reference = _site_reference(args, model)
-    if args.duration is not None and not args.duration > 0:
-        raise BadInput(f"--duration must be positive, got {args.duration}")
-    if not args.wait >= 0:
-        raise BadInput(f"--wait must be zero or positive, got {args.wait}")
-    reader = SerialReader(args.port, baudrate=args.baud, first_open_s=args.wait)
-    try:
-        reader.check_url()
-    except ValueError as exc:
-        raise BadInput(str(exc)) from None
+    reader = open_reader(args)
     out_path = None if args.out is None else check_writable(args.out, args.force)
     check_rerun_target(args.rerun, args.force)
     sink = None
@@ -155,10 +146,34 @@ def _run_session(args, reader, session, out, tty: bool, every_s: float) -> None:
                     if not args.quiet:
                         print(("\r\x1b[K" if tty else "") + session.readout(rate), end="" if tty else "\n", flush=True)
     except PortUnavailable as exc:
-        raise BadInput(f"{exc}: check the name, or --wait S for a port that is not there yet") from None
+        raise port_unavailable(exc) from None
     finally:
         reader.close()
         session.close()
+
+
+def open_reader(args):
+    """The reader of ``--port`` (``--baud``, ``--wait``), its options checked; BadInput for bad ones."""
+    from ..cli import BadInput
+    from ..serial_reader import SerialReader
+
+    if args.duration is not None and not args.duration > 0:
+        raise BadInput(f"--duration must be positive, got {args.duration}")
+    if not args.wait >= 0:
+        raise BadInput(f"--wait must be zero or positive, got {args.wait}")
+    reader = SerialReader(args.port, baudrate=args.baud, first_open_s=args.wait)
+    try:
+        reader.check_url()
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    return reader
+
+
+def port_unavailable(exc):
+    """The BadInput for a port that could not be opened within ``--wait``."""
+    from ..cli import BadInput
+
+    return BadInput(f"{exc}: check the name, or --wait S for a port that is not there yet")
 
 
 def _site_reference(args, model):
