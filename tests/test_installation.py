@@ -131,6 +131,13 @@ def test_drifting_hard_iron_is_named(bench):
     result = fit(bench, replace(rec, outputs=rec.outputs + gains * drift))
     assert result.diagnosis["effects"] == ["offset_drift"]
     assert result.diagnosis["residual_rms_after"] < 0.5 * result.diagnosis["residual_rms_before"]
+    # its parameters reach the file: the drift rate in H, against the injected 2 x (1.5, -1, 0.8) uT over the session
+    (effect,) = result.diagnosis["effect_parameters"]
+    rate, sigma = (np.array(effect["parameters"][k]) for k in ("hard_iron_ut_per_s", "hard_iron_ut_per_s_sigma"))
+    true_rate = 2.0 * np.array([1.5, -1.0, 0.8]) / np.ptp(rec.t_s)
+    assert effect["name"] == "offset_drift" and np.all(np.abs(rate - true_rate) < 4 * sigma + 0.02 * np.abs(true_rate))
+    assert "effect_parameters" in json.loads(json.dumps(result.to_json()))["diagnosis"]  # in the file
+    assert "offset_drift: hard iron change x" in result.report() and "uT per s" in result.report()
 
 
 def test_deviation_card_coefficients():

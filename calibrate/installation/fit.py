@@ -244,6 +244,13 @@ class InstallationCalibration(Calibration):
         lines.append(f"  diagnosis: effects {', '.join(d['effects']) or 'none'}; |B| residual {d['residual_rms_before']:.3f}"
                      f" -> {d['residual_rms_after']:.3f} against a noise floor of {d['noise_floor']:.3f}; "
                      f"unexplained {d['unexplained']}")
+        for e in d.get("effect_parameters", []):
+            (key, values), (_, sigmas) = e["parameters"].items()
+            ref = ", ".join(f"{k} {v:.6g}" for k, v in e["reference"].items())
+            per = {"hard_iron_ut_per_s": "s", "hard_iron_ut_per_c": "degC"}[key]
+            lines.append(f"    {e['name']}: hard iron change "
+                         + ", ".join(f"{a} {v:+.4g} +- {sv:.2g}" for a, v, sv in zip("xyz", values, sigmas))
+                         + f" uT per {per}; the hard iron above is at {ref} (the runtime uses it there)")
         lines += [f"    {line}" for line in d.get("remarks", [])]
         return "\n".join(lines)
 
@@ -428,6 +435,7 @@ def _result(rec, data, fit, steps, remarks, quiet, in_range, priors, base, base_
                        "does not explain (a nonlinear or field-dependent iron, a field that changed during the "
                        "recording, or a bench model that does not fit this sensor)")
     diagnosis = {"noise_floor": noise_floor,
+                 "effect_parameters": _effect_parameters(rec, quiet, data, fit, sig),
                  "noise_floor_source": "the bench calibration's channel noise, through its sensing matrix",
                  "steps": steps, "effects": list(fit.effects),
                  "residual_rms_before": steps[0]["residual_rms"], "residual_rms_after": fit.residual_rms_ut,
@@ -437,6 +445,27 @@ def _result(rec, data, fit, steps, remarks, quiet, in_range, priors, base, base_
         rec.kind, h, sig[:3], soft, sig[3:9], cov9, float(x[9]), float(x[10]), float(sig[10]), yaw, yaw_sigma,
         undetermined, card_before, card_after, diagnosis, int(np.sum(quiet)), fit.residual_rms_ut, model,
         base_document, None if site is None else site.to_json())
+
+
+def _effect_parameters(rec, quiet, data: _Data, fit: _Fit, sig: np.ndarray) -> list[dict]:
+    """The claimed effects' fitted hard-iron change in H with sigmas, per second of ``t_s`` or per degC of
+    ``temp_c``; ``hard_iron_ut`` is the hard iron at each effect's reference (the quiet rows' mean)."""
+    *_, extra = _split(fit.x, data, fit.effects)
+    first = 12 if data.heading_ref is not None else 11
+    entries = []
+    for i, (name, g) in enumerate(extra.items()):
+        s3 = sig[first + 3 * i:first + 3 * i + 3]
+        if name == "offset_drift":  # regressor (t - mean) / span
+            t = rec.t_s[quiet]
+            span = float(np.ptp(t))
+            entries.append({"name": name, "form": "linear in t_s", "reference": {"t_s": float(t.mean())},
+                            "parameters": {"hard_iron_ut_per_s": (g / span).tolist(),
+                                           "hard_iron_ut_per_s_sigma": (s3 / span).tolist()}})
+        else:  # temperature: regressor temp_c - mean
+            entries.append({"name": name, "form": "linear in temp_c",
+                            "reference": {"temp_c": float(rec.temp_c[quiet].mean())},
+                            "parameters": {"hard_iron_ut_per_c": g.tolist(), "hard_iron_ut_per_c_sigma": s3.tolist()}})
+    return entries
 
 
 def _turn_deg(b: np.ndarray, u: np.ndarray) -> float:
