@@ -22,12 +22,13 @@ import sys
 import numpy as np
 
 from ..io.atomic import atomic_write_text, check_writable
+from ..io.units import EARTH_FIELD_UT, MAG_UNITS
 
 __all__ = ["register", "export_text", "load_tumble", "channel_form", "unit_note"]
 
 FORMATS = ("fusion", "ardupilot")
-_MGAUSS_PER_UNIT = {"uT": 10.0, "nT": 0.01, "gauss": 1000.0, "mgauss": 1.0}
-_EARTH_UT = (20.0, 70.0)  # the Earth's field anywhere, uT (WMM: about 22-67)
+_UNITS = {"uT": "uT", "nT": "nT", "gauss": "G", "mgauss": "mG"}
+"""``--unit`` spellings -> :data:`compass.io.units.MAG_UNITS` (their factors to uT)."""
 
 
 def register(sub) -> None:
@@ -35,7 +36,7 @@ def register(sub) -> None:
     p.add_argument("calibration", help="calibration JSON written by 'compass calibrate': tumble, or three linear "
                                        "channels (bench, installed)")
     p.add_argument("--format", required=True, choices=FORMATS, help="fusion: C initialisers; ardupilot: .param lines")
-    p.add_argument("--unit", choices=tuple(_MGAUSS_PER_UNIT), default="uT",
+    p.add_argument("--unit", choices=tuple(_UNITS), default="uT",
                    help="unit of the recording's mx,my,mz (ardupilot offsets are in milligauss; default uT)")
     p.add_argument("--out", default=None, help="file to write (default: print)")
     p.add_argument("--force", action="store_true", help="overwrite --out")
@@ -128,13 +129,14 @@ def unit_note(cal: dict, unit: str) -> str:
     norm = cal.get("field_norm_recording_units")
     if norm is None:
         return ""
-    ut = norm * _MGAUSS_PER_UNIT[unit] / _MGAUSS_PER_UNIT["uT"]
-    if _EARTH_UT[0] <= ut <= _EARTH_UT[1]:
+    lo, hi = EARTH_FIELD_UT
+    ut = norm * MAG_UNITS[_UNITS[unit]]
+    if lo <= ut <= hi:
         return ""
-    fits = [u for u, f in _MGAUSS_PER_UNIT.items() if _EARTH_UT[0] <= norm * f / _MGAUSS_PER_UNIT["uT"] <= _EARTH_UT[1]]
+    fits = [u for u, key in _UNITS.items() if lo <= norm * MAG_UNITS[key] <= hi]
     hint = f"; the recording looks like it is in {' or '.join(fits)} (--unit {fits[0]})" if fits else ""
     return (f"its field norm is {norm:.4g} in the recording's unit, which as {unit} would be {ut:.4g} uT, not "
-            f"Earth's {_EARTH_UT[0]:g}-{_EARTH_UT[1]:g} uT: the offsets are exported as {unit} all the same{hint}")
+            f"Earth's {lo:g}-{hi:g} uT: the offsets are exported as {unit} all the same{hint}")
 
 
 def export_text(cal: dict, fmt: str, *, unit: str = "uT") -> str:
@@ -163,7 +165,7 @@ def export_text(cal: dict, fmt: str, *, unit: str = "uT") -> str:
                 f"const FusionMatrix softIronMatrix = {_braced(m)};\n"
                 f"const FusionVector hardIronOffset = {_braced(h)};\n")
     shape = s / np.cbrt(np.linalg.det(s))
-    ofs = -h * _MGAUSS_PER_UNIT[unit]
+    ofs = -h * MAG_UNITS[_UNITS[unit]] / MAG_UNITS["mG"]  # ArduPilot's offsets are in milligauss
     lines = ["# compass export: ArduPilot COMPASS_* (offsets in milligauss, matrix = soft-iron shape, det 1)"]
     if unit_note(cal, unit):
         lines.append(f"# warning: {unit_note(cal, unit)}")
