@@ -172,12 +172,12 @@ class LiveSession:
             self._bad_reported, self._bad_reported_at = bad, item.t_rx
 
     def _sample(self, sample, t_rx: float, held: bool = False) -> None:
-        if self._seed is not None and self.decoder.header.accel is not None:
+        header = sample.header  # its own: a header later in the same chunk may have replaced the decoder's
+        if self._seed is not None and header.accel is not None:
             # without an accelerometer there is no attitude, and nothing to seed the reference from: the
             # filter is made at once and says so (holding the samples would grow without end)
             self._seeding(sample, t_rx)
             return
-        header = self.decoder.header
         if self._filter is None or self._filter.gyro != (header.gyro is not None):
             self._filter = AttitudeFilter(self.config, gyro=header.gyro is not None)
             self._event("info", f"filter: {'gyro (error-state EKF with bias)' if self._filter.gyro else 'two-vector'}"
@@ -302,9 +302,13 @@ class LiveSession:
                 f"latency p50 {p50:.2f} ms, p99 {p99:.2f} ms")
 
     def close(self) -> None:
-        """Flush the outputs (the CSV file stays open: its owner closes it)."""
+        """Flush the outputs (the CSV file stays open: its owner closes it).
+
+        The Rerun recording is finished only if it holds a sample; without one it is discarded, so a
+        session that never started leaves no empty ``.rrd`` behind and an existing file stays as it was.
+        """
         if self.sink is not None:
-            self.sink.close()
+            self.sink.close() if self.samples > 0 else self.sink.discard()
         if self.out is not None:
             self.out.flush()
 

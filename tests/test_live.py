@@ -368,3 +368,60 @@ def test_a_module_without_accelerometer_holds_nothing_and_says_there_is_no_attit
     session.close()
     assert session.decoder.stats.samples == 2000 and session._held == []
     assert any("no accelerometer: no attitude" in e for e in events)
+
+
+def _serve_repeatedly(payload: bytes):
+    """A socket peer that sends ``payload`` to the first reader every 0.2 s until it leaves (10 s at most).
+
+    Repeated because the reader drains what arrived before its port was open.
+    """
+    server = socket.create_server(("127.0.0.1", 0))
+    server.settimeout(10.0)
+
+    def peer():
+        try:
+            conn, _ = server.accept()
+        except OSError:
+            return
+        with conn:
+            deadline = time.monotonic() + 10.0
+            try:
+                while time.monotonic() < deadline:
+                    conn.sendall(payload)
+                    time.sleep(0.2)
+            except OSError:
+                pass  # the reader closed the link
+
+    thread = threading.Thread(target=peer, daemon=True)
+    thread.start()
+    return server, thread, f"socket://127.0.0.1:{server.getsockname()[1]}"
+
+
+@pytest.mark.parametrize("samples_first", [0, 300])
+def test_live_failing_on_a_wrong_header_keeps_the_recording_only_if_it_holds_samples(tmp_path, capsys, samples_first):
+    model = default_model()
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps(model.to_json()))
+    device = PtyDevice(model, rate_hz=100.0)
+    lines = device._lines(simulate_device(model, np.arange(samples_first) / 100.0, seed=2), 0)
+    wrong = format_line(["ax", "ay", "az"])
+    payload = (device._header + b"".join(lines) if samples_first else b"") + wrong + b"1,2,3\n" + wrong
+    rrd, att = tmp_path / "live.rrd", tmp_path / "att.csv"
+    rrd.write_bytes(b"an older recording")  # --force: replaced only by a recording that holds samples
+    server, thread, port = _serve_repeatedly(payload)
+    try:
+        code = main(["live", "--port", port, "--cal", str(cal), "--rerun", str(rrd), "--out", str(att), "--force",
+                     "--duration", "20", "--quiet"])
+    finally:
+        server.close()
+        thread.join(15)
+    captured = capsys.readouterr()
+    assert code == 2 and "lacks the calibration's channel(s) mx,my,mz" in captured.err
+    assert not list(tmp_path.glob(".*.tmp"))  # no temporary left behind
+    if samples_first:
+        assert rrd.read_bytes() != b"an older recording" and att.exists()
+        assert f"wrote {att}, {rrd}" in captured.out
+        assert {"/" + e for e in ENTITIES} <= entity_paths(rrd)
+    else:
+        assert rrd.read_bytes() == b"an older recording" and not att.exists()
+        assert "wrote" not in captured.out

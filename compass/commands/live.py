@@ -76,11 +76,6 @@ def run(args) -> int:
     reader = open_reader(args)
     out_path = None if args.out is None else check_writable(args.out, args.force)
     check_rerun_target(args.rerun, args.force)
-    sink = None
-    if args.rerun is not None:
-        from ..viz import RerunSink
-
-        sink = RerunSink.for_model(args.rerun, model, config)
 
     tty = sys.stdout.isatty()
     every_s = 0.1 if tty else 1.0
@@ -89,8 +84,12 @@ def run(args) -> int:
         if not args.quiet:
             print(("\r\x1b[K" if tty else "") + f"[{level}] {text}", flush=True)
 
-    session, failed, out, start = None, True, None, time.perf_counter()
+    session, sink, failed, out, start = None, None, True, None, time.perf_counter()
     try:
+        if args.rerun is not None:
+            from ..viz import RerunSink
+
+            sink = RerunSink.for_model(args.rerun, model, config)
         with contextlib.ExitStack() as outputs:
             # --out is a stream, written as it goes (tail -f follows it; a crash keeps what was recorded):
             # not atomic on purpose, unlike the files a command produces at once
@@ -104,12 +103,14 @@ def run(args) -> int:
         recorded = session is not None and session.samples > 0  # rows written, not lines decoded
         if out is not None and not recorded:
             out_path.unlink(missing_ok=True)  # opened by this run and holding no sample: leave nothing behind
+        if sink is not None and session is None:
+            sink.discard()  # the session never started: no half-written recording left behind
         if session is not None:
             elapsed = time.perf_counter() - start
             if tty and not args.quiet:
                 print()
-            kept = (out_path if recorded else None,) if failed else (out_path if recorded else None, args.rerun)
-            wrote = [str(p) for p in kept if p is not None and p != "spawn"]
+            # both outputs hold what was recorded up to the end, a failure included (the session closed them)
+            wrote = [str(p) for p in (out_path, args.rerun) if recorded and p is not None and str(p) != "spawn"]
             print(f"compass live: {elapsed:.1f} s, {reader.disconnects} disconnect(s); {session.summary()}"
                   + (f"; wrote {', '.join(wrote)}" if wrote else ""), flush=True)
     if session.decoder.stats.samples == 0:

@@ -125,6 +125,9 @@ class Sample:
         Module sample counter.
     temp_c : float or None
         Sensor temperature, degrees Celsius.
+    header : Header or None
+        The header the line was decoded under (a chunk is decoded whole, so the decoder's current
+        header may already be a later one).
     """
 
     raw: np.ndarray
@@ -133,6 +136,7 @@ class Sample:
     t_s: float | None = None
     seq: int | None = None
     temp_c: float | None = None
+    header: Header | None = None
 
 
 @dataclass
@@ -337,7 +341,7 @@ class LineDecoder:
         raw = np.array([float(cells[i]) for i in header.channels])
         seq = int(cells[header.seq]) if header.seq is not None and cells[header.seq] else None
         sample = Sample(raw, _group(cells, header.accel), _group(cells, header.gyro), _scalar(cells, header.t_s), seq,
-                        _scalar(cells, header.temp_c))
+                        _scalar(cells, header.temp_c), header)
         if not np.all(np.isfinite(raw)):
             raise _NotFinite("non-finite channel")
         return sample

@@ -191,6 +191,10 @@ class RerunSink:
         self.flush()
         self.recording.close()
 
+    def discard(self) -> None:
+        """Stop without writing the file: nothing was recorded (an existing file stays as it was)."""
+        self.recording.discard()
+
 
 def _stack(values, width: int) -> np.ndarray:
     """Rows of a buffer as an (n, width) array, NaN where a row had none."""
