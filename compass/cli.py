@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import re
 import sys
 import warnings
 
@@ -93,10 +94,28 @@ def _one_blas_thread() -> None:
         os.environ[name] = "1"
 
 
+_NEGATIVE_LIST = re.compile(r"^-\.?\d[^,]*,")
+
+
+def _attach_negative_lists(argv: list[str]) -> list[str]:
+    """``--site -33.87,151.21`` as ``--site=-33.87,151.21``.
+
+    argparse takes a value that starts with ``-`` for an option unless it is a single number, so a
+    southern latitude (a comma-separated list) would be refused as "expected one argument".
+    """
+    out = []
+    for arg in argv:
+        if out and _NEGATIVE_LIST.match(arg) and out[-1].startswith("--") and "=" not in out[-1]:
+            out[-1] = f"{out[-1]}={arg}"
+        else:
+            out.append(arg)
+    return out
+
+
 def main(argv=None) -> int:
     _one_blas_thread()
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_attach_negative_lists(sys.argv[1:] if argv is None else list(argv)))
     from .io.units import RecordingWarning
 
     with warnings.catch_warnings(record=True) as caught:

@@ -127,9 +127,12 @@ def test_too_few_quiet_rows_refuses():
         reference_from_recording(field, up, accel_norm=np.linspace(0.5, 1.5, 20))
 
 
-def test_cli_site_gives_true_north_and_the_calibration_site_block(benches, tmp_path):
+@pytest.mark.parametrize("lat, lon", [(47.6, -122.3), (-33.87, 151.21)], ids=["seattle", "sydney"])
+def test_cli_site_gives_true_north_and_the_calibration_site_block(benches, tmp_path, lat, lon):
+    """Declination about +15 deg (Seattle) and +13 deg (Sydney, a southern latitude written as
+    ``--site -33.87,151.21``, which argparse alone refuses as an option)."""
     model, truth = benches["clean"]
-    lat, lon, date = 47.6, -122.3, "2026-06-01"  # Seattle: declination about +15 deg east
+    date = "2026-06-01"
     wmm = Site.parse(f"{lat},{lon}", date).field()
     site = {**truth, "dip_deg": wmm.dip_deg, "field_ut": wmm.field_ut}
     cal = tmp_path / "cal.json"
