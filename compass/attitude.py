@@ -14,8 +14,9 @@ and refuses otherwise, naming the missing information.
 
 The field's reference direction is the site's (:mod:`compass.site`), never the bench session's: a
 :class:`~compass.site.ReferenceField` from the WMM at a given site, or estimated from the recording's
-own quiet rows.  Its dip uncertainty enters the two-vector weight (gravity primary: the field then
-fixes heading and an uncertain dip cannot pull the tilt), and ``disturbed`` is judged against it.
+own quiet rows.  Its dip uncertainty, and each row's own dip discrepancy beyond its noise, enter the
+two-vector weight (gravity primary: the field then fixes heading, and neither an uncertain dip nor
+a disturbed row can pull the tilt), and ``disturbed`` is judged against it.
 
 World frame NWU (magnetic north), housing FLU, ``R_world<-housing = Rz(-heading) Ry(-pitch)
 Rx(roll)``; an accelerometer at rest reads +1 g along the housing's up direction.
@@ -37,6 +38,8 @@ from .site import ReferenceField, reference_from_recording
 __all__ = ["Attitude", "UnusableCalibration", "solve_attitude", "two_vector_rotation", "level_heading_bound_deg"]
 
 _UP = np.array([0.0, 0.0, 1.0])
+DIP_NOISE_SIGMAS = 2.0
+"""A row's dip discrepancy within this many of its sigmas is noise; beyond, it lowers the field's weight."""
 
 
 class UnusableCalibration(ValueError):
@@ -151,7 +154,7 @@ def two_vector_rotation(up_h, field_h, dip_deg: float, field_weight: float) -> R
 def _two_vector_rows(u, m, dip_deg: float, field_weight: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rows (north, west, up) of :func:`two_vector_rotation`'s matrix, each (3, n), from the unit
     up vectors ``u`` and field vectors ``m`` given component-major, shape (3, n)."""
-    if not 0.0 <= field_weight <= 1.0:
+    if not np.all((0.0 <= field_weight) & (field_weight <= 1.0)):
         raise ValueError(f"field_weight must be in [0, 1], got {field_weight}")
     mu = _dot(m, u)
     along = m - mu * u  # in the plane, perpendicular to u, toward m
@@ -245,6 +248,15 @@ def solve_attitude(
     gravity first (TRIAD) and the dip cannot pull the tilt.  What is left moves the solution by
     ``f delta`` about West (``H^-1`` leaves West alone), adding ``f^2 sigma_dip^2 g_W^2`` to the
     variance of an angle with ``g = H^-1 j``.
+
+    **Each row's own evidence.**  A row whose measured dip differs from the reference by more than
+    twice its noise shows a dip error the reference's sigma does not cover (a magnet nearby, iron in
+    the product, a wrong site): ``sigma_dip^2`` of that row adds the excess
+    ``max(0, (dip - dip_ref)^2 - (2 sigma_{dip,row})^2)`` (:data:`DIP_NOISE_SIGMAS`; within it a
+    discrepancy is noise, and the weight stays the optimal one of a right reference).  The pull ``f delta`` then stays below about
+    ``sigma_g^2 / (2 sqrt(sigma_g^2 + sigma_B^2))`` whatever ``delta`` is (a few hundredths of a
+    degree), instead of growing with it; a row flagged ``disturbed`` gets ``f = 0`` (its field votes
+    for heading only).
     """
     sources = [name for name, given in (("accel", accel is not None), ("pitch_deg/roll_deg", pitch_deg is not None
                                          or roll_deg is not None), ("level", level)) if given]
@@ -320,15 +332,6 @@ def _solve(model: SensorModel, field: np.ndarray, in_range: np.ndarray, *, accel
     ref_dip_var = np.radians(reference.dip_sigma_deg) ** 2
     field_ratio = b_norm / reference.field_magnitude
 
-    # Wahba weights from noise: per-axis variance of each unit vector (field: at zero field), and the
-    # reference dip's variance on the field's side (Notes)
-    field_var = np.sum(model.component_variance(np.zeros(3)) * model.solver**2) / 3.0 / reference.field_magnitude**2
-    f = up_var / (up_var + field_var + ref_dip_var) if up_var > 0 else 0.0
-    if not (np.isfinite(f) and np.isfinite(field_var)):
-        raise UnusableCalibration(f"the calibration's noise_floor and gains give a field noise of {field_var:g} "
-                                  "(rad^2): out of any sensible range")
-    rows = _two_vector_rows(up, m, ref_dip, f)
-    heading, pitch, roll = heading_pitch_roll(Rotation.from_matrix(_matrix(rows), assume_valid=True))
     solver = model.solver
 
     def field_quad(v):  # v^T Sigma_B v per sample, field units squared; v in H, (3, n)
@@ -346,16 +349,29 @@ def _solve(model: SensorModel, field: np.ndarray, in_range: np.ndarray, *, accel
     dip_limit = np.maximum(disturbance_sigma * dip_sigma, dip_tolerance_deg)
     dip_error = np.abs(dip - ref_dip)
 
+    # Wahba weights from noise: per-axis variance of each unit vector (field: at zero field); on the
+    # field's side the reference dip's variance and the row's own dip discrepancy beyond 2 sigma (Notes)
+    field_var = np.sum(model.component_variance(np.zeros(3)) * model.solver**2) / 3.0 / reference.field_magnitude**2
+    if not np.isfinite(field_var):
+        raise UnusableCalibration(f"the calibration's noise_floor and gains give a field noise of {field_var:g} "
+                                  "(rad^2): out of any sensible range")
+    excess = np.radians(dip - ref_dip) ** 2 - (DIP_NOISE_SIGMAS * np.radians(dip_sigma)) ** 2
+    dip_var = ref_dip_var + np.maximum(excess, 0.0)
+    disturbed = field_bad | (dip_error > dip_limit)
+    f = np.where(disturbed, 0.0, up_var / (up_var + field_var + dip_var)) if up_var > 0 else 0.0
+    rows = _two_vector_rows(up, m, ref_dip, f)
+    heading, pitch, roll = heading_pitch_roll(Rotation.from_matrix(_matrix(rows), assume_valid=True))
+
     if mode == "accelerometer":
-        sig = _wahba_sigmas(rows, heading, pitch, field_quad, b_norm, up_var, f, ref_dip, ref_dip_var)
+        sig = _wahba_sigmas(rows, heading, pitch, field_quad, b_norm, up_var, f, ref_dip, dip_var)
         return _with_true_north(Attitude(mode, heading, pitch, roll, sig[0], field_ratio, dip, in_range,
-                                         field_bad | (dip_error > dip_limit), pitch_sigma_deg=sig[1],
-                                         roll_sigma_deg=sig[2], reference=reference))
+                                         disturbed, pitch_sigma_deg=sig[1], roll_sigma_deg=sig[2],
+                                         reference=reference))
     # tilt exact: only the rotation about the vertical is left, fixed by the field's west component
     heading_sigma = np.degrees(np.sqrt(field_quad(rows[1])) / (b_norm * np.sqrt(1.0 - mu**2)))
     if mode == "known_tilt":
         return _with_true_north(Attitude(mode, heading, pitch, roll, heading_sigma, field_ratio, dip, in_range,
-                                         field_bad | (dip_error > dip_limit), reference=reference))
+                                         disturbed, reference=reference))
     bound = np.full(n, level_heading_bound_deg(ref_dip, max_tilt_deg))
     return _with_true_north(Attitude(mode, heading, np.zeros(n), np.zeros(n), heading_sigma, field_ratio, dip,
                                      in_range, field_bad | (dip_error > max_tilt_deg + dip_limit),
@@ -429,20 +445,25 @@ def _wahba_sigmas(rows, heading, pitch, field_quad, b_norm, up_var, f, dip_deg, 
     angle with world-frame sensitivity ``j`` (``d angle = j . eps``) and ``g = H^-1 j`` has variance
     ``w_g^2 sigma_g^2 |g x z|^2 + w_B^2 v^T Sigma_B v / |B|^2`` with ``v = R^T (b_W x g)`` in H
     (``R^T`` of a world axis is a row of ``R``: ``rows``), plus ``f^2 sigma_dip^2 g_W^2`` from the
-    reference dip's variance ``dip_var`` (rad^2; :func:`solve_attitude` Notes).
+    dip variance ``dip_var`` of the field's vote (rad^2; :func:`solve_attitude` Notes).  ``f`` and
+    ``dip_var`` may be one value a row.
     """
     field_ref = world_field(dip_deg)
+    # one weight a row; f -> 0 (TRIAD) is a limit: H^-1 grows as 1/f about up while the field's
+    # share f of it shrinks, their product finite, so a row with f = 0 is evaluated just beside it
+    f = np.maximum(np.broadcast_to(np.asarray(f, dtype=float), np.shape(heading)), 1e-9)[:, None, None]
     h = (1.0 - f) * (np.eye(3) - np.outer(_UP, _UP)) + f * (np.eye(3) - np.outer(field_ref, field_ref))
-    h_inv = np.linalg.inv(h)
+    h_inv = np.linalg.inv(h)  # (n, 3, 3)
     cross_h_inv = np.cross(field_ref, h_inv)  # row k: b_W x H^-1 e_k (H^-1 symmetric)
+    f = f[:, 0, 0]
     psi, theta = np.radians(-heading), np.radians(-pitch)  # scipy's ZYX yaw and pitch
     cp, sp, ct, tt = np.cos(psi), np.sin(psi), np.cos(theta), np.tan(theta)
     # world-frame rotation error eps -> d yaw, d pitch, d roll (inverse Euler-rate relations)
     sensitivities = ((tt * cp, tt * sp, 1.0), (-sp, cp, 0.0), (cp / ct, sp / ct, 0.0))
     sigmas = []
     for j in sensitivities:
-        g_north, g_west = (sum(h_inv[i, k] * j[k] for k in range(3)) for i in (0, 1))
-        c = [sum(cross_h_inv[k, i] * j[k] for k in range(3)) for i in range(3)]  # b_W x g, world
+        g_north, g_west = (sum(h_inv[:, i, k] * j[k] for k in range(3)) for i in (0, 1))
+        c = [sum(cross_h_inv[:, k, i] * j[k] for k in range(3)) for i in range(3)]  # b_W x g, world
         v = c[0] * rows[0] + c[1] * rows[1] + c[2] * rows[2]  # R^T (b_W x g), in H
         var = ((1.0 - f) ** 2 * up_var * (g_north**2 + g_west**2) + f**2 * field_quad(v) / b_norm**2
                + f**2 * dip_var * g_west**2)

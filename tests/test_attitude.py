@@ -136,7 +136,9 @@ def test_propagated_sigma_matches_monte_carlo(truth):
 
 
 def test_doubling_noise_doubles_sigma(truth):
-    session = simulate_runtime(truth, 200, seed=8)
+    # noiseless readings: each row's weight then depends on the noise model alone (a row whose dip is
+    # off by more than twice its sigma also lowers its field's weight, which noisy data would change)
+    session = simulate_runtime(truth, 200, seed=8, noise_ut=0.0, accel_noise_g=0.0)
     site = known_reference(truth["dip_deg"], truth["field_ut"])
     one = solve_attitude(true_model(truth), session.outputs, accel=session.accel, accel_noise_g=0.002, reference=site)
     two = solve_attitude(true_model(truth, 2.0), session.outputs, accel=session.accel, accel_noise_g=0.004,
@@ -282,3 +284,33 @@ def test_cli_applies_or_warns_about_the_temperature_effect(files, tmp_path, caps
     assert main(["attitude", str(hot_cal), str(rec), "--out", str(tmp_path / "c.csv")]) == 0
     assert "no temp_c column" in capsys.readouterr().err
     assert "NOT compensated" in read_table(tmp_path / "c.csv").metadata["temperature"]
+
+
+@pytest.mark.parametrize("case", ["magnet", "wrong_dip"])
+def test_a_disturbed_or_wrong_field_does_not_pull_the_tilt(truth, case):
+    """The field votes on tilt only through the dip; a magnet on some rows (their dip off by degrees) or a
+    reference dip 10 deg off must leave pitch and roll at the accelerometer's own precision, with
+    honest sigmas (a fixed-weight solution is pulled by a quarter of the dip error: about 2 deg,
+    20 sigma)."""
+    n, hit = 4000, slice(0, 1000)
+    extra = np.zeros((n, 3))
+    if case == "magnet":
+        extra[hit] = (8.0, -6.0, 10.0)  # uT, NWU
+    session = simulate_runtime(truth, n, seed=31, extra_field_ut=extra)
+    dip = truth["dip_deg"] + (10.0 if case == "wrong_dip" else 0.0)
+    att = solve_attitude(true_model(truth), session.outputs, accel=session.accel, accel_noise_g=0.002,
+                         reference=known_reference(dip, truth["field_ut"]))
+    quiet = simulate_runtime(truth, n, seed=31)  # the same attitudes and noise, no magnet
+    clean = solve_attitude(true_model(truth), quiet.outputs, accel=quiet.accel, accel_noise_g=0.002,
+                           reference=known_reference(truth["dip_deg"], truth["field_ut"]))
+    for name in ("pitch", "roll"):
+        error = wrap(getattr(att, f"{name}_deg")[hit] - getattr(session, f"{name}_deg")[hit])
+        sigma = getattr(clean, f"{name}_sigma_deg")
+        # RMS of z-scores against the clean rows' sigmas: 1 +- 3 sampling errors (1000 draws) + 5 %
+        assert np.allclose(getattr(quiet, f"{name}_deg"), getattr(session, f"{name}_deg"))
+        # honest sigmas (1 +- 3 sampling errors of 1000 draws + 5 % linearisation), and no worse than
+        # gravity alone: the field's help on tilt is at most 1/sqrt(1 - f), f ~ 0.3, over the clean rows
+        assert rms(error / getattr(att, f"{name}_sigma_deg")[hit]) < 1.0 + 3 / np.sqrt(2 * 1000) + 0.05
+        assert rms(error) < 1.3 * rms(sigma[hit])
+        if case == "magnet":
+            assert att.disturbed[hit].mean() > 0.9

@@ -78,9 +78,10 @@ def test_another_site_with_nothing_said(benches):
     assert abs(att.reference.dip_deg - site["dip_deg"]) < 0.1
     assert rms(wrap(att.heading_deg - run.heading_deg)) <= 1.3 * rms(wrap(best.heading_deg - run.heading_deg)) + 0.02
     assert att.disturbed.mean() <= 0.01
-    # the bench's field taken for the world's (what the runtime did before): every row disturbed, tilt pulled
+    # the bench's field taken for the world's (what the runtime did before): every row disturbed; their field
+    # then votes for heading only, so the tilt is gravity's (a fixed field weight pulled it by degrees)
     bench = solve_attitude(model, run.outputs, accel=run.accel, reference=known_reference(model.dip_deg, model.field_ut))
-    assert bench.disturbed.mean() > 0.9 and rms(bench.pitch_deg - run.pitch_deg) > 5 * rms(att.pitch_deg - run.pitch_deg)
+    assert bench.disturbed.mean() > 0.9 and rms(bench.pitch_deg - run.pitch_deg) < 1.3 * rms(att.pitch_deg - run.pitch_deg)
 
 
 def test_platform_field_biases_the_bench_dip_but_not_the_runtime(benches):
