@@ -280,8 +280,11 @@ def reference_from_recording(field_h, up_h, accel_norm=None) -> ReferenceField:
         a = np.asarray(accel_norm, dtype=float)
         ok &= np.abs(a / np.median(a[ok]) - 1.0) < _QUIET_ACCEL if np.any(ok) else ok
     if np.sum(ok) < _MIN_ROWS:
-        raise ValueError(f"only {int(np.sum(ok))} rows read gravity alone (|a| within {100 * _QUIET_ACCEL:g} % of g): "
-                         f"the site's field cannot be estimated from the recording; give --site LAT,LON --date D")
+        usable = int(np.sum(np.isfinite(b_norm) & (b_norm > 0)))
+        what = (f"only {int(np.sum(ok))} rows read gravity alone (|a| within {100 * _QUIET_ACCEL:g} % of g)"
+                if usable >= _MIN_ROWS else f"the recording has {usable} usable rows")
+        raise ValueError(f"{what} and the site's field needs at least {_MIN_ROWS} quiet rows to be estimated from "
+                         "the recording; give --site LAT,LON --date D")
     dip = np.degrees(np.arcsin(np.clip(-np.einsum("ij,ij->i", b, u) / b_norm, -1.0, 1.0)))
     keep = ok.copy()
     for values in (b_norm, dip):

@@ -321,3 +321,25 @@ def test_recording_warnings_are_warnings_in_the_library(tmp_path):
 
     with pytest.warns(RecordingWarning, match="ignored column extra"):
         read_tumble(rec)
+
+
+def test_a_short_attitude_recording_is_refused_for_its_length_not_its_accelerometer(tmp_path, capsys):
+    session = simulate_fourflip(seed=4)
+    rec, _ = write_fourflip(session, tmp_path / "bench.csv")
+    cal = tmp_path / "cal.json"
+    assert main(["calibrate", str(rec), "--out", str(cal), "--quiet"]) == 0
+    rows = np.column_stack([session.outputs[:6], np.tile([0.0, 0.0, 1.0], (6, 1))])  # 6 rows, all at exactly 1 g
+    att = _csv(tmp_path / "att.csv", [*session.channels, "ax", "ay", "az"], rows)
+    capsys.readouterr()
+    status, _, err = _run(capsys, "attitude", cal, att, "--out", tmp_path / "o.csv")
+    _one_line_refusal(status, err, "has 6 usable rows", "at least 10", "--site")
+    assert "gravity alone" not in err and not (tmp_path / "o.csv").exists()
+
+
+def test_a_nan_cell_is_named_as_python_writes_it(tmp_path, capsys):
+    data = np.ones((20, 3))
+    data[5, 1] = np.nan
+    rec = _csv(tmp_path / "nan.csv", ["mx", "my", "mz"], data)
+    status, _, err = _run(capsys, "calibrate", rec, "--out", tmp_path / "c.json")
+    _one_line_refusal(status, err, "nan.csv", "found nan", "my")
+    assert "np.float64" not in err

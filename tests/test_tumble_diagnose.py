@@ -38,8 +38,9 @@ def test_clean_tumble_adds_nothing():
     d = res.diagnosis.block
     assert d["effects"] == [] and added(res) == [] and d["unexplained"] is False
     assert abs(d["noise_floor"] / sim.truth["noise_ut"] - 1.0) < 0.1
-    assert [s.get("model") for s in d["steps"]] == ["base", "mag_to_accel"]
-    assert d["steps"][1]["applied"] and d["steps"][1]["angle_rms_deg_after"] < d["steps"][1]["angle_rms_deg_before"]
+    # SPEC section 4: the base step, then only added effects; the frames' alignment is beside them
+    assert [s.get("model") for s in d["steps"]] == ["base"]
+    assert d["alignment"]["applied"] and d["alignment"]["angle_rms_deg_after"] < d["alignment"]["angle_rms_deg_before"]
     assert res.to_json()["effects"] == []
     assert "temperature" in d["not_applicable"]
 

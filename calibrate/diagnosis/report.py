@@ -39,7 +39,8 @@ def format_diagnosis(block: dict, unit: str = "output units") -> str:
     block : dict
         The diagnosis block (SPEC section 4).  Kind-specific keys it reads when present:
         ``subject`` (what the residual is), ``noise_floor_source``, ``structure_test.name``, a base
-        step's ``kind`` (the tumble's ellipsoid), ``mag_to_accel`` steps, and what moved:
+        step's ``kind`` (the tumble's ellipsoid), ``alignment`` (the tumble's mag-to-accel rotation, not
+        an effect, so not a step), and what moved:
         ``calibration_change`` (four-flip), ``offset_change`` (fits against known inputs),
         ``hard_iron_change`` (tumble).
     unit : str
@@ -52,11 +53,12 @@ def format_diagnosis(block: dict, unit: str = "output units") -> str:
         if step.get("model") == "base":
             kind = f" ({step['kind']} ellipsoid)" if "kind" in step else ""
             lines.append(f"  base model{kind}: residual rms {step['residual_rms']:.4g}")
-        elif step.get("model") == "mag_to_accel":
-            lines.append(f"  mag-to-accel rotation: residual rms {step['residual_rms']:.4g}, delta-BIC "
-                         f"{step['delta_bic']:.0f}; {step['evidence']}")
         else:
             lines += added_step_lines(step)
+    alignment = block.get("alignment")
+    if alignment:
+        lines.append(f"  mag-to-accel rotation: residual rms {alignment['residual_rms']:.4g}, delta-BIC "
+                     f"{alignment['delta_bic']:.0f}; {alignment['evidence']}")
     lines += remark_lines(block)
     added = len(block["steps"]) > 1 and block["effects"]
     change = block.get("calibration_change")

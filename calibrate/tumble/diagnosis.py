@@ -349,10 +349,11 @@ class TumbleDiagnosis(Diagnosis):
         evidence = (f"field-gravity angle rms about the dip {mis.spread_before_deg:.3f} -> {mis.spread_after_deg:.3f} deg "
                     f"over {mis.n_static} quasi-static samples; "
                     + ("rotation applied" if applied else "rotation not applied, frames taken as aligned"))
-        step = {"model": "mag_to_accel", "residual_rms": rms, "applied": applied,
-                "angle_rms_deg_before": mis.spread_before_deg, "angle_rms_deg_after": mis.spread_after_deg,
-                "evidence": evidence, "delta_bic": -mis.delta_bic}
-        block = dict(self.block, steps=self.block["steps"] + [step], residual_rms_after=rms)
+        # not an effect of the residual (SPEC section 4's steps add those): the frames' alignment, beside them
+        alignment = {"name": "mag_to_accel", "residual_rms": rms, "applied": applied,
+                     "angle_rms_deg_before": mis.spread_before_deg, "angle_rms_deg_after": mis.spread_after_deg,
+                     "evidence": evidence, "delta_bic": -mis.delta_bic}
+        block = dict(self.block, alignment=alignment, residual_rms_after=rms)
         block["unexplained"] = is_unexplained(block["structure_test"]["p_value"], rms, block["noise_floor"])
         return replace(self, fit=fit, block=block)
 
