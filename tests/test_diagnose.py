@@ -1,5 +1,7 @@
 """The diagnosis loop on recordings with an effect the estimator is not told about."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -24,6 +26,10 @@ def test_undeclared_effect_is_found_and_removed(write_session, effect):
     result = calibrate_fourflip(rec, diagnose=True)
     assert result.diagnosis["effects"] == [effect]
     assert [e["name"] for e in result.effects] == [effect]
+    # the file reads without this code: the effect's formula in its own parameter and reference names
+    entry = result.effects[0]
+    names = {n.split(".")[-1] for n in entry["parameters"]} | set(entry.get("reference", {})) - {"after_warm_up"}
+    assert all(n in entry["form"] or re.sub(r"\d+", "<k>", n) in entry["form"] for n in names), entry
     step = result.diagnosis["steps"][1]
     assert step["added"] == effect and step["delta_bic"] > 10 and step["evidence"]
     assert step["residual_rms"] < result.diagnosis["residual_rms_before"]

@@ -75,6 +75,11 @@ class Effect:
         """Where the effect is zero, so where the file's responses hold (written with the effect)."""
         return {}
 
+    @property
+    def form(self) -> str:
+        """The effect's formula in the file's parameter names, so the file reads without this code."""
+        raise NotImplementedError
+
 
 @dataclass(frozen=True)
 class NonlinearResponse(Effect):
@@ -96,6 +101,11 @@ class NonlinearResponse(Effect):
     def param_names(self, channels):
         return [f"{ch}.x{k}_rel_at_B" for ch in channels for k in self.powers]
 
+    @property
+    def form(self):
+        terms = " + ".join(f"x{k}_rel_at_B |B| (x/|B|)^{k}" for k in self.powers)
+        return f"output = offset + gain (x + {terms}), x = B.a in field units"
+
     def apply(self, physics, p, samples):
         # parameters: relative output change at |B| of each power, scale-free
         b = physics.field_magnitude
@@ -110,6 +120,11 @@ class EncoderError(Effect):
 
     def param_names(self, channels):
         return [f"encoder.{kind}{k}_deg" for k in range(1, ENCODER_HARMONICS + 1) for kind in ("cos", "sin")]
+
+    @property
+    def form(self):
+        return ("true turntable angle = platform_deg + sum_k (cos<k>_deg cos(k platform_deg) + sin<k>_deg "
+                f"sin(k platform_deg)), k = 1..{ENCODER_HARMONICS}, degrees")
 
     def apply(self, physics, p, samples):
         return physics.with_(encoder_fourier=np.degrees(p.reshape(ENCODER_HARMONICS, 2)))
@@ -133,6 +148,10 @@ class FlipError(Effect):
     def param_names(self, channels):
         return ["flip90.error_deg", "flip180.error_deg", "flip270.error_deg"]
 
+    @property
+    def form(self):
+        return "real flip = recorded flip_deg + flip<k>.error_deg, right-hand about the cube's X edge, degrees"
+
     def apply(self, physics, p, samples):
         rotvec = np.zeros((4, 3))
         rotvec[1:, 0] = np.degrees(p)
@@ -154,6 +173,11 @@ class PlatformField(Effect):
 
     def param_names(self, channels):
         return ["platform_field.y_fieldunit"]
+
+    @property
+    def form(self):
+        return ("a field (0, platform_field.y_fieldunit, 0) fixed to the turntable frame (it turns with it), "
+                "field units; its x and z parts are absorbed by the offsets and the dip")
 
     def apply(self, physics, p, samples):
         return physics.with_(platform_field=np.array([0.0, p[0], 0.0]) * physics.field_magnitude)
@@ -187,8 +211,13 @@ class OffsetDrift(Effect):
         drift = p.reshape(-1, self.degree) * physics.gains[:, None]
         return physics.with_(drift=drift, drift_t0=t0, drift_scale_s=half)
 
+    @property
+    def form(self):
+        return ("offset(t) = offset + gain sum_k drift_t<k>_fieldunit ((t_s - reference.t_s) / reference.half_span_s)^k, "
+                f"k = 1..{self.degree}")
+
     def reference(self, physics):
-        return {"t_s": float(physics.drift_t0)}  # the session's midpoint
+        return {"t_s": float(physics.drift_t0), "half_span_s": float(physics.drift_scale_s)}  # the session's midpoint
 
 
 @dataclass(frozen=True)
@@ -219,8 +248,14 @@ class WarmUp(OffsetDrift):
         tau = warm_up_tau_s(session, p[-1], high=6.0)
         return physics.with_(warmup=p[:-1] * physics.gains, warmup_tau_s=tau, drift_t0=samples.t_s.min())
 
+    @property
+    def form(self):
+        return ("offset(t) = offset + gain warmup_fieldunit exp(-(t_s - reference.t_s_first) / reference.tau_s), "
+                "tau_s = session exp(warmup.log_tau_over_session); offset is the settled one")
+
     def reference(self, physics):
-        return {"after_warm_up": True}  # the offsets the channels settle to
+        # the offsets the channels settle to
+        return {"after_warm_up": True, "t_s_first": float(physics.drift_t0), "tau_s": float(physics.warmup_tau_s)}
 
 
 class Temperature(Effect):
@@ -243,6 +278,11 @@ class Temperature(Effect):
 
     def report_scale(self, physics):
         return np.tile([1.0, 0.01], len(physics.gains))
+
+    @property
+    def form(self):
+        return ("offset(T) = offset + gain offset_fieldunit_per_degc (T - reference.temp_c); "
+                "gain(T) = gain (1 + gain_rel_per_degc (T - reference.temp_c)), T = temp_c")
 
     def reference(self, physics):
         return {"temp_c": float(physics.temp_ref_c)}
