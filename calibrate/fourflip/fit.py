@@ -21,6 +21,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import isotonic_regression
 
+from compass.frames import seed_angles
 from compass.io.fourflip import FourFlipRecording
 from compass.response import CubicResponse, LinearResponse, TableResponse
 from compass.sim.bench import BenchPhysics, BenchSamples
@@ -143,15 +144,16 @@ def _seed_rule_warning(rec, samples, noise, method, field_ut, dip_sign) -> str:
     """Why a seed rule's residual is above the floor: the recording, or the rule's own estimate.
 
     The joint fit (``ml``) is run: when it leaves the residual at the noise floor, the structure
-    is the rule's misestimate (a minimum picked on a flat curve, a channel's direction reversed),
-    not an effect the recording has.
+    is the rule's misestimate (a minimum picked on a flat curve, a dip from an ill-conditioned
+    crossing), not an effect the recording has.
     """
     ml = fit_ml(samples, rec.outputs, rec.channels, physics_from_harmonics(rec, field_ut, dip_sign), noise)
     if examine_residual(samples, ml.residuals, noise)["unexplained"]:
         return UNEXPLAINED_WARNING
     return (f"the {method} estimate leaves structure in the residual above the noise floor, but the joint fit "
             "(--method ml) of the same recording is at the floor: the misfit is this method's estimate (a "
-            "minimum picked on a flat curve, a direction reversed), not an effect of the recording; use --method ml")
+            "minimum picked on a flat curve, a dip from an ill-conditioned midpoint crossing), not an effect of the "
+            "recording; use --method ml")
 
 
 def _float_or_none(s):
@@ -240,8 +242,9 @@ def _seed_rule(rec, samples, noise, field_ut, dip_sign, *, from_samples: bool) -
         means = np.array([rec.outputs[rec.flip_index == k].mean(axis=0) for k in range(4)])
     else:
         minima, means = h.minimum_deg, h.mean
-    angles = hm.seed_direction(minima)
-    directions = angles["direction"]
+    # the minima cannot tell a from -a: each channel's sign comes from the harmonics (hm.orient)
+    directions = hm.orient(hm.seed_direction(minima)["direction"], hm.vector_harmonic(h, b, dip_sign))
+    angles = seed_angles(directions)
     midpoint = 0.5 * (means[0] + means[2])  # zero-field output from the 0/180 pair
     if from_samples:
         crossing = np.array([_first_crossing(rec, c, minima[0, c], midpoint[c]) for c in range(len(rec.channels))])
@@ -293,7 +296,8 @@ def _seed_rule(rec, samples, noise, field_ut, dip_sign, *, from_samples: bool) -
 
 
 def _seed_azimuth(minima, angles) -> float:
-    """Field azimuth implied by the flip-0 minimum of the best-resolved channel."""
+    """Field azimuth implied by the flip-0 minimum of the best-resolved channel: there its horizontal
+    projection, at azimuth ``platform + theta`` in W, points away from the field."""
     c = int(np.argmax(np.cos(np.radians(angles["elevation_deg"]))))
     return float(np.mod(minima[0, c] - 180.0 + angles["theta_deg"][c], 360.0))
 
