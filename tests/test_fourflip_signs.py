@@ -50,3 +50,100 @@ def test_orient_uses_the_well_conditioned_evidence(write_session):
     oriented = hm.orient(wrong, v)
     np.testing.assert_allclose(oriented, truth["directions"], atol=0.01)
     assert v.vertical_sigmas > 100  # two channels with vertical components, dip 40-70 deg
+
+
+# ------------------------------------------------------------------------------------- the hemisphere
+
+SOUTH_SITE, SOUTH_DATE = "-35.3,149.1", "2026-03-01"  # Canberra: WMM dip about -66 deg
+
+
+@pytest.fixture(scope="module")
+def southern_bench(tmp_path_factory):
+    """A bench session at the southern site (its WMM dip and |B|), and its truth."""
+    from compass.sim.fourflip import simulate_fourflip, write_fourflip
+    from compass.site import Site
+
+    wmm = Site.parse(SOUTH_SITE, SOUTH_DATE).field()
+    session = simulate_fourflip(seed=33, dip_deg=wmm.dip_deg, field_ut=wmm.field_ut)
+    path, _ = write_fourflip(session, tmp_path_factory.mktemp("south") / "south.csv")
+    return path, session.truth
+
+
+def test_southern_bench_without_latitude_says_which_hemisphere_was_taken(southern_bench, tmp_path, capsys):
+    from compass.cli import main
+
+    path, truth = southern_bench
+    assert truth["dip_deg"] < -60
+    out = tmp_path / "cal.json"
+    assert main(["calibrate", str(path), "--out", str(out), "--no-diagnose"]) == 0
+    report = capsys.readouterr().out
+    # the data alone give the mirror image (a, B) -> (-a, -B): the report must say what was assumed and how to change it
+    assert "hemisphere: northern" in report and "site_lat_deg" in report and "--site" in report
+    import json
+
+    doc = json.loads(out.read_text())
+    assert doc["dip_deg"] > 0 and doc["hemisphere"]["assumed"] == "north" and doc["hemisphere"]["default"]
+
+
+def test_site_sets_the_bench_hemisphere(southern_bench, tmp_path, capsys):
+    import json
+
+    from compass.cli import main
+
+    path, truth = southern_bench
+    out = tmp_path / "cal.json"
+    assert main(["calibrate", str(path), "--out", str(out), "--no-diagnose", "--site", SOUTH_SITE,
+                 "--date", SOUTH_DATE]) == 0
+    assert "hemisphere: southern" in capsys.readouterr().out
+    doc = json.loads(out.read_text())
+    assert doc["hemisphere"]["assumed"] == "south" and doc["dip_deg"] == pytest.approx(truth["dip_deg"], abs=0.1)
+    for name, a in zip(truth["channels"], truth["directions"]):
+        ch = doc["channels"][name]
+        assert _signed_angle_deg(ch["direction"], a) < 4 * ch["direction_sigma_deg"]
+    # the site check against the WMM ran on the same site (the simulated dip is the WMM's)
+    assert abs(doc["site_check"]["dip_difference_sigma"]) < 3
+
+
+def test_attitude_refuses_a_calibration_whose_field_is_upside_down(southern_bench, tmp_path, capsys):
+    """Calibrated as northern, used at the southern site: the measured field is -B (dip turned over);
+    before, every row was marked disturbed with the heading 180 deg off and exit 0."""
+    import json
+
+    from compass.cli import main
+    from compass.sim.runtime import simulate_runtime, write_runtime
+
+    path, truth = southern_bench
+    wrong, right = tmp_path / "wrong.json", tmp_path / "right.json"
+    assert main(["calibrate", str(path), "--out", str(wrong), "--no-diagnose", "--quiet"]) == 0
+    assert main(["calibrate", str(path), "--out", str(right), "--no-diagnose", "--quiet", "--site", SOUTH_SITE]) == 0
+    rec, _ = write_runtime(simulate_runtime(truth, 200, seed=34, max_tilt_deg=40.0), tmp_path / "rec.csv")
+    capsys.readouterr()
+    site = ["--site", SOUTH_SITE, "--date", SOUTH_DATE]
+    assert main(["attitude", str(wrong), str(rec), "--out", str(tmp_path / "a.csv"), *site]) == 2
+    err = capsys.readouterr().err
+    assert "upside down" in err and "site_lat_deg" in err and "wrong.json" in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    # the same through the file's site block
+    block = tmp_path / "wrong_site.json"
+    from compass.site import Site
+
+    block.write_text(json.dumps(json.loads(wrong.read_text()) | {"site": Site.parse(SOUTH_SITE, SOUTH_DATE).to_json()}))
+    assert main(["attitude", str(block), str(rec), "--out", str(tmp_path / "b.csv")]) == 2
+    assert "upside down" in capsys.readouterr().err
+    # the right calibration at the same site: solved, nothing disturbed
+    assert main(["attitude", str(right), str(rec), "--out", str(tmp_path / "c.csv"), *site]) == 0
+    from compass.io.table import read_table
+
+    assert read_table(tmp_path / "c.csv").column("disturbed").mean() <= 0.01
+
+
+def test_upside_down_is_judged_only_against_a_given_reference():
+    from compass.site import known_reference, upside_down
+
+    dips = np.full(50, -60.0)
+    assert upside_down(dips, known_reference(60.0, 50.0)) is not None
+    assert upside_down(-dips, known_reference(60.0, 50.0)) is None
+    assert upside_down(np.full(50, -4.0), known_reference(4.0, 50.0)) is None  # near the magnetic equator
+    from dataclasses import replace
+
+    assert upside_down(dips, replace(known_reference(60.0, 50.0), source="recording")) is None

@@ -28,7 +28,7 @@ from compass.sim.bench import BenchPhysics, BenchSamples
 
 from . import _harmonic as hm
 from ._mlfit import MLFit, fit_ml
-from ..contract import Calibrator
+from ..contract import Calibrator, CannotCalibrate
 from .diagnosis import UNEXPLAINED_WARNING, diagnose_fourflip, examine_residual
 from ..noise import SPIKE_SIGMAS, find_spikes, noise_floor
 from .result import CalibrationResult, ChannelCalibration
@@ -39,11 +39,14 @@ __all__ = ["METHODS", "FourFlipCalibrator", "calibrate_fourflip", "physics_from_
 METHODS = ("ml", "harmonic", "patent")
 _TABLE_BINS = 36
 _POORLY_DETERMINED_DEG = 1.0
+_VERTICAL_SIGMAS = 5.0
+"""Below this, the flip means do not show the vertical field well enough for the hemisphere to fix the
+directions' common sign (a one-sided 5-sigma test: chance 3e-7 of a wrong sign when it passes)."""
 
 
 def calibrate_fourflip(
     rec: FourFlipRecording, *, method: str = "ml", field_ut: float | None = None, dip_sign: float | None = None,
-    diagnose: bool = False, progress=None,
+    site=None, diagnose: bool = False, progress=None,
 ) -> CalibrationResult:
     """Calibrate every channel of a four-flip recording.
 
@@ -57,7 +60,11 @@ def calibrate_fourflip(
     dip_sign : {+1, -1}, optional
         The data cannot tell the field's sign from the channels' (``(a, B)`` and ``(-a, -B)``
         give the same outputs); +1 (field points down, northern hemisphere) unless the
-        metadata's ``site_lat_deg`` is negative.
+        metadata's ``site_lat_deg`` is negative.  The result's ``extra["hemisphere"]`` says which
+        was taken and why; the report says it in words.
+    site : compass.site.Site, optional
+        Where and when the bench session was recorded, instead of the metadata's ``site_lat_deg``,
+        ``site_lon_deg``, ``site_alt_m`` and ``date``: sets the hemisphere and the WMM site check.
     diagnose : bool
         Run the residual diagnosis loop (:mod:`calibrate.fourflip.diagnosis`): with ``ml`` the final model
         includes every effect the evidence supports; with the seed's rules the residual is only
@@ -68,24 +75,31 @@ def calibrate_fourflip(
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     field_ut = field_ut if field_ut is not None else rec.field_ut
-    if dip_sign is None:
-        lat = _float_or_none(rec.metadata.get("site_lat_deg"))
-        dip_sign = -1.0 if lat is not None and lat < 0 else 1.0
+    metadata = rec.metadata if site is None else rec.metadata | {
+        "site_lat_deg": site.lat_deg, "site_lon_deg": site.lon_deg, "site_alt_m": site.alt_m,
+        "date": site.date.isoformat()}
+    dip_sign, hemisphere = _hemisphere(metadata, dip_sign, "--site" if site is not None else "the recording")
     noise = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs)
     noise = np.where(noise > 0, noise, np.std(rec.outputs, axis=0) * 1e-3)
     spikes = find_spikes(rec.platform_deg, rec.flip_index, rec.outputs, noise)
     if spikes.any():
         rec = rec.subset(~spikes)
     result = _estimate(rec, BenchSamples.from_recording(rec), noise, method, field_ut, dip_sign, diagnose, progress)
-    extra = dict(result.extra)
+    vertical = hm.vector_harmonic(hm.fit_harmonics(rec.platform_deg, rec.flip_index, rec.outputs), 1.0,
+                                  dip_sign).vertical_sigmas
+    extra = dict(result.extra) | {"hemisphere": hemisphere | {"vertical_field_sigmas": vertical}}
     warnings = result.warnings
+    if vertical < _VERTICAL_SIGMAS:
+        warnings = warnings + (f"the flip means hardly show the vertical field ({vertical:.1f} sigma: dip near 0, or "
+                               "every channel along housing X): the data cannot tell these directions from their "
+                               "negatives, and the hemisphere cannot either; their common sign is a guess",)
     if spikes.any():
         extra["spikes_dropped"] = int(spikes.sum())
         warnings = warnings + (f"{int(spikes.sum())} sample(s) dropped as spikes (more than {SPIKE_SIGMAS:g} noise "
                                "sigmas off their neighbours): line or sensor glitches",)
-    site = compare_with_site(result.dip_deg, result.dip_sigma_deg, rec.metadata, rec.path)
-    if site is not None:
-        extra["site_check"] = site
+    site_check = compare_with_site(result.dip_deg, result.dip_sigma_deg, metadata, rec.path)
+    if site_check is not None:
+        extra["site_check"] = site_check
     return replace(result, extra=extra, warnings=warnings, kept=~spikes if spikes.any() else None)
 
 
@@ -97,6 +111,11 @@ class FourFlipCalibrator(Calibrator):
     method : {"ml", "harmonic", "patent"}
     field_ut : float, optional
         |B| in uT; default the recording's ``field_ut`` metadata.
+    site : str, optional
+        ``LAT,LON[,ALT_M]`` where the bench stood (``--site``): sets the hemisphere (the data cannot
+        tell ``(a, B)`` from ``(-a, -B)``) and the WMM site check, over the recording's metadata.
+    date : str, optional
+        ``YYYY-MM-DD`` with ``site`` (default the metadata's ``date``, else today).
     diagnose : bool
         Run the residual diagnosis loop (SPEC section 4).
     progress : callable, optional
@@ -106,12 +125,29 @@ class FourFlipCalibrator(Calibrator):
     kind = "fourflip"
     plot_files = ("fit.png", "residuals.png")
 
-    def __init__(self, *, method: str = "ml", field_ut: float | None = None, diagnose: bool = True, progress=None):
+    def __init__(self, *, method: str = "ml", field_ut: float | None = None, site: str | None = None,
+                 date: str | None = None, diagnose: bool = True, progress=None):
         self.method, self.field_ut, self.diagnose, self.progress = method, field_ut, diagnose, progress
+        self.site, self.date = site, date
 
     def fit(self, recording: FourFlipRecording) -> CalibrationResult:
-        return calibrate_fourflip(recording, method=self.method, field_ut=self.field_ut, diagnose=self.diagnose,
+        return calibrate_fourflip(recording, method=self.method, field_ut=self.field_ut,
+                                  site=_bench_site(self.site, self.date, recording), diagnose=self.diagnose,
                                   progress=self.progress)
+
+
+def _bench_site(site, date, rec: FourFlipRecording):
+    """``--site`` and ``--date`` as a Site (the date defaults to the recording's), None without a site."""
+    from compass.site import Site
+
+    if site is None:
+        if date is not None:
+            raise CannotCalibrate("--date needs --site LAT,LON[,ALT_M]: the date only chooses the field at a site")
+        return None
+    try:
+        return Site.parse(site, date if date is not None else rec.metadata.get("date"))
+    except ValueError as exc:
+        raise CannotCalibrate(str(exc)) from None
 
 
 def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progress) -> CalibrationResult:
@@ -154,6 +190,20 @@ def _seed_rule_warning(rec, samples, noise, method, field_ut, dip_sign) -> str:
             "(--method ml) of the same recording is at the floor: the misfit is this method's estimate (a "
             "minimum picked on a flat curve, a dip from an ill-conditioned midpoint crossing), not an effect of the "
             "recording; use --method ml")
+
+
+def _hemisphere(metadata: dict, dip_sign, where: str) -> tuple[float, dict]:
+    """The field's sign (+1 pointing down) and where it came from, for the file and the report."""
+    lat = _float_or_none(metadata.get("site_lat_deg"))
+    if dip_sign is not None:
+        source = "the caller (dip_sign)"
+    elif lat is not None:
+        dip_sign = -1.0 if lat < 0 else 1.0
+        source = f"--site latitude {lat:g}" if where == "--site" else f"'# site_lat_deg: {lat:g}' in the recording"
+    else:
+        dip_sign, source = 1.0, "the default: no '# site_lat_deg:' in the recording"
+    return float(np.sign(dip_sign)), {"assumed": "north" if dip_sign > 0 else "south", "from": source,
+                                      "default": source.startswith("the default")}
 
 
 def _float_or_none(s):
