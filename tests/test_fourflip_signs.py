@@ -147,3 +147,65 @@ def test_upside_down_is_judged_only_against_a_given_reference():
     from dataclasses import replace
 
     assert upside_down(dips, replace(known_reference(60.0, 50.0), source="recording")) is None
+
+
+# ------------------------------------------------------------------------------------- calibrated ranges
+
+
+def _expected_range(direction, dip_deg, field):
+    """min and max of B.a over the four flips and a full turn: in flip k the channel's vertical
+    component is v_k = (Rx(k 90 deg) a)_z, so B.a = -|B| sin(dip) v_k +- |B| cos(dip) sqrt(1 - v_k^2)."""
+    a = _unit(direction)
+    v = np.array([a[2], a[1], -a[2], -a[1]])
+    d = np.radians(dip_deg)
+    centre, swing = -field * np.sin(d) * v, field * np.cos(d) * np.sqrt(1 - v**2)
+    return np.min(centre - swing), np.max(centre + swing)
+
+
+@pytest.mark.parametrize("method", ["ml", "harmonic"])
+def test_calibrated_range_is_the_field_each_channel_saw(write_session, method):
+    # before: [-|B|, |B|] for every channel, although flips about X never turn the X channel vertical
+    rec, truth = write_session(seed=35, directions=NEGATIVE_X, dip_deg=62.0)
+    result = calibrate_fourflip(rec, method=method)
+    field = truth["field_ut"]
+    for ch, a in zip(result.channels, truth["directions"]):
+        lo, hi = _expected_range(a, truth["dip_deg"], field)
+        # the fitted direction and dip are good to << 0.1 deg (harmonic's dip to ~1 deg: 2 % of |B|)
+        tol = 0.002 * field if method == "ml" else 0.03 * field
+        assert ch.response.x_range == pytest.approx((lo, hi), abs=tol)
+    x_lo, x_hi = result.channels[0].response.x_range
+    # the X channel: |B| (cos(62 deg) + sin(62 deg) 0.035) = 0.50 |B|, its 2 deg tilt toward Y adding 0.03
+    assert x_hi < 0.52 * field and x_lo > -0.52 * field
+
+
+def test_runtime_flags_extrapolated_curves_and_counts_extrapolated_lines(write_session, tmp_path, capsys):
+    """Tilted far, the X channel reads beyond the +-|B| cos(dip) it was calibrated over: a linear
+    response is the same line there (counted, not flagged); a nonlinear one is flagged."""
+    import json
+
+    from compass.cli import main
+    from compass.io.table import read_table
+    from compass.sim.runtime import simulate_runtime, write_runtime
+
+    rec, truth = write_session(seed=36, directions=NEGATIVE_X, dip_deg=62.0)
+    result = calibrate_fourflip(rec, method="ml")
+    doc = result.to_json()
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps(doc))
+    session = simulate_runtime(truth, 300, seed=37, max_tilt_deg=70.0)
+    path, _ = write_runtime(session, tmp_path / "att.csv")
+    x_true = session.field_h @ np.asarray(truth["directions"]).T
+    lo, hi = result.channels[0].response.x_range
+    margin = 0.02 * (hi - lo) + 0.05 * truth["field_ut"]  # the recording's noise: far below 5 % of |B|
+    surely_beyond = int(np.sum((x_true[:, 0] > hi + margin) | (x_true[:, 0] < lo - margin)))
+    assert surely_beyond > 30  # the case exists in this recording
+    assert main(["attitude", str(cal), str(path), "--out", str(tmp_path / "a.csv")]) == 0
+    out = read_table(tmp_path / "a.csv")
+    assert out.column("in_range").all()
+    counted = int(out.metadata["extrapolated"].split()[0])
+    assert counted >= surely_beyond and "linear" in out.metadata["extrapolated"]
+    # the same channel with a cubic response: its curve is extrapolated there, and those rows are flagged
+    doc["channels"][truth["channels"][0]]["response"] |= {"model": "cubic", "cubic": -1e-6}
+    cal.write_text(json.dumps(doc))
+    assert main(["attitude", str(cal), str(path), "--out", str(tmp_path / "b.csv")]) == 0
+    assert np.sum(read_table(tmp_path / "b.csv").column("in_range") == 0) >= surely_beyond

@@ -24,7 +24,7 @@ from scipy.optimize import isotonic_regression
 from compass.frames import seed_angles
 from compass.io.fourflip import FourFlipRecording
 from compass.response import CubicResponse, LinearResponse, TableResponse
-from compass.sim.bench import BenchPhysics, BenchSamples
+from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, housing_field
 
 from . import _harmonic as hm
 from ._mlfit import MLFit, fit_ml
@@ -227,7 +227,7 @@ def result_from_ml(fit: MLFit, rec: FourFlipRecording, noise, field_ut, *, effec
     sigma = fit.sigma
     per = 4
     channels = []
-    x_range = _field_range(fit)
+    x_range = _seen_range(phys, BenchSamples.from_recording(rec))
     for c, name in enumerate(rec.channels):
         off_sigma = float(sigma[per * c + 2] * phys.gains[c]) if np.isfinite(sigma[per * c + 2]) else None
         gain_sigma = float(sigma[per * c + 3] * phys.gains[c]) if np.isfinite(sigma[per * c + 3]) else None
@@ -266,10 +266,16 @@ def result_from_ml(fit: MLFit, rec: FourFlipRecording, noise, field_ut, *, effec
     )
 
 
-def _field_range(fit: MLFit) -> np.ndarray:
-    """Field components each channel saw, (c, 2) in field units: the calibrated range."""
-    b = fit.physics.field_magnitude
-    return np.tile([-b, b], (len(fit.physics.gains), 1))
+def _seen_range(physics: BenchPhysics, samples: BenchSamples) -> np.ndarray:
+    """Field component ``B . a`` each channel saw over the session, (c, 2) in field units: its
+    calibrated range.
+
+    Not ``[-|B|, |B|]``: flips about X never turn a channel's X component vertical, so a channel
+    along X sees only ``|B| cos(dip)`` (plus what its tilt adds); a channel along Y or Z reaches
+    ``|B| sin(dip)`` where the flip makes it vertical and ``|B| cos(dip)`` where horizontal.
+    """
+    x = housing_field(physics, samples) @ physics.directions.T
+    return np.column_stack([x.min(axis=0), x.max(axis=0)])
 
 
 def _response_from_physics(phys: BenchPhysics, c: int, x_range) -> LinearResponse | CubicResponse:
@@ -326,8 +332,9 @@ def _seed_rule(rec, samples, noise, field_ut, dip_sign, *, from_samples: bool) -
         channels.append(ChannelCalibration(name, directions[c], None, response))
     physics = BenchPhysics(directions, np.array([ch.response.offset for ch in channels]),
                            np.array([ch.response.gain for ch in channels]), dip, _seed_azimuth(minima, angles), b)
-    from compass.sim.bench import bench_outputs
-
+    if not from_samples:  # a table's range is its own support (one flip); a line's is what the session saw
+        seen = _seen_range(physics, samples)
+        channels = [replace(ch, response=replace(ch.response, x_range=tuple(seen[c]))) for c, ch in enumerate(channels)]
     residuals = rec.outputs - bench_outputs(physics, samples)
     extra = {"seed_rule": {"minima_deg": minima.T.tolist(), "dip_per_channel_deg": dips.tolist(),
                            "dip_from_channel": rec.channels[best], "midpoint_value": midpoint.tolist()}}
@@ -402,4 +409,4 @@ def _harmonic_linear(h, c, direction, dip, b, midpoint) -> LinearResponse:
     horizontal = np.array([np.cos(_flip_elevation(direction, k)) for k in range(4)])
     amp = h.amplitude[:, c]
     gain = np.sqrt(np.sum(amp**2) / np.sum(horizontal**2)) / (b * np.cos(np.radians(dip)))
-    return LinearResponse(float(midpoint), float(gain), (-b, b))
+    return LinearResponse(float(midpoint), float(gain))
