@@ -209,3 +209,37 @@ def test_runtime_flags_extrapolated_curves_and_counts_extrapolated_lines(write_s
     cal.write_text(json.dumps(doc))
     assert main(["attitude", str(cal), str(path), "--out", str(tmp_path / "b.csv")]) == 0
     assert np.sum(read_table(tmp_path / "b.csv").column("in_range") == 0) >= surely_beyond
+
+
+# ------------------------------------------------------------------------------------- one and two channels
+
+
+@pytest.mark.parametrize("directions", [[[0.6, 0.5, 0.62]], [[1.0, 0.035, -0.026], [-0.021, 1.0, 0.052]]],
+                         ids=["one", "two"])
+def test_one_and_two_channel_benches_calibrate_and_the_runtime_refuses_them(write_session, tmp_path, capsys,
+                                                                             directions):
+    """SPEC: a recording with one channel is a single-axis calibration (before: exit 2, 'a field vector
+    needs at least 3 channels'). The minimum of three belongs to the runtime."""
+    import json
+
+    from compass.cli import main
+
+    rec, truth = write_session(seed=38, directions=directions, dip_deg=62.0)
+    cal = tmp_path / "cal.json"
+    assert main(["calibrate", rec.path, "--out", str(cal), "--no-diagnose"]) == 0
+    assert "single-axis" in capsys.readouterr().out
+    doc = json.loads(cal.read_text())
+    assert list(doc["channels"]) == list(truth["channels"])
+    for name, a in zip(truth["channels"], truth["directions"]):
+        ch = doc["channels"][name]
+        assert ch["response"]["gain"] > 0
+        assert _signed_angle_deg(ch["direction"], a) < 4 * ch["direction_sigma_deg"]
+    att = tmp_path / "att.csv"
+    att.write_text("t_s," + ",".join(truth["channels"]) + ",ax,ay,az\n0.0," + ",".join(["1.0"] * len(directions))
+                   + ",0,0,1\n")
+    for args in (["attitude", str(cal), str(att), "--out", str(tmp_path / "o.csv")],
+                 ["export", str(cal), "--format", "fusion"],
+                 ["live", "--port", str(tmp_path / "no-such-port"), "--cal", str(cal), "--duration", "1"]):
+        assert main(args) == 2
+        err = capsys.readouterr().err
+        assert "at least 3 channels" in err and "cal.json" in err and len(err.strip().splitlines()) == 1, err

@@ -89,6 +89,10 @@ def calibrate_fourflip(
                                   dip_sign).vertical_sigmas
     extra = dict(result.extra) | {"hemisphere": hemisphere | {"vertical_field_sigmas": vertical}}
     warnings = result.warnings
+    if len(rec.channels) < 3:
+        warnings = warnings + (f"{len(rec.channels)} channel{'s' if len(rec.channels) > 1 else ''}: a single-axis "
+                               "calibration, valid as such; heading, pitch and roll need at least 3 channels calibrated "
+                               "together (compass attitude and live refuse this file)",)
     if vertical < _VERTICAL_SIGMAS:
         warnings = warnings + (f"the flip means hardly show the vertical field ({vertical:.1f} sigma: dip near 0, or "
                                "every channel along housing X): the data cannot tell these directions from their "
