@@ -243,3 +243,15 @@ def test_one_and_two_channel_benches_calibrate_and_the_runtime_refuses_them(writ
         assert main(args) == 2
         err = capsys.readouterr().err
         assert "at least 3 channels" in err and "cal.json" in err and len(err.strip().splitlines()) == 1, err
+
+
+@pytest.mark.parametrize("directions, dip_deg, warned", [
+    ([[1.0, 0.0, 0.0]], 62.0, True),                 # only X: never vertical, the flip means see nothing
+    (np.eye(3).tolist(), 0.0, True),                 # the magnetic equator: no vertical field to see
+    (np.eye(3).tolist(), 0.5, False),                # 0.5 deg is seen: about 110 sigma here
+    (np.eye(3).tolist(), 62.0, False)])
+def test_warns_when_the_hemisphere_cannot_fix_the_directions_sign(write_session, directions, dip_deg, warned):
+    rec, _ = write_session(seed=39, directions=directions, dip_deg=dip_deg)
+    result = calibrate_fourflip(rec, method="ml")
+    said = any("hardly show the vertical field" in w for w in result.warnings)
+    assert said == warned, (result.extra["hemisphere"], result.warnings)
