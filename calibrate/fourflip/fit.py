@@ -166,7 +166,7 @@ def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progres
     start = physics_from_harmonics(rec, field_ut, dip_sign)
     if not diagnose:
         fit = fit_ml(samples, rec.outputs, rec.channels, start, noise)
-        return result_from_ml(fit, rec, noise, field_ut)
+        return result_from_ml(fit, rec, noise, field_ut, samples=samples)
     base, fit, diagnosis = diagnose_fourflip(rec, start, noise, progress=progress)
     effects = []
     for effect in fit.effects:
@@ -176,7 +176,8 @@ def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progres
         reference = effect.reference(fit.physics)
         effects.append({**entry, "reference": reference} if reference else entry)
     warnings = (UNEXPLAINED_WARNING,) if diagnosis["unexplained"] else ()
-    result = result_from_ml(fit, rec, noise, field_ut, effects=effects, diagnosis=diagnosis, extra_warnings=warnings)
+    result = result_from_ml(fit, rec, noise, field_ut, effects=effects, diagnosis=diagnosis, extra_warnings=warnings,
+                            samples=samples)
     return replace(result, base_residuals=base.residuals) if fit.effects else result
 
 
@@ -225,13 +226,17 @@ def physics_from_harmonics(rec: FourFlipRecording, field_ut, dip_sign) -> BenchP
 
 
 def result_from_ml(fit: MLFit, rec: FourFlipRecording, noise, field_ut, *, effects=(), diagnosis=None,
-                   extra_warnings=()) -> CalibrationResult:
-    """Package a joint fit as a CalibrationResult (directions, responses, sigmas, warnings)."""
+                   extra_warnings=(), samples: BenchSamples | None = None) -> CalibrationResult:
+    """Package a joint fit as a CalibrationResult (directions, responses, sigmas, warnings).
+
+    ``samples`` are the recording's (:meth:`BenchSamples.from_recording`, made when not given): they
+    give each channel's calibrated range.
+    """
     phys = fit.physics
     sigma = fit.sigma
     per = 4
     channels = []
-    x_range = _seen_range(phys, BenchSamples.from_recording(rec))
+    x_range = _seen_range(phys, samples if samples is not None else BenchSamples.from_recording(rec))
     for c, name in enumerate(rec.channels):
         off_sigma = float(sigma[per * c + 2] * phys.gains[c]) if np.isfinite(sigma[per * c + 2]) else None
         gain_sigma = float(sigma[per * c + 3] * phys.gains[c]) if np.isfinite(sigma[per * c + 3]) else None
