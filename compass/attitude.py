@@ -228,6 +228,9 @@ def solve_attitude(
         No gravity and no tilt (the field alone fixes two angles of three), more than one
         source of tilt, a calibration without noise, or no reference and too few quiet rows to
         estimate one.
+    UnusableCalibration
+        The calibrated field points the other way from a given reference (its dip turned over:
+        :func:`compass.site.upside_down`), or the calibration's noise is out of any sensible range.
 
     Notes
     -----
