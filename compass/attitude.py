@@ -33,7 +33,7 @@ from scipy.spatial.transform import Rotation
 from .frames import heading_pitch_roll, r_world_from_housing, world_field
 from .model import SensorModel
 from .sample_check import skip_codes
-from .site import ReferenceField, reference_from_recording
+from .site import ReferenceField, reference_from_recording, upside_down
 
 __all__ = ["Attitude", "UnusableCalibration", "solve_attitude", "two_vector_rotation", "level_heading_bound_deg"]
 
@@ -228,6 +228,9 @@ def solve_attitude(
         No gravity and no tilt (the field alone fixes two angles of three), more than one
         source of tilt, a calibration without noise, or no reference and too few quiet rows to
         estimate one.
+    UnusableCalibration
+        The calibrated field points the other way from a given reference (its dip turned over:
+        :func:`compass.site.upside_down`), or the calibration's noise is out of any sensible range.
 
     Notes
     -----
@@ -341,6 +344,9 @@ def _solve(model: SensorModel, field: np.ndarray, in_range: np.ndarray, *, accel
 
     mu = _dot(m, up)
     dip = np.degrees(np.arcsin(np.clip(-mu, -1.0, 1.0)))
+    flipped = upside_down(dip, reference)
+    if flipped is not None:
+        raise UnusableCalibration(flipped)
     # sigma of the dip: d(m.u) = (Q_m u) . dB / |B| + (Q_u m) . du; the reference's adds
     qm = m - mu * up
     dip_sigma = np.degrees(np.sqrt((field_quad(up - mu * m) / b_norm**2 + up_var * _dot(qm, qm))

@@ -34,7 +34,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-__all__ = ["FORMAT", "KIND_KEY", "CalibrationFile", "CalibrationFileError", "MODEL_READERS", "SECTION_READERS",
+__all__ = ["FORMAT", "KIND_KEY", "CalibrationFile", "CalibrationFileError", "MODEL_READERS", "NoFieldVector",
+           "SECTION_READERS",
            "channel_entry", "dumps", "from_dict", "header", "kind_of", "load", "write"]
 
 FORMAT = "compass-calibration/1"
@@ -73,7 +74,13 @@ class CalibrationFileError(ValueError):
 
     def in_file(self, path) -> "CalibrationFileError":
         """The same error naming ``path``."""
-        return CalibrationFileError(self.reason, key=self._key, path=path)
+        return type(self)(self.reason, key=self._key, path=path)
+
+
+class NoFieldVector(CalibrationFileError):
+    """A valid calibration of channels that cannot give a field vector (fewer than three, or
+    coplanar: :class:`compass.model.NotAFieldVector`): written by the calibration, refused on
+    reading by everything that solves the field."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -157,7 +164,10 @@ def dumps(doc: dict) -> str:
     ------
     CalibrationFileError
     """
-    from_dict(doc)
+    try:
+        from_dict(doc)
+    except NoFieldVector:
+        pass  # single-axis channels (or coplanar ones): a valid calibration the vector runtime refuses on reading
     return json.dumps(_finite_or_null(doc), indent=2, allow_nan=False) + "\n"
 
 
@@ -431,7 +441,7 @@ def _response(v, key: tuple):
 
 
 def _channel_model(d: dict):
-    from .model import SensorModel
+    from .model import NotAFieldVector, SensorModel
 
     field_ut, dip_deg = _common(d)
     channels = d.get("channels")
@@ -477,6 +487,8 @@ def _channel_model(d: dict):
         )
     except CalibrationFileError:
         raise
+    except NotAFieldVector as exc:
+        raise NoFieldVector(f"cannot give a field vector: {exc}", key="channels") from None
     except ValueError as exc:
         raise CalibrationFileError(f"are unusable: {exc}", key="channels") from None
 

@@ -31,10 +31,18 @@ from .calibration_file import FORMAT, header
 from .response import LinearResponse, Response
 from .temperature import TemperatureCompensation
 
-__all__ = ["FORMAT", "SensorModel"]
+__all__ = ["FORMAT", "NotAFieldVector", "SensorModel"]
 
 _MIN_SINGULAR = 1e-3  # smallest singular value of A (unit rows) accepted: axes must span 3-D
 _SLOPE_STEP = 1e-4  # relative step of the numerical response slope (nonlinear channels only)
+
+
+class NotAFieldVector(ValueError):
+    """The channels are calibrated but cannot give a field vector: fewer than three, or coplanar.
+
+    A calibration file of such channels is valid (SPEC: a one-channel recording is a single-axis
+    calibration) and is written; everything that solves the field vector refuses it.
+    """
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,9 +93,6 @@ class SensorModel:
 
     def __post_init__(self):
         c = len(self.channels)
-        if c < 3:
-            raise ValueError(f"a field vector needs at least 3 channels, the calibration has {c} "
-                             f"({', '.join(self.channels)})")
         if np.shape(self.directions) != (c, 3) or len(self.responses) != c:
             raise ValueError(f"expected {c} directions of shape (3,) and {c} responses, got "
                              f"{np.shape(self.directions)} and {len(self.responses)}")
@@ -95,10 +100,14 @@ class SensorModel:
             raise ValueError("sensing directions must be finite")
         if not self.field_magnitude > 0:
             raise ValueError(f"calibrated |B| must be positive, got {self.field_magnitude}")
+        if c < 3:
+            raise NotAFieldVector(f"the calibration has {c} channel{'s' if c > 1 else ''} ({', '.join(self.channels)}): "
+                                  "a calibration of single-axis channels, valid as such, but the field vector (and "
+                                  "heading, pitch, roll) needs at least 3 channels calibrated together")
         smallest = np.linalg.svd(self.unit_directions, compute_uv=False)[-1]
         if smallest < _MIN_SINGULAR:
-            raise ValueError(f"the sensing directions of {', '.join(self.channels)} do not span three "
-                             f"dimensions (smallest singular value {smallest:.2g}): the field cannot be solved")
+            raise NotAFieldVector(f"the sensing directions of {', '.join(self.channels)} do not span three "
+                                  f"dimensions (smallest singular value {smallest:.2g}): the field cannot be solved")
 
     # ------------------------------------------------------------------ construction
 

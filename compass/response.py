@@ -2,8 +2,14 @@
 
 A channel's output ``v`` is a monotone increasing function of the field component along its
 sensing direction, ``x = B . a``, in field units (uT when the calibration knows |B|, otherwise
-units of |B|).  Every response keeps the range of ``x`` it was calibrated over; the inverse flags
-readings outside it instead of extrapolating silently.
+units of |B|).  Every response keeps the range of ``x`` it was calibrated over.  The inverse flags
+a reading that rests on a nonlinear curve extrapolated beyond it (a fitted cubic or table is
+continued with its end slopes: not to be trusted).  A linear response beyond its range is the same
+straight line: the only error it can add is a nonlinearity too small for the calibration to see
+inside the range, grown as ``(x / x_max)^3`` for an odd cubic; that is not flagged
+(:meth:`Response.beyond_range` still tells).  Four-flip benches make this common: flips about X
+never turn a channel's X component vertical, so a channel along X is calibrated over only
+``|B| cos(dip)``.
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ class Response:
     x_range: tuple[float, float] = (-np.inf, np.inf)
 
     model = "linear"
+    nonlinear = False  # beyond its range, a nonlinear curve is extrapolated; a line stays itself
 
     def shape(self, x: np.ndarray) -> np.ndarray:
         """The normalised curve g(x); identity for a linear channel."""
@@ -53,15 +60,21 @@ class Response:
         x : ndarray
             Field component along the sensing direction (field units), same shape as ``v``.
         in_range : ndarray of bool
-            False where ``x`` lies outside the calibrated range (the value is then extrapolated
-            linearly and must not be trusted).
+            False where a nonlinear response's ``x`` lies outside the calibrated range (the curve
+            is then extrapolated with its end slopes and the value must not be trusted); always
+            True for a linear response (see the module's notes and :meth:`beyond_range`).
         """
         v = np.asarray(v, dtype=float)
         x = self._invert((v - self.offset) / self.gain)
+        return x, ~self.beyond_range(x) if self.nonlinear else np.ones(x.shape, dtype=bool)
+
+    def beyond_range(self, x) -> np.ndarray:
+        """True where ``x`` (field units) lies outside the calibrated range by more than 2 % of its span."""
+        x = np.asarray(x, dtype=float)
         lo, hi = self.x_range
         span = hi - lo if np.isfinite(hi - lo) else 0.0
         margin = 0.02 * span
-        return x, (x >= lo - margin) & (x <= hi + margin)
+        return ~((x >= lo - margin) & (x <= hi + margin))
 
     def _invert(self, y: np.ndarray) -> np.ndarray:
         return y
@@ -87,6 +100,8 @@ class LinearResponse(Response):
 @dataclass(frozen=True)
 class _MonotoneResponse(Response):
     """A nonlinear curve inverted through a dense monotone table over the calibrated range."""
+
+    nonlinear = True
 
     def _invert(self, y: np.ndarray) -> np.ndarray:
         lo, hi = self.x_range

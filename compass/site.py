@@ -24,12 +24,13 @@ import numpy as np
 
 __all__ = ["WMM_MODEL", "Site", "SiteField", "ReferenceField", "wmm_field", "decimal_year",
            "known_reference", "reference_from_site",
-           "reference_from_recording"]
+           "reference_from_recording", "upside_down"]
 
 WMM_MODEL = "WMM2025"
 _QUIET_ACCEL = 0.02  # a row is quiet when | |a| / g - 1 | is below this (g: the median |a|)
 _OUTLIER_SIGMAS = 5.0  # rows farther than this many robust sigmas from the median are left out
 _MIN_ROWS = 10  # fewest quiet rows from which a reference is estimated
+_MIN_SIGNED_DIP_DEG = 10.0  # below this |dip| a sign flip of the field is within tilt errors: not judged
 
 
 def decimal_year(date: dt.date) -> float:
@@ -350,3 +351,37 @@ class QuietSeed:
             return reference_from_recording(rows[:, 4:], rows[:, :3])
         except ValueError:
             return None
+
+
+def upside_down(dip_deg: np.ndarray, reference: ReferenceField) -> str | None:
+    """Why the calibrated field points the other way from a given reference, or None.
+
+    The bench data cannot tell ``(a, B)`` from ``(-a, -B)``: a calibration made in one hemisphere
+    while the other was assumed has every sensing direction negated, so the field it measures is
+    ``-B``, whose dip is the site's with the sign turned.  Every row then differs from the reference
+    by about twice the dip (all disturbed) and the heading is 180 deg off.  Judged on the median over
+    the rows (a magnet for part of the recording does not move it), only for a reference the user
+    gave (a site: never the recording's own) with ``|dip| >= 10 deg``, where no tilt error reaches
+    the mirrored dip.
+
+    Parameters
+    ----------
+    dip_deg : ndarray, shape (n,)
+        The measured field's angle below the horizontal per row, degrees.
+    reference : ReferenceField
+    """
+    if reference.source == "recording" or abs(reference.dip_deg) < _MIN_SIGNED_DIP_DEG:
+        return None
+    dips = np.asarray(dip_deg, float)
+    dips = dips[np.isfinite(dips)]
+    if dips.size == 0:
+        return None
+    median = float(np.median(dips))
+    if abs(median + reference.dip_deg) >= abs(median - reference.dip_deg):
+        return None
+    way = ("up", "down") if reference.dip_deg > 0 else ("down", "up")
+    return (f"the calibrated readings have the field pointing {way[0]} (median dip {median:+.1f} deg) where the "
+            f"{reference.source} reference has it pointing {way[1]} (dip {reference.dip_deg:+.1f} deg): the "
+            "calibration's field is upside down, every sensing direction negated, and every heading would be 180 "
+            "deg off. A bench in the other hemisphere calibrated without its latitude? (the bench data cannot tell "
+            "(a, B) from (-a, -B)): recalibrate with '# site_lat_deg:' in the recording or --site LAT,LON")

@@ -85,8 +85,11 @@ def test_nonlinear_responses_are_inverted_monotonically_and_out_of_range_is_flag
     got, ok = model.field(outputs(model, b))
     np.testing.assert_allclose(got, b, atol=1e-3)  # 2049-knot table: interpolation error << noise
     assert ok.all()
-    far, ok_far = model.field(outputs(model, np.array([[0.0, 0.0, 80.0]])))
-    assert not ok_far[0]
+    far, ok_far = model.field(outputs(model, np.array([[80.0, 0.0, 0.0]])))
+    assert not ok_far[0]  # the cubic channel (along X) read beyond its range: its curve is extrapolated
+    # a linear channel beyond its range is the same line: not flagged, but beyond_range says so
+    x, ok_line = model.components(outputs(model, np.array([[0.0, 0.0, 80.0]])))
+    assert ok_line.all() and responses[2].beyond_range(x[0, 2]) and not responses[0].beyond_range(x[0, 0])
 
 
 def test_tumble_form_is_the_same_model():

@@ -5,10 +5,11 @@ Simulates ``--n`` seeded three-channel four-flip sessions (channels near housing
 noise ``--noise-ut``, no effects) and calibrates each with ``patent``, ``harmonic`` and ``ml``
 in-process.  It prints, side by side:
 
-- the RMS direction error of each channel kind (X, Y, Z), degrees; for ``patent`` and
-  ``harmonic`` also the *axis* error (the angle to the nearer of +a and -a), since the seed's
-  theta and gamma are half differences in [-90, 90] and cannot represent a direction with a
-  negative X component (the Y channel, and a Z channel tilted backwards, come out reversed);
+- the RMS *signed* direction error of each channel kind (X, Y, Z), degrees (the angle to the true
+  ``a``: a reversed channel counts 180 deg), for ``patent`` and ``harmonic`` beside the *axis* error
+  (the angle to the nearer of +a and -a), and the number of reversed channels per method.  The
+  seed's theta and gamma are half differences in [-90, 90]; each channel's sign comes from the data
+  (:func:`calibrate.fourflip._harmonic.orient`), so the two agree unless a channel is reversed;
 - the RMS dip error;
 - the Cramer-Rao bound (CRB) of the same model, from the Fisher information at the TRUE
   parameters with the TRUE noise,
@@ -20,7 +21,7 @@ in-process.  It prints, side by side:
   ``sqrt(trace of its (u, v) block of inv(F))``, the same formula as ``direction_sigma_deg``;
 - ``ml/CRB``: ``sqrt(mean((err / crb)^2))`` over recordings (1 for an efficient estimator);
 - ``ml/sigma``: ``sqrt(mean((err / reported sigma)^2))`` (1 when the reported sigma is honest);
-- ``patent/ml``: RMS patent axis error over RMS ml error (accuracy ratio on the same recordings);
+- ``patent/ml``: RMS patent signed error over RMS ml error (accuracy ratio on the same recordings);
 - the median wall time of one calibration, per method.
 
 Ratios are printed with their Monte Carlo standard error (delta method over the recordings).
@@ -172,14 +173,14 @@ def print_report(res: dict, n: int, seed: int, noise_ut: float) -> list[str]:
     err, axis_err, dip_err = res["err"], res["axis_err"], res["dip_err"]
     print(f"Four-flip Monte Carlo: {n} simulated 3-channel recordings (seeds {seed}..{seed + n - 1}), noise "
           f"{noise_ut:g} uT, 1 deg steps, 4 flips x 360 samples, |B| 50 uT, dip 40-70 deg, no effects")
-    print("Errors are RMS over recordings, degrees. 'axis' = angle to the nearer of +a and -a: the seed's theta and")
-    print("gamma are half differences in [-90, 90], so patent/harmonic cannot represent a direction with a negative X")
-    print("component (the Y channel, or a Z channel tilted backwards, comes out reversed); the axis error forgives that.")
+    print("Errors are RMS over recordings, degrees. 'signed' = angle to the true a (a reversed channel counts 180 deg);")
+    print("'axis' = angle to the nearer of +a and -a, which would forgive a reversed channel: the two agree when every")
+    print("channel's sign is right.")
     print()
     header = (f"{'':6}{'patent':>9}{'patent':>9}{'harmonic':>10}{'harmonic':>10}{'ml':>10}{'CRB':>10}"
               f"{'ml/CRB':>14}{'ml/sigma':>14}{'patent/ml':>12}")
     sub = (f"{'':6}{'signed':>9}{'axis':>9}{'signed':>10}{'axis':>10}{'':>10}{'':>10}"
-           f"{'':>14}{'':>14}{'(axis)':>12}")
+           f"{'':>14}{'':>14}{'(signed)':>12}")
     print(header)
     print(sub)
     rows = {}
@@ -188,7 +189,7 @@ def print_report(res: dict, n: int, seed: int, noise_ut: float) -> list[str]:
         rows[kind] = dict(
             crb=normalised_ratio(ml, res["crb"][:, k]),
             sigma=normalised_ratio(ml, res["sigma"][:, k]),
-            patent=rms_ratio(axis_err["patent"][:, k], ml),
+            patent=rms_ratio(err["patent"][:, k], ml),
         )
         print(f"{kind:6}{fmt(rms(err['patent'][:, k])):>9}{fmt(rms(axis_err['patent'][:, k])):>9}"
               f"{fmt(rms(err['harmonic'][:, k])):>10}{fmt(rms(axis_err['harmonic'][:, k])):>10}"
@@ -201,6 +202,8 @@ def print_report(res: dict, n: int, seed: int, noise_ut: float) -> list[str]:
     print(f"{'dip':6}{fmt(rms(dip_err['patent'])):>9}{'':>9}{fmt(rms(dip_err['harmonic'])):>10}{'':>10}"
           f"{fmt(rms(dip_err['ml'])):>10}{fmt(rms(res['crb_dip'])):>10}"
           f"{fmt_ratio(dip['crb']):>14}{fmt_ratio(dip['sigma']):>14}{fmt_ratio(dip['patent']):>12}")
+    reversed_text = ", ".join(f"{m} {int(np.sum(err[m] > 90.0))}/{int(np.sum(np.isfinite(err[m])))}" for m in METHODS)
+    print(f"channels reversed (signed error over 90 deg): {reversed_text}")
     print()
     print("ml/CRB and ml/sigma: sqrt(mean((ml error / bound or reported sigma)^2)) per recording; CRB column: RMS of the")
     print("per-recording bound (Fisher information at the true parameters and true noise). +- is the Monte Carlo error.")
@@ -245,10 +248,12 @@ def print_report(res: dict, n: int, seed: int, noise_ut: float) -> list[str]:
           TARGET_SIGMA[0] - 2 * se <= r <= TARGET_SIGMA[1] + 2 * se)
     for kind in KINDS:
         r, se = rows[kind]["patent"]
-        check(r >= TARGET_PATENT_RATIO, f"ml >= {TARGET_PATENT_RATIO:g}x more accurate than patent (axis error), "
+        check(r >= TARGET_PATENT_RATIO, f"ml >= {TARGET_PATENT_RATIO:g}x more accurate than patent (signed error), "
               f"{kind}: {r:.0f}x")
     r, se = dip["patent"]
     check(r >= TARGET_PATENT_RATIO, f"ml >= {TARGET_PATENT_RATIO:g}x more accurate than patent, dip: {r:.0f}x")
+    check(all(np.sum(err[m] > 90.0) == 0 for m in METHODS),
+          f"every channel's sign right (SPEC: every gain positive), all methods: reversed {reversed_text}")
     x_ratio, x_se = rows["X"]["crb"]
     for kind in ("Y", "Z"):
         k_ratio, k_se = rows[kind]["crb"]

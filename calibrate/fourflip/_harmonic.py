@@ -15,7 +15,8 @@ import numpy as np
 
 from compass.frames import unit_from_seed_angles
 
-__all__ = ["FlipHarmonics", "fit_harmonics", "sample_minima", "seed_direction", "seed_dip", "vector_harmonic"]
+__all__ = ["FlipHarmonics", "fit_harmonics", "orient", "sample_minima", "seed_direction", "seed_dip",
+           "vector_harmonic"]
 
 
 @dataclass(frozen=True)
@@ -27,12 +28,15 @@ class FlipHarmonics:
     mean, cos, sin : ndarray, shape (4, c)
         ``m_k``, ``c_k``, ``s_k`` in output units.
     residual_rms : ndarray, shape (c,)
+    mean_sigma : ndarray, shape (4, c)
+        Standard error of each ``m_k`` from the residual rms, output units.
     """
 
     mean: np.ndarray
     cos: np.ndarray
     sin: np.ndarray
     residual_rms: np.ndarray
+    mean_sigma: np.ndarray
 
     @property
     def amplitude(self) -> np.ndarray:
@@ -49,6 +53,7 @@ def fit_harmonics(platform_deg: np.ndarray, flip_index: np.ndarray, outputs: np.
     n_channels = outputs.shape[1]
     mean, cos, sin = (np.empty((4, n_channels)) for _ in range(3))
     rss = np.zeros(n_channels)
+    mean_variance_factor = np.empty(4)
     for k in range(4):
         mask = flip_index == k
         phi = np.radians(platform_deg[mask])
@@ -56,8 +61,9 @@ def fit_harmonics(platform_deg: np.ndarray, flip_index: np.ndarray, outputs: np.
         coef, *_ = np.linalg.lstsq(design, outputs[mask], rcond=None)
         mean[k], cos[k], sin[k] = coef
         rss += np.sum((outputs[mask] - design @ coef) ** 2, axis=0)
-    dof = max(len(outputs) - 12, 1)
-    return FlipHarmonics(mean, cos, sin, np.sqrt(rss / dof))
+        mean_variance_factor[k] = np.linalg.pinv(design.T @ design)[0, 0]
+    rms = np.sqrt(rss / max(len(outputs) - 12, 1))
+    return FlipHarmonics(mean, cos, sin, rms, np.sqrt(mean_variance_factor)[:, None] * rms[None, :])
 
 
 def sample_minima(platform_deg: np.ndarray, flip_index: np.ndarray, outputs: np.ndarray) -> np.ndarray:
@@ -79,7 +85,9 @@ def seed_direction(minima_deg: np.ndarray) -> dict[str, np.ndarray]:
 
     ``theta = (phi_30 - phi_10)/2``, ``gamma = (phi_20 - phi_40)/2``,
     ``elevation = atan(tan(gamma) cos(theta))``, ``psi = atan(tan(theta) cos(gamma))``.
-    The direction assumes, as the seed does, a positive X component (theta, gamma in [-90, 90]).
+    The direction assumes, as the seed does, a positive X component (theta, gamma in [-90, 90]):
+    the four minima are the same for ``a`` and ``-a``, so they cannot tell; :func:`orient` takes
+    each channel's sign from the data.
     """
     theta = _half_difference(minima_deg[2], minima_deg[0])
     gamma = _half_difference(minima_deg[1], minima_deg[3])
@@ -118,6 +126,11 @@ class VectorHarmonic:
     gains : ndarray, shape (c,)
         Output per field unit (|B| = ``field_magnitude``).
     dip_deg, azimuth_deg : float
+    vertical_sigmas : float
+        The vertical field the flip-mean differences show, in standard errors (the statistic
+        ``tan(dip)`` is read from).  Below a few, the data hardly see the vertical field (dip near
+        0, or every channel along X) and the hemisphere no longer fixes the sign common to all
+        directions.
     """
 
     directions: np.ndarray
@@ -125,6 +138,7 @@ class VectorHarmonic:
     gains: np.ndarray
     dip_deg: float
     azimuth_deg: float
+    vertical_sigmas: float
 
 
 def vector_harmonic(h: FlipHarmonics, field_magnitude: float, dip_sign: float = 1.0) -> VectorHarmonic:
@@ -151,6 +165,10 @@ def vector_harmonic(h: FlipHarmonics, field_magnitude: float, dip_sign: float = 
         tan_dip = np.sum(s_y * hxyz[:, 1] + s_z * hxyz[:, 2]) / max(np.sum(hxyz[:, 1:] ** 2), 1e-300)
         if np.sign(tan_dip) == np.sign(dip_sign) or tan_dip == 0.0:
             break
+    var_s_y = (h.mean_sigma[1] ** 2 + h.mean_sigma[3] ** 2) / 4
+    var_s_z = (h.mean_sigma[0] ** 2 + h.mean_sigma[2] ** 2) / 4
+    spread = np.sqrt(np.sum(hxyz[:, 1] ** 2 * var_s_y + hxyz[:, 2] ** 2 * var_s_z))
+    vertical = abs(np.sum(s_y * hxyz[:, 1] + s_z * hxyz[:, 2])) / max(spread, 1e-300)
     dip = np.arctan(tan_dip)
     horizontal = np.linalg.norm(hxyz, axis=1)
     directions = hxyz / horizontal[:, None]
@@ -161,4 +179,30 @@ def vector_harmonic(h: FlipHarmonics, field_magnitude: float, dip_sign: float = 
         gains=gains,
         dip_deg=float(np.degrees(dip)),
         azimuth_deg=float(np.mod(np.degrees(candidate), 360.0)),
+        vertical_sigmas=float(vertical),
     )
+
+
+def orient(directions: np.ndarray, reference: VectorHarmonic) -> np.ndarray:
+    """Each direction turned to the sign the data support: ``a`` or ``-a``, whichever points with
+    the vector harmonic's estimate.
+
+    Seed 000's minima are the same for ``a`` and ``-a``.  The vector combination of the four flips'
+    harmonics is not: channels share one field azimuth, so each channel's first-harmonic phases fix
+    its sign relative to the others (well conditioned for every channel: each is horizontal in
+    some flip), and the flip-mean differences, which see the vertical field, fix the common sign
+    given the hemisphere (``reference.vertical_sigmas`` says how well).
+
+    Parameters
+    ----------
+    directions : ndarray, shape (c, 3)
+        Unit sensing directions in H, of either sign.
+    reference : VectorHarmonic
+        From :func:`vector_harmonic` of the same recording and hemisphere.
+
+    Returns
+    -------
+    ndarray, shape (c, 3)
+    """
+    sign = np.where(np.sum(directions * reference.directions, axis=1) < 0.0, -1.0, 1.0)
+    return directions * sign[:, None]

@@ -21,13 +21,14 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import isotonic_regression
 
+from compass.frames import seed_angles
 from compass.io.fourflip import FourFlipRecording
 from compass.response import CubicResponse, LinearResponse, TableResponse
-from compass.sim.bench import BenchPhysics, BenchSamples
+from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, housing_field
 
 from . import _harmonic as hm
 from ._mlfit import MLFit, fit_ml
-from ..contract import Calibrator
+from ..contract import Calibrator, CannotCalibrate
 from .diagnosis import UNEXPLAINED_WARNING, diagnose_fourflip, examine_residual
 from ..noise import SPIKE_SIGMAS, find_spikes, noise_floor
 from .result import CalibrationResult, ChannelCalibration
@@ -38,11 +39,14 @@ __all__ = ["METHODS", "FourFlipCalibrator", "calibrate_fourflip", "physics_from_
 METHODS = ("ml", "harmonic", "patent")
 _TABLE_BINS = 36
 _POORLY_DETERMINED_DEG = 1.0
+_VERTICAL_SIGMAS = 5.0
+"""Below this, the flip means do not show the vertical field well enough for the hemisphere to fix the
+directions' common sign (a one-sided 5-sigma test: chance 3e-7 of a wrong sign when it passes)."""
 
 
 def calibrate_fourflip(
     rec: FourFlipRecording, *, method: str = "ml", field_ut: float | None = None, dip_sign: float | None = None,
-    diagnose: bool = False, progress=None,
+    site=None, diagnose: bool = False, progress=None,
 ) -> CalibrationResult:
     """Calibrate every channel of a four-flip recording.
 
@@ -56,7 +60,11 @@ def calibrate_fourflip(
     dip_sign : {+1, -1}, optional
         The data cannot tell the field's sign from the channels' (``(a, B)`` and ``(-a, -B)``
         give the same outputs); +1 (field points down, northern hemisphere) unless the
-        metadata's ``site_lat_deg`` is negative.
+        metadata's ``site_lat_deg`` is negative.  The result's ``extra["hemisphere"]`` says which
+        was taken and why; the report says it in words.
+    site : compass.site.Site, optional
+        Where and when the bench session was recorded, instead of the metadata's ``site_lat_deg``,
+        ``site_lon_deg``, ``site_alt_m`` and ``date``: sets the hemisphere and the WMM site check.
     diagnose : bool
         Run the residual diagnosis loop (:mod:`calibrate.fourflip.diagnosis`): with ``ml`` the final model
         includes every effect the evidence supports; with the seed's rules the residual is only
@@ -67,24 +75,35 @@ def calibrate_fourflip(
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     field_ut = field_ut if field_ut is not None else rec.field_ut
-    if dip_sign is None:
-        lat = _float_or_none(rec.metadata.get("site_lat_deg"))
-        dip_sign = -1.0 if lat is not None and lat < 0 else 1.0
+    metadata = rec.metadata if site is None else rec.metadata | {
+        "site_lat_deg": site.lat_deg, "site_lon_deg": site.lon_deg, "site_alt_m": site.alt_m,
+        "date": site.date.isoformat()}
+    dip_sign, hemisphere = _hemisphere(metadata, dip_sign, "--site" if site is not None else "the recording")
     noise = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs)
     noise = np.where(noise > 0, noise, np.std(rec.outputs, axis=0) * 1e-3)
     spikes = find_spikes(rec.platform_deg, rec.flip_index, rec.outputs, noise)
     if spikes.any():
         rec = rec.subset(~spikes)
     result = _estimate(rec, BenchSamples.from_recording(rec), noise, method, field_ut, dip_sign, diagnose, progress)
-    extra = dict(result.extra)
+    vertical = hm.vector_harmonic(hm.fit_harmonics(rec.platform_deg, rec.flip_index, rec.outputs), 1.0,
+                                  dip_sign).vertical_sigmas
+    extra = dict(result.extra) | {"hemisphere": hemisphere | {"vertical_field_sigmas": vertical}}
     warnings = result.warnings
+    if len(rec.channels) < 3:
+        warnings = warnings + (f"{len(rec.channels)} channel{'s' if len(rec.channels) > 1 else ''}: a single-axis "
+                               "calibration, valid as such; heading, pitch and roll need at least 3 channels calibrated "
+                               "together (compass attitude and live refuse this file)",)
+    if vertical < _VERTICAL_SIGMAS:
+        warnings = warnings + (f"the flip means hardly show the vertical field ({vertical:.1f} sigma: dip near 0, or "
+                               "every channel along housing X): the data cannot tell these directions from their "
+                               "negatives, and the hemisphere cannot either; their common sign is a guess",)
     if spikes.any():
         extra["spikes_dropped"] = int(spikes.sum())
         warnings = warnings + (f"{int(spikes.sum())} sample(s) dropped as spikes (more than {SPIKE_SIGMAS:g} noise "
                                "sigmas off their neighbours): line or sensor glitches",)
-    site = compare_with_site(result.dip_deg, result.dip_sigma_deg, rec.metadata, rec.path)
-    if site is not None:
-        extra["site_check"] = site
+    site_check = compare_with_site(result.dip_deg, result.dip_sigma_deg, metadata, rec.path)
+    if site_check is not None:
+        extra["site_check"] = site_check
     return replace(result, extra=extra, warnings=warnings, kept=~spikes if spikes.any() else None)
 
 
@@ -96,6 +115,11 @@ class FourFlipCalibrator(Calibrator):
     method : {"ml", "harmonic", "patent"}
     field_ut : float, optional
         |B| in uT; default the recording's ``field_ut`` metadata.
+    site : str, optional
+        ``LAT,LON[,ALT_M]`` where the bench stood (``--site``): sets the hemisphere (the data cannot
+        tell ``(a, B)`` from ``(-a, -B)``) and the WMM site check, over the recording's metadata.
+    date : str, optional
+        ``YYYY-MM-DD`` with ``site`` (default the metadata's ``date``, else today).
     diagnose : bool
         Run the residual diagnosis loop (SPEC section 4).
     progress : callable, optional
@@ -105,12 +129,29 @@ class FourFlipCalibrator(Calibrator):
     kind = "fourflip"
     plot_files = ("fit.png", "residuals.png")
 
-    def __init__(self, *, method: str = "ml", field_ut: float | None = None, diagnose: bool = True, progress=None):
+    def __init__(self, *, method: str = "ml", field_ut: float | None = None, site: str | None = None,
+                 date: str | None = None, diagnose: bool = True, progress=None):
         self.method, self.field_ut, self.diagnose, self.progress = method, field_ut, diagnose, progress
+        self.site, self.date = site, date
 
     def fit(self, recording: FourFlipRecording) -> CalibrationResult:
-        return calibrate_fourflip(recording, method=self.method, field_ut=self.field_ut, diagnose=self.diagnose,
+        return calibrate_fourflip(recording, method=self.method, field_ut=self.field_ut,
+                                  site=_bench_site(self.site, self.date, recording), diagnose=self.diagnose,
                                   progress=self.progress)
+
+
+def _bench_site(site, date, rec: FourFlipRecording):
+    """``--site`` and ``--date`` as a Site (the date defaults to the recording's), None without a site."""
+    from compass.site import Site
+
+    if site is None:
+        if date is not None:
+            raise CannotCalibrate("--date needs --site LAT,LON[,ALT_M]: the date only chooses the field at a site")
+        return None
+    try:
+        return Site.parse(site, date if date is not None else rec.metadata.get("date"))
+    except ValueError as exc:
+        raise CannotCalibrate(str(exc)) from None
 
 
 def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progress) -> CalibrationResult:
@@ -125,7 +166,7 @@ def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progres
     start = physics_from_harmonics(rec, field_ut, dip_sign)
     if not diagnose:
         fit = fit_ml(samples, rec.outputs, rec.channels, start, noise)
-        return result_from_ml(fit, rec, noise, field_ut)
+        return result_from_ml(fit, rec, noise, field_ut, samples=samples)
     base, fit, diagnosis = diagnose_fourflip(rec, start, noise, progress=progress)
     effects = []
     for effect in fit.effects:
@@ -135,7 +176,8 @@ def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progres
         reference = effect.reference(fit.physics)
         effects.append({**entry, "reference": reference} if reference else entry)
     warnings = (UNEXPLAINED_WARNING,) if diagnosis["unexplained"] else ()
-    result = result_from_ml(fit, rec, noise, field_ut, effects=effects, diagnosis=diagnosis, extra_warnings=warnings)
+    result = result_from_ml(fit, rec, noise, field_ut, effects=effects, diagnosis=diagnosis, extra_warnings=warnings,
+                            samples=samples)
     return replace(result, base_residuals=base.residuals) if fit.effects else result
 
 
@@ -143,15 +185,30 @@ def _seed_rule_warning(rec, samples, noise, method, field_ut, dip_sign) -> str:
     """Why a seed rule's residual is above the floor: the recording, or the rule's own estimate.
 
     The joint fit (``ml``) is run: when it leaves the residual at the noise floor, the structure
-    is the rule's misestimate (a minimum picked on a flat curve, a channel's direction reversed),
-    not an effect the recording has.
+    is the rule's misestimate (a minimum picked on a flat curve, a dip from an ill-conditioned
+    crossing), not an effect the recording has.
     """
     ml = fit_ml(samples, rec.outputs, rec.channels, physics_from_harmonics(rec, field_ut, dip_sign), noise)
     if examine_residual(samples, ml.residuals, noise)["unexplained"]:
         return UNEXPLAINED_WARNING
     return (f"the {method} estimate leaves structure in the residual above the noise floor, but the joint fit "
             "(--method ml) of the same recording is at the floor: the misfit is this method's estimate (a "
-            "minimum picked on a flat curve, a direction reversed), not an effect of the recording; use --method ml")
+            "minimum picked on a flat curve, a dip from an ill-conditioned midpoint crossing), not an effect of the "
+            "recording; use --method ml")
+
+
+def _hemisphere(metadata: dict, dip_sign, where: str) -> tuple[float, dict]:
+    """The field's sign (+1 pointing down) and where it came from, for the file and the report."""
+    lat = _float_or_none(metadata.get("site_lat_deg"))
+    if dip_sign is not None:
+        source = "the caller (dip_sign)"
+    elif lat is not None:
+        dip_sign = -1.0 if lat < 0 else 1.0
+        source = f"--site latitude {lat:g}" if where == "--site" else f"'# site_lat_deg: {lat:g}' in the recording"
+    else:
+        dip_sign, source = 1.0, "the default: no '# site_lat_deg:' in the recording"
+    return float(np.sign(dip_sign)), {"assumed": "north" if dip_sign > 0 else "south", "from": source,
+                                      "default": source.startswith("the default")}
 
 
 def _float_or_none(s):
@@ -169,13 +226,17 @@ def physics_from_harmonics(rec: FourFlipRecording, field_ut, dip_sign) -> BenchP
 
 
 def result_from_ml(fit: MLFit, rec: FourFlipRecording, noise, field_ut, *, effects=(), diagnosis=None,
-                   extra_warnings=()) -> CalibrationResult:
-    """Package a joint fit as a CalibrationResult (directions, responses, sigmas, warnings)."""
+                   extra_warnings=(), samples: BenchSamples | None = None) -> CalibrationResult:
+    """Package a joint fit as a CalibrationResult (directions, responses, sigmas, warnings).
+
+    ``samples`` are the recording's (:meth:`BenchSamples.from_recording`, made when not given): they
+    give each channel's calibrated range.
+    """
     phys = fit.physics
     sigma = fit.sigma
     per = 4
     channels = []
-    x_range = _field_range(fit)
+    x_range = _seen_range(phys, samples if samples is not None else BenchSamples.from_recording(rec))
     for c, name in enumerate(rec.channels):
         off_sigma = float(sigma[per * c + 2] * phys.gains[c]) if np.isfinite(sigma[per * c + 2]) else None
         gain_sigma = float(sigma[per * c + 3] * phys.gains[c]) if np.isfinite(sigma[per * c + 3]) else None
@@ -214,10 +275,16 @@ def result_from_ml(fit: MLFit, rec: FourFlipRecording, noise, field_ut, *, effec
     )
 
 
-def _field_range(fit: MLFit) -> np.ndarray:
-    """Field components each channel saw, (c, 2) in field units: the calibrated range."""
-    b = fit.physics.field_magnitude
-    return np.tile([-b, b], (len(fit.physics.gains), 1))
+def _seen_range(physics: BenchPhysics, samples: BenchSamples) -> np.ndarray:
+    """Field component ``B . a`` each channel saw over the session, (c, 2) in field units: its
+    calibrated range.
+
+    Not ``[-|B|, |B|]``: flips about X never turn a channel's X component vertical, so a channel
+    along X sees only ``|B| cos(dip)`` (plus what its tilt adds); a channel along Y or Z reaches
+    ``|B| sin(dip)`` where the flip makes it vertical and ``|B| cos(dip)`` where horizontal.
+    """
+    x = housing_field(physics, samples) @ physics.directions.T
+    return np.column_stack([x.min(axis=0), x.max(axis=0)])
 
 
 def _response_from_physics(phys: BenchPhysics, c: int, x_range) -> LinearResponse | CubicResponse:
@@ -240,8 +307,9 @@ def _seed_rule(rec, samples, noise, field_ut, dip_sign, *, from_samples: bool) -
         means = np.array([rec.outputs[rec.flip_index == k].mean(axis=0) for k in range(4)])
     else:
         minima, means = h.minimum_deg, h.mean
-    angles = hm.seed_direction(minima)
-    directions = angles["direction"]
+    # the minima cannot tell a from -a: each channel's sign comes from the harmonics (hm.orient)
+    directions = hm.orient(hm.seed_direction(minima)["direction"], hm.vector_harmonic(h, b, dip_sign))
+    angles = seed_angles(directions)
     midpoint = 0.5 * (means[0] + means[2])  # zero-field output from the 0/180 pair
     if from_samples:
         crossing = np.array([_first_crossing(rec, c, minima[0, c], midpoint[c]) for c in range(len(rec.channels))])
@@ -273,8 +341,9 @@ def _seed_rule(rec, samples, noise, field_ut, dip_sign, *, from_samples: bool) -
         channels.append(ChannelCalibration(name, directions[c], None, response))
     physics = BenchPhysics(directions, np.array([ch.response.offset for ch in channels]),
                            np.array([ch.response.gain for ch in channels]), dip, _seed_azimuth(minima, angles), b)
-    from compass.sim.bench import bench_outputs
-
+    if not from_samples:  # a table's range is its own support (one flip); a line's is what the session saw
+        seen = _seen_range(physics, samples)
+        channels = [replace(ch, response=replace(ch.response, x_range=tuple(seen[c]))) for c, ch in enumerate(channels)]
     residuals = rec.outputs - bench_outputs(physics, samples)
     extra = {"seed_rule": {"minima_deg": minima.T.tolist(), "dip_per_channel_deg": dips.tolist(),
                            "dip_from_channel": rec.channels[best], "midpoint_value": midpoint.tolist()}}
@@ -293,7 +362,8 @@ def _seed_rule(rec, samples, noise, field_ut, dip_sign, *, from_samples: bool) -
 
 
 def _seed_azimuth(minima, angles) -> float:
-    """Field azimuth implied by the flip-0 minimum of the best-resolved channel."""
+    """Field azimuth implied by the flip-0 minimum of the best-resolved channel: there its horizontal
+    projection, at azimuth ``platform + theta`` in W, points away from the field."""
     c = int(np.argmax(np.cos(np.radians(angles["elevation_deg"]))))
     return float(np.mod(minima[0, c] - 180.0 + angles["theta_deg"][c], 360.0))
 
@@ -348,4 +418,4 @@ def _harmonic_linear(h, c, direction, dip, b, midpoint) -> LinearResponse:
     horizontal = np.array([np.cos(_flip_elevation(direction, k)) for k in range(4)])
     amp = h.amplitude[:, c]
     gain = np.sqrt(np.sum(amp**2) / np.sum(horizontal**2)) / (b * np.cos(np.radians(dip)))
-    return LinearResponse(float(midpoint), float(gain), (-b, b))
+    return LinearResponse(float(midpoint), float(gain))

@@ -200,6 +200,8 @@ class CalibrationResult(Calibration):
         lines = [f"Four-flip calibration, method {self.method}"]
         dip_sigma = f" +- {self.dip_sigma_deg:.3f}" if self.dip_sigma_deg is not None and np.isfinite(self.dip_sigma_deg) else ""
         lines.append(f"  dip {self.dip_deg:.3f}{dip_sigma} deg   field azimuth from turntable zero {self.azimuth_deg:.2f} deg")
+        if "hemisphere" in self.extra:
+            lines.append(_hemisphere_line(self.extra["hemisphere"]))
         lines.append(f"  field |B| {self.field_ut:g} uT (gains per uT)" if self.field_ut else
                      "  field |B| unknown (gains per |B|; give --field-ut or '# field_ut:' to get per uT)")
         for ch, rms, noise in zip(self.channels, self.residual_rms, self.noise):
@@ -234,3 +236,15 @@ class CalibrationResult(Calibration):
 
             lines.append(describe(self.extra["site_check"]))
         return "\n".join(lines)
+
+
+def _hemisphere_line(hemisphere: dict) -> str:
+    """Which hemisphere the calibration took, from where, and how to say otherwise."""
+    north = hemisphere["assumed"] == "north"
+    text = (f"  hemisphere: {'northern' if north else 'southern'} (the field taken pointing {'down' if north else 'up'}"
+            f", dip {'>' if north else '<'} 0), from {hemisphere['from']}")
+    if hemisphere.get("default"):
+        text += ("\n      the data cannot tell (a, B) from (-a, -B): a bench in the southern hemisphere needs"
+                 " '# site_lat_deg: <latitude>' in the recording (or --site LAT,LON), else the dip and every"
+                 " direction come back negated and the runtime's heading 180 deg off")
+    return text

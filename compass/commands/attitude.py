@@ -160,16 +160,39 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
             print(f"warning: the calibration's temperature effect is not applied: {why}", file=sys.stderr)
     if model.direction_covariance is None:
         metadata["note"] = "the calibration gives no direction covariance: sigmas count sensor noise only"
+    linear_beyond = _linear_beyond(model, raw, temp_c)
+    if linear_beyond:
+        metadata["extrapolated"] = linear_beyond
     atomic_write_text(out, _format_csv(columns, metadata))
     print(f"wrote {out} ({len(raw)} rows, mode {result.mode}; {int(np.sum(result.disturbed))} disturbed against the "
           f"{result.reference.source} reference, {int(np.sum(~result.in_range))} out of calibrated range"
-          f"{_skipped_note(result.skipped)})")
+          f"{_skipped_note(result.skipped)})" + (f"\n  note: {linear_beyond}" if linear_beyond else ""))
     if rerun is not None:
         from ..viz.attitude import record_attitude
 
         record_attitude(rerun, result, model, t_s=columns.get("t_s"), raw=raw, accel=accel, gyro=_group(table, _GYRO))
         print(f"wrote {rerun}")
     return result
+
+
+def _linear_beyond(model, raw, temp_c) -> str:
+    """Words for the rows that read a linear channel beyond the field it was calibrated over ('' if none).
+
+    Not in ``in_range`` (which flags nonlinear curves extrapolated): a line beyond its range is the
+    same line, wrong only by a nonlinearity the bench could not see (:mod:`compass.response`).
+    """
+    x, _ = model.components(raw, temp_c)
+    rows, names = np.zeros(len(raw), dtype=bool), []
+    for c, (name, r) in enumerate(zip(model.channels, model.responses)):
+        beyond = np.zeros(len(raw), dtype=bool) if r.nonlinear else r.beyond_range(x[:, c]) & np.isfinite(x[:, c])
+        if beyond.any():
+            rows |= beyond
+            names.append(f"{name} (calibrated over {r.x_range[0]:.3g}..{r.x_range[1]:.3g})")
+    if not rows.any():
+        return ""
+    return (f"{int(rows.sum())} rows read a linear channel beyond the field it was calibrated over: "
+            f"{', '.join(names)}; extrapolated linearly (not flagged in in_range, which marks nonlinear responses "
+            "extrapolated)")
 
 
 def _skipped_note(skipped) -> str:

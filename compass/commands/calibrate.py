@@ -33,8 +33,10 @@ def register(sub) -> None:
                    help="the recording is an installation (the module turned in its product, a tumble or a swing): "
                         "calibrate the product's iron on top of this bench calibration")
     p.add_argument("--site", metavar="LAT,LON[,ALT_M]", help="with --base: where the installation was recorded "
-                   "(the WMM's |B| and dip; written into the file for the runtime)")
-    p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day (default today, UTC)")
+                   "(the WMM's |B| and dip; written into the file for the runtime); four-flip: where the bench "
+                   "stood (its hemisphere, which the data cannot tell, and the WMM check of the dip)")
+    p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day (default: a four-flip recording's "
+                                                        "'# date:', else today, UTC)")
     p.add_argument("--force", action="store_true", help="overwrite an existing calibration file")
     p.add_argument("--quiet", action="store_true", help="do not print the fit report")
     add_rerun_option(p)
