@@ -45,7 +45,7 @@ def test_python_dash_m_and_help():
     assert out.returncode == 0 and "--method" in out.stdout
 
 
-def test_patent_method_writes_table_response(tmp_path):
+def test_patent_method_writes_table_response(tmp_path, capsys):
     rec = tmp_path / "rec.csv"
     main(["simulate", "fourflip", "--out", str(rec), "--seed", "2"])
     cal = tmp_path / "cal.json"
@@ -53,6 +53,12 @@ def test_patent_method_writes_table_response(tmp_path):
     data = json.loads(cal.read_text())
     assert data["method"] == "patent"
     assert all(ch["response"]["model"] == "table" for ch in data["channels"].values())
+    # at runtime the file says what it is for: comparison, not use
+    run = tmp_path / "run.csv"
+    assert main(["simulate", "runtime", "--truth", str(rec.with_suffix(".truth.json")), "--out", str(run)]) == 0
+    capsys.readouterr()
+    assert main(["attitude", str(cal), str(run), "--out", str(tmp_path / "att.csv")]) == 0
+    assert "made with --method patent" in capsys.readouterr().err
 
 
 def test_demo_runs_end_to_end(tmp_path, capsys):

@@ -160,6 +160,10 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
             print(f"warning: the calibration's temperature effect is not applied: {why}", file=sys.stderr)
     if model.direction_covariance is None:
         metadata["note"] = "the calibration gives no direction covariance: sigmas count sensor noise only"
+    if cal.data.get("method") == "patent":
+        print(f"warning: {calibration} was made with --method patent (seed 000's rule as written, kept for comparison): "
+              "its dip rule and tabulated response can be off by degrees and its sigmas count sensor noise only; "
+              "calibrate with the default method for use", file=sys.stderr)
     linear_beyond = _linear_beyond(model, raw, temp_c)
     if linear_beyond:
         metadata["extrapolated"] = linear_beyond
