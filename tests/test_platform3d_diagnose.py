@@ -83,6 +83,32 @@ def test_cubic_response_is_identifiable_on_the_platform(tmp_path):
     assert "offset_drift" in block["not_applicable"] and "temperature" in block["not_applicable"]
 
 
+def test_fitting_pose_means_is_fitting_every_sample(tmp_path, monkeypatch):
+    # repeats of one pose carry their mean and count (sufficient statistics of a model constant over
+    # the group): the base fit and the diagnosis on the means must land where the fits on every sample do
+    from calibrate.platform3d import fit as fit_module
+
+    sim = simulate_platform3d(seed=24, repeats=4)
+    keep = np.arange(len(sim.mag)) % 7 != 0  # poses with 2, 3 and 4 samples: the weights matter
+    sim = dataclasses.replace(sim, **{k: getattr(sim, k)[keep] for k in
+                                      ("angles_deg", "mag", "tilt", "heading_deg", "pitch_deg", "roll_deg")})
+    linear = sim.mag - np.array(sim.truth["mag_offset"])
+    bent = dataclasses.replace(sim, mag=sim.mag + 0.5 * (linear / sim.truth["field_ut"]) ** 3)
+    grouped = fit(tmp_path, bent)
+
+    def every_row_alone(*keys):
+        n = len(keys[0])
+        return fit_module._Groups(np.arange(n), np.ones(n, dtype=int), np.arange(n))
+
+    monkeypatch.setattr(fit_module._Groups, "of", staticmethod(every_row_alone))
+    per_sample = fit(tmp_path, bent, "again.csv")
+    assert grouped.diagnosis.block["effects"] == per_sample.diagnosis.block["effects"] == ["nonlinear_response"]
+    assert np.all(np.abs(grouped.values - per_sample.values) < 1e-3 * per_sample.sigma)
+    np.testing.assert_allclose(grouped.sigma, per_sample.sigma, rtol=1e-4)
+    assert grouped.chi2 == pytest.approx(per_sample.chi2, rel=1e-7) and grouped.dof == per_sample.dof
+    np.testing.assert_allclose(grouped.residuals_mag, per_sample.residuals_mag, atol=1e-6)
+
+
 def test_without_time_and_temperature_those_effects_are_not_applicable(tmp_path):
     block = fit(tmp_path, simulate_platform3d(seed=25)).to_json()["diagnosis"]
     assert block["not_applicable"]["offset_drift"] == "the recording has no t_s column"
