@@ -86,7 +86,7 @@ def test_cubic_response_is_identifiable_on_the_platform(tmp_path):
 def test_fitting_pose_means_is_fitting_every_sample(tmp_path, monkeypatch):
     # repeats of one pose carry their mean and count (sufficient statistics of a model constant over
     # the group): the base fit and the diagnosis on the means must land where the fits on every sample do
-    from calibrate.platform3d import fit as fit_module
+    from calibrate.diagnosis.offsets import SampleGroups
 
     sim = simulate_platform3d(seed=24, repeats=4)
     keep = np.arange(len(sim.mag)) % 7 != 0  # poses with 2, 3 and 4 samples: the weights matter
@@ -98,9 +98,9 @@ def test_fitting_pose_means_is_fitting_every_sample(tmp_path, monkeypatch):
 
     def every_row_alone(*keys):
         n = len(keys[0])
-        return fit_module._Groups(np.arange(n), np.ones(n, dtype=int), np.arange(n))
+        return SampleGroups(np.arange(n), np.ones(n, dtype=int), np.arange(n))
 
-    monkeypatch.setattr(fit_module._Groups, "of", staticmethod(every_row_alone))
+    monkeypatch.setattr(SampleGroups, "of", staticmethod(every_row_alone))
     per_sample = fit(tmp_path, bent, "again.csv")
     assert grouped.diagnosis.block["effects"] == per_sample.diagnosis.block["effects"] == ["nonlinear_response"]
     assert np.all(np.abs(grouped.values - per_sample.values) < 1e-3 * per_sample.sigma)

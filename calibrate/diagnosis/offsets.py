@@ -52,8 +52,8 @@ from .evidence import (EffectForm, FitRecord, Proposal, determined, gather_forms
 from .forms import WARMUP_TAU_FRACTIONS, json_float, rms, settled, warm_up_tau_s, why_no_temperature, why_no_time
 from .report import Diagnosis
 
-__all__ = ["OffsetEffect", "FORMS", "Problem", "Grouped", "OffsetDiagnosis", "diagnose_offsets", "pooled_repeat_noise",
-           "lack_of_fit"]
+__all__ = ["OffsetEffect", "FORMS", "Problem", "Grouped", "SampleGroups", "OffsetDiagnosis", "diagnose_offsets",
+           "pooled_repeat_noise", "lack_of_fit"]
 
 _FD_STEP = 1e-6
 _SINGULAR_COND = 1e12
@@ -326,6 +326,27 @@ class OffsetDiagnosis(Diagnosis):
     names: list
     effects: tuple
     block: dict
+
+
+@dataclass(frozen=True)
+class SampleGroups:
+    """Samples taken under identical inputs: each sample's group and the groups' sizes and first samples."""
+
+    index: np.ndarray
+    counts: np.ndarray
+    first: np.ndarray
+
+    @classmethod
+    def of(cls, *keys) -> "SampleGroups":
+        """Groups of the rows equal in every key (arrays of n rows, 1-D or 2-D; None keys ignored)."""
+        key = np.column_stack([k for k in keys if k is not None])
+        _, first, index, counts = np.unique(key, axis=0, return_index=True, return_inverse=True, return_counts=True)
+        return cls(index.ravel(), counts, first)
+
+    def mean(self, values: np.ndarray) -> np.ndarray:
+        """Each group's mean of ``values`` (n, k), shape (g, k)."""
+        return np.column_stack([np.bincount(self.index, weights=v, minlength=len(self.counts)) for v in values.T]) \
+            / self.counts[:, None]
 
 
 def pooled_repeat_noise(values: np.ndarray, groups: np.ndarray) -> np.ndarray | None:

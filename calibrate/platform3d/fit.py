@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
@@ -12,7 +10,8 @@ from compass.io.platform3d import Platform3DRecording
 from compass.sim.platform3d import predict, up_in_bench
 
 from ..contract import Calibrator, CannotCalibrate, metadata_field_ut, require_response, require_sane_cells
-from ..diagnosis.offsets import Grouped, OffsetDiagnosis, Problem, diagnose_offsets, pooled_repeat_noise
+from ..diagnosis.offsets import (Grouped, OffsetDiagnosis, Problem, SampleGroups, diagnose_offsets,
+                                pooled_repeat_noise)
 from .result import AXES, MAG_CHANNELS, Platform3DResult, axis_geometry, geometry_names
 
 _MIN_RELATIVE_SINGULAR = 1e-6
@@ -34,27 +33,6 @@ def _unpack(p: np.ndarray, n_tilt: int, field_magnitude: float):
     a, o_t = p[14:k].reshape(n_tilt, 3), p[k:k + n_tilt]
     u_w = up_in_bench(np.degrees(p[k + n_tilt:k + n_tilt + 2]))
     return m, o_m, b_w, a, o_t, u_w
-
-
-@dataclass(frozen=True)
-class _Groups:
-    """Samples taken under identical inputs: each sample's group and the groups' sizes and first samples."""
-
-    index: np.ndarray
-    counts: np.ndarray
-    first: np.ndarray
-
-    @classmethod
-    def of(cls, *keys) -> "_Groups":
-        """Groups of the rows equal in every key (1-D arrays of one length; None keys ignored)."""
-        key = np.column_stack([k for k in keys if k is not None])
-        _, first, index, counts = np.unique(key, axis=0, return_index=True, return_inverse=True, return_counts=True)
-        return cls(index.ravel(), counts, first)
-
-    def mean(self, values: np.ndarray) -> np.ndarray:
-        """Each group's mean of ``values`` (n, k), shape (g, k)."""
-        return np.column_stack([np.bincount(self.index, weights=v, minlength=len(self.counts)) for v in values.T]) \
-            / self.counts[:, None]
 
 
 def _start(rot: Rotation, mag, tilt, counts, field_magnitude: float, sign: float) -> np.ndarray:
@@ -149,8 +127,8 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
     rot = rec.rotation
     n_tilt = rec.tilt.shape[1]
     names = _names(rec.tilt_columns)
-    # the base model depends on the pose alone: it is fitted to each pose's mean (exact, see _Groups)
-    poses = _Groups.of(rec.pose)
+    # the base model depends on the pose alone: it is fitted to each pose's mean (exact, see Grouped)
+    poses = SampleGroups.of(rec.pose)
     rot_g, root_n = rot[poses.first], np.sqrt(poses.counts)[:, None]
     mag_g, tilt_g = poses.mean(rec.mag), poses.mean(rec.tilt)
     p0 = _start(rot_g, mag_g, tilt_g, poses.counts, magnitude, sign)
@@ -274,7 +252,7 @@ def _diagnose(rec: Platform3DRecording, rot: Rotation, p: np.ndarray, n_tilt: in
 
         return linear, residuals
 
-    same = _Groups.of(rec.pose, rec.t_s, rec.temp_c)
+    same = SampleGroups.of(rec.pose, rec.t_s, rec.temp_c)
     grouped = None
     if len(same.counts) < len(rec.pose):
         t_s, temp_c = (None if v is None else v[same.first] for v in (rec.t_s, rec.temp_c))
