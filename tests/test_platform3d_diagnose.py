@@ -109,6 +109,30 @@ def test_fitting_pose_means_is_fitting_every_sample(tmp_path, monkeypatch):
     np.testing.assert_allclose(grouped.residuals_mag, per_sample.residuals_mag, atol=1e-6)
 
 
+def test_fitting_means_over_short_times_is_fitting_every_sample(tmp_path, monkeypatch):
+    # 15 samples a pose, 2160 in all, and 1000 time bins (a tenth of the fit's): two samples a bin; a
+    # warm-up (curved in time) to find: the diagnosis on the bin means must land where the per-sample one does
+    from calibrate.diagnosis import offsets
+    from calibrate.diagnosis.offsets import SampleGroups
+
+    sim = simulate_platform3d(seed=27, repeats=15, session_s=SESSION_S, drift_ut=2.0, drift_tau_s=300.0)
+    monkeypatch.setattr(offsets, "TIME_BINS", 1000)
+    grouped = fit(tmp_path, sim)
+    assert grouped.diagnosis.block["effects"] == ["offset_drift"]
+
+    def every_row_alone(*keys):
+        n = len(keys[0])
+        return SampleGroups(np.arange(n), np.ones(n, dtype=int), np.arange(n))
+
+    monkeypatch.setattr(SampleGroups, "of", staticmethod(every_row_alone))
+    per_sample = fit(tmp_path, sim, "again.csv")
+    assert [s["form"] for s in grouped.diagnosis.block["steps"][1:]] == \
+        [s["form"] for s in per_sample.diagnosis.block["steps"][1:]]
+    assert np.all(np.abs(grouped.values - per_sample.values) < 1e-2 * per_sample.sigma)
+    np.testing.assert_allclose(grouped.sigma, per_sample.sigma, rtol=1e-3)
+    assert grouped.chi2 == pytest.approx(per_sample.chi2, rel=1e-6)
+
+
 def test_without_time_and_temperature_those_effects_are_not_applicable(tmp_path):
     block = fit(tmp_path, simulate_platform3d(seed=25)).to_json()["diagnosis"]
     assert block["not_applicable"]["offset_drift"] == "the recording has no t_s column"

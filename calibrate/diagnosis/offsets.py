@@ -52,11 +52,13 @@ from .evidence import (EffectForm, FitRecord, Proposal, determined, gather_forms
 from .forms import WARMUP_TAU_FRACTIONS, json_float, rms, settled, warm_up_tau_s, why_no_temperature, why_no_time
 from .report import Diagnosis
 
-__all__ = ["OffsetEffect", "FORMS", "Problem", "Grouped", "SampleGroups", "OffsetDiagnosis", "diagnose_offsets",
-           "pooled_repeat_noise", "lack_of_fit"]
+__all__ = ["OffsetEffect", "FORMS", "Problem", "Grouped", "SampleGroups", "OffsetDiagnosis", "TIME_BINS",
+           "diagnose_offsets", "pooled_repeat_noise", "lack_of_fit", "same_inputs"]
 
 _FD_STEP = 1e-6
 _SINGULAR_COND = 1e12
+TIME_BINS = 10000
+"""Equal bins of the session within which samples under one input are taken as simultaneous (:class:`Grouped`)."""
 
 
 @dataclass(frozen=True)
@@ -268,13 +270,16 @@ class Problem:
 
 @dataclass(frozen=True)
 class Grouped:
-    """A problem's sufficient statistics: the means of samples whose every input is identical.
+    """A problem's sufficient statistics: the means of samples taken under the same inputs (:func:`same_inputs`).
 
     When a group's samples share the known input, ``t_s`` and ``temp_c``, every effect's
     correction is one value per group, so a residual's sum of squares over the samples is
     ``sum_g n_g (mean_g - prediction_g)^2`` plus the scatter within groups, which no parameter
     changes.  The fit on the group means weighted by ``sqrt(n_g)`` has the same minimum and the
-    same ``J^T J`` at a cost independent of the number of repeats.
+    same ``J^T J`` at a cost independent of the number of repeats.  Samples within one of
+    :data:`TIME_BINS` bins of the session count as simultaneous: exact for a correction linear in
+    time; a warm-up's curvature over a bin, ``A (w / tau)^2 / 24`` for a bin ``w`` = session / 10000
+    and the shortest time constant the score test starts from (3 % of the session), is ``1e-5 A``.
 
     Attributes
     ----------
@@ -343,10 +348,22 @@ class SampleGroups:
         _, first, index, counts = np.unique(key, axis=0, return_index=True, return_inverse=True, return_counts=True)
         return cls(index.ravel(), counts, first)
 
-    def mean(self, values: np.ndarray) -> np.ndarray:
-        """Each group's mean of ``values`` (n, k), shape (g, k)."""
-        return np.column_stack([np.bincount(self.index, weights=v, minlength=len(self.counts)) for v in values.T]) \
+    def mean(self, values: np.ndarray | None) -> np.ndarray | None:
+        """Each group's mean of ``values`` (n, k) or (n,), shape (g, k) or (g,); None for None."""
+        if values is None:
+            return None
+        columns = np.reshape(values, (len(self.index), -1)).T
+        means = np.column_stack([np.bincount(self.index, weights=v, minlength=len(self.counts)) for v in columns]) \
             / self.counts[:, None]
+        return means if np.ndim(values) == 2 else means[:, 0]
+
+
+def same_inputs(key: np.ndarray, t_s: np.ndarray | None, temp_c: np.ndarray | None) -> SampleGroups:
+    """Samples under one known input (equal ``key`` rows), at one ``temp_c``, within one of :data:`TIME_BINS` of ``t_s``."""
+    time_bin = None
+    if t_s is not None and np.ptp(t_s) > 0:
+        time_bin = np.minimum((t_s - t_s.min()) * (TIME_BINS / np.ptp(t_s)), TIME_BINS - 1).astype(int)
+    return SampleGroups.of(key, time_bin, temp_c)
 
 
 def pooled_repeat_noise(values: np.ndarray, groups: np.ndarray) -> np.ndarray | None:

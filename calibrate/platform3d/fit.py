@@ -11,7 +11,7 @@ from compass.sim.platform3d import predict, up_in_bench
 
 from ..contract import Calibrator, CannotCalibrate, metadata_field_ut, require_response, require_sane_cells
 from ..diagnosis.offsets import (Grouped, OffsetDiagnosis, Problem, SampleGroups, diagnose_offsets,
-                                pooled_repeat_noise)
+                                pooled_repeat_noise, same_inputs)
 from .result import AXES, MAG_CHANNELS, Platform3DResult, axis_geometry, geometry_names
 
 _MIN_RELATIVE_SINGULAR = 1e-6
@@ -238,8 +238,8 @@ def _diagnose(rec: Platform3DRecording, rot: Rotation, p: np.ndarray, n_tilt: in
               from_repeats: bool, candidates) -> OffsetDiagnosis:
     """The residual diagnosis of the magnetometer channels, the tilt sensor kept in the joint fit.
 
-    Its fits run on the means of samples with the same pose, ``t_s`` and ``temp_c`` when there
-    are repeats (:class:`calibrate.diagnosis.offsets.Grouped`).
+    Its fits run on the means of samples with the same pose and ``temp_c`` at (nearly) the same
+    ``t_s`` when there are such repeats (:class:`calibrate.diagnosis.offsets.Grouped`).
     """
 
     def model(rotation, mag, tilt, root_n=1.0):
@@ -252,12 +252,11 @@ def _diagnose(rec: Platform3DRecording, rot: Rotation, p: np.ndarray, n_tilt: in
 
         return linear, residuals
 
-    same = SampleGroups.of(rec.pose, rec.t_s, rec.temp_c)
+    same = same_inputs(rec.pose, rec.t_s, rec.temp_c)
     grouped = None
     if len(same.counts) < len(rec.pose):
-        t_s, temp_c = (None if v is None else v[same.first] for v in (rec.t_s, rec.temp_c))
         grouped = Grouped(*model(rot[same.first], same.mean(rec.mag), same.mean(rec.tilt),
-                                 np.sqrt(same.counts)[:, None]), same.counts, t_s, temp_c)
+                                 np.sqrt(same.counts)[:, None]), same.counts, same.mean(rec.t_s), same.mean(rec.temp_c))
     problem = Problem(MAG_CHANNELS, p, *model(rot, rec.mag, rec.tilt), np.asarray(w_m, float), from_repeats,
                       rec.pose, k_channels=14, offset_index=np.arange(9, 12), grouped=grouped)
     return diagnose_offsets(problem, t_s=rec.t_s, temp_c=rec.temp_c, candidates=candidates)

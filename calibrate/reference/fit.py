@@ -8,7 +8,7 @@ from scipy.linalg import lstsq
 from compass.io.reference import ReferenceRecording
 
 from ..contract import Calibrator, CannotCalibrate, require_response, require_sane_cells
-from ..diagnosis.offsets import Grouped, OffsetDiagnosis, Problem, SampleGroups, diagnose_offsets, pooled_repeat_noise
+from ..diagnosis.offsets import Grouped, OffsetDiagnosis, Problem, diagnose_offsets, pooled_repeat_noise, same_inputs
 from ..platform3d import axis_geometry
 from .result import ReferenceResult, SensorK
 
@@ -199,10 +199,10 @@ def _diagnose(rec: ReferenceRecording, sensors: tuple, candidates) -> OffsetDiag
 
     _, groups = np.unique(np.round(np.hstack(refs), 9), axis=0, return_inverse=True)
     groups = groups.ravel()
-    same = SampleGroups.of(groups, rec.t_s, rec.temp_c)  # the fits run on their means (exact)
+    same = same_inputs(groups, rec.t_s, rec.temp_c)  # the fits run on their means
     grouped = None if len(same.counts) == len(groups) else Grouped(
-        *model([ref[same.first] for ref in refs], same.mean(measured)), same.counts,
-        *(None if v is None else v[same.first] for v in (rec.t_s, rec.temp_c)))
+        *model([ref[same.first] for ref in refs], same.mean(measured)), same.counts, same.mean(rec.t_s),
+        same.mean(rec.temp_c))
     floor = pooled_repeat_noise(measured, groups)
     from_repeats = floor is not None
     if floor is None:
