@@ -203,7 +203,7 @@ class CubicResponse(OffsetEffect):
 
     def delta(self, q, y, ctx):
         u = y / ctx.scale
-        return q * ctx.scale * u**3
+        return q * ctx.scale * (u * u * u)
 
     def report(self, q, sigma, ctx):
         return _per_channel(ctx, "cubic_at_full_scale", q * ctx.scale, sigma * ctx.scale)
