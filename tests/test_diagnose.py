@@ -123,6 +123,7 @@ def test_asymmetric_response_found_and_inverted_at_runtime(tmp_path):
 def test_fitting_bin_means_is_fitting_every_sample(write_session, monkeypatch):
     # two samples per bin (twice the width the fit uses) and an encoder error (the effect least linear in
     # the angle) to find: the fits on bin means must land where the fits on every sample do, far inside the sigmas
+    from calibrate.diagnosis import forms
     from calibrate.fourflip import _mlfit
     from calibrate.fourflip.diagnosis import diagnose_fourflip
     from calibrate.fourflip.fit import physics_from_harmonics
@@ -134,7 +135,9 @@ def test_fitting_bin_means_is_fitting_every_sample(write_session, monkeypatch):
         return diagnose_fourflip(rec, start, candidates=["encoder_error", "nonlinear_response"])[1]
 
     monkeypatch.setattr(_mlfit, "BIN_DEG", 0.1)
+    monkeypatch.setattr(forms, "TIME_BINS", 1000)  # 29 samples a time bin: the angle bins decide
     binned = diagnose()
+    assert len(binned.bins.outputs) < 0.6 * len(rec.outputs)  # the fit ran on bin means
     monkeypatch.setattr(_mlfit.Bins, "of", classmethod(lambda cls, samples, outputs: cls(samples, outputs, 1.0)))
     every = diagnose()
     assert [e.name for e in binned.effects] == [e.name for e in every.effects] == ["encoder_error"]

@@ -92,6 +92,7 @@ def test_fitting_pose_means_is_fitting_every_sample(tmp_path, monkeypatch):
     keep = np.arange(len(sim.mag)) % 7 != 0  # poses with 2, 3 and 4 samples: the weights matter
     sim = dataclasses.replace(sim, **{k: getattr(sim, k)[keep] for k in
                                       ("angles_deg", "mag", "tilt", "heading_deg", "pitch_deg", "roll_deg")})
+    assert len(np.unique(sim.angles_deg, axis=0)) < 0.4 * len(sim.mag)  # the fit runs on means of 2-4 samples
     linear = sim.mag - np.array(sim.truth["mag_offset"])
     bent = dataclasses.replace(sim, mag=sim.mag + 0.5 * (linear / sim.truth["field_ut"]) ** 3)
     grouped = fit(tmp_path, bent)
@@ -112,11 +113,13 @@ def test_fitting_pose_means_is_fitting_every_sample(tmp_path, monkeypatch):
 def test_fitting_means_over_short_times_is_fitting_every_sample(tmp_path, monkeypatch):
     # 15 samples a pose, 2160 in all, and 1000 time bins (a tenth of the fit's): two samples a bin; a
     # warm-up (curved in time) to find: the diagnosis on the bin means must land where the per-sample one does
-    from calibrate.diagnosis import offsets
-    from calibrate.diagnosis.offsets import SampleGroups
+    from calibrate.diagnosis import forms
+    from calibrate.diagnosis.offsets import SampleGroups, same_inputs
 
     sim = simulate_platform3d(seed=27, repeats=15, session_s=SESSION_S, drift_ut=2.0, drift_tau_s=300.0)
-    monkeypatch.setattr(offsets, "TIME_BINS", 1000)
+    monkeypatch.setattr(forms, "TIME_BINS", 1000)
+    _, pose = np.unique(sim.angles_deg, axis=0, return_inverse=True)
+    assert len(same_inputs(pose.ravel(), sim.t_s, sim.temp_c).counts) < 0.6 * len(sim.t_s)  # means of ~2 samples
     grouped = fit(tmp_path, sim)
     assert grouped.diagnosis.block["effects"] == ["offset_drift"]
 

@@ -49,16 +49,15 @@ from scipy.optimize import least_squares
 from ..noise import chi2_sf
 from .evidence import (EffectForm, FitRecord, Proposal, determined, gather_forms, is_unexplained, linearised_score,
                        refit_from_better_start, select_effects)
-from .forms import WARMUP_TAU_FRACTIONS, json_float, rms, settled, warm_up_tau_s, why_no_temperature, why_no_time
+from .forms import (WARMUP_TAU_FRACTIONS, json_float, rms, session_bin, settled, warm_up_tau_s,
+                    why_no_temperature, why_no_time)
 from .report import Diagnosis
 
-__all__ = ["OffsetEffect", "FORMS", "Problem", "Grouped", "SampleGroups", "OffsetDiagnosis", "TIME_BINS",
+__all__ = ["OffsetEffect", "FORMS", "Problem", "Grouped", "SampleGroups", "OffsetDiagnosis",
            "diagnose_offsets", "pooled_repeat_noise", "lack_of_fit", "same_inputs"]
 
 _FD_STEP = 1e-6
 _SINGULAR_COND = 1e12
-TIME_BINS = 10000
-"""Equal bins of the session within which samples under one input are taken as simultaneous (:class:`Grouped`)."""
 
 
 @dataclass(frozen=True)
@@ -252,7 +251,7 @@ class Problem:
     offset_index : ndarray of int, shape (c,)
         Where each channel's offset is in ``x`` (output units).
     grouped : Grouped, optional
-        The same model on the means of samples taken under identical inputs, where the fits and
+        The same model on the means of samples taken under the same inputs, where the fits and
         score tests run (the residuals, chi-square and verdicts stay those of every sample).
     """
 
@@ -277,9 +276,8 @@ class Grouped:
     ``sum_g n_g (mean_g - prediction_g)^2`` plus the scatter within groups, which no parameter
     changes.  The fit on the group means weighted by ``sqrt(n_g)`` has the same minimum and the
     same ``J^T J`` at a cost independent of the number of repeats.  Samples within one of
-    :data:`TIME_BINS` bins of the session count as simultaneous: exact for a correction linear in
-    time; a warm-up's curvature over a bin, ``A (w / tau)^2 / 24`` for a bin ``w`` = session / 10000
-    and the shortest time constant the score test starts from (3 % of the session), is ``1e-5 A``.
+    :data:`~calibrate.diagnosis.forms.TIME_BINS` bins of the session count as simultaneous: exact
+    for a correction linear in time, within ``7e-5`` of a warm-up's size otherwise.
 
     Attributes
     ----------
@@ -359,11 +357,11 @@ class SampleGroups:
 
 
 def same_inputs(key: np.ndarray, t_s: np.ndarray | None, temp_c: np.ndarray | None) -> SampleGroups:
-    """Samples under one known input (equal ``key`` rows), at one ``temp_c``, within one of :data:`TIME_BINS` of ``t_s``."""
-    time_bin = None
-    if t_s is not None and np.ptp(t_s) > 0:
-        time_bin = np.minimum((t_s - t_s.min()) * (TIME_BINS / np.ptp(t_s)), TIME_BINS - 1).astype(int)
-    return SampleGroups.of(key, time_bin, temp_c)
+    """Samples under one known input (equal ``key`` rows), at one ``temp_c``, in one bin of the session.
+
+    The bins are :func:`~calibrate.diagnosis.forms.session_bin`'s; without ``t_s``, the input and ``temp_c`` alone.
+    """
+    return SampleGroups.of(key, session_bin(t_s), temp_c)
 
 
 def pooled_repeat_noise(values: np.ndarray, groups: np.ndarray) -> np.ndarray | None:

@@ -11,12 +11,14 @@ minimised by Levenberg-Marquardt (``scipy.optimize.least_squares``).  Standard e
 the Jacobian at the solution, scaled by the reduced chi-square.
 
 A long recording is fitted on bin means: consecutive samples of one flip whose turntable
-readings fall in one :data:`BIN_DEG` bin are replaced by their mean (inputs and outputs), weighted
-by the square root of their count (:class:`Bins`).  The model is smooth in the angle, so a bin
-mean's prediction differs from the mean prediction by ``f'' var(phi) / 2``, at most
-``K |B| (BIN_DEG in rad)^2 / 24`` (2e-6 output units per unit of ``K |B|`` = 50 at 0.05 deg):
-far below the noise of any bin mean.  The chi-square, its degrees of freedom and the residuals
-stay those of every sample; a recording whose bins hold one sample each is fitted as it is.
+readings fall in one :data:`BIN_DEG` bin and their times in one bin of the session
+(:func:`calibrate.diagnosis.forms.session_bin`) are replaced by their mean (inputs and outputs),
+weighted by the square root of their count (:class:`Bins`).  The model is smooth in the angle, so the
+prediction at a bin's mean angle differs from the bin's mean prediction by ``f'' var(phi) / 2``,
+for the first harmonic at most ``K |B| w^2 / 24`` over a bin ``w`` (in rad): 3e-8 ``K |B|`` at
+0.05 deg, 1.6e-6 uT in a 50 uT field, far below the noise of any bin mean.  The chi-square, its
+degrees of freedom and the residuals stay those of every sample; a recording whose bins hold one
+sample each is fitted as it is.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from compass.frames import direction_sigma_deg as _direction_sigma_deg
 from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, channel_outputs, housing_field
 
 from ..diagnosis.evidence import SINGULAR_RCOND, linear_score, unit_columns
+from ..diagnosis.forms import session_bin
 from .effects import Effect
 
 __all__ = ["BIN_DEG", "Bins", "MLFit", "cramer_rao", "fit_ml", "score_effect", "tangent_basis"]
@@ -61,9 +64,11 @@ class Bins:
     @classmethod
     def of(cls, samples: BenchSamples, outputs: np.ndarray) -> "Bins":
         """The bins of a recording (the samples themselves when no bin holds two)."""
-        cell = np.floor(samples.platform_deg / BIN_DEG)
-        new = np.ones(cell.size, dtype=bool)
-        new[1:] = (cell[1:] != cell[:-1]) | (samples.flip_index[1:] != samples.flip_index[:-1])
+        new = np.zeros(samples.platform_deg.size, dtype=bool)  # where a bin starts
+        new[0] = True
+        for cell in (np.floor(samples.platform_deg / BIN_DEG), samples.flip_index, session_bin(samples.t_s)):
+            if cell is not None:
+                new[1:] |= cell[1:] != cell[:-1]
         if new.all():
             return cls(samples, outputs, 1.0)
         index = np.cumsum(new) - 1
