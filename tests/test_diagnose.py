@@ -118,3 +118,29 @@ def test_asymmetric_response_found_and_inverted_at_runtime(tmp_path):
            for ch in session.channels]
     assert np.all(np.abs(recovered - probe) < np.array(tol)[None, :] + 0.02)
     assert model.channels == tuple(truth_name for truth_name in session.channels)
+
+
+def test_fitting_bin_means_is_fitting_every_sample(write_session, monkeypatch):
+    # two samples per bin (twice the width the fit uses) and an encoder error (the effect least linear in
+    # the angle) to find: the fits on bin means must land where the fits on every sample do, far inside the sigmas
+    from calibrate.diagnosis import forms
+    from calibrate.fourflip import _mlfit
+    from calibrate.fourflip.diagnosis import diagnose_fourflip
+    from calibrate.fourflip.fit import physics_from_harmonics
+
+    rec, _ = write_session(seed=200, effects=("encoder_error",), step_deg=0.05)
+    start = physics_from_harmonics(rec, rec.field_ut, 1.0)
+
+    def diagnose():
+        return diagnose_fourflip(rec, start, candidates=["encoder_error", "nonlinear_response"])[1]
+
+    monkeypatch.setattr(_mlfit, "BIN_DEG", 0.1)
+    monkeypatch.setattr(forms, "TIME_BINS", 1000)  # 29 samples a time bin: the angle bins decide
+    binned = diagnose()
+    assert len(binned.bins.outputs) < 0.6 * len(rec.outputs)  # the fit ran on bin means
+    monkeypatch.setattr(_mlfit.Bins, "of", classmethod(lambda cls, samples, outputs: cls(samples, outputs, 1.0)))
+    every = diagnose()
+    assert [e.name for e in binned.effects] == [e.name for e in every.effects] == ["encoder_error"]
+    assert np.all(np.abs(binned.x - every.x) < 1e-2 * every.sigma)
+    np.testing.assert_allclose(binned.sigma, every.sigma, rtol=1e-4)
+    assert binned.chi2 == pytest.approx(every.chi2, rel=1e-7) and binned.dof == every.dof

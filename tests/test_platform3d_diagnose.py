@@ -6,6 +6,8 @@ import json
 import numpy as np
 import pytest
 
+from calibrate.diagnosis import forms
+from calibrate.diagnosis.offsets import SampleGroups, same_inputs
 from calibrate.platform3d import calibrate_platform3d
 from compass.cli import main
 from compass.io.platform3d import read_platform3d
@@ -18,6 +20,12 @@ N_SIGMA = 4.5  # as the platform's other truth tests
 def fit(tmp_path, sim, name="rec.csv"):
     path, _ = write_platform3d(sim, tmp_path / name)
     return calibrate_platform3d(read_platform3d(path))
+
+
+def every_row_alone(*keys) -> SampleGroups:
+    """Each row its own group: the fits on every sample (what the fits on means are checked against)."""
+    n = len(keys[0])
+    return SampleGroups(np.arange(n), np.ones(n, dtype=int), np.arange(n))
 
 
 def rms_tolerance(sim) -> float:
@@ -81,6 +89,48 @@ def test_cubic_response_is_identifiable_on_the_platform(tmp_path):
     block = res.to_json()["diagnosis"]
     assert block["effects"] == ["nonlinear_response"] and block["unexplained"] is False
     assert "offset_drift" in block["not_applicable"] and "temperature" in block["not_applicable"]
+
+
+def test_fitting_pose_means_is_fitting_every_sample(tmp_path, monkeypatch):
+    # repeats of one pose carry their mean and count (sufficient statistics of a model constant over
+    # the group): the base fit and the diagnosis on the means must land where the fits on every sample do
+
+    sim = simulate_platform3d(seed=24, repeats=4)
+    keep = np.arange(len(sim.mag)) % 7 != 0  # poses with 2, 3 and 4 samples: the weights matter
+    sim = dataclasses.replace(sim, **{k: getattr(sim, k)[keep] for k in
+                                      ("angles_deg", "mag", "tilt", "heading_deg", "pitch_deg", "roll_deg")})
+    assert len(np.unique(sim.angles_deg, axis=0)) < 0.4 * len(sim.mag)  # the fit runs on means of 2-4 samples
+    linear = sim.mag - np.array(sim.truth["mag_offset"])
+    bent = dataclasses.replace(sim, mag=sim.mag + 0.5 * (linear / sim.truth["field_ut"]) ** 3)
+    grouped = fit(tmp_path, bent)
+
+    monkeypatch.setattr(SampleGroups, "of", staticmethod(every_row_alone))
+    per_sample = fit(tmp_path, bent, "again.csv")
+    assert grouped.diagnosis.block["effects"] == per_sample.diagnosis.block["effects"] == ["nonlinear_response"]
+    assert np.all(np.abs(grouped.values - per_sample.values) < 1e-3 * per_sample.sigma)
+    np.testing.assert_allclose(grouped.sigma, per_sample.sigma, rtol=1e-4)
+    assert grouped.chi2 == pytest.approx(per_sample.chi2, rel=1e-7) and grouped.dof == per_sample.dof
+    np.testing.assert_allclose(grouped.residuals_mag, per_sample.residuals_mag, atol=1e-6)
+
+
+def test_fitting_means_over_short_times_is_fitting_every_sample(tmp_path, monkeypatch):
+    # 15 samples a pose, 2160 in all, and 1000 time bins (a tenth of the fit's): two samples a bin; a
+    # warm-up (curved in time) to find: the diagnosis on the bin means must land where the per-sample one does
+
+    sim = simulate_platform3d(seed=27, repeats=15, session_s=SESSION_S, drift_ut=2.0, drift_tau_s=300.0)
+    monkeypatch.setattr(forms, "TIME_BINS", 1000)
+    _, pose = np.unique(sim.angles_deg, axis=0, return_inverse=True)
+    assert len(same_inputs(pose.ravel(), sim.t_s, sim.temp_c).counts) < 0.6 * len(sim.t_s)  # means of ~2 samples
+    grouped = fit(tmp_path, sim)
+    assert grouped.diagnosis.block["effects"] == ["offset_drift"]
+
+    monkeypatch.setattr(SampleGroups, "of", staticmethod(every_row_alone))
+    per_sample = fit(tmp_path, sim, "again.csv")
+    assert [s["form"] for s in grouped.diagnosis.block["steps"][1:]] == \
+        [s["form"] for s in per_sample.diagnosis.block["steps"][1:]]
+    assert np.all(np.abs(grouped.values - per_sample.values) < 1e-2 * per_sample.sigma)
+    np.testing.assert_allclose(grouped.sigma, per_sample.sigma, rtol=1e-3)
+    assert grouped.chi2 == pytest.approx(per_sample.chi2, rel=1e-6)
 
 
 def test_without_time_and_temperature_those_effects_are_not_applicable(tmp_path):

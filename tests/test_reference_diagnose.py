@@ -120,3 +120,25 @@ def test_cli_no_diagnose_keeps_the_base_fit(tmp_path, capsys):
     path, _ = write_reference(sim, tmp_path / "rec.csv")
     assert main(["calibrate", str(path), "--out", str(tmp_path / "cal.json"), "--no-diagnose"]) == 0
     assert json.loads((tmp_path / "cal.json").read_text())["diagnosis"]["effects"] == []
+
+
+def test_fitting_field_means_is_fitting_every_sample(tmp_path, monkeypatch):
+    # repeats of one applied field carry their mean and count: the diagnosis block from the fits on the
+    # means must be the one from the fits on every sample
+    from calibrate.diagnosis.offsets import SampleGroups
+
+    sim = simulate_reference(seed=36, n_fields=24, repeats=4, noise=0.05)
+    grouped = fit(tmp_path, sim).to_json()["diagnosis"]
+
+    def every_row_alone(*keys):
+        n = len(keys[0])
+        return SampleGroups(np.arange(n), np.ones(n, dtype=int), np.arange(n))
+
+    monkeypatch.setattr(SampleGroups, "of", staticmethod(every_row_alone))
+    per_sample = fit(tmp_path, sim, "again.csv").to_json()["diagnosis"]
+    for key in ("residual_rms_before", "residual_rms_after", "noise_floor"):
+        assert grouped[key] == pytest.approx(per_sample[key], rel=1e-9), key
+    assert grouped["structure_test"]["p_value"] == pytest.approx(per_sample["structure_test"]["p_value"], rel=1e-6)
+    np.testing.assert_allclose(grouped["offset_change"]["sigma"], per_sample["offset_change"]["sigma"], rtol=1e-6)
+    np.testing.assert_allclose(grouped["offset_change"]["value"], per_sample["offset_change"]["value"],
+                               atol=1e-3 * min(per_sample["offset_change"]["sigma"]))

@@ -2,7 +2,8 @@
 
 For each kind (four-flip, tumble, 3-D platform, reference fields, attitude) a seeded simulated
 recording of about ``--mb`` megabytes is written (the simulators' sessions, made longer: a finer
-turntable step, more repeats per pose or field, a tumble path replayed with fresh noise), then
+turntable step, more repeats per pose or field, a tumble path replayed with fresh noise; the
+four-flip and platform sessions last an hour and carry ``t_s``), then
 each step runs in its own child process, which reports its peak resident memory (``VmHWM``) as
 it ends and is killed after ``--timeout`` seconds:
 
@@ -32,6 +33,9 @@ import numpy as np
 from _baseline import export_tree, tree_env
 
 KINDS = ("fourflip", "tumble", "platform3d", "reference", "attitude")
+_SESSION_S = 3600.0
+"""Length of the four-flip and platform sessions, s: their recordings carry ``t_s``, as real ones do, so the
+diagnosis examines the time effects (each sample its own time)."""
 
 
 # ---- recordings --------------------------------------------------------------------------------
@@ -60,10 +64,10 @@ def make_recording(kind: str, folder: Path, mb: float) -> tuple[Path, int]:
     if kind == "fourflip":
         from compass.sim.fourflip import simulate_fourflip
 
-        rows = _rows_for(mb, 44.0)
-        s = simulate_fourflip(seed=1, step_deg=4 * 360.0 / rows)
-        data = np.column_stack([s.samples.flip_deg, s.samples.platform_deg, s.outputs])
-        _write(path, ["flip_deg", "platform_deg", *s.channels], data, "%.4f", {"field_ut": 50})
+        rows = _rows_for(mb, 48.0)
+        s = simulate_fourflip(seed=1, step_deg=4 * 360.0 / rows, sample_period_s=_SESSION_S / rows)
+        data = np.column_stack([s.samples.t_s, s.samples.flip_deg, s.samples.platform_deg, s.outputs])
+        _write(path, ["t_s", "flip_deg", "platform_deg", *s.channels], data, "%.4f", {"field_ut": 50})
     elif kind == "tumble":
         from compass.sim.tumble import simulate_tumble
 
@@ -77,11 +81,11 @@ def make_recording(kind: str, folder: Path, mb: float) -> tuple[Path, int]:
     elif kind == "platform3d":
         from compass.sim.platform3d import simulate_platform3d
 
-        rows = _rows_for(mb, 78.0)
-        s = simulate_platform3d(seed=1, repeats=max(rows // 144, 1))
+        rows = _rows_for(mb, 92.0)
+        s = simulate_platform3d(seed=1, repeats=max(rows // 144, 1), session_s=_SESSION_S)
         rows = len(s.mag)
-        _write(path, ["platform_z_deg", "platform_y_deg", "platform_x_deg", "mx", "my", "mz", "ax", "ay"],
-               np.column_stack([s.angles_deg, s.mag, s.tilt]), "%.6f", {"field_ut": 50})
+        _write(path, ["platform_z_deg", "platform_y_deg", "platform_x_deg", "mx", "my", "mz", "ax", "ay", "t_s"],
+               np.column_stack([s.angles_deg, s.mag, s.tilt, s.t_s]), "%.6f", {"field_ut": 50})
     elif kind == "reference":
         from compass.sim.reference import simulate_reference
 

@@ -129,7 +129,7 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
 
     chosen = select_effects(
         base, pool,
-        score=lambda current, effect: score_effect(current, rec.outputs, noise, effect),
+        score=lambda current, effect: score_effect(current, noise, effect),
         refit=refit, n_params=lambda e: e.n_params(len(rec.channels)), log_n=np.log(rec.outputs.size),
         base_step={"model": "base", "residual_rms": _pooled_rms(base.residuals), "chi2_per_dof": base.reduced_chi2},
         write_step=claim, verdict=lambda f: _verdict(samples, f, noise, floor),

@@ -10,7 +10,8 @@ from compass.io.platform3d import Platform3DRecording
 from compass.sim.platform3d import predict, up_in_bench
 
 from ..contract import Calibrator, CannotCalibrate, metadata_field_ut, require_response, require_sane_cells
-from ..diagnosis.offsets import OffsetDiagnosis, Problem, diagnose_offsets, pooled_repeat_noise
+from ..diagnosis.offsets import (Grouped, OffsetDiagnosis, Problem, SampleGroups, diagnose_offsets,
+                                pooled_repeat_noise, same_inputs)
 from .result import AXES, MAG_CHANNELS, Platform3DResult, axis_geometry, geometry_names
 
 _MIN_RELATIVE_SINGULAR = 1e-6
@@ -34,18 +35,22 @@ def _unpack(p: np.ndarray, n_tilt: int, field_magnitude: float):
     return m, o_m, b_w, a, o_t, u_w
 
 
-def _start(rot: Rotation, mag, tilt, field_magnitude: float, sign: float) -> np.ndarray:
-    """Linear least squares for the sensors on a grid of field directions; best grid point."""
-    ones = np.ones((len(mag), 1))
-    design_t = np.hstack([rot.apply([0.0, 0.0, 1.0], inverse=True), ones])
-    sol_t, *_ = np.linalg.lstsq(design_t, tilt, rcond=None)
+def _start(rot: Rotation, mag, tilt, counts, field_magnitude: float, sign: float) -> np.ndarray:
+    """Linear least squares for the sensors on a grid of field directions; best grid point.
+
+    ``rot``, ``mag`` and ``tilt`` are per pose (the means of its ``counts`` samples, weighted by
+    ``sqrt(counts)``: the same solutions as every sample's).
+    """
+    root_n = np.sqrt(counts)[:, None]
+    design_t = np.hstack([rot.apply([0.0, 0.0, 1.0], inverse=True) * root_n, root_n])
+    sol_t, *_ = np.linalg.lstsq(design_t, tilt * root_n, rcond=None)
     best = None
     for el in np.radians(np.arange(5.0, 86.0, 20.0)) * sign:
         for az in np.radians(np.arange(0.0, 360.0, 30.0)):
             b = field_magnitude * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), -np.sin(el)])
-            design = np.hstack([rot.apply(b, inverse=True), ones])
-            sol, *_ = np.linalg.lstsq(design, mag, rcond=None)
-            rss = float(np.sum((design @ sol - mag) ** 2))
+            design = np.hstack([rot.apply(b, inverse=True) * root_n, root_n])
+            sol, *_ = np.linalg.lstsq(design, mag * root_n, rcond=None)
+            rss = float(np.sum((design @ sol - mag * root_n) ** 2))
             if best is None or rss < best[0]:
                 best = (rss, sol, el, az)
     _, sol, el, az = best
@@ -100,6 +105,11 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
     propagation through a numerical Jacobian.  The BIC is ``chi2 + p ln(N)`` on the weighted
     residuals.
 
+    The model depends on the pose alone, so the fit runs on each pose's mean output weighted by
+    the square root of its sample count: the same minimum and ``J^T J`` as every sample's, the
+    within-pose scatter a constant of the chi-square (which is that of every sample).  Time and
+    memory then grow with the recording only through reading it and its residuals.
+
     The diagnosis works on the magnetometer: its noise floor is the pose-to-pose repeat scatter
     (without repeats, the first fit's residual, and ``unexplained`` is then null); the platform
     sets each channel's linear response, so an odd cubic response is identifiable beside the
@@ -117,22 +127,29 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
     rot = rec.rotation
     n_tilt = rec.tilt.shape[1]
     names = _names(rec.tilt_columns)
-    p0 = _start(rot, rec.mag, rec.tilt, magnitude, sign)
+    # the base model depends on the pose alone: it is fitted to each pose's mean (exact, see Grouped)
+    poses = SampleGroups.of(rec.pose)
+    rot_g, root_n = rot[poses.first], np.sqrt(poses.counts)[:, None]
+    mag_g, tilt_g = poses.mean(rec.mag), poses.mean(rec.tilt)
+    p0 = _start(rot_g, mag_g, tilt_g, poses.counts, magnitude, sign)
     noise_mag, noise_tilt = pooled_repeat_noise(rec.mag, rec.pose), pooled_repeat_noise(rec.tilt, rec.pose)
 
     def residuals(p, w_m, w_t):
-        m, o_m, b_w, a, o_t, u_w = _unpack(p, n_tilt, magnitude)
-        pm, pt = predict(rot, m, o_m, b_w, a, o_t, u_w)
-        return np.concatenate([((pm - rec.mag) / w_m).ravel(), ((pt - rec.tilt) / w_t).ravel()])
+        pm, pt = predict(rot_g, *_unpack(p, n_tilt, magnitude))
+        return np.concatenate([((pm - mag_g) * root_n / w_m).ravel(), ((pt - tilt_g) * root_n / w_t).ravel()])
+
+    def every_sample(p):
+        """Residuals of every sample, output units: magnetometer (n, 3), tilt sensor (n, c)."""
+        pm, pt = predict(rot, *_unpack(p, n_tilt, magnitude))
+        return rec.mag - pm, rec.tilt - pt
 
     w_m = noise_mag if noise_mag is not None else np.full(3, np.std(rec.mag) * 1e-3)
     w_t = noise_tilt if noise_tilt is not None else np.full(n_tilt, np.std(rec.tilt) * 1e-3)
     fit = least_squares(residuals, p0, args=(w_m, w_t), x_scale="jac", method="lm")
     if noise_mag is None or noise_tilt is None:  # weights from the first fit's residual rms
-        m, o_m, b_w, a, o_t, u_w = _unpack(fit.x, n_tilt, magnitude)
-        pm, pt = predict(rot, m, o_m, b_w, a, o_t, u_w)
-        w_m = noise_mag if noise_mag is not None else np.sqrt(np.mean((pm - rec.mag) ** 2, axis=0))
-        w_t = noise_tilt if noise_tilt is not None else np.sqrt(np.mean((pt - rec.tilt) ** 2, axis=0))
+        r_m, r_t = every_sample(fit.x)
+        w_m = noise_mag if noise_mag is not None else np.sqrt(np.mean(r_m**2, axis=0))
+        w_t = noise_tilt if noise_tilt is not None else np.sqrt(np.mean(r_t**2, axis=0))
         fit = least_squares(residuals, fit.x, args=(w_m, w_t), x_scale="jac", method="lm")
 
     jac = fit.jac
@@ -146,13 +163,13 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
         hint = _pose_hint(rot)
         raise CannotCalibrate(f"{rec.path}: the platform poses do not determine {', '.join(involved)}"
                               + (f": {hint}" if hint else " (they trade off against each other)"))
-    pm, pt = predict(rot, *_unpack(fit.x, n_tilt, magnitude))
+    r_m, r_t = every_sample(fit.x)
     require_response(rec.path, MAG_CHANNELS + tuple(rec.tilt_columns), np.hstack([rec.mag, rec.tilt]),
-                     np.hstack([rec.mag - pm, rec.tilt - pt]), rec.rows)
+                     np.hstack([r_m, r_t]), rec.rows)
     x, delta, diagnosis = fit.x, np.zeros_like(rec.mag), None
-    chi2 = float(np.sum(fit.fun**2))
+    chi2 = float(np.sum((r_m / w_m) ** 2) + np.sum((r_t / w_t) ** 2))
     if diagnose:
-        diagnosis = _diagnose(rec, fit.x, n_tilt, magnitude, w_m, w_t, noise_mag is not None,
+        diagnosis = _diagnose(rec, rot, fit.x, n_tilt, magnitude, w_m, w_t, noise_mag is not None,
                               ("offset_drift", "temperature", "nonlinear_response") if candidates is None else candidates)
         if diagnosis.effects:
             x, jac, delta = diagnosis.x, diagnosis.jac, diagnosis.delta
@@ -160,7 +177,7 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
             m, o_m, b_w, a, o_t, u_w = _unpack(x, n_tilt, magnitude)
             pm, pt = predict(rot, m, o_m, b_w, a, o_t, u_w)
             chi2 = float(np.sum(((rec.mag - pm - delta) / w_m) ** 2) + np.sum(((pt - rec.tilt) / w_t) ** 2))
-    n_obs, k = len(fit.fun), len(x)
+    n_obs, k = rec.mag.size + rec.tilt.size, len(x)
     dof = n_obs - k
     cov = np.linalg.inv(jac.T @ jac) * chi2 / max(dof, 1)
 
@@ -217,23 +234,31 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
         message=str(fit.message), warnings=tuple(warnings), diagnosis=diagnosis)
 
 
-def _diagnose(rec: Platform3DRecording, p: np.ndarray, n_tilt: int, magnitude: float, w_m, w_t,
+def _diagnose(rec: Platform3DRecording, rot: Rotation, p: np.ndarray, n_tilt: int, magnitude: float, w_m, w_t,
               from_repeats: bool, candidates) -> OffsetDiagnosis:
-    """The residual diagnosis of the magnetometer channels, the tilt sensor kept in the joint fit."""
-    rot = rec.rotation
+    """The residual diagnosis of the magnetometer channels, the tilt sensor kept in the joint fit.
 
-    def predicted(x):
-        return predict(rot, *_unpack(x, n_tilt, magnitude))
+    Its fits run on the means of samples with the same pose and ``temp_c`` at (nearly) the same
+    ``t_s`` when there are such repeats (:class:`calibrate.diagnosis.offsets.Grouped`).
+    """
 
-    def linear(x):
-        return predicted(x)[0] - x[9:12]
+    def model(rotation, mag, tilt, root_n=1.0):
+        def linear(x):
+            return predict(rotation, *_unpack(x, n_tilt, magnitude))[0] - x[9:12]
 
-    def residuals(x, delta):
-        pm, pt = predicted(x)
-        return rec.mag - pm - delta, ((pt - rec.tilt) / w_t).ravel()
+        def residuals(x, delta):
+            pm, pt = predict(rotation, *_unpack(x, n_tilt, magnitude))
+            return mag - pm - delta, ((pt - tilt) * root_n / w_t).ravel()
 
-    problem = Problem(MAG_CHANNELS, p, linear, residuals, np.asarray(w_m, float), from_repeats, rec.pose,
-                      k_channels=14, offset_index=np.arange(9, 12))
+        return linear, residuals
+
+    same = same_inputs(rec.pose, rec.t_s, rec.temp_c)
+    grouped = None
+    if len(same.counts) < len(rec.pose):
+        grouped = Grouped(*model(rot[same.first], same.mean(rec.mag), same.mean(rec.tilt),
+                                 np.sqrt(same.counts)[:, None]), same.counts, same.mean(rec.t_s), same.mean(rec.temp_c))
+    problem = Problem(MAG_CHANNELS, p, *model(rot, rec.mag, rec.tilt), np.asarray(w_m, float), from_repeats,
+                      rec.pose, k_channels=14, offset_index=np.arange(9, 12), grouped=grouped)
     return diagnose_offsets(problem, t_s=rec.t_s, temp_c=rec.temp_c, candidates=candidates)
 
 

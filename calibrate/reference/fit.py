@@ -8,7 +8,7 @@ from scipy.linalg import lstsq
 from compass.io.reference import ReferenceRecording
 
 from ..contract import Calibrator, CannotCalibrate, require_response, require_sane_cells
-from ..diagnosis.offsets import OffsetDiagnosis, Problem, diagnose_offsets, pooled_repeat_noise
+from ..diagnosis.offsets import Grouped, OffsetDiagnosis, Problem, diagnose_offsets, pooled_repeat_noise, same_inputs
 from ..platform3d import axis_geometry
 from .result import ReferenceResult, SensorK
 
@@ -187,22 +187,29 @@ def _diagnose(rec: ReferenceRecording, sensors: tuple, candidates) -> OffsetDiag
     refs = [rec.reference[s.name] for s in sensors]
     measured = np.hstack([rec.outputs[s.name] for s in sensors])
 
-    def linear(x):
-        return np.hstack([ref @ x[12 * i:12 * i + 9].reshape(3, 3).T for i, ref in enumerate(refs)])
+    def model(refs, measured):
+        def linear(x):
+            return np.hstack([ref @ x[12 * i:12 * i + 9].reshape(3, 3).T for i, ref in enumerate(refs)])
 
-    def residuals(x, delta):
-        offsets = np.concatenate([x[12 * i + 9:12 * i + 12] for i in range(n_s)])
-        return measured - linear(x) - offsets - delta, np.empty(0)
+        def residuals(x, delta):
+            offsets = np.concatenate([x[12 * i + 9:12 * i + 12] for i in range(n_s)])
+            return measured - linear(x) - offsets - delta, np.empty(0)
+
+        return linear, residuals
 
     _, groups = np.unique(np.round(np.hstack(refs), 9), axis=0, return_inverse=True)
     groups = groups.ravel()
+    same = same_inputs(groups, rec.t_s, rec.temp_c)  # the fits run on their means
+    grouped = None if len(same.counts) == len(groups) else Grouped(
+        *model([ref[same.first] for ref in refs], same.mean(measured)), same.counts, same.mean(rec.t_s),
+        same.mean(rec.temp_c))
     floor = pooled_repeat_noise(measured, groups)
     from_repeats = floor is not None
     if floor is None:
         groups = np.arange(len(measured))
         floor = np.concatenate([s.residual_rms for s in sensors])
-    problem = Problem(channels, x_base, linear, residuals, floor, from_repeats, groups, k_channels=12 * n_s,
-                      offset_index=np.concatenate([12 * i + 9 + np.arange(3) for i in range(n_s)]))
+    problem = Problem(channels, x_base, *model(refs, measured), floor, from_repeats, groups, k_channels=12 * n_s,
+                      offset_index=np.concatenate([12 * i + 9 + np.arange(3) for i in range(n_s)]), grouped=grouped)
     return diagnose_offsets(problem, t_s=rec.t_s, temp_c=rec.temp_c, candidates=candidates)
 
 

@@ -223,7 +223,7 @@ class CubicResponse(TumbleEffect):
         return 3
 
     def correct(self, z, q, rows, ctx):
-        return z + q * z**3
+        return z + q * (z * z * z)  # a product: numpy takes z**3 through pow(), 20x slower
 
     def report(self, q, sigma, ctx):
         return _per_axis("cubic_correction_at_field", q, sigma)
