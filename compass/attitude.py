@@ -457,22 +457,22 @@ def _wahba_sigmas(rows, heading, pitch, field_quad, b_norm, up_var, f, dip_deg, 
     dip variance ``dip_var`` of the field's vote (rad^2; :func:`solve_attitude` Notes).  ``f`` and
     ``dip_var`` may be one value a row.
     """
-    field_ref = world_field(dip_deg)
-    # one weight a row; f -> 0 (TRIAD) is a limit: H^-1 grows as 1/f about up while the field's
-    # share f of it shrinks, their product finite, so a row with f = 0 is evaluated just beside it
-    f = np.maximum(np.broadcast_to(np.asarray(f, dtype=float), np.shape(heading)), 1e-9)[:, None, None]
-    h = (1.0 - f) * (np.eye(3) - np.outer(_UP, _UP)) + f * (np.eye(3) - np.outer(field_ref, field_ref))
-    h_inv = np.linalg.inv(h)  # (n, 3, 3)
-    cross_h_inv = np.cross(field_ref, h_inv)  # row k: b_W x H^-1 e_k (H^-1 symmetric)
-    f = f[:, 0, 0]
+    # H = I - (1 - f) z z^T - f b b^T with b = (c, 0, s) in NWU: West is its own axis (H_WW = 1) and the
+    # north-up block [[1 - f c^2, -f c s], [-f c s, f c^2]] has determinant f (1 - f) c^2, so H^-1 is closed
+    # form, one value a row.  f -> 0 (TRIAD) is a limit: H^-1 grows as 1/f about up while the field's
+    # share f shrinks, their product finite, so a row with f = 0 is evaluated just beside it
+    c_b, _, s_b = world_field(dip_deg)
+    f = np.maximum(np.broadcast_to(np.asarray(f, dtype=float), np.shape(heading)), 1e-9)
+    det = f * (1.0 - f) * c_b**2
+    inv_nn, inv_nu, inv_uu = f * c_b**2 / det, f * c_b * s_b / det, (1.0 - f * c_b**2) / det
     psi, theta = np.radians(-heading), np.radians(-pitch)  # scipy's ZYX yaw and pitch
     cp, sp, ct, tt = np.cos(psi), np.sin(psi), np.cos(theta), np.tan(theta)
     # world-frame rotation error eps -> d yaw, d pitch, d roll (inverse Euler-rate relations)
     sensitivities = ((tt * cp, tt * sp, 1.0), (-sp, cp, 0.0), (cp / ct, sp / ct, 0.0))
     sigmas = []
-    for j in sensitivities:
-        g_north, g_west = (sum(h_inv[:, i, k] * j[k] for k in range(3)) for i in (0, 1))
-        c = [sum(cross_h_inv[:, k, i] * j[k] for k in range(3)) for i in range(3)]  # b_W x g, world
+    for j_north, j_west, j_up in sensitivities:
+        g_north, g_west, g_up = inv_nn * j_north + inv_nu * j_up, j_west, inv_nu * j_north + inv_uu * j_up
+        c = (-s_b * g_west, s_b * g_north - c_b * g_up, c_b * g_west)  # b_W x g, world
         v = c[0] * rows[0] + c[1] * rows[1] + c[2] * rows[2]  # R^T (b_W x g), in H
         var = ((1.0 - f) ** 2 * up_var * (g_north**2 + g_west**2) + f**2 * field_quad(v) / b_norm**2
                + f**2 * dip_var * g_west**2)
