@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ._base import _P0_ATTITUDE, AttitudeFilter, exp_matrix, mat_mul
-from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_row
+from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_tilt
 from ._gate import GateState
 from ._records import _REST_RATE_SIGMA, _REST_TAU_S, Diagnostics, SkipCounts
 
@@ -168,10 +168,7 @@ class GyroFilter(AttitudeFilter):
                         e[2] * vx + e[5] * vy + e[8] * vz)
         # P <- F P F^T + Q, F = [[I, -R dt], [0, I]]
         q_att = (cfg.gyro_noise**2 + self.coefficients.scale_var * (wx * wx + wy * wy + wz * wz)) * dt
-        m0, m1, m2, m3, m4, m5, m6, m7, m8 = m
-        n = -dt
-        s.covariance = predict_gyro(s.covariance, (m0 * n, m1 * n, m2 * n, m3 * n, m4 * n, m5 * n, m6 * n, m7 * n, m8 * n),
-                                    q_att, cfg.gyro_bias_walk**2 * dt)
+        s.covariance = predict_gyro(s.covariance, m, dt, q_att, cfg.gyro_bias_walk**2 * dt)
 
     def _rest(self, dt: float, a) -> None:
         """VQF's rest detector; at rest the gyro reading measures its bias."""
@@ -236,9 +233,8 @@ class GyroFilter(AttitudeFilter):
         d0 = m[0] * ux + m[1] * uy + m[2] * uz  # R u - z, x and y
         d1 = m[3] * ux + m[4] * uy + m[5] * uz
         age = s.acc_lp_age_s
-        p, x = s.covariance, self._x
-        p = update_row(p, x, (0.0, -1.0, 0.0, -age * m[3], -age * m[4], -age * m[5]), d0, var)
-        s.covariance = update_row(p, x, (1.0, 0.0, 0.0, age * m[0], age * m[1], age * m[2]), d1, var)
+        s.covariance = update_tilt(s.covariance, self._x, (-age * m[3], -age * m[4], -age * m[5]), d0,
+                                   (age * m[0], age * m[1], age * m[2]), d1, var)
         return True
 
     def _heading(self, t_s: float, dt: float, b) -> None:
