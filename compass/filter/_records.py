@@ -293,16 +293,20 @@ class Diagnostics:
     skipped: str = ""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Estimate:
     """The filter's output after one sample.
+
+    Built once a sample (``compass live``): it keeps the filter's tuples and makes the arrays
+    (:attr:`matrix`, :attr:`rotation`, :attr:`gyro_bias`) only when they are read.
 
     Attributes
     ----------
     t_s : float
         Sample time, seconds.
-    matrix : ndarray, shape (3, 3)
-        ``R_world<-housing`` (NWU world, FLU housing); :attr:`rotation` is the same as a Rotation.
+    matrix_rows : tuple of 9 floats
+        ``R_world<-housing`` (NWU world, FLU housing), row-major; :attr:`matrix` is the array,
+        :attr:`rotation` the same as a Rotation.
     heading_deg, pitch_deg, roll_deg : float
         SPEC section 1 angles.
     heading_sigma_deg, tilt_sigma_deg : float
@@ -314,12 +318,12 @@ class Estimate:
         two-vector filter.
     field_ratio, dip_deg, mag_used, gate, accel_used, skipped
         As in :class:`Diagnostics`.
-    gyro_bias : ndarray, shape (3,), or None
-        Estimated gyro bias in H, rad/s (gyro filter only).
+    gyro_bias_rad_s : tuple of 3 floats, or None
+        Estimated gyro bias in H, rad/s (gyro filter only); :attr:`gyro_bias` is the array.
     """
 
     t_s: float
-    matrix: np.ndarray
+    matrix_rows: tuple
     heading_deg: float
     pitch_deg: float
     roll_deg: float
@@ -331,10 +335,20 @@ class Estimate:
     mag_used: bool
     gate: str
     accel_used: bool
-    gyro_bias: np.ndarray | None
+    gyro_bias_rad_s: tuple | None
     skipped: str = ""
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """``R_world<-housing``, shape (3, 3)."""
+        return np.array(self.matrix_rows).reshape(3, 3)
 
     @property
     def rotation(self) -> Rotation:
         """``R_world<-housing`` as a scipy Rotation."""
         return Rotation.from_matrix(self.matrix)
+
+    @property
+    def gyro_bias(self) -> np.ndarray | None:
+        """Estimated gyro bias in H, rad/s, shape (3,) (None without a gyro)."""
+        return None if self.gyro_bias_rad_s is None else np.array(self.gyro_bias_rad_s)
