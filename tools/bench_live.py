@@ -22,13 +22,21 @@ in this process, writing the attitude CSV (and, with Rerun on, an .rrd file) to 
 Targets (issue 5): p99 < 5 ms at 100 Hz; >= 1 kHz sustained with Rerun recording to a file;
 (issue 13) keeping up with 2 kHz with Rerun on.
 
-Usage: ``python tools/bench_live.py [--quick]``
+- the command: ``compass live --rerun FILE.rrd --out CSV --quiet`` in its own process on a ``compass device
+  --pty`` stream, a sweep of rates: lines sent in its window (decoded + lost), decoded, lost, the
+  received rate, its CPU per sample (its CPU time less an idle run's, over the samples: Rerun's
+  threads included) and the rate one core could carry at that cost, with how busy the machine was
+  (``/proc/stat``: the other users' work included) and its load average.
+
+Usage: ``python tools/bench_live.py [--quick] [--command-only]``
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
+import resource
 import subprocess
 import sys
 import tempfile
@@ -86,6 +94,85 @@ def run_port(rate_hz: float, duration_s: float, rerun: bool, folder: Path) -> di
     received = (session.samples - start[1]) / (end - start[0]) if start else 0.0
     return {"rate": rate_hz, "rerun": rerun, "samples": session.samples, "received_hz": received,
             "lost": s.lost, "bad": s.garbage + s.partial, "p50": p50, "p99": p99, "out50": out50, "out99": out99}
+
+
+_SUMMARY = re.compile(r"(\d+) attitudes from (\d+) samples; dropped lines \d+ \(garbage (\d+), invalid \d+, "
+                      r"partial (\d+), before a header \d+, repeated seq \d+, lost in transit (\d+)\)")
+
+
+def _busy_jiffies() -> tuple[int, int]:
+    """(busy, total) CPU jiffies of the whole machine so far, all cores (``/proc/stat``)."""
+    with open("/proc/stat") as f:
+        values = [int(v) for v in f.readline().split()[1:]]
+    idle = values[3] + values[4]  # idle + iowait
+    return sum(values) - idle, sum(values)
+
+
+def run_command(rate_hz: float, duration_s: float, folder: Path) -> dict:
+    """``compass live --rerun FILE.rrd --out CSV --quiet`` (the command, its own process) on a ``compass device
+    --pty`` stream at ``rate_hz`` for ``duration_s``.
+
+    Returns the session's counts (from its summary line), the device's ``sent`` count, the live
+    process's CPU time (``getrusage`` of the reaped child: its Rerun threads included) and how busy
+    the whole machine was meanwhile (``/proc/stat``, every process of every user, both cores).
+    """
+    cal, link = folder / "cal_cmd.json", folder / f"cmd{rate_hz:g}"
+    device = subprocess.Popen(
+        [sys.executable, "-m", "compass", "device", "--pty", "--save-cal", str(cal), "--force", "--link", str(link),
+         "--rate", str(rate_hz), "--duration", str(duration_s + 8.0)],
+        stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    live = None
+    try:
+        device.stdout.readline()
+        load0, busy0 = os.getloadavg()[0], _busy_jiffies()
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        live = subprocess.Popen(
+            [sys.executable, "-m", "compass", "live", "--port", str(link), "--cal", str(cal), "--rerun",
+             str(folder / f"cmd{rate_hz:g}.rrd"), "--out", str(folder / f"cmd{rate_hz:g}.csv"), "--force", "--quiet",
+             "--duration", str(duration_s)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        text, _ = live.communicate(timeout=duration_s + 60.0)
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)  # the live process only: the device is not reaped yet
+        busy1, load1 = _busy_jiffies(), os.getloadavg()[0]
+    finally:
+        if live is not None and live.poll() is None:
+            live.kill()
+            live.wait(10)
+        device.terminate()
+        device.wait(10)
+    match = _SUMMARY.search(text)
+    if match is None:
+        raise RuntimeError(f"compass live printed no summary:\n{text}")
+    attitudes, samples, garbage, partial, lost = (int(v) for v in match.groups())
+    cpu_s = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    busy = (busy1[0] - busy0[0]) / max(busy1[1] - busy0[1], 1)
+    return {"rate": rate_hz, "samples": samples, "attitudes": attitudes, "sent": samples + lost, "lost": lost,
+            "bad": garbage + partial, "received_hz": samples / duration_s, "cpu_s": cpu_s, "busy": busy,
+            "load": (load0, load1)}
+
+
+def command_sweep(rates, duration_s: float, folder: Path) -> None:
+    """The highest rate ``compass live`` with Rerun on sustains, and its CPU per sample.
+
+    CPU per sample is marginal: the CPU of a run at the rate less that of an idle run (10 Hz: the
+    interpreter's start, imports, the Rerun recording's set-up), over the extra samples; one core
+    then carries at most ``1 / (CPU per sample)`` samples a second.
+    """
+    idle = run_command(10.0, duration_s, folder)
+    print(f"\n`compass live --rerun FILE.rrd --out CSV --quiet` (own process) on `compass device --pty`, "
+          f"{duration_s:g} s a rate; idle run (10 Hz): {idle['cpu_s']:.2f} s CPU")
+    print("| rate | sent (window) | decoded | lost | bad lines | received | live CPU / sample | "
+          "max rate one core | machine busy (2 cores, all users) | load avg | sustained |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    best = 0
+    for rate in rates:
+        r = run_command(rate, duration_s, folder)
+        us = 1e6 * (r["cpu_s"] - idle["cpu_s"]) / max(r["samples"] - idle["samples"], 1)
+        ok = sustained(r)
+        best = rate if ok and rate > best else best
+        print(f"| {rate:g} Hz | {r['sent']} | {r['samples']} | {r['lost']} | {r['bad']} | {r['received_hz']:.0f} Hz | "
+              f"{us:.1f} us | {1e6 / us:.0f} Hz | {100 * r['busy']:.0f} % | {r['load'][0]:.2f} -> {r['load'][1]:.2f} | "
+              f"{'yes' if ok else 'no'} |", flush=True)
+    print(f"highest sustained rate of compass live with Rerun on: {f'{best:g} Hz' if best else 'none of the sweep'}")
 
 
 def sustained(r: dict) -> bool:
@@ -209,12 +296,16 @@ def static_noise(seed: int = 5, rate_hz: float = 100.0, duration_s: float = 30.0
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="shorter runs, smaller sweep")
+    parser.add_argument("--command-only", action="store_true", help="only the sweep of the compass live command")
     args = parser.parse_args()
     duration = 3.0 if args.quick else 8.0
     sweep = (1000, 2000) if args.quick else (1000, 2000, 4000, 8000)
     print(f"python {sys.version.split()[0]}, {os.cpu_count()} cores; load average {os.getloadavg()[0]:.2f}")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
+        command_sweep((1000, 2000) if args.quick else (1000, 2000, 3000, 4000), 5.0 if args.quick else 10.0, folder)
+        if args.command_only:
+            return
         print("\n| rate | Rerun | samples | received | to attitude p50 / p99 | to outputs p50 / p99 | lost | bad lines |")
         print("|---|---|---|---|---|---|---|---|")
         for rate in (100, 1000):
