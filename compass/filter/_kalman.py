@@ -117,7 +117,8 @@ def update_tilt(p: tuple, x: list, w: tuple, z0: float, v: tuple, z1: float, var
 
     ``x`` (the error state accumulated so far this sample) is updated in place; the updated packed
     covariance is returned.  Written out with the covariance in local variables (unpacked and packed
-    once), without the products with 0 and 1.
+    once), without the products with 0 and 1; the downdate is written twice on purpose (a helper
+    would pack and unpack the 21 floats between the rows, a third of the cost).
     """
     (p00, p01, p02, p03, p04, p05, p11, p12, p13, p14, p15, p22, p23, p24, p25,
      p33, p34, p35, p44, p45, p55) = p

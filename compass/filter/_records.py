@@ -44,7 +44,11 @@ class FilterConfig:
     gyro_scale_error : float
         Relative scale-factor and cross-axis error of the gyro (fraction of the rate).
     accel_time_constant_s : float
-        Low-pass of the specific force in the inertial frame, seconds (VQF's ``tauAcc``).
+        Low-pass of the specific force in the inertial frame, seconds.  VQF's ``tauAcc`` is 3 s for
+        a filter that sets the tilt to the low-passed direction outright; this filter's own tilt
+        correction adds about a second of smoothing on top (its Kalman time constant in motion), and
+        the low-pass carries the gyro's scale error over the angle turned within its memory, so 2 s
+        (issue 13's leave-one-out protocol chose 2 s over 3 s on 13 of 14 BROAD folds).
     motion_time_s : float
         Time scale on which the housing's velocity varies (hand-held motion), seconds: the
         correlation time of what the low-pass leaves of the motion acceleration.
@@ -54,7 +58,8 @@ class FilterConfig:
     mag_heading_sigma_deg : float
         Heading error of the undisturbed field itself (inhomogeneity across the working volume,
         calibration residue), degrees: the floor; the gyro filter uses the larger of it and the
-        error it measures from the wander of the field's dip (module docstring).
+        error it measures from the wander of the field's dip (module docstring).  1 degree (issue
+        13's leave-one-out protocol chose it over 2 degrees on 13 of 14 BROAD folds).
     field_reference_tau_s : float
         Time constant with which the gate's reference |B| and dip follow the accepted field, seconds.
     angular_accel_noise : float
@@ -111,10 +116,10 @@ class FilterConfig:
     gyro_bias_walk: float = 1e-4
     gyro_bias_sigma0: float = 0.05
     gyro_scale_error: float = 0.005
-    accel_time_constant_s: float = 3.0
+    accel_time_constant_s: float = 2.0
     motion_time_s: float = 0.5
     field_error_time_s: float = 4.0
-    mag_heading_sigma_deg: float = 2.0
+    mag_heading_sigma_deg: float = 1.0
     field_reference_tau_s: float = 20.0
     angular_accel_noise: float = 0.1
     rate_tau_s: float = 1.0
