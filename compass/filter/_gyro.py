@@ -19,6 +19,7 @@ from ._records import _REST_RATE_SIGMA, _REST_TAU_S, Diagnostics, SkipCounts
 __all__ = ["GyroFilter", "GyroState"]
 
 _REST_GYRO = math.radians(2.0)  # VQF's rest detector: rate deviation, rad/s
+_REST_GYRO2 = _REST_GYRO**2
 _REST_ACCEL = 0.05  # and specific-force deviation, fraction of g
 _ORTHONORMALISE_EVERY = 1000  # samples between re-orthonormalisations of the nominal matrix
 
@@ -152,7 +153,7 @@ class GyroFilter(AttitudeFilter):
 
     def _propagate(self, dt: float) -> None:
         """Nominal attitude by the exact exponential of the bias-corrected rate; inertial low-pass; covariance."""
-        s, cfg = self._s, self.config
+        s = self._s
         (gx, gy, gz), (bx, by, bz) = s.rate_rad_s, s.bias_rad_s
         wx, wy, wz = gx - bx, gy - by, gz - bz
         e = exp_matrix(wx * dt, wy * dt, wz * dt)
@@ -167,8 +168,9 @@ class GyroFilter(AttitudeFilter):
             s.acc_lp = (e[0] * vx + e[3] * vy + e[6] * vz, e[1] * vx + e[4] * vy + e[7] * vz,
                         e[2] * vx + e[5] * vy + e[8] * vz)
         # P <- F P F^T + Q, F = [[I, -R dt], [0, I]]
-        q_att = (cfg.gyro_noise**2 + self.coefficients.scale_var * (wx * wx + wy * wy + wz * wz)) * dt
-        s.covariance = predict_gyro(s.covariance, m, dt, q_att, cfg.gyro_bias_walk**2 * dt)
+        c = self.coefficients
+        q_att = (c.gyro_var + c.scale_var * (wx * wx + wy * wy + wz * wz)) * dt
+        s.covariance = predict_gyro(s.covariance, m, dt, q_att, c.bias_walk_var * dt)
 
     def _rest(self, dt: float, a) -> None:
         """VQF's rest detector; at rest the gyro reading measures its bias."""
@@ -181,7 +183,7 @@ class GyroFilter(AttitudeFilter):
         cx, cy, cz = s.rest_acc
         cx, cy, cz = cx + alpha * (ax - cx), cy + alpha * (ay - cy), cz + alpha * (az - cz)
         s.rest_acc = (cx, cy, cz)
-        limit2 = _REST_GYRO**2
+        limit2 = _REST_GYRO2
         steady = (rx * rx + ry * ry + rz * rz < limit2  # a slow steady turn is no rest (VQF's biasClip)
                   and (gx - rx) ** 2 + (gy - ry) ** 2 + (gz - rz) ** 2 < limit2
                   and (ax - cx) ** 2 + (ay - cy) ** 2 + (az - cz) ** 2 < (_REST_ACCEL * s.gravity) ** 2)
@@ -225,7 +227,7 @@ class GyroFilter(AttitudeFilter):
             lp_norm = math.sqrt(lx * lx + ly * ly + lz * lz)
         if not lp_norm > 0 or abs(lp_norm / g - 1.0) > cfg.accel_tolerance:
             return False
-        var = cfg.accel_noise**2
+        var = c.accel_var
         if dt > 0.0 and cfg.motion_adaptive_accel:
             var += s.residual_var * 2.0 * cfg.motion_time_s / dt
         m = s.matrix
@@ -257,7 +259,7 @@ class GyroFilter(AttitudeFilter):
             p = s.covariance
             var = c.yaw_var + c.tan_dip2 * (p[0] + p[6]) / 2.0
             if dt > 0.0:
-                var += self.field_heading_var * 2.0 * self.config.field_error_time_s / dt
+                var += self.gate.field_heading_var(s.gate) * 2.0 * self.config.field_error_time_s / dt
             s.covariance = update_axis(p, self._x, 2, innovation, var)
 
     def _inject(self) -> None:

@@ -196,6 +196,11 @@ class FilterCoefficients:
         Variance of the rest detector's low-passed rate about the true bias, (rad/s)^2.
     rest_rate_var_density : float
         ``gyro_noise^2``: the rest measurement's variance times dt, (rad/s)^2 s.
+    gyro_var, bias_walk_var : float
+        ``gyro_noise^2``, (rad/s)^2 / Hz, and
+        ``gyro_bias_walk^2``, (rad/s)^2 / s.
+    accel_var : float
+        ``accel_noise^2``, (fraction of g)^2.
     settled_var : float
         Heading variance below which the innovation gate applies, rad^2.
     adopt_var : float
@@ -213,6 +218,9 @@ class FilterCoefficients:
     yaw_var: float
     rest_floor_var: float
     rest_rate_var_density: float
+    gyro_var: float
+    bias_walk_var: float
+    accel_var: float
     settled_var: float
     adopt_var: float
     scale_var: float
@@ -229,6 +237,7 @@ class FilterCoefficients:
             dip_noise_var=dip_noise_var, yaw_var=dip_noise_var / cos_dip2,
             rest_floor_var=config.gyro_noise**2 / (2.0 * _REST_TAU_S) + _REST_RATE_SIGMA**2,
             rest_rate_var_density=config.gyro_noise**2,
+            gyro_var=config.gyro_noise**2, bias_walk_var=config.gyro_bias_walk**2, accel_var=config.accel_noise**2,
             settled_var=math.radians(config.heading_tolerance_deg / 3.0) ** 2,
             adopt_var=math.radians(3.0 * config.heading_tolerance_deg) ** 2,
             scale_var=config.gyro_scale_error**2 * _SCALE_CORRELATION_S,
