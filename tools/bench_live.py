@@ -24,9 +24,10 @@ Targets (issue 5): p99 < 5 ms at 100 Hz; >= 1 kHz sustained with Rerun recording
 
 - the command: ``compass live --rerun FILE.rrd --out CSV --quiet`` in its own process on a ``compass device
   --pty`` stream, a sweep of rates: lines sent in its window (decoded + lost), decoded, lost, the
-  received rate, its CPU per sample (its CPU time less an idle run's, over the samples: Rerun's
-  threads included) and the rate one core could carry at that cost, with how busy the machine was
-  (``/proc/stat``: the other users' work included) and its load average.
+  received rate, its CPU per sample in the steady state (``/proc/PID/stat`` over the CSV rows written
+  in the middle 60 % of the run: Rerun's threads included, no start-up) and the rate one core could
+  carry at that cost, with how busy the machine was (``/proc/stat``: the other users' work
+  included) and its load average.
 
 Usage: ``python tools/bench_live.py [--quick] [--command-only]``
 """
@@ -36,7 +37,6 @@ from __future__ import annotations
 import argparse
 import os
 import re
-import resource
 import subprocess
 import sys
 import tempfile
@@ -108,31 +108,61 @@ def _busy_jiffies() -> tuple[int, int]:
     return sum(values) - idle, sum(values)
 
 
+def _cpu_s(pid: int) -> float:
+    """User + system CPU time of a running process, all its threads, seconds (``/proc/PID/stat``)."""
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _after_flush(csv: Path, pid: int, timeout_s: float = 3.0):
+    """``(CPU s, rows)`` of the live process just after its next CSV flush (it flushes every second: the row
+    count is then exact), or None if it ended first."""
+    size = csv.stat().st_size if csv.exists() else 0
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        time.sleep(0.005)
+        now = csv.stat().st_size if csv.exists() else 0
+        if now != size:
+            try:
+                cpu = _cpu_s(pid)
+            except FileNotFoundError:
+                return None
+            return cpu, csv.read_bytes().count(b"\n")
+    return None
+
+
 def run_command(rate_hz: float, duration_s: float, folder: Path) -> dict:
     """``compass live --rerun FILE.rrd --out CSV --quiet`` (the command, its own process) on a ``compass device
     --pty`` stream at ``rate_hz`` for ``duration_s``.
 
-    Returns the session's counts (from its summary line), the device's ``sent`` count, the live
-    process's CPU time (``getrusage`` of the reaped child: its Rerun threads included) and how busy
-    the whole machine was meanwhile (``/proc/stat``, every process of every user, both cores).
+    Returns the session's counts (from its summary line; sent = decoded + lost in the window it
+    read), its CPU per sample in the steady state (``/proc/PID/stat``, its Rerun threads included,
+    over the CSV rows written in the middle 60 % of the run, counted just after its flushes: no
+    start-up in it), and how busy the whole machine was meanwhile (``/proc/stat``: every process of
+    every user, both cores).
     """
-    cal, link = folder / "cal_cmd.json", folder / f"cmd{rate_hz:g}"
+    cal, link, csv = folder / "cal_cmd.json", folder / f"cmd{rate_hz:g}", folder / f"cmd{rate_hz:g}.csv"
     device = subprocess.Popen(
         [sys.executable, "-m", "compass", "device", "--pty", "--save-cal", str(cal), "--force", "--link", str(link),
-         "--rate", str(rate_hz), "--duration", str(duration_s + 8.0)],
+         "--rate", str(rate_hz), "--duration", str(duration_s + 20.0)],
         stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     live = None
     try:
         device.stdout.readline()
-        load0, busy0 = os.getloadavg()[0], _busy_jiffies()
-        before = resource.getrusage(resource.RUSAGE_CHILDREN)
         live = subprocess.Popen(
             [sys.executable, "-m", "compass", "live", "--port", str(link), "--cal", str(cal), "--rerun",
-             str(folder / f"cmd{rate_hz:g}.rrd"), "--out", str(folder / f"cmd{rate_hz:g}.csv"), "--force", "--quiet",
-             "--duration", str(duration_s)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+             str(folder / f"cmd{rate_hz:g}.rrd"), "--out", str(csv), "--force", "--quiet", "--duration",
+             str(duration_s + 5.0)],  # 5 s for its start-up
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        first = _after_flush(csv, live.pid, 60.0)  # rows flowing: the start-up is over
+        time.sleep(0.15 * duration_s)
+        marks = [_after_flush(csv, live.pid), None]
+        t0, busy0, load0 = time.monotonic(), _busy_jiffies(), os.getloadavg()[0]
+        time.sleep(0.6 * duration_s)
+        marks[1] = _after_flush(csv, live.pid)
+        t1, busy1, load1 = time.monotonic(), _busy_jiffies(), os.getloadavg()[0]
         text, _ = live.communicate(timeout=duration_s + 60.0)
-        after = resource.getrusage(resource.RUSAGE_CHILDREN)  # the live process only: the device is not reaped yet
-        busy1, load1 = _busy_jiffies(), os.getloadavg()[0]
     finally:
         if live is not None and live.poll() is None:
             live.kill()
@@ -140,38 +170,32 @@ def run_command(rate_hz: float, duration_s: float, folder: Path) -> dict:
         device.terminate()
         device.wait(10)
     match = _SUMMARY.search(text)
-    if match is None:
-        raise RuntimeError(f"compass live printed no summary:\n{text}")
+    if match is None or first is None or None in marks:
+        raise RuntimeError(f"compass live printed no summary or ended early:\n{text}")
     attitudes, samples, garbage, partial, lost = (int(v) for v in match.groups())
-    cpu_s = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
-    busy = (busy1[0] - busy0[0]) / max(busy1[1] - busy0[1], 1)
+    (cpu0, rows0), (cpu1, rows1) = marks
     return {"rate": rate_hz, "samples": samples, "attitudes": attitudes, "sent": samples + lost, "lost": lost,
-            "bad": garbage + partial, "received_hz": samples / duration_s, "cpu_s": cpu_s, "busy": busy,
-            "load": (load0, load1)}
+            "bad": garbage + partial, "received_hz": (rows1 - rows0) / (t1 - t0),
+            "cpu_us": 1e6 * (cpu1 - cpu0) / max(rows1 - rows0, 1),
+            "busy": (busy1[0] - busy0[0]) / max(busy1[1] - busy0[1], 1), "load": (load0, load1)}
 
 
 def command_sweep(rates, duration_s: float, folder: Path) -> None:
-    """The highest rate ``compass live`` with Rerun on sustains, and its CPU per sample.
-
-    CPU per sample is marginal: the CPU of a run at the rate less that of an idle run (10 Hz: the
-    interpreter's start, imports, the Rerun recording's set-up), over the extra samples; one core
-    then carries at most ``1 / (CPU per sample)`` samples a second.
-    """
-    idle = run_command(10.0, duration_s, folder)
+    """The highest rate ``compass live`` with Rerun on sustains, and its CPU per sample (steady state:
+    one core then carries at most ``1 / (CPU per sample)`` samples a second)."""
     print(f"\n`compass live --rerun FILE.rrd --out CSV --quiet` (own process) on `compass device --pty`, "
-          f"{duration_s:g} s a rate; idle run (10 Hz): {idle['cpu_s']:.2f} s CPU")
+          f"{duration_s:g} s a rate; CPU and rate measured over its middle 60 %")
     print("| rate | sent (window) | decoded | lost | bad lines | received | live CPU / sample | "
           "max rate one core | machine busy (2 cores, all users) | load avg | sustained |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     best = 0
     for rate in rates:
         r = run_command(rate, duration_s, folder)
-        us = 1e6 * (r["cpu_s"] - idle["cpu_s"]) / max(r["samples"] - idle["samples"], 1)
         ok = sustained(r)
         best = rate if ok and rate > best else best
         print(f"| {rate:g} Hz | {r['sent']} | {r['samples']} | {r['lost']} | {r['bad']} | {r['received_hz']:.0f} Hz | "
-              f"{us:.1f} us | {1e6 / us:.0f} Hz | {100 * r['busy']:.0f} % | {r['load'][0]:.2f} -> {r['load'][1]:.2f} | "
-              f"{'yes' if ok else 'no'} |", flush=True)
+              f"{r['cpu_us']:.1f} us | {1e6 / r['cpu_us']:.0f} Hz | {100 * r['busy']:.0f} % | "
+              f"{r['load'][0]:.2f} -> {r['load'][1]:.2f} | {'yes' if ok else 'no'} |", flush=True)
     print(f"highest sustained rate of compass live with Rerun on: {f'{best:g} Hz' if best else 'none of the sweep'}")
 
 
