@@ -151,6 +151,17 @@ def test_run_filter_checks_shapes():
         run_filter(np.zeros(3), np.zeros((3, 3)), np.zeros((2, 3)), np.zeros((3, 3)), cfg)
 
 
+def test_run_filter_without_an_attitude_gives_nan_rows():
+    """No usable accelerometer: no sample initialises the attitude; every row is NaN, none used, all counted."""
+    cfg = FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.1)
+    for gyro in (np.zeros((5, 3)), None):
+        track = run_filter(np.arange(5.0), np.full((5, 3), np.nan), gyro, np.ones((5, 3)), cfg)
+        assert np.all(np.isnan(track.quat)) and np.all(np.isnan(track.heading_sigma_deg))
+        assert not track.mag_used.any() and not track.accel_used.any() and list(track.gate) == ["absent"] * 5
+        assert track.skipped.as_dict() == {"accel not finite": 5}
+        assert (track.gyro_bias is None) == (gyro is None) and (gyro is None or np.all(np.isnan(track.gyro_bias)))
+
+
 def wandering_rotation(n, sigma_deg, correlation_samples, seed):
     """Rotation vectors (rad), each component a Gauss-Markov sequence of 1-sigma ``sigma_deg``."""
     a = np.exp(-1.0 / correlation_samples)
