@@ -7,6 +7,7 @@ attitude CSV and the Rerun recording, counting everything it had to skip.
 
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 from dataclasses import dataclass, field, replace
@@ -130,22 +131,6 @@ class LiveSession:
         if self.sink is not None:
             self.sink.set_reference(reference.dip_deg, reference.description)
 
-    def _seeding(self, sample, t_rx: float) -> None:
-        """Hold samples until the first quiet second gives the reference, then solve them."""
-        field_h = self._field(sample)
-        if not self._fusable(sample, field_h):
-            return
-        self._held.append((sample, t_rx))
-        t_s = sample.t_s if sample.t_s is not None else t_rx - self._t0
-        reference = self._seed.add(t_s, sample.accel, field_h)
-        if reference is None:
-            return
-        self._seed = None
-        self._use_reference(reference if self.reference is None else self.reference.complete(reference))
-        held, self._held = self._held, []
-        for s, t in held:
-            self._sample(s, t, held=True)
-
     def feed(self, item: Chunk | LinkEvent) -> None:
         """Process one item of :meth:`SerialReader.items`."""
         if isinstance(item, LinkEvent):
@@ -155,13 +140,9 @@ class LiveSession:
             return
         if self._t0 is None:
             self._t0 = item.t_rx
-        for sample in self.decoder.feed(item.data):
-            if sample.gyro is not None and self.gyro_rad_s_per_unit != 1.0:
-                sample = replace(sample, gyro=self.gyro_rad_s_per_unit * sample.gyro)
-            if self.to_product is not None:  # an installed model in the product's frame
-                sample = replace(sample, **{k: None if getattr(sample, k) is None else self.to_product @ getattr(sample, k)
-                                            for k in ("accel", "gyro")})
-            self._sample(sample, item.t_rx)
+        samples = self.decoder.feed(item.data)
+        if samples:
+            self._chunk(samples, item.t_rx)
         if self.decoder.events:
             for level, text in self.decoder.drain_events():
                 self._event(level, text)
@@ -171,13 +152,83 @@ class LiveSession:
             self._event("warn", f"line noise: {stats.garbage} garbage and {stats.partial} partial lines so far")
             self._bad_reported, self._bad_reported_at = bad, item.t_rx
 
-    def _sample(self, sample, t_rx: float, held: bool = False) -> None:
-        header = sample.header  # its own: a header later in the same chunk may have replaced the decoder's
-        if self._seed is not None and header.accel is not None:
-            # without an accelerometer there is no attitude, and nothing to seed the reference from: the
-            # filter is made at once and says so (holding the samples would grow without end)
-            self._seeding(sample, t_rx)
+    def _chunk(self, samples: list, t_rx: float) -> None:
+        """A chunk's samples: what is not sequential once for all of them (the calibration's field, the
+        reference seeding's screen), then each sample through the seeding or the filter."""
+        fields, in_range = self._fields(samples)
+        field_rows, in_range = fields.tolist(), in_range.tolist()
+        per_unit, to_product = self.gyro_rad_s_per_unit, self.to_product
+        readings = []
+        for k, sample in enumerate(samples):
+            accel, gyro = sample.accel, sample.gyro
+            if gyro is not None and per_unit != 1.0:
+                gyro = per_unit * gyro
+            if to_product is not None:  # an installed model in the product's frame
+                accel = None if accel is None else to_product @ accel
+                gyro = None if gyro is None else to_product @ gyro
+            readings.append((sample, accel, gyro, fields[k], field_rows[k], in_range[k], t_rx))
+        codes = self._seed_codes(readings, fields) if self._seed is not None else None
+        for k, reading in enumerate(readings):
+            if self._seed is not None and reading[0].header.accel is not None:
+                # without an accelerometer there is no attitude, and nothing to seed the reference from: the
+                # filter is made at once and says so (holding the samples would grow without end)
+                self._seeding(reading, codes[k])
+            else:
+                self._sample(*reading)
+
+    def _fields(self, samples: list) -> tuple[np.ndarray, np.ndarray]:
+        """The samples' field in H (temperature-compensated when the calibration can), shape (n, 3), and
+        their in-range flags, shape (n,); an empty ``temp_c`` cell keeps the last temperature."""
+        raw = np.array([s.raw for s in samples], dtype=float)
+        effect = self.model.temperature
+        if effect is None or effect.reference_c is None:
+            return self.model.field(raw)
+        temps = []
+        for s in samples:
+            if s.temp_c is not None:
+                self._temp_c = s.temp_c
+            temps.append(self._temp_c)
+        known = np.array([t is not None for t in temps])
+        if known.all():
+            return self.model.field(raw, np.array(temps, dtype=float))
+        fields, in_range = self.model.field(raw)  # no temperature yet: taken as at the reference
+        if known.any():
+            fields[known], in_range[known] = self.model.field(raw[known], np.array(temps, dtype=float)[known])
+        return fields, in_range
+
+    def _seed_codes(self, readings: list, fields: np.ndarray) -> list:
+        """While the reference is being seeded (before any filter sees the samples): per sample, 0 or the
+        :func:`compass.sample_check.skip_codes` reason it must not enter the reference (the filter screens the
+        later ones).  One call for the chunk, with the typical |a| of the samples accepted before it."""
+        scale = float(np.median(self._accel_norms)) if len(self._accel_norms) >= 8 else None
+        nan3 = (np.nan,) * 3
+        accel = np.array([nan3 if r[1] is None else r[1] for r in readings], dtype=float)
+        gyro = np.array([nan3 if r[2] is None else r[2] for r in readings], dtype=float)
+        return skip_codes(fields, self.config.field_norm, accel, scale, gyro).tolist()
+
+    def _seeding(self, reading: tuple, code: int) -> None:
+        """Hold samples until the first quiet second gives the reference, then solve them."""
+        sample, accel, _, field_h, _, _, t_rx = reading
+        if code:
+            self._count_skip(SKIP_REASONS[code])
             return
+        if accel is not None:
+            self._accel_norms.append(float(np.linalg.norm(accel)))
+        self._held.append(reading)
+        t_s = sample.t_s if sample.t_s is not None else t_rx - self._t0
+        reference = self._seed.add(t_s, accel, field_h)
+        if reference is None:
+            return
+        self._seed = None
+        self._use_reference(reference if self.reference is None else self.reference.complete(reference))
+        held, self._held = self._held, []
+        for held_reading in held:
+            self._sample(*held_reading, held=True)
+
+    def _sample(self, sample, accel, gyro, field_h: np.ndarray, field_row: list, in_range: bool, t_rx: float,
+                held: bool = False) -> None:
+        """One sample through the filter and into the outputs (``field_row``: ``field_h`` as a list)."""
+        header = sample.header  # its own: a header later in the same chunk may have replaced the decoder's
         if self._filter is None or self._filter.gyro != (header.gyro is not None):
             self._filter = AttitudeFilter(self.config, gyro=header.gyro is not None)
             self._event("info", f"filter: {'gyro (error-state EKF with bias)' if self._filter.gyro else 'two-vector'}"
@@ -191,19 +242,19 @@ class LiveSession:
             elif header.temp_c is None:
                 self._event("warn", "the calibration has a temperature effect but the module sends no temp_c: "
                                     f"readings are taken as at {effect.reference_c:.1f} degC")
-        field_h, in_range = self._field(sample, with_range=True)
         t_s = sample.t_s if sample.t_s is not None else t_rx - self._t0
-        est = self._filter.step(t_s, sample.accel, sample.gyro, field_h)
-        if self._filter.events:
-            for text in self._filter.drain_events():
+        filt = self._filter
+        est = filt.step(t_s, accel, gyro, field_row)
+        if filt.events:
+            for text in filt.drain_events():
                 self._event("warn", text)
-        if self._filter.diagnostics.skipped:  # a non-finite or out-of-range reading: never fused (the filter's screen)
-            for reason in self._filter.diagnostics.skipped.split(","):
+        if filt.diagnostics.skipped:  # a non-finite or out-of-range reading: never fused (the filter's screen)
+            for reason in filt.diagnostics.skipped.split(","):
                 self._count_skip(reason.strip())
         if est is None:
             self.unsolved += 1
             return
-        self.estimate, self.in_range = est, bool(in_range[0])
+        self.estimate, self.in_range = est, in_range
         self.samples += 1
         if est.gate != self._gate:
             self._event("info" if est.mag_used else "warn",
@@ -213,53 +264,29 @@ class LiveSession:
         latency = time.perf_counter() - t_rx
         if not held:  # samples held for the reference waited for it: out of the percentiles
             self.latencies_s.append(latency)
+        true = None if self._declination is None else self.true_heading()
         if self.out is not None:
-            self.out.write(_CSV_ROW % (t_s, est.heading_deg, est.pitch_deg, est.roll_deg, est.heading_sigma_deg,
-                                       est.tilt_sigma_deg, est.field_ratio, est.dip_deg, est.mag_used,
-                                       GATE_CODES[est.gate], est.accel_used, self.in_range, 1e3 * latency))
-            if self._declination is not None:
-                self.out.write(",%.3f,%.3f" % self.true_heading())
-            self.out.write("\n")
+            row = _CSV_ROW % (t_s, est.heading_deg, est.pitch_deg, est.roll_deg, est.heading_sigma_deg,
+                              est.tilt_sigma_deg, est.field_ratio, est.dip_deg, est.mag_used,
+                              GATE_CODES[est.gate], est.accel_used, in_range, 1e3 * latency)
+            self.out.write(row + "\n" if true is None else row + (",%.3f,%.3f\n" % true))
         if self.sink is not None:
-            self.sink.log(t_s, self.samples, est, field_h / self.config.field_norm, sample.accel, raw=sample.raw,
-                          gyro=sample.gyro, gate_code=GATE_CODES[est.gate], in_range=self.in_range,
-                          latency_ms=1e3 * latency,
-                          **({"true_heading": self.true_heading()} if self._declination is not None else {}))
+            self.sink.log(t_s, self.samples, est, field_h / self.config.field_norm, accel, raw=sample.raw,
+                          gyro=gyro, gate_code=GATE_CODES[est.gate], in_range=in_range,
+                          latency_ms=1e3 * latency, **({} if true is None else {"true_heading": true}))
         if not held:
             self.output_latencies_s.append(time.perf_counter() - t_rx)
-
-    def _fusable(self, sample, field_h) -> bool:
-        """While the reference is being seeded (before any filter sees the samples): False, and counted, for a
-        reading that must not enter it (:mod:`compass.sample_check`); the filter screens the later ones."""
-        scale = float(np.median(self._accel_norms)) if len(self._accel_norms) >= 8 else None
-        code = int(skip_codes(field_h[None, :], self.config.field_norm, _row(sample.accel), scale,
-                              _row(sample.gyro))[0])
-        if code:
-            self._count_skip(SKIP_REASONS[code])
-            return False
-        if sample.accel is not None:
-            self._accel_norms.append(float(np.linalg.norm(sample.accel)))
-        return True
 
     def _count_skip(self, reason: str) -> None:
         self.skipped[reason] = self.skipped.get(reason, 0) + 1
         if self.skipped[reason] == 1:
             self._event("warn", f"sample skipped, never fused: {reason} (counted in the summary)")
 
-    def _field(self, sample, with_range: bool = False):
-        """The sample's field in H (temperature-compensated when the calibration can), and its in-range flags."""
-        effect = self.model.temperature
-        if sample.temp_c is not None:
-            self._temp_c = sample.temp_c  # an empty temp_c cell keeps the last temperature
-        usable = effect is not None and effect.reference_c is not None
-        field_h, in_range = self.model.field(sample.raw[None, :], self._temp_c if usable else None)
-        return (field_h[0], in_range) if with_range else field_h[0]
-
     def true_heading(self) -> tuple[float, float]:
         """Heading from true north and its 1-sigma (declination's included), degrees; needs a site."""
         est, ref = self.estimate, self.reference
-        return (float(np.mod(est.heading_deg + ref.declination_deg, 360.0)),
-                float(np.hypot(est.heading_sigma_deg, ref.declination_sigma_deg)))
+        return ((est.heading_deg + ref.declination_deg) % 360.0, math.hypot(est.heading_sigma_deg,
+                                                                          ref.declination_sigma_deg))
 
     def _event(self, level: str, text: str) -> None:
         if self.on_event is not None:
@@ -311,7 +338,3 @@ class LiveSession:
             self.sink.close() if self.samples > 0 else self.sink.discard()
         if self.out is not None:
             self.out.flush()
-
-
-def _row(vector) -> np.ndarray | None:
-    return None if vector is None else np.asarray(vector, dtype=float)[None, :]

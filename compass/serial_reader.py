@@ -23,6 +23,7 @@ Pitfall handled by the consumer: ``open()`` discards input the device sent befor
 from __future__ import annotations
 
 import io
+import math
 import select
 import threading
 import time
@@ -90,6 +91,9 @@ class SerialReader:
         How long to keep trying before the first connection: then :meth:`items` raises
         :class:`PortUnavailable` (0: one attempt; None: for ever).  Once connected, a lost port
         is waited for without limit.
+    min_read_interval_s : float
+        Shortest time between two reads of a port with a file descriptor, seconds (see ``_read``:
+        at most this long a line waits in the kernel, and only when lines come faster).
 
     Examples
     --------
@@ -106,8 +110,10 @@ class SerialReader:
     """
 
     def __init__(self, url: str, *, baudrate: int = 115200, read_timeout_s: float = 0.05, retry_s: float = 0.25,
-                 first_open_s: float | None = None):
+                 first_open_s: float | None = None, min_read_interval_s: float = 0.002):
         self.url = url
+        self.min_read_interval_s = min_read_interval_s
+        self._last_read = -math.inf
         self.first_open_s = first_open_s
         self.connected_once = False
         self.baudrate = baudrate
@@ -179,11 +185,23 @@ class SerialReader:
                 yield Chunk(time.perf_counter(), data)
 
     def _read(self) -> bytes:
-        """What the port holds, after waiting up to ``read_timeout_s`` for a first byte (b"" if none)."""
+        """What the port holds, after waiting up to ``read_timeout_s`` for a first byte (b"" if none).
+
+        Reads are at least ``min_read_interval_s`` apart: a fast stream (above ~500 lines a second) is
+        read a few lines at a time instead of waking the process for every line (each wake-up costs
+        more than a sample's decoding and filtering on a busy machine); a slower one is read as each
+        line arrives.
+        """
         if self._fd is None:
             return self.port.read(self.port.in_waiting or 1)  # blocks up to the port's timeout
+        wait = self._last_read + self.min_read_interval_s - time.monotonic()
+        if wait > 0.0:
+            time.sleep(wait)
         ready, _, _ = select.select([self._fd], [], [], self.read_timeout_s)
-        return self.port.read(MAX_READ_BYTES) if ready else b""  # the port's timeout is 0: no blocking
+        if not ready:
+            return b""
+        self._last_read = time.monotonic()
+        return self.port.read(MAX_READ_BYTES)  # the port's timeout is 0: no blocking
 
 
 def _nonblocking_fd(port) -> int | None:

@@ -151,6 +151,17 @@ def test_run_filter_checks_shapes():
         run_filter(np.zeros(3), np.zeros((3, 3)), np.zeros((2, 3)), np.zeros((3, 3)), cfg)
 
 
+def test_run_filter_without_an_attitude_gives_nan_rows():
+    """No usable accelerometer: no sample initialises the attitude; every row is NaN, none used, all counted."""
+    cfg = FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.1)
+    for gyro in (np.zeros((5, 3)), None):
+        track = run_filter(np.arange(5.0), np.full((5, 3), np.nan), gyro, np.ones((5, 3)), cfg)
+        assert np.all(np.isnan(track.quat)) and np.all(np.isnan(track.heading_sigma_deg))
+        assert not track.mag_used.any() and not track.accel_used.any() and list(track.gate) == ["absent"] * 5
+        assert track.skipped.as_dict() == {"accel not finite": 5}
+        assert (track.gyro_bias is None) == (gyro is None) and (gyro is None or np.all(np.isnan(track.gyro_bias)))
+
+
 def wandering_rotation(n, sigma_deg, correlation_samples, seed):
     """Rotation vectors (rad), each component a Gauss-Markov sequence of 1-sigma ``sigma_deg``."""
     a = np.exp(-1.0 / correlation_samples)
@@ -190,7 +201,7 @@ from filterpy.kalman import KalmanFilter  # noqa: E402
 from compass.filter import (GateState, GyroFilter, GyroState, MagneticGate, TwoVectorFilter,  # noqa: E402
                             FilterCoefficients)
 from compass.filter._base import heading_pitch_roll_deg  # noqa: E402
-from compass.filter._kalman import pack, predict_gyro, unpack, update_axis, update_row  # noqa: E402
+from compass.filter._kalman import pack, predict_gyro, unpack, update_axis, update_tilt  # noqa: E402
 from compass.frames import heading_pitch_roll  # noqa: E402
 
 BERLIN = FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.15)
@@ -204,22 +215,27 @@ def random_covariance(rng):
 def test_closed_form_kalman_steps_equal_filterpy():
     rng = np.random.default_rng(11)
     for _ in range(5):
-        p, a = random_covariance(rng), rng.normal(size=(3, 3))
+        p, r, dt = random_covariance(rng), rng.normal(size=(3, 3)), 0.3
         kf = KalmanFilter(dim_x=6, dim_z=1)
         kf.P = p.copy()
         f = np.eye(6)
-        f[:3, 3:] = a
+        f[:3, 3:] = -r * dt
         kf.predict(F=f, Q=np.diag([0.1] * 3 + [0.01] * 3))
-        np.testing.assert_allclose(unpack(predict_gyro(pack(p), tuple(a.ravel()), 0.1, 0.01)), kf.P, rtol=1e-12)
-        h, x, z = rng.normal(size=6), list(rng.normal(size=6)), 0.3
+        np.testing.assert_allclose(unpack(predict_gyro(pack(p), tuple(r.ravel()), dt, 0.1, 0.01)), kf.P, rtol=1e-12)
+        # the two tilt rows h = (0, -1, 0, w) and (1, 0, 0, v), one after the other
+        w, v, x = rng.normal(size=3), rng.normal(size=3), list(rng.normal(size=6))
         kf.P, kf.x = p.copy(), np.array(x)[:, None]
-        kf.update(z, R=0.2, H=h[None, :])
-        new = update_row(pack(p), x, tuple(h), z, 0.2)
+        kf.update(0.3, R=0.2, H=np.r_[0.0, -1.0, 0.0, w][None, :])
+        kf.update(-0.1, R=0.2, H=np.r_[1.0, 0.0, 0.0, v][None, :])
+        new = update_tilt(pack(p), x, tuple(w), 0.3, tuple(v), -0.1, 0.2)
         np.testing.assert_allclose(unpack(new), kf.P, rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(x, kf.x[:, 0], rtol=1e-12)
-        y = [0.0] * 6
-        np.testing.assert_allclose(unpack(update_axis(pack(p), y, 4, z, 0.2)),
-                                   unpack(update_row(pack(p), [0.0] * 6, tuple(np.eye(6)[4]), z, 0.2)), rtol=1e-12)
+        # a direct measurement of component 4
+        y = list(rng.normal(size=6))
+        kf.P, kf.x = p.copy(), np.array(y)[:, None]
+        kf.update(0.3, R=0.2, H=np.eye(6)[4][None, :])
+        np.testing.assert_allclose(unpack(update_axis(pack(p), y, 4, 0.3, 0.2)), kf.P, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(y, kf.x[:, 0], rtol=1e-12)
 
 
 def test_closed_form_angles_equal_the_vectorised_ones():

@@ -112,10 +112,11 @@ CANDIDATES = {  # name: (FilterConfig changes, hard-iron tracker on, noise from 
     "- gyro scale-error noise": ({"gyro_scale_error": 1e-9}, True, False),
     "noise from rest": ({}, True, True),
     "mag_latency_s 0.014": ({"mag_latency_s": 0.014}, True, False),  # calibrate.realdata's loop, on 01 and 02
-    "accel_time_constant_s 1.5": ({"accel_time_constant_s": 1.5}, True, False),
-    "accel_time_constant_s 6": ({"accel_time_constant_s": 6.0}, True, False),
-    "mag_heading_sigma_deg 1": ({"mag_heading_sigma_deg": 1.0}, True, False),
-    "mag_heading_sigma_deg 4": ({"mag_heading_sigma_deg": 4.0}, True, False),
+    "accel_time_constant_s 1": ({"accel_time_constant_s": 1.0}, True, False),
+    "accel_time_constant_s 4": ({"accel_time_constant_s": 4.0}, True, False),
+    "accel_time_constant_s 3 (VQF's)": ({"accel_time_constant_s": 3.0}, True, False),  # the default until issue 13
+    "mag_heading_sigma_deg 0.5": ({"mag_heading_sigma_deg": 0.5}, True, False),
+    "mag_heading_sigma_deg 2": ({"mag_heading_sigma_deg": 2.0}, True, False),  # the default until issue 13
 } | {  # the two correlation times together: the accelerometer residual's and the field error's
     f"motion {m:g} s, field error {e:g} s": ({"motion_time_s": m, "field_error_time_s": e}, True, False)
     for m in (0.5, 1.0, 2.0) for e in (1.0, 2.0, 4.0) if (m, e) != (1.0, 1.0)

@@ -22,13 +22,21 @@ in this process, writing the attitude CSV (and, with Rerun on, an .rrd file) to 
 Targets (issue 5): p99 < 5 ms at 100 Hz; >= 1 kHz sustained with Rerun recording to a file;
 (issue 13) keeping up with 2 kHz with Rerun on.
 
-Usage: ``python tools/bench_live.py [--quick]``
+- the command: ``compass live --rerun FILE.rrd --out CSV --quiet`` in its own process on a ``compass device
+  --pty`` stream, a sweep of rates: lines sent in its window (decoded + lost), decoded, lost, the
+  received rate, its CPU per sample in the steady state (``/proc/PID/stat`` over the CSV rows written
+  in the middle 60 % of the run: Rerun's threads included, no start-up) and the rate one core could
+  carry at that cost, with how busy the machine was (``/proc/stat``: the other users' work
+  included) and its load average.
+
+Usage: ``python tools/bench_live.py [--quick] [--command-only]``
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -86,6 +94,109 @@ def run_port(rate_hz: float, duration_s: float, rerun: bool, folder: Path) -> di
     received = (session.samples - start[1]) / (end - start[0]) if start else 0.0
     return {"rate": rate_hz, "rerun": rerun, "samples": session.samples, "received_hz": received,
             "lost": s.lost, "bad": s.garbage + s.partial, "p50": p50, "p99": p99, "out50": out50, "out99": out99}
+
+
+_SUMMARY = re.compile(r"(\d+) attitudes from (\d+) samples; dropped lines \d+ \(garbage (\d+), invalid \d+, "
+                      r"partial (\d+), before a header \d+, repeated seq \d+, lost in transit (\d+)\)")
+
+
+def _busy_jiffies() -> tuple[int, int]:
+    """(busy, total) CPU jiffies of the whole machine so far, all cores (``/proc/stat``)."""
+    with open("/proc/stat") as f:
+        values = [int(v) for v in f.readline().split()[1:]]
+    idle = values[3] + values[4]  # idle + iowait
+    return sum(values) - idle, sum(values)
+
+
+def _cpu_s(pid: int) -> float:
+    """User + system CPU time of a running process, all its threads, seconds (``/proc/PID/stat``)."""
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _after_flush(csv: Path, pid: int, timeout_s: float = 3.0):
+    """``(CPU s, rows)`` of the live process just after its next CSV flush (it flushes every second: the row
+    count is then exact), or None if it ended first."""
+    size = csv.stat().st_size if csv.exists() else 0
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        time.sleep(0.005)
+        now = csv.stat().st_size if csv.exists() else 0
+        if now != size:
+            try:
+                cpu = _cpu_s(pid)
+            except FileNotFoundError:
+                return None
+            return cpu, csv.read_bytes().count(b"\n")
+    return None
+
+
+def run_command(rate_hz: float, duration_s: float, folder: Path) -> dict:
+    """``compass live --rerun FILE.rrd --out CSV --quiet`` (the command, its own process) on a ``compass device
+    --pty`` stream at ``rate_hz`` for ``duration_s``.
+
+    Returns the session's counts (from its summary line; sent = decoded + lost in the window it
+    read), its CPU per sample in the steady state (``/proc/PID/stat``, its Rerun threads included,
+    over the CSV rows written in the middle 60 % of the run, counted just after its flushes: no
+    start-up in it), and how busy the whole machine was meanwhile (``/proc/stat``: every process of
+    every user, both cores).
+    """
+    cal, link, csv = folder / "cal_cmd.json", folder / f"cmd{rate_hz:g}", folder / f"cmd{rate_hz:g}.csv"
+    device = subprocess.Popen(
+        [sys.executable, "-m", "compass", "device", "--pty", "--save-cal", str(cal), "--force", "--link", str(link),
+         "--rate", str(rate_hz), "--duration", str(duration_s + 20.0)],
+        stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    live = None
+    try:
+        device.stdout.readline()
+        live = subprocess.Popen(
+            [sys.executable, "-m", "compass", "live", "--port", str(link), "--cal", str(cal), "--rerun",
+             str(folder / f"cmd{rate_hz:g}.rrd"), "--out", str(csv), "--force", "--quiet", "--duration",
+             str(duration_s + 5.0)],  # 5 s for its start-up
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        first = _after_flush(csv, live.pid, 60.0)  # rows flowing: the start-up is over
+        time.sleep(0.15 * duration_s)
+        marks = [_after_flush(csv, live.pid), None]
+        t0, busy0, load0 = time.monotonic(), _busy_jiffies(), os.getloadavg()[0]
+        time.sleep(0.6 * duration_s)
+        marks[1] = _after_flush(csv, live.pid)
+        t1, busy1, load1 = time.monotonic(), _busy_jiffies(), os.getloadavg()[0]
+        text, _ = live.communicate(timeout=duration_s + 60.0)
+    finally:
+        if live is not None and live.poll() is None:
+            live.kill()
+            live.wait(10)
+        device.terminate()
+        device.wait(10)
+    match = _SUMMARY.search(text)
+    if match is None or first is None or None in marks:
+        raise RuntimeError(f"compass live printed no summary or ended early:\n{text}")
+    attitudes, samples, garbage, partial, lost = (int(v) for v in match.groups())
+    (cpu0, rows0), (cpu1, rows1) = marks
+    return {"rate": rate_hz, "samples": samples, "attitudes": attitudes, "sent": samples + lost, "lost": lost,
+            "bad": garbage + partial, "received_hz": (rows1 - rows0) / (t1 - t0),
+            "cpu_us": 1e6 * (cpu1 - cpu0) / max(rows1 - rows0, 1),
+            "busy": (busy1[0] - busy0[0]) / max(busy1[1] - busy0[1], 1), "load": (load0, load1)}
+
+
+def command_sweep(rates, duration_s: float, folder: Path) -> None:
+    """The highest rate ``compass live`` with Rerun on sustains, and its CPU per sample (steady state:
+    one core then carries at most ``1 / (CPU per sample)`` samples a second)."""
+    print(f"\n`compass live --rerun FILE.rrd --out CSV --quiet` (own process) on `compass device --pty`, "
+          f"{duration_s:g} s a rate; CPU and rate measured over its middle 60 %")
+    print("| rate | sent (window) | decoded | lost | bad lines | received | live CPU / sample | "
+          "max rate one core | machine busy (2 cores, all users) | load avg | sustained |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    best = 0
+    for rate in rates:
+        r = run_command(rate, duration_s, folder)
+        ok = sustained(r)
+        best = rate if ok and rate > best else best
+        print(f"| {rate:g} Hz | {r['sent']} | {r['samples']} | {r['lost']} | {r['bad']} | {r['received_hz']:.0f} Hz | "
+              f"{r['cpu_us']:.1f} us | {1e6 / r['cpu_us']:.0f} Hz | {100 * r['busy']:.0f} % | "
+              f"{r['load'][0]:.2f} -> {r['load'][1]:.2f} | {'yes' if ok else 'no'} |", flush=True)
+    print(f"highest sustained rate of compass live with Rerun on: {f'{best:g} Hz' if best else 'none of the sweep'}")
 
 
 def sustained(r: dict) -> bool:
@@ -209,12 +320,16 @@ def static_noise(seed: int = 5, rate_hz: float = 100.0, duration_s: float = 30.0
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="shorter runs, smaller sweep")
+    parser.add_argument("--command-only", action="store_true", help="only the sweep of the compass live command")
     args = parser.parse_args()
     duration = 3.0 if args.quick else 8.0
     sweep = (1000, 2000) if args.quick else (1000, 2000, 4000, 8000)
     print(f"python {sys.version.split()[0]}, {os.cpu_count()} cores; load average {os.getloadavg()[0]:.2f}")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
+        command_sweep((1000, 2000) if args.quick else (1000, 2000, 3000, 4000), 5.0 if args.quick else 10.0, folder)
+        if args.command_only:
+            return
         print("\n| rate | Rerun | samples | received | to attitude p50 / p99 | to outputs p50 / p99 | lost | bad lines |")
         print("|---|---|---|---|---|---|---|---|")
         for rate in (100, 1000):

@@ -215,14 +215,12 @@ class AttitudeFilter:
 
     def estimate(self) -> Estimate:
         """The :class:`Estimate` after the latest sample (the filter must be initialised)."""
-        m = self._s.matrix
+        s = self._s
+        m, d = s.matrix, s.diagnostics
         heading, pitch, roll = heading_pitch_roll_deg(m)
-        d = self._s.diagnostics
-        bias = self.gyro_bias
-        return Estimate(self._s.t_s, np.array(m).reshape(3, 3), heading, pitch, roll,
-                        math.degrees(math.sqrt(self.heading_var)), math.degrees(math.sqrt(self.tilt_var)),
-                        math.degrees(math.sqrt(self.field_heading_var)), d.field_ratio, d.dip_deg, d.mag_used,
-                        d.gate, d.accel_used, None if bias is None else np.array(bias), d.skipped)
+        return Estimate(s.t_s, m, heading, pitch, roll, math.degrees(math.sqrt(self.heading_var)),
+                        math.degrees(math.sqrt(self.tilt_var)), math.degrees(math.sqrt(self.field_heading_var)),
+                        d.field_ratio, d.dip_deg, d.mag_used, d.gate, d.accel_used, self.gyro_bias, d.skipped)
 
     def _begin(self, t_s, accel, gyro, field_h):
         """What every :meth:`update` starts with: the time step, the screened readings, a (re)start.

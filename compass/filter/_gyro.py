@@ -12,13 +12,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ._base import _P0_ATTITUDE, AttitudeFilter, exp_matrix, mat_mul
-from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_row
+from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_tilt
 from ._gate import GateState
 from ._records import _REST_RATE_SIGMA, _REST_TAU_S, Diagnostics, SkipCounts
 
 __all__ = ["GyroFilter", "GyroState"]
 
 _REST_GYRO = math.radians(2.0)  # VQF's rest detector: rate deviation, rad/s
+_REST_GYRO2 = _REST_GYRO**2
 _REST_ACCEL = 0.05  # and specific-force deviation, fraction of g
 _ORTHONORMALISE_EVERY = 1000  # samples between re-orthonormalisations of the nominal matrix
 
@@ -152,7 +153,7 @@ class GyroFilter(AttitudeFilter):
 
     def _propagate(self, dt: float) -> None:
         """Nominal attitude by the exact exponential of the bias-corrected rate; inertial low-pass; covariance."""
-        s, cfg = self._s, self.config
+        s = self._s
         (gx, gy, gz), (bx, by, bz) = s.rate_rad_s, s.bias_rad_s
         wx, wy, wz = gx - bx, gy - by, gz - bz
         e = exp_matrix(wx * dt, wy * dt, wz * dt)
@@ -167,11 +168,9 @@ class GyroFilter(AttitudeFilter):
             s.acc_lp = (e[0] * vx + e[3] * vy + e[6] * vz, e[1] * vx + e[4] * vy + e[7] * vz,
                         e[2] * vx + e[5] * vy + e[8] * vz)
         # P <- F P F^T + Q, F = [[I, -R dt], [0, I]]
-        q_att = (cfg.gyro_noise**2 + self.coefficients.scale_var * (wx * wx + wy * wy + wz * wz)) * dt
-        m0, m1, m2, m3, m4, m5, m6, m7, m8 = m
-        n = -dt
-        s.covariance = predict_gyro(s.covariance, (m0 * n, m1 * n, m2 * n, m3 * n, m4 * n, m5 * n, m6 * n, m7 * n, m8 * n),
-                                    q_att, cfg.gyro_bias_walk**2 * dt)
+        c = self.coefficients
+        q_att = (c.gyro_var + c.scale_var * (wx * wx + wy * wy + wz * wz)) * dt
+        s.covariance = predict_gyro(s.covariance, m, dt, q_att, c.bias_walk_var * dt)
 
     def _rest(self, dt: float, a) -> None:
         """VQF's rest detector; at rest the gyro reading measures its bias."""
@@ -184,7 +183,7 @@ class GyroFilter(AttitudeFilter):
         cx, cy, cz = s.rest_acc
         cx, cy, cz = cx + alpha * (ax - cx), cy + alpha * (ay - cy), cz + alpha * (az - cz)
         s.rest_acc = (cx, cy, cz)
-        limit2 = _REST_GYRO**2
+        limit2 = _REST_GYRO2
         steady = (rx * rx + ry * ry + rz * rz < limit2  # a slow steady turn is no rest (VQF's biasClip)
                   and (gx - rx) ** 2 + (gy - ry) ** 2 + (gz - rz) ** 2 < limit2
                   and (ax - cx) ** 2 + (ay - cy) ** 2 + (az - cz) ** 2 < (_REST_ACCEL * s.gravity) ** 2)
@@ -228,7 +227,7 @@ class GyroFilter(AttitudeFilter):
             lp_norm = math.sqrt(lx * lx + ly * ly + lz * lz)
         if not lp_norm > 0 or abs(lp_norm / g - 1.0) > cfg.accel_tolerance:
             return False
-        var = cfg.accel_noise**2
+        var = c.accel_var
         if dt > 0.0 and cfg.motion_adaptive_accel:
             var += s.residual_var * 2.0 * cfg.motion_time_s / dt
         m = s.matrix
@@ -236,9 +235,8 @@ class GyroFilter(AttitudeFilter):
         d0 = m[0] * ux + m[1] * uy + m[2] * uz  # R u - z, x and y
         d1 = m[3] * ux + m[4] * uy + m[5] * uz
         age = s.acc_lp_age_s
-        p, x = s.covariance, self._x
-        p = update_row(p, x, (0.0, -1.0, 0.0, -age * m[3], -age * m[4], -age * m[5]), d0, var)
-        s.covariance = update_row(p, x, (1.0, 0.0, 0.0, age * m[0], age * m[1], age * m[2]), d1, var)
+        s.covariance = update_tilt(s.covariance, self._x, (-age * m[3], -age * m[4], -age * m[5]), d0,
+                                   (age * m[0], age * m[1], age * m[2]), d1, var)
         return True
 
     def _heading(self, t_s: float, dt: float, b) -> None:
@@ -261,7 +259,7 @@ class GyroFilter(AttitudeFilter):
             p = s.covariance
             var = c.yaw_var + c.tan_dip2 * (p[0] + p[6]) / 2.0
             if dt > 0.0:
-                var += self.field_heading_var * 2.0 * self.config.field_error_time_s / dt
+                var += self.gate.field_heading_var(s.gate) * 2.0 * self.config.field_error_time_s / dt
             s.covariance = update_axis(p, self._x, 2, innovation, var)
 
     def _inject(self) -> None:

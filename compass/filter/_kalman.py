@@ -15,7 +15,7 @@ from operator import itemgetter
 
 import numpy as np
 
-__all__ = ["pack", "unpack", "predict_gyro", "update_row", "update_axis"]
+__all__ = ["pack", "unpack", "predict_gyro", "update_axis", "update_tilt"]
 
 _UPPER = [(i, j) for i in range(6) for j in range(i, 6)]
 _INDEX = {ij: k for k, ij in enumerate(_UPPER)} | {(j, i): k for k, (i, j) in enumerate(_UPPER)}
@@ -49,15 +49,18 @@ class PackedCovariance:
         """The covariance as a symmetric 6x6 array."""
         return unpack(self.covariance)
 
-def predict_gyro(p: tuple, a: tuple, q_att: float, q_bias: float) -> tuple:
-    """``F P F^T + Q`` with ``F = [[I, A], [0, I]]``, ``Q = diag(q_att I, q_bias I)``.
+def predict_gyro(p: tuple, r: tuple, dt: float, q_att: float, q_bias: float) -> tuple:
+    """``F P F^T + Q`` with ``F = [[I, A], [0, I]]``, ``A = -R dt``, ``Q = diag(q_att I, q_bias I)``.
 
     Parameters
     ----------
     p : tuple of 21 floats
         Packed covariance of ``(eps, db)``.
-    a : tuple of 9 floats
-        ``A`` row-major (the gyro filter's ``-R dt``: a bias error ``db`` turns the attitude by ``-R db dt``).
+    r : tuple of 9 floats
+        ``R`` row-major (the gyro filter's nominal attitude: a bias error ``db`` turns the attitude by
+        ``-R db dt``).
+    dt : float
+        Time step, s.
     q_att, q_bias : float
         Process noise variance of each attitude and each bias component.
 
@@ -71,7 +74,9 @@ def predict_gyro(p: tuple, a: tuple, q_att: float, q_bias: float) -> tuple:
     """
     (p00, p01, p02, p03, p04, p05, p11, p12, p13, p14, p15, p22, p23, p24, p25,
      p33, p34, p35, p44, p45, p55) = p
-    a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
+    r0, r1, r2, r3, r4, r5, r6, r7, r8 = r
+    n = -dt
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = r0 * n, r1 * n, r2 * n, r3 * n, r4 * n, r5 * n, r6 * n, r7 * n, r8 * n
     # M = P_ab + A P_bb
     m00 = p03 + a0 * p33 + a1 * p34 + a2 * p35
     m01 = p04 + a0 * p34 + a1 * p44 + a2 * p45
@@ -96,30 +101,78 @@ def predict_gyro(p: tuple, a: tuple, q_att: float, q_bias: float) -> tuple:
         p33 + q_bias, p34, p35, p44 + q_bias, p45, p55 + q_bias)
 
 
-def update_row(p: tuple, x: list, h: tuple, z: float, var: float) -> tuple:
-    """Scalar measurement ``z = h . x_true + n`` with ``var n = var``.
+def update_axis(p: tuple, x: list, i: int, z: float, var: float) -> tuple:
+    """Scalar measurement ``z = x_true[i] + n`` with ``var n = var`` (a direct measurement of component ``i``).
 
-    ``x`` (the error state accumulated so far this sample; the innovation is ``z - h . x``) is
+    ``x`` (the error state accumulated so far this sample; the innovation is ``z - x[i]``) is
     updated in place; the updated packed covariance is returned.
+    """
+    c = _COLUMN[i](p)
+    return _downdate(p, x, c, c[i] + var, z - x[i])
+
+
+def update_tilt(p: tuple, x: list, w: tuple, z0: float, v: tuple, z1: float, var: float) -> tuple:
+    """The gyro filter's two tilt rows, one after the other: scalar measurements ``z = h . x_true + n``
+    with ``h = (0, -1, 0, w)`` and ``z0``, then ``h = (1, 0, 0, v)`` and ``z1``, both with ``var n = var``.
+
+    ``x`` (the error state accumulated so far this sample) is updated in place; the updated packed
+    covariance is returned.  Written out with the covariance in local variables (unpacked and packed
+    once), without the products with 0 and 1; the downdate is written twice on purpose (a helper
+    would pack and unpack the 21 floats between the rows, a third of the cost).
     """
     (p00, p01, p02, p03, p04, p05, p11, p12, p13, p14, p15, p22, p23, p24, p25,
      p33, p34, p35, p44, p45, p55) = p
-    h0, h1, h2, h3, h4, h5 = h
-    c = (p00 * h0 + p01 * h1 + p02 * h2 + p03 * h3 + p04 * h4 + p05 * h5,
-         p01 * h0 + p11 * h1 + p12 * h2 + p13 * h3 + p14 * h4 + p15 * h5,
-         p02 * h0 + p12 * h1 + p22 * h2 + p23 * h3 + p24 * h4 + p25 * h5,
-         p03 * h0 + p13 * h1 + p23 * h2 + p33 * h3 + p34 * h4 + p35 * h5,
-         p04 * h0 + p14 * h1 + p24 * h2 + p34 * h3 + p44 * h4 + p45 * h5,
-         p05 * h0 + p15 * h1 + p25 * h2 + p35 * h3 + p45 * h4 + p55 * h5)
-    s = c[0] * h0 + c[1] * h1 + c[2] * h2 + c[3] * h3 + c[4] * h4 + c[5] * h5 + var
-    nu = z - (x[0] * h0 + x[1] * h1 + x[2] * h2 + x[3] * h3 + x[4] * h4 + x[5] * h5)
-    return _downdate(p, x, c, s, nu)
-
-
-def update_axis(p: tuple, x: list, i: int, z: float, var: float) -> tuple:
-    """:func:`update_row` with ``h = e_i`` (a direct measurement of component ``i``)."""
-    c = _COLUMN[i](p)
-    return _downdate(p, x, c, c[i] + var, z - x[i])
+    x0, x1, x2, x3, x4, x5 = x
+    # h = (0, -1, 0, w)
+    h3, h4, h5 = w
+    c0 = -p01 + p03 * h3 + p04 * h4 + p05 * h5
+    c1 = -p11 + p13 * h3 + p14 * h4 + p15 * h5
+    c2 = -p12 + p23 * h3 + p24 * h4 + p25 * h5
+    c3 = -p13 + p33 * h3 + p34 * h4 + p35 * h5
+    c4 = -p14 + p34 * h3 + p44 * h4 + p45 * h5
+    c5 = -p15 + p35 * h3 + p45 * h4 + p55 * h5
+    s = -c1 + c3 * h3 + c4 * h4 + c5 * h5 + var
+    nu = z0 - (-x1 + x3 * h3 + x4 * h4 + x5 * h5)
+    inv = 1.0 / s
+    k0, k1, k2, k3, k4, k5 = c0 * inv, c1 * inv, c2 * inv, c3 * inv, c4 * inv, c5 * inv
+    x0 += k0 * nu
+    x1 += k1 * nu
+    x2 += k2 * nu
+    x3 += k3 * nu
+    x4 += k4 * nu
+    x5 += k5 * nu
+    p00 -= k0 * c0; p01 -= k0 * c1; p02 -= k0 * c2; p03 -= k0 * c3; p04 -= k0 * c4; p05 -= k0 * c5
+    p11 -= k1 * c1; p12 -= k1 * c2; p13 -= k1 * c3; p14 -= k1 * c4; p15 -= k1 * c5
+    p22 -= k2 * c2; p23 -= k2 * c3; p24 -= k2 * c4; p25 -= k2 * c5
+    p33 -= k3 * c3; p34 -= k3 * c4; p35 -= k3 * c5
+    p44 -= k4 * c4; p45 -= k4 * c5
+    p55 -= k5 * c5
+    # h = (1, 0, 0, v)
+    h3, h4, h5 = v
+    c0 = p00 + p03 * h3 + p04 * h4 + p05 * h5
+    c1 = p01 + p13 * h3 + p14 * h4 + p15 * h5
+    c2 = p02 + p23 * h3 + p24 * h4 + p25 * h5
+    c3 = p03 + p33 * h3 + p34 * h4 + p35 * h5
+    c4 = p04 + p34 * h3 + p44 * h4 + p45 * h5
+    c5 = p05 + p35 * h3 + p45 * h4 + p55 * h5
+    s = c0 + c3 * h3 + c4 * h4 + c5 * h5 + var
+    nu = z1 - (x0 + x3 * h3 + x4 * h4 + x5 * h5)
+    inv = 1.0 / s
+    k0, k1, k2, k3, k4, k5 = c0 * inv, c1 * inv, c2 * inv, c3 * inv, c4 * inv, c5 * inv
+    x0 += k0 * nu
+    x1 += k1 * nu
+    x2 += k2 * nu
+    x3 += k3 * nu
+    x4 += k4 * nu
+    x5 += k5 * nu
+    p00 -= k0 * c0; p01 -= k0 * c1; p02 -= k0 * c2; p03 -= k0 * c3; p04 -= k0 * c4; p05 -= k0 * c5
+    p11 -= k1 * c1; p12 -= k1 * c2; p13 -= k1 * c3; p14 -= k1 * c4; p15 -= k1 * c5
+    p22 -= k2 * c2; p23 -= k2 * c3; p24 -= k2 * c4; p25 -= k2 * c5
+    p33 -= k3 * c3; p34 -= k3 * c4; p35 -= k3 * c5
+    p44 -= k4 * c4; p45 -= k4 * c5
+    p55 -= k5 * c5
+    x[:] = (x0, x1, x2, x3, x4, x5)
+    return (p00, p01, p02, p03, p04, p05, p11, p12, p13, p14, p15, p22, p23, p24, p25, p33, p34, p35, p44, p45, p55)
 
 
 def _downdate(p: tuple, x: list, c: tuple, s: float, nu: float) -> tuple:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+from array import array
 from dataclasses import dataclass
+from itertools import repeat
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -80,23 +82,28 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig) -> FilterTrack:
         if gyro.shape != (n, 3):
             raise ValueError(f"expected gyro of shape ({n}, 3), got {gyro.shape}")
     filt = AttitudeFilter(config, gyro=gyro is not None)
-    nan9, nan5 = (np.nan,) * 9, (np.nan,) * 5
-    matrices, scalars, flags, gate = [nan9] * n, [nan5] * n, [(False, False)] * n, ["absent"] * n
-    bias = None if gyro is None else [(np.nan,) * 3] * n
-    # rows as Python floats once, vectorised (the per-sample step is scalar arithmetic)
-    rows = zip(t_s.tolist(), accel.tolist(), [None] * n if gyro is None else gyro.tolist(), field_h.tolist())
-    update, d = filt.update, filt.diagnostics
+    # per sample with an attitude: its index, the matrix (9), heading, tilt and field heading variance,
+    # field ratio, dip, mag_used, accel_used (7), the gyro bias (3); flat float buffers, no per-sample object
+    # kept (57,000 kept tuples cost more in the garbage collector and in np.array than the filter's arithmetic)
+    done, matrices, scalars, bias = [], array("d"), array("d"), array("d")
+    gate = ["absent"] * n
+    # rows as Python floats once, vectorised (the per-sample step is scalar arithmetic); each row's
+    # vectors are short-lived tuples (57,000 kept lists of three would slow the garbage collector)
+    rows = zip(t_s.tolist(), zip(*accel.T.tolist()), repeat(None) if gyro is None else zip(*gyro.T.tolist()),
+               zip(*field_h.T.tolist()))
+    update, d, with_bias = filt.update, filt.diagnostics, gyro is not None
     for i, (t, a, g, b) in enumerate(rows):
         if not update(t, a, g, b):
             continue
-        matrices[i] = filt.matrix
-        # heading, tilt and field heading variance, field ratio, dip
-        scalars[i] = (filt.heading_var, filt.tilt_var, filt.field_heading_var, d.field_ratio, d.dip_deg)
-        flags[i] = (d.mag_used, d.accel_used)
+        done.append(i)
+        matrices.extend(filt.matrix)
+        scalars.extend((filt.heading_var, filt.tilt_var, filt.field_heading_var, d.field_ratio, d.dip_deg,
+                        d.mag_used, d.accel_used))
         gate[i] = d.gate
-        if bias is not None:
-            bias[i] = filt.gyro_bias
-    matrices = np.array(matrices).reshape(n, 3, 3)
+        if with_bias:
+            bias.extend(filt.gyro_bias)
+    done = np.array(done, dtype=int)
+    matrices = _rows(matrices, done, n, 9).reshape(n, 3, 3)
     ok = np.all(np.isfinite(matrices.reshape(n, 9)), axis=1)
     quat = np.full((n, 4), np.nan)
     angles = np.full((n, 3), np.nan)
@@ -104,11 +111,20 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig) -> FilterTrack:
         rotation = Rotation.from_matrix(matrices[ok])
         quat[ok] = rotation.as_quat()
         angles[ok] = np.column_stack(heading_pitch_roll(rotation))
-    scalars, flags = np.array(scalars, dtype=float).reshape(n, 5), np.array(flags, dtype=bool).reshape(n, 2)
+    scalars = _rows(scalars, done, n, 7)
+    flags = np.zeros((n, 2), dtype=bool)
+    flags[done] = scalars[done, 5:] != 0.0
     sigma = np.degrees(np.sqrt(scalars[:, :3]))
     return FilterTrack(t_s, quat, *angles.T, *sigma.T, scalars[:, 3], scalars[:, 4], flags[:, 0], flags[:, 1],
-                       np.array(gate, dtype=str), None if bias is None else np.array(bias).reshape(n, 3),
+                       np.array(gate, dtype=str), _rows(bias, done, n, 3) if with_bias else None,
                        filt.skipped)
+
+
+def _rows(buffer: array, done: np.ndarray, n: int, width: int) -> np.ndarray:
+    """``(n, width)`` array: the buffer's rows at the indices ``done``, NaN elsewhere."""
+    out = np.full((n, width), np.nan)
+    out[done] = np.frombuffer(buffer, dtype=float).reshape(len(done), width)
+    return out
 
 
 def reference_field(accel, field_h) -> tuple[float, float]:
