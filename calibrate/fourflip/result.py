@@ -231,6 +231,10 @@ class CalibrationResult(Calibration):
             from ..diagnosis.report import format_diagnosis
 
             lines.append(format_diagnosis(self.diagnosis))
+        if "accelerometer" in self.extra:
+            from .accelerometer import describe_accelerometer
+
+            lines.append(describe_accelerometer(self.extra["accelerometer"]))
         if "site_check" in self.extra:
             from ..site_field import describe
 
