@@ -99,7 +99,7 @@ class AccelerometerAlignment:
         Standard deviation of ``|a|`` within the turns over its mean.
     dip_axis_deg, dip_gravity_deg, dip_gravity_sigma_deg : float or None
         The magnetic fit's dip (against the turntable axis) and the dip against gravity with the
-        measured tilt (None when no dip was given).
+        measured tilt (None when no dip was given); :func:`with_accelerometer` reports the latter.
     flip_errors_deg : ndarray, shape (4,)
         Flip-angle errors used for the gravity in H (the magnetic fit's ``flip_error`` effect, else 0).
     warnings : tuple of str
@@ -367,7 +367,7 @@ def _warnings(r: AccelerometerAlignment, nominal_angle_deg, dip_sigma_deg) -> tu
             out.append(f"the turntable is tilted {r.tilt_deg:.3f} +- {r.tilt_sigma_deg:.3f} deg from level (the "
                        f"accelerometer's gravity turns with it): the magnetic fit's dip {r.dip_axis_deg:.3f} deg is "
                        f"against the turntable axis; against gravity it is {r.dip_gravity_deg:.3f} +- "
-                       f"{r.dip_gravity_sigma_deg:.3f} deg (level the turntable, or use the latter)")
+                       f"{r.dip_gravity_sigma_deg:.3f} deg, the dip this calibration reports")
     return tuple(out)
 
 
@@ -383,15 +383,17 @@ def describe_accelerometer(block: dict) -> str:
              f"    turntable tilt from level {block['turntable_tilt_deg']:.3f} +- {block['turntable_tilt_sigma_deg']:.3f} "
              f"deg (up leans toward {block['turntable_tilt_azimuth_deg']:.0f} deg from the turntable zero)"]
     if "dip_gravity_deg" in block:
-        lines.append(f"    dip against the turntable axis {block['dip_turntable_axis_deg']:.3f} deg (the fit above); "
-                     f"against gravity {block['dip_gravity_deg']:.3f} +- {block['dip_gravity_sigma_deg']:.3f} deg")
+        lines.append(f"    dip against gravity {block['dip_gravity_deg']:.3f} +- {block['dip_gravity_sigma_deg']:.3f} deg "
+                     f"(reported above); the magnetic fit's, against the turntable axis, "
+                     f"{block['dip_turntable_axis_deg']:.3f} deg")
     lines.append(f"    not identified: {block['not_identified']}")
     return "\n".join(lines)
 
 
 def with_accelerometer(result, rec):
     """``result`` with the recording's accelerometer examined: ``mag_to_accel``, the ``accelerometer`` block
-    and its warnings; unchanged when the recording has no ``ax, ay, az``.
+    and its warnings, and the dip referred to gravity (SPEC's dip; the magnetic fit's, against the
+    turntable axis, stays in the block); unchanged when the recording has no ``ax, ay, az``.
 
     Parameters
     ----------
@@ -415,4 +417,9 @@ def with_accelerometer(result, rec):
     except ValueError as exc:
         return replace(result, warnings=result.warnings + (f"accelerometer not used: {exc}",))
     extra = dict(result.extra) | {"mag_to_accel": fit.mag_to_accel.tolist(), "accelerometer": fit.to_json()}
-    return replace(result, extra=extra, warnings=result.warnings + tuple(f"accelerometer: {w}" for w in fit.warnings))
+    # SPEC's dip is against gravity (W: Z up against gravity); the magnetic fit's is against the turntable axis
+    dip = {} if fit.dip_gravity_deg is None else {
+        "dip_deg": fit.dip_gravity_deg,
+        "dip_sigma_deg": None if result.dip_sigma_deg is None else fit.dip_gravity_sigma_deg}
+    return replace(result, extra=extra, warnings=result.warnings + tuple(f"accelerometer: {w}" for w in fit.warnings),
+                   **dip)
