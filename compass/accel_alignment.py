@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["accel_to_housing", "housing_from_accel", "read_mag_to_accel"]
+__all__ = ["accel_to_housing", "housing_from_accel", "imu_to_model", "read_mag_to_accel"]
 
 _FOLDED_KINDS = ("tumble",)  # kinds whose sensor model is already in the accelerometer's frame
 
@@ -53,3 +53,15 @@ def accel_to_housing(document: dict, accel):
     if accel is None or rotation is None:
         return accel
     return np.asarray(accel, dtype=float) @ rotation.T
+
+
+def imu_to_model(document: dict) -> np.ndarray | None:
+    """The rotation taking the module's accelerometer (and a gyro on the same chip) into the frame of the
+    calibration's sensor model: into H by ``mag_to_accel^T``, then into the product by an installed file's
+    alignment; None when both are absent."""
+    from .installed import alignment_of
+
+    to_housing, to_product = housing_from_accel(document), alignment_of(document)
+    if to_housing is None or to_product is None:
+        return to_product if to_housing is None else to_housing
+    return to_product @ to_housing

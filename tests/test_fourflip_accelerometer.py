@@ -195,3 +195,20 @@ def test_cli_simulates_and_calibrates_the_accelerometer(tmp_path, capsys):
     assert abs(doc["dip_deg"] - truth["dip_deg"]) < PULL * doc["dip_sigma_deg"]
     assert np.array(doc["mag_to_accel"]).shape == (3, 3)
     assert "turntable is tilted" in capsys.readouterr().out
+
+
+def test_imu_rotation_into_the_model_frame_composes_bench_and_installation():
+    from compass.accel_alignment import accel_to_housing, imu_to_model
+
+    session = simulate_fourflip(seed=13, accelerometer=SimAccelerometer())
+    doc = calibrate_fourflip(session.recording(), diagnose=False).to_json()
+    m = np.array(doc["mag_to_accel"])
+    assert np.allclose(imu_to_model(doc), m.T)
+    a = np.array([[0.1, 0.2, 0.97]])
+    assert np.allclose(accel_to_housing(doc, a), a @ m)  # a_H = m^T a
+    align = Rotation.from_euler("z", 30, degrees=True).as_matrix()
+    installed = {"model": "installed", "base": doc, "installation": {"alignment": align.tolist()}}
+    assert np.allclose(imu_to_model(installed), align @ m.T)
+    assert imu_to_model({k: v for k, v in doc.items() if k != "mag_to_accel"}) is None
+    tumble = {"model": "tumble", "mag_to_accel": m.tolist()}  # folded into the tumble's model already
+    assert imu_to_model(tumble) is None and accel_to_housing(tumble, a) is a
