@@ -125,6 +125,8 @@ def test_inconsistent_accelerometer_is_warned_in_words():
     fit = fit_accelerometer(swapped, rec.platform_deg, rec.flip_deg, rec.flip_index)
     assert any("not the housing's" in w for w in fit.warnings)
     assert abs(abs(fit.rotvec_deg[2]) - 90.0) < 1.0
+    negated = fit_accelerometer(-rec.accel, rec.platform_deg, rec.flip_deg, rec.flip_index)
+    assert any("--accel-sign -1" in w for w in negated.warnings)
     shaken = rec.accel * (1 + 0.05 * np.random.default_rng(0).normal(size=(len(rec.accel), 1)))
     assert any("not at rest" in w for w in fit_accelerometer(shaken, rec.platform_deg, rec.flip_deg,
                                                               rec.flip_index).warnings)
@@ -162,6 +164,8 @@ def test_attitude_pitch_roll_free_of_the_misalignment(tmp_path):
         errors[name] = np.sqrt(np.mean(np.concatenate([res.pitch_deg - runtime.pitch_deg,
                                                         res.roll_deg - runtime.roll_deg]) ** 2))
         sigma = np.sqrt(np.mean(np.concatenate([res.pitch_sigma_deg, res.roll_sigma_deg]) ** 2))
+    assert "accel_frame: rotated into the housing" in (tmp_path / "after.csv").read_text()
+    assert "accel_frame" not in (tmp_path / "before.csv").read_text()
     assert errors["after"] < 1.5 * sigma  # at the noise
     assert errors["before"] > 3 * errors["after"]
 

@@ -336,7 +336,13 @@ def _dip_against_gravity(dip_deg, dip_sigma_deg, azimuth_deg, tilt_xy, tilt_cov)
 
 def _warnings(r: AccelerometerAlignment, nominal_angle_deg, dip_sigma_deg) -> tuple:
     out = []
-    if np.max(nominal_angle_deg) > _NOMINAL_WARN_DEG:
+    half_turn_about_x = r.angle_deg > 150.0 and abs(r.rotvec_deg[0]) > 0.95 * r.angle_deg
+    if half_turn_about_x:
+        out.append(f"the accelerometer reads -1 g along Z in flip 0 (mag_to_accel is a half turn about X, "
+                   f"{r.angle_deg:.1f} deg): it reads gravity rather than specific force (then recalibrate with "
+                   "--accel-sign -1, and use it at runtime too) or it is mounted upside down about X; the flips "
+                   "cannot tell these apart, since X never sees gravity")
+    elif np.max(nominal_angle_deg) > _NOMINAL_WARN_DEG:
         out.append(f"the accelerometer's gravity is {np.max(nominal_angle_deg):.1f} deg from where the flips put it "
                    "in the housing frame: its axes are not the housing's (names, signs, mounting); the fitted "
                    "mag_to_accel takes this into account, but check the wiring")
