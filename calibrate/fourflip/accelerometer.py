@@ -183,8 +183,8 @@ class AccelerometerAlignment:
         return out
 
 
-def fit_accelerometer(accel, platform_deg, flip_deg, flip_index, *, flip_errors_deg=None, dip_deg=None,
-                      dip_sigma_deg=None, azimuth_deg=None) -> AccelerometerAlignment:
+def fit_accelerometer(accel, platform_deg, flip_deg, flip_index, *, flip_errors_deg=None, flip_errors_sigma_deg=None,
+                      dip_deg=None, dip_sigma_deg=None, azimuth_deg=None) -> AccelerometerAlignment:
     """Estimate the accelerometer's alignment with H and the turntable's tilt from a four-flip recording.
 
     Parameters
@@ -195,8 +195,9 @@ def fit_accelerometer(accel, platform_deg, flip_deg, flip_index, *, flip_errors_
         Turntable reading phi and recorded flip kappa, degrees.
     flip_index : array_like of int, shape (n,)
         0..3 for the nominal flips 0, 90, 180, 270.
-    flip_errors_deg : array_like, shape (4,), optional
-        Flip-angle errors (the magnetic fit's ``flip_error`` effect; flip 0 defines H, so its is 0).
+    flip_errors_deg, flip_errors_sigma_deg : array_like, shape (4,), optional
+        Flip-angle errors and their sigmas (the magnetic fit's ``flip_error`` effect; flip 0 defines
+        H, so its is 0): gravity in H is turned by them, and their sigmas widen the rotation's.
     dip_deg, dip_sigma_deg, azimuth_deg : float, optional
         The magnetic fit's dip and field azimuth (against the turntable axis): give them to get the
         dip against gravity.
@@ -213,25 +214,71 @@ def fit_accelerometer(accel, platform_deg, flip_deg, flip_index, *, flip_errors_
     """
     a = np.asarray(accel, dtype=float)
     phi = np.radians(np.asarray(platform_deg, dtype=float))
+    flip = np.asarray(flip_deg, dtype=float)
     index = np.asarray(flip_index)
     errors = np.zeros(4) if flip_errors_deg is None else np.asarray(flip_errors_deg, dtype=float)
-    kappa = np.radians(np.asarray(flip_deg, dtype=float) + errors[index])
     if not np.all(np.isfinite(a)):
         raise ValueError(f"accelerometer reading not finite at sample {int(np.argmax(~np.all(np.isfinite(a), axis=1)))}")
-    gravity_h = np.column_stack([np.zeros_like(kappa), np.sin(kappa), np.cos(kappa)])  # f_H / g per sample
-
     means, mean_var, spread = _turn_means(a, phi, index)
-    f_h = np.array([gravity_h[index == k].mean(axis=0) for k in range(4)])
+    w = _wahba(means, mean_var, _gravity_in_housing(flip, errors, index))
+    covariance = w.covariance
+    if flip_errors_sigma_deg is not None:  # the flip errors' own uncertainty, propagated (rad^2)
+        step_deg = 1e-3
+        jac = np.column_stack([
+            (_wahba(means, mean_var, _gravity_in_housing(flip, errors + step_deg * np.eye(4)[k], index)).rotation
+             * w.rotation.inv()).as_rotvec() / np.radians(step_deg) for k in range(4)])
+        covariance = covariance + jac @ np.diag(np.radians(flip_errors_sigma_deg) ** 2) @ jac.T
+
+    f_h = _gravity_in_housing(flip, errors, index)[1]
+    predicted = w.g * w.scale * w.rotation.apply(f_h)  # gravity part of each flip's mean
+    offset = np.mean(means - predicted, axis=0)
+    closure = (means[0] + means[2] - predicted[0] - predicted[2]) / 2 - (means[1] + means[3] - predicted[1] - predicted[3]) / 2
+    closure_sigma = np.sqrt(mean_var.sum(axis=0)) / 2
+    in_housing = w.rotation.apply((means - offset) / w.scale, inverse=True)
+    residual = np.degrees(np.arccos(np.clip(np.sum(in_housing * f_h, axis=1)
+                                            / np.linalg.norm(in_housing, axis=1) / np.linalg.norm(f_h, axis=1), -1, 1)))
+    kappa = np.radians(flip + errors[index])
+    tilt_xy, tilt_cov = _turntable_tilt((a - offset) / (w.scale * w.g), phi, kappa, index, w.rotation)
+
+    result = AccelerometerAlignment(
+        mag_to_accel=w.rotation.as_matrix(), rotvec_deg=np.degrees(w.rotation.as_rotvec()),
+        rotvec_covariance_deg2=np.degrees(np.degrees(covariance)), offset=offset, g=w.g, scale_yz=w.scale[1:],
+        orthogonality_deg=w.orthogonality_deg, orthogonality_sigma_deg=w.orthogonality_sigma_deg,
+        closure=closure, closure_sigma=closure_sigma, residual_deg=residual, tilt_xy=tilt_xy,
+        tilt_covariance=tilt_cov, magnitude_spread=spread, flip_errors_deg=errors)
+    if dip_deg is not None and azimuth_deg is not None:
+        dip_g, dip_g_sigma = _dip_against_gravity(dip_deg, dip_sigma_deg, azimuth_deg, tilt_xy, tilt_cov)
+        result = _with(result, dip_axis_deg=float(dip_deg), dip_gravity_deg=dip_g, dip_gravity_sigma_deg=dip_g_sigma)
+    return _with(result, warnings=_warnings(result, w.nominal_angle_deg, dip_sigma_deg))
+
+
+def _gravity_in_housing(flip_deg, errors_deg, index):
+    """Per sample ``f_H / g = (0, sin kappa, cos kappa)`` at the flip angle plus its error, and per flip its mean."""
+    kappa = np.radians(flip_deg + errors_deg[index])
+    per_sample = np.column_stack([np.zeros_like(kappa), np.sin(kappa), np.cos(kappa)])
+    return per_sample, np.array([per_sample[index == k].mean(axis=0) for k in range(4)])
+
+
+@dataclass(frozen=True)
+class _Wahba:
+    rotation: Rotation
+    covariance: np.ndarray  # rad^2
+    g: float
+    scale: np.ndarray
+    orthogonality_deg: float
+    orthogonality_sigma_deg: float
+    nominal_angle_deg: np.ndarray
+
+
+def _wahba(means, mean_var, gravity) -> _Wahba:
+    """``C = R_accel<-H`` from the flips' half differences (offset-free) against gravity in H."""
+    f_h = gravity[1]
     t_y, t_z = (means[1] - means[3]) / 2, (means[0] - means[2]) / 2
     var_y, var_z = (mean_var[1] + mean_var[3]) / 4, (mean_var[0] + mean_var[2]) / 4
     g = 0.5 * (np.linalg.norm(t_y) + np.linalg.norm(t_z))
     if not g > 0 or min(np.linalg.norm(t_y), np.linalg.norm(t_z)) < 0.1 * g:
         raise ValueError("the accelerometer does not see gravity turn with the flips (a flip pair reads the same): "
                          "are ax, ay, az an accelerometer riding in the housing?")
-    offset = (means.sum(axis=0)) / 4
-    closure = (means[0] + means[2]) / 2 - (means[1] + means[3]) / 2
-    closure_sigma = np.sqrt(mean_var.sum(axis=0)) / 2
-
     # per-axis scales undone before the directions are compared (a Y/Z scale difference would tilt
     # them by ~ (s_z - s_y) x misalignment); the X axis never sees gravity: its scale is taken as 1 g
     scale = np.array([1.0, np.linalg.norm(t_y) / g, np.linalg.norm(t_z) / g])
@@ -244,31 +291,12 @@ def fit_accelerometer(accel, platform_deg, flip_deg, flip_index, *, flip_errors_
     rotation, _, sensitivity = Rotation.align_vectors(measured, housing, weights=1.0 / direction_var,
                                                       return_sensitivity=True)
     covariance = sensitivity * len(direction_var) / np.sum(1.0 / direction_var)  # rad^2 (scipy's Notes)
-
-    cos_yz = float(measured[0] @ measured[1])
-    nominal_cos = float(housing[0] @ housing[1])
+    nominal_cos, cos_yz = float(housing[0] @ housing[1]), float(measured[0] @ measured[1])
     orthogonality = float(np.degrees(np.arcsin(np.clip(nominal_cos, -1, 1)) - np.arcsin(np.clip(cos_yz, -1, 1))))
     orthogonality_sigma = float(np.degrees(np.sqrt(direction_var.sum())))
     misfit = (orthogonality / orthogonality_sigma) ** 2  # one degree of freedom left after the rotation
-    covariance = covariance * max(1.0, misfit)
-
-    in_housing = rotation.apply((means - offset) / scale, inverse=True)
-    residual = np.degrees(np.arccos(np.clip(np.sum(in_housing * f_h, axis=1)
-                                            / np.linalg.norm(in_housing, axis=1) / np.linalg.norm(f_h, axis=1), -1, 1)))
-    tilt_xy, tilt_cov = _turntable_tilt((a - offset) / (scale * g), phi, kappa, index, rotation)
-
-    result = AccelerometerAlignment(
-        mag_to_accel=rotation.as_matrix(), rotvec_deg=np.degrees(rotation.as_rotvec()),
-        rotvec_covariance_deg2=np.degrees(np.degrees(covariance)), offset=offset, g=float(g),
-        scale_yz=scale[1:],
-        orthogonality_deg=orthogonality, orthogonality_sigma_deg=orthogonality_sigma,
-        closure=closure, closure_sigma=closure_sigma, residual_deg=residual, tilt_xy=tilt_xy,
-        tilt_covariance=tilt_cov, magnitude_spread=spread, flip_errors_deg=errors)
-    if dip_deg is not None and azimuth_deg is not None:
-        dip_g, dip_g_sigma = _dip_against_gravity(dip_deg, dip_sigma_deg, azimuth_deg, tilt_xy, tilt_cov)
-        result = _with(result, dip_axis_deg=float(dip_deg), dip_gravity_deg=dip_g, dip_gravity_sigma_deg=dip_g_sigma)
-    nominal_angle = np.degrees(np.arccos(np.clip(np.sum(measured * housing, axis=1), -1, 1)))
-    return _with(result, warnings=_warnings(result, nominal_angle, dip_sigma_deg))
+    return _Wahba(rotation, covariance * max(1.0, misfit), float(g), scale, orthogonality, orthogonality_sigma,
+                  np.degrees(np.arccos(np.clip(np.sum(measured * housing, axis=1), -1, 1))))
 
 
 def _with(result, **changes):
@@ -412,12 +440,14 @@ def with_accelerometer(result, rec):
 
     if rec.accel is None:
         return result
-    errors = np.zeros(4)
+    errors, sigmas = np.zeros(4), np.zeros(4)
     for effect in result.effects:
         if effect["name"] == "flip_error":
-            errors[1:] = [effect["parameters"][f"flip{k}.error_deg"]["value"] for k in (90, 180, 270)]
+            p = [effect["parameters"][f"flip{k}.error_deg"] for k in (90, 180, 270)]
+            errors[1:], sigmas[1:] = [e["value"] for e in p], [e["sigma"] for e in p]
     try:
         fit = fit_accelerometer(rec.accel, rec.platform_deg, rec.flip_deg, rec.flip_index, flip_errors_deg=errors,
+                                flip_errors_sigma_deg=sigmas,
                                 dip_deg=result.dip_deg, dip_sigma_deg=result.dip_sigma_deg,
                                 azimuth_deg=result.azimuth_deg)
     except ValueError as exc:
