@@ -14,14 +14,16 @@ accelerometer reads ``a = S C f_H + b`` with ``C = R_accel<-H`` (the calibration
 
 What the flips identify (turn means ``m_k`` of flip k):
 
-- offsets: every axis sees a +/- pair, ``b = (m_0 + m_2) / 2 = (m_1 + m_3) / 2``; the difference of
-  the two is a closure check (flip angle errors, offset drift between flips);
 - ``T_z = (m_0 - m_2) / 2 = S C e_z g`` and ``T_y = (m_1 - m_3) / 2 = S C e_y g``: two directions
-  that fix the rotation ``C`` fully (Wahba: :meth:`scipy.spatial.transform.Rotation.align_vectors`);
-  their lengths are the Y and Z scales (undone before the directions are compared); the angle between them minus 90 deg is one more check: an
-  accelerometer whose axes are not orthogonal, or cube faces that are not square, which the
-  accelerometer alone cannot tell apart (the magnetic fit's ``flip_error`` effect can: when the
-  diagnosis claimed it, its fitted flip errors are used for ``f_H``);
+  that fix the rotation ``C`` fully (Wahba: :meth:`scipy.spatial.transform.Rotation.align_vectors`),
+  free of the offsets; their lengths are the Y and Z scales (undone before the directions are
+  compared); the angle between them minus 90 deg is one more check: an accelerometer whose axes
+  are not orthogonal, or cube faces that are not square, which the accelerometer alone cannot tell
+  apart (the magnetic fit's ``flip_error`` effect can: when the diagnosis claimed it, its fitted
+  flip errors turn ``f_H`` and their sigmas widen ``C``'s);
+- offsets: every axis sees a +/- pair, ``b = (m_0 + m_2) / 2 = (m_1 + m_3) / 2`` (each flip's mean
+  less its predicted gravity, in general); the difference of the two is a closure check (offset
+  drift between flips, flip errors not modelled);
 - the X axis never sees gravity: its scale is not identifiable (it scales only the small
   misalignment it reads, a second-order effect).
 
@@ -47,7 +49,7 @@ with the X offset.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -76,7 +78,8 @@ class AccelerometerAlignment:
         Its rotation vector, degrees (small: rotations about the accelerometer's x, y, z).
     rotvec_covariance_deg2 : ndarray, shape (3, 3)
         Covariance of the rotation vector's error (in the accelerometer frame), deg^2: from the
-        noise of the turn means, inflated by the fit's own misfit (non-orthogonality) when larger.
+        noise of the turn means, inflated by the fit's own misfit (non-orthogonality) when larger,
+        plus the flip errors' uncertainty when they were given.
     offset : ndarray, shape (3,)
         Accelerometer zero offsets ``b``, recording units.
     g : float
@@ -248,8 +251,8 @@ def fit_accelerometer(accel, platform_deg, flip_deg, flip_index, *, flip_errors_
         tilt_covariance=tilt_cov, magnitude_spread=spread, flip_errors_deg=errors)
     if dip_deg is not None and azimuth_deg is not None:
         dip_g, dip_g_sigma = _dip_against_gravity(dip_deg, dip_sigma_deg, azimuth_deg, tilt_xy, tilt_cov)
-        result = _with(result, dip_axis_deg=float(dip_deg), dip_gravity_deg=dip_g, dip_gravity_sigma_deg=dip_g_sigma)
-    return _with(result, warnings=_warnings(result, w.nominal_angle_deg, dip_sigma_deg))
+        result = replace(result, dip_axis_deg=float(dip_deg), dip_gravity_deg=dip_g, dip_gravity_sigma_deg=dip_g_sigma)
+    return replace(result, warnings=_warnings(result, w.nominal_angle_deg, dip_sigma_deg))
 
 
 def _gravity_in_housing(flip_deg, errors_deg, index):
@@ -297,12 +300,6 @@ def _wahba(means, mean_var, gravity) -> _Wahba:
     misfit = (orthogonality / orthogonality_sigma) ** 2  # one degree of freedom left after the rotation
     return _Wahba(rotation, covariance * max(1.0, misfit), float(g), scale, orthogonality, orthogonality_sigma,
                   np.degrees(np.arccos(np.clip(np.sum(measured * housing, axis=1), -1, 1))))
-
-
-def _with(result, **changes):
-    from dataclasses import replace
-
-    return replace(result, **changes)
 
 
 def _turn_means(a, phi, index):
@@ -436,8 +433,6 @@ def with_accelerometer(result, rec):
     rec : FourFlipRecording
         The recording as the fit saw it (spikes dropped).
     """
-    from dataclasses import replace
-
     if rec.accel is None:
         return result
     errors, sigmas = np.zeros(4), np.zeros(4)
