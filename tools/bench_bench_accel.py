@@ -96,19 +96,21 @@ def run(n, seed, accelerometer, tilt_deg, samples, effects=()) -> dict:
     return {k: np.array(v) if k != "warnings" else v for k, v in out.items()}
 
 
+def _rotation_rows(err, sig, indent: str) -> None:
+    """RMS error, mean sigma and err/sigma of each rotation-vector component."""
+    for label, values, fmt in (("RMS error", [_rms(err[:, j]) for j in range(3)], "10.4f"),
+                               ("mean reported sigma", [np.mean(sig[:, j]) for j in range(3)], "10.4f"),
+                               ("err/sigma (1: honest sigma)", [_rms(err[:, j] / sig[:, j]) for j in range(3)], "10.2f")):
+        print(f"{indent}{label:{34 - len(indent)}s}" + "".join(f"{v:{fmt}}" for v in values))
+
+
 def report(r, title) -> None:
     print(title)
-    err, sig = r["rot_err"], r["rot_sigma"]
     print("  mag_to_accel (rotation vector, deg)   x         y         z")
-    print("    RMS error                      " + "".join(f"{_rms(err[:, j]):10.4f}" for j in range(3)))
-    print("    mean reported sigma            " + "".join(f"{np.mean(sig[:, j]):10.4f}" for j in range(3)))
-    print("    err/sigma (1: honest sigma)    " + "".join(f"{_rms(err[:, j] / sig[:, j]):10.2f}" for j in range(3)))
+    _rotation_rows(r["rot_err"], r["rot_sigma"], "    ")
     if len(r["blind_err"]):
-        err, sig = r["blind_err"], r["blind_sigma"]
         print("    baseline: flip errors ignored")
-        print("      RMS error                    " + "".join(f"{_rms(err[:, j]):10.4f}" for j in range(3)))
-        print("      mean reported sigma          " + "".join(f"{np.mean(sig[:, j]):10.4f}" for j in range(3)))
-        print("      err/sigma                    " + "".join(f"{_rms(err[:, j] / sig[:, j]):10.2f}" for j in range(3)))
+        _rotation_rows(r["blind_err"], r["blind_sigma"], "      ")
     if len(r["tilt_err"]):
         print(f"  turntable tilt: RMS error {_rms(r['tilt_err']):.4f} deg, mean sigma {np.mean(r['tilt_sigma']):.4f}, "
               f"err/sigma {_rms(r['tilt_err'] / r['tilt_sigma']):.2f}")
