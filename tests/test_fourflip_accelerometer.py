@@ -216,3 +216,19 @@ def test_imu_rotation_into_the_model_frame_composes_bench_and_installation():
     assert imu_to_model({k: v for k, v in doc.items() if k != "mag_to_accel"}) is None
     tumble = {"model": "tumble", "mag_to_accel": m.tolist()}  # folded into the tumble's model already
     assert imu_to_model(tumble) is None and accel_to_housing(tumble, a) is a
+
+
+def test_export_puts_the_field_in_the_accelerometer_frame(tmp_path):
+    """Fusion expects the magnetometer in the accelerometer's frame: mag_to_accel is folded into the export."""
+    from compass.commands.export import load_tumble
+
+    session = simulate_fourflip(seed=14, accelerometer=SimAccelerometer(misalign_deg=1.0))
+    doc = calibrate_fourflip(session.recording(), diagnose=False).to_json()
+    path = tmp_path / "cal.json"
+    path.write_text(json.dumps(doc))
+    form = load_tumble(path)
+    model = from_dict(doc).model
+    raw = session.outputs[:5]
+    field_accel = (form["mag_to_accel"] @ form["soft_iron"] @ (raw - form["hard_iron"]).T).T
+    expected = model.field(raw)[0] @ np.array(doc["mag_to_accel"]).T
+    assert np.allclose(field_accel, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
