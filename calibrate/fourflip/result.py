@@ -202,6 +202,9 @@ class CalibrationResult(Calibration):
         lines.append(f"  dip {self.dip_deg:.3f}{dip_sigma} deg   field azimuth from turntable zero {self.azimuth_deg:.2f} deg")
         if "dip_turntable_axis_deg" in self.extra.get("accelerometer", {}):
             lines.append("      (against gravity: the turntable's tilt measured by the accelerometer, see below)")
+        else:
+            lines.append("      (against the turntable axis: a turntable off level by t deg moves it by up to t, which the "
+                         "sigma leaves out; level it, or record ax,ay,az)")
         if "hemisphere" in self.extra:
             lines.append(_hemisphere_line(self.extra["hemisphere"]))
         lines.append(f"  field |B| {self.field_ut:g} uT (gains per uT)" if self.field_ut else
