@@ -232,3 +232,17 @@ def test_export_puts_the_field_in_the_accelerometer_frame(tmp_path):
     field_accel = (form["mag_to_accel"] @ form["soft_iron"] @ (raw - form["hard_iron"]).T).T
     expected = model.field(raw)[0] @ np.array(doc["mag_to_accel"]).T
     assert np.allclose(field_accel, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
+
+
+def test_a_knock_is_left_out_and_said():
+    session = simulate_fourflip(seed=15, accelerometer=SimAccelerometer(misalign_deg=1.0))
+    rec = session.recording()
+    knocked = rec.accel.copy()
+    knocked[[100, 800], :] += [3.0, -2.0, 4.0]  # two knocks of several g
+    fit = fit_accelerometer(knocked, rec.platform_deg, rec.flip_deg, rec.flip_index)
+    true = Rotation.from_matrix(np.array(_truth(session, "accelerometer")["mag_to_accel"]))
+    err = (Rotation.from_matrix(fit.mag_to_accel) * true.inv()).as_rotvec(degrees=True)
+    assert np.all(np.abs(err) < PULL * fit.rotvec_sigma_deg)
+    assert fit.glitches_dropped == 2 and any("glitches" in w for w in fit.warnings)
+    clean = fit_accelerometer(rec.accel, rec.platform_deg, rec.flip_deg, rec.flip_index)
+    assert clean.glitches_dropped == 0  # Gaussian noise: 8 sigma never happens

@@ -54,6 +54,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..noise import robust_sigma
+
 __all__ = ["AccelerometerAlignment", "describe_accelerometer", "fit_accelerometer", "with_accelerometer"]
 
 _OFFSET_WARN = 0.005  # |b| / g above which the runtime's tilt error (offsets are not removed) is worth a word
@@ -63,6 +65,7 @@ _ORTHOGONALITY_FLOOR_DEG = 0.05  # ... and beyond this angle (slow drift is not 
 _NOMINAL_WARN_DEG = 5.0  # a flip's gravity this far from nominal (before the fit): wiring or axis names
 _MAGNITUDE_WARN = 0.02  # |a| spread within a turn, relative: not at rest or not a clean accelerometer
 _TILT_DIP_SIGMAS = 2.0  # the tilt's dip shift beyond this many dip sigmas gets a warning
+_GLITCH_SIGMAS = 8.0  # an accelerometer sample this many robust sigmas off its turn's fit is dropped
 
 
 @dataclass(frozen=True)
@@ -105,6 +108,8 @@ class AccelerometerAlignment:
         measured tilt (None when no dip was given); :func:`with_accelerometer` reports the latter.
     flip_errors_deg : ndarray, shape (4,)
         Flip-angle errors used for the gravity in H (the magnetic fit's ``flip_error`` effect, else 0).
+    glitches_dropped : int
+        Accelerometer samples left out as glitches (off their turn's fit by more than 8 robust sigmas).
     warnings : tuple of str
     """
 
@@ -123,6 +128,7 @@ class AccelerometerAlignment:
     tilt_covariance: np.ndarray
     magnitude_spread: float
     flip_errors_deg: np.ndarray
+    glitches_dropped: int = 0
     dip_axis_deg: float | None = None
     dip_gravity_deg: float | None = None
     dip_gravity_sigma_deg: float | None = None
@@ -172,6 +178,7 @@ class AccelerometerAlignment:
             "flip_residual_deg": self.residual_deg.tolist(),
             "flip_errors_used_deg": self.flip_errors_deg.tolist(),
             "magnitude_spread": self.magnitude_spread,
+            "glitches_dropped": self.glitches_dropped,
             "turntable_tilt_deg": self.tilt_deg,
             "turntable_tilt_sigma_deg": self.tilt_sigma_deg,
             "turntable_tilt_azimuth_deg": self.tilt_azimuth_deg,
@@ -222,6 +229,8 @@ def fit_accelerometer(accel, platform_deg, flip_deg, flip_index, *, flip_errors_
     errors = np.zeros(4) if flip_errors_deg is None else np.asarray(flip_errors_deg, dtype=float)
     if not np.all(np.isfinite(a)):
         raise ValueError(f"accelerometer reading not finite at sample {int(np.argmax(~np.all(np.isfinite(a), axis=1)))}")
+    keep = _not_glitches(a, phi, index)
+    a, phi, flip, index = a[keep], phi[keep], flip[keep], index[keep]
     means, mean_var, spread = _turn_means(a, phi, index)
     w = _wahba(means, mean_var, _gravity_in_housing(flip, errors, index))
     covariance = w.covariance
@@ -248,7 +257,8 @@ def fit_accelerometer(accel, platform_deg, flip_deg, flip_index, *, flip_errors_
         rotvec_covariance_deg2=np.degrees(np.degrees(covariance)), offset=offset, g=w.g, scale_yz=w.scale[1:],
         orthogonality_deg=w.orthogonality_deg, orthogonality_sigma_deg=w.orthogonality_sigma_deg,
         closure=closure, closure_sigma=closure_sigma, residual_deg=residual, tilt_xy=tilt_xy,
-        tilt_covariance=tilt_cov, magnitude_spread=spread, flip_errors_deg=errors)
+        tilt_covariance=tilt_cov, magnitude_spread=spread, flip_errors_deg=errors,
+        glitches_dropped=int(np.sum(~keep)))
     if dip_deg is not None and azimuth_deg is not None:
         dip_g, dip_g_sigma = _dip_against_gravity(dip_deg, dip_sigma_deg, azimuth_deg, tilt_xy, tilt_cov)
         result = replace(result, dip_axis_deg=float(dip_deg), dip_gravity_deg=dip_g, dip_gravity_sigma_deg=dip_g_sigma)
@@ -302,13 +312,31 @@ def _wahba(means, mean_var, gravity) -> _Wahba:
                   np.degrees(np.arccos(np.clip(np.sum(measured * housing, axis=1), -1, 1))))
 
 
+def _harmonic_design(phi):
+    return np.column_stack([np.ones_like(phi), np.cos(phi), np.sin(phi)])
+
+
+def _not_glitches(a, phi, index) -> np.ndarray:
+    """Samples within :data:`_GLITCH_SIGMAS` robust sigmas (MAD) of their flip's first-harmonic fit on every axis:
+    a knock or a line glitch would otherwise pull a turn mean (one 5 g sample in 360 moves it 0.8 deg)."""
+    keep = np.ones(len(a), dtype=bool)
+    for k in range(4):
+        mask = index == k
+        design = _harmonic_design(phi[mask])
+        coef, *_ = np.linalg.lstsq(design, a[mask], rcond=None)
+        resid = a[mask] - design @ coef
+        sigma = robust_sigma(resid, axis=0)
+        keep[mask] = np.all(np.abs(resid) <= _GLITCH_SIGMAS * np.maximum(sigma, 1e-12 * np.abs(coef[0]).max()), axis=1)
+    return keep
+
+
 def _turn_means(a, phi, index):
     """Per flip, the mean of each axis over the turn (constant of a first-harmonic fit, so an uneven
     turn does not leak the tilt's harmonic into it), its variance, and the relative |a| spread."""
     means, variances, spreads = np.empty((4, 3)), np.empty((4, 3)), []
     for k in range(4):
         mask = index == k
-        design = np.column_stack([np.ones(mask.sum()), np.cos(phi[mask]), np.sin(phi[mask])])
+        design = _harmonic_design(phi[mask])
         coef, *_ = np.linalg.lstsq(design, a[mask], rcond=None)
         resid = a[mask] - design @ coef
         dof = max(mask.sum() - 3, 1)
@@ -371,6 +399,9 @@ def _warnings(r: AccelerometerAlignment, nominal_angle_deg, dip_sigma_deg) -> tu
         out.append(f"the accelerometer's gravity is {np.max(nominal_angle_deg):.1f} deg from where the flips put it "
                    "in the housing frame: its axes are not the housing's (names, signs, mounting); the fitted "
                    "mag_to_accel takes this into account, but check the wiring")
+    if r.glitches_dropped:
+        out.append(f"{r.glitches_dropped} accelerometer sample(s) left out as glitches (more than {_GLITCH_SIGMAS:g} "
+                   "robust sigmas off their turn): knocks or line errors")
     if r.magnitude_spread > _MAGNITUDE_WARN:
         out.append(f"|a| varies by {100 * r.magnitude_spread:.1f} % within a turn: the housing was not at rest "
                    "(vibration, the turntable accelerating) or the accelerometer is noisy; its alignment is less sure")
