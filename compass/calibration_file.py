@@ -563,8 +563,15 @@ def _site(d: dict):
     return Site.from_json(d["site"])
 
 
+def _mag_to_accel(d: dict):
+    from .accel_alignment import read_mag_to_accel
+
+    return read_mag_to_accel(d)
+
+
 SECTION_READERS: dict[str, Callable[[dict], Any]] = {
     "tilt_sensor": _tilt_sensor,
     "site": _site,
+    "mag_to_accel": _mag_to_accel,
 }
 """Key -> reader of a block the runtime needs beside the sensor model, called when the key is present."""

@@ -27,6 +27,7 @@ from compass.response import CubicResponse, LinearResponse, TableResponse
 from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, housing_field
 
 from . import _harmonic as hm
+from .accelerometer import with_accelerometer
 from ._mlfit import MLFit, fit_ml
 from ..contract import Calibrator, CannotCalibrate
 from .diagnosis import UNEXPLAINED_WARNING, diagnose_fourflip, examine_residual
@@ -85,6 +86,7 @@ def calibrate_fourflip(
     if spikes.any():
         rec = rec.subset(~spikes)
     result = _estimate(rec, BenchSamples.from_recording(rec), noise, method, field_ut, dip_sign, diagnose, progress)
+    result = with_accelerometer(result, rec)  # ax, ay, az: the accelerometer's alignment and the turntable's tilt
     vertical = hm.vector_harmonic(hm.fit_harmonics(rec.platform_deg, rec.flip_index, rec.outputs), 1.0,
                                   dip_sign).vertical_sigmas
     extra = dict(result.extra) | {"hemisphere": hemisphere | {"vertical_field_sigmas": vertical}}

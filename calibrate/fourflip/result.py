@@ -200,6 +200,11 @@ class CalibrationResult(Calibration):
         lines = [f"Four-flip calibration, method {self.method}"]
         dip_sigma = f" +- {self.dip_sigma_deg:.3f}" if self.dip_sigma_deg is not None and np.isfinite(self.dip_sigma_deg) else ""
         lines.append(f"  dip {self.dip_deg:.3f}{dip_sigma} deg   field azimuth from turntable zero {self.azimuth_deg:.2f} deg")
+        if "dip_turntable_axis_deg" in self.extra.get("accelerometer", {}):
+            lines.append("      (against gravity: the turntable's tilt measured by the accelerometer, see below)")
+        else:
+            lines.append("      (against the turntable axis: a turntable off level by t deg moves it by up to t, which the "
+                         "sigma leaves out; level it, or record ax,ay,az)")
         if "hemisphere" in self.extra:
             lines.append(_hemisphere_line(self.extra["hemisphere"]))
         lines.append(f"  field |B| {self.field_ut:g} uT (gains per uT)" if self.field_ut else
@@ -231,6 +236,10 @@ class CalibrationResult(Calibration):
             from ..diagnosis.report import format_diagnosis
 
             lines.append(format_diagnosis(self.diagnosis))
+        if "accelerometer" in self.extra:
+            from .accelerometer import describe_accelerometer
+
+            lines.append(describe_accelerometer(self.extra["accelerometer"]))
         if "site_check" in self.extra:
             from ..site_field import describe
 

@@ -74,6 +74,7 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     RecordingError, BadInput, FileExistsError
         Bad input (exit status 2 on the command line).
     """
+    from ..accel_alignment import accel_to_housing, housing_from_accel
     from ..attitude import UnusableCalibration, solve_attitude
     from ..calibration_file import load
     from ..cli import BadInput
@@ -112,6 +113,7 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     else:  # a 3-D platform calibration: ax, ay[, az] are its tilt sensor's raw outputs
         tilt_raw = _group(table, tilt_sensor.columns)
         accel = tilt_sensor.up(tilt_raw)
+    accel = accel_to_housing(cal.data, accel)  # a calibration with mag_to_accel: the accelerometer in H
     accel = accel_to_product(cal.data, accel)  # an installed file with an alignment: the product's frame
     tilt = _group(table, _TILT)
     if accel is not None:
@@ -148,6 +150,12 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
                                   f"deg (sigma {result.reference.declination_sigma_deg:.2f} deg in heading_true_sigma_deg)")
     if result.mode == "accelerometer":
         metadata["accel_noise_g"] = f"{accel_noise_g:g}"
+        to_housing = housing_from_accel(cal.data)
+        if to_housing is not None:
+            from scipy.spatial.transform import Rotation
+
+            angle = np.degrees(Rotation.from_matrix(to_housing).magnitude())
+            metadata["accel_frame"] = f"rotated into the housing by the calibration's mag_to_accel ({angle:.3f} deg)"
     if result.mode == "level":
         metadata["max_tilt_deg"] = f"{max_tilt_deg:g}"
     if effect is not None:

@@ -5,7 +5,8 @@ installed one: :func:`channel_form`), as a matrix and an offset from raw counts 
 
 - ``fusion``: x-io Fusion's ``FusionCalibrationMagnetic(uncalibrated, softIronMatrix, hardIronOffset)``
   computes ``softIronMatrix * (uncalibrated - hardIronOffset)``, the same form as the calibration file;
-  the magnetometer-to-accelerometer rotation, when fitted, is folded into the matrix
+  the magnetometer-to-accelerometer rotation, when fitted (a tumble's, or a bench calibration's
+  ``mag_to_accel`` from its recording's accelerometer), is folded into the matrix
   (``C @ soft_iron``) because Fusion expects the magnetometer in the sensor (accelerometer) frame.
   The initialisers are fully braced C float literals (``{{{1.0f, 0.0f, ...}, ...}}``: Fusion's types
   are unions whose first member is the array), so they compile as C and C++ with every warning on.
@@ -77,9 +78,13 @@ def load_tumble(path) -> dict:
         raise BadInput(str(exc)) from None
     if cal.kind != "tumble":
         try:
-            return channel_form(cal.model)
+            form = channel_form(cal.model)
         except ValueError as exc:
             raise BadInput(f"{path}: a {cal.kind} calibration cannot be exported: {exc}") from None
+        to_accel = cal.sections.get("mag_to_accel")  # a bench accelerometer's R_accel<-H: the field in its frame
+        if to_accel is not None:
+            form["mag_to_accel"] = to_accel @ form["mag_to_accel"]
+        return form
     d = cal.data
     c = d.get("mag_to_accel")
     norm = (d.get("tumble") or {}).get("field_norm_recording_units") if isinstance(d.get("tumble"), dict) else None

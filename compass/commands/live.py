@@ -58,7 +58,7 @@ def run(args) -> int:
     from ..io.units import GYRO_UNITS
     from ..live import LiveSession
     from ..calibration_file import load
-    from ..installed import alignment_of
+    from ..accel_alignment import imu_to_model
 
     if args.calibrate == "tumble":
         from ._live_tumble import run_tumble
@@ -68,7 +68,7 @@ def run(args) -> int:
         raise BadInput("--cal CAL.json is required (or --calibrate tumble to make one)")
     try:
         cal = load(args.cal)
-        model, to_product = cal.model, alignment_of(cal.data)
+        model, to_product = cal.model, imu_to_model(cal.data)  # mag_to_accel, an installed alignment
         config = FilterConfig.from_model(model)
     except ValueError as exc:
         raise BadInput(f"{args.cal}: {exc}" if args.cal not in str(exc) else str(exc)) from None

@@ -24,6 +24,11 @@ def register(sub) -> None:
     ff.add_argument("--dip-deg", type=float, default=None, help="dip, deg (default: random 40..70)")
     ff.add_argument("--step-deg", type=float, default=1.0, help="turntable step, deg (default 1)")
     ff.add_argument("--effect-scale", type=float, default=1.0, help="multiply every effect size")
+    ff.add_argument("--accel-misalign-deg", type=float, default=None,
+                    help="record ax,ay,az from an accelerometer misaligned with the housing by this RMS per axis, deg "
+                         "(default: no accelerometer)")
+    ff.add_argument("--turntable-tilt-deg", type=float, default=0.0,
+                    help="tilt the turntable's axis from the vertical by this angle, deg (default 0)")
     p3 = _kind(kinds, "platform3d", "a 3-D platform session with a tilt sensor (seed 001)", run_platform3d)
     p3.add_argument("--poses", choices=("grid", "random", "turntable"), default="grid",
                     help="platform poses (default grid; turntable never tilts and cannot be calibrated)")
@@ -91,7 +96,7 @@ def _positive(name: str, value, *, at_least=None) -> None:
 
 def run_fourflip(args) -> int:
     from ..cli import BadInput
-    from ..sim.fourflip import simulate_fourflip, write_fourflip
+    from ..sim.fourflip import SimAccelerometer, simulate_fourflip, write_fourflip
 
     _positive("--channels", args.channels, at_least=1)
     if not 0 < args.step_deg <= 30:
@@ -103,9 +108,15 @@ def run_fourflip(args) -> int:
         raise BadInput(f"--dip-deg must be in [-90, 90], got {args.dip_deg}")
     if not args.effect_scale >= 0:
         raise BadInput(f"--effect-scale must not be negative, got {args.effect_scale}")
+    if args.accel_misalign_deg is not None and not args.accel_misalign_deg >= 0:
+        raise BadInput(f"--accel-misalign-deg must not be negative, got {args.accel_misalign_deg}")
+    if not 0 <= args.turntable_tilt_deg < 10:
+        raise BadInput(f"--turntable-tilt-deg must be in [0, 10), got {args.turntable_tilt_deg}")
+    accelerometer = None if args.accel_misalign_deg is None else SimAccelerometer(misalign_deg=args.accel_misalign_deg)
     session = simulate_fourflip(
         seed=args.seed, n_channels=args.channels, effects=tuple(args.effect), noise_ut=args.noise_ut,
         field_ut=args.field_ut, dip_deg=args.dip_deg, step_deg=args.step_deg, effect_scale=args.effect_scale,
+        accelerometer=accelerometer, turntable_tilt_deg=args.turntable_tilt_deg,
     )
     rec, truth = write_fourflip(session, args.out, force=args.force)
     print(f"wrote {rec} ({session.outputs.shape[0]} samples, {len(session.channels)} channels"

@@ -1,5 +1,10 @@
 """The virtual bench: simulated four-flip sessions written as SPEC recordings.
 
+An accelerometer riding in the housing (``ax, ay, az``, :class:`SimAccelerometer`: misaligned with
+the housing, with offsets, scale errors and noise) and a turntable whose axis is tilted from the
+vertical (it moves gravity and the field as the turntable sees them) are optional and off by
+default; they draw from their own random stream, so a session without them is unchanged.
+
 Each effect of SPEC section 4 can be switched on; the simulator's own form of an effect is
 deliberately *not* the estimator's (saturation by tanh rather than an odd cubic, warm-up by an
 exponential rather than a polynomial, encoder error with a phase) so that tests do not reward a
@@ -15,12 +20,12 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..frames import bench_rotation
+from ..frames import bench_rotation, field_in_bench
 from ..io.fourflip import FourFlipRecording
 from ._files import csv_text, write_with_truth
 from .bench import BenchPhysics, BenchSamples, channel_outputs, housing_field
 
-__all__ = ["SIM_EFFECTS", "SimulatedSession", "simulate_fourflip", "write_fourflip"]
+__all__ = ["SIM_EFFECTS", "SimAccelerometer", "SimulatedSession", "simulate_fourflip", "write_fourflip"]
 
 SIM_EFFECTS = (
     "nonlinear_response",
@@ -31,6 +36,28 @@ SIM_EFFECTS = (
     "temperature",
     "field_gradient",
 )
+
+
+@dataclass(frozen=True)
+class SimAccelerometer:
+    """An accelerometer riding in the housing, read in g: ``a = (1 + s) * (C f_H) + b + noise``.
+
+    Attributes
+    ----------
+    misalign_deg : float
+        RMS of each component of the rotation vector of ``C = R_accel<-H``, degrees.
+    noise_g : float
+        White noise per axis and sample, g.
+    offset_g : float
+        RMS of each axis offset ``b``, g.
+    scale_error : float
+        RMS of each axis' relative scale error ``s``.
+    """
+
+    misalign_deg: float = 1.0
+    noise_g: float = 0.002
+    offset_g: float = 0.0
+    scale_error: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -45,6 +72,8 @@ class SimulatedSession:
     metadata : dict
     truth : dict
         JSON-ready truth (directions, offsets, gains per field unit, dip, effects with parameters).
+    accel : ndarray, shape (n, 3), or None
+        The accelerometer's readings (g), when the session has one.
     """
 
     samples: BenchSamples
@@ -52,12 +81,13 @@ class SimulatedSession:
     channels: tuple[str, ...]
     metadata: dict
     truth: dict
+    accel: np.ndarray | None = None
 
     def recording(self) -> FourFlipRecording:
         """The in-memory recording a CSV of this session reads back as."""
         s = self.samples
         return FourFlipRecording(s.flip_deg, s.flip_index, s.platform_deg, self.outputs, self.channels,
-                                 s.t_s, s.temp_c, None, dict(self.metadata))
+                                 s.t_s, s.temp_c, self.accel, dict(self.metadata))
 
     def base_physics(self) -> BenchPhysics:
         """The truth's base-model parameters (effects left out), gains per microtesla."""
@@ -105,6 +135,8 @@ def simulate_fourflip(
     misalign_deg: float = 3.0,
     effect_scale: float = 1.0,
     directions: np.ndarray | None = None,
+    accelerometer: SimAccelerometer | None = None,
+    turntable_tilt_deg: float = 0.0,
 ) -> SimulatedSession:
     """Simulate one four-flip bench session.
 
@@ -128,6 +160,12 @@ def simulate_fourflip(
         Multiplies every effect size (1 gives sizes that move a direction by roughly 0.1-1 deg).
     directions : ndarray, shape (c, 3), optional
         Sensing directions to use instead of random ones.
+    accelerometer : SimAccelerometer, optional
+        Record ``ax, ay, az`` from this accelerometer (none by default).
+    turntable_tilt_deg : float
+        The turntable's axis tilted from the vertical by this angle, toward a random azimuth: the
+        field is seen against the tilted axis (its dip as the turntable sees it changes) and gravity
+        in H moves with the turntable angle.  The truth's ``dip_deg`` stays the dip against gravity.
     """
     unknown = set(effects) - set(SIM_EFFECTS)
     if unknown:
@@ -193,7 +231,19 @@ def simulate_fourflip(
         )
     samples = BenchSamples(samples.platform_deg, samples.flip_deg, samples.flip_index, t, temp_c)
 
-    b_h = housing_field(physics, samples)
+    extra = np.random.default_rng([seed, 0xACC])  # the accelerometer's and the tilt's own stream
+    up_turntable, tilted = np.array([0.0, 0.0, 1.0]), physics
+    if turntable_tilt_deg:
+        lean = float(extra.uniform(0.0, 360.0))
+        tau, beta = np.radians(turntable_tilt_deg), np.radians(lean)
+        up_turntable = np.array([np.sin(tau) * np.cos(beta), np.sin(tau) * np.sin(beta), np.cos(tau)])
+        tilted = physics.with_(**_dip_azimuth(_to_turntable(up_turntable).apply(
+            field_in_bench(dip, azimuth, field_ut))))
+        truth_effects.append({"name": "turntable_tilt", "parameters": {
+            "tilt_deg": float(turntable_tilt_deg), "up_lean_azimuth_deg": lean,
+            "up_in_turntable_frame": up_turntable.tolist(), "dip_against_axis_deg": tilted.dip_deg,
+            "modelled_by_estimators": False}})
+    b_h = housing_field(tilted, samples)
     if "field_gradient" in effects:
         b_h = b_h + _gradient_field(samples, rng, s)
         truth_effects.append({"name": "field_gradient", "parameters": {"modelled_by_estimators": False}})
@@ -211,6 +261,10 @@ def simulate_fourflip(
 
     noise = noise_ut * gains_per_ut
     outputs = outputs + rng.normal(size=outputs.shape) * noise[None, :]
+    accel = None
+    if accelerometer is not None:
+        accel, truth_accel = _accelerometer(accelerometer, physics, samples, up_turntable, extra)
+        truth_effects.append(truth_accel)
     channels = tuple(f"v{i + 1}" for i in range(n_channels))
     truth = {
         "directions": directions.tolist(),
@@ -226,7 +280,39 @@ def simulate_fourflip(
         "seed": seed,
     }
     metadata = {"field_ut": f"{field_ut:g}", "source": f"compass simulate fourflip --seed {seed}"}
-    return SimulatedSession(samples, outputs, channels, metadata, truth)
+    return SimulatedSession(samples, outputs, channels, metadata, truth, accel)
+
+
+def _to_turntable(up_turntable) -> Rotation:
+    """The rotation taking bench (gravity) vectors into the tilted turntable's frame: true up goes to ``up_turntable``."""
+    rotation, _ = Rotation.align_vectors([up_turntable], [[0.0, 0.0, 1.0]])
+    return rotation
+
+
+def _dip_azimuth(vector) -> dict:
+    """``dip_deg`` and ``azimuth_deg`` of a field vector (SPEC section 1's form)."""
+    v = np.asarray(vector, float)
+    return {"dip_deg": float(np.degrees(np.arcsin(-v[2] / np.linalg.norm(v)))),
+            "azimuth_deg": float(np.degrees(np.arctan2(v[1], v[0])))}
+
+
+def _accelerometer(spec: SimAccelerometer, physics, samples, up_turntable, rng) -> tuple[np.ndarray, dict]:
+    """Readings (g) of a misaligned accelerometer in H and their truth entry.
+
+    Gravity in H goes through the same forward model as the field (encoder and flip errors included):
+    specific force +1 g along true up, written as a "field" of unit magnitude pointing up.
+    """
+    up = physics.with_(**_dip_azimuth(up_turntable), field_magnitude=1.0, platform_field=None)
+    f_h = housing_field(up, samples)
+    rotvec_deg = rng.normal(scale=spec.misalign_deg, size=3)
+    offset = rng.normal(scale=spec.offset_g, size=3)
+    scale = 1.0 + rng.normal(scale=spec.scale_error, size=3)
+    rotation = Rotation.from_rotvec(rotvec_deg, degrees=True)
+    accel = scale * rotation.apply(f_h) + offset + rng.normal(scale=spec.noise_g, size=f_h.shape)
+    truth = {"name": "accelerometer", "parameters": {
+        "mag_to_accel": rotation.as_matrix().tolist(), "rotvec_deg": rotvec_deg.tolist(), "offset_g": offset.tolist(),
+        "scale": scale.tolist(), "noise_g": spec.noise_g, "modelled_by_estimators": False}}
+    return accel, truth
 
 
 def _gradient_field(samples, rng, scale) -> np.ndarray:
@@ -260,5 +346,10 @@ def write_fourflip(session: SimulatedSession, path, *, force: bool = False) -> t
         formats.append("%.3f")
     columns += list(session.channels)
     formats += ["%.7f"] * len(session.channels)
-    table = np.column_stack(data + [session.outputs])
+    data.append(session.outputs)
+    if session.accel is not None:
+        columns += ["ax", "ay", "az"]
+        formats += ["%.6f"] * 3
+        data.append(session.accel)
+    table = np.column_stack(data)
     return write_with_truth(path, csv_text(columns, table, formats, session.metadata), session.truth, force=force)

@@ -2,8 +2,9 @@
 
 The sensor is the one behind a four-flip truth (:func:`compass.sim.fourflip.simulate_fourflip`'s
 ``truth``): its directions, offsets and gains per microtesla, and its saturation when the truth
-has ``nonlinear_response``.  An accelerometer aligned with the housing reads gravity (+1 g up, in
-units of g) with white noise.  Written as SPEC section 2's attitude recording, with the true
+has ``nonlinear_response``.  An accelerometer reads gravity (+1 g up, in units of g) with white
+noise: aligned with the housing, or, when the truth has an ``accelerometer`` entry (the bench's
+accelerometer, :class:`compass.sim.fourflip.SimAccelerometer`), with its misalignment, scales and offsets.  Written as SPEC section 2's attitude recording, with the true
 angles beside it in ``<stem>.truth.csv``.
 """
 
@@ -106,6 +107,10 @@ def simulate_runtime(
     accel = None
     if accel_noise_g is not None:
         accel = rot.apply(np.array([0.0, 0.0, 1.0]), inverse=True) + accel_noise_g * rng.normal(size=(n, 3))
+        for effect in truth.get("effects", ()):
+            if effect["name"] == "accelerometer":  # the bench's accelerometer: misaligned with H
+                p = effect["parameters"]
+                accel = np.asarray(p["scale"]) * (accel @ np.asarray(p["mag_to_accel"]).T) + np.asarray(p["offset_g"])
     return RuntimeSession(np.arange(n) / rate_hz, tuple(truth["channels"]), outputs, accel, heading, pitch,
                           roll, field_h)
 
