@@ -67,7 +67,7 @@ def test_tumble_finds_the_iron_and_travels(bench):
     true_d = inst.soft_iron - np.eye(3)
     for k, (i, j) in enumerate(((0, 1), (0, 2), (1, 2)), start=3):
         assert abs(result.soft_iron[i, j] - true_d[i, j]) < 5 * result.soft_iron_sigma[k] + 1e-4
-    assert result.diagnosis["effects"] == [] and result.diagnosis["unexplained"] is False
+    assert result.diagnosis.block["effects"] == [] and result.diagnosis.unexplained is False
     assert any("scale" in w for w in result.undetermined) and len(result.undetermined) == 1
     (installed, best, bench_only), disturbed = at_another_site(bench, inst, result)
     assert installed <= 1.3 * best + 0.02 and bench_only > 5 * best and disturbed <= 0.01
@@ -129,15 +129,39 @@ def test_drifting_hard_iron_is_named(bench):
     from dataclasses import replace
 
     result = fit(bench, replace(rec, outputs=rec.outputs + gains * drift))
-    assert result.diagnosis["effects"] == ["offset_drift"]
-    assert result.diagnosis["residual_rms_after"] < 0.5 * result.diagnosis["residual_rms_before"]
+    block = result.diagnosis.block
+    assert block["effects"] == ["offset_drift"]
+    assert block["residual_rms_after"] < 0.5 * block["residual_rms_before"]
     # its parameters reach the file: the drift rate in H, against the injected 2 x (1.5, -1, 0.8) uT over the session
-    (effect,) = result.diagnosis["effect_parameters"]
-    rate, sigma = (np.array(effect["parameters"][k]) for k in ("hard_iron_ut_per_s", "hard_iron_ut_per_s_sigma"))
+    (effect,) = result.to_json()["effects"]
+    rate, sigma = (np.array([effect["parameters"][f"{axis}.hard_iron_rate_per_s"][k] for axis in "xyz"])
+                   for k in ("value", "sigma"))
     true_rate = 2.0 * np.array([1.5, -1.0, 0.8]) / np.ptp(rec.t_s)
     assert effect["name"] == "offset_drift" and np.all(np.abs(rate - true_rate) < 4 * sigma + 0.02 * np.abs(true_rate))
-    assert "effect_parameters" in json.loads(json.dumps(result.to_json()))["diagnosis"]  # in the file
-    assert "offset_drift: hard iron change x" in result.report() and "uT per s" in result.report()
+    assert effect["reference"]["t_s"] == pytest.approx(np.mean(rec.t_s))
+    assert "x.hard_iron_rate_per_s" in result.report() and "offset_drift (linear)" in result.report()
+
+
+def test_diagnosis_is_the_shared_record_and_withdraws_a_drift_when_structure_remains(bench):
+    """A hard iron that steps halfway is partly a drift: the shared loop claims nothing, says so, keeps the base fit."""
+    from dataclasses import replace
+
+    from calibrate.diagnosis.report import Diagnosis
+
+    _, _, truth, _ = bench
+    rec = simulate_installation(truth, random_installation(50), kind="tumble", n=2000, seed=51)
+    gains = np.asarray(truth["gains_per_ut"])
+    step = np.outer(np.arange(len(rec.t_s)) >= len(rec.t_s) // 2, [3.0, -2.0, 1.5]) @ np.asarray(truth["directions"]).T
+    result = fit(bench, replace(rec, outputs=rec.outputs + gains * step))
+    assert isinstance(result.diagnosis, Diagnosis)
+    block = result.diagnosis.block
+    assert block["effects"] == [] and result.to_json()["effects"] == [] and block["unexplained"] is True
+    assert len(block["steps"]) == 1 and block["residual_rms_after"] == block["residual_rms_before"]
+    assert any(line.startswith("offset_drift (linear; delta-BIC") and "not claimed" in line
+               for line in block["not_claimed"])
+    assert block["not_applicable"] == {"temperature": "the recording has no temp_c column"}
+    assert "not claimed: offset_drift" in result.report() and any("above the bench's noise floor" in w
+                                                                   for w in result.warnings)
 
 
 def test_deviation_card_coefficients():
