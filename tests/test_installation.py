@@ -138,7 +138,8 @@ def test_drifting_hard_iron_is_named(bench):
                    for k in ("value", "sigma"))
     true_rate = 2.0 * np.array([1.5, -1.0, 0.8]) / np.ptp(rec.t_s)
     assert effect["name"] == "offset_drift" and np.all(np.abs(rate - true_rate) < 4 * sigma + 0.02 * np.abs(true_rate))
-    assert effect["reference"]["t_s"] == pytest.approx(np.mean(rec.t_s))
+    fitted = bench[0].field(rec.outputs + gains * drift)[1]  # the rows inside the bench's range
+    assert effect["reference"]["t_s"] == pytest.approx(np.mean(rec.t_s[fitted]))
     assert "x.hard_iron_rate_per_s" in result.report() and "offset_drift (linear)" in result.report()
 
 
@@ -162,6 +163,40 @@ def test_diagnosis_is_the_shared_record_and_withdraws_a_drift_when_structure_rem
     assert block["not_applicable"] == {"temperature": "the recording has no temp_c column"}
     assert "not claimed: offset_drift" in result.report() and any("above the bench's noise floor" in w
                                                                    for w in result.warnings)
+
+
+@pytest.fixture(scope="module")
+def bench_cubic(bench, tmp_path_factory):
+    """The bench of ``bench`` with every channel's response a cubic (a vanishing one) over +-50 uT:
+    beyond that range its curve is extrapolated, not trusted."""
+    _, doc, truth, _ = bench
+    folder = tmp_path_factory.mktemp("bench_cubic")
+    doc = json.loads(json.dumps(doc))
+    for channel in doc["channels"].values():
+        channel["response"] |= {"model": "cubic", "cubic": 1e-9, "range": [-50.0, 50.0]}
+    (folder / "bench.json").write_text(json.dumps(doc))
+    return SensorModel.from_json(doc), doc, truth, folder
+
+
+def test_rows_outside_a_nonlinear_bench_range_are_left_out_and_counted(bench_cubic):
+    """A sensor that clips beyond the field its bench calibration saw: those rows would bend the iron."""
+    from dataclasses import replace
+
+    model, _, truth, _ = bench_cubic
+    inst = random_installation(65, hard_iron_ut=10.0)
+    rec = simulate_installation(truth, inst, kind="tumble", n=2000, seed=66)
+    offsets, gains = np.asarray(truth["offsets"]), np.asarray(truth["gains_per_ut"])
+    x = (rec.outputs - offsets) / gains
+    clipped = replace(rec, outputs=offsets + gains * np.clip(x, -54.0, 54.0))  # a rail past 50 uT + 2 %
+    outside = int(np.sum(~model.field(clipped.outputs)[1]))
+    assert outside > 50
+    result = fit(bench_cubic, clipped)
+    assert result.n_rows == 2000 - outside and result.n_rows_out_of_range == outside
+    assert np.all(np.abs(result.hard_iron_ut - inst.hard_iron_ut) < 5 * result.hard_iron_sigma_ut)
+    assert result.diagnosis.unexplained is False
+    assert result.to_json()["installation"]["n_rows_out_of_range"] == outside
+    assert any(f"{outside} rows" in w and "left out" in w for w in result.warnings)
+    assert f"{outside} rows" in result.report()
 
 
 def test_deviation_card_coefficients():

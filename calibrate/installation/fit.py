@@ -73,7 +73,9 @@ class InstallationCalibration(Calibration):
     diagnosis : InstallationDiagnosis
         The residual diagnosis; its ``block`` is the file's ``diagnosis`` (SPEC section 4).
     n_rows : int
-        Rows fitted (read gravity alone).
+        Rows fitted: they read gravity alone and every channel inside the bench calibration's range.
+    n_rows_out_of_range : int
+        Rows that read gravity alone but some channel beyond the bench's range, left out.
     residual_rms_ut : float
         RMS of ``|B_H| - F`` over the rows.
     model : SensorModel
@@ -100,6 +102,7 @@ class InstallationCalibration(Calibration):
     card_after: DeviationCard | None
     diagnosis: InstallationDiagnosis
     n_rows: int
+    n_rows_out_of_range: int
     residual_rms_ut: float
     model: SensorModel
     base_document: dict = field(repr=False)
@@ -122,8 +125,14 @@ class InstallationCalibration(Calibration):
     @property
     def warnings(self) -> tuple:
         """What the rotations did not determine, and structure left unexplained, in words."""
-        return (tuple(f"not determined by this recording: {w}" for w in self.undetermined)
-                + ((UNEXPLAINED_WARNING,) if self.diagnosis.unexplained else ()))
+        return tuple(f"not determined by this recording: {w}" for w in self.undetermined) + self._cautions()
+
+    def _cautions(self) -> tuple:
+        """The warnings besides what was not determined: rows left out, structure left unexplained."""
+        outside = ((f"{self.n_rows_out_of_range} rows read a field beyond the bench calibration's range on some "
+                    "channel (where its response was never measured): left out of the fit",)
+                   if self.n_rows_out_of_range else ())
+        return outside + ((UNEXPLAINED_WARNING,) if self.diagnosis.unexplained else ())
 
     @property
     def alignment(self) -> np.ndarray | None:
@@ -145,7 +154,8 @@ class InstallationCalibration(Calibration):
                 "parameters": list(PARAMETERS),
                 "undetermined": list(self.undetermined),
                 "field_magnitude": self.field_magnitude, "dip_deg": self.dip_deg, "dip_sigma_deg": self.dip_sigma_deg,
-                "n_rows": self.n_rows, "residual_rms": self.residual_rms_ut,
+                "n_rows": self.n_rows, "n_rows_out_of_range": self.n_rows_out_of_range,
+                "residual_rms": self.residual_rms_ut,
                 "deviation_card": None if self.card_before is None else {
                     "before": self.card_before.to_json(),
                     "after": None if self.card_after is None else self.card_after.to_json()},
@@ -181,8 +191,7 @@ class InstallationCalibration(Calibration):
             lines.append(f"  deviation card, bench model only: {self.card_before.line()}")
             if self.card_after is not None:
                 lines.append(f"  deviation card, installed:        {self.card_after.line()}")
-        if self.diagnosis.unexplained:
-            lines.append(f"  warning: {UNEXPLAINED_WARNING}")
+        lines += [f"  warning: {w}" for w in self._cautions()]
         lines.append(self.diagnosis.format(unit))
         return "\n".join(lines)
 
@@ -270,7 +279,12 @@ class InstallationCalibrator(Calibrator):
                                           f"--site so that the declination can be taken off")
             declination = site.field().declination_deg
             heading_ref = heading_ref - declination
-        used = quiet
+        # the bench response is known over the field it saw there: a row beyond it on some channel is left out
+        used, outside = quiet & in_range, quiet & ~in_range
+        if np.sum(used) < 30:
+            raise CannotCalibrate(f"{rec.path}: only {int(np.sum(used))} of the {int(np.sum(quiet))} rows that read "
+                                  f"gravity alone are inside the bench calibration's range ({int(np.sum(outside))} "
+                                  f"read a field beyond what the bench measured on some channel)")
         rows = Rows(b[used], u[used], sigma_b, sigma_b / float(np.median(np.linalg.norm(b[used], axis=1))),
                     self.accel_noise_g, None if heading_ref is None else heading_ref[used], {})
         turn = _turn_deg(rows.b, rows.u)
@@ -287,7 +301,7 @@ class InstallationCalibrator(Calibrator):
         diagnosis = diagnose_installation(rows, priors, base_fit, diagnose=self.diagnose,
                                           t_s=None if rec.t_s is None else rec.t_s[used],
                                           temp_c=None if rec.temp_c is None else rec.temp_c[used])
-        return _result(rec, diagnosis, used, in_range, priors, base, base_document, site)
+        return _result(rec, diagnosis, used, int(np.sum(outside)), priors, base, base_document, site)
 
 
 def _bench(base, rec):
@@ -338,7 +352,7 @@ def _priors(base: SensorModel, site) -> dict:
     return priors
 
 
-def _result(rec, diagnosis: InstallationDiagnosis, used, in_range, priors, base, base_document,
+def _result(rec, diagnosis: InstallationDiagnosis, used, n_outside: int, priors, base, base_document,
             site) -> InstallationCalibration:
     fit, rows = diagnosis.fit, diagnosis.rows
     x, cov = fit.x, fit.covariance
@@ -356,7 +370,7 @@ def _result(rec, diagnosis: InstallationDiagnosis, used, in_range, priors, base,
         card_before, card_after = _cards(base, model, rec, used, rows, alignment)
     return InstallationCalibration(
         rec.kind, h, sig[:3], soft, sig[3:9], cov9, float(x[9]), float(x[10]), float(sig[10]), yaw, yaw_sigma,
-        undetermined, card_before, card_after, diagnosis, int(np.sum(used)), fit.residual_rms, model,
+        undetermined, card_before, card_after, diagnosis, int(np.sum(used)), n_outside, fit.residual_rms, model,
         base_document, None if site is None else site.to_json())
 
 
