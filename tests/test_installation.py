@@ -199,6 +199,38 @@ def test_rows_outside_a_nonlinear_bench_range_are_left_out_and_counted(bench_cub
     assert f"{outside} rows" in result.report()
 
 
+@pytest.fixture(scope="module")
+def bench_normalized(tmp_path_factory):
+    """The bench of ``bench`` calibrated without |B| in uT: its field unit is the bench's |B|."""
+    from dataclasses import replace
+
+    folder = tmp_path_factory.mktemp("bench_normalized")
+    session = simulate_fourflip(seed=41, dip_deg=58.0)
+    path, _ = write_fourflip(session, folder / "bench.csv")
+    rec = read_fourflip(path)
+    rec = replace(rec, metadata={k: v for k, v in rec.metadata.items() if k != "field_ut"})
+    doc = calibrate_fourflip(rec, diagnose=True).to_json()
+    assert doc["field_ut"] is None
+    (folder / "bench.json").write_text(json.dumps(doc))
+    return SensorModel.from_json(doc), doc, session.truth, folder
+
+
+def test_hard_iron_prior_is_in_the_bench_field_unit(bench_normalized):
+    """Field unit |B| (no field_ut on the bench): the prior of a held hard iron is 20 uT in that unit, not 20 |B|."""
+    from calibrate.installation.model import PRIOR_HARD_IRON_UT, TYPICAL_FIELD_UT
+
+    _, _, truth, _ = bench_normalized
+    inst = random_installation(45)
+    result = fit(bench_normalized, simulate_installation(truth, inst, kind="swing", n=2000, max_tilt_deg=0.0,
+                                                         seed=46))
+    field_ut = truth["field_ut"]
+    assert result.field_magnitude == pytest.approx(1.0, abs=0.05)  # in units of the bench's |B|
+    z = (result.hard_iron_ut[:2] - inst.hard_iron_ut[:2] / field_ut) / result.hard_iron_sigma_ut[:2]
+    assert np.all(np.abs(z) < 2.5)
+    assert result.hard_iron_sigma_ut[2] == pytest.approx(PRIOR_HARD_IRON_UT / TYPICAL_FIELD_UT, rel=0.01)
+    assert "x |B_bench|" in result.report() and any("vertical hard iron" in w for w in result.undetermined)
+
+
 def test_deviation_card_coefficients():
     psi = np.arange(0.0, 360.0, 5.0)
     truth = {"A": 0.5, "B": -3.0, "C": 2.0, "D": 0.7, "E": -0.4}

@@ -21,7 +21,7 @@ from compass.model import SensorModel
 from ..contract import Calibration, Calibrator, CannotCalibrate
 from .card import DeviationCard, deviation_card
 from .diagnosis import UNEXPLAINED_WARNING, InstallationDiagnosis, diagnose_installation
-from .model import N_CORE, InstallationFit, Rows, fit_installation, is_level
+from .model import N_CORE, InstallationFit, Rows, fit_installation, is_level, prior_hard_iron
 
 __all__ = ["InstallationCalibrator", "InstallationCalibration", "PARAMETERS"]
 
@@ -286,7 +286,8 @@ class InstallationCalibrator(Calibrator):
                                   f"gravity alone are inside the bench calibration's range ({int(np.sum(outside))} "
                                   f"read a field beyond what the bench measured on some channel)")
         rows = Rows(b[used], u[used], sigma_b, sigma_b / float(np.median(np.linalg.norm(b[used], axis=1))),
-                    self.accel_noise_g, None if heading_ref is None else heading_ref[used], {})
+                    self.accel_noise_g, None if heading_ref is None else heading_ref[used], {},
+                    prior_hard_iron(base.field_ut))
         turn = _turn_deg(rows.b, rows.u)
         if turn < 90.0:
             raise CannotCalibrate(f"{rec.path}: the field turned through only {turn:.0f} deg about the vertical: "

@@ -19,7 +19,7 @@ chi-square by flattening or shrinking the field), and with ``heading_ref_deg`` a
 the product's heading from the two-vector solution (gravity first) against the reference, which
 also fixes the yaw of the housing in the product (ArduPilot's large-vehicle calibration uses a
 known yaw the same way).  Weak priors close the problem: ``h ~ N(0, 20 uT)`` (in the bench
-model's field units, :attr:`Rows.prior_hard_iron`), each entry of ``D ~ N(0, 0.05)`` (a product's
+model's field units, :func:`prior_hard_iron`: 0.4 |B| when they are |B|), each entry of ``D ~ N(0, 0.05)`` (a product's
 soft iron is a few %), and with a site the WMM's |B| and dip with their uncertainties.
 
 What the rotations do not determine stays at its prior: a parameter the rows pin no better than
@@ -53,12 +53,15 @@ from compass.installed import soft_iron_basis
 
 from ..diagnosis.evidence import FitRecord
 
-__all__ = ["PRIOR_HARD_IRON_UT", "PRIOR_SOFT_IRON", "UNDETERMINED_NOISE", "LEVEL_DEG", "N_CORE", "Rows",
+__all__ = ["PRIOR_HARD_IRON_UT", "TYPICAL_FIELD_UT", "prior_hard_iron", "PRIOR_SOFT_IRON", "UNDETERMINED_NOISE", "LEVEL_DEG", "N_CORE", "Rows",
            "InstallationFit", "fit_installation", "residuals", "field_h", "split", "is_level", "product_heading",
            "effect_slice"]
 
 PRIOR_HARD_IRON_UT = 20.0
 """Prior sigma of each hard-iron component, uT."""
+TYPICAL_FIELD_UT = 50.0
+"""The Earth's |B| (uT) that turns :data:`PRIOR_HARD_IRON_UT` into units of |B| when the bench model
+knows no |B| in uT (its field unit is then its own |B|, 22-67 uT on Earth)."""
 PRIOR_SOFT_IRON = 0.05
 """Prior sigma of each entry of ``S - I``."""
 UNDETERMINED_NOISE = 5.0
@@ -68,6 +71,18 @@ LEVEL_DEG = 2.0
 N_CORE = 11
 """Hard iron (3), soft-iron entries (6), |B| and dip: the parameters every fit has."""
 _TRACE_TOLERANCE = 1e-6  # without a site's |B|: trace(D) = 0 to this (a constraint, as a stiff prior)
+
+
+def prior_hard_iron(field_ut: float | None) -> float:
+    """Prior sigma of each hard-iron component in the bench model's field units.
+
+    Parameters
+    ----------
+    field_ut : float or None
+        The bench model's |B| in uT (its field unit is then uT), None when it knows none (its
+        field unit is its |B|).
+    """
+    return PRIOR_HARD_IRON_UT if field_ut is not None else PRIOR_HARD_IRON_UT / TYPICAL_FIELD_UT
 
 
 @dataclass(frozen=True)
