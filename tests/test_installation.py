@@ -333,6 +333,10 @@ def test_level_swing_with_a_site_fits_the_same_iron(bench):
     np.testing.assert_allclose(with_site.hard_iron_ut, plain.hard_iron_ut, atol=1e-6)
     np.testing.assert_allclose(with_site.soft_iron, plain.soft_iron, atol=1e-9)
     assert with_site.site["model"] == "WMM2025" and any("vertical hard iron" in w for w in with_site.undetermined)
+    # the soft iron's scale: the words say why the site given did not set it (not "give --site")
+    (plain_scale,), (site_scale,) = ([w for w in r.undetermined if "overall scale" in w] for r in (plain, with_site))
+    assert "give --site" in plain_scale
+    assert "give --site" not in site_scale and "level swing" in site_scale and "not used" in site_scale
 
 
 def test_simulate_installation_command_and_calibrate_on_top_of_the_bench(tmp_path, capsys):

@@ -42,7 +42,7 @@ _WORDS = {
     "soft_iron_yz": ("the field induced along Y by the vertical field (S_yz): merged with the Y hard iron (right "
                      "at this site's vertical field only)"),
     "scale": ("the overall scale of the soft iron: it trades with |B| at the site, so trace(S) = 3 is assumed "
-              "(give --site to tie |B| to the WMM's); heading and tilt do not depend on it"),
+              "({why}); heading and tilt do not depend on it"),
 }
 
 
@@ -363,7 +363,7 @@ def _result(rec, diagnosis: InstallationDiagnosis, used, n_outside: int, priors,
     sig = np.sqrt(np.diag(cov))
     yaw = None if rows.heading_ref is None else float(x[N_CORE])
     yaw_sigma = None if yaw is None else float(sig[N_CORE])
-    undetermined = _undetermined(fit, scale_free="field" not in priors)
+    undetermined = _undetermined(fit, _why_scale_free(site, base, is_level(rows)) if "field" not in priors else None)
     alignment = None if yaw is None else Rotation.from_euler("z", yaw, degrees=True).as_matrix()
     model = installed_model(base, h, soft, cov9, alignment)
     card_before = card_after = None
@@ -387,11 +387,22 @@ def _turn_deg(b: np.ndarray, u: np.ndarray) -> float:
     return float(360.0 - gaps.max())
 
 
-def _undetermined(fit: InstallationFit, scale_free: bool) -> tuple:
+def _undetermined(fit: InstallationFit, scale_why: str | None) -> tuple:
     """Words for what the rows did not determine: the fixed parameters, and the soft iron's scale
-    when no site's |B| ties it."""
+    when no site's |B| ties it (``scale_why``: why not, None when one does)."""
     out = [_WORDS[name] for name, fixed in zip(PARAMETERS, fit.fixed[:9]) if fixed]
-    return tuple(out + ([_WORDS["scale"]] if scale_free else []))
+    return tuple(out + ([_WORDS["scale"].format(why=scale_why)] if scale_why else []))
+
+
+def _why_scale_free(site, base: SensorModel, level: bool) -> str:
+    """Why no site's |B| ties the soft iron's scale, in words that say what was given."""
+    if site is None:
+        return "give --site to tie |B| to the WMM's"
+    if level:
+        return ("the site's |B| is not used on a level swing: with the vertical iron held, it would be met by "
+                "bending the horizontal soft iron; swing with some heel, or tumble, to tie it")
+    return ("the site's |B| is in uT but the bench calibration knows no |B| in uT (its field unit is its own |B|): "
+            "calibrate the bench with field_ut to tie it")
 
 
 def _cards(base: SensorModel, model: SensorModel, rec, quiet, rows: Rows, alignment):
