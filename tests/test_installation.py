@@ -69,6 +69,10 @@ def test_tumble_finds_the_iron_and_travels(bench):
         assert abs(result.soft_iron[i, j] - true_d[i, j]) < 5 * result.soft_iron_sigma[k] + 1e-4
     assert result.diagnosis.block["effects"] == [] and result.diagnosis.unexplained is False
     assert any("scale" in w for w in result.undetermined) and len(result.undetermined) == 1
+    # trace(S) = 3 holds exactly, in the value and in the covariance (it is assumed, not measured)
+    trace = np.array([0, 0, 0, 1, 1, 1, 0, 0, 0.0])
+    assert abs(np.trace(result.soft_iron) - 3.0) < 1e-12
+    assert trace @ result.covariance @ trace < 1e-12 * np.max(np.diag(result.covariance)[3:6])
     (installed, best, bench_only), disturbed = at_another_site(bench, inst, result)
     assert installed <= 1.3 * best + 0.02 and bench_only > 5 * best and disturbed <= 0.01
 

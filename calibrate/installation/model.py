@@ -29,9 +29,11 @@ hard iron and the vertical soft iron ``S_zz`` then only shift and scale a consta
 on a circle, which many ellipsoids contain, down to a flat disk); they are held at zero
 (:func:`undetermined_mask`), while ``S_xz``, ``S_yz`` (symmetric ``D``) show in the vertical
 channel's once-a-turn swing; the overall scale of ``S`` trades with ``F``: without a site's |B| it
-is fixed by ``trace(S) = 3``.  ``scipy.optimize.least_squares`` fits all parameters together; the
-covariance is ``(J^T J)^{-1}`` times the reduced chi-square when above 1, and a held parameter's
-prior uncertainty is carried into the fitted ones through their sensitivity to it.
+is fixed by ``trace(S) = 3``, exactly: one diagonal entry of ``D`` is minus the sum of the other two
+(:func:`coordinates`), so the fit moves only trace-free soft iron.  ``scipy.optimize.least_squares``
+fits all parameters together; the covariance is ``(J^T J)^{-1}`` times the reduced chi-square when
+above 1, and a held parameter's prior uncertainty is carried into the fitted ones through their
+sensitivity to it.
 
 Parameters, in order: ``h`` (3, field units), the entries of ``D``
 (:data:`compass.installed.SOFT_IRON_ENTRIES`), ``F`` (field units), the dip (deg), the yaw (deg,
@@ -53,9 +55,9 @@ from compass.installed import soft_iron_basis
 
 from ..diagnosis.evidence import FitRecord
 
-__all__ = ["PRIOR_HARD_IRON_UT", "TYPICAL_FIELD_UT", "prior_hard_iron", "PRIOR_SOFT_IRON", "UNDETERMINED_NOISE", "LEVEL_DEG", "N_CORE", "Rows",
-           "InstallationFit", "fit_installation", "residuals", "field_h", "split", "is_level", "product_heading",
-           "effect_slice"]
+__all__ = ["PRIOR_HARD_IRON_UT", "TYPICAL_FIELD_UT", "prior_hard_iron", "PRIOR_SOFT_IRON", "UNDETERMINED_NOISE",
+           "LEVEL_DEG", "N_CORE", "Rows", "InstallationFit", "coordinates", "fit_installation", "residuals", "field_h",
+           "split", "is_level", "product_heading", "effect_slice"]
 
 PRIOR_HARD_IRON_UT = 20.0
 """Prior sigma of each hard-iron component, uT."""
@@ -70,7 +72,7 @@ LEVEL_DEG = 2.0
 """A swing whose up direction stays this close (RMS) to its mean is level."""
 N_CORE = 11
 """Hard iron (3), soft-iron entries (6), |B| and dip: the parameters every fit has."""
-_TRACE_TOLERANCE = 1e-6  # without a site's |B|: trace(D) = 0 to this (a constraint, as a stiff prior)
+_DIAGONAL = (5, 4, 3)  # the entries d_zz, d_yy, d_xx of x, in the order one is chosen to carry trace(D) = 0
 
 
 def prior_hard_iron(field_ut: float | None) -> float:
@@ -133,7 +135,7 @@ class InstallationFit(FitRecord):
 
     ``effects`` are the effect forms in the model, ``residuals`` the |B| residual ``|B_H| - F``
     (field units), ``chi2`` that of the rows' weighted residuals (priors excluded) and ``jac`` the
-    Jacobian of the weighted residuals in the parameters the fit moved.
+    Jacobian of the weighted residuals in the coordinates the fit moved (:func:`coordinates`).
 
     Attributes
     ----------
@@ -160,7 +162,8 @@ class InstallationFit(FitRecord):
 
     @property
     def n_free(self) -> int:
-        return int(np.sum(~self.fixed))
+        """The coordinates the fit moved."""
+        return self.jac.shape[1]
 
     @property
     def dof(self) -> int:
@@ -211,10 +214,8 @@ def residuals(x: np.ndarray, rows: Rows, effects: tuple, priors: dict) -> np.nda
         parts.append((np.mod(heading - rows.heading_ref + 180.0, 360.0) - 180.0) / rows.heading_sigma_deg)
     parts.append(h / rows.prior_hard_iron)
     parts.append(d / PRIOR_SOFT_IRON)
-    if "field" in priors:
+    if "field" in priors:  # without it the scale of S, which trades with |B|, is fixed by trace(S) = 3 (coordinates)
         parts.append(np.atleast_1d((f - priors["field"][0]) / priors["field"][1]))
-    else:  # the scale of S trades with |B|: fixed by trace(S) = 3
-        parts.append(np.atleast_1d((d[0] + d[1] + d[2]) / _TRACE_TOLERANCE))
     if "dip" in priors:
         parts.append(np.atleast_1d((dip - priors["dip"][0]) / priors["dip"][1]))
     return np.concatenate(parts)
@@ -224,6 +225,35 @@ def product_heading(u, bh, dip, yaw) -> np.ndarray:
     """Heading of the product's forward axis: two-vector (gravity first) in H, turned by the yaw."""
     housing = two_vector_rotation(u, bh, dip, 0.0)
     return heading_pitch_roll(housing * Rotation.from_euler("z", -yaw, degrees=True))[0]
+
+
+def coordinates(fixed: np.ndarray, traceless: bool) -> tuple[np.ndarray, int | None]:
+    """The parameters as ``x = T y``, with ``trace(D) = 0`` exact when ``traceless``.
+
+    ``T`` is the identity but for one free diagonal entry of ``D`` (``d_zz``, else ``d_yy``, else
+    ``d_xx``), which is minus the sum of the other two, held ones included (a held ``S_zz``'s prior
+    uncertainty then moves the other two together).  Its coordinate in ``y`` is unused.
+
+    Parameters
+    ----------
+    fixed : ndarray of bool
+        The parameters held at their prior's mean.
+    traceless : bool
+        Impose ``trace(D) = 0`` (no site's |B| ties the scale of ``S``).
+
+    Returns
+    -------
+    T : ndarray, shape (n, n)
+    dependent : int or None
+        The index of the entry that carries the trace (None: no constraint, or every diagonal
+        entry held at zero, which meets it).
+    """
+    t = np.eye(len(fixed))
+    dependent = next((k for k in _DIAGONAL if not fixed[k]), None) if traceless else None
+    if dependent is not None:
+        t[dependent] = 0.0
+        t[dependent, [k for k in _DIAGONAL if k != dependent]] = -1.0
+    return t, dependent
 
 
 def fit_installation(rows: Rows, effects: tuple, priors: dict, start: np.ndarray | None = None,
@@ -238,6 +268,7 @@ def fit_installation(rows: Rows, effects: tuple, priors: dict, start: np.ndarray
         The hard iron's changes in the model (each named in ``rows.regressors``).
     priors : dict
         ``"field"`` and ``"dip"``: ``(mean, sigma)`` of the site's |B| (field units) and dip (deg).
+        Without ``"field"``, ``trace(S) = 3`` (:func:`coordinates`).
     start : ndarray, optional
         Where to start (default: no iron, the median |b| and dip, the mean yaw).
     fixed : ndarray of bool, optional
@@ -253,41 +284,47 @@ def fit_installation(rows: Rows, effects: tuple, priors: dict, start: np.ndarray
         start = np.concatenate([start, np.zeros(3 * len(effects))])
     if fixed is None:
         fixed = undetermined_mask(rows, effects, priors, start)
-    free = ~fixed
+    t, dependent = coordinates(fixed, "field" not in priors)
+    moved = ~fixed
+    if dependent is not None:
+        moved[dependent] = False
+    y0 = start.copy()
 
-    def free_residuals(x_free):
-        x = start.copy()
-        x[free] = x_free
-        return residuals(x, rows, effects, priors)
+    def moved_residuals(y_moved):
+        y = y0.copy()
+        y[moved] = y_moved
+        return residuals(t @ y, rows, effects, priors)
 
     bound = 25.0 * rows.prior_hard_iron
     lower = np.concatenate([[-bound] * 3, [-0.5] * 6, [1e-6, -90.0], [-np.inf] * (len(start) - N_CORE)])
     upper = np.concatenate([[bound] * 3, [0.5] * 6, [np.inf, 90.0], [np.inf] * (len(start) - N_CORE)])
-    result = least_squares(free_residuals, start[free], x_scale="jac", method="trf",
-                           bounds=(lower[free], upper[free]))
-    x = start.copy()
-    x[free] = result.x
+    result = least_squares(moved_residuals, y0[moved], x_scale="jac", method="trf",
+                           bounds=(lower[moved], upper[moved]))
+    y = y0.copy()
+    y[moved] = result.x
+    x = t @ y
     n = len(rows.b)
     data_rows = result.fun[: (3 if rows.heading_ref is not None else 2) * n]
     chi2 = float(data_rows @ data_rows)
     n_obs = len(data_rows)
     # every parameter's uncertainty, the held ones at their prior's, which the fitted ones inherit
     # through their sensitivity to them (a level swing's horizontal hard iron carries S_xz times the
-    # unknown vertical field): cov = C_f + K P_h K^T, K = -(J_f^T J_f)^-1 J_f^T J_h
-    jac = _jacobian(x, rows, effects, priors)
-    scale = max(1.0, chi2 / max(n_obs - int(free.sum()), 1))
-    c_free = np.linalg.pinv(jac[:, free].T @ jac[:, free])
+    # unknown vertical field): cov_y = C_m + K P_h K^T, K = -(J_m^T J_m)^-1 J_m^T J_h, cov = T cov_y T^T
+    jac = _jacobian(x, rows, effects, priors) @ t
+    scale = max(1.0, chi2 / max(n_obs - int(moved.sum()), 1))
+    c_moved = np.linalg.pinv(jac[:, moved].T @ jac[:, moved])
     k = np.zeros((len(x), int(fixed.sum())))
-    k[free] = -c_free @ jac[:, free].T @ jac[:, fixed]
+    k[moved] = -c_moved @ jac[:, moved].T @ jac[:, fixed]
     k[fixed] = np.eye(int(fixed.sum()))
     held = (np.array([rows.prior_hard_iron] * 3 + [PRIOR_SOFT_IRON] * 6 + [0.0] * (len(x) - 9)) ** 2)[fixed]
-    cov = k @ np.diag(held) @ k.T
-    cov[np.ix_(free, free)] += c_free * scale
+    cov_y = k @ np.diag(held) @ k.T
+    cov_y[np.ix_(moved, moved)] += c_moved * scale
+    cov = t @ cov_y @ t.T
     mag = np.linalg.norm(field_h(x, rows, effects), axis=1) - x[9]
     heading_rms = None
     if rows.heading_ref is not None:
         heading_rms = float(np.sqrt(np.mean((result.fun[2 * n:3 * n] * rows.heading_sigma_deg) ** 2)))
-    return InstallationFit(tuple(effects), x, jac[:, free], cov, mag, chi2, n_obs, bool(result.success),
+    return InstallationFit(tuple(effects), x, jac[:, moved], cov, mag, chi2, n_obs, bool(result.success),
                            str(result.message), float(np.sum((mag / rows.sigma_b) ** 2)), heading_rms, fixed)
 
 
@@ -313,12 +350,16 @@ def undetermined_mask(rows: Rows, effects: tuple, priors: dict, x: np.ndarray) -
     if is_level(rows):
         mask[[2, 5]] = True  # hard_iron_z, soft_iron_zz
     jac = _jacobian(x, rows, effects, priors)
-    limit = UNDETERMINED_NOISE * rows.sigma_b * np.array([1.0] * 3 + [1.0 / x[9]] * 6)
+    limit = UNDETERMINED_NOISE * rows.sigma_b * np.concatenate([[1.0] * 3, [1.0 / x[9]] * 6,
+                                                                np.full(len(x) - 9, np.inf)])
     while True:
-        free = ~mask
-        cov = np.linalg.pinv(jac[:, free].T @ jac[:, free])
-        ratio = np.zeros(len(x))
-        ratio[free] = np.sqrt(np.diag(cov)) / np.concatenate([limit, np.full(len(x) - 9, np.inf)])[free]
+        t, dependent = coordinates(mask, "field" not in priors)
+        moved = ~mask
+        if dependent is not None:
+            moved[dependent] = False
+        j_moved = (jac @ t)[:, moved]
+        spread = t[:, moved] @ np.linalg.pinv(j_moved.T @ j_moved) @ t[:, moved].T
+        ratio = np.where(mask, 0.0, np.sqrt(np.diag(spread)) / limit)
         worst = int(np.argmax(ratio))
         if ratio[worst] <= 1.0:
             return mask
