@@ -135,8 +135,8 @@ def diagnose_installation(rows: Rows, priors: dict, base: InstallationFit, *, t_
 
     def verdict(f: InstallationFit):
         dof = f.n_rows - 1
-        structure = {"name": "chi-square of |B| - F against the bench's noise", "chi2": f.chi2_mag, "dof": dof,
-                     "p_value": chi2_sf(f.chi2_mag, dof)}
+        structure = {"name": "chi-square of |B| - F against the bench's noise, 5-sigma rule", "chi2": f.chi2_mag,
+                     "dof": dof, "p_value": chi2_sf(f.chi2_mag, dof)}
         return structure, bool(f.chi2_mag > dof + UNEXPLAINED_SIGMAS * np.sqrt(2.0 * dof))
 
     chosen = select_effects(base, pool, score=score, refit=refit, n_params=lambda e: 3, log_n=np.log(base.n_obs),
