@@ -147,6 +147,27 @@ def test_drifting_hard_iron_is_named(bench):
     assert "x.hard_iron_rate_per_s" in result.report() and "offset_drift (linear)" in result.report()
 
 
+def test_temperature_dependent_hard_iron_is_claimed_with_its_coefficients(bench):
+    from compass.io.installation import InstallationRecording
+
+    _, _, truth, folder = bench
+    rec = simulate_installation(truth, random_installation(67), kind="tumble", n=2000, seed=68)
+    temp_c = 25.0 + 5.0 * np.sin(2 * np.pi * 3 * rec.t_s / np.ptp(rec.t_s))  # not a drift in time
+    per_c = np.array([0.2, -0.1, 0.15])  # uT per degC
+    shift = np.outer(temp_c - temp_c.mean(), per_c) @ np.asarray(truth["directions"]).T
+    outputs = rec.outputs + np.asarray(truth["gains_per_ut"]) * shift
+    recording = InstallationRecording("sim", "tumble", rec.channels, outputs, rec.accel, rec.t_s, temp_c, None, False,
+                                      np.arange(len(rec.t_s)), {})
+    result = InstallationCalibrator(base=folder / "bench.json").fit(recording)
+    assert result.diagnosis.block["effects"] == ["temperature"] and result.diagnosis.unexplained is False
+    (effect,) = result.diagnosis.effects
+    found, sigma = (np.array([effect["parameters"][f"{axis}.hard_iron_per_degc"][k] for axis in "xyz"])
+                    for k in ("value", "sigma"))
+    assert np.all(np.abs(found - per_c) < 4 * sigma)
+    fitted = bench[0].field(outputs)[1]
+    assert effect["reference"]["temp_c"] == pytest.approx(np.mean(temp_c[fitted]))
+
+
 def test_diagnosis_is_the_shared_record_and_withdraws_a_drift_when_structure_remains(bench):
     """A hard iron that steps halfway is partly a drift: the shared loop claims nothing, says so, keeps the base fit."""
     from dataclasses import replace
