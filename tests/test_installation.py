@@ -144,6 +144,8 @@ def test_drifting_hard_iron_is_named(bench):
     assert effect["name"] == "offset_drift" and np.all(np.abs(rate - true_rate) < 4 * sigma + 0.02 * np.abs(true_rate))
     fitted = bench[0].field(rec.outputs + gains * drift)[1]  # the rows inside the bench's range
     assert effect["reference"]["t_s"] == pytest.approx(np.mean(rec.t_s[fitted]))
+    # the file reads without this code: the formula names the parameters and the reference
+    assert all(n in effect["form"] for n in {p.split(".")[-1] for p in effect["parameters"]} | set(effect["reference"]))
     assert "x.hard_iron_rate_per_s" in result.report() and "offset_drift (linear)" in result.report()
 
 

@@ -31,7 +31,7 @@ from ..diagnosis.report import Diagnosis
 from ..noise import chi2_sf
 from .model import InstallationFit, Rows, effect_slice, fit_installation, residuals
 
-__all__ = ["FORMS", "InstallationDiagnosis", "UNEXPLAINED_WARNING", "diagnose_installation"]
+__all__ = ["FORMS", "InstallationEffect", "InstallationDiagnosis", "UNEXPLAINED_WARNING", "diagnose_installation"]
 
 UNEXPLAINED_SIGMAS = 5.0
 """The |B| residual's chi-square this many standard deviations above its dof is unexplained."""
@@ -40,9 +40,24 @@ UNEXPLAINED_WARNING = ("the |B| residual stays above the bench's noise floor: st
                        "or a bench model that does not fit this sensor); the uncertainties are then optimistic")
 _FD_STEP = 1e-4
 
+
+@dataclass(frozen=True)
+class InstallationEffect(EffectForm):
+    """A candidate of the loop with its formula in the file's names (the file reads without this code)."""
+
+    formula: str = ""
+    """The hard iron's change, what the file's effect entry holds under ``form``."""
+
+
+_PER_AXIS = "per axis x, y, z of H, in the bench model's field units"
 FORMS = {
-    "offset_drift": (EffectForm("offset_drift", "linear", "the hard iron drifting with t_s, at a constant rate"),),
-    "temperature": (EffectForm("temperature", "linear", "the hard iron changing linearly with temp_c"),),
+    "offset_drift": (InstallationEffect(
+        "offset_drift", "linear", "the hard iron drifting with t_s, at a constant rate",
+        f"hard_iron(t_s) = installation.hard_iron_ut + hard_iron_rate_per_s (t_s - reference.t_s), {_PER_AXIS}"),),
+    "temperature": (InstallationEffect(
+        "temperature", "linear", "the hard iron changing linearly with temp_c",
+        f"hard_iron(temp_c) = installation.hard_iron_ut + hard_iron_per_degc (temp_c - reference.temp_c), "
+        f"{_PER_AXIS}"),),
 }
 """Each effect's forms for the installation, simplest first."""
 
@@ -143,8 +158,8 @@ def diagnose_installation(rows: Rows, priors: dict, base: InstallationFit, *, t_
                             base_step={"model": "base", "residual_rms": base.residual_rms}, write_step=claim,
                             verdict=verdict)
     final, steps = chosen.fit, chosen.steps
-    effects = tuple({"name": step["added"], "form": step["form"], "reference": references[step["added"]],
-                     "parameters": step["parameters"]} for step in steps[1:])
+    effects = tuple({"name": step["added"], "form": effect.formula, "reference": references[step["added"]],
+                     "parameters": step["parameters"]} for step, effect in zip(steps[1:], final.effects))
     sigma_h = np.sqrt(np.diag(final.covariance))[:3]
     block = {
         "subject": "|B_H| - F",
