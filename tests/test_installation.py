@@ -226,6 +226,22 @@ def test_rows_outside_a_nonlinear_bench_range_are_left_out_and_counted(bench_cub
     assert f"{outside} rows" in result.report()
 
 
+def test_a_field_stronger_than_the_bench_s_everywhere_is_fitted_with_a_warning(bench_cubic):
+    """A level swing where the vertical field always exceeds what the bench saw: no row is inside the
+    nonlinear bench's range; all are fitted (the response extrapolated), and the warning says so."""
+    model, _, truth, _ = bench_cubic
+    inst = random_installation(69)
+    rec = simulate_installation(truth, inst, kind="swing", n=2000, max_tilt_deg=0.0, dip_deg=75.0, field_ut=62.0,
+                                seed=70)
+    assert not np.any(model.field(rec.outputs)[1])
+    result = fit(bench_cubic, rec)
+    assert result.n_rows == 2000 and result.n_rows_out_of_range == 2000
+    z = (result.hard_iron_ut[:2] - inst.hard_iron_ut[:2]) / result.hard_iron_sigma_ut[:2]
+    assert np.all(np.abs(z) < 2.5)
+    assert any("2000 rows" in w and "extrapolated" in w for w in result.warnings)
+    assert result.to_json()["installation"]["out_of_range_fitted"] is True
+
+
 @pytest.fixture(scope="module")
 def bench_normalized(tmp_path_factory):
     """The bench of ``bench`` calibrated without |B| in uT: its field unit is the bench's |B|."""

@@ -26,6 +26,8 @@ from .model import N_CORE, InstallationFit, Rows, fit_installation, is_level, pr
 __all__ = ["InstallationCalibrator", "InstallationCalibration", "PARAMETERS"]
 
 _QUIET = 0.02  # rows whose |a| is within 2 % of g
+_MIN_ROWS = 30  # fewest quiet rows fitted
+_MIN_TURN_DEG = 90.0  # least turn of the field about the vertical fitted
 PARAMETERS = ("hard_iron_x", "hard_iron_y", "hard_iron_z") + tuple(f"soft_iron_{e}" for e in SOFT_IRON_ENTRIES)
 
 _WORDS = {
@@ -75,7 +77,10 @@ class InstallationCalibration(Calibration):
     n_rows : int
         Rows fitted: they read gravity alone and every channel inside the bench calibration's range.
     n_rows_out_of_range : int
-        Rows that read gravity alone but some channel beyond the bench's range, left out.
+        Rows that read gravity alone but some channel beyond the bench's range.
+    out_of_range_fitted : bool
+        Whether those rows were fitted (too few inside the range turned: the bench response is then
+        extrapolated) rather than left out.
     residual_rms_ut : float
         RMS of ``|B_H| - F`` over the rows.
     model : SensorModel
@@ -103,6 +108,7 @@ class InstallationCalibration(Calibration):
     diagnosis: InstallationDiagnosis
     n_rows: int
     n_rows_out_of_range: int
+    out_of_range_fitted: bool
     residual_rms_ut: float
     model: SensorModel
     base_document: dict = field(repr=False)
@@ -129,9 +135,14 @@ class InstallationCalibration(Calibration):
 
     def _cautions(self) -> tuple:
         """The warnings besides what was not determined: rows left out, structure left unexplained."""
-        outside = ((f"{self.n_rows_out_of_range} rows read a field beyond the bench calibration's range on some "
-                    "channel (where its response was never measured): left out of the fit",)
-                   if self.n_rows_out_of_range else ())
+        outside = ()
+        if self.out_of_range_fitted:
+            outside = (f"{self.n_rows_out_of_range} rows read a field beyond the bench calibration's range on some "
+                       "channel (where its response was never measured) and too few inside it turned: all were fitted, "
+                       "the bench response extrapolated there (calibrate the bench in a field as strong as this one)",)
+        elif self.n_rows_out_of_range:
+            outside = (f"{self.n_rows_out_of_range} rows read a field beyond the bench calibration's range on some "
+                       "channel (where its response was never measured): left out of the fit",)
         return outside + ((UNEXPLAINED_WARNING,) if self.diagnosis.unexplained else ())
 
     @property
@@ -155,6 +166,7 @@ class InstallationCalibration(Calibration):
                 "undetermined": list(self.undetermined),
                 "field_magnitude": self.field_magnitude, "dip_deg": self.dip_deg, "dip_sigma_deg": self.dip_sigma_deg,
                 "n_rows": self.n_rows, "n_rows_out_of_range": self.n_rows_out_of_range,
+                "out_of_range_fitted": self.out_of_range_fitted,
                 "residual_rms": self.residual_rms_ut,
                 "deviation_card": None if self.card_before is None else {
                     "before": self.card_before.to_json(),
@@ -266,12 +278,11 @@ class InstallationCalibrator(Calibrator):
         b, in_range = base.field(rec.raw, rec.temp_c)
         a_norm = np.linalg.norm(rec.accel, axis=1)
         quiet = (np.abs(a_norm / np.median(a_norm) - 1.0) < _QUIET) & np.all(np.isfinite(b), axis=1)
-        if np.sum(quiet) < 30:
+        if np.sum(quiet) < _MIN_ROWS:
             raise CannotCalibrate(f"{rec.path}: only {int(np.sum(quiet))} rows read gravity alone (|a| within "
                                       f"2 % of g); turn the product slowly and record at rest")
         p = base.solver
         sigma_b = float(np.sqrt(np.trace(p @ np.diag(base.component_noise**2) @ p.T) / 3.0))
-        u = rec.accel / a_norm[:, None]
         heading_ref, declination = rec.heading_ref_deg, None
         if heading_ref is not None and rec.heading_ref_true:
             if site is None:
@@ -279,17 +290,13 @@ class InstallationCalibrator(Calibrator):
                                           f"--site so that the declination can be taken off")
             declination = site.field().declination_deg
             heading_ref = heading_ref - declination
-        # the bench response is known over the field it saw there: a row beyond it on some channel is left out
-        used, outside = quiet & in_range, quiet & ~in_range
-        if np.sum(used) < 30:
-            raise CannotCalibrate(f"{rec.path}: only {int(np.sum(used))} of the {int(np.sum(quiet))} rows that read "
-                                  f"gravity alone are inside the bench calibration's range ({int(np.sum(outside))} "
-                                  f"read a field beyond what the bench measured on some channel)")
+        u = rec.accel / a_norm[:, None]
+        used, outside, fitted_outside = _rows_to_fit(quiet, in_range, b, u)
         rows = Rows(b[used], u[used], sigma_b, sigma_b / float(np.median(np.linalg.norm(b[used], axis=1))),
                     self.accel_noise_g, None if heading_ref is None else heading_ref[used], {},
                     prior_hard_iron(base.field_ut))
         turn = _turn_deg(rows.b, rows.u)
-        if turn < 90.0:
+        if turn < _MIN_TURN_DEG:
             raise CannotCalibrate(f"{rec.path}: the field turned through only {turn:.0f} deg about the vertical: "
                                   f"a swing needs a full turn of heading, a tumble every orientation")
         # a level swing holds the vertical hard and soft iron at zero: the site's |B| and dip would then
@@ -302,7 +309,20 @@ class InstallationCalibrator(Calibrator):
         diagnosis = diagnose_installation(rows, priors, base_fit, diagnose=self.diagnose,
                                           t_s=None if rec.t_s is None else rec.t_s[used],
                                           temp_c=None if rec.temp_c is None else rec.temp_c[used])
-        return _result(rec, diagnosis, used, int(np.sum(outside)), priors, base, base_document, site)
+        return _result(rec, diagnosis, used, (int(np.sum(outside)), fitted_outside), priors, base, base_document,
+                       site)
+
+
+def _rows_to_fit(quiet: np.ndarray, in_range: np.ndarray, b: np.ndarray, u: np.ndarray):
+    """The rows to fit: ``(used, outside, outside_fitted)``.
+
+    The bench response is known over the field it saw there: the quiet rows beyond it on some
+    channel (``outside``) are left out, unless too few rows inside it turn (a site's field stronger
+    than the bench's): then every quiet row is fitted, the response extrapolated (``outside_fitted``).
+    """
+    used, outside = quiet & in_range, quiet & ~in_range
+    fitted = bool(np.any(outside) and (np.sum(used) < _MIN_ROWS or _turn_deg(b[used], u[used]) < _MIN_TURN_DEG))
+    return (quiet if fitted else used), outside, fitted
 
 
 def _bench(base, rec):
@@ -353,7 +373,7 @@ def _priors(base: SensorModel, site) -> dict:
     return priors
 
 
-def _result(rec, diagnosis: InstallationDiagnosis, used, n_outside: int, priors, base, base_document,
+def _result(rec, diagnosis: InstallationDiagnosis, used, outside: tuple, priors, base, base_document,
             site) -> InstallationCalibration:
     fit, rows = diagnosis.fit, diagnosis.rows
     x, cov = fit.x, fit.covariance
@@ -371,7 +391,7 @@ def _result(rec, diagnosis: InstallationDiagnosis, used, n_outside: int, priors,
         card_before, card_after = _cards(base, model, rec, used, rows, alignment)
     return InstallationCalibration(
         rec.kind, h, sig[:3], soft, sig[3:9], cov9, float(x[9]), float(x[10]), float(sig[10]), yaw, yaw_sigma,
-        undetermined, card_before, card_after, diagnosis, int(np.sum(used)), n_outside, fit.residual_rms, model,
+        undetermined, card_before, card_after, diagnosis, int(np.sum(used)), *outside, fit.residual_rms, model,
         base_document, None if site is None else site.to_json())
 
 
