@@ -147,6 +147,7 @@ def test_drifting_hard_iron_is_named(bench):
     # the file reads without this code: the formula names the parameters and the reference
     assert all(n in effect["form"] for n in {p.split(".")[-1] for p in effect["parameters"]} | set(effect["reference"]))
     assert "x.hard_iron_rate_per_s" in result.report() and "offset_drift (linear)" in result.report()
+    assert "offset_drift: the hard iron above holds at t_s" in result.report()
 
 
 def test_temperature_dependent_hard_iron_is_claimed_with_its_coefficients(bench):

@@ -130,14 +130,15 @@ def diagnose_installation(rows: Rows, priors: dict, base: InstallationFit, *, t_
     pool, skipped = gather_forms(FORMS, FORMS, lambda e: why[e.name])
     if not diagnose:
         pool, skipped = [], {"diagnosis": "not run (--no-diagnose)"}
-    held = lambda size: np.concatenate([base.fixed, np.zeros(size - base.fixed.size, dtype=bool)])  # noqa: E731
-
     def weighted(x, effects):
         return residuals(x, rows, effects, priors)
 
+    def fit(effects, x0):  # what the base fit held stays held; the effects' parameters move
+        return fit_installation(rows, effects, priors, x0,
+                                np.concatenate([base.fixed, np.zeros(x0.size - base.fixed.size, dtype=bool)]))
+
     def refit(current, effect, start):
-        return refit_from_better_start(lambda effects, x0: fit_installation(rows, effects, priors, x0, held(x0.size)),
-                                       weighted, current, effect, np.zeros(3), start)
+        return refit_from_better_start(fit, weighted, current, effect, np.zeros(3), start)
 
     def score(current, effect):
         return linearised_score(weighted, current, effect, [np.zeros(3)], _FD_STEP)

@@ -205,6 +205,9 @@ class InstallationCalibration(Calibration):
                 lines.append(f"  deviation card, installed:        {self.card_after.line()}")
         lines += [f"  warning: {w}" for w in self._cautions()]
         lines.append(self.diagnosis.format(unit))
+        lines += [f"  {e['name']}: the hard iron above holds at "
+                  + ", ".join(f"{k} {v:.6g}" for k, v in e["reference"].items()) + " (the runtime uses it there)"
+                  for e in self.diagnosis.effects]
         return "\n".join(lines)
 
     def plots(self, recording=None, folder=".") -> list:
