@@ -275,6 +275,16 @@ def test_hard_iron_prior_is_in_the_bench_field_unit(bench_normalized):
     assert "x |B_bench|" in result.report() and any("vertical hard iron" in w for w in result.undetermined)
 
 
+def test_a_site_cannot_set_the_soft_iron_scale_of_a_bench_without_ut(bench_normalized):
+    from compass.site import Site
+
+    _, _, truth, _ = bench_normalized
+    result = fit(bench_normalized, simulate_installation(truth, random_installation(71), kind="tumble", n=1500,
+                                                         seed=72), site=Site.parse("47.6,-122.3", "2026-06-01"))
+    (scale,) = [w for w in result.undetermined if "overall scale" in w]
+    assert "knows no |B| in uT" in scale and "give --site" not in scale
+
+
 def test_deviation_card_coefficients():
     psi = np.arange(0.0, 360.0, 5.0)
     truth = {"A": 0.5, "B": -3.0, "C": 2.0, "D": 0.7, "E": -0.4}
