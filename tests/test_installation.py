@@ -227,6 +227,20 @@ def test_rows_outside_a_nonlinear_bench_range_are_left_out_and_counted(bench_cub
     assert f"{outside} rows" in result.report()
 
 
+def test_rows_beyond_a_linear_channel_s_range_are_fitted_and_named(bench):
+    """A line beyond its range is the same line (compass.response): kept, and the channels named, as
+    compass attitude does."""
+    model, _, truth, _ = bench
+    rec = simulate_installation(truth, random_installation(73, hard_iron_ut=10.0), kind="tumble", n=2000, seed=74)
+    x, _ = model.components(rec.outputs)
+    beyond = np.any([r.beyond_range(x[:, c]) for c, r in enumerate(model.responses)], axis=0)
+    assert beyond.sum() > 50
+    result = fit(bench, rec)
+    assert result.n_rows == 2000 and result.n_rows_out_of_range == 0
+    assert result.extrapolated.startswith(f"{int(beyond.sum())} fitted rows read a linear channel beyond")
+    assert result.extrapolated in result.warnings and "extrapolated linearly" in result.report()
+
+
 def test_a_field_stronger_than_the_bench_s_everywhere_is_fitted_with_a_warning(bench_cubic):
     """A level swing where the vertical field always exceeds what the bench saw: no row is inside the
     nonlinear bench's range; all are fitted (the response extrapolated), and the warning says so."""

@@ -81,6 +81,9 @@ class InstallationCalibration(Calibration):
     out_of_range_fitted : bool
         Whether those rows were fitted (too few inside the range turned: the bench response is then
         extrapolated) rather than left out.
+    extrapolated : str or None
+        The fitted rows that read a linear channel beyond the field it was calibrated over, in words
+        (kept: a line beyond its range is the same line; :mod:`compass.response`).
     residual_rms_ut : float
         RMS of ``|B_H| - F`` over the rows.
     model : SensorModel
@@ -109,6 +112,7 @@ class InstallationCalibration(Calibration):
     n_rows: int
     n_rows_out_of_range: int
     out_of_range_fitted: bool
+    extrapolated: str | None
     residual_rms_ut: float
     model: SensorModel
     base_document: dict = field(repr=False)
@@ -143,7 +147,8 @@ class InstallationCalibration(Calibration):
         elif self.n_rows_out_of_range:
             outside = (f"{self.n_rows_out_of_range} rows read a field beyond the bench calibration's range on some "
                        "channel (where its response was never measured): left out of the fit",)
-        return outside + ((UNEXPLAINED_WARNING,) if self.diagnosis.unexplained else ())
+        return (outside + ((self.extrapolated,) if self.extrapolated else ())
+                + ((UNEXPLAINED_WARNING,) if self.diagnosis.unexplained else ()))
 
     @property
     def alignment(self) -> np.ndarray | None:
@@ -166,7 +171,7 @@ class InstallationCalibration(Calibration):
                 "undetermined": list(self.undetermined),
                 "field_magnitude": self.field_magnitude, "dip_deg": self.dip_deg, "dip_sigma_deg": self.dip_sigma_deg,
                 "n_rows": self.n_rows, "n_rows_out_of_range": self.n_rows_out_of_range,
-                "out_of_range_fitted": self.out_of_range_fitted,
+                "out_of_range_fitted": self.out_of_range_fitted, "extrapolated": self.extrapolated,
                 "residual_rms": self.residual_rms_ut,
                 "deviation_card": None if self.card_before is None else {
                     "before": self.card_before.to_json(),
@@ -309,11 +314,11 @@ class InstallationCalibrator(Calibrator):
         if rows.heading_ref is not None:  # weigh the reference by its own noise, from what the fit leaves of it
             rows = replace(rows, heading_sigma_deg=max(base_fit.heading_rms_deg, 0.01))
             base_fit = fit_installation(rows, (), priors, base_fit.x, base_fit.fixed)
+        temp_c = None if rec.temp_c is None else rec.temp_c[used]
         diagnosis = diagnose_installation(rows, priors, base_fit, diagnose=self.diagnose,
-                                          t_s=None if rec.t_s is None else rec.t_s[used],
-                                          temp_c=None if rec.temp_c is None else rec.temp_c[used])
-        return _result(rec, diagnosis, used, (int(np.sum(outside)), fitted_outside), priors, base, base_document,
-                       site)
+                                          t_s=None if rec.t_s is None else rec.t_s[used], temp_c=temp_c)
+        outside = (int(np.sum(outside)), fitted_outside, _linear_beyond(base, rec.raw[used], temp_c))
+        return _result(rec, diagnosis, used, outside, priors, base, base_document, site)
 
 
 def _rows_to_fit(quiet: np.ndarray, in_range: np.ndarray, b: np.ndarray, u: np.ndarray):
@@ -326,6 +331,21 @@ def _rows_to_fit(quiet: np.ndarray, in_range: np.ndarray, b: np.ndarray, u: np.n
     used, outside = quiet & in_range, quiet & ~in_range
     fitted = bool(np.any(outside) and (np.sum(used) < _MIN_ROWS or _turn_deg(b[used], u[used]) < _MIN_TURN_DEG))
     return (quiet if fitted else used), outside, fitted
+
+
+def _linear_beyond(base: SensorModel, raw: np.ndarray, temp_c) -> str | None:
+    """Words for the rows that read a linear channel beyond the field it was calibrated over, None if
+    none (they are fitted: a line beyond its range is the same line, :mod:`compass.response`)."""
+    x, _ = base.components(raw, temp_c)
+    beyond = [(name, r, r.beyond_range(x[:, c]) & np.isfinite(x[:, c]))
+              for c, (name, r) in enumerate(zip(base.channels, base.responses)) if not r.nonlinear]
+    rows = np.any([b for *_, b in beyond], axis=0) if beyond else np.zeros(len(raw), dtype=bool)
+    if not rows.any():
+        return None
+    names = ", ".join(f"{name} (calibrated over {r.x_range[0]:.3g}..{r.x_range[1]:.3g})"
+                      for name, r, b in beyond if b.any())
+    return (f"{int(rows.sum())} fitted rows read a linear channel beyond the field the bench calibrated it over: "
+            f"{names}; its response extrapolated linearly")
 
 
 def _bench(base, rec):
