@@ -8,7 +8,8 @@ calibration's dip and offsets) and is calibrated in-process (``ml``, residual di
 2026-06-01; the WMM's dip and |B| there) in random attitudes (pitch and roll within +-80 deg).
 Heading RMS of
 
-- ``bench ref``: the bench calibration's dip and |B| taken for the world's (the runtime before);
+- ``bench ref``: the bench calibration's dip and |B| taken for the world's (the runtime before; now
+  refused where the site's dip has the other sign, as the field would read upside down);
 - ``nothing said``: the reference estimated from the recording's quiet rows (the default now);
 - ``--site``: the WMM's field at the site;
 - ``true TRIAD``: the true sensor model, gravity-primary two-vector (TRIAD, gravity exact): the
@@ -37,7 +38,7 @@ import time
 import numpy as np
 
 from calibrate import calibrate_fourflip
-from compass.attitude import solve_attitude, two_vector_rotation
+from compass.attitude import UnusableCalibration, solve_attitude, two_vector_rotation
 from compass.frames import heading_pitch_roll
 from compass.model import SensorModel
 from compass.sim.fourflip import simulate_fourflip
@@ -90,14 +91,18 @@ def site_section(sensors: int, n: int) -> None:
         there = {**truth, "dip_deg": wmm.dip_deg, "field_ut": wmm.field_ut}
         run = simulate_runtime(there, n, seed=1000 + seed)
         err = lambda att: rms(wrap(att.heading_deg - run.heading_deg))  # noqa: E731
-        bench = solve_attitude(model, run.outputs, accel=run.accel,
-                               reference=known_reference(model.dip_deg, model.field_magnitude))
+        try:  # the bench's field taken for the world's: refused when the site's dip has the other sign
+            bench = solve_attitude(model, run.outputs, accel=run.accel,
+                                   reference=known_reference(model.dip_deg, model.field_magnitude))
+            bench_err, bench_disturbed = err(bench), bench.disturbed.mean()
+        except UnusableCalibration:
+            bench_err = bench_disturbed = np.nan
         start = time.perf_counter()
         ours = solve_attitude(model, run.outputs, accel=run.accel)
         t_solve.append(time.perf_counter() - start)
         given = solve_attitude(model, run.outputs, accel=run.accel, reference=reference_from_site(site, field_ut=1.0))
         best = rms(wrap(triad_heading(true_model(truth), run.outputs, run.accel, wmm.dip_deg) - run.heading_deg))
-        row = (err(bench), err(ours), err(given), best, bench.disturbed.mean(), ours.disturbed.mean(), bool(effects))
+        row = (bench_err, err(ours), err(given), best, bench_disturbed, ours.disturbed.mean(), bool(effects))
         rows.append(row)
         print(f"{seed:>4} {truth['dip_deg']:>5.1f}/{truth['field_ut']:>4.0f} uT {wmm.dip_deg:>7.1f}/{wmm.field_ut:>4.1f} "
               f"{row[0]:>10.3f} {row[1]:>8.3f} {row[2]:>8.3f} {row[3]:>10.3f} {row[1] / row[3]:>6.2f} "
@@ -108,9 +113,12 @@ def site_section(sensors: int, n: int) -> None:
             continue
         b = a[keep]
         met = np.sum(b[:, 1] <= 1.3 * b[:, 3] + 0.02)
-        print(f"{name:>24}: heading RMS bench ref {rms(b[:, 0]):.3f}, nothing said {rms(b[:, 1]):.3f}, --site "
-              f"{rms(b[:, 2]):.3f}, true TRIAD {rms(b[:, 3]):.3f} deg; target (<= 1.3x true + 0.02) met "
-              f"{met}/{len(b)}; disturbed bench ref {100 * b[:, 4].mean():.1f} %, ours max {100 * b[:, 5].max():.2f} %")
+        solved = np.isfinite(b[:, 0])
+        ref = (f"{rms(b[solved, 0]):.3f}, disturbed {100 * b[solved, 4].mean():.1f} %" if solved.any() else "-")
+        print(f"{name:>24}: heading RMS bench ref {ref} (refused {np.sum(~solved)}/{len(b)}: the site's dip of the "
+              f"other sign), nothing said {rms(b[:, 1]):.3f}, --site {rms(b[:, 2]):.3f}, true TRIAD "
+              f"{rms(b[:, 3]):.3f} deg; target (<= 1.3x true + 0.02) met {met}/{len(b)}; disturbed ours max "
+              f"{100 * b[:, 5].max():.2f} %")
     print(f"timing: calibration {np.median(t_cal):.2f} s median per bench; solve with the recording's reference "
           f"{1e6 * np.median(t_solve) / n:.2f} us/row")
 
