@@ -67,8 +67,12 @@ def test_tumble_finds_the_iron_and_travels(bench):
     true_d = inst.soft_iron - np.eye(3)
     for k, (i, j) in enumerate(((0, 1), (0, 2), (1, 2)), start=3):
         assert abs(result.soft_iron[i, j] - true_d[i, j]) < 5 * result.soft_iron_sigma[k] + 1e-4
-    assert result.diagnosis["effects"] == [] and result.diagnosis["unexplained"] is False
+    assert result.diagnosis.block["effects"] == [] and result.diagnosis.unexplained is False
     assert any("scale" in w for w in result.undetermined) and len(result.undetermined) == 1
+    # trace(S) = 3 holds exactly, in the value and in the covariance (it is assumed, not measured)
+    trace = np.array([0, 0, 0, 1, 1, 1, 0, 0, 0.0])
+    assert abs(np.trace(result.soft_iron) - 3.0) < 1e-12
+    assert trace @ result.covariance @ trace < 1e-12 * np.max(np.diag(result.covariance)[3:6])
     (installed, best, bench_only), disturbed = at_another_site(bench, inst, result)
     assert installed <= 1.3 * best + 0.02 and bench_only > 5 * best and disturbed <= 0.01
 
@@ -129,15 +133,170 @@ def test_drifting_hard_iron_is_named(bench):
     from dataclasses import replace
 
     result = fit(bench, replace(rec, outputs=rec.outputs + gains * drift))
-    assert result.diagnosis["effects"] == ["offset_drift"]
-    assert result.diagnosis["residual_rms_after"] < 0.5 * result.diagnosis["residual_rms_before"]
+    block = result.diagnosis.block
+    assert block["effects"] == ["offset_drift"]
+    assert block["residual_rms_after"] < 0.5 * block["residual_rms_before"]
     # its parameters reach the file: the drift rate in H, against the injected 2 x (1.5, -1, 0.8) uT over the session
-    (effect,) = result.diagnosis["effect_parameters"]
-    rate, sigma = (np.array(effect["parameters"][k]) for k in ("hard_iron_ut_per_s", "hard_iron_ut_per_s_sigma"))
+    (effect,) = result.to_json()["effects"]
+    rate, sigma = (np.array([effect["parameters"][f"{axis}.hard_iron_rate_per_s"][k] for axis in "xyz"])
+                   for k in ("value", "sigma"))
     true_rate = 2.0 * np.array([1.5, -1.0, 0.8]) / np.ptp(rec.t_s)
     assert effect["name"] == "offset_drift" and np.all(np.abs(rate - true_rate) < 4 * sigma + 0.02 * np.abs(true_rate))
-    assert "effect_parameters" in json.loads(json.dumps(result.to_json()))["diagnosis"]  # in the file
-    assert "offset_drift: hard iron change x" in result.report() and "uT per s" in result.report()
+    fitted = bench[0].field(rec.outputs + gains * drift)[1]  # the rows inside the bench's range
+    assert effect["reference"]["t_s"] == pytest.approx(np.mean(rec.t_s[fitted]))
+    # the file reads without this code: the formula names the parameters and the reference
+    assert all(n in effect["form"] for n in {p.split(".")[-1] for p in effect["parameters"]} | set(effect["reference"]))
+    assert "x.hard_iron_rate_per_s" in result.report() and "offset_drift (linear)" in result.report()
+    assert "offset_drift: the hard iron above holds at t_s" in result.report()
+
+
+def test_temperature_dependent_hard_iron_is_claimed_with_its_coefficients(bench):
+    from compass.io.installation import InstallationRecording
+
+    _, _, truth, folder = bench
+    rec = simulate_installation(truth, random_installation(67), kind="tumble", n=2000, seed=68)
+    temp_c = 25.0 + 5.0 * np.sin(2 * np.pi * 3 * rec.t_s / np.ptp(rec.t_s))  # not a drift in time
+    per_c = np.array([0.2, -0.1, 0.15])  # uT per degC
+    shift = np.outer(temp_c - temp_c.mean(), per_c) @ np.asarray(truth["directions"]).T
+    outputs = rec.outputs + np.asarray(truth["gains_per_ut"]) * shift
+    recording = InstallationRecording("sim", "tumble", rec.channels, outputs, rec.accel, rec.t_s, temp_c, None, False,
+                                      np.arange(len(rec.t_s)), {})
+    result = InstallationCalibrator(base=folder / "bench.json").fit(recording)
+    assert result.diagnosis.block["effects"] == ["temperature"] and result.diagnosis.unexplained is False
+    (effect,) = result.diagnosis.effects
+    found, sigma = (np.array([effect["parameters"][f"{axis}.hard_iron_per_degc"][k] for axis in "xyz"])
+                    for k in ("value", "sigma"))
+    assert np.all(np.abs(found - per_c) < 4 * sigma)
+    fitted = bench[0].field(outputs)[1]
+    assert effect["reference"]["temp_c"] == pytest.approx(np.mean(temp_c[fitted]))
+
+
+def test_diagnosis_is_the_shared_record_and_withdraws_a_drift_when_structure_remains(bench):
+    """A hard iron that steps halfway is partly a drift: the shared loop claims nothing, says so, keeps the base fit."""
+    from dataclasses import replace
+
+    from calibrate.diagnosis.report import Diagnosis
+
+    _, _, truth, _ = bench
+    rec = simulate_installation(truth, random_installation(50), kind="tumble", n=2000, seed=51)
+    gains = np.asarray(truth["gains_per_ut"])
+    step = np.outer(np.arange(len(rec.t_s)) >= len(rec.t_s) // 2, [3.0, -2.0, 1.5]) @ np.asarray(truth["directions"]).T
+    result = fit(bench, replace(rec, outputs=rec.outputs + gains * step))
+    assert isinstance(result.diagnosis, Diagnosis)
+    block = result.diagnosis.block
+    assert block["effects"] == [] and result.to_json()["effects"] == [] and block["unexplained"] is True
+    assert len(block["steps"]) == 1 and block["residual_rms_after"] == block["residual_rms_before"]
+    assert any(line.startswith("offset_drift (linear; delta-BIC") and "not claimed" in line
+               for line in block["not_claimed"])
+    assert block["not_applicable"] == {"temperature": "the recording has no temp_c column"}
+    assert "not claimed: offset_drift" in result.report() and any("above the bench's noise floor" in w
+                                                                   for w in result.warnings)
+
+
+@pytest.fixture(scope="module")
+def bench_cubic(bench, tmp_path_factory):
+    """The bench of ``bench`` with every channel's response a cubic (a vanishing one) over +-50 uT:
+    beyond that range its curve is extrapolated, not trusted."""
+    _, doc, truth, _ = bench
+    folder = tmp_path_factory.mktemp("bench_cubic")
+    doc = json.loads(json.dumps(doc))
+    for channel in doc["channels"].values():
+        channel["response"] |= {"model": "cubic", "cubic": 1e-9, "range": [-50.0, 50.0]}
+    (folder / "bench.json").write_text(json.dumps(doc))
+    return SensorModel.from_json(doc), doc, truth, folder
+
+
+def test_rows_outside_a_nonlinear_bench_range_are_left_out_and_counted(bench_cubic):
+    """A sensor that clips beyond the field its bench calibration saw: those rows would bend the iron."""
+    from dataclasses import replace
+
+    model, _, truth, _ = bench_cubic
+    inst = random_installation(65, hard_iron_ut=10.0)
+    rec = simulate_installation(truth, inst, kind="tumble", n=2000, seed=66)
+    offsets, gains = np.asarray(truth["offsets"]), np.asarray(truth["gains_per_ut"])
+    x = (rec.outputs - offsets) / gains
+    clipped = replace(rec, outputs=offsets + gains * np.clip(x, -54.0, 54.0))  # a rail past 50 uT + 2 %
+    outside = int(np.sum(~model.field(clipped.outputs)[1]))
+    assert outside > 50
+    result = fit(bench_cubic, clipped)
+    assert result.n_rows == 2000 - outside and result.n_rows_out_of_range == outside
+    assert np.all(np.abs(result.hard_iron_ut - inst.hard_iron_ut) < 5 * result.hard_iron_sigma_ut)
+    assert result.diagnosis.unexplained is False
+    assert result.to_json()["installation"]["n_rows_out_of_range"] == outside
+    assert any(f"{outside} rows" in w and "left out" in w for w in result.warnings)
+    assert f"{outside} rows" in result.report()
+
+
+def test_rows_beyond_a_linear_channel_s_range_are_fitted_and_named(bench):
+    """A line beyond its range is the same line (compass.response): kept, and the channels named, as
+    compass attitude does."""
+    model, _, truth, _ = bench
+    rec = simulate_installation(truth, random_installation(73, hard_iron_ut=10.0), kind="tumble", n=2000, seed=74)
+    x, _ = model.components(rec.outputs)
+    beyond = np.any([r.beyond_range(x[:, c]) for c, r in enumerate(model.responses)], axis=0)
+    assert beyond.sum() > 50
+    result = fit(bench, rec)
+    assert result.n_rows == 2000 and result.n_rows_out_of_range == 0
+    assert result.extrapolated.startswith(f"{int(beyond.sum())} fitted rows read a linear channel beyond")
+    assert result.extrapolated in result.warnings and "extrapolated linearly" in result.report()
+
+
+def test_a_field_stronger_than_the_bench_s_everywhere_is_fitted_with_a_warning(bench_cubic):
+    """A level swing where the vertical field always exceeds what the bench saw: no row is inside the
+    nonlinear bench's range; all are fitted (the response extrapolated), and the warning says so."""
+    model, _, truth, _ = bench_cubic
+    inst = random_installation(69)
+    rec = simulate_installation(truth, inst, kind="swing", n=2000, max_tilt_deg=0.0, dip_deg=75.0, field_ut=62.0,
+                                seed=70)
+    assert not np.any(model.field(rec.outputs)[1])
+    result = fit(bench_cubic, rec)
+    assert result.n_rows == 2000 and result.n_rows_out_of_range == 2000
+    z = (result.hard_iron_ut[:2] - inst.hard_iron_ut[:2]) / result.hard_iron_sigma_ut[:2]
+    assert np.all(np.abs(z) < 2.5)
+    assert any("2000 rows" in w and "extrapolated" in w for w in result.warnings)
+    assert result.to_json()["installation"]["out_of_range_fitted"] is True
+
+
+@pytest.fixture(scope="module")
+def bench_normalized(tmp_path_factory):
+    """The bench of ``bench`` calibrated without |B| in uT: its field unit is the bench's |B|."""
+    from dataclasses import replace
+
+    folder = tmp_path_factory.mktemp("bench_normalized")
+    session = simulate_fourflip(seed=41, dip_deg=58.0)
+    path, _ = write_fourflip(session, folder / "bench.csv")
+    rec = read_fourflip(path)
+    rec = replace(rec, metadata={k: v for k, v in rec.metadata.items() if k != "field_ut"})
+    doc = calibrate_fourflip(rec, diagnose=True).to_json()
+    assert doc["field_ut"] is None
+    (folder / "bench.json").write_text(json.dumps(doc))
+    return SensorModel.from_json(doc), doc, session.truth, folder
+
+
+def test_hard_iron_prior_is_in_the_bench_field_unit(bench_normalized):
+    """Field unit |B| (no field_ut on the bench): the prior of a held hard iron is 20 uT in that unit, not 20 |B|."""
+    from calibrate.installation.model import PRIOR_HARD_IRON_UT, TYPICAL_FIELD_UT
+
+    _, _, truth, _ = bench_normalized
+    inst = random_installation(45)
+    result = fit(bench_normalized, simulate_installation(truth, inst, kind="swing", n=2000, max_tilt_deg=0.0,
+                                                         seed=46))
+    field_ut = truth["field_ut"]
+    assert result.field_magnitude == pytest.approx(1.0, abs=0.05)  # in units of the bench's |B|
+    z = (result.hard_iron_ut[:2] - inst.hard_iron_ut[:2] / field_ut) / result.hard_iron_sigma_ut[:2]
+    assert np.all(np.abs(z) < 2.5)
+    assert result.hard_iron_sigma_ut[2] == pytest.approx(PRIOR_HARD_IRON_UT / TYPICAL_FIELD_UT, rel=0.01)
+    assert "x |B_bench|" in result.report() and any("vertical hard iron" in w for w in result.undetermined)
+
+
+def test_a_site_cannot_set_the_soft_iron_scale_of_a_bench_without_ut(bench_normalized):
+    from compass.site import Site
+
+    _, _, truth, _ = bench_normalized
+    result = fit(bench_normalized, simulate_installation(truth, random_installation(71), kind="tumble", n=1500,
+                                                         seed=72), site=Site.parse("47.6,-122.3", "2026-06-01"))
+    (scale,) = [w for w in result.undetermined if "overall scale" in w]
+    assert "knows no |B| in uT" in scale and "give --site" not in scale
 
 
 def test_deviation_card_coefficients():
@@ -242,6 +401,10 @@ def test_level_swing_with_a_site_fits_the_same_iron(bench):
     np.testing.assert_allclose(with_site.hard_iron_ut, plain.hard_iron_ut, atol=1e-6)
     np.testing.assert_allclose(with_site.soft_iron, plain.soft_iron, atol=1e-9)
     assert with_site.site["model"] == "WMM2025" and any("vertical hard iron" in w for w in with_site.undetermined)
+    # the soft iron's scale: the words say why the site given did not set it (not "give --site")
+    (plain_scale,), (site_scale,) = ([w for w in r.undetermined if "overall scale" in w] for r in (plain, with_site))
+    assert "give --site" in plain_scale
+    assert "give --site" not in site_scale and "level swing" in site_scale and "not used" in site_scale
 
 
 def test_simulate_installation_command_and_calibrate_on_top_of_the_bench(tmp_path, capsys):
