@@ -33,7 +33,7 @@ from scipy.spatial.transform import Rotation
 from .frames import heading_pitch_roll, r_world_from_housing, world_field
 from .model import SensorModel
 from .sample_check import skip_codes
-from .site import ReferenceField, reference_from_recording, upside_down
+from .site import ReferenceField, reference_from_recording
 
 __all__ = ["Attitude", "UnusableCalibration", "solve_attitude", "two_vector_rotation", "level_heading_bound_deg"]
 
@@ -229,8 +229,7 @@ def solve_attitude(
         source of tilt, a calibration without noise, or no reference and too few quiet rows to
         estimate one.
     UnusableCalibration
-        The calibrated field points the other way from a given reference (its dip turned over:
-        :func:`compass.site.upside_down`), or the calibration's noise is out of any sensible range.
+        The calibration's noise is out of any sensible range.
 
     Notes
     -----
@@ -344,9 +343,6 @@ def _solve(model: SensorModel, field: np.ndarray, in_range: np.ndarray, *, accel
 
     mu = _dot(m, up)
     dip = np.degrees(np.arcsin(np.clip(-mu, -1.0, 1.0)))
-    flipped = upside_down(dip, reference)
-    if flipped is not None:
-        raise UnusableCalibration(flipped)
     # sigma of the dip: d(m.u) = (Q_m u) . dB / |B| + (Q_u m) . du; the reference's adds
     qm = m - mu * up
     dip_sigma = np.degrees(np.sqrt((field_quad(up - mu * m) / b_norm**2 + up_var * _dot(qm, qm))
@@ -462,7 +458,7 @@ def _wahba_sigmas(rows, heading, pitch, field_quad, b_norm, up_var, f, dip_deg, 
     # form, one value a row.  f -> 0 (TRIAD) is a limit: H^-1 grows as 1/f about up while the field's
     # share f shrinks, their product finite, so a row with f = 0 is evaluated just beside it
     c_b, _, s_b = world_field(dip_deg)
-    f = np.maximum(np.broadcast_to(np.asarray(f, dtype=float), np.shape(heading)), 1e-9)
+    f = np.clip(np.broadcast_to(np.asarray(f, dtype=float), np.shape(heading)), 1e-9, 1.0 - 1e-9)  # f -> 1 alike
     det = f * (1.0 - f) * c_b**2
     inv_nn, inv_nu, inv_uu = f * c_b**2 / det, f * c_b * s_b / det, (1.0 - f * c_b**2) / det
     psi, theta = np.radians(-heading), np.radians(-pitch)  # scipy's ZYX yaw and pitch

@@ -213,7 +213,7 @@ class LiveSession:
             self._count_skip(SKIP_REASONS[code])
             return
         if accel is not None:
-            self._accel_norms.append(float(np.linalg.norm(accel)))
+            self._accel_norms.append(math.hypot(*accel))  # screened above: finite, not absurd
         self._held.append(reading)
         t_s = sample.t_s if sample.t_s is not None else t_rx - self._t0
         reference = self._seed.add(t_s, accel, field_h)

@@ -33,7 +33,8 @@ from .temperature import TemperatureCompensation
 
 __all__ = ["FORMAT", "NotAFieldVector", "SensorModel"]
 
-_MIN_SINGULAR = 1e-3  # smallest singular value of A (unit rows) accepted: axes must span 3-D
+MIN_SINGULAR_VALUE = 1e-3
+"""Smallest singular value of the sensing matrix (unit rows) that gives a field vector: the axes span 3-D."""
 _SLOPE_STEP = 1e-4  # relative step of the numerical response slope (nonlinear channels only)
 
 
@@ -105,7 +106,7 @@ class SensorModel:
                                   "a calibration of single-axis channels, valid as such, but the field vector (and "
                                   "heading, pitch, roll) needs at least 3 channels calibrated together")
         smallest = np.linalg.svd(self.unit_directions, compute_uv=False)[-1]
-        if smallest < _MIN_SINGULAR:
+        if smallest < MIN_SINGULAR_VALUE:
             raise NotAFieldVector(f"the sensing directions of {', '.join(self.channels)} do not span three "
                                   f"dimensions (smallest singular value {smallest:.2g}): the field cannot be solved")
 

@@ -71,7 +71,8 @@ def skip_codes(field, field_scale: float, accel=None, accel_scale: float | None 
 def _measured(values) -> tuple[np.ndarray, np.ndarray]:
     """(rows, norms) with rows all-NaN ('not measured') given norm NaN."""
     v = np.atleast_2d(np.asarray(values, dtype=float))
-    return v, np.linalg.norm(v, axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):  # a 1e300 reading: its norm inf, flagged by the caller
+        return v, np.linalg.norm(v, axis=1)
 
 
 def _accel_bad(accel, scale) -> np.ndarray | None:

@@ -16,6 +16,8 @@ two-vector weights (:func:`compass.attitude.solve_attitude`), so an uncertain di
 
 from __future__ import annotations
 
+import math
+
 import datetime as dt
 from dataclasses import dataclass, replace
 from functools import lru_cache
@@ -328,12 +330,12 @@ class QuietSeed:
         self._next_try_s = seconds  # span at which to try again (every 0.1 s of data, not every sample)
 
     def add(self, t_s: float, accel, field_h) -> ReferenceField | None:
-        """Add one sample (``accel`` None or zero: skipped); the reference once it is known, else None."""
+        """Add one sample (``accel`` None, zero or not finite: skipped); the reference once it is known, else None."""
         if accel is None or not np.all(np.isfinite(field_h)):
             return None
         a = np.asarray(accel, dtype=float)
-        norm = float(np.linalg.norm(a))
-        if not norm > 0:
+        norm = math.hypot(*a)  # inf for an absurd reading (no overflow warning): skipped with zero and NaN
+        if not 0 < norm < math.inf:
             return None
         self._t.append(t_s)
         self._rows.append(np.concatenate([a / norm, [norm], np.asarray(field_h, dtype=float)]))
@@ -353,7 +355,7 @@ class QuietSeed:
             return None
 
 
-def upside_down(dip_deg: np.ndarray, reference: ReferenceField) -> str | None:
+def upside_down(dip_deg: np.ndarray, reference: ReferenceField, *, bench_sign_ambiguous: bool = True) -> str | None:
     """Why the calibrated field points the other way from a given reference, or None.
 
     The bench data cannot tell ``(a, B)`` from ``(-a, -B)``: a calibration made in one hemisphere
@@ -362,13 +364,18 @@ def upside_down(dip_deg: np.ndarray, reference: ReferenceField) -> str | None:
     by about twice the dip (all disturbed) and the heading is 180 deg off.  Judged on the median over
     the rows (a magnet for part of the recording does not move it), only for a reference the user
     gave (a site: never the recording's own) with ``|dip| >= 10 deg``, where no tilt error reaches
-    the mirrored dip.
+    the mirrored dip.  Meaningful only for dips measured against a full up vector (a three-axis
+    accelerometer): an assumed level housing or a two-axis tilt sensor upside down mirror the dip
+    themselves.
 
     Parameters
     ----------
     dip_deg : ndarray, shape (n,)
         The measured field's angle below the horizontal per row, degrees.
     reference : ReferenceField
+    bench_sign_ambiguous : bool
+        The calibration came from a four-flip bench without an accelerometer, whose data cannot
+        tell the hemisphere: the message then names that cause and its cure.
     """
     if reference.source == "recording" or abs(reference.dip_deg) < _MIN_SIGNED_DIP_DEG:
         return None
@@ -380,8 +387,11 @@ def upside_down(dip_deg: np.ndarray, reference: ReferenceField) -> str | None:
     if abs(median + reference.dip_deg) >= abs(median - reference.dip_deg):
         return None
     way = ("up", "down") if reference.dip_deg > 0 else ("down", "up")
+    cause = ("A bench in the other hemisphere calibrated without its latitude? (the bench data cannot tell "
+             "(a, B) from (-a, -B)): recalibrate with '# site_lat_deg:' in the recording or --site LAT,LON"
+             if bench_sign_ambiguous else
+             "Check the signs of the recording's magnetometer and accelerometer columns against the calibration's "
+             "(a negated axis, e.g. az=-AccZ in --columns) and the site")
     return (f"the calibrated readings have the field pointing {way[0]} (median dip {median:+.1f} deg) where the "
             f"{reference.source} reference has it pointing {way[1]} (dip {reference.dip_deg:+.1f} deg): the "
-            "calibration's field is upside down, every sensing direction negated, and every heading would be 180 "
-            "deg off. A bench in the other hemisphere calibrated without its latitude? (the bench data cannot tell "
-            "(a, B) from (-a, -B)): recalibrate with '# site_lat_deg:' in the recording or --site LAT,LON")
+            f"calibration's field is upside down, and every heading would be 180 deg off. {cause}")

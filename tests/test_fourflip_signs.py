@@ -255,3 +255,18 @@ def test_warns_when_the_hemisphere_cannot_fix_the_directions_sign(write_session,
     result = calibrate_fourflip(rec, method="ml")
     said = any("hardly show the vertical field" in w for w in result.warnings)
     assert said == warned, (result.extra["hemisphere"], result.warnings)
+
+
+def test_three_coplanar_channels_calibrate_with_a_warning_and_the_runtime_refuses_them(write_session, tmp_path,
+                                                                                      capsys):
+    """Three channels in one plane are three single-axis calibrations: written, said in the report (before:
+    exit 0 and no word, then `compass export` refused the file)."""
+    from compass.cli import main
+
+    rec, _ = write_session(seed=39, directions=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.7071, 0.7071, 0.0]], dip_deg=62.0)
+    cal = tmp_path / "cal.json"
+    assert main(["calibrate", rec.path, "--out", str(cal), "--no-diagnose"]) == 0
+    assert "do not span three dimensions" in capsys.readouterr().out
+    assert main(["export", str(cal), "--format", "fusion"]) == 2
+    err = capsys.readouterr().err
+    assert "do not span three" in err and "cal.json" in err and len(err.strip().splitlines()) == 1

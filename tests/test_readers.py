@@ -214,6 +214,12 @@ def test_two_axis_tilt_sensor_upside_down_is_said(tmp_path, capsys):
     _csv(att, cols, np.column_stack([table.column(c) for c in cols]))
     status, _, err = _run(capsys, "attitude", cal, att, "--out", tmp_path / "o.csv", "--force")
     assert status == 0 and "az is assumed positive" in err
+    # with a site: the tilt sensor's own warning, not a turned-over field (its mirrored up mirrors the dip)
+    down = ~upright
+    _csv(att, cols, np.column_stack([table.column(c) for c in cols])[down])
+    status, _, err = _run(capsys, "attitude", cal, att, "--out", tmp_path / "o.csv", "--force", "--site", "47.6,-122.3",
+                          "--date", "2026-01-01")
+    assert status == 0 and "az is assumed positive" in err and "site_lat_deg" not in err
 
 
 # ---- 16.5, 16.6: metadata and cells --------------------------------------------------------------

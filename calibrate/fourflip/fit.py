@@ -23,6 +23,7 @@ from scipy.optimize import isotonic_regression
 
 from compass.frames import seed_angles
 from compass.io.fourflip import FourFlipRecording
+from compass.model import MIN_SINGULAR_VALUE
 from compass.response import CubicResponse, LinearResponse, TableResponse
 from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, housing_field
 
@@ -95,6 +96,13 @@ def calibrate_fourflip(
         warnings = warnings + (f"{len(rec.channels)} channel{'s' if len(rec.channels) > 1 else ''}: a single-axis "
                                "calibration, valid as such; heading, pitch and roll need at least 3 channels calibrated "
                                "together (compass attitude and live refuse this file)",)
+    else:
+        unit = np.array([ch.direction for ch in result.channels])
+        smallest = np.linalg.svd(unit / np.linalg.norm(unit, axis=1, keepdims=True), compute_uv=False)[-1]
+        if smallest < MIN_SINGULAR_VALUE:
+            warnings = warnings + (f"the channels' sensing directions do not span three dimensions (smallest singular "
+                                   f"value {smallest:.2g}): single-axis calibrations, valid as such, but no field vector "
+                                   "(compass attitude and live refuse this file)",)
     if vertical < _VERTICAL_SIGMAS:
         warnings = warnings + (f"the flip means hardly show the vertical field ({vertical:.1f} sigma: dip near 0, or "
                                "every channel along housing X): the data cannot tell these directions from their "

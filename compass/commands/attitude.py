@@ -15,7 +15,7 @@ import numpy as np
 from ..io.atomic import atomic_write_text, check_writable
 from ..io.table import ReadOptions, RecordingError, add_read_arguments, format_table, read_table
 from ..io.units import check_accel_up, check_two_axis_tilt
-from ..site import Site, reference_from_site
+from ..site import Site, reference_from_site, upside_down
 from ..viz import add_rerun_option, check_rerun_target
 
 _ACCEL = ("ax", "ay", "az")
@@ -142,6 +142,11 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     if tilt_sensor is not None and len(tilt_sensor.columns) == 2:  # judged against the dip the rows were solved with
         check_two_axis_tilt(tilt_sensor.upside_down_rows(tilt_raw, model.field(raw, temp_c)[0],
                                                          result.reference.dip_deg), len(raw), where=table.path)
+    elif result.mode == "accelerometer":  # dips against a full up vector: a turned-over field shows
+        flipped = upside_down(result.dip_deg, result.reference,
+                              bench_sign_ambiguous=cal.data.get("model", "fourflip") == "fourflip")
+        if flipped is not None:
+            raise BadInput(f"{calibration}: {flipped}")
     columns = ({"t_s": table.column("t_s")} if table.has("t_s") else {}) | result.columns()
     metadata = {"calibration": calibration, "recording": recording, "mode": result.mode,
                 "reference_field": result.reference.description}
