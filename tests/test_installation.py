@@ -1,6 +1,7 @@
 """Installation calibration: the bench model inside its product, from a tumble or a swing."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -435,3 +436,23 @@ def test_simulate_installation_command_and_calibrate_on_top_of_the_bench(tmp_pat
     capsys.readouterr()
     assert main(["simulate", "installation", "--out", str(tmp_path / "bad.csv"), "--soft-iron", "0.9"]) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1 and not (tmp_path / "bad.csv").exists()
+
+
+def test_the_bench_accelerometer_alignment_is_applied_before_the_fit(bench, tmp_path):
+    """A bench whose accelerometer sat 1-2 deg off the housing (its mag_to_accel) and a product recording
+    read through that accelerometer: the installation must be the same as with an aligned one (the fit's
+    up is the housing's, as at runtime); ignoring mag_to_accel moves the soft iron by the tilt error."""
+    from scipy.spatial.transform import Rotation
+
+    model, doc, truth, folder = bench
+    inst = random_installation(42)
+    rec = simulate_installation(truth, inst, kind="tumble", n=2000, seed=44)
+    aligned = fit(bench, rec)
+    turn = Rotation.from_rotvec(np.radians([1.0, -1.5, 2.0]))  # R_accel<-H
+    misaligned_doc = doc | {"mag_to_accel": turn.as_matrix().tolist()}
+    (tmp_path / "bench.json").write_text(json.dumps(misaligned_doc))
+    path, _ = write_installation(replace(rec, accel=turn.apply(rec.accel)), tmp_path / "inst.csv")
+    parsed = installation_from_table(read_table(path), model.channels)
+    result = InstallationCalibrator(base=tmp_path / "bench.json").fit(parsed)
+    np.testing.assert_allclose(result.hard_iron_ut, aligned.hard_iron_ut, atol=0.1 * aligned.hard_iron_sigma_ut.min())
+    np.testing.assert_allclose(result.soft_iron, aligned.soft_iron, atol=0.1 * aligned.soft_iron_sigma.min())

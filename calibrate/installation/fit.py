@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from compass.accel_alignment import accel_to_housing
 from compass.installed import SOFT_IRON_ENTRIES, installed_model, soft_iron_basis
 from compass.calibration_file import header
 from compass.model import SensorModel
@@ -282,7 +283,8 @@ class InstallationCalibrator(Calibrator):
             raise CannotCalibrate(f"{rec.path}: its channels ({', '.join(rec.channels)}) are not the bench "
                                   f"calibration's ({', '.join(base.channels)})")
         order = [rec.channels.index(c) for c in base.channels]
-        rec = replace(rec, channels=base.channels, raw=rec.raw[:, order])
+        # the bench's mag_to_accel first: the fit's up direction is the housing's, as the runtime's
+        rec = replace(rec, channels=base.channels, raw=rec.raw[:, order], accel=accel_to_housing(base_document, rec.accel))
         b, in_range = base.field(rec.raw, rec.temp_c)
         a_norm = np.linalg.norm(rec.accel, axis=1)
         quiet = (np.abs(a_norm / np.median(a_norm) - 1.0) < _QUIET) & np.all(np.isfinite(b), axis=1)
