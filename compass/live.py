@@ -18,7 +18,7 @@ from .filter import AttitudeFilter, Estimate, FilterConfig
 from .io.lines import LineDecoder
 from .sample_check import SKIP_REASONS, skip_codes
 from .serial_reader import Chunk, LinkEvent
-from .site import QuietSeed
+from .site import QuietSeed, upside_down
 
 __all__ = ["LiveSession", "GATE_CODES", "CSV_COLUMNS"]
 
@@ -29,6 +29,8 @@ _CSV_ROW = "%.4f,%.3f,%.3f,%.3f,%.3f,%.3f,%.4f,%.2f,%d,%d,%d,%d,%.3f"
 _TRUE_COLUMNS = ("heading_true_deg", "heading_true_sigma_deg")  # with a site: heading + declination
 _LATENCY_WINDOW = 100_000  # samples kept for the latency percentiles
 _ACCEL_WINDOW = 256  # accepted accelerometer magnitudes kept for the typical |a| (any unit)
+UPSIDE_DOWN_SAMPLES = 100
+"""Estimates whose median dip is judged against a given reference (compass.site.upside_down)."""
 
 
 @dataclass
@@ -56,6 +58,9 @@ class LiveSession:
     gyro_rad_s_per_unit : float
         What one unit of the module's gyro is in rad/s (``--gyro-unit``: 1 for rad/s, pi/180 for
         deg/s); the line protocol's default unit is rad/s.
+    sign_from_bench : bool
+        The calibration is a four-flip bench's, whose data cannot tell the hemisphere: an upside-down
+        verdict then names that cause (:func:`compass.site.upside_down`).
 
     Attributes
     ----------
@@ -75,6 +80,9 @@ class LiveSession:
         Estimates produced.
     unsolved : int
         Decoded samples that gave no attitude (no accelerometer yet).
+    turned_over : str or None
+        Set once the first :data:`UPSIDE_DOWN_SAMPLES` estimates show the field turned over against a
+        given reference (``--site``): why, in words (the command stops on it); None otherwise.
     skipped : dict of str to int
         Readings never fused, by reason: the filter's screen (:data:`compass.filter.SKIP_REASONS`:
         a non-finite or out-of-range sensor part is skipped, the rest of the sample used) and,
@@ -89,7 +97,9 @@ class LiveSession:
     reference: object = None
     to_product: object = None
     gyro_rad_s_per_unit: float = 1.0
+    sign_from_bench: bool = True
     decoder: LineDecoder = field(init=False)
+    turned_over: str | None = None
     estimate: Estimate | None = None
     in_range: bool = True
     latencies_s: deque = field(default_factory=lambda: deque(maxlen=_LATENCY_WINDOW))
@@ -107,11 +117,14 @@ class LiveSession:
     _header_seen: object = None
     _seed: QuietSeed | None = None
     _held: list = field(default_factory=list)
+    _dips: list | None = None  # measured dips of the first estimates, against a given reference
 
     def __post_init__(self):
         self.decoder = LineDecoder(self.model.channels)
         if self.config is None:
             self.config = FilterConfig.from_model(self.model)
+        if self.reference is not None:  # the user's reference: check it is not the calibration's field turned over
+            self._dips = []
         if self.reference is None or not np.isfinite(self.reference.field_magnitude):
             self._seed = QuietSeed()  # also for a site's |B| in a calibration whose unit is not the uT
         else:
@@ -256,6 +269,12 @@ class LiveSession:
             return
         self.estimate, self.in_range = est, in_range
         self.samples += 1
+        if self._dips is not None and accel is not None:
+            self._dips.append(est.dip_deg)
+            if len(self._dips) >= UPSIDE_DOWN_SAMPLES:
+                self.turned_over = upside_down(np.array(self._dips), self.reference,
+                                               bench_sign_ambiguous=self.sign_from_bench)
+                self._dips = None
         if est.gate != self._gate:
             self._event("info" if est.mag_used else "warn",
                         "field used again" if est.mag_used else

@@ -291,6 +291,23 @@ def test_live_at_another_site_seeds_its_reference_from_the_first_quiet_second():
     assert np.sqrt(np.mean(err[rows["seeded"][:, 0] > 2.0] ** 2)) < 1.0
 
 
+def test_live_against_a_site_whose_dip_has_the_other_sign_says_the_field_is_turned_over():
+    """A calibration whose field reads upside down at the given site (a four-flip bench calibrated in the other
+    hemisphere without its latitude): the first estimates' median dip is the site's turned over."""
+    from compass.site import known_reference
+
+    model, stream, _ = _site_stream(48.0, 45.0)
+    right = LiveSession(model, reference=known_reference(48.0, 45.0))
+    _run(right, stream)
+    assert right.turned_over is None and right.samples > 100
+    wrong = LiveSession(model, reference=known_reference(-48.0, 45.0))
+    _run(wrong, stream)
+    assert "upside down" in wrong.turned_over and "site_lat_deg" in wrong.turned_over
+    other_kind = LiveSession(model, reference=known_reference(-48.0, 45.0), sign_from_bench=False)
+    _run(other_kind, stream)
+    assert "upside down" in other_kind.turned_over and "site_lat_deg" not in other_kind.turned_over
+
+
 def test_live_with_a_site_writes_true_heading(tmp_path):
     from compass.site import Site, reference_from_site
 

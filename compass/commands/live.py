@@ -96,7 +96,8 @@ def run(args) -> int:
             if out_path is not None:
                 out = outputs.enter_context(open(out_path, "w", encoding="utf-8", buffering=1 << 16))
             session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event, reference=reference,
-                                  to_product=to_product, gyro_rad_s_per_unit=GYRO_UNITS[args.gyro_unit])
+                                  to_product=to_product, gyro_rad_s_per_unit=GYRO_UNITS[args.gyro_unit],
+                                  sign_from_bench=cal.data.get("model", "fourflip") == "fourflip")
             _run_session(args, reader, session, out, tty, every_s)
             failed = False
     finally:
@@ -134,6 +135,8 @@ def _run_session(args, reader, session, out, tty: bool, every_s: float) -> None:
         with stop_when_asked(args.duration) as stop:
             for item in reader.items(stop):
                 session.feed(item)
+                if session.turned_over is not None:
+                    raise BadInput(f"{args.cal}: {session.turned_over}")
                 mismatch = session.decoder.mismatch
                 if mismatch is not None:
                     raise BadInput(f"{args.port}: the module's header {','.join(mismatch[0])} lacks the calibration's "
