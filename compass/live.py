@@ -230,8 +230,11 @@ class LiveSession:
         self._held.append(reading)
         t_s = sample.t_s if sample.t_s is not None else t_rx - self._t0
         reference = self._seed.add(t_s, accel, field_h)
-        if reference is None:
-            return
+        if reference is not None:
+            self._seeded(reference)
+
+    def _seeded(self, reference) -> None:
+        """The reference is known: use it and solve the samples held for it."""
         self._seed = None
         self._use_reference(reference if self.reference is None else self.reference.complete(reference))
         held, self._held = self._held, []
@@ -352,7 +355,13 @@ class LiveSession:
 
         The Rerun recording is finished only if it holds a sample; without one it is discarded, so a
         session that never started leaves no empty ``.rrd`` behind and an existing file stays as it was.
+        A stream that ended before its first quiet second has its held samples solved against the
+        reference their rows give (:meth:`compass.site.QuietSeed.finish`), if ten of them do.
         """
+        if self._seed is not None and self._held:
+            reference = self._seed.finish()
+            if reference is not None:
+                self._seeded(reference)
         if self.sink is not None:
             self.sink.close() if self.samples > 0 else self.sink.discard()
         if self.out is not None:

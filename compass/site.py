@@ -343,11 +343,19 @@ class QuietSeed:
         if span < self._next_try_s:
             return None
         self._next_try_s = span + 0.1
+        return self._estimate(any_row=span >= self.max_seconds)
+
+    def finish(self) -> ReferenceField | None:
+        """The stream ended before a quiet second: the reference from what there is, quiet rows first, else
+        every row; None with fewer than ten rows."""
+        return self._estimate(any_row=True) if self._rows else None
+
+    def _estimate(self, any_row: bool) -> ReferenceField | None:
         rows = np.array(self._rows)
         try:
             return reference_from_recording(rows[:, 4:], rows[:, :3], rows[:, 3])
         except ValueError:
-            if span < self.max_seconds:
+            if not any_row:
                 return None
         try:
             return reference_from_recording(rows[:, 4:], rows[:, :3])

@@ -308,6 +308,15 @@ def test_live_against_a_site_whose_dip_has_the_other_sign_says_the_field_is_turn
     assert "upside down" in other_kind.turned_over and "site_lat_deg" not in other_kind.turned_over
 
 
+def test_a_stream_shorter_than_the_quiet_second_is_still_solved_when_it_ends():
+    model, stream, _ = _site_stream(48.0, 45.0, seconds=0.4)  # 40 samples: shorter than the quiet second
+    session = LiveSession(model, out=io.StringIO())
+    session.feed(Chunk(time.perf_counter(), stream))
+    assert session.samples == 0 and session.decoder.stats.samples == 40  # held for the reference
+    session.close()
+    assert session.samples == 40 and abs(session.reference.dip_deg - 48.0) < 1.0
+
+
 def test_live_with_a_site_writes_true_heading(tmp_path):
     from compass.site import Site, reference_from_site
 
