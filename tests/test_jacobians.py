@@ -11,6 +11,7 @@ import pytest
 from scipy.optimize._numdiff import approx_derivative
 from scipy.spatial.transform import Rotation
 
+from calibrate.tumble import alignment
 from calibrate.tumble.alignment import _JointResidual, _rotation_derivatives
 from calibrate.tumble.ellipsoid import radial_jacobian, radial_residual
 
@@ -54,3 +55,16 @@ def test_rotation_derivatives_match_finite_differences(rotvec):
     numeric = approx_derivative(lambda v: Rotation.from_rotvec(v).as_matrix().ravel(), rotvec, method="3-point")
     analytic = _rotation_derivatives(rotvec).reshape(3, 9).T
     np.testing.assert_allclose(analytic, numeric, atol=TOL, rtol=0)
+
+
+def test_joint_alignment_jacobian_in_chunks_equals_at_once(monkeypatch):
+    """The radial rows computed a chunk at a time (an uneven last chunk) are those computed at once."""
+    rng = np.random.default_rng(12)
+    y = rng.normal(size=(100, 3))
+    a = rng.normal(size=(30, 3))
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    q = np.concatenate([rng.normal(scale=0.1, size=9), rng.normal(scale=0.05, size=3), [1.0]])
+    joint = _JointResidual("full", 9, True, y, y[:30], a, 0.7, 1.3)
+    at_once = joint.jacobian(q)
+    monkeypatch.setattr(alignment, "_JACOBIAN_CHUNK_ROWS", 7)
+    np.testing.assert_array_equal(joint.jacobian(q), at_once)

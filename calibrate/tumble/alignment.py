@@ -24,6 +24,10 @@ MAX_ANGLE_WIDENING = 0.05
 """A correction that widens the field-gravity angle spread by more than this fraction is not used."""
 
 
+_JACOBIAN_CHUNK_ROWS = 65536
+"""Radial rows of the joint Jacobian computed at once (their temporaries take ~65536 x 3 x 8 bytes, 1.6 MB, each)."""
+
+
 @dataclass(frozen=True)
 class Misalignment:
     """Rotation between magnetometer and accelerometer frames from the constancy of the dip.
@@ -221,7 +225,9 @@ class _JointResidual:
         """d residual / d q, shape (radial rows + static rows, q.size)."""
         k, n_r = self.k, len(self.y_radial)
         jac = np.zeros((n_r + len(self.y_static), q.size))
-        radial_jacobian(q[:k], self.kind, self.y_radial, out=jac[:n_r, :k])
+        for start in range(0, n_r, _JACOBIAN_CHUNK_ROWS):  # its temporaries a chunk at a time
+            rows = slice(start, min(start + _JACOBIAN_CHUNK_ROWS, n_r))
+            radial_jacobian(q[:k], self.kind, self.y_radial[rows], out=jac[rows, :k])
         jac[:n_r] /= self.sigma_r
         m_mat, d_m = self._matrix_derivatives(q)
         d = self.y_static - q[:3]
