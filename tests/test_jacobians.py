@@ -9,7 +9,10 @@ of a hundred and still catches any wrong term (whose error is of the order of th
 import numpy as np
 import pytest
 from scipy.optimize._numdiff import approx_derivative
+from scipy.spatial.transform import Rotation
 
+from calibrate.tumble import alignment
+from calibrate.tumble.alignment import _JointResidual, _rotation_derivatives
 from calibrate.tumble.ellipsoid import radial_jacobian, radial_residual
 
 TOL = 1e-7
@@ -26,3 +29,42 @@ def test_radial_jacobian_matches_finite_differences(kind, n_shape):
     numeric = approx_derivative(radial_residual, p, method="3-point", args=(kind, y))
     assert analytic.shape == numeric.shape
     np.testing.assert_allclose(analytic, numeric, atol=TOL, rtol=0)
+
+
+@pytest.mark.parametrize("with_rot", [True, False])
+@pytest.mark.parametrize("kind, n_shape", [("offset", 1), ("diagonal", 3), ("full", 6)])
+def test_joint_alignment_jacobian_matches_finite_differences(kind, n_shape, with_rot):
+    """The joint ellipsoid-rotation-dip residual of ``refine_jointly`` (radial and angle rows)."""
+    rng = np.random.default_rng(11)
+    y = rng.normal(size=(300, 3))
+    y = 1.2 * y / np.linalg.norm(y, axis=1, keepdims=True) + 0.05
+    a = rng.normal(size=(120, 3))
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    q = np.concatenate([rng.normal(scale=0.1, size=3), rng.normal(scale=0.2, size=n_shape),
+                        rng.normal(scale=0.05, size=3) if with_rot else [], [1.0]])
+    joint = _JointResidual(kind, 3 + n_shape, with_rot, y, y[:120], a, 0.7, 1.3)
+    analytic = joint.jacobian(q)
+    numeric = approx_derivative(joint.residual, q, method="3-point")
+    assert analytic.shape == numeric.shape == (420, q.size)
+    np.testing.assert_allclose(analytic, numeric, atol=TOL, rtol=0)
+
+
+@pytest.mark.parametrize("rotvec", [np.array([0.3, -0.2, 0.5]), np.array([1e-9, 0.0, 0.0]), np.zeros(3)])
+def test_rotation_derivatives_match_finite_differences(rotvec):
+    """``dR/dv`` of the rotation vector, also at and near the identity (the limit ``[e_i]x``)."""
+    numeric = approx_derivative(lambda v: Rotation.from_rotvec(v).as_matrix().ravel(), rotvec, method="3-point")
+    analytic = _rotation_derivatives(rotvec).reshape(3, 9).T
+    np.testing.assert_allclose(analytic, numeric, atol=TOL, rtol=0)
+
+
+def test_joint_alignment_jacobian_in_chunks_equals_at_once(monkeypatch):
+    """The radial rows computed a chunk at a time (an uneven last chunk) are those computed at once."""
+    rng = np.random.default_rng(12)
+    y = rng.normal(size=(100, 3))
+    a = rng.normal(size=(30, 3))
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    q = np.concatenate([rng.normal(scale=0.1, size=9), rng.normal(scale=0.05, size=3), [1.0]])
+    joint = _JointResidual("full", 9, True, y, y[:30], a, 0.7, 1.3)
+    at_once = joint.jacobian(q)
+    monkeypatch.setattr(alignment, "_JACOBIAN_CHUNK_ROWS", 7)
+    np.testing.assert_array_equal(joint.jacobian(q), at_once)

@@ -8,11 +8,13 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.linalg import solve_sylvester
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from ..noise import robust_sigma
-from .ellipsoid import MAX_NFEV, OUTLIER_SIGMAS, KindFit, fit_covariance, propagate, radial_residual, sym_sqrt
+from .ellipsoid import (MAX_NFEV, OUTLIER_SIGMAS, KindFit, fit_covariance, propagate, radial_jacobian,
+                        radial_residual, shape_matrix, sym_sqrt)
 
 STATIC_TOLERANCE = 0.02
 """Quasi-static samples: | |a| / g - 1 | below this (g = median |a|)."""
@@ -20,6 +22,10 @@ STATIC_TOLERANCE = 0.02
 
 MAX_ANGLE_WIDENING = 0.05
 """A correction that widens the field-gravity angle spread by more than this fraction is not used."""
+
+
+_JACOBIAN_CHUNK_ROWS = 65536
+"""Radial rows of the joint Jacobian computed at once (their temporaries take ~65536 x 3 x 8 bytes, 1.6 MB, each)."""
 
 
 @dataclass(frozen=True)
@@ -139,6 +145,108 @@ def fit_misalignment(mag_cal: np.ndarray, accel: np.ndarray) -> Misalignment | N
                         spread0, spread1, float(delta_bic))
 
 
+def _skew(v: np.ndarray) -> np.ndarray:
+    """``[v]x``, the matrix of the cross product ``v x .``."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _rotation_derivatives(rotvec: np.ndarray) -> np.ndarray:
+    r"""``dR/dv_i`` of ``R = exp([v]x)``, shape (3, 3, 3) (first index ``i``).
+
+    .. math:: \frac{\partial R}{\partial v_i} = \frac{v_i [v]_\times + [v \times (I - R) e_i]_\times}{|v|^2} R
+
+    (Gallego and Yezzi 2015, J. Math. Imaging Vis. 51, eq. 9), ``[e_i]x`` at ``v = 0``.
+    """
+    rot = Rotation.from_rotvec(rotvec).as_matrix()
+    norm2 = float(rotvec @ rotvec)
+    if norm2 < 1e-24:
+        return np.array([_skew(e) for e in np.eye(3)])
+    i_minus_r = np.eye(3) - rot
+    return np.array([(rotvec[i] * _skew(rotvec) + _skew(np.cross(rotvec, i_minus_r[:, i]))) @ rot / norm2
+                     for i in range(3)])
+
+
+@dataclass(frozen=True)
+class _JointResidual:
+    r"""The weighted residual of :func:`refine_jointly` and its analytic Jacobian.
+
+    Parameters ``q``: the ellipsoid's ``k`` (hard iron ``p_h``, then the shape of ``L``), the rotation
+    vector of ``C`` (when ``with_rot``), the angle ``theta`` (rad).  The residual stacks the radial
+    rows ``(|(y - p_h) L| - 1) / sigma_r`` and the angle rows
+
+    .. math:: \left(\arccos\frac{\hat a \cdot m}{|m|} - \theta\right) / \sigma_a, \qquad m = M (y - p_h),
+              \quad M = C A, \quad A = (L L^T)^{1/2}.
+
+    With ``u = m / |m|`` and ``c = u . a``, ``g = d angle / d m = -(a - c u) / (|m| sqrt(1 - c^2))``
+    (zero where the angle is clipped); an angle row is then ``-M^T g`` for ``p_h``,
+    ``g . (dM/dp) (y - p_h)`` for the shape and rotation parameters (``dM = C dA`` and ``dC A``) and
+    ``-1`` for ``theta``.  ``dA`` of a shape parameter solves the Sylvester equation
+    ``A dA + dA A = dL L^T + L dL^T``; ``dC`` is :func:`_rotation_derivatives`.
+    """
+
+    kind: str
+    k: int
+    with_rot: bool
+    y_radial: np.ndarray
+    y_static: np.ndarray
+    a_unit: np.ndarray
+    sigma_r: float
+    sigma_a: float
+
+    def angles(self, q: np.ndarray) -> np.ndarray:
+        """Field-gravity angle of each static row minus ``theta``, rad (unweighted)."""
+        k = self.k
+        mm = (self.y_static - q[:3]) @ sym_sqrt(self.kind, q[3:k])
+        if self.with_rot:
+            mm = Rotation.from_rotvec(q[k:k + 3]).apply(mm)
+        cos = np.sum(mm * self.a_unit, axis=1) / np.linalg.norm(mm, axis=1)
+        return np.arccos(np.clip(cos, -1.0, 1.0)) - q[-1]
+
+    def residual(self, q: np.ndarray) -> np.ndarray:
+        return np.concatenate([radial_residual(q[:self.k], self.kind, self.y_radial) / self.sigma_r,
+                               self.angles(q) / self.sigma_a])
+
+    def _matrix_derivatives(self, q: np.ndarray) -> tuple[np.ndarray, list]:
+        """``M`` and ``dM/dq_j`` of the shape and rotation parameters (in that order)."""
+        k = self.k
+        low = shape_matrix(self.kind, q[3:k])
+        a_mat = sym_sqrt(self.kind, q[3:k])
+        rot = Rotation.from_rotvec(q[k:k + 3]).as_matrix() if self.with_rot else np.eye(3)
+        unit = np.eye(3)
+        d_lows = [low] if self.kind == "offset" else [low[j, j] * np.outer(unit[j], unit[j]) for j in range(3)]
+        if self.kind == "full":
+            d_lows += [np.outer(unit[a], unit[b]) for a, b in ((1, 0), (2, 0), (2, 1))]
+        d_m = [rot @ solve_sylvester(a_mat, a_mat, d_low @ low.T + low @ d_low.T) for d_low in d_lows]
+        if self.with_rot:
+            d_m += [d_rot @ a_mat for d_rot in _rotation_derivatives(q[k:k + 3])]
+        return rot @ a_mat, d_m
+
+    def jacobian(self, q: np.ndarray) -> np.ndarray:
+        """d residual / d q, shape (radial rows + static rows, q.size)."""
+        k, n_r = self.k, len(self.y_radial)
+        jac = np.zeros((n_r + len(self.y_static), q.size))
+        for start in range(0, n_r, _JACOBIAN_CHUNK_ROWS):  # its temporaries a chunk at a time
+            rows = slice(start, min(start + _JACOBIAN_CHUNK_ROWS, n_r))
+            radial_jacobian(q[:k], self.kind, self.y_radial[rows], out=jac[rows, :k])
+        jac[:n_r] /= self.sigma_r
+        m_mat, d_m = self._matrix_derivatives(q)
+        d = self.y_static - q[:3]
+        mm = d @ m_mat.T
+        norm = np.linalg.norm(mm, axis=1)
+        u = mm / norm[:, None]
+        cos = np.sum(u * self.a_unit, axis=1)
+        sin = np.sqrt(np.clip(1.0 - cos * cos, 0.0, None))
+        inside = np.abs(cos) < 1.0
+        g = -(self.a_unit - cos[:, None] * u) / np.where(inside, norm * sin, np.inf)[:, None]
+        rows = jac[n_r:]
+        rows[:, :3] = -(g @ m_mat)
+        for j, d_mat in enumerate(d_m, start=3):
+            rows[:, j] = np.einsum("ij,ij->i", g, d @ d_mat.T)
+        rows[:, -1] = -1.0
+        rows /= self.sigma_a
+        return jac
+
+
 def refine_jointly(fit: KindFit, mag: np.ndarray, accel: np.ndarray, first: Misalignment) -> tuple[KindFit, Misalignment]:
     r"""Refit the ellipsoid, the rotation and the dip together.
 
@@ -168,32 +276,24 @@ def refine_jointly(fit: KindFit, mag: np.ndarray, accel: np.ndarray, first: Misa
     within ``OUTLIER_SIGMAS`` of both.
     """
     kind, k = fit.kind, fit.n_params
-    y = (np.asarray(mag, float) - fit.centre) / fit.radius
+    mag = np.asarray(mag, float)
     inl = fit.inliers
     static = inl & static_mask(accel)
     a_unit = accel[static] / np.linalg.norm(accel[static], axis=1, keepdims=True)
-    ys = y[static]
     with_rot = first.rotation is not None
-    sigma_r = max(robust_sigma(radial_residual(fit.params, kind, y[inl])), 1e-9)
-
-    def angles(q):
-        mm = (ys - q[:3]) @ sym_sqrt(kind, q[3:k])
-        if with_rot:
-            mm = Rotation.from_rotvec(q[k:k + 3]).apply(mm)
-        cos = np.sum(mm * a_unit, axis=1) / np.linalg.norm(mm, axis=1)
-        return np.arccos(np.clip(cos, -1.0, 1.0)) - q[-1]
-
+    y_inl, y_static = ((mag[rows] - fit.centre) / fit.radius for rows in (inl, static))
+    sigma_r = max(robust_sigma(radial_residual(fit.params, kind, y_inl)), 1e-9)
     q0 = np.concatenate([fit.params, np.radians(first.rotvec_deg) if with_rot else [], [np.radians(90.0 + first.dip_deg)]])
-    sigma_a = max(robust_sigma(angles(q0)), 1e-9)
-    use_r, use_a = np.ones(len(y[inl]), bool), np.ones(len(ys), bool)
-
-    def resid(q):
-        return np.concatenate([radial_residual(q[:k], kind, y[inl][use_r]) / sigma_r, angles(q)[use_a] / sigma_a])
-
-    robust = least_squares(resid, q0, loss="soft_l1", f_scale=2.0, tr_solver="lsmr", max_nfev=MAX_NFEV)
-    use_r = np.abs(radial_residual(robust.x[:k], kind, y[inl])) < OUTLIER_SIGMAS * sigma_r
-    use_a = np.abs(angles(robust.x)) < OUTLIER_SIGMAS * sigma_a
-    final = least_squares(resid, robust.x, method="lm", max_nfev=MAX_NFEV)
+    every = _JointResidual(kind, k, with_rot, y_inl, y_static, a_unit, sigma_r, 1.0)
+    sigma_a = max(robust_sigma(every.angles(q0)), 1e-9)
+    every = replace(every, sigma_a=sigma_a)
+    # only the parameters are kept from the robust fit: its result holds an (n, k) Jacobian
+    robust_x = least_squares(every.residual, q0, jac=every.jacobian, loss="soft_l1", f_scale=2.0, tr_solver="lsmr",
+                             max_nfev=MAX_NFEV).x
+    use_r = np.abs(radial_residual(robust_x[:k], kind, y_inl)) < OUTLIER_SIGMAS * sigma_r
+    use_a = np.abs(every.angles(robust_x)) < OUTLIER_SIGMAS * sigma_a
+    kept = replace(every, y_radial=y_inl[use_r], y_static=y_static[use_a], a_unit=a_unit[use_a])
+    final = least_squares(kept.residual, robust_x, jac=kept.jacobian, method="lm", max_nfev=MAX_NFEV)
     cov = fit_covariance(final, len(final.fun))
     h, sig_h, s_mat, sig_s, f_norm, sig_f = propagate(kind, final.x[:k], cov, fit.centre, fit.radius)
     resid_all = np.linalg.norm((mag - h) @ s_mat.T, axis=1) - f_norm

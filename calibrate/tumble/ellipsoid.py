@@ -126,18 +126,19 @@ def radial_residual(p, kind, y):
     return np.sqrt(np.einsum("ij,ij->i", z, z)) - 1.0
 
 
-def radial_jacobian(p, kind, y):
+def radial_jacobian(p, kind, y, out=None):
     """Analytic Jacobian of :func:`radial_residual`, shape (n, 3 + shape parameters).
 
     With ``d = y - h``, ``z = d L`` and ``u = z / |z|``: ``dr/dh = -L u`` and ``dr/dL_ij = d_i u_j``;
-    the diagonal of ``L`` is ``exp`` of its parameter, so ``dr/dp_k = d_k u_k L_kk`` there.
+    the diagonal of ``L`` is ``exp`` of its parameter, so ``dr/dp_k = d_k u_k L_kk`` there.  ``out``
+    (that shape, e.g. a block of a larger Jacobian) receives it instead of a new array.
     """
     low = shape_matrix(kind, p[3:])
     d = y - p[:3]
     z = d @ low
     norm = np.sqrt(np.einsum("ij,ij->i", z, z))
     u = z / norm[:, None]
-    jac = np.empty((len(y), len(p)))
+    jac = np.empty((len(y), len(p))) if out is None else out
     jac[:, :3] = -(u @ low.T)
     if kind == "offset":
         jac[:, 3] = norm
@@ -164,15 +165,15 @@ def _fit_kind(kind, y, p0, inlier_mask=None):
     """Robust fit, trimming, then a plain refit on the inliers; normalised units."""
     start = p0
     if inlier_mask is None:
-        first = least_squares(radial_residual, p0, jac=radial_jacobian, args=(kind, y), loss="soft_l1", f_scale=0.02,
-                              method="trf", tr_solver="lsmr", max_nfev=MAX_NFEV)
-        sigma = max(robust_sigma(radial_residual(first.x, kind, y)), 1e-9)
-        robust = least_squares(radial_residual, first.x, jac=radial_jacobian, args=(kind, y), loss="soft_l1", f_scale=2.0 * sigma,
-                               method="trf", tr_solver="lsmr", max_nfev=MAX_NFEV)
-        r = radial_residual(robust.x, kind, y)
+        # only the parameters are kept from the robust fits: their results hold an (n, k) Jacobian each
+        first_x = least_squares(radial_residual, p0, jac=radial_jacobian, args=(kind, y), loss="soft_l1", f_scale=0.02,
+                                method="trf", tr_solver="lsmr", max_nfev=MAX_NFEV).x
+        sigma = max(robust_sigma(radial_residual(first_x, kind, y)), 1e-9)
+        start = least_squares(radial_residual, first_x, jac=radial_jacobian, args=(kind, y), loss="soft_l1",
+                              f_scale=2.0 * sigma, method="trf", tr_solver="lsmr", max_nfev=MAX_NFEV).x
+        r = radial_residual(start, kind, y)
         sigma = max(robust_sigma(r), 1e-9)
         inlier_mask = np.abs(r - np.median(r)) < OUTLIER_SIGMAS * sigma
-        start = robust.x
     final = least_squares(radial_residual, start, jac=radial_jacobian, args=(kind, y[inlier_mask]), method="lm",
                           max_nfev=MAX_NFEV)
     return final, inlier_mask
