@@ -257,6 +257,16 @@ def kind_of(d: dict) -> str:
     return kind
 
 
+def hemisphere_assumed(d: dict) -> bool:
+    """The calibration (or an installed file's base) is a four-flip bench whose hemisphere was assumed, not
+    given: its data cannot tell ``(a, B)`` from ``(-a, -B)``, so a field read turned over points there."""
+    base = d.get("base") if kind_of(d) == "installed" else d
+    if not isinstance(base, dict) or kind_of(base) != "fourflip":
+        return False
+    hemisphere = base.get("hemisphere")
+    return not isinstance(hemisphere, dict) or bool(hemisphere.get("default", True))
+
+
 def from_dict(d) -> CalibrationFile:
     """Validate a calibration document (a parsed file) and build what the runtime needs.
 

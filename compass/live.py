@@ -140,6 +140,7 @@ class LiveSession:
     def _use_reference(self, reference) -> None:
         self.reference = reference
         self.config = replace(self.config, field_norm=reference.field_magnitude, dip_deg=reference.dip_deg)
+        self._filter = None  # one made before (samples of a header without accelerometer) had the bench's field
         self._event("info", f"reference field: {reference.description}")
         if self.sink is not None:
             self.sink.set_reference(reference.dip_deg, reference.description)
@@ -275,9 +276,7 @@ class LiveSession:
         if self._dips is not None and accel is not None:
             self._dips.append(est.dip_deg)
             if len(self._dips) >= UPSIDE_DOWN_SAMPLES:
-                self.turned_over = upside_down(np.array(self._dips), self.reference,
-                                               bench_sign_ambiguous=self.sign_from_bench)
-                self._dips = None
+                self._judge_turn()
         if est.gate != self._gate:
             self._event("info" if est.mag_used else "warn",
                         "field used again" if est.mag_used else
@@ -298,6 +297,11 @@ class LiveSession:
                           latency_ms=1e3 * latency, **({} if true is None else {"true_heading": true}))
         if not held:
             self.output_latencies_s.append(time.perf_counter() - t_rx)
+
+    def _judge_turn(self) -> None:
+        """The measured dips so far against the given reference: :attr:`turned_over` (once)."""
+        self.turned_over = upside_down(np.array(self._dips), self.reference, bench_sign_ambiguous=self.sign_from_bench)
+        self._dips = None
 
     def _count_skip(self, reason: str) -> None:
         self.skipped[reason] = self.skipped.get(reason, 0) + 1
@@ -353,8 +357,9 @@ class LiveSession:
     def close(self) -> None:
         """Flush the outputs (the CSV file stays open: its owner closes it).
 
-        The Rerun recording is finished only if it holds a sample; without one it is discarded, so a
-        session that never started leaves no empty ``.rrd`` behind and an existing file stays as it was.
+        The Rerun recording is finished only if it holds a sample and the field was not found turned
+        over; otherwise it is discarded, so a session that never started leaves no empty ``.rrd`` behind
+        and an existing file stays as it was.
         A stream that ended before its first quiet second has its held samples solved against the
         reference their rows give (:meth:`compass.site.QuietSeed.finish`), if ten of them do.
         """
@@ -362,7 +367,9 @@ class LiveSession:
             reference = self._seed.finish()
             if reference is not None:
                 self._seeded(reference)
-        if self.sink is not None:
-            self.sink.close() if self.samples > 0 else self.sink.discard()
+        if self._dips:  # a stream shorter than the check: judged on what it gave
+            self._judge_turn()
+        if self.sink is not None:  # a field turned over gives wrong headings: not kept
+            self.sink.close() if self.samples > 0 and self.turned_over is None else self.sink.discard()
         if self.out is not None:
             self.out.flush()

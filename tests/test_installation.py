@@ -386,6 +386,18 @@ def test_export_of_the_installed_calibration_reproduces_its_field(bench, tmp_pat
     model = load(out).model
     raw = np.asarray(truth["offsets"]) + np.random.default_rng(61).normal(scale=0.5, size=(20, 3))
     np.testing.assert_allclose((raw - offset) @ matrix.T, model.field(raw)[0], rtol=2e-5, atol=2e-4)
+    # a bench accelerometer off the housing (its mag_to_accel under "base"): Fusion gets the field in its frame
+    from scipy.spatial.transform import Rotation
+
+    turn = Rotation.from_rotvec(np.radians([10.0, -15.0, 20.0]))
+    doc = json.loads(out.read_text())
+    doc["base"]["mag_to_accel"] = turn.as_matrix().tolist()
+    turned = tmp_path / "installed_turned.json"
+    turned.write_text(json.dumps(doc))
+    assert main(["export", str(turned), "--format", "fusion"]) == 0
+    numbers = [float(v) for v in re.findall(r"-?\d+\.\d*(?:e-?\d+)?(?=f)", capsys.readouterr().out)]
+    matrix, offset = np.array(numbers[:9]).reshape(3, 3), np.array(numbers[9:12])
+    np.testing.assert_allclose((raw - offset) @ matrix.T, turn.apply(model.field(raw)[0]), rtol=2e-5, atol=2e-4)
 
 
 def test_level_swing_with_a_site_fits_the_same_iron(bench):

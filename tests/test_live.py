@@ -306,6 +306,11 @@ def test_live_against_a_site_whose_dip_has_the_other_sign_says_the_field_is_turn
     other_kind = LiveSession(model, reference=known_reference(-48.0, 45.0), sign_from_bench=False)
     _run(other_kind, stream)
     assert "upside down" in other_kind.turned_over and "site_lat_deg" not in other_kind.turned_over
+    short = LiveSession(model, reference=known_reference(-48.0, 45.0))  # fewer estimates than the check takes
+    short.feed(Chunk(time.perf_counter(), stream[: len(stream) // 40]))
+    assert short.turned_over is None and 10 < short.samples < 100
+    short.close()
+    assert "upside down" in short.turned_over  # judged on close, on what there was
 
 
 def test_a_stream_shorter_than_the_quiet_second_is_still_solved_when_it_ends():
@@ -451,3 +456,37 @@ def test_live_failing_on_a_wrong_header_keeps_the_recording_only_if_it_holds_sam
     else:
         assert rrd.read_bytes() == b"an older recording" and not att.exists()
         assert "wrote" not in captured.out
+
+
+def test_a_simulated_module_with_a_misaligned_accelerometer_reads_true_in_live():
+    """compass device --cal plays the module of a calibration whose accelerometer sits off the housing
+    (mag_to_accel): its accelerometer and gyro in their own frame, which live turns back (imu_to_model).
+    Before, the device sent them in the model's frame and live's turn tilted every attitude by it."""
+    from compass.accel_alignment import imu_to_model
+
+    model = default_model()
+    turn = Rotation.from_rotvec(np.radians([3.0, -2.0, 1.0]))
+    doc = model.to_json() | {"mag_to_accel": turn.as_matrix().tolist()}
+    to_model = imu_to_model(doc)
+    device = PtyDevice(model, rate_hz=100.0, imu_from_model=to_model.T)
+    samples = simulate_device(model, np.arange(1500) / 100.0, seed=4, imu_from_model=to_model.T)
+    session = LiveSession(model, out=io.StringIO(), to_product=to_model)
+    _run(session, device._header + b"".join(device._lines(samples, 0)))
+    rows = np.array([line.split(",") for line in session.out.getvalue().splitlines()[2:]], dtype=float)
+    _, pitch, roll, _ = scripted_motion(rows[:, 0])
+    late = rows[:, 0] > 3.0  # after the filter settled
+    assert np.sqrt(np.mean(wrap(rows[late, 2] - pitch[late]) ** 2)) < 0.5
+    assert np.sqrt(np.mean(wrap(rows[late, 3] - roll[late]) ** 2)) < 0.5
+
+
+def test_a_header_without_accelerometer_first_does_not_keep_the_bench_field_in_the_filter():
+    """Samples under a header without ax,ay,az reach the filter at once (no attitude to hold them for); the
+    reference seeded later from the full header's quiet second must reach the filter (it kept the bench's)."""
+    model, stream, _ = _site_stream(30.0, 45.0)
+    first = format_line(["t_s", "seq", *model.channels, "gx", "gy", "gz"]) + b"".join(  # the same filter kind
+        format_line([f"{k / 100:.2f}", k, 1.9, 1.7, 0.5, 0.0, 0.0, 0.0]) for k in range(5))
+    session = LiveSession(model, out=io.StringIO())
+    _run(session, first + stream)
+    assert abs(session.reference.dip_deg - 30.0) < 0.5 and session._filter.config.dip_deg == session.reference.dip_deg
+    rows = np.array([line.split(",") for line in session.out.getvalue().splitlines()[2:]], dtype=float)
+    assert rows[:, 8].mean() > 0.95  # mag_used: the field accepted against the site's dip

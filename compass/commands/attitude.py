@@ -76,7 +76,7 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     """
     from ..accel_alignment import accel_to_housing, housing_from_accel
     from ..attitude import UnusableCalibration, solve_attitude
-    from ..calibration_file import load
+    from ..calibration_file import hemisphere_assumed, load
     from ..cli import BadInput
     from ..installed import accel_to_product
 
@@ -143,8 +143,7 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
         check_two_axis_tilt(tilt_sensor.upside_down_rows(tilt_raw, model.field(raw, temp_c)[0],
                                                          result.reference.dip_deg), len(raw), where=table.path)
     elif result.mode == "accelerometer":  # dips against a full up vector: a turned-over field shows
-        flipped = upside_down(result.dip_deg, result.reference,
-                              bench_sign_ambiguous=cal.data.get("model", "fourflip") == "fourflip")
+        flipped = upside_down(result.dip_deg, result.reference, bench_sign_ambiguous=hemisphere_assumed(cal.data))
         if flipped is not None:
             raise BadInput(f"{calibration}: {flipped}")
     columns = ({"t_s": table.column("t_s")} if table.has("t_s") else {}) | result.columns()

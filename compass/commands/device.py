@@ -41,16 +41,21 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from ..accel_alignment import imu_to_model
+    from ..calibration_file import load
     from ..calibration_file import write as write_calibration
     from ..cli import BadInput
-    from ..model import SensorModel
     from ..sim.device import MOTIONS, PtyDevice, default_model
 
+    imu_from_model = None
     if args.cal is not None:
         try:
-            model = SensorModel.from_file(args.cal)
+            cal = load(args.cal)
         except ValueError as exc:
             raise BadInput(str(exc)) from None
+        model, to_model = cal.model, imu_to_model(cal.data)
+        # the module's accelerometer and gyro in their own frame, which compass live turns into the model's
+        imu_from_model = None if to_model is None else to_model.T
         if model.dip_deg is None:
             raise BadInput(f"{args.cal}: the calibration has no dip_deg: the module cannot simulate its field")
     else:
@@ -65,6 +70,7 @@ def run(args) -> int:
         device = PtyDevice(model, rate_hz=args.rate, seed=args.seed, link=args.link, garbage_rate=args.garbage,
                            truncate_rate=args.truncate, disconnect_at_s=args.disconnect_at,
                            disconnect_for_s=args.disconnect_for, gyro=not args.no_gyro, motion=MOTIONS[args.motion],
+                           imu_from_model=imu_from_model,
                            on_path=lambda path: print(args.link or path, flush=True))
     except ValueError as exc:
         raise BadInput(str(exc)) from None

@@ -69,6 +69,7 @@ def load_tumble(path) -> dict:
         (validated: finite, soft iron symmetric positive definite, a proper rotation), and
         ``field_norm_recording_units`` (|B| in the recording's unit, float or None).
     """
+    from ..accel_alignment import imu_to_model
     from ..calibration_file import load
     from ..cli import BadInput
 
@@ -81,9 +82,11 @@ def load_tumble(path) -> dict:
             form = channel_form(cal.model)
         except ValueError as exc:
             raise BadInput(f"{path}: a {cal.kind} calibration cannot be exported: {exc}") from None
-        to_accel = cal.sections.get("mag_to_accel")  # a bench accelerometer's R_accel<-H: the field in its frame
-        if to_accel is not None:
-            form["mag_to_accel"] = to_accel @ form["mag_to_accel"]
+        # the field in the accelerometer's frame, as Fusion fuses it: back from the model's frame (H, or an
+        # installed file's product frame) through the bench's mag_to_accel and the installation's alignment
+        to_model = imu_to_model(cal.data)
+        if to_model is not None:
+            form["mag_to_accel"] = to_model.T @ form["mag_to_accel"]
         return form
     d = cal.data
     c = d.get("mag_to_accel")

@@ -57,7 +57,7 @@ def run(args) -> int:
     from ..io.atomic import check_writable
     from ..io.units import GYRO_UNITS
     from ..live import LiveSession
-    from ..calibration_file import load
+    from ..calibration_file import hemisphere_assumed, load
     from ..accel_alignment import imu_to_model
 
     if args.calibrate == "tumble":
@@ -97,11 +97,14 @@ def run(args) -> int:
                 out = outputs.enter_context(open(out_path, "w", encoding="utf-8", buffering=1 << 16))
             session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event, reference=reference,
                                   to_product=to_product, gyro_rad_s_per_unit=GYRO_UNITS[args.gyro_unit],
-                                  sign_from_bench=cal.data.get("model", "fourflip") == "fourflip")
+                                  sign_from_bench=hemisphere_assumed(cal.data))
             _run_session(args, reader, session, out, tty, every_s)
+            if session.turned_over is not None:  # judged on close: a stream shorter than the check
+                raise BadInput(f"{args.cal}: {session.turned_over}")
             failed = False
     finally:
-        recorded = session is not None and session.samples > 0  # rows written, not lines decoded
+        # rows written, not lines decoded; a field found turned over gave wrong headings: not kept
+        recorded = session is not None and session.samples > 0 and session.turned_over is None
         if out is not None and not recorded:
             out_path.unlink(missing_ok=True)  # opened by this run and holding no sample: leave nothing behind
         if sink is not None and session is None:

@@ -140,7 +140,8 @@ def default_model() -> SensorModel:
 
 
 def simulate_device(model: SensorModel, t_s, *, motion=scripted_motion, seed: int = 0, accel_noise_g: float = 0.002,
-                    gyro_noise: float = 3e-4, gyro_bias=None, rate_hz: float | None = None) -> DeviceSamples:
+                    gyro_noise: float = 3e-4, gyro_bias=None, rate_hz: float | None = None,
+                    imu_from_model=None) -> DeviceSamples:
     """The module's samples at times ``t_s``.
 
     Parameters
@@ -161,6 +162,10 @@ def simulate_device(model: SensorModel, t_s, *, motion=scripted_motion, seed: in
         Constant gyro bias, rad/s; default drawn with 0.01 rad/s per axis.
     rate_hz : float, optional
         Sample rate for the gyro noise; default from the spacing of ``t_s``.
+    imu_from_model : ndarray, shape (3, 3), optional
+        The rotation taking the model's frame into the module's accelerometer (and gyro) frame: the
+        transpose of :func:`compass.accel_alignment.imu_to_model` of its calibration file (a bench
+        ``mag_to_accel``, an installed alignment); default the model's frame.
     """
     t = np.asarray(t_s, dtype=float)
     rng = np.random.default_rng(seed)
@@ -182,6 +187,8 @@ def simulate_device(model: SensorModel, t_s, *, motion=scripted_motion, seed: in
     n = len(t)
     accel = rot.apply(np.array([0.0, 0.0, 1.0]), inverse=True).reshape(n, 3) + accel_noise_g * rng.normal(size=(n, 3))
     gyro = omega_h.reshape(n, 3) + bias + gyro_noise * np.sqrt(rate_hz) * rng.normal(size=(n, 3))
+    if imu_from_model is not None:
+        accel, gyro = accel @ np.transpose(imu_from_model), gyro @ np.transpose(imu_from_model)
     return DeviceSamples(t, raw, accel, gyro, rot, heading, pitch, roll, magnet)
 
 
@@ -208,6 +215,8 @@ class PtyDevice:
     motion : callable
         ``motion(t_s) -> (heading_deg, pitch_deg, roll_deg, magnet)``: :func:`scripted_motion`
         (default) or :func:`tumble_motion`.
+    imu_from_model : ndarray, shape (3, 3), optional
+        The accelerometer's and gyro's frame against the model's (see :func:`simulate_device`).
 
     Attributes
     ----------
@@ -228,6 +237,7 @@ class PtyDevice:
     disconnect_for_s: float = 1.0
     gyro: bool = True
     motion: object = scripted_motion
+    imu_from_model: object = None
     path: str | None = None
     counts: dict = field(default_factory=lambda: dict.fromkeys(
         ("samples", "garbage", "truncated", "overflow", "disconnects"), 0))
@@ -286,7 +296,7 @@ class PtyDevice:
                     if not len(t):
                         break
                 samples = simulate_device(self.model, t, motion=self.motion, seed=self.seed + sent,
-                                          rate_hz=self.rate_hz,
+                                          rate_hz=self.rate_hz, imu_from_model=self.imu_from_model,
                                           gyro_bias=np.random.default_rng(self.seed).normal(0.0, 0.01, 3))
                 for i, line in enumerate(self._lines(samples, sent)):
                     t_i = t[i]
