@@ -13,9 +13,13 @@ calibration sits under ``"base"``; its ``mag_to_accel`` applies before the insta
 
 from __future__ import annotations
 
+import warnings
+from dataclasses import dataclass
+
 import numpy as np
 
-__all__ = ["accel_to_housing", "housing_from_accel", "imu_to_model", "read_mag_to_accel"]
+__all__ = ["AccelCorrection", "accel_correction", "accel_to_housing", "housing_from_accel", "imu_to_model",
+           "read_mag_to_accel"]
 
 _FOLDED_KINDS = ("tumble",)  # kinds whose sensor model is already in the accelerometer's frame
 
@@ -44,13 +48,76 @@ def housing_from_accel(document: dict) -> np.ndarray | None:
     return None if rotation is None else rotation.T
 
 
+@dataclass(frozen=True)
+class AccelCorrection:
+    """The bench accelerometer's offsets and Y/Z scales (the four-flip's ``accelerometer`` block), undone
+    at runtime: ``a' = (a - offset) / (1, s_y, s_z)`` (the X scale is not identifiable on the bench: 1).
+
+    They are in the bench recording's unit; a runtime stream in another unit (m/s^2 where the bench had
+    g, counts of another range) must not get them: :meth:`fits` asks that the corrected |a| read 1 g
+    as the bench's did, within ``[0.7, 1.4]`` (units differ by 4x or more; motion and noise by less).
+
+    Attributes
+    ----------
+    offset : ndarray, shape (3,)
+        Zero offsets, the bench recording's unit.
+    scale : ndarray, shape (3,)
+        Per-axis scale relative to the bench's 1 g reading (X: 1).
+    one_g : float
+        The bench's reading of 1 g.
+    """
+
+    offset: np.ndarray
+    scale: np.ndarray
+    one_g: float
+
+    def apply(self, accel) -> np.ndarray:
+        """Readings (..., 3) with the offsets and scales undone, the same unit."""
+        return (np.asarray(accel, dtype=float) - self.offset) / self.scale
+
+    def fits(self, accel) -> bool:
+        """The readings (n, 3), corrected, read 1 g as the bench's did (their median |a| within [0.7, 1.4] of it)."""
+        norms = np.linalg.norm(self.apply(np.atleast_2d(accel)), axis=1)
+        norms = norms[np.isfinite(norms)]
+        return norms.size > 0 and 0.7 <= float(np.median(norms)) / self.one_g <= 1.4
+
+
+def accel_correction(document: dict) -> AccelCorrection | None:
+    """The bench accelerometer's correction of a calibration (or of an installed one's base), None without one."""
+    base = document.get("base") if document.get("model") == "installed" else document
+    block = base.get("accelerometer") if isinstance(base, dict) else None
+    try:
+        offset, scale_yz, one_g = (np.asarray(block[k], dtype=float) for k in ("offset", "scale_yz", "one_g"))
+    except (KeyError, TypeError, ValueError):
+        return None
+    scale = np.concatenate([[1.0], scale_yz]) if scale_yz.shape == (2,) else None
+    if offset.shape != (3,) or scale is None or not (np.all(np.isfinite(offset)) and np.all(scale > 0)
+                                                     and float(one_g) > 0):
+        return None
+    return AccelCorrection(offset, scale, float(one_g))
+
+
 def accel_to_housing(document: dict, accel):
     """Accelerometer readings (n, 3) in the housing frame H of the calibration's sensor model.
 
-    Unchanged when the calibration has no ``mag_to_accel`` (or folds it into its model) or ``accel`` is None.
+    The bench accelerometer's offsets and scales undone first when the readings are in the bench's unit
+    (:class:`AccelCorrection`; a warning when they are not), then turned by ``mag_to_accel^T``.  Unchanged
+    when the calibration has neither (a tumble folds its rotation into its model) or ``accel`` is None.
     """
+    if accel is None:
+        return accel
+    correction = accel_correction(document)
+    if correction is not None:
+        if correction.fits(accel):
+            accel = correction.apply(accel)
+        else:
+            from .io.units import RecordingWarning
+
+            warnings.warn(RecordingWarning(
+                f"the accelerometer does not read 1 g as on the bench ({correction.one_g:.4g}): another unit? Its "
+                "bench offsets and scales are not applied"))
     rotation = housing_from_accel(document)
-    if accel is None or rotation is None:
+    if rotation is None:
         return accel
     return np.asarray(accel, dtype=float) @ rotation.T
 

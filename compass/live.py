@@ -58,6 +58,9 @@ class LiveSession:
     gyro_rad_s_per_unit : float
         What one unit of the module's gyro is in rad/s (``--gyro-unit``: 1 for rad/s, pi/180 for
         deg/s); the line protocol's default unit is rad/s.
+    accel_correction : compass.accel_alignment.AccelCorrection, optional
+        The bench accelerometer's offsets and scales, undone before ``to_product`` when the stream's
+        first accelerometer readings read 1 g as the bench's did (else said once and not applied).
     sign_from_bench : bool
         The calibration is a four-flip bench's, whose data cannot tell the hemisphere: an upside-down
         verdict then names that cause (:func:`compass.site.upside_down`).
@@ -97,6 +100,7 @@ class LiveSession:
     reference: object = None
     to_product: object = None
     gyro_rad_s_per_unit: float = 1.0
+    accel_correction: object = None
     sign_from_bench: bool = True
     decoder: LineDecoder = field(init=False)
     turned_over: str | None = None
@@ -118,6 +122,7 @@ class LiveSession:
     _seed: QuietSeed | None = None
     _held: list = field(default_factory=list)
     _dips: list | None = None  # measured dips of the first estimates, against a given reference
+    _accel_judged: bool = False  # accel_correction checked against the stream's unit
 
     def __post_init__(self):
         self.decoder = LineDecoder(self.model.channels)
@@ -172,11 +177,14 @@ class LiveSession:
         fields, in_range = self._fields(samples)
         field_rows, in_range = fields.tolist(), in_range.tolist()
         per_unit, to_product = self.gyro_rad_s_per_unit, self.to_product
+        fix = self._accel_fix(samples)
         readings = []
         for k, sample in enumerate(samples):
             accel, gyro = sample.accel, sample.gyro
             if gyro is not None and per_unit != 1.0:
                 gyro = per_unit * gyro
+            if fix is not None and accel is not None:
+                accel = (accel - fix.offset) / fix.scale
             if to_product is not None:  # an installed model in the product's frame
                 accel = None if accel is None else to_product @ accel
                 gyro = None if gyro is None else to_product @ gyro
@@ -189,6 +197,21 @@ class LiveSession:
                 self._seeding(reading, codes[k])
             else:
                 self._sample(*reading)
+
+    def _accel_fix(self, samples: list):
+        """The accelerometer correction to apply, judged once on the first chunk with accelerometer readings."""
+        if self.accel_correction is None or self._accel_judged:
+            return self.accel_correction
+        accel = [s.accel for s in samples if s.accel is not None]
+        if not accel:
+            return None
+        self._accel_judged = True
+        if not self.accel_correction.fits(np.array(accel)):
+            self._event("warn", f"the accelerometer does not read 1 g as on the bench "
+                                f"({self.accel_correction.one_g:.4g}): another unit? Its bench offsets and scales "
+                                "are not applied")
+            self.accel_correction = None
+        return self.accel_correction
 
     def _fields(self, samples: list) -> tuple[np.ndarray, np.ndarray]:
         """The samples' field in H (temperature-compensated when the calibration can), shape (n, 3), and

@@ -202,14 +202,16 @@ def test_cli_simulates_and_calibrates_the_accelerometer(tmp_path, capsys):
 
 
 def test_imu_rotation_into_the_model_frame_composes_bench_and_installation():
-    from compass.accel_alignment import accel_to_housing, imu_to_model
+    from compass.accel_alignment import accel_correction, accel_to_housing, imu_to_model
 
     session = simulate_fourflip(seed=13, accelerometer=SimAccelerometer())
     doc = calibrate_fourflip(session.recording(), diagnose=False).to_json()
     m = np.array(doc["mag_to_accel"])
     assert np.allclose(imu_to_model(doc), m.T)
     a = np.array([[0.1, 0.2, 0.97]])
-    assert np.allclose(accel_to_housing(doc, a), a @ m)  # a_H = m^T a
+    fix = accel_correction(doc)  # the bench's offsets (none simulated: noise-small) and Y/Z scales undone first
+    assert np.all(np.abs(fix.offset) < 0.002) and np.all(np.abs(fix.scale - 1) < 0.002)
+    assert np.allclose(accel_to_housing(doc, a), fix.apply(a) @ m)  # a_H = m^T a
     align = Rotation.from_euler("z", 30, degrees=True).as_matrix()
     installed = {"model": "installed", "base": doc, "installation": {"alignment": align.tolist()}}
     assert np.allclose(imu_to_model(installed), align @ m.T)
@@ -246,3 +248,33 @@ def test_a_knock_is_left_out_and_said():
     assert fit.glitches_dropped == 2 and any("glitches" in w for w in fit.warnings)
     clean = fit_accelerometer(rec.accel, rec.platform_deg, rec.flip_deg, rec.flip_index)
     assert clean.glitches_dropped == 0  # Gaussian noise: 8 sigma never happens
+
+
+def test_bench_offsets_and_scales_are_undone_at_runtime_only_in_the_bench_unit():
+    """Offsets of 0.02 g, measured on the bench: undone, pitch and roll come back to the aligned accelerometer's
+    floor (scale errors would leave the X axis's, which the flips cannot see); the same readings in m/s^2 do not read 1 g as the bench's did, so they only
+    get the rotation, with a warning (the bench's offsets are in g)."""
+    from compass.accel_alignment import accel_correction, accel_to_housing, housing_from_accel
+    from compass.attitude import solve_attitude
+    from compass.calibration_file import from_dict
+    from compass.io.units import RecordingWarning
+    from compass.sim.runtime import simulate_runtime
+
+    session = simulate_fourflip(seed=16, accelerometer=SimAccelerometer(misalign_deg=1.0, offset_g=0.02))
+    doc = calibrate_fourflip(session.recording(), diagnose=False).to_json()
+    model = from_dict(doc).model
+    run = simulate_runtime(session.truth, 600, seed=17, max_tilt_deg=40.0)
+    aligned = simulate_runtime({**session.truth, "effects": []}, 600, seed=17, max_tilt_deg=40.0)
+
+    def tilt_rms(accel, rt=run):
+        att = solve_attitude(model, rt.outputs, accel=accel)
+        return float(np.sqrt(np.mean(np.concatenate([att.pitch_deg - rt.pitch_deg, att.roll_deg - rt.roll_deg]) ** 2)))
+
+    floor = tilt_rms(aligned.accel, aligned)
+    rotated_only = tilt_rms(run.accel @ housing_from_accel(doc).T)
+    corrected = tilt_rms(accel_to_housing(doc, run.accel))
+    assert rotated_only > 3 * floor and corrected < 1.2 * floor + 0.01
+    with pytest.warns(RecordingWarning, match="does not read 1 g"):
+        in_si = accel_to_housing(doc, 9.80665 * run.accel)
+    np.testing.assert_allclose(in_si, 9.80665 * run.accel @ housing_from_accel(doc).T)
+    assert accel_correction(doc).fits(run.accel) and not accel_correction(doc).fits(9.80665 * run.accel)

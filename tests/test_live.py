@@ -490,3 +490,29 @@ def test_a_header_without_accelerometer_first_does_not_keep_the_bench_field_in_t
     assert abs(session.reference.dip_deg - 30.0) < 0.5 and session._filter.config.dip_deg == session.reference.dip_deg
     rows = np.array([line.split(",") for line in session.out.getvalue().splitlines()[2:]], dtype=float)
     assert rows[:, 8].mean() > 0.95  # mag_used: the field accepted against the site's dip
+
+
+@pytest.mark.parametrize("unit, applied", [(1.0, True), (9.80665, False)], ids=["g", "m/s2"])
+def test_live_undoes_the_bench_accelerometer_offsets_only_in_the_bench_unit(unit, applied):
+    """A module whose accelerometer reads 0.03 g off on X and Y, measured on the bench (in g): live undoes it
+    and the tilt is the aligned module's; a stream in m/s^2 does not read 1 g as the bench did, so it is said
+    once and not applied (the tilt keeps the offset's error)."""
+    from dataclasses import replace
+
+    from compass.accel_alignment import AccelCorrection
+
+    model = default_model()
+    offset = np.array([0.03, -0.03, 0.0])
+    device = PtyDevice(model, rate_hz=100.0)
+    samples = simulate_device(model, np.arange(1500) / 100.0, seed=5)
+    stream = device._header + b"".join(device._lines(replace(samples, accel=unit * (samples.accel + offset)), 0))
+    events = []
+    fix = AccelCorrection(offset, np.ones(3), 1.0)
+    session = LiveSession(model, out=io.StringIO(), accel_correction=fix, on_event=lambda lv, t: events.append(t))
+    _run(session, stream)
+    rows = np.array([line.split(",") for line in session.out.getvalue().splitlines()[2:]], dtype=float)
+    _, pitch, roll, _ = scripted_motion(rows[:, 0])
+    late = rows[:, 0] > 3.0
+    tilt = np.sqrt(np.mean(np.concatenate([wrap(rows[late, 2] - pitch[late]), wrap(rows[late, 3] - roll[late])]) ** 2))
+    said = any("does not read 1 g" in e for e in events)
+    assert said != applied and (tilt < 0.5) == applied  # 0.03 g left in: about 1.7 deg

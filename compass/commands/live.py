@@ -58,7 +58,7 @@ def run(args) -> int:
     from ..io.units import GYRO_UNITS
     from ..live import LiveSession
     from ..calibration_file import hemisphere_assumed, load
-    from ..accel_alignment import imu_to_model
+    from ..accel_alignment import accel_correction, imu_to_model
 
     if args.calibrate == "tumble":
         from ._live_tumble import run_tumble
@@ -97,7 +97,7 @@ def run(args) -> int:
                 out = outputs.enter_context(open(out_path, "w", encoding="utf-8", buffering=1 << 16))
             session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event, reference=reference,
                                   to_product=to_product, gyro_rad_s_per_unit=GYRO_UNITS[args.gyro_unit],
-                                  sign_from_bench=hemisphere_assumed(cal.data))
+                                  accel_correction=accel_correction(cal.data), sign_from_bench=hemisphere_assumed(cal.data))
             _run_session(args, reader, session, out, tty, every_s)
             if session.turned_over is not None:  # judged on close: a stream shorter than the check
                 raise BadInput(f"{args.cal}: {session.turned_over}")
