@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["AccelCorrection", "accel_correction", "accel_to_housing", "housing_from_accel", "imu_to_model",
+__all__ = ["AccelCorrection", "accel_correction", "accel_in_housing", "accel_to_housing", "housing_from_accel", "imu_to_model",
            "read_mag_to_accel"]
 
 _FOLDED_KINDS = ("tumble",)  # kinds whose sensor model is already in the accelerometer's frame
@@ -81,6 +81,12 @@ class AccelCorrection:
         norms = norms[np.isfinite(norms)]
         return norms.size > 0 and 0.7 <= float(np.median(norms)) / self.one_g <= 1.4
 
+    @property
+    def not_fitting(self) -> str:
+        """What to tell a user whose readings do not :meth:`fit`."""
+        return (f"the accelerometer does not read 1 g as on the bench ({self.one_g:.4g}): another unit? Its bench "
+                "offsets and scales are not applied")
+
 
 def accel_correction(document: dict) -> AccelCorrection | None:
     """The bench accelerometer's correction of a calibration (or of an installed one's base), None without one."""
@@ -97,29 +103,31 @@ def accel_correction(document: dict) -> AccelCorrection | None:
     return AccelCorrection(offset, scale, float(one_g))
 
 
-def accel_to_housing(document: dict, accel):
-    """Accelerometer readings (n, 3) in the housing frame H of the calibration's sensor model.
+def accel_in_housing(document: dict, accel) -> tuple:
+    """Accelerometer readings (n, 3) in the housing frame H of the calibration's sensor model, and whether
+    the bench's offsets and scales were undone.
 
-    The bench accelerometer's offsets and scales undone first when the readings are in the bench's unit
-    (:class:`AccelCorrection`; a warning when they are not), then turned by ``mag_to_accel^T``.  Unchanged
-    when the calibration has neither (a tumble folds its rotation into its model) or ``accel`` is None.
+    They are undone first when the readings are in the bench's unit (:class:`AccelCorrection`; a warning
+    when they are not), then the readings are turned by ``mag_to_accel^T``.  Unchanged when the calibration
+    has neither (a tumble folds its rotation into its model) or ``accel`` is None.
     """
     if accel is None:
-        return accel
-    correction = accel_correction(document)
+        return accel, False
+    correction, undone = accel_correction(document), False
     if correction is not None:
         if correction.fits(accel):
-            accel = correction.apply(accel)
+            accel, undone = correction.apply(accel), True
         else:
             from .io.units import RecordingWarning
 
-            warnings.warn(RecordingWarning(
-                f"the accelerometer does not read 1 g as on the bench ({correction.one_g:.4g}): another unit? Its "
-                "bench offsets and scales are not applied"))
+            warnings.warn(RecordingWarning(correction.not_fitting))
     rotation = housing_from_accel(document)
-    if rotation is None:
-        return accel
-    return np.asarray(accel, dtype=float) @ rotation.T
+    return (accel if rotation is None else np.asarray(accel, dtype=float) @ rotation.T), undone
+
+
+def accel_to_housing(document: dict, accel):
+    """:func:`accel_in_housing`'s readings alone."""
+    return accel_in_housing(document, accel)[0]
 
 
 def imu_to_model(document: dict) -> np.ndarray | None:

@@ -184,7 +184,7 @@ class LiveSession:
             if gyro is not None and per_unit != 1.0:
                 gyro = per_unit * gyro
             if fix is not None and accel is not None:
-                accel = (accel - fix.offset) / fix.scale
+                accel = fix.apply(accel)
             if to_product is not None:  # an installed model in the product's frame
                 accel = None if accel is None else to_product @ accel
                 gyro = None if gyro is None else to_product @ gyro
@@ -207,9 +207,7 @@ class LiveSession:
             return None
         self._accel_judged = True
         if not self.accel_correction.fits(np.array(accel)):
-            self._event("warn", f"the accelerometer does not read 1 g as on the bench "
-                                f"({self.accel_correction.one_g:.4g}): another unit? Its bench offsets and scales "
-                                "are not applied")
+            self._event("warn", self.accel_correction.not_fitting)
             self.accel_correction = None
         return self.accel_correction
 

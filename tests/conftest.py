@@ -10,6 +10,15 @@ def angle_deg(a, b):
     return np.degrees(np.arccos(np.clip(np.sum(np.asarray(a) * np.asarray(b), axis=-1), -1.0, 1.0)))
 
 
+def every_row_alone(*keys):
+    """Each row its own group (``SampleGroups.of`` patched with it): the fits on every sample, which the fits
+    on means are checked against."""
+    from calibrate.diagnosis.offsets import SampleGroups
+
+    n = len(keys[0])
+    return SampleGroups(np.arange(n), np.ones(n, dtype=int), np.arange(n))
+
+
 @pytest.fixture
 def write_session(tmp_path):
     """Simulate, write and read back a four-flip session: returns (recording, truth)."""

@@ -12,6 +12,7 @@ from calibrate.platform3d import calibrate_platform3d
 from compass.cli import main
 from compass.io.platform3d import read_platform3d
 from compass.sim.platform3d import simulate_platform3d, write_platform3d
+from tests.conftest import every_row_alone
 
 SESSION_S = 1800.0
 N_SIGMA = 4.5  # as the platform's other truth tests
@@ -20,12 +21,6 @@ N_SIGMA = 4.5  # as the platform's other truth tests
 def fit(tmp_path, sim, name="rec.csv"):
     path, _ = write_platform3d(sim, tmp_path / name)
     return calibrate_platform3d(read_platform3d(path))
-
-
-def every_row_alone(*keys) -> SampleGroups:
-    """Each row its own group: the fits on every sample (what the fits on means are checked against)."""
-    n = len(keys[0])
-    return SampleGroups(np.arange(n), np.ones(n, dtype=int), np.arange(n))
 
 
 def rms_tolerance(sim) -> float:

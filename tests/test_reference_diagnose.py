@@ -126,13 +126,10 @@ def test_fitting_field_means_is_fitting_every_sample(tmp_path, monkeypatch):
     # repeats of one applied field carry their mean and count: the diagnosis block from the fits on the
     # means must be the one from the fits on every sample
     from calibrate.diagnosis.offsets import SampleGroups
+    from tests.conftest import every_row_alone
 
     sim = simulate_reference(seed=36, n_fields=24, repeats=4, noise=0.05)
     grouped = fit(tmp_path, sim).to_json()["diagnosis"]
-
-    def every_row_alone(*keys):
-        n = len(keys[0])
-        return SampleGroups(np.arange(n), np.ones(n, dtype=int), np.arange(n))
 
     monkeypatch.setattr(SampleGroups, "of", staticmethod(every_row_alone))
     per_sample = fit(tmp_path, sim, "again.csv").to_json()["diagnosis"]

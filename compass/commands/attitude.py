@@ -74,7 +74,7 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     RecordingError, BadInput, FileExistsError
         Bad input (exit status 2 on the command line).
     """
-    from ..accel_alignment import accel_correction, accel_to_housing, housing_from_accel
+    from ..accel_alignment import accel_in_housing, housing_from_accel
     from ..attitude import UnusableCalibration, solve_attitude
     from ..calibration_file import hemisphere_assumed, load
     from ..cli import BadInput
@@ -113,9 +113,7 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     else:  # a 3-D platform calibration: ax, ay[, az] are its tilt sensor's raw outputs
         tilt_raw = _group(table, tilt_sensor.columns)
         accel = tilt_sensor.up(tilt_raw)
-    bench_fix = accel_correction(cal.data)
-    bench_fix_applied = bench_fix is not None and accel is not None and bench_fix.fits(accel)
-    accel = accel_to_housing(cal.data, accel)  # the bench accelerometer's offsets undone, turned into H
+    accel, bench_fix_applied = accel_in_housing(cal.data, accel)  # the bench's offsets undone, turned into H
     accel = accel_to_product(cal.data, accel)  # an installed file with an alignment: the product's frame
     tilt = _group(table, _TILT)
     if accel is not None:
