@@ -1,6 +1,7 @@
 """Every written file: atomic, refused without --force, the user's umask, no temp file left for long (16.8)."""
 
 import os
+import select
 import signal
 import stat
 import subprocess
@@ -94,6 +95,7 @@ def test_a_write_killed_midway_leaves_the_old_file_and_the_next_write_clears_its
     target.write_text("old")
     writer = subprocess.Popen([sys.executable, "-c", _SLOW_WRITER, str(target)], stdout=subprocess.PIPE, text=True)
     try:
+        assert select.select([writer.stdout], [], [], 60)[0], "the writer never reached its write window"
         assert writer.stdout.readline().strip() == "writing"  # the process prints only when in the write window
         writer.send_signal(signal.SIGKILL)
         writer.wait(30)
