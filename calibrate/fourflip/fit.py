@@ -152,26 +152,31 @@ class FourFlipCalibrator(Calibrator):
         result = calibrate_fourflip(recording, method=self.method, field_ut=self.field_ut,
                                     site=_bench_site(self.site, self.date, recording), diagnose=self.diagnose,
                                     progress=self.progress)
-        health = channel_health(result, len(result.used(recording).platform_deg))
+        health = channel_health(result, recording)
         warnings = check_channels(recording.path, health, axis_tolerance_deg=self.axis_tolerance_deg,
                                   direction_accuracy_deg=self.direction_accuracy_deg)
         return replace(result, warnings=result.warnings + warnings,
                        extra=result.extra | {"channel_health": health_json(health)})
 
 
-def channel_health(result: CalibrationResult, n_samples: int) -> list[ChannelHealth]:
+def channel_health(result: CalibrationResult, rec: FourFlipRecording) -> list[ChannelHealth]:
     """Each channel's response to the whole field, its noise and direction (:mod:`calibrate.health`).
 
-    The response is the gain times |B| (|B| = 1 when gains are per |B|); its sigma the fit's, or for
-    the seed's rules (no sigma) that of a sinusoid's amplitude fitted to ``n_samples`` samples,
-    ``noise sqrt(2 / n)``.
+    The response is the gain times |B| (|B| = 1 when gains are per |B|) with the joint fit's sigma.
+    The seed's rules give no sigma, and their gain from extreme samples is far from zero even on pure
+    noise; their response's significance is then that of the strongest flip's first harmonic (each
+    coefficient's sigma ``rms sqrt(2 / n_flip)``), fitted to the samples the fit used.
     """
     field = result.field_ut or 1.0
+    used = result.used(rec)
+    harmonics = hm.fit_harmonics(used.platform_deg, used.flip_index, used.outputs)
+    counts = np.bincount(used.flip_index, minlength=4)[:, None]
+    significance = np.max(np.hypot(harmonics.cos, harmonics.sin) / (harmonics.residual_rms * np.sqrt(2.0 / counts)), axis=0)
     out = []
-    for ch, noise in zip(result.channels, result.noise):
-        sigma = ch.gain_sigma * field if ch.gain_sigma is not None else noise * np.sqrt(2.0 / max(n_samples, 1))
-        out.append(ChannelHealth(ch.name, ch.response.gain * field, float(sigma), float(noise), ch.direction,
-                                 ch.direction_sigma_deg))
+    for c, (ch, noise) in enumerate(zip(result.channels, result.noise)):
+        response = ch.response.gain * field
+        sigma = ch.gain_sigma * field if ch.gain_sigma is not None else response / significance[c]
+        out.append(ChannelHealth(ch.name, response, float(sigma), float(noise), ch.direction, ch.direction_sigma_deg))
     return out
 
 
