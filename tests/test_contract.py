@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from calibrate.contract import Calibration, Calibrator, CannotCalibrate
 from calibrate.kinds import KINDS, sniff
 from compass.attitude import solve_attitude
-from compass.calibration_file import FORMAT, KIND_KEY, dumps, load
+from compass.calibration import FORMAT, KIND_KEY, dumps, load
 from compass.cli import main
 from compass.io.table import read_table
 
@@ -64,7 +64,7 @@ def tumble_session(tmp_path):
 def installed_session(tmp_path):
     """A four-flip bench sensor in a product (hard and soft iron), tumbled; '# base:' names its bench file."""
     from calibrate import calibrate_fourflip
-    from compass.calibration_file import dumps
+    from compass.calibration import dumps
     from compass.io.fourflip import read_fourflip
     from compass.sim.fourflip import simulate_fourflip, write_fourflip
     from compass.sim.installation import random_installation, simulate_installation, write_installation

@@ -74,11 +74,9 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     RecordingError, BadInput, FileExistsError
         Bad input (exit status 2 on the command line).
     """
-    from ..accel_alignment import accel_in_housing, housing_from_accel
     from ..attitude import UnusableCalibration, solve_attitude
-    from ..calibration_file import hemisphere_assumed, load
+    from ..calibration import load
     from ..cli import BadInput
-    from ..installed import accel_to_product
 
     out = check_writable(out, force)
     rerun = check_rerun_target(rerun, force)
@@ -100,8 +98,8 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
         raise BadInput(f"{calibration}: the calibration has no noise_floor: the solution cannot be weighted nor "
                        f"its uncertainty propagated")
     source = "site"
-    if site is None and cal.sections.get("site") is not None:
-        site, source = cal.sections["site"], "calibration site"
+    if site is None and cal.site is not None:
+        site, source = cal.site, "calibration site"
     table = read_table(recording, read_options)
     table.ignore_unknown(set(model.channels) | set(_ACCEL) | set(_TILT) | set(_IGNORED) | {"temp_c"},
                          what=f"{calibration} (its channels: {', '.join(model.channels)})")
@@ -113,8 +111,8 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     else:  # a 3-D platform calibration: ax, ay[, az] are its tilt sensor's raw outputs
         tilt_raw = _group(table, tilt_sensor.columns)
         accel = tilt_sensor.up(tilt_raw)
-    accel, bench_fix_applied = accel_in_housing(cal.data, accel)  # the bench's offsets undone, turned into H
-    accel = accel_to_product(cal.data, accel)  # an installed file with an alignment: the product's frame
+    # the bench's offsets undone, turned into H (and an installed file's product frame)
+    accel, bench_fix_applied = cal.imu.in_model_frame(accel)
     tilt = _group(table, _TILT)
     if accel is not None:
         _check_rows(table, np.sum(accel**2, axis=1) > 0, "ax", "accelerometer reads zero: expected gravity")
@@ -143,7 +141,7 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
         check_two_axis_tilt(tilt_sensor.upside_down_rows(tilt_raw, model.field(raw, temp_c)[0],
                                                          result.reference.dip_deg), len(raw), where=table.path)
     elif result.mode == "accelerometer":  # dips against a full up vector: a turned-over field shows
-        flipped = upside_down(result.dip_deg, result.reference, bench_sign_ambiguous=hemisphere_assumed(cal.data))
+        flipped = upside_down(result.dip_deg, result.reference, bench_sign_ambiguous=cal.provenance.hemisphere_assumed)
         if flipped is not None:
             raise BadInput(f"{calibration}: {flipped}")
     columns = ({"t_s": table.column("t_s")} if table.has("t_s") else {}) | result.columns()
@@ -154,7 +152,7 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
                                   f"deg (sigma {result.reference.declination_sigma_deg:.2f} deg in heading_true_sigma_deg)")
     if result.mode == "accelerometer":
         metadata["accel_noise_g"] = f"{accel_noise_g:g}"
-        to_housing = housing_from_accel(cal.data)
+        to_housing = cal.imu.to_housing
         if to_housing is not None:
             from scipy.spatial.transform import Rotation
 
@@ -173,7 +171,7 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
             print(f"warning: the calibration's temperature effect is not applied: {why}", file=sys.stderr)
     if model.direction_covariance is None:
         metadata["note"] = "the calibration gives no direction covariance: sigmas count sensor noise only"
-    if cal.data.get("method") == "patent":
+    if cal.provenance.method == "patent":
         print(f"warning: {calibration} was made with --method patent (seed 000's rule as written, kept for comparison): "
               "its dip rule and tabulated response can be off by degrees and its sigmas count sensor noise only; "
               "calibrate with the default method for use", file=sys.stderr)

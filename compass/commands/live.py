@@ -57,8 +57,7 @@ def run(args) -> int:
     from ..io.atomic import check_writable
     from ..io.units import GYRO_UNITS
     from ..live import LiveSession
-    from ..calibration_file import hemisphere_assumed, load
-    from ..accel_alignment import accel_correction, imu_to_model
+    from ..calibration import load
 
     if args.calibrate == "tumble":
         from ._live_tumble import run_tumble
@@ -68,7 +67,7 @@ def run(args) -> int:
         raise BadInput("--cal CAL.json is required (or --calibrate tumble to make one)")
     try:
         cal = load(args.cal)
-        model, to_product = cal.model, imu_to_model(cal.data)  # mag_to_accel, an installed alignment
+        model = cal.model
         config = FilterConfig.from_model(model)
     except ValueError as exc:
         raise BadInput(f"{args.cal}: {exc}" if args.cal not in str(exc) else str(exc)) from None
@@ -96,8 +95,8 @@ def run(args) -> int:
             if out_path is not None:
                 out = outputs.enter_context(open(out_path, "w", encoding="utf-8", buffering=1 << 16))
             session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event, reference=reference,
-                                  to_product=to_product, gyro_rad_s_per_unit=GYRO_UNITS[args.gyro_unit],
-                                  accel_correction=accel_correction(cal.data), sign_from_bench=hemisphere_assumed(cal.data))
+                                  imu=cal.imu, gyro_rad_s_per_unit=GYRO_UNITS[args.gyro_unit],
+                                  sign_from_bench=cal.provenance.hemisphere_assumed)
             _run_session(args, reader, session, out, tty, every_s)
             if session.turned_over is not None:  # judged on close: a stream shorter than the check
                 raise BadInput(f"{args.cal}: {session.turned_over}")
