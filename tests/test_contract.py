@@ -181,3 +181,12 @@ def test_absurd_fits_are_refused_naming_the_column(tmp_path, capsys, kind, damag
     column, message = lines[first].split(",")[col], message.format(row=first + 4)
     assert message in err and f"'{column}'" in err and "rec.csv" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "cal.json").exists()
+
+
+def test_a_registry_line_naming_another_kinds_calibrator_is_refused_when_used():
+    from calibrate.kinds import Kind
+
+    wrong = Kind("fourflip", "flip_deg", lambda t: True, "compass.io.fourflip:fourflip_from_table",
+                 "calibrate.tumble:TumbleCalibrator")
+    with pytest.raises(ValueError, match="TumbleCalibrator is for 'tumble'"):
+        wrong.calibrator
