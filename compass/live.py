@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .calibration import ImuCorrection
 from .filter import AttitudeFilter, Estimate, FilterConfig
 from .io.lines import LineDecoder
 from .sample_check import SKIP_REASONS, skip_codes
@@ -40,6 +41,7 @@ class LiveSession:
     Parameters
     ----------
     model : compass.model.SensorModel
+        ``Calibration.model``.
     config : FilterConfig, optional
         Default :meth:`FilterConfig.from_model`.
     out : text file, optional
@@ -52,15 +54,14 @@ class LiveSession:
         the true heading (``heading_true_deg`` in the readout and the CSV).  Without it the
         reference is seeded from the stream's first quiet second (:class:`compass.site.QuietSeed`;
         those samples are held, then solved), never the calibration bench's.
-    to_product : ndarray, shape (3, 3), optional
-        ``R_product<-housing`` of an installed calibration with an alignment (its model is in the
-        product's frame): the module's accelerometer and gyro are turned by it.
+    imu : compass.calibration.ImuCorrection, optional
+        The calibration's inertial correction (``Calibration.imu``): the module's accelerometer and
+        gyro are turned into the model's frame by it (the bench's ``mag_to_accel``, an installed file's
+        alignment), and the bench accelerometer's offsets and scales are undone when the stream's first
+        accelerometer readings read 1 g as the bench's did (else said once and not applied).
     gyro_rad_s_per_unit : float
         What one unit of the module's gyro is in rad/s (``--gyro-unit``: 1 for rad/s, pi/180 for
         deg/s); the line protocol's default unit is rad/s.
-    accel_correction : compass.accel_alignment.AccelCorrection, optional
-        The bench accelerometer's offsets and scales, undone before ``to_product`` when the stream's
-        first accelerometer readings read 1 g as the bench's did (else said once and not applied).
     sign_from_bench : bool
         The calibration is a four-flip bench's, whose data cannot tell the hemisphere: an upside-down
         verdict then names that cause (:func:`compass.site.upside_down`).
@@ -98,9 +99,8 @@ class LiveSession:
     sink: object = None
     on_event: object = None
     reference: object = None
-    to_product: object = None
+    imu: ImuCorrection = field(default_factory=ImuCorrection)
     gyro_rad_s_per_unit: float = 1.0
-    accel_correction: object = None
     sign_from_bench: bool = True
     decoder: LineDecoder = field(init=False)
     turned_over: str | None = None
@@ -122,7 +122,7 @@ class LiveSession:
     _seed: QuietSeed | None = None
     _held: list = field(default_factory=list)
     _dips: list | None = None  # measured dips of the first estimates, against a given reference
-    _accel_judged: bool = False  # accel_correction checked against the stream's unit
+    _bench_accel: bool | None = None  # the bench's offsets apply to this stream's unit; None: not judged yet
 
     def __post_init__(self):
         self.decoder = LineDecoder(self.model.channels)
@@ -176,18 +176,15 @@ class LiveSession:
         reference seeding's screen), then each sample through the seeding or the filter."""
         fields, in_range = self._fields(samples)
         field_rows, in_range = fields.tolist(), in_range.tolist()
-        per_unit, to_product = self.gyro_rad_s_per_unit, self.to_product
-        fix = self._accel_fix(samples)
+        per_unit, imu = self.gyro_rad_s_per_unit, self.imu
+        bench = self._judge_accel(samples)
         readings = []
         for k, sample in enumerate(samples):
             accel, gyro = sample.accel, sample.gyro
             if gyro is not None and per_unit != 1.0:
                 gyro = per_unit * gyro
-            if fix is not None and accel is not None:
-                accel = fix.apply(accel)
-            if to_product is not None:  # an installed model in the product's frame
-                accel = None if accel is None else to_product @ accel
-                gyro = None if gyro is None else to_product @ gyro
+            accel = None if accel is None else imu.apply(accel, bench=bench)
+            gyro = None if gyro is None else imu.rotate(gyro)
             readings.append((sample, accel, gyro, fields[k], field_rows[k], in_range[k], t_rx))
         codes = self._seed_codes(readings, fields) if self._seed is not None else None
         for k, reading in enumerate(readings):
@@ -198,18 +195,19 @@ class LiveSession:
             else:
                 self._sample(*reading)
 
-    def _accel_fix(self, samples: list):
-        """The accelerometer correction to apply, judged once on the first chunk with accelerometer readings."""
-        if self.accel_correction is None or self._accel_judged:
-            return self.accel_correction
-        accel = [s.accel for s in samples if s.accel is not None]
-        if not accel:
-            return None
-        self._accel_judged = True
-        if not self.accel_correction.fits(np.array(accel)):
-            self._event("warn", self.accel_correction.not_fitting)
-            self.accel_correction = None
-        return self.accel_correction
+    def _judge_accel(self, samples: list) -> bool:
+        """Whether the bench's accelerometer offsets and scales apply: judged once, on the first chunk with
+        accelerometer readings (:meth:`compass.calibration.ImuCorrection.fits`)."""
+        if not self.imu.has_bench_correction:
+            return False
+        if self._bench_accel is None:
+            accel = [s.accel for s in samples if s.accel is not None]
+            if not accel:
+                return False
+            self._bench_accel = self.imu.fits(np.array(accel))
+            if not self._bench_accel:
+                self._event("warn", self.imu.not_fitting)
+        return self._bench_accel
 
     def _fields(self, samples: list) -> tuple[np.ndarray, np.ndarray]:
         """The samples' field in H (temperature-compensated when the calibration can), shape (n, 3), and

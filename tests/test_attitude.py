@@ -13,6 +13,7 @@ from compass.response import LinearResponse
 from compass.sim.fourflip import simulate_fourflip
 from compass.site import known_reference
 from compass.sim.runtime import simulate_runtime, write_runtime
+from compass.calibration import model_to_dict
 
 
 @pytest.fixture(scope="module")
@@ -203,7 +204,7 @@ def test_known_tilt_columns(truth):
 def files(tmp_path_factory, truth):
     folder = tmp_path_factory.mktemp("att")
     cal = folder / "cal.json"
-    cal.write_text(json.dumps(true_model(truth).to_json()))
+    cal.write_text(json.dumps(model_to_dict(true_model(truth))))
     rec, truth_csv = write_runtime(simulate_runtime(truth, 2000, seed=13), folder / "rec.csv")
     return folder, cal, rec, truth_csv
 

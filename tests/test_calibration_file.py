@@ -8,15 +8,16 @@ import subprocess
 import numpy as np
 import pytest
 
-from compass.calibration_file import CalibrationFileError, dumps, from_dict, kind_of, load
+from compass.calibration import CalibrationFileError, dumps, from_dict, kind_of, load
 from compass.cli import main
 from compass.model import SensorModel
 from compass.response import LinearResponse
+from compass.calibration import model_to_dict
 
 
 def channel_doc() -> dict:
     model = SensorModel(("v1", "v2", "v3"), np.eye(3), (LinearResponse(1.0, 2.0, (-1.0, 1.0)),) * 3, 1.0, dip_deg=60.0)
-    return model.to_json() | {"noise_floor": [0.01, 0.01, 0.01]}
+    return model_to_dict(model) | {"noise_floor": [0.01, 0.01, 0.01]}
 
 
 def tumble_doc() -> dict:

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from calibrate.contract import Calibration, Calibrator, CannotCalibrate
 from calibrate.kinds import KINDS, sniff
 from compass.attitude import solve_attitude
-from compass.calibration_file import FORMAT, KIND_KEY, dumps, load
+from compass.calibration import FORMAT, KIND_KEY, dumps, load
 from compass.cli import main
 from compass.io.table import read_table
 
@@ -64,7 +64,7 @@ def tumble_session(tmp_path):
 def installed_session(tmp_path):
     """A four-flip bench sensor in a product (hard and soft iron), tumbled; '# base:' names its bench file."""
     from calibrate import calibrate_fourflip
-    from compass.calibration_file import dumps
+    from compass.calibration import dumps
     from compass.io.fourflip import read_fourflip
     from compass.sim.fourflip import simulate_fourflip, write_fourflip
     from compass.sim.installation import random_installation, simulate_installation, write_installation
@@ -181,3 +181,12 @@ def test_absurd_fits_are_refused_naming_the_column(tmp_path, capsys, kind, damag
     column, message = lines[first].split(",")[col], message.format(row=first + 4)
     assert message in err and f"'{column}'" in err and "rec.csv" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "cal.json").exists()
+
+
+def test_a_registry_line_naming_another_kinds_calibrator_is_refused_when_used():
+    from calibrate.kinds import Kind
+
+    wrong = Kind("fourflip", "flip_deg", lambda t: True, "compass.io.fourflip:fourflip_from_table",
+                 "calibrate.tumble:TumbleCalibrator")
+    with pytest.raises(ValueError, match="TumbleCalibrator is for 'tumble'"):
+        wrong.calibrator

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from compass.calibration_file import header
+from compass.calibration import header
 
 from ..contract import Calibration
 from ..diagnosis.forms import json_float

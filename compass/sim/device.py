@@ -164,7 +164,7 @@ def simulate_device(model: SensorModel, t_s, *, motion=scripted_motion, seed: in
         Sample rate for the gyro noise; default from the spacing of ``t_s``.
     imu_from_model : ndarray, shape (3, 3), optional
         The rotation taking the model's frame into the module's accelerometer (and gyro) frame: the
-        transpose of :func:`compass.accel_alignment.imu_to_model` of its calibration file (a bench
+        transpose of :attr:`compass.calibration.ImuCorrection.rotation` of its calibration file (a bench
         ``mag_to_accel``, an installed alignment); default the model's frame.
     """
     t = np.asarray(t_s, dtype=float)
