@@ -16,7 +16,7 @@ with plausible numbers and no word, although a calibration bench's first job is 
 
 Each kind describes its channels as :class:`ChannelHealth` records and calls :func:`check_channels`;
 the file keeps every figure under ``"channel_health"`` (:func:`to_json`), and the runtime refuses a
-file whose channel is dead (:func:`dead_in_file`).
+file whose channel's gain is within :data:`DEAD_SIGMAS` of its sigma (:func:`compass.calibration.load`).
 """
 
 from __future__ import annotations
@@ -25,13 +25,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from compass.calibration import DEAD_RESPONSE_SIGMAS
+
 from .contract import CannotCalibrate
 
-__all__ = ["AXIS_TOLERANCE_DEG", "ChannelHealth", "check_channels", "dead_in_file", "describe", "to_json"]
+__all__ = ["AXIS_TOLERANCE_DEG", "ChannelHealth", "check_channels", "describe", "to_json"]
 
-DEAD_SIGMAS = 5.0
+DEAD_SIGMAS = DEAD_RESPONSE_SIGMAS
 """A response smaller than this many of its own standard errors is not distinguishable from zero: at
-5 sigma a working channel is called dead with a chance of 3e-7 (one-sided Gaussian)."""
+5 sigma a working channel is called dead with a chance of 3e-7 (one-sided Gaussian).  The runtime's
+file check uses the same number (:data:`compass.calibration.DEAD_RESPONSE_SIGMAS`)."""
 
 DEAD_DIRECTION_SIGMA_DEG = 10.0
 """A direction known no better than this is no sensing direction.  A direction's sigma is about the
@@ -193,19 +196,3 @@ def describe(block: dict) -> str:
                  if "axis_angle_deg" in entry else "")
         lines.append(f"    {name}: {_ratio(entry['snr'])}{where}")
     return "\n".join(lines)
-
-
-def dead_in_file(block: dict | None) -> str | None:
-    """Why a calibration file's ``"channel_health"`` block makes it unusable (a dead channel), else None.
-
-    Files written before the block existed (None) pass: their channels were not judged.
-    """
-    for name, entry in (block or {}).items():
-        try:
-            sigmas = abs(float(entry["response"])) / float(entry["response_sigma"])
-        except (KeyError, TypeError, ValueError, ZeroDivisionError):
-            continue
-        if sigmas < DEAD_SIGMAS:
-            return (f"channel '{name}' does not respond to the field (its response is {sigmas:.1f} sigma from zero): "
-                    "a dead or disconnected sensor; recalibrate after repair")
-    return None

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from calibrate.contract import CannotCalibrate
 from calibrate.fourflip import FourFlipCalibrator
-from calibrate.health import AXIS_TOLERANCE_DEG, DEAD_SIGMAS, ChannelHealth, check_channels, dead_in_file
+from calibrate.health import AXIS_TOLERANCE_DEG, DEAD_SIGMAS, ChannelHealth, check_channels
 from calibrate.platform3d import Platform3DCalibrator
 from calibrate.reference import ReferenceCalibrator
 from calibrate.tumble import TumbleCalibrator
@@ -189,7 +189,23 @@ def test_calibrate_command_refuses_a_dead_channel_in_one_line(write_session, tmp
     assert "--axis-tolerance-deg must be an angle" in capsys.readouterr().err
 
 
-def test_a_file_with_a_dead_channel_is_named_at_runtime():
-    block = {"v1": {"response": 1.0, "response_sigma": 1e-3}, "v2": {"response": 1e-4, "response_sigma": 1e-4}}
-    assert "channel 'v2' does not respond" in dead_in_file(block)
-    assert dead_in_file({"v1": block["v1"]}) is None and dead_in_file(None) is None
+def test_a_file_with_a_dead_channel_is_refused_by_every_runtime_command(write_session, tmp_path, capsys):
+    import json
+
+    from compass.cli import main
+
+    rec, truth = write_session(seed=26)
+    good = tmp_path / "good.json"
+    assert main(["calibrate", str(rec.path), "--out", str(good), "--quiet", "--no-diagnose"]) == 0
+    capsys.readouterr()
+    doc = json.loads(good.read_text())
+    entry = doc["channels"]["v2"]
+    entry["response"]["gain"] = 3.0 * entry["response_sigma"]["gain"]  # within 5 sigma of zero: dead
+    bad = tmp_path / "dead.json"
+    bad.write_text(json.dumps(doc))
+    for args in (["attitude", str(bad), str(rec.path), "--out", str(tmp_path / "att.csv")],
+                 ["export", str(bad), "--format", "fusion", "--out", str(tmp_path / "cal.h")]):
+        assert main(args) == 2, args
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "dead.json" in err[0] and "channel 'v2'" in err[0] and "does not respond" in err[0], err
+    assert not (tmp_path / "att.csv").exists() and not (tmp_path / "cal.h").exists()
