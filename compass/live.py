@@ -161,7 +161,7 @@ class LiveSession:
             self.config = FilterConfig.from_model(self.model)
         if self.reference is not None:  # the user's reference: check it is not the calibration's field turned over
             self._dips = []
-        if self.reference is None or not np.isfinite(self.reference.field_magnitude):
+        if self.reference is None or not np.isfinite(self.reference.field_norm):
             self._seed = QuietSeed()  # also for a site's |B| in a calibration whose unit is not the uT
         else:
             self._use_reference(self.reference)
@@ -175,7 +175,7 @@ class LiveSession:
 
     def _use_reference(self, reference) -> None:
         self.reference = reference
-        self.config = replace(self.config, field_norm=reference.field_magnitude, dip_deg=reference.dip_deg)
+        self.config = replace(self.config, field_norm=reference.field_norm, dip_deg=reference.dip_deg)
         self._filter = None  # one made before (samples of a header without accelerometer) had the bench's field
         self._event("info", f"reference field: {reference.description}")
         if self.sink is not None:
