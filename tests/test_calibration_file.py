@@ -205,6 +205,8 @@ def test_the_value_is_frozen_and_its_document_read_only():
         cal.kind = "tumble"
     with pytest.raises(TypeError):
         cal.document["dip_deg"] = 0.0
+    with pytest.raises(TypeError):
+        cal.document["channels"]["v1"]["direction"][0] = 0.5  # read-only all the way down
 
 
 @pytest.mark.parametrize("change, key", [
