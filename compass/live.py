@@ -11,6 +11,7 @@ import math
 import time
 from collections import deque
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -21,7 +22,7 @@ from .sample_check import SKIP_REASONS, skip_codes
 from .serial_reader import Chunk, LinkEvent
 from .site import QuietSeed, upside_down
 
-__all__ = ["LiveSession", "GATE_CODES", "CSV_COLUMNS"]
+__all__ = ["LiveSession", "Reading", "GATE_CODES", "CSV_COLUMNS"]
 
 GATE_CODES = {"ok": 0, "norm": 1, "dip": 2, "innovation": 3, "absent": 4}
 CSV_COLUMNS = ("t_s", "heading_deg", "pitch_deg", "roll_deg", "heading_sigma_deg", "tilt_sigma_deg", "field_ratio",
@@ -32,6 +33,36 @@ _LATENCY_WINDOW = 100_000  # samples kept for the latency percentiles
 _ACCEL_WINDOW = 256  # accepted accelerometer magnitudes kept for the typical |a| (any unit)
 UPSIDE_DOWN_SAMPLES = 100
 """Estimates whose median dip is judged against a given reference (compass.site.upside_down)."""
+
+
+class Reading(NamedTuple):
+    """One decoded sample on its way to the filter (held while the reference is seeded).
+
+    Attributes
+    ----------
+    sample : compass.io.lines.Sample
+        As decoded (its header, ``t_s``, raw outputs).
+    accel : ndarray, shape (3,), or None
+        The accelerometer in the model's frame (``Calibration.imu`` applied), the module's unit.
+    gyro : ndarray, shape (3,), or None
+        The gyro in the model's frame, rad/s.
+    field_h : ndarray, shape (3,)
+        The field in the model's frame, field units.
+    field_row : list of float
+        ``field_h`` as a list (what the filter's per-sample step takes).
+    in_range : bool
+        Every channel inside its calibrated range.
+    t_rx : float
+        When its chunk was read from the port, ``time.perf_counter()`` seconds.
+    """
+
+    sample: object
+    accel: np.ndarray | None
+    gyro: np.ndarray | None
+    field_h: np.ndarray
+    field_row: list
+    in_range: bool
+    t_rx: float
 
 
 @dataclass
@@ -130,7 +161,7 @@ class LiveSession:
             self.config = FilterConfig.from_model(self.model)
         if self.reference is not None:  # the user's reference: check it is not the calibration's field turned over
             self._dips = []
-        if self.reference is None or not np.isfinite(self.reference.field_magnitude):
+        if self.reference is None or not np.isfinite(self.reference.field_norm):
             self._seed = QuietSeed()  # also for a site's |B| in a calibration whose unit is not the uT
         else:
             self._use_reference(self.reference)
@@ -144,7 +175,7 @@ class LiveSession:
 
     def _use_reference(self, reference) -> None:
         self.reference = reference
-        self.config = replace(self.config, field_norm=reference.field_magnitude, dip_deg=reference.dip_deg)
+        self.config = replace(self.config, field_norm=reference.field_norm, dip_deg=reference.dip_deg)
         self._filter = None  # one made before (samples of a header without accelerometer) had the bench's field
         self._event("info", f"reference field: {reference.description}")
         if self.sink is not None:
@@ -185,15 +216,15 @@ class LiveSession:
                 gyro = per_unit * gyro
             accel = None if accel is None else imu.apply(accel, bench=bench)
             gyro = None if gyro is None else imu.rotate(gyro)
-            readings.append((sample, accel, gyro, fields[k], field_rows[k], in_range[k], t_rx))
+            readings.append(Reading(sample, accel, gyro, fields[k], field_rows[k], in_range[k], t_rx))
         codes = self._seed_codes(readings, fields) if self._seed is not None else None
         for k, reading in enumerate(readings):
-            if self._seed is not None and reading[0].header.accel is not None:
+            if self._seed is not None and reading.sample.header.accel is not None:
                 # without an accelerometer there is no attitude, and nothing to seed the reference from: the
                 # filter is made at once and says so (holding the samples would grow without end)
                 self._seeding(reading, codes[k])
             else:
-                self._sample(*reading)
+                self._sample(reading)
 
     def _judge_accel(self, samples: list) -> bool:
         """Whether the bench's accelerometer offsets and scales apply: judged once, on the first chunk with
@@ -235,13 +266,13 @@ class LiveSession:
         later ones).  One call for the chunk, with the typical |a| of the samples accepted before it."""
         scale = float(np.median(self._accel_norms)) if len(self._accel_norms) >= 8 else None
         nan3 = (np.nan,) * 3
-        accel = np.array([nan3 if r[1] is None else r[1] for r in readings], dtype=float)
-        gyro = np.array([nan3 if r[2] is None else r[2] for r in readings], dtype=float)
+        accel = np.array([nan3 if r.accel is None else r.accel for r in readings], dtype=float)
+        gyro = np.array([nan3 if r.gyro is None else r.gyro for r in readings], dtype=float)
         return skip_codes(fields, self.config.field_norm, accel, scale, gyro).tolist()
 
-    def _seeding(self, reading: tuple, code: int) -> None:
+    def _seeding(self, reading: Reading, code: int) -> None:
         """Hold samples until the first quiet second gives the reference, then solve them."""
-        sample, accel, _, field_h, _, _, t_rx = reading
+        sample, accel, field_h, t_rx = reading.sample, reading.accel, reading.field_h, reading.t_rx
         if code:
             self._count_skip(SKIP_REASONS[code])
             return
@@ -259,11 +290,11 @@ class LiveSession:
         self._use_reference(reference if self.reference is None else self.reference.complete(reference))
         held, self._held = self._held, []
         for held_reading in held:
-            self._sample(*held_reading, held=True)
+            self._sample(held_reading, held=True)
 
-    def _sample(self, sample, accel, gyro, field_h: np.ndarray, field_row: list, in_range: bool, t_rx: float,
-                held: bool = False) -> None:
-        """One sample through the filter and into the outputs (``field_row``: ``field_h`` as a list)."""
+    def _sample(self, reading: Reading, held: bool = False) -> None:
+        """One sample through the filter and into the outputs."""
+        sample, accel, gyro, field_h, field_row, in_range, t_rx = reading
         header = sample.header  # its own: a header later in the same chunk may have replaced the decoder's
         if self._filter is None or self._filter.gyro != (header.gyro is not None):
             self._filter = AttitudeFilter(self.config, gyro=header.gyro is not None)

@@ -60,7 +60,7 @@ class SensorModel:
         Unit sensing directions in the housing frame H.
     responses : tuple of Response
         Each channel's output as a function of its field component (field units).
-    field_magnitude : float
+    field_norm : float
         Calibrated |B| in field units (uT when ``field_ut`` is known, else 1: units of |B|).
     field_ut : float or None
         |B| in microtesla if the calibration knew it.
@@ -84,7 +84,7 @@ class SensorModel:
     channels: tuple[str, ...]
     directions: np.ndarray
     responses: tuple[Response, ...]
-    field_magnitude: float
+    field_norm: float
     field_ut: float | None = None
     dip_deg: float | None = None
     noise: np.ndarray | None = None
@@ -100,8 +100,8 @@ class SensorModel:
                              f"{np.shape(self.directions)} and {len(self.responses)}")
         if not np.all(np.isfinite(self.directions)):
             raise ValueError("sensing directions must be finite")
-        if not self.field_magnitude > 0:
-            raise ValueError(f"calibrated |B| must be positive, got {self.field_magnitude}")
+        if not self.field_norm > 0:
+            raise ValueError(f"calibrated |B| must be positive, got {self.field_norm}")
         if c < 3:
             raise NotAFieldVector(f"the calibration has {c} channel{'s' if c > 1 else ''} ({', '.join(self.channels)}): "
                                   "a calibration of single-axis channels, valid as such, but the field vector (and "
@@ -249,7 +249,7 @@ class SensorModel:
         """``f'(x) / K`` per channel: 1 for linear channels, a central difference otherwise."""
         if all(isinstance(r, LinearResponse) for r in self.responses):
             return 1.0
-        h = _SLOPE_STEP * self.field_magnitude
+        h = _SLOPE_STEP * self.field_norm
         slopes = [np.ones_like(x[..., c]) if isinstance(r, LinearResponse) else
                   (r.output(x[..., c] + h) - r.output(x[..., c] - h)) / (2 * h * r.gain)
                   for c, r in enumerate(self.responses)]

@@ -135,8 +135,8 @@ def test_kind_fits_writes_reads_back_and_solves_attitude(tmp_path, name):
     err = np.mod(att.heading_deg - angles[:, 0] + 180.0, 360.0) - 180.0
     # the field direction's error from the noise floor alone, over the fit's samples
     n_fit = len(table.rows)
-    floor = np.degrees(np.max(model.component_noise) * model.field_magnitude / FIELD_UT / np.sqrt(n_fit / 12)
-                       / (model.field_magnitude * np.cos(dip)))
+    floor = np.degrees(np.max(model.component_noise) * model.field_norm / FIELD_UT / np.sqrt(n_fit / 12)
+                       / (model.field_norm * np.cos(dip)))
     sigma = np.sqrt(np.mean(att.heading_sigma_deg**2)) if model.direction_covariance is not None else floor
     assert np.sqrt(np.mean(err**2)) < 3 * max(sigma, floor)
 

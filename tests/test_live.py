@@ -262,7 +262,7 @@ def _site_stream(dip_deg, field_ut, seconds=12.0):
     from dataclasses import replace
 
     model = default_model()
-    there = replace(model, dip_deg=dip_deg, field_magnitude=field_ut, field_ut=field_ut)
+    there = replace(model, dip_deg=dip_deg, field_norm=field_ut, field_ut=field_ut)
     device = PtyDevice(there, rate_hz=100.0)
     t = np.arange(int(seconds * 100)) / 100.0
     return model, device._header + b"".join(device._lines(simulate_device(there, t, seed=3), 0)), t
@@ -280,8 +280,8 @@ def test_live_at_another_site_seeds_its_reference_from_the_first_quiet_second():
     model, stream, t = _site_stream(48.0, 45.0)  # the bench: dip 60, |B| 50
     seeded, out = LiveSession(model, out=io.StringIO()), None
     _run(seeded, stream)
-    assert abs(seeded.reference.dip_deg - 48.0) < 0.3 and abs(seeded.reference.field_magnitude - 45.0) < 0.3
-    bench = LiveSession(model, reference=known_reference(model.dip_deg, model.field_magnitude), out=io.StringIO())
+    assert abs(seeded.reference.dip_deg - 48.0) < 0.3 and abs(seeded.reference.field_norm - 45.0) < 0.3
+    bench = LiveSession(model, reference=known_reference(model.dip_deg, model.field_norm), out=io.StringIO())
     _run(bench, stream)
     rows = {name: np.array([line.split(",") for line in s.out.getvalue().splitlines()[2:]], dtype=float)
             for name, s in (("seeded", seeded), ("bench", bench))}

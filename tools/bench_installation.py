@@ -95,7 +95,7 @@ def site_section(sensors: int, n: int) -> None:
         err = lambda att: rms(wrap(att.heading_deg - run.heading_deg))  # noqa: E731
         # the bench's field taken for the world's: refused (as compass attitude does) when the site's dip has
         # the other sign, since the field would read upside down against it
-        bench_ref = known_reference(model.dip_deg, model.field_magnitude)
+        bench_ref = known_reference(model.dip_deg, model.field_norm)
         bench = solve_attitude(model, run.outputs, accel=run.accel, reference=bench_ref)
         bench_err, bench_disturbed = err(bench), bench.disturbed.mean()
         if upside_down(bench.dip_deg, bench_ref) is not None:

@@ -521,7 +521,7 @@ def run_tumble(seeds) -> dict:
             res = calibrate_tumble(sim.mag, sim.accel, t_s=sim.t_s, temp_c=sim.temp_c)
             elapsed = time.perf_counter() - t0
             block = res.diagnosis.block
-            base = next(c for c in res.candidates if c.kind == res.kind)
+            base = next(c for c in res.candidates if c.ellipsoid == res.ellipsoid)
             h_true = tumble_reference_hard_iron(sim)
             recs.append({
                 "seed": seed, "named": tuple(block["effects"]), "unexplained": bool(block["unexplained"]),

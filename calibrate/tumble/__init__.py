@@ -55,12 +55,12 @@ from .collector import TumbleCollector
 from .coverage import Coverage, sphere_coverage
 from .diagnosis import (TUMBLE_FORMS, UNEXPLAINED_WARNING, TumbleDiagnosis, TumbleEffect, diagnose_tumble,
                         radial_noise_floor, residual_structure)
-from .ellipsoid import KINDS, MAX_RADIUS_RATIO, MAX_RELATIVE_SIGMA, OUTLIER_SIGMAS, KindFit, fit_ellipsoid
+from .ellipsoid import ELLIPSOIDS, MAX_RADIUS_RATIO, MAX_RELATIVE_SIGMA, OUTLIER_SIGMAS, EllipsoidFit, fit_ellipsoid
 from .fit import TumbleCalibrator, calibrate_tumble
 from .result import TumbleResult
 
-__all__ = ["KINDS", "MAX_ANGLE_WIDENING", "MAX_RADIUS_RATIO", "MAX_RELATIVE_SIGMA", "OUTLIER_SIGMAS", "STATIC_TOLERANCE",
-           "TUMBLE_FORMS", "UNEXPLAINED_WARNING", "Coverage", "KindFit", "Misalignment", "TumbleCalibrator",
+__all__ = ["ELLIPSOIDS", "MAX_ANGLE_WIDENING", "MAX_RADIUS_RATIO", "MAX_RELATIVE_SIGMA", "OUTLIER_SIGMAS", "STATIC_TOLERANCE",
+           "TUMBLE_FORMS", "UNEXPLAINED_WARNING", "Coverage", "EllipsoidFit", "Misalignment", "TumbleCalibrator",
            "TumbleCollector", "TumbleDiagnosis", "TumbleEffect", "TumbleResult", "calibrate_tumble", "diagnose_tumble",
            "field_gravity_angles", "fit_ellipsoid", "fit_misalignment", "radial_noise_floor", "refine_jointly",
            "residual_structure", "sphere_coverage", "static_mask"]

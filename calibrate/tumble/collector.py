@@ -42,7 +42,7 @@ class TumbleCollector:
     decoder : compass.io.lines.LineDecoder
     coverage : Coverage or None
         Of the latest :meth:`update`.
-    fit : KindFit or None
+    fit : EllipsoidFit or None
         The latest ellipsoid fit (hard iron, its sigma).
     """
 

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -125,8 +126,17 @@ class Calibration:
     tumble: TumbleForm | None = None
     path: str | None = None
     document: Mapping = field(default_factory=dict, repr=False)
-    """The document as read, read-only: for :func:`compass.calibration.save` (reported keys kept as written)."""
+    """The document as read, read-only all the way down (objects as mappings, lists as tuples): for
+    :func:`compass.calibration.save`, which writes every reported key as it was."""
 
     def __post_init__(self):
-        if not isinstance(self.document, MappingProxyType):
-            object.__setattr__(self, "document", MappingProxyType(dict(self.document)))
+        object.__setattr__(self, "document", _frozen(self.document))
+
+
+def _frozen(value):
+    """A JSON value that cannot be changed: objects as read-only mappings, lists as tuples."""
+    if isinstance(value, Mapping):
+        return MappingProxyType({k: _frozen(v) for k, v in value.items()})
+    if isinstance(value, (list, tuple)):
+        return tuple(_frozen(v) for v in value)
+    return value

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +28,7 @@ def dumps(cal) -> str:
     CalibrationFileError
     """
     if isinstance(cal, Calibration):
-        doc = _plain_dict(cal.document)
+        doc = _thawed(cal.document)
     else:
         doc = cal
         try:
@@ -70,8 +71,13 @@ def to_dict(cal: Calibration) -> dict:
     return json.loads(dumps(cal))
 
 
-def _plain_dict(mapping) -> dict:
-    return {k: _plain_dict(v) if hasattr(v, "keys") else v for k, v in mapping.items()}
+def _thawed(value):
+    """A frozen document (:attr:`Calibration.document`) back as plain dicts and lists."""
+    if isinstance(value, Mapping):
+        return {k: _thawed(v) for k, v in value.items()}
+    if isinstance(value, tuple):
+        return [_thawed(v) for v in value]
+    return value
 
 
 def _finite_or_null(value):

@@ -178,7 +178,7 @@ def simulate_device(model: SensorModel, t_s, *, motion=scripted_motion, seed: in
     before = r_world_from_housing(*motion(t - step / 2)[:3])
     after = r_world_from_housing(*motion(t + step / 2)[:3])
     omega_h = (before.inv() * after).as_rotvec() / step
-    field_w = world_field(model.dip_deg, model.field_magnitude) + np.outer(magnet, MAGNET_FIELD) * model.field_magnitude
+    field_w = world_field(model.dip_deg, model.field_norm) + np.outer(magnet, MAGNET_FIELD) * model.field_norm
     field_h = rot.apply(field_w, inverse=True)
     x = field_h @ model.unit_directions.T
     noise = np.zeros(len(model.channels)) if model.noise is None else np.asarray(model.noise)
