@@ -29,18 +29,20 @@ import numpy as np
 from compass.io.fourflip import FourFlipRecording
 from compass.sim.bench import BenchSamples
 
-from ._mlfit import MLFit, fit_ml, score_effect
+from ._mlfit import MLFit, fit_ml, score_effect, structured_covariance, with_covariance
 from ..diagnosis.evidence import DECISIVE_BIC, Proposal, gather_forms, is_unexplained, select_effects
 from ..diagnosis.report import format_diagnosis
+from ..diagnosis.robust import extra_sigma, heading_sigma_deg, widened
 from .effects import VARIANTS, Effect
-from ..noise import chi2_sf, noise_floor
+from ..noise import chi2_sf, lattice_step, noise_floor
 
 __all__ = ["DECISIVE_BIC", "UNEXPLAINED_WARNING", "diagnose_fourflip", "examine_residual", "format_diagnosis",
            "residual_structure"]
 
 STRUCTURE_HARMONICS = 6
 UNEXPLAINED_WARNING = ("structure remains in the residual above the noise floor: the recording has an effect "
-                       "the model lacks (see the diagnosis); the uncertainties are then optimistic")
+                       "the model lacks (see the diagnosis); the uncertainties are widened to cover it "
+                       "(the diagnosis's unexplained_cost)")
 
 
 def residual_structure(samples: BenchSamples, residuals: np.ndarray, noise: np.ndarray) -> tuple[float, int, float]:
@@ -104,7 +106,7 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
     say = progress or (lambda text: None)
     samples = BenchSamples.from_recording(rec)
     if noise is None:
-        noise = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs)
+        noise = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs, lattice_step(rec.outputs))
     names = list(candidates) if candidates is not None else list(VARIANTS)
     pool, skipped = gather_forms(names, VARIANTS, lambda e: e.applicable(samples))
 
@@ -150,7 +152,41 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         "not_applicable": skipped,
         "calibration_change": _calibration_change(base, current, rec.channels),
     }
+    if unexplained:
+        current, diagnosis["unexplained_cost"] = _widen(current, noise, rec.channels)
     return base, current, diagnosis
+
+
+def _widen(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
+    """The fit with its covariance widened to cover the residual's structure, and what that costs.
+
+    :func:`calibrate.fourflip._mlfit.structured_covariance` and
+    :func:`calibrate.diagnosis.robust.widened`; the cost is the part of each direction's sigma and of
+    a level housing's heading sigma (:func:`calibrate.diagnosis.robust.heading_sigma_deg`) the
+    structure adds, ``sqrt(widened^2 - naive^2)``.
+    """
+    wide = with_covariance(fit, widened(fit.covariance, structured_covariance(fit, noise)))
+    before, after = fit.direction_sigma_deg(), wide.direction_sigma_deg()
+    heading = [_heading_sigma(f) for f in (fit, wide)]
+    cost = {
+        "direction_deg": {name: float(v) for name, v in zip(channels, extra_sigma(after, before))},
+        "heading_deg": float(extra_sigma(heading[1], heading[0])),
+        "direction_sigma_deg": {name: {"naive": float(b), "widened": float(a)}
+                                for name, b, a in zip(channels, before, after)},
+        "heading_sigma_deg": {"naive": heading[0], "widened": heading[1]},
+        "method": ("cluster-robust (sandwich) covariance over quarter turns of each flip: the residual's structure "
+                   "taken as correlated along the turn; the file's sigmas are the larger of it and the naive ones"),
+    }
+    return wide, cost
+
+
+def _heading_sigma(fit: MLFit) -> float:
+    """A level housing's RMS heading sigma over headings from the fit's direction, offset and gain sigmas."""
+    phys = fit.physics
+    c = len(phys.gains)
+    var = np.diag(fit.covariance)[:4 * c].reshape(c, 4)[:, 2:] * phys.gains[:, None] ** 2  # offset, log gain
+    return heading_sigma_deg(phys.directions, fit.direction_covariance, var, phys.gains, phys.dip_deg,
+                             phys.field_magnitude)
 
 
 def _verdict(samples, fit: MLFit, noise, floor) -> tuple[tuple[float, int, float], bool]:

@@ -10,16 +10,16 @@ from scipy.spatial.transform import Rotation
 from compass.io.tumble import TumbleRecording
 
 from ..contract import Calibrator, CannotCalibrate, metadata_field_ut
-from ..noise import robust_sigma
+from ..noise import lattice_step, second_difference_sigma, second_differences
 from .alignment import MAX_ANGLE_WIDENING, field_gravity_angles, fit_misalignment, refine_jointly, static_mask
 from .diagnosis import UNEXPLAINED_WARNING, diagnose_tumble
 from .ellipsoid import fit_ellipsoid
 from .result import TumbleResult
 
 def _noise_floor(x: np.ndarray) -> float:
-    """Per-axis white-noise sigma from second differences of consecutive samples (median over axes)."""
-    d = x[:-2] - 2.0 * x[1:-1] + x[2:]
-    return float(np.median(robust_sigma(d)) / np.sqrt(6.0))
+    """Per-axis white-noise sigma from second differences of consecutive samples (median over axes),
+    Sheppard's on integer codes (:func:`calibrate.noise.second_difference_sigma`)."""
+    return float(np.median(second_difference_sigma(second_differences(x), lattice_step(x))))
 
 
 def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: str = "auto",
