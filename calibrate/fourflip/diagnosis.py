@@ -119,6 +119,11 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
                       effects=current.effects + (effect,),
                       effect_start={**current.effect_start(), effect.name: block})
 
+    def revise(current: MLFit, effects: tuple) -> MLFit:
+        kept = {e.name for e in effects if e in current.effects}  # a replaced form starts from zero
+        return fit_ml(samples, rec.outputs, rec.channels, current.physics, noise, effects=effects,
+                      effect_start={k: v for k, v in current.effect_start().items() if k in kept})
+
     def claim(p: Proposal, measured: dict) -> dict:
         names_e, values, sigmas = p.trial.effect_parameters(p.effect)
         return {
@@ -135,7 +140,7 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         refit=refit, n_params=lambda e: e.n_params(len(rec.channels)), log_n=np.log(rec.outputs.size),
         base_step={"model": "base", "residual_rms": _pooled_rms(base.residuals), "chi2_per_dof": base.reduced_chi2},
         write_step=claim, verdict=lambda f: _verdict(samples, f, noise, floor),
-        rejected_as=lambda e: e.name, progress=say)
+        rejected_as=lambda e: e.name, progress=say, revise=revise)
     current, steps, rejected, unexplained = chosen.fit, chosen.steps, chosen.not_claimed, chosen.unexplained
     structure, dof, p_value = chosen.structure
     rms_after = _pooled_rms(current.residuals)
@@ -150,6 +155,7 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         "structure_test": {"delta_chi2": structure, "dof": dof, "p_value": p_value},
         "not_claimed": rejected,
         "not_applicable": skipped,
+        "revisions": chosen.revisions,
         "calibration_change": _calibration_change(base, current, rec.channels),
     }
     if unexplained:
