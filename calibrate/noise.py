@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import chdtrc, ndtri
 
-__all__ = ["COARSE_LATTICE", "noise_floor", "quantisation_note", "find_spikes", "lattice_step", "robust_sigma", "chi2_sf",
+__all__ = ["COARSE_LATTICE", "DITHER_FRACTION", "dithered", "noise_floor", "quantisation_note", "find_spikes", "lattice_step", "robust_sigma", "chi2_sf",
            "second_difference_sigma", "second_differences", "SPIKE_SIGMAS"]
 
 _NORMAL_MAD = ndtri(0.75)  # the MAD of a unit normal
@@ -105,6 +105,23 @@ def second_difference_sigma(d: np.ndarray, step=0.0) -> np.ndarray | float:
     kept = np.sqrt(np.sum(np.where(keep, d**2, 0.0), axis=0) / np.maximum(np.sum(keep, axis=0), 1) / 6.0)
     out = np.where(coarse, np.maximum(kept, quantum), robust)
     return out if np.ndim(out) else float(out)
+
+
+DITHER_FRACTION = 1.0 / 3.0
+"""Gaussian noise of at least this fraction of the code step dithers the rounding (Widrow: the
+rounding error's dependence on the signal is ``exp(-2 pi^2 sigma^2 / q^2)``, 0.11 here)."""
+
+
+def dithered(step, floor) -> np.ndarray:
+    """Whether each channel's noise dithers its ADC's rounding (True without a lattice).
+
+    The Gaussian part of the floor, ``sqrt(floor^2 - q^2 / 12)``, against :data:`DITHER_FRACTION` of the
+    step ``q``.  Undithered rounding is a deterministic sawtooth of the field: structured, so a
+    residual's structure test cannot judge it against white noise.
+    """
+    step = np.broadcast_to(np.asarray(step, dtype=float), np.shape(floor))
+    gaussian = np.sqrt(np.maximum(np.asarray(floor, dtype=float) ** 2 - step**2 / 12.0, 0.0))
+    return ~(step > 0) | (gaussian >= DITHER_FRACTION * step)
 
 
 def quantisation_note(step, floor, channels) -> dict | None:

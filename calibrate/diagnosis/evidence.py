@@ -320,7 +320,8 @@ def _withdrawn(step: dict) -> str:
 def select_effects(base: Fit, pool: Sequence, *, score: Callable, refit: Callable, n_params: Callable[[Any], int],
                    log_n: float, base_step: dict, write_step: Callable[[Proposal, dict], dict],
                    verdict: Callable, checks: Sequence[Check] = (), rejected_as: Callable[[Any], str] | None = None,
-                   progress: Callable[[str], None] | None = None, revise: Callable | None = None) -> Selection:
+                   progress: Callable[[str], None] | None = None, revise: Callable | None = None,
+                   unclaimable: str | None = None) -> Selection:
     """Add the effects the evidence supports to a base fit, one at a time (see the module docstring).
 
     Parameters
@@ -353,6 +354,9 @@ def select_effects(base: Fit, pool: Sequence, *, score: Callable, refit: Callabl
     revise : callable, optional
         ``revise(current, effects) -> Fit``: the model refitted with exactly ``effects`` (a tuple),
         started from ``current``; without it, nothing added is revisited.
+    unclaimable : str, optional
+        Why no effect can be claimed from this recording whatever the evidence (e.g. structure of the
+        recording's own making, as an ADC's undithered rounding): effects are tried and reported, not claimed.
 
     Returns
     -------
@@ -397,6 +401,11 @@ def select_effects(base: Fit, pool: Sequence, *, score: Callable, refit: Callabl
                                       revisions, say)
 
     structure, unexplained = verdict(current)
+    if unclaimable and len(steps) > 1:
+        rejected.extend(f"{step['added']} (delta-BIC {step['delta_bic']:.0f}, but {unclaimable}: not claimed)"
+                        for step in steps[1:])
+        steps, current = steps[:1], base
+        structure, unexplained = verdict(current)
     if unexplained and len(steps) > 1:
         # Structure the model lacks remains.  Whatever the added effects fitted may be partly that
         # unknown effect (e.g. a field gradient with the sensor off the axis mimics an encoder

@@ -74,7 +74,10 @@ def format_diagnosis(block: dict, unit: str = "output units") -> str:
         ch = block["hard_iron_change"]
         moved = ", ".join(f"{v:+.4g} (sigma {s:.2g})" for v, s in zip(ch["value"], ch["sigma"]))
         lines.append(f"  the hard iron moved by {moved} {unit}")
-    verdict = _NOT_JUDGED if block["unexplained"] is None else VERDICTS[bool(block["unexplained"])]
+    verdict = (block.get("not_judged", _NOT_JUDGED) if block["unexplained"] is None
+               else VERDICTS[bool(block["unexplained"])])
+    if block.get("not_judged") and block["unexplained"] is not None:
+        lines.append(f"  left out of the verdict: {block['not_judged']}")
     test = (block.get("structure_test") or {}).get("name", "structure test")
     lines.append(residual_line(block, verdict, test))
     lines += cost_lines(block.get("unexplained_cost"))

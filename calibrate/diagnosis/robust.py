@@ -16,8 +16,8 @@ that shows, the covariance of ``dx`` is the sandwich
 .. math:: V = H^{-1} \\Big( \\frac{G}{G-1} \\sum_g s_g s_g^T \\Big) H^{-1}, \\qquad
           s_g = \\sum_{i \\in g} J_i^T r_i, \\qquad H = J^T J,
 
-with clusters ``g`` longer than the structure's correlation and short enough to be many (a
-quarter turn of one flip for the four-flip: 16 clusters): the cluster-robust (batch-means)
+with clusters ``g`` longer than the structure's correlation and short enough to be several (half
+a turn of one flip for the four-flip: 8 clusters): the cluster-robust (batch-means)
 estimate of ``var(J^T r)`` with the small-sample factor ``G/(G-1)``.  With white noise alone,
 ``E[sum_g s_g s_g^T] = H``: ``V`` is the naive covariance.  The file takes the larger of the two
 in every direction of parameter space (:func:`widened`), so a widened sigma never shrinks.

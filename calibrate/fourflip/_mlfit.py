@@ -42,8 +42,11 @@ _BASE_PER_CHANNEL = 4  # u, v, offset, log gain
 _MAX_ITERATIONS = 60  # Levenberg-Marquardt iterations (each costs one finite-difference Jacobian)
 BIN_DEG = 0.05
 """Width of the turntable-angle bins whose consecutive samples the fit takes as one mean, degrees."""
-CLUSTER_DEG = 90.0
-"""Turntable sector whose samples of one flip form a cluster of :func:`structured_covariance`, degrees."""
+CLUSTER_DEG = 180.0
+"""Turntable sector whose samples of one flip form a cluster of :func:`structured_covariance`, degrees.
+
+Half turns (8 clusters) were chosen over quarter and eighth turns on tools/bench_loop.py's seeds 1000-1007
+(the reported numbers use seeds 0-19): the structures that sigmas miss most are slow ones."""
 
 
 @dataclass(frozen=True)
@@ -356,7 +359,7 @@ def structured_covariance(fit: MLFit, noise: np.ndarray) -> np.ndarray:
     """Covariance of a fit's parameters with its residual's structure as a process correlated along the turn.
 
     :func:`calibrate.diagnosis.robust.cluster_covariance` over clusters of a :data:`CLUSTER_DEG`
-    sector of one flip (16 clusters in a full recording), on the bins the fit ran on.
+    sector of one flip (8 clusters in a full recording), on the bins the fit ran on.
 
     Returns
     -------

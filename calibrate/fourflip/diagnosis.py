@@ -34,7 +34,7 @@ from ..diagnosis.evidence import DECISIVE_BIC, Proposal, gather_forms, is_unexpl
 from ..diagnosis.report import format_diagnosis
 from ..diagnosis.robust import extra_sigma, heading_sigma_deg, widened
 from .effects import VARIANTS, Effect
-from ..noise import chi2_sf, lattice_step, noise_floor
+from ..noise import DITHER_FRACTION, chi2_sf, dithered, lattice_step, noise_floor
 
 __all__ = ["DECISIVE_BIC", "UNEXPLAINED_WARNING", "diagnose_fourflip", "examine_residual", "format_diagnosis",
            "residual_structure"]
@@ -113,6 +113,7 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
     say("fitting the base model")
     base = fit_ml(samples, rec.outputs, rec.channels, start, noise)
     floor = float(np.sqrt(np.mean(noise**2)))
+    judged = dithered(lattice_step(rec.outputs), noise)
 
     def refit(current: MLFit, effect: Effect, block: np.ndarray) -> MLFit:
         return fit_ml(samples, rec.outputs, rec.channels, current.physics, noise,
@@ -139,8 +140,9 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         score=lambda current, effect: score_effect(current, noise, effect),
         refit=refit, n_params=lambda e: e.n_params(len(rec.channels)), log_n=np.log(rec.outputs.size),
         base_step={"model": "base", "residual_rms": _pooled_rms(base.residuals), "chi2_per_dof": base.reduced_chi2},
-        write_step=claim, verdict=lambda f: _verdict(samples, f, noise, floor),
-        rejected_as=lambda e: e.name, progress=say, revise=revise)
+        write_step=claim, verdict=lambda f: _verdict(samples, f, noise, judged),
+        rejected_as=lambda e: e.name, progress=say, revise=revise,
+        unclaimable=None if judged.all() else "the ADC's undithered rounding is structured by itself and may be it")
     current, steps, rejected, unexplained = chosen.fit, chosen.steps, chosen.not_claimed, chosen.unexplained
     structure, dof, p_value = chosen.structure
     rms_after = _pooled_rms(current.residuals)
@@ -153,6 +155,7 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         "residual_rms_after": rms_after,
         "unexplained": unexplained,
         "structure_test": {"delta_chi2": structure, "dof": dof, "p_value": p_value},
+        **({} if judged.all() else {"not_judged": _not_judged(rec.channels, judged)}),
         "not_claimed": rejected,
         "not_applicable": skipped,
         "revisions": chosen.revisions,
@@ -180,7 +183,7 @@ def _widen(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
         "direction_sigma_deg": {name: {"naive": float(b), "widened": float(a)}
                                 for name, b, a in zip(channels, before, after)},
         "heading_sigma_deg": {"naive": heading[0], "widened": heading[1]},
-        "method": ("cluster-robust (sandwich) covariance over quarter turns of each flip: the residual's structure "
+        "method": ("cluster-robust (sandwich) covariance over half turns of each flip: the residual's structure "
                    "taken as correlated along the turn; the file's sigmas are the larger of it and the naive ones"),
     }
     return wide, cost
@@ -195,11 +198,22 @@ def _heading_sigma(fit: MLFit) -> float:
                              phys.field_magnitude)
 
 
-def _verdict(samples, fit: MLFit, noise, floor) -> tuple[tuple[float, int, float], bool]:
-    """Structure test of a fit's residual and whether it is unexplained."""
-    structure, dof, p_value = residual_structure(samples, fit.residuals, noise)
-    rms = _pooled_rms(fit.residuals)
-    return (structure, dof, p_value), is_unexplained(p_value, rms, floor)
+def _verdict(samples, fit: MLFit, noise, judged: np.ndarray) -> tuple[tuple[float, int, float], bool | None]:
+    """Structure test of a fit's residual over the ``judged`` channels and whether it is unexplained
+    (None when no channel can be judged)."""
+    if not judged.any():
+        return (float("nan"), 0, float("nan")), None
+    structure, dof, p_value = residual_structure(samples, fit.residuals[:, judged], noise[judged])
+    rms = _pooled_rms(fit.residuals[:, judged])
+    return (structure, dof, p_value), is_unexplained(p_value, rms, float(np.sqrt(np.mean(noise[judged] ** 2))))
+
+
+def _not_judged(channels, judged: np.ndarray) -> str:
+    """Why some channels' residual is left out of the verdict (:func:`calibrate.noise.dithered`)."""
+    names = ", ".join(ch for ch, ok in zip(channels, judged) if not ok)
+    return (f"{names}: the ADC's code step is over {1 / DITHER_FRACTION:g} times the noise, so its rounding is not "
+            "dithered: a structured function of the field by itself, which the residual's structure test cannot tell "
+            "from an effect" + ("" if judged.any() else "; nothing is judged ('unexplained' null)"))
 
 
 def examine_residual(samples: BenchSamples, residuals: np.ndarray, noise: np.ndarray) -> dict:
