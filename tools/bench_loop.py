@@ -171,7 +171,7 @@ def _spawn(tree: Path | None, cases, seeds) -> subprocess.Popen:
 
 
 def _summary(rows) -> dict:
-    named = Counter(", ".join(r["effects"]) or "none" for r in rows)
+    named = Counter(", ".join(sorted(r["effects"])) or "none" for r in rows)  # the set, in any order of adding
     top, count = named.most_common(1)[0]
     ratios = np.concatenate([r["ratio"] for r in rows])
     times = np.array([r["time_s"] for r in rows])
