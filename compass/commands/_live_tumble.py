@@ -1,8 +1,9 @@
 """``compass live --port P --calibrate tumble --out CAL.json``: a free-motion calibration while you
 turn the module, in the style of MotionCal.
 
-The module's samples (line protocol, ``mx,my,mz`` and optionally ``ax,ay,az``, ``t_s``, ``temp_c``)
-are collected while the readout (and, with ``--rerun``, the viewer) shows the coverage growing, the
+The module's samples (any stream :mod:`compass.io.streams` reads: our line protocol, MotionCal's
+``Raw:``/``Uni:`` lines, bare numbers with ``--columns``; ``mx,my,mz`` and optionally ``ax,ay,az``,
+``t_s``, ``temp_c``; a field unit named or fixed by the format is converted to uT) are collected while the readout (and, with ``--rerun``, the viewer) shows the coverage growing, the
 ellipsoid fit's hard iron converging and, in words, the orientations still missing. When every
 half-axis has been along the field and ``--min-coverage`` of the sphere's cells hold a sample (or on
 Ctrl-C, or after ``--duration``), the samples are written as a tumble recording beside the
@@ -38,25 +39,28 @@ class TumbleCollector:
     min_coverage : float
         Fraction of the sphere's cells that must hold a sample (with every half-axis seen) for
         :attr:`enough`.
+    stream : compass.io.streams.StreamOptions, optional
+        The stream's format and units (default: found from the first lines).
 
     Attributes
     ----------
-    decoder : compass.io.lines.LineDecoder
+    decoder : compass.io.streams.StreamDecoder
     coverage : calibrate.tumble.Coverage or None
         Of the latest :meth:`update`.
     fit : calibrate.tumble.KindFit or None
         The latest ellipsoid fit (hard iron, its sigma).
     """
 
-    def __init__(self, *, min_coverage: float = 0.8):
-        from ..io.lines import LineDecoder
+    def __init__(self, *, min_coverage: float = 0.8, stream=None):
+        from ..io.streams import StreamDecoder
 
         self.min_coverage = min_coverage
-        self.decoder = LineDecoder(_CHANNELS)
+        self.decoder = StreamDecoder(_CHANNELS, stream)
         self.rows: list[tuple] = []
         self.coverage = None
         self.fit = None
         self._t0 = None
+        self._last_rx = 0.0
 
     def feed(self, item) -> list:
         """Take one item of :meth:`SerialReader.items`; returns the decoder's events (level, text)."""
@@ -68,11 +72,21 @@ class TumbleCollector:
             return [("warn" if item.kind == "disconnected" else "info", item.message)]
         if self._t0 is None:
             self._t0 = item.t_rx
-        for s in self.decoder.feed(item.data):
-            t_s = s.t_s if s.t_s is not None else item.t_rx - self._t0
+        self._last_rx = item.t_rx
+        self._add(self.decoder.feed(item.data, item.t_rx), item.t_rx)
+        return self.decoder.drain_events() if self.decoder.events else []
+
+    def finish(self) -> list:
+        """At the end of the stream: the samples the decoder still held; returns its events."""
+        if self._t0 is not None:
+            self._add(self.decoder.flush(), self._last_rx)
+        return self.decoder.drain_events()
+
+    def _add(self, samples: list, t_rx: float) -> None:
+        for s in samples:
+            t_s = s.t_s if s.t_s is not None else t_rx - self._t0
             self.rows.append((t_s, *s.raw, *(s.accel if s.accel is not None else (np.nan,) * 3),
                               np.nan if s.temp_c is None else s.temp_c))
-        return self.decoder.drain_events() if self.decoder.events else []
 
     @property
     def samples(self) -> np.ndarray:
@@ -139,7 +153,7 @@ def run_tumble(args) -> int:
     from ..serial_reader import PortUnavailable
     from ..viz import check_rerun_target
     from . import calibrate as calibrate_cmd
-    from .live import open_reader, port_unavailable, stop_when_asked
+    from .live import open_reader, port_unavailable, stop_when_asked, stream_options
 
     if args.out is None:
         raise BadInput("--calibrate tumble needs --out CAL.json (the calibration to write)")
@@ -147,6 +161,7 @@ def run_tumble(args) -> int:
         raise BadInput("--calibrate tumble calibrates the module from scratch: leave out --cal")
     if not 0.0 < args.min_coverage <= 1.0:
         raise BadInput(f"--min-coverage must be in (0, 1], got {args.min_coverage}")
+    stream = stream_options(args)
     reader = open_reader(args)
     out = check_writable(args.out, args.force)
     recording = check_writable(recording_path(out), args.force)
@@ -157,13 +172,16 @@ def run_tumble(args) -> int:
 
         view = LiveTumbleRecording(target)
 
-    collector = TumbleCollector(min_coverage=args.min_coverage)
+    collector = TumbleCollector(min_coverage=args.min_coverage, stream=stream)
     last, said, result, port_error = time.perf_counter(), None, None, None
     try:
         with stop_when_asked(args.duration) as stop:
             for item in reader.items(stop):
                 for level, text in collector.feed(item):
                     _say(args, view, collector, f"[{level}] {text}")
+                if collector.decoder.fatal is not None:
+                    port_error = BadInput(f"{args.port}: {collector.decoder.fatal}")
+                    break
                 now = time.perf_counter()
                 if now - last >= 1.0:
                     last = now
@@ -181,6 +199,8 @@ def run_tumble(args) -> int:
         port_error = port_unavailable(exc)
     finally:
         reader.close()
+        for level, text in collector.finish():
+            _say(args, view, collector, f"[{level}] {text}")
         try:
             if port_error is not None:  # said as the port's fault, not as too few samples
                 raise port_error
