@@ -194,7 +194,8 @@ class LiveSession:
             if to_product is not None:  # an installed model in the product's frame
                 accel = None if accel is None else to_product @ accel
                 gyro = None if gyro is None else to_product @ gyro
-            readings.append((sample, accel, gyro, fields[k], field_rows[k], in_range[k], t_rx))
+            readings.append((sample, accel, gyro, fields[k], field_rows[k], in_range[k],
+                             t_rx if sample.t_rx is None else sample.t_rx))  # its arrival, if the decoder held it
         codes = self._seed_codes(readings, fields) if self._seed is not None else None
         for k, reading in enumerate(readings):
             if self._seed is not None and reading[0].header.accel is not None:
@@ -310,6 +311,7 @@ class LiveSession:
                         f"field rejected ({est.gate}): |B| ratio {est.field_ratio:.3f}, dip {est.dip_deg:.1f} deg")
             self._gate = est.gate
         latency = time.perf_counter() - t_rx
+        held = held or sample.t_rx is not None  # held back by the decoder (its unit check)
         if not held:  # samples held for the reference waited for it: out of the percentiles
             self.latencies_s.append(latency)
         true = None if self._declination is None else self.true_heading()

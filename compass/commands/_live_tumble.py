@@ -84,7 +84,7 @@ class TumbleCollector:
 
     def _add(self, samples: list, t_rx: float) -> None:
         for s in samples:
-            t_s = s.t_s if s.t_s is not None else t_rx - self._t0
+            t_s = s.t_s if s.t_s is not None else (t_rx if s.t_rx is None else s.t_rx) - self._t0
             self.rows.append((t_s, *s.raw, *(s.accel if s.accel is not None else (np.nan,) * 3),
                               np.nan if s.temp_c is None else s.temp_c))
 

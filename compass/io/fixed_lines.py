@@ -6,8 +6,9 @@
   toolkit does not know is a column to skip).
 - :class:`MotionCalDecoder`: MotionCal's ``Raw:`` integer counts and ``Uni:`` floats
   (:mod:`compass.io.motioncal`); ``Cal1:``/``Cal2:`` echoes are kept (:attr:`MotionCalDecoder.echo`).
-  A sketch that prints both (Adafruit's) is read from its ``Uni:`` lines, the finer ones, and its
-  ``Raw:`` twins are skipped: which lines a stream carries is decided on its first sample lines.
+  A sketch that prints both (Adafruit's: a ``Raw:`` line, then the same sample's ``Uni:`` line) is read
+  from its ``Uni:`` lines, the finer ones, from the first one on (its ``Raw:`` twins skipped); the
+  samples before it come from ``Raw:`` lines.  Nothing is held back: no latency is added.
 
 Both split bytes into lines, count and skip what is not a sample, and hand out
 :class:`compass.io.lines.Sample` values exactly as :class:`compass.io.lines.LineDecoder` does (they are
@@ -35,7 +36,6 @@ _TIME_SCALES = {"t_s": 1.0, "t_ms": 1e-3, "t_us": 1e-6}
 _SPLIT = re.compile(r"\s*[,;]\s*|\s+")
 _RAW_SCALES = (mc.G_PER_COUNT,) * 3 + (math.radians(mc.DEG_S_PER_COUNT),) * 3 + (mc.UT_PER_COUNT,) * 3
 _UNI_SCALES = (1.0 / STANDARD_GRAVITY,) * 3 + (1.0,) * 3 + (1.0,) * 3
-_DECIDE_AFTER_RAW = 3  # Raw: lines seen without a Uni: one -> a Raw:-only sketch
 
 
 @dataclass(frozen=True)
@@ -217,64 +217,44 @@ class MotionCalDecoder(_FixedDecoder):
     Attributes
     ----------
     source : {"Raw", "Uni"} or None
-        Which lines samples are read from (None until the first sample lines decide it).
+        Which lines samples are read from (None before the first sample line).
     echo : dict
         The latest ``"Cal1"`` (10 numbers) and ``"Cal2"`` (9) a sketch echoed (its stored calibration).
 
     Examples
     --------
     >>> d = MotionCalDecoder(("mx", "my", "mz"))
-    >>> d.feed(b"Raw:0,0,8192,0,0,16,200,0,-400\\r\\nRaw:0,0,8192,0,0,0,201,0,-400\\r\\nRaw:0,0,8192,0,0,0,202,0,-400\\r\\n"
-    ...        )[0].raw.tolist()
+    >>> d.feed(b"Raw:0,0,8192,0,0,16,200,0,-400\\r\\n")[0].raw.tolist()
     [20.0, 0.0, -40.0]
     """
 
     source: str | None = None
     echo: dict = field(default_factory=dict)
-    _pending: list = field(default_factory=list)  # sample lines read before the source was decided
 
     def __post_init__(self):
         super().__post_init__()
         self.layout = Layout.from_names(MOTIONCAL_COLUMNS, self.channels)
         self._start()
 
-    def feed(self, chunk: bytes) -> list[Sample]:
-        out = super().feed(chunk)
-        if self._pending and self.source is not None:
-            pending, self._pending = self._pending, []
-            out = [s for s in (super(MotionCalDecoder, self).parse_line(line) for line in pending) if s] + out
-        return out
-
     def parse_line(self, line: bytes) -> Sample | None:
         tag = line[:4]
-        if tag in (b"Raw:", b"Uni:") and self.source is None:
-            self._decide(tag[:3].decode())
-            if self.source is None:
-                self._pending.append(line)  # decoded once the source is known (same feed call)
+        if tag == b"Uni:" and self.source != "Uni":
+            twin = self.source == "Raw"  # this sample was read from its Raw: line already
+            self._use("Uni", twin)
+            if twin:
+                self.stats.comments += 1
                 return None
+        elif tag == b"Raw:" and self.source is None:
+            self._use("Raw", False)
         return super().parse_line(line)
 
-    def _decide(self, seen: str) -> None:
-        if seen == "Uni":
-            self._use("Uni")
-        elif sum(p[:4] == b"Raw:" for p in self._pending) + 1 >= _DECIDE_AFTER_RAW:
-            self._use("Raw")
-
-    def _use(self, source: str) -> None:
+    def _use(self, source: str, switched: bool) -> None:
         self.source = source
-        self.layout = Layout(self.layout.header, _RAW_SCALES if source == "Raw" else _UNI_SCALES,
-                             self.layout.missing)
+        self.layout = Layout(self.layout.header, _RAW_SCALES if source == "Raw" else _UNI_SCALES, self.layout.missing)
         self.events.append(("info", f"MotionCal {source}: lines, " + (
             "counts of 1/8192 g, 1/16 deg/s and 0.1 uT" if source == "Raw" else
-            "m/s^2, rad/s and uT" + (" (Raw: twins skipped)" if any(p[:4] == b"Raw:" for p in self._pending) else ""))))
-
-    def flush(self) -> list[Sample]:
-        """Samples of lines still waiting for the source to be decided (a stream of fewer than three)."""
-        if not self._pending:
-            return []
-        self._use("Raw")
-        pending, self._pending = self._pending, []
-        return [s for s in (super(MotionCalDecoder, self).parse_line(line) for line in pending) if s]
+            "m/s^2, rad/s and uT" + (" (the finer of the two the sketch prints: its Raw: lines skipped from now)"
+                                     if switched else ""))))
 
     def _cells(self, text: str) -> list[str] | None:
         tag, _, rest = text.partition(":")

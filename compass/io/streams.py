@@ -337,18 +337,12 @@ class StreamDecoder:
         return self._out(samples, t_rx) if samples else []
 
     def flush(self) -> list[Sample]:
-        """At the end of the stream: samples still held (judged on what came), or waiting in the decoder."""
+        """At the end of the stream: the samples still held for the unit check, judged on what came."""
         if self._inner is None:  # never knew the format: what it kept were samples before any header
             self.stats.unheaded += len(self._pending.replace(b"\r", b"\n").split(b"\n")[:-1])
             self._pending = b""
             return []
-        samples = self._inner.flush() if hasattr(self._inner, "flush") else []
-        if self._inner is not None and self._inner.events:
-            self.events += self._inner.drain_events()
-        out = self._out(samples, None) if samples else []
-        if self._held and self._fatal is None:
-            out = self._judge() + out
-        return out
+        return self._judge() if self._held and self._fatal is None else []
 
     # ----------------------------------------------------------------- internals
 
@@ -431,7 +425,7 @@ class StreamDecoder:
             return []
         if self._check is None:
             return samples
-        self._held += samples
+        self._held += samples if t_rx is None else [replace(s, t_rx=t_rx) for s in samples]
         return self._judge() if len(self._held) >= JUDGE_SAMPLES else []
 
     def _judge(self) -> list:
