@@ -15,7 +15,7 @@ import sys
 import threading
 import time
 
-from ..io.streams import add_stream_arguments
+from ..io.stream_options import add_stream_arguments
 from ..viz import add_rerun_option, check_rerun_target
 
 
@@ -161,7 +161,7 @@ def stream_options(args):
     """The stream's :class:`compass.io.streams.StreamOptions` from ``--format``, ``--columns``, ``--*-unit``;
     BadInput for options that contradict each other."""
     from ..cli import BadInput
-    from ..io.streams import StreamOptions
+    from ..io.stream_options import StreamOptions
 
     try:
         return StreamOptions.from_args(args)
