@@ -11,7 +11,7 @@ from compass.io.fixed_lines import CsvDecoder, MotionCalDecoder, parse_columns
 from compass.io.lines import format_line
 from compass.io.streams import JUDGE_SAMPLES, StreamDecoder, StreamOptions, field_scale_check
 from compass.live import LiveSession
-from compass.serial_reader import Chunk, LinkEvent
+from compass.serial_reader import Chunk
 from compass.sim.device import simulate_device, tumble_motion
 from compass.sim.stream_formats import CSV_COLUMNS, DEVICE_FORMATS, board_model, sample_lines
 
@@ -150,6 +150,15 @@ def test_auto_says_bare_numbers_need_columns():
     assert d.fatal is None and d.stats.garbage == 5  # noise is counted, the wait goes on
 
 
+def test_a_reconnect_before_the_format_is_known_counts_what_it_drops():
+    d = StreamDecoder(CHANNELS)
+    d.feed(b"1,2,3\r\n4,5")
+    d.resync()
+    assert (d.stats.unheaded, d.stats.partial) == (1, 1)
+    d.feed(format_line(["mx", "my", "mz"]) + b"7,8,9\r\n")
+    assert d.format == "compass"
+
+
 def test_named_units_are_converted():
     d = StreamDecoder(CHANNELS, StreamOptions(columns=("mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz"),
                                               mag_unit="mG", accel_unit="m/s2", gyro_unit="deg/s"))
@@ -230,8 +239,7 @@ def test_device_formats_are_the_commands_choices():
 def _attitudes(model, stream: bytes, t_rx, options=None) -> np.ndarray:
     """heading, pitch, roll (deg) per sample of a LiveSession fed one line's bytes at a time at ``t_rx``."""
     out = io.StringIO()
-    session = LiveSession(model, out=out, stream=options)
-    session.feed(LinkEvent("connected", "connected to test", 0.0))
+    session = LiveSession(model, out=out, stream=options)  # no "connected" event: the first line is whole
     for t, chunk in zip(t_rx, stream):
         session.feed(Chunk(float(t), chunk))
     session.close()
@@ -282,3 +290,43 @@ def test_motioncal_and_csv_streams_give_the_attitude_of_the_same_samples_in_our_
         settled = t >= 1.0
         rms = np.sqrt(np.mean(_wrap(got[settled, 0] - smp.heading_deg[settled]) ** 2))
         assert rms < np.mean(got[settled, 3]), (fmt, rms)
+
+
+def test_the_live_tumble_collects_the_same_samples_from_every_format(tmp_path):
+    """`live --calibrate tumble` keeps what it calibrates as a recording: the same one from each format (so
+    `compass calibrate` makes the same calibration of it)."""
+    from compass.commands._live_tumble import TumbleCollector
+
+    model = board_model()
+    t = np.arange(400) / 100.0
+    smp = simulate_device(model, t, seed=9, motion=tumble_motion)
+
+    def recording(lines, options, name):
+        collector = TumbleCollector(stream=options)  # no "connected" event: the first line is whole
+        for tt, chunk in zip(t, lines):
+            collector.feed(Chunk(float(tt), chunk))
+        collector.finish()
+        assert collector.decoder.stats.dropped == 0 and len(collector.rows) == len(t)
+        return collector.write_recording(tmp_path / name).read_text().splitlines()[1:]  # after the source line
+
+    raw_lines = sample_lines("motioncal-raw", t, smp.raw, smp.accel, smp.gyro)
+    decoded = MotionCalDecoder(CHANNELS).feed(b"".join(raw_lines))
+    ours = [format_line(["mx", "my", "mz", "ax", "ay", "az"]) + format_line([f"{v:.9g}" for v in (*d.raw, *d.accel)])
+            for d in decoded]
+    assert recording(raw_lines, None, "raw.csv") == recording(ours, None, "ours.csv")
+    csv = sample_lines("csv", t, smp.raw, smp.accel, smp.gyro)
+    plain = [format_line(["t_s", "mx", "my", "mz", "ax", "ay", "az"])
+             + format_line([f"{tt:.4f}", *(f"{v:.7g}" for v in m), *(f"{v:.6f}" for v in a)])
+             for tt, m, a in zip(t, smp.raw, smp.accel)]
+    assert recording(csv, StreamOptions(columns=CSV_COLUMNS), "csv.csv") == recording(plain, None, "plain.csv")
+
+
+def test_the_first_line_after_a_reconnect_is_trusted_only_when_it_shows_its_start():
+    csv = CsvDecoder(CHANNELS, columns=CHANNELS)
+    csv.resync()
+    assert len(csv.feed(b"45 2 3\r\n1 2 3\r\n")) == 1 and csv.stats.partial == 1  # "45" may be the tail of "12.345"
+    mcd = MotionCalDecoder(CHANNELS)
+    mcd.resync()
+    assert len(mcd.feed(b"Raw:0,0,8192,0,0,0,200,0,-400\r\n")) == 1  # a tagged line starts where it starts
+    mcd.resync()
+    assert mcd.feed(b"0,0,0,0,200,0,-400\r\n") == [] and mcd.stats.partial == 1

@@ -17,14 +17,14 @@ def _wrap(a):
     return (np.asarray(a) + 180.0) % 360.0 - 180.0
 
 
-def _live_on_device(tmp_path, fmt, *live_args, readouts=4):
+def _live_on_device(tmp_path, fmt, *live_args, readouts=4, noise=()):
     cal, link, att = tmp_path / "board.json", tmp_path / "board", tmp_path / "att.csv"
     cal.write_text(json.dumps(board_model().to_json()))
     with Proc(compass_command("live", "--port", str(link), "--cal", str(cal), "--out", str(att), "--wait", "60",
                               *live_args), kill_after_s=150) as live:
         assert live.wait_for(lambda line: "waiting for" in line, 60.0), live.transcript()
         with Proc(compass_command("device", "--pty", "--format", fmt, "--cal", str(cal), "--link", str(link),
-                                  "--rate", "100", "--duration", "90"), kill_after_s=120) as device:
+                                  "--rate", "100", "--duration", "90", *noise), kill_after_s=120) as device:
             count = {"n": 0}
 
             def enough(line):
@@ -59,8 +59,12 @@ def test_live_reads_a_motioncal_raw_board(tmp_path):
 
 
 def test_live_reads_a_headerless_csv_board_named_by_columns(tmp_path):
-    output, table = _live_on_device(tmp_path, "csv", "--columns", ",".join(CSV_COLUMNS))
+    output, table = _live_on_device(tmp_path, "csv", "--columns", ",".join(CSV_COLUMNS),
+                                    noise=("--garbage", "0.02", "--truncate", "0.02"))
     assert "stream format: csv (as named)" in output and f"[csv {','.join(CSV_COLUMNS)}]" in output
+    summary = output.strip().splitlines()[-1]  # the noise is counted, never fatal
+    garbage, partial = (int(summary.split(f"{k} ")[1].split(",")[0]) for k in ("garbage", "partial"))
+    assert "line noise" in output and garbage > 0 and partial > 0
     t = table.column("t_s")  # the board's own clock: the truth at the same times
     truth = scripted_motion(t)
     settled = (t > t[0] + 1.0) & (truth[3] == 0)

@@ -22,7 +22,7 @@ import numpy as np
 from compass.io.lines import format_line
 from compass.io.streams import StreamDecoder, StreamOptions
 from compass.live import LiveSession
-from compass.serial_reader import Chunk, LinkEvent
+from compass.serial_reader import Chunk
 from compass.sim.device import simulate_device
 from compass.sim.stream_formats import CSV_COLUMNS, board_model, sample_lines
 
@@ -44,8 +44,7 @@ def options_of(fmt):
 
 def heading_rms(model, smp, fmt) -> float:
     out = io.StringIO()
-    session = LiveSession(model, out=out, stream=options_of(fmt))
-    session.feed(LinkEvent("connected", "bench", 0.0))
+    session = LiveSession(model, out=out, stream=options_of(fmt))  # no "connected" event: the first line is whole
     for t, chunk in zip(smp.t_s, lines_of(fmt, smp)):
         session.feed(Chunk(float(t), chunk))
     session.close()

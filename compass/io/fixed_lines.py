@@ -33,6 +33,7 @@ __all__ = ["Layout", "CsvDecoder", "MotionCalDecoder", "parse_columns", "MOTIONC
 
 MOTIONCAL_COLUMNS = ("ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz")
 _TIME_SCALES = {"t_s": 1.0, "t_ms": 1e-3, "t_us": 1e-6}
+_TAGS = ("Raw:", "Uni:", "Cal1:", "Cal2:")
 _SPLIT = re.compile(r"\s*[,;]\s*|\s+")
 _RAW_SCALES = (mc.G_PER_COUNT,) * 3 + (math.radians(mc.DEG_S_PER_COUNT),) * 3 + (mc.UT_PER_COUNT,) * 3
 _UNI_SCALES = (1.0 / STANDARD_GRAVITY,) * 3 + (1.0,) * 3 + (1.0,) * 3
@@ -137,6 +138,9 @@ class _FixedDecoder(LineDecoder):
         if text[0] == "#":
             self.stats.comments += 1
             return None
+        if untrusted and not self._whole(text):
+            self.stats.partial += 1  # the first line after a (re)connect may be the tail of one
+            return None
         cells = self._cells(text)
         if cells is None:
             return None
@@ -145,18 +149,15 @@ class _FixedDecoder(LineDecoder):
             return None
         layout = self.layout
         if len(cells) != len(layout.scales):
-            if len(cells) < len(layout.scales) or untrusted:
-                self.stats.partial += 1  # a line cut short, or the tail of one after a (re)connect
+            if len(cells) < len(layout.scales):
+                self.stats.partial += 1  # a line cut short
             else:
                 self.stats.garbage += 1
             return None
         try:
             values = [float(c) * k for c, k in zip(cells, layout.scales)]
         except ValueError:
-            if untrusted:
-                self.stats.partial += 1  # the tail of a line, cut inside a number
-            else:
-                self.stats.garbage += 1
+            self.stats.garbage += 1
             return None
         if not all(map(math.isfinite, values)):
             self.stats.invalid += 1
@@ -171,6 +172,10 @@ class _FixedDecoder(LineDecoder):
 
     def _cells(self, text: str) -> list[str] | None:
         """The sample cells of a line, or None when it is not a sample (counted by the subclass)."""
+        raise NotImplementedError
+
+    def _whole(self, text: str) -> bool:
+        """Whether a line is known to start where its line started (after a (re)connect, others are not)."""
         raise NotImplementedError
 
 
@@ -199,6 +204,9 @@ class CsvDecoder(_FixedDecoder):
         super().__post_init__()
         self.layout = Layout.from_names(self.columns, self.channels)
         self._start()
+
+    def _whole(self, text: str) -> bool:
+        return False  # bare numbers: a cut first number looks like a number
 
     def _cells(self, text: str) -> list[str] | None:
         cells = _SPLIT.split(text)
@@ -255,6 +263,9 @@ class MotionCalDecoder(_FixedDecoder):
             "counts of 1/8192 g, 1/16 deg/s and 0.1 uT" if source == "Raw" else
             "m/s^2, rad/s and uT" + (" (the finer of the two the sketch prints: its Raw: lines skipped from now)"
                                      if switched else ""))))
+
+    def _whole(self, text: str) -> bool:
+        return text.startswith(_TAGS)  # a line's tag is its start
 
     def _cells(self, text: str) -> list[str] | None:
         tag, _, rest = text.partition(":")

@@ -78,11 +78,9 @@ class StreamOptions:
                 1.0 if self.accel_unit is None else units.ACCEL_UNITS[self.accel_unit],
                 1.0 if self.gyro_unit is None else units.GYRO_UNITS[self.gyro_unit])
 
-    def known_units(self, fmt: str) -> tuple[str | None, str | None]:
-        """The field's and the accelerometer's unit after :meth:`factors` (None: not known)."""
-        if fmt == "motioncal":
-            return "uT", "g"
-        return ("uT" if self.mag_unit else None), ("g" if self.accel_unit else None)
+    def accel_known(self, fmt: str) -> bool:
+        """Whether the accelerometer's unit is known (named, or fixed by the format): then it reads g."""
+        return fmt == "motioncal" or self.accel_unit is not None
 
 
 def add_stream_arguments(parser) -> None:

@@ -169,6 +169,7 @@ class StreamDecoder:
         self._check = field_check
         self._held: list = []
         self._factors = (1.0, 1.0, 1.0)
+        self._accel_known = False
         self._accel: list = []
         self._gyro_rows: list = []
         self._gyro_judged = False
@@ -194,6 +195,7 @@ class StreamDecoder:
 
     @property
     def fatal(self) -> str | None:
+        """Why the stream cannot be used, in words (None while it can): the command ends on it (exit 2)."""
         if self._fatal is None and self.mismatch is not None:
             names, missing = self.mismatch
             if self.format == "compass":
@@ -223,8 +225,11 @@ class StreamDecoder:
         """After a (re)connect: the next line may be a fragment (see :meth:`LineDecoder.resync`)."""
         if self._inner is not None:
             self._inner.resync()
-        else:
-            self._pending, self._resynced = b"", True
+            return
+        lines = self._pending.replace(b"\r", b"\n").split(b"\n")
+        self.stats.unheaded += len(lines) - 1  # the bare-number lines kept: samples before any header
+        self.stats.partial += bool(lines[-1])  # a line the (re)connect cut
+        self._pending, self._seen, self._resynced = b"", 0, True
 
     def feed(self, chunk: bytes, t_rx: float | None = None) -> list[Sample]:
         """Samples of the complete lines so far, in the toolkit's units; ``t_rx`` (s, any clock) dates the chunk
@@ -259,7 +264,7 @@ class StreamDecoder:
             self._inner = CsvDecoder(self.channels, columns=self.options.columns, **common)
         self.format = fmt
         self._factors = self.options.factors(fmt)
-        self._mag_unit, self._accel_unit = self.options.known_units(fmt)
+        self._accel_known = self.options.accel_known(fmt)
         if self._resynced:
             self._inner.resync()
         self.events.append(("info", f"stream format: {fmt} ({how})"))
@@ -342,7 +347,7 @@ class StreamDecoder:
 
     def _observe(self, samples: list, t_rx: float | None) -> None:
         """The accelerometer's |a| in g (when its unit is known) and the gyro's turn against its tilt: warnings."""
-        if self._accel_unit is not None and len(self._accel) < _ACCEL_SAMPLES:
+        if self._accel_known and len(self._accel) < _ACCEL_SAMPLES:
             self._accel += [s.accel for s in samples if s.accel is not None]
             if len(self._accel) >= _ACCEL_SAMPLES:
                 norm = float(np.median(np.linalg.norm(self._accel, axis=1)))
