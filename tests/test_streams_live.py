@@ -87,7 +87,7 @@ def test_live_calibrate_tumble_on_a_motioncal_board(tmp_path):
             status = live.stop(sig=0, timeout_s=20.0)
         device.stop()
     assert status == 0, live.transcript()
-    assert "stream format: motioncal" in "".join(live.out)
+    assert "stream format: motioncal" in "".join(live.out) and "[MotionCal Raw: lines]" in "".join(live.out)
     found = json.loads(out.read_text())
     hard, sigma = np.array(found["hard_iron"]), np.array(found["tumble"]["hard_iron_sigma"])
     truth = np.array([r.offset for r in model.responses])  # uT, what the Raw: counts carry

@@ -116,7 +116,8 @@ class TumbleCollector:
     def readout(self) -> str:
         n = len(self.rows)
         if self.coverage is None:
-            return f"tumble: {n} samples; turn the module slowly through every orientation"
+            return (f"tumble: {n} samples; turn the module slowly through every orientation  "
+                    f"[{self.decoder.describe()}]")
         c, fit = self.coverage, self.fit
         text = (f"tumble: {n} samples, {100 * c.fraction:.0f} % of the sphere covered "
                 f"(need {100 * self.min_coverage:.0f} %)")
@@ -125,7 +126,7 @@ class TumbleCollector:
         if fit is not None:
             text += ("; hard iron " + ", ".join(f"{h:.4g}" for h in fit.hard_iron)
                      + " +- " + ", ".join(f"{s:.2g}" for s in fit.hard_iron_sigma))
-        return text
+        return text + f"  [{self.decoder.describe()}]"
 
     def write_recording(self, path) -> Path:
         """The samples as a tumble recording (SPEC section 2): accelerometer and temp_c columns when

@@ -31,7 +31,8 @@ Checks, like the file readers' (a check never changes the data):
   out (the command exits 2; a reference seeded from such samples made the heading go wrong silently);
 - an accelerometer whose unit is known reads about 1 g at rest (a warning event otherwise);
 - the gyro turns as much as the accelerometer sees the housing tilt (:func:`compass.io.units.gyro_turn_ratio`:
-  a deg/s gyro read as rad/s turns 57 times too much; a warning event).
+  a deg/s gyro read as rad/s turns 57 times too much; a warning event), judged on the first 10 s window
+  in which the housing tilts, within the first minute.
 
 The decoder interface
 ---------------------
@@ -65,6 +66,7 @@ _AUTO_WAIT_LINES = 500  # the same when no receive time is given
 _AUTO_MAX_BYTES = 1 << 18
 _ACCEL_SAMPLES = 50
 _GYRO_WINDOW_S = 10.0
+_GYRO_WINDOWS = 6  # windows tried before the gyro check gives up (a module that lies still)
 _UNIT_FACTORS = sorted({a / b for a in units.MAG_UNITS.values() for b in units.MAG_UNITS.values()} - {1.0})
 
 
@@ -173,6 +175,7 @@ class StreamDecoder:
         self._accel: list = []
         self._gyro_rows: list = []
         self._gyro_judged = False
+        self._gyro_windows = 0
         if self.options.requested != "auto":
             self._adopt(self.options.requested, "as named")
 
@@ -371,8 +374,12 @@ class StreamDecoder:
             return
         if t[-1] - t[0] < _GYRO_WINDOW_S:
             return
-        ratio = units.gyro_turn_ratio(t, np.array([r[3] for r in rows]), np.array([r[2] for r in rows]))
         self._gyro_rows = []
+        self._gyro_windows += 1
+        self._gyro_judged = self._gyro_windows >= _GYRO_WINDOWS  # a housing that never tilts: give up
+        accel, gyro = np.array([r[2] for r in rows]), np.array([r[3] for r in rows])
+        sane = np.all(np.abs(np.hstack([accel, gyro])) < units.MAX_ABS_VALUE, axis=1)  # corrupted readings: no evidence
+        ratio = units.gyro_turn_ratio(t[sane], gyro[sane], accel[sane])
         if ratio is None:
             return  # the housing did not tilt enough in this window: try the next one
         self._gyro_judged = True
