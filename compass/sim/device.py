@@ -343,7 +343,8 @@ class PtyDevice:
                         self._write(_garbage(rng))
                     if self.truncate_rate and rng.random() < self.truncate_rate:
                         self.counts["truncated"] += 1
-                        line = line[: int(rng.integers(1, line.rindex(b",")))] + b"\r\n"
+                        last_cell = max(line.rfind(b","), line.rfind(b" "))  # comma or space separated
+                        line = line[: int(rng.integers(1, last_cell))] + b"\r\n"
                     self._write(line)
                     self.counts["samples"] += 1
                     if self.fmt.startswith("motioncal"):
