@@ -392,7 +392,7 @@ class LiveSession:
         A stream that ended before its first quiet second has its held samples solved against the
         reference their rows give (:meth:`compass.site.QuietSeed.finish`), if ten of them do.
         """
-        samples = self.decoder.flush()  # held for the unit check, or waiting in the decoder
+        samples = self.decoder.flush()  # held for the unit check: judged on what came
         if samples:
             self._chunk(samples, self._last_rx)
         for level, text in self.decoder.drain_events():
