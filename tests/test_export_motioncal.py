@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from _proc import Proc, compass_command
 
+from compass.calibration import model_to_dict
 from compass.cli import main
 from compass.commands._export_motioncal import packet_of, send_packet
 from compass.io import motioncal as mc
@@ -145,7 +146,7 @@ def _board_cal(tmp_path) -> Path:
     from compass.sim.stream_formats import board_model
 
     path = tmp_path / "board.json"
-    path.write_text(json.dumps(board_model().to_json()))
+    path.write_text(json.dumps(model_to_dict(board_model())))
     return path
 
 
@@ -217,6 +218,6 @@ def test_export_without_out_prints_the_numbers_and_bytes(tmp_path, capsys):
 
 def test_a_volts_model_is_refused_by_the_motioncal_device(tmp_path, capsys):
     cal = tmp_path / "volts.json"
-    cal.write_text(json.dumps(default_model().to_json()))
+    cal.write_text(json.dumps(model_to_dict(default_model())))
     assert main(["device", "--pty", "--format", "motioncal", "--cal", str(cal), "--duration", "1"]) == 2
     assert "MotionCal lines carry the field in uT" in capsys.readouterr().err

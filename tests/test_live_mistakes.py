@@ -9,12 +9,13 @@ import pytest
 
 from compass.cli import main
 from compass.sim.device import default_model
+from compass.calibration import model_to_dict
 
 
 @pytest.fixture
 def cal(tmp_path):
     path = tmp_path / "cal.json"
-    path.write_text(json.dumps(default_model().to_json()))
+    path.write_text(json.dumps(model_to_dict(default_model())))
     return path
 
 
@@ -115,7 +116,7 @@ def test_a_module_sending_mg_to_a_calibration_in_ut_is_said_with_the_factor_not_
 
     model = board_model()
     cal = tmp_path / "board.json"
-    cal.write_text(json.dumps(model.to_json()))
+    cal.write_text(json.dumps(model_to_dict(model)))
     s = simulate_device(model, np.arange(300) / 100.0, seed=2)
     rows = b"".join(b"%.2f,%.2f,%.2f,%.5f,%.5f,%.5f\r\n" % (*(10.0 * m), *a) for m, a in zip(s.raw, s.accel))
     att = tmp_path / "att.csv"

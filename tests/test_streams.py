@@ -295,7 +295,7 @@ def test_motioncal_and_csv_streams_give_the_attitude_of_the_same_samples_in_our_
 def test_the_live_tumble_collects_the_same_samples_from_every_format(tmp_path):
     """`live --calibrate tumble` keeps what it calibrates as a recording: the same one from each format (so
     `compass calibrate` makes the same calibration of it)."""
-    from compass.commands._live_tumble import TumbleCollector
+    from calibrate.tumble.collector import TumbleCollector
 
     model = board_model()
     t = np.arange(400) / 100.0

@@ -8,6 +8,7 @@ import signal
 import numpy as np
 from _proc import Proc, compass_command
 
+from compass.calibration import model_to_dict
 from compass.io.table import read_table
 from compass.sim.device import scripted_motion
 from compass.sim.stream_formats import CSV_COLUMNS, board_model
@@ -19,7 +20,7 @@ def _wrap(a):
 
 def _live_on_device(tmp_path, fmt, *live_args, readouts=4, noise=()):
     cal, link, att = tmp_path / "board.json", tmp_path / "board", tmp_path / "att.csv"
-    cal.write_text(json.dumps(board_model().to_json()))
+    cal.write_text(json.dumps(model_to_dict(board_model())))
     with Proc(compass_command("live", "--port", str(link), "--cal", str(cal), "--out", str(att), "--wait", "60",
                               *live_args), kill_after_s=150) as live:
         assert live.wait_for(lambda line: "waiting for" in line, 60.0), live.transcript()
@@ -76,7 +77,7 @@ def test_live_reads_a_headerless_csv_board_named_by_columns(tmp_path):
 def test_live_calibrate_tumble_on_a_motioncal_board(tmp_path):
     cal, link, out = tmp_path / "board.json", tmp_path / "board", tmp_path / "live.json"
     model = board_model()
-    cal.write_text(json.dumps(model.to_json()))
+    cal.write_text(json.dumps(model_to_dict(model)))
     with Proc(compass_command("device", "--pty", "--format", "motioncal-raw", "--motion", "tumble", "--cal", str(cal),
                               "--link", str(link), "--rate", "100", "--seed", "3", "--duration", "100"),
               kill_after_s=130) as device:

@@ -72,10 +72,8 @@ def packet_of(path, *, unit: str = "uT", max_rotation_deg: float = 1.0):
     from scipy.linalg import polar
     from scipy.spatial.transform import Rotation
 
-    from ..accel_alignment import imu_to_model
-    from ..calibration_file import load
+    from ..calibration import load
     from ..cli import BadInput
-    from ..installed import alignment_of
     from ..io.motioncal import CalPacket
     from ..io.units import MAG_UNITS
 
@@ -92,13 +90,13 @@ def packet_of(path, *, unit: str = "uT", max_rotation_deg: float = 1.0):
         n = 0 if model is None else len(model.channels)
         raise refuse(f"the packet holds three magnetometer axes, this sensor has {n} channel(s)"
                      + ("" if model is None else f" ({', '.join(model.channels)})"))
-    alignment = alignment_of(cal.data)
+    alignment = None if cal.installation is None else cal.installation.alignment
     if alignment is not None:
         angle = Rotation.from_matrix(alignment).magnitude()
         raise refuse(f"its alignment turns the field {math.degrees(angle):.2f} deg into the product's frame, and the "
                      f"packet corrects the magnetometer in its own frame with no rotation: export the bench "
                      f"calibration it was installed from, or calibrate the installed module by a tumble")
-    magnitude = float(model.field_magnitude)
+    magnitude = float(model.field_norm)
     field_b = magnitude * _fibonacci_sphere(400)
     x = field_b @ model.unit_directions.T
     raw = np.column_stack([r.output(x[:, c]) for c, r in enumerate(model.responses)])
@@ -115,7 +113,7 @@ def packet_of(path, *, unit: str = "uT", max_rotation_deg: float = 1.0):
     if all(r.model == "linear" for r in model.responses):  # the same map, exactly: no fit's rounding in the bytes
         offset = model.zero_outputs
         matrix = np.linalg.inv(model.gains[:, None] * model.unit_directions)
-    to_model = imu_to_model(cal.data)
+    to_model = cal.imu.rotation  # R_model<-accel: the bench's mag_to_accel (an installed alignment was refused)
     in_accel = matrix if to_model is None else to_model.T @ matrix
     rotation, soft = polar(in_accel, side="right")
     if np.linalg.det(rotation) < 0:

@@ -78,7 +78,7 @@ def field_scale_check(model):
     ----------
     model : compass.model.SensorModel
         ``field(raw)`` gives the field in H in the calibration's field unit, whose magnitude is
-        ``field_magnitude``.
+        ``field_norm``.
 
     Returns
     -------
@@ -93,7 +93,7 @@ def field_scale_check(model):
     :data:`compass.io.units.MAG_UNITS`; a factor that brings it within 1.25 of 1 is a unit taken for
     another.  A ratio no factor explains (a strong magnet) is not a unit: None.
     """
-    magnitude = float(model.field_magnitude)
+    magnitude = float(model.field_norm)
     unit = "uT" if model.field_ut is not None else "in the calibration's unit"
 
     def ratio(raw: np.ndarray) -> float:

@@ -39,7 +39,7 @@ def board_model() -> SensorModel:
 def outputs_per_ut(model: SensorModel) -> float:
     """Output units per uT of the model's channels (median gain): 1 for a magnetometer that reads uT, NaN
     when the calibration does not say what its unit is (no ``field_ut`` and a |B| outside 25-65)."""
-    magnitude = model.field_magnitude
+    magnitude = model.field_norm
     per_field_unit = float(np.median(model.gains))
     if model.field_ut is not None:
         return per_field_unit * magnitude / model.field_ut
