@@ -353,7 +353,8 @@ class StreamDecoder:
         if self._accel_known and len(self._accel) < _ACCEL_SAMPLES:
             self._accel += [s.accel for s in samples if s.accel is not None]
             if len(self._accel) >= _ACCEL_SAMPLES:
-                norm = float(np.median(np.linalg.norm(self._accel, axis=1)))
+                with np.errstate(over="ignore", invalid="ignore"):  # a corrupted reading squared
+                    norm = float(np.median(np.linalg.norm(self._accel, axis=1)))
                 if not 0.8 <= norm <= 1.25:
                     self.events.append(("warn", f"the accelerometer reads a median |a| of {norm:.3g} g in its first "
                                                 f"{_ACCEL_SAMPLES} samples, not 1 g: is --accel-unit right?"))
