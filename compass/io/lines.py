@@ -129,6 +129,9 @@ class Sample:
     header : Header or None
         The header the line was decoded under (a chunk is decoded whole, so the decoder's current
         header may already be a later one).
+    t_rx : float or None
+        When its bytes arrived (s, the reader's clock), for a sample a decoder held back before handing it
+        out (:class:`compass.io.streams.StreamDecoder`); None: it arrived with the chunk it comes out of.
     """
 
     raw: np.ndarray
@@ -138,6 +141,7 @@ class Sample:
     seq: int | None = None
     temp_c: float | None = None
     header: Header | None = None
+    t_rx: float | None = None
 
 
 @dataclass
