@@ -40,6 +40,10 @@ def check_layout(path, application_id, timeline):
         if view["class"] == "TextLog":
             assert view["text_columns"][0] == (BODY, True) and not any(v for _, v in view["text_columns"][1:])
             assert view["timeline_columns"] == []
+            # its lines are on the timeline the time panel shows (a line on another is not listed)
+            for c in RrdReader(str(path)).stream().filter(content=view["origin"]).to_chunks():
+                rb = c.to_record_batch()
+                assert "TextLog:text" not in rb.schema.names or timeline in rb.schema.names, view["name"]
         if view["class"] == "3D":
             assert view["eye"] is not None and np.linalg.norm(view["eye"]) > 2.0, view["name"]
     labels = static_labels(path)
@@ -116,7 +120,7 @@ def test_attitude_layout_names_units_and_flags(folder, fourflip):
     assert {"/compass/state/field", "/compass/state/range"} <= lanes
     # the world has a north marker; the reference is labelled beyond its tip, away from the housing's X
     texts = {text for _, text, _ in static_labels(rrd)}
-    assert "N (magnetic north)" in texts and "+Z (top)" in texts and not any("up" == t.split()[-1] for t in texts)
+    assert "N (magnetic north)" in texts and "+Z" in texts and not any("up" == t.split()[-1] for t in texts)
 
 
 def test_live_recording_is_compacted_and_laid_out(tmp_path):

@@ -177,11 +177,11 @@ def test_attitude_rerun_matches_the_csv(tmp_path):
             "/housing/expected/field_gate",
             "/housing/expected", "/housing/gravity", "/housing/expected/gravity_gate"} <= paths
     (labels,) = read_static(rrd, "/world/housing/axes", "Arrows3D:labels")[-1:]
-    assert labels == ["+X (nose)", "+Y (left side)", "+Z (top)"]  # right however the housing is turned
+    assert labels == ["+X", "+Y", "+Z"]  # right however the housing is turned
     views = views_by_name(rrd)
     heading_view = views["heading (deg) +-1 sigma; from true north with a site"]
     assert heading_view["class"] == "TimeSeries" and "/compass/heading_deg/**" in heading_view["contents"]
-    assert views["in the housing: measured field (orange) and gravity (purple) against the gate's cones"][
+    assert views["in the housing: field (orange), gravity (purple), the gate's cones"][
         "origin"] == "/housing"
 
 

@@ -11,9 +11,9 @@ AXIS_COLORS = np.array([[230, 60, 60], [60, 190, 60], [70, 110, 240]], dtype=np.
 FIELD_COLOR = [240, 170, 30]
 GRAVITY_COLOR = [150, 90, 220]
 REFERENCE_COLOR = [70, 70, 70]  # dark grey: reads on the viewer's light and dark backgrounds
-# the housing's own axes, named by the body's parts: right however the housing is turned ("Z up"
-# pointed down when it was upside down)
-AXIS_LABELS = ["+X (nose)", "+Y (left side)", "+Z (top)"]
+# the housing's own axes, short (long names overlapped once the housing turned) and right however
+# it is turned ("Z up" pointed down when it was upside down); the nose and fin tell front and top
+AXIS_LABELS = ["+X", "+Y", "+Z"]
 
 # the body: a flat slab longer along X, a nose on its +X end, a fin on top at the back (+Z, -X),
 # so forward/back, left/right and up/down can each be told at a glance (FLU, SPEC section 1)

@@ -69,10 +69,10 @@ def attitude_views(*, world: str = "/world", housing: str = "/housing", compass:
         The unit of the raw magnetometer channels, for the panel's title.
     """
     spatial = rrb.Vertical(
-        _layout.spatial(origin=world, name="world (N = magnetic north X, W = west Y, up Z): housing, measured field "
-                                           "(orange), reference field (dark grey)", eye=(3.0, 3.4, 1.2), target=(0.0, 0.0, -0.5)),
-        _layout.spatial(origin=housing, name="in the housing: measured field (orange) and gravity (purple) against "
-                                             "the gate's cones", eye=(3.0, 2.6, 1.0), target=(0.0, 0.0, -0.3)))
+        _layout.spatial(origin=world, name="world: housing, field (orange), reference (grey), N north",
+                        eye=(2.3, 2.5, 0.9), target=(0.3, 0.0, -0.5)),
+        _layout.spatial(origin=housing, name="in the housing: field (orange), gravity (purple), the gate's cones",
+                        eye=(2.2, 1.9, 0.7), target=(0.0, 0.0, -0.35)))
     series = rrb.Vertical(
         _layout.series(name="heading (deg) +-1 sigma; from true north with a site",
                        contents=[f"{compass}/heading_deg/**", f"{compass}/heading_true_deg/**"]),
@@ -85,7 +85,7 @@ def attitude_views(*, world: str = "/world", housing: str = "/housing", compass:
                  _layout.series(origin=f"{raw}/gyro", name="raw gyro (rad/s)"),
                  _layout.series(origin=f"{compass}/latency_ms", name="live: latency, port to estimate (ms)",
                                 legend=None)),
-        row_shares=[3, 3, 2, 2, 2, 3])
+        row_shares=[3, 3, 2, 2, 3, 3])
     return rrb.Horizontal(spatial, series, _layout.text_log(origin=events, name="events"), column_shares=[2, 3, 1],
                           name="attitude")
 
@@ -359,6 +359,8 @@ def record_attitude(target, attitude, model, *, t_s=None, raw=None, accel=None, 
                      field_tolerance=defaults["field_tolerance"].default,
                      dip_tolerance_deg=defaults["dip_tolerance_deg"].default)
         out.rec.set_time("sample", sequence=0)
+        if t_s is not None:
+            out.rec.set_time("t", duration=float(t_s[0]))
         out.rec.log("events", rr.TextLog(f"mode {attitude.mode}: {int(np.sum(attitude.disturbed))} of "
                                          f"{len(attitude.disturbed)} rows disturbed, "
                                          f"{int(np.sum(~attitude.in_range))} out of calibrated range"))

@@ -95,7 +95,16 @@ def log_calibration(rec, kind: str, calibration: dict, **arrays) -> None:
     """Log one calibration; ``arrays`` are those :func:`log_fourflip`, :func:`log_tumble` or
     :func:`log_fit_residuals` take for ``kind``."""
     {"fourflip": log_fourflip, "tumble": log_tumble}.get(kind, log_fit_residuals)(rec, calibration, **arrays)
-    log_diagnosis(rec, calibration.get("diagnosis"))
+    log_diagnosis(rec, calibration.get("diagnosis"), t_s=arrays.get("t_s"))
+
+
+def _at_start(rec, t_s=None) -> None:
+    """Stamp what follows at the recording's start on every timeline a layout may show (a text
+    logged on ``sample`` alone is not listed when the time panel shows ``t`` or ``turntable_deg``)."""
+    rec.set_time("sample", sequence=0)
+    rec.set_time("turntable_deg", sequence=0)
+    if t_s is not None and len(t_s) and np.isfinite(np.nanmin(t_s)):
+        rec.set_time("t", duration=float(np.nanmin(t_s)))
 
 
 def log_fourflip(rec, calibration: dict, *, platform_deg, flip_deg, outputs, residuals, t_s=None,
@@ -190,8 +199,9 @@ def _log_bench(rec, calibration: dict, names) -> None:
             colors=[color for cone, color in strips for _ in cone]), static=True)
 
 
-def log_diagnosis(rec, diagnosis: dict | None) -> None:
-    """The diagnosis block (SPEC section 4): each step's residual rms as bars, the steps in words."""
+def log_diagnosis(rec, diagnosis: dict | None, *, t_s=None) -> None:
+    """The diagnosis block (SPEC section 4): each step's residual rms as bars, the steps in words
+    (stamped at the start of the recording, whose times ``t_s`` are, when it has any)."""
     if not diagnosis or not diagnosis.get("steps"):
         return
     steps = diagnosis["steps"]
@@ -217,7 +227,7 @@ def log_diagnosis(rec, diagnosis: dict | None) -> None:
     lines.append("effects: " + (", ".join(diagnosis.get("effects", [])) or "none")
                  + {True: "; structure above the floor remains UNEXPLAINED", False: "; residual at the noise floor",
                     None: "; no floor to judge by"}[verdict])
-    rec.set_time("sample", sequence=0)  # at the start of the replay, so the whole story is in view
+    _at_start(rec, t_s)  # at the start of the replay, so the whole story is in view
     for line in lines:
         rec.log("diagnosis/log", rr.TextLog(line))
 
@@ -296,7 +306,7 @@ def log_tumble(rec, calibration: dict, *, mag, t_s=None, coverage_words: str | N
     rec.send_columns("tumble/field_ratio", indexes=index, columns=rr.Scalars.columns(
         scalars=np.column_stack([raw_ratio / np.median(raw_ratio), np.linalg.norm(m, axis=1) / norm])))
     if coverage_words:
-        rec.set_time("sample", sequence=0)
+        _at_start(rec, t_s)
         rec.log("diagnosis/log", rr.TextLog(f"coverage: {coverage_words}"))
 
 
