@@ -118,8 +118,20 @@ def main(argv=None) -> int:
     args = parser.parse_args(_attach_negative_lists(sys.argv[1:] if argv is None else list(argv)))
     from .io.units import RecordingWarning
 
-    with warnings.catch_warnings(record=True) as caught:
+    show = warnings.showwarning
+
+    def show_at_once(message, category, filename, lineno, file=None, line=None):
+        """A warning about the input is printed when it is found: before the report it explains
+        (collected to the end, it came after "wrote cal.json")."""
+        if issubclass(category, RecordingWarning):
+            sys.stdout.flush()
+            print(f"compass {args.command}: warning: {message}", file=sys.stderr, flush=True)
+        else:
+            show(message, category, filename, lineno, file, line)
+
+    with warnings.catch_warnings():
         warnings.simplefilter("always", RecordingWarning)
+        warnings.showwarning = show_at_once
         try:
             status = int(args.func(args) or 0)
         except _bad_input_types() as exc:  # the one line says it all: no warnings around it
@@ -133,11 +145,6 @@ def main(argv=None) -> int:
                 raise
             print(f"compass {args.command}: failed: {type(exc).__name__}: {exc}", file=sys.stderr)
             status = 1
-    for w in caught:
-        if issubclass(w.category, RecordingWarning):
-            print(f"compass {args.command}: warning: {w.message}", file=sys.stderr)
-        else:
-            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
     return status
 
 
