@@ -100,7 +100,8 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: 
             warnings.append("no magnetometer-accelerometer rotation fitted: with part of the sphere missing it "
                             "trades off against the hard iron; frames taken as aligned")
             misalignment = replace(misalignment, rotation=None, rotvec_deg=np.full(3, np.nan),
-                                   rotvec_sigma_deg=np.full(3, np.nan))
+                                   rotvec_sigma_deg=np.full(3, np.nan),
+                                   withheld="with part of the sphere missing it trades off against the hard iron")
         if misalignment is not None:
             chosen, misalignment = refine_jointly(chosen, mag, accel, misalignment)
             diagnosis = diagnosis.with_alignment(misalignment, chosen)
@@ -164,4 +165,4 @@ class TumbleCalibrator(Calibrator):
                                   n_repeats=recording.n_repeats, t_s=recording.t_s, temp_c=recording.temp_c)
         if result.refused:
             raise CannotCalibrate(f"{recording.path}: {result.refused}")
-        return result
+        return replace(result, raw_unit="uT" if recording.mag_unit else "recording units")

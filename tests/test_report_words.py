@@ -1,0 +1,37 @@
+"""The words of the calibration reports: one sign for delta-BIC, the unit the readings are in."""
+
+import numpy as np
+
+from calibrate.tumble.alignment import Misalignment
+from compass.cli import main
+
+
+def _misalignment(delta_bic, applied, withheld=None):
+    from scipy.spatial.transform import Rotation
+
+    return Misalignment(Rotation.identity() if applied else None, np.zeros(3), np.zeros(3), 60.0, 0.1, 500,
+                        5.8, 1.4, delta_bic, withheld)
+
+
+def test_the_rotation_s_evidence_has_one_sign_and_says_why_it_was_not_applied():
+    """The x-io log said 'not supported by the data (delta BIC -7001.6)' in the summary and 'delta-BIC 7002
+    ... not applied' in the diagnosis: the rotation was supported and withheld for the coverage."""
+    withheld = _misalignment(-7001.6, False, "with part of the sphere missing it trades off against the hard iron")
+    assert "supported by the data (delta-BIC +7002) but not applied: with part of the sphere" in withheld.words()
+    assert "not supported" not in withheld.words()
+    refused = _misalignment(12.0, False)
+    assert "not supported by the data (delta-BIC -12)" in refused.words()
+    assert "rotation applied (delta-BIC +40)" in _misalignment(-40.0, True).words()
+
+
+def test_a_named_magnetometer_unit_is_reported_as_uT(tmp_path, capsys):
+    from compass.sim.tumble import simulate_tumble
+
+    sim = simulate_tumble(seed=6, n=600)
+    rec = tmp_path / "t.csv"
+    np.savetxt(rec, sim.mag * 10.0, delimiter=",", header="mx,my,mz", comments="", fmt="%.5f")  # mG
+    assert main(["calibrate", str(rec), "--out", str(tmp_path / "c.json"), "--mag-unit", "mG"]) == 0
+    out = capsys.readouterr().out
+    assert "recording units" not in out and "(uT)" in out
+    assert main(["calibrate", str(rec), "--out", str(tmp_path / "d.json")]) == 0  # a free unit is said so
+    assert "(recording units)" in capsys.readouterr().out
