@@ -11,7 +11,7 @@ above, panels collapsed.
 from __future__ import annotations
 
 import rerun.blueprint as rrb
-from rerun.blueprint.encodings import TextLogColumn
+from rerun.blueprint.encodings import TextLogColumn, TimelineColumn
 
 __all__ = ["series", "text_log", "spatial", "blueprint", "APPLICATION_IDS"]
 
@@ -22,6 +22,9 @@ APPLICATION_IDS = {"fourflip": "compass_calibrate_fourflip", "tumble": "compass_
                    "installed": "compass_calibrate_installed", "attitude": "compass_attitude",
                    "evaluate": "compass_evaluate", "live": "compass_live", "live_tumble": "compass_live_tumble",
                    "demo": "compass_demo"}
+
+TIMELINES = ("t", "sample", "turntable_deg")
+"""Every timeline the recordings use."""
 
 _WHOLE = rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite())
 
@@ -46,8 +49,8 @@ def series(*, name: str, origin: str = "/", contents=None, legend: str | None = 
 
 def text_log(*, origin: str, name: str) -> rrb.TextLogView:
     """A text log showing the message only (no time, entity path or level columns)."""
-    columns = rrb.TextLogColumns(
-        timeline_columns=[],
+    columns = rrb.TextLogColumns(  # an empty list of timeline columns shows the active one: hide each by name
+        timeline_columns=[TimelineColumn(name, visible=False) for name in TIMELINES],
         text_log_columns=[TextLogColumn("Body", visible=True), TextLogColumn("EntityPath", visible=False),
                           TextLogColumn("LogLevel", visible=False)])
     return rrb.TextLogView(origin=origin, name=name, columns=columns)

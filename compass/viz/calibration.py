@@ -68,8 +68,6 @@ def calibration_views(kind: str, channels=()) -> rrb.Container:
                                _layout.series(origin=f"/fourflip/{ch}/residual",
                                               name=f"{ch}: residual (recording units), noise band"))
                 for ch in channels]
-        rows.append(_layout.series(name="bench angles (deg)",
-                                   contents=["/fourflip/platform_deg", "/fourflip/flip_deg"]))
         return rrb.Horizontal(
             _layout.spatial(origin="/bench", name="cube on the turntable: sensing directions +-1 sigma, field (orange)",
                             eye=(3.0, 2.2, 1.8)),
