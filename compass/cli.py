@@ -115,7 +115,11 @@ def _attach_negative_lists(argv: list[str]) -> list[str]:
 def main(argv=None) -> int:
     _one_blas_thread()
     parser = build_parser()
-    args = parser.parse_args(_attach_negative_lists(sys.argv[1:] if argv is None else list(argv)))
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if not argv:  # a newcomer's first try: the commands, not "the following arguments are required"
+        parser.print_help()
+        return 2
+    args = parser.parse_args(_attach_negative_lists(argv))
     from .io.units import RecordingWarning
 
     show = warnings.showwarning
