@@ -35,3 +35,19 @@ def test_a_named_magnetometer_unit_is_reported_as_uT(tmp_path, capsys):
     assert "recording units" not in out and "(uT)" in out
     assert main(["calibrate", str(rec), "--out", str(tmp_path / "d.json")]) == 0  # a free unit is said so
     assert "(recording units)" in capsys.readouterr().out
+
+
+def test_ardupilot_export_of_a_bench_calibration_says_its_offsets_are_outputs(tmp_path, capsys):
+    """A four-flip calibration in volts was written as milligauss without a word, and its sensor-to-housing
+    rotation called a magnetometer-to-accelerometer one for a file without an accelerometer."""
+    rec, cal = tmp_path / "bench.csv", tmp_path / "cal.json"
+    assert main(["simulate", "fourflip", "--out", str(rec), "--seed", "2"]) == 0
+    assert main(["calibrate", str(rec), "--out", str(cal), "--quiet", "--no-diagnose"]) == 0
+    capsys.readouterr()
+    assert main(["export", str(cal), "--format", "ardupilot"]) == 0
+    captured = capsys.readouterr()
+    assert "zero-field outputs in the recording's output unit" in captured.err
+    assert "# warning: a bench calibration's offsets" in captured.out
+    assert "magnetometer-to-accelerometer" not in captured.out and "the file has no accelerometer" in captured.out
+    assert main(["export", str(cal), "--format", "fusion"]) == 0
+    assert "output unit" not in capsys.readouterr().err  # Fusion takes the matrix and offset as they are

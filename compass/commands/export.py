@@ -44,11 +44,18 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+OUTPUT_UNITS_NOTE = ("a bench calibration's offsets are its channels' zero-field outputs in the recording's output "
+                     "unit (volts, counts), not a field: COMPASS_OFS (milligauss) and the --unit conversion hold only "
+                     "if the module's channels read field units")
+
+
 def run(args) -> int:
     cal = load_tumble(args.calibration)
     note = unit_note(cal, args.unit)
     if note:
         print(f"compass export: warning: {args.calibration}: {note}", file=sys.stderr)
+    if cal.get("output_units") and args.format == "ardupilot":
+        print(f"compass export: warning: {args.calibration}: {OUTPUT_UNITS_NOTE}", file=sys.stderr)
     text = export_text(cal, args.format, unit=args.unit)
     if args.out:
         out = check_writable(args.out, args.force)
@@ -87,6 +94,9 @@ def load_tumble(path) -> dict:
         to_model = imu_to_model(cal.data)
         if to_model is not None:
             form["mag_to_accel"] = to_model.T @ form["mag_to_accel"]
+        form["rotation_words"] = ("magnetometer-to-accelerometer rotation" if to_model is not None else
+                                  "rotation of the sensor's axes into the housing's (the file has no accelerometer)")
+        form["output_units"] = True
         return form
     d = cal.data
     c = d.get("mag_to_accel")
@@ -125,7 +135,7 @@ def channel_form(model) -> dict:
                          f"cannot reproduce: export is for linear channels")
     rotation, soft = polar(np.linalg.inv(model.gains[:, None] * model.unit_directions), side="right")
     return {"hard_iron": model.zero_outputs, "soft_iron": soft, "mag_to_accel": rotation,
-            "field_norm_recording_units": None}
+            "field_norm_recording_units": None, "output_units": True}
 
 
 def unit_note(cal: dict, unit: str) -> str:
@@ -177,9 +187,12 @@ def export_text(cal: dict, fmt: str, *, unit: str = "uT") -> str:
     lines = ["# compass export: ArduPilot COMPASS_* (offsets in milligauss, matrix = soft-iron shape, det 1)"]
     if unit_note(cal, unit):
         lines.append(f"# warning: {unit_note(cal, unit)}")
+    if cal.get("output_units"):
+        lines.append(f"# warning: {OUTPUT_UNITS_NOTE}")
     if c is not None:
         angle = np.degrees(np.arccos(np.clip((np.trace(c) - 1.0) / 2.0, -1.0, 1.0)))
-        lines.append(f"# not exported: magnetometer-to-accelerometer rotation of {angle:.2f} deg (no ArduPilot parameter)")
+        what = cal.get("rotation_words", "magnetometer-to-accelerometer rotation")
+        lines.append(f"# not exported: {what} of {angle:.2f} deg (no ArduPilot parameter)")
     lines += [f"COMPASS_OFS_{a},{v:.4f}" for a, v in zip("XYZ", ofs)]
     lines += [f"COMPASS_DIA_{a},{v:.6f}" for a, v in zip("XYZ", np.diag(shape))]
     lines += [f"COMPASS_ODI_{a},{v:.6f}" for a, v in zip("XYZ", (shape[0, 1], shape[0, 2], shape[1, 2]))]
