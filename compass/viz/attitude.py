@@ -269,7 +269,7 @@ def log_attitude(rec, attitude, *, t_s=None, raw=None, accel=None, gyro=None, di
 def evaluation_views() -> rrb.Container:
     """Estimate and truth side by side in the world, errors over time, the field."""
     return rrb.Horizontal(
-        _layout.spatial(origin="/world", name="estimate (blue) and truth (grey, to its right); N = magnetic north",
+        _layout.spatial(origin="/world", name="estimate (blue) and truth (grey, beside it); N = magnetic north",
                         eye=(2.6, 3.4, 1.8), target=(0.0, -0.9, 0.0)),
         rrb.Vertical(
             _layout.series(origin="/errors",

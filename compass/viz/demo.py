@@ -20,7 +20,7 @@ __all__ = ["record_demo", "errors_views"]
 def errors_views() -> rrb.Container:
     """Attitude errors against the truth, with the propagated sigma, and the two housings."""
     return rrb.Horizontal(
-        _layout.spatial(origin="/world", name="estimate (blue) and truth (grey, to its right); N = magnetic north",
+        _layout.spatial(origin="/world", name="estimate (blue) and truth (grey, beside it); N = magnetic north",
                         eye=(2.6, 3.4, 1.8), target=(0.0, -0.9, 0.0)),
         rrb.Vertical(*(_layout.series(origin=f"/errors/{name}", name=f"{name[:-4]} error (deg), +-1 sigma propagated")
                        for name in ("heading_deg", "pitch_deg", "roll_deg"))),
