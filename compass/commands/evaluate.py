@@ -97,6 +97,7 @@ def evaluate_file(trial_path, *, cal=None, plot=None, gate=True, hard_iron=True,
     from ..evaluation import METRIC, error_series, run_pipeline
     from ..io.atomic import check_writable
     from ..io.broad import read_broad
+    from ..io.progress import working
     from ..model import SensorModel
 
     plot_dir = None
@@ -117,7 +118,8 @@ def evaluate_file(trial_path, *, cal=None, plot=None, gate=True, hard_iron=True,
     if plot_dir is not None:
         check_writable(plot_dir / f"{trial.name}_errors.png", force)
     try:
-        result = run_pipeline(trial, model, gate=gate, hard_iron=hard_iron)
+        with working(f"evaluating {trial.name}"):
+            result = run_pipeline(trial, model, gate=gate, hard_iron=hard_iron)
         errors = error_series(result.quat_enu, trial.ref_quat_enu, trial.movement, trial.rate_hz)
     except ValueError as exc:
         raise BadInput(f"{trial_path}: {exc}") from None
