@@ -11,7 +11,9 @@ entity                              content
 ``world/housing``                   ``Transform3D``: ``R_world<-housing`` (quaternion x, y, z, w)
 ``world/housing/body``, ``/axes``   the housing: slab, nose at +X, fin on top; X/Y/Z arrows (static)
 ``world/field``                     measured field in the world, over the reference |B|
-``world/reference_field``           the reference field (dip), unit length (static)
+``world/reference_field``           the reference field (dip), unit length (static); ``/label`` its
+                                    label beyond the tip
+``world/north``                     N (magnetic north, +X) and W arrows on the floor (static)
 ``housing/field``                   measured field in H, over the reference |B|
 ``housing/expected``               ``Transform3D``: ``R_housing<-world`` (the estimate's inverse), so
                                     its children, drawn in the world, appear where the housing
@@ -27,6 +29,8 @@ entity                              content
                                     latency_ms (live)
 ``compass/<angle>/sigma_band``      ``Scalars`` x2: the angle -1 sigma and +1 sigma
 ``compass/field_ratio/gate_limits`` ``Scalars`` x2: the gate's limits (also ``dip_deg``)
+``compass/state/field``, ``/gravity``, ``StateChange``: the flags in words, a row where they change
+``/range``                          (field used or rejected and why, gravity used, in range)
 ``raw/mag``, ``raw/accel``,         ``Scalars``: the recording's columns (channel names, ax..az,
 ``raw/gyro``                        gx..gz), recording units
 =================================== =================================================================

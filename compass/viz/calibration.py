@@ -4,7 +4,8 @@ and reference fits, the diagnosis steps, and the live tumble's coverage.
 Inputs are plain arrays and the calibration file's dict (SPEC section 2; ``to_json()`` of any
 result), so this module does not depend on how ``calibrate`` computes them.
 
-Entities (timelines ``sample``: the replay order, and ``t`` when the recording has ``t_s``):
+Entities (timelines ``sample``: the replay order, ``t`` when the recording has ``t_s``, and for the
+four-flip ``turntable_deg``: the platform angle in whole degrees, which its layout plots against):
 
 =============================================== ===================================================
 entity                                          content
@@ -13,7 +14,8 @@ entity                                          content
 ``bench/turntable``                             ``Transform3D`` Rz(platform_deg); a ring marks it
 ``bench/turntable/cube``                        ``Transform3D`` Rx(flip_deg); the housing (FLU)
 ``bench/turntable/cube/directions``             fitted sensing directions, labelled (static)
-``bench/turntable/cube/direction_cones``        their 3-sigma uncertainty cones (static)
+``bench/turntable/cube/direction_cones``        their 3-sigma uncertainty cones, those wider than
+                                                0.5 deg (static)
 ``fourflip/<channel>/measured``, ``/fit``       output, recording units
 ``fourflip/<channel>/residual``                 measured - fit: ``after`` (the final model) and,
                                                 with effects added, ``before`` (base model)
@@ -27,7 +29,8 @@ entity                                          content
 ``tumble/field_ratio``                          |m| / field_norm: ``raw`` (about the hard iron,
                                                 gain-normalised) and ``calibrated``
 ``<kind>/<channel>/residual``                   platform3d, reference: residual per channel
-``diagnosis/residual_rms``                      ``BarChart``: each diagnosis step's residual rms
+``diagnosis/residual_rms/step<k>_<added>``      ``BarChart``: diagnosis step k's residual rms (one
+                                                entity a step, so the legend names it); ``/noise_floor``
 ``diagnosis/log``                               ``TextLog``: the steps, evidence, verdict
 =============================================== ===================================================
 """
