@@ -28,6 +28,9 @@ from ..io.units import EARTH_FIELD_UT, MAG_UNITS
 __all__ = ["register", "export_text", "load_tumble", "channel_form", "unit_note"]
 
 FORMATS = ("fusion", "ardupilot")
+FUSION_FUNCTIONS = {"1.3": "FusionModelMagnetic", "1.2": "FusionCalibrationMagnetic"}
+"""Fusion's magnetometer calibration function by release (1.3 renamed it and made FusionMatrix a flat
+``float array[9]``)."""
 _UNITS = {"uT": "uT", "nT": "nT", "gauss": "G", "mgauss": "mG"}
 """``--unit`` spellings -> :data:`compass.io.units.MAG_UNITS` (their factors to uT)."""
 
@@ -39,6 +42,9 @@ def register(sub) -> None:
     p.add_argument("--format", required=True, choices=FORMATS, help="fusion: C initialisers; ardupilot: .param lines")
     p.add_argument("--unit", choices=tuple(_UNITS), default="uT",
                    help="unit of the recording's mx,my,mz (ardupilot offsets are in milligauss; default uT)")
+    p.add_argument("--fusion-api", choices=tuple(FUSION_FUNCTIONS), default="1.3",
+                   help="fusion: the Fusion release (1.3: FusionModelMagnetic, as imufusion 1.3; 1.2: "
+                        "FusionCalibrationMagnetic); the initialisers compile against both")
     p.add_argument("--out", default=None, help="file to write (default: print)")
     p.add_argument("--force", action="store_true", help="overwrite --out")
     p.set_defaults(func=run)
@@ -56,7 +62,7 @@ def run(args) -> int:
         print(f"compass export: warning: {args.calibration}: {note}", file=sys.stderr)
     if cal.get("output_units") and args.format == "ardupilot":
         print(f"compass export: warning: {args.calibration}: {OUTPUT_UNITS_NOTE}", file=sys.stderr)
-    text = export_text(cal, args.format, unit=args.unit)
+    text = export_text(cal, args.format, unit=args.unit, fusion_api=args.fusion_api)
     if args.out:
         out = check_writable(args.out, args.force)
         atomic_write_text(out, text)
@@ -157,7 +163,7 @@ def unit_note(cal: dict, unit: str) -> str:
             f"Earth's {lo:g}-{hi:g} uT: the offsets are exported as {unit} all the same{hint}")
 
 
-def export_text(cal: dict, fmt: str, *, unit: str = "uT") -> str:
+def export_text(cal: dict, fmt: str, *, unit: str = "uT", fusion_api: str = "1.3") -> str:
     """Firmware text for a tumble calibration.
 
     Parameters
@@ -168,6 +174,9 @@ def export_text(cal: dict, fmt: str, *, unit: str = "uT") -> str:
     fmt : {"fusion", "ardupilot"}
     unit : str
         Recording unit of the magnetometer (ArduPilot only).
+    fusion_api : {"1.3", "1.2"}
+        The Fusion release whose calibration function the comment names (:data:`FUSION_FUNCTIONS`);
+        the initialisers are the same for both.
 
     Returns
     -------
@@ -178,10 +187,14 @@ def export_text(cal: dict, fmt: str, *, unit: str = "uT") -> str:
         m = s if c is None else c @ s
         note = "" if c is None else " (mag-to-accel rotation folded in)"
         unit_line = f"// warning: {unit_note(cal, unit)}\n" if unit_note(cal, unit) else ""
-        return (f"// compass export: x-io Fusion, FusionCalibrationMagnetic(m, softIronMatrix, hardIronOffset){note}\n"
-                + unit_line +
-                f"const FusionMatrix softIronMatrix = {_braced(m)};\n"
-                f"const FusionVector hardIronOffset = {_braced(h)};\n")
+        # designated members: Fusion 1.3's FusionMatrix is float array[9], 1.2's array[3][3]; both name
+        # the elements xx..zz (row-major) and a vector's axis x, y, z, so one text compiles against either
+        elements = ", ".join(f".{r}{col} = {c_float(m[i, j])}" for i, r in enumerate("xyz") for j, col in enumerate("xyz"))
+        axes = ", ".join(f".{a} = {c_float(v)}" for a, v in zip("xyz", h))
+        return (f"// compass export: x-io Fusion {fusion_api}, {FUSION_FUNCTIONS[fusion_api]}(magnetometer, "
+                f"softIronMatrix, hardIronOffset){note}\n" + unit_line +
+                f"const FusionMatrix softIronMatrix = {{.element = {{{elements}}}}};\n"
+                f"const FusionVector hardIronOffset = {{.axis = {{{axes}}}}};\n")
     shape = s / np.cbrt(np.linalg.det(s))
     ofs = -h * MAG_UNITS[_UNITS[unit]] / MAG_UNITS["mG"]  # ArduPilot's offsets are in milligauss
     lines = ["# compass export: ArduPilot COMPASS_* (offsets in milligauss, matrix = soft-iron shape, det 1)"]
@@ -205,11 +218,3 @@ def c_float(v: float) -> str:
     if not np.isfinite(v):
         raise ValueError(f"cannot write {v} as a C float")
     return (text if any(ch in text for ch in ".e") else text + ".0") + "f"
-
-
-def _braced(a: np.ndarray) -> str:
-    """A fully braced initialiser of a Fusion union whose first member is the array ``a`` (1-D or 2-D)."""
-    def inner(x) -> str:
-        return "{" + ", ".join(inner(v) if np.ndim(v) else c_float(v) for v in x) + "}"
-
-    return "{" + inner(a) + "}"
