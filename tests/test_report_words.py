@@ -51,3 +51,19 @@ def test_ardupilot_export_of_a_bench_calibration_says_its_offsets_are_outputs(tm
     assert "magnetometer-to-accelerometer" not in captured.out and "the file has no accelerometer" in captured.out
     assert main(["export", str(cal), "--format", "fusion"]) == 0
     assert "output unit" not in capsys.readouterr().err  # Fusion takes the matrix and offset as they are
+
+
+def test_attitude_says_why_every_row_disagrees_with_the_site(tmp_path, capsys):
+    """--site with every row disturbed (the simulated field is not Munich's) gave no reason."""
+    rec, cal, run = tmp_path / "bench.csv", tmp_path / "cal.json", tmp_path / "run.csv"
+    assert main(["simulate", "fourflip", "--out", str(rec), "--seed", "3"]) == 0
+    assert main(["calibrate", str(rec), "--out", str(cal), "--quiet", "--no-diagnose"]) == 0
+    assert main(["simulate", "runtime", "--truth", str(tmp_path / "bench.truth.json"), "--out", str(run),
+                 "--samples", "200", "--seed", "3"]) == 0
+    capsys.readouterr()
+    assert main(["attitude", str(cal), str(run), "--out", str(tmp_path / "a.csv")]) == 0
+    assert "disagree" not in capsys.readouterr().out  # its own reference: agrees
+    assert main(["attitude", str(cal), str(run), "--out", str(tmp_path / "b.csv"), "--site", "48.14,11.58",
+                 "--date", "2026-06-01"]) == 0
+    out = capsys.readouterr().out
+    assert "100 % of the rows disagree with the site reference" in out and "is the site (and --date)" in out

@@ -184,12 +184,32 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     print(f"wrote {out} ({len(raw)} rows, mode {result.mode}; {int(np.sum(result.disturbed))} disturbed against the "
           f"{result.reference.source} reference, {int(np.sum(~result.in_range))} out of calibrated range"
           f"{_skipped_note(result.skipped)})" + (f"\n  note: {linear_beyond}" if linear_beyond else ""))
+    disagreement = mostly_disturbed(result)
+    if disagreement:
+        print(f"  note: {disagreement}")
     if rerun is not None:
         from ..viz.attitude import record_attitude
 
         record_attitude(rerun, result, model, t_s=columns.get("t_s"), raw=raw, accel=accel, gyro=_group(table, _GYRO))
         print(f"wrote {rerun}")
     return result
+
+
+def mostly_disturbed(result, share: float = 0.8) -> str:
+    """Why most rows were flagged disturbed, in words, when at least ``share`` of them were; else "".
+
+    A ``--site`` whose WMM field the recording does not read (another place, or a simulated field)
+    flagged every row with no reason given: the field the rows read is set beside the reference's.
+    """
+    disturbed = np.asarray(result.disturbed, dtype=bool)
+    if disturbed.size < 10 or disturbed.mean() < share:
+        return ""
+    ref = result.reference
+    ratio, dip = float(np.nanmedian(result.field_ratio)), float(np.nanmedian(result.dip_deg))
+    check = ("is the site (and --date) where the recording was made, and the calibration this sensor's?"
+             if ref.source == "site" else "iron near the module, or another sensor's calibration?")
+    return (f"{100 * disturbed.mean():.0f} % of the rows disagree with the {ref.source} reference: they read |B| "
+            f"{ratio:.3f} of its and a dip of {dip:.1f} deg against its {ref.dip_deg:.1f} deg (median); {check}")
 
 
 def _linear_beyond(model, raw, temp_c) -> str:
