@@ -126,7 +126,7 @@ def test_a_session_whose_field_is_rejected_throughout_ends_with_a_hint():
     stream = device._header + b"".join(device._lines(simulate_device(model, np.arange(400) / 100.0, seed=4), 0))
     hints = {}
     for name, dip in (("right", model.dip_deg), ("wrong", model.dip_deg - 25.0)):
-        session = LiveSession(model, out=io.StringIO(), reference=known_reference(dip, model.field_magnitude))
+        session = LiveSession(model, out=io.StringIO(), reference=known_reference(dip, model.field_norm))
         for k in range(0, len(stream), 3000):
             session.feed(Chunk(time.perf_counter(), stream[k:k + 3000]))
         session.close()
