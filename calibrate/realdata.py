@@ -51,6 +51,7 @@ from scipy.spatial.transform import Rotation
 from compass.calibration import header, save
 from compass.hard_iron import track_hard_iron
 from compass.io.broad import BroadTrial, enu_to_nwu, read_broad
+from compass.io.progress import working
 
 __all__ = ["TRAIN", "MIN_GAIN", "Residual", "StaticCorrection", "world_residual", "fit_static", "change_points",
            "run_loop"]
@@ -308,7 +309,8 @@ def main(argv=None) -> int:
     if not trials:
         print(f"no BROAD trials in {args.data}")
         return 2
-    lines, correction, summary = run_loop(trials)
+    with working(f"the residual loop on {len(trials)} BROAD trials"):
+        lines, correction, summary = run_loop(trials)
     print("\n".join(lines))
     if args.out:
         save(args.out, calibration_json(correction, trials, summary), force=True)

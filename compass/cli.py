@@ -110,14 +110,50 @@ def _attach_negative_lists(argv: list[str]) -> list[str]:
     return out
 
 
+class _WarningsFirst:
+    """``sys.stdout`` that prints the warnings found so far (``emit``) before each write."""
+
+    def __init__(self, stream, emit):
+        self._stream, self._emit = stream, emit
+
+    def write(self, text: str) -> int:
+        self._emit()
+        return self._stream.write(text)
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
 def main(argv=None) -> int:
     _one_blas_thread()
     parser = build_parser()
-    args = parser.parse_args(_attach_negative_lists(sys.argv[1:] if argv is None else list(argv)))
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if not argv:  # a newcomer's first try: the commands, not "the following arguments are required"
+        parser.print_help()
+        return 2
+    args = parser.parse_args(_attach_negative_lists(argv))
     from .io.units import RecordingWarning
 
-    with warnings.catch_warnings(record=True) as caught:
+    show = warnings.showwarning
+    pending: list[str] = []
+
+    def emit() -> None:
+        while pending:
+            print(f"compass {args.command}: warning: {pending.pop(0)}", file=sys.stderr, flush=True)
+
+    def show_in_order(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, RecordingWarning):
+            pending.append(str(message))
+        else:
+            show(message, category, filename, lineno, file, line)
+
+    stdout = sys.stdout
+    with warnings.catch_warnings():
         warnings.simplefilter("always", RecordingWarning)
+        warnings.showwarning = show_in_order
+        # a warning about the input is printed before the next output line it explains (collected to
+        # the end, it came after the report and "wrote cal.json"); bad input stays one line
+        sys.stdout = _WarningsFirst(stdout, emit)
         try:
             status = int(args.func(args) or 0)
         except _bad_input_types() as exc:  # the one line says it all: no warnings around it
@@ -131,11 +167,9 @@ def main(argv=None) -> int:
                 raise
             print(f"compass {args.command}: failed: {type(exc).__name__}: {exc}", file=sys.stderr)
             status = 1
-    for w in caught:
-        if issubclass(w.category, RecordingWarning):
-            print(f"compass {args.command}: warning: {w.message}", file=sys.stderr)
-        else:
-            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+        finally:
+            sys.stdout = stdout
+    emit()
     return status
 
 

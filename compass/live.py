@@ -24,6 +24,10 @@ from .site import QuietSeed, upside_down
 
 __all__ = ["LiveSession", "Reading", "GATE_CODES", "CSV_COLUMNS"]
 
+HINT_MIN_SAMPLES = 50
+"""Fewest estimates a closing hint judges."""
+HINT_REJECTED_SHARE = 0.8
+"""Share of estimates with the field rejected above which the session ends with a hint."""
 GATE_CODES = {"ok": 0, "norm": 1, "dip": 2, "innovation": 3, "absent": 4}
 CSV_COLUMNS = ("t_s", "heading_deg", "pitch_deg", "roll_deg", "heading_sigma_deg", "tilt_sigma_deg", "field_ratio",
                "dip_deg", "mag_used", "gate", "accel_used", "in_range", "latency_ms")
@@ -121,6 +125,9 @@ class LiveSession:
     turned_over : str or None
         Set once the first :data:`UPSIDE_DOWN_SAMPLES` estimates show the field turned over against a
         given reference (``--site``): why, in words (the command stops on it); None otherwise.
+    rejected : dict of str to (int, float, float)
+        Estimates whose field the gate rejected, by gate: count, sum of ``field_ratio``, sum of
+        ``dip_deg`` (for :meth:`closing_hint`).
     skipped : dict of str to int
         Readings never fused, by reason: the filter's screen (:data:`compass.filter.SKIP_REASONS`:
         a non-finite or out-of-range sensor part is skipped, the rest of the sample used) and,
@@ -146,6 +153,7 @@ class LiveSession:
     samples: int = 0
     unsolved: int = 0
     skipped: dict = field(default_factory=dict)
+    rejected: dict = field(default_factory=dict)
     _accel_norms: deque = field(default_factory=lambda: deque(maxlen=_ACCEL_WINDOW))
     _filter: AttitudeFilter | None = None
     _t0: float | None = None
@@ -334,6 +342,9 @@ class LiveSession:
             self._dips.append(est.dip_deg)
             if len(self._dips) >= UPSIDE_DOWN_SAMPLES:
                 self._judge_turn()
+        if not est.mag_used:
+            n, ratio, dip = self.rejected.get(est.gate, (0, 0.0, 0.0))
+            self.rejected[est.gate] = (n + 1, ratio + est.field_ratio, dip + est.dip_deg)
         if est.gate != self._gate:
             self._event("info" if est.mag_used else "warn",
                         "field used again" if est.mag_used else
@@ -411,6 +422,31 @@ class LiveSession:
                 f"invalid {s.invalid}, partial {s.partial}, before a header {s.unheaded}, repeated seq {s.repeated}, "
                 f"lost in transit {s.lost}); not fused {sum(self.skipped.values())}{skipped}; "
                 f"latency p50 {p50:.2f} ms, p99 {p99:.2f} ms")
+
+    def closing_hint(self) -> str | None:
+        """Why the field was rejected through most of the session and what to check, in words; None
+        when it was mostly used (or too few estimates to tell).
+
+        A session with the wrong sensor's calibration showed MAG-REJECTED:dip throughout and ended
+        without a word; so did a ``--site`` whose |B| or dip the module does not read.
+        """
+        total = sum(n for n, _, _ in self.rejected.values())
+        if self.samples < HINT_MIN_SAMPLES or total < HINT_REJECTED_SHARE * self.samples:
+            return None
+        gate, (n, ratio_sum, dip_sum) = max(self.rejected.items(), key=lambda item: item[1][0])
+        ref = self.reference
+        ref_dip = ref.dip_deg if ref is not None else self.config.dip_deg
+        measured = {"dip": f"its dip read {dip_sum / n:.1f} deg on average against the reference's {ref_dip:.1f} deg",
+                    "norm": f"its |B| read {ratio_sum / n:.3f} of the reference's on average (the gate allows "
+                            f"1 +- {self.config.field_tolerance:g})",
+                    "innovation": "the heading it gave disagreed with the gyro's (a gyro unit? --gyro-unit)",
+                    "absent": "no field reading came"}.get(gate, gate)
+        site = (f"; the reference is {ref.description}: a site far from the module, or a date long past, does "
+                f"the same" if ref is not None and ref.source == "site" else "")
+        return (f"the field was rejected in {100 * total / self.samples:.0f} % of the estimates, mostly for its "
+                f"{'|B|' if gate == 'norm' else gate}: {measured}. Is --cal the calibration of this "
+                f"module's sensor (and this installation)? Iron near the module does the same{site}. The headings "
+                f"followed the gyro alone")
 
     def close(self) -> None:
         """Flush the outputs (the CSV file stays open: its owner closes it).

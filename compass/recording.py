@@ -78,6 +78,25 @@ class SolvedRecording:
                 f"{_skipped_note(result.skipped)}")
 
 
+    def disagreement(self, share: float = 0.8) -> str:
+        """Why most rows were flagged disturbed, in words, when at least ``share`` of them were; else "".
+
+        A ``--site`` whose WMM field the recording does not read (another place, or a simulated field)
+        flagged every row with no reason given: the field the rows read is set beside the reference's.
+        """
+        result = self.attitude
+        disturbed = np.asarray(result.disturbed, dtype=bool)
+        if disturbed.size < 10 or disturbed.mean() < share:
+            return ""
+        ref = result.reference
+        ratio, dip = float(np.nanmedian(result.field_ratio)), float(np.nanmedian(result.dip_deg))
+        check = ("is the site (and --date) where the recording was made, and the calibration this sensor's?"
+                 if ref.source == "site" else "iron near the module, or another sensor's calibration?")
+        return (f"{100 * disturbed.mean():.0f} % of the rows disagree with the {ref.source} reference: they read "
+                f"|B| {ratio:.3f} of its and a dip of {dip:.1f} deg against its {ref.dip_deg:.1f} deg (median); "
+                f"{check}")
+
+
 def solve_recording(calibration, recording, *, level=False, max_tilt_deg=5.0, accel_noise_g=0.002, site=None,
                     date=None, read_options=None) -> SolvedRecording:
     """Solve one recording file with one calibration file.

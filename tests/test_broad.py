@@ -208,3 +208,16 @@ def test_rest_noise_measures_injected_white_noise():
     assert got.mag_noise == pytest.approx(mag_sigma, rel=tolerance)
     with pytest.raises(ValueError, match="at least 20 samples at rest"):
         rest_noise(gyro, accel, mag, np.r_[np.ones(10, bool), np.zeros(n - 10, bool)], rate_hz)
+
+
+@pytest.mark.skipif(not MAGNET.exists(), reason=f"BROAD data not found at {BROAD}")
+def test_evaluate_several_trials_by_pattern_prints_each_and_a_table(tmp_path, capsys):
+    from compass.cli import main
+
+    for name in ("one", "two"):
+        _crop(MAGNET, tmp_path / f"{name}.mat", 45.0)
+    assert main(["evaluate", str(tmp_path / "*.mat")]) == 0
+    out = capsys.readouterr().out
+    rows = [line.split() for line in out.splitlines() if line.strip().startswith(("one ", "two "))]
+    assert out.count("  heading RMS ") == 2 and "2 trials:" in out and [r[0] for r in rows] == ["one", "two"]
+    assert rows[0][1:] == rows[1][1:]  # the same data, the same scores

@@ -107,3 +107,25 @@ def test_tumble_report_plot(tmp_path):
     assert main(["calibrate", str(tumble), "--out", str(tmp_path / "cal.json"), "--quiet",
                  "--report", str(tmp_path / "rep")]) == 0
     assert (tmp_path / "rep" / "tumble.png").stat().st_size > 10_000
+
+
+def test_no_arguments_lists_the_commands(capsys):
+    assert main([]) == 2
+    out = capsys.readouterr().out
+    assert all(name in out for name in ("calibrate", "attitude", "live", "evaluate", "simulate", "export"))
+
+
+def test_evaluate_takes_several_trials_and_patterns(tmp_path, capsys):
+    from compass.cli import BadInput
+    from compass.commands.evaluate import expand_trials
+
+    for name in ("b.mat", "a.mat", "c.txt"):
+        (tmp_path / name).write_text("")
+    assert expand_trials([str(tmp_path / "*.mat"), str(tmp_path / "c.txt")]) == [
+        str(tmp_path / "a.mat"), str(tmp_path / "b.mat"), str(tmp_path / "c.txt")]
+    import pytest
+
+    with pytest.raises(BadInput, match="no file matches"):
+        expand_trials([str(tmp_path / "*.nope")])
+    assert main(["evaluate", str(tmp_path / "*.mat"), "--rerun", str(tmp_path / "x.rrd")]) == 2
+    assert "--rerun records one trial; 2 given" in capsys.readouterr().err

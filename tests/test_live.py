@@ -101,8 +101,9 @@ def test_session_logs_what_it_writes(tmp_path):
     assert any("header: t_s,seq" in t[0] for t in texts) and any("line noise" in t[0] for t in texts)
     assert any("connected to test" in t for t in events)
     # the reference the session learnt (first quiet second) is the one drawn, and the layout came along
-    (label,) = read_static(rrd, "/world/reference_field", "Arrows3D:labels")[-1]
-    assert f"dip {session.reference.dip_deg:.1f} deg" in label and session.reference.description in label
+    (label,) = read_static(rrd, "/world/reference_field/label", "Points3D:labels")[-1]
+    assert f"dip {session.reference.dip_deg:.1f} deg" in label  # short: where it came from is an event line
+    assert any(session.reference.description in t[0] for t in texts)
     origins = {v.get("origin") for v in blueprint_views(rrd)}
     assert {"/world", "/housing", "/compass/field_ratio", "/compass/dip_deg", "/raw/mag", "/events"} <= origins
     t_events, _ = read_column(rrd, "/events", "TextLog:text", index="t")

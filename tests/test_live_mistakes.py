@@ -129,3 +129,31 @@ def test_a_module_sending_mg_to_a_calibration_in_ut_is_said_with_the_factor_not_
     status, _, _ = _live_on_socket(monkeypatch, b"mx,my,mz,ax,ay,az\r\n" + rows, cal, "--duration", "3",
                                    "--mag-unit", "mG")
     assert status == 0
+
+
+def test_a_session_whose_field_is_rejected_throughout_ends_with_a_hint():
+    """The wrong sensor's calibration (or a reference the module does not read) showed MAG-REJECTED:dip
+    throughout and ended without a word: the session now says why and what to check; a right one says nothing."""
+    import io
+    import time
+
+    import numpy as np
+
+    from compass.live import LiveSession
+    from compass.serial_reader import Chunk
+    from compass.sim.device import PtyDevice, default_model, simulate_device
+    from compass.site import known_reference
+
+    model = default_model()
+    device = PtyDevice(model, rate_hz=100.0)
+    stream = device._header + b"".join(device._lines(simulate_device(model, np.arange(400) / 100.0, seed=4), 0))
+    hints = {}
+    for name, dip in (("right", model.dip_deg), ("wrong", model.dip_deg - 25.0)):
+        session = LiveSession(model, out=io.StringIO(), reference=known_reference(dip, model.field_norm))
+        for k in range(0, len(stream), 3000):
+            session.feed(Chunk(time.perf_counter(), stream[k:k + 3000]))
+        session.close()
+        hints[name] = session.closing_hint()
+    assert hints["right"] is None
+    assert "mostly for its dip" in hints["wrong"] and f"against the reference's {model.dip_deg - 25:.1f} deg" in hints["wrong"]
+    assert "Is --cal the calibration" in hints["wrong"]

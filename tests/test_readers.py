@@ -156,10 +156,30 @@ def test_field_strength_in_gauss_is_pointed_out(tmp_path, capsys):
     status, _, err = _run(capsys, "calibrate", rec, "--out", tmp_path / "c.json", "--quiet")
     assert status == 0 and "--mag-unit G" in err
     status, _, err = _run(capsys, "calibrate", rec, "--out", tmp_path / "c2.json", "--quiet", "--mag-unit", "uT")
-    assert status == 0 and "not the Earth's 25-65 uT" in err and "G would be" in err
+    assert status == 0 and "not the Earth's 25-65 uT" in err and "--mag-unit G" in err and "uT =" not in err
     status, _, err = _run(capsys, "calibrate", rec, "--out", tmp_path / "c3.json", "--quiet", "--mag-unit", "G")
     assert status == 0 and "warning" not in err
     assert json.loads((tmp_path / "c3.json").read_text())["field_norm"] == pytest.approx(50.0, rel=0.05)
+
+
+def test_field_strength_in_milligauss_is_pointed_out_with_the_right_unit(tmp_path, capsys):
+    """mG data: no unit given was silent (the export then wrote offsets 10x too big); named G, the hint
+    judged the value after conversion to uT and proposed nT."""
+    from compass.io.tumble import sphere_radius
+
+    sim = simulate_tumble(seed=6, n=600)
+    rec = _csv(tmp_path / "t.csv", ["mx", "my", "mz"], sim.mag * 10.0, fmt="%.5f")  # the same field in mG
+    status, _, err = _run(capsys, "calibrate", rec, "--out", tmp_path / "c.json", "--quiet")
+    assert status == 0 and "--mag-unit mG" in err
+    for wrong in ("G", "uT", "nT"):
+        status, _, err = _run(capsys, "calibrate", rec, "--out", tmp_path / f"c{wrong}.json", "--quiet",
+                              "--mag-unit", wrong)
+        (line,) = [x for x in err.splitlines() if "field strength" in x]
+        assert status == 0 and f"is {sphere_radius(sim.mag * 10.0):.3g} {wrong}" in line  # in the unit named
+        assert "--mag-unit mG" in line and "nT would" not in line
+    status, _, err = _run(capsys, "calibrate", rec, "--out", tmp_path / "cmG.json", "--quiet", "--mag-unit", "mG")
+    assert status == 0 and "warning" not in err
+    assert json.loads((tmp_path / "cmG.json").read_text())["field_norm"] == pytest.approx(50.0, rel=0.05)
 
 
 def test_accelerometer_reading_gravity_is_warned_on_tumble_and_attitude(tmp_path, capsys):
@@ -349,3 +369,22 @@ def test_a_nan_cell_is_named_as_python_writes_it(tmp_path, capsys):
     status, _, err = _run(capsys, "calibrate", rec, "--out", tmp_path / "c.json")
     _one_line_refusal(status, err, "nan.csv", "found nan", "my")
     assert "np.float64" not in err
+
+
+def test_warnings_about_the_input_come_before_the_report(tmp_path, monkeypatch):
+    """The accelerometer sign warning was printed after the report and after "wrote": a reader took the
+    report's dip (-17.8 deg on the CK log) first. Both streams into one buffer keep their order."""
+    import io
+
+    sim = simulate_tumble(seed=7, n=900)
+    still = np.tile([0.0, 0.0, 1.0], (60, 1))
+    mag0 = np.tile(sim.mag[:1], (60, 1)) + np.random.default_rng(0).normal(scale=0.3, size=(60, 3))
+    flipped = _csv(tmp_path / "flip.csv", ["mx", "my", "mz", "ax", "ay", "az"],
+                   np.column_stack([np.vstack([mag0, sim.mag]), -np.vstack([still, sim.accel])]))
+    both = io.StringIO()
+    monkeypatch.setattr("sys.stdout", both)
+    monkeypatch.setattr("sys.stderr", both)
+    assert main(["calibrate", str(flipped), "--out", str(tmp_path / "f.json")]) == 0
+    text = both.getvalue()
+    assert "--accel-sign -1" in text and "dip" in text
+    assert text.index("--accel-sign -1") < text.index("Tumble calibration") < text.index("wrote")

@@ -61,7 +61,9 @@ def test_calibrate_fourflip_replays_the_session(fourflip):
         assert {f"/fourflip/{name}/measured", f"/fourflip/{name}/fit", f"/fourflip/{name}/residual",
                 f"/fourflip/{name}/residual/noise_band"} <= paths
     assert {"/bench/field", "/bench/turntable", "/bench/turntable/cube", "/bench/turntable/cube/directions",
-            "/bench/turntable/cube/direction_cones", "/diagnosis/residual_rms", "/diagnosis/log"} <= paths
+            "/diagnosis/residual_rms/noise_floor", "/diagnosis/log"} <= paths
+    # 3-sigma cones of a few hundredths of a degree are not drawn (lines on the arrows); their sigma is labelled
+    assert "/bench/turntable/cube/direction_cones" not in paths
     assert {"sample", "t"} <= timelines(rrd, "/fourflip/v1/measured")
     table = read_table(rec)
     order = np.argsort(table.column("t_s"), kind="stable")
@@ -88,16 +90,17 @@ def test_calibrate_fourflip_replays_the_session(fourflip):
     # sensing directions as fitted, one labelled arrow each
     directions = np.array(read_static(rrd, "/bench/turntable/cube/directions", "Arrows3D:vectors")[-1]) / 1.2
     np.testing.assert_allclose(directions, [cal["channels"][n]["direction"] for n in names], atol=1e-6)
-    # the diagnosis: one bar per step, the last at the final residual
-    (tensor,) = read_static(rrd, "/diagnosis/residual_rms", "BarChart:values")[-1]
+    # the diagnosis: one bar per step (its own entity, named in the legend), the last at the final residual
     steps = cal["diagnosis"]["steps"]
-    assert len(steps) >= 2 and tensor["shape"] == [len(steps)]
-    np.testing.assert_allclose(tensor["buffer"], [step["residual_rms"] for step in steps], rtol=1e-6)
+    bars = sorted(p for p in paths if p.startswith("/diagnosis/residual_rms/step"))
+    assert len(steps) >= 2 and len(bars) == len(steps)
+    values = [read_static(rrd, bar, "BarChart:values")[-1][0]["buffer"] for bar in bars]
+    np.testing.assert_allclose(np.concatenate(values), [step["residual_rms"] for step in steps], rtol=1e-6)
     _, log = read_column(rrd, "/diagnosis/log", "TextLog:text")
     assert any("offset_drift" in t[0] for t in log)
     views = views_by_name(rrd)
-    assert views["cube on the turntable; sensing directions, 3-sigma cones"]["class"] == "3D"
-    assert views["v1: residual before/after, noise band"]["origin"] == "/fourflip/v1/residual"
+    assert views["cube on the turntable: sensing directions +-1 sigma, field (orange)"]["class"] == "3D"
+    assert views["v1: residual (recording units), noise band"]["origin"] == "/fourflip/v1/residual"
     assert {v["class"] for v in views.values()} == {"3D", "TimeSeries", "BarChart", "TextLog"}
 
 
@@ -136,7 +139,7 @@ def test_calibrate_platform_and_reference(tmp_path):
         paths = entity_paths(rrd)
         kind = "platform3d" if name == "platform" else "reference"
         series = sorted(p for p in paths if p.startswith(f"/{kind}/") and "bench" not in p)
-        assert len(series) >= 3 and "/diagnosis/residual_rms" in paths
+        assert len(series) >= 3 and any(p.startswith("/diagnosis/residual_rms/") for p in paths)
         _, residual = scalars(rrd, series[0])
         assert len(residual) == len(read_table(rec).data)
     assert "/platform3d/bench/housing" in entity_paths(tmp_path / "platform.rrd")
@@ -175,11 +178,12 @@ def test_attitude_rerun_matches_the_csv(tmp_path):
             "/housing/expected/field_gate",
             "/housing/expected", "/housing/gravity", "/housing/expected/gravity_gate"} <= paths
     (labels,) = read_static(rrd, "/world/housing/axes", "Arrows3D:labels")[-1:]
-    assert labels == ["X forward", "Y left", "Z up"]
+    assert labels == ["+X", "+Y", "+Z"]  # right however the housing is turned
     views = views_by_name(rrd)
-    heading_view = views["heading (deg), +-1 sigma; from true north with a site"]
+    heading_view = views["heading (deg) +-1 sigma; from true north with a site"]
     assert heading_view["class"] == "TimeSeries" and "/compass/heading_deg/**" in heading_view["contents"]
-    assert views["in the housing: field and gravity against the gate's cones"]["origin"] == "/housing"
+    assert views["in the housing: field (orange), gravity (purple), the gate's cones"][
+        "origin"] == "/housing"
 
 
 def test_demo_writes_a_recording_with_calibration_attitude_and_errors(tmp_path, capsys):
@@ -192,7 +196,7 @@ def test_demo_writes_a_recording_with_calibration_attitude_and_errors(tmp_path, 
     _, error = scalars(rrd, "/errors/heading_deg")
     _, band = scalars(rrd, "/errors/heading_deg/sigma_band")
     assert np.sqrt(np.mean(error**2)) < 2 * np.sqrt(np.mean(band[:, 1] ** 2))  # errors as large as their sigma
-    assert blueprint_timeline(rrd) == "sample"  # the replay's order, shared by the calibration and the attitude
+    assert blueprint_timeline(rrd) == "t"  # time, shared by the calibration and the attitude (not their sample counts)
     origins = {v.get("origin") for v in blueprint_views(rrd)}
     assert {"/bench", "/world", "/housing", "/errors/heading_deg", "/compass/field_ratio",
             "/diagnosis/residual_rms"} <= origins

@@ -57,8 +57,9 @@ def format_diagnosis(block: dict, unit: str = "output units") -> str:
             lines += added_step_lines(step)
     alignment = block.get("alignment")
     if alignment:
-        lines.append(f"  mag-to-accel rotation: residual rms {alignment['residual_rms']:.4g}, delta-BIC "
-                     f"{alignment['delta_bic']:.0f}; {alignment['evidence']}")
+        # the evidence says whether it was applied and why, with its delta-BIC (printed here too it
+        # stood as if for the rotation beside a summary giving the other sign)
+        lines.append(f"  mag-to-accel rotation: residual rms {alignment['residual_rms']:.4g}; {alignment['evidence']}")
     lines += remark_lines(block)
     added = len(block["steps"]) > 1 and block["effects"]
     change = block.get("calibration_change")

@@ -47,6 +47,8 @@ class Misalignment:
         Standard deviation of the field-gravity angle over those samples before and after ``C``.
     delta_bic : float
         BIC with the rotation minus BIC without (negative: the rotation is supported).
+    withheld : str or None
+        Why a rotation the data support was not applied (``rotation`` then None), in words.
     """
 
     rotation: Rotation | None
@@ -58,6 +60,17 @@ class Misalignment:
     spread_before_deg: float
     spread_after_deg: float
     delta_bic: float
+    withheld: str | None = None
+
+    def words(self) -> str:
+        """Whether the rotation was applied and why, with the evidence as the diagnosis gives it
+        (delta-BIC positive: in the rotation's favour)."""
+        evidence = f"delta-BIC {-self.delta_bic:+.0f}"
+        if self.rotation is not None:
+            return f"rotation applied ({evidence})"
+        if self.withheld:
+            return f"rotation supported by the data ({evidence}) but not applied: {self.withheld}; frames taken as aligned"
+        return f"rotation not supported by the data ({evidence}); frames taken as aligned"
 
 
 def field_gravity_angles(mag_cal: np.ndarray, accel: np.ndarray, rotation: Rotation | None = None) -> np.ndarray:

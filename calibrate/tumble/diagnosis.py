@@ -347,8 +347,7 @@ class TumbleDiagnosis(Diagnosis):
         rms = float(np.sqrt(np.mean(fit.residuals[fit.inliers] ** 2)))
         applied = mis.rotation is not None
         evidence = (f"field-gravity angle rms about the dip {mis.spread_before_deg:.3f} -> {mis.spread_after_deg:.3f} deg "
-                    f"over {mis.n_static} quasi-static samples; "
-                    + ("rotation applied" if applied else "rotation not applied, frames taken as aligned"))
+                    f"over {mis.n_static} quasi-static samples; " + mis.words())
         # not an effect of the residual (SPEC section 4's steps add those): the frames' alignment, beside them
         alignment = {"name": "mag_to_accel", "residual_rms": rms, "applied": applied,
                      "angle_rms_deg_before": mis.spread_before_deg, "angle_rms_deg_after": mis.spread_after_deg,

@@ -157,7 +157,8 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, ellips
             warnings.append("no magnetometer-accelerometer rotation fitted: with part of the sphere missing it "
                             "trades off against the hard iron; frames taken as aligned")
             misalignment = replace(misalignment, rotation=None, rotvec_deg=np.full(3, np.nan),
-                                   rotvec_sigma_deg=np.full(3, np.nan))
+                                   rotvec_sigma_deg=np.full(3, np.nan),
+                                   withheld="with part of the sphere missing it trades off against the hard iron")
         if misalignment is not None:
             chosen, misalignment = refine_jointly(chosen, mag, accel, misalignment)
             diagnosis = diagnosis.with_alignment(misalignment, chosen)
@@ -227,4 +228,5 @@ class TumbleCalibrator(Calibrator):
         health = channel_health(result, recording.mag)
         warnings = check_channels(recording.path, health, axis_tolerance_deg=self.axis_tolerance_deg,
                                   direction_accuracy_deg=self.direction_accuracy_deg)
-        return replace(result, warnings=result.warnings + warnings, health=health_json(health))
+        return replace(result, warnings=result.warnings + warnings, health=health_json(health),
+                       raw_unit="uT" if recording.mag_unit else "recording units")

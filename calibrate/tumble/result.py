@@ -45,6 +45,9 @@ class TumbleResult(Calibration):
     diagnosis : TumbleDiagnosis or None
         The residual diagnosis (:mod:`calibrate.tumble.diagnosis`); None when every kind is degenerate.  With claimed
         effects, ``fit`` is the ellipsoid at their reference time and temperature.
+    raw_unit : str
+        The unit of the readings fitted, for the report: ``"uT"`` when the recording's magnetometer
+        unit was named (the reader converted it), else ``"recording units"``.
     """
 
     fit: EllipsoidFit
@@ -60,6 +63,7 @@ class TumbleResult(Calibration):
     diagnosis: TumbleDiagnosis | None = None
     health: dict = field(default_factory=dict)
     """The file's ``"channel_health"`` block (:mod:`calibrate.health`), set by :class:`TumbleCalibrator`."""
+    raw_unit: str = "recording units"
 
     calibration_kind = "tumble"
 
@@ -167,8 +171,8 @@ class TumbleResult(Calibration):
         lines = [f"Tumble calibration: {fit.ellipsoid} ellipsoid from {self.n_samples} samples "
                  f"({self.n_repeats} repeated rows dropped, {np.count_nonzero(~fit.inliers)} outliers)"]
         lines.append("  hard iron " + ", ".join(f"{v:.5g} +- {s:.2g}" for v, s in zip(fit.hard_iron, fit.hard_iron_sigma))
-                     + " (recording units)")
-        unit = "uT" if self.field_ut else "recording units"
+                     + f" ({self.raw_unit})")
+        unit = "uT" if self.field_ut else self.raw_unit
         lines.append(f"  field norm {self.field_norm:.5g} {unit}; soft iron (det 1 shape):")
         for row, srow in zip(fit.soft_iron, fit.soft_iron_sigma):
             lines.append("    " + "  ".join(f"{v:+.5f} +- {s:.1g}" for v, s in zip(row, srow)))
@@ -184,13 +188,13 @@ class TumbleResult(Calibration):
         if mis is not None:
             lines.append(f"  dip {mis.dip_deg:.3f} +- {mis.dip_sigma_deg:.3f} deg from {mis.n_static} quasi-static samples")
             if mis.rotation is None:
-                lines.append(f"  mag-to-accel rotation not supported by the data (delta BIC {mis.delta_bic:+.1f}); frames taken as aligned")
+                lines.append(f"  mag-to-accel {mis.words()}")
             else:
                 lines.append("  mag-to-accel rotation vector " + ", ".join(
                     f"{v:+.3f} +- {s:.3f}" for v, s in zip(mis.rotvec_deg, mis.rotvec_sigma_deg)) + " deg")
             lines.append(f"  field-gravity angle spread {mis.spread_before_deg:.3f} -> {mis.spread_after_deg:.3f} deg")
         if self.diagnosis is not None:
-            lines.append(self.diagnosis.format("recording units"))
+            lines.append(self.diagnosis.format(self.raw_unit))
         for w in self.warnings:
             lines.append(f"  warning: {w}")
         return "\n".join(lines)

@@ -7,9 +7,11 @@ Only the command layer (``compass/commands/``) imports ``calibrate``.
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from pathlib import Path
 
 from ..io.atomic import check_writable
+from ..io.progress import working
 from ..io.table import ReadOptions, add_read_arguments, read_table
 from ..viz import add_rerun_option, check_rerun_target
 
@@ -139,7 +141,8 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
     if "progress" in takes and not quiet:
         options["progress"] = lambda text: print(f"  ... {text}", flush=True)
     try:
-        result = found.calibrator(**options).fit(rec)
+        with working(f"calibrating {Path(recording).name} ({found.name})") if "progress" not in options else nullcontext():
+            result = found.calibrator(**options).fit(rec)
         save(out, result.to_json(), force=force)
     except CannotCalibrate as exc:  # the recording cannot determine the model: bad input
         raise BadInput(str(exc)) from None

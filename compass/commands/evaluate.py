@@ -1,4 +1,4 @@
-"""``compass evaluate TRIAL.mat [--cal CAL.json] [--plot DIR]``: attitude error against ground truth.
+"""``compass evaluate TRIAL.mat... [--cal CAL.json] [--plot DIR]``: attitude error against ground truth.
 
 Runs the toolkit's causal pipeline (optional calibration, hard-iron step tracker, the live filter with
 its magnetic gate) on a BROAD trial (gyro, accelerometer, magnetometer and an optical reference) and
@@ -24,7 +24,8 @@ def register(sub) -> None:
         description="Run calibration + hard-iron tracker + live filter on a BROAD trial (.mat) and report BROAD's "
                     "heading and inclination errors during the movement phase, with the reference's constant "
                     "heading offset kept (BROAD's figure) and removed.")
-    p.add_argument("trial", help="BROAD trial, MATLAB .mat (imu_gyr, imu_acc, imu_mag, opt_quat, movement, ...)")
+    p.add_argument("trial", nargs="+", help="BROAD trial(s), MATLAB .mat (imu_gyr, imu_acc, imu_mag, opt_quat, "
+                                            "movement, ...); a pattern ('data/*.mat') is expanded here too")
     p.add_argument("--cal", help="calibration JSON for the magnetometer (tumble form, frame of the accelerometer)")
     p.add_argument("--plot", metavar="DIR", help="write DIR/<trial>_errors.png: errors over time")
     p.add_argument("--no-gate", action="store_true", help="use every field sample (no magnetic-disturbance gate)")
@@ -35,16 +36,54 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from ..cli import BadInput
+
+    trials = expand_trials(args.trial)
+    if args.rerun is not None and len(trials) > 1:
+        raise BadInput(f"--rerun records one trial; {len(trials)} given ({', '.join(trials[:3])}"
+                       f"{', ...' if len(trials) > 3 else ''})")
     target = check_rerun_target(args.rerun, args.force)
-    errors, result = evaluate_file(args.trial, cal=args.cal, plot=args.plot, gate=not args.no_gate,
-                                   hard_iron=not args.no_hard_iron, force=args.force)
+    scores = []
+    for trial in trials:
+        errors, result = evaluate_file(trial, cal=args.cal, plot=args.plot, gate=not args.no_gate,
+                                       hard_iron=not args.no_hard_iron, force=args.force)
+        scores.append((Path(trial).stem, errors))
     if target is not None:
         from ..io.broad import read_broad
         from ..viz.attitude import record_evaluation
 
-        record_evaluation(target, read_broad(args.trial), result, errors)
+        record_evaluation(target, read_broad(trials[0]), result, errors)
         print(f"  wrote {target}")
+    if len(scores) > 1:
+        print(f"{len(scores)} trials: heading RMS (offset kept), heading RMS (offset removed), inclination RMS, deg")
+        for name, e in scores:
+            print(f"  {name:<45} {e.heading_rms_deg:7.2f} {e.heading_rms_offset_removed_deg:7.2f} "
+                  f"{e.inclination_rms_deg:7.2f}")
     return 0
+
+
+def expand_trials(given) -> list[str]:
+    """The trial files named: each as given, or a pattern (``*``, ``?``, ``[``) expanded, in order.
+
+    Raises
+    ------
+    BadInput
+        A pattern that matches no file (a shell passes it on unexpanded, as Windows' always does).
+    """
+    import glob
+
+    from ..cli import BadInput
+
+    trials = []
+    for name in given:
+        if Path(name).exists() or not any(c in name for c in "*?["):
+            trials.append(name)
+            continue
+        found = sorted(glob.glob(name))
+        if not found:
+            raise BadInput(f"{name}: no file matches")
+        trials += found
+    return trials
 
 
 def evaluate_file(trial_path, *, cal=None, plot=None, gate=True, hard_iron=True, force=False):
@@ -59,6 +98,7 @@ def evaluate_file(trial_path, *, cal=None, plot=None, gate=True, hard_iron=True,
     from ..evaluation import METRIC, error_series, run_pipeline
     from ..io.atomic import check_writable
     from ..io.broad import read_broad
+    from ..io.progress import working
     from ..model import SensorModel
 
     plot_dir = None
@@ -79,7 +119,8 @@ def evaluate_file(trial_path, *, cal=None, plot=None, gate=True, hard_iron=True,
     if plot_dir is not None:
         check_writable(plot_dir / f"{trial.name}_errors.png", force)
     try:
-        result = run_pipeline(trial, model, gate=gate, hard_iron=hard_iron)
+        with working(f"evaluating {trial.name}"):
+            result = run_pipeline(trial, model, gate=gate, hard_iron=hard_iron)
         errors = error_series(result.quat_enu, trial.ref_quat_enu, trial.movement, trial.rate_hz)
     except ValueError as exc:
         raise BadInput(f"{trial_path}: {exc}") from None

@@ -31,6 +31,9 @@ from ..io.units import EARTH_FIELD_UT, MAG_UNITS
 __all__ = ["register", "export_text", "load_tumble", "channel_form", "unit_note"]
 
 FORMATS = ("fusion", "ardupilot", "motioncal")
+FUSION_FUNCTIONS = {"1.3": "FusionModelMagnetic", "1.2": "FusionCalibrationMagnetic"}
+"""Fusion's magnetometer calibration function by release (1.3 renamed it and made FusionMatrix a flat
+``float array[9]``)."""
 _UNITS = {"uT": "uT", "nT": "nT", "gauss": "G", "mgauss": "mG"}
 """``--unit`` spellings -> :data:`compass.io.units.MAG_UNITS` (their factors to uT)."""
 
@@ -45,6 +48,9 @@ def register(sub) -> None:
                         "sends (to --out, or to the device on --port)")
     p.add_argument("--unit", choices=tuple(_UNITS), default="uT",
                    help="unit of the recording's mx,my,mz (ardupilot offsets are in milligauss; default uT)")
+    p.add_argument("--fusion-api", choices=tuple(FUSION_FUNCTIONS), default="1.3",
+                   help="fusion: the Fusion release (1.3: FusionModelMagnetic, as imufusion 1.3; 1.2: "
+                        "FusionCalibrationMagnetic); the initialisers compile against both")
     p.add_argument("--out", default=None, help="file to write (default: print)")
     p.add_argument("--force", action="store_true", help="overwrite --out")
     m = p.add_argument_group("motioncal")
@@ -57,6 +63,11 @@ def register(sub) -> None:
                    help="largest rotation between the field and the accelerometer left out of the packet, which "
                         "cannot hold one (default 1 deg); a larger one is refused")
     p.set_defaults(func=run)
+
+
+OUTPUT_UNITS_NOTE = ("a bench calibration's offsets are its channels' zero-field outputs in the recording's output "
+                     "unit (volts, counts), not a field: COMPASS_OFS (milligauss) and the --unit conversion hold only "
+                     "if the module's channels read field units")
 
 
 def run(args) -> int:
@@ -74,7 +85,9 @@ def run(args) -> int:
     note = unit_note(cal, args.unit)
     if note:
         print(f"compass export: warning: {args.calibration}: {note}", file=sys.stderr)
-    text = export_text(cal, args.format, unit=args.unit)
+    if cal.get("output_units") and args.format == "ardupilot":
+        print(f"compass export: warning: {args.calibration}: {OUTPUT_UNITS_NOTE}", file=sys.stderr)
+    text = export_text(cal, args.format, unit=args.unit, fusion_api=args.fusion_api)
     if args.out:
         out = check_writable(args.out, args.force)
         atomic_write_text(out, text)
@@ -111,6 +124,9 @@ def load_tumble(path) -> dict:
         to_model = cal.imu.rotation
         if to_model is not None:
             form["mag_to_accel"] = to_model.T @ form["mag_to_accel"]
+        form["rotation_words"] = ("magnetometer-to-accelerometer rotation" if to_model is not None else
+                                  "rotation of the sensor's axes into the housing's (the file has no accelerometer)")
+        form["output_units"] = True
         return form
     t = cal.tumble
     return {"hard_iron": t.hard_iron, "soft_iron": t.soft_iron, "mag_to_accel": t.mag_to_accel,
@@ -144,7 +160,7 @@ def channel_form(model) -> dict:
                          f"cannot reproduce: export is for linear channels")
     rotation, soft = polar(np.linalg.inv(model.gains[:, None] * model.unit_directions), side="right")
     return {"hard_iron": model.zero_outputs, "soft_iron": soft, "mag_to_accel": rotation,
-            "field_norm_recording_units": None}
+            "field_norm_recording_units": None, "output_units": True}
 
 
 def unit_note(cal: dict, unit: str) -> str:
@@ -166,7 +182,7 @@ def unit_note(cal: dict, unit: str) -> str:
             f"Earth's {lo:g}-{hi:g} uT: the offsets are exported as {unit} all the same{hint}")
 
 
-def export_text(cal: dict, fmt: str, *, unit: str = "uT") -> str:
+def export_text(cal: dict, fmt: str, *, unit: str = "uT", fusion_api: str = "1.3") -> str:
     """Firmware text for a tumble calibration.
 
     Parameters
@@ -177,6 +193,9 @@ def export_text(cal: dict, fmt: str, *, unit: str = "uT") -> str:
     fmt : {"fusion", "ardupilot"}
     unit : str
         Recording unit of the magnetometer (ArduPilot only).
+    fusion_api : {"1.3", "1.2"}
+        The Fusion release whose calibration function the comment names (:data:`FUSION_FUNCTIONS`);
+        the initialisers are the same for both.
 
     Returns
     -------
@@ -187,18 +206,25 @@ def export_text(cal: dict, fmt: str, *, unit: str = "uT") -> str:
         m = s if c is None else c @ s
         note = "" if c is None else " (mag-to-accel rotation folded in)"
         unit_line = f"// warning: {unit_note(cal, unit)}\n" if unit_note(cal, unit) else ""
-        return (f"// compass export: x-io Fusion, FusionCalibrationMagnetic(m, softIronMatrix, hardIronOffset){note}\n"
-                + unit_line +
-                f"const FusionMatrix softIronMatrix = {_braced(m)};\n"
-                f"const FusionVector hardIronOffset = {_braced(h)};\n")
+        # designated members: Fusion 1.3's FusionMatrix is float array[9], 1.2's array[3][3]; both name
+        # the elements xx..zz (row-major) and a vector's axis x, y, z, so one text compiles against either
+        elements = ", ".join(f".{r}{col} = {c_float(m[i, j])}" for i, r in enumerate("xyz") for j, col in enumerate("xyz"))
+        axes = ", ".join(f".{a} = {c_float(v)}" for a, v in zip("xyz", h))
+        return (f"// compass export: x-io Fusion {fusion_api}, {FUSION_FUNCTIONS[fusion_api]}(magnetometer, "
+                f"softIronMatrix, hardIronOffset){note}\n" + unit_line +
+                f"const FusionMatrix softIronMatrix = {{.element = {{{elements}}}}};\n"
+                f"const FusionVector hardIronOffset = {{.axis = {{{axes}}}}};\n")
     shape = s / np.cbrt(np.linalg.det(s))
     ofs = -h * MAG_UNITS[_UNITS[unit]] / MAG_UNITS["mG"]  # ArduPilot's offsets are in milligauss
     lines = ["# compass export: ArduPilot COMPASS_* (offsets in milligauss, matrix = soft-iron shape, det 1)"]
     if unit_note(cal, unit):
         lines.append(f"# warning: {unit_note(cal, unit)}")
+    if cal.get("output_units"):
+        lines.append(f"# warning: {OUTPUT_UNITS_NOTE}")
     if c is not None:
         angle = np.degrees(np.arccos(np.clip((np.trace(c) - 1.0) / 2.0, -1.0, 1.0)))
-        lines.append(f"# not exported: magnetometer-to-accelerometer rotation of {angle:.2f} deg (no ArduPilot parameter)")
+        what = cal.get("rotation_words", "magnetometer-to-accelerometer rotation")
+        lines.append(f"# not exported: {what} of {angle:.2f} deg (no ArduPilot parameter)")
     lines += [f"COMPASS_OFS_{a},{v:.4f}" for a, v in zip("XYZ", ofs)]
     lines += [f"COMPASS_DIA_{a},{v:.6f}" for a, v in zip("XYZ", np.diag(shape))]
     lines += [f"COMPASS_ODI_{a},{v:.6f}" for a, v in zip("XYZ", (shape[0, 1], shape[0, 2], shape[1, 2]))]
@@ -211,11 +237,3 @@ def c_float(v: float) -> str:
     if not np.isfinite(v):
         raise ValueError(f"cannot write {v} as a C float")
     return (text if any(ch in text for ch in ".e") else text + ".0") + "f"
-
-
-def _braced(a: np.ndarray) -> str:
-    """A fully braced initialiser of a Fusion union whose first member is the array ``a`` (1-D or 2-D)."""
-    def inner(x) -> str:
-        return "{" + ", ".join(inner(v) if np.ndim(v) else c_float(v) for v in x) + "}"
-
-    return "{" + inner(a) + "}"

@@ -115,6 +115,9 @@ def run(args) -> int:
             wrote = [str(p) for p in (out_path, args.rerun) if recorded and p is not None and str(p) != "spawn"]
             print(f"compass live: {elapsed:.1f} s, {reader.disconnects} disconnect(s); {session.summary()}"
                   + (f"; wrote {', '.join(wrote)}" if wrote else ""), flush=True)
+            hint = session.closing_hint()
+            if hint:
+                print(f"compass live: hint: {hint}", file=sys.stderr, flush=True)
     if session.decoder.stats.samples == 0:
         s = session.decoder.stats
         why = ("the port never opened" if not reader.connected_once else

@@ -40,6 +40,9 @@ class TumbleRecording:
     n_repeats : int
         Rows dropped because the magnetometer repeated the previous row's value.
     metadata : dict
+    mag_unit : str or None
+        The magnetometer unit the user or the header named (``mag`` was converted from it to uT);
+        None when the unit is free.
     """
 
     path: str
@@ -50,6 +53,7 @@ class TumbleRecording:
     rows: np.ndarray
     n_repeats: int
     metadata: dict
+    mag_unit: str | None = None
 
 
 def read_tumble(path, options: ReadOptions | None = None) -> TumbleRecording:
@@ -96,10 +100,12 @@ def tumble_from_table(table: Table) -> TumbleRecording:
     accel, t_s, temp_c = (None if a is None else a[keep] for a in (accel, t_s, temp_c))
     if accel is not None:
         units.check_accel_up(accel, table.rows[keep], where=table.path)
-    units.check_field_norm(sphere_radius(mag[keep]), "uT" if "mx" in table.units else None, where=table.path,
+    named = table.units.get("mx")  # the data are in uT when a unit was named: judge it in the unit named
+    radius = sphere_radius(mag[keep]) / (units.MAG_UNITS[named] if named else 1.0)
+    units.check_field_norm(radius, named, where=table.path,
                                 what="the magnetometer's field strength (sphere fit radius)")
     return TumbleRecording(table.path, mag[keep], accel, t_s, temp_c, table.rows[keep],
-                           int(np.count_nonzero(~keep)), dict(table.metadata))
+                           int(np.count_nonzero(~keep)), dict(table.metadata), named)
 
 
 def sphere_radius(mag: np.ndarray) -> float:

@@ -162,12 +162,14 @@ def check_field_norm(field_norm: float, unit: str | None, *, where: str, what: s
     if unit is not None:
         ut = field_norm * MAG_UNITS[unit]
         if not 0.5 * lo <= ut <= 2.0 * hi:
-            guesses = [u for u, f in MAG_UNITS.items() if lo <= field_norm * f <= hi]
-            hint = f" ({field_norm:.3g} {guesses[0]} would be)" if guesses else ""
-            note(f"{where}: {what} is {field_norm:.3g} {unit} = {ut:.3g} uT, not the Earth's {lo:g}-{hi:g} uT{hint}: "
-                 f"is the magnetometer unit right (--mag-unit)? Iron nearby or a coil also change it")
+            guesses = [u for u, f in MAG_UNITS.items() if u != unit and lo <= field_norm * f <= hi]
+            hint = (f"; read in {guesses[0]} it is {field_norm * MAG_UNITS[guesses[0]]:.3g} uT, the Earth's: "
+                    f"--mag-unit {guesses[0]}") if guesses else "; is the magnetometer unit right (--mag-unit)?"
+            said = f"{field_norm:.3g} uT" if unit == "uT" else f"{field_norm:.3g} {unit} = {ut:.3g} uT"
+            note(f"{where}: {what} is {said}, not the Earth's {lo:g}-{hi:g} uT{hint} (iron nearby or a coil also "
+                 f"change it)")
         return
-    for name in ("G", "nT"):
+    for name in ("G", "mG", "nT"):
         if lo <= field_norm * MAG_UNITS[name] <= hi:
             note(f"{where}: {what} is {field_norm:.3g} in the recording's unit, the Earth's field if the unit is "
                  f"{name}: name it with --mag-unit {name} to get results in uT (the unit is free otherwise)")

@@ -13,7 +13,7 @@ import rerun as rr
 from ..io.atomic import output_mode, remove_stale_temporaries
 from ._target import SPAWN
 
-__all__ = ["Recording", "columns_index"]
+__all__ = ["Recording", "columns_index", "index_rows"]
 
 
 class Recording:
@@ -88,3 +88,22 @@ def columns_index(t_s=None, sample=None) -> list:
     if sample is not None:
         index.append(rr.TimeColumn("sample", sequence=np.asarray(sample, dtype=np.int64)))
     return index
+
+
+class _Rows:
+    """Some rows of a ``send_columns`` index (Rerun's ``TimeColumnLike``)."""
+
+    def __init__(self, column, rows):
+        self._name, self._array = column.timeline_name(), column.as_arrow_array().take(rows)
+
+    def timeline_name(self) -> str:
+        return self._name
+
+    def as_arrow_array(self):
+        return self._array
+
+
+def index_rows(index, rows) -> list:
+    """The rows ``rows`` (integer positions) of a ``send_columns`` index."""
+    rows = np.asarray(rows, dtype=np.int64)
+    return [_Rows(column, rows) for column in index]

@@ -11,7 +11,9 @@ entity                              content
 ``world/housing``                   ``Transform3D``: ``R_world<-housing`` (quaternion x, y, z, w)
 ``world/housing/body``, ``/axes``   the housing: slab, nose at +X, fin on top; X/Y/Z arrows (static)
 ``world/field``                     measured field in the world, over the reference |B|
-``world/reference_field``           the reference field (dip), unit length (static)
+``world/reference_field``           the reference field (dip), unit length (static); ``/label`` its
+                                    label beyond the tip
+``world/north``                     N (magnetic north, +X) and W arrows on the floor (static)
 ``housing/field``                   measured field in H, over the reference |B|
 ``housing/expected``               ``Transform3D``: ``R_housing<-world`` (the estimate's inverse), so
                                     its children, drawn in the world, appear where the housing
@@ -27,6 +29,8 @@ entity                              content
                                     latency_ms (live)
 ``compass/<angle>/sigma_band``      ``Scalars`` x2: the angle -1 sigma and +1 sigma
 ``compass/field_ratio/gate_limits`` ``Scalars`` x2: the gate's limits (also ``dip_deg``)
+``compass/state/field``, ``/gravity``, ``StateChange``: the flags in words, a row where they change
+``/range``                          (field used or rejected and why, gravity used, in range)
 ``raw/mag``, ``raw/accel``,         ``Scalars``: the recording's columns (channel names, ax..az,
 ``raw/gyro``                        gx..gz), recording units
 =================================== =================================================================
@@ -38,13 +42,21 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from ._drawing import FIELD_COLOR, GRAVITY_COLOR, cone_strips, log_housing
+from . import _layout
+from ._stream import index_rows
+from ._drawing import FIELD_COLOR, GRAVITY_COLOR, REFERENCE_COLOR, cone_strips, log_housing, log_north
 
 __all__ = ["attitude_views", "log_attitude_statics", "log_reference", "send_attitude", "send_raw", "send_frames",
            "log_attitude", "log_evaluation", "evaluation_views", "record_attitude", "record_evaluation",
            "reference_dip", "GATE_LEGEND", "FLAGS"]
 
 GATE_LEGEND = "gate: 0 used, 1 |B| off, 2 dip off, 3 heading innovation, 4 no field"
+# the flags in words, one lane each in the state timeline (``compass/state/<lane>``)
+_FIELD_STATES = {0: "field used", 1: "field rejected: |B| off", 2: "field rejected: dip off",
+                 3: "field rejected: heading innovation", 4: "no field"}
+_STATES = {"field": None,  # from the gate code, else from disturbed
+           "gravity": ("accel_used", {1: "gravity used", 0: "gravity not used (moving)"}),
+           "range": ("in_range", {1: "in calibrated range", 0: "OUT of calibrated range"})}
 FLAGS = ("gate", "mag_used", "accel_used", "in_range", "disturbed")
 _ANGLES = ("heading_deg", "pitch_deg", "roll_deg", "heading_true_deg")
 _BAND = [[150, 150, 150]] * 2
@@ -52,24 +64,33 @@ _LIMIT = [[220, 60, 60]] * 2
 
 
 def attitude_views(*, world: str = "/world", housing: str = "/housing", compass: str = "/compass", raw: str = "/raw",
-                   events: str = "/events") -> rrb.Container:
-    """The attitude layout: 3-D views left, time series by unit in the middle, events right."""
+                   events: str = "/events", raw_mag_unit: str = "recording units") -> rrb.Container:
+    """The attitude layout: 3-D views left, time series by unit in the middle, events right.
+
+    Parameters
+    ----------
+    raw_mag_unit : str
+        The unit of the raw magnetometer channels, for the panel's title.
+    """
     spatial = rrb.Vertical(
-        rrb.Spatial3DView(origin=world, name="world (north X, west Y, up Z)"),
-        rrb.Spatial3DView(origin=housing, name="in the housing: field and gravity against the gate's cones"))
+        _layout.spatial(origin=world, name="world: housing, field (orange), reference (grey), N north",
+                        eye=(2.3, 2.5, 0.9), target=(0.3, 0.0, -0.5)),
+        _layout.spatial(origin=housing, name="in the housing: field (orange), gravity (purple), the gate's cones",
+                        eye=(2.2, 1.9, 0.7), target=(0.0, 0.0, -0.35)))
     series = rrb.Vertical(
-        rrb.TimeSeriesView(name="heading (deg), +-1 sigma; from true north with a site",
-                           contents=[f"{compass}/heading_deg/**", f"{compass}/heading_true_deg/**"]),
-        rrb.TimeSeriesView(name="pitch, roll (deg), +-1 sigma",
-                           contents=[f"{compass}/pitch_deg/**", f"{compass}/roll_deg/**"]),
-        rrb.TimeSeriesView(origin=f"{compass}/field_ratio", name="|B| / reference, gate limits"),
-        rrb.TimeSeriesView(origin=f"{compass}/dip_deg", name="dip (deg), gate limits"),
-        rrb.TimeSeriesView(name=GATE_LEGEND, contents=[f"{compass}/{f}" for f in FLAGS]),
-        rrb.Tabs(rrb.TimeSeriesView(origin=f"{raw}/mag", name="raw magnetometer channels"),
-                 rrb.TimeSeriesView(origin=f"{raw}/accel", name="raw accelerometer"),
-                 rrb.TimeSeriesView(origin=f"{raw}/gyro", name="raw gyro (rad/s)"),
-                 rrb.TimeSeriesView(origin=f"{compass}/latency_ms", name="live: latency, port to estimate (ms)")))
-    return rrb.Horizontal(spatial, series, rrb.TextLogView(origin=events, name="events"), column_shares=[2, 3, 1],
+        _layout.series(name="heading (deg) +-1 sigma; from true north with a site",
+                       contents=[f"{compass}/heading_deg/**", f"{compass}/heading_true_deg/**"]),
+        _layout.series(name="pitch, roll (deg) +-1 sigma", contents=[f"{compass}/pitch_deg/**", f"{compass}/roll_deg/**"]),
+        _layout.series(origin=f"{compass}/field_ratio", name="|B| / reference (ratio), gate limits"),
+        _layout.series(origin=f"{compass}/dip_deg", name="dip (deg), gate limits"),
+        rrb.StateTimelineView(origin=f"{compass}/state", name="what the filter did (field, gravity, range)"),
+        rrb.Tabs(_layout.series(origin=f"{raw}/mag", name=f"raw magnetometer ({raw_mag_unit})"),
+                 _layout.series(origin=f"{raw}/accel", name="raw accelerometer (recording units)"),
+                 _layout.series(origin=f"{raw}/gyro", name="raw gyro (rad/s)"),
+                 _layout.series(origin=f"{compass}/latency_ms", name="live: latency, port to estimate (ms)",
+                                legend=None)),
+        row_shares=[3, 3, 2, 2, 3, 3])
+    return rrb.Horizontal(spatial, series, _layout.text_log(origin=events, name="events"), column_shares=[2, 3, 1],
                           name="attitude")
 
 
@@ -77,10 +98,13 @@ def log_attitude_statics(rec, *, dip_deg: float, channels, field_tolerance: floa
                          accel_tolerance: float) -> None:
     """Styles, names and the fixed shapes (housings, reference field, the gate's cones)."""
     log_housing(rec, "world/housing", label="housing (estimate)")
+    log_north(rec, "world/north", height=-1.3)
     log_housing(rec, "housing", color=(170, 170, 170), label="housing")
-    rec.log("world/field", rr.Arrows3D.from_fields(colors=[FIELD_COLOR], labels=["measured field"]), static=True)
+    # the measured arrows are named by colour in the views' titles: a label of theirs sits on the
+    # reference's (the field measured where it is expected) or on each other's (field along gravity)
+    rec.log("world/field", rr.Arrows3D.from_fields(colors=[FIELD_COLOR], radii=[0.025]), static=True)
     for name, color in (("field", FIELD_COLOR), ("gravity", GRAVITY_COLOR)):
-        rec.log(f"housing/{name}", rr.Arrows3D.from_fields(colors=[color], labels=[f"measured {name}"]), static=True)
+        rec.log(f"housing/{name}", rr.Arrows3D.from_fields(colors=[color], radii=[0.025]), static=True)
     log_reference(rec, dip_deg=dip_deg, field_tolerance=field_tolerance, dip_tolerance_deg=dip_tolerance_deg)
     rec.log("housing/expected/gravity_gate", rr.LineStrips3D(
         cone_strips([0.0, 0.0, -1.0], np.arcsin(min(accel_tolerance, 0.99)), 1.0), colors=[GRAVITY_COLOR],
@@ -100,8 +124,7 @@ def log_attitude_statics(rec, *, dip_deg: float, channels, field_tolerance: floa
     rec.log("raw/gyro", rr.SeriesLines(names=["gx", "gy", "gz"]), static=True)
 
 
-def log_reference(rec, *, dip_deg: float, field_tolerance: float, dip_tolerance_deg: float,
-                  description: str | None = None) -> None:
+def log_reference(rec, *, dip_deg: float, field_tolerance: float, dip_tolerance_deg: float) -> None:
     """The reference field (static): its arrow in the world and the field gate's cone about it.
 
     Logged again when the reference changes (``compass live`` learns it from a site or from the
@@ -109,9 +132,13 @@ def log_reference(rec, *, dip_deg: float, field_tolerance: float, dip_tolerance_
     """
     dip = np.radians(dip_deg)
     reference = [np.cos(dip), 0.0, -np.sin(dip)]
-    label = f"reference field, dip {dip_deg:.1f} deg" + (f" ({description})" if description else "")
-    rec.log("world/reference_field", rr.Arrows3D(vectors=[reference], colors=[[200, 200, 200]], labels=[label]),
+    rec.log("world/reference_field", rr.Arrows3D(vectors=[reference], colors=[REFERENCE_COLOR], radii=[0.015]),
             static=True)
+    # labelled beyond its tip: an arrow's label sits at its middle, where the housing's X arrow is
+    # when the housing points north
+    rec.log("world/reference_field/label", rr.Points3D([1.12 * np.asarray(reference)], colors=[REFERENCE_COLOR],
+                                                       radii=[0.02], labels=[f"reference, dip {dip_deg:.1f} deg"],
+                                                       show_labels=True), static=True)
     field_cone = cone_strips(reference, np.radians(dip_tolerance_deg), 1.0)
     field_cone += [cone_strips(reference, np.radians(dip_tolerance_deg), r)[0] for r in (1 - field_tolerance,
                                                                                        1 + field_tolerance)]
@@ -178,6 +205,28 @@ def send_attitude(rec, index, columns: dict, *, field_limits=None, dip_limits=No
         if name in columns:
             rec.send_columns(f"{compass}/{name}", indexes=index,
                              columns=rr.Scalars.columns(scalars=np.asarray(columns[name], dtype=float)))
+    send_states(rec, index, columns, compass=compass)
+
+
+def send_states(rec, index, columns: dict, *, compass: str = "compass") -> None:
+    """The flags in words, as state lanes (``compass/state/field``, ``/gravity``, ``/range``): a row
+    where a lane changes, so a state timeline shows each as labelled bands (0/1 lines overlaid read as
+    nothing)."""
+    lanes = {}
+    if "gate" in columns:
+        lanes["field"] = [_FIELD_STATES.get(int(g), f"gate {g}") if np.isfinite(g) else ""
+                          for g in np.asarray(columns["gate"], dtype=float)]
+    elif "disturbed" in columns:
+        lanes["field"] = ["field disturbed" if d else "field agrees with the reference" for d in columns["disturbed"]]
+    for lane, spec in _STATES.items():
+        if spec is not None and spec[0] in columns:
+            values = np.asarray(columns[spec[0]], dtype=float)
+            lanes[lane] = [spec[1].get(int(v), "") if np.isfinite(v) else "" for v in values]
+    for lane, words in lanes.items():
+        words = np.asarray(words, dtype=object)
+        rows = np.flatnonzero(np.concatenate([[True], words[1:] != words[:-1]]))
+        rec.send_columns(f"{compass}/state/{lane}", indexes=index_rows(index, rows),
+                         columns=rr.StateChange.columns(state=list(words[rows])))
 
 
 def send_raw(rec, index, *, mag=None, accel=None, gyro=None, raw: str = "raw") -> None:
@@ -224,14 +273,16 @@ def log_attitude(rec, attitude, *, t_s=None, raw=None, accel=None, gyro=None, di
 def evaluation_views() -> rrb.Container:
     """Estimate and truth side by side in the world, errors over time, the field."""
     return rrb.Horizontal(
-        rrb.Spatial3DView(origin="/world", name="estimate (blue) and truth (grey), NWU"),
+        _layout.spatial(origin="/world", name="estimate (blue) and truth (grey, beside it); N = magnetic north",
+                        eye=(2.6, 3.4, 1.8), target=(0.0, -0.9, 0.0)),
         rrb.Vertical(
-            rrb.TimeSeriesView(origin="/errors",
-                               name="BROAD errors (deg): heading, heading offset removed, inclination"),
-            rrb.TimeSeriesView(origin="/compass/field_ratio", name="|B| / reference (after the hard-iron track)"),
-            rrb.TimeSeriesView(name="field rejected (1) / movement phase (1)",
-                               contents=["/compass/disturbed", "/compass/movement"])),
-        rrb.TextLogView(origin="/events", name="events"), column_shares=[2, 3, 1], name="evaluation")
+            _layout.series(origin="/errors",
+                           name="BROAD errors (deg): heading, heading offset removed, inclination"),
+            _layout.series(origin="/compass/field_ratio", name="|B| / reference (ratio, after the hard-iron track)",
+                           legend=None),
+            _layout.series(name="field rejected (1) / movement phase (1)",
+                           contents=["/compass/disturbed", "/compass/movement"])),
+        _layout.text_log(origin="/events", name="events"), column_shares=[2, 3, 1], name="evaluation")
 
 
 def log_evaluation(rec, *, t_s, quat_enu, ref_quat_enu, errors, field_h_ut, field_ut: float, disturbed, movement,
@@ -258,8 +309,9 @@ def log_evaluation(rec, *, t_s, quat_enu, ref_quat_enu, errors, field_h_ut, fiel
     nwu_from_enu = Rotation.from_euler("z", -90.0, degrees=True)
     index = _index(t_s, None)
     log_housing(rec, "world/estimate", label="estimate")
+    log_north(rec, "world/north")
     rec.log("world/beside", rr.Transform3D(translation=[0.0, -1.8, 0.0]), static=True)  # truth to the right
-    log_housing(rec, "world/beside/truth", color=(170, 170, 170), label="truth (optical)")
+    log_housing(rec, "world/beside/truth", color=(170, 170, 170), label="truth (optical)", axis_labels=False)
     n = len(t_s)
     keep = np.unique(np.linspace(0, n - 1, min(n, frames)).astype(int))
     for name, quats in (("estimate", quat_enu), ("beside/truth", ref_quat_enu)):
@@ -292,7 +344,7 @@ def _index(t_s, sample) -> list:
 
 
 def record_attitude(target, attitude, model, *, t_s=None, raw=None, accel=None, gyro=None,
-                    application_id: str = "compass_attitude") -> None:
+                    application_id: str = _layout.APPLICATION_IDS["attitude"]) -> None:
     """Write an offline attitude solution (``compass attitude --rerun``) with its layout.
 
     The gate limits drawn are the floors of ``solve_attitude``'s ``disturbed`` test
@@ -311,13 +363,16 @@ def record_attitude(target, attitude, model, *, t_s=None, raw=None, accel=None, 
                      field_tolerance=defaults["field_tolerance"].default,
                      dip_tolerance_deg=defaults["dip_tolerance_deg"].default)
         out.rec.set_time("sample", sequence=0)
+        if t_s is not None:
+            out.rec.set_time("t", duration=float(t_s[0]))
         out.rec.log("events", rr.TextLog(f"mode {attitude.mode}: {int(np.sum(attitude.disturbed))} of "
                                          f"{len(attitude.disturbed)} rows disturbed, "
                                          f"{int(np.sum(~attitude.in_range))} out of calibrated range"))
-        out.rec.send_blueprint(rrb.Blueprint(attitude_views(), rrb.TimePanel(timeline="sample")))
+        out.rec.send_blueprint(_layout.blueprint(attitude_views(), "sample" if t_s is None else "t"))
 
 
-def record_evaluation(target, trial, result, errors, *, application_id: str = "compass_evaluate") -> None:
+def record_evaluation(target, trial, result, errors, *,
+                      application_id: str = _layout.APPLICATION_IDS["evaluate"]) -> None:
     """Write an evaluation (``compass evaluate --rerun``) with its layout.
 
     Parameters
@@ -336,7 +391,7 @@ def record_evaluation(target, trial, result, errors, *, application_id: str = "c
                        errors=errors, field_h_ut=result.field_h_ut, field_ut=result.field_ut,
                        disturbed=result.disturbed, movement=trial.movement,
                        events=[(errors.t_s[0], f"{trial.name}: {result.method}")] + events)
-        out.rec.send_blueprint(rrb.Blueprint(evaluation_views(), rrb.TimePanel(timeline="t")))
+        out.rec.send_blueprint(_layout.blueprint(evaluation_views(), "t"))
 
 
 def reference_dip(attitude, model) -> float:

@@ -4,7 +4,8 @@ and reference fits, the diagnosis steps, and the live tumble's coverage.
 Inputs are plain arrays and the calibration file's dict (SPEC section 2; ``to_json()`` of any
 result), so this module does not depend on how ``calibrate`` computes them.
 
-Entities (timelines ``sample``: the replay order, and ``t`` when the recording has ``t_s``):
+Entities (timelines ``sample``: the replay order, ``t`` when the recording has ``t_s``, and for the
+four-flip ``turntable_deg``: the platform angle in whole degrees, which its layout plots against):
 
 =============================================== ===================================================
 entity                                          content
@@ -13,7 +14,8 @@ entity                                          content
 ``bench/turntable``                             ``Transform3D`` Rz(platform_deg); a ring marks it
 ``bench/turntable/cube``                        ``Transform3D`` Rx(flip_deg); the housing (FLU)
 ``bench/turntable/cube/directions``             fitted sensing directions, labelled (static)
-``bench/turntable/cube/direction_cones``        their 3-sigma uncertainty cones (static)
+``bench/turntable/cube/direction_cones``        their 3-sigma uncertainty cones, those wider than
+                                                0.5 deg (static)
 ``fourflip/<channel>/measured``, ``/fit``       output, recording units
 ``fourflip/<channel>/residual``                 measured - fit: ``after`` (the final model) and,
                                                 with effects added, ``before`` (base model)
@@ -27,7 +29,8 @@ entity                                          content
 ``tumble/field_ratio``                          |m| / field_norm: ``raw`` (about the hard iron,
                                                 gain-normalised) and ``calibrated``
 ``<kind>/<channel>/residual``                   platform3d, reference: residual per channel
-``diagnosis/residual_rms``                      ``BarChart``: each diagnosis step's residual rms
+``diagnosis/residual_rms/step<k>_<added>``      ``BarChart``: diagnosis step k's residual rms (one
+                                                entity a step, so the legend names it); ``/noise_floor``
 ``diagnosis/log``                               ``TextLog``: the steps, evidence, verdict
 =============================================== ===================================================
 """
@@ -40,7 +43,8 @@ import rerun.blueprint as rrb
 from scipy.spatial.transform import Rotation
 
 from ..frames import field_in_bench, sphere_cells
-from ._drawing import AXIS_COLORS, FIELD_COLOR, cone_strips, log_housing
+from . import _layout
+from ._drawing import AXIS_COLORS, FIELD_COLOR, cone_strips, log_housing, log_north
 from ._stream import columns_index
 
 __all__ = ["log_calibration", "log_calibration_result", "record_calibration", "calibration_views", "log_fourflip",
@@ -49,43 +53,59 @@ __all__ = ["log_calibration", "log_calibration_result", "record_calibration", "c
 _MEASURED, _FIT = [120, 120, 120], [30, 120, 220]
 _BEFORE, _AFTER = [230, 120, 40], [30, 120, 220]
 _SIGMAS = 3.0  # uncertainty cones: this many sigma
+_CONE_MIN_DEG = 0.5  # narrower cones are not drawn (a line on the arrow); the label gives sigma
+
+
+def _diagnosis_views() -> rrb.Container:
+    return rrb.Vertical(
+        rrb.BarChartView(origin="/diagnosis/residual_rms", name="residual rms per step",
+                         plot_legend=rrb.PlotLegend(corner="RightTop", visible=True)),
+        _layout.text_log(origin="/diagnosis/log", name="diagnosis steps"), row_shares=[2, 3])
 
 
 def calibration_views(kind: str, channels=()) -> rrb.Container:
     """The layout of a calibration of ``kind`` (``fourflip``, ``tumble``, ``platform3d``, ``reference``)."""
-    diagnosis = rrb.Vertical(rrb.BarChartView(origin="/diagnosis/residual_rms",
-                                              name="diagnosis: residual rms per step (last: final model)"),
-                             rrb.TextLogView(origin="/diagnosis/log", name="diagnosis steps"))
     if kind == "fourflip":
-        rows = [rrb.Horizontal(rrb.TimeSeriesView(origin=f"/fourflip/{ch}", name=f"{ch}: measured and fit",
-                                                  contents=["$origin/measured", "$origin/fit"]),
-                               rrb.TimeSeriesView(origin=f"/fourflip/{ch}/residual",
-                                                  name=f"{ch}: residual before/after, noise band"))
+        rows = [rrb.Horizontal(_layout.series(origin=f"/fourflip/{ch}", name=f"{ch}: output (recording units), fit",
+                                              contents=["$origin/measured", "$origin/fit"]),
+                               _layout.series(origin=f"/fourflip/{ch}/residual",
+                                              name=f"{ch}: residual (recording units), noise band"))
                 for ch in channels]
-        rows.append(rrb.TimeSeriesView(name="bench angles (deg)",
-                                       contents=["/fourflip/platform_deg", "/fourflip/flip_deg"]))
         return rrb.Horizontal(
-            rrb.Spatial3DView(origin="/bench", name="cube on the turntable; sensing directions, 3-sigma cones"),
-            rrb.Vertical(*rows), diagnosis, column_shares=[2, 3, 1], name="four-flip calibration")
+            _layout.spatial(origin="/bench", name="cube on the turntable: sensing directions +-1 sigma, field (orange)",
+                            eye=(3.0, 2.2, 1.8)),
+            rrb.Vertical(*rows), _diagnosis_views(), column_shares=[2, 3, 1], name="four-flip calibration")
     if kind == "tumble":
         return rrb.Horizontal(
             rrb.Vertical(rrb.Horizontal(
-                rrb.Spatial3DView(origin="/tumble/raw", name="raw, on the fitted ellipsoid (colour: coverage)"),
-                rrb.Spatial3DView(origin="/tumble/calibrated", name="calibrated, on the sphere")),
-                rrb.TimeSeriesView(origin="/tumble/field_ratio", name="|m| / field_norm: raw and calibrated"),
+                _layout.spatial(origin="/tumble/raw", name="raw, on the fitted ellipsoid (colour: coverage)",
+                                eye=(2.2, 1.8, 1.4)),
+                _layout.spatial(origin="/tumble/calibrated", name="calibrated, on the sphere", eye=(2.2, 1.8, 1.4))),
+                _layout.series(origin="/tumble/field_ratio", name="|m| / field_norm (ratio): raw and calibrated"),
                 row_shares=[3, 1]),
-            rrb.Vertical(rrb.Spatial3DView(origin="/tumble/coverage", name="coverage: cells seen (green)"),
-                         diagnosis), column_shares=[3, 1], name="tumble calibration")
-    residuals = rrb.Vertical(*(rrb.TimeSeriesView(origin=f"/{kind}/{ch}", name=f"{ch}: residual") for ch in channels))
-    parts = [rrb.Spatial3DView(origin="/platform3d/bench", name="housing in each pose")] if kind == "platform3d" else []
-    return rrb.Horizontal(*parts, residuals, diagnosis, name=f"{kind} calibration")
+            rrb.Vertical(_layout.spatial(origin="/tumble/coverage", name="coverage: cells seen (green)",
+                                         eye=(2.2, 1.8, 1.4)),
+                         _diagnosis_views()), column_shares=[3, 1], name="tumble calibration")
+    residuals = rrb.Vertical(*(_layout.series(origin=f"/{kind}/{ch}", name=f"{ch}: residual (recording units)",
+                                              legend=None) for ch in channels))
+    parts = [_layout.spatial(origin="/platform3d/bench", name="housing in each pose")] if kind == "platform3d" else []
+    return rrb.Horizontal(*parts, residuals, _diagnosis_views(), name=f"{kind} calibration")
 
 
 def log_calibration(rec, kind: str, calibration: dict, **arrays) -> None:
     """Log one calibration; ``arrays`` are those :func:`log_fourflip`, :func:`log_tumble` or
     :func:`log_fit_residuals` take for ``kind``."""
     {"fourflip": log_fourflip, "tumble": log_tumble}.get(kind, log_fit_residuals)(rec, calibration, **arrays)
-    log_diagnosis(rec, calibration.get("diagnosis"))
+    log_diagnosis(rec, calibration.get("diagnosis"), t_s=arrays.get("t_s"))
+
+
+def _at_start(rec, t_s=None) -> None:
+    """Stamp what follows at the recording's start on every timeline a layout may show (a text
+    logged on ``sample`` alone is not listed when the time panel shows ``t`` or ``turntable_deg``)."""
+    rec.set_time("sample", sequence=0)
+    rec.set_time("turntable_deg", sequence=0)
+    if t_s is not None and len(t_s) and np.isfinite(np.nanmin(t_s)):
+        rec.set_time("t", duration=float(np.nanmin(t_s)))
 
 
 def log_fourflip(rec, calibration: dict, *, platform_deg, flip_deg, outputs, residuals, t_s=None,
@@ -111,13 +131,19 @@ def log_fourflip(rec, calibration: dict, *, platform_deg, flip_deg, outputs, res
     order = np.argsort(t_s, kind="stable") if t_s is not None else np.lexsort((np.mod(platform_deg, 360.0), flip_deg))
     sample = np.arange(len(order))
     t = None if t_s is None else np.asarray(t_s, dtype=float)[order]
-    index = columns_index(t, sample)
+    phi, kappa = np.asarray(platform_deg, dtype=float)[order], np.asarray(flip_deg, dtype=float)[order]
+    turntable = np.rint(np.mod(phi, 360.0)).astype(np.int64) % 360
+    # a third timeline, the turntable angle in whole degrees: the four flips' outputs drawn against it
+    # lie on their four sinusoids (against sample number they are one long scribble)
+    index = columns_index(t, sample) + [rr.TimeColumn("turntable_deg", sequence=turntable)]
     outputs, residuals = np.asarray(outputs, dtype=float)[order], np.asarray(residuals, dtype=float)[order]
     noise = np.broadcast_to(np.asarray(calibration.get("noise_floor", np.nan), dtype=float), (len(names),))
     for j, name in enumerate(names):
         rec.log(f"fourflip/{name}/measured",
                 rr.SeriesPoints(names=["measured"], colors=[_MEASURED], marker_sizes=[1.0]), static=True)
-        rec.log(f"fourflip/{name}/fit", rr.SeriesLines(names=["fit"], colors=[_FIT]), static=True)
+        # points: at one turntable angle there are four flips' fits, a line would join them
+        rec.log(f"fourflip/{name}/fit", rr.SeriesPoints(names=["fit"], colors=[_FIT], marker_sizes=[0.8]),
+                static=True)
         rec.send_columns(f"fourflip/{name}/measured", indexes=index, columns=rr.Scalars.columns(scalars=outputs[:, j]))
         rec.send_columns(f"fourflip/{name}/fit", indexes=index,
                          columns=rr.Scalars.columns(scalars=outputs[:, j] - residuals[:, j]))
@@ -131,12 +157,12 @@ def log_fourflip(rec, calibration: dict, *, platform_deg, flip_deg, outputs, res
                                                                        colors=[[160, 160, 160]] * 2), static=True)
         rec.send_columns(f"fourflip/{name}/residual/noise_band", indexes=index, columns=rr.Scalars.columns(
             scalars=np.broadcast_to([-noise[j], noise[j]], (len(sample), 2))))
-    phi, kappa = np.asarray(platform_deg, dtype=float)[order], np.asarray(flip_deg, dtype=float)[order]
     for name, values in (("platform_deg", phi), ("flip_deg", kappa)):
         rec.send_columns(f"fourflip/{name}", indexes=index, columns=rr.Scalars.columns(scalars=values))
     _log_bench(rec, calibration, names)
     keep = np.unique(np.linspace(0, len(sample) - 1, min(frames, len(sample))).astype(int))
-    subset = columns_index(None if t is None else t[keep], keep)
+    subset = columns_index(None if t is None else t[keep], keep) + [rr.TimeColumn("turntable_deg",
+                                                                                   sequence=turntable[keep])]
     # R_W<-H = Rz(phi) Rx(kappa) (SPEC section 1): the turntable turns the cube's flip
     turntable = Rotation.from_euler("z", phi[keep][:, None], degrees=True)
     cube = Rotation.from_euler("x", kappa[keep][:, None], degrees=True)
@@ -152,9 +178,10 @@ def _log_bench(rec, calibration: dict, names) -> None:
     phi = np.linspace(0.0, 2.0 * np.pi, 73)
     ring = np.column_stack([1.4 * np.cos(phi), 1.4 * np.sin(phi), np.full(phi.shape, -0.3)])
     zero = [[0.0, 0.0, -0.3], [1.4, 0.0, -0.3]]
-    rec.log("bench/turntable/ring", rr.LineStrips3D([ring, zero], colors=[[120, 120, 120]], labels=["turntable", "zero"]),
-            static=True)
-    log_housing(rec, "bench/turntable/cube", color=(200, 200, 200), label="cube (housing)", scale=0.6)
+    rec.log("bench/turntable/ring", rr.LineStrips3D([ring, zero], colors=[[120, 120, 120]]), static=True)
+    # the cube's own axes unlabelled: its sensing directions, labelled, lie along them
+    log_housing(rec, "bench/turntable/cube", color=(200, 200, 200), label="cube (housing)", scale=0.6,
+                axis_labels=False)
     directions, strips, labels = [], [], []
     for j, name in enumerate(names):
         ch = calibration["channels"][name]
@@ -162,17 +189,20 @@ def _log_bench(rec, calibration: dict, names) -> None:
         sigma = ch.get("direction_sigma_deg")
         directions.append(a)
         labels.append(f"{name}" + ("" if sigma is None else f" +-{sigma:.3f} deg"))
-        if sigma is not None:
-            strips += cone_strips(a, np.radians(_SIGMAS * sigma), 1.2)
+        if sigma is not None and _SIGMAS * sigma >= _CONE_MIN_DEG:
+            strips.append((cone_strips(a, np.radians(_SIGMAS * sigma), 1.2), AXIS_COLORS[j % 3]))
     colors = [AXIS_COLORS[j % 3] for j in range(len(names))]
     rec.log("bench/turntable/cube/directions", rr.Arrows3D(vectors=1.2 * np.array(directions), colors=colors,
                                                            labels=labels, show_labels=True), static=True)
-    if strips:
-        rec.log("bench/turntable/cube/direction_cones", rr.LineStrips3D(strips, colors=[[240, 200, 60]]), static=True)
+    if strips:  # in the channel's colour, thin: a cone is no arrow
+        rec.log("bench/turntable/cube/direction_cones", rr.LineStrips3D(
+            [line for cone, _ in strips for line in cone], radii=[0.003],
+            colors=[color for cone, color in strips for _ in cone]), static=True)
 
 
-def log_diagnosis(rec, diagnosis: dict | None) -> None:
-    """The diagnosis block (SPEC section 4): each step's residual rms as bars, the steps in words."""
+def log_diagnosis(rec, diagnosis: dict | None, *, t_s=None) -> None:
+    """The diagnosis block (SPEC section 4): each step's residual rms as bars, the steps in words
+    (stamped at the start of the recording, whose times ``t_s`` are, when it has any)."""
     if not diagnosis or not diagnosis.get("steps"):
         return
     steps = diagnosis["steps"]
@@ -180,20 +210,40 @@ def log_diagnosis(rec, diagnosis: dict | None) -> None:
     for step in steps:
         value = step.get("residual_rms")
         rms.append(float(np.sqrt(np.mean(np.square(value)))) if value is not None else np.nan)
-    rec.log("diagnosis/residual_rms", rr.BarChart(np.array(rms), color=[30, 120, 220]), static=True)
     floor = diagnosis.get("noise_floor")
-    lines = [f"noise floor {np.sqrt(np.mean(np.square(floor))):.4g}" if floor is not None else "no noise floor"]
+    floor_rms = None if floor is None else float(np.sqrt(np.mean(np.square(floor))))
+    # one bar chart per step (and the floor), so the legend names each bar: a chart's bars carry no names
     for k, step in enumerate(steps):
-        what = step.get("added") or step.get("model", "step")
+        rec.log(f"diagnosis/residual_rms/{_bar_name(k, step)}",
+                rr.BarChart([rms[k]], abscissa=[k], color=_BAR_COLORS[k % len(_BAR_COLORS)]), static=True)
+    if floor_rms is not None:
+        rec.log("diagnosis/residual_rms/noise_floor", rr.BarChart([floor_rms], abscissa=[len(steps)],
+                                                                  color=[150, 150, 150]), static=True)
+    lines = [f"noise floor {floor_rms:.4g}" if floor_rms is not None else "no noise floor"]
+    for k, step in enumerate(steps):
+        what = _step_words(step)
         lines.append(f"step {k}: {what}: residual rms {rms[k]:.4g}"
                      + (f"; {step['evidence']}" if step.get("evidence") else ""))
     verdict = diagnosis.get("unexplained")
     lines.append("effects: " + (", ".join(diagnosis.get("effects", [])) or "none")
                  + {True: "; structure above the floor remains UNEXPLAINED", False: "; residual at the noise floor",
                     None: "; no floor to judge by"}[verdict])
-    rec.set_time("sample", sequence=0)  # at the start of the replay, so the whole story is in view
+    _at_start(rec, t_s)  # at the start of the replay, so the whole story is in view
     for line in lines:
         rec.log("diagnosis/log", rr.TextLog(line))
+
+
+_BAR_COLORS = ([230, 120, 40], [30, 120, 220], [40, 170, 90], [170, 70, 200], [200, 60, 60])
+
+
+def _step_words(step: dict) -> str:
+    return str(step.get("added") or step.get("model", "step"))
+
+
+def _bar_name(k: int, step: dict) -> str:
+    """The entity name of step ``k``'s bar: its number and what it added, as an entity path part."""
+    words = "".join(c if c.isalnum() else "_" for c in _step_words(step)).strip("_")
+    return f"step{k}_{words or 'step'}"
 
 
 def _cell_counts(directions: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -257,7 +307,7 @@ def log_tumble(rec, calibration: dict, *, mag, t_s=None, coverage_words: str | N
     rec.send_columns("tumble/field_ratio", indexes=index, columns=rr.Scalars.columns(
         scalars=np.column_stack([raw_ratio / np.median(raw_ratio), np.linalg.norm(m, axis=1) / norm])))
     if coverage_words:
-        rec.set_time("sample", sequence=0)
+        _at_start(rec, t_s)
         rec.log("diagnosis/log", rr.TextLog(f"coverage: {coverage_words}"))
 
 
@@ -299,7 +349,7 @@ class LiveTumbleRecording:
     def __init__(self, target, *, n_cells: int = 200, max_points: int = 3000):
         from ._stream import Recording
 
-        self.recording = Recording(target, application_id="compass_live_tumble")
+        self.recording = Recording(target, application_id=_layout.APPLICATION_IDS["live_tumble"])
         self.rec, self.cells, self.max_points = self.recording.rec, sphere_cells(n_cells), max_points
         self.rec.log("tumble/coverage_fraction", rr.SeriesLines(names=["coverage"]), static=True)
         for axis in "xyz":
@@ -310,11 +360,15 @@ class LiveTumbleRecording:
     @staticmethod
     def views() -> rrb.Container:
         return rrb.Horizontal(
-            rrb.Spatial3DView(origin="/tumble/live", name="samples so far, about the hard iron (colour: coverage)"),
-            rrb.Vertical(rrb.Spatial3DView(origin="/tumble/coverage", name="coverage: cells seen (green)"),
-                         rrb.TimeSeriesView(origin="/tumble/coverage_fraction", name="coverage fraction"),
-                         rrb.TimeSeriesView(origin="/tumble/hard_iron", name="hard iron +-1 sigma (converging)")),
-            rrb.TextLogView(origin="/events", name="what is still missing"), column_shares=[2, 2, 1],
+            _layout.spatial(origin="/tumble/live", name="samples so far, about the hard iron (colour: coverage)",
+                            eye=(2.2, 1.8, 1.4)),
+            rrb.Vertical(_layout.spatial(origin="/tumble/coverage", name="coverage: cells seen (green)",
+                                         eye=(2.2, 1.8, 1.4)),
+                         _layout.series(origin="/tumble/coverage_fraction", name="coverage (fraction of the sphere)",
+                                        legend=None),
+                         _layout.series(origin="/tumble/hard_iron",
+                                        name="hard iron +-1 sigma (recording units), converging")),
+            _layout.text_log(origin="/events", name="what is still missing"), column_shares=[2, 2, 1],
             name="live tumble calibration")
 
     def _time(self, collector) -> None:
@@ -355,7 +409,7 @@ class LiveTumbleRecording:
             self.rec.set_time("sample", sequence=0)
             log_calibration(self.rec, "tumble", result.to_json(), mag=mag, coverage_words=result.coverage.words())
             views.append(calibration_views("tumble"))
-        self.rec.send_blueprint(rrb.Blueprint(rrb.Tabs(*views), rrb.TimePanel(timeline="sample")))
+        self.rec.send_blueprint(_layout.blueprint(rrb.Tabs(*views), "sample"))
         self.recording.close()
 
 
@@ -406,22 +460,23 @@ def log_calibration_result(rec, result, recording_path, *, base_residuals=None, 
                       base_residuals=None if base_residuals is None else base_residuals(recording))
     else:  # a kind this module does not draw yet: its diagnosis only
         log_diagnosis(rec, calibration.get("diagnosis"))
-        return rrb.Vertical(rrb.BarChartView(origin="/diagnosis/residual_rms"),
-                            rrb.TextLogView(origin="/diagnosis/log"), name=f"{kind} calibration")
+        return rrb.Vertical(_diagnosis_views(), name=f"{kind} calibration")
     log_calibration(rec, kind, calibration, **arrays)
     return calibration_views(kind, channels)
 
 
-def record_calibration(target, recording_path, result, *, base_residuals=None, read_options=None,
-                       application_id: str = "compass_calibrate") -> None:
+def record_calibration(target, recording_path, result, *, base_residuals=None, read_options=None) -> None:
     """Write one calibration to ``target`` (.rrd or ``spawn``) with its layout
-    (:func:`log_calibration_result`)."""
+    (:func:`log_calibration_result`), under its kind's application id (Rerun keeps a layout per
+    application id: a tumble opened beside a four-flip would get the four-flip's)."""
     from ._stream import Recording
 
+    kind = result.calibration_kind
+    application_id = _layout.APPLICATION_IDS.get(kind, f"compass_calibrate_{kind}")
     with Recording(target, application_id=application_id) as out:
         views = log_calibration_result(out.rec, result, recording_path, base_residuals=base_residuals,
                                        read_options=read_options)
-        out.rec.send_blueprint(rrb.Blueprint(views, rrb.TimePanel(timeline="sample")))
+        out.rec.send_blueprint(_layout.blueprint(views, "turntable_deg" if kind == "fourflip" else "sample"))
 
 
 def _log_platform_poses(rec, angles_deg) -> None:

@@ -8,6 +8,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from ..frames import r_world_from_housing
+from . import _layout
 from ._drawing import log_housing
 from ._stream import Recording, columns_index
 from .attitude import reference_dip, attitude_views, log_attitude
@@ -19,8 +20,9 @@ __all__ = ["record_demo", "errors_views"]
 def errors_views() -> rrb.Container:
     """Attitude errors against the truth, with the propagated sigma, and the two housings."""
     return rrb.Horizontal(
-        rrb.Spatial3DView(origin="/world", name="estimate (blue) and truth (grey, beside it)"),
-        rrb.Vertical(*(rrb.TimeSeriesView(origin=f"/errors/{name}", name=f"{name} error (deg), +-1 sigma propagated")
+        _layout.spatial(origin="/world", name="estimate (blue) and truth (grey, beside it); N = magnetic north",
+                        eye=(2.6, 3.4, 1.8), target=(0.0, -0.9, 0.0)),
+        rrb.Vertical(*(_layout.series(origin=f"/errors/{name}", name=f"{name[:-4]} error (deg), +-1 sigma propagated")
                        for name in ("heading_deg", "pitch_deg", "roll_deg"))),
         column_shares=[1, 2], name="attitude errors against the truth")
 
@@ -52,7 +54,7 @@ def record_demo(path, recording_path, calibration_result, attitude, model, *, t_
     from ..attitude import solve_attitude
 
     defaults = inspect.signature(solve_attitude).parameters
-    with Recording(path, application_id="compass_demo") as out:
+    with Recording(path, application_id=_layout.APPLICATION_IDS["demo"]) as out:
         rec = out.rec
         calibration = log_calibration_result(rec, calibration_result, recording_path, base_residuals=base_residuals)
         log_attitude(rec, attitude, t_s=t_s, raw=raw, accel=accel, dip_deg=reference_dip(attitude, model),
@@ -61,7 +63,7 @@ def record_demo(path, recording_path, calibration_result, attitude, model, *, t_
                      dip_tolerance_deg=defaults["dip_tolerance_deg"].default)
         index = columns_index(t_s, np.arange(len(t_s)))
         rec.log("world/beside", rr.Transform3D(translation=[0.0, -1.8, 0.0]), static=True)
-        log_housing(rec, "world/beside/truth", color=(170, 170, 170), label="truth")
+        log_housing(rec, "world/beside/truth", color=(170, 170, 170), label="truth", axis_labels=False)
         truth = r_world_from_housing(truth_heading_deg, truth_pitch_deg, truth_roll_deg)
         rec.send_columns("world/beside/truth", indexes=index,
                          columns=rr.Transform3D.columns(quaternion=truth.as_quat()))
@@ -78,5 +80,5 @@ def record_demo(path, recording_path, calibration_result, attitude, model, *, t_
                                                                     colors=[[150, 150, 150]] * 2), static=True)
                 rec.send_columns(f"errors/{name}/sigma_band", indexes=index, columns=rr.Scalars.columns(
                     scalars=np.asarray(sigma[name])[:, None] * [-1.0, 1.0]))
-        rec.send_blueprint(rrb.Blueprint(rrb.Tabs(calibration, attitude_views(), errors_views(), active_tab=0),
-                                         rrb.TimePanel(timeline="sample")))
+        # the time t: the calibration's and the attitude's timeline both (their sample numbers are not one count)
+        rec.send_blueprint(_layout.blueprint(rrb.Tabs(calibration, attitude_views(), errors_views(), active_tab=0), "t"))

@@ -2,20 +2,19 @@
 
 Entities and their meaning: :mod:`compass.viz.attitude`; timelines ``t`` (sample time, a duration)
 and ``sample`` (the running sample number, as the CSV's row order). Samples are buffered and sent
-as columns (``send_columns``) every ``flush_s``: one call per entity and batch instead of one per
-sample. The 3-D views (housing, field and gravity arrows) get at most ``frame_rate_hz`` frames a
+as columns (``send_columns``) every ``flush_s`` of sample time: one call per entity and batch instead
+of one per sample. The 3-D views (housing, field and gravity arrows) get at most ``frame_rate_hz`` frames a
 second of sample time, sent in the same batches: a viewer shows no more.
 """
 
 from __future__ import annotations
-
-import time
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 from scipy.spatial.transform import Rotation
 
+from . import _layout
 from ._stream import Recording, columns_index
 from .attitude import attitude_views, log_attitude_statics, log_reference, send_attitude, send_frames, send_raw
 
@@ -28,6 +27,9 @@ ENTITIES = ("world/housing", "world/housing/body", "world/housing/axes", "world/
                 "heading_deg", "pitch_deg", "roll_deg", "heading_deg/sigma_band", "pitch_deg/sigma_band",
                 "roll_deg/sigma_band", "field_ratio", "field_ratio/gate_limits", "dip_deg", "dip_deg/gate_limits",
                 "gate", "mag_used", "accel_used", "in_range", "latency_ms")))
+VIEWER_FLUSH_S = 0.05
+FILE_FLUSH_S = 5.0
+_MAX_ROWS = 5000  # most samples buffered whatever their times
 _FLOAT_COLUMNS = ("heading_deg", "pitch_deg", "roll_deg", "heading_sigma_deg", "tilt_sigma_deg", "field_ratio",
                   "dip_deg", "gate", "mag_used", "accel_used", "in_range", "latency_ms", "heading_true_deg",
                   "heading_true_sigma_deg")
@@ -35,7 +37,7 @@ _FLOAT_COLUMNS = ("heading_deg", "pitch_deg", "roll_deg", "heading_sigma_deg", "
 
 def live_blueprint() -> rrb.Blueprint:
     """The layout of a live recording (:func:`compass.viz.attitude.attitude_views`)."""
-    return rrb.Blueprint(attitude_views(), rrb.TimePanel(timeline="t"))
+    return _layout.blueprint(attitude_views(), "t")
 
 
 class RerunSink:
@@ -52,8 +54,10 @@ class RerunSink:
     field_tolerance, dip_tolerance_deg, accel_tolerance : float
         The gate's limits (:class:`compass.filter.FilterConfig`).
     application_id, recording_id : str
-    flush_s : float
-        Longest time samples wait in the buffer, seconds.
+    flush_s : float, optional
+        Longest time samples wait in the buffer, seconds. Default: 0.05 to a viewer (it shows them
+        at once), :data:`FILE_FLUSH_S` to a file (read only once complete, so larger, fewer chunks:
+        a 20 s session at 0.05 s was 6,200 chunks, minutes to load; ``tools/bench_live_rrd.py``).
     frame_rate_hz : float
         Most 3-D frames per second (sample time).
 
@@ -65,10 +69,12 @@ class RerunSink:
 
     def __init__(self, target, *, channels=("mx", "my", "mz"), dip_deg: float = 60.0, field_tolerance: float = 0.1,
                  dip_tolerance_deg: float = 10.0, accel_tolerance: float = 0.1, application_id: str = "compass_live",
-                 flush_s: float = 0.05, frame_rate_hz: float = 30.0, recording_id: str | None = None):
+                 flush_s: float | None = None, frame_rate_hz: float = 30.0, recording_id: str | None = None):
         self.recording = Recording(target, application_id=application_id, blueprint=live_blueprint(),
                                    recording_id=recording_id)
         self.rec = self.recording.rec
+        if flush_s is None:
+            flush_s = VIEWER_FLUSH_S if self.recording.path is None else FILE_FLUSH_S
         self.flush_s, self.frame_s = flush_s, 1.0 / frame_rate_hz
         self.dip_deg, self.field_tolerance = dip_deg, field_tolerance
         self.dip_tolerance_deg, self.accel_tolerance = dip_tolerance_deg, accel_tolerance
@@ -79,7 +85,7 @@ class RerunSink:
         self._gyro: list = []
         self._pending: list = []  # events before the first sample
         self._gravity = None
-        self._last_flush = time.perf_counter()
+        self._buffer_t0 = None  # sample time of the first buffered sample
         self._last_frame_t = -np.inf  # sample time of the last 3-D frame
         self._started = False
         log_attitude_statics(self.rec, dip_deg=dip_deg, channels=channels, field_tolerance=field_tolerance,
@@ -92,10 +98,14 @@ class RerunSink:
                    dip_tolerance_deg=config.dip_tolerance_deg, accel_tolerance=config.accel_tolerance, **options)
 
     def set_reference(self, dip_deg: float, description: str | None = None) -> None:
-        """The filter's reference field changed (a site's, or the first quiet second's): redraw it."""
+        """The filter's reference field changed (a site's, or the first quiet second's): redraw it.
+
+        ``description`` (where the reference came from) is the caller's event line; the arrow's label
+        stays short.
+        """
         self.dip_deg = float(dip_deg)
         log_reference(self.rec, dip_deg=self.dip_deg, field_tolerance=self.field_tolerance,
-                      dip_tolerance_deg=self.dip_tolerance_deg, description=description)
+                      dip_tolerance_deg=self.dip_tolerance_deg)
 
     def log(self, t_s: float, sample: int, estimate, field_h, accel, *, raw=None, gyro=None, gate_code: int = 0,
             in_range: bool = True, latency_ms: float = np.nan, true_heading=(np.nan, np.nan)) -> None:
@@ -137,7 +147,11 @@ class RerunSink:
             self._last_frame_t = t_s
             down = np.full(3, np.nan) if accel is None or self._gravity is None else -np.asarray(accel) / self._gravity
             self._frames.append((t_s, sample, e.rotation.as_quat(), field_h, down))
-        if time.perf_counter() - self._last_flush >= self.flush_s:
+        if self._buffer_t0 is None:
+            self._buffer_t0 = t_s
+        # by sample time (a file's chunks do not depend on how fast the machine was); a clock that
+        # went back (the module restarted) or a full buffer flushes too
+        if not 0.0 <= t_s - self._buffer_t0 < self.flush_s or len(self._rows) >= _MAX_ROWS:
             self.flush()
 
     def event(self, t_s: float, sample: int, text: str, level: str = "info") -> None:
@@ -160,7 +174,7 @@ class RerunSink:
 
     def flush(self) -> None:
         """Send the buffered samples as columns."""
-        self._last_flush = time.perf_counter()
+        self._buffer_t0 = None
         if not self._rows:
             return
         rows, raw, accel, gyro = np.array(self._rows, dtype=float), self._raw, self._accel, self._gyro
