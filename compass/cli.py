@@ -23,7 +23,8 @@ import warnings
 
 __all__ = ["main", "BadInput", "version"]
 
-SUBCOMMANDS = ("demo", "simulate", "calibrate", "attitude", "live", "device", "export", "evaluate")
+SUBCOMMANDS = ("demo", "simulate", "calibrate", "attitude", "live", "device", "export", "evaluate", "batch",
+               "store")
 
 
 class BadInput(ValueError):

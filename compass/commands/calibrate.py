@@ -87,22 +87,18 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
         Bad input (exit status 2 on the command line).
     """
     from calibrate.contract import CannotCalibrate
-    from calibrate.kinds import KINDS, sniff
+    from calibrate.session import find_kind, fit_recording
 
-    from ..calibration_file import CalibrationFileError, dumps
     from ..cli import BadInput
 
     out = check_writable(out, force)
     table = read_table(recording, read_options)
-    if kind is not None and kind not in KINDS:
-        raise BadInput(f"--kind {kind}: unknown kind; known: {', '.join(KINDS)}")
     if base is not None and kind is None:
         kind = "installed"  # --base: the recording is an installation on top of that bench calibration
-    found = KINDS[kind] if kind is not None else sniff(table)
-    if found is None:
-        raise BadInput(f"{recording}: cannot tell the recording kind from its columns "
-                       f"({', '.join(table.columns)}); " + ", ".join(f"a {k.name} recording has {k.columns}"
-                                                                     for k in KINDS.values()))
+    try:
+        found = find_kind(table, recording, kind)
+    except CannotCalibrate as exc:
+        raise BadInput(str(exc)) from None
     if field_ut is not None and not field_ut > 0:
         raise BadInput(f"--field-ut must be positive, got {field_ut}")
     given = {"method": method, "diagnose": diagnose, "field_ut": field_ut, "ellipsoid": ellipsoid, "base": base,
@@ -116,17 +112,13 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
         raise BadInput(f"--report {report}: is a file, expected a folder")
     for name in found.calibrator.plot_files if report is not None else ():
         check_writable(Path(report) / name, force)  # plots are never overwritten without --force either
-    rec = found.read(table)
     options = {name: value for name, value in given.items() if name in takes}
     if "progress" in takes and not quiet:
         options["progress"] = lambda text: print(f"  ... {text}", flush=True)
     try:
-        result = found.calibrator(**options).fit(rec)
-        text = dumps(result.to_json())
+        rec, result, text = fit_recording(found, table, recording, options)
     except CannotCalibrate as exc:  # the recording cannot determine the model: bad input
         raise BadInput(str(exc)) from None
-    except CalibrationFileError as exc:  # never write a calibration the runtime would refuse
-        raise BadInput(f"{recording}: the fit gives an unusable calibration, not written: {exc}") from None
     if not quiet:
         print(result.report())
     atomic_write_text(out, text)
