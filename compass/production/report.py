@@ -83,7 +83,7 @@ def write_csv(path, rows) -> Path:
 
 def _png(fig) -> str:
     buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=90, bbox_inches="tight")
+    fig.savefig(buffer, format="png", dpi=90)
     import matplotlib.pyplot as plt
 
     plt.close(fig)
@@ -97,7 +97,7 @@ def _distribution_png(name, rows, limits) -> str:
     low, high = limits
     good = np.array([r.figures[name] for r in rows if r.status == "accepted" and _finite(r.figures.get(name))])
     bad = np.array([r.figures[name] for r in rows if r.status == "rejected" and _finite(r.figures.get(name))])
-    fig, ax = plt.subplots(figsize=(4.6, 2.6))
+    fig, ax = plt.subplots(figsize=(4.6, 2.6), layout="constrained")
     values = np.concatenate([good, bad]) if len(good) + len(bad) else np.array([np.nan])
     marks = [v for v in (low, high) if v is not None]
     span = np.concatenate([values[np.isfinite(values)], marks])
@@ -126,7 +126,7 @@ def _control_png(result: ControlResult) -> str:
     c = result.chart
     i = np.asarray(result.positions)
     unit = FIGURES[result.figure].unit
-    fig, ax = plt.subplots(figsize=(11.0, 3.0))
+    fig, ax = plt.subplots(figsize=(11.0, 3.2), layout="constrained")
     spread = max(c.high.max() - c.centre, c.centre - c.low.min())
     lo, hi = np.percentile(c.values, [5, 95])
     bottom, top = min(lo, c.centre - 4 * spread), max(hi, c.centre + 4 * spread)

@@ -22,9 +22,9 @@ A spec is a TOML file (``compass batch --spec SPEC.toml``; the shipped default i
 
     [control]                   # the fleet report's EWMA chart
     figures = ["bench_dip_deg", "direction_sigma_deg"]
-    baseline_sessions = 20
+    baseline_sessions = 50
     lambda = 0.2
-    width_sigmas = 3.0
+    width_sigmas = 4.0
 
 A key the reader does not know, a value of the wrong type, or a limit on an unknown figure is a
 :class:`SpecError` naming the file and the key (exit status 2 on the command line).
@@ -101,9 +101,9 @@ class AcceptanceSpec:
     fail_missing: bool = False
     fail_on_warnings: tuple[str, ...] = ()
     control_figures: tuple[str, ...] = ("bench_dip_deg",)
-    baseline_sessions: int = 20
+    baseline_sessions: int = 50
     ewma_lambda: float = 0.2
-    width_sigmas: float = 3.0
+    width_sigmas: float = 4.0
     text: str = field(default="", repr=False)
 
     @property
@@ -194,10 +194,10 @@ def parse_spec(text: str, *, source: str = "<spec>") -> AcceptanceSpec:
         fail_missing=_bool(missing, "fail", source, "missing.", default=False),
         fail_on_warnings=fail_on,
         control_figures=figures if "figures" in control else ("bench_dip_deg",),
-        baseline_sessions=int(_number(control, "baseline_sessions", source, "control.", default=20, low=3,
+        baseline_sessions=int(_number(control, "baseline_sessions", source, "control.", default=50, low=3,
                                       integer=True)),
         ewma_lambda=_number(control, "lambda", source, "control.", default=0.2, positive=True, high=1.0),
-        width_sigmas=_number(control, "width_sigmas", source, "control.", default=3.0, positive=True),
+        width_sigmas=_number(control, "width_sigmas", source, "control.", default=4.0, positive=True),
         text=text,
     )
     return spec
