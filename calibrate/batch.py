@@ -141,7 +141,8 @@ def executor_outcomes(jobs: list[SessionJob], *, workers: int | None = None, sch
     else:
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
-        with ProcessPoolExecutor(max_workers=workers or os.cpu_count()) as pool:
+        with ProcessPoolExecutor(max_workers=workers or os.cpu_count(), initializer=_exit_with_parent,
+                                 initargs=(os.getpid(),)) as pool:
             futures = [pool.submit(calibrate_session, job) for job in jobs]
             try:
                 for future in as_completed(futures):
@@ -149,6 +150,25 @@ def executor_outcomes(jobs: list[SessionJob], *, workers: int | None = None, sch
             finally:
                 for future in futures:
                     future.cancel()
+
+
+_PARENT_POLL_S = 1.0
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    """A pool worker's initializer: end the worker when the batch that started it is gone.
+
+    A batch killed with ``kill -9`` cannot stop its workers; without this they would sit orphaned
+    (their task queue's pipe stays open in their siblings) and calibrate on for nobody.
+    """
+    import threading
+
+    def watch():
+        while os.getppid() == parent_pid:
+            time.sleep(_PARENT_POLL_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="exit-with-parent").start()
 
 
 def _dask_outcomes(jobs, workers, scheduler):

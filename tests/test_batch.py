@@ -1,6 +1,8 @@
 """compass batch / store / export --module on a small simulated line (14 short sessions, 7 defects)."""
 
 import json
+import os
+import signal
 import sqlite3
 import time
 
@@ -132,6 +134,14 @@ def test_a_store_of_a_newer_schema_is_refused_in_words(fleet, tmp_path, capsys):
     assert "upgrade compass to read it" in capsys.readouterr().err
 
 
+def _group_alive(pgid) -> bool:
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
 def test_kill_9_mid_batch_loses_nothing_and_stores_nothing_twice(fleet, tmp_path):
     folder, truth = fleet
     out = tmp_path / "killed"
@@ -151,8 +161,12 @@ def test_kill_9_mid_batch_loses_nothing_and_stores_nothing_twice(fleet, tmp_path
                     break
             time.sleep(0.05)
         assert proc.popen.poll() is None and stored >= 3, proc.transcript()
-        proc.kill_group()  # kill -9 of the batch and its workers
+        os.kill(proc.popen.pid, signal.SIGKILL)  # kill -9 of the batch: its pool workers see it gone and end
         proc.popen.wait(30)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and _group_alive(proc.popen.pid):
+            time.sleep(0.1)
+        assert not _group_alive(proc.popen.pid), "pool workers outlived their killed batch"
     with Store(store_path, create=False) as store:
         survivors = store.sessions()
     assert 3 <= len(survivors) < N

@@ -14,7 +14,9 @@ with the default acceptance spec, and prints:
 4. throughput (sessions per second) of the serial loop in this process (the baseline), of the local
    process pool with 1 and 2 workers, and of a Dask ``LocalCluster`` with 1 and 2 workers when Dask
    is installed, on the same recordings, each into a fresh store (modules imported beforehand, so
-   no executor pays the first imports: a forked pool inherits them, a Dask worker does not).
+   no executor pays the first imports: a forked pool inherits them, a Dask worker does not);
+5. the store's write rate: sessions committed a second, one transaction each, with a real
+   calibration's text (what bounds the one writing process, whatever the number of workers).
 
     python tools/bench_batch.py [--n 300] [--seed 0] [--throughput-n 24] [--write docs/production_bench.md]
 
@@ -160,6 +162,23 @@ def throughput(fleet: Path, truth: dict, spec, folder: Path, n: int) -> list[str
     return lines
 
 
+def store_rate(folder: Path, n: int = 300) -> list[str]:
+    from compass.production.store import Store
+
+    with Store(folder / "throughput0.sqlite", create=False) as done:
+        row = done.sessions()[0]
+    with Store(folder / "rate.sqlite") as store:
+        start = time.perf_counter()
+        for k in range(n):
+            store.add(module_id=f"R{k}", session_time=row.session_time, recording_path=row.recording_path,
+                      recording_sha256=f"{k:064x}", toolkit_version="bench", kind=row.kind, status=row.status,
+                      reasons=row.reasons, notes=row.notes, figures=row.figures, calibration=row.calibration,
+                      spec_text="", spec_sha256="")
+        wall = time.perf_counter() - start
+    return ["", f"## Store writes: {n} sessions, one transaction each ({len(row.calibration or '')} characters of "
+                f"calibration a row): {wall:.2f} s, {n / wall:.0f} sessions/s (this machine's disk, shared)"]
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=300, help="modules in the simulated line (default 300)")
@@ -184,6 +203,7 @@ def main(argv=None) -> int:
         lines += [""] + ewma_characteristics(args.seed)
         print("\n".join(lines), flush=True)
         more = [""] + throughput(fleet, truth, spec, folder, min(args.throughput_n, args.n))
+        more += store_rate(folder)
         print("\n".join(more), flush=True)
     if args.write:
         Path(args.write).write_text("\n".join(lines + more) + "\n", encoding="utf-8")
