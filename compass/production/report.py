@@ -116,7 +116,7 @@ def _distribution_png(name, rows, limits) -> str:
     ax.set_xlabel(f"{name} ({unit}){'  log scale' if log else ''}", fontsize=9)
     ax.set_ylabel("sessions", fontsize=9)
     ax.tick_params(labelsize=8)
-    ax.legend(fontsize=7, loc="upper right", bbox_to_anchor=(1.0, 0.85))
+    ax.legend(fontsize=7, loc="best")
     return _png(fig)
 
 
@@ -138,7 +138,7 @@ def _control_png(result: ControlResult) -> str:
         if side.any():
             ax.plot(i[side], np.full(side.sum(), edge), marker, color="#7f8c99", markersize=5, clip_on=False,
                     label="off the scale")
-    ax.plot(i, c.ewma, "-", color="#1f4e79", linewidth=1.6, label="EWMA")
+    ax.plot(i, c.ewma, "-", color="#1f4e79", linewidth=1.6, label="EWMA (each value clipped at 3 sigma)")
     ax.plot(i, c.low, "--", color="#c0392b", linewidth=1)
     ax.plot(i, c.high, "--", color="#c0392b", linewidth=1, label="control limits")
     ax.axvspan(i[0] - 0.5, i[c.baseline - 1] + 0.5, color="#eef2f6", label=f"baseline ({c.baseline} sessions)")
@@ -185,7 +185,7 @@ def write_report(out_dir, rows, spec, *, spec_source: str, toolkit_version: str,
              "body{font-family:system-ui,sans-serif;margin:1.5em 2em;color:#222;max-width:1100px}"
              "h1{margin-bottom:0.2em}h2{margin-top:1.6em;border-bottom:1px solid #ccc}"
              "table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ddd;padding:3px 7px;"
-             "text-align:left;vertical-align:top}th{background:#f3f5f7}.num{text-align:right}"
+             "text-align:left;vertical-align:top}th{background:#f3f5f7}.num{text-align:right}.when{white-space:nowrap}"
              ".ok{color:#2e7d32;font-weight:600}.bad{color:#c0392b;font-weight:600}"
              ".grid{display:flex;flex-wrap:wrap;gap:8px}.grid figure{margin:0}"
              ".note{color:#555;font-size:13px}.alarm{background:#fdecea;padding:6px 10px;border-left:4px solid #c0392b}"
@@ -202,8 +202,10 @@ def write_report(out_dir, rows, spec, *, spec_source: str, toolkit_version: str,
                  f"<td class='num bad'>{counts['refused']}</td><td class='num'><b>{yield_pct:.1f} %</b></td></tr></table>")
     parts.append("<h2>Is the line drifting?</h2><p class='note'>EWMA control charts over session time "
                  f"(lambda {spec.ewma_lambda:g}, limits {spec.width_sigmas:g} sigma from the first "
-                 f"{spec.baseline_sessions} sessions; refused sessions left out). A flagged chart means the "
-                 "line changed, not one module: check the bench before the modules.</p>")
+                 f"{spec.baseline_sessions} sessions; refused sessions left out; each value enters the average "
+                 "clipped at 3 sigma, so one bad module cannot raise a flag). A flagged chart means the line "
+                 "changed, not one module: a flag on the bench's dip points at the bench, one on a module "
+                 "figure at the lot of parts.</p>")
     for c in controls:
         if c.chart is None:
             parts.append(f"<p class='note'><b>{e(c.figure)}</b>: no chart: {e(c.why)}</p>")
@@ -236,7 +238,7 @@ def write_report(out_dir, rows, spec, *, spec_source: str, toolkit_version: str,
                      "<table><tr><th>module</th><th>session time</th><th>verdict</th><th>reasons</th></tr>")
         for r in shown:
             reasons = "<br>".join(e(x) for x in r.reasons)
-            parts.append(f"<tr><td>{e(r.module_id)}</td><td>{e(r.session_time)}</td>"
+            parts.append(f"<tr><td>{e(r.module_id)}</td><td class='when'>{e(r.session_time)}</td>"
                          f"<td class='bad'>{e(r.status)}</td><td>{reasons}</td></tr>")
         parts.append("</table>")
     else:
