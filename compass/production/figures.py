@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FIGURES", "WARNING_CLASSES", "Figure", "classify_warning", "module_figures"]
+__all__ = ["FIGURES", "WARNING_CLASSES", "Figure", "classify_warning", "heading_error_deg", "module_figures"]
 
 
 @dataclass(frozen=True)

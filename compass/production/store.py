@@ -173,11 +173,12 @@ class Store:
         return {r[0] for r in rows}
 
     def sessions(self, *, module_id: str | None = None, hashes=None) -> list[SessionRow]:
-        """Stored sessions in session-time order (of one module, or of some recordings' hashes)."""
+        """Stored sessions in session-time order, then by recording path (sessions stamped with a day
+        only keep their files' order), of one module or of some recordings' hashes."""
         sql, args = f"SELECT {', '.join(_COLUMNS)} FROM sessions", []
         if module_id is not None:
             sql, args = sql + " WHERE module_id = ?", [module_id]
-        rows = [_row(r) for r in self._db.execute(sql + " ORDER BY session_time, id", args)]
+        rows = [_row(r) for r in self._db.execute(sql + " ORDER BY session_time, recording_path, id", args)]
         if hashes is not None:
             hashes = set(hashes)
             rows = [r for r in rows if r.recording_sha256 in hashes]
