@@ -214,3 +214,15 @@ def test_dask_local_cluster_gives_the_pool_s_verdicts(fleet, tmp_path):
         got = {r.module_id: (r.status, r.figures) for r in dask_store.sessions()}
         expected = {r.module_id: (r.status, r.figures) for r in serial_store.sessions()}
     assert got == expected and len(got) == 2
+
+
+def test_simulate_fleet_command_writes_sessions_and_truth_and_never_overwrites(tmp_path, capsys):
+    out = tmp_path / "line"
+    assert main(["simulate", "fleet", "--n", "4", "--out", str(out), "--step-deg", "30", "--drift-start", "2"]) == 0
+    truth = json.loads((out / "fleet_truth.json").read_text())
+    assert [m["file"] for m in truth["modules"]] == ["M0001.csv", "M0002.csv", "M0003.csv", "M0004.csv"]
+    assert truth["drift"]["start_session"] == 2
+    assert "# module_id: M0003" in (out / "M0003.csv").read_text()
+    capsys.readouterr()
+    assert main(["simulate", "fleet", "--n", "4", "--out", str(out)]) == 2
+    assert "exists; use --force" in capsys.readouterr().err
