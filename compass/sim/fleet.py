@@ -84,12 +84,12 @@ class FleetOptions:
 
 
 def _defects(options: FleetOptions, rng) -> list[str | None]:
-    """One entry per session: a defect name or None; defects kept out of the baseline's first sessions."""
+    """One entry per session: a defect name or None (the first three sessions are clean)."""
     n = options.n
     count = max(len(DEFECTS), int(round(options.defect_rate * n))) if n >= 2 * len(DEFECTS) else max(1, n // 4)
     slots = rng.choice(np.arange(min(n, 3), n), size=min(count, max(n - 3, 0)), replace=False)
     out: list[str | None] = [None] * n
-    for k, slot in enumerate(sorted(slots, key=lambda s: rng.random())):
+    for k, slot in enumerate(sorted(slots, key=lambda _: rng.random())):  # shuffled
         out[int(slot)] = DEFECTS[k % len(DEFECTS)]
     return out
 
@@ -105,7 +105,7 @@ def _directions(rng, misalign_deg: float, defect: str | None) -> np.ndarray:
 
 
 def simulate_module(options: FleetOptions, index: int, defect: str | None, dip_deg: float):
-    """One module's session: ``(columns, table, formats, metadata, truth)`` with outputs in counts."""
+    """One module's session: ``(columns, table, formats, truth)``, the outputs in counts."""
     rng = np.random.default_rng([options.seed, index])
     directions = _directions(rng, options.misalign_deg, defect)
     session = simulate_fourflip(seed=int(rng.integers(2**31)), directions=directions, noise_ut=options.noise_ut,
