@@ -23,7 +23,7 @@ def register(sub) -> None:
     p.add_argument("--store", default=None, metavar="PATH",
                    help="calibration store (SQLite; default DIR/calibrations.sqlite); a re-run skips the "
                         "sessions it holds for this compass version and spec")
-    p.add_argument("--workers", type=int, default=None,
+    p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="worker processes (default: the CPU count; 0: one after another in this process)")
     p.add_argument("--scheduler", default=None, metavar="ADDR",
                    help="run on a Dask cluster (tcp://host:8786); needs compass-toolkit[dask]")
