@@ -85,13 +85,13 @@ def calibrate_session(job: SessionJob) -> dict:
         ``figures`` (dict), ``warnings`` (list of str), ``refused`` (the reason, or None),
         ``seconds`` (wall time of the calibration).
     """
-    from compass.calibration_file import CalibrationFileError, from_dict
+    from compass.calibration import CalibrationFileError, from_dict
     from compass.io.table import RecordingError, read_table
     from compass.io.units import RecordingWarning
     from compass.production.figures import module_figures
 
     from .contract import CannotCalibrate
-    from .session import find_kind, fit_recording
+    from .session import file_text, find_kind, fit_recording
 
     start = time.perf_counter()
     metadata = _header_metadata(job.path)
@@ -104,12 +104,15 @@ def calibrate_session(job: SessionJob) -> dict:
             table = read_table(job.path)
             found = find_kind(table, job.path)
             out["kind"] = found.name
-            _, result, text = fit_recording(found, table, job.path, {})
+            _, result = fit_recording(found, table, {})
+            document = result.to_json()
+            text = file_text(document, job.path)
         out["warnings"] = [str(w.message) for w in caught if issubclass(w.category, RecordingWarning)]
         out["warnings"] += list(result.warnings)
         out["calibration"] = text
-        doc = json.loads(text)
-        out["figures"] = module_figures(from_dict(doc).model, doc.get("diagnosis"), out["warnings"],
+        model = from_dict(json.loads(text)).model
+        # the diagnosis block of the contract (calibrate.contract: to_json()["diagnosis"])
+        out["figures"] = module_figures(model, document.get("diagnosis"), out["warnings"],
                                         site_dip_deg=job.site_dip_deg,
                                         site_field_ut=job.site_field_ut)
     except (RecordingError, CannotCalibrate, CalibrationFileError) as exc:

@@ -1,14 +1,16 @@
 """One recording to one calibration: the path ``compass calibrate`` and ``compass batch`` share.
 
 :func:`find_kind` picks the kind (the registry's sniffer, or a named kind), :func:`fit_recording`
-reads the recording into that kind's form, fits it and validates the file text.  Both refuse
-with :class:`~calibrate.contract.CannotCalibrate` (in words, naming the file); the command line
-turns it into exit status 2, the batch into a failed module.
+reads the recording into that kind's form and fits it, :func:`file_text` gives the calibration
+file's text, validated (``compass calibrate`` writes the same document through
+:func:`compass.calibration.save`).  They refuse with :class:`~calibrate.contract.CannotCalibrate`
+(in words, naming the file); the command line turns it into exit status 2, the batch into a
+refused module.
 """
 
 from __future__ import annotations
 
-__all__ = ["find_kind", "fit_recording"]
+__all__ = ["file_text", "find_kind", "fit_recording"]
 
 
 def find_kind(table, path, kind: str | None = None):
@@ -34,39 +36,46 @@ def find_kind(table, path, kind: str | None = None):
     return found
 
 
-def fit_recording(found, table, path, options: dict):
+def fit_recording(found, table, options: dict):
     """Read ``table`` as a ``found`` recording and calibrate it.
 
     Parameters
     ----------
     found : calibrate.kinds.Kind
     table : compass.io.table.Table
-    path : str
-        The recording, for messages.
     options : dict
         Constructor options of the kind's calibrator (only names it takes).
 
     Returns
     -------
-    recording, result, text
-        The kind's recording, its :class:`~calibrate.contract.Calibration` and the calibration
-        file's text (validated as the runtime reads it).
+    recording, result
+        The kind's recording and its :class:`~calibrate.contract.Calibration`.
 
     Raises
     ------
     RecordingError
         The table is not a valid recording of this kind.
     CannotCalibrate
-        The recording cannot determine a usable calibration.
+        The recording cannot determine a calibration.
     """
-    from compass.calibration_file import CalibrationFileError, dumps
+    rec = found.read(table)
+    return rec, found.calibrator(**options).fit(rec)
+
+
+def file_text(document: dict, path) -> str:
+    """The calibration file's text of a result's document (``result.to_json()``), validated as the
+    runtime reads it.
+
+    Raises
+    ------
+    CannotCalibrate
+        The runtime would refuse the calibration (``compass calibrate`` does not write it either).
+    """
+    from compass.calibration import CalibrationFileError, dumps
 
     from .contract import CannotCalibrate
 
-    rec = found.read(table)
-    result = found.calibrator(**options).fit(rec)
     try:
-        text = dumps(result.to_json())
-    except CalibrationFileError as exc:  # never write a calibration the runtime would refuse
+        return dumps(document)
+    except CalibrationFileError as exc:
         raise CannotCalibrate(f"{path}: the fit gives an unusable calibration, not written: {exc}") from None
-    return rec, result, text

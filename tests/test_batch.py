@@ -9,7 +9,7 @@ import time
 import pytest
 
 from calibrate.batch import run_batch
-from compass.calibration_file import from_dict
+from compass.calibration import from_dict
 from compass.cli import main
 from compass.production.spec import load_spec
 from compass.production.store import Store
