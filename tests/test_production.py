@@ -87,7 +87,7 @@ def _model(directions, *, sigma_rad=0.0, gains=(2.0, 2.0, 2.0), offsets=(0.0, 0.
     a = a / np.linalg.norm(a, axis=1, keepdims=True)
     cov = np.stack([sigma_rad**2 * (np.eye(3) - np.outer(v, v)) for v in a])
     return SensorModel(("x", "y", "z"), a, tuple(LinearResponse(o, g) for o, g in zip(offsets, gains)),
-                       field_magnitude=50.0, field_ut=field_ut, dip_deg=60.0, noise=np.asarray(noise, float),
+                       field_norm=50.0, field_ut=field_ut, dip_deg=60.0, noise=np.asarray(noise, float),
                        direction_covariance=cov)
 
 

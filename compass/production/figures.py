@@ -153,7 +153,7 @@ def module_figures(model, diagnosis: dict | None, warnings, *, site_dip_deg: flo
     """
     a = model.unit_directions
     gains = model.gains
-    field = model.field_magnitude
+    field = model.field_norm
     out: dict = dict.fromkeys(FIGURES)
     if model.direction_covariance is not None:
         from ..frames import direction_sigma_deg
