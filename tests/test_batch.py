@@ -63,8 +63,13 @@ def test_batch_judges_stores_and_reports_every_module(fleet):
             assert from_dict(json.loads(row.calibration)).model is not None
     clean = [rows[m["module_id"]].status for m in truth["modules"] if not m["should_fail"]]
     assert clean.count("accepted") >= len(clean) - 1
-    assert rows[_module(truth, "dead_channel")].figures["snr_ratio_min"] < 0.25
-    assert any("axis_misalignment_deg" in r for r in rows[_module(truth, "misaligned_channel")].reasons)
+    dead = rows[_module(truth, "dead_channel")]
+    assert dead.status == "refused" and "does not respond to the field" in dead.reasons[0]  # calibrate.health
+    misaligned = rows[_module(truth, "misaligned_channel")].reasons
+    assert any(r.startswith("axis_misalignment_deg") for r in misaligned)
+    assert "warning of class 'channel'" in misaligned  # calibrate.health's words, classified
+    noisy = rows[_module(truth, "noisy_channel")].reasons
+    assert any(r.startswith("snr_ratio_min") for r in noisy) and "warning of class 'channel'" in noisy
     report = (out / "report.html").read_text()
     assert "Yield" in report and "Failed modules" in report and "data:image/png;base64," in report
     assert "no chart: a control chart needs more than its 50 baseline sessions" in report

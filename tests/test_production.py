@@ -72,6 +72,9 @@ def test_judge_names_every_figure_past_its_limit_and_notes_the_missing():
     ("hard iron is 3.1 times the field: the magnetometer may be near saturation", "saturation"),
     ("structure remains in the residual above the noise floor: ...", "unexplained"),
     ("channel 'v2': signal-to-noise 14 is far below the others' 320", "channel"),
+    ("channel v3: 20.4 deg from the nearest housing axis (+Z), more than 5 deg: a gross mounting error", "channel"),
+    ("channel v2: signal-to-noise 16 (24 dB), against 320 for the other channels: a wrong gain setting",
+     "channel"),
     ("something nobody classified", "other"),
 ])
 def test_warnings_fall_into_classes(text, cls):

@@ -55,6 +55,7 @@ FIGURES = {f.name: f for f in (
 """Name -> :class:`Figure`, in report order."""
 
 WARNING_CLASSES = {
+    "channel": r"^channel \S+: |dead|signal-to-noise|\bSNR\b|housing axis",
     "not_converged": r"did not converge",
     "undetermined": r"singular covariance|poorly determined|not determined|cannot separate|no uncertainty",
     "coverage": r"coverage|part of the sphere|never (horizontal|vertical)",
@@ -63,13 +64,13 @@ WARNING_CLASSES = {
     "coplanar": r"coplanar",
     "no_repeats": r"recorded twice|no repeated",
     "unexplained": r"unexplained|structure (remains|above)",
-    "accelerometer": r"^accelerometer|accelerometer",
-    "channel": r"dead|signal-to-noise|\bSNR\b|noise floor .* (above|larger)|housing axis|indistinguishable from zero",
+    "accelerometer": r"accelerometer",
 }
 """Warning class -> regular expression on the warning's words (first match wins; else ``other``).
 
 Calibrations warn in words; a production spec names classes (``[warnings] fail_on``).  ``channel``
-takes the per-channel warnings of issue 27 (a dead or drowned channel, one far off its axis)."""
+takes the per-channel warnings of :mod:`calibrate.health` (issue 27: a drowned channel, a direction
+short of the accuracy asked, one far off its housing axis), which all start ``channel NAME:``."""
 
 _PATTERNS = [(name, re.compile(rx, re.IGNORECASE)) for name, rx in WARNING_CLASSES.items()]
 
