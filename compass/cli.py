@@ -25,7 +25,8 @@ from .errors import BadInput
 
 __all__ = ["main", "BadInput", "version"]
 
-SUBCOMMANDS = ("demo", "simulate", "calibrate", "attitude", "live", "device", "export", "evaluate")
+SUBCOMMANDS = ("demo", "simulate", "calibrate", "attitude", "live", "device", "export", "evaluate", "batch",
+               "store")
 
 
 def version() -> str:

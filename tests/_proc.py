@@ -29,12 +29,17 @@ class Proc:
     args : list of str
     kill_after_s : float
         Hard limit on the process's life: a timer kills it then, whatever the test is doing.
+    group : bool
+        Start the command in its own process group, and kill the whole group (the command and the
+        workers it started) wherever this class kills it.
     """
 
-    def __init__(self, args: list[str], *, kill_after_s: float = 120.0, env: dict | None = None):
+    def __init__(self, args: list[str], *, kill_after_s: float = 120.0, env: dict | None = None,
+                 group: bool = False):
         env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
+        self.group = group
         self.popen = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                      stderr=subprocess.PIPE, text=True, env=env)
+                                      stderr=subprocess.PIPE, text=True, env=env, start_new_session=group)
         self.out: list[str] = []
         self.err: list[str] = []
         self._changed = threading.Condition()
@@ -55,8 +60,17 @@ class Proc:
             self._changed.notify_all()
 
     def _kill(self) -> None:
-        if self.popen.poll() is None:
+        if self.group:
+            self.kill_group()
+        elif self.popen.poll() is None:
             self.popen.kill()
+
+    def kill_group(self) -> None:
+        """SIGKILL the command's process group (``kill -9`` of a job: the command and its workers)."""
+        try:
+            os.killpg(self.popen.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
 
     def wait_for(self, predicate, timeout_s: float) -> bool:
         """Wait until a stdout line satisfies ``predicate`` (True), or the process ends or time is up (False).
@@ -84,6 +98,16 @@ class Proc:
             self.popen.wait(timeout_s)
         except subprocess.TimeoutExpired:
             self.popen.kill()
+            self.popen.wait(10)
+        self._join()
+        return self.popen.returncode
+
+    def wait(self, timeout_s: float) -> int:
+        """Wait for the command to end (killed after ``timeout_s``), join the pipe threads; the exit status."""
+        try:
+            self.popen.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            self._kill()
             self.popen.wait(10)
         self._join()
         return self.popen.returncode

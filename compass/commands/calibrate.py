@@ -102,22 +102,19 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
         Bad input (exit status 2 on the command line).
     """
     from calibrate.contract import CannotCalibrate
-    from calibrate.kinds import KINDS, sniff
+    from calibrate.session import find_kind, fit_recording
 
     from ..calibration import CalibrationFileError, save
     from ..cli import BadInput
 
     out = check_writable(out, force)
     table = read_table(recording, read_options)
-    if kind is not None and kind not in KINDS:
-        raise BadInput(f"--kind {kind}: unknown kind; known: {', '.join(KINDS)}")
     if base is not None and kind is None:
         kind = "installed"  # --base: the recording is an installation on top of that bench calibration
-    found = KINDS[kind] if kind is not None else sniff(table)
-    if found is None:
-        raise BadInput(f"{recording}: cannot tell the recording kind from its columns "
-                       f"({', '.join(table.columns)}); " + ", ".join(f"a {k.name} recording has {k.columns}"
-                                                                     for k in KINDS.values()))
+    try:
+        found = find_kind(table, recording, kind)
+    except CannotCalibrate as exc:
+        raise BadInput(str(exc)) from None
     if field_ut is not None and not field_ut > 0:
         raise BadInput(f"--field-ut must be positive, got {field_ut}")
     for flag, value in (("--axis-tolerance-deg", axis_tolerance_deg),
@@ -136,13 +133,12 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
         raise BadInput(f"--report {report}: is a file, expected a folder")
     for name in found.calibrator.plot_files if report is not None else ():
         check_writable(Path(report) / name, force)  # plots are never overwritten without --force either
-    rec = found.read(table)
     options = {name: value for name, value in given.items() if name in takes}
     if "progress" in takes and not quiet:
         options["progress"] = lambda text: print(f"  ... {text}", flush=True)
     try:
         with working(f"calibrating {Path(recording).name} ({found.name})") if "progress" not in options else nullcontext():
-            result = found.calibrator(**options).fit(rec)
+            rec, result = fit_recording(found, table, options)
         save(out, result.to_json(), force=force)
     except CannotCalibrate as exc:  # the recording cannot determine the model: bad input
         raise BadInput(str(exc)) from None

@@ -41,9 +41,12 @@ _UNITS = {"uT": "uT", "nT": "nT", "gauss": "G", "mgauss": "mG"}
 def register(sub) -> None:
     p = sub.add_parser("export", help="write a calibration as firmware parameters (x-io Fusion, ArduPilot) or send "
                                       "it to a MotionCal sketch")
-    p.add_argument("calibration", help="calibration JSON written by 'compass calibrate': tumble, or three linear "
-                                       "channels (bench, installed)")
-    p.add_argument("--format", required=True, choices=FORMATS,
+    p.add_argument("calibration", nargs="?", help="calibration JSON written by 'compass calibrate': tumble, or three "
+                                                  "linear channels (bench, installed)")
+    p.add_argument("--module", metavar="ID", help="instead of a file: the module's latest accepted calibration in "
+                                                 "--store (without --format: the calibration file itself)")
+    p.add_argument("--store", metavar="PATH", help="with --module: the calibration store (compass batch)")
+    p.add_argument("--format", choices=FORMATS,
                    help="fusion: C initialisers; ardupilot: .param lines; motioncal: the 68-byte packet MotionCal "
                         "sends (to --out, or to the device on --port)")
     p.add_argument("--unit", choices=tuple(_UNITS), default="uT",
@@ -73,27 +76,70 @@ OUTPUT_UNITS_NOTE = ("a bench calibration's offsets are its channels' zero-field
 def run(args) -> int:
     from ..cli import BadInput
 
-    if args.format == "motioncal":
-        from ._export_motioncal import run_motioncal
+    if (args.module is None) == (args.calibration is None):
+        raise BadInput("give a calibration file or --module ID --store PATH (one of them)")
+    if args.module is not None:
+        return _run_stored(args)
+    if args.format is None:
+        raise BadInput("--format is required with a calibration file (fusion, ardupilot or motioncal)")
+    return _export(args, args.calibration)
 
-        if not args.wait > 0 or not args.max_rotation_deg >= 0:
-            raise BadInput("--wait must be positive and --max-rotation-deg zero or positive")
-        return run_motioncal(args)
-    if args.port:
-        raise BadInput(f"--port sends a MotionCal packet: use --format motioncal (not {args.format})")
-    cal = load_tumble(args.calibration)
-    note = unit_note(cal, args.unit)
-    if note:
-        print(f"compass export: warning: {args.calibration}: {note}", file=sys.stderr)
-    if cal.get("output_units") and args.format == "ardupilot":
-        print(f"compass export: warning: {args.calibration}: {OUTPUT_UNITS_NOTE}", file=sys.stderr)
-    text = export_text(cal, args.format, unit=args.unit, fusion_api=args.fusion_api)
+
+def _run_stored(args) -> int:
+    """``--module ID --store PATH``: the latest accepted calibration, as a file or in --format."""
+    import tempfile
+    from pathlib import Path
+
+    from ..cli import BadInput
+    from ..production.store import Store, StoreError
+
+    if args.store is None:
+        raise BadInput("--module needs --store PATH (the calibration store compass batch wrote)")
+    try:
+        with Store(args.store, create=False) as store:
+            row = store.latest_accepted(args.module)
+    except StoreError as exc:
+        raise BadInput(str(exc)) from None
+    print(f"compass export: module {row.module_id}, session {row.session_time} (accepted; recording "
+          f"{row.recording_path})", file=sys.stderr)
+    if args.format is None:
+        _emit(args, row.calibration)
+        return 0
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / f"{args.module}.json"
+        path.write_text(row.calibration, encoding="utf-8")
+        return _export(args, path)
+
+
+def _emit(args, text: str) -> None:
     if args.out:
         out = check_writable(args.out, args.force)
         atomic_write_text(out, text)
         print(f"wrote {out}")
     else:
         print(text, end="")
+
+
+def _export(args, path) -> int:
+    from ..cli import BadInput
+
+    if args.format == "motioncal":
+        from ._export_motioncal import run_motioncal
+
+        if not args.wait > 0 or not args.max_rotation_deg >= 0:
+            raise BadInput("--wait must be positive and --max-rotation-deg zero or positive")
+        args.calibration = str(path)
+        return run_motioncal(args)
+    if args.port:
+        raise BadInput(f"--port sends a MotionCal packet: use --format motioncal (not {args.format})")
+    cal = load_tumble(path)
+    name = args.calibration or args.module
+    note = unit_note(cal, args.unit)
+    if note:
+        print(f"compass export: warning: {name}: {note}", file=sys.stderr)
+    if cal.get("output_units") and args.format == "ardupilot":
+        print(f"compass export: warning: {name}: {OUTPUT_UNITS_NOTE}", file=sys.stderr)
+    _emit(args, export_text(cal, args.format, unit=args.unit, fusion_api=args.fusion_api))
     return 0
 
 

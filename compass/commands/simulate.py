@@ -74,6 +74,21 @@ def register(sub) -> None:
                      help="also write heading_ref_deg, the product's true heading with this noise, deg")
     ins.add_argument("--base", metavar="BENCH.json",
                      help="the bench calibration, named in the recording's '# base:' metadata")
+    fl = kinds.add_parser("fleet", help="a production line: --n modules' four-flip sessions on one bench, a few "
+                                        "with named defects, the bench drifting after a session (truth in "
+                                        "DIR/fleet_truth.json)")
+    fl.add_argument("--out", required=True, metavar="DIR", help="folder for the recordings and fleet_truth.json")
+    fl.add_argument("--n", type=int, default=200, help="modules, one session each (default 200)")
+    fl.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    fl.add_argument("--defect-rate", type=float, default=0.06,
+                    help="fraction of modules with a named defect (default 0.06; at least one of each)")
+    fl.add_argument("--drift-start", type=int, default=None,
+                    help="session index where the bench's field starts to turn (default: two thirds of --n)")
+    fl.add_argument("--drift-deg-per-session", type=float, default=0.02,
+                    help="how fast the bench's dip moves after --drift-start, deg a session (default 0.02)")
+    fl.add_argument("--step-deg", type=float, default=4.0, help="turntable step, deg (default 4)")
+    fl.add_argument("--force", action="store_true", help="overwrite existing files")
+    fl.set_defaults(func=run_fleet)
 
 
 def _kind(kinds, name: str, help_text: str, func):
@@ -121,6 +136,30 @@ def run_fourflip(args) -> int:
     rec, truth = write_fourflip(session, args.out, force=args.force)
     print(f"wrote {rec} ({session.outputs.shape[0]} samples, {len(session.channels)} channels"
           f"{', effects: ' + ', '.join(args.effect) if args.effect else ''}) and {truth}")
+    return 0
+
+
+def run_fleet(args) -> int:
+    import sys
+
+    from ..cli import BadInput
+    from ..sim.fleet import FleetOptions, simulate_fleet
+
+    _positive("--n", args.n, at_least=1)
+    if not 0 <= args.defect_rate <= 1:
+        raise BadInput(f"--defect-rate must be in [0, 1], got {args.defect_rate}")
+    if args.drift_start is not None and not 0 <= args.drift_start:
+        raise BadInput(f"--drift-start must not be negative, got {args.drift_start}")
+    if not 0 < args.step_deg <= 30:
+        raise BadInput(f"--step-deg must be in (0, 30], got {args.step_deg}")
+    options = FleetOptions(n=args.n, seed=args.seed, defect_rate=args.defect_rate, drift_start=args.drift_start,
+                           drift_deg_per_session=args.drift_deg_per_session, step_deg=args.step_deg)
+    truth = simulate_fleet(args.out, options, force=args.force,
+                           progress=lambda line: print(line, file=sys.stderr, flush=True))
+    bad = [m for m in truth["modules"] if m["should_fail"]]
+    print(f"wrote {len(truth['modules'])} sessions into {args.out}: {len(bad)} with defects "
+          f"({', '.join(sorted({m['defect'] for m in bad}))}); the bench drifts from session "
+          f"{truth['drift']['start_session']}; truth in {args.out}/fleet_truth.json")
     return 0
 
 

@@ -1,0 +1,275 @@
+"""Production: calibrate many recordings, judge each against a spec, keep every verdict in the store.
+
+:func:`calibrate_session` is one session, start to end, in whatever process runs it (a worker of a
+local process pool, a Dask worker, or the caller): it reads the recording, calibrates it through
+the same path as ``compass calibrate`` (:mod:`calibrate.session`, diagnosis on), and computes the
+module's figures (:func:`compass.production.figures.module_figures`).  It never raises for a bad
+recording: a recording that cannot be calibrated comes back ``refused`` with the reason.
+
+:func:`run_batch` hands the sessions not yet stored to an executor and, in the calling process
+only, judges each outcome as it arrives and stores it in its own transaction: a batch killed at any
+moment keeps every session it finished and no half of one, and its re-run skips them.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+import warnings
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Callable
+
+__all__ = ["BatchSummary", "SessionJob", "calibrate_session", "executor_outcomes", "run_batch"]
+
+_METADATA_LINES = 200
+"""Comment lines read for ``module_id`` and ``date`` when the recording itself cannot be read."""
+
+
+@dataclass(frozen=True)
+class SessionJob:
+    """What a worker needs for one session (picklable, small)."""
+
+    path: str
+    sha256: str
+    site_dip_deg: float
+    site_field_ut: float
+
+
+def sha256_of(path) -> str:
+    """Hex SHA-256 of a file's bytes (what makes two sessions the same recording)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def _header_metadata(path) -> dict:
+    """``# key: value`` lines of a recording that may not read as a table (bytes decoded leniently)."""
+    out = {}
+    try:
+        with open(path, encoding="utf-8", errors="replace") as f:
+            for _, line in zip(range(_METADATA_LINES), f):
+                stripped = line.strip()
+                if stripped.startswith("#"):
+                    key, sep, value = stripped[1:].partition(":")
+                    if sep and key.strip():
+                        out[key.strip()] = value.strip()
+    except OSError:
+        pass
+    return out
+
+
+def _session_time(path, metadata: dict) -> str:
+    """The session's time: ``# session_time:`` or ``# date:`` as written, else the file's mtime (UTC, ISO)."""
+    for key in ("session_time", "date"):
+        if metadata.get(key):
+            return metadata[key]
+    try:
+        return datetime.fromtimestamp(os.path.getmtime(path), timezone.utc).isoformat(timespec="seconds")
+    except OSError:
+        return ""
+
+
+def calibrate_session(job: SessionJob) -> dict:
+    """Calibrate one recording and compute its figures; a plain dict (crosses process boundaries).
+
+    Returns
+    -------
+    dict
+        ``path, sha256, module_id, session_time, kind, calibration`` (file text or None),
+        ``figures`` (dict), ``warnings`` (list of str), ``refused`` (the reason, or None),
+        ``seconds`` (wall time of the calibration).
+    """
+    from compass.calibration import CalibrationFileError, from_dict
+    from compass.io.table import RecordingError, read_table
+    from compass.io.units import RecordingWarning
+    from compass.production.figures import module_figures
+
+    from .contract import CannotCalibrate
+    from .session import file_text, find_kind, fit_recording
+
+    start = time.perf_counter()
+    metadata = _header_metadata(job.path)
+    out = {"path": job.path, "sha256": job.sha256, "module_id": metadata.get("module_id") or Path(job.path).stem,
+           "session_time": _session_time(job.path, metadata), "kind": None, "calibration": None, "figures": {},
+           "warnings": [], "refused": None}
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", RecordingWarning)
+            table = read_table(job.path)
+            found = find_kind(table, job.path)
+            out["kind"] = found.name
+            _, result = fit_recording(found, table, {})
+            document = result.to_json()
+            text = file_text(document, job.path)
+        out["warnings"] = [str(w.message) for w in caught if issubclass(w.category, RecordingWarning)]
+        out["warnings"] += list(result.warnings)
+        out["calibration"] = text
+        model = from_dict(json.loads(text)).model
+        # the diagnosis block of the contract (calibrate.contract: to_json()["diagnosis"])
+        out["figures"] = module_figures(model, document.get("diagnosis"), out["warnings"],
+                                        site_dip_deg=job.site_dip_deg,
+                                        site_field_ut=job.site_field_ut)
+    except (RecordingError, CannotCalibrate, CalibrationFileError) as exc:
+        out["refused"] = str(exc)
+    except Exception as exc:  # noqa: BLE001 - one module's failure is its verdict, never the batch's end
+        out["refused"] = f"{job.path}: calibration failed: {type(exc).__name__}: {exc}"
+    out["seconds"] = time.perf_counter() - start
+    return out
+
+
+def executor_outcomes(jobs: list[SessionJob], *, workers: int | None = None, scheduler: str | None = None,
+                      dask: bool = False):
+    """Outcomes of :func:`calibrate_session` over ``jobs``, in the order they finish.
+
+    Parameters
+    ----------
+    workers : int or None
+        0: the serial loop in this process; None or N >= 1: a local process pool of N (default: the
+        CPU count), or a Dask ``LocalCluster`` of N single-threaded workers when ``dask``.
+    scheduler : str or None
+        A Dask scheduler's address (``tcp://host:8786``): the sessions run on its workers.
+    dask : bool
+        Use Dask distributed (``pip install 'compass-toolkit[dask]'``).
+    """
+    if scheduler is not None or dask:
+        yield from _dask_outcomes(jobs, workers, scheduler)
+    elif workers == 0:
+        yield from map(calibrate_session, jobs)
+    else:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(max_workers=workers or os.cpu_count(), initializer=_exit_with_parent,
+                                 initargs=(os.getpid(),)) as pool:
+            futures = [pool.submit(calibrate_session, job) for job in jobs]
+            try:
+                for future in as_completed(futures):
+                    yield future.result()
+            finally:
+                for future in futures:
+                    future.cancel()
+
+
+_PARENT_POLL_S = 1.0
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    """A pool worker's initializer: end the worker when the batch that started it is gone.
+
+    A batch killed with ``kill -9`` cannot stop its workers; without this they would sit orphaned
+    (their task queue's pipe stays open in their siblings) and calibrate on for nobody.
+    """
+    import threading
+
+    def watch():
+        while os.getppid() == parent_pid:
+            time.sleep(_PARENT_POLL_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="exit-with-parent").start()
+
+
+def _dask_outcomes(jobs, workers, scheduler):
+    try:
+        from dask.distributed import Client, LocalCluster, as_completed
+    except ImportError:
+        raise ImportError("Dask distributed is not installed: pip install 'compass-toolkit[dask]' "
+                          "(or run without --scheduler: a local process pool)") from None
+    cluster = None
+    if scheduler is None:
+        cluster = LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+    client = Client(scheduler or cluster)
+    try:
+        futures = client.map(calibrate_session, jobs, pure=False)
+        for future in as_completed(futures):
+            yield future.result()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+@dataclass
+class BatchSummary:
+    """What a batch did.
+
+    Attributes
+    ----------
+    total : int
+        Recordings given.
+    skipped : int
+        Already stored (same recording hash, toolkit version and spec).
+    counts : dict
+        Status -> number of sessions stored by this run.
+    hashes : list of str
+        Every recording's hash (the report's sessions).
+    seconds : float
+        Wall time of the calibrations.
+    """
+
+    total: int
+    skipped: int = 0
+    counts: dict = field(default_factory=lambda: {"accepted": 0, "rejected": 0, "refused": 0})
+    hashes: list = field(default_factory=list)
+    seconds: float = 0.0
+
+
+def run_batch(paths, spec, store, *, toolkit_version: str, workers: int | None = None,
+              scheduler: str | None = None, dask: bool = False,
+              progress: Callable[[str], None] | None = None) -> BatchSummary:
+    """Calibrate, judge and store every recording not stored yet.
+
+    Parameters
+    ----------
+    paths : sequence of path-like
+        Recordings (any kind ``compass calibrate`` reads).
+    spec : compass.production.spec.AcceptanceSpec
+    store : compass.production.store.Store
+        Written by this process only, one transaction per session.
+    toolkit_version : str
+    workers, scheduler, dask
+        See :func:`executor_outcomes`.
+    progress : callable, optional
+        Called with one line per stored session.
+
+    Returns
+    -------
+    BatchSummary
+    """
+    from compass.production.spec import Verdict
+
+    paths = [str(p) for p in paths]
+    summary = BatchSummary(total=len(paths))
+    hashes = {p: sha256_of(p) for p in paths}
+    summary.hashes = list(hashes.values())
+    known = store.known(toolkit_version, spec.sha256)
+    jobs, seen = [], set(known)
+    for p in paths:
+        if hashes[p] in seen:
+            summary.skipped += 1
+            continue
+        seen.add(hashes[p])  # the same recording twice in one batch is one session
+        jobs.append(SessionJob(p, hashes[p], spec.site_dip_deg, spec.site_field_ut))
+    start = time.perf_counter()
+    for done, outcome in enumerate(executor_outcomes(jobs, workers=workers, scheduler=scheduler, dask=dask), 1):
+        if outcome["refused"] is not None:
+            verdict = Verdict("refused", (outcome["refused"],))
+        else:
+            verdict = spec.judge(outcome["figures"])
+        store.add(module_id=outcome["module_id"], session_time=outcome["session_time"],
+                  recording_path=os.path.abspath(outcome["path"]), recording_sha256=outcome["sha256"],
+                  toolkit_version=toolkit_version, kind=outcome["kind"], status=verdict.status,
+                  reasons=verdict.reasons, notes=verdict.notes, figures=outcome["figures"],
+                  calibration=outcome["calibration"], spec_text=spec.text, spec_sha256=spec.sha256)
+        summary.counts[verdict.status] += 1
+        if progress is not None:
+            why = f": {verdict.reasons[0]}" if verdict.reasons else ""
+            progress(f"[{done}/{len(jobs)}] {outcome['module_id']} {verdict.status}{why}")
+    summary.seconds = time.perf_counter() - start
+    return summary

@@ -1,0 +1,207 @@
+"""The calibration store: one SQLite file, one row a bench session, written by one process.
+
+Schema (version :data:`SCHEMA_VERSION`, in SQLite's ``user_version``; :data:`MIGRATIONS` takes an
+older file forward, a newer one is refused in words)::
+
+    sessions(id, module_id, session_time, recording_path, recording_sha256, toolkit_version,
+             kind, status, reasons, notes, figures, calibration, spec, spec_sha256, stored_at)
+
+``status`` is ``accepted``, ``rejected`` or ``refused`` (not calibrated); ``reasons``, ``notes``
+and ``figures`` are JSON; ``calibration`` is the calibration file's text (NULL when refused).
+A session is the same when its recording's hash, the toolkit version and the spec are: a re-run
+of a batch skips it (:meth:`Store.known`).  Every row is written in its own transaction, so a
+process killed mid-batch leaves every finished session stored and no half of one.
+
+Only the batch's parent process writes (SQLite serialises writers; many writing workers would
+wait on its lock).  Readers (``compass store``, ``compass export --module``) may run beside it: the
+store keeps a write-ahead log (``PATH-wal``, ``PATH-shm`` beside it while open), so they never block
+the writer.  Keep it on a local disk (SQLite's WAL needs shared memory, which network file systems
+do not give).
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+__all__ = ["MIGRATIONS", "SCHEMA_VERSION", "SessionRow", "Store", "StoreError"]
+
+MIGRATIONS = (
+    # 0 -> 1
+    """
+    CREATE TABLE sessions (
+        id INTEGER PRIMARY KEY,
+        module_id TEXT NOT NULL,
+        session_time TEXT NOT NULL,
+        recording_path TEXT NOT NULL,
+        recording_sha256 TEXT NOT NULL,
+        toolkit_version TEXT NOT NULL,
+        kind TEXT,
+        status TEXT NOT NULL CHECK (status IN ('accepted', 'rejected', 'refused')),
+        reasons TEXT NOT NULL,
+        notes TEXT NOT NULL,
+        figures TEXT NOT NULL,
+        calibration TEXT,
+        spec TEXT NOT NULL,
+        spec_sha256 TEXT NOT NULL,
+        stored_at TEXT NOT NULL,
+        UNIQUE (recording_sha256, toolkit_version, spec_sha256)
+    );
+    CREATE INDEX sessions_module_time ON sessions (module_id, session_time);
+    """,
+)
+"""SQL taking the schema from version i to i + 1 (append; never edit a released one)."""
+
+SCHEMA_VERSION = len(MIGRATIONS)
+
+
+class StoreError(ValueError):
+    """A store that cannot be used: not SQLite, written by a newer schema, no such module (in words)."""
+
+
+@dataclass(frozen=True)
+class SessionRow:
+    """One stored session (JSON columns decoded)."""
+
+    id: int
+    module_id: str
+    session_time: str
+    recording_path: str
+    recording_sha256: str
+    toolkit_version: str
+    kind: str | None
+    status: str
+    reasons: list
+    notes: list
+    figures: dict
+    calibration: str | None
+    spec_sha256: str
+    stored_at: str
+
+
+_COLUMNS = ("id", "module_id", "session_time", "recording_path", "recording_sha256", "toolkit_version", "kind",
+            "status", "reasons", "notes", "figures", "calibration", "spec_sha256", "stored_at")
+
+
+def _row(values) -> SessionRow:
+    d = dict(zip(_COLUMNS, values))
+    for key in ("reasons", "notes", "figures"):
+        d[key] = json.loads(d[key])
+    return SessionRow(**d)
+
+
+class Store:
+    """The store at ``path`` (created with the current schema when absent).
+
+    Raises
+    ------
+    StoreError
+        The file is not an SQLite database, or its schema is newer than this toolkit knows.
+    """
+
+    def __init__(self, path, *, create: bool = True):
+        self.path = Path(path)
+        if not create and not self.path.exists():
+            raise StoreError(f"{self.path}: no such store")
+        try:
+            self._db = sqlite3.connect(self.path, timeout=60.0, isolation_level=None)
+            version = self._db.execute("PRAGMA user_version").fetchone()[0]
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"{self.path}: not a calibration store (SQLite says: {exc})") from None
+        if version > SCHEMA_VERSION:
+            self._db.close()
+            raise StoreError(f"{self.path}: written by a newer compass (store schema {version}; this compass "
+                             f"knows up to {SCHEMA_VERSION}): upgrade compass to read it; it was left unchanged")
+        # write-ahead log, synced at checkpoints: a commit is one append, not two syncs (the rollback
+        # journal stored 22 sessions/s on this machine's shared disk, the WAL hundreds:
+        # tools/bench_batch.py).  A killed process loses no committed session (the log is in the
+        # file system); a power cut may roll back the last few, never leave half of one.
+        self._db.execute("PRAGMA journal_mode=WAL")
+        self._db.execute("PRAGMA synchronous=NORMAL")
+        if version < SCHEMA_VERSION:
+            self._migrate(version)
+
+    def _migrate(self, version: int) -> None:
+        """Apply the migrations after ``version``, all in one transaction with the new version."""
+        db = self._db
+        db.execute("BEGIN IMMEDIATE")
+        try:
+            current = db.execute("PRAGMA user_version").fetchone()[0]  # another process may have migrated
+            for sql in MIGRATIONS[current:]:
+                for statement in filter(str.strip, sql.split(";")):
+                    db.execute(statement)
+            db.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
+            db.execute("COMMIT")
+        except BaseException:
+            db.execute("ROLLBACK")
+            raise
+
+    def close(self) -> None:
+        self._db.close()
+
+    def __enter__(self) -> "Store":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ writing
+
+    def add(self, *, module_id: str, session_time: str, recording_path: str, recording_sha256: str,
+            toolkit_version: str, kind: str | None, status: str, reasons, notes, figures: dict,
+            calibration: str | None, spec_text: str, spec_sha256: str) -> bool:
+        """Store one session in one transaction; False when the same session is already stored."""
+        stored_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
+        cur = self._db.execute(
+            "INSERT OR IGNORE INTO sessions (module_id, session_time, recording_path, recording_sha256, "
+            "toolkit_version, kind, status, reasons, notes, figures, calibration, spec, spec_sha256, stored_at) "
+            "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            (module_id, session_time, recording_path, recording_sha256, toolkit_version, kind, status,
+             json.dumps(list(reasons)), json.dumps(list(notes)), json.dumps(figures), calibration, spec_text,
+             spec_sha256, stored_at))
+        return cur.rowcount == 1
+
+    # ------------------------------------------------------------------ reading
+
+    def known(self, toolkit_version: str, spec_sha256: str) -> set[str]:
+        """Hashes of the recordings already stored for this toolkit version and spec."""
+        rows = self._db.execute("SELECT recording_sha256 FROM sessions WHERE toolkit_version = ? AND spec_sha256 = ?",
+                                (toolkit_version, spec_sha256))
+        return {r[0] for r in rows}
+
+    def sessions(self, *, module_id: str | None = None, hashes=None) -> list[SessionRow]:
+        """Stored sessions in session-time order, then by recording path (sessions stamped with a day
+        only keep their files' order), of one module or of some recordings' hashes."""
+        sql, args = f"SELECT {', '.join(_COLUMNS)} FROM sessions", []
+        if module_id is not None:
+            sql, args = sql + " WHERE module_id = ?", [module_id]
+        rows = [_row(r) for r in self._db.execute(sql + " ORDER BY session_time, recording_path, id", args)]
+        if hashes is not None:
+            hashes = set(hashes)
+            rows = [r for r in rows if r.recording_sha256 in hashes]
+        return rows
+
+    def latest_accepted(self, module_id: str) -> SessionRow:
+        """The module's latest accepted session.
+
+        Raises
+        ------
+        StoreError
+            No session of that module, or none accepted (the message says which and why).
+        """
+        rows = self.sessions(module_id=module_id)
+        if not rows:
+            raise StoreError(f"{self.path}: no session of module '{module_id}'")
+        accepted = [r for r in rows if r.status == "accepted"]
+        if not accepted:
+            last = rows[-1]
+            why = "; ".join(last.reasons) or last.status
+            raise StoreError(f"{self.path}: module '{module_id}' has no accepted calibration ({len(rows)} "
+                             f"session(s); the latest, {last.session_time}, was {last.status}: {why})")
+        return accepted[-1]
+
+    def count(self) -> int:
+        return self._db.execute("SELECT COUNT(*) FROM sessions").fetchone()[0]

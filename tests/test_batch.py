@@ -1,0 +1,233 @@
+"""compass batch / store / export --module on a small simulated line (14 short sessions, 7 defects)."""
+
+import json
+import os
+import signal
+import sqlite3
+import time
+
+import pytest
+
+from calibrate.batch import run_batch
+from compass.calibration import from_dict
+from compass.cli import main
+from compass.production.spec import load_spec
+from compass.production.store import Store
+from compass.sim.fleet import FleetOptions, simulate_fleet
+from tests._proc import Proc, compass_command
+
+N = 14  # at least two of each of the 7 defects' slots: every defect once, 7 clean modules
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("fleet")
+    truth = simulate_fleet(folder / "line", FleetOptions(n=N, seed=5, step_deg=10.0))
+    return folder, truth
+
+
+def _batch(*args, timeout_s=300.0, **kw):
+    with Proc(compass_command("batch", *map(str, args)), kill_after_s=timeout_s, **kw) as proc:
+        return proc.wait(timeout_s), "".join(proc.out), "".join(proc.err)
+
+
+def test_simulated_line_truth(fleet):
+    _, truth = fleet
+    defects = [m["defect"] for m in truth["modules"] if m["defect"]]
+    assert sorted(defects) == sorted(("dead_channel", "noisy_channel", "misaligned_channel", "magnetised",
+                                      "weak_channel", "truncated", "corrupt"))
+    assert all(m["should_fail"] == (m["defect"] is not None) for m in truth["modules"])
+    dips = [m["bench_dip_deg"] for m in truth["modules"]]
+    start = truth["drift"]["start_session"]
+    assert dips[: start + 1] == [dips[0]] * (start + 1) and dips[-1] > dips[0]
+
+
+def test_batch_judges_stores_and_reports_every_module(fleet):
+    folder, truth = fleet
+    out = folder / "results"
+    status, stdout, stderr = _batch(folder / "line", "--out", out, "--workers", "2")
+    assert status == 0, stderr
+    assert f"{N} recordings: {N} calibrated now" in stdout
+    with Store(out / "calibrations.sqlite", create=False) as store:
+        rows = {r.module_id: r for r in store.sessions()}
+    assert len(rows) == N
+    for m in truth["modules"]:
+        row = rows[m["module_id"]]
+        assert row.session_time == m["session_time"]
+        if m["should_fail"]:
+            assert row.status in ("rejected", "refused") and row.reasons, m["defect"]
+        if m["defect"] in ("truncated", "corrupt"):
+            assert row.status == "refused" and row.calibration is None
+            assert row.reasons[0].startswith(str(folder / "line" / m["file"]))
+        if row.calibration is not None:
+            assert from_dict(json.loads(row.calibration)).model is not None
+    clean = [rows[m["module_id"]].status for m in truth["modules"] if not m["should_fail"]]
+    assert clean.count("accepted") >= len(clean) - 1
+    dead = rows[_module(truth, "dead_channel")]
+    assert dead.status == "refused" and "does not respond to the field" in dead.reasons[0]  # calibrate.health
+    misaligned = rows[_module(truth, "misaligned_channel")].reasons
+    assert any(r.startswith("axis_misalignment_deg") for r in misaligned)
+    assert "warning of class 'channel'" in misaligned  # calibrate.health's words, classified
+    noisy = rows[_module(truth, "noisy_channel")].reasons
+    assert any(r.startswith("snr_ratio_min") for r in noisy) and "warning of class 'channel'" in noisy
+    report = (out / "report.html").read_text()
+    assert "Yield" in report and "Failed modules" in report and "data:image/png;base64," in report
+    assert "no chart: a control chart needs more than its 50 baseline sessions" in report
+    csv_lines = (out / "figures.csv").read_text().splitlines()
+    assert len(csv_lines) == N + 1 and csv_lines[0].startswith("module_id,session_time,status,kind,")
+
+
+
+def test_a_rerun_skips_what_is_stored_and_the_report_needs_force(fleet, capsys):
+    folder, _ = fleet
+    out = folder / "results"
+    if not (out / "report.html").exists():
+        pytest.skip("needs test_batch_judges_stores_and_reports_every_module's results")
+    assert main(["batch", str(folder / "line"), "--out", str(out), "--workers", "0"]) == 2
+    assert "report.html exists; use --force" in capsys.readouterr().err
+    with Store(out / "calibrations.sqlite", create=False) as store:
+        summary = run_batch(sorted((folder / "line").glob("*.csv")), load_spec(), store,
+                            toolkit_version=store.sessions()[0].toolkit_version, workers=0)
+        assert summary.skipped == N and sum(summary.counts.values()) == 0 and store.count() == N
+
+
+def _module(truth, defect):
+    return next(m["module_id"] for m in truth["modules"] if m["defect"] == defect)
+
+
+def test_store_and_export_read_the_batch(fleet, capsys):
+    folder, truth = fleet
+    store = folder / "results" / "calibrations.sqlite"
+    if not store.exists():
+        pytest.skip("needs test_batch_judges_stores_and_reports_every_module's store")
+    assert main(["store", "list", "--store", str(store)]) == 0
+    assert f"{N} session(s)" in capsys.readouterr().out
+    accepted = next(m["module_id"] for m in truth["modules"] if not m["should_fail"])
+    assert main(["export", "--module", accepted, "--store", str(store)]) == 0
+    captured = capsys.readouterr()
+    assert from_dict(json.loads(captured.out)).model.channels == ("v1", "v2", "v3")
+    assert f"module {accepted}" in captured.err and "(accepted;" in captured.err
+    weak = _module(truth, "weak_channel")
+    assert main(["export", "--module", weak, "--store", str(store), "--format", "fusion"]) == 2
+    err = capsys.readouterr().err
+    assert f"module '{weak}' has no accepted calibration" in err and "gain_spread" in err
+    assert main(["store", "show", _module(truth, "corrupt"), "--store", str(store)]) == 0
+    shown = capsys.readouterr().out
+    assert ": refused (not calibrated)" in shown and "expected a number, found 'ERR'" in shown
+    assert main(["export", "--module", accepted]) == 2
+    assert "--module needs --store PATH" in capsys.readouterr().err
+
+
+def test_a_malformed_spec_is_exit_2_naming_the_key(fleet, tmp_path, capsys):
+    folder, _ = fleet
+    spec = tmp_path / "acceptance.toml"
+    spec.write_text("[limits]\ngain_spread = { max = 'wide' }\n")
+    assert main(["batch", str(folder / "line"), "--spec", str(spec), "--out", str(tmp_path / "r")]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"compass batch: {spec}: 'limits.gain_spread.max': expected a number, got 'wide'"]
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_store_of_a_newer_schema_is_refused_in_words(fleet, tmp_path, capsys):
+    folder, _ = fleet
+    store = tmp_path / "future.sqlite"
+    with sqlite3.connect(store) as db:
+        db.execute("PRAGMA user_version = 99")
+    assert main(["batch", str(folder / "line" / "M0001.csv"), "--store", str(store), "--out", str(tmp_path)]) == 2
+    assert "written by a newer compass (store schema 99; this compass knows up to 1)" in capsys.readouterr().err
+    assert main(["store", "list", "--store", str(store)]) == 2
+    assert "upgrade compass to read it" in capsys.readouterr().err
+
+
+def _group_alive(pgid) -> bool:
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def test_kill_9_mid_batch_loses_nothing_and_stores_nothing_twice(fleet, tmp_path):
+    folder, truth = fleet
+    out = tmp_path / "killed"
+    store_path = out / "calibrations.sqlite"
+    with Proc(compass_command("batch", str(folder / "line"), "--out", str(out), "--workers", "2"),
+              kill_after_s=300, group=True) as proc:
+        deadline = time.monotonic() + 240
+        stored = 0
+        while time.monotonic() < deadline and proc.popen.poll() is None:
+            if store_path.exists():
+                with sqlite3.connect(store_path, timeout=30) as db:
+                    try:
+                        stored = db.execute("SELECT COUNT(*) FROM sessions").fetchone()[0]
+                    except sqlite3.OperationalError:  # the table is being created
+                        stored = 0
+                if stored >= 3:
+                    break
+            time.sleep(0.05)
+        assert proc.popen.poll() is None and stored >= 3, proc.transcript()
+        os.kill(proc.popen.pid, signal.SIGKILL)  # kill -9 of the batch: its pool workers see it gone and end
+        proc.popen.wait(30)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and _group_alive(proc.popen.pid):
+            time.sleep(0.1)
+        assert not _group_alive(proc.popen.pid), "pool workers outlived their killed batch"
+    with Store(store_path, create=False) as store:
+        survivors = store.sessions()
+    assert 3 <= len(survivors) < N
+    for row in survivors:  # every stored session is whole
+        assert row.status in ("accepted", "rejected", "refused") and row.figures is not None
+        assert (row.calibration is None) == (row.status == "refused")
+    status, stdout, stderr = _batch(folder / "line", "--out", out, "--workers", "2")
+    assert status == 0, stderr
+    assert f"{N - len(survivors)} calibrated now" in stdout and f"{len(survivors)} already stored" in stdout
+    with Store(store_path, create=False) as store:
+        rows = store.sessions()
+    assert sorted(r.module_id for r in rows) == sorted(m["module_id"] for m in truth["modules"])
+    before = {r.recording_sha256: r for r in survivors}
+    for r in rows:  # the survivors were kept as they were, not calibrated again
+        if r.recording_sha256 in before:
+            assert r.id == before[r.recording_sha256].id and r.stored_at == before[r.recording_sha256].stored_at
+
+
+def test_batch_takes_any_kind(fleet, tmp_path):
+    from compass.sim.tumble import simulate_tumble, write_tumble
+
+    folder, _ = fleet
+    tumble = tmp_path / "tumble.csv"
+    write_tumble(simulate_tumble(seed=3, n=600), tumble)
+    with Store(tmp_path / "s.sqlite") as store:
+        run_batch([tumble, folder / "line" / "M0001.csv"], load_spec(), store, toolkit_version="t", workers=0)
+        rows = {r.kind: r for r in store.sessions()}
+    assert set(rows) == {"tumble", "fourflip"}
+    assert rows["tumble"].module_id == "tumble" and rows["fourflip"].module_id == "M0001"
+    assert rows["tumble"].status != "refused"
+    assert "direction_sigma_deg: not given by this calibration" in rows["tumble"].notes
+
+
+def test_dask_local_cluster_gives_the_pool_s_verdicts(fleet, tmp_path):
+    pytest.importorskip("dask.distributed", reason="Dask is optional: pip install 'compass-toolkit[dask]'")
+    from calibrate.batch import run_batch
+    from compass.production.spec import load_spec
+
+    folder, truth = fleet
+    paths = [folder / "line" / m["file"] for m in truth["modules"][:2]]
+    spec = load_spec()
+    with Store(tmp_path / "d.sqlite") as dask_store, Store(tmp_path / "s.sqlite") as serial_store:
+        run_batch(paths, spec, dask_store, toolkit_version="t", workers=1, dask=True)
+        run_batch(paths, spec, serial_store, toolkit_version="t", workers=0)
+        got = {r.module_id: (r.status, r.figures) for r in dask_store.sessions()}
+        expected = {r.module_id: (r.status, r.figures) for r in serial_store.sessions()}
+    assert got == expected and len(got) == 2
+
+
+def test_simulate_fleet_command_writes_sessions_and_truth_and_never_overwrites(tmp_path, capsys):
+    out = tmp_path / "line"
+    assert main(["simulate", "fleet", "--n", "4", "--out", str(out), "--step-deg", "30", "--drift-start", "2"]) == 0
+    truth = json.loads((out / "fleet_truth.json").read_text())
+    assert [m["file"] for m in truth["modules"]] == ["M0001.csv", "M0002.csv", "M0003.csv", "M0004.csv"]
+    assert truth["drift"]["start_session"] == 2
+    assert "# module_id: M0003" in (out / "M0003.csv").read_text()
+    capsys.readouterr()
+    assert main(["simulate", "fleet", "--n", "4", "--out", str(out)]) == 2
+    assert "exists; use --force" in capsys.readouterr().err

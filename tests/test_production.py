@@ -1,0 +1,203 @@
+"""compass.production: the acceptance spec, the figures, the control chart, the store."""
+
+import math
+import sqlite3
+
+import numpy as np
+import pytest
+
+from compass.model import SensorModel
+from compass.production.control import ewma_chart
+from compass.production.figures import FIGURES, classify_warning, heading_error_deg, module_figures
+from compass.production.spec import SpecError, load_spec, parse_spec
+from compass.production.store import SCHEMA_VERSION, Store, StoreError
+from compass.response import LinearResponse
+
+
+# ---------------------------------------------------------------------------------------------- spec
+
+
+def test_the_default_spec_loads_and_limits_only_known_figures():
+    spec = load_spec()
+    assert spec.limits and set(spec.limits) <= set(FIGURES)
+    assert spec.fail_unexplained and "channel" in spec.fail_on_warnings
+
+
+@pytest.mark.parametrize("text, key", [
+    ("[limits]\ndirection_sigma = { max = 1.0 }\n", "'limits.direction_sigma': unknown figure"),
+    ("[limits]\nsnr_min = { min = 'high' }\n", "'limits.snr_min.min': expected a number"),
+    ("[limits]\nsnr_min = { minimum = 3 }\n", "'limits.snr_min.minimum': unknown key"),
+    ("[limits]\ngain_spread = { min = 2, max = 1 }\n", "'limits.gain_spread': min 2 is above max 1"),
+    ("[site]\ndip_deg = 100\n", "'site.dip_deg': expected >= -90 and <= 90"),
+    ("[warnings]\nfail_on = ['chanel']\n", "'warnings.fail_on': unknown name 'chanel'"),
+    ("[unexplained]\nfail = 'yes'\n", "'unexplained.fail': expected true or false"),
+    ("[control]\nbaseline_sessions = 2.5\n", "'control.baseline_sessions': expected a whole number"),
+    ("[limit]\n", "'limit': unknown key"),
+    ("[limits\n", "not valid TOML"),
+])
+def test_a_malformed_spec_is_refused_naming_the_key(text, key):
+    with pytest.raises(SpecError, match=f"^acceptance.toml: .*{key}".replace("[", r"\[").replace("(", r"\(")
+                       .replace("{", r"\{").replace("}", r"\}")):
+        parse_spec(text, source="acceptance.toml")
+
+
+def _figures(**changes):
+    f = {name: 1.0 for name in FIGURES}
+    f.update(unexplained=False, warning_classes=[])
+    f.update(changes)
+    return f
+
+
+def test_judge_names_every_figure_past_its_limit_and_notes_the_missing():
+    spec = parse_spec("[limits]\ngain_spread = { max = 0.3 }\nsnr_min = { min = 100 }\n"
+                      "direction_sigma_deg = { max = 0.3 }\n[warnings]\nfail_on = ['channel']\n")
+    ok = spec.judge(_figures(gain_spread=0.1, snr_min=300.0, direction_sigma_deg=0.05))
+    assert ok.status == "accepted" and ok.reasons == ()
+    bad = spec.judge(_figures(gain_spread=0.5, snr_min=20.0, direction_sigma_deg=None, unexplained=True,
+                              warning_classes=["channel", "other"]))
+    assert bad.status == "rejected"
+    assert any(r.startswith("gain_spread 0.5 fraction above the limit 0.3") for r in bad.reasons)
+    assert any(r.startswith("snr_min 20 ratio below the limit 100") for r in bad.reasons)
+    assert any(r.startswith("unexplained") for r in bad.reasons)
+    assert "warning of class 'channel'" in bad.reasons and "warning of class 'other'" not in bad.reasons
+    assert bad.notes == ("direction_sigma_deg: not given by this calibration",)
+    strict = parse_spec("[limits]\ndirection_sigma_deg = { max = 0.3 }\n[missing]\nfail = true\n")
+    assert strict.judge(_figures(direction_sigma_deg=None)).status == "rejected"
+
+
+@pytest.mark.parametrize("text, cls", [
+    ("the fit did not converge: max iterations", "not_converged"),
+    ("singular covariance: the data cannot separate v1 and v2", "undetermined"),
+    ("incomplete coverage: 40 % of the sphere", "coverage"),
+    ("hard iron is 3.1 times the field: the magnetometer may be near saturation", "saturation"),
+    ("structure remains in the residual above the noise floor: ...", "unexplained"),
+    ("channel 'v2': signal-to-noise 14 is far below the others' 320", "channel"),
+    ("channel v3: 20.4 deg from the nearest housing axis (+Z), more than 5 deg: a gross mounting error", "channel"),
+    ("channel v2: signal-to-noise 16 (24 dB), against 320 for the other channels: a wrong gain setting",
+     "channel"),
+    ("something nobody classified", "other"),
+])
+def test_warnings_fall_into_classes(text, cls):
+    assert classify_warning(text) == cls
+
+
+# ---------------------------------------------------------------------------------------------- figures
+
+
+def _model(directions, *, sigma_rad=0.0, gains=(2.0, 2.0, 2.0), offsets=(0.0, 0.0, 0.0), noise=(0.01,) * 3,
+           field_ut=50.0):
+    a = np.asarray(directions, float)
+    a = a / np.linalg.norm(a, axis=1, keepdims=True)
+    cov = np.stack([sigma_rad**2 * (np.eye(3) - np.outer(v, v)) for v in a])
+    return SensorModel(("x", "y", "z"), a, tuple(LinearResponse(o, g) for o, g in zip(offsets, gains)),
+                       field_norm=50.0, field_ut=field_ut, dip_deg=60.0, noise=np.asarray(noise, float),
+                       direction_covariance=cov)
+
+
+def test_heading_budget_of_an_orthogonal_module_follows_the_closed_form():
+    # three orthogonal channels, each direction uncertain by s (rad) isotropically across it, gains and
+    # offsets exact: heading variance s^2 (b_x^4 + b_y^4 + b_z^2 H^2) / H^4, whose mean over headings is
+    # s^2 (3/4 + tan^2 dip)
+    s = np.radians(0.1)
+    for dip in (0.0, 30.0, 65.0):
+        got = heading_error_deg(_model(np.eye(3), sigma_rad=s), dip, 50.0)
+        expected = np.degrees(s * np.sqrt(0.75 + np.tan(np.radians(dip)) ** 2))
+        assert got == pytest.approx(expected, rel=1e-9)
+
+
+def test_heading_budget_doubles_with_the_sigmas():
+    a = np.eye(3) + 0.02 * np.array([[0, 1, 0], [0, 0, 1], [1, 0, 0]])
+    once = heading_error_deg(_model(a, sigma_rad=1e-3), 60.0, 50.0)
+    assert heading_error_deg(_model(a, sigma_rad=2e-3), 60.0, 50.0) == pytest.approx(2 * once, rel=1e-9)
+
+
+def test_geometry_figures_of_a_channel_tilted_twenty_degrees():
+    tilt = np.radians(20.0)
+    a = np.array([[1.0, 0, 0], [0, np.cos(tilt), np.sin(tilt)], [0, 0, 1.0]])
+    f = module_figures(_model(a, sigma_rad=1e-3, gains=(2.0, 1.0, 2.0), offsets=(10.0, 0.0, -4.0),
+                              noise=(0.01, 0.2, 0.01)), {"noise_floor": 0.01, "residual_rms_after": 0.02,
+                                                         "unexplained": False},
+                       ["did not converge"], site_dip_deg=60.0, site_field_ut=50.0)
+    assert f["axis_misalignment_deg"] == pytest.approx(20.0)
+    assert f["non_orthogonality_deg"] == pytest.approx(20.0)
+    assert f["gain_spread"] == pytest.approx(0.5)
+    assert f["offset_ut"] == pytest.approx(5.0)  # 10 output units at 2 per uT
+    assert f["snr_min"] == pytest.approx(1.0 * 50.0 / 0.2)
+    assert f["snr_ratio_min"] == pytest.approx(250.0 / 10000.0)
+    assert f["residual_over_floor"] == pytest.approx(2.0)
+    assert f["direction_sigma_deg"] == pytest.approx(np.degrees(1e-3) * math.sqrt(2))
+    assert f["warning_classes"] == ["not_converged"] and f["unexplained"] is False
+
+
+# ---------------------------------------------------------------------------------------------- control chart
+
+
+def test_ewma_limits_tend_to_the_asymptotic_width():
+    rng = np.random.default_rng(1)
+    chart = ewma_chart(rng.normal(10.0, 1.0, 400), baseline=300, lam=0.2, width_sigmas=3.0)
+    assert chart.sigma == pytest.approx(1.0, rel=0.15)  # median moving range / 0.954 of 300 normal values
+    assert chart.high[-1] - chart.centre == pytest.approx(3.0 * chart.sigma * math.sqrt(0.2 / 1.8), rel=1e-6)
+
+
+def test_ewma_flags_a_step_of_three_sigmas_within_a_few_sessions_and_ignores_one_outlier():
+    rng = np.random.default_rng(2)
+    x = rng.normal(0.0, 1.0, 60)
+    x[45:] += 3.0
+    chart = ewma_chart(x, baseline=20)
+    assert chart.first_alarm is not None and 45 <= chart.first_alarm <= 49
+    y = rng.normal(0.0, 0.01, 60)  # tiny noise: one dead channel's figure 1e4 sigmas off
+    y[30] = 100.0
+    assert ewma_chart(y, baseline=20, clip_sigmas=4.0, width_sigmas=3.0).out[30] == False  # noqa: E712
+
+
+def test_ewma_needs_more_sessions_than_its_baseline():
+    with pytest.raises(ValueError, match="more than its 20 baseline sessions, got 20"):
+        ewma_chart(np.zeros(20), baseline=20)
+
+
+# ---------------------------------------------------------------------------------------------- store
+
+
+def _add(store, module, time, sha, status="accepted", calibration="{}"):
+    return store.add(module_id=module, session_time=time, recording_path=f"/r/{module}.csv", recording_sha256=sha,
+                     toolkit_version="1.0", kind="fourflip", status=status, reasons=[] if status == "accepted"
+                     else ["gain_spread 0.5 above the limit 0.3"], notes=[], figures={"gain_spread": 0.1},
+                     calibration=calibration, spec_text="[limits]\n", spec_sha256="s1")
+
+
+def test_store_keeps_sessions_once_and_finds_the_latest_accepted(tmp_path):
+    with Store(tmp_path / "s.sqlite") as store:
+        assert _add(store, "M1", "2026-01-01T08:00", "h1", calibration='{"a": 1}')
+        assert _add(store, "M1", "2026-01-02T08:00", "h2", status="rejected", calibration='{"a": 2}')
+        assert not _add(store, "M1", "2026-01-01T08:00", "h1")  # same recording, version, spec
+        assert store.count() == 2
+        assert store.known("1.0", "s1") == {"h1", "h2"} and store.known("1.1", "s1") == set()
+        assert store.latest_accepted("M1").calibration == '{"a": 1}'
+        _add(store, "M2", "2026-01-03T08:00", "h3", status="rejected")
+        with pytest.raises(StoreError, match="module 'M2' has no accepted calibration .*rejected: gain_spread"):
+            store.latest_accepted("M2")
+        with pytest.raises(StoreError, match="no session of module 'M3'"):
+            store.latest_accepted("M3")
+    with sqlite3.connect(tmp_path / "s.sqlite") as db:
+        assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
+
+
+def test_a_store_from_a_newer_schema_is_refused_and_left_alone(tmp_path):
+    path = tmp_path / "new.sqlite"
+    with sqlite3.connect(path) as db:
+        db.execute("CREATE TABLE future (x)")
+        db.execute(f"PRAGMA user_version = {SCHEMA_VERSION + 1}")
+    before = path.read_bytes()
+    with pytest.raises(StoreError, match=f"written by a newer compass \\(store schema {SCHEMA_VERSION + 1}; "
+                                         f"this compass knows up to {SCHEMA_VERSION}\\): upgrade compass"):
+        Store(path)
+    assert path.read_bytes() == before
+
+
+def test_a_file_that_is_not_a_store_is_refused(tmp_path):
+    path = tmp_path / "notes.sqlite"
+    path.write_text("not a database at all, just words " * 40)
+    with pytest.raises(StoreError, match="not a calibration store"):
+        Store(path)
+    with pytest.raises(StoreError, match="no such store"):
+        Store(tmp_path / "missing.sqlite", create=False)
