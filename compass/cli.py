@@ -23,7 +23,7 @@ import warnings
 
 __all__ = ["main", "BadInput", "version"]
 
-SUBCOMMANDS = ("demo", "simulate", "calibrate", "attitude", "live", "device", "export", "evaluate")
+SUBCOMMANDS = ("demo", "simulate", "calibrate", "attitude", "live", "device", "bench", "export", "evaluate")
 
 
 class BadInput(ValueError):

@@ -117,6 +117,7 @@ class BenchRig:
         self._kappa = 0.0
         self._last_n = None
         self._sent = 0
+        self.send_accel = True  # False: the module stops sending ax,ay,az (a changed header)
         self.truth = {**self.truth, "gyro_bias_rad_s": self.gyro_bias.tolist(), "gyro_scale": self.gyro_scale.tolist()}
 
     # ---------------------------------------------------------------- operator
@@ -228,17 +229,19 @@ class BenchRig:
     def columns(self) -> list[str]:
         """The module's header columns."""
         extra = [self.encoder_column] if self.encoder_step_deg is not None else []
-        return ["t_s", "seq", *self.channels, "ax", "ay", "az", "gx", "gy", "gz", *extra]
+        accel = ["ax", "ay", "az"] if self.send_accel else []
+        return ["t_s", "seq", *self.channels, *accel, "gx", "gy", "gz", *extra]
 
     def lines(self, t_s) -> bytes:
         """The protocol lines (:mod:`compass.io.lines`) of samples at times ``t_s``, in order."""
         m = self.measure(t_s)
-        parts = [m["outputs"], m["accel"], m["gyro"]]
+        parts = [m["outputs"]] + [m["accel"]] * self.send_accel + [m["gyro"]]
         if m["encoder_deg"] is not None:
             parts.append(m["encoder_deg"][:, None])
         rows = np.column_stack(parts)
         c = len(self.channels)
-        fmt = ",".join(["%.7g"] * c + ["%.6f"] * 6 + ["%.4f"] * (rows.shape[1] - c - 6))
+        imu = 6 if self.send_accel else 3
+        fmt = ",".join(["%.7g"] * c + ["%.6f"] * imu + ["%.4f"] * (rows.shape[1] - c - imu))
         out = []
         for t, row in zip(np.atleast_1d(t_s), rows):
             out.append(format_line([f"{t:.4f}", self._sent, fmt % tuple(row)]))
