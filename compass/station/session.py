@@ -31,7 +31,7 @@ import numpy as np
 from ..io.fourflip import NOMINAL_FLIPS_DEG
 from .checks import circle_axis, coverage_gap, face_name, is_still, nearest_face, up_in_housing
 from .store import FlipRows
-from .turn import Reading, ReadingBuffer, TurnData, TurnRejected
+from .turn import Reading, ReadingBuffer, TurnData, TurnRejected, WrongFace
 
 __all__ = ["Instruction", "SessionEnded", "Station"]
 
@@ -316,7 +316,7 @@ class Station:
         try:
             rows = self._turn_rows(data)
         except TurnRejected as exc:
-            self._start_turn(redo=f"flip {self.progress.flip_deg:g}: {exc}")
+            self._redo(exc)
             return
         self._keep(rows)
 
@@ -343,9 +343,17 @@ class Station:
         try:
             rows = self._stops_rows()
         except TurnRejected as exc:
-            self._start_turn(redo=f"flip {self.progress.flip_deg:g}: {exc}")
+            self._redo(exc)
             return
         self._keep(rows)
+
+    def _redo(self, exc: TurnRejected) -> None:
+        """Ask for the turn again, or for the flip first when the face was wrong."""
+        flip = self.progress.flip_deg
+        if isinstance(exc, WrongFace):
+            self._instruct("flip", f"flip {flip:g}: put the cube with {face_name(flip)}", redo=f"flip {flip:g}: {exc}")
+        else:
+            self._start_turn(redo=f"flip {flip:g}: {exc}")
 
     # ---------------------------------------------------------------- checks
     def _check_rate(self, t_s: float) -> None:
@@ -411,7 +419,7 @@ class Station:
             face, _ = nearest_face(axis)
             how = "the field's circle shows"
         if face != expected:
-            raise TurnRejected(f"wrong face down: {how} {face} up; flip {flip:g} needs {face_name(flip)}")
+            raise WrongFace(f"wrong face down: {how} {face} up; flip {flip:g} needs {face_name(flip)}")
 
     def _rows(self, t_s, platform, outputs, accel, temp_c, sigma) -> FlipRows:
         """The flip's recording rows (the gyro is not kept: the four-flip fit does not use it)."""

@@ -12,11 +12,15 @@ import numpy as np
 
 from .checks import is_still
 
-__all__ = ["Reading", "ReadingBuffer", "TurnData", "TurnRejected", "still_spans"]
+__all__ = ["Reading", "ReadingBuffer", "TurnData", "TurnRejected", "WrongFace", "still_spans"]
 
 
 class TurnRejected(ValueError):
     """A turn the station cannot use; the message says what to redo, in words."""
+
+
+class WrongFace(TurnRejected):
+    """The turn was made with another face down than the flip asks for: the flip is redone first."""
 
 
 @dataclass(frozen=True)
