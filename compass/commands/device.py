@@ -163,5 +163,5 @@ def _run_bench(args) -> int:
             table.close()
     c = device.counts
     print(f"compass device: sent {c['samples']} samples, read {c['instructions']} instructions, "
-          f"{c['disconnects']} disconnect(s)", flush=True)
+          f"{c['disconnects']} disconnect(s); {c['overflow']} writes refused by the pty (nobody reading)", flush=True)
     return 0
