@@ -134,8 +134,6 @@ def run(args) -> int:
                 continue
             for reading in readings:
                 station.feed(reading)
-                if hasattr(source, "observe"):
-                    source.observe(reading.t_s)
             readout.events(station)
             readout.show(station)
             if station.finished:

@@ -138,6 +138,7 @@ def _run_bench(args) -> int:
                    gyro_bias_dps=0.5 if kind == "gyro" else 0.0, gyro_scale_error=0.01 if kind == "gyro" else 0.0)
     table = None
     if kind == "grbl":
+        rig.operator_turns = False
         from ..sim.grbl import GrblPty
 
         table = GrblPty(rig, link=args.grbl_link, fault=args.grbl_fault, speed=args.speed,

@@ -118,6 +118,7 @@ class BenchRig:
         self._last_n = None
         self._sent = 0
         self.send_accel = True  # False: the module stops sending ax,ay,az (a changed header)
+        self.operator_turns = True  # False: a motor turns the table (turn_table); the operator only flips
         self.truth = {**self.truth, "gyro_bias_rad_s": self.gyro_bias.tolist(), "gyro_scale": self.gyro_scale.tolist()}
 
     # ---------------------------------------------------------------- operator
@@ -146,7 +147,7 @@ class BenchRig:
             if float(instruction["flip_deg"]) == 180.0 and self._mistake("short_turn"):
                 full = 300.0
             self._move(start, self._turn_s(full), full, 0.0)
-        elif do == "stop":
+        elif do == "stop" and self.operator_turns:
             error = float(self._rng.uniform(-op.read_half_width_deg, op.read_half_width_deg))
             delta = (float(instruction["stop_deg"]) + error - self._phi) % 360.0
             delta = delta - 360.0 if delta > 350.0 else delta  # a touch past the mark: back a little
@@ -173,6 +174,12 @@ class BenchRig:
         self._phi += d_phi
         self._kappa += d_kappa
         return t1
+
+    def turn_table(self, t_s: float, d_phi: float, rate_dps: float) -> float:
+        """A motor turns the table by ``d_phi`` degrees, from ``t_s`` (or when the motion before ends),
+        its peak rate ``rate_dps``; returns when it ends, module seconds."""
+        start = max(t_s, self._segments[-1][1] if self._segments else 0.0)
+        return self._move(start, max(0.05, abs(d_phi) * np.pi / 2.0 / rate_dps), d_phi, 0.0)
 
     def idle_at(self, t_s: float) -> bool:
         """Whether every scheduled motion has ended by ``t_s``."""

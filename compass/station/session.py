@@ -254,9 +254,9 @@ class Station:
     def _ask_stop(self, redo=None) -> None:
         angle = float(self.source.stops()[self._stop_index])
         self.source.request(angle)
-        verb = "turn the table" if self.source.operator_moves else "the table turns"
-        self._instruct("stop", f"flip {self.progress.flip_deg:g}: {verb} to {angle:g} deg and hold still",
-                       stop_deg=angle, redo=redo)
+        what = "turn the table to {} deg and hold still" if self.source.operator_moves else "the table turns to {} deg"
+        self._instruct("stop", f"flip {self.progress.flip_deg:g}: " + what.format(f"{angle:g}"), stop_deg=angle,
+                       redo=redo)
 
     def _window(self) -> TurnData | None:
         """The last ``still_s`` of samples, when they span it."""
