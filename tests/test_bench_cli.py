@@ -142,3 +142,33 @@ def test_a_port_that_never_opens_is_bad_input(tmp_path):
     with Proc(args, kill_after_s=60) as p:
         assert finish(p, 50) == 2
         assert "cannot open port" in p.err[-1]
+
+
+def grbl_session(tmp_path, *device_extra):
+    """A session through a simulated GRBL table (stops every 30 deg); (status, stderr)."""
+    with start_device(tmp_path, "grbl", "--grbl-link", str(tmp_path / "grbl"), *device_extra) as device:
+        with Proc(bench_args(tmp_path, f"grbl:{tmp_path / 'grbl'}", "--grbl-step", "30"), kill_after_s=300) as bench:
+            status = finish(bench)
+            err = list(bench.err)
+        device.stop()
+    return status, err
+
+
+def test_a_grbl_table_turns_itself(tmp_path):
+    status, err = grbl_session(tmp_path)
+    assert status == 0, "".join(err)
+    assert "flip 0: the table turns to 30 deg" in "".join(err)
+    assert np.all(direction_errors_deg(tmp_path)[0] < 0.03)
+    assert "# turntable: grbl\n" in (tmp_path / "cal.fourflip.csv").read_text()
+
+
+@pytest.mark.parametrize("fault, message", [
+    ("alarm", "GRBL controller on {}: ALARM:2 (soft limit): the table stopped; clear the cause, and continue with "
+              "--resume"),
+    ("silent", "GRBL controller on {} does not answer a status request within 2 s"),
+])
+def test_a_grbl_fault_ends_the_session_in_one_line(tmp_path, fault, message):
+    status, err = grbl_session(tmp_path, "--grbl-fault", fault)
+    assert status == 2, "".join(err)
+    assert err[-1].startswith("compass bench: " + message.format(tmp_path / "grbl")), err[-1]
+
