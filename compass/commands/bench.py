@@ -140,13 +140,14 @@ def run(args) -> int:
                 break
     except (SessionEnded, PortUnavailable) as exc:
         station = state["station"]
-        kept = "" if station is None or not station.done else f" (flips {', '.join(f'{f:g}' for f in sorted(station.done))} kept in {store.folder}: --resume continues)"
+        kept = "" if station is None or not station.done else (
+            f" (flips {_flips(station)} kept in {store.folder}: --resume continues)")
         raise BadInput(f"{exc}{kept}") from None
     except KeyboardInterrupt:
         station = state["station"]
         if station is not None and station.done:
-            print(f"compass bench: flips {', '.join(f'{f:g}' for f in sorted(station.done))} kept in {store.folder}; "
-                  f"--resume continues", file=sys.stderr)
+            print(f"compass bench: flips {_flips(station)} kept in {store.folder}; --resume continues",
+                  file=sys.stderr)
         raise
     finally:
         stop.set()
@@ -159,6 +160,10 @@ def run(args) -> int:
     calibrate_file(path, out, force=args.force, quiet=args.quiet)
     store.discard()
     return 0
+
+
+def _flips(station) -> str:
+    return ", ".join(f"{f:g}" for f in sorted(station.done))
 
 
 def _metadata(args, source, site) -> dict:

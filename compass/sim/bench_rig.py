@@ -93,9 +93,10 @@ class BenchRig:
         Channel noise in output units.
     """
 
-    def __init__(self, *, seed: int = 0, rate_hz: float = 100.0, noise_ut: float = 0.15, operator: Operator | None = None,
-                 gyro_bias_dps: float = 0.0, gyro_scale_error: float = 0.0, encoder_step_deg: float | None = None,
-                 encoder_column: str = "enc", accel_noise_g: float = 0.002, gyro_noise_dps: float = 0.05):
+    def __init__(self, *, seed: int = 0, rate_hz: float = 100.0, noise_ut: float = 0.15,
+                 operator: Operator | None = None, gyro_bias_dps: float = 0.0, gyro_scale_error: float = 0.0,
+                 encoder_step_deg: float | None = None, encoder_column: str = "enc", accel_noise_g: float = 0.002,
+                 gyro_noise_dps: float = 0.05):
         session = simulate_fourflip(seed=seed, n_channels=3, noise_ut=noise_ut, step_deg=45.0)
         self.truth = session.truth
         self.physics: BenchPhysics = session.base_physics()

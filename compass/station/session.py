@@ -109,7 +109,8 @@ class Station:
     still_s : float
         Still time that ends a flip, a turn or a stop, seconds.
     give_up_s : float
-        Still time after which a turn short of 360 deg is judged as it is (and the first stop taken where the table stands), seconds.
+        Still time after which a turn short of 360 deg is judged as it is (and the session's first
+        stop taken where the table stands), seconds.
     max_gap_deg : float
         Widest gap between a continuous turn's angles, degrees.
     max_step_deg : float
@@ -145,7 +146,8 @@ class Station:
         self._n = 0
         self._buffer = ReadingBuffer()  # the step's readings
         self._recent = ReadingBuffer()  # the last readings, across steps (cleared now and then)
-        self._dts: deque = deque(maxlen=64)
+        self._dts: deque = deque(maxlen=64)  # the last sample intervals, seconds
+        self._samples = 0
         self._last_t = None
         self._next_check = -np.inf
         self._confirmed = False
@@ -360,9 +362,9 @@ class Station:
         if self._last_t is not None and t_s > self._last_t:
             self._dts.append(t_s - self._last_t)
         self._last_t = t_s
-        self._rate_count = getattr(self, "_rate_count", 0) + 1
-        if len(self._dts) < self._dts.maxlen or self._rate_count % 16:
-            return
+        self._samples += 1
+        if len(self._dts) < self._dts.maxlen or self._samples % 16:
+            return  # judged every 16 samples, over the last 64
         rate = 1.0 / float(np.median(self._dts))
         self.progress.rate_hz = rate
         if self.rate_hz is None:

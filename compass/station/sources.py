@@ -125,7 +125,8 @@ class GyroSource:
         keep = np.zeros(len(t), bool)
         keep[before[0]:after[-1] + 1] = True
         # a slow start or end of the motion can pass for stillness: the bias is taken away from it
-        before = before[(t[before] <= t[before[-1]] - _MARGIN_S) & (t[before] >= t[before[0]] + _MARGIN_S * (begin > 0))]
+        lead = _MARGIN_S if begin > 0 else 0.0  # a span that follows motion loses its start too
+        before = before[(t[before] <= t[before[-1]] - _MARGIN_S) & (t[before] >= t[before[0]] + lead)]
         after = after[t[after] >= t[after[0]] + _MARGIN_S]
         if before.size < 5 or after.size < 5:
             raise TurnRejected("the table was not held still long enough before and after the turn (the gyro's "
