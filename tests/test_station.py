@@ -169,3 +169,16 @@ def test_an_encoder_column_missing_from_the_header_is_said():
 def test_bad_turntable_sources(text, message):
     with pytest.raises(ValueError, match=message):
         parse_turntable(text)
+
+
+def test_an_interactive_session_waits_for_enter():
+    rig = BenchRig(seed=9, encoder_step_deg=0.1)
+    stream = StationStream("enc")
+    station = Station(parse_turntable("column:enc"), rig.channels, ask=True)
+    for reading in stream.feed(rig.header() + rig.lines(np.arange(300) / 100.0)):
+        station.feed(reading)
+    assert station.instruction.do == "flip"  # still and the right face, but nobody pressed Enter
+    station.confirm()
+    for reading in stream.feed(rig.lines(np.arange(300, 320) / 100.0)):
+        station.feed(reading)
+    assert station.instruction.do == "turn"

@@ -157,6 +157,8 @@ class Station:
         self._stop_rows: list = []
         self._stop_index = 0
         self._first_stop = not self.done
+        if self.done:
+            self.columns = next(iter(self.done.values())).columns  # a resumed session keeps its columns
         self.progress.flips_done = len(self.done)
         self._next_flip()
 
@@ -177,7 +179,7 @@ class Station:
         kept = ", ".join(f"{f:g}" for f in sorted(self.done)) or "none"
         self.events.append(("warn", f"{reason}: flip {self.progress.flip_deg:g}'s "
                                     f"{self.instruction.do} is redone when it is back (flips kept: {kept})"))
-        self._restart_step(f"the module's port was lost")
+        self._restart_step("the module's port was lost")
 
     def feed(self, reading: Reading) -> None:
         """Take one sample; may change :attr:`instruction`, add events, finish a flip.
