@@ -44,7 +44,9 @@ def register(sub) -> None:
                    help="grbl: the table stops every DEG degrees (default 10)")
     p.add_argument("--grbl-feed", type=float, default=1800.0, metavar="DEG_PER_MIN",
                    help="grbl: feed rate of the moves, degrees a minute (default 1800)")
-    p.add_argument("--baudrate", type=int, default=115200, help="serial baud rate (default 115200)")
+    p.add_argument("--baud", type=int, default=115200, help="serial baud rate (default 115200)")
+    p.add_argument("--wait", type=float, default=5.0, metavar="S",
+                   help="how long the port may take to appear, seconds (default 5)")
     p.add_argument("--quiet", action="store_true", help="do not print the fit report")
     p.set_defaults(func=run)
 
@@ -55,6 +57,7 @@ def run(args) -> int:
     from ..serial_reader import Chunk, PortUnavailable, SerialReader
     from ..site import Site
     from ..station import SessionEnded, SessionStore, Station, StationStream, parse_turntable, recording_path
+    from ._port import port_unavailable
     from .calibrate import calibrate_file
 
     try:
@@ -84,7 +87,9 @@ def run(args) -> int:
         metadata = description["metadata"]  # the session's, as it began
     encoder = getattr(source, "column", None)
     stream = StationStream(encoder, tuple(description["header"]) if description else None)
-    reader = SerialReader(args.port, baudrate=args.baudrate, first_open_s=5.0)
+    if not args.wait >= 0:
+        raise BadInput(f"--wait must be zero or positive, got {args.wait}")
+    reader = SerialReader(args.port, baudrate=args.baud, first_open_s=args.wait)
     try:
         reader.check_url()
     except ValueError as exc:
@@ -138,7 +143,9 @@ def run(args) -> int:
             readout.show(station)
             if station.finished:
                 break
-    except (SessionEnded, PortUnavailable) as exc:
+    except PortUnavailable as exc:
+        raise port_unavailable(exc) from None
+    except SessionEnded as exc:
         station = state["station"]
         kept = "" if station is None or not station.done else (
             f" (flips {_flips(station)} kept in {store.folder}: --resume continues)")
