@@ -195,7 +195,7 @@ class Station:
         self._buffer.append(reading)
         self._recent.append(reading)
         if len(self._recent) > 50000:  # keep the last seconds only (t_s is searched in it)
-            kept = self._recent.data(2 * self.still_s)
+            kept = self._recent.arrays(2 * self.still_s)
             self._recent.clear()
             for i in range(len(kept)):
                 self._recent.append(Reading(kept.t_s[i], kept.outputs[i], *(None if getattr(kept, n) is None
@@ -266,7 +266,7 @@ class Station:
         """The last ``still_s`` of samples, when they span it."""
         if len(self._recent) < 5:
             return None
-        window = self._recent.data(self.still_s)
+        window = self._recent.arrays(self.still_s)
         if len(window) < 5 or window.t_s[-1] - window.t_s[0] < 0.9 * self.still_s:
             return None
         return window
@@ -308,7 +308,7 @@ class Station:
 
     def _on_turn_step(self) -> None:
         still = self._still_now()
-        data = self._buffer.data()
+        data = self._buffer.arrays()
         covered = self.source.live(data)
         self.progress.covered_deg = float(np.clip(covered, 0.0, 360.0))
         self.progress.rate_hz = data.rate_hz if len(data) > 2 else self.progress.rate_hz

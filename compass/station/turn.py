@@ -74,7 +74,7 @@ class TurnData:
         buffer = ReadingBuffer()
         for r in readings:
             buffer.append(r)
-        return buffer.data()
+        return buffer.arrays()
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -96,7 +96,7 @@ class ReadingBuffer:
     """Readings appended one at a time into a growing array, handed out as :class:`TurnData`.
 
     A group (``accel``, ``gyro``, ``encoder_deg``, ``temp_c``) missing from any reading handed
-    out is None.  Appending costs a row copy; :meth:`data` copies the rows asked for.
+    out is None.  Appending costs a row copy; :meth:`arrays` copies the rows asked for.
     """
 
     _SLICES = {"accel": 3, "gyro": 3, "encoder_deg": 1, "temp_c": 1}
@@ -132,7 +132,7 @@ class ReadingBuffer:
     def last_t_s(self) -> float:
         return float(self._rows[self._n - 1, 0])
 
-    def data(self, last_s: float | None = None) -> TurnData:
+    def arrays(self, last_s: float | None = None) -> TurnData:
         """All readings, or those of the last ``last_s`` seconds."""
         if self._rows is None:
             return TurnData(np.empty(0), np.empty((0, 0)), None, None, None, None)
