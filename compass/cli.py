@@ -25,8 +25,8 @@ from .errors import BadInput
 
 __all__ = ["main", "BadInput", "version"]
 
-SUBCOMMANDS = ("demo", "simulate", "calibrate", "attitude", "live", "device", "export", "evaluate", "batch",
-               "store")
+SUBCOMMANDS = ("demo", "simulate", "calibrate", "attitude", "live", "device", "bench", "export", "evaluate",
+               "batch", "store")
 
 
 def version() -> str:

@@ -46,10 +46,37 @@ def register(sub) -> None:
                    help="stay unplugged this long, seconds (default 1)")
     p.add_argument("--duration", type=float, help="stop after this many seconds of module time")
     p.add_argument("--force", action="store_true", help="overwrite --save-cal's file")
+    bench = p.add_argument_group("a module on a simulated turntable, for compass bench (--bench)")
+    bench.add_argument("--bench", action="store_true",
+                       help="the module sits on a simulated turntable; a simulated operator does what compass bench "
+                            "asks in its --prompt-file (give the same file as --operator)")
+    bench.add_argument("--turntable", choices=("encoder", "grbl", "manual", "gyro"), default="encoder",
+                       help="encoder: the table's angle sent as column 'enc' (default); grbl: a GRBL controller on a "
+                            "second pty turns the table; manual: the operator turns to marks, read within "
+                            "+-0.5 deg; gyro: the operator turns from the mark once round (the module's gyro has "
+                            "a 0.5 deg/s bias and a 1 %% scale error)")
+    bench.add_argument("--operator", metavar="FILE", help="--bench: the station's prompt file the operator reads")
+    bench.add_argument("--encoder-step", type=float, default=0.1, metavar="DEG",
+                       help="--turntable encoder: the encoder's resolution (default 0.1 deg)")
+    bench.add_argument("--speed", type=float, default=1.0,
+                       help="--bench: module seconds per wall second (default 1; the station works in module time)")
+    bench.add_argument("--save-truth", metavar="TRUTH.json",
+                       help="--bench: write the simulated sensor's truth (directions, offsets, gains, dip)")
+    bench.add_argument("--mistake", action="append", default=[], choices=("short_turn", "wrong_face"),
+                       help="--bench: the operator makes this mistake once (repeatable)")
+    bench.add_argument("--rate-change-at", type=float, metavar="S", help="--bench: halve the rate at this module time")
+    bench.add_argument("--header-change-at", type=float, metavar="S",
+                       help="--bench: stop sending the accelerometer at this module time")
+    bench.add_argument("--grbl-link", help="--turntable grbl: a symbolic link to the controller's pty")
+    bench.add_argument("--grbl-fault", choices=("alarm", "silent"),
+                       help="--turntable grbl: the controller alarms (ALARM:2, soft limit) or stops answering after "
+                            "its third move")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    if args.bench:
+        return _run_bench(args)
     from ..calibration import load, model_to_dict, save
     from ..cli import BadInput
     from ..sim.device import MOTIONS, PtyDevice, default_model
@@ -96,4 +123,55 @@ def run(args) -> int:
           f"truncated lines, {c['disconnects']} disconnect(s); {c['overflow']} lines refused by the pty (nobody "
           f"reading)" + (f"; {c['packets']} calibration packet(s) taken" if args.format.startswith("motioncal") else ""),
           flush=True)
+    return 0
+
+
+def _run_bench(args) -> int:
+    import json
+
+    from ..cli import BadInput
+    from ..io.atomic import atomic_write_text, check_writable
+    from ..sim.bench_device import BenchPty
+    from ..sim.bench_rig import BenchRig, Operator
+
+    if args.operator is None:
+        raise BadInput("--bench needs --operator FILE: the station's --prompt-file the simulated operator reads")
+    if args.cal is not None or args.save_cal is not None:
+        raise BadInput("--bench simulates its own sensor: --cal and --save-cal do not apply (--save-truth does)")
+    if args.save_truth is not None:
+        check_writable(args.save_truth, args.force)
+    kind = args.turntable
+    operator = Operator(read_half_width_deg=0.5 if kind == "manual" else 0.0, mistakes=tuple(args.mistake))
+    rig = BenchRig(seed=args.seed, rate_hz=args.rate, operator=operator,
+                   encoder_step_deg=args.encoder_step if kind == "encoder" else None,
+                   gyro_bias_dps=0.5 if kind == "gyro" else 0.0, gyro_scale_error=0.01 if kind == "gyro" else 0.0)
+    table = None
+    if kind == "grbl":
+        rig.operator_turns = False
+        from ..sim.grbl import GrblPty
+
+        table = GrblPty(rig, link=args.grbl_link, fault=args.grbl_fault, speed=args.speed,
+                        on_path=lambda path: print(f"grbl {path}", flush=True))
+        table.open()
+    if args.save_truth is not None:
+        atomic_write_text(args.save_truth, json.dumps(rig.truth, indent=2) + "\n")
+    try:
+        device = BenchPty(rig, args.operator, speed=args.speed, link=args.link,
+                          on_path=lambda path: print(path, flush=True), disconnect_at_s=args.disconnect_at,
+                          disconnect_for_s=args.disconnect_for, rate_change_at_s=args.rate_change_at,
+                          header_change_at_s=args.header_change_at, table=table)
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    stop = threading.Event()
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        device.run(stop, args.duration)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if table is not None:
+            table.close()
+    c = device.counts
+    print(f"compass device: sent {c['samples']} samples, read {c['instructions']} instructions, "
+          f"{c['disconnects']} disconnect(s); {c['overflow']} writes refused by the pty (nobody reading)", flush=True)
     return 0

@@ -1,0 +1,128 @@
+"""The bench session on disk: each finished flip kept as it is done, the recording written at the end.
+
+Beside ``CAL.json`` the station keeps ``CAL.flips/``: ``session.json`` (the module's columns, its
+sample rate, the angle source, the metadata) and one ``flip_KKK.csv`` per finished flip, each
+written atomically (:mod:`compass.io.atomic`), so Ctrl-C or a crash loses at most the turn in
+progress and ``compass bench --resume`` continues from the flips found.  At the end the flips
+are joined into ``CAL.fourflip.csv`` (SPEC section 2's four-flip recording with the station's
+metadata), which ``compass calibrate`` reads.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..io.atomic import atomic_write_text
+from ..io.fourflip import NOMINAL_FLIPS_DEG
+
+__all__ = ["FlipRows", "SessionStore", "recording_path", "flips_folder"]
+
+
+def recording_path(out) -> Path:
+    """The recording written beside a calibration file: ``CAL.json`` -> ``CAL.fourflip.csv``."""
+    out = Path(out)
+    return out.with_name(out.stem + ".fourflip.csv")
+
+
+def flips_folder(out) -> Path:
+    """The folder holding the finished flips of a session: ``CAL.json`` -> ``CAL.flips/``."""
+    out = Path(out)
+    return out.with_name(out.stem + ".flips")
+
+
+@dataclass(frozen=True)
+class FlipRows:
+    """The rows one flip adds to the recording.
+
+    Attributes
+    ----------
+    flip_deg : float
+        Nominal flip, degrees.
+    columns : tuple of str
+        ``t_s, flip_deg, platform_deg``, the channels, then ``ax,ay,az`` and ``temp_c`` when the
+        module sends them.
+    table : ndarray, shape (n, len(columns))
+    angle_sigma_deg : float
+        The angle source's stated uncertainty for this flip, degrees.
+    """
+
+    flip_deg: float
+    columns: tuple[str, ...]
+    table: np.ndarray
+    angle_sigma_deg: float
+
+
+class SessionStore:
+    """Finished flips and the session's description in ``CAL.flips/``.
+
+    Parameters
+    ----------
+    out : path-like
+        The calibration file the session ends in.
+    """
+
+    def __init__(self, out):
+        self.out = Path(out)
+        self.folder = flips_folder(out)
+
+    def exists(self) -> bool:
+        return (self.folder / "session.json").exists()
+
+    def start(self, description: dict) -> None:
+        """Begin a new session (the folder must not hold one)."""
+        self.folder.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(self.folder / "session.json", json.dumps(description, indent=2) + "\n")
+
+    def description(self) -> dict:
+        return json.loads((self.folder / "session.json").read_text())
+
+    def save(self, rows: FlipRows) -> Path:
+        """Keep a finished flip (atomically)."""
+        path = self.folder / f"flip_{int(rows.flip_deg):03d}.csv"
+        lines = [f"# angle_sigma_deg: {rows.angle_sigma_deg:.6g}", ",".join(rows.columns)]
+        lines += [",".join(f"{x:.9g}" for x in row) for row in rows.table]
+        atomic_write_text(path, "\n".join(lines) + "\n")
+        return path
+
+    def finished(self) -> dict[float, FlipRows]:
+        """The flips kept so far, by nominal flip."""
+        found = {}
+        for flip in NOMINAL_FLIPS_DEG:
+            path = self.folder / f"flip_{int(flip):03d}.csv"
+            if not path.exists():
+                continue
+            text = path.read_text().splitlines()
+            sigma = float(text[0].split(":", 1)[1])
+            columns = tuple(text[1].split(","))
+            table = np.array([[float(x) for x in line.split(",")] for line in text[2:] if line], float)
+            found[flip] = FlipRows(flip, columns, table.reshape(-1, len(columns)), sigma)
+        return found
+
+    def write_recording(self, metadata: dict, force: bool = False) -> Path:
+        """Join the four flips into the recording beside the calibration file; returns its path.
+
+        The stated ``angle_sigma_deg`` is the largest of the flips'.
+        """
+        flips = self.finished()
+        if len(flips) != len(NOMINAL_FLIPS_DEG):
+            raise ValueError(f"{self.folder}: {len(flips)} of 4 flips done")
+        columns = flips[0.0].columns
+        sigma = max(f.angle_sigma_deg for f in flips.values())
+        meta = {**metadata, "angle_sigma_deg": f"{sigma:.4g}"}
+        lines = [f"# {k}: {v}" for k, v in meta.items()] + [",".join(columns)]
+        for flip in NOMINAL_FLIPS_DEG:
+            lines += [",".join(f"{x:.9g}" for x in row) for row in flips[flip].table]
+        path = recording_path(self.out)
+        if path.exists() and not force:
+            raise FileExistsError(f"{path} exists; use --force to overwrite it")
+        atomic_write_text(path, "\n".join(lines) + "\n")
+        return path
+
+    def discard(self) -> None:
+        """Remove the folder (after the recording holds everything)."""
+        shutil.rmtree(self.folder, ignore_errors=True)

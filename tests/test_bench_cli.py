@@ -1,0 +1,175 @@
+"""``compass bench`` end to end against ``compass device --pty --bench``: each process has a hard
+timeout and is stopped on the way out (tests/_proc.py)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pytest
+
+from tests._proc import Proc, compass_command
+
+SPEED = 6.0  # module seconds per wall second: the station works in module time
+
+
+def start_device(tmp_path, turntable, *extra):
+    args = compass_command("device", "--pty", "--bench", "--turntable", turntable, "--operator",
+                           str(tmp_path / "prompt.json"), "--speed", str(SPEED), "--link", str(tmp_path / "module"),
+                           "--save-truth", str(tmp_path / "truth.json"), *extra)
+    device = Proc(args, kill_after_s=400)
+    assert device.wait_for(lambda line: "module" in line, 60), device.transcript()
+    return device
+
+
+def bench_args(tmp_path, turntable, *extra):
+    return compass_command("bench", "--port", str(tmp_path / "module"), "--out", str(tmp_path / "cal.json"),
+                           "--turntable", turntable, "--yes", "--prompt-file", str(tmp_path / "prompt.json"),
+                           "--module-id", "sim-7", "--quiet", *extra)
+
+
+def finish(proc: Proc, timeout_s: float = 280.0):
+    """The process's exit status once it ends by itself (None if it did not within ``timeout_s``), its
+    pipes joined."""
+    try:
+        proc.popen.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        pass
+    status = proc.popen.poll()
+    proc.stop()
+    return status
+
+
+def direction_errors_deg(tmp_path):
+    cal = json.loads((tmp_path / "cal.json").read_text())
+    truth = json.loads((tmp_path / "truth.json").read_text())
+    found = np.array([cal["channels"][c]["direction"] for c in truth["channels"]])
+    sigma = np.array([cal["channels"][c]["direction_sigma_deg"] for c in truth["channels"]])
+    dot = np.sum(found * np.asarray(truth["directions"]), axis=1)
+    return np.degrees(np.arccos(np.clip(dot, -1.0, 1.0))), sigma
+
+
+@pytest.mark.parametrize("device_turntable, source, bound_deg", [  # 4x tools/bench_station.py's RMS figures
+    ("encoder", "column:enc", 0.021),  # 0.1 deg encoder: 0.0053 deg RMS
+    ("gyro", "gyro", 0.18),            # 0.5 deg/s bias, 1 % scale: 0.046 deg RMS
+    ("manual", "manual:30", 0.16),     # stops every 30 deg read within +-0.5 deg: 0.040 deg RMS
+])
+def test_a_simulated_session_through_each_source(tmp_path, device_turntable, source, bound_deg):
+    with start_device(tmp_path, device_turntable) as device:
+        with Proc(bench_args(tmp_path, source), kill_after_s=300) as bench:
+            assert finish(bench) == 0, bench.transcript()
+        device.stop()
+    error, sigma = direction_errors_deg(tmp_path)
+    assert np.all(error < bound_deg), (error, sigma)
+    recording = (tmp_path / "cal.fourflip.csv").read_text()
+    assert f"# turntable: {source}\n" in recording and "# module_id: sim-7\n" in recording
+    assert not (tmp_path / "cal.flips").exists()  # the recording holds everything now
+
+
+def test_the_port_vanishing_mid_flip_redoes_the_turn(tmp_path):
+    with start_device(tmp_path, "encoder", "--disconnect-at", "70", "--disconnect-for", "1.5") as device:
+        with Proc(bench_args(tmp_path, "column:enc"), kill_after_s=300) as bench:
+            status = finish(bench)
+            err = "".join(bench.err)
+        device.stop()
+    assert status == 0, err + device.transcript()
+    assert "disconnected" in err and "is redone when it is back (flips kept:" in err, err
+    assert np.all(direction_errors_deg(tmp_path)[0] < 0.021)  # 4x the 0.1 deg encoder's RMS
+
+
+def test_ctrl_c_keeps_the_flips_and_resume_continues(tmp_path):
+    with start_device(tmp_path, "encoder") as device:
+        with Proc(bench_args(tmp_path, "column:enc"), kill_after_s=300) as bench:
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 200 and not any("flip 90 kept" in line for line in bench.err):
+                time.sleep(0.2)
+            assert any("flip 90 kept" in line for line in bench.err), bench.transcript()
+            status = bench.stop(signal.SIGINT)
+            seen = "".join(bench.err)
+        assert status == 130, seen
+        assert "flips 0, 90 kept in" in seen and "--resume continues" in seen
+        kept = sorted(p.name for p in (tmp_path / "cal.flips").glob("flip_*.csv"))
+        assert kept == ["flip_000.csv", "flip_090.csv"]
+        with Proc(bench_args(tmp_path, "column:enc"), kill_after_s=60) as again:  # no --resume: refused
+            assert finish(again, 50) == 2
+            assert "holds 2 flip(s) of an earlier session: --resume continues it" in "".join(again.err)
+        with Proc(bench_args(tmp_path, "column:enc", "--resume"), kill_after_s=300) as resumed:
+            status = finish(resumed)
+            err = "".join(resumed.err)
+        device.stop()
+    assert status == 0, err
+    assert "resuming: flips 0, 90 kept" in err and "flip 0 (1/4)" not in err
+    assert np.all(direction_errors_deg(tmp_path)[0] < 0.021)  # 4x the 0.1 deg encoder's RMS
+
+
+def test_a_rate_change_mid_session_ends_it_in_one_line(tmp_path):
+    with start_device(tmp_path, "encoder", "--rate-change-at", "110") as device:
+        with Proc(bench_args(tmp_path, "column:enc"), kill_after_s=300) as bench:
+            status = finish(bench)
+            last = bench.err[-1]
+        device.stop()
+    assert status == 2
+    assert last.startswith("compass bench: the module's sample rate changed from 100 Hz to 50 Hz during flip")
+    assert "--resume continues" in last and "kept in" in last
+    assert (tmp_path / "cal.flips" / "flip_000.csv").exists()
+
+
+def test_refusals_are_one_line(tmp_path):
+    cases = [
+        (["--turntable", "manual:7"], "the step must divide 360"),
+        (["--resume"], "holds no session to continue"),
+        (["--site", "95,0"], "latitude must be within +-90"),
+    ]
+    for extra, message in cases:
+        args = compass_command("bench", "--port", str(tmp_path / "none"), "--out", str(tmp_path / "cal.json"),
+                               "--turntable", "column:enc", "--yes", *extra)
+        with Proc(args, kill_after_s=60) as p:
+            assert finish(p, 50) == 2
+            assert len(p.err) == 1 and message in p.err[0], p.err
+    (tmp_path / "cal.json").write_text("{}")
+    with Proc(compass_command("bench", "--port", "x", "--out", str(tmp_path / "cal.json"), "--turntable", "gyro"),
+              kill_after_s=60) as p:
+        assert finish(p, 50) == 2
+        assert "cal.json exists; use --force" in p.err[0]
+
+
+def test_a_port_that_never_opens_is_bad_input(tmp_path):
+    args = compass_command("bench", "--port", str(tmp_path / "no-such-port"), "--out", str(tmp_path / "cal.json"),
+                           "--turntable", "gyro", "--yes")
+    with Proc(args, kill_after_s=60) as p:
+        assert finish(p, 50) == 2
+        assert "cannot open port" in p.err[-1]
+
+
+def grbl_session(tmp_path, *device_extra):
+    """A session through a simulated GRBL table (stops every 30 deg); (status, stderr)."""
+    with start_device(tmp_path, "grbl", "--grbl-link", str(tmp_path / "grbl"), *device_extra) as device:
+        with Proc(bench_args(tmp_path, f"grbl:{tmp_path / 'grbl'}", "--grbl-step", "30"), kill_after_s=300) as bench:
+            status = finish(bench)
+            err = list(bench.err)
+        device.stop()
+    return status, err
+
+
+def test_a_grbl_table_turns_itself(tmp_path):
+    status, err = grbl_session(tmp_path)
+    assert status == 0, "".join(err)
+    assert "flip 0: the table turns to 30 deg" in "".join(err)
+    # exact stops every 10 deg: 0.0044 deg RMS (tools/bench_station.py); every 30 deg: sqrt(3) times that, x4
+    assert np.all(direction_errors_deg(tmp_path)[0] < 0.03)
+    assert "# turntable: grbl\n" in (tmp_path / "cal.fourflip.csv").read_text()
+
+
+@pytest.mark.parametrize("fault, message", [
+    ("alarm", "GRBL controller on {}: ALARM:2 (soft limit): the table stopped; clear the cause, and continue with "
+              "--resume"),
+    ("silent", "GRBL controller on {} does not answer a status request within 2 s"),
+])
+def test_a_grbl_fault_ends_the_session_in_one_line(tmp_path, fault, message):
+    status, err = grbl_session(tmp_path, "--grbl-fault", fault)
+    assert status == 2, "".join(err)
+    assert err[-1].startswith("compass bench: " + message.format(tmp_path / "grbl")), err[-1]
+

@@ -1,0 +1,184 @@
+"""The bench station in lock step with a simulated bench: each angle source to a calibration, and the
+mistakes an operator or a module makes, said in words."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from calibrate import calibrate_fourflip
+from calibrate.fourflip._mlfit import cramer_rao
+from compass.io.fourflip import read_fourflip
+from compass.sim.bench import BenchSamples
+from compass.sim.bench_rig import BenchRig, Operator, drive
+from compass.station import SessionEnded, SessionStore, Station, StationStream, parse_turntable
+from compass.station.checks import circle_axis, coverage_gap, face_name, is_still, nearest_face, up_in_housing
+
+
+def run_session(tmp_path, spec, rig, *, max_s=600.0, on_block=None):
+    """Drive a session; return (station, events, recording or None)."""
+    source = parse_turntable(spec)
+    stream = StationStream(getattr(source, "column", None))
+    store = SessionStore(tmp_path / "cal.json")
+    store.start({})
+    station = Station(source, rig.channels, on_flip=store.save)
+    events = []
+    original = station.drain
+
+    def block(r, t):
+        events.extend(original())
+        if on_block is not None:
+            on_block(r, t)
+
+    drive(rig, station, stream, max_s=max_s, on_block=block)
+    events.extend(station.drain())
+    recording = read_fourflip(store.write_recording({"turntable": spec})) if station.finished else None
+    return station, events, recording
+
+
+def direction_error_over_crb(rig, recording, samples_per_row=1):
+    """Per channel: angle between the ml fit's direction and the truth over the CRB of the same rows at
+    their true angles (the rig's pose at each row's time; a row averaging n samples has noise / sqrt(n))."""
+    result = calibrate_fourflip(recording, method="ml")
+    truth = np.asarray(rig.truth["directions"])
+    error = np.degrees(np.arccos(np.clip(np.sum(result.directions * truth, axis=1), -1.0, 1.0)))
+    phi, kappa, _, _ = rig.pose(recording.t_s)
+    samples = BenchSamples(np.mod(phi, 360.0), np.mod(np.round(kappa), 360.0), recording.flip_index)
+    per_row = rig.noise / np.sqrt(samples_per_row)
+    crb, _ = cramer_rao(rig.physics, samples, recording.channels, per_row)
+    return error / crb, error
+
+
+def test_faces_and_the_circle_axis():
+    assert face_name(0) == "+Z up (the -Z face on the table)"
+    assert face_name(270) == "-Y up (the +Y face on the table)"
+    assert nearest_face(up_in_housing(180))[0] == "-Z"
+    rig = BenchRig(seed=3)
+    phi = np.arange(0.0, 360.0, 5.0)
+    for flip in (0.0, 90.0, 180.0, 270.0):
+        from compass.sim.bench import bench_outputs
+
+        outputs = bench_outputs(rig.physics, BenchSamples(phi, np.full(phi.size, flip), np.zeros(phi.size, int)))
+        assert nearest_face(circle_axis(phi, outputs))[0] == nearest_face(up_in_housing(flip))[0]
+    assert circle_axis(phi, np.zeros((phi.size, 2))) is None
+
+
+def test_stillness_and_coverage():
+    rng = np.random.default_rng(0)
+    t = np.arange(100) / 100.0
+    noise = rng.normal(scale=0.01, size=(100, 3))
+    assert is_still(t, noise)
+    assert not is_still(t, noise + np.outer(t, [0.0, 0.05, 0.0]))  # a slow ramp, 5x the noise over the window
+    covered, gap, start = coverage_gap(np.r_[np.arange(0.0, 200.0, 1.0), np.arange(260.0, 360.0, 1.0)])
+    assert (covered, gap, start) == (299.0, 61.0, 199.0)  # 360 less the widest gap
+
+
+@pytest.mark.parametrize("spec, rig_options, bound", [
+    ("column:enc", {"encoder_step_deg": 0.0}, 2.5),  # exact encoder: at the CRB (a single session: rms over 3)
+    ("gyro", {"gyro_bias_dps": 0.5, "gyro_scale_error": 0.01}, 12.0),
+    ("manual:30", {"operator": Operator(read_half_width_deg=0.5)}, 12.0),
+])
+def test_each_source_calibrates_a_simulated_bench(tmp_path, spec, rig_options, bound):
+    rig = BenchRig(seed=11, **rig_options)
+    station, events, recording = run_session(tmp_path, spec, rig)
+    assert station.finished, events
+    assert not [e for e in events if e[0] == "warn"], events
+    assert recording.metadata["turntable"] == spec
+    ratio, error = direction_error_over_crb(rig, recording, rig.rate_hz if spec.startswith("manual") else 1)
+    assert np.sqrt(np.mean(ratio**2)) < bound, (ratio, error)
+
+
+def test_a_short_turn_is_said_and_redone(tmp_path):
+    rig = BenchRig(seed=4, encoder_step_deg=0.1, operator=Operator(mistakes=("short_turn",)))
+    station, events, recording = run_session(tmp_path, "column:enc", rig)
+    redo = [text for level, text in events if "redo" in text]
+    assert len(redo) == 1 and "flip 180: the turn stopped short: 300 of 360 deg covered" in redo[0], events
+    assert station.finished and set(recording.flip_index) == {0, 1, 2, 3}
+
+
+def test_a_short_gyro_turn_is_said_and_redone(tmp_path):
+    rig = BenchRig(seed=5, gyro_bias_dps=0.5, operator=Operator(mistakes=("short_turn",)))
+    station, events, _ = run_session(tmp_path, "gyro", rig)
+    redo = [text for level, text in events if "redo" in text]
+    assert len(redo) == 1, events
+    # 300 deg, read by a gyro with a 1 % scale error
+    assert re.search(r"flip 180: the turn was about (29[5-9]|30[0-5]) deg, not one full turn", redo[0])
+    assert station.finished
+
+
+def test_the_wrong_face_down_is_said_and_waited_for(tmp_path):
+    rig = BenchRig(seed=6, encoder_step_deg=0.1, operator=Operator(mistakes=("wrong_face",)))
+    station, events, recording = run_session(tmp_path, "column:enc", rig)
+    wrong = [text for level, text in events if "wrong face" in text]
+    assert len(wrong) == 1, events
+    assert "the accelerometer shows -Y up; flip 90 needs +Y up (the -Y face on the table)" in wrong[0]
+    assert station.finished
+    # the flip 90 rows are the right face: gravity along +Y
+    assert recording.accel[recording.flip_index == 1].mean(axis=0) == pytest.approx([0, 1, 0], abs=0.01)
+
+
+def test_without_an_accelerometer_the_wrong_face_shows_in_the_field_circle(tmp_path):
+    rig = BenchRig(seed=6, encoder_step_deg=0.1, operator=Operator(mistakes=("wrong_face",)))
+    rig.send_accel = False
+    station, events, _ = run_session(tmp_path, "column:enc", rig)
+    wrong = [text for level, text in events if "wrong face" in text]
+    assert len(wrong) == 1 and "the field's circle shows -Y up; flip 90 needs +Y up" in wrong[0], events
+    assert station.finished
+
+
+def test_a_rate_change_ends_the_session_and_keeps_the_flips(tmp_path):
+    rig = BenchRig(seed=7, encoder_step_deg=0.1)
+
+    def halve_at_flip_180(r, t):
+        if station_flips() >= 2 and r.rate_hz == 100.0:
+            r.rate_hz = 50.0
+
+    store_dir = tmp_path
+    station_flips = lambda: len(list(store_dir.glob("cal.flips/flip_*.csv")))  # noqa: E731
+    with pytest.raises(SessionEnded, match="sample rate changed from 100 Hz to 50 Hz during flip 180; "
+                                           "flips kept: 0, 90"):
+        run_session(tmp_path, "column:enc", rig, on_block=halve_at_flip_180)
+    assert sorted(SessionStore(tmp_path / "cal.json").finished()) == [0.0, 90.0]
+
+
+def test_a_header_change_ends_the_session():
+    rig = BenchRig(seed=8, encoder_step_deg=0.1)
+    stream = StationStream("enc")
+    assert len(stream.feed(rig.header() + rig.lines(np.arange(10) / 100.0))) == 10
+    rig.send_accel = False
+    with pytest.raises(SessionEnded, match=r"header changed from t_s,seq,v1,v2,v3,ax,ay,az,gx,gy,gz,enc to "
+                                           r"t_s,seq,v1,v2,v3,gx,gy,gz,enc"):
+        stream.feed(rig.header() + rig.lines(np.arange(10, 20) / 100.0))
+
+
+def test_an_encoder_column_missing_from_the_header_is_said():
+    rig = BenchRig(seed=8)
+    with pytest.raises(SessionEnded, match="has no column 'angle' \\(--turntable column:angle\\)"):
+        StationStream("angle").feed(rig.header())
+
+
+@pytest.mark.parametrize("text, message", [
+    ("manual:7", "the step must divide 360"),
+    ("manual:x", "expected manual:STEP_DEG"),
+    ("column:", "needs the encoder column's name"),
+    ("laser", "unknown source"),
+    ("grbl:", "needs the GRBL controller's port"),
+])
+def test_bad_turntable_sources(text, message):
+    with pytest.raises(ValueError, match=message):
+        parse_turntable(text)
+
+
+def test_an_interactive_session_waits_for_enter():
+    rig = BenchRig(seed=9, encoder_step_deg=0.1)
+    stream = StationStream("enc")
+    station = Station(parse_turntable("column:enc"), rig.channels, ask=True)
+    for reading in stream.feed(rig.header() + rig.lines(np.arange(300) / 100.0)):
+        station.feed(reading)
+    assert station.instruction.do == "flip"  # still and the right face, but nobody pressed Enter
+    station.confirm()
+    for reading in stream.feed(rig.lines(np.arange(300, 320) / 100.0)):
+        station.feed(reading)
+    assert station.instruction.do == "turn"
