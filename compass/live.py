@@ -14,23 +14,31 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .filter import AttitudeFilter, Estimate, FilterConfig
+from .filter import AttitudeFilter, Estimate, FilterConfig, FilterStart
 from .io.lines import LineDecoder
-from .sample_check import SKIP_REASONS, skip_codes
 from .serial_reader import Chunk, LinkEvent
-from .site import QuietSeed, upside_down
+from .site import upside_down
 
-__all__ = ["LiveSession", "GATE_CODES", "CSV_COLUMNS"]
+__all__ = ["LiveSession", "GATE_CODES", "CSV_COLUMNS", "QUATERNION_COLUMNS"]
 
 GATE_CODES = {"ok": 0, "norm": 1, "dip": 2, "innovation": 3, "absent": 4}
 CSV_COLUMNS = ("t_s", "heading_deg", "pitch_deg", "roll_deg", "heading_sigma_deg", "tilt_sigma_deg", "field_ratio",
                "dip_deg", "mag_used", "gate", "accel_used", "in_range", "latency_ms")
 _CSV_ROW = "%.4f,%.3f,%.3f,%.3f,%.3f,%.3f,%.4f,%.2f,%d,%d,%d,%d,%.3f"
 _TRUE_COLUMNS = ("heading_true_deg", "heading_true_sigma_deg")  # with a site: heading + declination
+QUATERNION_COLUMNS = ("qw", "qx", "qy", "qz")
+"""The attitude quaternion (scalar first, ``R_world<-housing``) a replay's CSV adds (``quaternion=True``)."""
 _LATENCY_WINDOW = 100_000  # samples kept for the latency percentiles
-_ACCEL_WINDOW = 256  # accepted accelerometer magnitudes kept for the typical |a| (any unit)
 UPSIDE_DOWN_SAMPLES = 100
 """Estimates whose median dip is judged against a given reference (compass.site.upside_down)."""
+
+
+def matrix_quaternion(matrix_rows) -> tuple[float, float, float, float]:
+    """``(w, x, y, z)`` of a rotation given as a row-major 9-tuple, scalar first, ``w >= 0``."""
+    from scipy.spatial.transform import Rotation
+
+    x, y, z, w = Rotation.from_matrix(np.reshape(matrix_rows, (3, 3))).as_quat(canonical=True).tolist()
+    return w, x, y, z
 
 
 @dataclass
@@ -50,8 +58,10 @@ class LiveSession:
     reference : compass.site.ReferenceField, optional
         The site's field (``--site``): the filter's reference |B| and dip, and with its declination
         the true heading (``heading_true_deg`` in the readout and the CSV).  Without it the
-        reference is seeded from the stream's first quiet second (:class:`compass.site.QuietSeed`;
-        those samples are held, then solved), never the calibration bench's.
+        reference is seeded from the stream's first quiet second, never the calibration bench's.
+        Either way the samples of that second are held and then solved: the filter starts from the
+        window (:class:`compass.filter.FilterStart`, the start :func:`compass.filter.run_filter` uses
+        too), never from one row.
     to_product : ndarray, shape (3, 3), optional
         ``R_product<-housing`` of an installed calibration with an alignment (its model is in the
         product's frame): the module's accelerometer and gyro are turned by it.
@@ -87,9 +97,12 @@ class LiveSession:
         Set once the first :data:`UPSIDE_DOWN_SAMPLES` estimates show the field turned over against a
         given reference (``--site``): why, in words (the command stops on it); None otherwise.
     skipped : dict of str to int
-        Readings never fused, by reason: the filter's screen (:data:`compass.filter.SKIP_REASONS`:
-        a non-finite or out-of-range sensor part is skipped, the rest of the sample used) and,
-        while the reference is seeded, :func:`compass.sample_check.skip_codes` (the whole sample).
+        Readings never fused, by reason (:data:`compass.filter.SKIP_REASONS`): the filter's screen (a
+        non-finite or out-of-range sensor part is skipped, the rest of the sample used) and, in the
+        start window, :func:`compass.sample_check.skip_codes` (the whole sample).
+    quaternion : bool
+        The CSV also carries the attitude quaternion ``qw,qx,qy,qz`` (scalar first,
+        ``R_world<-housing``, SPEC section 1; the replay's output).
     """
 
     model: object
@@ -102,6 +115,7 @@ class LiveSession:
     gyro_rad_s_per_unit: float = 1.0
     accel_correction: object = None
     sign_from_bench: bool = True
+    quaternion: bool = False
     decoder: LineDecoder = field(init=False)
     turned_over: str | None = None
     estimate: Estimate | None = None
@@ -111,7 +125,6 @@ class LiveSession:
     samples: int = 0
     unsolved: int = 0
     skipped: dict = field(default_factory=dict)
-    _accel_norms: deque = field(default_factory=lambda: deque(maxlen=_ACCEL_WINDOW))
     _filter: AttitudeFilter | None = None
     _t0: float | None = None
     _bad_reported: int = 0
@@ -119,8 +132,7 @@ class LiveSession:
     _gate: str = "ok"
     _temp_c: float | None = None
     _header_seen: object = None
-    _seed: QuietSeed | None = None
-    _held: list = field(default_factory=list)
+    _start: FilterStart | None = None
     _dips: list | None = None  # measured dips of the first estimates, against a given reference
     _accel_judged: bool = False  # accel_correction checked against the stream's unit
 
@@ -130,13 +142,15 @@ class LiveSession:
             self.config = FilterConfig.from_model(self.model)
         if self.reference is not None:  # the user's reference: check it is not the calibration's field turned over
             self._dips = []
-        if self.reference is None or not np.isfinite(self.reference.field_magnitude):
-            self._seed = QuietSeed()  # also for a site's |B| in a calibration whose unit is not the uT
-        else:
+        # the site's reference (also one whose |B| is unknown in a calibration's unit that is not the uT: the
+        # start completes it) or, without a site, the stream's own
+        self._start = FilterStart(self.config, self.reference)
+        if self.reference is not None and np.isfinite(self.reference.field_magnitude):
             self._use_reference(self.reference)
         if self.out is not None:
             self.out.write(f"# gate: {', '.join(f'{v} {k}' for k, v in GATE_CODES.items())}\n"
-                           + ",".join(CSV_COLUMNS + (_TRUE_COLUMNS if self._declination is not None else ())) + "\n")
+                           + ",".join(CSV_COLUMNS + (_TRUE_COLUMNS if self._declination is not None else ())
+                                      + (QUATERNION_COLUMNS if self.quaternion else ())) + "\n")
 
     @property
     def _declination(self):
@@ -171,6 +185,15 @@ class LiveSession:
             self._event("warn", f"line noise: {stats.garbage} garbage and {stats.partial} partial lines so far")
             self._bad_reported, self._bad_reported_at = bad, item.t_rx
 
+    def feed_samples(self, samples: list, t_rx: float) -> None:
+        """Process samples decoded elsewhere (a recording's rows: :func:`compass.replay.replay`), in order;
+        each carries its :class:`~compass.io.lines.Header`, and ``t_rx`` stands for their arrival time."""
+        if self._t0 is None:
+            self._t0 = t_rx
+        self.decoder.stats.samples += len(samples)
+        if samples:
+            self._chunk(samples, t_rx)
+
     def _chunk(self, samples: list, t_rx: float) -> None:
         """A chunk's samples: what is not sequential once for all of them (the calibration's field, the
         reference seeding's screen), then each sample through the seeding or the filter."""
@@ -189,12 +212,11 @@ class LiveSession:
                 accel = None if accel is None else to_product @ accel
                 gyro = None if gyro is None else to_product @ gyro
             readings.append((sample, accel, gyro, fields[k], field_rows[k], in_range[k], t_rx))
-        codes = self._seed_codes(readings, fields) if self._seed is not None else None
-        for k, reading in enumerate(readings):
-            if self._seed is not None and reading[0].header.accel is not None:
+        for reading in readings:
+            if self._start is not None and reading[0].header.accel is not None:
                 # without an accelerometer there is no attitude, and nothing to seed the reference from: the
                 # filter is made at once and says so (holding the samples would grow without end)
-                self._seeding(reading, codes[k])
+                self._starting(reading)
             else:
                 self._sample(*reading)
 
@@ -231,35 +253,25 @@ class LiveSession:
             fields[known], in_range[known] = self.model.field(raw[known], np.array(temps, dtype=float)[known])
         return fields, in_range
 
-    def _seed_codes(self, readings: list, fields: np.ndarray) -> list:
-        """While the reference is being seeded (before any filter sees the samples): per sample, 0 or the
-        :func:`compass.sample_check.skip_codes` reason it must not enter the reference (the filter screens the
-        later ones).  One call for the chunk, with the typical |a| of the samples accepted before it."""
-        scale = float(np.median(self._accel_norms)) if len(self._accel_norms) >= 8 else None
-        nan3 = (np.nan,) * 3
-        accel = np.array([nan3 if r[1] is None else r[1] for r in readings], dtype=float)
-        gyro = np.array([nan3 if r[2] is None else r[2] for r in readings], dtype=float)
-        return skip_codes(fields, self.config.field_norm, accel, scale, gyro).tolist()
-
-    def _seeding(self, reading: tuple, code: int) -> None:
-        """Hold samples until the first quiet second gives the reference, then solve them."""
-        sample, accel, _, field_h, _, _, t_rx = reading
-        if code:
-            self._count_skip(SKIP_REASONS[code])
-            return
-        if accel is not None:
-            self._accel_norms.append(math.hypot(*accel))  # screened above: finite, not absurd
-        self._held.append(reading)
+    def _starting(self, reading: tuple) -> None:
+        """Hold a sample in the start window (:class:`compass.filter.FilterStart`); start when it is complete."""
+        sample, accel, gyro, field_h, _, _, t_rx = reading
         t_s = sample.t_s if sample.t_s is not None else t_rx - self._t0
-        reference = self._seed.add(t_s, accel, field_h)
-        if reference is not None:
-            self._seeded(reference)
+        reason = self._start.add(reading, t_s, accel, gyro, field_h)
+        if reason is not None:
+            self._count_skip(reason)
+        elif self._start.done:
+            self._started()
 
-    def _seeded(self, reference) -> None:
-        """The reference is known: use it and solve the samples held for it."""
-        self._seed = None
-        self._use_reference(reference if self.reference is None else self.reference.complete(reference))
-        held, self._held = self._held, []
+    def _started(self) -> None:
+        """The start window is complete: its reference, the filter it starts, the held samples solved."""
+        start, self._start = self._start, None
+        if start.values.reference is not self.reference:  # not the site's, already in use
+            self._use_reference(start.values.reference)
+        held = start.take_held()
+        gyro = held[0][0].header.gyro is not None
+        self._filter = start.make_filter(gyro, self.config)
+        self._filter_event(self._filter, held[0][0].header)
         for held_reading in held:
             self._sample(*held_reading, held=True)
 
@@ -269,8 +281,7 @@ class LiveSession:
         header = sample.header  # its own: a header later in the same chunk may have replaced the decoder's
         if self._filter is None or self._filter.gyro != (header.gyro is not None):
             self._filter = AttitudeFilter(self.config, gyro=header.gyro is not None)
-            self._event("info", f"filter: {'gyro (error-state EKF with bias)' if self._filter.gyro else 'two-vector'}"
-                                f"{'' if header.accel is not None else '; no accelerometer: no attitude'}")
+            self._filter_event(self._filter, header)
         effect = self.model.temperature
         if effect is not None and header is not self._header_seen:
             self._header_seen = header
@@ -311,13 +322,21 @@ class LiveSession:
             row = _CSV_ROW % (t_s, est.heading_deg, est.pitch_deg, est.roll_deg, est.heading_sigma_deg,
                               est.tilt_sigma_deg, est.field_ratio, est.dip_deg, est.mag_used,
                               GATE_CODES[est.gate], est.accel_used, in_range, 1e3 * latency)
-            self.out.write(row + "\n" if true is None else row + (",%.3f,%.3f\n" % true))
+            if true is not None:
+                row += ",%.3f,%.3f" % true
+            if self.quaternion:
+                row += ",%.9f,%.9f,%.9f,%.9f" % matrix_quaternion(est.matrix_rows)
+            self.out.write(row + "\n")
         if self.sink is not None:
             self.sink.log(t_s, self.samples, est, field_h / self.config.field_norm, accel, raw=sample.raw,
                           gyro=gyro, gate_code=GATE_CODES[est.gate], in_range=in_range,
                           latency_ms=1e3 * latency, **({} if true is None else {"true_heading": true}))
         if not held:
             self.output_latencies_s.append(time.perf_counter() - t_rx)
+
+    def _filter_event(self, filt: AttitudeFilter, header) -> None:
+        self._event("info", f"filter: {'gyro (error-state EKF with bias)' if filt.gyro else 'two-vector'}"
+                            f"{'' if header.accel is not None else '; no accelerometer: no attitude'}")
 
     def _judge_turn(self) -> None:
         """The measured dips so far against the given reference: :attr:`turned_over` (once)."""
@@ -348,7 +367,7 @@ class LiveSession:
         tail = f"{rate_hz:6.1f} Hz  dropped {stats.dropped}"
         est = self.estimate
         if est is None:
-            what = "the first quiet second (the site's field)" if self._seed is not None and self._held else "samples"
+            what = "the first quiet second (the start)" if self._start is not None and self._start.held else "samples"
             return f"waiting for {what} ({stats.samples} decoded, {stats.unheaded} before a header)  {tail}"
         flags = [name for name, on in (("MAG-REJECTED:" + est.gate, not est.mag_used),
                                        ("ACCEL-SKIPPED", not est.accel_used), ("OUT-OF-RANGE", not self.in_range)) if on]
@@ -382,12 +401,10 @@ class LiveSession:
         over; otherwise it is discarded, so a session that never started leaves no empty ``.rrd`` behind
         and an existing file stays as it was.
         A stream that ended before its first quiet second has its held samples solved against the
-        reference their rows give (:meth:`compass.site.QuietSeed.finish`), if ten of them do.
+        reference their rows give (:meth:`compass.filter.FilterStart.finish`), if ten of them do.
         """
-        if self._seed is not None and self._held:
-            reference = self._seed.finish()
-            if reference is not None:
-                self._seeded(reference)
+        if self._start is not None and self._start.held and self._start.finish():
+            self._started()
         if self._dips:  # a stream shorter than the check: judged on what it gave
             self._judge_turn()
         if self.sink is not None:  # a field turned over gives wrong headings: not kept

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import signal
+from dataclasses import replace
 import sys
 import threading
 import time
@@ -36,6 +37,9 @@ def register(sub) -> None:
     p.add_argument("--gyro-unit", choices=("rad/s", "deg/s"), default="rad/s",
                    help="unit of the module's gx,gy,gz (default rad/s, the line protocol's); a gyro in deg/s "
                         "taken as rad/s turns the attitude 57 times too fast")
+    p.add_argument("--gravity", type=float, metavar="G",
+                   help="what 1 g reads in the module's accelerometer unit (default: the median |a| of the first "
+                        "quiet second)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C)")
     p.add_argument("--wait", type=float, default=0.0, metavar="S",
@@ -66,10 +70,15 @@ def run(args) -> int:
         return run_tumble(args)
     if args.cal is None:
         raise BadInput("--cal CAL.json is required (or --calibrate tumble to make one)")
+    if args.gravity is not None and not (args.gravity > 0 and args.gravity < float("inf")):
+        raise BadInput(f"--gravity must be a positive number (what 1 g reads in the accelerometer's unit), got "
+                       f"{args.gravity}")
     try:
         cal = load(args.cal)
         model, to_product = cal.model, imu_to_model(cal.data)  # mag_to_accel, an installed alignment
         config = FilterConfig.from_model(model)
+        if args.gravity is not None:
+            config = replace(config, gravity=args.gravity)
     except ValueError as exc:
         raise BadInput(f"{args.cal}: {exc}" if args.cal not in str(exc) else str(exc)) from None
     reference = _site_reference(args, model)

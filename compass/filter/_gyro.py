@@ -21,6 +21,7 @@ __all__ = ["GyroFilter", "GyroState"]
 _REST_GYRO = math.radians(2.0)  # VQF's rest detector: rate deviation, rad/s
 _REST_GYRO2 = _REST_GYRO**2
 _REST_ACCEL = 0.05  # and specific-force deviation, fraction of g
+_SETTLED_TILT_VAR2 = 2.0 * math.radians(1.0) ** 2  # sum of the two tilt variances below which the tilt has settled
 _ORTHONORMALISE_EVERY = 1000  # samples between re-orthonormalisations of the nominal matrix
 
 
@@ -61,6 +62,8 @@ class GyroState(PackedCovariance):
     skipped : SkipCounts
     diagnostics : Diagnostics
         The latest sample's.
+    since_start_s : float
+        Time since the attitude (re)started, s: the bias is held until the tilt has settled.
     """
 
     t_s: float | None
@@ -80,6 +83,7 @@ class GyroState(PackedCovariance):
     gate: GateState
     skipped: SkipCounts = field(default_factory=SkipCounts)
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
+    since_start_s: float = 0.0
 
 
 class GyroFilter(AttitudeFilter):
@@ -118,6 +122,7 @@ class GyroFilter(AttitudeFilter):
         d = self._s.diagnostics
         if dt > 0.0:
             self._propagate(dt)
+            self._s.since_start_s += dt
         if a is not None:
             if dt > 0.0:
                 self._rest(dt, a)
@@ -144,6 +149,7 @@ class GyroFilter(AttitudeFilter):
         s.acc_lp_age_s = 0.0
         s.residual_var = 0.0
         s.rest_gyro, s.rest_acc, s.rest_s = s.rate_rad_s, a[:3], 0.0
+        s.since_start_s = 0.0
 
     def _restart_accel(self, a) -> None:
         s = self._s
@@ -235,8 +241,11 @@ class GyroFilter(AttitudeFilter):
         d0 = m[0] * ux + m[1] * uy + m[2] * uz  # R u - z, x and y
         d1 = m[3] * ux + m[4] * uy + m[5] * uz
         age = s.acc_lp_age_s
+        # the bias is held (not estimated from the tilt) until the tilt has settled: a start error still
+        # leaving the low-pass would otherwise pass for a turn the gyro did not read, i.e. for a bias
+        hold = s.since_start_s < cfg.accel_time_constant_s or (s.covariance[0] + s.covariance[6]) > _SETTLED_TILT_VAR2
         s.covariance = update_tilt(s.covariance, self._x, (-age * m[3], -age * m[4], -age * m[5]), d0,
-                                   (age * m[0], age * m[1], age * m[2]), d1, var)
+                                   (age * m[0], age * m[1], age * m[2]), d1, var, hold)
         return True
 
     def _heading(self, t_s: float, dt: float, b) -> None:
