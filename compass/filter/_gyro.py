@@ -243,7 +243,8 @@ class GyroFilter(AttitudeFilter):
         age = s.acc_lp_age_s
         # the bias is held (not estimated from the tilt) until the tilt has settled: a start error still
         # leaving the low-pass would otherwise pass for a turn the gyro did not read, i.e. for a bias
-        hold = s.since_start_s < cfg.accel_time_constant_s or (s.covariance[0] + s.covariance[6]) > _SETTLED_TILT_VAR2
+        hold = cfg.start_bias_hold and (s.since_start_s < cfg.accel_time_constant_s
+                                        or (s.covariance[0] + s.covariance[6]) > _SETTLED_TILT_VAR2)
         s.covariance = update_tilt(s.covariance, self._x, (-age * m[3], -age * m[4], -age * m[5]), d0,
                                    (age * m[0], age * m[1], age * m[2]), d1, var, hold)
         return True

@@ -106,6 +106,10 @@ class FilterConfig:
     field_error_from_dip : bool
         The field's heading error is measured from the wander of its dip (False: the floor
         ``mag_heading_sigma_deg`` only).
+    start_bias_hold : bool
+        The gyro filter holds its bias (does not estimate it from the tilt) until the tilt has settled:
+        ``accel_time_constant_s`` after the start and both tilt sigmas below 1 degree (False: from the
+        first sample, as before issue 22).
     """
 
     field_norm: float
@@ -138,6 +142,7 @@ class FilterConfig:
     rest_bias_estimation: bool = True
     motion_adaptive_accel: bool = True
     field_error_from_dip: bool = True
+    start_bias_hold: bool = True
 
     def __post_init__(self):
         for f in fields(self):
