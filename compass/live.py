@@ -30,6 +30,9 @@ QUATERNION_COLUMNS = ("qw", "qx", "qy", "qz")
 """The attitude quaternion (scalar first, ``R_world<-housing``) a replay's CSV adds (``quaternion=True``)."""
 _LATENCY_WINDOW = 100_000  # samples kept for the latency percentiles
 UPSIDE_DOWN_SAMPLES = 100
+AXES_ROWS = 2000
+"""Rows (every :data:`AXES_EVERY`-th estimate) the axis check (:func:`compass.axes.check_axes`) judges, once."""
+AXES_EVERY = 5
 """Estimates whose median dip is judged against a given reference (compass.site.upside_down)."""
 
 
@@ -100,6 +103,10 @@ class LiveSession:
         Readings never fused, by reason (:data:`compass.filter.SKIP_REASONS`): the filter's screen (a
         non-finite or out-of-range sensor part is skipped, the rest of the sample used) and, in the
         start window, :func:`compass.sample_check.skip_codes` (the whole sample).
+    axes : str or None
+        Set when the field-gravity angle of the first :data:`AXES_ROWS` sampled estimates (or of the whole
+        stream, on close) wanders in a way one sign pattern of the field's axes removes: what to
+        negate, in words (said as a warning event); None otherwise.
     quaternion : bool
         The CSV also carries the attitude quaternion ``qw,qx,qy,qz`` (scalar first,
         ``R_world<-housing``, SPEC section 1; the replay's output).
@@ -118,6 +125,7 @@ class LiveSession:
     quaternion: bool = False
     decoder: LineDecoder = field(init=False)
     turned_over: str | None = None
+    axes: str | None = None
     estimate: Estimate | None = None
     in_range: bool = True
     latencies_s: deque = field(default_factory=lambda: deque(maxlen=_LATENCY_WINDOW))
@@ -135,6 +143,7 @@ class LiveSession:
     _start: FilterStart | None = None
     _dips: list | None = None  # measured dips of the first estimates, against a given reference
     _accel_judged: bool = False  # accel_correction checked against the stream's unit
+    _axes_rows: list | None = field(default_factory=list)  # (accel, field) pairs for the axis check; None once judged
 
     def __post_init__(self):
         self.decoder = LineDecoder(self.model.channels)
@@ -305,6 +314,10 @@ class LiveSession:
             return
         self.estimate, self.in_range = est, in_range
         self.samples += 1
+        if self._axes_rows is not None and accel is not None and self.samples % AXES_EVERY == 0:
+            self._axes_rows.append((*accel, *field_row))
+            if len(self._axes_rows) >= AXES_ROWS:
+                self._judge_axes()
         if self._dips is not None and accel is not None:
             self._dips.append(est.dip_deg)
             if len(self._dips) >= UPSIDE_DOWN_SAMPLES:
@@ -337,6 +350,20 @@ class LiveSession:
     def _filter_event(self, filt: AttitudeFilter, header) -> None:
         self._event("info", f"filter: {'gyro (error-state EKF with bias)' if filt.gyro else 'two-vector'}"
                             f"{'' if header.accel is not None else '; no accelerometer: no attitude'}")
+
+    def _judge_axes(self) -> None:
+        """The sampled estimates' field-gravity angle against the sign patterns of the field's axes (once)."""
+        from .axes import check_axes
+
+        rows, self._axes_rows = np.array(self._axes_rows, dtype=float), None
+        if len(rows) == 0:
+            return
+        channels = tuple(self.model.channels)
+        names = channels if len(channels) == 3 else ("the field's x", "the field's y", "the field's z")
+        verdict = check_axes(rows[:, :3], rows[:, 3:], names=names)
+        if verdict is not None:
+            self.axes = verdict.text
+            self._event("warn", verdict.text)
 
     def _judge_turn(self) -> None:
         """The measured dips so far against the given reference: :attr:`turned_over` (once)."""
@@ -407,6 +434,8 @@ class LiveSession:
             self._started()
         if self._dips:  # a stream shorter than the check: judged on what it gave
             self._judge_turn()
+        if self._axes_rows:
+            self._judge_axes()
         if self.sink is not None:  # a field turned over gives wrong headings: not kept
             self.sink.close() if self.samples > 0 and self.turned_over is None else self.sink.discard()
         if self.out is not None:

@@ -21,7 +21,6 @@ __all__ = ["GyroFilter", "GyroState"]
 _REST_GYRO = math.radians(2.0)  # VQF's rest detector: rate deviation, rad/s
 _REST_GYRO2 = _REST_GYRO**2
 _REST_ACCEL = 0.05  # and specific-force deviation, fraction of g
-_SETTLED_TILT_VAR2 = 2.0 * math.radians(1.0) ** 2  # sum of the two tilt variances below which the tilt has settled
 _ORTHONORMALISE_EVERY = 1000  # samples between re-orthonormalisations of the nominal matrix
 
 
@@ -63,7 +62,7 @@ class GyroState(PackedCovariance):
     diagnostics : Diagnostics
         The latest sample's.
     since_start_s : float
-        Time since the attitude (re)started, s: the bias is held until the tilt has settled.
+        Time since the attitude (re)started, s: the bias is held for ``accel_time_constant_s``.
     """
 
     t_s: float | None
@@ -241,10 +240,9 @@ class GyroFilter(AttitudeFilter):
         d0 = m[0] * ux + m[1] * uy + m[2] * uz  # R u - z, x and y
         d1 = m[3] * ux + m[4] * uy + m[5] * uz
         age = s.acc_lp_age_s
-        # the bias is held (not estimated from the tilt) until the tilt has settled: a start error still
-        # leaving the low-pass would otherwise pass for a turn the gyro did not read, i.e. for a bias
-        hold = cfg.start_bias_hold and (s.since_start_s < cfg.accel_time_constant_s
-                                        or (s.covariance[0] + s.covariance[6]) > _SETTLED_TILT_VAR2)
+        # the bias is held (not estimated from the tilt) while the low-pass still carries its start: a start
+        # error leaving it would otherwise pass for a turn the gyro did not read, i.e. for a bias
+        hold = cfg.start_bias_hold and s.since_start_s < cfg.accel_time_constant_s
         s.covariance = update_tilt(s.covariance, self._x, (-age * m[3], -age * m[4], -age * m[5]), d0,
                                    (age * m[0], age * m[1], age * m[2]), d1, var, hold)
         return True
