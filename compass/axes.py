@@ -34,7 +34,8 @@ __all__ = ["AxisVerdict", "check_axes", "MIN_SIGNED_DIP_DEG"]
 
 MIN_SIGNED_DIP_DEG = 10.0
 """The site's |dip| above which its sign is judged (near the magnetic equator a tilt error reaches it)."""
-_CONSISTENT_DEG = 5.0  # robust spread of the per-row dip below which readings are consistent
+_CONSISTENT_DEG = 10.0  # robust spread of the per-row dip below which readings are consistent (an installation's
+# own iron, not yet fitted, spreads the right pattern's dip by a few degrees: 5.6 for 6.7 uT of hard iron)
 _GAIN = 3.0  # a pattern must shrink the spread this many times to be named
 _MIN_ROWS = 20
 _MIN_DIVERSITY = 0.2  # 1 - |mean of the unit up vectors|: below, the housing hardly turned
@@ -126,7 +127,10 @@ def check_axes(up, field, *, rotation=None, site_dip_deg: float | None = None, n
     diverse = 1.0 - float(np.linalg.norm(u.mean(axis=0))) >= _MIN_DIVERSITY
     results = {s: _dips(u, (b * np.array(s, dtype=float)) @ c.T, (1, 1, 1)) for s in product((1, -1), repeat=3)}
     dip0, spread0 = results[(1, 1, 1)]
-    if spread0 <= _CONSISTENT_DEG or not diverse:
+    right = min((r[1] for r in results.values() if np.sign(r[0]) == (1.0 if expected is None else expected)), default=np.inf)
+    if spread0 <= _GAIN * right or not diverse:  # no pattern does much better than the readings as they are
+        if spread0 > _CONSISTENT_DEG:
+            return None
         if expected is None and note_upward and dip0 <= -MIN_SIGNED_DIP_DEG:
             expected, site_dip_deg = 1.0, None
         elif expected is None or np.sign(dip0) == expected or abs(dip0) < MIN_SIGNED_DIP_DEG:

@@ -106,3 +106,33 @@ def test_a_live_session_names_the_reversed_axis():
     assert right.axes is None
     wrong = replay(LiveSession(model, out=io.StringIO()), t, s.raw, s.accel * [1, 1, -1], s.gyro)
     assert wrong.axes is not None and "left-handed" in wrong.axes and "negate mz" in wrong.axes
+
+
+def test_an_installation_with_a_reversed_accelerometer_axis_is_refused_at_a_site(tmp_path):
+    """A reversed accelerometer z is the same reflection as a reversed magnetometer z (the check cannot tell
+    which chip): named as mz, or the accelerometer's same axis."""
+    import json
+    from dataclasses import replace
+
+    from calibrate import calibrate_fourflip
+    from calibrate.contract import CannotCalibrate
+    from calibrate.installation import InstallationCalibrator
+    from compass.io.fourflip import read_fourflip
+    from compass.io.installation import installation_from_table
+    from compass.io.table import read_table
+    from compass.io.units import RecordingWarning
+    from compass.sim.fourflip import simulate_fourflip, write_fourflip
+    from compass.sim.installation import random_installation, simulate_installation, write_installation
+
+    session = simulate_fourflip(seed=41, dip_deg=58.0)
+    path, _ = write_fourflip(session, tmp_path / "bench.csv")
+    doc = calibrate_fourflip(read_fourflip(path), diagnose=False).to_json()
+    (tmp_path / "bench.json").write_text(json.dumps(doc))
+    rec = simulate_installation(session.truth, random_installation(42), kind="tumble", n=2000, seed=44)
+    flipped = replace(rec, accel=rec.accel * [1, 1, -1])
+    path, _ = write_installation(flipped, tmp_path / "inst.csv", force=True)
+    parsed = installation_from_table(read_table(path), tuple(doc["channels"]))
+    with pytest.raises(CannotCalibrate, match="left-handed.*accelerometer's same axis"):
+        InstallationCalibrator(base=tmp_path / "bench.json", site="52.5,13.4", date="2026-01-01").fit(parsed)
+    with pytest.warns(RecordingWarning, match="left-handed"):
+        InstallationCalibrator(base=tmp_path / "bench.json").fit(parsed)
