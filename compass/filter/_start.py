@@ -35,6 +35,7 @@ from ._records import FilterConfig
 __all__ = ["FilterStart", "StartValues"]
 
 _TYPICAL_ROWS = 8  # accepted |a| before the screen judges an absurd accelerometer against their median
+_REST_RATE = math.radians(2.0)  # VQF's rest threshold, rad/s
 
 
 @dataclass(frozen=True)
@@ -160,7 +161,14 @@ class FilterStart:
         ups, fields, norms = [], [], []
         m = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)  # R_first<-this row, row-major
         t_prev, max_gap = None, self.config.max_gap_s  # across a gap (or a garbage time) the turn is unknown
+        rates = np.array([g for _, _, g, _ in self._rows if g is not None]).reshape(-1, 3)
+        # a window at rest (every rate within VQF's 2 deg/s of their median) turns by nothing: its rate is the
+        # gyro's bias, which integrated would turn the window's later rows by up to bias x window
+        still = len(rates) > 0 and bool(np.all(np.linalg.norm(rates - np.median(rates, axis=0), axis=1) < _REST_RATE))
+        offset = np.median(rates, axis=0) if still else np.zeros(3)
         for t, a, g, b in self._rows:
+            if g is not None:
+                g = (g[0] - offset[0], g[1] - offset[1], g[2] - offset[2])
             dt = 0.0 if t_prev is None else t - t_prev
             if g is not None and 0.0 < dt <= max_gap:  # the filter turns by this row's rate over the step before it
                 m = mat_mul(m, exp_matrix(g[0] * dt, g[1] * dt, g[2] * dt))
