@@ -26,7 +26,7 @@ _CHUNK_ROWS = 4096  # samples handed to the session at once (the pipeline's vect
 _DEG_S_RATIO = 15.0  # gyro turn / accelerometer turn above this: a deg/s gyro read as rad/s (57)
 
 
-def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None) -> LiveSession:
+def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *, progress=None) -> LiveSession:
     """Run recorded samples through a live session, in order; the session is closed at the end.
 
     Parameters
@@ -43,6 +43,8 @@ def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None) -
         module's frame, as the module sends them.
     temp_c : array_like, shape (n,), optional
         Sensor temperature, degrees Celsius (NaN: not sent in that row).
+    progress : callable, optional
+        ``progress(rows_done, rows)`` after each chunk.
 
     Returns
     -------
@@ -68,6 +70,8 @@ def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None) -
                           None if temps is None or not np.isfinite(temps[k]) else float(temps[k]), header)
                    for k in range(lo, hi)]
         session.feed_samples(samples, time.perf_counter())
+        if progress is not None:
+            progress(hi, n)
     session.close()
     return session
 
@@ -173,8 +177,16 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     session = LiveSession(model, config=config, out=buffer, sink=sink, on_event=on_event, reference=reference,
                           to_product=imu_to_model(cal.data), accel_correction=accel_correction(cal.data),
                           sign_from_bench=hemisphere_assumed(cal.data), quaternion=True)
+    started, said = time.perf_counter(), [time.perf_counter()]
+
+    def progress(done, rows):  # on stderr, every 2 s of a long replay
+        now = time.perf_counter()
+        if not quiet and now - said[0] >= 2.0:
+            said[0] = now
+            print(f"replaying {recording}: {done} of {rows} rows ({now - started:.0f} s)", file=sys.stderr, flush=True)
+
     try:
-        replay(session, t_s, raw, accel, gyro, temp_c)
+        replay(session, t_s, raw, accel, gyro, temp_c, progress=progress)
     except BaseException:
         if sink is not None:
             sink.discard()

@@ -218,3 +218,19 @@ def test_a_deg_s_gyro_named_as_such_is_used(files, stream):
     heading = read_table(out).column("heading_deg")
     late = t > 5.0
     assert np.sqrt(np.mean(wrap(heading - s.heading_deg)[late & (s.magnet == 0)] ** 2)) < 1.0
+
+
+def test_the_replay_writes_the_rerun_recording_as_live_does(files):
+    pytest.importorskip("rerun")
+    cal, recording = files
+    rrd = cal.parent / "att.rrd"
+    assert main(["attitude", str(cal), str(recording()), "--out", str(cal.parent / "att.csv"), "--filter",
+                 "--rerun", str(rrd)]) == 0
+    assert rrd.stat().st_size > 0
+
+
+def test_live_refuses_a_gravity_that_is_not_a_positive_number(files, capsys):
+    cal, _ = files
+    assert main(["live", "--port", str(cal.parent / "no-port"), "--cal", str(cal), "--gravity", "0"]) == 2
+    err = capsys.readouterr().err
+    assert "--gravity must be a positive number" in err and "Traceback" not in err
