@@ -11,15 +11,17 @@ import math
 import time
 from collections import deque
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 
+from .calibration import ImuCorrection
 from .filter import AttitudeFilter, Estimate, FilterConfig, FilterStart
 from .io.lines import LineDecoder
 from .serial_reader import Chunk, LinkEvent
 from .site import upside_down
 
-__all__ = ["LiveSession", "GATE_CODES", "CSV_COLUMNS", "QUATERNION_COLUMNS"]
+__all__ = ["LiveSession", "Reading", "GATE_CODES", "CSV_COLUMNS", "QUATERNION_COLUMNS"]
 
 GATE_CODES = {"ok": 0, "norm": 1, "dip": 2, "innovation": 3, "absent": 4}
 CSV_COLUMNS = ("t_s", "heading_deg", "pitch_deg", "roll_deg", "heading_sigma_deg", "tilt_sigma_deg", "field_ratio",
@@ -30,10 +32,10 @@ QUATERNION_COLUMNS = ("qw", "qx", "qy", "qz")
 """The attitude quaternion (scalar first, ``R_world<-housing``) a replay's CSV adds (``quaternion=True``)."""
 _LATENCY_WINDOW = 100_000  # samples kept for the latency percentiles
 UPSIDE_DOWN_SAMPLES = 100
+"""Estimates whose median dip is judged against a given reference (compass.site.upside_down)."""
 AXES_ROWS = 2000
 """Rows (every :data:`AXES_EVERY`-th estimate) the axis check (:func:`compass.axes.check_axes`) judges, once."""
 AXES_EVERY = 5
-"""Estimates whose median dip is judged against a given reference (compass.site.upside_down)."""
 
 
 def matrix_quaternion(matrix_rows) -> tuple[float, float, float, float]:
@@ -44,6 +46,36 @@ def matrix_quaternion(matrix_rows) -> tuple[float, float, float, float]:
     return w, x, y, z
 
 
+class Reading(NamedTuple):
+    """One decoded sample on its way to the filter (held in the start window).
+
+    Attributes
+    ----------
+    sample : compass.io.lines.Sample
+        As decoded (its header, ``t_s``, raw outputs).
+    accel : ndarray, shape (3,), or None
+        The accelerometer in the model's frame (``Calibration.imu`` applied), the module's unit.
+    gyro : ndarray, shape (3,), or None
+        The gyro in the model's frame, rad/s.
+    field_h : ndarray, shape (3,)
+        The field in the model's frame, field units.
+    field_row : list of float
+        ``field_h`` as a list (what the filter's per-sample step takes).
+    in_range : bool
+        Every channel inside its calibrated range.
+    t_rx : float
+        When its chunk was read from the port, ``time.perf_counter()`` seconds.
+    """
+
+    sample: object
+    accel: np.ndarray | None
+    gyro: np.ndarray | None
+    field_h: np.ndarray
+    field_row: list
+    in_range: bool
+    t_rx: float
+
+
 @dataclass
 class LiveSession:
     """Decode, solve and filter a live stream; write the CSV and Rerun outputs.
@@ -51,6 +83,7 @@ class LiveSession:
     Parameters
     ----------
     model : compass.model.SensorModel
+        ``Calibration.model``.
     config : FilterConfig, optional
         Default :meth:`FilterConfig.from_model`.
     out : text file, optional
@@ -65,18 +98,20 @@ class LiveSession:
         Either way the samples of that second are held and then solved: the filter starts from the
         window (:class:`compass.filter.FilterStart`, the start :func:`compass.filter.run_filter` uses
         too), never from one row.
-    to_product : ndarray, shape (3, 3), optional
-        ``R_product<-housing`` of an installed calibration with an alignment (its model is in the
-        product's frame): the module's accelerometer and gyro are turned by it.
+    imu : compass.calibration.ImuCorrection, optional
+        The calibration's inertial correction (``Calibration.imu``): the module's accelerometer and
+        gyro are turned into the model's frame by it (the bench's ``mag_to_accel``, an installed file's
+        alignment), and the bench accelerometer's offsets and scales are undone when the stream's first
+        accelerometer readings read 1 g as the bench's did (else said once and not applied).
     gyro_rad_s_per_unit : float
         What one unit of the module's gyro is in rad/s (``--gyro-unit``: 1 for rad/s, pi/180 for
         deg/s); the line protocol's default unit is rad/s.
-    accel_correction : compass.accel_alignment.AccelCorrection, optional
-        The bench accelerometer's offsets and scales, undone before ``to_product`` when the stream's
-        first accelerometer readings read 1 g as the bench's did (else said once and not applied).
     sign_from_bench : bool
         The calibration is a four-flip bench's, whose data cannot tell the hemisphere: an upside-down
         verdict then names that cause (:func:`compass.site.upside_down`).
+    quaternion : bool
+        The CSV also carries the attitude quaternion ``qw,qx,qy,qz`` (scalar first,
+        ``R_world<-housing``, SPEC section 1; the replay's output).
 
     Attributes
     ----------
@@ -99,17 +134,14 @@ class LiveSession:
     turned_over : str or None
         Set once the first :data:`UPSIDE_DOWN_SAMPLES` estimates show the field turned over against a
         given reference (``--site``): why, in words (the command stops on it); None otherwise.
-    skipped : dict of str to int
-        Readings never fused, by reason (:data:`compass.filter.SKIP_REASONS`): the filter's screen (a
-        non-finite or out-of-range sensor part is skipped, the rest of the sample used) and, in the
-        start window, :func:`compass.sample_check.skip_codes` (the whole sample).
     axes : str or None
         Set when the field-gravity angle of the first :data:`AXES_ROWS` sampled estimates (or of the whole
         stream, on close) wanders in a way one sign pattern of the field's axes removes: what to
         negate, in words (said as a warning event); None otherwise.
-    quaternion : bool
-        The CSV also carries the attitude quaternion ``qw,qx,qy,qz`` (scalar first,
-        ``R_world<-housing``, SPEC section 1; the replay's output).
+    skipped : dict of str to int
+        Readings never fused, by reason (:data:`compass.filter.SKIP_REASONS`): the filter's screen (a
+        non-finite or out-of-range sensor part is skipped, the rest of the sample used) and, in the
+        start window, :func:`compass.sample_check.skip_codes` (the whole sample).
     """
 
     model: object
@@ -118,9 +150,8 @@ class LiveSession:
     sink: object = None
     on_event: object = None
     reference: object = None
-    to_product: object = None
+    imu: ImuCorrection = field(default_factory=ImuCorrection)
     gyro_rad_s_per_unit: float = 1.0
-    accel_correction: object = None
     sign_from_bench: bool = True
     quaternion: bool = False
     decoder: LineDecoder = field(init=False)
@@ -141,9 +172,9 @@ class LiveSession:
     _temp_c: float | None = None
     _header_seen: object = None
     _start: FilterStart | None = None
-    _dips: list | None = None  # measured dips of the first estimates, against a given reference
-    _accel_judged: bool = False  # accel_correction checked against the stream's unit
     _axes_rows: list | None = field(default_factory=list)  # (accel, field) pairs for the axis check; None once judged
+    _dips: list | None = None  # measured dips of the first estimates, against a given reference
+    _bench_accel: bool | None = None  # the bench's offsets apply to this stream's unit; None: not judged yet
 
     def __post_init__(self):
         self.decoder = LineDecoder(self.model.channels)
@@ -154,7 +185,7 @@ class LiveSession:
         # the site's reference (also one whose |B| is unknown in a calibration's unit that is not the uT: the
         # start completes it) or, without a site, the stream's own
         self._start = FilterStart(self.config, self.reference)
-        if self.reference is not None and np.isfinite(self.reference.field_magnitude):
+        if self.reference is not None and np.isfinite(self.reference.field_norm):
             self._use_reference(self.reference)
         if self.out is not None:
             self.out.write(f"# gate: {', '.join(f'{v} {k}' for k, v in GATE_CODES.items())}\n"
@@ -167,7 +198,7 @@ class LiveSession:
 
     def _use_reference(self, reference) -> None:
         self.reference = reference
-        self.config = replace(self.config, field_norm=reference.field_magnitude, dip_deg=reference.dip_deg)
+        self.config = replace(self.config, field_norm=reference.field_norm, dip_deg=reference.dip_deg)
         self._filter = None  # one made before (samples of a header without accelerometer) had the bench's field
         self._event("info", f"reference field: {reference.description}")
         if self.sink is not None:
@@ -208,39 +239,37 @@ class LiveSession:
         reference seeding's screen), then each sample through the seeding or the filter."""
         fields, in_range = self._fields(samples)
         field_rows, in_range = fields.tolist(), in_range.tolist()
-        per_unit, to_product = self.gyro_rad_s_per_unit, self.to_product
-        fix = self._accel_fix(samples)
+        per_unit, imu = self.gyro_rad_s_per_unit, self.imu
+        bench = self._judge_accel(samples)
         readings = []
         for k, sample in enumerate(samples):
             accel, gyro = sample.accel, sample.gyro
             if gyro is not None and per_unit != 1.0:
                 gyro = per_unit * gyro
-            if fix is not None and accel is not None:
-                accel = fix.apply(accel)
-            if to_product is not None:  # an installed model in the product's frame
-                accel = None if accel is None else to_product @ accel
-                gyro = None if gyro is None else to_product @ gyro
-            readings.append((sample, accel, gyro, fields[k], field_rows[k], in_range[k], t_rx))
+            accel = None if accel is None else imu.apply(accel, bench=bench)
+            gyro = None if gyro is None else imu.rotate(gyro)
+            readings.append(Reading(sample, accel, gyro, fields[k], field_rows[k], in_range[k], t_rx))
         for reading in readings:
-            if self._start is not None and reading[0].header.accel is not None:
+            if self._start is not None and reading.sample.header.accel is not None:
                 # without an accelerometer there is no attitude, and nothing to seed the reference from: the
                 # filter is made at once and says so (holding the samples would grow without end)
                 self._starting(reading)
             else:
-                self._sample(*reading)
+                self._sample(reading)
 
-    def _accel_fix(self, samples: list):
-        """The accelerometer correction to apply, judged once on the first chunk with accelerometer readings."""
-        if self.accel_correction is None or self._accel_judged:
-            return self.accel_correction
-        accel = [s.accel for s in samples if s.accel is not None]
-        if not accel:
-            return None
-        self._accel_judged = True
-        if not self.accel_correction.fits(np.array(accel)):
-            self._event("warn", self.accel_correction.not_fitting)
-            self.accel_correction = None
-        return self.accel_correction
+    def _judge_accel(self, samples: list) -> bool:
+        """Whether the bench's accelerometer offsets and scales apply: judged once, on the first chunk with
+        accelerometer readings (:meth:`compass.calibration.ImuCorrection.fits`)."""
+        if not self.imu.has_bench_correction:
+            return False
+        if self._bench_accel is None:
+            accel = [s.accel for s in samples if s.accel is not None]
+            if not accel:
+                return False
+            self._bench_accel = self.imu.fits(np.array(accel))
+            if not self._bench_accel:
+                self._event("warn", self.imu.not_fitting)
+        return self._bench_accel
 
     def _fields(self, samples: list) -> tuple[np.ndarray, np.ndarray]:
         """The samples' field in H (temperature-compensated when the calibration can), shape (n, 3), and
@@ -262,11 +291,11 @@ class LiveSession:
             fields[known], in_range[known] = self.model.field(raw[known], np.array(temps, dtype=float)[known])
         return fields, in_range
 
-    def _starting(self, reading: tuple) -> None:
+    def _starting(self, reading: Reading) -> None:
         """Hold a sample in the start window (:class:`compass.filter.FilterStart`); start when it is complete."""
-        sample, accel, gyro, field_h, _, _, t_rx = reading
-        t_s = sample.t_s if sample.t_s is not None else t_rx - self._t0
-        reason = self._start.add(reading, t_s, accel, gyro, field_h)
+        sample = reading.sample
+        t_s = sample.t_s if sample.t_s is not None else reading.t_rx - self._t0
+        reason = self._start.add(reading, t_s, reading.accel, reading.gyro, reading.field_h)
         if reason is not None:
             self._count_skip(reason)
         elif self._start.done:
@@ -278,15 +307,15 @@ class LiveSession:
         if start.values.reference is not self.reference:  # not the site's, already in use
             self._use_reference(start.values.reference)
         held = start.take_held()
-        gyro = held[0][0].header.gyro is not None
-        self._filter = start.make_filter(gyro, self.config)
-        self._filter_event(self._filter, held[0][0].header)
+        header = held[0].sample.header
+        self._filter = start.make_filter(header.gyro is not None, self.config)
+        self._filter_event(self._filter, header)
         for held_reading in held:
-            self._sample(*held_reading, held=True)
+            self._sample(held_reading, held=True)
 
-    def _sample(self, sample, accel, gyro, field_h: np.ndarray, field_row: list, in_range: bool, t_rx: float,
-                held: bool = False) -> None:
-        """One sample through the filter and into the outputs (``field_row``: ``field_h`` as a list)."""
+    def _sample(self, reading: Reading, held: bool = False) -> None:
+        """One sample through the filter and into the outputs."""
+        sample, accel, gyro, field_h, field_row, in_range, t_rx = reading
         header = sample.header  # its own: a header later in the same chunk may have replaced the decoder's
         if self._filter is None or self._filter.gyro != (header.gyro is not None):
             self._filter = AttitudeFilter(self.config, gyro=header.gyro is not None)

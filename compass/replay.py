@@ -32,8 +32,7 @@ def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *
     Parameters
     ----------
     session : LiveSession
-        Made as ``compass live`` makes it (model, reference, rotation into the model's frame, gyro unit,
-        accelerometer correction, outputs).
+        Made as ``compass live`` makes it (model, reference, ``Calibration.imu``, gyro unit, outputs).
     t_s : array_like, shape (n,)
         Sample times, seconds.
     raw : array_like, shape (n, c)
@@ -111,9 +110,8 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     """
     from dataclasses import replace
 
-    from .accel_alignment import accel_correction, imu_to_model
-    from .calibration_file import hemisphere_assumed, load
-    from .cli import BadInput
+    from .calibration import load
+    from .errors import BadInput
     from .filter import FilterConfig
     from .io.atomic import atomic_write_text, check_writable
     from .io.table import RecordingError, read_table
@@ -134,8 +132,8 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     except ValueError as exc:
         raise BadInput(exc if str(calibration) in str(exc) else f"{calibration}: {exc}") from None
     source = "site"
-    if site is None and cal.sections.get("site") is not None:
-        site, source = cal.sections["site"], "calibration site"
+    if site is None and cal.site is not None:
+        site, source = cal.site, "calibration site"
     try:
         reference = None if site is None else reference_from_site(
             site, field_ut=None if model.field_ut is None else 1.0, source=source)
@@ -175,8 +173,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
 
         sink = RerunSink.for_model(rerun, model, config)
     session = LiveSession(model, config=config, out=buffer, sink=sink, on_event=on_event, reference=reference,
-                          to_product=imu_to_model(cal.data), accel_correction=accel_correction(cal.data),
-                          sign_from_bench=hemisphere_assumed(cal.data), quaternion=True)
+                          imu=cal.imu, sign_from_bench=cal.provenance.hemisphere_assumed, quaternion=True)
     started, said = time.perf_counter(), [time.perf_counter()]
 
     def progress(done, rows):  # on stderr, every 2 s of a long replay

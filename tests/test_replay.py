@@ -2,7 +2,6 @@
 attitudes on the same samples; the filter starts from a window, never from one row."""
 
 import io
-import json
 import time
 
 import numpy as np
@@ -152,8 +151,10 @@ def test_a_start_in_motion_takes_the_tilt_from_the_window_in_the_inertial_frame(
 def files(tmp_path, stream):
     """The simulated device's calibration and a 30 s attitude recording of it (SPEC section 2)."""
     model, t, s = stream
+    from compass.calibration import model_to_dict, save
+
     cal = tmp_path / "cal.json"
-    cal.write_text(json.dumps(model.to_json()))
+    save(cal, model_to_dict(model))
 
     def recording(name="rec.csv", *, gyro=True, accel=True, gyro_scale=1.0, first_row=None):
         columns = {"t_s": t} | {c: s.raw[:, k] for k, c in enumerate(model.channels)}

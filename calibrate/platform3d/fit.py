@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
@@ -10,6 +12,8 @@ from compass.io.platform3d import Platform3DRecording
 from compass.sim.platform3d import predict, up_in_bench
 
 from ..contract import Calibrator, CannotCalibrate, metadata_field_ut, require_response, require_sane_cells
+from ..health import AXIS_TOLERANCE_DEG, ChannelHealth, check_channels
+from ..health import to_json as health_json
 from ..diagnosis.offsets import (Grouped, OffsetDiagnosis, Problem, SampleGroups, diagnose_offsets,
                                 pooled_repeat_noise, same_inputs)
 from .result import AXES, MAG_CHANNELS, Platform3DResult, axis_geometry, geometry_names
@@ -25,17 +29,17 @@ def _names(tilt_columns) -> list[str]:
     return names + ["base_tilt_x_rad", "base_tilt_y_rad"]
 
 
-def _unpack(p: np.ndarray, n_tilt: int, field_magnitude: float):
+def _unpack(p: np.ndarray, n_tilt: int, field_norm: float):
     m, o_m = p[:9].reshape(3, 3), p[9:12]
     el, az = p[12], p[13]
-    b_w = field_magnitude * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), -np.sin(el)])
+    b_w = field_norm * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), -np.sin(el)])
     k = 14 + 3 * n_tilt
     a, o_t = p[14:k].reshape(n_tilt, 3), p[k:k + n_tilt]
     u_w = up_in_bench(np.degrees(p[k + n_tilt:k + n_tilt + 2]))
     return m, o_m, b_w, a, o_t, u_w
 
 
-def _start(rot: Rotation, mag, tilt, counts, field_magnitude: float, sign: float) -> np.ndarray:
+def _start(rot: Rotation, mag, tilt, counts, field_norm: float, sign: float) -> np.ndarray:
     """Linear least squares for the sensors on a grid of field directions; best grid point.
 
     ``rot``, ``mag`` and ``tilt`` are per pose (the means of its ``counts`` samples, weighted by
@@ -47,7 +51,7 @@ def _start(rot: Rotation, mag, tilt, counts, field_magnitude: float, sign: float
     best = None
     for el in np.radians(np.arange(5.0, 86.0, 20.0)) * sign:
         for az in np.radians(np.arange(0.0, 360.0, 30.0)):
-            b = field_magnitude * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), -np.sin(el)])
+            b = field_norm * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), -np.sin(el)])
             design = np.hstack([rot.apply(b, inverse=True) * root_n, root_n])
             sol, *_ = np.linalg.lstsq(design, mag * root_n, rcond=None)
             rss = float(np.sum((design @ sol - mag * root_n) ** 2))
@@ -289,8 +293,30 @@ class Platform3DCalibrator(Calibrator):
     kind = "platform3d"
     plot_files = ("platform_residuals.png",)
 
-    def __init__(self, *, field_ut: float | None = None, diagnose: bool = True):
+    def __init__(self, *, field_ut: float | None = None, diagnose: bool = True,
+                 axis_tolerance_deg: float | None = AXIS_TOLERANCE_DEG, direction_accuracy_deg: float | None = None):
         self.field_ut, self.diagnose = field_ut, diagnose
+        self.axis_tolerance_deg, self.direction_accuracy_deg = axis_tolerance_deg, direction_accuracy_deg
 
     def fit(self, recording: Platform3DRecording) -> Platform3DResult:
-        return calibrate_platform3d(recording, field_ut=self.field_ut, diagnose=self.diagnose)
+        result = calibrate_platform3d(recording, field_ut=self.field_ut, diagnose=self.diagnose)
+        health = channel_health(result)
+        warnings = check_channels(recording.path, health, axis_tolerance_deg=self.axis_tolerance_deg,
+                                  direction_accuracy_deg=self.direction_accuracy_deg)
+        return replace(result, warnings=result.warnings + warnings, health=health_json(health))
+
+
+def channel_health(result: Platform3DResult) -> list[ChannelHealth]:
+    """Each magnetometer channel's response to the whole field (the row of ``M`` times |B|), its noise
+    (repeated samples' spread, else the residual's) and its sensing direction in H (:mod:`calibrate.health`)."""
+    from compass.frames import direction_sigma_deg
+
+    field = float(np.linalg.norm(result.field_w))
+    noise = result.noise_mag if result.noise_mag is not None else np.sqrt(np.mean(result.residuals_mag**2, axis=0))
+    out = []
+    for c, name in enumerate(MAG_CHANNELS):
+        gain = float(np.linalg.norm(result.mag_matrix[c]))
+        out.append(ChannelHealth(name, gain * field, float(result.mag_response_sigma[c][1]) * field, float(noise[c]),
+                                 result.mag_matrix[c] / gain,
+                                 float(direction_sigma_deg(result.mag_direction_covariance[c]))))
+    return out

@@ -11,6 +11,8 @@ from compass.axes import check_axes
 from compass.io.tumble import TumbleRecording
 
 from ..contract import Calibrator, CannotCalibrate, metadata_field_ut
+from ..health import AXIS_TOLERANCE_DEG, DEAD_SIGMAS, ChannelHealth, check_channels
+from ..health import to_json as health_json
 from ..noise import robust_sigma
 from ..site_field import compare_with_site
 from .alignment import MAX_ANGLE_WIDENING, field_gravity_angles, fit_misalignment, refine_jointly, static_mask
@@ -18,13 +20,68 @@ from .diagnosis import UNEXPLAINED_WARNING, diagnose_tumble
 from .ellipsoid import fit_ellipsoid
 from .result import TumbleResult
 
+def _axis_noise(x: np.ndarray) -> np.ndarray:
+    """White-noise sigma of each axis from second differences of consecutive samples, shape (3,)."""
+    d = x[:-2] - 2.0 * x[1:-1] + x[2:]
+    return np.asarray(robust_sigma(d)) / np.sqrt(6.0)
+
+
 def _noise_floor(x: np.ndarray) -> float:
     """Per-axis white-noise sigma from second differences of consecutive samples (median over axes)."""
-    d = x[:-2] - 2.0 * x[1:-1] + x[2:]
-    return float(np.median(robust_sigma(d)) / np.sqrt(6.0))
+    return float(np.median(_axis_noise(x)))
 
 
-def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: str = "auto",
+AXES = ("mx", "my", "mz")
+
+
+def require_varying_axes(path, mag: np.ndarray) -> None:
+    """Refuse a tumble with an axis that never varied beyond its noise (a dead sensor, or never turned).
+
+    An axis's variation is its readings' spread less the white noise in quadrature, as the amplitude
+    of a sinusoid (sqrt(2) times the spread); it must be :data:`calibrate.health.DEAD_SIGMAS` noise
+    sigmas at least.  A live axis in any tumble varies by tens of percent of |B|, hundreds of sigmas.
+
+    Raises
+    ------
+    CannotCalibrate
+        Naming the axis, its spread and its noise.
+    """
+    mag = np.asarray(mag, float)
+    if len(mag) < 3:
+        return
+    noise = _axis_noise(mag)
+    spread = np.std(mag, axis=0)
+    for name, s, n in zip(AXES, spread, noise):
+        varied = np.sqrt(2.0 * max(s**2 - n**2, 0.0))
+        if not varied >= DEAD_SIGMAS * n:
+            raise CannotCalibrate(f"{path}: column '{name}' never varied beyond its noise (spread {s:.3g}, white "
+                                  f"noise {n:.3g} recording units): a dead or disconnected sensor, or a motion that "
+                                  "never turned that axis through the field")
+
+
+def channel_health(result: TumbleResult, mag: np.ndarray) -> list[ChannelHealth]:
+    """Each raw axis's response to the whole field, its noise and sensing direction (:mod:`calibrate.health`).
+
+    Raw axis i reads ``row_i(S^-1) . m`` plus its hard iron, so its response to the whole field is
+    ``|row_i(S^-1)| |m|``; its sigma is taken as a sinusoid amplitude's over the samples,
+    ``noise sqrt(2 / n)``.  The axis's direction in the housing (the accelerometer's frame) is
+    ``mag_to_accel`` applied to the axis, when fitted: the symmetric soft iron is left out, since it
+    also holds the product's iron, which shears the axes without any mounting error (the tumble
+    simulator's 8 % soft iron turns them by up to 9 deg).  Without a fitted rotation the tumble fixes
+    no housing frame and no axis angle is judged.
+    """
+    rows = np.linalg.inv(result.soft_iron)
+    turn = result.mag_to_accel
+    noise = _axis_noise(np.asarray(mag, float))
+    out = []
+    for i, (name, row, n) in enumerate(zip(AXES, rows, noise)):
+        direction = None if turn is None else turn[:, i]
+        out.append(ChannelHealth(name, float(np.linalg.norm(row)) * result.field_norm,
+                                 float(n * np.sqrt(2.0 / len(mag))), float(n), direction))
+    return out
+
+
+def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, ellipsoid: str = "auto",
                      field_ut: float | None = None, n_repeats: int = 0, t_s: np.ndarray | None = None,
                      temp_c: np.ndarray | None = None, site_dip_deg: float | None = None) -> TumbleResult:
     """Calibrate hard and soft iron (and the magnetometer-accelerometer rotation) from a tumble.
@@ -36,7 +93,7 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: 
         (:func:`compass.io.tumble.read_tumble` does that).
     accel : ndarray, shape (n, 3), optional
         Accelerometer at the same rows (specific force), any unit.
-    kind : {"auto", "offset", "diagonal", "full"}
+    ellipsoid : {"auto", "offset", "diagonal", "full"}
     field_ut : float, optional
         Known |B|; the file's ``soft_iron`` then gives microtesla.
     n_repeats : int
@@ -61,29 +118,29 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: 
     >>> from compass.sim.tumble import simulate_tumble
     >>> sim = simulate_tumble(seed=1, n=1500)
     >>> res = calibrate_tumble(sim.mag, sim.accel)
-    >>> res.kind, bool(abs(res.field_norm - 50) < 5)
+    >>> res.ellipsoid, bool(abs(res.field_norm - 50) < 5)
     ('full', True)
     """
     if field_ut is not None and not field_ut > 0:
         raise ValueError(f"field_ut must be positive, got {field_ut}")
     mag = raw = np.asarray(mag, dtype=float)
     noise = _noise_floor(mag)
-    chosen, candidates, coverage = fit_ellipsoid(mag, kind)
+    chosen, candidates, coverage = fit_ellipsoid(mag, ellipsoid)
     warnings = []
     if coverage.missing:
         warnings.append("incomplete coverage: " + coverage.words())
     full = candidates[-1]
-    if kind == "auto" and chosen.kind != "full":
+    if ellipsoid == "auto" and chosen.ellipsoid != "full":
         why = full.reason or "the BIC prefers the simpler kind"
-        warnings.append(f"used the {chosen.kind} kind: the full ellipsoid is not determined ({why})"
-                        if not full.determined else f"used the {chosen.kind} kind ({why})")
+        warnings.append(f"used the {chosen.ellipsoid} kind: the full ellipsoid is not determined ({why})"
+                        if not full.determined else f"used the {chosen.ellipsoid} kind ({why})")
     if chosen.degenerate:
-        refused = (f"no usable calibration: no ellipsoid kind is determined, and the simplest ({chosen.kind}) is "
+        refused = (f"no usable calibration: no ellipsoid kind is determined, and the simplest ({chosen.ellipsoid}) is "
                    f"{chosen.reason}")
         return TumbleResult(chosen, candidates, coverage, None, field_ut, noise, len(mag), n_repeats,
                             tuple(warnings + [refused]), refused)
     if not chosen.determined:
-        warnings.append(f"the {chosen.kind} kind is poorly determined: {chosen.reason}")
+        warnings.append(f"the {chosen.ellipsoid} kind is poorly determined: {chosen.reason}")
     n_out = int(np.count_nonzero(~chosen.inliers))
     if n_out > 0.2 * len(mag):
         warnings.append(f"{n_out} of {len(mag)} samples ({100 * n_out / len(mag):.0f} %) were rejected as "
@@ -169,16 +226,22 @@ class TumbleCalibrator(Calibrator):
     kind = "tumble"
     plot_files = ("tumble.png",)
 
-    def __init__(self, *, ellipsoid: str = "auto", field_ut: float | None = None):
+    def __init__(self, *, ellipsoid: str = "auto", field_ut: float | None = None,
+                 axis_tolerance_deg: float | None = AXIS_TOLERANCE_DEG, direction_accuracy_deg: float | None = None):
         self.ellipsoid, self.field_ut = ellipsoid, field_ut
+        self.axis_tolerance_deg, self.direction_accuracy_deg = axis_tolerance_deg, direction_accuracy_deg
 
     def fit(self, recording: TumbleRecording) -> TumbleResult:
         field_ut = self.field_ut if self.field_ut is not None else metadata_field_ut(recording.path,
                                                                                       recording.metadata)
+        require_varying_axes(recording.path, recording.mag)
         site = compare_with_site(0.0, None, recording.metadata, recording.path)
-        result = calibrate_tumble(recording.mag, recording.accel, kind=self.ellipsoid, field_ut=field_ut,
+        result = calibrate_tumble(recording.mag, recording.accel, ellipsoid=self.ellipsoid, field_ut=field_ut,
                                   n_repeats=recording.n_repeats, t_s=recording.t_s, temp_c=recording.temp_c,
                                   site_dip_deg=None if site is None else site["model_dip_deg"])
         if result.refused:
             raise CannotCalibrate(f"{recording.path}: {result.refused}")
-        return result
+        health = channel_health(result, recording.mag)
+        warnings = check_channels(recording.path, health, axis_tolerance_deg=self.axis_tolerance_deg,
+                                  direction_accuracy_deg=self.direction_accuracy_deg)
+        return replace(result, warnings=result.warnings + warnings, health=health_json(health))

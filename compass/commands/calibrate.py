@@ -1,7 +1,7 @@
 """``compass calibrate REC.csv --out CAL.json``: fit, diagnose, write the calibration file.
 
 The command line layer on top of both packages: it loops over :data:`calibrate.kinds.KINDS` (each
-kind's column sniffer, reader and calibrator) and writes through :mod:`compass.calibration_file`.
+kind's column sniffer, reader and calibrator) and writes through :func:`compass.calibration.save`.
 Only the command layer (``compass/commands/``) imports ``calibrate``.
 """
 
@@ -9,9 +9,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..io.atomic import atomic_write_text, check_writable
+from ..io.atomic import check_writable
 from ..io.table import ReadOptions, add_read_arguments, read_table
 from ..viz import add_rerun_option, check_rerun_target
+
+AXIS_TOLERANCE_DEG = 10.0
+"""``--axis-tolerance-deg``'s default: :data:`calibrate.health.AXIS_TOLERANCE_DEG` (not imported here,
+so ``compass --help`` stays fast; a test holds the two equal)."""
 
 
 def register(sub) -> None:
@@ -37,6 +41,12 @@ def register(sub) -> None:
                    "stood (its hemisphere, which the data cannot tell, and the WMM check of the dip)")
     p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day (default: a four-flip recording's "
                                                         "'# date:', else today, UTC)")
+    p.add_argument("--axis-tolerance-deg", type=float, default=AXIS_TOLERANCE_DEG, metavar="DEG",
+                   help="warn when a channel's sensing direction is farther than this from the nearest housing axis "
+                        f"(a gross mounting error; default {AXIS_TOLERANCE_DEG:g}; raise it for oblique designs)")
+    p.add_argument("--direction-accuracy-deg", type=float, default=None, metavar="DEG",
+                   help="warn when a channel's direction sigma is larger than this, with the signal-to-noise "
+                        "ratio that would reach it")
     p.add_argument("--force", action="store_true", help="overwrite an existing calibration file")
     p.add_argument("--quiet", action="store_true", help="do not print the fit report")
     add_rerun_option(p)
@@ -50,7 +60,9 @@ def run(args) -> int:
     result = calibrate_file(args.recording, args.out, method=args.method, diagnose=not args.no_diagnose,
                             report=args.report, field_ut=args.field_ut, kind=args.kind, force=args.force,
                             quiet=args.quiet, ellipsoid=args.ellipsoid, read_options=read_options,
-                            base=args.base, site=args.site, date=args.date)
+                            base=args.base, site=args.site, date=args.date,
+                            axis_tolerance_deg=args.axis_tolerance_deg,
+                            direction_accuracy_deg=args.direction_accuracy_deg)
     if target is not None:
         from ..viz.calibration import record_calibration
 
@@ -69,13 +81,14 @@ def _base_residuals(result):
 
 OPTIONS = {"method": ("--method", "ml"), "diagnose": ("--no-diagnose", True), "field_ut": ("--field-ut", None),
            "ellipsoid": ("--ellipsoid", "auto"), "base": ("--base", None), "site": ("--site", None),
-           "date": ("--date", None)}
+           "date": ("--date", None), "axis_tolerance_deg": ("--axis-tolerance-deg", AXIS_TOLERANCE_DEG),
+           "direction_accuracy_deg": ("--direction-accuracy-deg", None)}
 """Calibrator option -> (command-line flag, default): passed to the kinds whose calibrator takes it."""
 
 
 def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, field_ut=None, kind=None,
                    force=False, quiet=False, ellipsoid="auto", read_options=None, base=None, site=None,
-                   date=None):
+                   date=None, axis_tolerance_deg=AXIS_TOLERANCE_DEG, direction_accuracy_deg=None):
     """Calibrate one recording file into a calibration file; returns the Calibration.
 
     The kind comes from the columns (:func:`calibrate.kinds.sniff`) unless ``kind`` names one; its
@@ -89,7 +102,7 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
     from calibrate.contract import CannotCalibrate
     from calibrate.kinds import KINDS, sniff
 
-    from ..calibration_file import CalibrationFileError, dumps
+    from ..calibration import CalibrationFileError, save
     from ..cli import BadInput
 
     out = check_writable(out, force)
@@ -105,8 +118,13 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
                                                                      for k in KINDS.values()))
     if field_ut is not None and not field_ut > 0:
         raise BadInput(f"--field-ut must be positive, got {field_ut}")
+    for flag, value in (("--axis-tolerance-deg", axis_tolerance_deg),
+                        ("--direction-accuracy-deg", direction_accuracy_deg)):
+        if value is not None and not 0 < value < 180:
+            raise BadInput(f"{flag} must be an angle in (0, 180) deg, got {value}")
     given = {"method": method, "diagnose": diagnose, "field_ut": field_ut, "ellipsoid": ellipsoid, "base": base,
-             "site": site, "date": date}
+             "site": site, "date": date, "axis_tolerance_deg": axis_tolerance_deg,
+             "direction_accuracy_deg": direction_accuracy_deg}
     takes = found.calibrator.options()
     ignored = [OPTIONS[name][0] for name, value in given.items() if name not in takes and value != OPTIONS[name][1]]
     ignored += ["--report"] * (report is not None and not found.calibrator.plot_files)
@@ -122,14 +140,13 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
         options["progress"] = lambda text: print(f"  ... {text}", flush=True)
     try:
         result = found.calibrator(**options).fit(rec)
-        text = dumps(result.to_json())
+        save(out, result.to_json(), force=force)
     except CannotCalibrate as exc:  # the recording cannot determine the model: bad input
         raise BadInput(str(exc)) from None
     except CalibrationFileError as exc:  # never write a calibration the runtime would refuse
         raise BadInput(f"{recording}: the fit gives an unusable calibration, not written: {exc}") from None
     if not quiet:
         print(result.report())
-    atomic_write_text(out, text)
     print(f"wrote {out}")
     if report:
         paths = result.plots(rec, report)

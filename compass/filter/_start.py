@@ -125,7 +125,7 @@ class FilterStart:
         if self.done or not self.held:
             return self.done
         reference = self._seed.finish()
-        if reference is None and (self.given is None or not np.isfinite(self.given.field_magnitude)):
+        if reference is None and (self.given is None or not np.isfinite(self.given.field_norm)):
             return False
         self._finish(reference)
         return True
@@ -142,7 +142,7 @@ class FilterStart:
         """
         v = self.values
         cfg = config if config is not None else self.config
-        cfg = replace(cfg, field_norm=v.reference.field_magnitude, dip_deg=v.reference.dip_deg)
+        cfg = replace(cfg, field_norm=v.reference.field_norm, dip_deg=v.reference.dip_deg)
         filt = AttitudeFilter(cfg, gyro=gyro)
         filt.prime(v.gravity, v.up_h, v.field_h)
         return filt
