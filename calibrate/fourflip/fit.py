@@ -34,7 +34,7 @@ from ..contract import Calibrator, CannotCalibrate
 from ..health import AXIS_TOLERANCE_DEG, ChannelHealth, check_channels
 from ..health import to_json as health_json
 from .diagnosis import UNEXPLAINED_WARNING, diagnose_fourflip, examine_residual
-from ..noise import SPIKE_SIGMAS, find_spikes, noise_floor
+from ..noise import SPIKE_SIGMAS, find_spikes, lattice_step, noise_floor, quantisation_note
 from .result import CalibrationResult, ChannelCalibration
 from ..site_field import compare_with_site
 
@@ -83,8 +83,10 @@ def calibrate_fourflip(
         "site_lat_deg": site.lat_deg, "site_lon_deg": site.lon_deg, "site_alt_m": site.alt_m,
         "date": site.date.isoformat()}
     dip_sign, hemisphere = _hemisphere(metadata, dip_sign, "--site" if site is not None else "the recording")
-    noise = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs)
+    step = lattice_step(rec.outputs)
+    noise = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs, step)
     noise = np.where(noise > 0, noise, np.std(rec.outputs, axis=0) * 1e-3)
+    quantised = quantisation_note(step, noise, rec.channels)
     spikes = find_spikes(rec.platform_deg, rec.flip_index, rec.outputs, noise)
     if spikes.any():
         rec = rec.subset(~spikes)
@@ -109,6 +111,9 @@ def calibrate_fourflip(
         warnings = warnings + (f"the flip means hardly show the vertical field ({vertical:.1f} sigma: dip near 0, or "
                                "every channel along housing X): the data cannot tell these directions from their "
                                "negatives, and the hemisphere cannot either; their common sign is a guess",)
+    if quantised is not None:
+        extra["quantisation"] = quantised
+        warnings = warnings + (quantised["words"],)
     if spikes.any():
         extra["spikes_dropped"] = int(spikes.sum())
         warnings = warnings + (f"{int(spikes.sum())} sample(s) dropped as spikes (more than {SPIKE_SIGMAS:g} noise "

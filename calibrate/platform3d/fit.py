@@ -174,7 +174,8 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
     chi2 = float(np.sum((r_m / w_m) ** 2) + np.sum((r_t / w_t) ** 2))
     if diagnose:
         diagnosis = _diagnose(rec, rot, fit.x, n_tilt, magnitude, w_m, w_t, noise_mag is not None,
-                              ("offset_drift", "temperature", "nonlinear_response") if candidates is None else candidates)
+                              ("offset_drift", "temperature", "gain_drift", "nonlinear_response") if candidates is None
+                              else candidates)
         if diagnosis.effects:
             x, jac, delta = diagnosis.x, diagnosis.jac, diagnosis.delta
             names = names + diagnosis.names

@@ -13,7 +13,7 @@ from compass.io.tumble import TumbleRecording
 from ..contract import Calibrator, CannotCalibrate, metadata_field_ut
 from ..health import AXIS_TOLERANCE_DEG, DEAD_SIGMAS, ChannelHealth, check_channels
 from ..health import to_json as health_json
-from ..noise import robust_sigma
+from ..noise import lattice_step, second_difference_sigma, second_differences
 from ..site_field import compare_with_site
 from .alignment import MAX_ANGLE_WIDENING, field_gravity_angles, fit_misalignment, refine_jointly, static_mask
 from .diagnosis import UNEXPLAINED_WARNING, diagnose_tumble
@@ -21,9 +21,9 @@ from .ellipsoid import fit_ellipsoid
 from .result import TumbleResult
 
 def _axis_noise(x: np.ndarray) -> np.ndarray:
-    """White-noise sigma of each axis from second differences of consecutive samples, shape (3,)."""
-    d = x[:-2] - 2.0 * x[1:-1] + x[2:]
-    return np.asarray(robust_sigma(d)) / np.sqrt(6.0)
+    """White-noise sigma of each axis from second differences of consecutive samples, shape (3,),
+    Sheppard's on integer codes (:func:`calibrate.noise.second_difference_sigma`)."""
+    return np.asarray(second_difference_sigma(second_differences(x), lattice_step(x)), dtype=float)
 
 
 def _noise_floor(x: np.ndarray) -> float:

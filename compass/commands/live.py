@@ -20,8 +20,8 @@ from ._port import open_reader, port_unavailable, stop_when_asked
 def register(sub) -> None:
     p = sub.add_parser(
         "live", help="live attitude from a compass module on a serial port (Kalman filter, optional Rerun)",
-        description="Read a compass module speaking the line protocol (README: 'Live attitude'), fuse with a Kalman "
-                    "filter that rejects magnetic disturbances, and show heading/pitch/roll live.")
+        description="Read a compass module speaking the line protocol (docs/runtime.md: 'Line protocol'), fuse "
+                    "with a Kalman filter that rejects magnetic disturbances, and show heading/pitch/roll live.")
     p.add_argument("--port", required=True,
                    help="serial device (/dev/ttyUSB0, COM3) or pyserial URL (socket://host:port, rfc2217://...)")
     p.add_argument("--cal", help="calibration JSON (compass calibrate) of the module's sensor (required unless "

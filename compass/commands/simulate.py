@@ -8,7 +8,7 @@ are imported when a kind runs, not when the parser is built.
 from __future__ import annotations
 
 SIM_EFFECTS = ("nonlinear_response", "encoder_error", "offset_drift", "platform_field", "flip_error", "temperature",
-               "field_gradient")
+               "field_gradient", "gain_drift")
 """The four-flip simulator's effects (``compass.sim.fourflip.SIM_EFFECTS``, checked equal in the tests)."""
 
 

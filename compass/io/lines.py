@@ -1,4 +1,4 @@
-"""The ASCII line protocol of a compass module on a serial line (README, "Live attitude").
+"""The ASCII line protocol of a compass module on a serial line (docs/runtime.md, "Line protocol").
 
 A module sends text lines; ``\\n``, ``\\r\\n`` and a lone ``\\r`` all end a line, and spaces
 around cells are ignored.
