@@ -299,7 +299,8 @@ def run_pipeline(trial, model=None, *, gate: bool = True, hard_iron: bool = True
     if hard_iron:
         track = track_hard_iron(field, trial.accel_m_s2, trial.rate_hz, dip_deg=dip_deg)
         field = track.corrected(field)
-    out = run_filter(trial.t_s, trial.accel_m_s2, trial.gyro_rad_s, field, config)
+    # the reference measured above (the trial's rest, the calibration's dip), not re-seeded by the filter's start
+    out = run_filter(trial.t_s, trial.accel_m_s2, trial.gyro_rad_s, field, config, reference="config")
     ok = np.all(np.isfinite(out.quat), axis=1)
     quat = np.full((len(field), 4), np.nan)
     quat[ok] = nwu_to_enu(Rotation.from_quat(out.quat[ok])).as_quat(scalar_first=True)

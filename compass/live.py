@@ -16,13 +16,12 @@ from typing import NamedTuple
 import numpy as np
 
 from .calibration import ImuCorrection
-from .filter import AttitudeFilter, Estimate, FilterConfig
+from .filter import AttitudeFilter, Estimate, FilterConfig, FilterStart
 from .io.streams import StreamDecoder, StreamOptions, field_scale_check
-from .sample_check import SKIP_REASONS, skip_codes
 from .serial_reader import Chunk, LinkEvent
-from .site import QuietSeed, upside_down
+from .site import upside_down
 
-__all__ = ["LiveSession", "Reading", "GATE_CODES", "CSV_COLUMNS"]
+__all__ = ["LiveSession", "Reading", "GATE_CODES", "CSV_COLUMNS", "QUATERNION_COLUMNS"]
 
 HINT_MIN_SAMPLES = 50
 """Fewest estimates a closing hint judges."""
@@ -33,14 +32,26 @@ CSV_COLUMNS = ("t_s", "heading_deg", "pitch_deg", "roll_deg", "heading_sigma_deg
                "dip_deg", "mag_used", "gate", "accel_used", "in_range", "latency_ms")
 _CSV_ROW = "%.4f,%.3f,%.3f,%.3f,%.3f,%.3f,%.4f,%.2f,%d,%d,%d,%d,%.3f"
 _TRUE_COLUMNS = ("heading_true_deg", "heading_true_sigma_deg")  # with a site: heading + declination
+QUATERNION_COLUMNS = ("qw", "qx", "qy", "qz")
+"""The attitude quaternion (scalar first, ``R_world<-housing``) a replay's CSV adds (``quaternion=True``)."""
 _LATENCY_WINDOW = 100_000  # samples kept for the latency percentiles
-_ACCEL_WINDOW = 256  # accepted accelerometer magnitudes kept for the typical |a| (any unit)
 UPSIDE_DOWN_SAMPLES = 100
 """Estimates whose median dip is judged against a given reference (compass.site.upside_down)."""
+AXES_ROWS = 2000
+"""Rows (every :data:`AXES_EVERY`-th estimate) the axis check (:func:`compass.axes.check_axes`) judges, once."""
+AXES_EVERY = 5
+
+
+def matrix_quaternion(matrix_rows) -> tuple[float, float, float, float]:
+    """``(w, x, y, z)`` of a rotation given as a row-major 9-tuple, scalar first, ``w >= 0``."""
+    from scipy.spatial.transform import Rotation
+
+    x, y, z, w = Rotation.from_matrix(np.reshape(matrix_rows, (3, 3))).as_quat(canonical=True).tolist()
+    return w, x, y, z
 
 
 class Reading(NamedTuple):
-    """One decoded sample on its way to the filter (held while the reference is seeded).
+    """One decoded sample on its way to the filter (held in the start window).
 
     Attributes
     ----------
@@ -87,8 +98,10 @@ class LiveSession:
     reference : compass.site.ReferenceField, optional
         The site's field (``--site``): the filter's reference |B| and dip, and with its declination
         the true heading (``heading_true_deg`` in the readout and the CSV).  Without it the
-        reference is seeded from the stream's first quiet second (:class:`compass.site.QuietSeed`;
-        those samples are held, then solved), never the calibration bench's.
+        reference is seeded from the stream's first quiet second, never the calibration bench's.
+        Either way the samples of that second are held and then solved: the filter starts from the
+        window (:class:`compass.filter.FilterStart`, the start :func:`compass.filter.run_filter` uses
+        too), never from one row.
     imu : compass.calibration.ImuCorrection, optional
         The calibration's inertial correction (``Calibration.imu``): the module's accelerometer and
         gyro are turned into the model's frame by it (the bench's ``mag_to_accel``, an installed file's
@@ -102,6 +115,9 @@ class LiveSession:
         verdict then names that cause (:func:`compass.site.upside_down`).
     stream : compass.io.streams.StreamOptions, optional
         The stream's format and units (default: found from the first lines, the protocol's units).
+    quaternion : bool
+        The CSV also carries the attitude quaternion ``qw,qx,qy,qz`` (scalar first,
+        ``R_world<-housing``, SPEC section 1; the replay's output).
 
     Attributes
     ----------
@@ -128,10 +144,14 @@ class LiveSession:
     rejected : dict of str to (int, float, float)
         Estimates whose field the gate rejected, by gate: count, sum of ``field_ratio``, sum of
         ``dip_deg`` (for :meth:`closing_hint`).
+    axes : str or None
+        Set when the field-gravity angle of the first :data:`AXES_ROWS` sampled estimates (or of the whole
+        stream, on close) wanders in a way one sign pattern of the field's axes removes: what to
+        negate, in words (said as a warning event); None otherwise.
     skipped : dict of str to int
-        Readings never fused, by reason: the filter's screen (:data:`compass.filter.SKIP_REASONS`:
-        a non-finite or out-of-range sensor part is skipped, the rest of the sample used) and,
-        while the reference is seeded, :func:`compass.sample_check.skip_codes` (the whole sample).
+        Readings never fused, by reason (:data:`compass.filter.SKIP_REASONS`): the filter's screen (a
+        non-finite or out-of-range sensor part is skipped, the rest of the sample used) and, in the
+        start window, :func:`compass.sample_check.skip_codes` (the whole sample).
     """
 
     model: object
@@ -144,8 +164,10 @@ class LiveSession:
     gyro_rad_s_per_unit: float = 1.0
     sign_from_bench: bool = True
     stream: StreamOptions | None = None
+    quaternion: bool = False
     decoder: StreamDecoder = field(init=False)
     turned_over: str | None = None
+    axes: str | None = None
     estimate: Estimate | None = None
     in_range: bool = True
     latencies_s: deque = field(default_factory=lambda: deque(maxlen=_LATENCY_WINDOW))
@@ -154,7 +176,6 @@ class LiveSession:
     unsolved: int = 0
     skipped: dict = field(default_factory=dict)
     rejected: dict = field(default_factory=dict)
-    _accel_norms: deque = field(default_factory=lambda: deque(maxlen=_ACCEL_WINDOW))
     _filter: AttitudeFilter | None = None
     _t0: float | None = None
     _bad_reported: int = 0
@@ -162,8 +183,8 @@ class LiveSession:
     _gate: str = "ok"
     _temp_c: float | None = None
     _header_seen: object = None
-    _seed: QuietSeed | None = None
-    _held: list = field(default_factory=list)
+    _start: FilterStart | None = None
+    _axes_rows: list | None = field(default_factory=list)  # (accel, field) pairs for the axis check; None once judged
     _dips: list | None = None  # measured dips of the first estimates, against a given reference
     _bench_accel: bool | None = None  # the bench's offsets apply to this stream's unit; None: not judged yet
     _last_rx: float = 0.0
@@ -174,13 +195,15 @@ class LiveSession:
             self.config = FilterConfig.from_model(self.model)
         if self.reference is not None:  # the user's reference: check it is not the calibration's field turned over
             self._dips = []
-        if self.reference is None or not np.isfinite(self.reference.field_norm):
-            self._seed = QuietSeed()  # also for a site's |B| in a calibration whose unit is not the uT
-        else:
+        # the site's reference (also one whose |B| is unknown in a calibration's unit that is not the uT: the
+        # start completes it) or, without a site, the stream's own
+        self._start = FilterStart(self.config, self.reference)
+        if self.reference is not None and np.isfinite(self.reference.field_norm):
             self._use_reference(self.reference)
         if self.out is not None:
             self.out.write(f"# gate: {', '.join(f'{v} {k}' for k, v in GATE_CODES.items())}\n"
-                           + ",".join(CSV_COLUMNS + (_TRUE_COLUMNS if self._declination is not None else ())) + "\n")
+                           + ",".join(CSV_COLUMNS + (_TRUE_COLUMNS if self._declination is not None else ())
+                                      + (QUATERNION_COLUMNS if self.quaternion else ())) + "\n")
 
     @property
     def _declination(self):
@@ -216,6 +239,15 @@ class LiveSession:
             self._event("warn", f"line noise: {stats.garbage} garbage and {stats.partial} partial lines so far")
             self._bad_reported, self._bad_reported_at = bad, item.t_rx
 
+    def feed_samples(self, samples: list, t_rx: float) -> None:
+        """Process samples decoded elsewhere (a recording's rows: :func:`compass.replay.replay`), in order;
+        each carries its :class:`~compass.io.lines.Header`, and ``t_rx`` stands for their arrival time."""
+        if self._t0 is None:
+            self._t0 = t_rx
+        self.decoder.stats.samples += len(samples)
+        if samples:
+            self._chunk(samples, t_rx)
+
     def _chunk(self, samples: list, t_rx: float) -> None:
         """A chunk's samples: what is not sequential once for all of them (the calibration's field, the
         reference seeding's screen), then each sample through the seeding or the filter."""
@@ -232,12 +264,11 @@ class LiveSession:
             gyro = None if gyro is None else imu.rotate(gyro)
             readings.append(Reading(sample, accel, gyro, fields[k], field_rows[k], in_range[k],
                                     t_rx if sample.t_rx is None else sample.t_rx))  # its arrival, if the decoder held it
-        codes = self._seed_codes(readings, fields) if self._seed is not None else None
-        for k, reading in enumerate(readings):
-            if self._seed is not None and reading.sample.header.accel is not None:
+        for reading in readings:
+            if self._start is not None and reading.sample.header.accel is not None:
                 # without an accelerometer there is no attitude, and nothing to seed the reference from: the
                 # filter is made at once and says so (holding the samples would grow without end)
-                self._seeding(reading, codes[k])
+                self._starting(reading)
             else:
                 self._sample(reading)
 
@@ -275,35 +306,25 @@ class LiveSession:
             fields[known], in_range[known] = self.model.field(raw[known], np.array(temps, dtype=float)[known])
         return fields, in_range
 
-    def _seed_codes(self, readings: list, fields: np.ndarray) -> list:
-        """While the reference is being seeded (before any filter sees the samples): per sample, 0 or the
-        :func:`compass.sample_check.skip_codes` reason it must not enter the reference (the filter screens the
-        later ones).  One call for the chunk, with the typical |a| of the samples accepted before it."""
-        scale = float(np.median(self._accel_norms)) if len(self._accel_norms) >= 8 else None
-        nan3 = (np.nan,) * 3
-        accel = np.array([nan3 if r.accel is None else r.accel for r in readings], dtype=float)
-        gyro = np.array([nan3 if r.gyro is None else r.gyro for r in readings], dtype=float)
-        return skip_codes(fields, self.config.field_norm, accel, scale, gyro).tolist()
+    def _starting(self, reading: Reading) -> None:
+        """Hold a sample in the start window (:class:`compass.filter.FilterStart`); start when it is complete."""
+        sample = reading.sample
+        t_s = sample.t_s if sample.t_s is not None else reading.t_rx - self._t0
+        reason = self._start.add(reading, t_s, reading.accel, reading.gyro, reading.field_h)
+        if reason is not None:
+            self._count_skip(reason)
+        elif self._start.done:
+            self._started()
 
-    def _seeding(self, reading: Reading, code: int) -> None:
-        """Hold samples until the first quiet second gives the reference, then solve them."""
-        sample, accel, field_h, t_rx = reading.sample, reading.accel, reading.field_h, reading.t_rx
-        if code:
-            self._count_skip(SKIP_REASONS[code])
-            return
-        if accel is not None:
-            self._accel_norms.append(math.hypot(*accel))  # screened above: finite, not absurd
-        self._held.append(reading)
-        t_s = sample.t_s if sample.t_s is not None else t_rx - self._t0
-        reference = self._seed.add(t_s, accel, field_h)
-        if reference is not None:
-            self._seeded(reference)
-
-    def _seeded(self, reference) -> None:
-        """The reference is known: use it and solve the samples held for it."""
-        self._seed = None
-        self._use_reference(reference if self.reference is None else self.reference.complete(reference))
-        held, self._held = self._held, []
+    def _started(self) -> None:
+        """The start window is complete: its reference, the filter it starts, the held samples solved."""
+        start, self._start = self._start, None
+        if start.values.reference is not self.reference:  # not the site's, already in use
+            self._use_reference(start.values.reference)
+        held = start.take_held()
+        header = held[0].sample.header
+        self._filter = start.make_filter(header.gyro is not None, self.config)
+        self._filter_event(self._filter, header)
         for held_reading in held:
             self._sample(held_reading, held=True)
 
@@ -313,8 +334,7 @@ class LiveSession:
         header = sample.header  # its own: a header later in the same chunk may have replaced the decoder's
         if self._filter is None or self._filter.gyro != (header.gyro is not None):
             self._filter = AttitudeFilter(self.config, gyro=header.gyro is not None)
-            self._event("info", f"filter: {'gyro (error-state EKF with bias)' if self._filter.gyro else 'two-vector'}"
-                                f"{'' if header.accel is not None else '; no accelerometer: no attitude'}")
+            self._filter_event(self._filter, header)
         effect = self.model.temperature
         if effect is not None and header is not self._header_seen:
             self._header_seen = header
@@ -338,6 +358,10 @@ class LiveSession:
             return
         self.estimate, self.in_range = est, in_range
         self.samples += 1
+        if self._axes_rows is not None and accel is not None and self.samples % AXES_EVERY == 0:
+            self._axes_rows.append((*accel, *field_row))
+            if len(self._axes_rows) >= AXES_ROWS:
+                self._judge_axes()
         if self._dips is not None and accel is not None:
             self._dips.append(est.dip_deg)
             if len(self._dips) >= UPSIDE_DOWN_SAMPLES:
@@ -359,13 +383,35 @@ class LiveSession:
             row = _CSV_ROW % (t_s, est.heading_deg, est.pitch_deg, est.roll_deg, est.heading_sigma_deg,
                               est.tilt_sigma_deg, est.field_ratio, est.dip_deg, est.mag_used,
                               GATE_CODES[est.gate], est.accel_used, in_range, 1e3 * latency)
-            self.out.write(row + "\n" if true is None else row + (",%.3f,%.3f\n" % true))
+            if true is not None:
+                row += ",%.3f,%.3f" % true
+            if self.quaternion:
+                row += ",%.9f,%.9f,%.9f,%.9f" % matrix_quaternion(est.matrix_rows)
+            self.out.write(row + "\n")
         if self.sink is not None:
             self.sink.log(t_s, self.samples, est, field_h / self.config.field_norm, accel, raw=sample.raw,
                           gyro=gyro, gate_code=GATE_CODES[est.gate], in_range=in_range,
                           latency_ms=1e3 * latency, **({} if true is None else {"true_heading": true}))
         if not held:
             self.output_latencies_s.append(time.perf_counter() - t_rx)
+
+    def _filter_event(self, filt: AttitudeFilter, header) -> None:
+        self._event("info", f"filter: {'gyro (error-state EKF with bias)' if filt.gyro else 'two-vector'}"
+                            f"{'' if header.accel is not None else '; no accelerometer: no attitude'}")
+
+    def _judge_axes(self) -> None:
+        """The sampled estimates' field-gravity angle against the sign patterns of the field's axes (once)."""
+        from .axes import check_axes
+
+        rows, self._axes_rows = np.array(self._axes_rows, dtype=float), None
+        if len(rows) == 0:
+            return
+        channels = tuple(self.model.channels)
+        names = channels if len(channels) == 3 else ("the field's x", "the field's y", "the field's z")
+        verdict = check_axes(rows[:, :3], rows[:, 3:], names=names)
+        if verdict is not None:
+            self.axes = verdict.text
+            self._event("warn", verdict.text)
 
     def _judge_turn(self) -> None:
         """The measured dips so far against the given reference: :attr:`turned_over` (once)."""
@@ -396,7 +442,7 @@ class LiveSession:
         tail = f"{rate_hz:6.1f} Hz  dropped {stats.dropped}  [{self.decoder.describe()}]"
         est = self.estimate
         if est is None:
-            what = "the first quiet second (the site's field)" if self._seed is not None and self._held else "samples"
+            what = "the first quiet second (the start)" if self._start is not None and self._start.held else "samples"
             return f"waiting for {what} ({stats.samples} decoded, {stats.unheaded} before a header)  {tail}"
         flags = [name for name, on in (("MAG-REJECTED:" + est.gate, not est.mag_used),
                                        ("ACCEL-SKIPPED", not est.accel_used), ("OUT-OF-RANGE", not self.in_range)) if on]
@@ -455,19 +501,19 @@ class LiveSession:
         over; otherwise it is discarded, so a session that never started leaves no empty ``.rrd`` behind
         and an existing file stays as it was.
         A stream that ended before its first quiet second has its held samples solved against the
-        reference their rows give (:meth:`compass.site.QuietSeed.finish`), if ten of them do.
+        reference their rows give (:meth:`compass.filter.FilterStart.finish`), if ten of them do.
         """
         samples = self.decoder.flush()  # held for the unit check: judged on what came
         if samples:
             self._chunk(samples, self._last_rx)
         for level, text in self.decoder.drain_events():
             self._event(level, text)
-        if self._seed is not None and self._held:
-            reference = self._seed.finish()
-            if reference is not None:
-                self._seeded(reference)
+        if self._start is not None and self._start.held and self._start.finish():
+            self._started()
         if self._dips:  # a stream shorter than the check: judged on what it gave
             self._judge_turn()
+        if self._axes_rows:
+            self._judge_axes()
         if self.sink is not None:  # a field turned over gives wrong headings: not kept
             self.sink.close() if self.samples > 0 and self.turned_over is None else self.sink.discard()
         if self.out is not None:

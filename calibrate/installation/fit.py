@@ -14,8 +14,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from compass.axes import check_axes
 from compass.installed import SOFT_IRON_ENTRIES, installed_model, soft_iron_basis
 from compass.calibration import header, to_dict
+from compass.io.units import note
 from compass.model import SensorModel
 
 from ..contract import Calibration, Calibrator, CannotCalibrate
@@ -301,6 +303,7 @@ class InstallationCalibrator(Calibrator):
             heading_ref = heading_ref - declination
         u = rec.accel / a_norm[:, None]
         used, outside, fitted_outside = _rows_to_fit(quiet, in_range, b, u)
+        _check_axes(rec.path, rec.accel[used], b[used], base.channels, site)
         rows = Rows(b[used], u[used], sigma_b, sigma_b / float(np.median(np.linalg.norm(b[used], axis=1))),
                     self.accel_noise_g, None if heading_ref is None else heading_ref[used], {},
                     prior_hard_iron(base.field_ut))
@@ -320,6 +323,19 @@ class InstallationCalibrator(Calibrator):
                                           t_s=None if rec.t_s is None else rec.t_s[used], temp_c=temp_c)
         outside = (int(np.sum(outside)), fitted_outside, _linear_beyond(base, rec.raw[used], temp_c))
         return _result(rec, diagnosis, used, outside, priors, base, base_document, site)
+
+
+def _check_axes(path, accel: np.ndarray, field_h: np.ndarray, channels, site) -> None:
+    """A left-handed magnetometer-accelerometer pair (:func:`compass.axes.check_axes`): refused when the site
+    says which way the field points, else a warning naming the axis to negate."""
+    names = tuple(channels) if len(channels) == 3 else ("the field's x", "the field's y", "the field's z")
+    verdict = check_axes(accel, field_h, site_dip_deg=None if site is None else site.field().dip_deg, names=names,
+                         note_upward=True)
+    if verdict is None:
+        return
+    if site is not None:
+        raise CannotCalibrate(f"{path}: {verdict.text}")
+    note(f"{path}: {verdict.text}")
 
 
 def _rows_to_fit(quiet: np.ndarray, in_range: np.ndarray, b: np.ndarray, u: np.ndarray):

@@ -7,12 +7,14 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from compass.axes import check_axes
 from compass.io.tumble import TumbleRecording
 
 from ..contract import Calibrator, CannotCalibrate, metadata_field_ut
 from ..health import AXIS_TOLERANCE_DEG, DEAD_SIGMAS, ChannelHealth, check_channels
 from ..health import to_json as health_json
 from ..noise import lattice_step, second_difference_sigma, second_differences
+from ..site_field import compare_with_site
 from .alignment import MAX_ANGLE_WIDENING, field_gravity_angles, fit_misalignment, refine_jointly, static_mask
 from .diagnosis import UNEXPLAINED_WARNING, diagnose_tumble
 from .ellipsoid import fit_ellipsoid
@@ -81,7 +83,7 @@ def channel_health(result: TumbleResult, mag: np.ndarray) -> list[ChannelHealth]
 
 def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, ellipsoid: str = "auto",
                      field_ut: float | None = None, n_repeats: int = 0, t_s: np.ndarray | None = None,
-                     temp_c: np.ndarray | None = None) -> TumbleResult:
+                     temp_c: np.ndarray | None = None, site_dip_deg: float | None = None) -> TumbleResult:
     """Calibrate hard and soft iron (and the magnetometer-accelerometer rotation) from a tumble.
 
     Parameters
@@ -99,13 +101,17 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, ellips
     t_s, temp_c : ndarray, shape (n,), optional
         Time (s) and sensor temperature (degC) of each sample: the residual diagnosis then
         examines a drifting and a temperature-dependent hard iron too.
+    site_dip_deg : float, optional
+        The site's dip (the recording's site metadata): a field pointing the other way is refused.
 
     Returns
     -------
     TumbleResult
         Refused (``refused`` says why) when every kind is degenerate, or when the residual
         diagnosis leaves structure in |m| unexplained and, with an accelerometer, the calibrated
-        field agrees worse with gravity than the raw readings (:func:`_widening`).
+        field agrees worse with gravity than the raw readings (:func:`_widening`), or when the
+        magnetometer's axes are left-handed against the accelerometer's and the site says which way
+        the field points (:func:`compass.axes.check_axes`; without a site it is a warning naming the axis).
 
     Examples
     --------
@@ -165,6 +171,15 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, ellips
             chosen = diagnosis.fit
         else:
             warnings.append("fewer than 20 quasi-static samples: no magnetometer-accelerometer alignment, no dip")
+        keep = chosen.inliers
+        axes = check_axes(accel[keep], chosen.calibrated(mag[keep]), site_dip_deg=site_dip_deg, note_upward=True,
+                          rotation=None if misalignment is None or misalignment.rotation is None
+                          else misalignment.rotation.as_matrix())
+        if axes is not None:
+            if site_dip_deg is not None:
+                return TumbleResult(chosen, candidates, coverage, misalignment, field_ut, noise, len(mag), n_repeats,
+                                    tuple(warnings + [axes.text]), axes.text, diagnosis)
+            warnings.append(axes.text)
     # the field changed partway: structure in |m| that no effect explains, and gravity agrees less with the result
     changed = diagnosis.block["unexplained"] and misalignment is not None
     refused = _widening(raw, accel, chosen.calibrated(mag), misalignment.rotation) if changed else ""
@@ -221,8 +236,10 @@ class TumbleCalibrator(Calibrator):
         field_ut = self.field_ut if self.field_ut is not None else metadata_field_ut(recording.path,
                                                                                       recording.metadata)
         require_varying_axes(recording.path, recording.mag)
+        site = compare_with_site(0.0, None, recording.metadata, recording.path)
         result = calibrate_tumble(recording.mag, recording.accel, ellipsoid=self.ellipsoid, field_ut=field_ut,
-                                  n_repeats=recording.n_repeats, t_s=recording.t_s, temp_c=recording.temp_c)
+                                  n_repeats=recording.n_repeats, t_s=recording.t_s, temp_c=recording.temp_c,
+                                  site_dip_deg=None if site is None else site["model_dip_deg"])
         if result.refused:
             raise CannotCalibrate(f"{recording.path}: {result.refused}")
         health = channel_health(result, recording.mag)

@@ -33,6 +33,13 @@ def register(sub) -> None:
     p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day of the recording (default today, UTC)")
     p.add_argument("--accel-noise-g", type=float, default=0.002,
                    help="accelerometer white noise per axis as a fraction of 1 g (default 0.002)")
+    p.add_argument("--filter", action="store_true",
+                   help="run compass live's pipeline over the recording (needs t_s and ax,ay,az; gx,gy,gz used when "
+                        "present): the same start, gate and Kalman filter, the columns of live --out plus the "
+                        "quaternion qw,qx,qy,qz (R_world<-housing); instead of solving each row alone")
+    p.add_argument("--gravity", type=float, metavar="G",
+                   help="with --filter: what 1 g reads in the accelerometer's unit (default: the median |a| of the "
+                        "recording's first quiet second)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output file")
     add_rerun_option(p)
     add_read_arguments(p)
@@ -44,6 +51,16 @@ def run(args) -> int:
 
     if args.date is not None and args.site is None:
         raise BadInput("--date needs --site LAT,LON[,ALT_M]: the date only chooses the field at a site")
+    if args.filter:
+        from ..replay import replay_file
+
+        if args.level:
+            raise BadInput("--level cannot go with --filter: the filter needs the accelerometer's tilt")
+        replay_file(args.calibration, args.recording, args.out, site=args.site, date=args.date, gravity=args.gravity,
+                    force=args.force, rerun=args.rerun, read_options=ReadOptions.from_args(args))
+        return 0
+    if args.gravity is not None:
+        raise BadInput("--gravity goes with --filter (the per-row solution normalises each accelerometer row)")
     attitude_file(args.calibration, args.recording, args.out, level=args.level, max_tilt_deg=args.max_tilt_deg,
                   accel_noise_g=args.accel_noise_g, force=args.force, site=args.site, date=args.date, rerun=args.rerun,
                   read_options=ReadOptions.from_args(args))

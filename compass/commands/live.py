@@ -10,6 +10,7 @@ with the dropped-line count printed.
 from __future__ import annotations
 
 import contextlib
+from dataclasses import replace
 import sys
 import time
 
@@ -34,6 +35,9 @@ def register(sub) -> None:
                    help="where the module is (degrees, metres): reference field and true north from the World "
                         "Magnetic Model (default: the field of the first quiet second, magnetic heading only)")
     p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day (default today, UTC)")
+    p.add_argument("--gravity", type=float, metavar="G",
+                   help="what 1 g reads in the module's accelerometer unit (default: the median |a| of the first "
+                        "quiet second)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C)")
     p.add_argument("--wait", type=float, default=0.0, metavar="S",
@@ -63,10 +67,15 @@ def run(args) -> int:
         return run_tumble(args)
     if args.cal is None:
         raise BadInput("--cal CAL.json is required (or --calibrate tumble to make one)")
+    if args.gravity is not None and not (args.gravity > 0 and args.gravity < float("inf")):
+        raise BadInput(f"--gravity must be a positive number (what 1 g reads in the accelerometer's unit), got "
+                       f"{args.gravity}")
     try:
         cal = load(args.cal)
         model = cal.model
         config = FilterConfig.from_model(model)
+        if args.gravity is not None:
+            config = replace(config, gravity=args.gravity)
     except ValueError as exc:
         raise BadInput(f"{args.cal}: {exc}" if args.cal not in str(exc) else str(exc)) from None
     reference = _site_reference(args, model)

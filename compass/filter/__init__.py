@@ -100,8 +100,9 @@ from ._gate import GateState, MagneticGate
 from ._gyro import GyroFilter, GyroState
 from ._records import SKIP_REASONS, Diagnostics, Estimate, FilterCoefficients, FilterConfig, SkipCounts
 from ._run import FilterTrack, reference_field, run_filter
+from ._start import FilterStart, StartValues
 from ._two_vector import TwoVectorFilter, TwoVectorState
 
 __all__ = ["FilterConfig", "FilterCoefficients", "Estimate", "Diagnostics", "SkipCounts", "SKIP_REASONS",
            "AttitudeFilter", "GyroFilter", "GyroState", "TwoVectorFilter", "TwoVectorState", "MagneticGate",
-           "GateState", "FilterTrack", "run_filter", "reference_field"]
+           "GateState", "FilterTrack", "run_filter", "reference_field", "FilterStart", "StartValues"]

@@ -116,7 +116,35 @@ class AttitudeFilter:
     def reset(self) -> None:
         """Back to the initial state (no attitude, the configured reference field, zero bias)."""
         self._s = self._initial_state()
+        self._prime = None
         self._bind()
+
+    def prime(self, gravity: float | None, up_h, field_h) -> None:
+        """Start values from a window of samples (:class:`~compass.filter.FilterStart`), not the first row.
+
+        Parameters
+        ----------
+        gravity : float or None
+            |a| that 1 g reads, accelerometer units (ignored when ``config.gravity`` is set; None:
+            learnt from the first sample as without a window).
+        up_h : array_like, shape (3,), or None
+            Unit up direction in H at the next sample.
+        field_h : array_like, shape (3,), or None
+            Field in H at the next sample, field units.  With ``up_h`` it gives the first attitude
+            (and the gyro filter's inertial low-pass its start); a later restart after a gap starts
+            from its own row.
+        """
+        if gravity is not None and self.config.gravity is None:
+            if not (math.isfinite(gravity) and gravity > 0):
+                raise ValueError(f"gravity must be a positive number, got {gravity!r}")
+            self._s.gravity = float(gravity)
+        if up_h is None or field_h is None:
+            self._prime = None
+            return
+        up, field = tuple(float(v) for v in up_h), tuple(float(v) for v in field_h)
+        if not (all(map(math.isfinite, up + field)) and any(up) and any(field)):
+            raise ValueError(f"the start's up and field directions must be finite and non-zero, got {up} and {field}")
+        self._prime = (up, field)
 
     @property
     def state(self):
@@ -252,7 +280,12 @@ class AttitudeFilter:
         if s.matrix is None:
             if a is None or b is None or b[3] == 0.0:
                 return None
-            self._start(a, b)
+            if self._prime is not None:  # the window's up and field, not this one row's
+                (ux, uy, uz), (fx, fy, fz) = self._prime
+                self._prime, g = None, s.gravity
+                self._start((g * ux, g * uy, g * uz, g * g), (fx, fy, fz, fx * fx + fy * fy + fz * fz))
+            else:
+                self._start(a, b)
             dt = 0.0
         return t_s, dt, a, b
 

@@ -61,6 +61,8 @@ class GyroState(PackedCovariance):
     skipped : SkipCounts
     diagnostics : Diagnostics
         The latest sample's.
+    since_start_s : float
+        Time since the attitude (re)started, s: the bias is held for ``accel_time_constant_s``.
     """
 
     t_s: float | None
@@ -80,6 +82,7 @@ class GyroState(PackedCovariance):
     gate: GateState
     skipped: SkipCounts = field(default_factory=SkipCounts)
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
+    since_start_s: float = 0.0
 
 
 class GyroFilter(AttitudeFilter):
@@ -118,6 +121,7 @@ class GyroFilter(AttitudeFilter):
         d = self._s.diagnostics
         if dt > 0.0:
             self._propagate(dt)
+            self._s.since_start_s += dt
         if a is not None:
             if dt > 0.0:
                 self._rest(dt, a)
@@ -144,6 +148,7 @@ class GyroFilter(AttitudeFilter):
         s.acc_lp_age_s = 0.0
         s.residual_var = 0.0
         s.rest_gyro, s.rest_acc, s.rest_s = s.rate_rad_s, a[:3], 0.0
+        s.since_start_s = 0.0
 
     def _restart_accel(self, a) -> None:
         s = self._s
@@ -235,8 +240,11 @@ class GyroFilter(AttitudeFilter):
         d0 = m[0] * ux + m[1] * uy + m[2] * uz  # R u - z, x and y
         d1 = m[3] * ux + m[4] * uy + m[5] * uz
         age = s.acc_lp_age_s
+        # the bias is held (not estimated from the tilt) while the low-pass still carries its start: a start
+        # error leaving it would otherwise pass for a turn the gyro did not read, i.e. for a bias
+        hold = cfg.start_bias_hold and s.since_start_s < cfg.accel_time_constant_s
         s.covariance = update_tilt(s.covariance, self._x, (-age * m[3], -age * m[4], -age * m[5]), d0,
-                                   (age * m[0], age * m[1], age * m[2]), d1, var)
+                                   (age * m[0], age * m[1], age * m[2]), d1, var, hold)
         return True
 
     def _heading(self, t_s: float, dt: float, b) -> None:

@@ -111,7 +111,7 @@ def update_axis(p: tuple, x: list, i: int, z: float, var: float) -> tuple:
     return _downdate(p, x, c, c[i] + var, z - x[i])
 
 
-def update_tilt(p: tuple, x: list, w: tuple, z0: float, v: tuple, z1: float, var: float) -> tuple:
+def update_tilt(p: tuple, x: list, w: tuple, z0: float, v: tuple, z1: float, var: float, hold_bias: bool = False) -> tuple:
     """The gyro filter's two tilt rows, one after the other: scalar measurements ``z = h . x_true + n``
     with ``h = (0, -1, 0, w)`` and ``z0``, then ``h = (1, 0, 0, v)`` and ``z1``, both with ``var n = var``.
 
@@ -119,6 +119,10 @@ def update_tilt(p: tuple, x: list, w: tuple, z0: float, v: tuple, z1: float, var
     covariance is returned.  Written out with the covariance in local variables (unpacked and packed
     once), without the products with 0 and 1; the downdate is written twice on purpose (a helper
     would pack and unpack the 21 floats between the rows, a third of the cost).
+
+    ``hold_bias``: the bias states (3-5) are *considered*, not estimated (Schmidt-Kalman): their
+    gains are zero, so neither they nor their variances change, while their uncertainty still widens
+    the tilt states' (``P - K_a (H P)`` with ``K_b = 0``).
     """
     (p00, p01, p02, p03, p04, p05, p11, p12, p13, p14, p15, p22, p23, p24, p25,
      p33, p34, p35, p44, p45, p55) = p
@@ -135,6 +139,8 @@ def update_tilt(p: tuple, x: list, w: tuple, z0: float, v: tuple, z1: float, var
     nu = z0 - (-x1 + x3 * h3 + x4 * h4 + x5 * h5)
     inv = 1.0 / s
     k0, k1, k2, k3, k4, k5 = c0 * inv, c1 * inv, c2 * inv, c3 * inv, c4 * inv, c5 * inv
+    if hold_bias:
+        k3 = k4 = k5 = 0.0
     x0 += k0 * nu
     x1 += k1 * nu
     x2 += k2 * nu
@@ -159,6 +165,8 @@ def update_tilt(p: tuple, x: list, w: tuple, z0: float, v: tuple, z1: float, var
     nu = z1 - (x0 + x3 * h3 + x4 * h4 + x5 * h5)
     inv = 1.0 / s
     k0, k1, k2, k3, k4, k5 = c0 * inv, c1 * inv, c2 * inv, c3 * inv, c4 * inv, c5 * inv
+    if hold_bias:
+        k3 = k4 = k5 = 0.0
     x0 += k0 * nu
     x1 += k1 * nu
     x2 += k2 * nu

@@ -28,9 +28,11 @@ class FilterConfig:
     Attributes
     ----------
     field_norm : float
-        Reference |B|, field units (the unit of ``field_h``).
+        Reference |B|, field units (the unit of ``field_h``).  Under :class:`FilterStart`
+        (:func:`run_filter`, ``compass live``) it only screens absurd fields until the reference is
+        seeded from the stream, unless the reference is given.
     dip_deg : float
-        Reference dip, degrees (> 0: field points down).
+        Reference dip, degrees (> 0: field points down); as ``field_norm``.
     mag_noise : float
         White noise of each field component, field units, per sample.
     accel_noise : float
@@ -68,8 +70,10 @@ class FilterConfig:
         Without gyro: correlation time of the angular rate (a first-order Gauss-Markov rate, so a
         heading coasts to a stop while the field is rejected), seconds.
     gravity : float or None
-        |a| at rest in the accelerometer's unit; None learns it from the samples (first sample,
-        then the average at rest).
+        |a| at rest in the accelerometer's unit (``--gravity``: what 1 g reads); None learns it from
+        the samples (the start window's median |a| under :class:`FilterStart`, as :func:`run_filter`
+        and ``compass live`` start; a bare :class:`AttitudeFilter` the first sample's; then the
+        average at rest).
     accel_tolerance : float
         Use the (low-passed) accelerometer only while ``| |a| / gravity - 1 |`` is below this.
     field_tolerance : float
@@ -106,6 +110,12 @@ class FilterConfig:
     field_error_from_dip : bool
         The field's heading error is measured from the wander of its dip (False: the floor
         ``mag_heading_sigma_deg`` only).
+    start_bias_hold : bool
+        The gyro filter holds its bias (does not estimate it from the tilt: a Schmidt update) for
+        ``accel_time_constant_s`` after the start, while the inertial low-pass still carries its start
+        (False: from the first sample, as before issue 22).  Holding it until the tilt sigma fell below
+        a degree was tried and rejected: in motion that never happens, and the bias was never learnt
+        (tools/bench_replay.py, simulated slow rotation from the first sample: 4.2 deg inclination).
     """
 
     field_norm: float
@@ -138,6 +148,7 @@ class FilterConfig:
     rest_bias_estimation: bool = True
     motion_adaptive_accel: bool = True
     field_error_from_dip: bool = True
+    start_bias_hold: bool = True
 
     def __post_init__(self):
         for f in fields(self):

@@ -10,8 +10,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..frames import heading_pitch_roll
-from ._base import AttitudeFilter
-from ._records import FilterConfig, SkipCounts
+from ._records import SKIP_REASONS, FilterConfig, SkipCounts
+from ._start import FilterStart
 
 __all__ = ["FilterTrack", "run_filter", "reference_field"]
 
@@ -52,8 +52,14 @@ class FilterTrack:
     skipped: SkipCounts
 
 
-def run_filter(t_s, accel, gyro, field_h, config: FilterConfig) -> FilterTrack:
-    """Run the filter causally over recorded arrays, on its public per-sample :meth:`~AttitudeFilter.update`.
+def run_filter(t_s, accel, gyro, field_h, config: FilterConfig, *, reference=None) -> FilterTrack:
+    """Run the filter causally over recorded arrays, as ``compass live`` runs it.
+
+    The start is :class:`FilterStart`'s, the one ``compass live`` and the replay use: the first
+    samples are held until the stream's first quiet second gives the reference field (unless one is
+    given), gravity's size and the first attitude, then run through the filter's public per-sample
+    :meth:`~AttitudeFilter.update` like every later sample.  On the same samples the attitudes are
+    those of :class:`compass.live.LiveSession` (tested).
 
     Parameters
     ----------
@@ -66,6 +72,11 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig) -> FilterTrack:
     field_h : array_like, shape (n, 3)
         Field in H, field units.
     config : FilterConfig
+        Its ``field_norm`` and ``dip_deg`` (e.g. :meth:`FilterConfig.from_model`'s, the bench's) only
+        screen absurd fields until the reference is seeded: the bench's field is not the user's.
+    reference : compass.site.ReferenceField or "config", optional
+        The reference field when it is known (a site: :func:`compass.site.reference_from_site`;
+        ``"config"``: the config's ``field_norm`` and ``dip_deg``); None seeds it from the recording.
 
     Returns
     -------
@@ -81,7 +92,15 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig) -> FilterTrack:
         gyro = np.asarray(gyro, dtype=float)
         if gyro.shape != (n, 3):
             raise ValueError(f"expected gyro of shape ({n}, 3), got {gyro.shape}")
-    filt = AttitudeFilter(config, gyro=gyro is not None)
+    if isinstance(reference, str):
+        if reference != "config":
+            raise ValueError(f"reference must be a ReferenceField, 'config' or None, got {reference!r}")
+        from ..site import known_reference
+
+        reference = known_reference(config.dip_deg, config.field_norm)
+    start = FilterStart(config, reference)
+    start_skips = SkipCounts()
+    filt = None
     # per sample with an attitude: its index, the matrix (9), heading, tilt and field heading variance,
     # field ratio, dip, mag_used, accel_used (7), the gyro bias (3); flat float buffers, no per-sample object
     # kept (57,000 kept tuples cost more in the garbage collector and in np.array than the filter's arithmetic)
@@ -91,10 +110,11 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig) -> FilterTrack:
     # vectors are short-lived tuples (57,000 kept lists of three would slow the garbage collector)
     rows = zip(t_s.tolist(), zip(*accel.T.tolist()), repeat(None) if gyro is None else zip(*gyro.T.tolist()),
                zip(*field_h.T.tolist()))
-    update, d, with_bias = filt.update, filt.diagnostics, gyro is not None
-    for i, (t, a, g, b) in enumerate(rows):
+    with_bias = gyro is not None
+
+    def record(i, t, a, g, b):
         if not update(t, a, g, b):
-            continue
+            return
         done.append(i)
         matrices.extend(filt.matrix)
         scalars.extend((filt.heading_var, filt.tilt_var, filt.field_heading_var, d.field_ratio, d.dip_deg,
@@ -102,6 +122,36 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig) -> FilterTrack:
         gate[i] = d.gate
         if with_bias:
             bias.extend(filt.gyro_bias)
+
+    def begin():
+        """The filter from the start window, and the held samples through it."""
+        nonlocal filt, update, d
+        filt = start.make_filter(gyro is not None)
+        for name in SKIP_REASONS:  # what the start skipped counts with the filter's own skips
+            for _ in range(getattr(start_skips, name.replace(" ", "_"))):
+                filt.skipped.count(name)
+        update, d = filt.update, filt.diagnostics
+        for j in start.take_held():
+            record(j, t_s[j].item(), tuple(accel[j].tolist()), None if gyro is None else tuple(gyro[j].tolist()),
+                   tuple(field_h[j].tolist()))
+
+    update = d = None
+    for i, (t, a, g, b) in enumerate(rows):
+        if filt is not None:
+            record(i, t, a, g, b)
+            continue
+        reason = start.add(i, t, a, g, b)
+        if reason is not None:
+            start_skips.count(reason)
+        if start.done:
+            begin()
+    if filt is None and start.finish():  # the recording ended inside the start window
+        begin()
+    if filt is None:  # too few rows to seed the reference: nothing fused; the held rows' bad parts counted
+        for j in start.take_held():
+            for name, values in (("gyro", gyro), ("accel", accel), ("field", field_h)):
+                if values is not None and not np.all(np.isfinite(values[j])):
+                    start_skips.count(f"{name} not finite")
     done = np.array(done, dtype=int)
     matrices = _rows(matrices, done, n, 9).reshape(n, 3, 3)
     ok = np.all(np.isfinite(matrices.reshape(n, 9)), axis=1)
@@ -117,7 +167,7 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig) -> FilterTrack:
     sigma = np.degrees(np.sqrt(scalars[:, :3]))
     return FilterTrack(t_s, quat, *angles.T, *sigma.T, scalars[:, 3], scalars[:, 4], flags[:, 0], flags[:, 1],
                        np.array(gate, dtype=str), _rows(bias, done, n, 3) if with_bias else None,
-                       filt.skipped)
+                       start_skips if filt is None else filt.skipped)
 
 
 def _rows(buffer: array, done: np.ndarray, n: int, width: int) -> np.ndarray:

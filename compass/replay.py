@@ -1,0 +1,213 @@
+"""Replay a recording through ``compass live``'s pipeline: the same start, gate and filter, offline.
+
+:func:`replay` feeds recorded arrays to a :class:`compass.live.LiveSession` as decoded samples, so a
+logged session is filtered exactly as it would have been live: the calibration's field, the bench
+accelerometer's correction, the rotation into the model's frame, the start window
+(:class:`compass.filter.FilterStart`: reference field, gravity, first attitude), the gate and the
+filter are the session's own code.  :func:`replay_file` is ``compass attitude CAL REC --out ATT
+--filter``: it reads the files, checks the recording and writes the session's CSV (the columns of
+``compass live --out`` plus the quaternion ``qw,qx,qy,qz``) atomically.
+"""
+
+from __future__ import annotations
+
+import io
+import sys
+import time
+
+import numpy as np
+
+from .io.lines import Header, Sample
+from .live import LiveSession
+
+__all__ = ["replay", "replay_file"]
+
+_CHUNK_ROWS = 4096  # samples handed to the session at once (the pipeline's vectorised parts run per chunk)
+_DEG_S_RATIO = 15.0  # gyro turn / accelerometer turn above this: a deg/s gyro read as rad/s (57)
+
+
+def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *, progress=None) -> LiveSession:
+    """Run recorded samples through a live session, in order; the session is closed at the end.
+
+    Parameters
+    ----------
+    session : LiveSession
+        Made as ``compass live`` makes it (model, reference, ``Calibration.imu``, gyro unit, outputs).
+    t_s : array_like, shape (n,)
+        Sample times, seconds.
+    raw : array_like, shape (n, c)
+        The calibration's channel outputs, in its channel order.
+    accel, gyro : array_like, shape (n, 3), or None
+        Accelerometer (any unit, +up at rest) and gyro (the session's ``gyro_rad_s_per_unit``) in the
+        module's frame, as the module sends them.
+    temp_c : array_like, shape (n,), optional
+        Sensor temperature, degrees Celsius (NaN: not sent in that row).
+    progress : callable, optional
+        ``progress(rows_done, rows)`` after each chunk.
+
+    Returns
+    -------
+    LiveSession
+        ``session``, closed: its ``samples``, ``skipped`` and :meth:`~LiveSession.summary` tell what happened.
+    """
+    t_s = np.asarray(t_s, dtype=float)
+    raw = np.asarray(raw, dtype=float)
+    n, c = raw.shape
+    names = tuple(session.model.channels) + (("ax", "ay", "az") if accel is not None else ()) \
+        + (("gx", "gy", "gz") if gyro is not None else ()) + ("t_s",) + (("temp_c",) if temp_c is not None else ())
+    index = {name: k for k, name in enumerate(names)}
+    header = Header(names, np.arange(c), None if accel is None else np.array([index[a] for a in ("ax", "ay", "az")]),
+                    None if gyro is None else np.array([index[g] for g in ("gx", "gy", "gz")]), index["t_s"], None,
+                    index.get("temp_c"), False, ())
+    accel = None if accel is None else np.asarray(accel, dtype=float)
+    gyro = None if gyro is None else np.asarray(gyro, dtype=float)
+    temps = None if temp_c is None else np.asarray(temp_c, dtype=float)
+    for lo in range(0, n, _CHUNK_ROWS):
+        hi = min(lo + _CHUNK_ROWS, n)
+        samples = [Sample(raw[k], None if accel is None else accel[k], None if gyro is None else gyro[k],
+                          float(t_s[k]), None,
+                          None if temps is None or not np.isfinite(temps[k]) else float(temps[k]), header)
+                   for k in range(lo, hi)]
+        session.feed_samples(samples, time.perf_counter())
+        if progress is not None:
+            progress(hi, n)
+    session.close()
+    return session
+
+
+def replay_file(calibration, recording, out, *, site=None, date=None, gravity=None, force=False, rerun=None,
+                read_options=None, quiet=False) -> LiveSession:
+    """``compass attitude CAL REC --out ATT --filter``: the recording through ``compass live``'s pipeline.
+
+    Parameters
+    ----------
+    calibration, recording, out : path
+    site : str or compass.site.Site, optional
+        ``LAT,LON[,ALT_M]``: the reference field and true north (as ``compass live --site``); default
+        the calibration's site block, else the recording's first quiet second.
+    date : str, optional
+        With ``site``: ``YYYY-MM-DD``.
+    gravity : float, optional
+        What 1 g reads in the accelerometer's unit (after ``--accel-unit``); default: the median |a| of
+        the start window.
+    force : bool
+        Overwrite ``out`` (and ``rerun``).
+    rerun : path or "spawn", optional
+        Also write the session's Rerun recording, as ``compass live --rerun`` does.
+    read_options : compass.io.table.ReadOptions, optional
+    quiet : bool
+        No event lines on stderr.
+
+    Returns
+    -------
+    LiveSession
+        Closed.
+
+    Raises
+    ------
+    BadInput, RecordingError, FileExistsError
+        Bad input (exit status 2 on the command line), in one line naming the file (row, column).
+    """
+    from dataclasses import replace
+
+    from .calibration import load
+    from .errors import BadInput
+    from .filter import FilterConfig
+    from .io.atomic import atomic_write_text, check_writable
+    from .io.table import RecordingError, read_table
+    from .io.units import gyro_turn_ratio
+    from .site import Site, reference_from_site
+    from .viz import check_rerun_target
+
+    out = check_writable(out, force)
+    rerun = check_rerun_target(rerun, force)
+    if gravity is not None and not (np.isfinite(gravity) and gravity > 0):
+        raise BadInput(f"--gravity must be a positive number (what 1 g reads in the accelerometer's unit), got {gravity}")
+    try:
+        if site is not None and not isinstance(site, Site):
+            site = Site.parse(site, date)
+        cal = load(calibration)
+        model = cal.model
+        config = replace(FilterConfig.from_model(model), gravity=gravity)
+    except ValueError as exc:
+        raise BadInput(exc if str(calibration) in str(exc) else f"{calibration}: {exc}") from None
+    source = "site"
+    if site is None and cal.site is not None:
+        site, source = cal.site, "calibration site"
+    try:
+        reference = None if site is None else reference_from_site(
+            site, field_ut=None if model.field_ut is None else 1.0, source=source)
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+
+    table = read_table(recording, read_options)
+    table.ignore_unknown(set(model.channels) | {"t_s", "temp_c", "ax", "ay", "az", "gx", "gy", "gz"},
+                         what=f"{calibration} (its channels: {', '.join(model.channels)})")
+    if not table.has("t_s"):
+        raise RecordingError(table.path, "has no t_s column: the filter needs each sample's time (seconds)",
+                             row=table.header_row, column="t_s")
+    accel, gyro = _group(table, ("ax", "ay", "az")), _group(table, ("gx", "gy", "gz"))
+    if accel is None:
+        raise RecordingError(table.path, "has no ax,ay,az columns: the filter needs an accelerometer for the tilt "
+                                         "(without one: compass attitude --level, no --filter)",
+                             row=table.header_row, column="ax")
+    t_s = table.column("t_s")
+    if gyro is not None:
+        ratio = gyro_turn_ratio(t_s, gyro, accel)
+        named = read_options is not None and read_options.gyro_unit is not None
+        if ratio is not None and ratio > _DEG_S_RATIO and not named:
+            raise RecordingError(table.path, f"the gyro gx,gy,gz read in rad/s turns {ratio:.0f} times more than the "
+                                             "accelerometer sees the housing tilt (a deg/s gyro gives 57): give "
+                                             "--gyro-unit deg/s (or --gyro-unit rad/s if it really is)",
+                                 row=table.header_row, column="gx")
+    raw = np.column_stack([table.column(name) for name in model.channels])
+    temp_c = table.column("temp_c") if table.has("temp_c") else None
+
+    def on_event(level, text):
+        if not quiet:
+            print(f"[{level}] {text}", file=sys.stderr)
+
+    buffer, sink = io.StringIO(), None
+    if rerun is not None:
+        from .viz import RerunSink
+
+        sink = RerunSink.for_model(rerun, model, config)
+    session = LiveSession(model, config=config, out=buffer, sink=sink, on_event=on_event, reference=reference,
+                          imu=cal.imu, sign_from_bench=cal.provenance.hemisphere_assumed, quaternion=True)
+    started, said = time.perf_counter(), [time.perf_counter()]
+
+    def progress(done, rows):  # on stderr, every 2 s of a long replay
+        now = time.perf_counter()
+        if not quiet and now - said[0] >= 2.0:
+            said[0] = now
+            print(f"replaying {recording}: {done} of {rows} rows ({now - started:.0f} s)", file=sys.stderr, flush=True)
+
+    try:
+        replay(session, t_s, raw, accel, gyro, temp_c, progress=progress)
+    except BaseException:
+        if sink is not None:
+            sink.discard()
+        raise
+    if session.turned_over is not None:
+        raise BadInput(f"{calibration}: {session.turned_over}")
+    if session.samples == 0:
+        raise RecordingError(table.path, f"no attitude from its {len(t_s)} rows ({session.summary()})")
+    atomic_write_text(out, buffer.getvalue())
+    print(f"wrote {out} ({session.samples} attitudes from {len(t_s)} rows, filter: "
+          f"{'gyro' if gyro is not None else 'two-vector (no gx,gy,gz)'}; reference field: "
+          f"{session.reference.description})" + (f"\nwrote {rerun}" if rerun is not None and str(rerun) != "spawn" else ""))
+    return session
+
+
+def _group(table, names) -> np.ndarray | None:
+    """The columns ``names`` together, None when all are absent; RecordingError naming a missing one."""
+    from .io.table import RecordingError
+
+    present = [n for n in names if table.has(n)]
+    if not present:
+        return None
+    for name in names:
+        if not table.has(name):
+            raise RecordingError(table.path, f"has {', '.join(present)} but not '{name}': give all of "
+                                             f"{', '.join(names)}", row=table.header_row, column=name)
+    return np.column_stack([table.column(n) for n in names])

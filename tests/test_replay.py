@@ -1,0 +1,237 @@
+"""One pipeline, live or replayed (issue 22): ``compass live``, the replay and ``run_filter`` give the same
+attitudes on the same samples; the filter starts from a window, never from one row."""
+
+import io
+import time
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from compass.cli import main
+from compass.filter import FilterConfig, run_filter
+from compass.io.lines import format_line
+from compass.io.table import format_table, read_table
+from compass.live import LiveSession
+from compass.replay import replay
+from compass.serial_reader import Chunk
+from compass.sim.device import default_model, simulate_device
+
+RATE_HZ = 100.0
+GYRO_BIAS = np.array([0.004, -0.003, 0.002])  # rad/s
+
+
+def wrap(d):
+    return np.mod(np.asarray(d) + 180.0, 360.0) - 180.0
+
+
+@pytest.fixture(scope="module")
+def stream():
+    model = default_model()
+    t = np.arange(0.0, 30.0, 1.0 / RATE_HZ)
+    s = simulate_device(model, t, seed=5, gyro_bias=GYRO_BIAS)
+    return model, t, s
+
+
+def _lines(model, t, s, gyro=True):
+    """The module's byte stream with every value written exactly (repr), so the decoder reads the arrays' floats."""
+    names = ["t_s", *model.channels, "ax", "ay", "az"] + (["gx", "gy", "gz"] if gyro else [])
+    rows = np.column_stack([t, s.raw, s.accel] + ([s.gyro] if gyro else []))
+    return format_line(names) + b"".join(format_line([repr(v) for v in row.tolist()]) for row in rows)
+
+
+def _csv_rows(text):
+    return [line.split(",")[:-5] + line.split(",")[-4:] for line in text.splitlines() if not line.startswith("#")]
+
+
+@pytest.mark.parametrize("gyro", [True, False])
+def test_live_replay_and_run_filter_give_identical_attitudes(stream, gyro):
+    model, t, s = stream
+    live_out, replay_out = io.StringIO(), io.StringIO()
+    live = LiveSession(model, out=live_out, quaternion=True)
+    data = _lines(model, t, s, gyro)
+    for k in range(0, len(data), 997):  # arbitrary chunk boundaries, as a port delivers them
+        live.feed(Chunk(time.perf_counter(), data[k:k + 997]))
+    live.close()
+    replayed = replay(LiveSession(model, out=replay_out, quaternion=True), t, s.raw, s.accel, s.gyro if gyro else None)
+    # the same rows, every column but the latency equal as written
+    assert live.samples == replayed.samples == len(t)
+    assert _csv_rows(live_out.getvalue()) == _csv_rows(replay_out.getvalue())
+    # run_filter, the documented offline path, seeds and starts the same way
+    track = run_filter(t, s.accel, s.gyro if gyro else None, model.field(s.raw)[0], FilterConfig.from_model(model))
+    table = read_table(_write(replay_out.getvalue()))
+    quat = np.column_stack([table.column(c) for c in ("qx", "qy", "qz", "qw")])
+    angle = np.degrees((Rotation.from_quat(quat).inv() * Rotation.from_quat(track.quat)).magnitude())
+    assert np.max(angle) < 1e-5  # the CSV's 9 decimals
+    np.testing.assert_allclose(wrap(table.column("heading_deg") - track.heading_deg), 0.0, atol=1e-3)
+
+
+def _write(text):
+    import tempfile
+    from pathlib import Path
+
+    path = Path(tempfile.mkdtemp()) / "att.csv"
+    path.write_text(text)
+    return path
+
+
+def test_the_quaternion_is_housing_to_world_as_the_angles_say(stream):
+    model, t, s = stream
+    out = io.StringIO()
+    replay(LiveSession(model, out=out, quaternion=True), t, s.raw, s.accel, s.gyro)
+    table = read_table(_write(out.getvalue()))
+    quat = np.column_stack([table.column(c) for c in ("qx", "qy", "qz", "qw")])
+    # SPEC section 1: R_world<-housing = Rz(-heading) Ry(-pitch) Rx(roll)
+    expected = Rotation.from_euler("ZYX", np.column_stack([-table.column("heading_deg"), -table.column("pitch_deg"),
+                                                            table.column("roll_deg")]), degrees=True)
+    assert np.max(np.degrees((expected.inv() * Rotation.from_quat(quat)).magnitude())) < 2e-3  # angles: 3 decimals
+    assert np.all(table.column("qw") >= 0)
+
+
+def _bias_and_tilt_error(t, s, accel, gravity=None):
+    model = default_model()
+    cfg = FilterConfig.from_model(model)
+    if gravity is not None:
+        from dataclasses import replace
+
+        cfg = replace(cfg, gravity=gravity)
+    track = run_filter(t, accel, s.gyro, model.field(s.raw)[0], cfg)
+    late = t > 5.0
+    tilt = np.hypot(track.pitch_deg - s.pitch_deg, wrap(track.roll_deg - s.roll_deg))
+    return track, float(np.max(np.abs(track.gyro_bias[-1] - GYRO_BIAS))), float(np.sqrt(np.mean(tilt[late] ** 2)))
+
+
+def test_a_first_row_4_5_degrees_off_sets_neither_the_tilt_nor_the_gyro_bias(stream):
+    model, t, s = stream
+    clean, bias_clean, tilt_clean = _bias_and_tilt_error(t, s, s.accel)
+    accel = s.accel.copy()
+    accel[0] = Rotation.from_rotvec([np.radians(4.5), 0, 0]).apply(accel[0])  # the board's first row
+    off, bias_off, tilt_off = _bias_and_tilt_error(t, s, accel)
+    # the start's median ignores one row: the same start, the same bias as without it (the filter is causal:
+    # after the first row every sample is the same)
+    assert abs(off.pitch_deg[0] - clean.pitch_deg[0]) < 0.05 and abs(off.roll_deg[0] - clean.roll_deg[0]) < 0.05
+    assert bias_off == pytest.approx(bias_clean, abs=2e-4)  # rad/s; the simulator's bias is 0.004
+    assert tilt_off == pytest.approx(tilt_clean, abs=0.02)
+
+
+def test_gravity_read_as_1_3_is_learnt_from_the_window_or_given(stream):
+    model, t, s = stream
+    first_off = s.accel.copy()
+    first_off[0] *= 1.3  # one row reading 1.3 g: it decided gravity's size before (then 2 % of rows used)
+    for accel, gravity in ((first_off, None), (1.3 * s.accel, None), (1.3 * s.accel, 1.3)):  # the simulator's g
+        track, _, tilt = _bias_and_tilt_error(t, s, accel, gravity)
+        assert np.mean(track.accel_used[t > 2.0]) > 0.9
+        assert tilt < 1.0
+    # a first row of garbage (zero, then 1e300): skipped and counted, never fused
+    accel = s.accel.copy()
+    accel[0], accel[1] = 0.0, 1e300
+    track, _, tilt = _bias_and_tilt_error(t, s, accel)
+    assert track.skipped.as_dict() == {"accel out of range": 2} and tilt < 1.0
+    assert np.all(np.isnan(track.heading_deg[:2])) and np.all(np.isfinite(track.heading_deg[2:]))
+
+
+def test_a_start_in_motion_takes_the_tilt_from_the_window_in_the_inertial_frame():
+    """A housing already turning fast at the first row: the start's median of gravity turned back by the gyro
+    is within a degree of the truth at the first sample."""
+    model = default_model()
+    t = np.arange(0.0, 20.0, 1.0 / RATE_HZ)
+
+    def spinning(t_s):
+        return 40.0 * t_s, 20.0 * np.sin(2.0 * t_s), 25.0 * np.cos(1.3 * t_s), np.zeros(len(t_s), dtype=bool)
+
+    s = simulate_device(model, t, motion=spinning, seed=2, gyro_bias=[0.0, 0.0, 0.0])
+    track = run_filter(t, s.accel, s.gyro, model.field(s.raw)[0], FilterConfig.from_model(model))
+    assert abs(track.pitch_deg[0] - s.pitch_deg[0]) < 1.0 and abs(wrap(track.roll_deg[0] - s.roll_deg[0])) < 1.0
+
+
+# ---------------------------------------------------------------- the command
+
+
+@pytest.fixture()
+def files(tmp_path, stream):
+    """The simulated device's calibration and a 30 s attitude recording of it (SPEC section 2)."""
+    model, t, s = stream
+    from compass.calibration import model_to_dict, save
+
+    cal = tmp_path / "cal.json"
+    save(cal, model_to_dict(model))
+
+    def recording(name="rec.csv", *, gyro=True, accel=True, gyro_scale=1.0, first_row=None):
+        columns = {"t_s": t} | {c: s.raw[:, k] for k, c in enumerate(model.channels)}
+        if accel:
+            columns |= {c: s.accel[:, k] for k, c in enumerate(("ax", "ay", "az"))}
+        if gyro:
+            columns |= {c: gyro_scale * s.gyro[:, k] for k, c in enumerate(("gx", "gy", "gz"))}
+        path = tmp_path / name
+        path.write_text(format_table(columns, {}, {c: "%.17g" for c in columns}))
+        return path
+
+    return cal, recording
+
+
+def test_the_command_writes_live_columns_and_the_quaternion(files, stream, capsys):
+    model, t, s = stream
+    cal, recording = files
+    out = cal.parent / "att.csv"
+    assert main(["attitude", str(cal), str(recording()), "--out", str(out), "--filter"]) == 0
+    table = read_table(out)
+    from compass.live import CSV_COLUMNS
+
+    assert table.columns == CSV_COLUMNS + ("qw", "qx", "qy", "qz") and len(table.data) == len(t)
+    live = LiveSession(model, out=io.StringIO(), quaternion=True)
+    replay(live, t, s.raw, s.accel, s.gyro)
+    assert _csv_rows(out.read_text()) == _csv_rows(live.out.getvalue())
+    assert "filter: gyro" in capsys.readouterr().out
+    # never overwritten without --force
+    assert main(["attitude", str(cal), str(recording()), "--out", str(out), "--filter"]) == 2
+
+
+def test_the_command_without_gyro_runs_the_two_vector_filter(files, capsys):
+    cal, recording = files
+    out = cal.parent / "att.csv"
+    assert main(["attitude", str(cal), str(recording(gyro=False)), "--out", str(out), "--filter"]) == 0
+    assert "two-vector" in capsys.readouterr().out
+    assert np.all(np.isfinite(read_table(out).column("heading_deg")))
+
+
+@pytest.mark.parametrize("case, words", [
+    ("no accel", "has no ax,ay,az columns: the filter needs an accelerometer"),
+    ("deg/s", "--gyro-unit deg/s"),
+    ("level", "--level cannot go with --filter"),
+    ("gravity", "--gravity must be a positive number"),
+])
+def test_the_command_refuses_bad_input_in_one_line(files, capsys, case, words):
+    cal, recording = files
+    rec = recording(accel=case != "no accel", gyro_scale=np.degrees(1.0) if case == "deg/s" else 1.0)
+    extra = {"level": ["--level"], "gravity": ["--gravity", "-1"]}.get(case, [])
+    code = main(["attitude", str(cal), str(rec), "--out", str(cal.parent / "att.csv"), "--filter", *extra])
+    err = capsys.readouterr().err
+    assert code == 2 and words in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not (cal.parent / "att.csv").exists()
+
+
+def test_a_deg_s_gyro_named_as_such_is_used(files, stream):
+    model, t, s = stream
+    cal, recording = files
+    out = cal.parent / "att.csv"
+    rec = recording(gyro_scale=np.degrees(1.0))
+    assert main(["attitude", str(cal), str(rec), "--out", str(out), "--filter", "--gyro-unit", "deg/s"]) == 0
+    heading = read_table(out).column("heading_deg")
+    late = t > 5.0
+    assert np.sqrt(np.mean(wrap(heading - s.heading_deg)[late & (s.magnet == 0)] ** 2)) < 1.0
+
+
+def test_the_replay_writes_the_rerun_recording_as_live_does(files):
+    pytest.importorskip("rerun")
+    cal, recording = files
+    rrd = cal.parent / "att.rrd"
+    assert main(["attitude", str(cal), str(recording()), "--out", str(cal.parent / "att.csv"), "--filter",
+                 "--rerun", str(rrd)]) == 0
+    assert rrd.stat().st_size > 0
+
+
+def test_live_refuses_a_gravity_that_is_not_a_positive_number(files, capsys):
+    cal, _ = files
+    assert main(["live", "--port", str(cal.parent / "no-port"), "--cal", str(cal), "--gravity", "0"]) == 2
+    err = capsys.readouterr().err
+    assert "--gravity must be a positive number" in err and "Traceback" not in err
