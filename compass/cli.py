@@ -21,7 +21,7 @@ import re
 import sys
 import warnings
 
-__all__ = ["main", "BadInput", "version"]
+__all__ = ["main", "BadInput", "UsageError", "version"]
 
 SUBCOMMANDS = ("demo", "simulate", "calibrate", "attitude", "live", "device", "export", "evaluate")
 
@@ -52,8 +52,23 @@ class _Version(argparse.Action):
         parser.exit()
 
 
+class UsageError(Exception):
+    """A command line argparse refuses (an unknown option, a number out of its range)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, whose refusal is one line (``compass live: argument --baud: ...``), exit status 2.
+
+    The subcommands' parsers are of this class too (``add_subparsers`` makes them of the parent's);
+    :func:`main` prints the line, so calling ``main`` in-process returns 2 instead of exiting.
+    """
+
+    def error(self, message):
+        raise UsageError(f"{self.prog}: {message} (--help for usage)")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="compass",
         description="Calibrate three-axis compasses on a bench (four-flip turntable method) and read attitude.",
     )
@@ -115,7 +130,11 @@ def _attach_negative_lists(argv: list[str]) -> list[str]:
 def main(argv=None) -> int:
     _one_blas_thread()
     parser = build_parser()
-    args = parser.parse_args(_attach_negative_lists(sys.argv[1:] if argv is None else list(argv)))
+    try:
+        args = parser.parse_args(_attach_negative_lists(sys.argv[1:] if argv is None else list(argv)))
+    except UsageError as exc:
+        print(exc, file=sys.stderr)
+        return 2
     from .io.units import RecordingWarning
 
     with warnings.catch_warnings(record=True) as caught:

@@ -12,6 +12,7 @@ import sys
 
 import numpy as np
 
+from .. import limits
 from ..io.atomic import atomic_write_text, check_writable
 from ..io.table import ReadOptions, RecordingError, add_read_arguments, format_table, read_table
 from ..io.units import check_accel_up, check_two_axis_tilt
@@ -25,6 +26,10 @@ _IGNORED = ("t_s", *_GYRO)
 _FORMATS = {"in_range": "%d", "disturbed": "%d", "skipped": "%d", "t_s": "%.4f"}
 
 
+_MAX_TILT_DEG = limits.Range(0.0, 90.0, "deg", hi_open=True)
+"""--level: the largest tilt assumed (90 deg leaves no heading)."""
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "attitude", help="heading, pitch and roll from a calibration and an attitude recording",
@@ -36,14 +41,14 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, help="attitude CSV to write")
     p.add_argument("--level", action="store_true",
                    help="no accelerometer: assume pitch = roll = 0 and report the heading error a tilt could cause")
-    p.add_argument("--max-tilt-deg", type=float, default=5.0,
+    p.add_argument("--max-tilt-deg", type=_MAX_TILT_DEG.option("--max-tilt-deg"), default=5.0,
                    help="with --level: the tilt the assumption allows, for heading_bound_deg (default 5)")
     p.add_argument("--site", metavar="LAT,LON[,ALT_M]",
                    help="where the recording was made (degrees, metres): the reference field and true north come "
                         "from the World Magnetic Model there (default: the calibration's site block, else the "
                         "recording's own quiet rows, magnetic heading only)")
     p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day of the recording (default today, UTC)")
-    p.add_argument("--accel-noise-g", type=float, default=0.002,
+    p.add_argument("--accel-noise-g", type=limits.ACCEL_NOISE_G.option("--accel-noise-g"), default=0.002,
                    help="accelerometer white noise per axis as a fraction of 1 g (default 0.002)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output file")
     add_rerun_option(p)
@@ -82,10 +87,11 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
 
     out = check_writable(out, force)
     rerun = check_rerun_target(rerun, force)
-    if not accel_noise_g > 0:
-        raise BadInput(f"--accel-noise-g must be positive, got {accel_noise_g}")
-    if not 0 <= max_tilt_deg < 90:
-        raise BadInput(f"--max-tilt-deg must be in [0, 90), got {max_tilt_deg}")
+    try:  # the options' ranges, for a caller in Python
+        limits.ACCEL_NOISE_G.check(accel_noise_g, "--accel-noise-g")
+        _MAX_TILT_DEG.check(max_tilt_deg, "--max-tilt-deg")
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
     try:
         if site is not None and not isinstance(site, Site):
             site = Site.parse(site, date)

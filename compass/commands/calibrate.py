@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .. import limits
 from ..io.atomic import atomic_write_text, check_writable
 from ..io.table import ReadOptions, add_read_arguments, read_table
 from ..viz import add_rerun_option, check_rerun_target
@@ -24,7 +25,7 @@ def register(sub) -> None:
                         "patent: the seed exactly (lowest samples)")
     p.add_argument("--no-diagnose", action="store_true", help="skip the residual diagnosis loop")
     p.add_argument("--report", metavar="DIR", help="also write plots of fit and residuals into DIR")
-    p.add_argument("--field-ut", type=float, default=None, help="|B| in uT (overrides '# field_ut:' metadata)")
+    p.add_argument("--field-ut", type=limits.FIELD_UT.option("--field-ut"), default=None, help="|B| in uT (overrides '# field_ut:' metadata)")
     p.add_argument("--kind", default=None, help="force the recording kind (fourflip, platform3d, reference, tumble, "
                                                 "or any kind in calibrate.kinds.KINDS)")
     p.add_argument("--ellipsoid", choices=("auto", "offset", "diagonal", "full"), default="auto",
@@ -103,8 +104,11 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
         raise BadInput(f"{recording}: cannot tell the recording kind from its columns "
                        f"({', '.join(table.columns)}); " + ", ".join(f"a {k.name} recording has {k.columns}"
                                                                      for k in KINDS.values()))
-    if field_ut is not None and not field_ut > 0:
-        raise BadInput(f"--field-ut must be positive, got {field_ut}")
+    if field_ut is not None:  # the option's range, for a caller in Python
+        try:
+            limits.FIELD_UT.check(field_ut, "--field-ut")
+        except ValueError as exc:
+            raise BadInput(str(exc)) from None
     given = {"method": method, "diagnose": diagnose, "field_ut": field_ut, "ellipsoid": ellipsoid, "base": base,
              "site": site, "date": date}
     takes = found.calibrator.options()

@@ -11,6 +11,8 @@ import os
 import signal
 import threading
 
+from .. import limits
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -21,21 +23,21 @@ def register(sub) -> None:
     p.add_argument("--cal", help="calibration JSON: the module carries this sensor (default: a built-in sensor)")
     p.add_argument("--save-cal", metavar="CAL.json",
                    help="write the module's sensor as a calibration file for compass live, then stream")
-    p.add_argument("--rate", type=float, default=100.0, help="samples per second (default 100)")
-    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    p.add_argument("--rate", type=limits.RATE_HZ.option("--rate"), default=100.0, help="samples per second (default 100)")
+    p.add_argument("--seed", type=limits.SEED.option("--seed"), default=0, help="noise seed (default 0)")
     p.add_argument("--no-gyro", action="store_true", help="send no gx,gy,gz columns")
     p.add_argument("--motion", choices=("script", "tumble"), default="script",
                    help="script: the 40 s attitude script with a magnet (default); tumble: every orientation, for "
                         "a free-motion calibration (compass live --calibrate tumble)")
     p.add_argument("--link", help="keep a symbolic link with this name to the current pty (stable across disconnects)")
-    p.add_argument("--garbage", type=float, default=0.0, metavar="P",
+    p.add_argument("--garbage", type=limits.FRACTION.option("--garbage"), default=0.0, metavar="P",
                    help="probability per sample of a line of random bytes (default 0)")
-    p.add_argument("--truncate", type=float, default=0.0, metavar="P",
+    p.add_argument("--truncate", type=limits.FRACTION.option("--truncate"), default=0.0, metavar="P",
                    help="probability per sample of cutting the line short (default 0)")
-    p.add_argument("--disconnect-at", type=float, metavar="S", help="unplug at this module time, seconds")
-    p.add_argument("--disconnect-for", type=float, default=1.0, metavar="S",
+    p.add_argument("--disconnect-at", type=limits.WAIT_S.option("--disconnect-at"), metavar="S", help="unplug at this module time, seconds")
+    p.add_argument("--disconnect-for", type=limits.DURATION_S.option("--disconnect-for"), default=1.0, metavar="S",
                    help="stay unplugged this long, seconds (default 1)")
-    p.add_argument("--duration", type=float, help="stop after this many seconds of module time")
+    p.add_argument("--duration", type=limits.DURATION_S.option("--duration"), help="stop after this many seconds of module time")
     p.add_argument("--force", action="store_true", help="overwrite --save-cal's file")
     p.set_defaults(func=run)
 
@@ -60,10 +62,6 @@ def run(args) -> int:
             raise BadInput(f"{args.cal}: the calibration has no dip_deg: the module cannot simulate its field")
     else:
         model = default_model()
-    if args.duration is not None and not args.duration > 0:
-        raise BadInput(f"--duration must be positive, got {args.duration}")
-    if args.disconnect_for <= 0:
-        raise BadInput(f"--disconnect-for must be positive, got {args.disconnect_for}")
     if args.link is not None and os.path.lexists(args.link) and not os.path.islink(args.link):
         raise BadInput(f"--link {args.link}: exists and is not a symbolic link; it would be replaced")
     try:
