@@ -15,7 +15,7 @@ Examples
 >>> FIELD_UT.check(1e308, "field_ut")
 Traceback (most recent call last):
 ...
-ValueError: field_ut must be a number in (0, 100000] uT, got 1e+308
+ValueError: field_ut must be a number in [0.001, 100000] uT, got 1e+308
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ class Range:
         return above and below
 
     def describe(self) -> str:
-        """``"a number in (0, 100000] uT"``, ``"an integer in [1, 64]"``."""
+        """``"a number in [0.001, 100000] uT"``, ``"an integer in [1, 64]"``."""
         lo, hi = (f"{v:d}" if self.integer else f"{v:g}" for v in (self.lo, self.hi))
         text = (f"{'(' if self.lo_open else '['}{lo}, {hi}{')' if self.hi_open else ']'}"
                 + (f" {self.unit}" if self.unit else ""))
@@ -111,9 +111,10 @@ def _looks_integer(text: str) -> bool:
     return body.isdigit() and body.isascii()
 
 
-FIELD_UT = Range(0.0, 1e5, "uT", lo_open=True)
-"""A field strength: positive, at most 0.1 T (beyond any magnetometer's range: the widest, Hall
-sensors such as the MLX90393, read +-50 mT; the Earth's field is 22-67 uT)."""
+FIELD_UT = Range(1e-3, 1e5, "uT")
+"""A field strength: 1 nT (the resolution of the best fluxgates) to 0.1 T (beyond any
+magnetometer's range: the widest, Hall sensors such as the MLX90393, read +-50 mT); the Earth's
+field is 22-67 uT."""
 DIP_DEG = Range(-90.0, 90.0, "deg")
 """A dip (inclination): the field's angle below the horizontal."""
 TILT_DEG = Range(0.0, 90.0, "deg")
@@ -132,8 +133,9 @@ CHANNELS = Range(1, 64, integer=True)
 """Single-axis channels or sensors of one module."""
 SEED = Range(0, 2**63 - 1, integer=True)
 """A random seed (numpy's generators take non-negative integers)."""
-RATE_HZ = Range(0.0, 1e5, "Hz", lo_open=True)
-"""A sample rate: at most 100 kHz, ten times the fastest magnetometer's output rate."""
+RATE_HZ = Range(1e-3, 1e5, "Hz")
+"""A sample rate: one sample in 1000 s (a slow logger) to 100 kHz (ten times the fastest
+magnetometer's output rate)."""
 DURATION_S = Range(0.0, 1e9, "s", lo_open=True)
 """A duration: positive, at most 31 years (Python's timers stop at 9.2e9 s)."""
 WAIT_S = Range(0.0, 1e9, "s")

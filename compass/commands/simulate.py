@@ -147,24 +147,18 @@ def run_reference(args) -> int:
 
 def _bench_truth(args) -> dict:
     """The bench sensor: ``--truth`` (a four-flip truth file) or the four-flip simulator's for ``--seed``."""
-    import json
-    from pathlib import Path
-
     from ..cli import BadInput
 
     if args.truth is None:
         from ..sim.fourflip import simulate_fourflip
 
         return simulate_fourflip(seed=args.seed).truth
+    from ..sim._truth import read_bench_truth
+
     try:
-        truth = json.loads(Path(args.truth).read_text())
-    except (OSError, ValueError) as exc:
-        raise BadInput(f"{args.truth}: cannot read a four-flip truth file ({exc})") from None
-    needed = ("directions", "offsets", "gains_per_ut", "dip_deg", "field_ut", "channels", "noise_ut")
-    if not isinstance(truth, dict) or any(k not in truth for k in needed):
-        raise BadInput(f"{args.truth}: not a four-flip truth file (needs {', '.join(needed)}; "
-                       "compass simulate fourflip writes one beside its recording)")
-    return truth
+        return read_bench_truth(args.truth)
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
 
 
 def run_installation(args) -> int:
