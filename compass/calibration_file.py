@@ -34,6 +34,9 @@ from typing import Any, Callable
 
 import numpy as np
 
+from .io.names import RESERVED_NAMES
+from .io.units import MAX_ABS_VALUE
+
 __all__ = ["FORMAT", "KIND_KEY", "CalibrationFile", "CalibrationFileError", "MODEL_READERS", "NoFieldVector",
            "SECTION_READERS",
            "channel_entry", "dumps", "from_dict", "header", "kind_of", "load", "write"]
@@ -325,7 +328,8 @@ def _number(v, key: str, *, positive=False, nonnegative=False, allow_none=False,
     if nonnegative and v < 0:
         raise CalibrationFileError(f"must not be negative, got {v:g}", key=key)
     if (low is not None and v < low) or (high is not None and v > high):
-        raise CalibrationFileError(f"must be within [{low:g}, {high:g}], got {v:g}", key=key)
+        raise CalibrationFileError(f"must be within [{'-inf' if low is None else f'{low:g}'}, "
+                                   f"{'inf' if high is None else f'{high:g}'}], got {v:g}", key=key)
     return v
 
 
@@ -376,7 +380,10 @@ def _rotation(v, key: str) -> np.ndarray:
 
 
 def _common(d: dict) -> tuple:
-    field_ut = _number(d.get("field_ut"), "field_ut", positive=True, allow_none=True)
+    """The top-level ``field_ut`` and ``dip_deg`` (None when absent), in :mod:`compass.limits`' ranges."""
+    from .limits import FIELD_UT
+
+    field_ut = _number(d.get("field_ut"), "field_ut", allow_none=True, low=FIELD_UT.lo, high=FIELD_UT.hi)
     dip_deg = _number(d.get("dip_deg"), "dip_deg", low=-90.0, high=90.0, allow_none=True)
     effects = d.get("effects")
     if effects is not None and not isinstance(effects, list):
@@ -460,6 +467,9 @@ def _channel_model(d: dict):
     names, directions, responses, covariances, sigmas = [], [], [], [], []
     for name, ch in channels.items():
         key = ("channels", name)
+        if name in RESERVED_NAMES or not name.strip():
+            raise CalibrationFileError("is not a channel name: " + ("empty" if not name.strip() else
+                                       f"{name} is the recordings' and the line protocol's own column"), key=key)
         _object(ch, key)
         direction = _array(ch.get("direction"), (3,), _sub(key, "direction"))
         if not abs(np.linalg.norm(direction) - 1.0) < _UNIT_TOLERANCE:
@@ -514,7 +524,8 @@ def _tumble_model(d: dict):
     field_ut, dip_deg = _common(d)
     soft = _array(d.get("soft_iron"), (3, 3), "soft_iron")
     hard = _array(d.get("hard_iron"), (3,), "hard_iron")
-    field_norm = _number(d.get("field_norm"), "field_norm", positive=True)
+    field_norm = _number(d.get("field_norm"), "field_norm", positive=True, high=MAX_ABS_VALUE)
+    check_hard_iron(hard, field_norm, "hard_iron")
     scale = np.abs(soft).max()
     if not np.allclose(soft, soft.T, rtol=0.0, atol=_SYMMETRY_TOLERANCE * scale):
         raise CalibrationFileError("must be symmetric (a soft-iron matrix is)", key="soft_iron")
@@ -543,6 +554,17 @@ def _tumble_model(d: dict):
     )
 
 
+def check_hard_iron(hard, field_magnitude: float, key: str) -> None:
+    """CalibrationFileError unless ``|hard| <= FIELD_RATIO_LIMIT * field_magnitude``: a sensor offset by a
+    hundred times the field it measures reads beyond the range the filters screen (a magnet on it)."""
+    from .sample_check import FIELD_RATIO_LIMIT
+
+    size = math.hypot(*hard)  # np.linalg.norm overflows for 1e308
+    if not size <= FIELD_RATIO_LIMIT * field_magnitude:
+        raise CalibrationFileError(f"must be within {FIELD_RATIO_LIMIT:g} times the field's {field_magnitude:.4g} "
+                                   f"in size (a magnet on the sensor saturates it), got {size:.4g}", key=key)
+
+
 def _tilt_sensor(d: dict):
     from .io.platform3d import TiltSensor
 
@@ -554,6 +576,7 @@ def _tilt_sensor(d: dict):
 def _installed_model(d: dict):
     from .installed import from_installed_json  # the bench model inside its product (issue 11)
 
+    _common(d)  # the site's field and dip beside the bench's: checked as every kind's
     return from_installed_json(d)
 
 

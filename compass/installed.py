@@ -144,7 +144,7 @@ def from_installed_json(d: dict) -> SensorModel:
     CalibrationFileError
         Missing or invalid ``base`` or ``installation``, naming the key.
     """
-    from .calibration_file import CalibrationFileError, from_dict
+    from .calibration_file import CalibrationFileError, check_hard_iron, from_dict
 
     base_doc, inst = d.get("base"), d.get("installation")
     if not isinstance(base_doc, dict):
@@ -158,6 +158,7 @@ def from_installed_json(d: dict) -> SensorModel:
     if base.kind == "installed":
         raise CalibrationFileError("must be a bench calibration, not another installed one", key="base")
     hard = _array(inst, "hard_iron_ut", (3,))
+    check_hard_iron(hard, base.model.field_magnitude, "installation.hard_iron_ut")
     soft = _array(inst, "soft_iron", (3, 3))
     if not np.allclose(soft, soft.T, atol=1e-9) or np.linalg.eigvalsh(soft).min() <= 0:
         raise CalibrationFileError("must be symmetric positive definite", key="installation.soft_iron")
