@@ -32,7 +32,7 @@ from scipy.spatial.transform import Rotation
 
 from .frames import heading_pitch_roll, r_world_from_housing, world_field
 from .model import SensorModel
-from .sample_check import skip_codes
+from .sample_check import FIELD_RATIO_LIMIT, skip_codes
 from .site import ReferenceField, reference_from_recording
 
 __all__ = ["Attitude", "UnusableCalibration", "solve_attitude", "two_vector_rotation", "level_heading_bound_deg"]
@@ -285,6 +285,7 @@ def solve_attitude(
         keep = skipped == 0
         if not keep.any():
             if np.all(np.isfinite(np.asarray(raw, dtype=float))):
+                _check_scale(model, np.asarray(raw, dtype=float))  # the recording's fault, if its scale is not
                 raise UnusableCalibration("the calibration turns every reading into a non-finite or absurd field (its "
                                           "offsets or gains are out of any sensible range)")
             raise ValueError("no row can be used: every reading is non-finite or absurd")
@@ -393,6 +394,20 @@ def _skipped_rows(field: np.ndarray, accel, field_magnitude) -> np.ndarray:
                    for x in (b, a)]
     known = field_magnitude is not None and np.isfinite(field_magnitude) and field_magnitude > 0
     return skip_codes(field, field_magnitude if known else typical[0], accel, typical[1])
+
+
+def _check_scale(model: SensorModel, raw: np.ndarray) -> None:
+    """ValueError (the recording's fault) when a channel's median reading is beyond what the calibration's
+    response gives for any field up to :data:`~compass.sample_check.FIELD_RATIO_LIMIT` times its |B|: the
+    recording is in another unit or scale than the calibration (a calibration's own fault reads fine)."""
+    reach = FIELD_RATIO_LIMIT * model.field_magnitude
+    for c, response in enumerate(model.responses):
+        lo, hi = np.sort(response.output(np.array([-reach, reach])))
+        typical = float(np.median(raw[:, c]))
+        if not lo <= typical <= hi:
+            raise ValueError(f"channel {model.channels[c]} reads {typical:.4g} (median), beyond the {lo:.4g} to "
+                             f"{hi:.4g} the calibration's channel gives for any field up to {FIELD_RATIO_LIMIT:g} "
+                             f"times its |B|: is the recording in another unit or scale than the calibration?")
 
 
 def _with_skipped(att: Attitude, keep: np.ndarray, skipped: np.ndarray, in_range: np.ndarray) -> Attitude:

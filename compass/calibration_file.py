@@ -36,6 +36,12 @@ import numpy as np
 
 from .io.names import RESERVED_NAMES
 from .io.units import MAX_ABS_VALUE
+from .limits import FIELD_UT, Range
+
+_OUTPUT = Range(-MAX_ABS_VALUE, MAX_ABS_VALUE)
+"""An output (offset) in output units: within the recordings' limit (:data:`compass.io.units.MAX_ABS_VALUE`)."""
+_GAIN = Range(1 / MAX_ABS_VALUE, MAX_ABS_VALUE)
+"""A gain, output units per field unit: positive, within 1e-12..1e12 (the recordings' limit either way)."""
 
 __all__ = ["FORMAT", "KIND_KEY", "CalibrationFile", "CalibrationFileError", "MODEL_READERS", "NoFieldVector",
            "SECTION_READERS",
@@ -289,6 +295,10 @@ def from_dict(d) -> CalibrationFile:
         sections = {key: _section(reader, d, key) for key, reader in SECTION_READERS.items() if d.get(key) is not None}
     except RecursionError:
         raise CalibrationFileError("nested too deeply") from None
+    except CalibrationFileError:
+        raise
+    except ValueError as exc:  # the model's own checks (SensorModel), a singular solve: named as the file's
+        raise CalibrationFileError(f"describes no usable sensor ({exc})") from None
     tilt = sections.pop("tilt_sensor", None)
     return CalibrationFile(kind, model, tilt, sections, d)
 
@@ -315,7 +325,9 @@ def _json_type(v) -> str:
 # ------------------------------------------------------------------------------------- value checks
 
 
-def _number(v, key: str, *, positive=False, nonnegative=False, allow_none=False, low=None, high=None):
+def _number(v, key: str, *, positive=False, nonnegative=False, allow_none=False, low=None, high=None, bounds=None):
+    """``v`` as a float: a finite number (and positive, not negative, within [low, high] or ``bounds``, a
+    :class:`compass.limits.Range`, when asked); CalibrationFileError naming ``key`` else."""
     if v is None and allow_none:
         return None
     if isinstance(v, bool) or not isinstance(v, (int, float)):
@@ -327,13 +339,16 @@ def _number(v, key: str, *, positive=False, nonnegative=False, allow_none=False,
         raise CalibrationFileError(f"must be positive, got {v:g}", key=key)
     if nonnegative and v < 0:
         raise CalibrationFileError(f"must not be negative, got {v:g}", key=key)
+    if bounds is not None and v not in bounds:
+        raise CalibrationFileError(f"must be {bounds.describe()}, got {v:g}", key=key)
     if (low is not None and v < low) or (high is not None and v > high):
         raise CalibrationFileError(f"must be within [{'-inf' if low is None else f'{low:g}'}, "
                                    f"{'inf' if high is None else f'{high:g}'}], got {v:g}", key=key)
     return v
 
 
-def _array(v, shape: tuple, key: str) -> np.ndarray:
+def _array(v, shape: tuple, key: str, limit: float = np.inf) -> np.ndarray:
+    """``v`` as a finite float array of ``shape``, every value within +-``limit``."""
     what = "a list of 3 numbers" if shape == (3,) else f"{'x'.join(map(str, shape))} nested lists of numbers"
     try:
         ok = _all_numbers(v)
@@ -344,6 +359,9 @@ def _array(v, shape: tuple, key: str) -> np.ndarray:
         raise CalibrationFileError(f"must be {what}, got {_show(v)}", key=key)
     if not np.all(np.isfinite(out)):
         raise CalibrationFileError(f"must be finite, got {_show(v)}", key=key)
+    if np.any(np.abs(out) > limit):
+        raise CalibrationFileError(f"must be within +-{limit:g} (no sensor output reaches beyond), got "
+                                   f"{out.flat[np.argmax(np.abs(out))]:g}", key=key)
     return out
 
 
@@ -381,9 +399,7 @@ def _rotation(v, key: str) -> np.ndarray:
 
 def _common(d: dict) -> tuple:
     """The top-level ``field_ut`` and ``dip_deg`` (None when absent), in :mod:`compass.limits`' ranges."""
-    from .limits import FIELD_UT
-
-    field_ut = _number(d.get("field_ut"), "field_ut", allow_none=True, low=FIELD_UT.lo, high=FIELD_UT.hi)
+    field_ut = _number(d.get("field_ut"), "field_ut", allow_none=True, bounds=FIELD_UT)
     dip_deg = _number(d.get("dip_deg"), "dip_deg", low=-90.0, high=90.0, allow_none=True)
     effects = d.get("effects")
     if effects is not None and not isinstance(effects, list):
@@ -396,7 +412,7 @@ def _noise(value, n: int, key: str = "noise_floor") -> np.ndarray | None:
         return None
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         value = [value] * n
-    out = _array(value, (n,), key)
+    out = _array(value, (n,), key, limit=MAX_ABS_VALUE)
     if np.any(out < 0):
         raise CalibrationFileError(f"must not be negative, got {_show(value)}", key=key)
     return out
@@ -419,8 +435,8 @@ def _response(v, key: tuple):
 
     r = _object(v, key)
     model = r.get("model")
-    offset = _number(r.get("offset"), _sub(key, "offset"))
-    gain = _number(r.get("gain"), _sub(key, "gain"), positive=True)
+    offset = _number(r.get("offset"), _sub(key, "offset"), bounds=_OUTPUT)
+    gain = _number(r.get("gain"), _sub(key, "gain"), bounds=_GAIN)
     x_range = (-np.inf, np.inf)
     if r.get("range") is not None:
         lo, hi = _array(r["range"], (2,), _sub(key, "range"))
@@ -522,8 +538,8 @@ def _tumble_model(d: dict):
     from .response import LinearResponse
 
     field_ut, dip_deg = _common(d)
-    soft = _array(d.get("soft_iron"), (3, 3), "soft_iron")
-    hard = _array(d.get("hard_iron"), (3,), "hard_iron")
+    soft = _array(d.get("soft_iron"), (3, 3), "soft_iron", limit=_GAIN.hi)
+    hard = _array(d.get("hard_iron"), (3,), "hard_iron", limit=MAX_ABS_VALUE)
     field_norm = _number(d.get("field_norm"), "field_norm", positive=True, high=MAX_ABS_VALUE)
     check_hard_iron(hard, field_norm, "hard_iron")
     scale = np.abs(soft).max()
@@ -533,6 +549,9 @@ def _tumble_model(d: dict):
     if not eig[0] > 1e-9 * scale:
         raise CalibrationFileError(f"must be positive definite, its eigenvalues are {np.round(eig, 6).tolist()}",
                                    key="soft_iron")
+    if not (eig[0] >= _GAIN.lo and eig[-1] <= _GAIN.hi):  # the inverse of a gain: field units per output unit
+        raise CalibrationFileError(f"must have eigenvalues in [{_GAIN.lo:g}, {_GAIN.hi:g}], got {eig[0]:.4g} to "
+                                   f"{eig[-1]:.4g}", key="soft_iron")
     rot = np.eye(3) if d.get("mag_to_accel") is None else _rotation(d["mag_to_accel"], "mag_to_accel")
     g = np.linalg.solve(soft, rot.T)  # raw - hard_iron = g @ B_H
     gains = np.linalg.norm(g, axis=1)
