@@ -15,6 +15,7 @@ bad input prints its one line only.
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib
 import os
 import re
@@ -67,7 +68,10 @@ class _Parser(argparse.ArgumentParser):
         raise UsageError(f"{self.prog}: {message} (--help for usage)")
 
 
+@functools.lru_cache(maxsize=1)
 def build_parser() -> argparse.ArgumentParser:
+    """The ``compass`` parser, built once a process (argparse's gettext lookups make it 0.1 s; parsing does not
+    change it, and the tests call :func:`main` in-process hundreds of times)."""
     parser = _Parser(
         prog="compass",
         description="Calibrate three-axis compasses on a bench (four-flip turntable method) and read attitude.",

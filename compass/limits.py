@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import math
 import numbers
+import re
 from dataclasses import dataclass
 
 __all__ = ["Range", "FIELD_UT", "DIP_DEG", "TILT_DEG", "ANGLE_DEG", "NOISE_UT", "SAMPLES", "SEED", "RATE_HZ",
@@ -86,8 +87,8 @@ class Range:
         """The number written in ``text`` (ASCII digits, as in a file or on the command line), checked."""
         text = text.strip()
         try:
-            if self.integer and not _looks_integer(text):
-                raise ValueError(text)  # "3.0" or "1e3" for a count
+            if not _NUMBER.fullmatch(text) or (self.integer and not _INTEGER.fullmatch(text)):
+                raise ValueError(text)  # "1_0" (Python's float reads 10), "0x10", "3.0" or "1e3" for a count
             value = int(text) if self.integer else float(text)
         except ValueError:
             raise ValueError(f"{what} must be {self.describe()}, got {text!r}") from None
@@ -103,12 +104,12 @@ class Range:
                 raise argparse.ArgumentTypeError(str(exc).removeprefix(f"{name} ")) from None
 
         convert.__name__ = self.describe()  # argparse names the type in some messages
+        convert.range = self  # the tests find every numeric option's range through it
         return convert
 
 
-def _looks_integer(text: str) -> bool:
-    body = text[1:] if text[:1] in "+-" else text
-    return body.isdigit() and body.isascii()
+_NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|[+-]?(?:nan|inf|infinity)", re.I)
+_INTEGER = re.compile(r"[+-]?[0-9]+")
 
 
 FIELD_UT = Range(1e-3, 1e5, "uT")

@@ -80,7 +80,7 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
         Bad input (exit status 2 on the command line).
     """
     from ..accel_alignment import accel_in_housing, housing_from_accel
-    from ..attitude import UnusableCalibration, solve_attitude
+    from ..attitude import ScaleMismatch, UnusableCalibration, solve_attitude
     from ..calibration_file import hemisphere_assumed, load
     from ..cli import BadInput
     from ..installed import accel_to_product
@@ -139,6 +139,8 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
                                 max_tilt_deg=max_tilt_deg, temp_c=temp_c)
     except UnusableCalibration as exc:
         raise BadInput(f"{calibration}: {exc}") from None
+    except ScaleMismatch as exc:
+        raise BadInput(f"{recording} does not fit {calibration}: {exc}") from None
     except np.linalg.LinAlgError as exc:  # the model's weighted solver: the calibration's numbers, not the rows
         raise BadInput(f"{calibration}: unusable calibration ({exc}): its noise_floor or directions are out of "
                        f"any sensible range") from None

@@ -61,6 +61,9 @@ class GyroState(PackedCovariance):
     skipped : SkipCounts
     diagnostics : Diagnostics
         The latest sample's.
+    t_back_s : float or None
+        A time earlier than ``t_s`` the last sample gave (a corrupted clock, or the module restarting
+        its clock: the next sample tells which), else None.
     """
 
     t_s: float | None
@@ -80,6 +83,7 @@ class GyroState(PackedCovariance):
     gate: GateState
     skipped: SkipCounts = field(default_factory=SkipCounts)
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
+    t_back_s: float | None = None
 
 
 class GyroFilter(AttitudeFilter):

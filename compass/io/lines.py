@@ -242,6 +242,8 @@ class LineDecoder:
     _last_t_s: float | None = None
     _dt_s: deque = field(default_factory=lambda: deque(maxlen=_DT_WINDOW))
     _bad_at_sample: int = 0  # bad lines at the last good sample
+    _anchor: tuple = (None, None)  # (seq, t_s) of the sample before the last
+    _last_lost: int = 0  # samples counted lost at the last sample
     _last_rejected: tuple | None = None
 
     def __post_init__(self):
@@ -361,9 +363,14 @@ class LineDecoder:
     def _count_gap(self, sample: Sample) -> bool:
         """Count samples lost before ``sample`` (``seq``, else ``t_s`` gaps); False if its ``seq`` repeats."""
         missing = 0
+        if sample.seq is not None and sample.seq == self._last_seq:
+            return False
+        outlier = self._last_was_outlier(sample)
+        if outlier:  # its jump counted nothing lost, and the count goes on from the sample before it
+            self.stats.lost -= self._last_lost
+            self._last_seq, self._last_t_s = self._anchor
+        self._anchor = (self._last_seq, self._last_t_s)
         if sample.seq is not None:
-            if sample.seq == self._last_seq:
-                return False
             if self._last_seq is not None and sample.seq > self._last_seq:
                 missing = self._believed(sample.seq - self._last_seq - 1, "seq", self._last_seq, sample.seq)
             self._last_seq = sample.seq  # a smaller seq: the module restarted its counter
@@ -377,9 +384,26 @@ class LineDecoder:
                 self._dt_s.append(dt_s)
         if sample.t_s is not None:
             self._last_t_s = sample.t_s
+        missing = max(0, missing - outlier)  # the outlier was the sample of one of the slots
+        self._last_lost = 0
         if missing:
             already = self.stats.bad_lines - self._bad_at_sample  # bad lines since the last sample: counted
-            self.stats.lost += max(0, missing - already)
+            self._last_lost = max(0, missing - already)
+            self.stats.lost += self._last_lost
+        return True
+
+    def _last_was_outlier(self, sample: Sample) -> bool:
+        """The last sample's ``seq`` (else ``t_s``) left the sequence its neighbours keep: the one before it
+        and ``sample`` are in order while it is not between them (a corrupted counter or clock, not a
+        restart: after a restart the sequence goes on from the new value)."""
+        name = "seq" if sample.seq is not None else "t_s"
+        before = self._anchor[0 if name == "seq" else 1]
+        last = self._last_seq if name == "seq" else self._last_t_s
+        now = getattr(sample, name)
+        if before is None or last is None or now is None or not before < now or before < last < now:
+            return False
+        self.events.append(("warn", f"{name} {last:g} between {before:g} and {now:g}: taken as a corrupted value, "
+                                    f"not as samples lost"))
         return True
 
     def _believed(self, missing: int, name: str, before, after) -> int:
