@@ -35,7 +35,8 @@ from .model import SensorModel
 from .sample_check import FIELD_RATIO_LIMIT, skip_codes
 from .site import ReferenceField, reference_from_recording
 
-__all__ = ["Attitude", "UnusableCalibration", "ScaleMismatch", "solve_attitude", "two_vector_rotation", "level_heading_bound_deg"]
+__all__ = ["Attitude", "UnusableCalibration", "ScaleMismatch", "solve_attitude",
+           "two_vector_rotation", "level_heading_bound_deg"]
 
 _UP = np.array([0.0, 0.0, 1.0])
 DIP_NOISE_SIGMAS = 2.0

@@ -25,7 +25,8 @@ def register(sub) -> None:
                         "patent: the seed exactly (lowest samples)")
     p.add_argument("--no-diagnose", action="store_true", help="skip the residual diagnosis loop")
     p.add_argument("--report", metavar="DIR", help="also write plots of fit and residuals into DIR")
-    p.add_argument("--field-ut", type=limits.FIELD_UT.option("--field-ut"), default=None, help="|B| in uT (overrides '# field_ut:' metadata)")
+    p.add_argument("--field-ut", type=limits.FIELD_UT.option("--field-ut"),
+                   default=None, help="|B| in uT (overrides '# field_ut:' metadata)")
     p.add_argument("--kind", default=None, help="force the recording kind (fourflip, platform3d, reference, tumble, "
                                                 "or any kind in calibrate.kinds.KINDS)")
     p.add_argument("--ellipsoid", choices=("auto", "offset", "diagonal", "full"), default="auto",

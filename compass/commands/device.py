@@ -23,7 +23,8 @@ def register(sub) -> None:
     p.add_argument("--cal", help="calibration JSON: the module carries this sensor (default: a built-in sensor)")
     p.add_argument("--save-cal", metavar="CAL.json",
                    help="write the module's sensor as a calibration file for compass live, then stream")
-    p.add_argument("--rate", type=limits.RATE_HZ.option("--rate"), default=100.0, help="samples per second (default 100)")
+    p.add_argument("--rate", type=limits.RATE_HZ.option("--rate"),
+                   default=100.0, help="samples per second (default 100)")
     p.add_argument("--seed", type=limits.SEED.option("--seed"), default=0, help="noise seed (default 0)")
     p.add_argument("--no-gyro", action="store_true", help="send no gx,gy,gz columns")
     p.add_argument("--motion", choices=("script", "tumble"), default="script",
@@ -34,10 +35,12 @@ def register(sub) -> None:
                    help="probability per sample of a line of random bytes (default 0)")
     p.add_argument("--truncate", type=limits.FRACTION.option("--truncate"), default=0.0, metavar="P",
                    help="probability per sample of cutting the line short (default 0)")
-    p.add_argument("--disconnect-at", type=limits.WAIT_S.option("--disconnect-at"), metavar="S", help="unplug at this module time, seconds")
+    p.add_argument("--disconnect-at", type=limits.WAIT_S.option("--disconnect-at"),
+                   metavar="S", help="unplug at this module time, seconds")
     p.add_argument("--disconnect-for", type=limits.DURATION_S.option("--disconnect-for"), default=1.0, metavar="S",
                    help="stay unplugged this long, seconds (default 1)")
-    p.add_argument("--duration", type=limits.DURATION_S.option("--duration"), help="stop after this many seconds of module time")
+    p.add_argument("--duration", type=limits.DURATION_S.option("--duration"),
+                   help="stop after this many seconds of module time")
     p.add_argument("--force", action="store_true", help="overwrite --save-cal's file")
     p.set_defaults(func=run)
 

@@ -28,7 +28,8 @@ def register(sub) -> None:
                    help="serial device (/dev/ttyUSB0, COM3) or pyserial URL (socket://host:port, rfc2217://...)")
     p.add_argument("--cal", help="calibration JSON (compass calibrate) of the module's sensor (required unless "
                                  "--calibrate)")
-    p.add_argument("--baud", type=limits.BAUD.option("--baud"), default=115200, help="baud rate (default 115200; ignored by ptys and sockets)")
+    p.add_argument("--baud", type=limits.BAUD.option("--baud"),
+                   default=115200, help="baud rate (default 115200; ignored by ptys and sockets)")
     add_rerun_option(p)
     p.add_argument("--out", help="also write the attitude stream to this CSV file")
     p.add_argument("--site", metavar="LAT,LON[,ALT_M]",
@@ -39,7 +40,8 @@ def register(sub) -> None:
                    help="unit of the module's gx,gy,gz (default rad/s, the line protocol's); a gyro in deg/s "
                         "taken as rad/s turns the attitude 57 times too fast")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
-    p.add_argument("--duration", type=limits.DURATION_S.option("--duration"), help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--duration", type=limits.DURATION_S.option("--duration"),
+                   help="stop after this many seconds (default: until Ctrl-C)")
     p.add_argument("--wait", type=limits.WAIT_S.option("--wait"), default=0.0, metavar="S",
                    help="keep trying to open the port this long before giving up (default 0: a port that cannot "
                         "be opened is an error); once connected, a lost port is always waited for")

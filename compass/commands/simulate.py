@@ -19,14 +19,19 @@ def register(sub) -> None:
     p = sub.add_parser("simulate", help="write simulated recordings (with their truth beside them)")
     kinds = p.add_subparsers(dest="kind", required=True, metavar="KIND")
     ff = _kind(kinds, "fourflip", "a four-flip turntable session (seed 000)", run_fourflip)
-    ff.add_argument("--channels", type=limits.CHANNELS.option("--channels"), default=3, help="number of single-axis channels (default 3)")
+    ff.add_argument("--channels", type=limits.CHANNELS.option("--channels"),
+                    default=3, help="number of single-axis channels (default 3)")
     ff.add_argument("--effect", action="append", default=[], choices=SIM_EFFECTS,
                     help="inject an effect (repeatable); the truth file records its parameters")
-    ff.add_argument("--noise-ut", type=limits.NOISE_UT.option("--noise-ut"), default=0.15, help="white noise, uT (default 0.15)")
+    ff.add_argument("--noise-ut", type=limits.NOISE_UT.option("--noise-ut"),
+                    default=0.15, help="white noise, uT (default 0.15)")
     ff.add_argument("--field-ut", type=limits.FIELD_UT.option("--field-ut"), default=50.0, help="|B|, uT (default 50)")
-    ff.add_argument("--dip-deg", type=limits.DIP_DEG.option("--dip-deg"), default=None, help="dip, deg (default: random 40..70)")
-    ff.add_argument("--step-deg", type=Range(0.0, 30.0, "deg", lo_open=True).option("--step-deg"), default=1.0, help="turntable step, deg (default 1)")
-    ff.add_argument("--effect-scale", type=limits.SCALE.option("--effect-scale"), default=1.0, help="multiply every effect size")
+    ff.add_argument("--dip-deg", type=limits.DIP_DEG.option("--dip-deg"),
+                    default=None, help="dip, deg (default: random 40..70)")
+    ff.add_argument("--step-deg", type=Range(0.0, 30.0, "deg", lo_open=True).option("--step-deg"),
+                    default=1.0, help="turntable step, deg (default 1)")
+    ff.add_argument("--effect-scale", type=limits.SCALE.option("--effect-scale"),
+                    default=1.0, help="multiply every effect size")
     ff.add_argument("--accel-misalign-deg", type=Range(0.0, 90.0, "deg").option("--accel-misalign-deg"), default=None,
                     help="record ax,ay,az from an accelerometer misaligned with the housing by this RMS per axis, deg "
                          "(default: no accelerometer)")
@@ -39,24 +44,29 @@ def register(sub) -> None:
     p3.add_argument("--tilt-axes", type=int, choices=(2, 3), default=2, help="tilt sensor axes (default 2)")
     tu = _kind(kinds, "tumble", "a free-motion (tumble) session: magnetometer with hard and soft iron, "
                                 "accelerometer", run_tumble)
-    tu.add_argument("--samples", type=Range(12, limits.SAMPLES.hi, integer=True).option("--samples"), default=3000, help="rows (default 3000)")
-    tu.add_argument("--rate-hz", type=limits.RATE_HZ.option("--rate-hz"), default=50.0, help="row rate, Hz (default 50)")
+    tu.add_argument("--samples", type=Range(12, limits.SAMPLES.hi, integer=True).option("--samples"),
+                    default=3000, help="rows (default 3000)")
+    tu.add_argument("--rate-hz", type=limits.RATE_HZ.option("--rate-hz"),
+                    default=50.0, help="row rate, Hz (default 50)")
     tu.add_argument("--field-ut", type=limits.FIELD_UT.option("--field-ut"), default=50.0, help="|B|, uT (default 50)")
     tu.add_argument("--coverage", choices=("full", "upright"), default="full",
                     help="full: every orientation (default); upright: never turned over")
     tu.add_argument("--no-accel", action="store_true", help="record no accelerometer")
     rf = _kind(kinds, "reference", "reference fields applied to a sensor array (seed 003)", run_reference)
-    rf.add_argument("--sensors", type=limits.CHANNELS.option("--sensors"), default=2, help="three-axis sensors in the array (default 2)")
+    rf.add_argument("--sensors", type=limits.CHANNELS.option("--sensors"),
+                    default=2, help="three-axis sensors in the array (default 2)")
     rf.add_argument("--fields", type=_ROWS.option("--fields"), default=12, help="reference fields applied (default 12)")
     rf.add_argument("--repeats", type=_ROWS.option("--repeats"), default=1, help="rows per field (default 1)")
-    rf.add_argument("--field-ut", type=limits.FIELD_UT.option("--field-ut"), default=50.0, help="field magnitude, uT (default 50)")
+    rf.add_argument("--field-ut", type=limits.FIELD_UT.option("--field-ut"),
+                    default=50.0, help="field magnitude, uT (default 50)")
     ru = _kind(kinds, "runtime", "an attitude recording of a bench-calibrated sensor in random attitudes "
                                  "(true angles in <stem>.truth.csv)", run_runtime)
     ru.add_argument("--truth", metavar="BENCH.truth.json",
                     help="the sensor: a four-flip truth file (compass simulate fourflip writes one beside its "
                          "recording; default: the four-flip simulator's sensor for --seed)")
     ru.add_argument("--samples", type=limits.SAMPLES.option("--samples"), default=1000, help="rows (default 1000)")
-    ru.add_argument("--max-tilt-deg", type=limits.TILT_DEG.option("--max-tilt-deg"), default=80.0, help="largest pitch and roll, deg (default 80)")
+    ru.add_argument("--max-tilt-deg", type=limits.TILT_DEG.option("--max-tilt-deg"),
+                    default=80.0, help="largest pitch and roll, deg (default 80)")
     ru.add_argument("--no-accel", action="store_true", help="record no accelerometer")
     ins = _kind(kinds, "installation", "a bench-calibrated sensor built into a product with its own iron "
                                        "(SPEC's installation recording: tumble, swing, or runtime rows to check "
@@ -73,8 +83,10 @@ def register(sub) -> None:
                      help="the product's hard iron, uT (about; random direction; default 6)")
     ins.add_argument("--soft-iron", type=Range(0.0, 0.5, hi_open=True).option("--soft-iron"), default=0.03,
                      help="the product's symmetric soft iron, entries about this far from the identity (default 0.03)")
-    ins.add_argument("--yaw-deg", type=limits.ANGLE_DEG.option("--yaw-deg"), default=0.0, help="the housing turned in the product, deg (default 0)")
-    ins.add_argument("--heading-ref-sigma-deg", type=Range(0.0, 180.0, "deg").option("--heading-ref-sigma-deg"), default=None,
+    ins.add_argument("--yaw-deg", type=limits.ANGLE_DEG.option("--yaw-deg"),
+                     default=0.0, help="the housing turned in the product, deg (default 0)")
+    ins.add_argument("--heading-ref-sigma-deg", type=Range(0.0, 180.0, "deg").option("--heading-ref-sigma-deg"),
+                     default=None,
                      help="also write heading_ref_deg, the product's true heading with this noise, deg")
     ins.add_argument("--base", metavar="BENCH.json",
                      help="the bench calibration, named in the recording's '# base:' metadata")
@@ -153,7 +165,7 @@ def _bench_truth(args) -> dict:
         from ..sim.fourflip import simulate_fourflip
 
         return simulate_fourflip(seed=args.seed).truth
-    from ..sim._truth import read_bench_truth
+    from ..sim.truth import read_bench_truth
 
     try:
         return read_bench_truth(args.truth)

@@ -16,7 +16,8 @@ import stat
 import tempfile
 from pathlib import Path
 
-__all__ = ["OutputError", "atomic_open", "atomic_stream", "atomic_write_text", "check_writable", "save_figure", "output_mode",
+__all__ = ["OutputError", "atomic_open", "atomic_stream", "atomic_write_text",
+           "check_writable", "save_figure", "output_mode",
            "remove_stale_temporaries"]
 
 
