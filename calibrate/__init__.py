@@ -6,10 +6,12 @@ seed 003's reference fields (:func:`calibrate_reference`).  Data flows one way: 
 ``calibrate`` -> calibration file -> :mod:`compass`.
 """
 
-from .fourflip import METHODS, CalibrationResult, ChannelCalibration, calibrate_fourflip
-from .platform3d import calibrate_platform3d
-from .reference import calibrate_reference
-from .tumble import calibrate_tumble
+from importlib import import_module
+
+_HOMES = {"METHODS": "fourflip", "CalibrationResult": "fourflip", "ChannelCalibration": "fourflip",
+          "calibrate_fourflip": "fourflip", "calibrate_platform3d": "platform3d",
+          "calibrate_reference": "reference", "calibrate_tumble": "tumble"}
+"""Name -> the kind's package: imported on first use, so using one kind imports no other."""
 
 __all__ = [
     "METHODS",
@@ -20,3 +22,13 @@ __all__ = [
     "calibrate_reference",
     "calibrate_tumble",
 ]
+
+
+def __getattr__(name):
+    if name not in _HOMES:
+        raise AttributeError(f"module 'calibrate' has no attribute {name!r}")
+    return getattr(import_module(f".{_HOMES[name]}", __name__), name)
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_HOMES))

@@ -6,7 +6,7 @@
   ``"model"``; a tumble result's ``kind`` is its ellipsoid kind), ``parameters`` (name -> (value,
   sigma or None)), ``warnings`` (tuple of str), ``diagnosis`` (the residual diagnosis, SPEC section
   4; its file block is ``to_json()["diagnosis"]``), ``report()``, ``plots(recording, folder)`` and
-  ``to_json()`` (the calibration file, written by :func:`compass.calibration_file.write`).
+  ``to_json()`` (the calibration file, written by :func:`compass.calibration.save`).
 - :class:`CannotCalibrate` says, in words, why a recording cannot be calibrated (exit 2 on the
   command line).
 
@@ -44,7 +44,7 @@ class Calibration(abc.ABC):
 
     @abc.abstractmethod
     def to_json(self) -> dict:
-        """The calibration file (SPEC section 2), JSON-ready; starts with :func:`compass.calibration_file.header`."""
+        """The calibration file (SPEC section 2), JSON-ready; starts with :func:`compass.calibration.header`."""
 
     @abc.abstractmethod
     def report(self) -> str:

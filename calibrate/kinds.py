@@ -7,31 +7,24 @@ tumble) and fits with the first whose sniffer accepts the recording's columns.
 A new kind is one :class:`~calibrate.contract.Calibrator` subclass (whose ``fit`` returns a
 :class:`~calibrate.contract.Calibration`) and one line here::
 
-    register(Kind("installed", "a --base calibration", sniff=..., read=..., calibrator=InstalledCalibrator))
+    register(Kind("installed", "a --base calibration", sniff=...,
+                  reader="compass.io.installation:installation_from_table",
+                  calibrator_name="calibrate.installation:InstallationCalibrator"))
 
 ``sniff(table) -> bool`` looks at a :class:`compass.io.table.Table`'s columns, ``read(table)``
 validates it into the kind's recording, and the command line passes the calibrator the options
 its constructor names (:meth:`~calibrate.contract.Calibrator.options`).  Register before the more
 general kinds when your columns are a superset of theirs.
+
+The reader and the calibrator are named, not imported: a kind's modules are imported when it is
+used, so calibrating a four-flip recording imports the four-flip's modules and no other kind's.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from importlib import import_module
 from typing import Any, Callable
-
-from compass.io.fourflip import fourflip_from_table
-from compass.io.installation import installation_from_table
-from compass.io.platform3d import platform3d_from_table
-from compass.io.reference import reference_from_table
-from compass.io.tumble import tumble_from_table
-
-from .contract import Calibrator
-from .fourflip import FourFlipCalibrator
-from .installation import InstallationCalibrator
-from .platform3d import Platform3DCalibrator
-from .reference import ReferenceCalibrator
-from .tumble import TumbleCalibrator
 
 __all__ = ["KINDS", "Kind", "register", "sniff"]
 
@@ -47,17 +40,43 @@ class Kind:
     columns : str
         What identifies its recordings, in words (for the message when no kind matches).
     sniff : callable
-        ``sniff(table) -> bool``: whether a table's columns are this kind's.
-    read : callable
-        ``read(table) -> recording``: the validated recording (RecordingError for bad input).
-    calibrator : type of Calibrator
+        ``sniff(table) -> bool``: whether a table's columns are this kind's (imports nothing).
+    reader : str
+        ``"module:function"`` of :attr:`read`.
+    calibrator_name : str
+        ``"module:class"`` of :attr:`calibrator`.
     """
 
     name: str
     columns: str
     sniff: Callable[[Any], bool]
-    read: Callable[[Any], Any]
-    calibrator: type[Calibrator]
+    reader: str
+    calibrator_name: str
+
+    @property
+    def read(self) -> Callable[[Any], Any]:
+        """``read(table) -> recording``: the validated recording (RecordingError for bad input)."""
+        return _resolve(self.reader)
+
+    @property
+    def calibrator(self) -> type:
+        """The kind's :class:`~calibrate.contract.Calibrator` subclass (its ``kind`` is :attr:`name`).
+
+        Raises
+        ------
+        ValueError
+            The class calibrates another kind (a wrong registry line).
+        """
+        calibrator = _resolve(self.calibrator_name)
+        if calibrator.kind != self.name:
+            raise ValueError(f"kind {self.name!r}: its calibrator {calibrator.__name__} is for {calibrator.kind!r}")
+        return calibrator
+
+
+def _resolve(dotted: str):
+    """The object ``"module:attribute"`` names, its module imported now."""
+    module, _, attribute = dotted.partition(":")
+    return getattr(import_module(module), attribute)
 
 
 KINDS: dict[str, Kind] = {}
@@ -65,9 +84,7 @@ KINDS: dict[str, Kind] = {}
 
 
 def register(kind: Kind) -> Kind:
-    """Add a kind to :data:`KINDS` (its calibrator's ``kind`` must be its name)."""
-    if kind.calibrator.kind != kind.name:
-        raise ValueError(f"kind {kind.name!r}: its calibrator {kind.calibrator.__name__} is for {kind.calibrator.kind!r}")
+    """Add a kind to :data:`KINDS` (its calibrator's ``kind`` must be its name: checked when it is used)."""
     KINDS[kind.name] = kind
     return kind
 
@@ -78,11 +95,13 @@ def sniff(table) -> Kind | None:
 
 
 register(Kind("installed", "a bench calibration (--base BENCH.json or '# base:' metadata) and ax,ay,az",
-              lambda t: bool(t.metadata.get("base")), installation_from_table, InstallationCalibrator))
-register(Kind("fourflip", "flip_deg", lambda t: t.has("flip_deg"), fourflip_from_table, FourFlipCalibrator))
-register(Kind("platform3d", "platform_z_deg", lambda t: t.has("platform_z_deg"), platform3d_from_table,
-              Platform3DCalibrator))
-register(Kind("reference", "bx_ref", lambda t: any(c.endswith("bx_ref") for c in t.columns), reference_from_table,
-              ReferenceCalibrator))
-register(Kind("tumble", "mx,my,mz", lambda t: all(t.has(c) for c in ("mx", "my", "mz")), tumble_from_table,
-              TumbleCalibrator))
+              lambda t: bool(t.metadata.get("base")), "compass.io.installation:installation_from_table",
+              "calibrate.installation:InstallationCalibrator"))
+register(Kind("fourflip", "flip_deg", lambda t: t.has("flip_deg"), "compass.io.fourflip:fourflip_from_table",
+              "calibrate.fourflip:FourFlipCalibrator"))
+register(Kind("platform3d", "platform_z_deg", lambda t: t.has("platform_z_deg"),
+              "compass.io.platform3d:platform3d_from_table", "calibrate.platform3d:Platform3DCalibrator"))
+register(Kind("reference", "bx_ref", lambda t: any(c.endswith("bx_ref") for c in t.columns),
+              "compass.io.reference:reference_from_table", "calibrate.reference:ReferenceCalibrator"))
+register(Kind("tumble", "mx,my,mz", lambda t: all(t.has(c) for c in ("mx", "my", "mz")),
+              "compass.io.tumble:tumble_from_table", "calibrate.tumble:TumbleCalibrator"))

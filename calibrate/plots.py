@@ -114,7 +114,7 @@ def plot_tumble(mag: np.ndarray, result, path) -> Path:
                  + (f"; never along {', '.join(missing)}" if missing else ""))
     ax = axes[1]
     ax.plot(raw_norm / np.median(raw_norm), ".", ms=1.5, color="0.6", label="raw |m|, as recorded")
-    ax.plot(norm / np.median(norm), ".", ms=1.5, color="C0", label=f"calibrated ({result.kind})")
+    ax.plot(norm / np.median(norm), ".", ms=1.5, color="C0", label=f"calibrated ({result.ellipsoid})")
     ax.set_xlabel("sample")
     ax.set_ylabel("|m| / its median")
     ax.legend(loc="best", fontsize=7, markerscale=5)

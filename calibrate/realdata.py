@@ -48,7 +48,7 @@ from scipy.ndimage import uniform_filter1d
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from compass.calibration_file import header, write
+from compass.calibration import header, save
 from compass.hard_iron import track_hard_iron
 from compass.io.broad import BroadTrial, enu_to_nwu, read_broad
 
@@ -311,7 +311,7 @@ def main(argv=None) -> int:
     lines, correction, summary = run_loop(trials)
     print("\n".join(lines))
     if args.out:
-        write(args.out, calibration_json(correction, trials, summary), force=True)
+        save(args.out, calibration_json(correction, trials, summary), force=True)
         print(f"wrote {args.out}")
     return 0
 

@@ -4,9 +4,9 @@ Load a calibration, turn raw channel outputs into the field in the housing frame
 heading, pitch and roll, filter them live.  Frames and angles follow SPEC section 1 (housing
 FLU, world magnetic North-West-Up).
 
->>> from compass import SensorModel, solve_attitude          # doctest: +SKIP
->>> model = SensorModel.from_file("cal.json")                 # doctest: +SKIP
->>> att = solve_attitude(model, raw, accel=accel)             # doctest: +SKIP
+>>> from compass import load_calibration, solve_attitude      # doctest: +SKIP
+>>> cal = load_calibration("cal.json")                        # doctest: +SKIP
+>>> att = solve_attitude(cal.model, raw, accel=cal.imu.apply(accel))  # doctest: +SKIP
 
 Names are imported on first use, so the command line starts without loading the filter stack.
 """
@@ -18,6 +18,9 @@ _HOMES = {
     "level_heading_bound_deg": "attitude",
     "solve_attitude": "attitude",
     "two_vector_rotation": "attitude",
+    "Calibration": "calibration",
+    "load_calibration": "calibration",
+    "save_calibration": "calibration",
     "AttitudeFilter": "filter",
     "FilterConfig": "filter",
     "run_filter": "filter",
@@ -34,10 +37,13 @@ _HOMES = {
 __all__ = sorted(_HOMES)
 
 
+_RENAMED = {"load_calibration": "load", "save_calibration": "save"}  # their names inside compass.calibration
+
+
 def __getattr__(name):
     if name not in _HOMES:
         raise AttributeError(f"module 'compass' has no attribute {name!r}")
-    return getattr(import_module(f".{_HOMES[name]}", __name__), name)
+    return getattr(import_module(f".{_HOMES[name]}", __name__), _RENAMED.get(name, name))
 
 
 def __dir__():

@@ -283,7 +283,7 @@ def solve_attitude(
         raise ValueError(f"accel_noise_g must be positive, got {accel_noise_g}")
 
     field, in_range = model.field(raw, temp_c)
-    skipped = _skipped_rows(field, accel, model.field_magnitude)
+    skipped = _skipped_rows(field, accel, model.field_norm)
     options = dict(level=level, reference=reference, accel_noise_g=accel_noise_g, max_tilt_deg=max_tilt_deg,
                    disturbance_sigma=disturbance_sigma, field_tolerance=field_tolerance,
                    dip_tolerance_deg=dip_tolerance_deg)
@@ -336,12 +336,12 @@ def _solve(model: SensorModel, field: np.ndarray, in_range: np.ndarray, *, accel
         if up.shape != (n, 3):
             raise ValueError(f"expected {n} pitch_deg and roll_deg values, got {len(up)}")
         up, up_var, mode = np.ascontiguousarray(up.T), 0.0, "known_tilt"
-    if reference is None or not np.isfinite(reference.field_magnitude):
+    if reference is None or not np.isfinite(reference.field_norm):
         own = reference_from_recording(field, up.T, a_norm)
         reference = own if reference is None else reference.complete(own)
     ref_dip = reference.dip_deg
     ref_dip_var = np.radians(reference.dip_sigma_deg) ** 2
-    field_ratio = b_norm / reference.field_magnitude
+    field_ratio = b_norm / reference.field_norm
 
     solver = model.solver
 
@@ -354,15 +354,15 @@ def _solve(model: SensorModel, field: np.ndarray, in_range: np.ndarray, *, accel
     qm = m - mu * up
     dip_sigma = np.degrees(np.sqrt((field_quad(up - mu * m) / b_norm**2 + up_var * _dot(qm, qm))
                                    / np.maximum(1.0 - mu**2, 1e-24) + ref_dip_var))
-    ratio_sigma = np.hypot(np.sqrt(field_quad(m)) / reference.field_magnitude,
-                           reference.field_sigma / reference.field_magnitude)
+    ratio_sigma = np.hypot(np.sqrt(field_quad(m)) / reference.field_norm,
+                           reference.field_sigma / reference.field_norm)
     field_bad = np.abs(field_ratio - 1.0) > np.maximum(disturbance_sigma * ratio_sigma, field_tolerance)
     dip_limit = np.maximum(disturbance_sigma * dip_sigma, dip_tolerance_deg)
     dip_error = np.abs(dip - ref_dip)
 
     # Wahba weights from noise: per-axis variance of each unit vector (field: at zero field); on the
     # field's side the reference dip's variance and the row's own dip discrepancy beyond 2 sigma (Notes)
-    field_var = np.sum(model.component_variance(np.zeros(3)) * model.solver**2) / 3.0 / reference.field_magnitude**2
+    field_var = np.sum(model.component_variance(np.zeros(3)) * model.solver**2) / 3.0 / reference.field_norm**2
     if not np.isfinite(field_var):
         raise UnusableCalibration(f"the calibration's noise_floor and gains give a field noise of {field_var:g} "
                                   "(rad^2): out of any sensible range")
@@ -390,7 +390,7 @@ def _solve(model: SensorModel, field: np.ndarray, in_range: np.ndarray, *, accel
                                      reference=reference))
 
 
-def _skipped_rows(field: np.ndarray, accel, field_magnitude) -> np.ndarray:
+def _skipped_rows(field: np.ndarray, accel, field_norm) -> np.ndarray:
     """Per row, the reason code it must not be solved (0: fine): |B| against the calibration's (else the
     recording's typical |B|), |a| against the recording's typical |a|."""
     with np.errstate(over="ignore", invalid="ignore"):
@@ -398,8 +398,8 @@ def _skipped_rows(field: np.ndarray, accel, field_magnitude) -> np.ndarray:
         a = None if accel is None else np.linalg.norm(np.asarray(accel, dtype=float), axis=1)
         typical = [float(np.median(x[np.isfinite(x)])) if x is not None and np.isfinite(x).any() else np.nan
                    for x in (b, a)]
-    known = field_magnitude is not None and np.isfinite(field_magnitude) and field_magnitude > 0
-    return skip_codes(field, field_magnitude if known else typical[0], accel, typical[1])
+    known = field_norm is not None and np.isfinite(field_norm) and field_norm > 0
+    return skip_codes(field, field_norm if known else typical[0], accel, typical[1])
 
 
 def _check_scale(model: SensorModel, raw: np.ndarray) -> None:

@@ -22,13 +22,11 @@ import re
 import sys
 import warnings
 
+from .errors import BadInput
+
 __all__ = ["main", "BadInput", "UsageError", "version"]
 
 SUBCOMMANDS = ("demo", "simulate", "calibrate", "attitude", "live", "device", "export", "evaluate")
-
-
-class BadInput(ValueError):
-    """A user error the command line reports in one line with exit status 2."""
 
 
 def version() -> str:

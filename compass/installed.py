@@ -17,7 +17,7 @@ from independent recordings).
 
 With an ``alignment`` (``R_product<-housing``) the installed model is written in the product's
 frame: directions ``A a'``; the module's accelerometer must be turned the same way
-(:func:`accel_to_product`).
+(:class:`compass.calibration.ImuCorrection`).  The file is read by :mod:`compass.calibration`.
 """
 
 from __future__ import annotations
@@ -29,8 +29,7 @@ import numpy as np
 from .model import SensorModel
 from .response import LinearResponse, Response
 
-__all__ = ["SOFT_IRON_ENTRIES", "installed_model", "from_installed_json", "alignment_of", "accel_to_product",
-           "soft_iron_basis"]
+__all__ = ["SOFT_IRON_ENTRIES", "installed_model", "soft_iron_basis"]
 
 SOFT_IRON_ENTRIES = ("xx", "yy", "zz", "xy", "xz", "yz")
 """The six entries of the symmetric soft-iron deviation ``S - I``, in parameter order."""
@@ -132,67 +131,4 @@ def installed_model(base: SensorModel, hard_iron, soft_iron, covariance=None, al
         if direction_cov is not None:
             direction_cov = rot[None] @ direction_cov @ rot.T[None]
     return replace(base, directions=directions, responses=tuple(responses), direction_covariance=direction_cov,
-                   response_sigma=response_sigma, kind="installed")
-
-
-def from_installed_json(d: dict) -> SensorModel:
-    """The runtime model of an installed calibration file's dictionary (the bench's read by
-    :func:`compass.calibration_file.from_dict`).
-
-    Raises
-    ------
-    CalibrationFileError
-        Missing or invalid ``base`` or ``installation``, naming the key.
-    """
-    from .calibration_file import CalibrationFileError, check_hard_iron, from_dict
-
-    base_doc, inst = d.get("base"), d.get("installation")
-    if not isinstance(base_doc, dict):
-        raise CalibrationFileError("must be the bench calibration (an object)", key="base")
-    if not isinstance(inst, dict):
-        raise CalibrationFileError("must be an object with hard_iron_ut and soft_iron", key="installation")
-    try:
-        base = from_dict(base_doc)
-    except CalibrationFileError as exc:
-        raise CalibrationFileError(exc.reason, key=f"base.{exc.key}" if exc.key else "base") from None
-    if base.kind == "installed":
-        raise CalibrationFileError("must be a bench calibration, not another installed one", key="base")
-    hard = _array(inst, "hard_iron_ut", (3,))
-    check_hard_iron(hard, base.model.field_magnitude, "installation.hard_iron_ut")
-    soft = _array(inst, "soft_iron", (3, 3))
-    if not np.allclose(soft, soft.T, atol=1e-9) or np.linalg.eigvalsh(soft).min() <= 0:
-        raise CalibrationFileError("must be symmetric positive definite", key="installation.soft_iron")
-    cov = None if inst.get("covariance") is None else _array(inst, "covariance", (9, 9))
-    align = None if inst.get("alignment") is None else _array(inst, "alignment", (3, 3))
-    if align is not None and (not np.allclose(align @ align.T, np.eye(3), atol=1e-6) or np.linalg.det(align) < 0):
-        raise CalibrationFileError("must be a rotation matrix", key="installation.alignment")
-    return installed_model(base.model, hard, soft, cov, align)
-
-
-def alignment_of(document: dict) -> np.ndarray | None:
-    """``R_product<-housing`` of an installed calibration file's dictionary with an alignment, else None."""
-    inst = document.get("installation") if document.get("model") == "installed" else None
-    if not isinstance(inst, dict) or inst.get("alignment") is None:
-        return None
-    return np.asarray(inst["alignment"], dtype=float)
-
-
-def accel_to_product(document: dict, accel):
-    """The module's accelerometer (H) in the product's frame, for an installed file with an alignment;
-    unchanged otherwise."""
-    rotation = alignment_of(document)
-    if accel is None or rotation is None:
-        return accel
-    return np.asarray(accel, dtype=float) @ rotation.T
-
-
-def _array(d: dict, key: str, shape) -> np.ndarray:
-    from .calibration_file import CalibrationFileError
-
-    try:
-        out = np.asarray(d[key], dtype=float)
-    except (KeyError, TypeError, ValueError):
-        out = None
-    if out is None or out.shape != shape or not np.all(np.isfinite(out)):
-        raise CalibrationFileError(f"must be finite numbers of shape {shape}", key=f"installation.{key}")
-    return out
+                   response_sigma=response_sigma, form="installed")

@@ -27,7 +27,7 @@ import re
 from dataclasses import dataclass
 
 __all__ = ["Range", "FIELD_UT", "DIP_DEG", "TILT_DEG", "ANGLE_DEG", "NOISE_UT", "SAMPLES", "SEED", "RATE_HZ",
-           "DURATION_S", "WAIT_S", "BAUD", "FRACTION", "CHANNELS", "SCALE", "IRON_UT", "ACCEL_NOISE_G"]
+           "DURATION_S", "WAIT_S", "BAUD", "FRACTION", "CHANNELS", "SCALE", "IRON_UT", "ACCEL_NOISE_G", "MAX_TILT_DEG"]
 
 
 @dataclass(frozen=True)
@@ -146,5 +146,7 @@ BAUD = Range(50, 20_000_000, integer=True)
 bridges' 12 Mbaud)."""
 FRACTION = Range(0.0, 1.0)
 """A probability or a fraction of a whole."""
+MAX_TILT_DEG = Range(0.0, 90.0, "deg", hi_open=True)
+"""``--level``'s largest tilt assumed (90 deg leaves no heading)."""
 ACCEL_NOISE_G = Range(0.0, 1.0, "g", lo_open=True)
 """An accelerometer's noise level: positive, at most 1 g (no gravity direction left)."""

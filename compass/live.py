@@ -11,16 +11,18 @@ import math
 import time
 from collections import deque
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 
+from .calibration import ImuCorrection
 from .filter import AttitudeFilter, Estimate, FilterConfig
 from .io.lines import LineDecoder
 from .sample_check import SKIP_REASONS, skip_codes
 from .serial_reader import Chunk, LinkEvent
 from .site import QuietSeed, upside_down
 
-__all__ = ["LiveSession", "GATE_CODES", "CSV_COLUMNS"]
+__all__ = ["LiveSession", "Reading", "GATE_CODES", "CSV_COLUMNS"]
 
 GATE_CODES = {"ok": 0, "norm": 1, "dip": 2, "innovation": 3, "absent": 4}
 CSV_COLUMNS = ("t_s", "heading_deg", "pitch_deg", "roll_deg", "heading_sigma_deg", "tilt_sigma_deg", "field_ratio",
@@ -33,6 +35,36 @@ UPSIDE_DOWN_SAMPLES = 100
 """Estimates whose median dip is judged against a given reference (compass.site.upside_down)."""
 
 
+class Reading(NamedTuple):
+    """One decoded sample on its way to the filter (held while the reference is seeded).
+
+    Attributes
+    ----------
+    sample : compass.io.lines.Sample
+        As decoded (its header, ``t_s``, raw outputs).
+    accel : ndarray, shape (3,), or None
+        The accelerometer in the model's frame (``Calibration.imu`` applied), the module's unit.
+    gyro : ndarray, shape (3,), or None
+        The gyro in the model's frame, rad/s.
+    field_h : ndarray, shape (3,)
+        The field in the model's frame, field units.
+    field_row : list of float
+        ``field_h`` as a list (what the filter's per-sample step takes).
+    in_range : bool
+        Every channel inside its calibrated range.
+    t_rx : float
+        When its chunk was read from the port, ``time.perf_counter()`` seconds.
+    """
+
+    sample: object
+    accel: np.ndarray | None
+    gyro: np.ndarray | None
+    field_h: np.ndarray
+    field_row: list
+    in_range: bool
+    t_rx: float
+
+
 @dataclass
 class LiveSession:
     """Decode, solve and filter a live stream; write the CSV and Rerun outputs.
@@ -40,6 +72,7 @@ class LiveSession:
     Parameters
     ----------
     model : compass.model.SensorModel
+        ``Calibration.model``.
     config : FilterConfig, optional
         Default :meth:`FilterConfig.from_model`.
     out : text file, optional
@@ -52,15 +85,14 @@ class LiveSession:
         the true heading (``heading_true_deg`` in the readout and the CSV).  Without it the
         reference is seeded from the stream's first quiet second (:class:`compass.site.QuietSeed`;
         those samples are held, then solved), never the calibration bench's.
-    to_product : ndarray, shape (3, 3), optional
-        ``R_product<-housing`` of an installed calibration with an alignment (its model is in the
-        product's frame): the module's accelerometer and gyro are turned by it.
+    imu : compass.calibration.ImuCorrection, optional
+        The calibration's inertial correction (``Calibration.imu``): the module's accelerometer and
+        gyro are turned into the model's frame by it (the bench's ``mag_to_accel``, an installed file's
+        alignment), and the bench accelerometer's offsets and scales are undone when the stream's first
+        accelerometer readings read 1 g as the bench's did (else said once and not applied).
     gyro_rad_s_per_unit : float
         What one unit of the module's gyro is in rad/s (``--gyro-unit``: 1 for rad/s, pi/180 for
         deg/s); the line protocol's default unit is rad/s.
-    accel_correction : compass.accel_alignment.AccelCorrection, optional
-        The bench accelerometer's offsets and scales, undone before ``to_product`` when the stream's
-        first accelerometer readings read 1 g as the bench's did (else said once and not applied).
     sign_from_bench : bool
         The calibration is a four-flip bench's, whose data cannot tell the hemisphere: an upside-down
         verdict then names that cause (:func:`compass.site.upside_down`).
@@ -100,9 +132,8 @@ class LiveSession:
     sink: object = None
     on_event: object = None
     reference: object = None
-    to_product: object = None
+    imu: ImuCorrection = field(default_factory=ImuCorrection)
     gyro_rad_s_per_unit: float = 1.0
-    accel_correction: object = None
     sign_from_bench: bool = True
     decoder: LineDecoder = field(init=False)
     turned_over: str | None = None
@@ -124,7 +155,7 @@ class LiveSession:
     _seed: QuietSeed | None = None
     _held: list = field(default_factory=list)
     _dips: list | None = None  # measured dips of the first estimates, against a given reference
-    _accel_judged: bool = False  # accel_correction checked against the stream's unit
+    _bench_accel: bool | None = None  # the bench's offsets apply to this stream's unit; None: not judged yet
 
     def __post_init__(self):
         self.decoder = LineDecoder(self.model.channels)
@@ -132,7 +163,7 @@ class LiveSession:
             self.config = FilterConfig.from_model(self.model)
         if self.reference is not None:  # the user's reference: check it is not the calibration's field turned over
             self._dips = []
-        if self.reference is None or not np.isfinite(self.reference.field_magnitude):
+        if self.reference is None or not np.isfinite(self.reference.field_norm):
             self._seed = QuietSeed()  # also for a site's |B| in a calibration whose unit is not the uT
         else:
             self._use_reference(self.reference)
@@ -146,7 +177,7 @@ class LiveSession:
 
     def _use_reference(self, reference) -> None:
         self.reference = reference
-        self.config = replace(self.config, field_norm=reference.field_magnitude, dip_deg=reference.dip_deg)
+        self.config = replace(self.config, field_norm=reference.field_norm, dip_deg=reference.dip_deg)
         self._filter = None  # one made before (samples of a header without accelerometer) had the bench's field
         self._event("info", f"reference field: {reference.description}")
         if self.sink is not None:
@@ -178,40 +209,38 @@ class LiveSession:
         reference seeding's screen), then each sample through the seeding or the filter."""
         fields, in_range = self._fields(samples)
         field_rows, in_range = fields.tolist(), in_range.tolist()
-        per_unit, to_product = self.gyro_rad_s_per_unit, self.to_product
-        fix = self._accel_fix(samples)
+        per_unit, imu = self.gyro_rad_s_per_unit, self.imu
+        bench = self._judge_accel(samples)
         readings = []
         for k, sample in enumerate(samples):
             accel, gyro = sample.accel, sample.gyro
             if gyro is not None and per_unit != 1.0:
                 gyro = per_unit * gyro
-            if fix is not None and accel is not None:
-                accel = fix.apply(accel)
-            if to_product is not None:  # an installed model in the product's frame
-                accel = None if accel is None else to_product @ accel
-                gyro = None if gyro is None else to_product @ gyro
-            readings.append((sample, accel, gyro, fields[k], field_rows[k], in_range[k], t_rx))
+            accel = None if accel is None else imu.apply(accel, bench=bench)
+            gyro = None if gyro is None else imu.rotate(gyro)
+            readings.append(Reading(sample, accel, gyro, fields[k], field_rows[k], in_range[k], t_rx))
         codes = self._seed_codes(readings, fields) if self._seed is not None else None
         for k, reading in enumerate(readings):
-            if self._seed is not None and reading[0].header.accel is not None:
+            if self._seed is not None and reading.sample.header.accel is not None:
                 # without an accelerometer there is no attitude, and nothing to seed the reference from: the
                 # filter is made at once and says so (holding the samples would grow without end)
                 self._seeding(reading, codes[k])
             else:
-                self._sample(*reading)
+                self._sample(reading)
 
-    def _accel_fix(self, samples: list):
-        """The accelerometer correction to apply, judged once on the first chunk with accelerometer readings."""
-        if self.accel_correction is None or self._accel_judged:
-            return self.accel_correction
-        accel = [s.accel for s in samples if s.accel is not None]
-        if not accel:
-            return None
-        self._accel_judged = True
-        if not self.accel_correction.fits(np.array(accel)):
-            self._event("warn", self.accel_correction.not_fitting)
-            self.accel_correction = None
-        return self.accel_correction
+    def _judge_accel(self, samples: list) -> bool:
+        """Whether the bench's accelerometer offsets and scales apply: judged once, on the first chunk with
+        accelerometer readings (:meth:`compass.calibration.ImuCorrection.fits`)."""
+        if not self.imu.has_bench_correction:
+            return False
+        if self._bench_accel is None:
+            accel = [s.accel for s in samples if s.accel is not None]
+            if not accel:
+                return False
+            self._bench_accel = self.imu.fits(np.array(accel))
+            if not self._bench_accel:
+                self._event("warn", self.imu.not_fitting)
+        return self._bench_accel
 
     def _fields(self, samples: list) -> tuple[np.ndarray, np.ndarray]:
         """The samples' field in H (temperature-compensated when the calibration can), shape (n, 3), and
@@ -239,13 +268,13 @@ class LiveSession:
         later ones).  One call for the chunk, with the typical |a| of the samples accepted before it."""
         scale = float(np.median(self._accel_norms)) if len(self._accel_norms) >= 8 else None
         nan3 = (np.nan,) * 3
-        accel = np.array([nan3 if r[1] is None else r[1] for r in readings], dtype=float)
-        gyro = np.array([nan3 if r[2] is None else r[2] for r in readings], dtype=float)
+        accel = np.array([nan3 if r.accel is None else r.accel for r in readings], dtype=float)
+        gyro = np.array([nan3 if r.gyro is None else r.gyro for r in readings], dtype=float)
         return skip_codes(fields, self.config.field_norm, accel, scale, gyro).tolist()
 
-    def _seeding(self, reading: tuple, code: int) -> None:
+    def _seeding(self, reading: Reading, code: int) -> None:
         """Hold samples until the first quiet second gives the reference, then solve them."""
-        sample, accel, _, field_h, _, _, t_rx = reading
+        sample, accel, field_h, t_rx = reading.sample, reading.accel, reading.field_h, reading.t_rx
         if code:
             self._count_skip(SKIP_REASONS[code])
             return
@@ -263,11 +292,11 @@ class LiveSession:
         self._use_reference(reference if self.reference is None else self.reference.complete(reference))
         held, self._held = self._held, []
         for held_reading in held:
-            self._sample(*held_reading, held=True)
+            self._sample(held_reading, held=True)
 
-    def _sample(self, sample, accel, gyro, field_h: np.ndarray, field_row: list, in_range: bool, t_rx: float,
-                held: bool = False) -> None:
-        """One sample through the filter and into the outputs (``field_row``: ``field_h`` as a list)."""
+    def _sample(self, reading: Reading, held: bool = False) -> None:
+        """One sample through the filter and into the outputs."""
+        sample, accel, gyro, field_h, field_row, in_range, t_rx = reading
         header = sample.header  # its own: a header later in the same chunk may have replaced the decoder's
         if self._filter is None or self._filter.gyro != (header.gyro is not None):
             self._filter = AttitudeFilter(self.config, gyro=header.gyro is not None)

@@ -27,11 +27,10 @@ from dataclasses import dataclass
 from functools import cached_property
 import numpy as np
 
-from .calibration_file import FORMAT, header
 from .response import LinearResponse, Response
 from .temperature import TemperatureCompensation
 
-__all__ = ["FORMAT", "NotAFieldVector", "SensorModel"]
+__all__ = ["NotAFieldVector", "SensorModel"]
 
 MIN_SINGULAR_VALUE = 1e-3
 """Smallest singular value of the sensing matrix (unit rows) that gives a field vector: the axes span 3-D."""
@@ -50,7 +49,8 @@ class NotAFieldVector(ValueError):
 class SensorModel:
     """A calibrated magnetic sensor: the runtime half of a calibration file.
 
-    Build it with :meth:`from_json` / :meth:`from_file`; write it with :meth:`to_json`.
+    Read it from a calibration file with :func:`compass.calibration.load` (``.model``); write it with
+    :func:`compass.calibration.model_to_dict` and :func:`compass.calibration.save`.
 
     Attributes
     ----------
@@ -60,7 +60,7 @@ class SensorModel:
         Unit sensing directions in the housing frame H.
     responses : tuple of Response
         Each channel's output as a function of its field component (field units).
-    field_magnitude : float
+    field_norm : float
         Calibrated |B| in field units (uT when ``field_ut`` is known, else 1: units of |B|).
     field_ut : float or None
         |B| in microtesla if the calibration knew it.
@@ -74,8 +74,9 @@ class SensorModel:
     response_sigma : ndarray, shape (c, 2), or None
         Standard errors of each channel's (offset, gain), output units and output units per
         field unit; None when unknown.
-    kind : {"channels", "tumble"}
-        The calibration file's form.
+    form : {"channels", "tumble", "installed"}
+        How the calibration file wrote it: channels, a tumble's ellipsoid, or a bench model inside
+        its product.
     temperature : TemperatureCompensation or None
         The file's ``temperature`` effect: applied when readings come with ``temp_c``.
     """
@@ -83,13 +84,13 @@ class SensorModel:
     channels: tuple[str, ...]
     directions: np.ndarray
     responses: tuple[Response, ...]
-    field_magnitude: float
+    field_norm: float
     field_ut: float | None = None
     dip_deg: float | None = None
     noise: np.ndarray | None = None
     direction_covariance: np.ndarray | None = None
     response_sigma: np.ndarray | None = None
-    kind: str = "channels"
+    form: str = "channels"
     temperature: TemperatureCompensation | None = None
 
     def __post_init__(self):
@@ -99,8 +100,8 @@ class SensorModel:
                              f"{np.shape(self.directions)} and {len(self.responses)}")
         if not np.all(np.isfinite(self.directions)):
             raise ValueError("sensing directions must be finite")
-        if not self.field_magnitude > 0:
-            raise ValueError(f"calibrated |B| must be positive, got {self.field_magnitude}")
+        if not self.field_norm > 0:
+            raise ValueError(f"calibrated |B| must be positive, got {self.field_norm}")
         if c < 3:
             raise NotAFieldVector(f"the calibration has {c} channel{'s' if c > 1 else ''} ({', '.join(self.channels)}): "
                                   "a calibration of single-axis channels, valid as such, but the field vector (and "
@@ -109,58 +110,6 @@ class SensorModel:
         if smallest < MIN_SINGULAR_VALUE:
             raise NotAFieldVector(f"the sensing directions of {', '.join(self.channels)} do not span three "
                                   f"dimensions (smallest singular value {smallest:.2g}): the field cannot be solved")
-
-    # ------------------------------------------------------------------ construction
-
-    @classmethod
-    def from_file(cls, path) -> "SensorModel":
-        """Read a calibration file (SPEC section 2) through :func:`compass.calibration_file.load`.
-
-        Raises
-        ------
-        CalibrationFileError
-            A ``ValueError`` naming the file and the key: unreadable, not JSON, unknown
-            ``format`` or kind, or a missing/invalid key.
-        """
-        from .calibration_file import load
-
-        return load(path).model
-
-    @classmethod
-    def from_json(cls, d: dict) -> "SensorModel":
-        """Build the model from a calibration file's dictionary (any kind), validated.
-
-        Raises
-        ------
-        CalibrationFileError
-            A ``ValueError`` naming the key: ``format`` other than ``compass-calibration/1``,
-            unknown kind, or a missing/invalid key.
-        """
-        from .calibration_file import from_dict
-
-        return from_dict(d).model
-
-    def to_json(self) -> dict:
-        """The calibration file's runtime keys (channel form), JSON-ready.
-
-        A tumble model comes back in its equivalent channel form; :meth:`from_json` reads it back
-        to the same model.
-        """
-        channels = {}
-        for c, name in enumerate(self.channels):
-            entry = {"direction": [float(v) for v in self.directions[c]], "response": self.responses[c].to_json()}
-            if self.direction_covariance is not None:
-                entry["direction_covariance"] = self.direction_covariance[c].tolist()
-            if self.response_sigma is not None:
-                entry["response_sigma"] = {"offset": float(self.response_sigma[c, 0]),
-                                           "gain": float(self.response_sigma[c, 1])}
-            channels[name] = entry
-        out = header("channels") | {"channels": channels, "dip_deg": self.dip_deg, "field_ut": self.field_ut}
-        if self.temperature is not None and self.temperature.reference_c is not None:
-            out["effects"] = [self.temperature.to_json(self.channels)]
-        if self.noise is not None:
-            out["noise_floor"] = [float(v) for v in self.noise]
-        return out
 
     # ------------------------------------------------------------------ derived
 
@@ -300,7 +249,7 @@ class SensorModel:
         """``f'(x) / K`` per channel: 1 for linear channels, a central difference otherwise."""
         if all(isinstance(r, LinearResponse) for r in self.responses):
             return 1.0
-        h = _SLOPE_STEP * self.field_magnitude
+        h = _SLOPE_STEP * self.field_norm
         slopes = [np.ones_like(x[..., c]) if isinstance(r, LinearResponse) else
                   (r.output(x[..., c] + h) - r.output(x[..., c] - h)) / (2 * h * r.gain)
                   for c, r in enumerate(self.responses)]

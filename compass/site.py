@@ -202,7 +202,7 @@ class ReferenceField:
     ----------
     dip_deg, dip_sigma_deg : float
         Reference dip and its 1-sigma, degrees.
-    field_magnitude, field_sigma : float
+    field_norm, field_sigma : float
         Reference |B| in the sensor model's field units and its 1-sigma, same units.
     source : str
         ``"site"`` (given by the user), ``"calibration site"`` (the file's ``site`` block) or
@@ -215,7 +215,7 @@ class ReferenceField:
 
     dip_deg: float
     dip_sigma_deg: float
-    field_magnitude: float
+    field_norm: float
     field_sigma: float
     source: str
     description: str
@@ -224,19 +224,19 @@ class ReferenceField:
 
     def complete(self, estimate: "ReferenceField") -> "ReferenceField":
         """This reference with its |B| taken from ``estimate`` when unknown (NaN); else itself."""
-        if np.isfinite(self.field_magnitude):
+        if np.isfinite(self.field_norm):
             return self
-        return replace(self, field_magnitude=estimate.field_magnitude, field_sigma=estimate.field_sigma,
-                       description=f"{self.description}; |B| {estimate.field_magnitude:.4g} from the {estimate.source}")
+        return replace(self, field_norm=estimate.field_norm, field_sigma=estimate.field_sigma,
+                       description=f"{self.description}; |B| {estimate.field_norm:.4g} from the {estimate.source}")
 
 
-def known_reference(dip_deg: float, field_magnitude: float, *, dip_sigma_deg: float = 0.0,
+def known_reference(dip_deg: float, field_norm: float, *, dip_sigma_deg: float = 0.0,
                     field_sigma: float = 0.0) -> ReferenceField:
     """A reference field the caller knows (a local survey, a simulation's truth), source ``"given"``."""
-    if not (np.isfinite(dip_deg) and abs(dip_deg) < 90.0 and field_magnitude > 0):
-        raise ValueError(f"expected a dip in (-90, 90) degrees and a positive |B|, got {dip_deg} and {field_magnitude}")
-    return ReferenceField(float(dip_deg), float(dip_sigma_deg), float(field_magnitude), float(field_sigma), "given",
-                          f"given: |B| {field_magnitude:.4g} +- {field_sigma:.2g}, dip {dip_deg:.3f} +- {dip_sigma_deg:.3f} deg")
+    if not (np.isfinite(dip_deg) and abs(dip_deg) < 90.0 and field_norm > 0):
+        raise ValueError(f"expected a dip in (-90, 90) degrees and a positive |B|, got {dip_deg} and {field_norm}")
+    return ReferenceField(float(dip_deg), float(dip_sigma_deg), float(field_norm), float(field_sigma), "given",
+                          f"given: |B| {field_norm:.4g} +- {field_sigma:.2g}, dip {dip_deg:.3f} +- {dip_sigma_deg:.3f} deg")
 
 
 def reference_from_site(site: Site, *, field_ut: float | None, source: str = "site") -> ReferenceField:

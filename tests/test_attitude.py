@@ -13,6 +13,7 @@ from compass.response import LinearResponse
 from compass.sim.fourflip import simulate_fourflip
 from compass.site import known_reference
 from compass.sim.runtime import simulate_runtime, write_runtime
+from compass.calibration import model_to_dict
 
 
 @pytest.fixture(scope="module")
@@ -203,7 +204,7 @@ def test_known_tilt_columns(truth):
 def files(tmp_path_factory, truth):
     folder = tmp_path_factory.mktemp("att")
     cal = folder / "cal.json"
-    cal.write_text(json.dumps(true_model(truth).to_json()))
+    cal.write_text(json.dumps(model_to_dict(true_model(truth))))
     rec, truth_csv = write_runtime(simulate_runtime(truth, 2000, seed=13), folder / "rec.csv")
     return folder, cal, rec, truth_csv
 
@@ -221,6 +222,25 @@ def test_cli_end_to_end(files, capsys):
     assert main(["attitude", str(cal), str(rec), "--out", str(out)]) == 2
     assert "use --force" in capsys.readouterr().err
     assert main(["attitude", str(cal), str(rec), "--out", str(out), "--force"]) == 0
+
+
+def test_solve_recording_is_the_library_call_the_command_writes(files, tmp_path):
+    """The command is a thin adapter: its CSV is solve_recording's, which solves the rows as solve_attitude does."""
+    from compass.errors import BadInput
+    from compass.recording import solve_recording
+
+    folder, cal, rec, _ = files
+    solved = solve_recording(cal, rec)
+    table = read_table(rec)
+    raw = np.column_stack([table.column(c) for c in solved.model.channels])
+    accel = np.column_stack([table.column(c) for c in ("ax", "ay", "az")])
+    direct = solve_attitude(solved.model, raw, accel=accel)  # an uncorrected model file: the IMU is left as is
+    np.testing.assert_array_equal(solved.attitude.heading_deg, direct.heading_deg)
+    out = tmp_path / "att.csv"
+    assert main(["attitude", str(cal), str(rec), "--out", str(out)]) == 0
+    assert out.read_text() == solved.to_csv()
+    with pytest.raises(BadInput, match="--accel-noise-g must be positive"):
+        solve_recording(cal, rec, accel_noise_g=0.0)
 
 
 def test_cli_level_mode_columns(files, tmp_path):

@@ -1,4 +1,4 @@
-"""The calibration file: one validated reader and writer for every command (issues 12 and 16)."""
+"""The calibration file: one validated reader and writer for every command, one frozen value."""
 
 import json
 import math
@@ -8,7 +8,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from compass.calibration_file import CalibrationFileError, dumps, from_dict, kind_of, load
+from compass.calibration import CalibrationFileError, dumps, from_dict, kind_of, load, model_to_dict, save
 from compass.cli import main
 from compass.model import SensorModel
 from compass.response import LinearResponse
@@ -16,7 +16,7 @@ from compass.response import LinearResponse
 
 def channel_doc() -> dict:
     model = SensorModel(("v1", "v2", "v3"), np.eye(3), (LinearResponse(1.0, 2.0, (-1.0, 1.0)),) * 3, 1.0, dip_deg=60.0)
-    return model.to_json() | {"noise_floor": [0.01, 0.01, 0.01]}
+    return model_to_dict(model) | {"noise_floor": [0.01, 0.01, 0.01]}
 
 
 def tumble_doc() -> dict:
@@ -163,3 +163,84 @@ def test_export_says_when_the_field_norm_is_not_in_ut(tmp_path, capsys):
     assert "0.31" in captured.err and "gauss" in captured.err and "# warning:" in captured.out
     assert main(["export", str(cal), "--format", "ardupilot", "--unit", "gauss"]) == 0
     assert "warning" not in capsys.readouterr().err
+
+
+def installed_doc(bench: dict, **installation) -> dict:
+    return {"format": "compass-calibration/1", "model": "installed", "base": bench,
+            "installation": {"hard_iron_ut": [1.0, -2.0, 0.5], "soft_iron": np.eye(3).tolist()} | installation}
+
+
+@pytest.mark.parametrize("make", [channel_doc, tumble_doc, lambda: installed_doc(channel_doc())],
+                         ids=["channels", "tumble", "installed"])
+def test_a_file_read_and_saved_again_is_the_same_bytes(tmp_path, make):
+    first = tmp_path / "first.json"
+    save(first, make())
+    cal = load(first)
+    again = save(tmp_path / "again.json", cal)
+    assert again.read_bytes() == first.read_bytes()
+    with pytest.raises(FileExistsError):
+        save(first, cal)  # never over a file without force
+
+
+def test_a_calibrate_command_file_reads_back_identically(tmp_path):
+    from compass.sim.fourflip import SimAccelerometer, simulate_fourflip, write_fourflip
+
+    rec, _ = write_fourflip(simulate_fourflip(seed=4, accelerometer=SimAccelerometer()), tmp_path / "rec.csv")
+    cal = tmp_path / "cal.json"
+    assert main(["calibrate", str(rec), "--out", str(cal), "--quiet", "--no-diagnose"]) == 0
+    value = load(cal)
+    assert save(tmp_path / "copy.json", value).read_bytes() == cal.read_bytes()
+    doc = json.loads(cal.read_text())
+    assert value.kind == "fourflip" and value.provenance.method == doc["method"]
+    np.testing.assert_array_equal(value.imu.mag_to_accel, doc["mag_to_accel"])
+    np.testing.assert_array_equal(value.model.directions, [doc["channels"][c]["direction"] for c in value.model.channels])
+    assert value.provenance.dip_sigma_deg == doc["dip_sigma_deg"]
+
+
+def test_the_value_is_frozen_and_its_document_read_only():
+    import dataclasses
+
+    cal = from_dict(channel_doc())
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cal.kind = "tumble"
+    with pytest.raises(TypeError):
+        cal.document["dip_deg"] = 0.0
+    with pytest.raises(TypeError):
+        cal.document["channels"]["v1"]["direction"][0] = 0.5  # read-only all the way down
+
+
+@pytest.mark.parametrize("change, key", [
+    ({"soft_iron": [[1.0, 0.1, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]}, "'installation.soft_iron' must be symmetric"),
+    ({"soft_iron": (-np.eye(3)).tolist()}, "'installation.soft_iron' must be positive definite"),
+    ({"alignment": (2 * np.eye(3)).tolist()}, "'installation.alignment' must be a proper rotation"),
+    ({"hard_iron_ut": [1.0, 2.0]}, "'installation.hard_iron_ut' must be a list of 3 numbers"),
+])
+def test_an_installed_file_is_checked_by_the_same_validator_as_a_tumble(tmp_path, change, key):
+    path = tmp_path / "installed.json"
+    path.write_text(json.dumps(installed_doc(channel_doc(), **change)))
+    with pytest.raises(CalibrationFileError, match=f"^{path}: {key}"):
+        load(path)
+
+
+def test_a_bad_base_is_named_under_base(tmp_path):
+    bench = channel_doc()
+    bench["dip_deg"] = 91.0
+    with pytest.raises(CalibrationFileError, match="'base.dip_deg' must be within"):
+        from_dict(installed_doc(bench))
+
+
+def test_an_installed_file_carries_its_bench_imu_and_hemisphere():
+    from scipy.spatial.transform import Rotation
+
+    turn = Rotation.from_rotvec([0.01, -0.02, 0.03]).as_matrix()
+    align = Rotation.from_euler("z", 20, degrees=True).as_matrix()
+    bench = channel_doc() | {"model": "fourflip", "mag_to_accel": turn.tolist(),
+                             "accelerometer": {"offset": [0.01, 0.0, -0.01], "scale_yz": [1.01, 0.99], "one_g": 1.0}}
+    cal = from_dict(installed_doc(bench, alignment=align.tolist()))
+    assert cal.kind == "installed" and cal.installation.base.kind == "fourflip"
+    assert cal.provenance.hemisphere_assumed  # a four-flip base without a given hemisphere
+    a = np.array([[0.1, -0.2, 0.95]])
+    expected = ((a - [0.01, 0.0, -0.01]) / [1.0, 1.01, 0.99]) @ turn @ align.T  # a_model = A M^T (a - o) / s
+    np.testing.assert_allclose(cal.imu.apply(a), expected, rtol=1e-12)
+    # the bench's directions (the identity) turned into the product's frame; the soft iron is the identity
+    np.testing.assert_allclose(cal.model.unit_directions, np.eye(3) @ align.T, atol=1e-12)

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from calibrate.contract import Calibration, Calibrator, CannotCalibrate
 from calibrate.kinds import KINDS, sniff
 from compass.attitude import solve_attitude
-from compass.calibration_file import FORMAT, KIND_KEY, dumps, load
+from compass.calibration import FORMAT, KIND_KEY, dumps, load
 from compass.cli import main
 from compass.io.table import read_table
 
@@ -64,7 +64,7 @@ def tumble_session(tmp_path):
 def installed_session(tmp_path):
     """A four-flip bench sensor in a product (hard and soft iron), tumbled; '# base:' names its bench file."""
     from calibrate import calibrate_fourflip
-    from compass.calibration_file import dumps
+    from compass.calibration import dumps
     from compass.io.fourflip import read_fourflip
     from compass.sim.fourflip import simulate_fourflip, write_fourflip
     from compass.sim.installation import random_installation, simulate_installation, write_installation
@@ -135,8 +135,8 @@ def test_kind_fits_writes_reads_back_and_solves_attitude(tmp_path, name):
     err = np.mod(att.heading_deg - angles[:, 0] + 180.0, 360.0) - 180.0
     # the field direction's error from the noise floor alone, over the fit's samples
     n_fit = len(table.rows)
-    floor = np.degrees(np.max(model.component_noise) * model.field_magnitude / FIELD_UT / np.sqrt(n_fit / 12)
-                       / (model.field_magnitude * np.cos(dip)))
+    floor = np.degrees(np.max(model.component_noise) * model.field_norm / FIELD_UT / np.sqrt(n_fit / 12)
+                       / (model.field_norm * np.cos(dip)))
     sigma = np.sqrt(np.mean(att.heading_sigma_deg**2)) if model.direction_covariance is not None else floor
     assert np.sqrt(np.mean(err**2)) < 3 * max(sigma, floor)
 
@@ -181,3 +181,12 @@ def test_absurd_fits_are_refused_naming_the_column(tmp_path, capsys, kind, damag
     column, message = lines[first].split(",")[col], message.format(row=first + 4)
     assert message in err and f"'{column}'" in err and "rec.csv" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "cal.json").exists()
+
+
+def test_a_registry_line_naming_another_kinds_calibrator_is_refused_when_used():
+    from calibrate.kinds import Kind
+
+    wrong = Kind("fourflip", "flip_deg", lambda t: True, "compass.io.fourflip:fourflip_from_table",
+                 "calibrate.tumble:TumbleCalibrator")
+    with pytest.raises(ValueError, match="TumbleCalibrator is for 'tumble'"):
+        wrong.calibrator

@@ -8,6 +8,7 @@ import pytest
 from calibrate import calibrate_fourflip
 from calibrate.fourflip.effects import EFFECTS
 from tests.conftest import angle_deg
+from compass.calibration import model_from_dict
 
 
 def _check_explained(result, truth):
@@ -108,7 +109,7 @@ def test_asymmetric_response_found_and_inverted_at_runtime(tmp_path):
     assert result.diagnosis["effects"] == ["nonlinear_response"] and not result.diagnosis["unexplained"]
     sigma = np.array([c.direction_sigma_deg for c in result.channels])
     assert np.all(angle_deg(result.directions, truth.directions) < 3 * sigma)
-    model = SensorModel.from_json(result.to_json())
+    model = model_from_dict(result.to_json())
     probe = np.array([[-40.0, 0.0, 40.0]]).T * np.ones(3)  # field components, uT
     raw = truth.offsets + truth.gains * (probe + c2 * probe**2)
     recovered = np.column_stack([ch.response.field_component(raw[:, i])[0] for i, ch in enumerate(result.channels)])

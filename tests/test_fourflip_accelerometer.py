@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from calibrate import calibrate_fourflip
 from calibrate.fourflip.accelerometer import fit_accelerometer
-from compass.calibration_file import CalibrationFileError, from_dict
+from compass.calibration import CalibrationFileError, from_dict
 from compass.sim.fourflip import SimAccelerometer, simulate_fourflip
 from compass.sim.runtime import simulate_runtime
 
@@ -202,22 +202,31 @@ def test_cli_simulates_and_calibrates_the_accelerometer(tmp_path, capsys):
 
 
 def test_imu_rotation_into_the_model_frame_composes_bench_and_installation():
-    from compass.accel_alignment import accel_correction, accel_to_housing, imu_to_model
+    from compass.calibration import ImuCorrection
 
     session = simulate_fourflip(seed=13, accelerometer=SimAccelerometer())
     doc = calibrate_fourflip(session.recording(), diagnose=False).to_json()
+    imu = from_dict(doc).imu
     m = np.array(doc["mag_to_accel"])
-    assert np.allclose(imu_to_model(doc), m.T)
+    assert np.allclose(imu.rotation, m.T)
     a = np.array([[0.1, 0.2, 0.97]])
-    fix = accel_correction(doc)  # the bench's offsets (none simulated: noise-small) and Y/Z scales undone first
-    assert np.all(np.abs(fix.offset) < 0.002) and np.all(np.abs(fix.scale - 1) < 0.002)
-    assert np.allclose(accel_to_housing(doc, a), fix.apply(a) @ m)  # a_H = m^T a
+    # the bench's offsets (none simulated: noise-small) and Y/Z scales undone first
+    assert np.all(np.abs(imu.offset) < 0.002) and np.all(np.abs(imu.scale - 1) < 0.002) and imu.scale[0] == 1.0
+    assert np.allclose(imu.apply(a), (a - imu.offset) / imu.scale @ m)  # a_H = m^T a
+    assert np.allclose(imu.apply(a, bench=False), a @ m)
     align = Rotation.from_euler("z", 30, degrees=True).as_matrix()
-    installed = {"model": "installed", "base": doc, "installation": {"alignment": align.tolist()}}
-    assert np.allclose(imu_to_model(installed), align @ m.T)
-    assert imu_to_model({k: v for k, v in doc.items() if k != "mag_to_accel"}) is None
-    tumble = {"model": "tumble", "mag_to_accel": m.tolist()}  # folded into the tumble's model already
-    assert imu_to_model(tumble) is None and accel_to_housing(tumble, a) is a
+    installed = {"format": doc["format"], "model": "installed", "base": doc,
+                 "installation": {"hard_iron_ut": [0.0, 0.0, 0.0], "soft_iron": np.eye(3).tolist(),
+                                  "alignment": align.tolist()}}
+    both = from_dict(installed).imu
+    assert np.allclose(both.rotation, align @ m.T) and np.allclose(both.offset, imu.offset)
+    assert from_dict({k: v for k, v in doc.items() if k != "mag_to_accel"}).imu.rotation is None
+    tumble = from_dict({"format": doc["format"], "model": "tumble", "hard_iron": [0.0, 0.0, 0.0], "field_norm": 50.0,
+                        "soft_iron": np.eye(3).tolist(), "mag_to_accel": m.tolist()})  # folded into its model
+    assert tumble.imu.rotation is None and np.array_equal(tumble.imu.apply(a), a)
+    assert np.allclose(tumble.model.unit_directions, m.T)  # the model itself is in the accelerometer's frame
+    with pytest.raises(ValueError, match="offset, scale and one_g together"):
+        ImuCorrection(offset=np.zeros(3))
 
 
 def test_export_puts_the_field_in_the_accelerometer_frame(tmp_path):
@@ -254,15 +263,15 @@ def test_bench_offsets_and_scales_are_undone_at_runtime_only_in_the_bench_unit()
     """Offsets of 0.02 g, measured on the bench: undone, pitch and roll come back to the aligned accelerometer's
     floor (scale errors would leave the X axis's, which the flips cannot see); the same readings in m/s^2 do not read 1 g as the bench's did, so they only
     get the rotation, with a warning (the bench's offsets are in g)."""
-    from compass.accel_alignment import accel_correction, accel_to_housing, housing_from_accel
     from compass.attitude import solve_attitude
-    from compass.calibration_file import from_dict
+    from compass.calibration import from_dict
     from compass.io.units import RecordingWarning
     from compass.sim.runtime import simulate_runtime
 
     session = simulate_fourflip(seed=16, accelerometer=SimAccelerometer(misalign_deg=1.0, offset_g=0.02))
     doc = calibrate_fourflip(session.recording(), diagnose=False).to_json()
-    model = from_dict(doc).model
+    cal = from_dict(doc)
+    model, imu = cal.model, cal.imu
     run = simulate_runtime(session.truth, 600, seed=17, max_tilt_deg=40.0)
     aligned = simulate_runtime({**session.truth, "effects": []}, 600, seed=17, max_tilt_deg=40.0)
 
@@ -271,10 +280,11 @@ def test_bench_offsets_and_scales_are_undone_at_runtime_only_in_the_bench_unit()
         return float(np.sqrt(np.mean(np.concatenate([att.pitch_deg - rt.pitch_deg, att.roll_deg - rt.roll_deg]) ** 2)))
 
     floor = tilt_rms(aligned.accel, aligned)
-    rotated_only = tilt_rms(run.accel @ housing_from_accel(doc).T)
-    corrected = tilt_rms(accel_to_housing(doc, run.accel))
-    assert rotated_only > 3 * floor and corrected < 1.2 * floor + 0.01
+    rotated_only = tilt_rms(imu.apply(run.accel, bench=False))
+    corrected, undone = imu.in_model_frame(run.accel)
+    assert undone and rotated_only > 3 * floor and tilt_rms(corrected) < 1.2 * floor + 0.01
     with pytest.warns(RecordingWarning, match="does not read 1 g"):
-        in_si = accel_to_housing(doc, 9.80665 * run.accel)
-    np.testing.assert_allclose(in_si, 9.80665 * run.accel @ housing_from_accel(doc).T)
-    assert accel_correction(doc).fits(run.accel) and not accel_correction(doc).fits(9.80665 * run.accel)
+        in_si, undone = imu.in_model_frame(9.80665 * run.accel)
+    assert not undone
+    np.testing.assert_allclose(in_si, 9.80665 * run.accel @ imu.to_housing.T)
+    assert imu.fits(run.accel) and not imu.fits(9.80665 * run.accel)

@@ -24,12 +24,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from compass.calibration_file import FORMAT, load
+from compass.calibration import FORMAT, load
 from compass.cli import main
 from compass.io.lines import LineDecoder, format_line
 from compass.live import LiveSession
 from compass.serial_reader import Chunk
 from compass.sim.device import PtyDevice, default_model, simulate_device
+from compass.calibration import model_to_dict
 
 CHANNELS = ("mx", "my", "mz")
 TOKENS = [b"mx", b"my", b"mz", b"t_s", b"seq", b"ax", b"ay", b"az", b"gx", b"gy", b"gz", b"temp_c", b"foo", b",", b",",
@@ -114,7 +115,7 @@ def test_a_live_session_never_raises_on_what_a_line_can_carry(edits, cuts):
 # calibration files as the commands see them
 
 def _channel_doc() -> dict:
-    return default_model().to_json()
+    return model_to_dict(default_model())
 
 
 def _tumble_doc() -> dict:
@@ -210,7 +211,7 @@ def test_any_calibration_json_is_refused_clearly_or_gives_finite_attitudes(kind,
             _assert_refused(code, err, cal)
             assert not out.exists()
             return
-        assert _all_finite(load(cal).model.to_json())
+        assert _all_finite(model_to_dict(load(cal).model))
         lines = [line for line in out.read_text().splitlines() if not line.startswith("#")]
         table = np.genfromtxt(lines, delimiter=",", names=True)
         used = table["skipped"] == 0
@@ -396,7 +397,7 @@ def test_a_counter_at_any_extreme_never_stops_or_poisons_a_session(column, value
 
 
 def test_a_reserved_name_is_never_a_calibration_channel(tmp_path):
-    from compass.calibration_file import CalibrationFileError
+    from compass.calibration import CalibrationFileError
     from compass.io.names import RESERVED_NAMES
 
     for name in RESERVED_NAMES:

@@ -19,6 +19,7 @@ from compass.model import SensorModel
 from compass.sim.fourflip import simulate_fourflip, write_fourflip
 from compass.sim.installation import random_installation, simulate_installation, true_model, write_installation
 from compass.sim.runtime import write_runtime
+from compass.calibration import model_from_dict
 
 
 def wrap(d):
@@ -37,7 +38,7 @@ def bench(tmp_path_factory):
     cal = calibrate_fourflip(read_fourflip(path), diagnose=True)
     doc = cal.to_json()
     (folder / "bench.json").write_text(json.dumps(doc))
-    return SensorModel.from_json(doc), doc, session.truth, folder
+    return model_from_dict(doc), doc, session.truth, folder
 
 
 def fit(bench, rec, **options):
@@ -112,7 +113,7 @@ def test_tilted_swing_with_heading_reference_fits_the_yaw(bench):
     after = result.card_after
     assert after is not None and after.residual_rms_deg < 0.6 and abs(after.coefficients_deg["A"]) < 0.1
     # compass attitude reads the alignment: the product's heading, not the housing's
-    from compass.calibration_file import dumps
+    from compass.calibration import dumps
 
     folder = bench[3]
     (folder / "aligned.json").write_text(dumps(result.to_json()))
@@ -204,7 +205,7 @@ def bench_cubic(bench, tmp_path_factory):
     for channel in doc["channels"].values():
         channel["response"] |= {"model": "cubic", "cubic": 1e-9, "range": [-50.0, 50.0]}
     (folder / "bench.json").write_text(json.dumps(doc))
-    return SensorModel.from_json(doc), doc, truth, folder
+    return model_from_dict(doc), doc, truth, folder
 
 
 def test_rows_outside_a_nonlinear_bench_range_are_left_out_and_counted(bench_cubic):
@@ -271,7 +272,7 @@ def bench_normalized(tmp_path_factory):
     doc = calibrate_fourflip(rec, diagnose=True).to_json()
     assert doc["field_ut"] is None
     (folder / "bench.json").write_text(json.dumps(doc))
-    return SensorModel.from_json(doc), doc, session.truth, folder
+    return model_from_dict(doc), doc, session.truth, folder
 
 
 def test_hard_iron_prior_is_in_the_bench_field_unit(bench_normalized):
@@ -372,7 +373,7 @@ def test_cli_installation_bad_input(bench, tmp_path, capsys, args, message):
 def test_export_of_the_installed_calibration_reproduces_its_field(bench, tmp_path, capsys):
     import re
 
-    from compass.calibration_file import load
+    from compass.calibration import load
 
     _, _, truth, folder = bench
     rec_path, _ = write_installation(simulate_installation(truth, random_installation(59), n=1500, seed=60),

@@ -1,11 +1,14 @@
-"""The layering the README states, read from the imports (issue 12, item 6).
+"""The layering the README states, read from the imports.
 
 Data flows one way: recordings -> ``calibrate`` -> calibration file -> ``compass`` -> attitude.
-``compass`` (the runtime) never imports ``calibrate``; the one exception is the command-line layer,
-``compass/commands/``, which sits on top of both (it runs calibrations, live ones included).
+``compass`` (the runtime) never imports ``calibrate``; the one exception is the command-line layer
+(``compass/cli.py``, ``compass/__main__.py``, ``compass/commands/``), which sits on top of both (it runs
+calibrations, live ones included) and which no library module imports.  No module of either package
+is in an import circle, and only :mod:`compass.calibration` reads a calibration's document.
 """
 
 import ast
+import warnings
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -98,10 +101,21 @@ def test_no_private_name_is_imported_from_another_calibrate_module():
     assert offenders == []
 
 
-def test_calibrate_has_no_import_cycles():
-    modules = _modules("calibrate")
-    graph = {name: {m for m, _ in _imports(name, path, modules) if m in modules and m != name}
-             for name, path in modules.items()}
+COMMAND_LAYER = ("compass.cli", "compass.__main__", "compass.commands")
+
+
+def _graph(packages) -> dict[str, set[str]]:
+    """Module -> the modules of ``packages`` it imports (lazily too), over all of them together."""
+    modules = {}
+    for package in packages:
+        modules |= _modules(package)
+    return {name: {m for m, _ in _imports(name, path, modules) if m in modules and m != name}
+            for name, path in modules.items()}
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Import circles of a module graph, each as the trail that closes it (a package's own children
+    may import it while it imports them: ``compass.filter._base`` -> ``compass.filter``)."""
     state, cycles = {}, []
 
     def visit(node, trail):
@@ -116,4 +130,74 @@ def test_calibrate_has_no_import_cycles():
     for name in sorted(graph):
         if name not in state:
             visit(name, [name])
-    assert cycles == []
+    return cycles
+
+
+def test_no_import_circle_anywhere_in_compass_or_calibrate():
+    assert _cycles(_graph(("compass", "calibrate"))) == []
+
+
+def test_the_circle_detector_finds_a_planted_circle():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == [["a", "b", "c", "a"]]
+    graph = _graph(("compass",))
+    graph["compass.model"] = graph["compass.model"] | {"compass.calibration._read"}  # the circle this tree had
+    assert any("compass.model" in trail and "compass.calibration._read" in trail for trail in _cycles(graph))
+
+
+def _in_command_layer(name: str) -> bool:
+    return any(name == top or name.startswith(top + ".") for top in COMMAND_LAYER)
+
+
+def _library_importing_commands(graph) -> dict[str, list[str]]:
+    return {name: sorted(m for m in imported if _in_command_layer(m))
+            for name, imported in graph.items()
+            if not _in_command_layer(name) and any(_in_command_layer(m) for m in imported)}
+
+
+def test_the_library_never_imports_the_command_layer_which_imports_the_library():
+    graph = _graph(("compass", "calibrate"))
+    assert _library_importing_commands(graph) == {}
+    commands = [n for n in graph if n.startswith("compass.commands.")]
+    assert len(commands) >= 8 and all(any(not _in_command_layer(m) for m in graph[n]) for n in commands)
+    planted = graph | {"compass.attitude": graph["compass.attitude"] | {"compass.cli"}}
+    assert _library_importing_commands(planted) == {"compass.attitude": ["compass.cli"]}
+
+
+DOCUMENT_ATTRIBUTES = ("data", "document")
+"""What a calibration's JSON was (``CalibrationFile.data``) or is (``Calibration.document``) read through."""
+NOT_CALIBRATIONS = {"table", "item", "args", "lines"}
+"""Receivers of ``.data`` that are no calibration (a recording's table, a port's chunk, argparse, a line)."""
+
+
+def document_reads(source: str) -> list[str]:
+    """``x.data`` / ``x.document`` reads in ``source``, except on receivers known to be no calibration
+    (:data:`NOT_CALIBRATIONS`, and a class's own ``self.data``)."""
+    found = []
+    with warnings.catch_warnings():  # a script's invalid escape in a docstring is not this test's business
+        warnings.simplefilter("ignore", (SyntaxWarning, DeprecationWarning))
+        tree = ast.parse(source)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and node.attr in DOCUMENT_ATTRIBUTES:
+            receiver = node.value.id if isinstance(node.value, ast.Name) else None
+            if receiver not in NOT_CALIBRATIONS and not (receiver == "self" and node.attr == "data"):
+                found.append(f"{node.lineno}: {ast.unparse(node)}")
+    return found
+
+
+def test_only_the_calibration_package_reads_a_calibration_document():
+    offenders = {}
+    for folder in ("compass", "calibrate", "tools", "examples"):
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            rel = path.relative_to(ROOT).as_posix()
+            if rel.startswith("compass/calibration/"):
+                continue
+            reads = document_reads(path.read_text(encoding="utf-8"))
+            if reads:
+                offenders[rel] = reads
+    assert offenders == {}
+
+
+def test_the_document_check_finds_a_planted_read():
+    planted = "cal = load(path)\nrotation = cal.data['mag_to_accel']\nbase = bench.document['base']\n"
+    assert document_reads(planted) == ["2: cal.data", "3: bench.document"]
+    assert document_reads("rows = table.data[:, 0]\n") == []

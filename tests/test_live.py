@@ -13,6 +13,7 @@ from compass.frames import heading_pitch_roll
 from compass.io.lines import format_line
 from compass.io.table import read_table
 from compass.live import LiveSession
+from compass.calibration import model_to_dict
 from compass.serial_reader import Chunk, LinkEvent, SerialReader
 from compass.sim.device import PtyDevice, default_model, scripted_motion, simulate_device
 from tests._proc import Proc, compass_command
@@ -154,7 +155,7 @@ def test_pty_device_end_to_end_with_noise_disconnect_and_ctrl_c(tmp_path):
     on the way out (the test fails, never hangs)."""
     cal, link = tmp_path / "cal.json", tmp_path / "compass-dev"
     rrd, att = tmp_path / "live.rrd", tmp_path / "att.csv"
-    cal.write_text(json.dumps(default_model().to_json()))
+    cal.write_text(json.dumps(model_to_dict(default_model())))
     with Proc(compass_command("live", "--port", str(link), "--cal", str(cal), "--rerun", str(rrd), "--out", str(att),
                               "--wait", "60")) as live:
         assert live.wait_for(lambda line: "waiting for" in line, 60.0), live.transcript()
@@ -207,7 +208,7 @@ def test_live_bad_input_exits_2(tmp_path, capsys):
     cal = tmp_path / "cal.json"
     assert main(["device", "--pty", "--save-cal", str(cal), "--duration", "-1"]) == 2
     assert not cal.exists()  # bad options are refused before anything is written
-    cal.write_text(__import__("json").dumps(default_model().to_json()))
+    cal.write_text(__import__("json").dumps(model_to_dict(default_model())))
     assert main(["live", "--port", "nosuch://x", "--cal", str(cal)]) == 2
     assert "nosuch" in capsys.readouterr().err
     assert main(["live", "--port", "/dev/null", "--cal", str(cal), "--site", "95,0"]) == 2
@@ -220,7 +221,7 @@ def test_live_bad_input_exits_2(tmp_path, capsys):
 
 def test_live_exits_when_asked_while_waiting_for_the_port(tmp_path, capsys):
     cal = tmp_path / "cal.json"
-    cal.write_text(json.dumps(default_model().to_json()))
+    cal.write_text(json.dumps(model_to_dict(default_model())))
     port = tmp_path / "nothing"
     assert main(["live", "--port", str(port), "--cal", str(cal), "--wait", "60", "--duration", "0.3"]) == 1
     captured = capsys.readouterr()
@@ -261,7 +262,7 @@ def _site_stream(dip_deg, field_ut, seconds=12.0):
     from dataclasses import replace
 
     model = default_model()
-    there = replace(model, dip_deg=dip_deg, field_magnitude=field_ut, field_ut=field_ut)
+    there = replace(model, dip_deg=dip_deg, field_norm=field_ut, field_ut=field_ut)
     device = PtyDevice(there, rate_hz=100.0)
     t = np.arange(int(seconds * 100)) / 100.0
     return model, device._header + b"".join(device._lines(simulate_device(there, t, seed=3), 0)), t
@@ -279,8 +280,8 @@ def test_live_at_another_site_seeds_its_reference_from_the_first_quiet_second():
     model, stream, t = _site_stream(48.0, 45.0)  # the bench: dip 60, |B| 50
     seeded, out = LiveSession(model, out=io.StringIO()), None
     _run(seeded, stream)
-    assert abs(seeded.reference.dip_deg - 48.0) < 0.3 and abs(seeded.reference.field_magnitude - 45.0) < 0.3
-    bench = LiveSession(model, reference=known_reference(model.dip_deg, model.field_magnitude), out=io.StringIO())
+    assert abs(seeded.reference.dip_deg - 48.0) < 0.3 and abs(seeded.reference.field_norm - 45.0) < 0.3
+    bench = LiveSession(model, reference=known_reference(model.dip_deg, model.field_norm), out=io.StringIO())
     _run(bench, stream)
     rows = {name: np.array([line.split(",") for line in s.out.getvalue().splitlines()[2:]], dtype=float)
             for name, s in (("seeded", seeded), ("bench", bench))}
@@ -340,13 +341,14 @@ def test_live_with_a_site_writes_true_heading(tmp_path):
 
 
 def test_live_turns_the_module_into_the_product_frame_of_an_installed_calibration():
+    from compass.calibration import ImuCorrection
     from compass.frames import r_world_from_housing
     from compass.installed import installed_model
 
     model, stream, t = _site_stream(60.0, 50.0, seconds=8.0)
     yaw = Rotation.from_euler("z", 7.0, degrees=True)  # R_product<-housing
     product = installed_model(model, np.zeros(3), np.eye(3), alignment=yaw.as_matrix())
-    session = LiveSession(product, out=io.StringIO(), to_product=yaw.as_matrix())
+    session = LiveSession(product, out=io.StringIO(), imu=ImuCorrection(alignment=yaw.as_matrix()))
     _run(session, stream)
     rows = np.array([line.split(",") for line in session.out.getvalue().splitlines()[2:]], dtype=float)
     h, p, r, _ = scripted_motion(rows[:, 0])
@@ -432,7 +434,7 @@ def _serve_repeatedly(payload: bytes):
 def test_live_failing_on_a_wrong_header_keeps_the_recording_only_if_it_holds_samples(tmp_path, capsys, samples_first):
     model = default_model()
     cal = tmp_path / "cal.json"
-    cal.write_text(json.dumps(model.to_json()))
+    cal.write_text(json.dumps(model_to_dict(model)))
     device = PtyDevice(model, rate_hz=100.0)
     lines = device._lines(simulate_device(model, np.arange(samples_first) / 100.0, seed=2), 0)
     wrong = format_line(["ax", "ay", "az"])
@@ -460,17 +462,16 @@ def test_live_failing_on_a_wrong_header_keeps_the_recording_only_if_it_holds_sam
 
 def test_a_simulated_module_with_a_misaligned_accelerometer_reads_true_in_live():
     """compass device --cal plays the module of a calibration whose accelerometer sits off the housing
-    (mag_to_accel): its accelerometer and gyro in their own frame, which live turns back (imu_to_model).
+    (mag_to_accel): its accelerometer and gyro in their own frame, which live turns back (Calibration.imu).
     Before, the device sent them in the model's frame and live's turn tilted every attitude by it."""
-    from compass.accel_alignment import imu_to_model
+    from compass.calibration import from_dict
 
     model = default_model()
     turn = Rotation.from_rotvec(np.radians([3.0, -2.0, 1.0]))
-    doc = model.to_json() | {"mag_to_accel": turn.as_matrix().tolist()}
-    to_model = imu_to_model(doc)
-    device = PtyDevice(model, rate_hz=100.0, imu_from_model=to_model.T)
-    samples = simulate_device(model, np.arange(1500) / 100.0, seed=4, imu_from_model=to_model.T)
-    session = LiveSession(model, out=io.StringIO(), to_product=to_model)
+    imu = from_dict(model_to_dict(model) | {"mag_to_accel": turn.as_matrix().tolist()}).imu
+    device = PtyDevice(model, rate_hz=100.0, imu_from_model=imu.rotation.T)
+    samples = simulate_device(model, np.arange(1500) / 100.0, seed=4, imu_from_model=imu.rotation.T)
+    session = LiveSession(model, out=io.StringIO(), imu=imu)
     _run(session, device._header + b"".join(device._lines(samples, 0)))
     rows = np.array([line.split(",") for line in session.out.getvalue().splitlines()[2:]], dtype=float)
     _, pitch, roll, _ = scripted_motion(rows[:, 0])
@@ -499,7 +500,7 @@ def test_live_undoes_the_bench_accelerometer_offsets_only_in_the_bench_unit(unit
     once and not applied (the tilt keeps the offset's error)."""
     from dataclasses import replace
 
-    from compass.accel_alignment import AccelCorrection
+    from compass.calibration import ImuCorrection
 
     model = default_model()
     offset = np.array([0.03, -0.03, 0.0])
@@ -507,8 +508,8 @@ def test_live_undoes_the_bench_accelerometer_offsets_only_in_the_bench_unit(unit
     samples = simulate_device(model, np.arange(1500) / 100.0, seed=5)
     stream = device._header + b"".join(device._lines(replace(samples, accel=unit * (samples.accel + offset)), 0))
     events = []
-    fix = AccelCorrection(offset, np.ones(3), 1.0)
-    session = LiveSession(model, out=io.StringIO(), accel_correction=fix, on_event=lambda lv, t: events.append(t))
+    imu = ImuCorrection(offset=offset, scale=np.ones(3), one_g=1.0)
+    session = LiveSession(model, out=io.StringIO(), imu=imu, on_event=lambda lv, t: events.append(t))
     _run(session, stream)
     rows = np.array([line.split(",") for line in session.out.getvalue().splitlines()[2:]], dtype=float)
     _, pitch, roll, _ = scripted_motion(rows[:, 0])

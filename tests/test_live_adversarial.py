@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from compass.calibration import model_to_dict
 from compass.cli import main
 from compass.io.lines import format_line
 from compass.live import LiveSession
@@ -148,7 +149,7 @@ def test_live_keeps_every_good_sample_of_a_stream_laced_with_hostile_lines(tmp_p
 
     monkeypatch.setattr(LiveSession, "__post_init__", keep)
     cal = tmp_path / "cal.json"
-    cal.write_text(json.dumps(MODEL.to_json()))
+    cal.write_text(json.dumps(model_to_dict(MODEL)))
     out = tmp_path / "att.csv"
     server = socket.create_server(("127.0.0.1", 0))
     server.settimeout(30.0)

@@ -8,12 +8,13 @@ import pytest
 
 from compass.cli import main
 from compass.sim.device import default_model
+from compass.calibration import model_to_dict
 
 
 @pytest.fixture
 def cal(tmp_path):
     path = tmp_path / "cal.json"
-    path.write_text(json.dumps(default_model().to_json()))
+    path.write_text(json.dumps(model_to_dict(default_model())))
     return path
 
 

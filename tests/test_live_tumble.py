@@ -12,6 +12,7 @@ from compass.sim.device import simulate_device, tumble_motion
 
 rr = pytest.importorskip("rerun")
 from rrd_read import blueprint_views, entity_paths, read_column, scalars  # noqa: E402
+from compass.calibration import load as load_calibration
 
 
 def test_live_tumble_reaches_the_offline_hard_iron(tmp_path):
@@ -32,7 +33,7 @@ def test_live_tumble_reaches_the_offline_hard_iron(tmp_path):
     live_h, live_sigma = np.array(live_cal["hard_iron"]), np.array(live_cal["tumble"]["hard_iron_sigma"])
 
     # the offline fit: the same module through an independent, longer tumble, by `compass calibrate`
-    model = SensorModel.from_file(cal)
+    model = load_calibration(cal).model
     s = simulate_device(model, np.arange(0.0, 40.0, 0.01), motion=tumble_motion, seed=11)
     rec = tmp_path / "offline.csv"
     rec.write_text("mx,my,mz,ax,ay,az\n" + "\n".join(",".join(f"{v:.9g}" for v in row)

@@ -4,8 +4,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from compass.model import FORMAT, SensorModel
+from compass.calibration import FORMAT
+from compass.model import SensorModel
 from compass.response import CubicResponse, LinearResponse, TableResponse
+from compass.calibration import load as load_calibration, model_from_dict
+from compass.calibration import model_to_dict
 
 
 def skewed_directions():
@@ -101,21 +104,21 @@ def test_tumble_form_is_the_same_model():
     doc = {"format": FORMAT, "model": "tumble", "hard_iron": hard.tolist(), "soft_iron": soft.tolist(),
            "field_norm": 50.0, "mag_to_accel": rot.tolist(), "field_ut": 50.0, "dip_deg": 60.0,
            "diagnosis": {"noise_floor": 0.2}}
-    model = SensorModel.from_json(doc)
-    assert model.channels == ("mx", "my", "mz") and model.kind == "tumble"
+    model = model_from_dict(doc)
+    assert model.channels == ("mx", "my", "mz") and model.form == "tumble"
     b_h = random_fields(100)  # in the accelerometer (housing) frame
     raw = hard + (rot.T @ b_h.T).T @ np.linalg.inv(soft).T  # m = soft (raw - hard), b_h = rot m
     got, ok = model.field(raw)
     np.testing.assert_allclose(got, b_h, atol=1e-9)
     assert ok.all()
     np.testing.assert_allclose(model.noise, [0.2] * 3)
-    back = SensorModel.from_json(json.loads(json.dumps(model.to_json())))
+    back = model_from_dict(json.loads(json.dumps(model_to_dict(model))))
     np.testing.assert_allclose(back.field(raw)[0], b_h, atol=1e-9)
 
 
 def test_round_trip_through_json():
     model = linear_model(skewed_directions(), noise=0.003, direction_covariance=np.tile(np.eye(3) * 1e-8, (3, 1, 1)))
-    back = SensorModel.from_json(json.loads(json.dumps(model.to_json())))
+    back = model_from_dict(json.loads(json.dumps(model_to_dict(model))))
     assert back.channels == model.channels
     np.testing.assert_allclose(back.solver, model.solver)
     np.testing.assert_allclose(back.field_covariance([1.0, 2.0, 3.0]), model.field_covariance([1.0, 2.0, 3.0]))
@@ -128,16 +131,16 @@ def test_round_trip_through_json():
     ({"channels": {}}, "expected 'channels'"),
 ])
 def test_from_json_rejects_unknown_forms(change, message):
-    doc = linear_model(np.eye(3)).to_json() | change
+    doc = model_to_dict(linear_model(np.eye(3))) | change
     with pytest.raises(ValueError, match=message):
-        SensorModel.from_json(doc)
+        model_from_dict(doc)
 
 
 def test_bad_channels_and_geometry_are_refused():
-    doc = linear_model(np.eye(3)).to_json()
+    doc = model_to_dict(linear_model(np.eye(3)))
     doc["channels"]["v2"]["direction"] = [0.0, 2.0, 0.0]
     with pytest.raises(ValueError, match="channel 'v2': 'direction' must be a unit vector"):
-        SensorModel.from_json(doc)
+        model_from_dict(doc)
     with pytest.raises(ValueError, match="do not span three dimensions"):
         linear_model(np.array([[1.0, 0, 0], [0, 1.0, 0], [np.sqrt(0.5), np.sqrt(0.5), 0]]))
     with pytest.raises(ValueError, match="at least 3 channels"):
@@ -148,12 +151,12 @@ def test_from_file_names_the_file(tmp_path):
     bad = tmp_path / "cal.json"
     bad.write_text("{not json")
     with pytest.raises(ValueError, match="cal.json: not a JSON calibration file"):
-        SensorModel.from_file(bad)
+        load_calibration(bad).model
     bad.write_text(json.dumps({"format": "other/1"}))
     with pytest.raises(ValueError, match="cal.json: unknown calibration format 'other/1'"):
-        SensorModel.from_file(bad)
+        load_calibration(bad).model
     with pytest.raises(ValueError, match="missing.json: cannot read"):
-        SensorModel.from_file(tmp_path / "missing.json")
+        load_calibration(tmp_path / "missing.json").model
 
 
 def test_runtime_takes_readings_back_to_the_calibrated_temperature():
@@ -164,7 +167,7 @@ def test_runtime_takes_readings_back_to_the_calibrated_temperature():
 
     session = simulate_fourflip(seed=0, effects=("temperature",))
     d = calibrate_fourflip(session.recording(), diagnose=True).to_json()
-    model = SensorModel.from_json(d)
+    model = model_from_dict(d)
     effect = next(e for e in d["effects"] if e["name"] == "temperature")
     b = np.random.default_rng(0).normal(size=(300, 3))
     b *= session.truth["field_ut"] / np.linalg.norm(b, axis=1, keepdims=True)
@@ -210,8 +213,8 @@ def test_temperature_compensation_inverts_its_model_in_every_spelling():
                                                                  list(zip("abc", dv / gains, g))))])
     dt = 40.0 - 25.0
     for d in (tumble, platform, fourflip):
-        model = SensorModel.from_json(d)
-        again = SensorModel.from_json(model.to_json())  # written back in the runtime's spelling
+        model = model_from_dict(d)
+        again = model_from_dict(model_to_dict(model))  # written back in the runtime's spelling
         b = np.random.default_rng(1).normal(0.0, 30.0, (5, 3))
         v_ref = model.zero_outputs + (b @ model.unit_directions.T) * model.gains
         v = v0 + dv * dt + (1 + g * dt) * (v_ref - v0)
@@ -219,7 +222,7 @@ def test_temperature_compensation_inverts_its_model_in_every_spelling():
             np.testing.assert_allclose(m.field(v, 40.0)[0], b, atol=1e-9)
             assert np.max(np.abs(m.field(v)[0] - b)) > 0.1  # ignored without temp_c
     # 600 degC below the reference mx's gain factor 1 + 1e-3 dT is negative: out of range, not mirrored
-    _, valid = SensorModel.from_json(tumble).temperature.to_reference(v, 25.0 - 600.0, v0)
+    _, valid = model_from_dict(tumble).temperature.to_reference(v, 25.0 - 600.0, v0)
     assert valid.tolist() == [False, True, True]
 
 
@@ -228,10 +231,10 @@ def test_temperature_effect_without_reference_or_with_unknown_keys():
         c: {"direction": e, "response": {"model": "linear", "offset": 0.0, "gain": 1.0}}
         for c, e in zip("abc", np.eye(3).tolist())}}
     d["effects"] = [temperature_effect(None, (("offset_per_degc", "gain_rel_per_degc"), [("a", 0.1, 0.0)]))]
-    model = SensorModel.from_json(d)  # an older file: loads, usable without temp_c
+    model = model_from_dict(d)  # an older file: loads, usable without temp_c
     assert model.temperature.reference_c is None and model.field([[1.0, 0.0, 0.0]])[0].shape == (1, 3)
     with pytest.raises(ValueError, match="reference temperature"):
         model.field([[1.0, 0.0, 0.0]], 30.0)
     d["effects"] = [temperature_effect(20.0, (("offset_per_degc", "gain_rel_per_degc"), [("x", 0.1, 0.0)]))]
     with pytest.raises(ValueError, match="x.offset_per_degc.*name no channel"):
-        SensorModel.from_json(d)
+        model_from_dict(d)

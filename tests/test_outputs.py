@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from compass.cli import main
+from compass.calibration import model_to_dict
 
 
 @pytest.fixture
@@ -144,7 +145,7 @@ def test_live_out_is_streamed_with_the_umask(tmp_path, umask_027, monkeypatch):
 
     cal, att = tmp_path / "cal.json", tmp_path / "att.csv"
     model = default_model()
-    cal.write_text(__import__("json").dumps(model.to_json()))
+    cal.write_text(__import__("json").dumps(model_to_dict(model)))
     device = PtyDevice(model, rate_hz=100.0)
     stream = device._header + b"".join(device._lines(simulate_device(model, [i / 100 for i in range(200)], seed=1), 0))
     started = time.monotonic()

@@ -14,6 +14,7 @@ from tests.conftest import assert_calibrate_refuses
 from compass.io.platform3d import TiltSensor, platform_rotation, read_platform3d
 from compass.model import SensorModel
 from compass.sim.platform3d import simulate_platform3d, write_platform3d
+from compass.calibration import load as load_calibration, model_from_dict
 
 
 def fit(tmp_path, name="rec.csv", **kwargs):
@@ -91,7 +92,7 @@ def test_turntable_only_is_refused_in_words(tmp_path):
 def test_heading_through_the_runtime_solver(tmp_path):
     _, _, res = fit(tmp_path, seed=15, tilt_axes=2)
     data = res.to_json()
-    model, tilt = SensorModel.from_json(data), TiltSensor.from_json(data)
+    model, tilt = model_from_dict(data), TiltSensor.from_json(data)
     check = simulate_platform3d(seed=15, tilt_axes=2, poses="random", repeats=1)  # same sensors, new poses
     upright = check.pitch_deg**2 + check.roll_deg**2 < 60.0**2  # a two-axis sensor needs the upper hemisphere
     att = solve_attitude(model, check.mag[upright], accel=tilt.up(check.tilt[upright]), accel_noise_g=0.001)
@@ -112,7 +113,7 @@ def test_cli_end_to_end(tmp_path, capsys):
     data = json.loads(cal.read_text())
     assert data["method"] == "platform3d" and set(data["channels"]) == {"mx", "my", "mz"}
     assert len(data["tilt_sensor"]["matrix"]) == 3 and data["platform3d"]["parameters"]["dip_deg"]["sigma"] > 0
-    SensorModel.from_file(cal)
+    load_calibration(cal).model
     bad = tmp_path / "flat.csv"
     assert main(["simulate", "platform3d", "--out", str(bad), "--poses", "turntable"]) == 0
     assert main(["calibrate", str(bad), "--out", str(tmp_path / "c2.json")]) == 2

@@ -12,6 +12,7 @@ from tests.conftest import assert_calibrate_refuses
 from compass.io.reference import read_reference
 from compass.model import SensorModel
 from compass.sim.reference import simulate_reference, write_reference
+from compass.calibration import load as load_calibration
 
 
 def record(tmp_path, name="ref.csv", **kwargs):
@@ -90,7 +91,7 @@ def test_cli_end_to_end_and_runtime_model(tmp_path, capsys):
         a = np.radians([ch[k] for k in ("theta_deg", "gamma_deg", "elevation_deg", "psi_deg")])
         assert np.isclose(np.tan(a[2]), np.tan(a[1]) * np.cos(a[0]))
         assert np.isclose(np.tan(a[3]), np.tan(a[0]) * np.cos(a[1]))
-    model = SensorModel.from_file(cal)
+    model = load_calibration(cal).model
     raw = np.hstack([sim.outputs["s1"], sim.outputs["s2"]])
     field, _ = model.field(raw)
     assert np.sqrt(np.mean((field - sim.reference) ** 2)) < 3 * sim.truth["noise"]

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from scipy.io import savemat
 
-from compass.calibration_file import FORMAT
+from compass.calibration import FORMAT, model_to_dict
 from compass.cli import main
 from compass.io.lines import MAX_GAP_SAMPLES, format_line
 from compass.live import LiveSession
@@ -145,7 +145,7 @@ def test_a_field_beyond_the_screen_writes_no_row():
 @pytest.fixture
 def cal(tmp_path):
     path = tmp_path / "cal.json"
-    path.write_text(json.dumps(MODEL.to_json()))
+    path.write_text(json.dumps(model_to_dict(MODEL)))
     return path
 
 
@@ -297,7 +297,7 @@ TUMBLE = {"format": FORMAT, "model": "tumble", "hard_iron": [12.0, -7.5, 3.0],
 
 
 def _installed() -> dict:
-    return {"format": FORMAT, "model": "installed", "base": MODEL.to_json(), "dip_deg": 60.0, "field_ut": 50.0,
+    return {"format": FORMAT, "model": "installed", "base": model_to_dict(MODEL), "dip_deg": 60.0, "field_ut": 50.0,
             "installation": {"hard_iron_ut": [1.0, 2.0, 3.0], "soft_iron": np.eye(3).tolist()}}
 
 
@@ -322,7 +322,7 @@ def test_a_calibration_value_beyond_its_physical_bounds_is_refused_by_export(tmp
 
 @pytest.mark.parametrize("name", ["t_s", "ax", "gz", "temp_c", "seq", "flip_deg"])
 def test_a_reserved_name_is_refused_as_a_channel(tmp_path, capsys, name):
-    doc = MODEL.to_json()
+    doc = model_to_dict(MODEL)
     doc["channels"] = {(name if k == "mx" else k): v for k, v in doc["channels"].items()}
     path = tmp_path / "cal.json"
     path.write_text(json.dumps(doc))

@@ -11,6 +11,7 @@ from compass.live import LiveSession
 from compass.sample_check import skip_codes
 from compass.serial_reader import Chunk
 from compass.sim.device import PtyDevice, default_model, simulate_device
+from compass.calibration import model_to_dict
 
 N = 1200  # 12 s at 100 Hz: the three bad samples come after the reference's quiet second
 BAD = {500: "gyro", 600: "accel", 700: "field"}
@@ -69,7 +70,7 @@ def test_attitude_flags_an_absurd_row_instead_of_reporting_it_undisturbed(tmp_pa
     """16.4: a 1e300 reading gave field_ratio inf with disturbed 0 (now the reader refuses it; 1e10 is read)."""
     model = default_model()
     cal = tmp_path / "cal.json"
-    cal.write_text(json.dumps(model.to_json()))
+    cal.write_text(json.dumps(model_to_dict(model)))
     s = simulate_device(model, np.arange(300) / 100.0, seed=2)
     s.raw[100, 1] = 1e10  # beyond any field; the reader refuses beyond 1e12 itself (exit 2, row and column)
     rec = tmp_path / "rec.csv"

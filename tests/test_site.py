@@ -15,6 +15,8 @@ from compass.sim.fourflip import simulate_fourflip, write_fourflip
 from compass.sim.installation import true_model
 from compass.sim.runtime import simulate_runtime, write_runtime
 from compass.site import Site, known_reference, reference_from_recording, wmm_field
+from compass.calibration import model_from_dict
+from compass.calibration import model_to_dict
 
 # NOAA's WMM2025 test values (WMM2025_TEST_VALUES.txt): decimal year, height km, lat, lon, declination deg
 WMM2025_DECLINATION = [
@@ -58,7 +60,7 @@ def benches(tmp_path_factory):
         session = simulate_fourflip(seed=21, effects=effects, dip_deg=62.0)
         path, _ = write_fourflip(session, folder / f"{name}.csv")
         cal = calibrate_fourflip(read_fourflip(path), diagnose=True)
-        out[name] = (SensorModel.from_json(cal.to_json()), session.truth)
+        out[name] = (model_from_dict(cal.to_json()), session.truth)
     return out
 
 
@@ -137,7 +139,7 @@ def test_cli_site_gives_true_north_and_the_calibration_site_block(benches, tmp_p
     wmm = Site.parse(f"{lat},{lon}", date).field()
     site = {**truth, "dip_deg": wmm.dip_deg, "field_ut": wmm.field_ut}
     cal = tmp_path / "cal.json"
-    cal.write_text(json.dumps(model.to_json()))
+    cal.write_text(json.dumps(model_to_dict(model)))
     rec, truth_csv = write_runtime(simulate_runtime(site, 1500, seed=25), tmp_path / "rec.csv")
     out = tmp_path / "att.csv"
     assert main(["attitude", str(cal), str(rec), "--out", str(out), "--site", f"{lat},{lon}", "--date", date]) == 0
@@ -150,7 +152,7 @@ def test_cli_site_gives_true_north_and_the_calibration_site_block(benches, tmp_p
     assert rms(wrap(heading - true.column("heading_deg"))) < 1.0 and table.column("disturbed").mean() <= 0.01
     # the same site written into the calibration file: used when nothing is said
     with_site = tmp_path / "cal_site.json"
-    with_site.write_text(json.dumps(model.to_json() | {"site": Site.parse(f"{lat},{lon}", date).to_json()}))
+    with_site.write_text(json.dumps(model_to_dict(model) | {"site": Site.parse(f"{lat},{lon}", date).to_json()}))
     assert main(["attitude", str(with_site), str(rec), "--out", str(tmp_path / "b.csv")]) == 0
     other = read_table(tmp_path / "b.csv")
     assert other.metadata["reference_field"].startswith("calibration site")
@@ -166,7 +168,7 @@ def test_cli_site_gives_true_north_and_the_calibration_site_block(benches, tmp_p
 def test_cli_bad_site_exit_2(benches, tmp_path, capsys, args, message):
     model, truth = benches["clean"]
     cal = tmp_path / "cal.json"
-    cal.write_text(json.dumps(model.to_json()))
+    cal.write_text(json.dumps(model_to_dict(model)))
     rec, _ = write_runtime(simulate_runtime(truth, 50, seed=26), tmp_path / "rec.csv")
     assert main(["attitude", str(cal), str(rec), "--out", str(tmp_path / "o.csv"), *args]) == 2
     err = capsys.readouterr().err

@@ -22,7 +22,7 @@ def shape(s):
 def test_full_ellipsoid_recovers_truth_despite_outliers():
     sim = simulate_tumble(seed=3, n=3000, outlier_fraction=0.05, motion_g=0.0)
     res = calibrate_tumble(sim.mag, sim.accel)
-    assert res.kind == "full"
+    assert res.ellipsoid == "full"
     tol_h = 4 * res.fit.hard_iron_sigma + 1e-3
     assert np.all(np.abs(res.hard_iron - sim.truth["hard_iron"]) < tol_h)
     assert np.all(np.abs(res.fit.soft_iron - shape(sim.truth["soft_iron"])) < 4 * res.fit.soft_iron_sigma + 1e-4)
@@ -43,7 +43,7 @@ def test_full_ellipsoid_recovers_truth_despite_outliers():
 def test_sphere_truth_chooses_offset_kind():
     sim = simulate_tumble(seed=4, n=1500, soft_iron=0.0, misalign_deg=0.0)
     res = calibrate_tumble(sim.mag)
-    assert res.kind == "offset"
+    assert res.ellipsoid == "offset"
     assert np.all(np.abs(res.hard_iron - sim.truth["hard_iron"]) < 4 * res.fit.hard_iron_sigma + 1e-3)
     assert res.misalignment is None and res.mag_to_accel is None
 
@@ -51,7 +51,7 @@ def test_sphere_truth_chooses_offset_kind():
 def test_poor_coverage_warns_in_words_and_falls_back():
     sim = simulate_tumble(seed=5, n=2000, coverage="upright")
     res = calibrate_tumble(sim.mag, sim.accel)
-    assert res.kind != "full"
+    assert res.ellipsoid != "full"
     assert "+Z" in res.coverage.missing
     text = " ".join(res.warnings)
     assert "never pointed along" in text and "+Z" in text
@@ -65,12 +65,12 @@ def test_poor_coverage_warns_in_words_and_falls_back():
 
 def test_forced_kind_and_known_field():
     sim = simulate_tumble(seed=6, n=1500)
-    res = calibrate_tumble(sim.mag, kind="diagonal", field_ut=50.0)
-    assert res.kind == "diagonal" and [c.kind for c in res.candidates] == ["offset", "diagonal"]
+    res = calibrate_tumble(sim.mag, ellipsoid="diagonal", field_ut=50.0)
+    assert res.ellipsoid == "diagonal" and [c.ellipsoid for c in res.candidates] == ["offset", "diagonal"]
     norms = np.linalg.norm(res.calibrated(sim.mag), axis=1)
     assert abs(np.median(norms) - 50.0) < 1.0
-    with pytest.raises(ValueError, match="kind must be"):
-        calibrate_tumble(sim.mag, kind="sphere")
+    with pytest.raises(ValueError, match="ellipsoid must be"):
+        calibrate_tumble(sim.mag, ellipsoid="sphere")
 
 
 def test_repeated_values_are_dropped(tmp_path):

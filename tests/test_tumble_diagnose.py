@@ -9,6 +9,7 @@ from calibrate.tumble import calibrate_tumble
 from calibrate.tumble.diagnosis import diagnose_tumble
 from compass.model import SensorModel
 from compass.sim.tumble import simulate_tumble
+from compass.calibration import load as load_calibration
 
 N = 3000
 
@@ -64,7 +65,7 @@ def test_warm_up_drift_is_found_and_the_hard_iron_is_the_one_at_the_start(tmp_pa
     assert doc["effects"][0]["name"] == "offset_drift" and doc["effects"][0]["reference"] == {"t_s": 0.0}
     path = tmp_path / "cal.json"
     path.write_text(json.dumps(doc))
-    model = SensorModel.from_file(path)
+    model = load_calibration(path).model
     assert np.allclose([r.offset for r in model.responses], res.hard_iron)
 
 

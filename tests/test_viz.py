@@ -14,6 +14,7 @@ rr = pytest.importorskip("rerun")
 from rrd_read import (blueprint_timeline, blueprint_views, entity_paths, read_column, read_static,  # noqa: E402
                       scalars, timelines)
 from scipy.spatial.transform import Rotation  # noqa: E402
+from compass.calibration import model_to_dict
 
 
 def views_by_name(path):
@@ -29,7 +30,7 @@ def test_spawn_is_refused_where_no_viewer_can_open(tmp_path, capsys, monkeypatch
     cal = tmp_path / "cal.json"
     from compass.sim.device import default_model
 
-    cal.write_text(json.dumps(default_model().to_json()))
+    cal.write_text(json.dumps(model_to_dict(default_model())))
     # refused at once (before the port is opened), one line, exit 2, naming the way out
     assert main(["live", "--port", str(tmp_path / "no-such-port"), "--cal", str(cal), "--rerun", "spawn"]) == 2
     err = capsys.readouterr().err.strip()

@@ -47,6 +47,8 @@ from compass.site import known_reference
 from compass.model import SensorModel
 from compass.sim.fourflip import simulate_fourflip, write_fourflip
 from compass.sim.runtime import simulate_runtime, write_runtime
+from compass.calibration import model_from_dict
+from compass.calibration import model_to_dict
 
 
 def wrap(d):
@@ -76,7 +78,7 @@ def accuracy(args, folder: Path):
         session = simulate_fourflip(seed=seed, noise_ut=args.noise_ut)
         path, _ = write_fourflip(session, folder / f"bench{seed}.csv", force=True)
         rec = read_fourflip(path)
-        models = {m: SensorModel.from_json(json.loads(json.dumps(calibrate_fourflip(rec, method=m).to_json())))
+        models = {m: model_from_dict(json.loads(json.dumps(calibrate_fourflip(rec, method=m).to_json())))
                   for m in ("ml", "patent")}
         rt = simulate_runtime(session.truth, args.n, seed=1000 + seed, noise_ut=args.noise_ut,
                               accel_noise_g=args.accel_noise_g)
@@ -106,7 +108,7 @@ def disturbed_tilt(args, n=20_000):
     """
     session = simulate_fourflip(seed=args.seed, noise_ut=args.noise_ut)
     truth = session.truth
-    model = SensorModel.from_json(json.loads(json.dumps(calibrate_fourflip(session.recording()).to_json())))
+    model = model_from_dict(json.loads(json.dumps(calibrate_fourflip(session.recording()).to_json())))
     right = known_reference(truth["dip_deg"], truth["field_ut"])
     magnet = np.zeros((n, 3))
     magnet[: n // 4] = (8.0, -6.0, 10.0)
@@ -137,7 +139,7 @@ def disturbed_tilt(args, n=20_000):
 
 def throughput(args, folder: Path):
     session = simulate_fourflip(seed=args.seed, noise_ut=args.noise_ut)
-    model = SensorModel.from_json(json.loads(json.dumps(
+    model = model_from_dict(json.loads(json.dumps(
         calibrate_fourflip(read_fourflip(write_fourflip(session, folder / "tp.csv", force=True)[0])).to_json())))
     rt = simulate_runtime(session.truth, 1_000_000, seed=7, accel_noise_g=args.accel_noise_g)
     wall, cpu = [], []
@@ -147,7 +149,7 @@ def throughput(args, folder: Path):
         wall.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
     cal = folder / "cal.json"
-    cal.write_text(json.dumps(model.to_json()))
+    cal.write_text(json.dumps(model_to_dict(model)))
     rec, _ = write_runtime(rt, folder / "rec.csv", force=True)
     t0 = time.perf_counter()
     subprocess.run([sys.executable, "-m", "compass", "attitude", str(cal), str(rec), "--out", str(folder / "att.csv"),
@@ -169,7 +171,7 @@ def temperature(seeds=range(4), temps=(10.0, 45.0), n=300):
     for seed in seeds:
         session = simulate_fourflip(seed=seed, effects=("temperature",))
         d = calibrate_fourflip(session.recording(), diagnose=True).to_json()
-        model = SensorModel.from_json(d)
+        model = model_from_dict(d)
         effect = next(e for e in d["effects"] if e["name"] == "temperature")
         b = np.random.default_rng(seed).normal(size=(n, 3))
         b *= session.truth["field_ut"] / np.linalg.norm(b, axis=1, keepdims=True)

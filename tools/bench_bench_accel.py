@@ -38,9 +38,8 @@ from scipy.spatial.transform import Rotation
 
 from calibrate import calibrate_fourflip
 from calibrate.fourflip.accelerometer import fit_accelerometer
-from compass.accel_alignment import accel_to_housing, housing_from_accel
 from compass.attitude import solve_attitude
-from compass.calibration_file import from_dict
+from compass.calibration import from_dict
 from compass.sim.fourflip import SimAccelerometer, simulate_fourflip
 from compass.sim.runtime import simulate_runtime
 
@@ -86,12 +85,13 @@ def run(n, seed, accelerometer, tilt_deg, samples, effects=()) -> dict:
         out["dip_g_err"].append(block["dip_gravity_deg"] - session.truth["dip_deg"])
         out["dip_g_sigma"].append(block["dip_gravity_sigma_deg"])
         out["warnings"] += [w for w in result.warnings if w.startswith("accelerometer")]
-        model = from_dict(doc).model
+        cal = from_dict(doc)
+        model = cal.model
         runtime = simulate_runtime(session.truth, samples, seed=1000 + seed + i, max_tilt_deg=40.0)
         aligned = simulate_runtime({**session.truth, "effects": []}, samples, seed=1000 + seed + i, max_tilt_deg=40.0)
         out["before"].append(_pitch_roll_error(model, runtime, runtime.accel))
-        out["rotated"].append(_pitch_roll_error(model, runtime, runtime.accel @ housing_from_accel(doc).T))
-        out["after"].append(_pitch_roll_error(model, runtime, accel_to_housing(doc, runtime.accel)))
+        out["rotated"].append(_pitch_roll_error(model, runtime, cal.imu.apply(runtime.accel, bench=False)))
+        out["after"].append(_pitch_roll_error(model, runtime, cal.imu.in_model_frame(runtime.accel)[0]))
         out["floor"].append(_pitch_roll_error(model, aligned, aligned.accel))
         print(f"  {i + 1}/{n}", file=sys.stderr, flush=True) if (i + 1) % 10 == 0 else None
     return {k: np.array(v) if k != "warnings" else v for k, v in out.items()}

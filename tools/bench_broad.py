@@ -49,6 +49,7 @@ sys.path.insert(0, str(ROOT))
 
 from compass.evaluation import METRIC, error_series, initial_field, rest_noise  # noqa: E402
 from compass.io.broad import nwu_to_enu, read_broad  # noqa: E402
+from compass.calibration import load as load_calibration
 
 GRAVITY = 9.81
 QUICK_TRIALS = ("01", "06", "15", "24", "32")  # slow and fast rotation, translation, tapping, a magnet
@@ -269,7 +270,7 @@ def main(argv=None) -> int:
     if args.cal:
         from compass.model import SensorModel
 
-        available["ours + cal"] = ours(model=SensorModel.from_file(args.cal))
+        available["ours + cal"] = ours(model=load_calibration(args.cal).model)
 
     print(METRIC + "; no heading offset removed; group = mean of its trials' RMS")
     if not args.skip_check:

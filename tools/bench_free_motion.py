@@ -194,7 +194,7 @@ def real(name, m, a, notes=True, floor=False):
     peers = []
     for fit in (algebraic_fit(m), magcal_fit(m)):
         peers.append(None if fit is None else metrics((m - fit[0]) @ fit[1].T, a))
-    print(f"\n{name}: {len(m)} samples after dropping repeats; chosen kind {res.kind}; "
+    print(f"\n{name}: {len(m)} samples after dropping repeats; chosen ellipsoid {res.ellipsoid}; "
           f"offset {np.linalg.norm(res.hard_iron) / res.fit.field_norm:.3f} of |B|")
     row("", ["raw", "ours", "ours no rot", "algebraic", "mag-cal"])
     row("|B| CV, %", [fmt(raw[0]), fmt(ours[0]), fmt(ours_no_rot[0])] + [fmt(p and p[0]) for p in peers])

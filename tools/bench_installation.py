@@ -46,6 +46,8 @@ from compass.installed import installed_model
 from compass.sim.installation import random_installation, simulate_installation, true_model
 from compass.sim.runtime import simulate_runtime
 from compass.site import Site, known_reference, reference_from_site, upside_down
+from compass.calibration import model_from_dict
+from compass.calibration import model_to_dict
 
 
 def wrap(d):
@@ -67,7 +69,7 @@ def bench_sensor(seed: int):
                             s.temp_c, None, dict(session.metadata))
     start = time.perf_counter()
     result = calibrate_fourflip(rec, diagnose=True)
-    return SensorModel.from_json(result.to_json()), session.truth, effects, time.perf_counter() - start
+    return model_from_dict(result.to_json()), session.truth, effects, time.perf_counter() - start
 
 
 def triad_heading(model: SensorModel, raw, accel, dip_deg: float) -> np.ndarray:
@@ -93,7 +95,7 @@ def site_section(sensors: int, n: int) -> None:
         err = lambda att: rms(wrap(att.heading_deg - run.heading_deg))  # noqa: E731
         # the bench's field taken for the world's: refused (as compass attitude does) when the site's dip has
         # the other sign, since the field would read upside down against it
-        bench_ref = known_reference(model.dip_deg, model.field_magnitude)
+        bench_ref = known_reference(model.dip_deg, model.field_norm)
         bench = solve_attitude(model, run.outputs, accel=run.accel, reference=bench_ref)
         bench_err, bench_disturbed = err(bench), bench.disturbed.mean()
         if upside_down(bench.dip_deg, bench_ref) is not None:
@@ -139,7 +141,7 @@ def independent_section(sensors: int, n: int) -> None:
         ours, best, dist = [], [], []
         for seed in range(sensors):
             rec, directions = session(seed, case, size)
-            model = SensorModel.from_json(calibrate_fourflip(rec, diagnose=True).to_json())
+            model = model_from_dict(calibrate_fourflip(rec, diagnose=True).to_json())
             truth = {"directions": directions.tolist(), "offsets": [1.5] * 3, "gains_per_ut": [GAIN] * 3,
                      "dip_deg": model.dip_deg - 12.0, "field_ut": 0.9 * FIELD_UT, "channels": list(rec.channels),
                      "noise_ut": NOISE_UT, "noise": [GAIN * NOISE_UT] * 3, "effects": []}
@@ -159,7 +161,7 @@ INSTALL_CASES = (("tumble", "tumble", 0.0), ("level swing", "swing", 0.0), ("swi
 
 def installation_section(sensors: int, n: int) -> None:
     from calibrate.installation import InstallationCalibrator
-    from compass.calibration_file import from_dict
+    from compass.calibration import from_dict
     from compass.io.installation import InstallationRecording
 
     print(f"\n== Installation: the bench sensor in a product (hard iron ~6 uT, soft iron a few %), calibrated at the "
@@ -172,7 +174,7 @@ def installation_section(sensors: int, n: int) -> None:
     left_out = {k: [] for k in names}
     for seed in range(sensors):
         model, truth, _, _ = bench_sensor(seed)
-        bench = from_dict(model.to_json() | {"format": "compass-calibration/1", "model": "channels"})
+        bench = from_dict(model_to_dict(model) | {"format": "compass-calibration/1", "model": "channels"})
         inst = random_installation(500 + seed, yaw_deg=0.0)
         site = Site.parse(f"{rng.uniform(-60, 70):.3f},{rng.uniform(-180, 180):.3f}", "2026-06-01").field()
         use = simulate_installation(truth, inst, kind="runtime", n=n, dip_deg=site.dip_deg, field_ut=site.field_ut,
@@ -229,7 +231,7 @@ def installation_section(sensors: int, n: int) -> None:
     for words in undetermined:
         print(f"    - {words}")
     model, truth, _, _ = bench_sensor(seed)
-    bench = from_dict(model.to_json() | {"format": "compass-calibration/1", "model": "channels"})
+    bench = from_dict(model_to_dict(model) | {"format": "compass-calibration/1", "model": "channels"})
     inst = random_installation(500 + seed, yaw_deg=3.0)
     sim = simulate_installation(truth, inst, kind="swing", n=2000, max_tilt_deg=10.0, heading_ref_sigma_deg=0.3,
                                 seed=800 + seed)

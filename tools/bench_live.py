@@ -52,6 +52,7 @@ from compass.live import LiveSession
 from compass.model import SensorModel
 from compass.serial_reader import Chunk, LinkEvent, SerialReader
 from compass.sim.device import PtyDevice, default_model, simulate_device
+from compass.calibration import load as load_calibration
 
 
 def run_port(rate_hz: float, duration_s: float, rerun: bool, folder: Path) -> dict:
@@ -63,7 +64,7 @@ def run_port(rate_hz: float, duration_s: float, rerun: bool, folder: Path) -> di
         stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     try:
         device.stdout.readline()
-        model = SensorModel.from_file(cal)
+        model = load_calibration(cal).model
         sink = None
         if rerun:
             from compass.viz import RerunSink
@@ -240,7 +241,7 @@ SINKS = ("off", "file", "per-sample rr.log")
 
 def capacity(sink_kind: str, folder: Path, n: int = 20000) -> float:
     """Samples per second through decode + field + filter (+ Rerun) from memory."""
-    model = SensorModel.from_file(folder / "cal100.json")
+    model = load_calibration(folder / "cal100.json").model
     device = PtyDevice(model, rate_hz=1000.0)
     data = device._header + b"".join(device._lines(simulate_device(model, np.arange(n) / 1000.0), 0))
     sink = None
@@ -280,7 +281,7 @@ class _Collect:
 def sink_cpu_us(folder: Path, n: int = 20000) -> dict:
     """CPU time per sample (this process, Rerun's threads included) of each sink alone, microseconds:
     the session's outputs are collected once, then replayed into each sink (log + close)."""
-    model = SensorModel.from_file(folder / "cal100.json")
+    model = load_calibration(folder / "cal100.json").model
     device = PtyDevice(model, rate_hz=1000.0)
     data = device._header + b"".join(device._lines(simulate_device(model, np.arange(n) / 1000.0), 0))
     collect = _Collect()

@@ -14,7 +14,7 @@ seed (``--seed .. --seed + n - 1``), so two runs print the same table apart from
    Then the tilt-compensated heading error on fresh random attitudes of the same sensors
    (``poses="random"``: the simulator draws the sensors before the poses), all through the
    runtime solver ``compass.attitude.solve_attitude`` the way ``compass attitude`` does:
-   the platform calibration (``SensorModel.from_json`` + ``TiltSensor.up``), beside two
+   the platform calibration (``compass.calibration.from_dict`` + ``TiltSensor.up``), beside two
    baselines on the SAME samples: the free-motion tumble calibration (``calibrate_tumble``
    on the platform recording's ``mx, my, mz`` and ``ax, ay, az``, the platform angles ignored;
    its housing frame is the accelerometer's) and the raw sensor (identity directions, zero
@@ -81,7 +81,7 @@ from scipy.spatial.transform import Rotation  # noqa: E402
 from calibrate.platform3d import axis_geometry, calibrate_platform3d  # noqa: E402
 from calibrate.contract import CannotCalibrate  # noqa: E402
 from calibrate.reference import calibrate_reference  # noqa: E402
-from compass.calibration_file import FORMAT  # noqa: E402
+from compass.calibration import FORMAT  # noqa: E402
 from calibrate.tumble import calibrate_tumble  # noqa: E402
 from compass.attitude import solve_attitude  # noqa: E402
 from compass.io.platform3d import TiltSensor, platform_rotation, read_platform3d  # noqa: E402
@@ -91,6 +91,7 @@ from compass.model import SensorModel  # noqa: E402
 from compass.sim.platform3d import simulate_platform3d, up_in_bench, write_platform3d  # noqa: E402
 from compass.sim.reference import simulate_reference, write_reference  # noqa: E402
 from compass.sim.tumble import simulate_tumble  # noqa: E402
+from compass.calibration import model_from_dict
 
 AXES = "xyz"
 MAX_PITCH_DEG = 70.0
@@ -210,7 +211,7 @@ def raw_model(dip_deg: float, field_ut: float, noise: float) -> SensorModel:
     """The uncalibrated sensor as a calibration file: axes along H, zero offsets, unit gains."""
     channels = {f"m{a}": {"direction": list(np.eye(3)[i]), "response": {"model": "linear", "offset": 0.0, "gain": 1.0}}
                 for i, a in enumerate(AXES)}
-    return SensorModel.from_json({"format": FORMAT, "channels": channels, "dip_deg": dip_deg, "field_ut": field_ut,
+    return model_from_dict({"format": FORMAT, "channels": channels, "dip_deg": dip_deg, "field_ut": field_ut,
                                   "noise_floor": [noise] * 3})
 
 
@@ -242,7 +243,7 @@ def run_platform(seeds, workdir: Path) -> dict:
                 e.append(err)
                 zz.append(z)
             data = res.to_json()
-            model, tilt = SensorModel.from_json(data), TiltSensor.from_json(data)
+            model, tilt = model_from_dict(data), TiltSensor.from_json(data)
             check = simulate_platform3d(seed=seed, tilt_axes=tilt_axes, poses="random", repeats=1)
             if tilt_axes == 2:
                 keep = check.pitch_deg**2 + check.roll_deg**2 < UPRIGHT_TILT_DEG**2
@@ -269,7 +270,7 @@ def run_platform(seeds, workdir: Path) -> dict:
             else:
                 tdata = tum.to_json()
                 out["tumble_no_rotation"] += tdata["mag_to_accel"] is None
-                tmodel = SensorModel.from_json(tdata)
+                tmodel = model_from_dict(tdata)
                 e, z = heading_errors(tmodel, mag, raw_tilt, truth)
                 heading["tumble"][0].append(e)
                 heading["tumble"][1].append(z)
@@ -520,7 +521,7 @@ def run_tumble(seeds) -> dict:
             res = calibrate_tumble(sim.mag, sim.accel, t_s=sim.t_s, temp_c=sim.temp_c)
             elapsed = time.perf_counter() - t0
             block = res.diagnosis.block
-            base = next(c for c in res.candidates if c.kind == res.kind)
+            base = next(c for c in res.candidates if c.ellipsoid == res.ellipsoid)
             h_true = tumble_reference_hard_iron(sim)
             recs.append({
                 "seed": seed, "named": tuple(block["effects"]), "unexplained": bool(block["unexplained"]),

@@ -124,7 +124,7 @@ class VectorHarmonic:
     offsets : ndarray, shape (c,)
         Zero-field outputs (mean of the four flip means).
     gains : ndarray, shape (c,)
-        Output per field unit (|B| = ``field_magnitude``).
+        Output per field unit (|B| = ``field_norm``).
     dip_deg, azimuth_deg : float
     vertical_sigmas : float
         The vertical field the flip-mean differences show, in standard errors (the statistic
@@ -141,7 +141,7 @@ class VectorHarmonic:
     vertical_sigmas: float
 
 
-def vector_harmonic(h: FlipHarmonics, field_magnitude: float, dip_sign: float = 1.0) -> VectorHarmonic:
+def vector_harmonic(h: FlipHarmonics, field_norm: float, dip_sign: float = 1.0) -> VectorHarmonic:
     """Combine the four flips' harmonics into directions, dip and gains.
 
     With ``C_k = c_k - i s_k`` and ``H = K |B| cos(dip)``, a linear channel gives
@@ -172,7 +172,7 @@ def vector_harmonic(h: FlipHarmonics, field_magnitude: float, dip_sign: float = 
     dip = np.arctan(tan_dip)
     horizontal = np.linalg.norm(hxyz, axis=1)
     directions = hxyz / horizontal[:, None]
-    gains = horizontal / (field_magnitude * np.cos(dip))
+    gains = horizontal / (field_norm * np.cos(dip))
     return VectorHarmonic(
         directions=directions,
         offsets=h.mean.mean(axis=0),

@@ -203,7 +203,7 @@ class _Predictor:
 def _geometry_key(physics: BenchPhysics) -> tuple:
     """Everything :func:`housing_field` depends on, hashable."""
     arrays = (physics.encoder_fourier, physics.flip_rotvec_deg, physics.platform_field)
-    return (physics.dip_deg, physics.azimuth_deg, physics.field_magnitude,
+    return (physics.dip_deg, physics.azimuth_deg, physics.field_norm,
             *(None if a is None else np.asarray(a).tobytes() for a in arrays))
 
 
@@ -250,7 +250,7 @@ class _Layout:
             gains=start.gains * np.exp(per[:, 3]),
             dip_deg=float(np.degrees(x[_BASE_PER_CHANNEL * self.c])),
             azimuth_deg=float(np.degrees(x[_BASE_PER_CHANNEL * self.c + 1])),
-            field_magnitude=start.field_magnitude,
+            field_norm=start.field_norm,
         )
         i = _BASE_PER_CHANNEL * self.c + 2
         for e in self.effects:

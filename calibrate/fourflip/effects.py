@@ -108,7 +108,7 @@ class NonlinearResponse(Effect):
 
     def apply(self, physics, p, samples):
         # parameters: relative output change at |B| of each power, scale-free
-        b = physics.field_magnitude
+        b = physics.field_norm
         p = p.reshape(len(physics.gains), len(self.powers))
         coef = {k: p[:, i] / b ** (k - 1) for i, k in enumerate(self.powers)}
         return physics.with_(quadratic=coef.get(2), cubic=coef.get(3), quintic=coef.get(5))
@@ -180,10 +180,10 @@ class PlatformField(Effect):
                 "field units; its x and z parts are absorbed by the offsets and the dip")
 
     def apply(self, physics, p, samples):
-        return physics.with_(platform_field=np.array([0.0, p[0], 0.0]) * physics.field_magnitude)
+        return physics.with_(platform_field=np.array([0.0, p[0], 0.0]) * physics.field_norm)
 
     def report_scale(self, physics):
-        return physics.field_magnitude
+        return physics.field_norm
 
 
 @dataclass(frozen=True)

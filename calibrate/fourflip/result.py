@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from compass.calibration_file import channel_entry, header
+from compass.calibration import channel_entry, header
 from compass.frames import direction_sigma_deg as _direction_sigma_deg
 from compass.frames import seed_angles
 from compass.response import Response

@@ -14,9 +14,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from compass.accel_alignment import accel_to_housing
 from compass.installed import SOFT_IRON_ENTRIES, installed_model, soft_iron_basis
-from compass.calibration_file import header
+from compass.calibration import header, to_dict
 from compass.model import SensorModel
 
 from ..contract import Calibration, Calibrator, CannotCalibrate
@@ -242,7 +241,7 @@ class InstallationCalibrator(Calibrator):
 
     Parameters
     ----------
-    base : str, Path or compass.calibration_file.CalibrationFile, optional
+    base : str, Path or compass.calibration.Calibration, optional
         The bench calibration (``--base``); default the recording's ``# base:`` metadata (a path
         relative to the recording).
     site : str or compass.site.Site, optional
@@ -276,7 +275,7 @@ class InstallationCalibrator(Calibrator):
             too small to say anything, or a true heading reference without a site.
         """
         bench, site = _bench(self.base, rec), _site(self.site, self.date)
-        base, base_document = bench.model, bench.data
+        base, base_document = bench.model, to_dict(bench)
         missing = [c for c in base.channels if c not in rec.channels]
         extra = [c for c in rec.channels if c not in base.channels]
         if missing or extra:
@@ -284,7 +283,7 @@ class InstallationCalibrator(Calibrator):
                                   f"calibration's ({', '.join(base.channels)})")
         order = [rec.channels.index(c) for c in base.channels]
         # the bench's mag_to_accel first: the fit's up direction is the housing's, as the runtime's
-        rec = replace(rec, channels=base.channels, raw=rec.raw[:, order], accel=accel_to_housing(base_document, rec.accel))
+        rec = replace(rec, channels=base.channels, raw=rec.raw[:, order], accel=bench.imu.in_model_frame(rec.accel)[0])
         b, in_range = base.field(rec.raw, rec.temp_c)
         a_norm = np.linalg.norm(rec.accel, axis=1)
         quiet = (np.abs(a_norm / np.median(a_norm) - 1.0) < _QUIET) & np.all(np.isfinite(b), axis=1)
@@ -354,9 +353,9 @@ def _bench(base, rec):
     """The bench calibration: ``base`` (path or loaded file), else the recording's ``# base:`` metadata."""
     from pathlib import Path
 
-    from compass.calibration_file import CalibrationFile, CalibrationFileError, load
+    from compass.calibration import Calibration, CalibrationFileError, load
 
-    if isinstance(base, CalibrationFile):
+    if isinstance(base, Calibration):
         bench = base
     else:
         given = "--base"
@@ -455,11 +454,10 @@ def _why_scale_free(site, base: SensorModel, level: bool) -> str:
 def _cards(base: SensorModel, model: SensorModel, rec, quiet, rows: Rows, alignment):
     """Deviation cards of a swing: the bench model alone and installed, against the reference heading."""
     from compass.attitude import solve_attitude
-    from compass.installed import accel_to_product
+    from compass.calibration import ImuCorrection
 
-    doc = {"model": "installed", "installation": {"alignment": None if alignment is None else alignment.tolist()}}
     accel = rec.accel[quiet]
-    installed = solve_attitude(model, rec.raw[quiet], accel=accel_to_product(doc, accel),
+    installed = solve_attitude(model, rec.raw[quiet], accel=ImuCorrection(alignment=alignment).apply(accel),
                                temp_c=None if rec.temp_c is None else rec.temp_c[quiet]).heading_deg
     bench = solve_attitude(base, rec.raw[quiet], accel=accel,
                            temp_c=None if rec.temp_c is None else rec.temp_c[quiet]).heading_deg

@@ -25,17 +25,17 @@ def _names(tilt_columns) -> list[str]:
     return names + ["base_tilt_x_rad", "base_tilt_y_rad"]
 
 
-def _unpack(p: np.ndarray, n_tilt: int, field_magnitude: float):
+def _unpack(p: np.ndarray, n_tilt: int, field_norm: float):
     m, o_m = p[:9].reshape(3, 3), p[9:12]
     el, az = p[12], p[13]
-    b_w = field_magnitude * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), -np.sin(el)])
+    b_w = field_norm * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), -np.sin(el)])
     k = 14 + 3 * n_tilt
     a, o_t = p[14:k].reshape(n_tilt, 3), p[k:k + n_tilt]
     u_w = up_in_bench(np.degrees(p[k + n_tilt:k + n_tilt + 2]))
     return m, o_m, b_w, a, o_t, u_w
 
 
-def _start(rot: Rotation, mag, tilt, counts, field_magnitude: float, sign: float) -> np.ndarray:
+def _start(rot: Rotation, mag, tilt, counts, field_norm: float, sign: float) -> np.ndarray:
     """Linear least squares for the sensors on a grid of field directions; best grid point.
 
     ``rot``, ``mag`` and ``tilt`` are per pose (the means of its ``counts`` samples, weighted by
@@ -47,7 +47,7 @@ def _start(rot: Rotation, mag, tilt, counts, field_magnitude: float, sign: float
     best = None
     for el in np.radians(np.arange(5.0, 86.0, 20.0)) * sign:
         for az in np.radians(np.arange(0.0, 360.0, 30.0)):
-            b = field_magnitude * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), -np.sin(el)])
+            b = field_norm * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), -np.sin(el)])
             design = np.hstack([rot.apply(b, inverse=True) * root_n, root_n])
             sol, *_ = np.linalg.lstsq(design, mag * root_n, rcond=None)
             rss = float(np.sum((design @ sol - mag * root_n) ** 2))

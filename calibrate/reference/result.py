@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from compass.calibration_file import channel_entry, header
+from compass.calibration import channel_entry, header
 
 from ..contract import Calibration
 from ..diagnosis.offsets import OffsetDiagnosis

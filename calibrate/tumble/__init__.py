@@ -46,19 +46,21 @@ frame", IEEE TAES 47(2), 2011, and Li et al. (magnetometer-accelerometer alignme
 The package, one module per concern: :mod:`~calibrate.tumble.ellipsoid` (the three kinds and
 their choice), :mod:`~calibrate.tumble.coverage`, :mod:`~calibrate.tumble.alignment` (rotation and
 dip), :mod:`~calibrate.tumble.diagnosis` (the residual diagnosis), :mod:`~calibrate.tumble.result`
-and :mod:`~calibrate.tumble.fit` (:func:`calibrate_tumble`, :class:`TumbleCalibrator`).
+and :mod:`~calibrate.tumble.fit` (:func:`calibrate_tumble`, :class:`TumbleCalibrator`);
+:mod:`~calibrate.tumble.collector` gathers a live tumble (``compass live --calibrate tumble``).
 """
 
 from .alignment import MAX_ANGLE_WIDENING, STATIC_TOLERANCE, Misalignment, field_gravity_angles, fit_misalignment, refine_jointly, static_mask
+from .collector import TumbleCollector
 from .coverage import Coverage, sphere_coverage
 from .diagnosis import (TUMBLE_FORMS, UNEXPLAINED_WARNING, TumbleDiagnosis, TumbleEffect, diagnose_tumble,
                         radial_noise_floor, residual_structure)
-from .ellipsoid import KINDS, MAX_RADIUS_RATIO, MAX_RELATIVE_SIGMA, OUTLIER_SIGMAS, KindFit, fit_ellipsoid
+from .ellipsoid import ELLIPSOIDS, MAX_RADIUS_RATIO, MAX_RELATIVE_SIGMA, OUTLIER_SIGMAS, EllipsoidFit, fit_ellipsoid
 from .fit import TumbleCalibrator, calibrate_tumble
 from .result import TumbleResult
 
-__all__ = ["KINDS", "MAX_ANGLE_WIDENING", "MAX_RADIUS_RATIO", "MAX_RELATIVE_SIGMA", "OUTLIER_SIGMAS", "STATIC_TOLERANCE",
-           "TUMBLE_FORMS", "UNEXPLAINED_WARNING", "Coverage", "KindFit", "Misalignment", "TumbleCalibrator",
-           "TumbleDiagnosis", "TumbleEffect", "TumbleResult", "calibrate_tumble", "diagnose_tumble",
+__all__ = ["ELLIPSOIDS", "MAX_ANGLE_WIDENING", "MAX_RADIUS_RATIO", "MAX_RELATIVE_SIGMA", "OUTLIER_SIGMAS", "STATIC_TOLERANCE",
+           "TUMBLE_FORMS", "UNEXPLAINED_WARNING", "Coverage", "EllipsoidFit", "Misalignment", "TumbleCalibrator",
+           "TumbleCollector", "TumbleDiagnosis", "TumbleEffect", "TumbleResult", "calibrate_tumble", "diagnose_tumble",
            "field_gravity_angles", "fit_ellipsoid", "fit_misalignment", "radial_noise_floor", "refine_jointly",
            "residual_structure", "sphere_coverage", "static_mask"]

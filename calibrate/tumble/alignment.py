@@ -13,7 +13,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from ..noise import robust_sigma
-from .ellipsoid import (MAX_NFEV, OUTLIER_SIGMAS, KindFit, fit_covariance, propagate, radial_jacobian,
+from .ellipsoid import (MAX_NFEV, OUTLIER_SIGMAS, EllipsoidFit, fit_covariance, propagate, radial_jacobian,
                         radial_residual, shape_matrix, sym_sqrt)
 
 STATIC_TOLERANCE = 0.02
@@ -184,7 +184,7 @@ class _JointResidual:
     ``A dA + dA A = dL L^T + L dL^T``; ``dC`` is :func:`_rotation_derivatives`.
     """
 
-    kind: str
+    ellipsoid: str
     k: int
     with_rot: bool
     y_radial: np.ndarray
@@ -196,25 +196,25 @@ class _JointResidual:
     def angles(self, q: np.ndarray) -> np.ndarray:
         """Field-gravity angle of each static row minus ``theta``, rad (unweighted)."""
         k = self.k
-        mm = (self.y_static - q[:3]) @ sym_sqrt(self.kind, q[3:k])
+        mm = (self.y_static - q[:3]) @ sym_sqrt(self.ellipsoid, q[3:k])
         if self.with_rot:
             mm = Rotation.from_rotvec(q[k:k + 3]).apply(mm)
         cos = np.sum(mm * self.a_unit, axis=1) / np.linalg.norm(mm, axis=1)
         return np.arccos(np.clip(cos, -1.0, 1.0)) - q[-1]
 
     def residual(self, q: np.ndarray) -> np.ndarray:
-        return np.concatenate([radial_residual(q[:self.k], self.kind, self.y_radial) / self.sigma_r,
+        return np.concatenate([radial_residual(q[:self.k], self.ellipsoid, self.y_radial) / self.sigma_r,
                                self.angles(q) / self.sigma_a])
 
     def _matrix_derivatives(self, q: np.ndarray) -> tuple[np.ndarray, list]:
         """``M`` and ``dM/dq_j`` of the shape and rotation parameters (in that order)."""
         k = self.k
-        low = shape_matrix(self.kind, q[3:k])
-        a_mat = sym_sqrt(self.kind, q[3:k])
+        low = shape_matrix(self.ellipsoid, q[3:k])
+        a_mat = sym_sqrt(self.ellipsoid, q[3:k])
         rot = Rotation.from_rotvec(q[k:k + 3]).as_matrix() if self.with_rot else np.eye(3)
         unit = np.eye(3)
-        d_lows = [low] if self.kind == "offset" else [low[j, j] * np.outer(unit[j], unit[j]) for j in range(3)]
-        if self.kind == "full":
+        d_lows = [low] if self.ellipsoid == "offset" else [low[j, j] * np.outer(unit[j], unit[j]) for j in range(3)]
+        if self.ellipsoid == "full":
             d_lows += [np.outer(unit[a], unit[b]) for a, b in ((1, 0), (2, 0), (2, 1))]
         d_m = [rot @ solve_sylvester(a_mat, a_mat, d_low @ low.T + low @ d_low.T) for d_low in d_lows]
         if self.with_rot:
@@ -227,7 +227,7 @@ class _JointResidual:
         jac = np.zeros((n_r + len(self.y_static), q.size))
         for start in range(0, n_r, _JACOBIAN_CHUNK_ROWS):  # its temporaries a chunk at a time
             rows = slice(start, min(start + _JACOBIAN_CHUNK_ROWS, n_r))
-            radial_jacobian(q[:k], self.kind, self.y_radial[rows], out=jac[rows, :k])
+            radial_jacobian(q[:k], self.ellipsoid, self.y_radial[rows], out=jac[rows, :k])
         jac[:n_r] /= self.sigma_r
         m_mat, d_m = self._matrix_derivatives(q)
         d = self.y_static - q[:3]
@@ -247,12 +247,12 @@ class _JointResidual:
         return jac
 
 
-def refine_jointly(fit: KindFit, mag: np.ndarray, accel: np.ndarray, first: Misalignment) -> tuple[KindFit, Misalignment]:
+def refine_jointly(fit: EllipsoidFit, mag: np.ndarray, accel: np.ndarray, first: Misalignment) -> tuple[EllipsoidFit, Misalignment]:
     r"""Refit the ellipsoid, the rotation and the dip together.
 
     Parameters
     ----------
-    fit : KindFit
+    fit : EllipsoidFit
         The ellipsoid alone (start values, inliers, kind).
     mag, accel : ndarray, shape (n, 3)
         All samples (the ones ``fit`` was made from), recording units.
@@ -261,7 +261,7 @@ def refine_jointly(fit: KindFit, mag: np.ndarray, accel: np.ndarray, first: Misa
 
     Returns
     -------
-    KindFit, Misalignment
+    EllipsoidFit, Misalignment
 
     Notes
     -----
@@ -275,27 +275,27 @@ def refine_jointly(fit: KindFit, mag: np.ndarray, accel: np.ndarray, first: Misa
     is weakly determined (poor coverage).  Standard errors come from a plain refit on the samples
     within ``OUTLIER_SIGMAS`` of both.
     """
-    kind, k = fit.kind, fit.n_params
+    ellipsoid, k = fit.ellipsoid, fit.n_params
     mag = np.asarray(mag, float)
     inl = fit.inliers
     static = inl & static_mask(accel)
     a_unit = accel[static] / np.linalg.norm(accel[static], axis=1, keepdims=True)
     with_rot = first.rotation is not None
     y_inl, y_static = ((mag[rows] - fit.centre) / fit.radius for rows in (inl, static))
-    sigma_r = max(robust_sigma(radial_residual(fit.params, kind, y_inl)), 1e-9)
+    sigma_r = max(robust_sigma(radial_residual(fit.params, ellipsoid, y_inl)), 1e-9)
     q0 = np.concatenate([fit.params, np.radians(first.rotvec_deg) if with_rot else [], [np.radians(90.0 + first.dip_deg)]])
-    every = _JointResidual(kind, k, with_rot, y_inl, y_static, a_unit, sigma_r, 1.0)
+    every = _JointResidual(ellipsoid, k, with_rot, y_inl, y_static, a_unit, sigma_r, 1.0)
     sigma_a = max(robust_sigma(every.angles(q0)), 1e-9)
     every = replace(every, sigma_a=sigma_a)
     # only the parameters are kept from the robust fit: its result holds an (n, k) Jacobian
     robust_x = least_squares(every.residual, q0, jac=every.jacobian, loss="soft_l1", f_scale=2.0, tr_solver="lsmr",
                              max_nfev=MAX_NFEV).x
-    use_r = np.abs(radial_residual(robust_x[:k], kind, y_inl)) < OUTLIER_SIGMAS * sigma_r
+    use_r = np.abs(radial_residual(robust_x[:k], ellipsoid, y_inl)) < OUTLIER_SIGMAS * sigma_r
     use_a = np.abs(every.angles(robust_x)) < OUTLIER_SIGMAS * sigma_a
     kept = replace(every, y_radial=y_inl[use_r], y_static=y_static[use_a], a_unit=a_unit[use_a])
     final = least_squares(kept.residual, robust_x, jac=kept.jacobian, method="lm", max_nfev=MAX_NFEV)
     cov = fit_covariance(final, len(final.fun))
-    h, sig_h, s_mat, sig_s, f_norm, sig_f = propagate(kind, final.x[:k], cov, fit.centre, fit.radius)
+    h, sig_h, s_mat, sig_s, f_norm, sig_f = propagate(ellipsoid, final.x[:k], cov, fit.centre, fit.radius)
     resid_all = np.linalg.norm((mag - h) @ s_mat.T, axis=1) - f_norm
     new_fit = replace(fit, hard_iron=h, hard_iron_sigma=sig_h, soft_iron=s_mat, soft_iron_sigma=sig_s, field_norm=f_norm,
                       field_norm_sigma=sig_f, residuals=resid_all, rss=float(np.sum(resid_all[inl] ** 2)),

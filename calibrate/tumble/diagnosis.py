@@ -60,7 +60,7 @@ from ..diagnosis.forms import WARMUP_TAU_FRACTIONS, json_float, rms, settled, wa
 from ..diagnosis.report import Diagnosis
 from ..noise import chi2_sf, robust_sigma
 from .alignment import MAX_ANGLE_WIDENING, Misalignment, field_gravity_angles, static_mask
-from .ellipsoid import KindFit, fit_covariance, propagate, shape_matrix, sym_sqrt
+from .ellipsoid import EllipsoidFit, fit_covariance, propagate, shape_matrix, sym_sqrt
 
 __all__ = ["TumbleEffect", "TUMBLE_FORMS", "TumbleDiagnosis", "UNEXPLAINED_WARNING", "diagnose_tumble",
            "radial_noise_floor", "residual_structure"]
@@ -257,8 +257,8 @@ class _Fit(FitRecord):
 class _Model:
     """The ellipsoid with a chain of corrections, on fixed rows, weighted by the floor."""
 
-    def __init__(self, fit: KindFit, rows: _Rows, ctx: _Context, floor: float):
-        self.kind, self.k, self.field_norm = fit.kind, fit.n_params, fit.field_norm
+    def __init__(self, fit: EllipsoidFit, rows: _Rows, ctx: _Context, floor: float):
+        self.ellipsoid, self.k, self.field_norm = fit.ellipsoid, fit.n_params, fit.field_norm
         self.rows, self.ctx, self.floor = rows, ctx, floor
 
     def corrected(self, x, effects, rows: _Rows) -> np.ndarray:
@@ -272,7 +272,7 @@ class _Model:
     def radial(self, x, effects, rows: _Rows) -> np.ndarray:
         """Radial residual, recording units."""
         z = self.corrected(x, effects, rows)
-        return self.field_norm * (np.linalg.norm(z @ shape_matrix(self.kind, x[3:self.k]), axis=1) - 1.0)
+        return self.field_norm * (np.linalg.norm(z @ shape_matrix(self.ellipsoid, x[3:self.k]), axis=1) - 1.0)
 
     def weighted(self, x, effects) -> np.ndarray:
         return self.radial(x, effects, self.rows) / self.floor
@@ -305,7 +305,7 @@ class TumbleDiagnosis(Diagnosis):
 
     Attributes
     ----------
-    fit : KindFit
+    fit : EllipsoidFit
         The ellipsoid at the reference condition (hard iron at ``t_ref`` and ``T_ref``), fitted
         with the claimed effects; the base fit itself when none is claimed.
     raw_at_reference : ndarray, shape (n, 3)
@@ -318,19 +318,19 @@ class TumbleDiagnosis(Diagnosis):
         The SPEC section 4 ``diagnosis`` block.
     """
 
-    fit: KindFit
+    fit: EllipsoidFit
     raw_at_reference: np.ndarray
     effects: tuple
     block: dict
 
-    def with_alignment(self, mis: Misalignment, fit: KindFit) -> "TumbleDiagnosis":
+    def with_alignment(self, mis: Misalignment, fit: EllipsoidFit) -> "TumbleDiagnosis":
         """Add the magnetometer-accelerometer rotation as a step, and the final fit's residual.
 
         Parameters
         ----------
         mis : Misalignment
             The rotation's fit (``rotation`` None when it was not applied).
-        fit : KindFit
+        fit : EllipsoidFit
             The ellipsoid after the rotation was fitted with it (its residuals on
             ``raw_at_reference``).
 
@@ -428,7 +428,7 @@ def residual_structure(weighted: np.ndarray, directions: np.ndarray, bands) -> t
     return drop, int(rank), chi2_sf(drop, rank)
 
 
-def diagnose_tumble(mag: np.ndarray, fit: KindFit, *, t_s: np.ndarray | None = None,
+def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | None = None,
                     temp_c: np.ndarray | None = None, accel: np.ndarray | None = None, missing=(),
                     candidates=None) -> TumbleDiagnosis:
     """Run the diagnosis loop on a tumble's chosen ellipsoid.
@@ -437,7 +437,7 @@ def diagnose_tumble(mag: np.ndarray, fit: KindFit, *, t_s: np.ndarray | None = N
     ----------
     mag : ndarray, shape (n, 3)
         The raw readings ``fit`` was made from, recording units, magnetometer frame, in time order.
-    fit : KindFit
+    fit : EllipsoidFit
         The chosen ellipsoid (its kind, normalisation and inliers are kept).
     t_s, temp_c : ndarray, shape (n,), optional
         Time (s) and sensor temperature (degC) of each reading.
@@ -492,7 +492,7 @@ def diagnose_tumble(mag: np.ndarray, fit: KindFit, *, t_s: np.ndarray | None = N
         """Std of the field-gravity angle over the quasi-static inliers, deg (NaN without them)."""
         if static is None or np.count_nonzero(static) < 20:
             return float("nan")
-        m = model.corrected(f.x, f.effects, rows)[static] @ sym_sqrt(fit.kind, f.x[3:model.k])
+        m = model.corrected(f.x, f.effects, rows)[static] @ sym_sqrt(fit.ellipsoid, f.x[3:model.k])
         return float(np.std(field_gravity_angles(m, accel_rows[static])))
 
     def keeps_the_angle(p: Proposal):
@@ -522,7 +522,7 @@ def diagnose_tumble(mag: np.ndarray, fit: KindFit, *, t_s: np.ndarray | None = N
     chosen = select_effects(
         base, pool, score=model.score, refit=model.refit, n_params=lambda e: e.n_params(),
         log_n=np.log(base.residuals.size),
-        base_step={"model": "base", "kind": fit.kind, "residual_rms": rms(base.residuals)},
+        base_step={"model": "base", "kind": fit.ellipsoid, "residual_rms": rms(base.residuals)},
         write_step=claim, verdict=verdict, checks=(determined("the ellipsoid"), keeps_the_angle))
     current, steps = chosen.fit, chosen.steps
     (structure, dof, p_value), unexplained = chosen.structure, chosen.unexplained
@@ -530,7 +530,7 @@ def diagnose_tumble(mag: np.ndarray, fit: KindFit, *, t_s: np.ndarray | None = N
     final_fit, raw_ref, effects = fit, mag, ()
     if current.effects:
         k = model.k
-        h, sig_h, s_mat, sig_s, f_norm, sig_f = propagate(fit.kind, current.x[:k], current.covariance,
+        h, sig_h, s_mat, sig_s, f_norm, sig_f = propagate(fit.ellipsoid, current.x[:k], current.covariance,
                                                            fit.centre, fit.radius)
         raw_ref = h + fit.radius * model.corrected(current.x, current.effects, all_rows)
         resid_all = np.linalg.norm((raw_ref - h) @ s_mat.T, axis=1) - f_norm

@@ -14,7 +14,7 @@ from scipy.optimize import least_squares
 from ..noise import robust_sigma
 from .coverage import Coverage, sphere_coverage
 
-KINDS = ("offset", "diagonal", "full")
+ELLIPSOIDS = ("offset", "diagonal", "full")
 
 
 _N_PARAMS = {"offset": 4, "diagonal": 6, "full": 9}
@@ -38,12 +38,12 @@ MAX_NFEV = 400
 
 
 @dataclass(frozen=True)
-class KindFit:
+class EllipsoidFit:
     """One ellipsoid kind fitted to the samples.
 
     Attributes
     ----------
-    kind : str
+    ellipsoid : str
     hard_iron, hard_iron_sigma : ndarray, shape (3,)
         Offset ``h`` and its standard error, recording units.
     soft_iron, soft_iron_sigma : ndarray, shape (3, 3)
@@ -70,7 +70,7 @@ class KindFit:
         The field norm exceeds ``MAX_RADIUS_RATIO`` times the samples' extent (see ``reason``).
     """
 
-    kind: str
+    ellipsoid: str
     hard_iron: np.ndarray
     hard_iron_sigma: np.ndarray
     soft_iron: np.ndarray
@@ -92,57 +92,57 @@ class KindFit:
 
     @property
     def n_params(self) -> int:
-        return _N_PARAMS[self.kind]
+        return _N_PARAMS[self.ellipsoid]
 
     def calibrated(self, mag: np.ndarray) -> np.ndarray:
         """``S (x - h)``, shape (n, 3), recording units (det S = 1)."""
         return (np.asarray(mag, dtype=float) - self.hard_iron) @ self.soft_iron.T
 
 
-def shape_matrix(kind: str, p: np.ndarray) -> np.ndarray:
+def shape_matrix(ellipsoid: str, p: np.ndarray) -> np.ndarray:
     """Lower-triangular L (S^2 / F^2 = L L^T) from the shape parameters."""
-    if kind == "offset":
+    if ellipsoid == "offset":
         return np.exp(p[0]) * np.eye(3)
-    if kind == "diagonal":
+    if ellipsoid == "diagonal":
         return np.diag(np.exp(p[:3]))
     low = np.diag(np.exp(p[:3]))
     low[1, 0], low[2, 0], low[2, 1] = p[3:6]
     return low
 
 
-def _shape_params(kind: str, m: np.ndarray) -> np.ndarray:
-    """Start values for ``kind`` from a positive-definite ``S^2 / F^2`` matrix ``m``."""
-    if kind == "offset":
+def _shape_params(ellipsoid: str, m: np.ndarray) -> np.ndarray:
+    """Start values for ``ellipsoid`` from a positive-definite ``S^2 / F^2`` matrix ``m``."""
+    if ellipsoid == "offset":
         return np.array([0.5 * np.log(np.mean(np.diag(m)))])
-    if kind == "diagonal":
+    if ellipsoid == "diagonal":
         return 0.5 * np.log(np.diag(m))
     low = np.linalg.cholesky(m)
     return np.concatenate([np.log(np.diag(low)), [low[1, 0], low[2, 0], low[2, 1]]])
 
 
-def radial_residual(p, kind, y):
-    low = shape_matrix(kind, p[3:])
+def radial_residual(p, ellipsoid, y):
+    low = shape_matrix(ellipsoid, p[3:])
     z = (y - p[:3]) @ low
     return np.sqrt(np.einsum("ij,ij->i", z, z)) - 1.0
 
 
-def radial_jacobian(p, kind, y, out=None):
+def radial_jacobian(p, ellipsoid, y, out=None):
     """Analytic Jacobian of :func:`radial_residual`, shape (n, 3 + shape parameters).
 
     With ``d = y - h``, ``z = d L`` and ``u = z / |z|``: ``dr/dh = -L u`` and ``dr/dL_ij = d_i u_j``;
     the diagonal of ``L`` is ``exp`` of its parameter, so ``dr/dp_k = d_k u_k L_kk`` there.  ``out``
     (that shape, e.g. a block of a larger Jacobian) receives it instead of a new array.
     """
-    low = shape_matrix(kind, p[3:])
+    low = shape_matrix(ellipsoid, p[3:])
     d = y - p[:3]
     z = d @ low
     norm = np.sqrt(np.einsum("ij,ij->i", z, z))
     u = z / norm[:, None]
     jac = np.empty((len(y), len(p))) if out is None else out
     jac[:, :3] = -(u @ low.T)
-    if kind == "offset":
+    if ellipsoid == "offset":
         jac[:, 3] = norm
-    elif kind == "diagonal":
+    elif ellipsoid == "diagonal":
         jac[:, 3:6] = z * u
     else:
         jac[:, 3:6] = d * u * np.diag(low)
@@ -152,29 +152,29 @@ def radial_jacobian(p, kind, y, out=None):
     return jac
 
 
-def _unpack(kind, p, centre, radius):
+def _unpack(ellipsoid, p, centre, radius):
     """(h, S det 1, F) in recording units from normalised parameters."""
-    low = shape_matrix(kind, p[3:])
+    low = shape_matrix(ellipsoid, p[3:])
     a = np.real(sqrtm(low @ low.T)) / radius  # S / F, maps raw units onto the unit sphere
     a = (a + a.T) / 2.0
     f_norm = np.linalg.det(a) ** (-1.0 / 3.0)
     return centre + radius * p[:3], a * f_norm, f_norm
 
 
-def _fit_kind(kind, y, p0, inlier_mask=None):
+def _fit_one(ellipsoid, y, p0, inlier_mask=None):
     """Robust fit, trimming, then a plain refit on the inliers; normalised units."""
     start = p0
     if inlier_mask is None:
         # only the parameters are kept from the robust fits: their results hold an (n, k) Jacobian each
-        first_x = least_squares(radial_residual, p0, jac=radial_jacobian, args=(kind, y), loss="soft_l1", f_scale=0.02,
+        first_x = least_squares(radial_residual, p0, jac=radial_jacobian, args=(ellipsoid, y), loss="soft_l1", f_scale=0.02,
                                 method="trf", tr_solver="lsmr", max_nfev=MAX_NFEV).x
-        sigma = max(robust_sigma(radial_residual(first_x, kind, y)), 1e-9)
-        start = least_squares(radial_residual, first_x, jac=radial_jacobian, args=(kind, y), loss="soft_l1",
+        sigma = max(robust_sigma(radial_residual(first_x, ellipsoid, y)), 1e-9)
+        start = least_squares(radial_residual, first_x, jac=radial_jacobian, args=(ellipsoid, y), loss="soft_l1",
                               f_scale=2.0 * sigma, method="trf", tr_solver="lsmr", max_nfev=MAX_NFEV).x
-        r = radial_residual(start, kind, y)
+        r = radial_residual(start, ellipsoid, y)
         sigma = max(robust_sigma(r), 1e-9)
         inlier_mask = np.abs(r - np.median(r)) < OUTLIER_SIGMAS * sigma
-    final = least_squares(radial_residual, start, jac=radial_jacobian, args=(kind, y[inlier_mask]), method="lm",
+    final = least_squares(radial_residual, start, jac=radial_jacobian, args=(ellipsoid, y[inlier_mask]), method="lm",
                           max_nfev=MAX_NFEV)
     return final, inlier_mask
 
@@ -196,16 +196,16 @@ def fit_covariance(res, n_obs: int) -> np.ndarray:
     return np.linalg.inv(jtj) * float(np.sum(res.fun**2)) / max(n_obs - k, 1)
 
 
-def propagate(kind, p, cov, centre, radius):
+def propagate(ellipsoid, p, cov, centre, radius):
     """Standard errors of h, S (det 1) and F from the covariance of the normalised parameters."""
-    k = _N_PARAMS[kind]
-    h, s, f_norm = _unpack(kind, p, centre, radius)
+    k = _N_PARAMS[ellipsoid]
+    h, s, f_norm = _unpack(ellipsoid, p, centre, radius)
     sig_h = radius * np.sqrt(np.clip(np.diag(cov)[:3], 0.0, None))
     grads_s, grads_f = np.empty((9, k)), np.empty(k)
     for j in range(k):
         step = np.zeros(k)
         step[j] = 1e-6
-        _, s_j, f_j = _unpack(kind, p + step, centre, radius)
+        _, s_j, f_j = _unpack(ellipsoid, p + step, centre, radius)
         grads_s[:, j] = (s_j - s).ravel() / 1e-6
         grads_f[j] = (f_j - f_norm) / 1e-6
     cov = cov[:k, :k]
@@ -215,30 +215,30 @@ def propagate(kind, p, cov, centre, radius):
     return h, sig_h, s, sig_s, f_norm, sig_f
 
 
-def _kind_fit(kind, x, y, centre, radius, p0, inliers) -> KindFit:
-    res, inliers = _fit_kind(kind, y, p0, inliers)
-    h, sig_h, s, sig_s, f_norm, sig_f = propagate(kind, res.x, fit_covariance(res, int(np.count_nonzero(inliers))),
+def _ellipsoid_fit(ellipsoid, x, y, centre, radius, p0, inliers) -> EllipsoidFit:
+    res, inliers = _fit_one(ellipsoid, y, p0, inliers)
+    h, sig_h, s, sig_s, f_norm, sig_f = propagate(ellipsoid, res.x, fit_covariance(res, int(np.count_nonzero(inliers))),
                                                    centre, radius)
     resid_all = np.linalg.norm((x - h) @ s.T, axis=1) - f_norm
-    return KindFit(kind, h, sig_h, s, sig_s, f_norm, sig_f, resid_all, inliers, float(np.sum(resid_all[inliers] ** 2)),
+    return EllipsoidFit(ellipsoid, h, sig_h, s, sig_s, f_norm, sig_f, resid_all, inliers, float(np.sum(resid_all[inliers] ** 2)),
                    np.nan, True, "", bool(res.success), res.message, res.x, centre, radius)
 
 
-def fit_ellipsoid(mag: np.ndarray, kind: str = "auto") -> tuple[KindFit, tuple, Coverage]:
+def fit_ellipsoid(mag: np.ndarray, ellipsoid: str = "auto") -> tuple[EllipsoidFit, tuple, Coverage]:
     """Fit the ellipsoid kinds and choose one.
 
     Parameters
     ----------
     mag : ndarray, shape (n, 3)
         Raw magnetometer samples (repeats removed), recording units, magnetometer frame.
-    kind : {"auto", "offset", "diagonal", "full"}
+    ellipsoid : {"auto", "offset", "diagonal", "full"}
         ``auto`` takes the determined kind with the lowest BIC; a named kind is fitted as asked
         (the result warns through ``determined`` when the data do not support it).
 
     Returns
     -------
-    chosen : KindFit
-    candidates : tuple of KindFit
+    chosen : EllipsoidFit
+    candidates : tuple of EllipsoidFit
         The kinds fitted, simplest first, with BIC on a common sample set.
     coverage : Coverage
         Of the field directions about the offset-only centre.
@@ -246,16 +246,16 @@ def fit_ellipsoid(mag: np.ndarray, kind: str = "auto") -> tuple[KindFit, tuple, 
     Raises
     ------
     ValueError
-        ``kind`` unknown, or fewer samples than the full kind's parameters.
+        ``ellipsoid`` unknown, or fewer samples than the full kind's parameters.
     """
-    if kind not in ("auto",) + KINDS:
-        raise ValueError(f"kind must be 'auto' or one of {KINDS}, got {kind!r}")
+    if ellipsoid not in ("auto",) + ELLIPSOIDS:
+        raise ValueError(f"ellipsoid must be 'auto' or one of {ELLIPSOIDS}, got {ellipsoid!r}")
     x = np.asarray(mag, dtype=float)
     if len(x) < 12:
         raise ValueError(f"a tumble calibration needs at least 12 samples, got {len(x)}")
     centre, radius = _algebraic_start(x)
     y = (x - centre) / radius
-    names = KINDS if kind == "auto" else KINDS[: KINDS.index(kind) + 1]
+    names = ELLIPSOIDS if ellipsoid == "auto" else ELLIPSOIDS[: ELLIPSOIDS.index(ellipsoid) + 1]
 
     # each kind starts from the previous one; the most flexible kind's trimming sets the common samples
     fits, params = [], []
@@ -264,7 +264,7 @@ def fit_ellipsoid(mag: np.ndarray, kind: str = "auto") -> tuple[KindFit, tuple, 
         if params:
             low = shape_matrix(names[len(params) - 1], params[-1][3:])
             p = np.concatenate([params[-1][:3], _shape_params(name, low @ low.T)])
-        fit = _kind_fit(name, x, y, centre, radius, p, None)
+        fit = _ellipsoid_fit(name, x, y, centre, radius, p, None)
         fits.append(fit)
         params.append(fit.params)
     common = fits[-1].inliers
@@ -274,7 +274,7 @@ def fit_ellipsoid(mag: np.ndarray, kind: str = "auto") -> tuple[KindFit, tuple, 
     final = []
     for fit, p in zip(fits, params):
         if not np.array_equal(fit.inliers, common):
-            fit = _kind_fit(fit.kind, x, y, centre, radius, p, common)
+            fit = _ellipsoid_fit(fit.ellipsoid, x, y, centre, radius, p, common)
         bic = n * np.log(fit.rss / n) + fit.n_params * np.log(n)
         rel = max(np.max(fit.hard_iron_sigma) / fit.field_norm, np.max(fit.soft_iron_sigma),
                   fit.field_norm_sigma / fit.field_norm)
@@ -288,17 +288,17 @@ def fit_ellipsoid(mag: np.ndarray, kind: str = "auto") -> tuple[KindFit, tuple, 
         elif not np.isfinite(rel) or rel > MAX_RELATIVE_SIGMA:
             reason = (f"standard errors up to {100 * rel:.2g} % of the field" if np.isfinite(rel)
                       else "singular covariance")
-        elif fit.kind != "offset" and coverage.missing:
+        elif fit.ellipsoid != "offset" and coverage.missing:
             reason = f"the field was never along {', '.join(coverage.missing)}"
         final.append(replace(fit, bic=float(bic), determined=not reason, reason=reason, degenerate=degenerate))
-    if kind != "auto":
+    if ellipsoid != "auto":
         return final[-1], tuple(final), coverage
     usable = [f for f in final if f.determined] or final[:1]
     return min(usable, key=lambda f: f.bic), tuple(final), coverage
 
 
-def sym_sqrt(kind, p_shape):
+def sym_sqrt(ellipsoid, p_shape):
     """Symmetric positive-definite ``A`` with ``A^2 = L L^T`` (the calibration's shape, normalised units)."""
-    low = shape_matrix(kind, p_shape)
+    low = shape_matrix(ellipsoid, p_shape)
     w, v = np.linalg.eigh(low @ low.T)
     return (v * np.sqrt(w)) @ v.T

@@ -22,7 +22,7 @@ def _noise_floor(x: np.ndarray) -> float:
     return float(np.median(robust_sigma(d)) / np.sqrt(6.0))
 
 
-def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: str = "auto",
+def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, ellipsoid: str = "auto",
                      field_ut: float | None = None, n_repeats: int = 0, t_s: np.ndarray | None = None,
                      temp_c: np.ndarray | None = None) -> TumbleResult:
     """Calibrate hard and soft iron (and the magnetometer-accelerometer rotation) from a tumble.
@@ -34,7 +34,7 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: 
         (:func:`compass.io.tumble.read_tumble` does that).
     accel : ndarray, shape (n, 3), optional
         Accelerometer at the same rows (specific force), any unit.
-    kind : {"auto", "offset", "diagonal", "full"}
+    ellipsoid : {"auto", "offset", "diagonal", "full"}
     field_ut : float, optional
         Known |B|; the file's ``soft_iron`` then gives microtesla.
     n_repeats : int
@@ -55,29 +55,29 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, kind: 
     >>> from compass.sim.tumble import simulate_tumble
     >>> sim = simulate_tumble(seed=1, n=1500)
     >>> res = calibrate_tumble(sim.mag, sim.accel)
-    >>> res.kind, bool(abs(res.field_norm - 50) < 5)
+    >>> res.ellipsoid, bool(abs(res.field_norm - 50) < 5)
     ('full', True)
     """
     if field_ut is not None and not field_ut > 0:
         raise ValueError(f"field_ut must be positive, got {field_ut}")
     mag = raw = np.asarray(mag, dtype=float)
     noise = _noise_floor(mag)
-    chosen, candidates, coverage = fit_ellipsoid(mag, kind)
+    chosen, candidates, coverage = fit_ellipsoid(mag, ellipsoid)
     warnings = []
     if coverage.missing:
         warnings.append("incomplete coverage: " + coverage.words())
     full = candidates[-1]
-    if kind == "auto" and chosen.kind != "full":
+    if ellipsoid == "auto" and chosen.ellipsoid != "full":
         why = full.reason or "the BIC prefers the simpler kind"
-        warnings.append(f"used the {chosen.kind} kind: the full ellipsoid is not determined ({why})"
-                        if not full.determined else f"used the {chosen.kind} kind ({why})")
+        warnings.append(f"used the {chosen.ellipsoid} kind: the full ellipsoid is not determined ({why})"
+                        if not full.determined else f"used the {chosen.ellipsoid} kind ({why})")
     if chosen.degenerate:
-        refused = (f"no usable calibration: no ellipsoid kind is determined, and the simplest ({chosen.kind}) is "
+        refused = (f"no usable calibration: no ellipsoid kind is determined, and the simplest ({chosen.ellipsoid}) is "
                    f"{chosen.reason}")
         return TumbleResult(chosen, candidates, coverage, None, field_ut, noise, len(mag), n_repeats,
                             tuple(warnings + [refused]), refused)
     if not chosen.determined:
-        warnings.append(f"the {chosen.kind} kind is poorly determined: {chosen.reason}")
+        warnings.append(f"the {chosen.ellipsoid} kind is poorly determined: {chosen.reason}")
     n_out = int(np.count_nonzero(~chosen.inliers))
     if n_out > 0.2 * len(mag):
         warnings.append(f"{n_out} of {len(mag)} samples ({100 * n_out / len(mag):.0f} %) were rejected as "
@@ -160,7 +160,7 @@ class TumbleCalibrator(Calibrator):
     def fit(self, recording: TumbleRecording) -> TumbleResult:
         field_ut = self.field_ut if self.field_ut is not None else metadata_field_ut(recording.path,
                                                                                       recording.metadata)
-        result = calibrate_tumble(recording.mag, recording.accel, kind=self.ellipsoid, field_ut=field_ut,
+        result = calibrate_tumble(recording.mag, recording.accel, ellipsoid=self.ellipsoid, field_ut=field_ut,
                                   n_repeats=recording.n_repeats, t_s=recording.t_s, temp_c=recording.temp_c)
         if result.refused:
             raise CannotCalibrate(f"{recording.path}: {result.refused}")

@@ -7,13 +7,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from compass.calibration_file import header
+from compass.calibration import header
 
 from ..contract import Calibration
 from ..diagnosis.forms import json_float
 from .alignment import Misalignment
 from .coverage import Coverage
-from .ellipsoid import KindFit
+from .ellipsoid import EllipsoidFit
 
 if TYPE_CHECKING:
     from .diagnosis import TumbleDiagnosis
@@ -24,9 +24,9 @@ class TumbleResult(Calibration):
 
     Attributes
     ----------
-    fit : KindFit
+    fit : EllipsoidFit
         The chosen ellipsoid.
-    candidates : tuple of KindFit
+    candidates : tuple of EllipsoidFit
         Every kind tried, for the report and the BIC comparison.
     coverage : Coverage
     misalignment : Misalignment or None
@@ -47,7 +47,7 @@ class TumbleResult(Calibration):
         effects, ``fit`` is the ellipsoid at their reference time and temperature.
     """
 
-    fit: KindFit
+    fit: EllipsoidFit
     candidates: tuple
     coverage: Coverage
     misalignment: Misalignment | None
@@ -62,9 +62,9 @@ class TumbleResult(Calibration):
     calibration_kind = "tumble"
 
     @property
-    def kind(self) -> str:
+    def ellipsoid(self) -> str:
         """The chosen ellipsoid kind (``offset``, ``diagonal``, ``full``)."""
-        return self.fit.kind
+        return self.fit.ellipsoid
 
     @property
     def parameters(self) -> dict:
@@ -139,8 +139,8 @@ class TumbleResult(Calibration):
             "effects": list(self.diagnosis.effects),
             "diagnosis": self.diagnosis.block,
             "tumble": {
-                "kind": fit.kind,
-                "kinds": [{"kind": c.kind, "residual_rms": float(np.sqrt(np.mean(c.residuals[fit.inliers] ** 2))),
+                "kind": fit.ellipsoid,
+                "kinds": [{"kind": c.ellipsoid, "residual_rms": float(np.sqrt(np.mean(c.residuals[fit.inliers] ** 2))),
                            "bic": json_float(c.bic), "determined": c.determined} for c in self.candidates],
                 "hard_iron_sigma": fit.hard_iron_sigma.tolist(),
                 "soft_iron_sigma": (fit.soft_iron_sigma * self.scale).tolist(),
@@ -162,7 +162,7 @@ class TumbleResult(Calibration):
     def report(self) -> str:
         """A fit report for a person: values +- sigma, the kinds compared, coverage and warnings in words."""
         fit = self.fit
-        lines = [f"Tumble calibration: {fit.kind} ellipsoid from {self.n_samples} samples "
+        lines = [f"Tumble calibration: {fit.ellipsoid} ellipsoid from {self.n_samples} samples "
                  f"({self.n_repeats} repeated rows dropped, {np.count_nonzero(~fit.inliers)} outliers)"]
         lines.append("  hard iron " + ", ".join(f"{v:.5g} +- {s:.2g}" for v, s in zip(fit.hard_iron, fit.hard_iron_sigma))
                      + " (recording units)")
@@ -171,7 +171,7 @@ class TumbleResult(Calibration):
         for row, srow in zip(fit.soft_iron, fit.soft_iron_sigma):
             lines.append("    " + "  ".join(f"{v:+.5f} +- {s:.1g}" for v, s in zip(row, srow)))
         lines.append("  kinds: " + "; ".join(
-            f"{c.kind} BIC {c.bic:.1f} rms {np.sqrt(np.mean(c.residuals[fit.inliers] ** 2)):.3g}"
+            f"{c.ellipsoid} BIC {c.bic:.1f} rms {np.sqrt(np.mean(c.residuals[fit.inliers] ** 2)):.3g}"
             + ("" if c.determined else f" (not determined: {c.reason})") for c in self.candidates))
         lines.append(f"  noise floor {self.noise:.3g} per axis; coverage: {self.coverage.words()}")
         mis = self.misalignment

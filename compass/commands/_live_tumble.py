@@ -15,13 +15,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import numpy as np
-
-__all__ = ["TumbleCollector", "run_tumble", "recording_path"]
-
-_CHANNELS = ("mx", "my", "mz")
-_FIT_SAMPLES = 2000  # the live fit uses at most this many samples, evenly spread
-_MIN_SAMPLES = 50
+__all__ = ["run_tumble", "recording_path"]
 
 
 def recording_path(out) -> Path:
@@ -30,116 +24,16 @@ def recording_path(out) -> Path:
     return out.with_name(out.stem + ".tumble.csv")
 
 
-class TumbleCollector:
-    """Samples of a tumble, their coverage and the converging fit.
-
-    Parameters
-    ----------
-    min_coverage : float
-        Fraction of the sphere's cells that must hold a sample (with every half-axis seen) for
-        :attr:`enough`.
-
-    Attributes
-    ----------
-    decoder : compass.io.lines.LineDecoder
-    coverage : calibrate.tumble.Coverage or None
-        Of the latest :meth:`update`.
-    fit : calibrate.tumble.KindFit or None
-        The latest ellipsoid fit (hard iron, its sigma).
-    """
-
-    def __init__(self, *, min_coverage: float = 0.8):
-        from ..io.lines import LineDecoder
-
-        self.min_coverage = min_coverage
-        self.decoder = LineDecoder(_CHANNELS)
-        self.rows: list[tuple] = []
-        self.coverage = None
-        self.fit = None
-        self._t0 = None
-
-    def feed(self, item) -> list:
-        """Take one item of :meth:`SerialReader.items`; returns the decoder's events (level, text)."""
-        from ..serial_reader import LinkEvent
-
-        if isinstance(item, LinkEvent):
-            if item.kind == "connected":
-                self.decoder.resync()
-            return [("warn" if item.kind == "disconnected" else "info", item.message)]
-        if self._t0 is None:
-            self._t0 = item.t_rx
-        for s in self.decoder.feed(item.data):
-            t_s = s.t_s if s.t_s is not None else item.t_rx - self._t0
-            self.rows.append((t_s, *s.raw, *(s.accel if s.accel is not None else (np.nan,) * 3),
-                              np.nan if s.temp_c is None else s.temp_c))
-        return self.decoder.drain_events() if self.decoder.events else []
-
-    @property
-    def samples(self) -> np.ndarray:
-        """(n, 8): t_s, mx, my, mz, ax, ay, az, temp_c (NaN where not sent)."""
-        return np.array(self.rows, dtype=float).reshape(-1, 8)
-
-    def update(self) -> None:
-        """Fit the ellipsoid to the samples so far and measure their coverage about its centre."""
-        from calibrate.tumble import fit_ellipsoid, sphere_coverage
-
-        mag = self.samples[:, 1:4]
-        if len(mag) < _MIN_SAMPLES:
-            return
-        subset = mag[np.unique(np.linspace(0, len(mag) - 1, min(len(mag), _FIT_SAMPLES)).astype(int))]
-        fit, _, _ = fit_ellipsoid(subset)
-        if np.all(np.isfinite(fit.hard_iron)):
-            self.fit = fit
-        centre = self.fit.hard_iron if self.fit is not None else 0.5 * (mag.min(axis=0) + mag.max(axis=0))
-        self.coverage = sphere_coverage(mag - centre)
-
-    @property
-    def enough(self) -> bool:
-        """Every half-axis seen and ``min_coverage`` of the sphere covered."""
-        c = self.coverage
-        return c is not None and not c.missing and c.fraction >= self.min_coverage
-
-    def readout(self) -> str:
-        n = len(self.rows)
-        if self.coverage is None:
-            return f"tumble: {n} samples; turn the module slowly through every orientation"
-        c, fit = self.coverage, self.fit
-        text = (f"tumble: {n} samples, {100 * c.fraction:.0f} % of the sphere covered "
-                f"(need {100 * self.min_coverage:.0f} %)")
-        if c.missing:
-            text += f"; never along the field yet: {', '.join(c.missing)}"
-        if fit is not None:
-            text += ("; hard iron " + ", ".join(f"{h:.4g}" for h in fit.hard_iron)
-                     + " +- " + ", ".join(f"{s:.2g}" for s in fit.hard_iron_sigma))
-        return text
-
-    def write_recording(self, path) -> Path:
-        """The samples as a tumble recording (SPEC section 2): accelerometer and temp_c columns when
-        every sample had them."""
-        from ..io.atomic import atomic_write_text
-
-        data = self.samples
-        columns, keep = ["t_s", *_CHANNELS], [0, 1, 2, 3]
-        if np.all(np.isfinite(data[:, 4:7])):
-            columns += ["ax", "ay", "az"]
-            keep += [4, 5, 6]
-        if np.all(np.isfinite(data[:, 7])):
-            columns.append("temp_c")
-            keep.append(7)
-        lines = ["# source: compass live --calibrate tumble", ",".join(columns)]
-        lines += [",".join(f"{v:.9g}" for v in row) for row in data[:, keep]]
-        atomic_write_text(path, "\n".join(lines) + "\n")
-        return Path(path)
-
-
 def run_tumble(args) -> int:
     """``compass live --calibrate tumble``: collect, show, then calibrate (see the module docstring)."""
+    from calibrate.tumble.collector import CHANNELS, MIN_SAMPLES, TumbleCollector
+
     from ..cli import BadInput
     from ..io.atomic import check_writable
     from ..serial_reader import PortUnavailable
     from ..viz import check_rerun_target
     from . import calibrate as calibrate_cmd
-    from .live import open_reader, port_unavailable, stop_when_asked
+    from ._port import open_reader, port_unavailable, stop_when_asked
 
     if args.out is None:
         raise BadInput("--calibrate tumble needs --out CAL.json (the calibration to write)")
@@ -184,9 +78,9 @@ def run_tumble(args) -> int:
         try:
             if port_error is not None:  # said as the port's fault, not as too few samples
                 raise port_error
-            if len(collector.rows) < _MIN_SAMPLES:
-                raise BadInput(f"{args.port}: {len(collector.rows)} samples with {', '.join(_CHANNELS)} received; "
-                               f"a tumble calibration needs at least {_MIN_SAMPLES}")
+            if len(collector.rows) < MIN_SAMPLES:
+                raise BadInput(f"{args.port}: {len(collector.rows)} samples with {', '.join(CHANNELS)} received; "
+                               f"a tumble calibration needs at least {MIN_SAMPLES}")
             collector.update()
             why = "coverage reached" if collector.enough else "stopped before the coverage was reached"
             print(f"compass live: {why}; {collector.readout()}", flush=True)

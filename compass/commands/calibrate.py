@@ -1,7 +1,7 @@
 """``compass calibrate REC.csv --out CAL.json``: fit, diagnose, write the calibration file.
 
 The command line layer on top of both packages: it loops over :data:`calibrate.kinds.KINDS` (each
-kind's column sniffer, reader and calibrator) and writes through :mod:`compass.calibration_file`.
+kind's column sniffer, reader and calibrator) and writes through :func:`compass.calibration.save`.
 Only the command layer (``compass/commands/``) imports ``calibrate``.
 """
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .. import limits
-from ..io.atomic import atomic_write_text, check_writable
+from ..io.atomic import check_writable
 from ..io.table import ReadOptions, add_read_arguments, read_table
 from ..viz import add_rerun_option, check_rerun_target
 
@@ -91,7 +91,7 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
     from calibrate.contract import CannotCalibrate
     from calibrate.kinds import KINDS, sniff
 
-    from ..calibration_file import CalibrationFileError, dumps
+    from ..calibration import CalibrationFileError, save
     from ..cli import BadInput
 
     out = check_writable(out, force)
@@ -127,14 +127,13 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
         options["progress"] = lambda text: print(f"  ... {text}", flush=True)
     try:
         result = found.calibrator(**options).fit(rec)
-        text = dumps(result.to_json())
+        save(out, result.to_json(), force=force)
     except CannotCalibrate as exc:  # the recording cannot determine the model: bad input
         raise BadInput(str(exc)) from None
     except CalibrationFileError as exc:  # never write a calibration the runtime would refuse
         raise BadInput(f"{recording}: the fit gives an unusable calibration, not written: {exc}") from None
     if not quiet:
         print(result.report())
-    atomic_write_text(out, text)
     print(f"wrote {out}")
     if report:
         paths = result.plots(rec, report)

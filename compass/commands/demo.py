@@ -62,7 +62,8 @@ def run(args) -> int:
 
 def bench(demo: Demo) -> Demo:
     """Steps 1-2: a four-flip bench session, calibrated, against the simulator's truth."""
-    from ..calibration_file import load
+    from ..calibration import load
+    from ..frames import direction_sigma_deg
     from ..sim.fourflip import simulate_fourflip, write_fourflip
     from . import calibrate as calibrate_cmd
 
@@ -74,14 +75,16 @@ def bench(demo: Demo) -> Demo:
     cal_path = folder / "cal.json"
     print("2. calibrating it (joint maximum likelihood, residual diagnosis):")
     cal_result = calibrate_cmd.calibrate_file(rec_path, cal_path, report=folder / "report", force=True)
-    cal = load(cal_path).data
-    truth = session.truth
+    cal = load(cal_path)
+    model, truth = cal.model, session.truth
     print("   against the simulator's truth (the estimator never saw it):")
     for name, true_dir in zip(truth["channels"], truth["directions"]):
-        ch = cal["channels"][name]
-        err = np.degrees(np.arccos(np.clip(np.dot(ch["direction"], true_dir), -1.0, 1.0)))
-        print(f"   {name}: direction error {err:.4f} deg (reported sigma {ch['direction_sigma_deg']:.4f} deg)")
-    print(f"   dip error {cal['dip_deg'] - truth['dip_deg']:+.4f} deg (reported sigma {cal['dip_sigma_deg']:.4f} deg)")
+        c = model.channels.index(name)
+        err = np.degrees(np.arccos(np.clip(np.dot(model.directions[c], true_dir), -1.0, 1.0)))
+        sigma = direction_sigma_deg(model.direction_covariance[c])
+        print(f"   {name}: direction error {err:.4f} deg (reported sigma {sigma:.4f} deg)")
+    print(f"   dip error {model.dip_deg - truth['dip_deg']:+.4f} deg "
+          f"(reported sigma {cal.provenance.dip_sigma_deg:.4f} deg)")
     demo.truth, demo.files["bench"], demo.files["bench_recording"] = truth, cal_path, rec_path
     demo.results["bench"] = cal_result
     return demo
@@ -113,11 +116,11 @@ def record(demo: Demo) -> Demo:
     except ImportError:
         print("4. (pip install 'compass-toolkit[rerun]' to also get demo.rrd, the whole run in the Rerun viewer)")
         return demo
-    from ..model import SensorModel
+    from ..calibration import load
     from .calibrate import _base_residuals
 
     cal_result, att, runtime = demo.results["bench"], demo.results["attitude"], demo.results["runtime"]
-    record_demo(path, demo.files["bench_recording"], cal_result, att, SensorModel.from_file(demo.files["bench"]),
+    record_demo(path, demo.files["bench_recording"], cal_result, att, load(demo.files["bench"]).model,
                 t_s=runtime.t_s, raw=runtime.outputs, accel=runtime.accel, truth_heading_deg=runtime.heading_deg,
                 truth_pitch_deg=runtime.pitch_deg, truth_roll_deg=runtime.roll_deg,
                 base_residuals=_base_residuals(cal_result))

@@ -46,9 +46,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..accel_alignment import imu_to_model
-    from ..calibration_file import load
-    from ..calibration_file import write as write_calibration
+    from ..calibration import load, model_to_dict, save
     from ..cli import BadInput
     from ..sim.device import MOTIONS, PtyDevice, default_model
 
@@ -58,7 +56,7 @@ def run(args) -> int:
             cal = load(args.cal)
         except ValueError as exc:
             raise BadInput(str(exc)) from None
-        model, to_model = cal.model, imu_to_model(cal.data)
+        model, to_model = cal.model, cal.imu.rotation
         # the module's accelerometer and gyro in their own frame, which compass live turns into the model's
         imu_from_model = None if to_model is None else to_model.T
         if model.dip_deg is None:
@@ -76,7 +74,7 @@ def run(args) -> int:
     except ValueError as exc:
         raise BadInput(str(exc)) from None
     if args.save_cal is not None:
-        write_calibration(args.save_cal, model.to_json(), force=args.force)
+        save(args.save_cal, model_to_dict(model), force=args.force)
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:

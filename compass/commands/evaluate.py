@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..viz import add_rerun_option, check_rerun_target
+from compass.calibration import load as load_calibration
 
 SEGMENT_S = 20.0
 
@@ -68,10 +69,10 @@ def evaluate_file(trial_path, *, cal=None, plot=None, gate=True, hard_iron=True,
     model = None
     if cal is not None:
         try:
-            model = SensorModel.from_file(cal)
+            model = load_calibration(cal).model
         except ValueError as exc:
             raise BadInput(str(exc)) from None
-        if model.kind != "tumble":  # a bench calibration's channels are another sensor, not BROAD's imu_mag
+        if model.form != "tumble":  # a bench calibration's channels are another sensor, not BROAD's imu_mag
             raise BadInput(f"{cal}: expected a tumble calibration of the trial's magnetometer (mx,my,mz), got a "
                            f"bench calibration of channels {', '.join(model.channels)}")
     trial = read_broad(trial_path)

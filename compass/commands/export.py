@@ -60,7 +60,7 @@ def run(args) -> int:
 
 
 def load_tumble(path) -> dict:
-    """Read a tumble calibration file through :func:`compass.calibration_file.load`; BadInput (exit 2) else.
+    """Read a calibration file (:func:`compass.calibration.load`) in firmware terms; BadInput (exit 2) else.
 
     Returns
     -------
@@ -69,33 +69,27 @@ def load_tumble(path) -> dict:
         (validated: finite, soft iron symmetric positive definite, a proper rotation), and
         ``field_norm_recording_units`` (|B| in the recording's unit, float or None).
     """
-    from ..accel_alignment import imu_to_model
-    from ..calibration_file import load
+    from ..calibration import load
     from ..cli import BadInput
 
     try:
         cal = load(path)
     except ValueError as exc:
         raise BadInput(str(exc)) from None
-    if cal.kind != "tumble":
+    if cal.tumble is None:
         try:
             form = channel_form(cal.model)
         except ValueError as exc:
             raise BadInput(f"{path}: a {cal.kind} calibration cannot be exported: {exc}") from None
         # the field in the accelerometer's frame, as Fusion fuses it: back from the model's frame (H, or an
         # installed file's product frame) through the bench's mag_to_accel and the installation's alignment
-        to_model = imu_to_model(cal.data)
+        to_model = cal.imu.rotation
         if to_model is not None:
             form["mag_to_accel"] = to_model.T @ form["mag_to_accel"]
         return form
-    d = cal.data
-    c = d.get("mag_to_accel")
-    norm = (d.get("tumble") or {}).get("field_norm_recording_units") if isinstance(d.get("tumble"), dict) else None
-    if norm is None and d.get("field_ut") is None:
-        norm = d["field_norm"]  # no |B| given: the file's field norm is in the recording's unit
-    return {"hard_iron": np.asarray(d["hard_iron"], float), "soft_iron": np.asarray(d["soft_iron"], float),
-            "mag_to_accel": None if c is None else np.asarray(c, float),
-            "field_norm_recording_units": None if not isinstance(norm, (int, float)) else float(norm)}
+    t = cal.tumble
+    return {"hard_iron": t.hard_iron, "soft_iron": t.soft_iron, "mag_to_accel": t.mag_to_accel,
+            "field_norm_recording_units": t.field_norm_recording_units}
 
 
 def channel_form(model) -> dict:

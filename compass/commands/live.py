@@ -9,14 +9,13 @@ with the dropped-line count printed.
 from __future__ import annotations
 
 import contextlib
-import signal
 import sys
-import threading
 import time
 
 from .. import limits
 from ..limits import Range
 from ..viz import add_rerun_option, check_rerun_target
+from ._port import open_reader, port_unavailable, stop_when_asked
 
 
 def register(sub) -> None:
@@ -28,8 +27,8 @@ def register(sub) -> None:
                    help="serial device (/dev/ttyUSB0, COM3) or pyserial URL (socket://host:port, rfc2217://...)")
     p.add_argument("--cal", help="calibration JSON (compass calibrate) of the module's sensor (required unless "
                                  "--calibrate)")
-    p.add_argument("--baud", type=limits.BAUD.option("--baud"),
-                   default=115200, help="baud rate (default 115200; ignored by ptys and sockets)")
+    p.add_argument("--baud", type=limits.BAUD.option("--baud"), default=115200,
+                   help="baud rate (default 115200; ignored by ptys and sockets)")
     add_rerun_option(p)
     p.add_argument("--out", help="also write the attitude stream to this CSV file")
     p.add_argument("--site", metavar="LAT,LON[,ALT_M]",
@@ -61,8 +60,7 @@ def run(args) -> int:
     from ..io.atomic import atomic_stream, check_writable
     from ..io.units import GYRO_UNITS
     from ..live import LiveSession
-    from ..calibration_file import hemisphere_assumed, load
-    from ..accel_alignment import accel_correction, imu_to_model
+    from ..calibration import load
 
     if args.calibrate == "tumble":
         from ._live_tumble import run_tumble
@@ -72,7 +70,7 @@ def run(args) -> int:
         raise BadInput("--cal CAL.json is required (or --calibrate tumble to make one)")
     try:
         cal = load(args.cal)
-        model, to_product = cal.model, imu_to_model(cal.data)  # mag_to_accel, an installed alignment
+        model = cal.model
         config = FilterConfig.from_model(model)
     except ValueError as exc:
         raise BadInput(f"{args.cal}: {exc}" if args.cal not in str(exc) else str(exc)) from None
@@ -101,8 +99,8 @@ def run(args) -> int:
             if out_path is not None:
                 out = outputs.enter_context(atomic_stream(out_path, keep=lambda: _recorded(session)))
             session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event, reference=reference,
-                                  to_product=to_product, gyro_rad_s_per_unit=GYRO_UNITS[args.gyro_unit],
-                                  accel_correction=accel_correction(cal.data), sign_from_bench=hemisphere_assumed(cal.data))
+                                  imu=cal.imu, gyro_rad_s_per_unit=GYRO_UNITS[args.gyro_unit],
+                                  sign_from_bench=cal.provenance.hemisphere_assumed)
             _run_session(args, reader, session, out, tty, every_s)
             if session.turned_over is not None:  # judged on close: a stream shorter than the check
                 raise BadInput(f"{args.cal}: {session.turned_over}")
@@ -167,26 +165,6 @@ def _run_session(args, reader, session, out, tty: bool, every_s: float) -> None:
         session.close()
 
 
-def open_reader(args):
-    """The reader of ``--port`` (``--baud``, ``--wait``), its options checked; BadInput for bad ones."""
-    from ..cli import BadInput
-    from ..serial_reader import SerialReader
-
-    reader = SerialReader(args.port, baudrate=args.baud, first_open_s=args.wait)
-    try:
-        reader.check_url()
-    except ValueError as exc:
-        raise BadInput(str(exc)) from None
-    return reader
-
-
-def port_unavailable(exc):
-    """The BadInput for a port that could not be opened within ``--wait``."""
-    from ..cli import BadInput
-
-    return BadInput(f"{exc}: check the name, or --wait S for a port that is not there yet")
-
-
 def _site_reference(args, model):
     """The WMM's field at ``--site`` (None without one: the session seeds it from the stream)."""
     from ..cli import BadInput
@@ -200,31 +178,3 @@ def _site_reference(args, model):
         return reference_from_site(Site.parse(args.site, args.date), field_ut=None if model.field_ut is None else 1.0)
     except ValueError as exc:
         raise BadInput(str(exc)) from None
-
-
-@contextlib.contextmanager
-def stop_when_asked(duration_s: float | None):
-    """An event that Ctrl-C, SIGTERM or ``duration_s`` seconds set (the reading loop ends within one
-    read timeout); a second Ctrl-C interrupts.  The signal handlers are restored and the timer
-    cancelled when the block ends.  Off the main thread only the timer sets it."""
-    stop = threading.Event()
-
-    def handler(signum, frame):
-        if stop.is_set() and signum == signal.SIGINT:
-            raise KeyboardInterrupt
-        stop.set()
-
-    previous = ({} if threading.current_thread() is not threading.main_thread() else
-                {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)})
-    timer = None
-    if duration_s is not None:
-        timer = threading.Timer(duration_s, stop.set)
-        timer.daemon = True
-        timer.start()
-    try:
-        yield stop
-    finally:
-        if timer is not None:
-            timer.cancel()
-        for sig, handler_before in previous.items():
-            signal.signal(sig, handler_before)

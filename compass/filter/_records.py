@@ -172,7 +172,7 @@ class FilterConfig:
         if model.noise is None:
             raise ValueError("the calibration has no noise_floor: the filter cannot weight the magnetometer")
         noise = float(np.sqrt(np.trace(model.field_covariance(np.zeros(3))) / 3.0))
-        return cls(field_norm=model.field_magnitude, dip_deg=model.dip_deg, mag_noise=noise)
+        return cls(field_norm=model.field_norm, dip_deg=model.dip_deg, mag_noise=noise)
 
 
 @dataclass(frozen=True)

@@ -71,7 +71,7 @@ def tumble_from_table(table: Table) -> TumbleRecording:
     RecordingWarning
         Columns ignored; an accelerometer that reads -1 g on Z at the start's rest
         (:func:`compass.io.units.check_accel_up`); a field strength that is not the Earth's in the
-        magnetometer unit named (:func:`compass.io.units.check_field_magnitude`).
+        magnetometer unit named (:func:`compass.io.units.check_field_norm`).
     """
     mag = np.column_stack([table.column(c) for c in MAG_COLUMNS])
     table.ignore_unknown(MAG_COLUMNS + ACCEL_COLUMNS + ("t_s", "temp_c"), what="a tumble calibration")
@@ -96,7 +96,7 @@ def tumble_from_table(table: Table) -> TumbleRecording:
     accel, t_s, temp_c = (None if a is None else a[keep] for a in (accel, t_s, temp_c))
     if accel is not None:
         units.check_accel_up(accel, table.rows[keep], where=table.path)
-    units.check_field_magnitude(sphere_radius(mag[keep]), "uT" if "mx" in table.units else None, where=table.path,
+    units.check_field_norm(sphere_radius(mag[keep]), "uT" if "mx" in table.units else None, where=table.path,
                                 what="the magnetometer's field strength (sphere fit radius)")
     return TumbleRecording(table.path, mag[keep], accel, t_s, temp_c, table.rows[keep],
                            int(np.count_nonzero(~keep)), dict(table.metadata))

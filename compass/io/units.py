@@ -10,7 +10,7 @@ with a :class:`RecordingWarning` that says what was seen and which option names 
 
 - a gyro in deg/s read as rad/s turns 57 times more than the accelerometer sees the housing turn
   (:func:`gyro_turn_ratio`);
-- a magnetometer in uT reads Earth's 25-65 uT (:func:`check_field_magnitude`);
+- a magnetometer in uT reads Earth's 25-65 uT (:func:`check_field_norm`);
 - angles in degrees that never leave 0..2*pi are radians (:func:`looks_like_radians`);
 - an accelerometer that reads -1 g on Z while the recording starts at rest (:func:`check_accel_up`);
 - a two-axis tilt sensor cannot tell upright from upside down (:func:`check_two_axis_tilt`).
@@ -26,7 +26,7 @@ import numpy as np
 
 __all__ = ["RecordingWarning", "GYRO_UNITS", "ACCEL_UNITS", "MAG_UNITS", "ANGLE_UNITS", "STANDARD_GRAVITY",
            "EARTH_FIELD_UT", "MAX_ABS_VALUE", "MIN_SPAN", "unit_of_header", "gyro_turn_ratio", "check_gyro_unit",
-           "check_field_magnitude", "looks_like_radians", "check_accel_up", "check_two_axis_tilt", "note"]
+           "check_field_norm", "looks_like_radians", "check_accel_up", "check_two_axis_tilt", "note"]
 
 STANDARD_GRAVITY = 9.80665
 """m/s^2 per g."""
@@ -149,7 +149,7 @@ def check_gyro_unit(t_s, gyro_rad_s, accel, *, named: bool, where: str) -> float
     return ratio
 
 
-def check_field_magnitude(field_norm: float, unit: str | None, *, where: str, what: str) -> None:
+def check_field_norm(field_norm: float, unit: str | None, *, where: str, what: str) -> None:
     """Warn when a magnetometer's field strength is not the Earth's in the unit named.
 
     Parameters

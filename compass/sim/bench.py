@@ -81,7 +81,7 @@ class BenchPhysics:
         Zero-field output V0 (output units) and gain K (output units per field unit).
     dip_deg, azimuth_deg : float
         Field dip (> 0 down) and azimuth delta from the turntable zero.
-    field_magnitude : float
+    field_norm : float
         |B| in field units (uT when known, else 1).
     quadratic, cubic, quintic : ndarray, shape (c,), optional
         Polynomial coefficients c2 (1 / field unit), c3 (1 / field unit^2) and c5
@@ -111,7 +111,7 @@ class BenchPhysics:
     gains: np.ndarray
     dip_deg: float
     azimuth_deg: float
-    field_magnitude: float = 1.0
+    field_norm: float = 1.0
     quadratic: np.ndarray | None = None
     cubic: np.ndarray | None = None
     quintic: np.ndarray | None = None
@@ -143,7 +143,7 @@ def true_platform_deg(physics: BenchPhysics, samples: BenchSamples) -> np.ndarra
 
 def housing_field(physics: BenchPhysics, samples: BenchSamples) -> np.ndarray:
     """The field in the housing frame H at each sample, shape (n, 3), field units."""
-    b_w = field_in_bench(physics.dip_deg, physics.azimuth_deg, physics.field_magnitude)
+    b_w = field_in_bench(physics.dip_deg, physics.azimuth_deg, physics.field_norm)
     if physics.encoder_fourier is None and physics.flip_rotvec_deg is None:
         full, flip = samples.recorded_rotations
         b_h = np.einsum("nji,j->ni", full, b_w)

@@ -164,7 +164,7 @@ def simulate_device(model: SensorModel, t_s, *, motion=scripted_motion, seed: in
         Sample rate for the gyro noise; default from the spacing of ``t_s``.
     imu_from_model : ndarray, shape (3, 3), optional
         The rotation taking the model's frame into the module's accelerometer (and gyro) frame: the
-        transpose of :func:`compass.accel_alignment.imu_to_model` of its calibration file (a bench
+        transpose of :attr:`compass.calibration.ImuCorrection.rotation` of its calibration file (a bench
         ``mag_to_accel``, an installed alignment); default the model's frame.
     """
     t = np.asarray(t_s, dtype=float)
@@ -178,7 +178,7 @@ def simulate_device(model: SensorModel, t_s, *, motion=scripted_motion, seed: in
     before = r_world_from_housing(*motion(t - step / 2)[:3])
     after = r_world_from_housing(*motion(t + step / 2)[:3])
     omega_h = (before.inv() * after).as_rotvec() / step
-    field_w = world_field(model.dip_deg, model.field_magnitude) + np.outer(magnet, MAGNET_FIELD) * model.field_magnitude
+    field_w = world_field(model.dip_deg, model.field_norm) + np.outer(magnet, MAGNET_FIELD) * model.field_norm
     field_h = rot.apply(field_w, inverse=True)
     x = field_h @ model.unit_directions.T
     noise = np.zeros(len(model.channels)) if model.noise is None else np.asarray(model.noise)

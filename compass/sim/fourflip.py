@@ -302,7 +302,7 @@ def _accelerometer(spec: SimAccelerometer, physics, samples, up_turntable, rng) 
     Gravity in H goes through the same forward model as the field (encoder and flip errors included):
     specific force +1 g along true up, written as a "field" of unit magnitude pointing up.
     """
-    up = physics.with_(**_dip_azimuth(up_turntable), field_magnitude=1.0, platform_field=None)
+    up = physics.with_(**_dip_azimuth(up_turntable), field_norm=1.0, platform_field=None)
     f_h = housing_field(up, samples)
     rotvec_deg = rng.normal(scale=spec.misalign_deg, size=3)
     offset = rng.normal(scale=spec.offset_g, size=3)

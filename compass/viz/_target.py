@@ -50,7 +50,7 @@ def check_rerun_target(target, force: bool) -> Path | str | None:
     FileExistsError, OutputError
         The file exists without ``force``, or cannot be written.
     """
-    from ..cli import BadInput
+    from ..errors import BadInput
     from ..io.atomic import check_writable
 
     if target is None:

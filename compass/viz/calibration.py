@@ -324,7 +324,7 @@ class LiveTumbleRecording:
             self.rec.set_time("t", duration=float(rows[-1][0]))
 
     def update(self, collector) -> None:
-        """Log the state of a :class:`compass.commands._live_tumble.TumbleCollector`."""
+        """Log the state of a :class:`calibrate.tumble.collector.TumbleCollector`."""
         if collector.coverage is None:
             return
         rec = self.rec

@@ -1,0 +1,125 @@
+"""The live tumble calibration's collector: samples of a module turned by hand, their coverage and the
+converging ellipsoid fit, in the style of MotionCal.
+
+``compass live --calibrate tumble`` feeds it the port's items (:meth:`TumbleCollector.feed`), shows
+:meth:`TumbleCollector.readout` every second after :meth:`TumbleCollector.update`, and when
+:attr:`TumbleCollector.enough` writes the samples as a tumble recording
+(:meth:`TumbleCollector.write_recording`) that :class:`calibrate.tumble.TumbleCalibrator` then fits
+like any other.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from compass.io.atomic import atomic_write_text
+from compass.io.lines import LineDecoder
+
+from .coverage import sphere_coverage
+from .ellipsoid import fit_ellipsoid
+
+__all__ = ["CHANNELS", "MIN_SAMPLES", "TumbleCollector"]
+
+CHANNELS = ("mx", "my", "mz")
+MIN_SAMPLES = 50
+"""Samples below which no fit is tried (and the command refuses to calibrate)."""
+_FIT_SAMPLES = 2000  # the live fit uses at most this many samples, evenly spread
+
+
+class TumbleCollector:
+    """Samples of a tumble, their coverage and the converging fit.
+
+    Parameters
+    ----------
+    min_coverage : float
+        Fraction of the sphere's cells that must hold a sample (with every half-axis seen) for
+        :attr:`enough`.
+
+    Attributes
+    ----------
+    decoder : compass.io.lines.LineDecoder
+    coverage : Coverage or None
+        Of the latest :meth:`update`.
+    fit : EllipsoidFit or None
+        The latest ellipsoid fit (hard iron, its sigma).
+    """
+
+    def __init__(self, *, min_coverage: float = 0.8):
+        self.min_coverage = min_coverage
+        self.decoder = LineDecoder(CHANNELS)
+        self.rows: list[tuple] = []
+        self.coverage = None
+        self.fit = None
+        self._t0 = None
+
+    def feed(self, item) -> list:
+        """Take one item of :meth:`SerialReader.items`; returns the decoder's events (level, text)."""
+        from compass.serial_reader import LinkEvent
+
+        if isinstance(item, LinkEvent):
+            if item.kind == "connected":
+                self.decoder.resync()
+            return [("warn" if item.kind == "disconnected" else "info", item.message)]
+        if self._t0 is None:
+            self._t0 = item.t_rx
+        for s in self.decoder.feed(item.data):
+            t_s = s.t_s if s.t_s is not None else item.t_rx - self._t0
+            self.rows.append((t_s, *s.raw, *(s.accel if s.accel is not None else (np.nan,) * 3),
+                              np.nan if s.temp_c is None else s.temp_c))
+        return self.decoder.drain_events() if self.decoder.events else []
+
+    @property
+    def samples(self) -> np.ndarray:
+        """(n, 8): t_s, mx, my, mz, ax, ay, az, temp_c (NaN where not sent)."""
+        return np.array(self.rows, dtype=float).reshape(-1, 8)
+
+    def update(self) -> None:
+        """Fit the ellipsoid to the samples so far and measure their coverage about its centre."""
+        mag = self.samples[:, 1:4]
+        if len(mag) < MIN_SAMPLES:
+            return
+        subset = mag[np.unique(np.linspace(0, len(mag) - 1, min(len(mag), _FIT_SAMPLES)).astype(int))]
+        fit, _, _ = fit_ellipsoid(subset)
+        if np.all(np.isfinite(fit.hard_iron)):
+            self.fit = fit
+        centre = self.fit.hard_iron if self.fit is not None else 0.5 * (mag.min(axis=0) + mag.max(axis=0))
+        self.coverage = sphere_coverage(mag - centre)
+
+    @property
+    def enough(self) -> bool:
+        """Every half-axis seen and ``min_coverage`` of the sphere covered."""
+        c = self.coverage
+        return c is not None and not c.missing and c.fraction >= self.min_coverage
+
+    def readout(self) -> str:
+        """One line for the terminal: samples, coverage, the axes never along the field, the hard iron."""
+        n = len(self.rows)
+        if self.coverage is None:
+            return f"tumble: {n} samples; turn the module slowly through every orientation"
+        c, fit = self.coverage, self.fit
+        text = (f"tumble: {n} samples, {100 * c.fraction:.0f} % of the sphere covered "
+                f"(need {100 * self.min_coverage:.0f} %)")
+        if c.missing:
+            text += f"; never along the field yet: {', '.join(c.missing)}"
+        if fit is not None:
+            text += ("; hard iron " + ", ".join(f"{h:.4g}" for h in fit.hard_iron)
+                     + " +- " + ", ".join(f"{s:.2g}" for s in fit.hard_iron_sigma))
+        return text
+
+    def write_recording(self, path) -> Path:
+        """The samples as a tumble recording (SPEC section 2): accelerometer and temp_c columns when
+        every sample had them."""
+        data = self.samples
+        columns, keep = ["t_s", *CHANNELS], [0, 1, 2, 3]
+        if np.all(np.isfinite(data[:, 4:7])):
+            columns += ["ax", "ay", "az"]
+            keep += [4, 5, 6]
+        if np.all(np.isfinite(data[:, 7])):
+            columns.append("temp_c")
+            keep.append(7)
+        lines = ["# source: compass live --calibrate tumble", ",".join(columns)]
+        lines += [",".join(f"{v:.9g}" for v in row) for row in data[:, keep]]
+        atomic_write_text(path, "\n".join(lines) + "\n")
+        return Path(path)

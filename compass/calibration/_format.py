@@ -1,0 +1,93 @@
+"""The calibration file's format string, kind key and the writer's building blocks (SPEC section 2).
+
+Every calibration kind builds its document from :func:`header` and :func:`channel_entry`;
+:func:`model_to_dict` writes a bare sensor model in the channel form.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["CHANNEL_KINDS", "FORMAT", "KIND_KEY", "TUMBLE_CHANNELS", "channel_entry", "header", "model_to_dict"]
+
+FORMAT = "compass-calibration/1"
+KIND_KEY = "model"
+CHANNEL_KINDS = ("fourflip", "platform3d", "reference", "channels")
+"""Kinds written in the channel form (SPEC section 2); ``channels``: a sensor model written as such
+(:func:`model_to_dict`), whatever fit it came from."""
+TUMBLE_CHANNELS = ("mx", "my", "mz")
+
+
+def header(kind: str) -> dict:
+    """The first keys of every calibration file: ``{"format": FORMAT, "model": kind}``."""
+    return {"format": FORMAT, KIND_KEY: kind}
+
+
+def channel_entry(direction, response: dict, *, covariance=None, response_sigma=None, angles: bool = True) -> dict:
+    """One channel of the channel form (SPEC section 2).
+
+    Parameters
+    ----------
+    direction : array_like, shape (3,)
+        Unit sensing direction in the housing frame H.
+    response : dict
+        The response's JSON (:meth:`compass.response.Response.to_json`).
+    covariance : array_like, shape (3, 3), optional
+        Covariance of the direction (rad^2), written with ``direction_sigma_deg`` (null without it).
+    response_sigma : (float, float), optional
+        Standard errors of (offset, gain), output units and output units per field unit.
+    angles : bool
+        Add seed 000's angles ``theta_deg, gamma_deg, elevation_deg, psi_deg``.
+
+    Returns
+    -------
+    dict
+    """
+    from ..frames import direction_sigma_deg, seed_angles
+
+    direction = np.asarray(direction, dtype=float)
+    entry: dict = {"direction": direction.tolist(), "direction_sigma_deg": None if covariance is None else
+                   float(direction_sigma_deg(np.asarray(covariance, dtype=float)))}
+    if angles:
+        entry.update({k: float(v) for k, v in seed_angles(direction).items()})
+    entry["response"] = response
+    if covariance is not None:
+        entry["direction_covariance"] = np.asarray(covariance, dtype=float).tolist()
+    if response_sigma is not None:
+        entry["response_sigma"] = {"offset": _plain(response_sigma[0]), "gain": _plain(response_sigma[1])}
+    return entry
+
+
+def model_to_dict(model) -> dict:
+    """A sensor model's calibration document in the channel form (``"model": "channels"``), JSON-ready.
+
+    A tumble model comes back in its equivalent channel form; :func:`compass.calibration.from_dict`
+    reads it back to the same model.
+
+    Parameters
+    ----------
+    model : compass.model.SensorModel
+
+    Returns
+    -------
+    dict
+    """
+    channels = {}
+    for c, name in enumerate(model.channels):
+        entry = {"direction": [float(v) for v in model.directions[c]], "response": model.responses[c].to_json()}
+        if model.direction_covariance is not None:
+            entry["direction_covariance"] = model.direction_covariance[c].tolist()
+        if model.response_sigma is not None:
+            entry["response_sigma"] = {"offset": float(model.response_sigma[c, 0]),
+                                       "gain": float(model.response_sigma[c, 1])}
+        channels[name] = entry
+    out = header("channels") | {"channels": channels, "dip_deg": model.dip_deg, "field_ut": model.field_ut}
+    if model.temperature is not None and model.temperature.reference_c is not None:
+        out["effects"] = [model.temperature.to_json(model.channels)]
+    if model.noise is not None:
+        out["noise_floor"] = [float(v) for v in model.noise]
+    return out
+
+
+def _plain(v):
+    return None if v is None else float(v)

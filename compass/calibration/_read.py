@@ -1,0 +1,378 @@
+"""The one validated reader of calibration files (SPEC section 2): document -> :class:`Calibration`.
+
+The kind sits under ``"model"`` (:data:`KIND_KEY`): ``fourflip``, ``platform3d``, ``reference`` and
+``channels`` are the channel form (a sensing direction and a response per channel), ``tumble`` the
+ellipsoid form (``hard_iron``, ``soft_iron``, ``field_norm``, ``mag_to_accel``), ``installed`` a bench
+calibration under ``base`` with the product's iron under ``installation``.  Older files that have no
+``"model"`` (the four-flip's) or name the kind under ``"method"`` (``platform3d``, ``reference``) still load.
+
+Every refusal is a :class:`CalibrationFileError` naming the key (and the file, from :func:`load`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..io.names import RESERVED_NAMES
+from ..io.units import MAX_ABS_VALUE
+from ..limits import FIELD_UT
+from . import _checks as check
+from ._errors import CalibrationFileError, NoFieldVector
+from ._format import CHANNEL_KINDS, FORMAT, KIND_KEY, TUMBLE_CHANNELS
+from ._imu import ImuCorrection
+from ._value import Calibration, Installation, Provenance, TumbleForm
+
+__all__ = ["KINDS", "from_dict", "kind_of", "load", "model_from_dict"]
+
+KINDS = ("fourflip", "platform3d", "reference", "channels", "tumble", "installed")
+"""Every kind the reader knows (the file's ``"model"``)."""
+
+
+def load(path) -> Calibration:
+    """Read and validate a calibration file.
+
+    Raises
+    ------
+    CalibrationFileError
+        Unreadable, not JSON, nested too deeply, unknown ``format`` or kind, or any key the
+        runtime needs missing or invalid; the message names the file and the key.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except IsADirectoryError:
+        raise CalibrationFileError("is a folder, expected a calibration file (JSON)", path=path) from None
+    except OSError as exc:
+        raise CalibrationFileError(f"cannot read calibration file ({exc.strerror})", path=path) from None
+    except UnicodeDecodeError as exc:
+        raise CalibrationFileError(f"not a JSON calibration file (not UTF-8 text: {exc.reason})", path=path) from None
+    try:
+        d = json.loads(text, parse_int=_parse_int)
+    except json.JSONDecodeError as exc:
+        raise CalibrationFileError(f"not a JSON calibration file ({exc})", path=path) from None
+    except RecursionError:
+        raise CalibrationFileError("not a calibration file: its JSON is nested too deeply", path=path) from None
+    try:
+        return from_dict(d, path=path)
+    except CalibrationFileError as exc:
+        raise exc.in_file(path) from None
+
+
+def model_from_dict(d):
+    """The sensor model of a calibration document: ``from_dict(d).model``."""
+    return from_dict(d).model
+
+
+def kind_of(d: dict) -> str:
+    """The calibration's kind: ``"model"``, else an older file's ``"method"``, else the four-flip's channels."""
+    kind = d.get(KIND_KEY)
+    if kind is None:
+        method = d.get("method")
+        kind = method if method in CHANNEL_KINDS else "fourflip"
+    if not isinstance(kind, str) or kind not in KINDS:
+        raise CalibrationFileError(f"unknown calibration model {kind!r} under '{KIND_KEY}' (known: {', '.join(KINDS)})")
+    return kind
+
+
+def from_dict(d, *, path=None) -> Calibration:
+    """Validate a calibration document (a parsed file) into its :class:`Calibration`.
+
+    Raises
+    ------
+    CalibrationFileError
+        The message names the key.
+    NoFieldVector
+        Valid channels that cannot give a field vector (fewer than three, or coplanar).
+    """
+    if not isinstance(d, dict):
+        raise CalibrationFileError(f"expected a JSON object, got {check.json_type(d)}")
+    fmt = d.get("format")
+    if fmt != FORMAT:
+        raise CalibrationFileError(f"unknown calibration format {fmt!r}: this reader knows only {FORMAT!r}")
+    kind = kind_of(d)
+    try:
+        return _calibration(d, kind, None if path is None else str(path))
+    except RecursionError:
+        raise CalibrationFileError("nested too deeply") from None
+    except CalibrationFileError:
+        raise
+    except ValueError as exc:  # the model's own checks (SensorModel), a singular solve: named as the file's
+        raise CalibrationFileError(f"describes no usable sensor ({exc})") from None
+
+
+def _calibration(d: dict, kind: str, path) -> Calibration:
+    installation = tumble = None
+    if kind == "installed":
+        _common(d)  # the site's field and dip beside the bench's: checked as every kind's
+        installation = _installation(d)
+        model = _installed_model(installation)
+        base = installation.base
+        imu = ImuCorrection(base.imu.mag_to_accel, installation.alignment, base.imu.offset, base.imu.scale,
+                            base.imu.one_g)
+        hemisphere = base.provenance.hemisphere_assumed
+    elif kind == "tumble":
+        model, tumble = _tumble(d)
+        imu, hemisphere = ImuCorrection(), False
+    else:
+        model = _channel_model(d)
+        rotation = None if d.get("mag_to_accel") is None else check.rotation(d["mag_to_accel"], "mag_to_accel")
+        imu = ImuCorrection(rotation, None, *_bench_accelerometer(d.get("accelerometer")))
+        hemisphere = kind == "fourflip" and _hemisphere_assumed(d.get("hemisphere"))
+    tilt = None if d.get("tilt_sensor") is None else _block(_tilt_sensor, d, "tilt_sensor")
+    site = None if d.get("site") is None else _block(_site, d, "site")
+    method = d.get("method")
+    dip_sigma = d.get("dip_sigma_deg")
+    provenance = Provenance(method if isinstance(method, str) else None, hemisphere,
+                            float(dip_sigma) if _is_number(dip_sigma) else None)
+    return Calibration(kind, model, imu, tilt, site, provenance, installation, tumble, path, d)
+
+
+def _parse_int(text: str) -> int | float:
+    """A JSON integer; one beyond any float is infinite (then refused as not finite), never an OverflowError."""
+    return int(text) if len(text.lstrip("-")) <= 308 else math.inf
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _block(reader, d: dict, key: str):
+    """A block read by its own type's reader; its refusal named under ``key``."""
+    try:
+        return reader(d)
+    except CalibrationFileError:
+        raise
+    except (ValueError, TypeError, KeyError, AttributeError, IndexError) as exc:
+        raise CalibrationFileError(check.words(exc), key=key) from None
+
+
+def _hemisphere_assumed(hemisphere) -> bool:
+    return not isinstance(hemisphere, dict) or bool(hemisphere.get("default", True))
+
+
+def _bench_accelerometer(block) -> tuple:
+    """``(offset, scale, one_g)`` of a four-flip's ``accelerometer`` block, all None when absent or unusable.
+
+    A reported block: one the runtime cannot use (missing keys, wrong shapes, non-positive scales) is left
+    out, as the runtime did before it applied the block.
+    """
+    try:
+        offset, scale_yz, one_g = (np.asarray(block[k], dtype=float) for k in ("offset", "scale_yz", "one_g"))
+    except (KeyError, TypeError, ValueError):
+        return None, None, None
+    scale = np.concatenate([[1.0], scale_yz]) if scale_yz.shape == (2,) else None
+    if offset.shape != (3,) or scale is None or not (np.all(np.isfinite(offset)) and np.all(scale > 0)
+                                                     and float(one_g) > 0):
+        return None, None, None
+    return offset, scale, float(one_g)
+
+
+def _common(d: dict) -> tuple:
+    """The top-level ``field_ut`` and ``dip_deg`` (None when absent), in :mod:`compass.limits`' ranges."""
+    field_ut = check.number(d.get("field_ut"), "field_ut", allow_none=True, bounds=FIELD_UT)
+    dip_deg = check.number(d.get("dip_deg"), "dip_deg", low=-90.0, high=90.0, allow_none=True)
+    effects = d.get("effects")
+    if effects is not None and not isinstance(effects, list):
+        raise CalibrationFileError(f"must be a list of effects, got {check.show(effects)}", key="effects")
+    return field_ut, dip_deg
+
+
+def _temperature(d: dict, channels, gains):
+    from ..temperature import TemperatureCompensation
+
+    try:
+        return TemperatureCompensation.from_effects(d.get("effects"), channels, gains)
+    except (ValueError, TypeError, KeyError, AttributeError) as exc:
+        raise CalibrationFileError(check.words(exc), key="effects") from None
+
+
+# ------------------------------------------------------------------------------------- channel form
+
+
+def _response(v, key: tuple):
+    from ..response import CubicResponse, LinearResponse, TableResponse
+
+    r = check.obj(v, key)
+    model = r.get("model")
+    offset = check.number(r.get("offset"), check.sub(key, "offset"), bounds=check.OUTPUT)
+    gain = check.number(r.get("gain"), check.sub(key, "gain"), bounds=check.GAIN)
+    x_range = (-np.inf, np.inf)
+    if r.get("range") is not None:
+        lo, hi = check.array(r["range"], (2,), check.sub(key, "range"))
+        if not lo < hi:
+            raise CalibrationFileError(f"must be [low, high] with low < high, got [{lo:g}, {hi:g}]",
+                                       key=check.sub(key, "range"))
+        x_range = (float(lo), float(hi))
+    if model == "linear":
+        return LinearResponse(offset, gain, x_range)
+    if model not in ("cubic", "table"):
+        raise CalibrationFileError(f"unknown response model {check.show(model)} (known: linear, cubic, table)",
+                                   key=check.sub(key, "model"))
+    if not np.all(np.isfinite(x_range)):
+        raise CalibrationFileError(f"must be given for a {model} response (its calibrated range [low, high])",
+                                   key=check.sub(key, "range"))
+    if model == "cubic":
+        coef = {k: check.number(r.get(k, 0.0), check.sub(key, k)) for k in ("cubic", "quintic", "quadratic")}
+        response = CubicResponse(offset, gain, x_range, **coef)
+    else:
+        x = r.get("x")
+        n = len(x) if isinstance(x, list) else 0
+        xs = check.array(x, (n,), check.sub(key, "x"))
+        vs = check.array(r.get("v"), (n,), check.sub(key, "v"))
+        if n < 2:
+            raise CalibrationFileError(f"must hold at least 2 points, got {n}", key=check.sub(key, "x"))
+        if np.any(np.diff(xs) <= 0):
+            raise CalibrationFileError("must increase (a table's field components)", key=check.sub(key, "x"))
+        if np.any(np.diff(vs) <= 0):
+            raise CalibrationFileError("must increase with the field (a monotone response)", key=check.sub(key, "v"))
+        response = TableResponse(offset, gain, x_range, x_table=tuple(xs), v_table=tuple(vs))
+    grid = np.linspace(x_range[0], x_range[1], 257)
+    if not np.all(np.diff(response.shape(grid)) > 0):
+        raise CalibrationFileError(f"is not monotone over its calibrated range "
+                                   f"[{x_range[0]:.4g}, {x_range[1]:.4g}]", key=key)
+    return response
+
+
+def _channel_model(d: dict):
+    from ..model import NotAFieldVector, SensorModel
+
+    field_ut, dip_deg = _common(d)
+    channels = d.get("channels")
+    if not isinstance(channels, dict) or not channels:
+        raise CalibrationFileError("expected 'channels': an object of channel name -> direction and response")
+    names, directions, responses, covariances, sigmas = [], [], [], [], []
+    for name, ch in channels.items():
+        key = ("channels", name)
+        if name in RESERVED_NAMES or not name.strip():
+            raise CalibrationFileError("is not a channel name: " + ("empty" if not name.strip() else
+                                       f"{name} is the recordings' and the line protocol's own column"), key=key)
+        check.obj(ch, key)
+        direction = check.array(ch.get("direction"), (3,), check.sub(key, "direction"))
+        if not abs(np.linalg.norm(direction) - 1.0) < check.UNIT_TOLERANCE:
+            raise CalibrationFileError(f"must be a unit vector, its norm is {np.linalg.norm(direction):.6g}",
+                                       key=check.sub(key, "direction"))
+        names.append(name)
+        directions.append(direction)
+        responses.append(_response(ch.get("response"), check.sub(key, "response")))
+        cov = ch.get("direction_covariance")
+        if cov is not None:
+            cov = check.array(cov, (3, 3), check.sub(key, "direction_covariance"))
+            if not np.allclose(cov, cov.T, atol=1e-12 + 1e-6 * np.abs(cov).max()) or np.any(np.diag(cov) < 0):
+                raise CalibrationFileError("must be a symmetric covariance (non-negative diagonal)",
+                                           key=check.sub(key, "direction_covariance"))
+        covariances.append(cov)
+        rs = ch.get("response_sigma")
+        if rs is not None:
+            check.obj(rs, check.sub(key, "response_sigma"))
+            rs = tuple(check.number(rs.get(k), f"{key}.response_sigma.{k}", nonnegative=True, allow_none=True)
+                       for k in ("offset", "gain"))
+        sigmas.append(rs)
+    gains = np.array([r.gain for r in responses])
+    try:
+        return SensorModel(
+            channels=tuple(names),
+            directions=np.array(directions),
+            responses=tuple(responses),
+            field_norm=field_ut or 1.0,
+            field_ut=field_ut,
+            dip_deg=dip_deg,
+            noise=check.noise(d.get("noise_floor"), len(names)),
+            direction_covariance=None if any(c is None for c in covariances) else np.array(covariances),
+            response_sigma=(None if any(s is None or None in s for s in sigmas) else np.array(sigmas, dtype=float)),
+            temperature=_temperature(d, names, gains),
+        )
+    except CalibrationFileError:
+        raise
+    except NotAFieldVector as exc:
+        raise NoFieldVector(f"cannot give a field vector: {exc}", key="channels") from None
+    except ValueError as exc:
+        raise CalibrationFileError(f"are unusable: {exc}", key="channels") from None
+
+
+# -------------------------------------------------------------------------------------- tumble form
+
+
+def _tumble(d: dict) -> tuple:
+    """The channel form of a tumble calibration (see :mod:`compass.model`) and the file's matrices."""
+    from ..model import SensorModel
+    from ..response import LinearResponse
+
+    field_ut, dip_deg = _common(d)
+    soft = check.soft_iron(d.get("soft_iron"), "soft_iron")
+    field_norm = check.number(d.get("field_norm"), "field_norm", positive=True, high=MAX_ABS_VALUE)
+    hard = check.hard_iron(d.get("hard_iron"), field_norm, "hard_iron")
+    mag_to_accel = None if d.get("mag_to_accel") is None else check.rotation(d["mag_to_accel"], "mag_to_accel")
+    rot = np.eye(3) if mag_to_accel is None else mag_to_accel
+    g = np.linalg.solve(soft, rot.T)  # raw - hard_iron = g @ B_H
+    gains = np.linalg.norm(g, axis=1)
+    span = (-field_norm, field_norm)
+    # per-axis noise in recording units: a list, or calibrate.tumble's scalar under 'diagnosis'
+    diagnosis = d.get("diagnosis")
+    noise_key = "noise_floor" if d.get("noise_floor") is not None else "diagnosis.noise_floor"
+    noise = d.get("noise_floor", diagnosis.get("noise_floor") if isinstance(diagnosis, dict) else None)
+    model = SensorModel(
+        channels=TUMBLE_CHANNELS,
+        directions=g / gains[:, None],
+        responses=tuple(LinearResponse(float(o), float(k), span) for o, k in zip(hard, gains)),
+        field_norm=field_norm,
+        field_ut=field_ut,
+        dip_deg=dip_deg,
+        noise=check.noise(noise, 3, noise_key),
+        form="tumble",
+        temperature=_temperature(d, TUMBLE_CHANNELS, gains),
+    )
+    block = d.get("tumble") if isinstance(d.get("tumble"), dict) else {}
+    norm = block.get("field_norm_recording_units")
+    if norm is None and field_ut is None:
+        norm = field_norm  # no |B| given: the file's field norm is in the recording's unit
+    ellipsoid = block.get("kind")  # the file's spelling of the fitted ellipsoid
+    return model, TumbleForm(hard, soft, mag_to_accel, field_norm, float(norm) if _is_number(norm) else None,
+                             ellipsoid if isinstance(ellipsoid, str) else None)
+
+
+def _tilt_sensor(d: dict):
+    from ..io.platform3d import TiltSensor
+
+    t = check.obj(d["tilt_sensor"], "tilt_sensor")
+    check.array(t.get("offset"), (len(t["offset"]) if isinstance(t.get("offset"), list) else 3,), "tilt_sensor.offset")
+    return TiltSensor.from_json(d)
+
+
+def _site(d: dict):
+    from ..site import Site
+
+    return Site.from_json(d["site"])
+
+
+# ------------------------------------------------------------------------------------ installed form
+
+
+def _installation(d: dict) -> Installation:
+    """The bench calibration under ``base`` and the product's iron under ``installation``."""
+    base_doc, inst = d.get("base"), d.get("installation")
+    if not isinstance(base_doc, dict):
+        raise CalibrationFileError("must be the bench calibration (an object)", key="base")
+    if not isinstance(inst, dict):
+        raise CalibrationFileError("must be an object with hard_iron_ut and soft_iron", key="installation")
+    try:
+        base = from_dict(base_doc)
+    except CalibrationFileError as exc:
+        raise exc.under("base") from None
+    if base.kind == "installed":
+        raise CalibrationFileError("must be a bench calibration, not another installed one", key="base")
+    hard = check.hard_iron(inst.get("hard_iron_ut"), base.model.field_norm, "installation.hard_iron_ut")
+    soft = check.soft_iron(inst.get("soft_iron"), "installation.soft_iron")
+    cov = None if inst.get("covariance") is None else check.array(inst["covariance"], (9, 9), "installation.covariance")
+    align = (None if inst.get("alignment") is None else check.rotation(inst["alignment"], "installation.alignment"))
+    return Installation(base, hard, soft, cov, align)
+
+
+def _installed_model(installation: Installation):
+    from ..installed import installed_model
+
+    return installed_model(installation.base.model, installation.hard_iron_ut, installation.soft_iron,
+                           installation.covariance, installation.alignment)
