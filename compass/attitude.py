@@ -406,7 +406,7 @@ def _check_scale(model: SensorModel, raw: np.ndarray) -> None:
     """:class:`ScaleMismatch` when a channel's median reading is beyond what the calibration's response gives
     for any field up to :data:`~compass.sample_check.FIELD_RATIO_LIMIT` times its |B|: the recording and the
     calibration are in different units or scales (which one is wrong, the numbers cannot tell)."""
-    reach = FIELD_RATIO_LIMIT * model.field_magnitude
+    reach = FIELD_RATIO_LIMIT * model.field_norm
     for c, response in enumerate(model.responses):
         lo, hi = np.sort(response.output(np.array([-reach, reach])))
         typical = float(np.median(raw[:, c]))
