@@ -1,6 +1,7 @@
 """The diagnosis loop on recordings with an effect the estimator is not told about."""
 
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -145,3 +146,62 @@ def test_fitting_bin_means_is_fitting_every_sample(write_session, monkeypatch):
     assert np.all(np.abs(binned.x - every.x) < 1e-2 * every.sigma)
     np.testing.assert_allclose(binned.sigma, every.sigma, rtol=1e-4)
     assert binned.chi2 == pytest.approx(every.chi2, rel=1e-7) and binned.dof == every.dof
+
+
+def test_unexplained_structure_widens_the_files_sigmas_and_says_the_cost(write_session):
+    """A field gradient the model lacks: the file's sigmas grow to the cluster-robust ones, the diagnosis
+    and the report say what that costs, and the runtime model read back from the file carries them."""
+    from calibrate.fourflip._mlfit import fit_ml
+    from calibrate.fourflip.fit import physics_from_harmonics
+    from compass.calibration import from_dict
+    from compass.sim.bench import BenchSamples
+
+    rec, _ = write_session(seed=203, effects=("field_gradient",))
+    result = calibrate_fourflip(rec, diagnose=True)
+    d = result.diagnosis
+    assert d["unexplained"] is True
+    cost = d["unexplained_cost"]
+    naive = fit_ml(BenchSamples.from_recording(rec), rec.outputs, rec.channels,
+                   physics_from_harmonics(rec, result.field_ut, 1.0), np.array(d["noise_floor_per_channel"]))
+    for ch, sigma_naive in zip(result.channels, naive.direction_sigma_deg()):
+        entry = cost["direction_sigma_deg"][ch.name]
+        assert entry["naive"] == pytest.approx(sigma_naive, rel=1e-3)
+        assert ch.direction_sigma_deg == pytest.approx(entry["widened"]) and entry["widened"] >= entry["naive"]
+        assert cost["direction_deg"][ch.name] == pytest.approx(np.sqrt(entry["widened"] ** 2 - entry["naive"] ** 2))
+    assert max(cost["direction_deg"].values()) > 0 and cost["heading_deg"] > 0
+    assert cost["heading_sigma_deg"]["widened"] > cost["heading_sigma_deg"]["naive"]
+    assert "unexplained cost at runtime: heading sigma" in result.report()
+    model = from_dict(result.to_json()).model
+    assert np.degrees(np.sqrt(np.trace(model.direction_covariance, axis1=1, axis2=2))) == pytest.approx(
+        [entry["widened"] for entry in cost["direction_sigma_deg"].values()], rel=1e-6)
+
+
+def test_clean_recording_keeps_its_sigmas(write_session):
+    """Explained: no cost, and the file's sigmas are the fit's own (nothing widened)."""
+    from calibrate.fourflip._mlfit import fit_ml
+    from calibrate.fourflip.fit import physics_from_harmonics
+    from compass.sim.bench import BenchSamples
+
+    rec, _ = write_session(seed=201)
+    result = calibrate_fourflip(rec, diagnose=True)
+    assert result.diagnosis["unexplained"] is False and "unexplained_cost" not in result.diagnosis
+    naive = fit_ml(BenchSamples.from_recording(rec), rec.outputs, rec.channels,
+                   physics_from_harmonics(rec, result.field_ut, 1.0), np.array(result.noise))
+    assert [c.direction_sigma_deg for c in result.channels] == pytest.approx(naive.direction_sigma_deg(), rel=1e-3)
+
+
+@pytest.mark.parametrize("ratio, verdict", [(2.5, False), (6.0, None)])
+def test_coarse_adc_recording_is_clean_and_says_the_adc_limits_it(write_session, ratio, verdict):
+    """Outputs rounded to a code step 2.5 or 6 times the noise: Sheppard's floor, nothing claimed, the ADC
+    named; at 6 the rounding is not dithered (a sawtooth of the field), so the residual is not judged."""
+    rec, truth = write_session(seed=205)
+    step = ratio * np.array(truth["noise"])
+    rec = replace(rec, outputs=np.round(rec.outputs / step) * step)
+    result = calibrate_fourflip(rec, diagnose=True)
+    d = result.diagnosis
+    assert d["effects"] == [] and d["unexplained"] is verdict
+    assert ("not_judged" in d) is (verdict is None)
+    expected = np.sqrt(np.array(truth["noise"]) ** 2 + step**2 / 12)
+    assert d["noise_floor_per_channel"] == pytest.approx(expected, rel=0.12)
+    assert any("ADC" in w for w in result.warnings)
+    assert result.extra["quantisation"]["step"] == pytest.approx(dict(zip(rec.channels, step)), rel=1e-6)

@@ -139,3 +139,20 @@ def test_fitting_field_means_is_fitting_every_sample(tmp_path, monkeypatch):
     np.testing.assert_allclose(grouped["offset_change"]["sigma"], per_sample["offset_change"]["sigma"], rtol=1e-6)
     np.testing.assert_allclose(grouped["offset_change"]["value"], per_sample["offset_change"]["value"],
                                atol=1e-3 * min(per_sample["offset_change"]["sigma"]))
+
+
+def test_gain_drift_is_named(tmp_path):
+    """Every sensor's gain grows 2 % over the session (a room warming, no temp_c): gain_drift, not offset_drift."""
+    from dataclasses import replace
+
+    sim = simulate_reference(seed=34, session_s=SESSION_S, **REPEATED)
+    tau = (sim.t_s - sim.t_s[0]) / np.ptp(sim.t_s)
+    outputs = {}
+    for name, out in sim.outputs.items():
+        offset = np.array(sim.truth["sensors"][name]["offset"])
+        outputs[name] = offset + (out - offset) * (1.0 + 0.02 * tau[:, None])
+    res = fit(tmp_path, replace(sim, outputs=outputs))
+    block = res.to_json()["diagnosis"]
+    assert block["effects"] == ["gain_drift"] and block["unexplained"] is False
+    rates = [p["value"] for k, p in block["steps"][1]["parameters"].items() if k.endswith("gain_rel_per_s")]
+    assert rates == pytest.approx([0.02 / np.ptp(sim.t_s)] * len(rates), rel=0.2)

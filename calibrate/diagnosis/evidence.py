@@ -16,7 +16,13 @@ choice; each caller hands it what differs as small callables:
    (the chi-square above its dof) or one of the caller's ``checks`` objects (e.g. :func:`determined`:
    a singular covariance; the tumble's: a wider field-gravity angle spread); else record a step
    (``write_step``) and repeat, at most :data:`MAX_STEPS` times.
-5. Judge the final fit (``verdict``).  If structure remains after effects were added, they may
+5. Revisit what is in (when the caller can ``revise``: refit a model with a given list of effects):
+   after each addition, every effect already in is refitted without it (its evidence now) and its
+   other forms are score-tested there; a form that beats the current one by more than
+   :data:`DECISIVE_BIC` replaces it (a drift taken as linear before a cubic was in may be quadratic
+   once it is), and an effect whose evidence has fallen to :data:`DECISIVE_BIC` or below is
+   dropped; repeat while something changes (:func:`_revisit`).
+6. Judge the final fit (``verdict``).  If structure remains after effects were added, they may
    have absorbed part of something the toolkit does not model: none is claimed, each is reported
    as not claimed, and the base fit is kept and judged again.
 
@@ -33,7 +39,7 @@ from typing import Any, Callable, Iterable, Protocol, Sequence
 import numpy as np
 
 
-__all__ = ["DECISIVE_BIC", "FLOOR_MARGIN", "MIN_SHARE", "MAX_STEPS", "MAX_REFITS", "REFIT_FRACTION", "SINGULAR_RCOND",
+__all__ = ["DECISIVE_BIC", "FLOOR_MARGIN", "MIN_SHARE", "MAX_REVISIONS", "MAX_STEPS", "MAX_REFITS", "REFIT_FRACTION", "SINGULAR_RCOND",
            "STRUCTURE_P", "Fit", "FitRecord", "Proposal", "Selection", "Check", "gather_forms", "linearised_score",
            "refit_from_better_start", "determined", "select_effects", "EffectForm", "VERDICTS", "added_step_lines",
            "remark_lines", "residual_line", "is_unexplained", "linear_score", "unit_columns"]
@@ -175,6 +181,8 @@ class Selection:
         The structure test of ``fit`` (the first item ``verdict`` returned).
     unexplained : bool or None
         Whether structure remains in ``fit``'s residual (None: not judged).
+    revisions : list of str
+        What revisiting changed (a form replaced, an effect dropped), one line each.
     """
 
     fit: Any
@@ -182,6 +190,7 @@ class Selection:
     not_claimed: list
     structure: Any
     unexplained: bool | None
+    revisions: list = ()
 
 
 Check = Callable[[Proposal], "tuple[str | None, dict]"]
@@ -311,7 +320,8 @@ def _withdrawn(step: dict) -> str:
 def select_effects(base: Fit, pool: Sequence, *, score: Callable, refit: Callable, n_params: Callable[[Any], int],
                    log_n: float, base_step: dict, write_step: Callable[[Proposal, dict], dict],
                    verdict: Callable, checks: Sequence[Check] = (), rejected_as: Callable[[Any], str] | None = None,
-                   progress: Callable[[str], None] | None = None) -> Selection:
+                   progress: Callable[[str], None] | None = None, revise: Callable | None = None,
+                   unclaimable: str | None = None) -> Selection:
     """Add the effects the evidence supports to a base fit, one at a time (see the module docstring).
 
     Parameters
@@ -341,6 +351,12 @@ def select_effects(base: Fit, pool: Sequence, *, score: Callable, refit: Callabl
         How a vetoed effect is named in its not-claimed line (default: its ``label``).
     progress : callable, optional
         Called with one line of text per stage.
+    revise : callable, optional
+        ``revise(current, effects) -> Fit``: the model refitted with exactly ``effects`` (a tuple),
+        started from ``current``; without it, nothing added is revisited.
+    unclaimable : str, optional
+        Why no effect can be claimed from this recording whatever the evidence (e.g. structure of the
+        recording's own making, as an ADC's undithered rounding): effects are tried and reported, not claimed.
 
     Returns
     -------
@@ -348,7 +364,7 @@ def select_effects(base: Fit, pool: Sequence, *, score: Callable, refit: Callabl
     """
     say = progress or (lambda text: None)
     name_of = rejected_as or (lambda e: e.label)
-    current, steps, rejected = base, [base_step], []
+    current, steps, rejected, revisions = base, [base_step], [], []
     for _ in range(MAX_STEPS):
         present = {e.name for e in current.effects}
         scored = []
@@ -380,8 +396,16 @@ def select_effects(base: Fit, pool: Sequence, *, score: Callable, refit: Callabl
         steps.append(write_step(best, measured))
         say(f"added {best.effect.name} (delta-BIC {best.gain:.0f})")
         current = best.trial
+        if revise is not None and len(current.effects) > 1:
+            current, steps = _revisit(current, steps, pool, revise, score, refit, n_params, log_n, write_step,
+                                      revisions, say)
 
     structure, unexplained = verdict(current)
+    if unclaimable and len(steps) > 1:
+        rejected.extend(f"{step['added']} (delta-BIC {step['delta_bic']:.0f}, but {unclaimable}: not claimed)"
+                        for step in steps[1:])
+        steps, current = steps[:1], base
+        structure, unexplained = verdict(current)
     if unexplained and len(steps) > 1:
         # Structure the model lacks remains.  Whatever the added effects fitted may be partly that
         # unknown effect (e.g. a field gradient with the sensor off the axis mimics an encoder
@@ -389,7 +413,70 @@ def select_effects(base: Fit, pool: Sequence, *, score: Callable, refit: Callabl
         rejected.extend(_withdrawn(step) for step in steps[1:])
         steps, current = steps[:1], base
         structure, unexplained = verdict(current)
-    return Selection(current, steps, rejected, structure, unexplained)
+    return Selection(current, steps, rejected, structure, unexplained, revisions)
+
+
+MAX_REVISIONS = 4
+"""Most changes one revisit makes (each a refit of every alternative)."""
+
+
+def _revisit(current, steps: list, pool: Sequence, revise: Callable, score: Callable, refit: Callable,
+             n_params: Callable, log_n: float, write_step: Callable, revisions: list,
+             say: Callable) -> tuple[Any, list]:
+    """Re-test the forms of the effects in ``current`` but the last added, and drop those no longer decisive.
+
+    For each such effect the model without it is refitted (``revise``): the effect's evidence is
+    what removing it costs in BIC.  Its other forms are score-tested against that model, and the
+    most promising one is refitted (``refit``) when its first-order evidence beats the current
+    form's by more than :data:`DECISIVE_BIC`; the best decisive replacement is taken, else the
+    effect with the least evidence is dropped if that evidence is at most :data:`DECISIVE_BIC`;
+    repeat, at most :data:`MAX_REVISIONS` times.  ``steps`` (the base step, then one per effect in
+    order) follows the effects: a replaced form goes to the end with a new step (the evidence of the
+    replacement), a dropped effect loses its step.
+    """
+    for _ in range(MAX_REVISIONS):
+        effects = current.effects
+        swaps, drops = [], []
+        for i, old in enumerate(effects[:-1]):
+            without = revise(current, effects[:i] + effects[i + 1:])
+            evidence = without.bic() - current.bic()
+            drops.append((evidence, i, without))
+            scored = []
+            for form in (f for f in pool if f.name == old.name and f != old):
+                drop, start = score(without, form)
+                scored.append((drop - n_params(form) * log_n, form, start))
+            if not scored:
+                continue
+            promise, form, start = max(scored, key=lambda item: item[0])
+            if promise <= evidence + DECISIVE_BIC:
+                continue
+            say(f"revisiting {old.label}: refitting as {form.label}")
+            trial = refit(without, form, start)
+            swaps.append((current.bic() - trial.bic(), i, form, without, trial))
+        best_swap = max(swaps, key=lambda item: item[0], default=None)
+        weakest = min(drops, key=lambda item: item[0], default=None)
+        if best_swap is not None and best_swap[0] > DECISIVE_BIC:
+            gain, i, form, without, trial = best_swap
+            old = effects[i]
+            share = (without.chi2 - trial.chi2) / max(without.chi2 - without.dof, 1e-12)
+            step = write_step(Proposal(form, without, trial, float("nan"), without.bic() - trial.bic(), share), {})
+            step["evidence"] = (f"{form.description}: revisited once {effects[-1].label} was in, it replaces "
+                                f"{old.label} (delta-BIC {gain:.0f} over it)")
+            steps = steps[:i + 1] + steps[i + 2:] + [step]
+            revisions.append(f"{old.label} replaced by {form.label} (delta-BIC {gain:.0f}) once {effects[-1].label} "
+                             "was in")
+            say(revisions[-1])
+            current = trial
+        elif weakest is not None and weakest[0] <= DECISIVE_BIC:
+            evidence, i, without = weakest
+            revisions.append(f"{effects[i].label} dropped: with the effects added after it, it no longer earns its "
+                             f"place (removing it costs delta-BIC {evidence:.0f})")
+            say(revisions[-1])
+            steps = steps[:i + 1] + steps[i + 2:]
+            current = without
+        else:
+            break
+    return current, steps
 
 
 def _veto(p: Proposal, checks: Sequence[Check]) -> tuple[str | None, dict]:
@@ -420,8 +507,9 @@ def added_step_lines(step: dict) -> list[str]:
 
 
 def remark_lines(block: dict) -> list[str]:
-    """Report lines of what was not claimed and what could not be examined, and why."""
-    return ([f"  not claimed: {text}" for text in block.get("not_claimed", [])]
+    """Report lines of what revisiting changed, what was not claimed and what could not be examined, and why."""
+    return ([f"  revisited: {text}" for text in block.get("revisions", [])]
+            + [f"  not claimed: {text}" for text in block.get("not_claimed", [])]
             + [f"  {name} not examined: {reason}" for name, reason in block.get("not_applicable", {}).items()])
 
 

@@ -33,6 +33,8 @@ every correction is zero at ``t_ref`` and ``T_ref``, so the file's offsets hold 
     ``A_c (1 - exp(-(t - t_ref) / tau_s))``, one time constant for every channel.
 ``temperature`` (offset; offset and gain)
     ``k_c d`` and, with the gain, ``g_c d y_c``.
+``gain_drift`` (linear, quadratic)
+    ``y_c sum_k g_ck tau^k``, k = 1..degree: the gain ``K (1 + sum_k g_ck tau^k)``.
 ``nonlinear_response`` (odd cubic)
     ``c_c y_c^3 / s_c^2`` with ``s_c`` the channel's largest linear response: only where the known
     inputs set ``y`` (the platform), not in a free tumble.
@@ -53,7 +55,7 @@ from .forms import (WARMUP_TAU_FRACTIONS, json_float, rms, session_bin, settled,
                     why_no_temperature, why_no_time)
 from .report import Diagnosis
 
-__all__ = ["OffsetEffect", "FORMS", "Problem", "Grouped", "SampleGroups", "OffsetDiagnosis",
+__all__ = ["OffsetEffect", "FORMS", "GainDrift", "Problem", "Grouped", "SampleGroups", "OffsetDiagnosis",
            "diagnose_offsets", "pooled_repeat_noise", "lack_of_fit", "same_inputs"]
 
 _FD_STEP = 1e-6
@@ -194,6 +196,29 @@ class Temperature(OffsetEffect):
         return out
 
 
+@dataclass(frozen=True)
+class GainDrift(_TimeEffect):
+    """Each channel's gain a polynomial in time without constant term: ``y (sum_k g_ck tau^k)`` added."""
+
+    degree: int = 1
+
+    def n_params(self, c):
+        return self.degree * c
+
+    def delta(self, q, y, ctx):
+        powers = ctx.tau[:, None] ** np.arange(1, self.degree + 1)  # (n, degree)
+        return (powers @ q.reshape(self.degree, -1)) * y
+
+    def report(self, q, sigma, ctx):
+        out = {}
+        for k in range(1, self.degree + 1):
+            label = "gain_rel_per_s" if k == 1 else f"gain_rel_per_s{k}"
+            sl = slice((k - 1) * len(ctx.channels), k * len(ctx.channels))
+            unit = 1.0 / ctx.session_s**k
+            out.update(_per_channel(ctx, label, q[sl] * unit, sigma[sl] * unit))
+        return out
+
+
 class CubicResponse(OffsetEffect):
     """Odd cubic per channel in its linear response: ``c y^3 / s^2`` (``c``: output change at full scale)."""
 
@@ -217,6 +242,8 @@ FORMS: dict = {
     "temperature": (Temperature("temperature", "offset", "channel offsets linear in temp_c"),
                     Temperature("temperature", "offset and gain", "channel offsets and gains linear in temp_c",
                                 gain=True)),
+    "gain_drift": (GainDrift("gain_drift", "linear", "channel gains changing with t_s, at a constant rate", 1),
+                   GainDrift("gain_drift", "quadratic", "channel gains changing with t_s, quadratic in time", 2)),
     "nonlinear_response": (CubicResponse("nonlinear_response", "odd cubic",
                                          "outputs bending away from linear in the known field: an odd cubic per "
                                          "channel"),),
@@ -419,7 +446,7 @@ def diagnose_offsets(problem: Problem, *, t_s=None, temp_c=None, candidates=None
     t_s, temp_c : ndarray, shape (n,), optional
         Time (s) and temperature (degC) of each sample.
     candidates : sequence of str, optional
-        Effect names to consider (default: ``offset_drift``, ``temperature``).
+        Effect names to consider (default: ``offset_drift``, ``temperature``, ``gain_drift``).
 
     Returns
     -------
@@ -430,7 +457,7 @@ def diagnose_offsets(problem: Problem, *, t_s=None, temp_c=None, candidates=None
     ValueError
         An unknown candidate name.
     """
-    names = ["offset_drift", "temperature"] if candidates is None else list(candidates)
+    names = ["offset_drift", "temperature", "gain_drift"] if candidates is None else list(candidates)
     unknown = [c for c in names if c not in FORMS]
     if unknown:
         raise ValueError(f"unknown effect(s) {unknown}; known: {', '.join(FORMS)}")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from .evidence import VERDICTS, added_step_lines, remark_lines, residual_line
 
-__all__ = ["Diagnosis", "format_diagnosis"]
+__all__ = ["Diagnosis", "cost_lines", "format_diagnosis"]
 
 _NOT_JUDGED = "not judged: no repeated samples to measure the noise floor independently"
 
@@ -74,7 +74,30 @@ def format_diagnosis(block: dict, unit: str = "output units") -> str:
         ch = block["hard_iron_change"]
         moved = ", ".join(f"{v:+.4g} (sigma {s:.2g})" for v, s in zip(ch["value"], ch["sigma"]))
         lines.append(f"  the hard iron moved by {moved} {unit}")
-    verdict = _NOT_JUDGED if block["unexplained"] is None else VERDICTS[bool(block["unexplained"])]
+    verdict = (block.get("not_judged", _NOT_JUDGED) if block["unexplained"] is None
+               else VERDICTS[bool(block["unexplained"])])
+    if block.get("not_judged") and block["unexplained"] is not None:
+        lines.append(f"  left out of the verdict: {block['not_judged']}")
     test = (block.get("structure_test") or {}).get("name", "structure test")
     lines.append(residual_line(block, verdict, test))
+    lines += cost_lines(block.get("unexplained_cost"))
     return "\n".join(lines)
+
+
+def cost_lines(cost: dict | None) -> list[str]:
+    """Report lines of what an unexplained residual costs (``unexplained_cost``), none without one."""
+    if not cost:
+        return []
+    lines = []
+    if "direction_deg" in cost:
+        sig = cost.get("direction_sigma_deg", {})
+        lines.append("  unexplained cost: direction sigmas widened by " + ", ".join(
+            f"{name} {v:.3f} deg" + (f" ({sig[name]['naive']:.3f} -> {sig[name]['widened']:.3f})" if name in sig else "")
+            for name, v in cost["direction_deg"].items()))
+    if "heading_deg" in cost:
+        h = cost.get("heading_sigma_deg")
+        lines.append(f"  unexplained cost at runtime: heading sigma of a level housing widened by {cost['heading_deg']:.3f} "
+                     "deg" + (f" ({h['naive']:.3f} -> {h['widened']:.3f} deg RMS over headings)" if h else ""))
+    if "method" in cost:
+        lines.append(f"      ({cost['method']})")
+    return lines

@@ -23,7 +23,7 @@ sample each is fitted as it is.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -35,12 +35,18 @@ from ..diagnosis.evidence import SINGULAR_RCOND, linear_score, unit_columns
 from ..diagnosis.forms import session_bin
 from .effects import Effect
 
-__all__ = ["BIN_DEG", "Bins", "MLFit", "cramer_rao", "fit_ml", "score_effect", "tangent_basis"]
+__all__ = ["BIN_DEG", "Bins", "CLUSTER_DEG", "MLFit", "cramer_rao", "fit_ml", "score_effect", "structured_covariance",
+           "tangent_basis", "with_covariance"]
 
 _BASE_PER_CHANNEL = 4  # u, v, offset, log gain
 _MAX_ITERATIONS = 60  # Levenberg-Marquardt iterations (each costs one finite-difference Jacobian)
 BIN_DEG = 0.05
 """Width of the turntable-angle bins whose consecutive samples the fit takes as one mean, degrees."""
+CLUSTER_DEG = 180.0
+"""Turntable sector whose samples of one flip form a cluster of :func:`structured_covariance`, degrees.
+
+Half turns (8 clusters) were chosen over quarter and eighth turns on tools/bench_loop.py's seeds 1000-1007
+(the reported numbers use seeds 0-19): the structures that sigmas miss most are slow ones."""
 
 
 @dataclass(frozen=True)
@@ -347,6 +353,32 @@ def _direction_covariance(layout: _Layout, x, cov) -> np.ndarray:
         block = cov[_BASE_PER_CHANNEL * c:_BASE_PER_CHANNEL * c + 2, _BASE_PER_CHANNEL * c:_BASE_PER_CHANNEL * c + 2]
         out[c] = g @ block @ g.T
     return out
+
+
+def structured_covariance(fit: MLFit, noise: np.ndarray) -> np.ndarray:
+    """Covariance of a fit's parameters with its residual's structure as a process correlated along the turn.
+
+    :func:`calibrate.diagnosis.robust.cluster_covariance` over clusters of a :data:`CLUSTER_DEG`
+    sector of one flip (8 clusters in a full recording), on the bins the fit ran on.
+
+    Returns
+    -------
+    ndarray, shape (k, k)
+        In the fit's parameters (as ``fit.covariance``); NaN where that is.
+    """
+    from ..diagnosis.robust import cluster_covariance
+
+    bins = fit.bins
+    weighted = ((bins.outputs - _Predictor(bins.samples)(fit.physics)) * (bins.root_n / noise)).ravel()
+    sector = np.floor(np.mod(bins.samples.platform_deg, 360.0) / CLUSTER_DEG).astype(int)
+    clusters = np.repeat(bins.samples.flip_index * int(np.ceil(360.0 / CLUSTER_DEG)) + sector, len(noise))
+    bread = fit.covariance / (fit.chi2 / max(fit.dof, 1))
+    return cluster_covariance(fit.jac, weighted, clusters, bread)
+
+
+def with_covariance(fit: MLFit, covariance: np.ndarray) -> MLFit:
+    """The fit with another covariance of its parameters (and the directions' that follows from it)."""
+    return replace(fit, covariance=covariance, direction_covariance=_direction_covariance(fit.layout, fit.x, covariance))
 
 
 def score_effect(fit: MLFit, noise: np.ndarray, effect: Effect,

@@ -29,18 +29,20 @@ import numpy as np
 from compass.io.fourflip import FourFlipRecording
 from compass.sim.bench import BenchSamples
 
-from ._mlfit import MLFit, fit_ml, score_effect
+from ._mlfit import MLFit, fit_ml, score_effect, structured_covariance, with_covariance
 from ..diagnosis.evidence import DECISIVE_BIC, Proposal, gather_forms, is_unexplained, select_effects
 from ..diagnosis.report import format_diagnosis
+from ..diagnosis.robust import extra_sigma, heading_sigma_deg, widened
 from .effects import VARIANTS, Effect
-from ..noise import chi2_sf, noise_floor
+from ..noise import DITHER_FRACTION, chi2_sf, dithered, lattice_step, noise_floor
 
 __all__ = ["DECISIVE_BIC", "UNEXPLAINED_WARNING", "diagnose_fourflip", "examine_residual", "format_diagnosis",
            "residual_structure"]
 
 STRUCTURE_HARMONICS = 6
 UNEXPLAINED_WARNING = ("structure remains in the residual above the noise floor: the recording has an effect "
-                       "the model lacks (see the diagnosis); the uncertainties are then optimistic")
+                       "the model lacks (see the diagnosis); the uncertainties are widened to cover it "
+                       "(the diagnosis's unexplained_cost)")
 
 
 def residual_structure(samples: BenchSamples, residuals: np.ndarray, noise: np.ndarray) -> tuple[float, int, float]:
@@ -104,18 +106,24 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
     say = progress or (lambda text: None)
     samples = BenchSamples.from_recording(rec)
     if noise is None:
-        noise = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs)
+        noise = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs, lattice_step(rec.outputs))
     names = list(candidates) if candidates is not None else list(VARIANTS)
     pool, skipped = gather_forms(names, VARIANTS, lambda e: e.applicable(samples))
 
     say("fitting the base model")
     base = fit_ml(samples, rec.outputs, rec.channels, start, noise)
     floor = float(np.sqrt(np.mean(noise**2)))
+    judged = dithered(lattice_step(rec.outputs), noise)
 
     def refit(current: MLFit, effect: Effect, block: np.ndarray) -> MLFit:
         return fit_ml(samples, rec.outputs, rec.channels, current.physics, noise,
                       effects=current.effects + (effect,),
                       effect_start={**current.effect_start(), effect.name: block})
+
+    def revise(current: MLFit, effects: tuple) -> MLFit:
+        kept = {e.name for e in effects if e in current.effects}  # a replaced form starts from zero
+        return fit_ml(samples, rec.outputs, rec.channels, current.physics, noise, effects=effects,
+                      effect_start={k: v for k, v in current.effect_start().items() if k in kept})
 
     def claim(p: Proposal, measured: dict) -> dict:
         names_e, values, sigmas = p.trial.effect_parameters(p.effect)
@@ -132,8 +140,9 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         score=lambda current, effect: score_effect(current, noise, effect),
         refit=refit, n_params=lambda e: e.n_params(len(rec.channels)), log_n=np.log(rec.outputs.size),
         base_step={"model": "base", "residual_rms": _pooled_rms(base.residuals), "chi2_per_dof": base.reduced_chi2},
-        write_step=claim, verdict=lambda f: _verdict(samples, f, noise, floor),
-        rejected_as=lambda e: e.name, progress=say)
+        write_step=claim, verdict=lambda f: _verdict(samples, f, noise, judged),
+        rejected_as=lambda e: e.name, progress=say, revise=revise,
+        unclaimable=None if judged.all() else "the ADC's undithered rounding is structured by itself and may be it")
     current, steps, rejected, unexplained = chosen.fit, chosen.steps, chosen.not_claimed, chosen.unexplained
     structure, dof, p_value = chosen.structure
     rms_after = _pooled_rms(current.residuals)
@@ -146,18 +155,65 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         "residual_rms_after": rms_after,
         "unexplained": unexplained,
         "structure_test": {"delta_chi2": structure, "dof": dof, "p_value": p_value},
+        **({} if judged.all() else {"not_judged": _not_judged(rec.channels, judged)}),
         "not_claimed": rejected,
         "not_applicable": skipped,
+        "revisions": chosen.revisions,
         "calibration_change": _calibration_change(base, current, rec.channels),
     }
+    if unexplained:
+        current, diagnosis["unexplained_cost"] = _widen(current, noise, rec.channels)
     return base, current, diagnosis
 
 
-def _verdict(samples, fit: MLFit, noise, floor) -> tuple[tuple[float, int, float], bool]:
-    """Structure test of a fit's residual and whether it is unexplained."""
-    structure, dof, p_value = residual_structure(samples, fit.residuals, noise)
-    rms = _pooled_rms(fit.residuals)
-    return (structure, dof, p_value), is_unexplained(p_value, rms, floor)
+def _widen(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
+    """The fit with its covariance widened to cover the residual's structure, and what that costs.
+
+    :func:`calibrate.fourflip._mlfit.structured_covariance` and
+    :func:`calibrate.diagnosis.robust.widened`; the cost is the part of each direction's sigma and of
+    a level housing's heading sigma (:func:`calibrate.diagnosis.robust.heading_sigma_deg`) the
+    structure adds, ``sqrt(widened^2 - naive^2)``.
+    """
+    wide = with_covariance(fit, widened(fit.covariance, structured_covariance(fit, noise)))
+    before, after = fit.direction_sigma_deg(), wide.direction_sigma_deg()
+    heading = [_heading_sigma(f) for f in (fit, wide)]
+    cost = {
+        "direction_deg": {name: float(v) for name, v in zip(channels, extra_sigma(after, before))},
+        "heading_deg": float(extra_sigma(heading[1], heading[0])),
+        "direction_sigma_deg": {name: {"naive": float(b), "widened": float(a)}
+                                for name, b, a in zip(channels, before, after)},
+        "heading_sigma_deg": {"naive": heading[0], "widened": heading[1]},
+        "method": ("cluster-robust (sandwich) covariance over half turns of each flip: the residual's structure "
+                   "taken as correlated along the turn; the file's sigmas are the larger of it and the naive ones"),
+    }
+    return wide, cost
+
+
+def _heading_sigma(fit: MLFit) -> float:
+    """A level housing's RMS heading sigma over headings from the fit's direction, offset and gain sigmas."""
+    phys = fit.physics
+    c = len(phys.gains)
+    var = np.diag(fit.covariance)[:4 * c].reshape(c, 4)[:, 2:] * phys.gains[:, None] ** 2  # offset, log gain
+    return heading_sigma_deg(phys.directions, fit.direction_covariance, var, phys.gains, phys.dip_deg,
+                             phys.field_norm)
+
+
+def _verdict(samples, fit: MLFit, noise, judged: np.ndarray) -> tuple[tuple[float, int, float], bool | None]:
+    """Structure test of a fit's residual over the ``judged`` channels and whether it is unexplained
+    (None when no channel can be judged)."""
+    if not judged.any():
+        return (float("nan"), 0, float("nan")), None
+    structure, dof, p_value = residual_structure(samples, fit.residuals[:, judged], noise[judged])
+    rms = _pooled_rms(fit.residuals[:, judged])
+    return (structure, dof, p_value), is_unexplained(p_value, rms, float(np.sqrt(np.mean(noise[judged] ** 2))))
+
+
+def _not_judged(channels, judged: np.ndarray) -> str:
+    """Why some channels' residual is left out of the verdict (:func:`calibrate.noise.dithered`)."""
+    names = ", ".join(ch for ch, ok in zip(channels, judged) if not ok)
+    return (f"{names}: the ADC's code step is over {1 / DITHER_FRACTION:g} times the noise, so its rounding is not "
+            "dithered: a structured function of the field by itself, which the residual's structure test cannot tell "
+            "from an effect" + ("" if judged.any() else "; nothing is judged ('unexplained' null)"))
 
 
 def examine_residual(samples: BenchSamples, residuals: np.ndarray, noise: np.ndarray) -> dict:

@@ -14,6 +14,7 @@ Identifiability notes (what the bench cannot see):
   and flip (absorbed by the dip and the gains), and its component along the flip axis X adds
   ``a_x b_x`` in every flip (absorbed by the offsets); only the y component is fitted.
 - ``encoder_error``: a constant encoder offset is the field azimuth; harmonics 1..3 are fitted.
+- ``gain_drift`` and ``temperature``'s gain are confounded in the same way.
 - ``offset_drift`` and ``temperature`` are confounded when the temperature only rises with time;
   the evidence then favours whichever fits better, and the report says both were candidates.
 """
@@ -32,6 +33,7 @@ __all__ = ["Effect", "EFFECTS", "VARIANTS", "effect_by_name"]
 
 ENCODER_HARMONICS = 3
 MAX_DRIFT_DEGREE = 3
+MAX_GAIN_DRIFT_DEGREE = 2
 
 
 @dataclass(frozen=True)
@@ -258,6 +260,40 @@ class WarmUp(OffsetDrift):
         return {"after_warm_up": True, "t_s_first": float(physics.drift_t0), "tau_s": float(physics.warmup_tau_s)}
 
 
+@dataclass(frozen=True)
+class GainDrift(Effect):
+    """Gains drifting with time (a temperature change nobody recorded): ``K (1 + sum_k g_k tau^k)`` per
+    channel, ``tau`` the time from the session's midpoint over half its span, k = 1..degree."""
+
+    degree: int = 1
+
+    @property
+    def label(self):
+        return f"{self.name} (degree {self.degree})"
+
+    def applicable(self, samples):
+        return why_no_time(samples.t_s)
+
+    def n_params(self, c):
+        return self.degree * c
+
+    def param_names(self, channels):
+        return [f"{ch}.gain_drift_t{k}_rel" for ch in channels for k in range(1, self.degree + 1)]
+
+    def apply(self, physics, p, samples):
+        t0 = 0.5 * (samples.t_s.min() + samples.t_s.max())
+        return physics.with_(gain_drift=p.reshape(-1, self.degree), gain_drift_t0=t0,
+                             gain_drift_scale_s=0.5 * np.ptp(samples.t_s))
+
+    @property
+    def form(self):
+        return ("gain(t) = gain (1 + sum_k gain_drift_t<k>_rel ((t_s - reference.t_s) / reference.half_span_s)^k), "
+                f"k = 1..{self.degree}")
+
+    def reference(self, physics):
+        return {"t_s": float(physics.gain_drift_t0), "half_span_s": float(physics.gain_drift_scale_s)}
+
+
 class Temperature(Effect):
     def applicable(self, samples):
         return why_no_temperature(samples.temp_c)
@@ -305,6 +341,9 @@ VARIANTS: dict[str, tuple[Effect, ...]] = {
         "per-flip offsets that follow each channel's direction in the turntable frame (a field turning with the turntable)"),),
     "flip_error": (FlipError("flip_error", "flip-to-flip inconsistency that turning the 90/180/270 flips by small angles removes"),),
     "temperature": (Temperature("temperature", "offset and gain changes that follow temp_c"),),
+    "gain_drift": tuple(GainDrift("gain_drift", "a slow trend in time in each channel's gain (the swing of its curve "
+                                  f"growing or shrinking; polynomial of degree {d} in t_s)", degree=d)
+                        for d in range(1, MAX_GAIN_DRIFT_DEGREE + 1)),
 }
 """Each effect's forms, simplest first; the diagnosis lets the evidence (BIC) choose among them."""
 EFFECTS: dict[str, Effect] = {name: max(forms, key=lambda e: e.n_params(3)) for name, forms in VARIANTS.items()}

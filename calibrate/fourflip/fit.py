@@ -31,12 +31,14 @@ from . import _harmonic as hm
 from .accelerometer import with_accelerometer
 from ._mlfit import MLFit, fit_ml
 from ..contract import Calibrator, CannotCalibrate
+from ..health import AXIS_TOLERANCE_DEG, ChannelHealth, check_channels
+from ..health import to_json as health_json
 from .diagnosis import UNEXPLAINED_WARNING, diagnose_fourflip, examine_residual
-from ..noise import SPIKE_SIGMAS, find_spikes, noise_floor
+from ..noise import SPIKE_SIGMAS, find_spikes, lattice_step, noise_floor, quantisation_note
 from .result import CalibrationResult, ChannelCalibration
 from ..site_field import compare_with_site
 
-__all__ = ["METHODS", "FourFlipCalibrator", "calibrate_fourflip", "physics_from_harmonics", "result_from_ml"]
+__all__ = ["METHODS", "FourFlipCalibrator", "calibrate_fourflip", "channel_health", "physics_from_harmonics", "result_from_ml"]
 
 METHODS = ("ml", "harmonic", "patent")
 _TABLE_BINS = 36
@@ -81,8 +83,10 @@ def calibrate_fourflip(
         "site_lat_deg": site.lat_deg, "site_lon_deg": site.lon_deg, "site_alt_m": site.alt_m,
         "date": site.date.isoformat()}
     dip_sign, hemisphere = _hemisphere(metadata, dip_sign, "--site" if site is not None else "the recording")
-    noise = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs)
+    step = lattice_step(rec.outputs)
+    noise = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs, step)
     noise = np.where(noise > 0, noise, np.std(rec.outputs, axis=0) * 1e-3)
+    quantised = quantisation_note(step, noise, rec.channels)
     spikes = find_spikes(rec.platform_deg, rec.flip_index, rec.outputs, noise)
     if spikes.any():
         rec = rec.subset(~spikes)
@@ -107,6 +111,9 @@ def calibrate_fourflip(
         warnings = warnings + (f"the flip means hardly show the vertical field ({vertical:.1f} sigma: dip near 0, or "
                                "every channel along housing X): the data cannot tell these directions from their "
                                "negatives, and the hemisphere cannot either; their common sign is a guess",)
+    if quantised is not None:
+        extra["quantisation"] = quantised
+        warnings = warnings + (quantised["words"],)
     if spikes.any():
         extra["spikes_dropped"] = int(spikes.sum())
         warnings = warnings + (f"{int(spikes.sum())} sample(s) dropped as spikes (more than {SPIKE_SIGMAS:g} noise "
@@ -140,14 +147,42 @@ class FourFlipCalibrator(Calibrator):
     plot_files = ("fit.png", "residuals.png")
 
     def __init__(self, *, method: str = "ml", field_ut: float | None = None, site: str | None = None,
-                 date: str | None = None, diagnose: bool = True, progress=None):
+                 date: str | None = None, diagnose: bool = True, progress=None,
+                 axis_tolerance_deg: float | None = AXIS_TOLERANCE_DEG, direction_accuracy_deg: float | None = None):
         self.method, self.field_ut, self.diagnose, self.progress = method, field_ut, diagnose, progress
         self.site, self.date = site, date
+        self.axis_tolerance_deg, self.direction_accuracy_deg = axis_tolerance_deg, direction_accuracy_deg
 
     def fit(self, recording: FourFlipRecording) -> CalibrationResult:
-        return calibrate_fourflip(recording, method=self.method, field_ut=self.field_ut,
-                                  site=_bench_site(self.site, self.date, recording), diagnose=self.diagnose,
-                                  progress=self.progress)
+        result = calibrate_fourflip(recording, method=self.method, field_ut=self.field_ut,
+                                    site=_bench_site(self.site, self.date, recording), diagnose=self.diagnose,
+                                    progress=self.progress)
+        health = channel_health(result, recording)
+        warnings = check_channels(recording.path, health, axis_tolerance_deg=self.axis_tolerance_deg,
+                                  direction_accuracy_deg=self.direction_accuracy_deg)
+        return replace(result, warnings=result.warnings + warnings,
+                       extra=result.extra | {"channel_health": health_json(health)})
+
+
+def channel_health(result: CalibrationResult, rec: FourFlipRecording) -> list[ChannelHealth]:
+    """Each channel's response to the whole field, its noise and direction (:mod:`calibrate.health`).
+
+    The response is the gain times |B| (|B| = 1 when gains are per |B|) with the joint fit's sigma.
+    The seed's rules give no sigma, and their gain from extreme samples is far from zero even on pure
+    noise; their response's significance is then that of the strongest flip's first harmonic (each
+    coefficient's sigma ``rms sqrt(2 / n_flip)``), fitted to the samples the fit used.
+    """
+    field = result.field_ut or 1.0
+    used = result.used(rec)
+    harmonics = hm.fit_harmonics(used.platform_deg, used.flip_index, used.outputs)
+    counts = np.bincount(used.flip_index, minlength=4)[:, None]
+    significance = np.max(np.hypot(harmonics.cos, harmonics.sin) / (harmonics.residual_rms * np.sqrt(2.0 / counts)), axis=0)
+    out = []
+    for c, (ch, noise) in enumerate(zip(result.channels, result.noise)):
+        response = ch.response.gain * field
+        sigma = ch.gain_sigma * field if ch.gain_sigma is not None else response / significance[c]
+        out.append(ChannelHealth(ch.name, response, float(sigma), float(noise), ch.direction, ch.direction_sigma_deg))
+    return out
 
 
 def _bench_site(site, date, rec: FourFlipRecording):

@@ -228,6 +228,10 @@ class CalibrationResult(Calibration):
             gain = f" +- {ch.gain_sigma:.3g}" if ch.gain_sigma is not None else ""
             lines.append(f"      response {r.model}: offset {r.offset:.6g}{off}, gain {r.gain:.6g}{gain} per {unit}"
                          f"; residual rms {rms:.3g} (noise floor {noise:.3g})")
+        if "channel_health" in self.extra:
+            from ..health import describe
+
+            lines.append(describe(self.extra["channel_health"]))
         if self.dof:
             lines.append(f"  chi2/dof {self.reduced_chi2:.3f} ({self.dof} dof)")
         for w in self.warnings:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
@@ -10,6 +12,8 @@ from compass.io.platform3d import Platform3DRecording
 from compass.sim.platform3d import predict, up_in_bench
 
 from ..contract import Calibrator, CannotCalibrate, metadata_field_ut, require_response, require_sane_cells
+from ..health import AXIS_TOLERANCE_DEG, ChannelHealth, check_channels
+from ..health import to_json as health_json
 from ..diagnosis.offsets import (Grouped, OffsetDiagnosis, Problem, SampleGroups, diagnose_offsets,
                                 pooled_repeat_noise, same_inputs)
 from .result import AXES, MAG_CHANNELS, Platform3DResult, axis_geometry, geometry_names
@@ -170,7 +174,8 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
     chi2 = float(np.sum((r_m / w_m) ** 2) + np.sum((r_t / w_t) ** 2))
     if diagnose:
         diagnosis = _diagnose(rec, rot, fit.x, n_tilt, magnitude, w_m, w_t, noise_mag is not None,
-                              ("offset_drift", "temperature", "nonlinear_response") if candidates is None else candidates)
+                              ("offset_drift", "temperature", "gain_drift", "nonlinear_response") if candidates is None
+                              else candidates)
         if diagnosis.effects:
             x, jac, delta = diagnosis.x, diagnosis.jac, diagnosis.delta
             names = names + diagnosis.names
@@ -289,8 +294,30 @@ class Platform3DCalibrator(Calibrator):
     kind = "platform3d"
     plot_files = ("platform_residuals.png",)
 
-    def __init__(self, *, field_ut: float | None = None, diagnose: bool = True):
+    def __init__(self, *, field_ut: float | None = None, diagnose: bool = True,
+                 axis_tolerance_deg: float | None = AXIS_TOLERANCE_DEG, direction_accuracy_deg: float | None = None):
         self.field_ut, self.diagnose = field_ut, diagnose
+        self.axis_tolerance_deg, self.direction_accuracy_deg = axis_tolerance_deg, direction_accuracy_deg
 
     def fit(self, recording: Platform3DRecording) -> Platform3DResult:
-        return calibrate_platform3d(recording, field_ut=self.field_ut, diagnose=self.diagnose)
+        result = calibrate_platform3d(recording, field_ut=self.field_ut, diagnose=self.diagnose)
+        health = channel_health(result)
+        warnings = check_channels(recording.path, health, axis_tolerance_deg=self.axis_tolerance_deg,
+                                  direction_accuracy_deg=self.direction_accuracy_deg)
+        return replace(result, warnings=result.warnings + warnings, health=health_json(health))
+
+
+def channel_health(result: Platform3DResult) -> list[ChannelHealth]:
+    """Each magnetometer channel's response to the whole field (the row of ``M`` times |B|), its noise
+    (repeated samples' spread, else the residual's) and its sensing direction in H (:mod:`calibrate.health`)."""
+    from compass.frames import direction_sigma_deg
+
+    field = float(np.linalg.norm(result.field_w))
+    noise = result.noise_mag if result.noise_mag is not None else np.sqrt(np.mean(result.residuals_mag**2, axis=0))
+    out = []
+    for c, name in enumerate(MAG_CHANNELS):
+        gain = float(np.linalg.norm(result.mag_matrix[c]))
+        out.append(ChannelHealth(name, gain * field, float(result.mag_response_sigma[c][1]) * field, float(noise[c]),
+                                 result.mag_matrix[c] / gain,
+                                 float(direction_sigma_deg(result.mag_direction_covariance[c]))))
+    return out

@@ -129,6 +129,8 @@ class Platform3DResult(Calibration):
     message: str
     warnings: tuple = field(default_factory=tuple)
     diagnosis: OffsetDiagnosis | None = None
+    health: dict = field(default_factory=dict)
+    """The file's ``"channel_health"`` block (:mod:`calibrate.health`), set by the calibrator."""
 
     calibration_kind = "platform3d"
 
@@ -195,7 +197,7 @@ class Platform3DResult(Calibration):
                            "fit": {"chi2": self.chi2, "dof": self.dof, "bic": self.bic, "success": self.success,
                                    "message": self.message}},
             "warnings": list(self.warnings),
-        }
+        } | ({"channel_health": self.health} if self.health else {})
 
     def plots(self, recording, folder) -> list:
         """``platform_residuals.png``: each channel's residual against the outer gimbal angle and time.
@@ -246,6 +248,10 @@ class Platform3DResult(Calibration):
             rms = np.sqrt(np.mean(res**2, axis=0))
             lines.append(f"  {label} residual rms " + ", ".join(f"{v:.3g}" for v in rms)
                          + ("" if noise is None else " (noise from repeats " + ", ".join(f"{v:.3g}" for v in noise) + ")"))
+        if self.health:
+            from ..health import describe
+
+            lines.append(describe(self.health))
         lines.append(f"  chi2/dof {self.chi2 / max(self.dof, 1):.3f} ({self.dof} dof)")
         sig = self.sigma
         with np.errstate(invalid="ignore", divide="ignore"):

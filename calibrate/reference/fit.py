@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scipy.linalg import lstsq
 
 from compass.io.reference import ReferenceRecording
 
 from ..contract import Calibrator, CannotCalibrate, require_response, require_sane_cells
+from ..health import AXIS_TOLERANCE_DEG, ChannelHealth, check_channels
+from ..health import to_json as health_json
 from ..diagnosis.offsets import Grouped, OffsetDiagnosis, Problem, diagnose_offsets, pooled_repeat_noise, same_inputs
 from ..platform3d import axis_geometry
 from .result import ReferenceResult, SensorK
@@ -241,8 +245,33 @@ class ReferenceCalibrator(Calibrator):
 
     kind = "reference"
 
-    def __init__(self, *, diagnose: bool = True):
+    def __init__(self, *, diagnose: bool = True, axis_tolerance_deg: float | None = AXIS_TOLERANCE_DEG,
+                 direction_accuracy_deg: float | None = None):
         self.diagnose = diagnose
+        self.axis_tolerance_deg, self.direction_accuracy_deg = axis_tolerance_deg, direction_accuracy_deg
 
     def fit(self, recording: ReferenceRecording) -> ReferenceResult:
-        return calibrate_reference(recording, diagnose=self.diagnose)
+        result = calibrate_reference(recording, diagnose=self.diagnose)
+        health = channel_health(result, recording)
+        warnings = check_channels(recording.path, health, axis_tolerance_deg=self.axis_tolerance_deg,
+                                  direction_accuracy_deg=self.direction_accuracy_deg)
+        return replace(result, warnings=result.warnings + warnings, health=health_json(health))
+
+
+def channel_health(result: ReferenceResult, recording: ReferenceRecording) -> list[ChannelHealth]:
+    """Each channel's response to the whole field (its scale factor times the median |reference field|),
+    its residual rms as the noise, its sensing direction (a row of ``K^-1``, reference frame) and sigma."""
+    from compass.frames import direction_sigma_deg
+
+    out = []
+    for s in result.sensors:
+        field = float(np.median(np.linalg.norm(recording.reference[s.name], axis=1)))
+        rows = np.linalg.inv(s.k_matrix)
+        for c, name in enumerate(s.channels):
+            sigma = (float(s.scale_sigma[c]) * field if s.scale_sigma is not None
+                     else float(s.residual_rms[c]) * np.sqrt(2.0 / result.n_fields))
+            out.append(ChannelHealth(name, float(s.scale[c]) * field, sigma, float(s.residual_rms[c]),
+                                     rows[c] / np.linalg.norm(rows[c]),
+                                     None if s.direction_covariance is None else
+                                     float(direction_sigma_deg(s.direction_covariance[c]))))
+    return out

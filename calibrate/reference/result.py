@@ -101,6 +101,8 @@ class ReferenceResult(Calibration):
     warnings: tuple = field(default_factory=tuple)
     diagnosis: OffsetDiagnosis | None = None
     not_diagnosed: str | None = None
+    health: dict = field(default_factory=dict)
+    """The file's ``"channel_health"`` block (:mod:`calibrate.health`), set by the calibrator."""
 
     calibration_kind = "reference"
 
@@ -166,7 +168,7 @@ class ReferenceResult(Calibration):
                           "array_spread": self.spread,
                           "unit": "field units of the recording's bx_ref.. columns; K in field units per output unit"},
             "warnings": list(self.warnings),
-        }
+        } | ({"channel_health": self.health} if self.health else {})
 
     def report(self) -> str:
         """A fit report for a person: K, offsets, scales and angles with +- sigma, warnings."""
@@ -192,6 +194,10 @@ class ReferenceResult(Calibration):
             lines.append(f"    angles between axes - 90 (xy, xz, yz): {pm(s.geometry[3:6], gs[0], '+.4f')} deg")
             lines.append(f"    rotation vector from the array frame: {pm(s.geometry[6:], gs[1], '+.4f')} deg; "
                          f"residual rms {pm(s.residual_rms, None, '.3g')}")
+        if self.health:
+            from ..health import describe
+
+            lines.append(describe(self.health))
         if self.spread is not None:
             lines.append(f"  array: calibrated fields differ from the reference by {self.spread:.3g} rms (field units)")
         if self.diagnosis is not None:

@@ -58,7 +58,7 @@ from ..diagnosis.evidence import (EffectForm, FitRecord, Proposal, determined, g
                                   linearised_score, refit_from_better_start, select_effects)
 from ..diagnosis.forms import WARMUP_TAU_FRACTIONS, json_float, rms, settled, warm_up_tau_s, why_no_temperature, why_no_time
 from ..diagnosis.report import Diagnosis
-from ..noise import chi2_sf, robust_sigma
+from ..noise import chi2_sf, second_difference_sigma, second_differences
 from .alignment import MAX_ANGLE_WIDENING, Misalignment, field_gravity_angles, static_mask
 from .ellipsoid import EllipsoidFit, fit_covariance, propagate, shape_matrix, sym_sqrt
 
@@ -370,10 +370,9 @@ def radial_noise_floor(residuals: np.ndarray) -> float:
     -------
     float
         ``MAD(r[i-1] - 2 r[i] + r[i+1]) / sqrt(6)`` (normalised MAD: robust to disturbances and
-        steps), recording units.
+        steps; :func:`calibrate.noise.second_difference_sigma`), recording units.
     """
-    d = residuals[:-2] - 2.0 * residuals[1:-1] + residuals[2:]
-    return float(robust_sigma(d) / np.sqrt(6.0))
+    return float(second_difference_sigma(second_differences(residuals)))
 
 
 def _structure_design(directions: np.ndarray, blocks, n_blocks: int) -> np.ndarray:

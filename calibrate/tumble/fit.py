@@ -10,16 +10,73 @@ from scipy.spatial.transform import Rotation
 from compass.io.tumble import TumbleRecording
 
 from ..contract import Calibrator, CannotCalibrate, metadata_field_ut
-from ..noise import robust_sigma
+from ..health import AXIS_TOLERANCE_DEG, DEAD_SIGMAS, ChannelHealth, check_channels
+from ..health import to_json as health_json
+from ..noise import lattice_step, second_difference_sigma, second_differences
 from .alignment import MAX_ANGLE_WIDENING, field_gravity_angles, fit_misalignment, refine_jointly, static_mask
 from .diagnosis import UNEXPLAINED_WARNING, diagnose_tumble
 from .ellipsoid import fit_ellipsoid
 from .result import TumbleResult
 
+def _axis_noise(x: np.ndarray) -> np.ndarray:
+    """White-noise sigma of each axis from second differences of consecutive samples, shape (3,),
+    Sheppard's on integer codes (:func:`calibrate.noise.second_difference_sigma`)."""
+    return np.asarray(second_difference_sigma(second_differences(x), lattice_step(x)), dtype=float)
+
+
 def _noise_floor(x: np.ndarray) -> float:
     """Per-axis white-noise sigma from second differences of consecutive samples (median over axes)."""
-    d = x[:-2] - 2.0 * x[1:-1] + x[2:]
-    return float(np.median(robust_sigma(d)) / np.sqrt(6.0))
+    return float(np.median(_axis_noise(x)))
+
+
+AXES = ("mx", "my", "mz")
+
+
+def require_varying_axes(path, mag: np.ndarray) -> None:
+    """Refuse a tumble with an axis that never varied beyond its noise (a dead sensor, or never turned).
+
+    An axis's variation is its readings' spread less the white noise in quadrature, as the amplitude
+    of a sinusoid (sqrt(2) times the spread); it must be :data:`calibrate.health.DEAD_SIGMAS` noise
+    sigmas at least.  A live axis in any tumble varies by tens of percent of |B|, hundreds of sigmas.
+
+    Raises
+    ------
+    CannotCalibrate
+        Naming the axis, its spread and its noise.
+    """
+    mag = np.asarray(mag, float)
+    if len(mag) < 3:
+        return
+    noise = _axis_noise(mag)
+    spread = np.std(mag, axis=0)
+    for name, s, n in zip(AXES, spread, noise):
+        varied = np.sqrt(2.0 * max(s**2 - n**2, 0.0))
+        if not varied >= DEAD_SIGMAS * n:
+            raise CannotCalibrate(f"{path}: column '{name}' never varied beyond its noise (spread {s:.3g}, white "
+                                  f"noise {n:.3g} recording units): a dead or disconnected sensor, or a motion that "
+                                  "never turned that axis through the field")
+
+
+def channel_health(result: TumbleResult, mag: np.ndarray) -> list[ChannelHealth]:
+    """Each raw axis's response to the whole field, its noise and sensing direction (:mod:`calibrate.health`).
+
+    Raw axis i reads ``row_i(S^-1) . m`` plus its hard iron, so its response to the whole field is
+    ``|row_i(S^-1)| |m|``; its sigma is taken as a sinusoid amplitude's over the samples,
+    ``noise sqrt(2 / n)``.  The axis's direction in the housing (the accelerometer's frame) is
+    ``mag_to_accel`` applied to the axis, when fitted: the symmetric soft iron is left out, since it
+    also holds the product's iron, which shears the axes without any mounting error (the tumble
+    simulator's 8 % soft iron turns them by up to 9 deg).  Without a fitted rotation the tumble fixes
+    no housing frame and no axis angle is judged.
+    """
+    rows = np.linalg.inv(result.soft_iron)
+    turn = result.mag_to_accel
+    noise = _axis_noise(np.asarray(mag, float))
+    out = []
+    for i, (name, row, n) in enumerate(zip(AXES, rows, noise)):
+        direction = None if turn is None else turn[:, i]
+        out.append(ChannelHealth(name, float(np.linalg.norm(row)) * result.field_norm,
+                                 float(n * np.sqrt(2.0 / len(mag))), float(n), direction))
+    return out
 
 
 def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, ellipsoid: str = "auto",
@@ -154,14 +211,20 @@ class TumbleCalibrator(Calibrator):
     kind = "tumble"
     plot_files = ("tumble.png",)
 
-    def __init__(self, *, ellipsoid: str = "auto", field_ut: float | None = None):
+    def __init__(self, *, ellipsoid: str = "auto", field_ut: float | None = None,
+                 axis_tolerance_deg: float | None = AXIS_TOLERANCE_DEG, direction_accuracy_deg: float | None = None):
         self.ellipsoid, self.field_ut = ellipsoid, field_ut
+        self.axis_tolerance_deg, self.direction_accuracy_deg = axis_tolerance_deg, direction_accuracy_deg
 
     def fit(self, recording: TumbleRecording) -> TumbleResult:
         field_ut = self.field_ut if self.field_ut is not None else metadata_field_ut(recording.path,
                                                                                       recording.metadata)
+        require_varying_axes(recording.path, recording.mag)
         result = calibrate_tumble(recording.mag, recording.accel, ellipsoid=self.ellipsoid, field_ut=field_ut,
                                   n_repeats=recording.n_repeats, t_s=recording.t_s, temp_c=recording.temp_c)
         if result.refused:
             raise CannotCalibrate(f"{recording.path}: {result.refused}")
-        return result
+        health = channel_health(result, recording.mag)
+        warnings = check_channels(recording.path, health, axis_tolerance_deg=self.axis_tolerance_deg,
+                                  direction_accuracy_deg=self.direction_accuracy_deg)
+        return replace(result, warnings=result.warnings + warnings, health=health_json(health))

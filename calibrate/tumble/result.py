@@ -58,6 +58,8 @@ class TumbleResult(Calibration):
     warnings: tuple = field(default_factory=tuple)
     refused: str = ""
     diagnosis: TumbleDiagnosis | None = None
+    health: dict = field(default_factory=dict)
+    """The file's ``"channel_health"`` block (:mod:`calibrate.health`), set by :class:`TumbleCalibrator`."""
 
     calibration_kind = "tumble"
 
@@ -157,7 +159,7 @@ class TumbleResult(Calibration):
                 {"before": mis.spread_before_deg, "after": mis.spread_after_deg, "n_static": mis.n_static},
             },
             "warnings": list(self.warnings),
-        }
+        } | ({"channel_health": self.health} if self.health else {})
 
     def report(self) -> str:
         """A fit report for a person: values +- sigma, the kinds compared, coverage and warnings in words."""
@@ -174,6 +176,10 @@ class TumbleResult(Calibration):
             f"{c.ellipsoid} BIC {c.bic:.1f} rms {np.sqrt(np.mean(c.residuals[fit.inliers] ** 2)):.3g}"
             + ("" if c.determined else f" (not determined: {c.reason})") for c in self.candidates))
         lines.append(f"  noise floor {self.noise:.3g} per axis; coverage: {self.coverage.words()}")
+        if self.health:
+            from ..health import describe
+
+            lines.append(describe(self.health))
         mis = self.misalignment
         if mis is not None:
             lines.append(f"  dip {mis.dip_deg:.3f} +- {mis.dip_sigma_deg:.3f} deg from {mis.n_static} quasi-static samples")

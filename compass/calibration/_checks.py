@@ -19,6 +19,11 @@ UNIT_TOLERANCE = 1e-6
 ROTATION_TOLERANCE = 1e-6
 """``R R^T - I`` accepted, element-wise, for a rotation matrix."""
 SYMMETRY_TOLERANCE = 1e-6
+
+DEAD_RESPONSE_SIGMAS = 5.0
+"""A channel whose gain is smaller than this many of its own standard errors does not respond to the
+field (a dead sensor): at 5 sigma a working channel is called dead with a chance of 3e-7.  The
+calibrators refuse to write such a channel (:mod:`calibrate.health`); a file holding one is refused."""
 """Asymmetry of a soft-iron matrix accepted, relative to its largest entry."""
 OUTPUT = Range(-MAX_ABS_VALUE, MAX_ABS_VALUE)
 """An output (offset, noise floor) in output units: within the recordings' limit

@@ -270,6 +270,11 @@ def _channel_model(d: dict):
             check.obj(rs, check.sub(key, "response_sigma"))
             rs = tuple(check.number(rs.get(k), f"{key}.response_sigma.{k}", nonnegative=True, allow_none=True)
                        for k in ("offset", "gain"))
+            gain, gain_sigma = responses[-1].gain, rs[1]
+            if gain_sigma is not None and gain < check.DEAD_RESPONSE_SIGMAS * gain_sigma:
+                raise CalibrationFileError(f"does not respond to the field: its gain {gain:.3g} +- {gain_sigma:.2g} is "
+                                           f"{gain / gain_sigma:.1f} sigma from zero (a dead or disconnected sensor); "
+                                           "recalibrate the module after repair", key=key)
         sigmas.append(rs)
     gains = np.array([r.gain for r in responses])
     try:

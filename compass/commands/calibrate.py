@@ -14,6 +14,12 @@ from ..io.atomic import check_writable
 from ..io.table import ReadOptions, add_read_arguments, read_table
 from ..viz import add_rerun_option, check_rerun_target
 
+AXIS_TOLERANCE_DEG = 10.0
+"""``--axis-tolerance-deg``'s default: :data:`calibrate.health.AXIS_TOLERANCE_DEG` (not imported here,
+so ``compass --help`` stays fast; a test holds the two equal)."""
+_ANGLE_DEG = limits.Range(0.0, 180.0, "deg", lo_open=True, hi_open=True)
+"""``--axis-tolerance-deg`` and ``--direction-accuracy-deg``: an angle between two directions."""
+
 
 def register(sub) -> None:
     p = sub.add_parser("calibrate", help="calibrate from a recording and write a calibration file")
@@ -39,6 +45,12 @@ def register(sub) -> None:
                    "stood (its hemisphere, which the data cannot tell, and the WMM check of the dip)")
     p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day (default: a four-flip recording's "
                                                         "'# date:', else today, UTC)")
+    p.add_argument("--axis-tolerance-deg", type=_ANGLE_DEG.option("--axis-tolerance-deg"), default=AXIS_TOLERANCE_DEG, metavar="DEG",
+                   help="warn when a channel's sensing direction is farther than this from the nearest housing axis "
+                        f"(a gross mounting error; default {AXIS_TOLERANCE_DEG:g}; raise it for oblique designs)")
+    p.add_argument("--direction-accuracy-deg", type=_ANGLE_DEG.option("--direction-accuracy-deg"), default=None, metavar="DEG",
+                   help="warn when a channel's direction sigma is larger than this, with the signal-to-noise "
+                        "ratio that would reach it")
     p.add_argument("--force", action="store_true", help="overwrite an existing calibration file")
     p.add_argument("--quiet", action="store_true", help="do not print the fit report")
     add_rerun_option(p)
@@ -52,7 +64,9 @@ def run(args) -> int:
     result = calibrate_file(args.recording, args.out, method=args.method, diagnose=not args.no_diagnose,
                             report=args.report, field_ut=args.field_ut, kind=args.kind, force=args.force,
                             quiet=args.quiet, ellipsoid=args.ellipsoid, read_options=read_options,
-                            base=args.base, site=args.site, date=args.date)
+                            base=args.base, site=args.site, date=args.date,
+                            axis_tolerance_deg=args.axis_tolerance_deg,
+                            direction_accuracy_deg=args.direction_accuracy_deg)
     if target is not None:
         from ..viz.calibration import record_calibration
 
@@ -71,13 +85,14 @@ def _base_residuals(result):
 
 OPTIONS = {"method": ("--method", "ml"), "diagnose": ("--no-diagnose", True), "field_ut": ("--field-ut", None),
            "ellipsoid": ("--ellipsoid", "auto"), "base": ("--base", None), "site": ("--site", None),
-           "date": ("--date", None)}
+           "date": ("--date", None), "axis_tolerance_deg": ("--axis-tolerance-deg", AXIS_TOLERANCE_DEG),
+           "direction_accuracy_deg": ("--direction-accuracy-deg", None)}
 """Calibrator option -> (command-line flag, default): passed to the kinds whose calibrator takes it."""
 
 
 def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, field_ut=None, kind=None,
                    force=False, quiet=False, ellipsoid="auto", read_options=None, base=None, site=None,
-                   date=None):
+                   date=None, axis_tolerance_deg=AXIS_TOLERANCE_DEG, direction_accuracy_deg=None):
     """Calibrate one recording file into a calibration file; returns the Calibration.
 
     The kind comes from the columns (:func:`calibrate.kinds.sniff`) unless ``kind`` names one; its
@@ -110,8 +125,16 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
             limits.FIELD_UT.check(field_ut, "--field-ut")
         except ValueError as exc:
             raise BadInput(str(exc)) from None
+    for flag, value in (("--axis-tolerance-deg", axis_tolerance_deg),
+                        ("--direction-accuracy-deg", direction_accuracy_deg)):
+        try:
+            if value is not None:
+                _ANGLE_DEG.check(value, flag)
+        except ValueError as exc:
+            raise BadInput(str(exc)) from None
     given = {"method": method, "diagnose": diagnose, "field_ut": field_ut, "ellipsoid": ellipsoid, "base": base,
-             "site": site, "date": date}
+             "site": site, "date": date, "axis_tolerance_deg": axis_tolerance_deg,
+             "direction_accuracy_deg": direction_accuracy_deg}
     takes = found.calibrator.options()
     ignored = [OPTIONS[name][0] for name, value in given.items() if name not in takes and value != OPTIONS[name][1]]
     ignored += ["--report"] * (report is not None and not found.calibrator.plot_files)

@@ -11,7 +11,7 @@ from .. import limits
 from ..limits import Range
 
 SIM_EFFECTS = ("nonlinear_response", "encoder_error", "offset_drift", "platform_field", "flip_error", "temperature",
-               "field_gradient")
+               "field_gradient", "gain_drift")
 """The four-flip simulator's effects (``compass.sim.fourflip.SIM_EFFECTS``, checked equal in the tests)."""
 
 

@@ -101,6 +101,10 @@ class BenchPhysics:
         Warm-up offset: ``warmup * exp(-(t_s - drift_t0) / warmup_tau_s)``, output units
         (a first-order thermal settling from the start of the session).
     warmup_tau_s : float
+    gain_drift : ndarray, shape (c, p), optional
+        Relative gain change as a polynomial in ``(t_s - gain_drift_t0) / gain_drift_scale_s`` with
+        powers 1..p: the gains are ``K (1 + sum_k g_ck tau^k)`` (``gain_drift``).
+    gain_drift_t0, gain_drift_scale_s : float
     temp_offset, temp_gain : ndarray, shape (c,), optional
         d V0 / d T (output units per degC) and relative gain change per degC, about ``temp_ref_c``.
     temp_ref_c : float
@@ -123,6 +127,9 @@ class BenchPhysics:
     drift_scale_s: float = 1.0
     warmup: np.ndarray | None = None
     warmup_tau_s: float = 1.0
+    gain_drift: np.ndarray | None = None
+    gain_drift_t0: float = 0.0
+    gain_drift_scale_s: float = 1.0
     temp_offset: np.ndarray | None = None
     temp_gain: np.ndarray | None = None
     temp_ref_c: float = 20.0
@@ -169,13 +176,22 @@ def bench_outputs(physics: BenchPhysics, samples: BenchSamples) -> np.ndarray:
 def channel_outputs(physics: BenchPhysics, samples: BenchSamples, x: np.ndarray) -> np.ndarray:
     """Outputs for field components ``x`` along each channel's direction, shape (n, c).
 
-    Applies the response (cubic), offset drift and temperature; ``x`` in field units.
+    Applies the response (cubic), offset and gain drift and temperature; ``x`` in field units.
     """
-    terms = [(k, c) for k, c in ((2, physics.quadratic), (3, physics.cubic), (5, physics.quintic)) if c is not None]
-    if terms:
-        x = x + sum(c[None, :] * x**k for k, c in terms)
-    gains = np.broadcast_to(physics.gains[None, :], x.shape)
-    offsets = np.broadcast_to(physics.offsets[None, :], x.shape)
+    if physics.quadratic is not None or physics.cubic is not None or physics.quintic is not None:
+        x2 = x * x  # products, not powers: np.power is several times slower on these small arrays
+        bent = x
+        if physics.quadratic is not None:
+            bent = bent + physics.quadratic * x2
+        if physics.cubic is not None or physics.quintic is not None:
+            x3 = x2 * x
+            if physics.cubic is not None:
+                bent = bent + physics.cubic * x3
+            if physics.quintic is not None:
+                bent = bent + physics.quintic * (x3 * x2)
+        x = bent
+    gains = physics.gains
+    offsets = physics.offsets
     if physics.drift is not None and samples.t_s is not None:
         tau = (samples.t_s - physics.drift_t0) / physics.drift_scale_s
         powers = tau[:, None] ** np.arange(1, physics.drift.shape[1] + 1)[None, :]
@@ -183,6 +199,10 @@ def channel_outputs(physics: BenchPhysics, samples: BenchSamples, x: np.ndarray)
     if physics.warmup is not None and samples.t_s is not None:
         settling = np.exp(-(samples.t_s - physics.drift_t0) / physics.warmup_tau_s)
         offsets = offsets + settling[:, None] * physics.warmup[None, :]
+    if physics.gain_drift is not None and samples.t_s is not None:
+        tau = (samples.t_s - physics.gain_drift_t0) / physics.gain_drift_scale_s
+        powers = tau[:, None] ** np.arange(1, physics.gain_drift.shape[1] + 1)[None, :]
+        gains = gains * (1.0 + powers @ physics.gain_drift.T)
     if samples.temp_c is not None and (physics.temp_offset is not None or physics.temp_gain is not None):
         dt = (samples.temp_c - physics.temp_ref_c)[:, None]
         if physics.temp_offset is not None:

@@ -35,6 +35,7 @@ SIM_EFFECTS = (
     "flip_error",
     "temperature",
     "field_gradient",
+    "gain_drift",
 )
 
 
@@ -258,6 +259,12 @@ def simulate_fourflip(
         tau = rng.uniform(200.0, 400.0)
         outputs = outputs + amp[None, :] * np.exp(-t / tau)[:, None]
         truth_effects.append({"name": "offset_drift", "parameters": {"amplitude": amp.tolist(), "tau_s": tau}})
+    if "gain_drift" in effects:  # the gains change linearly over the session (a room warming up)
+        rate = s * rng.choice([-1, 1], n_channels) * rng.uniform(0.003, 0.006, n_channels)
+        tau = (t - t.mean()) / (0.5 * np.ptp(t))
+        signal = outputs - channel_outputs(physics.with_(cubic=None), samples, np.zeros_like(x))
+        outputs = outputs + signal * rate[None, :] * tau[:, None]
+        truth_effects.append({"name": "gain_drift", "parameters": {"relative_change_per_half_session": rate.tolist()}})
 
     noise = noise_ut * gains_per_ut
     outputs = outputs + rng.normal(size=outputs.shape) * noise[None, :]

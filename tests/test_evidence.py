@@ -1,0 +1,92 @@
+"""The shared evidence loop revisits what it added: a form replaced once a later effect is in, an effect dropped."""
+
+import numpy as np
+import pytest
+
+from calibrate.diagnosis.evidence import EffectForm, FitRecord, _revisit, linearised_score, select_effects
+
+N = 500
+
+
+class _Column(EffectForm):
+    """A toy effect: columns added to a linear model's design."""
+
+    def columns(self, t, z):
+        return {"linear": [t], "quadratic": [t, t * t], "z": [z]}[self.form]
+
+
+LIN = _Column("trend", "linear", "a trend")
+QUAD = _Column("trend", "quadratic", "a curved trend")
+ZED = _Column("zed", "z", "the z column")
+
+
+def _problem(y, t, z):
+    def design(effects):
+        return np.column_stack([np.ones_like(t)] + [c for e in effects for c in e.columns(t, z)])
+
+    def weighted(x, effects):
+        return y - design(effects) @ x
+
+    def fit(effects, x0=None):
+        a = design(effects)
+        x, *_ = np.linalg.lstsq(a, y, rcond=None)
+        r = y - a @ x
+        return FitRecord(tuple(effects), x, -a, np.linalg.inv(a.T @ a), r, float(r @ r), N, True, "")
+
+    def score(current, effect):
+        n = len(effect.columns(t, z))
+        return linearised_score(weighted, current, effect, [np.zeros(n)], 1e-6)
+
+    def step(p, measured):
+        return {"added": p.effect.name, "form": p.effect.form, "delta_bic": p.gain, "residual_rms": 0.0,
+                "explained_share": 1.0}
+
+    def revisit(effects, pool):
+        """``_revisit`` of a model holding ``effects`` (as if added in that order)."""
+        steps = [{"model": "base"}] + [{"added": e.name, "form": e.form} for e in effects]
+        revisions = []
+        current, steps = _revisit(fit(effects), steps, pool, lambda c, e: fit(e), score,
+                                  lambda c, e, s: fit(c.effects + (e,)), lambda e: len(e.columns(t, z)), np.log(N),
+                                  step, revisions, lambda text: None)
+        return current, steps, revisions
+
+    def run(pool, revise=True):
+        return select_effects(fit(()), pool, score=score, refit=lambda c, e, s: fit(c.effects + (e,)),
+                              n_params=lambda e: len(e.columns(t, z)), log_n=np.log(N),
+                              base_step={"model": "base", "residual_rms": 0.0}, write_step=step,
+                              verdict=lambda f: (None, False), revise=(lambda c, e: fit(e)) if revise else None)
+
+    return run, revisit
+
+
+def test_a_form_is_replaced_once_a_later_effect_is_in():
+    """y = 10 t + 2 t^2 + 3 z with z = -2/3 t^2 + w: before z is in, t^2 cancels and the trend looks
+    linear; once z is in, the curvature shows and the quadratic form replaces the linear one."""
+    rng = np.random.default_rng(0)
+    t = np.linspace(-1.0, 1.0, N)
+    z = -2.0 / 3.0 * t * t + rng.normal(size=N)
+    y = 10 * t + 2 * t * t + 3 * z + rng.normal(size=N)
+    run, _ = _problem(y, t, z)
+    without = run([LIN, QUAD, ZED], revise=False)
+    assert [e.form for e in without.fit.effects] == ["linear", "z"]
+    chosen = run([LIN, QUAD, ZED])
+    assert [e.form for e in chosen.fit.effects] == ["z", "quadratic"]
+    assert [s.get("form") for s in chosen.steps] == [None, "z", "quadratic"]  # one step per effect, in order
+    assert len(chosen.revisions) == 1 and "replaced by trend (quadratic)" in chosen.revisions[0]
+    assert chosen.fit.x[-1] == pytest.approx(2.0, abs=0.3)
+
+
+def test_an_effect_that_no_longer_earns_its_place_is_dropped():
+    """y = 3 z with z = 4 t + w: a model holding the trend, then z, keeps z alone (the trend's evidence
+    with z in is below zero); one that needs both keeps both."""
+    rng = np.random.default_rng(1)
+    t = np.linspace(-1.0, 1.0, N)
+    z = 4.0 * t + 0.4 * rng.normal(size=N)
+    _, revisit = _problem(3 * z + rng.normal(size=N), t, z)
+    current, steps, revisions = revisit((LIN, ZED), [LIN, ZED])
+    assert [e.form for e in current.effects] == ["z"]
+    assert len(revisions) == 1 and "trend (linear) dropped" in revisions[0]
+    assert [s.get("form") for s in steps] == [None, "z"]
+    _, revisit = _problem(3 * z + 20 * t + rng.normal(size=N), t, z)
+    current, steps, revisions = revisit((LIN, ZED), [LIN, ZED])
+    assert [e.form for e in current.effects] == ["linear", "z"] and revisions == []
