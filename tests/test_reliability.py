@@ -345,8 +345,9 @@ def test_a_recording_in_another_scale_is_named_with_the_evidence(tmp_path, cal, 
 
 
 def test_a_calibration_with_no_usable_sensor_is_named_by_its_file(tmp_path, capsys):
+    """ArduPilot export said "sensing directions must be finite", naming nothing."""
     doc = copy.deepcopy(TUMBLE)
-    doc["soft_iron"] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1e-11]]  # in bounds, but singular for the model
+    doc["soft_iron"] = (1e308 * np.eye(3)).tolist()
     path = tmp_path / "cal.json"
     path.write_text(json.dumps(doc))
     assert main(["export", str(path), "--format", "ardupilot"]) == 2
