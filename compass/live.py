@@ -1,4 +1,4 @@
-"""The live pipeline: bytes from a port -> protocol lines -> field in H -> filter -> outputs.
+"""The live pipeline: bytes from a port -> stream lines -> field in H -> filter -> outputs.
 
 :class:`LiveSession` is what ``compass live`` runs, without the terminal: feed it the items of
 :meth:`compass.serial_reader.SerialReader.items` and it decodes, solves, filters and writes the
@@ -17,7 +17,7 @@ import numpy as np
 
 from .calibration import ImuCorrection
 from .filter import AttitudeFilter, Estimate, FilterConfig
-from .io.lines import LineDecoder
+from .io.streams import StreamDecoder, StreamOptions, field_scale_check
 from .sample_check import SKIP_REASONS, skip_codes
 from .serial_reader import Chunk, LinkEvent
 from .site import QuietSeed, upside_down
@@ -96,11 +96,14 @@ class LiveSession:
     sign_from_bench : bool
         The calibration is a four-flip bench's, whose data cannot tell the hemisphere: an upside-down
         verdict then names that cause (:func:`compass.site.upside_down`).
+    stream : compass.io.streams.StreamOptions, optional
+        The stream's format and units (default: found from the first lines, the protocol's units).
 
     Attributes
     ----------
-    decoder : LineDecoder
-        Its ``stats`` count samples and dropped lines.
+    decoder : compass.io.streams.StreamDecoder
+        Its ``stats`` count samples and dropped lines; its ``fatal`` says why the stream cannot be used
+        (channels missing, a field in another unit than the calibration's).
     estimate : Estimate or None
         The latest output.
     in_range : bool
@@ -135,7 +138,8 @@ class LiveSession:
     imu: ImuCorrection = field(default_factory=ImuCorrection)
     gyro_rad_s_per_unit: float = 1.0
     sign_from_bench: bool = True
-    decoder: LineDecoder = field(init=False)
+    stream: StreamOptions | None = None
+    decoder: StreamDecoder = field(init=False)
     turned_over: str | None = None
     estimate: Estimate | None = None
     in_range: bool = True
@@ -156,9 +160,10 @@ class LiveSession:
     _held: list = field(default_factory=list)
     _dips: list | None = None  # measured dips of the first estimates, against a given reference
     _bench_accel: bool | None = None  # the bench's offsets apply to this stream's unit; None: not judged yet
+    _last_rx: float = 0.0
 
     def __post_init__(self):
-        self.decoder = LineDecoder(self.model.channels)
+        self.decoder = StreamDecoder(self.model.channels, self.stream, field_check=field_scale_check(self.model))
         if self.config is None:
             self.config = FilterConfig.from_model(self.model)
         if self.reference is not None:  # the user's reference: check it is not the calibration's field turned over
@@ -192,7 +197,8 @@ class LiveSession:
             return
         if self._t0 is None:
             self._t0 = item.t_rx
-        samples = self.decoder.feed(item.data)
+        self._last_rx = item.t_rx
+        samples = self.decoder.feed(item.data, item.t_rx)
         if samples:
             self._chunk(samples, item.t_rx)
         if self.decoder.events:
@@ -218,7 +224,8 @@ class LiveSession:
                 gyro = per_unit * gyro
             accel = None if accel is None else imu.apply(accel, bench=bench)
             gyro = None if gyro is None else imu.rotate(gyro)
-            readings.append(Reading(sample, accel, gyro, fields[k], field_rows[k], in_range[k], t_rx))
+            readings.append(Reading(sample, accel, gyro, fields[k], field_rows[k], in_range[k],
+                                    t_rx if sample.t_rx is None else sample.t_rx))  # its arrival, if the decoder held it
         codes = self._seed_codes(readings, fields) if self._seed is not None else None
         for k, reading in enumerate(readings):
             if self._seed is not None and reading.sample.header.accel is not None:
@@ -335,6 +342,7 @@ class LiveSession:
                         f"field rejected ({est.gate}): |B| ratio {est.field_ratio:.3f}, dip {est.dip_deg:.1f} deg")
             self._gate = est.gate
         latency = time.perf_counter() - t_rx
+        held = held or sample.t_rx is not None  # held back by the decoder (its unit check)
         if not held:  # samples held for the reference waited for it: out of the percentiles
             self.latencies_s.append(latency)
         true = None if self._declination is None else self.true_heading()
@@ -376,7 +384,7 @@ class LiveSession:
     def readout(self, rate_hz: float) -> str:
         """The one-line live readout."""
         stats = self.decoder.stats
-        tail = f"{rate_hz:6.1f} Hz  dropped {stats.dropped}"
+        tail = f"{rate_hz:6.1f} Hz  dropped {stats.dropped}  [{self.decoder.describe()}]"
         est = self.estimate
         if est is None:
             what = "the first quiet second (the site's field)" if self._seed is not None and self._held else "samples"
@@ -415,6 +423,11 @@ class LiveSession:
         A stream that ended before its first quiet second has its held samples solved against the
         reference their rows give (:meth:`compass.site.QuietSeed.finish`), if ten of them do.
         """
+        samples = self.decoder.flush()  # held for the unit check: judged on what came
+        if samples:
+            self._chunk(samples, self._last_rx)
+        for level, text in self.decoder.drain_events():
+            self._event(level, text)
         if self._seed is not None and self._held:
             reference = self._seed.finish()
             if reference is not None:

@@ -164,7 +164,7 @@ def test_evaluate_cli_end_to_end(tmp_path, capsys):
     assert "BROAD metric" in out and "offset kept" in out and "removed" in out
     heading = float(out.split("heading RMS ")[1].split()[0])
     inclination = float(out.split("inclination RMS ")[1].split()[0])
-    assert heading < 10.0 and inclination < 5.0  # without the step tracker this trial is far off (see README)
+    assert heading < 10.0 and inclination < 5.0  # without the step tracker this trial is far off (see docs/benchmarks.md, table 1)
     step = out.split("hard-iron steps: ")[1].splitlines()[0]
     z = float(step.split("(")[1].split(")")[0].split(",")[2])
     assert 45 < z < 70  # the magnet's field along body z, about 58 uT from the reference

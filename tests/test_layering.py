@@ -1,4 +1,4 @@
-"""The layering the README states, read from the imports.
+"""The layering docs/architecture.md states, read from the imports.
 
 Data flows one way: recordings -> ``calibrate`` -> calibration file -> ``compass`` -> attitude.
 ``compass`` (the runtime) never imports ``calibrate``; the one exception is the command-line layer

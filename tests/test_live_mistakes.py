@@ -4,6 +4,7 @@ import json
 import socket
 import threading
 
+import numpy as np
 import pytest
 
 from compass.cli import main
@@ -106,3 +107,25 @@ def test_evaluate_refuses_a_bench_calibration(tmp_path, capsys):
     assert main(["evaluate", str(trial), "--cal", str(bench)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(bench) in err and "tumble calibration" in err
+
+
+def test_a_module_sending_mg_to_a_calibration_in_ut_is_said_with_the_factor_not_taken(tmp_path, monkeypatch, capsys):
+    """The field is judged on the first samples before any is used (it used to seed a 10x reference)."""
+    from compass.sim.device import simulate_device
+    from compass.sim.stream_formats import board_model
+
+    model = board_model()
+    cal = tmp_path / "board.json"
+    cal.write_text(json.dumps(model_to_dict(model)))
+    s = simulate_device(model, np.arange(300) / 100.0, seed=2)
+    rows = b"".join(b"%.2f,%.2f,%.2f,%.5f,%.5f,%.5f\r\n" % (*(10.0 * m), *a) for m, a in zip(s.raw, s.accel))
+    att = tmp_path / "att.csv"
+    status, alive, errors = _live_on_socket(monkeypatch, b"mx,my,mz,ax,ay,az\r\n" + rows, cal, "--duration", "20",
+                                            "--out", str(att))
+    err = capsys.readouterr().err
+    assert status == 2 and not alive and not errors
+    assert len(err.strip().splitlines()) == 1 and "mG taken as uT" in err and "--mag-unit" in err and str(cal) in err
+    assert not att.exists()  # nothing was taken
+    status, _, _ = _live_on_socket(monkeypatch, b"mx,my,mz,ax,ay,az\r\n" + rows, cal, "--duration", "3",
+                                   "--mag-unit", "mG")
+    assert status == 0

@@ -10,7 +10,8 @@ channel noise ``--noise-ut``, accelerometer noise ``--accel-noise-g`` per axis) 
   printed beside the RMS of the propagated 1-sigma (``predicted``; ``ratio`` = error/predicted);
 - ``patent``: the same solver and data with the patent-mode calibration (its error is dominated
   by the seed's half-angle rule, which reverses a channel with a negative X component, e.g. a Y
-  channel tilted slightly backwards; see README, and by its dip and narrow tabulated range);
+  channel tilted slightly backwards; see docs/calibration.md, "Seed corrections"; and by its dip and
+  narrow tabulated range);
 - ``ahrs TRIAD``: the peer (``pip install ahrs``, a benchmark extra), fed the accelerometer and
   the ml calibration's field vectors, with the same references (``--peer-n`` samples: it loops
   in Python).

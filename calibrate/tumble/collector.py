@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from compass.io.atomic import atomic_write_text
-from compass.io.lines import LineDecoder
+from compass.io.streams import StreamDecoder
 
 from .coverage import sphere_coverage
 from .ellipsoid import fit_ellipsoid
@@ -36,23 +36,26 @@ class TumbleCollector:
     min_coverage : float
         Fraction of the sphere's cells that must hold a sample (with every half-axis seen) for
         :attr:`enough`.
+    stream : compass.io.streams.StreamOptions, optional
+        The stream's format and units (default: found from the first lines).
 
     Attributes
     ----------
-    decoder : compass.io.lines.LineDecoder
+    decoder : compass.io.streams.StreamDecoder
     coverage : Coverage or None
         Of the latest :meth:`update`.
     fit : EllipsoidFit or None
         The latest ellipsoid fit (hard iron, its sigma).
     """
 
-    def __init__(self, *, min_coverage: float = 0.8):
+    def __init__(self, *, min_coverage: float = 0.8, stream=None):
         self.min_coverage = min_coverage
-        self.decoder = LineDecoder(CHANNELS)
+        self.decoder = StreamDecoder(CHANNELS, stream)
         self.rows: list[tuple] = []
         self.coverage = None
         self.fit = None
         self._t0 = None
+        self._last_rx = 0.0
 
     def feed(self, item) -> list:
         """Take one item of :meth:`SerialReader.items`; returns the decoder's events (level, text)."""
@@ -64,11 +67,21 @@ class TumbleCollector:
             return [("warn" if item.kind == "disconnected" else "info", item.message)]
         if self._t0 is None:
             self._t0 = item.t_rx
-        for s in self.decoder.feed(item.data):
-            t_s = s.t_s if s.t_s is not None else item.t_rx - self._t0
+        self._last_rx = item.t_rx
+        self._add(self.decoder.feed(item.data, item.t_rx), item.t_rx)
+        return self.decoder.drain_events() if self.decoder.events else []
+
+    def finish(self) -> list:
+        """At the end of the stream: the samples the decoder still held; returns its events."""
+        if self._t0 is not None:
+            self._add(self.decoder.flush(), self._last_rx)
+        return self.decoder.drain_events()
+
+    def _add(self, samples: list, t_rx: float) -> None:
+        for s in samples:
+            t_s = s.t_s if s.t_s is not None else (t_rx if s.t_rx is None else s.t_rx) - self._t0
             self.rows.append((t_s, *s.raw, *(s.accel if s.accel is not None else (np.nan,) * 3),
                               np.nan if s.temp_c is None else s.temp_c))
-        return self.decoder.drain_events() if self.decoder.events else []
 
     @property
     def samples(self) -> np.ndarray:
@@ -97,7 +110,8 @@ class TumbleCollector:
         """One line for the terminal: samples, coverage, the axes never along the field, the hard iron."""
         n = len(self.rows)
         if self.coverage is None:
-            return f"tumble: {n} samples; turn the module slowly through every orientation"
+            return (f"tumble: {n} samples; turn the module slowly through every orientation  "
+                    f"[{self.decoder.describe()}]")
         c, fit = self.coverage, self.fit
         text = (f"tumble: {n} samples, {100 * c.fraction:.0f} % of the sphere covered "
                 f"(need {100 * self.min_coverage:.0f} %)")
@@ -106,7 +120,7 @@ class TumbleCollector:
         if fit is not None:
             text += ("; hard iron " + ", ".join(f"{h:.4g}" for h in fit.hard_iron)
                      + " +- " + ", ".join(f"{s:.2g}" for s in fit.hard_iron_sigma))
-        return text
+        return text + f"  [{self.decoder.describe()}]"
 
     def write_recording(self, path) -> Path:
         """The samples as a tumble recording (SPEC section 2): accelerometer and temp_c columns when

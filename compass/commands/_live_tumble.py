@@ -1,8 +1,9 @@
 """``compass live --port P --calibrate tumble --out CAL.json``: a free-motion calibration while you
 turn the module, in the style of MotionCal.
 
-The module's samples (line protocol, ``mx,my,mz`` and optionally ``ax,ay,az``, ``t_s``, ``temp_c``)
-are collected while the readout (and, with ``--rerun``, the viewer) shows the coverage growing, the
+The module's samples (any stream :mod:`compass.io.streams` reads: our line protocol, MotionCal's
+``Raw:``/``Uni:`` lines, bare numbers with ``--columns``; ``mx,my,mz`` and optionally ``ax,ay,az``,
+``t_s``, ``temp_c``; a field unit named or fixed by the format is converted to uT) are collected while the readout (and, with ``--rerun``, the viewer) shows the coverage growing, the
 ellipsoid fit's hard iron converging and, in words, the orientations still missing. When every
 half-axis has been along the field and ``--min-coverage`` of the sphere's cells hold a sample (or on
 Ctrl-C, or after ``--duration``), the samples are written as a tumble recording beside the
@@ -33,12 +34,13 @@ def run_tumble(args) -> int:
     from ..serial_reader import PortUnavailable
     from ..viz import check_rerun_target
     from . import calibrate as calibrate_cmd
-    from ._port import open_reader, port_unavailable, stop_when_asked
+    from ._port import open_reader, port_unavailable, stop_when_asked, stream_options
 
     if args.out is None:
         raise BadInput("--calibrate tumble needs --out CAL.json (the calibration to write)")
     if args.cal is not None:
         raise BadInput("--calibrate tumble calibrates the module from scratch: leave out --cal")
+    stream = stream_options(args)
     reader = open_reader(args)
     out = check_writable(args.out, args.force)
     recording = check_writable(recording_path(out), args.force)
@@ -49,13 +51,16 @@ def run_tumble(args) -> int:
 
         view = LiveTumbleRecording(target)
 
-    collector = TumbleCollector(min_coverage=args.min_coverage)
+    collector = TumbleCollector(min_coverage=args.min_coverage, stream=stream)
     last, said, result, port_error = time.perf_counter(), None, None, None
     try:
         with stop_when_asked(args.duration) as stop:
             for item in reader.items(stop):
                 for level, text in collector.feed(item):
                     _say(args, view, collector, f"[{level}] {text}")
+                if collector.decoder.fatal is not None:
+                    port_error = BadInput(f"{args.port}: {collector.decoder.fatal}")
+                    break
                 now = time.perf_counter()
                 if now - last >= 1.0:
                     last = now
@@ -73,6 +78,8 @@ def run_tumble(args) -> int:
         port_error = port_unavailable(exc)
     finally:
         reader.close()
+        for level, text in collector.finish():
+            _say(args, view, collector, f"[{level}] {text}")
         try:
             if port_error is not None:  # said as the port's fault, not as too few samples
                 raise port_error

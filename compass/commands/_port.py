@@ -1,4 +1,5 @@
-"""The serial port of ``compass live`` (and its live tumble calibration): open it, stop on Ctrl-C or a time."""
+"""The serial port of ``compass live`` (and its live tumble calibration): open it, say what its stream is, stop on
+Ctrl-C or a time."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ import contextlib
 import signal
 import threading
 
-__all__ = ["open_reader", "port_unavailable", "stop_when_asked"]
+__all__ = ["open_reader", "port_unavailable", "stop_when_asked", "stream_options"]
 
 
 def open_reader(args):
@@ -55,3 +56,15 @@ def stop_when_asked(duration_s: float | None):
             timer.cancel()
         for sig, handler_before in previous.items():
             signal.signal(sig, handler_before)
+
+
+def stream_options(args):
+    """The stream's :class:`compass.io.streams.StreamOptions` from ``--format``, ``--columns``, ``--*-unit``;
+    BadInput for options that contradict each other."""
+    from ..cli import BadInput
+    from ..io.stream_options import StreamOptions
+
+    try:
+        return StreamOptions.from_args(args)
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None

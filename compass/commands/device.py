@@ -1,7 +1,8 @@
 """``compass device --pty``: a simulated compass module streaming on a pseudo-terminal.
 
-Prints the device path, then streams the line protocol from the forward model with scripted
-motion (:mod:`compass.sim.device`) until Ctrl-C or ``--duration``.  Line noise and a disconnect
+Prints the device path, then streams the line protocol (or, with ``--format``, MotionCal's lines or
+bare numbers: :mod:`compass.sim.stream_formats`) from the forward model with scripted motion
+(:mod:`compass.sim.device`) until Ctrl-C or ``--duration``.  Line noise and a disconnect
 can be injected to exercise a receiver.
 """
 
@@ -12,6 +13,9 @@ import signal
 import threading
 
 from .. import limits
+
+
+DEVICE_FORMATS = ("compass", "motioncal", "motioncal-raw", "csv")  # compass.sim.stream_formats, not imported at start
 
 
 def register(sub) -> None:
@@ -27,6 +31,11 @@ def register(sub) -> None:
                    default=100.0, help="samples per second (default 100)")
     p.add_argument("--seed", type=limits.SEED.option("--seed"), default=0, help="noise seed (default 0)")
     p.add_argument("--no-gyro", action="store_true", help="send no gx,gy,gz columns")
+    p.add_argument("--format", choices=DEVICE_FORMATS, default="compass",
+                   help="compass: the line protocol (default); motioncal: a MotionCal sketch as Adafruit's (Raw: and "
+                        "Uni: lines, Cal1:/Cal2: echoes, takes the 68-byte calibration packet); motioncal-raw: as "
+                        "PJRC's (Raw: only); csv: bare numbers t_s ax ay az gx gy gz mx my mz. Without --cal these "
+                        "carry a magnetometer in uT")
     p.add_argument("--motion", choices=("script", "tumble"), default="script",
                    help="script: the 40 s attitude script with a magnet (default); tumble: every orientation, for "
                         "a free-motion calibration (compass live --calibrate tumble)")
@@ -49,6 +58,7 @@ def run(args) -> int:
     from ..calibration import load, model_to_dict, save
     from ..cli import BadInput
     from ..sim.device import MOTIONS, PtyDevice, default_model
+    from ..sim.stream_formats import board_model
 
     imu_from_model = None
     if args.cal is not None:
@@ -62,14 +72,14 @@ def run(args) -> int:
         if model.dip_deg is None:
             raise BadInput(f"{args.cal}: the calibration has no dip_deg: the module cannot simulate its field")
     else:
-        model = default_model()
+        model = default_model() if args.format == "compass" else board_model()
     if args.link is not None and os.path.lexists(args.link) and not os.path.islink(args.link):
         raise BadInput(f"--link {args.link}: exists and is not a symbolic link; it would be replaced")
     try:
         device = PtyDevice(model, rate_hz=args.rate, seed=args.seed, link=args.link, garbage_rate=args.garbage,
                            truncate_rate=args.truncate, disconnect_at_s=args.disconnect_at,
                            disconnect_for_s=args.disconnect_for, gyro=not args.no_gyro, motion=MOTIONS[args.motion],
-                           imu_from_model=imu_from_model,
+                           imu_from_model=imu_from_model, fmt=args.format,
                            on_path=lambda path: print(args.link or path, flush=True))
     except ValueError as exc:
         raise BadInput(str(exc)) from None
@@ -85,5 +95,6 @@ def run(args) -> int:
     c = device.counts
     print(f"compass device: sent {c['samples']} samples; injected {c['garbage']} garbage and {c['truncated']} "
           f"truncated lines, {c['disconnects']} disconnect(s); {c['overflow']} lines refused by the pty (nobody "
-          f"reading)", flush=True)
+          f"reading)" + (f"; {c['packets']} calibration packet(s) taken" if args.format.startswith("motioncal") else ""),
+          flush=True)
     return 0

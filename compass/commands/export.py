@@ -1,4 +1,7 @@
-"""``compass export CAL.json --format fusion|ardupilot``: a calibration in firmware terms.
+"""``compass export CAL.json --format fusion|ardupilot|motioncal``: a calibration in firmware terms.
+
+``motioncal`` (the 68-byte packet the PJRC/Adafruit sketches store, written or sent to a port) is
+:mod:`compass.commands._export_motioncal`.
 
 A tumble calibration, or any three linear channels of the channel form (a bench calibration, an
 installed one: :func:`channel_form`), as a matrix and an offset from raw counts to the field in H.
@@ -27,24 +30,46 @@ from ..io.units import EARTH_FIELD_UT, MAG_UNITS
 
 __all__ = ["register", "export_text", "load_tumble", "channel_form", "unit_note"]
 
-FORMATS = ("fusion", "ardupilot")
+FORMATS = ("fusion", "ardupilot", "motioncal")
 _UNITS = {"uT": "uT", "nT": "nT", "gauss": "G", "mgauss": "mG"}
 """``--unit`` spellings -> :data:`compass.io.units.MAG_UNITS` (their factors to uT)."""
 
 
 def register(sub) -> None:
-    p = sub.add_parser("export", help="write a calibration as firmware parameters (x-io Fusion, ArduPilot)")
+    p = sub.add_parser("export", help="write a calibration as firmware parameters (x-io Fusion, ArduPilot) or send "
+                                      "it to a MotionCal sketch")
     p.add_argument("calibration", help="calibration JSON written by 'compass calibrate': tumble, or three linear "
                                        "channels (bench, installed)")
-    p.add_argument("--format", required=True, choices=FORMATS, help="fusion: C initialisers; ardupilot: .param lines")
+    p.add_argument("--format", required=True, choices=FORMATS,
+                   help="fusion: C initialisers; ardupilot: .param lines; motioncal: the 68-byte packet MotionCal "
+                        "sends (to --out, or to the device on --port)")
     p.add_argument("--unit", choices=tuple(_UNITS), default="uT",
                    help="unit of the recording's mx,my,mz (ardupilot offsets are in milligauss; default uT)")
     p.add_argument("--out", default=None, help="file to write (default: print)")
     p.add_argument("--force", action="store_true", help="overwrite --out")
+    m = p.add_argument_group("motioncal")
+    m.add_argument("--port", help="send the packet to the device on this serial port (pyserial URL) and read back its "
+                                  "Cal1:/Cal2: echo")
+    m.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
+    m.add_argument("--wait", type=float, default=5.0, metavar="S",
+                   help="how long to wait for the device's echo of the values sent (default 5 s)")
+    m.add_argument("--max-rotation-deg", type=float, default=1.0,
+                   help="largest rotation between the field and the accelerometer left out of the packet, which "
+                        "cannot hold one (default 1 deg); a larger one is refused")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    from ..cli import BadInput
+
+    if args.format == "motioncal":
+        from ._export_motioncal import run_motioncal
+
+        if not args.wait > 0 or not args.max_rotation_deg >= 0:
+            raise BadInput("--wait must be positive and --max-rotation-deg zero or positive")
+        return run_motioncal(args)
+    if args.port:
+        raise BadInput(f"--port sends a MotionCal packet: use --format motioncal (not {args.format})")
     cal = load_tumble(args.calibration)
     note = unit_note(cal, args.unit)
     if note:

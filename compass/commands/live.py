@@ -1,6 +1,7 @@
 """``compass live --port PORT_OR_URL --cal CAL.json``: live heading, pitch and roll from a module.
 
-Reads the line protocol (:mod:`compass.io.lines`) from a serial port or pyserial URL, filters
+Reads the module's stream (:mod:`compass.io.streams`: our line protocol, MotionCal's lines, bare
+numbers) from a serial port or pyserial URL, filters
 (:mod:`compass.filter`), prints a one-line readout and optionally records the attitude CSV and a
 Rerun recording.  Ctrl-C (or SIGTERM, or ``--duration``) ends it cleanly: files flushed, summary
 with the dropped-line count printed.
@@ -14,15 +15,16 @@ import time
 
 from .. import limits
 from ..limits import Range
+from ..io.stream_options import add_stream_arguments
 from ..viz import add_rerun_option, check_rerun_target
-from ._port import open_reader, port_unavailable, stop_when_asked
+from ._port import open_reader, port_unavailable, stop_when_asked, stream_options
 
 
 def register(sub) -> None:
     p = sub.add_parser(
         "live", help="live attitude from a compass module on a serial port (Kalman filter, optional Rerun)",
-        description="Read a compass module speaking the line protocol (README: 'Live attitude'), fuse with a Kalman "
-                    "filter that rejects magnetic disturbances, and show heading/pitch/roll live.")
+        description="Read a compass module speaking the line protocol (docs/runtime.md: 'Line protocol'), fuse "
+                    "with a Kalman filter that rejects magnetic disturbances, and show heading/pitch/roll live.")
     p.add_argument("--port", required=True,
                    help="serial device (/dev/ttyUSB0, COM3) or pyserial URL (socket://host:port, rfc2217://...)")
     p.add_argument("--cal", help="calibration JSON (compass calibrate) of the module's sensor (required unless "
@@ -35,9 +37,6 @@ def register(sub) -> None:
                    help="where the module is (degrees, metres): reference field and true north from the World "
                         "Magnetic Model (default: the field of the first quiet second, magnetic heading only)")
     p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day (default today, UTC)")
-    p.add_argument("--gyro-unit", choices=("rad/s", "deg/s"), default="rad/s",
-                   help="unit of the module's gx,gy,gz (default rad/s, the line protocol's); a gyro in deg/s "
-                        "taken as rad/s turns the attitude 57 times too fast")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.add_argument("--duration", type=limits.DURATION_S.option("--duration"),
                    help="stop after this many seconds (default: until Ctrl-C)")
@@ -51,6 +50,7 @@ def register(sub) -> None:
     p.add_argument("--min-coverage", type=Range(0.0, 1.0, lo_open=True).option("--min-coverage"), default=0.8,
                    help="--calibrate tumble: fraction of the sphere to cover, with every axis along the field once "
                         "(default 0.8)")
+    add_stream_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -58,7 +58,6 @@ def run(args) -> int:
     from ..cli import BadInput
     from ..filter import FilterConfig
     from ..io.atomic import atomic_stream, check_writable
-    from ..io.units import GYRO_UNITS
     from ..live import LiveSession
     from ..calibration import load
 
@@ -75,6 +74,7 @@ def run(args) -> int:
     except ValueError as exc:
         raise BadInput(f"{args.cal}: {exc}" if args.cal not in str(exc) else str(exc)) from None
     reference = _site_reference(args, model)
+    stream = stream_options(args)
     reader = open_reader(args)
     out_path = None if args.out is None else check_writable(args.out, args.force)
     check_rerun_target(args.rerun, args.force)
@@ -99,7 +99,7 @@ def run(args) -> int:
             if out_path is not None:
                 out = outputs.enter_context(atomic_stream(out_path, keep=lambda: _recorded(session)))
             session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event, reference=reference,
-                                  imu=cal.imu, gyro_rad_s_per_unit=GYRO_UNITS[args.gyro_unit],
+                                  imu=cal.imu, stream=stream,
                                   sign_from_bench=cal.provenance.hemisphere_assumed)
             _run_session(args, reader, session, out, tty, every_s)
             if session.turned_over is not None:  # judged on close: a stream shorter than the check
@@ -146,10 +146,8 @@ def _run_session(args, reader, session, out, tty: bool, every_s: float) -> None:
                 session.feed(item)
                 if session.turned_over is not None:
                     raise BadInput(f"{args.cal}: {session.turned_over}")
-                mismatch = session.decoder.mismatch
-                if mismatch is not None:
-                    raise BadInput(f"{args.port}: the module's header {','.join(mismatch[0])} lacks the calibration's "
-                                   f"channel(s) {','.join(mismatch[1])} ({args.cal}): is it the right calibration?")
+                if session.decoder.fatal is not None:
+                    raise BadInput(f"{args.port}: {session.decoder.fatal} ({args.cal}): is it the right calibration?")
                 now = time.perf_counter()
                 if now - last >= every_s:
                     rate = (session.decoder.stats.samples - last_count) / (now - last)

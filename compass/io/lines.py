@@ -1,4 +1,4 @@
-"""The ASCII line protocol of a compass module on a serial line (README, "Live attitude").
+"""The ASCII line protocol of a compass module on a serial line (docs/runtime.md, "Line protocol").
 
 A module sends text lines; ``\\n``, ``\\r\\n`` and a lone ``\\r`` all end a line, and spaces
 around cells are ignored.
@@ -138,6 +138,9 @@ class Sample:
     header : Header or None
         The header the line was decoded under (a chunk is decoded whole, so the decoder's current
         header may already be a later one).
+    t_rx : float or None
+        When its bytes arrived (s, the reader's clock), for a sample a decoder held back before handing it
+        out (:class:`compass.io.streams.StreamDecoder`); None: it arrived with the chunk it comes out of.
     """
 
     raw: np.ndarray
@@ -147,6 +150,7 @@ class Sample:
     seq: int | None = None
     temp_c: float | None = None
     header: Header | None = None
+    t_rx: float | None = None
 
 
 @dataclass

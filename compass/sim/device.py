@@ -17,6 +17,9 @@ The motion script (:func:`scripted_motion`) repeats every 40 s:
 32-40  turn back to heading 30 (390), level
 ====== ==============================================================
 
+Other stream formats (``fmt``: MotionCal's ``Raw:``/``Uni:`` lines, bare numbers) and the
+calibration packet a MotionCal board receives are in :mod:`compass.sim.stream_formats`.
+
 The magnet adds ``(0, 0.3, 0.15) |B|`` in the NWU world frame: |B| grows about 8 %, the dip drops
 about 9 degrees at a 60-degree site, and an unprotected heading turns by up to 30 degrees.
 """
@@ -36,8 +39,10 @@ from scipy.spatial.transform import Rotation
 
 from ..frames import r_world_from_housing, world_field
 from ..io.lines import format_line
+from ..io.motioncal import cal_lines as mc_cal_lines
 from ..model import SensorModel
 from ..response import LinearResponse
+from . import stream_formats
 
 __all__ = ["DeviceSamples", "PtyDevice", "default_model", "scripted_motion", "tumble_motion", "simulate_device",
            "MAGNET_PERIOD_S", "MOTIONS"]
@@ -217,6 +222,10 @@ class PtyDevice:
         (default) or :func:`tumble_motion`.
     imu_from_model : ndarray, shape (3, 3), optional
         The accelerometer's and gyro's frame against the model's (see :func:`simulate_device`).
+    fmt : str
+        One of :data:`compass.sim.stream_formats.DEVICE_FORMATS`: ``compass`` (the line protocol),
+        ``motioncal`` / ``motioncal-raw`` (a MotionCal sketch: its field must be in uT, and it takes
+        the calibration packet the host writes, echoing what it stores), ``csv`` (bare numbers).
 
     Attributes
     ----------
@@ -224,7 +233,9 @@ class PtyDevice:
         The current pty (slave) path, once :meth:`open` ran.
     counts : dict
         ``samples``, ``garbage``, ``truncated``, ``overflow`` (lines the pty refused because no
-        one read them), ``disconnects``.
+        one read them), ``disconnects``, ``packets`` (calibration packets accepted).
+    receiver : compass.sim.stream_formats.PacketReceiver
+        The MotionCal formats' calibration store.
     """
 
     model: SensorModel
@@ -238,11 +249,14 @@ class PtyDevice:
     gyro: bool = True
     motion: object = scripted_motion
     imu_from_model: object = None
+    fmt: str = "compass"
     path: str | None = None
     counts: dict = field(default_factory=lambda: dict.fromkeys(
-        ("samples", "garbage", "truncated", "overflow", "disconnects"), 0))
+        ("samples", "garbage", "truncated", "overflow", "disconnects", "packets"), 0))
+    receiver: stream_formats.PacketReceiver = field(default_factory=stream_formats.PacketReceiver)
     on_path: object = None
     _fds: tuple = ()
+    _echo_in: int = stream_formats.ECHO_EVERY  # samples until the next Cal1:/Cal2: echo
 
     def __post_init__(self):
         if not self.rate_hz > 0:
@@ -250,8 +264,15 @@ class PtyDevice:
         for name in ("garbage_rate", "truncate_rate"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+        if self.fmt not in stream_formats.DEVICE_FORMATS:
+            raise ValueError(f"format must be one of {', '.join(stream_formats.DEVICE_FORMATS)}, got {self.fmt!r}")
+        if self.fmt != "compass" and not self.gyro:
+            raise ValueError(f"a {self.fmt} stream always carries the gyro")
+        if self.fmt.startswith("motioncal") and not abs(stream_formats.outputs_per_ut(self.model) - 1.0) < 0.3:
+            raise ValueError("MotionCal lines carry the field in uT: this sensor's outputs are not in uT "
+                             f"({stream_formats.outputs_per_ut(self.model):.3g} output units per uT)")
         columns = ["t_s", "seq", *self.model.channels, "ax", "ay", "az"] + (["gx", "gy", "gz"] if self.gyro else [])
-        self._header = format_line(columns)
+        self._header = format_line(columns) if self.fmt == "compass" else b""
 
     def open(self) -> str:
         """Create the pty (and the link); return its path."""
@@ -314,7 +335,7 @@ class PtyDevice:
                         skip_until = time.perf_counter() - start
                         next_header = skip_until
                         continue
-                    if t_i >= next_header:
+                    if t_i >= next_header and self._header:
                         self._write(self._header)
                         next_header = t_i + _HEADER_EVERY_S
                     if self.garbage_rate and rng.random() < self.garbage_rate:
@@ -322,9 +343,12 @@ class PtyDevice:
                         self._write(_garbage(rng))
                     if self.truncate_rate and rng.random() < self.truncate_rate:
                         self.counts["truncated"] += 1
-                        line = line[: int(rng.integers(1, line.rindex(b",")))] + b"\r\n"
+                        last_cell = max(line.rfind(b","), line.rfind(b" "))  # comma or space separated
+                        line = line[: int(rng.integers(1, last_cell))] + b"\r\n"
                     self._write(line)
                     self.counts["samples"] += 1
+                    if self.fmt.startswith("motioncal"):
+                        self._motioncal_host()
                 sent += len(t)
         finally:
             if self._fds:
@@ -344,7 +368,24 @@ class PtyDevice:
         if written < len(data):
             self.counts["overflow"] += 1
 
+    def _motioncal_host(self) -> None:
+        """Take what the host wrote (a calibration packet) and echo the stored calibration now and then."""
+        try:
+            data = os.read(self._fds[0], 4096)
+        except (BlockingIOError, OSError):
+            data = b""
+        if data and self.receiver.feed(data):
+            self.counts["packets"] += 1
+            self._write(b"Wrote calibration\r\n")  # what Adafruit's sketch says (a line no decoder reads)
+            self._echo_in = 0
+        self._echo_in -= 1
+        if self._echo_in < 0:
+            self._write(mc_cal_lines(self.receiver.stored))
+            self._echo_in = stream_formats.ECHO_EVERY
+
     def _lines(self, s: DeviceSamples, first_seq: int) -> list[bytes]:
+        if self.fmt != "compass":
+            return stream_formats.sample_lines(self.fmt, s.t_s, s.raw, s.accel, s.gyro)
         rows = np.column_stack([s.raw, s.accel] + ([s.gyro] if self.gyro else []))
         n_raw = s.raw.shape[1]
         fmt = ",".join(["%.7g"] * n_raw + ["%.5f"] * (rows.shape[1] - n_raw))

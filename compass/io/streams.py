@@ -1,0 +1,400 @@
+"""One decoder for every command that reads a module's stream: its format, its units, their checks.
+
+``compass live``, ``live --calibrate tumble`` and ``compass bench`` read a port through
+:class:`StreamDecoder`, which speaks three formats (``--format``):
+
+- ``compass``: the toolkit's line protocol, a header naming the columns (:mod:`compass.io.lines`);
+- ``motioncal``: the ``Raw:``/``Uni:`` lines the PJRC and Adafruit calibration sketches print for
+  MotionCal (:mod:`compass.io.motioncal`, :class:`compass.io.fixed_lines.MotionCalDecoder`);
+- ``csv``: bare numbers without a header, their cells named by ``--columns``
+  (:class:`compass.io.fixed_lines.CsvDecoder`);
+
+and ``auto`` (the default) tells them apart from the first lines: ``Raw:``, ``Uni:``, ``Cal1:`` or
+``Cal2:`` is MotionCal, a line naming protocol columns is ours, and bare numbers with no header in
+the first seconds are a CSV that needs ``--columns`` (said, the session ends).  ``--columns`` alone
+means ``csv``.  The format found is stated as an event and in :meth:`StreamDecoder.describe`.
+
+Units
+-----
+A unit named for the stream (``--mag-unit``, ``--accel-unit``, ``--gyro-unit``, the same names as
+the file readers', :mod:`compass.io.units`) is converted as the file readers convert a recording's:
+field to uT, accelerometer to g, gyro to rad/s.  MotionCal's units are fixed by its format (uT, g,
+rad/s after its scaling), so naming them is refused.  Unnamed, our protocol's and a CSV's field is in
+the calibration's output unit, the accelerometer in any unit, the gyro in rad/s (SPEC).
+
+Checks, like the file readers' (a check never changes the data):
+
+- the field against the calibration (``field_check``, :func:`field_scale_check`): the first
+  :data:`JUDGE_SAMPLES` samples are held until the calibration's field of them has the calibration's
+  |B|, or differs from it by a unit's factor (a stream in mG against a calibration in uT reads ten
+  times too strong): then :attr:`StreamDecoder.fatal` says so with the factor, and nothing is handed
+  out (the command exits 2; a reference seeded from such samples made the heading go wrong silently);
+- an accelerometer whose unit is known reads about 1 g at rest (a warning event otherwise);
+- the gyro turns as much as the accelerometer sees the housing tilt (:func:`compass.io.units.gyro_turn_ratio`:
+  a deg/s gyro read as rad/s turns 57 times too much; a warning event), judged on the first 10 s window
+  in which the housing tilts, within the first minute.
+
+The decoder interface
+---------------------
+Every decoder here (the facade and the three it wraps) has ``feed(bytes) -> list[Sample]``,
+``resync()``, ``stats`` (:class:`compass.io.lines.LineStats`), ``header`` (the
+:class:`compass.io.lines.Header` the samples carry), ``mismatch``, ``events`` and ``drain_events()``;
+the facade adds ``feed(bytes, t_rx)``, ``flush()`` (end of stream), ``fatal``, ``format`` and
+``describe()``.  Samples are :class:`compass.io.lines.Sample`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from . import units
+from .fixed_lines import CsvDecoder, MotionCalDecoder
+from .lines import _GROUPS, _SCALARS, LineDecoder, LineStats, Sample
+from .stream_options import EXAMPLE_COLUMNS, FORMATS, StreamOptions, add_stream_arguments
+
+__all__ = ["FORMATS", "JUDGE_SAMPLES", "StreamOptions", "StreamDecoder", "field_scale_check",
+           "add_stream_arguments"]
+
+JUDGE_SAMPLES = 25
+"""Samples held while the field's unit is judged against the calibration (a quarter second at 100 Hz)."""
+_MOTIONCAL_TAGS = ("Raw:", "Uni:", "Cal1:", "Cal2:")
+_AUTO_WAIT_S = 3.0  # bare numbers for this long without a header: a CSV without --columns
+_AUTO_WAIT_LINES = 500  # the same when no receive time is given
+_AUTO_MAX_BYTES = 1 << 18
+_ACCEL_SAMPLES = 50
+_GYRO_WINDOW_S = 10.0
+_GYRO_WINDOWS = 6  # windows tried before the gyro check gives up (a module that lies still)
+_UNIT_FACTORS = sorted({a / b for a in units.MAG_UNITS.values() for b in units.MAG_UNITS.values()} - {1.0})
+
+
+def field_scale_check(model):
+    """A ``field_check`` for :class:`StreamDecoder`: words when a stream's field is the calibration's |B|
+    times a unit's factor (10, 1000, 0.01, ...), None otherwise.
+
+    Parameters
+    ----------
+    model : compass.model.SensorModel
+        ``field(raw)`` gives the field in H in the calibration's field unit, whose magnitude is
+        ``field_norm``.
+
+    Returns
+    -------
+    callable
+        ``check(raw) -> str | None`` with ``raw`` of shape (n, c), the stream's channel values.
+
+    Notes
+    -----
+    The median ``|B_H| / |B|`` of the samples is taken as is when within 1.5 of 1 (noise, a magnet
+    nearby and the site's |B| stay within it; the filter's gate judges those).  Outside, the same
+    ratio is computed with the readings scaled by each factor between two of
+    :data:`compass.io.units.MAG_UNITS`; a factor that brings it within 1.25 of 1 is a unit taken for
+    another.  A ratio no factor explains (a strong magnet) is not a unit: None.
+    """
+    magnitude = float(model.field_norm)
+    unit = "uT" if model.field_ut is not None else "in the calibration's unit"
+
+    def ratio(raw: np.ndarray) -> float:
+        with np.errstate(over="ignore", invalid="ignore"):  # a factor of 1e5 on a wild reading
+            fields, _ = model.field(raw)
+            norms = np.linalg.norm(fields, axis=1)
+        norms = norms[np.isfinite(norms)]
+        return float(np.median(norms)) / magnitude if norms.size else math.nan
+
+    def check(raw) -> str | None:
+        raw = np.asarray(raw, dtype=float)
+        r1 = ratio(raw)
+        if math.isfinite(r1) and abs(math.log(r1)) <= math.log(1.5):
+            return None
+        fits = [(abs(math.log(r)), k, r) for k in _UNIT_FACTORS
+                for r in (ratio(k * raw),) if math.isfinite(r) and r > 0 and abs(math.log(r)) < math.log(1.25)]
+        if not fits:
+            return None
+        _, k, r = min(fits)
+        pairs = [f"{a} taken as {b}" for a, fa in units.MAG_UNITS.items() for b, fb in units.MAG_UNITS.items()
+                 if a != b and math.isclose(fa / fb, k)]
+        return (f"the calibration makes this stream's field {r1:.3g} times its |B| ({magnitude:.4g} {unit}); "
+                f"scaled by {k:g} it would be {r:.3f} times: the stream's field is in another unit than the "
+                f"calibration's ({' or '.join(pairs)}): name the stream's unit with --mag-unit (converted to uT), "
+                f"or use a calibration made in the stream's unit")
+
+    return check
+
+
+class StreamDecoder:
+    """Decode a module's stream in any of :data:`FORMATS`, in the units named, with the checks of the module docstring.
+
+    Parameters
+    ----------
+    channels : sequence of str
+        The calibration's channel names (``("mx", "my", "mz")`` for a tumble).
+    options : StreamOptions
+    field_check : callable, optional
+        ``check(raw (n, c)) -> str | None`` (:func:`field_scale_check`): the first :data:`JUDGE_SAMPLES`
+        samples are held for it; words set :attr:`fatal`.
+
+    Attributes
+    ----------
+    stats : compass.io.lines.LineStats
+        Shared with the format's decoder: lines dropped while the format was being found are counted too.
+    format : str or None
+        ``compass``, ``motioncal`` or ``csv`` once known.
+    fatal : str or None
+        Why the stream cannot be used (channels it lacks, a unit taken for another, bare numbers without
+        ``--columns``), in words for a one-line error; the samples are then withheld.
+    events : list of (str, str)
+
+    Examples
+    --------
+    >>> d = StreamDecoder(("mx", "my", "mz"))
+    >>> [s.raw.tolist() for s in d.feed(b"Uni:0.00,0.00,9.81,0.0000,0.0000,0.0000,20.00,0.00,-40.00\\r\\n")]
+    [[20.0, 0.0, -40.0]]
+    >>> d.format, d.describe()
+    ('motioncal', 'MotionCal Uni: lines')
+    """
+
+    def __init__(self, channels, options: StreamOptions | None = None, *, field_check=None):
+        self.channels = tuple(channels)
+        self.options = StreamOptions() if options is None else options
+        self.stats = LineStats()
+        self.events: list = []
+        self.format: str | None = None
+        self._fatal: str | None = None
+        self._inner = None
+        self._pending = b""  # bytes read while the format is being found
+        self._numeric_lines = 0
+        self._seen = 0  # kept lines already counted
+        self._first_numeric_t: float | None = None
+        self._resynced = False
+        self._check = field_check
+        self._held: list = []
+        self._factors = (1.0, 1.0, 1.0)
+        self._accel_known = False
+        self._accel: list = []
+        self._gyro_rows: list = []
+        self._gyro_judged = False
+        self._gyro_windows = 0
+        if self.options.requested != "auto":
+            self._adopt(self.options.requested, "as named")
+
+    # ----------------------------------------------------------------- the interface
+
+    @property
+    def header(self):
+        """The header (or fixed columns) samples are decoded under; None before one is known."""
+        return None if self._inner is None else self._inner.header
+
+    @property
+    def mismatch(self):
+        """``(names, missing channels)`` of a stream that does not carry the calibration's channels."""
+        return None if self._inner is None else self._inner.mismatch
+
+    @property
+    def echo(self) -> dict:
+        """A MotionCal sketch's latest ``Cal1``/``Cal2`` echoes (empty for other formats)."""
+        return getattr(self._inner, "echo", {})
+
+    @property
+    def fatal(self) -> str | None:
+        """Why the stream cannot be used, in words (None while it can): the command ends on it (exit 2)."""
+        if self._fatal is None and self.mismatch is not None:
+            names, missing = self.mismatch
+            if self.format == "compass":
+                return f"the module's header {','.join(names)} lacks the calibration's channel(s) {','.join(missing)}"
+            what = "--columns names" if self.format == "csv" else "MotionCal lines carry"
+            return (f"{what} {','.join(names)}, not the calibration's channel(s) {','.join(missing)} (a tumble "
+                    f"calibration's are mx,my,mz)")
+        return self._fatal
+
+    def describe(self) -> str:
+        """The format in a few words, for the readout."""
+        if self.format is None:
+            return "format not known yet"
+        if self.format == "motioncal":
+            source = getattr(self._inner, "source", None)
+            return f"MotionCal {source}: lines" if source else "MotionCal lines"
+        if self.format == "csv":
+            return f"csv {','.join(self.options.columns)}"
+        return "compass line protocol"
+
+    def drain_events(self) -> list:
+        """Return and clear the pending ``(level, text)`` events."""
+        events, self.events = self.events, []
+        return events
+
+    def resync(self) -> None:
+        """After a (re)connect: the next line may be a fragment (see :meth:`LineDecoder.resync`)."""
+        if self._inner is not None:
+            self._inner.resync()
+            return
+        lines = self._pending.replace(b"\r", b"\n").split(b"\n")
+        self.stats.unheaded += len(lines) - 1  # the bare-number lines kept: samples before any header
+        self.stats.partial += bool(lines[-1])  # a line the (re)connect cut
+        self._pending, self._seen, self._resynced = b"", 0, True
+
+    def feed(self, chunk: bytes, t_rx: float | None = None) -> list[Sample]:
+        """Samples of the complete lines so far, in the toolkit's units; ``t_rx`` (s, any clock) dates the chunk
+        for the format's detection and the gyro check of streams without ``t_s``."""
+        if self._inner is None:
+            self._pending += chunk
+            chunk = self._detect(t_rx)
+            if self._inner is None:
+                return []
+        samples = self._inner.feed(chunk)
+        if self._inner.events:
+            self.events += self._inner.drain_events()
+        return self._out(samples, t_rx) if samples else []
+
+    def flush(self) -> list[Sample]:
+        """At the end of the stream: the samples still held for the unit check, judged on what came."""
+        if self._inner is None:  # never knew the format: what it kept were samples before any header
+            self.stats.unheaded += len(self._pending.replace(b"\r", b"\n").split(b"\n")[:-1])
+            self._pending = b""
+            return []
+        return self._judge() if self._held and self._fatal is None else []
+
+    # ----------------------------------------------------------------- internals
+
+    def _adopt(self, fmt: str, how: str) -> None:
+        common = {"stats": self.stats}
+        if fmt == "compass":
+            self._inner = LineDecoder(self.channels, **common)
+        elif fmt == "motioncal":
+            self._inner = MotionCalDecoder(self.channels, **common)
+        else:
+            self._inner = CsvDecoder(self.channels, columns=self.options.columns, **common)
+        self.format = fmt
+        self._factors = self.options.factors(fmt)
+        self._accel_known = self.options.accel_known(fmt)
+        if self._resynced:
+            self._inner.resync()
+        self.events.append(("info", f"stream format: {fmt} ({how})"))
+
+    def _detect(self, t_rx: float | None) -> bytes:
+        """Look at the complete lines read so far; adopt a format when one shows (returns the bytes to feed it).
+
+        Until then only bare-number lines are kept (samples of a CSV, or of our protocol before its header);
+        lines that are no format's (binary noise, a banner) are counted as garbage and dropped."""
+        data = self._pending.replace(b"\r", b"\n")
+        lines = data.split(b"\n")
+        tail = lines.pop()
+        known = set(self.channels) | set(_SCALARS) | {n for g in _GROUPS.values() for n in g}
+        kept = []
+        for k, line in enumerate(lines):
+            try:
+                text = line.decode("ascii").strip()
+            except UnicodeDecodeError:
+                self.stats.garbage += 1
+                continue
+            star = text.rfind("*")
+            cells = [c.strip() for c in (text[:star] if star > 0 else text).split(",")]
+            if text.startswith(_MOTIONCAL_TAGS):
+                return self._decided("motioncal", "found from its Raw:/Uni:/Cal lines", kept + lines[k:], tail)
+            if text and not text.startswith("#") and not _number(cells[0]) and known & set(cells):
+                return self._decided("compass", "found from its header line", kept + lines[k:], tail)
+            if not text:
+                continue
+            if text.startswith("#"):
+                self.stats.comments += 1
+            elif _number(cells[0]) or _number(text.split()[0]):
+                kept.append(line)
+                if k >= self._seen:
+                    self._numeric_lines += 1
+                    if self._first_numeric_t is None:
+                        self._first_numeric_t = t_rx
+            else:
+                self.stats.garbage += 1
+        self._seen = len(kept)
+        if len(kept) > _AUTO_WAIT_LINES:
+            self.stats.unheaded += len(kept) - _AUTO_WAIT_LINES
+            kept, self._seen = kept[-_AUTO_WAIT_LINES:], _AUTO_WAIT_LINES
+        self._pending = b"".join(line + b"\n" for line in kept) + tail
+        waited = (t_rx is not None and self._first_numeric_t is not None
+                  and t_rx - self._first_numeric_t >= _AUTO_WAIT_S and self._numeric_lines >= 5)
+        if self._fatal is None and (waited or self._numeric_lines >= _AUTO_WAIT_LINES):
+            self._fatal = (f"the stream sends bare numbers without a header ({self._numeric_lines} lines): name its "
+                           f"cells with --columns, e.g. --columns {EXAMPLE_COLUMNS}")
+        if len(self._pending) > _AUTO_MAX_BYTES:  # an endless line: counted once, as the decoders do
+            self.stats.garbage += 1
+            self._pending = b""
+        return b""
+
+    def _decided(self, fmt: str, how: str, lines: list, tail: bytes) -> bytes:
+        self._adopt(fmt, how)
+        self._pending = b""
+        return b"".join(line + b"\n" for line in lines) + tail
+
+    def _out(self, samples: list, t_rx: float | None) -> list:
+        mag, acc, gyr = self._factors
+        if (mag, acc, gyr) != (1.0, 1.0, 1.0):
+            samples = [replace(s, raw=s.raw * mag, accel=None if s.accel is None else s.accel * acc,
+                               gyro=None if s.gyro is None else s.gyro * gyr) for s in samples]
+        self._observe(samples, t_rx)
+        if self._fatal is not None:
+            return []
+        if self._check is None:
+            return samples
+        self._held += samples if t_rx is None else [replace(s, t_rx=t_rx) for s in samples]
+        return self._judge() if len(self._held) >= JUDGE_SAMPLES else []
+
+    def _judge(self) -> list:
+        held, self._held = self._held, []
+        check, self._check = self._check, None
+        words = check(np.array([s.raw for s in held]))
+        if words is not None:
+            self._fatal = words
+            return []
+        return held
+
+    def _observe(self, samples: list, t_rx: float | None) -> None:
+        """The accelerometer's |a| in g (when its unit is known) and the gyro's turn against its tilt: warnings."""
+        if self._accel_known and len(self._accel) < _ACCEL_SAMPLES:
+            self._accel += [s.accel for s in samples if s.accel is not None]
+            if len(self._accel) >= _ACCEL_SAMPLES:
+                with np.errstate(over="ignore", invalid="ignore"):  # a corrupted reading squared
+                    norm = float(np.median(np.linalg.norm(self._accel, axis=1)))
+                if not 0.8 <= norm <= 1.25:
+                    self.events.append(("warn", f"the accelerometer reads a median |a| of {norm:.3g} g in its first "
+                                                f"{_ACCEL_SAMPLES} samples, not 1 g: is --accel-unit right?"))
+        if self._gyro_judged:
+            return
+        self._gyro_rows += [(s.t_s, t_rx, s.accel, s.gyro) for s in samples if s.accel is not None and s.gyro is not None]
+        if len(self._gyro_rows) >= 3:
+            self._judge_gyro()
+
+    def _judge_gyro(self) -> None:
+        rows = self._gyro_rows
+        if all(r[0] is not None for r in rows):
+            t = np.array([r[0] for r in rows], dtype=float)
+        elif all(r[1] is not None for r in rows):  # no module clock: evenly spaced between the first and last chunk
+            t = np.linspace(rows[0][1], rows[-1][1], len(rows))
+        else:
+            self._gyro_judged = True
+            return
+        if t[-1] - t[0] < _GYRO_WINDOW_S:
+            return
+        self._gyro_rows = []
+        self._gyro_windows += 1
+        self._gyro_judged = self._gyro_windows >= _GYRO_WINDOWS  # a housing that never tilts: give up
+        accel, gyro = np.array([r[2] for r in rows]), np.array([r[3] for r in rows])
+        sane = np.all(np.abs(np.hstack([accel, gyro])) < units.MAX_ABS_VALUE, axis=1)  # corrupted readings: no evidence
+        ratio = units.gyro_turn_ratio(t[sane], gyro[sane], accel[sane])
+        if ratio is None:
+            return  # the housing did not tilt enough in this window: try the next one
+        self._gyro_judged = True
+        unit = self.options.gyro_unit or "rad/s"
+        if ratio > 15.0 or ratio < 1.0 / 15.0:
+            more = f"{ratio:.0f} times more" if ratio > 1 else f"{1 / ratio:.0f} times less"
+            self.events.append(("warn", f"the gyro read in {unit} turns {more} than the accelerometer sees the housing "
+                                        f"tilt (a unit taken for another gives 57): is --gyro-unit right?"))
+
+
+def _number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
