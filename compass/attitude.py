@@ -32,10 +32,11 @@ from scipy.spatial.transform import Rotation
 
 from .frames import heading_pitch_roll, r_world_from_housing, world_field
 from .model import SensorModel
-from .sample_check import skip_codes
+from .sample_check import FIELD_RATIO_LIMIT, skip_codes
 from .site import ReferenceField, reference_from_recording
 
-__all__ = ["Attitude", "UnusableCalibration", "solve_attitude", "two_vector_rotation", "level_heading_bound_deg"]
+__all__ = ["Attitude", "UnusableCalibration", "ScaleMismatch", "solve_attitude",
+           "two_vector_rotation", "level_heading_bound_deg"]
 
 _UP = np.array([0.0, 0.0, 1.0])
 DIP_NOISE_SIGMAS = 2.0
@@ -44,6 +45,11 @@ DIP_NOISE_SIGMAS = 2.0
 
 class UnusableCalibration(ValueError):
     """The calibration, not the recording, makes every row unusable (the command names the calibration file)."""
+
+
+class ScaleMismatch(ValueError):
+    """The recording's readings are beyond anything the calibration's responses give: one of them is in
+    another unit or scale than the other (the command names both files)."""
 
 
 @dataclass(frozen=True)
@@ -285,6 +291,7 @@ def solve_attitude(
         keep = skipped == 0
         if not keep.any():
             if np.all(np.isfinite(np.asarray(raw, dtype=float))):
+                _check_scale(model, np.asarray(raw, dtype=float))  # the two do not fit, if the scale is not
                 raise UnusableCalibration("the calibration turns every reading into a non-finite or absurd field (its "
                                           "offsets or gains are out of any sensible range)")
             raise ValueError("no row can be used: every reading is non-finite or absurd")
@@ -393,6 +400,20 @@ def _skipped_rows(field: np.ndarray, accel, field_norm) -> np.ndarray:
                    for x in (b, a)]
     known = field_norm is not None and np.isfinite(field_norm) and field_norm > 0
     return skip_codes(field, field_norm if known else typical[0], accel, typical[1])
+
+
+def _check_scale(model: SensorModel, raw: np.ndarray) -> None:
+    """:class:`ScaleMismatch` when a channel's median reading is beyond what the calibration's response gives
+    for any field up to :data:`~compass.sample_check.FIELD_RATIO_LIMIT` times its |B|: the recording and the
+    calibration are in different units or scales (which one is wrong, the numbers cannot tell)."""
+    reach = FIELD_RATIO_LIMIT * model.field_norm
+    for c, response in enumerate(model.responses):
+        lo, hi = np.sort(response.output(np.array([-reach, reach])))
+        typical = float(np.median(raw[:, c]))
+        if not lo <= typical <= hi:
+            raise ScaleMismatch(f"channel {model.channels[c]} reads {typical:.4g} (median), beyond the {lo:.4g} to "
+                                f"{hi:.4g} the calibration's channel gives for any field up to "
+                                f"{FIELD_RATIO_LIMIT:g} times its |B|: is one in another unit or scale than the other?")
 
 
 def _with_skipped(att: Attitude, keep: np.ndarray, skipped: np.ndarray, in_range: np.ndarray) -> Attitude:

@@ -15,6 +15,7 @@ bad input prints its one line only.
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib
 import os
 import re
@@ -23,7 +24,7 @@ import warnings
 
 from .errors import BadInput
 
-__all__ = ["main", "BadInput", "version"]
+__all__ = ["main", "BadInput", "UsageError", "version"]
 
 SUBCOMMANDS = ("demo", "simulate", "calibrate", "attitude", "live", "device", "bench", "export", "evaluate",
                "batch", "store")
@@ -51,8 +52,26 @@ class _Version(argparse.Action):
         parser.exit()
 
 
+class UsageError(Exception):
+    """A command line argparse refuses (an unknown option, a number out of its range)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, whose refusal is one line (``compass live: argument --baud: ...``), exit status 2.
+
+    The subcommands' parsers are of this class too (``add_subparsers`` makes them of the parent's);
+    :func:`main` prints the line, so calling ``main`` in-process returns 2 instead of exiting.
+    """
+
+    def error(self, message):
+        raise UsageError(f"{self.prog}: {message} (--help for usage)")
+
+
+@functools.lru_cache(maxsize=1)
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    """The ``compass`` parser, built once a process (argparse's gettext lookups make it 0.1 s; parsing does not
+    change it, and the tests call :func:`main` in-process hundreds of times)."""
+    parser = _Parser(
         prog="compass",
         description="Calibrate three-axis compasses on a bench (four-flip turntable method) and read attitude.",
     )
@@ -132,7 +151,11 @@ def main(argv=None) -> int:
     if not argv:  # a newcomer's first try: the commands, not "the following arguments are required"
         parser.print_help()
         return 2
-    args = parser.parse_args(_attach_negative_lists(argv))
+    try:
+        args = parser.parse_args(_attach_negative_lists(argv))
+    except UsageError as exc:
+        print(exc, file=sys.stderr)
+        return 2
     from .io.units import RecordingWarning
 
     show = warnings.showwarning

@@ -137,7 +137,9 @@ class LiveSession:
     samples : int
         Estimates produced.
     unsolved : int
-        Decoded samples that gave no attitude (no accelerometer yet).
+        Decoded samples that gave no attitude row: no accelerometer yet, or a field reading the
+        filter's screen skipped (not finite, or beyond its range: counted in ``skipped`` too), whose
+        row would have no field ratio nor dip to write.
     turned_over : str or None
         Set once the first :data:`UPSIDE_DOWN_SAMPLES` estimates show the field turned over against a
         given reference (``--site``): why, in words (the command stops on it); None otherwise.
@@ -353,7 +355,7 @@ class LiveSession:
         if filt.diagnostics.skipped:  # a non-finite or out-of-range reading: never fused (the filter's screen)
             for reason in filt.diagnostics.skipped.split(","):
                 self._count_skip(reason.strip())
-        if est is None:
+        if est is None or est.gate == "absent":  # no attitude, or no field to write a row of
             self.unsolved += 1
             return
         self.estimate, self.in_range = est, in_range

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import limits
 from .errors import BadInput
 from .io.table import RecordingError, format_table, read_table
 from .io.units import check_accel_up, check_two_axis_tilt
@@ -130,13 +131,14 @@ def solve_recording(calibration, recording, *, level=False, max_tilt_deg=5.0, ac
     BadInput, RecordingError
         Bad input, naming the file (and row and column).
     """
-    from .attitude import UnusableCalibration, solve_attitude
+    from .attitude import ScaleMismatch, UnusableCalibration, solve_attitude
     from .calibration import load
 
-    if not accel_noise_g > 0:
-        raise BadInput(f"--accel-noise-g must be positive, got {accel_noise_g}")
-    if not 0 <= max_tilt_deg < 90:
-        raise BadInput(f"--max-tilt-deg must be in [0, 90), got {max_tilt_deg}")
+    try:  # the options' ranges (compass.limits), for a caller in Python
+        limits.ACCEL_NOISE_G.check(accel_noise_g, "--accel-noise-g")
+        limits.MAX_TILT_DEG.check(max_tilt_deg, "--max-tilt-deg")
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
     try:
         if site is not None and not isinstance(site, Site):
             site = Site.parse(site, date)
@@ -184,6 +186,8 @@ def solve_recording(calibration, recording, *, level=False, max_tilt_deg=5.0, ac
                                 max_tilt_deg=max_tilt_deg, temp_c=temp_c)
     except UnusableCalibration as exc:
         raise BadInput(f"{calibration}: {exc}") from None
+    except ScaleMismatch as exc:
+        raise BadInput(f"{recording} does not fit {calibration}: {exc}") from None
     except np.linalg.LinAlgError as exc:  # the model's weighted solver: the calibration's numbers, not the rows
         raise BadInput(f"{calibration}: unusable calibration ({exc}): its noise_floor or directions are out of "
                        f"any sensible range") from None

@@ -140,7 +140,13 @@ class SerialReader:
             self._fd = None
 
     def check_url(self) -> None:
-        """Raise ValueError now for a URL pyserial cannot understand (not for a port that is absent)."""
+        """Raise ValueError now for a URL pyserial cannot understand (not for a port that is absent).
+
+        pyserial reads a ``socket://``, ``rfc2217://`` or ``loop://`` URL only when it opens the port,
+        and answers a malformed one with its internals (``'<=' not supported between instances of
+        'int' and 'NoneType'``); those are checked here, in words (:func:`check_network_url`).
+        """
+        check_network_url(self.url)
         try:
             serial.serial_for_url(self.url, do_not_open=True)
         except (ValueError, serial.SerialException) as exc:
@@ -212,6 +218,48 @@ def _nonblocking_fd(port) -> int | None:
         return None
     port.timeout = 0
     return fd
+
+
+_URL_OPTIONS = {"socket": {"logging"}, "rfc2217": {"logging", "ign_set_control", "poll_modem", "timeout"},
+                "loop": {"logging"}}
+_LOGGING = ("debug", "info", "warning", "error")
+
+
+def check_network_url(url: str) -> None:
+    """ValueError, in words, for a malformed ``socket://HOST:PORT``, ``rfc2217://HOST:PORT`` or ``loop://``
+    (their options after ``?`` included); other ports and URLs pass (pyserial judges them).
+
+    Examples
+    --------
+    >>> check_network_url("socket://127.0.0.1:5000")
+    >>> check_network_url("socket://localhost")
+    Traceback (most recent call last):
+    ...
+    ValueError: port 'socket://localhost': expected socket://HOST:PORT with PORT 1-65535
+    """
+    from urllib.parse import parse_qs, urlsplit
+
+    scheme = url.partition("://")[0].lower() if "://" in url else ""
+    if scheme not in _URL_OPTIONS:
+        return
+    form = "loop://" if scheme == "loop" else f"{scheme}://HOST:PORT with PORT 1-65535"
+    try:
+        parts = urlsplit(url)
+        port = parts.port
+        options = parse_qs(parts.query, keep_blank_values=True, strict_parsing=bool(parts.query))
+    except ValueError:
+        raise ValueError(f"port {url!r}: expected {form}") from None
+    if scheme != "loop" and (not parts.hostname or port is None or not 1 <= port <= 65535):
+        raise ValueError(f"port {url!r}: expected {form}")
+    if scheme == "loop" and (parts.netloc or parts.path):
+        raise ValueError(f"port {url!r}: expected {form}")
+    unknown = sorted(set(options) - _URL_OPTIONS[scheme])
+    if unknown:
+        raise ValueError(f"port {url!r}: unknown option {unknown[0]!r} (a {scheme}:// URL takes "
+                         f"{', '.join(sorted(_URL_OPTIONS[scheme]))})")
+    for value in options.get("logging", ()):
+        if value not in _LOGGING:
+            raise ValueError(f"port {url!r}: logging must be one of {', '.join(_LOGGING)}, got {value!r}")
 
 
 def _reason(exc: BaseException) -> str:

@@ -24,11 +24,15 @@ from functools import lru_cache
 
 import numpy as np
 
-__all__ = ["WMM_MODEL", "Site", "SiteField", "ReferenceField", "wmm_field", "decimal_year",
+__all__ = ["WMM_MODEL", "WMM_DATES", "Site", "SiteField", "ReferenceField", "wmm_field", "decimal_year",
            "known_reference", "reference_from_site",
            "reference_from_recording", "upside_down"]
 
 WMM_MODEL = "WMM2025"
+WMM_DATES = (dt.date(2010, 1, 1), dt.date(2029, 12, 31))
+"""The days the installed World Magnetic Models cover (WMM2010, 2015, 2020, 2025: five years each).
+A site's date outside them is refused: the models' secular variation is a 5-year linear forecast,
+so 1800 or 2040 would be an extrapolation with no published uncertainty."""
 _QUIET_ACCEL = 0.02  # a row is quiet when | |a| / g - 1 | is below this (g: the median |a|)
 _OUTLIER_SIGMAS = 5.0  # rows farther than this many robust sigmas from the median are left out
 _MIN_ROWS = 10  # fewest quiet rows from which a reference is estimated
@@ -60,6 +64,11 @@ class Site:
                 raise ValueError(f"site {name} must be within +-{limit:g} degrees, got {value}")
         if not (np.isfinite(self.alt_m) and -1000.0 <= self.alt_m <= 850e3):
             raise ValueError(f"site altitude must be in [-1000, 850000] m (the WMM's range), got {self.alt_m}")
+        first, last = WMM_DATES
+        if not first <= self.date <= last:
+            raise ValueError(f"site date {self.date.isoformat()} is outside the World Magnetic Model's "
+                             f"{first.isoformat()} to {last.isoformat()}: the field then is not known to it (each "
+                             f"model forecasts 5 years; its uncertainty does not hold outside them)")
 
     @classmethod
     def parse(cls, text: str, date: str | dt.date | None = None) -> "Site":

@@ -239,7 +239,7 @@ def test_solve_recording_is_the_library_call_the_command_writes(files, tmp_path)
     out = tmp_path / "att.csv"
     assert main(["attitude", str(cal), str(rec), "--out", str(out)]) == 0
     assert out.read_text() == solved.to_csv()
-    with pytest.raises(BadInput, match="--accel-noise-g must be positive"):
+    with pytest.raises(BadInput, match=r"--accel-noise-g must be a number in \(0, 1\] g, got 0"):
         solve_recording(cal, rec, accel_noise_g=0.0)
 
 

@@ -131,7 +131,7 @@ def test_reader_rejects_bad_files(tmp_path):
                          "row 4, column 'imu_mag'"),
              "shape": (good | {"imu_acc": np.zeros((n, 2))}, "column 'imu_acc'"),
              "still": (good | {"movement": np.zeros(n, np.uint8)}, "no sample marked"),
-             "rate": (good | {"sampling_rate": -1.0}, "positive rate")}
+             "rate": (good | {"sampling_rate": -1.0}, "the rate must be a number in \\[0.001, 100000\\] Hz")}
     for name, (content, message) in cases.items():
         savemat(tmp_path / f"{name}.mat", content)
         with pytest.raises(RecordingError, match=message):

@@ -40,7 +40,7 @@ def set_key(doc: dict, dotted: str, value) -> dict:
 
 BAD_CHANNEL = [  # (change, key named in the message); every one passed or raised KeyError/TypeError on main
     ("channels/v1/response/offset", math.nan, "'response.offset' must be finite"),
-    ("channels/v1/response/gain", -2.0, "'response.gain' must be positive"),
+    ("channels/v1/response/gain", -2.0, "'response.gain' must be a number in [1e-12, 1e+12]"),
     ("channels/v1/response", {"model": "table", "offset": 0.0, "gain": 1.0, "range": [-1, 1]}, "'response.x'"),
     ("channels/v1/response", {"model": "table", "offset": 0.0, "gain": 1.0, "range": [-1, 1], "x": 5, "v": 3},
      "'response.x'"),
@@ -54,7 +54,7 @@ BAD_CHANNEL = [  # (change, key named in the message); every one passed or raise
     ("channels/v1/direction", [math.inf, 0.0, 0.0], "'direction' must be finite"),
     ("dip_deg", 500.0, "'dip_deg' must be within [-90, 90]"),
     ("noise_floor", [0.01, -0.01, 0.01], "'noise_floor' must not be negative"),
-    ("field_ut", -50.0, "'field_ut' must be positive"),
+    ("field_ut", -50.0, "'field_ut' must be a number in [0.001, 100000] uT"),
     ("effects", [{"name": "temperature", "reference": [1], "parameters": {}}], "'effects' is malformed"),
     ("model", "ellipsoid", "unknown calibration model 'ellipsoid'"),
 ]

@@ -186,7 +186,7 @@ def test_calibrate_command_refuses_a_dead_channel_in_one_line(write_session, tmp
     assert len(err) == 1 and "dead.csv" in err[0] and "channel 'v3' does not respond" in err[0]
     assert not out.exists()
     assert main(["calibrate", str(bad), "--out", str(out), "--axis-tolerance-deg", "0"]) == 2
-    assert "--axis-tolerance-deg must be an angle" in capsys.readouterr().err
+    assert "argument --axis-tolerance-deg: must be a number in (0, 180) deg, got 0" in capsys.readouterr().err
 
 
 def test_a_file_with_a_dead_channel_is_refused_by_every_runtime_command(write_session, tmp_path, capsys):

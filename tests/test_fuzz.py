@@ -10,6 +10,7 @@
 
 import atexit
 import copy
+import io
 import json
 import math
 import os
@@ -65,7 +66,7 @@ def test_any_bytes_anywhere_cut_decode_the_same_and_never_raise(data, cuts):
     assert whole.stats.samples == len(samples)
 
 
-finite = st.floats(allow_nan=False, allow_infinity=False)
+finite = st.floats(min_value=-1e12, max_value=1e12)  # the protocol's range (compass.io.units.MAX_ABS_VALUE)
 
 
 @settings(max_examples=200, deadline=None)
@@ -279,3 +280,210 @@ def test_a_folder_given_as_the_calibration_is_refused(tmp_path, capsys):
     for name, argv in _commands(cal, tmp_path).items():
         code, _, err = _run(argv, capsys)
         _assert_refused(code, err, cal)
+
+
+# ---------------------------------------------------------------------------------------------
+# issue 23: every numeric option, counters at every extreme, reserved names, every key of every
+# calibration kind, extreme magnitudes in a recording
+
+def _numeric_options():
+    """(argv prefix, option, Range) of every numeric option of every command and simulate kind."""
+    import argparse
+
+    from compass.cli import build_parser
+
+    def walk(parser, prefix):
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    yield from walk(sub, (*prefix, name))
+            elif action.option_strings and action.type is not None and action.choices is None:
+                yield prefix, action.option_strings[-1], action.type
+
+    return list(walk(build_parser(), ()))
+
+
+NUMERIC_OPTIONS = _numeric_options()
+
+
+def test_every_numeric_option_is_checked_by_its_declared_range():
+    from compass.limits import Range
+
+    plain = [(" ".join(p), o) for p, o, t in NUMERIC_OPTIONS if not isinstance(getattr(t, "range", None), Range)
+             and o != "--columns"]
+    assert not plain, f"numeric options without a compass.limits range: {plain}"
+    assert len(NUMERIC_OPTIONS) > 40  # every command's: the walk found them
+
+
+ALWAYS_REFUSED = ["nan", "inf", "-inf", "1e308", "-1e308", "1e400", "0x10", "1_0", ""]
+
+
+@pytest.mark.parametrize("prefix, option, convert", NUMERIC_OPTIONS, ids=lambda v: v if isinstance(v, str) else
+                         "-".join(v) if isinstance(v, tuple) else "")
+def test_every_numeric_option_refuses_every_extreme_in_one_line_changing_nothing(tmp_path, monkeypatch, capsys,
+                                                                                 prefix, option, convert):
+    if option == "--columns":
+        pytest.skip("not a number")
+    bounds = convert.range
+    values = ALWAYS_REFUSED + [v for v in ("-1", "0", "1e-300", "5e-324", "3.5", str(2**64)) if
+                               _parses_outside(bounds, v)]
+    monkeypatch.chdir(tmp_path)
+    old = tmp_path / "old.csv"
+    old.write_text("kept\n")
+    for value in values:
+        code = main([*prefix, f"{option}={value}", "--out", str(old), "--force"])
+        err = capsys.readouterr().err
+        assert code == 2, (prefix, option, value)
+        line = _one_line(err)
+        assert f"argument {option}: must be {bounds.describe()}" in line, line
+        assert old.read_text() == "kept\n" and sorted(p.name for p in tmp_path.iterdir()) == ["old.csv"]
+
+
+def _parses_outside(bounds, text: str) -> bool:
+    try:
+        bounds.parse(text, "x")
+    except ValueError:
+        return True
+    return False
+
+
+def _one_line(err: str) -> str:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+COUNTER_VALUES = {"seq": ["-1", "-0", "0", "1000000000000", "1000000000001", str(2**63), str(10**30), "1e3", "1.5",
+                          "nan", " 7 ", "+5"],
+                  "t_s": ["-1", "0", "-1e308", "1e308", "1e12", "1.0000001e12", "1e300", "5e-324", "-5e-324", "nan",
+                          "inf", "1e-300", "-0"]}
+_COUNTER_NAMES = ["seq", "t_s", *CHANNELS, "ax", "ay", "az", "gx", "gy", "gz"]
+
+
+def _counter_stream(column: str, value: str, at: int, with_seq: bool) -> tuple[bytes, int]:
+    names = _COUNTER_NAMES if with_seq else _COUNTER_NAMES[1:]
+    s = _SIM_COUNTERS
+    lines = [format_line(names)]
+    for i in range(len(s.t_s)):
+        cells = ([i] if with_seq else []) + [f"{s.t_s[i]:.4f}", *s.raw[i], *s.accel[i], *s.gyro[i]]
+        if i == at:
+            cells[names.index(column)] = value
+        lines.append(format_line(cells))
+    return b"".join(lines), len(lines) - 1
+
+
+_SIM_COUNTERS = simulate_device(default_model(), np.arange(120) / 100.0, seed=4)
+
+
+@pytest.mark.parametrize("with_seq", [True, False])
+@pytest.mark.parametrize("column, value", [(c, v) for c, values in COUNTER_VALUES.items() for v in values])
+def test_a_counter_at_any_extreme_never_stops_or_poisons_a_session(column, value, with_seq):
+    if column == "seq" and not with_seq:
+        pytest.skip("no seq column")
+    for at in (1, 60) if with_seq else (60,):  # the first sample after the header, one mid-stream
+        stream, n = _counter_stream(column, value, at, with_seq)
+        out = io.StringIO()
+        session = LiveSession(default_model(), out=out)
+        session.feed(Chunk(time.perf_counter(), stream))
+        session.close()
+        s = session.decoder.stats
+        assert s.samples + s.bad_lines == n  # every line used or counted
+        assert s.lost <= n  # never more lost than the stream's own span (was 1e30, 2e303)
+        rows = out.getvalue().splitlines()[2:]
+        assert len(rows) == session.samples and session.samples >= n - 3
+        for row in rows:
+            cells = row.split(",")
+            assert all(math.isfinite(float(c)) and len(c) < 20 for c in cells), row
+
+
+def test_a_reserved_name_is_never_a_calibration_channel(tmp_path):
+    from compass.calibration import CalibrationFileError
+    from compass.io.names import RESERVED_NAMES
+
+    for name in RESERVED_NAMES:
+        doc = _channel_doc()
+        doc["channels"] = {(name if k == "my" else k): v for k, v in doc["channels"].items()}
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps(doc))
+        with pytest.raises(CalibrationFileError, match=rf"{path}: channel '{name}' is not a channel name"):
+            load(path)
+
+
+def _installed_doc() -> dict:
+    return {"format": FORMAT, "model": "installed", "base": _channel_doc(), "dip_deg": 60.0, "field_ut": 50.0,
+            "installation": {"hard_iron_ut": [1.0, 2.0, 3.0], "soft_iron": [[1.0, 0.01, 0], [0.01, 1.0, 0], [0, 0, 1]]}}
+
+
+KIND_DOCS = {"channels": _channel_doc, "tumble": _tumble_doc, "installed": _installed_doc}
+EXTREMES = [math.nan, 1e308, 5e-324, "60"]  # inf and -1e308 take the paths nan and 1e308 take
+
+
+def _leaves(node, prefix=()):
+    if isinstance(node, dict):
+        for key, child in node.items():
+            yield from _leaves(child, (*prefix, key))
+    elif isinstance(node, list):
+        for i, child in enumerate(node):
+            yield from _leaves(child, (*prefix, i))
+    else:
+        yield prefix
+
+
+def _numbers_finite(text: str) -> bool:
+    import re
+
+    numbers = re.findall(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?", text)
+    return "nan" not in text.lower() and "inf" not in text.lower() and all(abs(float(n)) < 1e13 for n in numbers)
+
+
+@pytest.mark.parametrize("kind", sorted(KIND_DOCS))
+def test_every_key_of_every_kind_at_every_extreme_is_refused_or_exports_finite_numbers(tmp_path, capsys, kind):
+    base = KIND_DOCS[kind]()
+    out = tmp_path / "fw.h"
+    refused = 0
+    for path in _leaves(base):
+        for value in EXTREMES:
+            doc = copy.deepcopy(base)
+            parent = doc
+            for key in path[:-1]:
+                parent = parent[key]
+            parent[path[-1]] = value
+            cal = tmp_path / "cal.json"
+            cal.write_text(json.dumps(doc))
+            out.write_text("the old export\n")
+            code, text, err = _run(["export", str(cal), "--format", "fusion", "--out", str(out), "--force"], capsys)
+            if code != 0:
+                _assert_refused(code, err, cal)
+                assert out.read_text() == "the old export\n", (path, value)
+                refused += 1
+            else:
+                assert _numbers_finite(out.read_text()), (path, value)
+            assert sorted(p.name for p in tmp_path.iterdir()) == ["cal.json", "fw.h"]
+    assert refused >= 2 * len(list(_leaves(base)))  # nan and "60" are refused wherever a number is read
+
+
+@pytest.mark.parametrize("column", ["mx", "ax", "t_s"])
+@pytest.mark.parametrize("value", [1e308, -1e308, 1e13, 1e-300, 5e-324])
+def test_an_extreme_cell_in_a_recording_is_refused_naming_it_or_solved_finitely(tmp_path, capsys, column, value):
+    rec = _recording_for("channels")
+    lines = rec.read_text().splitlines()
+    names = lines[0].split(",")
+    cells = lines[120].split(",")
+    cells[names.index(column)] = repr(value)
+    lines[120] = ",".join(cells)
+    bad = tmp_path / "rec.csv"
+    bad.write_text("\n".join(lines) + "\n")
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps(_channel_doc()))
+    out = tmp_path / "att.csv"
+    out.write_text("the old attitudes\n")
+    code, _, err = _run(["attitude", str(cal), str(bad), "--out", str(out), "--force"], capsys)
+    if abs(value) > 1e12 or column == "t_s":  # beyond any sensor's output, or a time going back
+        assert code == 2 and f"rec.csv, row 121, column '{column}'" in _one_line(err)
+        assert out.read_text() == "the old attitudes\n"
+    else:
+        assert code == 0, err
+        table = np.genfromtxt([x for x in out.read_text().splitlines() if not x.startswith("#")], delimiter=",",
+                              names=True)
+        assert np.all(np.isfinite(table["heading_deg"]))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["att.csv", "cal.json", "rec.csv"]

@@ -374,15 +374,17 @@ def _bench(base, rec):
     if isinstance(base, Calibration):
         bench = base
     else:
+        given = "--base"
         if base is None:
             if not rec.metadata.get("base"):
                 raise CannotCalibrate(f"{rec.path}: an installation is calibrated on top of a bench calibration: "
                                       f"give --base BENCH.json (or '# base: BENCH.json' in the recording)")
+            given = f"{rec.path}: its '# base: {rec.metadata['base'].strip()}' line:"
             base = Path(rec.path).parent / rec.metadata["base"].strip()
         try:
             bench = load(base)
         except CalibrationFileError as exc:
-            raise CannotCalibrate(f"--base {exc}") from None
+            raise CannotCalibrate(f"{given} {exc}") from None
     if bench.kind == "installed":
         raise CannotCalibrate(f"{bench.path}: already an installed calibration; give the bench calibration as --base")
     if bench.model.noise is None:

@@ -10,6 +10,8 @@ import math
 
 import numpy as np
 
+from ..io.units import MAX_ABS_VALUE
+from ..limits import Range
 from ._errors import CalibrationFileError
 
 UNIT_TOLERANCE = 1e-6
@@ -23,10 +25,19 @@ DEAD_RESPONSE_SIGMAS = 5.0
 field (a dead sensor): at 5 sigma a working channel is called dead with a chance of 3e-7.  The
 calibrators refuse to write such a channel (:mod:`calibrate.health`); a file holding one is refused."""
 """Asymmetry of a soft-iron matrix accepted, relative to its largest entry."""
+OUTPUT = Range(-MAX_ABS_VALUE, MAX_ABS_VALUE)
+"""An output (offset, noise floor) in output units: within the recordings' limit
+(:data:`compass.io.units.MAX_ABS_VALUE`: no sensor output reaches beyond)."""
+GAIN = Range(1 / MAX_ABS_VALUE, MAX_ABS_VALUE)
+"""A gain, output units per field unit, or a soft-iron eigenvalue (its inverse): 1e-12..1e12."""
+HARD_IRON_FIELDS = 100.0
+"""Largest hard iron, in fields: a sensor offset by a hundred times the field it measures reads beyond
+the range the filters screen (:data:`compass.sample_check.FIELD_RATIO_LIMIT`): a magnet on it."""
 
 
-def number(v, key, *, positive=False, nonnegative=False, allow_none=False, low=None, high=None):
-    """``v`` as a finite float (or None when allowed), else CalibrationFileError naming ``key``."""
+def number(v, key, *, positive=False, nonnegative=False, allow_none=False, low=None, high=None, bounds=None):
+    """``v`` as a finite float (or None when allowed), else CalibrationFileError naming ``key``; within
+    ``bounds`` (a :class:`compass.limits.Range`) when given."""
     if v is None and allow_none:
         return None
     if isinstance(v, bool) or not isinstance(v, (int, float)):
@@ -34,17 +45,20 @@ def number(v, key, *, positive=False, nonnegative=False, allow_none=False, low=N
     v = float(v)
     if not math.isfinite(v):
         raise CalibrationFileError(f"must be finite, got {v}", key=key)
+    if bounds is not None and v not in bounds:
+        raise CalibrationFileError(f"must be {bounds.describe()}, got {v:g}", key=key)
     if positive and not v > 0:
         raise CalibrationFileError(f"must be positive, got {v:g}", key=key)
     if nonnegative and v < 0:
         raise CalibrationFileError(f"must not be negative, got {v:g}", key=key)
     if (low is not None and v < low) or (high is not None and v > high):
-        raise CalibrationFileError(f"must be within [{low:g}, {high:g}], got {v:g}", key=key)
+        raise CalibrationFileError(f"must be within [{'-inf' if low is None else f'{low:g}'}, "
+                                   f"{'inf' if high is None else f'{high:g}'}], got {v:g}", key=key)
     return v
 
 
-def array(v, shape: tuple, key) -> np.ndarray:
-    """``v`` as a finite float array of ``shape`` (nested JSON lists of numbers)."""
+def array(v, shape: tuple, key, limit: float = np.inf) -> np.ndarray:
+    """``v`` as a finite float array of ``shape`` (nested JSON lists of numbers), every value within +-``limit``."""
     what = "a list of 3 numbers" if shape == (3,) else f"{'x'.join(map(str, shape))} nested lists of numbers"
     try:
         out = np.asarray(v, dtype=float) if _all_numbers(v) else None
@@ -54,6 +68,9 @@ def array(v, shape: tuple, key) -> np.ndarray:
         raise CalibrationFileError(f"must be {what}, got {show(v)}", key=key)
     if not np.all(np.isfinite(out)):
         raise CalibrationFileError(f"must be finite, got {show(v)}", key=key)
+    if np.any(np.abs(out) > limit):
+        raise CalibrationFileError(f"must be within +-{limit:g} (no sensor output reaches beyond), got "
+                                   f"{out.flat[np.argmax(np.abs(out))]:g}", key=key)
     return out
 
 
@@ -68,7 +85,7 @@ def rotation(v, key: str) -> np.ndarray:
 
 def soft_iron(v, key: str) -> np.ndarray:
     """A soft-iron matrix: symmetric (within :data:`SYMMETRY_TOLERANCE`) and positive definite."""
-    soft = array(v, (3, 3), key)
+    soft = array(v, (3, 3), key, limit=GAIN.hi)
     scale = np.abs(soft).max()
     if not np.allclose(soft, soft.T, rtol=0.0, atol=SYMMETRY_TOLERANCE * scale):
         raise CalibrationFileError("must be symmetric (a soft-iron matrix is)", key=key)
@@ -76,7 +93,20 @@ def soft_iron(v, key: str) -> np.ndarray:
     if not eig[0] > 1e-9 * scale:
         raise CalibrationFileError(f"must be positive definite, its eigenvalues are {np.round(eig, 6).tolist()}",
                                    key=key)
+    if not (eig[0] >= GAIN.lo and eig[-1] <= GAIN.hi):  # the inverse of a gain: field units per output unit
+        raise CalibrationFileError(f"must have eigenvalues in [{GAIN.lo:g}, {GAIN.hi:g}], got {eig[0]:.4g} to "
+                                   f"{eig[-1]:.4g}", key=key)
     return soft
+
+
+def hard_iron(v, field_norm: float, key: str) -> np.ndarray:
+    """A hard-iron offset (3,) within :data:`HARD_IRON_FIELDS` times ``field_norm`` in size (same unit)."""
+    hard = array(v, (3,), key, limit=MAX_ABS_VALUE)
+    size = math.hypot(*hard)
+    if not size <= HARD_IRON_FIELDS * field_norm:
+        raise CalibrationFileError(f"must be within {HARD_IRON_FIELDS:g} times the field's {field_norm:.4g} in size "
+                                   f"(a magnet on the sensor saturates it), got {size:.4g}", key=key)
+    return hard
 
 
 def obj(v, key) -> dict:
@@ -92,7 +122,7 @@ def noise(value, n: int, key: str = "noise_floor") -> np.ndarray | None:
         return None
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         value = [value] * n
-    out = array(value, (n,), key)
+    out = array(value, (n,), key, limit=OUTPUT.hi)
     if np.any(out < 0):
         raise CalibrationFileError(f"must not be negative, got {show(value)}", key=key)
     return out

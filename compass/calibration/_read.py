@@ -17,6 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io.names import RESERVED_NAMES
+from ..io.units import MAX_ABS_VALUE
+from ..limits import FIELD_UT
 from . import _checks as check
 from ._errors import CalibrationFileError, NoFieldVector
 from ._format import CHANNEL_KINDS, FORMAT, KIND_KEY, TUMBLE_CHANNELS
@@ -95,11 +98,16 @@ def from_dict(d, *, path=None) -> Calibration:
         return _calibration(d, kind, None if path is None else str(path))
     except RecursionError:
         raise CalibrationFileError("nested too deeply") from None
+    except CalibrationFileError:
+        raise
+    except ValueError as exc:  # the model's own checks (SensorModel), a singular solve: named as the file's
+        raise CalibrationFileError(f"describes no usable sensor ({exc})") from None
 
 
 def _calibration(d: dict, kind: str, path) -> Calibration:
     installation = tumble = None
     if kind == "installed":
+        _common(d)  # the site's field and dip beside the bench's: checked as every kind's
         installation = _installation(d)
         model = _installed_model(installation)
         base = installation.base
@@ -164,7 +172,8 @@ def _bench_accelerometer(block) -> tuple:
 
 
 def _common(d: dict) -> tuple:
-    field_ut = check.number(d.get("field_ut"), "field_ut", positive=True, allow_none=True)
+    """The top-level ``field_ut`` and ``dip_deg`` (None when absent), in :mod:`compass.limits`' ranges."""
+    field_ut = check.number(d.get("field_ut"), "field_ut", allow_none=True, bounds=FIELD_UT)
     dip_deg = check.number(d.get("dip_deg"), "dip_deg", low=-90.0, high=90.0, allow_none=True)
     effects = d.get("effects")
     if effects is not None and not isinstance(effects, list):
@@ -189,8 +198,8 @@ def _response(v, key: tuple):
 
     r = check.obj(v, key)
     model = r.get("model")
-    offset = check.number(r.get("offset"), check.sub(key, "offset"))
-    gain = check.number(r.get("gain"), check.sub(key, "gain"), positive=True)
+    offset = check.number(r.get("offset"), check.sub(key, "offset"), bounds=check.OUTPUT)
+    gain = check.number(r.get("gain"), check.sub(key, "gain"), bounds=check.GAIN)
     x_range = (-np.inf, np.inf)
     if r.get("range") is not None:
         lo, hi = check.array(r["range"], (2,), check.sub(key, "range"))
@@ -238,6 +247,9 @@ def _channel_model(d: dict):
     names, directions, responses, covariances, sigmas = [], [], [], [], []
     for name, ch in channels.items():
         key = ("channels", name)
+        if name in RESERVED_NAMES or not name.strip():
+            raise CalibrationFileError("is not a channel name: " + ("empty" if not name.strip() else
+                                       f"{name} is the recordings' and the line protocol's own column"), key=key)
         check.obj(ch, key)
         direction = check.array(ch.get("direction"), (3,), check.sub(key, "direction"))
         if not abs(np.linalg.norm(direction) - 1.0) < check.UNIT_TOLERANCE:
@@ -296,8 +308,8 @@ def _tumble(d: dict) -> tuple:
 
     field_ut, dip_deg = _common(d)
     soft = check.soft_iron(d.get("soft_iron"), "soft_iron")
-    hard = check.array(d.get("hard_iron"), (3,), "hard_iron")
-    field_norm = check.number(d.get("field_norm"), "field_norm", positive=True)
+    field_norm = check.number(d.get("field_norm"), "field_norm", positive=True, high=MAX_ABS_VALUE)
+    hard = check.hard_iron(d.get("hard_iron"), field_norm, "hard_iron")
     mag_to_accel = None if d.get("mag_to_accel") is None else check.rotation(d["mag_to_accel"], "mag_to_accel")
     rot = np.eye(3) if mag_to_accel is None else mag_to_accel
     g = np.linalg.solve(soft, rot.T)  # raw - hard_iron = g @ B_H
@@ -357,7 +369,7 @@ def _installation(d: dict) -> Installation:
         raise exc.under("base") from None
     if base.kind == "installed":
         raise CalibrationFileError("must be a bench calibration, not another installed one", key="base")
-    hard = check.array(inst.get("hard_iron_ut"), (3,), "installation.hard_iron_ut")
+    hard = check.hard_iron(inst.get("hard_iron_ut"), base.model.field_norm, "installation.hard_iron_ut")
     soft = check.soft_iron(inst.get("soft_iron"), "installation.soft_iron")
     cov = None if inst.get("covariance") is None else check.array(inst["covariance"], (9, 9), "installation.covariance")
     align = (None if inst.get("alignment") is None else check.rotation(inst["alignment"], "installation.alignment"))

@@ -40,8 +40,6 @@ def run_tumble(args) -> int:
         raise BadInput("--calibrate tumble needs --out CAL.json (the calibration to write)")
     if args.cal is not None:
         raise BadInput("--calibrate tumble calibrates the module from scratch: leave out --cal")
-    if not 0.0 < args.min_coverage <= 1.0:
-        raise BadInput(f"--min-coverage must be in (0, 1], got {args.min_coverage}")
     stream = stream_options(args)
     reader = open_reader(args)
     out = check_writable(args.out, args.force)

@@ -15,10 +15,6 @@ def open_reader(args):
     from ..cli import BadInput
     from ..serial_reader import SerialReader
 
-    if args.duration is not None and not args.duration > 0:
-        raise BadInput(f"--duration must be positive, got {args.duration}")
-    if not args.wait >= 0:
-        raise BadInput(f"--wait must be zero or positive, got {args.wait}")
     reader = SerialReader(args.port, baudrate=args.baud, first_open_s=args.wait)
     try:
         reader.check_url()

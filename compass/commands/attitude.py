@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import sys
 
+from .. import limits
 from ..io.atomic import atomic_write_text, check_writable
 from ..io.table import ReadOptions, add_read_arguments
 from ..viz import add_rerun_option, check_rerun_target
@@ -24,20 +25,20 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, help="attitude CSV to write")
     p.add_argument("--level", action="store_true",
                    help="no accelerometer: assume pitch = roll = 0 and report the heading error a tilt could cause")
-    p.add_argument("--max-tilt-deg", type=float, default=5.0,
+    p.add_argument("--max-tilt-deg", type=limits.MAX_TILT_DEG.option("--max-tilt-deg"), default=5.0,
                    help="with --level: the tilt the assumption allows, for heading_bound_deg (default 5)")
     p.add_argument("--site", metavar="LAT,LON[,ALT_M]",
                    help="where the recording was made (degrees, metres): the reference field and true north come "
                         "from the World Magnetic Model there (default: the calibration's site block, else the "
                         "recording's own quiet rows, magnetic heading only)")
     p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day of the recording (default today, UTC)")
-    p.add_argument("--accel-noise-g", type=float, default=0.002,
+    p.add_argument("--accel-noise-g", type=limits.ACCEL_NOISE_G.option("--accel-noise-g"), default=0.002,
                    help="accelerometer white noise per axis as a fraction of 1 g (default 0.002)")
     p.add_argument("--filter", action="store_true",
                    help="run compass live's pipeline over the recording (needs t_s and ax,ay,az; gx,gy,gz used when "
                         "present): the same start, gate and Kalman filter, the columns of live --out plus the "
                         "quaternion qw,qx,qy,qz (R_world<-housing); instead of solving each row alone")
-    p.add_argument("--gravity", type=float, metavar="G",
+    p.add_argument("--gravity", type=limits.GRAVITY.option("--gravity"), metavar="G",
                    help="with --filter: what 1 g reads in the accelerometer's unit (default: the median |a| of the "
                         "recording's first quiet second)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output file")

@@ -10,6 +10,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from ..limits import Range
+
 
 def register(sub) -> None:
     p = sub.add_parser("batch", help="calibrate many recordings, judge each against an acceptance spec, "
@@ -23,7 +25,7 @@ def register(sub) -> None:
     p.add_argument("--store", default=None, metavar="PATH",
                    help="calibration store (SQLite; default DIR/calibrations.sqlite); a re-run skips the "
                         "sessions it holds for this compass version and spec")
-    p.add_argument("--workers", type=int, default=None, metavar="N",
+    p.add_argument("--workers", type=Range(0, 1024, integer=True).option("--workers"), default=None, metavar="N",
                    help="worker processes (default: the CPU count; 0: one after another in this process)")
     p.add_argument("--scheduler", default=None, metavar="ADDR",
                    help="run on a Dask cluster (tcp://host:8786); needs compass-toolkit[dask]")
@@ -60,8 +62,6 @@ def run(args) -> int:
     from ..production.spec import SpecError, load_spec
     from ..production.store import Store, StoreError
 
-    if args.workers is not None and args.workers < 0:
-        raise BadInput(f"--workers must be 0 or more, got {args.workers}")
     if args.scheduler is not None and args.workers is not None:
         raise BadInput("--scheduler runs on that cluster's workers: leave out --workers")
     try:

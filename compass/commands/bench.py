@@ -16,6 +16,9 @@ import sys
 import threading
 import time
 
+from .. import limits
+from ..limits import Range
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -40,12 +43,12 @@ def register(sub) -> None:
     p.add_argument("--force", action="store_true", help="overwrite CAL.json and its recording; start over")
     p.add_argument("--prompt-file", metavar="FILE", help="also write the current instruction here as JSON")
     p.add_argument("--grbl-axis", default="A", help="grbl: the rotary axis' letter (default A)")
-    p.add_argument("--grbl-step", type=float, default=10.0, metavar="DEG",
+    p.add_argument("--grbl-step", type=Range(0.0, 360.0, "deg", lo_open=True).option("--grbl-step"), default=10.0, metavar="DEG",
                    help="grbl: the table stops every DEG degrees (default 10)")
-    p.add_argument("--grbl-feed", type=float, default=1800.0, metavar="DEG_PER_MIN",
+    p.add_argument("--grbl-feed", type=Range(0.0, 1e6, "deg/min", lo_open=True).option("--grbl-feed"), default=1800.0, metavar="DEG_PER_MIN",
                    help="grbl: feed rate of the moves, degrees a minute (default 1800)")
-    p.add_argument("--baud", type=int, default=115200, help="serial baud rate (default 115200)")
-    p.add_argument("--wait", type=float, default=5.0, metavar="S",
+    p.add_argument("--baud", type=limits.BAUD.option("--baud"), default=115200, help="serial baud rate (default 115200)")
+    p.add_argument("--wait", type=limits.WAIT_S.option("--wait"), default=5.0, metavar="S",
                    help="how long the port may take to appear, seconds (default 5)")
     p.add_argument("--quiet", action="store_true", help="do not print the fit report")
     p.set_defaults(func=run)

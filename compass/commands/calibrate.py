@@ -10,6 +10,7 @@ from __future__ import annotations
 from contextlib import nullcontext
 from pathlib import Path
 
+from .. import limits
 from ..io.atomic import check_writable
 from ..io.progress import working
 from ..io.table import ReadOptions, add_read_arguments, read_table
@@ -18,6 +19,8 @@ from ..viz import add_rerun_option, check_rerun_target
 AXIS_TOLERANCE_DEG = 10.0
 """``--axis-tolerance-deg``'s default: :data:`calibrate.health.AXIS_TOLERANCE_DEG` (not imported here,
 so ``compass --help`` stays fast; a test holds the two equal)."""
+_ANGLE_DEG = limits.Range(0.0, 180.0, "deg", lo_open=True, hi_open=True)
+"""``--axis-tolerance-deg`` and ``--direction-accuracy-deg``: an angle between two directions."""
 
 
 def register(sub) -> None:
@@ -30,7 +33,8 @@ def register(sub) -> None:
                         "patent: the seed exactly (lowest samples)")
     p.add_argument("--no-diagnose", action="store_true", help="skip the residual diagnosis loop")
     p.add_argument("--report", metavar="DIR", help="also write plots of fit and residuals into DIR")
-    p.add_argument("--field-ut", type=float, default=None, help="|B| in uT (overrides '# field_ut:' metadata)")
+    p.add_argument("--field-ut", type=limits.FIELD_UT.option("--field-ut"),
+                   default=None, help="|B| in uT (overrides '# field_ut:' metadata)")
     p.add_argument("--kind", default=None, help="force the recording kind (fourflip, platform3d, reference, tumble, "
                                                 "or any kind in calibrate.kinds.KINDS)")
     p.add_argument("--ellipsoid", choices=("auto", "offset", "diagonal", "full"), default="auto",
@@ -43,10 +47,10 @@ def register(sub) -> None:
                    "stood (its hemisphere, which the data cannot tell, and the WMM check of the dip)")
     p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day (default: a four-flip recording's "
                                                         "'# date:', else today, UTC)")
-    p.add_argument("--axis-tolerance-deg", type=float, default=AXIS_TOLERANCE_DEG, metavar="DEG",
+    p.add_argument("--axis-tolerance-deg", type=_ANGLE_DEG.option("--axis-tolerance-deg"), default=AXIS_TOLERANCE_DEG, metavar="DEG",
                    help="warn when a channel's sensing direction is farther than this from the nearest housing axis "
                         f"(a gross mounting error; default {AXIS_TOLERANCE_DEG:g}; raise it for oblique designs)")
-    p.add_argument("--direction-accuracy-deg", type=float, default=None, metavar="DEG",
+    p.add_argument("--direction-accuracy-deg", type=_ANGLE_DEG.option("--direction-accuracy-deg"), default=None, metavar="DEG",
                    help="warn when a channel's direction sigma is larger than this, with the signal-to-noise "
                         "ratio that would reach it")
     p.add_argument("--force", action="store_true", help="overwrite an existing calibration file")
@@ -115,12 +119,18 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
         found = find_kind(table, recording, kind)
     except CannotCalibrate as exc:
         raise BadInput(str(exc)) from None
-    if field_ut is not None and not field_ut > 0:
-        raise BadInput(f"--field-ut must be positive, got {field_ut}")
+    if field_ut is not None:  # the option's range, for a caller in Python
+        try:
+            limits.FIELD_UT.check(field_ut, "--field-ut")
+        except ValueError as exc:
+            raise BadInput(str(exc)) from None
     for flag, value in (("--axis-tolerance-deg", axis_tolerance_deg),
                         ("--direction-accuracy-deg", direction_accuracy_deg)):
-        if value is not None and not 0 < value < 180:
-            raise BadInput(f"{flag} must be an angle in (0, 180) deg, got {value}")
+        try:
+            if value is not None:
+                _ANGLE_DEG.check(value, flag)
+        except ValueError as exc:
+            raise BadInput(str(exc)) from None
     given = {"method": method, "diagnose": diagnose, "field_ut": field_ut, "ellipsoid": ellipsoid, "base": base,
              "site": site, "date": date, "axis_tolerance_deg": axis_tolerance_deg,
              "direction_accuracy_deg": direction_accuracy_deg}

@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import limits
+
 ANOTHER_SITE = "-33.87,151.21"  # Sydney: the field points up, dip about -64 deg
 DATE = "2026-06-01"
 
@@ -37,7 +39,7 @@ class Demo:
 
 def register(sub) -> None:
     p = sub.add_parser("demo", help="simulate a bench session, calibrate it, solve attitude, print the report")
-    p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
+    p.add_argument("--seed", type=limits.SEED.option("--seed"), default=1, help="random seed (default 1)")
     p.add_argument("--effect", action="append", default=[], help="inject a simulator effect (repeatable)")
     p.add_argument("--workdir", default=None, help="keep the files here (default: a temporary folder)")
     p.set_defaults(func=run)

@@ -12,6 +12,9 @@ import os
 import signal
 import threading
 
+from .. import limits
+from ..limits import Range
+
 
 DEVICE_FORMATS = ("compass", "motioncal", "motioncal-raw", "csv")  # compass.sim.stream_formats, not imported at start
 
@@ -25,8 +28,9 @@ def register(sub) -> None:
     p.add_argument("--cal", help="calibration JSON: the module carries this sensor (default: a built-in sensor)")
     p.add_argument("--save-cal", metavar="CAL.json",
                    help="write the module's sensor as a calibration file for compass live, then stream")
-    p.add_argument("--rate", type=float, default=100.0, help="samples per second (default 100)")
-    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    p.add_argument("--rate", type=limits.RATE_HZ.option("--rate"),
+                   default=100.0, help="samples per second (default 100)")
+    p.add_argument("--seed", type=limits.SEED.option("--seed"), default=0, help="noise seed (default 0)")
     p.add_argument("--no-gyro", action="store_true", help="send no gx,gy,gz columns")
     p.add_argument("--format", choices=DEVICE_FORMATS, default="compass",
                    help="compass: the line protocol (default); motioncal: a MotionCal sketch as Adafruit's (Raw: and "
@@ -37,14 +41,16 @@ def register(sub) -> None:
                    help="script: the 40 s attitude script with a magnet (default); tumble: every orientation, for "
                         "a free-motion calibration (compass live --calibrate tumble)")
     p.add_argument("--link", help="keep a symbolic link with this name to the current pty (stable across disconnects)")
-    p.add_argument("--garbage", type=float, default=0.0, metavar="P",
+    p.add_argument("--garbage", type=limits.FRACTION.option("--garbage"), default=0.0, metavar="P",
                    help="probability per sample of a line of random bytes (default 0)")
-    p.add_argument("--truncate", type=float, default=0.0, metavar="P",
+    p.add_argument("--truncate", type=limits.FRACTION.option("--truncate"), default=0.0, metavar="P",
                    help="probability per sample of cutting the line short (default 0)")
-    p.add_argument("--disconnect-at", type=float, metavar="S", help="unplug at this module time, seconds")
-    p.add_argument("--disconnect-for", type=float, default=1.0, metavar="S",
+    p.add_argument("--disconnect-at", type=limits.WAIT_S.option("--disconnect-at"),
+                   metavar="S", help="unplug at this module time, seconds")
+    p.add_argument("--disconnect-for", type=limits.DURATION_S.option("--disconnect-for"), default=1.0, metavar="S",
                    help="stay unplugged this long, seconds (default 1)")
-    p.add_argument("--duration", type=float, help="stop after this many seconds of module time")
+    p.add_argument("--duration", type=limits.DURATION_S.option("--duration"),
+                   help="stop after this many seconds of module time")
     p.add_argument("--force", action="store_true", help="overwrite --save-cal's file")
     bench = p.add_argument_group("a module on a simulated turntable, for compass bench (--bench)")
     bench.add_argument("--bench", action="store_true",
@@ -56,16 +62,16 @@ def register(sub) -> None:
                             "+-0.5 deg; gyro: the operator turns from the mark once round (the module's gyro has "
                             "a 0.5 deg/s bias and a 1 %% scale error)")
     bench.add_argument("--operator", metavar="FILE", help="--bench: the station's prompt file the operator reads")
-    bench.add_argument("--encoder-step", type=float, default=0.1, metavar="DEG",
+    bench.add_argument("--encoder-step", type=Range(0.0, 90.0, "deg").option("--encoder-step"), default=0.1, metavar="DEG",
                        help="--turntable encoder: the encoder's resolution (default 0.1 deg)")
-    bench.add_argument("--speed", type=float, default=1.0,
+    bench.add_argument("--speed", type=Range(0.0, 1e3, lo_open=True).option("--speed"), default=1.0,
                        help="--bench: module seconds per wall second (default 1; the station works in module time)")
     bench.add_argument("--save-truth", metavar="TRUTH.json",
                        help="--bench: write the simulated sensor's truth (directions, offsets, gains, dip)")
     bench.add_argument("--mistake", action="append", default=[], choices=("short_turn", "wrong_face"),
                        help="--bench: the operator makes this mistake once (repeatable)")
-    bench.add_argument("--rate-change-at", type=float, metavar="S", help="--bench: halve the rate at this module time")
-    bench.add_argument("--header-change-at", type=float, metavar="S",
+    bench.add_argument("--rate-change-at", type=limits.WAIT_S.option("--rate-change-at"), metavar="S", help="--bench: halve the rate at this module time")
+    bench.add_argument("--header-change-at", type=limits.WAIT_S.option("--header-change-at"), metavar="S",
                        help="--bench: stop sending the accelerometer at this module time")
     bench.add_argument("--grbl-link", help="--turntable grbl: a symbolic link to the controller's pty")
     bench.add_argument("--grbl-fault", choices=("alarm", "silent"),
@@ -95,10 +101,6 @@ def run(args) -> int:
             raise BadInput(f"{args.cal}: the calibration has no dip_deg: the module cannot simulate its field")
     else:
         model = default_model() if args.format == "compass" else board_model()
-    if args.duration is not None and not args.duration > 0:
-        raise BadInput(f"--duration must be positive, got {args.duration}")
-    if args.disconnect_for <= 0:
-        raise BadInput(f"--disconnect-for must be positive, got {args.disconnect_for}")
     if args.link is not None and os.path.lexists(args.link) and not os.path.islink(args.link):
         raise BadInput(f"--link {args.link}: exists and is not a symbolic link; it would be replaced")
     try:

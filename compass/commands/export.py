@@ -25,6 +25,7 @@ import sys
 
 import numpy as np
 
+from .. import limits
 from ..io.atomic import atomic_write_text, check_writable
 from ..io.units import EARTH_FIELD_UT, MAG_UNITS
 
@@ -59,10 +60,11 @@ def register(sub) -> None:
     m = p.add_argument_group("motioncal")
     m.add_argument("--port", help="send the packet to the device on this serial port (pyserial URL) and read back its "
                                   "Cal1:/Cal2: echo")
-    m.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
-    m.add_argument("--wait", type=float, default=5.0, metavar="S",
+    m.add_argument("--baud", type=limits.BAUD.option("--baud"), default=115200, help="baud rate (default 115200)")
+    m.add_argument("--wait", type=limits.DURATION_S.option("--wait"), default=5.0, metavar="S",
                    help="how long to wait for the device's echo of the values sent (default 5 s)")
-    m.add_argument("--max-rotation-deg", type=float, default=1.0,
+    m.add_argument("--max-rotation-deg", type=limits.Range(0.0, 180.0, "deg").option("--max-rotation-deg"),
+                   default=1.0,
                    help="largest rotation between the field and the accelerometer left out of the packet, which "
                         "cannot hold one (default 1 deg); a larger one is refused")
     p.set_defaults(func=run)
@@ -126,8 +128,6 @@ def _export(args, path) -> int:
     if args.format == "motioncal":
         from ._export_motioncal import run_motioncal
 
-        if not args.wait > 0 or not args.max_rotation_deg >= 0:
-            raise BadInput("--wait must be positive and --max-rotation-deg zero or positive")
         args.calibration = str(path)
         return run_motioncal(args)
     if args.port:

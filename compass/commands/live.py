@@ -14,6 +14,8 @@ from dataclasses import replace
 import sys
 import time
 
+from .. import limits
+from ..limits import Range
 from ..io.stream_options import add_stream_arguments
 from ..viz import add_rerun_option, check_rerun_target
 from ._port import open_reader, port_unavailable, stop_when_asked, stream_options
@@ -28,26 +30,28 @@ def register(sub) -> None:
                    help="serial device (/dev/ttyUSB0, COM3) or pyserial URL (socket://host:port, rfc2217://...)")
     p.add_argument("--cal", help="calibration JSON (compass calibrate) of the module's sensor (required unless "
                                  "--calibrate)")
-    p.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200; ignored by ptys and sockets)")
+    p.add_argument("--baud", type=limits.BAUD.option("--baud"), default=115200,
+                   help="baud rate (default 115200; ignored by ptys and sockets)")
     add_rerun_option(p)
     p.add_argument("--out", help="also write the attitude stream to this CSV file")
     p.add_argument("--site", metavar="LAT,LON[,ALT_M]",
                    help="where the module is (degrees, metres): reference field and true north from the World "
                         "Magnetic Model (default: the field of the first quiet second, magnetic heading only)")
     p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day (default today, UTC)")
-    p.add_argument("--gravity", type=float, metavar="G",
+    p.add_argument("--gravity", type=limits.GRAVITY.option("--gravity"), metavar="G",
                    help="what 1 g reads in the module's accelerometer unit (default: the median |a| of the first "
                         "quiet second)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
-    p.add_argument("--duration", type=float, help="stop after this many seconds (default: until Ctrl-C)")
-    p.add_argument("--wait", type=float, default=0.0, metavar="S",
+    p.add_argument("--duration", type=limits.DURATION_S.option("--duration"),
+                   help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--wait", type=limits.WAIT_S.option("--wait"), default=0.0, metavar="S",
                    help="keep trying to open the port this long before giving up (default 0: a port that cannot "
                         "be opened is an error); once connected, a lost port is always waited for")
     p.add_argument("--quiet", action="store_true", help="no live readout and no event lines, only the summary")
     p.add_argument("--calibrate", choices=("tumble",),
                    help="tumble: calibrate the module while you turn it through every orientation (coverage and fit "
                         "shown live); writes --out CAL.json when the coverage is enough, or on Ctrl-C")
-    p.add_argument("--min-coverage", type=float, default=0.8,
+    p.add_argument("--min-coverage", type=Range(0.0, 1.0, lo_open=True).option("--min-coverage"), default=0.8,
                    help="--calibrate tumble: fraction of the sphere to cover, with every axis along the field once "
                         "(default 0.8)")
     add_stream_arguments(p)
@@ -57,7 +61,7 @@ def register(sub) -> None:
 def run(args) -> int:
     from ..cli import BadInput
     from ..filter import FilterConfig
-    from ..io.atomic import check_writable
+    from ..io.atomic import atomic_stream, check_writable
     from ..live import LiveSession
     from ..calibration import load
 
@@ -98,10 +102,11 @@ def run(args) -> int:
 
             sink = RerunSink.for_model(args.rerun, model, config)
         with contextlib.ExitStack() as outputs:
-            # --out is a stream, written as it goes (tail -f follows it; a crash keeps what was recorded):
-            # not atomic on purpose, unlike the files a command produces at once
+            # --out is a stream, written as it goes into a temporary file beside it, which replaces --out when
+            # the session ends with rows (a failure included: what was recorded is kept); a session that
+            # recorded nothing, or found the field turned over, leaves --out (an older file) as it was
             if out_path is not None:
-                out = outputs.enter_context(open(out_path, "w", encoding="utf-8", buffering=1 << 16))
+                out = outputs.enter_context(atomic_stream(out_path, keep=lambda: _recorded(session)))
             session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event, reference=reference,
                                   imu=cal.imu, stream=stream,
                                   sign_from_bench=cal.provenance.hemisphere_assumed)
@@ -110,10 +115,7 @@ def run(args) -> int:
                 raise BadInput(f"{args.cal}: {session.turned_over}")
             failed = False
     finally:
-        # rows written, not lines decoded; a field found turned over gave wrong headings: not kept
-        recorded = session is not None and session.samples > 0 and session.turned_over is None
-        if out is not None and not recorded:
-            out_path.unlink(missing_ok=True)  # opened by this run and holding no sample: leave nothing behind
+        recorded = _recorded(session)
         if sink is not None and session is None:
             sink.discard()  # the session never started: no half-written recording left behind
         if session is not None:
@@ -135,6 +137,12 @@ def run(args) -> int:
         print(f"compass live: no sample arrived from {args.port} in {elapsed:.1f} s ({why})", file=sys.stderr)
         return 1
     return 0
+
+
+def _recorded(session) -> bool:
+    """The session's outputs are worth keeping: rows written (not lines decoded), and the field was not
+    found turned over (its headings are wrong)."""
+    return session is not None and session.samples > 0 and session.turned_over is None
 
 
 def _run_session(args, reader, session, out, tty: bool, every_s: float) -> None:

@@ -65,8 +65,8 @@ class AttitudeFilter:
     ``update``); :meth:`estimate` reads the output; :meth:`step` does both; :func:`run_filter`
     runs :meth:`update` over arrays.
 
-    Bad input is screened before anything is fused: a non-finite time skips the sample; a
-    non-finite or out-of-range (``FilterConfig.*_range``) gyro, accelerometer or field reading is
+    Bad input is screened before anything is fused: a non-finite time, or one that goes back, skips
+    the sample; a non-finite or out-of-range (``FilterConfig.*_range``) gyro, accelerometer or field reading is
     skipped as if absent (the gyro's last good rate is held), counted by reason in
     :attr:`skipped` and named in :attr:`diagnostics`; the next good reading is used as usual.
 
@@ -218,7 +218,8 @@ class AttitudeFilter:
         Parameters
         ----------
         t_s : float
-            Sample time, seconds (non-decreasing; a step back is treated as zero).
+            Sample time, seconds (non-decreasing: a sample whose time goes back is skipped, and the
+            next one tells a corrupted time from a restarted clock: :meth:`_time_step`).
         accel : array_like, shape (3,), or None
             Accelerometer in H, any unit (specific force, +up at rest).
         gyro : array_like, shape (3,), or None
@@ -231,7 +232,7 @@ class AttitudeFilter:
         -------
         Estimate or None
             None until the first sample with an accelerometer and a field reading initialises the
-            attitude, and for a sample with a non-finite time.
+            attitude, and for a sample with a non-finite time or one that goes back.
         """
         if not self.update(t_s, accel, gyro, field_h):
             return None
@@ -267,7 +268,10 @@ class AttitudeFilter:
         if not math.isfinite(t_s):
             self._skip("t_s not finite")
             return None
-        dt = 0.0 if s.t_s is None else max(t_s - s.t_s, 0.0)
+        dt = 0.0 if s.t_s is None else self._time_step(t_s)
+        if s.t_back_s is not None:  # kept aside, the sample skipped: the next time tells a corrupted one from a restart
+            self._skip("t_s went back")
+            return None
         if gyro is not None and self.gyro:
             w = self._vector(gyro, "gyro", 0.0, self._gyro_range2)
             if w is not None:
@@ -288,6 +292,21 @@ class AttitudeFilter:
                 self._start(a, b)
             dt = 0.0
         return t_s, dt, a, b
+
+    def _time_step(self, t_s: float) -> float:
+        """The step to ``t_s`` from the last time, s.  A time that goes back is kept aside (``t_back_s``; its
+        sample is skipped): if the next one goes on from the old clock, it was a corrupted value and the step
+        is taken from the old clock (one bad time never turns the gyro through a made-up interval); if it goes
+        on from the new one, the module restarted its clock, which is adopted."""
+        s = self._s
+        back, s.t_back_s = s.t_back_s, None
+        if t_s >= s.t_s:
+            return t_s - s.t_s
+        if back is not None and t_s >= back:  # the second time on the new clock: a restart
+            s.t_s = back
+            return t_s - back
+        s.t_back_s = t_s
+        return 0.0
 
     # ------------------------------------------------------------------ input screening
     def _skip(self, reason: str) -> None:

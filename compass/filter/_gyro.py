@@ -63,6 +63,9 @@ class GyroState(PackedCovariance):
         The latest sample's.
     since_start_s : float
         Time since the attitude (re)started, s: the bias is held for ``accel_time_constant_s``.
+    t_back_s : float or None
+        A time earlier than ``t_s`` the last sample gave (a corrupted clock, or the module restarting
+        its clock: the next sample tells which), else None.
     """
 
     t_s: float | None
@@ -83,6 +86,7 @@ class GyroState(PackedCovariance):
     skipped: SkipCounts = field(default_factory=SkipCounts)
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
     since_start_s: float = 0.0
+    t_back_s: float | None = None
 
 
 class GyroFilter(AttitudeFilter):

@@ -255,7 +255,8 @@ class FilterCoefficients:
             attenuation2=(config.motion_time_s / (2.0 * math.pi * config.accel_time_constant_s)) ** 2)
 
 
-SKIP_REASONS = ("t_s not finite", "gyro not finite", "gyro out of range", "accel not finite", "accel out of range",
+SKIP_REASONS = ("t_s not finite", "t_s went back",
+                "gyro not finite", "gyro out of range", "accel not finite", "accel out of range",
                 "field not finite", "field out of range")
 """Why a sample (or one sensor's part of it) was skipped, never fused."""
 
@@ -269,6 +270,7 @@ class SkipCounts:
     """
 
     t_s_not_finite: int = 0
+    t_s_went_back: int = 0
     gyro_not_finite: int = 0
     gyro_out_of_range: int = 0
     accel_not_finite: int = 0

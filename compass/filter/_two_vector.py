@@ -39,6 +39,9 @@ class TwoVectorState(PackedCovariance):
     gate : GateState
     skipped : SkipCounts
     diagnostics : Diagnostics
+    t_back_s : float or None
+        A time earlier than ``t_s`` the last sample gave (a corrupted clock, or the module restarting
+        its clock: the next sample tells which), else None.
     """
 
     t_s: float | None
@@ -51,6 +54,7 @@ class TwoVectorState(PackedCovariance):
     gate: GateState
     skipped: SkipCounts = field(default_factory=SkipCounts)
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
+    t_back_s: float | None = None
 
 
 class TwoVectorFilter(AttitudeFilter):

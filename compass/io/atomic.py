@@ -16,7 +16,8 @@ import stat
 import tempfile
 from pathlib import Path
 
-__all__ = ["OutputError", "atomic_open", "atomic_write_text", "check_writable", "save_figure", "output_mode",
+__all__ = ["OutputError", "atomic_open", "atomic_stream", "atomic_write_text",
+           "check_writable", "save_figure", "output_mode",
            "remove_stale_temporaries"]
 
 
@@ -73,12 +74,7 @@ def atomic_open(path, mode: str = "w"):
     if mode not in ("w", "wb"):
         raise ValueError(f"mode must be 'w' or 'wb', got {mode!r}")
     path = Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        remove_stale_temporaries(path)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp")
-    except OSError as exc:
-        raise OutputError(f"{path}: cannot write ({exc.strerror})") from None
+    fd, tmp = _temporary(path)
     try:
         with os.fdopen(fd, mode, **({"encoding": "utf-8"} if mode == "w" else {})) as fh:
             yield fh
@@ -91,6 +87,45 @@ def atomic_open(path, mode: str = "w"):
         if isinstance(exc, OSError) and not isinstance(exc, OutputError):
             raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
         raise
+
+
+@contextlib.contextmanager
+def atomic_stream(path, keep):
+    """:func:`atomic_open` for a stream written as it goes, which replaces ``path`` only if ``keep()``.
+
+    ``compass live --out``: rows go to the temporary file while the session runs (follow it with
+    ``tail -f`` on the ``.NAME.PID.*.tmp`` file); when the block ends, also by an exception, the
+    file replaces ``path`` if ``keep()`` says it holds what should be kept (rows were recorded),
+    else it is removed and ``path`` (an older file ``--force`` would have replaced) is left as it
+    was.  An exception from the block is raised again either way.
+
+    Parameters
+    ----------
+    path : path-like
+    keep : callable returning bool
+        Asked once, when the block ends.
+    """
+    path = Path(path)
+    fd, tmp = _temporary(path)
+    fh = os.fdopen(fd, "w", encoding="utf-8", buffering=1 << 16)
+    kept = False
+    try:
+        yield fh
+    finally:
+        try:
+            if keep():
+                fh.flush()
+                os.fchmod(fh.fileno(), output_mode(path))
+                os.fsync(fh.fileno())
+                fh.close()
+                os.replace(tmp, path)
+                kept = True
+        except OSError as exc:
+            raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
+        finally:
+            fh.close()
+            if not kept:
+                Path(tmp).unlink(missing_ok=True)
 
 
 def atomic_write_text(path, text: str) -> None:
@@ -117,6 +152,16 @@ def save_figure(fig, path, **savefig_kwargs) -> Path:
     with atomic_open(path, "wb") as fh:
         fig.savefig(fh, **savefig_kwargs)
     return path
+
+
+def _temporary(path: Path) -> tuple[int, str]:
+    """A new ``.NAME.PID.RANDOM.tmp`` beside ``path`` (its folder made): (descriptor, name)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_temporaries(path)
+        return tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp")
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write ({exc.strerror})") from None
 
 
 def remove_stale_temporaries(path) -> list[Path]:

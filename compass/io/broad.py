@@ -20,7 +20,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..limits import RATE_HZ
 from .table import RecordingError
+from .units import MAX_ABS_VALUE
 
 __all__ = ["BroadTrial", "read_broad", "NWU_FROM_ENU", "enu_to_nwu", "nwu_to_enu"]
 
@@ -159,9 +161,11 @@ def read_broad(path) -> BroadTrial:
         n = len(a)
         arrays[key] = a
     for key in ("imu_gyr", "imu_acc", "imu_mag"):
-        bad = ~np.all(np.isfinite(arrays[key]), axis=1)
+        with np.errstate(invalid="ignore"):
+            bad = ~np.all(np.abs(arrays[key]) <= MAX_ABS_VALUE, axis=1)  # True for NaN
         if bad.any():
-            raise RecordingError(path, "non-finite IMU sample", row=int(np.argmax(bad)) + 1, column=key)
+            raise RecordingError(path, f"IMU sample not finite or beyond {MAX_ABS_VALUE:g} in magnitude (no sensor "
+                                       "reads it)", row=int(np.argmax(bad)) + 1, column=key)
     quat = arrays["opt_quat"]
     norm = np.linalg.norm(quat, axis=1)
     bad = np.isfinite(norm) & (np.abs(norm - 1.0) > _UNIT_TOLERANCE)
@@ -176,11 +180,10 @@ def read_broad(path) -> BroadTrial:
     if not movement.any():
         raise RecordingError(path, "no sample marked as movement: nothing to score", column="movement")
     try:
-        rate = float(d["sampling_rate"])
-    except (TypeError, ValueError):
-        raise RecordingError(path, "expected one number (Hz)", column="sampling_rate") from None
-    if not (np.isfinite(rate) and rate > 0):
-        raise RecordingError(path, f"expected a positive rate in Hz, got {rate}", column="sampling_rate")
+        rate = RATE_HZ.check(float(d["sampling_rate"]), "the rate")
+    except (TypeError, ValueError) as exc:
+        what = str(exc) if isinstance(exc, ValueError) and "rate" in str(exc) else "expected one number (Hz)"
+        raise RecordingError(path, what, column="sampling_rate") from None
     info = d.get("info", "")
     return BroadTrial(path=str(path), name=path.stem, rate_hz=rate, gyro_rad_s=arrays["imu_gyr"],
                       accel_m_s2=arrays["imu_acc"], mag_ut=arrays["imu_mag"], ref_quat_enu=quat,

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .names import RESERVED_NAMES
 from .table import ReadOptions, RecordingError, Table, read_table
 from .units import looks_like_radians
 
@@ -19,7 +20,7 @@ MAX_GAP_DEG = 90.0
 MIN_SAMPLES_PER_FLIP = 8
 _RADIANS_HINT = ("; {column} never leaves 0..2*pi: radians? The column is in degrees; convert it, or name the "
                  "unit with --angle-unit rad")
-RESERVED_COLUMNS = ("flip_deg", "platform_deg", "t_s", "temp_c", "ax", "ay", "az", "gx", "gy", "gz")
+RESERVED_COLUMNS = RESERVED_NAMES  # every other column is a channel
 
 
 @dataclass(frozen=True)
@@ -113,14 +114,8 @@ def fourflip_from_table(table: Table) -> FourFlipRecording:
             column="flip_deg",
         )
     _check_coverage(table, flip_index, platform, looks_like_radians(flip), looks_like_radians(platform))
+    table.check_constant(channels)
     outputs = np.column_stack([table.column(c) for c in channels])
-    for j, name in enumerate(channels):
-        if np.ptp(outputs[:, j]) == 0.0:
-            raise RecordingError(
-                table.path,
-                f"channel never changes (constant {outputs[0, j]:g}): a dead or disconnected sensor?",
-                column=name,
-            )
     optional = {c: table.column(c) if table.has(c) else None for c in ("t_s", "temp_c")}
     accel = None
     if all(table.has(c) for c in ("ax", "ay", "az")):

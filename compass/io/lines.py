@@ -19,29 +19,38 @@ around cells are ignored.
 
 Everything else is counted and skipped, never raised: garbage (bytes that are not ASCII, a
 header-less or overlong line, a cell that is not a number, a checksum mismatch, too many
-cells), invalid samples (a well-formed line with a non-finite number), partial lines (fewer
-cells than the header: a truncated line), samples before any usable header, repeated ``seq``
-values, and samples lost in transit: the gap between two ``seq`` values, or without ``seq`` the
-gap in ``t_s`` against the module's own sample interval (also across a reconnect), less the
-lines already counted as bad in between.  An overlong line counts once however long it is.
+cells), invalid samples (a well-formed line with a number that is not finite or beyond
+:data:`~compass.io.units.MAX_ABS_VALUE` in magnitude, the recordings' limit, or a ``seq`` that is
+not a non-negative integer), partial lines (fewer cells than the header: a truncated line),
+samples before any usable header, repeated ``seq`` values, and samples lost in transit: the gap
+between two ``seq`` values, or without ``seq`` the gap in ``t_s`` against the module's own sample
+interval (also across a reconnect), less the lines already counted as bad in between.  A gap of
+more than :data:`MAX_GAP_SAMPLES` is not believed: the counter or the clock jumped (a corrupted
+value, a module restarted mid-count); it is said as an event and not counted as lost.  An
+overlong line counts once however long it is.
 """
 
 from __future__ import annotations
 
-import math
 import statistics
 from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Header", "LineDecoder", "LineStats", "Sample", "checksum", "format_line"]
+from .units import MAX_ABS_VALUE
+
+__all__ = ["Header", "LineDecoder", "LineStats", "Sample", "MAX_GAP_SAMPLES", "checksum", "format_line"]
 
 MAX_LINE_BYTES = 8192  # a 150-column header is about 1.2 KiB
 _GROUPS = {"accel": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz")}
 _SCALARS = ("t_s", "seq", "temp_c")
 _DT_WINDOW = 32  # t_s steps kept to estimate the module's sample interval
 _DT_MIN_STEPS = 8  # steps needed before a t_s gap is counted
+MAX_GAP_SAMPLES = 1_000_000
+"""Largest gap counted as samples lost in transit: 17 minutes at 1 kHz, nearly 3 hours at 100 Hz.
+A larger jump of ``seq`` or ``t_s`` is a counter or clock that jumped, not a link that lost a
+million lines: said once as an event and not counted."""
 
 
 def checksum(payload: bytes) -> int:
@@ -159,7 +168,8 @@ class LineStats:
     garbage : int
         Lines that are not the protocol (see the module docstring); an overlong line counts once.
     invalid : int
-        Well-formed sample lines with a non-finite number (nan, inf): never used.
+        Well-formed sample lines with a number no module sends: not finite (nan, inf), beyond
+        :data:`~compass.io.units.MAX_ABS_VALUE` in magnitude, or a negative ``seq``: never used.
     partial : int
         Lines with fewer cells than the header, and fragments cut by a (re)connect.
     unheaded : int
@@ -236,6 +246,8 @@ class LineDecoder:
     _last_t_s: float | None = None
     _dt_s: deque = field(default_factory=lambda: deque(maxlen=_DT_WINDOW))
     _bad_at_sample: int = 0  # bad lines at the last good sample
+    _anchor: tuple = (None, None)  # (seq, t_s) of the sample before the last
+    _last_lost: int = 0  # samples counted lost at the last sample
     _last_rejected: tuple | None = None
 
     def __post_init__(self):
@@ -342,37 +354,70 @@ class LineDecoder:
         return sample
 
     def _decode(self, header: Header, cells: list[str]) -> Sample:
-        """ValueError when a required cell is empty or a cell is not a number; _NotFinite for nan/inf."""
+        """ValueError when a required cell is empty or a cell is not a number; _NotFinite for a number
+        no module sends (not finite, beyond MAX_ABS_VALUE, a negative seq)."""
         values = [float(cells[i]) for i in header.channels]
         seq = int(cells[header.seq]) if header.seq is not None and cells[header.seq] else None
         sample = Sample(np.array(values), _group(cells, header.accel), _group(cells, header.gyro),
                         _scalar(cells, header.t_s), seq, _scalar(cells, header.temp_c), header)
-        if not all(map(math.isfinite, values)):  # math on floats: numpy's isfinite costs a microsecond a call
-            raise _NotFinite("non-finite channel")
+        if not all(map(_plausible, values)) or (seq is not None and not 0 <= seq <= MAX_ABS_VALUE):
+            raise _NotFinite("a channel or seq out of range")
         return sample
 
     def _count_gap(self, sample: Sample) -> bool:
         """Count samples lost before ``sample`` (``seq``, else ``t_s`` gaps); False if its ``seq`` repeats."""
         missing = 0
+        if sample.seq is not None and sample.seq == self._last_seq:
+            return False
+        outlier = self._last_was_outlier(sample)
+        if outlier:  # its jump counted nothing lost, and the count goes on from the sample before it
+            self.stats.lost -= self._last_lost
+            self._last_seq, self._last_t_s = self._anchor
+        self._anchor = (self._last_seq, self._last_t_s)
         if sample.seq is not None:
-            if sample.seq == self._last_seq:
-                return False
             if self._last_seq is not None and sample.seq > self._last_seq:
-                missing = sample.seq - self._last_seq - 1
+                missing = self._believed(sample.seq - self._last_seq - 1, "seq", self._last_seq, sample.seq)
             self._last_seq = sample.seq  # a smaller seq: the module restarted its counter
         elif sample.t_s is not None and self._last_t_s is not None:
             dt_s = sample.t_s - self._last_t_s
             if len(self._dt_s) >= _DT_MIN_STEPS and dt_s > 0:
                 step_s = statistics.median(self._dt_s)  # a plain median: np.median costs 9 us a sample
-                missing = max(0, int(round(dt_s / step_s)) - 1) if dt_s > 1.5 * step_s else 0
+                if dt_s > 1.5 * step_s:
+                    missing = self._believed(max(0, round(dt_s / step_s) - 1), "t_s", self._last_t_s, sample.t_s)
             if dt_s > 0 and not missing:
                 self._dt_s.append(dt_s)
         if sample.t_s is not None:
             self._last_t_s = sample.t_s
+        missing = max(0, missing - outlier)  # the outlier was the sample of one of the slots
+        self._last_lost = 0
         if missing:
             already = self.stats.bad_lines - self._bad_at_sample  # bad lines since the last sample: counted
-            self.stats.lost += max(0, missing - already)
+            self._last_lost = max(0, missing - already)
+            self.stats.lost += self._last_lost
         return True
+
+    def _last_was_outlier(self, sample: Sample) -> bool:
+        """The last sample's ``seq`` (else ``t_s``) left the sequence its neighbours keep: the one before it
+        and ``sample`` are in order while it is not between them (a corrupted counter or clock, not a
+        restart: after a restart the sequence goes on from the new value)."""
+        name = "seq" if sample.seq is not None else "t_s"
+        before = self._anchor[0 if name == "seq" else 1]
+        last = self._last_seq if name == "seq" else self._last_t_s
+        now = getattr(sample, name)
+        if before is None or last is None or now is None or not before < now or before < last < now:
+            return False
+        self.events.append(("warn", f"{name} {last:g} between {before:g} and {now:g}: taken as a corrupted value, "
+                                    f"not as samples lost"))
+        return True
+
+    def _believed(self, missing: int, name: str, before, after) -> int:
+        """``missing`` samples lost, or 0 (said as an event) beyond :data:`MAX_GAP_SAMPLES`."""
+        if missing <= MAX_GAP_SAMPLES:
+            return missing
+        self.events.append(("warn", f"{name} jumped from {before:g} to {after:g}, a gap of over "
+                                    f"{MAX_GAP_SAMPLES:,} samples: taken as the module's counter or clock "
+                                    f"jumping, not counted as lost"))
+        return 0
 
     def _read_header(self, cells: list[str], has_sum: bool) -> None:
         names = tuple(cells)
@@ -419,15 +464,20 @@ def _is_number(cell: str) -> bool:
 
 
 class _NotFinite(ValueError):
-    """A well-formed number that is nan or infinite."""
+    """A well-formed number no module sends: nan, infinite, or beyond MAX_ABS_VALUE in magnitude."""
+
+
+def _plausible(value: float) -> bool:
+    """Finite and within MAX_ABS_VALUE (math on floats: numpy's isfinite costs a microsecond a call)."""
+    return -MAX_ABS_VALUE <= value <= MAX_ABS_VALUE  # False for nan
 
 
 def _scalar(cells: list[str], index: int | None) -> float | None:
     if index is None or not cells[index]:
         return None
     value = float(cells[index])
-    if not math.isfinite(value):
-        raise _NotFinite("non-finite value")
+    if not _plausible(value):
+        raise _NotFinite("value out of range")
     return value
 
 
@@ -439,6 +489,6 @@ def _group(cells: list[str], index: np.ndarray | None) -> np.ndarray | None:
     if not any(texts):
         return None
     values = [float(t) for t in texts]  # ValueError on a partly empty group
-    if not all(map(math.isfinite, values)):
-        raise _NotFinite("non-finite value")
+    if not all(map(_plausible, values)):
+        raise _NotFinite("value out of range")
     return np.array(values)

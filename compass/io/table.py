@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import codecs
 import itertools
-import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from . import units
+from ..limits import FIELD_UT
 from .units import note
 
 __all__ = ["RecordingError", "Table", "ReadOptions", "read_table", "add_read_arguments", "format_table", "VOCABULARY"]
@@ -229,13 +229,19 @@ class Table:
             note(f"{self.path}: ignored column{'s' * (len(extra) > 1)} {', '.join(extra)} (not used by {what})")
 
     def check_constant(self, names) -> None:
-        """RecordingError naming the first of ``names`` whose value never changes (a dead channel)."""
+        """RecordingError naming the first of ``names`` whose value never changes (a dead channel), or
+        changes by no more than :data:`~compass.io.units.MIN_SPAN` (no sensor's turn is that small)."""
         for name in names:
             if self.has(name):
                 v = self.column(name)
-                if len(v) > 1 and np.ptp(v) == 0.0:
+                span = np.ptp(v) if len(v) > 1 else np.inf
+                if span == 0.0:
                     raise RecordingError(self.path, f"is constant ({v[0]:g} in all {len(v)} rows): the channel never "
                                                     "changes, a dead or disconnected sensor?", column=name)
+                if not span > units.MIN_SPAN:
+                    raise RecordingError(self.path, f"spans {span:.3g} only: the channel never changes by more than "
+                                                    f"{units.MIN_SPAN:g}, which no sensor's turn is in any unit",
+                                         column=name)
 
 
 def read_table(path, options: ReadOptions | None = None) -> Table:
@@ -714,8 +720,8 @@ def _check_field_ut(table: Table, meta_rows: dict) -> None:
         return
     text = table.metadata["field_ut"]
     value = _strict_float(text)
-    if value is None or not math.isfinite(value) or value <= 0:
-        raise RecordingError(table.path, f"metadata 'field_ut' must be |B| in uT, a positive number, got {text!r}",
+    if value not in FIELD_UT:
+        raise RecordingError(table.path, f"metadata 'field_ut' must be |B| in uT, {FIELD_UT.describe()}, got {text!r}",
                              row=meta_rows.get("field_ut"), column="field_ut")
     lo, hi = units.EARTH_FIELD_UT
     if not 0.5 * lo <= value <= 2 * hi:

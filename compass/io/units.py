@@ -25,7 +25,7 @@ import warnings
 import numpy as np
 
 __all__ = ["RecordingWarning", "GYRO_UNITS", "ACCEL_UNITS", "MAG_UNITS", "ANGLE_UNITS", "STANDARD_GRAVITY",
-           "EARTH_FIELD_UT", "MAX_ABS_VALUE", "unit_of_header", "gyro_turn_ratio", "check_gyro_unit",
+           "EARTH_FIELD_UT", "MAX_ABS_VALUE", "MIN_SPAN", "unit_of_header", "gyro_turn_ratio", "check_gyro_unit",
            "check_field_norm", "looks_like_radians", "check_accel_up", "check_two_axis_tilt", "note"]
 
 STANDARD_GRAVITY = 9.80665
@@ -45,6 +45,11 @@ MAX_ABS_VALUE = 1e12
 any unit: a 32-bit ADC counts to 4.3e9, the strongest steady laboratory field (45 T) is 4.5e10 nT,
 and a Unix time in seconds is 1.8e9.  A larger value is a corrupted cell (or a time in ns), and
 its square would already lose the precision every fit needs."""
+
+MIN_SPAN = 1e-12
+"""Smallest change a magnetic or tilt channel must show over a recording.  No sensor's turn is
+smaller in any unit (1 pT is a SQUID's noise; a tilt of 1e-12 rad is nothing); a channel of
+values near 1e-300 is a unit mistake or a dead sensor, and its squares underflow in every fit."""
 
 _UNIT_SPELLINGS = {
     "gyro": {"rad/s": "rad/s", "rads": "rad/s", "rad/sec": "rad/s", "deg/s": "deg/s", "dps": "deg/s",
