@@ -160,15 +160,15 @@ def solve_recording(calibration, recording, *, level=False, max_tilt_deg=5.0, ac
                          what=f"{calibration} (its channels: {', '.join(model.channels)})")
     raw = np.column_stack([table.column(name) for name in model.channels])
     if tilt_sensor is None:
-        accel = _group(table, ACCEL)
+        accel = table.group(ACCEL)
         if accel is not None:
             check_accel_up(accel, table.rows, where=table.path)
     else:  # a 3-D platform calibration: ax, ay[, az] are its tilt sensor's raw outputs
-        tilt_raw = _group(table, tilt_sensor.columns)
+        tilt_raw = table.group(tilt_sensor.columns)
         accel = tilt_sensor.up(tilt_raw)
     # the bench's offsets undone, turned into H (and an installed file's product frame)
     accel, bench_fix_applied = cal.imu.in_model_frame(accel)
-    tilt = _group(table, TILT)
+    tilt = table.group(TILT)
     if accel is not None:
         _check_rows(table, np.sum(accel**2, axis=1) > 0, "ax", "accelerometer reads zero: expected gravity")
     if tilt is not None:
@@ -270,17 +270,6 @@ def _skipped_note(skipped) -> str:
     return (f", {int(counts.sum())} skipped (" + ", ".join(f"{SKIP_REASONS[c]} {k}" for c, k in zip(codes, counts))
             + "): angles nan, see the skipped column")
 
-
-def _group(table, names) -> np.ndarray | None:
-    """The columns ``names`` together, None when all are absent; RecordingError naming a missing one."""
-    present = [n for n in names if table.has(n)]
-    if not present:
-        return None
-    for name in names:
-        if not table.has(name):
-            raise RecordingError(table.path, f"has {', '.join(present)} but not '{name}': give all of "
-                                             f"{', '.join(names)}", row=table.header_row, column=name)
-    return np.column_stack([table.column(n) for n in names])
 
 
 def _check_rows(table, ok: np.ndarray, column: str, message: str) -> None:

@@ -146,7 +146,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     if not table.has("t_s"):
         raise RecordingError(table.path, "has no t_s column: the filter needs each sample's time (seconds)",
                              row=table.header_row, column="t_s")
-    accel, gyro = _group(table, ("ax", "ay", "az")), _group(table, ("gx", "gy", "gz"))
+    accel, gyro = table.group(("ax", "ay", "az")), table.group(("gx", "gy", "gz"))
     if accel is None:
         raise RecordingError(table.path, "has no ax,ay,az columns: the filter needs an accelerometer for the tilt "
                                          "(without one: compass attitude --level, no --filter)",
@@ -197,17 +197,3 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
           f"{'gyro' if gyro is not None else 'two-vector (no gx,gy,gz)'}; reference field: "
           f"{session.reference.description})" + (f"\nwrote {rerun}" if rerun is not None and str(rerun) != "spawn" else ""))
     return session
-
-
-def _group(table, names) -> np.ndarray | None:
-    """The columns ``names`` together, None when all are absent; RecordingError naming a missing one."""
-    from .io.table import RecordingError
-
-    present = [n for n in names if table.has(n)]
-    if not present:
-        return None
-    for name in names:
-        if not table.has(name):
-            raise RecordingError(table.path, f"has {', '.join(present)} but not '{name}': give all of "
-                                             f"{', '.join(names)}", row=table.header_row, column=name)
-    return np.column_stack([table.column(n) for n in names])

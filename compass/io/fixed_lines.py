@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import motioncal as mc
-from .lines import _GROUPS, _SCALARS, MAX_LINE_BYTES, Header, LineDecoder, Sample
+from .lines import _GROUPS, _SCALARS, Header, LineDecoder, Sample, line_text
 from .units import STANDARD_GRAVITY
 
 __all__ = ["Layout", "CsvDecoder", "MotionCalDecoder", "parse_columns", "MOTIONCAL_COLUMNS"]
@@ -124,14 +124,7 @@ class _FixedDecoder(LineDecoder):
             self.events.append(("info", self.layout.header.describe().replace("header:", "columns:", 1)))
 
     def parse_line(self, line: bytes) -> Sample | None:
-        if len(line) > MAX_LINE_BYTES:
-            self.stats.garbage += 1
-            return None
-        try:
-            text = line.decode("ascii").strip()
-        except UnicodeDecodeError:
-            self.stats.garbage += 1
-            return None
+        text = line_text(line, self.stats)
         if not text:
             return None
         untrusted, self._untrusted = self._untrusted, False

@@ -40,7 +40,7 @@ import numpy as np
 
 from .units import MAX_ABS_VALUE
 
-__all__ = ["Header", "LineDecoder", "LineStats", "Sample", "MAX_GAP_SAMPLES", "checksum", "format_line"]
+__all__ = ["Header", "LineDecoder", "LineStats", "Sample", "MAX_GAP_SAMPLES", "checksum", "format_line", "line_text"]
 
 MAX_LINE_BYTES = 8192  # a 150-column header is about 1.2 KiB
 _GROUPS = {"accel": ("ax", "ay", "az"), "gyro": ("gx", "gy", "gz")}
@@ -203,6 +203,19 @@ class LineStats:
         return self.bad_lines + self.lost
 
 
+def line_text(line: bytes, stats) -> str | None:
+    """A line's ASCII text without surrounding space; None for a line longer than
+    :data:`MAX_LINE_BYTES` or not ASCII (counted in ``stats.garbage``) and "" for an empty one."""
+    if len(line) > MAX_LINE_BYTES:
+        stats.garbage += 1
+        return None
+    try:
+        return line.decode("ascii").strip()
+    except UnicodeDecodeError:
+        stats.garbage += 1
+        return None
+
+
 @dataclass
 class LineDecoder:
     """Split a byte stream into protocol lines and decode them; never raises on input.
@@ -296,14 +309,7 @@ class LineDecoder:
 
     def parse_line(self, line: bytes) -> Sample | None:
         """Decode one line without its terminator; None for headers, comments and bad lines."""
-        if len(line) > MAX_LINE_BYTES:
-            self.stats.garbage += 1
-            return None
-        try:
-            text = line.decode("ascii").strip()
-        except UnicodeDecodeError:
-            self.stats.garbage += 1
-            return None
+        text = line_text(line, self.stats)
         if not text:
             return None
         untrusted, self._untrusted = self._untrusted, False

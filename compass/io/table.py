@@ -213,6 +213,23 @@ class Table:
                                  row=self.header_row, column=name)
         return self.data[:, i]
 
+    def group(self, names) -> np.ndarray | None:
+        """The columns ``names`` together, shape (n_rows, len(names)); None when all are absent.
+
+        Raises
+        ------
+        RecordingError
+            Some of them present and not all (naming the missing one).
+        """
+        present = [n for n in names if self.has(n)]
+        if not present:
+            return None
+        for name in names:
+            if not self.has(name):
+                raise RecordingError(self.path, f"has {', '.join(present)} but not '{name}': give all of "
+                                                f"{', '.join(names)}", row=self.header_row, column=name)
+        return np.column_stack([self.column(n) for n in names])
+
     def time_s(self) -> np.ndarray | None:
         """The optional ``t_s`` column (checked non-decreasing on reading), None when absent."""
         return self.column("t_s") if self.has("t_s") else None
