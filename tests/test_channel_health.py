@@ -209,3 +209,29 @@ def test_a_file_with_a_dead_channel_is_refused_by_every_runtime_command(write_se
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "dead.json" in err[0] and "channel 'v2'" in err[0] and "does not respond" in err[0], err
     assert not (tmp_path / "att.csv").exists() and not (tmp_path / "cal.h").exists()
+
+
+def test_platform3d_drowned_channel_is_warned(tmp_path):
+    path, _ = write_platform3d(simulate_platform3d(seed=7), tmp_path / "p.csv")
+    rec = read_platform3d(path)
+    mag = rec.mag.copy()
+    mag[:, 2] += np.random.default_rng(7).normal(0.0, 20 * 0.1, len(mag))  # 20x the simulator's 0.1 uT
+    warned = health_warnings(Platform3DCalibrator(diagnose=False).fit(replace(rec, mag=mag)))
+    assert len(warned) == 1 and warned[0].startswith("channel mz: signal-to-noise"), warned
+
+
+def test_reference_dead_and_drowned_channels(tmp_path):
+    sim = simulate_reference(seed=8, n_fields=24)
+    path, _ = write_reference(sim, tmp_path / "r.csv")
+    ref = read_reference(path)
+    sensor = ref.sensors[0]
+    rng = np.random.default_rng(8)
+    drowned = {k: v.copy() for k, v in ref.outputs.items()}
+    drowned[sensor][:, 1] += rng.normal(0.0, 20 * 0.05, len(drowned[sensor]))  # 20x the simulator's noise
+    warned = health_warnings(ReferenceCalibrator(diagnose=False).fit(replace(ref, outputs=drowned)))
+    name = ref.channels[sensor][1]
+    assert len(warned) == 1 and warned[0].startswith(f"channel {name}: signal-to-noise"), warned
+    dead = {k: v.copy() for k, v in ref.outputs.items()}
+    dead[sensor][:, 1] = 1.0 + rng.normal(0.0, 0.01, len(dead[sensor]))
+    with pytest.raises(CannotCalibrate, match=f"'{name}' does not (respond to|follow) the field"):
+        ReferenceCalibrator(diagnose=False).fit(replace(ref, outputs=dead))
