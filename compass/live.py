@@ -107,9 +107,6 @@ class LiveSession:
         gyro are turned into the model's frame by it (the bench's ``mag_to_accel``, an installed file's
         alignment), and the bench accelerometer's offsets and scales are undone when the stream's first
         accelerometer readings read 1 g as the bench's did (else said once and not applied).
-    gyro_rad_s_per_unit : float
-        What one unit of the module's gyro is in rad/s (``--gyro-unit``: 1 for rad/s, pi/180 for
-        deg/s); the line protocol's default unit is rad/s.
     sign_from_bench : bool
         The calibration is a four-flip bench's, whose data cannot tell the hemisphere: an upside-down
         verdict then names that cause (:func:`compass.site.upside_down`).
@@ -163,7 +160,6 @@ class LiveSession:
     on_event: object = None
     reference: object = None
     imu: ImuCorrection = field(default_factory=ImuCorrection)
-    gyro_rad_s_per_unit: float = 1.0
     sign_from_bench: bool = True
     stream: StreamOptions | None = None
     quaternion: bool = False
@@ -255,13 +251,11 @@ class LiveSession:
         reference seeding's screen), then each sample through the seeding or the filter."""
         fields, in_range = self._fields(samples)
         field_rows, in_range = fields.tolist(), in_range.tolist()
-        per_unit, imu = self.gyro_rad_s_per_unit, self.imu
+        imu = self.imu
         bench = self._judge_accel(samples)
         readings = []
         for k, sample in enumerate(samples):
             accel, gyro = sample.accel, sample.gyro
-            if gyro is not None and per_unit != 1.0:
-                gyro = per_unit * gyro
             accel = None if accel is None else imu.apply(accel, bench=bench)
             gyro = None if gyro is None else imu.rotate(gyro)
             readings.append(Reading(sample, accel, gyro, fields[k], field_rows[k], in_range[k],

@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from . import limits
 from .io.lines import Header, Sample
 from .live import LiveSession
 
@@ -38,7 +39,7 @@ def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *
     raw : array_like, shape (n, c)
         The calibration's channel outputs, in its channel order.
     accel, gyro : array_like, shape (n, 3), or None
-        Accelerometer (any unit, +up at rest) and gyro (the session's ``gyro_rad_s_per_unit``) in the
+        Accelerometer (any unit, +up at rest) and gyro (rad/s; the stream's ``--gyro-unit`` converts on decoding) in the
         module's frame, as the module sends them.
     temp_c : array_like, shape (n,), optional
         Sensor temperature, degrees Celsius (NaN: not sent in that row).
@@ -115,14 +116,18 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     from .filter import FilterConfig
     from .io.atomic import atomic_write_text, check_writable
     from .io.table import RecordingError, read_table
+    from .io.streams import JUDGE_SAMPLES, field_scale_check
     from .io.units import gyro_turn_ratio
     from .site import Site, reference_from_site
     from .viz import check_rerun_target
 
     out = check_writable(out, force)
     rerun = check_rerun_target(rerun, force)
-    if gravity is not None and not (np.isfinite(gravity) and gravity > 0):
-        raise BadInput(f"--gravity must be a positive number (what 1 g reads in the accelerometer's unit), got {gravity}")
+    if gravity is not None:
+        try:
+            limits.GRAVITY.check(gravity, "--gravity")
+        except ValueError as exc:
+            raise BadInput(str(exc)) from None
     try:
         if site is not None and not isinstance(site, Site):
             site = Site.parse(site, date)
@@ -161,6 +166,10 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
                                              "--gyro-unit deg/s (or --gyro-unit rad/s if it really is)",
                                  row=table.header_row, column="gx")
     raw = np.column_stack([table.column(name) for name in model.channels])
+    wrong_unit = field_scale_check(model)(raw[:JUDGE_SAMPLES])  # as the stream decoder judges live
+    if wrong_unit is not None:
+        raise RecordingError(table.path, f"{wrong_unit} ({calibration}): is it the right calibration?",
+                             row=table.header_row, column=model.channels[0])
     temp_c = table.column("temp_c") if table.has("temp_c") else None
 
     def on_event(level, text):

@@ -361,8 +361,10 @@ def test_live_turns_the_module_into_the_product_frame_of_an_installed_calibratio
 
 
 def test_a_gyro_in_deg_per_s_with_its_unit_named_gives_the_rad_per_s_attitude():
-    """`compass live --gyro-unit deg/s` (issue 15.3): the session converts the module's gyro on arrival."""
+    """`compass live --gyro-unit deg/s`: the stream decoder converts the module's gyro on arrival."""
     from dataclasses import replace
+
+    from compass.io.stream_options import StreamOptions
 
     model = default_model()
     device = PtyDevice(model, rate_hz=100.0)
@@ -370,9 +372,9 @@ def test_a_gyro_in_deg_per_s_with_its_unit_named_gives_the_rad_per_s_attitude():
     samples = simulate_device(model, t_s, seed=2)
     in_deg_s = replace(samples, gyro=np.degrees(samples.gyro))
 
-    def headings(stream_samples, per_unit):
+    def headings(stream_samples, gyro_unit):
         out = io.StringIO()
-        session = LiveSession(model, out=out, gyro_rad_s_per_unit=per_unit)
+        session = LiveSession(model, out=out, stream=StreamOptions(gyro_unit=gyro_unit))
         session.feed(LinkEvent("connected", "connected to test", 0.0))
         stream = device._header + b"".join(device._lines(stream_samples, 0))
         for k in range(0, len(stream), 700):
@@ -382,11 +384,11 @@ def test_a_gyro_in_deg_per_s_with_its_unit_named_gives_the_rad_per_s_attitude():
         rows = np.loadtxt(lines[1:], delimiter=",", ndmin=2)
         return rows[-100:, lines[0].split(",").index("heading_deg")]
 
-    reference = headings(samples, 1.0)
+    reference = headings(samples, "rad/s")
     # the line protocol prints the gyro with 5 decimals: deg/s keeps more digits than rad/s, so allow
     # the rounding of rad/s (5e-6 rad/s over 6 s is 2e-3 deg) several times over
-    np.testing.assert_allclose(wrap(headings(in_deg_s, np.pi / 180.0) - reference), 0.0, atol=0.05)
-    assert np.max(np.abs(wrap(headings(in_deg_s, 1.0) - reference))) > 1.0  # unnamed, the attitude spins
+    np.testing.assert_allclose(wrap(headings(in_deg_s, "deg/s") - reference), 0.0, atol=0.05)
+    assert np.max(np.abs(wrap(headings(in_deg_s, "rad/s") - reference))) > 1.0  # unnamed, the attitude spins
 
 
 def test_a_module_without_accelerometer_holds_nothing_and_says_there_is_no_attitude():

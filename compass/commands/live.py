@@ -71,9 +71,6 @@ def run(args) -> int:
         return run_tumble(args)
     if args.cal is None:
         raise BadInput("--cal CAL.json is required (or --calibrate tumble to make one)")
-    if args.gravity is not None and not (args.gravity > 0 and args.gravity < float("inf")):
-        raise BadInput(f"--gravity must be a positive number (what 1 g reads in the accelerometer's unit), got "
-                       f"{args.gravity}")
     try:
         cal = load(args.cal)
         model = cal.model
@@ -113,6 +110,8 @@ def run(args) -> int:
             _run_session(args, reader, session, out, tty, every_s)
             if session.turned_over is not None:  # judged on close: a stream shorter than the check
                 raise BadInput(f"{args.cal}: {session.turned_over}")
+            if session.decoder.fatal is not None:  # judged on close: fewer samples than the unit check holds
+                raise BadInput(f"{args.port}: {session.decoder.fatal} ({args.cal}): is it the right calibration?")
             failed = False
     finally:
         recorded = _recorded(session)
