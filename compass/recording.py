@@ -90,12 +90,15 @@ class SolvedRecording:
         if disturbed.size < 10 or disturbed.mean() < share:
             return ""
         ref = result.reference
-        ratio, dip = float(np.nanmedian(result.field_ratio)), float(np.nanmedian(result.dip_deg))
+        ratio = np.nanpercentile(result.field_ratio, [10, 50, 90])
+        dip = np.nanpercentile(result.dip_deg, [10, 50, 90])
         check = ("is the site (and --date) where the recording was made, and the calibration this sensor's?"
                  if ref.source == "site" else "iron near the module, or another sensor's calibration?")
+        # the median says a reference the rows do not read (another site); the 10-90 % spread, rows that
+        # scatter about a reference taken from themselves (iron turning with the module)
         return (f"{100 * disturbed.mean():.0f} % of the rows disagree with the {ref.source} reference: they read "
-                f"|B| {ratio:.3f} of its and a dip of {dip:.1f} deg against its {ref.dip_deg:.1f} deg (median); "
-                f"{check}")
+                f"|B| {ratio[1]:.3f} of its ({ratio[0]:.3f}-{ratio[2]:.3f}) and a dip of {dip[1]:.1f} deg "
+                f"({dip[0]:.1f}-{dip[2]:.1f}) against its {ref.dip_deg:.1f} deg (median, 10-90 % of rows); {check}")
 
 
 def solve_recording(calibration, recording, *, level=False, max_tilt_deg=5.0, accel_noise_g=0.002, site=None,
