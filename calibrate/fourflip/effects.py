@@ -189,8 +189,8 @@ class PlatformField(Effect):
 
 
 @dataclass(frozen=True)
-class OffsetDrift(Effect):
-    """Offsets drifting with time: a polynomial of the given degree in t_s per channel."""
+class _TimePolynomial(Effect):
+    """An effect that is a polynomial of the given degree in t_s per channel (drifts)."""
 
     degree: int = 1
 
@@ -203,6 +203,11 @@ class OffsetDrift(Effect):
 
     def n_params(self, c):
         return self.degree * c
+
+
+@dataclass(frozen=True)
+class OffsetDrift(_TimePolynomial):
+    """Offsets drifting with time: a polynomial of the given degree in t_s per channel."""
 
     def param_names(self, channels):
         return [f"{ch}.drift_t{k}_fieldunit" for ch in channels for k in range(1, self.degree + 1)]
@@ -261,21 +266,9 @@ class WarmUp(OffsetDrift):
 
 
 @dataclass(frozen=True)
-class GainDrift(Effect):
+class GainDrift(_TimePolynomial):
     """Gains drifting with time (a temperature change nobody recorded): ``K (1 + sum_k g_k tau^k)`` per
     channel, ``tau`` the time from the session's midpoint over half its span, k = 1..degree."""
-
-    degree: int = 1
-
-    @property
-    def label(self):
-        return f"{self.name} (degree {self.degree})"
-
-    def applicable(self, samples):
-        return why_no_time(samples.t_s)
-
-    def n_params(self, c):
-        return self.degree * c
 
     def param_names(self, channels):
         return [f"{ch}.gain_drift_t{k}_rel" for ch in channels for k in range(1, self.degree + 1)]
