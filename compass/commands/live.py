@@ -117,8 +117,8 @@ def run(args) -> int:
         recorded = _recorded(session)
         if sink is not None and session is None:
             sink.discard()  # the session never started: no half-written recording left behind
-        if session is not None:
-            elapsed = time.perf_counter() - start
+        elapsed = time.perf_counter() - start
+        if session is not None and reader.connected_once:  # a port that never opened is said in one line
             if tty and not args.quiet:
                 print()
             # both outputs hold what was recorded up to the end, a failure included (the session closed them)
