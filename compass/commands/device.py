@@ -113,13 +113,7 @@ def run(args) -> int:
         raise BadInput(str(exc)) from None
     if args.save_cal is not None:
         save(args.save_cal, model_to_dict(model), force=args.force)
-    stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        device.run(stop, args.duration)
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+    _run_until_signal(device, args.duration)
     c = device.counts
     print(f"compass device: sent {c['samples']} samples; injected {c['garbage']} garbage and {c['truncated']} "
           f"truncated lines, {c['disconnects']} disconnect(s); {c['overflow']} lines refused by the pty (nobody "
@@ -164,16 +158,23 @@ def _run_bench(args) -> int:
                           header_change_at_s=args.header_change_at, table=table)
     except ValueError as exc:
         raise BadInput(str(exc)) from None
-    stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        device.run(stop, args.duration)
+        _run_until_signal(device, args.duration)
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
         if table is not None:
             table.close()
     c = device.counts
     print(f"compass device: sent {c['samples']} samples, read {c['instructions']} instructions, "
           f"{c['disconnects']} disconnect(s); {c['overflow']} writes refused by the pty (nobody reading)", flush=True)
     return 0
+
+
+def _run_until_signal(device, duration) -> None:
+    """Run a simulated device until ``duration`` passes or Ctrl-C / SIGTERM, restoring the handlers after."""
+    stop = threading.Event()
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        device.run(stop, duration)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)

@@ -11,14 +11,13 @@ from __future__ import annotations
 
 import json
 import os
-import pty
 import threading
 import time
-import tty
 from pathlib import Path
 
 import numpy as np
 
+from ._pty import open_pty, write_or_count
 from .bench_rig import BenchRig
 
 __all__ = ["BenchPty"]
@@ -71,16 +70,8 @@ class BenchPty:
         self._prompt_mtime = None
 
     def open(self) -> str:
-        master, slave = pty.openpty()
-        tty.setraw(slave)
-        os.set_blocking(master, False)
+        master, slave, path = open_pty(self.link, blocking=False)
         self._fds = (master, slave)
-        path = os.ttyname(slave)
-        if self.link is not None:
-            tmp = Path(f"{self.link}.tmp{os.getpid()}")
-            tmp.unlink(missing_ok=True)
-            tmp.symlink_to(path)
-            os.replace(tmp, self.link)
         if self.on_path is not None:
             self.on_path(str(self.link or path))
         return path
@@ -93,12 +84,7 @@ class BenchPty:
         self._fds = ()
 
     def _write(self, data: bytes) -> None:
-        try:
-            written = os.write(self._fds[0], data)
-        except BlockingIOError:
-            written = 0
-        if written < len(data):
-            self.counts["overflow"] += 1
+        write_or_count(self._fds[0], data, self.counts)
 
     def _read_prompt(self) -> dict | None:
         try:

@@ -27,10 +27,8 @@ about 9 degrees at a 60-degree site, and an unprotected heading turns by up to 3
 from __future__ import annotations
 
 import os
-import pty
 import threading
 import time
-import tty
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -43,6 +41,7 @@ from ..io.motioncal import cal_lines as mc_cal_lines
 from ..model import SensorModel
 from ..response import LinearResponse
 from . import stream_formats
+from ._pty import open_pty, write_or_count
 
 __all__ = ["DeviceSamples", "PtyDevice", "default_model", "scripted_motion", "tumble_motion", "simulate_device",
            "MAGNET_PERIOD_S", "MOTIONS"]
@@ -276,16 +275,8 @@ class PtyDevice:
 
     def open(self) -> str:
         """Create the pty (and the link); return its path."""
-        master, slave = pty.openpty()
-        tty.setraw(slave)
-        os.set_blocking(master, False)
+        master, slave, self.path = open_pty(self.link, blocking=False)
         self._fds = (master, slave)
-        self.path = os.ttyname(slave)
-        if self.link is not None:
-            tmp = Path(f"{self.link}.tmp{os.getpid()}")
-            tmp.unlink(missing_ok=True)
-            tmp.symlink_to(self.path)
-            os.replace(tmp, self.link)
         if self.on_path is not None:
             self.on_path(self.path)
         return self.path
@@ -361,12 +352,7 @@ class PtyDevice:
             self.open()
 
     def _write(self, data: bytes) -> None:
-        try:
-            written = os.write(self._fds[0], data)
-        except BlockingIOError:
-            written = 0
-        if written < len(data):
-            self.counts["overflow"] += 1
+        write_or_count(self._fds[0], data, self.counts)
 
     def _motioncal_host(self) -> None:
         """Take what the host wrote (a calibration packet) and echo the stored calibration now and then."""

@@ -12,11 +12,11 @@ answers nothing).
 from __future__ import annotations
 
 import os
-import pty
 import re
 import threading
-import tty
 from pathlib import Path
+
+from ._pty import open_pty
 
 __all__ = ["GrblPty"]
 
@@ -54,15 +54,8 @@ class GrblPty:
         self._fds = ()
 
     def open(self) -> str:
-        master, slave = pty.openpty()
-        tty.setraw(slave)
+        master, slave, path = open_pty(self.link)
         self._fds = (master, slave)
-        path = os.ttyname(slave)
-        if self.link is not None:
-            tmp = Path(f"{self.link}.tmp{os.getpid()}")
-            tmp.unlink(missing_ok=True)
-            tmp.symlink_to(path)
-            os.replace(tmp, self.link)
         if self.on_path is not None:
             self.on_path(str(self.link or path))
         os.write(master, b"\r\nGrbl 1.1h ['$' for help]\r\n")
