@@ -35,20 +35,13 @@ from ..diagnosis.evidence import SINGULAR_RCOND, linear_score, unit_columns
 from ..diagnosis.forms import session_bin
 from .effects import Effect
 
-__all__ = ["BIN_DEG", "Bins", "CLUSTER_DEG", "MLFit", "cramer_rao", "fit_ml", "score_effect", "structured_covariance",
+__all__ = ["BIN_DEG", "Bins", "MLFit", "cramer_rao", "fit_ml", "score_effect", "structured_covariance",
            "tangent_basis", "with_covariance"]
 
 _BASE_PER_CHANNEL = 4  # u, v, offset, log gain
 _MAX_ITERATIONS = 60  # Levenberg-Marquardt iterations (each costs one finite-difference Jacobian)
 BIN_DEG = 0.05
 """Width of the turntable-angle bins whose consecutive samples the fit takes as one mean, degrees."""
-CLUSTER_DEG = 180.0
-"""Turntable sector whose samples of one flip form a cluster of :func:`structured_covariance`, degrees.
-
-Half turns (8 clusters) were chosen over quarter and eighth turns on tools/bench_loop.py's seeds 1000-1007
-(the reported numbers use seeds 0-19): the structures that sigmas miss most are slow ones."""
-
-
 @dataclass(frozen=True)
 class Bins:
     """A recording's bin means: where the fit runs (see the module docstring).
@@ -356,10 +349,13 @@ def _direction_covariance(layout: _Layout, x, cov) -> np.ndarray:
 
 
 def structured_covariance(fit: MLFit, noise: np.ndarray) -> np.ndarray:
-    """Covariance of a fit's parameters with its residual's structure as a process correlated along the turn.
+    """Covariance of a fit's parameters with its residual's structure as a process correlated within each flip.
 
-    :func:`calibrate.diagnosis.robust.cluster_covariance` over clusters of a :data:`CLUSTER_DEG`
-    sector of one flip (8 clusters in a full recording), on the bins the fit ran on.
+    :func:`calibrate.diagnosis.robust.cluster_covariance` with one cluster per flip, on the bins the
+    fit ran on.  Flips, not parts of a turn: one mounting and one stretch of time, so what the model
+    lacks (a slow wander, an axis tilting as time goes) is correlated over the whole flip; on
+    tools/bench_loop.py's seeds 0-9 half turns left the precessing axis and the random walk at 1.1 and
+    1.5 times the widened sigma, flips at 1.05 and 1.1 (seeds 10-29 and a late case score it).
 
     Returns
     -------
@@ -370,8 +366,7 @@ def structured_covariance(fit: MLFit, noise: np.ndarray) -> np.ndarray:
 
     bins = fit.bins
     weighted = ((bins.outputs - _Predictor(bins.samples)(fit.physics)) * (bins.root_n / noise)).ravel()
-    sector = np.floor(np.mod(bins.samples.platform_deg, 360.0) / CLUSTER_DEG).astype(int)
-    clusters = np.repeat(bins.samples.flip_index * int(np.ceil(360.0 / CLUSTER_DEG)) + sector, len(noise))
+    clusters = np.repeat(bins.samples.flip_index, len(noise))
     bread = fit.covariance / (fit.chi2 / max(fit.dof, 1))
     return cluster_covariance(fit.jac, weighted, clusters, bread)
 
