@@ -33,13 +33,14 @@ from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, channel
 
 from ..diagnosis.evidence import SINGULAR_RCOND, linear_score, unit_columns
 from ..diagnosis.forms import session_bin
+from ._jacobian import Partials
 from .effects import Effect
 
 __all__ = ["BIN_DEG", "Bins", "MLFit", "cramer_rao", "fit_ml", "score_effect", "structured_covariance",
            "tangent_basis", "with_covariance"]
 
 _BASE_PER_CHANNEL = 4  # u, v, offset, log gain
-_MAX_ITERATIONS = 60  # Levenberg-Marquardt iterations (each costs one finite-difference Jacobian)
+_MAX_ITERATIONS = 100  # residual evaluations of one Levenberg-Marquardt fit (the Jacobian is analytic)
 BIN_DEG = 0.05
 """Width of the turntable-angle bins whose consecutive samples the fit takes as one mean, degrees."""
 @dataclass(frozen=True)
@@ -193,10 +194,14 @@ class _Predictor:
         self.samples, self._key, self._b_h = samples, None, None
 
     def __call__(self, physics: BenchPhysics) -> np.ndarray:
+        return channel_outputs(physics, self.samples, self.field(physics) @ physics.directions.T)
+
+    def field(self, physics: BenchPhysics) -> np.ndarray:
+        """The field in H at the samples, shape (n, 3) (recomputed only when the geometry changed)."""
         key = _geometry_key(physics)
         if key != self._key:
             self._key, self._b_h = key, housing_field(physics, self.samples)
-        return channel_outputs(physics, self.samples, self._b_h @ physics.directions.T)
+        return self._b_h
 
 
 def _geometry_key(physics: BenchPhysics) -> tuple:
@@ -259,6 +264,40 @@ class _Layout:
         return physics
 
 
+def output_jacobian(layout: _Layout, x: np.ndarray, samples: BenchSamples, b_h: np.ndarray | None = None) -> np.ndarray:
+    """d outputs / d x of the model at ``samples``, analytic (:mod:`calibrate.fourflip._jacobian`): (n, c, k).
+
+    Base parameters: a direction's tangent step moves it by ``(I - a a^T) e / |n|``; the offset step
+    adds the starting gain; the log gain scales everything the gain multiplies (the response and every
+    drift, since their blocks are in field units times the gain): ``v - V0``; dip and azimuth turn
+    the Earth field in the bench frame.
+    """
+    physics = layout.physics(x)
+    parts = Partials(physics, samples, b_h)
+    c = layout.c
+    out = np.zeros((samples.platform_deg.size, c, x.size))
+    directions, n = layout.directions(x)
+    predicted = channel_outputs(physics, samples, parts.x)
+    for ch in range(c):
+        projector = (np.eye(3) - np.outer(directions[ch], directions[ch])) / np.linalg.norm(n[ch])
+        col = _BASE_PER_CHANNEL * ch
+        out[:, ch, col:col + 2] = parts.per_x[:, ch, None] * (parts.b_h @ (projector @ layout.basis[ch].T))
+        out[:, ch, col + 2] = layout.start.gains[ch]
+        out[:, ch, col + 3] = predicted[:, ch] - physics.offsets[ch]
+    dip, azimuth = np.radians(physics.dip_deg), np.radians(physics.azimuth_deg)
+    d_field = physics.field_norm * np.array([
+        [-np.sin(dip) * np.cos(azimuth), -np.sin(dip) * np.sin(azimuth), -np.cos(dip)],
+        [-np.cos(dip) * np.sin(azimuth), np.cos(dip) * np.cos(azimuth), 0.0]])
+    d_b_h = np.stack([parts.bench_to_housing(v) for v in d_field], axis=-1)
+    out[:, :, _BASE_PER_CHANNEL * c:_BASE_PER_CHANNEL * c + 2] = parts.through_field(d_b_h)
+    i = _BASE_PER_CHANNEL * c + 2
+    for e in layout.effects:
+        k = e.n_params(c)
+        out[:, :, i:i + k] = e.jacobian(physics, x[i:i + k], samples, parts)
+        i += k
+    return out
+
+
 def fit_ml(
     samples: BenchSamples,
     outputs: np.ndarray,
@@ -292,13 +331,19 @@ def fit_ml(
     def residual(p):
         return ((bins.outputs - predict(layout.physics(p))) * weights).ravel()
 
+    def jacobian(p):
+        physics = layout.physics(p)
+        predict(physics)  # the field in H, cached when the geometry has not changed
+        d_out = output_jacobian(layout, p, bins.samples, predict.field(physics))
+        return (-d_out * np.asarray(weights)[..., None]).reshape(-1, p.size)
+
     x0 = layout.x0(effect_start)
     if effect_start:
         # a first-order start can overshoot far outside the linear regime: keep it only if it helps
         plain = layout.x0()
         if np.sum(residual(plain) ** 2) < np.sum(residual(x0) ** 2):
             x0 = plain
-    res = least_squares(residual, x0, method="lm", x_scale="jac", max_nfev=_MAX_ITERATIONS * (x0.size + 1))
+    res = least_squares(residual, x0, jac=jacobian, method="lm", x_scale="jac", max_nfev=_MAX_ITERATIONS)
     x = res.x
     jac = res.jac
     physics = layout.physics(x)
