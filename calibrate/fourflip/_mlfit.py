@@ -421,15 +421,15 @@ def with_covariance(fit: MLFit, covariance: np.ndarray) -> MLFit:
     return replace(fit, covariance=covariance, direction_covariance=_direction_covariance(fit.layout, fit.x, covariance))
 
 
-def score_effect(fit: MLFit, noise: np.ndarray, effect: Effect,
-                 step: float = 1e-6) -> tuple[float, np.ndarray]:
+def score_effect(fit: MLFit, noise: np.ndarray, effect: Effect) -> tuple[float, np.ndarray]:
     """Score (Lagrange multiplier) test for adding ``effect`` to a fitted model.
 
     Linearises the effect's parameters at zero size around the current solution, removes what
     the current parameters can already absorb, and returns the chi-square drop a refit would
     give to first order, with the Gauss-Newton start values of the effect's block.  An effect
     with a shape parameter (a time constant) is linearised at each of its
-    :meth:`~calibrate.fourflip.effects.Effect.score_starts` and the best is kept.
+    :meth:`~calibrate.fourflip.effects.Effect.score_starts` and the best is kept.  The effect's
+    columns are its analytic :meth:`~calibrate.fourflip.effects.Effect.jacobian`.
 
     Returns
     -------
@@ -445,11 +445,17 @@ def score_effect(fit: MLFit, noise: np.ndarray, effect: Effect,
     def residual(p):
         return ((bins.outputs - predict(extended.physics(p))) * weights).ravel()
 
+    def block_jacobian(x):
+        physics = extended.physics(x)
+        parts = Partials(physics, bins.samples, predict.field(physics))
+        d_out = effect.jacobian(physics, x[fit.x.size:], bins.samples, parts)
+        return (-d_out * np.asarray(weights)[..., None]).reshape(-1, d_out.shape[-1])
+
     j_b = unit_columns(np.nan_to_num(fit.jac))
     best = (-np.inf, None)
     for shape in effect.score_starts(layout.c):
         x = np.concatenate([fit.x, shape])
-        drop, delta = linear_score(residual, x, fit.x.size, j_b, step)
+        drop, delta = linear_score(residual, x, fit.x.size, j_b, block_jacobian=block_jacobian(x))
         if drop > best[0]:
             best = (drop, shape + delta)
     return best
