@@ -63,7 +63,7 @@ def test_report_plots_are_not_overwritten_without_force(tmp_path, capsys):
 
 
 def test_evaluate_plot_is_not_overwritten_without_force(tmp_path, capsys):
-    from tests.test_broad import MAGNET, _crop
+    from tests.compass.io.test_broad import MAGNET, _crop
 
     if not MAGNET.exists():
         pytest.skip("BROAD data not found")
@@ -140,7 +140,7 @@ def test_an_error_inside_the_write_leaves_nothing(tmp_path):
 
 def test_live_out_is_streamed_with_the_umask(tmp_path, umask_027, monkeypatch):
     """`compass live --out` is a stream written as it goes (a crash keeps what was recorded), with the umask."""
-    from tests.test_live_mistakes import _live_on_socket
+    from tests.compass.live.test_live_mistakes import _live_on_socket
     from compass.sim.device import PtyDevice, default_model, simulate_device
 
     cal, att = tmp_path / "cal.json", tmp_path / "att.csv"

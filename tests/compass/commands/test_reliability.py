@@ -160,7 +160,7 @@ def test_a_failed_live_session_with_force_leaves_the_existing_out_as_it_was(tmp_
 
 
 def test_a_live_session_without_samples_leaves_the_existing_out_as_it_was(tmp_path, cal, monkeypatch, capsys):
-    from tests.test_live_mistakes import _live_on_socket
+    from tests.compass.live.test_live_mistakes import _live_on_socket
 
     out = tmp_path / "att.csv"
     out.write_text("yesterday's session\n")

@@ -165,7 +165,7 @@ def test_demo_layout(tmp_path):
 
 
 def test_evaluate_layout(tmp_path):
-    from test_broad import MAGNET, _crop
+    from tests.compass.io.test_broad import MAGNET, _crop
 
     if not MAGNET.exists():
         pytest.skip("BROAD data not found")

@@ -203,7 +203,7 @@ def test_demo_writes_a_recording_with_calibration_attitude_and_errors(tmp_path, 
 
 
 def test_evaluate_rerun_two_housings_and_errors(tmp_path, capsys):
-    from test_broad import MAGNET, _crop
+    from tests.compass.io.test_broad import MAGNET, _crop
 
     if not MAGNET.exists():
         pytest.skip("BROAD data not found")
