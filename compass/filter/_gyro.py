@@ -10,10 +10,12 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ._base import _P0_ATTITUDE, AttitudeFilter, exp_matrix, mat_mul
 from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_tilt
 from ._gate import GateState
+from ._place import PlaceDetector, PlaceState
 from ._records import _REST_RATE_SIGMA, _REST_TAU_S, Diagnostics, SkipCounts
 
 __all__ = ["GyroFilter", "GyroState"]
@@ -66,6 +68,8 @@ class GyroState(PackedCovariance):
     t_back_s : float or None
         A time earlier than ``t_s`` the last sample gave (a corrupted clock, or the module restarting
         its clock: the next sample tells which), else None.
+    place : PlaceState
+        The place detector's window (``FilterConfig.follow_place``).
     """
 
     t_s: float | None
@@ -87,6 +91,7 @@ class GyroState(PackedCovariance):
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
     since_start_s: float = 0.0
     t_back_s: float | None = None
+    place: PlaceState = field(default_factory=PlaceState)
 
 
 class GyroFilter(AttitudeFilter):
@@ -103,6 +108,7 @@ class GyroFilter(AttitudeFilter):
     def _bind(self) -> None:
         self._gyro_range2 = self.config.gyro_range_rad_s**2
         self._x = [0.0] * 6  # the error state (eps, db), folded into the nominal state after each sample
+        self._place = PlaceDetector(self.config) if self.config.follow_place and self.config.gate else None
 
     @property
     def at_rest(self) -> bool:
@@ -144,7 +150,10 @@ class GyroFilter(AttitudeFilter):
         s = self._s
         norm = math.sqrt(a[3])
         m = two_vector_rotation(np.array(a[:3]) / norm, np.array(b[:3]), s.gate.ref_dip_deg, 0.0)[0].as_matrix()
+        if s.gate.ref_azimuth_rad:  # the reference's field lies at this azimuth, not along North
+            m = Rotation.from_rotvec([0.0, 0.0, s.gate.ref_azimuth_rad]).as_matrix() @ m
         s.matrix = tuple(m.ravel().tolist())
+        s.place.clear()
         p0, p1, p2 = _P0_ATTITUDE
         s.covariance = (p0, 0.0, 0.0, 0.0, 0.0, 0.0, p1, 0.0, 0.0, 0.0, 0.0, p2, 0.0, 0.0, 0.0) + s.covariance[15:]
         self._x[:] = [0.0] * 6
@@ -265,7 +274,12 @@ class GyroFilter(AttitudeFilter):
             wx, wy, wz = gx - cx, gy - cy, gz - cz
             bx, by, bz = bx + tau * (by * wz - bz * wy), by + tau * (bz * wx - bx * wz), bz + tau * (bx * wy - by * wx)
             b = (bx, by, bz, b2)
+        if self._place is not None and dt > 0.0:
+            self._follow_place(dt, b)
         innovation = -math.atan2(m[3] * bx + m[4] * by + m[5] * bz, m[0] * bx + m[1] * by + m[2] * bz)
+        azimuth = s.gate.ref_azimuth_rad
+        if azimuth:
+            innovation = (innovation + azimuth + math.pi) % (2.0 * math.pi) - math.pi
         d.mag_used = self._gate_field(t_s, dt, b, innovation) == "ok"
         if d.mag_used:
             p = s.covariance
@@ -273,6 +287,31 @@ class GyroFilter(AttitudeFilter):
             if dt > 0.0:
                 var += self.gate.field_heading_var(s.gate) * 2.0 * self.config.field_error_time_s / dt
             s.covariance = update_axis(p, self._x, 2, innovation, var)
+
+    def _follow_place(self, dt: float, b) -> None:
+        """The place detector's window; a new place's field becomes the reference (:mod:`compass.filter._place`)."""
+        s = self._s
+        g = s.gate
+        if not self._place.add(s.place, dt, s.matrix, b, g.world_field()):
+            return
+        c = self.coefficients
+        direction_var = max(c.env_floor_var * c.cos_dip2, g.dip_excess_var)
+        move = self._place.judge(s.place, g.ref_norm, g.ref_dip_deg, direction_var, self.tilt_var + self.heading_var)
+        if move is None:
+            return
+        turn = math.degrees(move.azimuth_rad - g.ref_azimuth_rad)
+        self.events.append(
+            f"the field moved: |B| {g.ref_norm:.4g} -> {move.field_norm:.4g}, dip {g.ref_dip_deg:.1f} -> "
+            f"{move.dip_deg:.1f} deg, its North {(turn + 180.0) % 360.0 - 180.0:+.1f} deg from the gyro's: a new "
+            f"place (steady in the world frame over {self.config.place_window_s:g} s while the housing turned: "
+            f"{move.place_rms:.3g} rms, against {move.magnet_rms:.3g} for a magnet on the housing, bound "
+            f"{move.bound_rms:.3g}), the new reference")
+        g.ref_norm, g.ref_dip_deg, g.ref_azimuth_rad = move.field_norm, move.dip_deg, move.azimuth_rad
+        g.rejected_since_s = None
+        s.place.clear()
+
+    def _reference_moved(self) -> None:
+        self._s.place.clear()
 
     def _inject(self) -> None:
         """Fold the error state into the nominal attitude and bias, reset it to zero."""
