@@ -113,7 +113,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
 
     from .calibration import load
     from .errors import BadInput
-    from .filter import FilterConfig
+    from .filter import PLACE_EVENT, FilterConfig
     from .io.atomic import atomic_write_text, check_writable
     from .io.table import RecordingError, read_table
     from .io.streams import JUDGE_SAMPLES, field_scale_check
@@ -172,7 +172,11 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
                              row=table.header_row, column=model.channels[0])
     temp_c = table.column("temp_c") if table.has("temp_c") else None
 
+    moves = []  # the filter's moves of the reference to a new place
+
     def on_event(level, text):
+        if text.startswith(PLACE_EVENT):
+            moves.append(text)
         if not quiet:
             print(f"[{level}] {text}", file=sys.stderr)
 
@@ -204,5 +208,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     atomic_write_text(out, buffer.getvalue())
     print(f"wrote {out} ({session.samples} attitudes from {len(t_s)} rows, filter: "
           f"{'gyro' if gyro is not None else 'two-vector (no gx,gy,gz)'}; reference field: "
-          f"{session.reference.description})" + (f"\nwrote {rerun}" if rerun is not None and str(rerun) != "spawn" else ""))
+          f"{session.reference.description}"
+          + (f"; it moved to a new place's field {len(moves)} time{'s' if len(moves) > 1 else ''}: {moves[-1]}"
+             if moves else "") + ")" + (f"\nwrote {rerun}" if rerun is not None and str(rerun) != "spawn" else ""))
     return session

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from ._base import _P0_ATTITUDE, AttitudeFilter, exp_matrix, mat_mul
 from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_tilt
 from ._gate import GateState
-from ._place import PlaceDetector, PlaceState
+from ._place import PLACE_EVENT, PlaceDetector, PlaceState
 from ._records import _REST_RATE_SIGMA, _REST_TAU_S, Diagnostics, SkipCounts
 
 __all__ = ["GyroFilter", "GyroState"]
@@ -292,20 +292,24 @@ class GyroFilter(AttitudeFilter):
         """The place detector's window; a new place's field becomes the reference (:mod:`compass.filter._place`)."""
         s = self._s
         g = s.gate
-        if not self._place.add(s.place, dt, s.matrix, b, g.world_field()):
+        (gx, gy, gz), (cx, cy, cz) = s.rate_rad_s, s.bias_rad_s
+        rate2 = (gx - cx) ** 2 + (gy - cy) ** 2 + (gz - cz) ** 2
+        if not self._place.add(s.place, dt, s.matrix, b, g.world_field(), rate2):
             return
-        c = self.coefficients
+        c, p = self.coefficients, s.covariance
         direction_var = max(c.env_floor_var * c.cos_dip2, g.dip_excess_var)
-        move = self._place.judge(s.place, g.ref_norm, g.ref_dip_deg, direction_var, self.tilt_var + self.heading_var)
+        move = self._place.judge(s.place, g.ref_norm, g.ref_dip_deg, direction_var, self.tilt_var, self.heading_var,
+                                 (c.gyro_var, c.scale_var, max(p[15], p[18], p[20])))
         if move is None:
             return
-        turn = math.degrees(move.azimuth_rad - g.ref_azimuth_rad)
+        east = math.degrees(g.ref_azimuth_rad - move.azimuth_rad)  # azimuths count toward West
         self.events.append(
-            f"the field moved: |B| {g.ref_norm:.4g} -> {move.field_norm:.4g}, dip {g.ref_dip_deg:.1f} -> "
-            f"{move.dip_deg:.1f} deg, its North {(turn + 180.0) % 360.0 - 180.0:+.1f} deg from the gyro's: a new "
+            f"{PLACE_EVENT}: |B| {g.ref_norm:.4g} -> {move.field_norm:.4g}, dip {g.ref_dip_deg:.1f} -> "
+            f"{move.dip_deg:.1f} deg, its North {(east + 180.0) % 360.0 - 180.0:+.1f} deg east of the last one's "
+            f"by the gyro's heading: a new "
             f"place (steady in the world frame over {self.config.place_window_s:g} s while the housing turned: "
-            f"{move.place_rms:.3g} rms, against {move.magnet_rms:.3g} for a magnet on the housing, bound "
-            f"{move.bound_rms:.3g}), the new reference")
+            f"{move.place_rms:.3g} rms within {move.place_bound_rms:.3g}; a magnet on the housing would leave "
+            f"{move.magnet_rms:.3g}, beyond {move.magnet_bound_rms:.3g}), the new reference")
         g.ref_norm, g.ref_dip_deg, g.ref_azimuth_rad = move.field_norm, move.dip_deg, move.azimuth_rad
         g.rejected_since_s = None
         s.place.clear()

@@ -13,18 +13,27 @@ Two explanations of a field the gate keeps rejecting (|B| or dip beyond its tole
   ``e`` (the world vector of the reference |B|, dip and azimuth).  Then ``b_H - R^T e = m + n``:
   constant in the housing frame, and ``b_W = e + R m`` turns with the housing.
 
-Over a window of ``place_window_s`` the scatter (mean square about the mean, per component, field
-units^2) of ``b_W`` tests the first and the scatter of ``d_H = b_H - R^T e`` the second.  Both are
-judged against the same per-component variance
+Over a window of ``place_window_s`` (W) the scatter (mean square about the mean, per component,
+field units^2) of ``b_W`` tests the first and the scatter of ``d_H = b_H - R^T e`` the second, each
+against the variance its hypothesis leaves:
 
-.. math:: \\sigma^2 = \\sigma_n^2 + |c|^2 \\big(\\sigma_{dir}^2 + P_{tilt} + P_{heading}\\big),
+.. math::
+
+    \\sigma^2_{place} = \\sigma_n^2 + |c|^2 \\big(\\sigma_{dir}^2 + P_{tilt}\\big) + |c_h|^2 Q_W, \\qquad
+    \\sigma^2_{magnet} = \\sigma_n^2 + |c|^2 \\sigma_{dir}^2 + |e|^2 P_{tilt} + |e_h|^2 P_{heading},
 
 the sensor noise, the field's own direction error (the gate's measured dip wander, floored by
-``mag_heading_sigma_deg``: calibration residue and inhomogeneity), and the attitude's error through
-which ``b_H`` is turned.  Those errors are correlated over ``field_error_time_s``, so the window
-holds ``k = 3 max(1, W / field_error_time_s)`` independent components; the place hypothesis is
-kept when its mean square is below ``sigma^2 chi2_{0.999}(k) / k`` and the magnet hypothesis is
-rejected when its mean square is above the same bound.  The reference moves to ``c`` (its |B|,
+``mag_heading_sigma_deg``: calibration residue and inhomogeneity), and the attitude's error (a
+heading error moves only the horizontal parts ``c_h``, ``e_h``; each error's whole displacement is
+charged to every component, a bound on the safe side).  A
+constant attitude error turns every ``b_W`` alike and leaves the world-frame scatter alone: only
+what the heading drifts within the window counts there, ``Q_W`` (the gyro's white noise over W, its
+scale error over the angle turned, its bias uncertainty times W); but it turns the reference ``e``
+seen from the turning housing, so the whole attitude variance counts against the magnet.  The errors
+are correlated over ``field_error_time_s``, so the window holds ``k = 3 max(1, W /
+field_error_time_s)`` independent components; the place hypothesis is kept when its mean square is
+below ``sigma_place^2 chi2_{0.999}(k) / k`` and the magnet hypothesis rejected when its mean
+square is above ``sigma_magnet^2 chi2_{0.999}(k) / k``.  The reference moves to ``c`` (its |B|,
 dip and azimuth) only when both hold and ``c`` differs from the reference as the gate judges a
 sample (``field_tolerance``, ``dip_tolerance_deg``).
 
@@ -49,7 +58,10 @@ from scipy.stats import chi2
 
 from ._records import FilterConfig
 
-__all__ = ["PlaceState", "PlaceDetector", "PlaceMove"]
+__all__ = ["PlaceState", "PlaceDetector", "PlaceMove", "PLACE_EVENT"]
+
+PLACE_EVENT = "the field moved"
+"""How the filter's event note of a move to a new place begins."""
 
 _BLOCKS = 4  # blocks per window
 _CONFIDENCE = 0.999  # each hypothesis' test, one-sided
@@ -63,17 +75,17 @@ class PlaceState:
     ----------
     block : list of float
         The current block's sums: duration (s), samples, ``sum b_W`` (3), ``sum |b_W|^2``,
-        ``sum d_H`` (3), ``sum |d_H|^2`` (field units).
+        ``sum d_H`` (3), ``sum |d_H|^2`` (field units), ``sum |omega|^2 dt`` (rad^2/s).
     done : list of list of float
         The last complete blocks' sums, oldest first (at most ``_BLOCKS``).
     """
 
-    block: list = field(default_factory=lambda: [0.0] * 10)
+    block: list = field(default_factory=lambda: [0.0] * 11)
     done: list = field(default_factory=list)
 
     def clear(self) -> None:
         """Forget the window (the reference changed: ``d_H`` is measured against another one)."""
-        self.block = [0.0] * 10
+        self.block = [0.0] * 11
         self.done = []
 
 
@@ -89,10 +101,11 @@ class PlaceMove:
         Its dip, degrees.
     azimuth_rad : float
         Its azimuth in the filter's world frame, rad (toward West, from the filter's North).
-    place_rms, magnet_rms, bound_rms : float
-        The window's per-component rms scatter in the world frame (the place hypothesis), in the
-        housing frame about the reference (the magnet hypothesis), and the bound both are judged
-        against, field units.
+    place_rms, magnet_rms : float
+        The window's per-component rms scatter in the world frame (the place hypothesis) and in the
+        housing frame about the reference (the magnet hypothesis), field units.
+    place_bound_rms, magnet_bound_rms : float
+        The bounds they are judged against (the first must be below its own, the second above), field units.
     """
 
     field_norm: float
@@ -100,7 +113,8 @@ class PlaceMove:
     azimuth_rad: float
     place_rms: float
     magnet_rms: float
-    bound_rms: float
+    place_bound_rms: float
+    magnet_bound_rms: float
 
 
 class PlaceDetector:
@@ -125,7 +139,7 @@ class PlaceDetector:
         self.bound_factor = float(chi2.ppf(_CONFIDENCE, dof) / dof)
         """The bound on a mean square over ``sigma^2``: the chi-square quantile over its degrees of freedom."""
 
-    def add(self, state: PlaceState, dt: float, m: tuple, b: tuple, e: tuple) -> bool:
+    def add(self, state: PlaceState, dt: float, m: tuple, b: tuple, e: tuple, rate2: float) -> bool:
         """Add one field sample; True when a block closed (the window can be judged, :meth:`judge`).
 
         Parameters
@@ -140,6 +154,8 @@ class PlaceDetector:
             The field in H ``(x, y, z, ...)``, field units.
         e : tuple of 3 floats
             The reference field in the world frame, field units.
+        rate2 : float
+            The squared (bias-corrected) turn rate, (rad/s)^2.
         """
         bx, by, bz = b[0], b[1], b[2]
         ex, ey, ez = e
@@ -160,16 +176,17 @@ class PlaceDetector:
         s[7] += dy
         s[8] += dz
         s[9] += dx * dx + dy * dy + dz * dz
+        s[10] += rate2 * dt
         if s[0] < self.block_s:
             return False
         state.done.append(s)
         if len(state.done) > _BLOCKS:
             del state.done[0]
-        state.block = [0.0] * 10
+        state.block = [0.0] * 11
         return len(state.done) == _BLOCKS
 
     def judge(self, state: PlaceState, ref_norm: float, ref_dip_deg: float, direction_var: float,
-              attitude_var: float) -> PlaceMove | None:
+              tilt_var: float, heading_var: float, drift: tuple) -> PlaceMove | None:
         """The new place the window shows, or None (the same place, a magnet, or not told apart).
 
         Parameters
@@ -179,14 +196,20 @@ class PlaceDetector:
             The gate's reference |B| (field units) and dip (degrees).
         direction_var : float
             The field's own direction error, rad^2 per axis.
-        attitude_var : float
-            The attitude's error variance the field is turned through (tilt plus heading), rad^2.
+        tilt_var, heading_var : float
+            The attitude's error variance about a horizontal axis and about the vertical, rad^2.
+        drift : tuple of 3 floats
+            What the heading's error gains over the window: the gyro's white rate variance density
+            ((rad/s)^2/Hz), its scale-error variance times its correlation time (s), the bias
+            variance about the vertical ((rad/s)^2).
         """
         n = sum(blk[1] for blk in state.done)
         if n < 2.0:
             return None
         sums = [sum(blk[k] for blk in state.done) / n for k in range(2, 10)]
         cx, cy, cz, c2, mx, my, mz, d2 = sums
+        window_s = sum(blk[0] for blk in state.done)
+        turn2 = sum(blk[10] for blk in state.done)
         c_norm = math.sqrt(cx * cx + cy * cy + cz * cz)
         if c_norm == 0.0:
             return None
@@ -196,8 +219,14 @@ class PlaceDetector:
             return None  # the reference's own field: nothing to move
         place = max(0.0, c2 - c_norm * c_norm) / 3.0
         magnet = max(0.0, d2 - (mx * mx + my * my + mz * mz)) / 3.0
-        scale = max(c_norm, ref_norm)
-        bound = self.bound_factor * (cfg.mag_noise**2 + scale * scale * (direction_var + attitude_var))
-        if place > bound or magnet <= bound:
+        gyro_var, scale_var, bias_var = drift
+        heading_drift = gyro_var * window_s + scale_var * turn2 + bias_var * window_s * window_s
+        own = cfg.mag_noise**2 + c_norm * c_norm * direction_var
+        # a turn about the vertical moves only the horizontal part of a field, cos(dip) of it
+        c_h2, e_h2 = (cx * cx + cy * cy), ref_norm * ref_norm * math.cos(math.radians(ref_dip_deg)) ** 2
+        place_bound = self.bound_factor * (own + c_norm * c_norm * tilt_var + c_h2 * heading_drift)
+        magnet_bound = self.bound_factor * (own + ref_norm * ref_norm * tilt_var + e_h2 * heading_var)
+        if place > place_bound or magnet <= magnet_bound:
             return None
-        return PlaceMove(c_norm, dip, math.atan2(cy, cx), math.sqrt(place), math.sqrt(magnet), math.sqrt(bound))
+        return PlaceMove(c_norm, dip, math.atan2(cy, cx), math.sqrt(place), math.sqrt(magnet), math.sqrt(place_bound),
+                         math.sqrt(magnet_bound))
