@@ -127,7 +127,7 @@ def _device_stream(model, rec):
     return raw, accel, format_line(names) + b"".join(format_line([repr(v) for v in row.tolist()]) for row in rows)
 
 
-def test_live_replay_and_run_filter_agree_on_a_stream_with_a_move():
+def test_live_replay_and_run_filter_agree_on_a_stream_with_a_move(tmp_path, capsys):
     model = default_model()
     rec = simulate_motion("slow_rotation", duration_s=40.0, rate_hz=RATE_HZ, seed=4, errors=ERRORS,
                           field_ut=model.field_norm, dip_deg=model.dip_deg, places=(Place(12.0, 75.0, 45.0, 8.0),))
@@ -150,3 +150,18 @@ def test_live_replay_and_run_filter_agree_on_a_stream_with_a_move():
     quat = np.array([[float(v) for v in line.split(",")[-4:]] for line in live_out.getvalue().splitlines()[2:]])
     angle = np.degrees((Rotation.from_quat(quat[:, [1, 2, 3, 0]]).inv() * Rotation.from_quat(track.quat)).magnitude())
     assert np.max(angle) < 1e-5
+    # compass attitude --filter: the same pipeline from files, the move named in its closing line
+    from compass.calibration import model_to_dict, save
+    from compass.cli import main
+    from compass.io.table import format_table
+
+    cal, rec_path, out = tmp_path / "cal.json", tmp_path / "rec.csv", tmp_path / "att.csv"
+    save(cal, model_to_dict(model))
+    columns = {"t_s": rec.t_s} | {c: raw[:, k] for k, c in enumerate(model.channels)} \
+        | {c: accel[:, k] for k, c in enumerate(("ax", "ay", "az"))} \
+        | {c: rec.gyro_rad_s[:, k] for k, c in enumerate(("gx", "gy", "gz"))}
+    rec_path.write_text(format_table(columns, {}, {c: "%.17g" for c in columns}))
+    assert main(["attitude", str(cal), str(rec_path), "--out", str(out), "--filter"]) == 0
+    captured = capsys.readouterr()
+    assert "moved to a new place's field 1 time: the field moved: |B|" in captured.out
+    assert captured.err.count(MOVED) == 1
