@@ -35,7 +35,9 @@ field_error_time_s)`` independent components; the place hypothesis is kept when 
 below ``sigma_place^2 chi2_{0.999}(k) / k`` and the magnet hypothesis rejected when its mean
 square is above ``sigma_magnet^2 chi2_{0.999}(k) / k``.  The reference moves to ``c`` (its |B|,
 dip and azimuth) only when both hold and ``c`` differs from the reference as the gate judges a
-sample (``field_tolerance``, ``dip_tolerance_deg``).
+sample (``field_tolerance``, ``dip_tolerance_deg``).  Its azimuth moves the heading reference only
+when the turn from the last North is beyond the heading's and the field's own error (chi-square,
+99.9 %): a smaller one is the heading's error of that moment, which the new field then corrects.
 
 A housing that does not turn cannot tell the two apart (a body-fixed and a world-fixed offset look
 the same): the magnet hypothesis is then not rejected and the reference does not move; turning only
