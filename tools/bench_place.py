@@ -209,7 +209,8 @@ def broad(folder: Path, trials: list[str]) -> None:
             old, new = results[t]["off (before) | no tracker"], results[t][f"{default} | no tracker"]
             print(f"{t:44s} {old[0]:7.3f}/{old[1]:5.3f} -> {new[0]:7.3f}/{new[1]:5.3f}   moves "
                   f"{moves[t]['off (before) | no tracker']} -> {moves[t][f'{default} | no tracker']}")
-    print("\nmoves on BROAD with the default window (one place throughout: every move is false): "
+    print("\nmoves on BROAD with the default window (one room throughout: a move is right only back to the room's "
+          "field after the gate's timeout adopted a magnet's): "
           f"{sum(moves[t][default] for t in results)} with the tracker, "
           f"{sum(moves[t].get(f'{default} | no tracker', 0) for t in results)} without")
 

@@ -37,6 +37,10 @@ class GateState:
         Azimuth of the reference field's horizontal part in the world frame, toward West, rad: 0
         where the filter's North is the field's (the start), another where the reference moved to a
         place whose field steel turned (:mod:`compass.filter._place`).
+    north_from_gyro : bool
+        The heading's North has come down from the start's field through the gyro and verified
+        moves; False once a timeout re-learnt it from a field nothing verified (a magnet on the
+        housing held long enough): a later move cannot then measure a turn of North against it.
     """
 
     ref_norm: float
@@ -44,6 +48,7 @@ class GateState:
     rejected_since_s: float | None
     dip_excess_var: float
     ref_azimuth_rad: float = 0.0
+    north_from_gyro: bool = True
 
     def world_field(self) -> tuple[float, float, float]:
         """The reference field in the world frame (NWU), field units."""
@@ -130,6 +135,7 @@ class MagneticGate:
             state.rejected_since_s = t_s
         elif t_s - state.rejected_since_s > cfg.gate_timeout_s:
             state.ref_norm, state.ref_dip_deg, state.ref_azimuth_rad = b_norm, dip_deg, 0.0
+            state.north_from_gyro = False
             state.rejected_since_s = None
             return self.ADOPTED
         return reason

@@ -25,6 +25,8 @@ _REST_GYRO = math.radians(2.0)  # VQF's rest detector: rate deviation, rad/s
 _REST_GYRO2 = _REST_GYRO**2
 _REST_ACCEL = 0.05  # and specific-force deviation, fraction of g
 _TURN_BOUND = float(chi2.ppf(0.999, 1))  # a new place's North turned beyond its heading error: chi-square bound
+_NORTH = {(True, True): " (North moves with it)", (False, True): " (within the heading error: North kept)",
+          (False, False): " (North re-learnt from it: the last one was adopted on a timeout)"}
 _ORTHONORMALISE_EVERY = 1000  # samples between re-orthonormalisations of the nominal matrix
 
 
@@ -307,18 +309,21 @@ class GyroFilter(AttitudeFilter):
         # North moves with the field only where the turn is beyond what the heading's own error and the field's
         # explain (chi-square, one degree of freedom): otherwise it is that error, which the field then corrects
         turn = (move.azimuth_rad - g.ref_azimuth_rad + math.pi) % (2.0 * math.pi) - math.pi
-        turned = turn * turn > _TURN_BOUND * (self.heading_var + self.gate.field_heading_var(g))
+        turned = g.north_from_gyro and turn * turn > _TURN_BOUND * (self.heading_var + self.gate.field_heading_var(g))
         east = -math.degrees(turn)  # azimuths count toward West
         self.events.append(
             f"{PLACE_EVENT}: |B| {g.ref_norm:.4g} -> {move.field_norm:.4g}, dip {g.ref_dip_deg:.1f} -> "
             f"{move.dip_deg:.1f} deg, its North {east:+.1f} deg east of the last one's by the gyro's heading"
-            f"{' (North moves with it)' if turned else ' (within the heading error: North kept)'}: a new "
+            f"{_NORTH[turned, g.north_from_gyro]}: a new "
             f"place (steady in the world frame over {self.config.place_window_s:g} s while the housing turned: "
             f"{move.place_rms:.3g} rms within {move.place_bound_rms:.3g}; a magnet on the housing would leave "
             f"{move.magnet_rms:.3g}, beyond {move.magnet_bound_rms:.3g}), the new reference")
         g.ref_norm, g.ref_dip_deg = move.field_norm, move.dip_deg
         if turned:
             g.ref_azimuth_rad = move.azimuth_rad
+        elif not g.north_from_gyro:  # the heading came from an unverified field: the new one re-teaches it at once
+            g.ref_azimuth_rad = 0.0
+            s.covariance = p[:11] + (p[11] + c.adopt_var,) + p[12:]
         g.rejected_since_s = None
         s.place.clear()
 
