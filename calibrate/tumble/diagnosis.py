@@ -52,7 +52,7 @@ from dataclasses import dataclass, replace
 from itertools import combinations_with_replacement
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import approx_fprime
 
 from ..diagnosis.evidence import (EffectForm, FitRecord, Proposal, determined, gather_forms, is_unexplained,
                                   linearised_score, refit_from_better_start, select_effects)
@@ -60,7 +60,7 @@ from ..diagnosis.forms import WARMUP_TAU_FRACTIONS, json_float, rms, settled, wa
 from ..diagnosis.report import Diagnosis
 from ..noise import chi2_sf, second_difference_sigma, second_differences
 from .alignment import MAX_ANGLE_WIDENING, Misalignment, field_gravity_angles, static_mask
-from .ellipsoid import EllipsoidFit, fit_covariance, propagate, shape_matrix, sym_sqrt
+from .ellipsoid import EllipsoidFit, fit_covariance, plain_fit, propagate, shape_matrix, sym_sqrt
 
 __all__ = ["TumbleEffect", "TUMBLE_FORMS", "TumbleDiagnosis", "UNEXPLAINED_WARNING", "diagnose_tumble",
            "radial_noise_floor", "residual_structure"]
@@ -71,6 +71,8 @@ STRUCTURE_BLOCKS = 8
 MIN_BLOCK_SAMPLES = 50
 _STRUCTURE_CHUNK_ROWS = 8192
 """Rows per chunk of the structure regression (a chunk's design takes 8192 x ~90 x 8 bytes, 6 MB)."""
+_JACOBIAN_CHUNK_ROWS = 32768
+"""Rows per chunk of the fits' finite-difference Jacobian (its temporaries then stay in the CPU's cache)."""
 UNEXPLAINED_WARNING = ("structure remains in |m| - F above the noise floor that no modelled effect accounts for "
                        "(a field that changed during the recording, a disturbance, an effect the toolkit does not "
                        "model): see the diagnosis; the uncertainties are then optimistic")
@@ -271,15 +273,30 @@ class _Model:
 
     def radial(self, x, effects, rows: _Rows) -> np.ndarray:
         """Radial residual, recording units."""
-        z = self.corrected(x, effects, rows)
-        return self.field_norm * (np.linalg.norm(z @ shape_matrix(self.ellipsoid, x[3:self.k]), axis=1) - 1.0)
+        z = self.corrected(x, effects, rows) @ shape_matrix(self.ellipsoid, x[3:self.k])
+        return self.field_norm * (np.sqrt(np.einsum("ij,ij->i", z, z)) - 1.0)
 
     def weighted(self, x, effects) -> np.ndarray:
         return self.radial(x, effects, self.rows) / self.floor
 
+    def jacobian(self, x, effects) -> np.ndarray:
+        """d weighted / d x by forward differences, shape (rows, x.size), a chunk of rows at a time.
+
+        The steps are ``least_squares``' own for ``jac="2-point"`` (``sqrt(eps) max(1, |x|)``, signed
+        as ``x``); a row's residual depends on its own sample only, so the chunks give the same
+        Jacobian while the temporaries of each difference take a chunk's memory, not the recording's.
+        """
+        step = np.sqrt(np.finfo(float).eps) * np.where(x >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(x))
+        n = len(self.rows.y)
+        jac = np.empty((n, x.size))
+        for start in range(0, n, _JACOBIAN_CHUNK_ROWS):
+            chunk = self.rows.take(slice(start, start + _JACOBIAN_CHUNK_ROWS))
+            jac[start:start + _JACOBIAN_CHUNK_ROWS] = approx_fprime(x, self.radial, step, effects, chunk)
+        jac /= self.floor
+        return jac
+
     def fit(self, effects, x0) -> _Fit:
-        res = least_squares(self.weighted, x0, args=(effects,), method="lm", x_scale="jac",
-                            max_nfev=100 * (x0.size + 1))
+        res = plain_fit(self.weighted, x0, self.jacobian, args=(effects,), max_nfev=100 * (x0.size + 1))
         cov = fit_covariance(res, res.fun.size)
         return _Fit(tuple(effects), res.x, res.jac, cov, res.fun * self.floor, float(res.fun @ res.fun),
                     res.fun.size, bool(res.success), str(res.message))
