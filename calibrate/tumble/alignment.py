@@ -309,6 +309,7 @@ def refine_jointly(fit: EllipsoidFit, mag: np.ndarray, accel: np.ndarray, first:
     use_r = np.abs(radial_residual(robust_x[:k], ellipsoid, y_inl)) < OUTLIER_SIGMAS * sigma_r
     use_a = np.abs(every.angles(robust_x)) < OUTLIER_SIGMAS * sigma_a
     kept = replace(every, y_radial=y_inl[use_r], y_static=y_static[use_a], a_unit=a_unit[use_a])
+    del every, robust_on, y_inl, y_static, a_unit  # the kept rows only, beside the final fit's Jacobian
     final = plain_fit(kept.residual, robust_x, kept.jacobian)
     cov = fit_covariance(final, len(final.fun))
     h, sig_h, s_mat, sig_s, f_norm, sig_f = propagate(ellipsoid, final.x[:k], cov, fit.centre, fit.radius)

@@ -493,22 +493,22 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
                    temp_ref_c=0.0 if temp_c is None else float(np.mean(temp_c)),
                    temp_span_c=1.0 if temp_c is None else max(float(np.ptp(temp_c)), 1e-9))
     floor = radial_noise_floor(fit.residuals)
-    all_rows = _Rows((mag - fit.centre) / fit.radius, t_s, temp_c)
-    rows = all_rows.take(fit.inliers)
+    rows = _Rows((mag[fit.inliers] - fit.centre) / fit.radius, None if t_s is None else t_s[fit.inliers],
+                 None if temp_c is None else temp_c[fit.inliers])
     model = _Model(fit, rows, ctx, floor)
     bands = [np.arange(n)[fit.inliers] if t_s is None else rows.t_s]
     if temp_c is not None and np.ptp(temp_c) > 0:
         bands.append(rows.temp_c)
 
     static = None if accel is None else static_mask(np.asarray(accel, dtype=float))[fit.inliers]
-    accel_rows = None if accel is None else np.asarray(accel, dtype=float)[fit.inliers]
+    accel_static = None if accel is None else np.asarray(accel, dtype=float)[np.flatnonzero(fit.inliers)[static]]
 
     def angle_spread(f: _Fit) -> float:
         """Std of the field-gravity angle over the quasi-static inliers, deg (NaN without them)."""
         if static is None or np.count_nonzero(static) < 20:
             return float("nan")
         m = model.corrected(f.x, f.effects, rows)[static] @ sym_sqrt(fit.ellipsoid, f.x[3:model.k])
-        return float(np.std(field_gravity_angles(m, accel_rows[static])))
+        return float(np.std(field_gravity_angles(m, accel_static)))
 
     def keeps_the_angle(p: Proposal):
         spread = angle_spread(p.current), angle_spread(p.trial)
@@ -547,7 +547,7 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
         k = model.k
         h, sig_h, s_mat, sig_s, f_norm, sig_f = propagate(fit.ellipsoid, current.x[:k], current.covariance,
                                                            fit.centre, fit.radius)
-        raw_ref = h + fit.radius * model.corrected(current.x, current.effects, all_rows)
+        raw_ref = h + fit.radius * model.corrected(current.x, current.effects, _Rows((mag - fit.centre) / fit.radius, t_s, temp_c))
         resid_all = np.linalg.norm((raw_ref - h) @ s_mat.T, axis=1) - f_norm
         final_fit = replace(fit, hard_iron=h, hard_iron_sigma=sig_h, soft_iron=s_mat, soft_iron_sigma=sig_s,
                             field_norm=f_norm, field_norm_sigma=sig_f, residuals=resid_all,
