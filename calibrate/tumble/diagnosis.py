@@ -547,7 +547,8 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
         k = model.k
         h, sig_h, s_mat, sig_s, f_norm, sig_f = propagate(fit.ellipsoid, current.x[:k], current.covariance,
                                                            fit.centre, fit.radius)
-        raw_ref = h + fit.radius * model.corrected(current.x, current.effects, _Rows((mag - fit.centre) / fit.radius, t_s, temp_c))
+        every_row = _Rows((mag - fit.centre) / fit.radius, t_s, temp_c)
+        raw_ref = h + fit.radius * model.corrected(current.x, current.effects, every_row)
         resid_all = np.linalg.norm((raw_ref - h) @ s_mat.T, axis=1) - f_norm
         final_fit = replace(fit, hard_iron=h, hard_iron_sigma=sig_h, soft_iron=s_mat, soft_iron_sigma=sig_s,
                             field_norm=f_norm, field_norm_sigma=sig_f, residuals=resid_all,
