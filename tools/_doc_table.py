@@ -114,12 +114,12 @@ def command(name: str, argv) -> str:
     return shlex.join(["python", f"tools/{script_of(name)}", *argv, FLAG])
 
 
-def publish(args: argparse.Namespace, doc: str, name: str, table: str, caption: str = "") -> str:
+def publish(args: argparse.Namespace, doc: str, name: str, table: str, caption: str = "", echo: bool = True) -> str:
     """Print ``table``; with ``--write-docs`` also write it into ``doc`` (relative to the repository).
 
     The written block is a line naming the command that wrote it (``caption`` after it, e.g. the
     units), a blank line, and the table. A doc without the marker is an error: one line on stderr
-    naming doc and marker, exit status 2.
+    naming doc and marker, exit status 2. ``echo`` False: not printed (the script printed it already).
 
     Returns
     -------
@@ -127,7 +127,8 @@ def publish(args: argparse.Namespace, doc: str, name: str, table: str, caption: 
         The block as written between the markers.
     """
     block = f"Written by `{command(name, args.doc_argv)}`{caption and ': ' + caption}.\n\n{table.strip(chr(10))}"
-    print(f"\n{table.strip(chr(10))}", flush=True)
+    if echo:
+        print(f"\n{table.strip(chr(10))}", flush=True)
     if getattr(args, "write_docs", False):
         try:
             write_table(ROOT / doc, name, block)
