@@ -7,7 +7,8 @@ A table in a doc sits between two markers; the text around them is the doc's own
     <!-- /table -->
 
 A marker's name is the script's name under ``tools/`` (without ``.py``), optionally followed by a
-dot and the table's part (``bench_batch.verdicts``). A script adopts this in two calls::
+dot and the table's part (``bench_attitude.tilt``); each marker is a line of its own. A script
+adopts this in two calls::
 
     args = parse_args(parser, argv)                    # adds --write-docs, keeps the arguments
     publish(args, "docs/calibration.md", "bench_health", markdown_table(header, rows))
@@ -32,7 +33,8 @@ from compass.io.atomic import OutputError, atomic_write_text  # noqa: E402
 
 FLAG = "--write-docs"
 CLOSE = "<!-- /table -->"
-OPEN_RE = re.compile(r"<!-- table: ([A-Za-z0-9_.-]+) -->")
+OPEN_RE = re.compile(r"^<!-- table: ([A-Za-z0-9_.-]+) -->$", re.MULTILINE)  # a marker is a line of its own
+CLOSE_RE = re.compile(r"^<!-- /table -->$", re.MULTILINE)
 
 
 class DocTableError(ValueError):
@@ -63,8 +65,8 @@ def markdown_table(header, rows) -> str:
 def replace_table(text: str, name: str, table: str, doc: str = "the doc") -> str:
     """``text`` with what lies between table ``name``'s markers replaced by ``table``.
 
-    The markers' lines and everything outside them are kept byte for byte; the table is put on the
-    lines between them (one newline after the opening marker, one before the closing one).
+    A marker is a line of its own (a marker quoted inside a line is text). The markers' lines and
+    everything outside them are kept byte for byte; the table is put on the lines between them.
 
     Raises
     ------
@@ -72,16 +74,16 @@ def replace_table(text: str, name: str, table: str, doc: str = "the doc") -> str
         The opening marker is missing or repeated, or not closed before the next table opens.
     """
     marker = opening(name)
-    count = text.count(marker)
-    if count != 1:
-        raise DocTableError(f"{doc}: {'no' if count == 0 else f'{count} markers'} {marker}"
-                            + (" (add it where the table goes, closed by " + CLOSE + ")" if count == 0 else ""))
-    start = text.index(marker) + len(marker)
-    end = text.find(CLOSE, start)
+    opens = [m for m in OPEN_RE.finditer(text) if m.group(1) == name]
+    if len(opens) != 1:
+        raise DocTableError(f"{doc}: {'no' if not opens else f'{len(opens)} markers'} {marker}"
+                            + (f" (add it where the table goes, closed by {CLOSE})" if not opens else ""))
+    start = opens[0].end()
+    close = CLOSE_RE.search(text, start)
     following = OPEN_RE.search(text, start)
-    if end < 0 or (following is not None and following.start() < end):
+    if close is None or (following is not None and following.start() < close.start()):
         raise DocTableError(f"{doc}: {marker} is not closed by {CLOSE}")
-    return text[:start] + "\n" + table.strip("\n") + "\n" + text[end:]
+    return text[:start] + "\n" + table.strip("\n") + "\n" + text[close.start():]
 
 
 def write_table(doc, name: str, table: str) -> None:

@@ -48,11 +48,13 @@ def test_every_marker_is_closed_once_and_names_a_script(doc):
     text = doc.read_text(encoding="utf-8")
     names = dt.OPEN_RE.findall(text)
     assert len(names) == len(set(names)), f"{doc.name}: a table marker repeated"
-    assert text.count(dt.CLOSE) == len(names), f"{doc.name}: {len(names)} tables opened, {text.count(dt.CLOSE)} closed"
+    closed = len(dt.CLOSE_RE.findall(text))
+    assert closed == len(names), f"{doc.name}: {len(names)} tables opened, {closed} closed"
     for name in names:
         assert (ROOT / "tools" / dt.script_of(name)).is_file(), f"{doc.name}: {name} names no script under tools/"
         dt.replace_table(text, name, "", doc=doc.name)  # closed before the next one opens, or raises
-        block = text.split(dt.opening(name), 1)[1].split(dt.CLOSE, 1)[0]
+        start = next(m.end() for m in dt.OPEN_RE.finditer(text) if m.group(1) == name)
+        block = text[start:dt.CLOSE_RE.search(text, start).start()]
         assert f"`python tools/{dt.script_of(name)}" in block and "--write-docs`" in block, \
             f"{doc.name}: table {name} does not say the command that wrote it"
 
@@ -80,7 +82,7 @@ def test_every_published_table_has_its_marker():
 
 DOC = """# Title
 
-Prose before, with a stray <!-- /table --> far above.
+Prose before, quoting a marker: `<!-- table: bench_x.one -->` and `<!-- /table -->` (text, not markers).
 
 <!-- table: bench_x.one -->
 | old | table |
@@ -97,9 +99,10 @@ Prose after: 1.23 deg.
 
 def test_replacement_changes_only_the_text_between_the_markers():
     new = dt.replace_table(DOC, "bench_x.one", "| a |\n|---|\n| 9 |\n")
-    head, tail = DOC.split("<!-- table: bench_x.one -->")
-    assert new.startswith(head + "<!-- table: bench_x.one -->\n| a |\n|---|\n| 9 |\n<!-- /table -->\nProse between.")
-    assert new.endswith(tail.split("<!-- /table -->", 1)[1])
+    head, tail = DOC.split("\n<!-- table: bench_x.one -->\n")
+    assert new.startswith(head + "\n<!-- table: bench_x.one -->\n| a |\n|---|\n| 9 |\n<!-- /table -->\nProse between.")
+    assert new.endswith(tail.split("\n<!-- /table -->\n", 1)[1])
+    assert "`<!-- table: bench_x.one -->` and `<!-- /table -->` (text, not markers)" in new
     assert dt.replace_table(new, "bench_x.one", "| old | table |\n|---|---|\n| 1 | 2 |") == DOC
     empty = dt.replace_table(DOC, "bench_x.two", "| b |")
     assert empty == DOC.replace("<!-- table: bench_x.two -->\n", "<!-- table: bench_x.two -->\n| b |\n")
