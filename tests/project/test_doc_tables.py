@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
+from tests._paths import ROOT
 from tests._proc import Proc
 
-ROOT = Path(__file__).resolve().parents[2]
 DOCS = sorted((ROOT / "docs").glob("*.md"))
 PUBLISH_RE = re.compile(r"""publish\(\s*args,\s*["']([^"']+)["'],\s*["']([^"']+)["']""")
 
