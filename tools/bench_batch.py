@@ -18,15 +18,15 @@ with the default acceptance spec, and prints:
 5. the store's write rate: sessions committed a second, one transaction each, with a real
    calibration's text (what bounds the one writing process, whatever the number of workers).
 
-    python tools/bench_batch.py [--n 300] [--seed 0] [--throughput-n 24] [--write-docs]
+    python tools/bench_batch.py [--n 300] [--seed 0] [--throughput-n 24] [--write docs/production_bench.md]
 
 Seeded; the machine's load average is printed beside the timings (they are wall-clock times).
-``--write-docs`` writes the tables into docs/production_bench.md (``tools/_doc_table.py``).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import tempfile
@@ -35,13 +35,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tools"))
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("MPLBACKEND", "Agg")
-
-
-from _doc_table import parse_args, publish  # noqa: E402
 
 
 def _run(paths, spec, store_path, **executor):
@@ -189,7 +185,8 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=2, help="workers of the accuracy run (default 2)")
     parser.add_argument("--throughput-n", type=int, default=24, help="sessions timed per executor (default 24)")
-    args = parse_args(parser, argv)
+    parser.add_argument("--write", metavar="PATH", help="also write the tables (markdown) to PATH")
+    args = parser.parse_args(argv)
 
     from compass.production.spec import load_spec
     from compass.sim.fleet import FleetOptions, simulate_fleet
@@ -201,13 +198,16 @@ def main(argv=None) -> int:
         start = time.perf_counter()
         truth = simulate_fleet(fleet, FleetOptions(n=args.n, seed=args.seed))
         print(f"simulated {args.n} sessions in {time.perf_counter() - start:.0f} s", file=sys.stderr, flush=True)
-        lines = accuracy(fleet, truth, spec, folder, args.workers)
+        lines = [f"# compass batch benchmark (tools/bench_batch.py --n {args.n} --seed {args.seed})", ""]
+        lines += accuracy(fleet, truth, spec, folder, args.workers)
         lines += [""] + ewma_characteristics(args.seed)
         print("\n".join(lines), flush=True)
         more = [""] + throughput(fleet, truth, spec, folder, min(args.throughput_n, args.n))
         more += store_rate(folder)
         print("\n".join(more), flush=True)
-    publish(args, "docs/production_bench.md", "bench_batch", "\n".join(lines + more), echo=False)
+    if args.write:
+        Path(args.write).write_text("\n".join(lines + more) + "\n", encoding="utf-8")
+        print(f"wrote {args.write}", file=sys.stderr)
     return 0
 
 
