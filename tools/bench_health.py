@@ -1,6 +1,6 @@
 """Broken-module checks: false alarms on clean sessions of every simulator, and what each defect gives.
 
-    python tools/bench_health.py [--n 100] [--seed0 1000] [--write-docs]
+    python tools/bench_health.py [--n 100] [--seed0 1000]
 
 For each kind, ``--n`` seeded clean sessions are calibrated through the kind's calibrator (as
 ``compass calibrate`` does, without the residual diagnosis, which the checks do not use) and the
@@ -14,8 +14,7 @@ defect of issue Z is injected into the same sessions, one channel at a time:
 and the share of sessions refused (dead) or warned about the right channel (drowned, off axis) is
 printed beside the same count for the kind's fit without these checks (its library function, as
 ``compass calibrate`` ran before them: a refusal or any warning that names the channel counts).
-Seeds start at ``--seed0``, none of which the tests use. ``--write-docs`` writes the table into
-docs/calibration.md (``tools/_doc_table.py``).
+Seeds start at ``--seed0``, none of which the tests use.
 """
 
 from __future__ import annotations
@@ -31,9 +30,6 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from _doc_table import markdown_table, parse_args, publish  # noqa: E402
 
 from calibrate import calibrate_fourflip  # noqa: E402
 from calibrate.contract import CannotCalibrate  # noqa: E402
@@ -138,27 +134,11 @@ def tumble_cases(seed: int, folder: Path):
     return name, out
 
 
-CASES = (("clean", "clean: false alarms"), ("dead", "dead: refused"), ("drowned", "drowned: warned"),
-         ("off axis", "20 deg off axis: warned"))
-NOT_APPLICABLE = {("tumble", "off axis"): "not applicable: a chip's axes are fixed in silicon; "
-                                          "the fitted mag-to-accel rotation is judged"}
-
-
-def doc_table(rows) -> str:
-    """One row per kind, one column per case: sessions said (with the checks) and (without them)."""
-    cells = {(kind, label): f"{now}/{n}" + ("" if then is None else f" ({then}/{n})")
-             for kind, label, now, then, n in rows}
-    kinds = list(dict.fromkeys(kind for kind, *_ in rows))
-    return markdown_table(["kind"] + [title for _, title in CASES],
-                          [[kind] + [cells.get((kind, label), NOT_APPLICABLE.get((kind, label), ""))
-                                     for label, _ in CASES] for kind in kinds])
-
-
-def main(argv=None) -> int:
+def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=100, help="sessions per kind (default 100)")
     ap.add_argument("--seed0", type=int, default=1000)
-    args = parse_args(ap, argv)
+    args = ap.parse_args()
     seeds = range(args.seed0, args.seed0 + args.n)
     start = time.perf_counter()
     rows = []
@@ -190,10 +170,7 @@ def main(argv=None) -> int:
     for kind, label, now, then, n in rows:
         then = "-" if then is None else f"{then}/{n}"
         print(f"{kind:<14}{label:<10}{f'{now}/{n}':>10}{then:>16}   now {100 * now / n:.1f} %")
-    publish(args, "docs/calibration.md", "bench_health", doc_table(rows),
-            caption=f"sessions said with the checks (without them), seeds {args.seed0}-{args.seed0 + args.n - 1}")
-    return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()
