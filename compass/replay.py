@@ -24,7 +24,6 @@ from .live import LiveSession
 __all__ = ["replay", "replay_file"]
 
 _CHUNK_ROWS = 4096  # samples handed to the session at once (the pipeline's vectorised parts run per chunk)
-_DEG_S_RATIO = 15.0  # gyro turn / accelerometer turn above this: a deg/s gyro read as rad/s (57)
 
 
 def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *, progress=None) -> LiveSession:
@@ -117,7 +116,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     from .io.atomic import atomic_write_text, check_writable
     from .io.table import RecordingError, read_table
     from .io.streams import JUDGE_SAMPLES, field_scale_check
-    from .io.units import gyro_turn_ratio
+    from .io.units import gyro_turn_ratio, gyro_unit_verdict
     from .site import Site, reference_from_site
     from .viz import check_rerun_target
 
@@ -160,7 +159,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     if gyro is not None:
         ratio = gyro_turn_ratio(t_s, gyro, accel)
         named = read_options is not None and read_options.gyro_unit is not None
-        if ratio is not None and ratio > _DEG_S_RATIO and not named:
+        if gyro_unit_verdict(ratio) == "more" and not named:
             raise RecordingError(table.path, f"the gyro gx,gy,gz read in rad/s turns {ratio:.0f} times more than the "
                                              "accelerometer sees the housing tilt (a deg/s gyro gives 57): give "
                                              "--gyro-unit deg/s (or --gyro-unit rad/s if it really is)",
