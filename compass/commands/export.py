@@ -14,8 +14,8 @@ installed one: :func:`channel_form`), as a matrix and an offset from raw counts 
   (``C @ soft_iron``) because Fusion expects the magnetometer in the sensor (accelerometer) frame.
   The initialisers name the union members (``{.element = {.xx = 1.0f, ...}}``): 1.3's ``FusionMatrix``
   is ``float array[9]``, 1.2's ``array[3][3]``, both with the ``element`` struct, so one text compiles
-  against either, as C99 and C++20 with every warning an error (tests/test_export_fusion.py builds it
-  against the real headers of 1.2.0, 1.2.11, 1.3.0 and 1.3.3 and runs the release's function).
+  against either, as C99 and C++20 with every warning an error (tests/compass/commands/test_export_fusion.py
+  builds it against the real headers of 1.2.0, 1.2.11, 1.3.0 and 1.3.3 and runs the release's function).
 - ``ardupilot``: AP_Compass adds ``COMPASS_OFS`` then multiplies by the symmetric matrix of
   ``COMPASS_DIA`` (diagonal) and ``COMPASS_ODI`` (xy, xz, yz), in milligauss.  So
   ``OFS = -hard_iron`` converted to milligauss and the matrix is the soft iron's shape (det 1).

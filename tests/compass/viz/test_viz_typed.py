@@ -11,7 +11,7 @@ from compass.sim.fourflip import simulate_fourflip, write_fourflip
 from compass.sim.tumble import simulate_tumble, write_tumble
 
 pytest.importorskip("rerun")
-from rrd_read import read_column, read_static  # noqa: E402
+from tests.rrd_read import read_column, read_static  # noqa: E402
 
 from compass.viz.calibration import record_calibration  # noqa: E402
 

@@ -1,14 +1,14 @@
 """python -m calibrate.realdata counts its work: a bar that ends at its total, exactly."""
 
 import re
-from pathlib import Path
 
 import pytest
 from scipy.io import loadmat, savemat
 
 from calibrate import realdata
+from tests._paths import SHARED
 
-BROAD = Path(__file__).resolve().parents[2] / "shared" / "data" / "broad"
+BROAD = SHARED / "data" / "broad"
 SOURCES = {"01_undisturbed_slow_rotation_A": "01_a", "02_undisturbed_slow_rotation_B": "02_b",
            "32_disturbed_attached_magnet_1cm": "32_disturbed_c"}
 

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from compass.cli import main
+from tests._paths import TEST_DATA
 
-HEADERS = Path(__file__).parent / "data" / "fusion"
+HEADERS = TEST_DATA / "fusion"
 RELEASES = ("1.2.0", "1.2.11", "1.3.0", "1.3.3")
 """The first and last release of each line the export claims (``--fusion-api 1.2`` and ``1.3``)."""
 FUNCTION = re.compile(r"\b(Fusion\w*Magnetic)\(")
