@@ -1,5 +1,5 @@
-"""Calibrations in Rerun: the four-flip session replayed, the tumble before and after, the platform
-and reference fits, the diagnosis steps, and the live tumble's coverage.
+"""Calibrations in Rerun: the four-flip session replayed, the tumble and the installation before and
+after, the platform and reference fits, the diagnosis steps, and the live tumble's coverage.
 
 Inputs are plain arrays and the calibration result's typed attributes (``calibrate``'s result of
 each kind: a four-flip's ``channels`` with ``direction`` and ``direction_sigma_deg``, ``dip_deg``,
@@ -30,6 +30,9 @@ entity                                          content
 ``tumble/hard_iron/<axis>``                     iron, coverage, the fit converging (+-1 sigma)
 ``tumble/field_ratio``                          |m| / field_norm: ``raw`` (about the hard iron,
                                                 gain-normalised) and ``calibrated``
+``installed/{bench,installed}/samples``         installation: the field through the bench calibration
+                                                alone and through the installed one, over the site's |B|
+``installed/field_ratio``                       their |B| / site |B| per sample
 ``<kind>/<channel>/residual``                   platform3d, reference: residual per channel
 ``diagnosis/residual_rms/step<k>_<added>``      ``BarChart``: diagnosis step k's residual rms (one
                                                 entity a step, so the legend names it); ``/noise_floor``
@@ -88,6 +91,17 @@ def calibration_views(kind: str, channels=()) -> rrb.Container:
             rrb.Vertical(_layout.spatial(origin="/tumble/coverage", name="coverage: cells seen (green)",
                                          eye=(2.2, 1.8, 1.4)),
                          _diagnosis_views()), column_shares=[3, 1], name="tumble calibration")
+    if kind == "installed":
+        return rrb.Horizontal(
+            rrb.Vertical(rrb.Horizontal(
+                _layout.spatial(origin="/installed/bench", name="bench calibration alone: the product's iron bends "
+                                                               "the sphere", eye=(2.2, 1.8, 1.4)),
+                _layout.spatial(origin="/installed/installed", name="installed calibration: back on the sphere",
+                                eye=(2.2, 1.8, 1.4))),
+                _layout.series(origin="/installed/field_ratio",
+                               name="|B| / site |B| (ratio): bench calibration alone, installed"),
+                row_shares=[3, 1]),
+            _diagnosis_views(), column_shares=[3, 1], name="installation calibration")
     residuals = rrb.Vertical(*(_layout.series(origin=f"/{kind}/{ch}", name=f"{ch}: residual (recording units)",
                                               legend=None) for ch in channels))
     parts = [_layout.spatial(origin="/platform3d/bench", name="housing in each pose")] if kind == "platform3d" else []
@@ -98,8 +112,8 @@ def log_calibration(rec, result, **arrays) -> None:
     """Log one calibration result; ``arrays`` are those :func:`log_fourflip`, :func:`log_tumble` or
     :func:`log_fit_residuals` take for its kind."""
     kind = result.calibration_kind
-    if kind in ("fourflip", "tumble"):
-        {"fourflip": log_fourflip, "tumble": log_tumble}[kind](rec, result, **arrays)
+    if kind in ("fourflip", "tumble", "installed"):
+        {"fourflip": log_fourflip, "tumble": log_tumble, "installed": log_installed}[kind](rec, result, **arrays)
     else:
         log_fit_residuals(rec, **arrays)
     log_diagnosis(rec, diagnosis_block(result), t_s=arrays.get("t_s"))
@@ -325,6 +339,34 @@ def log_tumble(rec, result, *, mag, t_s=None, coverage_words: str | None = None,
         rec.log("diagnosis/log", rr.TextLog(f"coverage: {coverage_words}"))
 
 
+def log_installed(rec, result, *, bench_field, installed_field, t_s=None) -> None:
+    """An installation: the product's field through the bench calibration alone (the product's iron makes
+    the sphere an ellipsoid, off centre) and through the installed calibration (back on the sphere).
+
+    Parameters
+    ----------
+    result : calibrate.installation.fit.InstallationCalibration
+        Its ``field_magnitude`` (the site's |B|, field units) scales both clouds to one.
+    bench_field, installed_field : ndarray (n, 3)
+        The recording's field in H by the bench model and in the product's frame by the installed model,
+        field units.
+    """
+    norm = float(result.field_magnitude)
+    for name, field in (("bench", bench_field), ("installed", installed_field)):
+        unit = np.asarray(field, dtype=float) / norm
+        rec.log(f"installed/{name}/samples", rr.Points3D(unit[np.all(np.isfinite(unit), axis=1)], radii=0.01,
+                                                          colors=[_BEFORE if name == "bench" else _AFTER]), static=True)
+        rec.log(f"installed/{name}/sphere", rr.Ellipsoids3D(half_sizes=[[1.0, 1.0, 1.0]], colors=[[200, 200, 200, 60]],
+                                                            labels=[f"site |B| ({norm:.4g})"]), static=True)
+        rec.log(f"installed/{name}/axes", rr.Arrows3D(vectors=1.3 * np.eye(3), colors=AXIS_COLORS,
+                                                      labels=["+X", "+Y", "+Z"]), static=True)
+    rec.log("installed/field_ratio", rr.SeriesPoints(names=["bench calibration alone", "installed"],
+                                                     colors=[_BEFORE, _AFTER], marker_sizes=[1.0, 1.0]), static=True)
+    ratio = np.column_stack([np.linalg.norm(bench_field, axis=1), np.linalg.norm(installed_field, axis=1)]) / norm
+    rec.send_columns("installed/field_ratio", indexes=columns_index(t_s, np.arange(len(ratio))),
+                     columns=rr.Scalars.columns(scalars=ratio))
+
+
 def log_fit_residuals(rec, *, prefix: str, residuals: dict, t_s=None) -> None:
     """Residuals of a platform (seed 001) or reference-field (seed 003) fit, one series per channel.
 
@@ -462,6 +504,15 @@ def log_calibration_result(rec, result, recording_path, *, base_residuals=None, 
     elif kind == "reference":
         residuals = {f"{s.name}/{c}": r for s in result.sensors for c, r in zip(s.channels, s.residuals.T)}
         channels, arrays = tuple(residuals), dict(prefix=kind, residuals=residuals)
+    elif kind == "installed":
+        from ..calibration import from_dict
+        from ..io.installation import installation_from_table
+
+        recording, bench = installation_from_table(table), from_dict(result.base_document).model
+        raw = recording.raw[:, [recording.channels.index(c) for c in bench.channels]]
+        channels, arrays = bench.channels, dict(bench_field=bench.field(raw, recording.temp_c)[0],
+                                                installed_field=result.model.field(raw, recording.temp_c)[0],
+                                                t_s=recording.t_s)
     elif kind == "fourflip":
         from ..io.fourflip import fourflip_from_table
 
