@@ -71,10 +71,13 @@ def _diagnosis_views() -> rrb.Container:
 def calibration_views(kind: str, channels=()) -> rrb.Container:
     """The layout of a calibration of ``kind`` (``fourflip``, ``tumble``, ``platform3d``, ``reference``)."""
     if kind == "fourflip":
-        rows = [rrb.Horizontal(_layout.series(origin=f"/fourflip/{ch}", name=f"{ch}: output (recording units), fit",
+        # legends hidden (they covered the right tenth of every plot): the title names the colours
+        rows = [rrb.Horizontal(_layout.series(origin=f"/fourflip/{ch}", legend=None,
+                                              name=f"{ch}: output (recording units): measured grey, fit blue",
                                               contents=["$origin/measured", "$origin/fit"]),
-                               _layout.series(origin=f"/fourflip/{ch}/residual",
-                                              name=f"{ch}: residual (recording units), noise band"))
+                               _layout.series(origin=f"/fourflip/{ch}/residual", legend=None,
+                                              name=f"{ch}: residual (recording units): blue (orange before the "
+                                                   f"diagnosis's effects), noise band grey"))
                 for ch in channels]
         return rrb.Horizontal(
             _layout.spatial(origin="/bench", name="cube on the turntable: sensing directions +-1 sigma, field (orange)",
@@ -86,7 +89,8 @@ def calibration_views(kind: str, channels=()) -> rrb.Container:
                 _layout.spatial(origin="/tumble/raw", name="raw, on the fitted ellipsoid (colour: coverage)",
                                 eye=(2.2, 1.8, 1.4)),
                 _layout.spatial(origin="/tumble/calibrated", name="calibrated, on the sphere", eye=(2.2, 1.8, 1.4))),
-                _layout.series(origin="/tumble/field_ratio", name="|m| / field_norm (ratio): raw and calibrated"),
+                _layout.series(origin="/tumble/field_ratio", legend=None,
+                               name="|m| / field_norm (ratio): raw orange, calibrated blue"),
                 row_shares=[3, 1]),
             rrb.Vertical(_layout.spatial(origin="/tumble/coverage", name="coverage: cells seen (green)",
                                          eye=(2.2, 1.8, 1.4)),
@@ -98,8 +102,8 @@ def calibration_views(kind: str, channels=()) -> rrb.Container:
                                                                "the sphere", eye=(2.2, 1.8, 1.4)),
                 _layout.spatial(origin="/installed/installed", name="installed calibration: back on the sphere",
                                 eye=(2.2, 1.8, 1.4))),
-                _layout.series(origin="/installed/field_ratio",
-                               name="|B| / site |B| (ratio): bench calibration alone, installed"),
+                _layout.series(origin="/installed/field_ratio", legend=None,
+                               name="|B| / site |B| (ratio): bench calibration alone orange, installed blue"),
                 row_shares=[3, 1]),
             _diagnosis_views(), column_shares=[3, 1], name="installation calibration")
     residuals = rrb.Vertical(*(_layout.series(origin=f"/{kind}/{ch}", name=f"{ch}: residual (recording units)",
