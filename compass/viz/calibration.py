@@ -64,7 +64,8 @@ _CONE_MIN_DEG = 0.5  # narrower cones are not drawn (a line on the arrow); the l
 def _diagnosis_views() -> rrb.Container:
     return rrb.Vertical(
         rrb.BarChartView(origin="/diagnosis/residual_rms", name="residual rms per step",
-                         plot_legend=rrb.PlotLegend(corner="RightTop", visible=True)),
+                         # bottom left: over the bars' feet, not over their heights (the top right hid the floor's)
+                         plot_legend=rrb.PlotLegend(corner="LeftBottom", visible=True)),
         _layout.text_log(origin="/diagnosis/log", name="diagnosis steps"), row_shares=[2, 3])
 
 
