@@ -14,11 +14,14 @@ from __future__ import annotations
 import io
 import sys
 import time
+from contextlib import nullcontext
+from pathlib import Path
 
 import numpy as np
 
 from . import limits
 from .io.lines import Header, Sample
+from .io.progress import Tally, working
 from .live import LiveSession
 
 __all__ = ["replay", "replay_file"]
@@ -172,12 +175,14 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     temp_c = table.column("temp_c") if table.has("temp_c") else None
 
     moves = []  # the filter's moves of the reference to a new place
+    tally = Tally()  # the progress line's (below), once the replay starts
 
     def on_event(level, text):
         if text.startswith(PLACE_EVENT):
             moves.append(text)
         if not quiet:
-            print(f"[{level}] {text}", file=sys.stderr)
+            with tally.hidden():
+                print(f"[{level}] {text}", file=sys.stderr)
 
     buffer, sink = io.StringIO(), None
     if rerun is not None:
@@ -186,16 +191,10 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
         sink = RerunSink.for_model(rerun, model, config)
     session = LiveSession(model, config=config, out=buffer, sink=sink, on_event=on_event, reference=reference,
                           imu=cal.imu, sign_from_bench=cal.provenance.hemisphere_assumed, quaternion=True)
-    started, said = time.perf_counter(), [time.perf_counter()]
-
-    def progress(done, rows):  # on stderr, every 2 s of a long replay
-        now = time.perf_counter()
-        if not quiet and now - said[0] >= 2.0:
-            said[0] = now
-            print(f"replaying {recording}: {done} of {rows} rows ({now - started:.0f} s)", file=sys.stderr, flush=True)
-
+    line = nullcontext(tally) if quiet else working(f"replaying {Path(recording).name}", total=len(t_s))
     try:
-        replay(session, t_s, raw, accel, gyro, temp_c, progress=progress)
+        with line as tally:
+            replay(session, t_s, raw, accel, gyro, temp_c, progress=lambda done, rows: tally.advance(done - tally.done))
     except BaseException:
         if sink is not None:
             sink.discard()
