@@ -33,7 +33,7 @@ from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, channel
 
 from ..diagnosis.evidence import SINGULAR_RCOND, linear_score, unit_columns
 from ..diagnosis.forms import session_bin
-from .effects import Effect
+from .effects import FourFlipEffect
 
 __all__ = ["BIN_DEG", "Bins", "CLUSTER_DEG", "MLFit", "cramer_rao", "fit_ml", "score_effect", "structured_covariance",
            "tangent_basis", "with_covariance"]
@@ -107,7 +107,7 @@ class MLFit:
     ----------
     physics : BenchPhysics
         Fitted parameters.
-    effects : tuple of Effect
+    effects : tuple of FourFlipEffect
     names : list of str
         Fit parameter names (in the fit's scaled units).
     x : ndarray
@@ -162,7 +162,7 @@ class MLFit:
         """RMS angular uncertainty of each direction, degrees, shape (c,)."""
         return _direction_sigma_deg(self.direction_covariance)
 
-    def effect_parameters(self, effect: Effect) -> tuple[list, np.ndarray, np.ndarray]:
+    def effect_parameters(self, effect: FourFlipEffect) -> tuple[list, np.ndarray, np.ndarray]:
         """(names, values, sigmas) of one effect's block in reporting units."""
         start = self._block_start(effect)
         n = effect.n_params(len(self.physics.gains))
@@ -179,7 +179,7 @@ class MLFit:
             out[e.name] = self.x[start:start + e.n_params(c)]
         return out
 
-    def _block_start(self, effect: Effect) -> int:
+    def _block_start(self, effect: FourFlipEffect) -> int:
         c = len(self.physics.gains)
         start = _BASE_PER_CHANNEL * c + 2
         for e in self.effects:
@@ -286,7 +286,7 @@ def fit_ml(
         Starting point (directions, offsets, gains, dip, azimuth, field magnitude).
     noise : ndarray, shape (c,)
         Per-channel noise sigma used as weights (output units).
-    effects : sequence of Effect
+    effects : sequence of FourFlipEffect
     effect_start : dict, optional
         Starting values of effect blocks by name (zero otherwise).
     """
@@ -381,7 +381,7 @@ def with_covariance(fit: MLFit, covariance: np.ndarray) -> MLFit:
     return replace(fit, covariance=covariance, direction_covariance=_direction_covariance(fit.layout, fit.x, covariance))
 
 
-def score_effect(fit: MLFit, noise: np.ndarray, effect: Effect,
+def score_effect(fit: MLFit, noise: np.ndarray, effect: FourFlipEffect,
                  step: float = 1e-6) -> tuple[float, np.ndarray]:
     """Score (Lagrange multiplier) test for adding ``effect`` to a fitted model.
 
@@ -389,7 +389,7 @@ def score_effect(fit: MLFit, noise: np.ndarray, effect: Effect,
     the current parameters can already absorb, and returns the chi-square drop a refit would
     give to first order, with the Gauss-Newton start values of the effect's block.  An effect
     with a shape parameter (a time constant) is linearised at each of its
-    :meth:`~calibrate.fourflip.effects.Effect.score_starts` and the best is kept.
+    :meth:`~calibrate.fourflip.effects.FourFlipEffect.score_points` and the best is kept.
 
     Returns
     -------
@@ -407,7 +407,7 @@ def score_effect(fit: MLFit, noise: np.ndarray, effect: Effect,
 
     j_b = unit_columns(np.nan_to_num(fit.jac))
     best = (-np.inf, None)
-    for shape in effect.score_starts(layout.c):
+    for shape in effect.score_points(layout.c):
         x = np.concatenate([fit.x, shape])
         drop, delta = linear_score(residual, x, fit.x.size, j_b, step)
         if drop > best[0]:

@@ -216,7 +216,7 @@ def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progres
     effects = []
     for effect in fit.effects:
         names, values, sigmas = fit.effect_parameters(effect)
-        entry = {"name": effect.name, "form": effect.form, "parameters": {
+        entry = {"name": effect.name, "form": effect.formula, "parameters": {
             n: {"value": float(v), "sigma": float(e)} for n, v, e in zip(names, values, sigmas)}}
         reference = effect.reference(fit.physics)
         effects.append({**entry, "reference": reference} if reference else entry)

@@ -264,7 +264,7 @@ def fit_installation(rows: Rows, effects: tuple, priors: dict, start: np.ndarray
     Parameters
     ----------
     rows : Rows
-    effects : tuple of EffectForm
+    effects : tuple of InstallationEffect
         The hard iron's changes in the model (each named in ``rows.regressors``).
     priors : dict
         ``"field"`` and ``"dip"``: ``(mean, sigma)`` of the site's |B| (field units) and dip (deg).
