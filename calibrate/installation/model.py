@@ -51,13 +51,13 @@ from scipy.spatial.transform import Rotation
 
 from compass.attitude import two_vector_rotation
 from compass.frames import heading_pitch_roll
-from compass.installed import soft_iron_basis
+from compass.installed import SOFT_IRON_ENTRIES, soft_iron_basis
 
 from ..diagnosis.evidence import FitRecord
 
 __all__ = ["PRIOR_HARD_IRON_UT", "TYPICAL_FIELD_UT", "prior_hard_iron", "PRIOR_SOFT_IRON", "UNDETERMINED_NOISE",
            "LEVEL_DEG", "N_CORE", "Rows", "InstallationFit", "coordinates", "fit_installation", "residuals", "field_h",
-           "split", "is_level", "product_heading", "effect_slice"]
+           "split", "is_level", "product_heading", "effect_slice", "parameter_names"]
 
 PRIOR_HARD_IRON_UT = 20.0
 """Prior sigma of each hard-iron component, uT."""
@@ -181,6 +181,13 @@ def split(x: np.ndarray, rows: Rows, effects: tuple):
     k = rows.n_fixed_params
     extra = {e.name: x[k + 3 * i:k + 3 * i + 3] for i, e in enumerate(effects)}
     return h, d, f, dip, yaw, extra
+
+
+def parameter_names(rows: Rows, effects: tuple) -> tuple[str, ...]:
+    """Names of ``x`` in order (module docstring): ``h``, ``D``'s entries, ``F``, the dip, the yaw, each effect's."""
+    core = (("hard_iron_x", "hard_iron_y", "hard_iron_z") + tuple(f"D_{e}" for e in SOFT_IRON_ENTRIES)
+            + ("field_norm", "dip_deg") + (("yaw_deg",) if rows.heading_ref is not None else ()))
+    return core + tuple(f"{e.name}.{axis}" for e in effects for axis in "xyz")
 
 
 def effect_slice(rows: Rows, effects: tuple, name: str) -> slice:

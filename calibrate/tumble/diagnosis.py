@@ -54,6 +54,7 @@ from itertools import combinations_with_replacement
 import numpy as np
 from scipy.optimize import least_squares
 
+from ..contract import FitStatistics
 from ..diagnosis.evidence import (FitRecord, Proposal, determined, gather_forms, is_unexplained, linearised_score,
                                   refit_from_better_start, select_effects)
 from ..diagnosis.forms import json_float, rms
@@ -65,7 +66,7 @@ from .alignment import MAX_ANGLE_WIDENING, Misalignment, field_gravity_angles, s
 from .ellipsoid import EllipsoidFit, fit_covariance, propagate, shape_matrix, sym_sqrt
 
 __all__ = ["TumbleEffect", "TUMBLE_FORMS", "TumbleDiagnosis", "UNEXPLAINED_WARNING", "diagnose_tumble",
-           "radial_noise_floor", "residual_structure"]
+           "ellipsoid_parameter_names", "radial_noise_floor", "residual_structure"]
 
 _AXES = ("mx", "my", "mz")
 _N_AXES = len(_AXES)
@@ -289,12 +290,16 @@ class TumbleDiagnosis(Diagnosis):
         ``{"name", "form", "reference", "parameters"}`` of each claimed effect: the file's ``effects``.
     block : dict
         The SPEC section 4 ``diagnosis`` block.
+    statistics : FitStatistics
+        The final fit's: the ellipsoid's normalised parameters (:func:`ellipsoid_parameter_names`),
+        then the claimed effects', against the radial noise floor.
     """
 
     fit: EllipsoidFit
     raw_at_reference: np.ndarray
     effects: tuple
     block: dict
+    statistics: FitStatistics
 
     def with_alignment(self, mis: Misalignment, fit: EllipsoidFit) -> "TumbleDiagnosis":
         """Add the magnetometer-accelerometer rotation as a step, and the final fit's residual.
@@ -328,6 +333,17 @@ class TumbleDiagnosis(Diagnosis):
         block = dict(self.block, alignment=alignment, residual_rms_after=rms)
         block["unexplained"] = is_unexplained(block["structure_test"]["p_value"], rms, block["noise_floor"])
         return replace(self, fit=fit, block=block)
+
+
+def ellipsoid_parameter_names(ellipsoid: str) -> tuple[str, ...]:
+    """Names of an ellipsoid kind's normalised parameters (:func:`calibrate.tumble.ellipsoid.shape_matrix`).
+
+    ``h_*``: the hard iron's offset from the normalising centre over its radius; ``log_l*``: the log
+    of the shape ``L``'s diagonal (one shared by the axes for ``offset``); ``l_*``: its lower entries.
+    """
+    shape = {"offset": ("log_l",), "diagonal": ("log_l_x", "log_l_y", "log_l_z"),
+             "full": ("log_l_x", "log_l_y", "log_l_z", "l_yx", "l_zx", "l_zy")}[ellipsoid]
+    return ("h_x", "h_y", "h_z") + shape
 
 
 def radial_noise_floor(residuals: np.ndarray) -> float:
@@ -522,4 +538,8 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
         "hard_iron_change": {"value": (final_fit.hard_iron - fit.hard_iron).tolist(),
                              "sigma": final_fit.hard_iron_sigma.tolist()},
     }
-    return TumbleDiagnosis(final_fit, raw_ref, effects, block)
+    names = ellipsoid_parameter_names(fit.ellipsoid) + tuple(
+        f"{e.name}[{j}]" for e in current.effects for j in range(e.n_params(_N_AXES)))
+    statistics = FitStatistics(names, current.x, current.covariance, current.chi2, current.dof, current.bic(),
+                               current.success, current.message)
+    return TumbleDiagnosis(final_fit, raw_ref, effects, block, statistics)
