@@ -14,8 +14,9 @@ flips: 1440 samples) from a forward model written here in plain numpy (not
   axis tilted 0.15 deg, the tilt's azimuth turning once over the session), ``knee``
   (a channel compressing only above 0.7 |B|), ``rate memory`` (an offset of +-h following
   the sign of the channel's field change: a backlash-like hysteresis), ``random walk`` (offsets
-  wandering as a random walk), and ``ADC 5x`` (a clean sensor read as integer codes, the code
-  step 5 times the noise).
+  wandering as a random walk), ``ADC 5x`` (a clean sensor read as integer codes, the code
+  step 5 times the noise), and ``air-con cycle`` (offsets and gains following a 600 s room
+  temperature cycle, no ``temp_c``: added after the widening was chosen and never used to choose it).
 
 It prints, per case and for each version: what the loop named (the commonest set), how often it
 said ``unexplained``, the direction error over the stated sigma (RMS over channels and seeds; 1
@@ -55,7 +56,7 @@ GAIN_V_PER_UT = 0.02
 STEP_DEG = 1.0
 VOCABULARY = ("clean", "odd cubic", "encoder", "warm-up", "platform field", "flip error", "gain drift",
               "cubic + quad drift", "four stacked")
-OUTSIDE = ("spike bursts", "precessing axis", "knee", "rate memory", "random walk", "ADC 5x")
+OUTSIDE = ("spike bursts", "precessing axis", "knee", "rate memory", "random walk", "ADC 5x", "air-con cycle")
 CASES = VOCABULARY + OUTSIDE
 
 
@@ -121,6 +122,10 @@ def session(seed: int, case: str):
         offsets = offsets + np.outer(tau + 0.6 * tau**2, [0.3, -0.25, 0.2]) * GAIN_V_PER_UT
     if case == "random walk":
         offsets = offsets + np.cumsum(rng.normal(scale=0.004, size=(flip.size, 3)), axis=0) * GAIN_V_PER_UT
+    if case == "air-con cycle":
+        cycle = np.sin(2 * np.pi * t_s / 600.0 + rng.uniform(0, 2 * np.pi))
+        g = g * (1.0 + 0.0015 * cycle[:, None])
+        offsets = offsets + np.outer(cycle, [0.15, -0.1, 0.12]) * GAIN_V_PER_UT
     if case == "rate memory":
         rate = np.gradient(x, axis=0)
         rate[np.r_[True, flip[1:] != flip[:-1]]] = 0.0

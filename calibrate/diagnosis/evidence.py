@@ -517,7 +517,8 @@ def unit_columns(jac: np.ndarray) -> np.ndarray:
     return jac / np.where(np.any(jac, axis=0), np.linalg.norm(jac, axis=0), 1.0)
 
 
-def linear_score(residual, x, n_fitted: int, j_b: np.ndarray, step: float = 1e-6) -> tuple[float, np.ndarray]:
+def linear_score(residual, x, n_fitted: int, j_b: np.ndarray, step: float = 1e-6,
+                 block_jacobian: np.ndarray | None = None) -> tuple[float, np.ndarray]:
     """First-order chi-square drop and parameter step of the block ``x[n_fitted:]``.
 
     Parameters
@@ -532,14 +533,18 @@ def linear_score(residual, x, n_fitted: int, j_b: np.ndarray, step: float = 1e-6
         The current fit's Jacobian with unit columns.
     step : float
         Finite-difference step of the block's parameters.
+    block_jacobian : ndarray, shape (n_residuals, len(x) - n_fitted), optional
+        The residual's derivatives by the block at ``x`` (finite differences of ``residual`` when None).
     """
     r0 = residual(x)
     q = x.size - n_fitted
-    j_e = np.empty((r0.size, q))
-    for i in range(q):
-        xp = x.copy()
-        xp[n_fitted + i] += step
-        j_e[:, i] = (residual(xp) - r0) / step
+    j_e = block_jacobian
+    if j_e is None:
+        j_e = np.empty((r0.size, q))
+        for i in range(q):
+            xp = x.copy()
+            xp[n_fitted + i] += step
+            j_e[:, i] = (residual(xp) - r0) / step
     absorbed, *_ = np.linalg.lstsq(j_b.T @ j_b, j_b.T @ j_e, rcond=SINGULAR_RCOND**2)  # small normal equations
     j_tilde = j_e - j_b @ absorbed
     # the effect's directions the current model cannot tell from its own parameters carry no

@@ -33,22 +33,16 @@ from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, channel
 
 from ..diagnosis.evidence import SINGULAR_RCOND, linear_score, unit_columns
 from ..diagnosis.forms import session_bin
+from ._jacobian import Partials
 from .effects import FourFlipEffect
 
-__all__ = ["BIN_DEG", "Bins", "CLUSTER_DEG", "MLFit", "cramer_rao", "fit_ml", "score_effect", "structured_covariance",
+__all__ = ["BIN_DEG", "Bins", "MLFit", "cramer_rao", "fit_ml", "score_effect", "structured_covariance",
            "tangent_basis", "with_covariance"]
 
 _BASE_PER_CHANNEL = 4  # u, v, offset, log gain
-_MAX_ITERATIONS = 60  # Levenberg-Marquardt iterations (each costs one finite-difference Jacobian)
+_MAX_ITERATIONS = 100  # residual evaluations of one Levenberg-Marquardt fit (the Jacobian is analytic)
 BIN_DEG = 0.05
 """Width of the turntable-angle bins whose consecutive samples the fit takes as one mean, degrees."""
-CLUSTER_DEG = 180.0
-"""Turntable sector whose samples of one flip form a cluster of :func:`structured_covariance`, degrees.
-
-Half turns (8 clusters) were chosen over quarter and eighth turns on tools/bench_loop.py's seeds 1000-1007
-(the reported numbers use seeds 0-19): the structures that sigmas miss most are slow ones."""
-
-
 @dataclass(frozen=True)
 class Bins:
     """A recording's bin means: where the fit runs (see the module docstring).
@@ -200,10 +194,14 @@ class _Predictor:
         self.samples, self._key, self._b_h = samples, None, None
 
     def __call__(self, physics: BenchPhysics) -> np.ndarray:
+        return channel_outputs(physics, self.samples, self.field(physics) @ physics.directions.T)
+
+    def field(self, physics: BenchPhysics) -> np.ndarray:
+        """The field in H at the samples, shape (n, 3) (recomputed only when the geometry changed)."""
         key = _geometry_key(physics)
         if key != self._key:
             self._key, self._b_h = key, housing_field(physics, self.samples)
-        return channel_outputs(physics, self.samples, self._b_h @ physics.directions.T)
+        return self._b_h
 
 
 def _geometry_key(physics: BenchPhysics) -> tuple:
@@ -266,6 +264,40 @@ class _Layout:
         return physics
 
 
+def output_jacobian(layout: _Layout, x: np.ndarray, samples: BenchSamples, b_h: np.ndarray | None = None) -> np.ndarray:
+    """d outputs / d x of the model at ``samples``, analytic (:mod:`calibrate.fourflip._jacobian`): (n, c, k).
+
+    Base parameters: a direction's tangent step moves it by ``(I - a a^T) e / |n|``; the offset step
+    adds the starting gain; the log gain scales everything the gain multiplies (the response and every
+    drift, since their blocks are in field units times the gain): ``v - V0``; dip and azimuth turn
+    the Earth field in the bench frame.
+    """
+    physics = layout.physics(x)
+    parts = Partials(physics, samples, b_h)
+    c = layout.c
+    out = np.zeros((samples.platform_deg.size, c, x.size))
+    directions, n = layout.directions(x)
+    predicted = channel_outputs(physics, samples, parts.x)
+    for ch in range(c):
+        projector = (np.eye(3) - np.outer(directions[ch], directions[ch])) / np.linalg.norm(n[ch])
+        col = _BASE_PER_CHANNEL * ch
+        out[:, ch, col:col + 2] = parts.per_x[:, ch, None] * (parts.b_h @ (projector @ layout.basis[ch].T))
+        out[:, ch, col + 2] = layout.start.gains[ch]
+        out[:, ch, col + 3] = predicted[:, ch] - physics.offsets[ch]
+    dip, azimuth = np.radians(physics.dip_deg), np.radians(physics.azimuth_deg)
+    d_field = physics.field_norm * np.array([
+        [-np.sin(dip) * np.cos(azimuth), -np.sin(dip) * np.sin(azimuth), -np.cos(dip)],
+        [-np.cos(dip) * np.sin(azimuth), np.cos(dip) * np.cos(azimuth), 0.0]])
+    d_b_h = np.stack([parts.bench_to_housing(v) for v in d_field], axis=-1)
+    out[:, :, _BASE_PER_CHANNEL * c:_BASE_PER_CHANNEL * c + 2] = parts.through_field(d_b_h)
+    i = _BASE_PER_CHANNEL * c + 2
+    for e in layout.effects:
+        k = e.n_params(c)
+        out[:, :, i:i + k] = e.jacobian(physics, x[i:i + k], samples, parts)
+        i += k
+    return out
+
+
 def fit_ml(
     samples: BenchSamples,
     outputs: np.ndarray,
@@ -299,13 +331,19 @@ def fit_ml(
     def residual(p):
         return ((bins.outputs - predict(layout.physics(p))) * weights).ravel()
 
+    def jacobian(p):
+        physics = layout.physics(p)
+        predict(physics)  # the field in H, cached when the geometry has not changed
+        d_out = output_jacobian(layout, p, bins.samples, predict.field(physics))
+        return (-d_out * np.asarray(weights)[..., None]).reshape(-1, p.size)
+
     x0 = layout.x0(effect_start)
     if effect_start:
         # a first-order start can overshoot far outside the linear regime: keep it only if it helps
         plain = layout.x0()
         if np.sum(residual(plain) ** 2) < np.sum(residual(x0) ** 2):
             x0 = plain
-    res = least_squares(residual, x0, method="lm", x_scale="jac", max_nfev=_MAX_ITERATIONS * (x0.size + 1))
+    res = least_squares(residual, x0, jac=jacobian, method="lm", x_scale="jac", max_nfev=_MAX_ITERATIONS)
     x = res.x
     jac = res.jac
     physics = layout.physics(x)
@@ -356,10 +394,13 @@ def _direction_covariance(layout: _Layout, x, cov) -> np.ndarray:
 
 
 def structured_covariance(fit: MLFit, noise: np.ndarray) -> np.ndarray:
-    """Covariance of a fit's parameters with its residual's structure as a process correlated along the turn.
+    """Covariance of a fit's parameters with its residual's structure as a process correlated within each flip.
 
-    :func:`calibrate.diagnosis.robust.cluster_covariance` over clusters of a :data:`CLUSTER_DEG`
-    sector of one flip (8 clusters in a full recording), on the bins the fit ran on.
+    :func:`calibrate.diagnosis.robust.cluster_covariance` with one cluster per flip, on the bins the
+    fit ran on.  Flips, not parts of a turn: one mounting and one stretch of time, so what the model
+    lacks (a slow wander, an axis tilting as time goes) is correlated over the whole flip; on
+    tools/bench_loop.py's seeds 0-9 half turns left the precessing axis and the random walk at 1.1 and
+    1.5 times the widened sigma, flips at 1.05 and 1.1 (seeds 10-29 and a late case score it).
 
     Returns
     -------
@@ -370,8 +411,7 @@ def structured_covariance(fit: MLFit, noise: np.ndarray) -> np.ndarray:
 
     bins = fit.bins
     weighted = ((bins.outputs - _Predictor(bins.samples)(fit.physics)) * (bins.root_n / noise)).ravel()
-    sector = np.floor(np.mod(bins.samples.platform_deg, 360.0) / CLUSTER_DEG).astype(int)
-    clusters = np.repeat(bins.samples.flip_index * int(np.ceil(360.0 / CLUSTER_DEG)) + sector, len(noise))
+    clusters = np.repeat(bins.samples.flip_index, len(noise))
     bread = fit.covariance / (fit.chi2 / max(fit.dof, 1))
     return cluster_covariance(fit.jac, weighted, clusters, bread)
 
@@ -381,15 +421,15 @@ def with_covariance(fit: MLFit, covariance: np.ndarray) -> MLFit:
     return replace(fit, covariance=covariance, direction_covariance=_direction_covariance(fit.layout, fit.x, covariance))
 
 
-def score_effect(fit: MLFit, noise: np.ndarray, effect: FourFlipEffect,
-                 step: float = 1e-6) -> tuple[float, np.ndarray]:
+def score_effect(fit: MLFit, noise: np.ndarray, effect: FourFlipEffect) -> tuple[float, np.ndarray]:
     """Score (Lagrange multiplier) test for adding ``effect`` to a fitted model.
 
     Linearises the effect's parameters at zero size around the current solution, removes what
     the current parameters can already absorb, and returns the chi-square drop a refit would
     give to first order, with the Gauss-Newton start values of the effect's block.  An effect
     with a shape parameter (a time constant) is linearised at each of its
-    :meth:`~calibrate.fourflip.effects.FourFlipEffect.score_points` and the best is kept.
+    :meth:`~calibrate.fourflip.effects.FourFlipEffect.score_points` and the best is kept.  The effect's
+    columns are its analytic :meth:`~calibrate.fourflip.effects.FourFlipEffect.jacobian`.
 
     Returns
     -------
@@ -405,11 +445,17 @@ def score_effect(fit: MLFit, noise: np.ndarray, effect: FourFlipEffect,
     def residual(p):
         return ((bins.outputs - predict(extended.physics(p))) * weights).ravel()
 
+    def block_jacobian(x):
+        physics = extended.physics(x)
+        parts = Partials(physics, bins.samples, predict.field(physics))
+        d_out = effect.jacobian(physics, x[fit.x.size:], bins.samples, parts)
+        return (-d_out * np.asarray(weights)[..., None]).reshape(-1, d_out.shape[-1])
+
     j_b = unit_columns(np.nan_to_num(fit.jac))
     best = (-np.inf, None)
     for shape in effect.score_points(layout.c):
         x = np.concatenate([fit.x, shape])
-        drop, delta = linear_score(residual, x, fit.x.size, j_b, step)
+        drop, delta = linear_score(residual, x, fit.x.size, j_b, block_jacobian=block_jacobian(x))
         if drop > best[0]:
             best = (drop, shape + delta)
     return best

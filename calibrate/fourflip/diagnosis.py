@@ -183,8 +183,9 @@ def _widen(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
         "direction_sigma_deg": {name: {"naive": float(b), "widened": float(a)}
                                 for name, b, a in zip(channels, before, after)},
         "heading_sigma_deg": {"naive": heading[0], "widened": heading[1]},
-        "method": ("cluster-robust (sandwich) covariance over half turns of each flip: the residual's structure "
-                   "taken as correlated along the turn; the file's sigmas are the larger of it and the naive ones"),
+        "method": ("bias-reduced cluster-robust (CR2 sandwich) covariance, one cluster per flip: the residual's "
+                   "structure taken as correlated within a flip, the part each flip's fit absorbed restored by its "
+                   "leverage; the file's sigmas are the larger of it and the naive ones"),
     }
     return wide, cost
 

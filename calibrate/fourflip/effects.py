@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from compass.sim.bench import BenchPhysics
+from compass.sim.bench import BenchPhysics, BenchSamples
 
 from ..effects import EffectForm, TemperatureForm, TimePolynomial, WarmUpForm, warm_up_tau_s
 
@@ -44,6 +44,13 @@ class FourFlipEffect(EffectForm):
         raise NotImplementedError
 
     def apply(self, physics: BenchPhysics, p: np.ndarray, samples) -> BenchPhysics:
+        raise NotImplementedError
+
+    def jacobian(self, physics: BenchPhysics, p: np.ndarray, samples: BenchSamples, partials) -> np.ndarray:
+        """d outputs / d p at ``physics`` (every effect applied), shape (n, c, n_params).
+
+        ``partials`` is a :class:`calibrate.fourflip._jacobian.Partials` of ``physics`` at ``samples``.
+        """
         raise NotImplementedError
 
     def report_scale(self, physics: BenchPhysics) -> np.ndarray | float:
@@ -88,6 +95,11 @@ class NonlinearResponse(FourFlipEffect):
         coef = {k: p[:, i] / b ** (k - 1) for i, k in enumerate(self.powers)}
         return physics.with_(quadratic=coef.get(2), cubic=coef.get(3), quintic=coef.get(5))
 
+    def jacobian(self, physics, p, samples, partials):
+        b = physics.field_norm
+        values = np.stack([partials.gain_t * partials.x**k / b ** (k - 1) for k in self.powers], axis=-1)
+        return partials.per_channel(values)
+
 
 class EncoderError(FourFlipEffect):
     def n_params(self, c):
@@ -103,6 +115,12 @@ class EncoderError(FourFlipEffect):
 
     def apply(self, physics, p, samples):
         return physics.with_(encoder_fourier=np.degrees(p.reshape(ENCODER_HARMONICS, 2)))
+
+    def jacobian(self, physics, p, samples, partials):
+        k = np.arange(1, ENCODER_HARMONICS + 1)
+        arg = np.radians(samples.platform_deg)[:, None] * k[None, :]
+        turn = np.stack([np.cos(arg), np.sin(arg)], axis=-1).reshape(arg.shape[0], -1)  # d phi' / d p, rad / rad
+        return partials.per_turn[:, :, None] * turn[:, None, :]
 
     def report_scale(self, physics):
         return np.degrees(1.0)
@@ -132,6 +150,10 @@ class FlipError(FourFlipEffect):
         rotvec[1:, 0] = np.degrees(p)
         return physics.with_(flip_rotvec_deg=rotvec)
 
+    def jacobian(self, physics, p, samples, partials):
+        which = (samples.flip_index[:, None] == np.arange(1, 4)[None, :]).astype(float)  # (n, 3)
+        return partials.per_flip[:, :, None] * which[:, None, :]
+
     def report_scale(self, physics):
         return np.degrees(1.0)
 
@@ -157,6 +179,10 @@ class PlatformField(FourFlipEffect):
     def apply(self, physics, p, samples):
         return physics.with_(platform_field=np.array([0.0, p[0], 0.0]) * physics.field_norm)
 
+    def jacobian(self, physics, p, samples, partials):
+        d_b_h = partials.turntable_to_housing(np.array([0.0, physics.field_norm, 0.0]))
+        return partials.through_field(d_b_h[:, :, None])
+
     def report_scale(self, physics):
         return physics.field_norm
 
@@ -173,6 +199,10 @@ class OffsetDrift(TimePolynomial, FourFlipEffect):
         half = 0.5 * np.ptp(samples.t_s)
         drift = p.reshape(-1, self.degree) * physics.gains[:, None]
         return physics.with_(drift=drift, drift_t0=t0, drift_scale_s=half)
+
+    def jacobian(self, physics, p, samples, partials):
+        powers = partials.time_powers((samples.t_s - physics.drift_t0) / physics.drift_scale_s, self.degree)
+        return partials.per_channel(powers[:, None, :] * physics.gains[None, :, None])
 
     @property
     def formula(self):
@@ -198,6 +228,15 @@ class WarmUp(WarmUpForm, FourFlipEffect):
         tau = warm_up_tau_s(session, p[-1], high=6.0)
         return physics.with_(warmup=p[:-1] * physics.gains, warmup_tau_s=tau, drift_t0=samples.t_s.min())
 
+    def jacobian(self, physics, p, samples, partials):
+        age = samples.t_s - physics.drift_t0
+        settling = np.exp(-age / physics.warmup_tau_s)
+        amplitudes = partials.per_channel(settling[:, None, None] * physics.gains[None, :, None])
+        # tau = session exp(log ratio), clipped: d tau / d log ratio = tau inside the clip, 0 outside
+        inside = -6.0 < p[-1] < 6.0
+        d_tau = (settling * age / physics.warmup_tau_s)[:, None] * physics.warmup[None, :] * inside
+        return np.concatenate([amplitudes, d_tau[:, :, None]], axis=-1)
+
     @property
     def formula(self):
         return ("offset(t) = offset + gain warmup_fieldunit exp(-(t_s - reference.t_s_first) / reference.tau_s), "
@@ -220,6 +259,11 @@ class GainDrift(TimePolynomial, FourFlipEffect):
         t0 = 0.5 * (samples.t_s.min() + samples.t_s.max())
         return physics.with_(gain_drift=p.reshape(-1, self.degree), gain_drift_t0=t0,
                              gain_drift_scale_s=0.5 * np.ptp(samples.t_s))
+
+    def jacobian(self, physics, p, samples, partials):
+        powers = partials.time_powers((samples.t_s - physics.gain_drift_t0) / physics.gain_drift_scale_s, self.degree)
+        static = physics.gains * partials.temperature_factor * partials.bent  # (n, c)
+        return partials.per_channel(powers[:, None, :] * static[:, :, None])
 
     @property
     def formula(self):
@@ -244,6 +288,12 @@ class Temperature(TemperatureForm, FourFlipEffect):
             temp_gain=p[:, 1] / 100.0,
             temp_ref_c=float(np.mean(samples.temp_c)),
         )
+
+    def jacobian(self, physics, p, samples, partials):
+        dt = (samples.temp_c - physics.temp_ref_c)[:, None]
+        offset = dt * physics.gains[None, :]
+        gain = dt * physics.gains * partials.gain_drift_factor * partials.bent / 100.0
+        return partials.per_channel(np.stack([offset, gain], axis=-1))
 
     def report_scale(self, physics):
         return np.tile([1.0, 0.01], len(physics.gains))
