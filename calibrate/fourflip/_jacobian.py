@@ -15,7 +15,7 @@ flip (flip error), ``b_p`` a field fixed to the turntable.  Derivatives of the f
 
 Each effect maps its block onto these (:meth:`calibrate.fourflip.effects.Effect.jacobian`); the base
 parameters are done here.  Every derivative is checked against finite differences in
-``tests/calibrate/test_fourflip_jacobians.py``.
+``tests/calibrate/fourflip/test_jacobians.py``.
 """
 
 from __future__ import annotations
