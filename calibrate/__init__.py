@@ -8,14 +8,14 @@ seed 003's reference fields (:func:`calibrate_reference`).  Data flows one way: 
 
 from importlib import import_module
 
-_HOMES = {"METHODS": "fourflip", "CalibrationResult": "fourflip", "ChannelCalibration": "fourflip",
+_HOMES = {"METHODS": "fourflip", "FourFlipResult": "fourflip", "ChannelCalibration": "fourflip",
           "calibrate_fourflip": "fourflip", "calibrate_platform3d": "platform3d",
           "calibrate_reference": "reference", "calibrate_tumble": "tumble"}
 """Name -> the kind's package: imported on first use, so using one kind imports no other."""
 
 __all__ = [
     "METHODS",
-    "CalibrationResult",
+    "FourFlipResult",
     "ChannelCalibration",
     "calibrate_fourflip",
     "calibrate_platform3d",

@@ -1,12 +1,15 @@
 """The calibration contract every kind follows (scikit-learn's estimators, lmfit's one result type).
 
 - A :class:`Calibrator` per kind takes its options as keyword-only constructor arguments (no
-  computation there) and fits with ``fit(recording) -> Calibration``.
-- A :class:`Calibration` (the kind's frozen result) has ``calibration_kind`` (the file's
-  ``"model"``; a tumble result's ``kind`` is its ellipsoid kind), ``parameters`` (name -> (value,
-  sigma or None)), ``warnings`` (tuple of str), ``diagnosis`` (the residual diagnosis, SPEC section
-  4; its file block is ``to_json()["diagnosis"]``), ``report()``, ``plots(recording, folder)`` and
-  ``to_json()`` (the calibration file, written by :func:`compass.calibration.save`).
+  computation there) and fits with ``fit(recording) -> CalibrationResult``.
+- A :class:`CalibrationResult` (the kind's frozen result: ``FourFlipResult``, ``TumbleResult``,
+  ``Platform3DResult``, ``ReferenceResult``, ``InstallationResult``) has ``calibration_kind`` (the
+  file's ``"model"``), ``parameters`` (name -> (value, sigma or None)), ``statistics`` (the fit's
+  :class:`FitStatistics`: names, values, covariance, chi2, dof, bic, success, message, as lmfit's
+  ``MinimizerResult``), ``warnings`` (tuple of str), ``diagnosis`` (the residual diagnosis, SPEC
+  section 4; its file block is ``to_json()["diagnosis"]``), ``report()`` (built by
+  :func:`fit_report`, as lmfit's ``fit_report``), ``plots(recording, folder)`` and ``to_json()``
+  (the calibration file, written by :func:`compass.calibration.save`).
 - :class:`CannotCalibrate` says, in words, why a recording cannot be calibrated (exit 2 on the
   command line).
 
@@ -17,10 +20,16 @@ from __future__ import annotations
 
 import abc
 import inspect
+from dataclasses import dataclass
 from pathlib import Path
-from typing import ClassVar
+from typing import ClassVar, Sequence
 
-__all__ = ["Calibration", "Calibrator", "CannotCalibrate"]
+import numpy as np
+
+__all__ = ["CalibrationResult", "Calibrator", "CannotCalibrate", "FitStatistics", "NO_JOINT_FIT", "fit_report"]
+
+STRONG_CORRELATION = 0.9
+"""Parameter pairs correlated beyond this are named in every report."""
 
 
 class CannotCalibrate(ValueError):
@@ -32,15 +41,71 @@ class CannotCalibrate(ValueError):
     """
 
 
-class Calibration(abc.ABC):
+@dataclass(frozen=True)
+class FitStatistics:
+    """What every kind's fit declares about itself (lmfit's ``MinimizerResult``).
+
+    Attributes
+    ----------
+    names : tuple of str
+        The fitted parameters, in the fit's own coordinates (each kind's docstring names their units).
+    values : ndarray, shape (p,)
+    covariance : ndarray, shape (p, p)
+        Of ``values`` (inf where singular).
+    chi2 : float
+        Sum of the squared residuals over their noise floor (NaN when the kind has no floor).
+    dof : int
+        Residuals minus parameters.
+    bic : float
+        ``chi2 + p ln n`` with the noise floor known (NaN with ``chi2``).
+    success : bool
+        The minimiser converged.
+    message : str
+        The minimiser's own words.
+    """
+
+    names: tuple
+    values: np.ndarray
+    covariance: np.ndarray
+    chi2: float
+    dof: int
+    bic: float
+    success: bool
+    message: str
+
+    @property
+    def sigma(self) -> np.ndarray:
+        """Standard errors of :attr:`values`."""
+        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+
+    @property
+    def reduced_chi2(self) -> float:
+        return self.chi2 / max(self.dof, 1)
+
+    def correlations(self, threshold: float = STRONG_CORRELATION) -> list[tuple[str, str, float]]:
+        """``(name_i, name_j, r)`` of the pairs correlated beyond ``threshold`` (finite covariances only)."""
+        sig = self.sigma
+        with np.errstate(invalid="ignore", divide="ignore"):
+            corr = self.covariance / np.outer(sig, sig)
+        return [(self.names[i], self.names[j], float(corr[i, j])) for i in range(len(sig)) for j in range(i)
+                if np.isfinite(corr[i, j]) and abs(corr[i, j]) > threshold]
+
+
+NO_JOINT_FIT = FitStatistics((), np.zeros(0), np.zeros((0, 0)), float("nan"), 0, float("nan"), True,
+                             "a rule, not a fit: no joint statistics")
+"""The statistics of a result no least-squares fit made (the four-flip's seed rules)."""
+
+
+class CalibrationResult(abc.ABC):
     """Base of every kind's result.
 
     Besides the methods below, a result has the attributes ``parameters`` (dict name ->
-    ``(value, sigma)``, sigma None when the method gives none), ``warnings`` (tuple of str, in
-    words) and ``diagnosis`` (the residual diagnosis, or None when not run).
+    ``(value, sigma)``, sigma None when the method gives none), ``statistics`` (:class:`FitStatistics`),
+    ``warnings`` (tuple of str, in words) and ``diagnosis`` (the residual diagnosis, or None when not run).
     """
 
     calibration_kind: ClassVar[str]
+    statistics: FitStatistics
 
     @abc.abstractmethod
     def to_json(self) -> dict:
@@ -71,7 +136,7 @@ class Calibrator(abc.ABC):
     plot_files: ClassVar[tuple[str, ...]] = ()
 
     @abc.abstractmethod
-    def fit(self, recording) -> Calibration:
+    def fit(self, recording) -> CalibrationResult:
         """Calibrate one recording.
 
         Raises
@@ -88,6 +153,45 @@ class Calibrator(abc.ABC):
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({', '.join(f'{k}={getattr(self, k)!r}' for k in self.options())})"
+
+
+def fit_report(result: CalibrationResult, head: Sequence[str], *, warnings: Sequence[str] | None = None,
+               diagnosis: str | None = None, tail: Sequence[str] = ()) -> str:
+    """A result's report for a person: the kind's own lines, then the shared parts, in one order.
+
+    Parameters
+    ----------
+    result : CalibrationResult
+    head : sequence of str
+        The kind's title line and its values with +- sigma.
+    warnings : sequence of str, optional
+        The warnings to print (default ``result.warnings``; a kind that lists some in ``head`` leaves them out).
+    diagnosis : str, optional
+        The diagnosis in words (:func:`calibrate.diagnosis.report.format_diagnosis`), or why it did not run.
+    tail : sequence of str
+        The kind's sections after the diagnosis (the four-flip's accelerometer and site check).
+
+    Returns
+    -------
+    str
+        ``head``; the fit's chi2/dof, BIC and convergence (when it has residuals to count) and the
+        parameter pairs correlated beyond :data:`STRONG_CORRELATION`; every warning; the diagnosis;
+        ``tail``.
+    """
+    stats = result.statistics
+    lines = list(head)
+    if stats.dof > 0 and np.isfinite(stats.chi2):
+        converged = "" if stats.success else f"; not converged: {stats.message}"
+        lines.append(f"  chi2/dof {stats.reduced_chi2:.3f} ({stats.dof} dof), BIC {stats.bic:.1f}{converged}")
+    strong = stats.correlations()
+    if strong:
+        lines.append(f"  correlations above {STRONG_CORRELATION:g}: "
+                     + "; ".join(f"{a}/{b} {c:+.2f}" for a, b, c in strong))
+    lines += [f"  warning: {w}" for w in (result.warnings if warnings is None else warnings)]
+    if diagnosis:
+        lines.append(diagnosis)
+    lines += tail
+    return "\n".join(lines)
 
 
 MIN_EXPLAINED = 0.5

@@ -5,7 +5,7 @@ four-flip, ``platform_z_deg`` -> 3-D platform, ``bx_ref`` -> reference fields, `
 tumble) and fits with the first whose sniffer accepts the recording's columns.
 
 A new kind is one :class:`~calibrate.contract.Calibrator` subclass (whose ``fit`` returns a
-:class:`~calibrate.contract.Calibration`) and one line here::
+:class:`~calibrate.contract.CalibrationResult`) and one line here::
 
     register(Kind("installed", "a --base calibration", sniff=...,
                   reader="compass.io.installation:installation_from_table",

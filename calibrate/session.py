@@ -50,7 +50,7 @@ def fit_recording(found, table, options: dict):
     Returns
     -------
     recording, result
-        The kind's recording and its :class:`~calibrate.contract.Calibration`.
+        The kind's recording and its :class:`~calibrate.contract.CalibrationResult`.
 
     Raises
     ------

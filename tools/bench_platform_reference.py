@@ -190,7 +190,7 @@ def platform_errors(res, sim) -> dict:
     truth = platform_truth(sim)
     n_tilt = len(res.tilt_columns)
     k = 14 + 3 * n_tilt
-    sig = res.sigma
+    sig = res.statistics.sigma
     out = {}
     for label, _, names in GROUPS:
         if names == "mag_offset":

@@ -28,7 +28,8 @@ choice; each caller hands it what differs as small callables:
 
 A fit is read only through ``effects`` (the effects in it, each with a ``name``), ``chi2``,
 ``dof`` and ``bic()`` (chi-square plus ``k ln n``, the noise floor known), and ``covariance``
-for :func:`determined`; an effect through ``name``, ``label`` and ``description``.
+for :func:`determined`; an effect (:class:`calibrate.effects.Effect`) through ``name``, ``label`` and
+``description``.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ import numpy as np
 
 __all__ = ["DECISIVE_BIC", "FLOOR_MARGIN", "MIN_SHARE", "MAX_REVISIONS", "MAX_STEPS", "MAX_REFITS", "REFIT_FRACTION", "SINGULAR_RCOND",
            "STRUCTURE_P", "Fit", "FitRecord", "Proposal", "Selection", "Check", "gather_forms", "linearised_score",
-           "refit_from_better_start", "determined", "select_effects", "EffectForm", "VERDICTS", "added_step_lines",
+           "refit_from_better_start", "determined", "select_effects", "VERDICTS", "added_step_lines",
            "remark_lines", "residual_line", "is_unexplained", "linear_score", "unit_columns"]
 
 SINGULAR_RCOND = 1e-7
@@ -60,20 +61,6 @@ MAX_REFITS = 4
 """Most candidate effects refitted in full per step."""
 REFIT_FRACTION = 0.25
 """Candidates whose score test promises less than this fraction of the best one's are not refitted."""
-
-
-@dataclass(frozen=True)
-class EffectForm:
-    """A candidate of the loop: an effect's vocabulary name (SPEC section 4), one of its forms, and
-    what it describes in words (the step's evidence starts with it)."""
-
-    name: str
-    form: str
-    description: str
-
-    @property
-    def label(self) -> str:
-        return f"{self.name} ({self.form})"
 
 
 @dataclass(frozen=True)

@@ -49,10 +49,11 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..noise import chi2_sf
-from .evidence import (EffectForm, FitRecord, Proposal, determined, gather_forms, is_unexplained, linearised_score,
+from ..effects import (Basis, EffectForm, OddCubic, Recorded, TemperatureForm, TimePolynomial, WarmUpForm, settled,
+                       time_powers, warm_up_tau_s)
+from .evidence import (FitRecord, Proposal, determined, gather_forms, is_unexplained, linearised_score,
                        refit_from_better_start, select_effects)
-from .forms import (WARMUP_TAU_FRACTIONS, json_float, rms, session_bin, settled, warm_up_tau_s,
-                    why_no_temperature, why_no_time)
+from .forms import json_float, rms, session_bin
 from .report import Diagnosis
 
 __all__ = ["OffsetEffect", "FORMS", "GainDrift", "Problem", "Grouped", "SampleGroups", "OffsetDiagnosis",
@@ -70,46 +71,34 @@ class _Context:
     scale: np.ndarray
     t_s: np.ndarray | None
     temp_c: np.ndarray | None
-    t_ref_s: float
-    session_s: float
-    temp_ref_c: float
-    temp_span_c: float
+    basis: Basis
 
     @property
     def tau(self) -> np.ndarray:
-        return (self.t_s - self.t_ref_s) / self.session_s
+        return self.basis.tau(self.t_s)
 
     @property
     def d(self) -> np.ndarray:
-        return (self.temp_c - self.temp_ref_c) / self.temp_span_c
+        return self.basis.d(self.temp_c)
 
 
-@dataclass(frozen=True)
 class OffsetEffect(EffectForm):
-    """One extension of a linear-response model: a vocabulary name (SPEC section 4), a form, a correction.
+    """One extension of a linear-response model (:class:`calibrate.effects.Effect`): its correction.
 
     Parameters are in units of each channel's full scale (:attr:`_Context.scale`);
     :meth:`report` turns them into output units.
     """
-
-    def applicable(self, t_s, temp_c) -> str | None:
-        """None when a recording with these columns can show the effect, else the reason it cannot."""
-        return None
-
-    def n_params(self, c: int) -> int:
-        raise NotImplementedError
-
-    def score_points(self, c: int) -> list:
-        return [np.zeros(self.n_params(c))]
 
     def delta(self, q: np.ndarray, y: np.ndarray, ctx: _Context) -> np.ndarray:
         """Change of the predicted outputs, shape (n, c), output units, from the linear responses ``y``."""
         raise NotImplementedError
 
     def reference(self, ctx: _Context) -> dict:
+        """Where the effect is zero (the file's offsets hold there)."""
         return {}
 
     def report(self, q, sigma, ctx: _Context) -> dict:
+        """``{name: {"value", "sigma"}}`` in output units (named in each key)."""
         raise NotImplementedError
 
 
@@ -117,64 +106,48 @@ def _per_channel(ctx: _Context, label: str, values, sigmas) -> dict:
     return {f"{ch}.{label}": {"value": float(v), "sigma": float(s)} for ch, v, s in zip(ctx.channels, values, sigmas)}
 
 
-class _TimeEffect(OffsetEffect):
-    def applicable(self, t_s, temp_c):
-        return why_no_time(t_s)
-
+class _AtFirstSample(OffsetEffect):
     def reference(self, ctx):
-        return {"t_s": ctx.t_ref_s}
+        return {"t_s": ctx.basis.t_ref_s}
 
 
 @dataclass(frozen=True)
-class PolynomialDrift(_TimeEffect):
+class PolynomialDrift(TimePolynomial, _AtFirstSample):
     """Each channel's offset a polynomial in time without constant term (``degree`` coefficients each)."""
 
-    degree: int = 1
-
-    def n_params(self, c):
-        return self.degree * c
-
     def delta(self, q, y, ctx):
-        powers = ctx.tau[:, None] ** np.arange(1, self.degree + 1)  # (n, degree)
-        return powers @ (q.reshape(self.degree, -1) * ctx.scale)
+        return time_powers(ctx.tau, self.degree) @ (q.reshape(self.degree, -1) * ctx.scale)
 
     def report(self, q, sigma, ctx):
         out = {}
         for k in range(1, self.degree + 1):
-            unit = ctx.scale / ctx.session_s**k
+            unit = ctx.scale / ctx.basis.session_s**k
             label = "offset_rate_per_s" if k == 1 else f"offset_per_s{k}"
             sl = slice((k - 1) * len(ctx.channels), k * len(ctx.channels))
             out.update(_per_channel(ctx, label, q[sl] * unit, sigma[sl] * unit))
         return out
 
 
-class WarmUp(_TimeEffect):
+@dataclass(frozen=True)
+class WarmUp(WarmUpForm, _AtFirstSample):
     """Offsets settling exponentially after switch-on: per-channel change, one ``log(tau / session)``."""
 
-    def n_params(self, c):
-        return c + 1
-
-    def score_points(self, c):
-        return [np.concatenate([np.zeros(c), [np.log(f)]]) for f in WARMUP_TAU_FRACTIONS]
-
     def delta(self, q, y, ctx):
-        return np.outer(settled(ctx.t_s, ctx.t_ref_s, warm_up_tau_s(ctx.session_s, q[-1])), q[:-1] * ctx.scale)
+        tau = warm_up_tau_s(ctx.basis.session_s, q[-1])
+        return np.outer(settled(ctx.t_s, ctx.basis.t_ref_s, tau), q[:-1] * ctx.scale)
 
     def report(self, q, sigma, ctx):
-        tau = warm_up_tau_s(ctx.session_s, q[-1])
+        tau = warm_up_tau_s(ctx.basis.session_s, q[-1])
         out = _per_channel(ctx, "offset_settled_change", q[:-1] * ctx.scale, sigma[:-1] * ctx.scale)
         out["tau_s"] = {"value": float(tau), "sigma": float(tau * sigma[-1])}
         return out
 
 
 @dataclass(frozen=True)
-class Temperature(OffsetEffect):
+class Temperature(TemperatureForm, OffsetEffect):
     """Each channel's offset (and, with ``gain``, its gain) linear in ``temp_c``."""
 
     gain: bool = False
-
-    def applicable(self, t_s, temp_c):
-        return why_no_temperature(temp_c)
 
     def n_params(self, c):
         return 2 * c if self.gain else c
@@ -185,45 +158,37 @@ class Temperature(OffsetEffect):
         return out + ctx.d[:, None] * q[c:] * y if self.gain else out
 
     def reference(self, ctx):
-        return {"temp_c": ctx.temp_ref_c}
+        return {"temp_c": ctx.basis.temp_ref_c}
 
     def report(self, q, sigma, ctx):
         c = len(ctx.channels)
-        unit = ctx.scale / ctx.temp_span_c
+        span = ctx.basis.temp_span_c
+        unit = ctx.scale / span
         out = _per_channel(ctx, "offset_per_degc", q[:c] * unit, sigma[:c] * unit)
         if self.gain:
-            out.update(_per_channel(ctx, "gain_rel_per_degc", q[c:] / ctx.temp_span_c, sigma[c:] / ctx.temp_span_c))
+            out.update(_per_channel(ctx, "gain_rel_per_degc", q[c:] / span, sigma[c:] / span))
         return out
 
 
 @dataclass(frozen=True)
-class GainDrift(_TimeEffect):
+class GainDrift(TimePolynomial, _AtFirstSample):
     """Each channel's gain a polynomial in time without constant term: ``y (sum_k g_ck tau^k)`` added."""
 
-    degree: int = 1
-
-    def n_params(self, c):
-        return self.degree * c
-
     def delta(self, q, y, ctx):
-        powers = ctx.tau[:, None] ** np.arange(1, self.degree + 1)  # (n, degree)
-        return (powers @ q.reshape(self.degree, -1)) * y
+        return (time_powers(ctx.tau, self.degree) @ q.reshape(self.degree, -1)) * y
 
     def report(self, q, sigma, ctx):
         out = {}
         for k in range(1, self.degree + 1):
             label = "gain_rel_per_s" if k == 1 else f"gain_rel_per_s{k}"
             sl = slice((k - 1) * len(ctx.channels), k * len(ctx.channels))
-            unit = 1.0 / ctx.session_s**k
+            unit = 1.0 / ctx.basis.session_s**k
             out.update(_per_channel(ctx, label, q[sl] * unit, sigma[sl] * unit))
         return out
 
 
-class CubicResponse(OffsetEffect):
+class OddCubicOutput(OddCubic, OffsetEffect):
     """Odd cubic per channel in its linear response: ``c y^3 / s^2`` (``c``: output change at full scale)."""
-
-    def n_params(self, c):
-        return c
 
     def delta(self, q, y, ctx):
         u = y / ctx.scale
@@ -244,7 +209,7 @@ FORMS: dict = {
                                 gain=True)),
     "gain_drift": (GainDrift("gain_drift", "linear", "channel gains changing with t_s, at a constant rate", 1),
                    GainDrift("gain_drift", "quadratic", "channel gains changing with t_s, quadratic in time", 2)),
-    "nonlinear_response": (CubicResponse("nonlinear_response", "odd cubic",
+    "nonlinear_response": (OddCubicOutput("nonlinear_response", "odd cubic",
                                          "outputs bending away from linear in the known field: an odd cubic per "
                                          "channel"),),
 }
@@ -465,12 +430,8 @@ def diagnose_offsets(problem: Problem, *, t_s=None, temp_c=None, candidates=None
     c = len(problem.channels)
     kb = problem.x_base.size
     scale = np.max(np.abs(problem.linear(problem.x_base)), axis=0)
-    ctx = _Context(tuple(problem.channels), np.where(scale > 0, scale, 1.0), t_s, temp_c,
-                   t_ref_s=0.0 if t_s is None else float(t_s[0]),
-                   session_s=1.0 if t_s is None else max(float(np.ptp(t_s)), 1e-9),
-                   temp_ref_c=0.0 if temp_c is None else float(np.mean(temp_c)),
-                   temp_span_c=1.0 if temp_c is None else max(float(np.ptp(temp_c)), 1e-9))
-    pool, skipped = gather_forms(names, FORMS, lambda e: e.applicable(t_s, temp_c))
+    ctx = _Context(tuple(problem.channels), np.where(scale > 0, scale, 1.0), t_s, temp_c, Basis.of(t_s, temp_c))
+    pool, skipped = gather_forms(names, FORMS, lambda e: e.applicable(Recorded(t_s, temp_c)))
     grouped = problem.grouped
     # where the fits run: the group means (each residual times sqrt(n_g)), else every sample
     every_sample = (problem.linear, ctx, len(problem.groups))

@@ -34,7 +34,7 @@ from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, channel
 from ..diagnosis.evidence import SINGULAR_RCOND, linear_score, unit_columns
 from ..diagnosis.forms import session_bin
 from ._jacobian import Partials
-from .effects import Effect
+from .effects import FourFlipEffect
 
 __all__ = ["BIN_DEG", "Bins", "MLFit", "cramer_rao", "fit_ml", "score_effect", "structured_covariance",
            "tangent_basis", "with_covariance"]
@@ -101,7 +101,7 @@ class MLFit:
     ----------
     physics : BenchPhysics
         Fitted parameters.
-    effects : tuple of Effect
+    effects : tuple of FourFlipEffect
     names : list of str
         Fit parameter names (in the fit's scaled units).
     x : ndarray
@@ -156,7 +156,7 @@ class MLFit:
         """RMS angular uncertainty of each direction, degrees, shape (c,)."""
         return _direction_sigma_deg(self.direction_covariance)
 
-    def effect_parameters(self, effect: Effect) -> tuple[list, np.ndarray, np.ndarray]:
+    def effect_parameters(self, effect: FourFlipEffect) -> tuple[list, np.ndarray, np.ndarray]:
         """(names, values, sigmas) of one effect's block in reporting units."""
         start = self._block_start(effect)
         n = effect.n_params(len(self.physics.gains))
@@ -173,7 +173,7 @@ class MLFit:
             out[e.name] = self.x[start:start + e.n_params(c)]
         return out
 
-    def _block_start(self, effect: Effect) -> int:
+    def _block_start(self, effect: FourFlipEffect) -> int:
         c = len(self.physics.gains)
         start = _BASE_PER_CHANNEL * c + 2
         for e in self.effects:
@@ -318,7 +318,7 @@ def fit_ml(
         Starting point (directions, offsets, gains, dip, azimuth, field magnitude).
     noise : ndarray, shape (c,)
         Per-channel noise sigma used as weights (output units).
-    effects : sequence of Effect
+    effects : sequence of FourFlipEffect
     effect_start : dict, optional
         Starting values of effect blocks by name (zero otherwise).
     """
@@ -421,15 +421,15 @@ def with_covariance(fit: MLFit, covariance: np.ndarray) -> MLFit:
     return replace(fit, covariance=covariance, direction_covariance=_direction_covariance(fit.layout, fit.x, covariance))
 
 
-def score_effect(fit: MLFit, noise: np.ndarray, effect: Effect) -> tuple[float, np.ndarray]:
+def score_effect(fit: MLFit, noise: np.ndarray, effect: FourFlipEffect) -> tuple[float, np.ndarray]:
     """Score (Lagrange multiplier) test for adding ``effect`` to a fitted model.
 
     Linearises the effect's parameters at zero size around the current solution, removes what
     the current parameters can already absorb, and returns the chi-square drop a refit would
     give to first order, with the Gauss-Newton start values of the effect's block.  An effect
     with a shape parameter (a time constant) is linearised at each of its
-    :meth:`~calibrate.fourflip.effects.Effect.score_starts` and the best is kept.  The effect's
-    columns are its analytic :meth:`~calibrate.fourflip.effects.Effect.jacobian`.
+    :meth:`~calibrate.fourflip.effects.FourFlipEffect.score_points` and the best is kept.  The effect's
+    columns are its analytic :meth:`~calibrate.fourflip.effects.FourFlipEffect.jacobian`.
 
     Returns
     -------
@@ -453,7 +453,7 @@ def score_effect(fit: MLFit, noise: np.ndarray, effect: Effect) -> tuple[float, 
 
     j_b = unit_columns(np.nan_to_num(fit.jac))
     best = (-np.inf, None)
-    for shape in effect.score_starts(layout.c):
+    for shape in effect.score_points(layout.c):
         x = np.concatenate([fit.x, shape])
         drop, delta = linear_score(residual, x, fit.x.size, j_b, block_jacobian=block_jacobian(x))
         if drop > best[0]:

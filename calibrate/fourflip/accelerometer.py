@@ -459,7 +459,7 @@ def with_accelerometer(result, rec):
 
     Parameters
     ----------
-    result : CalibrationResult
+    result : FourFlipResult
         The magnetic calibration of ``rec`` (its flip errors, dip and field azimuth are used).
     rec : FourFlipRecording
         The recording as the fit saw it (spikes dropped).

@@ -33,7 +33,7 @@ from ._mlfit import MLFit, fit_ml, score_effect, structured_covariance, with_cov
 from ..diagnosis.evidence import DECISIVE_BIC, Proposal, gather_forms, is_unexplained, select_effects
 from ..diagnosis.report import format_diagnosis
 from ..diagnosis.robust import extra_sigma, heading_sigma_deg, widened
-from .effects import VARIANTS, Effect
+from .effects import VARIANTS, FourFlipEffect
 from ..noise import DITHER_FRACTION, chi2_sf, dithered, lattice_step, noise_floor
 
 __all__ = ["DECISIVE_BIC", "UNEXPLAINED_WARNING", "diagnose_fourflip", "examine_residual", "format_diagnosis",
@@ -115,7 +115,7 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
     floor = float(np.sqrt(np.mean(noise**2)))
     judged = dithered(lattice_step(rec.outputs), noise)
 
-    def refit(current: MLFit, effect: Effect, block: np.ndarray) -> MLFit:
+    def refit(current: MLFit, effect: FourFlipEffect, block: np.ndarray) -> MLFit:
         return fit_ml(samples, rec.outputs, rec.channels, current.physics, noise,
                       effects=current.effects + (effect,),
                       effect_start={**current.effect_start(), effect.name: block})

@@ -27,46 +27,23 @@ import numpy as np
 
 from compass.sim.bench import BenchPhysics, BenchSamples
 
-from ..diagnosis.forms import warm_up_tau_s, why_no_temperature, why_no_time
+from ..effects import EffectForm, TemperatureForm, TimePolynomial, WarmUpForm, warm_up_tau_s
 
-__all__ = ["Effect", "EFFECTS", "VARIANTS", "effect_by_name"]
+__all__ = ["FourFlipEffect", "EFFECTS", "VARIANTS", "effect_by_name"]
 
 ENCODER_HARMONICS = 3
 MAX_DRIFT_DEGREE = 3
 MAX_GAIN_DRIFT_DEGREE = 2
 
 
-@dataclass(frozen=True)
-class Effect:
-    """One model extension: its name (SPEC section 4 vocabulary) and parameter block."""
-
-    name: str
-    description: str
-
-    @property
-    def label(self) -> str:
-        """The name, with the form where the effect has several."""
-        return self.name
-
-    def applicable(self, samples: BenchSamples) -> str | None:
-        """None when the recording can show this effect, else the reason it cannot."""
-        return None
-
-    def n_params(self, n_channels: int) -> int:
-        raise NotImplementedError
-
-    def score_starts(self, n_channels: int) -> list[np.ndarray]:
-        """Parameter blocks of zero size at which the score test linearises the effect.
-
-        One zero block for effects linear in their parameters; an effect with a shape parameter
-        (a time constant) gives a few values of it, since at zero size the data say nothing of it.
-        """
-        return [np.zeros(self.n_params(n_channels))]
+class FourFlipEffect(EffectForm):
+    """One model extension of the bench (:class:`calibrate.effects.Effect`): how its parameter block
+    changes the physics, its parameter names and reporting units, and its formula for the file."""
 
     def param_names(self, channels) -> list[str]:
         raise NotImplementedError
 
-    def apply(self, physics: BenchPhysics, p: np.ndarray, samples: BenchSamples) -> BenchPhysics:
+    def apply(self, physics: BenchPhysics, p: np.ndarray, samples) -> BenchPhysics:
         raise NotImplementedError
 
     def jacobian(self, physics: BenchPhysics, p: np.ndarray, samples: BenchSamples, partials) -> np.ndarray:
@@ -85,13 +62,13 @@ class Effect:
         return {}
 
     @property
-    def form(self) -> str:
-        """The effect's formula in the file's parameter names, so the file reads without this code."""
+    def formula(self) -> str:
+        """The effect's formula in the file's parameter names (the file's ``form``: it reads without this code)."""
         raise NotImplementedError
 
 
 @dataclass(frozen=True)
-class NonlinearResponse(Effect):
+class NonlinearResponse(FourFlipEffect):
     """Polynomial response per channel: ``x + sum_k c_k x^k`` over ``powers`` (2, 3 and/or 5).
 
     Odd powers are the usual saturation; an even power makes the response asymmetric (a
@@ -100,10 +77,6 @@ class NonlinearResponse(Effect):
 
     powers: tuple = (3,)
 
-    @property
-    def label(self):
-        return f"{self.name} (powers {', '.join(map(str, self.powers))})"
-
     def n_params(self, c):
         return c * len(self.powers)
 
@@ -111,7 +84,7 @@ class NonlinearResponse(Effect):
         return [f"{ch}.x{k}_rel_at_B" for ch in channels for k in self.powers]
 
     @property
-    def form(self):
+    def formula(self):
         terms = " + ".join(f"x{k}_rel_at_B |B| (x/|B|)^{k}" for k in self.powers)
         return f"output = offset + gain (x + {terms}), x = B.a in field units"
 
@@ -128,7 +101,7 @@ class NonlinearResponse(Effect):
         return partials.per_channel(values)
 
 
-class EncoderError(Effect):
+class EncoderError(FourFlipEffect):
     def n_params(self, c):
         return 2 * ENCODER_HARMONICS
 
@@ -136,7 +109,7 @@ class EncoderError(Effect):
         return [f"encoder.{kind}{k}_deg" for k in range(1, ENCODER_HARMONICS + 1) for kind in ("cos", "sin")]
 
     @property
-    def form(self):
+    def formula(self):
         return ("true turntable angle = platform_deg + sum_k (cos<k>_deg cos(k platform_deg) + sin<k>_deg "
                 f"sin(k platform_deg)), k = 1..{ENCODER_HARMONICS}, degrees")
 
@@ -153,7 +126,7 @@ class EncoderError(Effect):
         return np.degrees(1.0)
 
 
-class FlipError(Effect):
+class FlipError(FourFlipEffect):
     """The real flip angles of flips 90, 180, 270 differ from the recorded ones.
 
     The cube turns about its X edge, which stays on the turntable's X axis, so a face that is
@@ -169,7 +142,7 @@ class FlipError(Effect):
         return ["flip90.error_deg", "flip180.error_deg", "flip270.error_deg"]
 
     @property
-    def form(self):
+    def formula(self):
         return "real flip = recorded flip_deg + flip<k>.error_deg, right-hand about the cube's X edge, degrees"
 
     def apply(self, physics, p, samples):
@@ -185,7 +158,7 @@ class FlipError(Effect):
         return np.degrees(1.0)
 
 
-class PlatformField(Effect):
+class PlatformField(FourFlipEffect):
     """Field fixed to the turntable; only its y component (turntable frame) shows.
 
     Seen by a channel in flip k it adds ``(Rx(kappa) a) . b_p``: the x part is ``a_x b_x`` in every
@@ -199,7 +172,7 @@ class PlatformField(Effect):
         return ["platform_field.y_fieldunit"]
 
     @property
-    def form(self):
+    def formula(self):
         return ("a field (0, platform_field.y_fieldunit, 0) fixed to the turntable frame (it turns with it), "
                 "field units; its x and z parts are absorbed by the offsets and the dip")
 
@@ -215,24 +188,7 @@ class PlatformField(Effect):
 
 
 @dataclass(frozen=True)
-class _TimePolynomial(Effect):
-    """An effect that is a polynomial of the given degree in t_s per channel (drifts)."""
-
-    degree: int = 1
-
-    @property
-    def label(self):
-        return f"{self.name} (degree {self.degree})"
-
-    def applicable(self, samples):
-        return why_no_time(samples.t_s)
-
-    def n_params(self, c):
-        return self.degree * c
-
-
-@dataclass(frozen=True)
-class OffsetDrift(_TimePolynomial):
+class OffsetDrift(TimePolynomial, FourFlipEffect):
     """Offsets drifting with time: a polynomial of the given degree in t_s per channel."""
 
     def param_names(self, channels):
@@ -249,7 +205,7 @@ class OffsetDrift(_TimePolynomial):
         return partials.per_channel(powers[:, None, :] * physics.gains[None, :, None])
 
     @property
-    def form(self):
+    def formula(self):
         return ("offset(t) = offset + gain sum_k drift_t<k>_fieldunit ((t_s - reference.t_s) / reference.half_span_s)^k, "
                 f"k = 1..{self.degree}")
 
@@ -258,27 +214,14 @@ class OffsetDrift(_TimePolynomial):
 
 
 @dataclass(frozen=True)
-class WarmUp(OffsetDrift):
+class WarmUp(WarmUpForm, FourFlipEffect):
     """Offsets settling after switch-on: a per-channel amplitude times ``exp(-t / tau)``, one
     time constant for all channels (one thermal path), ``t`` from the first sample."""
 
-    @property
-    def label(self):
-        return f"{self.name} (warm-up exponential)"
-
-    def n_params(self, c):
-        return c + 1
+    tau_fractions: tuple = (0.1, 0.25, 0.5, 1.0)
 
     def param_names(self, channels):
         return [f"{ch}.warmup_fieldunit" for ch in channels] + ["warmup.log_tau_over_session"]
-
-    def score_starts(self, n_channels):
-        starts = []
-        for tau_over_session in (0.1, 0.25, 0.5, 1.0):
-            block = np.zeros(n_channels + 1)
-            block[-1] = np.log(tau_over_session)
-            starts.append(block)
-        return starts
 
     def apply(self, physics, p, samples):
         session = max(np.ptp(samples.t_s), 1e-9)
@@ -295,7 +238,7 @@ class WarmUp(OffsetDrift):
         return np.concatenate([amplitudes, d_tau[:, :, None]], axis=-1)
 
     @property
-    def form(self):
+    def formula(self):
         return ("offset(t) = offset + gain warmup_fieldunit exp(-(t_s - reference.t_s_first) / reference.tau_s), "
                 "tau_s = session exp(warmup.log_tau_over_session); offset is the settled one")
 
@@ -305,7 +248,7 @@ class WarmUp(OffsetDrift):
 
 
 @dataclass(frozen=True)
-class GainDrift(_TimePolynomial):
+class GainDrift(TimePolynomial, FourFlipEffect):
     """Gains drifting with time (a temperature change nobody recorded): ``K (1 + sum_k g_k tau^k)`` per
     channel, ``tau`` the time from the session's midpoint over half its span, k = 1..degree."""
 
@@ -323,7 +266,7 @@ class GainDrift(_TimePolynomial):
         return partials.per_channel(powers[:, None, :] * static[:, :, None])
 
     @property
-    def form(self):
+    def formula(self):
         return ("gain(t) = gain (1 + sum_k gain_drift_t<k>_rel ((t_s - reference.t_s) / reference.half_span_s)^k), "
                 f"k = 1..{self.degree}")
 
@@ -331,10 +274,7 @@ class GainDrift(_TimePolynomial):
         return {"t_s": float(physics.gain_drift_t0), "half_span_s": float(physics.gain_drift_scale_s)}
 
 
-class Temperature(Effect):
-    def applicable(self, samples):
-        return why_no_temperature(samples.temp_c)
-
+class Temperature(TemperatureForm, FourFlipEffect):
     def n_params(self, c):
         return 2 * c
 
@@ -359,7 +299,7 @@ class Temperature(Effect):
         return np.tile([1.0, 0.01], len(physics.gains))
 
     @property
-    def form(self):
+    def formula(self):
         return ("offset(T) = offset + gain offset_fieldunit_per_degc (T - reference.temp_c); "
                 "gain(T) = gain (1 + gain_rel_per_degc (T - reference.temp_c)), T = temp_c")
 
@@ -369,31 +309,36 @@ class Temperature(Effect):
 
 _NONLINEAR = "curves flattened, sharpened or made asymmetric toward their extremes (harmonics growing with B.a): a curved response"
 _DRIFT = "a slow trend in time in each channel's offset"
-VARIANTS: dict[str, tuple[Effect, ...]] = {
-    "nonlinear_response": (NonlinearResponse("nonlinear_response", _NONLINEAR + " (odd cubic)", powers=(3,)),
-                           NonlinearResponse("nonlinear_response", _NONLINEAR + " (quadratic and cubic)", powers=(2, 3)),
-                           NonlinearResponse("nonlinear_response", _NONLINEAR + " (odd cubic and quintic)", powers=(3, 5))),
+VARIANTS: dict[str, tuple[FourFlipEffect, ...]] = {
+    "nonlinear_response": (NonlinearResponse("nonlinear_response", "powers 3", _NONLINEAR + " (odd cubic)", powers=(3,)),
+                           NonlinearResponse("nonlinear_response", "powers 2, 3", _NONLINEAR + " (quadratic and cubic)",
+                                             powers=(2, 3)),
+                           NonlinearResponse("nonlinear_response", "powers 3, 5",
+                                             _NONLINEAR + " (odd cubic and quintic)", powers=(3, 5))),
     "encoder_error": (EncoderError(
-        "encoder_error",
+        "encoder_error", "",
         f"harmonics of the turntable angle shared by every channel and flip (encoder error, harmonics 1..{ENCODER_HARMONICS})"),),
-    "offset_drift": tuple(OffsetDrift("offset_drift", _DRIFT + f" (polynomial of degree {d} in t_s)", degree=d)
+    "offset_drift": tuple(OffsetDrift("offset_drift", f"degree {d}", _DRIFT + f" (polynomial of degree {d} in t_s)",
+                                      degree=d)
                           for d in range(1, MAX_DRIFT_DEGREE + 1))
-                    + (WarmUp("offset_drift", _DRIFT + " (warm-up: exponential settling, one time constant)"),),
+                    + (WarmUp("offset_drift", "warm-up exponential",
+                              _DRIFT + " (warm-up: exponential settling, one time constant)"),),
     "platform_field": (PlatformField(
-        "platform_field",
+        "platform_field", "",
         "per-flip offsets that follow each channel's direction in the turntable frame (a field turning with the turntable)"),),
-    "flip_error": (FlipError("flip_error", "flip-to-flip inconsistency that turning the 90/180/270 flips by small angles removes"),),
-    "temperature": (Temperature("temperature", "offset and gain changes that follow temp_c"),),
-    "gain_drift": tuple(GainDrift("gain_drift", "a slow trend in time in each channel's gain (the swing of its curve "
-                                  f"growing or shrinking; polynomial of degree {d} in t_s)", degree=d)
+    "flip_error": (FlipError("flip_error", "",
+                             "flip-to-flip inconsistency that turning the 90/180/270 flips by small angles removes"),),
+    "temperature": (Temperature("temperature", "", "offset and gain changes that follow temp_c"),),
+    "gain_drift": tuple(GainDrift("gain_drift", f"degree {d}", "a slow trend in time in each channel's gain (the swing "
+                                  f"of its curve growing or shrinking; polynomial of degree {d} in t_s)", degree=d)
                         for d in range(1, MAX_GAIN_DRIFT_DEGREE + 1)),
 }
 """Each effect's forms, simplest first; the diagnosis lets the evidence (BIC) choose among them."""
-EFFECTS: dict[str, Effect] = {name: max(forms, key=lambda e: e.n_params(3)) for name, forms in VARIANTS.items()}
+EFFECTS: dict[str, FourFlipEffect] = {name: max(forms, key=lambda e: e.n_params(3)) for name, forms in VARIANTS.items()}
 """Each effect's most general form (the most parameters)."""
 
 
-def effect_by_name(name: str) -> Effect:
+def effect_by_name(name: str) -> FourFlipEffect:
     try:
         return EFFECTS[name]
     except KeyError:

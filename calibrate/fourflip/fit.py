@@ -30,12 +30,12 @@ from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, housing
 from . import _harmonic as hm
 from .accelerometer import with_accelerometer
 from ._mlfit import MLFit, fit_ml
-from ..contract import Calibrator, CannotCalibrate
+from ..contract import Calibrator, CannotCalibrate, FitStatistics
 from ..health import AXIS_TOLERANCE_DEG, ChannelHealth, check_channels
 from ..health import to_json as health_json
 from .diagnosis import UNEXPLAINED_WARNING, diagnose_fourflip, examine_residual
 from ..noise import SPIKE_SIGMAS, find_spikes, lattice_step, noise_floor, quantisation_note
-from .result import CalibrationResult, ChannelCalibration
+from .result import FourFlipResult, ChannelCalibration
 from ..site_field import compare_with_site
 
 __all__ = ["METHODS", "FourFlipCalibrator", "calibrate_fourflip", "channel_health", "physics_from_harmonics", "result_from_ml"]
@@ -51,7 +51,7 @@ directions' common sign (a one-sided 5-sigma test: chance 3e-7 of a wrong sign w
 def calibrate_fourflip(
     rec: FourFlipRecording, *, method: str = "ml", field_ut: float | None = None, dip_sign: float | None = None,
     site=None, diagnose: bool = False, progress=None,
-) -> CalibrationResult:
+) -> FourFlipResult:
     """Calibrate every channel of a four-flip recording.
 
     Parameters
@@ -153,7 +153,7 @@ class FourFlipCalibrator(Calibrator):
         self.site, self.date = site, date
         self.axis_tolerance_deg, self.direction_accuracy_deg = axis_tolerance_deg, direction_accuracy_deg
 
-    def fit(self, recording: FourFlipRecording) -> CalibrationResult:
+    def fit(self, recording: FourFlipRecording) -> FourFlipResult:
         result = calibrate_fourflip(recording, method=self.method, field_ut=self.field_ut,
                                     site=_bench_site(self.site, self.date, recording), diagnose=self.diagnose,
                                     progress=self.progress)
@@ -164,7 +164,7 @@ class FourFlipCalibrator(Calibrator):
                        extra=result.extra | {"channel_health": health_json(health)})
 
 
-def channel_health(result: CalibrationResult, rec: FourFlipRecording) -> list[ChannelHealth]:
+def channel_health(result: FourFlipResult, rec: FourFlipRecording) -> list[ChannelHealth]:
     """Each channel's response to the whole field, its noise and direction (:mod:`calibrate.health`).
 
     The response is the gain times |B| (|B| = 1 when gains are per |B|) with the joint fit's sigma.
@@ -199,7 +199,7 @@ def _bench_site(site, date, rec: FourFlipRecording):
         raise CannotCalibrate(str(exc)) from None
 
 
-def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progress) -> CalibrationResult:
+def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progress) -> FourFlipResult:
     if method in ("patent", "harmonic"):
         result = _seed_rule(rec, samples, noise, field_ut, dip_sign, from_samples=method == "patent")
         if not diagnose:
@@ -216,7 +216,7 @@ def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progres
     effects = []
     for effect in fit.effects:
         names, values, sigmas = fit.effect_parameters(effect)
-        entry = {"name": effect.name, "form": effect.form, "parameters": {
+        entry = {"name": effect.name, "form": effect.formula, "parameters": {
             n: {"value": float(v), "sigma": float(e)} for n, v, e in zip(names, values, sigmas)}}
         reference = effect.reference(fit.physics)
         effects.append({**entry, "reference": reference} if reference else entry)
@@ -271,8 +271,8 @@ def physics_from_harmonics(rec: FourFlipRecording, field_ut, dip_sign) -> BenchP
 
 
 def result_from_ml(fit: MLFit, rec: FourFlipRecording, noise, field_ut, *, effects=(), diagnosis=None,
-                   extra_warnings=(), samples: BenchSamples | None = None) -> CalibrationResult:
-    """Package a joint fit as a CalibrationResult (directions, responses, sigmas, warnings).
+                   extra_warnings=(), samples: BenchSamples | None = None) -> FourFlipResult:
+    """Package a joint fit as a FourFlipResult (directions, responses, sigmas, warnings).
 
     ``samples`` are the recording's (:meth:`BenchSamples.from_recording`, made when not given): they
     give each channel's calibrated range.
@@ -302,7 +302,7 @@ def result_from_ml(fit: MLFit, rec: FourFlipRecording, noise, field_ut, *, effec
     if not fit.success:
         warnings.append(f"the fit did not converge: {fit.message}")
     parameters = {n: (float(v), float(s)) for n, v, s in zip(fit.names, fit.x, sigma)}
-    return CalibrationResult(
+    return FourFlipResult(
         method="ml",
         channels=tuple(channels),
         dip_deg=phys.dip_deg,
@@ -315,8 +315,8 @@ def result_from_ml(fit: MLFit, rec: FourFlipRecording, noise, field_ut, *, effec
         effects=tuple(effects),
         warnings=tuple(warnings),
         diagnosis=diagnosis,
-        chi2=fit.chi2,
-        dof=fit.dof,
+        statistics=FitStatistics(tuple(fit.names), fit.x, fit.covariance, fit.chi2, fit.dof, fit.bic(), fit.success,
+                                 fit.message),
     )
 
 
@@ -343,7 +343,7 @@ def _response_from_physics(phys: BenchPhysics, c: int, x_range) -> LinearRespons
 # ----------------------------------------------------------------------------- seed rule
 
 
-def _seed_rule(rec, samples, noise, field_ut, dip_sign, *, from_samples: bool) -> CalibrationResult:
+def _seed_rule(rec, samples, noise, field_ut, dip_sign, *, from_samples: bool) -> FourFlipResult:
     """Seed 000's closed-form rule with minima from samples (patent) or harmonic fits."""
     b = field_ut or 1.0
     h = hm.fit_harmonics(rec.platform_deg, rec.flip_index, rec.outputs)
@@ -392,7 +392,7 @@ def _seed_rule(rec, samples, noise, field_ut, dip_sign, *, from_samples: bool) -
     residuals = rec.outputs - bench_outputs(physics, samples)
     extra = {"seed_rule": {"minima_deg": minima.T.tolist(), "dip_per_channel_deg": dips.tolist(),
                            "dip_from_channel": rec.channels[best], "midpoint_value": midpoint.tolist()}}
-    return CalibrationResult(
+    return FourFlipResult(
         method="patent" if from_samples else "harmonic",
         channels=tuple(channels),
         dip_deg=dip,

@@ -1,4 +1,4 @@
-"""CalibrationResult: what a four-flip calibration found, with its statistics and report."""
+"""FourFlipResult: what a four-flip calibration found, with its statistics and report."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ from compass.frames import direction_sigma_deg as _direction_sigma_deg
 from compass.frames import seed_angles
 from compass.response import Response
 
-from ..contract import Calibration
+from ..contract import NO_JOINT_FIT, CalibrationResult, FitStatistics, fit_report
 
-__all__ = ["ChannelCalibration", "CalibrationResult"]
+__all__ = ["ChannelCalibration", "FourFlipResult"]
 _ANGLE_KEYS = ("theta_deg", "gamma_deg", "elevation_deg", "psi_deg")
 
 
@@ -68,7 +68,7 @@ class ChannelCalibration:
 
 
 @dataclass(frozen=True)
-class CalibrationResult(Calibration):
+class FourFlipResult(CalibrationResult):
     """A four-flip calibration.
 
     Attributes
@@ -93,7 +93,9 @@ class CalibrationResult(Calibration):
         Plain-words problems a person should read.
     diagnosis : dict or None
         The residual diagnosis block (SPEC section 4).
-    chi2, dof : float, int
+    statistics : FitStatistics
+        The joint fit's (``ml``: every parameter of :mod:`calibrate.fourflip._mlfit`, the effects' included);
+        :data:`~calibrate.contract.NO_JOINT_FIT` for the seed's rules.
     extra : dict
         Method-specific items written under new keys (e.g. the seed's raw minima).
     kept : ndarray of bool, shape (n_recorded,), or None
@@ -114,8 +116,7 @@ class CalibrationResult(Calibration):
     effects: tuple = ()
     warnings: tuple = ()
     diagnosis: dict | None = None
-    chi2: float = float("nan")
-    dof: int = 0
+    statistics: FitStatistics = NO_JOINT_FIT
     extra: dict = field(default_factory=dict)
     kept: np.ndarray | None = None
     base_residuals: np.ndarray | None = None
@@ -130,10 +131,6 @@ class CalibrationResult(Calibration):
     def residual_rms(self) -> np.ndarray:
         """Per channel, output units."""
         return np.sqrt(np.mean(self.residuals**2, axis=0))
-
-    @property
-    def reduced_chi2(self) -> float:
-        return self.chi2 / max(self.dof, 1)
 
     @property
     def directions(self) -> np.ndarray:
@@ -232,23 +229,20 @@ class CalibrationResult(Calibration):
             from ..health import describe
 
             lines.append(describe(self.extra["channel_health"]))
-        if self.dof:
-            lines.append(f"  chi2/dof {self.reduced_chi2:.3f} ({self.dof} dof)")
-        for w in self.warnings:
-            lines.append(f"  warning: {w}")
+        diagnosis, tail = None, []
         if self.diagnosis:
             from ..diagnosis.report import format_diagnosis
 
-            lines.append(format_diagnosis(self.diagnosis))
+            diagnosis = format_diagnosis(self.diagnosis)
         if "accelerometer" in self.extra:
             from .accelerometer import describe_accelerometer
 
-            lines.append(describe_accelerometer(self.extra["accelerometer"]))
+            tail.append(describe_accelerometer(self.extra["accelerometer"]))
         if "site_check" in self.extra:
             from ..site_field import describe
 
-            lines.append(describe(self.extra["site_check"]))
-        return "\n".join(lines)
+            tail.append(describe(self.extra["site_check"]))
+        return fit_report(self, lines, diagnosis=diagnosis, tail=tail)
 
 
 def _hemisphere_line(hemisphere: dict) -> str:

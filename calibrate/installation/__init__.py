@@ -2,14 +2,14 @@
 
 :class:`InstallationCalibrator` fits the product's hard and soft iron in the housing frame (and,
 with a known heading, the housing's yaw in the product) on top of a bench calibration, from a
-tumble or a swing; :class:`InstallationCalibration` is the result (report, deviation-card plot,
+tumble or a swing; :class:`InstallationResult` is the result (report, deviation-card plot,
 the installed calibration file); :mod:`.model` is the least squares and :mod:`.diagnosis` its
 residual diagnosis on the shared evidence loop.
 """
 
 from .card import DeviationCard, deviation_card
 from .diagnosis import InstallationDiagnosis
-from .fit import InstallationCalibration, InstallationCalibrator
+from .fit import InstallationResult, InstallationCalibrator
 
-__all__ = ["DeviationCard", "deviation_card", "InstallationCalibration", "InstallationCalibrator",
+__all__ = ["DeviationCard", "deviation_card", "InstallationResult", "InstallationCalibrator",
            "InstallationDiagnosis"]

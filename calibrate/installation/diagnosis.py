@@ -24,9 +24,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..diagnosis.evidence import (EffectForm, Proposal, gather_forms, linearised_score, refit_from_better_start,
-                                  select_effects)
-from ..diagnosis.forms import why_no_temperature, why_no_time
+from ..diagnosis.evidence import Proposal, gather_forms, linearised_score, refit_from_better_start, select_effects
+from ..effects import EffectForm, Recorded, TemperatureForm, TimeForm, why_no_temperature, why_no_time
 from ..diagnosis.report import Diagnosis
 from ..noise import chi2_sf
 from .model import InstallationFit, Rows, effect_slice, fit_installation, residuals
@@ -41,20 +40,36 @@ UNEXPLAINED_WARNING = ("the |B| residual stays above the bench's noise floor: st
 _FD_STEP = 1e-4
 
 
+_AXES_H = 3
+"""The effects move the hard iron, one parameter per axis of H."""
+
+
 @dataclass(frozen=True)
 class InstallationEffect(EffectForm):
-    """A candidate of the loop with its formula in the file's names (the file reads without this code)."""
+    """A change of the hard iron (:class:`calibrate.effects.Effect`), with its formula in the file's names
+    (the file reads without this code)."""
 
     formula: str = ""
     """The hard iron's change, what the file's effect entry holds under ``form``."""
 
+    def n_params(self, n_channels):
+        return n_channels
+
+
+class _InTime(TimeForm, InstallationEffect):
+    """The hard iron linear in ``t_s``."""
+
+
+class _InTemperature(TemperatureForm, InstallationEffect):
+    """The hard iron linear in ``temp_c``."""
+
 
 _PER_AXIS = "per axis x, y, z of H, in the bench model's field units"
 FORMS = {
-    "offset_drift": (InstallationEffect(
+    "offset_drift": (_InTime(
         "offset_drift", "linear", "the hard iron drifting with t_s, at a constant rate",
         f"hard_iron(t_s) = installation.hard_iron_ut + hard_iron_rate_per_s (t_s - reference.t_s), {_PER_AXIS}"),),
-    "temperature": (InstallationEffect(
+    "temperature": (_InTemperature(
         "temperature", "linear", "the hard iron changing linearly with temp_c",
         f"hard_iron(temp_c) = installation.hard_iron_ut + hard_iron_per_degc (temp_c - reference.temp_c), "
         f"{_PER_AXIS}"),),
@@ -126,8 +141,7 @@ def diagnose_installation(rows: Rows, priors: dict, base: InstallationFit, *, t_
     """
     regressors, references = _regressors(t_s, temp_c)
     rows = replace(rows, regressors=regressors)
-    why = {"offset_drift": why_no_time(t_s), "temperature": why_no_temperature(temp_c)}
-    pool, skipped = gather_forms(FORMS, FORMS, lambda e: why[e.name])
+    pool, skipped = gather_forms(FORMS, FORMS, lambda e: e.applicable(Recorded(t_s, temp_c)))
     if not diagnose:
         pool, skipped = [], {"diagnosis": "not run (--no-diagnose)"}
     def weighted(x, effects):
@@ -138,16 +152,16 @@ def diagnose_installation(rows: Rows, priors: dict, base: InstallationFit, *, t_
                                 np.concatenate([base.fixed, np.zeros(x0.size - base.fixed.size, dtype=bool)]))
 
     def refit(current, effect, start):
-        return refit_from_better_start(fit, weighted, current, effect, np.zeros(3), start)
+        return refit_from_better_start(fit, weighted, current, effect, effect.score_points(_AXES_H)[0], start)
 
     def score(current, effect):
-        return linearised_score(weighted, current, effect, [np.zeros(3)], _FD_STEP)
+        return linearised_score(weighted, current, effect, effect.score_points(_AXES_H), _FD_STEP)
 
     def claim(p: Proposal, measured: dict) -> dict:
         where = effect_slice(rows, p.trial.effects, p.effect.name)
         sigma = np.sqrt(np.diag(p.trial.covariance))[where]
         return {"added": p.effect.name, "form": p.effect.form, "residual_rms": p.trial.residual_rms,
-                **p.evidence(3), **measured, "parameters": _parameters(p.effect.name, p.trial.x[where], sigma, t_s)}
+                **p.evidence(p.effect.n_params(_AXES_H)), **measured, "parameters": _parameters(p.effect.name, p.trial.x[where], sigma, t_s)}
 
     def verdict(f: InstallationFit):
         dof = f.n_rows - 1
@@ -155,7 +169,7 @@ def diagnose_installation(rows: Rows, priors: dict, base: InstallationFit, *, t_
                      "dof": dof, "p_value": chi2_sf(f.chi2_mag, dof)}
         return structure, bool(f.chi2_mag > dof + UNEXPLAINED_SIGMAS * np.sqrt(2.0 * dof))
 
-    chosen = select_effects(base, pool, score=score, refit=refit, n_params=lambda e: 3, log_n=np.log(base.n_obs),
+    chosen = select_effects(base, pool, score=score, refit=refit, n_params=lambda e: e.n_params(_AXES_H), log_n=np.log(base.n_obs),
                             base_step={"model": "base", "residual_rms": base.residual_rms}, write_step=claim,
                             verdict=verdict)
     final, steps = chosen.fit, chosen.steps

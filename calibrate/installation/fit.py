@@ -3,7 +3,7 @@
 :class:`InstallationCalibrator` reads the bench model's field from a tumble or a swing of the
 product, keeps the rows that read gravity alone, fits the iron (:mod:`calibrate.installation.model`,
 which writes the model down), runs the residual diagnosis (:mod:`calibrate.installation.diagnosis`)
-and returns an :class:`InstallationCalibration`: the report, a swing's deviation card and the
+and returns an :class:`InstallationResult`: the report, a swing's deviation card and the
 installed calibration file (SPEC section 2).
 """
 
@@ -20,12 +20,12 @@ from compass.calibration import header, to_dict
 from compass.io.units import note
 from compass.model import SensorModel
 
-from ..contract import Calibration, Calibrator, CannotCalibrate
+from ..contract import CalibrationResult, Calibrator, CannotCalibrate, FitStatistics, fit_report
 from .card import DeviationCard, deviation_card
 from .diagnosis import UNEXPLAINED_WARNING, InstallationDiagnosis, diagnose_installation
-from .model import N_CORE, InstallationFit, Rows, fit_installation, is_level, prior_hard_iron
+from .model import N_CORE, InstallationFit, Rows, fit_installation, is_level, parameter_names, prior_hard_iron
 
-__all__ = ["InstallationCalibrator", "InstallationCalibration", "PARAMETERS"]
+__all__ = ["InstallationCalibrator", "InstallationResult", "PARAMETERS"]
 
 _QUIET = 0.02  # rows whose |a| is within 2 % of g
 _MIN_ROWS = 30  # fewest quiet rows fitted
@@ -51,7 +51,7 @@ _WORDS = {
 
 
 @dataclass(frozen=True)
-class InstallationCalibration(Calibration):
+class InstallationResult(CalibrationResult):
     """The installation calibrated on top of a bench model (SPEC section 2's installed file).
 
     Attributes
@@ -135,6 +135,14 @@ class InstallationCalibration(Calibration):
         return out
 
     @property
+    def statistics(self) -> FitStatistics:
+        """The diagnosis's final fit (:func:`calibrate.installation.model.parameter_names`), against the
+        bench's noise (|B|, the field-gravity angle, the heading reference, the priors)."""
+        fit = self.diagnosis.fit
+        return FitStatistics(parameter_names(self.diagnosis.rows, fit.effects), fit.x, fit.covariance, fit.chi2,
+                             fit.dof, fit.bic(), fit.success, fit.message)
+
+    @property
     def warnings(self) -> tuple:
         """What the rotations did not determine, and structure left unexplained, in words."""
         return tuple(f"not determined by this recording: {w}" for w in self.undetermined) + self._cautions()
@@ -210,12 +218,11 @@ class InstallationCalibration(Calibration):
             lines.append(f"  deviation card, bench model only: {self.card_before.line()}")
             if self.card_after is not None:
                 lines.append(f"  deviation card, installed:        {self.card_after.line()}")
-        lines += [f"  warning: {w}" for w in self._cautions()]
-        lines.append(self.diagnosis.format(unit))
-        lines += [f"  {e['name']}: the hard iron above holds at "
-                  + ", ".join(f"{k} {v:.6g}" for k, v in e["reference"].items()) + " (the runtime uses it there)"
-                  for e in self.diagnosis.effects]
-        return "\n".join(lines)
+        tail = [f"  {e['name']}: the hard iron above holds at "
+                + ", ".join(f"{k} {v:.6g}" for k, v in e["reference"].items()) + " (the runtime uses it there)"
+                for e in self.diagnosis.effects]
+        # what was not determined is listed above, not again as warnings
+        return fit_report(self, lines, warnings=self._cautions(), diagnosis=self.diagnosis.format(unit), tail=tail)
 
     def plots(self, recording=None, folder=".") -> list:
         """Write the deviation card (a swing) into ``folder``; returns the paths written."""
@@ -267,7 +274,7 @@ class InstallationCalibrator(Calibrator):
         self.accel_noise_g = accel_noise_g
         self.diagnose = diagnose
 
-    def fit(self, rec) -> InstallationCalibration:
+    def fit(self, rec) -> InstallationResult:
         """Calibrate from an :class:`compass.io.installation.InstallationRecording`.
 
         Raises
@@ -416,7 +423,7 @@ def _priors(base: SensorModel, site) -> dict:
 
 
 def _result(rec, diagnosis: InstallationDiagnosis, used, outside: tuple, priors, base, base_document,
-            site) -> InstallationCalibration:
+            site) -> InstallationResult:
     fit, rows = diagnosis.fit, diagnosis.rows
     x, cov = fit.x, fit.covariance
     h, d = x[:3], x[3:9]
@@ -431,7 +438,7 @@ def _result(rec, diagnosis: InstallationDiagnosis, used, outside: tuple, priors,
     card_before = card_after = None
     if rec.kind == "swing":
         card_before, card_after = _cards(base, model, rec, used, rows, alignment)
-    return InstallationCalibration(
+    return InstallationResult(
         rec.kind, h, sig[:3], soft, sig[3:9], cov9, float(x[9]), float(x[10]), float(sig[10]), yaw, yaw_sigma,
         undetermined, card_before, card_after, diagnosis, int(np.sum(used)), *outside, fit.residual_rms, model,
         base_document, None if site is None else site.to_json())

@@ -51,13 +51,13 @@ from scipy.spatial.transform import Rotation
 
 from compass.attitude import two_vector_rotation
 from compass.frames import heading_pitch_roll
-from compass.installed import soft_iron_basis
+from compass.installed import SOFT_IRON_ENTRIES, soft_iron_basis
 
 from ..diagnosis.evidence import FitRecord
 
 __all__ = ["PRIOR_HARD_IRON_UT", "TYPICAL_FIELD_UT", "prior_hard_iron", "PRIOR_SOFT_IRON", "UNDETERMINED_NOISE",
            "LEVEL_DEG", "N_CORE", "Rows", "InstallationFit", "coordinates", "fit_installation", "residuals", "field_h",
-           "split", "is_level", "product_heading", "effect_slice"]
+           "split", "is_level", "product_heading", "effect_slice", "parameter_names"]
 
 PRIOR_HARD_IRON_UT = 20.0
 """Prior sigma of each hard-iron component, uT."""
@@ -183,6 +183,13 @@ def split(x: np.ndarray, rows: Rows, effects: tuple):
     return h, d, f, dip, yaw, extra
 
 
+def parameter_names(rows: Rows, effects: tuple) -> tuple[str, ...]:
+    """Names of ``x`` in order (module docstring): ``h``, ``D``'s entries, ``F``, the dip, the yaw, each effect's."""
+    core = (("hard_iron_x", "hard_iron_y", "hard_iron_z") + tuple(f"D_{e}" for e in SOFT_IRON_ENTRIES)
+            + ("field_norm", "dip_deg") + (("yaw_deg",) if rows.heading_ref is not None else ()))
+    return core + tuple(f"{e.name}.{axis}" for e in effects for axis in "xyz")
+
+
 def effect_slice(rows: Rows, effects: tuple, name: str) -> slice:
     """Where the parameters of the effect ``name`` sit in ``x``."""
     k = rows.n_fixed_params + 3 * [e.name for e in effects].index(name)
@@ -264,7 +271,7 @@ def fit_installation(rows: Rows, effects: tuple, priors: dict, start: np.ndarray
     Parameters
     ----------
     rows : Rows
-    effects : tuple of EffectForm
+    effects : tuple of InstallationEffect
         The hard iron's changes in the model (each named in ``rows.regressors``).
     priors : dict
         ``"field"`` and ``"dip"``: ``(mean, sigma)`` of the site's |B| (field units) and dip (deg).

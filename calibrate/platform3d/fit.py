@@ -11,7 +11,8 @@ from scipy.spatial.transform import Rotation
 from compass.io.platform3d import Platform3DRecording
 from compass.sim.platform3d import predict, up_in_bench
 
-from ..contract import Calibrator, CannotCalibrate, metadata_field_ut, require_response, require_sane_cells
+from ..contract import (Calibrator, CannotCalibrate, FitStatistics, metadata_field_ut, require_response,
+                        require_sane_cells)
 from ..health import AXIS_TOLERANCE_DEG, ChannelHealth, check_channels
 from ..health import to_json as health_json
 from ..diagnosis.offsets import (Grouped, OffsetDiagnosis, Problem, SampleGroups, diagnose_offsets,
@@ -230,13 +231,14 @@ def calibrate_platform3d(rec: Platform3DRecording, *, field_ut: float | None = N
         warnings.append(f"residuals are {np.sqrt(chi2 / max(dof, 1)):.1f} times the noise seen in repeated samples: "
                         "the linear model misses something (nonlinear response, a magnetised platform part, "
                         "platform angle errors); uncertainties are scaled up accordingly")
+    statistics = FitStatistics(tuple(names), x, cov, chi2, dof, chi2 + k * np.log(n_obs), bool(fit.success),
+                               str(fit.message))
     return Platform3DResult(
-        names=tuple(names), values=x, covariance=cov, mag_matrix=m, mag_offset=o_m, tilt_matrix=a,
+        statistics=statistics, mag_matrix=m, mag_offset=o_m, tilt_matrix=a,
         tilt_offset=o_t, tilt_columns=rec.tilt_columns, field_w=b_w, up_w=u_w, derived=derived_table,
         mag_direction_covariance=np.array(dir_cov), mag_response_sigma=np.array(resp_sig),
         residuals_mag=rec.mag - pm, residuals_tilt=rec.tilt - pt, noise_mag=noise_mag, noise_tilt=noise_tilt,
-        field_ut=field_ut, chi2=chi2, dof=dof, bic=chi2 + k * np.log(n_obs), success=bool(fit.success),
-        message=str(fit.message), warnings=tuple(warnings), diagnosis=diagnosis)
+        field_ut=field_ut, warnings=tuple(warnings), diagnosis=diagnosis)
 
 
 def _diagnose(rec: Platform3DRecording, rot: Rotation, p: np.ndarray, n_tilt: int, magnitude: float, w_m, w_t,

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from compass.calibration import channel_entry, header
 
-from ..contract import Calibration
+from ..contract import CalibrationResult, FitStatistics, fit_report
 from ..diagnosis.offsets import OffsetDiagnosis
 
 MAG_CHANNELS = ("mx", "my", "mz")
@@ -54,17 +54,15 @@ def geometry_names(prefix: str, columns) -> list[str]:
 
 
 @dataclass(frozen=True)
-class Platform3DResult(Calibration):
+class Platform3DResult(CalibrationResult):
     """A 3-D platform calibration (seed 001) with its statistics.
 
     Attributes
     ----------
-    names : tuple of str
-        Fitted parameters: ``M[c,j]``, ``o_m[c]``, ``field_elevation_rad``, ``field_azimuth_rad``,
-        ``A[c,j]``, ``o_t[c]``, ``base_tilt_x_rad``, ``base_tilt_y_rad``.
-    values : ndarray, shape (p,)
-    covariance : ndarray, shape (p, p)
-        Scaled by the residual (reduced chi-square of the noise-weighted fit).
+    statistics : FitStatistics
+        The noise-weighted fit: parameters ``M[c,j]``, ``o_m[c]``, ``field_elevation_rad``,
+        ``field_azimuth_rad``, ``A[c,j]``, ``o_t[c]``, ``base_tilt_x_rad``, ``base_tilt_y_rad`` (then the
+        claimed effects'), their covariance scaled by the residual (reduced chi-square).
     mag_matrix : ndarray, shape (3, 3)
         ``M``: output units per field unit (uT when ``field_ut`` is known, else per |B|), H frame.
     mag_offset : ndarray, shape (3,)
@@ -90,12 +88,6 @@ class Platform3DResult(Calibration):
     noise_mag, noise_tilt : ndarray or None
         White noise from the spread of repeated samples at one pose; None without repeats.
     field_ut : float or None
-    chi2 : float
-        Of the noise-weighted residuals.
-    dof : int
-    bic : float
-    success : bool
-    message : str
     warnings : tuple of str
     diagnosis : OffsetDiagnosis or None
         The residual diagnosis of the magnetometer (:mod:`calibrate.diagnosis.offsets`); None when
@@ -104,9 +96,7 @@ class Platform3DResult(Calibration):
         residuals are those of the model with them.
     """
 
-    names: tuple
-    values: np.ndarray
-    covariance: np.ndarray
+    statistics: FitStatistics
     mag_matrix: np.ndarray
     mag_offset: np.ndarray
     tilt_matrix: np.ndarray
@@ -122,11 +112,6 @@ class Platform3DResult(Calibration):
     noise_mag: np.ndarray | None
     noise_tilt: np.ndarray | None
     field_ut: float | None
-    chi2: float
-    dof: int
-    bic: float
-    success: bool
-    message: str
     warnings: tuple = field(default_factory=tuple)
     diagnosis: OffsetDiagnosis | None = None
     health: dict = field(default_factory=dict)
@@ -138,11 +123,6 @@ class Platform3DResult(Calibration):
     def parameters(self) -> dict:
         """The derived parameters (scales, non-orthogonality, rotations, dip, ...): name -> (value, sigma)."""
         return dict(self.derived)
-
-    @property
-    def sigma(self) -> np.ndarray:
-        """Standard errors of :attr:`values`."""
-        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
 
     @property
     def dip_deg(self) -> float:
@@ -194,8 +174,9 @@ class Platform3DResult(Calibration):
             "misalignment": {k: list(d[f"{k}_{a}_deg"] for a in AXES) for k in
                              ("mag_rotvec", "tilt_rotvec", "mag_to_tilt_rotvec")},
             "platform3d": {"parameters": {k: {"value": v, "sigma": s} for k, (v, s) in d.items()},
-                           "fit": {"chi2": self.chi2, "dof": self.dof, "bic": self.bic, "success": self.success,
-                                   "message": self.message}},
+                           "fit": {"chi2": self.statistics.chi2, "dof": self.statistics.dof,
+                                   "bic": self.statistics.bic, "success": self.statistics.success,
+                                   "message": self.statistics.message}},
             "warnings": list(self.warnings),
         } | ({"channel_health": self.health} if self.health else {})
 
@@ -252,16 +233,5 @@ class Platform3DResult(Calibration):
             from ..health import describe
 
             lines.append(describe(self.health))
-        lines.append(f"  chi2/dof {self.chi2 / max(self.dof, 1):.3f} ({self.dof} dof)")
-        sig = self.sigma
-        with np.errstate(invalid="ignore", divide="ignore"):
-            corr = self.covariance / np.outer(sig, sig)
-        strong = [(self.names[i], self.names[j], corr[i, j]) for i in range(len(sig)) for j in range(i)
-                  if abs(corr[i, j]) > 0.9]
-        if strong:
-            lines.append("  correlations above 0.9: " + "; ".join(f"{a}/{b} {c:+.2f}" for a, b, c in strong))
-        if self.diagnosis is not None:
-            lines.append(self.diagnosis.format("magnetometer output units"))
-        for w in self.warnings:
-            lines.append(f"  warning: {w}")
-        return "\n".join(lines)
+        diagnosis = None if self.diagnosis is None else self.diagnosis.format("magnetometer output units")
+        return fit_report(self, lines, diagnosis=diagnosis)

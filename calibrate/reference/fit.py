@@ -5,11 +5,11 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scipy.linalg import lstsq
+from scipy.linalg import block_diag, lstsq
 
 from compass.io.reference import ReferenceRecording
 
-from ..contract import Calibrator, CannotCalibrate, require_response, require_sane_cells
+from ..contract import Calibrator, CannotCalibrate, FitStatistics, require_response, require_sane_cells
 from ..health import AXIS_TOLERANCE_DEG, ChannelHealth, check_channels
 from ..health import to_json as health_json
 from ..diagnosis.offsets import Grouped, OffsetDiagnosis, Problem, diagnose_offsets, pooled_repeat_noise, same_inputs
@@ -107,7 +107,7 @@ def _sensor_k(name: str, channels: tuple, g: np.ndarray, v0: np.ndarray, cov: np
 
     return SensorK(name, tuple(channels), k, part(0, 9, (3, 3)), v0, part(9, 12, (3,)), base[12:15], part(12, 15, (3,)),
                    base[15:18], part(15, 18, (3,)), base[18:27].reshape(3, 3), part(18, 27, (3, 3)), unit_cov,
-                   geometry, part(36, 45, (9,)), residuals, dof)
+                   geometry, part(36, 45, (9,)), residuals, dof, cov)
 
 
 def _jacobian(f, p: np.ndarray) -> np.ndarray:
@@ -179,8 +179,29 @@ def calibrate_reference(rec: ReferenceRecording, *, diagnose: bool = True, candi
     if len(sensors) > 1:
         diffs = np.concatenate([s.field(outputs[s.name]) - rec.reference[s.name] for s in sensors])
         spread = float(np.sqrt(np.mean(diffs**2)))
-    return ReferenceResult(sensors, len(rec.rows), float(max(conds.values())), spread, tuple(warnings), diagnosis,
-                           not_diagnosed)
+    return ReferenceResult(sensors, len(rec.rows), float(max(conds.values())), spread, _statistics(sensors, diagnosis),
+                           tuple(warnings), diagnosis, not_diagnosed)
+
+
+def _statistics(sensors: tuple, diagnosis: OffsetDiagnosis | None) -> FitStatistics:
+    """The joint statistics: each sensor's ``G`` and ``V_0``, then the claimed effects' parameters.
+
+    The noise floor is the diagnosis's per channel (the scatter of repeated fields, else the base
+    fit's residual); without a diagnosis, each channel's residual over its dof (chi2 = dof).
+    """
+    names = tuple(n for s in sensors for n in s.parameter_names)
+    residuals = np.hstack([s.residuals for s in sensors])
+    if diagnosis is not None:
+        values, cov, names = diagnosis.x, diagnosis.covariance, names + tuple(diagnosis.names)
+        floor = np.asarray(diagnosis.block["noise_floor_per_channel"], dtype=float)
+    else:
+        values = np.concatenate([np.concatenate([np.linalg.inv(s.k_matrix).ravel(), s.offset]) for s in sensors])
+        cov = block_diag(*[np.full((12, 12), np.inf) if s.covariance is None else s.covariance for s in sensors])
+        floor = np.concatenate([s.residual_rms for s in sensors])
+    dof = residuals.size - values.size
+    chi2 = float(np.sum((residuals / floor) ** 2)) if dof > 0 else float("nan")
+    return FitStatistics(names, values, cov, chi2, dof, chi2 + values.size * np.log(residuals.size), True,
+                         "linear least squares" + (" with the claimed effects" if diagnosis is not None else ""))
 
 
 def _diagnose(rec: ReferenceRecording, sensors: tuple, candidates) -> OffsetDiagnosis:

@@ -8,7 +8,7 @@ import numpy as np
 
 from compass.calibration import channel_entry, header
 
-from ..contract import Calibration
+from ..contract import CalibrationResult, FitStatistics, fit_report
 from ..diagnosis.offsets import OffsetDiagnosis
 
 _ANGLE_NAMES = tuple(f"{g}{j}" for g in ("alpha", "beta", "gamma") for j in (1, 2, 3))
@@ -41,6 +41,8 @@ class SensorK:
         Measured minus predicted output.
     dof : int
         ``n - 4``.
+    covariance : ndarray, shape (12, 12), or None
+        Of ``G = K^-1`` (row-major) then ``V_0``; None with exactly 4 fields (no residual to scale it).
     """
 
     name: str
@@ -60,6 +62,12 @@ class SensorK:
     geometry_sigma: np.ndarray | None
     residuals: np.ndarray
     dof: int
+    covariance: np.ndarray | None = None
+
+    @property
+    def parameter_names(self) -> list[str]:
+        """Names of the fitted ``G`` (row-major) then ``V_0``, as in :attr:`covariance`."""
+        return [f"{self.name}.G[{i},{j}]" for i in range(3) for j in range(3)] + [f"{self.name}.V0[{c}]" for c in range(3)]
 
     @property
     def residual_rms(self) -> np.ndarray:
@@ -72,7 +80,7 @@ class SensorK:
 
 
 @dataclass(frozen=True)
-class ReferenceResult(Calibration):
+class ReferenceResult(CalibrationResult):
     """A reference-field (K-matrix) calibration of an array.
 
     Attributes
@@ -98,6 +106,7 @@ class ReferenceResult(Calibration):
     n_fields: int
     condition: float
     spread: float | None
+    statistics: FitStatistics
     warnings: tuple = field(default_factory=tuple)
     diagnosis: OffsetDiagnosis | None = None
     not_diagnosed: str | None = None
@@ -200,13 +209,9 @@ class ReferenceResult(Calibration):
             lines.append(describe(self.health))
         if self.spread is not None:
             lines.append(f"  array: calibrated fields differ from the reference by {self.spread:.3g} rms (field units)")
-        if self.diagnosis is not None:
-            lines.append(self.diagnosis.format())
-        elif self.not_diagnosed:
-            lines.append(f"  residual diagnosis not run: {self.not_diagnosed}")
-        for w in self.warnings:
-            lines.append(f"  warning: {w}")
-        return "\n".join(lines)
+        diagnosis = self.diagnosis.format() if self.diagnosis is not None else (
+            f"  residual diagnosis not run: {self.not_diagnosed}" if self.not_diagnosed else None)
+        return fit_report(self, lines, diagnosis=diagnosis)
 
 
 def _maybe(a):

@@ -54,18 +54,22 @@ from itertools import combinations_with_replacement
 import numpy as np
 from scipy.optimize import approx_fprime
 
-from ..diagnosis.evidence import (EffectForm, FitRecord, Proposal, determined, gather_forms, is_unexplained,
-                                  linearised_score, refit_from_better_start, select_effects)
-from ..diagnosis.forms import WARMUP_TAU_FRACTIONS, json_float, rms, settled, warm_up_tau_s, why_no_temperature, why_no_time
+from ..contract import FitStatistics
+from ..diagnosis.evidence import (FitRecord, Proposal, determined, gather_forms, is_unexplained, linearised_score,
+                                  refit_from_better_start, select_effects)
+from ..diagnosis.forms import json_float, rms
+from ..effects import (Basis, EffectForm, OddCubic, Recorded, TemperatureForm, TimePolynomial, WarmUpForm, settled,
+                       warm_up_tau_s)
 from ..diagnosis.report import Diagnosis
 from ..noise import chi2_sf, second_difference_sigma, second_differences
 from .alignment import MAX_ANGLE_WIDENING, Misalignment, field_gravity_angles, static_mask
 from .ellipsoid import EllipsoidFit, fit_covariance, plain_fit, propagate, shape_matrix, sym_sqrt
 
 __all__ = ["TumbleEffect", "TUMBLE_FORMS", "TumbleDiagnosis", "UNEXPLAINED_WARNING", "diagnose_tumble",
-           "radial_noise_floor", "residual_structure"]
+           "ellipsoid_parameter_names", "radial_noise_floor", "residual_structure"]
 
 _AXES = ("mx", "my", "mz")
+_N_AXES = len(_AXES)
 STRUCTURE_BLOCKS = 8
 """Blocks of consecutive samples (and temperature bands) in the structure test."""
 MIN_BLOCK_SAMPLES = 50
@@ -97,31 +101,16 @@ class _Context:
     """Constants of a recording the effects are written against (recording units, s, degC)."""
 
     radius: float
-    t_ref_s: float
-    session_s: float
-    temp_ref_c: float
-    temp_span_c: float
+    basis: Basis
 
 
-@dataclass(frozen=True)
 class TumbleEffect(EffectForm):
-    """One extension of the ellipsoid model: a vocabulary name (SPEC section 4), a form, a correction.
+    """One extension of the ellipsoid model (:class:`calibrate.effects.Effect`): its correction.
 
-    Parameters are in normalised units (of order one or smaller); :meth:`report` turns them into
-    physical ones.
+    Its channels are the three axes (``n_params(3)``).  Parameters are in normalised units (of order
+    one or smaller); :meth:`report` turns them into physical ones.  :meth:`applicable` also reads
+    the recording's ``missing`` half-axes (the field never came near them, e.g. ``("+Z",)``).
     """
-
-    def applicable(self, t_s: np.ndarray | None, temp_c: np.ndarray | None, missing: list) -> str | None:
-        """None when a recording with these columns and this coverage (half-axes the field never
-        came near, e.g. ``["+Z"]``) can show the effect, else the reason it cannot."""
-        return None
-
-    def n_params(self) -> int:
-        raise NotImplementedError
-
-    def score_points(self) -> list[np.ndarray]:
-        """Parameter values (effect switched off) at which the score test is evaluated."""
-        return [np.zeros(self.n_params())]
 
     def correct(self, z: np.ndarray, q: np.ndarray, rows: _Rows, ctx: _Context) -> np.ndarray:
         """The reading minus hard iron, shape (n, 3), normalised units, with the effect removed."""
@@ -140,89 +129,74 @@ def _per_axis(label: str, values, sigmas) -> dict:
     return {f"{ax}.{label}": {"value": float(v), "sigma": float(s)} for ax, v, s in zip(_AXES, values, sigmas)}
 
 
-class _TimeEffect(TumbleEffect):
-    def applicable(self, t_s, temp_c, missing):
-        return why_no_time(t_s)
-
+class _AtFirstSample(TumbleEffect):
     def reference(self, ctx):
-        return {"t_s": ctx.t_ref_s}
+        return {"t_s": ctx.basis.t_ref_s}
 
 
-class LinearDrift(_TimeEffect):
-    """Hard iron changing at a constant rate: parameters are the change over the session."""
-
-    def n_params(self):
-        return 3
+class LinearDrift(TimePolynomial, _AtFirstSample):
+    """Hard iron changing at a constant rate (degree 1): parameters are the change over the session."""
 
     def correct(self, z, q, rows, ctx):
-        return z - np.outer((rows.t_s - ctx.t_ref_s) / ctx.session_s, q)
+        return z - np.outer(ctx.basis.tau(rows.t_s), q)
 
     def report(self, q, sigma, ctx):
-        scale = ctx.radius / ctx.session_s
+        scale = ctx.radius / ctx.basis.session_s
         return _per_axis("hard_iron_rate_per_s", q * scale, sigma * scale)
 
 
-class WarmUp(_TimeEffect):
+class WarmUp(WarmUpForm, _AtFirstSample):
     """Hard iron settling after switch-on: per-axis change ``A`` and ``log(tau / session)``."""
 
-    def n_params(self):
-        return 4
-
-    def score_points(self):
-        return [np.array([0.0, 0.0, 0.0, np.log(f)]) for f in WARMUP_TAU_FRACTIONS]
-
     def correct(self, z, q, rows, ctx):
-        return z - np.outer(settled(rows.t_s, ctx.t_ref_s, warm_up_tau_s(ctx.session_s, q[3])), q[:3])
+        tau = warm_up_tau_s(ctx.basis.session_s, q[3])
+        return z - np.outer(settled(rows.t_s, ctx.basis.t_ref_s, tau), q[:3])
 
     def report(self, q, sigma, ctx):
-        tau = warm_up_tau_s(ctx.session_s, q[3])
+        tau = warm_up_tau_s(ctx.basis.session_s, q[3])
         out = _per_axis("hard_iron_settled_change", q[:3] * ctx.radius, sigma[:3] * ctx.radius)
         out["tau_s"] = {"value": float(tau), "sigma": float(tau * sigma[3])}
         return out
 
 
 @dataclass(frozen=True)
-class Temperature(TumbleEffect):
+class Temperature(TemperatureForm, TumbleEffect):
     """Hard iron (and, with ``scale``, per-axis scale) linear in ``temp_c``."""
 
     scale: bool = False
 
-    def applicable(self, t_s, temp_c, missing):
-        return why_no_temperature(temp_c)
-
-    def n_params(self):
-        return 6 if self.scale else 3
+    def n_params(self, n_channels):
+        return 2 * n_channels if self.scale else n_channels
 
     def correct(self, z, q, rows, ctx):
-        d = ((rows.temp_c - ctx.temp_ref_c) / ctx.temp_span_c)[:, None]
+        d = ctx.basis.d(rows.temp_c)[:, None]
         z = z - d * q[:3]
         return z / (1.0 + d * q[3:]) if self.scale else z
 
     def reference(self, ctx):
-        return {"temp_c": ctx.temp_ref_c}
+        return {"temp_c": ctx.basis.temp_ref_c}
 
     def report(self, q, sigma, ctx):
-        scale = ctx.radius / ctx.temp_span_c
+        span = ctx.basis.temp_span_c
+        scale = ctx.radius / span
         out = _per_axis("hard_iron_per_degc", q[:3] * scale, sigma[:3] * scale)
         if self.scale:
-            out.update(_per_axis("scale_rel_per_degc", q[3:] / ctx.temp_span_c, sigma[3:] / ctx.temp_span_c))
+            out.update(_per_axis("scale_rel_per_degc", q[3:] / span, sigma[3:] / span))
         return out
 
 
-class CubicResponse(TumbleEffect):
+class OddCubicReading(OddCubic, TumbleEffect):
     """Odd cubic per axis about the hard iron: ``z + c z^3`` (``c``: correction at ``|z| = 1``, ~ |B|).
 
     Only with the field seen along every half-axis: from one side a cubic bends the surface the
     way a far-away hard iron does, and the two trade off without bound.
     """
 
-    def applicable(self, t_s, temp_c, missing):
-        if missing:
-            return f"the field was never along {', '.join(missing)}: a cubic response trades off against the hard iron"
+    def applicable(self, columns):
+        if columns.missing:
+            return (f"the field was never along {', '.join(columns.missing)}: a cubic response trades off against "
+                    "the hard iron")
         return None
-
-    def n_params(self):
-        return 3
 
     def correct(self, z, q, rows, ctx):
         return z + q * (z * z * z)  # a product: numpy takes z**3 through pow(), 20x slower
@@ -238,7 +212,7 @@ TUMBLE_FORMS: dict[str, tuple[TumbleEffect, ...]] = {
     "temperature": (Temperature("temperature", "offset", "a hard iron linear in temp_c"),
                     Temperature("temperature", "offset and scale", "a hard iron and per-axis scale linear in temp_c",
                                 scale=True)),
-    "nonlinear_response": (CubicResponse("nonlinear_response", "odd cubic",
+    "nonlinear_response": (OddCubicReading("nonlinear_response", "odd cubic",
                                          "|m| bending with the direction beyond any ellipsoid: an odd cubic response per axis"),),
 }
 """Each effect's forms for the tumble, simplest first; the evidence (BIC) chooses among them."""
@@ -251,8 +225,8 @@ class _Fit(FitRecord):
         start = k
         for e in self.effects:
             if e is effect:
-                return slice(start, start + e.n_params())
-            start += e.n_params()
+                return slice(start, start + e.n_params(_N_AXES))
+            start += e.n_params(_N_AXES)
         raise KeyError(effect.label)
 
 
@@ -267,8 +241,8 @@ class _Model:
         """``c(y - p_h)``, shape (n, 3), normalised units."""
         z, i = rows.y - x[:3], self.k
         for e in effects:
-            z = e.correct(z, x[i:i + e.n_params()], rows, self.ctx)
-            i += e.n_params()
+            z = e.correct(z, x[i:i + e.n_params(_N_AXES)], rows, self.ctx)
+            i += e.n_params(_N_AXES)
         return z
 
     def radial(self, x, effects, rows: _Rows) -> np.ndarray:
@@ -309,11 +283,11 @@ class _Model:
         dropped.  The drop is ``r^T J (J^T J)^{-1} J^T r`` with the projected ``J``; the start is the
         Gauss-Newton step from the score point.
         """
-        return linearised_score(self.weighted, fit, effect, effect.score_points(), _FD_STEP)
+        return linearised_score(self.weighted, fit, effect, effect.score_points(_N_AXES), _FD_STEP)
 
     def refit(self, fit: _Fit, effect: TumbleEffect, start: np.ndarray) -> _Fit:
         """The fit with ``effect`` added, from ``start`` or the effect switched off, whichever fits better."""
-        return refit_from_better_start(self.fit, self.weighted, fit, effect, effect.score_points()[0], start)
+        return refit_from_better_start(self.fit, self.weighted, fit, effect, effect.score_points(_N_AXES)[0], start)
 
 
 @dataclass(frozen=True)
@@ -333,12 +307,16 @@ class TumbleDiagnosis(Diagnosis):
         ``{"name", "form", "reference", "parameters"}`` of each claimed effect: the file's ``effects``.
     block : dict
         The SPEC section 4 ``diagnosis`` block.
+    statistics : FitStatistics
+        The final fit's: the ellipsoid's normalised parameters (:func:`ellipsoid_parameter_names`),
+        then the claimed effects', against the radial noise floor.
     """
 
     fit: EllipsoidFit
     raw_at_reference: np.ndarray
     effects: tuple
     block: dict
+    statistics: FitStatistics
 
     def with_alignment(self, mis: Misalignment, fit: EllipsoidFit) -> "TumbleDiagnosis":
         """Add the magnetometer-accelerometer rotation as a step, and the final fit's residual.
@@ -372,6 +350,17 @@ class TumbleDiagnosis(Diagnosis):
         block = dict(self.block, alignment=alignment, residual_rms_after=rms)
         block["unexplained"] = is_unexplained(block["structure_test"]["p_value"], rms, block["noise_floor"])
         return replace(self, fit=fit, block=block)
+
+
+def ellipsoid_parameter_names(ellipsoid: str) -> tuple[str, ...]:
+    """Names of an ellipsoid kind's normalised parameters (:func:`calibrate.tumble.ellipsoid.shape_matrix`).
+
+    ``h_*``: the hard iron's offset from the normalising centre over its radius; ``log_l*``: the log
+    of the shape ``L``'s diagonal (one shared by the axes for ``offset``); ``l_*``: its lower entries.
+    """
+    shape = {"offset": ("log_l",), "diagonal": ("log_l_x", "log_l_y", "log_l_z"),
+             "full": ("log_l_x", "log_l_y", "log_l_z", "l_yx", "l_zx", "l_zy")}[ellipsoid]
+    return ("h_x", "h_y", "h_z") + shape
 
 
 def radial_noise_floor(residuals: np.ndarray) -> float:
@@ -486,12 +475,8 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
     if unknown:
         raise ValueError(f"unknown tumble effect(s) {unknown}; known: {', '.join(TUMBLE_FORMS)}")
 
-    pool, skipped = gather_forms(names, TUMBLE_FORMS, lambda e: e.applicable(t_s, temp_c, list(missing)))
-    ctx = _Context(radius=fit.radius,
-                   t_ref_s=0.0 if t_s is None else float(t_s[0]),
-                   session_s=1.0 if t_s is None else max(float(np.ptp(t_s)), 1e-9),
-                   temp_ref_c=0.0 if temp_c is None else float(np.mean(temp_c)),
-                   temp_span_c=1.0 if temp_c is None else max(float(np.ptp(temp_c)), 1e-9))
+    pool, skipped = gather_forms(names, TUMBLE_FORMS, lambda e: e.applicable(Recorded(t_s, temp_c, tuple(missing))))
+    ctx = _Context(radius=fit.radius, basis=Basis.of(t_s, temp_c))
     floor = radial_noise_floor(fit.residuals)
     rows = _Rows((mag[fit.inliers] - fit.centre) / fit.radius, None if t_s is None else t_s[fit.inliers],
                  None if temp_c is None else temp_c[fit.inliers])
@@ -523,7 +508,7 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
             "added": p.effect.name,
             "form": p.effect.form,
             "residual_rms": rms(p.trial.residuals),
-            **p.evidence(p.effect.n_params()),
+            **p.evidence(p.effect.n_params(_N_AXES)),
             **measured,
             "parameters": p.effect.report(p.trial.x[block], np.sqrt(np.diag(p.trial.covariance))[block], ctx),
         }
@@ -535,7 +520,7 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
 
     base = model.fit((), fit.params)
     chosen = select_effects(
-        base, pool, score=model.score, refit=model.refit, n_params=lambda e: e.n_params(),
+        base, pool, score=model.score, refit=model.refit, n_params=lambda e: e.n_params(_N_AXES),
         log_n=np.log(base.residuals.size),
         base_step={"model": "base", "kind": fit.ellipsoid, "residual_rms": rms(base.residuals)},
         write_step=claim, verdict=verdict, checks=(determined("the ellipsoid"), keeps_the_angle))
@@ -571,4 +556,8 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
         "hard_iron_change": {"value": (final_fit.hard_iron - fit.hard_iron).tolist(),
                              "sigma": final_fit.hard_iron_sigma.tolist()},
     }
-    return TumbleDiagnosis(final_fit, raw_ref, effects, block)
+    names = ellipsoid_parameter_names(fit.ellipsoid) + tuple(
+        f"{e.name}[{j}]" for e in current.effects for j in range(e.n_params(_N_AXES)))
+    statistics = FitStatistics(names, current.x, current.covariance, current.chi2, current.dof, current.bic(),
+                               current.success, current.message)
+    return TumbleDiagnosis(final_fit, raw_ref, effects, block, statistics)

@@ -9,7 +9,7 @@ import numpy as np
 
 from compass.calibration import header
 
-from ..contract import Calibration
+from ..contract import CalibrationResult, FitStatistics, fit_report
 from ..diagnosis.forms import json_float
 from .alignment import Misalignment
 from .coverage import Coverage
@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from .diagnosis import TumbleDiagnosis
 
 @dataclass(frozen=True)
-class TumbleResult(Calibration):
+class TumbleResult(CalibrationResult):
     """A tumble calibration (SPEC section 2, ``"model": "tumble"``).
 
     Attributes
@@ -66,6 +66,18 @@ class TumbleResult(Calibration):
     raw_unit: str = "recording units"
 
     calibration_kind = "tumble"
+
+    @property
+    def statistics(self) -> FitStatistics:
+        """The diagnosis's final fit (:attr:`TumbleDiagnosis.statistics`); without a diagnosis (every kind
+        degenerate), the chosen ellipsoid's parameters with no covariance and no chi-square."""
+        if self.diagnosis is not None:
+            return self.diagnosis.statistics
+        from .diagnosis import ellipsoid_parameter_names
+
+        k = self.fit.params.size
+        return FitStatistics(ellipsoid_parameter_names(self.fit.ellipsoid), self.fit.params, np.full((k, k), np.inf),
+                             float("nan"), 0, float("nan"), self.fit.success, self.fit.message)
 
     @property
     def ellipsoid(self) -> str:
@@ -193,8 +205,5 @@ class TumbleResult(Calibration):
                 lines.append("  mag-to-accel rotation vector " + ", ".join(
                     f"{v:+.3f} +- {s:.3f}" for v, s in zip(mis.rotvec_deg, mis.rotvec_sigma_deg)) + " deg")
             lines.append(f"  field-gravity angle spread {mis.spread_before_deg:.3f} -> {mis.spread_after_deg:.3f} deg")
-        if self.diagnosis is not None:
-            lines.append(self.diagnosis.format(self.raw_unit))
-        for w in self.warnings:
-            lines.append(f"  warning: {w}")
-        return "\n".join(lines)
+        diagnosis = None if self.diagnosis is None else self.diagnosis.format(self.raw_unit)
+        return fit_report(self, lines, diagnosis=diagnosis)

@@ -479,7 +479,7 @@ def log_calibration_result(rec, result, recording_path, *, base_residuals=None, 
 
     Parameters
     ----------
-    result : calibrate.contract.Calibration
+    result : calibrate.contract.CalibrationResult
         The fit's result: ``calibration_kind``, ``diagnosis`` and per kind ``residuals`` and
         ``used(recording)`` (four-flip), ``coverage`` (tumble), ``residuals_mag`` (3-D platform),
         ``sensors`` with their ``residuals`` (reference fields).

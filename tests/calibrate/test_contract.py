@@ -1,7 +1,7 @@
 """One contract for every calibration kind (issue 12, as scikit-learn's ``check_estimator``).
 
 Every registered kind goes recording -> its calibrator -> calibration file -> ``SensorModel`` ->
-attitude, and its result honours the :class:`calibrate.contract.Calibration` contract.
+attitude, and its result honours the :class:`calibrate.contract.CalibrationResult` contract.
 """
 
 import json
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calibrate.contract import Calibration, Calibrator, CannotCalibrate
+from calibrate.contract import CalibrationResult, Calibrator, CannotCalibrate, FitStatistics
 from calibrate.kinds import KINDS, sniff
 from compass.attitude import solve_attitude
 from compass.calibration import FORMAT, KIND_KEY, dumps, load
@@ -98,10 +98,19 @@ def test_kind_fits_writes_reads_back_and_solves_attitude(tmp_path, name):
     result = calibrator.fit(kind.read(table))
 
     # one result contract
-    assert isinstance(result, Calibration) and result.calibration_kind == name
+    assert isinstance(result, CalibrationResult) and result.calibration_kind == name
     assert isinstance(result.warnings, tuple) and all(isinstance(w, str) for w in result.warnings)
     assert result.parameters and all(len(v) == 2 and np.isfinite(v[0]) for v in result.parameters.values())
     assert isinstance(result.report(), str) and result.report()
+    # declared statistics, filled by every kind: a clean simulated session fits at its noise floor
+    stats = result.statistics
+    assert isinstance(stats, FitStatistics) and stats.success and isinstance(stats.message, str)
+    p = len(stats.names)
+    assert p > 0 and stats.values.shape == (p,) and stats.covariance.shape == (p, p)
+    assert np.all(np.isfinite(stats.values)) and np.all(stats.sigma > 0) and np.all(np.isfinite(stats.sigma))
+    assert stats.dof > 0 and stats.reduced_chi2 == pytest.approx(1.0, abs=0.5)
+    assert np.isfinite(stats.bic) and stats.bic > stats.chi2  # chi2 + p ln n
+    assert f"chi2/dof {stats.reduced_chi2:.3f} ({stats.dof} dof), BIC {stats.bic:.1f}" in result.report()
     # it draws only what its calibrator declares (compass calibrate checks those names against --force)
     written = result.plots(kind.read(table), tmp_path / "plots")
     assert {p.name for p in map(Path, written)} <= set(kind.calibrator.plot_files)

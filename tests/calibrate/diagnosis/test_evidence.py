@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from calibrate.diagnosis.evidence import EffectForm, FitRecord, _revisit, linearised_score, select_effects
+from calibrate.diagnosis.evidence import FitRecord, _revisit, linearised_score, select_effects
+from calibrate.effects import EffectForm
 
 N = 500
 

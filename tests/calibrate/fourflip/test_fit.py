@@ -19,7 +19,7 @@ def test_ml_directions_within_reported_sigma(write_session):
     assert abs(result.dip_deg - truth["dip_deg"]) < 4.0 * result.dip_sigma_deg
     # sigma itself follows from the noise: ~ noise / (gain |B| sqrt(n)) radians, order 0.01 deg here
     assert np.all(sigma < 0.05)
-    assert result.reduced_chi2 == pytest.approx(1.0, abs=0.1)
+    assert result.statistics.reduced_chi2 == pytest.approx(1.0, abs=0.1)
 
 
 def test_ml_gains_offsets_within_sigma(write_session):

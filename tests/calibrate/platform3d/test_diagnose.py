@@ -102,9 +102,9 @@ def test_fitting_pose_means_is_fitting_every_sample(tmp_path, monkeypatch):
     monkeypatch.setattr(SampleGroups, "of", staticmethod(every_row_alone))
     per_sample = fit(tmp_path, bent, "again.csv")
     assert grouped.diagnosis.block["effects"] == per_sample.diagnosis.block["effects"] == ["nonlinear_response"]
-    assert np.all(np.abs(grouped.values - per_sample.values) < 1e-3 * per_sample.sigma)
-    np.testing.assert_allclose(grouped.sigma, per_sample.sigma, rtol=1e-4)
-    assert grouped.chi2 == pytest.approx(per_sample.chi2, rel=1e-7) and grouped.dof == per_sample.dof
+    assert np.all(np.abs(grouped.statistics.values - per_sample.statistics.values) < 1e-3 * per_sample.statistics.sigma)
+    np.testing.assert_allclose(grouped.statistics.sigma, per_sample.statistics.sigma, rtol=1e-4)
+    assert grouped.statistics.chi2 == pytest.approx(per_sample.statistics.chi2, rel=1e-7) and grouped.statistics.dof == per_sample.statistics.dof
     np.testing.assert_allclose(grouped.residuals_mag, per_sample.residuals_mag, atol=1e-6)
 
 
@@ -123,9 +123,9 @@ def test_fitting_means_over_short_times_is_fitting_every_sample(tmp_path, monkey
     per_sample = fit(tmp_path, sim, "again.csv")
     assert [s["form"] for s in grouped.diagnosis.block["steps"][1:]] == \
         [s["form"] for s in per_sample.diagnosis.block["steps"][1:]]
-    assert np.all(np.abs(grouped.values - per_sample.values) < 1e-2 * per_sample.sigma)
-    np.testing.assert_allclose(grouped.sigma, per_sample.sigma, rtol=1e-3)
-    assert grouped.chi2 == pytest.approx(per_sample.chi2, rel=1e-6)
+    assert np.all(np.abs(grouped.statistics.values - per_sample.statistics.values) < 1e-2 * per_sample.statistics.sigma)
+    np.testing.assert_allclose(grouped.statistics.sigma, per_sample.statistics.sigma, rtol=1e-3)
+    assert grouped.statistics.chi2 == pytest.approx(per_sample.statistics.chi2, rel=1e-6)
 
 
 def test_without_time_and_temperature_those_effects_are_not_applicable(tmp_path):

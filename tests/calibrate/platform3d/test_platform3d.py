@@ -49,7 +49,7 @@ def test_recovers_simulated_truth_within_sigma(tmp_path, tilt_axes):
     # residuals at the injected noise; chi2 near 1 because repeats give the noise independently
     np.testing.assert_allclose(np.sqrt(np.mean(res.residuals_mag**2)), t["noise_mag"], rtol=0.15)
     np.testing.assert_allclose(np.sqrt(np.mean(res.residuals_tilt**2)), t["noise_tilt"], rtol=0.15)
-    sig = res.sigma
+    sig = res.statistics.sigma
     assert np.all(np.abs(res.mag_matrix.ravel() - np.ravel(t["mag_matrix"])) < 4.5 * sig[:9])
     assert np.all(np.abs(res.mag_offset - t["mag_offset"]) < 4.5 * sig[9:12])
     k = 14 + 3 * tilt_axes
@@ -68,7 +68,7 @@ def test_recovers_simulated_truth_within_sigma(tmp_path, tilt_axes):
 def test_doubling_noise_doubles_sigma(tmp_path):
     _, _, one = fit(tmp_path, "a.csv", seed=12, noise_ut=0.1, noise_g=0.001)
     _, _, two = fit(tmp_path, "b.csv", seed=12, noise_ut=0.2, noise_g=0.002)
-    ratio = two.sigma / one.sigma
+    ratio = two.statistics.sigma / one.statistics.sigma
     np.testing.assert_allclose(np.median(ratio), 2.0, rtol=0.1)
 
 
