@@ -26,7 +26,6 @@ Seeded; the machine's load average is printed beside the timings (they are wall-
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import tempfile

@@ -49,7 +49,6 @@ import numpy as np
 from compass.attitude import solve_attitude
 from compass.filter import FilterConfig, run_filter
 from compass.live import LiveSession
-from compass.model import SensorModel
 from compass.serial_reader import Chunk, LinkEvent, SerialReader
 from compass.sim.device import PtyDevice, default_model, simulate_device
 from compass.calibration import load as load_calibration

@@ -158,7 +158,7 @@ def broad(folder: Path, trials: list[str]) -> None:
     candidates = {"off (before)": {"follow_place": False}} | {
         f"on, window {w:g} s": {"follow_place": True, "place_window_s": w} for w in WINDOWS}
     default = f"on, window {FilterConfig(1.0, 0.0, 1.0).place_window_s:g} s"
-    results, moves, raw_rows = {}, {}, {}
+    results, moves = {}, {}
     for path in sorted(folder.glob("*.mat")):
         if trials and path.name[:2] not in trials:
             continue

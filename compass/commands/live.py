@@ -92,7 +92,7 @@ def run(args) -> int:
         if not args.quiet:
             print(("\r\x1b[K" if tty else "") + f"[{level}] {text}", flush=True)
 
-    session, sink, failed, out, start = None, None, True, None, time.perf_counter()
+    session, sink, out, start = None, None, None, time.perf_counter()
     try:
         if args.rerun is not None:
             from ..viz import RerunSink
@@ -112,7 +112,6 @@ def run(args) -> int:
                 raise BadInput(f"{args.cal}: {session.turned_over}")
             if session.decoder.fatal is not None:  # judged on close: fewer samples than the unit check holds
                 raise BadInput(f"{args.port}: {session.decoder.fatal} ({args.cal}): is it the right calibration?")
-            failed = False
     finally:
         recorded = _recorded(session)
         if sink is not None and session is None:

@@ -207,7 +207,6 @@ def _bench_truth(args) -> dict:
 
 
 def run_installation(args) -> int:
-    from ..cli import BadInput
     from ..sim.installation import random_installation, simulate_installation, write_installation
 
     truth = _bench_truth(args)
@@ -221,7 +220,6 @@ def run_installation(args) -> int:
 
 
 def run_runtime(args) -> int:
-    from ..cli import BadInput
     from ..sim.runtime import simulate_runtime, write_runtime
 
     truth = _bench_truth(args)

@@ -49,7 +49,7 @@ from scipy.spatial.transform import Rotation
 
 from ..frames import field_in_bench, sphere_cells
 from . import _layout
-from ._drawing import AXIS_COLORS, FIELD_COLOR, cone_strips, log_housing, log_north
+from ._drawing import AXIS_COLORS, FIELD_COLOR, cone_strips, log_housing
 from ._stream import columns_index
 
 __all__ = ["log_calibration", "log_calibration_result", "record_calibration", "calibration_views", "log_fourflip",
