@@ -268,7 +268,6 @@ def main(argv=None) -> int:
     candidates = {name: ours(changes, hard_iron, from_rest) for name, (changes, hard_iron, from_rest) in CANDIDATES.items()}
     available |= candidates
     if args.cal:
-
         available["ours + cal"] = ours(model=load_calibration(args.cal).model)
 
     print(METRIC + "; no heading offset removed; group = mean of its trials' RMS")
