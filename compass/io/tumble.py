@@ -168,7 +168,7 @@ def gyro_turns(t_s, gyro_rad_s, keep) -> np.ndarray:
     gyro_rad_s : ndarray, shape (n_rows, 3)
         Angular rate, rad/s, housing frame.
     keep : ndarray of bool, shape (n_rows,)
-        The kept rows (the first row is kept).
+        The kept rows (the first kept row's turn is zero).
 
     Returns
     -------
