@@ -30,11 +30,12 @@ with every turn ``\Delta R_k``, and a change of ``h`` must be a constant ``D`` t
   *and* the rotation to the housing) and ``h`` are determined, however small the fraction of the
   sphere the field swept - their precision grows with the angles turned;
 - turns about one housing axis ``n`` only (a level robot joint, a swing): ``u_k = (v.n) n +
-  Rot(n, -theta_k) v_perp``, so ``x_k = [h + (v.n) D n] + D Rot(n, -theta_k) v_perp``: ``D`` on the
-  plane across ``n`` (6 numbers) and the sum ``h + (v.n) D n`` are determined, while ``D n`` (the
-  response to the field along the turn axis, 3 numbers) trades off against the hard iron; if ``n``
-  is also vertical, ``P = Rot(n, phi)`` keeps gravity too and the rotation to the housing about
-  ``n`` is a heading offset (1 more).  That is what the coverage words then say is undetermined;
+  Rot(n, -theta_k) v_perp``, so ``x_k = [h + (v.n) D n] + D Rot(n, -theta_k) v_perp``, and five
+  combinations stay undetermined: ``D n`` (the response to the field along the turn axis, 3 numbers)
+  against the hard iron; the size of ``D`` across ``n`` against ``|v_perp|`` (the field's angle to
+  ``n``, 1: only their product appears); and ``P = Rot(n, phi)``, which commutes with every turn
+  (the rotation to the housing about ``n``, 1; with gravity it trades against the dip).  ``D``'s
+  shape across ``n`` is determined.  This is what the words then name as undetermined;
 - no turn: nothing beyond the present fit.
 
 Gyro errors.  Integrating the gyro accumulates its errors: the bias is fitted (a constant bias
