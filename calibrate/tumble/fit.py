@@ -224,7 +224,7 @@ class TumbleCalibrator(Calibrator):
     -----
     The residual diagnosis always runs (the refusal of a field that changed partway rests on it).
     With a gyro (``gx,gy,gz``, ``t_s`` and an accelerometer in the recording) and a present fit that
-    fell back (a kind simpler than ``full``, or no rotation to the housing), the gyro-aided fit
+    fell back (a kind simpler than ``full``, or the rotation to the housing withheld), the gyro-aided fit
     (:mod:`calibrate.tumble.gyro`) replaces it where it is determined.
     """
 

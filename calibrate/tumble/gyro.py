@@ -402,15 +402,30 @@ def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_nor
     x1 = np.concatenate([robust.x[:16], robust.x[16:].reshape(-1, 3)[used].ravel()])
     final = least_squares(kept.residual, x1, jac=kept.jacobian, method="trf", tr_solver="lsmr", x_scale="jac",
                           max_nfev=MAX_NFEV)
-    jac = final.jac
-    jtj = (jac.T @ jac).toarray()
-    dof = max(final.fun.size - final.x.size, 1)
-    chi2 = float(final.fun @ final.fun) / dof
-    try:
-        cov = np.linalg.inv(jtj) * chi2 if np.linalg.cond(jtj) < 1e14 else None
-    except np.linalg.LinAlgError:
-        cov = None
-    return _result(final, cov, kept, inliers, noise, turns, n_w=len(used))
+    chi2 = float(final.fun @ final.fun) / max(final.fun.size - final.x.size, 1)
+    return _result(final, _global_covariance(final.jac, chi2), kept, inliers, noise, turns, n_w=len(used))
+
+
+def _global_covariance(jac, chi2: float) -> np.ndarray | None:
+    """Covariance of the 16 global parameters, the windows' orientations marginalised (None if singular).
+
+    The Schur complement of the normal equations' block-diagonal window part, each 3 x 3 block
+    pseudo-inverted (a window whose orientation the data leave partly free adds nothing), scaled to
+    unit diagonal before judging its condition (``D`` is of order |B|, ``beta`` of order 0.01 rad/s).
+    """
+    k = _Problem.N_GLOBAL
+    a = (jac.T @ jac).toarray()
+    a_gg, a_gl = a[:k, :k], a[:k, k:]
+    n_w = (a.shape[0] - k) // 3
+    blocks = np.array([a[k + 3 * j:k + 3 * j + 3, k + 3 * j:k + 3 * j + 3] for j in range(n_w)]).reshape(n_w, 3, 3)
+    inv_blocks = np.linalg.pinv(blocks, rcond=1e-10, hermitian=True)
+    gl = a_gl.reshape(k, n_w, 3).transpose(1, 0, 2)  # (n_w, k, 3)
+    schur = a_gg - np.einsum("wia,wab,wjb->ij", gl, inv_blocks, gl)
+    d = np.sqrt(np.clip(np.diag(schur), 1e-300, None))
+    scaled = schur / np.outer(d, d)
+    if not np.all(np.isfinite(scaled)) or np.linalg.cond(scaled) > 1e12:
+        return None
+    return np.linalg.inv(scaled) / np.outer(d, d) * chi2
 
 
 def _unpack(q):
@@ -474,8 +489,10 @@ its residual's verdict, which is judged anew)."""
 
 
 def falls_back(result: TumbleResult) -> bool:
-    """Whether the present fit fell back: a kind simpler than ``full``, or no rotation to the housing."""
-    return not result.refused and (result.ellipsoid != "full" or result.mag_to_accel is None)
+    """Whether the present fit fell back: a kind simpler than ``full``, or a rotation to the housing the
+    data support withheld for the missing part of the sphere (one the BIC does not support is no fallback)."""
+    withheld = result.misalignment is not None and result.misalignment.withheld is not None
+    return not result.refused and (result.ellipsoid != "full" or withheld)
 
 
 def ellipsoid_from(g: GyroFit, like: EllipsoidFit, mag: np.ndarray) -> EllipsoidFit:
