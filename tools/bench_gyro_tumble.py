@@ -39,7 +39,6 @@ sys.path.insert(0, str(ROOT))
 
 from calibrate.tumble import calibrate_tumble  # noqa: E402
 from calibrate.tumble.gyro import falls_back, with_gyro  # noqa: E402
-from compass.frames import world_field  # noqa: E402
 from compass.io.tumble import gyro_turns  # noqa: E402
 from compass.sim.partial_tumble import simulate_partial_tumble  # noqa: E402
 

@@ -79,7 +79,7 @@ MIN_WINDOW_SAMPLES = 5
 MAX_ROTATION_SIGMA_DEG = 0.5
 """The rotation to the housing is determined when each component's sigma is below this, deg."""
 
-MAX_NFEV = 60
+MAX_NFEV = 100
 _AXES = "xyz"
 
 
@@ -158,6 +158,8 @@ class GyroFit:
                 + ", ".join(f"{np.degrees(b):+.3f}" for b in self.gyro_bias_rad_s) + " deg/s)")
         if self.determined:
             return base + ": the soft iron and the rotation to the housing are determined"
+        if not self.success:
+            return base + f": the fit did not converge ({self.message})"
         return base + ": still undetermined: " + "; ".join(self.undetermined)
 
 
@@ -443,7 +445,9 @@ def _result(final, cov, prob, inliers, noise, turns, n_w) -> GyroFit:
     q = final.x
     h, s, f_norm, c, delta = _unpack(q)
     rot = Rotation.from_matrix(c)
-    success = bool(final.success) and np.linalg.det(q[:9].reshape(3, 3)) > 0
+    right_handed = np.linalg.det(q[:9].reshape(3, 3)) > 0
+    success = bool(final.success) and right_handed
+    message = str(final.message) if right_handed else "the response has a negative determinant: a reversed axis"
     n_mag = 3 * len(prob.mag)
     mag_rms = float(np.sqrt(np.mean((final.fun[:n_mag] * prob.sigma_m) ** 2)))
     if cov is None:
@@ -479,8 +483,7 @@ def _result(final, cov, prob, inliers, noise, turns, n_w) -> GyroFit:
                             f"{np.max(sig_rot):.2g} deg)")
     return GyroFit(h, sig_h, s, sig_s, f_norm, sig_f, rot, np.degrees(rot.as_rotvec()), sig_rot,
                    float(np.degrees(delta)), sig_dip, q[13:16], sig_beta, n_w, len(prob.static), inliers, mag_rms,
-                   float(noise), tuple(undetermined), turn_axes(turns[inliers]), success,
-                   str(final.message))
+                   float(noise), tuple(undetermined), turn_axes(turns[inliers]), success, message)
 
 
 _SUPERSEDED = ("used the ", "no magnetometer-accelerometer rotation fitted", UNEXPLAINED_WARNING)
@@ -546,8 +549,7 @@ def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_ra
                       dip_deg=None if mis is None else mis.dip_deg, noise=result.noise)
     block = g.to_json()
     if not g.determined:
-        why = g.words() if g.success else f"the gyro-aided fit did not converge ({g.message})"
-        return replace(result, warnings=result.warnings + (f"gyro-aided fit not used: {why}",),
+        return replace(result, warnings=result.warnings + (f"gyro-aided fit not used: {g.words()}",),
                        gyro=dict(block, used=False))
     fit = ellipsoid_from(g, start, mag)
     mis = misalignment_from(g, fit.calibrated(mag[g.inliers]), accel[g.inliers])
