@@ -19,7 +19,7 @@ dip, ``phi_i`` the gyro's turn over the rows up to sample ``i`` (:func:`compass.
 sigma); the loss is the sum of both, weighted, robust (``soft_l1``) then plain on the inliers.
 
 What the data determine (derivation; checked numerically by the Jacobian's rank in
-``tests/calibrate/test_tumble_gyro.py``).  The ellipsoid sees only ``|C S (x - h)| = F``, which
+``tests/calibrate/tumble/test_gyro.py``).  The ellipsoid sees only ``|C S (x - h)| = F``, which
 is unchanged by ``C S -> P C S`` for any rotation ``P``: the rotation to the housing is invisible
 to it, and ``S`` is determined only where the field's directions span the sphere (the present fit
 needs every half-axis seen).  With the gyro, ``x_k - h = D \Delta R_k^T v_j`` (``v_j = Q_j^T b_W``):
@@ -66,7 +66,7 @@ from .diagnosis import UNEXPLAINED_WARNING, diagnose_tumble
 from .ellipsoid import MAX_RELATIVE_SIGMA, OUTLIER_SIGMAS, EllipsoidFit
 from .result import TumbleResult
 
-__all__ = ["GyroFit", "falls_back", "fit_with_gyro", "with_gyro", "turn_axes", "WINDOW_S", "WINDOW_TURN_DEG", "MAX_ROTATION_SIGMA_DEG"]
+__all__ = ["GyroFit", "GyroMismatch", "falls_back", "fit_with_gyro", "with_gyro", "turn_axes", "WINDOW_S", "WINDOW_TURN_DEG", "MAX_ROTATION_SIGMA_DEG"]
 
 WINDOW_S = 10.0
 """A window of integrated gyro turns closes after this long, s."""
@@ -80,6 +80,13 @@ MAX_ROTATION_SIGMA_DEG = 0.5
 """The rotation to the housing is determined when each component's sigma is below this, deg."""
 
 MAX_NFEV = 100
+
+MIN_INLIER_FRACTION = 0.5
+"""A fit that keeps fewer of the samples says the model does not hold (:class:`GyroMismatch`)."""
+
+
+class GyroMismatch(ValueError):
+    """The gyro-aided model does not describe the recording (most samples rejected), in words."""
 _AXES = "xyz"
 
 
@@ -355,7 +362,9 @@ def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_nor
     Raises
     ------
     ValueError
-        Inputs of different lengths, non-finite, fewer than 20 quasi-static rows, or no time.
+        Inputs of different lengths, non-finite, or a time that decreases.
+    GyroMismatch
+        Fewer than 20 quasi-static rows, or the model rejects most samples (said in words).
     """
     mag, accel, turns = (np.asarray(a, dtype=float) for a in (mag, accel, turns_rad))
     t_s = np.asarray(t_s, dtype=float)
@@ -370,7 +379,7 @@ def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_nor
         raise ValueError("t_s must be non-decreasing")
     static = static_mask(accel)
     if np.count_nonzero(static) < 20:
-        raise ValueError(f"only {np.count_nonzero(static)} quasi-static accelerometer rows; the gyro-aided fit needs 20")
+        raise GyroMismatch(f"only {np.count_nonzero(static)} quasi-static accelerometer rows; the gyro-aided fit needs 20")
     if noise is None:
         noise = float(np.median(second_difference_sigma(second_differences(mag))))
     a_unit = accel / np.linalg.norm(accel, axis=1, keepdims=True)
@@ -394,6 +403,10 @@ def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_nor
     r = robust.fun[:3 * n].reshape(n, 3)
     inliers = np.linalg.norm(r, axis=1) < OUTLIER_SIGMAS * np.sqrt(3.0)
     keep_a = np.linalg.norm(robust.fun[3 * n:].reshape(-1, 3), axis=1) < OUTLIER_SIGMAS * np.sqrt(3.0)
+    if np.count_nonzero(inliers) < MIN_INLIER_FRACTION * n or np.count_nonzero(keep_a) < 20:
+        raise GyroMismatch(f"the magnetometer and the gyro disagree: the fit rejected {n - np.count_nonzero(inliers)} of "
+                           f"{n} samples beyond {OUTLIER_SIGMAS:g} noise sigmas (a magnetometer late against the gyro, "
+                           "a disturbed field, a gyro off scale)")
     # windows emptied by the trimming keep their parameters unused: give each kept row its window anew
     used = np.unique(window[inliers])
     remap = np.full(n_w, -1)
@@ -544,9 +557,13 @@ def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_ra
     """
     start = result.fit
     mis = result.misalignment
-    g = fit_with_gyro(mag, accel, turns_rad, t_s, hard_iron=start.hard_iron, soft_iron=start.soft_iron,
-                      field_norm=start.field_norm, mag_to_accel=result.mag_to_accel,
-                      dip_deg=None if mis is None else mis.dip_deg, noise=result.noise)
+    try:
+        g = fit_with_gyro(mag, accel, turns_rad, t_s, hard_iron=start.hard_iron, soft_iron=start.soft_iron,
+                          field_norm=start.field_norm, mag_to_accel=result.mag_to_accel,
+                          dip_deg=None if mis is None else mis.dip_deg, noise=result.noise)
+    except GyroMismatch as exc:
+        return replace(result, warnings=result.warnings + (f"gyro-aided fit not used: {exc}",),
+                       gyro={"method": "gyro", "used": False, "words": str(exc)})
     block = g.to_json()
     if not g.determined:
         return replace(result, warnings=result.warnings + (f"gyro-aided fit not used: {g.words()}",),

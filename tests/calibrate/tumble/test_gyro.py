@@ -212,3 +212,14 @@ def test_with_gyro_refuses_bad_arrays(partial):
     turns = np.full_like(sim.gyro, np.nan)
     with pytest.raises(ValueError, match="turns_rad holds non-finite values"):
         with_gyro(present, sim.mag, sim.accel, turns, sim.t_s)
+
+
+def test_a_gyro_that_disagrees_with_the_magnetometer_is_not_used(partial):
+    # the gyro of another motion: the turns do not explain the field's; the present fit stays, said in words
+    sim, _ = partial
+    present = calibrate_tumble(sim.mag, sim.accel)
+    other = simulate_partial_tumble("fast_rotation", seed=9, coverage=None, duration_s=30.0)
+    turns = gyro_turns(other.t_s, other.gyro, np.ones(len(other.t_s), bool))[:len(sim.t_s)]
+    res = with_gyro(present, sim.mag, sim.accel, turns, sim.t_s)
+    assert res.gyro["used"] is False and res.fit is present.fit
+    assert any(w.startswith("gyro-aided fit not used") for w in res.warnings)
