@@ -165,9 +165,9 @@ class GyroFit:
                 + ", ".join(f"{np.degrees(b):+.3f}" for b in self.gyro_bias_rad_s) + " deg/s)")
         if self.determined:
             return base + ": the soft iron and the rotation to the housing are determined"
-        if not self.success:
-            return base + f": the fit did not converge ({self.message})"
-        return base + ": still undetermined: " + "; ".join(self.undetermined)
+        if self.undetermined:  # said first: a fit that wandered along what the data leave free fails too
+            return base + ": still undetermined: " + "; ".join(self.undetermined)
+        return base + f": the fit did not converge ({self.message})"
 
 
 def turn_axes(turns_rad: np.ndarray) -> str:
@@ -407,13 +407,17 @@ def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_nor
         raise GyroMismatch(f"the magnetometer and the gyro disagree: the fit rejected {n - np.count_nonzero(inliers)} of "
                            f"{n} samples beyond {OUTLIER_SIGMAS:g} noise sigmas (a magnetometer late against the gyro, "
                            "a disturbed field, a gyro off scale)")
-    # windows emptied by the trimming keep their parameters unused: give each kept row its window anew
-    used = np.unique(window[inliers])
+    # a dropped sample's turn and time go to the next kept one; windows emptied by the trimming go
+    rows = np.flatnonzero(inliers)
+    kept_turns = np.diff(np.cumsum(turns, axis=0)[rows], axis=0, prepend=np.zeros((1, 3)))
+    kept_dt = np.diff(t_s[rows], prepend=t_s[rows[0]])
+    static_kept = np.zeros(n, dtype=bool)
+    static_kept[prob.static[keep_a]] = True
+    used = np.unique(window[rows])
     remap = np.full(n_w, -1)
     remap[used] = np.arange(len(used))
-    kept = _Problem(mag[inliers], turns[inliers], dt[inliers], remap[window[inliers]], a_unit[inliers],
-                    (static & np.isin(np.arange(n), prob.static[keep_a]))[inliers], q_start[used], prob.sigma_m,
-                    prob.sigma_a)
+    kept = _Problem(mag[rows], kept_turns, kept_dt, remap[window[rows]], a_unit[rows], static_kept[rows],
+                    q_start[used], prob.sigma_m, prob.sigma_a)
     x1 = np.concatenate([robust.x[:16], robust.x[16:].reshape(-1, 3)[used].ravel()])
     final = least_squares(kept.residual, x1, jac=kept.jacobian, method="trf", tr_solver="lsmr", x_scale="jac",
                           max_nfev=MAX_NFEV)
