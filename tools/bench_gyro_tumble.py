@@ -1,7 +1,7 @@
 """The gyro-aided tumble fit beside the present one, on simulated partial motions and on BROAD.
 
-Run: ``python tools/bench_gyro_tumble.py [--seeds 4] [--quick] [--no-broad]`` (seeded; about 4 min,
-``--quick`` one seed and no BROAD).
+Run: ``python tools/bench_gyro_tumble.py [--seeds 4] [--quick] [--no-broad] [--no-sim]`` (seeded;
+about 4 min on an idle machine, ``--quick`` one seed and no BROAD).
 
 Simulated: :func:`compass.sim.partial_tumble.simulate_partial_tumble` - hand-held motions of
 :mod:`compass.sim.motion` (``fast_rotation``, ``slow_rotation``: not the motions the method was
@@ -20,7 +20,8 @@ BROAD (``../shared/data/broad``, undisturbed trials 01-15): each trial's motion 
 for the magnetometer, the gyro integrated over every row) calibrates; every *other* undisturbed trial
 scores it (leave one out): its calibrated field levelled with the optical reference, the heading's
 spread about its median (deg rms; the offset between magnetic and optical north removed), beside
-the raw (the maker's calibration) and the present fit.
+the raw (the maker's calibration) and the present fit; a refused calibration (nothing written)
+scores as the raw.
 """
 
 from __future__ import annotations
@@ -146,7 +147,7 @@ def broad(every=4):
                 if other is t:
                     continue
                 m, att = scored[other.name]
-                if r is not None:
+                if r is not None and not r.refused:  # a refused calibration is not written: the raw stays
                     m = r.calibrated(m)
                     if r.mag_to_accel is not None:
                         m = m @ r.mag_to_accel.T
@@ -155,7 +156,7 @@ def broad(every=4):
             totals[name].append(cells[name])
         print(("{:<6}{:>8}{:>9}" + "{:>12.3f}" * 4 + "{:>10}").format(
             t.name[:2], len(mag), f"{100 * res.coverage.fraction:.0f}%", *cells.values(),
-            "yes" if falls_back(res) else "no"))
+            "refused" if res.refused else "yes" if falls_back(res) else "no"))
     print(("{:<23}" + "{:>12.3f}" * 4).format("mean", *(np.mean(v) for v in totals.values())))
 
 
@@ -171,10 +172,12 @@ def main(argv=None):
     p.add_argument("--seeds", type=int, default=4)
     p.add_argument("--quick", action="store_true")
     p.add_argument("--no-broad", action="store_true")
+    p.add_argument("--no-sim", action="store_true", help="BROAD only")
     args = p.parse_args(argv)
     warnings.simplefilter("ignore")
     started = time.perf_counter()
-    simulated(range(1 if args.quick else args.seeds))
+    if not args.no_sim:
+        simulated(range(1 if args.quick else args.seeds))
     if not (args.quick or args.no_broad):
         broad()
     print(f"\n({time.perf_counter() - started:.0f} s)")
