@@ -53,13 +53,15 @@ from compass.hard_iron import track_hard_iron
 from compass.io.broad import BroadTrial, enu_to_nwu, read_broad
 from compass.io.progress import working
 
-__all__ = ["TRAIN", "MIN_GAIN", "Residual", "StaticCorrection", "world_residual", "fit_static", "change_points",
-           "run_loop"]
+__all__ = ["TRAIN", "MIN_GAIN", "LATENCIES", "Residual", "StaticCorrection", "world_residual", "fit_static",
+           "change_points", "loop_units", "run_loop"]
 
 TRAIN = ("01", "02")
 """Trial number prefixes the static effects are fitted on (undisturbed; the rest is scored)."""
 MIN_GAIN = 0.05
 """Smallest relative drop of the training residual that keeps an effect."""
+LATENCIES = tuple(range(0, 13, 2))
+"""Magnetometer latencies tried, samples."""
 SMOOTH_S = 0.25
 _SUBSAMPLE = 10
 
@@ -210,8 +212,18 @@ def change_points(trial: BroadTrial, threshold_ut: float = 5.0, min_s: float = 5
             if (e - s) / trial.rate_hz >= min_s]
 
 
-def run_loop(trials: list[BroadTrial]) -> tuple[list[str], StaticCorrection, dict]:
-    """The loop: returns (table lines, final static correction, summary for the calibration file)."""
+def loop_units(n_trials: int) -> int:
+    """The units of work :func:`run_loop` counts on ``n_trials`` trials: the base, two static effects, each
+    latency, the gradient, each trial's row."""
+    return 4 + len(LATENCIES) + n_trials
+
+
+def run_loop(trials: list[BroadTrial], *, tally=None) -> tuple[list[str], StaticCorrection, dict]:
+    """The loop: returns (table lines, final static correction, summary for the calibration file).
+
+    ``tally`` (:class:`compass.io.progress.Tally`, optional) is advanced ``loop_units(len(trials))`` times.
+    """
+    advance = (lambda: None) if tally is None else tally.advance
     train = [t for t in trials if t.name[:2] in TRAIN]
     if not train:
         raise ValueError(f"no training trial (numbers {', '.join(TRAIN)}) among the trials")
@@ -220,16 +232,21 @@ def run_loop(trials: list[BroadTrial]) -> tuple[list[str], StaticCorrection, dic
         return float(np.mean([world_residual(t, corr.apply(t.mag_ut), gradient).total for t in train]))
 
     steps = [("base", BASE, train_total(BASE), "")]
+    advance()
     current, kept = BASE, []
     for effect in ("misalignment", "soft_iron", "mag_latency"):
         if effect == "mag_latency":
-            candidates = [fit_static(train, tuple(kept), latency=k) for k in range(0, 13, 2)]
-            scores = [train_total(c) for c in candidates]
+            candidates, scores = [], []
+            for k in LATENCIES:
+                candidates.append(fit_static(train, tuple(kept), latency=k))
+                scores.append(train_total(candidates[-1]))
+                advance()
             candidate, score = candidates[int(np.argmin(scores))], min(scores)
             note = f"k = {candidate.latency_samples} samples"
         else:
             candidate = fit_static(train, tuple(kept + [effect]), latency=current.latency_samples)
             score = train_total(candidate)
+            advance()
             note = ""
         gain = 1.0 - score / steps[-1][2]
         keep = gain > MIN_GAIN
@@ -240,6 +257,7 @@ def run_loop(trials: list[BroadTrial]) -> tuple[list[str], StaticCorrection, dic
             if effect != "mag_latency":
                 kept.append(effect)
     gradient = fit_gradient(train, current)
+    advance()
 
     lines = ["world-frame field residual per trial (movement phase, truth orientation, 0.25 s average): "
              "azimuth RMS deg / |B| std uT / dip std deg",
@@ -262,6 +280,7 @@ def run_loop(trials: list[BroadTrial]) -> tuple[list[str], StaticCorrection, dic
         lines.append(f"{mark}{t.name:43s} " + " ".join(f"{c.azimuth_rms_deg:5.2f}/{c.norm_std_ut:4.2f}/{c.dip_std_deg:4.2f}"
                                                         for c in cells) + f"  {truth} / {tracker}")
         rows[t.name] = cells
+        advance()
     for group in ("undisturbed", "disturbed"):
         members = [rows[t.name] for t in trials if t not in train and f"_{group}" in "_" + t.name.split("_", 1)[1]]
         if members:
@@ -305,12 +324,18 @@ def main(argv=None) -> int:
     parser.add_argument("data", nargs="?", default=str(Path(__file__).resolve().parents[2] / "shared" / "data" / "broad"))
     parser.add_argument("--out", help="write the fitted static correction as a tumble calibration file")
     args = parser.parse_args(argv)
-    trials = [read_broad(f) for f in sorted(Path(args.data).glob("*.mat"))]
-    if not trials:
+    files = sorted(Path(args.data).glob("*.mat"))
+    if not files:
         print(f"no BROAD trials in {args.data}")
         return 2
-    with working(f"the residual loop on {len(trials)} BROAD trials"):
-        lines, correction, summary = run_loop(trials)
+    # reading each trial, then the loop's units
+    units = len(files) + loop_units(len(files))
+    with working(f"the residual loop on {len(files)} BROAD trials", total=units) as tally:
+        trials = []
+        for f in files:
+            trials.append(read_broad(f))
+            tally.advance()
+        lines, correction, summary = run_loop(trials, tally=tally)
     print("\n".join(lines))
     if args.out:
         save(args.out, calibration_json(correction, trials, summary), force=True)

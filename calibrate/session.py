@@ -1,7 +1,8 @@
 """One recording to one calibration: the path ``compass calibrate`` and ``compass batch`` share.
 
 :func:`find_kind` picks the kind (the registry's sniffer, or a named kind), :func:`fit_recording`
-reads the recording into that kind's form and fits it, :func:`file_text` gives the calibration
+reads the recording into that kind's form and fits it (``compass calibrate`` takes its two steps
+itself, to let the table go before the fit), :func:`file_text` gives the calibration
 file's text, validated (``compass calibrate`` writes the same document through
 :func:`compass.calibration.save`).  They refuse with :class:`~calibrate.contract.CannotCalibrate`
 (in words, naming the file); the command line turns it into exit status 2, the batch into a

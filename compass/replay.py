@@ -14,17 +14,19 @@ from __future__ import annotations
 import io
 import sys
 import time
+from contextlib import nullcontext
+from pathlib import Path
 
 import numpy as np
 
 from . import limits
 from .io.lines import Header, Sample
+from .io.progress import Tally, working
 from .live import LiveSession
 
 __all__ = ["replay", "replay_file"]
 
 _CHUNK_ROWS = 4096  # samples handed to the session at once (the pipeline's vectorised parts run per chunk)
-_DEG_S_RATIO = 15.0  # gyro turn / accelerometer turn above this: a deg/s gyro read as rad/s (57)
 
 
 def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *, progress=None) -> LiveSession:
@@ -113,11 +115,11 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
 
     from .calibration import load
     from .errors import BadInput
-    from .filter import FilterConfig
+    from .filter import PLACE_EVENT, FilterConfig
     from .io.atomic import atomic_write_text, check_writable
     from .io.table import RecordingError, read_table
     from .io.streams import JUDGE_SAMPLES, field_scale_check
-    from .io.units import gyro_turn_ratio
+    from .io.units import gyro_turn_ratio, gyro_unit_verdict
     from .site import Site, reference_from_site
     from .viz import check_rerun_target
 
@@ -160,7 +162,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     if gyro is not None:
         ratio = gyro_turn_ratio(t_s, gyro, accel)
         named = read_options is not None and read_options.gyro_unit is not None
-        if ratio is not None and ratio > _DEG_S_RATIO and not named:
+        if gyro_unit_verdict(ratio) == "more" and not named:
             raise RecordingError(table.path, f"the gyro gx,gy,gz read in rad/s turns {ratio:.0f} times more than the "
                                              "accelerometer sees the housing tilt (a deg/s gyro gives 57): give "
                                              "--gyro-unit deg/s (or --gyro-unit rad/s if it really is)",
@@ -172,9 +174,15 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
                              row=table.header_row, column=model.channels[0])
     temp_c = table.column("temp_c") if table.has("temp_c") else None
 
+    moves = []  # the filter's moves of the reference to a new place
+    tally = Tally()  # the progress line's (below), once the replay starts
+
     def on_event(level, text):
+        if text.startswith(PLACE_EVENT):
+            moves.append(text)
         if not quiet:
-            print(f"[{level}] {text}", file=sys.stderr)
+            with tally.hidden():
+                print(f"[{level}] {text}", file=sys.stderr)
 
     buffer, sink = io.StringIO(), None
     if rerun is not None:
@@ -183,16 +191,10 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
         sink = RerunSink.for_model(rerun, model, config)
     session = LiveSession(model, config=config, out=buffer, sink=sink, on_event=on_event, reference=reference,
                           imu=cal.imu, sign_from_bench=cal.provenance.hemisphere_assumed, quaternion=True)
-    started, said = time.perf_counter(), [time.perf_counter()]
-
-    def progress(done, rows):  # on stderr, every 2 s of a long replay
-        now = time.perf_counter()
-        if not quiet and now - said[0] >= 2.0:
-            said[0] = now
-            print(f"replaying {recording}: {done} of {rows} rows ({now - started:.0f} s)", file=sys.stderr, flush=True)
-
+    line = nullcontext(tally) if quiet else working(f"replaying {Path(recording).name}", total=len(t_s))
     try:
-        replay(session, t_s, raw, accel, gyro, temp_c, progress=progress)
+        with line as tally:
+            replay(session, t_s, raw, accel, gyro, temp_c, progress=lambda done, rows: tally.advance(done - tally.done))
     except BaseException:
         if sink is not None:
             sink.discard()
@@ -204,5 +206,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     atomic_write_text(out, buffer.getvalue())
     print(f"wrote {out} ({session.samples} attitudes from {len(t_s)} rows, filter: "
           f"{'gyro' if gyro is not None else 'two-vector (no gx,gy,gz)'}; reference field: "
-          f"{session.reference.description})" + (f"\nwrote {rerun}" if rerun is not None and str(rerun) != "spawn" else ""))
+          f"{session.reference.description}"
+          + (f"; it moved to a new place's field {len(moves)} time{'s' if len(moves) > 1 else ''}: {moves[-1]}"
+             if moves else "") + ")" + (f"\nwrote {rerun}" if rerun is not None and str(rerun) != "spawn" else ""))
     return session

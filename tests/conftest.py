@@ -40,3 +40,28 @@ def assert_calibrate_refuses(tmp_path, capsys, text: str, expected: str, *extra:
     assert main(["calibrate", str(rec), "--out", str(tmp_path / "c.json"), *extra]) == 2
     err = capsys.readouterr().err
     assert expected in err and "bad.csv" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.fixture
+def progress_terminal(monkeypatch):
+    """``patch("module.working", ...)``: those progress lines draw at once (no waiting on the clock) into one
+    fake terminal, which ``patch`` returns (``compass.io.progress.working`` for commands importing it late)."""
+    import io
+
+    from compass.io.progress import working
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    stream = Terminal()
+
+    def at_once(what, **kw):
+        return working(what, **(kw | {"stream": stream, "after_s": 0.0, "every_s": 60.0}))
+
+    def patch(*targets):
+        for target in targets:
+            monkeypatch.setattr(target, at_once)
+        return stream
+
+    return patch

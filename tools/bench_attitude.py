@@ -24,7 +24,10 @@ start-up, read, solve, write).  Targets: heading ratio <= 1.1; patent heading er
 
 Usage::
 
-    python tools/bench_attitude.py [--seeds 3] [--n 100000] [--noise-ut 0.15] [--accel-noise-g 0.002]
+    python tools/bench_attitude.py [--seeds 3] [--n 100000] [--noise-ut 0.15] [--accel-noise-g 0.002] [--write-docs]
+
+``--write-docs`` writes the accuracy, tilt and temperature tables into docs/runtime.md
+(``tools/_doc_table.py``).
 """
 
 from __future__ import annotations
@@ -39,6 +42,10 @@ from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _doc_table import markdown_table, parse_args, publish  # noqa: E402
 
 from calibrate import calibrate_fourflip
 from compass.attitude import solve_attitude, two_vector_rotation
@@ -114,14 +121,16 @@ def disturbed_tilt(args, n=20_000):
     magnet = np.zeros((n, 3))
     magnet[: n // 4] = (8.0, -6.0, 10.0)
     iron_h = np.array([2.8, 6.6, 2.7])  # uT in H
-    cases = {"clean": (None, right, slice(None)), "magnet on 1/4 of rows": (magnet, right, slice(0, n // 4)),
+    cases = {"clean": (None, right, slice(None)),
+             "magnet (8, -6, 10) uT on 1/4 of rows": (magnet, right, slice(0, n // 4)),
              "reference dip 10 deg off": (None, known_reference(truth["dip_deg"] + 10.0, truth["field_ut"]), slice(None)),
-             "7 uT hard iron in H": ("iron", right, slice(None))}
+             "7 uT hard iron in H, not calibrated": ("iron", right, slice(None))}
     field_var = np.sum(model.component_variance(np.zeros(3)) * model.solver**2) / 3.0 / truth["field_ut"] ** 2
     up_var = args.accel_noise_g**2
     print(f"\nTilt when the field's dip is not the reference's (ml calibration, seed {args.seed}, {n} attitudes; "
           f"pitch / roll RMS over the affected rows, deg)")
-    print(f"{'case':<28}{'solve_attitude':>18}{'fixed weight':>18}{'gravity only':>18}{'disturbed':>11}")
+    print(f"{'case':<38}{'solve_attitude':>18}{'fixed weight':>18}{'gravity only':>18}{'disturbed':>11}")
+    table = []
     for label, (extra, reference, rows) in cases.items():
         rt = simulate_runtime(truth, n, seed=77, noise_ut=args.noise_ut, accel_noise_g=args.accel_noise_g,
                               extra_field_ut=None if isinstance(extra, str) else extra)
@@ -135,7 +144,9 @@ def disturbed_tilt(args, n=20_000):
             _, pitch, roll = heading_pitch_roll(two_vector_rotation(rt.accel, field, reference.dip_deg, f))
             results.append((pitch, roll))
         cells = [f"{rms(wrap(p - rt.pitch_deg)[rows]):.3f} / {rms(wrap(r - rt.roll_deg)[rows]):.3f}" for p, r in results]
-        print(f"{label:<28}" + "".join(f"{c:>18}" for c in cells) + f"{att.disturbed[rows].mean():>10.0%}")
+        print(f"{label:<38}" + "".join(f"{c:>18}" for c in cells) + f"{att.disturbed[rows].mean():>10.0%}")
+        table.append([label, *cells, f"{att.disturbed[rows].mean():.0%}"])
+    return markdown_table(["case", "solve_attitude", "fixed weight", "gravity only", "rows flagged disturbed"], table)
 
 
 def throughput(args, folder: Path):
@@ -169,6 +180,7 @@ def temperature(seeds=range(4), temps=(10.0, 45.0), n=300):
     print(f"\nTemperature compensation ({len(seeds)} four-flip sessions with a temperature effect, field read at "
           f"{', '.join(f'{t:g}' for t in temps)} degC, {n} random fields; uT RMS)")
     print(f"{'seed':<6}{'T degC':>8}{'T - ref':>9}{'compensated':>13}{'predicted':>11}{'ignored':>9}")
+    table = []
     for seed in seeds:
         session = simulate_fourflip(seed=seed, effects=("temperature",))
         d = calibrate_fourflip(session.recording(), diagnose=True).to_json()
@@ -185,6 +197,9 @@ def temperature(seeds=range(4), temps=(10.0, 45.0), n=300):
                                     for c in model.channels))
             errors = [rms(np.linalg.norm(model.field(v, t)[0] - b, axis=1)) for t in (temp, None)]
             print(f"{seed:<6}{temp:>8.1f}{dt:>9.1f}{errors[0]:>13.3f}{predicted:>11.3f}{errors[1]:>9.3f}")
+            table.append([seed, f"{temp:.1f}", f"{dt:.1f}", f"{errors[0]:.3f}", f"{predicted:.3f}", f"{errors[1]:.3f}"])
+    return markdown_table(["seed", "T degC", "T - reference", "compensated", "predicted by the sigmas", "ignored"],
+                          table)
 
 
 def main(argv=None) -> int:
@@ -198,7 +213,7 @@ def main(argv=None) -> int:
     p.add_argument("--no-throughput", action="store_true", help="skip the 10^6-sample timings")
     p.add_argument("--no-temperature", action="store_true", help="skip the temperature compensation section")
     p.add_argument("--no-disturbed", action="store_true", help="skip the disturbed-field tilt section")
-    args = p.parse_args(argv)
+    args = parse_args(p, argv)
 
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
@@ -213,6 +228,11 @@ def main(argv=None) -> int:
               + "   (RMS of the propagated 1-sigma, ml)")
         ratio = [rms(e) / v for e, v in zip(errors["ml"], predicted)]
         print(f"{'ml/predicted':<14}" + "".join(f"{v:>{w}.3f}" for v, w in zip(ratio, (13, 11, 10))))
+        accuracy_table = markdown_table(
+            ["solver", "heading RMS", "pitch RMS", "roll RMS"],
+            [[name] + [f"{rms(e):.4f}" for e in err] for name, err in errors.items()]
+            + [["predicted (RMS of ml's propagated 1-sigma)"] + [f"{v:.4f}" for v in predicted],
+               ["ml / predicted"] + [f"{v:.3f}" for v in ratio]])
         patent_factor = rms(errors["patent"][0]) / rms(errors["ml"][0])
         rows = [("heading RMS / predicted <= 1.1", f"{ratio[0]:.3f}", ratio[0] <= 1.1),
                 ("patent / ml heading RMS >= 10", f"{patent_factor:.1f}", patent_factor >= 10)]
@@ -220,14 +240,23 @@ def main(argv=None) -> int:
             wall, cpu, csv_s = throughput(args, folder)
             rows += [("samples/s in-process >= 1e6", f"{1e6 / wall:.3g} (wall), {1e6 / cpu:.3g} (CPU)", 1e6 / wall >= 1e6),
                      ("10^6-row CSV in to CSV out < 10 s", f"{csv_s:.2f} s", csv_s < 10)]
-        if not args.no_disturbed:
-            disturbed_tilt(args)
-        if not args.no_temperature:
-            temperature()
+        tilt = None if args.no_disturbed else disturbed_tilt(args)
+        temperatures = None if args.no_temperature else temperature()
         print()
         print(f"{'target':<36}{'measured':>32}  met")
         for label, value, ok in rows:
             print(f"{label:<36}{value:>32}  {'yes' if ok else 'NO'}")
+    publish(args, "docs/runtime.md", "bench_attitude.accuracy", accuracy_table,
+            caption=f"{args.seeds} calibrations x {args.n} samples (the peer {args.peer_n}), pitch and roll within "
+                    f"+-80 deg, noise {args.noise_ut} uT, accelerometer {args.accel_noise_g} g; deg")
+    if tilt is not None:
+        publish(args, "docs/runtime.md", "bench_attitude.tilt", tilt,
+                caption=f"ml calibration of seed {args.seed}, 20000 attitudes; pitch / roll RMS over the affected "
+                        "rows, deg")
+    if temperatures is not None:
+        publish(args, "docs/runtime.md", "bench_attitude.temperature", temperatures,
+                caption="four-flip sessions with a temperature effect, 300 random fields of the session's |B| "
+                        "read at 10 and 45 degC; field error, uT RMS")
     return 0
 
 

@@ -24,7 +24,9 @@ the magnetic diagnosis fitted, beside the same accelerometer fit that ignores th
 
 Usage::
 
-    python tools/bench_bench_accel.py [--n 20] [--seed 0] [--misalign-deg 1] [--tilt-deg 0.3]
+    python tools/bench_bench_accel.py [--n 20] [--seed 0] [--misalign-deg 1] [--tilt-deg 0.3] [--write-docs]
+
+``--write-docs`` writes the three blocks as one table into docs/calibration.md (``tools/_doc_table.py``).
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from __future__ import annotations
 import argparse
 import re
 import sys
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -42,6 +45,13 @@ from compass.attitude import solve_attitude
 from compass.calibration import from_dict
 from compass.sim.fourflip import SimAccelerometer, simulate_fourflip
 from compass.sim.runtime import simulate_runtime
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _doc_table import markdown_table, parse_args, publish  # noqa: E402
+
+RUNTIME = (("before", "before (mag_to_accel ignored)"), ("rotated", "rotated into H, offsets kept"),
+           ("after", "after (offsets, scales undone)"), ("floor", "floor (aligned accelerometer)"))
 
 
 def _truth(session, name):
@@ -121,8 +131,7 @@ def report(r, title) -> None:
     print(f"    referred to gravity (tilt)    {_rms(r['dip_g_err']):12.4f} {np.mean(r['dip_g_sigma']):12.4f} "
           f"{_rms(r['dip_g_err'] / r['dip_g_sigma']):10.2f}")
     print("  runtime pitch/roll error, deg     RMS       max |err|")
-    for name, label in (("before", "before (mag_to_accel ignored)"), ("rotated", "rotated into H, offsets kept"),
-                        ("after", "after (offsets, scales undone)"), ("floor", "floor (aligned accelerometer)")):
+    for name, label in RUNTIME:
         e = r[name]
         print(f"    {label:30s} {_rms(e):8.4f} {np.max(np.abs(e)):10.4f}")
     counts = {}
@@ -131,6 +140,33 @@ def report(r, title) -> None:
         counts[key] = counts.get(key, 0) + 1
     for key, k in counts.items():
         print(f"  warned in {k} of {len(r['rot_err'])} sessions: {key} ...")
+
+
+def summary(r) -> dict[str, str]:
+    """One block's figures as table cells: RMS error (err/sigma) and the runtime RMS, degrees."""
+    def pulled(err, sig) -> str:
+        return f"{_rms(err):.4f} ({_rms(np.asarray(err) / np.asarray(sig)):.2f})"
+
+    def per_axis(err, sig) -> str:
+        return " / ".join(f"{_rms(err[:, j]):.4f}" for j in range(3)) + " (" + \
+            " / ".join(f"{_rms(err[:, j] / sig[:, j]):.2f}" for j in range(3)) + ")"
+
+    cells = {"mag_to_accel x / y / z": per_axis(r["rot_err"], r["rot_sigma"])}
+    if len(r["blind_err"]):
+        cells["mag_to_accel, flip errors ignored (baseline)"] = per_axis(r["blind_err"], r["blind_sigma"])
+    if len(r["tilt_err"]):
+        cells["turntable tilt"] = pulled(r["tilt_err"], r["tilt_sigma"])
+    cells["dip, magnetic fit (turntable axis)"] = pulled(r["dip_axis_err"], r["dip_axis_sigma"])
+    cells["dip referred to gravity"] = pulled(r["dip_g_err"], r["dip_g_sigma"])
+    cells |= {f"runtime pitch/roll RMS, {label}": f"{_rms(r[name]):.4f}" for name, label in RUNTIME}
+    return cells
+
+
+def doc_table(blocks: dict[str, dict[str, str]]) -> str:
+    """Figures down (in the order of the block that has the most), blocks across; a figure a block lacks is empty."""
+    figures = list(dict.fromkeys(f for cells in sorted(blocks.values(), key=len, reverse=True) for f in cells))
+    return markdown_table(["figure, deg: RMS error (err/sigma)", *blocks],
+                          [[f, *(cells.get(f, "") for cells in blocks.values())] for f in figures])
 
 
 def main(argv=None) -> int:
@@ -143,21 +179,30 @@ def main(argv=None) -> int:
     p.add_argument("--offset-g", type=float, default=0.005)
     p.add_argument("--scale-error", type=float, default=0.003)
     p.add_argument("--samples", type=int, default=400, help="runtime attitudes per session")
-    a = p.parse_args(argv)
+    a = parse_args(p, argv)
     print(f"bench_bench_accel: {a.n} sessions (seeds {a.seed}..{a.seed + a.n - 1}), accelerometer misaligned "
           f"{a.misalign_deg:g} deg RMS per axis, noise {a.noise_g:g} g, turntable tilted {a.tilt_deg:g} deg, "
           f"{a.samples} runtime attitudes within +-40 deg each\n")
     clean = SimAccelerometer(misalign_deg=a.misalign_deg, noise_g=a.noise_g)
-    report(run(a.n, a.seed, clean, a.tilt_deg, a.samples), "A. misaligned accelerometer, no offsets or scale errors")
+    blocks = {}
+    r = run(a.n, a.seed, clean, a.tilt_deg, a.samples)
+    report(r, "A. misaligned accelerometer, no offsets or scale errors")
+    blocks["A. misaligned"] = summary(r)
     print()
     dirty = SimAccelerometer(misalign_deg=a.misalign_deg, noise_g=a.noise_g, offset_g=a.offset_g,
                              scale_error=a.scale_error)
-    report(run(a.n, a.seed, dirty, a.tilt_deg, a.samples),
-           f"B. plus offsets {a.offset_g:g} g and scale errors {a.scale_error:g} RMS per axis (measured on the "
-           "bench, undone at runtime)")
+    r = run(a.n, a.seed, dirty, a.tilt_deg, a.samples)
+    report(r, f"B. plus offsets {a.offset_g:g} g and scale errors {a.scale_error:g} RMS per axis (measured on the "
+              "bench, undone at runtime)")
+    blocks[f"B. plus offsets {a.offset_g:g} g, scales {100 * a.scale_error:g} %"] = summary(r)
     print()
-    report(run(a.n, a.seed, clean, a.tilt_deg, a.samples, effects=("flip_error",)),
-           "C. as A, cube faces off square (flip_error 0.45-1 deg, fitted by the magnetic diagnosis)")
+    r = run(a.n, a.seed, clean, a.tilt_deg, a.samples, effects=("flip_error",))
+    report(r, "C. as A, cube faces off square (flip_error 0.45-1 deg, fitted by the magnetic diagnosis)")
+    blocks["C. as A, cube faces off square 0.45-1 deg"] = summary(r)
+    publish(a, "docs/calibration.md", "bench_bench_accel", doc_table(blocks),
+            caption=f"{a.n} sessions (seeds {a.seed}-{a.seed + a.n - 1}), accelerometer misaligned "
+                    f"{a.misalign_deg:g} deg RMS per axis, noise {a.noise_g:g} g, turntable tilted {a.tilt_deg:g} deg, "
+                    f"{a.samples} runtime attitudes within +-40 deg each")
     return 0
 
 

@@ -46,7 +46,9 @@ measured ratio.
 
 Usage::
 
-    python tools/bench_fourflip.py [--n 200] [--seed 0] [--noise-ut 0.15] [--blas-threads N]
+    python tools/bench_fourflip.py [--n 200] [--seed 0] [--noise-ut 0.15] [--blas-threads N] [--write-docs]
+
+``--write-docs`` writes the table into docs/calibration.md (``tools/_doc_table.py``).
 """
 
 from __future__ import annotations
@@ -57,6 +59,10 @@ import sys
 import time
 
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from _doc_table import markdown_table, parse_args, publish  # noqa: E402
 
 from calibrate import calibrate_fourflip
 from calibrate.fourflip._mlfit import cramer_rao as cramer_rao_bound
@@ -168,8 +174,8 @@ def fmt_ratio(pair) -> str:
     return f"{r:.3f}+-{se:.3f}" if r < 10 else f"{r:.0f}+-{se:.0f}"
 
 
-def print_report(res: dict, n: int, seed: int, noise_ut: float) -> list[str]:
-    """Print the table; return the list of missed targets."""
+def print_report(res: dict, n: int, seed: int, noise_ut: float) -> tuple[list[str], str]:
+    """Print the table; return the list of missed targets and the table in markdown."""
     err, axis_err, dip_err = res["err"], res["axis_err"], res["dip_err"]
     print(f"Four-flip Monte Carlo: {n} simulated 3-channel recordings (seeds {seed}..{seed + n - 1}), noise "
           f"{noise_ut:g} uT, 1 deg steps, 4 flips x 360 samples, |B| 50 uT, dip 40-70 deg, no effects")
@@ -184,6 +190,7 @@ def print_report(res: dict, n: int, seed: int, noise_ut: float) -> list[str]:
     print(header)
     print(sub)
     rows = {}
+    table = []
     for k, kind in enumerate(KINDS):
         ml = err["ml"][:, k]
         rows[kind] = dict(
@@ -196,12 +203,17 @@ def print_report(res: dict, n: int, seed: int, noise_ut: float) -> list[str]:
               f"{fmt(rms(ml)):>10}{fmt(rms(res['crb'][:, k])):>10}"
               f"{fmt_ratio(rows[kind]['crb']):>14}{fmt_ratio(rows[kind]['sigma']):>14}"
               f"{fmt_ratio(rows[kind]['patent']):>12}")
+        table.append([kind, fmt(rms(err['patent'][:, k])), fmt(rms(axis_err['patent'][:, k])),
+                      fmt(rms(err['harmonic'][:, k])), fmt(rms(axis_err['harmonic'][:, k])), fmt(rms(ml)),
+                      fmt(rms(res['crb'][:, k])), *(fmt_ratio(rows[kind][r]) for r in ("crb", "sigma", "patent"))])
     dip = dict(crb=normalised_ratio(dip_err["ml"], res["crb_dip"]),
                sigma=normalised_ratio(dip_err["ml"], res["dip_sigma"]),
                patent=rms_ratio(dip_err["patent"], dip_err["ml"]))
     print(f"{'dip':6}{fmt(rms(dip_err['patent'])):>9}{'':>9}{fmt(rms(dip_err['harmonic'])):>10}{'':>10}"
           f"{fmt(rms(dip_err['ml'])):>10}{fmt(rms(res['crb_dip'])):>10}"
           f"{fmt_ratio(dip['crb']):>14}{fmt_ratio(dip['sigma']):>14}{fmt_ratio(dip['patent']):>12}")
+    table.append(["dip", fmt(rms(dip_err['patent'])), "", fmt(rms(dip_err['harmonic'])), "", fmt(rms(dip_err['ml'])),
+                  fmt(rms(res['crb_dip'])), *(fmt_ratio(dip[r]) for r in ("crb", "sigma", "patent"))])
     reversed_text = ", ".join(f"{m} {int(np.sum(err[m] > 90.0))}/{int(np.sum(np.isfinite(err[m])))}" for m in METHODS)
     print(f"channels reversed (signed error over 90 deg): {reversed_text}")
     print()
@@ -276,7 +288,9 @@ def print_report(res: dict, n: int, seed: int, noise_ut: float) -> list[str]:
     print("         (flips about X never turn a channel's X component vertical: for Y and Z channels only the")
     print("         horizontal field K|B|cos(dip) measures it; the X channel also gets the vertical K|B|sin(dip))")
     check(med["ml"] < 1e3 * TARGET_TIME_S, f"ml calibration under {TARGET_TIME_S} s: median {med['ml']:.0f} ms")
-    return missed
+    header = ["", "patent, signed", "patent, axis", "harmonic, signed", "harmonic, axis", "ml", "CRB", "ml/CRB",
+              "ml/sigma", "patent/ml (signed)"]
+    return missed, markdown_table(header, table) + f"\n\nChannels reversed (signed error over 90 deg): {reversed_text}."
 
 
 _BLAS_ENV = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
@@ -298,7 +312,7 @@ def main(argv=None) -> int:
                         help="run with this many BLAS threads (sets OPENBLAS_NUM_THREADS, OMP_NUM_THREADS, "
                              "MKL_NUM_THREADS and restarts; default: the environment's setting)")
     argv = sys.argv[1:] if argv is None else list(argv)
-    args = parser.parse_args(argv)
+    args = parse_args(parser, argv)
     if args.blas_threads is not None:
         if args.blas_threads < 1:
             parser.error(f"--blas-threads must be at least 1, got {args.blas_threads}")
@@ -312,7 +326,12 @@ def main(argv=None) -> int:
         parser.error(f"--noise-ut must be positive, got {args.noise_ut}")
     print(f"bench_fourflip: {args.n} recordings, seed {args.seed}, noise {args.noise_ut} uT", file=sys.stderr)
     res = run(args.n, args.seed, args.noise_ut)
-    print_report(res, args.n, args.seed, args.noise_ut)
+    _, table = print_report(res, args.n, args.seed, args.noise_ut)
+    publish(args, "docs/calibration.md", "bench_fourflip", table, echo=False,
+            caption=f"{args.n} recordings (seeds {args.seed}-{args.seed + args.n - 1}), noise {args.noise_ut:g} uT, "
+                    "1 deg steps, |B| 50 uT, dip 40-70 deg; RMS error over the recordings, deg; ratios +- their "
+                    "Monte Carlo error ('signed': the angle to the true direction, a reversed channel counting "
+                    "180 deg; 'axis': to the nearer of +a and -a)")
     return 0
 
 

@@ -8,18 +8,25 @@ It prints what the loop named, whether it called the residual unexplained, the r
 and after over the noise floor, and the direction error over the reported sigma (1 when the
 sigma is honest), against the directions the simulator used.
 
-Run: ``python tools/bench_independent_sim.py [--n 5]``.
+Run: ``python tools/bench_independent_sim.py [--n 5] [--write-docs]`` (``--write-docs``: the table into
+docs/calibration.md, ``tools/_doc_table.py``).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from collections import Counter
+from pathlib import Path
 
 import numpy as np
 
 from calibrate import calibrate_fourflip
 from compass.io.fourflip import FourFlipRecording
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _doc_table import markdown_table, parse_args, publish  # noqa: E402
 
 NOISE_UT = 0.15
 FIELD_UT = 50.0
@@ -81,10 +88,11 @@ def session(seed: int, case: str, size: float) -> tuple[FourFlipRecording, np.nd
     return rec, directions
 
 
-def main() -> None:
+def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=5, help="recordings per case (default 5)")
-    args = parser.parse_args()
+    args = parse_args(parser, argv)
+    table = []
     print(f"Independent simulator: {args.n} recordings per case, 4 flips x 180 samples, noise {NOISE_UT} uT\n")
     print(f"{'case':<24}{'named effects':<28}{'unexplained':>12}{'rms/floor before -> after':>28}{'err/sigma':>11}")
     for case, size in CASES:
@@ -102,11 +110,18 @@ def main() -> None:
         names = "; ".join(f"{k} x{v}" for k, v in named.items())
         print(f"{case:<24}{names:<28}{unexplained:>9}/{args.n}{np.mean(before):>16.2f} -> {np.mean(after):<9.2f}"
               f"{np.sqrt(np.mean(np.square(ratios))):>11.2f}")
+        table.append([case, names, f"{unexplained}/{args.n}", f"{np.mean(before):.2f} -> {np.mean(after):.2f}",
+                      f"{np.sqrt(np.mean(np.square(ratios))):.2f}"])
     print("\nerr/sigma: RMS of each channel's direction error over its reported sigma (against the effective"
           "\ndirection for cross-talk: the leak is part of what the channel senses). Per-flip yaw is not"
           "\nidentifiable as such (a rotation of the housing frame about Z absorbs one combination): it is"
           "\nreported unexplained, with no claim. A lag common to all flips is a shift of the field azimuth.")
+    publish(args, "docs/calibration.md", "bench_independent_sim",
+            markdown_table(["case", "effects named", "unexplained", "residual / floor, before -> after", "err/sigma"],
+                           table),
+            caption=f"{args.n} recordings per case, 4 flips x 180 samples, noise {NOISE_UT} uT")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

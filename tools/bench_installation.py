@@ -27,13 +27,18 @@ yaw of the housing); fit timings.
 
 Usage::
 
-    python tools/bench_installation.py [--sensors 24] [--n 4000] [--quick] [--only site|installation]
+    python tools/bench_installation.py [--sensors 24] [--n 4000] [--quick] [--only site|installation] [--write-docs]
+
+``--write-docs`` writes the site, independent-simulator, installation and deviation-card tables into
+docs/runtime.md (``tools/_doc_table.py``).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -48,6 +53,10 @@ from compass.sim.runtime import simulate_runtime
 from compass.site import Site, known_reference, reference_from_site, upside_down
 from compass.calibration import model_from_dict
 from compass.calibration import model_to_dict
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _doc_table import markdown_table, parse_args, publish  # noqa: E402
 
 
 def wrap(d):
@@ -78,7 +87,7 @@ def triad_heading(model: SensorModel, raw, accel, dip_deg: float) -> np.ndarray:
     return heading_pitch_roll(two_vector_rotation(accel, field, dip_deg, 0.0))[0]
 
 
-def site_section(sensors: int, n: int) -> None:
+def site_section(sensors: int, n: int) -> str:
     print(f"\n== Site: the bench sensor used at a random site, nothing said ({sensors} sensors, {n} random attitudes "
           f"each, pitch/roll +-80 deg) ==")
     print(f"{'seed':>4} {'bench':>12} {'site dip/|B|':>14} {'bench ref':>10} {'nothing':>8} {'--site':>8} "
@@ -111,6 +120,7 @@ def site_section(sensors: int, n: int) -> None:
               f"{row[0]:>10.3f} {row[1]:>8.3f} {row[2]:>8.3f} {row[3]:>10.3f} {row[1] / row[3]:>6.2f} "
               f"{100 * row[4]:>9.1f}% {100 * row[5]:>8.2f}%  {'yes' if effects else ''}")
     a = np.array(rows, dtype=float)
+    table = []
     for name, keep in (("clean benches", a[:, 6] == 0), ("platform-field benches", a[:, 6] == 1)):
         if not keep.any():
             continue
@@ -122,11 +132,16 @@ def site_section(sensors: int, n: int) -> None:
               f"other sign), nothing said {rms(b[:, 1]):.3f}, --site {rms(b[:, 2]):.3f}, true TRIAD "
               f"{rms(b[:, 3]):.3f} deg; target (<= 1.3x true + 0.02) met {met}/{len(b)}; disturbed ours max "
               f"{100 * b[:, 5].max():.2f} %")
+        table.append([f"{len(b)} {name}", f"{rms(b[:, 1]):.3f}", f"{rms(b[:, 2]):.3f}", f"{rms(b[:, 3]):.3f}",
+                      f"{met}/{len(b)}", f"{100 * b[:, 5].max():.2f} %", ref, f"{np.sum(~solved)}/{len(b)}"])
     print(f"timing: calibration {np.median(t_cal):.2f} s median per bench; solve with the recording's reference "
           f"{1e6 * np.median(t_solve) / n:.2f} us/row")
+    return markdown_table(["benches", "nothing said", "--site", "true TRIAD", "target met", "rows disturbed, max",
+                           "bench's field for the world's (rows disturbed)", "refused: site dip of the other sign"],
+                          table)
 
 
-def independent_section(sensors: int, n: int) -> None:
+def independent_section(sensors: int, n: int) -> str:
     """The site part on benches from tools/bench_independent_sim.py (its own rotation code and effects)."""
     import sys
     from pathlib import Path
@@ -137,6 +152,7 @@ def independent_section(sensors: int, n: int) -> None:
     print(f"\n== Site, benches from the independent simulator (tools/bench_independent_sim.py), used with dip 12 deg "
           f"lower and |B| 10 % lower, nothing said ({sensors} seeds x 3 cases, {n} rows) ==")
     print(f"{'case':<16} {'nothing said':>12} {'true TRIAD':>10} {'target met':>10} {'disturbed max':>13}")
+    table = []
     for case, size in (("clean", 0.0), ("odd cubic 1 %", 0.01), ("cross-talk 2 %", 0.02)):
         ours, best, dist = [], [], []
         for seed in range(sensors):
@@ -154,12 +170,16 @@ def independent_section(sensors: int, n: int) -> None:
         ours, best = np.array(ours), np.array(best)
         print(f"{case:<16} {rms(ours):>12.3f} {rms(best):>10.3f} {int(np.sum(ours <= 1.3 * best + 0.02)):>7}/{sensors}"
               f" {100 * max(dist):>12.2f}%")
+        table.append([case, f"{rms(ours):.3f}", f"{rms(best):.3f}", f"{int(np.sum(ours <= 1.3 * best + 0.02))}/{sensors}",
+                      f"{100 * max(dist):.2f} %"])
+    return markdown_table(["independent bench", "nothing said", "true TRIAD", "target met", "rows disturbed, max"],
+                          table)
 
 
 INSTALL_CASES = (("tumble", "tumble", 0.0), ("level swing", "swing", 0.0), ("swing +-10", "swing", 10.0))
 
 
-def installation_section(sensors: int, n: int) -> None:
+def installation_section(sensors: int, n: int) -> tuple[str, str]:
     from calibrate.installation import InstallationCalibrator
     from compass.calibration import from_dict
     from compass.io.installation import InstallationRecording
@@ -213,18 +233,31 @@ def installation_section(sensors: int, n: int) -> None:
     a = np.array(rows)
     print(f"{'RMS':>4} {rms(a[:, 0]):>10.3f} " + " ".join(f"{rms(a[:, k]):>11.3f}" for k in range(1, 4))
           + f" {rms(a[:, 4]):>9.3f}")
+    table = [["bench calibration alone", f"{rms(a[:, 0]):.3f}", f"{int(np.sum(a[:, 0] <= 1.3 * a[:, 4] + 0.02))}/{len(a)}",
+              "", ""]]
     for k, name in enumerate(names, start=1):
         met = int(np.sum(a[:, k] <= 1.3 * a[:, 4] + 0.02))
+        wall_s, cpu_s = np.median(timings[name], axis=0)
+        table.append([f"after a {name}" if name != "swing +-10" else "after a swing within +-10 deg",
+                      f"{rms(a[:, k]):.3f}", f"{met}/{len(a)}", f"{wall_s:.2f} ({cpu_s:.2f})",
+                      f"{np.median(left_out[name]):.0f} / {np.max(left_out[name])}"])
         print(f"  {name:>12}: target (<= 1.3x true installation + 0.02 deg) met {met}/{len(a)}; fit "
               f"{np.median(timings[name], axis=0)[0]:.2f} s median ({np.median(timings[name], axis=0)[1]:.3f} s of "
               f"CPU), {np.max(timings[name], axis=0)[0]:.2f} s max; rows left out beyond the "
               f"bench's range {np.median(left_out[name]):.0f} median, {np.max(left_out[name])} max of 2000")
+    table.append(["true installation, same rows", f"{rms(a[:, 4]):.3f}", "", "", ""])
     met = int(np.sum(a[:, 5] <= 1.3 * a[:, 6] + 0.02))
+    table.append(["after a level swing, used within +-5 deg", f"{rms(a[:, 5]):.3f} (true {rms(a[:, 6]):.3f})",
+                  f"{met}/{len(a)}", "", ""])
     print(f"  level swing used within +-5 deg: {rms(a[:, 5]):.3f} vs true {rms(a[:, 6]):.3f} deg RMS; target met "
           f"{met}/{len(a)} (the heeling error of the unknown vertical iron grows with the tilt)")
     z = np.abs(np.array(z_level))
     print(f"  level swing: horizontal hard iron within 1 sigma {int(np.sum(z <= 1))}/{z.size}, within 2 sigma "
           f"{int(np.sum(z <= 2))}/{z.size}, within 3 sigma {int(np.sum(z <= 3))}/{z.size}")
+    installed = markdown_table(["model", "heading RMS, deg", "target met", "fit, s median (CPU)",
+                                "rows beyond the bench's range, median / max of 2000"], table) + (
+        f"\n\nThe level swing's horizontal hard iron: within 1 sigma {int(np.sum(z <= 1))}/{z.size}, within 2 "
+        f"{int(np.sum(z <= 2))}/{z.size}, within 3 {int(np.sum(z <= 3))}/{z.size}.")
     seed, card, undetermined = cards
     print(f"\nDeviation card, sensor {seed}, level swing, bench model alone: {card.line()}")
     print("  the level swing could not determine (held at the prior, named in the file):")
@@ -241,24 +274,42 @@ def installation_section(sensors: int, n: int) -> None:
     print(f"Deviation card, same sensor, swing +-10 deg with heading_ref_deg (0.3 deg noise) and a 3 deg yaw:\n"
           f"  before: {result.card_before.line()}\n  after:  {result.card_after.line()}\n"
           f"  yaw found {result.yaw_deg:+.3f} +- {result.yaw_sigma_deg:.3f} deg (true +3.000)")
+    card_table = markdown_table(["sensor " + str(seed), "deviation card"],
+                                [["level swing, bench model alone", card.line()],
+                                 ["swing +-10 deg with heading_ref_deg and a 3 deg yaw: before", result.card_before.line()],
+                                 ["after", result.card_after.line()],
+                                 ["yaw found (true +3.000 deg)", f"{result.yaw_deg:+.3f} +- {result.yaw_sigma_deg:.3f} deg"]])
+    return installed, card_table
 
 
-def main() -> None:
+def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sensors", type=int, default=24, help="bench sensors (default 24)")
     parser.add_argument("--n", type=int, default=4000, help="runtime rows per sensor (default 4000)")
     parser.add_argument("--quick", action="store_true", help="6 sensors, 1000 rows")
     parser.add_argument("--only", choices=("site", "installation"), help="run one section")
-    args = parser.parse_args()
+    args = parse_args(parser, argv)
     sensors, n = (6, 1000) if args.quick else (args.sensors, args.n)
     start = time.perf_counter()
+    tables = {}
     if args.only in (None, "site"):
-        site_section(sensors, n)
-        independent_section(min(sensors, 8), n)
+        tables["site"] = (site_section(sensors, n), f"{sensors} bench sensors (every third with a field fixed to "
+                          f"the turntable) used at random WMM sites, {n} attitudes each, pitch/roll +-80 deg; "
+                          "heading RMS, deg; target: at most 1.3x the true TRIAD + 0.02 deg")
+        tables["independent"] = (independent_section(min(sensors, 8), n),
+                                 f"{min(sensors, 8)} benches per case from tools/bench_independent_sim.py, used with "
+                                 f"dip 12 deg lower and |B| 10 % lower, nothing said, {n} rows; heading RMS, deg")
     if args.only in (None, "installation"):
-        installation_section(sensors, n)
+        installed, card = installation_section(sensors, n)
+        tables["installed"] = (installed, f"{sensors} bench sensors in a product (hard iron ~6 uT, soft iron a few "
+                               f"%), calibrated at the bench's site, used at a random site, {n} rows, pitch/roll "
+                               "+-30 deg; target: at most 1.3x the true installation + 0.02 deg")
+        tables["card"] = (card, "deviation coefficients A-E against heading, and the residual after them")
     print(f"\ntotal {time.perf_counter() - start:.0f} s")
+    for part, (table, caption) in tables.items():
+        publish(args, "docs/runtime.md", f"bench_installation.{part}", table, caption=caption, echo=False)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -12,18 +12,24 @@ A viewer loads a recording chunk by chunk; thousands of small chunks took it min
 ``rerun.chunk.RrdReader`` takes to read every chunk (a proxy for loading; the machine's load shows
 in it, the chunk count does not depend on it).
 
-Usage: ``python tools/bench_live_rrd.py [--seconds 20] [--seed 3]``
+Usage: ``python tools/bench_live_rrd.py [--seconds 20] [--seed 3] [--write-docs]`` (``--write-docs``: the
+table into docs/runtime.md, ``tools/_doc_table.py``).
 """
 
 from __future__ import annotations
 
 import argparse
 import io
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _doc_table import markdown_table, parse_args, publish  # noqa: E402
 
 
 def record(folder: Path, seconds: float, seed: int, flush_s: float | None) -> Path:
@@ -60,20 +66,27 @@ def measure(path: Path) -> tuple[int, int, int, float]:
     return len(chunks), path.stat().st_size, rows, read_s
 
 
-def main() -> None:
+def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--seed", type=int, default=3)
-    args = parser.parse_args()
+    args = parse_args(parser, argv)
     from compass.viz.live import FILE_FLUSH_S
 
     with tempfile.TemporaryDirectory() as tmp:
         print(f"live session of {args.seconds:g} s at 100 Hz (seed {args.seed}) to a file")
         print(f"{'batches every':<28} {'chunks':>7} {'MB':>7} {'samples':>8} {'read s':>7}")
+        table = []
         for label, flush in (("0.05 s (baseline)", 0.05), (f"{FILE_FLUSH_S:g} s (file default, now)", None)):
             chunks, size, rows, read_s = measure(record(Path(tmp), args.seconds, args.seed, flush))
             print(f"{label:<28} {chunks:>7} {size / 1e6:>7.2f} {rows:>8} {read_s:>7.2f}")
+            table.append([label, f"{chunks:,}", f"{size / 1e6:.2f}", f"{rows:,}", f"{read_s:.2f}"])
+    publish(args, "docs/runtime.md", "bench_live_rrd",
+            markdown_table(["batches every (sample time)", "chunks", "MB", "samples in the file", "read, s"], table),
+            caption=f"a live session of {args.seconds:g} s at 100 Hz (seed {args.seed}) to a file; the read time "
+                    "varies with the machine's load, the chunk count does not", echo=False)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

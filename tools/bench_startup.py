@@ -15,7 +15,9 @@ commands run on that git revision too (``git archive`` into a temporary folder, 
 
 Targets (issue 15.7): ``compass --help`` under 0.3 s; under 0.5 s to the first line of any command.
 
-Usage: ``python tools/bench_startup.py [--quick] [--baseline REF|none]``
+Usage: ``python tools/bench_startup.py [--quick] [--baseline REF|none] [--write-docs]``
+
+``--write-docs`` writes the start-up table into docs/benchmarks.md (``tools/_doc_table.py``).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import time
 from pathlib import Path
 
 from _baseline import export_tree, tree_env
+from _doc_table import markdown_table, parse_args, publish
 
 TIMEOUT_S = 120.0
 
@@ -159,11 +162,11 @@ def import_costs(tree: Path | None, work: Path) -> list[tuple[str, float]]:
     return rows
 
 
-def main() -> int:
+def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="3 repeats instead of 7")
     parser.add_argument("--baseline", default="main", help="git revision to compare with ('none' to skip)")
-    args = parser.parse_args()
+    args = parse_args(parser, argv)
     repeats = 3 if args.quick else 7
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -176,15 +179,20 @@ def main() -> int:
     labels = [label for label, _ in trees]
     print(f"\nstart-up, seconds, median / min of {repeats} (targets: --help < 0.3, first line < 0.5)")
     print(f"{'measurement':<44}" + "".join(f"{label:>24}" for label in labels))
+    table = []
     for key in results[labels[-1]]:
         cells = []
         for label in labels:
             values = results[label].get(key)
             cells.append("-" if not values else "%.3f / %.3f" % median_min(values))
         print(f"{key:<44}" + "".join(f"{c:>24}" for c in cells))
+        table.append([key, *cells])
     print("\nimport cost (one process each, seconds, includes ~0.03 s of interpreter start)")
     for i, (name, _) in enumerate(imports[labels[-1]]):
         print(f"{name:<44}" + "".join(f"{imports[label][i][1]:>24.3f}" for label in labels))
+    publish(args, "docs/benchmarks.md", "bench_startup", markdown_table(["measurement", *labels], table), echo=False,
+            caption=f"seconds, median / minimum of {repeats} fresh processes (the machine is shared: the minimum "
+                    "is the cost); targets: --help under 0.3 s, first line under 0.5 s")
     return 0
 
 

@@ -8,14 +8,18 @@ Samples are dated by their arrival in every case (MotionCal carries no time).  P
 RMS error against the script away from the magnet, after the first second, per seed, and the decoding
 rate from memory (samples/s, the decoder alone).
 
-    python tools/bench_streams.py [--seeds 3] [--seconds 40]
+    python tools/bench_streams.py [--seeds 3] [--seconds 40] [--write-docs]
+
+``--write-docs`` writes the table into docs/runtime.md (``tools/_doc_table.py``).
 """
 
 from __future__ import annotations
 
 import argparse
 import io
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -25,6 +29,10 @@ from compass.live import LiveSession
 from compass.serial_reader import Chunk
 from compass.sim.device import simulate_device
 from compass.sim.stream_formats import CSV_COLUMNS, board_model, sample_lines
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _doc_table import markdown_table, parse_args, publish  # noqa: E402
 
 NAMES = ("seq", "mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz")
 FORMATS = {"compass (baseline)": None, "motioncal Raw: (PJRC)": "motioncal-raw",
@@ -66,22 +74,30 @@ def decode_rate(model, smp, fmt) -> float:
     return n / (time.process_time() - start)
 
 
-def main() -> None:
+def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--seconds", type=float, default=40.0)
-    args = parser.parse_args()
+    args = parse_args(parser, argv)
     model = board_model()
     t = np.arange(0.0, args.seconds, 0.01)
     samples = [simulate_device(model, t, seed=seed) for seed in range(args.seeds)]
     print(f"heading RMS error against the truth (deg), {args.seconds:g} s of the script at 100 Hz, seeds "
           f"0-{args.seeds - 1}; decoding rate from memory")
     print(f"{'format':34s} " + " ".join(f"seed {s:<3d}" for s in range(args.seeds)) + "   mean   samples/s")
+    table = []
     for name, fmt in FORMATS.items():
         rms = [heading_rms(model, smp, fmt) for smp in samples]
         rate = decode_rate(model, samples[0], fmt)
         print(f"{name:34s} " + " ".join(f"{r:8.3f}" for r in rms) + f" {np.mean(rms):6.3f}   {rate:9.0f}")
+        table.append([name, *(f"{r:.3f}" for r in rms), f"{np.mean(rms):.3f}", f"{rate:,.0f}"])
+    publish(args, "docs/runtime.md", "bench_streams",
+            markdown_table(["format", *(f"seed {s}" for s in range(args.seeds)), "mean", "decoded samples/s (CPU)"],
+                           table), echo=False,
+            caption=f"heading RMS error against the truth, deg, {args.seconds:g} s of the script at 100 Hz; "
+                    "decoding rate from memory, one run on a shared machine (it varies with the load)")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from ..noise import robust_sigma
 from .ellipsoid import (MAX_NFEV, OUTLIER_SIGMAS, EllipsoidFit, fit_covariance, propagate, radial_jacobian,
-                        radial_residual, shape_matrix, sym_sqrt)
+                        plain_fit, radial_residual, robust_rows, shape_matrix, sym_sqrt)
 
 STATIC_TOLERANCE = 0.02
 """Quasi-static samples: | |a| / g - 1 | below this (g = median |a|)."""
@@ -126,18 +126,19 @@ def fit_misalignment(mag_cal: np.ndarray, accel: np.ndarray) -> Misalignment | N
     angle0 = np.arccos(np.clip(np.sum(m * a, axis=1), -1.0, 1.0))
     spread0 = float(np.degrees(np.std(angle0)))
 
-    def resid(p):
+    def resid(p, m, a):
         mm = Rotation.from_rotvec(p[:3]).apply(m)
         return np.arccos(np.clip(np.sum(mm * a, axis=1), -1.0, 1.0)) - p[3]
 
     sigma = max(robust_sigma(angle0), 1e-6)
     p0 = np.array([0.0, 0.0, 0.0, np.median(angle0)])
-    robust = least_squares(resid, p0, loss="soft_l1", f_scale=2.0 * sigma, tr_solver="lsmr")
-    r = resid(robust.x)
+    thin = robust_rows(len(m))  # the robust fit gives the start and the outlier test only
+    robust = least_squares(resid, p0, args=(m[thin], a[thin]), loss="soft_l1", f_scale=2.0 * sigma, tr_solver="lsmr")
+    r = resid(robust.x, m, a)
     sigma = max(robust_sigma(r), 1e-9)
     keep = np.abs(r - np.median(r)) < OUTLIER_SIGMAS * sigma
     m, a = m[keep], a[keep]
-    final = least_squares(resid, robust.x, method="lm")
+    final = least_squares(resid, robust.x, args=(m, a), method="lm")
     n = len(m)
     rss_rot = float(np.sum(final.fun**2))
     ang = np.arccos(np.clip(np.sum(m * a, axis=1), -1.0, 1.0))
@@ -148,7 +149,7 @@ def fit_misalignment(mag_cal: np.ndarray, accel: np.ndarray) -> Misalignment | N
     if delta_bic < 0:
         rot, dip = Rotation.from_rotvec(final.x[:3]), np.degrees(final.x[3]) - 90.0
         rotvec, rotvec_sig, dip_sig = np.degrees(final.x[:3]), sig[:3], sig[3]
-        spread1 = float(np.degrees(np.std(resid(np.concatenate([final.x[:3], [0.0]])))))
+        spread1 = float(np.degrees(np.std(resid(np.concatenate([final.x[:3], [0.0]]), m, a))))
     else:
         rot, dip = None, np.degrees(ang.mean()) - 90.0
         rotvec, rotvec_sig = np.full(3, np.nan), np.full(3, np.nan)
@@ -300,13 +301,16 @@ def refine_jointly(fit: EllipsoidFit, mag: np.ndarray, accel: np.ndarray, first:
     every = _JointResidual(ellipsoid, k, with_rot, y_inl, y_static, a_unit, sigma_r, 1.0)
     sigma_a = max(robust_sigma(every.angles(q0)), 1e-9)
     every = replace(every, sigma_a=sigma_a)
-    # only the parameters are kept from the robust fit: its result holds an (n, k) Jacobian
-    robust_x = least_squares(every.residual, q0, jac=every.jacobian, loss="soft_l1", f_scale=2.0, tr_solver="lsmr",
-                             max_nfev=MAX_NFEV).x
+    # the robust fit gives the start and the outlier tests only, on rows thinned alike (ellipsoid.ROBUST_ROWS)
+    thin = robust_rows(len(y_inl) + len(y_static))
+    robust_on = replace(every, y_radial=y_inl[thin], y_static=y_static[thin], a_unit=a_unit[thin])
+    robust_x = least_squares(robust_on.residual, q0, jac=robust_on.jacobian, loss="soft_l1", f_scale=2.0,
+                             tr_solver="lsmr", max_nfev=MAX_NFEV).x
     use_r = np.abs(radial_residual(robust_x[:k], ellipsoid, y_inl)) < OUTLIER_SIGMAS * sigma_r
     use_a = np.abs(every.angles(robust_x)) < OUTLIER_SIGMAS * sigma_a
     kept = replace(every, y_radial=y_inl[use_r], y_static=y_static[use_a], a_unit=a_unit[use_a])
-    final = least_squares(kept.residual, robust_x, jac=kept.jacobian, method="lm", max_nfev=MAX_NFEV)
+    del every, robust_on, y_inl, y_static, a_unit  # the kept rows only, beside the final fit's Jacobian
+    final = plain_fit(kept.residual, robust_x, kept.jacobian)
     cov = fit_covariance(final, len(final.fun))
     h, sig_h, s_mat, sig_s, f_norm, sig_f = propagate(ellipsoid, final.x[:k], cov, fit.centre, fit.radius)
     resid_all = np.linalg.norm((mag - h) @ s_mat.T, axis=1) - f_norm

@@ -52,7 +52,7 @@ from dataclasses import dataclass, replace
 from itertools import combinations_with_replacement
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import approx_fprime
 
 from ..diagnosis.evidence import (EffectForm, FitRecord, Proposal, determined, gather_forms, is_unexplained,
                                   linearised_score, refit_from_better_start, select_effects)
@@ -60,7 +60,7 @@ from ..diagnosis.forms import WARMUP_TAU_FRACTIONS, json_float, rms, settled, wa
 from ..diagnosis.report import Diagnosis
 from ..noise import chi2_sf, second_difference_sigma, second_differences
 from .alignment import MAX_ANGLE_WIDENING, Misalignment, field_gravity_angles, static_mask
-from .ellipsoid import EllipsoidFit, fit_covariance, propagate, shape_matrix, sym_sqrt
+from .ellipsoid import EllipsoidFit, fit_covariance, plain_fit, propagate, shape_matrix, sym_sqrt
 
 __all__ = ["TumbleEffect", "TUMBLE_FORMS", "TumbleDiagnosis", "UNEXPLAINED_WARNING", "diagnose_tumble",
            "radial_noise_floor", "residual_structure"]
@@ -71,6 +71,8 @@ STRUCTURE_BLOCKS = 8
 MIN_BLOCK_SAMPLES = 50
 _STRUCTURE_CHUNK_ROWS = 8192
 """Rows per chunk of the structure regression (a chunk's design takes 8192 x ~90 x 8 bytes, 6 MB)."""
+_JACOBIAN_CHUNK_ROWS = 32768
+"""Rows per chunk of the fits' finite-difference Jacobian (its temporaries then stay in the CPU's cache)."""
 UNEXPLAINED_WARNING = ("structure remains in |m| - F above the noise floor that no modelled effect accounts for "
                        "(a field that changed during the recording, a disturbance, an effect the toolkit does not "
                        "model): see the diagnosis; the uncertainties are then optimistic")
@@ -271,15 +273,30 @@ class _Model:
 
     def radial(self, x, effects, rows: _Rows) -> np.ndarray:
         """Radial residual, recording units."""
-        z = self.corrected(x, effects, rows)
-        return self.field_norm * (np.linalg.norm(z @ shape_matrix(self.ellipsoid, x[3:self.k]), axis=1) - 1.0)
+        z = self.corrected(x, effects, rows) @ shape_matrix(self.ellipsoid, x[3:self.k])
+        return self.field_norm * (np.sqrt(np.einsum("ij,ij->i", z, z)) - 1.0)
 
     def weighted(self, x, effects) -> np.ndarray:
         return self.radial(x, effects, self.rows) / self.floor
 
+    def jacobian(self, x, effects) -> np.ndarray:
+        """d weighted / d x by forward differences, shape (rows, x.size), a chunk of rows at a time.
+
+        The steps are ``least_squares``' own for ``jac="2-point"`` (``sqrt(eps) max(1, |x|)``, signed
+        as ``x``); a row's residual depends on its own sample only, so the chunks give the same
+        Jacobian while the temporaries of each difference take a chunk's memory, not the recording's.
+        """
+        step = np.sqrt(np.finfo(float).eps) * np.where(x >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(x))
+        n = len(self.rows.y)
+        jac = np.empty((n, x.size))
+        for start in range(0, n, _JACOBIAN_CHUNK_ROWS):
+            chunk = self.rows.take(slice(start, start + _JACOBIAN_CHUNK_ROWS))
+            jac[start:start + _JACOBIAN_CHUNK_ROWS] = approx_fprime(x, self.radial, step, effects, chunk)
+        jac /= self.floor
+        return jac
+
     def fit(self, effects, x0) -> _Fit:
-        res = least_squares(self.weighted, x0, args=(effects,), method="lm", x_scale="jac",
-                            max_nfev=100 * (x0.size + 1))
+        res = plain_fit(self.weighted, x0, self.jacobian, args=(effects,), max_nfev=100 * (x0.size + 1))
         cov = fit_covariance(res, res.fun.size)
         return _Fit(tuple(effects), res.x, res.jac, cov, res.fun * self.floor, float(res.fun @ res.fun),
                     res.fun.size, bool(res.success), str(res.message))
@@ -476,22 +493,22 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
                    temp_ref_c=0.0 if temp_c is None else float(np.mean(temp_c)),
                    temp_span_c=1.0 if temp_c is None else max(float(np.ptp(temp_c)), 1e-9))
     floor = radial_noise_floor(fit.residuals)
-    all_rows = _Rows((mag - fit.centre) / fit.radius, t_s, temp_c)
-    rows = all_rows.take(fit.inliers)
+    rows = _Rows((mag[fit.inliers] - fit.centre) / fit.radius, None if t_s is None else t_s[fit.inliers],
+                 None if temp_c is None else temp_c[fit.inliers])
     model = _Model(fit, rows, ctx, floor)
     bands = [np.arange(n)[fit.inliers] if t_s is None else rows.t_s]
     if temp_c is not None and np.ptp(temp_c) > 0:
         bands.append(rows.temp_c)
 
     static = None if accel is None else static_mask(np.asarray(accel, dtype=float))[fit.inliers]
-    accel_rows = None if accel is None else np.asarray(accel, dtype=float)[fit.inliers]
+    accel_static = None if accel is None else np.asarray(accel, dtype=float)[np.flatnonzero(fit.inliers)[static]]
 
     def angle_spread(f: _Fit) -> float:
         """Std of the field-gravity angle over the quasi-static inliers, deg (NaN without them)."""
         if static is None or np.count_nonzero(static) < 20:
             return float("nan")
         m = model.corrected(f.x, f.effects, rows)[static] @ sym_sqrt(fit.ellipsoid, f.x[3:model.k])
-        return float(np.std(field_gravity_angles(m, accel_rows[static])))
+        return float(np.std(field_gravity_angles(m, accel_static)))
 
     def keeps_the_angle(p: Proposal):
         spread = angle_spread(p.current), angle_spread(p.trial)
@@ -530,7 +547,8 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
         k = model.k
         h, sig_h, s_mat, sig_s, f_norm, sig_f = propagate(fit.ellipsoid, current.x[:k], current.covariance,
                                                            fit.centre, fit.radius)
-        raw_ref = h + fit.radius * model.corrected(current.x, current.effects, all_rows)
+        every_row = _Rows((mag - fit.centre) / fit.radius, t_s, temp_c)
+        raw_ref = h + fit.radius * model.corrected(current.x, current.effects, every_row)
         resid_all = np.linalg.norm((raw_ref - h) @ s_mat.T, axis=1) - f_norm
         final_fit = replace(fit, hard_iron=h, hard_iron_sigma=sig_h, soft_iron=s_mat, soft_iron_sigma=sig_s,
                             field_norm=f_norm, field_norm_sigma=sig_f, residuals=resid_all,

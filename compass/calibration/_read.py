@@ -26,7 +26,7 @@ from ._format import CHANNEL_KINDS, FORMAT, KIND_KEY, TUMBLE_CHANNELS
 from ._imu import ImuCorrection
 from ._value import Calibration, Installation, Provenance, TumbleForm
 
-__all__ = ["KINDS", "from_dict", "kind_of", "load", "model_from_dict"]
+__all__ = ["KINDS", "from_dict", "kind_of", "load", "loads", "model_from_dict"]
 
 KINDS = ("fourflip", "platform3d", "reference", "channels", "tumble", "installed")
 """Every kind the reader knows (the file's ``"model"``)."""
@@ -50,16 +50,34 @@ def load(path) -> Calibration:
         raise CalibrationFileError(f"cannot read calibration file ({exc.strerror})", path=path) from None
     except UnicodeDecodeError as exc:
         raise CalibrationFileError(f"not a JSON calibration file (not UTF-8 text: {exc.reason})", path=path) from None
+    return loads(text, name=path)
+
+
+def loads(text: str, *, name) -> Calibration:
+    """Validate a calibration file's text (one kept elsewhere: a calibration store's row).
+
+    Parameters
+    ----------
+    text : str
+        The file's JSON.
+    name : str or path-like
+        What to call it in errors and in :attr:`Calibration.path` (``module M7 in calibrations.sqlite``).
+
+    Raises
+    ------
+    CalibrationFileError
+        As :func:`load`, naming ``name``.
+    """
     try:
         d = json.loads(text, parse_int=_parse_int)
     except json.JSONDecodeError as exc:
-        raise CalibrationFileError(f"not a JSON calibration file ({exc})", path=path) from None
+        raise CalibrationFileError(f"not a JSON calibration file ({exc})", path=name) from None
     except RecursionError:
-        raise CalibrationFileError("not a calibration file: its JSON is nested too deeply", path=path) from None
+        raise CalibrationFileError("not a calibration file: its JSON is nested too deeply", path=name) from None
     try:
-        return from_dict(d, path=path)
+        return from_dict(d, path=name)
     except CalibrationFileError as exc:
-        raise exc.in_file(path) from None
+        raise exc.in_file(name) from None
 
 
 def model_from_dict(d):

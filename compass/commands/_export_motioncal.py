@@ -47,13 +47,13 @@ def _fibonacci_sphere(n: int) -> np.ndarray:
     return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
-def packet_of(path, *, unit: str = "uT", max_rotation_deg: float = 1.0):
-    """The packet of a calibration file and notes on what it leaves out (module docstring).
+def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0):
+    """The packet of a calibration and notes on what it leaves out (module docstring).
 
     Parameters
     ----------
-    path : path-like
-        Calibration JSON.
+    cal : compass.calibration.Calibration
+        The calibration (:func:`compass.commands.export.read_calibration`); errors name its ``path``.
     unit : {"uT", "nT", "gauss", "mgauss"}
         Unit of the calibration's magnetometer readings.
     max_rotation_deg : float
@@ -67,23 +67,17 @@ def packet_of(path, *, unit: str = "uT", max_rotation_deg: float = 1.0):
     Raises
     ------
     compass.cli.BadInput
-        The file cannot be read, or the packet cannot hold its calibration: why, in one line.
+        The packet cannot hold the calibration: why, in one line.
     """
     from scipy.linalg import polar
     from scipy.spatial.transform import Rotation
 
-    from ..calibration import load
     from ..cli import BadInput
     from ..io.motioncal import CalPacket
     from ..io.units import MAG_UNITS
 
-    try:
-        cal = load(path)
-    except ValueError as exc:
-        raise BadInput(str(exc) if str(path) in str(exc) else f"{path}: {exc}") from None
-
     def refuse(why: str):
-        return BadInput(f"{path}: a {cal.kind} calibration cannot go into MotionCal's packet: {why}")
+        return BadInput(f"{cal.path}: a {cal.kind} calibration cannot go into MotionCal's packet: {why}")
 
     model = cal.model
     if model is None or len(model.channels) != 3:
@@ -220,25 +214,27 @@ def send_packet(port: str, packet, *, baud: int = 115200, wait_s: float = 5.0) -
                f"not take the packet (a sketch without MotionCal's receiver?)")
 
 
-def run_motioncal(args) -> int:
-    """The ``--format motioncal`` branch of ``compass export``."""
+def run_motioncal(cal, *, out, force: bool, port, unit: str, max_rotation_deg: float, baud: int,
+                 wait_s: float) -> int:
+    """The ``--format motioncal`` branch of ``compass export``: the packet of ``cal`` written to ``out``
+    (refused if it exists, unless ``force``), sent to ``port``, or else described on stdout."""
     import sys
 
     from ..io.atomic import atomic_open, check_writable
     from ..io.motioncal import encode_packet
 
-    packet, notes = packet_of(args.calibration, unit=args.unit, max_rotation_deg=args.max_rotation_deg)
+    packet, notes = packet_of(cal, unit=unit, max_rotation_deg=max_rotation_deg)
     for note in notes:
         print(f"compass export: note: {note}", file=sys.stderr)
-    if args.out:
-        out = check_writable(args.out, args.force)
+    if out:
+        out = check_writable(out, force)
         with atomic_open(out, "wb") as f:
             f.write(encode_packet(packet))
         print(f"wrote {out} ({len(encode_packet(packet))} bytes)")
-    if args.port:
-        status, words = send_packet(args.port, packet, baud=args.baud, wait_s=args.wait)
+    if port:
+        status, words = send_packet(port, packet, baud=baud, wait_s=wait_s)
         print(f"compass export: {words}", file=sys.stderr if status else sys.stdout)
         return status
-    if not args.out:
+    if not out:
         print(describe(packet), end="")
     return 0

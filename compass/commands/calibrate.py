@@ -108,7 +108,7 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
         Bad input (exit status 2 on the command line).
     """
     from calibrate.contract import CannotCalibrate
-    from calibrate.session import find_kind, fit_recording
+    from calibrate.session import find_kind
 
     from ..calibration import CalibrationFileError, save
     from ..cli import BadInput
@@ -150,7 +150,9 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
         options["progress"] = lambda text: print(f"  ... {text}", flush=True)
     try:
         with working(f"calibrating {Path(recording).name} ({found.name})") if "progress" not in options else nullcontext():
-            rec, result = fit_recording(found, table, options)
+            rec = found.read(table)
+            del table  # the fit needs the recording only, not the table's copy of every cell beside it
+            result = found.calibrator(**options).fit(rec)
         save(out, result.to_json(), force=force)
     except CannotCalibrate as exc:  # the recording cannot determine the model: bad input
         raise BadInput(str(exc)) from None

@@ -8,6 +8,7 @@ heading offset kept (BROAD's own figure) and removed, per time segment, and as a
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -43,11 +44,16 @@ def run(args) -> int:
         raise BadInput(f"--rerun records one trial; {len(trials)} given ({', '.join(trials[:3])}"
                        f"{', ...' if len(trials) > 3 else ''})")
     target = check_rerun_target(args.rerun, args.force)
+    from ..io.progress import working
+
     scores = []
-    for trial in trials:
-        errors, result = evaluate_file(trial, cal=args.cal, plot=args.plot, gate=not args.no_gate,
-                                       hard_iron=not args.no_hard_iron, force=args.force)
-        scores.append((Path(trial).stem, errors))
+    what = f"evaluating {Path(trials[0]).name}" if len(trials) == 1 else f"evaluating {len(trials)} trials"
+    with working(what, total=len(trials) if len(trials) > 1 else None) as tally:
+        for trial in trials:
+            errors, result = evaluate_file(trial, cal=args.cal, plot=args.plot, gate=not args.no_gate,
+                                           hard_iron=not args.no_hard_iron, force=args.force, tally=tally)
+            scores.append((Path(trial).stem, errors))
+            tally.advance()
     if target is not None:
         from ..io.broad import read_broad
         from ..viz.attitude import record_evaluation
@@ -86,8 +92,11 @@ def expand_trials(given) -> list[str]:
     return trials
 
 
-def evaluate_file(trial_path, *, cal=None, plot=None, gate=True, hard_iron=True, force=False):
+def evaluate_file(trial_path, *, cal=None, plot=None, gate=True, hard_iron=True, force=False, tally=None):
     """Evaluate one trial, print the report, optionally plot; returns ``(ErrorSeries, PipelineResult)``.
+
+    ``tally`` is the command's progress line (:class:`compass.io.progress.Tally`): the report is printed
+    with it hidden.
 
     Raises
     ------
@@ -95,11 +104,9 @@ def evaluate_file(trial_path, *, cal=None, plot=None, gate=True, hard_iron=True,
         Bad input (exit status 2 on the command line).
     """
     from ..cli import BadInput
-    from ..evaluation import METRIC, error_series, run_pipeline
+    from ..evaluation import error_series, run_pipeline
     from ..io.atomic import check_writable
     from ..io.broad import read_broad
-    from ..io.progress import working
-    from ..model import SensorModel
 
     plot_dir = None
     if plot is not None:
@@ -119,11 +126,18 @@ def evaluate_file(trial_path, *, cal=None, plot=None, gate=True, hard_iron=True,
     if plot_dir is not None:
         check_writable(plot_dir / f"{trial.name}_errors.png", force)
     try:
-        with working(f"evaluating {trial.name}"):
-            result = run_pipeline(trial, model, gate=gate, hard_iron=hard_iron)
+        result = run_pipeline(trial, model, gate=gate, hard_iron=hard_iron)
         errors = error_series(result.quat_enu, trial.ref_quat_enu, trial.movement, trial.rate_hz)
     except ValueError as exc:
         raise BadInput(f"{trial_path}: {exc}") from None
+    with nullcontext() if tally is None else tally.hidden():
+        _report(trial, errors, result, plot_dir)
+    return errors, result
+
+
+def _report(trial, errors, result, plot_dir) -> None:
+    """The trial's scores on stdout, and its plot."""
+    from ..evaluation import METRIC
 
     print(f"{trial.name}: {result.method}; reference |B| {result.field_ut:.1f} uT, dip {result.dip_deg:.1f} deg")
     print(f"  {METRIC}")
@@ -151,7 +165,6 @@ def evaluate_file(trial_path, *, cal=None, plot=None, gate=True, hard_iron=True,
     if plot_dir is not None:
         path = _plot(plot_dir, trial, errors, result)
         print(f"  wrote {path}")
-    return errors, result
 
 
 def _rms(x: np.ndarray) -> float:

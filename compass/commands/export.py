@@ -6,13 +6,16 @@
 A tumble calibration, or any three linear channels of the channel form (a bench calibration, an
 installed one: :func:`channel_form`), as a matrix and an offset from raw counts to the field in H.
 
-- ``fusion``: x-io Fusion's ``FusionCalibrationMagnetic(uncalibrated, softIronMatrix, hardIronOffset)``
-  computes ``softIronMatrix * (uncalibrated - hardIronOffset)``, the same form as the calibration file;
+- ``fusion``: x-io Fusion's ``FusionModelMagnetic(uncalibrated, softIronMatrix, hardIronOffset)`` (1.3;
+  ``FusionCalibrationMagnetic`` in 1.2, ``--fusion-api 1.2``) computes
+  ``softIronMatrix * (uncalibrated - hardIronOffset)``, the same form as the calibration file;
   the magnetometer-to-accelerometer rotation, when fitted (a tumble's, or a bench calibration's
   ``mag_to_accel`` from its recording's accelerometer), is folded into the matrix
   (``C @ soft_iron``) because Fusion expects the magnetometer in the sensor (accelerometer) frame.
-  The initialisers are fully braced C float literals (``{{{1.0f, 0.0f, ...}, ...}}``: Fusion's types
-  are unions whose first member is the array), so they compile as C and C++ with every warning on.
+  The initialisers name the union members (``{.element = {.xx = 1.0f, ...}}``): 1.3's ``FusionMatrix``
+  is ``float array[9]``, 1.2's ``array[3][3]``, both with the ``element`` struct, so one text compiles
+  against either, as C99 and C++20 with every warning an error (tests/compass/commands/test_export_fusion.py
+  builds it against the real headers of 1.2.0, 1.2.11, 1.3.0 and 1.3.3 and runs the release's function).
 - ``ardupilot``: AP_Compass adds ``COMPASS_OFS`` then multiplies by the symmetric matrix of
   ``COMPASS_DIA`` (diagonal) and ``COMPASS_ODI`` (xy, xz, yz), in milligauss.  So
   ``OFS = -hard_iron`` converted to milligauss and the matrix is the soft iron's shape (det 1).
@@ -29,7 +32,7 @@ from .. import limits
 from ..io.atomic import atomic_write_text, check_writable
 from ..io.units import EARTH_FIELD_UT, MAG_UNITS
 
-__all__ = ["register", "export_text", "load_tumble", "channel_form", "unit_note"]
+__all__ = ["register", "export_text", "firmware_form", "read_calibration", "channel_form", "unit_note"]
 
 FORMATS = ("fusion", "ardupilot", "motioncal")
 FUSION_FUNCTIONS = {"1.3": "FusionModelMagnetic", "1.2": "FusionCalibrationMagnetic"}
@@ -50,21 +53,23 @@ def register(sub) -> None:
     p.add_argument("--format", choices=FORMATS,
                    help="fusion: C initialisers; ardupilot: .param lines; motioncal: the 68-byte packet MotionCal "
                         "sends (to --out, or to the device on --port)")
-    p.add_argument("--unit", choices=tuple(_UNITS), default="uT",
-                   help="unit of the recording's mx,my,mz (ardupilot offsets are in milligauss; default uT)")
-    p.add_argument("--fusion-api", choices=tuple(FUSION_FUNCTIONS), default="1.3",
-                   help="fusion: the Fusion release (1.3: FusionModelMagnetic, as imufusion 1.3; 1.2: "
-                        "FusionCalibrationMagnetic); the initialisers compile against both")
+    p.add_argument("--unit", choices=tuple(_UNITS), default=None,
+                   help="unit of the recording's mx,my,mz (ardupilot offsets are in milligauss; fusion and motioncal "
+                        "check the field against it; default uT)")
+    p.add_argument("--fusion-api", choices=tuple(FUSION_FUNCTIONS), default=None,
+                   help="fusion: the Fusion release line (1.3, the default: FusionModelMagnetic, as imufusion 1.3; "
+                        "1.2: FusionCalibrationMagnetic); compile-tested against 1.2.0, 1.2.11, 1.3.0 and 1.3.3")
     p.add_argument("--out", default=None, help="file to write (default: print)")
     p.add_argument("--force", action="store_true", help="overwrite --out")
     m = p.add_argument_group("motioncal")
     m.add_argument("--port", help="send the packet to the device on this serial port (pyserial URL) and read back its "
                                   "Cal1:/Cal2: echo")
-    m.add_argument("--baud", type=limits.BAUD.option("--baud"), default=115200, help="baud rate (default 115200)")
-    m.add_argument("--wait", type=limits.DURATION_S.option("--wait"), default=5.0, metavar="S",
-                   help="how long to wait for the device's echo of the values sent (default 5 s)")
+    m.add_argument("--baud", type=limits.BAUD.option("--baud"), default=None, help="with --port: baud rate (default "
+                                                                                   "115200)")
+    m.add_argument("--wait", type=limits.DURATION_S.option("--wait"), default=None, metavar="S",
+                   help="with --port: how long to wait for the device's echo of the values sent (default 5 s)")
     m.add_argument("--max-rotation-deg", type=limits.Range(0.0, 180.0, "deg").option("--max-rotation-deg"),
-                   default=1.0,
+                   default=None,
                    help="largest rotation between the field and the accelerometer left out of the packet, which "
                         "cannot hold one (default 1 deg); a larger one is refused")
     p.set_defaults(func=run)
@@ -75,23 +80,63 @@ OUTPUT_UNITS_NOTE = ("a bench calibration's offsets are its channels' zero-field
                      "if the module's channels read field units")
 
 
+DEFAULTS = {"unit": "uT", "fusion_api": "1.3", "baud": 115200, "wait": 5.0, "max_rotation_deg": 1.0}
+"""Values of the options not given (argparse leaves them None, so one given where it does nothing is refused)."""
+_OPTION_FOR = {"unit": "--format fusion, ardupilot or motioncal", "fusion_api": "--format fusion",
+               "port": "--format motioncal", "baud": "--format motioncal with --port",
+               "wait": "--format motioncal with --port", "max_rotation_deg": "--format motioncal"}
+"""What each format-specific option is for, in words."""
+
+
 def run(args) -> int:
     from ..cli import BadInput
 
     if (args.module is None) == (args.calibration is None):
         raise BadInput("give a calibration file or --module ID --store PATH (one of them)")
-    if args.module is not None:
-        return _run_stored(args)
-    if args.format is None:
+    if args.format is None and args.module is None:
         raise BadInput("--format is required with a calibration file (fusion, ardupilot or motioncal)")
-    return _export(args, args.calibration)
+    _refuse_unused(args)
+    if args.module is None:
+        cal = read_calibration(args.calibration)
+    else:
+        text, name = _stored(args)
+        if args.format is None:
+            _emit(args, text)
+            return 0
+        cal = _parse(text, name)
+    option = {dest: DEFAULTS[dest] if getattr(args, dest) is None else getattr(args, dest) for dest in DEFAULTS}
+    if args.format == "motioncal":
+        from ._export_motioncal import run_motioncal
+
+        return run_motioncal(cal, out=args.out, force=args.force, port=args.port, unit=option["unit"],
+                             max_rotation_deg=option["max_rotation_deg"], baud=option["baud"], wait_s=option["wait"])
+    form = firmware_form(cal)
+    note = unit_note(form, option["unit"])
+    if note:
+        print(f"compass export: warning: {cal.path}: {note}", file=sys.stderr)
+    if form.get("output_units") and args.format == "ardupilot":
+        print(f"compass export: warning: {cal.path}: {OUTPUT_UNITS_NOTE}", file=sys.stderr)
+    _emit(args, export_text(form, args.format, unit=option["unit"], fusion_api=option["fusion_api"]))
+    return 0
 
 
-def _run_stored(args) -> int:
-    """``--module ID --store PATH``: the latest accepted calibration, as a file or in --format."""
-    import tempfile
-    from pathlib import Path
+def _refuse_unused(args) -> None:
+    """BadInput for a format-specific option given where it does nothing (:data:`_OPTION_FOR`)."""
+    from ..cli import BadInput
 
+    used = {"fusion": {"unit", "fusion_api"}, "ardupilot": {"unit"}, None: set(),
+            "motioncal": {"unit", "max_rotation_deg", "port"} | ({"baud", "wait"} if args.port else set())}
+    for dest, what in _OPTION_FOR.items():
+        if getattr(args, dest) is not None and dest not in used[args.format]:
+            option = "--" + dest.replace("_", "-")
+            context = f"--format {args.format}" if args.format else "no --format (the stored file is written as it is)"
+            if args.format == "motioncal" and dest in ("baud", "wait"):
+                context += " without --port (nothing is sent)"
+            raise BadInput(f"{option} is for {what}; it does nothing with {context}")
+
+
+def _stored(args) -> tuple[str, str]:
+    """``--module ID --store PATH``: the latest accepted calibration's text and what to call it."""
     from ..cli import BadInput
     from ..production.store import Store, StoreError
 
@@ -104,13 +149,7 @@ def _run_stored(args) -> int:
         raise BadInput(str(exc)) from None
     print(f"compass export: module {row.module_id}, session {row.session_time} (accepted; recording "
           f"{row.recording_path})", file=sys.stderr)
-    if args.format is None:
-        _emit(args, row.calibration)
-        return 0
-    with tempfile.TemporaryDirectory() as folder:
-        path = Path(folder) / f"{args.module}.json"
-        path.write_text(row.calibration, encoding="utf-8")
-        return _export(args, path)
+    return row.calibration, f"module {row.module_id} in {args.store}"
 
 
 def _emit(args, text: str) -> None:
@@ -122,29 +161,30 @@ def _emit(args, text: str) -> None:
         print(text, end="")
 
 
-def _export(args, path) -> int:
+def read_calibration(path):
+    """:func:`compass.calibration.load`, a file's error as BadInput (exit 2, one line naming the file)."""
+    from ..calibration import load
     from ..cli import BadInput
 
-    if args.format == "motioncal":
-        from ._export_motioncal import run_motioncal
-
-        args.calibration = str(path)
-        return run_motioncal(args)
-    if args.port:
-        raise BadInput(f"--port sends a MotionCal packet: use --format motioncal (not {args.format})")
-    cal = load_tumble(path)
-    name = args.calibration or args.module
-    note = unit_note(cal, args.unit)
-    if note:
-        print(f"compass export: warning: {name}: {note}", file=sys.stderr)
-    if cal.get("output_units") and args.format == "ardupilot":
-        print(f"compass export: warning: {name}: {OUTPUT_UNITS_NOTE}", file=sys.stderr)
-    _emit(args, export_text(cal, args.format, unit=args.unit, fusion_api=args.fusion_api))
-    return 0
+    try:
+        return load(path)
+    except ValueError as exc:
+        raise BadInput(str(exc) if str(path) in str(exc) else f"{path}: {exc}") from None
 
 
-def load_tumble(path) -> dict:
-    """Read a calibration file (:func:`compass.calibration.load`) in firmware terms; BadInput (exit 2) else.
+def _parse(text: str, name: str):
+    """A stored calibration's text as :func:`read_calibration` reads a file, its errors naming ``name``."""
+    from ..calibration import loads
+    from ..cli import BadInput
+
+    try:
+        return loads(text, name=name)
+    except ValueError as exc:
+        raise BadInput(str(exc) if name in str(exc) else f"{name}: {exc}") from None
+
+
+def firmware_form(cal) -> dict:
+    """A calibration (:class:`compass.calibration.Calibration`) in firmware terms; BadInput (exit 2) else.
 
     Returns
     -------
@@ -153,18 +193,13 @@ def load_tumble(path) -> dict:
         (validated: finite, soft iron symmetric positive definite, a proper rotation), and
         ``field_norm_recording_units`` (|B| in the recording's unit, float or None).
     """
-    from ..calibration import load
     from ..cli import BadInput
 
-    try:
-        cal = load(path)
-    except ValueError as exc:
-        raise BadInput(str(exc)) from None
     if cal.tumble is None:
         try:
             form = channel_form(cal.model)
         except ValueError as exc:
-            raise BadInput(f"{path}: a {cal.kind} calibration cannot be exported: {exc}") from None
+            raise BadInput(f"{cal.path}: a {cal.kind} calibration cannot be exported: {exc}") from None
         # the field in the accelerometer's frame, as Fusion fuses it: back from the model's frame (H, or an
         # installed file's product frame) through the bench's mag_to_accel and the installation's alignment
         to_model = cal.imu.rotation
@@ -235,7 +270,7 @@ def export_text(cal: dict, fmt: str, *, unit: str = "uT", fusion_api: str = "1.3
     ----------
     cal : dict
         ``hard_iron`` (3,), ``soft_iron`` (3, 3), ``mag_to_accel`` (3, 3) or None, as numpy arrays
-        (:func:`load_tumble`); optional ``field_norm_recording_units`` for the unit check.
+        (:func:`firmware_form`); optional ``field_norm_recording_units`` for the unit check.
     fmt : {"fusion", "ardupilot"}
     unit : str
         Recording unit of the magnetometer (ArduPilot only).

@@ -1,8 +1,8 @@
 """``compass simulate fourflip|platform3d|tumble|reference|runtime|installation``: a simulated recording and its truth.
 
 Each kind writes SPEC section 2's recording and, beside it, the truth the simulator used
-(``<stem>.truth.json``; ``<stem>.truth.csv`` for the runtime kind's true angles).  The simulators
-are imported when a kind runs, not when the parser is built.
+(``<stem>.truth.json``, every kind; the runtime kinds' true angles per row under ``heading_deg``,
+``pitch_deg``, ``roll_deg``).  The simulators are imported when a kind runs, not when the parser is built.
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ def register(sub) -> None:
     rf.add_argument("--field-ut", type=limits.FIELD_UT.option("--field-ut"),
                     default=50.0, help="field magnitude, uT (default 50)")
     ru = _kind(kinds, "runtime", "an attitude recording of a bench-calibrated sensor in random attitudes "
-                                 "(true angles in <stem>.truth.csv)", run_runtime)
+                                 "(true angles in <stem>.truth.json)", run_runtime)
     ru.add_argument("--truth", metavar="BENCH.truth.json",
                     help="the sensor: a four-flip truth file (compass simulate fourflip writes one beside its "
                          "recording; default: the four-flip simulator's sensor for --seed)")
@@ -116,7 +116,7 @@ _ROWS = Range(1, 100_000, integer=True)
 
 def _kind(kinds, name: str, help_text: str, func):
     p = kinds.add_parser(name, help=help_text)
-    p.add_argument("--out", required=True, help="recording CSV to write; the truth goes beside it (<stem>.truth.*)")
+    p.add_argument("--out", required=True, help="recording CSV to write; the truth goes beside it (<stem>.truth.json)")
     p.add_argument("--seed", type=limits.SEED.option("--seed"), default=0, help="random seed (default 0)")
     p.add_argument("--force", action="store_true", help="overwrite existing files")
     p.set_defaults(func=func)

@@ -98,6 +98,7 @@ estimation and magnetic disturbance rejection", Information Fusion 91 (2023); x-
 from ._base import AttitudeFilter
 from ._gate import GateState, MagneticGate
 from ._gyro import GyroFilter, GyroState
+from ._place import PLACE_EVENT
 from ._records import SKIP_REASONS, Diagnostics, Estimate, FilterCoefficients, FilterConfig, SkipCounts
 from ._run import FilterTrack, reference_field, run_filter
 from ._start import FilterStart, StartValues
@@ -105,4 +106,4 @@ from ._two_vector import TwoVectorFilter, TwoVectorState
 
 __all__ = ["FilterConfig", "FilterCoefficients", "Estimate", "Diagnostics", "SkipCounts", "SKIP_REASONS",
            "AttitudeFilter", "GyroFilter", "GyroState", "TwoVectorFilter", "TwoVectorState", "MagneticGate",
-           "GateState", "FilterTrack", "run_filter", "reference_field", "FilterStart", "StartValues"]
+           "GateState", "FilterTrack", "run_filter", "reference_field", "FilterStart", "StartValues", "PLACE_EVENT"]

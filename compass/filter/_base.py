@@ -361,6 +361,9 @@ class AttitudeFilter:
     def _restart_accel(self, a) -> None:
         """Forget what was learnt from the accelerometer's old scale (gravity was re-learnt)."""
 
+    def _reference_moved(self) -> None:
+        """The gate adopted another reference field (its timeout)."""
+
     def _gate_field(self, t_s: float, dt: float, b, innovation: float) -> str:
         """Gate one screened field reading ``(x, y, z, |b|^2)``; fills the diagnostics, returns the reason."""
         s, c, d = self._s, self.coefficients, self._s.diagnostics
@@ -378,6 +381,7 @@ class AttitudeFilter:
                                f"and dip = {dip:.2f} deg as the new reference")
             s.covariance = p[:11] + (p[11] + c.adopt_var,) + p[12:]
             reason, ratio = "ok", 1.0
+            self._reference_moved()
         d.field_ratio, d.dip_deg, d.gate = ratio, dip, reason
         return reason
 

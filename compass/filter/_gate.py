@@ -33,12 +33,28 @@ class GateState:
         Start of the current rejection, s.
     dip_excess_var : float
         Mean square of the accepted field's dip deviation beyond the sensor noise, rad^2.
+    ref_azimuth_rad : float
+        Azimuth of the reference field's horizontal part in the world frame, toward West, rad: 0
+        where the filter's North is the field's (the start), another where the reference moved to a
+        place whose field steel turned (:mod:`compass.filter._place`).
+    north_from_gyro : bool
+        The heading's North has come down from the start's field through the gyro and verified
+        moves; False once a timeout re-learnt it from a field nothing verified (a magnet on the
+        housing held long enough): a later move cannot then measure a turn of North against it.
     """
 
     ref_norm: float
     ref_dip_deg: float
     rejected_since_s: float | None
     dip_excess_var: float
+    ref_azimuth_rad: float = 0.0
+    north_from_gyro: bool = True
+
+    def world_field(self) -> tuple[float, float, float]:
+        """The reference field in the world frame (NWU), field units."""
+        dip, az = math.radians(self.ref_dip_deg), self.ref_azimuth_rad
+        h = self.ref_norm * math.cos(dip)
+        return h * math.cos(az), h * math.sin(az), -self.ref_norm * math.sin(dip)
 
     @classmethod
     def initial(cls, config: FilterConfig, coefficients: FilterCoefficients) -> "GateState":
@@ -118,7 +134,8 @@ class MagneticGate:
         if state.rejected_since_s is None:
             state.rejected_since_s = t_s
         elif t_s - state.rejected_since_s > cfg.gate_timeout_s:
-            state.ref_norm, state.ref_dip_deg = b_norm, dip_deg
+            state.ref_norm, state.ref_dip_deg, state.ref_azimuth_rad = b_norm, dip_deg, 0.0
+            state.north_from_gyro = False
             state.rejected_since_s = None
             return self.ADOPTED
         return reason

@@ -10,10 +10,13 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
 
 from ._base import _P0_ATTITUDE, AttitudeFilter, exp_matrix, mat_mul
 from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_tilt
 from ._gate import GateState
+from ._place import PLACE_EVENT, PlaceDetector, PlaceState
 from ._records import _REST_RATE_SIGMA, _REST_TAU_S, Diagnostics, SkipCounts
 
 __all__ = ["GyroFilter", "GyroState"]
@@ -21,6 +24,9 @@ __all__ = ["GyroFilter", "GyroState"]
 _REST_GYRO = math.radians(2.0)  # VQF's rest detector: rate deviation, rad/s
 _REST_GYRO2 = _REST_GYRO**2
 _REST_ACCEL = 0.05  # and specific-force deviation, fraction of g
+_TURN_BOUND = float(chi2.ppf(0.999, 1))  # a new place's North turned beyond its heading error: chi-square bound
+_NORTH = {(True, True): " (North moves with it)", (False, True): " (within the heading error: North kept)",
+          (False, False): " (North re-learnt from it: the last one was adopted on a timeout)"}
 _ORTHONORMALISE_EVERY = 1000  # samples between re-orthonormalisations of the nominal matrix
 
 
@@ -66,6 +72,8 @@ class GyroState(PackedCovariance):
     t_back_s : float or None
         A time earlier than ``t_s`` the last sample gave (a corrupted clock, or the module restarting
         its clock: the next sample tells which), else None.
+    place : PlaceState
+        The place detector's window (``FilterConfig.follow_place``).
     """
 
     t_s: float | None
@@ -87,6 +95,7 @@ class GyroState(PackedCovariance):
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
     since_start_s: float = 0.0
     t_back_s: float | None = None
+    place: PlaceState = field(default_factory=PlaceState)
 
 
 class GyroFilter(AttitudeFilter):
@@ -103,6 +112,7 @@ class GyroFilter(AttitudeFilter):
     def _bind(self) -> None:
         self._gyro_range2 = self.config.gyro_range_rad_s**2
         self._x = [0.0] * 6  # the error state (eps, db), folded into the nominal state after each sample
+        self._place = PlaceDetector(self.config) if self.config.follow_place and self.config.gate else None
 
     @property
     def at_rest(self) -> bool:
@@ -144,7 +154,10 @@ class GyroFilter(AttitudeFilter):
         s = self._s
         norm = math.sqrt(a[3])
         m = two_vector_rotation(np.array(a[:3]) / norm, np.array(b[:3]), s.gate.ref_dip_deg, 0.0)[0].as_matrix()
+        if s.gate.ref_azimuth_rad:  # the reference's field lies at this azimuth, not along North
+            m = Rotation.from_rotvec([0.0, 0.0, s.gate.ref_azimuth_rad]).as_matrix() @ m
         s.matrix = tuple(m.ravel().tolist())
+        s.place.clear()
         p0, p1, p2 = _P0_ATTITUDE
         s.covariance = (p0, 0.0, 0.0, 0.0, 0.0, 0.0, p1, 0.0, 0.0, 0.0, 0.0, p2, 0.0, 0.0, 0.0) + s.covariance[15:]
         self._x[:] = [0.0] * 6
@@ -265,7 +278,12 @@ class GyroFilter(AttitudeFilter):
             wx, wy, wz = gx - cx, gy - cy, gz - cz
             bx, by, bz = bx + tau * (by * wz - bz * wy), by + tau * (bz * wx - bx * wz), bz + tau * (bx * wy - by * wx)
             b = (bx, by, bz, b2)
+        if self._place is not None and dt > 0.0:
+            self._follow_place(dt, b)
         innovation = -math.atan2(m[3] * bx + m[4] * by + m[5] * bz, m[0] * bx + m[1] * by + m[2] * bz)
+        azimuth = s.gate.ref_azimuth_rad
+        if azimuth:
+            innovation = (innovation + azimuth + math.pi) % (2.0 * math.pi) - math.pi
         d.mag_used = self._gate_field(t_s, dt, b, innovation) == "ok"
         if d.mag_used:
             p = s.covariance
@@ -273,6 +291,44 @@ class GyroFilter(AttitudeFilter):
             if dt > 0.0:
                 var += self.gate.field_heading_var(s.gate) * 2.0 * self.config.field_error_time_s / dt
             s.covariance = update_axis(p, self._x, 2, innovation, var)
+
+    def _follow_place(self, dt: float, b) -> None:
+        """The place detector's window; a new place's field becomes the reference (:mod:`compass.filter._place`)."""
+        s = self._s
+        g = s.gate
+        (gx, gy, gz), (cx, cy, cz) = s.rate_rad_s, s.bias_rad_s
+        rate2 = (gx - cx) ** 2 + (gy - cy) ** 2 + (gz - cz) ** 2
+        if not self._place.add(s.place, dt, s.matrix, b, g.world_field(), rate2):
+            return
+        c, p = self.coefficients, s.covariance
+        direction_var = max(c.env_floor_var * c.cos_dip2, g.dip_excess_var)
+        move = self._place.judge(s.place, g.ref_norm, g.ref_dip_deg, direction_var, self.tilt_var, self.heading_var,
+                                 (c.gyro_var, c.scale_var, max(p[15], p[18], p[20])))
+        if move is None:
+            return
+        # North moves with the field only where the turn is beyond what the heading's own error and the field's
+        # explain (chi-square, one degree of freedom): otherwise it is that error, which the field then corrects
+        turn = (move.azimuth_rad - g.ref_azimuth_rad + math.pi) % (2.0 * math.pi) - math.pi
+        turned = g.north_from_gyro and turn * turn > _TURN_BOUND * (self.heading_var + self.gate.field_heading_var(g))
+        east = -math.degrees(turn)  # azimuths count toward West
+        self.events.append(
+            f"{PLACE_EVENT}: |B| {g.ref_norm:.4g} -> {move.field_norm:.4g}, dip {g.ref_dip_deg:.1f} -> "
+            f"{move.dip_deg:.1f} deg, its North {east:+.1f} deg east of the last one's by the gyro's heading"
+            f"{_NORTH[turned, g.north_from_gyro]}: a new "
+            f"place (steady in the world frame over {self.config.place_window_s:g} s while the housing turned: "
+            f"{move.place_rms:.3g} rms within {move.place_bound_rms:.3g}; a magnet on the housing would leave "
+            f"{move.magnet_rms:.3g}, beyond {move.magnet_bound_rms:.3g}), the new reference")
+        g.ref_norm, g.ref_dip_deg = move.field_norm, move.dip_deg
+        if turned:
+            g.ref_azimuth_rad = move.azimuth_rad
+        elif not g.north_from_gyro:  # the heading came from an unverified field: the new one re-teaches it at once
+            g.ref_azimuth_rad = 0.0
+            s.covariance = p[:11] + (p[11] + c.adopt_var,) + p[12:]
+        g.rejected_since_s = None
+        s.place.clear()
+
+    def _reference_moved(self) -> None:
+        self._s.place.clear()
 
     def _inject(self) -> None:
         """Fold the error state into the nominal attitude and bias, reset it to zero."""

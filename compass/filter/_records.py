@@ -110,6 +110,13 @@ class FilterConfig:
     field_error_from_dip : bool
         The field's heading error is measured from the wander of its dip (False: the floor
         ``mag_heading_sigma_deg`` only).
+    follow_place : bool
+        The gyro filter's reference field follows the place: a field the gate rejects that stays
+        constant in the world frame over ``place_window_s`` while the housing turns (and is not a
+        constant field in the housing frame: a magnet on it) becomes the reference, its |B|, dip and
+        azimuth (:mod:`compass.filter._place`); said as an event.
+    place_window_s : float
+        The window over which a new place's field is told from a magnet on the housing, seconds.
     start_bias_hold : bool
         The gyro filter holds its bias (does not estimate it from the tilt: a Schmidt update) for
         ``accel_time_constant_s`` after the start, while the inertial low-pass still carries its start
@@ -149,6 +156,8 @@ class FilterConfig:
     motion_adaptive_accel: bool = True
     field_error_from_dip: bool = True
     start_bias_hold: bool = True
+    follow_place: bool = True
+    place_window_s: float = 4.0
 
     def __post_init__(self):
         for f in fields(self):

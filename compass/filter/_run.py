@@ -33,6 +33,9 @@ class FilterTrack:
     gyro_bias : ndarray, shape (n, 3), or None
     skipped : SkipCounts
         Bad input skipped, by reason.
+    events : tuple of (float, str)
+        The filter's notes (restarts, reference changes: a new place, a timeout), with the time of
+        the sample that gave each, s.
     """
 
     t_s: np.ndarray
@@ -50,6 +53,7 @@ class FilterTrack:
     gate: np.ndarray
     gyro_bias: np.ndarray | None
     skipped: SkipCounts
+    events: tuple = ()
 
 
 def run_filter(t_s, accel, gyro, field_h, config: FilterConfig, *, reference=None) -> FilterTrack:
@@ -104,7 +108,7 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig, *, reference=Non
     # per sample with an attitude: its index, the matrix (9), heading, tilt and field heading variance,
     # field ratio, dip, mag_used, accel_used (7), the gyro bias (3); flat float buffers, no per-sample object
     # kept (57,000 kept tuples cost more in the garbage collector and in np.array than the filter's arithmetic)
-    done, matrices, scalars, bias = [], array("d"), array("d"), array("d")
+    done, matrices, scalars, bias, events = [], array("d"), array("d"), array("d"), []
     gate = ["absent"] * n
     # rows as Python floats once, vectorised (the per-sample step is scalar arithmetic); each row's
     # vectors are short-lived tuples (57,000 kept lists of three would slow the garbage collector)
@@ -115,6 +119,8 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig, *, reference=Non
     def record(i, t, a, g, b):
         if not update(t, a, g, b):
             return
+        if filt.events:
+            events.extend((t, text) for text in filt.drain_events())
         done.append(i)
         matrices.extend(filt.matrix)
         scalars.extend((filt.heading_var, filt.tilt_var, filt.field_heading_var, d.field_ratio, d.dip_deg,
@@ -167,7 +173,7 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig, *, reference=Non
     sigma = np.degrees(np.sqrt(scalars[:, :3]))
     return FilterTrack(t_s, quat, *angles.T, *sigma.T, scalars[:, 3], scalars[:, 4], flags[:, 0], flags[:, 1],
                        np.array(gate, dtype=str), _rows(bias, done, n, 3) if with_bias else None,
-                       start_skips if filt is None else filt.skipped)
+                       start_skips if filt is None else filt.skipped, tuple(events))
 
 
 def _rows(buffer: array, done: np.ndarray, n: int, width: int) -> np.ndarray:

@@ -385,8 +385,9 @@ class StreamDecoder:
             return  # the housing did not tilt enough in this window: try the next one
         self._gyro_judged = True
         unit = self.options.gyro_unit or "rad/s"
-        if ratio > 15.0 or ratio < 1.0 / 15.0:
-            more = f"{ratio:.0f} times more" if ratio > 1 else f"{1 / ratio:.0f} times less"
+        verdict = units.gyro_unit_verdict(ratio)
+        if verdict is not None:
+            more = f"{ratio:.0f} times more" if verdict == "more" else f"{1 / ratio:.0f} times less"
             self.events.append(("warn", f"the gyro read in {unit} turns {more} than the accelerometer sees the housing "
                                         f"tilt (a unit taken for another gives 57): is --gyro-unit right?"))
 

@@ -25,8 +25,6 @@ ACCEL_COLUMNS = ("ax", "ay", "az")
 GYRO_COLUMNS = ("gx", "gy", "gz")
 MAX_GYRO_RAD_S = 70.0
 """A rate beyond this (4000 deg/s, beyond any MEMS gyro's range) is not a reading: RecordingError."""
-_DEG_S_RATIO = 15.0
-"""Gyro turn over accelerometer tilt above this: a deg/s gyro read as rad/s (57); the gyro is then not used."""
 MIN_SAMPLES = 12
 """Fewest distinct magnetometer samples a tumble calibration accepts (the full fit has 9 parameters)."""
 
@@ -140,7 +138,7 @@ def _gyro(table: Table, accel, t_s, keep) -> np.ndarray | None:
         raise RecordingError(table.path, "the gyro reads (0, 0, 0) in every row", column="gx")
     ratio = units.gyro_turn_ratio(t_s, gyro, accel)
     named = "gx" in table.units
-    if ratio is not None and ratio > _DEG_S_RATIO and not named:
+    if units.gyro_unit_verdict(ratio) == "more" and not named:  # a deg/s gyro read as rad/s: not used
         units.note(f"{table.path}: gx,gy,gz not used: read in rad/s the gyro turns {ratio:.0f} times more than the "
                    "accelerometer sees the housing tilt (a deg/s gyro gives 57); give --gyro-unit deg/s to use it")
         return None

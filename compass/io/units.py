@@ -25,7 +25,8 @@ import warnings
 import numpy as np
 
 __all__ = ["RecordingWarning", "GYRO_UNITS", "ACCEL_UNITS", "MAG_UNITS", "ANGLE_UNITS", "STANDARD_GRAVITY",
-           "EARTH_FIELD_UT", "MAX_ABS_VALUE", "MIN_SPAN", "unit_of_header", "gyro_turn_ratio", "check_gyro_unit",
+           "EARTH_FIELD_UT", "MAX_ABS_VALUE", "MIN_SPAN", "unit_of_header", "gyro_turn_ratio", "GYRO_UNIT_RATIO",
+           "gyro_unit_verdict", "check_gyro_unit",
            "check_field_norm", "looks_like_radians", "check_accel_up", "check_two_axis_tilt", "note"]
 
 STANDARD_GRAVITY = 9.80665
@@ -128,8 +129,32 @@ def gyro_turn_ratio(t_s, gyro_rad_s, accel, *, window_s: float = 0.25, min_tilt_
     return float(np.median(turn[used] / tilt[used]))
 
 
+GYRO_UNIT_RATIO = 15.0
+"""A gyro that turns this many times more (or less) than the accelerometer sees the housing tilt is
+read in the wrong unit: deg/s and rad/s are 57.3 apart, a hand-moved housing's honest ratio is near 1."""
+
+
+def gyro_unit_verdict(ratio: float | None) -> str | None:
+    """What a :func:`gyro_turn_ratio` says of the gyro's unit: the one verdict every reader of a gyro gives.
+
+    Returns
+    -------
+    {"more", "less"} or None
+        ``"more"``: it turns over :data:`GYRO_UNIT_RATIO` times more than the tilt (a deg/s gyro read as
+        rad/s); ``"less"``: that many times less (rad/s read as deg/s); None: the unit agrees, or
+        no ratio (``None`` or NaN: the housing did not tilt enough to tell).
+    """
+    if ratio is None or not np.isfinite(ratio):
+        return None
+    if ratio > GYRO_UNIT_RATIO:
+        return "more"
+    if ratio < 1.0 / GYRO_UNIT_RATIO:
+        return "less"
+    return None
+
+
 def check_gyro_unit(t_s, gyro_rad_s, accel, *, named: bool, where: str) -> float | None:
-    """Warn when the gyro's turn does not match the accelerometer's (:func:`gyro_turn_ratio`).
+    """Warn when the gyro's turn does not match the accelerometer's (:func:`gyro_unit_verdict`).
 
     ``named``: the user or the file named the unit (the warning then says the name looks wrong).
     Returns the ratio.
@@ -138,13 +163,14 @@ def check_gyro_unit(t_s, gyro_rad_s, accel, *, named: bool, where: str) -> float
     if ratio is None:
         return None
     source = "as named" if named else "SPEC's unit, the default"
-    if ratio > 15.0:
+    verdict = gyro_unit_verdict(ratio)
+    if verdict == "more":
         note(f"{where}: the gyro gx,gy,gz read in rad/s ({source}) turns {ratio:.0f} times more than the "
              f"accelerometer sees the housing tilt (a deg/s gyro read as rad/s gives 57): if it is in deg/s, "
              f"say so with --gyro-unit deg/s")
     elif ratio == 0.0:
         note(f"{where}: the gyro gx,gy,gz never turns while the accelerometer sees the housing tilt: a dead gyro?")
-    elif ratio < 1.0 / 15.0:
+    elif verdict == "less":
         note(f"{where}: the gyro gx,gy,gz read in rad/s ({source}) turns {1 / ratio:.0f} times less than the "
              f"accelerometer sees the housing tilt (a rad/s gyro read as deg/s gives 1/57): if it is in rad/s, "
              f"say so with --gyro-unit rad/s")

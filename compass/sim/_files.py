@@ -30,9 +30,8 @@ def csv_text(columns, data: np.ndarray, formats, metadata: dict | None = None) -
     return "\n".join(lines) + "\n"
 
 
-def write_with_truth(path, recording_text: str, truth, *, force: bool = False,
-                     truth_suffix: str = ".truth.json") -> tuple[Path, Path]:
-    """Write a recording and its truth ``<stem><truth_suffix>`` (a dict goes out as JSON).
+def write_with_truth(path, recording_text: str, truth: dict, *, force: bool = False) -> tuple[Path, Path]:
+    """Write a recording and its truth beside it, ``<stem>.truth.json``: every simulator's one convention.
 
     Raises
     ------
@@ -40,10 +39,10 @@ def write_with_truth(path, recording_text: str, truth, *, force: bool = False,
         If either file exists and ``force`` is False (nothing is written then).
     """
     path = Path(path)
-    truth_path = path.with_suffix(truth_suffix)
+    truth_path = path.with_suffix(".truth.json")
     for p in (path, truth_path):
         if p.exists() and not force:
             raise FileExistsError(f"{p} exists; use --force to overwrite")
     atomic_write_text(path, recording_text)
-    atomic_write_text(truth_path, truth if isinstance(truth, str) else json.dumps(truth, indent=2) + "\n")
+    atomic_write_text(truth_path, json.dumps(truth, indent=2) + "\n")
     return path, truth_path

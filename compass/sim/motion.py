@@ -18,7 +18,11 @@ rests, plus impulses (tapping) or a fast sinusoid (vibration):
 ================  =====================================  ============================================
 
 The attitude is the exact integral of the angular rate (``R_k = R_k-1 Exp(omega_k dt)``, NWU world,
-FLU housing, SPEC section 1); the field is homogeneous (|B|, dip); the specific force is
+FLU housing, SPEC section 1); the field is homogeneous (|B|, dip) unless the module walks between
+rooms (``places``: from a moment on the world field is another |B|, dip and declination, reached
+over ``Place.transition_s``, the walk through a door; the truth stays in the first place's frame, so
+a heading that follows the new field's North is off by its declination) or a magnet is fixed to
+the housing (``housing_field``: a constant field in H from a moment on); the specific force is
 ``R^T (a + g z)``.  The sensors: gyro ``(I + S) omega + b + n``, accelerometer ``f + b_a + n``
 (m/s^2), magnetometer the field ``latency_s`` late plus noise.  Nothing here is fitted to BROAD; the
 filter never sees what was injected (tests compare its output with :attr:`MotionRecording.rotation`).
@@ -33,7 +37,7 @@ from scipy.spatial.transform import Rotation
 
 from ..frames import world_field
 
-__all__ = ["KINDS", "SensorErrors", "MotionRecording", "simulate_motion"]
+__all__ = ["KINDS", "SensorErrors", "Place", "HousingField", "MotionRecording", "simulate_motion"]
 
 GRAVITY = 9.81
 KINDS = ("slow_rotation", "fast_rotation", "slow_translation", "fast_translation", "breaks", "tapping", "vibration")
@@ -74,6 +78,49 @@ class SensorErrors:
 
 
 @dataclass(frozen=True)
+class Place:
+    """The field of a room the module walks into.
+
+    Attributes
+    ----------
+    t_s : float
+        When the walk into it starts, s.
+    field_ut, dip_deg : float
+        Its |B| and dip.
+    declination_deg : float
+        How far its horizontal field is turned from the first place's North (east positive), degrees.
+    transition_s : float
+        How long the field takes to change (the walk through the door), s.
+    """
+
+    t_s: float
+    field_ut: float
+    dip_deg: float
+    declination_deg: float = 0.0
+    transition_s: float = 2.0
+
+    def world(self) -> np.ndarray:
+        """The place's field in the first place's NWU frame, uT, shape (3,)."""
+        return Rotation.from_euler("z", -self.declination_deg, degrees=True).apply(world_field(self.dip_deg, self.field_ut))
+
+
+@dataclass(frozen=True)
+class HousingField:
+    """A magnet (or magnetised part) fixed to the housing from a moment on.
+
+    Attributes
+    ----------
+    t_s : float
+        When it is put on, s.
+    field_ut : tuple of 3 floats
+        The constant field it adds in H, uT.
+    """
+
+    t_s: float
+    field_ut: tuple
+
+
+@dataclass(frozen=True)
 class MotionRecording:
     """A simulated trial: the truth and the sensors' readings.
 
@@ -92,7 +139,10 @@ class MotionRecording:
     gyro_rad_s, accel_m_s2, mag_ut : ndarray, shape (n, 3)
         The sensors' readings.
     field_ut, dip_deg : float
+        The first place's field.
     errors : SensorErrors
+    places : tuple of Place
+    housing_field : HousingField or None
     """
 
     kind: str
@@ -107,6 +157,8 @@ class MotionRecording:
     field_ut: float
     dip_deg: float
     errors: SensorErrors
+    places: tuple = ()
+    housing_field: HousingField | None = None
 
 
 def _tones(rng, t, rms, f_lo, f_hi, axes=3):
@@ -122,7 +174,7 @@ def _tones(rng, t, rms, f_lo, f_hi, axes=3):
 
 def simulate_motion(kind: str, *, duration_s: float = 60.0, rate_hz: float = 285.714, seed: int = 0,
                     errors: SensorErrors = SensorErrors(), field_ut: float = 43.0, dip_deg: float = 69.0,
-                    rest_s: float = 3.0) -> MotionRecording:
+                    rest_s: float = 3.0, places=(), housing_field: HousingField | None = None) -> MotionRecording:
     """Simulate one trial of ``kind`` (:data:`KINDS`), still for ``rest_s`` at both ends.
 
     Parameters
@@ -136,6 +188,10 @@ def simulate_motion(kind: str, *, duration_s: float = 60.0, rate_hz: float = 285
         The homogeneous field (a Berlin-like default).
     rest_s : float
         Still time at the start and at the end, s.
+    places : sequence of Place
+        Rooms walked into, in time order (the first place's field is ``field_ut``, ``dip_deg``).
+    housing_field : HousingField, optional
+        A magnet put on the housing.
 
     Returns
     -------
@@ -185,7 +241,13 @@ def simulate_motion(kind: str, *, duration_s: float = 60.0, rate_hz: float = 285
         quats[k] = r.as_quat()
     rotation = Rotation.from_quat(quats)
     specific = rotation.apply(accel_world + [0.0, 0.0, GRAVITY], inverse=True)
-    field_h = rotation.apply(world_field(dip_deg, field_ut), inverse=True)
+    field_w = np.tile(world_field(dip_deg, field_ut), (n, 1))
+    for place in places:  # a raised-cosine walk from the field there to the place's
+        share = 0.5 - 0.5 * np.cos(np.pi * np.clip((t - place.t_s) / place.transition_s, 0.0, 1.0))
+        field_w = field_w + share[:, None] * (place.world() - field_w)
+    field_h = rotation.apply(field_w, inverse=True)
+    if housing_field is not None:
+        field_h = field_h + np.where((t >= housing_field.t_s)[:, None], np.asarray(housing_field.field_ut, float), 0.0)
     # sensors
     e = errors
     gyro = rate * (1.0 + np.asarray(e.gyro_scale)) + e.gyro_bias_rad_s \
@@ -195,4 +257,5 @@ def simulate_motion(kind: str, *, duration_s: float = 60.0, rate_hz: float = 285
         field_h = np.column_stack([np.interp(t - e.mag_latency_s, t, field_h[:, i]) for i in range(3)])
     mag = field_h + e.mag_noise_ut * rng.normal(size=(n, 3))
     moving = (np.linalg.norm(rate, axis=1) > np.radians(1.0)) | (np.linalg.norm(accel_world, axis=1) > 0.05)
-    return MotionRecording(kind, t, rotation, rate, specific, moving, gyro, accel, mag, field_ut, dip_deg, e)
+    return MotionRecording(kind, t, rotation, rate, specific, moving, gyro, accel, mag, field_ut, dip_deg, e,
+                           tuple(places), housing_field)

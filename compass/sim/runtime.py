@@ -5,7 +5,7 @@ The sensor is the one behind a four-flip truth (:func:`compass.sim.fourflip.simu
 has ``nonlinear_response``.  An accelerometer reads gravity (+1 g up, in units of g) with white
 noise: aligned with the housing, or, when the truth has an ``accelerometer`` entry (the bench's
 accelerometer, :class:`compass.sim.fourflip.SimAccelerometer`), with its misalignment, scales and offsets.  Written as SPEC section 2's attitude recording, with the true
-angles beside it in ``<stem>.truth.csv``.
+angles beside it in ``<stem>.truth.json``, as every simulator's truth.
 """
 
 from __future__ import annotations
@@ -116,7 +116,8 @@ def simulate_runtime(
 
 
 def write_runtime(session: RuntimeSession, path, *, force: bool = False) -> tuple[Path, Path]:
-    """Write the attitude recording and its truth ``<stem>.truth.csv`` (t_s, heading, pitch, roll).
+    """Write the attitude recording and its truth ``<stem>.truth.json``: ``t_s`` and the true
+    ``heading_deg``, ``pitch_deg``, ``roll_deg`` per row (as ``compass simulate installation --kind runtime``'s).
 
     Raises
     ------
@@ -129,7 +130,8 @@ def write_runtime(session: RuntimeSession, path, *, force: bool = False) -> tupl
         columns += ["ax", "ay", "az"]
         data.append(session.accel)
     recording = csv_text(columns, np.hstack(data), ["%.4f"] + ["%.7f"] * (len(columns) - 1))
-    truth = np.column_stack([session.t_s, session.heading_deg, session.pitch_deg, session.roll_deg])
-    truth_text = csv_text(["t_s", "heading_deg", "pitch_deg", "roll_deg"], truth, ["%.4f"] + ["%.6f"] * 3)
-    return write_with_truth(path, recording, truth_text, force=force, truth_suffix=".truth.csv")
+    truth = {"kind": "runtime", "channels": list(session.channels), "t_s": session.t_s.tolist(),
+             "heading_deg": session.heading_deg.tolist(), "pitch_deg": np.asarray(session.pitch_deg).tolist(),
+             "roll_deg": np.asarray(session.roll_deg).tolist()}
+    return write_with_truth(path, recording, truth, force=force)
 

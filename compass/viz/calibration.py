@@ -1,8 +1,10 @@
-"""Calibrations in Rerun: the four-flip session replayed, the tumble before and after, the platform
-and reference fits, the diagnosis steps, and the live tumble's coverage.
+"""Calibrations in Rerun: the four-flip session replayed, the tumble and the installation before and
+after, the platform and reference fits, the diagnosis steps, and the live tumble's coverage.
 
-Inputs are plain arrays and the calibration file's dict (SPEC section 2; ``to_json()`` of any
-result), so this module does not depend on how ``calibrate`` computes them.
+Inputs are plain arrays and the calibration result's typed attributes (``calibrate``'s result of
+each kind: a four-flip's ``channels`` with ``direction`` and ``direction_sigma_deg``, ``dip_deg``,
+``azimuth_deg``, ``noise``; a tumble's ``hard_iron``, ``soft_iron``, ``field_norm``; every kind's
+``diagnosis``), never its file's JSON.
 
 Entities (timelines ``sample``: the replay order, ``t`` when the recording has ``t_s``, and for the
 four-flip ``turntable_deg``: the platform angle in whole degrees, which its layout plots against):
@@ -28,6 +30,9 @@ entity                                          content
 ``tumble/hard_iron/<axis>``                     iron, coverage, the fit converging (+-1 sigma)
 ``tumble/field_ratio``                          |m| / field_norm: ``raw`` (about the hard iron,
                                                 gain-normalised) and ``calibrated``
+``installed/{bench,installed}/samples``         installation: the field through the bench calibration
+                                                alone and through the installed one, over the site's |B|
+``installed/field_ratio``                       their |B| / site |B| per sample
 ``<kind>/<channel>/residual``                   platform3d, reference: residual per channel
 ``diagnosis/residual_rms/step<k>_<added>``      ``BarChart``: diagnosis step k's residual rms (one
                                                 entity a step, so the legend names it); ``/noise_floor``
@@ -59,17 +64,21 @@ _CONE_MIN_DEG = 0.5  # narrower cones are not drawn (a line on the arrow); the l
 def _diagnosis_views() -> rrb.Container:
     return rrb.Vertical(
         rrb.BarChartView(origin="/diagnosis/residual_rms", name="residual rms per step",
-                         plot_legend=rrb.PlotLegend(corner="RightTop", visible=True)),
+                         # bottom left: over the bars' feet, not over their heights (the top right hid the floor's)
+                         plot_legend=rrb.PlotLegend(corner="LeftBottom", visible=True)),
         _layout.text_log(origin="/diagnosis/log", name="diagnosis steps"), row_shares=[2, 3])
 
 
 def calibration_views(kind: str, channels=()) -> rrb.Container:
     """The layout of a calibration of ``kind`` (``fourflip``, ``tumble``, ``platform3d``, ``reference``)."""
     if kind == "fourflip":
-        rows = [rrb.Horizontal(_layout.series(origin=f"/fourflip/{ch}", name=f"{ch}: output (recording units), fit",
+        # legends hidden (they covered the right tenth of every plot): the title names the colours
+        rows = [rrb.Horizontal(_layout.series(origin=f"/fourflip/{ch}", legend=None,
+                                              name=f"{ch}: output (recording units): measured grey, fit blue",
                                               contents=["$origin/measured", "$origin/fit"]),
-                               _layout.series(origin=f"/fourflip/{ch}/residual",
-                                              name=f"{ch}: residual (recording units), noise band"))
+                               _layout.series(origin=f"/fourflip/{ch}/residual", legend=None,
+                                              name=f"{ch}: residual (recording units): blue (orange before the "
+                                                   f"diagnosis's effects), noise band grey"))
                 for ch in channels]
         return rrb.Horizontal(
             _layout.spatial(origin="/bench", name="cube on the turntable: sensing directions +-1 sigma, field (orange)",
@@ -81,22 +90,46 @@ def calibration_views(kind: str, channels=()) -> rrb.Container:
                 _layout.spatial(origin="/tumble/raw", name="raw, on the fitted ellipsoid (colour: coverage)",
                                 eye=(2.2, 1.8, 1.4)),
                 _layout.spatial(origin="/tumble/calibrated", name="calibrated, on the sphere", eye=(2.2, 1.8, 1.4))),
-                _layout.series(origin="/tumble/field_ratio", name="|m| / field_norm (ratio): raw and calibrated"),
+                _layout.series(origin="/tumble/field_ratio", legend=None,
+                               name="|m| / field_norm (ratio): raw orange, calibrated blue"),
                 row_shares=[3, 1]),
             rrb.Vertical(_layout.spatial(origin="/tumble/coverage", name="coverage: cells seen (green)",
                                          eye=(2.2, 1.8, 1.4)),
                          _diagnosis_views()), column_shares=[3, 1], name="tumble calibration")
+    if kind == "installed":
+        return rrb.Horizontal(
+            rrb.Vertical(rrb.Horizontal(
+                _layout.spatial(origin="/installed/bench", name="bench calibration alone: the product's iron bends "
+                                                               "the sphere", eye=(2.2, 1.8, 1.4)),
+                _layout.spatial(origin="/installed/installed", name="installed calibration: back on the sphere",
+                                eye=(2.2, 1.8, 1.4))),
+                _layout.series(origin="/installed/field_ratio", legend=None,
+                               name="|B| / site |B| (ratio): bench calibration alone orange, installed blue"),
+                row_shares=[3, 1]),
+            _diagnosis_views(), column_shares=[3, 1], name="installation calibration")
     residuals = rrb.Vertical(*(_layout.series(origin=f"/{kind}/{ch}", name=f"{ch}: residual (recording units)",
                                               legend=None) for ch in channels))
     parts = [_layout.spatial(origin="/platform3d/bench", name="housing in each pose")] if kind == "platform3d" else []
     return rrb.Horizontal(*parts, residuals, _diagnosis_views(), name=f"{kind} calibration")
 
 
-def log_calibration(rec, kind: str, calibration: dict, **arrays) -> None:
-    """Log one calibration; ``arrays`` are those :func:`log_fourflip`, :func:`log_tumble` or
-    :func:`log_fit_residuals` take for ``kind``."""
-    {"fourflip": log_fourflip, "tumble": log_tumble}.get(kind, log_fit_residuals)(rec, calibration, **arrays)
-    log_diagnosis(rec, calibration.get("diagnosis"), t_s=arrays.get("t_s"))
+def log_calibration(rec, result, **arrays) -> None:
+    """Log one calibration result; ``arrays`` are those :func:`log_fourflip`, :func:`log_tumble` or
+    :func:`log_fit_residuals` take for its kind."""
+    kind = result.calibration_kind
+    if kind in ("fourflip", "tumble", "installed"):
+        {"fourflip": log_fourflip, "tumble": log_tumble, "installed": log_installed}[kind](rec, result, **arrays)
+    else:
+        log_fit_residuals(rec, **arrays)
+    log_diagnosis(rec, diagnosis_block(result), t_s=arrays.get("t_s"))
+
+
+def diagnosis_block(result) -> dict | None:
+    """The result's residual diagnosis as SPEC section 4's block (``steps``, ``noise_floor``, ``effects``,
+    ``unexplained``): a four-flip keeps the block itself as ``diagnosis``, the other kinds a record whose
+    ``block`` it is (:class:`calibrate.diagnosis.report.Diagnosis`); None when the diagnosis did not run."""
+    diagnosis = result.diagnosis
+    return diagnosis if diagnosis is None or isinstance(diagnosis, dict) else diagnosis.block
 
 
 def _at_start(rec, t_s=None) -> None:
@@ -108,15 +141,15 @@ def _at_start(rec, t_s=None) -> None:
         rec.set_time("t", duration=float(np.nanmin(t_s)))
 
 
-def log_fourflip(rec, calibration: dict, *, platform_deg, flip_deg, outputs, residuals, t_s=None,
+def log_fourflip(rec, result, *, platform_deg, flip_deg, outputs, residuals, t_s=None,
                  base_residuals=None, frames: int = 720) -> None:
     """The four-flip session replayed: the cube turning, outputs with fit and residuals.
 
     Parameters
     ----------
-    calibration : dict
-        The four-flip calibration file (``channels`` with ``direction`` and
-        ``direction_covariance``, ``dip_deg``, ``field_azimuth_deg``, ``noise_floor``).
+    result : the four-flip result (:mod:`calibrate.fourflip.result`)
+        Its ``channels`` (``name``, ``direction`` in H, ``direction_sigma_deg``),
+        ``dip_deg``, ``azimuth_deg`` (deg), ``noise`` (per channel, output units).
     platform_deg, flip_deg : ndarray (n,)
         The samples the fit used, degrees.
     outputs, residuals : ndarray (n, c)
@@ -127,7 +160,7 @@ def log_fourflip(rec, calibration: dict, *, platform_deg, flip_deg, outputs, res
     frames : int
         At most this many samples drawn in 3-D.
     """
-    names = list(calibration["channels"])
+    names = [channel.name for channel in result.channels]
     order = np.argsort(t_s, kind="stable") if t_s is not None else np.lexsort((np.mod(platform_deg, 360.0), flip_deg))
     sample = np.arange(len(order))
     t = None if t_s is None else np.asarray(t_s, dtype=float)[order]
@@ -137,7 +170,7 @@ def log_fourflip(rec, calibration: dict, *, platform_deg, flip_deg, outputs, res
     # lie on their four sinusoids (against sample number they are one long scribble)
     index = columns_index(t, sample) + [rr.TimeColumn("turntable_deg", sequence=turntable)]
     outputs, residuals = np.asarray(outputs, dtype=float)[order], np.asarray(residuals, dtype=float)[order]
-    noise = np.broadcast_to(np.asarray(calibration.get("noise_floor", np.nan), dtype=float), (len(names),))
+    noise = np.broadcast_to(np.asarray(result.noise, dtype=float), (len(names),))
     for j, name in enumerate(names):
         rec.log(f"fourflip/{name}/measured",
                 rr.SeriesPoints(names=["measured"], colors=[_MEASURED], marker_sizes=[1.0]), static=True)
@@ -159,7 +192,7 @@ def log_fourflip(rec, calibration: dict, *, platform_deg, flip_deg, outputs, res
             scalars=np.broadcast_to([-noise[j], noise[j]], (len(sample), 2))))
     for name, values in (("platform_deg", phi), ("flip_deg", kappa)):
         rec.send_columns(f"fourflip/{name}", indexes=index, columns=rr.Scalars.columns(scalars=values))
-    _log_bench(rec, calibration, names)
+    _log_bench(rec, result)
     keep = np.unique(np.linspace(0, len(sample) - 1, min(frames, len(sample))).astype(int))
     subset = columns_index(None if t is None else t[keep], keep) + [rr.TimeColumn("turntable_deg",
                                                                                    sequence=turntable[keep])]
@@ -170,11 +203,11 @@ def log_fourflip(rec, calibration: dict, *, platform_deg, flip_deg, outputs, res
     rec.send_columns("bench/turntable/cube", indexes=subset, columns=rr.Transform3D.columns(quaternion=cube.as_quat()))
 
 
-def _log_bench(rec, calibration: dict, names) -> None:
+def _log_bench(rec, result) -> None:
     """The static parts of the bench: field, turntable ring, housing, directions and their cones."""
-    field_w = field_in_bench(calibration["dip_deg"], calibration.get("field_azimuth_deg", 0.0), 1.5)
+    field_w = field_in_bench(result.dip_deg, result.azimuth_deg, 1.5)
     rec.log("bench/field", rr.Arrows3D(vectors=[field_w], colors=[FIELD_COLOR],
-                                       labels=[f"field, dip {calibration['dip_deg']:.2f} deg"]), static=True)
+                                       labels=[f"field, dip {result.dip_deg:.2f} deg"]), static=True)
     phi = np.linspace(0.0, 2.0 * np.pi, 73)
     ring = np.column_stack([1.4 * np.cos(phi), 1.4 * np.sin(phi), np.full(phi.shape, -0.3)])
     zero = [[0.0, 0.0, -0.3], [1.4, 0.0, -0.3]]
@@ -183,15 +216,14 @@ def _log_bench(rec, calibration: dict, names) -> None:
     log_housing(rec, "bench/turntable/cube", color=(200, 200, 200), label="cube (housing)", scale=0.6,
                 axis_labels=False)
     directions, strips, labels = [], [], []
-    for j, name in enumerate(names):
-        ch = calibration["channels"][name]
-        a = np.asarray(ch["direction"], dtype=float)
-        sigma = ch.get("direction_sigma_deg")
+    for j, channel in enumerate(result.channels):
+        a = np.asarray(channel.direction, dtype=float)
+        sigma = channel.direction_sigma_deg
         directions.append(a)
-        labels.append(f"{name}" + ("" if sigma is None else f" +-{sigma:.3f} deg"))
+        labels.append(f"{channel.name}" + ("" if sigma is None else f" +-{sigma:.3f} deg"))
         if sigma is not None and _SIGMAS * sigma >= _CONE_MIN_DEG:
             strips.append((cone_strips(a, np.radians(_SIGMAS * sigma), 1.2), AXIS_COLORS[j % 3]))
-    colors = [AXIS_COLORS[j % 3] for j in range(len(names))]
+    colors = [AXIS_COLORS[j % 3] for j in range(len(directions))]
     rec.log("bench/turntable/cube/directions", rr.Arrows3D(vectors=1.2 * np.array(directions), colors=colors,
                                                            labels=labels, show_labels=True), static=True)
     if strips:  # in the channel's colour, thin: a cone is no arrow
@@ -204,6 +236,8 @@ def log_diagnosis(rec, diagnosis: dict | None, *, t_s=None) -> None:
     """The diagnosis block (SPEC section 4): each step's residual rms as bars, the steps in words
     (stamped at the start of the recording, whose times ``t_s`` are, when it has any)."""
     if not diagnosis or not diagnosis.get("steps"):
+        _at_start(rec, t_s)
+        rec.log("diagnosis/log", rr.TextLog("no residual diagnosis (not run)"))
         return
     steps = diagnosis["steps"]
     rms = []
@@ -259,15 +293,14 @@ def _coverage_colors(counts: np.ndarray) -> np.ndarray:
     return np.where(counts[:, None] == 0, [90, 90, 90], (1 - level) * red + level * green).astype(np.uint8)
 
 
-def log_tumble(rec, calibration: dict, *, mag, t_s=None, coverage_words: str | None = None,
+def log_tumble(rec, result, *, mag, t_s=None, coverage_words: str | None = None,
                n_cells: int = 200) -> None:
     """The tumble before and after: raw points on the fitted ellipsoid, calibrated on the sphere.
 
     Parameters
     ----------
-    calibration : dict
-        The tumble calibration file: ``hard_iron``, ``soft_iron`` (``m = S (raw - h)``),
-        ``field_norm``.
+    result : calibrate.tumble.result.TumbleResult
+        ``hard_iron`` (recording units), ``soft_iron`` (``m = S (raw - h)``), ``field_norm``.
     mag : ndarray (n, 3)
         Raw magnetometer samples, recording units.
     coverage_words : str, optional
@@ -276,9 +309,9 @@ def log_tumble(rec, calibration: dict, *, mag, t_s=None, coverage_words: str | N
         Cells of the coverage sphere.
     """
     mag = np.asarray(mag, dtype=float)
-    hard = np.asarray(calibration["hard_iron"], dtype=float)
-    soft = np.asarray(calibration["soft_iron"], dtype=float)
-    norm = float(calibration["field_norm"])
+    hard = np.asarray(result.hard_iron, dtype=float)
+    soft = np.asarray(result.soft_iron, dtype=float)
+    norm = float(result.field_norm)
     m = (mag - hard) @ soft.T
     cells = sphere_cells(n_cells)
     cell, counts = _cell_counts(m / np.linalg.norm(m, axis=1, keepdims=True), cells)
@@ -311,7 +344,35 @@ def log_tumble(rec, calibration: dict, *, mag, t_s=None, coverage_words: str | N
         rec.log("diagnosis/log", rr.TextLog(f"coverage: {coverage_words}"))
 
 
-def log_fit_residuals(rec, calibration: dict, *, prefix: str, residuals: dict, t_s=None) -> None:
+def log_installed(rec, result, *, bench_field, installed_field, t_s=None) -> None:
+    """An installation: the product's field through the bench calibration alone (the product's iron makes
+    the sphere an ellipsoid, off centre) and through the installed calibration (back on the sphere).
+
+    Parameters
+    ----------
+    result : calibrate.installation.fit.InstallationCalibration
+        Its ``field_magnitude`` (the site's |B|, field units) scales both clouds to one.
+    bench_field, installed_field : ndarray (n, 3)
+        The recording's field in H by the bench model and in the product's frame by the installed model,
+        field units.
+    """
+    norm = float(result.field_magnitude)
+    for name, field in (("bench", bench_field), ("installed", installed_field)):
+        unit = np.asarray(field, dtype=float) / norm
+        rec.log(f"installed/{name}/samples", rr.Points3D(unit[np.all(np.isfinite(unit), axis=1)], radii=0.01,
+                                                          colors=[_BEFORE if name == "bench" else _AFTER]), static=True)
+        rec.log(f"installed/{name}/sphere", rr.Ellipsoids3D(half_sizes=[[1.0, 1.0, 1.0]], colors=[[200, 200, 200, 60]],
+                                                            labels=[f"site |B| ({norm:.4g})"]), static=True)
+        rec.log(f"installed/{name}/axes", rr.Arrows3D(vectors=1.3 * np.eye(3), colors=AXIS_COLORS,
+                                                      labels=["+X", "+Y", "+Z"]), static=True)
+    rec.log("installed/field_ratio", rr.SeriesPoints(names=["bench calibration alone", "installed"],
+                                                     colors=[_BEFORE, _AFTER], marker_sizes=[1.0, 1.0]), static=True)
+    ratio = np.column_stack([np.linalg.norm(bench_field, axis=1), np.linalg.norm(installed_field, axis=1)]) / norm
+    rec.send_columns("installed/field_ratio", indexes=columns_index(t_s, np.arange(len(ratio))),
+                     columns=rr.Scalars.columns(scalars=ratio))
+
+
+def log_fit_residuals(rec, *, prefix: str, residuals: dict, t_s=None) -> None:
     """Residuals of a platform (seed 001) or reference-field (seed 003) fit, one series per channel.
 
     Parameters
@@ -407,7 +468,7 @@ class LiveTumbleRecording:
         views = [self.views()]
         if result is not None:
             self.rec.set_time("sample", sequence=0)
-            log_calibration(self.rec, "tumble", result.to_json(), mag=mag, coverage_words=result.coverage.words())
+            log_calibration(self.rec, result, mag=mag, coverage_words=result.coverage.words())
             views.append(calibration_views("tumble"))
         self.rec.send_blueprint(_layout.blueprint(rrb.Tabs(*views), "sample"))
         self.recording.close()
@@ -419,7 +480,7 @@ def log_calibration_result(rec, result, recording_path, *, base_residuals=None, 
     Parameters
     ----------
     result : calibrate.contract.Calibration
-        The fit's result: ``calibration_kind``, ``to_json()`` and per kind ``residuals`` and
+        The fit's result: ``calibration_kind``, ``diagnosis`` and per kind ``residuals`` and
         ``used(recording)`` (four-flip), ``coverage`` (tumble), ``residuals_mag`` (3-D platform),
         ``sensors`` with their ``residuals`` (reference fields).
     recording_path : path
@@ -431,7 +492,6 @@ def log_calibration_result(rec, result, recording_path, *, base_residuals=None, 
     """
     from ..io.table import read_table
 
-    calibration = result.to_json()
     table = read_table(recording_path, read_options)
     kind = result.calibration_kind
     if kind == "tumble":
@@ -449,6 +509,15 @@ def log_calibration_result(rec, result, recording_path, *, base_residuals=None, 
     elif kind == "reference":
         residuals = {f"{s.name}/{c}": r for s in result.sensors for c, r in zip(s.channels, s.residuals.T)}
         channels, arrays = tuple(residuals), dict(prefix=kind, residuals=residuals)
+    elif kind == "installed":
+        from ..calibration import from_dict
+        from ..io.installation import installation_from_table
+
+        recording, bench = installation_from_table(table), from_dict(result.base_document).model
+        raw = recording.raw[:, [recording.channels.index(c) for c in bench.channels]]
+        channels, arrays = bench.channels, dict(bench_field=bench.field(raw, recording.temp_c)[0],
+                                                installed_field=result.model.field(raw, recording.temp_c)[0],
+                                                t_s=recording.t_s)
     elif kind == "fourflip":
         from ..io.fourflip import fourflip_from_table
 
@@ -459,9 +528,9 @@ def log_calibration_result(rec, result, recording_path, *, base_residuals=None, 
                       residuals=result.residuals, t_s=used.t_s,
                       base_residuals=None if base_residuals is None else base_residuals(recording))
     else:  # a kind this module does not draw yet: its diagnosis only
-        log_diagnosis(rec, calibration.get("diagnosis"))
+        log_diagnosis(rec, diagnosis_block(result))
         return rrb.Vertical(_diagnosis_views(), name=f"{kind} calibration")
-    log_calibration(rec, kind, calibration, **arrays)
+    log_calibration(rec, result, **arrays)
     return calibration_views(kind, channels)
 
 

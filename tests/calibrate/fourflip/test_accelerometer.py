@@ -231,13 +231,13 @@ def test_imu_rotation_into_the_model_frame_composes_bench_and_installation():
 
 def test_export_puts_the_field_in_the_accelerometer_frame(tmp_path):
     """Fusion expects the magnetometer in the accelerometer's frame: mag_to_accel is folded into the export."""
-    from compass.commands.export import load_tumble
+    from compass.commands.export import firmware_form, read_calibration
 
     session = simulate_fourflip(seed=14, accelerometer=SimAccelerometer(misalign_deg=1.0))
     doc = calibrate_fourflip(session.recording(), diagnose=False).to_json()
     path = tmp_path / "cal.json"
     path.write_text(json.dumps(doc))
-    form = load_tumble(path)
+    form = firmware_form(read_calibration(path))
     model = from_dict(doc).model
     raw = session.outputs[:5]
     field_accel = (form["mag_to_accel"] @ form["soft_iron"] @ (raw - form["hard_iron"]).T).T

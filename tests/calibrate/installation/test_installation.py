@@ -344,7 +344,7 @@ def test_cli_installation_end_to_end(bench, tmp_path, capsys):
 
     session = RuntimeSession(run.t_s, run.channels, run.outputs, run.accel, run.heading_deg, run.pitch_deg,
                              run.roll_deg, np.zeros((len(run.t_s), 3)))
-    att_rec, truth_csv = write_runtime(session, tmp_path / "run.csv")
+    att_rec, _ = write_runtime(session, tmp_path / "run.csv")
     assert main(["attitude", str(out), str(att_rec), "--out", str(tmp_path / "att.csv")]) == 0
     table = read_table(tmp_path / "att.csv")
     assert table.metadata["reference_field"].startswith("calibration site")

@@ -2,8 +2,6 @@
 
 import json
 import math
-import shutil
-import subprocess
 
 import numpy as np
 import pytest
@@ -131,50 +129,6 @@ def test_c_float_literals_are_valid():
     from compass.commands.export import c_float
 
     assert [c_float(v) for v in (1.0, 0.0, -2.0, 1.5, 1e-5, 1e20)] == ["1.0f", "0.0f", "-2.0f", "1.5f", "1e-05f", "1e+20f"]
-
-
-# the types of x-io Fusion's FusionMath.h by release, as their headers declare them (stand-ins written
-# here: only the layout matters to the initialisers): 1.2 has a 3x3 array, 1.3 a flat array[9]
-FUSION_TYPES = {
-    "1.2": "typedef union { float array[3][3]; struct { float xx, xy, xz, yx, yy, yz, zx, zy, zz; } element; } "
-           "FusionMatrix;\n",
-    "1.3": "typedef union { float array[9]; struct { float xx, xy, xz, yx, yy, yz, zx, zy, zz; } element; } "
-           "FusionMatrix;\n"}
-
-
-@pytest.mark.skipif(shutil.which("gcc") is None, reason="no C compiler on this machine")
-@pytest.mark.parametrize("api", ["1.3", "1.2"])
-@pytest.mark.parametrize("rotated", [False, True])
-def test_fusion_export_compiles_and_holds_the_matrix_for_each_release(tmp_path, capsys, rotated, api):
-    """On main the initialiser was nested for array[3][3]: against Fusion 1.3's array[9] it does not compile
-    cleanly (and would fill the wrong elements). Compiled and run, the program prints back what was exported."""
-    rng = np.random.default_rng(3)
-    soft = np.eye(3) + 0.05 * (lambda a: a + a.T)(rng.normal(size=(3, 3)))
-    doc = tumble_doc() | {"soft_iron": soft.tolist(), "hard_iron": [1.5, -2.25, 0.125]}
-    if rotated:
-        doc["mag_to_accel"] = np.eye(3)[[1, 2, 0]].tolist()
-    cal = tmp_path / "cal.json"
-    cal.write_text(json.dumps(doc))
-    out = tmp_path / "cal.h"
-    assert main(["export", str(cal), "--format", "fusion", "--fusion-api", api, "--out", str(out)]) == 0
-    assert {"1.3": "FusionModelMagnetic", "1.2": "FusionCalibrationMagnetic"}[api] in out.read_text()
-    source = tmp_path / "main.c"
-    source.write_text("#include <stdio.h>\n" + FUSION_TYPES[api] +
-                      "typedef union { float array[3]; struct { float x, y, z; } axis; } FusionVector;\n"
-                      f'#include "{out.name}"\n'
-                      "int main(void) {\n"
-                      "  const float *m = &softIronMatrix.element.xx;\n"
-                      "  for (int i = 0; i < 9; i++) printf(\"%.9g \", m[i]);\n"
-                      "  for (int i = 0; i < 3; i++) printf(\"%.9g \", hardIronOffset.array[i]);\n"
-                      "  return 0;\n}\n")
-    done = subprocess.run(["gcc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", str(source), "-o",
-                           str(tmp_path / "main")], capture_output=True, text=True, timeout=60, cwd=tmp_path)
-    assert done.returncode == 0, done.stderr
-    run = subprocess.run([str(tmp_path / "main")], capture_output=True, text=True, timeout=60)
-    values = np.array(run.stdout.split(), dtype=float)
-    expected = soft if not rotated else np.eye(3)[[1, 2, 0]] @ soft
-    np.testing.assert_allclose(values[:9], expected.ravel(), rtol=1e-6, atol=1e-6)  # row-major: xx, xy, ...
-    np.testing.assert_allclose(values[9:], [1.5, -2.25, 0.125])
 
 
 def test_export_says_when_the_field_norm_is_not_in_ut(tmp_path, capsys):

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from tests._proc import Proc, compass_command
 
-from compass.calibration import model_to_dict
+from compass.calibration import load, model_to_dict
 from compass.cli import main
 from compass.commands._export_motioncal import packet_of, send_packet
 from compass.io import motioncal as mc
@@ -88,7 +88,7 @@ def test_the_packet_is_what_the_c_receiver_accepts_and_stores_byte_for_byte(cals
 
 
 def test_a_corrupted_byte_anywhere_is_rejected(cals, receiver):
-    packet, _ = packet_of(cals / "t.json", max_rotation_deg=5.0)
+    packet, _ = packet_of(load(cals / "t.json"), max_rotation_deg=5.0)
     data = mc.encode_packet(packet)
     rng = np.random.default_rng(3)
     for k in list(range(68)) + list(rng.integers(0, 68, 10)):
@@ -170,7 +170,7 @@ def test_export_to_a_simulated_motioncal_board_is_echoed_back(tmp_path):
 def test_a_device_that_keeps_other_values_is_said(tmp_path):
     """A sketch that echoes but never takes the packet: exit 1 with the first difference."""
     cal = _board_cal(tmp_path)
-    packet, _ = packet_of(cal)
+    packet, _ = packet_of(load(cal))
     other = mc.CalPacket(np.zeros(3), np.zeros(3), np.zeros(3), 50.0, np.eye(3))
     master, slave = os.openpty()
     stop = threading.Event()
@@ -197,7 +197,7 @@ def test_a_device_that_keeps_other_values_is_said(tmp_path):
 
 def test_no_echo_is_not_a_confirmation(tmp_path):
     cal = _board_cal(tmp_path)
-    packet, _ = packet_of(cal)
+    packet, _ = packet_of(load(cal))
     master, slave = os.openpty()
     try:
         status, words = send_packet(os.ttyname(slave), packet, wait_s=0.5)
@@ -211,10 +211,10 @@ def test_export_without_out_prints_the_numbers_and_bytes(tmp_path, capsys):
     cal = _board_cal(tmp_path)
     assert main(["export", str(cal), "--format", "motioncal"]) == 0
     out = capsys.readouterr().out
-    packet, _ = packet_of(cal)
+    packet, _ = packet_of(load(cal))
     assert out.strip().splitlines()[-1] == "bytes " + mc.encode_packet(packet).hex(" ")
     assert main(["export", str(cal), "--format", "fusion", "--port", "/dev/null"]) == 2
-    assert "--port sends a MotionCal packet" in capsys.readouterr().err
+    assert "--port is for --format motioncal; it does nothing with --format fusion" in capsys.readouterr().err
 
 
 def test_a_volts_model_is_refused_by_the_motioncal_device(tmp_path, capsys):

@@ -212,13 +212,17 @@ def test_rest_noise_measures_injected_white_noise():
 
 
 @pytest.mark.skipif(not MAGNET.exists(), reason=f"BROAD data not found at {BROAD}")
-def test_evaluate_several_trials_by_pattern_prints_each_and_a_table(tmp_path, capsys):
+def test_evaluate_several_trials_by_pattern_prints_each_and_a_table(tmp_path, capsys, progress_terminal):
     from compass.cli import main
 
+    terminal = progress_terminal("compass.io.progress.working")
     for name in ("one", "two"):
         _crop(MAGNET, tmp_path / f"{name}.mat", 45.0)
     assert main(["evaluate", str(tmp_path / "*.mat")]) == 0
     out = capsys.readouterr().out
+    # a terminal sees a bar over the trials, cleared while each trial's report prints (to stdout, unmixed)
+    assert "evaluating 2 trials [" in terminal.getvalue() and "2/2 100 %" in terminal.getvalue()
+    assert "\r" not in out and "\x1b" not in out
     rows = [line.split() for line in out.splitlines() if line.strip().startswith(("one ", "two "))]
     assert out.count("  heading RMS ") == 2 and "2 trials:" in out and [r[0] for r in rows] == ["one", "two"]
     assert rows[0][1:] == rows[1][1:]  # the same data, the same scores

@@ -101,7 +101,7 @@ def test_kinds_have_their_own_application_id_and_layout(folder, fourflip):
         rrd = folder / f"{kind}.rrd"
         assert main(["calibrate", str(rec), "--out", str(folder / f"{kind}.json"), "--quiet", "--rerun", str(rrd)]) == 0
         seen[kind] = check_layout(rrd, f"compass_calibrate_{kind}", "sample")
-    assert "|m| / field_norm (ratio): raw and calibrated" in names(seen["tumble"])
+    assert "|m| / field_norm (ratio): raw orange, calibrated blue" in names(seen["tumble"])
     assert "housing in each pose" in names(seen["platform3d"])
     assert len(application_ids(fourflip[2]) | {f"compass_calibrate_{k}" for k in seen}) == 4
 

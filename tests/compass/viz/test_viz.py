@@ -100,7 +100,8 @@ def test_calibrate_fourflip_replays_the_session(fourflip):
     assert any("offset_drift" in t[0] for t in log)
     views = views_by_name(rrd)
     assert views["cube on the turntable: sensing directions +-1 sigma, field (orange)"]["class"] == "3D"
-    assert views["v1: residual (recording units), noise band"]["origin"] == "/fourflip/v1/residual"
+    assert views["v1: residual (recording units): blue (orange before the diagnosis's effects), noise band grey"][
+        "origin"] == "/fourflip/v1/residual"
     assert {v["class"] for v in views.values()} == {"3D", "TimeSeries", "BarChart", "TextLog"}
 
 
