@@ -18,6 +18,7 @@ from ..site_field import compare_with_site
 from .alignment import MAX_ANGLE_WIDENING, field_gravity_angles, fit_misalignment, refine_jointly, static_mask
 from .diagnosis import UNEXPLAINED_WARNING, diagnose_tumble
 from .ellipsoid import fit_ellipsoid
+from .gyro import falls_back, with_gyro
 from .result import TumbleResult
 
 def _axis_noise(x: np.ndarray) -> np.ndarray:
@@ -222,6 +223,9 @@ class TumbleCalibrator(Calibrator):
     Notes
     -----
     The residual diagnosis always runs (the refusal of a field that changed partway rests on it).
+    With a gyro (``gx,gy,gz``, ``t_s`` and an accelerometer in the recording) and a present fit that
+    fell back (a kind simpler than ``full``, or the rotation to the housing withheld), the gyro-aided fit
+    (:mod:`calibrate.tumble.gyro`) replaces it where it is determined.
     """
 
     kind = "tumble"
@@ -240,6 +244,9 @@ class TumbleCalibrator(Calibrator):
         result = calibrate_tumble(recording.mag, recording.accel, ellipsoid=self.ellipsoid, field_ut=field_ut,
                                   n_repeats=recording.n_repeats, t_s=recording.t_s, temp_c=recording.temp_c,
                                   site_dip_deg=None if site is None else site["model_dip_deg"])
+        if self.ellipsoid == "auto" and recording.gyro_turn_rad is not None and falls_back(result):  # the gyro pins what |m| cannot
+            result = with_gyro(result, recording.mag, recording.accel, recording.gyro_turn_rad, recording.t_s,
+                               recording.temp_c)
         if result.refused:
             raise CannotCalibrate(f"{recording.path}: {result.refused}")
         health = channel_health(result, recording.mag)

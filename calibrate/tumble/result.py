@@ -48,6 +48,9 @@ class TumbleResult(CalibrationResult):
     raw_unit : str
         The unit of the readings fitted, for the report: ``"uT"`` when the recording's magnetometer
         unit was named (the reader converted it), else ``"recording units"``.
+    gyro : dict or None
+        The gyro-aided fit's block (:mod:`calibrate.tumble.gyro`; ``used``: whether ``fit`` and
+        ``misalignment`` are its), None when it was not tried.
     """
 
     fit: EllipsoidFit
@@ -64,6 +67,7 @@ class TumbleResult(CalibrationResult):
     health: dict = field(default_factory=dict)
     """The file's ``"channel_health"`` block (:mod:`calibrate.health`), set by :class:`TumbleCalibrator`."""
     raw_unit: str = "recording units"
+    gyro: dict | None = None
 
     calibration_kind = "tumble"
 
@@ -173,6 +177,8 @@ class TumbleResult(CalibrationResult):
                 "misalignment_rotvec_sigma_deg": None if mis is None else [json_float(v) for v in mis.rotvec_sigma_deg],
                 "field_gravity_angle_spread_deg": None if mis is None else
                 {"before": mis.spread_before_deg, "after": mis.spread_after_deg, "n_static": mis.n_static},
+                "method": "gyro" if self.gyro and self.gyro["used"] else "ellipsoid",
+                "gyro": self.gyro,
             },
             "warnings": list(self.warnings),
         } | ({"channel_health": self.health} if self.health else {})
@@ -180,7 +186,8 @@ class TumbleResult(CalibrationResult):
     def report(self) -> str:
         """A fit report for a person: values +- sigma, the kinds compared, coverage and warnings in words."""
         fit = self.fit
-        lines = [f"Tumble calibration: {fit.ellipsoid} ellipsoid from {self.n_samples} samples "
+        aided = " (gyro-aided: the gyro's turns between samples in the fit)" if self.gyro and self.gyro["used"] else ""
+        lines = [f"Tumble calibration: {fit.ellipsoid} ellipsoid{aided} from {self.n_samples} samples "
                  f"({self.n_repeats} repeated rows dropped, {np.count_nonzero(~fit.inliers)} outliers)"]
         lines.append("  hard iron " + ", ".join(f"{v:.5g} +- {s:.2g}" for v, s in zip(fit.hard_iron, fit.hard_iron_sigma))
                      + f" ({self.raw_unit})")

@@ -26,7 +26,9 @@ _ANGLE_DEG = limits.Range(0.0, 180.0, "deg", lo_open=True, hi_open=True)
 def register(sub) -> None:
     p = sub.add_parser("calibrate", help="calibrate from a recording and write a calibration file")
     p.add_argument("recording", help="recording CSV (four-flip: has flip_deg; 3-D platform: platform_z_deg; "
-                                     "reference fields: bx_ref; tumble: mx,my,mz)")
+                                     "reference fields: bx_ref; tumble: mx,my,mz, and with gx,gy,gz, ax,ay,az and "
+                                     "t_s the gyro's turns pin soft iron and mag-to-accel where the ellipsoid alone "
+                                     "falls back)")
     p.add_argument("--out", required=True, help="calibration JSON to write")
     p.add_argument("--method", choices=("ml", "harmonic", "patent"), default="ml",
                    help="ml: joint maximum likelihood (default); harmonic: seed formulas on harmonic fits; "

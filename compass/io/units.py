@@ -168,6 +168,8 @@ def check_gyro_unit(t_s, gyro_rad_s, accel, *, named: bool, where: str) -> float
         note(f"{where}: the gyro gx,gy,gz read in rad/s ({source}) turns {ratio:.0f} times more than the "
              f"accelerometer sees the housing tilt (a deg/s gyro read as rad/s gives 57): if it is in deg/s, "
              f"say so with --gyro-unit deg/s")
+    elif ratio == 0.0:
+        note(f"{where}: the gyro gx,gy,gz never turns while the accelerometer sees the housing tilt: a dead gyro?")
     elif verdict == "less":
         note(f"{where}: the gyro gx,gy,gz read in rad/s ({source}) turns {1 / ratio:.0f} times less than the "
              f"accelerometer sees the housing tilt (a rad/s gyro read as deg/s gives 1/57): if it is in rad/s, "

@@ -1,0 +1,585 @@
+r"""Gyro-aided tumble calibration: the turns the gyro measured between samples pin what |m| alone cannot.
+
+Model (maximum likelihood in the spirit of Kok and Schon, "Magnetometer calibration using inertial
+sensors", IEEE Sensors J. 16(14), 2016), in the housing frame H (the accelerometer's and the gyro's,
+one IMU), NWU world (SPEC section 1):
+
+.. math:: x_k = D\,u_k + h + e_k, \qquad u_k = R_k^T b_W, \qquad b_W = (\cos\delta, 0, -\sin\delta),
+
+.. math:: \hat a_k = R_k^T \hat z + f_k \quad (\text{quasi-static rows}), \qquad
+          R_k = Q_j\,\Delta R_k(\beta), \quad \Delta R_k = \prod_{i \in j,\, i \le k} \mathrm{Exp}\big(\phi_i - \beta\,\Delta t_i\big),
+
+with ``x_k`` the raw magnetometer (recording units), ``D = F (C S)^{-1}`` its whole response (soft
+iron ``S``, symmetric, det 1; ``C`` = ``mag_to_accel``; ``F`` = |B| in recording units: ``D`` has 9
+free numbers and no gauge, the field ``b_W`` being a unit vector), ``h`` the hard iron, ``delta`` the
+dip, ``phi_i`` the gyro's turn over the rows up to sample ``i`` (:func:`compass.io.tumble.gyro_turns`),
+``beta`` its bias (rad/s, fitted), and ``Q_j = R_world<-housing`` at the start of window ``j``
+(its heading free, its tilt pinned by the accelerometer).  ``e_k`` is white magnetometer noise
+(sigma from second differences), ``f_k`` the accelerometer direction's noise and hand motion (robust
+sigma); the loss is the sum of both, weighted, robust (``soft_l1``) then plain on the inliers.
+
+What the data determine (derivation; checked numerically by the Jacobian's rank in
+``tests/calibrate/tumble/test_gyro.py``).  The ellipsoid sees only ``|C S (x - h)| = F``, which
+is unchanged by ``C S -> P C S`` for any rotation ``P``: the rotation to the housing is invisible
+to it, and ``S`` is determined only where the field's directions span the sphere (the present fit
+needs every half-axis seen).  With the gyro, ``x_k - h = D \Delta R_k^T v_j`` (``v_j = Q_j^T b_W``):
+a change ``D -> D P``, ``v_j -> P^T v_j`` that leaves every ``x_k`` unchanged needs ``P`` to commute
+with every turn ``\Delta R_k``, and a change of ``h`` must be a constant ``D`` times field.  Hence:
+
+- turns about two or more non-parallel axes, of any size: ``P = I``; all of ``D`` (the soft iron
+  *and* the rotation to the housing) and ``h`` are determined, however small the fraction of the
+  sphere the field swept - their precision grows with the angles turned;
+- turns about one housing axis ``n`` only (a level robot joint, a swing): ``u_k = (v.n) n +
+  Rot(n, -theta_k) v_perp``, so ``x_k = [h + (v.n) D n] + D Rot(n, -theta_k) v_perp``, and five
+  combinations stay undetermined: ``D n`` (the response to the field along the turn axis, 3 numbers)
+  against the hard iron; the size of ``D`` across ``n`` against ``|v_perp|`` (the field's angle to
+  ``n``, 1: only their product appears); and ``P = Rot(n, phi)``, which commutes with every turn
+  (the rotation to the housing about ``n``, 1; with gravity it trades against the dip).  ``D``'s
+  shape across ``n`` is determined.  This is what the words then name as undetermined;
+- no turn: nothing beyond the present fit.
+
+Gyro errors.  Integrating the gyro accumulates its errors: the bias is fitted (a constant bias
+error ``d beta`` turns ``R_k`` by ``d beta t``); what is not modelled (scale factors and axis
+misalignment, typically 0.5-2 %, a bias that wanders) grows with the angle turned and the time.
+Each window restarts the integration with its own ``Q_j``: a window closes after
+:data:`WINDOW_TURN_DEG` of turn or :data:`WINDOW_S` seconds, so a 1 % scale error costs at most
+~0.6 deg of orientation inside a window (an 0.3 uT noise on a 50 uT field is 0.34 deg per sample),
+while each window still holds turns large enough to see the rotation between the sensors.  The
+windows keep the information that ties them together: one field (``|B|``, dip) and the gravity of
+every quasi-static row.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy import sparse
+from scipy.linalg import sqrtm
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from ..diagnosis.forms import json_float
+from ..noise import robust_sigma, second_difference_sigma, second_differences
+from .alignment import Misalignment, field_gravity_angles, static_mask
+from .diagnosis import UNEXPLAINED_WARNING, diagnose_tumble
+from .ellipsoid import MAX_RELATIVE_SIGMA, OUTLIER_SIGMAS, EllipsoidFit
+from .result import TumbleResult
+
+__all__ = ["GyroFit", "GyroMismatch", "falls_back", "fit_with_gyro", "with_gyro", "turn_axes", "WINDOW_S", "WINDOW_TURN_DEG", "MAX_ROTATION_SIGMA_DEG"]
+
+WINDOW_S = 10.0
+"""A window of integrated gyro turns closes after this long, s."""
+
+WINDOW_TURN_DEG = 60.0
+"""... or after the housing turned this much since the window's start, deg."""
+
+MIN_WINDOW_SAMPLES = 5
+
+MAX_ROTATION_SIGMA_DEG = 0.5
+"""The rotation to the housing is determined when each component's sigma is below this, deg."""
+
+MAX_NFEV = 100
+
+MIN_INLIER_FRACTION = 0.5
+"""A fit that keeps fewer of the samples says the model does not hold (:class:`GyroMismatch`)."""
+
+
+class GyroMismatch(ValueError):
+    """The gyro-aided model does not describe the recording (most samples rejected), in words."""
+_AXES = "xyz"
+
+
+@dataclass(frozen=True)
+class GyroFit:
+    """The gyro-aided fit of a tumble.
+
+    Attributes
+    ----------
+    hard_iron, hard_iron_sigma : ndarray, shape (3,)
+        Recording units.
+    soft_iron, soft_iron_sigma : ndarray, shape (3, 3)
+        ``S``, symmetric, det 1 (the calibrated field in recording units is ``S (x - h)``).
+    field_norm, field_norm_sigma : float
+        ``F``, recording units.
+    mag_to_accel : Rotation
+        ``C``: calibrated magnetometer frame -> housing (accelerometer and gyro) frame.
+    rotvec_deg, rotvec_sigma_deg : ndarray, shape (3,)
+    dip_deg, dip_sigma_deg : float
+    gyro_bias_rad_s, gyro_bias_sigma_rad_s : ndarray, shape (3,)
+    n_windows, n_static : int
+        Windows of integration; quasi-static accelerometer rows used.
+    inliers : ndarray of bool, shape (n,)
+        Samples kept after trimming (magnetometer residual within ``OUTLIER_SIGMAS``).
+    mag_rms, noise : float
+        Rms of the magnetometer residual per axis over the inliers, and the white-noise sigma it is
+        weighed against (recording units).
+    undetermined : tuple of str
+        Parameters whose sigma exceeds the limits (:data:`calibrate.tumble.MAX_RELATIVE_SIGMA` of
+        the field, :data:`MAX_ROTATION_SIGMA_DEG`), in words; empty when the fit is determined.
+    turns : str
+        How the housing turned (:func:`turn_axes`), in words.
+    success : bool
+    message : str
+    """
+
+    hard_iron: np.ndarray
+    hard_iron_sigma: np.ndarray
+    soft_iron: np.ndarray
+    soft_iron_sigma: np.ndarray
+    field_norm: float
+    field_norm_sigma: float
+    mag_to_accel: Rotation
+    rotvec_deg: np.ndarray
+    rotvec_sigma_deg: np.ndarray
+    dip_deg: float
+    dip_sigma_deg: float
+    gyro_bias_rad_s: np.ndarray
+    gyro_bias_sigma_rad_s: np.ndarray
+    n_windows: int
+    n_static: int
+    inliers: np.ndarray
+    mag_rms: float
+    noise: float
+    undetermined: tuple
+    turns: str
+    success: bool
+    message: str
+
+    @property
+    def determined(self) -> bool:
+        return self.success and not self.undetermined
+
+    def to_json(self) -> dict:
+        """The file's ``tumble.gyro`` block (JSON-ready)."""
+        return {"method": "gyro", "n_windows": self.n_windows, "window_s": WINDOW_S, "window_turn_deg": WINDOW_TURN_DEG,
+                "gyro_bias_rad_s": self.gyro_bias_rad_s.tolist(),
+                "gyro_bias_sigma_rad_s": [json_float(v) for v in self.gyro_bias_sigma_rad_s],
+                "mag_residual_rms": self.mag_rms, "noise": self.noise, "n_static": self.n_static,
+                "n_outliers": int(np.count_nonzero(~self.inliers)), "turns": self.turns,
+                "undetermined": list(self.undetermined), "words": self.words()}
+
+    def words(self) -> str:
+        """What the gyro-aided fit determined, for the coverage words."""
+        base = (f"with the gyro's turns ({self.turns}; {self.n_windows} windows of integration, gyro bias "
+                + ", ".join(f"{np.degrees(b):+.3f}" for b in self.gyro_bias_rad_s) + " deg/s)")
+        if self.determined:
+            return base + ": the soft iron and the rotation to the housing are determined"
+        if self.undetermined:  # said first: a fit that wandered along what the data leave free fails too
+            return base + ": still undetermined: " + "; ".join(self.undetermined)
+        return base + f": the fit did not converge ({self.message})"
+
+
+def turn_axes(turns_rad: np.ndarray) -> str:
+    """How the housing turned, in words, from the gyro's turns (rad, housing frame, shape (n, 3)).
+
+    The principal axes of ``sum phi phi^T``: one axis carrying nearly all the turning (the other
+    two below 1 % of it in angle squared) is "about one axis only".
+    """
+    phi = np.asarray(turns_rad, float)
+    w, v = np.linalg.eigh(phi.T @ phi)
+    total = float(np.degrees(np.sum(np.linalg.norm(phi, axis=1))))
+    main = v[:, -1] * np.sign(v[np.argmax(np.abs(v[:, -1])), -1])
+    if w[1] < 1e-2 * w[2]:
+        return (f"turned {total:.0f} deg in all, about one axis only, housing ({main[0]:+.2f}, {main[1]:+.2f}, "
+                f"{main[2]:+.2f})")
+    return f"turned {total:.0f} deg in all, about several axes"
+
+
+def _windows(turns: np.ndarray, dt: np.ndarray) -> np.ndarray:
+    """Index of the window of each sample (a window closes after WINDOW_TURN_DEG or WINDOW_S)."""
+    limit = np.radians(WINDOW_TURN_DEG)
+    out = np.empty(len(turns), dtype=int)
+    j, angle, time, count = 0, 0.0, 0.0, 0
+    step = np.linalg.norm(turns, axis=1)
+    for k in range(len(turns)):
+        if count >= MIN_WINDOW_SAMPLES and (angle + step[k] > limit or time + dt[k] > WINDOW_S):
+            j, angle, time, count = j + 1, 0.0, 0.0, 0
+        elif count:
+            angle, time = angle + step[k], time + dt[k]
+        out[k] = j
+        count += 1
+    return out
+
+
+def _qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton product of scalar-last quaternions, shape (..., 4)."""
+    px, py, pz, pw = np.moveaxis(p, -1, 0)
+    qx, qy, qz, qw = np.moveaxis(q, -1, 0)
+    return np.stack([pw * qx + px * qw + py * qz - pz * qy, pw * qy - px * qz + py * qw + pz * qx,
+                     pw * qz + px * qy - py * qx + pz * qw, pw * qw - px * qx - py * qy - pz * qz], axis=-1)
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """``[v]x`` of each row, shape (..., 3, 3)."""
+    z = np.zeros(v.shape[:-1])
+    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1), np.stack([v[..., 2], z, -v[..., 0]], -1),
+                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+
+
+def _so3_jacobian(phi: np.ndarray, sign: float) -> np.ndarray:
+    """Right (``sign`` -1) or left (+1) Jacobian of SO(3) at each row of ``phi``, shape (..., 3, 3)."""
+    theta = np.linalg.norm(phi, axis=-1)[..., None, None]
+    small = theta < 1e-6
+    t = np.where(small, 1.0, theta)
+    a = np.where(small, 0.5, (1.0 - np.cos(t)) / t**2)
+    b = np.where(small, 1.0 / 6.0, (t - np.sin(t)) / t**3)
+    k = _skew(phi)
+    return np.eye(3) + sign * a * k + b * (k @ k)
+
+
+class _Problem:
+    """Residual and sparse Jacobian of the gyro-aided model on fixed rows (see the module docstring).
+
+    Parameters ``q``: ``D`` (9, row-major), ``h`` (3), ``delta`` (1, rad), ``beta`` (3, rad/s), then
+    the rotation vector ``rho_j`` of each window (3 each: ``Q_j = Exp(rho_j) Q_j0``).
+    """
+
+    N_GLOBAL = 16
+
+    def __init__(self, mag, turns, dt, window, a_unit, static, q_start, sigma_m, sigma_a):
+        self.mag, self.turns, self.dt, self.window = mag, turns, dt, window
+        self.a_unit, self.static = a_unit[static], np.flatnonzero(static)
+        self.q_start = q_start  # Q_j0 of each window, Rotation
+        self.sigma_m, self.sigma_a = sigma_m, sigma_a
+        n = len(mag)
+        self.n_w = int(window[-1]) + 1
+        starts = np.r_[0, np.flatnonzero(np.diff(window)) + 1]
+        self.first = np.zeros(n, dtype=bool)
+        self.first[starts] = True
+        lengths = np.diff(np.r_[starts, n])
+        self.slot = np.arange(n) - np.repeat(starts, lengths)  # position within the window
+        self.pad = int(lengths.max())
+
+    def _relative(self, beta):
+        """``Delta R_k`` (matrices, shape (n, 3, 3)) and ``G_k`` (d of its turn / d beta, up to sign)."""
+        phi = self.turns - np.outer(self.dt, beta)
+        phi[self.first] = 0.0  # a window starts at its first sample
+        quat = Rotation.from_rotvec(phi).as_quat()
+        grid = np.tile([0.0, 0.0, 0.0, 1.0], (self.n_w, self.pad, 1))
+        grid[self.window, self.slot] = quat
+        shift = 1
+        while shift < self.pad:  # prefix products along each window (Hillis-Steele scan)
+            grid[:, shift:] = _qmul(grid[:, :-shift], grid[:, shift:])
+            shift *= 2
+        rel = Rotation.from_quat(grid[self.window, self.slot]).as_matrix()
+        step = rel @ _so3_jacobian(phi, -1.0) * self.dt[:, None, None]
+        step[self.first] = 0.0
+        cum = np.cumsum(step, axis=0)
+        base = cum[self.first][self.window] - step[self.first][self.window]
+        return rel, cum - base
+
+    def _state(self, q):
+        d = q[:9].reshape(3, 3)
+        h, delta, beta = q[9:12], q[12], q[13:16]
+        rho = q[16:].reshape(-1, 3)
+        start = (Rotation.from_rotvec(rho) * self.q_start).as_matrix()  # Q_j, (n_w, 3, 3)
+        rel, g = self._relative(beta)
+        qk = start[self.window]
+        b_w = np.array([np.cos(delta), 0.0, -np.sin(delta)])
+        v = np.einsum("kji,j->ki", qk, b_w)  # Q^T b_W
+        u = np.einsum("kji,kj->ki", rel, v)  # Delta R^T Q^T b_W
+        return d, h, delta, b_w, rho, qk, rel, g, v, u
+
+    def residual(self, q):
+        d, h, _, _, _, qk, rel, _, _, u = self._state(q)
+        r_m = (self.mag - u @ d.T - h) / self.sigma_m
+        s = self.static
+        up = np.einsum("kji,kj->ki", rel[s], qk[s][:, 2, :])  # Delta R^T Q^T z
+        r_a = (self.a_unit - up) / self.sigma_a
+        return np.concatenate([r_m.ravel(), r_a.ravel()])
+
+    def jacobian(self, q):
+        d, h, delta, b_w, rho, qk, rel, g, v, u = self._state(q)
+        n, s = len(self.mag), self.static
+        jl = _so3_jacobian(rho, 1.0)[self.window]  # (n, 3, 3)
+        rel_t = np.transpose(rel, (0, 2, 1))
+        blocks = np.zeros((n, 3, self.N_GLOBAL))
+        for i in range(3):
+            blocks[:, i, 3 * i:3 * i + 3] = -u
+        blocks[:, :, 9:12] = -np.eye(3)
+        db = np.array([-np.sin(delta), 0.0, -np.cos(delta)])
+        blocks[:, :, 12] = -(rel_t @ np.einsum("kji,j->ki", qk, db)[..., None])[..., 0] @ d.T
+        # dr/dbeta = D Delta R^T [v]x G ; dr/drho = -D Delta R^T Q^T [b_W]x J_l
+        d_rel_t = d @ rel_t
+        blocks[:, :, 13:16] = d_rel_t @ _skew(v) @ g
+        rows_rho = -d_rel_t @ np.transpose(qk, (0, 2, 1)) @ _skew(b_w) @ jl
+        blocks /= self.sigma_m
+        rows_rho /= self.sigma_m
+        # accelerometer rows: up = Delta R^T Q^T z
+        z = np.array([0.0, 0.0, 1.0])
+        up_h = qk[s][:, 2, :]
+        a_blocks = np.zeros((len(s), 3, self.N_GLOBAL))
+        a_blocks[:, :, 13:16] = rel_t[s] @ _skew(up_h) @ g[s]
+        a_rho = -rel_t[s] @ np.transpose(qk[s], (0, 2, 1)) @ _skew(z) @ jl[s]
+        a_blocks /= self.sigma_a
+        a_rho /= self.sigma_a
+        dense = sparse.csr_matrix(np.vstack([blocks.reshape(3 * n, -1), a_blocks.reshape(3 * len(s), -1)]))
+        w = np.r_[self.window, self.window[s]]
+        vals = np.vstack([rows_rho.reshape(3 * n, 3), a_rho.reshape(3 * len(s), 3)])
+        rows = np.repeat(np.arange(3 * (n + len(s))), 3)
+        cols = (3 * np.repeat(w, 3)[:, None] + np.arange(3)).ravel()
+        local = sparse.csr_matrix((vals.ravel(), (rows, cols)), shape=(3 * (n + len(s)), 3 * self.n_w))
+        return sparse.hstack([dense, local], format="csr")
+
+
+def _start_orientations(mag_h, a_unit, window, b_w):
+    """``Q_j0`` of each window from its first sample: tilt from gravity, heading from the field (TRIAD)."""
+    starts = np.r_[0, np.flatnonzero(np.diff(window)) + 1]
+    out = []
+    up = np.array([0.0, 0.0, 1.0])
+    for k in starts:
+        m = mag_h[k] / np.linalg.norm(mag_h[k])
+        out.append(Rotation.align_vectors([up, b_w], [a_unit[k], m], weights=[np.inf, 1.0])[0].as_quat())
+    return Rotation.from_quat(np.array(out))
+
+
+def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_norm, mag_to_accel=None,
+                  dip_deg=None, noise=None) -> GyroFit:
+    """Fit the gyro-aided model from a start (the present tumble fit's values).
+
+    Parameters
+    ----------
+    mag : ndarray, shape (n, 3)
+        Raw magnetometer, recording units, in time order.
+    accel : ndarray, shape (n, 3)
+        Accelerometer (specific force, +1 g up at rest), any unit, housing frame.
+    turns_rad : ndarray, shape (n, 3)
+        The gyro's turn from the previous sample to each (rotation vector, rad, housing frame; row 0
+        ignored): :func:`compass.io.tumble.gyro_turns`.
+    t_s : ndarray, shape (n,)
+        Time of each sample, s.
+    hard_iron, soft_iron, field_norm, mag_to_accel, dip_deg :
+        The start: ``h`` (recording units), ``S`` (det 1), ``F``, ``C`` (None: identity), dip (None:
+        from the field-gravity angle).
+    noise : float, optional
+        White-noise sigma per axis (recording units); default from second differences.
+
+    Returns
+    -------
+    GyroFit
+
+    Raises
+    ------
+    ValueError
+        Inputs of different lengths, non-finite, or a time that decreases.
+    GyroMismatch
+        Fewer than 20 quasi-static rows, or the model rejects most samples (said in words).
+    """
+    mag, accel, turns = (np.asarray(a, dtype=float) for a in (mag, accel, turns_rad))
+    t_s = np.asarray(t_s, dtype=float)
+    n = len(mag)
+    for label, a, shape in (("accel", accel, (n, 3)), ("turns_rad", turns, (n, 3)), ("t_s", t_s, (n,))):
+        if a.shape != shape:
+            raise ValueError(f"{label} must have shape {shape}, got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{label} holds non-finite values")
+    dt = np.diff(t_s, prepend=t_s[0])
+    if np.any(dt < 0):
+        raise ValueError("t_s must be non-decreasing")
+    static = static_mask(accel)
+    if np.count_nonzero(static) < 20:
+        raise GyroMismatch(f"only {np.count_nonzero(static)} quasi-static accelerometer rows; the gyro-aided fit needs 20")
+    if noise is None:
+        noise = float(np.median(second_difference_sigma(second_differences(mag))))
+    a_unit = accel / np.linalg.norm(accel, axis=1, keepdims=True)
+    c0 = np.eye(3) if mag_to_accel is None else np.asarray(mag_to_accel, float)
+    t0 = c0 @ np.asarray(soft_iron, float)
+    mag_h = (mag - hard_iron) @ t0.T
+    if dip_deg is None:
+        cos = np.sum(mag_h[static] * a_unit[static], axis=1) / np.linalg.norm(mag_h[static], axis=1)
+        dip_deg = float(np.degrees(np.median(np.arccos(np.clip(cos, -1, 1)))) - 90.0)
+    delta0 = np.radians(dip_deg)
+    window = _windows(turns, dt)
+    b_w = np.array([np.cos(delta0), 0.0, -np.sin(delta0)])
+    q_start = _start_orientations(mag_h, a_unit, window, b_w)
+    n_w = int(window[-1]) + 1
+    q0 = np.concatenate([(field_norm * np.linalg.inv(t0)).ravel(), hard_iron, [delta0], np.zeros(3), np.zeros(3 * n_w)])
+    prob = _Problem(mag, turns, dt, window, a_unit, static, q_start, max(noise, 1e-12), 1.0)
+    r_a = prob.residual(q0)[3 * n:].reshape(-1, 3)
+    prob.sigma_a = max(float(robust_sigma(np.linalg.norm(r_a, axis=1))), 1e-4)
+    robust = least_squares(prob.residual, q0, jac=prob.jacobian, loss="soft_l1", f_scale=3.0, method="trf",
+                           tr_solver="lsmr", x_scale="jac", max_nfev=MAX_NFEV)
+    r = robust.fun[:3 * n].reshape(n, 3)
+    inliers = np.linalg.norm(r, axis=1) < OUTLIER_SIGMAS * np.sqrt(3.0)
+    keep_a = np.linalg.norm(robust.fun[3 * n:].reshape(-1, 3), axis=1) < OUTLIER_SIGMAS * np.sqrt(3.0)
+    if np.count_nonzero(inliers) < MIN_INLIER_FRACTION * n or np.count_nonzero(keep_a) < 20:
+        raise GyroMismatch(f"the magnetometer and the gyro disagree: the fit rejected {n - np.count_nonzero(inliers)} of "
+                           f"{n} samples beyond {OUTLIER_SIGMAS:g} noise sigmas (a magnetometer late against the gyro, "
+                           "a disturbed field, a gyro off scale)")
+    # a dropped sample's turn and time go to the next kept one; windows emptied by the trimming go
+    rows = np.flatnonzero(inliers)
+    kept_turns = np.diff(np.cumsum(turns, axis=0)[rows], axis=0, prepend=np.zeros((1, 3)))
+    kept_dt = np.diff(t_s[rows], prepend=t_s[rows[0]])
+    static_kept = np.zeros(n, dtype=bool)
+    static_kept[prob.static[keep_a]] = True
+    used = np.unique(window[rows])
+    remap = np.full(n_w, -1)
+    remap[used] = np.arange(len(used))
+    kept = _Problem(mag[rows], kept_turns, kept_dt, remap[window[rows]], a_unit[rows], static_kept[rows],
+                    q_start[used], prob.sigma_m, prob.sigma_a)
+    x1 = np.concatenate([robust.x[:16], robust.x[16:].reshape(-1, 3)[used].ravel()])
+    final = least_squares(kept.residual, x1, jac=kept.jacobian, method="trf", tr_solver="lsmr", x_scale="jac",
+                          max_nfev=MAX_NFEV)
+    chi2 = float(final.fun @ final.fun) / max(final.fun.size - final.x.size, 1)
+    return _result(final, _global_covariance(final.jac, chi2), kept, inliers, noise, turns, n_w=len(used))
+
+
+def _global_covariance(jac, chi2: float) -> np.ndarray | None:
+    """Covariance of the 16 global parameters, the windows' orientations marginalised (None if singular).
+
+    The Schur complement of the normal equations' block-diagonal window part, each 3 x 3 block
+    pseudo-inverted (a window whose orientation the data leave partly free adds nothing), scaled to
+    unit diagonal before judging its condition (``D`` is of order |B|, ``beta`` of order 0.01 rad/s).
+    """
+    k = _Problem.N_GLOBAL
+    a = (jac.T @ jac).toarray()
+    a_gg, a_gl = a[:k, :k], a[:k, k:]
+    n_w = (a.shape[0] - k) // 3
+    blocks = np.array([a[k + 3 * j:k + 3 * j + 3, k + 3 * j:k + 3 * j + 3] for j in range(n_w)]).reshape(n_w, 3, 3)
+    inv_blocks = np.linalg.pinv(blocks, rcond=1e-10, hermitian=True)
+    gl = a_gl.reshape(k, n_w, 3).transpose(1, 0, 2)  # (n_w, k, 3)
+    schur = a_gg - np.einsum("wia,wab,wjb->ij", gl, inv_blocks, gl)
+    d = np.sqrt(np.clip(np.diag(schur), 1e-300, None))
+    scaled = schur / np.outer(d, d)
+    if not np.all(np.isfinite(scaled)) or np.linalg.cond(scaled) > 1e12:
+        return None
+    return np.linalg.inv(scaled) / np.outer(d, d) * chi2
+
+
+def _unpack(q):
+    """(h, S det 1, F, C as matrix, dip rad) from the parameters; S from the polar decomposition of ``T = F D^-1``."""
+    d = q[:9].reshape(3, 3)
+    f_norm = np.cbrt(np.linalg.det(d))
+    t = f_norm * np.linalg.inv(d)
+    s = np.real(sqrtm(t.T @ t))
+    s = (s + s.T) / 2.0
+    c = t @ np.linalg.inv(s)
+    return q[9:12], s, float(f_norm), c, float(q[12])
+
+
+def _result(final, cov, prob, inliers, noise, turns, n_w) -> GyroFit:
+    q = final.x
+    h, s, f_norm, c, delta = _unpack(q)
+    rot = Rotation.from_matrix(c)
+    right_handed = np.linalg.det(q[:9].reshape(3, 3)) > 0
+    success = bool(final.success) and right_handed
+    message = str(final.message) if right_handed else "the response has a negative determinant: a reversed axis"
+    n_mag = 3 * len(prob.mag)
+    mag_rms = float(np.sqrt(np.mean((final.fun[:n_mag] * prob.sigma_m) ** 2)))
+    if cov is None:
+        sig_h, sig_s, sig_f, sig_rot, sig_dip = (np.full(3, np.inf), np.full((3, 3), np.inf), np.inf,
+                                                 np.full(3, np.inf), np.inf)
+        sig_beta = np.full(3, np.inf)
+    else:
+        sig_h = np.sqrt(np.clip(np.diag(cov)[9:12], 0, None))
+        sig_dip = float(np.degrees(np.sqrt(max(cov[12, 12], 0.0))))
+        sig_beta = np.sqrt(np.clip(np.diag(cov)[13:16], 0, None))
+        grads = np.empty((9 + 1 + 3, 9))  # d(S, F, rotvec) / d(D)
+        for j in range(9):
+            step = np.zeros_like(q)
+            step[j] = 1e-7 * max(abs(q[j]), f_norm)
+            _, s_j, f_j, c_j, _ = _unpack(q + step)
+            grads[:9, j] = (s_j - s).ravel() / step[j]
+            grads[9, j] = (f_j - f_norm) / step[j]
+            grads[10:, j] = (Rotation.from_matrix(c_j) * rot.inv()).as_rotvec() / step[j]
+        var = np.einsum("ij,jk,ik->i", grads, cov[:9, :9], grads)
+        sig = np.sqrt(np.clip(var, 0, None))
+        sig_s, sig_f, sig_rot = sig[:9].reshape(3, 3), float(sig[9]), np.degrees(sig[10:])
+    undetermined = []
+    bad_h = [_AXES[i] for i in range(3) if not sig_h[i] <= MAX_RELATIVE_SIGMA * f_norm]
+    if bad_h:
+        undetermined.append(f"hard iron along {', '.join(bad_h)} (sigma up to "
+                            f"{100 * np.max(sig_h) / f_norm:.2g} % of the field)")
+    bad_s = [f"{_AXES[i]}{_AXES[j]}" for i in range(3) for j in range(i, 3) if not sig_s[i, j] <= MAX_RELATIVE_SIGMA]
+    if bad_s:
+        undetermined.append(f"soft iron {', '.join(bad_s)} (sigma up to {100 * np.max(sig_s):.2g} %)")
+    bad_r = [_AXES[i] for i in range(3) if not sig_rot[i] <= MAX_ROTATION_SIGMA_DEG]
+    if bad_r:
+        undetermined.append(f"the rotation to the housing about {', '.join(bad_r)} (sigma up to "
+                            f"{np.max(sig_rot):.2g} deg)")
+    return GyroFit(h, sig_h, s, sig_s, f_norm, sig_f, rot, np.degrees(rot.as_rotvec()), sig_rot,
+                   float(np.degrees(delta)), sig_dip, q[13:16], sig_beta, n_w, len(prob.static), inliers, mag_rms,
+                   float(noise), tuple(undetermined), turn_axes(turns[inliers]), success, message)
+
+
+_SUPERSEDED = ("used the ", "no magnetometer-accelerometer rotation fitted", UNEXPLAINED_WARNING)
+"""Warnings of the present fit that a determined gyro-aided fit answers (its kind, its withheld rotation,
+its residual's verdict, which is judged anew)."""
+
+
+def falls_back(result: TumbleResult) -> bool:
+    """Whether the present fit fell back: a kind simpler than ``full``, or a rotation to the housing the
+    data support withheld for the missing part of the sphere (one the BIC does not support is no fallback)."""
+    withheld = result.misalignment is not None and result.misalignment.withheld is not None
+    return not result.refused and (result.ellipsoid != "full" or withheld)
+
+
+def ellipsoid_from(g: GyroFit, like: EllipsoidFit, mag: np.ndarray) -> EllipsoidFit:
+    """The gyro-aided fit as a ``full`` :class:`EllipsoidFit` in ``like``'s normalisation (the diagnosis's form)."""
+    low = np.linalg.cholesky((like.radius * g.soft_iron / g.field_norm) @ (like.radius * g.soft_iron / g.field_norm))
+    params = np.concatenate([(g.hard_iron - like.centre) / like.radius, np.log(np.diag(low)),
+                             [low[1, 0], low[2, 0], low[2, 1]]])
+    resid = np.linalg.norm((mag - g.hard_iron) @ g.soft_iron.T, axis=1) - g.field_norm
+    return replace(like, ellipsoid="full", hard_iron=g.hard_iron, hard_iron_sigma=g.hard_iron_sigma,
+                   soft_iron=g.soft_iron, soft_iron_sigma=g.soft_iron_sigma, field_norm=g.field_norm,
+                   field_norm_sigma=g.field_norm_sigma, residuals=resid, inliers=g.inliers,
+                   rss=float(np.sum(resid[g.inliers] ** 2)), bic=np.nan, determined=True, reason="",
+                   success=g.success, message=g.message, params=params, degenerate=False)
+
+
+def misalignment_from(g: GyroFit, mag_cal: np.ndarray, accel: np.ndarray) -> Misalignment:
+    """The gyro-aided rotation and dip as a :class:`Misalignment`, with the field-gravity angle spread
+    before and after the rotation and the BIC of the rotation against the dip alone on those angles."""
+    static = static_mask(accel)
+    before = field_gravity_angles(mag_cal[static], accel[static])
+    after = field_gravity_angles(mag_cal[static], accel[static], g.mag_to_accel)
+    n = len(before)
+    delta_bic = n * np.log(np.sum((after - after.mean()) ** 2) / np.sum((before - before.mean()) ** 2)) + 3 * np.log(n)
+    return Misalignment(g.mag_to_accel, g.rotvec_deg, g.rotvec_sigma_deg, g.dip_deg, g.dip_sigma_deg,
+                        int(np.count_nonzero(static)), float(np.std(before)), float(np.std(after)), float(delta_bic))
+
+
+def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_rad: np.ndarray, t_s: np.ndarray,
+              temp_c: np.ndarray | None = None) -> TumbleResult:
+    """The present tumble result, or the gyro-aided one where that one is determined.
+
+    Parameters
+    ----------
+    result : TumbleResult
+        :func:`calibrate.tumble.calibrate_tumble`'s on the same samples (the start values).
+    mag, accel, turns_rad, t_s, temp_c :
+        As :func:`fit_with_gyro` (``temp_c`` for the diagnosis).
+
+    Returns
+    -------
+    TumbleResult
+        When the gyro-aided fit is determined: a ``full`` ellipsoid and the rotation to the housing
+        from it, the residual diagnosis of it (no effect is added: the gyro-aided model has none),
+        the coverage warning saying what the gyro determined, and ``gyro`` its block.  Otherwise
+        ``result`` with a warning saying what stays undetermined even with the gyro.
+    """
+    start = result.fit
+    mis = result.misalignment
+    try:
+        g = fit_with_gyro(mag, accel, turns_rad, t_s, hard_iron=start.hard_iron, soft_iron=start.soft_iron,
+                          field_norm=start.field_norm, mag_to_accel=result.mag_to_accel,
+                          dip_deg=None if mis is None else mis.dip_deg, noise=result.noise)
+    except GyroMismatch as exc:
+        return replace(result, warnings=result.warnings + (f"gyro-aided fit not used: {exc}",),
+                       gyro={"method": "gyro", "used": False, "words": str(exc)})
+    block = g.to_json()
+    if not g.determined:
+        return replace(result, warnings=result.warnings + (f"gyro-aided fit not used: {g.words()}",),
+                       gyro=dict(block, used=False))
+    fit = ellipsoid_from(g, start, mag)
+    mis = misalignment_from(g, fit.calibrated(mag[g.inliers]), accel[g.inliers])
+    diagnosis = diagnose_tumble(mag, fit, t_s=t_s, temp_c=temp_c, accel=accel, missing=result.coverage.missing,
+                                candidates=()).with_alignment(mis, fit)
+    superseded = _SUPERSEDED + ("incomplete coverage", f"the {result.ellipsoid} kind is poorly determined")
+    kept = [w for w in result.warnings if not w.startswith(superseded)]
+    words = [("incomplete coverage: " + result.coverage.words() + "; " if result.coverage.missing else "") + g.words()]
+    if diagnosis.block["unexplained"]:
+        words.append(UNEXPLAINED_WARNING)
+    return replace(result, fit=diagnosis.fit, misalignment=mis, diagnosis=diagnosis,
+                   warnings=tuple(words + kept), gyro=dict(block, used=True))

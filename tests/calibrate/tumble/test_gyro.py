@@ -1,0 +1,225 @@
+"""The gyro-aided tumble fit: identifiability, recovery on partial motions, the reader's gyro, bad gyros."""
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from calibrate.tumble import TumbleCalibrator, calibrate_tumble
+from calibrate.tumble.gyro import _Problem, _windows, falls_back, fit_with_gyro, with_gyro
+from compass.cli import main
+from compass.io.table import ReadOptions, RecordingError
+from compass.io.tumble import gyro_turns, read_tumble
+from compass.sim.partial_tumble import simulate_partial_tumble, write_partial_tumble
+
+
+def _shape(s):
+    s = np.asarray(s, float)
+    return s / np.cbrt(np.linalg.det(s))
+
+
+def _turning(axes, *, tilt_deg=0.0, n=1500, rate_hz=50.0, seed=0):
+    """Noise-free samples of a housing turning about the housing ``axes`` (indices), and the truth."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / rate_hz
+    omega = np.zeros((n, 3))
+    for i, a in enumerate(axes):
+        omega[:, a] = np.radians(40.0) * np.sin(2 * np.pi * (0.1 + 0.07 * i) * t + i)
+    turns = np.vstack([np.zeros(3), omega[1:] / rate_hz])
+    att = [Rotation.from_euler("ZYX", [30.0, tilt_deg, 0.0], degrees=True)]
+    for step in Rotation.from_rotvec(turns[1:]):
+        att.append(att[-1] * step)
+    att = Rotation.concatenate(att)
+    b_w = np.array([np.cos(np.radians(60.0)), 0.0, -np.sin(np.radians(60.0))])
+    d = 50.0 * np.eye(3) + rng.normal(size=(3, 3))
+    h = rng.normal(size=3) * 10.0
+    return t, turns, att, att.apply(b_w, inverse=True) @ d.T + h, att.apply([0.0, 0.0, 1.0], inverse=True), d, h
+
+
+def _null_dimension(axes, tilt_deg=0.0):
+    """Directions the Jacobian at the truth cannot see (columns normalised; singular values < 1e-7 of the largest)."""
+    t, turns, att, mag, acc, d, h = _turning(axes, tilt_deg=tilt_deg)
+    dt = np.diff(t, prepend=t[0])
+    window = _windows(turns, dt)
+    starts = np.r_[0, np.flatnonzero(np.diff(window)) + 1]
+    prob = _Problem(mag, turns, dt, window, acc, np.ones(len(t), bool), att[starts], 0.3, 0.01)
+    q = np.concatenate([d.ravel(), h, [np.radians(60.0)], np.zeros(3), np.zeros(3 * len(starts))])
+    jac = prob.jacobian(q).toarray()
+    sv = np.linalg.svd(jac / np.linalg.norm(jac, axis=0), compute_uv=False)
+    return int(np.sum(sv < 1e-7 * sv[0]))
+
+
+def test_jacobian_matches_finite_differences():
+    sim = simulate_partial_tumble("fast_rotation", seed=1, coverage=0.2)
+    n = len(sim.t_s)
+    turns = gyro_turns(sim.t_s, sim.gyro, np.ones(n, bool))
+    dt = np.diff(sim.t_s, prepend=sim.t_s[0])
+    window = _windows(turns, dt)
+    n_w = window[-1] + 1
+    a_unit = sim.accel / np.linalg.norm(sim.accel, axis=1, keepdims=True)
+    rng = np.random.default_rng(0)
+    prob = _Problem(sim.mag, turns, dt, window, a_unit, np.ones(n, bool), Rotation.random(n_w, random_state=1), 0.3, 0.02)
+    q = np.concatenate([(50 * np.eye(3) + rng.normal(size=(3, 3))).ravel(), [1, 2, 3], [1.0], [0.01, -0.02, 0.005],
+                        0.1 * rng.normal(size=3 * n_w)])
+    jac = prob.jacobian(q).toarray()
+    num = np.empty_like(jac)
+    for j in range(q.size):
+        e = np.zeros_like(q)
+        e[j] = 1e-6
+        num[:, j] = (prob.residual(q + e) - prob.residual(q - e)) / 2e-6
+    assert np.max(np.abs(jac - num)) < 1e-5 * np.max(np.abs(num))
+
+
+def test_identifiability_as_derived():
+    # the module docstring: turns about two or more axes determine everything; about one axis five
+    # combinations stay free, whether the axis is vertical or tilted
+    assert _null_dimension([0, 2]) == 0
+    assert _null_dimension([0, 1, 2]) == 0
+    assert _null_dimension([2]) == 5
+    assert _null_dimension([2], tilt_deg=30.0) == 5
+
+
+@pytest.fixture(scope="module")
+def partial(tmp_path_factory):
+    """A 25 % tumble with a gyro, written and read back; the present fit of it."""
+    sim = simulate_partial_tumble("fast_rotation", seed=3, coverage=0.25)
+    path, _ = write_partial_tumble(sim, tmp_path_factory.mktemp("gyro") / "partial.csv")
+    return sim, path
+
+
+def test_partial_motion_recovered_where_the_present_fit_falls_back(partial):
+    sim, path = partial
+    rec = read_tumble(path)
+    present = calibrate_tumble(rec.mag, rec.accel, t_s=rec.t_s)
+    assert falls_back(present)  # the present fit cannot: hard iron only, no rotation
+    h_true = np.array(sim.truth["hard_iron"])
+    assert np.linalg.norm(present.hard_iron - h_true) > 2.0
+    res = TumbleCalibrator().fit(rec)
+    assert res.gyro["used"] and res.ellipsoid == "full"
+    fit = res.fit
+    # within 4 sigma of the truth (the gyro's 0.5 % scale error is not modelled: a floor of 0.1 % / 0.1 deg)
+    assert np.all(np.abs(fit.hard_iron - h_true) < 4 * fit.hard_iron_sigma + 0.05)
+    assert np.all(np.abs(fit.soft_iron - _shape(sim.truth["soft_iron"])) < 4 * fit.soft_iron_sigma + 1e-3)
+    err = Rotation.from_matrix(sim.truth["mag_to_accel"]).inv() * res.misalignment.rotation
+    assert np.degrees(err.magnitude()) < 4 * np.linalg.norm(res.misalignment.rotvec_sigma_deg) + 0.1
+    assert abs(res.misalignment.dip_deg - sim.truth["dip_deg"]) < 4 * res.misalignment.dip_sigma_deg + 0.1
+    bias = np.array(sim.truth["gyro_bias_rad_s"])
+    assert np.all(np.abs(np.array(res.gyro["gyro_bias_rad_s"]) - bias) < 4 * np.array(res.gyro["gyro_bias_sigma_rad_s"]) + 2e-4)
+    # the words say what the gyro determined; the present fit's fallback warnings are gone
+    text = " ".join(res.warnings)
+    assert "with the gyro's turns" in text and "determined" in text
+    assert "used the offset kind" not in text and "no magnetometer-accelerometer rotation" not in text
+    assert res.diagnosis.block["unexplained"] is False
+    doc = res.to_json()
+    assert doc["tumble"]["method"] == "gyro" and doc["mag_to_accel"] is not None
+
+
+def test_one_axis_leaves_the_fit_undetermined_and_says_what():
+    t, turns, att, mag, acc, _, _ = _turning([2], n=600)
+    mag = mag + np.random.default_rng(1).normal(scale=0.3, size=mag.shape)
+    g = fit_with_gyro(mag, acc, turns, t, hard_iron=np.median(mag, axis=0), soft_iron=np.eye(3), field_norm=50.0)
+    assert not g.determined
+    words = g.words()
+    assert "about one axis only" in words and "still undetermined" in words and "hard iron" in words
+
+
+def test_a_gyro_in_deg_s_is_handled_as_today(partial, tmp_path):
+    sim, _ = partial
+    path, _ = write_partial_tumble(sim, tmp_path / "deg.csv", gyro_unit="deg/s")
+    with pytest.warns(UserWarning, match="gx,gy,gz not used"):
+        rec = read_tumble(path)
+    assert rec.gyro_turn_rad is None
+    res = TumbleCalibrator().fit(rec)
+    assert res.gyro is None and falls_back(res)
+    # named, it is used
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        named = read_tumble(path, ReadOptions(gyro_unit="deg/s"))
+    assert np.allclose(named.gyro_turn_rad[1:], sim.gyro[1:] / 50.0, atol=1e-5)
+
+
+def test_without_a_gyro_nothing_changes(partial, tmp_path):
+    sim, _ = partial
+    path = tmp_path / "nogyro.csv"
+    rows = np.column_stack([sim.t_s, sim.mag, sim.accel])
+    path.write_text("t_s,mx,my,mz,ax,ay,az\n" + "\n".join(",".join(f"{v:.6f}" for v in r) for r in rows) + "\n")
+    rec = read_tumble(path)
+    assert rec.gyro_turn_rad is None
+    assert TumbleCalibrator().fit(rec).gyro is None
+
+
+def test_gyro_turns_integrate_the_rows_between_kept_samples():
+    t = np.arange(6) * 0.1
+    gyro = np.arange(18, dtype=float).reshape(6, 3)
+    keep = np.array([True, False, True, True, False, False])
+    out = gyro_turns(t, gyro, keep)
+    assert np.allclose(out[0], 0.0)
+    assert np.allclose(out[1], 0.1 * (gyro[1] + gyro[2]))
+    assert np.allclose(out[2], 0.1 * gyro[3])
+
+
+def _with_gyro_cell(partial, tmp_path, value, row=40):
+    sim, _ = partial
+    bad = sim.gyro.copy()
+    bad[row, 1] = value
+    path = tmp_path / "bad.csv"
+    rows = np.column_stack([sim.t_s, sim.mag, sim.accel, bad])
+    path.write_text("t_s,mx,my,mz,ax,ay,az,gx,gy,gz\n" + "\n".join(",".join(f"{v:.6f}" for v in r) for r in rows) + "\n")
+    return path
+
+
+def test_a_gyro_beyond_any_range_is_refused_naming_row_and_column(partial, tmp_path):
+    path = _with_gyro_cell(partial, tmp_path, 250.0)
+    with pytest.raises(RecordingError, match=r"row 42.*column 'gy'.*beyond any MEMS gyro's range|beyond any MEMS gyro's range"):
+        read_tumble(path)
+
+
+def test_a_gyro_reading_zero_everywhere_is_refused(partial, tmp_path):
+    sim, _ = partial
+    path = tmp_path / "zero.csv"
+    rows = np.column_stack([sim.t_s, sim.mag, sim.accel, np.zeros_like(sim.gyro)])
+    path.write_text("t_s,mx,my,mz,ax,ay,az,gx,gy,gz\n" + "\n".join(",".join(f"{v:.6f}" for v in r) for r in rows) + "\n")
+    with pytest.raises(RecordingError, match=r"gyro reads \(0, 0, 0\) in every row"):
+        read_tumble(path)
+
+
+def test_cli_bad_gyro_is_one_line_exit_2(partial, tmp_path, capsys):
+    path = _with_gyro_cell(partial, tmp_path, 250.0)
+    assert main(["calibrate", str(path), "--out", str(tmp_path / "cal.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "gy" in err[0] and "42" in err[0]
+
+
+def test_cli_writes_the_gyro_aided_calibration(partial, tmp_path, capsys):
+    _, path = partial
+    out = tmp_path / "cal.json"
+    assert main(["calibrate", str(path), "--out", str(out), "--quiet"]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["tumble"]["method"] == "gyro" and doc["tumble"]["gyro"]["used"] is True
+
+
+def test_forced_kind_is_not_overridden(partial):
+    _, path = partial
+    res = TumbleCalibrator(ellipsoid="offset").fit(read_tumble(path))
+    assert res.ellipsoid == "offset" and res.gyro is None
+
+
+def test_with_gyro_refuses_bad_arrays(partial):
+    sim, _ = partial
+    present = calibrate_tumble(sim.mag, sim.accel)
+    turns = np.full_like(sim.gyro, np.nan)
+    with pytest.raises(ValueError, match="turns_rad holds non-finite values"):
+        with_gyro(present, sim.mag, sim.accel, turns, sim.t_s)
+
+
+def test_a_gyro_that_disagrees_with_the_magnetometer_is_not_used(partial):
+    # the gyro of another motion: the turns do not explain the field's; the present fit stays, said in words
+    sim, _ = partial
+    present = calibrate_tumble(sim.mag, sim.accel)
+    other = simulate_partial_tumble("fast_rotation", seed=9, coverage=None, duration_s=30.0)
+    turns = gyro_turns(other.t_s, other.gyro, np.ones(len(other.t_s), bool))[:len(sim.t_s)]
+    res = with_gyro(present, sim.mag, sim.accel, turns, sim.t_s)
+    assert res.gyro["used"] is False and res.fit is present.fit
+    assert any(w.startswith("gyro-aided fit not used") for w in res.warnings)
