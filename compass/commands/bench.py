@@ -1,6 +1,7 @@
 """``compass bench --port P --out CAL.json --turntable SOURCE``: the guided four-flip session.
 
-Reads the module's stream (:mod:`compass.serial_reader`, :mod:`compass.station.stream`), runs the
+Reads the module's stream as ``compass live`` does (:func:`compass.commands._port.open_reader`; any format
+of :mod:`compass.io.streams`, found from the first lines and said, :mod:`compass.station.stream`), runs the
 session (:class:`compass.station.Station`), keeps each finished flip in ``CAL.flips/``, writes the
 recording ``CAL.fourflip.csv`` and calibrates it with ``compass calibrate``'s own code
 (:func:`compass.commands.calibrate.calibrate_file`).  Instructions and the readout go to stderr;
@@ -17,6 +18,7 @@ import threading
 import time
 
 from .. import limits
+from ..io.stream_options import add_stream_arguments
 from ..limits import Range
 
 
@@ -48,19 +50,21 @@ def register(sub) -> None:
     p.add_argument("--grbl-feed", type=Range(0.0, 1e6, "deg/min", lo_open=True).option("--grbl-feed"), default=1800.0, metavar="DEG_PER_MIN",
                    help="grbl: feed rate of the moves, degrees a minute (default 1800)")
     p.add_argument("--baud", type=limits.BAUD.option("--baud"), default=115200, help="serial baud rate (default 115200)")
-    p.add_argument("--wait", type=limits.WAIT_S.option("--wait"), default=5.0, metavar="S",
-                   help="how long the port may take to appear, seconds (default 5)")
+    p.add_argument("--wait", type=limits.WAIT_S.option("--wait"), default=0.0, metavar="S",
+                   help="how long the port may take to appear, seconds (default 0: a port that cannot be opened is "
+                        "an error); once connected, a lost port is always waited for")
     p.add_argument("--quiet", action="store_true", help="do not print the fit report")
+    add_stream_arguments(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from ..cli import BadInput
     from ..io.atomic import check_writable
-    from ..serial_reader import Chunk, PortUnavailable, SerialReader
+    from ..serial_reader import Chunk, PortUnavailable
     from ..site import Site
     from ..station import SessionEnded, SessionStore, Station, StationStream, parse_turntable, recording_path
-    from ._port import port_unavailable
+    from ._port import open_reader, port_unavailable, stream_options
     from .calibrate import calibrate_file
 
     try:
@@ -69,6 +73,7 @@ def run(args) -> int:
         site = Site.parse(args.site, args.date) if args.site is not None else None
     except ValueError as exc:
         raise BadInput(str(exc)) from None
+    options = stream_options(args)
     out = check_writable(args.out, args.force)
     check_writable(recording_path(out), args.force)
     metadata = _metadata(args, source, site)
@@ -89,19 +94,14 @@ def run(args) -> int:
         done = store.finished()
         metadata = description["metadata"]  # the session's, as it began
     encoder = getattr(source, "column", None)
-    stream = StationStream(encoder, tuple(description["header"]) if description else None)
-    if not args.wait >= 0:
-        raise BadInput(f"--wait must be zero or positive, got {args.wait}")
-    reader = SerialReader(args.port, baudrate=args.baud, first_open_s=args.wait)
-    try:
-        reader.check_url()
-    except ValueError as exc:
-        raise BadInput(str(exc)) from None
-    readout = _Readout(args.prompt_file)
+    stream = StationStream(encoder, tuple(description["header"]) if description else None, options)
+    reader = open_reader(args)
+    readout = _Readout(args.prompt_file, stream)
     state = {"station": None}
 
     def make_station():
-        info = {"format": "compass-bench-session/1", "header": list(stream.header), "turntable": source.spec,
+        info = {"format": "compass-bench-session/1", "stream_format": stream.format, "header": list(stream.header),
+                "turntable": source.spec,
                 "metadata": metadata, "rate_hz": description.get("rate_hz") if description else None}
 
         def keep(rows):
@@ -128,6 +128,9 @@ def run(args) -> int:
             if hasattr(source, "poll"):
                 source.poll()
             if not isinstance(item, Chunk):
+                if item.kind == "waiting" and not reader.connected_once:  # asked for with --wait S
+                    readout.say("info", f"{item.message}: up to {args.wait:g} s")
+                    continue
                 readout.say("info" if item.kind == "connected" else "warn", item.message)
                 if item.kind == "connected":
                     stream.resync()
@@ -136,6 +139,8 @@ def run(args) -> int:
                     readout.events(station)
                 continue
             readings = stream.feed(item.data, item.t_rx)
+            for level, text in stream.drain():
+                readout.say(level, text)
             if station is None and stream.header is not None:
                 station = state["station"] = make_station()
             if station is None:
@@ -200,8 +205,9 @@ def _confirmations(state, stop) -> None:
 class _Readout:
     """Instructions, warnings and a progress line on stderr; the instruction as JSON in a prompt file."""
 
-    def __init__(self, prompt_file):
+    def __init__(self, prompt_file, stream):
         self.prompt_file = prompt_file
+        self.stream = stream
         self.tty = sys.stderr.isatty()
         self._shown = None
         self._next = 0.0
@@ -229,7 +235,7 @@ class _Readout:
         if p.flip_deg is None or station.finished:
             return
         line = (f"flip {p.flip_deg:g} ({p.flips_done}/4 done), {p.step}: {p.covered_deg:.0f}/360 deg, "
-                f"{p.rate_hz:.4g} Hz")
+                f"{p.rate_hz:.4g} Hz, {self.stream.describe()}")
         if self.tty:
             sys.stderr.write("\r\033[K" + line)
             sys.stderr.flush()
