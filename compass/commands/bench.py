@@ -47,8 +47,12 @@ def register(sub) -> None:
     p.add_argument("--grbl-axis", default="A", help="grbl: the rotary axis' letter (default A)")
     p.add_argument("--grbl-step", type=Range(0.0, 360.0, "deg", lo_open=True).option("--grbl-step"), default=10.0, metavar="DEG",
                    help="grbl: the table stops every DEG degrees (default 10)")
-    p.add_argument("--grbl-feed", type=Range(0.0, 1e6, "deg/min", lo_open=True).option("--grbl-feed"), default=1800.0, metavar="DEG_PER_MIN",
-                   help="grbl: feed rate of the moves, degrees a minute (default 1800)")
+    p.add_argument("--grbl-feed", type=Range(0.0, 1e6, "deg/min", lo_open=True).option("--grbl-feed"), default=None,
+                   metavar="DEG_PER_MIN", help="grbl: feed rate of the moves, degrees a minute (default 1800 for stops; "
+                                               "720 for a continuous turn: 0.12 deg between samples at 100 Hz)")
+    p.add_argument("--grbl-mode", choices=("stops", "continuous"), default="stops",
+                   help="grbl: turn a stop at a time (default), or once round in one move, every sample kept and its "
+                        "angle interpolated from the controller's status reports")
     p.add_argument("--baud", type=limits.BAUD.option("--baud"), default=115200, help="serial baud rate (default 115200)")
     p.add_argument("--wait", type=limits.WAIT_S.option("--wait"), default=0.0, metavar="S",
                    help="how long the port may take to appear, seconds (default 0: a port that cannot be opened is "
@@ -68,8 +72,10 @@ def run(args) -> int:
     from .calibrate import calibrate_file
 
     try:
+        feed = args.grbl_feed or (720.0 if args.grbl_mode == "continuous" else 1800.0)
         source = parse_turntable(args.turntable, grbl_options={"axis": args.grbl_axis, "step_deg": args.grbl_step,
-                                                                "feed_deg_min": args.grbl_feed})
+                                                                "feed_deg_min": feed, "mode": args.grbl_mode,
+                                                                "clock": time.perf_counter})  # the reader's clock
         site = Site.parse(args.site, args.date) if args.site is not None else None
     except ValueError as exc:
         raise BadInput(str(exc)) from None
@@ -139,6 +145,8 @@ def run(args) -> int:
                     readout.events(station)
                 continue
             readings = stream.feed(item.data, item.t_rx)
+            if readings and hasattr(source, "clock_pair"):
+                source.clock_pair(item.t_rx, readings[-1].t_s)
             for level, text in stream.drain():
                 readout.say(level, text)
             if station is None and stream.header is not None:

@@ -106,6 +106,8 @@ class BenchPty:
         if not self._fds:
             self.open()
         start = time.perf_counter()
+        if self.table is not None and hasattr(self.table, "start"):
+            self.table.start(start, self.speed)
         t = 0.0
         next_header = 0.0
         try:

@@ -247,9 +247,12 @@ class Station:
         if self.source.kind == "continuous":
             self.source.begin(flip)
             hold = "a second" if self.source.hold_s <= 1.0 else f"{self.source.hold_s:g} seconds"
-            self._instruct("turn", f"flip {flip:g}: with the table at its mark, hold still {hold}, turn it once "
-                                   f"round counterclockwise (seen from above) back to the mark, and hold still {hold}",
-                           redo=redo)
+            if getattr(self.source, "operator_moves", True):
+                text = (f"flip {flip:g}: with the table at its mark, hold still {hold}, turn it once round "
+                        f"counterclockwise (seen from above) back to the mark, and hold still {hold}")
+            else:
+                text = f"flip {flip:g}: the table turns once round"
+            self._instruct("turn", text, redo=redo)
         else:
             self._stop_rows = []
             self._stop_index = 0

@@ -9,9 +9,10 @@ stream: :class:`compass.io.streams.StreamDecoder` finds the format from the firs
 decodes it (checksums, partial lines, lost samples, the unit checks).  A later header with other
 columns ends the session.
 
-A stream without a module clock (MotionCal's lines, a CSV without ``t_s``) is dated on arrival:
-the samples of a chunk are spread evenly between the previous chunk's receive time and its own
-(the station then works in the host's time, which is the module's when it runs in real time).
+A stream without a module clock (MotionCal's lines, a CSV without ``t_s``) is dated on arrival
+(:class:`ReceiveClock`: the last sample of a chunk at its receive time, the others before it at the
+sample period the receive times show over the last seconds), so the station then works in the
+host's time, which is the module's when the module runs in real time.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from ..io.streams import StreamDecoder
 from .session import SessionEnded
 from .turn import Reading
 
-__all__ = ["StationStream", "RESERVED"]
+__all__ = ["StationStream", "ReceiveClock", "RESERVED"]
 
 RESERVED = ("t_s", "seq", "temp_c", "ax", "ay", "az", "gx", "gy", "gz", "flip_deg", "platform_deg")
 _MOTIONCAL_CHANNELS = ("mx", "my", "mz")
@@ -70,7 +71,7 @@ class StationStream:
         self._pending = b""
         self._cut = False  # the pending bytes may start mid-line (a (re)connect, or kept only in part)
         self._rejected = 0
-        self._last_rx = None
+        self._clock = ReceiveClock()
 
     def describe(self) -> str:
         """The stream's format in a few words, for the readout."""
@@ -86,7 +87,7 @@ class StationStream:
         (self.decoder or self._probe).resync()
         self._pending = b""
         self._cut = True
-        self._last_rx = None
+        self._clock = ReceiveClock()
 
     def feed(self, chunk: bytes, t_rx: float | None = None) -> list[Reading]:
         """Readings of the complete lines in ``chunk`` received at ``t_rx`` (seconds, any clock: it dates the
@@ -102,7 +103,7 @@ class StationStream:
             self._cut |= len(self._pending) + len(chunk) > _PENDING_BYTES
             self._pending = (self._pending + chunk)[-_PENDING_BYTES:]
             self._probe.feed(chunk, t_rx)
-            self._forward(self._probe, ("info", "warn"))
+            self.events += [e for e in self._probe.drain_events() if e[1].startswith("stream format:")]
             if self._probe.fatal is not None:
                 raise SessionEnded(f"the module's stream: {self._probe.fatal}")
             if self._probe.format is None or self._probe.header is None:
@@ -112,16 +113,13 @@ class StationStream:
             if self._cut:
                 self.decoder.resync()
         samples = self.decoder.feed(chunk, t_rx)
-        self._forward(self.decoder, ("warn",))
+        self.events += self.decoder.drain_events()
         if self.decoder.fatal is not None:
             raise SessionEnded(f"the module's stream: {self.decoder.fatal}")
         self._check_header()
         return self._readings(samples, t_rx)
 
     # ---------------------------------------------------------------- internals
-    def _forward(self, decoder, levels) -> None:
-        self.events += [(level, text) for level, text in decoder.drain_events() if level in levels]
-
     def _start(self, fmt: str, names: tuple) -> None:
         """Adopt the format found and its columns: the channels, the encoder's place, the decoder."""
         column = self.encoder_column
@@ -165,11 +163,42 @@ class StationStream:
         if clockless.any():
             if t_rx is None:
                 raise ValueError("a stream without t_s needs the chunks' receive times (t_rx)")
-            m = int(clockless.sum())
-            start = t_rx if self._last_rx is None else self._last_rx
-            times[clockless] = start + (t_rx - start) * np.arange(1, m + 1) / m
-            self._last_rx = t_rx
+            times[clockless] = self._clock.date(int(clockless.sum()), t_rx)
         c = len(self.channels)
         return [Reading(float(t), s.raw[:c], s.accel, s.gyro,
                         float(s.raw[c]) if self.encoder_column is not None else None, s.temp_c)
                 for t, s in zip(times, samples)]
+
+
+class ReceiveClock:
+    """Sample times of a stream without a module clock, from the chunks' receive times.
+
+    The sample period is the receive time over the samples received in the last ``window_s`` (at
+    least two chunks); a chunk's last sample is dated at its receive time, the others one period
+    apart before it.  A chunk's receive time is late by the read's latency, which varies from chunk
+    to chunk: the period, taken over many chunks, does not see it; a sample's time carries it (a
+    few milliseconds on a serial port).
+
+    Parameters
+    ----------
+    window_s : float
+        Span of receive times the period is taken over, seconds.
+    """
+
+    def __init__(self, window_s: float = 5.0):
+        self.window_s = window_s
+        self._received: list = []  # (t_rx, samples received up to and with this chunk)
+        self._count = 0
+
+    def date(self, m: int, t_rx: float) -> np.ndarray:
+        """Times of the ``m`` samples of a chunk received at ``t_rx``, seconds, shape (m,)."""
+        first = self._received[0] if self._received else None
+        self._count += m
+        self._received.append((t_rx, self._count))
+        while len(self._received) > 2 and t_rx - self._received[1][0] >= self.window_s:
+            self._received.pop(0)
+        if first is None or t_rx <= self._received[0][0]:
+            return np.full(m, float(t_rx))
+        t0, n0 = self._received[0]
+        period = (t_rx - t0) / (self._count - n0)
+        return t_rx - period * np.arange(m - 1, -1, -1, dtype=float)
