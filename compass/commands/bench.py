@@ -20,6 +20,7 @@ import time
 from .. import limits
 from ..io.stream_options import add_stream_arguments
 from ..limits import Range
+from ..viz import add_rerun_option
 
 
 def register(sub) -> None:
@@ -58,6 +59,7 @@ def register(sub) -> None:
                    help="how long the port may take to appear, seconds (default 0: a port that cannot be opened is "
                         "an error); once connected, a lost port is always waited for")
     p.add_argument("--quiet", action="store_true", help="do not print the fit report")
+    add_rerun_option(p)
     add_stream_arguments(p)
     p.set_defaults(func=run)
 
@@ -68,6 +70,7 @@ def run(args) -> int:
     from ..serial_reader import Chunk, PortUnavailable
     from ..site import Site
     from ..station import SessionEnded, SessionStore, Station, StationStream, parse_turntable, recording_path
+    from ..viz import check_rerun_target
     from ._port import open_reader, port_unavailable, stream_options
     from .calibrate import calibrate_file
 
@@ -81,6 +84,7 @@ def run(args) -> int:
         raise BadInput(str(exc)) from None
     options = stream_options(args)
     out = check_writable(args.out, args.force)
+    target = check_rerun_target(args.rerun, args.force)
     check_writable(recording_path(out), args.force)
     metadata = _metadata(args, source, site)
     store = SessionStore(out)
@@ -112,11 +116,14 @@ def run(args) -> int:
 
         def keep(rows):
             store.save(rows)
+            readout.flip(rows)
             info["rate_hz"] = station.rate_hz
             store.start(info)
 
         if description is None:
             store.start(info)
+        if target is not None:
+            readout.record(target, stream.channels)
         station = Station(source, stream.channels, ask=not args.yes, done=done, on_flip=keep,
                           rate_hz=info["rate_hz"])
         if done:
@@ -155,6 +162,8 @@ def run(args) -> int:
                 continue
             for reading in readings:
                 station.feed(reading)
+            if readings:
+                readout.track(station, readings[-1].t_s)
             readout.events(station)
             readout.show(station)
             if station.finished:
@@ -216,6 +225,23 @@ class _Readout:
     def __init__(self, prompt_file, stream):
         self.prompt_file = prompt_file
         self.stream = stream
+        self.viz = None  # the Rerun recording (--rerun), once the module's channels are known
+        self._tracked = -float("inf")
+
+    def record(self, target, channels) -> None:
+        from ..viz.bench import BenchRecording
+
+        self.viz = BenchRecording(target, channels)
+
+    def flip(self, rows) -> None:
+        if self.viz is not None:
+            self.viz.flip(rows)
+
+    def track(self, station, t_s: float) -> None:
+        """The degrees covered, to the Rerun recording every quarter second of module time."""
+        if self.viz is not None and t_s >= self._tracked + 0.25:
+            self._tracked = t_s
+            self.viz.progress(t_s, station.progress.flip_deg, station.progress.covered_deg)
         self.tty = sys.stderr.isatty()
         self._shown = None
         self._next = 0.0
@@ -224,6 +250,8 @@ class _Readout:
         if self.tty:
             sys.stderr.write("\r\033[K")
         print(f"compass bench: {'warning: ' if level == 'warn' else ''}{text}", file=sys.stderr, flush=True)
+        if self.viz is not None:
+            self.viz.event(None, level, text)
 
     def events(self, station) -> None:
         for level, text in station.drain():
@@ -251,5 +279,11 @@ class _Readout:
             print(f"compass bench: {line}", file=sys.stderr, flush=True)
 
     def close(self) -> None:
+        """End the progress line; write the Rerun recording (everything the session showed, also when it ended
+        early: the flips kept are in it)."""
         if self.tty:
             sys.stderr.write("\n")
+        if self.viz is not None:
+            self.viz.close()
+            if self.viz.recording.path is not None:
+                print(f"compass bench: wrote {self.viz.recording.path}", file=sys.stderr, flush=True)

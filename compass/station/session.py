@@ -220,7 +220,8 @@ class Station:
         self._moved = False
         self._confirmed = False
         self.progress.step = do
-        self.progress.covered_deg = 0.0
+        if do != "stop":  # a stop's instruction keeps the flip's stops counted so far
+            self.progress.covered_deg = 0.0
         self.events.append(("info", text if redo is None else f"redo: {redo}; {text}"))
 
     def _next_flip(self) -> None:
@@ -256,6 +257,7 @@ class Station:
         else:
             self._stop_rows = []
             self._stop_index = 0
+            self.progress.covered_deg = 0.0
             self._ask_stop(redo=redo)
 
     def _ask_stop(self, redo=None) -> None:
