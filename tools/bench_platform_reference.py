@@ -679,7 +679,7 @@ def print_diagnosis(r: dict, n_seeds: int, seed: int) -> None:
           "offsets' error at the")
     print("  effects' reference (first sample, mean temp_c) over their reported sigma (1 when honest). nonlinear_response "
           "is examined on the")
-    print("  platform only; neither simulator injects it (tests/test_platform3d_diagnose.py bends a recording by hand).")
+    print("  platform only; neither simulator injects it (tests/calibrate/platform3d/test_diagnose.py bends a recording by hand).")
 
 
 # ---------------------------------------------------------------------------------------------- main

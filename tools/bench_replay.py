@@ -19,7 +19,7 @@ accelerometer was used.  Cases (none designed for the change's numbers; the simu
 - ``all x1.3``: an accelerometer reading 1.3 g at rest throughout (an uncalibrated one);
 - ``motion KIND``: ``compass.sim.motion`` trials, 40 s, seed 7, starting in motion (``rest_s=0``), and
   with its default 3 s rest (offline only: the simulator's field is in uT without a sensor model;
-  the config is the simulator's |B| and dip, as tests/test_motion.py builds it);
+  the config is the simulator's |B| and dip, as tests/compass/sim/test_motion.py builds it);
 - ``BROAD NN``: BROAD trials through bench_broad's pipeline (config from the trial's initial rest,
   causal hard-iron tracker, run_filter), offline only.
 """

@@ -5,7 +5,7 @@ The covariance is packed as its upper triangle, 21 floats row by row
 about a microsecond whatever it computes, and filterpy's generic ``KalmanFilter.update_sequential``
 adds reshapes, an inverse and copies per call; the arithmetic of one scalar-measurement update is
 about 60 multiply-adds, which CPython does in about a microsecond on local variables.  So the
-per-sample path is written out here, one textbook step per function; ``tests/test_filter.py``
+per-sample path is written out here, one textbook step per function; ``tests/compass/filter/test_filter.py``
 checks each against filterpy.
 """
 

@@ -1,0 +1,11 @@
+"""Where the tests find the project and its neighbours, wherever a test module sits under tests/."""
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+"""The project's checkout (README.md, examples/, tools/ beside compass/)."""
+
+TEST_DATA = ROOT / "tests" / "data"
+"""Data kept for the tests (reference C sources, headers)."""
+
+SHARED = ROOT.parent / "shared"
+"""The team's shared folder beside the checkout (real recordings under data/)."""

@@ -1,0 +1,206 @@
+"""The diagnosis loop on recordings with an effect the estimator is not told about."""
+
+import re
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from calibrate import calibrate_fourflip
+from calibrate.fourflip.effects import EFFECTS
+from tests.conftest import angle_deg
+from compass.calibration import model_from_dict
+
+
+def _check_explained(result, truth):
+    d = result.diagnosis
+    assert d["unexplained"] is False
+    # residual at the noise floor, within 10 %
+    assert d["residual_rms_after"] == pytest.approx(d["noise_floor"], rel=0.10)
+    sigma = np.array([c.direction_sigma_deg for c in result.channels])
+    err = angle_deg(result.directions, truth["directions"])
+    assert np.all(err < 3.0 * sigma), (err, sigma)
+
+
+@pytest.mark.parametrize("effect", sorted(EFFECTS))
+def test_undeclared_effect_is_found_and_removed(write_session, effect):
+    rec, truth = write_session(seed=200, effects=(effect,))
+    result = calibrate_fourflip(rec, diagnose=True)
+    assert result.diagnosis["effects"] == [effect]
+    assert [e["name"] for e in result.effects] == [effect]
+    # the file reads without this code: the effect's formula in its own parameter and reference names
+    entry = result.effects[0]
+    names = {n.split(".")[-1] for n in entry["parameters"]} | set(entry.get("reference", {})) - {"after_warm_up"}
+    assert all(n in entry["form"] or re.sub(r"\d+", "<k>", n) in entry["form"] for n in names), entry
+    step = result.diagnosis["steps"][1]
+    assert step["added"] == effect and step["delta_bic"] > 10 and step["evidence"]
+    assert step["residual_rms"] < result.diagnosis["residual_rms_before"]
+    _check_explained(result, truth)
+
+
+@pytest.mark.parametrize("seed", [201, 202])
+def test_clean_recording_comes_back_clean(write_session, seed):
+    rec, truth = write_session(seed=seed)
+    result = calibrate_fourflip(rec, diagnose=True)
+    assert result.diagnosis["effects"] == []
+    assert len(result.diagnosis["steps"]) == 1
+    _check_explained(result, truth)
+
+
+def test_unmodelled_gradient_is_unexplained_without_false_claim(write_session):
+    """A field gradient across the turntable, sensor off the axis: nothing we model explains it."""
+    rec, _ = write_session(seed=203, effects=("field_gradient",))
+    result = calibrate_fourflip(rec, diagnose=True)
+    assert result.diagnosis["unexplained"] is True
+    assert result.diagnosis["effects"] == []
+    assert any("structure remains" in w for w in result.warnings)
+
+
+def test_flip_error_parameters_recovered(write_session):
+    rec, truth = write_session(seed=204, effects=("flip_error",))
+    result = calibrate_fourflip(rec, diagnose=True)
+    params = result.effects[0]["parameters"]
+    true = [e for e in truth["effects"] if e["name"] == "flip_error"][0]["parameters"]["flip_rotvec_deg"]
+    for k, flip in enumerate((90, 180, 270), start=1):
+        p = params[f"flip{flip}.error_deg"]
+        assert abs(p["value"] - true[k][0]) < 4 * p["sigma"], (flip, p, true[k][0])
+
+
+def test_noise_floor_matches_injected_noise(write_session):
+    from calibrate.noise import noise_floor
+
+    rec, truth = write_session(seed=205, effects=("offset_drift", "encoder_error"))
+    floor = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs)
+    # MAD-based scale of ~4300 second differences: relative standard error about 2 %
+    np.testing.assert_allclose(floor, truth["noise"], rtol=0.08)
+
+
+def test_seed_rule_diagnosis_examines_only(write_session):
+    rec, _ = write_session(seed=206)
+    result = calibrate_fourflip(rec, method="harmonic", diagnose=True)
+    assert result.diagnosis["effects"] == [] and "note" in result.diagnosis
+
+
+@pytest.mark.parametrize("step_deg", [1.0, 10.0])
+def test_noise_floor_with_coarse_steps(write_session, step_deg):
+    """Coarse turntable steps: the field's curvature must not pass for noise."""
+    from calibrate.noise import noise_floor
+
+    rec, truth = write_session(seed=207, step_deg=step_deg)
+    floor = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs)
+    n = rec.n_samples
+    # relative standard error of a MAD scale of ~n second differences: about 1.1 * sqrt(3 / n)
+    np.testing.assert_allclose(floor, truth["noise"], rtol=4 * 1.1 * np.sqrt(3.0 / n) + 0.02)
+
+
+def test_asymmetric_response_found_and_inverted_at_runtime(tmp_path):
+    """An even (asymmetric) response term, injected outside the simulator: found, and the runtime
+    model inverts it back to the true field component."""
+    from compass.sim.bench import housing_field
+    from compass.sim.fourflip import simulate_fourflip
+
+    session = simulate_fourflip(seed=208)
+    truth = session.base_physics()
+    x = housing_field(truth, session.samples) @ truth.directions.T  # uT along each channel
+    c2 = np.array([2e-4, -1.5e-4, 1e-4])  # 1 % (0.75 %, 0.5 %) output change at 50 uT
+    rec = session.recording()
+    rec = type(rec)(**{**rec.__dict__, "outputs": rec.outputs + truth.gains * c2 * x**2})
+    result = calibrate_fourflip(rec, diagnose=True)
+    assert result.diagnosis["effects"] == ["nonlinear_response"] and not result.diagnosis["unexplained"]
+    sigma = np.array([c.direction_sigma_deg for c in result.channels])
+    assert np.all(angle_deg(result.directions, truth.directions) < 3 * sigma)
+    model = model_from_dict(result.to_json())
+    probe = np.array([[-40.0, 0.0, 40.0]]).T * np.ones(3)  # field components, uT
+    raw = truth.offsets + truth.gains * (probe + c2 * probe**2)
+    recovered = np.column_stack([ch.response.field_component(raw[:, i])[0] for i, ch in enumerate(result.channels)])
+    # tolerance from the fitted curve's own sigmas: relative x^k terms at |B| = 50 uT, evaluated at 40 uT
+    params = result.effects[0]["parameters"]
+    tol = [4 * 50 * np.hypot(params[f"{ch}.x2_rel_at_B"]["sigma"] * 0.8**2, params[f"{ch}.x3_rel_at_B"]["sigma"] * 0.8**3)
+           for ch in session.channels]
+    assert np.all(np.abs(recovered - probe) < np.array(tol)[None, :] + 0.02)
+    assert model.channels == tuple(truth_name for truth_name in session.channels)
+
+
+def test_fitting_bin_means_is_fitting_every_sample(write_session, monkeypatch):
+    # two samples per bin (twice the width the fit uses) and an encoder error (the effect least linear in
+    # the angle) to find: the fits on bin means must land where the fits on every sample do, far inside the sigmas
+    from calibrate.diagnosis import forms
+    from calibrate.fourflip import _mlfit
+    from calibrate.fourflip.diagnosis import diagnose_fourflip
+    from calibrate.fourflip.fit import physics_from_harmonics
+
+    rec, _ = write_session(seed=200, effects=("encoder_error",), step_deg=0.05)
+    start = physics_from_harmonics(rec, rec.field_ut, 1.0)
+
+    def diagnose():
+        return diagnose_fourflip(rec, start, candidates=["encoder_error", "nonlinear_response"])[1]
+
+    monkeypatch.setattr(_mlfit, "BIN_DEG", 0.1)
+    monkeypatch.setattr(forms, "TIME_BINS", 1000)  # 29 samples a time bin: the angle bins decide
+    binned = diagnose()
+    assert len(binned.bins.outputs) < 0.6 * len(rec.outputs)  # the fit ran on bin means
+    monkeypatch.setattr(_mlfit.Bins, "of", classmethod(lambda cls, samples, outputs: cls(samples, outputs, 1.0)))
+    every = diagnose()
+    assert [e.name for e in binned.effects] == [e.name for e in every.effects] == ["encoder_error"]
+    assert np.all(np.abs(binned.x - every.x) < 1e-2 * every.sigma)
+    np.testing.assert_allclose(binned.sigma, every.sigma, rtol=1e-4)
+    assert binned.chi2 == pytest.approx(every.chi2, rel=1e-7) and binned.dof == every.dof
+
+
+def test_unexplained_structure_widens_the_files_sigmas_and_says_the_cost(write_session):
+    """A field gradient the model lacks: the file's sigmas grow to the cluster-robust ones, the diagnosis
+    and the report say what that costs, and the runtime model read back from the file carries them."""
+    from calibrate.fourflip._mlfit import fit_ml
+    from calibrate.fourflip.fit import physics_from_harmonics
+    from compass.calibration import from_dict
+    from compass.sim.bench import BenchSamples
+
+    rec, _ = write_session(seed=203, effects=("field_gradient",))
+    result = calibrate_fourflip(rec, diagnose=True)
+    d = result.diagnosis
+    assert d["unexplained"] is True
+    cost = d["unexplained_cost"]
+    naive = fit_ml(BenchSamples.from_recording(rec), rec.outputs, rec.channels,
+                   physics_from_harmonics(rec, result.field_ut, 1.0), np.array(d["noise_floor_per_channel"]))
+    for ch, sigma_naive in zip(result.channels, naive.direction_sigma_deg()):
+        entry = cost["direction_sigma_deg"][ch.name]
+        assert entry["naive"] == pytest.approx(sigma_naive, rel=1e-3)
+        assert ch.direction_sigma_deg == pytest.approx(entry["widened"]) and entry["widened"] >= entry["naive"]
+        assert cost["direction_deg"][ch.name] == pytest.approx(np.sqrt(entry["widened"] ** 2 - entry["naive"] ** 2))
+    assert max(cost["direction_deg"].values()) > 0 and cost["heading_deg"] > 0
+    assert cost["heading_sigma_deg"]["widened"] > cost["heading_sigma_deg"]["naive"]
+    assert "unexplained cost at runtime: heading sigma" in result.report()
+    model = from_dict(result.to_json()).model
+    assert np.degrees(np.sqrt(np.trace(model.direction_covariance, axis1=1, axis2=2))) == pytest.approx(
+        [entry["widened"] for entry in cost["direction_sigma_deg"].values()], rel=1e-6)
+
+
+def test_clean_recording_keeps_its_sigmas(write_session):
+    """Explained: no cost, and the file's sigmas are the fit's own (nothing widened)."""
+    from calibrate.fourflip._mlfit import fit_ml
+    from calibrate.fourflip.fit import physics_from_harmonics
+    from compass.sim.bench import BenchSamples
+
+    rec, _ = write_session(seed=201)
+    result = calibrate_fourflip(rec, diagnose=True)
+    assert result.diagnosis["unexplained"] is False and "unexplained_cost" not in result.diagnosis
+    naive = fit_ml(BenchSamples.from_recording(rec), rec.outputs, rec.channels,
+                   physics_from_harmonics(rec, result.field_ut, 1.0), np.array(result.noise))
+    assert [c.direction_sigma_deg for c in result.channels] == pytest.approx(naive.direction_sigma_deg(), rel=1e-3)
+
+
+@pytest.mark.parametrize("ratio, verdict", [(2.5, False), (6.0, None)])
+def test_coarse_adc_recording_is_clean_and_says_the_adc_limits_it(write_session, ratio, verdict):
+    """Outputs rounded to a code step 2.5 or 6 times the noise: Sheppard's floor, nothing claimed, the ADC
+    named; at 6 the rounding is not dithered (a sawtooth of the field), so the residual is not judged."""
+    rec, truth = write_session(seed=205)
+    step = ratio * np.array(truth["noise"])
+    rec = replace(rec, outputs=np.round(rec.outputs / step) * step)
+    result = calibrate_fourflip(rec, diagnose=True)
+    d = result.diagnosis
+    assert d["effects"] == [] and d["unexplained"] is verdict
+    assert ("not_judged" in d) is (verdict is None)
+    expected = np.sqrt(np.array(truth["noise"]) ** 2 + step**2 / 12)
+    assert d["noise_floor_per_channel"] == pytest.approx(expected, rel=0.12)
+    assert any("ADC" in w for w in result.warnings)
+    assert result.extra["quantisation"]["step"] == pytest.approx(dict(zip(rec.channels, step)), rel=1e-6)

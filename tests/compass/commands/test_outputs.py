@@ -1,0 +1,155 @@
+"""Every written file: atomic, refused without --force, the user's umask, no temp file left for long (16.8)."""
+
+import os
+import select
+import signal
+import stat
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from compass.cli import main
+from compass.calibration import model_to_dict
+
+
+@pytest.fixture
+def umask_027():
+    old = os.umask(0o027)
+    try:
+        yield 0o640
+    finally:
+        os.umask(old)
+
+
+def mode(path) -> int:
+    return stat.S_IMODE(Path(path).stat().st_mode)
+
+
+def temporaries(folder) -> list[str]:
+    return sorted(p.name for p in Path(folder).iterdir() if p.name.endswith(".tmp"))
+
+
+def test_outputs_follow_the_umask_and_a_forced_overwrite_keeps_the_mode(tmp_path, umask_027):
+    rec, cal = tmp_path / "rec.csv", tmp_path / "cal.json"
+    assert main(["simulate", "fourflip", "--out", str(rec), "--seed", "1"]) == 0
+    assert main(["calibrate", str(rec), "--out", str(cal), "--quiet", "--no-diagnose", "--report", str(tmp_path / "r")]) == 0
+    for path in (rec, cal, tmp_path / "r" / "fit.png", tmp_path / "r" / "residuals.png"):
+        assert mode(path) == umask_027, path  # was 0o600 whatever the umask
+    cal.chmod(0o644)
+    assert main(["calibrate", str(rec), "--out", str(cal), "--quiet", "--no-diagnose", "--force"]) == 0
+    assert mode(cal) == 0o644  # was turned into 0o600
+    assert temporaries(tmp_path) == []
+
+
+def test_report_plots_are_not_overwritten_without_force(tmp_path, capsys):
+    rec, report = tmp_path / "rec.csv", tmp_path / "report"
+    assert main(["simulate", "fourflip", "--out", str(rec), "--seed", "2"]) == 0
+    report.mkdir()
+    (report / "residuals.png").write_bytes(b"precious")
+    capsys.readouterr()
+    cal = tmp_path / "cal.json"
+    assert main(["calibrate", str(rec), "--out", str(cal), "--quiet", "--no-diagnose", "--report", str(report)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "residuals.png exists" in err and "--force" in err
+    assert (report / "residuals.png").read_bytes() == b"precious"
+    assert not cal.exists() and not (report / "fit.png").exists()  # refused before any output was written
+    assert main(["calibrate", str(rec), "--out", str(cal), "--quiet", "--no-diagnose", "--report", str(report),
+                 "--force"]) == 0
+    assert (report / "residuals.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_evaluate_plot_is_not_overwritten_without_force(tmp_path, capsys):
+    from tests.compass.io.test_broad import MAGNET, _crop
+
+    if not MAGNET.exists():
+        pytest.skip("BROAD data not found")
+    trial = _crop(MAGNET, tmp_path / "magnet.mat", 45.0)  # movement starts at 41 s
+    plots = tmp_path / "plots"
+    plots.mkdir()
+    (plots / "magnet_errors.png").write_bytes(b"precious")
+    assert main(["evaluate", str(trial), "--plot", str(plots)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "magnet_errors.png exists" in err
+    assert (plots / "magnet_errors.png").read_bytes() == b"precious"
+
+
+_SLOW_WRITER = textwrap.dedent("""
+    import sys, time
+    from compass.io.atomic import atomic_open
+    with atomic_open(sys.argv[1], "w") as fh:
+        fh.write("half")
+        fh.flush()
+        print("writing", flush=True)
+        time.sleep(600)
+        fh.write(" and the rest")
+""")
+
+
+def test_a_write_killed_midway_leaves_the_old_file_and_the_next_write_clears_its_temporary(tmp_path):
+    from compass.io.atomic import atomic_write_text
+
+    target = tmp_path / "cal.json"
+    target.write_text("old")
+    writer = subprocess.Popen([sys.executable, "-c", _SLOW_WRITER, str(target)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert select.select([writer.stdout], [], [], 60)[0], "the writer never reached its write window"
+        assert writer.stdout.readline().strip() == "writing"  # the process prints only when in the write window
+        writer.send_signal(signal.SIGKILL)
+        writer.wait(30)
+    finally:
+        if writer.poll() is None:
+            writer.kill()
+            writer.wait(30)
+        writer.stdout.close()
+    left = temporaries(tmp_path)
+    assert len(left) == 1 and left[0].startswith(f".cal.json.{writer.pid}.") and target.read_text() == "old"
+    atomic_write_text(target, "new")
+    assert temporaries(tmp_path) == [] and target.read_text() == "new"
+
+
+def test_stale_temporaries_of_live_writers_and_other_names_are_kept(tmp_path):
+    from compass.io.atomic import remove_stale_temporaries
+
+    target = tmp_path / "att.csv"
+    alive = tmp_path / f".att.csv.{os.getppid()}.abc.tmp"  # our parent runs: its write may be under way
+    other = tmp_path / ".other.csv.1.abc.tmp"
+    foreign = tmp_path / ".att.csv.notapid.tmp"
+    for path in (alive, other, foreign):
+        path.write_text("x")
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait(30)
+    stale = tmp_path / f".att.csv.{gone.pid}.abc.tmp"
+    stale.write_text("x")
+    assert remove_stale_temporaries(target) == [stale]
+    assert alive.exists() and other.exists() and foreign.exists()
+
+
+def test_an_error_inside_the_write_leaves_nothing(tmp_path):
+    from compass.io.atomic import atomic_open
+
+    target = tmp_path / "out.csv"
+    with pytest.raises(RuntimeError), atomic_open(target) as fh:
+        fh.write("partial")
+        raise RuntimeError("the writer failed")
+    assert not target.exists() and temporaries(tmp_path) == []
+
+
+def test_live_out_is_streamed_with_the_umask(tmp_path, umask_027, monkeypatch):
+    """`compass live --out` is a stream written as it goes (a crash keeps what was recorded), with the umask."""
+    from tests.compass.live.test_live_mistakes import _live_on_socket
+    from compass.sim.device import PtyDevice, default_model, simulate_device
+
+    cal, att = tmp_path / "cal.json", tmp_path / "att.csv"
+    model = default_model()
+    cal.write_text(__import__("json").dumps(model_to_dict(model)))
+    device = PtyDevice(model, rate_hz=100.0)
+    stream = device._header + b"".join(device._lines(simulate_device(model, [i / 100 for i in range(200)], seed=1), 0))
+    started = time.monotonic()
+    status, alive, errors = _live_on_socket(monkeypatch, stream, cal, "--duration", "2", "--out", str(att))
+    assert status == 0 and not alive and not errors and time.monotonic() - started < 60
+    assert mode(att) == umask_027 and temporaries(tmp_path) == []
+    assert att.read_text().count("\n") > 150

@@ -1,0 +1,75 @@
+"""`compass live --calibrate tumble` against the simulated module (`compass device --pty --motion tumble`)."""
+
+import json
+
+import numpy as np
+import pytest
+from tests._proc import Proc, compass_command
+
+from compass.cli import main
+from compass.sim.device import simulate_device, tumble_motion
+
+rr = pytest.importorskip("rerun")
+from tests.rrd_read import blueprint_views, entity_paths, read_column, scalars  # noqa: E402
+from compass.calibration import load as load_calibration
+
+
+def test_live_tumble_reaches_the_offline_hard_iron(tmp_path):
+    cal, link = tmp_path / "dev.json", tmp_path / "dev"
+    out, rrd = tmp_path / "live.json", tmp_path / "live.rrd"
+    with Proc(compass_command("device", "--pty", "--motion", "tumble", "--save-cal", str(cal), "--link", str(link),
+                              "--rate", "100", "--seed", "3", "--duration", "90"), kill_after_s=120) as device:
+        assert device.wait_for(lambda line: line.strip() == str(link), 30.0), device.transcript()
+        with Proc(compass_command("live", "--port", str(link), "--calibrate", "tumble", "--out", str(out), "--rerun",
+                                  str(rrd), "--min-coverage", "0.5", "--duration", "60"), kill_after_s=100) as live:
+            live.wait_for(lambda line: line.startswith("wrote") and line.strip().endswith(".rrd"), 90.0)
+            status = live.stop(sig=0, timeout_s=20.0)  # it ends by itself (coverage, or --duration): wait for it
+            stdout = "".join(live.out)
+        device.stop()
+    assert status == 0, live.transcript()
+    assert "coverage reached" in stdout and "never along the field yet" in stdout  # said in words while turning
+    live_cal = json.loads(out.read_text())
+    live_h, live_sigma = np.array(live_cal["hard_iron"]), np.array(live_cal["tumble"]["hard_iron_sigma"])
+
+    # the offline fit: the same module through an independent, longer tumble, by `compass calibrate`
+    model = load_calibration(cal).model
+    s = simulate_device(model, np.arange(0.0, 40.0, 0.01), motion=tumble_motion, seed=11)
+    rec = tmp_path / "offline.csv"
+    rec.write_text("mx,my,mz,ax,ay,az\n" + "\n".join(",".join(f"{v:.9g}" for v in row)
+                                                       for row in np.hstack([s.raw, s.accel])) + "\n")
+    assert main(["calibrate", str(rec), "--out", str(tmp_path / "offline.json"), "--quiet"]) == 0
+    offline = json.loads((tmp_path / "offline.json").read_text())
+    off_h, off_sigma = np.array(offline["hard_iron"]), np.array(offline["tumble"]["hard_iron_sigma"])
+    # two independent estimates of one hard iron: their difference has sigma sqrt(s1^2 + s2^2)
+    assert np.all(np.abs(live_h - off_h) < 3.0 * np.hypot(live_sigma, off_sigma)), (live_h, off_h, live_sigma)
+    truth = np.array([r.offset for r in model.responses])  # linear channels: the ellipsoid's centre
+    assert np.all(np.abs(live_h - truth) < 4.0 * live_sigma)
+
+    # the same code path as `compass calibrate`: the samples it kept give the same file
+    kept = tmp_path / "live.tumble.csv"
+    assert main(["calibrate", str(kept), "--out", str(tmp_path / "again.json"), "--quiet"]) == 0
+    np.testing.assert_array_equal(json.loads((tmp_path / "again.json").read_text())["hard_iron"], live_h)
+
+    # the recording: coverage growing, the fit converging, the missing axes in words, then the final clouds
+    paths = entity_paths(rrd)
+    assert {"/tumble/live", "/tumble/coverage", "/tumble/coverage_fraction", "/tumble/hard_iron/x",
+            "/tumble/hard_iron/x/sigma_band", "/tumble/calibrated/samples", "/tumble/raw/ellipsoid",
+            "/events"} <= paths
+    _, fraction = scalars(rrd, "/tumble/coverage_fraction")
+    assert np.all(np.diff(fraction[:, 0]) >= -0.05) and fraction[-1, 0] >= 0.5 > fraction[0, 0]
+    _, band = scalars(rrd, "/tumble/hard_iron/x/sigma_band")
+    assert band[-1, 1] - band[-1, 0] < band[0, 1] - band[0, 0]  # converging
+    _, texts = read_column(rrd, "/events", "TextLog:text")
+    assert any("never pointed along" in t[0] for t in texts) and "seen from every side" in texts[-1][0]
+    names = {v.get("name") for v in blueprint_views(rrd)}
+    assert {"coverage: cells seen (green)", "raw, on the fitted ellipsoid (colour: coverage)"} <= names
+
+
+def test_live_tumble_bad_options(tmp_path, capsys):
+    assert main(["live", "--port", "/dev/null", "--calibrate", "tumble"]) == 2
+    assert "needs --out" in capsys.readouterr().err
+    assert main(["live", "--port", "/dev/null", "--calibrate", "tumble", "--out", str(tmp_path / "c.json"),
+                 "--min-coverage", "1.5"]) == 2
+    assert "--min-coverage" in capsys.readouterr().err
+    assert main(["live", "--port", "/dev/null"]) == 2
+    assert "--cal CAL.json is required" in capsys.readouterr().err
