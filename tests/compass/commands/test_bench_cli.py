@@ -206,3 +206,15 @@ def test_a_grbl_table_turns_continuously(tmp_path):
     # tools/bench_station.py: a continuous turn at 1800 deg/min, reports late by up to 10 ms: 0.012 deg RMS; x4
     assert np.all(direction_errors_deg(tmp_path)[0] < 0.05)
     assert "# turntable: grbl:continuous\n" in (tmp_path / "cal.fourflip.csv").read_text()
+
+
+def test_a_header_change_mid_session_ends_it_in_one_line(tmp_path):
+    with start_device(tmp_path, "encoder", "--header-change-at", "110") as device:
+        with Proc(bench_args(tmp_path, "column:enc"), kill_after_s=300) as bench:
+            status = finish(bench)
+            last = bench.err[-1]
+        device.stop()
+    assert status == 2
+    assert last.startswith("compass bench: the module's header changed from t_s,seq,v1,v2,v3,ax,ay,az,gx,gy,gz,enc "
+                           "to t_s,seq,v1,v2,v3,gx,gy,gz,enc"), last
+    assert "--resume continues" in last and (tmp_path / "cal.flips" / "flip_000.csv").exists()

@@ -193,7 +193,8 @@ def test_bench_layout(tmp_path):
             said.append(text)
         viz.progress(t_s, station.progress.flip_deg, station.progress.covered_deg)
 
-    drive(rig, station, stream, max_s=400.0, on_block=on_block)
+    t_end = drive(rig, station, stream, max_s=400.0, on_block=on_block)
+    on_block(rig, t_end)  # the words of the last block
     viz.close()
     assert station.finished
     views = check_layout(tmp_path / "bench.rrd", "compass_bench", "t")
