@@ -33,6 +33,7 @@ from collections import deque
 import numpy as np
 
 from .session import SessionEnded
+from .turn import TurnRejected
 
 __all__ = ["GrblSource", "parse_status", "ALARMS"]
 
@@ -274,8 +275,6 @@ class GrblSource:
         TurnRejected
             Too few status reports or stream chunks to put the reports on the module's clock.
         """
-        from .turn import TurnRejected
-
         pairs = np.array(self._pairs, float).reshape(-1, 2)
         reports = np.array(self._reports, float).reshape(-1, 2)
         if len(pairs) < 2 or len(reports) < 4:
