@@ -16,10 +16,11 @@ An alarm, an error or a controller that does not answer within ``timeout_s`` end
 
 Continuously (``mode="continuous"``, ``--grbl-mode continuous``) the station turns the table once
 round in one move (``G1 A360``) and keeps every sample: the status reports polled during the turn,
-dated on arrival in the host's clock, are put on the module's clock by the chunks of the module's
-stream (:meth:`GrblSource.clock_pair`: each chunk's receive time and its last sample's ``t_s``,
-interpolated), and the table's angle at each sample is the reports' positions interpolated
-linearly to its time.  A report is late by the time it took to form, send and read; the stated
+dated half way between the request ``?`` and the report's arrival in the host's clock, are put on
+the module's clock by the chunks of the module's stream (:meth:`GrblSource.clock_pair`: each
+chunk's receive time and its last sample's ``t_s``, interpolated), and the table's angle at each
+sample is the reports' positions interpolated linearly to its time.  Where in the round trip the
+controller took its position is not known (up to half of it either way), nor its own delay; the stated
 angle sigma is the reports' own scatter about their neighbours' interpolation (for reports of
 white timing error ``sigma``: ``sqrt(3/2) sigma``).
 """
@@ -195,7 +196,10 @@ class GrblSource:
                                            f"{self.axis} axis (--grbl-axis)")
                     self._position = position[index]
                     if self._start_deg is not None:
-                        self._reports.append((self._answered_at, self._position))
+                        asked = self._asked_at if self._asked_at is not None else self._answered_at
+                        # formed between the request and its arrival: dated at the middle (the lag half known)
+                        self._reports.append((0.5 * (min(asked, self._answered_at) + self._answered_at),
+                                              self._position))
                     if self._state == "Alarm":
                         raise SessionEnded(f"GRBL controller on {self.port_name} is in alarm: the table cannot turn; "
                                            f"clear the cause, and continue with --resume")
