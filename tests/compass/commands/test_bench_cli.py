@@ -180,12 +180,13 @@ def test_a_headerless_csv_stream_calibrates_as_our_protocol_does(tmp_path):
     """The simulated module sends bare numbers (its gyro in deg/s); the station is told their columns and units."""
     with start_device(tmp_path, "encoder", "--format", "csv") as device:
         columns = next(line.split()[1] for line in device.out if line.startswith("columns "))
-        with Proc(bench_args(tmp_path, "column:enc", "--columns", columns, "--gyro-unit", "deg/s"),
-                  kill_after_s=300) as bench:
+        with Proc(bench_args(tmp_path, "column:enc", "--columns", columns, "--gyro-unit", "deg/s", "--rerun",
+                             str(tmp_path / "bench.rrd")), kill_after_s=300) as bench:
             assert finish(bench) == 0, bench.transcript()
             err = "".join(bench.err)
         device.stop()
     assert "stream format: csv (as named)" in err, err
+    assert f"wrote {tmp_path / 'bench.rrd'}" in err  # the session in Rerun (its layout: tests/compass/viz)
     assert np.all(direction_errors_deg(tmp_path)[0] < 0.021)  # as test_a_simulated_session_through_each_source's
 
 
