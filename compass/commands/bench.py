@@ -227,6 +227,9 @@ class _Readout:
         self.stream = stream
         self.viz = None  # the Rerun recording (--rerun), once the module's channels are known
         self._tracked = -float("inf")
+        self.tty = sys.stderr.isatty()
+        self._shown = None
+        self._next = 0.0
 
     def record(self, target, channels) -> None:
         from ..viz.bench import BenchRecording
@@ -242,9 +245,6 @@ class _Readout:
         if self.viz is not None and t_s >= self._tracked + 0.25:
             self._tracked = t_s
             self.viz.progress(t_s, station.progress.flip_deg, station.progress.covered_deg)
-        self.tty = sys.stderr.isatty()
-        self._shown = None
-        self._next = 0.0
 
     def say(self, level: str, text: str) -> None:
         if self.tty:
