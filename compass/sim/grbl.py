@@ -28,6 +28,7 @@ from ._pty import open_pty
 
 __all__ = ["GrblController", "GrblPty", "LoopbackPort"]
 
+_BLOCK_AHEAD_S = 0.05  # module seconds a report may run ahead of the last sample written (one block)
 _MOVE = re.compile(r"^G[01]\s*A(-?[\d.]+)(?:\s*F([\d.]+))?$")
 
 
@@ -167,15 +168,15 @@ class GrblPty:
         return self.controller.moves
 
     def advance(self, t_s: float) -> None:
-        """The module's clock (called by the device before each block)."""
-        self.controller.advance(t_s)
-
-    def start(self, wall_s: float, speed: float) -> None:
-        """The module's clock from now on: ``(time.perf_counter() - wall_s) * speed`` (a report gives the position
-        when it is asked for, not at the last block's time)."""
+        """The module's clock: the last sample the device has written (called after each block).  Between
+        blocks the controller's time runs on with the wall clock, at most a block ahead: a report gives the
+        position when it is asked for, and never one the stream has not reached (a device behind its pace
+        under load stays consistent with its stream)."""
         import time
 
-        self.controller.module_clock = lambda: (time.perf_counter() - wall_s) * speed
+        self.controller.advance(t_s)
+        wall, speed = time.perf_counter(), self.speed
+        self.controller.module_clock = lambda: t_s + min(time.perf_counter() - wall, _BLOCK_AHEAD_S / speed) * speed
 
     def open(self) -> str:
         master, slave, path = open_pty(self.link)

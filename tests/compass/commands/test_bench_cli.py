@@ -201,11 +201,13 @@ def test_a_motioncal_stream_on_a_grbl_table_calibrates_as_our_protocol_does(tmp_
 
 
 def test_a_grbl_table_turns_continuously(tmp_path):
-    status, err = grbl_session(tmp_path, bench_extra=("--grbl-mode", "continuous", "--grbl-feed", "1800"))
+    """The station dates the controller's reports in the host's clock: at --speed 2 a host's delay counts twice in
+    module time, and a loaded machine's are tens of ms, so the bound here is the hand-turned sources' (manual:30:
+    0.16 deg, test_a_simulated_session_through_each_source), not tools/bench_station.py's lock-step 0.0062."""
+    status, err = grbl_session(tmp_path, "--speed", "2", bench_extra=("--grbl-mode", "continuous"))
     assert status == 0, "".join(err)
     assert "flip 0: the table turns once round" in "".join(err)
-    # tools/bench_station.py: a continuous turn at 1800 deg/min, reports late by up to 10 ms: 0.012 deg RMS; x4
-    assert np.all(direction_errors_deg(tmp_path)[0] < 0.05)
+    assert np.all(direction_errors_deg(tmp_path)[0] < 0.16)
     assert "# turntable: grbl:continuous\n" in (tmp_path / "cal.fourflip.csv").read_text()
 
 

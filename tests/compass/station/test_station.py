@@ -271,3 +271,28 @@ def test_a_grbl_table_turning_continuously_calibrates_near_the_bound(tmp_path):
     assert np.sqrt(np.mean(angle_error**2)) < 0.1  # 12 deg/s at most, reports 0-10 ms late: 0.05 deg RMS a turn
     ratio, error = direction_error_over_crb(rig, recording)
     assert np.sqrt(np.mean(ratio**2)) < 4.0, (ratio, error)
+
+
+def test_a_corrupted_time_on_the_line_does_not_stop_the_session(tmp_path):
+    """A stream without checksums can pass a cut line whose t_s reads 136139 between 136.53 and 136.54: the reading
+    is dropped (the next does not follow it), and the session goes on."""
+    from compass.station.turn import Reading
+
+    rig = BenchRig(seed=4, encoder_step_deg=0.1)
+    source = parse_turntable("column:enc")
+    station = Station(source, rig.channels)
+    stream = StationStream("enc")
+    corrupted = [False]
+    original = stream.feed
+
+    def feed(data, t_rx=None):
+        readings = original(data, t_rx)
+        if readings and readings[0].t_s > 20.0 and not corrupted[0]:
+            corrupted[0] = True
+            r = readings[0]
+            readings.insert(1, Reading(r.t_s * 1000.0, r.outputs, r.accel, r.gyro, r.encoder_deg, r.temp_c))
+        return readings
+
+    stream.feed = feed
+    drive(rig, station, stream, max_s=300.0)
+    assert corrupted[0] and station.finished, station.drain()
