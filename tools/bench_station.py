@@ -17,8 +17,11 @@ for each source, over the same sessions:
 
 Sources: an exact encoder column, one quantised to 0.1 deg, the gyro (0.5 deg/s RMS bias per axis
 and a 1 % RMS scale error per axis), manual stops every 10 and every 30 deg read within
-+-0.5 deg (uniform), and stops every 10 deg at exact angles (a GRBL stepper table: the controller
-reports the commanded position).
++-0.5 deg (uniform), and a GRBL stepper table (:class:`compass.station.grbl.GrblSource` talking to
+the simulated controller :class:`compass.sim.grbl.GrblController` in the same process, polled
+every 0.1 s, each status report giving the position up to 10 ms before it is read: the time a
+report takes to be formed, sent and read): stops every 10 deg, and one continuous turn at 720 and
+at 1800 deg/min, every sample's angle interpolated from the reports.
 
 Usage::
 
@@ -40,7 +43,9 @@ from calibrate.kinds import KINDS
 from compass.io.fourflip import read_fourflip
 from compass.sim.bench import BenchSamples
 from compass.sim.bench_rig import BenchRig, Operator, drive
+from compass.sim.grbl import GrblController, LoopbackPort
 from compass.station import SessionStore, Station, StationStream, parse_turntable
+from compass.station.grbl import GrblSource
 
 SOURCES = {
     "encoder, exact": ("column:enc", dict(encoder_step_deg=0.0), {}),
@@ -48,17 +53,41 @@ SOURCES = {
     "gyro, 0.5 deg/s bias, 1 % scale": ("gyro", dict(gyro_bias_dps=0.5, gyro_scale_error=0.01), {}),
     "manual, 30 deg stops +-0.5": ("manual:30", {}, dict(read_half_width_deg=0.5)),
     "manual, 10 deg stops +-0.5": ("manual:10", {}, dict(read_half_width_deg=0.5)),
-    "stops every 10 deg, exact (GRBL)": ("manual:10", {}, {}),
+    "GRBL, stops every 10 deg": ("grbl:stops:1800", {}, {}),
+    "GRBL, continuous 720 deg/min": ("grbl:continuous:720", {}, {}),
+    "GRBL, continuous 1800 deg/min": ("grbl:continuous:1800", {}, {}),
 }
+REPORT_DELAY_S = 0.01  # a status report's position is up to this old when it is read
 
 
-def session(spec: str, rig: BenchRig, folder: Path):
+def grbl_source(spec: str, rig: BenchRig, seed: int):
+    """``grbl:MODE:FEED``: the station's GRBL source on the simulated controller, and the lock step's block hook."""
+    _, mode, feed = spec.split(":")
+    rig.operator_turns = False
+    controller = GrblController(rig, report_delay_s=REPORT_DELAY_S, seed=seed)
+    now = [0.0]
+    source = GrblSource("simulated", link=LoopbackPort(controller), clock=lambda: now[0], mode=mode,
+                        feed_deg_min=float(feed), step_deg=10.0)
+    source.open()
+
+    def on_block(rig, t_s):
+        controller.advance(t_s)
+        now[0] = t_s
+        source.poll()  # asks for a report when due
+        source.poll()  # reads it at once (its age is the controller's report delay)
+        source.clock_pair(t_s, t_s)  # the host's clock is the module's here
+
+    return source, on_block
+
+
+def session(spec: str, rig: BenchRig, folder: Path, seed: int = 0):
     """Run one station session; the recording it writes (read back), or None if it did not finish."""
-    source = parse_turntable(spec)
+    source, on_block = grbl_source(spec, rig, seed) if spec.startswith("grbl") else (parse_turntable(spec), None)
     store = SessionStore(folder / "cal.json")
     store.start({})
     station = Station(source, rig.channels, on_flip=store.save)
-    drive(rig, station, StationStream(getattr(source, "column", None)), max_s=1500.0, block_s=0.2)
+    drive(rig, station, StationStream(getattr(source, "column", None)), max_s=1500.0,
+          block_s=0.1 if on_block else 0.2, on_block=on_block)
     if not station.finished:
         return None
     return read_fourflip(store.write_recording({"turntable": spec}))
@@ -103,20 +132,20 @@ def main() -> int:
         for i in range(args.n):
             rig = BenchRig(seed=args.seed + i, operator=Operator(**operator), **rig_options)
             with tempfile.TemporaryDirectory() as folder:
-                recording = session(spec, rig, Path(folder))
+                recording = session(spec, rig, Path(folder), args.seed + i)
             if recording is None:
                 failed += 1
                 continue
-            scores.append(score(rig, recording, spec.startswith("manual")))
+            scores.append(score(rig, recording, spec.startswith(("manual", "grbl:stops"))))
             print(f"  {name}: {i + 1}/{args.n}, {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
         rows.append((name, spec, scores, failed))
     print(f"bench_station: {args.n} seeded sessions per source (seeds {args.seed}..{args.seed + args.n - 1}), "
           "three channels, 0.15 uT noise, 100 Hz")
-    print(f"{'source':34s} {'--turntable':11s} {'err deg':>8s} {'err/CRB':>8s} {'exact/CRB':>9s} {'err/sigma':>9s} "
+    print(f"{'source':34s} {'--turntable':20s} {'err deg':>8s} {'err/CRB':>8s} {'exact/CRB':>9s} {'err/sigma':>9s} "
           f"{'CRB deg':>8s}  effects added")
     for name, spec, scores, failed in rows:
         if not scores:
-            print(f"{name:34s} {spec:11s} no session finished ({failed} abandoned)")
+            print(f"{name:34s} {spec:20s} no session finished ({failed} abandoned)")
             continue
         err = np.concatenate([s["err"] for s in scores])
         exact = np.concatenate([s["exact"] for s in scores])
@@ -124,7 +153,7 @@ def main() -> int:
         sigma = np.concatenate([s["sigma"] for s in scores])
         effects = sorted({e for s in scores for e in s["effects"]})
         rms = (lambda x: float(np.sqrt(np.mean(np.square(x)))))
-        print(f"{name:34s} {spec:11s} {rms(err):8.4f} {rms(err / crb):8.2f} {rms(exact / crb):9.2f} "
+        print(f"{name:34s} {spec:20s} {rms(err):8.4f} {rms(err / crb):8.2f} {rms(exact / crb):9.2f} "
               f"{rms(err / sigma):9.2f} {rms(crb):8.4f}  {', '.join(effects) or '-'}"
               + (f" ({failed} abandoned)" if failed else ""))
     return 0

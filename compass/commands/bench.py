@@ -1,6 +1,7 @@
 """``compass bench --port P --out CAL.json --turntable SOURCE``: the guided four-flip session.
 
-Reads the module's stream (:mod:`compass.serial_reader`, :mod:`compass.station.stream`), runs the
+Reads the module's stream as ``compass live`` does (:func:`compass.commands._port.open_reader`; any format
+of :mod:`compass.io.streams`, found from the first lines and said, :mod:`compass.station.stream`), runs the
 session (:class:`compass.station.Station`), keeps each finished flip in ``CAL.flips/``, writes the
 recording ``CAL.fourflip.csv`` and calibrates it with ``compass calibrate``'s own code
 (:func:`compass.commands.calibrate.calibrate_file`).  Instructions and the readout go to stderr;
@@ -17,7 +18,9 @@ import threading
 import time
 
 from .. import limits
+from ..io.stream_options import add_stream_arguments
 from ..limits import Range
+from ..viz import add_rerun_option
 
 
 def register(sub) -> None:
@@ -45,31 +48,43 @@ def register(sub) -> None:
     p.add_argument("--grbl-axis", default="A", help="grbl: the rotary axis' letter (default A)")
     p.add_argument("--grbl-step", type=Range(0.0, 360.0, "deg", lo_open=True).option("--grbl-step"), default=10.0, metavar="DEG",
                    help="grbl: the table stops every DEG degrees (default 10)")
-    p.add_argument("--grbl-feed", type=Range(0.0, 1e6, "deg/min", lo_open=True).option("--grbl-feed"), default=1800.0, metavar="DEG_PER_MIN",
-                   help="grbl: feed rate of the moves, degrees a minute (default 1800)")
+    p.add_argument("--grbl-feed", type=Range(0.0, 1e6, "deg/min", lo_open=True).option("--grbl-feed"), default=None,
+                   metavar="DEG_PER_MIN", help="grbl: feed rate of the moves, degrees a minute (default 1800 for stops; "
+                                               "720 for a continuous turn: 0.12 deg between samples at 100 Hz)")
+    p.add_argument("--grbl-mode", choices=("stops", "continuous"), default="stops",
+                   help="grbl: turn a stop at a time (default), or once round in one move, every sample kept and its "
+                        "angle interpolated from the controller's status reports")
     p.add_argument("--baud", type=limits.BAUD.option("--baud"), default=115200, help="serial baud rate (default 115200)")
-    p.add_argument("--wait", type=limits.WAIT_S.option("--wait"), default=5.0, metavar="S",
-                   help="how long the port may take to appear, seconds (default 5)")
+    p.add_argument("--wait", type=limits.WAIT_S.option("--wait"), default=0.0, metavar="S",
+                   help="how long the port may take to appear, seconds (default 0: a port that cannot be opened is "
+                        "an error); once connected, a lost port is always waited for")
     p.add_argument("--quiet", action="store_true", help="do not print the fit report")
+    add_rerun_option(p)
+    add_stream_arguments(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from ..cli import BadInput
     from ..io.atomic import check_writable
-    from ..serial_reader import Chunk, PortUnavailable, SerialReader
+    from ..serial_reader import Chunk, PortUnavailable
     from ..site import Site
     from ..station import SessionEnded, SessionStore, Station, StationStream, parse_turntable, recording_path
-    from ._port import port_unavailable
+    from ..viz import check_rerun_target
+    from ._port import open_reader, port_unavailable, stream_options
     from .calibrate import calibrate_file
 
     try:
+        feed = args.grbl_feed or (720.0 if args.grbl_mode == "continuous" else 1800.0)
         source = parse_turntable(args.turntable, grbl_options={"axis": args.grbl_axis, "step_deg": args.grbl_step,
-                                                                "feed_deg_min": args.grbl_feed})
+                                                                "feed_deg_min": feed, "mode": args.grbl_mode,
+                                                                "clock": time.perf_counter})  # the reader's clock
         site = Site.parse(args.site, args.date) if args.site is not None else None
     except ValueError as exc:
         raise BadInput(str(exc)) from None
+    options = stream_options(args)
     out = check_writable(args.out, args.force)
+    target = check_rerun_target(args.rerun, args.force)
     check_writable(recording_path(out), args.force)
     metadata = _metadata(args, source, site)
     store = SessionStore(out)
@@ -89,28 +104,26 @@ def run(args) -> int:
         done = store.finished()
         metadata = description["metadata"]  # the session's, as it began
     encoder = getattr(source, "column", None)
-    stream = StationStream(encoder, tuple(description["header"]) if description else None)
-    if not args.wait >= 0:
-        raise BadInput(f"--wait must be zero or positive, got {args.wait}")
-    reader = SerialReader(args.port, baudrate=args.baud, first_open_s=args.wait)
-    try:
-        reader.check_url()
-    except ValueError as exc:
-        raise BadInput(str(exc)) from None
-    readout = _Readout(args.prompt_file)
+    stream = StationStream(encoder, tuple(description["header"]) if description else None, options)
+    reader = open_reader(args)
+    readout = _Readout(args.prompt_file, stream)
     state = {"station": None}
 
     def make_station():
-        info = {"format": "compass-bench-session/1", "header": list(stream.header), "turntable": source.spec,
+        info = {"format": "compass-bench-session/1", "stream_format": stream.format, "header": list(stream.header),
+                "turntable": source.spec,
                 "metadata": metadata, "rate_hz": description.get("rate_hz") if description else None}
 
         def keep(rows):
             store.save(rows)
+            readout.flip(rows)
             info["rate_hz"] = station.rate_hz
             store.start(info)
 
         if description is None:
             store.start(info)
+        if target is not None:
+            readout.record(target, stream.channels)
         station = Station(source, stream.channels, ask=not args.yes, done=done, on_flip=keep,
                           rate_hz=info["rate_hz"])
         if done:
@@ -128,6 +141,9 @@ def run(args) -> int:
             if hasattr(source, "poll"):
                 source.poll()
             if not isinstance(item, Chunk):
+                if item.kind == "waiting" and not reader.connected_once:  # asked for with --wait S
+                    readout.say("info", f"{item.message}: up to {args.wait:g} s")
+                    continue
                 readout.say("info" if item.kind == "connected" else "warn", item.message)
                 if item.kind == "connected":
                     stream.resync()
@@ -136,12 +152,18 @@ def run(args) -> int:
                     readout.events(station)
                 continue
             readings = stream.feed(item.data, item.t_rx)
+            if readings and hasattr(source, "clock_pair"):
+                source.clock_pair(item.t_rx, readings[-1].t_s)
+            for level, text in stream.drain():
+                readout.say(level, text)
             if station is None and stream.header is not None:
                 station = state["station"] = make_station()
             if station is None:
                 continue
             for reading in readings:
                 station.feed(reading)
+            if readings:
+                readout.track(station, readings[-1].t_s)
             readout.events(station)
             readout.show(station)
             if station.finished:
@@ -200,16 +222,36 @@ def _confirmations(state, stop) -> None:
 class _Readout:
     """Instructions, warnings and a progress line on stderr; the instruction as JSON in a prompt file."""
 
-    def __init__(self, prompt_file):
+    def __init__(self, prompt_file, stream):
         self.prompt_file = prompt_file
+        self.stream = stream
+        self.viz = None  # the Rerun recording (--rerun), once the module's channels are known
+        self._tracked = -float("inf")
         self.tty = sys.stderr.isatty()
         self._shown = None
         self._next = 0.0
+
+    def record(self, target, channels) -> None:
+        from ..viz.bench import BenchRecording
+
+        self.viz = BenchRecording(target, channels)
+
+    def flip(self, rows) -> None:
+        if self.viz is not None:
+            self.viz.flip(rows)
+
+    def track(self, station, t_s: float) -> None:
+        """The degrees covered, to the Rerun recording every quarter second of module time."""
+        if self.viz is not None and t_s >= self._tracked + 0.25:
+            self._tracked = t_s
+            self.viz.progress(t_s, station.progress.flip_deg, station.progress.covered_deg)
 
     def say(self, level: str, text: str) -> None:
         if self.tty:
             sys.stderr.write("\r\033[K")
         print(f"compass bench: {'warning: ' if level == 'warn' else ''}{text}", file=sys.stderr, flush=True)
+        if self.viz is not None:
+            self.viz.event(None, level, text)
 
     def events(self, station) -> None:
         for level, text in station.drain():
@@ -229,7 +271,7 @@ class _Readout:
         if p.flip_deg is None or station.finished:
             return
         line = (f"flip {p.flip_deg:g} ({p.flips_done}/4 done), {p.step}: {p.covered_deg:.0f}/360 deg, "
-                f"{p.rate_hz:.4g} Hz")
+                f"{p.rate_hz:.4g} Hz, {self.stream.describe()}")
         if self.tty:
             sys.stderr.write("\r\033[K" + line)
             sys.stderr.flush()
@@ -237,5 +279,11 @@ class _Readout:
             print(f"compass bench: {line}", file=sys.stderr, flush=True)
 
     def close(self) -> None:
+        """End the progress line; write the Rerun recording (everything the session showed, also when it ended
+        early: the flips kept are in it)."""
         if self.tty:
             sys.stderr.write("\n")
+        if self.viz is not None:
+            self.viz.close()
+            if self.viz.recording.path is not None:
+                print(f"compass bench: wrote {self.viz.recording.path}", file=sys.stderr, flush=True)

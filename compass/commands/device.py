@@ -138,9 +138,20 @@ def _run_bench(args) -> int:
         check_writable(args.save_truth, args.force)
     kind = args.turntable
     operator = Operator(read_half_width_deg=0.5 if kind == "manual" else 0.0, mistakes=tuple(args.mistake))
-    rig = BenchRig(seed=args.seed, rate_hz=args.rate, operator=operator,
-                   encoder_step_deg=args.encoder_step if kind == "encoder" else None,
-                   gyro_bias_dps=0.5 if kind == "gyro" else 0.0, gyro_scale_error=0.01 if kind == "gyro" else 0.0)
+    if args.format.startswith("motioncal") and kind == "gyro" and args.speed != 1.0:
+        raise BadInput(f"--format {args.format} --turntable gyro --speed {args.speed:g}: MotionCal lines carry no time, "
+                       f"so the station dates them as they arrive and integrates the gyro in that time: the simulated "
+                       f"module must run in real time (--speed 1)")
+    try:
+        rig = BenchRig(seed=args.seed, rate_hz=args.rate, operator=operator,
+                       encoder_step_deg=args.encoder_step if kind == "encoder" else None,
+                       gyro_bias_dps=0.5 if kind == "gyro" else 0.0, gyro_scale_error=0.01 if kind == "gyro" else 0.0,
+                       fmt=args.format)
+    except ValueError as exc:
+        raise BadInput(f"--bench --format {args.format} --turntable {kind}: {exc}") from None
+    if args.format == "csv":
+        print(f"columns {','.join(rig.csv_columns())} (compass bench --columns; the gyro in deg/s: --gyro-unit deg/s)",
+              flush=True)
     table = None
     if kind == "grbl":
         rig.operator_turns = False

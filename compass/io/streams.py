@@ -134,6 +134,9 @@ class StreamDecoder:
     field_check : callable, optional
         ``check(raw (n, c)) -> str | None`` (:func:`field_scale_check`): the first :data:`JUDGE_SAMPLES`
         samples are held for it; words set :attr:`fatal`.
+    unscaled : sequence of str
+        Channels carried beside the field that ``--mag-unit`` leaves as sent (a turntable's encoder
+        column, degrees).
 
     Attributes
     ----------
@@ -155,8 +158,12 @@ class StreamDecoder:
     ('motioncal', 'MotionCal Uni: lines')
     """
 
-    def __init__(self, channels, options: StreamOptions | None = None, *, field_check=None):
+    def __init__(self, channels, options: StreamOptions | None = None, *, field_check=None, unscaled=()):
         self.channels = tuple(channels)
+        unknown = set(unscaled) - set(self.channels)
+        if unknown:
+            raise ValueError(f"unscaled channel(s) {', '.join(sorted(unknown))} are not among {', '.join(self.channels)}")
+        self._field_unit = np.array([c not in set(unscaled) for c in self.channels])
         self.options = StreamOptions() if options is None else options
         self.stats = LineStats()
         self.events: list = []
@@ -329,6 +336,7 @@ class StreamDecoder:
     def _out(self, samples: list, t_rx: float | None) -> list:
         mag, acc, gyr = self._factors
         if (mag, acc, gyr) != (1.0, 1.0, 1.0):
+            mag = np.where(self._field_unit, mag, 1.0)
             samples = [replace(s, raw=s.raw * mag, accel=None if s.accel is None else s.accel * acc,
                                gyro=None if s.gyro is None else s.gyro * gyr) for s in samples]
         self._observe(samples, t_rx)

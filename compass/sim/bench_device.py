@@ -124,8 +124,6 @@ class BenchPty:
                     next_header = t
                 n = max(1, int(round(_BLOCK_S * self.rig.rate_hz)))
                 times = t + np.arange(n) / self.rig.rate_hz
-                if self.table is not None:
-                    self.table.advance(times[-1])
                 data = self.rig.lines(times)
                 delay = start + times[-1] / self.speed - time.perf_counter()
                 if delay > 0 and stop.wait(delay):
@@ -145,6 +143,8 @@ class BenchPty:
                     data = self.rig.header() + data
                     next_header = t + 1.0
                 self._write(data)
+                if self.table is not None:
+                    self.table.advance(times[-1])
                 self.counts["samples"] += n
                 t = times[-1] + 1.0 / self.rig.rate_hz
         finally:

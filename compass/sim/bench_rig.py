@@ -13,6 +13,12 @@ errors: stopping at the mark within ``mark_sigma_deg``, reading a graduation wit
 ``read_half_width_deg``, and the mistakes asked for (``short_turn``: the first turn of flip 180
 stops 60 deg short; ``wrong_face``: flip 90 is first made the wrong way round, -Y up).
 Each mistake is made once; asked again, the operator does it right.
+
+The module speaks one of the stream formats of real boards (``fmt``, :data:`RIG_FORMATS`): our line
+protocol with a header (volts, as the four-flip simulation's sensor outputs); MotionCal's ``Raw:``
+and ``Uni:`` lines (:mod:`compass.sim.stream_formats`: no time, no encoder, the field in uT: the
+outputs divided by :data:`VOLTS_PER_UT`); or bare numbers (``csv``: :meth:`BenchRig.csv_columns`
+space separated, the gyro in deg/s as much hobby firmware sends it).
 """
 
 from __future__ import annotations
@@ -25,9 +31,12 @@ from ..io.lines import format_line
 from .bench import BenchPhysics, BenchSamples, bench_outputs
 from .fourflip import simulate_fourflip
 
-__all__ = ["Operator", "BenchRig", "MISTAKES"]
+__all__ = ["Operator", "BenchRig", "MISTAKES", "RIG_FORMATS", "VOLTS_PER_UT"]
 
 MISTAKES = ("short_turn", "wrong_face")
+RIG_FORMATS = ("compass", "motioncal", "motioncal-raw", "csv")
+VOLTS_PER_UT = 0.02
+"""The four-flip simulation's nominal gain, volts per uT: a MotionCal board's outputs are the volts over it."""
 
 
 @dataclass
@@ -83,6 +92,8 @@ class BenchRig:
     encoder_column : str
     accel_noise_g, gyro_noise_dps : float
         Per-sample white noise.
+    fmt : str
+        The stream format, one of :data:`RIG_FORMATS` (MotionCal's carry no encoder column).
 
     Attributes
     ----------
@@ -96,7 +107,12 @@ class BenchRig:
     def __init__(self, *, seed: int = 0, rate_hz: float = 100.0, noise_ut: float = 0.15,
                  operator: Operator | None = None, gyro_bias_dps: float = 0.0, gyro_scale_error: float = 0.0,
                  encoder_step_deg: float | None = None, encoder_column: str = "enc", accel_noise_g: float = 0.002,
-                 gyro_noise_dps: float = 0.05):
+                 gyro_noise_dps: float = 0.05, fmt: str = "compass"):
+        if fmt not in RIG_FORMATS:
+            raise ValueError(f"format {fmt!r}: expected one of {', '.join(RIG_FORMATS)}")
+        if fmt.startswith("motioncal") and encoder_step_deg is not None:
+            raise ValueError("MotionCal lines carry no encoder column: use the gyro, manual stops or a GRBL table")
+        self.fmt = fmt
         session = simulate_fourflip(seed=seed, n_channels=3, noise_ut=noise_ut, step_deg=45.0)
         self.truth = session.truth
         self.physics: BenchPhysics = session.base_physics()
@@ -240,9 +256,26 @@ class BenchRig:
         accel = ["ax", "ay", "az"] if self.send_accel else []
         return ["t_s", "seq", *self.channels, *accel, "gx", "gy", "gz", *extra]
 
+    def csv_columns(self) -> tuple[str, ...]:
+        """The cells of the ``csv`` format's lines, as ``--columns`` names them (the gyro in deg/s)."""
+        return tuple(n for n in self.columns() if n != "seq")
+
     def lines(self, t_s) -> bytes:
-        """The protocol lines (:mod:`compass.io.lines`) of samples at times ``t_s``, in order."""
+        """The lines of samples at times ``t_s``, in order, in the rig's format (module docstring)."""
         m = self.measure(t_s)
+        if self.fmt.startswith("motioncal"):
+            from .stream_formats import sample_lines
+
+            return b"".join(sample_lines(self.fmt, np.atleast_1d(t_s), m["outputs"] / VOLTS_PER_UT, m["accel"],
+                                         m["gyro"]))
+        if self.fmt == "csv":
+            parts = [np.atleast_1d(t_s)[:, None], m["outputs"]] + [m["accel"]] * self.send_accel
+            parts.append(np.degrees(m["gyro"]))
+            if m["encoder_deg"] is not None:
+                parts.append(m["encoder_deg"][:, None])
+            rows = np.column_stack(parts)
+            self._sent += len(rows)
+            return b"".join((" ".join(f"{v:.7g}" for v in row) + "\r\n").encode("ascii") for row in rows)
         parts = [m["outputs"]] + [m["accel"]] * self.send_accel + [m["gyro"]]
         if m["encoder_deg"] is not None:
             parts.append(m["encoder_deg"][:, None])
@@ -257,12 +290,14 @@ class BenchRig:
         return b"".join(out)
 
     def header(self) -> bytes:
-        return format_line(self.columns())
+        """The header line of our protocol (nothing in the other formats)."""
+        return format_line(self.columns()) if self.fmt == "compass" else b""
 
 
 def drive(rig: BenchRig, station, stream, *, max_s: float = 900.0, block_s: float = 0.1, on_block=None) -> float:
     """Run a station against the rig in lock step (module time, no real time): the operator reads
-    the station's instruction every block, the module's lines go through the station's stream.
+    the station's instruction every block, the module's lines go through the station's stream,
+    received at the module time of the block's last sample (what dates a stream without ``t_s``).
 
     Parameters
     ----------
@@ -295,7 +330,7 @@ def drive(rig: BenchRig, station, stream, *, max_s: float = 900.0, block_s: floa
         if t >= next_header:
             data = rig.header() + data
             next_header = t + 1.0
-        for reading in stream.feed(data):
+        for reading in stream.feed(data, times[-1]):
             station.feed(reading)
         t = times[-1] + 1.0 / rig.rate_hz
         k += 1

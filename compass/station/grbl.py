@@ -13,16 +13,28 @@ then waits for the module to be still and keeps the stop's mean at the controlle
 position (``MPos`` of the axis, modulo 360: the table's zero is the controller's).
 An alarm, an error or a controller that does not answer within ``timeout_s`` ends the session
 (:class:`compass.station.session.SessionEnded`), the flips done kept.
+
+Continuously (``mode="continuous"``, ``--grbl-mode continuous``) the station turns the table once
+round in one move (``G1 A360``) and keeps every sample: the status reports polled during the turn,
+dated half way between the request ``?`` and the report's arrival in the host's clock, are put on
+the module's clock by the chunks of the module's stream (:meth:`GrblSource.clock_pair`: each
+chunk's receive time and its last sample's ``t_s``, interpolated), and the table's angle at each
+sample is the reports' positions interpolated linearly to its time.  Where in the round trip the
+controller took its position is not known (up to half of it either way), nor its own delay; the stated
+angle sigma is the reports' own scatter about their neighbours' interpolation (for reports of
+white timing error ``sigma``: ``sqrt(3/2) sigma``).
 """
 
 from __future__ import annotations
 
 import re
 import time
+from collections import deque
 
 import numpy as np
 
 from .session import SessionEnded
+from .turn import TurnRejected
 
 __all__ = ["GrblSource", "parse_status", "ALARMS"]
 
@@ -64,14 +76,23 @@ class GrblSource:
         Longest wait for an answer, seconds (wall time).
     poll_s : float
         Interval between status requests, seconds.
+    mode : {"stops", "continuous"}
+        Turn a stop at a time, or once round in one move (module docstring).
+    link : object, optional
+        An open port (``write``, ``read``, ``close``) to use instead of opening ``port``
+        (:class:`compass.sim.grbl.LoopbackPort`).
+    clock : callable
+        The host's clock, seconds (the receive times :meth:`clock_pair` is given are on it).
     """
 
-    kind = "stops"
     operator_moves = False
     angle_sigma_deg = 0.0  # a stepper's commanded position; its mechanics are not known here
+    hold_s = 1.0  # continuous: still time at each end of the turn, seconds
 
     def __init__(self, port: str, *, axis: str = "A", step_deg: float = 10.0, feed_deg_min: float = 1800.0,
-                 timeout_s: float = 2.0, poll_s: float = 0.1):
+                 timeout_s: float = 2.0, poll_s: float = 0.1, mode: str = "stops", link=None, clock=time.monotonic):
+        if mode not in ("stops", "continuous"):
+            raise ValueError(f"--grbl-mode {mode}: expected stops or continuous")
         axis = axis.upper()
         if axis not in _AXES:
             raise ValueError(f"--grbl-axis {axis}: expected one of {', '.join(_AXES)}")
@@ -85,7 +106,14 @@ class GrblSource:
         self.feed_deg_min = float(feed_deg_min)
         self.timeout_s = timeout_s
         self.poll_s = poll_s
-        self.spec = "grbl"
+        self.mode = mode
+        self.kind = mode
+        self.clock = clock
+        self.spec = "grbl" if mode == "stops" else "grbl:continuous"
+        self._link = link
+        self._reports: list = []  # continuous: (host time, position) of the turn's status reports
+        self._pairs: deque = deque(maxlen=100000)  # (host receive time, module t_s) of the module's chunks
+        self._start_deg = None
         self._port = None
         self._buffer = b""
         self._state = None
@@ -108,7 +136,7 @@ class GrblSource:
         import serial
 
         try:
-            self._port = serial.serial_for_url(self.port_name, baudrate=115200, timeout=0)
+            self._port = self._link or serial.serial_for_url(self.port_name, baudrate=115200, timeout=0)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise SessionEnded(f"GRBL controller: cannot open {self.port_name} ({exc})") from None
         self._send(b"\r\n\r\n")  # wake it; an unfinished line before is discarded
@@ -160,13 +188,18 @@ class GrblSource:
             else:
                 status = parse_status(line)
                 if status is not None:
-                    self._answered_at = time.monotonic()
+                    self._answered_at = self.clock()
                     self._state, position = status
                     index = _AXES.index(self.axis)
                     if index >= len(position):
                         raise SessionEnded(f"GRBL controller on {self.port_name} reports {len(position)} axes: no "
                                            f"{self.axis} axis (--grbl-axis)")
                     self._position = position[index]
+                    if self._start_deg is not None:
+                        asked = self._asked_at if self._asked_at is not None else self._answered_at
+                        # formed between the request and its arrival: dated at the middle (the lag half known)
+                        self._reports.append((0.5 * (min(asked, self._answered_at) + self._answered_at),
+                                              self._position))
                     if self._state == "Alarm":
                         raise SessionEnded(f"GRBL controller on {self.port_name} is in alarm: the table cannot turn; "
                                            f"clear the cause, and continue with --resume")
@@ -177,9 +210,9 @@ class GrblSource:
         self._wait(lambda: self._answered_at is not None, "a status request '?'")
 
     def _wait(self, done, what: str) -> None:
-        deadline = time.monotonic() + self.timeout_s
+        deadline = self.clock() + self.timeout_s
         while not done():
-            if time.monotonic() > deadline:
+            if self.clock() > deadline:
                 raise SessionEnded(f"GRBL controller on {self.port_name} does not answer {what} within "
                                    f"{self.timeout_s:g} s")
             time.sleep(0.01)
@@ -191,7 +224,7 @@ class GrblSource:
         if self._port is None:
             return
         self._read_lines()
-        now = time.monotonic()
+        now = self.clock()
         if self._asked_at is not None and (self._answered_at is None or self._answered_at < self._asked_at) \
                 and now - self._asked_at > self.timeout_s:
             raise SessionEnded(f"GRBL controller on {self.port_name} does not answer a status request within "
@@ -221,3 +254,56 @@ class GrblSource:
     def position_deg(self, angle_deg: float) -> float:
         """The controller's reported position of the axis, modulo 360, degrees."""
         return float(np.mod(self._position, 360.0))
+
+    # ---------------------------------------------------------------- continuous turns
+    def clock_pair(self, t_rx: float, t_s: float) -> None:
+        """A chunk of the module's stream received at host time ``t_rx`` whose last sample is at module time ``t_s``."""
+        self._pairs.append((t_rx, t_s))
+
+    def begin(self, flip_deg: float) -> None:
+        """Turn the table once round, from where it stands, in one move."""
+        self._start_deg = self._position
+        self._reports = [(self.clock(), self._position)]
+        self._command(f"G1 {self.axis}360.0000 F{self.feed_deg_min:.1f}")
+        self._state = "Run"
+
+    def live(self, data) -> float:
+        """Degrees turned since the turn began, as the controller reports them."""
+        return 0.0 if self._start_deg is None else float(np.clip(self._position - self._start_deg, 0.0, 360.0))
+
+    def angles(self, data, flip_deg: float) -> tuple[np.ndarray, np.ndarray, float]:
+        """``(platform_deg, keep, angle_sigma_deg)``: the reports' positions interpolated to the samples' times.
+
+        Raises
+        ------
+        TurnRejected
+            Too few status reports or stream chunks to put the reports on the module's clock.
+        """
+        pairs = np.array(self._pairs, float).reshape(-1, 2)
+        reports = np.array(self._reports, float).reshape(-1, 2)
+        if len(pairs) < 2 or len(reports) < 4:
+            raise TurnRejected(f"{len(reports)} status reports from the GRBL controller during the turn: too few to "
+                               f"date the table's angle; turn again")
+        inside = (reports[:, 0] >= pairs[0, 0]) & (reports[:, 0] <= pairs[-1, 0])
+        t_report = np.interp(reports[inside, 0], pairs[:, 0], pairs[:, 1])
+        position = reports[inside, 1]
+        order = np.argsort(t_report, kind="stable")
+        t_report, position = t_report[order], position[order]
+        platform = np.mod(np.interp(data.t_s, t_report, position), 360.0)
+        return platform, np.ones(len(data), bool), _report_scatter_deg(t_report, position)
+
+
+def _report_scatter_deg(t_s: np.ndarray, position_deg: np.ndarray) -> float:
+    """The reports' angle error from their scatter about the interpolation of their neighbours, degrees.
+
+    For reports with white errors ``sigma``, ``p_i - interp(p_{i-1}, p_{i+1})`` has variance ``3/2 sigma^2``
+    at equal spacing; taken over the reports of a moving table (a still one's have no timing error).
+    """
+    t, p = t_s, position_deg
+    if len(t) < 3:
+        return 0.0
+    span = t[2:] - t[:-2]
+    ok = (span > 0) & (p[2:] != p[:-2])
+    w = np.where(ok, (t[1:-1] - t[:-2]) / np.where(ok, span, 1.0), 0.5)
+    residual = p[1:-1] - (p[:-2] + w * (p[2:] - p[:-2]))
+    return float(np.sqrt(np.mean(residual[ok] ** 2) / 1.5)) if ok.any() else 0.0

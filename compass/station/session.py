@@ -38,6 +38,7 @@ __all__ = ["Instruction", "SessionEnded", "Station"]
 _CHECK_EVERY_S = 0.1  # how often (module time) the station judges its windows
 _FACE_TOLERANCE_DEG = 25.0  # gravity this close to the face asked for is that face
 _RATE_TOLERANCE = 0.1  # relative change of the sample rate that ends a session
+_JUMP_S = 2.0  # a reading this far after the last is kept only when the next one follows it (a corrupted t_s)
 
 
 class SessionEnded(ValueError):
@@ -149,6 +150,7 @@ class Station:
         self._dts: deque = deque(maxlen=64)  # the last sample intervals, seconds
         self._samples = 0
         self._last_t = None
+        self._jump_to = None  # a reading far after the last, waiting for the next to confirm it
         self._next_check = -np.inf
         self._confirmed = False
         self._still_since = None
@@ -189,7 +191,7 @@ class Station:
         SessionEnded
             The module's sample rate changed (by more than 10 %).
         """
-        if self.finished:
+        if self.finished or not self._in_time(reading.t_s):
             return
         self._check_rate(reading.t_s)
         self._buffer.append(reading)
@@ -211,6 +213,21 @@ class Station:
         elif step == "stop":
             self._on_stop_step()
 
+    def _in_time(self, t_s: float) -> bool:
+        """Whether a reading's time can be taken: after the last one, and a jump of over :data:`_JUMP_S` only when
+        the next reading follows it (a t_s corrupted on the line, which a stream without checksums lets through,
+        would otherwise stop the session's clock: nothing is judged until module time reaches it)."""
+        last = self._last_t
+        if last is None or not np.isfinite(t_s):
+            return bool(np.isfinite(t_s))
+        if t_s <= last:
+            return False
+        if t_s - last <= _JUMP_S:
+            self._jump_to = None
+            return True
+        jumped, self._jump_to = self._jump_to, t_s
+        return jumped is not None and 0.0 < t_s - jumped <= _JUMP_S
+
     # ---------------------------------------------------------------- steps
     def _instruct(self, do: str, text: str, *, stop_deg=None, redo=None) -> None:
         self._n += 1
@@ -220,7 +237,8 @@ class Station:
         self._moved = False
         self._confirmed = False
         self.progress.step = do
-        self.progress.covered_deg = 0.0
+        if do != "stop":  # a stop's instruction keeps the flip's stops counted so far
+            self.progress.covered_deg = 0.0
         self.events.append(("info", text if redo is None else f"redo: {redo}; {text}"))
 
     def _next_flip(self) -> None:
@@ -247,12 +265,16 @@ class Station:
         if self.source.kind == "continuous":
             self.source.begin(flip)
             hold = "a second" if self.source.hold_s <= 1.0 else f"{self.source.hold_s:g} seconds"
-            self._instruct("turn", f"flip {flip:g}: with the table at its mark, hold still {hold}, turn it once "
-                                   f"round counterclockwise (seen from above) back to the mark, and hold still {hold}",
-                           redo=redo)
+            if getattr(self.source, "operator_moves", True):
+                text = (f"flip {flip:g}: with the table at its mark, hold still {hold}, turn it once round "
+                        f"counterclockwise (seen from above) back to the mark, and hold still {hold}")
+            else:
+                text = f"flip {flip:g}: the table turns once round"
+            self._instruct("turn", text, redo=redo)
         else:
             self._stop_rows = []
             self._stop_index = 0
+            self.progress.covered_deg = 0.0
             self._ask_stop(redo=redo)
 
     def _ask_stop(self, redo=None) -> None:

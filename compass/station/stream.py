@@ -1,20 +1,34 @@
-"""The module's stream as the bench station reads it: protocol lines to :class:`Reading` values.
+"""The module's stream as the bench station reads it: bytes in any stream format to :class:`Reading` values.
 
-The station knows no calibration: the module's magnetic channels are the columns of its first
-header that are not reserved (SPEC section 2: ``t_s``, ``seq``, ``temp_c``, ``ax..az``,
-``gx..gz``) nor the encoder column.  Lines are decoded by :class:`compass.io.lines.LineDecoder`
-(checksums, partial lines, lost samples); a later header with other columns ends the session.
+The station knows no calibration, so the module's magnetic channels come from the stream itself:
+the columns of our protocol's first header, or of ``--columns`` for bare numbers, that are not
+reserved (SPEC section 2: ``t_s``, ``seq``, ``temp_c``, ``ax..az``, ``gx..gz``) nor the encoder
+column; MotionCal's ``mx, my, mz``.  The format (``--format auto|compass|motioncal|csv``) and the
+units (``--mag-unit``, ``--accel-unit``, ``--gyro-unit``) are those of every command that reads a
+stream: :class:`compass.io.streams.StreamDecoder` finds the format from the first lines and
+decodes it (checksums, partial lines, lost samples, the unit checks).  A later header with other
+columns ends the session.
+
+A stream without a module clock (MotionCal's lines, a CSV without ``t_s``) is dated on arrival
+(:class:`ReceiveClock`: the last sample of a chunk at its receive time, the others before it at the
+sample period the receive times show over the last seconds), so the station then works in the
+host's time, which is the module's when the module runs in real time.
 """
 
 from __future__ import annotations
 
-from ..io.lines import LineDecoder
+import numpy as np
+
+from ..io.stream_options import StreamOptions
+from ..io.streams import StreamDecoder
 from .session import SessionEnded
 from .turn import Reading
 
-__all__ = ["StationStream", "RESERVED"]
+__all__ = ["StationStream", "ReceiveClock", "RESERVED"]
 
 RESERVED = ("t_s", "seq", "temp_c", "ax", "ay", "az", "gx", "gy", "gz", "flip_deg", "platform_deg")
+_MOTIONCAL_CHANNELS = ("mx", "my", "mz")
+_PENDING_BYTES = 1 << 16  # kept while the format and the channels are found
 
 
 class StationStream:
@@ -23,75 +37,168 @@ class StationStream:
     Parameters
     ----------
     encoder_column : str, optional
-        The turntable's column (``--turntable column:NAME``): required in the header.
+        The turntable's column (``--turntable column:NAME``): required in the stream's columns.
     expected_header : tuple of str, optional
-        The header of the flips already kept (``--resume``): another one ends the session.
+        The columns of the flips already kept (``--resume``): other ones end the session.
+    options : compass.io.stream_options.StreamOptions, optional
+        ``--format``, ``--columns`` and the units (default: the format found, units as sent).
 
     Attributes
     ----------
     header : tuple of str or None
-        The module's first header.
+        The columns the module sends (our header's names, ``--columns``, or MotionCal's).
     channels : tuple of str
         Its magnetic channels.
-    decoder : LineDecoder or None
+    format : str or None
+        ``compass``, ``motioncal`` or ``csv`` once found.
+    decoder : StreamDecoder or None
+        The decoder of the channels, once they are known.
+    events : list of (str, str)
+        ``(level, text)``: the format found, the decoder's warnings (:meth:`drain`).
     """
 
-    def __init__(self, encoder_column: str | None = None, expected_header: tuple | None = None):
+    def __init__(self, encoder_column: str | None = None, expected_header: tuple | None = None,
+                 options: StreamOptions | None = None):
         self.encoder_column = encoder_column
-        self.header = tuple(expected_header) if expected_header else None
+        self.expected_header = tuple(expected_header) if expected_header else None
+        self.options = options or StreamOptions()
+        self.header = None
         self.channels: tuple = ()
+        self.format = None
         self.decoder = None
-        self._sniffer = LineDecoder(())
+        self.events: list = []
+        self._probe = StreamDecoder((), self.options)  # finds the format and the columns
         self._pending = b""
+        self._cut = False  # the pending bytes may start mid-line (a (re)connect, or kept only in part)
         self._rejected = 0
-        if self.header is not None:
-            self._start(self.header)
+        self._clock = ReceiveClock()
 
-    def _start(self, names: tuple) -> None:
-        if self.encoder_column is not None and self.encoder_column not in names:
-            raise SessionEnded(f"the module's header {','.join(names)} has no column {self.encoder_column!r} "
-                               f"(--turntable column:{self.encoder_column})")
-        self.channels = tuple(n for n in names if n not in RESERVED and n != self.encoder_column)
-        if not self.channels:
-            raise SessionEnded(f"the module's header {','.join(names)} has no magnetic channel")
-        extra = (self.encoder_column,) if self.encoder_column is not None else ()
-        self.decoder = LineDecoder(self.channels + extra)
-        self.header = names
+    def describe(self) -> str:
+        """The stream's format in a few words, for the readout."""
+        return (self.decoder or self._probe).describe()
+
+    def drain(self) -> list:
+        """Return and clear the pending events."""
+        events, self.events = self.events, []
+        return events
 
     def resync(self) -> None:
-        """After a (re)connect: the first bytes may be the tail of a line."""
-        if self.decoder is not None:
-            self.decoder.resync()
+        """After a (re)connect: the first bytes may be the tail of a line, and the receive clock starts again."""
+        (self.decoder or self._probe).resync()
         self._pending = b""
+        self._cut = True
+        self._clock = ReceiveClock()
 
     def feed(self, chunk: bytes, t_rx: float | None = None) -> list[Reading]:
-        """Readings of the complete lines in ``chunk``; ``t_rx`` stands in for a missing ``t_s``.
+        """Readings of the complete lines in ``chunk`` received at ``t_rx`` (seconds, any clock: it dates the
+        samples of a stream without ``t_s``).
 
         Raises
         ------
         SessionEnded
-            A header with other columns than the first (the module changed what it sends).
+            The stream cannot be read (bare numbers without ``--columns``, no magnetic channel, no encoder
+            column), or its columns changed (the module sends other columns than at the start).
         """
         if self.decoder is None:
-            self._pending += chunk
-            self._sniffer.feed(chunk)
-            if self._sniffer.header is None:
-                self._pending = self._pending[-65536:]
+            self._cut |= len(self._pending) + len(chunk) > _PENDING_BYTES
+            self._pending = (self._pending + chunk)[-_PENDING_BYTES:]
+            self._probe.feed(chunk, t_rx)
+            self.events += [e for e in self._probe.drain_events() if e[1].startswith("stream format:")]
+            if self._probe.fatal is not None:
+                raise SessionEnded(f"the module's stream: {self._probe.fatal}")
+            if self._probe.format is None or self._probe.header is None:
                 return []
-            self._start(self._sniffer.header.names)
+            self._start(self._probe.format, tuple(self._probe.header.names))
             chunk, self._pending = self._pending, b""
-            self.decoder.resync()
-        samples = self.decoder.feed(chunk)
+            if self._cut:
+                self.decoder.resync()
+        samples = self.decoder.feed(chunk, t_rx)
+        self.events += self.decoder.drain_events()
+        if self.decoder.fatal is not None:
+            raise SessionEnded(f"the module's stream: {self.decoder.fatal}")
+        self._check_header()
+        return self._readings(samples, t_rx)
+
+    # ---------------------------------------------------------------- internals
+    def _start(self, fmt: str, names: tuple) -> None:
+        """Adopt the format found and its columns: the channels, the encoder's place, the decoder."""
+        column = self.encoder_column
+        if fmt == "motioncal":
+            if column is not None:
+                raise SessionEnded(f"MotionCal lines carry no encoder column {column!r} (--turntable column:{column}):"
+                                   f" use --turntable gyro, manual:STEP_DEG or grbl:PORT")
+            channels = _MOTIONCAL_CHANNELS
+        else:
+            where = "header" if fmt == "compass" else "--columns"
+            if column is not None and column not in names:
+                raise SessionEnded(f"the module's {where} {','.join(names)} has no column {column!r} "
+                                   f"(--turntable column:{column})")
+            channels = tuple(n for n in names if n not in RESERVED and n != column)
+            if not channels:
+                raise SessionEnded(f"the module's {where} {','.join(names)} has no magnetic channel")
+        if self.expected_header is not None and names != self.expected_header:
+            raise SessionEnded(f"the module sends {','.join(names)}, the flips kept have {','.join(self.expected_header)}"
+                               f": --resume needs the same module sending the same columns")
+        extra = (column,) if column is not None else ()
+        units = (None,) * 3 if fmt == "motioncal" else (self.options.mag_unit, self.options.accel_unit,
+                                                          self.options.gyro_unit)  # MotionCal's are its own
+        options = StreamOptions(fmt, self.options.columns if fmt == "csv" else None, *units)
+        self.decoder = StreamDecoder(channels + extra, options, unscaled=extra)
+        self.decoder.drain_events()  # the format was said by the probe
+        self.format, self.header, self.channels = fmt, names, channels
+
+    def _check_header(self) -> None:
         header = self.decoder.header
-        if self.decoder.stats.rejected_headers > self._rejected or (header is not None and header.names != self.header):
-            names = header.names if header is not None and header.names != self.header else None
-            words = ",".join(names) if names else "one lacking its channels"
+        names = None if header is None else tuple(header.names)
+        if self.decoder.stats.rejected_headers > self._rejected or (names is not None and names != self.header):
+            words = ",".join(names) if names is not None and names != self.header else "one lacking its channels"
             raise SessionEnded(f"the module's header changed from {','.join(self.header)} to {words}: the module "
                                f"sends other columns than at the start")
+
+    def _readings(self, samples, t_rx) -> list[Reading]:
+        if not samples:
+            return []
+        times = np.array([np.nan if s.t_s is None else s.t_s for s in samples])
+        clockless = np.isnan(times)
+        if clockless.any():
+            if t_rx is None:
+                raise ValueError("a stream without t_s needs the chunks' receive times (t_rx)")
+            times[clockless] = self._clock.date(int(clockless.sum()), t_rx)
         c = len(self.channels)
-        out = []
-        for s in samples:
-            t = s.t_s if s.t_s is not None else t_rx
-            encoder = float(s.raw[c]) if self.encoder_column is not None else None
-            out.append(Reading(t, s.raw[:c], s.accel, s.gyro, encoder, s.temp_c))
-        return out
+        return [Reading(float(t), s.raw[:c], s.accel, s.gyro,
+                        float(s.raw[c]) if self.encoder_column is not None else None, s.temp_c)
+                for t, s in zip(times, samples)]
+
+
+class ReceiveClock:
+    """Sample times of a stream without a module clock, from the chunks' receive times.
+
+    The sample period is the receive time over the samples received in the last ``window_s`` (at
+    least two chunks); a chunk's last sample is dated at its receive time, the others one period
+    apart before it.  A chunk's receive time is late by the read's latency, which varies from chunk
+    to chunk: the period, taken over many chunks, does not see it; a sample's time carries it (a
+    few milliseconds on a serial port).
+
+    Parameters
+    ----------
+    window_s : float
+        Span of receive times the period is taken over, seconds.
+    """
+
+    def __init__(self, window_s: float = 5.0):
+        self.window_s = window_s
+        self._received: list = []  # (t_rx, samples received up to and with this chunk)
+        self._count = 0
+
+    def date(self, m: int, t_rx: float) -> np.ndarray:
+        """Times of the ``m`` samples of a chunk received at ``t_rx``, seconds, shape (m,)."""
+        first = self._received[0] if self._received else None
+        self._count += m
+        self._received.append((t_rx, self._count))
+        while len(self._received) > 2 and t_rx - self._received[1][0] >= self.window_s:
+            self._received.pop(0)
+        if first is None or t_rx <= self._received[0][0]:
+            return np.full(m, float(t_rx))
+        t0, n0 = self._received[0]
+        period = (t_rx - t0) / (self._count - n0)
+        return t_rx - period * np.arange(m - 1, -1, -1, dtype=float)

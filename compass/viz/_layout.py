@@ -21,7 +21,7 @@ APPLICATION_IDS = {"fourflip": "compass_calibrate_fourflip", "tumble": "compass_
                    "platform3d": "compass_calibrate_platform3d", "reference": "compass_calibrate_reference",
                    "installed": "compass_calibrate_installed", "attitude": "compass_attitude",
                    "evaluate": "compass_evaluate", "live": "compass_live", "live_tumble": "compass_live_tumble",
-                   "demo": "compass_demo"}
+                   "demo": "compass_demo", "bench": "compass_bench"}
 
 TIMELINES = ("t", "sample", "turntable_deg")
 """Every timeline the recordings use."""

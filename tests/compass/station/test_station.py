@@ -11,6 +11,7 @@ import pytest
 from calibrate import calibrate_fourflip
 from calibrate.fourflip._mlfit import cramer_rao
 from compass.io.fourflip import read_fourflip
+from compass.io.stream_options import StreamOptions
 from compass.sim.bench import BenchSamples
 from compass.sim.bench_rig import BenchRig, Operator, drive
 from compass.station import SessionEnded, SessionStore, Station, StationStream, parse_turntable
@@ -182,3 +183,116 @@ def test_an_interactive_session_waits_for_enter():
     for reading in stream.feed(rig.lines(np.arange(300, 320) / 100.0)):
         station.feed(reading)
     assert station.instruction.do == "turn"
+
+
+@pytest.mark.parametrize("fmt, options, channels", [
+    ("csv", StreamOptions(columns=("t_s", "v1", "v2", "v3", "ax", "ay", "az", "gx", "gy", "gz"), gyro_unit="deg/s"),
+     ("v1", "v2", "v3")),
+    ("motioncal", StreamOptions(), ("mx", "my", "mz")),
+])
+def test_the_same_session_in_another_stream_format_gives_the_same_calibration(tmp_path, fmt, options, channels):
+    """The rig's noise is drawn per sample time, so the same seed in lock step is the same session: only the
+    format's resolution differs, and its clock (MotionCal's lines carry none and are dated on arrival).
+    MotionCal's Uni: lines hold 0.01 uT (a noise 0.003 uT against the channels' 0.15 uT: 0.02 sigma) and 1e-4 rad/s
+    (3e-5 rad/s RMS against the gyro's 8.7e-4: about 3 % more angle noise, so 3 % of the gyro source's 0.046 deg
+    RMS angle cost, tools/bench_station.py): the directions move by about 0.0015 deg; 0.005 deg bounds it."""
+    results = []
+    for f, opts, names in (("compass", StreamOptions(), None), (fmt, options, channels)):
+        rig = BenchRig(seed=12, gyro_bias_dps=0.5, gyro_scale_error=0.01, fmt=f)
+        folder = tmp_path / f
+        folder.mkdir()
+        store = SessionStore(folder / "cal.json")
+        store.start({})
+        station = Station(parse_turntable("gyro"), names or rig.channels, on_flip=store.save)
+        stream = StationStream(None, options=opts)
+        drive(rig, station, stream, max_s=300.0)
+        assert station.finished and stream.format == f, station.drain() + stream.drain()
+        assert not [e for e in station.drain() + stream.drain() if e[0] == "warn"]
+        results.append(calibrate_fourflip(read_fourflip(store.write_recording({})), method="ml"))
+    ours, theirs = results
+    moved = np.degrees(np.arccos(np.clip(np.sum(ours.directions * theirs.directions, axis=1), -1.0, 1.0)))
+    assert np.all(moved < 0.005), moved
+
+
+def test_a_stream_the_station_cannot_read_is_said():
+    rig = BenchRig(seed=8, fmt="csv")
+    with pytest.raises(SessionEnded, match="bare numbers without a header .* name its cells with --columns"):
+        StationStream(None).feed(rig.lines(np.arange(600) / 100.0), 6.0)
+    with pytest.raises(SessionEnded, match="MotionCal lines carry no encoder column 'enc'"):
+        StationStream("enc").feed(BenchRig(seed=8, fmt="motioncal").lines(np.arange(3) / 100.0), 0.03)
+    with pytest.raises(SessionEnded, match=r"--columns t_s,ax,ay,az has no magnetic channel"):
+        StationStream(None, options=StreamOptions(columns=("t_s", "ax", "ay", "az"))).feed(b"0 0 0 1\n")
+
+
+def test_mag_unit_converts_the_field_but_not_the_encoder():
+    rig = BenchRig(seed=8, encoder_step_deg=0.1, fmt="csv")
+    columns = rig.csv_columns()
+    data = rig.lines(np.arange(5) / 100.0)
+    as_sent = StationStream("enc", options=StreamOptions(columns=columns, gyro_unit="deg/s")).feed(data)
+    in_mg = StationStream("enc", options=StreamOptions(columns=columns, gyro_unit="deg/s", mag_unit="mG")).feed(data)
+    assert [r.encoder_deg for r in in_mg] == [r.encoder_deg for r in as_sent]
+    assert np.allclose([r.outputs for r in in_mg], 0.1 * np.array([r.outputs for r in as_sent]))
+    cells = np.array([line.split() for line in data.decode().splitlines()], float)
+    gx = columns.index("gx")
+    assert np.allclose([r.gyro for r in as_sent], np.radians(cells[:, gx:gx + 3]))  # --gyro-unit deg/s
+
+
+def test_a_grbl_table_turning_continuously_calibrates_near_the_bound(tmp_path):
+    """The station's GRBL source in one continuous turn a flip, against the simulated controller in process
+    (reports up to 10 ms old when read, as tools/bench_station.py: 1.6x the CRB RMS over sessions at 720 deg/min;
+    one session's RMS over three channels spreads as chi_3 / sqrt(3), x2.3 at 99.9 %: bound 4)."""
+    from compass.sim.grbl import GrblController, LoopbackPort
+    from compass.station.grbl import GrblSource
+
+    rig = BenchRig(seed=13)
+    rig.operator_turns = False
+    controller = GrblController(rig, report_delay_s=0.01, seed=13)
+    now = [0.0]
+    source = GrblSource("simulated", link=LoopbackPort(controller), clock=lambda: now[0], mode="continuous",
+                        feed_deg_min=720.0)
+    source.open()
+    store = SessionStore(tmp_path / "cal.json")
+    store.start({})
+    station = Station(source, rig.channels, on_flip=store.save)
+
+    def on_block(r, t_s):
+        controller.advance(t_s)
+        now[0] = t_s
+        source.poll()
+        source.poll()
+        source.clock_pair(t_s, t_s)
+
+    drive(rig, station, StationStream(None), max_s=600.0, on_block=on_block)
+    events = station.drain()
+    assert station.finished and "flip 0: the table turns once round" in [text for _, text in events], events
+    recording = read_fourflip(store.write_recording({"turntable": source.spec}))
+    truth = np.mod(rig.pose(recording.t_s)[0], 360.0)
+    angle_error = (recording.platform_deg - truth + 180.0) % 360.0 - 180.0
+    assert np.sqrt(np.mean(angle_error**2)) < 0.1  # 12 deg/s at most, reports 0-10 ms late: 0.05 deg RMS a turn
+    ratio, error = direction_error_over_crb(rig, recording)
+    assert np.sqrt(np.mean(ratio**2)) < 4.0, (ratio, error)
+
+
+def test_a_corrupted_time_on_the_line_does_not_stop_the_session(tmp_path):
+    """A stream without checksums can pass a cut line whose t_s reads 136139 between 136.53 and 136.54: the reading
+    is dropped (the next does not follow it), and the session goes on."""
+    from compass.station.turn import Reading
+
+    rig = BenchRig(seed=4, encoder_step_deg=0.1)
+    source = parse_turntable("column:enc")
+    station = Station(source, rig.channels)
+    stream = StationStream("enc")
+    corrupted = [False]
+    original = stream.feed
+
+    def feed(data, t_rx=None):
+        readings = original(data, t_rx)
+        if readings and readings[0].t_s > 20.0 and not corrupted[0]:
+            corrupted[0] = True
+            r = readings[0]
+            readings.insert(1, Reading(r.t_s * 1000.0, r.outputs, r.accel, r.gyro, r.encoder_deg, r.temp_c))
+        return readings
+
+    stream.feed = feed
+    drive(rig, station, stream, max_s=300.0)
+    assert corrupted[0] and station.finished, station.drain()

@@ -172,3 +172,37 @@ def test_evaluate_layout(tmp_path):
     rrd = tmp_path / "eval.rrd"
     assert main(["evaluate", str(_crop(MAGNET, tmp_path / "magnet.mat", 45.0)), "--rerun", str(rrd)]) == 0
     check_layout(rrd, "compass_evaluate", "t")
+
+
+def test_bench_layout(tmp_path):
+    """A bench session (encoder, in lock step) recorded as compass bench --rerun records it: the cube turning,
+    each flip's ring filling in, the degrees covered and the station's words on the module's time."""
+    from compass.sim.bench_rig import BenchRig, drive
+    from compass.station import Station, StationStream, parse_turntable
+    from compass.viz.bench import BenchRecording
+
+    rig = BenchRig(seed=3, encoder_step_deg=0.1)
+    viz = BenchRecording(tmp_path / "bench.rrd", rig.channels)
+    station = Station(parse_turntable("column:enc"), rig.channels, on_flip=viz.flip)
+    stream = StationStream("enc")
+    said = []
+
+    def on_block(r, t_s):
+        for level, text in station.drain():
+            viz.event(t_s, level, text)
+            said.append(text)
+        viz.progress(t_s, station.progress.flip_deg, station.progress.covered_deg)
+
+    t_end = drive(rig, station, stream, max_s=400.0, on_block=on_block)
+    on_block(rig, t_end)  # the words of the last block
+    viz.close()
+    assert station.finished
+    views = check_layout(tmp_path / "bench.rrd", "compass_bench", "t")
+    assert {"3D", "TimeSeries", "TextLog"} <= {v["class"] for v in views}
+    reader = RrdReader(str(tmp_path / "bench.rrd"))
+    turns = [c for c in reader.stream().filter(content="/bench/turntable").to_chunks()
+             if "t" in c.to_record_batch().schema.names]
+    assert sum(c.num_rows for c in turns) >= 4 * 60  # every flip's turn drawn
+    texts = {text for _, text, _ in static_labels(tmp_path / "bench.rrd")}
+    assert {"flip 0", "flip 90", "flip 180", "flip 270"} <= texts
+    assert any("flip 270 kept" in s for s in said)
