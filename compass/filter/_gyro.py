@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
+from scipy.special import chdtri  # chi2.ppf(q, k) == chdtri(k, 1 - q), without importing scipy.stats (a second of start-up)
 
 from ._base import _P0_ATTITUDE, AttitudeFilter, exp_matrix, mat_mul
 from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_tilt
@@ -24,7 +24,7 @@ __all__ = ["GyroFilter", "GyroState"]
 _REST_GYRO = math.radians(2.0)  # VQF's rest detector: rate deviation, rad/s
 _REST_GYRO2 = _REST_GYRO**2
 _REST_ACCEL = 0.05  # and specific-force deviation, fraction of g
-_TURN_BOUND = float(chi2.ppf(0.999, 1))  # a new place's North turned beyond its heading error: chi-square bound
+_TURN_BOUND = float(chdtri(1, 0.001))  # a new place's North turned beyond its heading error: chi-square bound
 _NORTH = {(True, True): " (North moves with it)", (False, True): " (within the heading error: North kept)",
           (False, False): " (North re-learnt from it: the last one was adopted on a timeout)"}
 _ORTHONORMALISE_EVERY = 1000  # samples between re-orthonormalisations of the nominal matrix

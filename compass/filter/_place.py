@@ -56,7 +56,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from scipy.stats import chi2
+from scipy.special import chdtri  # chi2.ppf(q, k) == chdtri(k, 1 - q), without importing scipy.stats (a second of start-up)
 
 from ._records import FilterConfig
 
@@ -138,7 +138,7 @@ class PlaceDetector:
         self.config = config
         self.block_s = config.place_window_s / _BLOCKS
         dof = 3.0 * max(1.0, config.place_window_s / config.field_error_time_s)
-        self.bound_factor = float(chi2.ppf(_CONFIDENCE, dof) / dof)
+        self.bound_factor = float(chdtri(dof, 1.0 - _CONFIDENCE) / dof)
         """The bound on a mean square over ``sigma^2``: the chi-square quantile over its degrees of freedom."""
 
     def add(self, state: PlaceState, dt: float, m: tuple, b: tuple, e: tuple, rate2: float) -> bool:

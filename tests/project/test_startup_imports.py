@@ -18,6 +18,15 @@ def test_parser_imports_no_scipy_simulator_or_fit():
     assert out.stdout.strip() == "[]"
 
 
+
+def test_the_live_pipeline_imports_no_scipy_stats():
+    """``compass live`` and the replay start from ``compass.live``: scipy.stats costs a second of start-up
+    (``tools/bench_startup.py``), and the filter's chi-square bounds need only ``scipy.special``."""
+    code = "import sys, compass.live; print(sorted(m for m in sys.modules if m.startswith('scipy.stats')))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
+
 OTHER_KINDS = ("calibrate.tumble", "calibrate.platform3d", "calibrate.reference", "calibrate.installation",
                "compass.io.tumble", "compass.io.platform3d", "compass.io.reference", "compass.io.installation",
                "compass.sim.tumble", "compass.sim.platform3d", "compass.sim.reference", "compass.sim.installation")
