@@ -28,6 +28,8 @@ from scipy.spatial.transform import Rotation
 from compass.frames import field_in_bench
 from compass.sim.bench import BenchPhysics, BenchSamples, housing_field, true_platform_deg
 
+from ..effects import time_powers
+
 __all__ = ["Partials"]
 
 
@@ -67,16 +69,11 @@ class Partials:
         self.gain_drift_factor = np.ones_like(x)  # 1 + sum_k g_k tau^k
         if physics.gain_drift is not None and samples.t_s is not None:
             tau = (samples.t_s - physics.gain_drift_t0) / physics.gain_drift_scale_s
-            self.gain_drift_factor = 1.0 + self.time_powers(tau, physics.gain_drift.shape[1]) @ physics.gain_drift.T
+            self.gain_drift_factor = 1.0 + time_powers(tau, physics.gain_drift.shape[1]) @ physics.gain_drift.T
         self.temperature_factor = np.ones_like(x)  # 1 + gamma (T - T_ref)
         if samples.temp_c is not None and physics.temp_gain is not None:
             self.temperature_factor = 1.0 + (samples.temp_c - physics.temp_ref_c)[:, None] * physics.temp_gain[None, :]
         self.gain_t = physics.gains * self.gain_drift_factor * self.temperature_factor
-
-    @staticmethod
-    def time_powers(tau: np.ndarray, degree: int) -> np.ndarray:
-        """``tau^k`` for k = 1..degree, shape (n, degree)."""
-        return tau[:, None] ** np.arange(1, degree + 1)[None, :]
 
     @property
     def per_x(self) -> np.ndarray:

@@ -27,7 +27,7 @@ import numpy as np
 
 from compass.sim.bench import BenchPhysics, BenchSamples
 
-from ..effects import EffectForm, TemperatureForm, TimePolynomial, WarmUpForm, warm_up_tau_s
+from ..effects import EffectForm, TemperatureForm, TimePolynomial, WarmUpForm, time_powers, warm_up_tau_s
 
 __all__ = ["FourFlipEffect", "EFFECTS", "VARIANTS", "effect_by_name"]
 
@@ -201,7 +201,7 @@ class OffsetDrift(TimePolynomial, FourFlipEffect):
         return physics.with_(drift=drift, drift_t0=t0, drift_scale_s=half)
 
     def jacobian(self, physics, p, samples, partials):
-        powers = partials.time_powers((samples.t_s - physics.drift_t0) / physics.drift_scale_s, self.degree)
+        powers = time_powers((samples.t_s - physics.drift_t0) / physics.drift_scale_s, self.degree)
         return partials.per_channel(powers[:, None, :] * physics.gains[None, :, None])
 
     @property
@@ -261,7 +261,7 @@ class GainDrift(TimePolynomial, FourFlipEffect):
                              gain_drift_scale_s=0.5 * np.ptp(samples.t_s))
 
     def jacobian(self, physics, p, samples, partials):
-        powers = partials.time_powers((samples.t_s - physics.gain_drift_t0) / physics.gain_drift_scale_s, self.degree)
+        powers = time_powers((samples.t_s - physics.gain_drift_t0) / physics.gain_drift_scale_s, self.degree)
         static = physics.gains * partials.temperature_factor * partials.bent  # (n, c)
         return partials.per_channel(powers[:, None, :] * static[:, :, None])
 

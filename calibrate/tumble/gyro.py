@@ -87,6 +87,8 @@ MIN_INLIER_FRACTION = 0.5
 
 class GyroMismatch(ValueError):
     """The gyro-aided model does not describe the recording (most samples rejected), in words."""
+
+
 _AXES = "xyz"
 
 
@@ -382,7 +384,12 @@ def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_nor
         raise GyroMismatch(f"only {np.count_nonzero(static)} quasi-static accelerometer rows; the gyro-aided fit needs 20")
     if noise is None:
         noise = float(np.median(second_difference_sigma(second_differences(mag))))
-    a_unit = accel / np.linalg.norm(accel, axis=1, keepdims=True)
+    accel_norm = np.linalg.norm(accel, axis=1, keepdims=True)
+    if not np.all(accel_norm > 0):
+        raise GyroMismatch(f"{np.count_nonzero(~(accel_norm > 0))} accelerometer rows read zero (the first is "
+                           f"sample {int(np.flatnonzero(~(accel_norm[:, 0] > 0))[0])}): the windows' tilt needs "
+                           "gravity's direction")
+    a_unit = accel / accel_norm
     c0 = np.eye(3) if mag_to_accel is None else np.asarray(mag_to_accel, float)
     t0 = c0 @ np.asarray(soft_iron, float)
     mag_h = (mag - hard_iron) @ t0.T
@@ -565,7 +572,7 @@ def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_ra
         g = fit_with_gyro(mag, accel, turns_rad, t_s, hard_iron=start.hard_iron, soft_iron=start.soft_iron,
                           field_norm=start.field_norm, mag_to_accel=result.mag_to_accel,
                           dip_deg=None if mis is None else mis.dip_deg, noise=result.noise)
-    except GyroMismatch as exc:
+    except (GyroMismatch, np.linalg.LinAlgError) as exc:  # the present fit stands, said why
         return replace(result, warnings=result.warnings + (f"gyro-aided fit not used: {exc}",),
                        gyro={"method": "gyro", "used": False, "words": str(exc)})
     block = g.to_json()

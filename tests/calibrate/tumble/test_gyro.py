@@ -223,3 +223,15 @@ def test_a_gyro_that_disagrees_with_the_magnetometer_is_not_used(partial):
     res = with_gyro(present, sim.mag, sim.accel, turns, sim.t_s)
     assert res.gyro["used"] is False and res.fit is present.fit
     assert any(w.startswith("gyro-aided fit not used") for w in res.warnings)
+
+
+def test_an_accelerometer_row_reading_zero_leaves_the_present_fit_said(partial):
+    # a zero row has no gravity direction for a window's tilt: the gyro-aided fit steps aside, in words
+    sim, _ = partial
+    accel = sim.accel.copy()
+    accel[0] = 0.0
+    present = calibrate_tumble(sim.mag, accel)
+    turns = gyro_turns(sim.t_s, sim.gyro, np.ones(len(sim.t_s), bool))
+    res = with_gyro(present, sim.mag, accel, turns, sim.t_s)
+    assert res.gyro["used"] is False and res.fit is present.fit
+    assert any("accelerometer rows read zero (the first is sample 0)" in w for w in res.warnings)
