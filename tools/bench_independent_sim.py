@@ -20,6 +20,7 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from calibrate import calibrate_fourflip
 from compass.io.fourflip import FourFlipRecording
@@ -42,16 +43,6 @@ CASES = (
 )
 
 
-def _rz(a):
-    c, s, z, o = np.cos(a), np.sin(a), np.zeros_like(a), np.ones_like(a)
-    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
-
-
-def _rx(a):
-    c, s, z, o = np.cos(a), np.sin(a), np.zeros_like(a), np.ones_like(a)
-    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
-
-
 def session(seed: int, case: str, size: float) -> tuple[FourFlipRecording, np.ndarray]:
     """One recording and the sensing directions behind it (rows, housing frame)."""
     rng = np.random.default_rng(seed)
@@ -63,8 +54,8 @@ def session(seed: int, case: str, size: float) -> tuple[FourFlipRecording, np.nd
     phi = np.concatenate([rng.uniform(0, 360) + np.arange(0.0, 360.0, 2.0) for _ in range(4)])
     kappa = 90.0 * flip
     yaw = np.radians(np.array([0.0, size, -size, size / 2]))[flip] if case.startswith("per-flip yaw") else 0.0
-    pose = _rz(np.radians(phi) + yaw) @ _rx(np.radians(kappa))
-    x = np.einsum("nji,j->ni", pose, field_w) @ directions.T  # uT along each channel
+    pose = Rotation.from_euler("z", (np.radians(phi) + yaw)[:, None]) * Rotation.from_euler("x", np.radians(kappa)[:, None])
+    x = pose.apply(field_w, inverse=True) @ directions.T  # uT along each channel
     if case.startswith("odd cubic"):
         x = x - size * x**3 / FIELD_UT**2
     elif case.startswith("even"):

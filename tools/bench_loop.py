@@ -51,6 +51,7 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -62,21 +63,6 @@ VOCABULARY = ("clean", "odd cubic", "encoder", "warm-up", "platform field", "fli
               "cubic + quad drift", "four stacked")
 OUTSIDE = ("spike bursts", "precessing axis", "knee", "rate memory", "random walk", "ADC 5x", "air-con cycle")
 CASES = VOCABULARY + OUTSIDE
-
-
-def _rz(a):
-    c, s, z, o = np.cos(a), np.sin(a), np.zeros_like(a), np.ones_like(a)
-    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
-
-
-def _rx(a):
-    c, s, z, o = np.cos(a), np.sin(a), np.zeros_like(a), np.ones_like(a)
-    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
-
-
-def _ry(a):
-    c, s, z, o = np.cos(a), np.sin(a), np.zeros_like(a), np.ones_like(a)
-    return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
 
 
 def session(seed: int, case: str):
@@ -102,14 +88,16 @@ def session(seed: int, case: str):
         phi_true = phi_true + np.radians(0.25 * np.sin(2 * phi_true + 1.0) + 0.15 * np.cos(phi_true))
     if case == "flip error":
         kappa_true = kappa_true + np.radians(np.array([0.0, 0.3, -0.25, 0.2]))[flip]
-    field = np.broadcast_to(field_w, (flip.size, 3))
+    field = np.tile(field_w, (flip.size, 1))
     if case == "precessing axis":  # the turntable axis tilted, the tilt's azimuth turning with time
         tilt, turn = np.radians(0.15), np.pi * (1.0 + tau)
-        field = np.einsum("nij,nj->ni", _rz(turn) @ _rx(np.full(flip.size, tilt)) @ _rz(-turn), field)
-    b_table = np.einsum("nji,nj->ni", _rz(phi_true), field)  # the field in the turntable's frame
+        tilted = Rotation.from_euler("z", turn[:, None]) * Rotation.from_euler("x", np.full((flip.size, 1), tilt)) \
+            * Rotation.from_euler("z", -turn[:, None])
+        field = tilted.apply(field)
+    b_table = Rotation.from_euler("z", phi_true[:, None]).apply(field, inverse=True)  # the field in the turntable's frame
     if case == "platform field":
         b_table = b_table + np.array([0.2, 0.35, 0.1])
-    b_h = np.einsum("nji,nj->ni", _rx(kappa_true), b_table)
+    b_h = Rotation.from_euler("x", kappa_true[:, None]).apply(b_table, inverse=True)
     x = b_h @ directions.T  # uT along each channel
     if case == "odd cubic" or stacked:
         x = x - 0.01 * x**3 / FIELD_UT**2
