@@ -16,7 +16,9 @@ flips: 1440 samples) from a forward model written here in plain numpy (not
   the sign of the channel's field change: a backlash-like hysteresis), ``random walk`` (offsets
   wandering as a random walk), ``ADC 5x`` (a clean sensor read as integer codes, the code
   step 5 times the noise), and ``air-con cycle`` (offsets and gains following a 600 s room
-  temperature cycle, no ``temp_c``: added after the widening was chosen and never used to choose it).
+  temperature cycle, no ``temp_c``: added after the widening was chosen and never used to choose it);
+  ``pink offsets`` (1/f offset noise, 0.3 uT RMS) and ``gain walk`` (each gain a random walk,
+  1e-4 a sample), made after the time-process widening was chosen and never used to choose it.
 
 It prints, per case and for each version: what the loop named (the commonest set), how often it
 said ``unexplained``, the direction error over the stated sigma (RMS over channels and seeds; 1
@@ -31,7 +33,8 @@ widening (CR2, one cluster per flip) was chosen among others on seeds 0..9 of th
 (``air-con cycle`` excluded: it was added afterwards); ``--seed 10 --n 20`` scores it on seeds it was
 not chosen on.
 
-Run: ``python tools/bench_loop.py [--n 20] [--seed 0] [--cases A,B] [--baseline REF|none]``.
+Run: ``python tools/bench_loop.py [--n 20] [--seed 0] [--cases A,B] [--baseline REF|none] [--write-docs]``
+(``--write-docs``: the table between ``<!-- table: bench_loop -->`` markers in docs/benchmarks.md).
 """
 
 from __future__ import annotations
@@ -55,13 +58,16 @@ from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from _doc_table import markdown_table, parse_args, publish  # noqa: E402
+
 NOISE_UT = 0.15
 FIELD_UT = 50.0
 GAIN_V_PER_UT = 0.02
 STEP_DEG = 1.0
 VOCABULARY = ("clean", "odd cubic", "encoder", "warm-up", "platform field", "flip error", "gain drift",
               "cubic + quad drift", "four stacked")
-OUTSIDE = ("spike bursts", "precessing axis", "knee", "rate memory", "random walk", "ADC 5x", "air-con cycle")
+OUTSIDE = ("spike bursts", "precessing axis", "knee", "rate memory", "random walk", "ADC 5x", "air-con cycle",
+           "pink offsets", "gain walk")
 CASES = VOCABULARY + OUTSIDE
 
 
@@ -118,6 +124,14 @@ def session(seed: int, case: str):
         cycle = np.sin(2 * np.pi * t_s / 600.0 + rng.uniform(0, 2 * np.pi))
         g = g * (1.0 + 0.0015 * cycle[:, None])
         offsets = offsets + np.outer(cycle, [0.15, -0.1, 0.12]) * GAIN_V_PER_UT
+    if case == "pink offsets":  # 1/f offset noise: power falling as 1/f from the session's length to the sample rate
+        spectrum = np.fft.rfft(rng.normal(size=(flip.size, 3)), axis=0)
+        spectrum[1:] /= np.sqrt(np.arange(1, spectrum.shape[0]))[:, None]
+        spectrum[0] = 0.0
+        pink = np.fft.irfft(spectrum, n=flip.size, axis=0)
+        offsets = offsets + 0.3 * pink / pink.std(axis=0) * GAIN_V_PER_UT
+    if case == "gain walk":  # each gain wandering as a random walk
+        g = g * (1.0 + np.cumsum(rng.normal(scale=1e-4, size=(flip.size, 3)), axis=0))
     if case == "rate memory":
         rate = np.gradient(x, axis=0)
         rate[np.r_[True, flip[1:] != flip[:-1]]] = 0.0
@@ -183,6 +197,21 @@ def _summary(rows) -> dict:
             "heading": float(np.median(heading)) if heading else None, "n": len(rows)}
 
 
+def _table_row(case: str, summary: dict) -> list:
+    """One case's row of the docs table: each column ``base / this`` (or ``this`` alone)."""
+    def both(key, fmt):
+        cells = []
+        for name in ("base", "this"):
+            if name in summary:
+                value = summary[name][key]
+                cells.append("-" if value is None else format(value, fmt))
+        return " / ".join(cells)
+
+    this = summary["this"]
+    return [case, this["named"], both("unexplained", "d"), both("ratio", ".2f"), both("ratio_unexplained", ".2f"),
+            both("err", ".3f"), "-" if this["heading"] is None else f"{this['heading']:.3f}", both("worst_cpu", ".2f")]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=20, help="seeds per case (default 20)")
@@ -190,7 +219,7 @@ def main() -> None:
     parser.add_argument("--cases", default=",".join(CASES), help="comma-separated subset of the cases")
     parser.add_argument("--baseline", default="e2f2257", help="git ref of the baseline, or 'none'")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
-    args = parser.parse_args()
+    args = parse_args(parser)
     cases = [c for c in args.cases.split(",") if c]
     unknown = sorted(set(cases) - set(CASES))
     if unknown:
@@ -218,21 +247,29 @@ def main() -> None:
     head = f"{'case':<20}{'version':<9}{'named (commonest)':<46}{'unexpl.':>8}{'err/sig':>8}{'unexpl.':>8}{'err deg':>9}" \
            f"{'hdg cost':>9}{'median s':>9}{'worst s':>8}{'cpu s':>7}"
     print(head)
+    table = []
     for case in cases:
+        summary = {}
         for name in ("base", "this"):
             mine = [r for r in rows[name] if r["case"] == case]
             if not mine:
                 continue
-            s = _summary(mine)
+            s = summary[name] = _summary(mine)
             heading = "-" if s["heading"] is None else f"{s['heading']:.3f}"
             flagged = "-" if s["ratio_unexplained"] is None else f"{s['ratio_unexplained']:.2f}"
             print(f"{case if name == 'base' or args.baseline == 'none' else '':<20}{name:<9}{s['named'][:45]:<46}"
                   f"{s['unexplained']:>5}/{s['n']:<2}{s['ratio']:>8.2f}{flagged:>8}{s['err']:>9.3f}{heading:>9}"
                   f"{s['median']:>9.2f}{s['worst']:>8.2f}{s['worst_cpu']:>7.2f}")
+        table.append(_table_row(case, summary))
     print("\nerr/sig: RMS over channels and seeds of the direction error over the file's direction_sigma_deg "
           "(1: honest);\nunexpl. (after err/sig): the same over the recordings called unexplained (their sigmas widened).\nhdg cost: median unexplained_cost.heading_deg where the loop says unexplained.\n"
           "median s, worst s: wall time of calibrate_fourflip(diagnose=True); cpu s: the largest CPU time of one "
           "calibration (the machine is shared: wall includes others' load).")
+    versions = "base / this" if args.baseline != "none" else "this"
+    publish(args, "docs/benchmarks.md", "bench_loop", markdown_table(
+        ["case", "named (this)", f"unexplained {versions}", f"err/sig {versions}", f"err/sig unexplained {versions}",
+         f"err deg {versions}", f"heading cost deg (this)", f"worst CPU s {versions}"], table),
+        caption=f"{args.n} recordings per case from seed {args.seed}, baseline {args.baseline}", echo=False)
 
 
 if __name__ == "__main__":

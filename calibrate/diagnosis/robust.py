@@ -49,8 +49,18 @@ pseudo-inverse of Bell and McCaffrey).
 from __future__ import annotations
 
 import numpy as np
+from scipy.linalg import cholesky, solve_triangular
+from scipy.optimize import lsq_linear
 
-__all__ = ["LEVERAGE_ONE", "cluster_covariance", "widened", "extra_sigma", "heading_sigma_deg"]
+__all__ = ["BLOCK_S", "LEVERAGE_ONE", "N_BANDS", "band_edges_hz", "cluster_covariance", "extra_sigma",
+           "heading_sigma_deg", "time_correlated_covariance", "widened"]
+
+BLOCK_S = 10.0
+"""Time blocks of :func:`time_correlated_covariance`, s: structure faster than this counts as white."""
+N_BANDS = 9
+"""Octave bands of the structure's spectrum below the blocks' Nyquist (0.05 Hz down to 1e-4 Hz, then to 0)."""
+GRAM_RIDGE = 1e-12
+"""Relative ridge on the normalised normal equations (bands alike enough to be singular share their power)."""
 
 LEVERAGE_ONE = 1e-6
 """Leverage eigenvalues within this of one count as one (a cluster alone determines the direction)."""
@@ -177,3 +187,110 @@ def heading_sigma_deg(directions: np.ndarray, direction_covariance: np.ndarray, 
            + (np.nan_to_num(response_var[:, 0]) + x**2 * np.nan_to_num(response_var[:, 1])) / gains**2)
     lever = (across @ solver) ** 2  # (h, c)
     return float(np.degrees(np.sqrt(np.mean(np.sum(lever * var, axis=1))) / (field_norm * np.cos(dip))))
+
+
+
+def _band_kernel(lag_s: np.ndarray, low_hz: float, high_hz: float) -> np.ndarray:
+    """Autocovariance at ``lag_s`` of a unit-variance process whose spectrum is flat on [low, high] Hz.
+
+    ``(sin(2 pi f2 d) - sin(2 pi f1 d)) / (2 pi d (f2 - f1))``, with numpy's normalised sinc.
+    """
+    return (high_hz * np.sinc(2 * high_hz * lag_s) - low_hz * np.sinc(2 * low_hz * lag_s)) / (high_hz - low_hz)
+
+
+def band_edges_hz(block_s: float, n_bands: int) -> np.ndarray:
+    """Edges of the spectrum's bands: 0, then octaves up to the blocks' Nyquist ``1 / (2 block_s)``, Hz."""
+    return np.concatenate([[0.0], 0.5 / block_s / 2.0 ** np.arange(n_bands - 1, -1, -1)])
+
+
+def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, groups: np.ndarray,
+                               bread: np.ndarray, block_s: float = BLOCK_S, n_bands: int = N_BANDS,
+                               ) -> tuple[np.ndarray, np.ndarray]:
+    """Covariance of a least-squares fit's parameters with its residual's structure a stationary process in time.
+
+    The module docstring's "A process in time": the residual summed over time blocks, the
+    structure's spectrum per group (channel) estimated in octave bands by non-negative least
+    squares of the blocks' second moments against what the fit leaves of each band, and the
+    parameters' covariance ``H^-1 + H^-1 G^T K G H^-1``.
+
+    Parameters
+    ----------
+    jac : ndarray, shape (m, k)
+        Jacobian of the weighted residual at the solution.
+    weighted : ndarray, shape (m,)
+        The weighted residual (over the noise floor: white noise has unit variance).
+    t_s : ndarray, shape (m,)
+        Time of each residual row, s.
+    groups : ndarray of int, shape (m,)
+        Each row's group (a channel): the structure is taken as independent between groups.
+    bread : ndarray, shape (k, k)
+        ``(J^T J)^-1`` (NaN rows and columns for what the data cannot determine).
+    block_s : float
+        Length of the time blocks, s (structure faster than this counts as white beyond the floor).
+    n_bands : int
+        Octave bands of the spectrum below the blocks' Nyquist (the lowest reaches 0 Hz).
+
+    Returns
+    -------
+    covariance : ndarray, shape (k, k)
+        NaN where ``bread`` is.
+    power : ndarray, shape (groups, n_bands + 1)
+        Per group, the structure's variance beyond the floor within one block's sample (first
+        column, white) and in each band (:func:`band_edges_hz`), in units of the floor's variance.
+
+    Raises
+    ------
+    ValueError
+        Mismatched shapes, or a non-positive block length.
+    """
+    jac = np.asarray(jac, dtype=float)
+    weighted, t_s = np.asarray(weighted, dtype=float), np.asarray(t_s, dtype=float)
+    m = weighted.size
+    if jac.shape[0] != m or t_s.size != m or np.size(groups) != m:
+        raise ValueError(f"expected {jac.shape[0]} residuals, times and groups, got {m}, {t_s.size} and {np.size(groups)}")
+    if not block_s > 0:
+        raise ValueError(f"block_s must be positive, got {block_s}")
+    good = np.isfinite(np.diag(bread))
+    j = np.nan_to_num(jac[:, good])
+    b = bread[np.ix_(good, good)]
+    _, group = np.unique(groups, return_inverse=True)
+    group = group.ravel()
+    slot = np.floor((t_s - t_s.min()) / block_s).astype(int)
+    block = np.unique(group * (slot.max() + 1) + slot, return_inverse=True)[1].ravel()
+    n_blocks = block.max() + 1
+    size = np.bincount(block, minlength=n_blocks).astype(float)
+    t_block = np.bincount(block, weights=t_s, minlength=n_blocks) / size
+    g_block = np.zeros(n_blocks, dtype=int)
+    g_block[block] = group
+    summed_jac = np.zeros((n_blocks, j.shape[1]))  # G = A J, A the block sums
+    np.add.at(summed_jac, block, j)
+    keep = np.diag(size) - summed_jac @ b @ summed_jac.T  # A (I - P) A^T = A (I - P) U
+    weight = keep @ keep
+    cube = weight @ keep
+    y = keep @ np.bincount(block, weights=weighted, minlength=n_blocks)
+    members = [np.flatnonzero(g_block == g) for g in range(group.max() + 1)]
+    edges = band_edges_hz(block_s, n_bands)
+    kernels = []  # (group, kernel on that group's blocks)
+    for g, rows in enumerate(members):
+        lag = t_block[rows, None] - t_block[None, rows]
+        kernels.append((g, np.eye(rows.size)))
+        kernels += [(g, _band_kernel(lag, lo, hi)) for lo, hi in zip(edges[:-1], edges[1:])]
+    # normal equations of the Frobenius fit in traces: <C_k, C_l> = tr(K_k W K_l W) with W = keep keep,
+    # <C_k, S> = y^T K_k y - tr(K_k keep^3), y = keep A r
+    moved = [[k @ weight[np.ix_(members[g], rows)] for rows in members] for g, k in kernels]
+    n_k = len(kernels)
+    gram = np.empty((n_k, n_k))
+    for a, (ga, _) in enumerate(kernels):
+        for c in range(a, n_k):
+            gram[a, c] = gram[c, a] = np.sum(moved[a][kernels[c][0]] * moved[c][ga].T)
+    rhs = np.array([y[members[g]] @ k @ y[members[g]] - np.sum(k * cube[np.ix_(members[g], members[g])])
+                    for g, k in kernels])
+    scale = np.sqrt(np.maximum(np.diag(gram), np.finfo(float).tiny))
+    upper = cholesky(gram / np.outer(scale, scale) + GRAM_RIDGE * np.eye(n_k))
+    power = lsq_linear(upper, solve_triangular(upper, rhs / scale, trans="T"), bounds=(0.0, np.inf)).x / scale
+    structure = np.zeros((n_blocks, n_blocks))
+    for p, (g, k) in zip(power, kernels):
+        structure[np.ix_(members[g], members[g])] += p * k
+    out = np.full(bread.shape, np.nan)
+    out[np.ix_(good, good)] = b + b @ summed_jac.T @ structure @ summed_jac @ b
+    return out, power.reshape(len(members), n_bands + 1)

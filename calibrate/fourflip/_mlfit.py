@@ -394,26 +394,30 @@ def _direction_covariance(layout: _Layout, x, cov) -> np.ndarray:
 
 
 def structured_covariance(fit: MLFit, noise: np.ndarray) -> np.ndarray:
-    """Covariance of a fit's parameters with its residual's structure as a process correlated within each flip.
+    """Covariance of a fit's parameters with its residual's structure a process in time, one per channel.
 
-    :func:`calibrate.diagnosis.robust.cluster_covariance` with one cluster per flip, on the bins the
-    fit ran on.  Flips, not parts of a turn: one mounting and one stretch of time, so what the model
-    lacks (a slow wander, an axis tilting as time goes) is correlated over the whole flip; on
-    tools/bench_loop.py's seeds 0-9 half turns left the precessing axis and the random walk at 1.1 and
-    1.5 times the widened sigma, flips at 1.05 and 1.1 (seeds 10-29 and a late case score it).
+    :func:`calibrate.diagnosis.robust.time_correlated_covariance` on the bins the fit ran on, each
+    channel's structure a stationary process over the whole recording (across flips: a slow wander
+    or a room's temperature cycle carries over from one flip to the next), its spectrum estimated
+    from what the fit left of it.  Per-flip clusters (CR2, :func:`calibrate.diagnosis.robust.cluster_covariance`)
+    took flips as independent and left a random walk and an air-con cycle at 1.3-1.6 times the
+    widened sigma (tools/bench_loop.py).
 
     Returns
     -------
     ndarray, shape (k, k)
         In the fit's parameters (as ``fit.covariance``); NaN where that is.
     """
-    from ..diagnosis.robust import cluster_covariance
+    from ..diagnosis.robust import time_correlated_covariance
 
     bins = fit.bins
+    c = len(noise)
     weighted = ((bins.outputs - _Predictor(bins.samples)(fit.physics)) * (bins.root_n / noise)).ravel()
-    clusters = np.repeat(bins.samples.flip_index, len(noise))
+    order = bins.samples.t_s if bins.samples.t_s is not None else np.arange(bins.outputs.shape[0], dtype=float)
+    t_s = np.repeat(order, c)  # without a t_s column, the recording's order at one sample a second
+    channel = np.tile(np.arange(c), order.size)
     bread = fit.covariance / (fit.chi2 / max(fit.dof, 1))
-    return cluster_covariance(fit.jac, weighted, clusters, bread)
+    return time_correlated_covariance(fit.jac, weighted, t_s, channel, bread)[0]
 
 
 def with_covariance(fit: MLFit, covariance: np.ndarray) -> MLFit:
