@@ -203,40 +203,48 @@ def band_edges_hz(block_s: float, n_bands: int) -> np.ndarray:
     return np.concatenate([[0.0], 0.5 / block_s / 2.0 ** np.arange(n_bands - 1, -1, -1)])
 
 
-def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, groups: np.ndarray,
-                               bread: np.ndarray, block_s: float = BLOCK_S, n_bands: int = N_BANDS,
-                               ) -> tuple[np.ndarray, np.ndarray]:
+def _loadings(n_groups: int) -> np.ndarray:
+    """How a structure process enters the groups: each alone, then each pair alike and opposed, shape (l, groups)."""
+    out = list(np.eye(n_groups))
+    for a in range(n_groups):
+        for b in range(a + 1, n_groups):
+            for sign in (1.0, -1.0):
+                v = np.zeros(n_groups)
+                v[a], v[b] = np.sqrt(0.5), sign * np.sqrt(0.5)
+                out.append(v)
+    return np.array(out)
+
+
+def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: np.ndarray,
+                               block_s: float = BLOCK_S, n_bands: int = N_BANDS) -> np.ndarray:
     """Covariance of a least-squares fit's parameters with its residual's structure a stationary process in time.
 
     The module docstring's "A process in time": the residual summed over time blocks, the
-    structure's spectrum per group (channel) estimated in octave bands by non-negative least
-    squares of the blocks' second moments against what the fit leaves of each band, and the
-    parameters' covariance ``H^-1 + H^-1 G^T K G H^-1``.
+    structure's spectra (each channel's own, and processes common to each pair of channels, alike
+    or opposed) estimated in octave bands by non-negative least squares of the block sums' second
+    moments against what the fit leaves of each band, and the parameters' covariance
+    ``H^-1 + H^-1 G^T K G H^-1``.
 
     Parameters
     ----------
-    jac : ndarray, shape (m, k)
-        Jacobian of the weighted residual at the solution.
-    weighted : ndarray, shape (m,)
-        The weighted residual (over the noise floor: white noise has unit variance).
-    t_s : ndarray, shape (m,)
-        Time of each residual row, s.
-    groups : ndarray of int, shape (m,)
-        Each row's group (a channel): the structure is taken as independent between groups.
+    jac : ndarray, shape (n * c, k)
+        Jacobian of the weighted residual at the solution, rows as ``weighted.ravel()``.
+    weighted : ndarray, shape (n, c)
+        The weighted residual of ``n`` samples (or bins) of ``c`` channels, over the noise floor
+        (white noise has unit variance).
+    t_s : ndarray, shape (n,)
+        Time of each sample, s.
     bread : ndarray, shape (k, k)
         ``(J^T J)^-1`` (NaN rows and columns for what the data cannot determine).
     block_s : float
-        Length of the time blocks, s (structure faster than this counts as white beyond the floor).
+        Length of the time blocks, s: structure faster than this counts as white beyond the floor.
     n_bands : int
         Octave bands of the spectrum below the blocks' Nyquist (the lowest reaches 0 Hz).
 
     Returns
     -------
-    covariance : ndarray, shape (k, k)
+    ndarray, shape (k, k)
         NaN where ``bread`` is.
-    power : ndarray, shape (groups, n_bands + 1)
-        Per group, the structure's variance beyond the floor within one block's sample (first
-        column, white) and in each band (:func:`band_edges_hz`), in units of the floor's variance.
 
     Raises
     ------
@@ -244,53 +252,48 @@ def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.nd
         Mismatched shapes, or a non-positive block length.
     """
     jac = np.asarray(jac, dtype=float)
-    weighted, t_s = np.asarray(weighted, dtype=float), np.asarray(t_s, dtype=float)
-    m = weighted.size
-    if jac.shape[0] != m or t_s.size != m or np.size(groups) != m:
-        raise ValueError(f"expected {jac.shape[0]} residuals, times and groups, got {m}, {t_s.size} and {np.size(groups)}")
+    weighted = np.atleast_2d(np.asarray(weighted, dtype=float).T).T
+    t_s = np.asarray(t_s, dtype=float)
+    n, c = weighted.shape
+    if jac.shape[0] != n * c or t_s.size != n:
+        raise ValueError(f"expected {jac.shape[0]} residuals as ({t_s.size} times) x channels, got {weighted.shape}")
     if not block_s > 0:
         raise ValueError(f"block_s must be positive, got {block_s}")
     good = np.isfinite(np.diag(bread))
-    j = np.nan_to_num(jac[:, good])
     b = bread[np.ix_(good, good)]
-    _, group = np.unique(groups, return_inverse=True)
-    group = group.ravel()
-    slot = np.floor((t_s - t_s.min()) / block_s).astype(int)
-    block = np.unique(group * (slot.max() + 1) + slot, return_inverse=True)[1].ravel()
-    n_blocks = block.max() + 1
-    size = np.bincount(block, minlength=n_blocks).astype(float)
-    t_block = np.bincount(block, weights=t_s, minlength=n_blocks) / size
-    g_block = np.zeros(n_blocks, dtype=int)
-    g_block[block] = group
-    summed_jac = np.zeros((n_blocks, j.shape[1]))  # G = A J, A the block sums
-    np.add.at(summed_jac, block, j)
-    keep = np.diag(size) - summed_jac @ b @ summed_jac.T  # A (I - P) A^T = A (I - P) U
+    block = np.unique(np.floor((t_s - t_s.min()) / block_s), return_inverse=True)[1].ravel()
+    nb = block.max() + 1
+    size = np.bincount(block, minlength=nb).astype(float)
+    t_block = np.bincount(block, weights=t_s, minlength=nb) / size
+    summed_jac = np.zeros((nb, c, b.shape[0]))  # G = A J, A the block sums; rows channel-major below
+    np.add.at(summed_jac, block, np.nan_to_num(jac[:, good]).reshape(n, c, -1))
+    summed_jac = summed_jac.transpose(1, 0, 2).reshape(c * nb, -1)
+    keep = np.diag(np.tile(size, c)) - summed_jac @ b @ summed_jac.T  # A (I - P) A^T = A (I - P) U
     weight = keep @ keep
-    cube = weight @ keep
-    y = keep @ np.bincount(block, weights=weighted, minlength=n_blocks)
-    members = [np.flatnonzero(g_block == g) for g in range(group.max() + 1)]
+    cube = (weight @ keep).reshape(c, nb, c, nb)
+    y = (keep @ np.concatenate([np.bincount(block, weights=w, minlength=nb) for w in weighted.T])).reshape(c, nb)
     edges = band_edges_hz(block_s, n_bands)
-    kernels = []  # (group, kernel on that group's blocks)
-    for g, rows in enumerate(members):
-        lag = t_block[rows, None] - t_block[None, rows]
-        kernels.append((g, np.eye(rows.size)))
-        kernels += [(g, _band_kernel(lag, lo, hi)) for lo, hi in zip(edges[:-1], edges[1:])]
-    # normal equations of the Frobenius fit in traces: <C_k, C_l> = tr(K_k W K_l W) with W = keep keep,
-    # <C_k, S> = y^T K_k y - tr(K_k keep^3), y = keep A r
-    moved = [[k @ weight[np.ix_(members[g], rows)] for rows in members] for g, k in kernels]
-    n_k = len(kernels)
-    gram = np.empty((n_k, n_k))
-    for a, (ga, _) in enumerate(kernels):
-        for c in range(a, n_k):
-            gram[a, c] = gram[c, a] = np.sum(moved[a][kernels[c][0]] * moved[c][ga].T)
-    rhs = np.array([y[members[g]] @ k @ y[members[g]] - np.sum(k * cube[np.ix_(members[g], members[g])])
-                    for g, k in kernels])
+    lag = t_block[:, None] - t_block[None, :]
+    bands = np.stack([np.eye(nb)] + [_band_kernel(lag, lo, hi) for lo, hi in zip(edges[:-1], edges[1:])])
+    # Frobenius least squares of outer(z, z) - keep against keep K keep, K = (v v^T) (x) B_k, in traces:
+    # <C, C'> = tr(K W K' W) = sum v_a v_b u_c u_d tr(B_k W_bc B_l W_da);  <C, S> = y^T K y - tr(K keep^3)
+    moved = np.einsum("kij,bjcl->kbcil", bands, weight.reshape(c, nb, c, nb))  # B_k W_bc
+    traces = np.tensordot(moved, moved, axes=([3, 4], [4, 3]))  # (k, b, c, l, d, a): tr(B_k W_bc B_l W_da)
+    loads = _loadings(c)
+    outer = np.einsum("vi,vj->vij", loads, loads)
+    gram = np.einsum("vab,ucd,kbclda->kvlu", outer, outer, traces)
+    rhs = (np.einsum("kij,ai,dj,vad->kv", bands, y, y, outer)
+           - np.einsum("kij,diaj,vad->kv", bands, cube, outer))
+    used = np.ones((len(bands), len(loads)), dtype=bool)
+    used[0, c:] = False  # white beyond the floor: each channel's own
+    n_used = used.sum()
+    gram = gram.reshape(used.size, used.size)[np.ix_(used.ravel(), used.ravel())]
+    rhs = rhs.ravel()[used.ravel()]
     scale = np.sqrt(np.maximum(np.diag(gram), np.finfo(float).tiny))
-    upper = cholesky(gram / np.outer(scale, scale) + GRAM_RIDGE * np.eye(n_k))
-    power = lsq_linear(upper, solve_triangular(upper, rhs / scale, trans="T"), bounds=(0.0, np.inf)).x / scale
-    structure = np.zeros((n_blocks, n_blocks))
-    for p, (g, k) in zip(power, kernels):
-        structure[np.ix_(members[g], members[g])] += p * k
+    upper = cholesky(gram / np.outer(scale, scale) + GRAM_RIDGE * np.eye(n_used))
+    power = np.zeros(used.size)
+    power[used.ravel()] = lsq_linear(upper, solve_triangular(upper, rhs / scale, trans="T"), bounds=(0.0, np.inf)).x / scale
+    structure = np.einsum("kv,vad,kij->aidj", power.reshape(used.shape), outer, bands).reshape(c * nb, c * nb)
     out = np.full(bread.shape, np.nan)
     out[np.ix_(good, good)] = b + b @ summed_jac.T @ structure @ summed_jac @ b
-    return out, power.reshape(len(members), n_bands + 1)
+    return out

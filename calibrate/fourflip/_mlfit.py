@@ -411,13 +411,11 @@ def structured_covariance(fit: MLFit, noise: np.ndarray) -> np.ndarray:
     from ..diagnosis.robust import time_correlated_covariance
 
     bins = fit.bins
-    c = len(noise)
-    weighted = ((bins.outputs - _Predictor(bins.samples)(fit.physics)) * (bins.root_n / noise)).ravel()
-    order = bins.samples.t_s if bins.samples.t_s is not None else np.arange(bins.outputs.shape[0], dtype=float)
-    t_s = np.repeat(order, c)  # without a t_s column, the recording's order at one sample a second
-    channel = np.tile(np.arange(c), order.size)
+    weighted = (bins.outputs - _Predictor(bins.samples)(fit.physics)) * (bins.root_n / noise)
+    # without a t_s column, the recording's order at one sample a second
+    t_s = bins.samples.t_s if bins.samples.t_s is not None else np.arange(weighted.shape[0], dtype=float)
     bread = fit.covariance / (fit.chi2 / max(fit.dof, 1))
-    return time_correlated_covariance(fit.jac, weighted, t_s, channel, bread)[0]
+    return time_correlated_covariance(fit.jac, weighted, t_s, bread)
 
 
 def with_covariance(fit: MLFit, covariance: np.ndarray) -> MLFit:
