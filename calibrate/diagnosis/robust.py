@@ -51,6 +51,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import cholesky, solve_triangular
 from scipy.optimize import lsq_linear
+from scipy.special import chdtri
 
 __all__ = ["BLOCK_S", "LEVERAGE_ONE", "N_BANDS", "band_edges_hz", "cluster_covariance", "extra_sigma",
            "heading_sigma_deg", "time_correlated_covariance", "widened"]
@@ -60,7 +61,11 @@ BLOCK_S = 10.0
 N_BANDS = 9
 """Octave bands of the structure's spectrum below the blocks' Nyquist (0.05 Hz down to 1e-4 Hz, then to 0)."""
 GRAM_RIDGE = 1e-12
-"""Relative ridge on the normalised normal equations (bands alike enough to be singular share their power)."""
+"""Relative ridge on the normalised normal equations of the non-negative fit (loadings too alike share power)."""
+GRAM_RCOND = 1e-10
+"""Relative cut-off of the normal equations' pseudo-inverse (bands too alike to tell apart share their power)."""
+BAND_P_VALUE = 0.01
+"""A band's spectral matrix counts when white noise would leave one as large this rarely (chi-square test)."""
 
 LEVERAGE_ONE = 1e-6
 """Leverage eigenvalues within this of one count as one (a cluster alone determines the direction)."""
@@ -269,31 +274,65 @@ def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.nd
     np.add.at(summed_jac, block, np.nan_to_num(jac[:, good]).reshape(n, c, -1))
     summed_jac = summed_jac.transpose(1, 0, 2).reshape(c * nb, -1)
     keep = np.diag(np.tile(size, c)) - summed_jac @ b @ summed_jac.T  # A (I - P) A^T = A (I - P) U
-    weight = keep @ keep
-    cube = (weight @ keep).reshape(c, nb, c, nb)
-    y = (keep @ np.concatenate([np.bincount(block, weights=w, minlength=nb) for w in weighted.T])).reshape(c, nb)
+    y = np.concatenate([np.bincount(block, weights=w, minlength=nb) for w in weighted.T]).reshape(c, nb)
     edges = band_edges_hz(block_s, n_bands)
     lag = t_block[:, None] - t_block[None, :]
     bands = np.stack([np.eye(nb)] + [_band_kernel(lag, lo, hi) for lo, hi in zip(edges[:-1], edges[1:])])
-    # Frobenius least squares of outer(z, z) - keep against keep K keep, K = (v v^T) (x) B_k, in traces:
-    # <C, C'> = tr(K W K' W) = sum v_a v_b u_c u_d tr(B_k W_bc B_l W_da);  <C, S> = y^T K y - tr(K keep^3)
-    moved = np.einsum("kij,bjcl->kbcil", bands, weight.reshape(c, nb, c, nb))  # B_k W_bc
-    traces = np.tensordot(moved, moved, axes=([3, 4], [4, 3]))  # (k, b, c, l, d, a): tr(B_k W_bc B_l W_da)
+    # Moments of the block sums z = A r against what the fit leaves of each band: E[z z^T] = keep + keep K keep,
+    # K = sum over bands k of (S_k kron B_k), S_k the band's c x c spectral matrix.  Normal equations of the
+    # (MINQUE) fit at K = 0, in traces: <k, v; l, u> = tr(K_kv keep K_lu keep)
+    #   = sum V_ab U_cd tr(B_k keep_bc B_l keep_da),  rhs_kv = z^T K_kv z - tr(K_kv keep)
+    blocks = keep.reshape(c, nb, c, nb)
+    moved = np.einsum("kij,bjcl->kbcil", bands, blocks)  # B_k keep_bc
+    traces = np.tensordot(moved, moved, axes=([3, 4], [4, 3]))  # (k, b, c, l, d, a)
+
+    def normal_equations(outer):
+        gram = np.einsum("vab,ucd,kbclda->kvlu", outer, outer, traces)
+        rhs = np.einsum("kij,ai,dj,vad->kv", bands, y, y, outer) - np.einsum("kij,diaj,vad->kv", bands, blocks, outer)
+        return gram.reshape(rhs.size, rhs.size), rhs.ravel()
+
+    # the floor itself may be off by a factor (1 + f): E[z z^T] gains f keep; its normal equations beside the
+    # bands' are <floor, floor> = rank(keep), <floor, K> = tr(K keep), rhs = z^T keep^+ z - rank(keep)
+    rank = np.linalg.matrix_rank(keep, hermitian=True)
+    floor_rhs = y.ravel() @ np.linalg.pinv(keep, hermitian=True) @ y.ravel() - rank
+
+    def with_floor(outer):
+        gram, rhs = normal_equations(outer)
+        cross = np.einsum("kij,diaj,vad->kv", bands, blocks, outer).ravel()
+        return np.block([[np.array([[rank]]), cross[None]], [cross[:, None], gram]]), np.concatenate([[floor_rhs], rhs])
+
+    # stage 1: which bands carry structure at all: a score test per band, each entry of S_k free, the floor's
+    # factor profiled out (under white noise rhs is centred with covariance 2 gram, Gaussian quadratic forms)
+    entries = [(i, j) for i in range(c) for j in range(i, c)]
+    basis = np.zeros((len(entries), c, c))
+    for e, (i, j) in enumerate(entries):
+        basis[e, i, j] = basis[e, j, i] = 1.0
+    gram, rhs = with_floor(basis)
+    own = np.ones((len(bands), len(entries)), dtype=bool)
+    own[0] = [i == j for i, j in entries]  # white beyond the floor: each channel's own
+    index = 1 + np.arange(own.size).reshape(own.shape)
+    carries = np.zeros(len(bands), dtype=bool)
+    for k in range(len(bands)):
+        i = index[k][own[k]]
+        score = rhs[i] - gram[i, 0] * rhs[0] / gram[0, 0]
+        spread = 2.0 * (gram[np.ix_(i, i)] - np.outer(gram[i, 0], gram[0, i]) / gram[0, 0])
+        carries[k] = score @ np.linalg.pinv(spread, rcond=GRAM_RCOND, hermitian=True) @ score > chdtri(i.size, BAND_P_VALUE)
+    # stage 2: the floor's factor (at least -1) and the spectrum on the bands that carry structure,
+    # non-negative: each channel's own process and processes common to each pair of channels, alike or opposed
     loads = _loadings(c)
     outer = np.einsum("vi,vj->vij", loads, loads)
-    gram = np.einsum("vab,ucd,kbclda->kvlu", outer, outer, traces)
-    rhs = (np.einsum("kij,ai,dj,vad->kv", bands, y, y, outer)
-           - np.einsum("kij,diaj,vad->kv", bands, cube, outer))
-    used = np.ones((len(bands), len(loads)), dtype=bool)
-    used[0, c:] = False  # white beyond the floor: each channel's own
-    n_used = used.sum()
-    gram = gram.reshape(used.size, used.size)[np.ix_(used.ravel(), used.ravel())]
-    rhs = rhs.ravel()[used.ravel()]
-    scale = np.sqrt(np.maximum(np.diag(gram), np.finfo(float).tiny))
-    upper = cholesky(gram / np.outer(scale, scale) + GRAM_RIDGE * np.eye(n_used))
-    power = np.zeros(used.size)
-    power[used.ravel()] = lsq_linear(upper, solve_triangular(upper, rhs / scale, trans="T"), bounds=(0.0, np.inf)).x / scale
+    gram, rhs = with_floor(outer)
+    used = np.zeros((len(bands), len(loads)), dtype=bool)
+    used[carries] = True
+    used[0, c:] = False
+    on = np.concatenate([[True], used.ravel()])
+    scale = np.sqrt(np.maximum(np.diag(gram)[on], np.finfo(float).tiny))
+    upper = cholesky(gram[np.ix_(on, on)] / np.outer(scale, scale) + GRAM_RIDGE * np.eye(on.sum()))
+    lower = np.r_[-1.0, np.zeros(on.sum() - 1)] * scale
+    solution = np.zeros(on.size)
+    solution[on] = lsq_linear(upper, solve_triangular(upper, rhs[on] / scale, trans="T"), bounds=(lower, np.inf)).x / scale
+    floor, power = solution[0], solution[1:]
     structure = np.einsum("kv,vad,kij->aidj", power.reshape(used.shape), outer, bands).reshape(c * nb, c * nb)
     out = np.full(bread.shape, np.nan)
-    out[np.ix_(good, good)] = b + b @ summed_jac.T @ structure @ summed_jac @ b
+    out[np.ix_(good, good)] = (1.0 + floor) * b + b @ summed_jac.T @ structure @ summed_jac @ b
     return out
