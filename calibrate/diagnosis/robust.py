@@ -1,5 +1,8 @@
 """What an unexplained residual costs: a covariance that covers it, in the units a user reads.
 
+Two covariances: per-cluster (:func:`cluster_covariance`, CR2) and a process in time over the whole
+recording (:func:`time_correlated_covariance`, what the four-flip's widening uses).
+
 When structure remains that no effect explains (SPEC section 4, ``unexplained: true``), the fit's
 covariance ``(J^T J)^-1 chi2/dof`` assumes residuals independent from sample to sample: a smooth
 structure, correlated over many samples, moves the parameters far more than that says.
@@ -35,15 +38,52 @@ between ``J^T`` and ``J``, measures the same shrunken residual and did worse (1.
 autocorrelation of a residual dominated by white noise picks bandwidths of 4-7 samples).  The
 jackknife over clusters ("CR3", ``(I - P_{gg})^{-1}``) over-corrects with four clusters.
 
-Its limits.  Structure that the model absorbs whole (a constant tilt of the turntable axis) leaves
-nothing in the residual; no residual-based bound sees it.  Structure locked to the geometry the
-same way in every flip is the opposite case: a backlash-like offset following the sign of each
-channel's field change (``rate memory``) shifts every channel's phase alike, the field azimuth
-absorbs it and the directions barely move, while each flip's residual, taken as independent,
-says they could: the covariance over-covers there (the error is about 0.4 of the widened sigma).
-A leverage of one (a parameter only one cluster determines, as a flip's own error angle) leaves
-that cluster's residual nothing to say about it; such directions get no weight (the
-pseudo-inverse of Bell and McCaffrey).
+Why per-flip clusters are not enough (the four-flip uses the process below; the clusters stay for
+callers that want them).  CR2 takes the clusters as independent, and with four of them its meat is
+a variance estimated from about three degrees of freedom.  A random walk of the offsets or a room's
+temperature cycle carries over from one flip to the next: the cross-cluster terms
+``J_g^T s_g s_h^T J_h`` it drops are positive (the level of flip 2 is correlated with flip 1's), and
+what tells a direction's y and z from the dip is exactly the level differences between flips,
+which the mountings absorb; these were left at 1.3-1.6 times the widened sigma.  The few degrees of
+freedom inflate the RMS of error over sigma on their own (``E[1/s^2]`` of a three-dof variance is
+three times ``1/sigma^2``).  Rate memory (an offset of +-h by the sign of each channel's field
+change) goes the other way: its fundamental is a phase shift the same in every channel, the field
+azimuth absorbs it and the directions barely move, while each flip's residual, taken as
+independent, says they could (0.37).
+
+A process in time.  Take ``s`` instead as a stationary process in time over the whole recording,
+each channel's own and processes common to each pair of channels (alike or opposed), with a
+spectrum piecewise flat in octave bands ``B_k`` (autocovariance of a band-limited flat spectrum,
+:func:`_band_kernel`): ``cov(s) = sum_k S_k (x) B_k``, ``S_k`` the band's channel-by-channel
+spectral matrix.  Sum the weighted residual over time blocks (``A``, ``BLOCK_S``; structure within
+a block counts as white) and take ``s`` constant within a block.  Then with ``G = A J`` and
+``keep = A (I - P) A^T = diag(n_b) - G H^-1 G^T``,
+
+.. math:: E[z z^T] = (1 + f)\\, keep + keep\\, K\\, keep, \\qquad z = A r,
+          \\qquad V = (1 + f) H^{-1} + H^{-1} G^T K G H^{-1},
+
+``f`` the noise floor's own error.  What the fit absorbed is in ``keep`` on both sides: a band the
+mountings absorb shows little in ``z`` and is estimated from what shows, then propagated whole into
+``V``.  The spectrum is fitted to the block sums' second moments (MINQUE at ``K = 0``: normal
+equations in traces ``tr(K_k keep K_l keep)``, right-hand sides ``z^T K_k z - tr(K_k keep)``),
+in two stages: a score test per band (the floor's factor profiled out; under white noise the
+right-hand sides are centred with covariance twice the normal matrix) keeps the bands that carry
+structure at ``BAND_P_VALUE``, then a non-negative least squares on those bands alone gives the
+spectrum (non-negative: a covariance), ``f`` bounded below by -1.
+
+Checks on paper.  White noise: every right-hand side is centred, no band passes but by chance, the
+floor's factor is unbiased: ``V = H^-1`` (the naive covariance) on average without the
+non-negativity, and in most recordings with it.  A structure the fit absorbs whole (a constant tilt
+of the turntable axis, or the fundamental of rate memory, a common phase) leaves nothing in ``z``:
+no residual-based bound sees it.  A single channel has no pairs; a parameter the data cannot
+determine keeps NaN.
+
+Its limits (measured: tools/bench_loop.py, tests/calibrate/diagnosis/test_robust.py).  A band that
+passes the score test by chance where the fit absorbs nearly all of it (periods beyond the record)
+widens by far too much: in 2 of 40 white-noise replicates of the test's two-channel line, 39
+times.  A flat spectrum within the lowest band over-covers a random walk where per-segment levels
+absorb most of it (0.53 in the test).  Rate memory stays over-covered (its fundamental is absorbed
+in every channel alike, which a stationary process does not know).
 """
 
 from __future__ import annotations

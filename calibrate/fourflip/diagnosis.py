@@ -183,9 +183,10 @@ def _widen(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
         "direction_sigma_deg": {name: {"naive": float(b), "widened": float(a)}
                                 for name, b, a in zip(channels, before, after)},
         "heading_sigma_deg": {"naive": heading[0], "widened": heading[1]},
-        "method": ("bias-reduced cluster-robust (CR2 sandwich) covariance, one cluster per flip: the residual's "
-                   "structure taken as correlated within a flip, the part each flip's fit absorbed restored by its "
-                   "leverage; the file's sigmas are the larger of it and the naive ones"),
+        "method": ("the residual's structure taken as a stationary process in time over the whole recording (each "
+                   "channel's own and common to pairs), its spectrum in octave bands estimated from the residual's "
+                   "block sums with what the fit absorbed accounted for, propagated into the parameters; the file's "
+                   "sigmas are the larger of it and the naive ones"),
     }
     return wide, cost
 

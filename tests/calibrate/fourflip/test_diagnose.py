@@ -148,7 +148,7 @@ def test_fitting_bin_means_is_fitting_every_sample(write_session, monkeypatch):
 
 
 def test_unexplained_structure_widens_the_files_sigmas_and_says_the_cost(write_session):
-    """A field gradient the model lacks: the file's sigmas grow to the cluster-robust ones, the diagnosis
+    """A field gradient the model lacks: the file's sigmas grow to the time-process ones, the diagnosis
     and the report say what that costs, and the runtime model read back from the file carries them."""
     from calibrate.fourflip._mlfit import fit_ml
     from calibrate.fourflip.fit import physics_from_harmonics
