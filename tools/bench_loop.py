@@ -268,7 +268,7 @@ def main() -> None:
     versions = "base / this" if args.baseline != "none" else "this"
     publish(args, "docs/benchmarks.md", "bench_loop", markdown_table(
         ["case", "named (this)", f"unexplained {versions}", f"err/sig {versions}", f"err/sig unexplained {versions}",
-         f"err deg {versions}", f"heading cost deg (this)", f"worst CPU s {versions}"], table),
+         f"err deg {versions}", "heading cost deg (this)", f"worst CPU s {versions}"], table),
         caption=f"{args.n} recordings per case from seed {args.seed}, baseline {args.baseline}", echo=False)
 
 

@@ -266,9 +266,10 @@ def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.nd
 
     The module docstring's "A process in time": the residual summed over time blocks, the
     structure's spectra (each channel's own, and processes common to each pair of channels, alike
-    or opposed) estimated in octave bands by non-negative least squares of the block sums' second
-    moments against what the fit leaves of each band, and the parameters' covariance
-    ``H^-1 + H^-1 G^T K G H^-1``.
+    or opposed) estimated in octave bands from the block sums' second moments against what the fit
+    leaves of each band (bands kept where a score test finds structure, then non-negative least
+    squares on those, the noise floor's own factor beside them), and the parameters' covariance
+    ``(1 + f) H^-1 + H^-1 G^T K G H^-1``.
 
     Parameters
     ----------
@@ -356,7 +357,8 @@ def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.nd
         i = index[k][own[k]]
         score = rhs[i] - gram[i, 0] * rhs[0] / gram[0, 0]
         spread = 2.0 * (gram[np.ix_(i, i)] - np.outer(gram[i, 0], gram[0, i]) / gram[0, 0])
-        carries[k] = score @ np.linalg.pinv(spread, rcond=GRAM_RCOND, hermitian=True) @ score > chdtri(i.size, BAND_P_VALUE)
+        statistic = score @ np.linalg.pinv(spread, rcond=GRAM_RCOND, hermitian=True) @ score
+        carries[k] = statistic > chdtri(i.size, BAND_P_VALUE)
     # stage 2: the floor's factor (at least -1) and the spectrum on the bands that carry structure,
     # non-negative: each channel's own process and processes common to each pair of channels, alike or opposed
     loads = _loadings(c)
@@ -370,7 +372,8 @@ def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.nd
     upper = cholesky(gram[np.ix_(on, on)] / np.outer(scale, scale) + GRAM_RIDGE * np.eye(on.sum()))
     lower = np.r_[-1.0, np.zeros(on.sum() - 1)] * scale
     solution = np.zeros(on.size)
-    solution[on] = lsq_linear(upper, solve_triangular(upper, rhs[on] / scale, trans="T"), bounds=(lower, np.inf)).x / scale
+    target = solve_triangular(upper, rhs[on] / scale, trans="T")
+    solution[on] = lsq_linear(upper, target, bounds=(lower, np.inf)).x / scale
     floor, power = solution[0], solution[1:]
     structure = np.einsum("kv,vad,kij->aidj", power.reshape(used.shape), outer, bands).reshape(c * nb, c * nb)
     out = np.full(bread.shape, np.nan)

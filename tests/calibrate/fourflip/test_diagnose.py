@@ -173,6 +173,14 @@ def test_unexplained_structure_widens_the_files_sigmas_and_says_the_cost(write_s
     model = from_dict(result.to_json()).model
     assert np.degrees(np.sqrt(np.trace(model.direction_covariance, axis1=1, axis2=2))) == pytest.approx(
         [entry["widened"] for entry in cost["direction_sigma_deg"].values()], rel=1e-6)
+    # the runtime's heading sigma (compass attitude / live) carries it: against the same file with the
+    # naive direction covariance, every level sample's heading sigma is larger
+    from compass.attitude import solve_attitude
+
+    raw = rec.outputs[::40]
+    wide = solve_attitude(model, raw, level=True).heading_sigma_deg
+    plain = solve_attitude(replace(model, direction_covariance=naive.direction_covariance), raw, level=True)
+    assert np.all(wide > plain.heading_sigma_deg)
 
 
 def test_clean_recording_keeps_its_sigmas(write_session):
