@@ -111,6 +111,7 @@ CANDIDATES = {  # name: (FilterConfig changes, hard-iron tracker on, noise from 
     "- motion-adaptive accel": ({"motion_adaptive_accel": False}, True, False),
     "- inertial low-pass": ({"accel_time_constant_s": 0.01}, True, False),
     "- gyro scale-error noise": ({"gyro_scale_error": 1e-9}, True, False),
+    "second-order inertial low-pass": ({"accel_lowpass_order": 2}, True, False),  # issue 22's turn analysis
     "noise from rest": ({}, True, True),
     "mag_latency_s 0.014": ({"mag_latency_s": 0.014}, True, False),  # calibrate.realdata's loop, on 01 and 02
     "accel_time_constant_s 1": ({"accel_time_constant_s": 1.0}, True, False),
@@ -161,6 +162,66 @@ def loo_choice(results, trial, candidates):
         return "defaults"
     return min(candidates, key=lambda c: (np.mean([np.log(results[t][c][0]) for t in others])
                                           + np.mean([np.log(results[t][c][1]) for t in others])))
+
+
+# ---------------------------------------------------------------- simulated boards
+
+SIM_CANDIDATES = ("defaults", "second-order inertial low-pass")
+
+
+class _Simulated:
+    """A :func:`compass.sim.motion.simulate_motion` trial duck-typed as a BroadTrial (ENU reference)."""
+
+    def __init__(self, rec, name):
+        from compass.io.broad import nwu_to_enu
+
+        self.name, self.rate_hz = name, 1.0 / (rec.t_s[1] - rec.t_s[0])
+        self.t_s, self.gyro_rad_s, self.accel_m_s2, self.mag_ut = rec.t_s, rec.gyro_rad_s, rec.accel_m_s2, rec.mag_ut
+        self.movement = rec.moving
+        self.ref_quat_enu = nwu_to_enu(rec.rotation).as_quat(scalar_first=True)
+
+    def __len__(self):
+        return len(self.t_s)
+
+
+def board_errors(board: str, seed: int):
+    """The simulated IMU's errors: ``"broad-like"`` (0.5 % gyro scale, small biases) or ``"low-cost"``
+    (gyro scale 1-2 %, bias up to 1 deg/s, accelerometer scale 2 % and offset 0.15 m/s^2, magnetometer
+    20 ms late), drawn per seed; nothing here was chosen for a filter change."""
+    from compass.sim.motion import SensorErrors
+
+    rng = np.random.default_rng(1000 + seed)
+    sign = rng.choice([-1.0, 1.0], 3)
+    if board == "broad-like":
+        return SensorErrors(gyro_bias_rad_s=tuple(rng.normal(0.0, np.radians(0.3), 3)),
+                            gyro_scale=tuple(sign * 0.005), mag_latency_s=0.0)
+    return SensorErrors(gyro_bias_rad_s=tuple(rng.normal(0.0, np.radians(0.5), 3)),
+                        gyro_scale=tuple(sign * rng.uniform(0.01, 0.02, 3)),
+                        accel_bias_m_s2=tuple(rng.uniform(-0.15, 0.15, 3)), accel_scale=tuple(rng.uniform(-0.02, 0.02, 3)),
+                        gyro_noise=3e-4, accel_noise_m_s2=0.1, mag_latency_s=0.02)
+
+
+def simulated(methods, seeds) -> dict:
+    """``{board: {kind: {method: (heading, inclination)}}}``: every kind of compass.sim.motion, 60 s,
+    mean RMS over ``seeds`` (BROAD's metric over the moving samples)."""
+    from compass.sim.motion import KINDS, simulate_motion
+
+    out = {}
+    for board in ("broad-like", "low-cost"):
+        out[board] = {}
+        for kind in KINDS:
+            runs = []
+            for seed in seeds:
+                trial = _Simulated(simulate_motion(kind, seed=seed, errors=board_errors(board, seed)), kind)
+                row = []
+                for method in methods.values():
+                    e = error_series(method(trial), trial.ref_quat_enu, trial.movement, trial.rate_hz)
+                    row.append((e.heading_rms_deg, e.inclination_rms_deg))
+                runs.append(row)
+            out[board][kind] = dict(zip(methods, np.mean(runs, axis=0).tolist()))
+            print(f"  {board} {kind}: " + ", ".join(f"{k} {v[0]:.2f}/{v[1]:.2f}" for k, v in out[board][kind].items()),
+                  flush=True)
+    return out
 
 
 # ---------------------------------------------------------------- timing
@@ -254,6 +315,7 @@ def main(argv=None) -> int:
     parser.add_argument("--cal", help="calibration JSON to add the 'ours + cal' column (fitted on other trials)")
     parser.add_argument("--skip-check", action="store_true", help="skip the synthetic frame check")
     parser.add_argument("--no-timing", action="store_true", help="skip the microseconds-per-sample section")
+    parser.add_argument("--sim-seeds", type=int, default=2, help="seeds per kind of simulated motion (0: no simulation)")
     args = parser.parse_args(argv)
 
     peers = {"vqf": vqf_online, "vqf offline": vqf_offline, "fusion": fusion, "madgwick": madgwick}
@@ -329,6 +391,14 @@ def main(argv=None) -> int:
     print("\nablation (one mechanism removed) and constants (half, twice), every trial, not held out: "
           "heading RMS / inclination RMS, deg")
     _ablation(results, names, groups | {"all": list(results)})
+
+    if args.sim_seeds > 0:
+        methods = {k: available[k] for k in peer_names[:1] + list(SIM_CANDIDATES)}
+        print(f"\nsimulated motions (compass.sim.motion, every kind, 60 s, {args.sim_seeds} seeds, two boards): "
+              "heading RMS / inclination RMS, deg")
+        sim = simulated(methods, range(args.sim_seeds))
+        _table("simulated groups (mean over the kinds)",
+               {b: {m: tuple(np.mean([sim[b][k][m] for k in sim[b]], axis=0)) for m in methods} for b in sim}, list(methods))
 
     if not args.no_timing:
         first = trials.get("01_undisturbed_slow_rotation_A", next(iter(trials.values())))
