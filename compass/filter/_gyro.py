@@ -137,6 +137,11 @@ class GyroFilter(AttitudeFilter):
     def gyro_bias(self) -> tuple:
         return self._s.bias_rad_s
 
+    @property
+    def low_pass(self) -> tuple | None:
+        """The specific force low-passed in the inertial frame, seen in H, accelerometer units (None before the start)."""
+        return self._s.acc_lp
+
     def update(self, t_s: float, accel, gyro, field_h) -> bool:
         begun = self._begin(t_s, accel, gyro, field_h)
         if begun is None:

@@ -52,10 +52,10 @@ class FilterConfig:
         the low-pass carries the gyro's scale error over the angle turned within its memory, so 2 s
         (issue 13's leave-one-out protocol chose 2 s over 3 s on 13 of 14 BROAD folds).
     accel_lowpass_order : int
-        Order of the inertial low-pass: 2 (a Butterworth, as VQF's, with the first-order one's mean
-        age ``accel_time_constant_s``) leaves of hand-held motion ``omega_c^2`` times its displacement
-        (bounded) where the first-order one leaves ``(v - LP v) / tau``, its velocity; 1 is the
-        first-order low-pass as before issue 22's turn analysis (docs/benchmarks.md).
+        Order of the inertial low-pass, both with mean age ``accel_time_constant_s``: 1 (first order)
+        leaves of hand-held motion ``(v - LP v) / tau``, its velocity; 2 (a Butterworth, VQF's kind)
+        leaves ``omega_c^2`` times its displacement.  2 gains in fast turns and loses in translation and
+        heading on BROAD and on simulated boards (issue 22, docs/benchmarks.md): 1 is the default.
     motion_time_s : float
         Time scale on which the housing's velocity varies (hand-held motion), seconds: the
         correlation time of what the low-pass leaves of the motion acceleration.
