@@ -99,6 +99,9 @@ def cost_lines(cost: dict | None) -> list[str]:
         h = cost.get("heading_sigma_deg")
         lines.append(f"  unexplained cost at runtime: heading sigma of a level housing widened by {cost['heading_deg']:.3f} "
                      "deg" + (f" ({h['naive']:.3f} -> {h['widened']:.3f} deg RMS over headings)" if h else ""))
+    if "hard_iron" in cost:
+        lines.append("  unexplained cost: hard-iron sigmas widened " + ", ".join(
+            f"{axis} {v['naive']:.3g} -> {v['widened']:.3g}" for axis, v in cost["hard_iron"].items()))
     if "method" in cost:
         lines.append(f"      ({cost['method']})")
     return lines
