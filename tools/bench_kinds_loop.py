@@ -54,6 +54,8 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from _doc_table import markdown_table, parse_args, publish  # noqa: E402
+
 CASES = ("clean", "gain drift", "field wander", "offset walk")
 KINDS = ("tumble", "inst tumble", "inst swing")
 BASELINE = "1453ea3"
@@ -176,7 +178,7 @@ def main(argv=None) -> int:
     parser.add_argument("--kinds", default=",".join(KINDS), help=f"comma-separated among {', '.join(KINDS)}")
     parser.add_argument("--baseline", default=BASELINE, help=f"git revision to compare with, or none (default {BASELINE})")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
+    args = parse_args(parser, argv)
     kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
     bad = [k for k in kinds if k not in KINDS]
     if bad:
@@ -205,17 +207,32 @@ def main(argv=None) -> int:
     head = (f"{'kind':<12} {'case':<13} {'version':<17} {'named (commonest)':<28} {'any':>5} {'unexpl':>6} "
             f"{'err/sig':>7} {'(unexpl)':>8} {'error':>7} {'worst CPU s':>11}")
     print(head)
+    table = []
     for kind in kinds:
         unit = "deg dir" if kind == "tumble" else "deg hdg"
         for case in CASES:
+            cells = {}
             for name in versions:
                 s = _summary([r for r in rows[name] if r["kind"] == kind and r["case"] == case])
-                flagged = "" if s["ratio_unexplained"] is None else f"{s['ratio_unexplained']:.2f}"
+                flagged = "-" if s["ratio_unexplained"] is None else f"{s['ratio_unexplained']:.2f}"
                 print(f"{kind:<12} {case:<13} {name:<17} {s['named']:<28} {s['any']:>2}/{s['n']:<2} "
                       f"{s['unexplained']:>3}/{s['n']:<2} {s['ratio']:>7.2f} {flagged:>8} {s['err']:>7.3f} "
                       f"{s['worst_cpu']:>11.2f}")
+                cells[name] = s | {"flagged": flagged}
+            table.append([kind, case] + [" / ".join(str(cells[v][key]) if key != "ratio" and key != "err"
+                                                    else f"{cells[v][key]:.{2 if key == 'ratio' else 3}f}"
+                                                    for v in versions)
+                                         for key in ("named", "unexplained", "ratio", "flagged", "err")]
+                         + [" / ".join(f"{cells[v]['worst_cpu']:.2f}" for v in versions)])
         print(f"  (error: {unit} RMS)")
     print(f"\ntotal {time.perf_counter() - start:.0f} s")
+    order = " / ".join(versions)
+    publish(args, "docs/benchmarks.md", "bench_kinds_loop",
+            markdown_table(["kind", "case", f"named ({order})", f"unexplained ({order})", f"err/sig ({order})",
+                            f"err/sig unexplained ({order})", f"error, deg ({order})", f"worst CPU s ({order})"],
+                           table),
+            caption=f"seeds {args.seed}-{args.seed + args.n - 1}, {args.n} per case; error: the tumble's field "
+                    "direction, the installation's heading at runtime (RMS)", echo=False)
     return 0
 
 
