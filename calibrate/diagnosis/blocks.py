@@ -25,7 +25,7 @@ import numpy as np
 
 from .robust import cluster_covariance, widened
 
-__all__ = ["TIME_BLOCKS", "time_blocks", "widened_in_time"]
+__all__ = ["TIME_BLOCKS", "time_blocks", "widened_in_time", "level_heading_sigma_deg"]
 
 TIME_BLOCKS = 8
 """Blocks of consecutive samples that are the clusters of the widening."""
@@ -94,3 +94,28 @@ def widened_in_time(jac: np.ndarray, weighted: np.ndarray, blocks: np.ndarray, n
     out = np.array(naive, dtype=float, copy=True)
     out[np.ix_(good, good)] = widened(naive[np.ix_(good, good)], robust[np.ix_(good, good)])
     return out
+
+
+def level_heading_sigma_deg(sigma_x: float, sigma_y: float, field_norm: float, dip_deg: float) -> float:
+    """RMS heading sigma of a level housing over every heading from a hard iron's horizontal sigmas.
+
+    A hard-iron error ``dh`` adds ``-dh`` to the field read; at heading ``psi`` the heading turns by
+    the part across the horizontal field, ``(sin psi, cos psi) . dh_xy / B_h``, ``B_h = |B| cos(dip)``;
+    averaged over ``psi`` its variance is ``(sigma_x^2 + sigma_y^2) / (2 B_h^2)``.
+
+    Parameters
+    ----------
+    sigma_x, sigma_y : float
+        The hard iron's sigma along the housing's x and y (level: horizontal), field units.
+    field_norm : float
+        |B| in the same units.
+    dip_deg : float
+        The field's dip.
+
+    Returns
+    -------
+    float
+        Degrees.
+    """
+    horizontal = field_norm * np.cos(np.radians(dip_deg))
+    return float(np.degrees(np.sqrt(0.5 * (sigma_x**2 + sigma_y**2)) / horizontal))

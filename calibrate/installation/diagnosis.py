@@ -37,7 +37,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..diagnosis.blocks import TIME_BLOCKS, time_blocks, widened_in_time
+from ..diagnosis.blocks import TIME_BLOCKS, level_heading_sigma_deg, time_blocks, widened_in_time
+from ..diagnosis.robust import extra_sigma
 from ..diagnosis.evidence import Proposal, gather_forms, linearised_score, refit_from_better_start, select_effects
 from ..effects import EffectForm, Recorded, TemperatureForm, TimeForm, why_no_temperature, why_no_time
 from ..diagnosis.report import Diagnosis
@@ -186,8 +187,12 @@ def _widen(fit: InstallationFit, rows: Rows, priors: dict, t_s) -> tuple[Install
     lift = t[:, moved]
     covariance = fit.covariance + lift @ (wide - naive) @ lift.T
     naive_h, wide_h = np.sqrt(np.diag(fit.covariance)[:3]), np.sqrt(np.diag(covariance)[:3])
+    heading = [level_heading_sigma_deg(*sig[:2], fit.x[9], fit.x[10]) for sig in (naive_h, wide_h)]
     cost = {"hard_iron": {axis: {"naive": float(a), "widened": float(b)} for axis, a, b in zip("xyz", naive_h, wide_h)},
-            "method": f"CR2 sandwich over {TIME_BLOCKS} blocks of consecutive rows (calibrate.diagnosis.blocks)"}
+            "heading_deg": float(extra_sigma(heading[1], heading[0])),
+            "heading_sigma_deg": {"naive": heading[0], "widened": heading[1]},
+            "method": f"CR2 sandwich over {TIME_BLOCKS} blocks of consecutive rows (calibrate.diagnosis.blocks); "
+                      "the heading sigma from the hard iron alone, a level housing, RMS over headings"}
     return replace(fit, covariance=covariance), cost
 
 

@@ -73,7 +73,8 @@ from scipy.optimize import approx_fprime
 from ..contract import FitStatistics
 from ..diagnosis.evidence import (FitRecord, Proposal, determined, gather_forms, is_unexplained, linearised_score,
                                   refit_from_better_start, select_effects)
-from ..diagnosis.blocks import TIME_BLOCKS, time_blocks, widened_in_time
+from ..diagnosis.blocks import TIME_BLOCKS, level_heading_sigma_deg, time_blocks, widened_in_time
+from ..diagnosis.robust import extra_sigma
 from ..diagnosis.forms import json_float, rms
 from ..effects import (Basis, EffectForm, OddCubic, Recorded, TemperatureForm, TimePolynomial, WarmUpForm, settled,
                        time_powers, warm_up_tau_s)
@@ -396,6 +397,8 @@ class TumbleDiagnosis(Diagnosis):
                      "angle_rms_deg_before": mis.spread_before_deg, "angle_rms_deg_after": mis.spread_after_deg,
                      "evidence": evidence, "delta_bic": -mis.delta_bic}
         block = dict(self.block, alignment=alignment, residual_rms_after=rms)
+        if "unexplained_cost" in block and np.isfinite(mis.dip_deg):  # the runtime's heading, now the dip is known
+            block["unexplained_cost"] = _with_heading(block["unexplained_cost"], fit.field_norm, mis.dip_deg)
         block["unexplained"] = is_unexplained(block["structure_test"]["p_value"], rms, block["noise_floor"])
         return replace(self, fit=fit, block=block)
 
@@ -485,6 +488,18 @@ def _cost(naive_sigma: np.ndarray, wide_sigma: np.ndarray) -> dict:
     return {"hard_iron": {ax: {"naive": float(a), "widened": float(b)}
                           for ax, a, b in zip(_AXES, naive_sigma, wide_sigma)},
             "method": f"CR2 sandwich over {TIME_BLOCKS} blocks of consecutive samples (calibrate.diagnosis.blocks)"}
+
+
+def _with_heading(cost: dict, field_norm: float, dip_deg: float) -> dict:
+    """``cost`` with the heading sigma of a level housing from the hard iron, naive and widened.
+
+    The magnetometer's x and y are taken as horizontal (its rotation to the housing is a few degrees).
+    """
+    naive, wide = ([level_heading_sigma_deg(cost["hard_iron"]["mx"][k], cost["hard_iron"]["my"][k], field_norm,
+                                            dip_deg)] for k in ("naive", "widened"))
+    return dict(cost, heading_deg=float(extra_sigma(wide[0], naive[0])),
+                heading_sigma_deg={"naive": naive[0], "widened": wide[0]},
+                method=cost["method"] + "; the heading sigma from the hard iron alone, a level housing, RMS over headings")
 
 
 def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | None = None,

@@ -35,3 +35,16 @@ def test_white_noise_keeps_the_naive_covariance_on_average_and_structure_widens_
     slow = rng.normal(size=n) + 3.0 * np.repeat(rng.normal(size=8), n // 8)  # a level per stretch of time
     slow -= jac @ (bread @ (jac.T @ slow))
     assert widened_in_time(jac, slow, blocks, bread)[0, 0] > 3.0 * bread[0, 0]
+
+
+def test_level_heading_sigma_against_monte_carlo():
+    from calibrate.diagnosis.blocks import level_heading_sigma_deg
+
+    rng = np.random.default_rng(2)
+    psi = rng.uniform(0, 2 * np.pi, 20000)
+    dh = rng.normal(size=(20000, 2)) * [0.3, 0.1]
+    b_h = 50.0 * np.cos(np.radians(60.0))
+    field = b_h * np.column_stack([np.cos(psi), -np.sin(psi)])
+    read = field - dh
+    turned = np.degrees(np.angle((read[:, 0] - 1j * read[:, 1]) * np.exp(-1j * psi)))
+    assert level_heading_sigma_deg(0.3, 0.1, 50.0, 60.0) == pytest.approx(np.sqrt(np.mean(turned**2)), rel=0.03)

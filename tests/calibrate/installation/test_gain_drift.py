@@ -85,4 +85,6 @@ def test_an_unexplained_residual_widens_the_hard_iron_sigma(sensor):
     wide = np.array([cost[a]["widened"] for a in "xyz"])
     assert np.all(wide >= naive) and np.any(wide > 1.5 * naive)
     assert np.allclose(result.hard_iron_sigma_ut, wide)
-    assert "hard-iron sigmas widened" in result.report()
+    assert "hard-iron sigmas widened" in result.report() and "heading sigma of a level housing" in result.report()
+    heading = block["unexplained_cost"]["heading_sigma_deg"]
+    assert heading["widened"] > heading["naive"] > 0

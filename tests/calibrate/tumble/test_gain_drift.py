@@ -55,4 +55,6 @@ def test_an_unexplained_residual_widens_the_hard_iron_sigma():
     wide = np.array([cost[a]["widened"] for a in ("mx", "my", "mz")])
     assert np.all(wide >= naive) and np.any(wide > 1.5 * naive)
     assert np.all(result.fit.hard_iron_sigma >= wide - 1e-12)  # the joint refit with the rotation keeps it
-    assert "hard-iron sigmas widened" in result.report()
+    assert "hard-iron sigmas widened" in result.report() and "heading sigma of a level housing" in result.report()
+    heading = block["unexplained_cost"]["heading_sigma_deg"]
+    assert heading["widened"] > heading["naive"] > 0
