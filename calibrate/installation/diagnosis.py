@@ -38,10 +38,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..diagnosis.blocks import TIME_BLOCKS, level_heading_sigma_deg, time_blocks, widened_in_time
-from ..diagnosis.robust import extra_sigma
 from ..diagnosis.evidence import Proposal, gather_forms, linearised_score, refit_from_better_start, select_effects
 from ..effects import EffectForm, Recorded, TemperatureForm, TimeForm, why_no_temperature, why_no_time
 from ..diagnosis.report import Diagnosis
+from ..diagnosis.robust import extra_sigma
 from ..noise import chi2_sf
 from .model import InstallationFit, Rows, coordinates, effect_slice, fit_installation, is_level, residuals
 
@@ -145,8 +145,7 @@ def _regressors(t_s, temp_c) -> tuple[dict, dict]:
     if why_no_time(t_s) is None:
         regressors["offset_drift"] = (t_s - t_s.mean()) / np.ptp(t_s)
         references["offset_drift"] = {"t_s": float(t_s.mean())}
-    if why_no_time(t_s) is None:
-        regressors["gain_drift"] = regressors["offset_drift"]
+        regressors["gain_drift"] = regressors["offset_drift"]  # both zero at the mean time
         references["gain_drift"] = references["offset_drift"]
     if why_no_temperature(temp_c) is None:
         regressors["temperature"] = temp_c - temp_c.mean()

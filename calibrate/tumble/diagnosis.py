@@ -26,6 +26,10 @@ the chain of corrections of the effects in the model (the identity for the plain
    or its rms exceeds the floor by more than :data:`~calibrate.diagnosis.evidence.FLOOR_MARGIN`.  If structure
    remains, the added effects may have absorbed part of something the toolkit does not model (a
    hard iron that stepped partway is partly a drift): nothing is claimed and the base fit is kept.
+   When unexplained, the covariance is widened to cover the structure (the CR2 sandwich over blocks
+   of consecutive samples, :mod:`calibrate.diagnosis.blocks`: a tumble has no flips, what it lacks
+   changes with time) and ``unexplained_cost`` gives the hard-iron sigmas and, once the dip is
+   known (:meth:`TumbleDiagnosis.with_alignment`), a level housing's heading sigma, naive and widened.
 
 Effects, as corrections of ``z = y - p_h`` (normalised units, raw magnetometer frame); every one is
 zero at the reference time ``t_ref`` (the first sample) and temperature ``T_ref`` (the mean of
@@ -495,10 +499,9 @@ def _with_heading(cost: dict, field_norm: float, dip_deg: float) -> dict:
 
     The magnetometer's x and y are taken as horizontal (its rotation to the housing is a few degrees).
     """
-    naive, wide = ([level_heading_sigma_deg(cost["hard_iron"]["mx"][k], cost["hard_iron"]["my"][k], field_norm,
-                                            dip_deg)] for k in ("naive", "widened"))
-    return dict(cost, heading_deg=float(extra_sigma(wide[0], naive[0])),
-                heading_sigma_deg={"naive": naive[0], "widened": wide[0]},
+    naive, wide = (level_heading_sigma_deg(cost["hard_iron"]["mx"][k], cost["hard_iron"]["my"][k], field_norm, dip_deg)
+                   for k in ("naive", "widened"))
+    return dict(cost, heading_deg=float(extra_sigma(wide, naive)), heading_sigma_deg={"naive": naive, "widened": wide},
                 method=cost["method"] + "; the heading sigma from the hard iron alone, a level housing, RMS over headings")
 
 
