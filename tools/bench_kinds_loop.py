@@ -226,13 +226,14 @@ def main(argv=None) -> int:
                          + [" / ".join(f"{cells[v]['worst_cpu']:.2f}" for v in versions)])
         print(f"  (error: {unit} RMS)")
     print(f"\ntotal {time.perf_counter() - start:.0f} s")
-    order = " / ".join(versions)
+    order = " / ".join("base" if name.startswith("before") else "this" for name in versions)
     publish(args, "docs/benchmarks.md", "bench_kinds_loop",
             markdown_table(["kind", "case", f"named ({order})", f"unexplained ({order})", f"err/sig ({order})",
                             f"err/sig unexplained ({order})", f"error, deg ({order})", f"worst CPU s ({order})"],
                            table),
-            caption=f"seeds {args.seed}-{args.seed + args.n - 1}, {args.n} per case; error: the tumble's field "
-                    "direction, the installation's heading at runtime (RMS)", echo=False)
+            caption=f"seeds {args.seed}-{args.seed + args.n - 1}, {args.n} per case"
+                    + (f"; base: {args.baseline}" if args.baseline != "none" else "")
+                    + "; error: the tumble's field direction, the installation's heading at runtime (RMS)", echo=False)
     return 0
 
 

@@ -83,6 +83,8 @@ def widened_in_time(jac: np.ndarray, weighted: np.ndarray, blocks: np.ndarray, n
     """
     jac = np.asarray(jac, dtype=float)
     good = np.isfinite(np.diag(naive))
+    if not good.any():  # nothing determined: nothing to widen
+        return np.array(naive, dtype=float, copy=True)
     if bread is None:
         bread = np.full(naive.shape, np.nan)
         if good.any():

@@ -48,3 +48,9 @@ def test_level_heading_sigma_against_monte_carlo():
     read = field - dh
     turned = np.degrees(np.angle((read[:, 0] - 1j * read[:, 1]) * np.exp(-1j * psi)))
     assert level_heading_sigma_deg(0.3, 0.1, 50.0, 60.0) == pytest.approx(np.sqrt(np.mean(turned**2)), rel=0.03)
+
+
+def test_an_undetermined_fit_is_left_as_it_was():
+    naive = np.full((2, 2), np.inf)
+    out = widened_in_time(np.ones((10, 2)), np.ones(10), time_blocks(np.arange(10.0)), naive)
+    assert np.all(np.isinf(out))
