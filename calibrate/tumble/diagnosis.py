@@ -116,6 +116,11 @@ class TumbleEffect(EffectForm):
         """The reading minus hard iron, shape (n, 3), normalised units, with the effect removed."""
         raise NotImplementedError
 
+    def pulled(self, g: np.ndarray, z: np.ndarray, q: np.ndarray, rows: _Rows, ctx: _Context) -> np.ndarray | None:
+        """``g . d correct / d q`` of each row, shape (n, n_params): the residual's derivatives by ``q`` when
+        ``g`` is its gradient by the corrected reading; None (the default) leaves them to finite differences."""
+        return None
+
     def reference(self, ctx: _Context) -> dict:
         """Where the effect is zero (the file's hard iron holds there)."""
         return {}
@@ -140,6 +145,9 @@ class LinearDrift(TimePolynomial, _AtFirstSample):
     def correct(self, z, q, rows, ctx):
         return z - np.outer(ctx.basis.tau(rows.t_s), q)
 
+    def pulled(self, g, z, q, rows, ctx):
+        return -ctx.basis.tau(rows.t_s)[:, None] * g
+
     def report(self, q, sigma, ctx):
         scale = ctx.radius / ctx.basis.session_s
         return _per_axis("hard_iron_rate_per_s", q * scale, sigma * scale)
@@ -151,6 +159,15 @@ class WarmUp(WarmUpForm, _AtFirstSample):
     def correct(self, z, q, rows, ctx):
         tau = warm_up_tau_s(ctx.basis.session_s, q[3])
         return z - np.outer(settled(rows.t_s, ctx.basis.t_ref_s, tau), q[:3])
+
+    def pulled(self, g, z, q, rows, ctx):
+        tau = warm_up_tau_s(ctx.basis.session_s, q[3])
+        if tau == ctx.basis.session_s * np.exp(q[3]):  # log(tau / session) inside the clip
+            elapsed = (rows.t_s - ctx.basis.t_ref_s) / tau
+            d_log_tau = -np.exp(-elapsed) * elapsed  # d settled / d log(tau)
+        else:
+            d_log_tau = np.zeros(len(rows.t_s))
+        return np.column_stack([-settled(rows.t_s, ctx.basis.t_ref_s, tau)[:, None] * g, -(g @ q[:3]) * d_log_tau])
 
     def report(self, q, sigma, ctx):
         tau = warm_up_tau_s(ctx.basis.session_s, q[3])
@@ -172,6 +189,13 @@ class Temperature(TemperatureForm, TumbleEffect):
         d = ctx.basis.d(rows.temp_c)[:, None]
         z = z - d * q[:3]
         return z / (1.0 + d * q[3:]) if self.scale else z
+
+    def pulled(self, g, z, q, rows, ctx):
+        d = ctx.basis.d(rows.temp_c)[:, None]
+        if not self.scale:
+            return -d * g
+        gain = 1.0 + d * q[3:]
+        return np.column_stack([-d * g / gain, -d * g * (z - d * q[:3]) / gain**2])
 
     def reference(self, ctx):
         return {"temp_c": ctx.basis.temp_ref_c}
@@ -200,6 +224,9 @@ class OddCubicReading(OddCubic, TumbleEffect):
 
     def correct(self, z, q, rows, ctx):
         return z + q * (z * z * z)  # a product: numpy takes z**3 through pow(), 20x slower
+
+    def pulled(self, g, z, q, rows, ctx):
+        return g * (z * z * z)
 
     def report(self, q, sigma, ctx):
         return _per_axis("cubic_correction_at_field", q, sigma)
@@ -298,15 +325,30 @@ class _Model:
         return _Fit(tuple(effects), res.x, res.jac, cov, res.fun * self.floor, float(res.fun @ res.fun),
                     res.fun.size, bool(res.success), str(res.message))
 
+    def pulled(self, fit: _Fit, effect: TumbleEffect, q: np.ndarray, z: np.ndarray) -> np.ndarray | None:
+        """d weighted / d q of ``effect`` added last to ``fit`` with parameters ``q``, shape (rows, q.size), or None.
+
+        ``z`` is ``fit``'s corrected reading (:meth:`corrected`), which the effect corrects further.
+        With ``w = c L`` the residual is ``F (|w| - 1)``, whose gradient by the corrected reading ``c``
+        is ``F L u`` (``u = w / |w|``); the effect's :meth:`TumbleEffect.pulled` takes it on to ``q``.
+        """
+        w = effect.correct(z, q, self.rows, self.ctx) @ shape_matrix(self.ellipsoid, fit.x[3:self.k])
+        g = (w / np.linalg.norm(w, axis=1, keepdims=True)) @ shape_matrix(self.ellipsoid, fit.x[3:self.k]).T
+        block = effect.pulled(g, z, q, self.rows, self.ctx)
+        return None if block is None else block * (self.field_norm / self.floor)
+
     def score(self, fit: _Fit, effect: TumbleEffect) -> tuple[float, np.ndarray]:
         """Score test for adding ``effect``: (expected chi-square drop, start of its block).
 
         The effect's Jacobian at each of its score points is projected off the current fit's
         Jacobian (what the current parameters absorb); directions it cannot tell from them are
         dropped.  The drop is ``r^T J (J^T J)^{-1} J^T r`` with the projected ``J``; the start is the
-        Gauss-Newton step from the score point.
+        Gauss-Newton step from the score point.  The effect's columns are analytic where it has them
+        (:meth:`pulled`), else forward differences.
         """
-        return linearised_score(self.weighted, fit, effect, effect.score_points(_N_AXES), _FD_STEP)
+        z = self.corrected(fit.x, fit.effects, self.rows)
+        return linearised_score(self.weighted, fit, effect, effect.score_points(_N_AXES), _FD_STEP,
+                                block_jacobian=lambda q: self.pulled(fit, effect, q, z))
 
     def refit(self, fit: _Fit, effect: TumbleEffect, start: np.ndarray) -> _Fit:
         """The fit with ``effect`` added, from ``start`` or the effect switched off, whichever fits better."""
