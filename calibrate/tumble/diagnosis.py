@@ -121,6 +121,11 @@ class TumbleEffect(EffectForm):
         ``g`` is its gradient by the corrected reading; None (the default) leaves them to finite differences."""
         return None
 
+    def passed_back(self, g: np.ndarray, z: np.ndarray, q: np.ndarray, rows: _Rows, ctx: _Context) -> np.ndarray | None:
+        """``g . d correct / d z`` of each row, shape (n, 3): the gradient by the effect's input reading from
+        ``g``, the one by its output; None (the default) leaves the fits' Jacobian to finite differences."""
+        return None
+
     def reference(self, ctx: _Context) -> dict:
         """Where the effect is zero (the file's hard iron holds there)."""
         return {}
@@ -148,6 +153,9 @@ class LinearDrift(TimePolynomial, _AtFirstSample):
     def pulled(self, g, z, q, rows, ctx):
         return -ctx.basis.tau(rows.t_s)[:, None] * g
 
+    def passed_back(self, g, z, q, rows, ctx):
+        return g
+
     def report(self, q, sigma, ctx):
         scale = ctx.radius / ctx.basis.session_s
         return _per_axis("hard_iron_rate_per_s", q * scale, sigma * scale)
@@ -168,6 +176,9 @@ class WarmUp(WarmUpForm, _AtFirstSample):
         else:
             d_log_tau = np.zeros(len(rows.t_s))
         return np.column_stack([-settled(rows.t_s, ctx.basis.t_ref_s, tau)[:, None] * g, -(g @ q[:3]) * d_log_tau])
+
+    def passed_back(self, g, z, q, rows, ctx):
+        return g
 
     def report(self, q, sigma, ctx):
         tau = warm_up_tau_s(ctx.basis.session_s, q[3])
@@ -196,6 +207,9 @@ class Temperature(TemperatureForm, TumbleEffect):
             return -d * g
         gain = 1.0 + d * q[3:]
         return np.column_stack([-d * g / gain, -d * g * (z - d * q[:3]) / gain**2])
+
+    def passed_back(self, g, z, q, rows, ctx):
+        return g / (1.0 + ctx.basis.d(rows.temp_c)[:, None] * q[3:]) if self.scale else g
 
     def reference(self, ctx):
         return {"temp_c": ctx.basis.temp_ref_c}
@@ -227,6 +241,9 @@ class OddCubicReading(OddCubic, TumbleEffect):
 
     def pulled(self, g, z, q, rows, ctx):
         return g * (z * z * z)
+
+    def passed_back(self, g, z, q, rows, ctx):
+        return g * (1.0 + 3.0 * q * (z * z))
 
     def report(self, q, sigma, ctx):
         return _per_axis("cubic_correction_at_field", q, sigma)
@@ -286,19 +303,44 @@ class _Model:
     def weighted(self, x, effects) -> np.ndarray:
         return self.radial(x, effects, self.rows) / self.floor
 
+    def analytic_jacobian(self, x, effects, rows: _Rows) -> np.ndarray | None:
+        """d radial / d x of ``rows``, shape (rows, x.size), back through the chain of corrections; None when an
+        effect lacks its derivatives (:meth:`TumbleEffect.pulled`, :meth:`TumbleEffect.passed_back`).
+
+        With ``w = c L`` the residual is ``F (|w| - 1)``: the shape's columns are
+        :func:`~calibrate.tumble.ellipsoid.radial_jacobian`'s with ``c`` for ``y - h``; the gradient by
+        ``c``, ``F L u`` (``u = w / |w|``), is passed back through the effects from the last, each taking
+        its own columns from it; by the raw reading it is minus the hard iron's.
+        """
+        k = self.k
+        inputs, z, i = [], rows.y - x[:3], k
+        for e in effects:
+            inputs.append((e, z, slice(i, i + e.n_params(_N_AXES))))
+            z = e.correct(z, x[inputs[-1][2]], rows, self.ctx)
+            i = inputs[-1][2].stop
+        jac = np.empty((len(rows.y), x.size))
+        radial_jacobian(np.concatenate([np.zeros(3), x[3:k]]), self.ellipsoid, z, out=jac[:, :k])
+        g = -jac[:, :3]  # L u, the gradient by the corrected reading (over F)
+        for e, z_in, block in reversed(inputs):
+            columns = e.pulled(g, z_in, x[block], rows, self.ctx)
+            g = e.passed_back(g, z_in, x[block], rows, self.ctx)
+            if columns is None or g is None:
+                return None
+            jac[:, block] = columns
+        jac[:, :3] = -g
+        jac *= self.field_norm
+        return jac
+
     def jacobian(self, x, effects) -> np.ndarray:
         """d weighted / d x, shape (rows, x.size), a chunk of rows at a time.
 
-        The shape ``L`` acts after the corrections (``w = c(y - p_h) L``), so its columns are
-        :func:`~calibrate.tumble.ellipsoid.radial_jacobian`'s with ``c(y - p_h)`` for ``y - h``,
-        analytic whatever the effects (and without effects the hard iron's too).  The hard iron's and the effects' columns are forward
-        differences with ``least_squares``' own steps for ``jac="2-point"`` (``sqrt(eps) max(1, |x|)``,
-        signed as ``x``).  A row's residual depends on its own sample only, so the chunks give the
-        same Jacobian while the temporaries take a chunk's memory, not the recording's.
+        Analytic (:meth:`analytic_jacobian`) when every effect has its derivatives.  Else the shape's
+        columns still are (the shape acts after the corrections), and the hard iron's and the effects'
+        are forward differences with ``least_squares``' own steps for ``jac="2-point"``
+        (``sqrt(eps) max(1, |x|)``, signed as ``x``).  A row's residual depends on its own sample only, so
+        the chunks give the same Jacobian while the temporaries take a chunk's memory, not the recording's.
         """
         k = self.k
-        if not effects:  # the plain ellipsoid: every column analytic
-            return radial_jacobian(x, self.ellipsoid, self.rows.y) * (self.field_norm / self.floor)
         step = np.sqrt(np.finfo(float).eps) * np.where(x >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(x))
         differenced = np.r_[0:3, k:x.size]
         shape_only = np.concatenate([np.zeros(3), x[3:k]])  # radial_jacobian's d = y - 0: the corrected reading
@@ -313,6 +355,10 @@ class _Model:
         for start in range(0, n, _JACOBIAN_CHUNK_ROWS):
             rows = slice(start, start + _JACOBIAN_CHUNK_ROWS)
             chunk = self.rows.take(rows)
+            analytic = self.analytic_jacobian(x, effects, chunk)
+            if analytic is not None:
+                jac[rows] = analytic
+                continue
             jac[rows, 3:k] = self.field_norm * radial_jacobian(shape_only, self.ellipsoid,
                                                                self.corrected(x, effects, chunk))[:, 3:]
             jac[rows, differenced] = approx_fprime(x[differenced], radial_of, step[differenced], chunk)

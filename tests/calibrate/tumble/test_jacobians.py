@@ -103,9 +103,10 @@ def _effect_params(form, rng):
 @pytest.mark.parametrize("form", _forms(), ids=lambda f: f"{f.name}-{f.form}")
 @pytest.mark.parametrize("after_cubic", [False, True])
 def test_diagnosis_jacobian_matches_finite_differences(form, after_cubic):
-    """The fits' Jacobian (the shape's columns analytic, the rest forward differences) against 3-point
-    differences.  Forward differences err by ``h |f''| / 2`` with ``h = sqrt(eps)``: 1e-8 of the scale of the
-    entries (hundreds: the field over the floor), so 1e-6 of the largest entry."""
+    """The fits' Jacobian (analytic back through the chain of corrections) against 3-point differences, whose
+    error is ~1e-9 of the entries' scale (hundreds: the field over the floor): 1e-6 of the largest entry, the
+    tolerance the forward-difference fallback also meets (``h |f''| / 2``, ``h = sqrt(eps)``), catches any
+    wrong term."""
     from calibrate.tumble.diagnosis import TUMBLE_FORMS
 
     model, fit = _diagnosis_model()
@@ -139,3 +140,20 @@ def test_effect_columns_of_the_score_test_match_finite_differences(form, after_c
                                 method="3-point")
     assert analytic.shape == numeric.shape
     np.testing.assert_allclose(analytic, numeric, atol=TOL * np.max(np.abs(numeric)), rtol=0)
+
+
+def test_diagnosis_jacobian_of_a_form_without_derivatives_is_differenced():
+    """A form that gives no derivatives (``pulled`` None) leaves the Jacobian to finite differences, still right."""
+    from calibrate.tumble.diagnosis import TUMBLE_FORMS, LinearDrift
+
+    class Opaque(LinearDrift):
+        def pulled(self, g, z, q, rows, ctx):
+            return None
+
+    model, fit = _diagnosis_model()
+    opaque = Opaque("offset_drift", "linear", "a drift without derivatives")
+    effects = (TUMBLE_FORMS["nonlinear_response"][0], opaque)
+    x = np.concatenate([fit.params, [0.01, -0.02, 0.005], [0.02, 0.01, -0.03]])
+    assert model.analytic_jacobian(x, effects, model.rows) is None
+    numeric = approx_derivative(model.weighted, x, method="3-point", args=(effects,))
+    np.testing.assert_allclose(model.jacobian(x, effects), numeric, atol=1e-6 * np.max(np.abs(numeric)), rtol=0)
