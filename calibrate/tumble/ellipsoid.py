@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.linalg import LinAlgError, cho_factor, cho_solve, sqrtm
+from scipy.linalg import cho_factor, cho_solve, sqrtm
 from scipy.optimize import OptimizeResult, least_squares, leastsq
 
 from ..noise import robust_sigma
@@ -200,8 +200,10 @@ def plain_fit(fun, x0: np.ndarray, jac, args=(), max_nfev: int = MAX_NFEV) -> Op
     relative reduction), 80 % of the fit's time on a 700000-sample tumble (``tools/bench_scale.py``).
     Converged is :data:`GAUSS_NEWTON_TOL`: the step left untaken moves no parameter by more than a
     thousandth of its standard error.  A step that does not lower the chi-square, a singular ``J^T J``
-    or no convergence within :data:`GAUSS_NEWTON_STEPS` hands over to ``lmder`` from the last point
-    (with ``least_squares``' tolerances; it keeps no ``least_squares`` copies of the Jacobian).
+    or no convergence within :data:`GAUSS_NEWTON_STEPS` hands over to ``lmder`` from ``x0`` (with
+    ``least_squares``' tolerances; it keeps no ``least_squares`` copies of the Jacobian): Gauss-Newton
+    cannot go on where the model is far from linear (a degenerate fit), where ``lmder``'s trust region
+    from the start is the safer path.
 
     Returns
     -------
@@ -218,7 +220,7 @@ def plain_fit(fun, x0: np.ndarray, jac, args=(), max_nfev: int = MAX_NFEV) -> Op
         g = j.T @ r
         try:
             dx = -cho_solve(cho_factor(j.T @ j), g)
-        except LinAlgError:
+        except ValueError:  # LinAlgError (not positive definite) is one, and so are non-finite entries
             break
         drop = float(-(g @ dx))  # the linear model's chi-square drop, dx^T J^T J dx
         if not np.isfinite(drop):
@@ -228,14 +230,16 @@ def plain_fit(fun, x0: np.ndarray, jac, args=(), max_nfev: int = MAX_NFEV) -> Op
                                   message=f"Gauss-Newton converged: the next step removes {drop:.2g} of chi-square "
                                           f"{chi2:.6g} ({dof} degrees of freedom)")
         del j
-        r_new = fun(x + dx, *args)
+        with np.errstate(over="ignore", invalid="ignore"):  # a wild step (a near-singular J^T J) is only tried
+            r_new = fun(x + dx, *args)
         nfev += 1
         if not float(r_new @ r_new) < chi2:
             break
         x, r = x + dx, r_new
     del r
-    x, _, info, message, status = leastsq(fun, x, args=args, Dfun=jac, full_output=True, ftol=1e-8, xtol=1e-8,
-                                          gtol=1e-8, maxfev=max_nfev)
+    with np.errstate(over="ignore", invalid="ignore"):  # its trial steps too: one that overflows is rejected
+        x, _, info, message, status = leastsq(fun, x0, args=args, Dfun=jac, full_output=True, ftol=1e-8, xtol=1e-8,
+                                              gtol=1e-8, maxfev=max_nfev)
     nfev += int(info["nfev"])
     del info  # MINPACK's (m, k) work array
     return OptimizeResult(x=x, fun=fun(x, *args), jac=jac(x, *args), success=status in (1, 2, 3, 4),

@@ -64,3 +64,19 @@ def test_a_singular_normal_matrix_hands_over_to_minpack():
     assert res.success and not res.message.startswith("Gauss-Newton"), res.message
     np.testing.assert_allclose(res.x[:9], best, atol=1e-7)
     assert res.x[9] == 0.5
+
+
+def test_a_degenerate_tumble_leaks_no_numpy_warning():
+    """A magnet attached halfway (two spheres, no ellipsoid): trial steps that overflow are rejected quietly
+    (the command's stderr stays one line), and the fit is refused as degenerate."""
+    import warnings
+
+    from calibrate.tumble.fit import calibrate_tumble
+
+    sim = simulate_tumble(seed=9, n=1500)
+    mag = sim.mag.copy()
+    mag[750:] += np.array([0.6, -0.5, 0.62]) * 150.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        res = calibrate_tumble(mag, sim.accel)
+    assert res.refused and "field changed during the recording" in res.refused
