@@ -136,6 +136,8 @@ def test_effect_columns_of_the_score_test_match_finite_differences(form, after_c
     q = _effect_params(form, rng)
     record = FitRecord(current, x, None, None, None, 0.0, 0, True, "")
     analytic = model.pulled(record, form, q, model.corrected(x, current, model.rows))
+    if analytic is None:
+        pytest.skip(f"{form.name} ({form.form}) gives no derivatives: its score test differences (tested below)")
     numeric = approx_derivative(lambda p: model.weighted(np.concatenate([x, p]), current + (form,)), q,
                                 method="3-point")
     assert analytic.shape == numeric.shape
