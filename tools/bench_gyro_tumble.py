@@ -1,16 +1,20 @@
 """The gyro-aided tumble fit beside the present one, on simulated partial motions and on BROAD.
 
 Run: ``python tools/bench_gyro_tumble.py [--seeds 4] [--quick] [--no-broad] [--no-sim]`` (seeded;
-about 4 min on an idle machine, ``--quick`` one seed and no BROAD).
+about 25 min with ``--seeds 2`` on the shared machine, BROAD's fast rotation 06 the longest; ``--quick``
+one seed and no BROAD).
 
 Simulated: :func:`compass.sim.partial_tumble.simulate_partial_tumble` - hand-held motions of
 :mod:`compass.sim.motion` (``fast_rotation``, ``slow_rotation``: not the motions the method was
 written on) through 20 uT of hard iron, 8 % soft iron and a 2 deg rotation to the housing, cut where
 the field's directions first cover 20 %, 30 %, 50 % of the sphere, or the whole 60 s ("full"); the
-gyro with a random 0.5 deg/s bias, a 0.5 % scale error (not modelled by the fit) and noise.
-Columns: ``present`` (:func:`calibrate.tumble.calibrate_tumble`), ``gyro`` (the gyro-aided fit,
-always), ``default`` (what ``compass calibrate`` does: the gyro-aided fit only where the present one
-falls back and the gyro-aided one is determined).  Errors against the truth: hard iron (% of |B|),
+gyro with a random 0.5 deg/s bias, a 0.5 % scale error (not modelled by the fit) and noise; cases
+marked ``late`` have the magnetometer one row (20 ms) late against the accelerometer and gyro.
+Columns: ``present`` (:func:`calibrate.tumble.calibrate_tumble`), ``gyro tau=0`` (the gyro-aided fit,
+always, its magnetometer latency held at zero: the model before the latency), ``gyro`` (the same with
+the latency fitted; its mean and the rms of (fitted - true) / sigma in the notes), ``default`` (what
+``compass calibrate`` does: the gyro-aided fit only where the present one falls back, including a
+rotation withheld for fast motion, and the gyro-aided one is determined).  Errors against the truth: hard iron (% of |B|),
 soft iron shape (Frobenius of the det-1 matrices), rotation to the housing (deg), and the heading
 error at runtime: the noise-free field of the whole (uncut) motion calibrated, levelled with the
 true attitude, its heading against north (deg rms): what the calibration alone costs later, over
