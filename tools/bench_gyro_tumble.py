@@ -14,8 +14,8 @@ Columns: ``present`` (:func:`calibrate.tumble.calibrate_tumble`), ``gyro tau=0``
 always, its magnetometer latency held at zero: the model before the latency), ``gyro`` (the same with
 the latency fitted; its mean and the rms of (fitted - true) / sigma in the notes), ``default`` (what
 ``compass calibrate`` does: the gyro-aided fit only where the present one falls back, including a
-rotation withheld for fast motion, and the gyro-aided one is determined).  Errors against the truth: hard iron (% of |B|),
-soft iron shape (Frobenius of the det-1 matrices), rotation to the housing (deg), and the heading
+rotation withheld for fast motion, and the gyro-aided one is determined).  Errors against the truth:
+hard iron (% of |B|), soft iron shape (Frobenius of the det-1 matrices), rotation to the housing (deg), and the heading
 error at runtime: the noise-free field of the whole (uncut) motion calibrated, levelled with the
 true attitude, its heading against north (deg rms): what the calibration alone costs later, over
 every orientation.  ``err/sigma``: rms of the gyro fit's rotation error over its reported sigma.
@@ -177,7 +177,7 @@ def broad(every=4):
             cells[name] = float(np.mean(spreads))
             totals[name].append(cells[name])
         latency = (f"{1e3 * gres.gyro['mag_latency_s']:.2f} +/- {1e3 * gres.gyro['mag_latency_sigma_s']:.2f}"
-                   if "mag_latency_s" in gres.gyro else "(" + gres.gyro["words"][:40] + ")")
+                   if "mag_latency_s" in gres.gyro else "gyro-aided fit not used")
         print(("{:<6}{:>8}{:>9}" + "{:>12.3f}" * 5 + "{:>10}  {}").format(
             t.name[:2], len(mag), f"{100 * res.coverage.fraction:.0f}%", *cells.values(),
             "refused" if res.refused else "yes" if falls_back(res) else "no", latency))

@@ -81,8 +81,8 @@ from .ellipsoid import MAX_RELATIVE_SIGMA, OUTLIER_SIGMAS, EllipsoidFit
 from .motion import FAST_MOTION_WARNING
 from .result import TumbleResult
 
-__all__ = ["GyroFit", "GyroMismatch", "falls_back", "fit_with_gyro", "with_gyro", "turn_axes", "turn_rates", "LATENCY_PRIOR_S",
-           "WINDOW_S", "WINDOW_TURN_DEG", "MAX_ROTATION_SIGMA_DEG"]
+__all__ = ["GyroFit", "GyroMismatch", "falls_back", "fit_with_gyro", "with_gyro", "turn_axes", "turn_rates",
+           "LATENCY_PRIOR_S", "WINDOW_S", "WINDOW_TURN_DEG", "MAX_ROTATION_SIGMA_DEG"]
 
 WINDOW_S = 10.0
 """A window of integrated gyro turns closes after this long, s."""
@@ -198,8 +198,9 @@ class GyroFit:
         """What the gyro-aided fit determined, for the coverage words."""
         base = (f"with the gyro's turns ({self.turns}; {self.n_windows} windows of integration, gyro bias "
                 + ", ".join(f"{np.degrees(b):+.3f}" for b in self.gyro_bias_rad_s) + " deg/s"
-                + (f"; the magnetometer {1e3 * self.latency_s:.1f} +/- {1e3 * self.latency_sigma_s:.1f} ms late against "
-                   "the gyro, fitted" if self.latency_known else "") + ")")
+                + (f"; the magnetometer {1e3 * self.latency_s:.1f} +/- {1e3 * self.latency_sigma_s:.1f} ms late "
+                   "against "
+                   "the gyro, fitted: the runtime filter's mag_latency_s" if self.latency_known else "") + ")")
         if self.determined:
             return base + ": the soft iron and the rotation to the housing are determined"
         if self.undetermined:  # said first: a fit that wandered along what the data leave free fails too

@@ -92,8 +92,8 @@ class FastMotion:
     growth_after_deg: float
 
     def words(self) -> str:
-        after = (f"moved that much earlier, the angle still grows by {self.growth_after_deg:.1f} deg: the accelerometer "
-                 "also reads more than gravity" if self.growth_after_deg > 0 else
+        after = (f"moved that much earlier, the angle still grows by {self.growth_after_deg:.1f} deg: the "
+                 "accelerometer also reads more than gravity" if self.growth_after_deg > 0 else
                  "moved that much earlier, the angle no longer grows with the rate")
         return (f"{FAST_MOTION_WARNING}on the {self.n_static} quasi-static samples the field turns at a median "
                 f"{self.median_rate_deg_s:.0f} deg/s and the field-gravity angle scatters more the faster it turns "
