@@ -26,6 +26,10 @@ the chain of corrections of the effects in the model (the identity for the plain
    or its rms exceeds the floor by more than :data:`~calibrate.diagnosis.evidence.FLOOR_MARGIN`.  If structure
    remains, the added effects may have absorbed part of something the toolkit does not model (a
    hard iron that stepped partway is partly a drift): nothing is claimed and the base fit is kept.
+   When unexplained, the covariance is widened to cover the structure (the CR2 sandwich over blocks
+   of consecutive samples, :mod:`calibrate.diagnosis.blocks`: a tumble has no flips, what it lacks
+   changes with time) and ``unexplained_cost`` gives the hard-iron sigmas and, once the dip is
+   known (:meth:`TumbleDiagnosis.with_alignment`), a level housing's heading sigma, naive and widened.
 
 Effects, as corrections of ``z = y - p_h`` (normalised units, raw magnetometer frame); every one is
 zero at the reference time ``t_ref`` (the first sample) and temperature ``T_ref`` (the mean of
@@ -40,6 +44,22 @@ zero at the reference time ``t_ref`` (the first sample) and temperature ``T_ref`
     in ``temp_c``.
 ``nonlinear_response`` (odd cubic)
     ``z + c z^3`` per axis: a response bending toward the extremes of the range.
+``gain_drift`` (linear; quadratic)
+    ``z / (1 + sum_k g_k tau^k)`` per axis, ``tau = (t - t_ref) / T``: each axis's gain (about the
+    hard iron) changing slowly with time, as a room warming with no ``temp_c`` column does.
+
+What ``gain_drift`` can and cannot tell.  The tumble's only constraint is a constant ``|B|``.  Write
+the drifted gains as a common part ``c(t)`` and per-axis parts ``e_a(t)`` (sum zero).  The per-axis
+parts change the ellipsoid's *shape* with time: with the field seen along every half-axis again and
+again through the session they are identifiable from the shape alone.  The common part changes
+only the sphere's *size*: ``|m|`` grows by ``c(t) |B|``, which is exactly what a field whose
+magnitude changed during the recording does (a slow wander of the local field along itself): it is
+identifiable only under the assumption that ``|B|`` stayed constant, and a ``gain_drift`` claimed on
+a recording where the field itself changed is that change, named as a gain.  With a half-axis never
+seen (``missing``) a gain change about the hard iron bends a cap of the sphere the way a hard iron
+moving along that axis does (``z_a (1 + g tau) ~ z_a + g tau`` where ``z_a ~ 1``): the two trade off
+and the form is not applicable (said in ``not_applicable``).  Without a ``t_s`` that changes it is
+not applicable either.
 
 The magnetometer-accelerometer rotation (:func:`calibrate.tumble.alignment.fit_misalignment`) is fitted after
 the diagnosis, on the corrected readings, and reported as a step of the same form: the field-gravity
@@ -57,9 +77,11 @@ from scipy.optimize import approx_fprime
 from ..contract import FitStatistics
 from ..diagnosis.evidence import (FitRecord, Proposal, determined, gather_forms, is_unexplained, linearised_score,
                                   refit_from_better_start, select_effects)
+from ..diagnosis.blocks import TIME_BLOCKS, level_heading_sigma_deg, time_blocks, widened_in_time
+from ..diagnosis.robust import extra_sigma
 from ..diagnosis.forms import json_float, rms
 from ..effects import (Basis, EffectForm, OddCubic, Recorded, TemperatureForm, TimePolynomial, WarmUpForm, settled,
-                       warm_up_tau_s)
+                       time_powers, warm_up_tau_s)
 from ..diagnosis.report import Diagnosis
 from ..noise import chi2_sf, second_difference_sigma, second_differences
 from .alignment import MAX_ANGLE_WIDENING, Misalignment, field_gravity_angles, static_mask
@@ -205,6 +227,35 @@ class OddCubicReading(OddCubic, TumbleEffect):
         return _per_axis("cubic_correction_at_field", q, sigma)
 
 
+class GainDrift(TimePolynomial, _AtFirstSample):
+    """Per-axis gain changing with time (module docstring): ``z / (1 + sum_k g_ak tau^k)``.
+
+    Parameters are per axis, then per power (``q.reshape(3, degree)``): the relative gain change
+    at the end of the session from each power.  Only with the field seen along every half-axis (a
+    cap of the sphere's gain change is a moving hard iron).
+    """
+
+    def applicable(self, columns):
+        why = super().applicable(columns)
+        if why is None and columns.missing:
+            why = (f"the field was never along {', '.join(columns.missing)}: a gain change there trades off "
+                   "against a moving hard iron")
+        return why
+
+    def correct(self, z, q, rows, ctx):
+        g = time_powers(ctx.basis.tau(rows.t_s), self.degree) @ q.reshape(_N_AXES, self.degree).T
+        return z / (1.0 + g)
+
+    def report(self, q, sigma, ctx):
+        out = {}
+        q, sigma = q.reshape(_N_AXES, self.degree), sigma.reshape(_N_AXES, self.degree)
+        for k in range(self.degree):
+            per = ctx.basis.session_s ** (k + 1)
+            label = "gain_rate_rel_per_s" if k == 0 else f"gain_rel_per_s{k + 1}"
+            out.update(_per_axis(label, q[:, k] / per, sigma[:, k] / per))
+        return out
+
+
 _DRIFT = "a hard iron changing with t_s"
 TUMBLE_FORMS: dict[str, tuple[TumbleEffect, ...]] = {
     "offset_drift": (LinearDrift("offset_drift", "linear", _DRIFT + ", at a constant rate"),
@@ -214,6 +265,8 @@ TUMBLE_FORMS: dict[str, tuple[TumbleEffect, ...]] = {
                                 scale=True)),
     "nonlinear_response": (OddCubicReading("nonlinear_response", "odd cubic",
                                          "|m| bending with the direction beyond any ellipsoid: an odd cubic response per axis"),),
+    "gain_drift": (GainDrift("gain_drift", "linear", "each axis's gain changing with t_s, at a constant rate", 1),
+                   GainDrift("gain_drift", "quadratic", "each axis's gain changing with t_s, quadratic in time", 2)),
 }
 """Each effect's forms for the tumble, simplest first; the evidence (BIC) chooses among them."""
 
@@ -335,7 +388,7 @@ class TumbleDiagnosis(Diagnosis):
         trades off against them; with claimed effects each one is kept at least as large as the
         diagnosis's, which includes that.
         """
-        if self.effects:
+        if self.effects or "unexplained_cost" in self.block:  # the diagnosis's sigmas held the effects or the widening
             fit = replace(fit, hard_iron_sigma=np.fmax(fit.hard_iron_sigma, self.fit.hard_iron_sigma),
                           soft_iron_sigma=np.fmax(fit.soft_iron_sigma, self.fit.soft_iron_sigma),
                           field_norm_sigma=float(np.fmax(fit.field_norm_sigma, self.fit.field_norm_sigma)))
@@ -348,6 +401,8 @@ class TumbleDiagnosis(Diagnosis):
                      "angle_rms_deg_before": mis.spread_before_deg, "angle_rms_deg_after": mis.spread_after_deg,
                      "evidence": evidence, "delta_bic": -mis.delta_bic}
         block = dict(self.block, alignment=alignment, residual_rms_after=rms)
+        if "unexplained_cost" in block and np.isfinite(mis.dip_deg):  # the runtime's heading, now the dip is known
+            block["unexplained_cost"] = _with_heading(block["unexplained_cost"], fit.field_norm, mis.dip_deg)
         block["unexplained"] = is_unexplained(block["structure_test"]["p_value"], rms, block["noise_floor"])
         return replace(self, fit=fit, block=block)
 
@@ -430,6 +485,24 @@ def residual_structure(weighted: np.ndarray, directions: np.ndarray, bands) -> t
     coef, _, rank, _ = np.linalg.lstsq(r_design, r_aug[:k, k], rcond=np.finfo(float).eps * max(n, k))
     drop = float(np.sum((r_design @ coef) ** 2))
     return drop, int(rank), chi2_sf(drop, rank)
+
+
+def _cost(naive_sigma: np.ndarray, wide_sigma: np.ndarray) -> dict:
+    """The diagnosis's ``unexplained_cost``: the hard iron's sigma per axis, naive and widened (recording units)."""
+    return {"hard_iron": {ax: {"naive": float(a), "widened": float(b)}
+                          for ax, a, b in zip(_AXES, naive_sigma, wide_sigma)},
+            "method": f"CR2 sandwich over {TIME_BLOCKS} blocks of consecutive samples (calibrate.diagnosis.blocks)"}
+
+
+def _with_heading(cost: dict, field_norm: float, dip_deg: float) -> dict:
+    """``cost`` with the heading sigma of a level housing from the hard iron, naive and widened.
+
+    The magnetometer's x and y are taken as horizontal (its rotation to the housing is a few degrees).
+    """
+    naive, wide = (level_heading_sigma_deg(cost["hard_iron"]["mx"][k], cost["hard_iron"]["my"][k], field_norm, dip_deg)
+                   for k in ("naive", "widened"))
+    return dict(cost, heading_deg=float(extra_sigma(wide, naive)), heading_sigma_deg={"naive": naive, "widened": wide},
+                method=cost["method"] + "; the heading sigma from the hard iron alone, a level housing, RMS over headings")
 
 
 def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | None = None,
@@ -527,10 +600,20 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
     current, steps = chosen.fit, chosen.steps
     (structure, dof, p_value), unexplained = chosen.structure, chosen.unexplained
 
+    covariance, cost = current.covariance, None
+    if unexplained:  # the sigmas grow to cover the structure that remains (calibrate.diagnosis.blocks)
+        covariance = widened_in_time(current.jac, current.residuals / floor, time_blocks(bands[0]),
+                                     current.covariance)
     final_fit, raw_ref, effects = fit, mag, ()
+    if unexplained and np.all(np.isfinite(np.diag(covariance)[:model.k])):
+        _, sig_h, _, sig_s, _, sig_f = propagate(fit.ellipsoid, current.x[:model.k], covariance, fit.centre, fit.radius)
+        final_fit = replace(fit, hard_iron_sigma=np.fmax(sig_h, fit.hard_iron_sigma),
+                            soft_iron_sigma=np.fmax(sig_s, fit.soft_iron_sigma),
+                            field_norm_sigma=float(np.fmax(sig_f, fit.field_norm_sigma)))
+        cost = _cost(fit.hard_iron_sigma, final_fit.hard_iron_sigma)
     if current.effects:
         k = model.k
-        h, sig_h, s_mat, sig_s, f_norm, sig_f = propagate(fit.ellipsoid, current.x[:k], current.covariance,
+        h, sig_h, s_mat, sig_s, f_norm, sig_f = propagate(fit.ellipsoid, current.x[:k], covariance,
                                                            fit.centre, fit.radius)
         every_row = _Rows((mag - fit.centre) / fit.radius, t_s, temp_c)
         raw_ref = h + fit.radius * model.corrected(current.x, current.effects, every_row)
@@ -556,8 +639,10 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
         "hard_iron_change": {"value": (final_fit.hard_iron - fit.hard_iron).tolist(),
                              "sigma": final_fit.hard_iron_sigma.tolist()},
     }
+    if cost is not None:
+        block["unexplained_cost"] = cost
     names = ellipsoid_parameter_names(fit.ellipsoid) + tuple(
         f"{e.name}[{j}]" for e in current.effects for j in range(e.n_params(_N_AXES)))
-    statistics = FitStatistics(names, current.x, current.covariance, current.chi2, current.dof, current.bic(),
+    statistics = FitStatistics(names, current.x, covariance, current.chi2, current.dof, current.bic(),
                                current.success, current.message)
     return TumbleDiagnosis(final_fit, raw_ref, effects, block, statistics)
