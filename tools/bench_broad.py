@@ -337,13 +337,15 @@ def start_parts(trial) -> None:
     at = dict(zip(("start", "movement", "movement + 20 s", "movement + 40 s"),
                   (trial.t_s[0], moving_from, moving_from + 20.0, moving_from + 40.0)))
     rest = ok & ~trial.movement & trial.ref_valid & (trial.t_s < moving_from)
+    scored = ok & trial.movement & trial.ref_valid
     signed = {}
-    for name, quat in (("window", window), ("first row", before)):
-        enu = Rotation.from_quat(nwu_to_enu(Rotation.from_quat(quat[rest])).as_quat(scalar_first=True), scalar_first=True)
-        signed[name] = orientation_errors(enu, Rotation.from_quat(trial.ref_quat_enu[rest], scalar_first=True))[1].mean()
+    for name, quat, rows in (("window at rest", window, rest), ("first row at rest", before, rest),
+                             ("first row over the movement", before, scored)):
+        enu = Rotation.from_quat(nwu_to_enu(Rotation.from_quat(quat[rows])).as_quat(scalar_first=True), scalar_first=True)
+        signed[name] = orientation_errors(enu, Rotation.from_quat(trial.ref_quat_enu[rows], scalar_first=True))[1].mean()
     print(f"  {trial.name[:30]:30s} window start minus first-row start, heading (deg) at "
           + ", ".join(f"{k} {shift[min(np.searchsorted(t, x), len(t) - 1)]:+.3f}" for k, x in at.items())
-          + f" (movement from {moving_from:.1f} s); mean signed heading error at rest: "
+          + f" (movement from {moving_from:.1f} s); mean signed heading error: "
           + ", ".join(f"{k} {v:+.3f}" for k, v in signed.items()))
     cells = []
     for name, quat in runs.items():
@@ -542,6 +544,8 @@ def main(argv=None) -> int:
     if losses:
         print("ours LOO heading above VQF's on: " + ", ".join(f"{g} {k}/{len(groups[g])}" for g, k in losses.items()))
 
+    if args.candidates:
+        _table("every trial, each chosen candidate (--candidates)", results, peer_names[:1] + list(candidates))
     print("\nablation (one mechanism removed) and constants (half, twice), every trial, not held out: "
           "heading RMS / inclination RMS, deg")
     _ablation(results, list(candidates), groups | {"all": list(results)})
