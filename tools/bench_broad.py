@@ -1,7 +1,11 @@
 """BROAD trials through peer filters and the toolkit's pipeline, side by side, with BROAD's metric.
 
 Run: ``python tools/bench_broad.py [DATA_DIR] [--quick] [--trials 01,32] [--cal CAL.json]`` (default
-data: ``../shared/data/broad``; ``--quick``: five trials, one per kind of motion).  Peers are benchmark
+data: ``../shared/data/broad``; ``--quick``: five trials, one per kind of motion).  Issue 22:
+``--candidates A,B`` runs only those candidates (and the turn variants, printed per trial, never chosen);
+the simulated boards (``compass.sim.motion``, a BROAD-like and a low-cost IMU) follow the BROAD tables
+(``--sim-seeds N``, 0 for none; ``--sim-only``); ``--diagnose`` prints the inclination by turn rate of the
+filter, of its inertial low-pass's direction and of VQF, and the one start's parts switched back.  Peers are benchmark
 extras (``pip install -e '.[bench]'``), never runtime dependencies; a peer that is not installed is
 reported and skipped.
 
@@ -111,6 +115,7 @@ CANDIDATES = {  # name: (FilterConfig changes, hard-iron tracker on, noise from 
     "- motion-adaptive accel": ({"motion_adaptive_accel": False}, True, False),
     "- inertial low-pass": ({"accel_time_constant_s": 0.01}, True, False),
     "- gyro scale-error noise": ({"gyro_scale_error": 1e-9}, True, False),
+    "second-order inertial low-pass": ({"accel_lowpass_order": 2}, True, False),  # issue 22's turn analysis
     "noise from rest": ({}, True, True),
     "mag_latency_s 0.014": ({"mag_latency_s": 0.014}, True, False),  # calibrate.realdata's loop, on 01 and 02
     "accel_time_constant_s 1": ({"accel_time_constant_s": 1.0}, True, False),
@@ -121,6 +126,13 @@ CANDIDATES = {  # name: (FilterConfig changes, hard-iron tracker on, noise from 
 } | {  # the two correlation times together: the accelerometer residual's and the field error's
     f"motion {m:g} s, field error {e:g} s": ({"motion_time_s": m, "field_error_time_s": e}, True, False)
     for m in (0.5, 1.0, 2.0) for e in (1.0, 2.0, 4.0) if (m, e) != (1.0, 1.0)
+}
+
+TURN_VARIANTS = {  # issue 22's turn analysis, run only when named in --candidates (not leave-one-out candidates)
+    "Butterworth 3 s": ({"accel_lowpass_order": 2, "accel_time_constant_s": 3.0}, True, False),
+    "Butterworth 3 s and motion 1 s": ({"accel_lowpass_order": 2, "accel_time_constant_s": 3.0, "motion_time_s": 1.0},
+                                    True, False),
+    "gyro_scale_error 0.01": ({"gyro_scale_error": 0.01}, True, False),
 }
 
 
@@ -161,6 +173,192 @@ def loo_choice(results, trial, candidates):
         return "defaults"
     return min(candidates, key=lambda c: (np.mean([np.log(results[t][c][0]) for t in others])
                                           + np.mean([np.log(results[t][c][1]) for t in others])))
+
+
+# ---------------------------------------------------------------- simulated boards
+
+SIM_CANDIDATES = ("defaults", "second-order inertial low-pass")
+
+
+class _Simulated:
+    """A :func:`compass.sim.motion.simulate_motion` trial duck-typed as a BroadTrial (ENU reference)."""
+
+    def __init__(self, rec, name):
+        from compass.io.broad import nwu_to_enu
+
+        self.name, self.rate_hz = name, 1.0 / (rec.t_s[1] - rec.t_s[0])
+        self.t_s, self.gyro_rad_s, self.accel_m_s2, self.mag_ut = rec.t_s, rec.gyro_rad_s, rec.accel_m_s2, rec.mag_ut
+        self.movement = rec.moving
+        self.ref_quat_enu = nwu_to_enu(rec.rotation).as_quat(scalar_first=True)
+
+    def __len__(self):
+        return len(self.t_s)
+
+
+def board_errors(board: str, seed: int):
+    """The simulated IMU's errors: ``"broad-like"`` (0.5 % gyro scale, small biases) or ``"low-cost"``
+    (gyro scale 1-2 %, bias up to 1 deg/s, accelerometer scale 2 % and offset 0.15 m/s^2, magnetometer
+    20 ms late), drawn per seed; nothing here was chosen for a filter change."""
+    from compass.sim.motion import SensorErrors
+
+    rng = np.random.default_rng(1000 + seed)
+    sign = rng.choice([-1.0, 1.0], 3)
+    if board == "broad-like":
+        return SensorErrors(gyro_bias_rad_s=tuple(rng.normal(0.0, np.radians(0.3), 3)),
+                            gyro_scale=tuple(sign * 0.005), mag_latency_s=0.0)
+    return SensorErrors(gyro_bias_rad_s=tuple(rng.normal(0.0, np.radians(0.5), 3)),
+                        gyro_scale=tuple(sign * rng.uniform(0.01, 0.02, 3)),
+                        accel_bias_m_s2=tuple(rng.uniform(-0.15, 0.15, 3)), accel_scale=tuple(rng.uniform(-0.02, 0.02, 3)),
+                        gyro_noise=3e-4, accel_noise_m_s2=0.1, mag_latency_s=0.02)
+
+
+def simulated(methods, seeds) -> dict:
+    """``{board: {kind: {method: (heading, inclination)}}}``: every kind of compass.sim.motion, 60 s,
+    mean RMS over ``seeds`` (BROAD's metric over the moving samples)."""
+    from compass.sim.motion import KINDS, simulate_motion
+
+    out = {}
+    for board in ("broad-like", "low-cost"):
+        out[board] = {}
+        for kind in KINDS:
+            runs = []
+            for seed in seeds:
+                trial = _Simulated(simulate_motion(kind, seed=seed, errors=board_errors(board, seed)), kind)
+                row = []
+                for method in methods.values():
+                    e = error_series(method(trial), trial.ref_quat_enu, trial.movement, trial.rate_hz)
+                    row.append((e.heading_rms_deg, e.inclination_rms_deg))
+                runs.append(row)
+            out[board][kind] = dict(zip(methods, np.mean(runs, axis=0).tolist()))
+            print(f"  {board} {kind}: " + ", ".join(f"{k} {v[0]:.2f}/{v[1]:.2f}" for k, v in out[board][kind].items()),
+                  flush=True)
+    return out
+
+
+def simulated_section(available, peer_names, seeds: int) -> None:
+    """Print the simulated boards: VQF (when installed) beside :data:`SIM_CANDIDATES`."""
+    methods = {k: available[k] for k in peer_names[:1] + [c for c in SIM_CANDIDATES if c in available]}
+    print(f"\nsimulated motions (compass.sim.motion, every kind, 60 s, {seeds} seeds, two boards): "
+          "heading RMS / inclination RMS, deg")
+    sim = simulated(methods, range(seeds))
+    _table("simulated groups (mean over the kinds)",
+           {b: {m: tuple(np.mean([sim[b][k][m] for k in sim[b]], axis=0)) for m in methods} for b in sim}, list(methods))
+
+
+# ---------------------------------------------------------------- diagnoses (issue 22)
+
+def _run_with_state(trial, config, field):
+    """run_filter's start and per-sample update, reading the nominal matrix and the inertial low-pass per sample."""
+    from compass.filter import FilterStart
+
+    n = len(trial)
+    matrix, low_pass = np.full((n, 3, 3), np.nan), np.full((n, 3), np.nan)
+    rows = list(zip(trial.t_s.tolist(), trial.accel_m_s2.tolist(), trial.gyro_rad_s.tolist(), field.tolist()))
+    start, filt = FilterStart(config), None
+    for i in range(n):
+        if filt is None:
+            start.add(i, *rows[i])
+            if not start.done:
+                continue
+            filt = start.make_filter(True)
+            todo = start.take_held()
+        else:
+            todo = [i]
+        for j in todo:
+            if filt.update(*rows[j]):
+                matrix[j], low_pass[j] = np.reshape(filt.matrix, (3, 3)), filt.low_pass
+    return matrix, low_pass
+
+
+def turn_diagnosis(trial) -> None:
+    """Inclination RMS of the filter's output, of its inertial low-pass's direction applied outright, and of
+    VQF, over the scored samples and by gyro rate |w| (rad/s)."""
+    from compass.hard_iron import track_hard_iron
+
+    config = ours_config(trial, trial.mag_ut)
+    field = track_hard_iron(trial.mag_ut, trial.accel_m_s2, trial.rate_hz, dip_deg=config.dip_deg).corrected(trial.mag_ut)
+    matrix, low_pass = _run_with_state(trial, config, field)
+    up = np.einsum("nij,nj->ni", matrix, low_pass)
+    up /= np.linalg.norm(up, axis=1, keepdims=True)
+    ok = np.all(np.isfinite(up), axis=1)
+    tilted = np.full_like(matrix, np.nan)  # the smallest turn that puts the low-pass's direction on the vertical
+    axis = np.cross(up[ok], [0.0, 0.0, 1.0])
+    sin = np.linalg.norm(axis, axis=1)
+    tilted[ok] = Rotation.from_rotvec(axis / np.maximum(sin, 1e-12)[:, None]
+                                      * np.arctan2(sin, up[ok, 2])[:, None]).as_matrix() @ matrix[ok]
+    scored = trial.movement & trial.ref_valid & ok
+    ref = Rotation.from_quat(trial.ref_quat_enu[scored], scalar_first=True)
+
+    def inclination(quat_enu):
+        from compass.evaluation import orientation_errors
+
+        return orientation_errors(Rotation.from_quat(quat_enu[scored], scalar_first=True), ref)[2]
+
+    def enu(matrices):  # rows without an attitude are not scored: the identity stands in for them
+        matrices = np.where(ok[:, None, None], np.nan_to_num(matrices), np.eye(3))
+        return nwu_to_enu(Rotation.from_matrix(matrices)).as_quat(scalar_first=True)
+
+    series = {"ours": inclination(enu(matrix)), "low-pass direction": inclination(enu(tilted)),
+              "vqf": inclination(vqf_online(trial))}
+    rate = np.linalg.norm(trial.gyro_rad_s[scored], axis=1)
+    for lo, hi in ((0.0, np.inf), (0.0, 1.0), (1.0, 2.0), (2.0, np.inf)):
+        k = (rate >= lo) & (rate < hi)
+        if k.sum() < 100:
+            continue
+        print(f"  {trial.name[:30]:30s} |w| {lo:g}-{hi:g} rad/s ({100 * k.mean():3.0f} %): "
+              + ", ".join(f"{name} {np.sqrt(np.mean(e[k] ** 2)):.3f}" for name, e in series.items()))
+
+
+def start_parts(trial) -> None:
+    """Heading / inclination RMS with each part of the one start (issue 22 item 2) switched back: the
+    stream's reference (else the config's, the trial's initial rest), the window's first attitude (else
+    the first row's), the bias hold (else none)."""
+    from compass.filter import AttitudeFilter, run_filter
+    from compass.hard_iron import track_hard_iron
+
+    config = ours_config(trial, trial.mag_ut)
+    field = track_hard_iron(trial.mag_ut, trial.accel_m_s2, trial.rate_hz, dip_deg=config.dip_deg).corrected(trial.mag_ut)
+    free = replace(config, start_bias_hold=False)
+
+    def first_row(cfg):  # the filter stepped from the first row, with the config's reference (before issue 22)
+        f, quat = AttitudeFilter(cfg, gyro=True), np.full((len(trial), 4), np.nan)
+        for i in range(len(trial)):
+            if f.update(trial.t_s[i], trial.accel_m_s2[i], trial.gyro_rad_s[i], field[i]):
+                quat[i] = Rotation.from_matrix(np.reshape(f.matrix, (3, 3))).as_quat()
+        return quat
+
+    runs = {"first row, config ref, no hold (before)": first_row(free),
+            "window, config ref, no hold": run_filter(trial.t_s, trial.accel_m_s2, trial.gyro_rad_s, field, free,
+                                                      reference="config").quat,
+            "window, stream ref, no hold": run_filter(trial.t_s, trial.accel_m_s2, trial.gyro_rad_s, field, free).quat,
+            "window, stream ref, hold (now)": run_filter(trial.t_s, trial.accel_m_s2, trial.gyro_rad_s, field, config).quat}
+    from compass.evaluation import orientation_errors
+
+    before, window = (runs[k] for k in list(runs)[:2])
+    ok = np.all(np.isfinite(before), axis=1) & np.all(np.isfinite(window), axis=1)
+    shift = orientation_errors(Rotation.from_quat(window[ok]), Rotation.from_quat(before[ok]))[1]
+    t, moving_from = trial.t_s[ok], trial.t_s[trial.movement][0]
+    at = dict(zip(("start", "movement", "movement + 20 s", "movement + 40 s"),
+                  (trial.t_s[0], moving_from, moving_from + 20.0, moving_from + 40.0)))
+    rest = ok & ~trial.movement & trial.ref_valid & (trial.t_s < moving_from)
+    scored = ok & trial.movement & trial.ref_valid
+    signed = {}
+    for name, quat, rows in (("window at rest", window, rest), ("first row at rest", before, rest),
+                             ("first row over the movement", before, scored)):
+        enu = Rotation.from_quat(nwu_to_enu(Rotation.from_quat(quat[rows])).as_quat(scalar_first=True), scalar_first=True)
+        signed[name] = orientation_errors(enu, Rotation.from_quat(trial.ref_quat_enu[rows], scalar_first=True))[1].mean()
+    print(f"  {trial.name[:30]:30s} window start minus first-row start, heading (deg) at "
+          + ", ".join(f"{k} {shift[min(np.searchsorted(t, x), len(t) - 1)]:+.3f}" for k, x in at.items())
+          + f" (movement from {moving_from:.1f} s); mean signed heading error: "
+          + ", ".join(f"{k} {v:+.3f}" for k, v in signed.items()))
+    cells = []
+    for name, quat in runs.items():
+        ok = np.all(np.isfinite(quat), axis=1)
+        enu = np.full_like(quat, np.nan)
+        enu[ok] = nwu_to_enu(Rotation.from_quat(quat[ok])).as_quat(scalar_first=True)
+        e = error_series(enu, trial.ref_quat_enu, trial.movement, trial.rate_hz)
+        cells.append(f"{name} {e.heading_rms_deg:.4f}/{e.inclination_rms_deg:.4f}")
+    print(f"  {trial.name[:30]:30s} " + " | ".join(cells))
 
 
 # ---------------------------------------------------------------- timing
@@ -254,6 +452,13 @@ def main(argv=None) -> int:
     parser.add_argument("--cal", help="calibration JSON to add the 'ours + cal' column (fitted on other trials)")
     parser.add_argument("--skip-check", action="store_true", help="skip the synthetic frame check")
     parser.add_argument("--no-timing", action="store_true", help="skip the microseconds-per-sample section")
+    parser.add_argument("--diagnose", action="store_true",
+                        help="only the issue-22 diagnoses: inclination by turn rate, the start's parts switched back")
+    parser.add_argument("--candidates", default="",
+                        help="comma-separated candidate names to run (default: every leave-one-out candidate); "
+                             f"also {', '.join(TURN_VARIANTS)}")
+    parser.add_argument("--sim-only", action="store_true", help="only the simulated boards (no BROAD trial)")
+    parser.add_argument("--sim-seeds", type=int, default=2, help="seeds per kind of simulated motion (0: no simulation)")
     args = parser.parse_args(argv)
 
     peers = {"vqf": vqf_online, "vqf offline": vqf_offline, "fusion": fusion, "madgwick": madgwick}
@@ -265,7 +470,11 @@ def main(argv=None) -> int:
         except ImportError as exc:
             print(f"skipping {name}: {exc} (pip install -e '.[bench]')")
     peer_names = list(available)
-    candidates = {name: ours(changes, hard_iron, from_rest) for name, (changes, hard_iron, from_rest) in CANDIDATES.items()}
+    chosen = [c.strip() for c in args.candidates.split(",") if c.strip()] or list(CANDIDATES)
+    unknown = [c for c in chosen if c not in CANDIDATES | TURN_VARIANTS]
+    if unknown or "defaults" not in chosen:
+        parser.error(f"--candidates: unknown {unknown}" if unknown else "--candidates must include defaults")
+    candidates = {name: ours(*(CANDIDATES | TURN_VARIANTS)[name]) for name in chosen}
     available |= candidates
     if args.cal:
         available["ours + cal"] = ours(model=load_calibration(args.cal).model)
@@ -282,12 +491,25 @@ def main(argv=None) -> int:
             print(f"frame check failed for {', '.join(bad)}: fix the conversion before trusting numbers")
             return 1
 
+    if args.sim_only:
+        simulated_section(available, peer_names, max(args.sim_seeds, 1))
+        return 0
+
     files = sorted(Path(args.data).glob("*.mat"))
     wanted = [p for p in args.trials.split(",") if p] or (list(QUICK_TRIALS) if args.quick else [])
     files = [f for f in files if not wanted or any(f.name.startswith(p) for p in wanted)]
     if not files:
         print(f"no BROAD trials in {args.data}")
         return 2
+
+    if args.diagnose:
+        print("inclination RMS, deg: the filter, its inertial low-pass's direction applied outright, VQF, by |w|")
+        for f in files:
+            turn_diagnosis(read_broad(f))
+        print("\nheading / inclination RMS, deg, the one start's parts switched back")
+        for f in files:
+            start_parts(read_broad(f))
+        return 0
 
     print("\nnoise on each trial's initial rest (first half) vs FilterConfig defaults (generic MEMS figures)")
     from compass.filter import FilterConfig
@@ -311,7 +533,7 @@ def main(argv=None) -> int:
           f"accel {np.median([n.accel_noise for n in noises]):.4f} (default {default.accel_noise}), "
           f"mag {np.median([n.mag_noise for n in noises]):.2f} uT (each trial's own, as compass evaluate)")
 
-    names = list(CANDIDATES)
+    names = [c for c in candidates if c in CANDIDATES]  # the turn variants are printed, never chosen
     choice = {t: loo_choice(results, t, names) for t in results}
     print(f"\nchosen on all {len(results)} trials (what the defaults should be): {loo_choice(results, None, names)}")
     for t in results:
@@ -326,9 +548,14 @@ def main(argv=None) -> int:
     if losses:
         print("ours LOO heading above VQF's on: " + ", ".join(f"{g} {k}/{len(groups[g])}" for g, k in losses.items()))
 
+    if args.candidates:
+        _table("every trial, each chosen candidate (--candidates)", results, peer_names[:1] + list(candidates))
     print("\nablation (one mechanism removed) and constants (half, twice), every trial, not held out: "
           "heading RMS / inclination RMS, deg")
-    _ablation(results, names, groups | {"all": list(results)})
+    _ablation(results, list(candidates), groups | {"all": list(results)})
+
+    if args.sim_seeds > 0:
+        simulated_section(available, peer_names, args.sim_seeds)
 
     if not args.no_timing:
         first = trials.get("01_undisturbed_slow_rotation_A", next(iter(trials.values())))

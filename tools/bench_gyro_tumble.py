@@ -1,17 +1,21 @@
 """The gyro-aided tumble fit beside the present one, on simulated partial motions and on BROAD.
 
 Run: ``python tools/bench_gyro_tumble.py [--seeds 4] [--quick] [--no-broad] [--no-sim]`` (seeded;
-about 4 min on an idle machine, ``--quick`` one seed and no BROAD).
+about 25 min with ``--seeds 2`` on the shared machine, BROAD's fast rotation 06 the longest; ``--quick``
+one seed and no BROAD).
 
 Simulated: :func:`compass.sim.partial_tumble.simulate_partial_tumble` - hand-held motions of
 :mod:`compass.sim.motion` (``fast_rotation``, ``slow_rotation``: not the motions the method was
 written on) through 20 uT of hard iron, 8 % soft iron and a 2 deg rotation to the housing, cut where
 the field's directions first cover 20 %, 30 %, 50 % of the sphere, or the whole 60 s ("full"); the
-gyro with a random 0.5 deg/s bias, a 0.5 % scale error (not modelled by the fit) and noise.
-Columns: ``present`` (:func:`calibrate.tumble.calibrate_tumble`), ``gyro`` (the gyro-aided fit,
-always), ``default`` (what ``compass calibrate`` does: the gyro-aided fit only where the present one
-falls back and the gyro-aided one is determined).  Errors against the truth: hard iron (% of |B|),
-soft iron shape (Frobenius of the det-1 matrices), rotation to the housing (deg), and the heading
+gyro with a random 0.5 deg/s bias, a 0.5 % scale error (not modelled by the fit) and noise; cases
+marked ``late`` have the magnetometer one row (20 ms) late against the accelerometer and gyro.
+Columns: ``present`` (:func:`calibrate.tumble.calibrate_tumble`), ``gyro tau=0`` (the gyro-aided fit,
+always, its magnetometer latency held at zero: the model before the latency), ``gyro`` (the same with
+the latency fitted; its mean and the rms of (fitted - true) / sigma in the notes), ``default`` (what
+``compass calibrate`` does: the gyro-aided fit only where the present one falls back, including a
+rotation withheld for fast motion, and the gyro-aided one is determined).  Errors against the truth:
+hard iron (% of |B|), soft iron shape (Frobenius of the det-1 matrices), rotation to the housing (deg), and the heading
 error at runtime: the noise-free field of the whole (uncut) motion calibrated, levelled with the
 true attitude, its heading against north (deg rms): what the calibration alone costs later, over
 every orientation.  ``err/sigma``: rms of the gyro fit's rotation error over its reported sigma.
@@ -44,8 +48,10 @@ from compass.io.tumble import gyro_turns  # noqa: E402
 from compass.sim.partial_tumble import simulate_partial_tumble  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "broad"
-CASES = (("fast_rotation", 0.2), ("slow_rotation", 0.2), ("fast_rotation", 0.3), ("slow_rotation", 0.3),
-         ("fast_rotation", 0.5), ("fast_rotation", None))
+CASES = (("fast_rotation", 0.2, 0), ("slow_rotation", 0.2, 0), ("fast_rotation", 0.3, 0), ("slow_rotation", 0.3, 0),
+         ("fast_rotation", 0.5, 0), ("fast_rotation", None, 0), ("fast_rotation", None, 1), ("fast_rotation", 0.3, 1))
+"""(motion, coverage or None for the whole 60 s, magnetometer latency in samples: 1 is 20 ms at 50 Hz)."""
+METHODS = ("present", "gyro tau=0", "gyro", "default")
 
 
 def _heading_rms(mag_h: np.ndarray, attitude: Rotation, north_deg: float = 0.0, about_median: bool = False) -> float:
@@ -76,40 +82,55 @@ def _runtime(kind, seed):
     return whole.mag, whole.attitude
 
 
+def _late(sim, rows: int):
+    """The recording with the magnetometer ``rows`` samples late: row k reads the field of row k - rows."""
+    if rows == 0:
+        return sim.t_s, sim.mag, sim.accel, sim.gyro
+    return sim.t_s[rows:], sim.mag[:-rows], sim.accel[rows:], sim.gyro[rows:]
+
+
 def simulated(seeds):
     print("Simulated partial motions (compass.sim.partial_tumble; mean over seeds "
-          f"{list(seeds)}; gyro 0.5 deg/s bias, 0.5 % scale error)")
-    head = ["case", "n", "cov", "method", "h err %|B|", "S err", "rot err deg", "heading rms", "used/fell back"]
-    print(("{:<22}{:>6}{:>6}{:>10}" + "{:>13}" * 4 + "{:>16}").format(*head))
-    for kind, cov in CASES:
-        rows = {m: [] for m in ("present", "gyro", "default")}
-        ratio, fell, n_s, cov_s, used = [], 0, [], [], 0
+          f"{list(seeds)}; gyro 0.5 deg/s bias, 0.5 % scale error; 'late': magnetometer 20 ms late)")
+    head = ["case", "n", "cov", "method", "h err %|B|", "S err", "rot err deg", "heading rms", "notes"]
+    print(("{:<28}{:>6}{:>6}{:>12}" + "{:>13}" * 4 + "  {}").format(*head))
+    for kind, cov, late in CASES:
+        rows = {m: [] for m in METHODS}
+        ratio, fell, n_s, cov_s, used, tau = [], 0, [], [], 0, []
         for seed in seeds:
             sim = simulate_partial_tumble(kind, seed=seed, coverage=cov, duration_s=60.0 if cov is None else 120.0)
             raw, att = _runtime(kind, seed)
-            turns = gyro_turns(sim.t_s, sim.gyro, np.ones(len(sim.t_s), bool))
-            res = calibrate_tumble(sim.mag, sim.accel, t_s=sim.t_s)
-            gres = with_gyro(res, sim.mag, sim.accel, turns, sim.t_s)
-            forced = gres.gyro["used"]
+            t_s, mag, accel, gyro = _late(sim, late)
+            turns = gyro_turns(t_s, gyro, np.ones(len(t_s), bool))
+            res = calibrate_tumble(mag, accel, t_s=t_s)
+            fixed = with_gyro(res, mag, accel, turns, t_s, fit_latency=False)
+            gres = with_gyro(res, mag, accel, turns, t_s)
             default = gres if falls_back(res) else res
             fell += falls_back(res)
-            used += falls_back(res) and forced
-            for name, r in (("present", res), ("gyro", gres), ("default", default)):
+            used += falls_back(res) and gres.gyro["used"]
+            for name, r in zip(METHODS, (res, fixed, gres, default)):
                 rows[name].append(_errors(r.hard_iron, r.fit.soft_iron, None if r.misalignment is None
                                           else r.misalignment.rotation, sim.truth, raw, att))
-            if forced:
+            if gres.gyro["used"]:
                 c_true = Rotation.from_matrix(sim.truth["mag_to_accel"])
                 err = (gres.misalignment.rotation * c_true.inv()).as_rotvec(degrees=True)
                 ratio.append(err / gres.misalignment.rotvec_sigma_deg)
-            n_s.append(len(sim.t_s))
+            if "mag_latency_s" in gres.gyro:
+                tau.append((gres.gyro["mag_latency_s"], gres.gyro["mag_latency_sigma_s"]))
+            n_s.append(len(t_s))
             cov_s.append(sim.coverage)
-        label = f"{kind} {'full' if cov is None else f'{100 * cov:.0f} %'}"
+        label = f"{kind} {'full' if cov is None else f'{100 * cov:.0f} %'}{' late' if late else ''}"
         for name, vals in rows.items():
             mean = np.mean(vals, axis=0)
-            extra = f"{used}/{fell} of {len(seeds)}" if name == "default" else ""
-            if name == "gyro" and ratio:
-                extra = f"err/sig {np.sqrt(np.mean(np.square(ratio))):.2f}"
-            print(("{:<22}{:>6}{:>6}{:>10}" + "{:>13.3f}" * 4 + "{:>16}").format(
+            extra = f"gyro used {used} of {fell} fallbacks, {len(seeds)} seeds" if name == "default" else ""
+            if name == "gyro" and tau:
+                t_ms = 1e3 * np.array(tau)
+                true_ms = 1e3 * late * np.median(np.diff(sim.t_s))
+                extra = (f"tau {np.mean(t_ms[:, 0]):.2f} ms (true {true_ms:.0f}), (tau-true)/sig rms "
+                         f"{np.sqrt(np.mean(((t_ms[:, 0] - true_ms) / t_ms[:, 1]) ** 2)):.2f}")
+                if ratio:
+                    extra += f", rot err/sig {np.sqrt(np.mean(np.square(ratio))):.2f}"
+            print(("{:<28}{:>6}{:>6}{:>12}" + "{:>13.3f}" * 4 + "  {}").format(
                 label if name == "present" else "", int(np.mean(n_s)) if name == "present" else "",
                 f"{100 * np.mean(cov_s):.0f}%" if name == "present" else "", name, *mean, extra))
 
@@ -124,13 +145,13 @@ def broad(every=4):
     trials = [read_broad(p) for p in paths]
     print(f"\nBROAD undisturbed trials {', '.join(t.name[:2] for t in trials)}: calibrate on one trial's motion phase, "
           "heading spread (deg rms about its median) on every other trial, mean over them")
-    print(("{:<6}{:>8}{:>9}{:>12}{:>12}{:>12}{:>12}{:>10}").format("cal", "n", "cov", "raw", "present", "gyro",
-                                                                    "default", "fell back"))
+    print(("{:<6}{:>8}{:>9}" + "{:>12}" * 5 + "{:>10}  {}").format("cal", "n", "cov", "raw", *METHODS, "fell back",
+                                                                      "latency fitted, ms"))
     scored = {}
     for t in trials:
         rows = np.flatnonzero(t.movement & t.ref_valid)
         scored[t.name] = (t.mag_ut[rows], _attitude(t, rows))
-    totals = {m: [] for m in ("raw", "present", "gyro", "default")}
+    totals = {m: [] for m in ("raw",) + METHODS}
     for t in trials:
         move = np.flatnonzero(t.movement)
         keep = np.zeros(len(t), bool)
@@ -138,10 +159,11 @@ def broad(every=4):
         turns = gyro_turns(t.t_s, t.gyro_rad_s, keep)
         mag, acc, tt = t.mag_ut[keep], t.accel_m_s2[keep], t.t_s[keep]
         res = calibrate_tumble(mag, acc, t_s=tt)
+        fixed = with_gyro(res, mag, acc, turns, tt, fit_latency=False)
         gres = with_gyro(res, mag, acc, turns, tt)
         default = gres if falls_back(res) else res
         cells = {}
-        for name, r in (("raw", None), ("present", res), ("gyro", gres), ("default", default)):
+        for name, r in zip(("raw",) + METHODS, (None, res, fixed, gres, default)):
             spreads = []
             for other in trials:
                 if other is t:
@@ -154,10 +176,12 @@ def broad(every=4):
                 spreads.append(_heading_rms(m, att, about_median=True))
             cells[name] = float(np.mean(spreads))
             totals[name].append(cells[name])
-        print(("{:<6}{:>8}{:>9}" + "{:>12.3f}" * 4 + "{:>10}").format(
+        latency = (f"{1e3 * gres.gyro['mag_latency_s']:.2f} +/- {1e3 * gres.gyro['mag_latency_sigma_s']:.2f}"
+                   if "mag_latency_s" in gres.gyro else "gyro-aided fit not used")
+        print(("{:<6}{:>8}{:>9}" + "{:>12.3f}" * 5 + "{:>10}  {}").format(
             t.name[:2], len(mag), f"{100 * res.coverage.fraction:.0f}%", *cells.values(),
-            "refused" if res.refused else "yes" if falls_back(res) else "no"))
-    print(("{:<23}" + "{:>12.3f}" * 4).format("mean", *(np.mean(v) for v in totals.values())))
+            "refused" if res.refused else "yes" if falls_back(res) else "no", latency))
+    print(("{:<23}" + "{:>12.3f}" * 5).format("mean", *(np.mean(v) for v in totals.values())))
 
 
 def _attitude(trial, rows):

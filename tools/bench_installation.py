@@ -35,24 +35,31 @@ docs/runtime.md (``tools/_doc_table.py``).
 
 from __future__ import annotations
 
-import argparse
-import sys
-import time
-from pathlib import Path
+import os
 
-import numpy as np
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    # before numpy is imported: one BLAS thread, as the compass command runs (compass.cli._one_blas_thread);
+    # with OpenBLAS's default threads the fits' SVDs of tall, narrow Jacobians took 4-5x the CPU on 2 shared cores
+    os.environ.setdefault(_var, "1")
 
-from calibrate import calibrate_fourflip
-from compass.attitude import solve_attitude, two_vector_rotation
-from compass.frames import heading_pitch_roll
-from compass.model import SensorModel
-from compass.sim.fourflip import simulate_fourflip
-from compass.installed import installed_model
-from compass.sim.installation import random_installation, simulate_installation, true_model
-from compass.sim.runtime import simulate_runtime
-from compass.site import Site, known_reference, reference_from_site, upside_down
-from compass.calibration import model_from_dict
-from compass.calibration import model_to_dict
+import argparse  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from calibrate import calibrate_fourflip  # noqa: E402
+from compass.attitude import solve_attitude, two_vector_rotation  # noqa: E402
+from compass.frames import heading_pitch_roll  # noqa: E402
+from compass.model import SensorModel  # noqa: E402
+from compass.sim.fourflip import simulate_fourflip  # noqa: E402
+from compass.installed import installed_model  # noqa: E402
+from compass.sim.installation import random_installation, simulate_installation, true_model  # noqa: E402
+from compass.sim.runtime import simulate_runtime  # noqa: E402
+from compass.site import Site, known_reference, reference_from_site, upside_down  # noqa: E402
+from compass.calibration import model_from_dict  # noqa: E402
+from compass.calibration import model_to_dict  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 

@@ -19,9 +19,11 @@ tumble's calibration of this tree is compared with the baseline's: the largest d
 parameter group in units of its sigma (the robust fits' thinning, ``calibrate.tumble.ellipsoid.ROBUST_ROWS``,
 must leave it within a small fraction of a sigma).  With ``--profile`` the slowest command that ran
 out of time is profiled in-process on a recording a tenth the size (cProfile, top functions by
-cumulative time).
+cumulative time).  ``--write-docs`` writes the table (with the load average and the BLAS threads
+of the run) into docs/benchmarks.md (``tools/_doc_table.py``).
 
-Usage: ``python tools/bench_scale.py [--quick] [--mb 50] [--timeout 120] [--baseline REF|none] [--kinds ...]``
+Usage: ``python tools/bench_scale.py [--quick] [--mb 50] [--timeout 120] [--baseline REF|none] [--kinds ...]
+[--write-docs]``
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 from _baseline import export_tree, tree_env
+from _doc_table import markdown_table, parse_args, publish
 
 KINDS = ("fourflip", "tumble", "platform3d", "reference", "attitude")
 TARGETS = {"tumble": (10.0, 500.0)}
@@ -261,7 +264,7 @@ def main() -> int:
     parser.add_argument("--kinds", nargs="+", choices=KINDS, default=list(KINDS))
     parser.add_argument("--profile", action="store_true",
                         help="profile (in-process, a tenth the size) each kind whose command ran out of time or over 60 s")
-    args = parser.parse_args()
+    args = parse_args(parser)
     mb, timeout = (5.0, 60.0) if args.quick else (args.mb, args.timeout)
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -306,22 +309,24 @@ def main() -> int:
                                            else (None, *make_recording(kind, small, mb / 10)))
                 profile(kind, small_rec, small_cal, folder)
     labels = [label for label, _ in trees]
-    print(f"\nscale: ~{mb:g} MB recordings, one child process per cell, peak RSS its VmHWM, killed after {timeout:g} s; "
-          f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
+    threads = os.environ.get("OPENBLAS_NUM_THREADS", "OpenBLAS's default")
+    caption = (f"~{mb:g} MB recordings, one child process per cell, peak RSS its VmHWM, killed after {timeout:g} s; "
+               f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs, OPENBLAS_NUM_THREADS {threads}")
+    print(f"\nscale: {caption}")
     print("targets: tumble command < 10 s and < 500 MB (issue 23.11), the others < 60 s and < 1024 MB; "
           "reader < 2x np.loadtxt's memory")
     head = ["kind", "MB", "rows", "np.loadtxt"] + [f"read_table ({lb})" for lb in labels] \
         + [f"command ({lb})" for lb in labels] + ["target (this tree)", "reader/loadtxt memory"]
-    print(" | ".join(head))
+    rows = []
     for kind, row in results.items():
         ratio = row["read this tree"]["mb"] / row["loadtxt"]["mb"] if row["loadtxt"]["mb"] else float("nan")
-        cells = [kind, f"{row['size']:.1f}", str(row["rows"]), fmt(row["loadtxt"])] \
-            + [fmt(row[f"read {lb}"]) for lb in labels] + [fmt(row[f"command {lb}"]) for lb in labels] \
-            + [meets(kind, row["command this tree"]), f"{ratio:.2f}"]
-        print(" | ".join(cells))
-    for kind, row in results.items():
-        if "agreement" in row:
-            print(f"{kind} calibration, this tree against the baseline: {row['agreement']}")
+        rows.append([kind, f"{row['size']:.1f}", str(row["rows"]), fmt(row["loadtxt"])]
+                    + [fmt(row[f"read {lb}"]) for lb in labels] + [fmt(row[f"command {lb}"]) for lb in labels]
+                    + [meets(kind, row["command this tree"]), f"{ratio:.2f}"])
+    agreement = [f"{kind} calibration, this tree against the baseline: {row['agreement']}"
+                 for kind, row in results.items() if "agreement" in row]
+    publish(args, "docs/benchmarks.md", "bench_scale",
+            markdown_table(head, rows) + "".join(f"\n\n{line}" for line in agreement), caption=caption)
     return 0
 
 

@@ -216,7 +216,7 @@ def gather_forms(names: Iterable[str], forms: dict, why_not: Callable[[Any], str
 
 
 def linearised_score(weighted: Callable, current, effect, points: Sequence[np.ndarray],
-                     step: float) -> tuple[float, np.ndarray]:
+                     step: float, block_jacobian: Callable | None = None) -> tuple[float, np.ndarray]:
     """Score (Lagrange-multiplier) test for adding ``effect`` to a least-squares fit.
 
     The effect's Jacobian at each of its score points is projected off the current fit's Jacobian
@@ -234,6 +234,9 @@ def linearised_score(weighted: Callable, current, effect, points: Sequence[np.nd
         Its parameters with the effect switched off, where the test is evaluated.
     step : float
         Finite-difference step of the effect's parameters.
+    block_jacobian : callable, optional
+        ``block_jacobian(q) -> (m, q.size)`` or None: the weighted residual's derivatives by the effect's
+        parameters at ``q`` (finite differences where it is not given or gives None).
 
     Returns
     -------
@@ -246,7 +249,7 @@ def linearised_score(weighted: Callable, current, effect, points: Sequence[np.nd
     best = (-np.inf, points[0])
     for q0 in points:
         drop, delta = linear_score(lambda p: weighted(p, effects), np.concatenate([current.x, q0]),
-                                   current.x.size, j_b, step)
+                                   current.x.size, j_b, step, None if block_jacobian is None else block_jacobian(q0))
         if drop > best[0]:
             best = (drop, q0 + delta)
     return best

@@ -95,6 +95,9 @@ def cost_lines(cost: dict | None) -> list[str]:
         lines.append("  unexplained cost: direction sigmas widened by " + ", ".join(
             f"{name} {v:.3f} deg" + (f" ({sig[name]['naive']:.3f} -> {sig[name]['widened']:.3f})" if name in sig else "")
             for name, v in cost["direction_deg"].items()))
+    if "hard_iron" in cost:
+        lines.append("  unexplained cost: hard-iron sigmas widened " + ", ".join(
+            f"{axis} {v['naive']:.3g} -> {v['widened']:.3g}" for axis, v in cost["hard_iron"].items()))
     if "heading_deg" in cost:
         h = cost.get("heading_sigma_deg")
         lines.append(f"  unexplained cost at runtime: heading sigma of a level housing widened by {cost['heading_deg']:.3f} "

@@ -12,6 +12,19 @@ their reference (the rows' mean time and temperature, where the file's hard iron
     ``h + g (t - t_ref) / T`` (``T`` the span of ``t_s``): a hard iron wandering steadily.
 ``temperature`` (linear)
     ``h + g (T - T_ref)``: a hard iron linear in ``temp_c``.
+``gain_drift`` (linear)
+    ``b / (1 + g (t - t_ref) / T)`` per axis of H before the hard iron is taken off: the sensor's
+    gains changing with time (``b = (1 + g tau)(S B_H + h)``), as a room warming with no ``temp_c``.
+
+What ``gain_drift`` can and cannot tell.  The rows constrain ``|B_H|`` and the field-gravity angle
+to be constant.  The common part of ``g`` grows ``|B_H|`` in time: what a site field whose
+magnitude changed during the recording does, so it is identifiable only under the assumption
+that |B| stayed constant (a claimed gain drift on a changing field is that change).  The per-axis
+parts move the field's direction against gravity and bend its circle or sphere in time: a tumble
+and a swing with heel (the vertical field changes) determine all three.  A level swing keeps the
+vertical field constant: its vertical gain change ``g_z tau B_z`` is a vertical offset drift, the
+``offset_drift``'s z component, not another effect, so ``gain_drift`` is not applicable there
+(said in ``not_applicable``; the horizontal parts are not tried alone).
 
 The verdict: ``unexplained`` when the chi-square of the |B| residual against the bench's noise is
 more than 5 standard deviations above its degrees of freedom (the noise floor is the bench's, not
@@ -24,11 +37,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..diagnosis.blocks import TIME_BLOCKS, level_heading_sigma_deg, time_blocks, widened_in_time
 from ..diagnosis.evidence import Proposal, gather_forms, linearised_score, refit_from_better_start, select_effects
 from ..effects import EffectForm, Recorded, TemperatureForm, TimeForm, why_no_temperature, why_no_time
 from ..diagnosis.report import Diagnosis
+from ..diagnosis.robust import extra_sigma
 from ..noise import chi2_sf
-from .model import InstallationFit, Rows, effect_slice, fit_installation, residuals
+from .model import InstallationFit, Rows, coordinates, effect_slice, fit_installation, is_level, residuals
 
 __all__ = ["FORMS", "InstallationEffect", "InstallationDiagnosis", "UNEXPLAINED_WARNING", "diagnose_installation"]
 
@@ -51,6 +66,9 @@ class InstallationEffect(EffectForm):
 
     formula: str = ""
     """The hard iron's change, what the file's effect entry holds under ``form``."""
+    scales: bool = False
+    """True: the effect changes the gains of the axes of H (:func:`calibrate.installation.model.field_h`), not the
+    hard iron."""
 
     def n_params(self, n_channels):
         return n_channels
@@ -64,6 +82,17 @@ class _InTemperature(TemperatureForm, InstallationEffect):
     """The hard iron linear in ``temp_c``."""
 
 
+class _GainInTime(TimeForm, InstallationEffect):
+    """The gains of the axes of H linear in ``t_s``; not on a level swing (module docstring)."""
+
+    def applicable(self, columns):
+        why = super().applicable(columns)
+        if why is None and getattr(columns, "level", False):
+            why = ("a level swing keeps the vertical field constant: a vertical gain change is then a vertical "
+                   "offset drift (offset_drift's z), and the horizontal gains alone are not tried")
+        return why
+
+
 _PER_AXIS = "per axis x, y, z of H, in the bench model's field units"
 FORMS = {
     "offset_drift": (_InTime(
@@ -73,6 +102,10 @@ FORMS = {
         "temperature", "linear", "the hard iron changing linearly with temp_c",
         f"hard_iron(temp_c) = installation.hard_iron_ut + hard_iron_per_degc (temp_c - reference.temp_c), "
         f"{_PER_AXIS}"),),
+    "gain_drift": (_GainInTime(
+        "gain_drift", "linear", "the gains of the axes of H drifting with t_s, at a constant rate",
+        "field(t_s) = field / (1 + gain_rate_rel_per_s (t_s - reference.t_s)) per axis x, y, z of H, before "
+        "installation.hard_iron_ut is taken off", scales=True),),
 }
 """Each effect's forms for the installation, simplest first."""
 
@@ -99,12 +132,21 @@ class InstallationDiagnosis(Diagnosis):
     block: dict
 
 
+@dataclass(frozen=True)
+class _Columns(Recorded):
+    """What an effect's ``applicable`` reads: the recording's columns, and whether it is a level swing."""
+
+    level: bool = False
+
+
 def _regressors(t_s, temp_c) -> tuple[dict, dict]:
     """Each effect's regressor and reference (``{"t_s": ..}`` or ``{"temp_c": ..}``) on the rows."""
     regressors, references = {}, {}
     if why_no_time(t_s) is None:
         regressors["offset_drift"] = (t_s - t_s.mean()) / np.ptp(t_s)
         references["offset_drift"] = {"t_s": float(t_s.mean())}
+        regressors["gain_drift"] = regressors["offset_drift"]  # both zero at the mean time
+        references["gain_drift"] = references["offset_drift"]
     if why_no_temperature(temp_c) is None:
         regressors["temperature"] = temp_c - temp_c.mean()
         references["temperature"] = {"temp_c": float(temp_c.mean())}
@@ -112,10 +154,45 @@ def _regressors(t_s, temp_c) -> tuple[dict, dict]:
 
 
 def _parameters(name: str, values: np.ndarray, sigmas: np.ndarray, t_s) -> dict:
-    """An effect's hard-iron change in H in physical units (field units per s, or per degC)."""
-    label, per = ("hard_iron_rate_per_s", np.ptp(t_s)) if name == "offset_drift" else ("hard_iron_per_degc", 1.0)
+    """An effect's change in H in physical units (hard iron: field units per s or per degC; gains: per s)."""
+    label, per = {"offset_drift": ("hard_iron_rate_per_s", np.ptp(t_s)), "gain_drift": ("gain_rate_rel_per_s", np.ptp(t_s)),
+                  "temperature": ("hard_iron_per_degc", 1.0)}[name]
     return {f"{axis}.{label}": {"value": float(v / per), "sigma": float(s / per)}
             for axis, v, s in zip("xyz", values, sigmas)}
+
+
+def _widen(fit: InstallationFit, rows: Rows, priors: dict, t_s) -> tuple[InstallationFit, dict]:
+    """The fit with its covariance widened over blocks of time, and the ``unexplained_cost``.
+
+    The sandwich is taken in the coordinates the fit moved (:func:`calibrate.installation.model.coordinates`),
+    its bread from every row (priors included), its meat from the data rows only (a row's |B|,
+    angle and heading residuals share the sample's block); the held parameters' prior part of the
+    covariance is kept as it was.
+    """
+    n = fit.n_rows
+    n_data = n * (3 if rows.heading_ref is not None else 2)
+    t, dependent = coordinates(fit.fixed, "field" not in priors)
+    moved = ~fit.fixed
+    if dependent is not None:
+        moved[dependent] = False
+    jac = fit.jac
+    bread = np.linalg.pinv(jac.T @ jac)
+    scale = max(1.0, fit.chi2 / max(fit.n_obs - fit.n_free, 1))
+    weighted = residuals(fit.x, rows, fit.effects, priors)[:n_data]
+    order = np.arange(n, dtype=float) if t_s is None else np.asarray(t_s, dtype=float)
+    blocks = np.tile(time_blocks(order), n_data // n)
+    naive = bread * scale
+    wide = widened_in_time(jac[:n_data], weighted, blocks, naive, bread=bread)
+    lift = t[:, moved]
+    covariance = fit.covariance + lift @ (wide - naive) @ lift.T
+    naive_h, wide_h = np.sqrt(np.diag(fit.covariance)[:3]), np.sqrt(np.diag(covariance)[:3])
+    heading = [level_heading_sigma_deg(*sig[:2], fit.x[9], fit.x[10]) for sig in (naive_h, wide_h)]
+    cost = {"hard_iron": {axis: {"naive": float(a), "widened": float(b)} for axis, a, b in zip("xyz", naive_h, wide_h)},
+            "heading_deg": float(extra_sigma(heading[1], heading[0])),
+            "heading_sigma_deg": {"naive": heading[0], "widened": heading[1]},
+            "method": f"CR2 sandwich over {TIME_BLOCKS} blocks of consecutive rows (calibrate.diagnosis.blocks); "
+                      "the heading sigma from the hard iron alone, a level housing, RMS over headings"}
+    return replace(fit, covariance=covariance), cost
 
 
 def diagnose_installation(rows: Rows, priors: dict, base: InstallationFit, *, t_s=None, temp_c=None,
@@ -141,7 +218,8 @@ def diagnose_installation(rows: Rows, priors: dict, base: InstallationFit, *, t_
     """
     regressors, references = _regressors(t_s, temp_c)
     rows = replace(rows, regressors=regressors)
-    pool, skipped = gather_forms(FORMS, FORMS, lambda e: e.applicable(Recorded(t_s, temp_c)))
+    columns = _Columns(t_s, temp_c, level=is_level(rows))
+    pool, skipped = gather_forms(FORMS, FORMS, lambda e: e.applicable(columns))
     if not diagnose:
         pool, skipped = [], {"diagnosis": "not run (--no-diagnose)"}
     def weighted(x, effects):
@@ -173,6 +251,9 @@ def diagnose_installation(rows: Rows, priors: dict, base: InstallationFit, *, t_
                             base_step={"model": "base", "residual_rms": base.residual_rms}, write_step=claim,
                             verdict=verdict)
     final, steps = chosen.fit, chosen.steps
+    cost = None
+    if chosen.unexplained:  # the sigmas grow to cover the structure that remains (calibrate.diagnosis.blocks)
+        final, cost = _widen(final, rows, priors, t_s)
     effects = tuple({"name": step["added"], "form": effect.formula, "reference": references[step["added"]],
                      "parameters": step["parameters"]} for step, effect in zip(steps[1:], final.effects))
     sigma_h = np.sqrt(np.diag(final.covariance))[:3]
@@ -190,4 +271,6 @@ def diagnose_installation(rows: Rows, priors: dict, base: InstallationFit, *, t_
         "not_applicable": skipped,
         "hard_iron_change": {"value": (final.x[:3] - base.x[:3]).tolist(), "sigma": sigma_h.tolist()},
     }
+    if cost is not None:
+        block["unexplained_cost"] = cost
     return InstallationDiagnosis(final, rows, effects, block)

@@ -197,11 +197,17 @@ def effect_slice(rows: Rows, effects: tuple, name: str) -> slice:
 
 
 def field_h(x: np.ndarray, rows: Rows, effects: tuple) -> np.ndarray:
-    """``B_H = S^{-1} (b - h - sum_e g_e c_e)``, shape (n, 3), field units."""
+    """``B_H = S^{-1} (b / (1 + sum_gains g_e c_e) - h - sum_offsets g_e c_e)``, shape (n, 3), field units.
+
+    An effect whose ``scales`` is true changes the gain of each axis of H (it scales the hard iron
+    with the field: the sensor's gain drifted); the others move the hard iron.
+    """
     h, d, *_, extra = split(x, rows, effects)
     soft = np.eye(3) + np.einsum("k,kij->ij", d, soft_iron_basis())
-    offset = h + sum(rows.regressors[name][:, None] * g[None, :] for name, g in extra.items())
-    return np.linalg.solve(soft, (rows.b - offset).T).T
+    scales = {e.name for e in effects if getattr(e, "scales", False)}
+    gain = 1.0 + sum(rows.regressors[name][:, None] * g[None, :] for name, g in extra.items() if name in scales)
+    offset = h + sum(rows.regressors[name][:, None] * g[None, :] for name, g in extra.items() if name not in scales)
+    return np.linalg.solve(soft, (rows.b / gain - offset).T).T
 
 
 def residuals(x: np.ndarray, rows: Rows, effects: tuple, priors: dict) -> np.ndarray:

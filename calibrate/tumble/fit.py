@@ -19,6 +19,7 @@ from .alignment import MAX_ANGLE_WIDENING, field_gravity_angles, fit_misalignmen
 from .diagnosis import UNEXPLAINED_WARNING, diagnose_tumble
 from .ellipsoid import fit_ellipsoid
 from .gyro import falls_back, with_gyro
+from .motion import fast_motion
 from .result import TumbleResult
 
 def _axis_noise(x: np.ndarray) -> np.ndarray:
@@ -160,6 +161,7 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, ellips
         keep = chosen.inliers
         accel = np.asarray(accel, dtype=float)
         misalignment = fit_misalignment(chosen.calibrated(mag[keep]), accel[keep])
+        misalignment = _unless_fast(misalignment, chosen.calibrated(mag[keep]), accel[keep], t_s, keep, warnings)
         if misalignment is not None and coverage.missing and misalignment.rotation is not None:
             warnings.append("no magnetometer-accelerometer rotation fitted: with part of the sphere missing it "
                             "trades off against the hard iron; frames taken as aligned")
@@ -186,6 +188,21 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, ellips
     refused = _widening(raw, accel, chosen.calibrated(mag), misalignment.rotation) if changed else ""
     return TumbleResult(chosen, candidates, coverage, misalignment, field_ut, noise, len(mag), n_repeats,
                         tuple(warnings + ([refused] if refused else [])), refused, diagnosis)
+
+
+def _unless_fast(misalignment, mag_cal, accel, t_s, keep, warnings: list):
+    """The misalignment, its rotation withheld when the motion was fast (:func:`calibrate.tumble.motion.fast_motion`:
+    the field-gravity angle grows with the turn rate), said in ``warnings`` (appended to)."""
+    if t_s is None or misalignment is None:
+        return misalignment
+    motion = fast_motion(mag_cal, accel, np.asarray(t_s, float)[keep], misalignment.rotation)
+    if motion is None:
+        return misalignment
+    warnings.append(motion.words())
+    if misalignment.rotation is None:
+        return misalignment
+    return replace(misalignment, rotation=None, rotvec_deg=np.full(3, np.nan), rotvec_sigma_deg=np.full(3, np.nan),
+                   withheld="the field-gravity angle grows with the turn rate (fast motion)")
 
 
 def _widening(raw: np.ndarray, accel: np.ndarray, mag_cal: np.ndarray, rotation: Rotation | None) -> str:

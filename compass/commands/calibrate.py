@@ -28,7 +28,8 @@ def register(sub) -> None:
     p.add_argument("recording", help="recording CSV (four-flip: has flip_deg; 3-D platform: platform_z_deg; "
                                      "reference fields: bx_ref; tumble: mx,my,mz, and with gx,gy,gz, ax,ay,az and "
                                      "t_s the gyro's turns pin soft iron and mag-to-accel where the ellipsoid alone "
-                                     "falls back)")
+                                     "falls back or the motion was too fast for the accelerometer, and the "
+                                     "magnetometer's latency against the gyro is fitted)")
     p.add_argument("--out", required=True, help="calibration JSON to write")
     p.add_argument("--method", choices=("ml", "harmonic", "patent"), default="ml",
                    help="ml: joint maximum likelihood (default); harmonic: seed formulas on harmonic fits; "

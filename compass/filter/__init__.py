@@ -41,7 +41,10 @@ attenuated by the low-pass at the motion's time scale, ``(tau_v / 2 pi tau)^2``,
 over ``tau_v``.  The factor ``2 tau_v / dt`` turns a noise correlated over ``tau_v`` into its
 per-sample white equivalent, so the filter never takes more tilt information from the
 accelerometer than it has: still, the tilt converges in about a second; in violent motion the
-correction slows to many seconds and the gyro carries the tilt.
+correction slows to many seconds and the gyro carries the tilt.  ``accel_lowpass_order=2`` makes the
+low-pass a Butterworth with the same mean age (VQF's kind), which leaves ``omega_c^2`` times the
+displacement instead of the velocity over tau: better in fast turns, worse in translation and in
+heading on BROAD, so not the default (docs/benchmarks.md, inclination in turns).
 
 Magnetometer: it corrects heading only (as VQF and x-io Fusion do; a disturbed field cannot tilt
 the estimate): ``psi_meas = eps_z + n_psi``, ``psi_meas`` minus the azimuth (toward West) of the

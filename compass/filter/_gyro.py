@@ -53,6 +53,12 @@ class GyroState(PackedCovariance):
         The specific force low-passed in the inertial frame, seen in H.
     acc_lp_age_s : float
         Mean age of the low-pass's content, s (its sensitivity to a bias error).
+    acc_lp_rate : tuple of 3 floats
+        The second-order low-pass's other state: its output's rate of change in the inertial frame, seen
+        in H, accelerometer units per second (zero for the first-order one).
+    age_lp : tuple of 2 floats
+        The same low-pass run on the time since the start (its output and rate): the content's mean age is
+        the time since the start less its output.
     residual_var : float
         Variance of what the low-pass leaves of the motion acceleration, (fraction of g)^2.
     rest_gyro, rest_acc : tuple of 3 floats, or None
@@ -96,6 +102,8 @@ class GyroState(PackedCovariance):
     since_start_s: float = 0.0
     t_back_s: float | None = None
     place: PlaceState = field(default_factory=PlaceState)
+    acc_lp_rate: tuple = (0.0, 0.0, 0.0)
+    age_lp: tuple = (0.0, 0.0)
 
 
 class GyroFilter(AttitudeFilter):
@@ -112,6 +120,8 @@ class GyroFilter(AttitudeFilter):
     def _bind(self) -> None:
         self._gyro_range2 = self.config.gyro_range_rad_s**2
         self._x = [0.0] * 6  # the error state (eps, db), folded into the nominal state after each sample
+        self._second_order = self.config.accel_lowpass_order == 2
+        self._lp2_dt, self._lp2 = None, None  # the second-order low-pass's step and its coefficients
         self._place = PlaceDetector(self.config) if self.config.follow_place and self.config.gate else None
 
     @property
@@ -126,6 +136,11 @@ class GyroFilter(AttitudeFilter):
     @property
     def gyro_bias(self) -> tuple:
         return self._s.bias_rad_s
+
+    @property
+    def low_pass(self) -> tuple | None:
+        """The specific force low-passed in the inertial frame, seen in H, accelerometer units (None before the start)."""
+        return self._s.acc_lp
 
     def update(self, t_s: float, accel, gyro, field_h) -> bool:
         begun = self._begin(t_s, accel, gyro, field_h)
@@ -161,7 +176,7 @@ class GyroFilter(AttitudeFilter):
         p0, p1, p2 = _P0_ATTITUDE
         s.covariance = (p0, 0.0, 0.0, 0.0, 0.0, 0.0, p1, 0.0, 0.0, 0.0, 0.0, p2, 0.0, 0.0, 0.0) + s.covariance[15:]
         self._x[:] = [0.0] * 6
-        s.acc_lp = a[:3]
+        s.acc_lp, s.acc_lp_rate, s.age_lp = a[:3], (0.0, 0.0, 0.0), (0.0, 0.0)
         s.acc_lp_age_s = 0.0
         s.residual_var = 0.0
         s.rest_gyro, s.rest_acc, s.rest_s = s.rate_rad_s, a[:3], 0.0
@@ -171,6 +186,7 @@ class GyroFilter(AttitudeFilter):
         s = self._s
         if s.acc_lp is not None:
             s.acc_lp, s.acc_lp_age_s, s.residual_var = a[:3], 0.0, 0.0
+            s.acc_lp_rate, s.age_lp = (0.0, 0.0, 0.0), (0.0, 0.0)
         s.rest_acc, s.rest_s = a[:3], 0.0
 
     def _propagate(self, dt: float) -> None:
@@ -189,6 +205,10 @@ class GyroFilter(AttitudeFilter):
             vx, vy, vz = s.acc_lp
             s.acc_lp = (e[0] * vx + e[3] * vy + e[6] * vz, e[1] * vx + e[4] * vy + e[7] * vz,
                         e[2] * vx + e[5] * vy + e[8] * vz)
+            if self._second_order:  # so is the low-pass's rate
+                vx, vy, vz = s.acc_lp_rate
+                s.acc_lp_rate = (e[0] * vx + e[3] * vy + e[6] * vz, e[1] * vx + e[4] * vy + e[7] * vz,
+                                 e[2] * vx + e[5] * vy + e[8] * vz)
         # P <- F P F^T + Q, F = [[I, -R dt], [0, I]]
         c = self.coefficients
         q_att = (c.gyro_var + c.scale_var * (wx * wx + wy * wy + wz * wz)) * dt
@@ -237,10 +257,13 @@ class GyroFilter(AttitudeFilter):
         ax, ay, az, _ = a
         lx, ly, lz = s.acc_lp
         if dt > 0.0:
-            alpha = -math.expm1(-dt / cfg.accel_time_constant_s)
-            lx, ly, lz = lx + alpha * (ax - lx), ly + alpha * (ay - ly), lz + alpha * (az - lz)
-            s.acc_lp = (lx, ly, lz)
-            s.acc_lp_age_s = (1.0 - alpha) * (s.acc_lp_age_s + dt)
+            if self._second_order:
+                lx, ly, lz = self._low_pass2(dt, ax, ay, az)
+            else:
+                alpha = -math.expm1(-dt / cfg.accel_time_constant_s)
+                lx, ly, lz = lx + alpha * (ax - lx), ly + alpha * (ay - ly), lz + alpha * (az - lz)
+                s.acc_lp = (lx, ly, lz)
+                s.acc_lp_age_s = (1.0 - alpha) * (s.acc_lp_age_s + dt)
             lp_norm = math.sqrt(lx * lx + ly * ly + lz * lz)
             raw2 = (ax - lx) ** 2 + (ay - ly) ** 2 + (az - lz) ** 2
             residual = (lp_norm / g - 1.0) ** 2 + raw2 / (g * g) * c.attenuation2
@@ -263,6 +286,33 @@ class GyroFilter(AttitudeFilter):
         s.covariance = update_tilt(s.covariance, self._x, (-age * m[3], -age * m[4], -age * m[5]), d0,
                                    (age * m[0], age * m[1], age * m[2]), d1, var, hold)
         return True
+
+    def _low_pass2(self, dt: float, ax: float, ay: float, az: float) -> tuple:
+        """One step of the second-order (Butterworth) inertial low-pass; its output, also kept in the state.
+
+        ``y'' + 2 s y' + 2 s^2 y = 2 s^2 x`` with ``s = 1 / accel_time_constant_s`` (poles ``-s +- i s``:
+        Butterworth, DC group delay ``tau``, the first-order one's mean age), discretised exactly with the
+        sample held over the step: ``(y, y') <- Phi (y, y') + (I - Phi) (x, 0)``.  The same filter run on
+        the time since the start gives the content's mean age (the ramp's lag).
+        """
+        s = self._s
+        if dt != self._lp2_dt:
+            sig = 1.0 / self.config.accel_time_constant_s
+            decay, c, sn = math.exp(-sig * dt), math.cos(sig * dt), math.sin(sig * dt)
+            self._lp2_dt = dt
+            self._lp2 = (decay * (c + sn), decay * sn / sig, -2.0 * sig * decay * sn, decay * (c - sn))
+        f00, f01, f10, f11 = self._lp2
+        g0 = 1.0 - f00
+        (lx, ly, lz), (vx, vy, vz) = s.acc_lp, s.acc_lp_rate
+        dx, dy, dz = ax - lx, ay - ly, az - lz
+        s.acc_lp_rate = (f11 * vx - f10 * dx, f11 * vy - f10 * dy, f11 * vz - f10 * dz)
+        lx, ly, lz = lx + g0 * dx + f01 * vx, ly + g0 * dy + f01 * vy, lz + g0 * dz + f01 * vz
+        s.acc_lp = (lx, ly, lz)
+        (ty, tv), since = s.age_lp, s.since_start_s
+        d = since - ty
+        s.age_lp = (ty + g0 * d + f01 * tv, f11 * tv - f10 * d)
+        s.acc_lp_age_s = since - s.age_lp[0]
+        return lx, ly, lz
 
     def _heading(self, t_s: float, dt: float, b) -> None:
         """Gate the field; when accepted, correct the heading (only) with its azimuth."""

@@ -51,6 +51,11 @@ class FilterConfig:
         correction adds about a second of smoothing on top (its Kalman time constant in motion), and
         the low-pass carries the gyro's scale error over the angle turned within its memory, so 2 s
         (issue 13's leave-one-out protocol chose 2 s over 3 s on 13 of 14 BROAD folds).
+    accel_lowpass_order : int
+        Order of the inertial low-pass, both with mean age ``accel_time_constant_s``: 1 (first order)
+        leaves of hand-held motion ``(v - LP v) / tau``, its velocity; 2 (a Butterworth, VQF's kind)
+        leaves ``omega_c^2`` times its displacement.  2 gains in fast turns and loses in translation and
+        heading on BROAD and on simulated boards (issue 22, docs/benchmarks.md): 1 is the default.
     motion_time_s : float
         Time scale on which the housing's velocity varies (hand-held motion), seconds: the
         correlation time of what the low-pass leaves of the motion acceleration.
@@ -134,6 +139,7 @@ class FilterConfig:
     gyro_bias_sigma0: float = 0.05
     gyro_scale_error: float = 0.005
     accel_time_constant_s: float = 2.0
+    accel_lowpass_order: int = 1
     motion_time_s: float = 0.5
     field_error_time_s: float = 4.0
     mag_heading_sigma_deg: float = 1.0
@@ -171,6 +177,8 @@ class FilterConfig:
                 raise ValueError(f"FilterConfig.{name} must be above 1, got {getattr(self, name)!r}")
         if not (np.isfinite(self.mag_latency_s) and self.mag_latency_s >= 0.0):
             raise ValueError(f"FilterConfig.mag_latency_s must be a non-negative number, got {self.mag_latency_s!r}")
+        if self.accel_lowpass_order not in (1, 2):
+            raise ValueError(f"FilterConfig.accel_lowpass_order must be 1 or 2, got {self.accel_lowpass_order!r}")
         if not -90.0 < self.dip_deg < 90.0:
             raise ValueError(f"FilterConfig.dip_deg must be in (-90, 90), got {self.dip_deg!r}")
         if self.gravity is not None and not (np.isfinite(self.gravity) and self.gravity > 0):
@@ -261,7 +269,14 @@ class FilterCoefficients:
             settled_var=math.radians(config.heading_tolerance_deg / 3.0) ** 2,
             adopt_var=math.radians(3.0 * config.heading_tolerance_deg) ** 2,
             scale_var=config.gyro_scale_error**2 * _SCALE_CORRELATION_S,
-            attenuation2=(config.motion_time_s / (2.0 * math.pi * config.accel_time_constant_s)) ** 2)
+            attenuation2=_attenuation(config.motion_time_s / (2.0 * math.pi * config.accel_time_constant_s),
+                                      config.accel_lowpass_order) ** 2)
+
+
+def _attenuation(ratio: float, order: int) -> float:
+    """The inertial low-pass's gain at the motion's time scale, ``ratio = tau_v / (2 pi tau)`` (well below 1):
+    ``ratio`` for the first-order one, ``2 ratio^2`` for the Butterworth (cut-off ``sqrt 2 / tau``)."""
+    return ratio if order == 1 else 2.0 * ratio * ratio
 
 
 SKIP_REASONS = ("t_s not finite", "t_s went back",

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import motioncal as mc
-from .lines import _GROUPS, _SCALARS, Header, LineDecoder, Sample, line_text
+from .lines import _GROUPS, _SCALARS, Header, LineDecoder, Sample
 from .units import STANDARD_GRAVITY
 
 __all__ = ["Layout", "CsvDecoder", "MotionCalDecoder", "parse_columns", "MOTIONCAL_COLUMNS"]
@@ -124,12 +124,8 @@ class _FixedDecoder(LineDecoder):
             self.events.append(("info", self.layout.header.describe().replace("header:", "columns:", 1)))
 
     def parse_line(self, line: bytes) -> Sample | None:
-        text = line_text(line, self.stats)
-        if not text:
-            return None
-        untrusted, self._untrusted = self._untrusted, False
-        if text[0] == "#":
-            self.stats.comments += 1
+        text, untrusted = self._content(line)
+        if text is None:
             return None
         if untrusted and not self._whole(text):
             self.stats.partial += 1  # the first line after a (re)connect may be the tail of one

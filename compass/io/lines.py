@@ -307,14 +307,22 @@ class LineDecoder:
         events, self.events = self.events, []
         return events
 
-    def parse_line(self, line: bytes) -> Sample | None:
-        """Decode one line without its terminator; None for headers, comments and bad lines."""
+    def _content(self, line: bytes) -> tuple[str | None, bool]:
+        """The line's text and whether it may be a fragment (the first line after a resync);
+        the text is None for an empty, overlong, non-ASCII or comment line (counted)."""
         text = line_text(line, self.stats)
         if not text:
-            return None
+            return None, False
         untrusted, self._untrusted = self._untrusted, False
         if text[0] == "#":
             self.stats.comments += 1
+            return None, untrusted
+        return text, untrusted
+
+    def parse_line(self, line: bytes) -> Sample | None:
+        """Decode one line without its terminator; None for headers, comments and bad lines."""
+        text, untrusted = self._content(line)
+        if text is None:
             return None
         star = text.rfind("*")
         has_sum = star >= 0

@@ -185,6 +185,10 @@ class Table:
         Each column's name as the header spells it.
     units : dict of str to str
         Units named for a column (``{"gx": "deg/s"}``), by the user or the header.
+    gyro_turn_ratio : float or None
+        How much more the gyro turns than the accelerometer sees the housing tilt
+        (:func:`compass.io.units.gyro_turn_ratio`, judged once on reading, its note issued then); None
+        without ``gx,gy,gz``, ``ax,ay,az`` and ``t_s``, or when the housing did not tilt enough to tell.
     """
 
     path: str
@@ -195,6 +199,7 @@ class Table:
     header_line: int = 1
     original: dict = field(default_factory=dict)
     units: dict = field(default_factory=dict)
+    gyro_turn_ratio: float | None = None
 
     def _index(self, name: str) -> int | None:
         if name in self.columns:
@@ -650,8 +655,9 @@ def _interpret(table: Table, options: ReadOptions, meta_rows: dict) -> Table:
                                  row=table.header_line, column=header[i])
     original = {new: original[old] for new, old in zip(header, table.columns)}
     data = table.data
-    converted = _convert_units(table, header, data, options, named_units)
-    table = Table(path, tuple(header), converted, table.rows, table.metadata, table.header_line, original, named_units)
+    converted, gyro_ratio = _convert_units(table, header, data, options, named_units)
+    table = Table(path, tuple(header), converted, table.rows, table.metadata, table.header_line, original, named_units,
+                  gyro_ratio)
     _check_time(table)
     _check_field_ut(table, meta_rows)
     return table
@@ -671,8 +677,9 @@ def _log_name(name: str) -> tuple[str | None, str | None]:
     return letter + m.group("axis").lower(), unit
 
 
-def _convert_units(table: Table, header, data, options: ReadOptions, named: dict) -> np.ndarray:
-    """Scale columns to SPEC's units (in place on ``data``, which the table owns)."""
+def _convert_units(table: Table, header, data, options: ReadOptions, named: dict) -> tuple[np.ndarray, float | None]:
+    """Scale columns to SPEC's units (in place on ``data``, which the table owns); the data and the gyro's
+    turn ratio (:func:`compass.io.units.check_gyro_unit`, None without a gyro, an accelerometer and ``t_s``)."""
     path = table.path
 
     def scale(cols, factor):
@@ -701,11 +708,12 @@ def _convert_units(table: Table, header, data, options: ReadOptions, named: dict
     if options.angle_unit != "deg":
         scale([c for c in header if c.endswith("_deg")], units.ANGLE_UNITS[options.angle_unit])
     _check_accel_unit(path, header, data, named.get("ax"))
+    ratio = None
     if all(c in header for c in _GYRO + _ACCEL + ("t_s",)):
         cols = lambda names: data[:, [header.index(c) for c in names]]  # noqa: E731
-        units.check_gyro_unit(data[:, header.index("t_s")], cols(_GYRO), cols(_ACCEL),
-                              named=options.gyro_unit is not None or "gx" in named, where=path)
-    return data
+        ratio = units.check_gyro_unit(data[:, header.index("t_s")], cols(_GYRO), cols(_ACCEL),
+                                      named=options.gyro_unit is not None or "gx" in named, where=path)
+    return data, ratio
 
 
 def _check_accel_unit(path, header, data, unit) -> None:

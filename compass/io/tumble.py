@@ -52,7 +52,7 @@ class TumbleRecording:
     gyro_turn_rad : ndarray, shape (n, 3), or None
         The housing's turn from the previous kept sample to each (rotation vector, rad, housing
         frame; row 0 zero), from ``gx,gy,gz`` (:func:`gyro_turns`); None without a gyro and ``t_s``,
-        or when the gyro's unit looks wrong (said as a warning).
+        or when the gyro's unit looks wrong (the reader's warning says so, :func:`_gyro`).
     """
 
     path: str
@@ -121,7 +121,13 @@ def tumble_from_table(table: Table) -> TumbleRecording:
 
 
 def _gyro(table: Table, accel, t_s, keep) -> np.ndarray | None:
-    """The gyro's turns between kept samples, or None (no gyro, no time, no accelerometer, a deg/s look).
+    """The gyro's turns between kept samples, or None (no gyro, no time, no accelerometer, a wrong unit).
+
+    The unit is judged once, by the reader (:attr:`compass.io.table.Table.gyro_turn_ratio`, whose note
+    names the fault and the option that fixes it): a gyro turning :data:`compass.io.units.GYRO_UNIT_RATIO`
+    times more or less than the accelerometer sees the housing tilt is not used, whether its unit was
+    named or not (a deg/s gyro read as rad/s, a rad/s gyro named deg/s: either would only be tried and
+    rejected by the gyro-aided fit).
 
     Raises
     ------
@@ -136,11 +142,7 @@ def _gyro(table: Table, accel, t_s, keep) -> np.ndarray | None:
         return None
     if not np.any(gyro):
         raise RecordingError(table.path, "the gyro reads (0, 0, 0) in every row", column="gx")
-    ratio = units.gyro_turn_ratio(t_s, gyro, accel)
-    named = "gx" in table.units
-    if units.gyro_unit_verdict(ratio) == "more" and not named:  # a deg/s gyro read as rad/s: not used
-        units.note(f"{table.path}: gx,gy,gz not used: read in rad/s the gyro turns {ratio:.0f} times more than the "
-                   "accelerometer sees the housing tilt (a deg/s gyro gives 57); give --gyro-unit deg/s to use it")
+    if units.gyro_unit_verdict(table.gyro_turn_ratio) is not None:  # the reader's one note named the fault and the fix
         return None
     too_fast = np.abs(gyro) > MAX_GYRO_RAD_S
     if np.any(too_fast):

@@ -23,7 +23,7 @@ rooms (``places``: from a moment on the world field is another |B|, dip and decl
 over ``Place.transition_s``, the walk through a door; the truth stays in the first place's frame, so
 a heading that follows the new field's North is off by its declination) or a magnet is fixed to
 the housing (``housing_field``: a constant field in H from a moment on); the specific force is
-``R^T (a + g z)``.  The sensors: gyro ``(I + S) omega + b + n``, accelerometer ``f + b_a + n``
+``R^T (a + g z)``.  The sensors: gyro ``(I + S) omega + b + n``, accelerometer ``(I + S_a) f + b_a + n``
 (m/s^2), magnetometer the field ``latency_s`` late plus noise.  Nothing here is fitted to BROAD; the
 filter never sees what was injected (tests compare its output with :attr:`MotionRecording.rotation`).
 """
@@ -60,6 +60,8 @@ class SensorErrors:
     gyro_noise : float
         Rate noise density, rad/s/sqrt(Hz).
     accel_bias_m_s2 : tuple of 3 floats
+    accel_scale : tuple of 3 floats
+        Relative scale error of each accelerometer axis (0.02 = 2 %).
     accel_noise_m_s2 : float
         Per-sample white noise of each axis, m/s^2.
     mag_noise_ut : float
@@ -72,6 +74,7 @@ class SensorErrors:
     gyro_scale: tuple = (0.0, 0.0, 0.0)
     gyro_noise: float = 1e-4
     accel_bias_m_s2: tuple = (0.0, 0.0, 0.0)
+    accel_scale: tuple = (0.0, 0.0, 0.0)
     accel_noise_m_s2: float = 0.05
     mag_noise_ut: float = 0.7
     mag_latency_s: float = 0.0
@@ -252,7 +255,7 @@ def simulate_motion(kind: str, *, duration_s: float = 60.0, rate_hz: float = 285
     e = errors
     gyro = rate * (1.0 + np.asarray(e.gyro_scale)) + e.gyro_bias_rad_s \
         + e.gyro_noise * np.sqrt(rate_hz) * rng.normal(size=(n, 3))
-    accel = specific + e.accel_bias_m_s2 + e.accel_noise_m_s2 * rng.normal(size=(n, 3))
+    accel = specific * (1.0 + np.asarray(e.accel_scale)) + e.accel_bias_m_s2 + e.accel_noise_m_s2 * rng.normal(size=(n, 3))
     if e.mag_latency_s > 0.0:
         field_h = np.column_stack([np.interp(t - e.mag_latency_s, t, field_h[:, i]) for i in range(3)])
     mag = field_h + e.mag_noise_ut * rng.normal(size=(n, 3))

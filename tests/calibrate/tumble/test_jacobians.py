@@ -69,3 +69,93 @@ def test_joint_alignment_jacobian_in_chunks_equals_at_once(monkeypatch):
     monkeypatch.setattr(alignment, "_JACOBIAN_CHUNK_ROWS", 7)
     np.testing.assert_array_equal(joint.jacobian(q), at_once)
 
+
+
+# ---- the residual diagnosis's model (calibrate/tumble/diagnosis.py) -------------------------------
+
+def _diagnosis_model():
+    """A diagnosis model on a simulated tumble with time and temperature, and its chosen ellipsoid."""
+    from calibrate.effects import Basis
+    from calibrate.tumble import diagnosis
+    from calibrate.tumble.ellipsoid import fit_ellipsoid
+    from compass.sim.tumble import simulate_tumble
+
+    sim = simulate_tumble(seed=21, n=1500, temp_swing_c=10.0)
+    fit, _, _ = fit_ellipsoid(sim.mag)
+    temp_c = sim.temp_c if sim.temp_c is not None else 20.0 + 5.0 * np.sin(sim.t_s / 7.0)
+    rows = diagnosis._Rows((sim.mag - fit.centre) / fit.radius, sim.t_s, temp_c)
+    return diagnosis._Model(fit, rows, diagnosis._Context(fit.radius, Basis.of(sim.t_s, temp_c)), 0.3), fit
+
+
+def _forms():
+    from calibrate.tumble.diagnosis import TUMBLE_FORMS
+
+    return [form for forms in TUMBLE_FORMS.values() for form in forms]
+
+
+def _effect_params(form, rng):
+    q = rng.normal(scale=0.02, size=form.n_params(3))
+    if form.form == "warm-up":
+        q[3] = -1.0  # log(tau / session), inside its clip
+    return q
+
+
+@pytest.mark.parametrize("form", _forms(), ids=lambda f: f"{f.name}-{f.form}")
+@pytest.mark.parametrize("after_cubic", [False, True])
+def test_diagnosis_jacobian_matches_finite_differences(form, after_cubic):
+    """The fits' Jacobian (analytic back through the chain of corrections) against 3-point differences, whose
+    error is ~1e-9 of the entries' scale (hundreds: the field over the floor): 1e-6 of the largest entry, the
+    tolerance the forward-difference fallback also meets (``h |f''| / 2``, ``h = sqrt(eps)``), catches any
+    wrong term."""
+    from calibrate.tumble.diagnosis import TUMBLE_FORMS
+
+    model, fit = _diagnosis_model()
+    rng = np.random.default_rng(22)
+    cubic = TUMBLE_FORMS["nonlinear_response"][0]
+    effects = ((cubic,) if after_cubic and form is not cubic else ()) + (form,)
+    x = np.concatenate([fit.params] + [_effect_params(e, rng) for e in effects])
+    numeric = approx_derivative(model.weighted, x, method="3-point", args=(effects,))
+    np.testing.assert_allclose(model.jacobian(x, effects), numeric, atol=1e-6 * np.max(np.abs(numeric)), rtol=0)
+    plain = approx_derivative(model.weighted, fit.params, method="3-point", args=((),))
+    np.testing.assert_allclose(model.jacobian(fit.params, ()), plain, atol=1e-6 * np.max(np.abs(plain)), rtol=0)
+
+
+@pytest.mark.parametrize("form", _forms(), ids=lambda f: f"{f.name}-{f.form}")
+@pytest.mark.parametrize("after_cubic", [False, True])
+def test_effect_columns_of_the_score_test_match_finite_differences(form, after_cubic):
+    """``_Model.pulled`` (the score test's analytic columns of an effect added last) against 3-point
+    differences of the weighted residual, at a non-zero size (where the time constant's column is alive)."""
+    from calibrate.diagnosis.evidence import FitRecord
+    from calibrate.tumble.diagnosis import TUMBLE_FORMS
+
+    model, fit = _diagnosis_model()
+    rng = np.random.default_rng(23)
+    cubic = TUMBLE_FORMS["nonlinear_response"][0]
+    current = (cubic,) if after_cubic and form is not cubic else ()
+    x = np.concatenate([fit.params] + [_effect_params(e, rng) for e in current])
+    q = _effect_params(form, rng)
+    record = FitRecord(current, x, None, None, None, 0.0, 0, True, "")
+    analytic = model.pulled(record, form, q, model.corrected(x, current, model.rows))
+    if analytic is None:
+        pytest.skip(f"{form.name} ({form.form}) gives no derivatives: its score test differences (tested below)")
+    numeric = approx_derivative(lambda p: model.weighted(np.concatenate([x, p]), current + (form,)), q,
+                                method="3-point")
+    assert analytic.shape == numeric.shape
+    np.testing.assert_allclose(analytic, numeric, atol=TOL * np.max(np.abs(numeric)), rtol=0)
+
+
+def test_diagnosis_jacobian_of_a_form_without_derivatives_is_differenced():
+    """A form that gives no derivatives (``pulled`` None) leaves the Jacobian to finite differences, still right."""
+    from calibrate.tumble.diagnosis import TUMBLE_FORMS, LinearDrift
+
+    class Opaque(LinearDrift):
+        def pulled(self, g, z, q, rows, ctx):
+            return None
+
+    model, fit = _diagnosis_model()
+    opaque = Opaque("offset_drift", "linear", "a drift without derivatives")
+    effects = (TUMBLE_FORMS["nonlinear_response"][0], opaque)
+    x = np.concatenate([fit.params, [0.01, -0.02, 0.005], [0.02, 0.01, -0.03]])
+    assert model.analytic_jacobian(x, effects, model.rows) is None
+    numeric = approx_derivative(model.weighted, x, method="3-point", args=(effects,))
+    np.testing.assert_allclose(model.jacobian(x, effects), numeric, atol=1e-6 * np.max(np.abs(numeric)), rtol=0)

@@ -354,3 +354,30 @@ def test_gravity_relearnt_after_an_absurd_first_accelerometer_sample(model):
         f.update(*row)
     assert f.state.gravity == pytest.approx(1.0, rel=0.01)
     assert any("re-learnt" in e for e in f.events) and f.diagnostics.accel_used
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_inertial_low_pass_gain_and_mean_age(order):
+    """A still housing shaken sideways at 1 Hz: the low-pass keeps its theoretical gain of the shaking
+    (first order ``1 / sqrt(1 + (w tau)^2)``, Butterworth ``1 / sqrt(1 + (w / w_c)^4)``, ``w_c = sqrt 2 / tau``)
+    and its content's mean age converges to ``tau`` for both."""
+    tau, rate, amp, omega = 2.0, 100.0, 0.3, 2.0 * np.pi
+    cfg = FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.1, accel_time_constant_s=tau,
+                       accel_lowpass_order=order)
+    f = AttitudeFilter(cfg, gyro=True)
+    field = np.array([25.0, 0.0, -43.3])
+    t = np.arange(int(60 * rate)) / rate
+    lp = []
+    for tk in t:
+        f.update(tk, [amp * np.sin(omega * tk), 0.0, 9.81], [0.0, 0.0, 0.0], field)
+        lp.append(f.state.acc_lp[0])
+    tail = np.array(lp)[-int(10 * rate):]
+    gain = (tail.max() - tail.min()) / 2.0 / amp
+    expected = 1.0 / np.sqrt(1.0 + (omega * tau) ** 2) if order == 1 else 1.0 / np.sqrt(1.0 + (omega * tau / np.sqrt(2.0)) ** 4)
+    assert gain == pytest.approx(expected, rel=0.03)
+    assert f.state.acc_lp_age_s == pytest.approx(tau, rel=0.01)
+
+
+def test_low_pass_order_validated():
+    with pytest.raises(ValueError, match="accel_lowpass_order must be 1 or 2"):
+        FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.1, accel_lowpass_order=3)
