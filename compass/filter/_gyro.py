@@ -186,7 +186,7 @@ class GyroFilter(AttitudeFilter):
         s = self._s
         if s.acc_lp is not None:
             s.acc_lp, s.acc_lp_age_s, s.residual_var = a[:3], 0.0, 0.0
-            s.acc_lp_rate, s.age_lp = (0.0, 0.0, 0.0), (0.0, 0.0)
+            s.acc_lp_rate, s.age_lp = (0.0, 0.0, 0.0), (s.since_start_s, 0.0)  # the low-pass content is new: age 0
         s.rest_acc, s.rest_s = a[:3], 0.0
 
     def _propagate(self, dt: float) -> None:

@@ -357,6 +357,30 @@ def test_gravity_relearnt_after_an_absurd_first_accelerometer_sample(model):
 
 
 @pytest.mark.parametrize("order", [1, 2])
+def test_the_low_pass_starts_afresh_when_gravity_is_relearnt(order):
+    """Readings switching from m/s^2 to mg re-learn gravity; the low-pass content is then new, so its mean
+    age restarts at 0 and settles at tau, never negative nor far above it (a Butterworth's ramp error
+    overshoots by a few per cent); the tilt and bias updates scale with it."""
+    tau, rate = 2.0, 100.0
+    cfg = FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.1, accel_time_constant_s=tau,
+                       accel_lowpass_order=order)
+    f = AttitudeFilter(cfg, gyro=True)
+    field = np.array([25.0, 0.0, -43.3])
+    ages, relearnt_at = [], None
+    for k in range(int(80 * rate)):
+        accel = [0.0, 0.0, 9.81] if k < 60 * rate else [0.0, 0.0, 1000.0]
+        f.update(k / rate, accel, [0.0, 0.0, 0.0], field)
+        if relearnt_at is None and any("re-learnt" in e for e in f.events):
+            relearnt_at = k
+        if relearnt_at is not None:
+            ages.append(f.state.acc_lp_age_s)
+    assert relearnt_at is not None
+    ages = np.array(ages)
+    assert ages[0] < 0.05 and ages.min() >= 0.0 and ages.max() <= 1.1 * tau
+    assert ages[-1] == pytest.approx(tau, rel=0.02)
+
+
+@pytest.mark.parametrize("order", [1, 2])
 def test_inertial_low_pass_gain_and_mean_age(order):
     """A still housing shaken sideways at 1 Hz: the low-pass keeps its theoretical gain of the shaking
     (first order ``1 / sqrt(1 + (w tau)^2)``, Butterworth ``1 / sqrt(1 + (w / w_c)^4)``, ``w_c = sqrt 2 / tau``)
