@@ -194,13 +194,21 @@ class GyroFit:
                 "n_outliers": int(np.count_nonzero(~self.inliers)), "turns": self.turns,
                 "undetermined": list(self.undetermined), "words": self.words()}
 
+    def _latency_words(self) -> str:
+        """The fitted latency, when the data saw one; the runtime filter can only delay the gyro's side."""
+        if not self.latency_known:
+            return ""
+        ms = f"{1e3 * abs(self.latency_s):.1f} +/- {1e3 * self.latency_sigma_s:.1f} ms"
+        if self.latency_s > 0:
+            return f"; the magnetometer {ms} late against the gyro, fitted: the runtime filter's mag_latency_s"
+        return (f"; the magnetometer {ms} early against the gyro (the gyro is the late one), fitted: "
+                "the runtime filter's mag_latency_s cannot compensate it")
+
     def words(self) -> str:
         """What the gyro-aided fit determined, for the coverage words."""
         base = (f"with the gyro's turns ({self.turns}; {self.n_windows} windows of integration, gyro bias "
                 + ", ".join(f"{np.degrees(b):+.3f}" for b in self.gyro_bias_rad_s) + " deg/s"
-                + (f"; the magnetometer {1e3 * self.latency_s:.1f} +/- {1e3 * self.latency_sigma_s:.1f} ms late "
-                   "against "
-                   "the gyro, fitted: the runtime filter's mag_latency_s" if self.latency_known else "") + ")")
+                + self._latency_words() + ")")
         if self.determined:
             return base + ": the soft iron and the rotation to the housing are determined"
         if self.undetermined:  # said first: a fit that wandered along what the data leave free fails too

@@ -1,6 +1,8 @@
 """A magnetometer late against the accelerometer and gyro: the gyro-aided fit estimates the latency, the
 present fit says fast motion and withholds the rotation it would have got wrong (calibrate/tumble/motion.py)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -45,6 +47,9 @@ def test_a_simulated_latency_is_recovered_within_its_sigma(fast, rows):
         assert abs(held.latency_s) < 1e-9 and held.mag_rms > 1.5 * g.mag_rms
         h_true = np.array(fast.truth["hard_iron"])
         assert np.linalg.norm(held.hard_iron - h_true) > 2 * np.linalg.norm(g.hard_iron - h_true)
+        # a gyro later than the magnetometer is a negative latency, which the runtime filter cannot take
+        early = dataclasses.replace(g, latency_s=-g.latency_s).words()
+        assert "early against the gyro" in early and "cannot compensate" in early and "ms late" not in early
 
 
 def test_turn_rates_are_the_centred_mean_rate():
