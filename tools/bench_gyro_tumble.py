@@ -10,9 +10,11 @@ written on) through 20 uT of hard iron, 8 % soft iron and a 2 deg rotation to th
 the field's directions first cover 20 %, 30 %, 50 % of the sphere, or the whole 60 s ("full"); the
 gyro with a random 0.5 deg/s bias, a 0.5 % scale error (not modelled by the fit) and noise; cases
 marked ``late`` have the magnetometer one row (20 ms) late against the accelerometer and gyro.
-Columns: ``present`` (:func:`calibrate.tumble.calibrate_tumble`), ``gyro tau=0`` (the gyro-aided fit,
-always, its magnetometer latency held at zero: the model before the latency), ``gyro`` (the same with
-the latency fitted; its mean and the rms of (fitted - true) / sigma in the notes), ``default`` (what
+Columns: ``present`` (:func:`calibrate.tumble.calibrate_tumble`), ``gyro tau=0`` (the gyro-aided fit
+tried on every recording, its magnetometer latency held at zero: the model before the latency), ``gyro``
+(the same with the latency fitted; its mean and the rms of (fitted - true) / sigma in the notes); where
+the gyro-aided fit is refused (not converged, or the model does not describe the recording) these two
+cells are the present fit's, as :func:`calibrate.tumble.gyro.with_gyro` returns it, ``default`` (what
 ``compass calibrate`` does: the gyro-aided fit only where the present one falls back, including a
 rotation withheld for fast motion, and the gyro-aided one is determined).  Errors against the truth:
 hard iron (% of |B|), soft iron shape (Frobenius of the det-1 matrices), rotation to the housing (deg), and the heading

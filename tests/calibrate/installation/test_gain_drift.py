@@ -1,6 +1,5 @@
 """gain_drift and the unexplained widening of the installation's diagnosis."""
 
-from dataclasses import replace
 
 import numpy as np
 import pytest
