@@ -14,9 +14,9 @@ errs low, which the benchmark measures, ``tools/bench_kinds_loop.py``).
 The number of blocks trades two errors.  Few blocks keep each block's share of a slow structure
 whole (the independence assumption holds better) but leave the meat a sum of few terms (a noisy
 variance: with G blocks it has about G - k_eff degrees of freedom); many blocks cut a slow
-structure into pieces whose correlation the sandwich then ignores.  Eight is the residual
-structure test's own blocking (:data:`calibrate.tumble.diagnosis.STRUCTURE_BLOCKS`): the stretch of
-time over which the verdict already looked for a changed hard iron or field.
+structure into pieces whose correlation the sandwich then ignores.  Eight is also the tumble's residual
+structure test's blocking (its ``STRUCTURE_BLOCKS`` is this constant): the stretch of time over which
+the verdict already looked for a changed hard iron or field.
 """
 
 from __future__ import annotations
@@ -87,9 +87,8 @@ def widened_in_time(jac: np.ndarray, weighted: np.ndarray, blocks: np.ndarray, n
         return np.array(naive, dtype=float, copy=True)
     if bread is None:
         bread = np.full(naive.shape, np.nan)
-        if good.any():
-            j = jac[:, good]
-            bread[np.ix_(good, good)] = np.linalg.pinv(j.T @ j)
+        j = jac[:, good]
+        bread[np.ix_(good, good)] = np.linalg.pinv(j.T @ j)
     else:
         bread = np.where(np.outer(good, good), bread, np.nan)
     robust = cluster_covariance(jac, np.asarray(weighted, dtype=float), np.asarray(blocks), bread)

@@ -92,8 +92,9 @@ __all__ = ["TumbleEffect", "TUMBLE_FORMS", "TumbleDiagnosis", "UNEXPLAINED_WARNI
 
 _AXES = ("mx", "my", "mz")
 _N_AXES = len(_AXES)
-STRUCTURE_BLOCKS = 8
-"""Blocks of consecutive samples (and temperature bands) in the structure test."""
+STRUCTURE_BLOCKS = TIME_BLOCKS
+"""Blocks of consecutive samples (and temperature bands) in the structure test: the unexplained
+widening's blocks (:data:`calibrate.diagnosis.blocks.TIME_BLOCKS`), one blocking for both."""
 MIN_BLOCK_SAMPLES = 50
 _STRUCTURE_CHUNK_ROWS = 8192
 """Rows per chunk of the structure regression (a chunk's design takes 8192 x ~90 x 8 bytes, 6 MB)."""
