@@ -287,7 +287,7 @@ class _BlockMoments(NamedTuple):
 
 
 def _block_moments(jac, weighted, t_s, bread, block_s, n_bands) -> _BlockMoments:
-    """Block sums, what the fit keeps of them and the band kernels (the checks of :func:`time_correlated_covariance`)."""
+    """Block sums, what the fit keeps of them and the band kernels (raises as :func:`time_correlated_covariance`)."""
     jac = np.asarray(jac, dtype=float)
     weighted = np.atleast_2d(np.asarray(weighted, dtype=float).T).T
     t_s = np.asarray(t_s, dtype=float)
