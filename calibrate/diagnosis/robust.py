@@ -67,9 +67,15 @@ mountings absorb shows little in ``z`` and is estimated from what shows, then pr
 ``V``.  The spectrum is fitted to the block sums' second moments (MINQUE at ``K = 0``: normal
 equations in traces ``tr(K_k keep K_l keep)``, right-hand sides ``z^T K_k z - tr(K_k keep)``),
 in two stages: a score test per band (the floor's factor profiled out; under white noise the
-right-hand sides are centred with covariance twice the normal matrix) keeps the bands that carry
-structure at ``BAND_P_VALUE``, then a non-negative least squares on those bands alone gives the
-spectrum (non-negative: a covariance), ``f`` bounded below by -1.
+right-hand sides are centred with covariance twice the normal matrix, and the statistic is the score
+in that metric) keeps the bands that carry structure at ``BAND_P_VALUE``, then a non-negative least
+squares on those bands alone gives the spectrum (non-negative: a covariance), ``f`` bounded below
+by -1.  The score is a quadratic form in ``z``, not Gaussian: in the low bands, where the fit
+absorbs most of the band, it has few effective degrees of freedom and a heavy right tail, and a
+chi-square threshold passed white noise several times too often (14 of 400 band tests at 1 %).
+Each band's statistic is therefore compared with its own null distribution, simulated: under white
+noise ``z ~ N(0, keep)`` exactly (a linear fit), so ``NULL_DRAWS`` block sums drawn through
+``keep``'s eigendecomposition, with a fixed seed (the fit is deterministic), give it.
 
 Checks on paper.  White noise: every right-hand side is centred, no band passes but by chance, the
 floor's factor is unbiased: ``V = H^-1`` (the naive covariance) on average without the
@@ -80,32 +86,38 @@ determine keeps NaN.
 
 Its limits (measured: tools/bench_loop.py, tests/calibrate/diagnosis/test_robust.py).  A band that
 passes the score test by chance where the fit absorbs nearly all of it (periods beyond the record)
-widens by far too much: in 2 of 40 white-noise replicates of the test's two-channel line, 39
-times.  A flat spectrum within the lowest band over-covers a random walk where per-segment levels
+widens by far too much: at the test's level that is about 1 % of white-noise recordings (none of
+120 replicates of the test's two-channel line widened beyond 1.33 times; with the chi-square
+threshold 2 of 40 widened 39 times).  A flat spectrum within the lowest band over-covers a random walk where per-segment levels
 absorb most of it (0.53 in the test).  Rate memory stays over-covered (its fundamental is absorbed
 in every channel alike, which a stationary process does not know).
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from scipy.linalg import cholesky, solve_triangular
 from scipy.optimize import lsq_linear
-from scipy.special import chdtri
 
-__all__ = ["BLOCK_S", "LEVERAGE_ONE", "N_BANDS", "band_edges_hz", "cluster_covariance", "extra_sigma",
+__all__ = ["BLOCK_S", "LEVERAGE_ONE", "N_BANDS", "band_edges_hz", "band_p_values", "cluster_covariance", "extra_sigma",
            "heading_sigma_deg", "time_correlated_covariance", "widened"]
 
 BLOCK_S = 10.0
 """Time blocks of :func:`time_correlated_covariance`, s: structure faster than this counts as white."""
 N_BANDS = 9
-"""Octave bands of the structure's spectrum below the blocks' Nyquist (0.05 Hz down to 1e-4 Hz, then to 0)."""
+"""Octave bands of the structure's spectrum below the blocks' Nyquist (0.05 Hz down to 0.05 / 256 ~ 2e-4 Hz, then to 0)."""
 GRAM_RIDGE = 1e-12
 """Relative ridge on the normalised normal equations of the non-negative fit (loadings too alike share power)."""
 GRAM_RCOND = 1e-10
 """Relative cut-off of the normal equations' pseudo-inverse (bands too alike to tell apart share their power)."""
 BAND_P_VALUE = 0.01
-"""A band's spectral matrix counts when white noise would leave one as large this rarely (chi-square test)."""
+"""A band's spectral matrix counts when white noise would leave one as large this rarely (simulated null)."""
+NULL_DRAWS = 1000
+"""Draws of white noise's block sums giving each band's null distribution (fixed seed: the fit is deterministic)."""
+NULL_CHUNK = 250
+"""Draws simulated at once (memory: draws x bands x channels x blocks)."""
 
 LEVERAGE_ONE = 1e-6
 """Leverage eigenvalues within this of one count as one (a cluster alone determines the direction)."""
@@ -260,6 +272,132 @@ def _loadings(n_groups: int) -> np.ndarray:
     return np.array(out)
 
 
+class _BlockMoments(NamedTuple):
+    """What :func:`time_correlated_covariance` fits the structure's spectrum to (see its comments)."""
+
+    b: np.ndarray  # the bread on the determined parameters, (k', k')
+    good: np.ndarray  # which parameters are determined, (k,)
+    summed_jac: np.ndarray  # G = A J, rows channel-major, (c nb, k')
+    y: np.ndarray  # the block sums z = A r, (c, nb)
+    bands: np.ndarray  # white beyond the floor, then each band's kernel B_k, (bands, nb, nb)
+    blocks: np.ndarray  # keep = A (I - P) A^T as (c, nb, c, nb)
+    root: np.ndarray  # keep = root root^T, (c nb, rank)
+    floor_rhs: float  # z^T keep^+ z - rank(keep)
+    traces: np.ndarray  # tr(B_k keep_bc B_l keep_da), (bands, c, c, bands, c, c)
+
+
+def _block_moments(jac, weighted, t_s, bread, block_s, n_bands) -> _BlockMoments:
+    """Block sums, what the fit keeps of them and the band kernels (raises as :func:`time_correlated_covariance`)."""
+    jac = np.asarray(jac, dtype=float)
+    weighted = np.atleast_2d(np.asarray(weighted, dtype=float).T).T
+    t_s = np.asarray(t_s, dtype=float)
+    n, c = weighted.shape
+    if jac.shape[0] != n * c or t_s.size != n:
+        raise ValueError(f"expected {jac.shape[0]} residuals as ({t_s.size} times) x channels, got {weighted.shape}")
+    if not block_s > 0:
+        raise ValueError(f"block_s must be positive, got {block_s}")
+    good = np.isfinite(np.diag(bread))
+    b = bread[np.ix_(good, good)]
+    block = np.unique(np.floor((t_s - t_s.min()) / block_s), return_inverse=True)[1].ravel()
+    nb = block.max() + 1
+    size = np.bincount(block, minlength=nb).astype(float)
+    t_block = np.bincount(block, weights=t_s, minlength=nb) / size
+    summed_jac = np.zeros((nb, c, b.shape[0]))  # G = A J, A the block sums; rows channel-major below
+    np.add.at(summed_jac, block, np.nan_to_num(jac[:, good]).reshape(n, c, -1))
+    summed_jac = summed_jac.transpose(1, 0, 2).reshape(c * nb, -1)
+    keep = np.diag(np.tile(size, c)) - summed_jac @ b @ summed_jac.T  # A (I - P) A^T = A (I - P) U
+    y = np.concatenate([np.bincount(block, weights=w, minlength=nb) for w in weighted.T]).reshape(c, nb)
+    edges = band_edges_hz(block_s, n_bands)
+    lag = t_block[:, None] - t_block[None, :]
+    bands = np.stack([np.eye(nb)] + [_band_kernel(lag, lo, hi) for lo, hi in zip(edges[:-1], edges[1:])])
+    # keep's range (numpy's matrix_rank tolerance): its pseudo-inverse, its rank and a root to draw z from
+    w, u = np.linalg.eigh(keep)
+    positive = w > w.max(initial=0.0) * keep.shape[0] * np.finfo(float).eps
+    root = u[:, positive] * np.sqrt(w[positive])
+    floor_rhs = float(np.sum((u[:, positive].T @ y.ravel()) ** 2 / w[positive]) - positive.sum())
+    blocks = keep.reshape(c, nb, c, nb)
+    moved = np.einsum("kij,bjcl->kbcil", bands, blocks, optimize=True)  # B_k keep_bc
+    traces = np.tensordot(moved, moved, axes=([3, 4], [4, 3]))  # (k, b, c, l, d, a)
+    return _BlockMoments(b, good, summed_jac, y, bands, blocks, root, floor_rhs, traces)
+
+
+def _with_floor(m: _BlockMoments, outer: np.ndarray, quadratic: np.ndarray, floor_quadratic: np.ndarray):
+    """Normal equations of the floor's factor and the bands' spectra in ``outer`` (v, c, c), for block sums
+    whose ``z_a^T B_k z_d`` are ``quadratic`` (draws, bands, c, c) and ``z^T keep^+ z`` ``floor_quadratic``.
+
+    Returns the normal matrix (1 + bands v, 1 + bands v) and right-hand sides (draws, 1 + bands v).
+    """
+    # E[z z^T] = (1 + f) keep + keep K keep, K = sum over bands k of (S_k kron B_k), S_k the band's c x c
+    # spectral matrix.  Normal equations of the (MINQUE) fit at K = 0, in traces: <k, v; l, u> =
+    # tr(K_kv keep K_lu keep) = sum V_ab U_cd tr(B_k keep_bc B_l keep_da), rhs_kv = z^T K_kv z - tr(K_kv keep);
+    # the floor's beside them: <floor, floor> = rank(keep), <floor, K> = tr(K keep), rhs = z^T keep^+ z - rank
+    gram = np.einsum("vab,ucd,kbclda->kvlu", outer, outer, m.traces, optimize=True)
+    gram = gram.reshape(gram.shape[0] * gram.shape[1], -1)
+    cross = np.einsum("kij,diaj,vad->kv", m.bands, m.blocks, outer, optimize=True).ravel()
+    rhs = np.einsum("mkad,vad->mkv", quadratic, outer, optimize=True).reshape(len(quadratic), -1) - cross
+    rank = m.root.shape[1]
+    normal = np.block([[np.array([[rank]]), cross[None]], [cross[:, None], gram]])
+    return normal, np.column_stack([floor_quadratic - rank, rhs])
+
+
+def _quadratic(bands: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """``z_a^T B_k z_d`` of block sums ``z`` (draws, c, nb): shape (draws, bands, c, c).  Batched products
+    (BLAS), not one einsum: numpy's contraction path leaves the batch over draws to its C loop."""
+    return np.matmul(np.matmul(z[:, None], bands), z.transpose(0, 2, 1)[:, None])
+
+
+def _band_p_values(m: _BlockMoments) -> np.ndarray:
+    """Each band's score-test p-value for structure, against its null distribution under white noise by simulation."""
+    c = m.y.shape[0]
+    entries = [(i, j) for i in range(c) for j in range(i, c)]
+    basis = np.zeros((len(entries), c, c))
+    for e, (i, j) in enumerate(entries):
+        basis[e, i, j] = basis[e, j, i] = 1.0
+    own = np.ones((len(m.bands), len(entries)), dtype=bool)
+    own[0] = [i == j for i, j in entries]  # white beyond the floor: each channel's own
+    index = 1 + np.arange(own.size).reshape(own.shape)
+    normal, _ = _with_floor(m, basis, _quadratic(m.bands, m.y[None]), np.array([m.floor_rhs + m.root.shape[1]]))
+    # the floor's factor profiled out: score = rhs_i - <i, floor> rhs_floor / <floor, floor>, under white noise
+    # centred with covariance `spread` (twice the profiled normal matrix, were z Gaussian in K's coordinates)
+    tests = []
+    for k in range(len(m.bands)):
+        i = index[k][own[k]]
+        lever = normal[i, 0] / normal[0, 0]
+        spread = 2.0 * (normal[np.ix_(i, i)] - np.outer(normal[i, 0], normal[0, i]) / normal[0, 0])
+        tests.append((i, lever, np.linalg.pinv(spread, rcond=GRAM_RCOND, hermitian=True)))
+
+    def statistics(quadratic, floor_quadratic):
+        _, rhs = _with_floor(m, basis, quadratic, floor_quadratic)
+        score = [rhs[:, i] - np.outer(rhs[:, 0], lever) for i, lever, _ in tests]
+        return np.column_stack([np.einsum("mi,ij,mj->m", s, w, s) for s, (_, _, w) in zip(score, tests)])
+
+    observed = statistics(_quadratic(m.bands, m.y[None]), np.array([m.floor_rhs + m.root.shape[1]]))[0]
+    # the statistic is a quadratic form of few effective degrees of freedom in the low bands (heavy-tailed, far
+    # from chi-square): its null by simulation, z = A r ~ N(0, keep) under white noise, with a fixed seed
+    rng = np.random.default_rng(0)
+    exceed = np.zeros(len(m.bands))
+    for start in range(0, NULL_DRAWS, NULL_CHUNK):
+        g = rng.standard_normal((min(NULL_CHUNK, NULL_DRAWS - start), m.root.shape[1]))
+        z = (g @ m.root.T).reshape(len(g), c, -1)
+        exceed += np.sum(statistics(_quadratic(m.bands, z), np.sum(g**2, axis=1)) >= observed, axis=0)
+    return (1.0 + exceed) / (1.0 + NULL_DRAWS)
+
+
+def band_p_values(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: np.ndarray,
+                  block_s: float = BLOCK_S, n_bands: int = N_BANDS) -> np.ndarray:
+    """Stage 1 of :func:`time_correlated_covariance` alone: each band's p-value for structure (white first).
+
+    Parameters as :func:`time_correlated_covariance`.  Under white noise each is uniform on
+    ``[1 / (NULL_DRAWS + 1), 1]`` up to the simulation's error; a band counts at ``BAND_P_VALUE``.
+
+    Returns
+    -------
+    ndarray, shape (n_bands + 1,)
+        White beyond the floor, then the bands from 0 Hz upward.
+    """
+    return _band_p_values(_block_moments(jac, weighted, t_s, bread, block_s, n_bands))
+
+
 def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: np.ndarray,
                                block_s: float = BLOCK_S, n_bands: int = N_BANDS) -> np.ndarray:
     """Covariance of a least-squares fit's parameters with its residual's structure a stationary process in time.
@@ -297,74 +435,17 @@ def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.nd
     ValueError
         Mismatched shapes, or a non-positive block length.
     """
-    jac = np.asarray(jac, dtype=float)
-    weighted = np.atleast_2d(np.asarray(weighted, dtype=float).T).T
-    t_s = np.asarray(t_s, dtype=float)
-    n, c = weighted.shape
-    if jac.shape[0] != n * c or t_s.size != n:
-        raise ValueError(f"expected {jac.shape[0]} residuals as ({t_s.size} times) x channels, got {weighted.shape}")
-    if not block_s > 0:
-        raise ValueError(f"block_s must be positive, got {block_s}")
-    good = np.isfinite(np.diag(bread))
-    b = bread[np.ix_(good, good)]
-    block = np.unique(np.floor((t_s - t_s.min()) / block_s), return_inverse=True)[1].ravel()
-    nb = block.max() + 1
-    size = np.bincount(block, minlength=nb).astype(float)
-    t_block = np.bincount(block, weights=t_s, minlength=nb) / size
-    summed_jac = np.zeros((nb, c, b.shape[0]))  # G = A J, A the block sums; rows channel-major below
-    np.add.at(summed_jac, block, np.nan_to_num(jac[:, good]).reshape(n, c, -1))
-    summed_jac = summed_jac.transpose(1, 0, 2).reshape(c * nb, -1)
-    keep = np.diag(np.tile(size, c)) - summed_jac @ b @ summed_jac.T  # A (I - P) A^T = A (I - P) U
-    y = np.concatenate([np.bincount(block, weights=w, minlength=nb) for w in weighted.T]).reshape(c, nb)
-    edges = band_edges_hz(block_s, n_bands)
-    lag = t_block[:, None] - t_block[None, :]
-    bands = np.stack([np.eye(nb)] + [_band_kernel(lag, lo, hi) for lo, hi in zip(edges[:-1], edges[1:])])
-    # Moments of the block sums z = A r against what the fit leaves of each band: E[z z^T] = keep + keep K keep,
-    # K = sum over bands k of (S_k kron B_k), S_k the band's c x c spectral matrix.  Normal equations of the
-    # (MINQUE) fit at K = 0, in traces: <k, v; l, u> = tr(K_kv keep K_lu keep)
-    #   = sum V_ab U_cd tr(B_k keep_bc B_l keep_da),  rhs_kv = z^T K_kv z - tr(K_kv keep)
-    blocks = keep.reshape(c, nb, c, nb)
-    moved = np.einsum("kij,bjcl->kbcil", bands, blocks)  # B_k keep_bc
-    traces = np.tensordot(moved, moved, axes=([3, 4], [4, 3]))  # (k, b, c, l, d, a)
-
-    def normal_equations(outer):
-        gram = np.einsum("vab,ucd,kbclda->kvlu", outer, outer, traces)
-        rhs = np.einsum("kij,ai,dj,vad->kv", bands, y, y, outer) - np.einsum("kij,diaj,vad->kv", bands, blocks, outer)
-        return gram.reshape(rhs.size, rhs.size), rhs.ravel()
-
-    # the floor itself may be off by a factor (1 + f): E[z z^T] gains f keep; its normal equations beside the
-    # bands' are <floor, floor> = rank(keep), <floor, K> = tr(K keep), rhs = z^T keep^+ z - rank(keep)
-    rank = np.linalg.matrix_rank(keep, hermitian=True)
-    floor_rhs = y.ravel() @ np.linalg.pinv(keep, hermitian=True) @ y.ravel() - rank
-
-    def with_floor(outer):
-        gram, rhs = normal_equations(outer)
-        cross = np.einsum("kij,diaj,vad->kv", bands, blocks, outer).ravel()
-        return np.block([[np.array([[rank]]), cross[None]], [cross[:, None], gram]]), np.concatenate([[floor_rhs], rhs])
-
-    # stage 1: which bands carry structure at all: a score test per band, each entry of S_k free, the floor's
-    # factor profiled out (under white noise rhs is centred with covariance 2 gram, Gaussian quadratic forms)
-    entries = [(i, j) for i in range(c) for j in range(i, c)]
-    basis = np.zeros((len(entries), c, c))
-    for e, (i, j) in enumerate(entries):
-        basis[e, i, j] = basis[e, j, i] = 1.0
-    gram, rhs = with_floor(basis)
-    own = np.ones((len(bands), len(entries)), dtype=bool)
-    own[0] = [i == j for i, j in entries]  # white beyond the floor: each channel's own
-    index = 1 + np.arange(own.size).reshape(own.shape)
-    carries = np.zeros(len(bands), dtype=bool)
-    for k in range(len(bands)):
-        i = index[k][own[k]]
-        score = rhs[i] - gram[i, 0] * rhs[0] / gram[0, 0]
-        spread = 2.0 * (gram[np.ix_(i, i)] - np.outer(gram[i, 0], gram[0, i]) / gram[0, 0])
-        statistic = score @ np.linalg.pinv(spread, rcond=GRAM_RCOND, hermitian=True) @ score
-        carries[k] = statistic > chdtri(i.size, BAND_P_VALUE)
+    m = _block_moments(jac, weighted, t_s, bread, block_s, n_bands)
+    c = m.y.shape[0]
+    # stage 1: which bands carry structure at all (a score test per band, its null by simulation)
+    carries = _band_p_values(m) <= BAND_P_VALUE
     # stage 2: the floor's factor (at least -1) and the spectrum on the bands that carry structure,
     # non-negative: each channel's own process and processes common to each pair of channels, alike or opposed
     loads = _loadings(c)
     outer = np.einsum("vi,vj->vij", loads, loads)
-    gram, rhs = with_floor(outer)
-    used = np.zeros((len(bands), len(loads)), dtype=bool)
+    gram, rhs = _with_floor(m, outer, _quadratic(m.bands, m.y[None]), np.array([m.floor_rhs + m.root.shape[1]]))
+    rhs = rhs[0]
+    used = np.zeros((len(m.bands), len(loads)), dtype=bool)
     used[carries] = True
     used[0, c:] = False
     on = np.concatenate([[True], used.ravel()])
@@ -375,7 +456,10 @@ def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.nd
     target = solve_triangular(upper, rhs[on] / scale, trans="T")
     solution[on] = lsq_linear(upper, target, bounds=(lower, np.inf)).x / scale
     floor, power = solution[0], solution[1:]
-    structure = np.einsum("kv,vad,kij->aidj", power.reshape(used.shape), outer, bands).reshape(c * nb, c * nb)
+    nb = m.y.shape[1]
+    structure = np.einsum("kv,vad,kij->aidj", power.reshape(used.shape), outer, m.bands,
+                          optimize=True).reshape(c * nb, c * nb)
     out = np.full(bread.shape, np.nan)
-    out[np.ix_(good, good)] = (1.0 + floor) * b + b @ summed_jac.T @ structure @ summed_jac @ b
+    b, g = m.b, m.summed_jac
+    out[np.ix_(m.good, m.good)] = (1.0 + floor) * b + b @ g.T @ structure @ g @ b
     return out

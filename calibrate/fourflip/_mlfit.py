@@ -412,7 +412,7 @@ def structured_covariance(fit: MLFit, noise: np.ndarray) -> np.ndarray:
 
     bins = fit.bins
     weighted = (bins.outputs - _Predictor(bins.samples)(fit.physics)) * (bins.root_n / noise)
-    # without a t_s column, the recording's order at one sample a second
+    # without a t_s column, the recording's order at one bin a second
     t_s = bins.samples.t_s if bins.samples.t_s is not None else np.arange(weighted.shape[0], dtype=float)
     bread = fit.covariance / (fit.chi2 / max(fit.dof, 1))
     return time_correlated_covariance(fit.jac, weighted, t_s, bread)
