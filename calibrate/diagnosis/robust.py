@@ -98,7 +98,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.linalg import cholesky, solve_triangular
 from scipy.optimize import lsq_linear
 
 __all__ = ["BLOCK_S", "LEVERAGE_ONE", "N_BANDS", "band_edges_hz", "band_p_values", "cluster_covariance", "extra_sigma",
@@ -245,6 +244,19 @@ def heading_sigma_deg(directions: np.ndarray, direction_covariance: np.ndarray, 
     lever = (across @ solver) ** 2  # (h, c)
     return float(np.degrees(np.sqrt(np.mean(np.sum(lever * var, axis=1))) / (field_norm * np.cos(dip))))
 
+
+
+def _half_system(gram: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(U, t)`` with ``U^T U = gram + ridge`` and ``U^T t = rhs``: least squares in ``U`` then minimises
+    ``x^T (gram + ridge) x - 2 rhs^T x``, the normal equations' quadratic form, under bounds.
+
+    From the eigen-decomposition, not a Cholesky factor: with few time blocks several bands are alike
+    to rounding, and the (positive semi-definite) gram can then have eigenvalues a rounding below zero;
+    they are taken as zero before the ridge (:data:`GRAM_RIDGE`, relative to the normalised gram).
+    """
+    w, v = np.linalg.eigh(gram)
+    root = np.sqrt(np.maximum(w, 0.0) + GRAM_RIDGE)
+    return root[:, None] * v.T, (v.T @ rhs) / root
 
 
 def _band_kernel(lag_s: np.ndarray, low_hz: float, high_hz: float) -> np.ndarray:
@@ -450,11 +462,10 @@ def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.nd
     used[0, c:] = False
     on = np.concatenate([[True], used.ravel()])
     scale = np.sqrt(np.maximum(np.diag(gram)[on], np.finfo(float).tiny))
-    upper = cholesky(gram[np.ix_(on, on)] / np.outer(scale, scale) + GRAM_RIDGE * np.eye(on.sum()))
+    half, target = _half_system(gram[np.ix_(on, on)] / np.outer(scale, scale), rhs[on] / scale)
     lower = np.r_[-1.0, np.zeros(on.sum() - 1)] * scale
     solution = np.zeros(on.size)
-    target = solve_triangular(upper, rhs[on] / scale, trans="T")
-    solution[on] = lsq_linear(upper, target, bounds=(lower, np.inf)).x / scale
+    solution[on] = lsq_linear(half, target, bounds=(lower, np.inf)).x / scale
     floor, power = solution[0], solution[1:]
     nb = m.y.shape[1]
     structure = np.einsum("kv,vad,kij->aidj", power.reshape(used.shape), outer, m.bands,

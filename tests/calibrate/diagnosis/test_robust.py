@@ -2,7 +2,9 @@
 
 import numpy as np
 import pytest
+import scipy.linalg
 
+from calibrate.diagnosis import robust as robust_module
 from calibrate.diagnosis.robust import (BAND_P_VALUE, N_BANDS, band_p_values, cluster_covariance, extra_sigma,
                                        heading_sigma_deg, time_correlated_covariance, widened)
 
@@ -221,3 +223,20 @@ def test_time_process_undetermined_stays_nan_and_bad_shapes_are_refused():
         time_correlated_covariance(jac, r[:-1], t, bread)
     with pytest.raises(ValueError, match="block_s must be positive"):
         time_correlated_covariance(jac, r, t, bread, block_s=0.0)
+
+
+def test_the_non_negative_fit_takes_a_gram_a_rounding_below_semi_definite():
+    """Bands that few time blocks cannot tell apart make the normalised gram singular; rounding can leave an
+    eigenvalue below zero by more than the ridge, where a Cholesky factor fails (a real installation run with
+    8 blocks did).  The half system still reproduces the quadratic form, with that eigenvalue taken as 0."""
+    rng = np.random.default_rng(3)
+    v = np.linalg.qr(rng.normal(size=(5, 5)))[0]
+    eig = np.array([2.0, 1.0, 0.5, 0.0, -1e-10])
+    gram = v @ np.diag(eig) @ v.T
+    with pytest.raises(np.linalg.LinAlgError):
+        scipy.linalg.cholesky(gram + robust_module.GRAM_RIDGE * np.eye(5))
+    rhs = rng.normal(size=5)
+    half, target = robust_module._half_system(gram, rhs)
+    clipped = v @ np.diag(np.maximum(eig, 0.0) + robust_module.GRAM_RIDGE) @ v.T
+    np.testing.assert_allclose(half.T @ half, clipped, atol=1e-12)
+    np.testing.assert_allclose(half.T @ target, rhs, rtol=1e-9, atol=1e-9)
