@@ -76,7 +76,7 @@ from scipy.optimize import approx_fprime
 
 from ..contract import FitStatistics
 from ..diagnosis.evidence import (FitRecord, Proposal, determined, gather_forms, is_unexplained, linearised_score,
-                                  refit_from_better_start, select_effects)
+                                  refit_from_better_start, select_effects, unit_columns)
 from ..diagnosis.blocks import TIME_BLOCKS, level_heading_sigma_deg, time_blocks, widened_in_time
 from ..diagnosis.robust import extra_sigma
 from ..diagnosis.forms import json_float, rms
@@ -333,6 +333,7 @@ class _Model:
     def __init__(self, fit: EllipsoidFit, rows: _Rows, ctx: _Context, floor: float):
         self.ellipsoid, self.k, self.field_norm = fit.ellipsoid, fit.n_params, fit.field_norm
         self.rows, self.ctx, self.floor = rows, ctx, floor
+        self._scored_against = None  # (fit, its corrected reading, unit_columns(fit.jac)): the fit last scored against
 
     def corrected(self, x, effects, rows: _Rows) -> np.ndarray:
         """``c(y - p_h)``, shape (n, 3), normalised units."""
@@ -445,9 +446,11 @@ class _Model:
         Gauss-Newton step from the score point.  The effect's columns are analytic where it has them
         (:meth:`pulled`), else forward differences.
         """
-        z = self.corrected(fit.x, fit.effects, self.rows)
+        if self._scored_against is None or self._scored_against[0] is not fit:  # a round scores every form against one fit
+            self._scored_against = (fit, self.corrected(fit.x, fit.effects, self.rows), unit_columns(fit.jac))
+        _, z, j_b = self._scored_against
         return linearised_score(self.weighted, fit, effect, effect.score_points(_N_AXES), _FD_STEP,
-                                block_jacobian=lambda q: self.pulled(fit, effect, q, z))
+                                block_jacobian=lambda q: self.pulled(fit, effect, q, z), j_b=j_b)
 
     def refit(self, fit: _Fit, effect: TumbleEffect, start: np.ndarray) -> _Fit:
         """The fit with ``effect`` added, from ``start`` or the effect switched off, whichever fits better."""
