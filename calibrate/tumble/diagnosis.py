@@ -454,6 +454,7 @@ class _Model:
 
     def refit(self, fit: _Fit, effect: TumbleEffect, start: np.ndarray) -> _Fit:
         """The fit with ``effect`` added, from ``start`` or the effect switched off, whichever fits better."""
+        self._scored_against = None  # a round's scores come before its refits: free its (rows, k) Jacobian for them
         return refit_from_better_start(self.fit, self.weighted, fit, effect, effect.score_points(_N_AXES)[0], start)
 
 
