@@ -216,7 +216,8 @@ def gather_forms(names: Iterable[str], forms: dict, why_not: Callable[[Any], str
 
 
 def linearised_score(weighted: Callable, current, effect, points: Sequence[np.ndarray],
-                     step: float, block_jacobian: Callable | None = None) -> tuple[float, np.ndarray]:
+                     step: float, block_jacobian: Callable | None = None,
+                     j_b: np.ndarray | None = None) -> tuple[float, np.ndarray]:
     """Score (Lagrange-multiplier) test for adding ``effect`` to a least-squares fit.
 
     The effect's Jacobian at each of its score points is projected off the current fit's Jacobian
@@ -237,6 +238,9 @@ def linearised_score(weighted: Callable, current, effect, points: Sequence[np.nd
     block_jacobian : callable, optional
         ``block_jacobian(q) -> (m, q.size)`` or None: the weighted residual's derivatives by the effect's
         parameters at ``q`` (finite differences where it is not given or gives None).
+    j_b : ndarray, shape (m, k), optional
+        :func:`unit_columns` of ``current.jac``, when the caller keeps it over the effects it scores
+        against the same fit (computed otherwise).
 
     Returns
     -------
@@ -245,7 +249,7 @@ def linearised_score(weighted: Callable, current, effect, points: Sequence[np.nd
         The Gauss-Newton estimate of the effect's parameters from the best point.
     """
     effects = current.effects + (effect,)
-    j_b = unit_columns(current.jac)
+    j_b = unit_columns(current.jac) if j_b is None else j_b
     best = (-np.inf, points[0])
     for q0 in points:
         drop, delta = linear_score(lambda p: weighted(p, effects), np.concatenate([current.x, q0]),

@@ -76,7 +76,7 @@ from scipy.optimize import approx_fprime
 
 from ..contract import FitStatistics
 from ..diagnosis.evidence import (FitRecord, Proposal, determined, gather_forms, is_unexplained, linearised_score,
-                                  refit_from_better_start, select_effects)
+                                  refit_from_better_start, select_effects, unit_columns)
 from ..diagnosis.blocks import TIME_BLOCKS, level_heading_sigma_deg, time_blocks, widened_in_time
 from ..diagnosis.robust import extra_sigma
 from ..diagnosis.forms import json_float, rms
@@ -334,6 +334,7 @@ class _Model:
     def __init__(self, fit: EllipsoidFit, rows: _Rows, ctx: _Context, floor: float):
         self.ellipsoid, self.k, self.field_norm = fit.ellipsoid, fit.n_params, fit.field_norm
         self.rows, self.ctx, self.floor = rows, ctx, floor
+        self._scored_against = None  # (fit, its corrected reading, unit_columns(fit.jac)): the fit last scored against
 
     def corrected(self, x, effects, rows: _Rows) -> np.ndarray:
         """``c(y - p_h)``, shape (n, 3), normalised units."""
@@ -446,12 +447,15 @@ class _Model:
         Gauss-Newton step from the score point.  The effect's columns are analytic where it has them
         (:meth:`pulled`), else forward differences.
         """
-        z = self.corrected(fit.x, fit.effects, self.rows)
+        if self._scored_against is None or self._scored_against[0] is not fit:  # a round scores every form against one fit
+            self._scored_against = (fit, self.corrected(fit.x, fit.effects, self.rows), unit_columns(fit.jac))
+        _, z, j_b = self._scored_against
         return linearised_score(self.weighted, fit, effect, effect.score_points(_N_AXES), _FD_STEP,
-                                block_jacobian=lambda q: self.pulled(fit, effect, q, z))
+                                block_jacobian=lambda q: self.pulled(fit, effect, q, z), j_b=j_b)
 
     def refit(self, fit: _Fit, effect: TumbleEffect, start: np.ndarray) -> _Fit:
         """The fit with ``effect`` added, from ``start`` or the effect switched off, whichever fits better."""
+        self._scored_against = None  # a round's scores come before its refits: free its (rows, k) Jacobian for them
         return refit_from_better_start(self.fit, self.weighted, fit, effect, effect.score_points(_N_AXES)[0], start)
 
 
@@ -548,12 +552,15 @@ def radial_noise_floor(residuals: np.ndarray) -> float:
 
 
 def _structure_design(directions: np.ndarray, blocks, n_blocks: int) -> np.ndarray:
-    """Columns of :func:`residual_structure`'s regression for some rows: monomials, then block-local terms."""
-    cols = [np.prod(directions[:, list(idx)], axis=1)
-            for degree in (3, 4) for idx in combinations_with_replacement(range(3), degree)]
+    """Columns of :func:`residual_structure`'s regression for some rows: block-local terms, then monomials.
+
+    The block-local columns come first: a block's are zero outside it, so a chunk of rows within a few
+    blocks leaves the others' rows of the factorisation untouched (:func:`residual_structure`).
+    """
     local = np.column_stack([np.ones(len(directions)), directions])
-    for block in blocks:
-        cols += [local[:, j] * (block == b) for b in range(n_blocks) for j in range(4)]
+    cols = [local[:, j] * (block == b) for block in blocks for b in range(n_blocks) for j in range(4)]
+    cols += [np.prod(directions[:, list(idx)], axis=1)
+             for degree in (3, 4) for idx in combinations_with_replacement(range(3), degree)]
     return np.column_stack(cols)
 
 
@@ -585,13 +592,22 @@ def residual_structure(weighted: np.ndarray, directions: np.ndarray, bands) -> t
     blocks = [np.argsort(np.argsort(key, kind="stable")) * n_blocks // n for key in bands]
     # R of the QR factorisation of [design | weighted], a chunk of rows at a time (memory flat in n):
     # R has the design's singular values and R^T R its normal equations, so the least squares below
-    # is the one on the whole design, rank threshold included
-    r_aug = np.zeros((0, 0))
+    # is the one on the whole design, rank threshold included.  A chunk updates only the rows and
+    # columns of R it reaches: its non-zero columns, and every later column that a row of R among them
+    # already has an entry in.  The other columns are zero in the chunk, so the reflections leave them
+    # and the other rows as they are (the blocks of other times and temperatures: a third of the work)
+    r_aug = None
     for start in range(0, n, _STRUCTURE_CHUNK_ROWS):
         rows = slice(start, start + _STRUCTURE_CHUNK_ROWS)
         chunk = np.column_stack([_structure_design(directions[rows], [block[rows] for block in blocks], n_blocks),
                                  weighted[rows]])
-        r_aug = np.linalg.qr(np.vstack([r_aug.reshape(-1, chunk.shape[1]), chunk]), mode="r")
+        if r_aug is None:
+            r_aug = np.zeros((chunk.shape[1], chunk.shape[1]))
+        reached = np.any(chunk != 0, axis=0)
+        for j in range(chunk.shape[1]):
+            reached[j] = reached[j] or bool(np.any(r_aug[:j, j][reached[:j]]))
+        at = np.ix_(reached, reached)
+        r_aug[at] = np.linalg.qr(np.vstack([r_aug[at], chunk[:, reached]]), mode="r")
     k = r_aug.shape[1] - 1
     r_design = r_aug[:k, :k]
     coef, _, rank, _ = np.linalg.lstsq(r_design, r_aug[:k, k], rcond=np.finfo(float).eps * max(n, k))

@@ -28,20 +28,23 @@ def _axis_noise(x: np.ndarray) -> np.ndarray:
     return np.asarray(second_difference_sigma(second_differences(x), lattice_step(x)), dtype=float)
 
 
-def _noise_floor(x: np.ndarray) -> float:
-    """Per-axis white-noise sigma from second differences of consecutive samples (median over axes)."""
-    return float(np.median(_axis_noise(x)))
+def _noise_floor(x: np.ndarray, axis_noise: np.ndarray | None = None) -> float:
+    """Per-axis white-noise sigma from second differences of consecutive samples (median over axes);
+    ``axis_noise`` is :func:`_axis_noise` of ``x`` when the caller has it."""
+    return float(np.median(_axis_noise(x) if axis_noise is None else axis_noise))
 
 
 AXES = ("mx", "my", "mz")
 
 
-def require_varying_axes(path, mag: np.ndarray) -> None:
+def require_varying_axes(path, mag: np.ndarray, axis_noise: np.ndarray | None = None) -> None:
     """Refuse a tumble with an axis that never varied beyond its noise (a dead sensor, or never turned).
 
     An axis's variation is its readings' spread less the white noise in quadrature, as the amplitude
     of a sinusoid (sqrt(2) times the spread); it must be :data:`calibrate.health.DEAD_SIGMAS` noise
     sigmas at least.  A live axis in any tumble varies by tens of percent of |B|, hundreds of sigmas.
+
+    ``axis_noise`` is :func:`_axis_noise` of ``mag`` when the caller has it (it is computed otherwise).
 
     Raises
     ------
@@ -51,7 +54,7 @@ def require_varying_axes(path, mag: np.ndarray) -> None:
     mag = np.asarray(mag, float)
     if len(mag) < 3:
         return
-    noise = _axis_noise(mag)
+    noise = _axis_noise(mag) if axis_noise is None else axis_noise
     spread = np.std(mag, axis=0)
     for name, s, n in zip(AXES, spread, noise):
         varied = np.sqrt(2.0 * max(s**2 - n**2, 0.0))
@@ -61,7 +64,7 @@ def require_varying_axes(path, mag: np.ndarray) -> None:
                                   "never turned that axis through the field")
 
 
-def channel_health(result: TumbleResult, mag: np.ndarray) -> list[ChannelHealth]:
+def channel_health(result: TumbleResult, mag: np.ndarray, axis_noise: np.ndarray | None = None) -> list[ChannelHealth]:
     """Each raw axis's response to the whole field, its noise and sensing direction (:mod:`calibrate.health`).
 
     Raw axis i reads ``row_i(S^-1) . m`` plus its hard iron, so its response to the whole field is
@@ -70,11 +73,12 @@ def channel_health(result: TumbleResult, mag: np.ndarray) -> list[ChannelHealth]
     ``mag_to_accel`` applied to the axis, when fitted: the symmetric soft iron is left out, since it
     also holds the product's iron, which shears the axes without any mounting error (the tumble
     simulator's 8 % soft iron turns them by up to 9 deg).  Without a fitted rotation the tumble fixes
-    no housing frame and no axis angle is judged.
+    no housing frame and no axis angle is judged.  ``axis_noise`` is :func:`_axis_noise` of ``mag`` when
+    the caller has it.
     """
     rows = np.linalg.inv(result.soft_iron)
     turn = result.mag_to_accel
-    noise = _axis_noise(np.asarray(mag, float))
+    noise = _axis_noise(np.asarray(mag, float)) if axis_noise is None else axis_noise
     out = []
     for i, (name, row, n) in enumerate(zip(AXES, rows, noise)):
         direction = None if turn is None else turn[:, i]
@@ -85,7 +89,8 @@ def channel_health(result: TumbleResult, mag: np.ndarray) -> list[ChannelHealth]
 
 def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, ellipsoid: str = "auto",
                      field_ut: float | None = None, n_repeats: int = 0, t_s: np.ndarray | None = None,
-                     temp_c: np.ndarray | None = None, site_dip_deg: float | None = None) -> TumbleResult:
+                     temp_c: np.ndarray | None = None, site_dip_deg: float | None = None,
+                     axis_noise: np.ndarray | None = None) -> TumbleResult:
     """Calibrate hard and soft iron (and the magnetometer-accelerometer rotation) from a tumble.
 
     Parameters
@@ -105,6 +110,8 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, ellips
         examines a drifting and a temperature-dependent hard iron too.
     site_dip_deg : float, optional
         The site's dip (the recording's site metadata): a field pointing the other way is refused.
+    axis_noise : ndarray, shape (3,), optional
+        Each axis's white-noise sigma of ``mag`` (:func:`_axis_noise`), when the caller has computed it.
 
     Returns
     -------
@@ -126,7 +133,7 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, ellips
     if field_ut is not None and not field_ut > 0:
         raise ValueError(f"field_ut must be positive, got {field_ut}")
     mag = raw = np.asarray(mag, dtype=float)
-    noise = _noise_floor(mag)
+    noise = _noise_floor(mag, axis_noise)
     chosen, candidates, coverage = fit_ellipsoid(mag, ellipsoid)
     warnings = []
     if coverage.missing:
@@ -256,17 +263,19 @@ class TumbleCalibrator(Calibrator):
     def fit(self, recording: TumbleRecording) -> TumbleResult:
         field_ut = self.field_ut if self.field_ut is not None else metadata_field_ut(recording.path,
                                                                                       recording.metadata)
-        require_varying_axes(recording.path, recording.mag)
+        # once, for the check, the noise floor and the health (a recording too short for it fails later, as before)
+        axis_noise = _axis_noise(np.asarray(recording.mag, float)) if len(recording.mag) >= 3 else None
+        require_varying_axes(recording.path, recording.mag, axis_noise)
         site = compare_with_site(0.0, None, recording.metadata, recording.path)
         result = calibrate_tumble(recording.mag, recording.accel, ellipsoid=self.ellipsoid, field_ut=field_ut,
                                   n_repeats=recording.n_repeats, t_s=recording.t_s, temp_c=recording.temp_c,
-                                  site_dip_deg=None if site is None else site["model_dip_deg"])
+                                  site_dip_deg=None if site is None else site["model_dip_deg"], axis_noise=axis_noise)
         if self.ellipsoid == "auto" and recording.gyro_turn_rad is not None and falls_back(result):  # the gyro pins what |m| cannot
             result = with_gyro(result, recording.mag, recording.accel, recording.gyro_turn_rad, recording.t_s,
                                recording.temp_c)
         if result.refused:
             raise CannotCalibrate(f"{recording.path}: {result.refused}")
-        health = channel_health(result, recording.mag)
+        health = channel_health(result, recording.mag, axis_noise)
         warnings = check_channels(recording.path, health, axis_tolerance_deg=self.axis_tolerance_deg,
                                   direction_accuracy_deg=self.direction_accuracy_deg)
         return replace(result, warnings=result.warnings + warnings, health=health_json(health),

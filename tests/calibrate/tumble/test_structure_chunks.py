@@ -1,6 +1,7 @@
 """The tumble's structure regression, summed in chunks, equals the least squares on the whole design."""
 
 import numpy as np
+import pytest
 
 from calibrate.tumble import diagnosis
 from calibrate.tumble.diagnosis import _structure_design, residual_structure
@@ -24,3 +25,25 @@ def test_chunked_structure_regression_matches_whole_design_least_squares(monkeyp
     assert rank == rank_whole < design.shape[1]
     # chi-square drops of order rank (~80) agree to rounding (eps times the condition of the kept part)
     assert abs(drop - float(np.sum((design @ coef) ** 2))) < 1e-8 * max(drop, 1.0)
+
+
+@pytest.mark.parametrize("with_temperature", [False, True])
+def test_chunks_within_a_few_blocks_still_give_the_whole_design_least_squares(monkeypatch, with_temperature):
+    """Time (and a temperature that rises and falls with it): most chunks lie in a few blocks and update only
+    their rows of R; a temperature block seen before with a time block is reached through R."""
+    rng = np.random.default_rng(4)
+    n = 6000
+    directions = rng.normal(size=(n, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    t_s = np.arange(n, dtype=float)
+    bands = [t_s] + ([np.sin(3.0 * np.pi * t_s / n) + 0.05 * rng.normal(size=n)] if with_temperature else [])
+    weighted = rng.normal(size=n) + 0.5 * (t_s > 2500) * directions[:, 1]  # a change partway: block structure
+    monkeypatch.setattr(diagnosis, "_STRUCTURE_CHUNK_ROWS", 400)  # blocks of 750 rows: chunks within and across
+    drop, rank, p_value = residual_structure(weighted, directions, bands)
+    n_blocks = diagnosis.STRUCTURE_BLOCKS
+    blocks = [np.argsort(np.argsort(key, kind="stable")) * n_blocks // n for key in bands]
+    design = _structure_design(directions, blocks, n_blocks)
+    coef, _, rank_whole, _ = np.linalg.lstsq(design, weighted, rcond=None)
+    assert rank == rank_whole < design.shape[1]
+    assert abs(drop - float(np.sum((design @ coef) ** 2))) < 1e-8 * drop
+    assert p_value < 1e-6  # the change is found
