@@ -313,20 +313,19 @@ class _Problem:
         self.first[starts] = True
         lengths = np.diff(np.r_[starts, n])
         self.slot = np.arange(n) - np.repeat(starts, lengths)  # position within the window
-        self.pad = int(lengths.max())
+        self.longest = int(lengths.max())  # rows in the longest window
 
     def _relative(self, beta):
         """``Delta R_k`` (matrices, shape (n, 3, 3)) and ``G_k`` (d of its turn / d beta, up to sign)."""
         phi = self.turns - np.outer(self.dt, beta)
         phi[self.first] = 0.0  # a window starts at its first sample
         quat = Rotation.from_rotvec(phi).as_quat()
-        grid = np.tile([0.0, 0.0, 0.0, 1.0], (self.n_w, self.pad, 1))
-        grid[self.window, self.slot] = quat
         shift = 1
-        while shift < self.pad:  # prefix products along each window (Hillis-Steele scan)
-            grid[:, shift:] = _qmul(grid[:, :-shift], grid[:, shift:])
+        while shift < self.longest:  # prefix products within each window (Hillis-Steele scan, segmented)
+            later = np.flatnonzero(self.slot >= shift)  # rows whose row `shift` back is in their window
+            quat[later] = _qmul(quat[later - shift], quat[later])
             shift *= 2
-        rel = Rotation.from_quat(grid[self.window, self.slot]).as_matrix()
+        rel = Rotation.from_quat(quat).as_matrix()
         step = rel @ _so3_jacobian(phi, -1.0) * self.dt[:, None, None]
         step[self.first] = 0.0
         cum = np.cumsum(step, axis=0)
