@@ -7,6 +7,15 @@ from calibrate.tumble import diagnosis
 from calibrate.tumble.diagnosis import _structure_design, residual_structure
 
 
+def _whole_design_fit(weighted, directions, bands):
+    """The structure regression on the whole design at once: ``(design, coefficients, rank)``."""
+    n, n_blocks = len(weighted), diagnosis.STRUCTURE_BLOCKS
+    blocks = [np.argsort(np.argsort(key, kind="stable")) * n_blocks // n for key in bands]
+    design = _structure_design(directions, blocks, n_blocks)
+    coef, _, rank, _ = np.linalg.lstsq(design, weighted, rcond=None)
+    return design, coef, rank
+
+
 def test_chunked_structure_regression_matches_whole_design_least_squares(monkeypatch):
     rng = np.random.default_rng(3)
     n = 5000
@@ -16,10 +25,7 @@ def test_chunked_structure_regression_matches_whole_design_least_squares(monkeyp
     bands = [np.arange(n, dtype=float), rng.normal(size=n)]
     monkeypatch.setattr(diagnosis, "_STRUCTURE_CHUNK_ROWS", 700)  # several chunks, the last one short
     drop, rank, _ = residual_structure(weighted, directions, bands)
-    n_blocks = diagnosis.STRUCTURE_BLOCKS
-    blocks = [np.argsort(np.argsort(key, kind="stable")) * n_blocks // n for key in bands]
-    design = _structure_design(directions, blocks, n_blocks)
-    coef, _, rank_whole, _ = np.linalg.lstsq(design, weighted, rcond=None)
+    design, coef, rank_whole = _whole_design_fit(weighted, directions, bands)
     # the unit-sphere identities (x^2 + y^2 + z^2 = 1) and the blocks summing to a constant make the
     # design rank deficient: both must see the same rank
     assert rank == rank_whole < design.shape[1]
@@ -40,10 +46,7 @@ def test_chunks_within_a_few_blocks_still_give_the_whole_design_least_squares(mo
     weighted = rng.normal(size=n) + 0.5 * (t_s > 2500) * directions[:, 1]  # a change partway: block structure
     monkeypatch.setattr(diagnosis, "_STRUCTURE_CHUNK_ROWS", 400)  # blocks of 750 rows: chunks within and across
     drop, rank, p_value = residual_structure(weighted, directions, bands)
-    n_blocks = diagnosis.STRUCTURE_BLOCKS
-    blocks = [np.argsort(np.argsort(key, kind="stable")) * n_blocks // n for key in bands]
-    design = _structure_design(directions, blocks, n_blocks)
-    coef, _, rank_whole, _ = np.linalg.lstsq(design, weighted, rcond=None)
+    design, coef, rank_whole = _whole_design_fit(weighted, directions, bands)
     assert rank == rank_whole < design.shape[1]
     assert abs(drop - float(np.sum((design @ coef) ** 2))) < 1e-8 * drop
     assert p_value < 1e-6  # the change is found
