@@ -167,8 +167,8 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, ellips
     if accel is not None:
         keep = chosen.inliers
         accel = np.asarray(accel, dtype=float)
-        misalignment = fit_misalignment(chosen.calibrated(mag[keep]), accel[keep])
-        misalignment = _unless_fast(misalignment, chosen.calibrated(mag[keep]), accel[keep], t_s, keep, warnings)
+        mag_kept, accel_kept = chosen.calibrated(mag[keep]), accel[keep]
+        misalignment = _unless_fast(fit_misalignment(mag_kept, accel_kept), mag_kept, accel_kept, t_s, keep, warnings)
         if misalignment is not None and coverage.missing and misalignment.rotation is not None:
             warnings.append("no magnetometer-accelerometer rotation fitted: with part of the sphere missing it "
                             "trades off against the hard iron; frames taken as aligned")
