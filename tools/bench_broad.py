@@ -118,6 +118,7 @@ CANDIDATES = {  # name: (FilterConfig changes, hard-iron tracker on, noise from 
     "second-order inertial low-pass": ({"accel_lowpass_order": 2}, True, False),  # issue 22's turn analysis
     "noise from rest": ({}, True, True),
     "mag_latency_s 0.014": ({"mag_latency_s": 0.014}, True, False),  # calibrate.realdata's loop, on 01 and 02
+    "mag_latency_s fitted": ({"mag_latency_s": "fitted"}, True, False),  # issue 22: another recording's tumble file
     "accel_time_constant_s 1": ({"accel_time_constant_s": 1.0}, True, False),
     "accel_time_constant_s 4": ({"accel_time_constant_s": 4.0}, True, False),
     "accel_time_constant_s 3 (VQF's)": ({"accel_time_constant_s": 3.0}, True, False),  # the default until issue 13
@@ -157,7 +158,8 @@ def ours(changes=None, hard_iron=True, from_rest=False, model=None):
         from compass.hard_iron import track_hard_iron
 
         field = trial.mag_ut if model is None else model.field(trial.mag_ut)[0]
-        config = ours_config(trial, field, changes, from_rest)
+        fitted = {k: _fitted_latency_s(trial) for k, v in (changes or {}).items() if v == "fitted"}
+        config = ours_config(trial, field, (changes or {}) | fitted, from_rest)
         if hard_iron:
             field = track_hard_iron(field, trial.accel_m_s2, trial.rate_hz, dip_deg=config.dip_deg).corrected(field)
         track = run_filter(trial.t_s, trial.accel_m_s2, trial.gyro_rad_s, field, config)
@@ -175,9 +177,67 @@ def loo_choice(results, trial, candidates):
                                           + np.mean([np.log(results[t][c][1]) for t in others])))
 
 
+# ---------------------------------------------------------------- the latency from a calibration recording
+
+CAL_TRIALS = ("01", "02")
+"""BROAD trials whose motion phase is a tumble recording for the latency: a trial is scored with the first
+one that is not itself (the latency fitted on another trial: leave one out)."""
+
+
+def file_latency_s(t_s, gyro, accel, mag, keep) -> float:
+    """The magnetometer latency a tumble calibration of the rows ``keep`` writes, as the runtime reads it.
+
+    ``compass calibrate``'s path with a gyro (the present fit, the gyro-aided one where it falls back, and the
+    gyro-aided one's latency either way), its file, and :func:`compass.calibration.from_dict`'s
+    ``model.mag_latency_s`` (0 unless the magnetometer is late beyond 3 sigma): the truth is never read.
+    """
+    import warnings
+
+    from calibrate.tumble import calibrate_tumble
+    from calibrate.tumble.gyro import with_gyro
+    from compass.calibration import from_dict
+    from compass.io.tumble import gyro_turns
+
+    turns = gyro_turns(t_s, gyro, keep)
+    mag, acc, t = mag[keep], accel[keep], t_s[keep]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = with_gyro(calibrate_tumble(mag, acc, t_s=t), mag, acc, turns, t)
+    return from_dict(res.to_json()).model.mag_latency_s
+
+
+def broad_latencies(data: Path) -> dict[str, float]:
+    """``{trial number: latency s}`` of :data:`CAL_TRIALS` (each motion phase, every 4th row, the gyro integrated
+    over every row, as ``tools/bench_gyro_tumble.py``)."""
+    out = {}
+    for number in CAL_TRIALS:
+        path = next(iter(sorted(data.glob(f"{number}_*.mat"))), None)
+        if path is None:
+            continue
+        t = read_broad(path)
+        keep = np.zeros(len(t), bool)
+        keep[np.flatnonzero(t.movement)[::4]] = True
+        out[number] = file_latency_s(t.t_s, t.gyro_rad_s, t.accel_m_s2, t.mag_ut, keep)
+        print(f"  latency from {t.name}'s tumble file: {1e3 * out[number]:.2f} ms", flush=True)
+    return out
+
+
+BROAD_LATENCY_S: dict[str, float] = {}
+"""Each BROAD trial's held-out latency (:func:`held_out_latency`), by name; a simulated trial carries its own."""
+
+
+def _fitted_latency_s(trial) -> float:
+    return trial.fitted_latency_s if isinstance(trial, _Simulated) else BROAD_LATENCY_S[trial.name]
+
+
+def held_out_latency(name: str, latencies: dict[str, float]) -> float:
+    """The latency fitted on the first calibration trial that is not ``name`` (0 when there is none)."""
+    return next((v for k, v in latencies.items() if not name.startswith(k)), 0.0)
+
+
 # ---------------------------------------------------------------- simulated boards
 
-SIM_CANDIDATES = ("defaults", "second-order inertial low-pass")
+SIM_CANDIDATES = ("defaults", "second-order inertial low-pass", "mag_latency_s fitted")
 
 
 class _Simulated:
@@ -220,10 +280,20 @@ def simulated(methods, seeds) -> dict:
     out = {}
     for board in ("broad-like", "low-cost"):
         out[board] = {}
+        latency = {}
+        if any(m in methods for m in ("mag_latency_s fitted",)):
+            for seed in seeds:  # the board's tumble recording: another motion seed, the rows at 1/6 of the rate
+                cal = simulate_motion("fast_rotation", seed=500 + seed, errors=board_errors(board, seed))
+                keep = np.zeros(len(cal.t_s), bool)
+                keep[::6] = True
+                latency[seed] = file_latency_s(cal.t_s, cal.gyro_rad_s, cal.accel_m_s2, cal.mag_ut, keep)
+            print(f"  {board}: latency from its tumble file " + ", ".join(f"{1e3 * v:.2f}" for v in latency.values())
+                  + " ms", flush=True)
         for kind in KINDS:
             runs = []
             for seed in seeds:
                 trial = _Simulated(simulate_motion(kind, seed=seed, errors=board_errors(board, seed)), kind)
+                trial.fitted_latency_s = latency.get(seed, 0.0)
                 row = []
                 for method in methods.values():
                     e = error_series(method(trial), trial.ref_quat_enu, trial.movement, trial.rate_hz)
@@ -515,9 +585,11 @@ def main(argv=None) -> int:
     from compass.filter import FilterConfig
 
     default = FilterConfig(field_norm=1.0, dip_deg=0.0, mag_noise=1.0)
+    latencies = broad_latencies(Path(args.data)) if "mag_latency_s fitted" in candidates else {}
     results, trials, noises = {}, {}, []
     for f in files:
         trial = read_broad(f)
+        BROAD_LATENCY_S[trial.name] = held_out_latency(trial.name, latencies)
         trials[trial.name] = trial
         noises.append(rest_noise(trial.gyro_rad_s, trial.accel_m_s2, trial.mag_ut, ~trial.movement, trial.rate_hz))
         row = {}

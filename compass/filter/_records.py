@@ -186,7 +186,9 @@ class FilterConfig:
 
     @classmethod
     def from_model(cls, model) -> "FilterConfig":
-        """Reference field and magnetometer noise from a :class:`compass.model.SensorModel`.
+        """Reference field, magnetometer noise and latency from a :class:`compass.model.SensorModel`.
+
+        ``mag_latency_s`` is the calibration's (a tumble's gyro-aided fit's, 0 when the file has none).
 
         Change other fields with ``dataclasses.replace``.
 
@@ -200,7 +202,8 @@ class FilterConfig:
         if model.noise is None:
             raise ValueError("the calibration has no noise_floor: the filter cannot weight the magnetometer")
         noise = float(np.sqrt(np.trace(model.field_covariance(np.zeros(3))) / 3.0))
-        return cls(field_norm=model.field_norm, dip_deg=model.dip_deg, mag_noise=noise)
+        return cls(field_norm=model.field_norm, dip_deg=model.dip_deg, mag_noise=noise,
+                   mag_latency_s=model.mag_latency_s)
 
 
 @dataclass(frozen=True)
