@@ -114,6 +114,29 @@ class TumbleUncertainty:
         return cov
 
 
+    def heading_sigma_deg(self, matrix, field_h) -> float:
+        """The heading's 1-sigma from the calibration alone at one attitude, the tilt taken as known, degrees.
+
+        A field error ``dB`` turns the horizontal field by ``dB . w / |B_h|`` (``w`` the world's West axis
+        seen in H, the second row of ``R_world<-H``; ``|B_h|`` the horizontal field): the variance is
+        ``w^T Sigma_B w / |B_h|^2``, as :func:`compass.attitude.solve_attitude` with a known tilt.
+
+        Parameters
+        ----------
+        matrix : array_like, shape (3, 3) or (9,)
+            ``R_world<-housing`` (NWU world), e.g. the live filter's.
+        field_h : array_like, shape (3,)
+            Field in H, field units.
+        """
+        r = np.reshape(np.asarray(matrix, dtype=float), (3, 3))
+        b = np.asarray(field_h, dtype=float)
+        west = r[1]
+        horizontal2 = float(b @ b) - float(r[2] @ b) ** 2
+        if not horizontal2 > 0.0:
+            return float("inf")
+        return float(np.degrees(np.sqrt(west @ self.covariance(b) @ west / horizontal2)))
+
+
 def _skew(b: np.ndarray) -> np.ndarray:
     """``[b]x`` of every vector, shape (..., 3, 3)."""
     out = np.zeros(b.shape[:-1] + (3, 3))
