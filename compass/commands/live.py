@@ -18,6 +18,7 @@ from .. import limits
 from ..limits import Range
 from ..io.stream_options import add_stream_arguments
 from ..viz import add_rerun_option, check_rerun_target
+from ._filter_args import add_mag_latency_argument
 from ._port import open_reader, port_unavailable, stop_when_asked, stream_options
 
 
@@ -38,6 +39,7 @@ def register(sub) -> None:
                    help="where the module is (degrees, metres): reference field and true north from the World "
                         "Magnetic Model (default: the field of the first quiet second, magnetic heading only)")
     p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day (default today, UTC)")
+    add_mag_latency_argument(p)
     p.add_argument("--gravity", type=limits.GRAVITY.option("--gravity"), metavar="G",
                    help="what 1 g reads in the module's accelerometer unit (default: the median |a| of the first "
                         "quiet second)")
@@ -74,7 +76,7 @@ def run(args) -> int:
     try:
         cal = load(args.cal)
         model = cal.model
-        config = FilterConfig.from_model(model)
+        config = FilterConfig.from_model(model, mag_latency=args.mag_latency)
         if args.gravity is not None:
             config = replace(config, gravity=args.gravity)
     except ValueError as exc:

@@ -69,7 +69,53 @@ def test_the_filter_takes_the_calibrations_latency():
     from compass.sim.device import default_model
 
     model = dataclasses.replace(default_model(), mag_latency_s=LATE_S)
-    assert FilterConfig.from_model(model).mag_latency_s == LATE_S
-    assert FilterConfig.from_model(default_model()).mag_latency_s == 0.0
+    assert FilterConfig.from_model(model, mag_latency=True).mag_latency_s == LATE_S
+    assert FilterConfig.from_model(model).mag_latency_s == 0.0  # off by default (BROAD: docs/benchmarks.md)
+    assert FilterConfig.from_model(default_model(), mag_latency=True).mag_latency_s == 0.0
     with pytest.raises(ValueError, match="mag_latency_s must be a non-negative number"):
         dataclasses.replace(default_model(), mag_latency_s=-0.01)
+
+
+def test_compass_attitude_filter_mag_latency_compensates_the_files_latency(tmp_path, capsys):
+    """``--mag-latency`` (live and the replay alike): the file's fitted latency reaches the filter; without it, none."""
+    import io
+
+    from calibrate.tumble import calibrate_tumble
+    from compass.calibration import from_dict, save
+    from compass.cli import main
+    from compass.io.table import format_table
+    from compass.live import LiveSession
+    from compass.replay import replay
+    from compass.sim.device import simulate_device
+    from compass.sim.tumble import simulate_tumble
+
+    sim = simulate_tumble(seed=4, n=1500)
+    doc = calibrate_tumble(sim.mag, sim.accel, t_s=sim.t_s).to_json()
+    doc["tumble"]["gyro"] = {"method": "gyro", "used": True, "mag_latency_s": LATE_S, "mag_latency_sigma_s": 1e-4}
+    cal = save(tmp_path / "cal.json", doc)
+    model = from_dict(doc).model
+    assert model.mag_latency_s == LATE_S
+    t = np.arange(0.0, 15.0, 0.01)
+    s = simulate_device(model, t, seed=6)
+    columns = ({"t_s": t} | {c: s.raw[:, k] for k, c in enumerate(model.channels)}
+               | {c: s.accel[:, k] for k, c in enumerate(("ax", "ay", "az"))}
+               | {c: s.gyro[:, k] for k, c in enumerate(("gx", "gy", "gz"))})
+    rec = tmp_path / "rec.csv"
+    rec.write_text(format_table(columns, {}, {c: "%.17g" for c in columns}))
+
+    def rows(text):  # every column but latency_ms (the processing time)
+        lines = [line.split(",") for line in text.splitlines() if line and not line.startswith(("#", "t_s"))]
+        return [line[:12] for line in lines]
+
+    outputs = {}
+    for flag in (True, False):
+        out = tmp_path / f"att_{flag}.csv"
+        assert main(["attitude", str(cal), str(rec), "--out", str(out), "--filter"] + (["--mag-latency"] * flag)) == 0
+        session = LiveSession(model, config=FilterConfig.from_model(model, mag_latency=flag), out=io.StringIO())
+        replay(session, t, s.raw, s.accel, s.gyro)
+        outputs[flag] = rows(out.read_text())
+        assert outputs[flag] == rows(session.out.getvalue())
+    assert outputs[True] != outputs[False]
+    capsys.readouterr()
+    assert main(["attitude", str(cal), str(rec), "--out", str(tmp_path / "att.csv"), "--mag-latency"]) == 2
+    assert "--mag-latency goes with --filter" in capsys.readouterr().err
