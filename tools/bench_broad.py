@@ -4,7 +4,10 @@ Run: ``python tools/bench_broad.py [DATA_DIR] [--quick] [--trials 01,32] [--cal 
 data: ``../shared/data/broad``; ``--quick``: five trials, one per kind of motion).  Issue 22:
 ``--candidates A,B`` runs only those candidates (and the turn variants, printed per trial, never chosen);
 the simulated boards (``compass.sim.motion``, a BROAD-like and a low-cost IMU) follow the BROAD tables
-(``--sim-seeds N``, 0 for none; ``--sim-only``); ``--diagnose`` prints the inclination by turn rate of the
+(``--sim-seeds N``, 0 for none; ``--sim-only``); the candidate ``mag_latency_s fitted`` takes the latency from a
+tumble calibration file of another recording (BROAD: :data:`CAL_TRIALS`' motion phases, the trial scored never its
+own; a simulated board: its own fast rotation at another seed), never from the truth; ``--latency-check`` runs the
+compensation on motions whose only error is the latency; ``--diagnose`` prints the inclination by turn rate of the
 filter, of its inertial low-pass's direction and of VQF, and the one start's parts switched back.  Peers are benchmark
 extras (``pip install -e '.[bench]'``), never runtime dependencies; a peer that is not installed is
 reported and skipped.
@@ -233,6 +236,27 @@ def _fitted_latency_s(trial) -> float:
 def held_out_latency(name: str, latencies: dict[str, float]) -> float:
     """The latency fitted on the first calibration trial that is not ``name`` (0 when there is none)."""
     return next((v for k, v in latencies.items() if not name.startswith(k)), 0.0)
+
+
+def latency_check(seeds) -> None:
+    """Heading RMS on simulated motions whose only sensor error is a 20 ms late magnetometer (and white noise),
+    the latency compensated or not, beside the same motions on time: the compensation alone, isolated from the
+    other errors of a board (the hard-iron tracker off: there is no iron)."""
+    from compass.sim.motion import KINDS, SensorErrors, simulate_motion
+
+    print(f"\nthe latency alone (compass.sim.motion, 60 s, seeds {list(seeds)}): heading RMS, deg")
+    print(f"{'kind':18s} {'on time':>9s} {'20 ms late':>11s} {'compensated':>12s}")
+    for kind in KINDS:
+        cells = []
+        for late_s, tau in ((0.0, 0.0), (0.02, 0.0), (0.02, 0.02)):
+            rms = []
+            for seed in seeds:
+                trial = _Simulated(simulate_motion(kind, seed=seed, errors=SensorErrors(mag_latency_s=late_s)), kind)
+                e = error_series(ours({"mag_latency_s": tau}, hard_iron=False)(trial), trial.ref_quat_enu,
+                                 trial.movement, trial.rate_hz)
+                rms.append(e.heading_rms_deg)
+            cells.append(np.mean(rms))
+        print(f"{kind:18s} {cells[0]:9.3f} {cells[1]:11.3f} {cells[2]:12.3f}", flush=True)
 
 
 # ---------------------------------------------------------------- simulated boards
@@ -529,6 +553,8 @@ def main(argv=None) -> int:
                              f"also {', '.join(TURN_VARIANTS)}")
     parser.add_argument("--sim-only", action="store_true", help="only the simulated boards (no BROAD trial)")
     parser.add_argument("--sim-seeds", type=int, default=2, help="seeds per kind of simulated motion (0: no simulation)")
+    parser.add_argument("--latency-check", action="store_true",
+                        help="only the simulated motions with a late magnetometer alone, compensated or not")
     args = parser.parse_args(argv)
 
     peers = {"vqf": vqf_online, "vqf offline": vqf_offline, "fusion": fusion, "madgwick": madgwick}
@@ -561,6 +587,9 @@ def main(argv=None) -> int:
             print(f"frame check failed for {', '.join(bad)}: fix the conversion before trusting numbers")
             return 1
 
+    if args.latency_check:
+        latency_check(range(max(args.sim_seeds, 1)))
+        return 0
     if args.sim_only:
         simulated_section(available, peer_names, max(args.sim_seeds, 1))
         return 0
