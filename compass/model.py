@@ -88,7 +88,7 @@ class SensorModel:
     mag_latency_s : float
         How late the magnetometer reads against the gyro, s: a tumble's gyro-aided fit's
         ``tumble.gyro.mag_latency_s`` when it saw one (positive, beyond 3 sigma), else 0.
-        :meth:`compass.filter.FilterConfig.from_model` passes it to the filter.
+        :meth:`compass.filter.FilterConfig.from_model` passes it to the filter when asked (``mag_latency=True``).
     """
 
     channels: tuple[str, ...]
