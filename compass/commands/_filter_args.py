@@ -12,3 +12,14 @@ def add_mag_latency_argument(p, *, with_filter: bool = False) -> None:
     """``--mag-latency`` (``FilterConfig.from_model(model, mag_latency=True)``)."""
     p.add_argument("--mag-latency", action="store_true",
                    help=("with --filter: " if with_filter else "") + MAG_LATENCY_HELP)
+
+
+def filter_config(model, args):
+    """``compass live``'s :class:`~compass.filter.FilterConfig`: the calibration's, with ``--mag-latency`` and
+    ``--gravity`` (``compass attitude --filter`` passes both to :func:`compass.replay.replay_file`, which does the same)."""
+    from dataclasses import replace
+
+    from ..filter import FilterConfig
+
+    config = FilterConfig.from_model(model, mag_latency=args.mag_latency)
+    return config if args.gravity is None else replace(config, gravity=args.gravity)

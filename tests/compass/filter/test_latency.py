@@ -74,6 +74,14 @@ def test_the_filter_takes_the_calibrations_latency():
     assert FilterConfig.from_model(default_model(), mag_latency=True).mag_latency_s == 0.0
     with pytest.raises(ValueError, match="mag_latency_s must be a non-negative number"):
         dataclasses.replace(default_model(), mag_latency_s=-0.01)
+    # compass live's --mag-latency and --gravity
+    from argparse import Namespace
+
+    from compass.commands._filter_args import filter_config
+
+    assert filter_config(model, Namespace(mag_latency=True, gravity=None)).mag_latency_s == LATE_S
+    live = filter_config(model, Namespace(mag_latency=False, gravity=9.81))
+    assert live.mag_latency_s == 0.0 and live.gravity == 9.81
 
 
 def test_compass_attitude_filter_mag_latency_compensates_the_files_latency(tmp_path, capsys):
