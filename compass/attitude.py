@@ -241,7 +241,8 @@ def solve_attitude(
     -----
     With ``R`` the estimate and ``eps`` the world-frame rotation error, the Wahba solution's
     linearisation gives ``eps = H^-1 sum_i w_i [r_i]x^T dm_i`` with ``H = sum_i w_i (I - r_i r_i^T)``;
-    the measurement errors ``dm_i`` of the unit vectors come from ``model.component_variance`` and
+    the measurement errors ``dm_i`` of the unit vectors come from ``model.component_variance`` (and a
+    tumble file's hard iron, soft iron and rotation sigmas, ``model.iron_uncertainty``) and
     ``accel_noise_g``.  The angles' sensitivities to ``eps`` are the inverse Euler-rate relations
     (``d heading = eps_z + tan(pitch) eps . x_horizontal``), so heading sigma grows as pitch nears
     +-90 degrees.
@@ -344,9 +345,12 @@ def _solve(model: SensorModel, field: np.ndarray, in_range: np.ndarray, *, accel
     field_ratio = b_norm / reference.field_norm
 
     solver = model.solver
+    # a tumble file's own uncertainty (hard iron, soft iron, rotation), one 3x3 a row: compass.iron_uncertainty
+    iron = None if model.iron_uncertainty is None else model.iron_uncertainty.covariance(field).transpose(1, 2, 0)
 
     def field_quad(v):  # v^T Sigma_B v per sample, field units squared; v in H, (3, n)
-        return sum(var[c] * _dot(solver[:, c, None], v) ** 2 for c in range(len(var)))
+        quad = sum(var[c] * _dot(solver[:, c, None], v) ** 2 for c in range(len(var)))
+        return quad if iron is None else quad + np.einsum("in,ijn,jn->n", v, iron, v)
 
     mu = _dot(m, up)
     dip = np.degrees(np.arcsin(np.clip(-mu, -1.0, 1.0)))

@@ -352,6 +352,10 @@ class LiveSession:
         if est is None or est.gate == "absent":  # no attitude, or no field to write a row of
             self.unsolved += 1
             return
+        iron = self.model.iron_uncertainty
+        if iron is not None:  # a tumble file's own uncertainty at this attitude (the filter's is the noise's)
+            est = replace(est, heading_sigma_deg=math.hypot(est.heading_sigma_deg,
+                                                            iron.heading_sigma_deg(est.matrix_rows, field_row)))
         self.estimate, self.in_range = est, in_range
         self.samples += 1
         if self._axes_rows is not None and accel is not None and self.samples % AXES_EVERY == 0:

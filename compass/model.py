@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from functools import cached_property
 import numpy as np
 
+from .iron_uncertainty import TumbleUncertainty
 from .response import LinearResponse, Response
 from .temperature import TemperatureCompensation
 
@@ -79,6 +80,15 @@ class SensorModel:
         its product.
     temperature : TemperatureCompensation or None
         The file's ``temperature`` effect: applied when readings come with ``temp_c``.
+    iron_uncertainty : TumbleUncertainty or None
+        A tumble file's standard errors of its hard iron, soft iron and rotation
+        (:mod:`compass.iron_uncertainty`): :meth:`field_covariance` adds them; None for the channel
+        form (whose ``direction_covariance`` and ``response_sigma`` hold its own) and for a tumble file
+        without them.
+    mag_latency_s : float
+        How late the magnetometer reads against the gyro, s: a tumble's gyro-aided fit's
+        ``tumble.gyro.mag_latency_s`` when it saw one (positive, beyond 3 sigma), else 0.
+        :meth:`compass.filter.FilterConfig.from_model` passes it to the filter when asked (``mag_latency=True``).
     """
 
     channels: tuple[str, ...]
@@ -92,6 +102,8 @@ class SensorModel:
     response_sigma: np.ndarray | None = None
     form: str = "channels"
     temperature: TemperatureCompensation | None = None
+    iron_uncertainty: TumbleUncertainty | None = None
+    mag_latency_s: float = 0.0
 
     def __post_init__(self):
         c = len(self.channels)
@@ -102,6 +114,8 @@ class SensorModel:
             raise ValueError("sensing directions must be finite")
         if not self.field_norm > 0:
             raise ValueError(f"calibrated |B| must be positive, got {self.field_norm}")
+        if not (np.isfinite(self.mag_latency_s) and self.mag_latency_s >= 0.0):
+            raise ValueError(f"mag_latency_s must be a non-negative number, got {self.mag_latency_s!r}")
         if c < 3:
             raise NotAFieldVector(f"the calibration has {c} channel{'s' if c > 1 else ''} ({', '.join(self.channels)}): "
                                   "a calibration of single-axis channels, valid as such, but the field vector (and "
@@ -240,10 +254,12 @@ class SensorModel:
     def field_covariance(self, field) -> np.ndarray:
         """Covariance of the estimated field vector in H, ``P diag(var) P^T``, shape (..., 3, 3).
 
-        See :meth:`component_variance`; field units squared.
+        See :meth:`component_variance`; a tumble file's :attr:`iron_uncertainty` adds its own
+        (:meth:`compass.iron_uncertainty.TumbleUncertainty.covariance`); field units squared.
         """
         p = self.solver
-        return np.einsum("ic,...c,jc->...ij", p, self.component_variance(field), p)
+        cov = np.einsum("ic,...c,jc->...ij", p, self.component_variance(field), p)
+        return cov if self.iron_uncertainty is None else cov + self.iron_uncertainty.covariance(field)
 
     def _relative_slope(self, x: np.ndarray) -> np.ndarray | float:
         """``f'(x) / K`` per channel: 1 for linear channels, a central difference otherwise."""

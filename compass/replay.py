@@ -78,8 +78,8 @@ def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *
     return session
 
 
-def replay_file(calibration, recording, out, *, site=None, date=None, gravity=None, force=False, rerun=None,
-                read_options=None, quiet=False) -> LiveSession:
+def replay_file(calibration, recording, out, *, site=None, date=None, gravity=None, mag_latency=False, force=False,
+                rerun=None, read_options=None, quiet=False) -> LiveSession:
     """``compass attitude CAL REC --out ATT --filter``: the recording through ``compass live``'s pipeline.
 
     Parameters
@@ -93,6 +93,9 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     gravity : float, optional
         What 1 g reads in the accelerometer's unit (after ``--accel-unit``); default: the median |a| of
         the start window.
+    mag_latency : bool
+        Compensate the calibration's fitted magnetometer latency (``compass live --mag-latency``;
+        :meth:`compass.filter.FilterConfig.from_model`).
     force : bool
         Overwrite ``out`` (and ``rerun``).
     rerun : path or "spawn", optional
@@ -135,7 +138,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
             site = Site.parse(site, date)
         cal = load(calibration)
         model = cal.model
-        config = replace(FilterConfig.from_model(model), gravity=gravity)
+        config = replace(FilterConfig.from_model(model, mag_latency=mag_latency), gravity=gravity)
     except ValueError as exc:
         raise BadInput(exc if str(calibration) in str(exc) else f"{calibration}: {exc}") from None
     source = "site"

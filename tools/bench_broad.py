@@ -4,7 +4,10 @@ Run: ``python tools/bench_broad.py [DATA_DIR] [--quick] [--trials 01,32] [--cal 
 data: ``../shared/data/broad``; ``--quick``: five trials, one per kind of motion).  Issue 22:
 ``--candidates A,B`` runs only those candidates (and the turn variants, printed per trial, never chosen);
 the simulated boards (``compass.sim.motion``, a BROAD-like and a low-cost IMU) follow the BROAD tables
-(``--sim-seeds N``, 0 for none; ``--sim-only``); ``--diagnose`` prints the inclination by turn rate of the
+(``--sim-seeds N``, 0 for none; ``--sim-only``); the candidate ``mag_latency_s fitted`` takes the latency from a
+tumble calibration file of another recording (BROAD: :data:`CAL_TRIALS`' motion phases, the trial scored never its
+own; a simulated board: its own fast rotation at another seed), never from the truth; ``--latency-check`` runs the
+compensation on motions whose only error is the latency; ``--diagnose`` prints the inclination by turn rate of the
 filter, of its inertial low-pass's direction and of VQF, and the one start's parts switched back.  Peers are benchmark
 extras (``pip install -e '.[bench]'``), never runtime dependencies; a peer that is not installed is
 reported and skipped.
@@ -118,6 +121,7 @@ CANDIDATES = {  # name: (FilterConfig changes, hard-iron tracker on, noise from 
     "second-order inertial low-pass": ({"accel_lowpass_order": 2}, True, False),  # issue 22's turn analysis
     "noise from rest": ({}, True, True),
     "mag_latency_s 0.014": ({"mag_latency_s": 0.014}, True, False),  # calibrate.realdata's loop, on 01 and 02
+    "mag_latency_s fitted": ({"mag_latency_s": "fitted"}, True, False),  # issue 22: another recording's tumble file
     "accel_time_constant_s 1": ({"accel_time_constant_s": 1.0}, True, False),
     "accel_time_constant_s 4": ({"accel_time_constant_s": 4.0}, True, False),
     "accel_time_constant_s 3 (VQF's)": ({"accel_time_constant_s": 3.0}, True, False),  # the default until issue 13
@@ -157,7 +161,8 @@ def ours(changes=None, hard_iron=True, from_rest=False, model=None):
         from compass.hard_iron import track_hard_iron
 
         field = trial.mag_ut if model is None else model.field(trial.mag_ut)[0]
-        config = ours_config(trial, field, changes, from_rest)
+        fitted = {k: _fitted_latency_s(trial) for k, v in (changes or {}).items() if v == "fitted"}
+        config = ours_config(trial, field, (changes or {}) | fitted, from_rest)
         if hard_iron:
             field = track_hard_iron(field, trial.accel_m_s2, trial.rate_hz, dip_deg=config.dip_deg).corrected(field)
         track = run_filter(trial.t_s, trial.accel_m_s2, trial.gyro_rad_s, field, config)
@@ -175,9 +180,88 @@ def loo_choice(results, trial, candidates):
                                           + np.mean([np.log(results[t][c][1]) for t in others])))
 
 
+# ---------------------------------------------------------------- the latency from a calibration recording
+
+CAL_TRIALS = ("01", "02")
+"""BROAD trials whose motion phase is a tumble recording for the latency: a trial is scored with the first
+one that is not itself (the latency fitted on another trial: leave one out)."""
+
+
+def file_latency_s(t_s, gyro, accel, mag, keep) -> float:
+    """The magnetometer latency a tumble calibration of the rows ``keep`` writes, as the runtime reads it.
+
+    ``compass calibrate``'s path with a gyro (the present fit, the gyro-aided one where it falls back, and the
+    gyro-aided one's latency either way), its file, and :func:`compass.calibration.from_dict`'s
+    ``model.mag_latency_s`` (0 unless the magnetometer is late beyond 3 sigma): the truth is never read.
+    """
+    import warnings
+
+    from calibrate.tumble import calibrate_tumble
+    from calibrate.tumble.gyro import with_gyro
+    from compass.calibration import from_dict
+    from compass.io.tumble import gyro_turns
+
+    turns = gyro_turns(t_s, gyro, keep)
+    mag, acc, t = mag[keep], accel[keep], t_s[keep]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = with_gyro(calibrate_tumble(mag, acc, t_s=t), mag, acc, turns, t)
+    return from_dict(res.to_json()).model.mag_latency_s
+
+
+def broad_latencies(data: Path) -> dict[str, float]:
+    """``{trial number: latency s}`` of :data:`CAL_TRIALS` (each motion phase, every 4th row, the gyro integrated
+    over every row, as ``tools/bench_gyro_tumble.py``)."""
+    out = {}
+    for number in CAL_TRIALS:
+        path = next(iter(sorted(data.glob(f"{number}_*.mat"))), None)
+        if path is None:
+            continue
+        t = read_broad(path)
+        keep = np.zeros(len(t), bool)
+        keep[np.flatnonzero(t.movement)[::4]] = True
+        out[number] = file_latency_s(t.t_s, t.gyro_rad_s, t.accel_m_s2, t.mag_ut, keep)
+        print(f"  latency from {t.name}'s tumble file: {1e3 * out[number]:.2f} ms", flush=True)
+    return out
+
+
+BROAD_LATENCY_S: dict[str, float] = {}
+"""Each BROAD trial's held-out latency (:func:`held_out_latency`), by name; a simulated trial carries its own."""
+
+
+def _fitted_latency_s(trial) -> float:
+    return trial.fitted_latency_s if isinstance(trial, _Simulated) else BROAD_LATENCY_S[trial.name]
+
+
+def held_out_latency(name: str, latencies: dict[str, float]) -> float:
+    """The latency fitted on the first calibration trial that is not ``name`` (0 when there is none)."""
+    return next((v for k, v in latencies.items() if not name.startswith(k)), 0.0)
+
+
+def latency_check(seeds) -> None:
+    """Heading RMS on simulated motions whose only sensor error is a 20 ms late magnetometer (and white noise),
+    the latency compensated or not, beside the same motions on time: the compensation alone, isolated from the
+    other errors of a board (the hard-iron tracker off: there is no iron)."""
+    from compass.sim.motion import KINDS, SensorErrors, simulate_motion
+
+    print(f"\nthe latency alone (compass.sim.motion, 60 s, seeds {list(seeds)}): heading RMS, deg")
+    print(f"{'kind':18s} {'on time':>9s} {'20 ms late':>11s} {'compensated':>12s}")
+    for kind in KINDS:
+        cells = []
+        for late_s, tau in ((0.0, 0.0), (0.02, 0.0), (0.02, 0.02)):
+            rms = []
+            for seed in seeds:
+                trial = _Simulated(simulate_motion(kind, seed=seed, errors=SensorErrors(mag_latency_s=late_s)), kind)
+                e = error_series(ours({"mag_latency_s": tau}, hard_iron=False)(trial), trial.ref_quat_enu,
+                                 trial.movement, trial.rate_hz)
+                rms.append(e.heading_rms_deg)
+            cells.append(np.mean(rms))
+        print(f"{kind:18s} {cells[0]:9.3f} {cells[1]:11.3f} {cells[2]:12.3f}", flush=True)
+
+
 # ---------------------------------------------------------------- simulated boards
 
-SIM_CANDIDATES = ("defaults", "second-order inertial low-pass")
+SIM_CANDIDATES = ("defaults", "second-order inertial low-pass", "mag_latency_s fitted")
 
 
 class _Simulated:
@@ -220,10 +304,20 @@ def simulated(methods, seeds) -> dict:
     out = {}
     for board in ("broad-like", "low-cost"):
         out[board] = {}
+        latency = {}
+        if any(m in methods for m in ("mag_latency_s fitted",)):
+            for seed in seeds:  # the board's tumble recording: another motion seed, the rows at 1/6 of the rate
+                cal = simulate_motion("fast_rotation", seed=500 + seed, errors=board_errors(board, seed))
+                keep = np.zeros(len(cal.t_s), bool)
+                keep[::6] = True
+                latency[seed] = file_latency_s(cal.t_s, cal.gyro_rad_s, cal.accel_m_s2, cal.mag_ut, keep)
+            print(f"  {board}: latency from its tumble file " + ", ".join(f"{1e3 * v:.2f}" for v in latency.values())
+                  + " ms", flush=True)
         for kind in KINDS:
             runs = []
             for seed in seeds:
                 trial = _Simulated(simulate_motion(kind, seed=seed, errors=board_errors(board, seed)), kind)
+                trial.fitted_latency_s = latency.get(seed, 0.0)
                 row = []
                 for method in methods.values():
                     e = error_series(method(trial), trial.ref_quat_enu, trial.movement, trial.rate_hz)
@@ -459,6 +553,8 @@ def main(argv=None) -> int:
                              f"also {', '.join(TURN_VARIANTS)}")
     parser.add_argument("--sim-only", action="store_true", help="only the simulated boards (no BROAD trial)")
     parser.add_argument("--sim-seeds", type=int, default=2, help="seeds per kind of simulated motion (0: no simulation)")
+    parser.add_argument("--latency-check", action="store_true",
+                        help="only the simulated motions with a late magnetometer alone, compensated or not")
     args = parser.parse_args(argv)
 
     peers = {"vqf": vqf_online, "vqf offline": vqf_offline, "fusion": fusion, "madgwick": madgwick}
@@ -491,6 +587,9 @@ def main(argv=None) -> int:
             print(f"frame check failed for {', '.join(bad)}: fix the conversion before trusting numbers")
             return 1
 
+    if args.latency_check:
+        latency_check(range(max(args.sim_seeds, 1)))
+        return 0
     if args.sim_only:
         simulated_section(available, peer_names, max(args.sim_seeds, 1))
         return 0
@@ -515,9 +614,11 @@ def main(argv=None) -> int:
     from compass.filter import FilterConfig
 
     default = FilterConfig(field_norm=1.0, dip_deg=0.0, mag_noise=1.0)
+    latencies = broad_latencies(Path(args.data)) if "mag_latency_s fitted" in candidates else {}
     results, trials, noises = {}, {}, []
     for f in files:
         trial = read_broad(f)
+        BROAD_LATENCY_S[trial.name] = held_out_latency(trial.name, latencies)
         trials[trial.name] = trial
         noises.append(rest_noise(trial.gyro_rad_s, trial.accel_m_s2, trial.mag_ut, ~trial.movement, trial.rate_hz))
         row = {}

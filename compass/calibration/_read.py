@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -337,6 +338,7 @@ def _tumble(d: dict) -> tuple:
     diagnosis = d.get("diagnosis")
     noise_key = "noise_floor" if d.get("noise_floor") is not None else "diagnosis.noise_floor"
     noise = d.get("noise_floor", diagnosis.get("noise_floor") if isinstance(diagnosis, dict) else None)
+    block = d.get("tumble") if isinstance(d.get("tumble"), dict) else {}
     model = SensorModel(
         channels=TUMBLE_CHANNELS,
         directions=g / gains[:, None],
@@ -347,14 +349,59 @@ def _tumble(d: dict) -> tuple:
         noise=check.noise(noise, 3, noise_key),
         form="tumble",
         temperature=_temperature(d, TUMBLE_CHANNELS, gains),
+        iron_uncertainty=_tumble_uncertainty(block, soft, rot),
+        mag_latency_s=_mag_latency_s(block.get("gyro")),
     )
-    block = d.get("tumble") if isinstance(d.get("tumble"), dict) else {}
     norm = block.get("field_norm_recording_units")
     if norm is None and field_ut is None:
         norm = field_norm  # no |B| given: the file's field norm is in the recording's unit
     ellipsoid = block.get("kind")  # the file's spelling of the fitted ellipsoid
     return model, TumbleForm(hard, soft, mag_to_accel, field_norm, float(norm) if _is_number(norm) else None,
                              ellipsoid if isinstance(ellipsoid, str) else None)
+
+
+def _tumble_uncertainty(block: dict, soft: np.ndarray, rotation: np.ndarray):
+    """The ``tumble`` block's sigmas of the hard iron, soft iron and rotation as a
+    :class:`~compass.iron_uncertainty.TumbleUncertainty`; None when the hard iron's or the soft iron's
+    are absent or not finite (a degenerate fit's).  No rotation sigma (no rotation fitted): zeros."""
+    from ..iron_uncertainty import TumbleUncertainty
+
+    hard, soft_sigma = block.get("hard_iron_sigma"), block.get("soft_iron_sigma")
+    if hard is None or soft_sigma is None:
+        return None
+    hard = check.array(hard, (3,), "tumble.hard_iron_sigma") if _all_finite(hard) else None
+    soft_sigma = check.array(soft_sigma, (3, 3), "tumble.soft_iron_sigma") if _all_finite(soft_sigma) else None
+    if hard is None or soft_sigma is None:
+        return None
+    rot = block.get("misalignment_rotvec_sigma_deg")
+    rot = (np.radians(check.array(rot, (3,), "tumble.misalignment_rotvec_sigma_deg")) if _all_finite(rot)
+           else np.zeros(3))
+    for key, value in (("hard_iron_sigma", hard), ("soft_iron_sigma", soft_sigma),
+                       ("misalignment_rotvec_sigma_deg", rot)):
+        if np.any(value < 0):
+            raise CalibrationFileError("must not be negative (standard errors)", key=f"tumble.{key}")
+    return TumbleUncertainty(soft, rotation, hard, soft_sigma, rot)
+
+
+def _all_finite(v) -> bool:
+    """A list (of lists) of finite numbers only: a sigma the fit could not give is written null or inf."""
+    if isinstance(v, list):
+        return bool(v) and all(_all_finite(x) for x in v)
+    return _is_number(v)
+
+
+def _mag_latency_s(gyro) -> float:
+    """``tumble.gyro.mag_latency_s`` when the gyro-aided fit saw a latency the filter can compensate: the
+    magnetometer late (positive) by more than 3 of its sigmas; else 0 (an early magnetometer, the gyro the
+    late one, cannot be compensated by turning the field forward: the fit's words say so)."""
+    if not isinstance(gyro, dict):
+        return 0.0
+    tau, sigma = gyro.get("mag_latency_s"), gyro.get("mag_latency_sigma_s")
+    if tau is None:
+        return 0.0
+    tau = check.number(tau, "tumble.gyro.mag_latency_s", low=-1.0, high=1.0)
+    sigma = check.number(sigma, "tumble.gyro.mag_latency_sigma_s", nonnegative=True, allow_none=True)
+    return tau if sigma is not None and tau > 3.0 * sigma else 0.0
 
 
 def _tilt_sensor(d: dict):
@@ -397,5 +444,6 @@ def _installation(d: dict) -> Installation:
 def _installed_model(installation: Installation):
     from ..installed import installed_model
 
-    return installed_model(installation.base.model, installation.hard_iron_ut, installation.soft_iron,
-                           installation.covariance, installation.alignment)
+    model = installed_model(installation.base.model, installation.hard_iron_ut, installation.soft_iron,
+                            installation.covariance, installation.alignment)
+    return replace(model, mag_latency_s=installation.base.model.mag_latency_s)  # the module's timing, not the iron's

@@ -12,6 +12,7 @@ from .. import limits
 from ..io.atomic import atomic_write_text, check_writable
 from ..io.table import ReadOptions, add_read_arguments
 from ..viz import add_rerun_option, check_rerun_target
+from ._filter_args import add_mag_latency_argument
 
 
 def register(sub) -> None:
@@ -41,6 +42,7 @@ def register(sub) -> None:
     p.add_argument("--gravity", type=limits.GRAVITY.option("--gravity"), metavar="G",
                    help="with --filter: what 1 g reads in the accelerometer's unit (default: the median |a| of the "
                         "recording's first quiet second)")
+    add_mag_latency_argument(p, with_filter=True)
     p.add_argument("--force", action="store_true", help="overwrite an existing output file")
     add_rerun_option(p)
     add_read_arguments(p)
@@ -58,10 +60,12 @@ def run(args) -> int:
         if args.level:
             raise BadInput("--level cannot go with --filter: the filter needs the accelerometer's tilt")
         replay_file(args.calibration, args.recording, args.out, site=args.site, date=args.date, gravity=args.gravity,
-                    force=args.force, rerun=args.rerun, read_options=ReadOptions.from_args(args))
+                    mag_latency=args.mag_latency, force=args.force, rerun=args.rerun, read_options=ReadOptions.from_args(args))
         return 0
     if args.gravity is not None:
         raise BadInput("--gravity goes with --filter (the per-row solution normalises each accelerometer row)")
+    if args.mag_latency:
+        raise BadInput("--mag-latency goes with --filter (the per-row solution has no gyro to turn the field with)")
     attitude_file(args.calibration, args.recording, args.out, level=args.level, max_tilt_deg=args.max_tilt_deg,
                   accel_noise_g=args.accel_noise_g, force=args.force, site=args.site, date=args.date, rerun=args.rerun,
                   read_options=ReadOptions.from_args(args))

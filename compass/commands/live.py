@@ -10,7 +10,6 @@ with the dropped-line count printed.
 from __future__ import annotations
 
 import contextlib
-from dataclasses import replace
 import sys
 import time
 
@@ -18,6 +17,7 @@ from .. import limits
 from ..limits import Range
 from ..io.stream_options import add_stream_arguments
 from ..viz import add_rerun_option, check_rerun_target
+from ._filter_args import add_mag_latency_argument, filter_config
 from ._port import open_reader, port_unavailable, stop_when_asked, stream_options
 
 
@@ -38,6 +38,7 @@ def register(sub) -> None:
                    help="where the module is (degrees, metres): reference field and true north from the World "
                         "Magnetic Model (default: the field of the first quiet second, magnetic heading only)")
     p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day (default today, UTC)")
+    add_mag_latency_argument(p)
     p.add_argument("--gravity", type=limits.GRAVITY.option("--gravity"), metavar="G",
                    help="what 1 g reads in the module's accelerometer unit (default: the median |a| of the first "
                         "quiet second)")
@@ -60,7 +61,6 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from ..cli import BadInput
-    from ..filter import FilterConfig
     from ..io.atomic import atomic_stream, check_writable
     from ..live import LiveSession
     from ..calibration import load
@@ -74,9 +74,7 @@ def run(args) -> int:
     try:
         cal = load(args.cal)
         model = cal.model
-        config = FilterConfig.from_model(model)
-        if args.gravity is not None:
-            config = replace(config, gravity=args.gravity)
+        config = filter_config(model, args)
     except ValueError as exc:
         raise BadInput(f"{args.cal}: {exc}" if args.cal not in str(exc) else str(exc)) from None
     reference = _site_reference(args, model)

@@ -185,8 +185,14 @@ class FilterConfig:
             raise ValueError(f"FilterConfig.gravity must be positive or None, got {self.gravity!r}")
 
     @classmethod
-    def from_model(cls, model) -> "FilterConfig":
+    def from_model(cls, model, *, mag_latency: bool = False) -> "FilterConfig":
         """Reference field and magnetometer noise from a :class:`compass.model.SensorModel`.
+
+        With ``mag_latency`` also the magnetometer's latency the calibration found
+        (``model.mag_latency_s``: a tumble's gyro-aided fit's, 0 when the file has none; ``compass live``
+        and ``compass attitude --filter`` ``--mag-latency``).  Off by default: on BROAD the latency fitted
+        on another trial cost the undisturbed trials' heading (docs/benchmarks.md, "The magnetometer's
+        latency from the calibration file").
 
         Change other fields with ``dataclasses.replace``.
 
@@ -200,7 +206,8 @@ class FilterConfig:
         if model.noise is None:
             raise ValueError("the calibration has no noise_floor: the filter cannot weight the magnetometer")
         noise = float(np.sqrt(np.trace(model.field_covariance(np.zeros(3))) / 3.0))
-        return cls(field_norm=model.field_norm, dip_deg=model.dip_deg, mag_noise=noise)
+        return cls(field_norm=model.field_norm, dip_deg=model.dip_deg, mag_noise=noise,
+                   mag_latency_s=model.mag_latency_s if mag_latency else 0.0)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,145 @@
+"""A tumble calibration's own uncertainty, propagated to the field in the housing frame.
+
+A tumble file writes ``B_H = C S (x - h)`` (``x`` the raw reading, recording units; ``h`` the hard
+iron; ``S`` the soft iron, file units; ``C`` = ``mag_to_accel``) and, under ``tumble``, the standard
+errors of ``h`` (``hard_iron_sigma``), of each entry of ``S`` (``soft_iron_sigma``; ``S`` is symmetric,
+so ``S_ij`` and ``S_ji`` are one number) and of ``C``'s rotation vector (``misalignment_rotvec_sigma_deg``),
+widened by the residual diagnosis when structure remained (``unexplained``).  To first order
+
+.. math::
+
+    \\delta B_H = -C S\\,\\delta h + C\\,\\delta S\\,(x - h) + \\delta\\theta \\times B_H ,
+    \\qquad x - h = S^{-1} C^T B_H ,
+
+with ``Exp(dtheta) C`` the perturbed rotation (for the few-degree rotations of a mounting, the
+rotation vector's errors are ``dtheta``'s to within a few per cent).  The file gives sigmas, not the
+correlations, so the parameters are taken as independent:
+
+.. math::
+
+    \\Sigma_B = (CS)\\,\\mathrm{diag}(\\sigma_h^2)\\,(CS)^T
+      + \\sum_{i \\le j} \\sigma_{S,ij}^2\\, v_{ij} v_{ij}^T
+      + [B_H]_\\times \\mathrm{diag}(\\sigma_\\theta^2) [B_H]_\\times^T ,
+    \\qquad v_{ij} = C (e_i (x-h)_j + e_j (x-h)_i)\\ (i \\ne j), \\quad v_{ii} = C e_i (x-h)_i .
+
+The first term is the four-flip's offset sigma (it is there at zero field), the other two its
+direction and gain sigmas (they grow with the field); a rotation about the vertical turns the heading
+whole, which a per-channel direction covariance would spread over three independent channels, so the
+term is kept as one 3x3 covariance (:meth:`compass.model.SensorModel.field_covariance` adds it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+__all__ = ["TumbleUncertainty"]
+
+
+@dataclass(frozen=True, eq=False)
+class TumbleUncertainty:
+    """The standard errors of a tumble file's hard iron, soft iron and rotation (independent).
+
+    Attributes
+    ----------
+    soft_iron : ndarray, shape (3, 3)
+        ``S``, file units (field units per recording unit).
+    mag_to_accel : ndarray, shape (3, 3)
+        ``C`` (the identity when the file has none).
+    hard_iron_sigma : ndarray, shape (3,)
+        Recording units.
+    soft_iron_sigma : ndarray, shape (3, 3)
+        Of each entry of ``S`` (the upper triangle is used), file units.
+    rotation_sigma_rad : ndarray, shape (3,)
+        Of ``C``'s rotation vector, rad (zeros when the file fitted no rotation).
+    """
+
+    soft_iron: np.ndarray
+    mag_to_accel: np.ndarray
+    hard_iron_sigma: np.ndarray
+    soft_iron_sigma: np.ndarray
+    rotation_sigma_rad: np.ndarray
+
+    def __post_init__(self):
+        for name, shape in (("soft_iron", (3, 3)), ("mag_to_accel", (3, 3)), ("hard_iron_sigma", (3,)),
+                            ("soft_iron_sigma", (3, 3)), ("rotation_sigma_rad", (3,))):
+            value = np.asarray(getattr(self, name), dtype=float)
+            if value.shape != shape or not np.all(np.isfinite(value)):
+                raise ValueError(f"{name} must be finite with shape {shape}, got {value.shape}")
+            if name.endswith("sigma") or name.endswith("sigma_rad"):
+                if np.any(value < 0):
+                    raise ValueError(f"{name} must not be negative")
+            object.__setattr__(self, name, value)
+
+    @cached_property
+    def _to_raw(self) -> np.ndarray:
+        """``S^-1 C^T``: ``x - h`` from ``B_H``."""
+        return np.linalg.solve(self.soft_iron, self.mag_to_accel.T)
+
+    @cached_property
+    def _hard_iron_term(self) -> np.ndarray:
+        cs = self.mag_to_accel @ self.soft_iron
+        return (cs * self.hard_iron_sigma**2) @ cs.T
+
+    def covariance(self, field_h) -> np.ndarray:
+        """Covariance of ``B_H`` from the calibration's parameters at the field ``field_h``.
+
+        Parameters
+        ----------
+        field_h : array_like, shape (..., 3)
+            Field in H, field units.
+
+        Returns
+        -------
+        ndarray, shape (..., 3, 3)
+            Field units squared (module docstring).
+        """
+        b = np.asarray(field_h, dtype=float)
+        x = np.einsum("ij,...j->...i", self._to_raw, b)  # x - h, recording units
+        cov = np.broadcast_to(self._hard_iron_term, b.shape[:-1] + (3, 3)).copy()
+        c = self.mag_to_accel
+        for i in range(3):
+            for j in range(i, 3):
+                sigma = self.soft_iron_sigma[i, j]
+                if sigma == 0.0:
+                    continue
+                v = c[:, i] * x[..., j, None] + (c[:, j] * x[..., i, None] if i != j else 0.0)
+                cov += sigma**2 * v[..., :, None] * v[..., None, :]
+        s2 = self.rotation_sigma_rad**2
+        if np.any(s2 > 0):
+            bx = _skew(b)
+            cov += np.einsum("...ik,k,...jk->...ij", bx, s2, bx)
+        return cov
+
+
+    def heading_sigma_deg(self, matrix, field_h) -> float:
+        """The heading's 1-sigma from the calibration alone at one attitude, the tilt taken as known, degrees.
+
+        A field error ``dB`` turns the horizontal field by ``dB . w / |B_h|`` (``w`` the world's West axis
+        seen in H, the second row of ``R_world<-H``; ``|B_h|`` the horizontal field): the variance is
+        ``w^T Sigma_B w / |B_h|^2``, as :func:`compass.attitude.solve_attitude` with a known tilt.
+
+        Parameters
+        ----------
+        matrix : array_like, shape (3, 3) or (9,)
+            ``R_world<-housing`` (NWU world), e.g. the live filter's.
+        field_h : array_like, shape (3,)
+            Field in H, field units.
+        """
+        r = np.reshape(np.asarray(matrix, dtype=float), (3, 3))
+        b = np.asarray(field_h, dtype=float)
+        west = r[1]
+        horizontal2 = float(b @ b) - float(r[2] @ b) ** 2
+        if not horizontal2 > 0.0:
+            return float("inf")
+        return float(np.degrees(np.sqrt(west @ self.covariance(b) @ west / horizontal2)))
+
+
+def _skew(b: np.ndarray) -> np.ndarray:
+    """``[b]x`` of every vector, shape (..., 3, 3)."""
+    out = np.zeros(b.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -b[..., 2], b[..., 1], -b[..., 0]
+    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = b[..., 2], -b[..., 1], b[..., 0]
+    return out
