@@ -328,13 +328,38 @@ class _Fit(FitRecord):
         raise KeyError(effect.label)
 
 
+@dataclass(frozen=True)
+class _Scoring:
+    """What the score tests against one fit share (:meth:`_Model.score`).
+
+    Attributes
+    ----------
+    fit : _Fit
+    z : ndarray, shape (rows, 3)
+        Its corrected reading (:meth:`_Model.corrected`), normalised units.
+    g : ndarray, shape (rows, 3)
+        :meth:`_Model.gradient` at ``z``.
+    j_b : ndarray, shape (rows, k)
+        :func:`~calibrate.diagnosis.evidence.unit_columns` of its Jacobian; ``normal_b`` is ``j_b^T j_b``.
+    r0 : ndarray, shape (rows,)
+        Its weighted residual.
+    """
+
+    fit: _Fit
+    z: np.ndarray
+    g: np.ndarray
+    j_b: np.ndarray
+    normal_b: np.ndarray
+    r0: np.ndarray
+
+
 class _Model:
     """The ellipsoid with a chain of corrections, on fixed rows, weighted by the floor."""
 
     def __init__(self, fit: EllipsoidFit, rows: _Rows, ctx: _Context, floor: float):
         self.ellipsoid, self.k, self.field_norm = fit.ellipsoid, fit.n_params, fit.field_norm
         self.rows, self.ctx, self.floor = rows, ctx, floor
-        self._scored_against = None  # (fit, its corrected reading, unit_columns(fit.jac)): the fit last scored against
+        self._scored_against: _Scoring | None = None  # the fit last scored against
 
     def corrected(self, x, effects, rows: _Rows) -> np.ndarray:
         """``c(y - p_h)``, shape (n, 3), normalised units."""
@@ -426,15 +451,24 @@ class _Model:
         return _Fit(tuple(effects), res.x, res.jac, cov, res.fun * self.floor, float(res.fun @ res.fun),
                     res.fun.size, bool(res.success), str(res.message))
 
-    def pulled(self, fit: _Fit, effect: TumbleEffect, q: np.ndarray, z: np.ndarray) -> np.ndarray | None:
+    def gradient(self, fit: _Fit, c: np.ndarray) -> np.ndarray:
+        """``L u`` (``u = w / |w|``, ``w = c L``) of each row, shape (rows, 3): the radial residual's gradient by the
+        corrected reading ``c`` (normalised units) over ``F``, with ``fit``'s shape ``L``."""
+        low = shape_matrix(self.ellipsoid, fit.x[3:self.k])
+        w = c @ low
+        return (w / np.linalg.norm(w, axis=1, keepdims=True)) @ low.T
+
+    def pulled(self, fit: _Fit, effect: TumbleEffect, q: np.ndarray, z: np.ndarray,
+               g: np.ndarray | None = None) -> np.ndarray | None:
         """d weighted / d q of ``effect`` added last to ``fit`` with parameters ``q``, shape (rows, q.size), or None.
 
         ``z`` is ``fit``'s corrected reading (:meth:`corrected`), which the effect corrects further.
         With ``w = c L`` the residual is ``F (|w| - 1)``, whose gradient by the corrected reading ``c``
-        is ``F L u`` (``u = w / |w|``); the effect's :meth:`TumbleEffect.pulled` takes it on to ``q``.
+        is ``F L u`` (``u = w / |w|``, :meth:`gradient`); the effect's :meth:`TumbleEffect.pulled` takes it on
+        to ``q``.  ``g``: :meth:`gradient` at ``c``, when the caller has it (at a score point, where the
+        effect is switched off, ``c`` is ``z``).
         """
-        w = effect.correct(z, q, self.rows, self.ctx) @ shape_matrix(self.ellipsoid, fit.x[3:self.k])
-        g = (w / np.linalg.norm(w, axis=1, keepdims=True)) @ shape_matrix(self.ellipsoid, fit.x[3:self.k]).T
+        g = self.gradient(fit, effect.correct(z, q, self.rows, self.ctx)) if g is None else g
         block = effect.pulled(g, z, q, self.rows, self.ctx)
         return None if block is None else block * (self.field_norm / self.floor)
 
@@ -446,12 +480,21 @@ class _Model:
         dropped.  The drop is ``r^T J (J^T J)^{-1} J^T r`` with the projected ``J``; the start is the
         Gauss-Newton step from the score point.  The effect's columns are analytic where it has them
         (:meth:`pulled`), else forward differences.
+
+        A round scores every form against one fit: what the scores share is computed once per fit
+        (:class:`_Scoring`).  The score points are blocks of zero size, where every form's correction
+        returns its input as it is (``tests/calibrate/tumble/test_score_reuse.py``): the residual there is
+        the fit's own, and so is the gradient by the corrected reading.
         """
-        if self._scored_against is None or self._scored_against[0] is not fit:  # a round scores every form against one fit
-            self._scored_against = (fit, self.corrected(fit.x, fit.effects, self.rows), unit_columns(fit.jac))
-        _, z, j_b = self._scored_against
+        if self._scored_against is None or self._scored_against.fit is not fit:
+            z = self.corrected(fit.x, fit.effects, self.rows)
+            j_b = unit_columns(fit.jac)
+            self._scored_against = _Scoring(fit, z, self.gradient(fit, z), j_b, j_b.T @ j_b,
+                                            self.weighted(fit.x, fit.effects))
+        at = self._scored_against
         return linearised_score(self.weighted, fit, effect, effect.score_points(_N_AXES), _FD_STEP,
-                                block_jacobian=lambda q: self.pulled(fit, effect, q, z), j_b=j_b)
+                                block_jacobian=lambda q: self.pulled(fit, effect, q, at.z, at.g), j_b=at.j_b,
+                                r0=at.r0, normal_b=at.normal_b)
 
     def refit(self, fit: _Fit, effect: TumbleEffect, start: np.ndarray) -> _Fit:
         """The fit with ``effect`` added, from ``start`` or the effect switched off, whichever fits better."""
