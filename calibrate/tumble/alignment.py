@@ -13,8 +13,8 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from ..noise import robust_sigma
-from .ellipsoid import (MAX_NFEV, OUTLIER_SIGMAS, EllipsoidFit, fit_covariance, propagate, radial_jacobian,
-                        plain_fit, radial_residual, robust_rows, shape_matrix, sym_sqrt)
+from .ellipsoid import (MAX_NFEV, OUTLIER_SIGMAS, EllipsoidFit, Normal, fit_covariance, propagate, radial_jacobian,
+                        plain_fit, radial_normal, radial_residual, robust_rows, shape_matrix, sym_sqrt)
 
 STATIC_TOLERANCE = 0.02
 """Quasi-static samples: | |a| / g - 1 | below this (g = median |a|)."""
@@ -243,6 +243,23 @@ class _JointResidual:
             rows = slice(start, min(start + _JACOBIAN_CHUNK_ROWS, n_r))
             radial_jacobian(q[:k], self.ellipsoid, self.y_radial[rows], out=jac[rows, :k])
         jac[:n_r] /= self.sigma_r
+        jac[n_r:] = self._angle_jacobian(q)
+        return jac
+
+    def normal(self, q: np.ndarray) -> Normal:
+        """The normal equations of :meth:`residual` and :meth:`jacobian` (:func:`~calibrate.tumble.ellipsoid.plain_fit`'s
+        ``normal``): the radial rows' summed a chunk at a time (:func:`~calibrate.tumble.ellipsoid.radial_normal`), the
+        angle rows' from their Jacobian."""
+        k = self.k
+        radial = radial_normal(q[:k], self.ellipsoid, self.y_radial)
+        r_a, j_a = self.angles(q) / self.sigma_a, self._angle_jacobian(q)
+        jtj, jtr = j_a.T @ j_a, j_a.T @ r_a
+        jtj[:k, :k] += radial.jtj / self.sigma_r**2
+        jtr[:k] += radial.jtr / self.sigma_r**2
+        return Normal(radial.chi2 / self.sigma_r**2 + float(r_a @ r_a), jtj, jtr, radial.rows + len(r_a))
+
+    def _angle_jacobian(self, q: np.ndarray) -> np.ndarray:
+        """d (angle rows of :meth:`residual`) / d q, shape (static rows, q.size)."""
         m_mat, d_m = self._matrix_derivatives(q)
         d = self.y_static - q[:3]
         mm = d @ m_mat.T
@@ -252,13 +269,13 @@ class _JointResidual:
         sin = np.sqrt(np.clip(1.0 - cos * cos, 0.0, None))
         inside = np.abs(cos) < 1.0
         g = -(self.a_unit - cos[:, None] * u) / np.where(inside, norm * sin, np.inf)[:, None]
-        rows = jac[n_r:]
+        rows = np.zeros((len(self.y_static), q.size))
         rows[:, :3] = -(g @ m_mat)
         for j, d_mat in enumerate(d_m, start=3):
             rows[:, j] = np.einsum("ij,ij->i", g, d @ d_mat.T)
         rows[:, -1] = -1.0
         rows /= self.sigma_a
-        return jac
+        return rows
 
 
 def refine_jointly(fit: EllipsoidFit, mag: np.ndarray, accel: np.ndarray, first: Misalignment) -> tuple[EllipsoidFit, Misalignment]:
@@ -310,8 +327,8 @@ def refine_jointly(fit: EllipsoidFit, mag: np.ndarray, accel: np.ndarray, first:
     use_a = np.abs(every.angles(robust_x)) < OUTLIER_SIGMAS * sigma_a
     kept = replace(every, y_radial=y_inl[use_r], y_static=y_static[use_a], a_unit=a_unit[use_a])
     del every, robust_on, y_inl, y_static, a_unit  # the kept rows only, beside the final fit's Jacobian
-    final = plain_fit(kept.residual, robust_x, kept.jacobian)
-    cov = fit_covariance(final, len(final.fun))
+    final = plain_fit(kept.residual, robust_x, kept.jacobian, normal=kept.normal)
+    cov = fit_covariance(final, len(kept.y_radial) + len(kept.y_static))
     h, sig_h, s_mat, sig_s, f_norm, sig_f = propagate(ellipsoid, final.x[:k], cov, fit.centre, fit.radius)
     resid_all = np.linalg.norm((mag - h) @ s_mat.T, axis=1) - f_norm
     new_fit = replace(fit, hard_iron=h, hard_iron_sigma=sig_h, soft_iron=s_mat, soft_iron_sigma=sig_s, field_norm=f_norm,
