@@ -125,7 +125,10 @@ def check_axes(up, field, *, rotation=None, site_dip_deg: float | None = None, n
     b = b[ok]
     expected = None if site_dip_deg is None or abs(site_dip_deg) < MIN_SIGNED_DIP_DEG else np.sign(site_dip_deg)
     diverse = 1.0 - float(np.linalg.norm(u.mean(axis=0))) >= _MIN_DIVERSITY
-    results = {s: _dips(u, (b * np.array(s, dtype=float)) @ c.T, (1, 1, 1)) for s in product((1, -1), repeat=3)}
+    # a pattern and its opposite read one spread with opposite dips (above): half the patterns are computed
+    half = {s: _dips(u, (b * np.array(s, dtype=float)) @ c.T, (1, 1, 1)) for s in product((1, -1), repeat=3) if s[0] > 0}
+    results = {s: half[s] if s[0] > 0 else (-half[tuple(-v for v in s)][0], half[tuple(-v for v in s)][1])
+               for s in product((1, -1), repeat=3)}
     dip0, spread0 = results[(1, 1, 1)]
     right = min((r[1] for r in results.values() if np.sign(r[0]) == (1.0 if expected is None else expected)), default=np.inf)
     if spread0 <= _GAIN * right or not diverse:  # no pattern does much better than the readings as they are

@@ -594,17 +594,37 @@ def radial_noise_floor(residuals: np.ndarray) -> float:
     return float(second_difference_sigma(second_differences(residuals)))
 
 
-def _structure_design(directions: np.ndarray, blocks, n_blocks: int) -> np.ndarray:
+_MONOMIALS = tuple(idx for degree in (3, 4) for idx in combinations_with_replacement(range(3), degree))
+"""The structure regression's cubic and quartic monomials of the field direction, as the axes they multiply."""
+
+
+def _structure_design(directions: np.ndarray, blocks, n_blocks: int, extra: np.ndarray | None = None) -> np.ndarray:
     """Columns of :func:`residual_structure`'s regression for some rows: block-local terms, then monomials.
 
     The block-local columns come first: a block's are zero outside it, so a chunk of rows within a few
-    blocks leaves the others' rows of the factorisation untouched (:func:`residual_structure`).
+    blocks leaves the others' rows of the factorisation untouched (:func:`residual_structure`).  For each
+    band, block ``b``'s columns are ``1, x, y, z`` on its rows; a monomial is the product of its axes in
+    order (``((x_i x_j) x_k) x_l``, each from the one before it).  ``extra`` (one value a row), when given,
+    is appended as the last column.
     """
-    local = np.column_stack([np.ones(len(directions)), directions])
-    cols = [local[:, j] * (block == b) for block in blocks for b in range(n_blocks) for j in range(4)]
-    cols += [np.prod(directions[:, list(idx)], axis=1)
-             for degree in (3, 4) for idx in combinations_with_replacement(range(3), degree)]
-    return np.column_stack(cols)
+    n_local = 4 * n_blocks * len(blocks)
+    design = np.zeros((len(directions), n_local + len(_MONOMIALS) + (extra is not None)))
+    for band, block in enumerate(blocks):
+        for b in np.unique(block):
+            rows = block == b
+            first = 4 * (band * n_blocks + b)
+            design[rows, first] = 1.0
+            design[rows, first + 1:first + 4] = directions[rows]
+    axes = np.ascontiguousarray(directions.T)
+    products = {(i,): axes[i] for i in range(3)}  # each monomial's, and its leading axes'
+    for column, idx in enumerate(_MONOMIALS, start=n_local):
+        for end in range(2, len(idx) + 1):
+            if idx[:end] not in products:
+                products[idx[:end]] = products[idx[:end - 1]] * axes[idx[end - 1]]
+        design[:, column] = products[idx]
+    if extra is not None:
+        design[:, -1] = extra
+    return design
 
 
 def residual_structure(weighted: np.ndarray, directions: np.ndarray, bands) -> tuple[float, int, float]:
@@ -642,8 +662,7 @@ def residual_structure(weighted: np.ndarray, directions: np.ndarray, bands) -> t
     r_aug = None
     for start in range(0, n, _STRUCTURE_CHUNK_ROWS):
         rows = slice(start, start + _STRUCTURE_CHUNK_ROWS)
-        chunk = np.column_stack([_structure_design(directions[rows], [block[rows] for block in blocks], n_blocks),
-                                 weighted[rows]])
+        chunk = _structure_design(directions[rows], [block[rows] for block in blocks], n_blocks, weighted[rows])
         if r_aug is None:
             r_aug = np.zeros((chunk.shape[1], chunk.shape[1]))
         reached = np.any(chunk != 0, axis=0)
