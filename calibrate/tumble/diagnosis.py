@@ -287,9 +287,21 @@ class GainDrift(TimePolynomial, _AtFirstSample):
                    "against a moving hard iron")
         return why
 
+    def _gain(self, q, rows, ctx):
+        """``tau^k`` (shape (n, degree)) and each axis's gain ``1 + sum_k g_ak tau^k`` (shape (n, 3))."""
+        powers = time_powers(ctx.basis.tau(rows.t_s), self.degree)
+        return powers, 1.0 + powers @ q.reshape(_N_AXES, self.degree).T
+
     def correct(self, z, q, rows, ctx):
-        g = time_powers(ctx.basis.tau(rows.t_s), self.degree) @ q.reshape(_N_AXES, self.degree).T
-        return z / (1.0 + g)
+        return z / self._gain(q, rows, ctx)[1]
+
+    def pulled(self, g, z, q, rows, ctx):
+        # d (z_a / gain_a) / d g_ak = -z_a tau^k / gain_a^2, in the order of q (per axis, then per power)
+        powers, gain = self._gain(q, rows, ctx)
+        return (-(g * z / (gain * gain))[:, :, None] * powers[:, None, :]).reshape(len(z), -1)
+
+    def passed_back(self, g, z, q, rows, ctx):
+        return g / self._gain(q, rows, ctx)[1]
 
     def report(self, q, sigma, ctx):
         out = {}
