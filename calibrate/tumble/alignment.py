@@ -243,7 +243,7 @@ class _JointResidual:
             rows = slice(start, min(start + _JACOBIAN_CHUNK_ROWS, n_r))
             radial_jacobian(q[:k], self.ellipsoid, self.y_radial[rows], out=jac[rows, :k])
         jac[:n_r] /= self.sigma_r
-        jac[n_r:] = self._angle_jacobian(q)
+        jac[n_r:] = self._angle_jacobian_t(q).T
         return jac
 
     def normal(self, q: np.ndarray) -> Normal:
@@ -252,28 +252,29 @@ class _JointResidual:
         angle rows' from their Jacobian."""
         k = self.k
         radial = radial_normal(q[:k], self.ellipsoid, self.y_radial)
-        r_a, j_a = self.angles(q) / self.sigma_a, self._angle_jacobian(q)
-        jtj, jtr = j_a.T @ j_a, j_a.T @ r_a
+        r_a, j_a = self.angles(q) / self.sigma_a, self._angle_jacobian_t(q)
+        jtj, jtr = j_a @ j_a.T, j_a @ r_a
         jtj[:k, :k] += radial.jtj / self.sigma_r**2
         jtr[:k] += radial.jtr / self.sigma_r**2
         return Normal(radial.chi2 / self.sigma_r**2 + float(r_a @ r_a), jtj, jtr, radial.rows + len(r_a))
 
-    def _angle_jacobian(self, q: np.ndarray) -> np.ndarray:
-        """d (angle rows of :meth:`residual`) / d q, shape (static rows, q.size)."""
+    def _angle_jacobian_t(self, q: np.ndarray) -> np.ndarray:
+        """d (angle rows of :meth:`residual`) / d q, transposed: shape (q.size, static rows), each parameter's
+        derivatives a contiguous row (as :func:`~calibrate.tumble.ellipsoid.radial_jacobian`'s columns)."""
         m_mat, d_m = self._matrix_derivatives(q)
-        d = self.y_static - q[:3]
-        mm = d @ m_mat.T
-        norm = np.linalg.norm(mm, axis=1)
-        u = mm / norm[:, None]
-        cos = np.sum(u * self.a_unit, axis=1)
+        d = np.ascontiguousarray((self.y_static - q[:3]).T)
+        a = np.ascontiguousarray(self.a_unit.T)
+        mm = m_mat @ d
+        norm = np.sqrt(np.einsum("ij,ij->j", mm, mm))
+        u = mm / norm
+        cos = np.einsum("ij,ij->j", u, a)
         sin = np.sqrt(np.clip(1.0 - cos * cos, 0.0, None))
-        inside = np.abs(cos) < 1.0
-        g = -(self.a_unit - cos[:, None] * u) / np.where(inside, norm * sin, np.inf)[:, None]
-        rows = np.zeros((len(self.y_static), q.size))
-        rows[:, :3] = -(g @ m_mat)
-        for j, d_mat in enumerate(d_m, start=3):
-            rows[:, j] = np.einsum("ij,ij->i", g, d @ d_mat.T)
-        rows[:, -1] = -1.0
+        g = -(a - cos * u) / np.where(np.abs(cos) < 1.0, norm * sin, np.inf)
+        rows = np.empty((q.size, d.shape[1]))
+        rows[:3] = -(m_mat.T @ g)
+        # g . (dM d) = sum_il dM_il g_i d_l: every matrix's at once, against the products g_i d_l of each row
+        rows[3:-1] = np.reshape(d_m, (len(d_m), 9)) @ (g[:, None, :] * d[None, :, :]).reshape(9, -1)
+        rows[-1] = -1.0
         rows /= self.sigma_a
         return rows
 
