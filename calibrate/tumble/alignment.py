@@ -115,7 +115,8 @@ def fit_misalignment(mag_cal: np.ndarray, accel: np.ndarray) -> Misalignment | N
     -----
     Residuals are angle errors in radians with a robust ``soft_l1`` loss scaled by the robust
     spread of the angles; standard errors come from a plain refit on the samples within
-    ``OUTLIER_SIGMAS`` robust sigmas.  The BIC compares the fit with the rotation (4 parameters)
+    ``OUTLIER_SIGMAS`` robust sigmas (:func:`~calibrate.tumble.ellipsoid.plain_fit`, on the analytic
+    :func:`_turned_angles_jacobian`).  The BIC compares the fit with the rotation (4 parameters)
     to the dip alone (1 parameter) on the same samples.
     """
     static = static_mask(accel)
@@ -126,10 +127,7 @@ def fit_misalignment(mag_cal: np.ndarray, accel: np.ndarray) -> Misalignment | N
     angle0 = np.arccos(np.clip(np.sum(m * a, axis=1), -1.0, 1.0))
     spread0 = float(np.degrees(np.std(angle0)))
 
-    def resid(p, m, a):
-        mm = Rotation.from_rotvec(p[:3]).apply(m)
-        return np.arccos(np.clip(np.sum(mm * a, axis=1), -1.0, 1.0)) - p[3]
-
+    resid = _turned_angles
     sigma = max(robust_sigma(angle0), 1e-6)
     p0 = np.array([0.0, 0.0, 0.0, np.median(angle0)])
     thin = robust_rows(len(m))  # the robust fit gives the start and the outlier test only
@@ -138,7 +136,7 @@ def fit_misalignment(mag_cal: np.ndarray, accel: np.ndarray) -> Misalignment | N
     sigma = max(robust_sigma(r), 1e-9)
     keep = np.abs(r - np.median(r)) < OUTLIER_SIGMAS * sigma
     m, a = m[keep], a[keep]
-    final = least_squares(resid, robust.x, args=(m, a), method="lm")
+    final = plain_fit(resid, robust.x, _turned_angles_jacobian, args=(m, a))
     n = len(m)
     rss_rot = float(np.sum(final.fun**2))
     ang = np.arccos(np.clip(np.sum(m * a, axis=1), -1.0, 1.0))
@@ -157,6 +155,25 @@ def fit_misalignment(mag_cal: np.ndarray, accel: np.ndarray) -> Misalignment | N
         spread1 = float(np.degrees(np.std(ang)))
     return Misalignment(rot, rotvec, rotvec_sig, float(dip), float(dip_sig), int(np.count_nonzero(static)),
                         spread0, spread1, float(delta_bic))
+
+
+def _turned_angles(p: np.ndarray, m: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """Angle between ``a`` and ``m`` turned by the rotation vector ``p[:3]``, minus ``p[3]``, rad, per row
+    (unit ``m`` and ``a``, shape (n, 3)): :func:`fit_misalignment`'s residual."""
+    mm = Rotation.from_rotvec(p[:3]).apply(m)
+    return np.arccos(np.clip(np.sum(mm * a, axis=1), -1.0, 1.0)) - p[3]
+
+
+def _turned_angles_jacobian(p: np.ndarray, m: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """d :func:`_turned_angles` / d p, shape (n, 4): ``-(a . (dR/dv_i) m) / sin(angle)`` for the rotation vector
+    (:func:`_rotation_derivatives`; zero where the cosine is clipped), -1 for the angle."""
+    cos = np.sum(Rotation.from_rotvec(p[:3]).apply(m) * a, axis=1)
+    scale = -1.0 / np.where(np.abs(cos) < 1.0, np.sqrt(np.clip(1.0 - cos * cos, 0.0, None)), np.inf)
+    jac = np.empty((len(m), 4))
+    for i, d_rot in enumerate(_rotation_derivatives(p[:3])):
+        jac[:, i] = scale * np.einsum("ij,ij->i", m @ d_rot.T, a)
+    jac[:, 3] = -1.0
+    return jac
 
 
 def _skew(v: np.ndarray) -> np.ndarray:

@@ -178,3 +178,18 @@ def test_joint_normal_equations_are_the_jacobians(with_rot):
     np.testing.assert_allclose(normal.chi2, r @ r, rtol=1e-12)
     np.testing.assert_allclose(normal.jtj, j.T @ j, rtol=0, atol=1e-12 * np.max(np.abs(j.T @ j)))
     np.testing.assert_allclose(normal.jtr, j.T @ r, rtol=0, atol=1e-12 * np.max(np.abs(j.T @ r)))
+
+
+@pytest.mark.parametrize("rotvec", [np.array([0.03, -0.02, 0.05]), np.zeros(3)])
+def test_turned_angles_jacobian_matches_finite_differences(rotvec):
+    """The first misalignment fit's residual (angle between gravity and the turned field, minus the dip angle)."""
+    from calibrate.tumble.alignment import _turned_angles, _turned_angles_jacobian
+
+    rng = np.random.default_rng(13)
+    m = rng.normal(size=(200, 3))
+    m /= np.linalg.norm(m, axis=1, keepdims=True)
+    a = rng.normal(size=(200, 3))
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    p = np.concatenate([rotvec, [1.2]])
+    numeric = approx_derivative(_turned_angles, p, method="3-point", args=(m, a))
+    np.testing.assert_allclose(_turned_angles_jacobian(p, m, a), numeric, atol=TOL, rtol=0)
