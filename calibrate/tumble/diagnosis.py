@@ -395,14 +395,15 @@ class _Model:
     def weighted(self, x, effects) -> np.ndarray:
         return self.radial(x, effects, self.rows) / self.floor
 
-    def analytic_jacobian(self, x, effects, rows: _Rows) -> np.ndarray | None:
+    def analytic_jacobian(self, x, effects, rows: _Rows, out: np.ndarray | None = None) -> np.ndarray | None:
         """d radial / d x of ``rows``, shape (rows, x.size), back through the chain of corrections; None when an
         effect lacks its derivatives (:meth:`TumbleEffect.pulled`, :meth:`TumbleEffect.passed_back`).
 
         With ``w = c L`` the residual is ``F (|w| - 1)``: the shape's columns are
         :func:`~calibrate.tumble.ellipsoid.radial_jacobian`'s with ``c`` for ``y - h``; the gradient by
         ``c``, ``F L u`` (``u = w / |w|``), is passed back through the effects from the last, each taking
-        its own columns from it; by the raw reading it is minus the hard iron's.
+        its own columns from it; by the raw reading it is minus the hard iron's.  ``out`` (that shape) receives it
+        instead of a new array (written in part when None is returned).
         """
         k = self.k
         inputs, z, i = [], rows.y - x[:3], k
@@ -410,7 +411,7 @@ class _Model:
             inputs.append((e, z, slice(i, i + e.n_params(_N_AXES))))
             z = e.correct(z, x[inputs[-1][2]], rows, self.ctx)
             i = inputs[-1][2].stop
-        jac = np.empty((len(rows.y), x.size))
+        jac = np.empty((len(rows.y), x.size)) if out is None else out
         radial_jacobian(np.concatenate([np.zeros(3), x[3:k]]), self.ellipsoid, z, out=jac[:, :k])
         g = -jac[:, :3]  # L u, the gradient by the corrected reading (over F)
         for e, z_in, block in reversed(inputs):
@@ -446,15 +447,12 @@ class _Model:
         jac = np.empty((n, x.size))
         for start in range(0, n, _JACOBIAN_CHUNK_ROWS):
             rows = slice(start, start + _JACOBIAN_CHUNK_ROWS)
-            chunk = self.rows.take(rows)
-            analytic = self.analytic_jacobian(x, effects, chunk)
-            if analytic is not None:
-                jac[rows] = analytic
-                continue
-            jac[rows, 3:k] = self.field_norm * radial_jacobian(shape_only, self.ellipsoid,
-                                                               self.corrected(x, effects, chunk))[:, 3:]
-            jac[rows, differenced] = approx_fprime(x[differenced], radial_of, step[differenced], chunk)
-        jac /= self.floor
+            chunk, block = self.rows.take(rows), jac[rows]
+            if self.analytic_jacobian(x, effects, chunk, out=block) is None:
+                block[:, 3:k] = self.field_norm * radial_jacobian(shape_only, self.ellipsoid,
+                                                                  self.corrected(x, effects, chunk))[:, 3:]
+                block[:, differenced] = approx_fprime(x[differenced], radial_of, step[differenced], chunk)
+            block /= self.floor
         return jac
 
     def fit(self, effects, x0) -> _Fit:
