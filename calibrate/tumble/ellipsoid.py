@@ -305,8 +305,9 @@ def robust_rows(n: int) -> slice:
     return slice(None, None, max(-(-n // ROBUST_ROWS), 1))
 
 
-def _robust_start(ellipsoid, y, p0):
-    """Robust fits (on :func:`robust_rows`) and the trimming: the plain fit's start and inliers; normalised units."""
+def _robust_start(ellipsoid, y, p0, trim: bool = True):
+    """Robust fits (on :func:`robust_rows`) and the trimming: the plain fit's start and inliers (None unless
+    ``trim``: the trimming over every row is left out for a kind whose inliers are not used); normalised units."""
     # only the parameters are kept from the robust fits: their results hold an (n, k) Jacobian each
     thin = y[robust_rows(len(y))]
     first_x = least_squares(radial_residual, p0, jac=radial_jacobian, args=(ellipsoid, thin), loss="soft_l1",
@@ -314,6 +315,8 @@ def _robust_start(ellipsoid, y, p0):
     sigma = max(robust_sigma(radial_residual(first_x, ellipsoid, thin)), 1e-9)
     start = least_squares(radial_residual, first_x, jac=radial_jacobian, args=(ellipsoid, thin), loss="soft_l1",
                           f_scale=2.0 * sigma, method="trf", tr_solver="lsmr", max_nfev=MAX_NFEV).x
+    if not trim:
+        return start, None
     r = radial_residual(start, ellipsoid, y)
     sigma = max(robust_sigma(r), 1e-9)
     return start, np.abs(r - np.median(r)) < OUTLIER_SIGMAS * sigma
@@ -406,7 +409,7 @@ def fit_ellipsoid(mag: np.ndarray, ellipsoid: str = "auto") -> tuple[EllipsoidFi
         if starts:
             low = shape_matrix(names[len(starts) - 1], starts[-1][0][3:])
             p = np.concatenate([starts[-1][0][:3], _shape_params(name, low @ low.T)])
-        starts.append(_robust_start(name, y, p))
+        starts.append(_robust_start(name, y, p, trim=name == names[-1]))
     common = starts[-1][1]
     fits = [_ellipsoid_fit(name, x, y, centre, radius, start, common) for name, (start, _) in zip(names, starts)]
     coverage = sphere_coverage(x[common] - fits[0].hard_iron)
