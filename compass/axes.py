@@ -72,7 +72,7 @@ class AxisVerdict:
 def _dips(up: np.ndarray, field: np.ndarray, signs) -> tuple[float, float]:
     """Median dip and robust spread, degrees, with the field's axes multiplied by ``signs``."""
     m = field * np.asarray(signs, dtype=float)
-    cos = -np.einsum("ij,ij->i", up, m) / np.linalg.norm(m, axis=1)
+    cos = -np.einsum("ij,ij->i", up, m) / np.sqrt(np.einsum("ij,ij->i", m, m))  # |m| per row
     dip = np.degrees(np.arcsin(np.clip(cos, -1.0, 1.0)))
     centre = float(np.median(dip))
     return centre, float(1.4826 * np.median(np.abs(dip - centre)))
@@ -113,7 +113,7 @@ def check_axes(up, field, *, rotation=None, site_dip_deg: float | None = None, n
     a = np.asarray(up, dtype=float)
     b = np.asarray(field, dtype=float)
     ok = np.all(np.isfinite(a), axis=1) & np.all(np.isfinite(b), axis=1)
-    norm = np.linalg.norm(a, axis=1)
+    norm = np.sqrt(np.einsum("ij,ij->i", a, a))
     ok &= norm > 0
     if np.count_nonzero(ok) < _MIN_ROWS:
         return None

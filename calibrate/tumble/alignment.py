@@ -12,6 +12,8 @@ from scipy.linalg import solve_sylvester
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from compass.frames import row_norms
+
 from ..noise import robust_sigma
 from .ellipsoid import (MAX_NFEV, OUTLIER_SIGMAS, EllipsoidFit, Normal, fit_covariance, propagate, radial_jacobian,
                         plain_fit, radial_normal, radial_residual, robust_rows, shape_matrix, sym_sqrt)
@@ -86,13 +88,13 @@ def field_gravity_angles(mag_cal: np.ndarray, accel: np.ndarray, rotation: Rotat
         ``mag_to_accel``; identity when None.
     """
     m = mag_cal if rotation is None else rotation.apply(mag_cal)
-    cos = np.sum(m * accel, axis=1) / (np.linalg.norm(m, axis=1) * np.linalg.norm(accel, axis=1))
+    cos = np.sum(m * accel, axis=1) / (row_norms(m) * row_norms(accel))
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
 def static_mask(accel: np.ndarray, tolerance: float = STATIC_TOLERANCE) -> np.ndarray:
     """Quasi-static samples: ``| |a| / median|a| - 1 | < tolerance``."""
-    norm = np.linalg.norm(accel, axis=1)
+    norm = row_norms(accel)
     return np.abs(norm / np.median(norm) - 1.0) < tolerance
 
 
@@ -122,8 +124,8 @@ def fit_misalignment(mag_cal: np.ndarray, accel: np.ndarray) -> Misalignment | N
     static = static_mask(accel)
     if np.count_nonzero(static) < 20:
         return None
-    m = mag_cal[static] / np.linalg.norm(mag_cal[static], axis=1, keepdims=True)
-    a = accel[static] / np.linalg.norm(accel[static], axis=1, keepdims=True)
+    m = mag_cal[static] / row_norms(mag_cal[static])[:, None]
+    a = accel[static] / row_norms(accel[static])[:, None]
     angle0 = np.arccos(np.clip(np.sum(m * a, axis=1), -1.0, 1.0))
     spread0 = float(np.degrees(np.std(angle0)))
 
@@ -230,7 +232,7 @@ class _JointResidual:
         mm = (self.y_static - q[:3]) @ sym_sqrt(self.ellipsoid, q[3:k])
         if self.with_rot:
             mm = Rotation.from_rotvec(q[k:k + 3]).apply(mm)
-        cos = np.sum(mm * self.a_unit, axis=1) / np.linalg.norm(mm, axis=1)
+        cos = np.sum(mm * self.a_unit, axis=1) / row_norms(mm)
         return np.arccos(np.clip(cos, -1.0, 1.0)) - q[-1]
 
     def residual(self, q: np.ndarray) -> np.ndarray:
@@ -328,7 +330,7 @@ def refine_jointly(fit: EllipsoidFit, mag: np.ndarray, accel: np.ndarray, first:
     mag = np.asarray(mag, float)
     inl = fit.inliers
     static = inl & static_mask(accel)
-    a_unit = accel[static] / np.linalg.norm(accel[static], axis=1, keepdims=True)
+    a_unit = accel[static] / row_norms(accel[static])[:, None]
     with_rot = first.rotation is not None
     y_inl, y_static = ((mag[rows] - fit.centre) / fit.radius for rows in (inl, static))
     sigma_r = max(robust_sigma(radial_residual(fit.params, ellipsoid, y_inl)), 1e-9)
@@ -348,7 +350,7 @@ def refine_jointly(fit: EllipsoidFit, mag: np.ndarray, accel: np.ndarray, first:
     final = plain_fit(kept.residual, robust_x, kept.jacobian, normal=kept.normal)
     cov = fit_covariance(final, len(kept.y_radial) + len(kept.y_static))
     h, sig_h, s_mat, sig_s, f_norm, sig_f = propagate(ellipsoid, final.x[:k], cov, fit.centre, fit.radius)
-    resid_all = np.linalg.norm((mag - h) @ s_mat.T, axis=1) - f_norm
+    resid_all = row_norms((mag - h) @ s_mat.T) - f_norm
     new_fit = replace(fit, hard_iron=h, hard_iron_sigma=sig_h, soft_iron=s_mat, soft_iron_sigma=sig_s, field_norm=f_norm,
                       field_norm_sigma=sig_f, residuals=resid_all, rss=float(np.sum(resid_all[inl] ** 2)),
                       success=bool(final.success), message=final.message, params=final.x[:k])

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from compass.frames import sphere_cells
+from compass.frames import row_norms, sphere_cells
 
 FACE_COVERAGE_DEG = 45.0
 """A half-axis counts as seen when some sample's field direction lies within this angle of it."""
@@ -63,13 +63,14 @@ def sphere_coverage(directions: np.ndarray) -> Coverage:
     -------
     Coverage
     """
-    u = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    u = directions / row_norms(directions)[:, None]
     # on the unit sphere the nearest centre in chord length is the one of the largest dot product: a k-d tree
     # finds it without the (rows x cells) products (2x faster on a 700000-sample tumble, memory linear in n).  A
     # search bounded near the cells' spacing prunes the tree (1.5x faster); the few samples farther than the bound
     # from every centre are looked up unbounded, so each sample still gets its nearest centre
-    cells = cKDTree(sphere_cells(_N_CELLS))
-    bound = _BOUND_OF_SPACING * float(np.max(cells.query(cells.data, k=2)[0][:, 1]))
+    centres = sphere_cells(_N_CELLS)
+    cells = cKDTree(centres)
+    bound = _BOUND_OF_SPACING * float(np.max(cells.query(centres, k=2)[0][:, 1]))
     distance, nearest = cells.query(u, distance_upper_bound=bound)
     far = ~np.isfinite(distance)
     if np.any(far):

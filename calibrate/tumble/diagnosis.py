@@ -74,6 +74,8 @@ from itertools import combinations_with_replacement
 import numpy as np
 from scipy.optimize import approx_fprime
 
+from compass.frames import row_norms
+
 from ..contract import FitStatistics
 from ..diagnosis.evidence import (FitRecord, Proposal, determined, gather_forms, is_unexplained, linearised_score,
                                   refit_from_better_start, select_effects, unit_columns)
@@ -466,7 +468,7 @@ class _Model:
         corrected reading ``c`` (normalised units) over ``F``, with ``fit``'s shape ``L``."""
         low = shape_matrix(self.ellipsoid, fit.x[3:self.k])
         w = c @ low
-        return (w / np.linalg.norm(w, axis=1, keepdims=True)) @ low.T
+        return (w / row_norms(w)[:, None]) @ low.T
 
     def pulled(self, fit: _Fit, effect: TumbleEffect, q: np.ndarray, z: np.ndarray,
                g: np.ndarray | None = None) -> np.ndarray | None:
@@ -788,7 +790,7 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
 
     def verdict(f: _Fit):
         z = model.corrected(f.x, f.effects, rows)
-        structure = residual_structure(f.residuals / floor, z / np.linalg.norm(z, axis=1, keepdims=True), bands)
+        structure = residual_structure(f.residuals / floor, z / row_norms(z)[:, None], bands)
         return structure, is_unexplained(structure[2], rms(f.residuals), floor)
 
     base = model.fit((), fit.params)
@@ -817,7 +819,7 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
                                                            fit.centre, fit.radius)
         every_row = _Rows((mag - fit.centre) / fit.radius, t_s, temp_c)
         raw_ref = h + fit.radius * model.corrected(current.x, current.effects, every_row)
-        resid_all = np.linalg.norm((raw_ref - h) @ s_mat.T, axis=1) - f_norm
+        resid_all = row_norms((raw_ref - h) @ s_mat.T) - f_norm
         final_fit = replace(fit, hard_iron=h, hard_iron_sigma=sig_h, soft_iron=s_mat, soft_iron_sigma=sig_s,
                             field_norm=f_norm, field_norm_sigma=sig_f, residuals=resid_all,
                             rss=float(np.sum(resid_all[fit.inliers] ** 2)), success=current.success,

@@ -12,6 +12,8 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve, sqrtm
 from scipy.optimize import OptimizeResult, least_squares, leastsq
 
+from compass.frames import row_norms
+
 from ..noise import robust_sigma
 from .coverage import Coverage, sphere_coverage
 
@@ -362,7 +364,7 @@ def _ellipsoid_fit(ellipsoid, x, y, centre, radius, p0, inliers) -> EllipsoidFit
     res = plain_fit(radial_residual, p0, radial_jacobian, args=(ellipsoid, y[inliers]), normal=radial_normal)
     h, sig_h, s, sig_s, f_norm, sig_f = propagate(ellipsoid, res.x, fit_covariance(res, int(np.count_nonzero(inliers))),
                                                    centre, radius)
-    resid_all = np.linalg.norm((x - h) @ s.T, axis=1) - f_norm
+    resid_all = row_norms((x - h) @ s.T) - f_norm
     return EllipsoidFit(ellipsoid, h, sig_h, s, sig_s, f_norm, sig_f, resid_all, inliers, float(np.sum(resid_all[inliers] ** 2)),
                    np.nan, True, "", bool(res.success), res.message, res.x, centre, radius)
 
@@ -414,7 +416,7 @@ def fit_ellipsoid(mag: np.ndarray, ellipsoid: str = "auto") -> tuple[EllipsoidFi
     fits = [_ellipsoid_fit(name, x, y, centre, radius, start, common) for name, (start, _) in zip(names, starts)]
     coverage = sphere_coverage(x[common] - fits[0].hard_iron)
     n = int(np.count_nonzero(common))
-    extent = float(np.percentile(np.linalg.norm(x[common] - np.median(x[common], axis=0), axis=1), 95))
+    extent = float(np.percentile(row_norms(x[common] - np.median(x[common], axis=0)), 95))
     final = []
     for fit in fits:
         bic = n * np.log(fit.rss / n) + fit.n_params * np.log(n)
