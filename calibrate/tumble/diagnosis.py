@@ -678,8 +678,12 @@ def residual_structure(weighted: np.ndarray, directions: np.ndarray, bands) -> t
         if r_aug is None:
             r_aug = np.zeros((chunk.shape[1], chunk.shape[1]))
         reached = np.any(chunk != 0, axis=0)
-        for j in range(chunk.shape[1]):
-            reached[j] = reached[j] or bool(np.any(r_aug[:j, j][reached[:j]]))
+        entries = r_aug != 0  # upper triangular: a reached row reaches the later columns it has entries in
+        while True:  # until no reached row reaches a column not yet reached (at most a few rounds)
+            grown = reached | np.any(entries[reached], axis=0)
+            if np.array_equal(grown, reached):
+                break
+            reached = grown
         at = np.ix_(reached, reached)
         r_aug[at] = np.linalg.qr(np.vstack([r_aug[at], chunk[:, reached]]), mode="r")
     k = r_aug.shape[1] - 1
