@@ -72,7 +72,7 @@ class AxisVerdict:
 def _dips(up: np.ndarray, field: np.ndarray, signs) -> tuple[float, float]:
     """Median dip and robust spread, degrees, with the field's axes multiplied by ``signs``."""
     m = field * np.asarray(signs, dtype=float)
-    cos = -np.einsum("ij,ij->i", up, m) / np.linalg.norm(m, axis=1)
+    cos = -np.einsum("ij,ij->i", up, m) / np.sqrt(np.einsum("ij,ij->i", m, m))  # |m| per row
     dip = np.degrees(np.arcsin(np.clip(cos, -1.0, 1.0)))
     centre = float(np.median(dip))
     return centre, float(1.4826 * np.median(np.abs(dip - centre)))
@@ -113,7 +113,7 @@ def check_axes(up, field, *, rotation=None, site_dip_deg: float | None = None, n
     a = np.asarray(up, dtype=float)
     b = np.asarray(field, dtype=float)
     ok = np.all(np.isfinite(a), axis=1) & np.all(np.isfinite(b), axis=1)
-    norm = np.linalg.norm(a, axis=1)
+    norm = np.sqrt(np.einsum("ij,ij->i", a, a))
     ok &= norm > 0
     if np.count_nonzero(ok) < _MIN_ROWS:
         return None
@@ -125,7 +125,10 @@ def check_axes(up, field, *, rotation=None, site_dip_deg: float | None = None, n
     b = b[ok]
     expected = None if site_dip_deg is None or abs(site_dip_deg) < MIN_SIGNED_DIP_DEG else np.sign(site_dip_deg)
     diverse = 1.0 - float(np.linalg.norm(u.mean(axis=0))) >= _MIN_DIVERSITY
-    results = {s: _dips(u, (b * np.array(s, dtype=float)) @ c.T, (1, 1, 1)) for s in product((1, -1), repeat=3)}
+    # a pattern and its opposite read one spread with opposite dips (above): half the patterns are computed
+    half = {s: _dips(u, (b * np.array(s, dtype=float)) @ c.T, (1, 1, 1)) for s in product((1, -1), repeat=3) if s[0] > 0}
+    results = {s: half[s] if s[0] > 0 else (-half[tuple(-v for v in s)][0], half[tuple(-v for v in s)][1])
+               for s in product((1, -1), repeat=3)}
     dip0, spread0 = results[(1, 1, 1)]
     right = min((r[1] for r in results.values() if np.sign(r[0]) == (1.0 if expected is None else expected)), default=np.inf)
     if spread0 <= _GAIN * right or not diverse:  # no pattern does much better than the readings as they are

@@ -47,6 +47,8 @@ __all__ = ["DECISIVE_BIC", "FLOOR_MARGIN", "MIN_SHARE", "MAX_REVISIONS", "MAX_ST
 
 SINGULAR_RCOND = 1e-7
 """Eigenvalues of a scaled normal matrix below ``SINGULAR_RCOND**2`` of the largest are singular."""
+SCORE_CHUNK_ROWS = 16384
+"""Rows of the projected block :func:`linear_score` forms at a time (16384 x its columns x 8 bytes: in cache)."""
 FLOOR_MARGIN = 0.10
 """Residual rms above the noise floor by more than this fraction is unexplained."""
 STRUCTURE_P = 1e-3
@@ -217,7 +219,8 @@ def gather_forms(names: Iterable[str], forms: dict, why_not: Callable[[Any], str
 
 def linearised_score(weighted: Callable, current, effect, points: Sequence[np.ndarray],
                      step: float, block_jacobian: Callable | None = None,
-                     j_b: np.ndarray | None = None) -> tuple[float, np.ndarray]:
+                     j_b: np.ndarray | None = None, r0: np.ndarray | None = None,
+                     normal_b: np.ndarray | None = None) -> tuple[float, np.ndarray]:
     """Score (Lagrange-multiplier) test for adding ``effect`` to a least-squares fit.
 
     The effect's Jacobian at each of its score points is projected off the current fit's Jacobian
@@ -241,6 +244,12 @@ def linearised_score(weighted: Callable, current, effect, points: Sequence[np.nd
     j_b : ndarray, shape (m, k), optional
         :func:`unit_columns` of ``current.jac``, when the caller keeps it over the effects it scores
         against the same fit (computed otherwise).
+    r0 : ndarray, shape (m,), optional
+        ``weighted(current.x, current.effects)``, when the caller has it: the score points are blocks of
+        zero size (:meth:`calibrate.effects.EffectForm.score_points`), so the effect is switched off there
+        and the residual at every point is the current fit's (computed at each point otherwise).
+    normal_b : ndarray, shape (k, k), optional
+        ``j_b.T @ j_b``, when the caller keeps it with ``j_b``.
 
     Returns
     -------
@@ -250,10 +259,12 @@ def linearised_score(weighted: Callable, current, effect, points: Sequence[np.nd
     """
     effects = current.effects + (effect,)
     j_b = unit_columns(current.jac) if j_b is None else j_b
+    normal_b = j_b.T @ j_b if normal_b is None else normal_b
     best = (-np.inf, points[0])
     for q0 in points:
         drop, delta = linear_score(lambda p: weighted(p, effects), np.concatenate([current.x, q0]),
-                                   current.x.size, j_b, step, None if block_jacobian is None else block_jacobian(q0))
+                                   current.x.size, j_b, step, None if block_jacobian is None else block_jacobian(q0),
+                                   r0=r0, normal_b=normal_b)
         if drop > best[0]:
             best = (drop, q0 + delta)
     return best
@@ -525,7 +536,8 @@ def unit_columns(jac: np.ndarray) -> np.ndarray:
 
 
 def linear_score(residual, x, n_fitted: int, j_b: np.ndarray, step: float = 1e-6,
-                 block_jacobian: np.ndarray | None = None) -> tuple[float, np.ndarray]:
+                 block_jacobian: np.ndarray | None = None, r0: np.ndarray | None = None,
+                 normal_b: np.ndarray | None = None) -> tuple[float, np.ndarray]:
     """First-order chi-square drop and parameter step of the block ``x[n_fitted:]``.
 
     Parameters
@@ -542,8 +554,19 @@ def linear_score(residual, x, n_fitted: int, j_b: np.ndarray, step: float = 1e-6
         Finite-difference step of the block's parameters.
     block_jacobian : ndarray, shape (n_residuals, len(x) - n_fitted), optional
         The residual's derivatives by the block at ``x`` (finite differences of ``residual`` when None).
+    r0 : ndarray, shape (n_residuals,), optional
+        ``residual(x)``, when the caller has it.
+    normal_b : ndarray, shape (n_fitted, n_fitted), optional
+        ``j_b.T @ j_b``, when the caller has it.
+
+    Notes
+    -----
+    The block's Jacobian projected off the current one, ``J~ = J_e - J_b A`` with ``A`` the least squares
+    of ``J_e`` on ``J_b``, enters only through ``J~^T J~`` and ``J~^T r0``: sums over the rows, taken
+    :data:`SCORE_CHUNK_ROWS` rows at a time (each chunk's ``J~`` stays in the CPU's cache; the same sums
+    as over the whole ``J~`` but for the order of the additions).
     """
-    r0 = residual(x)
+    r0 = residual(x) if r0 is None else r0
     q = x.size - n_fitted
     j_e = block_jacobian
     if j_e is None:
@@ -552,15 +575,21 @@ def linear_score(residual, x, n_fitted: int, j_b: np.ndarray, step: float = 1e-6
             xp = x.copy()
             xp[n_fitted + i] += step
             j_e[:, i] = (residual(xp) - r0) / step
-    absorbed, *_ = np.linalg.lstsq(j_b.T @ j_b, j_b.T @ j_e, rcond=SINGULAR_RCOND**2)  # small normal equations
-    j_tilde = j_e - j_b @ absorbed
+    normal_b = j_b.T @ j_b if normal_b is None else normal_b
+    absorbed, *_ = np.linalg.lstsq(normal_b, j_b.T @ j_e, rcond=SINGULAR_RCOND**2)  # small normal equations
+    normal, pulled = np.zeros((q, q)), np.zeros(q)
+    for start in range(0, r0.size, SCORE_CHUNK_ROWS):
+        rows = slice(start, start + SCORE_CHUNK_ROWS)
+        j_tilde = j_e[rows] - j_b[rows] @ absorbed
+        normal += j_tilde.T @ j_tilde
+        pulled += j_tilde.T @ r0[rows]
     # the effect's directions the current model cannot tell from its own parameters carry no
     # evidence (a shape parameter at zero size among them): drop them and leave them as they are
-    scale = np.linalg.norm(j_tilde, axis=0)
+    scale = np.sqrt(np.diag(normal))
     scale[scale == 0] = 1.0
-    w, v = np.linalg.eigh((j_tilde / scale).T @ (j_tilde / scale))
+    w, v = np.linalg.eigh(normal / np.outer(scale, scale))
     keep = w > SINGULAR_RCOND**2 * max(w.max(), 1e-300)
-    projected = (j_tilde / scale).T @ r0
+    projected = pulled / scale
     coef_scaled = (v[:, keep] / w[keep]) @ (v[:, keep].T @ projected)
     # residual = data - model, so the model must move by +J coef: parameters step by -coef
     return float(projected @ coef_scaled), -coef_scaled / scale

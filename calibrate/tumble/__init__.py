@@ -51,7 +51,6 @@ and :mod:`~calibrate.tumble.fit` (:func:`calibrate_tumble`, :class:`TumbleCalibr
 """
 
 from .alignment import MAX_ANGLE_WIDENING, STATIC_TOLERANCE, Misalignment, field_gravity_angles, fit_misalignment, refine_jointly, static_mask
-from .collector import TumbleCollector
 from .coverage import Coverage, sphere_coverage
 from .diagnosis import (TUMBLE_FORMS, UNEXPLAINED_WARNING, TumbleDiagnosis, TumbleEffect, diagnose_tumble,
                         radial_noise_floor, residual_structure)
@@ -64,3 +63,13 @@ __all__ = ["ELLIPSOIDS", "MAX_ANGLE_WIDENING", "MAX_RADIUS_RATIO", "MAX_RELATIVE
            "TumbleCollector", "TumbleDiagnosis", "TumbleEffect", "TumbleResult", "calibrate_tumble", "diagnose_tumble",
            "field_gravity_angles", "fit_ellipsoid", "fit_misalignment", "radial_noise_floor", "refine_jointly",
            "residual_structure", "sphere_coverage", "static_mask"]
+
+
+def __getattr__(name: str):
+    """:class:`~calibrate.tumble.collector.TumbleCollector` on first use: the live collector's stream decoding
+    (:mod:`compass.io.streams`) is not imported by every tumble calibration."""
+    if name == "TumbleCollector":
+        from .collector import TumbleCollector
+
+        return TumbleCollector
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

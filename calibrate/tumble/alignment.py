@@ -12,9 +12,11 @@ from scipy.linalg import solve_sylvester
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from compass.frames import row_norms
+
 from ..noise import robust_sigma
-from .ellipsoid import (MAX_NFEV, OUTLIER_SIGMAS, EllipsoidFit, fit_covariance, propagate, radial_jacobian,
-                        plain_fit, radial_residual, robust_rows, shape_matrix, sym_sqrt)
+from .ellipsoid import (MAX_NFEV, OUTLIER_SIGMAS, EllipsoidFit, Normal, fit_covariance, propagate, radial_jacobian,
+                        plain_fit, radial_normal, radial_residual, robust_rows, shape_matrix, sym_sqrt)
 
 STATIC_TOLERANCE = 0.02
 """Quasi-static samples: | |a| / g - 1 | below this (g = median |a|)."""
@@ -86,13 +88,13 @@ def field_gravity_angles(mag_cal: np.ndarray, accel: np.ndarray, rotation: Rotat
         ``mag_to_accel``; identity when None.
     """
     m = mag_cal if rotation is None else rotation.apply(mag_cal)
-    cos = np.sum(m * accel, axis=1) / (np.linalg.norm(m, axis=1) * np.linalg.norm(accel, axis=1))
+    cos = np.sum(m * accel, axis=1) / (row_norms(m) * row_norms(accel))
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
 def static_mask(accel: np.ndarray, tolerance: float = STATIC_TOLERANCE) -> np.ndarray:
     """Quasi-static samples: ``| |a| / median|a| - 1 | < tolerance``."""
-    norm = np.linalg.norm(accel, axis=1)
+    norm = row_norms(accel)
     return np.abs(norm / np.median(norm) - 1.0) < tolerance
 
 
@@ -115,21 +117,19 @@ def fit_misalignment(mag_cal: np.ndarray, accel: np.ndarray) -> Misalignment | N
     -----
     Residuals are angle errors in radians with a robust ``soft_l1`` loss scaled by the robust
     spread of the angles; standard errors come from a plain refit on the samples within
-    ``OUTLIER_SIGMAS`` robust sigmas.  The BIC compares the fit with the rotation (4 parameters)
+    ``OUTLIER_SIGMAS`` robust sigmas (:func:`~calibrate.tumble.ellipsoid.plain_fit`, on the analytic
+    :func:`_turned_angles_jacobian`).  The BIC compares the fit with the rotation (4 parameters)
     to the dip alone (1 parameter) on the same samples.
     """
     static = static_mask(accel)
     if np.count_nonzero(static) < 20:
         return None
-    m = mag_cal[static] / np.linalg.norm(mag_cal[static], axis=1, keepdims=True)
-    a = accel[static] / np.linalg.norm(accel[static], axis=1, keepdims=True)
+    m = mag_cal[static] / row_norms(mag_cal[static])[:, None]
+    a = accel[static] / row_norms(accel[static])[:, None]
     angle0 = np.arccos(np.clip(np.sum(m * a, axis=1), -1.0, 1.0))
     spread0 = float(np.degrees(np.std(angle0)))
 
-    def resid(p, m, a):
-        mm = Rotation.from_rotvec(p[:3]).apply(m)
-        return np.arccos(np.clip(np.sum(mm * a, axis=1), -1.0, 1.0)) - p[3]
-
+    resid = _turned_angles
     sigma = max(robust_sigma(angle0), 1e-6)
     p0 = np.array([0.0, 0.0, 0.0, np.median(angle0)])
     thin = robust_rows(len(m))  # the robust fit gives the start and the outlier test only
@@ -138,7 +138,7 @@ def fit_misalignment(mag_cal: np.ndarray, accel: np.ndarray) -> Misalignment | N
     sigma = max(robust_sigma(r), 1e-9)
     keep = np.abs(r - np.median(r)) < OUTLIER_SIGMAS * sigma
     m, a = m[keep], a[keep]
-    final = least_squares(resid, robust.x, args=(m, a), method="lm")
+    final = plain_fit(resid, robust.x, _turned_angles_jacobian, args=(m, a))
     n = len(m)
     rss_rot = float(np.sum(final.fun**2))
     ang = np.arccos(np.clip(np.sum(m * a, axis=1), -1.0, 1.0))
@@ -157,6 +157,25 @@ def fit_misalignment(mag_cal: np.ndarray, accel: np.ndarray) -> Misalignment | N
         spread1 = float(np.degrees(np.std(ang)))
     return Misalignment(rot, rotvec, rotvec_sig, float(dip), float(dip_sig), int(np.count_nonzero(static)),
                         spread0, spread1, float(delta_bic))
+
+
+def _turned_angles(p: np.ndarray, m: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """Angle between ``a`` and ``m`` turned by the rotation vector ``p[:3]``, minus ``p[3]``, rad, per row
+    (unit ``m`` and ``a``, shape (n, 3)): :func:`fit_misalignment`'s residual."""
+    mm = Rotation.from_rotvec(p[:3]).apply(m)
+    return np.arccos(np.clip(np.sum(mm * a, axis=1), -1.0, 1.0)) - p[3]
+
+
+def _turned_angles_jacobian(p: np.ndarray, m: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """d :func:`_turned_angles` / d p, shape (n, 4): ``-(a . (dR/dv_i) m) / sin(angle)`` for the rotation vector
+    (:func:`_rotation_derivatives`; zero where the cosine is clipped), -1 for the angle."""
+    cos = np.sum(Rotation.from_rotvec(p[:3]).apply(m) * a, axis=1)
+    scale = -1.0 / np.where(np.abs(cos) < 1.0, np.sqrt(np.clip(1.0 - cos * cos, 0.0, None)), np.inf)
+    jac = np.empty((len(m), 4))
+    for i, d_rot in enumerate(_rotation_derivatives(p[:3])):
+        jac[:, i] = scale * np.einsum("ij,ij->i", m @ d_rot.T, a)
+    jac[:, 3] = -1.0
+    return jac
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -213,7 +232,7 @@ class _JointResidual:
         mm = (self.y_static - q[:3]) @ sym_sqrt(self.ellipsoid, q[3:k])
         if self.with_rot:
             mm = Rotation.from_rotvec(q[k:k + 3]).apply(mm)
-        cos = np.sum(mm * self.a_unit, axis=1) / np.linalg.norm(mm, axis=1)
+        cos = np.sum(mm * self.a_unit, axis=1) / row_norms(mm)
         return np.arccos(np.clip(cos, -1.0, 1.0)) - q[-1]
 
     def residual(self, q: np.ndarray) -> np.ndarray:
@@ -243,22 +262,40 @@ class _JointResidual:
             rows = slice(start, min(start + _JACOBIAN_CHUNK_ROWS, n_r))
             radial_jacobian(q[:k], self.ellipsoid, self.y_radial[rows], out=jac[rows, :k])
         jac[:n_r] /= self.sigma_r
-        m_mat, d_m = self._matrix_derivatives(q)
-        d = self.y_static - q[:3]
-        mm = d @ m_mat.T
-        norm = np.linalg.norm(mm, axis=1)
-        u = mm / norm[:, None]
-        cos = np.sum(u * self.a_unit, axis=1)
-        sin = np.sqrt(np.clip(1.0 - cos * cos, 0.0, None))
-        inside = np.abs(cos) < 1.0
-        g = -(self.a_unit - cos[:, None] * u) / np.where(inside, norm * sin, np.inf)[:, None]
-        rows = jac[n_r:]
-        rows[:, :3] = -(g @ m_mat)
-        for j, d_mat in enumerate(d_m, start=3):
-            rows[:, j] = np.einsum("ij,ij->i", g, d @ d_mat.T)
-        rows[:, -1] = -1.0
-        rows /= self.sigma_a
+        jac[n_r:] = self._angle_jacobian_t(q).T
         return jac
+
+    def normal(self, q: np.ndarray) -> Normal:
+        """The normal equations of :meth:`residual` and :meth:`jacobian` (:func:`~calibrate.tumble.ellipsoid.plain_fit`'s
+        ``normal``): the radial rows' summed a chunk at a time (:func:`~calibrate.tumble.ellipsoid.radial_normal`), the
+        angle rows' from their Jacobian."""
+        k = self.k
+        radial = radial_normal(q[:k], self.ellipsoid, self.y_radial)
+        r_a, j_a = self.angles(q) / self.sigma_a, self._angle_jacobian_t(q)
+        jtj, jtr = j_a @ j_a.T, j_a @ r_a
+        jtj[:k, :k] += radial.jtj / self.sigma_r**2
+        jtr[:k] += radial.jtr / self.sigma_r**2
+        return Normal(radial.chi2 / self.sigma_r**2 + float(r_a @ r_a), jtj, jtr, radial.rows + len(r_a))
+
+    def _angle_jacobian_t(self, q: np.ndarray) -> np.ndarray:
+        """d (angle rows of :meth:`residual`) / d q, transposed: shape (q.size, static rows), each parameter's
+        derivatives a contiguous row (as :func:`~calibrate.tumble.ellipsoid.radial_jacobian`'s columns)."""
+        m_mat, d_m = self._matrix_derivatives(q)
+        d = np.ascontiguousarray((self.y_static - q[:3]).T)
+        a = np.ascontiguousarray(self.a_unit.T)
+        mm = m_mat @ d
+        norm = np.sqrt(np.einsum("ij,ij->j", mm, mm))
+        u = mm / norm
+        cos = np.einsum("ij,ij->j", u, a)
+        sin = np.sqrt(np.clip(1.0 - cos * cos, 0.0, None))
+        g = -(a - cos * u) / np.where(np.abs(cos) < 1.0, norm * sin, np.inf)
+        rows = np.empty((q.size, d.shape[1]))
+        rows[:3] = -(m_mat.T @ g)
+        # g . (dM d) = sum_il dM_il g_i d_l: every matrix's at once, against the products g_i d_l of each row
+        rows[3:-1] = np.reshape(d_m, (len(d_m), 9)) @ (g[:, None, :] * d[None, :, :]).reshape(9, -1)
+        rows[-1] = -1.0
+        rows /= self.sigma_a
+        return rows
 
 
 def refine_jointly(fit: EllipsoidFit, mag: np.ndarray, accel: np.ndarray, first: Misalignment) -> tuple[EllipsoidFit, Misalignment]:
@@ -293,7 +330,7 @@ def refine_jointly(fit: EllipsoidFit, mag: np.ndarray, accel: np.ndarray, first:
     mag = np.asarray(mag, float)
     inl = fit.inliers
     static = inl & static_mask(accel)
-    a_unit = accel[static] / np.linalg.norm(accel[static], axis=1, keepdims=True)
+    a_unit = accel[static] / row_norms(accel[static])[:, None]
     with_rot = first.rotation is not None
     y_inl, y_static = ((mag[rows] - fit.centre) / fit.radius for rows in (inl, static))
     sigma_r = max(robust_sigma(radial_residual(fit.params, ellipsoid, y_inl)), 1e-9)
@@ -310,10 +347,10 @@ def refine_jointly(fit: EllipsoidFit, mag: np.ndarray, accel: np.ndarray, first:
     use_a = np.abs(every.angles(robust_x)) < OUTLIER_SIGMAS * sigma_a
     kept = replace(every, y_radial=y_inl[use_r], y_static=y_static[use_a], a_unit=a_unit[use_a])
     del every, robust_on, y_inl, y_static, a_unit  # the kept rows only, beside the final fit's Jacobian
-    final = plain_fit(kept.residual, robust_x, kept.jacobian)
-    cov = fit_covariance(final, len(final.fun))
+    final = plain_fit(kept.residual, robust_x, kept.jacobian, normal=kept.normal)
+    cov = fit_covariance(final, len(kept.y_radial) + len(kept.y_static))
     h, sig_h, s_mat, sig_s, f_norm, sig_f = propagate(ellipsoid, final.x[:k], cov, fit.centre, fit.radius)
-    resid_all = np.linalg.norm((mag - h) @ s_mat.T, axis=1) - f_norm
+    resid_all = row_norms((mag - h) @ s_mat.T) - f_norm
     new_fit = replace(fit, hard_iron=h, hard_iron_sigma=sig_h, soft_iron=s_mat, soft_iron_sigma=sig_s, field_norm=f_norm,
                       field_norm_sigma=sig_f, residuals=resid_all, rss=float(np.sum(resid_all[inl] ** 2)),
                       success=bool(final.success), message=final.message, params=final.x[:k])

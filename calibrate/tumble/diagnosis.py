@@ -74,6 +74,8 @@ from itertools import combinations_with_replacement
 import numpy as np
 from scipy.optimize import approx_fprime
 
+from compass.frames import row_norms
+
 from ..contract import FitStatistics
 from ..diagnosis.evidence import (FitRecord, Proposal, determined, gather_forms, is_unexplained, linearised_score,
                                   refit_from_better_start, select_effects, unit_columns)
@@ -287,9 +289,21 @@ class GainDrift(TimePolynomial, _AtFirstSample):
                    "against a moving hard iron")
         return why
 
+    def _gain(self, q, rows, ctx):
+        """``tau^k`` (shape (n, degree)) and each axis's gain ``1 + sum_k g_ak tau^k`` (shape (n, 3))."""
+        powers = time_powers(ctx.basis.tau(rows.t_s), self.degree)
+        return powers, 1.0 + powers @ q.reshape(_N_AXES, self.degree).T
+
     def correct(self, z, q, rows, ctx):
-        g = time_powers(ctx.basis.tau(rows.t_s), self.degree) @ q.reshape(_N_AXES, self.degree).T
-        return z / (1.0 + g)
+        return z / self._gain(q, rows, ctx)[1]
+
+    def pulled(self, g, z, q, rows, ctx):
+        # d (z_a / gain_a) / d g_ak = -z_a tau^k / gain_a^2, in the order of q (per axis, then per power)
+        powers, gain = self._gain(q, rows, ctx)
+        return (-(g * z / (gain * gain))[:, :, None] * powers[:, None, :]).reshape(len(z), -1)
+
+    def passed_back(self, g, z, q, rows, ctx):
+        return g / self._gain(q, rows, ctx)[1]
 
     def report(self, q, sigma, ctx):
         out = {}
@@ -328,13 +342,38 @@ class _Fit(FitRecord):
         raise KeyError(effect.label)
 
 
+@dataclass(frozen=True)
+class _Scoring:
+    """What the score tests against one fit share (:meth:`_Model.score`).
+
+    Attributes
+    ----------
+    fit : _Fit
+    z : ndarray, shape (rows, 3)
+        Its corrected reading (:meth:`_Model.corrected`), normalised units.
+    g : ndarray, shape (rows, 3)
+        :meth:`_Model.gradient` at ``z``.
+    j_b : ndarray, shape (rows, k)
+        :func:`~calibrate.diagnosis.evidence.unit_columns` of its Jacobian; ``normal_b`` is ``j_b^T j_b``.
+    r0 : ndarray, shape (rows,)
+        Its weighted residual.
+    """
+
+    fit: _Fit
+    z: np.ndarray
+    g: np.ndarray
+    j_b: np.ndarray
+    normal_b: np.ndarray
+    r0: np.ndarray
+
+
 class _Model:
     """The ellipsoid with a chain of corrections, on fixed rows, weighted by the floor."""
 
     def __init__(self, fit: EllipsoidFit, rows: _Rows, ctx: _Context, floor: float):
         self.ellipsoid, self.k, self.field_norm = fit.ellipsoid, fit.n_params, fit.field_norm
         self.rows, self.ctx, self.floor = rows, ctx, floor
-        self._scored_against = None  # (fit, its corrected reading, unit_columns(fit.jac)): the fit last scored against
+        self._scored_against: _Scoring | None = None  # the fit last scored against
 
     def corrected(self, x, effects, rows: _Rows) -> np.ndarray:
         """``c(y - p_h)``, shape (n, 3), normalised units."""
@@ -358,14 +397,15 @@ class _Model:
     def weighted(self, x, effects) -> np.ndarray:
         return self.radial(x, effects, self.rows) / self.floor
 
-    def analytic_jacobian(self, x, effects, rows: _Rows) -> np.ndarray | None:
+    def analytic_jacobian(self, x, effects, rows: _Rows, out: np.ndarray | None = None) -> np.ndarray | None:
         """d radial / d x of ``rows``, shape (rows, x.size), back through the chain of corrections; None when an
         effect lacks its derivatives (:meth:`TumbleEffect.pulled`, :meth:`TumbleEffect.passed_back`).
 
         With ``w = c L`` the residual is ``F (|w| - 1)``: the shape's columns are
         :func:`~calibrate.tumble.ellipsoid.radial_jacobian`'s with ``c`` for ``y - h``; the gradient by
         ``c``, ``F L u`` (``u = w / |w|``), is passed back through the effects from the last, each taking
-        its own columns from it; by the raw reading it is minus the hard iron's.
+        its own columns from it; by the raw reading it is minus the hard iron's.  ``out`` (that shape) receives it
+        instead of a new array (written in part when None is returned).
         """
         k = self.k
         inputs, z, i = [], rows.y - x[:3], k
@@ -373,7 +413,7 @@ class _Model:
             inputs.append((e, z, slice(i, i + e.n_params(_N_AXES))))
             z = e.correct(z, x[inputs[-1][2]], rows, self.ctx)
             i = inputs[-1][2].stop
-        jac = np.empty((len(rows.y), x.size))
+        jac = np.empty((len(rows.y), x.size)) if out is None else out
         radial_jacobian(np.concatenate([np.zeros(3), x[3:k]]), self.ellipsoid, z, out=jac[:, :k])
         g = -jac[:, :3]  # L u, the gradient by the corrected reading (over F)
         for e, z_in, block in reversed(inputs):
@@ -409,15 +449,12 @@ class _Model:
         jac = np.empty((n, x.size))
         for start in range(0, n, _JACOBIAN_CHUNK_ROWS):
             rows = slice(start, start + _JACOBIAN_CHUNK_ROWS)
-            chunk = self.rows.take(rows)
-            analytic = self.analytic_jacobian(x, effects, chunk)
-            if analytic is not None:
-                jac[rows] = analytic
-                continue
-            jac[rows, 3:k] = self.field_norm * radial_jacobian(shape_only, self.ellipsoid,
-                                                               self.corrected(x, effects, chunk))[:, 3:]
-            jac[rows, differenced] = approx_fprime(x[differenced], radial_of, step[differenced], chunk)
-        jac /= self.floor
+            chunk, block = self.rows.take(rows), jac[rows]
+            if self.analytic_jacobian(x, effects, chunk, out=block) is None:
+                block[:, 3:k] = self.field_norm * radial_jacobian(shape_only, self.ellipsoid,
+                                                                  self.corrected(x, effects, chunk))[:, 3:]
+                block[:, differenced] = approx_fprime(x[differenced], radial_of, step[differenced], chunk)
+            block /= self.floor
         return jac
 
     def fit(self, effects, x0) -> _Fit:
@@ -426,15 +463,24 @@ class _Model:
         return _Fit(tuple(effects), res.x, res.jac, cov, res.fun * self.floor, float(res.fun @ res.fun),
                     res.fun.size, bool(res.success), str(res.message))
 
-    def pulled(self, fit: _Fit, effect: TumbleEffect, q: np.ndarray, z: np.ndarray) -> np.ndarray | None:
+    def gradient(self, fit: _Fit, c: np.ndarray) -> np.ndarray:
+        """``L u`` (``u = w / |w|``, ``w = c L``) of each row, shape (rows, 3): the radial residual's gradient by the
+        corrected reading ``c`` (normalised units) over ``F``, with ``fit``'s shape ``L``."""
+        low = shape_matrix(self.ellipsoid, fit.x[3:self.k])
+        w = c @ low
+        return (w / row_norms(w)[:, None]) @ low.T
+
+    def pulled(self, fit: _Fit, effect: TumbleEffect, q: np.ndarray, z: np.ndarray,
+               g: np.ndarray | None = None) -> np.ndarray | None:
         """d weighted / d q of ``effect`` added last to ``fit`` with parameters ``q``, shape (rows, q.size), or None.
 
         ``z`` is ``fit``'s corrected reading (:meth:`corrected`), which the effect corrects further.
         With ``w = c L`` the residual is ``F (|w| - 1)``, whose gradient by the corrected reading ``c``
-        is ``F L u`` (``u = w / |w|``); the effect's :meth:`TumbleEffect.pulled` takes it on to ``q``.
+        is ``F L u`` (``u = w / |w|``, :meth:`gradient`); the effect's :meth:`TumbleEffect.pulled` takes it on
+        to ``q``.  ``g``: :meth:`gradient` at ``c``, when the caller has it (at a score point, where the
+        effect is switched off, ``c`` is ``z``).
         """
-        w = effect.correct(z, q, self.rows, self.ctx) @ shape_matrix(self.ellipsoid, fit.x[3:self.k])
-        g = (w / np.linalg.norm(w, axis=1, keepdims=True)) @ shape_matrix(self.ellipsoid, fit.x[3:self.k]).T
+        g = self.gradient(fit, effect.correct(z, q, self.rows, self.ctx)) if g is None else g
         block = effect.pulled(g, z, q, self.rows, self.ctx)
         return None if block is None else block * (self.field_norm / self.floor)
 
@@ -446,12 +492,21 @@ class _Model:
         dropped.  The drop is ``r^T J (J^T J)^{-1} J^T r`` with the projected ``J``; the start is the
         Gauss-Newton step from the score point.  The effect's columns are analytic where it has them
         (:meth:`pulled`), else forward differences.
+
+        A round scores every form against one fit: what the scores share is computed once per fit
+        (:class:`_Scoring`).  The score points are blocks of zero size, where every form's correction
+        returns its input as it is (``tests/calibrate/tumble/test_score_reuse.py``): the residual there is
+        the fit's own, and so is the gradient by the corrected reading.
         """
-        if self._scored_against is None or self._scored_against[0] is not fit:  # a round scores every form against one fit
-            self._scored_against = (fit, self.corrected(fit.x, fit.effects, self.rows), unit_columns(fit.jac))
-        _, z, j_b = self._scored_against
+        if self._scored_against is None or self._scored_against.fit is not fit:
+            z = self.corrected(fit.x, fit.effects, self.rows)
+            j_b = unit_columns(fit.jac)
+            self._scored_against = _Scoring(fit, z, self.gradient(fit, z), j_b, j_b.T @ j_b,
+                                            self.weighted(fit.x, fit.effects))
+        at = self._scored_against
         return linearised_score(self.weighted, fit, effect, effect.score_points(_N_AXES), _FD_STEP,
-                                block_jacobian=lambda q: self.pulled(fit, effect, q, z), j_b=j_b)
+                                block_jacobian=lambda q: self.pulled(fit, effect, q, at.z, at.g), j_b=at.j_b,
+                                r0=at.r0, normal_b=at.normal_b)
 
     def refit(self, fit: _Fit, effect: TumbleEffect, start: np.ndarray) -> _Fit:
         """The fit with ``effect`` added, from ``start`` or the effect switched off, whichever fits better."""
@@ -551,17 +606,37 @@ def radial_noise_floor(residuals: np.ndarray) -> float:
     return float(second_difference_sigma(second_differences(residuals)))
 
 
-def _structure_design(directions: np.ndarray, blocks, n_blocks: int) -> np.ndarray:
+_MONOMIALS = tuple(idx for degree in (3, 4) for idx in combinations_with_replacement(range(3), degree))
+"""The structure regression's cubic and quartic monomials of the field direction, as the axes they multiply."""
+
+
+def _structure_design(directions: np.ndarray, blocks, n_blocks: int, extra: np.ndarray | None = None) -> np.ndarray:
     """Columns of :func:`residual_structure`'s regression for some rows: block-local terms, then monomials.
 
     The block-local columns come first: a block's are zero outside it, so a chunk of rows within a few
-    blocks leaves the others' rows of the factorisation untouched (:func:`residual_structure`).
+    blocks leaves the others' rows of the factorisation untouched (:func:`residual_structure`).  For each
+    band, block ``b``'s columns are ``1, x, y, z`` on its rows; a monomial is the product of its axes in
+    order (``((x_i x_j) x_k) x_l``, each from the one before it).  ``extra`` (one value a row), when given,
+    is appended as the last column.
     """
-    local = np.column_stack([np.ones(len(directions)), directions])
-    cols = [local[:, j] * (block == b) for block in blocks for b in range(n_blocks) for j in range(4)]
-    cols += [np.prod(directions[:, list(idx)], axis=1)
-             for degree in (3, 4) for idx in combinations_with_replacement(range(3), degree)]
-    return np.column_stack(cols)
+    n_local = 4 * n_blocks * len(blocks)
+    design = np.zeros((len(directions), n_local + len(_MONOMIALS) + (extra is not None)))
+    for band, block in enumerate(blocks):
+        for b in np.unique(block):
+            rows = block == b
+            first = 4 * (band * n_blocks + b)
+            design[rows, first] = 1.0
+            design[rows, first + 1:first + 4] = directions[rows]
+    axes = np.ascontiguousarray(directions.T)
+    products = {(i,): axes[i] for i in range(3)}  # each monomial's, and its leading axes'
+    for column, idx in enumerate(_MONOMIALS, start=n_local):
+        for end in range(2, len(idx) + 1):
+            if idx[:end] not in products:
+                products[idx[:end]] = products[idx[:end - 1]] * axes[idx[end - 1]]
+        design[:, column] = products[idx]
+    if extra is not None:
+        design[:, -1] = extra
+    return design
 
 
 def residual_structure(weighted: np.ndarray, directions: np.ndarray, bands) -> tuple[float, int, float]:
@@ -599,13 +674,16 @@ def residual_structure(weighted: np.ndarray, directions: np.ndarray, bands) -> t
     r_aug = None
     for start in range(0, n, _STRUCTURE_CHUNK_ROWS):
         rows = slice(start, start + _STRUCTURE_CHUNK_ROWS)
-        chunk = np.column_stack([_structure_design(directions[rows], [block[rows] for block in blocks], n_blocks),
-                                 weighted[rows]])
+        chunk = _structure_design(directions[rows], [block[rows] for block in blocks], n_blocks, weighted[rows])
         if r_aug is None:
             r_aug = np.zeros((chunk.shape[1], chunk.shape[1]))
         reached = np.any(chunk != 0, axis=0)
-        for j in range(chunk.shape[1]):
-            reached[j] = reached[j] or bool(np.any(r_aug[:j, j][reached[:j]]))
+        entries = r_aug != 0  # upper triangular: a reached row reaches the later columns it has entries in
+        while True:  # until no reached row reaches a column not yet reached (at most a few rounds)
+            grown = reached | np.any(entries[reached], axis=0)
+            if np.array_equal(grown, reached):
+                break
+            reached = grown
         at = np.ix_(reached, reached)
         r_aug[at] = np.linalg.qr(np.vstack([r_aug[at], chunk[:, reached]]), mode="r")
     k = r_aug.shape[1] - 1
@@ -716,7 +794,7 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
 
     def verdict(f: _Fit):
         z = model.corrected(f.x, f.effects, rows)
-        structure = residual_structure(f.residuals / floor, z / np.linalg.norm(z, axis=1, keepdims=True), bands)
+        structure = residual_structure(f.residuals / floor, z / row_norms(z)[:, None], bands)
         return structure, is_unexplained(structure[2], rms(f.residuals), floor)
 
     base = model.fit((), fit.params)
@@ -745,7 +823,7 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
                                                            fit.centre, fit.radius)
         every_row = _Rows((mag - fit.centre) / fit.radius, t_s, temp_c)
         raw_ref = h + fit.radius * model.corrected(current.x, current.effects, every_row)
-        resid_all = np.linalg.norm((raw_ref - h) @ s_mat.T, axis=1) - f_norm
+        resid_all = row_norms((raw_ref - h) @ s_mat.T) - f_norm
         final_fit = replace(fit, hard_iron=h, hard_iron_sigma=sig_h, soft_iron=s_mat, soft_iron_sigma=sig_s,
                             field_norm=f_norm, field_norm_sigma=sig_f, residuals=resid_all,
                             rss=float(np.sum(resid_all[fit.inliers] ** 2)), success=current.success,

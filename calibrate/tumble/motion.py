@@ -41,6 +41,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from compass.frames import row_norms
+
 from .alignment import field_gravity_angles, static_mask
 
 __all__ = ["FastMotion", "angle_latency", "fast_motion", "field_turn_rate", "shifted", "FAST_MOTION_WARNING",
@@ -120,7 +122,7 @@ def field_turn_rate(mag: np.ndarray, t_s: np.ndarray) -> np.ndarray:
         raise ValueError(f"mag must have shape (n, 3) and t_s shape (n,), got {mag.shape} and {t_s.shape}")
     if len(mag) < 2:
         return np.full(len(mag), np.nan)
-    u = mag / np.linalg.norm(mag, axis=1, keepdims=True)
+    u = mag / row_norms(mag)[:, None]
     before = np.r_[0, np.arange(len(u) - 1)]
     after = np.r_[np.arange(1, len(u)), len(u) - 1]
     angle = np.arccos(np.clip(np.sum(u[before] * u[after], axis=1), -1.0, 1.0))

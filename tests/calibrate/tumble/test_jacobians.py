@@ -159,3 +159,37 @@ def test_diagnosis_jacobian_of_a_form_without_derivatives_is_differenced():
     assert model.analytic_jacobian(x, effects, model.rows) is None
     numeric = approx_derivative(model.weighted, x, method="3-point", args=(effects,))
     np.testing.assert_allclose(model.jacobian(x, effects), numeric, atol=1e-6 * np.max(np.abs(numeric)), rtol=0)
+
+
+@pytest.mark.parametrize("with_rot", [True, False])
+def test_joint_normal_equations_are_the_jacobians(with_rot):
+    """``_JointResidual.normal`` (the radial rows summed a chunk at a time) against the whole residual and Jacobian."""
+    rng = np.random.default_rng(12)
+    y = rng.normal(size=(300, 3))
+    y = 1.2 * y / np.linalg.norm(y, axis=1, keepdims=True) + 0.05
+    a = rng.normal(size=(120, 3))
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    q = np.concatenate([rng.normal(scale=0.1, size=3), rng.normal(scale=0.2, size=6),
+                        rng.normal(scale=0.05, size=3) if with_rot else [], [1.0]])
+    joint = _JointResidual("full", 9, with_rot, y, y[:120], a, 0.7, 1.3)
+    r, j = joint.residual(q), joint.jacobian(q)
+    normal = joint.normal(q)
+    assert normal.rows == len(r)
+    np.testing.assert_allclose(normal.chi2, r @ r, rtol=1e-12)
+    np.testing.assert_allclose(normal.jtj, j.T @ j, rtol=0, atol=1e-12 * np.max(np.abs(j.T @ j)))
+    np.testing.assert_allclose(normal.jtr, j.T @ r, rtol=0, atol=1e-12 * np.max(np.abs(j.T @ r)))
+
+
+@pytest.mark.parametrize("rotvec", [np.array([0.03, -0.02, 0.05]), np.zeros(3)])
+def test_turned_angles_jacobian_matches_finite_differences(rotvec):
+    """The first misalignment fit's residual (angle between gravity and the turned field, minus the dip angle)."""
+    from calibrate.tumble.alignment import _turned_angles, _turned_angles_jacobian
+
+    rng = np.random.default_rng(13)
+    m = rng.normal(size=(200, 3))
+    m /= np.linalg.norm(m, axis=1, keepdims=True)
+    a = rng.normal(size=(200, 3))
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    p = np.concatenate([rotvec, [1.2]])
+    numeric = approx_derivative(_turned_angles, p, method="3-point", args=(m, a))
+    np.testing.assert_allclose(_turned_angles_jacobian(p, m, a), numeric, atol=TOL, rtol=0)

@@ -80,3 +80,32 @@ def test_a_degenerate_tumble_leaks_no_numpy_warning():
         warnings.simplefilter("error", RuntimeWarning)
         res = calibrate_tumble(mag, sim.accel)
     assert res.refused and "field changed during the recording" in res.refused
+
+
+@pytest.mark.parametrize("kind, n_shape", [("offset", 1), ("diagonal", 3), ("full", 6)])
+def test_normal_equations_summed_in_chunks_are_the_whole_jacobians(monkeypatch, kind, n_shape):
+    """``radial_normal`` (a chunk of rows at a time, no tall Jacobian) against ``J^T J``, ``J^T r`` and ``r^T r`` of
+    the whole residual and Jacobian; chunks of 7 rows leave a partial last one."""
+    y = _problem(n=1000)
+    p = np.concatenate([[0.02, -0.01, 0.03], np.random.default_rng(3).normal(scale=0.1, size=n_shape)])
+    monkeypatch.setattr(ellipsoid, "_JACOBIAN_CHUNK_ROWS", 7)
+    normal = ellipsoid.radial_normal(p, kind, y)
+    r, j = radial_residual(p, kind, y), radial_jacobian(p, kind, y)
+    assert normal.rows == len(y)
+    np.testing.assert_allclose(normal.chi2, r @ r, rtol=1e-12)
+    np.testing.assert_allclose(normal.jtj, j.T @ j, rtol=1e-12, atol=1e-12 * np.max(np.abs(j.T @ j)))
+    np.testing.assert_allclose(normal.jtr, j.T @ r, rtol=0, atol=1e-12 * np.sqrt(np.max(np.abs(j.T @ j)) * (r @ r)))
+
+
+def test_gauss_newton_on_the_normal_equations_reaches_the_same_optimum():
+    """With ``normal`` the fit takes the same steps (to rounding) and ends at the same optimum, chi-square and J^T J."""
+    y = _problem(seed=32)
+    best = _minpack(y, np.zeros(9))
+    start = best + 1e-3
+    tall = plain_fit(radial_residual, start, radial_jacobian, args=("full", y))
+    summed = plain_fit(radial_residual, start, radial_jacobian, args=("full", y), normal=ellipsoid.radial_normal)
+    assert summed.message.startswith("Gauss-Newton converged") and summed.nfev == tall.nfev
+    assert summed.fun is None and summed.jac is None
+    sigma = np.sqrt(np.diag(fit_covariance(tall, len(y))))
+    assert np.max(np.abs(summed.x - tall.x) / sigma) < 1e-9
+    np.testing.assert_allclose(fit_covariance(summed, len(y)), fit_covariance(tall, len(y)), rtol=1e-9)

@@ -31,3 +31,24 @@ def test_scores_against_a_new_fit_are_a_fresh_models():
     fresh_drop, fresh_start = _model(fit, sim.mag, sim.t_s).score(trial, gain)
     assert drop == fresh_drop and np.array_equal(start, fresh_start)
     assert drop < 0.1 * first[1][0]  # the warm-up took what the base left
+
+
+def test_every_form_at_its_score_points_leaves_the_fit_as_it_is():
+    """What the scores reuse rests on: at a score point (a block of zero size) every form's correction returns the
+    corrected reading it was given, to the bit, so the residual there is the fit's own (and so is the gradient by
+    the corrected reading); the temperature forms on a recording with ``temp_c``."""
+    sim = simulate_tumble(n=3000, seed=5, drift_ut=3.0, drift_tau_s=12.0)
+    temp_c = 20.0 + 5.0 * np.sin(sim.t_s / sim.t_s[-1] * 3.0)
+    fit, _, _ = fit_ellipsoid(sim.mag)
+    rows = _Rows((sim.mag[fit.inliers] - fit.centre) / fit.radius, sim.t_s[fit.inliers], temp_c[fit.inliers])
+    model = _Model(fit, rows, _Context(radius=fit.radius, basis=Basis.of(sim.t_s, temp_c)),
+                   radial_noise_floor(fit.residuals))
+    cubic = TUMBLE_FORMS["nonlinear_response"][0]
+    for current in ((), (cubic,)):
+        x = np.concatenate([fit.params] + [np.full(e.n_params(3), 0.01) for e in current])
+        z = model.corrected(x, current, rows)
+        r = model.weighted(x, current)
+        for form in (f for forms in TUMBLE_FORMS.values() for f in forms if f not in current):
+            for q0 in form.score_points(3):
+                np.testing.assert_array_equal(form.correct(z, q0, rows, model.ctx), z)
+                np.testing.assert_array_equal(model.weighted(np.concatenate([x, q0]), current + (form,)), r)

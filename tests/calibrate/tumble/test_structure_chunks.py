@@ -50,3 +50,25 @@ def test_chunks_within_a_few_blocks_still_give_the_whole_design_least_squares(mo
     assert rank == rank_whole < design.shape[1]
     assert abs(drop - float(np.sum((design @ coef) ** 2))) < 1e-8 * drop
     assert p_value < 1e-6  # the change is found
+
+
+def test_design_columns_are_the_block_terms_then_the_monomials():
+    """The design written by its definition, column by column: for each band and block ``1, x, y, z`` on the
+    block's rows (zero elsewhere), then ``prod(d[:, idx])`` of every cubic and quartic monomial; ``extra`` last."""
+    from itertools import combinations_with_replacement
+
+    rng = np.random.default_rng(6)
+    n, n_blocks = 300, 4
+    directions = rng.normal(size=(n, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    blocks = [np.repeat(np.arange(n_blocks), n // n_blocks), rng.integers(0, n_blocks, size=n)]
+    blocks[0][:20] = 2  # a block seen in two places
+    local = np.column_stack([np.ones(n), directions])
+    expected = [np.where(block == b, local[:, j], 0.0) for block in blocks for b in range(n_blocks) for j in range(4)]
+    expected += [np.prod(directions[:, list(idx)], axis=1)
+                 for degree in (3, 4) for idx in combinations_with_replacement(range(3), degree)]
+    extra = rng.normal(size=n)
+    design = _structure_design(directions, blocks, n_blocks, extra)
+    np.testing.assert_array_equal(design, np.column_stack(expected + [extra]))
+    np.testing.assert_array_equal(_structure_design(directions[:7], [b[:7] for b in blocks], n_blocks),
+                                  np.column_stack(expected)[:7])
