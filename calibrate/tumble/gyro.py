@@ -61,6 +61,26 @@ goes where it can: on a simulated full tumble 20 ms late the hard iron moved 0.4
 residual rose from 0.30 to 0.74 uT; fitted, the latency came back at 19.98 +/- 0.05 ms (BROAD: 12.7 ms,
 on trials 01 and 06 alike).  The first-order form leaves ``(tau |w|)^2 / 2`` of the field: 0.2 % at
 20 ms and 4 rad/s.
+
+Cost.  ``n`` rows (``n_s`` of them quasi-static), ``n_w`` windows (a fast recording closes one every
+60 deg: 482 on BROAD 06's 125 s, 1151 on a simulated 300 s fast rotation), 17 global parameters
+(``D``, ``h``, ``delta``, ``beta``, ``tau``) and 3 per window.  The joint least squares over all
+``17 + 3 n_w`` (1463 on BROAD 06) with scipy's ``trf`` and ``lsmr`` on the sparse Jacobian took ~40
+outer iterations per pass, each an ``lsmr`` solve of ~120 sparse products on ``3 (n + n_s)`` rows, the
+prefix products and the Jacobian recomputed on every row each time; 10-40 s of CPU on BROAD 06's
+8755 rows, minutes on 35000.  The windows' orientations enter each window's rows only, so they are
+projected out (:class:`_Problem`): the outer least squares sees the 17 globals and a dense ``m x 17``
+reduced Jacobian (analytic: the chain rule through the prefix products, ``G_k``, then the projection);
+each window's orientation is solved inside by Newton steps on its own 3 x 3 problem, which for the
+plain loss is a quadratic form of per-window sums formed once per outer evaluation (a step costs
+nothing per row).  Per outer evaluation: the prefix products ``O(n log L)`` (``L`` the longest
+window's rows), the sums and the Jacobian ``O(17 n)``.  The robust (``soft_l1``) fit needs the rows'
+weights at every window step, so it runs on at most :data:`ROBUST_ROWS` rows (every ``k``-th of each
+window): it only starts the plain fit and sets the outlier test, which judges every row with every
+window's orientation solved on all its rows.  The plain fit (Gauss-Newton on the 17 x 17 normal
+equations, :func:`calibrate.tumble.ellipsoid.plain_fit`) uses every inlier: its Cramer-Rao bound is
+the whole recording's, unchanged by the thinning (``tools/bench_gyro_tumble.py --timing``: the
+parameters within 0.05 sigma of the joint fit's).
 """
 
 from __future__ import annotations
