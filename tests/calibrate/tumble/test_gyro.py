@@ -8,7 +8,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from calibrate.tumble import TumbleCalibrator, calibrate_tumble
-from calibrate.tumble.gyro import _Problem, _windows, falls_back, fit_with_gyro, turn_rates, with_gyro
+from calibrate.tumble import gyro
+from calibrate.tumble.gyro import (_Problem, _robust_rows, _windows, falls_back, fit_with_gyro, turn_rates,
+                                    with_gyro)
 from compass.cli import main
 from compass.io.table import ReadOptions, RecordingError
 from compass.io.tumble import gyro_turns, read_tumble
@@ -321,3 +323,34 @@ def test_an_accelerometer_row_reading_zero_leaves_the_present_fit_said(partial):
     res = with_gyro(present, sim.mag, accel, turns, sim.t_s)
     assert res.gyro["used"] is False and res.fit is present.fit
     assert any("accelerometer rows read zero (the first is sample 0)" in w for w in res.warnings)
+
+
+@pytest.mark.parametrize("lengths, k", [((100, 150), 3), ((10, 10), 2)])
+def test_robust_rows_thin_each_window_from_its_first_row(lengths, k):
+    # 10000 rows: every 3rd would leave 4000 (ROBUST_ROWS); windows of 10 rows keep 5 (MIN_WINDOW_SAMPLES): every 2nd
+    n_w = 2 * 10000 // sum(lengths)
+    window = np.repeat(np.arange(n_w), np.tile(lengths, n_w // 2))
+    assert len(window) == 10000 and gyro.ROBUST_ROWS == 4000
+    rows = _robust_rows(window)
+    starts = np.r_[0, np.flatnonzero(np.diff(window)) + 1]
+    assert np.all(np.isin(starts, rows))  # every window keeps its first row, where its integration starts
+    assert np.all(np.diff(rows)[np.diff(window[rows]) == 0] == k)
+    assert len(rows) <= len(window) / k + n_w
+    assert np.array_equal(_robust_rows(window[:gyro.ROBUST_ROWS]), np.arange(gyro.ROBUST_ROWS))  # few rows: all
+
+
+def test_thinning_the_robust_fit_leaves_the_fit_within_a_fraction_of_sigma(partial, monkeypatch):
+    # the robust fit only starts the plain fit and sets the outlier test; the plain fit uses every inlier
+    sim, _ = partial
+    turns = gyro_turns(sim.t_s, sim.gyro, np.ones(len(sim.t_s), bool))
+    present = calibrate_tumble(sim.mag, sim.accel, t_s=sim.t_s)
+    start = dict(hard_iron=present.fit.hard_iron, soft_iron=present.fit.soft_iron, field_norm=present.fit.field_norm,
+                 mag_to_accel=present.mag_to_accel, noise=present.noise)
+    whole = fit_with_gyro(sim.mag, sim.accel, turns, sim.t_s, **start)
+    monkeypatch.setattr(gyro, "ROBUST_ROWS", len(sim.t_s) // 4)
+    thinned = fit_with_gyro(sim.mag, sim.accel, turns, sim.t_s, **start)
+    assert np.array_equal(thinned.inliers, whole.inliers)
+    for name in ("hard_iron", "soft_iron", "rotvec_deg", "gyro_bias_rad_s"):
+        sigma = getattr(whole, name.replace("_deg", "_sigma_deg").replace("_rad_s", "_sigma_rad_s")
+                        if name.endswith(("_deg", "_rad_s")) else name + "_sigma")
+        assert np.all(np.abs(getattr(thinned, name) - getattr(whole, name)) < 0.05 * sigma)
