@@ -2,7 +2,8 @@
 
 Run: ``python tools/bench_gyro_tumble.py [--seeds 4] [--quick] [--no-broad] [--no-sim]`` (seeded;
 about 25 min with ``--seeds 2`` on the shared machine, BROAD's fast rotation 06 the longest; ``--quick``
-one seed and no BROAD).
+one seed and no BROAD); ``python tools/bench_gyro_tumble.py --timing [--baseline main]`` for the timing
+part alone (below).
 
 Simulated: :func:`compass.sim.partial_tumble.simulate_partial_tumble` - hand-held motions of
 :mod:`compass.sim.motion` (``fast_rotation``, ``slow_rotation``: not the motions the method was
@@ -28,12 +29,33 @@ scores it (leave one out): its calibrated field levelled with the optical refere
 spread about its median (deg rms; the offset between magnetic and optical north removed), beside
 the raw (the maker's calibration) and the present fit; a refused calibration (nothing written)
 scores as the raw.
+
+Timing (``--timing``): the gyro-aided fit (:func:`calibrate.tumble.gyro.fit_with_gyro`, from the
+present fit's values as :func:`~calibrate.tumble.gyro.with_gyro` starts it) on long fast recordings:
+BROAD 06's motion phase whole (every row; its magnetometer interpolated between its own samples), every
+2nd row (the magnetometer's own rate) and every 4th, a seeded simulated fast rotation of 300 s at 100 Hz
+and, where the gyro-aided fit is used, two partial motions cut at 20 % of the sphere (seed 0, as the
+table above; :func:`compass.sim.partial_tumble.simulate_partial_tumble`).  The inputs and the
+start are made once by this tree; the fit runs in a child process of this tree and of the baseline
+revision (``tools/_baseline.py``), each reporting the fit's CPU time (all threads; a loaded machine
+inflates it less than the wall time, which is printed too) and its parameters.  The children run with one
+BLAS thread (``--blas-threads``): on the shared 2-CPU machine OpenBLAS's threads spin against the other
+jobs and cost more CPU than the arithmetic (a 30000 x 17 ``J^T J`` measured 0.95 s of CPU with its
+default threads, 0.9 ms with one), which would time the machine's load, not the fit.  A refused fit
+(:class:`~calibrate.tumble.gyro.GyroMismatch`) is timed too: the user waits for it all the same.  ``max |diff|/sigma``
+is the largest difference between the two trees' parameters (hard iron, soft iron, ``|B|``, the
+rotation to the housing, dip, gyro bias, latency) in units of this tree's sigma; on the simulated case
+each tree's errors against the truth are printed beside each other.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import subprocess
 import sys
+import tempfile
 import time
 import warnings
 from pathlib import Path
@@ -44,6 +66,7 @@ from scipy.spatial.transform import Rotation
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from _baseline import export_tree, tree_env  # noqa: E402
 from calibrate.tumble import calibrate_tumble  # noqa: E402
 from calibrate.tumble.gyro import falls_back, with_gyro  # noqa: E402
 from compass.io.tumble import gyro_turns  # noqa: E402
@@ -193,15 +216,182 @@ def _attitude(trial, rows):
     return enu_to_nwu(Rotation.from_quat(trial.ref_quat_enu[rows], scalar_first=True))
 
 
+_TIMING_CHILD = r"""
+import json, sys, time, warnings
+import numpy as np
+warnings.simplefilter("ignore")
+from calibrate.tumble.gyro import GyroMismatch, fit_with_gyro
+d = np.load(sys.argv[1])
+start = dict(hard_iron=d["hard_iron"], soft_iron=d["soft_iron"], field_norm=float(d["field_norm"]),
+             mag_to_accel=d["mag_to_accel"] if d["mag_to_accel"].size else None,
+             dip_deg=float(d["dip_deg"]) if np.isfinite(d["dip_deg"]) else None, noise=float(d["noise"]))
+wall, cpu = time.perf_counter(), time.process_time()
+try:
+    g = fit_with_gyro(d["mag"], d["accel"], d["turns"], d["t_s"], **start)
+except GyroMismatch as exc:
+    print(json.dumps({"cpu": time.process_time() - cpu, "wall": time.perf_counter() - wall, "refused": str(exc)}))
+    sys.exit(0)
+cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
+names = {"hard_iron": "hard_iron_sigma", "soft_iron": "soft_iron_sigma", "field_norm": "field_norm_sigma",
+         "rotvec_deg": "rotvec_sigma_deg", "dip_deg": "dip_sigma_deg", "gyro_bias_rad_s": "gyro_bias_sigma_rad_s",
+         "latency_s": "latency_sigma_s"}
+out = {"cpu": cpu, "wall": wall, "n_windows": g.n_windows, "inliers": int(np.count_nonzero(g.inliers)),
+       "success": bool(g.success)}
+for name, sig in names.items():
+    out[name] = np.ravel(getattr(g, name)).tolist()
+    out[name + "/sigma"] = np.ravel(getattr(g, sig)).tolist()
+out["mag_to_accel"] = g.mag_to_accel.as_matrix().tolist()
+cs = g.mag_to_accel.as_matrix() @ g.soft_iron
+out["p"] = np.concatenate([(g.field_norm * np.linalg.inv(cs)).ravel(), g.hard_iron, [np.radians(g.dip_deg)],
+                           g.gyro_bias_rad_s, [g.latency_s]]).tolist()
+out["inlier_rows"] = np.flatnonzero(g.inliers).tolist()
+print(json.dumps(out))
+"""
+"""The child that times the gyro-aided fit in one tree: the inputs and the start from an ``.npz``, JSON out."""
+
+_BLAS_ENV = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+_GROUPS = (("hard iron", "hard_iron"), ("soft iron", "soft_iron"), ("|B|", "field_norm"), ("rotation", "rotvec_deg"),
+           ("dip", "dip_deg"), ("gyro bias", "gyro_bias_rad_s"), ("latency", "latency_s"))
+
+
+def _timing_cases(every: int):
+    """(label, inputs, truth or None) of each timed case: BROAD 06 whole and thinned, a long simulated fast rotation."""
+    from compass.io.broad import read_broad
+
+    path = DATA / "06_undisturbed_fast_rotation_A.mat"
+    if path.exists():
+        t = read_broad(path)
+        move = np.flatnonzero(t.movement)
+        for step in (1, 2, every):
+            keep = np.zeros(len(t), bool)
+            keep[move[::step]] = True
+            yield (f"BROAD 06 {'whole' if step == 1 else 'every 2nd row' if step == 2 else f'every {step}th row'}",
+                   dict(mag=t.mag_ut[keep], accel=t.accel_m_s2[keep], turns=gyro_turns(t.t_s, t.gyro_rad_s, keep),
+                        t_s=t.t_s[keep]), None)
+    else:
+        print(f"BROAD 06 not under {DATA}: only the simulated case")
+    for label, kind, cov, duration_s, rate_hz in (("sim fast_rotation 300 s 100 Hz", "fast_rotation", None, 300.0, 100.0),
+                                                  ("sim fast_rotation cut at 20 %", "fast_rotation", 0.2, 120.0, 50.0),
+                                                  ("sim slow_rotation cut at 20 %", "slow_rotation", 0.2, 120.0, 50.0)):
+        sim = simulate_partial_tumble(kind, seed=0, coverage=cov, duration_s=duration_s, rate_hz=rate_hz)
+        yield (label, dict(mag=sim.mag, accel=sim.accel, t_s=sim.t_s,
+                           turns=gyro_turns(sim.t_s, sim.gyro, np.ones(len(sim.t_s), bool))), sim.truth)
+
+
+def _start(case: dict) -> dict:
+    """The present fit's values that :func:`calibrate.tumble.gyro.with_gyro` starts from."""
+    res = calibrate_tumble(case["mag"], case["accel"], t_s=case["t_s"])
+    mis = res.misalignment
+    return dict(hard_iron=res.fit.hard_iron, soft_iron=res.fit.soft_iron, field_norm=res.fit.field_norm,
+                mag_to_accel=np.zeros(0) if res.mag_to_accel is None else np.asarray(res.mag_to_accel, float),
+                dip_deg=np.nan if mis is None else mis.dip_deg, noise=res.noise)
+
+
+def _truth_errors(r: dict, truth: dict) -> str:
+    """A tree's errors against the simulation's truth, in words."""
+    s = np.reshape(r["soft_iron"], (3, 3))
+    s_true = np.array(truth["soft_iron"]) / np.cbrt(np.linalg.det(truth["soft_iron"]))
+    rot = Rotation.from_matrix(truth["mag_to_accel"]).inv() * Rotation.from_matrix(r["mag_to_accel"])
+    bias = np.degrees(np.linalg.norm(np.array(r["gyro_bias_rad_s"]) - truth["gyro_bias_rad_s"]))
+    return (f"h {100 * np.linalg.norm(np.array(r['hard_iron']) - truth['hard_iron']) / truth['field_ut']:.3f} %|B|, "
+            f"S {np.linalg.norm(s - s_true):.4f}, rotation {np.degrees(rot.magnitude()):.3f} deg, "
+            f"dip {r['dip_deg'][0] - truth['dip_deg']:+.3f} deg, bias {bias:.4f} deg/s, "
+            f"latency {1e3 * r['latency_s'][0]:+.2f} ms (true 0)")
+
+
+def _on_inliers(case: dict, data: Path, this: dict, base: dict) -> str:
+    """Where the plain fit of this tree converges on each tree's inliers, from each tree's parameters, in words."""
+    import calibrate.tumble.gyro as g
+    from calibrate.noise import robust_sigma
+    from calibrate.tumble.alignment import static_mask
+    from calibrate.tumble.ellipsoid import plain_fit
+
+    d = np.load(data)
+    mag, accel, turns, t_s = (case[k] for k in ("mag", "accel", "turns", "t_s"))
+    dt = np.diff(t_s, prepend=t_s[0])
+    a_unit = accel / np.linalg.norm(accel, axis=1, keepdims=True)
+    window, rate, static = g._windows(turns, dt), g.turn_rates(turns, dt), static_mask(accel)
+    t0 = (d["mag_to_accel"] if d["mag_to_accel"].size else np.eye(3)) @ d["soft_iron"]
+    mag_h = (mag - d["hard_iron"]) @ t0.T
+    cos = np.sum(mag_h[static] * a_unit[static], axis=1) / np.linalg.norm(mag_h[static], axis=1)
+    dip = np.radians(float(d["dip_deg"]) if np.isfinite(d["dip_deg"])
+                     else float(np.degrees(np.median(np.arccos(np.clip(cos, -1, 1))))) - 90.0)
+    q0 = g._start_orientations(mag_h, a_unit, window, np.array([np.cos(dip), 0.0, -np.sin(dip)]))
+    p0 = np.concatenate([(float(d["field_norm"]) * np.linalg.inv(t0)).ravel(), d["hard_iron"], [dip], np.zeros(4)])
+    full = g._Problem(mag, turns, dt, window, a_unit, static, q0, float(d["noise"]), 1.0, rate, g.LATENCY_PRIOR_S)
+    r_a = full.residuals(full.rows(p0), q0.as_matrix())[1]
+    full.sigma_a = max(float(robust_sigma(np.linalg.norm(r_a, axis=1))), 1e-4)  # as fit_with_gyro sets it
+    words = []
+    for owner, r in (("this tree's", this), ("the baseline's", base)):
+        prob, used = g._on_rows(full, t_s, rate, np.array(r["inlier_rows"]), f_scale=None)
+        fits = [plain_fit(prob.residual, np.array(x["p"]), prob.jacobian) for x in (this, base)]
+        chi2 = float(fits[0].fun @ fits[0].fun) / (fits[0].fun.size - 17 - 3 * len(used))
+        sigma = np.sqrt(np.diag(g._global_covariance(fits[0].jac, chi2)))
+        off = [np.max(np.abs(np.array(x["p"]) - fits[0].x) / sigma) for x in (this, base)]
+        words.append(f"on {owner} inliers the plain fit from either tree's parameters meets within "
+                     f"{np.max(np.abs(fits[0].x - fits[1].x) / sigma):.1g} sigma, this tree's {off[0]:.2g} sigma "
+                     f"from it, the baseline's {off[1]:.2g}")
+    return "; ".join(words) + " (parameters D, h, dip, bias, latency)"
+
+
+def timing(baseline: str, blas_threads: str, every: int = 4, timeout_s: float = 1800.0):
+    """Time the gyro-aided fit in this tree and the baseline on the long fast cases, with their agreement."""
+    blas = {} if blas_threads == "default" else {v: blas_threads for v in _BLAS_ENV}
+    print(f"Gyro-aided fit, CPU time (all threads) and wall time, this tree beside baseline {baseline} "
+          f"(load average {np.round(os.getloadavg(), 1).tolist()} on {os.cpu_count()} CPUs; BLAS threads "
+          f"{blas_threads})")
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        trees = [("this tree", None)] + ([(f"baseline {baseline}", export_tree(baseline, folder))]
+                                         if baseline != "none" else [])
+        for label, case, truth in _timing_cases(every):
+            data = folder / "case.npz"
+            np.savez(data, **case, **_start(case))
+            runs = {}
+            for name, tree in trees:
+                proc = subprocess.run([sys.executable, "-c", _TIMING_CHILD, str(data)], capture_output=True, text=True,
+                                      env=tree_env(tree, **blas), cwd=tmp, timeout=timeout_s)
+                if proc.returncode != 0:
+                    print(f"  {label}, {name}: failed: {(proc.stderr.strip().splitlines() or [''])[-1]}")
+                    continue
+                runs[name] = json.loads(proc.stdout.strip().splitlines()[-1])
+            print(f"\n{label}: {len(case['t_s'])} rows")
+            for name, r in runs.items():
+                if "refused" in r:
+                    print(f"  {name:<16} CPU {r['cpu']:7.1f} s  wall {r['wall']:7.1f} s  refused: {r['refused'][:110]}")
+                    continue
+                print(f"  {name:<16} CPU {r['cpu']:7.1f} s  wall {r['wall']:7.1f} s  {r['n_windows']} windows, "
+                      f"{r['inliers']} inliers, success {r['success']}"
+                      + (f"\n  {'':<16} against the truth: {_truth_errors(r, truth)}" if truth is not None else ""))
+            if len(runs) == 2 and not any("refused" in r for r in runs.values()):
+                this, base = runs.values()
+                diffs = []
+                for group, key in _GROUPS:
+                    diff = np.abs(np.subtract(this[key], base[key])) / np.array(this[key + "/sigma"])
+                    diffs.append(f"{group} {np.max(diff):.3g}")
+                print(f"  {'':<16} speed-up {base['cpu'] / this['cpu']:.1f}x in CPU; max |this - baseline| / sigma: "
+                      + ", ".join(diffs))
+                if this["inlier_rows"] != base["inlier_rows"]:
+                    print(f"  {'':<16} the outlier tests kept different samples; {_on_inliers(case, data, this, base)}")
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=int, default=4)
     p.add_argument("--quick", action="store_true")
     p.add_argument("--no-broad", action="store_true")
     p.add_argument("--no-sim", action="store_true", help="BROAD only")
+    p.add_argument("--timing", action="store_true", help="only the timing of the gyro-aided fit on long fast recordings")
+    p.add_argument("--baseline", default="main", help="git revision the timing compares with ('none' to skip)")
+    p.add_argument("--blas-threads", default="1",
+                   help="BLAS threads of the timed children ('default': OpenBLAS's own choice; default 1)")
     args = p.parse_args(argv)
     warnings.simplefilter("ignore")
     started = time.perf_counter()
+    if args.timing:
+        timing(args.baseline, args.blas_threads)
+        print(f"\n({time.perf_counter() - started:.0f} s)")
+        return
     if not args.no_sim:
         simulated(range(1 if args.quick else args.seeds))
     if not (args.quick or args.no_broad):

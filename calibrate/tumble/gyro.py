@@ -61,6 +61,28 @@ goes where it can: on a simulated full tumble 20 ms late the hard iron moved 0.4
 residual rose from 0.30 to 0.74 uT; fitted, the latency came back at 19.98 +/- 0.05 ms (BROAD: 12.7 ms,
 on trials 01 and 06 alike).  The first-order form leaves ``(tau |w|)^2 / 2`` of the field: 0.2 % at
 20 ms and 4 rad/s.
+
+Cost.  ``n`` rows (``n_s`` of them quasi-static), ``n_w`` windows (a fast recording closes one every
+60 deg: 482 on BROAD 06's 125 s, 1151 on a simulated 300 s fast rotation), 17 global parameters
+(``D``, ``h``, ``delta``, ``beta``, ``tau``) and 3 per window.  The joint least squares over all
+``17 + 3 n_w`` (1463 on BROAD 06) with scipy's ``trf`` and ``lsmr`` on the sparse Jacobian took ~40
+outer iterations per pass, each an ``lsmr`` solve of ~120 sparse products on ``3 (n + n_s)`` rows, the
+prefix products and the Jacobian recomputed on every row each time; 10-40 s of CPU on BROAD 06's
+8755 rows, minutes on 35000.  The windows' orientations enter each window's rows only, so they are
+projected out (:class:`_Problem`): the outer least squares sees the 17 globals and a dense ``m x 17``
+reduced Jacobian (analytic: the chain rule through the prefix products, ``G_k``, then the projection);
+each window's orientation is solved inside by Newton steps on its own 3 x 3 problem, which for the
+plain loss is a quadratic form of per-window sums formed once per outer evaluation (a step costs
+nothing per row).  Per outer evaluation: the prefix products ``O(n log L)`` (``L`` the longest
+window's rows), the sums and the Jacobian ``O(17 n)``.  The robust (``soft_l1``) fit needs the rows'
+weights at every window step, so it runs on at most :data:`ROBUST_ROWS` rows (every ``k``-th of each
+window): it only starts the plain fit and sets the outlier test, which judges every row with every
+window's orientation solved on all its rows.  The plain fit (Gauss-Newton on the 17 x 17 normal
+equations, :func:`calibrate.tumble.ellipsoid.plain_fit`) uses every inlier: its Cramer-Rao bound is
+the whole recording's, unchanged by the thinning (``tools/bench_gyro_tumble.py --timing``: the
+parameters within 0.002 sigma of the joint fit's on simulated recordings, 0.05 sigma on BROAD 06's every
+4th row; on its every 2nd row, where the trim removes 5 %, the two keep different border samples and
+differ by 0.3 sigma, each the plain optimum of its own samples).
 """
 
 from __future__ import annotations
@@ -69,7 +91,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import sparse
-from scipy.linalg import sqrtm
+from scipy.linalg import polar
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
@@ -77,7 +99,7 @@ from ..diagnosis.forms import json_float
 from ..noise import robust_sigma, second_difference_sigma, second_differences
 from .alignment import Misalignment, field_gravity_angles, static_mask
 from .diagnosis import UNEXPLAINED_WARNING, diagnose_tumble
-from .ellipsoid import MAX_RELATIVE_SIGMA, OUTLIER_SIGMAS, EllipsoidFit
+from .ellipsoid import MAX_RELATIVE_SIGMA, OUTLIER_SIGMAS, EllipsoidFit, plain_fit
 from .motion import FAST_MOTION_WARNING
 from .result import TumbleResult
 
@@ -96,6 +118,14 @@ MAX_ROTATION_SIGMA_DEG = 0.5
 """The rotation to the housing is determined when each component's sigma is below this, deg."""
 
 MAX_NFEV = 100
+
+ROBUST_F_SCALE = 3.0
+"""The robust fit's ``soft_l1`` scale, noise sigmas."""
+
+ROBUST_ROWS = 4000
+"""About the most samples the robust fit uses (every ``k``-th of each window): it gives the plain fit its start and the
+outlier test its parameters, which then judges every sample, each window's orientation solved on all its rows;
+the plain fit uses every sample kept (:func:`_robust_rows`)."""
 
 LATENCY_PRIOR_S = 0.05
 """Prior sigma of the magnetometer's latency against the gyro, s: a loose bound (real boards: 0-30 ms)
@@ -289,24 +319,126 @@ def _so3_jacobian(phi: np.ndarray, sign: float) -> np.ndarray:
     return np.eye(3) + sign * a * k + b * (k @ k)
 
 
-class _Problem:
-    """Residual and sparse Jacobian of the gyro-aided model on fixed rows (see the module docstring).
+WINDOW_STEPS = 50
+"""Most Newton steps of the windows' orientations for one set of global parameters."""
 
-    Parameters ``q``: ``D`` (9, row-major), ``h`` (3), ``delta`` (1, rad), ``beta`` (3, rad/s), ``tau``
-    (1, s: the magnetometer's latency against the gyro), then the rotation vector ``rho_j`` of each
-    window (3 each: ``Q_j = Exp(rho_j) Q_j0``).  The last residual is ``tau``'s prior,
-    ``tau / tau_prior_s`` (a tiny prior fixes the latency at zero).
+WINDOW_TOL_RAD = 1e-10
+"""The windows' orientations are solved when no window's step turns it by more than this, rad."""
+
+_HALVINGS = 30
+_RCOND = 1e-10
+"""A window's direction with less than this of its largest curvature is free (not moved, not counted)."""
+_UP = np.array([0.0, 0.0, 1.0])
+
+
+def _soft_l1_weights(r: np.ndarray, f_scale: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """(``rho'``, ``rho' + 2 z rho''``) of each residual for scipy's ``soft_l1`` loss, ``rho(z) = 2 (sqrt(1 + z) - 1)``,
+    ``z = (r / f_scale)^2`` (``f_scale`` None: the plain loss, both 1).
+
+    The first weighs the gradient and the residuals' curvature, the second the Gauss-Newton part of the
+    Hessian: the curvature scipy's ``least_squares`` scales the Jacobian by.
+    """
+    if f_scale is None:
+        return np.ones_like(r), np.ones_like(r)
+    s = 1.0 / np.sqrt(1.0 + (r / f_scale) ** 2)
+    return s, s**3
+
+
+def _soft_l1_cost(r: np.ndarray, f_scale: float | None) -> np.ndarray:
+    """``f_scale^2 rho((r / f_scale)^2)`` of each residual (scipy's ``soft_l1``; ``f_scale`` None: ``r^2``)."""
+    if f_scale is None:
+        return r**2
+    return 2.0 * f_scale**2 * (np.sqrt(1.0 + (r / f_scale) ** 2) - 1.0)
+
+
+@dataclass(frozen=True)
+class _Rows:
+    """What the rows need from the global parameters, the windows' orientations aside."""
+
+    p: np.ndarray
+    d: np.ndarray  # D, (3, 3)
+    b_w: np.ndarray
+    db_w: np.ndarray  # d b_W / d delta
+    tau: float
+    rel: np.ndarray  # Delta R_k, (n, 3, 3)
+    g: np.ndarray  # d turn / d beta, (n, 3, 3)
+    omega: np.ndarray  # the rate less the bias, (n, 3)
+    resp: np.ndarray  # D M_k Delta R_k^T / sigma_m: the reading's response to the window's field Q_j^T b_W, (n, 3, 3)
+    e: np.ndarray  # (x_k - h) / sigma_m, (n, 3)
+
+
+@dataclass(frozen=True)
+class _Sums:
+    """Each window's loss as a quadratic in its field ``v = Q^T b_W`` and gravity ``g = Q^T z`` (rows weighted by ``W``):
+    ``c - 2 v.t + v^T s v - 2 g.u + g^T a g``."""
+
+    s: np.ndarray  # sum resp^T W resp, (n_w, 3, 3)
+    t: np.ndarray  # sum resp^T W e, (n_w, 3)
+    a: np.ndarray  # sum Delta R W Delta R^T / sigma_a^2, (n_w, 3, 3)
+    u: np.ndarray  # sum Delta R W a / sigma_a^2, (n_w, 3)
+
+
+def _window_newton(q: np.ndarray, b_w: np.ndarray, grad: _Sums, gn: _Sums) -> np.ndarray:
+    """Each window's Newton step ``d`` (n_w, 3; ``Q -> Exp(d) Q``) on the loss given by its sums.
+
+    With ``b' = Exp(-d) b = b + b x d + (d (d.b) - b |d|^2) / 2`` to second order (world frame), the
+    loss ``b'^T S b' - 2 b'.T`` (``S = Q s Q^T``, ``T = Q t``; the same for gravity) has the half
+    gradient ``[b]x^T m``, ``m = S b - T``, and the half Hessian ``[b]x^T S [b]x + (m b^T + b m^T) / 2
+    - (m.b) I``.  ``grad`` gives ``m`` and the gradient (weights ``rho'``), ``gn`` the Gauss-Newton part
+    (``rho' + 2 z rho''``).  Where that Hessian has a negative curvature (far from the minimum) the
+    window takes the reweighted Gauss-Newton step (``[b]x^T S [b]x`` of ``grad``); a direction its rows
+    leave free is not moved (pseudo-inverse).
+    """
+    q_t = np.transpose(q, (0, 2, 1))
+    h_gn = np.zeros((len(q), 3, 3))
+    h = np.zeros((len(q), 3, 3))
+    half = np.zeros((len(q), 3))
+    for vec, s1, t1, s2 in ((b_w, grad.s, grad.t, gn.s), (_UP, grad.a, grad.u, gn.a)):
+        k = _skew(vec)
+        m = q @ (s1 @ (q_t @ vec)[..., None]) - q @ t1[..., None]  # (n_w, 3, 1)
+        half += (k.T @ m)[..., 0]
+        h_gn += k.T @ q @ s1 @ q_t @ k
+        outer = m * vec
+        h += k.T @ q @ s2 @ q_t @ k + 0.5 * (outer + np.transpose(outer, (0, 2, 1))) \
+            - (vec @ m)[..., None] * np.eye(3)
+    eig = np.linalg.eigvalsh(h)
+    newton = eig[:, 0] > -_RCOND * eig[:, -1]  # a free direction (no gravity: the turn about b_W) is no curvature
+    h_gn[newton] = h[newton]
+    return -(np.linalg.pinv(h_gn, rcond=_RCOND, hermitian=True) @ half[..., None])[..., 0]
+
+
+class _Problem:
+    """The gyro-aided model on fixed rows (see the module docstring), the windows' orientations projected out.
+
+    The global parameters ``p`` (17): ``D`` (9, row-major), ``h`` (3), ``delta`` (1, rad), ``beta`` (3,
+    rad/s), ``tau`` (1, s: the magnetometer's latency against the gyro).  The windows' orientations
+    ``Q_j`` are not parameters of the outer least squares: for each ``p`` every window's is solved
+    (:meth:`residual`: Newton steps on each window's 3 x 3 problem, all windows at once, each started
+    from its last solution; with the plain loss a window's loss is a quadratic form in its field and
+    gravity, :class:`_Sums`, so a step costs nothing per row), and :meth:`jacobian` is the Jacobian of
+    that reduced residual (variable projection, Golub and Pereyra 1973, in Kaufman's form)::
+
+        J = J_g - J_l (J_l^T W J_l)^+ J_l^T W J_g,
+
+    ``J_g`` the residual's derivative w.r.t. ``p`` at fixed orientations, ``J_l`` w.r.t. each window's
+    turn (``Q_j -> Exp(d) Q_j``: a block of 3 columns per window, one window per row), ``W`` the loss's
+    curvature.  The reduced problem has the joint problem's minimum, and there ``J^T J`` is the Schur
+    complement of the joint normal equations' window blocks: the global covariance with the windows
+    marginalised.  The last residual is ``tau``'s prior, ``tau / tau_prior_s`` (a tiny prior fixes the
+    latency at zero).  ``f_scale`` None is the plain loss; a number, scipy's ``soft_l1`` with that
+    scale, which the windows' steps then minimise too.
     """
 
     N_GLOBAL = 17
 
     def __init__(self, mag, turns, dt, window, a_unit, static, q_start, sigma_m, sigma_a, rate,
-                 tau_prior_s=LATENCY_PRIOR_S):
+                 tau_prior_s=LATENCY_PRIOR_S, f_scale=None):
         self.mag, self.turns, self.dt, self.window, self.rate = mag, turns, dt, window, rate
         self.a_unit, self.static = a_unit[static], np.flatnonzero(static)
-        self.q_start = q_start  # Q_j0 of each window, Rotation
-        self.sigma_m, self.sigma_a, self.tau_prior_s = sigma_m, sigma_a, tau_prior_s
-        n = len(mag)
+        self.window_a = window[self.static]
+        self.orientation = q_start  # Q_j of each window, Rotation: the last solution
+        self.sigma_m, self.sigma_a, self.tau_prior_s, self.f_scale = sigma_m, sigma_a, tau_prior_s, f_scale
+        n, n_s = len(mag), len(self.static)
         self.n_w = int(window[-1]) + 1
         starts = np.r_[0, np.flatnonzero(np.diff(window)) + 1]
         self.first = np.zeros(n, dtype=bool)
@@ -314,6 +446,9 @@ class _Problem:
         lengths = np.diff(np.r_[starts, n])
         self.slot = np.arange(n) - np.repeat(starts, lengths)  # position within the window
         self.longest = int(lengths.max())  # rows in the longest window
+        self._sum_m = sparse.csr_matrix((np.ones(n), (window, np.arange(n))), shape=(self.n_w, n))
+        self._sum_a = sparse.csr_matrix((np.ones(n_s), (self.window_a, np.arange(n_s))), shape=(self.n_w, n_s))
+        self._last = None  # (p, _Rows, orientations (n_w, 3, 3)) of the last residual
 
     def _relative(self, beta):
         """``Delta R_k`` (matrices, shape (n, 3, 3)) and ``G_k`` (d of its turn / d beta, up to sign)."""
@@ -332,66 +467,150 @@ class _Problem:
         base = cum[self.first][self.window] - step[self.first][self.window]
         return rel, cum - base
 
-    def _state(self, q):
-        d = q[:9].reshape(3, 3)
-        h, delta, beta, tau = q[9:12], q[12], q[13:16], q[16]
-        rho = q[17:].reshape(-1, 3)
-        start = (Rotation.from_rotvec(rho) * self.q_start).as_matrix()  # Q_j, (n_w, 3, 3)
+    def rows(self, p) -> _Rows:
+        """What the rows need from the global parameters ``p``."""
+        d = p[:9].reshape(3, 3)
+        delta, beta, tau = p[12], p[13:16], float(p[16])
         rel, g = self._relative(beta)
-        qk = start[self.window]
-        b_w = np.array([np.cos(delta), 0.0, -np.sin(delta)])
-        v = np.einsum("kji,j->ki", qk, b_w)  # Q^T b_W
-        u = np.einsum("kji,kj->ki", rel, v)  # Delta R^T Q^T b_W: the field at the gyro's time t_k
         omega = self.rate - beta
         late = np.eye(3) + tau * _skew(omega)  # u(t_k - tau) = (I + tau [w]x) u(t_k), first order
-        return d, h, delta, b_w, tau, qk, rel, g, v, u, omega, late
+        resp = (d / self.sigma_m) @ late @ np.transpose(rel, (0, 2, 1))
+        return _Rows(p, d, np.array([np.cos(delta), 0.0, -np.sin(delta)]),
+                     np.array([-np.sin(delta), 0.0, -np.cos(delta)]), tau, rel, g, omega, resp,
+                     (self.mag - p[9:12]) / self.sigma_m)
 
-    def residual(self, q):
-        d, h, _, _, tau, qk, rel, _, _, u, omega, _ = self._state(q)
-        r_m = (self.mag - (u + tau * np.cross(omega, u)) @ d.T - h) / self.sigma_m
-        s = self.static
-        up = np.einsum("kji,kj->ki", rel[s], qk[s][:, 2, :])  # Delta R^T Q^T z
-        r_a = (self.a_unit - up) / self.sigma_a
-        return np.concatenate([r_m.ravel(), r_a.ravel(), [tau / self.tau_prior_s]])
+    def residuals(self, rows: _Rows, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The magnetometer's (n, 3) and the accelerometer's residuals (n_s, 3) at the windows' orientations
+        ``q`` (matrices, (n_w, 3, 3)), in noise sigmas."""
+        v = (q.transpose(0, 2, 1) @ rows.b_w)[self.window]  # Q^T b_W
+        r_m = rows.e - (rows.resp @ v[..., None])[..., 0]
+        up = (np.transpose(rows.rel[self.static], (0, 2, 1)) @ q[self.window_a, 2, :, None])[..., 0]  # Delta R^T Q^T z
+        return r_m, (self.a_unit - up) / self.sigma_a
 
-    def jacobian(self, q):
-        d, h, delta, b_w, tau, qk, rel, g, v, u, omega, late = self._state(q)
+    def _sums(self, rows: _Rows, w_m=None, w_a=None) -> _Sums:
+        """The windows' :class:`_Sums` with the rows' weights (None: 1)."""
+        resp_w = rows.resp if w_m is None else w_m[..., None] * rows.resp
+        resp_t = np.transpose(rows.resp, (0, 2, 1))
+        s = self._sum_m @ (resp_t @ resp_w).reshape(-1, 9)
+        t = self._sum_m @ (np.transpose(resp_w, (0, 2, 1)) @ rows.e[..., None])[..., 0]
+        rel_a = rows.rel[self.static]
+        if w_a is None:
+            a = np.bincount(self.window_a, minlength=self.n_w)[:, None] * np.eye(3).ravel()
+            u = self._sum_a @ (rel_a @ self.a_unit[..., None])[..., 0]
+        else:
+            rel_w = rel_a * w_a[:, None, :]
+            a = self._sum_a @ (rel_w @ np.transpose(rel_a, (0, 2, 1))).reshape(-1, 9)
+            u = self._sum_a @ (rel_w @ self.a_unit[..., None])[..., 0]
+        return _Sums(s.reshape(-1, 3, 3), t, a.reshape(-1, 3, 3) / self.sigma_a**2, u / self.sigma_a**2)
+
+    def _robust_cost(self, r_m, r_a) -> np.ndarray:
+        """Each window's ``soft_l1`` loss, (n_w,)."""
+        return (self._sum_m @ _soft_l1_cost(r_m, self.f_scale).sum(axis=1)
+                + self._sum_a @ _soft_l1_cost(r_a, self.f_scale).sum(axis=1))
+
+    @staticmethod
+    def _plain_change(sums: _Sums, q, trial, b_w) -> tuple[np.ndarray, np.ndarray]:
+        """Each window's change of the plain loss from ``q`` to ``trial`` and the rounding it allows (n_w,)."""
+        change, scale = 0.0, 0.0
+        for vec, s, t in ((b_w, sums.s, sums.t), (_UP, sums.a, sums.u)):
+            v0, v1 = np.transpose(q, (0, 2, 1)) @ vec, np.transpose(trial, (0, 2, 1)) @ vec
+            quad = (s @ v0[..., None])[..., 0]
+            change = change - 2.0 * np.sum((v1 - v0) * t, axis=1) + np.sum((v1 - v0) * (s @ (v1 + v0)[..., None])[..., 0],
+                                                                            axis=1)
+            scale = scale + np.abs(np.sum(v0 * quad, axis=1)) + np.abs(np.sum(v0 * t, axis=1))
+        return change, 1e-13 * scale
+
+    def _solve_windows(self, rows: _Rows) -> np.ndarray:
+        """Every window's orientation (n_w, 3, 3) that minimises its loss at ``rows``' global parameters (Newton
+        steps, :func:`_window_newton`, a window's step halved while it raises that window's loss)."""
+        q_rot = self.orientation
+        q = q_rot.as_matrix()
+        plain = self.f_scale is None
+        if plain:
+            grad = gn = self._sums(rows)
+        for _ in range(WINDOW_STEPS):
+            if not plain:
+                r_m, r_a = self.residuals(rows, q)
+                (w_m, c_m), (w_a, c_a) = _soft_l1_weights(r_m, self.f_scale), _soft_l1_weights(r_a, self.f_scale)
+                grad, gn, cost = self._sums(rows, w_m, w_a), self._sums(rows, c_m, c_a), self._robust_cost(r_m, r_a)
+            step = _window_newton(q, rows.b_w, grad, gn)
+            if not np.max(np.abs(step)) > WINDOW_TOL_RAD:
+                break
+            for _ in range(_HALVINGS):
+                trial_rot = Rotation.from_rotvec(step) * q_rot
+                trial = trial_rot.as_matrix()
+                if plain:
+                    change, slack = self._plain_change(grad, q, trial, rows.b_w)
+                    worse = ~(change <= slack)
+                else:
+                    worse = ~(self._robust_cost(*self.residuals(rows, trial)) <= cost * (1.0 + 1e-12))
+                if not worse.any():
+                    break
+                step[worse] *= 0.5
+            else:  # a window whose loss no step lowers stays
+                step[worse] = 0.0
+                trial_rot = Rotation.from_rotvec(step) * q_rot
+                trial = trial_rot.as_matrix()
+            q_rot, q = trial_rot, trial
+        self.orientation = q_rot
+        return q
+
+    def residual(self, p):
+        """The residual at ``p``, every window's orientation solved (in noise sigmas; the prior last)."""
+        p = np.array(p, dtype=float)
+        rows = self.rows(p)
+        q = self._solve_windows(rows)
+        self._last = (p, rows, q)
+        r_m, r_a = self.residuals(rows, q)
+        return np.concatenate([r_m.ravel(), r_a.ravel(), [rows.tau / self.tau_prior_s]])
+
+    def global_jacobian(self, rows: _Rows, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``J_g``: the residual's derivative w.r.t. ``p`` at the fixed orientations ``q``, magnetometer
+        (n, 3, 17) and accelerometer rows (n_s, 3, 17)."""
         n, s = len(self.mag), self.static
-        jl = _so3_jacobian(q[17:].reshape(-1, 3), 1.0)[self.window]  # (n, 3, 3)
-        rel_t = np.transpose(rel, (0, 2, 1))
-        d_late = d @ late  # the response to the field at the gyro's time, (n, 3, 3)
-        blocks = np.zeros((n, 3, self.N_GLOBAL))
-        u_late = u + tau * np.cross(omega, u)
+        d, tau, omega = rows.d / self.sigma_m, rows.tau, rows.omega
+        q_t = np.transpose(q, (0, 2, 1))
+        v = (q_t @ rows.b_w)[self.window]
+        u = (np.transpose(rows.rel, (0, 2, 1)) @ v[..., None])[..., 0]  # Delta R^T Q^T b_W: the field at t_k
+        w_u = np.cross(omega, u)
+        blocks = np.empty((n, 3, self.N_GLOBAL))
+        blocks[:, :, :9] = 0.0
         for i in range(3):
-            blocks[:, i, 3 * i:3 * i + 3] = -u_late
-        blocks[:, :, 9:12] = -np.eye(3)
-        db = np.array([-np.sin(delta), 0.0, -np.cos(delta)])
-        blocks[:, :, 12] = -(d_late @ rel_t @ np.einsum("kji,j->ki", qk, db)[..., None])[..., 0]
-        # dr/dbeta = D M Delta R^T [v]x G - tau D [u]x (M = I + tau [w]x, w = rate - beta);
-        # dr/drho = -D M Delta R^T Q^T [b_W]x J_l ; dr/dtau = -D (w x u)
-        d_rel_t = d_late @ rel_t
-        blocks[:, :, 13:16] = d_rel_t @ _skew(v) @ g - tau * d @ _skew(u)
-        blocks[:, :, 16] = -np.cross(omega, u) @ d.T
-        rows_rho = -d_rel_t @ np.transpose(qk, (0, 2, 1)) @ _skew(b_w) @ jl
-        blocks /= self.sigma_m
-        rows_rho /= self.sigma_m
-        # accelerometer rows: up = Delta R^T Q^T z
-        z = np.array([0.0, 0.0, 1.0])
-        up_h = qk[s][:, 2, :]
-        a_blocks = np.zeros((len(s), 3, self.N_GLOBAL))
-        a_blocks[:, :, 13:16] = rel_t[s] @ _skew(up_h) @ g[s]
-        a_rho = -rel_t[s] @ np.transpose(qk[s], (0, 2, 1)) @ _skew(z) @ jl[s]
-        a_blocks /= self.sigma_a
-        a_rho /= self.sigma_a
+            blocks[:, i, 3 * i:3 * i + 3] = -(u + tau * w_u) / self.sigma_m
+        blocks[:, :, 9:12] = -np.eye(3) / self.sigma_m
+        blocks[:, :, 12] = -(rows.resp @ (q_t @ rows.db_w)[self.window][..., None])[..., 0]
+        # dr/dbeta = D M Delta R^T [v]x G - tau D [u]x (M = I + tau [w]x, w = rate - beta); dr/dtau = -D (w x u)
+        blocks[:, :, 13:16] = rows.resp @ _skew(v) @ rows.g - tau * d @ _skew(u)
+        blocks[:, :, 16] = -w_u @ d.T
+        a_blocks = np.zeros((len(s), 3, self.N_GLOBAL))  # accelerometer rows: up = Delta R^T Q^T z
+        a_blocks[:, :, 13:16] = (np.transpose(rows.rel[s], (0, 2, 1)) @ _skew(q[self.window_a, 2, :]) @ rows.g[s]
+                                 / self.sigma_a)
+        return blocks, a_blocks
+
+    def jacobian(self, p):
+        """The reduced residual's Jacobian at ``p`` (dense, (m, 17); see the class docstring)."""
+        p = np.array(p, dtype=float)
+        if self._last is None or not np.array_equal(p, self._last[0]):
+            self.residual(p)
+        _, rows, q = self._last
+        j_m, j_a = self.global_jacobian(rows, q)
+        r_m, r_a = self.residuals(rows, q)
+        c_m, c_a = _soft_l1_weights(r_m, self.f_scale)[1], _soft_l1_weights(r_a, self.f_scale)[1]
+        sums = self._sums(rows, None if self.f_scale is None else c_m, None if self.f_scale is None else c_a)
+        # J_l = -resp Q^T [b]x (magnetometer), -Delta R^T Q^T [z]x / sigma_a (accelerometer)
+        q_t = np.transpose(q, (0, 2, 1))
+        k_b, k_z = q_t @ _skew(rows.b_w), q_t @ _skew(_UP)
+        h = (np.transpose(k_b, (0, 2, 1)) @ sums.s @ k_b + np.transpose(k_z, (0, 2, 1)) @ sums.a @ k_z)
+        resp_t_w = np.transpose(rows.resp, (0, 2, 1)) * c_m[:, None, :]
+        rel_w = rows.rel[self.static] * c_a[:, None, :] / self.sigma_a
+        c = (np.transpose(k_b, (0, 2, 1)) @ (self._sum_m @ (resp_t_w @ j_m).reshape(len(j_m), -1)).reshape(-1, 3, 17)
+             + np.transpose(k_z, (0, 2, 1)) @ (self._sum_a @ (rel_w @ j_a).reshape(len(j_a), -1)).reshape(-1, 3, 17))
+        x = np.linalg.pinv(h, rcond=_RCOND, hermitian=True) @ -c  # (n_w, 3, 17): each window's turn per unit of p
+        j_m += rows.resp @ (k_b @ x)[self.window]  # J_g - J_l x, -J_l = resp Q^T [b]x
+        j_a += np.transpose(rows.rel[self.static], (0, 2, 1)) @ (k_z @ x)[self.window_a] / self.sigma_a
         prior = np.zeros((1, self.N_GLOBAL))
         prior[0, 16] = 1.0 / self.tau_prior_s
-        dense = sparse.csr_matrix(np.vstack([blocks.reshape(3 * n, -1), a_blocks.reshape(3 * len(s), -1), prior]))
-        w = np.r_[self.window, self.window[s]]
-        vals = np.vstack([rows_rho.reshape(3 * n, 3), a_rho.reshape(3 * len(s), 3)])
-        rows = np.repeat(np.arange(3 * (n + len(s))), 3)
-        cols = (3 * np.repeat(w, 3)[:, None] + np.arange(3)).ravel()
-        local = sparse.csr_matrix((vals.ravel(), (rows, cols)), shape=(3 * (n + len(s)) + 1, 3 * self.n_w))
-        return sparse.hstack([dense, local], format="csr")
+        return np.vstack([j_m.reshape(-1, self.N_GLOBAL), j_a.reshape(-1, self.N_GLOBAL), prior])
 
 
 def _start_orientations(mag_h, a_unit, window, b_w):
@@ -473,56 +692,68 @@ def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_nor
     rate = turn_rates(turns, dt)
     b_w = np.array([np.cos(delta0), 0.0, -np.sin(delta0)])
     q_start = _start_orientations(mag_h, a_unit, window, b_w)
-    n_w = int(window[-1]) + 1
-    q0 = np.concatenate([(field_norm * np.linalg.inv(t0)).ravel(), hard_iron, [delta0], np.zeros(3), [0.0],
-                         np.zeros(3 * n_w)])
+    p0 = np.concatenate([(field_norm * np.linalg.inv(t0)).ravel(), hard_iron, [delta0], np.zeros(3), [0.0]])
     prior = LATENCY_PRIOR_S if fit_latency else _FIXED_S
-    prob = _Problem(mag, turns, dt, window, a_unit, static, q_start, max(noise, 1e-12), 1.0, rate, prior)
-    r_a = prob.residual(q0)[3 * n:-1].reshape(-1, 3)
+    prob = _Problem(mag, turns, dt, window, a_unit, static, q_start, max(noise, 1e-12), 1.0, rate, prior,
+                    f_scale=ROBUST_F_SCALE)
+    r_a = prob.residuals(prob.rows(p0), q_start.as_matrix())[1]  # the accelerometer's scatter at the start
     prob.sigma_a = max(float(robust_sigma(np.linalg.norm(r_a, axis=1))), 1e-4)
-    robust = least_squares(prob.residual, q0, jac=prob.jacobian, loss="soft_l1", f_scale=3.0, method="trf",
-                           tr_solver="lsmr", x_scale="jac", max_nfev=MAX_NFEV)
-    r = robust.fun[:3 * n].reshape(n, 3)
+    thin, _ = _on_rows(prob, t_s, rate, _robust_rows(window), f_scale=ROBUST_F_SCALE)
+    robust = least_squares(thin.residual, p0, jac=thin.jacobian, loss="soft_l1", f_scale=ROBUST_F_SCALE, method="trf",
+                           x_scale="jac", max_nfev=MAX_NFEV)
+    prob.orientation = thin.orientation  # every window keeps rows: the same windows
+    fun = prob.residual(robust.x)  # every row's residual, every window's orientation solved on all its rows
+    r = fun[:3 * n].reshape(n, 3)
     inliers = np.linalg.norm(r, axis=1) < OUTLIER_SIGMAS * np.sqrt(3.0)
-    keep_a = np.linalg.norm(robust.fun[3 * n:-1].reshape(-1, 3), axis=1) < OUTLIER_SIGMAS * np.sqrt(3.0)
+    keep_a = np.linalg.norm(fun[3 * n:-1].reshape(-1, 3), axis=1) < OUTLIER_SIGMAS * np.sqrt(3.0)
     if np.count_nonzero(inliers) < MIN_INLIER_FRACTION * n or np.count_nonzero(keep_a) < 20:
         raise GyroMismatch(f"the magnetometer and the gyro disagree: the fit rejected {n - np.count_nonzero(inliers)} of "
                            f"{n} samples beyond {OUTLIER_SIGMAS:g} noise sigmas (a magnetometer late against the gyro, "
                            "a disturbed field, a gyro off scale)")
-    # a dropped sample's turn and time go to the next kept one; windows emptied by the trimming go
-    rows = np.flatnonzero(inliers)
-    kept_turns = np.diff(np.cumsum(turns, axis=0)[rows], axis=0, prepend=np.zeros((1, 3)))
-    kept_dt = np.diff(t_s[rows], prepend=t_s[rows[0]])
-    static_kept = np.zeros(n, dtype=bool)
-    static_kept[prob.static[keep_a]] = True
-    used = np.unique(window[rows])
-    remap = np.full(n_w, -1)
-    remap[used] = np.arange(len(used))
-    kept = _Problem(mag[rows], kept_turns, kept_dt, remap[window[rows]], a_unit[rows], static_kept[rows],
-                    q_start[used], prob.sigma_m, prob.sigma_a, rate[rows], prior)
-    k = _Problem.N_GLOBAL
-    x1 = np.concatenate([robust.x[:k], robust.x[k:].reshape(-1, 3)[used].ravel()])
-    final = least_squares(kept.residual, x1, jac=kept.jacobian, method="trf", tr_solver="lsmr", x_scale="jac",
-                          max_nfev=MAX_NFEV)
-    chi2 = float(final.fun @ final.fun) / max(final.fun.size - final.x.size, 1)
+    kept, used = _on_rows(prob, t_s, rate, np.flatnonzero(inliers), f_scale=None, keep_a=keep_a)
+    final = plain_fit(kept.residual, robust.x, kept.jacobian, max_nfev=MAX_NFEV)
+    chi2 = float(final.fun @ final.fun) / max(final.fun.size - final.x.size - 3 * len(used), 1)  # and the windows'
     return _result(final, _global_covariance(final.jac, chi2), kept, inliers, noise, turns, n_w=len(used))
 
 
-def _global_covariance(jac, chi2: float) -> np.ndarray | None:
+def _robust_rows(window: np.ndarray) -> np.ndarray:
+    """The rows the robust fit uses: all, or every ``k``-th of each window (from its first, where its integration
+    starts), ``k`` the smallest that leaves :data:`ROBUST_ROWS` of the whole (about: each window's first row
+    stays), but no larger than leaves :data:`MIN_WINDOW_SAMPLES` of a median window's rows."""
+    n = len(window)
+    starts = np.r_[0, np.flatnonzero(np.diff(window)) + 1]
+    median = float(np.median(np.diff(np.r_[starts, n])))
+    every = max(min(-(-n // ROBUST_ROWS), int(median // MIN_WINDOW_SAMPLES)), 1)
+    slot = np.arange(n) - np.repeat(starts, np.diff(np.r_[starts, n]))
+    return np.flatnonzero(slot % every == 0)
+
+
+def _on_rows(prob: _Problem, t_s, rate, rows, *, f_scale, keep_a=None) -> tuple[_Problem, np.ndarray]:
+    """``prob`` on ``rows`` only (``f_scale`` its loss), and the windows that keep rows: a dropped sample's turn and
+    time go to the next kept one; the accelerometer's quasi-static rows among ``rows`` stay (those of them
+    ``keep_a`` marks, when given); a window left without rows goes."""
+    turns = np.diff(np.cumsum(prob.turns, axis=0)[rows], axis=0, prepend=np.zeros((1, 3)))
+    dt = np.diff(t_s[rows], prepend=t_s[rows[0]])
+    static = np.zeros(len(prob.mag), dtype=bool)
+    static[prob.static if keep_a is None else prob.static[keep_a]] = True
+    a_unit = np.zeros((len(prob.mag), 3))
+    a_unit[prob.static] = prob.a_unit
+    used = np.unique(prob.window[rows])
+    remap = np.full(prob.n_w, -1)
+    remap[used] = np.arange(len(used))
+    return _Problem(prob.mag[rows], turns, dt, remap[prob.window[rows]], a_unit[rows], static[rows],
+                    prob.orientation[used], prob.sigma_m, prob.sigma_a, rate[rows], prob.tau_prior_s, f_scale), used
+
+
+def _global_covariance(jac: np.ndarray, chi2: float) -> np.ndarray | None:
     """Covariance of the 17 global parameters, the windows' orientations marginalised (None if singular).
 
-    The Schur complement of the normal equations' block-diagonal window part, each 3 x 3 block
-    pseudo-inverted (a window whose orientation the data leave partly free adds nothing), scaled to
+    ``jac`` is the reduced Jacobian of the plain fit (:class:`_Problem`): ``J^T J`` is the Schur
+    complement of the joint normal equations' block-diagonal window part, each 3 x 3 block
+    pseudo-inverted (a window whose orientation the data leave partly free adds nothing).  Scaled to
     unit diagonal before judging its condition (``D`` is of order |B|, ``beta`` of order 0.01 rad/s).
     """
-    k = _Problem.N_GLOBAL
-    a = (jac.T @ jac).toarray()
-    a_gg, a_gl = a[:k, :k], a[:k, k:]
-    n_w = (a.shape[0] - k) // 3
-    blocks = np.array([a[k + 3 * j:k + 3 * j + 3, k + 3 * j:k + 3 * j + 3] for j in range(n_w)]).reshape(n_w, 3, 3)
-    inv_blocks = np.linalg.pinv(blocks, rcond=1e-10, hermitian=True)
-    gl = a_gl.reshape(k, n_w, 3).transpose(1, 0, 2)  # (n_w, k, 3)
-    schur = a_gg - np.einsum("wia,wab,wjb->ij", gl, inv_blocks, gl)
+    schur = jac.T @ jac
     d = np.sqrt(np.clip(np.diag(schur), 1e-300, None))
     scaled = schur / np.outer(d, d)
     if not np.all(np.isfinite(scaled)) or np.linalg.cond(scaled) > 1e12:
@@ -531,14 +762,12 @@ def _global_covariance(jac, chi2: float) -> np.ndarray | None:
 
 
 def _unpack(q):
-    """(h, S det 1, F, C as matrix, dip rad) from the parameters; S from the polar decomposition of ``T = F D^-1``."""
+    """(h, S det 1, F, C as matrix, dip rad) from the parameters; ``C S`` the polar decomposition of ``T = F D^-1``
+    (by the SVD: a rotation however ill-conditioned ``D``, as along what a one-axis turn leaves free)."""
     d = q[:9].reshape(3, 3)
     f_norm = np.cbrt(np.linalg.det(d))
-    t = f_norm * np.linalg.inv(d)
-    s = np.real(sqrtm(t.T @ t))
-    s = (s + s.T) / 2.0
-    c = t @ np.linalg.inv(s)
-    return q[9:12], s, float(f_norm), c, float(q[12])
+    c, s = polar(f_norm * np.linalg.inv(d))
+    return q[9:12], (s + s.T) / 2.0, float(f_norm), c, float(q[12])
 
 
 def _result(final, cov, prob, inliers, noise, turns, n_w) -> GyroFit:

@@ -8,7 +8,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from calibrate.tumble import TumbleCalibrator, calibrate_tumble
-from calibrate.tumble.gyro import _Problem, _windows, falls_back, fit_with_gyro, turn_rates, with_gyro
+from calibrate.tumble import gyro
+from calibrate.tumble.gyro import (_Problem, _robust_rows, _windows, falls_back, fit_with_gyro, turn_rates,
+                                    with_gyro)
 from compass.cli import main
 from compass.io.table import ReadOptions, RecordingError
 from compass.io.tumble import gyro_turns, read_tumble
@@ -38,20 +40,53 @@ def _turning(axes, *, tilt_deg=0.0, n=1500, rate_hz=50.0, seed=0):
     return t, turns, att, att.apply(b_w, inverse=True) @ d.T + h, att.apply([0.0, 0.0, 1.0], inverse=True), d, h
 
 
-def _null_dimension(axes, tilt_deg=0.0):
-    """Directions the Jacobian at the truth cannot see (columns normalised; singular values < 1e-7 of the largest)."""
+def _problem(axes, *, tilt_deg=0.0, noise=0.0, f_scale=None, seed=1):
+    """The model's problem on the samples of :func:`_turning` (noise in uT), its windows started at the truth;
+    the true global parameters."""
     t, turns, att, mag, acc, d, h = _turning(axes, tilt_deg=tilt_deg)
+    mag = mag + np.random.default_rng(seed).normal(scale=noise, size=mag.shape)
     dt = np.diff(t, prepend=t[0])
     window = _windows(turns, dt)
     starts = np.r_[0, np.flatnonzero(np.diff(window)) + 1]
-    prob = _Problem(mag, turns, dt, window, acc, np.ones(len(t), bool), att[starts], 0.3, 0.01, turn_rates(turns, dt))
-    q = np.concatenate([d.ravel(), h, [np.radians(60.0)], np.zeros(3), [0.0], np.zeros(3 * len(starts))])
-    jac = prob.jacobian(q).toarray()
-    sv = np.linalg.svd(jac / np.linalg.norm(jac, axis=0), compute_uv=False)
+    prob = _Problem(mag, turns, dt, window, acc, np.ones(len(t), bool), att[starts], 0.3, 0.01, turn_rates(turns, dt),
+                    f_scale=f_scale)
+    return prob, np.concatenate([d.ravel(), h, [np.radians(60.0)], np.zeros(3), [0.0]])
+
+
+def _stacked(prob, rows, q):
+    r_m, r_a = prob.residuals(rows, q)
+    return np.concatenate([r_m.ravel(), r_a.ravel()])
+
+
+def _window_columns(prob, rows, q, step=1e-6):
+    """The residual's derivative w.r.t. each window's turn (``Q -> Exp(d) Q``), central differences."""
+    cols = []
+    for j in range(len(q)):
+        for i in range(3):
+            turn = Rotation.from_rotvec(np.eye(3)[i] * step).as_matrix()
+            plus, minus = q.copy(), q.copy()
+            plus[j], minus[j] = turn @ q[j], turn.T @ q[j]
+            cols.append((_stacked(prob, rows, plus) - _stacked(prob, rows, minus)) / (2 * step))
+    return np.column_stack(cols)
+
+
+def _null_dimension(axes, tilt_deg=0.0):
+    """Directions the joint Jacobian (global parameters and every window's turn) at the truth cannot see
+    (columns normalised; singular values < 1e-7 of the largest)."""
+    prob, p = _problem(axes, tilt_deg=tilt_deg)
+    rows = prob.rows(p)
+    q = prob.orientation.as_matrix()
+    j_m, j_a = prob.global_jacobian(rows, q)
+    joint = np.hstack([np.vstack([j_m.reshape(-1, 17), j_a.reshape(-1, 17)]), _window_columns(prob, rows, q)])
+    prior = np.zeros((1, joint.shape[1]))
+    prior[0, 16] = 1.0 / prob.tau_prior_s  # the latency's prior, as in the residual
+    joint = np.vstack([joint, prior])
+    sv = np.linalg.svd(joint / np.linalg.norm(joint, axis=0), compute_uv=False)
     return int(np.sum(sv < 1e-7 * sv[0]))
 
 
 def test_jacobian_matches_finite_differences():
+    # the analytic derivative w.r.t. the global parameters at fixed window orientations
     sim = simulate_partial_tumble("fast_rotation", seed=1, coverage=0.2)
     n = len(sim.t_s)
     turns = gyro_turns(sim.t_s, sim.gyro, np.ones(n, bool))
@@ -62,15 +97,67 @@ def test_jacobian_matches_finite_differences():
     rng = np.random.default_rng(0)
     prob = _Problem(sim.mag, turns, dt, window, a_unit, np.ones(n, bool), Rotation.random(n_w, random_state=1), 0.3, 0.02,
                     turn_rates(turns, dt))
-    q = np.concatenate([(50 * np.eye(3) + rng.normal(size=(3, 3))).ravel(), [1, 2, 3], [1.0], [0.01, -0.02, 0.005],
-                        [0.012], 0.1 * rng.normal(size=3 * n_w)])
-    jac = prob.jacobian(q).toarray()
+    p = np.concatenate([(50 * np.eye(3) + rng.normal(size=(3, 3))).ravel(), [1, 2, 3], [1.0], [0.01, -0.02, 0.005],
+                        [0.012]])
+    q = Rotation.random(n_w, random_state=2).as_matrix()
+    j_m, j_a = prob.global_jacobian(prob.rows(p), q)
+    jac = np.vstack([j_m.reshape(-1, 17), j_a.reshape(-1, 17)])
     num = np.empty_like(jac)
-    for j in range(q.size):
-        e = np.zeros_like(q)
+    for j in range(p.size):
+        e = np.zeros_like(p)
         e[j] = 1e-6
-        num[:, j] = (prob.residual(q + e) - prob.residual(q - e)) / 2e-6
+        num[:, j] = (_stacked(prob, prob.rows(p + e), q) - _stacked(prob, prob.rows(p - e), q)) / 2e-6
     assert np.max(np.abs(jac - num)) < 1e-5 * np.max(np.abs(num))
+
+
+def test_reduced_jacobian_is_the_derivative_with_the_windows_solved():
+    # noise-free samples at the truth (zero residual): the variable-projection Jacobian is the exact derivative
+    # of the residual whose window orientations are solved anew at each point
+    prob, p = _problem([0, 2])
+    r0 = prob.residual(p)
+    assert np.max(np.abs(r0)) < 1e-6
+    jac = prob.jacobian(p)
+    steps = np.r_[np.full(9, 1e-4), np.full(3, 1e-4), 1e-7, np.full(3, 1e-8), 1e-8]
+    num = np.empty_like(jac)
+    for j in range(p.size):
+        e = np.zeros_like(p)
+        e[j] = steps[j]
+        num[:, j] = (prob.residual(p + e) - prob.residual(p - e)) / (2 * steps[j])
+    assert np.all(np.abs(jac - num) <= 1e-4 * np.max(np.abs(num), axis=0))
+
+
+@pytest.mark.parametrize("f_scale", [None, 3.0])
+def test_windows_are_solved_and_the_gradient_follows(f_scale):
+    # noisy samples away from the optimum, the windows started 3 deg off: each window's orientation is the
+    # minimum of its loss (within 1e-8 rad by its gradient over its curvature), and the reduced gradient
+    # J^T rho'(r) r is the loss's derivative (the windows held at their minimum)
+    prob, p = _problem([0, 1, 2], noise=0.3, f_scale=f_scale)
+    prob.mag[::97] += 8.0  # outliers for the robust loss
+    prob.orientation = Rotation.from_rotvec(np.full((prob.n_w, 3), np.radians(3.0) / np.sqrt(3))) * prob.orientation
+    p = p + np.r_[np.full(9, 0.05), [0.2, -0.1, 0.1], 0.01, [1e-3, -1e-3, 5e-4], 2e-3]
+
+    def total(r):
+        return 0.5 * np.sum(r**2 if f_scale is None else 2 * f_scale**2 * (np.sqrt(1 + (r / f_scale) ** 2) - 1))
+
+    r = prob.residual(p)
+    rows, q = prob.rows(p), prob.orientation.as_matrix()
+    step = 1e-5
+    for j in range(len(q)):
+        for i in range(3):
+            turn = Rotation.from_rotvec(np.eye(3)[i] * step).as_matrix()
+            costs = []
+            for m in (turn, np.eye(3), turn.T):
+                turned = q.copy()
+                turned[j] = m @ q[j]
+                costs.append(total(_stacked(prob, rows, turned)))
+            slope, curvature = (costs[0] - costs[2]) / (2 * step), (costs[0] - 2 * costs[1] + costs[2]) / step**2
+            assert curvature > 0 and abs(slope / curvature) < 1e-8
+    weight = np.ones_like(r) if f_scale is None else 1 / np.sqrt(1 + (r / f_scale) ** 2)
+    grad = prob.jacobian(p)[:-1].T @ (weight * r)[:-1]
+    steps = np.r_[np.full(12, 1e-5), 1e-7, np.full(3, 1e-8), 1e-7]
+    num = np.array([(total(prob.residual(p + e)[:-1]) - total(prob.residual(p - e)[:-1])) / (2 * h)
+                    for h, e in zip(steps, np.diag(steps))])
+    assert np.allclose(grad, num, rtol=1e-4, atol=1e-4 * np.max(np.abs(num)))
 
 
 def test_identifiability_as_derived():
@@ -236,3 +323,34 @@ def test_an_accelerometer_row_reading_zero_leaves_the_present_fit_said(partial):
     res = with_gyro(present, sim.mag, accel, turns, sim.t_s)
     assert res.gyro["used"] is False and res.fit is present.fit
     assert any("accelerometer rows read zero (the first is sample 0)" in w for w in res.warnings)
+
+
+@pytest.mark.parametrize("lengths, k", [((100, 150), 3), ((10, 10), 2)])
+def test_robust_rows_thin_each_window_from_its_first_row(lengths, k):
+    # 10000 rows: every 3rd would leave 4000 (ROBUST_ROWS); windows of 10 rows keep 5 (MIN_WINDOW_SAMPLES): every 2nd
+    n_w = 2 * 10000 // sum(lengths)
+    window = np.repeat(np.arange(n_w), np.tile(lengths, n_w // 2))
+    assert len(window) == 10000 and gyro.ROBUST_ROWS == 4000
+    rows = _robust_rows(window)
+    starts = np.r_[0, np.flatnonzero(np.diff(window)) + 1]
+    assert np.all(np.isin(starts, rows))  # every window keeps its first row, where its integration starts
+    assert np.all(np.diff(rows)[np.diff(window[rows]) == 0] == k)
+    assert len(rows) <= len(window) / k + n_w
+    assert np.array_equal(_robust_rows(window[:gyro.ROBUST_ROWS]), np.arange(gyro.ROBUST_ROWS))  # few rows: all
+
+
+def test_thinning_the_robust_fit_leaves_the_fit_within_a_fraction_of_sigma(partial, monkeypatch):
+    # the robust fit only starts the plain fit and sets the outlier test; the plain fit uses every inlier
+    sim, _ = partial
+    turns = gyro_turns(sim.t_s, sim.gyro, np.ones(len(sim.t_s), bool))
+    present = calibrate_tumble(sim.mag, sim.accel, t_s=sim.t_s)
+    start = dict(hard_iron=present.fit.hard_iron, soft_iron=present.fit.soft_iron, field_norm=present.fit.field_norm,
+                 mag_to_accel=present.mag_to_accel, noise=present.noise)
+    whole = fit_with_gyro(sim.mag, sim.accel, turns, sim.t_s, **start)
+    monkeypatch.setattr(gyro, "ROBUST_ROWS", len(sim.t_s) // 4)
+    thinned = fit_with_gyro(sim.mag, sim.accel, turns, sim.t_s, **start)
+    assert np.array_equal(thinned.inliers, whole.inliers)
+    for name in ("hard_iron", "soft_iron", "rotvec_deg", "gyro_bias_rad_s"):
+        sigma = getattr(whole, name.replace("_deg", "_sigma_deg").replace("_rad_s", "_sigma_rad_s")
+                        if name.endswith(("_deg", "_rad_s")) else name + "_sigma")
+        assert np.all(np.abs(getattr(thinned, name) - getattr(whole, name)) < 0.05 * sigma)
