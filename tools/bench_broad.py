@@ -116,6 +116,8 @@ CANDIDATES = {  # name: (FilterConfig changes, hard-iron tracker on, noise from 
     "- inertial low-pass": ({"accel_time_constant_s": 0.01}, True, False),
     "- gyro scale-error noise": ({"gyro_scale_error": 1e-9}, True, False),
     "second-order inertial low-pass": ({"accel_lowpass_order": 2}, True, False),  # issue 22's turn analysis
+    "field update: no tilt": ({"field_update": "no-tilt"}, True, False),  # issue 22: the field never moves the tilt
+    "field update: heading only": ({"field_update": "heading"}, True, False),  # ... nor the horizontal gyro bias
     "noise from rest": ({}, True, True),
     "mag_latency_s 0.014": ({"mag_latency_s": 0.014}, True, False),  # calibrate.realdata's loop, on 01 and 02
     "accel_time_constant_s 1": ({"accel_time_constant_s": 1.0}, True, False),
@@ -177,7 +179,7 @@ def loo_choice(results, trial, candidates):
 
 # ---------------------------------------------------------------- simulated boards
 
-SIM_CANDIDATES = ("defaults", "second-order inertial low-pass")
+SIM_CANDIDATES = ("defaults", "second-order inertial low-pass", "field update: no tilt", "field update: heading only")
 
 
 class _Simulated:

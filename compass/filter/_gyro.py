@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 from scipy.special import chdtri  # chi2.ppf(q, k) == chdtri(k, 1 - q), without importing scipy.stats (a second of start-up)
 
 from ._base import _P0_ATTITUDE, AttitudeFilter, exp_matrix, mat_mul
-from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_tilt
+from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_heading, update_tilt
 from ._gate import GateState
 from ._place import PLACE_EVENT, PlaceDetector, PlaceState
 from ._records import _REST_RATE_SIGMA, _REST_TAU_S, Diagnostics, SkipCounts
@@ -123,6 +123,9 @@ class GyroFilter(AttitudeFilter):
         self._second_order = self.config.accel_lowpass_order == 2
         self._lp2_dt, self._lp2 = None, None  # the second-order low-pass's step and its coefficients
         self._place = PlaceDetector(self.config) if self.config.follow_place and self.config.gate else None
+        # a decoupled field update injects its heading apart: one exponential of (eps_x, eps_y, eps_z) would
+        # tilt by a second-order term eps_z * eps_tilt / 2
+        self._split_injection = self.config.field_update != "kalman"
 
     @property
     def at_rest(self) -> bool:
@@ -340,7 +343,11 @@ class GyroFilter(AttitudeFilter):
             var = c.yaw_var + c.tan_dip2 * (p[0] + p[6]) / 2.0
             if dt > 0.0:
                 var += self.gate.field_heading_var(s.gate) * 2.0 * self.config.field_error_time_s / dt
-            s.covariance = update_axis(p, self._x, 2, innovation, var)
+            mode = self.config.field_update
+            if mode == "kalman":
+                s.covariance = update_axis(p, self._x, 2, innovation, var)
+            else:
+                s.covariance = update_heading(p, self._x, innovation, var, (m[6], m[7], m[8]) if mode == "heading" else None)
 
     def _follow_place(self, dt: float, b) -> None:
         """The place detector's window; a new place's field becomes the reference (:mod:`compass.filter._place`)."""
@@ -384,7 +391,12 @@ class GyroFilter(AttitudeFilter):
         """Fold the error state into the nominal attitude and bias, reset it to zero."""
         s, x = self._s, self._x
         e0, e1, e2, d0, d1, d2 = x
-        if e0 or e1 or e2:
+        if self._split_injection:  # the tilt's turn, then the heading's about the world vertical (which keeps the tilt)
+            if e0 or e1:
+                s.matrix = mat_mul(exp_matrix(e0, e1, 0.0), s.matrix)
+            if e2:
+                s.matrix = mat_mul(exp_matrix(0.0, 0.0, e2), s.matrix)
+        elif e0 or e1 or e2:
             s.matrix = mat_mul(exp_matrix(e0, e1, e2), s.matrix)
         if d0 or d1 or d2:
             bx, by, bz = s.bias_rad_s

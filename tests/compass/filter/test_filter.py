@@ -405,3 +405,71 @@ def test_inertial_low_pass_gain_and_mean_age(order):
 def test_low_pass_order_validated():
     with pytest.raises(ValueError, match="accel_lowpass_order must be 1 or 2"):
         FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.1, accel_lowpass_order=3)
+
+
+@pytest.mark.parametrize("up", [False, True])
+def test_decoupled_heading_update_is_the_joseph_form_of_its_gain(up):
+    """update_heading: the Schmidt gain (zero on the tilt; with ``up_h`` the bias only along it) and the Joseph
+    covariance of that gain, computed here with numpy; the considered block is left exactly as it was."""
+    from compass.filter._kalman import update_heading
+
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        p, x = random_covariance(rng), list(rng.normal(size=6))
+        u = rng.normal(size=3)
+        u /= np.linalg.norm(u)
+        h = np.eye(6)[2]
+        gain = p @ h / (p[2, 2] + 0.2)
+        gain[:2] = 0.0
+        if up:
+            gain[3:] = u * (u @ gain[3:])
+        a = np.eye(6) - np.outer(gain, h)
+        expected_p = a @ p @ a.T + 0.2 * np.outer(gain, gain)
+        expected_x = np.array(x) + gain * (0.3 - x[2])
+        new = unpack(update_heading(pack(p), x, 0.3, 0.2, tuple(u) if up else None))
+        np.testing.assert_allclose(new, expected_p, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(x, expected_x, rtol=1e-12)
+        assert np.all(new[:2, :2] == p[:2, :2])  # the tilt's own block is untouched
+        assert np.linalg.eigvalsh(new).min() > 0.0
+        assert new[2, 2] < p[2, 2]  # the heading did learn
+
+
+@pytest.mark.parametrize("mode", ["kalman", "no-tilt", "heading"])
+def test_a_disturbed_field_moves_the_tilt_only_under_the_kalman_update(model, mode):
+    """After motion has built the covariance's cross terms, one sample with a field turned 8 deg and 5 % strong
+    (the gate off: it is used) against the same sample without a field: the decoupled updates leave the tilt
+    (the world's up in H) and the bias across the vertical to 1e-12; the full Kalman gain moves them."""
+    t, acc, gyr, field = _samples(model, seconds=8.0)
+    cfg = dataclasses.replace(FilterConfig.from_model(model), gate=False, field_update=mode)
+    f = AttitudeFilter(cfg, gyro=True)
+    for row in zip(t[:-1], acc[:-1], gyr[:-1], field[:-1]):
+        f.update(*row)
+    assert abs(f.state.covariance_matrix[0, 2]) + abs(f.state.covariance_matrix[1, 2]) > 1e-9  # cross terms exist
+    saved = f.state
+    disturbed = 1.05 * Rotation.from_rotvec([0.0, np.radians(8.0), 0.0]).apply(field[-1])
+    f.update(t[-1], acc[-1], gyr[-1], disturbed)
+    assert f.diagnostics.mag_used
+    used, used_state = np.reshape(f.matrix, (3, 3)), f.state
+    f.state = saved
+    f.update(t[-1], acc[-1], gyr[-1], None)
+    without, without_state = np.reshape(f.matrix, (3, 3)), f.state
+    f.state = saved
+    f.update(t[-1], None, gyr[-1], None)
+    up = np.reshape(f.matrix, (3, 3))[2]  # the world's up in H where the update ran: propagated, before the tilt update
+    tilt_moved = np.abs(used[2] - without[2]).max()
+    bias_change = np.subtract(used_state.bias_rad_s, without_state.bias_rad_s)
+    across = np.linalg.norm(bias_change - up * (up @ bias_change))
+    if mode == "kalman":
+        assert tilt_moved > 1e-9 and across > 1e-12
+    else:
+        assert tilt_moved < 1e-12
+        assert np.abs(used[:2] - without[:2]).max() > 1e-6  # the heading did move
+        if mode == "heading":
+            assert across < 1e-16 and np.linalg.norm(bias_change) > 1e-9  # the vertical component did learn
+    p = used_state.covariance_matrix
+    assert np.all(p == p.T) and np.linalg.eigvalsh(p).min() > 0.0
+
+
+def test_field_update_validated():
+    with pytest.raises(ValueError, match="field_update must be one of kalman, no-tilt, heading"):
+        FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.1, field_update="decoupled")
