@@ -118,6 +118,7 @@ CANDIDATES = {  # name: (FilterConfig changes, hard-iron tracker on, noise from 
     "second-order inertial low-pass": ({"accel_lowpass_order": 2}, True, False),  # issue 22's turn analysis
     "field update: no tilt": ({"field_update": "no-tilt"}, True, False),  # issue 22: the field never moves the tilt
     "field update: heading only": ({"field_update": "heading"}, True, False),  # ... nor the horizontal gyro bias
+    "field update: heading, tilt modelled": ({"field_update": "heading-tilt"}, True, False),  # ... tilt in its model
     "noise from rest": ({}, True, True),
     "mag_latency_s 0.014": ({"mag_latency_s": 0.014}, True, False),  # calibrate.realdata's loop, on 01 and 02
     "accel_time_constant_s 1": ({"accel_time_constant_s": 1.0}, True, False),
@@ -179,7 +180,7 @@ def loo_choice(results, trial, candidates):
 
 # ---------------------------------------------------------------- simulated boards
 
-SIM_CANDIDATES = ("defaults", "second-order inertial low-pass", "field update: no tilt", "field update: heading only")
+SIM_CANDIDATES = ("defaults", "second-order inertial low-pass", "field update: heading, tilt modelled")
 
 
 class _Simulated:
@@ -237,12 +238,13 @@ def simulated(methods, seeds) -> dict:
     return out
 
 
-def simulated_section(available, peer_names, seeds: int) -> None:
-    """Print the simulated boards: VQF (when installed) beside :data:`SIM_CANDIDATES`."""
-    methods = {k: available[k] for k in peer_names[:1] + [c for c in SIM_CANDIDATES if c in available]}
-    print(f"\nsimulated motions (compass.sim.motion, every kind, 60 s, {seeds} seeds, two boards): "
-          "heading RMS / inclination RMS, deg")
-    sim = simulated(methods, range(seeds))
+def simulated_section(available, peer_names, seeds: int, first_seed: int = 0, named=()) -> None:
+    """Print the simulated boards: VQF (when installed) beside the candidates ``named`` (``--candidates``),
+    else :data:`SIM_CANDIDATES`; seeds ``first_seed`` to ``first_seed + seeds - 1``."""
+    methods = {k: available[k] for k in peer_names[:1] + [c for c in named or SIM_CANDIDATES if c in available]}
+    print(f"\nsimulated motions (compass.sim.motion, every kind, 60 s, seeds {first_seed}-{first_seed + seeds - 1}, "
+          "two boards): heading RMS / inclination RMS, deg")
+    sim = simulated(methods, range(first_seed, first_seed + seeds))
     _table("simulated groups (mean over the kinds)",
            {b: {m: tuple(np.mean([sim[b][k][m] for k in sim[b]], axis=0)) for m in methods} for b in sim}, list(methods))
 
@@ -461,6 +463,8 @@ def main(argv=None) -> int:
                              f"also {', '.join(TURN_VARIANTS)}")
     parser.add_argument("--sim-only", action="store_true", help="only the simulated boards (no BROAD trial)")
     parser.add_argument("--sim-seeds", type=int, default=2, help="seeds per kind of simulated motion (0: no simulation)")
+    parser.add_argument("--sim-first-seed", type=int, default=0,
+                        help="the first simulated seed (judge a change on seeds it was not developed on)")
     args = parser.parse_args(argv)
 
     peers = {"vqf": vqf_online, "vqf offline": vqf_offline, "fusion": fusion, "madgwick": madgwick}
@@ -477,6 +481,7 @@ def main(argv=None) -> int:
     if unknown or "defaults" not in chosen:
         parser.error(f"--candidates: unknown {unknown}" if unknown else "--candidates must include defaults")
     candidates = {name: ours(*(CANDIDATES | TURN_VARIANTS)[name]) for name in chosen}
+    named = chosen if args.candidates else ()
     available |= candidates
     if args.cal:
         available["ours + cal"] = ours(model=load_calibration(args.cal).model)
@@ -494,7 +499,7 @@ def main(argv=None) -> int:
             return 1
 
     if args.sim_only:
-        simulated_section(available, peer_names, max(args.sim_seeds, 1))
+        simulated_section(available, peer_names, max(args.sim_seeds, 1), args.sim_first_seed, named)
         return 0
 
     files = sorted(Path(args.data).glob("*.mat"))
@@ -557,7 +562,7 @@ def main(argv=None) -> int:
     _ablation(results, list(candidates), groups | {"all": list(results)})
 
     if args.sim_seeds > 0:
-        simulated_section(available, peer_names, args.sim_seeds)
+        simulated_section(available, peer_names, args.sim_seeds, args.sim_first_seed, named)
 
     if not args.no_timing:
         first = trials.get("01_undisturbed_slow_rotation_A", next(iter(trials.values())))

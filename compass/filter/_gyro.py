@@ -30,6 +30,21 @@ _NORTH = {(True, True): " (North moves with it)", (False, True): " (within the h
 _ORTHONORMALISE_EVERY = 1000  # samples between re-orthonormalisations of the nominal matrix
 
 
+def heading_innovation(m: tuple, bx: float, by: float, bz: float, azimuth_rad: float = 0.0) -> float:
+    """The field's heading innovation, rad: the azimuth (toward West) of the field ``(bx, by, bz)`` (in H) put
+    into the world by ``m`` (``R_world<-housing``, row-major), less the reference's ``azimuth_rad``, negated
+    (the heading error ``eps_z`` it measures), in (-pi, pi].
+
+    To first order in the attitude error ``eps`` (``R_true = Exp(eps) R``) it is
+    ``eps_z + tan(dip) (cos(a) eps_x + sin(a) eps_y)`` (``a = azimuth_rad``): a tilt about the field's
+    horizontal direction turns its vertical part into the horizontal (``FilterConfig.field_update``).
+    """
+    innovation = -math.atan2(m[3] * bx + m[4] * by + m[5] * bz, m[0] * bx + m[1] * by + m[2] * bz)
+    if azimuth_rad:
+        innovation = (innovation + azimuth_rad + math.pi) % (2.0 * math.pi) - math.pi
+    return innovation
+
+
 @dataclass(slots=True)
 class GyroState(PackedCovariance):
     """Everything the gyro filter carries from one sample to the next (readable, settable, resettable).
@@ -333,21 +348,25 @@ class GyroFilter(AttitudeFilter):
             b = (bx, by, bz, b2)
         if self._place is not None and dt > 0.0:
             self._follow_place(dt, b)
-        innovation = -math.atan2(m[3] * bx + m[4] * by + m[5] * bz, m[0] * bx + m[1] * by + m[2] * bz)
-        azimuth = s.gate.ref_azimuth_rad
-        if azimuth:
-            innovation = (innovation + azimuth + math.pi) % (2.0 * math.pi) - math.pi
+        innovation = heading_innovation(m, bx, by, bz, s.gate.ref_azimuth_rad)
         d.mag_used = self._gate_field(t_s, dt, b, innovation) == "ok"
         if d.mag_used:
             p = s.covariance
-            var = c.yaw_var + c.tan_dip2 * (p[0] + p[6]) / 2.0
+            mode = self.config.field_update
+            # the tilt's share of the measured azimuth: white noise in var, or (heading-tilt) in the model
+            tilt_in_model = mode == "heading-tilt"
+            var = c.yaw_var if tilt_in_model else c.yaw_var + c.tan_dip2 * (p[0] + p[6]) / 2.0
             if dt > 0.0:
                 var += self.gate.field_heading_var(s.gate) * 2.0 * self.config.field_error_time_s / dt
-            mode = self.config.field_update
             if mode == "kalman":
                 s.covariance = update_axis(p, self._x, 2, innovation, var)
-            else:
-                s.covariance = update_heading(p, self._x, innovation, var, (m[6], m[7], m[8]) if mode == "heading" else None)
+                return
+            tilt = (0.0, 0.0)
+            if tilt_in_model:  # the azimuth moves by tan(dip) times the tilt about the field's horizontal direction
+                t, azimuth = math.tan(math.radians(s.gate.ref_dip_deg)), s.gate.ref_azimuth_rad
+                tilt = (t * math.cos(azimuth), t * math.sin(azimuth))
+            s.covariance = update_heading(p, self._x, innovation, var, None if mode == "no-tilt" else (m[6], m[7], m[8]),
+                                          tilt)
 
     def _follow_place(self, dt: float, b) -> None:
         """The place detector's window; a new place's field becomes the reference (:mod:`compass.filter._place`)."""

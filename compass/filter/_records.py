@@ -18,7 +18,7 @@ _REST_TAU_S = 0.5  # low-pass of VQF's rest detector, s
 _REST_RATE_SIGMA = 1e-3  # residual true rate "at rest" (tremor, Earth's rotation), rad/s
 
 
-FIELD_UPDATES = ("kalman", "no-tilt", "heading")
+FIELD_UPDATES = ("kalman", "no-tilt", "heading", "heading-tilt")
 """``FilterConfig.field_update``'s values."""
 
 
@@ -131,7 +131,11 @@ class FilterConfig:
         gain reaches through the covariance's cross terms (the tilt and the whole gyro bias: the
         optimal update when the field is what the model says); ``"no-tilt"`` the heading and the bias,
         never the tilt; ``"heading"`` the heading and the bias along the world vertical only, as VQF's
-        magnetometer never touches the inclination (both Schmidt updates: :func:`compass.filter._kalman.update_heading`).
+        magnetometer never touches the inclination (both Schmidt updates: :func:`compass.filter._kalman.update_heading`);
+        ``"heading-tilt"`` as ``"heading"``, with the tilt's share of the measured azimuth (``tan(dip)``
+        times the tilt about the field's horizontal direction) in the measurement model instead of
+        white noise: the heading it teaches keeps its correlation with the tilt's error, and a later
+        tilt correction carries the heading along.
     start_bias_hold : bool
         The gyro filter holds its bias (does not estimate it from the tilt: a Schmidt update) for
         ``accel_time_constant_s`` after the start, while the inertial low-pass still carries its start

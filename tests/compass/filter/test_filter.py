@@ -407,10 +407,11 @@ def test_low_pass_order_validated():
         FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.1, accel_lowpass_order=3)
 
 
-@pytest.mark.parametrize("up", [False, True])
-def test_decoupled_heading_update_is_the_joseph_form_of_its_gain(up):
-    """update_heading: the Schmidt gain (zero on the tilt; with ``up_h`` the bias only along it) and the Joseph
-    covariance of that gain, computed here with numpy; the considered block is left exactly as it was."""
+@pytest.mark.parametrize("up, tilt", [(False, (0.0, 0.0)), (True, (0.0, 0.0)), (True, (1.2, -0.9))])
+def test_decoupled_heading_update_is_the_joseph_form_of_its_gain(up, tilt):
+    """update_heading: the Schmidt gain (zero on the tilt; with ``up_h`` the bias only along it) for the row
+    ``h = (tilt, 1, 0, 0, 0)`` and the Joseph covariance of that gain, computed here with numpy; the considered
+    block is left exactly as it was."""
     from compass.filter._kalman import update_heading
 
     rng = np.random.default_rng(5)
@@ -418,15 +419,15 @@ def test_decoupled_heading_update_is_the_joseph_form_of_its_gain(up):
         p, x = random_covariance(rng), list(rng.normal(size=6))
         u = rng.normal(size=3)
         u /= np.linalg.norm(u)
-        h = np.eye(6)[2]
-        gain = p @ h / (p[2, 2] + 0.2)
+        h = np.r_[tilt, 1.0, 0.0, 0.0, 0.0]
+        gain = p @ h / (h @ p @ h + 0.2)
         gain[:2] = 0.0
         if up:
             gain[3:] = u * (u @ gain[3:])
         a = np.eye(6) - np.outer(gain, h)
         expected_p = a @ p @ a.T + 0.2 * np.outer(gain, gain)
-        expected_x = np.array(x) + gain * (0.3 - x[2])
-        new = unpack(update_heading(pack(p), x, 0.3, 0.2, tuple(u) if up else None))
+        expected_x = np.array(x) + gain * (0.3 - h @ x)
+        new = unpack(update_heading(pack(p), x, 0.3, 0.2, tuple(u) if up else None, tilt))
         np.testing.assert_allclose(new, expected_p, rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(x, expected_x, rtol=1e-12)
         assert np.all(new[:2, :2] == p[:2, :2])  # the tilt's own block is untouched
@@ -434,7 +435,7 @@ def test_decoupled_heading_update_is_the_joseph_form_of_its_gain(up):
         assert new[2, 2] < p[2, 2]  # the heading did learn
 
 
-@pytest.mark.parametrize("mode", ["kalman", "no-tilt", "heading"])
+@pytest.mark.parametrize("mode", ["kalman", "no-tilt", "heading", "heading-tilt"])
 def test_a_disturbed_field_moves_the_tilt_only_under_the_kalman_update(model, mode):
     """After motion has built the covariance's cross terms, one sample with a field turned 8 deg and 5 % strong
     (the gate off: it is used) against the same sample without a field: the decoupled updates leave the tilt
@@ -464,12 +465,28 @@ def test_a_disturbed_field_moves_the_tilt_only_under_the_kalman_update(model, mo
     else:
         assert tilt_moved < 1e-12
         assert np.abs(used[:2] - without[:2]).max() > 1e-6  # the heading did move
-        if mode == "heading":
+        if mode != "no-tilt":
             assert across < 1e-16 and np.linalg.norm(bias_change) > 1e-9  # the vertical component did learn
     p = used_state.covariance_matrix
     assert np.all(p == p.T) and np.linalg.eigvalsh(p).min() > 0.0
 
 
 def test_field_update_validated():
-    with pytest.raises(ValueError, match="field_update must be one of kalman, no-tilt, heading"):
+    with pytest.raises(ValueError, match="field_update must be one of kalman, no-tilt, heading, heading-tilt"):
         FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.1, field_update="decoupled")
+
+
+@pytest.mark.parametrize("azimuth", [0.0, 0.7, -2.5])
+def test_heading_innovation_moves_with_the_tilt_as_the_heading_tilt_model_says(azimuth):
+    """The innovation's Jacobian in the attitude error (finite differences, R_true = Exp(eps) R) is the
+    heading-tilt measurement row (tan(dip) cos a, tan(dip) sin a, 1)."""
+    from compass.filter._gyro import heading_innovation
+
+    dip = np.radians(60.0)
+    world = 50.0 * np.array([np.cos(dip) * np.cos(azimuth), np.cos(dip) * np.sin(azimuth), -np.sin(dip)])
+    truth = Rotation.from_euler("ZYX", [30.0, 10.0, -20.0], degrees=True).as_matrix()
+    b = truth.T @ world
+    step = 1e-6
+    row = [heading_innovation(tuple((Rotation.from_rotvec(-step * e).as_matrix() @ truth).ravel()), *b, azimuth) / step
+           for e in np.eye(3)]
+    np.testing.assert_allclose(row, [np.tan(dip) * np.cos(azimuth), np.tan(dip) * np.sin(azimuth), 1.0], atol=1e-5)
