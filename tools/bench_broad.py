@@ -118,7 +118,7 @@ CANDIDATES = {  # name: (FilterConfig changes, hard-iron tracker on, noise from 
     "second-order inertial low-pass": ({"accel_lowpass_order": 2}, True, False),  # issue 22's turn analysis
     "field update: no tilt": ({"field_update": "no-tilt"}, True, False),  # issue 22: the field never moves the tilt
     "field update: heading only": ({"field_update": "heading"}, True, False),  # ... nor the horizontal gyro bias
-    "field update: heading, tilt modelled": ({"field_update": "heading-tilt"}, True, False),  # ... tilt in its model
+    "field update: heading and tilt model": ({"field_update": "heading-tilt"}, True, False),  # ... tilt in its model
     "noise from rest": ({}, True, True),
     "mag_latency_s 0.014": ({"mag_latency_s": 0.014}, True, False),  # calibrate.realdata's loop, on 01 and 02
     "accel_time_constant_s 1": ({"accel_time_constant_s": 1.0}, True, False),
@@ -180,7 +180,7 @@ def loo_choice(results, trial, candidates):
 
 # ---------------------------------------------------------------- simulated boards
 
-SIM_CANDIDATES = ("defaults", "second-order inertial low-pass", "field update: heading, tilt modelled")
+SIM_CANDIDATES = ("defaults", "second-order inertial low-pass", "field update: heading and tilt model")
 
 
 class _Simulated:
