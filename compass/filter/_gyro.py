@@ -71,6 +71,9 @@ class GyroState(PackedCovariance):
     acc_lp_rate : tuple of 3 floats
         The second-order low-pass's other state: its output's rate of change in the inertial frame, seen
         in H, accelerometer units per second (zero for the first-order one).
+    acc_residual : tuple of 3 floats
+        The motion the low-pass leaves (specific force less the low-pass) low-passed at the motion's time scale
+        (``FilterConfig.residual_in_band``), accelerometer units.
     age_lp : tuple of 2 floats
         The same low-pass run on the time since the start (its output and rate): the content's mean age is
         the time since the start less its output.
@@ -119,6 +122,7 @@ class GyroState(PackedCovariance):
     place: PlaceState = field(default_factory=PlaceState)
     acc_lp_rate: tuple = (0.0, 0.0, 0.0)
     age_lp: tuple = (0.0, 0.0)
+    acc_residual: tuple = (0.0, 0.0, 0.0)
 
 
 class GyroFilter(AttitudeFilter):
@@ -196,14 +200,14 @@ class GyroFilter(AttitudeFilter):
         self._x[:] = [0.0] * 6
         s.acc_lp, s.acc_lp_rate, s.age_lp = a[:3], (0.0, 0.0, 0.0), (0.0, 0.0)
         s.acc_lp_age_s = 0.0
-        s.residual_var = 0.0
+        s.residual_var, s.acc_residual = 0.0, (0.0, 0.0, 0.0)
         s.rest_gyro, s.rest_acc, s.rest_s = s.rate_rad_s, a[:3], 0.0
         s.since_start_s = 0.0
 
     def _restart_accel(self, a) -> None:
         s = self._s
         if s.acc_lp is not None:
-            s.acc_lp, s.acc_lp_age_s, s.residual_var = a[:3], 0.0, 0.0
+            s.acc_lp, s.acc_lp_age_s, s.residual_var, s.acc_residual = a[:3], 0.0, 0.0, (0.0, 0.0, 0.0)
             s.acc_lp_rate, s.age_lp = (0.0, 0.0, 0.0), (s.since_start_s, 0.0)  # the low-pass content is new: age 0
         s.rest_acc, s.rest_s = a[:3], 0.0
 
@@ -283,7 +287,14 @@ class GyroFilter(AttitudeFilter):
                 s.acc_lp = (lx, ly, lz)
                 s.acc_lp_age_s = (1.0 - alpha) * (s.acc_lp_age_s + dt)
             lp_norm = math.sqrt(lx * lx + ly * ly + lz * lz)
-            raw2 = (ax - lx) ** 2 + (ay - ly) ** 2 + (az - lz) ** 2
+            if cfg.residual_in_band:  # only what varies on the motion's time scale: a vibration or a tap is not left
+                beta = -math.expm1(-dt * 2.0 * math.pi / cfg.motion_time_s)
+                rx, ry, rz = s.acc_residual
+                rx, ry, rz = rx + beta * (ax - lx - rx), ry + beta * (ay - ly - ry), rz + beta * (az - lz - rz)
+                s.acc_residual = (rx, ry, rz)
+                raw2 = rx * rx + ry * ry + rz * rz
+            else:
+                raw2 = (ax - lx) ** 2 + (ay - ly) ** 2 + (az - lz) ** 2
             residual = (lp_norm / g - 1.0) ** 2 + raw2 / (g * g) * c.attenuation2
             s.residual_var += -math.expm1(-dt / cfg.motion_time_s) * (residual - s.residual_var)
         else:

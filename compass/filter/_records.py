@@ -126,6 +126,12 @@ class FilterConfig:
         azimuth (:mod:`compass.filter._place`); said as an event.
     place_window_s : float
         The window over which a new place's field is told from a magnet on the housing, seconds.
+    residual_in_band : bool
+        The motion-adaptive tilt noise counts only the part of the raw motion ``f - LP f`` that varies on the
+        motion's time scale (low-passed with time constant ``motion_time_s / 2 pi`` before it is attenuated
+        and squared; issue 22): a 25 Hz vibration or a 2 ms tap, which the inertial low-pass removes almost
+        entirely, no longer makes the filter distrust the accelerometer for ``motion_time_s`` (False: the raw
+        motion, as before).
     field_update : str
         What the gyro filter's field (heading) update may move (issue 22): ``"kalman"`` every state its
         gain reaches through the covariance's cross terms (the tilt and the whole gyro bias: the
@@ -178,6 +184,7 @@ class FilterConfig:
     start_bias_hold: bool = True
     follow_place: bool = True
     place_window_s: float = 4.0
+    residual_in_band: bool = False
     field_update: str = "kalman"
 
     def __post_init__(self):
