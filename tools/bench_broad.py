@@ -4,7 +4,8 @@ Run: ``python tools/bench_broad.py [DATA_DIR] [--quick] [--trials 01,32] [--cal 
 data: ``../shared/data/broad``; ``--quick``: five trials, one per kind of motion).  Issue 22:
 ``--candidates A,B`` runs only those candidates (and the turn variants, printed per trial, never chosen);
 the simulated boards (``compass.sim.motion``, a BROAD-like and a low-cost IMU) follow the BROAD tables
-(``--sim-seeds N``, 0 for none; ``--sim-only``); ``--diagnose`` prints the inclination by turn rate of the
+(``--sim-seeds N``, 0 for none; ``--sim-first-seed K``: seeds K to K + N - 1, to judge a change on seeds
+it was not developed on; ``--sim-only``; with ``--candidates``, the named candidates); ``--diagnose`` prints the inclination by turn rate of the
 filter, of its inertial low-pass's direction and of VQF, and the one start's parts switched back.  Peers are benchmark
 extras (``pip install -e '.[bench]'``), never runtime dependencies; a peer that is not installed is
 reported and skipped.
