@@ -4,7 +4,8 @@ Run: ``python tools/bench_broad.py [DATA_DIR] [--quick] [--trials 01,32] [--cal 
 data: ``../shared/data/broad``; ``--quick``: five trials, one per kind of motion).  Issue 22:
 ``--candidates A,B`` runs only those candidates (and the turn variants, printed per trial, never chosen);
 the simulated boards (``compass.sim.motion``, a BROAD-like and a low-cost IMU) follow the BROAD tables
-(``--sim-seeds N``, 0 for none; ``--sim-only``); the candidate ``mag_latency_s fitted`` takes the latency from a
+(``--sim-seeds N``, 0 for none; ``--sim-first-seed K``: seeds K to K + N - 1, to judge a change on seeds
+it was not developed on; ``--sim-only``; with ``--candidates``, the named candidates); the candidate ``mag_latency_s fitted`` takes the latency from a
 tumble calibration file of another recording (BROAD: :data:`CAL_TRIALS`' motion phases, the trial scored never its
 own; a simulated board: its own fast rotation at another seed), never from the truth; ``--latency-check`` runs the
 compensation on motions whose only error is the latency; ``--diagnose`` prints the inclination by turn rate of the
@@ -119,6 +120,10 @@ CANDIDATES = {  # name: (FilterConfig changes, hard-iron tracker on, noise from 
     "- inertial low-pass": ({"accel_time_constant_s": 0.01}, True, False),
     "- gyro scale-error noise": ({"gyro_scale_error": 1e-9}, True, False),
     "second-order inertial low-pass": ({"accel_lowpass_order": 2}, True, False),  # issue 22's turn analysis
+    "field update: no tilt": ({"field_update": "no-tilt"}, True, False),  # issue 22: the field never moves the tilt
+    "field update: heading only": ({"field_update": "heading"}, True, False),  # ... nor the horizontal gyro bias
+    "field update: heading and tilt model": ({"field_update": "heading-tilt"}, True, False),  # ... tilt in its model
+    "motion residual in band": ({"residual_in_band": True}, True, False),  # issue 22: vibration and taps
     "noise from rest": ({}, True, True),
     "mag_latency_s 0.014": ({"mag_latency_s": 0.014}, True, False),  # calibrate.realdata's loop, on 01 and 02
     "mag_latency_s fitted": ({"mag_latency_s": "fitted"}, True, False),  # issue 22: another recording's tumble file
@@ -261,7 +266,8 @@ def latency_check(seeds) -> None:
 
 # ---------------------------------------------------------------- simulated boards
 
-SIM_CANDIDATES = ("defaults", "second-order inertial low-pass", "mag_latency_s fitted")
+SIM_CANDIDATES = ("defaults", "second-order inertial low-pass", "mag_latency_s fitted",
+                  "field update: heading and tilt model")
 
 
 class _Simulated:
@@ -329,12 +335,13 @@ def simulated(methods, seeds) -> dict:
     return out
 
 
-def simulated_section(available, peer_names, seeds: int) -> None:
-    """Print the simulated boards: VQF (when installed) beside :data:`SIM_CANDIDATES`."""
-    methods = {k: available[k] for k in peer_names[:1] + [c for c in SIM_CANDIDATES if c in available]}
-    print(f"\nsimulated motions (compass.sim.motion, every kind, 60 s, {seeds} seeds, two boards): "
-          "heading RMS / inclination RMS, deg")
-    sim = simulated(methods, range(seeds))
+def simulated_section(available, peer_names, seeds: int, first_seed: int = 0, named=()) -> None:
+    """Print the simulated boards: VQF (when installed) beside the candidates ``named`` (``--candidates``),
+    else :data:`SIM_CANDIDATES`; seeds ``first_seed`` to ``first_seed + seeds - 1``."""
+    methods = {k: available[k] for k in peer_names[:1] + [c for c in named or SIM_CANDIDATES if c in available]}
+    print(f"\nsimulated motions (compass.sim.motion, every kind, 60 s, seeds {first_seed}-{first_seed + seeds - 1}, "
+          "two boards): heading RMS / inclination RMS, deg")
+    sim = simulated(methods, range(first_seed, first_seed + seeds))
     _table("simulated groups (mean over the kinds)",
            {b: {m: tuple(np.mean([sim[b][k][m] for k in sim[b]], axis=0)) for m in methods} for b in sim}, list(methods))
 
@@ -555,6 +562,8 @@ def main(argv=None) -> int:
     parser.add_argument("--sim-seeds", type=int, default=2, help="seeds per kind of simulated motion (0: no simulation)")
     parser.add_argument("--latency-check", action="store_true",
                         help="only the simulated motions with a late magnetometer alone, compensated or not")
+    parser.add_argument("--sim-first-seed", type=int, default=0,
+                        help="the first simulated seed (judge a change on seeds it was not developed on)")
     args = parser.parse_args(argv)
 
     peers = {"vqf": vqf_online, "vqf offline": vqf_offline, "fusion": fusion, "madgwick": madgwick}
@@ -571,6 +580,7 @@ def main(argv=None) -> int:
     if unknown or "defaults" not in chosen:
         parser.error(f"--candidates: unknown {unknown}" if unknown else "--candidates must include defaults")
     candidates = {name: ours(*(CANDIDATES | TURN_VARIANTS)[name]) for name in chosen}
+    named = chosen if args.candidates else ()
     available |= candidates
     if args.cal:
         available["ours + cal"] = ours(model=load_calibration(args.cal).model)
@@ -591,7 +601,7 @@ def main(argv=None) -> int:
         latency_check(range(max(args.sim_seeds, 1)))
         return 0
     if args.sim_only:
-        simulated_section(available, peer_names, max(args.sim_seeds, 1))
+        simulated_section(available, peer_names, max(args.sim_seeds, 1), args.sim_first_seed, named)
         return 0
 
     files = sorted(Path(args.data).glob("*.mat"))
@@ -656,7 +666,7 @@ def main(argv=None) -> int:
     _ablation(results, list(candidates), groups | {"all": list(results)})
 
     if args.sim_seeds > 0:
-        simulated_section(available, peer_names, args.sim_seeds)
+        simulated_section(available, peer_names, args.sim_seeds, args.sim_first_seed, named)
 
     if not args.no_timing:
         first = trials.get("01_undisturbed_slow_rotation_A", next(iter(trials.values())))

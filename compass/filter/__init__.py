@@ -46,11 +46,18 @@ low-pass a Butterworth with the same mean age (VQF's kind), which leaves ``omega
 displacement instead of the velocity over tau: better in fast turns, worse in translation and in
 heading on BROAD, so not the default (docs/benchmarks.md, inclination in turns).
 
-Magnetometer: it corrects heading only (as VQF and x-io Fusion do; a disturbed field cannot tilt
-the estimate): ``psi_meas = eps_z + n_psi``, ``psi_meas`` minus the azimuth (toward West) of the
-field rotated into the world by the estimate, with the sensor noise, the tilt error seen through
-``tan(dip)`` and the environment's heading error (field inhomogeneity, calibration residue,
-latency; correlated over ``field_error_time_s``) in ``var n_psi``.  The gyro filter measures that heading error
+Magnetometer: its measurement row is the heading (as VQF's and x-io Fusion's): ``psi_meas = eps_z +
+n_psi``, ``psi_meas`` minus the azimuth (toward West) of the field rotated into the world by the
+estimate, with the sensor noise, the tilt error seen through ``tan(dip)`` and the environment's
+heading error (field inhomogeneity, calibration residue, latency; correlated over
+``field_error_time_s``) in ``var n_psi``.  Its Kalman gain still reaches the tilt and the gyro bias
+through the covariance's cross terms (built by propagation: the bias error turns the attitude by
+``-R db dt``, and the tilt and heading updates learn different world components of the bias), so a
+disturbed field the gate lets in could tilt the estimate a little; ``FilterConfig.field_update``
+"heading" makes it a Schmidt (consider) update that moves only the heading and the bias along the
+vertical, as VQF's magnetometer never touches the inclination, and "heading-tilt" also puts the
+tilt's ``tan(dip)`` share of the azimuth into the row instead of the noise (issue 22: neither moves
+BROAD's inclination; docs/benchmarks.md, the field's update and the tilt).  The gyro filter measures that heading error
 as it runs: an error that turns the field's direction by ``delta`` moves its dip by the component in
 the vertical plane and its azimuth by the horizontal one over ``cos(dip)``; for an error with no
 preferred direction the two components have one variance, so

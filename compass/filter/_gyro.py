@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 from scipy.special import chdtri  # chi2.ppf(q, k) == chdtri(k, 1 - q), without importing scipy.stats (a second of start-up)
 
 from ._base import _P0_ATTITUDE, AttitudeFilter, exp_matrix, mat_mul
-from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_tilt
+from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_heading, update_tilt
 from ._gate import GateState
 from ._place import PLACE_EVENT, PlaceDetector, PlaceState
 from ._records import _REST_RATE_SIGMA, _REST_TAU_S, Diagnostics, SkipCounts
@@ -28,6 +28,21 @@ _TURN_BOUND = float(chdtri(1, 0.001))  # a new place's North turned beyond its h
 _NORTH = {(True, True): " (North moves with it)", (False, True): " (within the heading error: North kept)",
           (False, False): " (North re-learnt from it: the last one was adopted on a timeout)"}
 _ORTHONORMALISE_EVERY = 1000  # samples between re-orthonormalisations of the nominal matrix
+
+
+def heading_innovation(m: tuple, bx: float, by: float, bz: float, azimuth_rad: float = 0.0) -> float:
+    """The field's heading innovation, rad: the azimuth (toward West) of the field ``(bx, by, bz)`` (in H) put
+    into the world by ``m`` (``R_world<-housing``, row-major), less the reference's ``azimuth_rad``, negated
+    (the heading error ``eps_z`` it measures), in (-pi, pi].
+
+    To first order in the attitude error ``eps`` (``R_true = Exp(eps) R``) it is
+    ``eps_z + tan(dip) (cos(a) eps_x + sin(a) eps_y)`` (``a = azimuth_rad``): a tilt about the field's
+    horizontal direction turns its vertical part into the horizontal (``FilterConfig.field_update``).
+    """
+    innovation = -math.atan2(m[3] * bx + m[4] * by + m[5] * bz, m[0] * bx + m[1] * by + m[2] * bz)
+    if azimuth_rad:
+        innovation = (innovation + azimuth_rad + math.pi) % (2.0 * math.pi) - math.pi
+    return innovation
 
 
 @dataclass(slots=True)
@@ -56,6 +71,9 @@ class GyroState(PackedCovariance):
     acc_lp_rate : tuple of 3 floats
         The second-order low-pass's other state: its output's rate of change in the inertial frame, seen
         in H, accelerometer units per second (zero for the first-order one).
+    acc_residual : tuple of 3 floats
+        The motion the low-pass leaves (specific force less the low-pass) low-passed at the motion's time scale
+        (``FilterConfig.residual_in_band``), accelerometer units.
     age_lp : tuple of 2 floats
         The same low-pass run on the time since the start (its output and rate): the content's mean age is
         the time since the start less its output.
@@ -104,6 +122,7 @@ class GyroState(PackedCovariance):
     place: PlaceState = field(default_factory=PlaceState)
     acc_lp_rate: tuple = (0.0, 0.0, 0.0)
     age_lp: tuple = (0.0, 0.0)
+    acc_residual: tuple = (0.0, 0.0, 0.0)
 
 
 class GyroFilter(AttitudeFilter):
@@ -123,6 +142,9 @@ class GyroFilter(AttitudeFilter):
         self._second_order = self.config.accel_lowpass_order == 2
         self._lp2_dt, self._lp2 = None, None  # the second-order low-pass's step and its coefficients
         self._place = PlaceDetector(self.config) if self.config.follow_place and self.config.gate else None
+        # a decoupled field update injects its heading apart: one exponential of (eps_x, eps_y, eps_z) would
+        # tilt by a second-order term eps_z * eps_tilt / 2
+        self._split_injection = self.config.field_update != "kalman"
 
     @property
     def at_rest(self) -> bool:
@@ -178,14 +200,14 @@ class GyroFilter(AttitudeFilter):
         self._x[:] = [0.0] * 6
         s.acc_lp, s.acc_lp_rate, s.age_lp = a[:3], (0.0, 0.0, 0.0), (0.0, 0.0)
         s.acc_lp_age_s = 0.0
-        s.residual_var = 0.0
+        s.residual_var, s.acc_residual = 0.0, (0.0, 0.0, 0.0)
         s.rest_gyro, s.rest_acc, s.rest_s = s.rate_rad_s, a[:3], 0.0
         s.since_start_s = 0.0
 
     def _restart_accel(self, a) -> None:
         s = self._s
         if s.acc_lp is not None:
-            s.acc_lp, s.acc_lp_age_s, s.residual_var = a[:3], 0.0, 0.0
+            s.acc_lp, s.acc_lp_age_s, s.residual_var, s.acc_residual = a[:3], 0.0, 0.0, (0.0, 0.0, 0.0)
             s.acc_lp_rate, s.age_lp = (0.0, 0.0, 0.0), (s.since_start_s, 0.0)  # the low-pass content is new: age 0
         s.rest_acc, s.rest_s = a[:3], 0.0
 
@@ -265,7 +287,14 @@ class GyroFilter(AttitudeFilter):
                 s.acc_lp = (lx, ly, lz)
                 s.acc_lp_age_s = (1.0 - alpha) * (s.acc_lp_age_s + dt)
             lp_norm = math.sqrt(lx * lx + ly * ly + lz * lz)
-            raw2 = (ax - lx) ** 2 + (ay - ly) ** 2 + (az - lz) ** 2
+            if cfg.residual_in_band:  # only what varies on the motion's time scale: a vibration or a tap is not left
+                beta = -math.expm1(-dt * 2.0 * math.pi / cfg.motion_time_s)
+                rx, ry, rz = s.acc_residual
+                rx, ry, rz = rx + beta * (ax - lx - rx), ry + beta * (ay - ly - ry), rz + beta * (az - lz - rz)
+                s.acc_residual = (rx, ry, rz)
+                raw2 = rx * rx + ry * ry + rz * rz
+            else:
+                raw2 = (ax - lx) ** 2 + (ay - ly) ** 2 + (az - lz) ** 2
             residual = (lp_norm / g - 1.0) ** 2 + raw2 / (g * g) * c.attenuation2
             s.residual_var += -math.expm1(-dt / cfg.motion_time_s) * (residual - s.residual_var)
         else:
@@ -330,17 +359,25 @@ class GyroFilter(AttitudeFilter):
             b = (bx, by, bz, b2)
         if self._place is not None and dt > 0.0:
             self._follow_place(dt, b)
-        innovation = -math.atan2(m[3] * bx + m[4] * by + m[5] * bz, m[0] * bx + m[1] * by + m[2] * bz)
-        azimuth = s.gate.ref_azimuth_rad
-        if azimuth:
-            innovation = (innovation + azimuth + math.pi) % (2.0 * math.pi) - math.pi
+        innovation = heading_innovation(m, bx, by, bz, s.gate.ref_azimuth_rad)
         d.mag_used = self._gate_field(t_s, dt, b, innovation) == "ok"
         if d.mag_used:
             p = s.covariance
-            var = c.yaw_var + c.tan_dip2 * (p[0] + p[6]) / 2.0
+            mode = self.config.field_update
+            # the tilt's share of the measured azimuth: white noise in var, or (heading-tilt) in the model
+            tilt_in_model = mode == "heading-tilt"
+            var = c.yaw_var if tilt_in_model else c.yaw_var + c.tan_dip2 * (p[0] + p[6]) / 2.0
             if dt > 0.0:
                 var += self.gate.field_heading_var(s.gate) * 2.0 * self.config.field_error_time_s / dt
-            s.covariance = update_axis(p, self._x, 2, innovation, var)
+            if mode == "kalman":
+                s.covariance = update_axis(p, self._x, 2, innovation, var)
+                return
+            tilt = (0.0, 0.0)
+            if tilt_in_model:  # the azimuth moves by tan(dip) times the tilt about the field's horizontal direction
+                t, azimuth = math.tan(math.radians(s.gate.ref_dip_deg)), s.gate.ref_azimuth_rad
+                tilt = (t * math.cos(azimuth), t * math.sin(azimuth))
+            s.covariance = update_heading(p, self._x, innovation, var, None if mode == "no-tilt" else (m[6], m[7], m[8]),
+                                          tilt)
 
     def _follow_place(self, dt: float, b) -> None:
         """The place detector's window; a new place's field becomes the reference (:mod:`compass.filter._place`)."""
@@ -384,7 +421,12 @@ class GyroFilter(AttitudeFilter):
         """Fold the error state into the nominal attitude and bias, reset it to zero."""
         s, x = self._s, self._x
         e0, e1, e2, d0, d1, d2 = x
-        if e0 or e1 or e2:
+        if self._split_injection:  # the tilt's turn, then the heading's about the world vertical (which keeps the tilt)
+            if e0 or e1:
+                s.matrix = mat_mul(exp_matrix(e0, e1, 0.0), s.matrix)
+            if e2:
+                s.matrix = mat_mul(exp_matrix(0.0, 0.0, e2), s.matrix)
+        elif e0 or e1 or e2:
             s.matrix = mat_mul(exp_matrix(e0, e1, e2), s.matrix)
         if d0 or d1 or d2:
             bx, by, bz = s.bias_rad_s

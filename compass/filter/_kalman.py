@@ -15,7 +15,7 @@ from operator import itemgetter
 
 import numpy as np
 
-__all__ = ["pack", "unpack", "predict_gyro", "update_axis", "update_tilt"]
+__all__ = ["pack", "unpack", "predict_gyro", "update_axis", "update_heading", "update_tilt"]
 
 _UPPER = [(i, j) for i in range(6) for j in range(i, 6)]
 _INDEX = {ij: k for k, ij in enumerate(_UPPER)} | {(j, i): k for k, (i, j) in enumerate(_UPPER)}
@@ -109,6 +109,45 @@ def update_axis(p: tuple, x: list, i: int, z: float, var: float) -> tuple:
     """
     c = _COLUMN[i](p)
     return _downdate(p, x, c, c[i] + var, z - x[i])
+
+
+def update_heading(p: tuple, x: list, z: float, var: float, up_h: tuple | None = None,
+                   tilt: tuple = (0.0, 0.0)) -> tuple:
+    """The gyro filter's heading measurement ``z = tilt . x_true[:2] + x_true[2] + n`` (``var n = var``),
+    decoupled from the tilt.
+
+    A Schmidt (consider) update in the world frame: the estimated states are the heading error
+    ``eps_z`` and, with ``up_h``, the gyro-bias error along the world vertical, ``u . db`` with
+    ``u = R^T z`` (``up_h``, the world's up in H, unit); the tilt ``(eps_x, eps_y)`` and the bias's two
+    horizontal components are *considered*: their gains are zero, so the field never moves them,
+    while their uncertainty and correlations still count.  Without ``up_h`` the whole bias is
+    estimated (only the tilt considered).  ``tilt``: what a tilt error adds to the measured heading
+    (the field's azimuth moves by ``tan(dip)`` times the tilt about its horizontal direction); with
+    it the update records how the heading it teaches shares the tilt's error, so that a later tilt
+    correction carries the heading along.
+
+    The gain ``K`` (``K_2 = c_2 / s``; ``K_b = u (u . c_b) / s`` with ``c = P h``, ``s = h . c + var``)
+    is not the full Kalman gain, so the covariance is the Joseph form's for that gain,
+    ``(I - K h) P (I - K h)^T + K var K^T = P - K c^T - c K^T + s K K^T``: symmetric and positive
+    definite whatever ``K``; the considered block is unchanged.
+
+    ``x`` (the error state accumulated so far this sample; the innovation is ``z - h . x``) is
+    updated in place; the updated packed covariance is returned.
+    """
+    t0, t1 = tilt
+    c = tuple(a + t0 * b + t1 * d for a, b, d in zip(_COLUMN[2](p), _COLUMN[0](p), _COLUMN[1](p)))
+    s = c[2] + t0 * c[0] + t1 * c[1] + var
+    inv = 1.0 / s
+    nu = z - x[2] - t0 * x[0] - t1 * x[1]
+    if up_h is None:
+        k = (0.0, 0.0, c[2] * inv, c[3] * inv, c[4] * inv, c[5] * inv)
+    else:
+        u0, u1, u2 = up_h
+        kb = (c[3] * u0 + c[4] * u1 + c[5] * u2) * inv
+        k = (0.0, 0.0, c[2] * inv, kb * u0, kb * u1, kb * u2)
+    for i in range(2, 6):
+        x[i] += k[i] * nu
+    return tuple(p[n] - k[i] * c[j] - c[i] * k[j] + s * k[i] * k[j] for n, (i, j) in enumerate(_UPPER))
 
 
 def update_tilt(p: tuple, x: list, w: tuple, z0: float, v: tuple, z1: float, var: float, hold_bias: bool = False) -> tuple:

@@ -18,6 +18,10 @@ _REST_TAU_S = 0.5  # low-pass of VQF's rest detector, s
 _REST_RATE_SIGMA = 1e-3  # residual true rate "at rest" (tremor, Earth's rotation), rad/s
 
 
+FIELD_UPDATES = ("kalman", "no-tilt", "heading", "heading-tilt")
+"""``FilterConfig.field_update``'s values."""
+
+
 @dataclass(frozen=True)
 class FilterConfig:
     """Noise model, gate, input ranges and reference field of the attitude filter (VQF's ``Params``).
@@ -122,6 +126,22 @@ class FilterConfig:
         azimuth (:mod:`compass.filter._place`); said as an event.
     place_window_s : float
         The window over which a new place's field is told from a magnet on the housing, seconds.
+    residual_in_band : bool
+        The motion-adaptive tilt noise counts only the part of the raw motion ``f - LP f`` that varies on the
+        motion's time scale (low-passed with time constant ``motion_time_s / 2 pi`` before it is attenuated
+        and squared; issue 22): a 25 Hz vibration or a 2 ms tap, which the inertial low-pass removes almost
+        entirely, no longer makes the filter distrust the accelerometer for ``motion_time_s`` (False: the raw
+        motion, as before).
+    field_update : str
+        What the gyro filter's field (heading) update may move (issue 22): ``"kalman"`` every state its
+        gain reaches through the covariance's cross terms (the tilt and the whole gyro bias: the
+        optimal update when the field is what the model says); ``"no-tilt"`` the heading and the bias,
+        never the tilt; ``"heading"`` the heading and the bias along the world vertical only, as VQF's
+        magnetometer never touches the inclination (both Schmidt updates: :func:`compass.filter._kalman.update_heading`);
+        ``"heading-tilt"`` as ``"heading"``, with the tilt's share of the measured azimuth (``tan(dip)``
+        times the tilt about the field's horizontal direction) in the measurement model instead of
+        white noise: the heading it teaches keeps its correlation with the tilt's error, and a later
+        tilt correction carries the heading along.
     start_bias_hold : bool
         The gyro filter holds its bias (does not estimate it from the tilt: a Schmidt update) for
         ``accel_time_constant_s`` after the start, while the inertial low-pass still carries its start
@@ -164,10 +184,12 @@ class FilterConfig:
     start_bias_hold: bool = True
     follow_place: bool = True
     place_window_s: float = 4.0
+    residual_in_band: bool = False
+    field_update: str = "kalman"
 
     def __post_init__(self):
         for f in fields(self):
-            if f.name in ("dip_deg", "gravity", "mag_latency_s") or f.type == "bool":
+            if f.name in ("dip_deg", "gravity", "mag_latency_s") or f.type in ("bool", "str"):
                 continue
             value = getattr(self, f.name)
             if not (np.isfinite(value) and value > 0):
@@ -177,6 +199,9 @@ class FilterConfig:
                 raise ValueError(f"FilterConfig.{name} must be above 1, got {getattr(self, name)!r}")
         if not (np.isfinite(self.mag_latency_s) and self.mag_latency_s >= 0.0):
             raise ValueError(f"FilterConfig.mag_latency_s must be a non-negative number, got {self.mag_latency_s!r}")
+        if self.field_update not in FIELD_UPDATES:
+            raise ValueError(f"FilterConfig.field_update must be one of {', '.join(FIELD_UPDATES)}, "
+                             f"got {self.field_update!r}")
         if self.accel_lowpass_order not in (1, 2):
             raise ValueError(f"FilterConfig.accel_lowpass_order must be 1 or 2, got {self.accel_lowpass_order!r}")
         if not -90.0 < self.dip_deg < 90.0:
