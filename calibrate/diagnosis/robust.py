@@ -115,6 +115,8 @@ BAND_P_VALUE = 0.01
 """A band's spectral matrix counts when white noise would leave one as large this rarely (simulated null)."""
 NULL_DRAWS = 1000
 """Draws of white noise's block sums giving each band's null distribution (fixed seed: the fit is deterministic)."""
+KERNEL_RCOND = 1e-12
+"""A band kernel's eigenvalues below this fraction of its largest count as zero (its factor for the quadratics)."""
 NULL_CHUNK = 250
 """Draws simulated at once (memory: draws x bands x channels x blocks)."""
 
@@ -272,11 +274,18 @@ def band_edges_hz(block_s: float, n_bands: int) -> np.ndarray:
     return np.concatenate([[0.0], 0.5 / block_s / 2.0 ** np.arange(n_bands - 1, -1, -1)])
 
 
-def _loadings(n_groups: int) -> np.ndarray:
-    """How a structure process enters the groups: each alone, then each pair alike and opposed, shape (l, groups)."""
+def _loadings(n_groups: int, n_kinds: int = 1) -> np.ndarray:
+    """How a structure process enters the groups: each alone, then each pair of one kind alike and opposed.
+
+    Groups are channel-major ``(channel, kind)``, ``n_kinds`` per channel (an offset process and a gain
+    process times the signal: :func:`time_correlated_covariance`'s ``modulation``); pairs only join groups
+    of one kind.  Shape (l, groups).
+    """
     out = list(np.eye(n_groups))
     for a in range(n_groups):
         for b in range(a + 1, n_groups):
+            if (b - a) % n_kinds:
+                continue
             for sign in (1.0, -1.0):
                 v = np.zeros(n_groups)
                 v[a], v[b] = np.sqrt(0.5), sign * np.sqrt(0.5)
@@ -294,12 +303,18 @@ class _BlockMoments(NamedTuple):
     bands: np.ndarray  # white beyond the floor, then each band's kernel B_k, (bands, nb, nb)
     blocks: np.ndarray  # keep = A (I - P) A^T as (c, nb, c, nb)
     root: np.ndarray  # keep = root root^T, (c nb, rank)
+    factors: np.ndarray  # each band's kernel B_k = F_k F_k^T (its range), side by side: (nb, sum of ranks)
+    splits: np.ndarray  # where each band's columns of ``factors`` end, (bands,)
     floor_rhs: float  # z^T keep^+ z - rank(keep)
     traces: np.ndarray  # tr(B_k keep_bc B_l keep_da), (bands, c, c, bands, c, c)
 
 
-def _block_moments(jac, weighted, t_s, bread, block_s, n_bands) -> _BlockMoments:
-    """Block sums, what the fit keeps of them and the band kernels (raises as :func:`time_correlated_covariance`)."""
+def _block_moments(jac, weighted, t_s, bread, block_s, n_bands, modulation=None) -> _BlockMoments:
+    """Block sums, what the fit keeps of them and the band kernels (raises as :func:`time_correlated_covariance`).
+
+    The groups are (channel, modulation) pairs, channel-major: group ``(c, q)`` sums ``m_icq r_ic`` over each
+    block, ``D^T r`` with ``D`` the map from block-constant processes to the residual (module docstring).
+    """
     jac = np.asarray(jac, dtype=float)
     weighted = np.atleast_2d(np.asarray(weighted, dtype=float).T).T
     t_s = np.asarray(t_s, dtype=float)
@@ -308,17 +323,29 @@ def _block_moments(jac, weighted, t_s, bread, block_s, n_bands) -> _BlockMoments
         raise ValueError(f"expected {jac.shape[0]} residuals as ({t_s.size} times) x channels, got {weighted.shape}")
     if not block_s > 0:
         raise ValueError(f"block_s must be positive, got {block_s}")
+    mod = np.ones((n, c, 1)) if modulation is None else np.asarray(modulation, dtype=float)
+    if mod.ndim != 3 or mod.shape[:2] != (n, c) or not np.all(np.isfinite(mod)):
+        raise ValueError(f"expected a finite modulation of shape ({n}, {c}, q), got {mod.shape}")
+    q = mod.shape[2]
     good = np.isfinite(np.diag(bread))
     b = bread[np.ix_(good, good)]
     block = np.unique(np.floor((t_s - t_s.min()) / block_s), return_inverse=True)[1].ravel()
     nb = block.max() + 1
     size = np.bincount(block, minlength=nb).astype(float)
     t_block = np.bincount(block, weights=t_s, minlength=nb) / size
-    summed_jac = np.zeros((nb, c, b.shape[0]))  # G = A J, A the block sums; rows channel-major below
-    np.add.at(summed_jac, block, np.nan_to_num(jac[:, good]).reshape(n, c, -1))
-    summed_jac = summed_jac.transpose(1, 0, 2).reshape(c * nb, -1)
-    keep = np.diag(np.tile(size, c)) - summed_jac @ b @ summed_jac.T  # A (I - P) A^T = A (I - P) U
-    y = np.concatenate([np.bincount(block, weights=w, minlength=nb) for w in weighted.T]).reshape(c, nb)
+    # G = D^T J, rows group-major ((channel, modulation), block)
+    summed_jac = np.zeros((nb, c, q, b.shape[0]))
+    np.add.at(summed_jac, block, mod[..., None] * np.nan_to_num(jac[:, good]).reshape(n, c, 1, -1))
+    summed_jac = summed_jac.transpose(1, 2, 0, 3).reshape(c * q * nb, -1)
+    # D^T D: within one channel and one block, the modulations' sums of products
+    own = np.zeros((nb, c, q, q))
+    np.add.at(own, block, mod[..., :, None] * mod[..., None, :])
+    gram = np.zeros((c, q, nb, c, q, nb))
+    for ch in range(c):
+        gram[ch, :, np.arange(nb), ch, :, np.arange(nb)] = own[:, ch]
+    keep = gram.reshape(c * q * nb, -1) - summed_jac @ b @ summed_jac.T  # D^T (I - P) D
+    y = np.einsum("ncq,nc->cqn", mod, weighted)
+    y = np.stack([[np.bincount(block, weights=v, minlength=nb) for v in per] for per in y]).reshape(c * q, nb)
     edges = band_edges_hz(block_s, n_bands)
     lag = t_block[:, None] - t_block[None, :]
     bands = np.stack([np.eye(nb)] + [_band_kernel(lag, lo, hi) for lo, hi in zip(edges[:-1], edges[1:])])
@@ -327,10 +354,17 @@ def _block_moments(jac, weighted, t_s, bread, block_s, n_bands) -> _BlockMoments
     positive = w > w.max(initial=0.0) * keep.shape[0] * np.finfo(float).eps
     root = u[:, positive] * np.sqrt(w[positive])
     floor_rhs = float(np.sum((u[:, positive].T @ y.ravel()) ** 2 / w[positive]) - positive.sum())
-    blocks = keep.reshape(c, nb, c, nb)
+    blocks = keep.reshape(c * q, nb, c * q, nb)
     moved = np.einsum("kij,bjcl->kbcil", bands, blocks, optimize=True)  # B_k keep_bc
     traces = np.tensordot(moved, moved, axes=([3, 4], [4, 3]))  # (k, b, c, l, d, a)
-    return _BlockMoments(b, good, summed_jac, y, bands, blocks, root, floor_rhs, traces)
+    factors = []
+    for kernel in bands:  # the low bands' kernels have few effective dimensions over the record
+        w, u = np.linalg.eigh(kernel)
+        kept = w > w.max() * KERNEL_RCOND
+        factors.append(u[:, kept] * np.sqrt(w[kept]))
+    splits = np.cumsum([f.shape[1] for f in factors])
+    return _BlockMoments(b, good, summed_jac, y, bands, blocks, root, np.hstack(factors), splits,
+                         floor_rhs, traces)
 
 
 def _with_floor(m: _BlockMoments, outer: np.ndarray, quadratic: np.ndarray, floor_quadratic: np.ndarray):
@@ -352,10 +386,13 @@ def _with_floor(m: _BlockMoments, outer: np.ndarray, quadratic: np.ndarray, floo
     return normal, np.column_stack([floor_quadratic - rank, rhs])
 
 
-def _quadratic(bands: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """``z_a^T B_k z_d`` of block sums ``z`` (draws, c, nb): shape (draws, bands, c, c).  Batched products
-    (BLAS), not one einsum: numpy's contraction path leaves the batch over draws to its C loop."""
-    return np.matmul(np.matmul(z[:, None], bands), z.transpose(0, 2, 1)[:, None])
+def _quadratic(m: _BlockMoments, z: np.ndarray) -> np.ndarray:
+    """``z_a^T B_k z_d`` of block sums ``z`` (draws, c, nb): shape (draws, bands, c, c).
+
+    Through each kernel's factor (``B_k = F_k F_k^T``): ``(z F_k)(z F_k)^T``, batched products (BLAS).
+    """
+    projected = z @ m.factors  # (draws, c, sum of ranks)
+    return np.stack([p @ p.transpose(0, 2, 1) for p in np.split(projected, m.splits[:-1], axis=2)], axis=1)
 
 
 def _band_p_values(m: _BlockMoments) -> np.ndarray:
@@ -368,7 +405,7 @@ def _band_p_values(m: _BlockMoments) -> np.ndarray:
     own = np.ones((len(m.bands), len(entries)), dtype=bool)
     own[0] = [i == j for i, j in entries]  # white beyond the floor: each channel's own
     index = 1 + np.arange(own.size).reshape(own.shape)
-    normal, _ = _with_floor(m, basis, _quadratic(m.bands, m.y[None]), np.array([m.floor_rhs + m.root.shape[1]]))
+    normal, _ = _with_floor(m, basis, _quadratic(m, m.y[None]), np.array([m.floor_rhs + m.root.shape[1]]))
     # the floor's factor profiled out: score = rhs_i - <i, floor> rhs_floor / <floor, floor>, under white noise
     # centred with covariance `spread` (twice the profiled normal matrix, were z Gaussian in K's coordinates)
     tests = []
@@ -383,7 +420,7 @@ def _band_p_values(m: _BlockMoments) -> np.ndarray:
         score = [rhs[:, i] - np.outer(rhs[:, 0], lever) for i, lever, _ in tests]
         return np.column_stack([np.einsum("mi,ij,mj->m", s, w, s) for s, (_, _, w) in zip(score, tests)])
 
-    observed = statistics(_quadratic(m.bands, m.y[None]), np.array([m.floor_rhs + m.root.shape[1]]))[0]
+    observed = statistics(_quadratic(m, m.y[None]), np.array([m.floor_rhs + m.root.shape[1]]))[0]
     # the statistic is a quadratic form of few effective degrees of freedom in the low bands (heavy-tailed, far
     # from chi-square): its null by simulation, z = A r ~ N(0, keep) under white noise, with a fixed seed
     rng = np.random.default_rng(0)
@@ -391,12 +428,12 @@ def _band_p_values(m: _BlockMoments) -> np.ndarray:
     for start in range(0, NULL_DRAWS, NULL_CHUNK):
         g = rng.standard_normal((min(NULL_CHUNK, NULL_DRAWS - start), m.root.shape[1]))
         z = (g @ m.root.T).reshape(len(g), c, -1)
-        exceed += np.sum(statistics(_quadratic(m.bands, z), np.sum(g**2, axis=1)) >= observed, axis=0)
+        exceed += np.sum(statistics(_quadratic(m, z), np.sum(g**2, axis=1)) >= observed, axis=0)
     return (1.0 + exceed) / (1.0 + NULL_DRAWS)
 
 
 def band_p_values(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: np.ndarray,
-                  block_s: float = BLOCK_S, n_bands: int = N_BANDS) -> np.ndarray:
+                  block_s: float = BLOCK_S, n_bands: int = N_BANDS, modulation: np.ndarray | None = None) -> np.ndarray:
     """Stage 1 of :func:`time_correlated_covariance` alone: each band's p-value for structure (white first).
 
     Parameters as :func:`time_correlated_covariance`.  Under white noise each is uniform on
@@ -407,11 +444,12 @@ def band_p_values(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread:
     ndarray, shape (n_bands + 1,)
         White beyond the floor, then the bands from 0 Hz upward.
     """
-    return _band_p_values(_block_moments(jac, weighted, t_s, bread, block_s, n_bands))
+    return _band_p_values(_block_moments(jac, weighted, t_s, bread, block_s, n_bands, modulation))
 
 
 def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: np.ndarray,
-                               block_s: float = BLOCK_S, n_bands: int = N_BANDS) -> np.ndarray:
+                               block_s: float = BLOCK_S, n_bands: int = N_BANDS,
+                               modulation: np.ndarray | None = None) -> np.ndarray:
     """Covariance of a least-squares fit's parameters with its residual's structure a stationary process in time.
 
     The module docstring's "A process in time": the residual summed over time blocks, the
@@ -447,30 +485,37 @@ def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.nd
     ValueError
         Mismatched shapes, or a non-positive block length.
     """
-    m = _block_moments(jac, weighted, t_s, bread, block_s, n_bands)
+    m = _block_moments(jac, weighted, t_s, bread, block_s, n_bands, modulation)
     c = m.y.shape[0]
-    # stage 1: which bands carry structure at all (a score test per band, its null by simulation)
-    carries = _band_p_values(m) <= BAND_P_VALUE
-    # stage 2: the floor's factor (at least -1) and the spectrum on the bands that carry structure,
-    # non-negative: each channel's own process and processes common to each pair of channels, alike or opposed
-    loads = _loadings(c)
+    loads = _loadings(c, 1 if modulation is None else np.shape(modulation)[2])
     outer = np.einsum("vi,vj->vij", loads, loads)
-    gram, rhs = _with_floor(m, outer, _quadratic(m.bands, m.y[None]), np.array([m.floor_rhs + m.root.shape[1]]))
+    gram, rhs = _with_floor(m, outer, _quadratic(m, m.y[None]), np.array([m.floor_rhs + m.root.shape[1]]))
     rhs = rhs[0]
-    used = np.zeros((len(m.bands), len(loads)), dtype=bool)
-    used[carries] = True
-    used[0, c:] = False
+    # stage 1: which bands carry structure at all (a score test per band, its null by simulation)
+    used = np.tile(_band_p_values(m)[:, None] <= BAND_P_VALUE, (1, len(loads)))
+    used[0, c:] = False  # white beyond the floor: each group's own
+    # stage 2: the floor's factor (at least -1) and the spectrum on the bands that carry structure,
+    # non-negative: each group's own process and processes common to each pair of groups, alike or opposed
+    floor, power = _spectrum(m, gram, rhs, used)
+    out = np.full(bread.shape, np.nan)
+    b, g = m.b, m.summed_jac
+    out[np.ix_(m.good, m.good)] = (1.0 + floor) * b + b @ g.T @ _structure(m, power, outer) @ g @ b
+    return out
+
+
+def _spectrum(m: _BlockMoments, gram: np.ndarray, rhs: np.ndarray, used: np.ndarray) -> tuple[float, np.ndarray]:
+    """The floor's factor (at least -1) and the non-negative spectrum on the ``used`` (band, loading) pairs."""
     on = np.concatenate([[True], used.ravel()])
     scale = np.sqrt(np.maximum(np.diag(gram)[on], np.finfo(float).tiny))
     half, target = _half_system(gram[np.ix_(on, on)] / np.outer(scale, scale), rhs[on] / scale)
     lower = np.r_[-1.0, np.zeros(on.sum() - 1)] * scale
     solution = np.zeros(on.size)
     solution[on] = lsq_linear(half, target, bounds=(lower, np.inf)).x / scale
-    floor, power = solution[0], solution[1:]
-    nb = m.y.shape[1]
-    structure = np.einsum("kv,vad,kij->aidj", power.reshape(used.shape), outer, m.bands,
-                          optimize=True).reshape(c * nb, c * nb)
-    out = np.full(bread.shape, np.nan)
-    b, g = m.b, m.summed_jac
-    out[np.ix_(m.good, m.good)] = (1.0 + floor) * b + b @ g.T @ structure @ g @ b
-    return out
+    return float(solution[0]), solution[1:].reshape(used.shape)
+
+
+def _structure(m: _BlockMoments, power: np.ndarray, outer: np.ndarray) -> np.ndarray:
+    """``K = sum_kv power_kv (outer_v kron B_k)``, the block processes' covariance, (c nb, c nb)."""
+    c, nb = m.y.shape
+    return np.einsum("kv,vad,kij->aidj", power, outer, m.bands, optimize=True).reshape(c * nb, c * nb)
+

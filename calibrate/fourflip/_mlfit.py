@@ -415,7 +415,13 @@ def structured_covariance(fit: MLFit, noise: np.ndarray) -> np.ndarray:
     # without a t_s column, the recording's order at one bin a second
     t_s = bins.samples.t_s if bins.samples.t_s is not None else np.arange(weighted.shape[0], dtype=float)
     bread = fit.covariance / (fit.chi2 / max(fit.dof, 1))
-    return time_correlated_covariance(fit.jac, weighted, t_s, bread)
+    n, c = weighted.shape
+    # a gain's wander enters as the gain times the signal: each channel's log-gain column of the Jacobian
+    gain_columns = np.array([fit.names.index(f"{ch}.log_gain") for ch in fit.layout.channels])
+    signal = np.nan_to_num(fit.jac[:, gain_columns]).reshape(n, c, c)[:, np.arange(c), np.arange(c)]
+    signal = signal / np.maximum(np.sqrt(np.mean(signal**2, axis=0)), np.finfo(float).tiny)
+    modulation = np.stack([np.ones_like(signal), signal], axis=2)
+    return time_correlated_covariance(fit.jac, weighted, t_s, bread, modulation=modulation)
 
 
 def with_covariance(fit: MLFit, covariance: np.ndarray) -> MLFit:
