@@ -1,7 +1,8 @@
 """What an unexplained residual costs: a covariance that covers it, in the units a user reads.
 
 Two covariances: per-cluster (:func:`cluster_covariance`, CR2) and a process in time over the whole
-recording (:func:`time_correlated_covariance`, what the four-flip's widening uses).
+recording (:func:`time_correlated_covariance`, what the four-flip's widening uses, with an offset
+process and a gain process times the signal per channel).
 
 When structure remains that no effect explains (SPEC section 4, ``unexplained: true``), the fit's
 covariance ``(J^T J)^-1 chi2/dof`` assumes residuals independent from sample to sample: a smooth
@@ -77,6 +78,35 @@ Each band's statistic is therefore compared with its own null distribution, simu
 noise ``z ~ N(0, keep)`` exactly (a linear fit), so ``NULL_DRAWS`` block sums drawn through
 ``keep``'s eigendecomposition, with a fixed seed (the fit is deterministic), give it.
 
+A gain process times the signal.  A gain that wanders, ``K_c (1 + g_c(t))``, adds ``K_c x_c(t) g_c(t)``
+to channel ``c``'s reading: the residual is then not stationary but a product, the gain's slow process
+times the signal ``x_c`` (the field along the channel, turned by the turntable).  Taken as an offset
+process its block sums show power near the turntable's rate with no phase tied to the signal, and the
+spread of a stationary offset process there moves the directions; the gain's own estimate, which a
+gain process moves most, is under-covered (1.44 times in the test).  So the residual is modelled as
+
+.. math:: r_c(t) = o_c(t) + g_c(t)\\, \\hat x_c(t) + e_c(t),
+
+``o`` and ``g`` each a stationary process as above (block-constant within a block), ``\\hat x_c`` the
+signal known from the fit (the channel's log-gain column of the Jacobian, scaled to unit RMS).  Each
+channel then has two groups, and the block sums are ``z = D^T r``: the sums of ``r`` and of
+``r \\hat x`` over each block, ``D`` the map from the block-constant processes to the residual.
+Everything above holds with ``A`` replaced by ``D^T``: ``keep = D^T (I - P) D`` (``D^T D`` is no longer
+diagonal: within a channel and a block it holds the sums of ``1``, ``\\hat x`` and ``\\hat x^2``),
+``G = D^T J``, ``V = (1 + f) H^-1 + H^-1 G^T K G H^-1``; each kind's process is propagated through its
+own Jacobian columns, the gain's through ``\\sum \\hat x J`` over the block.  Pairs of groups (common
+processes) join groups of one kind only.  The two kinds are not cleanly told apart: within a block the
+signal barely changes (10 s is 10 degrees of turntable), so a block's offset ``o_b`` and a gain ``g_b``
+times a signal near ``\\hat x_b`` give sums of ``r`` and of ``r \\hat x`` in the same ratio ``\\hat x_b``;
+only their spectra across blocks differ (a slow gain times the turning signal is an offset near the
+turntable's rate).  The non-negative fit shares the power between them, and the share the offsets take
+propagates with the larger leverage an offset process has on the directions: a gain walk stays
+over-covered (0.73 in the test, 0.66 on the bench's seeds 0-9 where the offsets alone gave 0.52), an
+offset walk's gain estimate too (0.54; the directions' column is not: 1.09).  Testing each kind against
+what the other alone explains (a conditional score test, the likelier kind kept when neither adds to the
+other) was tried: gain walk 0.62, but an air-con cycle, whose offsets and gains follow one cycle, went
+to 1.34, under-covered; not adopted.
+
 Checks on paper.  White noise: every right-hand side is centred, no band passes but by chance, the
 floor's factor is unbiased: ``V = H^-1`` (the naive covariance) on average without the
 non-negativity, and in most recordings with it.  A structure the fit absorbs whole (a constant tilt
@@ -89,8 +119,18 @@ passes the score test by chance where the fit absorbs nearly all of it (periods 
 widens by far too much: at the test's level that is about 1 % of white-noise recordings (none of
 120 replicates of the test's two-channel line widened beyond 1.33 times; with the chi-square
 threshold 2 of 40 widened 39 times).  A flat spectrum within the lowest band over-covers a random walk where per-segment levels
-absorb most of it (0.53 in the test).  Rate memory stays over-covered (its fundamental is absorbed
-in every channel alike, which a stationary process does not know).
+absorb most of it (0.53 in the test).  Rate memory stays over-covered (stated sigma about 2.5 times
+the error), for a reason on paper: its offset ``+-h`` by the sign of the channel's field change is a
+square wave locked to the turntable angle, ``-(4h/pi) (sin u + sin 3u / 3 + sin 5u / 5 + ...)``,
+``u = phi + alpha_c``.  The fundamental is a lag of the channel's sinusoid by ``4h / (pi A_c)``; common
+to the channels it is a change of the field's azimuth, which absorbs it (the directions move by the
+noise's amount: 0.012 deg, as a clean recording).  The harmonics are whole multiples of the turn's rate
+over whole turns, orthogonal to a direction's columns (a flip's constant, ``cos phi``, ``sin phi``), so
+they move nothing either.  The residual shows the harmonics, and the process model spreads their power
+flat over each octave band: a stationary process there has components at every frequency of the band,
+which over a 360 s turn leak into ``cos phi`` and ``sin phi`` (the turn's window), so it propagates
+into the directions a variance the phase-locked harmonics do not carry.  Over, not under: a bound from
+the residual cannot see the absorbed fundamental, and the harmonics it does see move nothing.
 """
 
 from __future__ import annotations
@@ -474,6 +514,10 @@ def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.nd
         Length of the time blocks, s: structure faster than this counts as white beyond the floor.
     n_bands : int
         Octave bands of the spectrum below the blocks' Nyquist (the lowest reaches 0 Hz).
+    modulation : ndarray, shape (n, c, q), optional
+        How each of ``q`` kinds of block-constant process enters each channel's residual at each
+        sample (the module docstring's "A gain process times the signal": ones for an offset, the
+        signal for a gain); default ones, ``q = 1``.  Groups are (channel, kind), pairs within a kind.
 
     Returns
     -------
@@ -483,7 +527,7 @@ def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.nd
     Raises
     ------
     ValueError
-        Mismatched shapes, or a non-positive block length.
+        Mismatched shapes, a non-positive block length, or a modulation not finite or not (n, c, q).
     """
     m = _block_moments(jac, weighted, t_s, bread, block_s, n_bands, modulation)
     c = m.y.shape[0]

@@ -397,9 +397,11 @@ def structured_covariance(fit: MLFit, noise: np.ndarray) -> np.ndarray:
     """Covariance of a fit's parameters with its residual's structure a process in time, one per channel.
 
     :func:`calibrate.diagnosis.robust.time_correlated_covariance` on the bins the fit ran on, each
-    channel's structure a stationary process over the whole recording (across flips: a slow wander
-    or a room's temperature cycle carries over from one flip to the next), its spectrum estimated
-    from what the fit left of it.  Per-flip clusters (CR2, :func:`calibrate.diagnosis.robust.cluster_covariance`)
+    channel's structure an offset process plus a gain process times the channel's signal (its
+    log-gain column of the Jacobian: a wandering gain's residual is the gain times the field along
+    the channel), each stationary over the whole recording (across flips: a slow wander or a room's
+    temperature cycle carries over from one flip to the next), their spectra estimated from what the
+    fit left of them.  Per-flip clusters (CR2, :func:`calibrate.diagnosis.robust.cluster_covariance`)
     took flips as independent and left a random walk and an air-con cycle at 1.3-1.6 times the
     widened sigma (tools/bench_loop.py).
 
