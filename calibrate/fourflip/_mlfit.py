@@ -397,11 +397,9 @@ def structured_covariance(fit: MLFit, noise: np.ndarray) -> np.ndarray:
     """Covariance of a fit's parameters with its residual's structure a process in time, one per channel.
 
     :func:`calibrate.diagnosis.robust.time_correlated_covariance` on the bins the fit ran on, each
-    channel's structure an offset process plus a gain process times the channel's signal (its
-    log-gain column of the Jacobian: a wandering gain's residual is the gain times the field along
-    the channel), each stationary over the whole recording (across flips: a slow wander or a room's
-    temperature cycle carries over from one flip to the next), their spectra estimated from what the
-    fit left of them.  Per-flip clusters (CR2, :func:`calibrate.diagnosis.robust.cluster_covariance`)
+    channel's structure a stationary process over the whole recording (across flips: a slow wander
+    or a room's temperature cycle carries over from one flip to the next), its spectrum estimated
+    from what the fit left of it.  Per-flip clusters (CR2, :func:`calibrate.diagnosis.robust.cluster_covariance`)
     took flips as independent and left a random walk and an air-con cycle at 1.3-1.6 times the
     widened sigma (tools/bench_loop.py).
 
@@ -417,13 +415,7 @@ def structured_covariance(fit: MLFit, noise: np.ndarray) -> np.ndarray:
     # without a t_s column, the recording's order at one bin a second
     t_s = bins.samples.t_s if bins.samples.t_s is not None else np.arange(weighted.shape[0], dtype=float)
     bread = fit.covariance / (fit.chi2 / max(fit.dof, 1))
-    n, c = weighted.shape
-    # a gain's wander enters as the gain times the signal: each channel's log-gain column of the Jacobian
-    gain_columns = np.array([fit.names.index(f"{ch}.log_gain") for ch in fit.layout.channels])
-    signal = np.nan_to_num(fit.jac[:, gain_columns]).reshape(n, c, c)[:, np.arange(c), np.arange(c)]
-    signal = signal / np.maximum(np.sqrt(np.mean(signal**2, axis=0)), np.finfo(float).tiny)
-    modulation = np.stack([np.ones_like(signal), signal], axis=2)
-    return time_correlated_covariance(fit.jac, weighted, t_s, bread, modulation=modulation)
+    return time_correlated_covariance(fit.jac, weighted, t_s, bread)
 
 
 def with_covariance(fit: MLFit, covariance: np.ndarray) -> MLFit:

@@ -183,10 +183,9 @@ def _widen(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
         "direction_sigma_deg": {name: {"naive": float(b), "widened": float(a)}
                                 for name, b, a in zip(channels, before, after)},
         "heading_sigma_deg": {"naive": heading[0], "widened": heading[1]},
-        "method": ("the residual's structure taken as an offset process and a gain process times the signal, each "
-                   "stationary in time over the whole recording (each channel's own and common to pairs), their "
-                   "spectra in octave bands estimated from the residual's block sums (of r and of r times the "
-                   "signal) with what the fit absorbed accounted for, propagated into the parameters; the file's "
+        "method": ("the residual's structure taken as a stationary process in time over the whole recording (each "
+                   "channel's own and common to pairs), its spectrum in octave bands estimated from the residual's "
+                   "block sums with what the fit absorbed accounted for, propagated into the parameters; the file's "
                    "sigmas are the larger of it and the naive ones"),
     }
     return wide, cost
