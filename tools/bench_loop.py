@@ -18,7 +18,11 @@ flips: 1440 samples) from a forward model written here in plain numpy (not
   step 5 times the noise), and ``air-con cycle`` (offsets and gains following a 600 s room
   temperature cycle, no ``temp_c``: added after the widening was chosen and never used to choose it);
   ``pink offsets`` (1/f offset noise, 0.3 uT RMS) and ``gain walk`` (each gain a random walk,
-  1e-4 a sample), made after the time-process widening was chosen and never used to choose it.
+  1e-4 a sample), made after the time-process widening was chosen and never used to choose it;
+  ``gain sine`` (each gain swinging 0.3 % at a 500 s period, its own phase) and ``offset step`` (one
+  channel's offset jumping 0.4 uT at a random time), made to judge a gain process times the signal
+  beside the offsets' (:func:`calibrate.diagnosis.robust.time_correlated_covariance`'s ``modulation``;
+  measured and not adopted: docs/benchmarks.md) and never used to choose it.
 
 It prints, per case and for each version: what the loop named (the commonest set), how often it
 said ``unexplained``, the direction error over the stated sigma (RMS over channels and seeds; 1
@@ -67,7 +71,7 @@ STEP_DEG = 1.0
 VOCABULARY = ("clean", "odd cubic", "encoder", "warm-up", "platform field", "flip error", "gain drift",
               "cubic + quad drift", "four stacked")
 OUTSIDE = ("spike bursts", "precessing axis", "knee", "rate memory", "random walk", "ADC 5x", "air-con cycle",
-           "pink offsets", "gain walk")
+           "pink offsets", "gain walk", "gain sine", "offset step")
 CASES = VOCABULARY + OUTSIDE
 
 
@@ -132,6 +136,11 @@ def session(seed: int, case: str):
         offsets = offsets + 0.3 * pink / pink.std(axis=0) * GAIN_V_PER_UT
     if case == "gain walk":  # each gain wandering as a random walk
         g = g * (1.0 + np.cumsum(rng.normal(scale=1e-4, size=(flip.size, 3)), axis=0))
+    if case == "gain sine":  # each gain swinging 0.3 % at a 500 s period (not a flip's 420 s), its own phase
+        g = g * (1.0 + 0.003 * np.sin(2 * np.pi * t_s[:, None] / 500.0 + rng.uniform(0, 2 * np.pi, size=3)))
+    if case == "offset step":  # one channel's offset jumping 0.4 uT at a random time within the session
+        jump = rng.integers(3)
+        offsets[t_s >= rng.uniform(t_s[0], t_s[-1]), jump] += 0.4 * GAIN_V_PER_UT
     if case == "rate memory":
         rate = np.gradient(x, axis=0)
         rate[np.r_[True, flip[1:] != flip[:-1]]] = 0.0

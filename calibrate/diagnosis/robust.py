@@ -1,7 +1,8 @@
 """What an unexplained residual costs: a covariance that covers it, in the units a user reads.
 
 Two covariances: per-cluster (:func:`cluster_covariance`, CR2) and a process in time over the whole
-recording (:func:`time_correlated_covariance`, what the four-flip's widening uses).
+recording (:func:`time_correlated_covariance`, what the four-flip's widening uses; it can take a gain
+process times the signal beside the offsets', which the four-flip does not: see "A gain process").
 
 When structure remains that no effect explains (SPEC section 4, ``unexplained: true``), the fit's
 covariance ``(J^T J)^-1 chi2/dof`` assumes residuals independent from sample to sample: a smooth
@@ -77,6 +78,44 @@ Each band's statistic is therefore compared with its own null distribution, simu
 noise ``z ~ N(0, keep)`` exactly (a linear fit), so ``NULL_DRAWS`` block sums drawn through
 ``keep``'s eigendecomposition, with a fixed seed (the fit is deterministic), give it.
 
+A gain process times the signal.  A gain that wanders, ``K_c (1 + g_c(t))``, adds ``K_c x_c(t) g_c(t)``
+to channel ``c``'s reading: the residual is then not stationary but a product, the gain's slow process
+times the signal ``x_c`` (the field along the channel, turned by the turntable).  Taken as an offset
+process its block sums show power near the turntable's rate with no phase tied to the signal, and the
+spread of a stationary offset process there moves the directions; the gain's own estimate, which a
+gain process moves most, is under-covered (1.44 times in the test).  So the residual is modelled as
+
+.. math:: r_c(t) = o_c(t) + g_c(t)\\, \\hat x_c(t) + e_c(t),
+
+``o`` and ``g`` each a stationary process as above (block-constant within a block), ``\\hat x_c`` the
+signal known from the fit (the channel's log-gain column of the Jacobian, scaled to unit RMS).  Each
+channel then has two groups, and the block sums are ``z = D^T r``: the sums of ``r`` and of
+``r \\hat x`` over each block, ``D`` the map from the block-constant processes to the residual.
+Everything above holds with ``A`` replaced by ``D^T``: ``keep = D^T (I - P) D`` (``D^T D`` is no longer
+diagonal: within a channel and a block it holds the sums of ``1``, ``\\hat x`` and ``\\hat x^2``),
+``G = D^T J``, ``V = (1 + f) H^-1 + H^-1 G^T K G H^-1``; each kind's process is propagated through its
+own Jacobian columns, the gain's through ``\\sum \\hat x J`` over the block.  Pairs of groups (common
+processes) join groups of one kind only.  The two kinds are not cleanly told apart: within a block the
+signal barely changes (10 s is 10 degrees of turntable), so a block's offset ``o_b`` and a gain ``g_b``
+times a signal near ``\\hat x_b`` give sums of ``r`` and of ``r \\hat x`` in the same ratio ``\\hat x_b``;
+only their spectra across blocks differ (a slow gain times the turning signal is an offset near the
+turntable's rate).  The non-negative fit shares the power between them, and the share the offsets take
+propagates with the larger leverage an offset process has on the directions: a gain walk stays
+over-covered (0.73 in the test), an offset walk's gain estimate too (0.54; the directions' column is
+not: 1.09).  Testing each kind against what the other alone explains (a conditional score test, the
+likelier kind kept when neither adds to the other) was tried on the bench's seeds 0-9: gain walk 0.62,
+but an air-con cycle, whose offsets and gains follow one cycle, went to 1.34; not adopted.
+
+Not wired into the four-flip (``modulation`` stays an option of :func:`time_correlated_covariance`).
+With the gain groups (the channel's log-gain Jacobian column as the signal) tools/bench_loop.py on
+seeds 0-19 against the offsets alone (err/sig over the recordings called unexplained): gain walk 0.48
+-> 0.58, but a gain swinging at a 500 s period (``gain sine``, made to judge it, never used to choose
+it) 0.85 -> 0.68, out of the band it was in, and rate memory 0.41 -> 0.32; the rest within 0.1 (air-con
+1.10 -> 1.07, precessing axis 1.04 -> 1.14, spike bursts 1.03 -> 0.94); the worst CPU time of one
+calibration 1.28 -> 1.76 s.  A gain's slow swing is a structure the fit's own gain and the directions
+absorb largely; what shows is shared with the offsets' groups as above, and both kinds' low bands are
+propagated whole.
+
 Checks on paper.  White noise: every right-hand side is centred, no band passes but by chance, the
 floor's factor is unbiased: ``V = H^-1`` (the naive covariance) on average without the
 non-negativity, and in most recordings with it.  A structure the fit absorbs whole (a constant tilt
@@ -89,8 +128,18 @@ passes the score test by chance where the fit absorbs nearly all of it (periods 
 widens by far too much: at the test's level that is about 1 % of white-noise recordings (none of
 120 replicates of the test's two-channel line widened beyond 1.33 times; with the chi-square
 threshold 2 of 40 widened 39 times).  A flat spectrum within the lowest band over-covers a random walk where per-segment levels
-absorb most of it (0.53 in the test).  Rate memory stays over-covered (its fundamental is absorbed
-in every channel alike, which a stationary process does not know).
+absorb most of it (0.53 in the test).  Rate memory stays over-covered (stated sigma about 2.5 times
+the error), for a reason on paper: its offset ``+-h`` by the sign of the channel's field change is a
+square wave locked to the turntable angle, ``-(4h/pi) (sin u + sin 3u / 3 + sin 5u / 5 + ...)``,
+``u = phi + alpha_c``.  The fundamental is a lag of the channel's sinusoid by ``4h / (pi A_c)``; common
+to the channels it is a change of the field's azimuth, which absorbs it (the directions move by the
+noise's amount: 0.012 deg, as a clean recording).  The harmonics are whole multiples of the turn's rate
+over whole turns, orthogonal to a direction's columns (a flip's constant, ``cos phi``, ``sin phi``), so
+they move nothing either.  The residual shows the harmonics, and the process model spreads their power
+flat over each octave band: a stationary process there has components at every frequency of the band,
+which over a 360 s turn leak into ``cos phi`` and ``sin phi`` (the turn's window), so it propagates
+into the directions a variance the phase-locked harmonics do not carry.  Over, not under: a bound from
+the residual cannot see the absorbed fundamental, and the harmonics it does see move nothing.
 """
 
 from __future__ import annotations
@@ -115,6 +164,8 @@ BAND_P_VALUE = 0.01
 """A band's spectral matrix counts when white noise would leave one as large this rarely (simulated null)."""
 NULL_DRAWS = 1000
 """Draws of white noise's block sums giving each band's null distribution (fixed seed: the fit is deterministic)."""
+KERNEL_RCOND = 1e-12
+"""A band kernel's eigenvalues below this fraction of its largest count as zero (its factor for the quadratics)."""
 NULL_CHUNK = 250
 """Draws simulated at once (memory: draws x bands x channels x blocks)."""
 
@@ -272,11 +323,18 @@ def band_edges_hz(block_s: float, n_bands: int) -> np.ndarray:
     return np.concatenate([[0.0], 0.5 / block_s / 2.0 ** np.arange(n_bands - 1, -1, -1)])
 
 
-def _loadings(n_groups: int) -> np.ndarray:
-    """How a structure process enters the groups: each alone, then each pair alike and opposed, shape (l, groups)."""
+def _loadings(n_groups: int, n_kinds: int = 1) -> np.ndarray:
+    """How a structure process enters the groups: each alone, then each pair of one kind alike and opposed.
+
+    Groups are channel-major ``(channel, kind)``, ``n_kinds`` per channel (an offset process and a gain
+    process times the signal: :func:`time_correlated_covariance`'s ``modulation``); pairs only join groups
+    of one kind.  Shape (l, groups).
+    """
     out = list(np.eye(n_groups))
     for a in range(n_groups):
         for b in range(a + 1, n_groups):
+            if (b - a) % n_kinds:
+                continue
             for sign in (1.0, -1.0):
                 v = np.zeros(n_groups)
                 v[a], v[b] = np.sqrt(0.5), sign * np.sqrt(0.5)
@@ -294,12 +352,18 @@ class _BlockMoments(NamedTuple):
     bands: np.ndarray  # white beyond the floor, then each band's kernel B_k, (bands, nb, nb)
     blocks: np.ndarray  # keep = A (I - P) A^T as (c, nb, c, nb)
     root: np.ndarray  # keep = root root^T, (c nb, rank)
+    factors: np.ndarray  # each band's kernel B_k = F_k F_k^T (its range), side by side: (nb, sum of ranks)
+    splits: np.ndarray  # where each band's columns of ``factors`` end, (bands,)
     floor_rhs: float  # z^T keep^+ z - rank(keep)
     traces: np.ndarray  # tr(B_k keep_bc B_l keep_da), (bands, c, c, bands, c, c)
 
 
-def _block_moments(jac, weighted, t_s, bread, block_s, n_bands) -> _BlockMoments:
-    """Block sums, what the fit keeps of them and the band kernels (raises as :func:`time_correlated_covariance`)."""
+def _block_moments(jac, weighted, t_s, bread, block_s, n_bands, modulation=None) -> _BlockMoments:
+    """Block sums, what the fit keeps of them and the band kernels (raises as :func:`time_correlated_covariance`).
+
+    The groups are (channel, modulation) pairs, channel-major: group ``(c, q)`` sums ``m_icq r_ic`` over each
+    block, ``D^T r`` with ``D`` the map from block-constant processes to the residual (module docstring).
+    """
     jac = np.asarray(jac, dtype=float)
     weighted = np.atleast_2d(np.asarray(weighted, dtype=float).T).T
     t_s = np.asarray(t_s, dtype=float)
@@ -308,17 +372,29 @@ def _block_moments(jac, weighted, t_s, bread, block_s, n_bands) -> _BlockMoments
         raise ValueError(f"expected {jac.shape[0]} residuals as ({t_s.size} times) x channels, got {weighted.shape}")
     if not block_s > 0:
         raise ValueError(f"block_s must be positive, got {block_s}")
+    mod = np.ones((n, c, 1)) if modulation is None else np.asarray(modulation, dtype=float)
+    if mod.ndim != 3 or mod.shape[:2] != (n, c) or not np.all(np.isfinite(mod)):
+        raise ValueError(f"expected a finite modulation of shape ({n}, {c}, q), got {mod.shape}")
+    q = mod.shape[2]
     good = np.isfinite(np.diag(bread))
     b = bread[np.ix_(good, good)]
     block = np.unique(np.floor((t_s - t_s.min()) / block_s), return_inverse=True)[1].ravel()
     nb = block.max() + 1
     size = np.bincount(block, minlength=nb).astype(float)
     t_block = np.bincount(block, weights=t_s, minlength=nb) / size
-    summed_jac = np.zeros((nb, c, b.shape[0]))  # G = A J, A the block sums; rows channel-major below
-    np.add.at(summed_jac, block, np.nan_to_num(jac[:, good]).reshape(n, c, -1))
-    summed_jac = summed_jac.transpose(1, 0, 2).reshape(c * nb, -1)
-    keep = np.diag(np.tile(size, c)) - summed_jac @ b @ summed_jac.T  # A (I - P) A^T = A (I - P) U
-    y = np.concatenate([np.bincount(block, weights=w, minlength=nb) for w in weighted.T]).reshape(c, nb)
+    # G = D^T J, rows group-major ((channel, modulation), block)
+    summed_jac = np.zeros((nb, c, q, b.shape[0]))
+    np.add.at(summed_jac, block, mod[..., None] * np.nan_to_num(jac[:, good]).reshape(n, c, 1, -1))
+    summed_jac = summed_jac.transpose(1, 2, 0, 3).reshape(c * q * nb, -1)
+    # D^T D: within one channel and one block, the modulations' sums of products
+    own = np.zeros((nb, c, q, q))
+    np.add.at(own, block, mod[..., :, None] * mod[..., None, :])
+    gram = np.zeros((c, q, nb, c, q, nb))
+    for ch in range(c):
+        gram[ch, :, np.arange(nb), ch, :, np.arange(nb)] = own[:, ch]
+    keep = gram.reshape(c * q * nb, -1) - summed_jac @ b @ summed_jac.T  # D^T (I - P) D
+    y = np.einsum("ncq,nc->cqn", mod, weighted)
+    y = np.stack([[np.bincount(block, weights=v, minlength=nb) for v in per] for per in y]).reshape(c * q, nb)
     edges = band_edges_hz(block_s, n_bands)
     lag = t_block[:, None] - t_block[None, :]
     bands = np.stack([np.eye(nb)] + [_band_kernel(lag, lo, hi) for lo, hi in zip(edges[:-1], edges[1:])])
@@ -327,10 +403,17 @@ def _block_moments(jac, weighted, t_s, bread, block_s, n_bands) -> _BlockMoments
     positive = w > w.max(initial=0.0) * keep.shape[0] * np.finfo(float).eps
     root = u[:, positive] * np.sqrt(w[positive])
     floor_rhs = float(np.sum((u[:, positive].T @ y.ravel()) ** 2 / w[positive]) - positive.sum())
-    blocks = keep.reshape(c, nb, c, nb)
+    blocks = keep.reshape(c * q, nb, c * q, nb)
     moved = np.einsum("kij,bjcl->kbcil", bands, blocks, optimize=True)  # B_k keep_bc
     traces = np.tensordot(moved, moved, axes=([3, 4], [4, 3]))  # (k, b, c, l, d, a)
-    return _BlockMoments(b, good, summed_jac, y, bands, blocks, root, floor_rhs, traces)
+    factors = []
+    for kernel in bands:  # the low bands' kernels have few effective dimensions over the record
+        w, u = np.linalg.eigh(kernel)
+        kept = w > w.max() * KERNEL_RCOND
+        factors.append(u[:, kept] * np.sqrt(w[kept]))
+    splits = np.cumsum([f.shape[1] for f in factors])
+    return _BlockMoments(b, good, summed_jac, y, bands, blocks, root, np.hstack(factors), splits,
+                         floor_rhs, traces)
 
 
 def _with_floor(m: _BlockMoments, outer: np.ndarray, quadratic: np.ndarray, floor_quadratic: np.ndarray):
@@ -352,10 +435,13 @@ def _with_floor(m: _BlockMoments, outer: np.ndarray, quadratic: np.ndarray, floo
     return normal, np.column_stack([floor_quadratic - rank, rhs])
 
 
-def _quadratic(bands: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """``z_a^T B_k z_d`` of block sums ``z`` (draws, c, nb): shape (draws, bands, c, c).  Batched products
-    (BLAS), not one einsum: numpy's contraction path leaves the batch over draws to its C loop."""
-    return np.matmul(np.matmul(z[:, None], bands), z.transpose(0, 2, 1)[:, None])
+def _quadratic(m: _BlockMoments, z: np.ndarray) -> np.ndarray:
+    """``z_a^T B_k z_d`` of block sums ``z`` (draws, c, nb): shape (draws, bands, c, c).
+
+    Through each kernel's factor (``B_k = F_k F_k^T``): ``(z F_k)(z F_k)^T``, batched products (BLAS).
+    """
+    projected = z @ m.factors  # (draws, c, sum of ranks)
+    return np.stack([p @ p.transpose(0, 2, 1) for p in np.split(projected, m.splits[:-1], axis=2)], axis=1)
 
 
 def _band_p_values(m: _BlockMoments) -> np.ndarray:
@@ -368,7 +454,7 @@ def _band_p_values(m: _BlockMoments) -> np.ndarray:
     own = np.ones((len(m.bands), len(entries)), dtype=bool)
     own[0] = [i == j for i, j in entries]  # white beyond the floor: each channel's own
     index = 1 + np.arange(own.size).reshape(own.shape)
-    normal, _ = _with_floor(m, basis, _quadratic(m.bands, m.y[None]), np.array([m.floor_rhs + m.root.shape[1]]))
+    normal, _ = _with_floor(m, basis, _quadratic(m, m.y[None]), np.array([m.floor_rhs + m.root.shape[1]]))
     # the floor's factor profiled out: score = rhs_i - <i, floor> rhs_floor / <floor, floor>, under white noise
     # centred with covariance `spread` (twice the profiled normal matrix, were z Gaussian in K's coordinates)
     tests = []
@@ -383,7 +469,7 @@ def _band_p_values(m: _BlockMoments) -> np.ndarray:
         score = [rhs[:, i] - np.outer(rhs[:, 0], lever) for i, lever, _ in tests]
         return np.column_stack([np.einsum("mi,ij,mj->m", s, w, s) for s, (_, _, w) in zip(score, tests)])
 
-    observed = statistics(_quadratic(m.bands, m.y[None]), np.array([m.floor_rhs + m.root.shape[1]]))[0]
+    observed = statistics(_quadratic(m, m.y[None]), np.array([m.floor_rhs + m.root.shape[1]]))[0]
     # the statistic is a quadratic form of few effective degrees of freedom in the low bands (heavy-tailed, far
     # from chi-square): its null by simulation, z = A r ~ N(0, keep) under white noise, with a fixed seed
     rng = np.random.default_rng(0)
@@ -391,12 +477,12 @@ def _band_p_values(m: _BlockMoments) -> np.ndarray:
     for start in range(0, NULL_DRAWS, NULL_CHUNK):
         g = rng.standard_normal((min(NULL_CHUNK, NULL_DRAWS - start), m.root.shape[1]))
         z = (g @ m.root.T).reshape(len(g), c, -1)
-        exceed += np.sum(statistics(_quadratic(m.bands, z), np.sum(g**2, axis=1)) >= observed, axis=0)
+        exceed += np.sum(statistics(_quadratic(m, z), np.sum(g**2, axis=1)) >= observed, axis=0)
     return (1.0 + exceed) / (1.0 + NULL_DRAWS)
 
 
 def band_p_values(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: np.ndarray,
-                  block_s: float = BLOCK_S, n_bands: int = N_BANDS) -> np.ndarray:
+                  block_s: float = BLOCK_S, n_bands: int = N_BANDS, modulation: np.ndarray | None = None) -> np.ndarray:
     """Stage 1 of :func:`time_correlated_covariance` alone: each band's p-value for structure (white first).
 
     Parameters as :func:`time_correlated_covariance`.  Under white noise each is uniform on
@@ -407,11 +493,12 @@ def band_p_values(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread:
     ndarray, shape (n_bands + 1,)
         White beyond the floor, then the bands from 0 Hz upward.
     """
-    return _band_p_values(_block_moments(jac, weighted, t_s, bread, block_s, n_bands))
+    return _band_p_values(_block_moments(jac, weighted, t_s, bread, block_s, n_bands, modulation))
 
 
 def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: np.ndarray,
-                               block_s: float = BLOCK_S, n_bands: int = N_BANDS) -> np.ndarray:
+                               block_s: float = BLOCK_S, n_bands: int = N_BANDS,
+                               modulation: np.ndarray | None = None) -> np.ndarray:
     """Covariance of a least-squares fit's parameters with its residual's structure a stationary process in time.
 
     The module docstring's "A process in time": the residual summed over time blocks, the
@@ -436,6 +523,10 @@ def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.nd
         Length of the time blocks, s: structure faster than this counts as white beyond the floor.
     n_bands : int
         Octave bands of the spectrum below the blocks' Nyquist (the lowest reaches 0 Hz).
+    modulation : ndarray, shape (n, c, q), optional
+        How each of ``q`` kinds of block-constant process enters each channel's residual at each
+        sample (the module docstring's "A gain process times the signal": ones for an offset, the
+        signal for a gain); default ones, ``q = 1``.  Groups are (channel, kind), pairs within a kind.
 
     Returns
     -------
@@ -445,32 +536,39 @@ def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.nd
     Raises
     ------
     ValueError
-        Mismatched shapes, or a non-positive block length.
+        Mismatched shapes, a non-positive block length, or a modulation not finite or not (n, c, q).
     """
-    m = _block_moments(jac, weighted, t_s, bread, block_s, n_bands)
+    m = _block_moments(jac, weighted, t_s, bread, block_s, n_bands, modulation)
     c = m.y.shape[0]
-    # stage 1: which bands carry structure at all (a score test per band, its null by simulation)
-    carries = _band_p_values(m) <= BAND_P_VALUE
-    # stage 2: the floor's factor (at least -1) and the spectrum on the bands that carry structure,
-    # non-negative: each channel's own process and processes common to each pair of channels, alike or opposed
-    loads = _loadings(c)
+    loads = _loadings(c, 1 if modulation is None else np.shape(modulation)[2])
     outer = np.einsum("vi,vj->vij", loads, loads)
-    gram, rhs = _with_floor(m, outer, _quadratic(m.bands, m.y[None]), np.array([m.floor_rhs + m.root.shape[1]]))
+    gram, rhs = _with_floor(m, outer, _quadratic(m, m.y[None]), np.array([m.floor_rhs + m.root.shape[1]]))
     rhs = rhs[0]
-    used = np.zeros((len(m.bands), len(loads)), dtype=bool)
-    used[carries] = True
-    used[0, c:] = False
+    # stage 1: which bands carry structure at all (a score test per band, its null by simulation)
+    used = np.tile(_band_p_values(m)[:, None] <= BAND_P_VALUE, (1, len(loads)))
+    used[0, c:] = False  # white beyond the floor: each group's own
+    # stage 2: the floor's factor (at least -1) and the spectrum on the bands that carry structure,
+    # non-negative: each group's own process and processes common to each pair of groups, alike or opposed
+    floor, power = _spectrum(m, gram, rhs, used)
+    out = np.full(bread.shape, np.nan)
+    b, g = m.b, m.summed_jac
+    out[np.ix_(m.good, m.good)] = (1.0 + floor) * b + b @ g.T @ _structure(m, power, outer) @ g @ b
+    return out
+
+
+def _spectrum(m: _BlockMoments, gram: np.ndarray, rhs: np.ndarray, used: np.ndarray) -> tuple[float, np.ndarray]:
+    """The floor's factor (at least -1) and the non-negative spectrum on the ``used`` (band, loading) pairs."""
     on = np.concatenate([[True], used.ravel()])
     scale = np.sqrt(np.maximum(np.diag(gram)[on], np.finfo(float).tiny))
     half, target = _half_system(gram[np.ix_(on, on)] / np.outer(scale, scale), rhs[on] / scale)
     lower = np.r_[-1.0, np.zeros(on.sum() - 1)] * scale
     solution = np.zeros(on.size)
     solution[on] = lsq_linear(half, target, bounds=(lower, np.inf)).x / scale
-    floor, power = solution[0], solution[1:]
-    nb = m.y.shape[1]
-    structure = np.einsum("kv,vad,kij->aidj", power.reshape(used.shape), outer, m.bands,
-                          optimize=True).reshape(c * nb, c * nb)
-    out = np.full(bread.shape, np.nan)
-    b, g = m.b, m.summed_jac
-    out[np.ix_(m.good, m.good)] = (1.0 + floor) * b + b @ g.T @ structure @ g @ b
-    return out
+    return float(solution[0]), solution[1:].reshape(used.shape)
+
+
+def _structure(m: _BlockMoments, power: np.ndarray, outer: np.ndarray) -> np.ndarray:
+    """``K = sum_kv power_kv (outer_v kron B_k)``, the block processes' covariance, (c nb, c nb)."""
+    c, nb = m.y.shape
+    return np.einsum("kv,vad,kij->aidj", power, outer, m.bands, optimize=True).reshape(c * nb, c * nb)
+
