@@ -21,8 +21,7 @@ flips: 1440 samples) from a forward model written here in plain numpy (not
   1e-4 a sample), made after the time-process widening was chosen and never used to choose it;
   ``gain sine`` (each gain swinging 0.3 % at a 500 s period, its own phase) and ``offset step`` (one
   channel's offset jumping 0.4 uT at a random time), made to judge a gain process times the signal
-  beside the offsets' (:func:`calibrate.diagnosis.robust.time_correlated_covariance`'s ``modulation``;
-  measured and not adopted: docs/benchmarks.md) and never used to choose it.
+  beside the offsets' (measured and not adopted: docs/benchmarks.md) and never used to choose it.
 
 It prints, per case and for each version: what the loop named (the commonest set), how often it
 said ``unexplained``, the direction error over the stated sigma (RMS over channels and seeds; 1

@@ -1,8 +1,7 @@
 """What an unexplained residual costs: a covariance that covers it, in the units a user reads.
 
 Two covariances: per-cluster (:func:`cluster_covariance`, CR2) and a process in time over the whole
-recording (:func:`time_correlated_covariance`, what the four-flip's widening uses; it can take a gain
-process times the signal beside the offsets', which the four-flip does not: see "A gain process").
+recording (:func:`time_correlated_covariance`, what the four-flip's widening uses).
 
 When structure remains that no effect explains (SPEC section 4, ``unexplained: true``), the fit's
 covariance ``(J^T J)^-1 chi2/dof`` assumes residuals independent from sample to sample: a smooth
@@ -78,43 +77,15 @@ Each band's statistic is therefore compared with its own null distribution, simu
 noise ``z ~ N(0, keep)`` exactly (a linear fit), so ``NULL_DRAWS`` block sums drawn through
 ``keep``'s eigendecomposition, with a fixed seed (the fit is deterministic), give it.
 
-A gain process times the signal.  A gain that wanders, ``K_c (1 + g_c(t))``, adds ``K_c x_c(t) g_c(t)``
-to channel ``c``'s reading: the residual is then not stationary but a product, the gain's slow process
-times the signal ``x_c`` (the field along the channel, turned by the turntable).  Taken as an offset
-process its block sums show power near the turntable's rate with no phase tied to the signal, and the
-spread of a stationary offset process there moves the directions; the gain's own estimate, which a
-gain process moves most, is under-covered (1.44 times in the test).  So the residual is modelled as
-
-.. math:: r_c(t) = o_c(t) + g_c(t)\\, \\hat x_c(t) + e_c(t),
-
-``o`` and ``g`` each a stationary process as above (block-constant within a block), ``\\hat x_c`` the
-signal known from the fit (the channel's log-gain column of the Jacobian, scaled to unit RMS).  Each
-channel then has two groups, and the block sums are ``z = D^T r``: the sums of ``r`` and of
-``r \\hat x`` over each block, ``D`` the map from the block-constant processes to the residual.
-Everything above holds with ``A`` replaced by ``D^T``: ``keep = D^T (I - P) D`` (``D^T D`` is no longer
-diagonal: within a channel and a block it holds the sums of ``1``, ``\\hat x`` and ``\\hat x^2``),
-``G = D^T J``, ``V = (1 + f) H^-1 + H^-1 G^T K G H^-1``; each kind's process is propagated through its
-own Jacobian columns, the gain's through ``\\sum \\hat x J`` over the block.  Pairs of groups (common
-processes) join groups of one kind only.  The two kinds are not cleanly told apart: within a block the
-signal barely changes (10 s is 10 degrees of turntable), so a block's offset ``o_b`` and a gain ``g_b``
-times a signal near ``\\hat x_b`` give sums of ``r`` and of ``r \\hat x`` in the same ratio ``\\hat x_b``;
-only their spectra across blocks differ (a slow gain times the turning signal is an offset near the
-turntable's rate).  The non-negative fit shares the power between them, and the share the offsets take
-propagates with the larger leverage an offset process has on the directions: a gain walk stays
-over-covered (0.73 in the test), an offset walk's gain estimate too (0.54; the directions' column is
-not: 1.09).  Testing each kind against what the other alone explains (a conditional score test, the
-likelier kind kept when neither adds to the other) was tried on the bench's seeds 0-9: gain walk 0.62,
-but an air-con cycle, whose offsets and gains follow one cycle, went to 1.34; not adopted.
-
-Not wired into the four-flip (``modulation`` stays an option of :func:`time_correlated_covariance`).
-With the gain groups (the channel's log-gain Jacobian column as the signal) tools/bench_loop.py on
-seeds 0-19 against the offsets alone (err/sig over the recordings called unexplained): gain walk 0.48
--> 0.58, but a gain swinging at a 500 s period (``gain sine``, made to judge it, never used to choose
-it) 0.85 -> 0.68, out of the band it was in, and rate memory 0.41 -> 0.32; the rest within 0.1 (air-con
-1.10 -> 1.07, precessing axis 1.04 -> 1.14, spike bursts 1.03 -> 0.94); the worst CPU time of one
-calibration 1.28 -> 1.76 s.  A gain's slow swing is a structure the fit's own gain and the directions
-absorb largely; what shows is shared with the offsets' groups as above, and both kinds' low bands are
-propagated whole.
+A gain process times the signal (tried, not adopted).  A gain that wanders, ``K_c (1 + g_c(t))``,
+adds ``K_c x_c(t) g_c(t)`` to channel ``c``'s reading: a product, the gain's slow process times the
+signal ``x_c``, not a stationary residual.  Modelling the residual as ``o_c(t) + g_c(t) \\hat x_c(t) +
+e_c(t)`` (block sums of ``r`` and of ``r \\hat x``, each kind propagated through its own Jacobian
+columns) was built and measured (commit 57c2954, docs/benchmarks.md): within a 10 s block the signal
+barely changes, so an offset and a gain give the two sums in the same ratio and the fit shares the
+power between them; the offsets' share propagates with an offset's larger leverage on the directions.
+On tools/bench_loop.py seeds 0-19 a gain walk went 0.48 -> 0.58 but a gain swinging at a 500 s period
+(``gain sine``, made to judge it) 0.85 -> 0.68, out of the band; the four-flip keeps the offsets alone.
 
 Checks on paper.  White noise: every right-hand side is centred, no band passes but by chance, the
 floor's factor is unbiased: ``V = H^-1`` (the naive covariance) on average without the
@@ -323,18 +294,11 @@ def band_edges_hz(block_s: float, n_bands: int) -> np.ndarray:
     return np.concatenate([[0.0], 0.5 / block_s / 2.0 ** np.arange(n_bands - 1, -1, -1)])
 
 
-def _loadings(n_groups: int, n_kinds: int = 1) -> np.ndarray:
-    """How a structure process enters the groups: each alone, then each pair of one kind alike and opposed.
-
-    Groups are channel-major ``(channel, kind)``, ``n_kinds`` per channel (an offset process and a gain
-    process times the signal: :func:`time_correlated_covariance`'s ``modulation``); pairs only join groups
-    of one kind.  Shape (l, groups).
-    """
+def _loadings(n_groups: int) -> np.ndarray:
+    """How a structure process enters the groups: each alone, then each pair alike and opposed, shape (l, groups)."""
     out = list(np.eye(n_groups))
     for a in range(n_groups):
         for b in range(a + 1, n_groups):
-            if (b - a) % n_kinds:
-                continue
             for sign in (1.0, -1.0):
                 v = np.zeros(n_groups)
                 v[a], v[b] = np.sqrt(0.5), sign * np.sqrt(0.5)
@@ -358,12 +322,8 @@ class _BlockMoments(NamedTuple):
     traces: np.ndarray  # tr(B_k keep_bc B_l keep_da), (bands, c, c, bands, c, c)
 
 
-def _block_moments(jac, weighted, t_s, bread, block_s, n_bands, modulation=None) -> _BlockMoments:
-    """Block sums, what the fit keeps of them and the band kernels (raises as :func:`time_correlated_covariance`).
-
-    The groups are (channel, modulation) pairs, channel-major: group ``(c, q)`` sums ``m_icq r_ic`` over each
-    block, ``D^T r`` with ``D`` the map from block-constant processes to the residual (module docstring).
-    """
+def _block_moments(jac, weighted, t_s, bread, block_s, n_bands) -> _BlockMoments:
+    """Block sums, what the fit keeps of them and the band kernels (raises as :func:`time_correlated_covariance`)."""
     jac = np.asarray(jac, dtype=float)
     weighted = np.atleast_2d(np.asarray(weighted, dtype=float).T).T
     t_s = np.asarray(t_s, dtype=float)
@@ -372,29 +332,17 @@ def _block_moments(jac, weighted, t_s, bread, block_s, n_bands, modulation=None)
         raise ValueError(f"expected {jac.shape[0]} residuals as ({t_s.size} times) x channels, got {weighted.shape}")
     if not block_s > 0:
         raise ValueError(f"block_s must be positive, got {block_s}")
-    mod = np.ones((n, c, 1)) if modulation is None else np.asarray(modulation, dtype=float)
-    if mod.ndim != 3 or mod.shape[:2] != (n, c) or not np.all(np.isfinite(mod)):
-        raise ValueError(f"expected a finite modulation of shape ({n}, {c}, q), got {mod.shape}")
-    q = mod.shape[2]
     good = np.isfinite(np.diag(bread))
     b = bread[np.ix_(good, good)]
     block = np.unique(np.floor((t_s - t_s.min()) / block_s), return_inverse=True)[1].ravel()
     nb = block.max() + 1
     size = np.bincount(block, minlength=nb).astype(float)
     t_block = np.bincount(block, weights=t_s, minlength=nb) / size
-    # G = D^T J, rows group-major ((channel, modulation), block)
-    summed_jac = np.zeros((nb, c, q, b.shape[0]))
-    np.add.at(summed_jac, block, mod[..., None] * np.nan_to_num(jac[:, good]).reshape(n, c, 1, -1))
-    summed_jac = summed_jac.transpose(1, 2, 0, 3).reshape(c * q * nb, -1)
-    # D^T D: within one channel and one block, the modulations' sums of products
-    own = np.zeros((nb, c, q, q))
-    np.add.at(own, block, mod[..., :, None] * mod[..., None, :])
-    gram = np.zeros((c, q, nb, c, q, nb))
-    for ch in range(c):
-        gram[ch, :, np.arange(nb), ch, :, np.arange(nb)] = own[:, ch]
-    keep = gram.reshape(c * q * nb, -1) - summed_jac @ b @ summed_jac.T  # D^T (I - P) D
-    y = np.einsum("ncq,nc->cqn", mod, weighted)
-    y = np.stack([[np.bincount(block, weights=v, minlength=nb) for v in per] for per in y]).reshape(c * q, nb)
+    summed_jac = np.zeros((nb, c, b.shape[0]))  # G = A J, A the block sums; rows channel-major below
+    np.add.at(summed_jac, block, np.nan_to_num(jac[:, good]).reshape(n, c, -1))
+    summed_jac = summed_jac.transpose(1, 0, 2).reshape(c * nb, -1)
+    keep = np.diag(np.tile(size, c)) - summed_jac @ b @ summed_jac.T  # A (I - P) A^T = A (I - P) U
+    y = np.concatenate([np.bincount(block, weights=w, minlength=nb) for w in weighted.T]).reshape(c, nb)
     edges = band_edges_hz(block_s, n_bands)
     lag = t_block[:, None] - t_block[None, :]
     bands = np.stack([np.eye(nb)] + [_band_kernel(lag, lo, hi) for lo, hi in zip(edges[:-1], edges[1:])])
@@ -403,7 +351,7 @@ def _block_moments(jac, weighted, t_s, bread, block_s, n_bands, modulation=None)
     positive = w > w.max(initial=0.0) * keep.shape[0] * np.finfo(float).eps
     root = u[:, positive] * np.sqrt(w[positive])
     floor_rhs = float(np.sum((u[:, positive].T @ y.ravel()) ** 2 / w[positive]) - positive.sum())
-    blocks = keep.reshape(c * q, nb, c * q, nb)
+    blocks = keep.reshape(c, nb, c, nb)
     moved = np.einsum("kij,bjcl->kbcil", bands, blocks, optimize=True)  # B_k keep_bc
     traces = np.tensordot(moved, moved, axes=([3, 4], [4, 3]))  # (k, b, c, l, d, a)
     factors = []
@@ -482,7 +430,7 @@ def _band_p_values(m: _BlockMoments) -> np.ndarray:
 
 
 def band_p_values(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: np.ndarray,
-                  block_s: float = BLOCK_S, n_bands: int = N_BANDS, modulation: np.ndarray | None = None) -> np.ndarray:
+                  block_s: float = BLOCK_S, n_bands: int = N_BANDS) -> np.ndarray:
     """Stage 1 of :func:`time_correlated_covariance` alone: each band's p-value for structure (white first).
 
     Parameters as :func:`time_correlated_covariance`.  Under white noise each is uniform on
@@ -493,12 +441,11 @@ def band_p_values(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread:
     ndarray, shape (n_bands + 1,)
         White beyond the floor, then the bands from 0 Hz upward.
     """
-    return _band_p_values(_block_moments(jac, weighted, t_s, bread, block_s, n_bands, modulation))
+    return _band_p_values(_block_moments(jac, weighted, t_s, bread, block_s, n_bands))
 
 
 def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: np.ndarray,
-                               block_s: float = BLOCK_S, n_bands: int = N_BANDS,
-                               modulation: np.ndarray | None = None) -> np.ndarray:
+                               block_s: float = BLOCK_S, n_bands: int = N_BANDS) -> np.ndarray:
     """Covariance of a least-squares fit's parameters with its residual's structure a stationary process in time.
 
     The module docstring's "A process in time": the residual summed over time blocks, the
@@ -523,10 +470,6 @@ def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.nd
         Length of the time blocks, s: structure faster than this counts as white beyond the floor.
     n_bands : int
         Octave bands of the spectrum below the blocks' Nyquist (the lowest reaches 0 Hz).
-    modulation : ndarray, shape (n, c, q), optional
-        How each of ``q`` kinds of block-constant process enters each channel's residual at each
-        sample (the module docstring's "A gain process times the signal": ones for an offset, the
-        signal for a gain); default ones, ``q = 1``.  Groups are (channel, kind), pairs within a kind.
 
     Returns
     -------
@@ -536,19 +479,19 @@ def time_correlated_covariance(jac: np.ndarray, weighted: np.ndarray, t_s: np.nd
     Raises
     ------
     ValueError
-        Mismatched shapes, a non-positive block length, or a modulation not finite or not (n, c, q).
+        Mismatched shapes, or a non-positive block length.
     """
-    m = _block_moments(jac, weighted, t_s, bread, block_s, n_bands, modulation)
+    m = _block_moments(jac, weighted, t_s, bread, block_s, n_bands)
     c = m.y.shape[0]
-    loads = _loadings(c, 1 if modulation is None else np.shape(modulation)[2])
+    loads = _loadings(c)
     outer = np.einsum("vi,vj->vij", loads, loads)
     gram, rhs = _with_floor(m, outer, _quadratic(m, m.y[None]), np.array([m.floor_rhs + m.root.shape[1]]))
     rhs = rhs[0]
     # stage 1: which bands carry structure at all (a score test per band, its null by simulation)
     used = np.tile(_band_p_values(m)[:, None] <= BAND_P_VALUE, (1, len(loads)))
-    used[0, c:] = False  # white beyond the floor: each group's own
+    used[0, c:] = False  # white beyond the floor: each channel's own
     # stage 2: the floor's factor (at least -1) and the spectrum on the bands that carry structure,
-    # non-negative: each group's own process and processes common to each pair of groups, alike or opposed
+    # non-negative: each channel's own process and processes common to each pair of channels, alike or opposed
     floor, power = _spectrum(m, gram, rhs, used)
     out = np.full(bread.shape, np.nan)
     b, g = m.b, m.summed_jac
