@@ -130,5 +130,7 @@ def installed_model(base: SensorModel, hard_iron, soft_iron, covariance=None, al
         directions = directions @ rot.T
         if direction_cov is not None:
             direction_cov = rot[None] @ direction_cov @ rot.T[None]
+    # a tumble base's own uncertainty is in its frame and for its iron alone: not carried (the installation's
+    # covariance is); its magnetometer latency is the module's timing, kept
     return replace(base, directions=directions, responses=tuple(responses), direction_covariance=direction_cov,
-                   response_sigma=response_sigma, form="installed")
+                   response_sigma=response_sigma, form="installed", iron_uncertainty=None)

@@ -30,6 +30,7 @@ term is kept as one 3x3 covariance (:meth:`compass.model.SensorModel.field_covar
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -114,27 +115,51 @@ class TumbleUncertainty:
         return cov
 
 
+    @cached_property
+    def _scalars(self) -> tuple:
+        """The heading sigma's constants as Python floats: ``(CS)^T``, ``C^T`` and ``S^-1 C^T`` row by row, the
+        hard iron's and the rotation's variances, and ``(i, j, sigma_S,ij^2)`` on and above the diagonal."""
+        rows = lambda m: tuple(tuple(float(v) for v in row) for row in m)  # noqa: E731
+        soft = tuple((i, j, float(self.soft_iron_sigma[i, j]) ** 2) for i in range(3) for j in range(i, 3)
+                     if self.soft_iron_sigma[i, j] > 0.0)
+        return (rows((self.mag_to_accel @ self.soft_iron).T), rows(self.mag_to_accel.T), rows(self._to_raw),
+                tuple(float(v) ** 2 for v in self.hard_iron_sigma), tuple(float(v) ** 2 for v in self.rotation_sigma_rad),
+                soft)
+
     def heading_sigma_deg(self, matrix, field_h) -> float:
         """The heading's 1-sigma from the calibration alone at one attitude, the tilt taken as known, degrees.
 
-        A field error ``dB`` turns the horizontal field by ``dB . w / |B_h|`` (``w`` the world's West axis
-        seen in H, the second row of ``R_world<-H``; ``|B_h|`` the horizontal field): the variance is
-        ``w^T Sigma_B w / |B_h|^2``, as :func:`compass.attitude.solve_attitude` with a known tilt.
+        A field error ``dB`` turns the field's horizontal part ``B_h`` by ``dB . n / |B_h|``, ``n`` the unit
+        horizontal direction across it (``up x B / |B_h|`` in H, ``up`` the third row of ``R_world<-H``): the
+        variance is ``n^T Sigma_B n / |B_h|^2``, as :func:`compass.attitude.solve_attitude` with a known tilt,
+        wherever the reference field points (the live filter's North may have moved with a new place).
+        The module docstring's three terms as scalar quadratic forms in ``n``, on Python floats (it runs on
+        every live sample).
 
         Parameters
         ----------
-        matrix : array_like, shape (3, 3) or (9,)
+        matrix : sequence of 9 floats, or array_like of shape (3, 3)
             ``R_world<-housing`` (NWU world), e.g. the live filter's.
-        field_h : array_like, shape (3,)
-            Field in H, field units.
+        field_h : sequence of 3 floats
+            The calibrated field in H (what the filter takes), field units.
         """
-        r = np.reshape(np.asarray(matrix, dtype=float), (3, 3))
-        b = np.asarray(field_h, dtype=float)
-        west = r[1]
-        horizontal2 = float(b @ b) - float(r[2] @ b) ** 2
+        cs_t, c_t, to_raw, hard_var, rot_var, soft = self._scalars
+        r = np.ravel(matrix) if not isinstance(matrix, (list, tuple)) or len(matrix) != 9 else matrix
+        ux, uy, uz = float(r[6]), float(r[7]), float(r[8])
+        bx, by, bz = (float(v) for v in field_h)
+        n = (uy * bz - uz * by, uz * bx - ux * bz, ux * by - uy * bx)  # up x B: |n| = |B_h|
+        horizontal2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2]
         if not horizontal2 > 0.0:
             return float("inf")
-        return float(np.degrees(np.sqrt(west @ self.covariance(b) @ west / horizontal2)))
+        dot = lambda row, v: row[0] * v[0] + row[1] * v[1] + row[2] * v[2]  # noqa: E731
+        var = sum(h * dot(row, n) ** 2 for h, row in zip(hard_var, cs_t))
+        u = [dot(row, n) for row in c_t]  # C^T n
+        x = [dot(row, (bx, by, bz)) for row in to_raw]  # x - h
+        for i, j, v in soft:  # n . v_ij: u_i x_j + u_j x_i, u_i x_i on the diagonal
+            var += v * (u[i] * x[j] + u[j] * x[i] if i != j else u[i] * x[i]) ** 2
+        turned = (by * n[2] - bz * n[1], bz * n[0] - bx * n[2], bx * n[1] - by * n[0])  # B x n
+        var += sum(w * t * t for w, t in zip(rot_var, turned))
+        return math.degrees(math.sqrt(var) / horizontal2)
 
 
 def _skew(b: np.ndarray) -> np.ndarray:

@@ -251,15 +251,17 @@ class SensorModel:
             var += (self.response_sigma[:, 0] ** 2 + x**2 * self.response_sigma[:, 1] ** 2) / self.gains**2
         return var
 
-    def field_covariance(self, field) -> np.ndarray:
+    def field_covariance(self, field, *, iron: bool = True) -> np.ndarray:
         """Covariance of the estimated field vector in H, ``P diag(var) P^T``, shape (..., 3, 3).
 
-        See :meth:`component_variance`; a tumble file's :attr:`iron_uncertainty` adds its own
-        (:meth:`compass.iron_uncertainty.TumbleUncertainty.covariance`); field units squared.
+        See :meth:`component_variance`; with ``iron`` a tumble file's :attr:`iron_uncertainty` adds
+        its own (:meth:`compass.iron_uncertainty.TumbleUncertainty.covariance`); field units squared.
         """
         p = self.solver
         cov = np.einsum("ic,...c,jc->...ij", p, self.component_variance(field), p)
-        return cov if self.iron_uncertainty is None else cov + self.iron_uncertainty.covariance(field)
+        if not iron or self.iron_uncertainty is None:
+            return cov
+        return cov + self.iron_uncertainty.covariance(field)
 
     def _relative_slope(self, x: np.ndarray) -> np.ndarray | float:
         """``f'(x) / K`` per channel: 1 for linear channels, a central difference otherwise."""

@@ -78,6 +78,26 @@ def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *
     return session
 
 
+def mag_latency_note(model, has_gyro: bool = True) -> tuple[str, str]:
+    """What ``--mag-latency`` does with this calibration: ``(level, words)`` for the event line.
+
+    Parameters
+    ----------
+    model : compass.model.SensorModel
+        Its ``mag_latency_s`` (0 when the file holds no latency its fit saw).
+    has_gyro : bool
+        Whether the samples carry a gyro (without one nothing can be turned).
+    """
+    tau = model.mag_latency_s
+    if not has_gyro:
+        return "warn", "--mag-latency: the recording has no gyro (gx,gy,gz) to turn the field with: nothing compensated"
+    if tau > 0.0:
+        return "info", (f"--mag-latency: each field reading turned forward by the gyro over the magnetometer's "
+                        f"{1e3 * tau:.1f} ms latency (the calibration's tumble.gyro.mag_latency_s)")
+    return "warn", ("--mag-latency: the calibration holds no magnetometer latency its fit saw (a tumble with a gyro "
+                    "writes tumble.gyro.mag_latency_s): nothing compensated")
+
+
 def replay_file(calibration, recording, out, *, site=None, date=None, gravity=None, mag_latency=False, force=False,
                 rerun=None, read_options=None, quiet=False) -> LiveSession:
     """``compass attitude CAL REC --out ATT --filter``: the recording through ``compass live``'s pipeline.
@@ -114,8 +134,6 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     BadInput, RecordingError, FileExistsError
         Bad input (exit status 2 on the command line), in one line naming the file (row, column).
     """
-    from dataclasses import replace
-
     from .calibration import load
     from .errors import BadInput
     from .filter import PLACE_EVENT, FilterConfig
@@ -138,7 +156,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
             site = Site.parse(site, date)
         cal = load(calibration)
         model = cal.model
-        config = replace(FilterConfig.from_model(model, mag_latency=mag_latency), gravity=gravity)
+        config = FilterConfig.from_model(model, mag_latency=mag_latency, gravity=gravity)
     except ValueError as exc:
         raise BadInput(exc if str(calibration) in str(exc) else f"{calibration}: {exc}") from None
     source = "site"
@@ -176,6 +194,9 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
         raise RecordingError(table.path, f"{wrong_unit} ({calibration}): is it the right calibration?",
                              row=table.header_row, column=model.channels[0])
     temp_c = table.column("temp_c") if table.has("temp_c") else None
+    if mag_latency and not quiet:
+        level, text = mag_latency_note(model, gyro is not None)
+        print(f"[{level}] {text}", file=sys.stderr)
 
     moves = []  # the filter's moves of the reference to a new place
     tally = Tally()  # the progress line's (below), once the replay starts

@@ -81,7 +81,7 @@ A gain process times the signal (tried, not adopted).  A gain that wanders, ``K_
 adds ``K_c x_c(t) g_c(t)`` to channel ``c``'s reading: a product, the gain's slow process times the
 signal ``x_c``, not a stationary residual.  Modelling the residual as ``o_c(t) + g_c(t) \\hat x_c(t) +
 e_c(t)`` (block sums of ``r`` and of ``r \\hat x``, each kind propagated through its own Jacobian
-columns) was built and measured (commit 57c2954, docs/benchmarks.md): within a 10 s block the signal
+columns) was built and measured (docs/benchmarks.md): within a 10 s block the signal
 barely changes, so an offset and a gain give the two sums in the same ratio and the fit shares the
 power between them; the offsets' share propagates with an offset's larger leverage on the directions.
 On tools/bench_loop.py seeds 0-19 a gain walk went 0.48 -> 0.58 but a gain swinging at a 500 s period

@@ -95,6 +95,8 @@ from scipy.linalg import polar
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from compass.calibration import latency_seen
+
 from ..diagnosis.forms import json_float
 from ..noise import robust_sigma, second_difference_sigma, second_differences
 from .alignment import Misalignment, field_gravity_angles, static_mask
@@ -207,8 +209,9 @@ class GyroFit:
 
     @property
     def latency_known(self) -> bool:
-        """Whether the data saw a latency: beyond 3 sigma of zero, and the sigma well inside the prior."""
-        return bool(abs(self.latency_s) > 3.0 * self.latency_sigma_s and self.latency_sigma_s < 0.2 * LATENCY_PRIOR_S)
+        """Whether the data saw a latency: beyond 3 sigma of zero, and the sigma well inside the prior
+        (:func:`compass.calibration.latency_seen`, the rule the runtime reads the file's latency by)."""
+        return latency_seen(self.latency_s, self.latency_sigma_s)
 
     @property
     def determined(self) -> bool:

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,10 +26,18 @@ from ._format import CHANNEL_KINDS, FORMAT, KIND_KEY, TUMBLE_CHANNELS
 from ._imu import ImuCorrection
 from ._value import Calibration, Installation, Provenance, TumbleForm
 
-__all__ = ["KINDS", "from_dict", "kind_of", "load", "loads", "model_from_dict"]
+__all__ = ["KINDS", "from_dict", "kind_of", "latency_seen", "load", "loads", "model_from_dict"]
 
 KINDS = ("fourflip", "platform3d", "reference", "channels", "tumble", "installed")
 """Every kind the reader knows (the file's ``"model"``)."""
+SIGMA_LIMIT = MAX_ABS_VALUE
+"""Largest standard error a tumble file's sigmas may hold (recording units, file units, degrees)."""
+MAX_MAG_LATENCY_S = 0.25
+"""Largest magnetometer latency a file may hold, s: the filter's first-order turn ``m + tau (m x w)`` is off by
+``(tau w)^2 / 2``, 3 % at 1 rad/s; the gyro-aided fit's prior (50 ms) keeps its own far inside."""
+LATENCY_SIGMA_SEEN_S = 0.01
+"""A fitted latency counts as seen only with a standard error below this, s: a fifth of the gyro-aided fit's
+prior (``calibrate.tumble.gyro.LATENCY_PRIOR_S``), so the prior did not make it."""
 
 
 def load(path) -> Calibration:
@@ -363,19 +370,16 @@ def _tumble(d: dict) -> tuple:
 def _tumble_uncertainty(block: dict, soft: np.ndarray, rotation: np.ndarray):
     """The ``tumble`` block's sigmas of the hard iron, soft iron and rotation as a
     :class:`~compass.iron_uncertainty.TumbleUncertainty`; None when the hard iron's or the soft iron's
-    are absent or not finite (a degenerate fit's).  No rotation sigma (no rotation fitted): zeros."""
+    are absent or hold a null or infinite entry (a degenerate fit's).  No rotation sigma (no rotation
+    fitted): zeros.  Anything else that is not a list of numbers of the key's shape is refused."""
     from ..iron_uncertainty import TumbleUncertainty
 
-    hard, soft_sigma = block.get("hard_iron_sigma"), block.get("soft_iron_sigma")
+    hard = _sigma(block.get("hard_iron_sigma"), (3,), "tumble.hard_iron_sigma")
+    soft_sigma = _sigma(block.get("soft_iron_sigma"), (3, 3), "tumble.soft_iron_sigma")
     if hard is None or soft_sigma is None:
         return None
-    hard = check.array(hard, (3,), "tumble.hard_iron_sigma") if _all_finite(hard) else None
-    soft_sigma = check.array(soft_sigma, (3, 3), "tumble.soft_iron_sigma") if _all_finite(soft_sigma) else None
-    if hard is None or soft_sigma is None:
-        return None
-    rot = block.get("misalignment_rotvec_sigma_deg")
-    rot = (np.radians(check.array(rot, (3,), "tumble.misalignment_rotvec_sigma_deg")) if _all_finite(rot)
-           else np.zeros(3))
+    rot = _sigma(block.get("misalignment_rotvec_sigma_deg"), (3,), "tumble.misalignment_rotvec_sigma_deg")
+    rot = np.zeros(3) if rot is None else np.radians(rot)
     for key, value in (("hard_iron_sigma", hard), ("soft_iron_sigma", soft_sigma),
                        ("misalignment_rotvec_sigma_deg", rot)):
         if np.any(value < 0):
@@ -383,25 +387,51 @@ def _tumble_uncertainty(block: dict, soft: np.ndarray, rotation: np.ndarray):
     return TumbleUncertainty(soft, rotation, hard, soft_sigma, rot)
 
 
-def _all_finite(v) -> bool:
-    """A list (of lists) of finite numbers only: a sigma the fit could not give is written null or inf."""
-    if isinstance(v, list):
-        return bool(v) and all(_all_finite(x) for x in v)
-    return _is_number(v)
+def _sigma(v, shape: tuple, key: str) -> np.ndarray | None:
+    """A standard error of ``shape`` under ``key``; None when absent or when an entry is null or infinite (what
+    the fit writes where it could not give one); anything else not finite numbers of that shape is refused.
+    Bounded by :data:`SIGMA_LIMIT` (a sigma beyond it is no calibration)."""
+    if v is None or _undetermined(v):
+        return None
+    return check.array(v, shape, key, limit=SIGMA_LIMIT)
+
+
+def _undetermined(v) -> bool:
+    """Nested lists of numbers or nulls, at least one of them null or infinite."""
+    def entries(x):
+        return [e for item in x for e in entries(item)] if isinstance(x, list) else [x]
+    values = entries(v) if isinstance(v, list) else [v]
+    if not all(e is None or (isinstance(e, (int, float)) and not isinstance(e, bool)) for e in values):
+        return False
+    return any(e is None or not math.isfinite(e) for e in values)
 
 
 def _mag_latency_s(gyro) -> float:
-    """``tumble.gyro.mag_latency_s`` when the gyro-aided fit saw a latency the filter can compensate: the
-    magnetometer late (positive) by more than 3 of its sigmas; else 0 (an early magnetometer, the gyro the
-    late one, cannot be compensated by turning the field forward: the fit's words say so)."""
-    if not isinstance(gyro, dict):
+    """``tumble.gyro.mag_latency_s`` when the gyro-aided fit saw a latency (:func:`latency_seen`) the filter
+    can compensate: the magnetometer late (positive); else 0 (an early magnetometer, the gyro the late one,
+    cannot be compensated by turning the field forward: the fit's words say so).  Refused beyond
+    +-:data:`MAX_MAG_LATENCY_S`, where the first-order turn the filter applies no longer holds."""
+    if gyro is None:
         return 0.0
+    gyro = check.obj(gyro, "tumble.gyro")
     tau, sigma = gyro.get("mag_latency_s"), gyro.get("mag_latency_sigma_s")
     if tau is None:
         return 0.0
-    tau = check.number(tau, "tumble.gyro.mag_latency_s", low=-1.0, high=1.0)
+    tau = check.number(tau, "tumble.gyro.mag_latency_s", low=-MAX_MAG_LATENCY_S, high=MAX_MAG_LATENCY_S)
     sigma = check.number(sigma, "tumble.gyro.mag_latency_sigma_s", nonnegative=True, allow_none=True)
-    return tau if sigma is not None and tau > 3.0 * sigma else 0.0
+    return tau if sigma is not None and tau > 0.0 and latency_seen(tau, sigma) else 0.0
+
+
+def latency_seen(latency_s: float, sigma_s: float) -> bool:
+    """Whether a fitted magnetometer latency was seen by the data: beyond 3 of its sigmas from zero and the
+    sigma within :data:`LATENCY_SIGMA_SEEN_S` (the one rule for the calibration's words and the runtime).
+
+    Parameters
+    ----------
+    latency_s, sigma_s : float
+        The latency (positive: the magnetometer late) and its standard error, s.
+    """
+    return bool(abs(latency_s) > 3.0 * sigma_s and sigma_s < LATENCY_SIGMA_SEEN_S)
 
 
 def _tilt_sensor(d: dict):
@@ -444,6 +474,5 @@ def _installation(d: dict) -> Installation:
 def _installed_model(installation: Installation):
     from ..installed import installed_model
 
-    model = installed_model(installation.base.model, installation.hard_iron_ut, installation.soft_iron,
-                            installation.covariance, installation.alignment)
-    return replace(model, mag_latency_s=installation.base.model.mag_latency_s)  # the module's timing, not the iron's
+    return installed_model(installation.base.model, installation.hard_iron_ut, installation.soft_iron,
+                           installation.covariance, installation.alignment)

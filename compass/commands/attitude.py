@@ -12,7 +12,7 @@ from .. import limits
 from ..io.atomic import atomic_write_text, check_writable
 from ..io.table import ReadOptions, add_read_arguments
 from ..viz import add_rerun_option, check_rerun_target
-from ._filter_args import add_mag_latency_argument
+from .live import add_mag_latency_argument
 
 
 def register(sub) -> None:

@@ -17,8 +17,19 @@ from .. import limits
 from ..limits import Range
 from ..io.stream_options import add_stream_arguments
 from ..viz import add_rerun_option, check_rerun_target
-from ._filter_args import add_mag_latency_argument, filter_config
 from ._port import open_reader, port_unavailable, stop_when_asked, stream_options
+
+
+MAG_LATENCY_HELP = ("compensate the magnetometer's latency against the gyro that the calibration's gyro-aided tumble "
+                    "fit found (tumble.gyro.mag_latency_s, when late beyond 3 sigma with a sigma under 10 ms): each "
+                    "field reading is turned forward by the gyro over it; off by default (on BROAD it cost the "
+                    "undisturbed trials' heading: docs/benchmarks.md)")
+
+
+def add_mag_latency_argument(p, *, with_filter: bool = False) -> None:
+    """``--mag-latency`` (``FilterConfig.from_model(model, mag_latency=True)``), for ``live`` and ``attitude --filter``."""
+    p.add_argument("--mag-latency", action="store_true",
+                   help=("with --filter: " if with_filter else "") + MAG_LATENCY_HELP)
 
 
 def register(sub) -> None:
@@ -63,6 +74,8 @@ def run(args) -> int:
     from ..cli import BadInput
     from ..io.atomic import atomic_stream, check_writable
     from ..live import LiveSession
+    from ..filter import FilterConfig
+    from ..replay import mag_latency_note
     from ..calibration import load
 
     if args.calibrate == "tumble":
@@ -74,9 +87,12 @@ def run(args) -> int:
     try:
         cal = load(args.cal)
         model = cal.model
-        config = filter_config(model, args)
+        config = FilterConfig.from_model(model, mag_latency=args.mag_latency, gravity=args.gravity)
     except ValueError as exc:
         raise BadInput(f"{args.cal}: {exc}" if args.cal not in str(exc) else str(exc)) from None
+    if args.mag_latency and not args.quiet:
+        level, text = mag_latency_note(model)
+        print(f"[{level}] {text}", flush=True)
     reference = _site_reference(args, model)
     stream = stream_options(args)
     reader = open_reader(args)

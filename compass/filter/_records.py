@@ -210,8 +210,13 @@ class FilterConfig:
             raise ValueError(f"FilterConfig.gravity must be positive or None, got {self.gravity!r}")
 
     @classmethod
-    def from_model(cls, model, *, mag_latency: bool = False) -> "FilterConfig":
+    def from_model(cls, model, *, mag_latency: bool = False, gravity: float | None = None) -> "FilterConfig":
         """Reference field and magnetometer noise from a :class:`compass.model.SensorModel`.
+
+        The noise is the field's at zero field without a tumble file's own uncertainty
+        (``model.iron_uncertainty``: a constant error of the calibration, not noise from sample to sample;
+        ``compass live`` adds it to the reported heading sigma instead).  ``gravity``: what 1 g reads
+        (``--gravity``), else learnt from the start window.
 
         With ``mag_latency`` also the magnetometer's latency the calibration found
         (``model.mag_latency_s``: a tumble's gyro-aided fit's, 0 when the file has none; ``compass live``
@@ -230,9 +235,9 @@ class FilterConfig:
             raise ValueError("the calibration has no dip_deg: the filter needs the field's reference direction")
         if model.noise is None:
             raise ValueError("the calibration has no noise_floor: the filter cannot weight the magnetometer")
-        noise = float(np.sqrt(np.trace(model.field_covariance(np.zeros(3))) / 3.0))
+        noise = float(np.sqrt(np.trace(model.field_covariance(np.zeros(3), iron=False)) / 3.0))
         return cls(field_norm=model.field_norm, dip_deg=model.dip_deg, mag_noise=noise,
-                   mag_latency_s=model.mag_latency_s if mag_latency else 0.0)
+                   mag_latency_s=model.mag_latency_s if mag_latency else 0.0, gravity=gravity)
 
 
 @dataclass(frozen=True)

@@ -62,6 +62,42 @@ def test_a_widened_tumble_file_gives_a_larger_heading_sigma_on_every_sample(wide
     assert iron.heading_sigma_deg(r, b) > naive.iron_uncertainty.heading_sigma_deg(r, b) > 0
 
 
+def test_the_heading_sigma_holds_wherever_the_reference_field_points(widened):
+    """``heading_sigma_deg`` is ``n^T Sigma_B n / |B_h|^2`` with ``n`` the unit horizontal across the field
+    (``up x B``), at any attitude and any azimuth of the field (the live filter's North may have moved to a
+    new place's), not only a field along the world's North."""
+    _, doc, _ = widened
+    iron = from_dict(doc).model.iron_uncertainty
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        r = Rotation.from_euler("ZYX", rng.uniform([-180, -40, -40], [180, 40, 40]), degrees=True).as_matrix()
+        azimuth = rng.uniform(-np.pi, np.pi)
+        world = 40.0 * np.array([np.cos(1.0) * np.cos(azimuth), np.cos(1.0) * np.sin(azimuth), -np.sin(1.0)])
+        b = r.T @ world
+        up = r[2]
+        across = np.cross(up, b)
+        n = across / np.linalg.norm(across)
+        expected = np.degrees(np.sqrt(n @ iron.covariance(b) @ n) / np.linalg.norm(across))
+        np.testing.assert_allclose(iron.heading_sigma_deg(r, b), expected, rtol=1e-9)
+
+
+def test_the_filter_weights_the_noise_alone_and_an_installed_model_drops_the_bench_iron_sigma(widened):
+    """A tumble file's own uncertainty is a constant error of the calibration, not noise: the filter's
+    ``mag_noise`` is the same with or without it (the reported heading sigma carries it).  An installed
+    model's field is the product's, in its frame: the bench's iron sigmas do not describe it."""
+    from compass.filter import FilterConfig
+    from compass.installed import installed_model
+
+    _, doc, _ = widened
+    model = from_dict(doc).model
+    bare = dataclasses.replace(model, iron_uncertainty=None)
+    assert FilterConfig.from_model(model) == FilterConfig.from_model(bare)
+    assert np.trace(model.field_covariance(np.zeros(3))) > np.trace(bare.field_covariance(np.zeros(3)))
+    late = dataclasses.replace(model, mag_latency_s=0.012)
+    inside = installed_model(late, np.array([2.0, -1.0, 0.5]), np.eye(3) * 1.02)
+    assert inside.iron_uncertainty is None and inside.mag_latency_s == 0.012
+
+
 @pytest.mark.parametrize("part", ["hard_iron_sigma", "soft_iron_sigma", "rotation_sigma_rad"])
 def test_the_propagated_heading_sigma_agrees_with_a_monte_carlo_over_the_files_covariance(widened, part):
     """Draw the hard iron, the soft iron's six numbers or the rotation from the file's sigmas (independent; one
@@ -119,18 +155,36 @@ def test_the_files_sigmas_are_checked(widened):
     # a sigma the fit could not give (null): no calibration term, as before
     bad["tumble"]["hard_iron_sigma"] = [None, 0.1, 0.1]
     assert from_dict(bad).model.iron_uncertainty is None
+    # anything else is refused, naming the key: text, mixed lists, values no calibration reaches
+    for key, value in (("hard_iron_sigma", "abc"), ("hard_iron_sigma", [1, "a", 3]), ("hard_iron_sigma", [1e300, 1, 1]),
+                       ("misalignment_rotvec_sigma_deg", "x"), ("soft_iron_sigma", [[0.1] * 3] * 2)):
+        bad = copy.deepcopy(doc)
+        bad["tumble"][key] = value
+        with pytest.raises(CalibrationFileError, match=f"tumble.{key}"):
+            from_dict(bad)
+    bad = copy.deepcopy(doc)
+    bad["tumble"]["gyro"] = "x"
+    with pytest.raises(CalibrationFileError, match="tumble.gyro"):
+        from_dict(bad)
 
 
 def test_the_files_latency_reaches_the_model_when_the_magnetometer_is_late_beyond_three_sigma(widened):
     _, doc, _ = widened
     assert from_dict(doc).model.mag_latency_s == 0.0  # no gyro: no latency
-    for tau, sigma, expected in ((0.012, 0.0003, 0.012), (0.0005, 0.0003, 0.0), (-0.012, 0.0003, 0.0)):
+    # late beyond 3 sigma with a sigma the data gave (below a fifth of the fit's prior): taken; else 0
+    for tau, sigma, expected in ((0.012, 0.0003, 0.012), (0.0005, 0.0003, 0.0), (-0.012, 0.0003, 0.0),
+                                 (0.04, 0.012, 0.0)):
         late = copy.deepcopy(doc)
         late["tumble"]["gyro"] = {"method": "gyro", "used": True, "mag_latency_s": tau, "mag_latency_sigma_s": sigma}
         assert from_dict(late).model.mag_latency_s == expected
-    late["tumble"]["gyro"]["mag_latency_s"] = "soon"
-    with pytest.raises(CalibrationFileError, match="tumble.gyro.mag_latency_s"):
-        from_dict(late)
+    for value in ("soon", 0.9):  # not a number; beyond where the filter's first-order turn holds
+        late["tumble"]["gyro"]["mag_latency_s"] = value
+        with pytest.raises(CalibrationFileError, match="tumble.gyro.mag_latency_s"):
+            from_dict(late)
+    from calibrate.tumble.gyro import LATENCY_PRIOR_S
+    from compass.calibration._read import LATENCY_SIGMA_SEEN_S
+
+    assert LATENCY_SIGMA_SEEN_S == pytest.approx(0.2 * LATENCY_PRIOR_S)  # the calibration's words and the runtime agree
 
 
 def test_the_live_pipeline_and_its_replay_carry_the_files_sigma(widened):
@@ -146,7 +200,7 @@ def test_the_live_pipeline_and_its_replay_carry_the_files_sigma(widened):
     _, doc, _ = widened
     model = from_dict(doc).model
     bare = dataclasses.replace(model, iron_uncertainty=None)
-    config = FilterConfig.from_model(bare)  # one filter for both: only the reported sigma may differ
+    config = FilterConfig.from_model(model)  # the same as the bare model's: only the reported sigma may differ
     t = np.arange(0.0, 12.0, 0.01)
     s = simulate_device(model, t, seed=4)
     tables = []

@@ -74,13 +74,8 @@ def test_the_filter_takes_the_calibrations_latency():
     assert FilterConfig.from_model(default_model(), mag_latency=True).mag_latency_s == 0.0
     with pytest.raises(ValueError, match="mag_latency_s must be a non-negative number"):
         dataclasses.replace(default_model(), mag_latency_s=-0.01)
-    # compass live's --mag-latency and --gravity
-    from argparse import Namespace
-
-    from compass.commands._filter_args import filter_config
-
-    assert filter_config(model, Namespace(mag_latency=True, gravity=None)).mag_latency_s == LATE_S
-    live = filter_config(model, Namespace(mag_latency=False, gravity=9.81))
+    # compass live's and the replay's --mag-latency and --gravity
+    live = FilterConfig.from_model(model, gravity=9.81)
     assert live.mag_latency_s == 0.0 and live.gravity == 9.81
 
 
@@ -118,7 +113,9 @@ def test_compass_attitude_filter_mag_latency_compensates_the_files_latency(tmp_p
     outputs = {}
     for flag in (True, False):
         out = tmp_path / f"att_{flag}.csv"
+        capsys.readouterr()
         assert main(["attitude", str(cal), str(rec), "--out", str(out), "--filter"] + (["--mag-latency"] * flag)) == 0
+        assert ("turned forward by the gyro over the magnetometer's 20.0 ms latency" in capsys.readouterr().err) == flag
         session = LiveSession(model, config=FilterConfig.from_model(model, mag_latency=flag), out=io.StringIO())
         replay(session, t, s.raw, s.accel, s.gyro)
         outputs[flag] = rows(out.read_text())
@@ -127,3 +124,31 @@ def test_compass_attitude_filter_mag_latency_compensates_the_files_latency(tmp_p
     capsys.readouterr()
     assert main(["attitude", str(cal), str(rec), "--out", str(tmp_path / "att.csv"), "--mag-latency"]) == 2
     assert "--mag-latency goes with --filter" in capsys.readouterr().err
+
+
+def test_mag_latency_says_when_there_is_nothing_to_compensate(tmp_path, capsys):
+    """``--mag-latency`` with a calibration whose fit saw no latency (here a four-flip-like model) or on a
+    recording without a gyro: exit 0, and a warning saying nothing was compensated."""
+    import json
+
+    from compass.calibration import model_to_dict
+    from compass.cli import main
+    from compass.io.table import format_table
+    from compass.replay import mag_latency_note
+    from compass.sim.device import default_model, simulate_device
+
+    model = default_model()
+    assert mag_latency_note(model)[0] == "warn" and "nothing compensated" in mag_latency_note(model)[1]
+    assert mag_latency_note(dataclasses.replace(model, mag_latency_s=LATE_S), has_gyro=False)[0] == "warn"
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps(model_to_dict(model)))
+    t = np.arange(0.0, 5.0, 0.01)
+    s = simulate_device(model, t, seed=2)
+    columns = ({"t_s": t} | {c: s.raw[:, k] for k, c in enumerate(model.channels)}
+               | {c: s.accel[:, k] for k, c in enumerate(("ax", "ay", "az"))}
+               | {c: s.gyro[:, k] for k, c in enumerate(("gx", "gy", "gz"))})
+    rec = tmp_path / "rec.csv"
+    rec.write_text(format_table(columns, {}, {c: "%.17g" for c in columns}))
+    capsys.readouterr()
+    assert main(["attitude", str(cal), str(rec), "--out", str(tmp_path / "att.csv"), "--filter", "--mag-latency"]) == 0
+    assert "[warn] --mag-latency: the calibration holds no magnetometer latency" in capsys.readouterr().err
