@@ -13,8 +13,9 @@ it ends and is killed after ``--timeout`` seconds:
   for the attitude recording), this tree and the baseline.
 
 Both trees' packages are compiled to bytecode first (``tools/_baseline.compile_tree``), so neither
-tree's children compile their sources on every run (as an installed toolkit does not).  Each cell gives the wall time, the CPU time (user + system, which a loaded machine inflates less) and
-the peak memory.  Targets: the tumble under 10 s and 500 MB (issue 23.11), every other kind under a
+tree's children compile their sources on every run (as an installed toolkit does not).  Each cell
+gives the wall time, the CPU time (user + system, which a loaded machine inflates less) and the peak
+memory.  Targets: the tumble under 10 s and 500 MB (issue 23.11), every other kind under a
 minute and 1 GB (issue 16.7); the reader within 2x of ``np.loadtxt``'s memory (issue 15.7).  The
 tumble's calibration of this tree is compared with the baseline's: the largest difference of each
 parameter group in units of its sigma (the robust fits' thinning, ``calibrate.tumble.ellipsoid.ROBUST_ROWS``,
