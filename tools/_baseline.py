@@ -27,6 +27,16 @@ def export_tree(ref: str, folder: Path) -> Path:
     tree.mkdir()
     archive = subprocess.run(["git", "-C", str(ROOT), "archive", ref], check=True, capture_output=True).stdout
     subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
+    compile_tree(tree)
+    return tree
+
+
+def compile_tree(tree: Path) -> None:
+    """Bytecode for ``tree``'s packages in their ``__pycache__`` folders (git ignores them).
+
+    A child then reads the bytecode instead of compiling the sources on every run, as an installed
+    toolkit does: with ``PYTHONDONTWRITEBYTECODE`` set nothing is cached otherwise, and the tumble
+    command compiles 66 modules each time (0.2 s of CPU).  A benchmark comparing two trees compiles both.
+    """
     subprocess.run([sys.executable, "-m", "compileall", "-q", str(tree / "compass"), str(tree / "calibrate")],
                    check=True, capture_output=True)
-    return tree

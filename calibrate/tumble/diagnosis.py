@@ -621,12 +621,10 @@ def _structure_design(directions: np.ndarray, blocks, n_blocks: int, extra: np.n
     """
     n_local = 4 * n_blocks * len(blocks)
     design = np.zeros((len(directions), n_local + len(_MONOMIALS) + (extra is not None)))
-    for band, block in enumerate(blocks):
-        for b in np.unique(block):
-            rows = block == b
-            first = 4 * (band * n_blocks + b)
-            design[rows, first] = 1.0
-            design[rows, first + 1:first + 4] = directions[rows]
+    rows = np.arange(len(directions))[:, None]
+    local = np.column_stack([np.ones(len(directions)), directions])
+    for band, block in enumerate(blocks):  # each row's four columns, by index: no mask per block
+        design[rows, 4 * (band * n_blocks + np.asarray(block))[:, None] + np.arange(4)] = local
     axes = np.ascontiguousarray(directions.T)
     products = {(i,): axes[i] for i in range(3)}  # each monomial's, and its leading axes'
     for column, idx in enumerate(_MONOMIALS, start=n_local):
