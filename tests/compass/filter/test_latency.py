@@ -79,6 +79,17 @@ def test_the_filter_takes_the_calibrations_latency():
     assert live.mag_latency_s == 0.0 and live.gravity == 9.81
 
 
+
+def _write_recording(path, model, t, s):
+    """The simulated device's samples ``s`` at times ``t`` as a recording CSV (raw channels, accelerometer, gyro)."""
+    from compass.io.table import format_table
+
+    columns = ({"t_s": t} | {c: s.raw[:, k] for k, c in enumerate(model.channels)}
+               | {c: s.accel[:, k] for k, c in enumerate(("ax", "ay", "az"))}
+               | {c: s.gyro[:, k] for k, c in enumerate(("gx", "gy", "gz"))})
+    path.write_text(format_table(columns, {}, {c: "%.17g" for c in columns}))
+    return path
+
 def test_compass_attitude_filter_mag_latency_compensates_the_files_latency(tmp_path, capsys):
     """``--mag-latency`` (live and the replay alike): the file's fitted latency reaches the filter; without it, none."""
     import io
@@ -86,7 +97,6 @@ def test_compass_attitude_filter_mag_latency_compensates_the_files_latency(tmp_p
     from calibrate.tumble import calibrate_tumble
     from compass.calibration import from_dict, save
     from compass.cli import main
-    from compass.io.table import format_table
     from compass.live import LiveSession
     from compass.replay import replay
     from compass.sim.device import simulate_device
@@ -100,11 +110,7 @@ def test_compass_attitude_filter_mag_latency_compensates_the_files_latency(tmp_p
     assert model.mag_latency_s == LATE_S
     t = np.arange(0.0, 15.0, 0.01)
     s = simulate_device(model, t, seed=6)
-    columns = ({"t_s": t} | {c: s.raw[:, k] for k, c in enumerate(model.channels)}
-               | {c: s.accel[:, k] for k, c in enumerate(("ax", "ay", "az"))}
-               | {c: s.gyro[:, k] for k, c in enumerate(("gx", "gy", "gz"))})
-    rec = tmp_path / "rec.csv"
-    rec.write_text(format_table(columns, {}, {c: "%.17g" for c in columns}))
+    rec = _write_recording(tmp_path / "rec.csv", model, t, s)
 
     def rows(text):  # every column but latency_ms (the processing time)
         lines = [line.split(",") for line in text.splitlines() if line and not line.startswith(("#", "t_s"))]
@@ -133,7 +139,6 @@ def test_mag_latency_says_when_there_is_nothing_to_compensate(tmp_path, capsys):
 
     from compass.calibration import model_to_dict
     from compass.cli import main
-    from compass.io.table import format_table
     from compass.replay import mag_latency_note
     from compass.sim.device import default_model, simulate_device
 
@@ -144,11 +149,7 @@ def test_mag_latency_says_when_there_is_nothing_to_compensate(tmp_path, capsys):
     cal.write_text(json.dumps(model_to_dict(model)))
     t = np.arange(0.0, 5.0, 0.01)
     s = simulate_device(model, t, seed=2)
-    columns = ({"t_s": t} | {c: s.raw[:, k] for k, c in enumerate(model.channels)}
-               | {c: s.accel[:, k] for k, c in enumerate(("ax", "ay", "az"))}
-               | {c: s.gyro[:, k] for k, c in enumerate(("gx", "gy", "gz"))})
-    rec = tmp_path / "rec.csv"
-    rec.write_text(format_table(columns, {}, {c: "%.17g" for c in columns}))
+    rec = _write_recording(tmp_path / "rec.csv", model, t, s)
     capsys.readouterr()
     assert main(["attitude", str(cal), str(rec), "--out", str(tmp_path / "att.csv"), "--filter", "--mag-latency"]) == 0
     assert "[warn] --mag-latency: the calibration holds no magnetometer latency" in capsys.readouterr().err
