@@ -182,7 +182,9 @@ def _widen(fit: InstallationFit, rows: Rows, priors: dict, t_s) -> tuple[Install
     order = np.arange(n, dtype=float) if t_s is None else np.asarray(t_s, dtype=float)
     blocks = np.tile(time_blocks(order), n_data // n)
     naive = bread * scale
-    wide = widened_in_time(jac[:n_data], weighted, blocks, naive, bread=bread)
+    hard = np.flatnonzero(moved).searchsorted(np.flatnonzero(moved[:3]))  # the hard iron's moved columns
+    wide = widened_in_time(jac[:n_data], weighted, blocks, naive, bread=bread, hard=hard,
+                           row_sort=np.repeat(np.arange(n_data // n), n))  # |B|, angle, heading rows
     lift = t[:, moved]
     covariance = fit.covariance + lift @ (wide - naive) @ lift.T
     naive_h, wide_h = np.sqrt(np.diag(fit.covariance)[:3]), np.sqrt(np.diag(covariance)[:3])

@@ -807,7 +807,7 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
     covariance, cost = current.covariance, None
     if unexplained:  # the sigmas grow to cover the structure that remains (calibrate.diagnosis.blocks)
         covariance = widened_in_time(current.jac, current.residuals / floor, time_blocks(bands[0]),
-                                     current.covariance)
+                                     current.covariance, hard=np.arange(3))
     final_fit, raw_ref, effects = fit, mag, ()
     if unexplained and np.all(np.isfinite(np.diag(covariance)[:model.k])):
         _, sig_h, _, sig_s, _, sig_f = propagate(fit.ellipsoid, current.x[:model.k], covariance, fit.centre, fit.radius)
