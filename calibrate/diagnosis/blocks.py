@@ -220,7 +220,9 @@ def _walk_split(jac: np.ndarray, weighted: np.ndarray, blocks: np.ndarray, bread
     noise = centre @ noise @ centre
     spread = levels - levels.mean(axis=0)
     level_cov = spread.T @ spread - sum(noise[b * h:(b + 1) * h, b * h:(b + 1) * h] for b in range(n_blocks))
-    w, v = np.linalg.eigh(0.5 * (level_cov + level_cov.T) / (n_blocks - 1))
+    # (G - 1) V^ / V is chi-square with G - 1 dof along any direction, so E[1 / V^] = (G - 1) / ((G - 3) V):
+    # V^ / (G - 3) makes the walk's err^2 / sigma^2 one on average (a t, not a normal, ratio)
+    w, v = np.linalg.eigh(0.5 * (level_cov + level_cov.T) / max(n_blocks - 3, 1))
     level_cov = (v * np.maximum(w, 0.0)) @ v.T
     shares = np.array([jac[index == b].T @ jac[index == b][:, hard] for b in range(n_blocks)])  # H_bh
     counts = np.bincount(index, minlength=n_blocks).astype(float)
