@@ -33,15 +33,27 @@ levels as independent draws of one covariance ``V``, the walk's covariance is
 row) each block carries its count's share of the information, ``H_bh = (n_b / N) H_h``, and
 ``A_b = 0``: the walk averages out of the fit and nothing is added; where one block alone sees
 some orientations, ``B H_bh`` is the identity along them and the others' shares vanish, so that
-block's level moves the fit by ``(1 - n_b / N) u_b``, as CR2 counts it (CR2's ``(I - P_gg)^{-1/2}``
-restores it whole).  ``V`` is read from the residual by refitting it with a hard-iron level per
-block beside the fit's own columns (what the fit absorbed of each level comes back: the
-regression holds every column the fit has), the last block's level held at zero (the common part
-is the fit's hard iron), taking the levels' spread about their mean less what the noise alone
-gives it (the regression's covariance).  What the block levels do not explain (a field wandering
-in the world frame, a gain drifting) is left in that regression's residual, and that part is
-widened by CR2 as before: the two add, the walk's part in the parameters and the rest's sandwich,
-so a structure the walk cannot represent keeps the widening it had.
+block's level moves the fit by ``(1 - n_b / N) u_b``, about as CR2 counts it (CR2's
+``(I - P_gg)^{-1/2}`` restores it whole).  ``V`` is read from the residual by refitting it with a
+hard-iron level per block beside the fit's own columns (what the fit absorbed of each level comes
+back: the regression holds every column the fit has), the last block's level held at zero (the
+common part is the fit's hard iron), taking the levels' spread about their mean less what the
+noise alone gives it (the regression's covariance), over ``G - 3`` rather than ``G - 1``: the spread
+has ``G - 1`` degrees of freedom, ``E[1 / V^] = (G - 1) / ((G - 3) V)``, and it is ``err^2 / sigma^2``
+that should be one on average.  What the block levels do not explain is left in that
+regression's residual and widened by CR2 as before; the two add.
+
+A structure that is not a walk can put part of itself into the hard iron's levels: a field
+wandering in the world frame shifts a tumble's radial residual by ``B^ . dB(t)``, the same for every
+row of a block whatever the orientation; a gain drifting scales it.  Their competitor is a level
+per block of each sort of row (``row_sort``: the installation's |B|, angle and heading rows), the
+last block's held at zero too (a tumble's residual ``|L z| - F`` lies in the span of the fit's
+columns and a constant, ``L z`` being homogeneous of degree one in the shape parameters).  The walk
+model is used where the hard iron's levels leave a smaller residual than the sorts' levels do
+(each refitted with the fit's columns; the same as: they explain more beyond the sorts' levels
+than those explain beyond them); elsewhere the widening is CR2's alone, as it was.  Where the
+two are collinear (a swing within a few degrees of level: a block's hard-iron level is nearly a
+constant) the rule may take either, and either widening then counts the same block levels.
 """
 
 from __future__ import annotations
@@ -143,24 +155,23 @@ def widened_in_time(jac: np.ndarray, weighted: np.ndarray, blocks: np.ndarray, n
     return out
 
 
-def _block_levels(jac: np.ndarray, weighted: np.ndarray, index: np.ndarray, hard: np.ndarray,
-                  steps: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, float]:
-    """The residual refitted on the fit's columns, ``steps`` and a hard-iron level per block but the last.
+def _block_levels(jac: np.ndarray, weighted: np.ndarray, index: np.ndarray,
+                  hard: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """The residual refitted on the fit's columns and a hard-iron level per block but the last.
 
     Returns the levels, shape (G, h) (the last zero: their common part is the fit's hard iron), their
     covariance under unit white noise, shape ((G - 1) h, (G - 1) h), and the refit's residual sum of
     squares.  Built from per-block sums (no (m, G h) design is held).
     """
     n_blocks, h = index.max() + 1, len(hard)
-    design = jac if steps is None else np.hstack([jac, steps])
-    top = design.shape[1]
+    top = jac.shape[1]
     size = top + h * (n_blocks - 1)
     normal, score = np.zeros((size, size)), np.zeros(size)
-    normal[:top, :top], score[:top] = design.T @ design, design.T @ weighted
+    normal[:top, :top], score[:top] = jac.T @ jac, jac.T @ weighted
     for b in range(n_blocks - 1):
         rows, cols = index == b, slice(top + h * b, top + h * (b + 1))
         jh = jac[rows][:, hard]
-        normal[:top, cols] = design[rows].T @ jh
+        normal[:top, cols] = jac[rows].T @ jh
         normal[cols, :top] = normal[:top, cols].T
         normal[cols, cols] = jh.T @ jh
         score[cols] = jh.T @ weighted[rows]
@@ -191,7 +202,7 @@ def _walk_split(jac: np.ndarray, weighted: np.ndarray, blocks: np.ndarray, bread
     -------
     (rest, covariance) or None
         None where the blocks' structure is not the hard iron's walk (the levels of each sort
-        explain more of it beyond the hard iron's levels than those explain beyond them);
+        leave a residual no larger than the hard iron's levels do);
         else ``weighted`` less the levels' part (as the fit would leave it), shape (m,), and
         ``sum_b A_b V A_b^T`` of the module docstring, shape (k, k), in the parameters' units.
     """
@@ -203,10 +214,10 @@ def _walk_split(jac: np.ndarray, weighted: np.ndarray, blocks: np.ndarray, bread
     steps = np.zeros((weighted.size, n_blocks * n_sorts))
     steps[np.arange(weighted.size), index * n_sorts + sort.ravel()] = 1.0
     steps = steps[:, :-n_sorts]  # the last block's held at zero, as the hard iron's (module docstring)
-    stepped = weighted @ weighted - weighted @ (np.hstack([jac, steps]) @ np.linalg.lstsq(np.hstack([jac, steps]), weighted, rcond=None)[0])
-    levels, noise_cov, walked_rss = _block_levels(jac, weighted, index, hard, None)
-    *_, both_rss = _block_levels(jac, weighted, index, hard, steps)
-    if stepped - both_rss <= walked_rss - both_rss:  # the levels' unique part no larger than the steps'
+    with_steps = np.hstack([jac, steps])
+    stepped_rss = weighted @ weighted - weighted @ (with_steps @ np.linalg.lstsq(with_steps, weighted, rcond=None)[0])
+    levels, noise_cov, walked_rss = _block_levels(jac, weighted, index, hard)
+    if stepped_rss <= walked_rss:  # the sorts' levels explain the blocks' structure at least as well
         return None
     walked = np.zeros(weighted.size)  # the levels' part of the residual, as the fit would leave it
     for b in range(n_blocks - 1):
