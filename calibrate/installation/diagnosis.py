@@ -166,8 +166,9 @@ def _widen(fit: InstallationFit, rows: Rows, priors: dict, t_s) -> tuple[Install
 
     The sandwich is taken in the coordinates the fit moved (:func:`calibrate.installation.model.coordinates`),
     its bread from every row (priors included), its meat from the data rows only (a row's |B|,
-    angle and heading residuals share the sample's block); the held parameters' prior part of the
-    covariance is kept as it was.
+    angle and heading residuals share the sample's block; each sort of row gets its own level per
+    block beside the hard iron's, :func:`calibrate.diagnosis.blocks.widened_in_time`); the held
+    parameters' prior part of the covariance is kept as it was.
     """
     n = fit.n_rows
     n_data = n * (3 if rows.heading_ref is not None else 2)
@@ -182,7 +183,9 @@ def _widen(fit: InstallationFit, rows: Rows, priors: dict, t_s) -> tuple[Install
     order = np.arange(n, dtype=float) if t_s is None else np.asarray(t_s, dtype=float)
     blocks = np.tile(time_blocks(order), n_data // n)
     naive = bread * scale
-    wide = widened_in_time(jac[:n_data], weighted, blocks, naive, bread=bread)
+    hard = np.flatnonzero(moved).searchsorted(np.flatnonzero(moved[:3]))  # the hard iron's moved columns
+    wide = widened_in_time(jac[:n_data], weighted, blocks, naive, bread=bread, hard=hard,
+                           row_sort=np.repeat(np.arange(n_data // n), n))  # |B|, angle, heading rows
     lift = t[:, moved]
     covariance = fit.covariance + lift @ (wide - naive) @ lift.T
     naive_h, wide_h = np.sqrt(np.diag(fit.covariance)[:3]), np.sqrt(np.diag(covariance)[:3])
@@ -190,7 +193,8 @@ def _widen(fit: InstallationFit, rows: Rows, priors: dict, t_s) -> tuple[Install
     cost = {"hard_iron": {axis: {"naive": float(a), "widened": float(b)} for axis, a, b in zip("xyz", naive_h, wide_h)},
             "heading_deg": float(extra_sigma(heading[1], heading[0])),
             "heading_sigma_deg": {"naive": heading[0], "widened": heading[1]},
-            "method": f"CR2 sandwich over {TIME_BLOCKS} blocks of consecutive rows (calibrate.diagnosis.blocks); "
+            "method": f"a hard-iron walk between {TIME_BLOCKS} blocks of consecutive rows propagated to the fit, "
+                      "the CR2 sandwich over them for the rest (calibrate.diagnosis.blocks); "
                       "the heading sigma from the hard iron alone, a level housing, RMS over headings"}
     return replace(fit, covariance=covariance), cost
 

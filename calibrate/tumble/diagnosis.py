@@ -28,8 +28,10 @@ the chain of corrections of the effects in the model (the identity for the plain
    hard iron that stepped partway is partly a drift): nothing is claimed and the base fit is kept.
    When unexplained, the covariance is widened to cover the structure (the CR2 sandwich over blocks
    of consecutive samples, :mod:`calibrate.diagnosis.blocks`: a tumble has no flips, what it lacks
-   changes with time) and ``unexplained_cost`` gives the hard-iron sigmas and, once the dip is
-   known (:meth:`TumbleDiagnosis.with_alignment`), a level housing's heading sigma, naive and widened.
+   changes with time; a hard iron walking between the blocks is propagated as a process in the
+   parameters, the ellipsoid centre's columns, and CR2 takes the rest) and ``unexplained_cost``
+   gives the hard-iron sigmas and, once the dip is known (:meth:`TumbleDiagnosis.with_alignment`),
+   a level housing's heading sigma, naive and widened.
 
 Effects, as corrections of ``z = y - p_h`` (normalised units, raw magnetometer frame); every one is
 zero at the reference time ``t_ref`` (the first sample) and temperature ``T_ref`` (the mean of
@@ -695,7 +697,8 @@ def _cost(naive_sigma: np.ndarray, wide_sigma: np.ndarray) -> dict:
     """The diagnosis's ``unexplained_cost``: the hard iron's sigma per axis, naive and widened (recording units)."""
     return {"hard_iron": {ax: {"naive": float(a), "widened": float(b)}
                           for ax, a, b in zip(_AXES, naive_sigma, wide_sigma)},
-            "method": f"CR2 sandwich over {TIME_BLOCKS} blocks of consecutive samples (calibrate.diagnosis.blocks)"}
+            "method": f"a hard-iron walk between {TIME_BLOCKS} blocks of consecutive samples propagated to the fit, "
+                      "the CR2 sandwich over them for the rest (calibrate.diagnosis.blocks)"}
 
 
 def _with_heading(cost: dict, field_norm: float, dip_deg: float) -> dict:
@@ -807,7 +810,7 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
     covariance, cost = current.covariance, None
     if unexplained:  # the sigmas grow to cover the structure that remains (calibrate.diagnosis.blocks)
         covariance = widened_in_time(current.jac, current.residuals / floor, time_blocks(bands[0]),
-                                     current.covariance)
+                                     current.covariance, hard=np.arange(3))
     final_fit, raw_ref, effects = fit, mag, ()
     if unexplained and np.all(np.isfinite(np.diag(covariance)[:model.k])):
         _, sig_h, _, sig_s, _, sig_f = propagate(fit.ellipsoid, current.x[:model.k], covariance, fit.centre, fit.radius)

@@ -71,7 +71,8 @@ def test_a_level_swing_says_why_gain_drift_is_not_tried(sensor):
 
 def test_an_unexplained_residual_widens_the_hard_iron_sigma(sensor):
     _, truth = sensor
-    sim = simulate_installation(truth, random_installation(41), kind="tumble", n=2000, seed=42)
+    inst = random_installation(41)
+    sim = simulate_installation(truth, inst, kind="tumble", n=2000, seed=42)
     rng = np.random.default_rng(43)
     walk = np.cumsum(rng.normal(size=(len(sim.t_s), 3)), axis=0)
     walk = 0.5 * (walk - walk.mean(axis=0)) / walk.std()  # an offset wandering by 0.5 uT: not in the vocabulary
@@ -82,7 +83,11 @@ def test_an_unexplained_residual_widens_the_hard_iron_sigma(sensor):
     cost = block["unexplained_cost"]["hard_iron"]
     naive = np.array([cost[a]["naive"] for a in "xyz"])
     wide = np.array([cost[a]["widened"] for a in "xyz"])
-    assert np.all(wide >= naive) and np.any(wide > 1.5 * naive)
+    assert np.all(wide >= naive) and np.any(wide > naive)
+    # a random orientation every row: the walk averages out of the hard iron (calibrate.diagnosis.blocks),
+    # so the widened sigma covers the error without growing to the walk's per-block size (CR2's 16x)
+    assert np.all(np.abs(result.hard_iron_ut - inst.hard_iron_ut) < 4.0 * wide)
+    assert np.all(wide < 3.0 * naive)
     assert np.allclose(result.hard_iron_sigma_ut, wide)
     assert "hard-iron sigmas widened" in result.report() and "heading sigma of a level housing" in result.report()
     heading = block["unexplained_cost"]["heading_sigma_deg"]
