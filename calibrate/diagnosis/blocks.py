@@ -182,6 +182,23 @@ def _block_levels(jac: np.ndarray, weighted: np.ndarray, index: np.ndarray,
     return levels, inverse[top:, top:], float(weighted @ weighted - score @ beta)
 
 
+def _stepped_rss(jac: np.ndarray, weighted: np.ndarray, step: np.ndarray, n_steps: int) -> float:
+    """Residual sum of squares of ``weighted`` refitted on the fit's columns and a level per step (each row's
+    ``step``; the steps from ``n_steps`` on held at zero), from per-step sums (no (m, steps) design is held)."""
+    top = jac.shape[1]
+    kept = step < n_steps
+    normal, score = np.zeros((top + n_steps, top + n_steps)), np.zeros(top + n_steps)
+    normal[:top, :top], score[:top] = jac.T @ jac, jac.T @ weighted
+    sums = np.zeros((n_steps, top))
+    np.add.at(sums, step[kept], jac[kept])
+    normal[top:, :top], normal[:top, top:] = sums, sums.T
+    normal[top:, top:] = np.diag(np.bincount(step[kept], minlength=n_steps).astype(float))
+    score[top:] = np.bincount(step[kept], weights=weighted[kept], minlength=n_steps)
+    scale = 1.0 / np.sqrt(np.maximum(np.diag(normal), np.finfo(float).tiny))  # columns of unit norm
+    beta = scale * (np.linalg.pinv(normal * np.outer(scale, scale), rcond=COLLINEAR, hermitian=True) @ (scale * score))
+    return float(weighted @ weighted - score @ beta)
+
+
 def _walk_split(jac: np.ndarray, weighted: np.ndarray, blocks: np.ndarray, bread: np.ndarray,
                 hard: np.ndarray, row_sort: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """The residual less a hard-iron level per block, and the covariance those levels' walk gives the fit.
@@ -211,11 +228,7 @@ def _walk_split(jac: np.ndarray, weighted: np.ndarray, blocks: np.ndarray, bread
     n_blocks, h = index.max() + 1, len(hard)
     _, sort = np.unique(row_sort, return_inverse=True)
     n_sorts = sort.max() + 1
-    steps = np.zeros((weighted.size, n_blocks * n_sorts))
-    steps[np.arange(weighted.size), index * n_sorts + sort.ravel()] = 1.0
-    steps = steps[:, :-n_sorts]  # the last block's held at zero, as the hard iron's (module docstring)
-    with_steps = np.hstack([jac, steps])
-    stepped_rss = weighted @ weighted - weighted @ (with_steps @ np.linalg.lstsq(with_steps, weighted, rcond=None)[0])
+    stepped_rss = _stepped_rss(jac, weighted, index * n_sorts + sort.ravel(), (n_blocks - 1) * n_sorts)
     levels, noise_cov, walked_rss = _block_levels(jac, weighted, index, hard)
     if stepped_rss <= walked_rss:  # the sorts' levels explain the blocks' structure at least as well
         return None

@@ -113,3 +113,19 @@ def test_a_level_per_block_that_is_not_a_walk_keeps_the_sandwich():
     resid = data - jac @ (bread @ (jac.T @ data))
     np.testing.assert_array_equal(widened_in_time(jac, resid, blocks, bread, hard=[0, 1, 2]),
                                   widened_in_time(jac, resid, blocks, bread))
+
+
+def test_the_sorts_levels_refit_from_per_step_sums_equals_the_dense_least_squares():
+    """``_stepped_rss`` (normal equations from per-step sums) against the refit on the dense design."""
+    from calibrate.diagnosis.blocks import _stepped_rss
+
+    rng = np.random.default_rng(1)
+    m, k = 3000, 6
+    jac, weighted = rng.normal(size=(m, k)), rng.normal(size=m)
+    step = np.repeat(np.arange(8), m // 8) * 3 + rng.integers(0, 3, m)
+    n_steps = 7 * 3  # the last block's held at zero
+    dense = np.zeros((m, 24))
+    dense[np.arange(m), step] = 1.0
+    design = np.hstack([jac, dense[:, :n_steps]])
+    expected = weighted @ weighted - weighted @ (design @ np.linalg.lstsq(design, weighted, rcond=None)[0])
+    np.testing.assert_allclose(_stepped_rss(jac, weighted, step, n_steps), expected, rtol=1e-10)
