@@ -36,7 +36,7 @@ from functools import cached_property
 
 import numpy as np
 
-__all__ = ["TumbleUncertainty"]
+__all__ = ["TumbleUncertainty", "ChannelUncertainty", "with_calibration_sigma", "undetermined_words"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,7 +54,11 @@ class TumbleUncertainty:
     soft_iron_sigma : ndarray, shape (3, 3)
         Of each entry of ``S`` (the upper triangle is used), file units.
     rotation_sigma_rad : ndarray, shape (3,)
-        Of ``C``'s rotation vector, rad (zeros when the file fitted no rotation).
+        Of ``C``'s rotation vector, rad.
+    undetermined : tuple of str
+        The parts whose sigma the file does not give (a null or infinite entry: the fit could not determine
+        them; no rotation fitted), in words; their entries above hold 0 and :meth:`covariance` is the
+        determined parts' alone, but :meth:`heading_sigma_deg` is then not known: ``inf``.
     """
 
     soft_iron: np.ndarray
@@ -62,8 +66,10 @@ class TumbleUncertainty:
     hard_iron_sigma: np.ndarray
     soft_iron_sigma: np.ndarray
     rotation_sigma_rad: np.ndarray
+    undetermined: tuple = ()
 
     def __post_init__(self):
+        object.__setattr__(self, "undetermined", tuple(self.undetermined))
         for name, shape in (("soft_iron", (3, 3)), ("mag_to_accel", (3, 3)), ("hard_iron_sigma", (3,)),
                             ("soft_iron_sigma", (3, 3)), ("rotation_sigma_rad", (3,))):
             value = np.asarray(getattr(self, name), dtype=float)
@@ -95,7 +101,7 @@ class TumbleUncertainty:
         Returns
         -------
         ndarray, shape (..., 3, 3)
-            Field units squared (module docstring).
+            Field units squared (module docstring); of the determined parts only (:attr:`undetermined`).
         """
         b = np.asarray(field_h, dtype=float)
         x = np.einsum("ij,...j->...i", self._to_raw, b)  # x - h, recording units
@@ -142,7 +148,14 @@ class TumbleUncertainty:
             ``R_world<-housing`` (NWU world), e.g. the live filter's.
         field_h : sequence of 3 floats
             The calibrated field in H (what the filter takes), field units.
+
+        Returns
+        -------
+        float
+            Degrees; ``inf`` when a part is :attr:`undetermined` (not known) or the field is vertical.
         """
+        if self.undetermined:
+            return math.inf
         cs_t, c_t, to_raw, hard_var, rot_var, soft = self._scalars
         r = np.ravel(matrix) if not isinstance(matrix, (list, tuple)) or len(matrix) != 9 else matrix
         ux, uy, uz = float(r[6]), float(r[7]), float(r[8])
@@ -160,6 +173,132 @@ class TumbleUncertainty:
         turned = (by * n[2] - bz * n[1], bz * n[0] - bx * n[2], bx * n[1] - by * n[0])  # B x n
         var += sum(w * t * t for w, t in zip(rot_var, turned))
         return math.degrees(math.sqrt(var) / horizontal2)
+
+
+@dataclass(frozen=True, eq=False)
+class ChannelUncertainty:
+    """A channel-form calibration's own uncertainty (a four-flip's, widened when structure remained; an
+    installation's): each channel's sensing-direction covariance and offset and gain sigmas, the field's
+    covariance through the solver ``P`` (``B_H = P x``).
+
+    Per channel ``c`` (:meth:`compass.model.SensorModel.component_variance`, whose calibration part this is):
+
+    .. math::
+
+        \\mathrm{var}_c = B^T \\Sigma_{a_c} B + \\frac{\\sigma_{V0,c}^2 + x_c^2 \\sigma_{K,c}^2}{K_c^2},
+        \\qquad \\Sigma_B = P\\,\\mathrm{diag}(\\mathrm{var})\\,P^T ,
+
+    ``x_c = a_c . B`` the field along the channel's unit direction ``a_c``.  The channels' errors are taken as
+    independent (the file gives no correlations between channels).
+
+    Attributes
+    ----------
+    unit_directions : ndarray, shape (c, 3)
+    solver : ndarray, shape (3, c)
+    gains : ndarray, shape (c,)
+        Output units per field unit.
+    direction_covariance : ndarray, shape (c, 3, 3), or None
+        rad^2 (None: the file gives none).
+    response_sigma : ndarray, shape (c, 2), or None
+        Offset (output units) and gain (output units per field unit) sigmas (None: the file gives none).
+    """
+
+    unit_directions: np.ndarray
+    solver: np.ndarray
+    gains: np.ndarray
+    direction_covariance: np.ndarray | None = None
+    response_sigma: np.ndarray | None = None
+    undetermined: tuple = ()
+
+    def component_variance(self, field_h) -> np.ndarray:
+        """``var_c`` (class docstring) at ``field_h`` (shape (..., 3), field units): shape (..., c), field units squared."""
+        b = np.asarray(field_h, dtype=float)
+        x = np.einsum("...i,ci->...c", b, self.unit_directions)
+        var = np.zeros_like(x)
+        if self.direction_covariance is not None:
+            var += np.einsum("...i,cij,...j->...c", b, self.direction_covariance, b)
+        if self.response_sigma is not None:
+            var += (self.response_sigma[:, 0] ** 2 + x**2 * self.response_sigma[:, 1] ** 2) / self.gains**2
+        return var
+
+    def covariance(self, field_h) -> np.ndarray:
+        """``Sigma_B`` at ``field_h`` (shape (..., 3)): shape (..., 3, 3), field units squared."""
+        p = self.solver
+        return np.einsum("ic,...c,jc->...ij", p, self.component_variance(field_h), p)
+
+    @cached_property
+    def _scalars(self) -> tuple:
+        """Per channel, as Python floats: ``a_c``, ``P``'s column, ``Sigma_a`` row by row (or None), the offset
+        and gain variances over ``K^2`` (0 when not given)."""
+        out = []
+        for c in range(len(self.gains)):
+            cov = None if self.direction_covariance is None else \
+                tuple(tuple(float(v) for v in row) for row in self.direction_covariance[c])
+            k2 = float(self.gains[c]) ** 2
+            off, gain = (0.0, 0.0) if self.response_sigma is None else \
+                (float(self.response_sigma[c, 0]) ** 2 / k2, float(self.response_sigma[c, 1]) ** 2 / k2)
+            out.append((tuple(float(v) for v in self.unit_directions[c]), tuple(float(v) for v in self.solver[:, c]),
+                        cov, off, gain))
+        return tuple(out)
+
+    def heading_sigma_deg(self, matrix, field_h) -> float:
+        """The heading's 1-sigma from the calibration alone at one attitude, the tilt taken as known, degrees:
+        ``sqrt(n^T Sigma_B n) / |B_h|^2`` with ``n = up x B`` (as :meth:`TumbleUncertainty.heading_sigma_deg`),
+        ``n^T Sigma_B n = sum_c var_c (P_c . n)^2``, on Python floats (it runs on every live sample).
+        Parameters as :meth:`TumbleUncertainty.heading_sigma_deg`; ``inf`` when a part is undetermined."""
+        if self.undetermined:
+            return math.inf
+        r = np.ravel(matrix) if not isinstance(matrix, (list, tuple)) or len(matrix) != 9 else matrix
+        ux, uy, uz = float(r[6]), float(r[7]), float(r[8])
+        b = tuple(float(v) for v in field_h)
+        bx, by, bz = b
+        n = (uy * bz - uz * by, uz * bx - ux * bz, ux * by - uy * bx)
+        horizontal2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2]
+        if not horizontal2 > 0.0:
+            return math.inf
+        var = 0.0
+        for a, p, cov, off, gain in self._scalars:
+            x = a[0] * bx + a[1] * by + a[2] * bz
+            v = off + x * x * gain
+            if cov is not None:
+                v += sum(b[i] * (cov[i][0] * bx + cov[i][1] * by + cov[i][2] * bz) for i in range(3))
+            pn = p[0] * n[0] + p[1] * n[1] + p[2] * n[2]
+            var += v * pn * pn
+        return math.degrees(math.sqrt(var) / horizontal2)
+
+
+def with_calibration_sigma(sigma_deg: float, uncertainty, matrix, field_h) -> float:
+    """A filter's heading sigma (the noise's) with the calibration's own at its attitude, in quadrature, degrees.
+
+    The one combination ``compass live``, its replay and :func:`compass.filter.run_filter` report.
+
+    Parameters
+    ----------
+    sigma_deg : float
+        The filter's heading 1-sigma, degrees.
+    uncertainty : TumbleUncertainty or ChannelUncertainty or None
+        ``SensorModel.calibration_uncertainty`` (None: ``sigma_deg`` as it is).
+    matrix, field_h
+        As :meth:`TumbleUncertainty.heading_sigma_deg`.
+
+    Returns
+    -------
+    float
+        Degrees; ``inf`` (not known) when a part of the calibration is undetermined.
+    """
+    if uncertainty is None:
+        return sigma_deg
+    return math.hypot(sigma_deg, uncertainty.heading_sigma_deg(matrix, field_h))
+
+
+def undetermined_words(uncertainty) -> str | None:
+    """The one-line warning for a calibration with an undetermined part (None when every part is determined):
+    which part, and what it costs (the heading sigma is reported as ``inf``, not known)."""
+    if uncertainty is None or not uncertainty.undetermined:
+        return None
+    return (f"the calibration leaves {'; '.join(uncertainty.undetermined)} undetermined: its heading error is not "
+            "known (it can reach degrees), so heading_sigma_deg is reported as inf; recalibrate with more motion "
+            "(and an accelerometer) to know it")
 
 
 def _skew(b: np.ndarray) -> np.ndarray:

@@ -18,6 +18,7 @@ import numpy as np
 from .calibration import ImuCorrection
 from .filter import AttitudeFilter, Estimate, FilterConfig, FilterStart
 from .io.streams import StreamDecoder, StreamOptions, field_scale_check
+from .iron_uncertainty import undetermined_words, with_calibration_sigma
 from .serial_reader import Chunk, LinkEvent
 from .site import upside_down
 
@@ -89,7 +90,10 @@ class LiveSession:
     model : compass.model.SensorModel
         ``Calibration.model``.
     config : FilterConfig, optional
-        Default :meth:`FilterConfig.from_model`.
+        Default :meth:`FilterConfig.from_model`.  Its ``calibration_uncertainty`` (the calibration's own, which
+        ``from_model`` carries) is added to the reported heading sigma at each estimate's attitude
+        (:func:`compass.iron_uncertainty.with_calibration_sigma`; ``inf`` and a warning event when a part of
+        the calibration is undetermined).
     out : text file, optional
         Receives the attitude CSV (:data:`CSV_COLUMNS`; ``gate`` coded as :data:`GATE_CODES`).
     sink : compass.viz.RerunSink, optional
@@ -198,6 +202,9 @@ class LiveSession:
         self._start = FilterStart(self.config, self.reference)
         if self.reference is not None and np.isfinite(self.reference.field_norm):
             self._use_reference(self.reference)
+        words = undetermined_words(self.config.calibration_uncertainty)
+        if words is not None:
+            self._event("warn", words)
         if self.out is not None:
             self.out.write(f"# gate: {', '.join(f'{v} {k}' for k, v in GATE_CODES.items())}\n"
                            + ",".join(CSV_COLUMNS + (_TRUE_COLUMNS if self._declination is not None else ())
@@ -352,10 +359,10 @@ class LiveSession:
         if est is None or est.gate == "absent":  # no attitude, or no field to write a row of
             self.unsolved += 1
             return
-        iron = self.model.iron_uncertainty
-        if iron is not None:  # a tumble file's own uncertainty at this attitude (the filter's is the noise's)
-            est = replace(est, heading_sigma_deg=math.hypot(est.heading_sigma_deg,
-                                                            iron.heading_sigma_deg(est.matrix_rows, field_row)))
+        own = self.config.calibration_uncertainty
+        if own is not None:  # the calibration's own uncertainty at this attitude (the filter's is the noise's)
+            est = replace(est, heading_sigma_deg=with_calibration_sigma(est.heading_sigma_deg, own, est.matrix_rows,
+                                                                        field_row))
         self.estimate, self.in_range = est, in_range
         self.samples += 1
         if self._axes_rows is not None and accel is not None and self.samples % AXES_EVERY == 0:

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from functools import cached_property
 import numpy as np
 
-from .iron_uncertainty import TumbleUncertainty
+from .iron_uncertainty import ChannelUncertainty, TumbleUncertainty
 from .response import LinearResponse, Response
 from .temperature import TemperatureCompensation
 
@@ -155,6 +155,24 @@ class SensorModel:
         w = np.ones(len(a)) if self.component_noise is None else 1.0 / self.component_noise**2
         return np.linalg.solve(a.T @ (w[:, None] * a), a.T * w[None, :])
 
+    @cached_property
+    def _channel_uncertainty(self) -> ChannelUncertainty:
+        return ChannelUncertainty(self.unit_directions, self.solver, self.gains, self.direction_covariance,
+                                  self.response_sigma)
+
+    @cached_property
+    def calibration_uncertainty(self) -> TumbleUncertainty | ChannelUncertainty | None:
+        """The calibration's own uncertainty, a constant error (not noise): a tumble file's
+        :attr:`iron_uncertainty`, else the channels' direction covariances and offset and gain sigmas (a
+        four-flip's, an installation's; :class:`compass.iron_uncertainty.ChannelUncertainty`); None when the
+        file gives none.  What ``compass live``, its replay and :func:`compass.filter.run_filter` add to the
+        filter's heading sigma (:func:`compass.iron_uncertainty.with_calibration_sigma`)."""
+        if self.iron_uncertainty is not None:
+            return self.iron_uncertainty
+        if self.direction_covariance is None and self.response_sigma is None:
+            return None
+        return self._channel_uncertainty
+
     # ------------------------------------------------------------------ runtime
 
     def components(self, raw, temp_c=None) -> tuple[np.ndarray, np.ndarray]:
@@ -244,11 +262,8 @@ class SensorModel:
         var = np.zeros_like(x)
         if self.component_noise is not None:
             var += (self.component_noise / self._relative_slope(x)) ** 2
-        if self.direction_covariance is not None:
-            outer = (b[..., :, None] * b[..., None, :]).reshape(*b.shape[:-1], 9)
-            var += _times(outer, self.direction_covariance.reshape(-1, 9).T)
-        if self.response_sigma is not None:
-            var += (self.response_sigma[:, 0] ** 2 + x**2 * self.response_sigma[:, 1] ** 2) / self.gains**2
+        if self.direction_covariance is not None or self.response_sigma is not None:
+            var += self._channel_uncertainty.component_variance(b)
         return var
 
     def field_covariance(self, field, *, iron: bool = True) -> np.ndarray:

@@ -20,6 +20,7 @@ from . import limits
 from .errors import BadInput
 from .io.table import RecordingError, format_table, read_table
 from .io.units import check_accel_up, check_two_axis_tilt
+from .iron_uncertainty import undetermined_words
 from .site import Site, reference_from_site, upside_down
 
 __all__ = ["SolvedRecording", "solve_recording"]
@@ -230,8 +231,12 @@ def solve_recording(calibration, recording, *, level=False, max_tilt_deg=5.0, ac
                    else f"{recording} has no temp_c column")
             metadata["temperature"] = f"NOT compensated: {why}"
             warnings.append(f"the calibration's temperature effect is not applied: {why}")
-    if model.direction_covariance is None:
-        metadata["note"] = "the calibration gives no direction covariance: sigmas count sensor noise only"
+    if model.calibration_uncertainty is None:
+        metadata["note"] = "the calibration gives no uncertainty of its own: sigmas count sensor noise only"
+    undetermined = undetermined_words(model.calibration_uncertainty)
+    if undetermined is not None:
+        metadata["note"] = "heading_sigma_deg inf: a part of the calibration is undetermined"
+        warnings.append(undetermined)
     if cal.provenance.method == "patent":
         warnings.append(f"{calibration} was made with --method patent (seed 000's rule as written, kept for "
                         "comparison): its dip rule and tabulated response can be off by degrees and its sigmas count "

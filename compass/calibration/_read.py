@@ -356,7 +356,7 @@ def _tumble(d: dict) -> tuple:
         noise=check.noise(noise, 3, noise_key),
         form="tumble",
         temperature=_temperature(d, TUMBLE_CHANNELS, gains),
-        iron_uncertainty=_tumble_uncertainty(block, soft, rot),
+        iron_uncertainty=_tumble_uncertainty(block, soft, rot, mag_to_accel is not None),
         mag_latency_s=_mag_latency_s(block.get("gyro")),
     )
     norm = block.get("field_norm_recording_units")
@@ -367,33 +367,61 @@ def _tumble(d: dict) -> tuple:
                              ellipsoid if isinstance(ellipsoid, str) else None)
 
 
-def _tumble_uncertainty(block: dict, soft: np.ndarray, rotation: np.ndarray):
+def _tumble_uncertainty(block: dict, soft: np.ndarray, rotation: np.ndarray, rotation_fitted: bool):
     """The ``tumble`` block's sigmas of the hard iron, soft iron and rotation as a
-    :class:`~compass.iron_uncertainty.TumbleUncertainty`; None when the hard iron's or the soft iron's
-    are absent or hold a null or infinite entry (a degenerate fit's).  No rotation sigma (no rotation
-    fitted): zeros.  Anything else that is not a list of numbers of the key's shape is refused."""
+    :class:`~compass.iron_uncertainty.TumbleUncertainty`; None when the file gives no hard-iron or soft-iron
+    sigmas at all (a file written by hand: no calibration term, nothing claimed).  An entry the fit wrote
+    null or infinite (it could not determine it), a null ``misalignment_rotvec_sigma_deg`` or no rotation
+    fitted (``mag_to_accel`` null: the accelerometer's frame taken as the magnetometer's) is named in its
+    ``undetermined`` (the runtime's heading sigma is then not known: inf).  An absent rotation sigma beside
+    a fitted rotation: zeros, as the file says nothing of it.  Anything else that is not a list of numbers
+    of the key's shape is refused."""
     from ..iron_uncertainty import TumbleUncertainty
 
-    hard = _sigma(block.get("hard_iron_sigma"), (3,), "tumble.hard_iron_sigma")
-    soft_sigma = _sigma(block.get("soft_iron_sigma"), (3, 3), "tumble.soft_iron_sigma")
-    if hard is None or soft_sigma is None:
+    if block.get("hard_iron_sigma") is None or block.get("soft_iron_sigma") is None:
         return None
-    rot = _sigma(block.get("misalignment_rotvec_sigma_deg"), (3,), "tumble.misalignment_rotvec_sigma_deg")
-    rot = np.zeros(3) if rot is None else np.radians(rot)
-    for key, value in (("hard_iron_sigma", hard), ("soft_iron_sigma", soft_sigma),
-                       ("misalignment_rotvec_sigma_deg", rot)):
+    undetermined = []
+    hard, gone = _sigma(block.get("hard_iron_sigma"), (3,), "tumble.hard_iron_sigma")
+    if gone.any():
+        undetermined.append("the hard iron along " + ", ".join(np.array(TUMBLE_CHANNELS)[gone]))
+    soft_sigma, gone = _sigma(block.get("soft_iron_sigma"), (3, 3), "tumble.soft_iron_sigma")
+    gone = np.triu(gone | gone.T)  # S_ij and S_ji one number
+    if gone.any():
+        undetermined.append("the soft iron's " + ", ".join(f"S_{'xyz'[i]}{'xyz'[j]}" for i, j in zip(*np.nonzero(gone))))
+    key = "misalignment_rotvec_sigma_deg"
+    if not rotation_fitted:
+        rot = np.zeros(3)
+        undetermined.append("the rotation from the magnetometer to the accelerometer (not fitted: taken as none)")
+    elif key not in block:
+        rot = np.zeros(3)
+    else:
+        rot, gone = _sigma(block.get(key), (3,), f"tumble.{key}")
+        if gone.any():
+            undetermined.append("the rotation to the accelerometer about " + ", ".join(np.array(list("xyz"))[gone]))
+        rot = np.radians(rot)
+    for name, value in (("hard_iron_sigma", hard), ("soft_iron_sigma", soft_sigma), (key, rot)):
         if np.any(value < 0):
-            raise CalibrationFileError("must not be negative (standard errors)", key=f"tumble.{key}")
-    return TumbleUncertainty(soft, rotation, hard, soft_sigma, rot)
+            raise CalibrationFileError("must not be negative (standard errors)", key=f"tumble.{name}")
+    return TumbleUncertainty(soft, rotation, hard, soft_sigma, rot, tuple(undetermined))
 
 
-def _sigma(v, shape: tuple, key: str) -> np.ndarray | None:
-    """A standard error of ``shape`` under ``key``; None when absent or when an entry is null or infinite (what
-    the fit writes where it could not give one); anything else not finite numbers of that shape is refused.
-    Bounded by :data:`SIGMA_LIMIT` (a sigma beyond it is no calibration)."""
-    if v is None or _undetermined(v):
-        return None
-    return check.array(v, shape, key, limit=SIGMA_LIMIT)
+def _sigma(v, shape: tuple, key: str) -> tuple[np.ndarray, np.ndarray]:
+    """A standard error of ``shape`` under ``key`` and where the fit could not give one (a null or infinite
+    entry; the whole key null: every entry), shape ``shape`` of bool; those entries hold 0.  Anything else not
+    finite numbers of that shape is refused.  Bounded by :data:`SIGMA_LIMIT` (a sigma beyond it is no calibration)."""
+    if v is None:
+        return np.zeros(shape), np.ones(shape, dtype=bool)
+    if _undetermined(v):  # numbers and nulls only
+        try:
+            value = np.array(v, dtype=object)
+            value = np.array([math.nan if e is None else e for e in value.flat], dtype=float).reshape(shape)
+        except (TypeError, ValueError):  # ragged, or another shape
+            value = None
+        if value is not None:
+            gone = ~np.isfinite(value)
+            return check.array(np.where(gone, 0.0, value).tolist(), shape, key, limit=SIGMA_LIMIT), gone
+        check.array(v, shape, key)  # refused: the shape named
+    return check.array(v, shape, key, limit=SIGMA_LIMIT), np.zeros(shape, dtype=bool)
 
 
 def _undetermined(v) -> bool:

@@ -132,6 +132,11 @@ class FilterConfig:
         and squared; issue 22): a 25 Hz vibration or a 2 ms tap, which the inertial low-pass removes almost
         entirely, no longer makes the filter distrust the accelerometer for ``motion_time_s`` (False: the raw
         motion, as before).
+    calibration_uncertainty : compass.iron_uncertainty.TumbleUncertainty or ChannelUncertainty or None
+        The calibration's own uncertainty (``SensorModel.calibration_uncertainty``; :meth:`from_model` sets
+        it): never fused (a constant error, not noise), only added to the reported heading sigma at each
+        estimate's attitude (:func:`compass.iron_uncertainty.with_calibration_sigma`: ``compass live``,
+        its replay and :func:`run_filter` alike); ``inf`` when a part of it is undetermined.
     field_update : str
         What the gyro filter's field (heading) update may move (issue 22): ``"kalman"`` every state its
         gain reaches through the covariance's cross terms (the tilt and the whole gyro bias: the
@@ -186,10 +191,11 @@ class FilterConfig:
     place_window_s: float = 4.0
     residual_in_band: bool = False
     field_update: str = "kalman"
+    calibration_uncertainty: object = None
 
     def __post_init__(self):
         for f in fields(self):
-            if f.name in ("dip_deg", "gravity", "mag_latency_s") or f.type in ("bool", "str"):
+            if f.name in ("dip_deg", "gravity", "mag_latency_s", "calibration_uncertainty") or f.type in ("bool", "str"):
                 continue
             value = getattr(self, f.name)
             if not (np.isfinite(value) and value > 0):
@@ -215,7 +221,8 @@ class FilterConfig:
 
         The noise is the field's at zero field without a tumble file's own uncertainty
         (``model.iron_uncertainty``: a constant error of the calibration, not noise from sample to sample;
-        ``compass live`` adds it to the reported heading sigma instead).  ``gravity``: what 1 g reads
+        it is carried as :attr:`calibration_uncertainty`, which ``compass live``, its replay and
+        :func:`run_filter` add to the reported heading sigma instead).  ``gravity``: what 1 g reads
         (``--gravity``), else learnt from the start window.
 
         With ``mag_latency`` also the magnetometer's latency the calibration found
@@ -237,7 +244,8 @@ class FilterConfig:
             raise ValueError("the calibration has no noise_floor: the filter cannot weight the magnetometer")
         noise = float(np.sqrt(np.trace(model.field_covariance(np.zeros(3), iron=False)) / 3.0))
         return cls(field_norm=model.field_norm, dip_deg=model.dip_deg, mag_noise=noise,
-                   mag_latency_s=model.mag_latency_s if mag_latency else 0.0, gravity=gravity)
+                   mag_latency_s=model.mag_latency_s if mag_latency else 0.0, gravity=gravity,
+                   calibration_uncertainty=model.calibration_uncertainty)
 
 
 @dataclass(frozen=True)

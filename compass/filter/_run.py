@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from array import array
 from dataclasses import dataclass
 from itertools import repeat
@@ -10,6 +11,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..frames import heading_pitch_roll
+from ..iron_uncertainty import undetermined_words, with_calibration_sigma
 from ._records import SKIP_REASONS, FilterConfig, SkipCounts
 from ._start import FilterStart
 
@@ -26,7 +28,11 @@ class FilterTrack:
     quat : ndarray, shape (n, 4)
         ``R_world<-housing`` as scipy quaternions (x, y, z, w).
     heading_deg, pitch_deg, roll_deg : ndarray, shape (n,)
-    heading_sigma_deg, tilt_sigma_deg, field_heading_sigma_deg, field_ratio, dip_deg : ndarray, shape (n,)
+    heading_sigma_deg : ndarray, shape (n,)
+        As ``compass live`` reports it: the filter's with the config's ``calibration_uncertainty`` at each
+        attitude, in quadrature (:func:`compass.iron_uncertainty.with_calibration_sigma`; ``inf`` when a part
+        of the calibration is undetermined, said in ``events``).
+    tilt_sigma_deg, field_heading_sigma_deg, field_ratio, dip_deg : ndarray, shape (n,)
         As in :class:`Estimate`.
     mag_used, accel_used : ndarray of bool, shape (n,)
     gate : ndarray of str, shape (n,)
@@ -109,6 +115,8 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig, *, reference=Non
     # field ratio, dip, mag_used, accel_used (7), the gyro bias (3); flat float buffers, no per-sample object
     # kept (57,000 kept tuples cost more in the garbage collector and in np.array than the filter's arithmetic)
     done, matrices, scalars, bias, events = [], array("d"), array("d"), array("d"), []
+    own = config.calibration_uncertainty  # the calibration's own heading sigma, added as compass live adds it
+    owns = array("d")
     gate = ["absent"] * n
     # rows as Python floats once, vectorised (the per-sample step is scalar arithmetic); each row's
     # vectors are short-lived tuples (57,000 kept lists of three would slow the garbage collector)
@@ -126,6 +134,8 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig, *, reference=Non
         scalars.extend((filt.heading_var, filt.tilt_var, filt.field_heading_var, d.field_ratio, d.dip_deg,
                         d.mag_used, d.accel_used))
         gate[i] = d.gate
+        if own is not None:  # the reported heading sigma as compass live reports it
+            owns.append(with_calibration_sigma(math.degrees(math.sqrt(filt.heading_var)), own, filt.matrix, b))
         if with_bias:
             bias.extend(filt.gyro_bias)
 
@@ -137,7 +147,11 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig, *, reference=Non
             for _ in range(getattr(start_skips, name.replace(" ", "_"))):
                 filt.skipped.count(name)
         update, d = filt.update, filt.diagnostics
-        for j in start.take_held():
+        held = start.take_held()
+        words = undetermined_words(own)
+        if words is not None and held:
+            events.append((t_s[held[0]].item(), words))
+        for j in held:
             record(j, t_s[j].item(), tuple(accel[j].tolist()), None if gyro is None else tuple(gyro[j].tolist()),
                    tuple(field_h[j].tolist()))
 
@@ -171,6 +185,8 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig, *, reference=Non
     flags = np.zeros((n, 2), dtype=bool)
     flags[done] = scalars[done, 5:] != 0.0
     sigma = np.degrees(np.sqrt(scalars[:, :3]))
+    if own is not None:
+        sigma[done, 0] = np.frombuffer(owns, dtype=float)
     return FilterTrack(t_s, quat, *angles.T, *sigma.T, scalars[:, 3], scalars[:, 4], flags[:, 0], flags[:, 1],
                        np.array(gate, dtype=str), _rows(bias, done, n, 3) if with_bias else None,
                        start_skips if filt is None else filt.skipped, tuple(events))

@@ -91,7 +91,9 @@ def test_the_filter_weights_the_noise_alone_and_an_installed_model_drops_the_ben
     _, doc, _ = widened
     model = from_dict(doc).model
     bare = dataclasses.replace(model, iron_uncertainty=None)
-    assert FilterConfig.from_model(model) == FilterConfig.from_model(bare)
+    config = FilterConfig.from_model(model)
+    assert config.calibration_uncertainty is model.iron_uncertainty  # carried to the reported sigma, not fused
+    assert dataclasses.replace(config, calibration_uncertainty=None) == FilterConfig.from_model(bare)
     assert np.trace(model.field_covariance(np.zeros(3))) > np.trace(bare.field_covariance(np.zeros(3)))
     late = dataclasses.replace(model, mag_latency_s=0.012)
     inside = installed_model(late, np.array([2.0, -1.0, 0.5]), np.eye(3) * 1.02)
@@ -152,9 +154,9 @@ def test_the_files_sigmas_are_checked(widened):
     bad["tumble"]["hard_iron_sigma"] = [0.1, 0.2]
     with pytest.raises(CalibrationFileError, match="tumble.hard_iron_sigma"):
         from_dict(bad)
-    # a sigma the fit could not give (null): no calibration term, as before
-    bad["tumble"]["hard_iron_sigma"] = [None, 0.1, 0.1]
-    assert from_dict(bad).model.iron_uncertainty is None
+    # a sigma the fit could not give (null or infinite): named undetermined, never read as zero
+    bad["tumble"]["hard_iron_sigma"] = [None, 0.1, float("inf")]
+    assert from_dict(bad).model.iron_uncertainty.undetermined == ("the hard iron along mx, mz",)
     # anything else is refused, naming the key: text, mixed lists, values no calibration reaches
     for key, value in (("hard_iron_sigma", "abc"), ("hard_iron_sigma", [1, "a", 3]), ("hard_iron_sigma", [1e300, 1, 1]),
                        ("misalignment_rotvec_sigma_deg", "x"), ("soft_iron_sigma", [[0.1] * 3] * 2)):
@@ -200,13 +202,12 @@ def test_the_live_pipeline_and_its_replay_carry_the_files_sigma(widened):
     _, doc, _ = widened
     model = from_dict(doc).model
     bare = dataclasses.replace(model, iron_uncertainty=None)
-    config = FilterConfig.from_model(model)  # the same as the bare model's: only the reported sigma may differ
     t = np.arange(0.0, 12.0, 0.01)
     s = simulate_device(model, t, seed=4)
     tables = []
-    for m in (model, bare):
+    for m in (model, bare):  # the filters' configs differ only in the calibration's own uncertainty (above)
         out = io.StringIO()
-        replay(LiveSession(m, config=config, out=out), t, s.raw, s.accel, s.gyro)
+        replay(LiveSession(m, config=FilterConfig.from_model(m), out=out), t, s.raw, s.accel, s.gyro)
         rows = [line.split(",") for line in out.getvalue().splitlines() if line and not line.startswith(("#", "t_s"))]
         tables.append(np.array(rows, dtype=float))
     wide, plain = tables
