@@ -215,3 +215,165 @@ def test_the_live_pipeline_and_its_replay_carry_the_files_sigma(widened):
     assert len(wide) == len(plain) > 0.9 * len(t)
     np.testing.assert_array_equal(wide[:, heading], plain[:, heading])
     assert np.all(wide[:, sigma] > plain[:, sigma])
+
+
+def _replayed(model, t, s, config=None, events=None):
+    """The replay's CSV (compass attitude --filter, compass live's pipeline) as an array, and its columns."""
+    import io
+
+    from compass.live import CSV_COLUMNS, LiveSession
+    from compass.replay import replay
+
+    out = io.StringIO()
+    on_event = None if events is None else (lambda level, text: events.append((level, text)))
+    replay(LiveSession(model, config=config, out=out, on_event=on_event), t, s.raw, s.accel, s.gyro)
+    rows = [line.split(",") for line in out.getvalue().splitlines() if line and not line.startswith(("#", "t_s"))]
+    return np.array(rows, dtype=float), CSV_COLUMNS
+
+
+def test_run_filter_reports_the_heading_sigma_the_replay_reports(widened):
+    """The documented offline path (``run_filter(..., FilterConfig.from_model(model))``) gives the replay's and
+    compass live's heading sigma on the same samples, the tumble file's own uncertainty included (it gave the
+    filter's noise-only sigma)."""
+    from compass.filter import FilterConfig, run_filter
+    from compass.sim.device import simulate_device
+
+    _, doc, _ = widened
+    model = from_dict(doc).model
+    t = np.arange(0.0, 12.0, 0.01)
+    s = simulate_device(model, t, seed=4)
+    table, columns = _replayed(model, t, s)
+    track = run_filter(t, s.accel, s.gyro, model.field(s.raw)[0], FilterConfig.from_model(model))
+    bare = run_filter(t, s.accel, s.gyro, model.field(s.raw)[0],
+                      FilterConfig.from_model(dataclasses.replace(model, iron_uncertainty=None)))
+    rows = np.searchsorted(t, table[:, columns.index("t_s")] - 1e-6)
+    np.testing.assert_array_equal(t[rows].round(4), table[:, columns.index("t_s")])
+    sigma = table[:, columns.index("heading_sigma_deg")]
+    np.testing.assert_allclose(track.heading_sigma_deg[rows], sigma, atol=5.1e-4)  # the CSV's 3 decimals
+    assert np.all(track.heading_sigma_deg[rows] > bare.heading_sigma_deg[rows] + 1e-3)
+
+
+def _channel_model(scale=1.0):
+    """The simulated device's model with a four-flip's kind of uncertainty: each channel's direction covariance
+    (0.2 deg about each axis across the direction) and gain sigma times ``scale``, its offset sigma (which
+    :meth:`FilterConfig.from_model` counts in the filter's ``mag_noise`` too) not scaled."""
+    from compass.sim.device import default_model
+
+    model = default_model()
+    a = model.unit_directions
+    across = np.eye(3)[None] - a[:, :, None] * a[:, None, :]
+    cov = (scale * np.radians(0.2)) ** 2 * across
+    sigma = np.column_stack([0.002 * np.abs(model.gains) * model.field_norm, scale * 0.002 * np.abs(model.gains)])
+    return dataclasses.replace(model, direction_covariance=cov, response_sigma=sigma)
+
+
+def test_a_channel_forms_own_uncertainty_is_its_field_covariance_less_the_noise():
+    """``ChannelUncertainty`` is the calibration part of ``SensorModel.component_variance``; its per-sample
+    heading sigma is ``n^T Sigma_B n / |B_h|^2`` at any attitude."""
+    model = _channel_model()
+    own = model.calibration_uncertainty
+    assert own is not None and not own.undetermined
+    quiet = dataclasses.replace(model, noise=None)
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        r = Rotation.from_euler("ZYX", rng.uniform([-180, -40, -40], [180, 40, 40]), degrees=True).as_matrix()
+        b = r.T @ world_field(60.0, model.field_norm) + rng.normal(0.0, 2.0, 3)
+        np.testing.assert_allclose(own.covariance(b), quiet.field_covariance(b), rtol=1e-12, atol=1e-15)
+        across = np.cross(r[2], b)
+        expected = np.degrees(np.sqrt(across @ own.covariance(b) @ across) / (across @ across))
+        assert own.heading_sigma_deg(r, b) == pytest.approx(expected, rel=1e-9)
+        assert own.heading_sigma_deg(r.ravel().tolist(), b.tolist()) == pytest.approx(expected, rel=1e-9)
+
+
+@pytest.mark.parametrize("kind", ["four-flip", "installation"])
+def test_a_widened_channel_calibration_reaches_the_replay_and_run_filter(kind):
+    """A four-flip's (or an installation's) widened sigmas reach compass live, its replay and run_filter: the
+    heading sigma grows on every row against the naive file's, the attitudes unchanged (never fused)."""
+    from compass.filter import FilterConfig, run_filter
+    from compass.installed import installed_model
+    from compass.sim.device import simulate_device
+
+    if kind == "four-flip":
+        naive, wide = _channel_model(1.0), _channel_model(3.0)
+    else:
+        base = dataclasses.replace(_channel_model(), direction_covariance=None, response_sigma=None)
+        cov = np.diag([0.05**2] * 3 + [0.002**2] * 6)  # the installation's hard and soft iron: uT^2, 1
+        naive = installed_model(base, [1.0, -0.5, 0.2], np.eye(3), covariance=cov)
+        cov[3:, 3:] *= 9.0  # the soft iron's (the hard iron's offsets are in the filter's mag_noise too)
+        wide = installed_model(base, [1.0, -0.5, 0.2], np.eye(3), covariance=cov)
+    t = np.arange(0.0, 12.0, 0.01)
+    s = simulate_device(naive, t, seed=6)
+    (plain, columns), (widened_table, _) = _replayed(naive, t, s), _replayed(wide, t, s)
+    heading, sigma = columns.index("heading_deg"), columns.index("heading_sigma_deg")
+    assert len(plain) == len(widened_table) > 0.9 * len(t)
+    np.testing.assert_array_equal(plain[:, heading], widened_table[:, heading])
+    assert np.all(widened_table[:, sigma] > plain[:, sigma])
+    bare = dataclasses.replace(naive, direction_covariance=None, response_sigma=None)
+    noise_only, _ = _replayed(bare, t, s)
+    assert np.all(plain[:, sigma] > noise_only[:, sigma])  # before: the noise's alone
+    track = run_filter(t, s.accel, s.gyro, wide.field(s.raw)[0], FilterConfig.from_model(wide))
+    rows = np.searchsorted(t, widened_table[:, columns.index("t_s")] - 1e-6)
+    np.testing.assert_allclose(track.heading_sigma_deg[rows], widened_table[:, sigma], atol=5.1e-4)
+
+
+@pytest.mark.parametrize("part, words", [
+    ("misalignment_rotvec_sigma_deg", "the rotation to the accelerometer about x, y, z"),
+    ("mag_to_accel", "the rotation from the magnetometer to the accelerometer (not fitted"),
+    ("soft_iron_sigma", "the soft iron's S_xy"),
+])
+def test_an_undetermined_part_makes_the_heading_sigma_unknown_everywhere(widened, part, words):
+    """A part the fit could not determine is never read as zero: compass attitude, compass live (from a byte
+    stream), its replay and run_filter all report the heading sigma as inf (not known) and say once which part;
+    the attitudes are those of the determined file (nothing fused differs) and finite."""
+    import io
+    import time
+
+    from compass.filter import FilterConfig, run_filter
+    from compass.io.lines import format_line
+    from compass.live import LiveSession
+    from compass.serial_reader import Chunk
+    from compass.sim.device import simulate_device
+
+    sim, doc, _ = widened
+    bad = copy.deepcopy(doc)
+    if part == "soft_iron_sigma":
+        bad["tumble"][part][0][1] = None
+    elif part == "mag_to_accel":  # no rotation fitted (a tumble without accelerometer): as calibrate writes it
+        bad[part] = bad["tumble"]["misalignment_rotvec_sigma_deg"] = None
+    else:
+        bad["tumble"][part] = None
+    good, model = from_dict(doc).model, from_dict(bad).model
+    assert words in model.calibration_uncertainty.undetermined[0]
+    t = np.arange(0.0, 12.0, 0.01)
+    s = simulate_device(good, t, seed=4)
+    events = []
+    table, columns = _replayed(model, t, s, events=events)
+    reference, _ = _replayed(good, t, s, config=dataclasses.replace(FilterConfig.from_model(model),
+                                                                  calibration_uncertainty=None))
+    sigma, heading = columns.index("heading_sigma_deg"), columns.index("heading_deg")
+    said = [text for level, text in events if "undetermined" in text]
+    assert len(said) == 1 and words in said[0] and "reported as inf" in said[0] and "\n" not in said[0]
+    assert np.all(np.isinf(table[:, sigma]))
+    if part != "mag_to_accel":  # else the model's rotation differs: other attitudes
+        np.testing.assert_array_equal(table[:, heading], reference[:, heading])
+    assert np.all(np.isfinite(np.delete(table, sigma, axis=1)))
+    # compass live from the module's byte stream: the same
+    live_events = []
+    live = LiveSession(model, out=io.StringIO(), on_event=lambda level, text: live_events.append(text))
+    names = ["t_s", *model.channels, "ax", "ay", "az", "gx", "gy", "gz"]
+    data = format_line(names) + b"".join(format_line([repr(v) for v in row.tolist()])
+                                         for row in np.column_stack([t, s.raw, s.accel, s.gyro]))
+    for k in range(0, len(data), 4096):
+        live.feed(Chunk(time.perf_counter(), data[k:k + 4096]))
+    live.close()
+    assert sum(words in text for text in live_events) == 1 and np.isinf(live.estimate.heading_sigma_deg)
+    # run_filter: inf on every attitude, said in its events
+    track = run_filter(t, s.accel, s.gyro, model.field(s.raw)[0], FilterConfig.from_model(model))
+    solved = np.isfinite(track.heading_deg)
+    assert solved.mean() > 0.9 and np.all(np.isinf(track.heading_sigma_deg[solved]))
+    assert sum(words in text for _, text in track.events) == 1
+    # compass attitude: the same
+    att = solve_attitude(model, sim.mag[::50], accel=sim.accel[::50])
+    assert np.all(np.isinf(att.heading_sigma_deg)) and np.all(np.isfinite(att.heading_deg))
+    level = solve_attitude(model, sim.mag[::50], level=True)
+    assert np.all(np.isinf(level.heading_sigma_deg))
