@@ -2,6 +2,7 @@
 attitudes on the same samples; the filter starts from a window, never from one row."""
 
 import io
+import re
 import time
 
 import numpy as np
@@ -235,3 +236,104 @@ def test_live_refuses_a_gravity_that_is_not_a_positive_number(files, capsys):
     assert main(["live", "--port", str(cal.parent / "no-port"), "--cal", str(cal), "--gravity", "0"]) == 2
     err = capsys.readouterr().err
     assert "--gravity: must be a number in (0" in err and "Traceback" not in err
+
+
+# ---------------------------------------------------------------- bad input (issue 22's "Done when")
+
+
+@pytest.mark.parametrize("cell, column, words", [
+    ("abc", "t_s", "expected a number, found 'abc'"),
+    ("nan", "mx", "expected a finite number, found nan"),
+    ("1e300", "ax", "is beyond 1e+12 in magnitude"),
+    ("inf", "gx", "expected a finite number, found inf"),
+])
+def test_the_command_refuses_a_first_row_of_garbage_in_one_line_naming_it(files, capsys, cell, column, words):
+    """A first row holding text, NaN, 1e300 or inf in one cell: exit 2, one line naming the file, the row and
+    the column, nothing written (nothing fused)."""
+    cal, recording = files
+    rec = recording()
+    lines = rec.read_text().splitlines()
+    header = lines[0].split(",")
+    first = lines[1].split(",")
+    first[header.index(column)] = cell
+    lines[1] = ",".join(first)
+    rec.write_text("\n".join(lines) + "\n")
+    out = cal.parent / "att.csv"
+    code = main(["attitude", str(cal), str(rec), "--out", str(out), "--filter"])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert f"{rec}, row 2, column '{column}'" in err and words in err
+    assert not out.exists()
+
+
+def _session_rows(model, data: bytes, events=None):
+    """``compass live``'s session fed the module's bytes in arbitrary chunks; its CSV rows without the latency."""
+    out = io.StringIO()
+    session = LiveSession(model, out=out, quaternion=True,
+                          on_event=None if events is None else lambda level, text: events.append((level, text)))
+    for k in range(0, len(data), 997):
+        session.feed(Chunk(time.perf_counter(), data[k:k + 997]))
+    session.close()
+    return session, _csv_rows(out.getvalue())
+
+
+@pytest.mark.parametrize("line", [b"abc,1,2,3\n", b"0.0" + b",nan" * 9 + b"\n", b"0.0" + b",1e300" * 9 + b"\n",
+                                  b"0.0" + b",inf" * 9 + b"\n", b"0.0" + b",1e9" * 9 + b"\n"])
+def test_live_drops_a_first_line_of_garbage_and_fuses_nothing_of_it(stream, line):
+    """``compass live`` on a stream whose first sample line is garbage (text, NaN, 1e300, inf, or 1e9 on every
+    sensor): the line is dropped, counted and said as line noise; every other sample is solved exactly as
+    without it (the start window is the same), and nothing written is non-finite."""
+    model, t, s = stream
+    data = _lines(model, t, s)
+    header, rest = data.split(b"\n", 1)
+    first, rest = rest.split(b"\n", 1)
+    events = []
+    session, rows = _session_rows(model, header + b"\n" + line + rest, events)
+    clean, clean_rows = _session_rows(model, header + b"\n" + rest)
+    assert rows == clean_rows and session.samples == len(t) - 1
+    stats = session.decoder.stats
+    assert stats.garbage + stats.partial == 1 and session.skipped == {}
+    assert any(level == "warn" and "line noise" in text for level, text in events)
+    values = np.array([row for row in rows[1:]], dtype=float)
+    assert np.all(np.isfinite(values))
+
+
+def _spinning(t_s):
+    """Already turning fast at the first row (40 deg/s in heading, pitch and roll swinging)."""
+    return 40.0 * t_s, 20.0 * np.sin(2.0 * t_s), 25.0 * np.cos(1.3 * t_s), np.zeros(len(t_s), dtype=bool)
+
+
+@pytest.mark.parametrize("gyro", [True, False])
+def test_a_recording_that_starts_moving_is_replayed_as_live_finite_and_on_the_truth(gyro):
+    """No quiet second at the start: live (bytes) and the replay write the same rows, every one finite,
+    and the attitude is on the truth from the first second (the start window's tilt, not one row's)."""
+    model = default_model()
+    t = np.arange(0.0, 12.0, 1.0 / RATE_HZ)
+    s = simulate_device(model, t, motion=_spinning, seed=2, gyro_bias=[0.0, 0.0, 0.0])
+    _, live_rows = _session_rows(model, _lines(model, t, s, gyro))
+    out = io.StringIO()
+    replay(LiveSession(model, out=out, quaternion=True), t, s.raw, s.accel, s.gyro if gyro else None)
+    rows = _csv_rows(out.getvalue())
+    assert rows == live_rows and len(rows) == len(t) + 1
+    table = read_table(_write(out.getvalue()))
+    assert all(np.all(np.isfinite(table.column(c))) for c in table.columns)
+    heading, pitch = table.column("heading_deg"), table.column("pitch_deg")
+    first = t < 1.0
+    # the simulator's noise gives ~0.2 deg; the two-vector filter lags a 40 deg/s turn by a few tenths more
+    assert np.sqrt(np.mean(wrap(heading - s.heading_deg)[first] ** 2)) < 2.5
+    assert np.sqrt(np.mean((pitch - s.pitch_deg)[first] ** 2)) < 1.0
+    assert np.sqrt(np.mean(wrap(heading - s.heading_deg) ** 2)) < 1.0
+
+
+def test_live_says_an_unnamed_deg_s_gyro_and_writes_nothing_non_finite(stream):
+    """A gyro in deg/s taken for rad/s (no --gyro-unit): compass live warns once, naming --gyro-unit (the replay
+    refuses it, exit 2: test_the_command_refuses_bad_input_in_one_line); nothing written is non-finite."""
+    model, t, s = stream
+    from dataclasses import replace as replaced
+
+    degrees = replaced(s, gyro=np.degrees(s.gyro))
+    events = []
+    _, rows = _session_rows(model, _lines(model, t, degrees), events)
+    said = [text for level, text in events if level == "warn" and "--gyro-unit" in text]
+    assert len(said) == 1 and re.search(r"turns \d+ times more", said[0])
+    assert np.all(np.isfinite(np.array(rows[1:], dtype=float)))
