@@ -1,4 +1,11 @@
-"""A tumble calibration's own uncertainty, propagated to the field in the housing frame.
+"""A calibration's own uncertainty, propagated to the field in the housing frame and to the heading.
+
+A tumble file's (:class:`TumbleUncertainty`, below) and a channel form's (:class:`ChannelUncertainty`: a
+four-flip's or an installation's direction covariances and offset and gain sigmas); either is
+``SensorModel.calibration_uncertainty``, carried by ``FilterConfig.from_model`` and added to the filter's
+heading sigma by :func:`with_calibration_sigma` (``compass live``, its replay and ``run_filter``).  A part the
+file leaves undetermined (:attr:`TumbleUncertainty.undetermined`) makes the heading sigma not known: ``inf``,
+said by :func:`undetermined_words`.
 
 A tumble file writes ``B_H = C S (x - h)`` (``x`` the raw reading, recording units; ``h`` the hard
 iron; ``S`` the soft iron, file units; ``C`` = ``mag_to_accel``) and, under ``tumble``, the standard
@@ -208,7 +215,7 @@ class ChannelUncertainty:
     gains: np.ndarray
     direction_covariance: np.ndarray | None = None
     response_sigma: np.ndarray | None = None
-    undetermined: tuple = ()
+    undetermined = ()  # as TumbleUncertainty's: the reader gives a channel form with a null sigma none at all
 
     def component_variance(self, field_h) -> np.ndarray:
         """``var_c`` (class docstring) at ``field_h`` (shape (..., 3), field units): shape (..., c), field units squared."""
@@ -245,9 +252,7 @@ class ChannelUncertainty:
         """The heading's 1-sigma from the calibration alone at one attitude, the tilt taken as known, degrees:
         ``sqrt(n^T Sigma_B n) / |B_h|^2`` with ``n = up x B`` (as :meth:`TumbleUncertainty.heading_sigma_deg`),
         ``n^T Sigma_B n = sum_c var_c (P_c . n)^2``, on Python floats (it runs on every live sample).
-        Parameters as :meth:`TumbleUncertainty.heading_sigma_deg`; ``inf`` when a part is undetermined."""
-        if self.undetermined:
-            return math.inf
+        Parameters as :meth:`TumbleUncertainty.heading_sigma_deg`."""
         r = np.ravel(matrix) if not isinstance(matrix, (list, tuple)) or len(matrix) != 9 else matrix
         ux, uy, uz = float(r[6]), float(r[7]), float(r[8])
         b = tuple(float(v) for v in field_h)

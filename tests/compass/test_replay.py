@@ -266,6 +266,29 @@ def test_the_command_refuses_a_first_row_of_garbage_in_one_line_naming_it(files,
     assert not out.exists()
 
 
+@pytest.mark.parametrize("cells, reason", [
+    ({"ax": "0", "ay": "0", "az": "0"}, "accel out of range"), ({"ay": "1e9"}, "accel out of range"),
+    ({"mx": "1e11"}, "field out of range"), ({"gx": "1e5"}, "gyro out of range"),
+])
+def test_the_command_skips_a_first_row_no_sensor_reads_and_says_it(files, capsys, cells, reason):
+    """A first row of finite numbers no sensor reads (a zero accelerometer, 1e9 g, a field of 1e11, a gyro of
+    1e5 rad/s): skipped, said once and counted, never fused; every other row written, every number finite."""
+    cal, recording = files
+    rec = recording()
+    lines = rec.read_text().splitlines()
+    header, first = lines[0].split(","), lines[1].split(",")
+    for column, cell in cells.items():
+        first[header.index(column)] = cell
+    rec.write_text("\n".join([lines[0], ",".join(first)] + lines[2:]) + "\n")
+    out = cal.parent / "att.csv"
+    assert main(["attitude", str(cal), str(rec), "--out", str(out), "--filter"]) == 0
+    err = capsys.readouterr().err
+    assert f"sample skipped, never fused: {reason}" in err and "Traceback" not in err
+    table = read_table(out)
+    assert len(table.data) == len(lines) - 2 and table.column("t_s")[0] > float(first[header.index("t_s")])
+    assert all(np.all(np.isfinite(table.column(c))) for c in table.columns)
+
+
 def _session_rows(model, data: bytes, events=None):
     """``compass live``'s session fed the module's bytes in arbitrary chunks; its CSV rows without the latency."""
     out = io.StringIO()
