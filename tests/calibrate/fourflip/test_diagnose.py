@@ -181,6 +181,25 @@ def test_unexplained_structure_widens_the_files_sigmas_and_says_the_cost(write_s
     wide = solve_attitude(model, raw, level=True).heading_sigma_deg
     plain = solve_attitude(replace(model, direction_covariance=naive.direction_covariance), raw, level=True)
     assert np.all(wide > plain.heading_sigma_deg)
+    # and compass live / the replay / run_filter (issue 24): the same stream, every row's heading sigma larger
+    import io
+
+    from compass.filter import FilterConfig, run_filter
+    from compass.live import CSV_COLUMNS, LiveSession
+    from compass.replay import replay
+    from compass.sim.device import simulate_device
+
+    t = np.arange(0.0, 8.0, 0.01)
+    s = simulate_device(model, t, seed=3)
+    sigmas = []
+    for m in (model, replace(model, direction_covariance=naive.direction_covariance)):
+        out = io.StringIO()
+        replay(LiveSession(m, out=out), t, s.raw, s.accel, s.gyro)
+        rows = np.array([line.split(",") for line in out.getvalue().splitlines()[2:]], dtype=float)
+        sigmas.append(rows[:, CSV_COLUMNS.index("heading_sigma_deg")])
+        track = run_filter(t, s.accel, s.gyro, m.field(s.raw)[0], FilterConfig.from_model(m))
+        np.testing.assert_allclose(track.heading_sigma_deg[np.isfinite(track.heading_deg)], sigmas[-1], atol=5.1e-4)
+    assert len(sigmas[0]) > 0.9 * len(t) and np.all(sigmas[0] > sigmas[1])
 
 
 def test_clean_recording_keeps_its_sigmas(write_session):
