@@ -4,6 +4,7 @@ attitudes on the same samples; the filter starts from a window, never from one r
 import io
 import re
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -45,9 +46,21 @@ def _csv_rows(text):
     return [line.split(",")[:-5] + line.split(",")[-4:] for line in text.splitlines() if not line.startswith("#")]
 
 
+def _with_own_uncertainty(model):
+    """``model`` with a calibration's own uncertainty (each channel's direction 0.2 deg, offset and gain 0.2 %),
+    which compass live, the replay and run_filter add to the reported heading sigma."""
+    a = model.unit_directions
+    cov = np.radians(0.2) ** 2 * (np.eye(3)[None] - a[:, :, None] * a[:, None, :])
+    sigma = 0.002 * np.abs(model.gains)[:, None] * np.array([model.field_norm, 1.0])
+    return replace(model, direction_covariance=cov, response_sigma=sigma)
+
+
 @pytest.mark.parametrize("gyro", [True, False])
 def test_live_replay_and_run_filter_give_identical_attitudes(stream, gyro):
+    """... and the same heading sigma, the calibration's own uncertainty included (run_filter reported the
+    filter's alone: issue 24)."""
     model, t, s = stream
+    model = _with_own_uncertainty(model)
     live_out, replay_out = io.StringIO(), io.StringIO()
     live = LiveSession(model, out=live_out, quaternion=True)
     data = _lines(model, t, s, gyro)
@@ -65,6 +78,10 @@ def test_live_replay_and_run_filter_give_identical_attitudes(stream, gyro):
     angle = np.degrees((Rotation.from_quat(quat).inv() * Rotation.from_quat(track.quat)).magnitude())
     assert np.max(angle) < 1e-5  # the CSV's 9 decimals
     np.testing.assert_allclose(wrap(table.column("heading_deg") - track.heading_deg), 0.0, atol=1e-3)
+    np.testing.assert_allclose(table.column("heading_sigma_deg"), track.heading_sigma_deg, atol=5.1e-4)
+    noise_only = run_filter(t, s.accel, s.gyro if gyro else None, model.field(s.raw)[0],
+                            replace(FilterConfig.from_model(model), calibration_uncertainty=None))
+    assert np.all(track.heading_sigma_deg > noise_only.heading_sigma_deg + 1e-3)
 
 
 def _write(text):
@@ -93,8 +110,6 @@ def _bias_and_tilt_error(t, s, accel, gravity=None):
     model = default_model()
     cfg = FilterConfig.from_model(model)
     if gravity is not None:
-        from dataclasses import replace
-
         cfg = replace(cfg, gravity=gravity)
     track = run_filter(t, accel, s.gyro, model.field(s.raw)[0], cfg)
     late = t > 5.0
@@ -352,9 +367,7 @@ def test_live_says_an_unnamed_deg_s_gyro_and_writes_nothing_non_finite(stream):
     """A gyro in deg/s taken for rad/s (no --gyro-unit): compass live warns once, naming --gyro-unit (the replay
     refuses it, exit 2: test_the_command_refuses_bad_input_in_one_line); nothing written is non-finite."""
     model, t, s = stream
-    from dataclasses import replace as replaced
-
-    degrees = replaced(s, gyro=np.degrees(s.gyro))
+    degrees = replace(s, gyro=np.degrees(s.gyro))
     events = []
     _, rows = _session_rows(model, _lines(model, t, degrees), events)
     said = [text for level, text in events if level == "warn" and "--gyro-unit" in text]
