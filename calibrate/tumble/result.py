@@ -212,5 +212,12 @@ class TumbleResult(CalibrationResult):
                 lines.append("  mag-to-accel rotation vector " + ", ".join(
                     f"{v:+.3f} +- {s:.3f}" for v, s in zip(mis.rotvec_deg, mis.rotvec_sigma_deg)) + " deg")
             lines.append(f"  field-gravity angle spread {mis.spread_before_deg:.3f} -> {mis.spread_after_deg:.3f} deg")
+        if not self.refused:  # what the runtime will say of the file (compass.iron_uncertainty), read as it reads it
+            from compass.calibration import from_dict
+            from compass.iron_uncertainty import undetermined_words
+
+            words = undetermined_words(from_dict(self.to_json()).model.calibration_uncertainty)
+            if words is not None:
+                lines.append(f"  at runtime: {words}")
         diagnosis = None if self.diagnosis is None else self.diagnosis.format(self.raw_unit)
         return fit_report(self, lines, diagnosis=diagnosis)
