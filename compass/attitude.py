@@ -379,12 +379,11 @@ def _solve(model: SensorModel, field: np.ndarray, in_range: np.ndarray, *, accel
 
     if mode == "accelerometer":
         sig = _wahba_sigmas(rows, heading, pitch, field_quad, b_norm, up_var, f, ref_dip, dip_var)
-        return _with_true_north(Attitude(mode, heading, pitch, roll, _unknown_if_undetermined(model, sig[0]), field_ratio, dip, in_range,
+        return _with_true_north(Attitude(mode, heading, pitch, roll, sig[0], field_ratio, dip, in_range,
                                          disturbed, pitch_sigma_deg=sig[1], roll_sigma_deg=sig[2],
                                          reference=reference))
     # tilt exact: only the rotation about the vertical is left, fixed by the field's west component
-    heading_sigma = _unknown_if_undetermined(model, np.degrees(np.sqrt(field_quad(rows[1]))
-                                                               / (b_norm * np.sqrt(1.0 - mu**2))))
+    heading_sigma = np.degrees(np.sqrt(field_quad(rows[1])) / (b_norm * np.sqrt(1.0 - mu**2)))
     if mode == "known_tilt":
         return _with_true_north(Attitude(mode, heading, pitch, roll, heading_sigma, field_ratio, dip, in_range,
                                          disturbed, reference=reference))
@@ -393,13 +392,6 @@ def _solve(model: SensorModel, field: np.ndarray, in_range: np.ndarray, *, accel
                                      in_range, field_bad | (dip_error > max_tilt_deg + dip_limit),
                                      heading_bound_deg=bound, tilt_min_deg=np.maximum(dip_error - 2.0 * dip_sigma, 0.0),
                                      reference=reference))
-
-
-def _unknown_if_undetermined(model, heading_sigma_deg: np.ndarray) -> np.ndarray:
-    """``inf`` (not known) where the calibration leaves a part undetermined (its ``calibration_uncertainty``:
-    :func:`compass.iron_uncertainty.undetermined_words`), as ``compass live`` reports it; else as given."""
-    own = model.calibration_uncertainty
-    return np.full_like(heading_sigma_deg, np.inf) if own is not None and own.undetermined else heading_sigma_deg
 
 
 def _skipped_rows(field: np.ndarray, accel, field_norm) -> np.ndarray:

@@ -4,8 +4,9 @@ A tumble file's (:class:`TumbleUncertainty`, below) and a channel form's (:class
 four-flip's or an installation's direction covariances and offset and gain sigmas); either is
 ``SensorModel.calibration_uncertainty``, carried by ``FilterConfig.from_model`` and added to the filter's
 heading sigma by :func:`with_calibration_sigma` (``compass live``, its replay and ``run_filter``).  A part the
-file leaves undetermined (:attr:`TumbleUncertainty.undetermined`) makes the heading sigma not known: ``inf``,
-said by :func:`undetermined_words`.
+file leaves undetermined (:attr:`TumbleUncertainty.undetermined`) is never read as zero: it takes a stated
+prior (:data:`HARD_IRON_PRIOR`, :data:`SOFT_IRON_PRIOR`, :data:`ROTATION_PRIOR_DEG`), and
+:func:`undetermined_words` says which part and what it adds to the heading sigma.
 
 A tumble file writes ``B_H = C S (x - h)`` (``x`` the raw reading, recording units; ``h`` the hard
 iron; ``S`` the soft iron, file units; ``C`` = ``mag_to_accel``) and, under ``tumble``, the standard
@@ -43,7 +44,20 @@ from functools import cached_property
 
 import numpy as np
 
-__all__ = ["TumbleUncertainty", "ChannelUncertainty", "with_calibration_sigma", "undetermined_words"]
+__all__ = ["TumbleUncertainty", "ChannelUncertainty", "with_calibration_sigma", "undetermined_words",
+           "HARD_IRON_PRIOR", "SOFT_IRON_PRIOR", "ROTATION_PRIOR_DEG"]
+
+HARD_IRON_PRIOR = 0.1
+"""1-sigma of a hard-iron component the fit left undetermined, as a fraction of |B|: a product's iron moves the
+offset by a fraction of the Earth's field (a few uT to tens); a stated prior, not a measurement."""
+SOFT_IRON_PRIOR = 0.05
+"""1-sigma of a soft-iron entry the fit left undetermined, as a fraction of the soft iron's scale
+(``det(S)^(1/3)``): a few per cent of distortion, as the tumble fits here find on boards; a stated prior."""
+ROTATION_PRIOR_DEG = 2.0
+"""1-sigma of each component of the magnetometer-to-accelerometer rotation when it was not determined (or not
+fitted), degrees: two sensors' axes on one board or in one package agree to a degree or two (data sheets give
+their own alignment to +-1 deg, a board's assembly as much again); a stated prior."""
+_COST_HEADINGS_DEG = np.arange(0.0, 360.0, 30.0)  # level headings the cost of a prior is averaged over
 
 
 @dataclass(frozen=True, eq=False)
@@ -64,8 +78,10 @@ class TumbleUncertainty:
         Of ``C``'s rotation vector, rad.
     undetermined : tuple of str
         The parts whose sigma the file does not give (a null or infinite entry: the fit could not determine
-        them; no rotation fitted), in words; their entries above hold 0 and :meth:`covariance` is the
-        determined parts' alone, but :meth:`heading_sigma_deg` is then not known: ``inf``.
+        them; no rotation fitted), in words with the prior each takes; their entries above hold that prior.
+    prior : TumbleUncertainty or None
+        The priors' part alone (the undetermined entries' priors, zeros elsewhere): what they add
+        (:meth:`cost_deg`); None when nothing is undetermined.
     """
 
     soft_iron: np.ndarray
@@ -74,6 +90,7 @@ class TumbleUncertainty:
     soft_iron_sigma: np.ndarray
     rotation_sigma_rad: np.ndarray
     undetermined: tuple = ()
+    prior: "TumbleUncertainty | None" = None
 
     def __post_init__(self):
         object.__setattr__(self, "undetermined", tuple(self.undetermined))
@@ -108,7 +125,7 @@ class TumbleUncertainty:
         Returns
         -------
         ndarray, shape (..., 3, 3)
-            Field units squared (module docstring); of the determined parts only (:attr:`undetermined`).
+            Field units squared (module docstring); an undetermined part's is its prior's.
         """
         b = np.asarray(field_h, dtype=float)
         x = np.einsum("ij,...j->...i", self._to_raw, b)  # x - h, recording units
@@ -159,10 +176,8 @@ class TumbleUncertainty:
         Returns
         -------
         float
-            Degrees; ``inf`` when a part is :attr:`undetermined` (not known) or the field is vertical.
+            Degrees; ``inf`` when the field is vertical.
         """
-        if self.undetermined:
-            return math.inf
         cs_t, c_t, to_raw, hard_var, rot_var, soft = self._scalars
         r = np.ravel(matrix) if not isinstance(matrix, (list, tuple)) or len(matrix) != 9 else matrix
         ux, uy, uz = float(r[6]), float(r[7]), float(r[8])
@@ -180,6 +195,26 @@ class TumbleUncertainty:
         turned = (by * n[2] - bz * n[1], bz * n[0] - bx * n[2], bx * n[1] - by * n[0])  # B x n
         var += sum(w * t * t for w, t in zip(rot_var, turned))
         return math.degrees(math.sqrt(var) / horizontal2)
+
+    def cost_deg(self, field_norm: float, dip_deg: float) -> float:
+        """What the undetermined parts' priors (:attr:`prior`) add to the heading sigma of a level housing, RMS
+        over headings, degrees (0 when nothing is undetermined).
+
+        Parameters
+        ----------
+        field_norm : float
+            |B|, field units.
+        dip_deg : float
+            The field's dip, degrees.
+        """
+        if self.prior is None:
+            return 0.0
+        from .frames import r_world_from_housing, world_field
+
+        rot = r_world_from_housing(_COST_HEADINGS_DEG, 0.0, 0.0)
+        fields = rot.apply(world_field(dip_deg, field_norm), inverse=True)
+        var = [self.prior.heading_sigma_deg(m, b) ** 2 for m, b in zip(rot.as_matrix(), fields)]
+        return float(np.sqrt(np.mean(var)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -289,21 +324,32 @@ def with_calibration_sigma(sigma_deg: float, uncertainty, matrix, field_h) -> fl
     Returns
     -------
     float
-        Degrees; ``inf`` (not known) when a part of the calibration is undetermined.
+        Degrees.
     """
     if uncertainty is None:
         return sigma_deg
     return math.hypot(sigma_deg, uncertainty.heading_sigma_deg(matrix, field_h))
 
 
-def undetermined_words(uncertainty) -> str | None:
+def undetermined_words(uncertainty, field_norm: float, dip_deg: float | None = None) -> str | None:
     """The one-line warning for a calibration with an undetermined part (None when every part is determined):
-    which part, and what it costs (the heading sigma is reported as ``inf``, not known)."""
+    which part, the prior it takes, and what the priors add to the heading sigma of a level housing (RMS over
+    headings, in quadrature with the rest).
+
+    Parameters
+    ----------
+    uncertainty : TumbleUncertainty or ChannelUncertainty or None
+    field_norm : float
+        |B|, field units (the calibration's or the reference's).
+    dip_deg : float, optional
+        The field's dip, degrees (default 60 when the calibration has none), said in the words.
+    """
     if uncertainty is None or not uncertainty.undetermined:
         return None
-    return (f"the calibration leaves {'; '.join(uncertainty.undetermined)} undetermined: its heading error is not "
-            "known (it can reach degrees), so heading_sigma_deg is reported as inf; recalibrate with more motion "
-            "(and an accelerometer) to know it")
+    dip = 60.0 if dip_deg is None else float(dip_deg)
+    return (f"the calibration leaves {'; '.join(uncertainty.undetermined)} undetermined: these stated priors (not "
+            f"measured) add {uncertainty.cost_deg(field_norm, dip):.2g} deg to a level housing's heading sigma at "
+            f"{dip:.0f} deg dip; recalibrate with more motion (and an accelerometer) to measure them")
 
 
 def _skew(b: np.ndarray) -> np.ndarray:

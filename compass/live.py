@@ -92,8 +92,8 @@ class LiveSession:
     config : FilterConfig, optional
         Default :meth:`FilterConfig.from_model`.  Its ``calibration_uncertainty`` (the calibration's own, which
         ``from_model`` carries) is added to the reported heading sigma at each estimate's attitude
-        (:func:`compass.iron_uncertainty.with_calibration_sigma`; ``inf`` and a warning event when a part of
-        the calibration is undetermined).
+        (:func:`compass.iron_uncertainty.with_calibration_sigma`; a part the calibration left undetermined
+        counts with a stated prior, said in a warning event).
     out : text file, optional
         Receives the attitude CSV (:data:`CSV_COLUMNS`; ``gate`` coded as :data:`GATE_CODES`).
     sink : compass.viz.RerunSink, optional
@@ -202,7 +202,7 @@ class LiveSession:
         self._start = FilterStart(self.config, self.reference)
         if self.reference is not None and np.isfinite(self.reference.field_norm):
             self._use_reference(self.reference)
-        words = undetermined_words(self.config.calibration_uncertainty)
+        words = undetermined_words(self.config.calibration_uncertainty, self.config.field_norm, self.config.dip_deg)
         if words is not None:
             self._event("warn", words)
         if self.out is not None:

@@ -233,9 +233,9 @@ def solve_recording(calibration, recording, *, level=False, max_tilt_deg=5.0, ac
             warnings.append(f"the calibration's temperature effect is not applied: {why}")
     if model.calibration_uncertainty is None:
         metadata["note"] = "the calibration gives no uncertainty of its own: sigmas count sensor noise only"
-    undetermined = undetermined_words(model.calibration_uncertainty)
+    undetermined = undetermined_words(model.calibration_uncertainty, model.field_norm, model.dip_deg)
     if undetermined is not None:
-        metadata["note"] = "heading_sigma_deg inf: a part of the calibration is undetermined"
+        metadata["note"] = "heading_sigma_deg counts stated priors where the calibration left a part undetermined"
         warnings.append(undetermined)
     if cal.provenance.method == "patent":
         warnings.append(f"{calibration} was made with --method patent (seed 000's rule as written, kept for "

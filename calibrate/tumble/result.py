@@ -216,7 +216,8 @@ class TumbleResult(CalibrationResult):
             from compass.calibration import from_dict
             from compass.iron_uncertainty import undetermined_words
 
-            words = undetermined_words(from_dict(self.to_json()).model.calibration_uncertainty)
+            model = from_dict(self.to_json()).model
+            words = undetermined_words(model.calibration_uncertainty, model.field_norm, model.dip_deg)
             if words is not None:
                 lines.append(f"  at runtime: {words}")
         diagnosis = None if self.diagnosis is None else self.diagnosis.format(self.raw_unit)

@@ -356,7 +356,7 @@ def _tumble(d: dict) -> tuple:
         noise=check.noise(noise, 3, noise_key),
         form="tumble",
         temperature=_temperature(d, TUMBLE_CHANNELS, gains),
-        iron_uncertainty=_tumble_uncertainty(block, soft, rot, mag_to_accel is not None),
+        iron_uncertainty=_tumble_uncertainty(block, soft, rot, mag_to_accel is not None, field_norm),
         mag_latency_s=_mag_latency_s(block.get("gyro")),
     )
     norm = block.get("field_norm_recording_units")
@@ -367,42 +367,56 @@ def _tumble(d: dict) -> tuple:
                              ellipsoid if isinstance(ellipsoid, str) else None)
 
 
-def _tumble_uncertainty(block: dict, soft: np.ndarray, rotation: np.ndarray, rotation_fitted: bool):
+def _tumble_uncertainty(block: dict, soft: np.ndarray, rotation: np.ndarray, rotation_fitted: bool,
+                        field_norm: float):
     """The ``tumble`` block's sigmas of the hard iron, soft iron and rotation as a
     :class:`~compass.iron_uncertainty.TumbleUncertainty`; None when the file gives no hard-iron or soft-iron
     sigmas at all (a file written by hand: no calibration term, nothing claimed).  An entry the fit wrote
     null or infinite (it could not determine it), a null ``misalignment_rotvec_sigma_deg`` or no rotation
-    fitted (``mag_to_accel`` null: the accelerometer's frame taken as the magnetometer's) is named in its
-    ``undetermined`` (the runtime's heading sigma is then not known: inf).  An absent rotation sigma beside
-    a fitted rotation: zeros, as the file says nothing of it.  Anything else that is not a list of numbers
-    of the key's shape is refused."""
-    from ..iron_uncertainty import TumbleUncertainty
+    fitted (``mag_to_accel`` null: the accelerometer's frame taken as the magnetometer's) is never read as
+    zero: it takes the stated prior (:data:`compass.iron_uncertainty.HARD_IRON_PRIOR` of |B|,
+    :data:`~compass.iron_uncertainty.SOFT_IRON_PRIOR` of the soft iron's scale,
+    :data:`~compass.iron_uncertainty.ROTATION_PRIOR_DEG`) and is named in its ``undetermined``.  An absent
+    rotation sigma beside a fitted rotation: zeros, as the file says nothing of it.  Anything else that is
+    not a list of numbers of the key's shape is refused."""
+    from ..iron_uncertainty import HARD_IRON_PRIOR, ROTATION_PRIOR_DEG, SOFT_IRON_PRIOR, TumbleUncertainty
 
     if block.get("hard_iron_sigma") is None or block.get("soft_iron_sigma") is None:
         return None
+    scale = abs(float(np.linalg.det(soft))) ** (1.0 / 3.0)  # field units per recording unit
     undetermined = []
-    hard, gone = _sigma(block.get("hard_iron_sigma"), (3,), "tumble.hard_iron_sigma")
-    if gone.any():
-        undetermined.append("the hard iron along " + ", ".join(np.array(TUMBLE_CHANNELS)[gone]))
-    soft_sigma, gone = _sigma(block.get("soft_iron_sigma"), (3, 3), "tumble.soft_iron_sigma")
-    gone = np.triu(gone | gone.T)  # S_ij and S_ji one number
-    if gone.any():
-        undetermined.append("the soft iron's " + ", ".join(f"S_{'xyz'[i]}{'xyz'[j]}" for i, j in zip(*np.nonzero(gone))))
+    hard, hard_gone = _sigma(block.get("hard_iron_sigma"), (3,), "tumble.hard_iron_sigma")
+    if hard_gone.any():
+        undetermined.append(f"the hard iron along {', '.join(np.array(TUMBLE_CHANNELS)[hard_gone])} "
+                            f"(taken as {100 * HARD_IRON_PRIOR:.0f} % of |B|)")
+    soft_sigma, soft_gone = _sigma(block.get("soft_iron_sigma"), (3, 3), "tumble.soft_iron_sigma")
+    soft_gone = soft_gone | soft_gone.T  # S_ij and S_ji one number
+    if soft_gone.any():
+        undetermined.append("the soft iron's " + ", ".join(f"S_{'xyz'[i]}{'xyz'[j]}" for i, j in
+                                                           zip(*np.nonzero(np.triu(soft_gone))))
+                            + f" (taken as {100 * SOFT_IRON_PRIOR:.0f} %)")
     key = "misalignment_rotvec_sigma_deg"
+    rot, rot_gone = np.zeros(3), np.zeros(3, dtype=bool)
     if not rotation_fitted:
-        rot = np.zeros(3)
-        undetermined.append("the rotation from the magnetometer to the accelerometer (not fitted: taken as none)")
-    elif key not in block:
-        rot = np.zeros(3)
-    else:
-        rot, gone = _sigma(block.get(key), (3,), f"tumble.{key}")
-        if gone.any():
-            undetermined.append("the rotation to the accelerometer about " + ", ".join(np.array(list("xyz"))[gone]))
+        rot_gone[:] = True
+        undetermined.append(f"the rotation from the magnetometer to the accelerometer (not fitted, taken as none; "
+                            f"its sigma as {ROTATION_PRIOR_DEG:g} deg per axis)")
+    elif key in block:
+        rot, rot_gone = _sigma(block.get(key), (3,), f"tumble.{key}")
+        if rot_gone.any():
+            undetermined.append(f"the rotation to the accelerometer about {', '.join(np.array(list('xyz'))[rot_gone])} "
+                                f"(taken as {ROTATION_PRIOR_DEG:g} deg)")
         rot = np.radians(rot)
     for name, value in (("hard_iron_sigma", hard), ("soft_iron_sigma", soft_sigma), (key, rot)):
         if np.any(value < 0):
             raise CalibrationFileError("must not be negative (standard errors)", key=f"tumble.{name}")
-    return TumbleUncertainty(soft, rotation, hard, soft_sigma, rot, tuple(undetermined))
+    if not undetermined:
+        return TumbleUncertainty(soft, rotation, hard, soft_sigma, rot)
+    priors = (np.where(hard_gone, HARD_IRON_PRIOR * field_norm / scale, 0.0),
+              np.where(soft_gone, SOFT_IRON_PRIOR * scale, 0.0), np.where(rot_gone, np.radians(ROTATION_PRIOR_DEG), 0.0))
+    prior = TumbleUncertainty(soft, rotation, *priors)
+    return TumbleUncertainty(soft, rotation, hard + priors[0], soft_sigma + priors[1], rot + priors[2],
+                             tuple(undetermined), prior)
 
 
 def _sigma(v, shape: tuple, key: str) -> tuple[np.ndarray, np.ndarray]:

@@ -136,7 +136,7 @@ class FilterConfig:
         The calibration's own uncertainty (``SensorModel.calibration_uncertainty``; :meth:`from_model` sets
         it): never fused (a constant error, not noise), only added to the reported heading sigma at each
         estimate's attitude (:func:`compass.iron_uncertainty.with_calibration_sigma`: ``compass live``,
-        its replay and :func:`run_filter` alike); ``inf`` when a part of it is undetermined.
+        its replay and :func:`run_filter` alike).
     field_update : str
         What the gyro filter's field (heading) update may move (issue 22): ``"kalman"`` every state its
         gain reaches through the covariance's cross terms (the tilt and the whole gyro bias: the

@@ -30,8 +30,8 @@ class FilterTrack:
     heading_deg, pitch_deg, roll_deg : ndarray, shape (n,)
     heading_sigma_deg : ndarray, shape (n,)
         As ``compass live`` reports it: the filter's with the config's ``calibration_uncertainty`` at each
-        attitude, in quadrature (:func:`compass.iron_uncertainty.with_calibration_sigma`; ``inf`` when a part
-        of the calibration is undetermined, said in ``events``).
+        attitude, in quadrature (:func:`compass.iron_uncertainty.with_calibration_sigma`; a part the calibration
+        left undetermined counts with a stated prior, said in ``events``).
     tilt_sigma_deg, field_heading_sigma_deg, field_ratio, dip_deg : ndarray, shape (n,)
         As in :class:`Estimate`.
     mag_used, accel_used : ndarray of bool, shape (n,)
@@ -148,7 +148,7 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig, *, reference=Non
                 filt.skipped.count(name)
         update, d = filt.update, filt.diagnostics
         held = start.take_held()
-        words = undetermined_words(own)
+        words = undetermined_words(own, config.field_norm, config.dip_deg)
         if words is not None and held:
             events.append((t_s[held[0]].item(), words))
         for j in held:

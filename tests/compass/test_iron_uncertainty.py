@@ -3,6 +3,7 @@ compass/iron_uncertainty.py, read by compass/calibration/, used by compass attit
 
 import copy
 import dataclasses
+import re
 
 import numpy as np
 import pytest
@@ -154,9 +155,14 @@ def test_the_files_sigmas_are_checked(widened):
     bad["tumble"]["hard_iron_sigma"] = [0.1, 0.2]
     with pytest.raises(CalibrationFileError, match="tumble.hard_iron_sigma"):
         from_dict(bad)
-    # a sigma the fit could not give (null or infinite): named undetermined, never read as zero
+    # a sigma the fit could not give (null or infinite): named undetermined, never read as zero: the stated prior
     bad["tumble"]["hard_iron_sigma"] = [None, 0.1, float("inf")]
-    assert from_dict(bad).model.iron_uncertainty.undetermined == ("the hard iron along mx, mz",)
+    iron = from_dict(bad).model.iron_uncertainty
+    assert iron.undetermined == ("the hard iron along mx, mz (taken as 10 % of |B|)",)
+    from compass.iron_uncertainty import HARD_IRON_PRIOR
+
+    prior = HARD_IRON_PRIOR * doc["tumble"]["field_norm_recording_units"]
+    np.testing.assert_allclose(iron.hard_iron_sigma, [prior, 0.1, prior], rtol=1e-6)
     # anything else is refused, naming the key: text, mixed lists, values no calibration reaches
     for key, value in (("hard_iron_sigma", "abc"), ("hard_iron_sigma", [1, "a", 3]), ("hard_iron_sigma", [1e300, 1, 1]),
                        ("misalignment_rotvec_sigma_deg", "x"), ("soft_iron_sigma", [[0.1] * 3] * 2)):
@@ -317,18 +323,20 @@ def test_a_widened_channel_calibration_reaches_the_replay_and_run_filter(kind):
 
 
 @pytest.mark.parametrize("part, words", [
-    ("misalignment_rotvec_sigma_deg", "the rotation to the accelerometer about x, y, z"),
+    ("misalignment_rotvec_sigma_deg", "the rotation to the accelerometer about x, y, z (taken as 2 deg)"),
     ("mag_to_accel", "the rotation from the magnetometer to the accelerometer (not fitted"),
-    ("soft_iron_sigma", "the soft iron's S_xy"),
+    ("soft_iron_sigma", "the soft iron's S_xy (taken as 5 %)"),
 ])
-def test_an_undetermined_part_makes_the_heading_sigma_unknown_everywhere(widened, part, words):
+def test_an_undetermined_part_takes_its_stated_prior_everywhere(widened, part, words):
     """A part the fit could not determine is never read as zero: compass attitude, compass live (from a byte
-    stream), its replay and run_filter all report the heading sigma as inf (not known) and say once which part;
-    the attitudes are those of the determined file (nothing fused differs) and finite."""
+    stream), its replay and run_filter all count its stated prior in the heading sigma (larger than the
+    determined file's on every row, finite) and say once which part and what it adds; the attitudes are those
+    of the determined file (never fused) and finite."""
     import io
     import time
 
     from compass.filter import FilterConfig, run_filter
+    from compass.frames import r_world_from_housing
     from compass.io.lines import format_line
     from compass.live import LiveSession
     from compass.serial_reader import Chunk
@@ -343,20 +351,35 @@ def test_an_undetermined_part_makes_the_heading_sigma_unknown_everywhere(widened
     else:
         bad["tumble"][part] = None
     good, model = from_dict(doc).model, from_dict(bad).model
-    assert words in model.calibration_uncertainty.undetermined[0]
+    own = model.calibration_uncertainty
+    assert words in own.undetermined[0]
+    # the priors' part adds in quadrature: at a level housing, total^2 = determined^2 + priors^2, and the cost
+    # the words give is its RMS over headings
+    determined = dataclasses.replace(own, hard_iron_sigma=own.hard_iron_sigma - own.prior.hard_iron_sigma,
+                                     soft_iron_sigma=own.soft_iron_sigma - own.prior.soft_iron_sigma,
+                                     rotation_sigma_rad=own.rotation_sigma_rad - own.prior.rotation_sigma_rad,
+                                     undetermined=(), prior=None)
+    rot = r_world_from_housing(np.arange(0.0, 360.0, 30.0), 0.0, 0.0)
+    fields = rot.apply(world_field(model.dip_deg or 60.0, model.field_norm), inverse=True)
+    total, known = ([u.heading_sigma_deg(m, b) for m, b in zip(rot.as_matrix(), fields)] for u in (own, determined))
+    added = np.sqrt(np.mean(np.array(total) ** 2 - np.array(known) ** 2))
+    assert added > 0.1 and own.cost_deg(model.field_norm, model.dip_deg or 60.0) == pytest.approx(added, rel=1e-9)
+
     t = np.arange(0.0, 12.0, 0.01)
     s = simulate_device(good, t, seed=4)
     events = []
     table, columns = _replayed(model, t, s, events=events)
     reference, _ = _replayed(good, t, s, config=dataclasses.replace(FilterConfig.from_model(model),
-                                                                  calibration_uncertainty=None))
+                                                                  calibration_uncertainty=good.calibration_uncertainty))
     sigma, heading = columns.index("heading_sigma_deg"), columns.index("heading_deg")
     said = [text for level, text in events if "undetermined" in text]
-    assert len(said) == 1 and words in said[0] and "reported as inf" in said[0] and "\n" not in said[0]
-    assert np.all(np.isinf(table[:, sigma]))
+    assert len(said) == 1 and words in said[0] and "stated priors" in said[0] and "\n" not in said[0]
+    assert re.search(r"add \S+ deg to a level housing's heading sigma", said[0])
+    assert np.all(np.isfinite(table)) and len(table) == len(reference)
     if part != "mag_to_accel":  # else the model's rotation differs: other attitudes
         np.testing.assert_array_equal(table[:, heading], reference[:, heading])
-    assert np.all(np.isfinite(np.delete(table, sigma, axis=1)))
+        # (an entry's term vanishes where the field has no component it acts on: equal there, as written)
+        assert np.all(table[:, sigma] >= reference[:, sigma]) and np.mean(table[:, sigma] > reference[:, sigma]) > 0.9
     # compass live from the module's byte stream: the same
     live_events = []
     live = LiveSession(model, out=io.StringIO(), on_event=lambda level, text: live_events.append(text))
@@ -366,14 +389,36 @@ def test_an_undetermined_part_makes_the_heading_sigma_unknown_everywhere(widened
     for k in range(0, len(data), 4096):
         live.feed(Chunk(time.perf_counter(), data[k:k + 4096]))
     live.close()
-    assert sum(words in text for text in live_events) == 1 and np.isinf(live.estimate.heading_sigma_deg)
-    # run_filter: inf on every attitude, said in its events
+    assert sum(words in text for text in live_events) == 1
+    assert live.estimate.heading_sigma_deg == pytest.approx(table[-1, sigma], abs=5.1e-4)
+    # run_filter: the replay's sigma, said in its events
     track = run_filter(t, s.accel, s.gyro, model.field(s.raw)[0], FilterConfig.from_model(model))
-    solved = np.isfinite(track.heading_deg)
-    assert solved.mean() > 0.9 and np.all(np.isinf(track.heading_sigma_deg[solved]))
+    rows = np.searchsorted(t, table[:, columns.index("t_s")] - 1e-6)
+    np.testing.assert_allclose(track.heading_sigma_deg[rows], table[:, sigma], atol=5.1e-4)
     assert sum(words in text for _, text in track.events) == 1
-    # compass attitude: the same
+    # compass attitude: the prior counts there too
     att = solve_attitude(model, sim.mag[::50], accel=sim.accel[::50])
-    assert np.all(np.isinf(att.heading_sigma_deg)) and np.all(np.isfinite(att.heading_deg))
-    level = solve_attitude(model, sim.mag[::50], level=True)
-    assert np.all(np.isinf(level.heading_sigma_deg))
+    plain = solve_attitude(dataclasses.replace(model, iron_uncertainty=determined), sim.mag[::50], accel=sim.accel[::50])
+    ok = np.isfinite(att.heading_sigma_deg)
+    assert ok.mean() > 0.9 and np.all(att.heading_sigma_deg[ok] >= plain.heading_sigma_deg[ok])
+    assert np.mean(att.heading_sigma_deg[ok] > plain.heading_sigma_deg[ok] + 1e-6) > 0.9
+
+
+def test_the_attitude_command_says_an_undetermined_part_once(widened, tmp_path, capsys):
+    from compass.calibration import save
+    from compass.cli import main
+    from compass.io.table import format_table, read_table
+
+    sim, doc, _ = widened
+    bad = copy.deepcopy(doc)
+    bad["tumble"]["misalignment_rotvec_sigma_deg"] = None
+    cal, rec, out = tmp_path / "cal.json", tmp_path / "rec.csv", tmp_path / "att.csv"
+    save(cal, bad)
+    columns = {c: v for c, v in zip(("mx", "my", "mz", "ax", "ay", "az"), np.hstack([sim.mag, sim.accel])[::50].T)}
+    rec.write_text(format_table(columns, {}, {c: "%.17g" for c in columns}))
+    assert main(["attitude", str(cal), str(rec), "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    said = [line for line in err.splitlines() if "undetermined" in line]
+    assert len(said) == 1 and "the rotation to the accelerometer about x, y, z" in said[0] and "stated priors" in said[0]
+    table = read_table(out)  # every number finite (read_table refuses anything else)
+    assert np.all(table.column("heading_sigma_deg") > 0)
