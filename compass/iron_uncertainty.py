@@ -56,7 +56,9 @@ SOFT_IRON_PRIOR = 0.05
 ROTATION_PRIOR_DEG = 2.0
 """1-sigma of each component of the magnetometer-to-accelerometer rotation when it was not determined (or not
 fitted), degrees: two sensors' axes on one board or in one package agree to a degree or two (data sheets give
-their own alignment to +-1 deg, a board's assembly as much again); a stated prior."""
+their own alignment to +-1 deg, a board's assembly as much again); a stated prior.  With no rotation fitted at
+all (a tumble without accelerometer) the reader adds the fitted soft iron's anisotropy in quadrature: the
+ellipsoid's symmetric ``S`` cannot see the iron's rotation part (tools/bench_undetermined_prior.py)."""
 _COST_HEADINGS_DEG = np.arange(0.0, 360.0, 30.0)  # level headings the cost of a prior is averaged over
 
 

@@ -397,10 +397,17 @@ def _tumble_uncertainty(block: dict, soft: np.ndarray, rotation: np.ndarray, rot
                             + f" (taken as {100 * SOFT_IRON_PRIOR:.0f} %)")
     key = "misalignment_rotvec_sigma_deg"
     rot, rot_gone = np.zeros(3), np.zeros(3, dtype=bool)
+    rot_prior = np.radians(ROTATION_PRIOR_DEG)
     if not rotation_fitted:
+        # no accelerometer: the ellipsoid's symmetric S cannot see the iron's rotation part either (an asymmetric
+        # soft iron turns the field as much as it stretches it), so the prior adds the fitted anisotropy's size
         rot_gone[:] = True
+        anisotropy = float(np.sqrt(np.mean((soft / scale - np.eye(3))[np.triu_indices(3)] ** 2)))
+        rot_prior = float(np.hypot(rot_prior, anisotropy))
         undetermined.append(f"the rotation from the magnetometer to the accelerometer (not fitted, taken as none; "
-                            f"its sigma as {ROTATION_PRIOR_DEG:g} deg per axis)")
+                            f"its sigma as {np.degrees(rot_prior):.2g} deg per axis: {ROTATION_PRIOR_DEG:g} deg of "
+                            f"mounting and the soft iron's {100 * anisotropy:.2g} % anisotropy, whose rotation part "
+                            "a fit without accelerometer cannot see)")
     elif key in block:
         rot, rot_gone = _sigma(block.get(key), (3,), f"tumble.{key}")
         if rot_gone.any():
@@ -413,7 +420,7 @@ def _tumble_uncertainty(block: dict, soft: np.ndarray, rotation: np.ndarray, rot
     if not undetermined:
         return TumbleUncertainty(soft, rotation, hard, soft_sigma, rot)
     priors = (np.where(hard_gone, HARD_IRON_PRIOR * field_norm / scale, 0.0),
-              np.where(soft_gone, SOFT_IRON_PRIOR * scale, 0.0), np.where(rot_gone, np.radians(ROTATION_PRIOR_DEG), 0.0))
+              np.where(soft_gone, SOFT_IRON_PRIOR * scale, 0.0), np.where(rot_gone, rot_prior, 0.0))
     prior = TumbleUncertainty(soft, rotation, *priors)
     return TumbleUncertainty(soft, rotation, hard + priors[0], soft_sigma + priors[1], rot + priors[2],
                              tuple(undetermined), prior)
