@@ -255,7 +255,8 @@ class ChannelUncertainty:
     undetermined = ()  # as TumbleUncertainty's: the reader gives a channel form with a null sigma none at all
 
     def component_variance(self, field_h) -> np.ndarray:
-        """``var_c`` (class docstring) at ``field_h`` (shape (..., 3), field units): shape (..., c), field units squared."""
+        """``var_c`` (class docstring) at ``field_h`` (shape (..., 3), field units): shape (..., c), field units
+        squared."""
         b = np.asarray(field_h, dtype=float)
         x = np.einsum("...i,ci->...c", b, self.unit_directions)
         var = np.zeros_like(x)

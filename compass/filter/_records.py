@@ -195,7 +195,8 @@ class FilterConfig:
 
     def __post_init__(self):
         for f in fields(self):
-            if f.name in ("dip_deg", "gravity", "mag_latency_s", "calibration_uncertainty") or f.type in ("bool", "str"):
+            if (f.name in ("dip_deg", "gravity", "mag_latency_s", "calibration_uncertainty")
+                    or f.type in ("bool", "str")):
                 continue
             value = getattr(self, f.name)
             if not (np.isfinite(value) and value > 0):

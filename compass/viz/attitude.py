@@ -191,10 +191,7 @@ def send_attitude(rec, index, columns: dict, *, field_limits=None, dip_limits=No
         tilt = columns.get("tilt_sigma_deg") if name in ("pitch_deg", "roll_deg") else None
         sigma = columns.get(sigma_of[name], tilt)
         if sigma is not None:
-            sigma = np.asarray(sigma, dtype=float)
-            # no band where the sigma is not known (inf: a calibration's undetermined part, compass.iron_uncertainty)
-            sigma = np.where(np.isfinite(sigma), sigma, np.nan)
-            band = value[:, None] + sigma[:, None] * np.array([-1.0, 1.0])
+            band = value[:, None] + np.asarray(sigma, dtype=float)[:, None] * np.array([-1.0, 1.0])
             rec.send_columns(f"{compass}/{name}/sigma_band", indexes=index, columns=rr.Scalars.columns(scalars=band))
     for name, limits in (("field_ratio", field_limits), ("dip_deg", dip_limits)):
         if name not in columns:
