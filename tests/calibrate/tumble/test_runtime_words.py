@@ -1,7 +1,6 @@
 """The tumble report says what the runtime will make of the file (compass.iron_uncertainty): a part left
 undetermined counts with a stated prior in the heading sigma, said in the report as the runtime says it."""
 
-
 from calibrate.tumble import calibrate_tumble
 from compass.calibration import from_dict
 from compass.sim.tumble import simulate_tumble
