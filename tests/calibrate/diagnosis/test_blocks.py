@@ -186,10 +186,9 @@ def test_iid_levels_over_g_minus_one_cover_a_smooth_path(size):
     assert 0.8 < np.sqrt(np.mean(np.square(ratios))) < 1.25
 
 
-def test_a_swing_whose_hard_iron_levels_are_the_sorts_levels_is_covered_under_either_reading():
+def test_a_swing_whose_hard_iron_levels_are_the_sorts_levels_keeps_the_sandwich():
     """A level swing: a block's hard-iron level is nearly a constant; the hard iron's levels fit better than a
-    level per block, but most of what they explain a level per block explains too: the larger of CR2's
-    widening and the walk model's (each at least as large as the result in no direction)."""
+    level per block, but most of what they explain a level per block explains too: CR2, as without ``hard``."""
     from calibrate.diagnosis.blocks import OWN_SHARE, _block_levels, _stepped_rss
 
     rng = np.random.default_rng(13)
@@ -203,10 +202,8 @@ def test_a_swing_whose_hard_iron_levels_are_the_sorts_levels_is_covered_under_ei
     stepped, (_, _, walked) = _stepped_rss(jac, resid, blocks, 7), _block_levels(jac, resid, blocks, np.arange(3))
     both = _block_levels(jac, resid, blocks, np.arange(3), blocks, 7)[2]
     assert walked < stepped and stepped - both < OWN_SHARE * (resid @ resid - walked)
-    out = widened_in_time(jac, resid, blocks, bread, hard=[0, 1, 2])
-    cr2 = widened_in_time(jac, resid, blocks, bread)
-    assert np.linalg.eigvalsh(out - cr2).min() > -1e-12 * np.trace(out)
-    assert np.any(np.diag(out)[:3] > 1.01 * np.diag(cr2)[:3])  # the walk model's widening is the larger somewhere
+    np.testing.assert_array_equal(widened_in_time(jac, resid, blocks, bread, hard=[0, 1, 2]),
+                                  widened_in_time(jac, resid, blocks, bread))
 
 
 def test_the_hard_iron_and_sorts_levels_refit_from_sums_equals_the_dense_least_squares():
