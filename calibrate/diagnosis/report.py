@@ -98,10 +98,18 @@ def cost_lines(cost: dict | None) -> list[str]:
     if "hard_iron" in cost:
         lines.append("  unexplained cost: hard-iron sigmas widened " + ", ".join(
             f"{axis} {v['naive']:.3g} -> {v['widened']:.3g}" for axis, v in cost["hard_iron"].items()))
+        if any(v["widened"] < v["naive"] and "noise_only" in v for v in cost["hard_iron"].values()):
+            lines.append("      (under the naive where its chi-square scale counted the walk the blocks model as white "
+                         "noise; the noise alone: " + ", ".join(
+                             f"{axis} {v['noise_only']:.3g}" for axis, v in cost["hard_iron"].items()) + ")")
     if "heading_deg" in cost:
         h = cost.get("heading_sigma_deg")
-        lines.append(f"  unexplained cost at runtime: heading sigma of a level housing widened by {cost['heading_deg']:.3f} "
-                     "deg" + (f" ({h['naive']:.3f} -> {h['widened']:.3f} deg RMS over headings)" if h else ""))
+        if h and h["widened"] < h["naive"]:  # restated under the naive (the hard-iron line above says why)
+            lines.append(f"  unexplained cost at runtime: heading sigma of a level housing {h['naive']:.3f} -> "
+                         f"{h['widened']:.3f} deg RMS over headings (under the naive, as the hard iron's)")
+        else:
+            lines.append(f"  unexplained cost at runtime: heading sigma of a level housing widened by {cost['heading_deg']:.3f} "
+                         "deg" + (f" ({h['naive']:.3f} -> {h['widened']:.3f} deg RMS over headings)" if h else ""))
     if "method" in cost:
         lines.append(f"      ({cost['method']})")
     return lines

@@ -189,12 +189,16 @@ def _widen(fit: InstallationFit, rows: Rows, priors: dict, t_s) -> tuple[Install
     lift = t[:, moved]
     covariance = fit.covariance + lift @ (wide - naive) @ lift.T
     naive_h, wide_h = np.sqrt(np.diag(fit.covariance)[:3]), np.sqrt(np.diag(covariance)[:3])
+    noise_h = np.sqrt(np.diag(fit.covariance + lift @ (bread - naive) @ lift.T)[:3])  # the floor's alone
     heading = [level_heading_sigma_deg(*sig[:2], fit.x[9], fit.x[10]) for sig in (naive_h, wide_h)]
-    cost = {"hard_iron": {axis: {"naive": float(a), "widened": float(b)} for axis, a, b in zip("xyz", naive_h, wide_h)},
+    cost = {"hard_iron": {axis: {"naive": float(a), "widened": float(b), "noise_only": float(c)}
+                          for axis, a, b, c in zip("xyz", naive_h, wide_h, noise_h)},
             "heading_deg": float(extra_sigma(heading[1], heading[0])),
             "heading_sigma_deg": {"naive": heading[0], "widened": heading[1]},
             "method": f"a hard-iron walk between {TIME_BLOCKS} blocks of consecutive rows propagated to the fit, "
-                      "the CR2 sandwich over them for the rest (calibrate.diagnosis.blocks); "
+                      "the CR2 sandwich over them for the rest (calibrate.diagnosis.blocks; with a walk the noise's "
+                      "part is scaled by what the walk leaves, not by the naive's chi-square, which counted the walk "
+                      "as white noise: the widened sigma may then be under the naive, never under the noise's alone); "
                       "the heading sigma from the hard iron alone, a level housing, RMS over headings"}
     return replace(fit, covariance=covariance), cost
 
