@@ -78,34 +78,35 @@ Each band's statistic is therefore compared with its own null distribution, simu
 noise ``z ~ N(0, keep)`` exactly (a linear fit), so ``NULL_DRAWS`` block sums drawn through
 ``keep``'s eigendecomposition, with a fixed seed (the fit is deterministic), give it.
 
-One step, not a process.  An offset stepping once, ``s(t) = h 1[t >= tau]`` in one channel (a connector
+One step, not a process. An offset stepping once, ``s(t) = h 1[t >= tau]`` in one channel (a connector
 reseated, a part magnetised by a passing current), is not a stationary wander: with ``tau`` uniform over
 the session its covariance ``h^2 min(t, t') / T`` is a random walk's, so the process model's second
-moments cannot tell the two apart and state for every step the cost of a step at a random time.  The
+moments cannot tell the two apart and state for every step the cost of a step at a random time. The
 recording shows where the step is, and that decides what it costs (a step between flips is a level
-difference the directions are read from; one within a turn leaks into that turn's ``cos phi`` and
-``sin phi``).  On tools/bench_loop.py's ``offset step`` the process model widened the channels without
-the step 2-5 times (pairs' common processes and each band's non-negative power, estimated from one
-realisation) where their errors are the noise's, and gave 0.60.  The alternative: block levels
-``u = h s_{a,j}`` (``s`` one on channel ``a``'s blocks from ``j`` on), so ``z = h keep s + A (I - P) e``
-and, ``z`` lying in ``keep``'s range, the generalised least squares size ``h^ = s^T z / s^T keep s`` with
-chi-square drop ``(s^T z)^2 / s^T keep s``, best over channels and blocks (reversed cumulative sums).
-It is taken for the structure when it is decisive against no step as the loop adds an effect (delta-BIC
-``rank ln(Q / (Q - drop)) - 3 ln(rank)`` over ``DECISIVE_BIC``, ``Q = z^T keep^+ z``, the floor's factor
-free, a size, a time and a channel chosen) and the remainder ``z - h^ keep s`` passes stage 1's band
-test in every band (the test that found structure finds none left; its null ignores the one degree of
-freedom the step took, slightly conservative).  Both are needed: a weak structure of another shape can
-leave a remainder that passes after its best step took a little of it (an odd cubic the loop did not
-name, bench_loop seed 22: excess chi-square 83 of which the step took 18, delta-BIC -2.6; with the
-remainder test alone the step was taken and the channel it missed was left at twice its sigma), while
-true steps take nearly all of it (0.95-1.04 of the excess on seeds 0-4).  Its move of the parameters is a structure of block levels propagated as
-the tumble's walk levels are (calibrate/diagnosis/blocks.py): ``dx = H^-1 G^T s h``, and the covariance
-``H^-1 + (h^2 - 1 / s^T keep s) d d^T``, ``d = H^-1 G^T s`` (``h^2`` less its noise's variance, unbiased
-for the step's square).  Its limits: at 1 % a band, the remainder of a true step fails the test by chance
-about once in ten (0 and 2 of 12 on two seeds of the test's line fit) and the process model stands, over-covering as before;
-the choice among ``c nb`` candidates inflates ``h^2`` by a few times ``1 / s^T keep s``, small against a
-step the test sees; a step within a block leaves a partial level there, counted as white; two steps, or a
-step on a wander, leave structure and the process model stands.
+difference the directions are read from; one within a turn leaks into that turn's ``cos phi`` and ``sin
+phi``). On tools/bench_loop.py's ``offset step`` the process model widened the channels without the step
+1.6-6 times (pairs' common processes and each band's non-negative power, estimated from one realisation)
+where their errors are the noise's, and gave 0.60. The alternative: block levels ``u = h s_{a,j}`` (``s``
+one on channel ``a``'s blocks from ``j`` on), so ``z = h keep s + A (I - P) e`` and, ``z`` lying in
+``keep``'s range, the generalised least squares size ``h^ = s^T z / s^T keep s`` with chi-square drop
+``(s^T z)^2 / s^T keep s``, best over channels and blocks (reversed cumulative sums). It is taken for the
+structure when it is decisive against no step as the loop adds an effect (delta-BIC ``rank ln(Q / (Q -
+drop)) - 3 ln(rank)`` over ``DECISIVE_BIC``, ``Q = z^T keep^+ z``, the floor's factor free, a size, a
+time and a channel chosen) and the remainder ``z - h^ keep s`` passes stage 1's band test in every band
+(the test that found structure finds none left; its null ignores the one degree of freedom the step took,
+slightly conservative). Both are needed: a weak structure of another shape can leave a remainder that
+passes after its best step took a little of it (an odd cubic the loop did not name, bench_loop seed 22:
+excess chi-square 83 of which the step took 18, delta-BIC -2.6; with the remainder test alone the step
+was taken and the channel it missed was left at twice its sigma), while true steps take nearly all of it
+(0.95-1.04 of the excess on seeds 0-4). Its move of the parameters is a structure of block levels
+propagated as the tumble's walk levels are (calibrate/diagnosis/blocks.py): ``dx = H^-1 G^T s h``, and
+the covariance ``H^-1 + (h^2 - 1 / s^T keep s) d d^T``, ``d = H^-1 G^T s`` (``h^2`` less its noise's
+variance, unbiased for the step's square). Its limits: at 1 % a band, the remainder of a true step fails
+the test by chance about once in ten (0 and 2 of 12 on two seeds of the test's line fit) and the process
+model stands, over-covering as before; the choice among ``c nb`` candidates inflates ``h^2`` by a few
+times ``1 / s^T keep s``, small against a step the test sees; a step within a block leaves a partial
+level there, counted as white; two steps, or a step on a wander, leave structure and the process model
+stands.
 
 A gain process times the signal (tried, not adopted).  A gain that wanders, ``K_c (1 + g_c(t))``,
 adds ``K_c x_c(t) g_c(t)`` to channel ``c``'s reading: a product, the gain's slow process times the
@@ -545,13 +546,28 @@ class OffsetStep(NamedTuple):
 
 def structure_in_time(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: np.ndarray,
                       block_s: float = BLOCK_S, n_bands: int = N_BANDS) -> TimeStructure:
-    """Covariance of a least-squares fit's parameters under the structure its residual shows: one offset step or a process.
+    """Covariance of a fit's parameters under the structure its residual shows: one offset step or a process.
 
     Where the score test finds structure, the single step in one channel's offset that explains the
-    most of the block sums is taken out; if what remains passes the same test in every band (white
-    noise at the floor), the structure is that step and its move of the parameters is propagated
-    (module docstring, "One step, not a process"); otherwise the stationary process of
-    :func:`time_correlated_covariance`.  Parameters, returns of the covariance and raises as there.
+    most of the block sums is taken out; if it is decisive against none (delta-BIC over
+    ``DECISIVE_BIC``) and what remains passes the same test in every band (white noise at the floor),
+    the structure is that step and its move of the parameters is propagated (module docstring, "One
+    step, not a process"); otherwise the stationary process of :func:`time_correlated_covariance`.
+
+    Parameters
+    ----------
+    jac, weighted, t_s, bread, block_s, n_bands
+        As :func:`time_correlated_covariance`.
+
+    Returns
+    -------
+    TimeStructure
+        The covariance, shape (k, k), NaN where ``bread`` is; the step, or None.
+
+    Raises
+    ------
+    ValueError
+        Mismatched shapes, or a non-positive block length.
     """
     m = _block_moments(jac, weighted, t_s, bread, block_s, n_bands)
     p_values = _band_p_values(m)
@@ -563,7 +579,7 @@ def structure_in_time(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, br
 
 
 def _offset_step(m: _BlockMoments, bread: np.ndarray) -> TimeStructure | None:
-    """The best single offset step and its covariance, if it is decisive and the block sums less it are white; else None."""
+    """The best single offset step and its covariance if it is decisive and leaves white block sums, else None."""
     c, nb = m.y.shape
     if nb < 2:
         return None

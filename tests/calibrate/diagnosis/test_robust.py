@@ -253,8 +253,8 @@ def test_one_offset_step_is_found_and_its_move_propagated():
     stands), the other channel keeps its naive variance (the step moves nothing there), and the direction's
     error over the stated sigma is honest: the step's move is nearly deterministic once its size is read,
     so 12 replicates hold the RMS ratio within 0.8-1.25.  The stationary process on the same recordings
-    is no check here (1.17 and 1.01 on seeds 21 and 22: no over-coverage in this line fit); the four-flip's offset step is measured in
-    tools/bench_loop.py."""
+    is no check here (1.17 and 1.01 on seeds 21 and 22: no over-coverage in this line fit); the
+    four-flip's offset step is measured in tools/bench_loop.py."""
     rng = np.random.default_rng(21)
     ratios, found = [], 0
     for _ in range(12):
