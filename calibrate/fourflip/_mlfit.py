@@ -37,7 +37,7 @@ from ._jacobian import Partials
 from .effects import FourFlipEffect
 
 __all__ = ["BIN_DEG", "Bins", "MLFit", "cramer_rao", "fit_ml", "score_effect", "structured_covariance",
-           "tangent_basis", "with_covariance"]
+           "step_size_output", "tangent_basis", "with_covariance"]
 
 _BASE_PER_CHANNEL = 4  # u, v, offset, log gain
 _MAX_ITERATIONS = 100  # residual evaluations of one Levenberg-Marquardt fit (the Jacobian is analytic)
@@ -393,10 +393,11 @@ def _direction_covariance(layout: _Layout, x, cov) -> np.ndarray:
     return out
 
 
-def structured_covariance(fit: MLFit, noise: np.ndarray) -> np.ndarray:
-    """Covariance of a fit's parameters with its residual's structure a process in time, one per channel.
+def structured_covariance(fit: MLFit, noise: np.ndarray):
+    """Covariance of a fit's parameters under the structure its residual shows in time: one offset step or a process.
 
-    :func:`calibrate.diagnosis.robust.time_correlated_covariance` on the bins the fit ran on, each
+    :func:`calibrate.diagnosis.robust.structure_in_time` on the bins the fit ran on: where one step of
+    one channel's offset explains the whole structure, its move of the parameters; otherwise each
     channel's structure a stationary process over the whole recording (across flips: a slow wander
     or a room's temperature cycle carries over from one flip to the next), its spectrum estimated
     from what the fit left of it.  Per-flip clusters (CR2, :func:`calibrate.diagnosis.robust.cluster_covariance`)
@@ -405,17 +406,23 @@ def structured_covariance(fit: MLFit, noise: np.ndarray) -> np.ndarray:
 
     Returns
     -------
-    ndarray, shape (k, k)
-        In the fit's parameters (as ``fit.covariance``); NaN where that is.
+    calibrate.diagnosis.robust.TimeStructure
+        Its covariance in the fit's parameters (as ``fit.covariance``; NaN where that is), and the
+        step if it is one (its size in the weighted residual's units: :func:`step_size_output` converts).
     """
-    from ..diagnosis.robust import time_correlated_covariance
+    from ..diagnosis.robust import structure_in_time
 
     bins = fit.bins
     weighted = (bins.outputs - _Predictor(bins.samples)(fit.physics)) * (bins.root_n / noise)
     # without a t_s column, the recording's order at one bin a second
     t_s = bins.samples.t_s if bins.samples.t_s is not None else np.arange(weighted.shape[0], dtype=float)
     bread = fit.covariance / (fit.chi2 / max(fit.dof, 1))
-    return time_correlated_covariance(fit.jac, weighted, t_s, bread)
+    return structure_in_time(fit.jac, weighted, t_s, bread)
+
+
+def step_size_output(fit: MLFit, noise: np.ndarray, channel: int, size: float) -> float:
+    """A step's size in output units from the weighted residual's (``size`` noise sigmas of a bin of median count)."""
+    return float(size * noise[channel] / np.median(np.broadcast_to(fit.bins.root_n, (fit.bins.outputs.shape[0], 1))))
 
 
 def with_covariance(fit: MLFit, covariance: np.ndarray) -> MLFit:

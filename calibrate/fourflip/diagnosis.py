@@ -29,10 +29,10 @@ import numpy as np
 from compass.io.fourflip import FourFlipRecording
 from compass.sim.bench import BenchSamples
 
-from ._mlfit import MLFit, fit_ml, score_effect, structured_covariance, with_covariance
+from ._mlfit import MLFit, fit_ml, score_effect, step_size_output, structured_covariance, with_covariance
 from ..diagnosis.evidence import DECISIVE_BIC, Proposal, gather_forms, is_unexplained, select_effects
 from ..diagnosis.report import format_diagnosis
-from ..diagnosis.robust import extra_sigma, heading_sigma_deg, widened
+from ..diagnosis.robust import BLOCK_S, extra_sigma, heading_sigma_deg, widened
 from .effects import VARIANTS, FourFlipEffect
 from ..noise import DITHER_FRACTION, chi2_sf, dithered, lattice_step, noise_floor
 
@@ -174,7 +174,8 @@ def _widen(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
     a level housing's heading sigma (:func:`calibrate.diagnosis.robust.heading_sigma_deg`) the
     structure adds, ``sqrt(widened^2 - naive^2)``.
     """
-    wide = with_covariance(fit, widened(fit.covariance, structured_covariance(fit, noise)))
+    structure = structured_covariance(fit, noise)
+    wide = with_covariance(fit, widened(fit.covariance, structure.covariance))
     before, after = fit.direction_sigma_deg(), wide.direction_sigma_deg()
     heading = [_heading_sigma(f) for f in (fit, wide)]
     cost = {
@@ -188,6 +189,16 @@ def _widen(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
                    "block sums with what the fit absorbed accounted for, propagated into the parameters; the file's "
                    "sigmas are the larger of it and the naive ones"),
     }
+    step = structure.step
+    if step is not None:
+        size = step_size_output(fit, noise, step.channel, step.size)
+        field = size / float(fit.physics.gains[step.channel])
+        cost["offset_step"] = {"channel": channels[step.channel], "t_s": step.t_s, "size": size,
+                               "size_field": field, "delta_chi2": step.delta_chi2}
+        cost["method"] = (f"the residual's structure is one step of {channels[step.channel]}'s offset by {size:.4g} "
+                          f"output units ({field:.3g} field units) near t = {step.t_s:g} s (within {BLOCK_S:g} s; what "
+                          "remains is white), its move of the parameters propagated; the file's sigmas are the larger "
+                          "of it and the naive ones")
     return wide, cost
 
 

@@ -231,3 +231,25 @@ def test_coarse_adc_recording_is_clean_and_says_the_adc_limits_it(write_session,
     assert d["noise_floor_per_channel"] == pytest.approx(expected, rel=0.12)
     assert any("ADC" in w for w in result.warnings)
     assert result.extra["quantisation"]["step"] == pytest.approx(dict(zip(rec.channels, step)), rel=1e-6)
+
+
+def test_one_offset_step_is_named_and_its_cost_covers_the_error(write_session):
+    """One channel's offset jumping 0.4 uT within the third flip (outside the vocabulary): unexplained, and
+    the diagnosis names the step (channel, size, time within a 10 s block) instead of a process in time;
+    the widened sigmas cover the directions' errors and the report says what it took the structure for."""
+    rec, truth = write_session(seed=201)
+    at_s = float(np.median(rec.t_s[rec.flip_index == 2]))
+    outputs = rec.outputs.copy()
+    outputs[rec.t_s >= at_s, 1] += 0.4 * truth["gains_per_ut"][1]
+    result = calibrate_fourflip(replace(rec, outputs=outputs), diagnose=True)
+    d = result.diagnosis
+    assert d["unexplained"] is True
+    step = d["unexplained_cost"]["offset_step"]
+    assert step["channel"] == rec.channels[1] and abs(step["t_s"] - at_s) <= 10.0
+    assert step["size_field"] == pytest.approx(0.4, abs=0.05)
+    assert step["size"] == pytest.approx(step["size_field"] * truth["gains_per_ut"][1], rel=0.05)
+    sigma = np.array([c.direction_sigma_deg for c in result.channels])
+    err = angle_deg(result.directions, truth["directions"])
+    assert np.all(err < 3.0 * sigma), (err, sigma)
+    assert err[1] > 5.0 * d["unexplained_cost"]["direction_sigma_deg"][rec.channels[1]]["naive"]  # the step matters
+    assert f"one step of {rec.channels[1]}'s offset" in result.report()
