@@ -416,8 +416,8 @@ class _Rows:
     db_w: np.ndarray  # d b_W / d delta
     tau: float
     rel: np.ndarray  # Delta R_k, (n, 3, 3)
-    g: np.ndarray  # d turn / d beta, (n, 3, 3)
-    g_e: np.ndarray  # d turn / d E (E = G - I, row-major), (n, 3, 9)
+    psi: np.ndarray  # the raw turn less the bias, (n, 3) (zero at a window's first row)
+    phi: np.ndarray  # G psi: the turn, (n, 3)
     gyro: np.ndarray  # G, (3, 3)
     rate_b: np.ndarray  # the raw rate less the bias, (n, 3)
     omega: np.ndarray  # G (rate - beta), (n, 3)
@@ -471,7 +471,7 @@ class _Problem:
     The global parameters ``p`` (26): ``D`` (9, row-major), ``h`` (3), ``delta`` (1, rad), ``beta`` (3,
     rad/s), ``tau`` (1, s: the magnetometer's latency against the gyro), ``E = G - I`` (9, row-major: the gyro's
     scale and axes; the turn's derivative ``d phi_i = dE (phi_i^raw - beta dt_i)``, chained through the prefix
-    products as ``beta``'s, :meth:`_relative`).  The windows' orientations
+    products as ``beta``'s, :meth:`_turn_derivatives`).  The windows' orientations
     ``Q_j`` are not parameters of the outer least squares: for each ``p`` every window's is solved
     (:meth:`residual`: Newton steps on each window's 3 x 3 problem, all windows at once, each started
     from its last solution; with the plain loss a window's loss is a quadratic form in its field and
@@ -514,38 +514,41 @@ class _Problem:
         self._last = None  # (p, _Rows, orientations (n_w, 3, 3)) of the last residual
 
     def _relative(self, beta, gyro):
-        """``Delta R_k`` (matrices, shape (n, 3, 3)), ``G_k`` (d of its turn / d beta, up to sign; (n, 3, 3)) and
-        the turn's derivative w.r.t. ``E = G - I`` (row-major, (n, 3, 9)), both in the window's start frame."""
+        """``Delta R_k`` (matrices, shape (n, 3, 3)) and the turns ``psi`` (raw, less the bias) and ``phi = G psi``."""
         psi = self.turns - np.outer(self.dt, beta)  # the raw turn less the bias
-        psi[self.first] = 0.0
-        phi = psi @ gyro.T  # a window starts at its first sample
+        psi[self.first] = 0.0  # a window starts at its first sample
+        phi = psi @ gyro.T
         quat = Rotation.from_rotvec(phi).as_quat()
         shift = 1
         while shift < self.longest:  # prefix products within each window (Hillis-Steele scan, segmented)
             later = np.flatnonzero(self.slot >= shift)  # rows whose row `shift` back is in their window
             quat[later] = _qmul(quat[later - shift], quat[later])
             shift *= 2
-        rel = Rotation.from_quat(quat).as_matrix()
-        turn = rel @ _so3_jacobian(phi, -1.0)  # a change d phi_i turns every later Delta R_k by Exp(turn_i d phi_i)
+        return Rotation.from_quat(quat).as_matrix(), psi, phi
+
+    def _turn_derivatives(self, rows: _Rows) -> tuple[np.ndarray, np.ndarray]:
+        """``G_k`` (d of ``Delta R_k``'s turn / d beta, up to sign; (n, 3, 3)) and its derivative w.r.t. ``E = G - I``
+        (row-major, (n, 3, 9)), both in the window's start frame (only the Jacobian needs them)."""
+        turn = rows.rel @ _so3_jacobian(rows.phi, -1.0)  # a change d phi_i turns every later Delta R_k by Exp(turn d phi_i)
         turn[self.first] = 0.0
-        step = np.concatenate([turn @ gyro * self.dt[:, None, None],  # d phi_i = -G d beta dt_i
-                               (turn[..., :, None] * psi[:, None, None, :]).reshape(-1, 3, 9)], axis=2)  # dE psi_i
+        step = np.concatenate([turn @ rows.gyro * self.dt[:, None, None],  # d phi_i = -G d beta dt_i
+                               (turn[..., :, None] * rows.psi[:, None, None, :]).reshape(-1, 3, 9)], axis=2)  # dE psi_i
         cum = np.cumsum(step, axis=0)
         cum -= cum[self.first][self.window]  # the first row of each window holds zero
-        return rel, cum[..., :3], cum[..., 3:]
+        return cum[..., :3], cum[..., 3:]
 
     def rows(self, p) -> _Rows:
         """What the rows need from the global parameters ``p``."""
         d = p[:9].reshape(3, 3)
         delta, beta, tau = p[12], p[13:16], float(p[16])
         gyro = np.eye(3) + p[17:26].reshape(3, 3)
-        rel, g, g_e = self._relative(beta, gyro)
+        rel, psi, phi = self._relative(beta, gyro)
         rate_b = self.rate - beta
         omega = rate_b @ gyro.T
         late = np.eye(3) + tau * _skew(omega)  # u(t_k - tau) = (I + tau [w]x) u(t_k), first order
         resp = (d / self.sigma_m) @ late @ np.transpose(rel, (0, 2, 1))
         return _Rows(p, d, np.array([np.cos(delta), 0.0, -np.sin(delta)]),
-                     np.array([-np.sin(delta), 0.0, -np.cos(delta)]), tau, rel, g, g_e, gyro, rate_b, omega, resp,
+                     np.array([-np.sin(delta), 0.0, -np.cos(delta)]), tau, rel, psi, phi, gyro, rate_b, omega, resp,
                      (self.mag - p[9:12]) / self.sigma_m)
 
     def residuals(self, rows: _Rows, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -655,14 +658,15 @@ class _Problem:
         # dr/dbeta = D M Delta R^T [v]x G_k - tau D [u]x G (M = I + tau [w]x, w = G (rate - beta));
         # dr/dE = -D M Delta R^T [v]x G^E_k + tau D [u]x (dE (rate - beta)); dr/dtau = -D (w x u)
         k_u = _skew(u)
-        blocks[:, :, 13:16] = rows.resp @ _skew(v) @ rows.g - tau * d @ k_u @ rows.gyro
+        g, g_e = self._turn_derivatives(rows)
+        blocks[:, :, 13:16] = rows.resp @ _skew(v) @ g - tau * d @ k_u @ rows.gyro
         blocks[:, :, 16] = -w_u @ d.T
         late_e = (k_u[..., :, None] * rows.rate_b[:, None, None, :]).reshape(n, 3, 9)  # [u]x dE (rate - beta)
-        blocks[:, :, 17:26] = -(rows.resp @ _skew(v) @ rows.g_e) + tau * d @ late_e
+        blocks[:, :, 17:26] = -(rows.resp @ _skew(v) @ g_e) + tau * d @ late_e
         a_blocks = np.zeros((len(s), 3, self.N_GLOBAL))  # accelerometer rows: up = Delta R^T Q^T z
         a_turn = np.transpose(rows.rel[s], (0, 2, 1)) @ _skew(q[self.window_a, 2, :]) / self.sigma_a
-        a_blocks[:, :, 13:16] = a_turn @ rows.g[s]
-        a_blocks[:, :, 17:26] = -(a_turn @ rows.g_e[s])
+        a_blocks[:, :, 13:16] = a_turn @ g[s]
+        a_blocks[:, :, 17:26] = -(a_turn @ g_e[s])
         return blocks, a_blocks
 
     def jacobian(self, p):
