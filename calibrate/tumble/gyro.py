@@ -279,7 +279,7 @@ class GyroFit:
         runtime reads the file's matrix by), and the turn axes whose response it did not see."""
         seen = gyro_matrix_seen(self.gyro_matrix_sigma)
         if not seen.any():
-            return "; the gyro's scale and axes not seen (turns too small): the runtime leaves the gyro as read"
+            return "; the gyro's scale and axes not seen: the runtime leaves the gyro as read"
         error = 100 * (self.gyro_matrix - np.eye(3))
         scale = ", ".join(f"{error[i, i]:+.2f}" if seen[i, i] else "unseen" for i in range(3))
         cross = np.abs(error[seen & ~np.eye(3, dtype=bool)])
@@ -659,10 +659,11 @@ class _Problem:
         # dr/dE = -D M Delta R^T [v]x G^E_k + tau D [u]x (dE (rate - beta)); dr/dtau = -D (w x u)
         k_u = _skew(u)
         g, g_e = self._turn_derivatives(rows)
-        blocks[:, :, 13:16] = rows.resp @ _skew(v) @ g - tau * d @ k_u @ rows.gyro
+        turned = rows.resp @ _skew(v)  # the reading's response to a turn of Delta R_k
+        blocks[:, :, 13:16] = turned @ g - tau * d @ k_u @ rows.gyro
         blocks[:, :, 16] = -w_u @ d.T
         late_e = (k_u[..., :, None] * rows.rate_b[:, None, None, :]).reshape(n, 3, 9)  # [u]x dE (rate - beta)
-        blocks[:, :, 17:26] = -(rows.resp @ _skew(v) @ g_e) + tau * d @ late_e
+        blocks[:, :, 17:26] = tau * d @ late_e - turned @ g_e
         a_blocks = np.zeros((len(s), 3, self.N_GLOBAL))  # accelerometer rows: up = Delta R^T Q^T z
         a_turn = np.transpose(rows.rel[s], (0, 2, 1)) @ _skew(q[self.window_a, 2, :]) / self.sigma_a
         a_blocks[:, :, 13:16] = a_turn @ g[s]
