@@ -98,7 +98,7 @@ def mag_latency_note(model, has_gyro: bool = True) -> tuple[str, str]:
                     "writes tumble.gyro.mag_latency_s): nothing compensated")
 
 
-def replay_file(calibration, recording, out, *, site=None, date=None, gravity=None, mag_latency=False, gyro_matrix=True,
+def replay_file(calibration, recording, out, *, site=None, date=None, gravity=None, mag_latency=False, gyro_matrix=False,
                 force=False, rerun=None, read_options=None, quiet=False) -> LiveSession:
     """``compass attitude CAL REC --out ATT --filter``: the recording through ``compass live``'s pipeline.
 
@@ -117,7 +117,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
         Compensate the calibration's fitted magnetometer latency (``compass live --mag-latency``;
         :meth:`compass.filter.FilterConfig.from_model`).
     gyro_matrix : bool
-        Correct each gyro sample by the calibration's fitted gyro matrix (default; ``--no-gyro-matrix`` off;
+        Correct each gyro sample by the calibration's fitted gyro matrix (``compass live --gyro-matrix``;
         :meth:`compass.filter.FilterConfig.from_model`).
     force : bool
         Overwrite ``out`` (and ``rerun``).

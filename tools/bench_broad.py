@@ -214,16 +214,23 @@ def file_values(t_s, gyro, accel, mag, keep) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = with_gyro(calibrate_tumble(mag, acc, t_s=t), mag, acc, turns, t)
-    model = from_dict(res.to_json()).model
+    doc = res.to_json()
+    model = from_dict(doc).model
     g = model.gyro_matrix
-    return {"mag_latency_s": model.mag_latency_s, "gyro_matrix": None if g is None else tuple(map(tuple, g))}
+    fitted = doc.get("tumble", {}).get("gyro", {})  # what the fit wrote, for the words only
+    return {"mag_latency_s": model.mag_latency_s, "gyro_matrix": None if g is None else tuple(map(tuple, g)),
+            "fitted": (fitted.get("gyro_matrix"), fitted.get("gyro_matrix_sigma"))}
 
 
 def _values_words(values: dict) -> str:
     g = values["gyro_matrix"]
+    fitted, sigma = values.get("fitted", (None, None))
+    sigma = None if sigma is None else 100 * np.array([[np.inf if v is None else v for v in r] for r in sigma])
     return (f"latency {1e3 * values['mag_latency_s']:.2f} ms, gyro matrix "
             + ("none seen" if g is None else "diag " + ", ".join(f"{100 * (g[i][i] - 1):+.2f}" for i in range(3))
-               + f" %, off-diagonal up to {100 * np.max(np.abs(np.array(g) - np.diag(np.diag(g)))):.2f} %"))
+               + f" %, off-diagonal up to {100 * np.max(np.abs(np.array(g) - np.diag(np.diag(g)))):.2f} %")
+            + ("" if sigma is None else f" (fitted sigma diag {', '.join(f'{v:.2f}' for v in np.diag(sigma))} %, "
+               f"off-diagonal up to {np.max(sigma[~np.eye(3, dtype=bool)]):.2f} %)"))
 
 
 def broad_fitted(data: Path) -> dict[str, dict]:

@@ -285,7 +285,7 @@ class GyroFit:
         cross = np.abs(error[seen & ~np.eye(3, dtype=bool)])
         words = (f"; the gyro's scale x, y, z {scale} % (max sigma {100 * np.max(self.gyro_matrix_sigma[seen]):.2f} %)"
                  + (f", its axes off by up to {np.max(cross):.2f} %" if cross.size else "")
-                 + ", fitted: the runtime corrects the gyro by it")
+                 + ", fitted: the runtime corrects the gyro by it with --gyro-matrix")
         unseen = [_AXES[j] for j in range(3) if not seen[:, j].any()]
         return words + (f" (turns about {', '.join(unseen)} not seen: left as read)" if unseen else "")
 

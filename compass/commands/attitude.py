@@ -66,8 +66,8 @@ def run(args) -> int:
         raise BadInput("--gravity goes with --filter (the per-row solution normalises each accelerometer row)")
     if args.mag_latency:
         raise BadInput("--mag-latency goes with --filter (the per-row solution has no gyro to turn the field with)")
-    if not args.gyro_matrix:
-        raise BadInput("--no-gyro-matrix goes with --filter (the per-row solution uses no gyro)")
+    if args.gyro_matrix:
+        raise BadInput("--gyro-matrix goes with --filter (the per-row solution uses no gyro)")
     attitude_file(args.calibration, args.recording, args.out, level=args.level, max_tilt_deg=args.max_tilt_deg,
                   accel_noise_g=args.accel_noise_g, force=args.force, site=args.site, date=args.date, rerun=args.rerun,
                   read_options=ReadOptions.from_args(args))

@@ -26,17 +26,17 @@ MAG_LATENCY_HELP = ("compensate the magnetometer's latency against the gyro that
                     "undisturbed trials' heading: docs/benchmarks.md)")
 
 
-GYRO_MATRIX_HELP = ("do not correct the gyro by the scale and axis errors the calibration's gyro-aided tumble fit found "
-                    "(tumble.gyro.gyro_matrix, the entries seen with a sigma under 0.5 %%), applied to every gyro sample "
-                    "by default: docs/benchmarks.md")
+GYRO_MATRIX_HELP = ("correct every gyro sample by the scale and axis errors the calibration's gyro-aided tumble fit "
+                    "found (tumble.gyro.gyro_matrix, the entries seen with a sigma under 0.5 %%); off by default (on "
+                    "BROAD the matrix fitted on another trial cost every group: docs/benchmarks.md)")
 
 
 def add_mag_latency_argument(p, *, with_filter: bool = False) -> None:
-    """``--mag-latency`` (``FilterConfig.from_model(model, mag_latency=True)``) and ``--no-gyro-matrix``
-    (``gyro_matrix=False``), for ``live`` and ``attitude --filter``."""
+    """``--mag-latency`` (``FilterConfig.from_model(model, mag_latency=True)``) and ``--gyro-matrix``
+    (``gyro_matrix=True``), for ``live`` and ``attitude --filter``."""
     p.add_argument("--mag-latency", action="store_true",
                    help=("with --filter: " if with_filter else "") + MAG_LATENCY_HELP)
-    p.add_argument("--no-gyro-matrix", dest="gyro_matrix", action="store_false",
+    p.add_argument("--gyro-matrix", action="store_true",
                    help=("with --filter: " if with_filter else "") + GYRO_MATRIX_HELP)
 
 

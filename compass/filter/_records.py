@@ -222,7 +222,7 @@ class FilterConfig:
 
     @classmethod
     def from_model(cls, model, *, mag_latency: bool = False, gravity: float | None = None,
-                   gyro_matrix: bool = True) -> "FilterConfig":
+                   gyro_matrix: bool = False) -> "FilterConfig":
         """Reference field and magnetometer noise from a :class:`compass.model.SensorModel`.
 
         The noise is the field's at zero field without a tumble file's own uncertainty
@@ -236,11 +236,12 @@ class FilterConfig:
         on another trial cost the undisturbed trials' heading (docs/benchmarks.md, "The magnetometer's
         latency from the calibration file").
 
-        With ``gyro_matrix`` (default) also the gyro's scale and axes the calibration found (``model.gyro_matrix``:
-        a tumble's gyro-aided fit's, the entries it saw; nothing when the file has none): each gyro sample is
-        corrected by it first (``--no-gyro-matrix`` turns it off).  On by default: on simulated boards it took
-        what the gyro's scale error cost in fast rotation, and on BROAD it did not cost a group (docs/benchmarks.md,
-        "The gyro's scale and axes from the calibration file").
+        With ``gyro_matrix`` also the gyro's scale and axes the calibration found (``model.gyro_matrix``: a tumble's
+        gyro-aided fit's, the entries it saw; nothing when the file has none): each gyro sample is corrected by it
+        first (``compass live`` and ``compass attitude --filter`` ``--gyro-matrix``).  Off by default: on simulated
+        boards it took most of what the gyro's scale error cost in rotation, but on BROAD the matrix fitted on
+        another trial doubled every group's heading and inclination error (docs/benchmarks.md, "The gyro's scale
+        and axes from the calibration file").
 
         Change other fields with ``dataclasses.replace``.
 
