@@ -56,7 +56,8 @@ pins them.  ``G`` against the bias: the bias turns by ``d beta t``, ``G`` by ``d
 when the rate varies (a constant spin about ``n`` cannot tell the scale along ``n`` from the bias along ``n``).
 ``G`` against the latency: the latency follows the instantaneous rate, ``G`` the integrated turn.  A Gaussian prior
 (:data:`GYRO_MATRIX_PRIOR`: 3 % on the diagonal, 2 % across, the datasheet's tolerances) keeps what the turns do not
-see at the identity, its sigma at the prior's; the runtime applies only the entries the data saw
+see at the identity, its sigma at the prior's; the runtime (``--gyro-matrix``, off by default: on BROAD the
+matrix fitted on one trial cost the others, docs/benchmarks.md) applies only the entries the data saw
 (:func:`compass.calibration.gyro_matrix_seen`).  What stays unmodelled (a bias that wanders, an accelerometer's own
 scale errors, which tilt gravity unevenly) grows with the angle turned and the time.
 Each window restarts the integration with its own ``Q_j``: a window closes after

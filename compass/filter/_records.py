@@ -257,8 +257,7 @@ class FilterConfig:
         noise = float(np.sqrt(np.trace(model.field_covariance(np.zeros(3), iron=False)) / 3.0))
         return cls(field_norm=model.field_norm, dip_deg=model.dip_deg, mag_noise=noise,
                    mag_latency_s=model.mag_latency_s if mag_latency else 0.0, gravity=gravity,
-                   gyro_matrix=None if not gyro_matrix or model.gyro_matrix is None
-                   else tuple(map(tuple, np.asarray(model.gyro_matrix, float))))
+                   gyro_matrix=model.gyro_matrix if gyro_matrix else None)
 
 
 @dataclass(frozen=True)
