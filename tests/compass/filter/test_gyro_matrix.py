@@ -109,3 +109,17 @@ def test_live_and_the_replay_apply_the_files_gyro_matrix_alike(tmp_path, capsys)
     capsys.readouterr()
     assert main(["attitude", str(cal), str(rec), "--out", str(tmp_path / "att.csv"), "--gyro-matrix"]) == 2
     assert "--gyro-matrix goes with --filter" in capsys.readouterr().err
+
+
+def test_an_installed_model_carries_the_gyro_matrix_into_the_products_frame():
+    # the product's frame reads the gyro turned by the alignment R: its matrix must give R (G w) from R w
+    from compass.installed import installed_model
+    from compass.sim.device import default_model
+
+    g = np.eye(3) + np.array([[0.02, 0.004, 0.0], [0.0, -0.015, 0.003], [0.001, 0.0, 0.01]])
+    base = dataclasses.replace(default_model(), gyro_matrix=g)
+    rot = Rotation.from_euler("ZYX", [30.0, -10.0, 5.0], degrees=True).as_matrix()
+    w = np.array([0.3, -1.2, 2.0])
+    product = installed_model(base, np.zeros(3), np.eye(3), alignment=rot)
+    np.testing.assert_allclose(product.gyro_matrix @ (rot @ w), rot @ (g @ w), atol=1e-12)
+    np.testing.assert_array_equal(installed_model(base, np.zeros(3), np.eye(3)).gyro_matrix, g)  # no alignment: as is
