@@ -227,8 +227,10 @@ def broad(every=4):
                 spreads.append(_heading_rms(m, att, about_median=True))
             cells[name] = float(np.mean(spreads))
             totals[name].append(cells[name])
-        latency = (f"{1e3 * gres.gyro['mag_latency_s']:.2f} +/- {1e3 * gres.gyro['mag_latency_sigma_s']:.2f}; "
-                   + _matrix_words(gres.gyro) if "mag_latency_s" in gres.gyro else "gyro-aided fit not used")
+        sigma = gres.gyro.get("mag_latency_sigma_s")  # None: the fit gave no sigma (a singular covariance)
+        latency = (f"{1e3 * gres.gyro['mag_latency_s']:.2f} +/- "
+                   + ("no sigma" if sigma is None else f"{1e3 * sigma:.2f}") + "; " + _matrix_words(gres.gyro)
+                   if "mag_latency_s" in gres.gyro else "gyro-aided fit not used")
         print(("{:<6}{:>8}{:>9}" + "{:>12.3f}" * 6 + "{:>10}  {}").format(
             t.name[:2], len(mag), f"{100 * res.coverage.fraction:.0f}%", *cells.values(),
             "refused" if res.refused else "yes" if falls_back(res) else "no", latency))
