@@ -113,7 +113,7 @@ from scipy.linalg import polar
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from compass.calibration import gyro_matrix_seen, latency_seen
+from compass.calibration import MAX_GYRO_MATRIX_ERROR, gyro_matrix_seen, latency_seen
 
 from ..diagnosis.forms import json_float
 from ..noise import robust_sigma, second_difference_sigma, second_differences
@@ -253,14 +253,23 @@ class GyroFit:
     def determined(self) -> bool:
         return self.success and not self.undetermined
 
+    @property
+    def gyro_matrix_usable(self) -> bool:
+        """Whether the fitted gyro matrix goes into the file: every sigma given and every entry of ``G - I`` within
+        :data:`compass.calibration.MAX_GYRO_MATRIX_ERROR` (a fit that wandered where the turns saw nothing, as a
+        translation, is neither; the reader would refuse it)."""
+        return bool(np.all(np.isfinite(self.gyro_matrix_sigma))
+                    and np.all(np.abs(self.gyro_matrix - np.eye(3)) <= MAX_GYRO_MATRIX_ERROR))
+
     def to_json(self) -> dict:
-        """The file's ``tumble.gyro`` block (JSON-ready)."""
+        """The file's ``tumble.gyro`` block (JSON-ready; ``gyro_matrix`` null when not :attr:`gyro_matrix_usable`)."""
+        usable = self.gyro_matrix_usable
         return {"method": "gyro", "n_windows": self.n_windows, "window_s": WINDOW_S, "window_turn_deg": WINDOW_TURN_DEG,
                 "gyro_bias_rad_s": self.gyro_bias_rad_s.tolist(),
                 "gyro_bias_sigma_rad_s": [json_float(v) for v in self.gyro_bias_sigma_rad_s],
                 "mag_latency_s": self.latency_s, "mag_latency_sigma_s": json_float(self.latency_sigma_s),
-                "gyro_matrix": self.gyro_matrix.tolist(),
-                "gyro_matrix_sigma": [[json_float(v) for v in row] for row in self.gyro_matrix_sigma],
+                "gyro_matrix": self.gyro_matrix.tolist() if usable else None,
+                "gyro_matrix_sigma": [[json_float(v) for v in row] for row in self.gyro_matrix_sigma] if usable else None,
                 "mag_residual_rms": self.mag_rms, "noise": self.noise, "n_static": self.n_static,
                 "n_outliers": int(np.count_nonzero(~self.inliers)), "turns": self.turns,
                 "undetermined": list(self.undetermined), "words": self.words()}
@@ -278,7 +287,7 @@ class GyroFit:
     def _gyro_matrix_words(self) -> str:
         """The gyro's scale and axis errors the data saw (:func:`compass.calibration.gyro_matrix_seen`, the rule the
         runtime reads the file's matrix by), and the turn axes whose response it did not see."""
-        seen = gyro_matrix_seen(self.gyro_matrix_sigma)
+        seen = gyro_matrix_seen(self.gyro_matrix_sigma) & self.gyro_matrix_usable
         if not seen.any():
             return "; the gyro's scale and axes not seen: the runtime leaves the gyro as read"
         error = 100 * (self.gyro_matrix - np.eye(3))

@@ -422,3 +422,24 @@ def test_thinning_the_robust_fit_leaves_the_fit_within_a_fraction_of_sigma(parti
         sigma = getattr(whole, name.replace("_deg", "_sigma_deg").replace("_rad_s", "_sigma_rad_s")
                         if name.endswith(("_deg", "_rad_s")) else name + "_sigma")
         assert np.all(np.abs(getattr(thinned, name) - getattr(whole, name)) < 0.05 * sigma)
+
+
+def test_a_gyro_matrix_the_reader_would_refuse_is_not_written():
+    # a fit that wandered where the turns saw nothing (BROAD 10, a translation: G - I near -100 %, no sigma) writes no
+    # matrix, and its file loads; a usable one is written and read back
+    from compass.calibration import from_dict
+    from compass.sim.tumble import simulate_tumble
+
+    sim = simulate_tumble(seed=4, n=600)
+    doc = calibrate_tumble(sim.mag, sim.accel, t_s=sim.t_s).to_json()
+    for g, sigma, written in ((0.01 * np.eye(3), np.full((3, 3), np.inf), False),
+                              (1.3 * np.eye(3), np.full((3, 3), 1e-3), False),
+                              (1.01 * np.eye(3), np.full((3, 3), 1e-3), True)):
+        fit = gyro.GyroFit(np.zeros(3), np.full(3, 0.1), np.eye(3), np.full((3, 3), 1e-3), 50.0, 0.1,
+                           Rotation.identity(), np.zeros(3), np.full(3, 0.1), 60.0, 0.1, np.zeros(3), np.full(3, 1e-4),
+                           0.0, 1e-3, g, sigma, 10, 100, np.ones(600, bool), 0.3, 0.3, (), "turned 500 deg in all",
+                           True, "converged")
+        doc["tumble"]["gyro"] = fit.to_json() | {"used": True}
+        assert (doc["tumble"]["gyro"]["gyro_matrix"] is not None) == written
+        assert (from_dict(doc).model.gyro_matrix is not None) == written
+        assert ("the gyro's scale and axes not seen" in fit.words()) != written
