@@ -125,12 +125,15 @@ def installed_model(base: SensorModel, hard_iron, soft_iron, covariance=None, al
         gain_var = gains**2 * np.einsum("ci,cij,cj->c", directions, spread, directions)
         old = np.zeros((len(a), 2)) if response_sigma is None else response_sigma
         response_sigma = np.sqrt(old**2 + np.column_stack([offset_var, gain_var]))
+    gyro_matrix = base.gyro_matrix
     if alignment is not None:
         rot = np.asarray(alignment, dtype=float)
         directions = directions @ rot.T
+        if gyro_matrix is not None:  # the gyro read in the product's frame too
+            gyro_matrix = rot @ gyro_matrix @ rot.T
         if direction_cov is not None:
             direction_cov = rot[None] @ direction_cov @ rot.T[None]
     # a tumble base's own uncertainty is in its frame and for its iron alone: not carried (the installation's
-    # covariance is); its magnetometer latency is the module's timing, kept
+    # covariance is); its magnetometer latency is the module's timing and its gyro matrix the module's gyro, kept
     return replace(base, directions=directions, responses=tuple(responses), direction_covariance=direction_cov,
-                   response_sigma=response_sigma, form="installed", iron_uncertainty=None)
+                   response_sigma=response_sigma, form="installed", iron_uncertainty=None, gyro_matrix=gyro_matrix)

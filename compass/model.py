@@ -89,6 +89,10 @@ class SensorModel:
         How late the magnetometer reads against the gyro, s: a tumble's gyro-aided fit's
         ``tumble.gyro.mag_latency_s`` when it saw one (positive, beyond 3 sigma), else 0.
         :meth:`compass.filter.FilterConfig.from_model` passes it to the filter when asked (``mag_latency=True``).
+    gyro_matrix : ndarray, shape (3, 3), or None
+        The gyro's scale and axes against the housing: the housing-frame rate is ``gyro_matrix @ w``, ``w`` the
+        gyro's reading; a tumble's gyro-aided fit's ``tumble.gyro.gyro_matrix``, the entries it did not see at
+        the identity's (:func:`compass.calibration.gyro_matrix_seen`); None when it saw none.
     """
 
     channels: tuple[str, ...]
@@ -104,6 +108,7 @@ class SensorModel:
     temperature: TemperatureCompensation | None = None
     iron_uncertainty: TumbleUncertainty | None = None
     mag_latency_s: float = 0.0
+    gyro_matrix: np.ndarray | None = None
 
     def __post_init__(self):
         c = len(self.channels)
@@ -116,6 +121,10 @@ class SensorModel:
             raise ValueError(f"calibrated |B| must be positive, got {self.field_norm}")
         if not (np.isfinite(self.mag_latency_s) and self.mag_latency_s >= 0.0):
             raise ValueError(f"mag_latency_s must be a non-negative number, got {self.mag_latency_s!r}")
+        if self.gyro_matrix is not None and not (np.shape(self.gyro_matrix) == (3, 3)
+                                                 and np.all(np.isfinite(self.gyro_matrix))
+                                                 and np.linalg.det(self.gyro_matrix) > 0):
+            raise ValueError(f"gyro_matrix must be a finite 3 x 3 matrix of positive determinant, got {self.gyro_matrix!r}")
         if c < 3:
             raise NotAFieldVector(f"the calibration has {c} channel{'s' if c > 1 else ''} ({', '.join(self.channels)}): "
                                   "a calibration of single-axis channels, valid as such, but the field vector (and "

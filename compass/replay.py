@@ -98,8 +98,8 @@ def mag_latency_note(model, has_gyro: bool = True) -> tuple[str, str]:
                     "writes tumble.gyro.mag_latency_s): nothing compensated")
 
 
-def replay_file(calibration, recording, out, *, site=None, date=None, gravity=None, mag_latency=False, force=False,
-                rerun=None, read_options=None, quiet=False) -> LiveSession:
+def replay_file(calibration, recording, out, *, site=None, date=None, gravity=None, mag_latency=False, gyro_matrix=False,
+                force=False, rerun=None, read_options=None, quiet=False) -> LiveSession:
     """``compass attitude CAL REC --out ATT --filter``: the recording through ``compass live``'s pipeline.
 
     Parameters
@@ -115,6 +115,9 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
         the start window.
     mag_latency : bool
         Compensate the calibration's fitted magnetometer latency (``compass live --mag-latency``;
+        :meth:`compass.filter.FilterConfig.from_model`).
+    gyro_matrix : bool
+        Correct each gyro sample by the calibration's fitted gyro matrix (``compass live --gyro-matrix``;
         :meth:`compass.filter.FilterConfig.from_model`).
     force : bool
         Overwrite ``out`` (and ``rerun``).
@@ -156,7 +159,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
             site = Site.parse(site, date)
         cal = load(calibration)
         model = cal.model
-        config = FilterConfig.from_model(model, mag_latency=mag_latency, gravity=gravity)
+        config = FilterConfig.from_model(model, mag_latency=mag_latency, gravity=gravity, gyro_matrix=gyro_matrix)
     except ValueError as exc:
         raise BadInput(exc if str(calibration) in str(exc) else f"{calibration}: {exc}") from None
     source = "site"

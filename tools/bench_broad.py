@@ -127,6 +127,7 @@ CANDIDATES = {  # name: (FilterConfig changes, hard-iron tracker on, noise from 
     "noise from rest": ({}, True, True),
     "mag_latency_s 0.014": ({"mag_latency_s": 0.014}, True, False),  # calibrate.realdata's loop, on 01 and 02
     "mag_latency_s fitted": ({"mag_latency_s": "fitted"}, True, False),  # issue 22: another recording's tumble file
+    "gyro_matrix fitted": ({"gyro_matrix": "fitted"}, True, False),  # issue 22: the gyro's scale and axes, the same
     "accel_time_constant_s 1": ({"accel_time_constant_s": 1.0}, True, False),
     "accel_time_constant_s 4": ({"accel_time_constant_s": 4.0}, True, False),
     "accel_time_constant_s 3 (VQF's)": ({"accel_time_constant_s": 3.0}, True, False),  # the default until issue 13
@@ -166,7 +167,7 @@ def ours(changes=None, hard_iron=True, from_rest=False, model=None):
         from compass.hard_iron import track_hard_iron
 
         field = trial.mag_ut if model is None else model.field(trial.mag_ut)[0]
-        fitted = {k: _fitted_latency_s(trial) for k, v in (changes or {}).items() if v == "fitted"}
+        fitted = {k: _fitted(trial)[k] for k, v in (changes or {}).items() if v == "fitted"}
         config = ours_config(trial, field, (changes or {}) | fitted, from_rest)
         if hard_iron:
             field = track_hard_iron(field, trial.accel_m_s2, trial.rate_hz, dip_deg=config.dip_deg).corrected(field)
@@ -192,12 +193,14 @@ CAL_TRIALS = ("01", "02")
 one that is not itself (the latency fitted on another trial: leave one out)."""
 
 
-def file_latency_s(t_s, gyro, accel, mag, keep) -> float:
-    """The magnetometer latency a tumble calibration of the rows ``keep`` writes, as the runtime reads it.
+def file_values(t_s, gyro, accel, mag, keep) -> dict:
+    """The magnetometer latency and the gyro matrix a tumble calibration of the rows ``keep`` writes, as the runtime
+    reads them: ``{"mag_latency_s": s, "gyro_matrix": 3 x 3 tuple or None}``.
 
     ``compass calibrate``'s path with a gyro (the present fit, the gyro-aided one where it falls back, and the
-    gyro-aided one's latency either way), its file, and :func:`compass.calibration.from_dict`'s
-    ``model.mag_latency_s`` (0 unless the magnetometer is late beyond 3 sigma): the truth is never read.
+    gyro-aided one's latency and gyro matrix either way), its file, and :func:`compass.calibration.from_dict`'s
+    ``model.mag_latency_s`` (0 unless the magnetometer is late beyond 3 sigma) and ``model.gyro_matrix`` (the
+    entries seen): the truth is never read.
     """
     import warnings
 
@@ -211,12 +214,28 @@ def file_latency_s(t_s, gyro, accel, mag, keep) -> float:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = with_gyro(calibrate_tumble(mag, acc, t_s=t), mag, acc, turns, t)
-    return from_dict(res.to_json()).model.mag_latency_s
+    doc = res.to_json()
+    model = from_dict(doc).model
+    g = model.gyro_matrix
+    fitted = doc.get("tumble", {}).get("gyro", {})  # what the fit wrote, for the words only
+    return {"mag_latency_s": model.mag_latency_s, "gyro_matrix": None if g is None else tuple(map(tuple, g)),
+            "fitted": (fitted.get("gyro_matrix"), fitted.get("gyro_matrix_sigma"))}
 
 
-def broad_latencies(data: Path) -> dict[str, float]:
-    """``{trial number: latency s}`` of :data:`CAL_TRIALS` (each motion phase, every 4th row, the gyro integrated
-    over every row, as ``tools/bench_gyro_tumble.py``)."""
+def _values_words(values: dict) -> str:
+    g = values["gyro_matrix"]
+    fitted, sigma = values.get("fitted", (None, None))
+    sigma = None if sigma is None else 100 * np.array([[np.inf if v is None else v for v in r] for r in sigma])
+    return (f"latency {1e3 * values['mag_latency_s']:.2f} ms, gyro matrix "
+            + ("none seen" if g is None else "diag " + ", ".join(f"{100 * (g[i][i] - 1):+.2f}" for i in range(3))
+               + f" %, off-diagonal up to {100 * np.max(np.abs(np.array(g) - np.diag(np.diag(g)))):.2f} %")
+            + ("" if sigma is None else f" (fitted sigma diag {', '.join(f'{v:.2f}' for v in np.diag(sigma))} %, "
+               f"off-diagonal up to {np.max(sigma[~np.eye(3, dtype=bool)]):.2f} %)"))
+
+
+def broad_fitted(data: Path) -> dict[str, dict]:
+    """``{trial number: file values}`` (:func:`file_values`) of :data:`CAL_TRIALS` (each motion phase, every 4th row,
+    the gyro integrated over every row, as ``tools/bench_gyro_tumble.py``)."""
     out = {}
     for number in CAL_TRIALS:
         path = next(iter(sorted(data.glob(f"{number}_*.mat"))), None)
@@ -225,22 +244,24 @@ def broad_latencies(data: Path) -> dict[str, float]:
         t = read_broad(path)
         keep = np.zeros(len(t), bool)
         keep[np.flatnonzero(t.movement)[::4]] = True
-        out[number] = file_latency_s(t.t_s, t.gyro_rad_s, t.accel_m_s2, t.mag_ut, keep)
-        print(f"  latency from {t.name}'s tumble file: {1e3 * out[number]:.2f} ms", flush=True)
+        out[number] = file_values(t.t_s, t.gyro_rad_s, t.accel_m_s2, t.mag_ut, keep)
+        print(f"  from {t.name}'s tumble file: {_values_words(out[number])}", flush=True)
     return out
 
 
-BROAD_LATENCY_S: dict[str, float] = {}
-"""Each BROAD trial's held-out latency (:func:`held_out_latency`), by name; a simulated trial carries its own."""
+NONE_FITTED = {"mag_latency_s": 0.0, "gyro_matrix": None}
+
+BROAD_FITTED: dict[str, dict] = {}
+"""Each BROAD trial's held-out file values (:func:`held_out`), by name; a simulated trial carries its own."""
 
 
-def _fitted_latency_s(trial) -> float:
-    return trial.fitted_latency_s if isinstance(trial, _Simulated) else BROAD_LATENCY_S[trial.name]
+def _fitted(trial) -> dict:
+    return trial.fitted if isinstance(trial, _Simulated) else BROAD_FITTED[trial.name]
 
 
-def held_out_latency(name: str, latencies: dict[str, float]) -> float:
-    """The latency fitted on the first calibration trial that is not ``name`` (0 when there is none)."""
-    return next((v for k, v in latencies.items() if not name.startswith(k)), 0.0)
+def held_out(name: str, fitted: dict[str, dict]) -> dict:
+    """The values fitted on the first calibration trial that is not ``name`` (none when there is none)."""
+    return next((v for k, v in fitted.items() if not name.startswith(k)), NONE_FITTED)
 
 
 def latency_check(seeds) -> None:
@@ -265,6 +286,9 @@ def latency_check(seeds) -> None:
 
 
 # ---------------------------------------------------------------- simulated boards
+
+FITTED_CANDIDATES = ("mag_latency_s fitted", "gyro_matrix fitted")
+"""The candidates that take a value from another recording's tumble file."""
 
 SIM_CANDIDATES = ("defaults", "second-order inertial low-pass", "mag_latency_s fitted",
                   "field update: heading and tilt model")
@@ -310,20 +334,21 @@ def simulated(methods, seeds) -> dict:
     out = {}
     for board in ("broad-like", "low-cost"):
         out[board] = {}
-        latency = {}
-        if any(m in methods for m in ("mag_latency_s fitted",)):
+        fitted = {}
+        if any(m in methods for m in FITTED_CANDIDATES):
             for seed in seeds:  # the board's tumble recording: another motion seed, the rows at 1/6 of the rate
                 cal = simulate_motion("fast_rotation", seed=500 + seed, errors=board_errors(board, seed))
                 keep = np.zeros(len(cal.t_s), bool)
                 keep[::6] = True
-                latency[seed] = file_latency_s(cal.t_s, cal.gyro_rad_s, cal.accel_m_s2, cal.mag_ut, keep)
-            print(f"  {board}: latency from its tumble file " + ", ".join(f"{1e3 * v:.2f}" for v in latency.values())
-                  + " ms", flush=True)
+                fitted[seed] = file_values(cal.t_s, cal.gyro_rad_s, cal.accel_m_s2, cal.mag_ut, keep)
+                truth = 100 * (1 / (1 + np.asarray(board_errors(board, seed).gyro_scale)) - 1)
+                print(f"  {board} seed {seed}: from its tumble file {_values_words(fitted[seed])} (true gyro matrix "
+                      f"diag {', '.join(f'{v:+.2f}' for v in truth)} %)", flush=True)
         for kind in KINDS:
             runs = []
             for seed in seeds:
                 trial = _Simulated(simulate_motion(kind, seed=seed, errors=board_errors(board, seed)), kind)
-                trial.fitted_latency_s = latency.get(seed, 0.0)
+                trial.fitted = fitted.get(seed, NONE_FITTED)
                 row = []
                 for method in methods.values():
                     e = error_series(method(trial), trial.ref_quat_enu, trial.movement, trial.rate_hz)
@@ -624,11 +649,11 @@ def main(argv=None) -> int:
     from compass.filter import FilterConfig
 
     default = FilterConfig(field_norm=1.0, dip_deg=0.0, mag_noise=1.0)
-    latencies = broad_latencies(Path(args.data)) if "mag_latency_s fitted" in candidates else {}
+    fitted = broad_fitted(Path(args.data)) if any(c in candidates for c in FITTED_CANDIDATES) else {}
     results, trials, noises = {}, {}, []
     for f in files:
         trial = read_broad(f)
-        BROAD_LATENCY_S[trial.name] = held_out_latency(trial.name, latencies)
+        BROAD_FITTED[trial.name] = held_out(trial.name, fitted)
         trials[trial.name] = trial
         noises.append(rest_noise(trial.gyro_rad_s, trial.accel_m_s2, trial.mag_ut, ~trial.movement, trial.rate_hz))
         row = {}

@@ -9,11 +9,14 @@ Simulated: :func:`compass.sim.partial_tumble.simulate_partial_tumble` - hand-hel
 :mod:`compass.sim.motion` (``fast_rotation``, ``slow_rotation``: not the motions the method was
 written on) through 20 uT of hard iron, 8 % soft iron and a 2 deg rotation to the housing, cut where
 the field's directions first cover 20 %, 30 %, 50 % of the sphere, or the whole 60 s ("full"); the
-gyro with a random 0.5 deg/s bias, a 0.5 % scale error (not modelled by the fit) and noise; cases
+gyro with a random 0.5 deg/s bias, a scale error per axis drawn within +-0.5 % (cases marked ``gyro 3.0 %``:
++-3 %, the MPU-9250's tolerance) and noise; cases
 marked ``late`` have the magnetometer one row (20 ms) late against the accelerometer and gyro.
 Columns: ``present`` (:func:`calibrate.tumble.calibrate_tumble`), ``gyro tau=0`` (the gyro-aided fit
-tried on every recording, its magnetometer latency held at zero: the model before the latency), ``gyro``
-(the same with the latency fitted; its mean and the rms of (fitted - true) / sigma in the notes); where
+tried on every recording, its magnetometer latency held at zero and its gyro matrix at the identity: the model
+before the latency), ``gyro G=I`` (the latency fitted, the gyro matrix held at the identity: the model before the
+gyro's scale and axes), ``gyro`` (both fitted; the latency's mean and the rms of (fitted - true) / sigma in the
+notes, and the gyro matrix's largest error against the truth ``diag(1 / (1 + s))`` and its rms error / sigma); where
 the gyro-aided fit is refused (not converged, or the model does not describe the recording) these two
 cells are the present fit's, as :func:`calibrate.tumble.gyro.with_gyro` returns it, ``default`` (what
 ``compass calibrate`` does: the gyro-aided fit only where the present one falls back, including a
@@ -73,10 +76,14 @@ from compass.io.tumble import gyro_turns  # noqa: E402
 from compass.sim.partial_tumble import simulate_partial_tumble  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "broad"
-CASES = (("fast_rotation", 0.2, 0), ("slow_rotation", 0.2, 0), ("fast_rotation", 0.3, 0), ("slow_rotation", 0.3, 0),
-         ("fast_rotation", 0.5, 0), ("fast_rotation", None, 0), ("fast_rotation", None, 1), ("fast_rotation", 0.3, 1))
-"""(motion, coverage or None for the whole 60 s, magnetometer latency in samples: 1 is 20 ms at 50 Hz)."""
-METHODS = ("present", "gyro tau=0", "gyro", "default")
+CASES = (("fast_rotation", 0.2, 0, 0.005), ("slow_rotation", 0.2, 0, 0.005), ("fast_rotation", 0.3, 0, 0.005),
+         ("slow_rotation", 0.3, 0, 0.005), ("fast_rotation", 0.5, 0, 0.005), ("fast_rotation", None, 0, 0.005),
+         ("fast_rotation", None, 1, 0.005), ("fast_rotation", 0.3, 1, 0.005),
+         ("fast_rotation", 0.3, 0, 0.03), ("slow_rotation", 0.3, 0, 0.03), ("fast_rotation", None, 0, 0.03),
+         ("slow_rotation", None, 0, 0.03))
+"""(motion, coverage or None for the whole 60 s, magnetometer latency in samples: 1 is 20 ms at 50 Hz, the gyro's
+scale error: each axis's drawn uniformly within +-this)."""
+METHODS = ("present", "gyro tau=0", "gyro G=I", "gyro", "default")
 
 
 def _heading_rms(mag_h: np.ndarray, attitude: Rotation, north_deg: float = 0.0, about_median: bool = False) -> float:
@@ -114,26 +121,40 @@ def _late(sim, rows: int):
     return sim.t_s[rows:], sim.mag[:-rows], sim.accel[rows:], sim.gyro[rows:]
 
 
+def _gyro_matrix_error(block: dict, scale) -> tuple[float, float]:
+    """(largest |G - G_true| entry in %, rms of (G - G_true) / sigma) of a fit's ``gyro`` block; the simulated gyro
+    reads ``(1 + s) w + b`` per axis: ``G_true = diag(1 / (1 + s))``."""
+    truth = np.diag(1.0 / (1.0 + np.asarray(scale)))
+    err = np.array(block["gyro_matrix"]) - truth
+    sigma = np.array([[np.inf if v is None else v for v in row] for row in block["gyro_matrix_sigma"]])
+    return 100 * float(np.max(np.abs(err))), float(np.sqrt(np.mean((err / sigma) ** 2)))
+
+
 def simulated(seeds):
     print("Simulated partial motions (compass.sim.partial_tumble; mean over seeds "
-          f"{list(seeds)}; gyro 0.5 deg/s bias, 0.5 % scale error; 'late': magnetometer 20 ms late)")
+          f"{list(seeds)}; gyro 0.5 deg/s bias, a scale error per axis within +-the case's; 'late': magnetometer "
+          "20 ms late)")
     head = ["case", "n", "cov", "method", "h err %|B|", "S err", "rot err deg", "heading rms", "notes"]
-    print(("{:<28}{:>6}{:>6}{:>12}" + "{:>13}" * 4 + "  {}").format(*head))
-    for kind, cov, late in CASES:
+    print(("{:<40}{:>6}{:>6}{:>12}" + "{:>13}" * 4 + "  {}").format(*head))
+    for kind, cov, late, scale in CASES:
         rows = {m: [] for m in METHODS}
-        ratio, fell, n_s, cov_s, used, tau = [], 0, [], [], 0, []
+        ratio, fell, n_s, cov_s, used, tau, g_err = [], 0, [], [], 0, [], []
         for seed in seeds:
-            sim = simulate_partial_tumble(kind, seed=seed, coverage=cov, duration_s=60.0 if cov is None else 120.0)
+            sim = simulate_partial_tumble(kind, seed=seed, coverage=cov, duration_s=60.0 if cov is None else 120.0,
+                                          gyro_scale=scale)
             raw, att = _runtime(kind, seed)
             t_s, mag, accel, gyro = _late(sim, late)
             turns = gyro_turns(t_s, gyro, np.ones(len(t_s), bool))
             res = calibrate_tumble(mag, accel, t_s=t_s)
-            fixed = with_gyro(res, mag, accel, turns, t_s, fit_latency=False)
+            fixed = with_gyro(res, mag, accel, turns, t_s, fit_latency=False, fit_gyro_matrix=False)
+            before = with_gyro(res, mag, accel, turns, t_s, fit_gyro_matrix=False)
             gres = with_gyro(res, mag, accel, turns, t_s)
             default = gres if falls_back(res) else res
             fell += falls_back(res)
             used += falls_back(res) and gres.gyro["used"]
-            for name, r in zip(METHODS, (res, fixed, gres, default)):
+            if "gyro_matrix" in gres.gyro:
+                g_err.append(_gyro_matrix_error(gres.gyro, sim.truth["gyro_scale"]))
+            for name, r in zip(METHODS, (res, fixed, before, gres, default)):
                 rows[name].append(_errors(r.hard_iron, r.fit.soft_iron, None if r.misalignment is None
                                           else r.misalignment.rotation, sim.truth, raw, att))
             if gres.gyro["used"]:
@@ -144,7 +165,8 @@ def simulated(seeds):
                 tau.append((gres.gyro["mag_latency_s"], gres.gyro["mag_latency_sigma_s"]))
             n_s.append(len(t_s))
             cov_s.append(sim.coverage)
-        label = f"{kind} {'full' if cov is None else f'{100 * cov:.0f} %'}{' late' if late else ''}"
+        label = (f"{kind} {'full' if cov is None else f'{100 * cov:.0f} %'}{' late' if late else ''}"
+                 f"{f' gyro {100 * scale:.1f} %' if scale != 0.005 else ''}")
         for name, vals in rows.items():
             mean = np.mean(vals, axis=0)
             extra = f"gyro used {used} of {fell} fallbacks, {len(seeds)} seeds" if name == "default" else ""
@@ -155,7 +177,10 @@ def simulated(seeds):
                          f"{np.sqrt(np.mean(((t_ms[:, 0] - true_ms) / t_ms[:, 1]) ** 2)):.2f}")
                 if ratio:
                     extra += f", rot err/sig {np.sqrt(np.mean(np.square(ratio))):.2f}"
-            print(("{:<28}{:>6}{:>6}{:>12}" + "{:>13.3f}" * 4 + "  {}").format(
+                if g_err:
+                    extra += (f"; G err max {np.mean([e[0] for e in g_err]):.3f} %, err/sig rms "
+                              f"{np.sqrt(np.mean(np.square([e[1] for e in g_err]))):.2f}")
+            print(("{:<40}{:>6}{:>6}{:>12}" + "{:>13.3f}" * 4 + "  {}").format(
                 label if name == "present" else "", int(np.mean(n_s)) if name == "present" else "",
                 f"{100 * np.mean(cov_s):.0f}%" if name == "present" else "", name, *mean, extra))
 
@@ -170,8 +195,8 @@ def broad(every=4):
     trials = [read_broad(p) for p in paths]
     print(f"\nBROAD undisturbed trials {', '.join(t.name[:2] for t in trials)}: calibrate on one trial's motion phase, "
           "heading spread (deg rms about its median) on every other trial, mean over them")
-    print(("{:<6}{:>8}{:>9}" + "{:>12}" * 5 + "{:>10}  {}").format("cal", "n", "cov", "raw", *METHODS, "fell back",
-                                                                      "latency fitted, ms"))
+    print(("{:<6}{:>8}{:>9}" + "{:>12}" * 6 + "{:>10}  {}").format("cal", "n", "cov", "raw", *METHODS, "fell back",
+                                                                      "latency fitted, ms; G - I, %"))
     scored = {}
     for t in trials:
         rows = np.flatnonzero(t.movement & t.ref_valid)
@@ -184,11 +209,12 @@ def broad(every=4):
         turns = gyro_turns(t.t_s, t.gyro_rad_s, keep)
         mag, acc, tt = t.mag_ut[keep], t.accel_m_s2[keep], t.t_s[keep]
         res = calibrate_tumble(mag, acc, t_s=tt)
-        fixed = with_gyro(res, mag, acc, turns, tt, fit_latency=False)
+        fixed = with_gyro(res, mag, acc, turns, tt, fit_latency=False, fit_gyro_matrix=False)
+        before = with_gyro(res, mag, acc, turns, tt, fit_gyro_matrix=False)
         gres = with_gyro(res, mag, acc, turns, tt)
         default = gres if falls_back(res) else res
         cells = {}
-        for name, r in zip(("raw",) + METHODS, (None, res, fixed, gres, default)):
+        for name, r in zip(("raw",) + METHODS, (None, res, fixed, before, gres, default)):
             spreads = []
             for other in trials:
                 if other is t:
@@ -201,12 +227,22 @@ def broad(every=4):
                 spreads.append(_heading_rms(m, att, about_median=True))
             cells[name] = float(np.mean(spreads))
             totals[name].append(cells[name])
-        latency = (f"{1e3 * gres.gyro['mag_latency_s']:.2f} +/- {1e3 * gres.gyro['mag_latency_sigma_s']:.2f}"
+        sigma = gres.gyro.get("mag_latency_sigma_s")  # None: the fit gave no sigma (a singular covariance)
+        latency = (f"{1e3 * gres.gyro['mag_latency_s']:.2f} +/- "
+                   + ("no sigma" if sigma is None else f"{1e3 * sigma:.2f}") + "; " + _matrix_words(gres.gyro)
                    if "mag_latency_s" in gres.gyro else "gyro-aided fit not used")
-        print(("{:<6}{:>8}{:>9}" + "{:>12.3f}" * 5 + "{:>10}  {}").format(
+        print(("{:<6}{:>8}{:>9}" + "{:>12.3f}" * 6 + "{:>10}  {}").format(
             t.name[:2], len(mag), f"{100 * res.coverage.fraction:.0f}%", *cells.values(),
             "refused" if res.refused else "yes" if falls_back(res) else "no", latency))
-    print(("{:<23}" + "{:>12.3f}" * 5).format("mean", *(np.mean(v) for v in totals.values())))
+    print(("{:<23}" + "{:>12.3f}" * 6).format("mean", *(np.mean(v) for v in totals.values())))
+
+
+def _matrix_words(block: dict) -> str:
+    """The fitted ``G - I`` (%): its diagonal and largest off-diagonal entry, with the largest sigma."""
+    g = 100 * (np.array(block["gyro_matrix"]) - np.eye(3))
+    sigma = 100 * np.array([[np.inf if v is None else v for v in row] for row in block["gyro_matrix_sigma"]])
+    return (f"diag {', '.join(f'{v:+.2f}' for v in np.diag(g))}, off-diag up to "
+            f"{np.max(np.abs(g - np.diag(np.diag(g)))):.2f} (sigma up to {np.max(sigma):.2f})")
 
 
 def _attitude(trial, rows):
@@ -242,8 +278,10 @@ for name, sig in names.items():
     out[name + "/sigma"] = np.ravel(getattr(g, sig)).tolist()
 out["mag_to_accel"] = g.mag_to_accel.as_matrix().tolist()
 cs = g.mag_to_accel.as_matrix() @ g.soft_iron
+gyro = getattr(g, "gyro_matrix", None)  # a tree before the gyro matrix: the identity
 out["p"] = np.concatenate([(g.field_norm * np.linalg.inv(cs)).ravel(), g.hard_iron, [np.radians(g.dip_deg)],
-                           g.gyro_bias_rad_s, [g.latency_s]]).tolist()
+                           g.gyro_bias_rad_s, [g.latency_s], np.zeros(9) if gyro is None else (gyro - np.eye(3)).ravel()]
+                          ).tolist()
 out["inlier_rows"] = np.flatnonzero(g.inliers).tolist()
 print(json.dumps(out))
 """
@@ -317,7 +355,7 @@ def _on_inliers(case: dict, data: Path, this: dict, base: dict) -> str:
     dip = np.radians(float(d["dip_deg"]) if np.isfinite(d["dip_deg"])
                      else float(np.degrees(np.median(np.arccos(np.clip(cos, -1, 1))))) - 90.0)
     q0 = g._start_orientations(mag_h, a_unit, window, np.array([np.cos(dip), 0.0, -np.sin(dip)]))
-    p0 = np.concatenate([(float(d["field_norm"]) * np.linalg.inv(t0)).ravel(), d["hard_iron"], [dip], np.zeros(4)])
+    p0 = np.concatenate([(float(d["field_norm"]) * np.linalg.inv(t0)).ravel(), d["hard_iron"], [dip], np.zeros(13)])
     full = g._Problem(mag, turns, dt, window, a_unit, static, q0, float(d["noise"]), 1.0, rate, g.LATENCY_PRIOR_S)
     r_a = full.residuals(full.rows(p0), q0.as_matrix())[1]
     full.sigma_a = max(float(robust_sigma(np.linalg.norm(r_a, axis=1))), 1e-4)  # as fit_with_gyro sets it
@@ -325,13 +363,13 @@ def _on_inliers(case: dict, data: Path, this: dict, base: dict) -> str:
     for owner, r in (("this tree's", this), ("the baseline's", base)):
         prob, used = g._on_rows(full, t_s, rate, np.array(r["inlier_rows"]), f_scale=None)
         fits = [plain_fit(prob.residual, np.array(x["p"]), prob.jacobian) for x in (this, base)]
-        chi2 = float(fits[0].fun @ fits[0].fun) / (fits[0].fun.size - 17 - 3 * len(used))
+        chi2 = float(fits[0].fun @ fits[0].fun) / (fits[0].fun.size - g._Problem.N_GLOBAL - 3 * len(used))
         sigma = np.sqrt(np.diag(g._global_covariance(fits[0].jac, chi2)))
         off = [np.max(np.abs(np.array(x["p"]) - fits[0].x) / sigma) for x in (this, base)]
         words.append(f"on {owner} inliers the plain fit from either tree's parameters meets within "
                      f"{np.max(np.abs(fits[0].x - fits[1].x) / sigma):.1g} sigma, this tree's {off[0]:.2g} sigma "
                      f"from it, the baseline's {off[1]:.2g}")
-    return "; ".join(words) + " (parameters D, h, dip, bias, latency)"
+    return "; ".join(words) + " (parameters D, h, dip, bias, latency, gyro matrix)"
 
 
 def timing(baseline: str, blas_threads: str, every: int = 4, timeout_s: float = 1800.0):

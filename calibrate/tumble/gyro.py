@@ -7,15 +7,17 @@ one IMU), NWU world (SPEC section 1):
 .. math:: x_k = D\,u_k + h + e_k, \qquad u_k = R_k^T b_W, \qquad b_W = (\cos\delta, 0, -\sin\delta),
 
 .. math:: \hat a_k = R_k^T \hat z + f_k \quad (\text{quasi-static rows}), \qquad
-          R_k = Q_j\,\Delta R_k(\beta), \quad \Delta R_k = \prod_{i \in j,\, i \le k} \mathrm{Exp}\big(\phi_i - \beta\,\Delta t_i\big),
+          R_k = Q_j\,\Delta R_k(\beta, G), \quad \Delta R_k = \prod_{i \in j,\, i \le k} \mathrm{Exp}\big(G\,(\phi_i - \beta\,\Delta t_i)\big),
 
 with ``x_k`` the raw magnetometer (recording units; with a latency ``tau`` against the gyro it reads
 ``u(t_k - tau) = (I + tau [w_k]x) u_k`` to first order, ``w_k`` the gyro's rate less its bias, and
 ``tau`` is fitted, see "Latency" below), ``D = F (C S)^{-1}`` its whole response (soft
 iron ``S``, symmetric, det 1; ``C`` = ``mag_to_accel``; ``F`` = |B| in recording units: ``D`` has 9
 free numbers and no gauge, the field ``b_W`` being a unit vector), ``h`` the hard iron, ``delta`` the
-dip, ``phi_i`` the gyro's turn over the rows up to sample ``i`` (:func:`compass.io.tumble.gyro_turns`),
-``beta`` its bias (rad/s, fitted), and ``Q_j = R_world<-housing`` at the start of window ``j``
+dip, ``phi_i`` the gyro's turn over the rows up to sample ``i`` (:func:`compass.io.tumble.gyro_turns`, the
+gyro's frame and scale), ``beta`` its bias (rad/s, in the gyro's reading, fitted), ``G`` (3 x 3, 9 numbers, fitted
+about the identity) the gyro's scale and axis errors against the housing (the accelerometer's frame): the
+housing's rate is ``G (w - beta)``, ``w`` the reading (a gyro reading ``w = G^-1 w_true + beta``), and ``Q_j = R_world<-housing`` at the start of window ``j``
 (its heading free, its tilt pinned by the accelerometer).  ``e_k`` is white magnetometer noise
 (sigma from second differences), ``f_k`` the accelerometer direction's noise and hand motion (robust
 sigma); the loss is the sum of both, weighted, robust (``soft_l1``) then plain on the inliers.
@@ -41,11 +43,27 @@ with every turn ``\Delta R_k``, and a change of ``h`` must be a constant ``D`` t
 - no turn: nothing beyond the present fit.
 
 Gyro errors.  Integrating the gyro accumulates its errors: the bias is fitted (a constant bias
-error ``d beta`` turns ``R_k`` by ``d beta t``); what is not modelled (scale factors and axis
-misalignment, typically 0.5-2 %, a bias that wanders) grows with the angle turned and the time.
+error ``d beta`` turns ``R_k`` by ``d beta t``), and so are the scale and axis errors ``G`` (a low-cost
+IMU's: the MPU-9250's sensitivity tolerance is +-3 %, its cross-axis sensitivity +-2 %), which turn ``R_k``
+by ``dG`` times the angle turned.  What the turns determine of ``G`` (derivation, checked by the Jacobian's rank
+without ``G``'s prior in ``tests/calibrate/tumble/test_gyro.py``): a turn about the housing axis ``n`` exercises
+only ``G n``; its component along ``n`` (the scale) is the turn's angle, which the field and gravity see, and its
+components across ``n`` tilt the turn's axis, which gravity sees (and the field, through ``D``).  So turns about
+every axis determine all 9 numbers, turns about two (``n1``, ``n2``) the 6 of ``G n1``, ``G n2`` (``G`` across both,
+3 numbers, is never exercised), a turn about one axis 3 (6 left).  A rotation of the gyro's frame against the
+housing (``G``'s antisymmetric part) is not absorbed by the windows' free orientations: gravity in the housing frame
+pins them.  ``G`` against the bias: the bias turns by ``d beta t``, ``G`` by ``dG`` times the angle, told apart
+when the rate varies (a constant spin about ``n`` cannot tell the scale along ``n`` from the bias along ``n``).
+``G`` against the latency: the latency follows the instantaneous rate, ``G`` the integrated turn.  A Gaussian prior
+(:data:`GYRO_MATRIX_PRIOR`: 3 % on the diagonal, 2 % across, the datasheet's tolerances) keeps what the turns do not
+see at the identity, its sigma at the prior's; the runtime (``--gyro-matrix``, off by default: on BROAD the
+matrix fitted on one trial cost the others, docs/benchmarks.md) applies only the entries the data saw
+(:func:`compass.calibration.gyro_matrix_seen`).  What stays unmodelled (a bias that wanders, an accelerometer's own
+scale errors, which tilt gravity unevenly) grows with the angle turned and the time.
 Each window restarts the integration with its own ``Q_j``: a window closes after
 :data:`WINDOW_TURN_DEG` of turn or :data:`WINDOW_S` seconds, so a 1 % scale error costs at most
-~0.6 deg of orientation inside a window (an 0.3 uT noise on a 50 uT field is 0.34 deg per sample),
+~0.6 deg of orientation inside a window if it were not fitted (an 0.3 uT noise on a 50 uT field is 0.34 deg
+per sample),
 while each window still holds turns large enough to see the rotation between the sensors.  The
 windows keep the information that ties them together: one field (``|B|``, dip) and the gravity of
 every quasi-static row.
@@ -63,21 +81,21 @@ on trials 01 and 06 alike).  The first-order form leaves ``(tau |w|)^2 / 2`` of 
 20 ms and 4 rad/s.
 
 Cost.  ``n`` rows (``n_s`` of them quasi-static), ``n_w`` windows (a fast recording closes one every
-60 deg: 482 on BROAD 06's 125 s, 1151 on a simulated 300 s fast rotation), 17 global parameters
-(``D``, ``h``, ``delta``, ``beta``, ``tau``) and 3 per window.  The joint least squares over all
+60 deg: 482 on BROAD 06's 125 s, 1151 on a simulated 300 s fast rotation), 26 global parameters
+(``D``, ``h``, ``delta``, ``beta``, ``tau``, ``G``; 17 before ``G``) and 3 per window.  The joint least squares over all
 ``17 + 3 n_w`` (1463 on BROAD 06) with scipy's ``trf`` and ``lsmr`` on the sparse Jacobian took ~40
 outer iterations per pass, each an ``lsmr`` solve of ~120 sparse products on ``3 (n + n_s)`` rows, the
 prefix products and the Jacobian recomputed on every row each time; 10-40 s of CPU on BROAD 06's
 8755 rows, minutes on 35000.  The windows' orientations enter each window's rows only, so they are
-projected out (:class:`_Problem`): the outer least squares sees the 17 globals and a dense ``m x 17``
+projected out (:class:`_Problem`): the outer least squares sees the 26 globals and a dense ``m x 26``
 reduced Jacobian (analytic: the chain rule through the prefix products, ``G_k``, then the projection);
 each window's orientation is solved inside by Newton steps on its own 3 x 3 problem, which for the
 plain loss is a quadratic form of per-window sums formed once per outer evaluation (a step costs
 nothing per row).  Per outer evaluation: the prefix products ``O(n log L)`` (``L`` the longest
-window's rows), the sums and the Jacobian ``O(17 n)``.  The robust (``soft_l1``) fit needs the rows'
+window's rows), the sums and the Jacobian ``O(26 n)``.  The robust (``soft_l1``) fit needs the rows'
 weights at every window step, so it runs on at most :data:`ROBUST_ROWS` rows (every ``k``-th of each
 window): it only starts the plain fit and sets the outlier test, which judges every row with every
-window's orientation solved on all its rows.  The plain fit (Gauss-Newton on the 17 x 17 normal
+window's orientation solved on all its rows.  The plain fit (Gauss-Newton on the 26 x 26 normal
 equations, :func:`calibrate.tumble.ellipsoid.plain_fit`) uses every inlier: its Cramer-Rao bound is
 the whole recording's, unchanged by the thinning (``tools/bench_gyro_tumble.py --timing``: the
 parameters within 0.002 sigma of the joint fit's on simulated recordings, 0.05 sigma on BROAD 06's every
@@ -95,7 +113,7 @@ from scipy.linalg import polar
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from compass.calibration import latency_seen
+from compass.calibration import MAX_GYRO_MATRIX_ERROR, gyro_matrix_seen, latency_seen
 
 from ..diagnosis.forms import json_float
 from ..noise import robust_sigma, second_difference_sigma, second_differences
@@ -106,7 +124,7 @@ from .motion import FAST_MOTION_WARNING
 from .result import TumbleResult
 
 __all__ = ["GyroFit", "GyroMismatch", "falls_back", "fit_with_gyro", "with_gyro", "turn_axes", "turn_rates",
-           "LATENCY_PRIOR_S", "WINDOW_S", "WINDOW_TURN_DEG", "MAX_ROTATION_SIGMA_DEG"]
+           "GYRO_MATRIX_PRIOR", "LATENCY_PRIOR_S", "WINDOW_S", "WINDOW_TURN_DEG", "MAX_ROTATION_SIGMA_DEG"]
 
 WINDOW_S = 10.0
 """A window of integrated gyro turns closes after this long, s."""
@@ -135,6 +153,19 @@ that keeps the latency defined when the housing hardly turned, where the data ca
 
 _FIXED_S = 1e-9
 """The prior sigma that holds the latency at zero (``fit_latency=False``), s."""
+
+GYRO_SCALE_PRIOR = 0.03
+"""Prior sigma of each of the gyro matrix's diagonal entries (``G - I``): the MPU-9250's sensitivity scale
+factor tolerance, +-3 % at 25 C (InvenSense PS-MPU-9250A-01 rev 1.1, table 1)."""
+
+GYRO_CROSS_PRIOR = 0.02
+"""Prior sigma of each off-diagonal entry: the same sheet's cross-axis sensitivity, +-2 %."""
+
+GYRO_MATRIX_PRIOR = np.where(np.eye(3, dtype=bool), GYRO_SCALE_PRIOR, GYRO_CROSS_PRIOR).ravel()
+"""Prior sigma of ``G - I``, row-major (9): what the data do not determine stays at the identity."""
+
+_FIXED_GYRO = np.full(9, 1e-9)
+"""The prior sigma that holds ``G`` at the identity (``fit_gyro_matrix=False``)."""
 
 MIN_INLIER_FRACTION = 0.5
 """A fit that keeps fewer of the samples says the model does not hold (:class:`GyroMismatch`)."""
@@ -166,6 +197,9 @@ class GyroFit:
     gyro_bias_rad_s, gyro_bias_sigma_rad_s : ndarray, shape (3,)
     latency_s, latency_sigma_s : float
         How late the magnetometer reads against the gyro, s (> 0: it reads the field of ``t - tau``).
+    gyro_matrix, gyro_matrix_sigma : ndarray, shape (3, 3)
+        ``G``: the housing-frame rate is ``G (w - beta)``, ``w`` the gyro's reading (dimensionless); the
+        prior's sigma where the data saw nothing.
     n_windows, n_static : int
         Windows of integration; quasi-static accelerometer rows used.
     inliers : ndarray of bool, shape (n,)
@@ -197,6 +231,8 @@ class GyroFit:
     gyro_bias_sigma_rad_s: np.ndarray
     latency_s: float
     latency_sigma_s: float
+    gyro_matrix: np.ndarray
+    gyro_matrix_sigma: np.ndarray
     n_windows: int
     n_static: int
     inliers: np.ndarray
@@ -217,12 +253,23 @@ class GyroFit:
     def determined(self) -> bool:
         return self.success and not self.undetermined
 
+    @property
+    def gyro_matrix_usable(self) -> bool:
+        """Whether the fitted gyro matrix goes into the file: every sigma given and every entry of ``G - I`` within
+        :data:`compass.calibration.MAX_GYRO_MATRIX_ERROR` (a fit that wandered where the turns saw nothing, as a
+        translation, is neither; the reader would refuse it)."""
+        return bool(np.all(np.isfinite(self.gyro_matrix_sigma))
+                    and np.all(np.abs(self.gyro_matrix - np.eye(3)) <= MAX_GYRO_MATRIX_ERROR))
+
     def to_json(self) -> dict:
-        """The file's ``tumble.gyro`` block (JSON-ready)."""
+        """The file's ``tumble.gyro`` block (JSON-ready; ``gyro_matrix`` null when not :attr:`gyro_matrix_usable`)."""
+        usable = self.gyro_matrix_usable
         return {"method": "gyro", "n_windows": self.n_windows, "window_s": WINDOW_S, "window_turn_deg": WINDOW_TURN_DEG,
                 "gyro_bias_rad_s": self.gyro_bias_rad_s.tolist(),
                 "gyro_bias_sigma_rad_s": [json_float(v) for v in self.gyro_bias_sigma_rad_s],
                 "mag_latency_s": self.latency_s, "mag_latency_sigma_s": json_float(self.latency_sigma_s),
+                "gyro_matrix": self.gyro_matrix.tolist() if usable else None,
+                "gyro_matrix_sigma": [[json_float(v) for v in row] for row in self.gyro_matrix_sigma] if usable else None,
                 "mag_residual_rms": self.mag_rms, "noise": self.noise, "n_static": self.n_static,
                 "n_outliers": int(np.count_nonzero(~self.inliers)), "turns": self.turns,
                 "undetermined": list(self.undetermined), "words": self.words()}
@@ -237,11 +284,26 @@ class GyroFit:
         return (f"; the magnetometer {ms} early against the gyro (the gyro is the late one), fitted: "
                 "the runtime filter's mag_latency_s cannot compensate it")
 
+    def _gyro_matrix_words(self) -> str:
+        """The gyro's scale and axis errors the data saw (:func:`compass.calibration.gyro_matrix_seen`, the rule the
+        runtime reads the file's matrix by), and the turn axes whose response it did not see."""
+        seen = gyro_matrix_seen(self.gyro_matrix_sigma) & self.gyro_matrix_usable
+        if not seen.any():
+            return "; the gyro's scale and axes not seen: the runtime leaves the gyro as read"
+        error = 100 * (self.gyro_matrix - np.eye(3))
+        scale = ", ".join(f"{error[i, i]:+.2f}" if seen[i, i] else "unseen" for i in range(3))
+        cross = np.abs(error[seen & ~np.eye(3, dtype=bool)])
+        words = (f"; the gyro's scale x, y, z {scale} % (max sigma {100 * np.max(self.gyro_matrix_sigma[seen]):.2f} %)"
+                 + (f", its axes off by up to {np.max(cross):.2f} %" if cross.size else "")
+                 + ", fitted: the runtime corrects the gyro by it with --gyro-matrix")
+        unseen = [_AXES[j] for j in range(3) if not seen[:, j].any()]
+        return words + (f" (turns about {', '.join(unseen)} not seen: left as read)" if unseen else "")
+
     def words(self) -> str:
         """What the gyro-aided fit determined, for the coverage words."""
         base = (f"with the gyro's turns ({self.turns}; {self.n_windows} windows of integration, gyro bias "
                 + ", ".join(f"{np.degrees(b):+.3f}" for b in self.gyro_bias_rad_s) + " deg/s"
-                + self._latency_words() + ")")
+                + self._latency_words() + self._gyro_matrix_words() + ")")
         if self.determined:
             return base + ": the soft iron and the rotation to the housing are determined"
         if self.undetermined:  # said first: a fit that wandered along what the data leave free fails too
@@ -364,8 +426,11 @@ class _Rows:
     db_w: np.ndarray  # d b_W / d delta
     tau: float
     rel: np.ndarray  # Delta R_k, (n, 3, 3)
-    g: np.ndarray  # d turn / d beta, (n, 3, 3)
-    omega: np.ndarray  # the rate less the bias, (n, 3)
+    psi: np.ndarray  # the raw turn less the bias, (n, 3) (zero at a window's first row)
+    phi: np.ndarray  # G psi: the turn, (n, 3)
+    gyro: np.ndarray  # G, (3, 3)
+    rate_b: np.ndarray  # the raw rate less the bias, (n, 3)
+    omega: np.ndarray  # G (rate - beta), (n, 3)
     resp: np.ndarray  # D M_k Delta R_k^T / sigma_m: the reading's response to the window's field Q_j^T b_W, (n, 3, 3)
     e: np.ndarray  # (x_k - h) / sigma_m, (n, 3)
 
@@ -413,8 +478,10 @@ def _window_newton(q: np.ndarray, b_w: np.ndarray, grad: _Sums, gn: _Sums) -> np
 class _Problem:
     """The gyro-aided model on fixed rows (see the module docstring), the windows' orientations projected out.
 
-    The global parameters ``p`` (17): ``D`` (9, row-major), ``h`` (3), ``delta`` (1, rad), ``beta`` (3,
-    rad/s), ``tau`` (1, s: the magnetometer's latency against the gyro).  The windows' orientations
+    The global parameters ``p`` (26): ``D`` (9, row-major), ``h`` (3), ``delta`` (1, rad), ``beta`` (3,
+    rad/s), ``tau`` (1, s: the magnetometer's latency against the gyro), ``E = G - I`` (9, row-major: the gyro's
+    scale and axes; the turn's derivative ``d phi_i = dE (phi_i^raw - beta dt_i)``, chained through the prefix
+    products as ``beta``'s, :meth:`_turn_derivatives`).  The windows' orientations
     ``Q_j`` are not parameters of the outer least squares: for each ``p`` every window's is solved
     (:meth:`residual`: Newton steps on each window's 3 x 3 problem, all windows at once, each started
     from its last solution; with the plain loss a window's loss is a quadratic form in its field and
@@ -427,20 +494,23 @@ class _Problem:
     turn (``Q_j -> Exp(d) Q_j``: a block of 3 columns per window, one window per row), ``W`` the loss's
     curvature.  The reduced problem has the joint problem's minimum, and there ``J^T J`` is the Schur
     complement of the joint normal equations' window blocks: the global covariance with the windows
-    marginalised.  The last residual is ``tau``'s prior, ``tau / tau_prior_s`` (a tiny prior fixes the
-    latency at zero).  ``f_scale`` None is the plain loss; a number, scipy's ``soft_l1`` with that
+    marginalised.  The last residuals are the priors (:data:`N_PRIOR`): ``tau``'s, ``tau / tau_prior_s`` (a tiny
+    prior fixes the latency at zero), and ``E``'s, ``E / gyro_prior`` (a tiny one fixes ``G`` at the identity).  ``f_scale`` None is the plain loss; a number, scipy's ``soft_l1`` with that
     scale, which the windows' steps then minimise too.
     """
 
-    N_GLOBAL = 17
+    N_GLOBAL = 26
+    N_PRIOR = 10
+    """The prior residuals at the end: the latency's (1) and the gyro matrix's (9)."""
 
     def __init__(self, mag, turns, dt, window, a_unit, static, q_start, sigma_m, sigma_a, rate,
-                 tau_prior_s=LATENCY_PRIOR_S, f_scale=None):
+                 tau_prior_s=LATENCY_PRIOR_S, f_scale=None, gyro_prior=None):
         self.mag, self.turns, self.dt, self.window, self.rate = mag, turns, dt, window, rate
         self.a_unit, self.static = a_unit[static], np.flatnonzero(static)
         self.window_a = window[self.static]
         self.orientation = q_start  # Q_j of each window, Rotation: the last solution
         self.sigma_m, self.sigma_a, self.tau_prior_s, self.f_scale = sigma_m, sigma_a, tau_prior_s, f_scale
+        self.gyro_prior = GYRO_MATRIX_PRIOR if gyro_prior is None else np.asarray(gyro_prior, float).ravel()
         n, n_s = len(mag), len(self.static)
         self.n_w = int(window[-1]) + 1
         starts = np.r_[0, np.flatnonzero(np.diff(window)) + 1]
@@ -453,33 +523,42 @@ class _Problem:
         self._sum_a = sparse.csr_matrix((np.ones(n_s), (self.window_a, np.arange(n_s))), shape=(self.n_w, n_s))
         self._last = None  # (p, _Rows, orientations (n_w, 3, 3)) of the last residual
 
-    def _relative(self, beta):
-        """``Delta R_k`` (matrices, shape (n, 3, 3)) and ``G_k`` (d of its turn / d beta, up to sign)."""
-        phi = self.turns - np.outer(self.dt, beta)
-        phi[self.first] = 0.0  # a window starts at its first sample
+    def _relative(self, beta, gyro):
+        """``Delta R_k`` (matrices, shape (n, 3, 3)) and the turns ``psi`` (raw, less the bias) and ``phi = G psi``."""
+        psi = self.turns - np.outer(self.dt, beta)  # the raw turn less the bias
+        psi[self.first] = 0.0  # a window starts at its first sample
+        phi = psi @ gyro.T
         quat = Rotation.from_rotvec(phi).as_quat()
         shift = 1
         while shift < self.longest:  # prefix products within each window (Hillis-Steele scan, segmented)
             later = np.flatnonzero(self.slot >= shift)  # rows whose row `shift` back is in their window
             quat[later] = _qmul(quat[later - shift], quat[later])
             shift *= 2
-        rel = Rotation.from_quat(quat).as_matrix()
-        step = rel @ _so3_jacobian(phi, -1.0) * self.dt[:, None, None]
-        step[self.first] = 0.0
+        return Rotation.from_quat(quat).as_matrix(), psi, phi
+
+    def _turn_derivatives(self, rows: _Rows) -> tuple[np.ndarray, np.ndarray]:
+        """``G_k`` (d of ``Delta R_k``'s turn / d beta, up to sign; (n, 3, 3)) and its derivative w.r.t. ``E = G - I``
+        (row-major, (n, 3, 9)), both in the window's start frame (only the Jacobian needs them)."""
+        turn = rows.rel @ _so3_jacobian(rows.phi, -1.0)  # a change d phi_i turns every later Delta R_k by Exp(turn d phi_i)
+        turn[self.first] = 0.0
+        step = np.concatenate([turn @ rows.gyro * self.dt[:, None, None],  # d phi_i = -G d beta dt_i
+                               (turn[..., :, None] * rows.psi[:, None, None, :]).reshape(-1, 3, 9)], axis=2)  # dE psi_i
         cum = np.cumsum(step, axis=0)
-        base = cum[self.first][self.window] - step[self.first][self.window]
-        return rel, cum - base
+        cum -= cum[self.first][self.window]  # the first row of each window holds zero
+        return cum[..., :3], cum[..., 3:]
 
     def rows(self, p) -> _Rows:
         """What the rows need from the global parameters ``p``."""
         d = p[:9].reshape(3, 3)
         delta, beta, tau = p[12], p[13:16], float(p[16])
-        rel, g = self._relative(beta)
-        omega = self.rate - beta
+        gyro = np.eye(3) + p[17:26].reshape(3, 3)
+        rel, psi, phi = self._relative(beta, gyro)
+        rate_b = self.rate - beta
+        omega = rate_b @ gyro.T
         late = np.eye(3) + tau * _skew(omega)  # u(t_k - tau) = (I + tau [w]x) u(t_k), first order
         resp = (d / self.sigma_m) @ late @ np.transpose(rel, (0, 2, 1))
         return _Rows(p, d, np.array([np.cos(delta), 0.0, -np.sin(delta)]),
-                     np.array([-np.sin(delta), 0.0, -np.cos(delta)]), tau, rel, g, omega, resp,
+                     np.array([-np.sin(delta), 0.0, -np.cos(delta)]), tau, rel, psi, phi, gyro, rate_b, omega, resp,
                      (self.mag - p[9:12]) / self.sigma_m)
 
     def residuals(self, rows: _Rows, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -565,11 +644,15 @@ class _Problem:
         q = self._solve_windows(rows)
         self._last = (p, rows, q)
         r_m, r_a = self.residuals(rows, q)
-        return np.concatenate([r_m.ravel(), r_a.ravel(), [rows.tau / self.tau_prior_s]])
+        return np.concatenate([r_m.ravel(), r_a.ravel(), [rows.tau / self.tau_prior_s], self.prior_e(p)])
+
+    def prior_e(self, p) -> np.ndarray:
+        """The gyro matrix's prior residuals, ``(G - I) / sigma`` (9)."""
+        return p[17:26] / self.gyro_prior
 
     def global_jacobian(self, rows: _Rows, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``J_g``: the residual's derivative w.r.t. ``p`` at the fixed orientations ``q``, magnetometer
-        (n, 3, 17) and accelerometer rows (n_s, 3, 17)."""
+        (n, 3, 26) and accelerometer rows (n_s, 3, 26)."""
         n, s = len(self.mag), self.static
         d, tau, omega = rows.d / self.sigma_m, rows.tau, rows.omega
         q_t = np.transpose(q, (0, 2, 1))
@@ -582,16 +665,23 @@ class _Problem:
             blocks[:, i, 3 * i:3 * i + 3] = -(u + tau * w_u) / self.sigma_m
         blocks[:, :, 9:12] = -np.eye(3) / self.sigma_m
         blocks[:, :, 12] = -(rows.resp @ (q_t @ rows.db_w)[self.window][..., None])[..., 0]
-        # dr/dbeta = D M Delta R^T [v]x G - tau D [u]x (M = I + tau [w]x, w = rate - beta); dr/dtau = -D (w x u)
-        blocks[:, :, 13:16] = rows.resp @ _skew(v) @ rows.g - tau * d @ _skew(u)
+        # dr/dbeta = D M Delta R^T [v]x G_k - tau D [u]x G (M = I + tau [w]x, w = G (rate - beta));
+        # dr/dE = -D M Delta R^T [v]x G^E_k + tau D [u]x (dE (rate - beta)); dr/dtau = -D (w x u)
+        k_u = _skew(u)
+        g, g_e = self._turn_derivatives(rows)
+        turned = rows.resp @ _skew(v)  # the reading's response to a turn of Delta R_k
+        blocks[:, :, 13:16] = turned @ g - tau * d @ k_u @ rows.gyro
         blocks[:, :, 16] = -w_u @ d.T
+        late_e = (k_u[..., :, None] * rows.rate_b[:, None, None, :]).reshape(n, 3, 9)  # [u]x dE (rate - beta)
+        blocks[:, :, 17:26] = tau * d @ late_e - turned @ g_e
         a_blocks = np.zeros((len(s), 3, self.N_GLOBAL))  # accelerometer rows: up = Delta R^T Q^T z
-        a_blocks[:, :, 13:16] = (np.transpose(rows.rel[s], (0, 2, 1)) @ _skew(q[self.window_a, 2, :]) @ rows.g[s]
-                                 / self.sigma_a)
+        a_turn = np.transpose(rows.rel[s], (0, 2, 1)) @ _skew(q[self.window_a, 2, :]) / self.sigma_a
+        a_blocks[:, :, 13:16] = a_turn @ g[s]
+        a_blocks[:, :, 17:26] = -(a_turn @ g_e[s])
         return blocks, a_blocks
 
     def jacobian(self, p):
-        """The reduced residual's Jacobian at ``p`` (dense, (m, 17); see the class docstring)."""
+        """The reduced residual's Jacobian at ``p`` (dense, (m, 26); see the class docstring)."""
         p = np.array(p, dtype=float)
         if self._last is None or not np.array_equal(p, self._last[0]):
             self.residual(p)
@@ -606,13 +696,14 @@ class _Problem:
         h = (np.transpose(k_b, (0, 2, 1)) @ sums.s @ k_b + np.transpose(k_z, (0, 2, 1)) @ sums.a @ k_z)
         resp_t_w = np.transpose(rows.resp, (0, 2, 1)) * c_m[:, None, :]
         rel_w = rows.rel[self.static] * c_a[:, None, :] / self.sigma_a
-        c = (np.transpose(k_b, (0, 2, 1)) @ (self._sum_m @ (resp_t_w @ j_m).reshape(len(j_m), -1)).reshape(-1, 3, 17)
-             + np.transpose(k_z, (0, 2, 1)) @ (self._sum_a @ (rel_w @ j_a).reshape(len(j_a), -1)).reshape(-1, 3, 17))
-        x = np.linalg.pinv(h, rcond=_RCOND, hermitian=True) @ -c  # (n_w, 3, 17): each window's turn per unit of p
+        c = (np.transpose(k_b, (0, 2, 1)) @ (self._sum_m @ (resp_t_w @ j_m).reshape(len(j_m), -1)).reshape(-1, 3, self.N_GLOBAL)
+             + np.transpose(k_z, (0, 2, 1)) @ (self._sum_a @ (rel_w @ j_a).reshape(len(j_a), -1)).reshape(-1, 3, self.N_GLOBAL))
+        x = np.linalg.pinv(h, rcond=_RCOND, hermitian=True) @ -c  # (n_w, 3, 26): each window's turn per unit of p
         j_m += rows.resp @ (k_b @ x)[self.window]  # J_g - J_l x, -J_l = resp Q^T [b]x
         j_a += np.transpose(rows.rel[self.static], (0, 2, 1)) @ (k_z @ x)[self.window_a] / self.sigma_a
-        prior = np.zeros((1, self.N_GLOBAL))
+        prior = np.zeros((1 + 9, self.N_GLOBAL))
         prior[0, 16] = 1.0 / self.tau_prior_s
+        prior[1:, 17:26] = np.eye(9) / self.gyro_prior
         return np.vstack([j_m.reshape(-1, self.N_GLOBAL), j_a.reshape(-1, self.N_GLOBAL), prior])
 
 
@@ -628,7 +719,7 @@ def _start_orientations(mag_h, a_unit, window, b_w):
 
 
 def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_norm, mag_to_accel=None,
-                  dip_deg=None, noise=None, fit_latency=True) -> GyroFit:
+                  dip_deg=None, noise=None, fit_latency=True, fit_gyro_matrix=True) -> GyroFit:
     """Fit the gyro-aided model from a start (the present tumble fit's values).
 
     Parameters
@@ -650,6 +741,9 @@ def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_nor
     fit_latency : bool
         Fit the magnetometer's latency against the gyro (prior sigma :data:`LATENCY_PRIOR_S`); False
         holds it at zero (the model before the latency, for comparison).
+    fit_gyro_matrix : bool
+        Fit the gyro's scale and axes ``G`` (prior :data:`GYRO_MATRIX_PRIOR`); False holds it at the
+        identity (the model before it, for comparison).
 
     Returns
     -------
@@ -695,10 +789,11 @@ def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_nor
     rate = turn_rates(turns, dt)
     b_w = np.array([np.cos(delta0), 0.0, -np.sin(delta0)])
     q_start = _start_orientations(mag_h, a_unit, window, b_w)
-    p0 = np.concatenate([(field_norm * np.linalg.inv(t0)).ravel(), hard_iron, [delta0], np.zeros(3), [0.0]])
+    p0 = np.concatenate([(field_norm * np.linalg.inv(t0)).ravel(), hard_iron, [delta0], np.zeros(3), [0.0],
+                         np.zeros(9)])
     prior = LATENCY_PRIOR_S if fit_latency else _FIXED_S
     prob = _Problem(mag, turns, dt, window, a_unit, static, q_start, max(noise, 1e-12), 1.0, rate, prior,
-                    f_scale=ROBUST_F_SCALE)
+                    f_scale=ROBUST_F_SCALE, gyro_prior=GYRO_MATRIX_PRIOR if fit_gyro_matrix else _FIXED_GYRO)
     r_a = prob.residuals(prob.rows(p0), q_start.as_matrix())[1]  # the accelerometer's scatter at the start
     prob.sigma_a = max(float(robust_sigma(np.linalg.norm(r_a, axis=1))), 1e-4)
     thin, _ = _on_rows(prob, t_s, rate, _robust_rows(window), f_scale=ROBUST_F_SCALE)
@@ -708,7 +803,7 @@ def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_nor
     fun = prob.residual(robust.x)  # every row's residual, every window's orientation solved on all its rows
     r = fun[:3 * n].reshape(n, 3)
     inliers = np.linalg.norm(r, axis=1) < OUTLIER_SIGMAS * np.sqrt(3.0)
-    keep_a = np.linalg.norm(fun[3 * n:-1].reshape(-1, 3), axis=1) < OUTLIER_SIGMAS * np.sqrt(3.0)
+    keep_a = np.linalg.norm(fun[3 * n:-_Problem.N_PRIOR].reshape(-1, 3), axis=1) < OUTLIER_SIGMAS * np.sqrt(3.0)
     if np.count_nonzero(inliers) < MIN_INLIER_FRACTION * n or np.count_nonzero(keep_a) < 20:
         raise GyroMismatch(f"the magnetometer and the gyro disagree: the fit rejected {n - np.count_nonzero(inliers)} of "
                            f"{n} samples beyond {OUTLIER_SIGMAS:g} noise sigmas (a magnetometer late against the gyro, "
@@ -745,11 +840,12 @@ def _on_rows(prob: _Problem, t_s, rate, rows, *, f_scale, keep_a=None) -> tuple[
     remap = np.full(prob.n_w, -1)
     remap[used] = np.arange(len(used))
     return _Problem(prob.mag[rows], turns, dt, remap[prob.window[rows]], a_unit[rows], static[rows],
-                    prob.orientation[used], prob.sigma_m, prob.sigma_a, rate[rows], prob.tau_prior_s, f_scale), used
+                    prob.orientation[used], prob.sigma_m, prob.sigma_a, rate[rows], prob.tau_prior_s, f_scale,
+                    prob.gyro_prior), used
 
 
 def _global_covariance(jac: np.ndarray, chi2: float) -> np.ndarray | None:
-    """Covariance of the 17 global parameters, the windows' orientations marginalised (None if singular).
+    """Covariance of the 26 global parameters, the windows' orientations marginalised (None if singular).
 
     ``jac`` is the reduced Jacobian of the plain fit (:class:`_Problem`): ``J^T J`` is the Schur
     complement of the joint normal equations' block-diagonal window part, each 3 x 3 block
@@ -785,12 +881,13 @@ def _result(final, cov, prob, inliers, noise, turns, n_w) -> GyroFit:
     if cov is None:
         sig_h, sig_s, sig_f, sig_rot, sig_dip = (np.full(3, np.inf), np.full((3, 3), np.inf), np.inf,
                                                  np.full(3, np.inf), np.inf)
-        sig_beta, sig_tau = np.full(3, np.inf), np.inf
+        sig_beta, sig_tau, sig_g = np.full(3, np.inf), np.inf, np.full((3, 3), np.inf)
     else:
         sig_h = np.sqrt(np.clip(np.diag(cov)[9:12], 0, None))
         sig_dip = float(np.degrees(np.sqrt(max(cov[12, 12], 0.0))))
         sig_beta = np.sqrt(np.clip(np.diag(cov)[13:16], 0, None))
         sig_tau = float(np.sqrt(max(cov[16, 16], 0.0)))
+        sig_g = np.sqrt(np.clip(np.diag(cov)[17:26], 0, None)).reshape(3, 3)
         grads = np.empty((9 + 1 + 3, 9))  # d(S, F, rotvec) / d(D)
         for j in range(9):
             step = np.zeros_like(q)
@@ -815,7 +912,8 @@ def _result(final, cov, prob, inliers, noise, turns, n_w) -> GyroFit:
         undetermined.append(f"the rotation to the housing about {', '.join(bad_r)} (sigma up to "
                             f"{np.max(sig_rot):.2g} deg)")
     return GyroFit(h, sig_h, s, sig_s, f_norm, sig_f, rot, np.degrees(rot.as_rotvec()), sig_rot,
-                   float(np.degrees(delta)), sig_dip, q[13:16], sig_beta, float(q[16]), sig_tau, n_w, len(prob.static),
+                   float(np.degrees(delta)), sig_dip, q[13:16], sig_beta, float(q[16]), sig_tau,
+                   np.eye(3) + q[17:26].reshape(3, 3), sig_g, n_w, len(prob.static),
                    inliers, mag_rms, float(noise), tuple(undetermined), turn_axes(turns[inliers]), success, message)
 
 
@@ -858,14 +956,15 @@ def misalignment_from(g: GyroFit, mag_cal: np.ndarray, accel: np.ndarray) -> Mis
 
 
 def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_rad: np.ndarray, t_s: np.ndarray,
-              temp_c: np.ndarray | None = None, *, fit_latency: bool = True) -> TumbleResult:
+              temp_c: np.ndarray | None = None, *, fit_latency: bool = True,
+              fit_gyro_matrix: bool = True) -> TumbleResult:
     """The present tumble result, or the gyro-aided one where that one is determined.
 
     Parameters
     ----------
     result : TumbleResult
         :func:`calibrate.tumble.calibrate_tumble`'s on the same samples (the start values).
-    mag, accel, turns_rad, t_s, temp_c, fit_latency :
+    mag, accel, turns_rad, t_s, temp_c, fit_latency, fit_gyro_matrix :
         As :func:`fit_with_gyro` (``temp_c`` for the diagnosis).
 
     Returns
@@ -881,7 +980,8 @@ def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_ra
     try:
         g = fit_with_gyro(mag, accel, turns_rad, t_s, hard_iron=start.hard_iron, soft_iron=start.soft_iron,
                           field_norm=start.field_norm, mag_to_accel=result.mag_to_accel,
-                          dip_deg=None if mis is None else mis.dip_deg, noise=result.noise, fit_latency=fit_latency)
+                          dip_deg=None if mis is None else mis.dip_deg, noise=result.noise, fit_latency=fit_latency,
+                          fit_gyro_matrix=fit_gyro_matrix)
     except (GyroMismatch, np.linalg.LinAlgError) as exc:  # the present fit stands, said why
         return replace(result, warnings=result.warnings + (f"gyro-aided fit not used: {exc}",),
                        gyro={"method": "gyro", "used": False, "words": str(exc)})

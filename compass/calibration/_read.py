@@ -26,7 +26,7 @@ from ._format import CHANNEL_KINDS, FORMAT, KIND_KEY, TUMBLE_CHANNELS
 from ._imu import ImuCorrection
 from ._value import Calibration, Installation, Provenance, TumbleForm
 
-__all__ = ["KINDS", "from_dict", "kind_of", "latency_seen", "load", "loads", "model_from_dict"]
+__all__ = ["KINDS", "MAX_GYRO_MATRIX_ERROR", "from_dict", "gyro_matrix_seen", "kind_of", "latency_seen", "load", "loads", "model_from_dict"]
 
 KINDS = ("fourflip", "platform3d", "reference", "channels", "tumble", "installed")
 """Every kind the reader knows (the file's ``"model"``)."""
@@ -38,6 +38,13 @@ MAX_MAG_LATENCY_S = 0.25
 LATENCY_SIGMA_SEEN_S = 0.01
 """A fitted latency counts as seen only with a standard error below this, s: a fifth of the gyro-aided fit's
 prior (``calibrate.tumble.gyro.LATENCY_PRIOR_S``), so the prior did not make it."""
+MAX_GYRO_MATRIX_ERROR = 0.2
+"""Largest ``|G - I|`` entry a file's gyro matrix may hold: 20 %, seven times the MPU-9250's scale tolerance (3 %);
+beyond it the gyro's unit or an axis is wrong, not its scale."""
+GYRO_MATRIX_SIGMA_SEEN = 0.005
+"""An entry of the fitted gyro matrix counts as seen with a standard error below this (0.5 %, the gyro scale error
+the filter's noise allows for, ``FilterConfig.gyro_scale_error``; the fit's prior is 2-3 %): the runtime applies
+the seen entries and holds the others at the identity's."""
 
 
 def load(path) -> Calibration:
@@ -358,6 +365,7 @@ def _tumble(d: dict) -> tuple:
         temperature=_temperature(d, TUMBLE_CHANNELS, gains),
         iron_uncertainty=_tumble_uncertainty(block, soft, rot, mag_to_accel is not None, field_norm),
         mag_latency_s=_mag_latency_s(block.get("gyro")),
+        gyro_matrix=_gyro_matrix(block.get("gyro")),
     )
     norm = block.get("field_norm_recording_units")
     if norm is None and field_ut is None:
@@ -469,6 +477,59 @@ def _mag_latency_s(gyro) -> float:
     tau = check.number(tau, "tumble.gyro.mag_latency_s", low=-MAX_MAG_LATENCY_S, high=MAX_MAG_LATENCY_S)
     sigma = check.number(sigma, "tumble.gyro.mag_latency_sigma_s", nonnegative=True, allow_none=True)
     return tau if sigma is not None and tau > 0.0 and latency_seen(tau, sigma) else 0.0
+
+
+def _gyro_matrix(gyro) -> np.ndarray | None:
+    """``tumble.gyro.gyro_matrix`` (``G``: the housing-frame rate is ``G w``, ``w`` the gyro's reading) with each entry
+    the data did not see (:func:`gyro_matrix_seen` of ``gyro_matrix_sigma``; no sigma: none seen) at the identity's;
+    None when no entry was seen.  Refused: not 3 x 3 numbers, an entry of ``G - I`` beyond
+    +-:data:`MAX_GYRO_MATRIX_ERROR`, a negative sigma."""
+    if gyro is None:
+        return None
+    gyro = check.obj(gyro, "tumble.gyro")
+    if gyro.get("gyro_matrix") is None:
+        return None
+    g = check.array(gyro["gyro_matrix"], (3, 3), "tumble.gyro.gyro_matrix")
+    error = g - np.eye(3)
+    if np.any(np.abs(error) > MAX_GYRO_MATRIX_ERROR):
+        i, j = np.unravel_index(np.argmax(np.abs(error)), (3, 3))
+        raise CalibrationFileError(f"must be within {100 * MAX_GYRO_MATRIX_ERROR:g} % of the identity (a gyro scale or "
+                                   f"axis error; beyond, its unit or an axis is wrong), got {g[i, j]:g} at row {i}, "
+                                   f"column {j}", key="tumble.gyro.gyro_matrix")
+    sigma = _gyro_matrix_sigma(gyro.get("gyro_matrix_sigma"))
+    if sigma is None:
+        return None
+    seen = gyro_matrix_seen(sigma)
+    return np.where(seen, g, np.eye(3)) if seen.any() else None
+
+
+def _gyro_matrix_sigma(v) -> np.ndarray | None:
+    """``tumble.gyro.gyro_matrix_sigma``: 3 x 3 non-negative numbers, null where the fit gave no sigma (inf);
+    None when absent."""
+    key = "tumble.gyro.gyro_matrix_sigma"
+    if v is None:
+        return None
+    if not (isinstance(v, list) and len(v) == 3 and all(isinstance(row, list) and len(row) == 3 for row in v)):
+        raise CalibrationFileError(f"must be 3x3 nested lists of numbers or nulls, got {check.show(v)}", key=key)
+    return np.array([[np.inf if e is None else check.number(e, f"{key}[{i}][{j}]", nonnegative=True, high=SIGMA_LIMIT)
+                      for j, e in enumerate(row)] for i, row in enumerate(v)])
+
+
+def gyro_matrix_seen(sigma) -> np.ndarray:
+    """Which entries of a fitted gyro matrix the data saw: standard error below :data:`GYRO_MATRIX_SIGMA_SEEN`
+    (the one rule for the calibration's words and the runtime).
+
+    Parameters
+    ----------
+    sigma : array_like, shape (3, 3)
+        The entries' standard errors (dimensionless; inf or NaN where none).
+
+    Returns
+    -------
+    ndarray of bool, shape (3, 3)
+    """
+    sigma = np.asarray(sigma, dtype=float)
+    return np.isfinite(sigma) & (sigma < GYRO_MATRIX_SIGMA_SEEN)
 
 
 def latency_seen(latency_s: float, sigma_s: float) -> bool:

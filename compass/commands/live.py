@@ -26,10 +26,18 @@ MAG_LATENCY_HELP = ("compensate the magnetometer's latency against the gyro that
                     "undisturbed trials' heading: docs/benchmarks.md)")
 
 
+GYRO_MATRIX_HELP = ("correct every gyro sample by the scale and axis errors the calibration's gyro-aided tumble fit "
+                    "found (tumble.gyro.gyro_matrix, the entries seen with a sigma under 0.5 %%); off by default (on "
+                    "BROAD the matrix fitted on another trial cost every group: docs/benchmarks.md)")
+
+
 def add_mag_latency_argument(p, *, with_filter: bool = False) -> None:
-    """``--mag-latency`` (``FilterConfig.from_model(model, mag_latency=True)``), for ``live`` and ``attitude --filter``."""
+    """``--mag-latency`` (``FilterConfig.from_model(model, mag_latency=True)``) and ``--gyro-matrix``
+    (``gyro_matrix=True``), for ``live`` and ``attitude --filter``."""
     p.add_argument("--mag-latency", action="store_true",
                    help=("with --filter: " if with_filter else "") + MAG_LATENCY_HELP)
+    p.add_argument("--gyro-matrix", action="store_true",
+                   help=("with --filter: " if with_filter else "") + GYRO_MATRIX_HELP)
 
 
 def register(sub) -> None:
@@ -87,7 +95,8 @@ def run(args) -> int:
     try:
         cal = load(args.cal)
         model = cal.model
-        config = FilterConfig.from_model(model, mag_latency=args.mag_latency, gravity=args.gravity)
+        config = FilterConfig.from_model(model, mag_latency=args.mag_latency, gravity=args.gravity,
+                                         gyro_matrix=args.gyro_matrix)
     except ValueError as exc:
         raise BadInput(f"{args.cal}: {exc}" if args.cal not in str(exc) else str(exc)) from None
     if args.mag_latency and not args.quiet:

@@ -275,7 +275,8 @@ class AttitudeFilter:
         if gyro is not None and self.gyro:
             w = self._vector(gyro, "gyro", 0.0, self._gyro_range2)
             if w is not None:
-                s.rate_rad_s = w[:3]
+                g = self.config.gyro_matrix  # the gyro's scale and axes, before anything else reads the rate
+                s.rate_rad_s = w[:3] if g is None else tuple(r[0] * w[0] + r[1] * w[1] + r[2] * w[2] for r in g)
         a, b = self._screen(t_s, accel, field_h, dt)
         s.t_s = t_s
         if s.matrix is not None and dt > self.config.max_gap_s:

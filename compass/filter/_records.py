@@ -111,6 +111,10 @@ class FilterConfig:
     mag_latency_s : float
         The magnetometer's reading is this late against the gyro and accelerometer, s (gyro filter:
         the field is turned forward by the gyro's rotation over it, to first order; 0 = none).
+    gyro_matrix : tuple of 3 tuples of 3 floats, or None
+        ``G``: each gyro reading ``w`` is taken as the housing-frame rate ``G w`` before anything else uses it
+        (its scale and axis errors against the housing; a tumble's gyro-aided fit,
+        ``tumble.gyro.gyro_matrix``); None = the identity.
     rest_bias_estimation : bool
         At rest the gyro reading measures its bias (VQF's ``restBiasEstEnabled``).
     motion_adaptive_accel : bool
@@ -183,6 +187,7 @@ class FilterConfig:
     accel_range: float = 64.0
     field_range: float = 10.0
     mag_latency_s: float = 0.0
+    gyro_matrix: tuple | None = None
     rest_bias_estimation: bool = True
     motion_adaptive_accel: bool = True
     field_error_from_dip: bool = True
@@ -195,7 +200,7 @@ class FilterConfig:
 
     def __post_init__(self):
         for f in fields(self):
-            if (f.name in ("dip_deg", "gravity", "mag_latency_s", "calibration_uncertainty")
+            if (f.name in ("dip_deg", "gravity", "mag_latency_s", "gyro_matrix", "calibration_uncertainty")
                     or f.type in ("bool", "str")):
                 continue
             value = getattr(self, f.name)
@@ -215,9 +220,16 @@ class FilterConfig:
             raise ValueError(f"FilterConfig.dip_deg must be in (-90, 90), got {self.dip_deg!r}")
         if self.gravity is not None and not (np.isfinite(self.gravity) and self.gravity > 0):
             raise ValueError(f"FilterConfig.gravity must be positive or None, got {self.gravity!r}")
+        if self.gyro_matrix is not None:
+            g = np.asarray(self.gyro_matrix, dtype=float) if np.shape(self.gyro_matrix) == (3, 3) else None
+            if g is None or not np.all(np.isfinite(g)) or not np.linalg.det(g) > 0:
+                raise ValueError("FilterConfig.gyro_matrix must be a finite 3 x 3 matrix (tuple of 3 tuples) of positive "
+                                 f"determinant, got {self.gyro_matrix!r}")
+            object.__setattr__(self, "gyro_matrix", tuple(tuple(float(v) for v in row) for row in g))
 
     @classmethod
-    def from_model(cls, model, *, mag_latency: bool = False, gravity: float | None = None) -> "FilterConfig":
+    def from_model(cls, model, *, mag_latency: bool = False, gravity: float | None = None,
+                   gyro_matrix: bool = False) -> "FilterConfig":
         """Reference field and magnetometer noise from a :class:`compass.model.SensorModel`.
 
         The noise is the field's at zero field without a tumble file's own uncertainty
@@ -231,6 +243,13 @@ class FilterConfig:
         and ``compass attitude --filter`` ``--mag-latency``).  Off by default: on BROAD the latency fitted
         on another trial cost the undisturbed trials' heading (docs/benchmarks.md, "The magnetometer's
         latency from the calibration file").
+
+        With ``gyro_matrix`` also the gyro's scale and axes the calibration found (``model.gyro_matrix``: a tumble's
+        gyro-aided fit's, the entries it saw; nothing when the file has none): each gyro sample is corrected by it
+        first (``compass live`` and ``compass attitude --filter`` ``--gyro-matrix``).  Off by default: on simulated
+        boards it took most of what the gyro's scale error cost in rotation, but on BROAD the matrix fitted on
+        another trial doubled every group's heading and inclination error (docs/benchmarks.md, "The gyro's scale
+        and axes from the calibration file").
 
         Change other fields with ``dataclasses.replace``.
 
@@ -246,6 +265,7 @@ class FilterConfig:
         noise = float(np.sqrt(np.trace(model.field_covariance(np.zeros(3), iron=False)) / 3.0))
         return cls(field_norm=model.field_norm, dip_deg=model.dip_deg, mag_noise=noise,
                    mag_latency_s=model.mag_latency_s if mag_latency else 0.0, gravity=gravity,
+                   gyro_matrix=model.gyro_matrix if gyro_matrix else None,
                    calibration_uncertainty=model.calibration_uncertainty)
 
 

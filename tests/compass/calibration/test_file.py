@@ -221,3 +221,45 @@ def test_an_installed_file_carries_its_bench_imu_and_hemisphere():
     np.testing.assert_allclose(cal.imu.apply(a), expected, rtol=1e-12)
     # the bench's directions (the identity) turned into the product's frame; the soft iron is the identity
     np.testing.assert_allclose(cal.model.unit_directions, np.eye(3) @ align.T, atol=1e-12)
+
+
+def _tumble_with_gyro(gyro: dict) -> dict:
+    """A tumble calibration document whose gyro-aided block is ``gyro``."""
+    from calibrate.tumble import calibrate_tumble
+    from compass.sim.tumble import simulate_tumble
+
+    sim = simulate_tumble(seed=4, n=600)
+    doc = calibrate_tumble(sim.mag, sim.accel, t_s=sim.t_s).to_json()
+    doc["tumble"]["gyro"] = {"method": "gyro", "used": True} | gyro
+    return doc
+
+
+def test_the_files_gyro_matrix_reaches_the_model_where_the_fit_saw_it():
+    from compass.calibration._read import GYRO_MATRIX_SIGMA_SEEN
+
+    g = np.eye(3) + np.array([[0.02, 0.003, -0.004], [0.001, -0.015, 0.002], [0.03, -0.03, 0.01]])
+    seen, unseen = 0.1 * GYRO_MATRIX_SIGMA_SEEN, 2.0 * GYRO_MATRIX_SIGMA_SEEN
+    sigma = [[seen, seen, seen], [seen, seen, seen], [unseen, None, seen]]  # the prior's or none: held at I
+    model = from_dict(_tumble_with_gyro({"gyro_matrix": g.tolist(), "gyro_matrix_sigma": sigma})).model
+    expected = g.copy()
+    expected[2, :2] = 0.0
+    np.testing.assert_array_equal(model.gyro_matrix, expected)
+    # nothing seen, no sigma, no matrix: none
+    for block in ({"gyro_matrix": g.tolist(), "gyro_matrix_sigma": [[unseen] * 3] * 3}, {"gyro_matrix": g.tolist()},
+                  {}):
+        assert from_dict(_tumble_with_gyro(block)).model.gyro_matrix is None
+
+
+@pytest.mark.parametrize("key, value, words", [
+    ("gyro_matrix", [[1, 0, 0], [0, 1, 0]], "3x3 nested lists"),
+    ("gyro_matrix", "eye", "3x3 nested lists"),
+    ("gyro_matrix", [[1, 0, 0], [0, 1, 0], [0, 0, 57.3]], "within 20 % of the identity"),
+    ("gyro_matrix", [[1, 0, 0], [0, 1, 0], [0, 0, -1]], "within 20 % of the identity"),
+    ("gyro_matrix_sigma", [[0.001] * 3] * 2, "3x3 nested lists"),
+    ("gyro_matrix_sigma", [[0.001, 0.001, -0.001]] * 3, "must not be negative"),
+    ("gyro_matrix_sigma", [[0.001, 0.001, "x"]] * 3, "must be a number"),
+])
+def test_bad_gyro_matrices_in_the_file_are_refused_naming_the_key(key, value, words):
+    block = {"gyro_matrix": np.eye(3).tolist(), "gyro_matrix_sigma": [[0.001] * 3] * 3} | {key: value}
+    with pytest.raises(CalibrationFileError, match=rf"tumble\.gyro\.{key}.*{words}"):
+        from_dict(_tumble_with_gyro(block))
