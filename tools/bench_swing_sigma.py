@@ -49,14 +49,15 @@ def run_one(seed: int, tilt_deg: float, n: int, mag_scale: float, accel_g: float
     from compass.sim.installation import random_installation, simulate_installation, true_model
 
     truth = simulate_fourflip(seed=seed).truth
-    bench = from_dict(model_to_dict(true_model(truth)) | {"format": "compass-calibration/1", "model": "channels"})
+    # the bench model states the noise the recording has (1e-4 of the bench's for none: the fit divides by it)
+    stated = truth | {"noise": (np.asarray(truth["noise"]) * max(mag_scale, 1e-4)).tolist()}
+    bench = from_dict(model_to_dict(true_model(stated)) | {"format": "compass-calibration/1", "model": "channels"})
     inst = random_installation(500 + seed, yaw_deg=0.0)
-    # the bench model keeps its noise (the fit's sigma_b); only the simulated recording's changes
     sim = simulate_installation(truth | {"noise_ut": truth["noise_ut"] * mag_scale}, inst, kind="swing", n=n,
                                 max_tilt_deg=tilt_deg, seed=700 + seed, accel_noise_g=accel_g)
     rec = InstallationRecording("sim", sim.kind, sim.channels, sim.outputs, sim.accel, sim.t_s, None, None, False,
                                 np.arange(n), {})
-    res = InstallationCalibrator(base=bench, accel_noise_g=max(accel_g, 1e-6)).fit(rec)
+    res = InstallationCalibrator(base=bench, accel_noise_g=max(accel_g, 1e-6)).fit(rec)  # likewise
     return res.hard_iron_ut - inst.hard_iron_ut, res.hard_iron_sigma_ut
 
 

@@ -66,7 +66,7 @@ the effect's regressor).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -80,7 +80,7 @@ from ..diagnosis.evidence import FitRecord
 
 __all__ = ["PRIOR_HARD_IRON_UT", "TYPICAL_FIELD_UT", "prior_hard_iron", "PRIOR_SOFT_IRON", "UNDETERMINED_NOISE",
            "LEVEL_DEG", "N_CORE", "Rows", "InstallationFit", "coordinates", "fit_installation", "residuals", "field_h",
-           "split", "is_level", "product_heading", "effect_slice", "parameter_names"]
+           "split", "is_level", "product_heading", "effect_slice", "parameter_names", "debiased"]
 
 PRIOR_HARD_IRON_UT = 20.0
 """Prior sigma of each hard-iron component, uT."""
@@ -362,6 +362,58 @@ def fit_installation(rows: Rows, effects: tuple, priors: dict, start: np.ndarray
         heading_rms = float(np.sqrt(np.mean((result.fun[2 * n:3 * n] * rows.heading_sigma_deg) ** 2)))
     return InstallationFit(tuple(effects), x, jac[:, moved], cov, mag, chi2, n_obs, bool(result.success),
                            str(result.message), float(np.sum((mag / rows.sigma_b) ** 2)), heading_rms, fixed)
+
+
+def debiased(fit: InstallationFit, rows: Rows, priors: dict) -> InstallationFit:
+    r"""The fit with its errors-in-variables bias taken out (module docstring), to second order in the noise.
+
+    The least-squares estimate solves ``sum_i J_i^T r_i = 0`` with ``J_i`` and ``r_i`` of the noisy
+    rows; at the true parameters that sum's expectation is not zero but, for white noise of
+    variance ``s_k^2`` in each coordinate ``d_k`` of a row (the field's three in H, ``sigma_b``; the up
+    direction's three, ``sigma_u``),
+
+    .. math::
+
+        E = \sum_i \sum_k s_k^2 \left( \frac{\partial J_i^T}{\partial d_k} \frac{\partial r_i}{\partial d_k}
+            + \tfrac12 J_i^T \frac{\partial^2 r_i}{\partial d_k^2} \right)
+
+    (central differences over the rows' coordinates, the rows' own values standing in for the true
+    ones), so the estimate is off by ``-(J^T J)^{-1} E``, which is added back in the coordinates
+    the fit moved.  The covariance is kept (the correction is second order in the noise); the
+    residuals and chi-squares are those at the corrected parameters.
+    """
+    x, effects = fit.x, fit.effects
+    jac = _jacobian(x, rows, effects, priors)
+    base = residuals(x, rows, effects, priors)
+    expectation = np.zeros(len(x))
+    for name, sigma in (("b", rows.sigma_b), ("u", rows.sigma_u)):
+        for k in range(3):
+            def shifted(step, name=name, k=k):
+                values = getattr(rows, name).copy()
+                values[:, k] += step
+                if name == "u":  # the up direction stays a unit vector: its noise is across it
+                    values /= np.linalg.norm(values, axis=1, keepdims=True)
+                return replace(rows, **{name: values})
+            up, down = shifted(sigma), shifted(-sigma)
+            r_up, r_down = residuals(x, up, effects, priors), residuals(x, down, effects, priors)
+            dr = (r_up - r_down) / (2.0 * sigma)
+            d2r = (r_up - 2.0 * base + r_down) / sigma**2
+            djac = (_jacobian(x, up, effects, priors) - _jacobian(x, down, effects, priors)) / (2.0 * sigma)
+            expectation += sigma**2 * (djac.T @ dr + 0.5 * jac.T @ d2r)
+    t, dependent = coordinates(fit.fixed, "field" not in priors)
+    moved = ~fit.fixed
+    if dependent is not None:
+        moved[dependent] = False
+    j_moved = (jac @ t)[:, moved]
+    x = x + t[:, moved] @ np.linalg.solve(j_moved.T @ j_moved, (t.T @ expectation)[moved])
+    n_data = fit.n_obs
+    data_rows = residuals(x, rows, effects, priors)[:n_data]
+    mag = np.linalg.norm(field_h(x, rows, effects), axis=1) - x[9]
+    n = len(rows.b)
+    heading_rms = None if rows.heading_ref is None else float(
+        np.sqrt(np.mean((data_rows[2 * n:3 * n] * rows.heading_sigma_deg) ** 2)))
+    return replace(fit, x=x, residuals=mag, chi2=float(data_rows @ data_rows),
+                   chi2_mag=float(np.sum((mag / rows.sigma_b) ** 2)), heading_rms_deg=heading_rms)
 
 
 def _jacobian(x: np.ndarray, rows: Rows, effects: tuple, priors: dict) -> np.ndarray:
