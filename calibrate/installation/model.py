@@ -49,14 +49,13 @@ channel; seeds 0-11) ``h_z`` is 0.107 +- 0.015 uT high for a sigma of 0.05-0.08 
 the dip 0.02 deg), 0.42 uT at +-5 deg, 0.027 at +-20, 0.108 at 8000 rows (seeds 20-31: 0.100, and 0.056
 at 8000 rows); its spread over seeds is honest (SD of err/sig 0.7-1.0), so the err/sig of 1.84 is the
 bias's (``tools/bench_swing_sigma.py``). With no noise the fit is exact
-(``tests/calibrate/installation/test_swing_estimand.py``): the estimand is the fit's. Residual forms
-tried each took one term out and put in another of the same order, so none is used: the angle's residual
-as ``(u . B_H + sin(dip) |B_H|)`` over a constant |B| cut the swing's bias to 0.022 uT (err/sig 0.86)
-only because the scale of ``S`` then buys chi-square and pulls against it, which moved a tumble's |B|
-1 % off its site prior (the CLI end-to-end test failed); over the fitted ``F``, or over the median
-``|B_H|``, the bias was back (0.107). A consistent fit (the noise's expectation taken out of the normal
-equations, or the rows' orientations fitted as nuisances with the noise in the reading) is the fix.
-docs/benchmarks.md, "Why the clean swing's sigma under-covers".
+(``tests/calibrate/installation/test_swing_estimand.py``): the estimand is the fit's. The fit takes it
+out to second order (:func:`debiased`, applied to the final fit by ``calibrate.installation.fit``):
+0.107 -> 0.004 +- 0.014 uT at +-10 deg, 0.42 -> 0.005 at +-5, err/sig of ``h_z`` 1.84 -> 0.79 (seeds
+0-11). Residual forms were tried first and not kept: the angle's residual as ``u . B_H + sin(dip)
+|B_H|`` over a constant |B| cut the bias only because the scale of ``S`` then buys chi-square and pulls
+against it (a tumble's |B| went 1 % off its site prior); over the fitted ``F`` or the median ``|B_H|``
+the bias was back. docs/benchmarks.md, "Why the clean swing's sigma under-covers".
 
 Parameters, in order: ``h`` (3, field units), the entries of ``D``
 (:data:`compass.installed.SOFT_IRON_ENTRIES`), ``F`` (field units), the dip (deg), the yaw (deg,
