@@ -23,7 +23,8 @@ from compass.model import SensorModel
 from ..contract import CalibrationResult, Calibrator, CannotCalibrate, FitStatistics, fit_report
 from .card import DeviationCard, deviation_card
 from .diagnosis import UNEXPLAINED_WARNING, InstallationDiagnosis, diagnose_installation
-from .model import N_CORE, InstallationFit, Rows, fit_installation, is_level, parameter_names, prior_hard_iron
+from .model import (N_CORE, InstallationFit, Rows, debiased, fit_installation, is_level, parameter_names,
+                    prior_hard_iron)
 
 __all__ = ["InstallationCalibrator", "InstallationResult", "PARAMETERS"]
 
@@ -328,6 +329,9 @@ class InstallationCalibrator(Calibrator):
         temp_c = None if rec.temp_c is None else rec.temp_c[used]
         diagnosis = diagnose_installation(rows, priors, base_fit, diagnose=self.diagnose,
                                           t_s=None if rec.t_s is None else rec.t_s[used], temp_c=temp_c)
+        # the noise's second-order bias out of the final fit: along a small swing's vertical weak direction
+        # it is several sigma (calibrate.installation.model's docstring)
+        diagnosis = replace(diagnosis, fit=debiased(diagnosis.fit, diagnosis.rows, priors))
         outside = (int(np.sum(outside)), fitted_outside, _linear_beyond(base, rec.raw[used], temp_c))
         return _result(rec, diagnosis, used, outside, priors, base, base_document, site)
 
