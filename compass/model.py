@@ -258,23 +258,29 @@ class SensorModel:
             Zero where nothing is known (no ``noise_floor``, no covariances).
         """
         b = np.asarray(field, dtype=float)
-        x = _times(b, self.unit_directions.T)
-        var = np.zeros_like(x)
-        if self.component_noise is not None:
-            var += (self.component_noise / self._relative_slope(x)) ** 2
+        var = self.noise_variance(b)
         if self.direction_covariance is not None or self.response_sigma is not None:
             var += self._channel_uncertainty.component_variance(b)
         return var
 
-    def field_covariance(self, field, *, iron: bool = True) -> np.ndarray:
+    def noise_variance(self, field) -> np.ndarray:
+        """The white noise's part of :meth:`component_variance` alone (``sigma_v^2 / f'(x)^2``), field units
+        squared, shape (..., c): what changes from sample to sample, none of the calibration's own constant
+        error (what a filter fuses: :meth:`compass.filter.FilterConfig.from_model`).  Zero without ``noise_floor``."""
+        x = _times(np.asarray(field, dtype=float), self.unit_directions.T)
+        if self.component_noise is None:
+            return np.zeros_like(x)
+        return (self.component_noise / self._relative_slope(x)) ** 2 * np.ones_like(x)
+
+    def field_covariance(self, field) -> np.ndarray:
         """Covariance of the estimated field vector in H, ``P diag(var) P^T``, shape (..., 3, 3).
 
-        See :meth:`component_variance`; with ``iron`` a tumble file's :attr:`iron_uncertainty` adds
+        See :meth:`component_variance`; a tumble file's :attr:`iron_uncertainty` adds
         its own (:meth:`compass.iron_uncertainty.TumbleUncertainty.covariance`); field units squared.
         """
         p = self.solver
         cov = np.einsum("ic,...c,jc->...ij", p, self.component_variance(field), p)
-        if not iron or self.iron_uncertainty is None:
+        if self.iron_uncertainty is None:
             return cov
         return cov + self.iron_uncertainty.covariance(field)
 
