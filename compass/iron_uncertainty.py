@@ -45,7 +45,8 @@ from functools import cached_property
 import numpy as np
 
 __all__ = ["TumbleUncertainty", "ChannelUncertainty", "with_calibration_sigma", "undetermined_words",
-           "HARD_IRON_PRIOR", "SOFT_IRON_PRIOR", "ROTATION_PRIOR_DEG"]
+           "HARD_IRON_PRIOR", "SOFT_IRON_PRIOR", "ROTATION_PRIOR_DEG",
+           "ROTATION_PRIOR_AXIS_DEG"]
 
 HARD_IRON_PRIOR = 0.1
 """1-sigma of a hard-iron component the fit left undetermined, as a fraction of |B|: a product's iron moves the
@@ -54,11 +55,16 @@ SOFT_IRON_PRIOR = 0.05
 """1-sigma of a soft-iron entry the fit left undetermined, as a fraction of the soft iron's scale
 (``det(S)^(1/3)``): a few per cent of distortion, as the tumble fits here find on boards; a stated prior."""
 ROTATION_PRIOR_DEG = 2.0
-"""1-sigma of each component of the magnetometer-to-accelerometer rotation when it was not determined (or not
-fitted), degrees: two sensors' axes on one board or in one package agree to a degree or two (data sheets give
-their own alignment to +-1 deg, a board's assembly as much again); a stated prior.  With no rotation fitted at
-all (a tumble without accelerometer) the reader adds the fitted soft iron's anisotropy in quadrature: the
-ellipsoid's symmetric ``S`` cannot see the iron's rotation part (tools/bench_undetermined_prior.py)."""
+"""1-sigma of the magnetometer-to-accelerometer rotation when it was not determined (or not fitted), as the total
+angle between the two frames (RMS), degrees: two sensors' axes on one board or in one package agree to a degree
+or two in all (data sheets give their own alignment to +-1 deg, a board's assembly as much again), and that is a
+statement about the angle between the frames, not about each component; a stated prior.  Each component of the
+rotation vector takes :data:`ROTATION_PRIOR_AXIS_DEG`.  The mounting rotation alone: a fit without accelerometer
+recovers the soft iron itself (a symmetric iron to thousandths of a degree of rotation), so nothing is added for
+it (tools/bench_undetermined_prior.py)."""
+ROTATION_PRIOR_AXIS_DEG = ROTATION_PRIOR_DEG / math.sqrt(3.0)
+"""1-sigma of each component of the undetermined rotation vector, degrees (``ROTATION_PRIOR_DEG / sqrt(3)``:
+three independent components of this sigma give a total angle of RMS :data:`ROTATION_PRIOR_DEG`)."""
 _COST_HEADINGS_DEG = np.arange(0.0, 360.0, 30.0)  # level headings the cost of a prior is averaged over
 
 

@@ -376,10 +376,11 @@ def _tumble_uncertainty(block: dict, soft: np.ndarray, rotation: np.ndarray, rot
     fitted (``mag_to_accel`` null: the accelerometer's frame taken as the magnetometer's) is never read as
     zero: it takes the stated prior (:data:`compass.iron_uncertainty.HARD_IRON_PRIOR` of |B|,
     :data:`~compass.iron_uncertainty.SOFT_IRON_PRIOR` of the soft iron's scale,
-    :data:`~compass.iron_uncertainty.ROTATION_PRIOR_DEG`) and is named in its ``undetermined``.  An absent
+    :data:`~compass.iron_uncertainty.ROTATION_PRIOR_AXIS_DEG` per axis) and is named in its ``undetermined``.  An absent
     rotation sigma beside a fitted rotation: zeros, as the file says nothing of it.  Anything else that is
     not a list of numbers of the key's shape is refused."""
-    from ..iron_uncertainty import HARD_IRON_PRIOR, ROTATION_PRIOR_DEG, SOFT_IRON_PRIOR, TumbleUncertainty
+    from ..iron_uncertainty import (HARD_IRON_PRIOR, ROTATION_PRIOR_AXIS_DEG, ROTATION_PRIOR_DEG, SOFT_IRON_PRIOR,
+                                   TumbleUncertainty)
 
     if block.get("hard_iron_sigma") is None or block.get("soft_iron_sigma") is None:
         return None
@@ -397,22 +398,17 @@ def _tumble_uncertainty(block: dict, soft: np.ndarray, rotation: np.ndarray, rot
                             + f" (taken as {100 * SOFT_IRON_PRIOR:.0f} %)")
     key = "misalignment_rotvec_sigma_deg"
     rot, rot_gone = np.zeros(3), np.zeros(3, dtype=bool)
-    rot_prior = np.radians(ROTATION_PRIOR_DEG)
+    rot_prior = np.radians(ROTATION_PRIOR_AXIS_DEG)
     if not rotation_fitted:
-        # no accelerometer: the ellipsoid's symmetric S cannot see the iron's rotation part either (an asymmetric
-        # soft iron turns the field as much as it stretches it), so the prior adds the fitted anisotropy's size
         rot_gone[:] = True
-        anisotropy = float(np.sqrt(np.mean((soft / scale - np.eye(3))[np.triu_indices(3)] ** 2)))
-        rot_prior = float(np.hypot(rot_prior, anisotropy))
         undetermined.append(f"the rotation from the magnetometer to the accelerometer (not fitted, taken as none; "
-                            f"its sigma as {np.degrees(rot_prior):.2g} deg per axis: {ROTATION_PRIOR_DEG:g} deg of "
-                            f"mounting and the soft iron's {100 * anisotropy:.2g} % anisotropy, whose rotation part "
-                            "a fit without accelerometer cannot see)")
+                            f"its sigma as {ROTATION_PRIOR_DEG:g} deg in all, {ROTATION_PRIOR_AXIS_DEG:.2g} deg per "
+                            "axis: a mounting's)")
     elif key in block:
         rot, rot_gone = _sigma(block.get(key), (3,), f"tumble.{key}")
         if rot_gone.any():
             undetermined.append(f"the rotation to the accelerometer about {', '.join(np.array(list('xyz'))[rot_gone])} "
-                                f"(taken as {ROTATION_PRIOR_DEG:g} deg)")
+                                f"(taken as {ROTATION_PRIOR_AXIS_DEG:.2g} deg per axis)")
         rot = np.radians(rot)
     for name, value in (("hard_iron_sigma", hard), ("soft_iron_sigma", soft_sigma), (key, rot)):
         if np.any(value < 0):
@@ -422,7 +418,9 @@ def _tumble_uncertainty(block: dict, soft: np.ndarray, rotation: np.ndarray, rot
     priors = (np.where(hard_gone, HARD_IRON_PRIOR * field_norm / scale, 0.0),
               np.where(soft_gone, SOFT_IRON_PRIOR * scale, 0.0), np.where(rot_gone, rot_prior, 0.0))
     prior = TumbleUncertainty(soft, rotation, *priors)
-    return TumbleUncertainty(soft, rotation, hard + priors[0], soft_sigma + priors[1], rot + priors[2],
+    # in quadrature: an undetermined entry holds 0 (its prior alone); S_ij beside a null S_ji keeps its own sigma too
+    return TumbleUncertainty(soft, rotation, np.hypot(hard, priors[0]), np.hypot(soft_sigma, priors[1]),
+                             np.hypot(rot, priors[2]),
                              tuple(undetermined), prior)
 
 

@@ -261,15 +261,15 @@ def test_run_filter_reports_the_heading_sigma_the_replay_reports(widened):
 
 def _channel_model(scale=1.0):
     """The simulated device's model with a four-flip's kind of uncertainty: each channel's direction covariance
-    (0.2 deg about each axis across the direction) and gain sigma times ``scale``, its offset sigma (which
-    :meth:`FilterConfig.from_model` counts in the filter's ``mag_noise`` too) not scaled."""
+    (0.2 deg about each axis across the direction), offset sigma and gain sigma times ``scale`` (none of them in
+    the filter's ``mag_noise``: :meth:`FilterConfig.from_model` takes the white noise alone)."""
     from compass.sim.device import default_model
 
     model = default_model()
     a = model.unit_directions
     across = np.eye(3)[None] - a[:, :, None] * a[:, None, :]
     cov = (scale * np.radians(0.2)) ** 2 * across
-    sigma = np.column_stack([0.002 * np.abs(model.gains) * model.field_norm, scale * 0.002 * np.abs(model.gains)])
+    sigma = scale * np.column_stack([0.002 * np.abs(model.gains) * model.field_norm, 0.002 * np.abs(model.gains)])
     return dataclasses.replace(model, direction_covariance=cov, response_sigma=sigma)
 
 
@@ -305,7 +305,7 @@ def test_a_widened_channel_calibration_reaches_the_replay_and_run_filter(kind):
         base = dataclasses.replace(_channel_model(), direction_covariance=None, response_sigma=None)
         cov = np.diag([0.05**2] * 3 + [0.002**2] * 6)  # the installation's hard and soft iron: uT^2, 1
         naive = installed_model(base, [1.0, -0.5, 0.2], np.eye(3), covariance=cov)
-        cov[3:, 3:] *= 9.0  # the soft iron's (the hard iron's offsets are in the filter's mag_noise too)
+        cov *= 9.0  # the hard iron's and the soft iron's: none of it in the filter's mag_noise
         wide = installed_model(base, [1.0, -0.5, 0.2], np.eye(3), covariance=cov)
     t = np.arange(0.0, 12.0, 0.01)
     s = simulate_device(naive, t, seed=6)
@@ -317,13 +317,15 @@ def test_a_widened_channel_calibration_reaches_the_replay_and_run_filter(kind):
     bare = dataclasses.replace(naive, direction_covariance=None, response_sigma=None)
     noise_only, _ = _replayed(bare, t, s)
     assert np.all(plain[:, sigma] > noise_only[:, sigma])  # before: the noise's alone
+    # the white noise alone: the offset sigma, three times larger, is not in mag_noise (it was, counted twice)
+    assert FilterConfig.from_model(wide).mag_noise == FilterConfig.from_model(bare).mag_noise
     track = run_filter(t, s.accel, s.gyro, wide.field(s.raw)[0], FilterConfig.from_model(wide))
     rows = np.searchsorted(t, widened_table[:, columns.index("t_s")] - 1e-6)
     np.testing.assert_allclose(track.heading_sigma_deg[rows], widened_table[:, sigma], atol=5.1e-4)
 
 
 @pytest.mark.parametrize("part, words", [
-    ("misalignment_rotvec_sigma_deg", "the rotation to the accelerometer about x, y, z (taken as 2 deg)"),
+    ("misalignment_rotvec_sigma_deg", "the rotation to the accelerometer about x, y, z (taken as 1.2 deg per axis)"),
     ("mag_to_accel", "the rotation from the magnetometer to the accelerometer (not fitted"),
     ("soft_iron_sigma", "the soft iron's S_xy (taken as 5 %)"),
 ])
@@ -424,3 +426,20 @@ def test_the_attitude_command_says_an_undetermined_part_once(widened, tmp_path, 
     assert "stated priors" in said[0]
     table = read_table(out)  # every number finite (read_table refuses anything else)
     assert np.all(table.column("heading_sigma_deg") > 0)
+
+
+def test_a_null_lower_soft_iron_entry_adds_its_prior_to_the_upper_ones_sigma_in_quadrature(widened):
+    """``S`` is symmetric, so a null ``S_yx`` beside a finite ``S_xy`` makes the one number undetermined: its sigma
+    is the finite one and the prior in quadrature (independent), not their sum."""
+    from compass.iron_uncertainty import SOFT_IRON_PRIOR
+
+    _, doc, _ = widened
+    half = copy.deepcopy(doc)
+    half["tumble"]["soft_iron_sigma"][1][0] = None
+    own = float(doc["tumble"]["soft_iron_sigma"][0][1])
+    iron = from_dict(half).model.iron_uncertainty
+    scale = abs(np.linalg.det(np.array(doc["soft_iron"]))) ** (1.0 / 3.0)
+    assert iron.prior.soft_iron_sigma[0, 1] == pytest.approx(SOFT_IRON_PRIOR * scale, rel=1e-12)
+    assert iron.soft_iron_sigma[0, 1] == pytest.approx(np.hypot(own, SOFT_IRON_PRIOR * scale), rel=1e-12)
+    assert own > 0 and iron.soft_iron_sigma[0, 1] < own + SOFT_IRON_PRIOR * scale - 1e-3 * own
+    assert any("S_xy" in part for part in iron.undetermined)
