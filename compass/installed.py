@@ -131,6 +131,7 @@ def installed_model(base: SensorModel, hard_iron, soft_iron, covariance=None, al
         if direction_cov is not None:
             direction_cov = rot[None] @ direction_cov @ rot.T[None]
     # a tumble base's own uncertainty is in its frame and for its iron alone: not carried (the installation's
-    # covariance is); its magnetometer latency is the module's timing, kept
+    # covariance is); its magnetometer latency is the module's timing, kept; a channel base's priors for null
+    # sigmas stay in its (transformed) numbers, their words were said when the base was read
     return replace(base, directions=directions, responses=tuple(responses), direction_covariance=direction_cov,
-                   response_sigma=response_sigma, form="installed", iron_uncertainty=None)
+                   response_sigma=response_sigma, form="installed", iron_uncertainty=None, sigma_priors=None)

@@ -44,7 +44,7 @@ from functools import cached_property
 
 import numpy as np
 
-__all__ = ["TumbleUncertainty", "ChannelUncertainty", "with_calibration_sigma", "undetermined_words",
+__all__ = ["TumbleUncertainty", "ChannelUncertainty", "channel_priors", "with_calibration_sigma", "undetermined_words",
            "HARD_IRON_PRIOR", "SOFT_IRON_PRIOR", "ROTATION_PRIOR_DEG",
            "ROTATION_PRIOR_AXIS_DEG"]
 
@@ -215,14 +215,19 @@ class TumbleUncertainty:
         dip_deg : float
             The field's dip, degrees.
         """
-        if self.prior is None:
-            return 0.0
-        from .frames import r_world_from_housing, world_field
+        return _cost_deg(self.prior, field_norm, dip_deg)
 
-        rot = r_world_from_housing(_COST_HEADINGS_DEG, 0.0, 0.0)
-        fields = rot.apply(world_field(dip_deg, field_norm), inverse=True)
-        var = [self.prior.heading_sigma_deg(m, b) ** 2 for m, b in zip(rot.as_matrix(), fields)]
-        return float(np.sqrt(np.mean(var)))
+
+def _cost_deg(prior, field_norm: float, dip_deg: float) -> float:
+    """RMS over level headings of ``prior.heading_sigma_deg``, degrees; 0 for no prior."""
+    if prior is None:
+        return 0.0
+    from .frames import r_world_from_housing, world_field
+
+    rot = r_world_from_housing(_COST_HEADINGS_DEG, 0.0, 0.0)
+    fields = rot.apply(world_field(dip_deg, field_norm), inverse=True)
+    var = [prior.heading_sigma_deg(m, b) ** 2 for m, b in zip(rot.as_matrix(), fields)]
+    return float(np.sqrt(np.mean(var)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -251,6 +256,12 @@ class ChannelUncertainty:
         rad^2 (None: the file gives none).
     response_sigma : ndarray, shape (c, 2), or None
         Offset (output units) and gain (output units per field unit) sigmas (None: the file gives none).
+    undetermined : tuple of str
+        As :attr:`TumbleUncertainty.undetermined`: the channels' sigmas the file left null beside others it
+        gives, in words with the prior each takes (:func:`channel_priors`); their entries above hold it.
+    prior : ChannelUncertainty or None
+        The priors' part alone (zeros elsewhere): what they add (:meth:`cost_deg`); None when nothing is
+        undetermined.
     """
 
     unit_directions: np.ndarray
@@ -258,7 +269,12 @@ class ChannelUncertainty:
     gains: np.ndarray
     direction_covariance: np.ndarray | None = None
     response_sigma: np.ndarray | None = None
-    undetermined = ()  # as TumbleUncertainty's: the reader gives a channel form with a null sigma none at all
+    undetermined: tuple = ()
+    prior: "ChannelUncertainty | None" = None
+
+    def cost_deg(self, field_norm: float, dip_deg: float) -> float:
+        """As :meth:`TumbleUncertainty.cost_deg`."""
+        return _cost_deg(self.prior, field_norm, dip_deg)
 
     def component_variance(self, field_h) -> np.ndarray:
         """``var_c`` (class docstring) at ``field_h`` (shape (..., 3), field units): shape (..., c), field units
@@ -314,6 +330,50 @@ class ChannelUncertainty:
             pn = p[0] * n[0] + p[1] * n[1] + p[2] * n[2]
             var += v * pn * pn
         return math.degrees(math.sqrt(var) / horizontal2)
+
+
+def channel_priors(unit_directions, gains, field_norm: float, names, direction_gone, offset_gone,
+                   gain_gone) -> tuple[np.ndarray, np.ndarray, tuple]:
+    """The stated priors of a channel form's sigmas the file left null beside others it gives.
+
+    A channel's direction takes the mounting's rotation prior (:data:`ROTATION_PRIOR_AXIS_DEG` about each axis:
+    ``sigma^2 (I - a a^T)``, rad^2), its offset :data:`HARD_IRON_PRIOR` of |B| and its gain
+    :data:`SOFT_IRON_PRIOR` of itself (the same sizes as a tumble's hard and soft iron).
+
+    Parameters
+    ----------
+    unit_directions : array_like, shape (c, 3)
+    gains : array_like, shape (c,)
+        Output units per field unit.
+    field_norm : float
+        |B|, field units.
+    names : sequence of str
+        The channels' names, for the words.
+    direction_gone, offset_gone, gain_gone : array_like of bool, shape (c,)
+        Which channel's direction covariance, offset sigma and gain sigma the file left null.
+
+    Returns
+    -------
+    direction_covariance : ndarray, shape (c, 3, 3)
+        The prior where gone, zeros elsewhere, rad^2.
+    response_sigma : ndarray, shape (c, 2)
+        The priors where gone, zeros elsewhere: output units, output units per field unit.
+    words : tuple of str
+        One phrase per undetermined part (empty when none).
+    """
+    a = np.asarray(unit_directions, dtype=float)
+    k = np.abs(np.asarray(gains, dtype=float))
+    gone = [np.asarray(g, dtype=bool) for g in (direction_gone, offset_gone, gain_gone)]
+    across = np.eye(3)[None] - a[:, :, None] * a[:, None, :]
+    cov = np.where(gone[0][:, None, None], math.radians(ROTATION_PRIOR_AXIS_DEG) ** 2 * across, 0.0)
+    sigma = np.column_stack([np.where(gone[1], HARD_IRON_PRIOR * field_norm * k, 0.0),
+                             np.where(gone[2], SOFT_IRON_PRIOR * k, 0.0)])
+    names = np.asarray(names)
+    words = tuple(f"{what} of {', '.join(names[g])} (taken as {prior})" for what, g, prior in (
+        ("the direction", gone[0], f"{ROTATION_PRIOR_AXIS_DEG:.2g} deg per axis: a mounting's"),
+        ("the offset", gone[1], f"{100 * HARD_IRON_PRIOR:.0f} % of |B|"),
+        ("the gain", gone[2], f"{100 * SOFT_IRON_PRIOR:.0f} %")) if g.any())
+    return cov, sigma, words
 
 
 def with_calibration_sigma(sigma_deg: float, uncertainty, matrix, field_h) -> float:

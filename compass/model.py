@@ -85,6 +85,11 @@ class SensorModel:
         (:mod:`compass.iron_uncertainty`): :meth:`field_covariance` adds them; None for the channel
         form (whose ``direction_covariance`` and ``response_sigma`` hold its own) and for a tumble file
         without them.
+    sigma_priors : tuple or None
+        The stated priors a channel form's null sigmas took (beside others the file gives): ``(direction
+        covariance (c, 3, 3), response sigma (c, 2), words)`` from
+        :func:`compass.iron_uncertainty.channel_priors`, already in :attr:`direction_covariance` and
+        :attr:`response_sigma`; None when nothing took one.
     mag_latency_s : float
         How late the magnetometer reads against the gyro, s: a tumble's gyro-aided fit's
         ``tumble.gyro.mag_latency_s`` when it saw one (positive, beyond 3 sigma), else 0.
@@ -104,6 +109,7 @@ class SensorModel:
     temperature: TemperatureCompensation | None = None
     iron_uncertainty: TumbleUncertainty | None = None
     mag_latency_s: float = 0.0
+    sigma_priors: tuple | None = None
 
     def __post_init__(self):
         c = len(self.channels)
@@ -157,8 +163,13 @@ class SensorModel:
 
     @cached_property
     def _channel_uncertainty(self) -> ChannelUncertainty:
+        if self.sigma_priors is None:
+            return ChannelUncertainty(self.unit_directions, self.solver, self.gains, self.direction_covariance,
+                                      self.response_sigma)
+        cov, sigma, words = self.sigma_priors
+        prior = ChannelUncertainty(self.unit_directions, self.solver, self.gains, cov, sigma)
         return ChannelUncertainty(self.unit_directions, self.solver, self.gains, self.direction_covariance,
-                                  self.response_sigma)
+                                  self.response_sigma, words, prior)
 
     @cached_property
     def calibration_uncertainty(self) -> TumbleUncertainty | ChannelUncertainty | None:

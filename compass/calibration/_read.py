@@ -303,6 +303,8 @@ def _channel_model(d: dict):
                                            "recalibrate the module after repair", key=key)
         sigmas.append(rs)
     gains = np.array([r.gain for r in responses])
+    covariance, sigma, priors = _channel_sigmas(names, np.array(directions), gains, field_ut or 1.0, covariances,
+                                                sigmas)
     try:
         return SensorModel(
             channels=tuple(names),
@@ -312,9 +314,10 @@ def _channel_model(d: dict):
             field_ut=field_ut,
             dip_deg=dip_deg,
             noise=check.noise(d.get("noise_floor"), len(names)),
-            direction_covariance=None if any(c is None for c in covariances) else np.array(covariances),
-            response_sigma=(None if any(s is None or None in s for s in sigmas) else np.array(sigmas, dtype=float)),
+            direction_covariance=covariance,
+            response_sigma=sigma,
             temperature=_temperature(d, names, gains),
+            sigma_priors=priors,
         )
     except CalibrationFileError:
         raise
@@ -322,6 +325,32 @@ def _channel_model(d: dict):
         raise NoFieldVector(f"cannot give a field vector: {exc}", key="channels") from None
     except ValueError as exc:
         raise CalibrationFileError(f"are unusable: {exc}", key="channels") from None
+
+
+def _channel_sigmas(names, directions, gains, field_norm, covariances, sigmas) -> tuple:
+    """The channels' direction covariances (c, 3, 3) and response sigmas (c, 2), each None when no channel gives
+    one (nothing claimed), and the priors a null one took beside others given (never read as zero:
+    :func:`compass.iron_uncertainty.channel_priors`), as ``SensorModel.sigma_priors`` (None when none)."""
+    from ..iron_uncertainty import channel_priors
+
+    c = len(names)
+    dir_gone = np.array([cov is None for cov in covariances])
+    rs = [(None, None) if s is None else s for s in sigmas]
+    off_gone, gain_gone = (np.array([r[i] is None for r in rs]) for i in (0, 1))
+    has_dir, has_rs = not dir_gone.all(), not (off_gone.all() and gain_gone.all())
+    dir_gone &= has_dir
+    off_gone &= has_rs
+    gain_gone &= has_rs
+    covariance = np.array([np.zeros((3, 3)) if cov is None else cov for cov in covariances]) if has_dir else None
+    sigma = np.array([[0.0 if v is None else v for v in r] for r in rs], dtype=float).reshape(c, 2) if has_rs else None
+    if not (dir_gone.any() or off_gone.any() or gain_gone.any()):
+        return covariance, sigma, None
+    prior_cov, prior_sigma, words = channel_priors(directions, gains, field_norm, names, dir_gone, off_gone, gain_gone)
+    if covariance is not None:
+        covariance = covariance + prior_cov
+    if sigma is not None:
+        sigma = np.hypot(sigma, prior_sigma)
+    return covariance, sigma, (prior_cov, prior_sigma, words)
 
 
 # -------------------------------------------------------------------------------------- tumble form

@@ -443,3 +443,40 @@ def test_a_null_lower_soft_iron_entry_adds_its_prior_to_the_upper_ones_sigma_in_
     assert iron.soft_iron_sigma[0, 1] == pytest.approx(np.hypot(own, SOFT_IRON_PRIOR * scale), rel=1e-12)
     assert own > 0 and iron.soft_iron_sigma[0, 1] < own + SOFT_IRON_PRIOR * scale - 1e-3 * own
     assert any("S_xy" in part for part in iron.undetermined)
+
+
+def test_a_channel_forms_null_sigma_takes_its_stated_prior_and_is_said():
+    """A channel whose direction covariance (or offset sigma) the file leaves null beside channels that give
+    theirs is never read as zero (it dropped every channel's before): the direction takes the mounting's
+    rotation prior ``sigma^2 (I - a a^T)``, the offset 10 % of |B|; one warning line names them; the file
+    written back says null again."""
+    from compass.calibration._format import model_to_dict
+    from compass.iron_uncertainty import HARD_IRON_PRIOR, ROTATION_PRIOR_AXIS_DEG, undetermined_words
+
+    model = _channel_model()
+    doc = model_to_dict(model)
+    first, second = model.channels[0], model.channels[1]
+    doc["channels"][first]["direction_covariance"] = None
+    doc["channels"][second]["response_sigma"]["offset"] = None
+    read = from_dict(doc).model
+    own = read.calibration_uncertainty
+    a = read.unit_directions[0]
+    expected = np.radians(ROTATION_PRIOR_AXIS_DEG) ** 2 * (np.eye(3) - np.outer(a, a))
+    np.testing.assert_allclose(read.direction_covariance[0], expected, rtol=1e-12, atol=1e-18)
+    np.testing.assert_allclose(read.direction_covariance[1:], model.direction_covariance[1:], rtol=1e-12)
+    assert read.response_sigma[1, 0] == pytest.approx(HARD_IRON_PRIOR * read.field_norm * abs(read.gains[1]))
+    np.testing.assert_allclose(read.response_sigma[[0, 2]], model.response_sigma[[0, 2]], rtol=1e-12)
+    words = undetermined_words(own, read.field_norm, read.dip_deg)
+    assert words is not None and "\n" not in words
+    assert f"the direction of {first} (taken as" in words and f"the offset of {second} (taken as 10 % of |B|)" in words
+    assert own.cost_deg(read.field_norm, 60.0) > 0
+    back = model_to_dict(read)
+    assert back["channels"][first]["direction_covariance"] is None
+    assert back["channels"][second]["response_sigma"]["offset"] is None
+    assert undetermined_words(from_dict(back).model.calibration_uncertainty, read.field_norm, read.dip_deg) == words
+    # the prior is in the heading sigma: above the same file with that channel's entries read as zero
+    zeroed = dataclasses.replace(read, direction_covariance=model.direction_covariance * [[[0]], [[1]], [[1]]],
+                                 sigma_priors=None)
+    r = Rotation.from_euler("ZYX", [40.0, 5.0, -3.0], degrees=True).as_matrix()
+    b = r.T @ world_field(60.0, read.field_norm)
+    assert own.heading_sigma_deg(r, b) > zeroed.calibration_uncertainty.heading_sigma_deg(r, b)
