@@ -190,6 +190,24 @@ def test_the_level_covariance_over_g_minus_one_is_unbiased_for_the_error_per_axi
     assert abs(ratios.mean() - 1.0) < 3.0 * ratios.std() / np.sqrt(ratios.size)
 
 
+@pytest.mark.parametrize("size", [0.5, 3.0])
+def test_the_whole_widening_covers_a_smooth_path_with_noisy_levels(size):
+    """A slow spiral (each block its own band of latitudes) with independent block levels: the whole widening's
+    err/sig in the benchmark's band whether the levels' noise is a large share of their spread (0.5: where the
+    Satterthwaite growth acts) or not (3.0).  A coverage check of the interpolation, not of ``G - 1`` against
+    ``G - 3`` (both fall inside this band: the test above tells them apart)."""
+    rng = np.random.default_rng(15)
+    n = 1600
+    t = np.linspace(0.0, 1.0, n)
+    polar, azimuth = np.pi * t, 12 * np.pi * t
+    u = np.column_stack([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)])
+    ratios = []
+    for _ in range(300):
+        jac, resid, err, bread, blocks = _radial(u, rng.normal(size=(8, 3)), rng, size)
+        ratios.append(err / np.sqrt(np.diag(widened_in_time(jac, resid, blocks, bread, hard=[0, 1, 2]))[:3]))
+    assert 0.8 < np.sqrt(np.mean(np.square(ratios))) < 1.25
+
+
 def test_a_swing_whose_hard_iron_levels_are_the_sorts_levels_keeps_the_sandwich():
     """A level swing: a block's hard-iron level is nearly a constant; the hard iron's levels fit better than a
     level per block, but most of what they explain a level per block explains too: CR2, as without ``hard``."""
