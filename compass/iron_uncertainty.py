@@ -44,7 +44,8 @@ from functools import cached_property
 
 import numpy as np
 
-__all__ = ["TumbleUncertainty", "ChannelUncertainty", "channel_priors", "with_calibration_sigma", "undetermined_words",
+__all__ = ["TumbleUncertainty", "ChannelUncertainty", "channel_priors", "with_calibration_sigma",
+           "with_calibration_sigma_many", "undetermined_words",
            "HARD_IRON_PRIOR", "SOFT_IRON_PRIOR", "ROTATION_PRIOR_DEG",
            "ROTATION_PRIOR_AXIS_DEG"]
 
@@ -398,6 +399,37 @@ def with_calibration_sigma(sigma_deg: float, uncertainty, matrix, field_h) -> fl
     if uncertainty is None:
         return sigma_deg
     return math.hypot(sigma_deg, uncertainty.heading_sigma_deg(matrix, field_h))
+
+
+def with_calibration_sigma_many(sigma_deg, uncertainty, matrices, field_h) -> np.ndarray:
+    """:func:`with_calibration_sigma` for many samples at once (:func:`compass.filter.run_filter`), vectorised
+    through the uncertainty's :meth:`covariance`: ``n^T Sigma_B n / |B_h|^2`` with ``n = up x B``, degrees.
+
+    Parameters
+    ----------
+    sigma_deg : array_like, shape (m,)
+        The filter's heading 1-sigmas, degrees.
+    uncertainty : TumbleUncertainty or ChannelUncertainty or None
+    matrices : array_like, shape (m, 3, 3)
+        ``R_world<-housing`` (NWU world) of each sample.
+    field_h : array_like, shape (m, 3)
+        The calibrated field in H of each sample, field units.
+
+    Returns
+    -------
+    ndarray, shape (m,)
+        Degrees (inf where the field has no horizontal part, as the scalar path).
+    """
+    sigma_deg = np.asarray(sigma_deg, dtype=float)
+    if uncertainty is None:
+        return sigma_deg.copy()
+    b = np.asarray(field_h, dtype=float)
+    n = np.cross(np.asarray(matrices, dtype=float)[:, 2, :], b)  # up x B: |n| = |B_h|
+    horizontal2 = np.einsum("ni,ni->n", n, n)
+    var = np.einsum("ni,nij,nj->n", n, uncertainty.covariance(b), n)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        own = np.where(horizontal2 > 0.0, np.degrees(np.sqrt(var) / horizontal2), np.inf)
+    return np.hypot(sigma_deg, own)
 
 
 def undetermined_words(uncertainty, field_norm: float, dip_deg: float | None = None) -> str | None:

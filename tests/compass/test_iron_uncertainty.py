@@ -480,3 +480,20 @@ def test_a_channel_forms_null_sigma_takes_its_stated_prior_and_is_said():
     r = Rotation.from_euler("ZYX", [40.0, 5.0, -3.0], degrees=True).as_matrix()
     b = r.T @ world_field(60.0, read.field_norm)
     assert own.heading_sigma_deg(r, b) > zeroed.calibration_uncertainty.heading_sigma_deg(r, b)
+
+
+@pytest.mark.parametrize("form", ["tumble", "channels"])
+def test_the_vectorised_calibration_sigma_is_the_per_sample_one(widened, form):
+    """``with_calibration_sigma_many`` (run_filter, after its loop) gives compass live's per-sample
+    ``with_calibration_sigma`` on every sample, for either form's uncertainty."""
+    from compass.iron_uncertainty import with_calibration_sigma, with_calibration_sigma_many
+
+    own = from_dict(widened[1]).model.iron_uncertainty if form == "tumble" else _channel_model().calibration_uncertainty
+    rng = np.random.default_rng(8)
+    r = Rotation.from_euler("ZYX", rng.uniform([-180, -50, -50], [180, 50, 50], size=(40, 3)), degrees=True)
+    matrices = r.as_matrix()
+    b = r.apply(world_field(60.0, 40.0), inverse=True) + rng.normal(0.0, 1.0, (40, 3))
+    sigma = rng.uniform(0.1, 2.0, 40)
+    expected = [with_calibration_sigma(s, own, m, f) for s, m, f in zip(sigma, matrices, b)]
+    np.testing.assert_allclose(with_calibration_sigma_many(sigma, own, matrices, b), expected, rtol=1e-10)
+    np.testing.assert_array_equal(with_calibration_sigma_many(sigma, None, matrices, b), sigma)
