@@ -54,7 +54,8 @@ and the spread less it) and the axis is grown by ``nu / (nu - 2) (G - 3) / (G - 
 the no-noise limit (the Beta argument above) and ``nu / (nu - 2)``, a t's variance inflation over the
 ``G - 3`` of ``E[1 / V^]``, in the noise-dominated limit, where the spread's scatter is mostly not the
 error's own; between them it is supported only by the Monte Carlo of the tests (the smooth spiral with
-the levels' noise a large share of their spread) and the benchmark (``tools/bench_kinds_loop.py``).  The levels are taken as independent across blocks although a walk's are
+the levels' noise a large share of their spread) and the benchmark (``tools/bench_kinds_loop.py``).
+The levels are taken as independent across blocks although a walk's are
 correlated: where the orientations do not follow time the design's ``A_b`` scatter about zero from
 block to block and ``E[sum_bc A_b C_bc A_c^T]`` over that scatter is the same for any ``C`` with the
 same spread, so the correlation does not enter; where they follow time it does (a random-walk model

@@ -224,8 +224,8 @@ class FilterConfig:
         none of the calibration's own uncertainty (a tumble file's iron sigmas, a four-flip's or an
         installation's offset, gain and direction sigmas: a constant error, not noise from sample to sample;
         it is carried as :attr:`calibration_uncertainty`, which ``compass live``, its replay and
-        :func:`run_filter` add to the reported heading sigma instead, so it is counted once and never fused).  ``gravity``: what 1 g reads
-        (``--gravity``), else learnt from the start window.
+        :func:`run_filter` add to the reported heading sigma instead, so it is counted once and never fused).
+        ``gravity``: what 1 g reads (``--gravity``), else learnt from the start window.
 
         With ``mag_latency`` also the magnetometer's latency the calibration found
         (``model.mag_latency_s``: a tumble's gyro-aided fit's, 0 when the file has none; ``compass live``
