@@ -44,8 +44,10 @@ from functools import cached_property
 
 import numpy as np
 
-__all__ = ["TumbleUncertainty", "ChannelUncertainty", "with_calibration_sigma", "undetermined_words",
-           "HARD_IRON_PRIOR", "SOFT_IRON_PRIOR", "ROTATION_PRIOR_DEG"]
+__all__ = ["TumbleUncertainty", "ChannelUncertainty", "channel_priors", "with_calibration_sigma",
+           "with_calibration_sigma_many", "undetermined_words",
+           "HARD_IRON_PRIOR", "SOFT_IRON_PRIOR", "ROTATION_PRIOR_DEG",
+           "ROTATION_PRIOR_AXIS_DEG"]
 
 HARD_IRON_PRIOR = 0.1
 """1-sigma of a hard-iron component the fit left undetermined, as a fraction of |B|: a product's iron moves the
@@ -54,11 +56,16 @@ SOFT_IRON_PRIOR = 0.05
 """1-sigma of a soft-iron entry the fit left undetermined, as a fraction of the soft iron's scale
 (``det(S)^(1/3)``): a few per cent of distortion, as the tumble fits here find on boards; a stated prior."""
 ROTATION_PRIOR_DEG = 2.0
-"""1-sigma of each component of the magnetometer-to-accelerometer rotation when it was not determined (or not
-fitted), degrees: two sensors' axes on one board or in one package agree to a degree or two (data sheets give
-their own alignment to +-1 deg, a board's assembly as much again); a stated prior.  With no rotation fitted at
-all (a tumble without accelerometer) the reader adds the fitted soft iron's anisotropy in quadrature: the
-ellipsoid's symmetric ``S`` cannot see the iron's rotation part (tools/bench_undetermined_prior.py)."""
+"""1-sigma of the magnetometer-to-accelerometer rotation when it was not determined (or not fitted), as the total
+angle between the two frames (RMS), degrees: two sensors' axes on one board or in one package agree to a degree
+or two in all (data sheets give their own alignment to +-1 deg, a board's assembly as much again), and that is a
+statement about the angle between the frames, not about each component; a stated prior.  Each component of the
+rotation vector takes :data:`ROTATION_PRIOR_AXIS_DEG`.  The mounting rotation alone: a fit without accelerometer
+recovers the soft iron itself (a symmetric iron to thousandths of a degree of rotation), so nothing is added for
+it (tools/bench_undetermined_prior.py)."""
+ROTATION_PRIOR_AXIS_DEG = ROTATION_PRIOR_DEG / math.sqrt(3.0)
+"""1-sigma of each component of the undetermined rotation vector, degrees (``ROTATION_PRIOR_DEG / sqrt(3)``:
+three independent components of this sigma give a total angle of RMS :data:`ROTATION_PRIOR_DEG`)."""
 _COST_HEADINGS_DEG = np.arange(0.0, 360.0, 30.0)  # level headings the cost of a prior is averaged over
 
 
@@ -209,14 +216,19 @@ class TumbleUncertainty:
         dip_deg : float
             The field's dip, degrees.
         """
-        if self.prior is None:
-            return 0.0
-        from .frames import r_world_from_housing, world_field
+        return _cost_deg(self.prior, field_norm, dip_deg)
 
-        rot = r_world_from_housing(_COST_HEADINGS_DEG, 0.0, 0.0)
-        fields = rot.apply(world_field(dip_deg, field_norm), inverse=True)
-        var = [self.prior.heading_sigma_deg(m, b) ** 2 for m, b in zip(rot.as_matrix(), fields)]
-        return float(np.sqrt(np.mean(var)))
+
+def _cost_deg(prior, field_norm: float, dip_deg: float) -> float:
+    """RMS over level headings of ``prior.heading_sigma_deg``, degrees; 0 for no prior."""
+    if prior is None:
+        return 0.0
+    from .frames import r_world_from_housing, world_field
+
+    rot = r_world_from_housing(_COST_HEADINGS_DEG, 0.0, 0.0)
+    fields = rot.apply(world_field(dip_deg, field_norm), inverse=True)
+    var = [prior.heading_sigma_deg(m, b) ** 2 for m, b in zip(rot.as_matrix(), fields)]
+    return float(np.sqrt(np.mean(var)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -245,6 +257,12 @@ class ChannelUncertainty:
         rad^2 (None: the file gives none).
     response_sigma : ndarray, shape (c, 2), or None
         Offset (output units) and gain (output units per field unit) sigmas (None: the file gives none).
+    undetermined : tuple of str
+        As :attr:`TumbleUncertainty.undetermined`: the channels' sigmas the file left null beside others it
+        gives, in words with the prior each takes (:func:`channel_priors`); their entries above hold it.
+    prior : ChannelUncertainty or None
+        The priors' part alone (zeros elsewhere): what they add (:meth:`cost_deg`); None when nothing is
+        undetermined.
     """
 
     unit_directions: np.ndarray
@@ -252,7 +270,12 @@ class ChannelUncertainty:
     gains: np.ndarray
     direction_covariance: np.ndarray | None = None
     response_sigma: np.ndarray | None = None
-    undetermined = ()  # as TumbleUncertainty's: the reader gives a channel form with a null sigma none at all
+    undetermined: tuple = ()
+    prior: "ChannelUncertainty | None" = None
+
+    def cost_deg(self, field_norm: float, dip_deg: float) -> float:
+        """As :meth:`TumbleUncertainty.cost_deg`."""
+        return _cost_deg(self.prior, field_norm, dip_deg)
 
     def component_variance(self, field_h) -> np.ndarray:
         """``var_c`` (class docstring) at ``field_h`` (shape (..., 3), field units): shape (..., c), field units
@@ -310,6 +333,50 @@ class ChannelUncertainty:
         return math.degrees(math.sqrt(var) / horizontal2)
 
 
+def channel_priors(unit_directions, gains, field_norm: float, names, direction_gone, offset_gone,
+                   gain_gone) -> tuple[np.ndarray, np.ndarray, tuple]:
+    """The stated priors of a channel form's sigmas the file left null beside others it gives.
+
+    A channel's direction takes the mounting's rotation prior (:data:`ROTATION_PRIOR_AXIS_DEG` about each axis:
+    ``sigma^2 (I - a a^T)``, rad^2), its offset :data:`HARD_IRON_PRIOR` of |B| and its gain
+    :data:`SOFT_IRON_PRIOR` of itself (the same sizes as a tumble's hard and soft iron).
+
+    Parameters
+    ----------
+    unit_directions : array_like, shape (c, 3)
+    gains : array_like, shape (c,)
+        Output units per field unit.
+    field_norm : float
+        |B|, field units.
+    names : sequence of str
+        The channels' names, for the words.
+    direction_gone, offset_gone, gain_gone : array_like of bool, shape (c,)
+        Which channel's direction covariance, offset sigma and gain sigma the file left null.
+
+    Returns
+    -------
+    direction_covariance : ndarray, shape (c, 3, 3)
+        The prior where gone, zeros elsewhere, rad^2.
+    response_sigma : ndarray, shape (c, 2)
+        The priors where gone, zeros elsewhere: output units, output units per field unit.
+    words : tuple of str
+        One phrase per undetermined part (empty when none).
+    """
+    a = np.asarray(unit_directions, dtype=float)
+    k = np.abs(np.asarray(gains, dtype=float))
+    gone = [np.asarray(g, dtype=bool) for g in (direction_gone, offset_gone, gain_gone)]
+    across = np.eye(3)[None] - a[:, :, None] * a[:, None, :]
+    cov = np.where(gone[0][:, None, None], math.radians(ROTATION_PRIOR_AXIS_DEG) ** 2 * across, 0.0)
+    sigma = np.column_stack([np.where(gone[1], HARD_IRON_PRIOR * field_norm * k, 0.0),
+                             np.where(gone[2], SOFT_IRON_PRIOR * k, 0.0)])
+    names = np.asarray(names)
+    words = tuple(f"{what} of {', '.join(names[g])} (taken as {prior})" for what, g, prior in (
+        ("the direction", gone[0], f"{ROTATION_PRIOR_AXIS_DEG:.2g} deg per axis: a mounting's"),
+        ("the offset", gone[1], f"{100 * HARD_IRON_PRIOR:.0f} % of |B|"),
+        ("the gain", gone[2], f"{100 * SOFT_IRON_PRIOR:.0f} %")) if g.any())
+    return cov, sigma, words
+
+
 def with_calibration_sigma(sigma_deg: float, uncertainty, matrix, field_h) -> float:
     """A filter's heading sigma (the noise's) with the calibration's own at its attitude, in quadrature, degrees.
 
@@ -332,6 +399,37 @@ def with_calibration_sigma(sigma_deg: float, uncertainty, matrix, field_h) -> fl
     if uncertainty is None:
         return sigma_deg
     return math.hypot(sigma_deg, uncertainty.heading_sigma_deg(matrix, field_h))
+
+
+def with_calibration_sigma_many(sigma_deg, uncertainty, matrices, field_h) -> np.ndarray:
+    """:func:`with_calibration_sigma` for many samples at once (:func:`compass.filter.run_filter`), vectorised
+    through the uncertainty's :meth:`covariance`: ``n^T Sigma_B n / |B_h|^2`` with ``n = up x B``, degrees.
+
+    Parameters
+    ----------
+    sigma_deg : array_like, shape (m,)
+        The filter's heading 1-sigmas, degrees.
+    uncertainty : TumbleUncertainty or ChannelUncertainty or None
+    matrices : array_like, shape (m, 3, 3)
+        ``R_world<-housing`` (NWU world) of each sample.
+    field_h : array_like, shape (m, 3)
+        The calibrated field in H of each sample, field units.
+
+    Returns
+    -------
+    ndarray, shape (m,)
+        Degrees (inf where the field has no horizontal part, as the scalar path).
+    """
+    sigma_deg = np.asarray(sigma_deg, dtype=float)
+    if uncertainty is None:
+        return sigma_deg.copy()
+    b = np.asarray(field_h, dtype=float)
+    n = np.cross(np.asarray(matrices, dtype=float)[:, 2, :], b)  # up x B: |n| = |B_h|
+    horizontal2 = np.einsum("ni,ni->n", n, n)
+    var = np.einsum("ni,nij,nj->n", n, uncertainty.covariance(b), n)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        own = np.where(horizontal2 > 0.0, np.degrees(np.sqrt(var) / horizontal2), np.inf)
+    return np.hypot(sigma_deg, own)
 
 
 def undetermined_words(uncertainty, field_norm: float, dip_deg: float | None = None) -> str | None:

@@ -93,7 +93,9 @@ class LiveSession:
         Default :meth:`FilterConfig.from_model`.  Its ``calibration_uncertainty`` (the calibration's own, which
         ``from_model`` carries) is added to the reported heading sigma at each estimate's attitude
         (:func:`compass.iron_uncertainty.with_calibration_sigma`; a part the calibration left undetermined
-        counts with a stated prior, said in a warning event).
+        counts with a stated prior, said in a warning event).  A ``FilterConfig(...)`` built by hand has
+        none (its ``calibration_uncertainty`` defaults to None): the reported sigma is then the filter's
+        noise alone; build it with ``dataclasses.replace(FilterConfig.from_model(model), ...)`` to keep it.
     out : text file, optional
         Receives the attitude CSV (:data:`CSV_COLUMNS`; ``gate`` coded as :data:`GATE_CODES`).
     sink : compass.viz.RerunSink, optional

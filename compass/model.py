@@ -85,6 +85,11 @@ class SensorModel:
         (:mod:`compass.iron_uncertainty`): :meth:`field_covariance` adds them; None for the channel
         form (whose ``direction_covariance`` and ``response_sigma`` hold its own) and for a tumble file
         without them.
+    sigma_priors : tuple or None
+        The stated priors a channel form's null sigmas took (beside others the file gives): ``(direction
+        covariance (c, 3, 3), response sigma (c, 2), words)`` from
+        :func:`compass.iron_uncertainty.channel_priors`, already in :attr:`direction_covariance` and
+        :attr:`response_sigma`; None when nothing took one.
     mag_latency_s : float
         How late the magnetometer reads against the gyro, s: a tumble's gyro-aided fit's
         ``tumble.gyro.mag_latency_s`` when it saw one (positive, beyond 3 sigma), else 0.
@@ -109,6 +114,7 @@ class SensorModel:
     iron_uncertainty: TumbleUncertainty | None = None
     mag_latency_s: float = 0.0
     gyro_matrix: np.ndarray | None = None
+    sigma_priors: tuple | None = None
 
     def __post_init__(self):
         c = len(self.channels)
@@ -166,8 +172,13 @@ class SensorModel:
 
     @cached_property
     def _channel_uncertainty(self) -> ChannelUncertainty:
+        if self.sigma_priors is None:
+            return ChannelUncertainty(self.unit_directions, self.solver, self.gains, self.direction_covariance,
+                                      self.response_sigma)
+        cov, sigma, words = self.sigma_priors
+        prior = ChannelUncertainty(self.unit_directions, self.solver, self.gains, cov, sigma)
         return ChannelUncertainty(self.unit_directions, self.solver, self.gains, self.direction_covariance,
-                                  self.response_sigma)
+                                  self.response_sigma, words, prior)
 
     @cached_property
     def calibration_uncertainty(self) -> TumbleUncertainty | ChannelUncertainty | None:
@@ -267,23 +278,29 @@ class SensorModel:
             Zero where nothing is known (no ``noise_floor``, no covariances).
         """
         b = np.asarray(field, dtype=float)
-        x = _times(b, self.unit_directions.T)
-        var = np.zeros_like(x)
-        if self.component_noise is not None:
-            var += (self.component_noise / self._relative_slope(x)) ** 2
+        var = self.noise_variance(b)
         if self.direction_covariance is not None or self.response_sigma is not None:
             var += self._channel_uncertainty.component_variance(b)
         return var
 
-    def field_covariance(self, field, *, iron: bool = True) -> np.ndarray:
+    def noise_variance(self, field) -> np.ndarray:
+        """The white noise's part of :meth:`component_variance` alone (``sigma_v^2 / f'(x)^2``), field units
+        squared, shape (..., c): what changes from sample to sample, none of the calibration's own constant
+        error (what a filter fuses: :meth:`compass.filter.FilterConfig.from_model`).  Zero without ``noise_floor``."""
+        x = _times(np.asarray(field, dtype=float), self.unit_directions.T)
+        if self.component_noise is None:
+            return np.zeros_like(x)
+        return (self.component_noise / self._relative_slope(x)) ** 2 * np.ones_like(x)
+
+    def field_covariance(self, field) -> np.ndarray:
         """Covariance of the estimated field vector in H, ``P diag(var) P^T``, shape (..., 3, 3).
 
-        See :meth:`component_variance`; with ``iron`` a tumble file's :attr:`iron_uncertainty` adds
+        See :meth:`component_variance`; a tumble file's :attr:`iron_uncertainty` adds
         its own (:meth:`compass.iron_uncertainty.TumbleUncertainty.covariance`); field units squared.
         """
         p = self.solver
         cov = np.einsum("ic,...c,jc->...ij", p, self.component_variance(field), p)
-        if not iron or self.iron_uncertainty is None:
+        if self.iron_uncertainty is None:
             return cov
         return cov + self.iron_uncertainty.covariance(field)
 

@@ -43,12 +43,19 @@ noise alone gives it (the regression's covariance), over ``G - 1``.  Why ``G - 1
 with the levels independent draws of ``V`` and ``a = (A_b)`` (``sum_b A_b = 0``, so ``a`` lies in the
 centred levels' space), the spread is ``(a . u)^2 / |a|^2`` plus an independent ``V chi^2_{G-2}``, so
 ``err^2 / sigma^2 = (G - 1) z^2 / (z^2 + chi^2_{G-2})``, a ``(G - 1) Beta(1/2, (G - 2)/2)`` of mean one
-for every design; ``G - 3`` over-covered by ``sqrt(7/5)`` in sigma.  Where the noise's share of an
-axis's spread is not small (a block that sees a narrow band of orientations determines its level
-poorly) the spread has fewer degrees of freedom than ``G - 1`` (Satterthwaite's ``nu``, from the
-noise's covariance and the spread less it) and the part of its scatter that is not the error's own
-is a t's: the axis is grown by ``nu / (nu - 2) (G - 3) / (G - 1)`` (one without noise, ``nu`` held at
-:data:`MIN_DOF` or more).  The levels are taken as independent across blocks although a walk's are
+for every design along that axis (per axis: the argument takes one axis's ``A_b`` and level at a time; a
+design whose ``A_b`` mixes the axes is not covered by it); ``G - 3`` over-covered by ``sqrt(7/5)`` in
+sigma (``tests/calibrate/diagnosis/test_blocks.py``: a noise-free Monte Carlo of the level covariance
+alone, mean one within its standard errors, ``G - 3`` far off).  Where the noise's share of an axis's
+spread is not small (a block that sees a narrow band of orientations determines its level poorly) the
+spread has fewer degrees of freedom than ``G - 1`` (Satterthwaite's ``nu``, from the noise's covariance
+and the spread less it) and the axis is grown by ``nu / (nu - 2) (G - 3) / (G - 1)`` (one without noise,
+``nu`` held at :data:`MIN_DOF` or more).  That factor is an interpolation, not a derivation: it is one in
+the no-noise limit (the Beta argument above) and ``nu / (nu - 2)``, a t's variance inflation over the
+``G - 3`` of ``E[1 / V^]``, in the noise-dominated limit, where the spread's scatter is mostly not the
+error's own; between them it is supported only by the Monte Carlo of the tests (the smooth spiral with
+the levels' noise a large share of their spread) and the benchmark (``tools/bench_kinds_loop.py``).
+The levels are taken as independent across blocks although a walk's are
 correlated: where the orientations do not follow time the design's ``A_b`` scatter about zero from
 block to block and ``E[sum_bc A_b C_bc A_c^T]`` over that scatter is the same for any ``C`` with the
 same spread, so the correlation does not enter; where they follow time it does (a random-walk model
@@ -283,7 +290,10 @@ def _level_covariance(levels: np.ndarray, noise_cov: np.ndarray) -> np.ndarray:
     w, v = np.linalg.eigh(0.5 * (cov + cov.T))
     cov = (v * np.maximum(w, 0.0)) @ v.T
     grow = np.ones(h)
-    for a in range(h):  # Satterthwaite's degrees of freedom of the axis's spread, the noise's share in it
+    # Satterthwaite's degrees of freedom of each axis's spread (the noise's share in it); the growth is an
+    # interpolation between the no-noise limit (1) and the noise-dominated one (a t's nu / (nu - 2) over G - 3),
+    # supported by Monte Carlo, not derived (module docstring)
+    for a in range(h):
         axis, var = noise[a::h, a::h], cov[a, a]
         spread_var = free * var**2 + 2.0 * var * np.trace(axis) + np.sum(axis * axis)
         nu = min(max(free**2 * var**2 / spread_var if spread_var > 0 else free, MIN_DOF), free)

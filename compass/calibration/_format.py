@@ -73,13 +73,16 @@ def model_to_dict(model) -> dict:
     dict
     """
     channels = {}
+    # a sigma the file left null (it took a stated prior: model.sigma_priors) is written null again
+    prior_cov, prior_sigma = (None, None) if model.sigma_priors is None else model.sigma_priors[:2]
     for c, name in enumerate(model.channels):
         entry = {"direction": [float(v) for v in model.directions[c]], "response": model.responses[c].to_json()}
         if model.direction_covariance is not None:
-            entry["direction_covariance"] = model.direction_covariance[c].tolist()
+            gone = prior_cov is not None and np.any(prior_cov[c])
+            entry["direction_covariance"] = None if gone else model.direction_covariance[c].tolist()
         if model.response_sigma is not None:
-            entry["response_sigma"] = {"offset": float(model.response_sigma[c, 0]),
-                                       "gain": float(model.response_sigma[c, 1])}
+            entry["response_sigma"] = {k: None if prior_sigma is not None and prior_sigma[c, i] > 0
+                                       else float(model.response_sigma[c, i]) for i, k in enumerate(("offset", "gain"))}
         channels[name] = entry
     out = header("channels") | {"channels": channels, "dip_deg": model.dip_deg, "field_ut": model.field_ut}
     if model.temperature is not None and model.temperature.reference_c is not None:

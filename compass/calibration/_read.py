@@ -310,6 +310,8 @@ def _channel_model(d: dict):
                                            "recalibrate the module after repair", key=key)
         sigmas.append(rs)
     gains = np.array([r.gain for r in responses])
+    covariance, sigma, priors = _channel_sigmas(names, np.array(directions), gains, field_ut or 1.0, covariances,
+                                                sigmas)
     try:
         return SensorModel(
             channels=tuple(names),
@@ -319,9 +321,10 @@ def _channel_model(d: dict):
             field_ut=field_ut,
             dip_deg=dip_deg,
             noise=check.noise(d.get("noise_floor"), len(names)),
-            direction_covariance=None if any(c is None for c in covariances) else np.array(covariances),
-            response_sigma=(None if any(s is None or None in s for s in sigmas) else np.array(sigmas, dtype=float)),
+            direction_covariance=covariance,
+            response_sigma=sigma,
             temperature=_temperature(d, names, gains),
+            sigma_priors=priors,
         )
     except CalibrationFileError:
         raise
@@ -329,6 +332,32 @@ def _channel_model(d: dict):
         raise NoFieldVector(f"cannot give a field vector: {exc}", key="channels") from None
     except ValueError as exc:
         raise CalibrationFileError(f"are unusable: {exc}", key="channels") from None
+
+
+def _channel_sigmas(names, directions, gains, field_norm, covariances, sigmas) -> tuple:
+    """The channels' direction covariances (c, 3, 3) and response sigmas (c, 2), each None when no channel gives
+    one (nothing claimed), and the priors a null one took beside others given (never read as zero:
+    :func:`compass.iron_uncertainty.channel_priors`), as ``SensorModel.sigma_priors`` (None when none)."""
+    from ..iron_uncertainty import channel_priors
+
+    c = len(names)
+    dir_gone = np.array([cov is None for cov in covariances])
+    rs = [(None, None) if s is None else s for s in sigmas]
+    off_gone, gain_gone = (np.array([r[i] is None for r in rs]) for i in (0, 1))
+    has_dir, has_rs = not dir_gone.all(), not (off_gone.all() and gain_gone.all())
+    dir_gone &= has_dir
+    off_gone &= has_rs
+    gain_gone &= has_rs
+    covariance = np.array([np.zeros((3, 3)) if cov is None else cov for cov in covariances]) if has_dir else None
+    sigma = np.array([[0.0 if v is None else v for v in r] for r in rs], dtype=float).reshape(c, 2) if has_rs else None
+    if not (dir_gone.any() or off_gone.any() or gain_gone.any()):
+        return covariance, sigma, None
+    prior_cov, prior_sigma, words = channel_priors(directions, gains, field_norm, names, dir_gone, off_gone, gain_gone)
+    if covariance is not None:
+        covariance = covariance + prior_cov
+    if sigma is not None:
+        sigma = np.hypot(sigma, prior_sigma)
+    return covariance, sigma, (prior_cov, prior_sigma, words)
 
 
 # -------------------------------------------------------------------------------------- tumble form
@@ -384,10 +413,11 @@ def _tumble_uncertainty(block: dict, soft: np.ndarray, rotation: np.ndarray, rot
     fitted (``mag_to_accel`` null: the accelerometer's frame taken as the magnetometer's) is never read as
     zero: it takes the stated prior (:data:`compass.iron_uncertainty.HARD_IRON_PRIOR` of |B|,
     :data:`~compass.iron_uncertainty.SOFT_IRON_PRIOR` of the soft iron's scale,
-    :data:`~compass.iron_uncertainty.ROTATION_PRIOR_DEG`) and is named in its ``undetermined``.  An absent
+    :data:`~compass.iron_uncertainty.ROTATION_PRIOR_AXIS_DEG` per axis) and is named in its ``undetermined``.  An absent
     rotation sigma beside a fitted rotation: zeros, as the file says nothing of it.  Anything else that is
     not a list of numbers of the key's shape is refused."""
-    from ..iron_uncertainty import HARD_IRON_PRIOR, ROTATION_PRIOR_DEG, SOFT_IRON_PRIOR, TumbleUncertainty
+    from ..iron_uncertainty import (HARD_IRON_PRIOR, ROTATION_PRIOR_AXIS_DEG, ROTATION_PRIOR_DEG, SOFT_IRON_PRIOR,
+                                   TumbleUncertainty)
 
     if block.get("hard_iron_sigma") is None or block.get("soft_iron_sigma") is None:
         return None
@@ -405,22 +435,17 @@ def _tumble_uncertainty(block: dict, soft: np.ndarray, rotation: np.ndarray, rot
                             + f" (taken as {100 * SOFT_IRON_PRIOR:.0f} %)")
     key = "misalignment_rotvec_sigma_deg"
     rot, rot_gone = np.zeros(3), np.zeros(3, dtype=bool)
-    rot_prior = np.radians(ROTATION_PRIOR_DEG)
+    rot_prior = np.radians(ROTATION_PRIOR_AXIS_DEG)
     if not rotation_fitted:
-        # no accelerometer: the ellipsoid's symmetric S cannot see the iron's rotation part either (an asymmetric
-        # soft iron turns the field as much as it stretches it), so the prior adds the fitted anisotropy's size
         rot_gone[:] = True
-        anisotropy = float(np.sqrt(np.mean((soft / scale - np.eye(3))[np.triu_indices(3)] ** 2)))
-        rot_prior = float(np.hypot(rot_prior, anisotropy))
         undetermined.append(f"the rotation from the magnetometer to the accelerometer (not fitted, taken as none; "
-                            f"its sigma as {np.degrees(rot_prior):.2g} deg per axis: {ROTATION_PRIOR_DEG:g} deg of "
-                            f"mounting and the soft iron's {100 * anisotropy:.2g} % anisotropy, whose rotation part "
-                            "a fit without accelerometer cannot see)")
+                            f"its sigma as {ROTATION_PRIOR_DEG:g} deg in all, {ROTATION_PRIOR_AXIS_DEG:.2g} deg per "
+                            "axis: a mounting's)")
     elif key in block:
         rot, rot_gone = _sigma(block.get(key), (3,), f"tumble.{key}")
         if rot_gone.any():
             undetermined.append(f"the rotation to the accelerometer about {', '.join(np.array(list('xyz'))[rot_gone])} "
-                                f"(taken as {ROTATION_PRIOR_DEG:g} deg)")
+                                f"(taken as {ROTATION_PRIOR_AXIS_DEG:.2g} deg per axis)")
         rot = np.radians(rot)
     for name, value in (("hard_iron_sigma", hard), ("soft_iron_sigma", soft_sigma), (key, rot)):
         if np.any(value < 0):
@@ -430,7 +455,9 @@ def _tumble_uncertainty(block: dict, soft: np.ndarray, rotation: np.ndarray, rot
     priors = (np.where(hard_gone, HARD_IRON_PRIOR * field_norm / scale, 0.0),
               np.where(soft_gone, SOFT_IRON_PRIOR * scale, 0.0), np.where(rot_gone, rot_prior, 0.0))
     prior = TumbleUncertainty(soft, rotation, *priors)
-    return TumbleUncertainty(soft, rotation, hard + priors[0], soft_sigma + priors[1], rot + priors[2],
+    # in quadrature: an undetermined entry holds 0 (its prior alone); S_ij beside a null S_ji keeps its own sigma too
+    return TumbleUncertainty(soft, rotation, np.hypot(hard, priors[0]), np.hypot(soft_sigma, priors[1]),
+                             np.hypot(rot, priors[2]),
                              tuple(undetermined), prior)
 
 

@@ -232,11 +232,12 @@ class FilterConfig:
                    gyro_matrix: bool = False) -> "FilterConfig":
         """Reference field and magnetometer noise from a :class:`compass.model.SensorModel`.
 
-        The noise is the field's at zero field without a tumble file's own uncertainty
-        (``model.iron_uncertainty``: a constant error of the calibration, not noise from sample to sample;
+        The noise is the field's white noise at zero field alone (``model.noise_variance``), for every form:
+        none of the calibration's own uncertainty (a tumble file's iron sigmas, a four-flip's or an
+        installation's offset, gain and direction sigmas: a constant error, not noise from sample to sample;
         it is carried as :attr:`calibration_uncertainty`, which ``compass live``, its replay and
-        :func:`run_filter` add to the reported heading sigma instead).  ``gravity``: what 1 g reads
-        (``--gravity``), else learnt from the start window.
+        :func:`run_filter` add to the reported heading sigma instead, so it is counted once and never fused).
+        ``gravity``: what 1 g reads (``--gravity``), else learnt from the start window.
 
         With ``mag_latency`` also the magnetometer's latency the calibration found
         (``model.mag_latency_s``: a tumble's gyro-aided fit's, 0 when the file has none; ``compass live``
@@ -262,7 +263,8 @@ class FilterConfig:
             raise ValueError("the calibration has no dip_deg: the filter needs the field's reference direction")
         if model.noise is None:
             raise ValueError("the calibration has no noise_floor: the filter cannot weight the magnetometer")
-        noise = float(np.sqrt(np.trace(model.field_covariance(np.zeros(3), iron=False)) / 3.0))
+        p = model.solver
+        noise = float(np.sqrt(np.trace((p * model.noise_variance(np.zeros(3))) @ p.T) / 3.0))
         return cls(field_norm=model.field_norm, dip_deg=model.dip_deg, mag_noise=noise,
                    mag_latency_s=model.mag_latency_s if mag_latency else 0.0, gravity=gravity,
                    gyro_matrix=model.gyro_matrix if gyro_matrix else None,

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from array import array
 from dataclasses import dataclass
 from itertools import repeat
@@ -11,7 +10,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..frames import heading_pitch_roll
-from ..iron_uncertainty import undetermined_words, with_calibration_sigma
+from ..iron_uncertainty import undetermined_words, with_calibration_sigma_many
 from ._records import SKIP_REASONS, FilterConfig, SkipCounts
 from ._start import FilterStart
 
@@ -115,8 +114,7 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig, *, reference=Non
     # field ratio, dip, mag_used, accel_used (7), the gyro bias (3); flat float buffers, no per-sample object
     # kept (57,000 kept tuples cost more in the garbage collector and in np.array than the filter's arithmetic)
     done, matrices, scalars, bias, events = [], array("d"), array("d"), array("d"), []
-    own = config.calibration_uncertainty  # the calibration's own heading sigma, added as compass live adds it
-    owns = array("d")
+    own = config.calibration_uncertainty  # the calibration's own heading sigma, added after the loop as live adds it
     gate = ["absent"] * n
     # rows as Python floats once, vectorised (the per-sample step is scalar arithmetic); each row's
     # vectors are short-lived tuples (57,000 kept lists of three would slow the garbage collector)
@@ -134,8 +132,6 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig, *, reference=Non
         scalars.extend((filt.heading_var, filt.tilt_var, filt.field_heading_var, d.field_ratio, d.dip_deg,
                         d.mag_used, d.accel_used))
         gate[i] = d.gate
-        if own is not None:  # the reported heading sigma as compass live reports it
-            owns.append(with_calibration_sigma(math.degrees(math.sqrt(filt.heading_var)), own, filt.matrix, b))
         if with_bias:
             bias.extend(filt.gyro_bias)
 
@@ -185,8 +181,8 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig, *, reference=Non
     flags = np.zeros((n, 2), dtype=bool)
     flags[done] = scalars[done, 5:] != 0.0
     sigma = np.degrees(np.sqrt(scalars[:, :3]))
-    if own is not None:
-        sigma[done, 0] = np.frombuffer(owns, dtype=float)
+    if own is not None:  # the reported heading sigma as compass live reports it, for every estimate at once
+        sigma[done, 0] = with_calibration_sigma_many(sigma[done, 0], own, matrices[done], field_h[done])
     return FilterTrack(t_s, quat, *angles.T, *sigma.T, scalars[:, 3], scalars[:, 4], flags[:, 0], flags[:, 1],
                        np.array(gate, dtype=str), _rows(bias, done, n, 3) if with_bias else None,
                        start_skips if filt is None else filt.skipped, tuple(events))

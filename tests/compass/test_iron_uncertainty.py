@@ -261,15 +261,15 @@ def test_run_filter_reports_the_heading_sigma_the_replay_reports(widened):
 
 def _channel_model(scale=1.0):
     """The simulated device's model with a four-flip's kind of uncertainty: each channel's direction covariance
-    (0.2 deg about each axis across the direction) and gain sigma times ``scale``, its offset sigma (which
-    :meth:`FilterConfig.from_model` counts in the filter's ``mag_noise`` too) not scaled."""
+    (0.2 deg about each axis across the direction), offset sigma and gain sigma times ``scale`` (none of them in
+    the filter's ``mag_noise``: :meth:`FilterConfig.from_model` takes the white noise alone)."""
     from compass.sim.device import default_model
 
     model = default_model()
     a = model.unit_directions
     across = np.eye(3)[None] - a[:, :, None] * a[:, None, :]
     cov = (scale * np.radians(0.2)) ** 2 * across
-    sigma = np.column_stack([0.002 * np.abs(model.gains) * model.field_norm, scale * 0.002 * np.abs(model.gains)])
+    sigma = scale * np.column_stack([0.002 * np.abs(model.gains) * model.field_norm, 0.002 * np.abs(model.gains)])
     return dataclasses.replace(model, direction_covariance=cov, response_sigma=sigma)
 
 
@@ -305,7 +305,7 @@ def test_a_widened_channel_calibration_reaches_the_replay_and_run_filter(kind):
         base = dataclasses.replace(_channel_model(), direction_covariance=None, response_sigma=None)
         cov = np.diag([0.05**2] * 3 + [0.002**2] * 6)  # the installation's hard and soft iron: uT^2, 1
         naive = installed_model(base, [1.0, -0.5, 0.2], np.eye(3), covariance=cov)
-        cov[3:, 3:] *= 9.0  # the soft iron's (the hard iron's offsets are in the filter's mag_noise too)
+        cov *= 9.0  # the hard iron's and the soft iron's: none of it in the filter's mag_noise
         wide = installed_model(base, [1.0, -0.5, 0.2], np.eye(3), covariance=cov)
     t = np.arange(0.0, 12.0, 0.01)
     s = simulate_device(naive, t, seed=6)
@@ -317,13 +317,15 @@ def test_a_widened_channel_calibration_reaches_the_replay_and_run_filter(kind):
     bare = dataclasses.replace(naive, direction_covariance=None, response_sigma=None)
     noise_only, _ = _replayed(bare, t, s)
     assert np.all(plain[:, sigma] > noise_only[:, sigma])  # before: the noise's alone
+    # the white noise alone: the offset sigma, three times larger, is not in mag_noise (it was, counted twice)
+    assert FilterConfig.from_model(wide).mag_noise == FilterConfig.from_model(bare).mag_noise
     track = run_filter(t, s.accel, s.gyro, wide.field(s.raw)[0], FilterConfig.from_model(wide))
     rows = np.searchsorted(t, widened_table[:, columns.index("t_s")] - 1e-6)
     np.testing.assert_allclose(track.heading_sigma_deg[rows], widened_table[:, sigma], atol=5.1e-4)
 
 
 @pytest.mark.parametrize("part, words", [
-    ("misalignment_rotvec_sigma_deg", "the rotation to the accelerometer about x, y, z (taken as 2 deg)"),
+    ("misalignment_rotvec_sigma_deg", "the rotation to the accelerometer about x, y, z (taken as 1.2 deg per axis)"),
     ("mag_to_accel", "the rotation from the magnetometer to the accelerometer (not fitted"),
     ("soft_iron_sigma", "the soft iron's S_xy (taken as 5 %)"),
 ])
@@ -424,3 +426,74 @@ def test_the_attitude_command_says_an_undetermined_part_once(widened, tmp_path, 
     assert "stated priors" in said[0]
     table = read_table(out)  # every number finite (read_table refuses anything else)
     assert np.all(table.column("heading_sigma_deg") > 0)
+
+
+def test_a_null_lower_soft_iron_entry_adds_its_prior_to_the_upper_ones_sigma_in_quadrature(widened):
+    """``S`` is symmetric, so a null ``S_yx`` beside a finite ``S_xy`` makes the one number undetermined: its sigma
+    is the finite one and the prior in quadrature (independent), not their sum."""
+    from compass.iron_uncertainty import SOFT_IRON_PRIOR
+
+    _, doc, _ = widened
+    half = copy.deepcopy(doc)
+    half["tumble"]["soft_iron_sigma"][1][0] = None
+    own = float(doc["tumble"]["soft_iron_sigma"][0][1])
+    iron = from_dict(half).model.iron_uncertainty
+    scale = abs(np.linalg.det(np.array(doc["soft_iron"]))) ** (1.0 / 3.0)
+    assert iron.prior.soft_iron_sigma[0, 1] == pytest.approx(SOFT_IRON_PRIOR * scale, rel=1e-12)
+    assert iron.soft_iron_sigma[0, 1] == pytest.approx(np.hypot(own, SOFT_IRON_PRIOR * scale), rel=1e-12)
+    assert own > 0 and iron.soft_iron_sigma[0, 1] < own + SOFT_IRON_PRIOR * scale - 1e-3 * own
+    assert any("S_xy" in part for part in iron.undetermined)
+
+
+def test_a_channel_forms_null_sigma_takes_its_stated_prior_and_is_said():
+    """A channel whose direction covariance (or offset sigma) the file leaves null beside channels that give
+    theirs is never read as zero (it dropped every channel's before): the direction takes the mounting's
+    rotation prior ``sigma^2 (I - a a^T)``, the offset 10 % of |B|; one warning line names them; the file
+    written back says null again."""
+    from compass.calibration._format import model_to_dict
+    from compass.iron_uncertainty import HARD_IRON_PRIOR, ROTATION_PRIOR_AXIS_DEG, undetermined_words
+
+    model = _channel_model()
+    doc = model_to_dict(model)
+    first, second = model.channels[0], model.channels[1]
+    doc["channels"][first]["direction_covariance"] = None
+    doc["channels"][second]["response_sigma"]["offset"] = None
+    read = from_dict(doc).model
+    own = read.calibration_uncertainty
+    a = read.unit_directions[0]
+    expected = np.radians(ROTATION_PRIOR_AXIS_DEG) ** 2 * (np.eye(3) - np.outer(a, a))
+    np.testing.assert_allclose(read.direction_covariance[0], expected, rtol=1e-12, atol=1e-18)
+    np.testing.assert_allclose(read.direction_covariance[1:], model.direction_covariance[1:], rtol=1e-12)
+    assert read.response_sigma[1, 0] == pytest.approx(HARD_IRON_PRIOR * read.field_norm * abs(read.gains[1]))
+    np.testing.assert_allclose(read.response_sigma[[0, 2]], model.response_sigma[[0, 2]], rtol=1e-12)
+    words = undetermined_words(own, read.field_norm, read.dip_deg)
+    assert words is not None and "\n" not in words
+    assert f"the direction of {first} (taken as" in words and f"the offset of {second} (taken as 10 % of |B|)" in words
+    assert own.cost_deg(read.field_norm, 60.0) > 0
+    back = model_to_dict(read)
+    assert back["channels"][first]["direction_covariance"] is None
+    assert back["channels"][second]["response_sigma"]["offset"] is None
+    assert undetermined_words(from_dict(back).model.calibration_uncertainty, read.field_norm, read.dip_deg) == words
+    # the prior is in the heading sigma: above the same file with that channel's entries read as zero
+    zeroed = dataclasses.replace(read, direction_covariance=model.direction_covariance * [[[0]], [[1]], [[1]]],
+                                 sigma_priors=None)
+    r = Rotation.from_euler("ZYX", [40.0, 5.0, -3.0], degrees=True).as_matrix()
+    b = r.T @ world_field(60.0, read.field_norm)
+    assert own.heading_sigma_deg(r, b) > zeroed.calibration_uncertainty.heading_sigma_deg(r, b)
+
+
+@pytest.mark.parametrize("form", ["tumble", "channels"])
+def test_the_vectorised_calibration_sigma_is_the_per_sample_one(widened, form):
+    """``with_calibration_sigma_many`` (run_filter, after its loop) gives compass live's per-sample
+    ``with_calibration_sigma`` on every sample, for either form's uncertainty."""
+    from compass.iron_uncertainty import with_calibration_sigma, with_calibration_sigma_many
+
+    own = from_dict(widened[1]).model.iron_uncertainty if form == "tumble" else _channel_model().calibration_uncertainty
+    rng = np.random.default_rng(8)
+    r = Rotation.from_euler("ZYX", rng.uniform([-180, -50, -50], [180, 50, 50], size=(40, 3)), degrees=True)
+    matrices = r.as_matrix()
+    b = r.apply(world_field(60.0, 40.0), inverse=True) + rng.normal(0.0, 1.0, (40, 3))
+    sigma = rng.uniform(0.1, 2.0, 40)
+    expected = [with_calibration_sigma(s, own, m, f) for s, m, f in zip(sigma, matrices, b)]
+    np.testing.assert_allclose(with_calibration_sigma_many(sigma, own, matrices, b), expected, rtol=1e-10)
+    np.testing.assert_array_equal(with_calibration_sigma_many(sigma, None, matrices, b), sigma)

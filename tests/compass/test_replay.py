@@ -319,8 +319,9 @@ def _session_rows(model, data: bytes, events=None):
                                   b"0.0" + b",inf" * 9 + b"\n", b"0.0" + b",1e9" * 9 + b"\n"])
 def test_live_drops_a_first_line_of_garbage_and_fuses_nothing_of_it(stream, line):
     """``compass live`` on a stream whose first sample line is garbage (text, NaN, 1e300, inf, or 1e9 on every
-    sensor): the line is dropped, counted and said as line noise; every other sample is solved exactly as
-    without it (the start window is the same), and nothing written is non-finite."""
+    sensor, each without the checksum the header carries: the 1e9 line is garbage for that alone): the line is
+    dropped, counted and said as line noise; every other sample is solved exactly as without it (the start
+    window is the same), and nothing written is non-finite."""
     model, t, s = stream
     data = _lines(model, t, s)
     header, rest = data.split(b"\n", 1)
@@ -334,6 +335,23 @@ def test_live_drops_a_first_line_of_garbage_and_fuses_nothing_of_it(stream, line
     assert any(level == "warn" and "line noise" in text for level, text in events)
     values = np.array([row for row in rows[1:]], dtype=float)
     assert np.all(np.isfinite(values))
+
+
+def test_live_skips_a_well_formed_absurd_line_as_the_replay_does(stream):
+    """A checksummed line of 1e9 on every sensor is within the decoder's limit (``MAX_ABS_VALUE``, 1e12, the
+    recordings'): decoded, not line noise, then skipped by the filter as the replay skips it (the field
+    out of range), said once; every other sample solved exactly as without it."""
+    model, t, s = stream
+    header, rest = _lines(model, t, s).split(b"\n", 1)
+    rest = rest.split(b"\n", 1)[1]
+    events = []
+    session, rows = _session_rows(model, header + b"\n" + format_line(["0.0"] + ["1e9"] * 9) + rest, events)
+    _, clean_rows = _session_rows(model, header + b"\n" + rest)
+    stats = session.decoder.stats
+    assert stats.garbage == stats.partial == stats.invalid == 0 and session.skipped == {"field out of range": 1}
+    assert rows == clean_rows
+    assert not any("line noise" in text for _, text in events)
+    assert any("sample skipped, never fused: field out of range" in text for _, text in events)
 
 
 def _spinning(t_s):

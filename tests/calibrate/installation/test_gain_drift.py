@@ -93,7 +93,7 @@ def test_an_unexplained_residual_widens_the_hard_iron_sigma(sensor):
     assert np.all(wide < 3.0 * naive)
     assert np.allclose(result.hard_iron_sigma_ut, wide)
     report = result.report()
-    assert "hard-iron sigmas widened" in report and "heading sigma of a level housing" in report
+    assert "hard-iron sigmas stated" in report and "heading sigma of a level housing" in report
     # here under the naive on every axis (the walk averages out of the fit), and the report says why
     assert np.all(wide < naive) and "under the naive where its chi-square scale counted the walk" in report
     heading = block["unexplained_cost"]["heading_sigma_deg"]
