@@ -222,12 +222,16 @@ def test_a_turn_about_one_axis_leaves_the_gyro_matrix_across_it_at_the_prior():
     # G x and G y (the response to turns about x and y, never made): the prior's value (the identity) and sigma
     assert np.all(np.abs(e[:, :2]) < 1e-6 * prior[:, :2])
     np.testing.assert_allclose(sigma[:, :2], prior[:, :2], rtol=1e-6)
-    # G z (the turn's axis): seen by the data (the runtime's rule), the identity (an exact gyro) within 4 sigma
+    # G z (the turn's axis): precise enough to be seen (the runtime's rule), the identity (an exact gyro) within 4
+    # sigma, so not seen off it; a G z off by 10 of its sigmas would be, the rest never
     from compass.calibration import gyro_matrix_seen
+    from compass.calibration._read import GYRO_MATRIX_SIGMA_SEEN
 
-    seen = gyro_matrix_seen(sigma)
-    assert seen[:, 2].all() and not seen[:, :2].any()
+    assert np.all(sigma[:, 2] < GYRO_MATRIX_SIGMA_SEEN) and np.all(sigma[:, :2] > GYRO_MATRIX_SIGMA_SEEN)
     assert np.all(np.abs(e[:, 2]) < 4 * sigma[:, 2])
+    off = np.eye(3) + e + 10 * sigma
+    seen = gyro_matrix_seen(off, sigma)
+    assert seen[:, 2].all() and not seen[:, :2].any()
 
 
 def test_the_words_name_the_turn_axes_the_gyro_matrix_did_not_see():
