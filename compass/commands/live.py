@@ -83,7 +83,7 @@ def run(args) -> int:
     from ..io.atomic import atomic_stream, check_writable
     from ..live import LiveSession
     from ..filter import FilterConfig
-    from ..replay import mag_latency_note
+    from ..replay import gyro_matrix_note, mag_latency_note
     from ..calibration import load
 
     if args.calibrate == "tumble":
@@ -99,9 +99,10 @@ def run(args) -> int:
                                          gyro_matrix=args.gyro_matrix)
     except ValueError as exc:
         raise BadInput(f"{args.cal}: {exc}" if args.cal not in str(exc) else str(exc)) from None
-    if args.mag_latency and not args.quiet:
-        level, text = mag_latency_note(model)
-        print(f"[{level}] {text}", flush=True)
+    for flag, note in ((args.mag_latency, mag_latency_note), (args.gyro_matrix, gyro_matrix_note)):
+        if flag and not args.quiet:
+            level, text = note(model)
+            print(f"[{level}] {text}", flush=True)
     reference = _site_reference(args, model)
     stream = stream_options(args)
     reader = open_reader(args)
