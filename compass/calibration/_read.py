@@ -496,9 +496,12 @@ def _gyro_matrix(gyro) -> np.ndarray | None:
     if gyro is None:
         return None
     gyro = check.obj(gyro, "tumble.gyro")
-    if gyro.get("used") is not True or gyro.get("gyro_matrix") is None:
+    if gyro.get("used") is not True:
         return None
-    g = check.array(gyro["gyro_matrix"], (3, 3), "tumble.gyro.gyro_matrix")
+    if gyro.get("gyro_matrix") is None:
+        _gyro_matrix_sigma(gyro.get("gyro_matrix_sigma"))  # refused when garbage, though there is no matrix
+        return None
+    g = _nested_3x3(gyro["gyro_matrix"], "tumble.gyro.gyro_matrix")
     error = g - np.eye(3)
     if np.any(np.abs(error) > MAX_GYRO_MATRIX_ERROR):
         i, j = np.unravel_index(np.argmax(np.abs(error)), (3, 3))
@@ -510,6 +513,13 @@ def _gyro_matrix(gyro) -> np.ndarray | None:
         return None
     seen = gyro_matrix_seen(g, sigma)
     return np.where(seen, g, np.eye(3)) if seen.any() else None
+
+
+def _nested_3x3(v, key: str) -> np.ndarray:
+    """3 x 3 nested lists of finite numbers; a wrong entry is named (``key[i][j]``), a wrong shape the key."""
+    if isinstance(v, list) and len(v) == 3 and all(isinstance(row, list) and len(row) == 3 for row in v):
+        return np.array([[check.number(e, f"{key}[{i}][{j}]") for j, e in enumerate(row)] for i, row in enumerate(v)])
+    return check.array(v, (3, 3), key)  # refused: the shape named
 
 
 def _gyro_matrix_sigma(v) -> np.ndarray | None:

@@ -287,8 +287,18 @@ def test_a_gyro_block_the_calibration_did_not_use_reaches_no_runtime():
     ("gyro_matrix_sigma", [[0.001] * 3] * 2, "3x3 nested lists"),
     ("gyro_matrix_sigma", [[0.001, 0.001, -0.001]] * 3, "must not be negative"),
     ("gyro_matrix_sigma", [[0.001, 0.001, "x"]] * 3, "must be a number"),
+    ("gyro_matrix", [[1, 0, 0], [0, True, 0], [0, 0, 1]], r"\[1\]\[1\].*must be a number"),
+    ("gyro_matrix", [[1, 0, 0], [0, 1, 0], [0, "0", 1]], r"\[2\]\[1\].*must be a number"),
+    ("gyro_matrix_sigma", [[0.001, 0.001, False]] * 3, r"\[0\]\[2\].*must be a number"),
 ])
 def test_bad_gyro_matrices_in_the_file_are_refused_naming_the_key(key, value, words):
     block = {"gyro_matrix": np.eye(3).tolist(), "gyro_matrix_sigma": [[0.001] * 3] * 3} | {key: value}
     with pytest.raises(CalibrationFileError, match=rf"tumble\.gyro\.{key}.*{words}"):
         from_dict(_tumble_with_gyro(block))
+
+
+def test_garbage_gyro_matrix_sigma_is_refused_even_without_a_matrix():
+    block = {"gyro_matrix": None, "gyro_matrix_sigma": "garbage"}
+    with pytest.raises(CalibrationFileError, match=r"tumble\.gyro\.gyro_matrix_sigma.*3x3 nested lists"):
+        from_dict(_tumble_with_gyro(block))
+    assert from_dict(_tumble_with_gyro({"gyro_matrix": None, "gyro_matrix_sigma": None})).model.gyro_matrix is None
