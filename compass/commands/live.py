@@ -27,7 +27,8 @@ MAG_LATENCY_HELP = ("compensate the magnetometer's latency against the gyro that
 
 
 GYRO_MATRIX_HELP = ("correct every gyro sample by the scale and axis errors the calibration's gyro-aided tumble fit "
-                    "found (tumble.gyro.gyro_matrix, the entries seen with a sigma under 0.5 %%); off by default (on "
+                    "found (tumble.gyro.gyro_matrix, the entries seen beyond 3 sigma of the identity with a sigma under "
+                    "0.5 %%, none beyond 3 prior sigmas); off by default (on "
                     "BROAD the matrix fitted on another trial cost every group: docs/benchmarks.md)")
 
 
