@@ -301,7 +301,8 @@ class GyroFit:
             return odd + "; the gyro's scale and axes not seen off the identity: the runtime leaves the gyro as read"
         scale = ", ".join(f"{error[i, i]:+.2f}" if seen[i, i] else "unseen" for i in range(3))
         cross = np.abs(error[seen & ~np.eye(3, dtype=bool)])
-        words = (odd + f"; the gyro's scale x, y, z {scale} % (max sigma {100 * np.max(self.gyro_matrix_sigma[seen]):.2f} %)"
+        sigma = 100 * np.max(self.gyro_matrix_sigma[seen])
+        words = (odd + f"; the gyro's scale x, y, z {scale} % (max sigma {sigma:.2f} %)"
                  + (f", its axes off by up to {np.max(cross):.2f} %" if cross.size else "")
                  + ", fitted: the runtime applies it only with --gyro-matrix (off by default: on BROAD's real "
                  "recordings it did not carry over, docs/benchmarks.md)")

@@ -11,8 +11,8 @@ quiet second (:class:`compass.site.QuietSeed`; a stream that never holds still: 
 - the **first attitude**: the up and field directions at the window's first row, each the
   component-wise median of the window's rows turned into that row's frame by the gyro (the rotation
   the gyro reads between samples, corrected by ``FilterConfig.gyro_matrix`` as the filter corrects
-  it, its bias taken as zero over the window: 0.02 deg/s over 10 s is 0.2 deg).  At rest that is the median of a still housing's readings; in motion the median of the
-  specific force in an inertial frame, where the motion's acceleration (bounded velocity) averages
+  it, its bias taken as zero over the window: 0.02 deg/s over 10 s is 0.2 deg).  At rest that is the
+  median of a still housing's readings; in motion the median of the specific force in an inertial frame, where the motion's acceleration (bounded velocity) averages
   out and gravity stays.  A garbage first row, or one 4.5 degrees off, no longer sets the tilt, the
   inertial low-pass's start and, through them, the gyro bias.
 
