@@ -98,6 +98,30 @@ def mag_latency_note(model, has_gyro: bool = True) -> tuple[str, str]:
                     "writes tumble.gyro.mag_latency_s): nothing compensated")
 
 
+def gyro_matrix_note(model, has_gyro: bool = True) -> tuple[str, str]:
+    """What ``--gyro-matrix`` does with this calibration: ``(level, words)`` for the event line (the shape of
+    :func:`mag_latency_note`).
+
+    Parameters
+    ----------
+    model : compass.model.SensorModel
+        Its ``gyro_matrix`` (None when the file holds no entry its fit saw off the identity).
+    has_gyro : bool
+        Whether the samples carry a gyro.
+    """
+    g = model.gyro_matrix
+    if not has_gyro:
+        return "warn", "--gyro-matrix: the recording has no gyro (gx,gy,gz) to correct: nothing applied"
+    if g is not None:
+        error = 100.0 * (np.asarray(g, dtype=float) - np.eye(3))
+        cross = float(np.max(np.abs(error[~np.eye(3, dtype=bool)])))
+        return "info", ("--gyro-matrix: each gyro reading corrected by the calibration's tumble.gyro.gyro_matrix, "
+                        "scale x, y, z " + ", ".join(f"{error[i, i]:+.2f}" for i in range(3)) + " %, axes up to "
+                        f"{cross:.2f} % (the entries its fit did not see off the identity held at it)")
+    return "warn", ("--gyro-matrix: the calibration holds no gyro matrix entry its fit saw off the identity (a tumble "
+                    "with a gyro writes tumble.gyro.gyro_matrix): the gyro as read")
+
+
 def replay_file(calibration, recording, out, *, site=None, date=None, gravity=None, mag_latency=False, gyro_matrix=False,
                 force=False, rerun=None, read_options=None, quiet=False) -> LiveSession:
     """``compass attitude CAL REC --out ATT --filter``: the recording through ``compass live``'s pipeline.
@@ -197,9 +221,10 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
         raise RecordingError(table.path, f"{wrong_unit} ({calibration}): is it the right calibration?",
                              row=table.header_row, column=model.channels[0])
     temp_c = table.column("temp_c") if table.has("temp_c") else None
-    if mag_latency and not quiet:
-        level, text = mag_latency_note(model, gyro is not None)
-        print(f"[{level}] {text}", file=sys.stderr)
+    for flag, note in ((mag_latency, mag_latency_note), (gyro_matrix, gyro_matrix_note)):
+        if flag and not quiet:
+            level, text = note(model, gyro is not None)
+            print(f"[{level}] {text}", file=sys.stderr)
 
     moves = []  # the filter's moves of the reference to a new place
     tally = Tally()  # the progress line's (below), once the replay starts

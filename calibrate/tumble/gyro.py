@@ -57,7 +57,8 @@ when the rate varies (a constant spin about ``n`` cannot tell the scale along ``
 ``G`` against the latency: the latency follows the instantaneous rate, ``G`` the integrated turn.  A Gaussian prior
 (:data:`GYRO_MATRIX_PRIOR`: 3 % on the diagonal, 2 % across, the datasheet's tolerances) keeps what the turns do not
 see at the identity, its sigma at the prior's; the runtime (``--gyro-matrix``, off by default: on BROAD the
-matrix fitted on one trial cost the others, docs/benchmarks.md) applies only the entries the data saw
+matrix fitted on one trial cost the others, docs/benchmarks.md) applies only the entries the data saw off the
+identity (beyond 3 sigmas, the sigma under 0.5 %), and never one beyond 3 prior sigmas, a model mismatch
 (:func:`compass.calibration.gyro_matrix_seen`).  What stays unmodelled (a bias that wanders, an accelerometer's own
 scale errors, which tilt gravity unevenly) grows with the angle turned and the time.
 Each window restarts the integration with its own ``Q_j``: a window closes after
@@ -113,7 +114,7 @@ from scipy.linalg import polar
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from compass.calibration import MAX_GYRO_MATRIX_ERROR, gyro_matrix_seen, latency_seen
+from compass.calibration import MAX_GYRO_MATRIX_ERROR, gyro_matrix_mismatch, gyro_matrix_seen, latency_seen
 
 from ..diagnosis.forms import json_float
 from ..noise import robust_sigma, second_difference_sigma, second_differences
@@ -286,16 +287,25 @@ class GyroFit:
 
     def _gyro_matrix_words(self) -> str:
         """The gyro's scale and axis errors the data saw (:func:`compass.calibration.gyro_matrix_seen`, the rule the
-        runtime reads the file's matrix by), and the turn axes whose response it did not see."""
-        seen = gyro_matrix_seen(self.gyro_matrix_sigma) & self.gyro_matrix_usable
-        if not seen.any():
-            return "; the gyro's scale and axes not seen: the runtime leaves the gyro as read"
+        runtime reads the file's matrix by), the entries that are a model mismatch
+        (:func:`compass.calibration.gyro_matrix_mismatch`: never applied), and the turn axes whose response it did
+        not see."""
+        usable = self.gyro_matrix_usable
+        seen = gyro_matrix_seen(self.gyro_matrix, self.gyro_matrix_sigma) & usable
         error = 100 * (self.gyro_matrix - np.eye(3))
+        mismatch = gyro_matrix_mismatch(self.gyro_matrix) & usable
+        odd = "".join(f"; a model mismatch in the gyro matrix: {_AXES[i]}{_AXES[j]} {error[i, j]:+.2f} % is beyond 3 "
+                      "of the prior's sigmas (its datasheet tolerance), the fit took up what its model leaves out: "
+                      "not applied" for i, j in zip(*np.nonzero(mismatch)))
+        if not seen.any():
+            return odd + "; the gyro's scale and axes not seen off the identity: the runtime leaves the gyro as read"
         scale = ", ".join(f"{error[i, i]:+.2f}" if seen[i, i] else "unseen" for i in range(3))
         cross = np.abs(error[seen & ~np.eye(3, dtype=bool)])
-        words = (f"; the gyro's scale x, y, z {scale} % (max sigma {100 * np.max(self.gyro_matrix_sigma[seen]):.2f} %)"
+        sigma = 100 * np.max(self.gyro_matrix_sigma[seen])
+        words = (odd + f"; the gyro's scale x, y, z {scale} % (max sigma {sigma:.2f} %)"
                  + (f", its axes off by up to {np.max(cross):.2f} %" if cross.size else "")
-                 + ", fitted: the runtime corrects the gyro by it with --gyro-matrix")
+                 + ", fitted: the runtime applies it only with --gyro-matrix (off by default: on BROAD's real "
+                 "recordings it did not carry over, docs/benchmarks.md)")
         unseen = [_AXES[j] for j in range(3) if not seen[:, j].any()]
         return words + (f" (turns about {', '.join(unseen)} not seen: left as read)" if unseen else "")
 
@@ -797,6 +807,8 @@ def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_nor
     r_a = prob.residuals(prob.rows(p0), q_start.as_matrix())[1]  # the accelerometer's scatter at the start
     prob.sigma_a = max(float(robust_sigma(np.linalg.norm(r_a, axis=1))), 1e-4)
     thin, _ = _on_rows(prob, t_s, rate, _robust_rows(window), f_scale=ROBUST_F_SCALE)
+    # scipy applies the loss to every residual, the priors' (latency, G) too: beyond ROBUST_F_SCALE prior sigmas
+    # they pull less than quadratically in this stage; the plain stage after it has the Gaussian prior
     robust = least_squares(thin.residual, p0, jac=thin.jacobian, loss="soft_l1", f_scale=ROBUST_F_SCALE, method="trf",
                            x_scale="jac", max_nfev=MAX_NFEV)
     prob.orientation = thin.orientation  # every window keeps rows: the same windows

@@ -26,7 +26,7 @@ from ._format import CHANNEL_KINDS, FORMAT, KIND_KEY, TUMBLE_CHANNELS
 from ._imu import ImuCorrection
 from ._value import Calibration, Installation, Provenance, TumbleForm
 
-__all__ = ["KINDS", "MAX_GYRO_MATRIX_ERROR", "from_dict", "gyro_matrix_seen", "kind_of", "latency_seen", "load", "loads", "model_from_dict"]
+__all__ = ["KINDS", "MAX_GYRO_MATRIX_ERROR", "from_dict", "gyro_matrix_mismatch", "gyro_matrix_seen", "kind_of", "latency_seen", "load", "loads", "model_from_dict"]
 
 KINDS = ("fourflip", "platform3d", "reference", "channels", "tumble", "installed")
 """Every kind the reader knows (the file's ``"model"``)."""
@@ -42,9 +42,13 @@ MAX_GYRO_MATRIX_ERROR = 0.2
 """Largest ``|G - I|`` entry a file's gyro matrix may hold: 20 %, seven times the MPU-9250's scale tolerance (3 %);
 beyond it the gyro's unit or an axis is wrong, not its scale."""
 GYRO_MATRIX_SIGMA_SEEN = 0.005
-"""An entry of the fitted gyro matrix counts as seen with a standard error below this (0.5 %, the gyro scale error
-the filter's noise allows for, ``FilterConfig.gyro_scale_error``; the fit's prior is 2-3 %): the runtime applies
-the seen entries and holds the others at the identity's."""
+"""An entry of the fitted gyro matrix counts as seen only with a standard error below this (0.5 %, the gyro scale
+error the filter's noise allows for, ``FilterConfig.gyro_scale_error``; well under the fit's prior of 2-3 %, so the
+prior did not make it) and beyond 3 of its sigmas from the identity's (:func:`gyro_matrix_seen`)."""
+GYRO_MATRIX_MISMATCH = np.where(np.eye(3, dtype=bool), 0.09, 0.06)
+"""An entry of ``G - I`` beyond this is a model mismatch, never applied: 3 of the gyro-aided fit's prior sigmas
+(``calibrate.tumble.gyro.GYRO_MATRIX_PRIOR``, the datasheet's 3 % scale and 2 % cross-axis tolerances); the fit
+took up there what its model leaves out, not the gyro's error."""
 
 
 def load(path) -> Calibration:
@@ -494,10 +498,13 @@ def _mag_latency_s(gyro) -> float:
     """``tumble.gyro.mag_latency_s`` when the gyro-aided fit saw a latency (:func:`latency_seen`) the filter
     can compensate: the magnetometer late (positive); else 0 (an early magnetometer, the gyro the late one,
     cannot be compensated by turning the field forward: the fit's words say so).  Refused beyond
-    +-:data:`MAX_MAG_LATENCY_S`, where the first-order turn the filter applies no longer holds."""
+    +-:data:`MAX_MAG_LATENCY_S`, where the first-order turn the filter applies no longer holds.  0 when the
+    calibration did not use the gyro-aided fit (``used`` not true): its numbers are not the calibration's."""
     if gyro is None:
         return 0.0
     gyro = check.obj(gyro, "tumble.gyro")
+    if gyro.get("used") is not True:
+        return 0.0
     tau, sigma = gyro.get("mag_latency_s"), gyro.get("mag_latency_sigma_s")
     if tau is None:
         return 0.0
@@ -508,15 +515,20 @@ def _mag_latency_s(gyro) -> float:
 
 def _gyro_matrix(gyro) -> np.ndarray | None:
     """``tumble.gyro.gyro_matrix`` (``G``: the housing-frame rate is ``G w``, ``w`` the gyro's reading) with each entry
-    the data did not see (:func:`gyro_matrix_seen` of ``gyro_matrix_sigma``; no sigma: none seen) at the identity's;
+    the data did not see or that are a model mismatch (:func:`gyro_matrix_seen` of it and ``gyro_matrix_sigma``; no
+    sigma: none seen) at the identity's;
     None when no entry was seen.  Refused: not 3 x 3 numbers, an entry of ``G - I`` beyond
-    +-:data:`MAX_GYRO_MATRIX_ERROR`, a negative sigma."""
+    +-:data:`MAX_GYRO_MATRIX_ERROR`, a negative sigma.  None when the calibration did not use the gyro-aided fit
+    (``used`` not true: a fit it refused)."""
     if gyro is None:
         return None
     gyro = check.obj(gyro, "tumble.gyro")
-    if gyro.get("gyro_matrix") is None:
+    if gyro.get("used") is not True:
         return None
-    g = check.array(gyro["gyro_matrix"], (3, 3), "tumble.gyro.gyro_matrix")
+    if gyro.get("gyro_matrix") is None:
+        _gyro_matrix_sigma(gyro.get("gyro_matrix_sigma"))  # refused when garbage, though there is no matrix
+        return None
+    g = _nested_3x3(gyro["gyro_matrix"], "tumble.gyro.gyro_matrix")
     error = g - np.eye(3)
     if np.any(np.abs(error) > MAX_GYRO_MATRIX_ERROR):
         i, j = np.unravel_index(np.argmax(np.abs(error)), (3, 3))
@@ -526,8 +538,15 @@ def _gyro_matrix(gyro) -> np.ndarray | None:
     sigma = _gyro_matrix_sigma(gyro.get("gyro_matrix_sigma"))
     if sigma is None:
         return None
-    seen = gyro_matrix_seen(sigma)
+    seen = gyro_matrix_seen(g, sigma)
     return np.where(seen, g, np.eye(3)) if seen.any() else None
+
+
+def _nested_3x3(v, key: str) -> np.ndarray:
+    """3 x 3 nested lists of finite numbers; a wrong entry is named (``key[i][j]``), a wrong shape the key."""
+    if isinstance(v, list) and len(v) == 3 and all(isinstance(row, list) and len(row) == 3 for row in v):
+        return np.array([[check.number(e, f"{key}[{i}][{j}]") for j, e in enumerate(row)] for i, row in enumerate(v)])
+    return check.array(v, (3, 3), key)  # refused: the shape named
 
 
 def _gyro_matrix_sigma(v) -> np.ndarray | None:
@@ -542,12 +561,15 @@ def _gyro_matrix_sigma(v) -> np.ndarray | None:
                       for j, e in enumerate(row)] for i, row in enumerate(v)])
 
 
-def gyro_matrix_seen(sigma) -> np.ndarray:
-    """Which entries of a fitted gyro matrix the data saw: standard error below :data:`GYRO_MATRIX_SIGMA_SEEN`
-    (the one rule for the calibration's words and the runtime).
+def gyro_matrix_seen(matrix, sigma) -> np.ndarray:
+    """Which entries of a fitted gyro matrix the data saw and the runtime may apply (the one rule for the
+    calibration's words and the runtime): beyond 3 of its sigmas from the identity's, the sigma below
+    :data:`GYRO_MATRIX_SIGMA_SEEN`, and not a model mismatch (:func:`gyro_matrix_mismatch`).
 
     Parameters
     ----------
+    matrix : array_like, shape (3, 3)
+        The fitted ``G`` (dimensionless).
     sigma : array_like, shape (3, 3)
         The entries' standard errors (dimensionless; inf or NaN where none).
 
@@ -555,8 +577,26 @@ def gyro_matrix_seen(sigma) -> np.ndarray:
     -------
     ndarray of bool, shape (3, 3)
     """
+    error = np.abs(np.asarray(matrix, dtype=float) - np.eye(3))
     sigma = np.asarray(sigma, dtype=float)
-    return np.isfinite(sigma) & (sigma < GYRO_MATRIX_SIGMA_SEEN)
+    precise = np.isfinite(sigma) & (sigma < GYRO_MATRIX_SIGMA_SEEN)
+    return precise & (error > 3.0 * np.where(precise, sigma, 0.0)) & ~gyro_matrix_mismatch(matrix)
+
+
+def gyro_matrix_mismatch(matrix) -> np.ndarray:
+    """Which entries of a fitted gyro matrix are a model mismatch: ``|G - I|`` beyond :data:`GYRO_MATRIX_MISMATCH`
+    (3 prior sigmas), never applied however precise.
+
+    Parameters
+    ----------
+    matrix : array_like, shape (3, 3)
+        The fitted ``G`` (dimensionless).
+
+    Returns
+    -------
+    ndarray of bool, shape (3, 3)
+    """
+    return np.abs(np.asarray(matrix, dtype=float) - np.eye(3)) > GYRO_MATRIX_MISMATCH
 
 
 def latency_seen(latency_s: float, sigma_s: float) -> bool:

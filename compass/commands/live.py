@@ -27,7 +27,8 @@ MAG_LATENCY_HELP = ("compensate the magnetometer's latency against the gyro that
 
 
 GYRO_MATRIX_HELP = ("correct every gyro sample by the scale and axis errors the calibration's gyro-aided tumble fit "
-                    "found (tumble.gyro.gyro_matrix, the entries seen with a sigma under 0.5 %%); off by default (on "
+                    "found (tumble.gyro.gyro_matrix, the entries seen beyond 3 sigma of the identity with a sigma under "
+                    "0.5 %%, none beyond 3 prior sigmas); off by default (on "
                     "BROAD the matrix fitted on another trial cost every group: docs/benchmarks.md)")
 
 
@@ -83,7 +84,7 @@ def run(args) -> int:
     from ..io.atomic import atomic_stream, check_writable
     from ..live import LiveSession
     from ..filter import FilterConfig
-    from ..replay import mag_latency_note
+    from ..replay import gyro_matrix_note, mag_latency_note
     from ..calibration import load
 
     if args.calibrate == "tumble":
@@ -99,9 +100,10 @@ def run(args) -> int:
                                          gyro_matrix=args.gyro_matrix)
     except ValueError as exc:
         raise BadInput(f"{args.cal}: {exc}" if args.cal not in str(exc) else str(exc)) from None
-    if args.mag_latency and not args.quiet:
-        level, text = mag_latency_note(model)
-        print(f"[{level}] {text}", flush=True)
+    for flag, note in ((args.mag_latency, mag_latency_note), (args.gyro_matrix, gyro_matrix_note)):
+        if flag and not args.quiet:
+            level, text = note(model)
+            print(f"[{level}] {text}", flush=True)
     reference = _site_reference(args, model)
     stream = stream_options(args)
     reader = open_reader(args)

@@ -275,8 +275,7 @@ class AttitudeFilter:
         if gyro is not None and self.gyro:
             w = self._vector(gyro, "gyro", 0.0, self._gyro_range2)
             if w is not None:
-                g = self.config.gyro_matrix  # the gyro's scale and axes, before anything else reads the rate
-                s.rate_rad_s = w[:3] if g is None else tuple(r[0] * w[0] + r[1] * w[1] + r[2] * w[2] for r in g)
+                s.rate_rad_s = self.config.housing_rate(w)  # the gyro's scale and axes, before anything reads the rate
         a, b = self._screen(t_s, accel, field_h, dt)
         s.t_s = t_s
         if s.matrix is not None and dt > self.config.max_gap_s:

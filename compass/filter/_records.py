@@ -227,6 +227,14 @@ class FilterConfig:
                                  f"determinant, got {self.gyro_matrix!r}")
             object.__setattr__(self, "gyro_matrix", tuple(tuple(float(v) for v in row) for row in g))
 
+    def housing_rate(self, w) -> tuple:
+        """The housing-frame rate ``G w`` of a gyro reading ``w`` (rad/s, 3 floats), ``G`` :attr:`gyro_matrix`
+        (None: ``w`` as read): the one place a gyro sample is corrected, for the filter and its start alike."""
+        g = self.gyro_matrix
+        if g is None:
+            return tuple(w[:3])
+        return tuple(r[0] * w[0] + r[1] * w[1] + r[2] * w[2] for r in g)
+
     @classmethod
     def from_model(cls, model, *, mag_latency: bool = False, gravity: float | None = None,
                    gyro_matrix: bool = False) -> "FilterConfig":

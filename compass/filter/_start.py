@@ -10,9 +10,9 @@ quiet second (:class:`compass.site.QuietSeed`; a stream that never holds still: 
   |a| over the window's rows;
 - the **first attitude**: the up and field directions at the window's first row, each the
   component-wise median of the window's rows turned into that row's frame by the gyro (the rotation
-  the gyro reads between samples, its bias taken as zero over the window: 0.02 deg/s over 10 s is
-  0.2 deg).  At rest that is the median of a still housing's readings; in motion the median of the
-  specific force in an inertial frame, where the motion's acceleration (bounded velocity) averages
+  the gyro reads between samples, corrected by ``FilterConfig.gyro_matrix`` as the filter corrects
+  it, its bias taken as zero over the window: 0.02 deg/s over 10 s is 0.2 deg).  At rest that is the
+  median of a still housing's readings; in motion the median of the specific force in an inertial frame, where the motion's acceleration (bounded velocity) averages
   out and gravity stays.  A garbage first row, or one 4.5 degrees off, no longer sets the tilt, the
   inertial low-pass's start and, through them, the gyro bias.
 
@@ -111,7 +111,9 @@ class FilterStart:
         a = None if accel is None or not np.all(np.isfinite(accel)) else tuple(float(v) for v in accel)
         if a is not None:
             self._norms.append(math.hypot(*a))
-        g = None if gyro is None or not np.all(np.isfinite(gyro)) else tuple(float(v) for v in gyro)
+        # the housing's rate, corrected as the filter corrects it (FilterConfig.housing_rate)
+        g = None if gyro is None or not np.all(np.isfinite(gyro)) else self.config.housing_rate(
+            tuple(float(v) for v in gyro))
         self.held.append(payload)
         self._rows.append((float(t_s), a, g, tuple(float(v) for v in field_h)))
         reference = self._seed.add(t_s, a, field_h)  # rows without an accelerometer do not seed it

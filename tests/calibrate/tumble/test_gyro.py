@@ -209,6 +209,34 @@ def test_the_gyros_scale_is_recovered_within_its_sigma(scale):
     assert _gyro_fit(sim, fit_gyro_matrix=False).mag_rms >= g.mag_rms
 
 
+def test_a_cross_coupled_and_turned_gyro_is_recovered_within_its_sigma():
+    # the gyro reads M w + noise, M off the identity only across its axes (1-2 %: a rotation of the gyro's frame in
+    # the housing, the antisymmetric part, and a cross-axis sensitivity, the symmetric one), no scale error: the fit
+    # finds G = M^-1 within 4 of its sigmas, and the runtime's rule sees every off-diagonal entry off the identity
+    import dataclasses
+
+    from compass.calibration import gyro_matrix_mismatch, gyro_matrix_seen
+
+    sim = simulate_partial_tumble("fast_rotation", seed=11, coverage=None, duration_s=60.0, gyro_scale=0.0)
+    m = np.eye(3) + np.array([[0.0, 0.015, -0.01], [-0.012, 0.0, 0.02], [0.018, -0.014, 0.0]])
+    g = _gyro_fit(dataclasses.replace(sim, gyro=sim.gyro @ m.T))
+    truth = np.linalg.inv(m)
+    assert np.all(g.gyro_matrix_sigma < 0.2 * gyro.GYRO_CROSS_PRIOR)  # the data, not the prior
+    assert np.all(np.abs(g.gyro_matrix - truth) < 4 * g.gyro_matrix_sigma)
+    off = ~np.eye(3, dtype=bool)
+    assert gyro_matrix_seen(g.gyro_matrix, g.gyro_matrix_sigma)[off].all() and not gyro_matrix_mismatch(g.gyro_matrix).any()
+    assert "its axes off by up to" in g.words()
+
+
+def test_the_words_name_a_gyro_matrix_entry_beyond_three_prior_sigmas_a_mismatch_and_do_not_apply_it():
+    error = np.array([[0.01, 0.07, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])  # xy 7 %: 3.5 of the prior's 2 %
+    fit = gyro.GyroFit(*([None] * 15), np.eye(3) + error, np.full((3, 3), 1e-3), *([None] * 9))
+    words = fit._gyro_matrix_words()
+    assert "a model mismatch in the gyro matrix: xy +7.00 % is beyond 3 of the prior's sigmas" in words
+    assert "not applied" in words and "scale x, y, z +1.00, unseen, unseen %" in words
+    assert "its axes off by" not in words  # the mismatched entry is not among what the runtime applies
+
+
 def test_a_turn_about_one_axis_leaves_the_gyro_matrix_across_it_at_the_prior():
     # the model's problem on a turn about z with noise, from the truth: its least-squares step and covariance by the
     # pseudo-inverse (the magnetometer's fit keeps the 5 free combinations of a one-axis turn, module docstring; the
@@ -222,12 +250,16 @@ def test_a_turn_about_one_axis_leaves_the_gyro_matrix_across_it_at_the_prior():
     # G x and G y (the response to turns about x and y, never made): the prior's value (the identity) and sigma
     assert np.all(np.abs(e[:, :2]) < 1e-6 * prior[:, :2])
     np.testing.assert_allclose(sigma[:, :2], prior[:, :2], rtol=1e-6)
-    # G z (the turn's axis): seen by the data (the runtime's rule), the identity (an exact gyro) within 4 sigma
+    # G z (the turn's axis): precise enough to be seen (the runtime's rule), the identity (an exact gyro) within 4
+    # sigma, so not seen off it; a G z off by 10 of its sigmas would be, the rest never
     from compass.calibration import gyro_matrix_seen
+    from compass.calibration._read import GYRO_MATRIX_SIGMA_SEEN
 
-    seen = gyro_matrix_seen(sigma)
-    assert seen[:, 2].all() and not seen[:, :2].any()
+    assert np.all(sigma[:, 2] < GYRO_MATRIX_SIGMA_SEEN) and np.all(sigma[:, :2] > GYRO_MATRIX_SIGMA_SEEN)
     assert np.all(np.abs(e[:, 2]) < 4 * sigma[:, 2])
+    off = np.eye(3) + e + 10 * sigma
+    seen = gyro_matrix_seen(off, sigma)
+    assert seen[:, 2].all() and not seen[:, :2].any()
 
 
 def test_the_words_name_the_turn_axes_the_gyro_matrix_did_not_see():

@@ -243,11 +243,40 @@ def test_the_files_gyro_matrix_reaches_the_model_where_the_fit_saw_it():
     model = from_dict(_tumble_with_gyro({"gyro_matrix": g.tolist(), "gyro_matrix_sigma": sigma})).model
     expected = g.copy()
     expected[2, :2] = 0.0
+    expected[1, 0] = 0.0  # 0.1 %: precise (sigma 0.05 %) but within 3 sigmas of the identity's, not seen off it
     np.testing.assert_array_equal(model.gyro_matrix, expected)
     # nothing seen, no sigma, no matrix: none
     for block in ({"gyro_matrix": g.tolist(), "gyro_matrix_sigma": [[unseen] * 3] * 3}, {"gyro_matrix": g.tolist()},
                   {}):
         assert from_dict(_tumble_with_gyro(block)).model.gyro_matrix is None
+
+
+def test_a_gyro_matrix_entry_beyond_three_prior_sigmas_is_a_mismatch_and_not_applied():
+    from calibrate.tumble.gyro import GYRO_MATRIX_PRIOR
+    from compass.calibration import gyro_matrix_mismatch
+    from compass.calibration._read import GYRO_MATRIX_MISMATCH
+
+    np.testing.assert_array_equal(GYRO_MATRIX_MISMATCH, 3.0 * GYRO_MATRIX_PRIOR.reshape(3, 3))  # one rule, both sides
+    g = np.eye(3) + np.array([[0.02, 0.07, 0.0], [0.0, -0.1, 0.0], [0.0, 0.0, 0.085]])  # 3.5 and 3.3 prior sigmas
+    sigma = [[0.001] * 3] * 3
+    assert gyro_matrix_mismatch(g).tolist() == [[False, True, False], [False, True, False], [False] * 3]
+    model = from_dict(_tumble_with_gyro({"gyro_matrix": g.tolist(), "gyro_matrix_sigma": sigma})).model
+    np.testing.assert_array_equal(model.gyro_matrix, np.diag([1.02, 1.0, 1.085]))  # precise however wrong: not applied
+
+
+def test_a_gyro_block_the_calibration_did_not_use_reaches_no_runtime():
+    g = (np.eye(3) + np.diag([0.02, -0.015, 0.01])).tolist()
+    block = {"gyro_matrix": g, "gyro_matrix_sigma": [[0.0005] * 3] * 3, "mag_latency_s": 0.012,
+             "mag_latency_sigma_s": 0.0003}
+    used = from_dict(_tumble_with_gyro(block)).model
+    assert used.gyro_matrix is not None and used.mag_latency_s == 0.012  # the same block, used: taken
+    for flag in (False, None, "true", 1):
+        doc = _tumble_with_gyro(block)
+        doc["tumble"]["gyro"]["used"] = flag
+        if flag is None:
+            del doc["tumble"]["gyro"]["used"]
+        model = from_dict(doc).model
+        assert model.gyro_matrix is None and model.mag_latency_s == 0.0
 
 
 @pytest.mark.parametrize("key, value, words", [
@@ -258,8 +287,18 @@ def test_the_files_gyro_matrix_reaches_the_model_where_the_fit_saw_it():
     ("gyro_matrix_sigma", [[0.001] * 3] * 2, "3x3 nested lists"),
     ("gyro_matrix_sigma", [[0.001, 0.001, -0.001]] * 3, "must not be negative"),
     ("gyro_matrix_sigma", [[0.001, 0.001, "x"]] * 3, "must be a number"),
+    ("gyro_matrix", [[1, 0, 0], [0, True, 0], [0, 0, 1]], r"\[1\]\[1\].*must be a number"),
+    ("gyro_matrix", [[1, 0, 0], [0, 1, 0], [0, "0", 1]], r"\[2\]\[1\].*must be a number"),
+    ("gyro_matrix_sigma", [[0.001, 0.001, False]] * 3, r"\[0\]\[2\].*must be a number"),
 ])
 def test_bad_gyro_matrices_in_the_file_are_refused_naming_the_key(key, value, words):
     block = {"gyro_matrix": np.eye(3).tolist(), "gyro_matrix_sigma": [[0.001] * 3] * 3} | {key: value}
     with pytest.raises(CalibrationFileError, match=rf"tumble\.gyro\.{key}.*{words}"):
         from_dict(_tumble_with_gyro(block))
+
+
+def test_garbage_gyro_matrix_sigma_is_refused_even_without_a_matrix():
+    block = {"gyro_matrix": None, "gyro_matrix_sigma": "garbage"}
+    with pytest.raises(CalibrationFileError, match=r"tumble\.gyro\.gyro_matrix_sigma.*3x3 nested lists"):
+        from_dict(_tumble_with_gyro(block))
+    assert from_dict(_tumble_with_gyro({"gyro_matrix": None, "gyro_matrix_sigma": None})).model.gyro_matrix is None

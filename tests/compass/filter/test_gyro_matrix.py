@@ -49,6 +49,32 @@ def test_the_gyro_matrix_corrects_a_scaled_gyro():
     assert _error_deg(tuple(map(tuple, np.diag(1.0 + SCALE)))) > as_read
 
 
+def test_the_start_window_turns_its_rows_by_the_corrected_gyro():
+    """The start's first attitude integrates the gyro over its window (up to 10 s of swinging here): with the matrix
+    it does so as the filter does, ``G w``, and the first row's up and field come out as the truth's."""
+    from compass.filter._start import FilterStart
+
+    t, accel, gyro, field, truth = _recording(seconds=12.0)
+    up_true = truth[0].apply([0.0, 0.0, 1.0], inverse=True)
+    field_true = truth[0].apply(world_field(DIP_DEG, FIELD_UT), inverse=True)
+    errors = {}
+    for name, g in (("as read", None), ("corrected", tuple(map(tuple, np.diag(1.0 / (1.0 + SCALE)))))):
+        config = FilterConfig(field_norm=FIELD_UT, dip_deg=DIP_DEG, mag_noise=MAG_NOISE_UT, gyro_matrix=g)
+        start = FilterStart(config)
+        for i in range(len(t)):
+            assert start.add(i, t[i], accel[i], gyro[i], field[i]) is None
+            if start.done:
+                break
+        assert start.done and start.values.rows > 100
+        up, b = np.array(start.values.up_h), np.array(start.values.field_h)
+        errors[name] = (np.degrees(np.arccos(np.clip(up @ up_true, -1.0, 1.0))),
+                        np.degrees(np.arccos(np.clip(b @ field_true / np.linalg.norm(b) / FIELD_UT, -1.0, 1.0))))
+    # 2-3 % of a swing of ~2 rad about every axis tilts the window's later rows by degrees as read; corrected, the
+    # gyro is exact and what is left is the field's noise (0.3 uT on 50: a fraction of a degree, the median)
+    assert errors["corrected"][0] < 0.05 and errors["corrected"][1] < 0.3
+    assert errors["as read"][0] > 5 * errors["corrected"][0] and errors["as read"][1] > 2 * errors["corrected"][1]
+
+
 def test_bad_gyro_matrices_are_refused():
     base = dict(field_norm=FIELD_UT, dip_deg=DIP_DEG, mag_noise=MAG_NOISE_UT)
     for bad in (((1.0, 0.0), (0.0, 1.0)), ((np.nan, 0, 0), (0, 1, 0), (0, 0, 1)), ((-1, 0, 0), (0, 1, 0), (0, 0, 1))):
@@ -84,7 +110,7 @@ def test_live_and_the_replay_apply_the_files_gyro_matrix_alike(tmp_path, capsys)
     sim = simulate_tumble(seed=4, n=1500)
     doc = calibrate_tumble(sim.mag, sim.accel, t_s=sim.t_s).to_json()
     g = np.eye(3) + np.array([[0.02, 0.004, 0.0], [0.0, -0.015, 0.0], [0.0, 0.0, 0.01]])
-    sigma = [[1e-3, 1e-3, 0.02], [1e-3, 1e-3, 0.02], [1e-3, 1e-3, None]]  # the z column unseen but for its scale
+    sigma = [[1e-3, 1e-3, 0.02], [1e-3, 1e-3, 0.02], [1e-3, 1e-3, None]]  # the z column unseen (the prior's or none)
     doc["tumble"]["gyro"] = {"method": "gyro", "used": True, "gyro_matrix": g.tolist(), "gyro_matrix_sigma": sigma}
     cal = save(tmp_path / "cal.json", doc)
     model = from_dict(doc).model
@@ -106,9 +132,24 @@ def test_live_and_the_replay_apply_the_files_gyro_matrix_alike(tmp_path, capsys)
         outputs[flag] = rows(out.read_text())
         assert outputs[flag] == rows(session.out.getvalue())
     assert outputs[True] != outputs[False]
-    capsys.readouterr()
+    said = capsys.readouterr().err  # the replay says what --gyro-matrix applies, once, only with the flag
+    assert said.count("[info] --gyro-matrix: each gyro reading corrected") == 1
+    assert "scale x, y, z +2.00, -1.50, +0.00 %, axes up to 0.40 %" in said
     assert main(["attitude", str(cal), str(rec), "--out", str(tmp_path / "att.csv"), "--gyro-matrix"]) == 2
     assert "--gyro-matrix goes with --filter" in capsys.readouterr().err
+
+
+def test_the_gyro_matrix_note_says_what_is_applied_or_why_nothing():
+    from compass.replay import gyro_matrix_note
+    from compass.sim.device import default_model
+
+    model = dataclasses.replace(default_model(), gyro_matrix=np.eye(3) + np.array([[0.01, 0, 0], [0, 0, -0.012], [0] * 3]))
+    level, text = gyro_matrix_note(model)
+    assert level == "info" and "scale x, y, z +1.00, +0.00, +0.00 %, axes up to 1.20 %" in text
+    level, text = gyro_matrix_note(default_model())
+    assert level == "warn" and "no gyro matrix entry its fit saw" in text and "the gyro as read" in text
+    assert gyro_matrix_note(model, has_gyro=False) == ("warn", "--gyro-matrix: the recording has no gyro (gx,gy,gz) "
+                                                               "to correct: nothing applied")
 
 
 def test_an_installed_model_carries_the_gyro_matrix_into_the_products_frame():
