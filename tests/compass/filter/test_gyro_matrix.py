@@ -2,7 +2,6 @@
 each gyro reading ``w`` is taken as the housing-frame rate ``G w`` before anything else uses it."""
 
 import dataclasses
-import io
 
 import numpy as np
 import pytest
@@ -101,11 +100,9 @@ def test_live_and_the_replay_apply_the_files_gyro_matrix_alike(tmp_path, capsys)
     from calibrate.tumble import calibrate_tumble
     from compass.calibration import from_dict, save
     from compass.cli import main
-    from compass.live import LiveSession
-    from compass.replay import replay
     from compass.sim.device import simulate_device
     from compass.sim.tumble import simulate_tumble
-    from tests.compass.filter.test_latency import _write_recording
+    from tests.compass.filter.test_latency import _write_recording, attitude_and_live_rows
 
     sim = simulate_tumble(seed=4, n=1500)
     doc = calibrate_tumble(sim.mag, sim.accel, t_s=sim.t_s).to_json()
@@ -119,18 +116,9 @@ def test_live_and_the_replay_apply_the_files_gyro_matrix_alike(tmp_path, capsys)
     s = simulate_device(model, t, seed=6)
     rec = _write_recording(tmp_path / "rec.csv", model, t, s)
 
-    def rows(text):  # every column but latency_ms (the processing time)
-        lines = [line.split(",") for line in text.splitlines() if line and not line.startswith(("#", "t_s"))]
-        return [line[:12] for line in lines]
-
-    outputs = {}
-    for flag in (True, False):
-        out = tmp_path / f"att_{flag}.csv"
-        assert main(["attitude", str(cal), str(rec), "--out", str(out), "--filter"] + ["--gyro-matrix"] * flag) == 0
-        session = LiveSession(model, config=FilterConfig.from_model(model, gyro_matrix=flag), out=io.StringIO())
-        replay(session, t, s.raw, s.accel, s.gyro)
-        outputs[flag] = rows(out.read_text())
-        assert outputs[flag] == rows(session.out.getvalue())
+    outputs = {flag: attitude_and_live_rows(tmp_path, cal, rec, model, t, s, "--gyro-matrix" if flag else None,
+                                            FilterConfig.from_model(model, gyro_matrix=flag))
+               for flag in (True, False)}
     assert outputs[True] != outputs[False]
     said = capsys.readouterr().err  # the replay says what --gyro-matrix applies, once, only with the flag
     assert said.count("[info] --gyro-matrix: each gyro reading corrected") == 1

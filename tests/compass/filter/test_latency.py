@@ -90,15 +90,34 @@ def _write_recording(path, model, t, s):
     path.write_text(format_table(columns, {}, {c: "%.17g" for c in columns}))
     return path
 
-def test_compass_attitude_filter_mag_latency_compensates_the_files_latency(tmp_path, capsys):
-    """``--mag-latency`` (live and the replay alike): the file's fitted latency reaches the filter; without it, none."""
+
+def attitude_and_live_rows(tmp_path, cal, rec, model, t, s, option, config):
+    """Rows (every column but latency_ms, the processing time) of ``compass attitude CAL REC --filter``, with
+    ``option`` when given, and of a live session with ``config`` replaying the same samples ``s`` at ``t``:
+    asserted identical, returned."""
     import io
 
-    from calibrate.tumble import calibrate_tumble
-    from compass.calibration import from_dict, save
     from compass.cli import main
     from compass.live import LiveSession
     from compass.replay import replay
+
+    def rows(text):
+        lines = [line.split(",") for line in text.splitlines() if line and not line.startswith(("#", "t_s"))]
+        return [line[:12] for line in lines]
+
+    out = tmp_path / f"att_{option}.csv"
+    assert main(["attitude", str(cal), str(rec), "--out", str(out), "--filter"] + ([option] if option else [])) == 0
+    session = LiveSession(model, config=config, out=io.StringIO())
+    replay(session, t, s.raw, s.accel, s.gyro)
+    assert rows(out.read_text()) == rows(session.out.getvalue())
+    return rows(out.read_text())
+
+
+def test_compass_attitude_filter_mag_latency_compensates_the_files_latency(tmp_path, capsys):
+    """``--mag-latency`` (live and the replay alike): the file's fitted latency reaches the filter; without it, none."""
+    from calibrate.tumble import calibrate_tumble
+    from compass.calibration import from_dict, save
+    from compass.cli import main
     from compass.sim.device import simulate_device
     from compass.sim.tumble import simulate_tumble
 
@@ -112,20 +131,12 @@ def test_compass_attitude_filter_mag_latency_compensates_the_files_latency(tmp_p
     s = simulate_device(model, t, seed=6)
     rec = _write_recording(tmp_path / "rec.csv", model, t, s)
 
-    def rows(text):  # every column but latency_ms (the processing time)
-        lines = [line.split(",") for line in text.splitlines() if line and not line.startswith(("#", "t_s"))]
-        return [line[:12] for line in lines]
-
     outputs = {}
     for flag in (True, False):
-        out = tmp_path / f"att_{flag}.csv"
         capsys.readouterr()
-        assert main(["attitude", str(cal), str(rec), "--out", str(out), "--filter"] + (["--mag-latency"] * flag)) == 0
+        outputs[flag] = attitude_and_live_rows(tmp_path, cal, rec, model, t, s, "--mag-latency" if flag else None,
+                                               FilterConfig.from_model(model, mag_latency=flag))
         assert ("turned forward by the gyro over the magnetometer's 20.0 ms latency" in capsys.readouterr().err) == flag
-        session = LiveSession(model, config=FilterConfig.from_model(model, mag_latency=flag), out=io.StringIO())
-        replay(session, t, s.raw, s.accel, s.gyro)
-        outputs[flag] = rows(out.read_text())
-        assert outputs[flag] == rows(session.out.getvalue())
     assert outputs[True] != outputs[False]
     capsys.readouterr()
     assert main(["attitude", str(cal), str(rec), "--out", str(tmp_path / "att.csv"), "--mag-latency"]) == 2
