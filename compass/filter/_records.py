@@ -231,8 +231,8 @@ class FilterConfig:
         """The housing-frame rate ``G w`` of a gyro reading ``w`` (rad/s, 3 floats), ``G`` :attr:`gyro_matrix`
         (None: ``w`` as read): the one place a gyro sample is corrected, for the filter and its start alike."""
         g = self.gyro_matrix
-        if g is None:
-            return tuple(w[:3])
+        if g is None:  # the per-sample path: the reading's own tuple, no copy
+            return w[:3]
         return tuple(r[0] * w[0] + r[1] * w[1] + r[2] * w[2] for r in g)
 
     @classmethod
