@@ -165,9 +165,15 @@ class SensorModel:
 
     @cached_property
     def solver(self) -> np.ndarray:
-        """The matrix P (3, c) with ``B_H = P x``: ``A^-1`` for three channels, weighted least squares above."""
+        """The matrix P (3, c) with ``B_H = P x``: ``A^-1`` for three channels, weighted least squares above.
+
+        The weights are the inverse component noise variances; equal when a channel's noise is unknown or
+        reads zero (a file's floor of 0 is a rounding, not an exact channel).
+        """
         a = self.unit_directions
-        w = np.ones(len(a)) if self.component_noise is None else 1.0 / self.component_noise**2
+        noise = self.component_noise
+        known = noise is not None and bool(np.all(noise > 0))
+        w = 1.0 / noise**2 if known else np.ones(len(a))
         return np.linalg.solve(a.T @ (w[:, None] * a), a.T * w[None, :])
 
     @cached_property

@@ -265,12 +265,12 @@ class FilterConfig:
         Raises
         ------
         ValueError
-            The calibration has no dip or no noise floor.
+            The calibration has no dip, or no noise floor above zero.
         """
         if model.dip_deg is None:
             raise ValueError("the calibration has no dip_deg: the filter needs the field's reference direction")
-        if model.noise is None:
-            raise ValueError("the calibration has no noise_floor: the filter cannot weight the magnetometer")
+        if model.noise is None or not np.all(np.asarray(model.noise) > 0):
+            raise ValueError("the calibration has no noise_floor above zero: the filter cannot weight the magnetometer")
         p = model.solver
         noise = float(np.sqrt(np.trace((p * model.noise_variance(np.zeros(3))) @ p.T) / 3.0))
         return cls(field_norm=model.field_norm, dip_deg=model.dip_deg, mag_noise=noise,

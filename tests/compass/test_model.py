@@ -1,10 +1,12 @@
 import json
+import warnings
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from compass.calibration import FORMAT
+from compass.filter import FilterConfig
 from compass.model import SensorModel
 from compass.response import CubicResponse, LinearResponse, TableResponse
 from compass.calibration import load as load_calibration, model_from_dict
@@ -62,6 +64,21 @@ def test_more_channels_weighted_least_squares_and_field_covariance():
     predicted = model.field_covariance(b_true)
     # sample covariance of 20000 draws: relative error of a variance ~ sqrt(2 / n) = 1 %
     np.testing.assert_allclose(np.diag(empirical), np.diag(predicted), rtol=0.05)
+
+
+def test_a_zero_noise_floor_weighs_channels_equally_and_the_filter_refuses_it():
+    rng = np.random.default_rng(4)
+    directions = rng.normal(size=(5, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    zero = linear_model(directions, noise=0.0)
+    unknown = linear_model(directions)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no division by the zero floor
+        np.testing.assert_allclose(zero.solver, unknown.solver)
+        b = random_fields(50)
+        np.testing.assert_allclose(zero.field(outputs(zero, b))[0], b, atol=1e-9)
+    with pytest.raises(ValueError, match="no noise_floor above zero"):
+        FilterConfig.from_model(zero)
 
 
 def test_field_covariance_adds_calibration_uncertainty():
