@@ -9,7 +9,9 @@ it was not developed on; ``--sim-only``; with ``--candidates``, the named candid
 tumble calibration file of another recording (BROAD: :data:`CAL_TRIALS`' motion phases, the trial scored never its
 own; a simulated board: its own fast rotation at another seed), never from the truth; ``--latency-check`` runs the
 compensation on motions whose only error is the latency; ``--diagnose`` prints the inclination by turn rate of the
-filter, of its inertial low-pass's direction and of VQF, and the one start's parts switched back.  Peers are benchmark
+filter, of its inertial low-pass's direction and of VQF, and the one start's parts switched back; ``--bands`` splits
+the tilt error by time scale (the filter, the filter with every field reading refused, VQF, and the motion the
+inertial low-pass leaves, truth-based) per trial and group (``--write-docs``: its table in docs/benchmarks.md).  Peers are benchmark
 extras (``pip install -e '.[bench]'``), never runtime dependencies; a peer that is not installed is
 reported and skipped.
 
@@ -54,10 +56,12 @@ from scipy.spatial.transform import Rotation
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tools"))
 
 from compass.evaluation import METRIC, error_series, initial_field, rest_noise  # noqa: E402
 from compass.io.broad import nwu_to_enu, read_broad  # noqa: E402
 from compass.calibration import load as load_calibration
+from _doc_table import markdown_table, parse_args, publish  # noqa: E402
 
 GRAVITY = 9.81
 QUICK_TRIALS = ("01", "06", "15", "24", "32")  # slow and fast rotation, translation, tapping, a magnet
@@ -435,6 +439,93 @@ def turn_diagnosis(trial) -> None:
               + ", ".join(f"{name} {np.sqrt(np.mean(e[k] ** 2)):.3f}" for name, e in series.items()))
 
 
+BANDS_S = (0.3, 1.0, 3.0, 10.0)
+"""Edges of the time-scale bands of :func:`band_diagnosis`, s."""
+
+NO_FIELD = {"field_tolerance": 1e-9, "gate_timeout_s": 1e9}
+"""FilterConfig changes under which the gate refuses every field reading: the tilt from the gyro and accelerometer only."""
+
+
+def _tilt_error_deg(quat_enu, ref_quat_enu) -> np.ndarray:
+    """The world-frame tilt error (x, y of the error rotation ``q_est q_ref^-1``'s rotation vector), deg; 0 where
+    either is missing (the rows are not scored)."""
+    ok = np.all(np.isfinite(quat_enu), axis=1) & np.all(np.isfinite(ref_quat_enu), axis=1)
+    out = np.zeros((len(ok), 2))
+    e = Rotation.from_quat(quat_enu[ok], scalar_first=True) * Rotation.from_quat(ref_quat_enu[ok], scalar_first=True).inv()
+    out[ok] = np.degrees(e.as_rotvec()[:, :2])
+    return out
+
+
+def _bands(error: np.ndarray, rows: np.ndarray, rate_hz: float) -> list[float]:
+    """RMS over ``rows`` of a tilt error series split by time scale: what each moving mean of :data:`BANDS_S` removes
+    from the one before (periods below 0.3 s, 0.3-1 s, ...), and what the longest leaves (above 10 s), deg."""
+    from scipy.ndimage import uniform_filter1d
+
+    out, rest = [], error
+    for seconds in BANDS_S:
+        smooth = uniform_filter1d(rest, max(1, int(round(seconds * rate_hz))), axis=0)
+        out.append(float(np.sqrt(np.mean(np.sum((rest - smooth)[rows] ** 2, axis=1)))))
+        rest = smooth
+    return out + [float(np.sqrt(np.mean(np.sum(rest[rows] ** 2, axis=1))))]
+
+
+def _motion_left_deg(trial) -> np.ndarray:
+    """The tilt error the first-order inertial low-pass (``FilterConfig`` default time constant) would make from the
+    motion acceleration alone: the accelerometer less gravity put into the housing by the *reference* attitude,
+    turned into the world by it and low-passed there; horizontal part over g, deg (a truth-based diagnosis only)."""
+    from scipy.signal import lfilter
+
+    from compass.filter import FilterConfig
+
+    ok = trial.ref_valid & np.all(np.isfinite(trial.ref_quat_enu), axis=1)
+    index = np.maximum.accumulate(np.where(ok, np.arange(len(ok)), 0))
+    index[:np.argmax(ok)] = np.argmax(ok)  # rows without a reference take the nearest earlier one (the first: the next)
+    ref = Rotation.from_quat(trial.ref_quat_enu[index], scalar_first=True)
+    motion_world = ref.apply(trial.accel_m_s2) - [0.0, 0.0, GRAVITY]
+    tau = FilterConfig(field_norm=1.0, dip_deg=0.0, mag_noise=1.0).accel_time_constant_s
+    alpha = -np.expm1(-1.0 / (trial.rate_hz * tau))
+    return np.degrees(lfilter([alpha], [1.0, alpha - 1.0], motion_world[:, :2] / GRAVITY, axis=0))
+
+
+def band_diagnosis(trial) -> dict[str, tuple]:
+    """Print the tilt error of the filter (defaults), of the filter with every field reading refused, and of VQF,
+    RMS over the scored samples, split by time scale (:func:`_bands`), beside the motion acceleration the
+    first-order inertial low-pass leaves (:func:`_motion_left_deg`).
+
+    Returns
+    -------
+    dict
+        ``{method: (heading RMS, inclination RMS, bands)}`` (BROAD's metric, deg; ``bands`` the :func:`_bands`
+        list), and ``{"motion left by LP": (nan, nan, bands)}``.
+    """
+    runs = {"ours": ours()(trial), "ours, field refused": ours(NO_FIELD)(trial), "vqf": vqf_online(trial)}
+    rows = trial.movement & trial.ref_valid
+    out = {}
+    for name, quat in runs.items():
+        e = error_series(quat, trial.ref_quat_enu, trial.movement, trial.rate_hz)
+        out[name] = (e.heading_rms_deg, e.inclination_rms_deg, _bands(_tilt_error_deg(quat, trial.ref_quat_enu), rows,
+                                                                      trial.rate_hz))
+    out["motion left by LP"] = (np.nan, np.nan, _bands(_motion_left_deg(trial), rows, trial.rate_hz))
+    for name, (heading, inclination, cells) in out.items():
+        rms = "" if np.isnan(heading) else f"{heading:6.3f} / {inclination:5.3f}"
+        print(f"  {trial.name[:30]:30s} {name:20s} {rms:15s}  " + " ".join(f"{v:6.3f}" for v in cells), flush=True)
+    return out
+
+
+def bands_table(results: dict[str, dict]) -> str:
+    """The groups' (:func:`_groups`) mean heading / inclination RMS and mean tilt-error bands, a markdown table."""
+    groups = _groups(results)
+    rows = []
+    for group, trials in groups.items():
+        for name in next(iter(results.values())):
+            heading, inclination = (np.mean([results[t][name][k] for t in trials]) for k in (0, 1))
+            bands = np.mean([results[t][name][2] for t in trials], axis=0)
+            rms = "-" if np.isnan(heading) else f"{heading:.2f} / {inclination:.2f}"
+            rows.append([f"{group} ({len(trials)})", name, rms] + [f"{v:.2f}" for v in bands])
+    periods = [f"{lo:g}-{hi:g} s" for lo, hi in zip((0.0,) + BANDS_S, BANDS_S)] + [f"> {BANDS_S[-1]:g} s"]
+    return markdown_table(["group", "method", "heading / inclination"] + periods, rows)
+
+
 def start_parts(trial) -> None:
     """Heading / inclination RMS with each part of the one start (issue 22 item 2) switched back: the
     stream's reference (else the config's, the trial's initial rest), the window's first attitude (else
@@ -580,6 +671,9 @@ def main(argv=None) -> int:
     parser.add_argument("--no-timing", action="store_true", help="skip the microseconds-per-sample section")
     parser.add_argument("--diagnose", action="store_true",
                         help="only the issue-22 diagnoses: inclination by turn rate, the start's parts switched back")
+    parser.add_argument("--bands", action="store_true",
+                        help="only the inclination's time scales: ours, ours with the field refused, VQF, and the "
+                             "motion the inertial low-pass leaves (truth-based), per trial and group")
     parser.add_argument("--candidates", default="",
                         help="comma-separated candidate names to run (default: every leave-one-out candidate); "
                              f"also {', '.join(TURN_VARIANTS)}")
@@ -589,7 +683,7 @@ def main(argv=None) -> int:
                         help="only the simulated motions with a late magnetometer alone, compensated or not")
     parser.add_argument("--sim-first-seed", type=int, default=0,
                         help="the first simulated seed (judge a change on seeds it was not developed on)")
-    args = parser.parse_args(argv)
+    args = parse_args(parser, argv)
 
     peers = {"vqf": vqf_online, "vqf offline": vqf_offline, "fusion": fusion, "madgwick": madgwick}
     available = {}
@@ -636,6 +730,18 @@ def main(argv=None) -> int:
         print(f"no BROAD trials in {args.data}")
         return 2
 
+    if args.bands:
+        print("tilt error by time scale, deg: heading / inclination RMS (BROAD's metric), then the world-frame tilt "
+              "error's RMS over the scored samples by period: " + ", ".join(
+                  f"{lo:g}-{hi:g} s" for lo, hi in zip((0.0,) + BANDS_S, BANDS_S)) + f", above {BANDS_S[-1]:g} s")
+        results = {}
+        for f in files:
+            trial = read_broad(f)
+            results[trial.name] = band_diagnosis(trial)
+        publish(args, "docs/benchmarks.md", "bench_broad.bands", bands_table(results),
+                "mean over each group's trials of heading / inclination RMS (BROAD's metric) and of the world-frame "
+                "tilt error's RMS by period (moving means' differences), deg")
+        return 0
     if args.diagnose:
         print("inclination RMS, deg: the filter, its inertial low-pass's direction applied outright, VQF, by |w|")
         for f in files:
