@@ -13,9 +13,10 @@ and for the wander over those called unexplained as ``bench_kinds_loop``'s colum
 A spread near or under 1 with a mean away from 0 is a bias, not a sigma too small; a bias that stays
 as the rows grow is one the estimator does not average away.
 
-Each case beside a baseline revision in the same run (default ``84b91b3``, before the widening's
-small-sample growth, :func:`calibrate.diagnosis.blocks.sandwich_dof`; ``75a6b36`` is before
-:func:`calibrate.installation.model.debiased`).
+Each case beside a baseline revision in the same run (default ``84b91b3``, before
+:func:`calibrate.installation.model.debiased` counted an unexplained recording's excess over the
+floor; ``75a6b36`` is before that correction), and the median over seeds of the block sandwich's
+degrees of freedom for each component (:func:`calibrate.diagnosis.blocks.sandwich_dof`; this tree's).
 
 Usage::
 
@@ -113,14 +114,20 @@ def _spawn(tree: Path | None, seeds: list, cases: list) -> subprocess.Popen:
     return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, text=True, cwd=tempfile.gettempdir())
 
 
-def _seed_sets(args) -> list[tuple[str, list]]:
+def _seed_sets(args, parser) -> list[tuple[str, list]]:
     """``[(label, seeds)]`` from ``--sets A-B,C-D`` or else ``--seed``/``--n``."""
     if not args.sets:
         return [(f"{args.seed}-{args.seed + args.n - 1}", list(range(args.seed, args.seed + args.n)))]
     out = []
     for part in args.sets.split(","):
         first, _, last = part.strip().partition("-")
-        out.append((part.strip(), list(range(int(first), int(last or first) + 1))))
+        try:
+            seeds = list(range(int(first), int(last or first) + 1))
+        except ValueError:
+            parser.error(f"--sets: expected seed ranges like 0-19,20-29, got {part.strip()!r}")
+        if not seeds:
+            parser.error(f"--sets: the range {part.strip()!r} holds no seed")
+        out.append((part.strip(), seeds))
     return out
 
 
@@ -146,10 +153,12 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=12, help="seeds per case (default 12)")
     parser.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
-    parser.add_argument("--sets", default="", help="sets of seeds, each reported apart: A-B,C-D (overrides --n, --seed)")
+    parser.add_argument("--sets", default="",
+                        help="sets of seeds, each reported apart: A-B,C-D (overrides --n, --seed)")
     parser.add_argument("--cases", default="", help="semicolon-separated case labels (default all): "
                         + "; ".join(c[0] for c in CASES))
-    parser.add_argument("--baseline", default=BASELINE, help=f"git revision to compare with, or none (default {BASELINE})")
+    parser.add_argument("--baseline", default=BASELINE,
+                        help=f"git revision to compare with, or none (default {BASELINE})")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--seeds", default="", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -169,7 +178,7 @@ def main(argv=None) -> int:
         return 0
     from _baseline import export_tree
 
-    sets = _seed_sets(args)
+    sets = _seed_sets(args, parser)
     seeds = sorted({s for _, chosen in sets for s in chosen})
     start = time.perf_counter()
     print(f"running {len(cases)} cases x {len(seeds)} seeds per version ...", file=sys.stderr, flush=True)

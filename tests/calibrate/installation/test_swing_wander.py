@@ -57,7 +57,8 @@ def test_the_widened_sigma_covers_a_field_wander_of_known_size_and_zero_wander_i
     rng = np.random.default_rng(31)
     err, var = [], []
     for _ in range(150):
-        noisy = replace(rows, b=rows.b + housing.apply(_wander(rng, n, 0.4), inverse=True) @ np.asarray(inst.soft_iron).T)
+        d_h = housing.apply(_wander(rng, n, 0.4), inverse=True) @ np.asarray(inst.soft_iron).T
+        noisy = replace(rows, b=rows.b + d_h)
         shift = lift @ (-bread @ (jac[:n_data].T @ (residuals(fit.x, noisy, (), {})[:n_data] - clean)))
         wide, cost = _widen(replace(fit, x=fit.x + shift), noisy, {}, sim.t_s)
         err.append(shift[:3])
