@@ -390,7 +390,8 @@ def debiased(fit: InstallationFit, rows: Rows, priors: dict, unexplained: bool =
     the field in the plane of the field and up, ``e . dB`` (``e = (u - mu b^) / |u - mu b^|``); their
     residuals' mean squares over the floor's give the excess variance along each (:func:`_excess`),
     added as two more per-row directions of noise.  (A swing's vertical hard iron under a 0.4 uT
-    field wander was 0.52-0.59 uT high, 6 standard errors, on each of seeds 0-19, 20-29 and 30-49.)
+    field wander was 0.52-0.59 uT high, 3-6 standard errors, on each of seeds 0-19, 20-29 and 30-49;
+    now 0.03, 0.10 and -0.03: ``tools/bench_swing_sigma.py``, docs/benchmarks.md.)
     """
     x, effects = fit.x, fit.effects
     jac = _jacobian(x, rows, effects, priors)
