@@ -96,9 +96,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .robust import cluster_covariance, widened
+from .robust import LEVERAGE_ONE, cluster_covariance, widened
 
-__all__ = ["TIME_BLOCKS", "time_blocks", "widened_in_time", "level_heading_sigma_deg"]
+__all__ = ["TIME_BLOCKS", "time_blocks", "widened_in_time", "sandwich_dof", "level_heading_sigma_deg"]
 
 TIME_BLOCKS = 8
 """Blocks of consecutive samples that are the clusters of the widening."""
@@ -200,6 +200,57 @@ def widened_in_time(jac: np.ndarray, weighted: np.ndarray, blocks: np.ndarray, n
     out = np.array(naive, dtype=float, copy=True)
     out[np.ix_(good, good)] = widened(base[np.ix_(good, good)], robust[np.ix_(good, good)]) + walk[np.ix_(good, good)]
     return out
+
+
+def sandwich_dof(jac: np.ndarray, blocks: np.ndarray, bread: np.ndarray) -> np.ndarray:
+    """Bell and McCaffrey's degrees of freedom of the CR2 variance of each parameter over blocks.
+
+    CR2's variance of parameter ``k`` is ``sum_g (q_g^T r)^2`` with ``q_g = J_g F_g e_k`` on block
+    ``g``'s rows (``F_g = B^{1/2} (I - M_g)^{-1/2} B^{1/2}``, the bias reduction of
+    :func:`calibrate.diagnosis.robust.cluster_covariance`) and ``r = (I - J B J^T) e`` the residual of
+    white noise ``e``: a quadratic form ``e^T M Q Q^T M e`` whose weights are the eigenvalues ``lambda``
+    of ``W = Q^T M Q = diag(|q_g|^2) - (Q^T J) B (J^T Q)`` (G x G).  Matched to a scaled chi-square,
+    ``nu = (sum lambda)^2 / sum lambda^2``: G - 1 at most, fewer where one block carries most of a
+    parameter's information (a swing's quarter turn carries most of one horizontal hard-iron component's).
+    The ratio of an error to a sigma whose variance has ``nu`` degrees of freedom has t tails: its RMS
+    is about ``sqrt(nu / (nu - 2))`` even where the variance is unbiased.  Measured, not applied
+    (``tools/bench_swing_sigma.py`` prints it; docs/benchmarks.md says why a growth by ``nu / (nu - 2)``
+    was not kept: the block sandwich's independence over-counts slow structure on other designs).
+
+    Parameters
+    ----------
+    jac : ndarray, shape (m, k)
+        Jacobian of the weighted residual (determined columns only).
+    blocks : ndarray of int, shape (m,)
+    bread : ndarray, shape (k, k)
+
+    Returns
+    -------
+    ndarray, shape (k,)
+        ``nu`` per parameter (infinite where the parameter takes nothing from the blocks).
+    """
+    _, index = np.unique(blocks, return_inverse=True)
+    index = index.ravel()
+    w, v = np.linalg.eigh(0.5 * (bread + bread.T))
+    root = (v * np.sqrt(np.maximum(w, 0.0))) @ v.T  # B^{1/2}
+    own, cross = [], []  # F_g H_g F_g and F_g H_g per block (H_g = J_g^T J_g)
+    for g in range(index.max() + 1):
+        jg = jac[index == g]
+        info = jg.T @ jg
+        lam, u = np.linalg.eigh(root @ info @ root)
+        lam = np.clip(lam, 0.0, None)
+        factor = np.where(lam < 1.0 - LEVERAGE_ONE, 1.0 / np.sqrt(np.maximum(1.0 - lam, LEVERAGE_ONE)), 0.0)
+        f = root @ (u * factor) @ u.T @ root
+        own.append(np.diag(f @ info @ f))
+        cross.append(f @ info)
+    own, cross = np.array(own), np.array(cross)  # (G, k), (G, k, k)
+    nu = np.full(jac.shape[1], np.inf)
+    for k in range(jac.shape[1]):
+        q = cross[:, k, :]  # row g: q_g^T J (block g's rows only)
+        weights = np.linalg.eigvalsh(np.diag(own[:, k]) - q @ bread @ q.T)
+        if np.sum(weights**2) > 0.0:
+            nu[k] = np.sum(weights) ** 2 / np.sum(weights**2)
+    return nu
 
 
 def _block_levels(jac: np.ndarray, weighted: np.ndarray, index: np.ndarray, hard: np.ndarray,

@@ -330,8 +330,10 @@ class InstallationCalibrator(Calibrator):
         diagnosis = diagnose_installation(rows, priors, base_fit, diagnose=self.diagnose,
                                           t_s=None if rec.t_s is None else rec.t_s[used], temp_c=temp_c)
         # the noise's second-order bias out of the final fit: along a small swing's vertical weak direction
-        # it is several sigma (calibrate.installation.model's docstring)
-        diagnosis = replace(diagnosis, fit=debiased(diagnosis.fit, diagnosis.rows, priors))
+        # it is several sigma (calibrate.installation.model's docstring); unexplained structure above the
+        # floor is noise in the regressors too, and is counted (model.debiased)
+        diagnosis = replace(diagnosis, fit=debiased(diagnosis.fit, diagnosis.rows, priors,
+                                                    unexplained=diagnosis.block["unexplained"]))
         outside = (int(np.sum(outside)), fitted_outside, _linear_beyond(base, rec.raw[used], temp_c))
         return _result(rec, diagnosis, used, outside, priors, base, base_document, site)
 

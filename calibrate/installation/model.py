@@ -363,7 +363,7 @@ def fit_installation(rows: Rows, effects: tuple, priors: dict, start: np.ndarray
                            str(result.message), float(np.sum((mag / rows.sigma_b) ** 2)), heading_rms, fixed)
 
 
-def debiased(fit: InstallationFit, rows: Rows, priors: dict) -> InstallationFit:
+def debiased(fit: InstallationFit, rows: Rows, priors: dict, unexplained: bool = False) -> InstallationFit:
     r"""The fit with its errors-in-variables bias taken out (module docstring), to second order in the noise.
 
     The least-squares estimate solves ``sum_i J_i^T r_i = 0`` with ``J_i`` and ``r_i`` of the noisy
@@ -380,25 +380,45 @@ def debiased(fit: InstallationFit, rows: Rows, priors: dict) -> InstallationFit:
     ones), so the estimate is off by ``-(J^T J)^{-1} E``, which is added back in the coordinates
     the fit moved.  The covariance is kept (the correction is second order in the noise); the
     residuals and chi-squares are those at the corrected parameters.
+
+    With ``unexplained`` (the diagnosis found structure above the floor) the field is noisier than the
+    floor in the directions the rows see, and that excess is noise in the regressors too: a field
+    wandering in the world frame, or a hard iron walking, moves each row's field by ``dB_i``, which
+    enters the row's Jacobian and its residual alike, and the expectation above holds for any
+    variance of ``dB_i`` whether or not it is white in time (it is a sum over rows of each row's own
+    second moment).  The |B| rows see ``dB`` along the field, ``b^ . dB``; the angle rows see it across
+    the field in the plane of the field and up, ``e . dB`` (``e = (u - mu b^) / |u - mu b^|``); their
+    residuals' mean squares over the floor's give the excess variance along each (:func:`_excess`),
+    added as two more per-row directions of noise.  (A swing's vertical hard iron under a 0.4 uT
+    field wander was 0.52-0.59 uT high, 3-6 standard errors, on each of seeds 0-19, 20-29 and 30-49;
+    now 0.03, 0.10 and -0.03: ``tools/bench_swing_sigma.py``, docs/benchmarks.md.)
     """
     x, effects = fit.x, fit.effects
     jac = _jacobian(x, rows, effects, priors)
     base = residuals(x, rows, effects, priors)
     expectation = np.zeros(len(x))
-    for name, sigma in (("b", rows.sigma_b), ("u", rows.sigma_u)):
-        for k in range(3):
-            def shifted(step, name=name, k=k):
-                values = getattr(rows, name).copy()
+    directions = [(name, sigma, k) for name, sigma in (("b", rows.sigma_b), ("u", rows.sigma_u)) for k in range(3)]
+    if unexplained:
+        bh = rows.b / np.linalg.norm(rows.b, axis=1, keepdims=True)
+        across = rows.u - np.einsum("ij,ij->i", rows.u, bh)[:, None] * bh
+        across /= np.maximum(np.linalg.norm(across, axis=1, keepdims=True), 1e-12)
+        directions += [("b", np.sqrt(v), d) for v, d in zip(_excess(fit, rows, effects, priors), (bh, across)) if v > 0]
+    for name, sigma, k in directions:
+        def shifted(step, name=name, k=k):
+            values = getattr(rows, name).copy()
+            if isinstance(k, int):
                 values[:, k] += step
-                if name == "u":  # the up direction stays a unit vector: its noise is across it
-                    values /= np.linalg.norm(values, axis=1, keepdims=True)
-                return replace(rows, **{name: values})
-            up, down = shifted(sigma), shifted(-sigma)
-            r_up, r_down = residuals(x, up, effects, priors), residuals(x, down, effects, priors)
-            dr = (r_up - r_down) / (2.0 * sigma)
-            d2r = (r_up - 2.0 * base + r_down) / sigma**2
-            djac = (_jacobian(x, up, effects, priors) - _jacobian(x, down, effects, priors)) / (2.0 * sigma)
-            expectation += sigma**2 * (djac.T @ dr + 0.5 * jac.T @ d2r)
+            else:  # a direction per row
+                values += step * k
+            if name == "u":  # the up direction stays a unit vector: its noise is across it
+                values /= np.linalg.norm(values, axis=1, keepdims=True)
+            return replace(rows, **{name: values})
+        up, down = shifted(sigma), shifted(-sigma)
+        r_up, r_down = residuals(x, up, effects, priors), residuals(x, down, effects, priors)
+        dr = (r_up - r_down) / (2.0 * sigma)
+        d2r = (r_up - 2.0 * base + r_down) / sigma**2
+        djac = (_jacobian(x, up, effects, priors) - _jacobian(x, down, effects, priors)) / (2.0 * sigma)
+        expectation += sigma**2 * (djac.T @ dr + 0.5 * jac.T @ d2r)
     t, dependent = coordinates(fit.fixed, "field" not in priors)
     moved = ~fit.fixed
     if dependent is not None:
@@ -413,6 +433,21 @@ def debiased(fit: InstallationFit, rows: Rows, priors: dict) -> InstallationFit:
         np.sqrt(np.mean((data_rows[2 * n:3 * n] * rows.heading_sigma_deg) ** 2)))
     return replace(fit, x=x, residuals=mag, chi2=float(data_rows @ data_rows),
                    chi2_mag=float(np.sum((mag / rows.sigma_b) ** 2)), heading_rms_deg=heading_rms)
+
+
+def _excess(fit: InstallationFit, rows: Rows, effects: tuple, priors: dict) -> tuple[float, float]:
+    """Variance of the field beyond the floor's along the field and across it (field units squared).
+
+    From the fit's residuals (:func:`debiased`): the |B| rows' mean square less ``sigma_b^2``; the angle
+    rows' whitened mean square less one, times their floor in field units, ``sigma_b^2 + |B|^2 sigma_u^2``
+    (``|B|`` the median measured: ``sigma_dir = sigma_b / |B|``); each at least zero.
+    """
+    n = fit.n_rows
+    weighted = residuals(fit.x, rows, effects, priors)
+    along = float(np.mean((weighted[:n] * rows.sigma_b) ** 2) - rows.sigma_b**2)
+    field = rows.sigma_b / rows.sigma_dir
+    across = float((np.mean(weighted[n:2 * n] ** 2) - 1.0) * (rows.sigma_b**2 + (field * rows.sigma_u) ** 2))
+    return max(along, 0.0), max(across, 0.0)
 
 
 def _jacobian(x: np.ndarray, rows: Rows, effects: tuple, priors: dict) -> np.ndarray:

@@ -247,3 +247,42 @@ def test_the_hard_iron_and_sorts_levels_refit_from_sums_equals_the_dense_least_s
     levels, _, rss = _block_levels(jac, weighted, index, np.array([0, 2]), step, 14)
     np.testing.assert_allclose(rss, weighted @ weighted - weighted @ (design @ beta), rtol=1e-10)
     np.testing.assert_allclose(levels[:-1].ravel(), beta[k + 14:], rtol=1e-8, atol=1e-12)
+
+
+def test_the_sandwich_dof_matches_the_spread_of_the_cr2_variance_under_white_noise():
+    """Under white noise CR2's variance of a parameter is a quadratic form ``e^T W e``: its mean is the bread's
+    (CR2 is unbiased there) and its variance over its squared mean is ``2 / nu`` exactly (the two moments
+    Satterthwaite's ``nu`` matches), each within 3 Monte Carlo standard errors.  The design is a swing's |B|
+    rows linearised (a constant, the hard iron once a turn, the soft iron twice, two turns), whose 8 blocks
+    are quarter turns that carry the hard iron unequally: ``nu`` well under the G - 1 = 7 of equal blocks."""
+    from calibrate.diagnosis.blocks import sandwich_dof
+    from calibrate.diagnosis.robust import cluster_covariance
+
+    rng = np.random.default_rng(21)
+    n = 1600
+    heading = 4 * np.pi * np.linspace(0.0, 1.0, n, endpoint=False) + 0.7
+    jac = np.column_stack([np.ones(n), np.cos(heading), np.sin(heading), np.cos(2 * heading), np.sin(2 * heading)])
+    blocks, bread = time_blocks(np.arange(n, dtype=float)), np.linalg.inv(jac.T @ jac)
+    nu = sandwich_dof(jac, blocks, bread)
+    assert np.all(nu[1:3] < 5.0) and np.all(nu > 2.0) and np.all(nu <= 7.0 + 1e-9)
+    v = []
+    for _ in range(1500):
+        e = rng.normal(size=n)
+        v.append(np.diag(cluster_covariance(jac, e - jac @ (bread @ (jac.T @ e)), blocks, bread)))
+    v = np.array(v)
+    m = len(v)
+    mean, var = v.mean(axis=0), v.var(axis=0, ddof=1)
+    assert np.all(np.abs(mean - np.diag(bread)) < 3.0 * np.sqrt(var / m))
+    fourth = np.mean((v - mean) ** 4, axis=0)
+    ratio_se = np.sqrt((fourth - var**2) / m) / mean**2  # the sample variance's standard error, over mean^2
+    assert np.all(np.abs(var / mean**2 - 2.0 / nu) < 3.0 * ratio_se)
+
+
+def test_the_sandwich_dof_of_equal_blocks_is_g_minus_one():
+    """A constant alone over G equal blocks: CR2's variance of the mean is the blocks' means' spread, a
+    chi-square with G - 1 degrees of freedom exactly."""
+    from calibrate.diagnosis.blocks import sandwich_dof
+
+    jac = np.ones((800, 1))
+    nu = sandwich_dof(jac, time_blocks(np.arange(800.0)), np.linalg.inv(jac.T @ jac))
+    assert nu[0] == pytest.approx(7.0, rel=1e-9)
