@@ -127,8 +127,7 @@ CANDIDATES = {  # name: (FilterConfig changes, hard-iron tracker on, noise from 
     "field update: no tilt": ({"field_update": "no-tilt"}, True, False),  # issue 22: the field never moves the tilt
     "field update: heading only": ({"field_update": "heading"}, True, False),  # ... nor the horizontal gyro bias
     "field update: heading and tilt model": ({"field_update": "heading-tilt"}, True, False),  # ... tilt in its model
-    "motion residual in band": ({"residual_in_band": True}, True, False),
-    "scale noise per axis": ({"scale_noise_axes": True}, True, False),  # issue 22: a scale error's turn about its own axis  # issue 22: vibration and taps
+    "motion residual in band": ({"residual_in_band": True}, True, False),  # issue 22: vibration and taps
     "noise from rest": ({}, True, True),
     "mag_latency_s 0.014": ({"mag_latency_s": 0.014}, True, False),  # calibrate.realdata's loop, on 01 and 02
     "mag_latency_s fitted": ({"mag_latency_s": "fitted"}, True, False),  # issue 22: another recording's tumble file

@@ -233,20 +233,8 @@ class GyroFilter(AttitudeFilter):
                                  e[2] * vx + e[5] * vy + e[8] * vz)
         # P <- F P F^T + Q, F = [[I, -R dt], [0, I]]
         c = self.coefficients
-        if not self.config.scale_noise_axes:
-            q_att = (c.gyro_var + c.scale_var * (wx * wx + wy * wy + wz * wz)) * dt
-            s.covariance = predict_gyro(s.covariance, m, dt, q_att, c.bias_walk_var * dt)
-            return
-        p = predict_gyro(s.covariance, m, dt, c.gyro_var * dt, c.bias_walk_var * dt)
-        k = c.scale_var * dt
-        qx, qy, qz = k * wx * wx, k * wy * wy, k * wz * wz
-        m0, m1, m2, m3, m4, m5, m6, m7, m8 = m
-        s.covariance = (p[0] + qx * m0 * m0 + qy * m1 * m1 + qz * m2 * m2,
-                        p[1] + qx * m0 * m3 + qy * m1 * m4 + qz * m2 * m5,
-                        p[2] + qx * m0 * m6 + qy * m1 * m7 + qz * m2 * m8) + p[3:6] + (
-                        p[6] + qx * m3 * m3 + qy * m4 * m4 + qz * m5 * m5,
-                        p[7] + qx * m3 * m6 + qy * m4 * m7 + qz * m5 * m8) + p[8:11] + (
-                        p[11] + qx * m6 * m6 + qy * m7 * m7 + qz * m8 * m8,) + p[12:]
+        q_att = (c.gyro_var + c.scale_var * (wx * wx + wy * wy + wz * wz)) * dt
+        s.covariance = predict_gyro(s.covariance, m, dt, q_att, c.bias_walk_var * dt)
 
     def _rest(self, dt: float, a) -> None:
         """VQF's rest detector; at rest the gyro reading measures its bias."""

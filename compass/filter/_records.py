@@ -195,7 +195,6 @@ class FilterConfig:
     follow_place: bool = True
     place_window_s: float = 4.0
     residual_in_band: bool = False
-    scale_noise_axes: bool = False
     field_update: str = "kalman"
     calibration_uncertainty: object = None
 
