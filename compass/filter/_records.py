@@ -11,9 +11,12 @@ from dataclasses import dataclass, fields
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["FilterConfig", "FilterCoefficients", "Diagnostics", "SkipCounts", "Estimate", "SKIP_REASONS"]
+__all__ = ["DEFAULT_GYRO_SCALE_ERROR", "FilterConfig", "FilterCoefficients", "fitted_scale_error", "Diagnostics", "SkipCounts", "Estimate", "SKIP_REASONS"]
 
 _SCALE_CORRELATION_S = 1.0  # a scale-factor error persists while the housing keeps turning
+DEFAULT_GYRO_SCALE_ERROR = 0.005
+"""The gyro scale error the filter allows for when nothing is known of the board's (a good MEMS gyro after its
+factory trim; BROAD's boards), and the floor under a fitted one (fraction of the rate)."""
 _REST_TAU_S = 0.5  # low-pass of VQF's rest detector, s
 _REST_RATE_SIGMA = 1e-3  # residual true rate "at rest" (tremor, Earth's rotation), rad/s
 
@@ -166,7 +169,7 @@ class FilterConfig:
     gyro_noise: float = 3e-4
     gyro_bias_walk: float = 1e-4
     gyro_bias_sigma0: float = 0.05
-    gyro_scale_error: float = 0.005
+    gyro_scale_error: float = DEFAULT_GYRO_SCALE_ERROR
     accel_time_constant_s: float = 2.0
     accel_lowpass_order: int = 1
     motion_time_s: float = 0.5
@@ -237,7 +240,7 @@ class FilterConfig:
 
     @classmethod
     def from_model(cls, model, *, mag_latency: bool = False, gravity: float | None = None,
-                   gyro_matrix: bool = False) -> "FilterConfig":
+                   gyro_matrix: bool = False, gyro_scale_error: float | None = None) -> "FilterConfig":
         """Reference field and magnetometer noise from a :class:`compass.model.SensorModel`.
 
         The noise is the field's white noise at zero field alone (``model.noise_variance``), for every form:
@@ -260,6 +263,11 @@ class FilterConfig:
         another trial doubled every group's heading and inclination error (docs/benchmarks.md, "The gyro's scale
         and axes from the calibration file").
 
+        The gyro's scale error (:attr:`gyro_scale_error`) is what the calibration's gyro-aided fit says remains
+        (``model.gyro_scale_error``: with ``gyro_matrix`` the fitted matrix's sigma, without it ``|G - I|`` and the
+        sigma; :func:`compass.calibration.gyro_scale_error`), never below the default 0.005; the default when the file
+        has no fit.  ``gyro_scale_error`` given (``--gyro-scale-error``) overrides it.
+
         Change other fields with ``dataclasses.replace``.
 
         Raises
@@ -273,10 +281,35 @@ class FilterConfig:
             raise ValueError("the calibration has no noise_floor: the filter cannot weight the magnetometer")
         p = model.solver
         noise = float(np.sqrt(np.trace((p * model.noise_variance(np.zeros(3))) @ p.T) / 3.0))
+        if gyro_scale_error is None:
+            gyro_scale_error = fitted_scale_error(model, gyro_matrix)
         return cls(field_norm=model.field_norm, dip_deg=model.dip_deg, mag_noise=noise,
+                   gyro_scale_error=gyro_scale_error,
                    mag_latency_s=model.mag_latency_s if mag_latency else 0.0, gravity=gravity,
                    gyro_matrix=model.gyro_matrix if gyro_matrix else None,
                    calibration_uncertainty=model.calibration_uncertainty)
+
+
+def fitted_scale_error(model, gyro_matrix: bool) -> float:
+    """The gyro scale error a calibration's gyro-aided fit leaves (``model.gyro_scale_error``: with ``gyro_matrix``
+    applied, or the gyro as read), never below :data:`DEFAULT_GYRO_SCALE_ERROR`; that default when the file has none.
+
+    Parameters
+    ----------
+    model : compass.model.SensorModel
+    gyro_matrix : bool
+        The fitted ``model.gyro_matrix`` corrects each gyro sample (``--gyro-matrix``).
+
+    Returns
+    -------
+    float
+        Fraction of the rate.
+    """
+    fitted = getattr(model, "gyro_scale_error", None)
+    if fitted is None:
+        return DEFAULT_GYRO_SCALE_ERROR
+    with_matrix, as_read = fitted
+    return max(DEFAULT_GYRO_SCALE_ERROR, with_matrix if gyro_matrix and model.gyro_matrix is not None else as_read)
 
 
 @dataclass(frozen=True)
