@@ -555,16 +555,18 @@ def _gyro_scale_error(gyro) -> tuple[float, float] | None:
 
 
 def gyro_scale_error(matrix, sigma) -> tuple[float, float]:
-    """The gyro's remaining scale and axis error a fitted gyro matrix says, with its seen entries applied and without.
+    """The gyro scale and axis error a fitted gyro matrix says it saw, with its seen entries applied and without.
 
     The rate error of a gyro read through ``G`` is ``E w``, ``E = G - I`` (a coherent error: it turns the attitude by
     ``E`` times the angle turned).  Averaged over the directions of ``w``, ``|E w|^2 = |w|^2 ||E||_F^2 / 3``, so the one
     number the filter takes (its ``gyro_scale_error``, a fraction of the rate on every axis, ``s`` for ``E = s I``) is
-    ``sqrt(sum e_ij^2 / 3)``, ``e_ij^2`` what is left of entry ``(i, j)`` in expectation: applied (:func:`gyro_matrix_seen`),
-    its variance ``sigma_ij^2``; not applied, ``(G - I)_ij^2 + sigma_ij^2``; no sigma, or a model mismatch
-    (:func:`gyro_matrix_mismatch`: the fit took up something else there), the datasheet tolerance the fit's prior
-    states (a third of :data:`GYRO_MATRIX_MISMATCH`).  ``sum e_ij^2`` is the trace of ``vec E``'s covariance: the same
-    in any frame the gyro is turned to.
+    ``sqrt(sum e_ij^2 / 3)``.  Only the entries the fit saw (:func:`gyro_matrix_seen`, the one rule for the words and
+    the runtime) count, each with what is left of it in expectation: applied, its variance ``sigma_ij^2``; not applied,
+    ``(G - I)_ij^2 + sigma_ij^2``.  An entry it did not see (within 3 sigma of the identity's, a sigma its prior made,
+    or a model mismatch) says nothing about the gyro beyond what the filter allows for anyway
+    (:data:`compass.filter.DEFAULT_GYRO_SCALE_ERROR`, which :meth:`compass.filter.FilterConfig.from_model` adds in
+    quadrature); counting its noise-level estimate would add twice its sigma for an error the data did not show.
+    ``sum e_ij^2`` is the trace of ``vec E``'s covariance: the same in any frame the gyro is turned to.
 
     Parameters
     ----------
@@ -576,17 +578,13 @@ def gyro_scale_error(matrix, sigma) -> tuple[float, float]:
     Returns
     -------
     tuple of 2 floats
-        ``(with the seen entries applied, the gyro as read)``, fractions of the rate.
+        ``(with the seen entries applied, the gyro as read)``, fractions of the rate; 0 where nothing was seen.
     """
     g = np.asarray(matrix, dtype=float)
-    sigma = np.asarray(sigma, dtype=float)
-    error2 = (g - np.eye(3)) ** 2
-    known = np.isfinite(sigma) & ~gyro_matrix_mismatch(g)
-    var = np.where(known, np.where(known, sigma, 0.0) ** 2, (GYRO_MATRIX_MISMATCH / 3.0) ** 2)
-    applied = gyro_matrix_seen(g, sigma)
-    with_matrix = np.where(applied, var, np.where(known, error2 + var, var))
-    as_read = np.where(known, error2 + var, var)
-    return float(np.sqrt(with_matrix.sum() / 3.0)), float(np.sqrt(as_read.sum() / 3.0))
+    seen = gyro_matrix_seen(g, sigma)
+    var = np.where(seen, np.asarray(sigma, dtype=float), 0.0) ** 2
+    error2 = np.where(seen, g - np.eye(3), 0.0) ** 2
+    return float(np.sqrt(var.sum() / 3.0)), float(np.sqrt((error2 + var).sum() / 3.0))
 
 
 def _nested_3x3(v, key: str) -> np.ndarray:

@@ -264,9 +264,9 @@ class FilterConfig:
         and axes from the calibration file").
 
         The gyro's scale error (:attr:`gyro_scale_error`) is what the calibration's gyro-aided fit says remains
-        (``model.gyro_scale_error``: with ``gyro_matrix`` the fitted matrix's sigma, without it ``|G - I|`` and the
-        sigma; :func:`compass.calibration.gyro_scale_error`), never below the default 0.005; the default when the file
-        has no fit.  ``gyro_scale_error`` given (``--gyro-scale-error``) overrides it.
+        (``model.gyro_scale_error``, the entries it saw: with ``gyro_matrix`` their sigma, without it ``|G - I|`` and
+        the sigma; :func:`compass.calibration.gyro_scale_error`) in quadrature with the default 0.005
+        (:func:`fitted_scale_error`); the default when the file has no fit.  ``gyro_scale_error`` given (``--gyro-scale-error``) overrides it.
 
         Change other fields with ``dataclasses.replace``.
 
@@ -292,7 +292,8 @@ class FilterConfig:
 
 def fitted_scale_error(model, gyro_matrix: bool) -> float:
     """The gyro scale error a calibration's gyro-aided fit leaves (``model.gyro_scale_error``: with ``gyro_matrix``
-    applied, or the gyro as read), never below :data:`DEFAULT_GYRO_SCALE_ERROR`; that default when the file has none.
+    applied, or the gyro as read), added in quadrature to :data:`DEFAULT_GYRO_SCALE_ERROR` (what the filter allows
+    for what the fit did not see); that default when the file has no fit.
 
     Parameters
     ----------
@@ -309,7 +310,7 @@ def fitted_scale_error(model, gyro_matrix: bool) -> float:
     if fitted is None:
         return DEFAULT_GYRO_SCALE_ERROR
     with_matrix, as_read = fitted
-    return max(DEFAULT_GYRO_SCALE_ERROR, with_matrix if gyro_matrix and model.gyro_matrix is not None else as_read)
+    return math.hypot(DEFAULT_GYRO_SCALE_ERROR, with_matrix if gyro_matrix and model.gyro_matrix is not None else as_read)
 
 
 @dataclass(frozen=True)

@@ -30,54 +30,47 @@ def test_one_number_is_the_rate_errors_rms_over_directions():
     relation the reduction to one number rests on), and ``s`` for ``E = s I``."""
     from compass.calibration import gyro_scale_error
 
+    e = np.array([[0.03, 0.012, 0.0], [0.0, -0.025, 0.011], [0.013, 0.0, 0.02]])  # every nonzero entry seen
     w = np.random.default_rng(0).normal(size=(200_000, 3))
     w /= np.linalg.norm(w, axis=1)[:, None]
-    rms = np.sqrt(np.mean(np.sum((w @ (G - np.eye(3)).T) ** 2, axis=1)))
+    rms = np.sqrt(np.mean(np.sum((w @ e.T) ** 2, axis=1)))
     # the sampling error of a mean of 2e5 squares of a bounded quantity: well under 1 % of it
-    assert gyro_scale_error(G, np.zeros((3, 3)))[1] == pytest.approx(rms, rel=0.01)
-    assert gyro_scale_error(1.03 * np.eye(3), np.zeros((3, 3)))[1] == pytest.approx(0.03, rel=1e-12)
+    assert gyro_scale_error(np.eye(3) + e, np.full((3, 3), 1e-9))[1] == pytest.approx(rms, rel=0.01)
+    assert gyro_scale_error(1.03 * np.eye(3), np.full((3, 3), 1e-9))[1] == pytest.approx(0.03, rel=1e-6)
 
 
-def test_from_model_takes_what_the_fit_says_remains():
+def test_from_model_takes_what_the_fit_saw():
     from compass.calibration import from_dict, gyro_matrix_seen
 
     model = from_dict(_doc()).model
-    error2 = (G - np.eye(3)) ** 2
-    as_read = np.sqrt(np.sum(error2 + SIGMA**2) / 3.0)
     seen = gyro_matrix_seen(G, SIGMA)
     assert seen.sum() == 3  # the three diagonal entries: beyond 3 sigma, sigma under 0.5 %
-    applied = np.sqrt(np.sum(np.where(seen, SIGMA**2, error2 + SIGMA**2)) / 3.0)
+    var = np.where(seen, SIGMA, 0.0) ** 2
+    as_read = np.sqrt(np.sum(np.where(seen, G - np.eye(3), 0.0) ** 2 + var) / 3.0)
+    applied = np.sqrt(np.sum(var) / 3.0)
     assert model.gyro_scale_error == pytest.approx((applied, as_read), rel=1e-12)
-    assert FilterConfig.from_model(model).gyro_scale_error == pytest.approx(as_read, rel=1e-12)
-    assert applied < DEFAULT_GYRO_SCALE_ERROR  # the fit knows the scale better than the default: the floor holds
-    assert FilterConfig.from_model(model, gyro_matrix=True).gyro_scale_error == DEFAULT_GYRO_SCALE_ERROR
-    model = dataclasses.replace(model, gyro_scale_error=(0.007, as_read))  # a less precise fit: its sigma, applied
-    assert FilterConfig.from_model(model, gyro_matrix=True).gyro_scale_error == 0.007
+    floor = DEFAULT_GYRO_SCALE_ERROR
+    assert FilterConfig.from_model(model).gyro_scale_error == pytest.approx(np.hypot(floor, as_read), rel=1e-12)
+    assert FilterConfig.from_model(model, gyro_matrix=True).gyro_scale_error == pytest.approx(np.hypot(floor, applied),
+                                                                                              rel=1e-12)
+    assert applied < 0.1 * as_read  # the fit knows the scale far better than its size
 
 
-def test_the_default_is_the_floor_and_stays_without_a_fit():
-    from compass.calibration import from_dict
+def test_the_default_stays_without_a_fit_or_where_it_saw_nothing():
+    from compass.calibration import from_dict, gyro_scale_error
     from compass.sim.device import default_model
 
     assert FilterConfig.from_model(default_model()).gyro_scale_error == DEFAULT_GYRO_SCALE_ERROR
-    precise = from_dict(_doc(np.eye(3) + np.diag([0.002, 0.0, 0.0]), np.full((3, 3), 1e-4))).model
-    assert FilterConfig.from_model(precise).gyro_scale_error == DEFAULT_GYRO_SCALE_ERROR  # 0.1 % RMS: the floor
+    # within 3 sigma of the identity, a sigma the prior made (2 %), a model mismatch (12 %): nothing seen
+    unseen = from_dict(_doc(np.eye(3) + np.diag([0.002, 0.02, 0.12]), np.diag([1e-3, 0.02, 1e-3]) + 1e-3)).model
+    assert unseen.gyro_scale_error == (0.0, 0.0)
+    assert FilterConfig.from_model(unseen).gyro_scale_error == DEFAULT_GYRO_SCALE_ERROR
     doc = _doc()
     doc["tumble"]["gyro"]["used"] = False  # a fit the calibration refused says nothing
     assert FilterConfig.from_model(from_dict(doc).model).gyro_scale_error == DEFAULT_GYRO_SCALE_ERROR
-
-
-def test_unknown_and_mismatched_entries_take_the_datasheet_tolerance():
-    from compass.calibration import gyro_scale_error
-    from compass.calibration._read import GYRO_MATRIX_MISMATCH
-
-    g = np.eye(3) + np.diag([0.12, 0.0, 0.0])  # beyond 3 prior sigmas on x: a model mismatch, never applied
-    sigma = np.full((3, 3), 1e-3)
-    sigma[2, 2] = np.inf  # no sigma on z
-    prior2 = (GYRO_MATRIX_MISMATCH / 3.0) ** 2
-    expected = np.where(np.isfinite(sigma), 1e-6, prior2)
-    expected[0, 0] = prior2[0, 0]
-    assert gyro_scale_error(g, sigma)[1] == pytest.approx(np.sqrt(expected.sum() / 3.0), rel=1e-12)
+    sigma = SIGMA.copy()
+    sigma[0, 0] = np.inf  # no sigma: not seen
+    assert gyro_scale_error(G, sigma)[1] == pytest.approx(np.sqrt((0.025**2 + 1e-3**2 + 0.02**2 + 1.5e-3**2) / 3), rel=1e-12)
 
 
 def test_an_installation_keeps_the_fitted_value():
