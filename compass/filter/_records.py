@@ -99,6 +99,15 @@ class FilterConfig:
         Gate the field at all (False: every field sample updates the heading; for comparisons).
     gate_timeout_s : float
         A continuous rejection this long adopts the current field as the reference, seconds.
+    gate_release : bool
+        The innovation test lets go of a heading it locks out (issue 22): when most of the field samples that pass
+        the |B| and dip tests are refused by the heading innovation test (a leaky fraction over
+        ``field_error_time_s`` above one half), the heading variance is raised to the refused innovation's square
+        (it explains it at one sigma; the test disarms), so the field pulls the heading back.  Refused while the heading is settled means a 3-sigma innovation; the field's
+        own heading error is independent from one ``field_error_time_s`` to the next, so a majority of them over
+        that time is the heading's covariance being too small (a gyro scale error beyond ``gyro_scale_error``), not
+        the field.  The refusals alternate with acceptances, so ``gate_timeout_s`` (a continuous rejection) never
+        fires on it.
     max_gap_s : float
         A time step longer than this restarts the attitude from the next two-vector solution
         (the gyro bias is kept), seconds.
@@ -185,6 +194,7 @@ class FilterConfig:
     heading_tolerance_deg: float = 10.0
     gate: bool = True
     gate_timeout_s: float = 20.0
+    gate_release: bool = False
     max_gap_s: float = 0.5
     gyro_range_rad_s: float = math.radians(4000.0)
     accel_range: float = 64.0
