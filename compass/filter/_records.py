@@ -107,7 +107,11 @@ class FilterConfig:
         own heading error is independent from one ``field_error_time_s`` to the next, so a majority of them over
         that time is the heading's covariance being too small (a gyro scale error beyond ``gyro_scale_error``), not
         the field.  The refusals alternate with acceptances, so ``gate_timeout_s`` (a continuous rejection) never
-        fires on it.
+        fires on it.  Off by default: on every BROAD trial it changes nothing but 36 (3.28 -> 3.02 deg heading), and
+        it takes a third of what a 5 % scale error costs a simulated board in slow rotation when the filter allows
+        for 0.5 % (tools/bench_gyro_scale.py, docs/benchmarks.md), but it cannot tell a drifted heading from a
+        magnet that keeps |B| and dip: on the device script's magnet (tests/compass/filter/test_filter.py) it let the
+        magnet's field in and the heading away from the magnet went from under 0.4 to 14 deg RMS.
     max_gap_s : float
         A time step longer than this restarts the attitude from the next two-vector solution
         (the gyro bias is kept), seconds.
