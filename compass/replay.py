@@ -145,7 +145,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
         :meth:`compass.filter.FilterConfig.from_model`).
     gyro_scale_error : float, optional
         The gyro scale error the filter allows for, fraction of the rate (``compass live --gyro-scale-error``); default
-        what the calibration's gyro-aided fit says remains (:meth:`compass.filter.FilterConfig.from_model`).
+        0.005 and, in quadrature, what the calibration's gyro-aided fit saw (:meth:`compass.filter.FilterConfig.from_model`).
     force : bool
         Overwrite ``out`` (and ``rerun``).
     rerun : path or "spawn", optional
