@@ -27,7 +27,7 @@ import re
 from dataclasses import dataclass
 
 __all__ = ["Range", "FIELD_UT", "DIP_DEG", "TILT_DEG", "ANGLE_DEG", "NOISE_UT", "SAMPLES", "SEED", "RATE_HZ",
-           "DURATION_S", "WAIT_S", "BAUD", "FRACTION", "CHANNELS", "SCALE", "IRON_UT", "ACCEL_NOISE_G", "MAX_TILT_DEG", "GRAVITY"]
+           "DURATION_S", "WAIT_S", "BAUD", "FRACTION", "CHANNELS", "SCALE", "IRON_UT", "ACCEL_NOISE_G", "MAX_TILT_DEG", "GRAVITY", "GYRO_SCALE_ERROR"]
 
 
 @dataclass(frozen=True)
@@ -151,5 +151,8 @@ MAX_TILT_DEG = Range(0.0, 90.0, "deg", hi_open=True)
 GRAVITY = Range(0.0, 1e6, lo_open=True)
 """What 1 g reads in an accelerometer's unit (1 in g, 9.81 in m/s^2, 1000 in mg, counts): positive,
 at most a million (a 20-bit count)."""
+GYRO_SCALE_ERROR = Range(0.0, 0.2, lo_open=True)
+"""``--gyro-scale-error``: a fraction of the rate, above 0 and up to 20 % (beyond, the gyro's unit or an axis is
+wrong, not its scale: ``compass.calibration.MAX_GYRO_MATRIX_ERROR``)."""
 ACCEL_NOISE_G = Range(0.0, 1.0, "g", lo_open=True)
 """An accelerometer's noise level: positive, at most 1 g (no gravity direction left)."""

@@ -98,6 +98,11 @@ class SensorModel:
         The gyro's scale and axes against the housing: the housing-frame rate is ``gyro_matrix @ w``, ``w`` the
         gyro's reading; a tumble's gyro-aided fit's ``tumble.gyro.gyro_matrix``, the entries it did not see at
         the identity's (:func:`compass.calibration.gyro_matrix_seen`); None when it saw none.
+    gyro_scale_error : tuple of 2 floats, or None
+        What the gyro-aided fit saw of the gyro's scale and axis error, as the RMS over rate directions of
+        ``|E w| / |w|`` (dimensionless; :func:`compass.calibration.gyro_scale_error`): ``(with gyro_matrix applied,
+        the gyro as read)``; None when the file has no usable fit.  Both are rotation-invariant (an installation
+        keeps them).  :meth:`compass.filter.FilterConfig.from_model` sets the filter's ``gyro_scale_error`` from it.
     """
 
     channels: tuple[str, ...]
@@ -114,6 +119,7 @@ class SensorModel:
     iron_uncertainty: TumbleUncertainty | None = None
     mag_latency_s: float = 0.0
     gyro_matrix: np.ndarray | None = None
+    gyro_scale_error: tuple[float, float] | None = None
     sigma_priors: tuple | None = None
 
     def __post_init__(self):
@@ -131,6 +137,10 @@ class SensorModel:
                                                  and np.all(np.isfinite(self.gyro_matrix))
                                                  and np.linalg.det(self.gyro_matrix) > 0):
             raise ValueError(f"gyro_matrix must be a finite 3 x 3 matrix of positive determinant, got {self.gyro_matrix!r}")
+        if self.gyro_scale_error is not None and not (np.shape(self.gyro_scale_error) == (2,)
+                                                      and np.all(np.isfinite(self.gyro_scale_error))
+                                                      and np.all(np.asarray(self.gyro_scale_error) >= 0.0)):
+            raise ValueError(f"gyro_scale_error must be 2 non-negative numbers, got {self.gyro_scale_error!r}")
         if c < 3:
             raise NotAFieldVector(f"the calibration has {c} channel{'s' if c > 1 else ''} ({', '.join(self.channels)}): "
                                   "a calibration of single-axis channels, valid as such, but the field vector (and "

@@ -123,7 +123,7 @@ def gyro_matrix_note(model, has_gyro: bool = True) -> tuple[str, str]:
 
 
 def replay_file(calibration, recording, out, *, site=None, date=None, gravity=None, mag_latency=False, gyro_matrix=False,
-                force=False, rerun=None, read_options=None, quiet=False) -> LiveSession:
+                gyro_scale_error=None, force=False, rerun=None, read_options=None, quiet=False) -> LiveSession:
     """``compass attitude CAL REC --out ATT --filter``: the recording through ``compass live``'s pipeline.
 
     Parameters
@@ -143,6 +143,9 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     gyro_matrix : bool
         Correct each gyro sample by the calibration's fitted gyro matrix (``compass live --gyro-matrix``;
         :meth:`compass.filter.FilterConfig.from_model`).
+    gyro_scale_error : float, optional
+        The gyro scale error the filter allows for, fraction of the rate (``compass live --gyro-scale-error``); default
+        0.005 and, in quadrature, what the calibration's gyro-aided fit saw (:meth:`compass.filter.FilterConfig.from_model`).
     force : bool
         Overwrite ``out`` (and ``rerun``).
     rerun : path or "spawn", optional
@@ -178,12 +181,18 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
             limits.GRAVITY.check(gravity, "--gravity")
         except ValueError as exc:
             raise BadInput(str(exc)) from None
+    if gyro_scale_error is not None:
+        try:
+            limits.GYRO_SCALE_ERROR.check(gyro_scale_error, "--gyro-scale-error")
+        except ValueError as exc:
+            raise BadInput(str(exc)) from None
     try:
         if site is not None and not isinstance(site, Site):
             site = Site.parse(site, date)
         cal = load(calibration)
         model = cal.model
-        config = FilterConfig.from_model(model, mag_latency=mag_latency, gravity=gravity, gyro_matrix=gyro_matrix)
+        config = FilterConfig.from_model(model, mag_latency=mag_latency, gravity=gravity, gyro_matrix=gyro_matrix,
+                                         gyro_scale_error=gyro_scale_error)
     except ValueError as exc:
         raise BadInput(exc if str(calibration) in str(exc) else f"{calibration}: {exc}") from None
     source = "site"

@@ -167,18 +167,23 @@ def ours(changes=None, hard_iron=True, from_rest=False, model=None):
     """The toolkit's causal pipeline: calibration (optional), hard-iron tracker, the live filter."""
 
     def run(trial):
-        from compass.filter import run_filter
-        from compass.hard_iron import track_hard_iron
-
-        field = trial.mag_ut if model is None else model.field(trial.mag_ut)[0]
-        fitted = {k: _fitted(trial)[k] for k, v in (changes or {}).items() if v == "fitted"}
-        config = ours_config(trial, field, (changes or {}) | fitted, from_rest)
-        if hard_iron:
-            field = track_hard_iron(field, trial.accel_m_s2, trial.rate_hz, dip_deg=config.dip_deg).corrected(field)
-        track = run_filter(trial.t_s, trial.accel_m_s2, trial.gyro_rad_s, field, config)
+        track = ours_track(trial, changes, hard_iron, from_rest, model)
         return nwu_to_enu(Rotation.from_quat(track.quat)).as_quat(scalar_first=True)
 
     return run
+
+
+def ours_track(trial, changes=None, hard_iron=True, from_rest=False, model=None):
+    """:func:`ours`' pipeline on one trial: its :class:`compass.filter.FilterTrack` (the gate's answers too)."""
+    from compass.filter import run_filter
+    from compass.hard_iron import track_hard_iron
+
+    field = trial.mag_ut if model is None else model.field(trial.mag_ut)[0]
+    fitted = {k: _fitted(trial)[k] for k, v in (changes or {}).items() if v == "fitted"}
+    config = ours_config(trial, field, (changes or {}) | fitted, from_rest)
+    if hard_iron:
+        field = track_hard_iron(field, trial.accel_m_s2, trial.rate_hz, dip_deg=config.dip_deg).corrected(field)
+    return run_filter(trial.t_s, trial.accel_m_s2, trial.gyro_rad_s, field, config)
 
 
 def loo_choice(results, trial, candidates):
@@ -199,7 +204,7 @@ one that is not itself (the latency fitted on another trial: leave one out)."""
 
 def file_values(t_s, gyro, accel, mag, keep) -> dict:
     """The magnetometer latency and the gyro matrix a tumble calibration of the rows ``keep`` writes, as the runtime
-    reads them: ``{"mag_latency_s": s, "gyro_matrix": 3 x 3 tuple or None}``.
+    reads them: ``{"mag_latency_s": s, "gyro_matrix": 3 x 3 tuple or None, "gyro_scale_error": the filter's, as read}``.
 
     ``compass calibrate``'s path with a gyro (the present fit, the gyro-aided one where it falls back, and the
     gyro-aided one's latency and gyro matrix either way), its file, and :func:`compass.calibration.from_dict`'s
@@ -211,6 +216,7 @@ def file_values(t_s, gyro, accel, mag, keep) -> dict:
     from calibrate.tumble import calibrate_tumble
     from calibrate.tumble.gyro import with_gyro
     from compass.calibration import from_dict
+    from compass.filter import fitted_scale_error
     from compass.io.tumble import gyro_turns
 
     turns = gyro_turns(t_s, gyro, keep)
@@ -223,6 +229,7 @@ def file_values(t_s, gyro, accel, mag, keep) -> dict:
     g = model.gyro_matrix
     fitted = doc.get("tumble", {}).get("gyro", {})  # what the fit wrote, for the words only
     return {"mag_latency_s": model.mag_latency_s, "gyro_matrix": None if g is None else tuple(map(tuple, g)),
+            "gyro_scale_error": fitted_scale_error(model, False),
             "fitted": (fitted.get("gyro_matrix"), fitted.get("gyro_matrix_sigma"))}
 
 
@@ -253,7 +260,7 @@ def broad_fitted(data: Path) -> dict[str, dict]:
     return out
 
 
-NONE_FITTED = {"mag_latency_s": 0.0, "gyro_matrix": None}
+NONE_FITTED = {"mag_latency_s": 0.0, "gyro_matrix": None, "gyro_scale_error": 0.005}
 
 BROAD_FITTED: dict[str, dict] = {}
 """Each BROAD trial's held-out file values (:func:`held_out`), by name; a simulated trial carries its own."""

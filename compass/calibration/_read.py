@@ -26,7 +26,7 @@ from ._format import CHANNEL_KINDS, FORMAT, KIND_KEY, TUMBLE_CHANNELS
 from ._imu import ImuCorrection
 from ._value import Calibration, Installation, Provenance, TumbleForm
 
-__all__ = ["KINDS", "MAX_GYRO_MATRIX_ERROR", "from_dict", "gyro_matrix_mismatch", "gyro_matrix_seen", "kind_of", "latency_seen", "load", "loads", "model_from_dict"]
+__all__ = ["KINDS", "MAX_GYRO_MATRIX_ERROR", "from_dict", "gyro_matrix_mismatch", "gyro_matrix_seen", "gyro_scale_error", "kind_of", "latency_seen", "load", "loads", "model_from_dict"]
 
 KINDS = ("fourflip", "platform3d", "reference", "channels", "tumble", "installed")
 """Every kind the reader knows (the file's ``"model"``)."""
@@ -399,6 +399,7 @@ def _tumble(d: dict) -> tuple:
         iron_uncertainty=_tumble_uncertainty(block, soft, rot, mag_to_accel is not None, field_norm),
         mag_latency_s=_mag_latency_s(block.get("gyro")),
         gyro_matrix=_gyro_matrix(block.get("gyro")),
+        gyro_scale_error=_gyro_scale_error(block.get("gyro")),
     )
     norm = block.get("field_norm_recording_units")
     if norm is None and field_ut is None:
@@ -540,6 +541,50 @@ def _gyro_matrix(gyro) -> np.ndarray | None:
         return None
     seen = gyro_matrix_seen(g, sigma)
     return np.where(seen, g, np.eye(3)) if seen.any() else None
+
+
+def _gyro_scale_error(gyro) -> tuple[float, float] | None:
+    """:func:`gyro_scale_error` of the file's fitted ``tumble.gyro.gyro_matrix`` and its sigma (already checked by
+    :func:`_gyro_matrix`); None when the calibration did not use the fit or the file holds no matrix or sigma."""
+    if gyro is None or gyro.get("used") is not True or gyro.get("gyro_matrix") is None:
+        return None
+    sigma = _gyro_matrix_sigma(gyro.get("gyro_matrix_sigma"))
+    if sigma is None:
+        return None
+    return gyro_scale_error(_nested_3x3(gyro["gyro_matrix"], "tumble.gyro.gyro_matrix"), sigma)
+
+
+def gyro_scale_error(matrix, sigma) -> tuple[float, float]:
+    """The gyro scale and axis error a fitted gyro matrix says it saw, with its seen entries applied and without.
+
+    The rate error of a gyro read through ``G`` is ``E w``, ``E = G - I`` (a coherent error: it turns the attitude by
+    ``E`` times the angle turned).  Averaged over the directions of ``w``, ``|E w|^2 = |w|^2 ||E||_F^2 / 3``, so the one
+    number the filter takes (its ``gyro_scale_error``, a fraction of the rate on every axis, ``s`` for ``E = s I``) is
+    ``sqrt(sum e_ij^2 / 3)``.  Only the entries the fit saw (:func:`gyro_matrix_seen`, the one rule for the words and
+    the runtime) count, each with what is left of it in expectation: applied, its variance ``sigma_ij^2``; not applied,
+    ``(G - I)_ij^2 + sigma_ij^2``.  An entry it did not see (within 3 sigma of the identity's, a sigma its prior made,
+    or a model mismatch) says nothing about the gyro beyond what the filter allows for anyway
+    (:data:`compass.filter.DEFAULT_GYRO_SCALE_ERROR`, which :meth:`compass.filter.FilterConfig.from_model` adds in
+    quadrature); counting its noise-level estimate would add twice its sigma for an error the data did not show.
+    ``sum e_ij^2`` is the trace of ``vec E``'s covariance: the same in any frame the gyro is turned to.
+
+    Parameters
+    ----------
+    matrix : array_like, shape (3, 3)
+        The fitted ``G`` (dimensionless).
+    sigma : array_like, shape (3, 3)
+        Its entries' standard errors (dimensionless; inf or NaN where none).
+
+    Returns
+    -------
+    tuple of 2 floats
+        ``(with the seen entries applied, the gyro as read)``, fractions of the rate; 0 where nothing was seen.
+    """
+    g = np.asarray(matrix, dtype=float)
+    seen = gyro_matrix_seen(g, sigma)
+    var = np.where(seen, np.asarray(sigma, dtype=float), 0.0) ** 2
+    error2 = np.where(seen, g - np.eye(3), 0.0) ** 2
+    return float(np.sqrt(var.sum() / 3.0)), float(np.sqrt((error2 + var).sum() / 3.0))
 
 
 def _nested_3x3(v, key: str) -> np.ndarray:

@@ -60,7 +60,8 @@ def run(args) -> int:
         if args.level:
             raise BadInput("--level cannot go with --filter: the filter needs the accelerometer's tilt")
         replay_file(args.calibration, args.recording, args.out, site=args.site, date=args.date, gravity=args.gravity,
-                    mag_latency=args.mag_latency, gyro_matrix=args.gyro_matrix, force=args.force, rerun=args.rerun, read_options=ReadOptions.from_args(args))
+                    mag_latency=args.mag_latency, gyro_matrix=args.gyro_matrix,
+                    gyro_scale_error=args.gyro_scale_error, force=args.force, rerun=args.rerun, read_options=ReadOptions.from_args(args))
         return 0
     if args.gravity is not None:
         raise BadInput("--gravity goes with --filter (the per-row solution normalises each accelerometer row)")
@@ -68,6 +69,8 @@ def run(args) -> int:
         raise BadInput("--mag-latency goes with --filter (the per-row solution has no gyro to turn the field with)")
     if args.gyro_matrix:
         raise BadInput("--gyro-matrix goes with --filter (the per-row solution uses no gyro)")
+    if args.gyro_scale_error is not None:
+        raise BadInput("--gyro-scale-error goes with --filter (the per-row solution uses no gyro)")
     attitude_file(args.calibration, args.recording, args.out, level=args.level, max_tilt_deg=args.max_tilt_deg,
                   accel_noise_g=args.accel_noise_g, force=args.force, site=args.site, date=args.date, rerun=args.rerun,
                   read_options=ReadOptions.from_args(args))

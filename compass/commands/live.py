@@ -32,13 +32,21 @@ GYRO_MATRIX_HELP = ("correct every gyro sample by the scale and axis errors the 
                     "BROAD the matrix fitted on another trial cost every group: docs/benchmarks.md)")
 
 
+GYRO_SCALE_ERROR_HELP = ("the gyro's scale and axis error the filter allows for, a fraction of the rate (0.03: a "
+                         "low-cost MPU-9250 class gyro); default: 0.005 and, in quadrature, what the calibration's "
+                         "gyro-aided tumble fit saw (|G - I| and its sigma of the entries seen, only the sigma with "
+                         "--gyro-matrix)")
+
+
 def add_mag_latency_argument(p, *, with_filter: bool = False) -> None:
-    """``--mag-latency`` (``FilterConfig.from_model(model, mag_latency=True)``) and ``--gyro-matrix``
-    (``gyro_matrix=True``), for ``live`` and ``attitude --filter``."""
+    """``--mag-latency`` (``FilterConfig.from_model(model, mag_latency=True)``), ``--gyro-matrix``
+    (``gyro_matrix=True``) and ``--gyro-scale-error`` (``gyro_scale_error=F``), for ``live`` and ``attitude --filter``."""
     p.add_argument("--mag-latency", action="store_true",
                    help=("with --filter: " if with_filter else "") + MAG_LATENCY_HELP)
     p.add_argument("--gyro-matrix", action="store_true",
                    help=("with --filter: " if with_filter else "") + GYRO_MATRIX_HELP)
+    p.add_argument("--gyro-scale-error", type=limits.GYRO_SCALE_ERROR.option("--gyro-scale-error"), metavar="FRACTION",
+                   help=("with --filter: " if with_filter else "") + GYRO_SCALE_ERROR_HELP)
 
 
 def register(sub) -> None:
@@ -97,7 +105,7 @@ def run(args) -> int:
         cal = load(args.cal)
         model = cal.model
         config = FilterConfig.from_model(model, mag_latency=args.mag_latency, gravity=args.gravity,
-                                         gyro_matrix=args.gyro_matrix)
+                                         gyro_matrix=args.gyro_matrix, gyro_scale_error=args.gyro_scale_error)
     except ValueError as exc:
         raise BadInput(f"{args.cal}: {exc}" if args.cal not in str(exc) else str(exc)) from None
     for flag, note in ((args.mag_latency, mag_latency_note), (args.gyro_matrix, gyro_matrix_note)):

@@ -11,9 +11,12 @@ from dataclasses import dataclass, fields
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["FilterConfig", "FilterCoefficients", "Diagnostics", "SkipCounts", "Estimate", "SKIP_REASONS"]
+__all__ = ["DEFAULT_GYRO_SCALE_ERROR", "FilterConfig", "FilterCoefficients", "fitted_scale_error", "Diagnostics", "SkipCounts", "Estimate", "SKIP_REASONS"]
 
 _SCALE_CORRELATION_S = 1.0  # a scale-factor error persists while the housing keeps turning
+DEFAULT_GYRO_SCALE_ERROR = 0.005
+"""The gyro scale error the filter allows for when nothing is known of the board's (a good MEMS gyro after its
+factory trim; BROAD's boards), and the floor under a fitted one (fraction of the rate)."""
 _REST_TAU_S = 0.5  # low-pass of VQF's rest detector, s
 _REST_RATE_SIGMA = 1e-3  # residual true rate "at rest" (tremor, Earth's rotation), rad/s
 
@@ -96,6 +99,19 @@ class FilterConfig:
         Gate the field at all (False: every field sample updates the heading; for comparisons).
     gate_timeout_s : float
         A continuous rejection this long adopts the current field as the reference, seconds.
+    gate_release : bool
+        The innovation test lets go of a heading it locks out (issue 22): when most of the field samples that pass
+        the |B| and dip tests are refused by the heading innovation test (a leaky fraction over
+        ``field_error_time_s`` above one half), the heading variance is raised to the refused innovation's square
+        (it explains it at one sigma; the test disarms), so the field pulls the heading back.  Refused while the heading is settled means a 3-sigma innovation; the field's
+        own heading error is independent from one ``field_error_time_s`` to the next, so a majority of them over
+        that time is the heading's covariance being too small (a gyro scale error beyond ``gyro_scale_error``), not
+        the field.  The refusals alternate with acceptances, so ``gate_timeout_s`` (a continuous rejection) never
+        fires on it.  Off by default: on every BROAD trial it changes nothing but 36 (3.28 -> 3.02 deg heading), and
+        it takes a third of what a 5 % scale error costs a simulated board in slow rotation when the filter allows
+        for 0.5 % (tools/bench_gyro_scale.py, docs/benchmarks.md), but it cannot tell a drifted heading from a
+        magnet that keeps |B| and dip: on the device script's magnet (tests/compass/filter/test_filter.py) it let the
+        magnet's field in and the heading away from the magnet went from under 0.4 to 14 deg RMS.
     max_gap_s : float
         A time step longer than this restarts the attitude from the next two-vector solution
         (the gyro bias is kept), seconds.
@@ -166,7 +182,7 @@ class FilterConfig:
     gyro_noise: float = 3e-4
     gyro_bias_walk: float = 1e-4
     gyro_bias_sigma0: float = 0.05
-    gyro_scale_error: float = 0.005
+    gyro_scale_error: float = DEFAULT_GYRO_SCALE_ERROR
     accel_time_constant_s: float = 2.0
     accel_lowpass_order: int = 1
     motion_time_s: float = 0.5
@@ -182,6 +198,7 @@ class FilterConfig:
     heading_tolerance_deg: float = 10.0
     gate: bool = True
     gate_timeout_s: float = 20.0
+    gate_release: bool = False
     max_gap_s: float = 0.5
     gyro_range_rad_s: float = math.radians(4000.0)
     accel_range: float = 64.0
@@ -237,7 +254,7 @@ class FilterConfig:
 
     @classmethod
     def from_model(cls, model, *, mag_latency: bool = False, gravity: float | None = None,
-                   gyro_matrix: bool = False) -> "FilterConfig":
+                   gyro_matrix: bool = False, gyro_scale_error: float | None = None) -> "FilterConfig":
         """Reference field and magnetometer noise from a :class:`compass.model.SensorModel`.
 
         The noise is the field's white noise at zero field alone (``model.noise_variance``), for every form:
@@ -260,6 +277,11 @@ class FilterConfig:
         another trial doubled every group's heading and inclination error (docs/benchmarks.md, "The gyro's scale
         and axes from the calibration file").
 
+        The gyro's scale error (:attr:`gyro_scale_error`) is what the calibration's gyro-aided fit says remains
+        (``model.gyro_scale_error``, the entries it saw: with ``gyro_matrix`` their sigma, without it ``|G - I|`` and
+        the sigma; :func:`compass.calibration.gyro_scale_error`) in quadrature with the default 0.005
+        (:func:`fitted_scale_error`); the default when the file has no fit.  ``gyro_scale_error`` given (``--gyro-scale-error``) overrides it.
+
         Change other fields with ``dataclasses.replace``.
 
         Raises
@@ -273,10 +295,36 @@ class FilterConfig:
             raise ValueError("the calibration has no noise_floor above zero: the filter cannot weight the magnetometer")
         p = model.solver
         noise = float(np.sqrt(np.trace((p * model.noise_variance(np.zeros(3))) @ p.T) / 3.0))
+        if gyro_scale_error is None:
+            gyro_scale_error = fitted_scale_error(model, gyro_matrix)
         return cls(field_norm=model.field_norm, dip_deg=model.dip_deg, mag_noise=noise,
+                   gyro_scale_error=gyro_scale_error,
                    mag_latency_s=model.mag_latency_s if mag_latency else 0.0, gravity=gravity,
                    gyro_matrix=model.gyro_matrix if gyro_matrix else None,
                    calibration_uncertainty=model.calibration_uncertainty)
+
+
+def fitted_scale_error(model, gyro_matrix: bool) -> float:
+    """The gyro scale error a calibration's gyro-aided fit leaves (``model.gyro_scale_error``: with ``gyro_matrix``
+    applied, or the gyro as read), added in quadrature to :data:`DEFAULT_GYRO_SCALE_ERROR` (what the filter allows
+    for what the fit did not see); that default when the file has no fit.
+
+    Parameters
+    ----------
+    model : compass.model.SensorModel
+    gyro_matrix : bool
+        The fitted ``model.gyro_matrix`` corrects each gyro sample (``--gyro-matrix``).
+
+    Returns
+    -------
+    float
+        Fraction of the rate.
+    """
+    fitted = getattr(model, "gyro_scale_error", None)
+    if fitted is None:
+        return DEFAULT_GYRO_SCALE_ERROR
+    with_matrix, as_read = fitted
+    return math.hypot(DEFAULT_GYRO_SCALE_ERROR, with_matrix if gyro_matrix and model.gyro_matrix is not None else as_read)
 
 
 @dataclass(frozen=True)
