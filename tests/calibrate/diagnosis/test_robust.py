@@ -298,8 +298,8 @@ def _turn_fit(rng, structure):
 
 def _turn_coverage(structure, replicates, locked=True, seed=6):
     """RMS error over RMS stated sigma (each parameter over its naive sigma, pooled over ``a, b, c``) over
-    ``replicates`` turn fits, and each parameter's stated sigma over its naive one (RMS), with the turn's
-    phase given (``locked``) or not."""
+    ``replicates`` turn fits, and each replicate's stated sigmas over the naive ones (replicates, 3), with the
+    turn's phase given (``locked``) or not."""
     rng = np.random.default_rng(seed)
     errors, variances = [], []
     for _ in range(replicates):
@@ -309,26 +309,30 @@ def _turn_coverage(structure, replicates, locked=True, seed=6):
         errors.append(error)
     naive = np.diag(bread)
     return (float(np.sqrt(np.mean(np.square(errors) / naive) / np.mean(np.asarray(variances) / naive))),
-            np.sqrt(np.mean(variances, axis=0) / naive))
+            np.sqrt(np.asarray(variances) / naive))
 
 
 def test_a_structure_locked_to_the_turn_beyond_its_first_harmonic_widens_nothing():
     """Each turn's own 3rd and 5th harmonics of the turn angle, each 1.5 times the noise: orthogonal over whole
     turns to the model's columns (a constant, cos phi, sin phi), so they move no parameter and the error is the
-    noise's.  With the turn's phase, their power goes to the phase-locked kernels, which propagate nothing: the
-    stated sigmas stay the naive ones (within 10 %) and err/sig is 1 within its Monte Carlo error (30 replicates
-    of 3 parameters pooled: about 0.08 for an RMS ratio; 0.8-1.25).  Without the phase the process model spreads their
-    power flat over its octave bands, which leak into cos phi and sin phi over a 360 s turn: it over-covers."""
+    noise's.  With the turn's phase they are taken out as the locked nuisance columns, whose move of the
+    parameters is nothing here: where the remainder passes the band test (every band at 1 %: it fails by chance
+    in about one replicate of ten, and the process model then stands) the stated sigmas are the naive ones, so
+    the median replicate's are, at most a fifth of them widen beyond 1.1 times, and err/sig is 1 within its
+    Monte Carlo error (30 replicates of 3 parameters pooled, about 0.08) less those fall-backs' over-cover
+    (0.7-1.25).  Without the phase the process model spreads the harmonics' power over its octave bands,
+    which leak into cos phi and sin phi over a 360 s turn: it over-covers."""
     def harmonics(rng, phi, turn):
         amplitude = rng.normal(scale=1.5, size=(4, 4))[turn]
         return (amplitude[:, 0] * np.cos(3 * phi) + amplitude[:, 1] * np.sin(3 * phi)
                 + amplitude[:, 2] * np.cos(5 * phi) + amplitude[:, 3] * np.sin(5 * phi))
 
     honest, wide = _turn_coverage(harmonics, 30)
-    assert 0.8 < honest < 1.25, honest
-    assert np.all(wide < 1.1), wide
-    without, wide_without = _turn_coverage(harmonics, 30, locked=False)
-    assert np.max(wide_without) > 1.5, wide_without
+    assert 0.7 < honest < 1.25, honest
+    assert np.median(np.max(wide, axis=1)) == pytest.approx(1.0, abs=1e-6)
+    assert np.mean(np.max(wide, axis=1) > 1.1) <= 0.2, np.sort(np.max(wide, axis=1))
+    _, wide_without = _turn_coverage(harmonics, 30, locked=False)
+    assert np.median(np.max(wide_without, axis=1)) > 1.5, wide_without
 
 
 def test_a_first_harmonic_that_varies_from_turn_to_turn_is_still_covered():
@@ -342,7 +346,7 @@ def test_a_first_harmonic_that_varies_from_turn_to_turn_is_still_covered():
 
     honest, wide = _turn_coverage(first, 30)
     assert honest < 1.25, honest
-    assert np.all(wide[1:] > 3.0), wide
+    assert np.all(np.sqrt(np.mean(wide**2, axis=0))[1:] > 3.0), wide
 
 
 def _uneven_turns(rng):
