@@ -122,8 +122,11 @@ turn's turning part) and the signal's rate in the turn angle (a lag of the turn)
 them, ``(I - P) N``, is seen in the residual, and where ``M = N^T (I - P) N`` is not singular their size
 ``beta`` is estimated from the residual alone; its move of the parameters ``H^-1 J^T N beta`` is then known,
 not extrapolated (:func:`_without_locked`).  What cannot be seen are the combinations the fit absorbs whole
-(``M``'s null space): for these shapes the mean lag of every channel (the field's azimuth) and a turn's gain
-common to all turns (the channel's gain), neither of which turns a direction; their size is taken as zero.
+(``M``'s null space, cut at ``LOCKED_RCOND``; 5 of 288 on tools/bench_loop.py's recordings): with these shapes
+the lag common to every channel and turn (the field's azimuth), a channel's gain, and a direction turned about
+the flip axis (it changes no turn's level, only each turn's gain and lag).  Their size is taken as zero, so a
+structure of exactly that shape would move a direction unseen here, as it would be by any bound from the
+residual.
 The covariance is ``H^-1 + d d^T - D diag(1 / lambda) D^T``, ``d = H^-1 J^T N beta^``, ``D = H^-1 J^T N V``
 (``lambda``, ``V`` the eigenpairs of ``M`` kept): the move's square less its noise's variance, unbiased for
 the square of the move.  It is taken, as the step is, only where it explains the whole structure: the
@@ -162,18 +165,12 @@ passes the score test by chance where the fit absorbs nearly all of it (periods 
 widens by far too much: at the test's level that is about 1 % of white-noise recordings (none of
 120 replicates of the test's two-channel line widened beyond 1.33 times; with the chi-square
 threshold 2 of 40 widened 39 times).  A flat spectrum within the lowest band over-covers a random walk where per-segment levels
-absorb most of it (0.53 in the test).  Rate memory stays over-covered (stated sigma about 2.5 times
-the error), for a reason on paper: its offset ``+-h`` by the sign of the channel's field change is a
-square wave locked to the turntable angle, ``-(4h/pi) (sin u + sin 3u / 3 + sin 5u / 5 + ...)``,
-``u = phi + alpha_c``.  The fundamental is a lag of the channel's sinusoid by ``4h / (pi A_c)``; common
-to the channels it is a change of the field's azimuth, which absorbs it (the directions move by the
-noise's amount: 0.012 deg, as a clean recording).  The harmonics are whole multiples of the turn's rate
-over whole turns, orthogonal to a direction's columns (a flip's constant, ``cos phi``, ``sin phi``), so
-they move nothing either.  The residual shows the harmonics, and the process model spreads their power
-flat over each octave band: a stationary process there has components at every frequency of the band,
-which over a 360 s turn leak into ``cos phi`` and ``sin phi`` (the turn's window), so it propagates
-into the directions a variance the phase-locked harmonics do not carry.  Over, not under: a bound from
-the residual cannot see the absorbed fundamental, and the harmonics it does see move nothing.
+absorb most of it (0.53 in the test).  Rate memory (an offset of ``+-h`` by the sign of the channel's field
+change: a square wave locked to the turn, ``-(4h/pi) (sin u + sin 3u / 3 + ...)``, ``u = phi + alpha_c``)
+was over-covered 2.5 times by the process model alone; "Locked to the turn" above says why and what takes
+it now (err/sig 0.72 on tools/bench_loop.py seeds 0-19, where it was 0.41).  A bound from the residual
+cannot see what the fit absorbs whole: the mean lag over every channel (the field's azimuth, which turns
+no direction) is taken as zero, as a constant tilt of the turntable axis is by every bound here.
 """
 
 from __future__ import annotations
