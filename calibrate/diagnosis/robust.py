@@ -674,7 +674,8 @@ class OffsetStep(NamedTuple):
 
 
 def structure_in_time(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: np.ndarray,
-                      block_s: float = BLOCK_S, n_bands: int = N_BANDS, locked: TurnPhase | None = None) -> TimeStructure:
+                      block_s: float = BLOCK_S, n_bands: int = N_BANDS,
+                      locked: TurnPhase | None = None) -> TimeStructure:
     """Covariance of a fit's parameters under the structure its residual shows: one offset step, structure locked
     to the turn, or a process in time.
 

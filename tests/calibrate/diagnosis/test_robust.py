@@ -6,7 +6,8 @@ import scipy.linalg
 
 from calibrate.diagnosis import robust as robust_module
 from calibrate.diagnosis.robust import (BAND_P_VALUE, BLOCK_S, N_BANDS, TurnPhase, band_p_values, cluster_covariance,
-                                       extra_sigma, heading_sigma_deg, structure_in_time, time_correlated_covariance, widened)
+                                       extra_sigma, heading_sigma_deg, structure_in_time,
+                                       time_correlated_covariance, widened)
 
 
 def _line_fit(rng, structure):
@@ -360,7 +361,8 @@ def _uneven_turns(rng):
     one = np.column_stack([np.ones_like(phi), np.cos(phi), np.sin(phi), t])
     jac = np.zeros((phi.size, 2, 8))
     jac[:, 0, :4], jac[:, 1, 4:] = one, one
-    return TurnPhase(phi, turn, harmonics=(2, 3)), jac.reshape(-1, 8), np.linalg.inv(jac.reshape(-1, 8).T @ jac.reshape(-1, 8))
+    jac = jac.reshape(-1, 8)
+    return TurnPhase(phi, turn, harmonics=(2, 3)), jac, np.linalg.inv(jac.T @ jac)
 
 
 def test_a_locked_structure_moves_the_parameters_by_its_projection_through_the_fit():
