@@ -37,7 +37,10 @@ developed on seeds 0..29 of spike bursts, precessing axis, rate memory, random w
 and four stacked; ``pink offsets`` and ``gain walk`` were never used to choose it.  Its alternative, one
 channel's offset step (:func:`calibrate.diagnosis.robust.structure_in_time`), was developed on seeds
 0..4 of the outside cases and judged on 0..19 and 20..39 (of those, odd cubic seed 22 showed the need
-for its delta-BIC condition).
+for its delta-BIC condition).  The second alternative, structure locked to the turn (each turn's gain of the
+turning signal, its lag and its harmonics 2-12, their move of the parameters propagated where they leave a
+white remainder), was developed on seeds 0..19 of rate memory, gain walk, four stacked, knee and cubic + quad
+drift (every case looked at) and judged on 20..39 and 40..59, held out from every choice.
 
 Run: ``python tools/bench_loop.py [--n 20] [--seed 0] [--cases A,B] [--baseline REF|none] [--write-docs]``
 (``--write-docs``: the table between ``<!-- table: bench_loop -->`` markers in docs/benchmarks.md).

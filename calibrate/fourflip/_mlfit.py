@@ -41,6 +41,8 @@ __all__ = ["BIN_DEG", "Bins", "MLFit", "cramer_rao", "fit_ml", "score_effect", "
 
 _BASE_PER_CHANNEL = 4  # u, v, offset, log gain
 _MAX_ITERATIONS = 100  # residual evaluations of one Levenberg-Marquardt fit (the Jacobian is analytic)
+RATE_STEP_DEG = 0.01
+"""Turn-angle step of the signal's rate by a forward difference (a lag's shape: a relative error ~1e-4), degrees."""
 BIN_DEG = 0.05
 """Width of the turntable-angle bins whose consecutive samples the fit takes as one mean, degrees."""
 @dataclass(frozen=True)
@@ -394,10 +396,13 @@ def _direction_covariance(layout: _Layout, x, cov) -> np.ndarray:
 
 
 def structured_covariance(fit: MLFit, noise: np.ndarray):
-    """Covariance of a fit's parameters under the structure its residual shows in time: one offset step or a process.
+    """Covariance of a fit's parameters under the structure its residual shows: one offset step, structure
+    locked to the turn, or a process in time.
 
     :func:`calibrate.diagnosis.robust.structure_in_time` on the bins the fit ran on: where one step of
-    one channel's offset explains the whole structure, its move of the parameters; otherwise each
+    one channel's offset explains the whole structure, its move of the parameters; where structure locked
+    to the turn does (each turn's own gain of the turning part and lag in each channel, :func:`_gain_and_lag`,
+    and its harmonics 2 and up of the turn angle), its move of the parameters; otherwise each
     channel's structure a stationary process over the whole recording (across flips: a slow wander
     or a room's temperature cycle carries over from one flip to the next), its spectrum estimated
     from what the fit left of it.  Per-flip clusters (CR2, :func:`calibrate.diagnosis.robust.cluster_covariance`)
@@ -407,17 +412,41 @@ def structured_covariance(fit: MLFit, noise: np.ndarray):
     Returns
     -------
     calibrate.diagnosis.robust.TimeStructure
-        Its covariance in the fit's parameters (as ``fit.covariance``; NaN where that is), and the
-        step if it is one (its size in the weighted residual's units: :func:`step_size_output` converts).
+        Its covariance in the fit's parameters (as ``fit.covariance``; NaN where that is), the step if
+        it is one (its size in the weighted residual's units: :func:`step_size_output` converts), and
+        whether the locked structure explained it.
     """
-    from ..diagnosis.robust import structure_in_time
+    from ..diagnosis.robust import TurnPhase, structure_in_time
 
     bins = fit.bins
     weighted = (bins.outputs - _Predictor(bins.samples)(fit.physics)) * (bins.root_n / noise)
     # without a t_s column, the recording's order at one bin a second
     t_s = bins.samples.t_s if bins.samples.t_s is not None else np.arange(weighted.shape[0], dtype=float)
     bread = fit.covariance / (fit.chi2 / max(fit.dof, 1))
-    return structure_in_time(fit.jac, weighted, t_s, bread)
+    locked = TurnPhase(np.radians(bins.samples.platform_deg), bins.samples.flip_index,
+                       shapes=_gain_and_lag(fit, noise))
+    return structure_in_time(fit.jac, weighted, t_s, bread, locked=locked)
+
+
+def _gain_and_lag(fit: MLFit, noise: np.ndarray) -> np.ndarray:
+    """Each channel's signal less its mean over each turn (a gain of that turn's turning part) and the signal's
+    rate in the turn angle (per radian: a lag of that turn) at the fit's bins, in the weighted residual's units,
+    shape (g, c, 2).
+
+    The gain's turning part alone: a gain's level over a turn is an offset level of the turn, which the
+    mountings absorb as they absorb a wander's, and which the process model therefore keeps
+    (:func:`calibrate.diagnosis.robust.structure_in_time`).
+    """
+    bins, phys = fit.bins, fit.physics
+    weights = bins.root_n / noise
+    predict = _Predictor(bins.samples)
+    signal = (predict(phys) - phys.offsets) * weights
+    turned = replace(bins.samples, platform_deg=bins.samples.platform_deg + RATE_STEP_DEG)
+    rate = (_Predictor(turned)(phys) - predict(phys)) * weights / np.radians(RATE_STEP_DEG)
+    flip = np.unique(bins.samples.flip_index, return_inverse=True)[1].ravel()
+    counts = np.bincount(flip)[:, None]
+    means = np.stack([np.bincount(flip, weights=column) for column in signal.T], axis=1) / counts
+    return np.stack([signal - means[flip], rate], axis=2)
 
 
 def step_size_output(fit: MLFit, noise: np.ndarray, channel: int, size: float) -> float:

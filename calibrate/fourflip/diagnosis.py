@@ -189,6 +189,11 @@ def _widen(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
                    "block sums with what the fit absorbed accounted for, propagated into the parameters; the file's "
                    "sigmas are the larger of it and the naive ones"),
     }
+    if structure.locked:
+        cost["method"] = ("the residual's structure is locked to the turntable's turn (each turn's own gain of the "
+                          "turning signal and lag in each channel, and the turn angle's harmonics 2 and up; what "
+                          "remains is white): what it moved the parameters by, estimated from the residual, "
+                          "propagated; the file's sigmas are the larger of it and the naive ones")
     step = structure.step
     if step is not None:
         size = step_size_output(fit, noise, step.channel, step.size)
