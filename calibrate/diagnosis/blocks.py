@@ -96,7 +96,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .robust import LEVERAGE_ONE, cluster_covariance, widened
+from .robust import bread_root, cluster_covariance, cr2_factor, widened
 
 __all__ = ["TIME_BLOCKS", "time_blocks", "widened_in_time", "sandwich_dof", "level_heading_sigma_deg"]
 
@@ -210,7 +210,8 @@ def sandwich_dof(jac: np.ndarray, blocks: np.ndarray, bread: np.ndarray) -> np.n
     :func:`calibrate.diagnosis.robust.cluster_covariance`) and ``r = (I - J B J^T) e`` the residual of
     white noise ``e``: a quadratic form ``e^T M Q Q^T M e`` whose weights are the eigenvalues ``lambda``
     of ``W = Q^T M Q = diag(|q_g|^2) - (Q^T J) B (J^T Q)`` (G x G).  Matched to a scaled chi-square,
-    ``nu = (sum lambda)^2 / sum lambda^2``: G - 1 at most, fewer where one block carries most of a
+    ``nu = (sum lambda)^2 / sum lambda^2``: at most ``rank(W) <= G`` (``G - 1`` when the blocks' factors
+    are proportional, as for white noise of equal blocks), fewer where one block carries most of a
     parameter's information (a swing's quarter turn carries most of one horizontal hard-iron component's).
     The ratio of an error to a sigma whose variance has ``nu`` degrees of freedom has t tails: its RMS
     is about ``sqrt(nu / (nu - 2))`` even where the variance is unbiased.  Measured, not applied
@@ -220,27 +221,40 @@ def sandwich_dof(jac: np.ndarray, blocks: np.ndarray, bread: np.ndarray) -> np.n
     Parameters
     ----------
     jac : ndarray, shape (m, k)
-        Jacobian of the weighted residual (determined columns only).
+        Jacobian of the weighted residual (determined columns only), in the units of the bread.
     blocks : ndarray of int, shape (m,)
+        The block of each residual row.
     bread : ndarray, shape (k, k)
+        ``(J^T J)^-1`` of the same columns, finite.
 
     Returns
     -------
     ndarray, shape (k,)
         ``nu`` per parameter (infinite where the parameter takes nothing from the blocks).
+
+    Raises
+    ------
+    ValueError
+        Fewer than two blocks, mismatched shapes, or a bread that is not finite (leave the undetermined
+        columns out first).
     """
+    jac = np.asarray(jac, dtype=float)
+    blocks = np.asarray(blocks)
+    if blocks.size != jac.shape[0] or np.shape(bread) != (jac.shape[1], jac.shape[1]):
+        raise ValueError(f"expected {jac.shape[0]} blocks and a {jac.shape[1]} x {jac.shape[1]} bread, "
+                         f"got {blocks.size} and {np.shape(bread)}")
+    if not np.all(np.isfinite(bread)):
+        raise ValueError("the bread is not finite: leave the undetermined columns out")
     _, index = np.unique(blocks, return_inverse=True)
     index = index.ravel()
-    w, v = np.linalg.eigh(0.5 * (bread + bread.T))
-    root = (v * np.sqrt(np.maximum(w, 0.0))) @ v.T  # B^{1/2}
+    if index.max(initial=0) < 1:
+        raise ValueError("degrees of freedom over blocks need at least two blocks")
+    root = bread_root(bread)
     own, cross = [], []  # F_g H_g F_g and F_g H_g per block (H_g = J_g^T J_g)
     for g in range(index.max() + 1):
         jg = jac[index == g]
         info = jg.T @ jg
-        lam, u = np.linalg.eigh(root @ info @ root)
-        lam = np.clip(lam, 0.0, None)
-        factor = np.where(lam < 1.0 - LEVERAGE_ONE, 1.0 / np.sqrt(np.maximum(1.0 - lam, LEVERAGE_ONE)), 0.0)
-        f = root @ (u * factor) @ u.T @ root
+        f = cr2_factor(root, info)
         own.append(np.diag(f @ info @ f))
         cross.append(f @ info)
     own, cross = np.array(own), np.array(cross)  # (G, k), (G, k, k)

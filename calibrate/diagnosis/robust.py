@@ -214,6 +214,34 @@ LEVERAGE_ONE = 1e-6
 """Leverage eigenvalues within this of one count as one (a cluster alone determines the direction)."""
 
 
+def bread_root(bread: np.ndarray) -> np.ndarray:
+    """``B^{1/2}`` of a bread ``B = (J^T J)^-1`` (symmetrised, negative eigenvalues taken as zero), shape (k, k)."""
+    w, v = np.linalg.eigh(0.5 * (bread + bread.T))
+    return (v * np.sqrt(np.maximum(w, 0.0))) @ v.T
+
+
+def cr2_factor(root: np.ndarray, info: np.ndarray) -> np.ndarray:
+    """CR2's bias reduction of one cluster in parameter space, ``F_g = B^{1/2} (I - M_g)^{-1/2} B^{1/2}``.
+
+    Parameters
+    ----------
+    root : ndarray, shape (k, k)
+        ``B^{1/2}`` (:func:`bread_root`).
+    info : ndarray, shape (k, k)
+        The cluster's information ``J_g^T J_g``.
+
+    Returns
+    -------
+    ndarray, shape (k, k)
+        ``F_g`` with ``M_g = B^{1/2} J_g^T J_g B^{1/2}``; eigenvalues of ``M_g`` within ``LEVERAGE_ONE`` of
+        one get no weight (:func:`cluster_covariance`'s notes).
+    """
+    lam, u = np.linalg.eigh(root @ info @ root)
+    lam = np.clip(lam, 0.0, None)
+    factor = np.where(lam < 1.0 - LEVERAGE_ONE, 1.0 / np.sqrt(np.maximum(1.0 - lam, LEVERAGE_ONE)), 0.0)
+    return root @ (u * factor) @ u.T @ root
+
+
 def cluster_covariance(jac: np.ndarray, weighted: np.ndarray, clusters: np.ndarray,
                        bread: np.ndarray) -> np.ndarray:
     """Bias-reduced cluster-robust (CR2 sandwich) covariance of a least-squares fit's parameters.
@@ -255,17 +283,12 @@ def cluster_covariance(jac: np.ndarray, weighted: np.ndarray, clusters: np.ndarr
         raise ValueError("a cluster-robust covariance needs at least two clusters")
     good = np.isfinite(np.diag(bread))
     j = np.nan_to_num(jac[:, good])
-    w, v = np.linalg.eigh(bread[np.ix_(good, good)])
-    w = np.maximum(w, 0.0)
-    root = (v * np.sqrt(w)) @ v.T  # B^{1/2}
+    root = bread_root(bread[np.ix_(good, good)])
     moved = np.zeros((index.max() + 1, good.sum()))  # B s~_g: each cluster's share of the parameters' error
     for g in range(index.max() + 1):
         rows = index == g
         jg = j[rows]
-        lam, u = np.linalg.eigh(root @ (jg.T @ jg) @ root)
-        lam = np.clip(lam, 0.0, None)
-        factor = np.where(lam < 1.0 - LEVERAGE_ONE, 1.0 / np.sqrt(np.maximum(1.0 - lam, LEVERAGE_ONE)), 0.0)
-        moved[g] = root @ ((u * factor) @ (u.T @ (root @ (jg.T @ weighted[rows]))))
+        moved[g] = cr2_factor(root, jg.T @ jg) @ (jg.T @ weighted[rows])
     out = np.full(bread.shape, np.nan)
     out[np.ix_(good, good)] = moved.T @ moved
     return out

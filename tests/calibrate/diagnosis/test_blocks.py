@@ -286,3 +286,28 @@ def test_the_sandwich_dof_of_equal_blocks_is_g_minus_one():
     jac = np.ones((800, 1))
     nu = sandwich_dof(jac, time_blocks(np.arange(800.0)), np.linalg.inv(jac.T @ jac))
     assert nu[0] == pytest.approx(7.0, rel=1e-9)
+
+
+def test_the_sandwich_dof_refuses_one_block_a_non_finite_bread_and_mismatched_shapes():
+    from calibrate.diagnosis.blocks import sandwich_dof
+
+    jac = np.ones((10, 1))
+    bread = np.linalg.inv(jac.T @ jac)
+    with pytest.raises(ValueError, match="at least two blocks"):
+        sandwich_dof(jac, np.zeros(10, dtype=int), bread)
+    with pytest.raises(ValueError, match="not finite"):
+        sandwich_dof(jac, np.arange(10) % 2, np.full((1, 1), np.nan))
+    with pytest.raises(ValueError, match="expected 10 blocks"):
+        sandwich_dof(jac, np.arange(9) % 2, bread)
+
+
+def test_the_cr2_factor_is_the_bread_where_a_cluster_carries_no_information():
+    """``F_g = B^{1/2} (I - M_g)^{-1/2} B^{1/2}`` is ``B`` when ``M_g = 0``, and grows as ``(1 - m)^{-1/2}``."""
+    from calibrate.diagnosis.robust import bread_root, cr2_factor
+
+    bread = np.array([[2.0, 0.5], [0.5, 1.0]])
+    root = bread_root(bread)
+    np.testing.assert_allclose(root @ root, bread, atol=1e-12)
+    np.testing.assert_allclose(cr2_factor(root, np.zeros((2, 2))), bread, atol=1e-12)
+    info = 0.75 * np.linalg.inv(bread)  # M_g = 0.75 I
+    np.testing.assert_allclose(cr2_factor(root, info), 2.0 * bread, atol=1e-12)
