@@ -691,6 +691,8 @@ def main(argv=None) -> int:
     parser.add_argument("--sim-first-seed", type=int, default=0,
                         help="the first simulated seed (judge a change on seeds it was not developed on)")
     args = parse_args(parser, argv)
+    if args.write_docs and not args.bands:
+        parser.error("--write-docs writes the --bands table only: use it with --bands")
 
     peers = {"vqf": vqf_online, "vqf offline": vqf_offline, "fusion": fusion, "madgwick": madgwick}
     available = {}

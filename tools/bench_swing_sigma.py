@@ -117,6 +117,8 @@ def _spawn(tree: Path | None, seeds: list, cases: list) -> subprocess.Popen:
 def _seed_sets(args, parser) -> list[tuple[str, list]]:
     """``[(label, seeds)]`` from ``--sets A-B,C-D`` or else ``--seed``/``--n``."""
     if not args.sets:
+        if args.n < 1:
+            parser.error(f"--n: expected at least one seed, got {args.n}")
         return [(f"{args.seed}-{args.seed + args.n - 1}", list(range(args.seed, args.seed + args.n)))]
     out = []
     for part in args.sets.split(","):
@@ -203,9 +205,6 @@ def main(argv=None) -> int:
                 print(_line(label, name, [r for r in rows[name] if r["case"] == label and r["seed"] in chosen]))
     print(f"\ntotal {time.perf_counter() - start:.0f} s")
     return 0
-
-
-
 
 
 if __name__ == "__main__":

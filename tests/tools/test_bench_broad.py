@@ -48,3 +48,11 @@ def test_the_tilt_error_is_the_world_frame_tilt_and_ignores_heading(bench):
     np.testing.assert_allclose(bench._tilt_error_deg(spun.as_quat(scalar_first=True), ref_q), 0.0, atol=1e-9)
     ref_q[1] = np.nan
     np.testing.assert_array_equal(bench._tilt_error_deg(est.as_quat(scalar_first=True), ref_q)[1], [0.0, 0.0])
+
+
+def test_write_docs_without_bands_is_refused(bench, capsys):
+    """``--write-docs`` writes the ``--bands`` table only: asked for in another mode it is an error, not a no-op."""
+    with pytest.raises(SystemExit) as stop:
+        bench.main(["--write-docs"])
+    assert stop.value.code == 2
+    assert "--write-docs writes the --bands table only" in capsys.readouterr().err
