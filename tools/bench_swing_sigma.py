@@ -6,7 +6,9 @@ Seeded Monte Carlo of :class:`calibrate.installation.InstallationCalibrator` on 
 2000 rows, the bench's noise): the tilt, the number of rows, which noise is there (the
 magnetometer's alone, none), and the local field wandering in the world frame (``field wander``:
 ``bench_kinds_loop``'s smoothed random walk, 0.4 uT RMS, the same seeds; outside the vocabulary, so
-the recording is called unexplained and its sigmas widened, :mod:`calibrate.diagnosis.blocks`).
+the recording is called unexplained and its sigmas widened, :mod:`calibrate.diagnosis.blocks`), and the
+accelerometer disturbed slowly (``accelerometer slow``: 2 % of g RMS over ~1 s, as a hand-held swing's,
+which makes the angle rows noisier than their floor but not the |B| rows).
 Per hard-iron component (H frame): the mean error (uT) with its standard error over seeds, the mean
 and the spread (SD) of error/sigma, and the RMS of error/sigma (1: honest; over every recording,
 and for the wander over those called unexplained as ``bench_kinds_loop``'s column), per set of seeds.
@@ -53,14 +55,19 @@ CASES = (("swing +-10 deg 2000 rows", 10.0, 2000, 1.0, 0.002),
          ("8000 rows", 10.0, 8000, 1.0, 0.002),
          ("magnetometer noise only", 10.0, 2000, 1.0, 0.0),
          ("no noise", 10.0, 2000, 0.0, 0.0),
-         ("field wander", 10.0, 2000, 1.0, 0.002))
+         ("field wander", 10.0, 2000, 1.0, 0.002),
+         ("accelerometer slow", 10.0, 2000, 1.0, 0.002))
 WANDER = "field wander"
+ACCEL_SLOW = "accelerometer slow"
+ACCEL_SLOW_G = 0.02
+"""RMS of the slow accelerometer disturbance, in units of g (about 1 s: a hand-held swing's motion)."""
 
 
 def run_one(seed: int, tilt_deg: float, n: int, mag_scale: float, accel_g: float,
-            wander: bool = False) -> tuple[np.ndarray, np.ndarray, bool]:
+            wander: bool = False, accel_slow: bool = False) -> tuple[np.ndarray, np.ndarray, bool]:
     """(error uT, sigma uT) of the hard iron, shape (3,) each, and whether it was called unexplained, for
-    one swing (with ``wander``, the field wandering as in ``bench_kinds_loop``)."""
+    one swing (with ``wander``, the field wandering as in ``bench_kinds_loop``; with ``accel_slow``, the
+    accelerometer disturbed by a smoothed isotropic noise of :data:`ACCEL_SLOW_G` RMS over ~1 s)."""
     from bench_kinds_loop import WANDER_UT, _walk
     from calibrate.installation import InstallationCalibrator
     from compass.calibration import from_dict, model_to_dict
@@ -82,7 +89,13 @@ def run_one(seed: int, tilt_deg: float, n: int, mag_scale: float, accel_g: float
         walk = _walk(np.random.default_rng([seed, 77]), n, WANDER_UT)
         d_h = housing.apply(walk, inverse=True) @ np.asarray(inst.soft_iron).T
         out = out + np.asarray(truth["gains_per_ut"]) * (d_h @ np.asarray(truth["directions"]).T)
-    rec = InstallationRecording("sim", sim.kind, sim.channels, out, sim.accel, sim.t_s, None, None, False,
+    accel = np.array(sim.accel, dtype=float)
+    if accel_slow:  # a hand-held swing's motion: the angle rows noisier than their floor, the |B| rows not
+        kernel = np.hanning(101) / np.hanning(101).sum()
+        rng = np.random.default_rng([seed, 5])
+        slow = np.column_stack([np.convolve(rng.normal(size=n), kernel, "same") for _ in range(3)])
+        accel = accel + slow * ACCEL_SLOW_G / np.sqrt(np.mean(slow**2)) * np.linalg.norm(accel, axis=1, keepdims=True)
+    rec = InstallationRecording("sim", sim.kind, sim.channels, out, accel, sim.t_s, None, None, False,
                                 np.arange(n), {})
     res = InstallationCalibrator(base=bench, accel_noise_g=max(accel_g, 1e-6)).fit(rec)  # likewise
     return (res.hard_iron_ut - inst.hard_iron_ut, res.hard_iron_sigma_ut, bool(res.diagnosis.block["unexplained"]),
@@ -174,7 +187,8 @@ def main(argv=None) -> int:
             if label not in cases:
                 continue
             for s in map(int, args.seeds.split(",")):
-                err, sig, unexplained, dof = run_one(s, tilt, n, mag, acc, wander=label == WANDER)
+                err, sig, unexplained, dof = run_one(s, tilt, n, mag, acc, wander=label == WANDER,
+                                                     accel_slow=label == ACCEL_SLOW)
                 print(json.dumps({"case": label, "seed": s, "err": err.tolist(), "sig": sig.tolist(),
                                   "unexplained": unexplained, "dof": dof}), flush=True)
         return 0
