@@ -394,7 +394,8 @@ def debiased(fit: InstallationFit, rows: Rows, priors: dict, unexplained: bool =
     approximation: a slow excess is correlated between rows, and the cross-row terms of the
     expansion are left out; it is shown to work empirically (a swing's vertical hard iron under a
     0.4 uT field wander was 0.52-0.59 uT high, 3-6 standard errors, on seeds 0-19, 20-29 and 30-49,
-    and is near zero with it: ``tools/bench_swing_sigma.py``, docs/benchmarks.md).  The excess's
+    and is 0.14-0.22 with it, the across part bounded by the along one, :func:`_excess`:
+    ``tools/bench_swing_sigma.py``, docs/benchmarks.md).  The excess's
     correction is left out, and the fit's message says why, when its move of any parameter exceeds
     :data:`_MAX_MOVE_SIGMA` of that parameter's stated sigmas (the structure is then not small noise:
     a failed fit's residuals are not), or when the excess is outside the expansion's validity: the angle rows' residual
