@@ -99,6 +99,9 @@ _MAX_MOVE_SIGMA = 2.0
 """The unexplained excess's correction (:func:`debiased`) moving a parameter by more than this many of its
 stated sigmas is left out: under a field wander it moved one by at most 1.3 (seeds 0-19 of
 ``tools/bench_swing_sigma.py``, which 1.0 cut on 3 of 20), a failed fit's residuals by 2.5 and more."""
+_EXPANSION_TOLERANCE = 0.1
+"""The largest neglected fourth-order term of :func:`debiased`'s expansion, as a fraction of the kept second-order
+one (``s^2 / 4`` for an angular noise ``s``), at which the unexplained excess's correction is still made."""
 
 
 def prior_hard_iron(field_ut: float | None) -> float:
@@ -401,8 +404,8 @@ def debiased(fit: InstallationFit, rows: Rows, priors: dict, unexplained: bool =
     a failed fit's residuals are not), or when the excess is outside the expansion's validity: the angle rows' residual
     goes as ``cos(theta + delta)`` with ``E[cos] = cos(theta) (1 - s^2/2 + s^4/8 - ...)`` for an
     angular noise ``s`` (the |B| rows' likewise in ``s = sigma / |B|``), so the neglected term is
-    ``s^2 / 4`` of the kept one, and the correction is skipped when that exceeds a tenth
-    (``s > 0.63 rad``).
+    ``s^2 / 4`` of the kept one, and the correction is skipped when that exceeds
+    :data:`_EXPANSION_TOLERANCE` (a tenth: ``s > 0.63 rad``).
     """
     x, effects = fit.x, fit.effects
     jac = _jacobian(x, rows, effects, priors)
@@ -446,7 +449,7 @@ def debiased(fit: InstallationFit, rows: Rows, priors: dict, unexplained: bool =
         normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
         angular = np.sqrt(along) / float(np.median(field))
         extra = [("b", np.sqrt(v), d) for v, d in ((along, bh), (across, normal)) if v > 0]
-        if angular**2 / 4.0 > 0.1:
+        if angular**2 / 4.0 > _EXPANSION_TOLERANCE:
             message += (f"; the unexplained excess's errors-in-variables correction left out: the excess, "
                         f"{np.degrees(angular):.1f} deg RMS, is beyond a second-order expansion")
         elif extra:

@@ -94,3 +94,28 @@ def test_the_excess_across_the_field_is_at_most_the_one_along_it():
     assert 0.0 <= across <= along
     with pytest.raises(TypeError):
         _excess(fit)
+
+
+def test_an_excess_beyond_the_second_order_expansion_is_left_out_and_said_so(monkeypatch):
+    """An excess of about twice the field RMS (``s`` ~ 2 rad: the neglected term ``s^2/4`` of the kept one is
+    about 1, over a tenth): the correction is not made and the message says why."""
+    import calibrate.installation.model as model
+
+    seed = 0
+    truth, bench = _bench(seed)
+    inst = random_installation(500 + seed)
+    sim = simulate_installation(truth, inst, kind="swing", n=2000, max_tilt_deg=10.0, seed=700 + seed)
+    housing = r_world_from_housing(sim.heading_deg, sim.pitch_deg, sim.roll_deg)
+    d_h = housing.apply(_wander(np.random.default_rng([seed, 77]), 2000, 0.4), inverse=True)
+    d_h = d_h @ np.asarray(inst.soft_iron).T
+    out = sim.outputs + np.asarray(truth["gains_per_ut"]) * (d_h @ np.asarray(truth["directions"]).T)
+    def excess(fit, rows, effects, priors):  # |b| is |B| within the hard iron: s ~ 2 rad
+        variance = (2.0 * float(np.median(np.linalg.norm(rows.b, axis=1)))) ** 2
+        return variance, variance
+    monkeypatch.setattr(model, "_excess", excess)
+    corrected = InstallationCalibrator(base=bench).fit(_recording(sim, out, sim.accel))
+    assert corrected.diagnosis.block["unexplained"]
+    assert "beyond a second-order expansion" in corrected.statistics.message
+    monkeypatch.setattr(fit_module, "debiased", lambda fit, rows, priors, unexplained=False: debiased(fit, rows, priors))
+    plain = InstallationCalibrator(base=bench).fit(_recording(sim, out, sim.accel))
+    np.testing.assert_array_equal(corrected.hard_iron_ut, plain.hard_iron_ut)
