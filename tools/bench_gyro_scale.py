@@ -67,7 +67,8 @@ def rms_scale_error(fitted) -> float:
 
 def _changes(method: str, scale: dict) -> dict | None:
     """The FilterConfig changes of a column (None: VQF); the default scale error left out (the same filter)."""
-    value = {"before": DEFAULT_GYRO_SCALE_ERROR, "fitted RMS": scale.get("rms"), "fitted": scale.get("bound")}.get(method)
+    value = {"before": DEFAULT_GYRO_SCALE_ERROR, "fitted RMS": scale.get("rms"),
+             "fitted": scale.get("bound")}.get(method)
     if method not in ("before", "fitted RMS", "fitted"):
         return None
     return {} if value == DEFAULT_GYRO_SCALE_ERROR else {"gyro_scale_error": value}
@@ -145,7 +146,8 @@ def simulated(seeds, levels, kinds=None) -> dict:
             runs = [scored(bb._Simulated(simulate_motion(kind, seed=seed, errors=board_errors(seed, size)),
                                          kind), scale[seed]) for seed in seeds]
             out[level][kind] = {m: tuple(np.mean([r[m] for r in runs], axis=0)) for m in METHODS}
-            print(f"  {_level(level)} % {kind}: " + ", ".join(f"{m} {v[0]:.2f}/{v[1]:.2f}" for m, v in out[level][kind].items()),
+            print(f"  {_level(level)} % {kind}: "
+                  + ", ".join(f"{m} {v[0]:.2f}/{v[1]:.2f}" for m, v in out[level][kind].items()),
                   file=sys.stderr, flush=True)
     return out
 
@@ -216,7 +218,8 @@ def main(argv=None) -> int:
             if not (seeds and levels):
                 continue
             print(f"simulated boards{' (z axis only)' if suffix else ''}, seeds {seeds[0]}-{seeds[-1]} ({name}): "
-                  "heading / inclination RMS, deg (innovation refused, % of field samples)", file=sys.stderr, flush=True)
+                  "heading / inclination RMS, deg (innovation refused, % of field samples)",
+                  file=sys.stderr, flush=True)
             table = sim_table(simulated(seeds, levels, kinds))
             publish(args, "docs/benchmarks.md", f"bench_gyro_scale.{'dev' if 'not' not in name else 'heldout'}{suffix}",
                     table, caption=f"simulated boards{', the z axis alone off' if suffix else ''}, seeds "

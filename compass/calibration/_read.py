@@ -566,13 +566,13 @@ def gyro_scale_error(matrix, sigma) -> tuple[float, float]:
     rate direction ``w``, not on average: a board whose yaw axis alone reads 5 % high has ``|E w| = 0.05 |w|`` in
     every yaw turn, where the RMS over directions (``||E||_F / sqrt 3``) would say 2.9 %.  The remaining error is
     ``E = Ê + D``: ``Ê`` the seen entries' estimates where the runtime does not apply them (zero with ``G``
-    applied), ``D`` the fit's error of the seen entries, zero-mean and independent, of variance ``sigma_ij^2``.  Then, for any ``w``,
-    ``E|E w|^2 = |Ê w|^2 + sum_i sum_j sigma_ij^2 w_j^2 <= (sigma_max(Ê)^2 + max_j c_j) |w|^2``, ``c_j = sum_i
-    sigma_ij^2`` (column ``j``'s variance): the first term is the largest singular value's definition, the second
-    a weighted mean of the ``c_j`` with weights ``w_j^2 / |w|^2``.  So ``s = sqrt(sigma_max(Ê)^2 + max_j c_j)``,
-    reached for ``E = s I`` and for ``w`` along the worst column.  ``max_j c_j`` is the largest eigenvalue of
-    ``E[D^T D] = diag(c_j)``, which a rotation of the gyro's frame keeps, as it keeps ``sigma_max(Ê)``: an installation
-    does not change ``s``.
+    applied), ``D`` the fit's error of the seen entries, zero-mean and independent, of variance ``sigma_ij^2``.
+    Then, for any ``w``, ``E|E w|^2 = |Ê w|^2 + sum_i sum_j sigma_ij^2 w_j^2 <= (sigma_max(Ê)^2 + max_j c_j) |w|^2``,
+    ``c_j = sum_i sigma_ij^2`` (column ``j``'s variance): the first term by the largest singular value's definition,
+    the second as a weighted mean of the ``c_j`` with weights ``w_j^2 / |w|^2``.  So
+    ``s = sqrt(sigma_max(Ê)^2 + max_j c_j)``, reached for ``E = s I`` and for ``w`` along the worst column.
+    ``max_j c_j`` is the largest eigenvalue of ``E[D^T D] = diag(c_j)``, which a rotation of the gyro's frame keeps,
+    as it keeps ``sigma_max(Ê)``: an installation does not change ``s``.
 
     Which entries count: an entry the fit saw (:func:`gyro_matrix_seen`, the one rule for the words and the runtime)
     puts its estimate in ``Ê`` unless applied, and its ``sigma_ij^2`` in ``D``.  An entry it did not see counts
