@@ -34,8 +34,8 @@ GYRO_MATRIX_HELP = ("correct every gyro sample by the scale and axis errors the 
 
 GYRO_SCALE_ERROR_HELP = ("the gyro's scale and axis error the filter allows for, a fraction of the rate (0.03: a "
                          "low-cost MPU-9250 class gyro); default: 0.005 and, in quadrature, what the calibration's "
-                         "gyro-aided tumble fit saw (the largest singular value of G - I over the entries seen and "
-                         "the worst column of its sigmas; only the sigmas with --gyro-matrix)")
+                         "gyro-aided tumble fit saw (|G - I| and its sigma of the entries seen, only the sigma with "
+                         "--gyro-matrix)")
 
 
 def add_mag_latency_argument(p, *, with_filter: bool = False) -> None:
