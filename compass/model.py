@@ -100,9 +100,10 @@ class SensorModel:
         the identity's (:func:`compass.calibration.gyro_matrix_seen`); None when it saw none.
     gyro_scale_error : tuple of 2 floats, or None
         What the gyro-aided fit saw of the gyro's scale and axis error, as the RMS over rate directions of
-        ``|E w| / |w|`` (dimensionless; :func:`compass.calibration.gyro_scale_error`): ``(with gyro_matrix applied,
-        the gyro as read)``; None when the file has no usable fit.  Both are rotation-invariant (an installation
-        keeps them).  :meth:`compass.filter.FilterConfig.from_model` sets the filter's ``gyro_scale_error`` from it.
+        ``|E w| / |w|`` (dimensionless; :func:`compass.calibration.gyro_scale_error`):
+        ``(with gyro_matrix applied, the gyro as read)``; None when the file has no usable fit.  Both are
+        rotation-invariant (an installation keeps them).  :meth:`compass.filter.FilterConfig.from_model` sets the
+        filter's ``gyro_scale_error`` from it.
     """
 
     channels: tuple[str, ...]

@@ -382,10 +382,6 @@ class AttitudeFilter:
             s.covariance = p[:11] + (p[11] + c.adopt_var,) + p[12:]
             reason, ratio = "ok", 1.0
             self._reference_moved()
-        elif reason == "innovation" and self.gate.locked_out(s.gate):
-            # the heading variance that explains the refused innovation at one sigma: the test disarms, the field
-            # samples that follow pull the heading back as far as the Kalman gain says
-            s.covariance = p[:11] + (max(p[11], innovation * innovation),) + p[12:]
         d.field_ratio, d.dip_deg, d.gate = ratio, dip, reason
         return reason
 

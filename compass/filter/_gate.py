@@ -41,9 +41,6 @@ class GateState:
         The heading's North has come down from the start's field through the gyro and verified
         moves; False once a timeout re-learnt it from a field nothing verified (a magnet on the
         housing held long enough): a later move cannot then measure a turn of North against it.
-    refused_fraction : float
-        Leaky fraction (time constant ``field_error_time_s``) of the field samples that passed the |B| and dip tests
-        while the heading was settled and that the innovation test refused (``FilterConfig.gate_release``).
     """
 
     ref_norm: float
@@ -52,7 +49,6 @@ class GateState:
     dip_excess_var: float
     ref_azimuth_rad: float = 0.0
     north_from_gyro: bool = True
-    refused_fraction: float = 0.0
 
     def world_field(self) -> tuple[float, float, float]:
         """The reference field in the world frame (NWU), field units."""
@@ -122,7 +118,7 @@ class MagneticGate:
             reason = "norm"
         elif abs(dip_deg - state.ref_dip_deg) > cfg.dip_tolerance_deg:
             reason = "dip"
-        elif settled and self._innovation_refused(state, dt, abs(math.degrees(innovation_rad))):
+        elif settled and abs(math.degrees(innovation_rad)) > cfg.heading_tolerance_deg:
             reason = "innovation"
         else:
             state.rejected_since_s = None
@@ -143,21 +139,6 @@ class MagneticGate:
             state.rejected_since_s = None
             return self.ADOPTED
         return reason
-
-    def _innovation_refused(self, state: GateState, dt: float, innovation_deg: float) -> bool:
-        """The innovation test; counts its answer in ``state.refused_fraction``."""
-        refused = innovation_deg > self.config.heading_tolerance_deg
-        if dt > 0.0:
-            state.refused_fraction += -math.expm1(-dt / self.config.field_error_time_s) * (refused - state.refused_fraction)
-        return refused
-
-    def locked_out(self, state: GateState) -> bool:
-        """Most of the field that passes the |B| and dip tests is refused by the innovation test
-        (``FilterConfig.gate_release``): the heading's variance is too small, not the field wrong.  Resets the count."""
-        if not (self.config.gate_release and state.refused_fraction > 0.5):
-            return False
-        state.refused_fraction = 0.0
-        return True
 
     def field_heading_var(self, state: GateState) -> float:
         """Heading error variance of the accepted field itself, rad^2: the larger of the configured floor

@@ -99,19 +99,6 @@ class FilterConfig:
         Gate the field at all (False: every field sample updates the heading; for comparisons).
     gate_timeout_s : float
         A continuous rejection this long adopts the current field as the reference, seconds.
-    gate_release : bool
-        The innovation test lets go of a heading it locks out (issue 22): when most of the field samples that pass
-        the |B| and dip tests are refused by the heading innovation test (a leaky fraction over
-        ``field_error_time_s`` above one half), the heading variance is raised to the refused innovation's square
-        (it explains it at one sigma; the test disarms), so the field pulls the heading back.  Refused while the heading is settled means a 3-sigma innovation; the field's
-        own heading error is independent from one ``field_error_time_s`` to the next, so a majority of them over
-        that time is the heading's covariance being too small (a gyro scale error beyond ``gyro_scale_error``), not
-        the field.  The refusals alternate with acceptances, so ``gate_timeout_s`` (a continuous rejection) never
-        fires on it.  Off by default: on every BROAD trial it changes nothing but 36 (3.28 -> 3.02 deg heading), and
-        it takes a third of what a 5 % scale error costs a simulated board in slow rotation when the filter allows
-        for 0.5 % (tools/bench_gyro_scale.py, docs/benchmarks.md), but it cannot tell a drifted heading from a
-        magnet that keeps |B| and dip: on the device script's magnet (tests/compass/filter/test_filter.py) it let the
-        magnet's field in and the heading away from the magnet went from under 0.4 to 14 deg RMS.
     max_gap_s : float
         A time step longer than this restarts the attitude from the next two-vector solution
         (the gyro bias is kept), seconds.
@@ -198,7 +185,6 @@ class FilterConfig:
     heading_tolerance_deg: float = 10.0
     gate: bool = True
     gate_timeout_s: float = 20.0
-    gate_release: bool = False
     max_gap_s: float = 0.5
     gyro_range_rad_s: float = math.radians(4000.0)
     accel_range: float = 64.0
@@ -320,7 +306,7 @@ def fitted_scale_error(model, gyro_matrix: bool) -> float:
     float
         Fraction of the rate.
     """
-    fitted = getattr(model, "gyro_scale_error", None)
+    fitted = model.gyro_scale_error
     if fitted is None:
         return DEFAULT_GYRO_SCALE_ERROR
     with_matrix, as_read = fitted

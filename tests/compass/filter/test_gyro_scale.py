@@ -43,11 +43,10 @@ def test_from_model_takes_what_the_fit_saw():
     from compass.calibration import from_dict, gyro_matrix_seen
 
     model = from_dict(_doc()).model
-    seen = gyro_matrix_seen(G, SIGMA)
-    assert seen.sum() == 3  # the three diagonal entries: beyond 3 sigma, sigma under 0.5 %
-    var = np.where(seen, SIGMA, 0.0) ** 2
-    as_read = np.sqrt(np.sum(np.where(seen, G - np.eye(3), 0.0) ** 2 + var) / 3.0)
-    applied = np.sqrt(np.sum(var) / 3.0)
+    assert gyro_matrix_seen(G, SIGMA).sum() == 3  # the three diagonal entries: beyond 3 sigma, sigma under 0.5 %
+    # by hand: the seen diagonal (0.03, -0.025, 0.02) and its sigmas (1, 1, 1.5 e-3); the rest counts nothing
+    applied = np.sqrt((1e-3**2 + 1e-3**2 + 1.5e-3**2) / 3.0)
+    as_read = np.sqrt((0.03**2 + 0.025**2 + 0.02**2 + 1e-3**2 + 1e-3**2 + 1.5e-3**2) / 3.0)
     assert model.gyro_scale_error == pytest.approx((applied, as_read), rel=1e-12)
     floor = DEFAULT_GYRO_SCALE_ERROR
     assert FilterConfig.from_model(model).gyro_scale_error == pytest.approx(np.hypot(floor, as_read), rel=1e-12)
@@ -56,12 +55,24 @@ def test_from_model_takes_what_the_fit_saw():
     assert applied < 0.1 * as_read  # the fit knows the scale far better than its size
 
 
+def test_an_error_on_one_axis_counts_its_share_over_directions():
+    """A board whose z axis alone reads 5 % high (every sigma 1e-3, only zz seen): the RMS over directions,
+    ``sqrt((0.05^2 + 1e-6) / 3)`` (2.9 %; the bound over directions, 5 %, was measured and not kept)."""
+    from compass.calibration import from_dict, gyro_matrix_seen
+
+    g = np.diag([1.0, 1.0, 1.05])
+    assert gyro_matrix_seen(g, np.full((3, 3), 1e-3)).sum() == 1
+    model = from_dict(_doc(g, np.full((3, 3), 1e-3))).model
+    assert model.gyro_scale_error == pytest.approx((np.sqrt(1e-6 / 3.0), np.sqrt((0.05**2 + 1e-6) / 3.0)), rel=1e-12)
+
+
 def test_the_default_stays_without_a_fit_or_where_it_saw_nothing():
     from compass.calibration import from_dict, gyro_scale_error
     from compass.sim.device import default_model
 
     assert FilterConfig.from_model(default_model()).gyro_scale_error == DEFAULT_GYRO_SCALE_ERROR
-    # within 3 sigma of the identity, a sigma the prior made (2 %), a model mismatch (12 %): nothing seen
+    # within 3 sigma of the identity, a sigma the prior made (2 %), a model mismatch (12 %): nothing seen, nothing
+    # beyond the default's prior counted (not even the precise sigmas: gyro_scale_error's docstring)
     unseen = from_dict(_doc(np.eye(3) + np.diag([0.002, 0.02, 0.12]), np.diag([1e-3, 0.02, 1e-3]) + 1e-3)).model
     assert unseen.gyro_scale_error == (0.0, 0.0)
     assert FilterConfig.from_model(unseen).gyro_scale_error == DEFAULT_GYRO_SCALE_ERROR
@@ -71,6 +82,16 @@ def test_the_default_stays_without_a_fit_or_where_it_saw_nothing():
     sigma = SIGMA.copy()
     sigma[0, 0] = np.inf  # no sigma: not seen
     assert gyro_scale_error(G, sigma)[1] == pytest.approx(np.sqrt((0.025**2 + 1e-3**2 + 0.02**2 + 1.5e-3**2) / 3), rel=1e-12)
+
+
+def test_garbage_gyro_block_is_refused_by_the_scale_error_alone():
+    """``_gyro_scale_error`` checks the block itself (not relying on ``_gyro_matrix`` having run first)."""
+    from compass.calibration import CalibrationFileError
+    from compass.calibration._read import _gyro_scale_error
+
+    with pytest.raises(CalibrationFileError, match="tumble.gyro"):
+        _gyro_scale_error(["not", "a", "block"])
+    assert _gyro_scale_error(None) is None
 
 
 def test_an_installation_keeps_the_fitted_value():
