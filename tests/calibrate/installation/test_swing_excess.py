@@ -9,11 +9,10 @@ import calibrate.installation.fit as fit_module
 from calibrate.installation import InstallationCalibrator
 from calibrate.installation.model import debiased
 from compass.calibration import from_dict, model_to_dict
-from compass.frames import r_world_from_housing
 from compass.io.installation import InstallationRecording
 from compass.sim.fourflip import simulate_fourflip
 from compass.sim.installation import random_installation, simulate_installation, true_model
-from tests.calibrate.installation.test_swing_wander import _wander
+from tests.calibrate.installation.test_swing_wander import with_wander
 
 
 def _bench(seed):
@@ -68,10 +67,7 @@ def test_a_correction_beyond_the_sigma_is_left_out_and_said_so(monkeypatch):
     truth, bench = _bench(seed)
     inst = random_installation(500 + seed, hard_iron_ut=20.0)
     sim = simulate_installation(truth, inst, kind="swing", n=2000, max_tilt_deg=10.0, seed=700 + seed)
-    housing = r_world_from_housing(sim.heading_deg, sim.pitch_deg, sim.roll_deg)
-    d_h = housing.apply(_wander(np.random.default_rng([seed, 77]), 2000, 0.4), inverse=True)
-    d_h = d_h @ np.asarray(inst.soft_iron).T
-    out = sim.outputs + np.asarray(truth["gains_per_ut"]) * (d_h @ np.asarray(truth["directions"]).T)
+    out = with_wander(truth, inst, sim, seed)
     corrected, plain = _both(monkeypatch, _recording(sim, out, sim.accel), bench)
     assert corrected.diagnosis.block["unexplained"]
     message = corrected.statistics.message
@@ -105,10 +101,7 @@ def test_an_excess_beyond_the_second_order_expansion_is_left_out_and_said_so(mon
     truth, bench = _bench(seed)
     inst = random_installation(500 + seed)
     sim = simulate_installation(truth, inst, kind="swing", n=2000, max_tilt_deg=10.0, seed=700 + seed)
-    housing = r_world_from_housing(sim.heading_deg, sim.pitch_deg, sim.roll_deg)
-    d_h = housing.apply(_wander(np.random.default_rng([seed, 77]), 2000, 0.4), inverse=True)
-    d_h = d_h @ np.asarray(inst.soft_iron).T
-    out = sim.outputs + np.asarray(truth["gains_per_ut"]) * (d_h @ np.asarray(truth["directions"]).T)
+    out = with_wander(truth, inst, sim, seed)
     def excess(fit, rows, effects, priors):  # |b| is |B| within the hard iron: s ~ 2 rad
         variance = (2.0 * float(np.median(np.linalg.norm(rows.b, axis=1)))) ** 2
         return variance, variance

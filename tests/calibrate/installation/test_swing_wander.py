@@ -32,6 +32,15 @@ def _wander(rng, n: int, size: float, width: int = 301) -> np.ndarray:
     return walk * size / np.sqrt(np.mean(walk**2))
 
 
+def with_wander(truth, inst, sim, seed: int, size_ut: float = 0.4) -> np.ndarray:
+    """The swing's outputs with a field wander (:func:`_wander`, ``size_ut`` uT RMS in the world frame, seeded
+    by ``[seed, 77]``) laid on them through the product's soft iron and the bench's channels."""
+    housing = r_world_from_housing(sim.heading_deg, sim.pitch_deg, sim.roll_deg)
+    d_h = housing.apply(_wander(np.random.default_rng([seed, 77]), len(sim.t_s), size_ut), inverse=True)
+    d_h = d_h @ np.asarray(inst.soft_iron).T
+    return sim.outputs + np.asarray(truth["gains_per_ut"]) * (d_h @ np.asarray(truth["directions"]).T)
+
+
 def test_the_widened_sigma_covers_a_field_wander_of_known_size_and_zero_wander_is_not_widened():
     truth = simulate_fourflip(seed=0).truth
     bench = from_dict(model_to_dict(true_model(truth)) | {"format": "compass-calibration/1", "model": "channels"})
@@ -91,10 +100,7 @@ def test_a_field_wander_leaves_no_bias_in_the_vertical_hard_iron():
         bench = from_dict(model_to_dict(true_model(truth)) | {"format": "compass-calibration/1", "model": "channels"})
         inst = random_installation(500 + seed)
         sim = simulate_installation(truth, inst, kind="swing", n=2000, max_tilt_deg=10.0, seed=700 + seed)
-        housing = r_world_from_housing(sim.heading_deg, sim.pitch_deg, sim.roll_deg)
-        d_h = housing.apply(_wander(np.random.default_rng([seed, 77]), 2000, 0.4), inverse=True)
-        d_h = d_h @ np.asarray(inst.soft_iron).T
-        out = sim.outputs + np.asarray(truth["gains_per_ut"]) * (d_h @ np.asarray(truth["directions"]).T)
+        out = with_wander(truth, inst, sim, seed)
         rec = InstallationRecording("sim", sim.kind, sim.channels, out, sim.accel, sim.t_s, None, None, False,
                                     np.arange(len(sim.t_s)), {})
         result = InstallationCalibrator(base=bench).fit(rec)
