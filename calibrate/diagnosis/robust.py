@@ -210,6 +210,11 @@ LOCKED_RCOND = 1e-8
 """Combinations of the locked nuisance columns with less than this fraction of the largest information the fit
 leaves them count as absorbed whole (their size taken as zero)."""
 
+LOCKED_ABSORBED = 1.0
+"""A locked combination's move is propagated only where the fit absorbs at most this much of it for what it
+leaves (``|P N v|^2 / |(I - P) N v|^2``: its estimated move's noise over the fit's own noise in the direction it
+moves); the rest count, for the move, as absorbed whole (module docstring, "Locked to the turn")."""
+
 LEVERAGE_ONE = 1e-6
 """Leverage eigenvalues within this of one count as one (a cluster alone determines the direction)."""
 
@@ -450,20 +455,28 @@ def _without_locked(jac, weighted, bread, locked: TurnPhase | None) -> _Locked:
     left = nuisance - own @ (b @ cross)  # (I - P) N
     lam, vec = np.linalg.eigh(nuisance.T @ left)
     kept = lam > lam.max(initial=0.0) * LOCKED_RCOND
-    lam, vec = lam[kept], vec[:, kept]
-    q = left @ vec
+    whitened = vec[:, kept] / np.sqrt(lam[kept])  # combinations the fit leaves with unit information: W^T M W = I
+    # turned so that what the fit absorbs of them is orthogonal too: W^T N^T P N W = diag(rho), rho each one's
+    # absorbed over left (|P N w|^2 / |(I - P) N w|^2); their moves d_j are then orthogonal in H
+    absorbed = (nuisance - left) @ whitened  # P N W
+    rho, turn = np.linalg.eigh(absorbed.T @ absorbed)
+    combos = whitened @ turn
+    q = left @ combos  # orthonormal: the residual's size in each is q^T r, white noise's unit variance
     rows = weighted.ravel()
-    gamma = (q.T @ rows) / lam
-    d = b @ (cross @ vec)
+    gamma = q.T @ rows
+    # the move of the combinations the fit leaves at least 1 / (1 + LOCKED_ABSORBED) of (module docstring):
+    # d_j gamma_j, its noise d_j d_j^T, rho_j times the fit's own noise in the direction it moves
+    seen = rho <= LOCKED_ABSORBED
+    d = b @ (cross @ combos[:, seen])
     shift, noise = np.zeros(k), np.zeros((k, k))
-    shift[good] = d @ gamma
-    noise[np.ix_(good, good)] = (d / lam) @ d.T
-    r = lam.size
+    shift[good] = d @ gamma[seen]
+    noise[np.ix_(good, good)] = d @ d.T
+    r = q.shape[1]
     aug_bread = np.full((k + r, k + r), np.nan)
     aug_bread[:k, :k] = bread
     aug_bread[:k, k:] = np.where(good[:, None], 0.0, np.nan)
     aug_bread[k:, :k] = aug_bread[:k, k:].T
-    aug_bread[k:, k:] = np.diag(1.0 / lam)
+    aug_bread[k:, k:] = np.eye(r)
     return _Locked(np.hstack([jac, q]), (rows - q @ gamma).reshape(n, c), aug_bread, k, shift, noise)
 
 
