@@ -152,8 +152,8 @@ combination of white noise, thousands of naive variances on the same seeds.
 The covariance is ``H^-1 + d d^T - D D^T``, ``d = D gamma`` over the combinations propagated: the move's square
 less its noise's variance, unbiased for the square of their move.  It is taken, as the step is, only where
 it explains the whole structure: the residual with it taken out passes stage 1's band test in every band.
-Otherwise the process model
-stands, as before: the locked columns also take part of a wander's or a cycle's power (their harmonics near
+Otherwise the process model stands, as before: the locked columns also take part of a wander's or a cycle's
+power (their harmonics near
 the turn's), and the process model, estimated from what they leave, then over-covers air-con cycle, pink
 offsets and an offset step (0.70-0.78 where it was 0.97-1.10, tools/bench_loop.py seeds 0-19, a version
 that always took it).  The gain's level over a turn is left out of its shape for the same reason: it is an
