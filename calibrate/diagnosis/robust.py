@@ -127,11 +127,33 @@ the lag common to every channel and turn (the field's azimuth), a channel's gain
 the flip axis (it changes no turn's level, only each turn's gain and lag).  Their size is taken as zero, so a
 structure of exactly that shape would move a direction unseen here, as it would be by any bound from the
 residual.
-The covariance is ``H^-1 + d d^T - D diag(1 / lambda) D^T``, ``d = H^-1 J^T N beta^``, ``D = H^-1 J^T N V``
-(``lambda``, ``V`` the eigenpairs of ``M`` kept): the move's square less its noise's variance, unbiased for
-the square of the move.  It is taken, as the step is, only where it explains the whole structure: the
-residual with it taken out passes stage 1's band test in every band.  Otherwise the process model
-stands, as before: the locked columns also take part of a wander's or a cycle's power (their harmonics near
+What the residual sees too little of to weigh is dropped as well.  Unbiased is not enough: a combination the
+fit absorbs nearly whole is seen with little information, and its estimated move's noise can be far above the
+fit's own (``M``'s eigenvalues above the cut ran down to 1.4e-5 of the largest, and on bench_loop's rate
+memory seeds 40-43 the move's noise was 140-3700 times the naive variance of the log gains, the dip and the
+azimuth).  The move's square less that noise was then unbiased but mostly noise (-700 to 6e5 times the naive
+variance), indefinite, and :func:`widened` kept its positive half: the gains over-covered 10-100 times, a level
+heading's sigma 1.2-26 times the naive one, where the directions (the one thing bench_loop scores) looked
+fine.  So the combinations ``w_j`` are taken with unit information and turned so that their moves
+``D_j = H^-1 J^T N w_j`` are orthogonal in ``H``; then ``rho_j = |P N w_j|^2 / |(I - P) N w_j|^2`` (what the fit
+absorbs of it over what it leaves) is its estimated move's noise over the fit's own noise along ``D_j``.  The
+choice per combination, for a true size ``b`` (in units of its noise): propagating states the move's square
+along ``D_j`` as ``rho (gamma^2 - 1)`` naive variances, an error of standard deviation ``rho sqrt(2 + 4 b^2)``;
+dropping it errs by ``rho b^2``; propagating pays where ``b^2 > 2 + sqrt 6 ~ 4.4``, and ``rho`` scales both.
+``b`` is not known; but a structure of energy ``S`` along a combination's shape ``N w_j / |N w_j|`` is seen
+with ``b^2 = S / (1 + rho)``: the combinations the fit absorbs most are those any structure is least seen
+in.  So the cut is on ``rho``: ``LOCKED_ABSORBED = 1`` propagates the combinations the residual sees at least
+half of (worth it for a structure seen there at ``S > 9``), and their noise is then at most ``H^-1`` as a
+matrix (``D D^T`` has ``rho_j <= 1`` times ``H^-1`` along each ``H``-orthogonal ``D_j``): the stated move errs
+by at most about the naive covariance.  The rest count, for the move, as absorbed whole, as ``M``'s null space
+does; all of them still take their structure out of the residual for the band test.  Clipping each
+combination's ``gamma^2 - 1`` at zero instead leaves ``E[(chi2_1 - 1)+] = 0.48`` times ``rho`` of over-cover per
+combination of white noise, thousands of naive variances on the same seeds.
+The covariance is ``H^-1 + d d^T - D D^T``, ``d = D gamma`` over the combinations propagated: the move's square
+less its noise's variance, unbiased for the square of their move.  It is taken, as the step is, only where
+it explains the whole structure: the residual with it taken out passes stage 1's band test in every band.
+Otherwise the process model stands, as before: the locked columns also take part of a wander's or a cycle's
+power (their harmonics near
 the turn's), and the process model, estimated from what they leave, then over-covers air-con cycle, pink
 offsets and an offset step (0.70-0.78 where it was 0.97-1.10, tools/bench_loop.py seeds 0-19, a version
 that always took it).  The gain's level over a turn is left out of its shape for the same reason: it is an
@@ -209,6 +231,11 @@ LOCKED_HARMONICS = tuple(range(2, 13))
 LOCKED_RCOND = 1e-8
 """Combinations of the locked nuisance columns with less than this fraction of the largest information the fit
 leaves them count as absorbed whole (their size taken as zero)."""
+
+LOCKED_ABSORBED = 1.0
+"""A locked combination's move is propagated only where the fit absorbs at most this much of it for what it
+leaves (``|P N v|^2 / |(I - P) N v|^2``: its estimated move's noise over the fit's own noise in the direction it
+moves); the rest count, for the move, as absorbed whole (module docstring, "Locked to the turn")."""
 
 LEVERAGE_ONE = 1e-6
 """Leverage eigenvalues within this of one count as one (a cluster alone determines the direction)."""
@@ -423,8 +450,8 @@ class _Locked(NamedTuple):
     weighted: np.ndarray  # (n, c), the residual with the nuisance structure taken out
     bread: np.ndarray  # (k + r, k + r), block-diagonal (the added columns orthogonal to the fit's)
     k: int  # the fit's own parameters, first
-    shift: np.ndarray  # (k,) what the nuisance structure moved the fit's parameters by, H^-1 J^T N beta
-    noise: np.ndarray  # (k, k) the shift's covariance under white noise
+    shift: np.ndarray  # (k,) what the nuisance structure moved the fit's parameters by, D gamma (measurable part)
+    noise: np.ndarray  # (k, k) the shift's covariance under white noise, D D^T
 
     def own(self, covariance: np.ndarray) -> np.ndarray:
         """The fit's error covariance from the larger fit's (module docstring, "Locked to the turn"): its own block
@@ -437,12 +464,15 @@ def _without_locked(jac, weighted, bread, locked: TurnPhase | None) -> _Locked:
     docstring, "Locked to the turn").
 
     With the nuisance columns ``N`` (per turn and channel: the harmonics ``locked.harmonics`` and
-    ``locked.shapes``), what the fit leaves of them is ``Q = (I - P) N V``, ``V`` the eigenvectors of
-    ``M = N^T (I - P) N`` with an eigenvalue ``lambda`` above ``LOCKED_RCOND`` of the largest (combinations the
-    fit absorbs whole get no weight: the structure's size there is taken as zero).  The structure's size
-    ``gamma = Q^T r / lambda``, the residual without it ``r - Q gamma`` (its covariance under white noise
-    ``I - P - Q Q^T / lambda``, the larger fit's), and what it moved the fit's parameters by
-    ``H^-1 J^T N V gamma``, with covariance ``D diag(1 / lambda) D^T``, ``D = H^-1 J^T N V``, under white noise.
+    ``locked.shapes``), what the fit leaves of them is ``(I - P) N``; ``M = N^T (I - P) N``'s eigenvectors with an
+    eigenvalue above ``LOCKED_RCOND`` of the largest, scaled to unit information and turned so that what the fit
+    absorbs of them, ``P N W``, is orthogonal too (``W^T N^T P N W = diag(rho)``), are the combinations ``W``
+    (those the fit absorbs whole get no weight: the structure's size there is taken as zero).  ``Q = (I - P) N W``
+    is orthonormal: the structure's size ``gamma = Q^T r`` (unit variance under white noise), the residual without
+    it ``r - Q gamma`` (its covariance under white noise ``I - P - Q Q^T``, the larger fit's).  What it moved the
+    fit's parameters by is ``D gamma``, ``D = H^-1 J^T N W`` over the combinations with ``rho <= LOCKED_ABSORBED``
+    alone, with covariance ``D D^T`` under white noise (``rho_j H^-1`` along ``D_j``, the ``D_j`` orthogonal in
+    ``H``: at most ``LOCKED_ABSORBED H^-1``).
     """
     jac = np.asarray(jac, dtype=float)
     k = bread.shape[0]
@@ -468,25 +498,33 @@ def _without_locked(jac, weighted, bread, locked: TurnPhase | None) -> _Locked:
     nuisance = np.hstack(columns)
     good = np.isfinite(np.diag(bread))
     b = bread[np.ix_(good, good)]
-    own = np.nan_to_num(jac[:, good])
-    cross = own.T @ nuisance  # J^T N
-    left = nuisance - own @ (b @ cross)  # (I - P) N
+    fit_jac = np.nan_to_num(jac[:, good])
+    cross = fit_jac.T @ nuisance  # J^T N
+    left = nuisance - fit_jac @ (b @ cross)  # (I - P) N
     lam, vec = np.linalg.eigh(nuisance.T @ left)
     kept = lam > lam.max(initial=0.0) * LOCKED_RCOND
-    lam, vec = lam[kept], vec[:, kept]
-    q = left @ vec
+    whitened = vec[:, kept] / np.sqrt(lam[kept])  # combinations the fit leaves with unit information: W^T M W = I
+    # turned so that what the fit absorbs of them is orthogonal too: W^T N^T P N W = diag(rho), rho each one's
+    # absorbed over left (|P N w|^2 / |(I - P) N w|^2); their moves d_j are then orthogonal in H
+    absorbed = (nuisance - left) @ whitened  # P N W
+    rho, turn = np.linalg.eigh(absorbed.T @ absorbed)
+    combos = whitened @ turn
+    q = left @ combos  # orthonormal: the residual's size in each is q^T r, white noise's unit variance
     rows = weighted.ravel()
-    gamma = (q.T @ rows) / lam
-    d = b @ (cross @ vec)
+    gamma = q.T @ rows
+    # the move of the combinations the fit leaves at least 1 / (1 + LOCKED_ABSORBED) of (module docstring):
+    # d_j gamma_j, its noise d_j d_j^T, rho_j times the fit's own noise in the direction it moves
+    seen = rho <= LOCKED_ABSORBED
+    d = b @ (cross @ combos[:, seen])
     shift, noise = np.zeros(k), np.zeros((k, k))
-    shift[good] = d @ gamma
-    noise[np.ix_(good, good)] = (d / lam) @ d.T
-    r = lam.size
+    shift[good] = d @ gamma[seen]
+    noise[np.ix_(good, good)] = d @ d.T
+    r = q.shape[1]
     aug_bread = np.full((k + r, k + r), np.nan)
     aug_bread[:k, :k] = bread
     aug_bread[:k, k:] = np.where(good[:, None], 0.0, np.nan)
     aug_bread[k:, :k] = aug_bread[:k, k:].T
-    aug_bread[k:, k:] = np.diag(1.0 / lam)
+    aug_bread[k:, k:] = np.eye(r)
     return _Locked(np.hstack([jac, q]), (rows - q @ gamma).reshape(n, c), aug_bread, k, shift, noise)
 
 

@@ -10,6 +10,7 @@ from calibrate import calibrate_fourflip
 from calibrate.fourflip.effects import EFFECTS
 from tests.conftest import angle_deg
 from compass.calibration import model_from_dict
+from compass.sim.fourflip import simulate_fourflip
 
 
 def _check_explained(result, truth):
@@ -253,3 +254,30 @@ def test_one_offset_step_is_named_and_its_cost_covers_the_error(write_session):
     assert np.all(err < 3.0 * sigma), (err, sigma)
     assert err[1] > 5.0 * d["unexplained_cost"]["direction_sigma_deg"][rec.channels[1]]["naive"]  # the step matters
     assert f"one step of {rec.channels[1]}'s offset" in result.report()
+
+
+@pytest.mark.parametrize("seed", [206, 207])
+def test_rate_memory_is_taken_as_locked_to_the_turn_and_its_cost_is_honest(write_session, seed):
+    """Rate memory (outside the vocabulary: each channel's offset +-0.08 uT by the sign of its field's change,
+    a square wave locked to the turn): unexplained, its structure taken as locked to the turn (the locked
+    columns wired through the four-flip), and the widened sigmas honest for what a user copies: every
+    direction and gain within 3.5 stated sigmas, and the gains' errors not lost in an inflated sigma (RMS of
+    gain err/sig over the three channels above 0.2: chi-square with 3 dof below 0.12 has probability about
+    1 %; the propagated move's noise made it 0.01-0.1), the heading sigma at most 1.5 times the naive one
+    (the locked structure moves the directions by about their noise: 1.04-1.09 on tools/bench_loop.py's rate
+    memory seeds 40-43, 1.2-26 when the nearly absorbed combinations were propagated)."""
+    rec, truth = write_session(seed=seed)
+    clean = simulate_fourflip(seed=seed, noise_ut=0.0)
+    gains = np.array(truth["gains_per_ut"])
+    rate = np.gradient(clean.outputs, axis=0)
+    rate[np.r_[True, rec.flip_index[1:] != rec.flip_index[:-1]]] = 0.0
+    result = calibrate_fourflip(replace(rec, outputs=rec.outputs + 0.08 * np.sign(rate) * gains), diagnose=True)
+    d = result.diagnosis
+    assert d["unexplained"] is True and "locked to the turntable's turn" in d["unexplained_cost"]["method"]
+    sigma = np.array([c.direction_sigma_deg for c in result.channels])
+    err = angle_deg(result.directions, truth["directions"])
+    assert np.all(err < 3.5 * sigma), (err, sigma)
+    gain_ratio = np.array([(c.response.gain - g) / c.gain_sigma for c, g in zip(result.channels, gains)])
+    assert np.all(np.abs(gain_ratio) < 3.5) and np.sqrt(np.mean(gain_ratio**2)) > 0.2, gain_ratio
+    heading = d["unexplained_cost"]["heading_sigma_deg"]
+    assert heading["widened"] < 1.5 * heading["naive"], heading
