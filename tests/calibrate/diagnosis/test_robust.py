@@ -386,8 +386,14 @@ def test_a_locked_structure_moves_the_parameters_by_its_projection_through_the_f
     assert np.max(np.abs(got.weighted)) < 1e-9
 
 
+def _white_residual(rng, jac, bread, n):
+    """A fit's residual under unit white noise alone, ``(I - P) e``, shape (n, 2)."""
+    e = rng.normal(size=2 * n)
+    return (e - jac @ (bread @ (jac.T @ e))).reshape(n, 2)
+
+
 def test_the_shift_of_white_noise_has_the_stated_covariance():
-    """Under white noise alone the shift the locked columns find is noise, with covariance ``D diag(1/lambda) D^T``
+    """Under white noise alone the shift the locked columns find is noise, with covariance ``D D^T``
     (``_Locked.noise``, subtracted from the shift's square): its sample covariance over 400 draws matches within
     the Monte Carlo error (a variance from 400 draws: about 7 %; 25 % allowed on the diagonal)."""
     rng = np.random.default_rng(8)
@@ -395,9 +401,7 @@ def test_the_shift_of_white_noise_has_the_stated_covariance():
     n = locked.phase_rad.size
     shifts = []
     for _ in range(400):
-        e = rng.normal(size=2 * n)
-        shifts.append(robust_module._without_locked(jac, (e - jac @ (bread @ (jac.T @ e))).reshape(n, 2), bread,
-                                                   locked).shift)
+        shifts.append(robust_module._without_locked(jac, _white_residual(rng, jac, bread, n), bread, locked).shift)
     stated = robust_module._without_locked(jac, np.zeros((n, 2)), bread, locked).noise
     assert np.diag(np.cov(np.array(shifts).T)) == pytest.approx(np.diag(stated), rel=0.25)
 
@@ -412,8 +416,7 @@ def test_the_stated_covariance_takes_the_shifts_noise_out_of_its_square():
     n = locked.phase_rad.size
     excess = []
     for _ in range(300):
-        e = rng.normal(size=2 * n)
-        got = robust_module._without_locked(jac, (e - jac @ (bread @ (jac.T @ e))).reshape(n, 2), bread, locked)
+        got = robust_module._without_locked(jac, _white_residual(rng, jac, bread, n), bread, locked)
         excess.append(np.diag(got.own(got.bread) - bread))
     noise = np.diag(got.noise)
     assert np.all(noise > 0.005 * np.diag(bread)), noise / np.diag(bread)
