@@ -135,10 +135,8 @@ def installed_model(base: SensorModel, hard_iron, soft_iron, covariance=None, al
             direction_cov = rot[None] @ direction_cov @ rot.T[None]
     # a tumble base's own uncertainty is in its frame and for its iron alone: not carried (the installation's
     # covariance is); its magnetometer latency is the module's timing and its gyro matrix the module's gyro, kept;
-    # the gyro's per-entry error variances are not (a turned frame correlates the entries: the filter takes the
-    # rotation-invariant gyro_scale_error on every axis instead);
     # a channel base's priors for null sigmas stay in its (transformed) numbers, their words were said when the
     # base was read
     return replace(base, directions=directions, responses=tuple(responses), direction_covariance=direction_cov,
                    response_sigma=response_sigma, form="installed", iron_uncertainty=None, gyro_matrix=gyro_matrix,
-                   gyro_error_var=None if alignment is not None else base.gyro_error_var, sigma_priors=None)
+                   sigma_priors=None)

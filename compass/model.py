@@ -104,12 +104,6 @@ class SensorModel:
         ``(with gyro_matrix applied, the gyro as read)``; None when the file has no usable fit.  Both are
         rotation-invariant (an installation keeps them).  :meth:`compass.filter.FilterConfig.from_model` sets the
         filter's ``gyro_scale_error`` from it.
-    gyro_error_var : tuple of 2 ndarrays, shape (3, 3), or None
-        The same per entry of the gyro's matrix error ``E`` (housing frame): each seen entry's variance
-        (dimensionless; :func:`compass.calibration.gyro_error_variance`), ``(with gyro_matrix applied, the gyro as
-        read)``; None when the file has no usable fit.  Not rotation-invariant: an installation that turns the frame
-        drops it (the filter then takes :attr:`gyro_scale_error` on every axis).
-        :meth:`compass.filter.FilterConfig.from_model` builds the filter's turn-dependent rate-error noise from it.
     """
 
     channels: tuple[str, ...]
@@ -127,7 +121,6 @@ class SensorModel:
     mag_latency_s: float = 0.0
     gyro_matrix: np.ndarray | None = None
     gyro_scale_error: tuple[float, float] | None = None
-    gyro_error_var: tuple[np.ndarray, np.ndarray] | None = None
     sigma_priors: tuple | None = None
 
     def __post_init__(self):
@@ -149,10 +142,6 @@ class SensorModel:
                                                       and np.all(np.isfinite(self.gyro_scale_error))
                                                       and np.all(np.asarray(self.gyro_scale_error) >= 0.0)):
             raise ValueError(f"gyro_scale_error must be 2 non-negative numbers, got {self.gyro_scale_error!r}")
-        if self.gyro_error_var is not None and not (np.shape(self.gyro_error_var) == (2, 3, 3)
-                                                    and np.all(np.isfinite(self.gyro_error_var))
-                                                    and np.all(np.asarray(self.gyro_error_var) >= 0.0)):
-            raise ValueError(f"gyro_error_var must be 2 3 x 3 arrays of non-negative numbers, got {self.gyro_error_var!r}")
         if c < 3:
             raise NotAFieldVector(f"the calibration has {c} channel{'s' if c > 1 else ''} ({', '.join(self.channels)}): "
                                   "a calibration of single-axis channels, valid as such, but the field vector (and "

@@ -1,7 +1,7 @@
-"""The gyro's scale error on low-cost boards (issue 22): the filter before (0.5 % on every board), with the scale
-error its calibration's gyro-aided fit says as one number on every axis (the RMS over rate directions,
-``||E||_F / sqrt 3``: session 10's model), and as the turn-dependent rate-error covariance from the fit's per-entry
-variances (``FilterConfig.gyro_error_var``, ``FilterConfig.from_model``'s), beside VQF, in one run.
+"""The gyro's scale error on low-cost boards (issue 22): the filter before (main's defaults: 0.5 % on every board),
+with the scale error its calibration's gyro-aided fit says as the RMS over rate directions (``||E||_F / sqrt 3``,
+``FilterConfig.from_model``'s) and as the bound over every direction (largest singular value and worst sigma column:
+tried, not kept), beside VQF, in one run.
 
 Run: ``python tools/bench_gyro_scale.py [--dev-seeds 11,12] [--seeds 13-20] [--levels 0,1,3,5] [--aniso 5]
 [--broad 01,02,...]`` (``--broad all``: every trial; ``--broad none``: no BROAD; ``--levels ''``: no isotropic
@@ -15,11 +15,8 @@ calibration reader (:func:`bench_broad.file_values`): the filter's scale error c
 truth.  The seeds the change was developed on (11, 12) are reported apart from the others.  Cells: heading /
 inclination RMS over the moving samples (BROAD's metric), deg, mean over the seeds, and the percentage of field
 samples the innovation test refused.  BROAD: each trial with the gyro scale error of the tumble file of another
-trial (:data:`bench_broad.CAL_TRIALS`, never its own), the same pipeline otherwise (``bench_broad.ours``), and the
-geometric mean of each BROAD group.  Nothing here is tuned: the scale error is the held-out file's, so there is no
-constant to leave a trial out for.  The bound over every direction (largest singular value and worst sigma column,
-one number on every axis) was a column here until the turn-dependent model replaced it (measured and not kept:
-docs/benchmarks.md).
+trial (:data:`bench_broad.CAL_TRIALS`, never its own), the same pipeline otherwise (``bench_broad.ours``).  Nothing
+here is tuned: the scale error is the held-out file's, so there is no constant to leave a trial out for.
 """
 
 from __future__ import annotations
@@ -39,63 +36,49 @@ import bench_broad as bb  # noqa: E402
 from _doc_table import markdown_table, parse_args, publish  # noqa: E402
 from compass.filter import DEFAULT_GYRO_SCALE_ERROR  # noqa: E402
 
-METHODS = ("VQF", "before", "fitted", "turn", "fitted + turn")
-"""The columns: VQF (online, its defaults), ours with the default 0.5 % on every axis, with the fitted scale error as
-the RMS over rate directions on every axis (session 10's), with the fitted per-entry variances, the rate error's
-covariance for the current turn (``from_model``'s), and with both (the one number on every entry, the fit's entries
-on top: the isotropic part kept for what the turn's covariance leaves out, :func:`with_isotropic`)."""
+METHODS = ("VQF", "before", "fitted", "fitted bound")
+"""The columns: VQF (online, its defaults), ours with the default 0.5 %, with the fitted scale error as the RMS over
+rate directions (``from_model``'s), and as the bound over every direction (:func:`bound_scale_error`, not kept)."""
 
 LOCKOUT_TRIALS = ("01", "02", "04", "06", "10", "15", "24")
 """The seven BROAD trials of the lock-out investigation (/work/brief/lockout.md)."""
 
 
-def error_var(fitted, scale_error: float) -> tuple | None:
-    """``FilterConfig.gyro_error_var`` of a file's fit as ``from_model`` makes it (the gyro as read): the default squared
-    plus the seen entries' :func:`compass.calibration.gyro_error_variance`; None when the file has no fit or the
-    calibration did not use it (the fit's one number is then not the runtime's ``scale_error``).
+def bound_scale_error(fitted) -> float:
+    """The scale error as the bound over every rate direction (tried, not kept: docs/benchmarks.md): the largest
+    singular value of the seen entries of ``G - I`` and the worst column of their sigmas ``sqrt(max_j sum_i
+    sigma_ij^2)``, in quadrature, then with the default (the gyro as read); the default without a fit.
 
     Parameters
     ----------
     fitted : tuple
         The file's ``(gyro_matrix, gyro_matrix_sigma)`` as written (None, or nested lists with nulls).
-    scale_error : float
-        The runtime's one number from the same file (:func:`bench_broad.file_values`).
     """
-    from compass.calibration import gyro_error_variance
+    from compass.calibration import gyro_matrix_seen
 
     matrix, sigma = fitted
     if matrix is None or sigma is None:
-        return None
+        return DEFAULT_GYRO_SCALE_ERROR
+    g = np.array(matrix, dtype=float)
     sigma = np.array([[np.inf if v is None else v for v in row] for row in sigma], dtype=float)
-    var = gyro_error_variance(np.array(matrix, dtype=float), sigma)[1]
-    if not np.isclose(np.hypot(DEFAULT_GYRO_SCALE_ERROR, np.sqrt(var.sum() / 3.0)), scale_error, rtol=1e-9):
-        return None
-    return tuple(map(tuple, DEFAULT_GYRO_SCALE_ERROR**2 + var))
-
-
-def with_isotropic(var, scale_error: float) -> tuple | None:
-    """The per-entry variances with the default's square replaced by the one number's on every entry: session 10's
-    isotropic noise kept whole, the fit's turn-dependent entries added on top."""
-    if var is None:
-        return None
-    return tuple(map(tuple, np.asarray(var) - DEFAULT_GYRO_SCALE_ERROR**2 + scale_error**2))
+    seen = gyro_matrix_seen(g, sigma)
+    column_var = np.max(np.sum(np.where(seen, sigma, 0.0) ** 2, axis=0))
+    estimate = np.linalg.svd(np.where(seen, g - np.eye(3), 0.0), compute_uv=False)[0]
+    return float(np.hypot(DEFAULT_GYRO_SCALE_ERROR, np.sqrt(estimate**2 + column_var)))
 
 
 def _changes(method: str, scale: dict) -> dict | None:
     """The FilterConfig changes of a column (None: VQF); the default scale error left out (the same filter)."""
-    if method not in ("before", "fitted", "turn", "fitted + turn"):
+    value = {"before": DEFAULT_GYRO_SCALE_ERROR, "fitted": scale.get("rms"),
+             "fitted bound": scale.get("bound")}.get(method)
+    if method not in ("before", "fitted", "fitted bound"):
         return None
-    value = DEFAULT_GYRO_SCALE_ERROR if method == "before" else scale["rms"]
-    changes = {} if value == DEFAULT_GYRO_SCALE_ERROR else {"gyro_scale_error": value}
-    var = {"turn": scale["var"], "fitted + turn": with_isotropic(scale["var"], scale["rms"])}.get(method)
-    if var is not None:
-        changes["gyro_error_var"] = var
-    return changes
+    return {} if value == DEFAULT_GYRO_SCALE_ERROR else {"gyro_scale_error": value}
 
 
 def scored(trial, scale: dict) -> dict[str, tuple[float, float, float]]:
-    """``{method: (heading RMS deg, inclination RMS deg, refused %)}`` of one trial; ``scale``: ``{"rms": , "var": }``
-    the filter's scale error and per-entry variances (:func:`error_var`)."""
+    """``{method: (heading RMS deg, inclination RMS deg, refused %)}`` of one trial; ``scale``: ``{"rms": , "bound": }``
+    the filter's scale error of each formula."""
     from compass.evaluation import error_series
     from compass.io.broad import nwu_to_enu
     from scipy.spatial.transform import Rotation
@@ -134,22 +117,15 @@ def board_errors(seed: int, level: float):
 
 
 def board_scale_error(seed: int, level) -> dict:
-    """The filter's gyro scale error from the board's own tumble calibration (as read, no matrix applied):
-    ``{"rms": the one number, "var": the per-entry variances}`` (as ``from_model`` makes them)."""
+    """The filter's gyro scale error from the board's own tumble calibration (as read, no matrix applied), by each
+    formula: ``{"rms": from_model's, "bound": the bound's}``."""
     from compass.sim.motion import simulate_motion
 
     cal = simulate_motion("fast_rotation", seed=500 + seed, errors=board_errors(seed, level))
     keep = np.zeros(len(cal.t_s), bool)
     keep[::6] = True
     values = bb.file_values(cal.t_s, cal.gyro_rad_s, cal.accel_m_s2, cal.mag_ut, keep)
-    return {"rms": values["gyro_scale_error"], "var": error_var(values["fitted"], values["gyro_scale_error"])}
-
-
-def _words(scale: dict) -> str:
-    """The one number and the per-entry diagonal, %."""
-    var = scale["var"]
-    diag = "no fit" if var is None else ", ".join(f"{100 * np.sqrt(var[i][i]):.2f}" for i in range(3))
-    return f"{100 * scale['rms']:.2f} % ({diag})"
+    return {"rms": values["gyro_scale_error"], "bound": bound_scale_error(values["fitted"])}
 
 
 def _level(level) -> str:
@@ -164,8 +140,8 @@ def simulated(seeds, levels, kinds=None) -> dict:
     for level in levels:
         size = level if isinstance(level, str) else level / 100.0
         scale = {seed: board_scale_error(seed, size) for seed in seeds}
-        print(f"  gyro scale {_level(level)} %: fitted scale error (RMS; diagonal entries' sigma) "
-              + ", ".join(f"{_words(v)}" for v in scale.values()),
+        print(f"  gyro scale {_level(level)} %: fitted scale error (RMS / bound) "
+              + ", ".join(f"{100 * v['rms']:.2f} / {100 * v['bound']:.2f}" for v in scale.values()) + " %",
               file=sys.stderr, flush=True)
         out[level] = {}
         for kind in kinds or KINDS:
@@ -193,8 +169,8 @@ def sim_table(sim) -> str:
 
 
 def broad(data: Path, numbers) -> dict:
-    """``{trial name: ({"rms": , "var": } the fitted scale error and variances, {method: cells})}`` of the BROAD trials
-    ``numbers`` (None: all)."""
+    """``{trial name: ({"rms": , "bound": } fitted scale errors, {method: cells})}`` of the BROAD trials ``numbers``
+    (None: all)."""
     from compass.io.broad import read_broad
 
     fitted = bb.broad_fitted(data)
@@ -204,20 +180,19 @@ def broad(data: Path, numbers) -> dict:
             continue
         trial = read_broad(path)
         values = bb.held_out(trial.name, fitted)
-        scale = {"rms": values["gyro_scale_error"],
-                 "var": error_var(values.get("fitted", (None, None)), values["gyro_scale_error"])}
+        scale = {"rms": values["gyro_scale_error"], "bound": bound_scale_error(values.get("fitted", (None, None)))}
         out[trial.name] = (scale, scored(trial, scale))
-        print(f"  {trial.name} (scale error {_words(scale)}): "
+        print(f"  {trial.name} (scale error RMS {100 * scale['rms']:.2f} %, bound {100 * scale['bound']:.2f} %): "
               + ", ".join(f"{m} {v[0]:.2f}/{v[1]:.2f}" for m, v in out[trial.name][1].items()), file=sys.stderr, flush=True)
     return out
 
 
 def broad_table(res) -> str:
-    rows = [[name[:2], _words(scale)] + [_cell(cells[m]) for m in METHODS] for name, (scale, cells) in res.items()]
-    for group, names in ({f"geo-mean, {g}": ts for g, ts in bb._groups(res).items()} | {"geo-mean": list(res)}).items():
-        geo = {m: tuple(np.exp(np.mean([np.log(res[t][1][m][:2]) for t in names], axis=0))) + (np.nan,) for m in METHODS}
-        rows.append([f"**{group}** ({len(names)})", ""] + [_cell(geo[m]) for m in METHODS])
-    return markdown_table(["trial", "scale error % (RMS; diagonal entries)"] + list(METHODS), rows)
+    rows = [[name[:2], f"{100 * scale['rms']:.2f} / {100 * scale['bound']:.2f}"] + [_cell(cells[m]) for m in METHODS]
+            for name, (scale, cells) in res.items()]
+    geo = {m: tuple(np.exp(np.mean([np.log(c[m][:2]) for _, c in res.values()], axis=0))) + (np.nan,) for m in METHODS}
+    rows.append(["**geo-mean**", ""] + [_cell(geo[m]) for m in METHODS])
+    return markdown_table(["trial", "scale error % (RMS / bound)"] + list(METHODS), rows)
 
 
 def _seeds(text: str) -> list[int]:

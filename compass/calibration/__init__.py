@@ -20,10 +20,10 @@ from ._checks import DEAD_RESPONSE_SIGMAS
 from ._errors import CalibrationFileError, NoFieldVector
 from ._format import FORMAT, KIND_KEY, channel_entry, header, model_to_dict
 from ._imu import ImuCorrection
-from ._read import KINDS, MAX_GYRO_MATRIX_ERROR, from_dict, gyro_matrix_mismatch, gyro_matrix_seen, gyro_error_variance, gyro_scale_error, kind_of, latency_seen, load, loads, model_from_dict
+from ._read import KINDS, MAX_GYRO_MATRIX_ERROR, from_dict, gyro_matrix_mismatch, gyro_matrix_seen, gyro_scale_error, kind_of, latency_seen, load, loads, model_from_dict
 from ._value import Calibration, Installation, Provenance, TumbleForm
 from ._write import dumps, save, to_dict
 
 __all__ = ["DEAD_RESPONSE_SIGMAS", "FORMAT", "KINDS", "KIND_KEY", "Calibration", "CalibrationFileError", "ImuCorrection", "Installation",
            "NoFieldVector", "Provenance", "TumbleForm", "channel_entry", "dumps", "from_dict", "header", "kind_of",
-           "gyro_matrix_mismatch", "gyro_matrix_seen", "gyro_error_variance", "gyro_scale_error", "latency_seen", "load", "MAX_GYRO_MATRIX_ERROR", "loads", "model_from_dict", "model_to_dict", "save", "to_dict"]
+           "gyro_matrix_mismatch", "gyro_matrix_seen", "gyro_scale_error", "latency_seen", "load", "MAX_GYRO_MATRIX_ERROR", "loads", "model_from_dict", "model_to_dict", "save", "to_dict"]

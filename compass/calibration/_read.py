@@ -26,7 +26,7 @@ from ._format import CHANNEL_KINDS, FORMAT, KIND_KEY, TUMBLE_CHANNELS
 from ._imu import ImuCorrection
 from ._value import Calibration, Installation, Provenance, TumbleForm
 
-__all__ = ["KINDS", "MAX_GYRO_MATRIX_ERROR", "from_dict", "gyro_matrix_mismatch", "gyro_matrix_seen", "gyro_error_variance", "gyro_scale_error", "kind_of", "latency_seen", "load", "loads", "model_from_dict"]
+__all__ = ["KINDS", "MAX_GYRO_MATRIX_ERROR", "from_dict", "gyro_matrix_mismatch", "gyro_matrix_seen", "gyro_scale_error", "kind_of", "latency_seen", "load", "loads", "model_from_dict"]
 
 KINDS = ("fourflip", "platform3d", "reference", "channels", "tumble", "installed")
 """Every kind the reader knows (the file's ``"model"``)."""
@@ -400,7 +400,6 @@ def _tumble(d: dict) -> tuple:
         mag_latency_s=_mag_latency_s(block.get("gyro")),
         gyro_matrix=_gyro_matrix(block.get("gyro")),
         gyro_scale_error=_gyro_scale_error(block.get("gyro")),
-        gyro_error_var=_gyro_error_variance(block.get("gyro")),
     )
     norm = block.get("field_norm_recording_units")
     if norm is None and field_ut is None:
@@ -547,20 +546,6 @@ def _gyro_matrix(gyro) -> np.ndarray | None:
 def _gyro_scale_error(gyro) -> tuple[float, float] | None:
     """:func:`gyro_scale_error` of the file's fitted ``tumble.gyro.gyro_matrix`` and its sigma; None when the
     calibration did not use the fit or the file holds no matrix or sigma.  Refused as :func:`_gyro_matrix` refuses."""
-    fit = _gyro_fit(gyro)
-    return None if fit is None else gyro_scale_error(*fit)
-
-
-def _gyro_error_variance(gyro) -> tuple[np.ndarray, np.ndarray] | None:
-    """:func:`gyro_error_variance` of the file's fitted ``tumble.gyro.gyro_matrix`` and its sigma; None as
-    :func:`_gyro_scale_error`."""
-    fit = _gyro_fit(gyro)
-    return None if fit is None else gyro_error_variance(*fit)
-
-
-def _gyro_fit(gyro) -> tuple[np.ndarray, np.ndarray] | None:
-    """The file's fitted ``(gyro_matrix, gyro_matrix_sigma)``; None when the calibration did not use the fit or the file
-    holds no matrix or sigma.  Refused as :func:`_gyro_matrix` refuses."""
     if gyro is None:
         return None
     gyro = check.obj(gyro, "tumble.gyro")
@@ -569,38 +554,7 @@ def _gyro_fit(gyro) -> tuple[np.ndarray, np.ndarray] | None:
     sigma = _gyro_matrix_sigma(gyro.get("gyro_matrix_sigma"))
     if sigma is None:
         return None
-    return _nested_3x3(gyro["gyro_matrix"], "tumble.gyro.gyro_matrix"), sigma
-
-
-def gyro_error_variance(matrix, sigma) -> tuple[np.ndarray, np.ndarray]:
-    """What a fitted gyro matrix says remains of each entry of the gyro's matrix error, as a variance, with its seen
-    entries applied and without.
-
-    The rate error of a gyro read through ``G`` is ``E w`` (housing frame, ``E = G - I``).  Each entry the fit saw
-    (:func:`gyro_matrix_seen`) keeps, in expectation: applied, its variance ``sigma_ij^2``; not applied,
-    ``(G - I)_ij^2 + sigma_ij^2``.  An entry it did not see counts nothing here: the filter's default per entry
-    covers it (:data:`compass.filter.DEFAULT_GYRO_SCALE_ERROR`, added by
-    :meth:`compass.filter.FilterConfig.from_model`; :func:`gyro_scale_error` says why a sigma on top would count the
-    same uncertainty twice).  With the entries taken as independent, the rate error's covariance in the housing frame
-    is ``diag_i(sum_j v_ij w_j^2)`` (the filter's turn-dependent process noise, :mod:`compass.filter`).
-
-    Parameters
-    ----------
-    matrix : array_like, shape (3, 3)
-        The fitted ``G`` (dimensionless).
-    sigma : array_like, shape (3, 3)
-        Its entries' standard errors (dimensionless; inf or NaN where none).
-
-    Returns
-    -------
-    tuple of 2 ndarrays, shape (3, 3)
-        ``(with the seen entries applied, the gyro as read)``, per-entry variances (dimensionless); 0 where nothing
-        was seen.
-    """
-    g = np.asarray(matrix, dtype=float)
-    seen = gyro_matrix_seen(g, sigma)
-    var = np.where(seen, np.asarray(sigma, dtype=float), 0.0) ** 2
-    return var, np.where(seen, g - np.eye(3), 0.0) ** 2 + var
+    return gyro_scale_error(_nested_3x3(gyro["gyro_matrix"], "tumble.gyro.gyro_matrix"), sigma)
 
 
 def gyro_scale_error(matrix, sigma) -> tuple[float, float]:
@@ -642,8 +596,11 @@ def gyro_scale_error(matrix, sigma) -> tuple[float, float]:
     tuple of 2 floats
         ``(with the seen entries applied, the gyro as read)``, fractions of the rate; 0 where nothing was seen.
     """
-    applied, as_read = gyro_error_variance(matrix, sigma)
-    return float(np.sqrt(applied.sum() / 3.0)), float(np.sqrt(as_read.sum() / 3.0))
+    g = np.asarray(matrix, dtype=float)
+    seen = gyro_matrix_seen(g, sigma)
+    var = np.where(seen, np.asarray(sigma, dtype=float), 0.0) ** 2
+    error2 = np.where(seen, g - np.eye(3), 0.0) ** 2
+    return float(np.sqrt(var.sum() / 3.0)), float(np.sqrt((error2 + var).sum() / 3.0))
 
 
 def _nested_3x3(v, key: str) -> np.ndarray:

@@ -110,11 +110,11 @@ from ._gate import GateState, MagneticGate
 from ._gyro import GyroFilter, GyroState
 from ._place import PLACE_EVENT
 from ._records import (DEFAULT_GYRO_SCALE_ERROR, SKIP_REASONS, Diagnostics, Estimate, FilterCoefficients, FilterConfig,
-                       SkipCounts, fitted_error_var, fitted_scale_error)
+                       SkipCounts, fitted_scale_error)
 from ._run import FilterTrack, reference_field, run_filter
 from ._start import FilterStart, StartValues
 from ._two_vector import TwoVectorFilter, TwoVectorState
 
-__all__ = ["DEFAULT_GYRO_SCALE_ERROR", "fitted_scale_error", "fitted_error_var", "FilterConfig", "FilterCoefficients", "Estimate", "Diagnostics", "SkipCounts", "SKIP_REASONS",
+__all__ = ["DEFAULT_GYRO_SCALE_ERROR", "fitted_scale_error", "FilterConfig", "FilterCoefficients", "Estimate", "Diagnostics", "SkipCounts", "SKIP_REASONS",
            "AttitudeFilter", "GyroFilter", "GyroState", "TwoVectorFilter", "TwoVectorState", "MagneticGate",
            "GateState", "FilterTrack", "run_filter", "reference_field", "FilterStart", "StartValues", "PLACE_EVENT"]

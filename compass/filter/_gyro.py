@@ -45,47 +45,6 @@ def heading_innovation(m: tuple, bx: float, by: float, bz: float, azimuth_rad: f
     return innovation
 
 
-def attitude_noise(m: tuple, wx: float, wy: float, wz: float, dt: float, c) -> tuple:
-    """The attitude's process noise over one step, world frame: the gyro's white noise and its matrix error's rate
-    error for the current turn (:mod:`compass.filter`).
-
-    The rate error ``E w`` (housing frame, ``E`` the gyro's matrix error) with independent entries of variance
-    ``v_ij`` has covariance ``diag_i(sum_j v_ij w_j^2)``; the attitude error ``eps`` (world frame) moves by ``R`` times
-    it, so ``Q = (sigma_g^2 I + R diag_i(sum_j v_ij w_j^2 tau_s) R^T) dt``.  With equal entries (no fit:
-    ``c.rate_error_var`` None, ``c.scale_var`` on each) it is ``(sigma_g^2 + s^2 |w|^2 tau_s) dt I`` about every
-    axis, computed so.
-
-    Parameters
-    ----------
-    m : tuple of 9 floats
-        ``R_world<-housing``, row-major.
-    wx, wy, wz : float
-        The bias-corrected rate in the housing frame, rad/s.
-    dt : float
-        Time step, s.
-    c : FilterCoefficients
-        ``gyro_var``, ``scale_var`` and ``rate_error_var``.
-
-    Returns
-    -------
-    tuple of 6 floats
-        The upper triangle row by row (``q00 q01 q02 q11 q12 q22``), rad^2.
-    """
-    v = c.rate_error_var
-    x2, y2, z2 = wx * wx, wy * wy, wz * wz
-    if v is None:
-        q = (c.gyro_var + c.scale_var * (x2 + y2 + z2)) * dt
-        return q, 0.0, 0.0, q, 0.0, q
-    h0 = (v[0] * x2 + v[1] * y2 + v[2] * z2) * dt  # the rate error's variance along each housing axis, times dt
-    h1 = (v[3] * x2 + v[4] * y2 + v[5] * z2) * dt
-    h2 = (v[6] * x2 + v[7] * y2 + v[8] * z2) * dt
-    r0, r1, r2, r3, r4, r5, r6, r7, r8 = m
-    g = c.gyro_var * dt
-    return (g + r0 * r0 * h0 + r1 * r1 * h1 + r2 * r2 * h2, r0 * r3 * h0 + r1 * r4 * h1 + r2 * r5 * h2,
-            r0 * r6 * h0 + r1 * r7 * h1 + r2 * r8 * h2, g + r3 * r3 * h0 + r4 * r4 * h1 + r5 * r5 * h2,
-            r3 * r6 * h0 + r4 * r7 * h1 + r5 * r8 * h2, g + r6 * r6 * h0 + r7 * r7 * h1 + r8 * r8 * h2)
-
-
 @dataclass(slots=True)
 class GyroState(PackedCovariance):
     """Everything the gyro filter carries from one sample to the next (readable, settable, resettable).
@@ -274,7 +233,8 @@ class GyroFilter(AttitudeFilter):
                                  e[2] * vx + e[5] * vy + e[8] * vz)
         # P <- F P F^T + Q, F = [[I, -R dt], [0, I]]
         c = self.coefficients
-        s.covariance = predict_gyro(s.covariance, m, dt, attitude_noise(m, wx, wy, wz, dt, c), c.bias_walk_var * dt)
+        q_att = (c.gyro_var + c.scale_var * (wx * wx + wy * wy + wz * wz)) * dt
+        s.covariance = predict_gyro(s.covariance, m, dt, q_att, c.bias_walk_var * dt)
 
     def _rest(self, dt: float, a) -> None:
         """VQF's rest detector; at rest the gyro reading measures its bias."""

@@ -49,8 +49,8 @@ class PackedCovariance:
         """The covariance as a symmetric 6x6 array."""
         return unpack(self.covariance)
 
-def predict_gyro(p: tuple, r: tuple, dt: float, q_att: tuple, q_bias: float) -> tuple:
-    """``F P F^T + Q`` with ``F = [[I, A], [0, I]]``, ``A = -R dt``, ``Q = diag(Q_att, q_bias I)``.
+def predict_gyro(p: tuple, r: tuple, dt: float, q_att: float, q_bias: float) -> tuple:
+    """``F P F^T + Q`` with ``F = [[I, A], [0, I]]``, ``A = -R dt``, ``Q = diag(q_att I, q_bias I)``.
 
     Parameters
     ----------
@@ -61,11 +61,8 @@ def predict_gyro(p: tuple, r: tuple, dt: float, q_att: tuple, q_bias: float) -> 
         ``-R db dt``).
     dt : float
         Time step, s.
-    q_att : tuple of 6 floats
-        The attitude's process noise ``Q_att`` (world frame, rad^2), its upper triangle row by row
-        (``q00 q01 q02 q11 q12 q22``).
-    q_bias : float
-        Process noise variance of each bias component, (rad/s)^2.
+    q_att, q_bias : float
+        Process noise variance of each attitude and each bias component.
 
     Returns
     -------
@@ -78,7 +75,6 @@ def predict_gyro(p: tuple, r: tuple, dt: float, q_att: tuple, q_bias: float) -> 
     (p00, p01, p02, p03, p04, p05, p11, p12, p13, p14, p15, p22, p23, p24, p25,
      p33, p34, p35, p44, p45, p55) = p
     r0, r1, r2, r3, r4, r5, r6, r7, r8 = r
-    q00, q01, q02, q11, q12, q22 = q_att
     n = -dt
     a0, a1, a2, a3, a4, a5, a6, a7, a8 = r0 * n, r1 * n, r2 * n, r3 * n, r4 * n, r5 * n, r6 * n, r7 * n, r8 * n
     # M = P_ab + A P_bb
@@ -93,14 +89,14 @@ def predict_gyro(p: tuple, r: tuple, dt: float, q_att: tuple, q_bias: float) -> 
     m22 = p25 + a6 * p35 + a7 * p45 + a8 * p55
     # (A P_ba)_ij = A_i . (P_ab row j); (M A^T)_ij = M_i . A_j
     return (
-        p00 + a0 * p03 + a1 * p04 + a2 * p05 + m00 * a0 + m01 * a1 + m02 * a2 + q00,
-        p01 + a0 * p13 + a1 * p14 + a2 * p15 + m00 * a3 + m01 * a4 + m02 * a5 + q01,
-        p02 + a0 * p23 + a1 * p24 + a2 * p25 + m00 * a6 + m01 * a7 + m02 * a8 + q02,
+        p00 + a0 * p03 + a1 * p04 + a2 * p05 + m00 * a0 + m01 * a1 + m02 * a2 + q_att,
+        p01 + a0 * p13 + a1 * p14 + a2 * p15 + m00 * a3 + m01 * a4 + m02 * a5,
+        p02 + a0 * p23 + a1 * p24 + a2 * p25 + m00 * a6 + m01 * a7 + m02 * a8,
         m00, m01, m02,
-        p11 + a3 * p13 + a4 * p14 + a5 * p15 + m10 * a3 + m11 * a4 + m12 * a5 + q11,
-        p12 + a3 * p23 + a4 * p24 + a5 * p25 + m10 * a6 + m11 * a7 + m12 * a8 + q12,
+        p11 + a3 * p13 + a4 * p14 + a5 * p15 + m10 * a3 + m11 * a4 + m12 * a5 + q_att,
+        p12 + a3 * p23 + a4 * p24 + a5 * p25 + m10 * a6 + m11 * a7 + m12 * a8,
         m10, m11, m12,
-        p22 + a6 * p23 + a7 * p24 + a8 * p25 + m20 * a6 + m21 * a7 + m22 * a8 + q22,
+        p22 + a6 * p23 + a7 * p24 + a8 * p25 + m20 * a6 + m21 * a7 + m22 * a8 + q_att,
         m20, m21, m22,
         p33 + q_bias, p34, p35, p44 + q_bias, p45, p55 + q_bias)
 

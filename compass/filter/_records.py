@@ -11,7 +11,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["DEFAULT_GYRO_SCALE_ERROR", "FilterConfig", "FilterCoefficients", "fitted_scale_error", "fitted_error_var", "Diagnostics", "SkipCounts", "Estimate", "SKIP_REASONS"]
+__all__ = ["DEFAULT_GYRO_SCALE_ERROR", "FilterConfig", "FilterCoefficients", "fitted_scale_error", "Diagnostics", "SkipCounts", "Estimate", "SKIP_REASONS"]
 
 _SCALE_CORRELATION_S = 1.0  # a scale-factor error persists while the housing keeps turning
 DEFAULT_GYRO_SCALE_ERROR = 0.005
@@ -51,16 +51,7 @@ class FilterConfig:
     gyro_bias_sigma0 : float
         Initial 1-sigma of each bias component, rad/s.
     gyro_scale_error : float
-        Relative scale-factor and cross-axis error of the gyro (fraction of the rate): with no
-        :attr:`gyro_error_var`, the standard deviation of every entry of the gyro's matrix error ``E``, which makes
-        the rate error's covariance ``gyro_scale_error^2 |w|^2`` about every axis; the place detector's allowance
-        for the gyro's heading drift either way.
-    gyro_error_var : tuple of 3 tuples of 3 floats, or None
-        Variance of each entry of the gyro's matrix error ``E`` (housing frame, the rate error ``E w``;
-        dimensionless): the rate error's covariance is ``diag_i(sum_j v_ij w_j^2)`` in the housing frame, turned to
-        the world by the attitude, so a scale error on the yaw axis grows the heading's variance in a turn about the
-        vertical only (:mod:`compass.filter`).  None: every entry ``gyro_scale_error^2``.
-        :meth:`from_model` sets it from a calibration's gyro-aided fit.
+        Relative scale-factor and cross-axis error of the gyro (fraction of the rate).
     accel_time_constant_s : float
         Low-pass of the specific force in the inertial frame, seconds.  VQF's ``tauAcc`` is 3 s for
         a filter that sets the tilt to the low-passed direction outright; this filter's own tilt
@@ -200,7 +191,6 @@ class FilterConfig:
     field_range: float = 10.0
     mag_latency_s: float = 0.0
     gyro_matrix: tuple | None = None
-    gyro_error_var: tuple | None = None
     rest_bias_estimation: bool = True
     motion_adaptive_accel: bool = True
     field_error_from_dip: bool = True
@@ -213,8 +203,7 @@ class FilterConfig:
 
     def __post_init__(self):
         for f in fields(self):
-            if (f.name in ("dip_deg", "gravity", "mag_latency_s", "gyro_matrix", "gyro_error_var",
-                           "calibration_uncertainty")
+            if (f.name in ("dip_deg", "gravity", "mag_latency_s", "gyro_matrix", "calibration_uncertainty")
                     or f.type in ("bool", "str")):
                 continue
             value = getattr(self, f.name)
@@ -240,12 +229,6 @@ class FilterConfig:
                 raise ValueError("FilterConfig.gyro_matrix must be a finite 3 x 3 matrix (tuple of 3 tuples) of positive "
                                  f"determinant, got {self.gyro_matrix!r}")
             object.__setattr__(self, "gyro_matrix", tuple(tuple(float(v) for v in row) for row in g))
-        if self.gyro_error_var is not None:
-            v = np.asarray(self.gyro_error_var, dtype=float) if np.shape(self.gyro_error_var) == (3, 3) else None
-            if v is None or not np.all(np.isfinite(v)) or not np.all(v >= 0.0) or not v.sum() > 0.0:
-                raise ValueError("FilterConfig.gyro_error_var must be a 3 x 3 matrix (tuple of 3 tuples) of non-negative "
-                                 f"finite variances, not all zero, got {self.gyro_error_var!r}")
-            object.__setattr__(self, "gyro_error_var", tuple(tuple(float(e) for e in row) for row in v))
 
     def housing_rate(self, w) -> tuple:
         """The housing-frame rate ``G w`` of a gyro reading ``w`` (rad/s, 3 floats), ``G`` :attr:`gyro_matrix`
@@ -283,10 +266,7 @@ class FilterConfig:
         The gyro's scale error (:attr:`gyro_scale_error`) is what the calibration's gyro-aided fit says remains
         (``model.gyro_scale_error``, the entries it saw: with ``gyro_matrix`` their sigma, without it ``|G - I|`` and
         the sigma; :func:`compass.calibration.gyro_scale_error`) in quadrature with the default 0.005
-        (:func:`fitted_scale_error`); the default when the file has no fit.  The same per entry of the gyro's matrix
-        error (:attr:`gyro_error_var`: ``model.gyro_error_var``, each entry's variance plus the default's square,
-        :func:`fitted_error_var`) makes the rate-error noise follow the turn.  ``gyro_scale_error`` given
-        (``--gyro-scale-error``) overrides both: that number on every entry.
+        (:func:`fitted_scale_error`); the default when the file has no fit.  ``gyro_scale_error`` given (``--gyro-scale-error``) overrides it.
 
         Change other fields with ``dataclasses.replace``.
 
@@ -301,12 +281,10 @@ class FilterConfig:
             raise ValueError("the calibration has no noise_floor above zero: the filter cannot weight the magnetometer")
         p = model.solver
         noise = float(np.sqrt(np.trace((p * model.noise_variance(np.zeros(3))) @ p.T) / 3.0))
-        error_var = None
         if gyro_scale_error is None:
             gyro_scale_error = fitted_scale_error(model, gyro_matrix)
-            error_var = fitted_error_var(model, gyro_matrix)
         return cls(field_norm=model.field_norm, dip_deg=model.dip_deg, mag_noise=noise,
-                   gyro_scale_error=gyro_scale_error, gyro_error_var=error_var,
+                   gyro_scale_error=gyro_scale_error,
                    mag_latency_s=model.mag_latency_s if mag_latency else 0.0, gravity=gravity,
                    gyro_matrix=model.gyro_matrix if gyro_matrix else None,
                    calibration_uncertainty=model.calibration_uncertainty)
@@ -333,39 +311,6 @@ def fitted_scale_error(model, gyro_matrix: bool) -> float:
         return DEFAULT_GYRO_SCALE_ERROR
     with_matrix, as_read = fitted
     return math.hypot(DEFAULT_GYRO_SCALE_ERROR, with_matrix if gyro_matrix and model.gyro_matrix is not None else as_read)
-
-
-def fitted_error_var(model, gyro_matrix: bool) -> tuple | None:
-    """The per-entry variance of the gyro's matrix error a calibration's gyro-aided fit leaves
-    (``model.gyro_error_var``: with ``gyro_matrix`` applied, or the gyro as read) plus
-    :data:`DEFAULT_GYRO_SCALE_ERROR` squared on every entry; None when the file has no fit (the filter then takes the
-    default on every entry: the same noise).
-
-    The default on every entry is the prior of what the fit did not see and of what its model leaves out (entries
-    correlated, an installation's turn, the attitude's own error in turning the covariance to the world): with equal
-    independent entries the rate error's covariance is ``default^2 |w|^2`` about every axis, so the isotropic part
-    stays and the fit's entries add where the turn puts them.  Per axis and averaged over rate directions this is
-    what :func:`fitted_scale_error` puts on every axis, less two thirds of the fit's share: a scale error ``s I``
-    adds ``s^2 w^2`` along the turn only, where the isotropic model added it on all three axes.
-
-    Parameters
-    ----------
-    model : compass.model.SensorModel
-    gyro_matrix : bool
-        The fitted ``model.gyro_matrix`` corrects each gyro sample (``--gyro-matrix``).
-
-    Returns
-    -------
-    tuple of 3 tuples of 3 floats, or None
-        Variances, dimensionless (:attr:`FilterConfig.gyro_error_var`).
-    """
-    fitted = model.gyro_error_var
-    if fitted is None:
-        return None
-    with_matrix, as_read = fitted
-    var = DEFAULT_GYRO_SCALE_ERROR**2 + np.asarray(with_matrix if gyro_matrix and model.gyro_matrix is not None
-                                                   else as_read, dtype=float)
-    return tuple(tuple(float(v) for v in row) for row in var)
 
 
 @dataclass(frozen=True)
@@ -400,8 +345,6 @@ class FilterCoefficients:
         Heading variance added when the gate adopts a new reference, rad^2.
     scale_var : float
         ``gyro_scale_error^2`` times its correlation time, s.
-    rate_error_var : tuple of 9 floats, or None
-        :attr:`FilterConfig.gyro_error_var` row-major times the correlation time, s; None: ``scale_var`` on every entry.
     attenuation2 : float
         The inertial low-pass's attenuation of motion at the motion time scale, squared.
     """
@@ -420,7 +363,6 @@ class FilterCoefficients:
     adopt_var: float
     scale_var: float
     attenuation2: float
-    rate_error_var: tuple | None = None
 
     @classmethod
     def from_config(cls, config: FilterConfig) -> "FilterCoefficients":
@@ -438,9 +380,7 @@ class FilterCoefficients:
             adopt_var=math.radians(3.0 * config.heading_tolerance_deg) ** 2,
             scale_var=config.gyro_scale_error**2 * _SCALE_CORRELATION_S,
             attenuation2=_attenuation(config.motion_time_s / (2.0 * math.pi * config.accel_time_constant_s),
-                                      config.accel_lowpass_order) ** 2,
-            rate_error_var=None if config.gyro_error_var is None else
-            tuple(v * _SCALE_CORRELATION_S for row in config.gyro_error_var for v in row))
+                                      config.accel_lowpass_order) ** 2)
 
 
 def _attenuation(ratio: float, order: int) -> float:
