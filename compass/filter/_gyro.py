@@ -297,8 +297,7 @@ class GyroFilter(AttitudeFilter):
         if dt > 0.0 and s.band is not None:
             (lx, ly, lz), s.acc_lp_age_s, s.residual_var = s.band.step(
                 dt, -math.expm1(-dt / cfg.accel_time_constant_s), self._butterworth(dt),
-                -math.expm1(-dt / cfg.motion_time_s), (ax, ay, az), g, s.since_start_s,
-                (s.matrix[6], s.matrix[7], s.matrix[8]))
+                -math.expm1(-dt / cfg.motion_time_s), (ax, ay, az), g, s.since_start_s)
             s.acc_lp = (lx, ly, lz)
             lp_norm = math.sqrt(lx * lx + ly * ly + lz * lz)
         elif dt > 0.0:

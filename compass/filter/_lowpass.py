@@ -14,14 +14,12 @@ sees it.  The estimate used here is the low-pass applied once more to what it le
 ``q = H r = H (1 - H) f``: no gravity (zero DC gain), and ``|H (1 - H)| -> |H|`` above the cut-off for both
 orders (the leak itself), ``|1 - H|`` times it below (first order ``w tau / sqrt(1 + (w tau)^2)``, Butterworth
 1 at ``w tau = 1``).  It replaces the single-frequency estimate ``|r| tau_v / (2 pi tau)`` (right only for
-motion at the period ``tau_v``: session 10 measured it 1.2-4x off on BROAD).  Only the part of ``q`` across the
-filter's up tilts the direction (the part along it changes the norm only), so each tilt row's variance is the
-moving average over ``motion_time_s`` of ``|q_h|^2 / (2 g^2)``.  The gyro's drift over the low-pass's memory
-passes ``H (1 - H)`` too, and is counted as the error it is.
+motion at the period ``tau_v``: session 10 measured it 1.2-4x off on BROAD).  The gyro's drift over the
+low-pass's memory passes ``H (1 - H)`` too, and is counted as the error it is.
 
 Both low-passes see the same motion, so their leaks are correlated: the blend ``w l1 + (1 - w) l2`` leaks
 ``w H1 a + (1 - w) H2 a``, whose variance ``w^2 V11 + (1 - w)^2 V22 + 2 w (1 - w) V12`` (``V`` the moving
-averages of ``q1h . q1h``, ``q2h . q2h``, ``q1h . q2h`` over ``2 g^2``) is least at
+averages of ``q1 . q1``, ``q2 . q2``, ``q1 . q2`` over ``motion_time_s``, plus each one's norm error) is least at
 ``w = (V22 - V12) / (V11 + V22 - 2 V12)`` (clipped to [0, 1]).  Per-sample arithmetic on Python floats.
 """
 
@@ -57,12 +55,6 @@ def _turn(e: tuple, v: tuple) -> tuple:
             e[2] * v[0] + e[5] * v[1] + e[8] * v[2])
 
 
-def _horizontal(v: tuple, up: tuple) -> tuple:
-    """``v`` less its component along the unit vector ``up``."""
-    c = v[0] * up[0] + v[1] * up[1] + v[2] * up[2]
-    return v[0] - c * up[0], v[1] - c * up[1], v[2] - c * up[2]
-
-
 def blend_weight(v11: float, v22: float, v12: float) -> float:
     """The first low-pass's weight in the least-variance blend of two correlated estimates (variances ``v11``,
     ``v22``, covariance ``v12``), clipped to [0, 1]; 1 when the two are indistinguishable."""
@@ -93,12 +85,10 @@ class BandLeak:
         The Butterworth run on the time since the start (output, rate): its content's mean age ``age2`` (s) is
         that time less the output.
     v11, v22, v12 : float
-        Moving averages over ``motion_time_s`` of ``|q1h|^2``, ``|q2h|^2`` and ``q1h . q2h`` over ``2 g^2``: the
-        variance (and covariance) of each tilt row's leak, (fraction of g)^2.
+        Moving averages over ``motion_time_s`` of ``n1^2 + |q1|^2 / g^2``, ``n2^2 + |q2|^2 / g^2`` and
+        ``n1 n2 + q1 . q2 / g^2`` (``n = |lp| / g - 1``, the norm error), (fraction of g)^2.
     weight : float
         The first-order low-pass's weight in the latest direction.
-    q1h, q2h : tuple of 3 floats
-        The latest leak estimates' horizontal parts (across the filter's up), accelerometer units.
     """
 
     first: bool
@@ -116,8 +106,6 @@ class BandLeak:
     v22: float = 0.0
     v12: float = 0.0
     weight: float = 1.0
-    q1h: tuple = _ZERO
-    q2h: tuple = _ZERO
 
     def restart(self, a: tuple, since_s: float) -> None:
         """New content: both low-passes at the reading ``a``, no leak, age 0 (``since_s``: time since the start)."""
@@ -145,17 +133,15 @@ class BandLeak:
             setattr(self, name, (vx - age * (vy * d2 - vz * d1), vy - age * (vz * d0 - vx * d2),
                                  vz - age * (vx * d1 - vy * d0)))
 
-    def step(self, dt: float, alpha: float, k2: tuple, beta: float, f: tuple, g: float, since_s: float,
-             up: tuple) -> tuple:
+    def step(self, dt: float, alpha: float, k2: tuple, beta: float, f: tuple, g: float, since_s: float) -> tuple:
         """One sample of ``dt`` s: ``alpha`` the first-order step's gain, ``k2`` the Butterworth's coefficients, ``beta`` the
-        variance averages' gain, ``f`` the specific force (H), ``g`` gravity, ``since_s`` the time since the start,
-        ``up`` the filter's up (world z) in H, a unit vector.
+        variance averages' gain, ``f`` the specific force (H), ``g`` gravity, ``since_s`` the time since the start.
 
         Returns
         -------
         tuple
             ``(direction, age_s, variance)``: the least-variance blend of the low-passes that run (3 floats,
-            accelerometer units), its content's mean age (s) and its leak variance per tilt row, (fraction of g)^2.
+            accelerometer units), its content's mean age (s) and its leak variance, (fraction of g)^2.
         """
         if self.first:
             l, q = self.lp1, self.q1
@@ -164,8 +150,8 @@ class BandLeak:
                  q[2] + alpha * (f[2] - l[2] - q[2]))
             self.lp1, self.q1 = l, q
             self.age1 = (1.0 - alpha) * (self.age1 + dt)
-            q = self.q1h = _horizontal(q, up)
-            self.v11 += beta * ((q[0] * q[0] + q[1] * q[1] + q[2] * q[2]) / (2.0 * g * g) - self.v11)
+            n1 = math.sqrt(l[0] * l[0] + l[1] * l[1] + l[2] * l[2]) / g - 1.0
+            self.v11 += beta * (n1 * n1 + (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]) / (g * g) - self.v11)
         if self.second:
             self.lp2, self.lp2_rate = _butterworth(k2, self.lp2, self.lp2_rate, f)
             l = self.lp2
@@ -174,8 +160,9 @@ class BandLeak:
             d = since_s - ty
             self.age_lp2 = (ty + (1.0 - f00) * d + f01 * tv, f11 * tv - f10 * d)
             self.age2 = since_s - self.age_lp2[0]
-            q = self.q2h = _horizontal(self.q2, up)
-            self.v22 += beta * ((q[0] * q[0] + q[1] * q[1] + q[2] * q[2]) / (2.0 * g * g) - self.v22)
+            q = self.q2
+            n2 = math.sqrt(l[0] * l[0] + l[1] * l[1] + l[2] * l[2]) / g - 1.0
+            self.v22 += beta * (n2 * n2 + (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]) / (g * g) - self.v22)
         if not self.second:
             self.weight = 1.0
             return self.lp1, self.age1, self.v11
@@ -183,8 +170,8 @@ class BandLeak:
         if not self.first:
             self.weight = 0.0
             return self.lp2, age2, self.v22
-        q1, q2 = self.q1h, self.q2h
-        self.v12 += beta * ((q1[0] * q2[0] + q1[1] * q2[1] + q1[2] * q2[2]) / (2.0 * g * g) - self.v12)
+        q1, q2 = self.q1, self.q2
+        self.v12 += beta * (n1 * n2 + (q1[0] * q2[0] + q1[1] * q2[1] + q1[2] * q2[2]) / (g * g) - self.v12)
         w = self.weight = blend_weight(self.v11, self.v22, self.v12)
         u = 1.0 - w
         l1, l2 = self.lp1, self.lp2

@@ -68,9 +68,8 @@ class FilterConfig:
     accel_leak : str
         How the motion acceleration each inertial low-pass leaves into the tilt is estimated (issue 22):
         ``"raw"`` the raw motion ``f - LP f`` attenuated by the low-pass's gain at the period ``motion_time_s``
-        (right for motion at that period only), plus the low-passed vector's norm error; ``"band"`` the low-pass
-        applied again to what it leaves, ``H (1 - H) f``, the leak itself above the cut-off at every period, its
-        part across the filter's up (what tilts the direction) per tilt row (:mod:`compass.filter._lowpass`);
+        (right for motion at that period only); ``"band"`` the low-pass applied again to what it leaves,
+        ``H (1 - H) f``, the leak itself above the cut-off at every period (:mod:`compass.filter._lowpass`);
         ``"band-blend"`` both low-passes run in the one inertial frame (``accel_lowpass_order`` unused), each
         one's leak measured so, and the tilt taken from their least-variance blend (their leaks correlated:
         they see the same motion).
