@@ -144,9 +144,6 @@ CANDIDATES = {  # name: (FilterConfig changes, hard-iron tracker on, noise from 
 
 TURN_VARIANTS = {  # issue 22's turn analysis, run only when named in --candidates (not leave-one-out candidates)
     "Butterworth 3 s": ({"accel_lowpass_order": 2, "accel_time_constant_s": 3.0}, True, False),
-    "leak measured in band": ({"accel_leak": "band"}, True, False),  # issue 22: H (1 - H) f, each period
-    "Butterworth leak measured in band": ({"accel_leak": "band", "accel_lowpass_order": 2}, True, False),
-    "both low-passes blended": ({"accel_leak": "band-blend"}, True, False),  # least-variance blend of the two
     "Butterworth 3 s and motion 1 s": ({"accel_lowpass_order": 2, "accel_time_constant_s": 3.0, "motion_time_s": 1.0},
                                     True, False),
     "gyro_scale_error 0.01": ({"gyro_scale_error": 0.01}, True, False),
@@ -687,8 +684,6 @@ def main(argv=None) -> int:
     parser.add_argument("--candidates", default="",
                         help="comma-separated candidate names to run (default: every leave-one-out candidate); "
                              f"also {', '.join(TURN_VARIANTS)}")
-    parser.add_argument("--peers", default="vqf,vqf offline,fusion,madgwick",
-                        help="comma-separated peers to run (default: all four; the first is the simulated section's)")
     parser.add_argument("--sim-only", action="store_true", help="only the simulated boards (no BROAD trial)")
     parser.add_argument("--sim-seeds", type=int, default=2, help="seeds per kind of simulated motion (0: no simulation)")
     parser.add_argument("--latency-check", action="store_true",
@@ -700,10 +695,6 @@ def main(argv=None) -> int:
         parser.error("--write-docs writes the --bands table only: use it with --bands")
 
     peers = {"vqf": vqf_online, "vqf offline": vqf_offline, "fusion": fusion, "madgwick": madgwick}
-    wanted_peers = [p.strip() for p in args.peers.split(",") if p.strip()]
-    if any(p not in peers for p in wanted_peers):
-        parser.error(f"--peers: unknown {[p for p in wanted_peers if p not in peers]} (known: {', '.join(peers)})")
-    peers = {p: peers[p] for p in wanted_peers}
     available = {}
     for name, method in peers.items():
         try:

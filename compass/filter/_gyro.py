@@ -14,7 +14,6 @@ from scipy.spatial.transform import Rotation
 from scipy.special import chdtri  # chi2.ppf(q, k) == chdtri(k, 1 - q), without importing scipy.stats (a second of start-up)
 
 from ._base import _P0_ATTITUDE, AttitudeFilter, exp_matrix, mat_mul
-from ._lowpass import BandLeak, butterworth_coefficients
 from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_heading, update_tilt
 from ._gate import GateState
 from ._place import PLACE_EVENT, PlaceDetector, PlaceState
@@ -99,10 +98,6 @@ class GyroState(PackedCovariance):
         its clock: the next sample tells which), else None.
     place : PlaceState
         The place detector's window (``FilterConfig.follow_place``).
-    band : BandLeak or None
-        With ``FilterConfig.accel_leak`` "band" or "band-blend": the low-passes and the leak each one leaves,
-        measured (:mod:`compass.filter._lowpass`); ``acc_lp``, ``acc_lp_age_s`` and ``residual_var`` are then
-        their blend's.
     """
 
     t_s: float | None
@@ -128,7 +123,6 @@ class GyroState(PackedCovariance):
     acc_lp_rate: tuple = (0.0, 0.0, 0.0)
     age_lp: tuple = (0.0, 0.0)
     acc_residual: tuple = (0.0, 0.0, 0.0)
-    band: BandLeak | None = None
 
 
 class GyroFilter(AttitudeFilter):
@@ -147,9 +141,6 @@ class GyroFilter(AttitudeFilter):
         self._x = [0.0] * 6  # the error state (eps, db), folded into the nominal state after each sample
         self._second_order = self.config.accel_lowpass_order == 2
         self._lp2_dt, self._lp2 = None, None  # the second-order low-pass's step and its coefficients
-        leak = self.config.accel_leak
-        self._band = None if leak == "raw" else (
-            (True, True) if leak == "band-blend" else (self.config.accel_lowpass_order == 1, self._second_order))
         self._place = PlaceDetector(self.config) if self.config.follow_place and self.config.gate else None
         # a decoupled field update injects its heading apart: one exponential of (eps_x, eps_y, eps_z) would
         # tilt by a second-order term eps_z * eps_tilt / 2
@@ -210,9 +201,6 @@ class GyroFilter(AttitudeFilter):
         s.acc_lp, s.acc_lp_rate, s.age_lp = a[:3], (0.0, 0.0, 0.0), (0.0, 0.0)
         s.acc_lp_age_s = 0.0
         s.residual_var, s.acc_residual = 0.0, (0.0, 0.0, 0.0)
-        if self._band is not None:
-            s.band = BandLeak(*self._band)
-            s.band.restart(a, 0.0)
         s.rest_gyro, s.rest_acc, s.rest_s = s.rate_rad_s, a[:3], 0.0
         s.since_start_s = 0.0
 
@@ -221,8 +209,6 @@ class GyroFilter(AttitudeFilter):
         if s.acc_lp is not None:
             s.acc_lp, s.acc_lp_age_s, s.residual_var, s.acc_residual = a[:3], 0.0, 0.0, (0.0, 0.0, 0.0)
             s.acc_lp_rate, s.age_lp = (0.0, 0.0, 0.0), (s.since_start_s, 0.0)  # the low-pass content is new: age 0
-            if s.band is not None:
-                s.band.restart(a, s.since_start_s)
         s.rest_acc, s.rest_s = a[:3], 0.0
 
     def _propagate(self, dt: float) -> None:
@@ -245,8 +231,6 @@ class GyroFilter(AttitudeFilter):
                 vx, vy, vz = s.acc_lp_rate
                 s.acc_lp_rate = (e[0] * vx + e[3] * vy + e[6] * vz, e[1] * vx + e[4] * vy + e[7] * vz,
                                  e[2] * vx + e[5] * vy + e[8] * vz)
-            if s.band is not None:
-                s.band.turn(e)
         # P <- F P F^T + Q, F = [[I, -R dt], [0, I]]
         c = self.coefficients
         q_att = (c.gyro_var + c.scale_var * (wx * wx + wy * wy + wz * wz)) * dt
@@ -294,13 +278,7 @@ class GyroFilter(AttitudeFilter):
         g = s.gravity
         ax, ay, az, _ = a
         lx, ly, lz = s.acc_lp
-        if dt > 0.0 and s.band is not None:
-            (lx, ly, lz), s.acc_lp_age_s, s.residual_var = s.band.step(
-                dt, -math.expm1(-dt / cfg.accel_time_constant_s), self._butterworth(dt),
-                -math.expm1(-dt / cfg.motion_time_s), (ax, ay, az), g, s.since_start_s)
-            s.acc_lp = (lx, ly, lz)
-            lp_norm = math.sqrt(lx * lx + ly * ly + lz * lz)
-        elif dt > 0.0:
+        if dt > 0.0:
             if self._second_order:
                 lx, ly, lz = self._low_pass2(dt, ax, ay, az)
             else:
@@ -347,7 +325,12 @@ class GyroFilter(AttitudeFilter):
         the time since the start gives the content's mean age (the ramp's lag).
         """
         s = self._s
-        f00, f01, f10, f11 = self._butterworth(dt)
+        if dt != self._lp2_dt:
+            sig = 1.0 / self.config.accel_time_constant_s
+            decay, c, sn = math.exp(-sig * dt), math.cos(sig * dt), math.sin(sig * dt)
+            self._lp2_dt = dt
+            self._lp2 = (decay * (c + sn), decay * sn / sig, -2.0 * sig * decay * sn, decay * (c - sn))
+        f00, f01, f10, f11 = self._lp2
         g0 = 1.0 - f00
         (lx, ly, lz), (vx, vy, vz) = s.acc_lp, s.acc_lp_rate
         dx, dy, dz = ax - lx, ay - ly, az - lz
@@ -359,13 +342,6 @@ class GyroFilter(AttitudeFilter):
         s.age_lp = (ty + g0 * d + f01 * tv, f11 * tv - f10 * d)
         s.acc_lp_age_s = since - s.age_lp[0]
         return lx, ly, lz
-
-    def _butterworth(self, dt: float) -> tuple:
-        """The second-order low-pass's coefficients for a step ``dt`` (:func:`._lowpass.butterworth_coefficients`),
-        kept while the step stays the same."""
-        if dt != self._lp2_dt:
-            self._lp2_dt, self._lp2 = dt, butterworth_coefficients(dt, self.config.accel_time_constant_s)
-        return self._lp2
 
     def _heading(self, t_s: float, dt: float, b) -> None:
         """Gate the field; when accepted, correct the heading (only) with its azimuth."""
@@ -459,6 +435,4 @@ class GyroFilter(AttitudeFilter):
                 (vx, vy, vz), age = s.acc_lp, s.acc_lp_age_s
                 s.acc_lp = (vx - age * (vy * d2 - vz * d1), vy - age * (vz * d0 - vx * d2),
                             vz - age * (vx * d1 - vy * d0))
-            if s.band is not None:
-                s.band.correct_bias((d0, d1, d2))
         x[:] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)

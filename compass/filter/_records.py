@@ -23,8 +23,6 @@ _REST_RATE_SIGMA = 1e-3  # residual true rate "at rest" (tremor, Earth's rotatio
 
 FIELD_UPDATES = ("kalman", "no-tilt", "heading", "heading-tilt")
 """``FilterConfig.field_update``'s values."""
-ACCEL_LEAKS = ("raw", "band", "band-blend")
-"""``FilterConfig.accel_leak``'s values."""
 
 
 @dataclass(frozen=True)
@@ -65,14 +63,6 @@ class FilterConfig:
         leaves of hand-held motion ``(v - LP v) / tau``, its velocity; 2 (a Butterworth, VQF's kind)
         leaves ``omega_c^2`` times its displacement.  2 gains in fast turns and loses in translation and
         heading on BROAD and on simulated boards (issue 22, docs/benchmarks.md): 1 is the default.
-    accel_leak : str
-        How the motion acceleration each inertial low-pass leaves into the tilt is estimated (issue 22):
-        ``"raw"`` the raw motion ``f - LP f`` attenuated by the low-pass's gain at the period ``motion_time_s``
-        (right for motion at that period only); ``"band"`` the low-pass applied again to what it leaves,
-        ``H (1 - H) f``, the leak itself above the cut-off at every period (:mod:`compass.filter._lowpass`);
-        ``"band-blend"`` both low-passes run in the one inertial frame (``accel_lowpass_order`` unused), each
-        one's leak measured so, and the tilt taken from their least-variance blend (their leaks correlated:
-        they see the same motion).
     motion_time_s : float
         Time scale on which the housing's velocity varies (hand-held motion), seconds: the
         correlation time of what the low-pass leaves of the motion acceleration.
@@ -182,7 +172,6 @@ class FilterConfig:
     gyro_scale_error: float = DEFAULT_GYRO_SCALE_ERROR
     accel_time_constant_s: float = 2.0
     accel_lowpass_order: int = 1
-    accel_leak: str = "raw"
     motion_time_s: float = 0.5
     field_error_time_s: float = 4.0
     mag_heading_sigma_deg: float = 1.0
@@ -228,8 +217,6 @@ class FilterConfig:
         if self.field_update not in FIELD_UPDATES:
             raise ValueError(f"FilterConfig.field_update must be one of {', '.join(FIELD_UPDATES)}, "
                              f"got {self.field_update!r}")
-        if self.accel_leak not in ACCEL_LEAKS:
-            raise ValueError(f"FilterConfig.accel_leak must be one of {', '.join(ACCEL_LEAKS)}, got {self.accel_leak!r}")
         if self.accel_lowpass_order not in (1, 2):
             raise ValueError(f"FilterConfig.accel_lowpass_order must be 1 or 2, got {self.accel_lowpass_order!r}")
         if not -90.0 < self.dip_deg < 90.0:
