@@ -2,6 +2,7 @@
 
 Run: ``python tools/bench_broad.py [DATA_DIR] [--quick] [--trials 01,32] [--cal CAL.json]`` (default
 data: ``../shared/data/broad``; ``--quick``: five trials, one per kind of motion).  Issue 22:
+``--peers vqf`` runs only the named peers (Madgwick's pure-Python loop is the slowest part of a run);
 ``--candidates A,B`` runs only those candidates (and the turn variants, printed per trial, never chosen);
 the simulated boards (``compass.sim.motion``, a BROAD-like and a low-cost IMU) follow the BROAD tables
 (``--sim-seeds N``, 0 for none; ``--sim-first-seed K``: seeds K to K + N - 1, to judge a change on seeds
@@ -684,6 +685,8 @@ def main(argv=None) -> int:
     parser.add_argument("--candidates", default="",
                         help="comma-separated candidate names to run (default: every leave-one-out candidate); "
                              f"also {', '.join(TURN_VARIANTS)}")
+    parser.add_argument("--peers", default="vqf,vqf offline,fusion,madgwick",
+                        help="comma-separated peers to run (default: all four; the first is the simulated section's)")
     parser.add_argument("--sim-only", action="store_true", help="only the simulated boards (no BROAD trial)")
     parser.add_argument("--sim-seeds", type=int, default=2, help="seeds per kind of simulated motion (0: no simulation)")
     parser.add_argument("--latency-check", action="store_true",
@@ -695,6 +698,10 @@ def main(argv=None) -> int:
         parser.error("--write-docs writes the --bands table only: use it with --bands")
 
     peers = {"vqf": vqf_online, "vqf offline": vqf_offline, "fusion": fusion, "madgwick": madgwick}
+    wanted_peers = [p.strip() for p in args.peers.split(",") if p.strip()]
+    if any(p not in peers for p in wanted_peers):
+        parser.error(f"--peers: unknown {[p for p in wanted_peers if p not in peers]} (known: {', '.join(peers)})")
+    peers = {p: peers[p] for p in wanted_peers}
     available = {}
     for name, method in peers.items():
         try:

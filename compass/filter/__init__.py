@@ -44,7 +44,9 @@ accelerometer than it has: still, the tilt converges in about a second; in viole
 correction slows to many seconds and the gyro carries the tilt.  ``accel_lowpass_order=2`` makes the
 low-pass a Butterworth with the same mean age (VQF's kind), which leaves ``omega_c^2`` times the
 displacement instead of the velocity over tau: better in fast turns, worse in translation and in
-heading on BROAD, so not the default (docs/benchmarks.md, inclination in turns).
+heading on BROAD, so not the default (docs/benchmarks.md, inclination in turns).  Reading each low-pass's
+leak at every period (``H (1 - H) f``) instead of at ``tau_v`` alone, and blending the two low-passes by
+least variance, were measured and not kept (docs/benchmarks.md, the leak each low-pass leaves).
 
 Magnetometer: its measurement row is the heading (as VQF's and x-io Fusion's): ``psi_meas = eps_z +
 n_psi``, ``psi_meas`` minus the azimuth (toward West) of the field rotated into the world by the
