@@ -65,6 +65,7 @@ import json
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections import Counter
 from pathlib import Path
@@ -96,12 +97,13 @@ class Truth(NamedTuple):
     directions: np.ndarray
     """(3, 3) unit sensing directions, rows, housing frame."""
     gains: np.ndarray
-    """(3,) output units per uT at zero field, each channel's mean over the session."""
+    """(3,) output units per uT at zero field, each channel's mean over the session (a gain drift's midpoint)."""
     dip_deg: float
     """The field's dip, degrees."""
     output: Callable[[np.ndarray], np.ndarray]
-    """Outputs for field components (..., 3) in uT without noise: the session's mean offsets and gains and the
-    case's static response (its cubic or knee), for a housing at rest after the session."""
+    """Outputs for field (..., 3) in uT, housing frame, without noise: the mean gains, the offsets the file refers
+    to (the settled ones after a warm-up, the midpoint's under a polynomial drift; the session's mean under the
+    outside cases' wanders), and the case's static response (its cubic or knee)."""
 
 
 def _static(case: str, x: np.ndarray) -> np.ndarray:
@@ -153,10 +155,11 @@ def session(seed: int, case: str):
     x = _static(case, b_h @ directions.T)  # uT along each channel
     g = gains * (1.0 + 0.004 * tau[:, None]) if case in ("gain drift", "four stacked") else gains
     offsets = 1.5 + np.zeros((flip.size, 3))
+    drift = np.zeros_like(offsets)  # the vocabulary's drifts: the file's offset is the settled one or the midpoint's
     if case == "warm-up" or stacked:
-        offsets = offsets + np.outer(np.exp(-(t_s - t_s[0]) / 400.0), [0.6, -0.4, 0.5]) * GAIN_V_PER_UT
+        drift = drift + np.outer(np.exp(-(t_s - t_s[0]) / 400.0), [0.6, -0.4, 0.5]) * GAIN_V_PER_UT
     if case == "cubic + quad drift":
-        offsets = offsets + np.outer(tau + 0.6 * tau**2, [0.3, -0.25, 0.2]) * GAIN_V_PER_UT
+        drift = drift + np.outer(tau + 0.6 * tau**2, [0.3, -0.25, 0.2]) * GAIN_V_PER_UT
     if case == "random walk":
         offsets = offsets + np.cumsum(rng.normal(scale=0.004, size=(flip.size, 3)), axis=0) * GAIN_V_PER_UT
     if case == "air-con cycle":
@@ -180,7 +183,7 @@ def session(seed: int, case: str):
         rate = np.gradient(x, axis=0)
         rate[np.r_[True, flip[1:] != flip[:-1]]] = 0.0
         offsets = offsets + 0.08 * np.sign(rate) * gains
-    out = offsets + g * x + rng.normal(size=x.shape) * gains * NOISE_UT
+    out = offsets + drift + g * x + rng.normal(size=x.shape) * gains * NOISE_UT
     if case == "spike bursts":
         for start in rng.choice(flip.size - 6, size=12, replace=False):
             length, channel = rng.integers(3, 7), rng.integers(3)
@@ -323,11 +326,19 @@ def main() -> None:
         procs = {"this": _spawn(None, cases, seeds)}
         if args.baseline != "none":
             procs["base"] = _spawn(export_tree(args.baseline, Path(folder)), cases, seeds)
-        for name, proc in procs.items():
-            for line in proc.stdout:
+
+        def collect(name):  # each worker's pipe read as it writes (a full pipe would stall the other)
+            for line in procs[name].stdout:
                 rows[name].append(json.loads(line))
                 if name == "this":
                     print(f"  {line.strip()[:110]}", file=sys.stderr, flush=True)
+
+        readers = [threading.Thread(target=collect, args=(name,)) for name in procs]
+        for reader in readers:
+            reader.start()
+        for reader in readers:
+            reader.join()
+        for name, proc in procs.items():
             if proc.wait() != 0:
                 raise SystemExit(f"the {name} worker failed (exit {proc.returncode})")
     print(f"bench_loop: {args.n} seeds from {args.seed} per case, 1440 samples, noise {NOISE_UT} uT; "
