@@ -47,7 +47,8 @@ channel's offset step (:func:`calibrate.diagnosis.robust.structure_in_time`), wa
 for its delta-BIC condition).  The second alternative, structure locked to the turn (each turn's gain of the
 turning signal, its lag and its harmonics 2-12, their move of the parameters propagated where they leave a
 white remainder), was developed on seeds 0..19 of rate memory, gain walk, four stacked, knee and cubic + quad
-drift (every case looked at) and judged on 20..39 and 40..59, held out from every choice.
+drift (every case looked at) and judged on 20..39 and 40..59, held out from every choice.  The gain and heading
+columns were checked on seeds 0..5 and first read, for the docs table, on 60..79.
 
 Run: ``python tools/bench_loop.py [--n 20] [--seed 0] [--cases A,B] [--baseline REF|none] [--write-docs]``
 (``--write-docs``: the table between ``<!-- table: bench_loop -->`` markers in docs/benchmarks.md).
