@@ -1,0 +1,50 @@
+"""tools/bench_loop.py's truth and runtime heading error: zero for the truth itself, a rigid turn read back exactly."""
+
+import importlib.util
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from compass.response import Response
+from tests._paths import ROOT
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("bench_loop", ROOT / "tools" / "bench_loop.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _as_result(directions, truth, offsets, gains):
+    """A stand-in for a calibration result: fitted directions and each channel's linear response."""
+    channels = [SimpleNamespace(response=Response(float(o), float(g))) for o, g in zip(offsets, gains)]
+    return SimpleNamespace(directions=np.asarray(directions), channels=channels)
+
+
+@pytest.mark.parametrize("case", ["clean", "gain walk"])
+def test_the_truth_read_back_has_no_heading_error(bench, case):
+    _, truth = bench.session(3, case)
+    offsets = truth.output(np.zeros((1, 3)))[0]  # a linear response: the output at zero field is the offset
+    result = _as_result(truth.directions, truth, offsets, truth.gains)
+    assert bench.heading_error_deg(result, truth) < 1e-9
+
+
+@pytest.mark.parametrize("turn_deg", [0.05, -0.3])
+def test_directions_turned_rigidly_about_the_vertical_turn_every_heading_by_that_angle(bench, turn_deg):
+    _, truth = bench.session(4, "clean")
+    offsets = truth.output(np.zeros((1, 3)))[0]
+    turned = Rotation.from_euler("z", turn_deg, degrees=True).apply(truth.directions)
+    result = _as_result(turned, truth, offsets, truth.gains)
+    assert bench.heading_error_deg(result, truth) == pytest.approx(abs(turn_deg), rel=1e-6)
+
+
+def test_a_clean_recording_reads_its_gains_and_heading_within_their_sigmas(bench):
+    row = bench.run_one("clean", 5)
+    assert not row["unexplained"]
+    # each ratio is a standard normal's size (3 gains) or a heading's RMS error over its sigma: 5 sigma bounds
+    assert np.all(np.abs(row["gain_ratio"]) < 5.0)
+    assert 0.0 < row["heading_err_deg"] < 5.0 * row["heading_sigma_deg"]
