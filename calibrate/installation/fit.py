@@ -26,12 +26,20 @@ from .diagnosis import UNEXPLAINED_WARNING, InstallationDiagnosis, diagnose_inst
 from .model import (N_CORE, InstallationFit, Rows, debiased, fit_installation, is_level, parameter_names,
                     prior_hard_iron)
 
-__all__ = ["InstallationCalibrator", "InstallationResult", "PARAMETERS"]
+__all__ = ["InstallationCalibrator", "InstallationResult", "NOT_SEEN_BY_SWING", "PARAMETERS"]
 
 _QUIET = 0.02  # rows whose |a| is within 2 % of g
 _MIN_ROWS = 30  # fewest quiet rows fitted
 _MIN_TURN_DEG = 90.0  # least turn of the field about the vertical fitted
 PARAMETERS = ("hard_iron_x", "hard_iron_y", "hard_iron_z") + tuple(f"soft_iron_{e}" for e in SOFT_IRON_ENTRIES)
+
+NOT_SEEN_BY_SWING = (
+    "not seen by a swing: the accelerometer disturbed slowly (a hand-held swing's sway, about 1 s and 2 % of g): it "
+    "tilts the up direction the fit takes as gravity, which moves the vertical hard iron several of its stated "
+    "sigmas, and neither the |B| rows (the accelerometer does not enter them) nor |a| (a tilt-like disturbance "
+    "leaves it at g) show it, so it may not be called unexplained and its sigmas are not widened; swing slowly on "
+    "a turntable, or pause at rest at each heading, where that matters")
+"""What a swing cannot see, in the report's words (docs/benchmarks.md, the swing's field wander section)."""
 
 _WORDS = {
     "hard_iron_x": "the hard iron along X",
@@ -219,6 +227,8 @@ class InstallationResult(CalibrationResult):
             lines.append(f"  deviation card, bench model only: {self.card_before.line()}")
             if self.card_after is not None:
                 lines.append(f"  deviation card, installed:        {self.card_after.line()}")
+        if self.kind == "swing":
+            lines.append(f"  {NOT_SEEN_BY_SWING}")
         tail = [f"  {e['name']}: the hard iron above holds at "
                 + ", ".join(f"{k} {v:.6g}" for k, v in e["reference"].items()) + " (the runtime uses it there)"
                 for e in self.diagnosis.effects]

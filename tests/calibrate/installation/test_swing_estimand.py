@@ -49,7 +49,34 @@ def test_small_swing_hard_iron_error_over_sigma_is_honest():
         result, inst, _ = _swing(seed, 5.0, 1.0, 2000)
         ratios.append((result.hard_iron_ut - inst.hard_iron_ut) / result.hard_iron_sigma_ut)
     ratios = np.array(ratios)
-    # after the correction the stated sigma is a little conservative (0.77 on these seeds, 0.79 at +-10 deg):
-    # the lower edge is 0.7, not the 0.8 aimed at (docs/benchmarks.md)
+    # after the correction these seeds read 0.77 (0.79 at +-10 deg): the statistic's spread over designs, not an
+    # over-stated sigma (the next test; docs/benchmarks.md, "The clean swing's 0.76"), so the lower edge is 0.7
     assert 0.7 <= np.sqrt(np.mean(ratios**2)) <= 1.25
     assert abs(ratios[:, 2].mean()) < 3.0 / np.sqrt(len(ratios))  # no bias along the vertical, to 3 s.e.
+
+
+def test_clean_swing_sigma_is_the_spread_of_its_error_over_redrawn_noise():
+    # one design (seed 0's sensor, product and path, +-10 deg, 1000 rows), its noise drawn afresh each time: the
+    # stated sigma of each hard-iron component against the error's spread over the draws.  The benchmark's 0.76
+    # on seeds 0-19 is its spread over designs and draws (docs/benchmarks.md, "The clean swing's 0.76"); here
+    # the sigma itself is judged.  48 draws x 3 components: the pooled RMS of err/sig to about +-7 %.
+    truth = simulate_fourflip(seed=0).truth
+    bench = from_dict(model_to_dict(true_model(truth)) | {"format": "compass-calibration/1", "model": "channels"})
+    inst = random_installation(500)
+    sim = simulate_installation(truth | {"noise_ut": 0.0}, inst, kind="swing", n=1000, max_tilt_deg=10.0, seed=700,
+                                accel_noise_g=0.0)
+    gains = np.asarray(truth["gains_per_ut"])
+    rng = np.random.default_rng(11)
+    ratios = []
+    for _ in range(48):
+        out = sim.outputs + gains * truth["noise_ut"] * rng.normal(size=sim.outputs.shape)
+        accel = sim.accel + 0.002 * rng.normal(size=sim.accel.shape)
+        rec = InstallationRecording("sim", sim.kind, sim.channels, out, accel, sim.t_s, None, None, False,
+                                    np.arange(len(sim.t_s)), {})
+        result = InstallationCalibrator(base=bench, accel_noise_g=0.002).fit(rec)
+        assert not result.diagnosis.block["unexplained"]  # the naive sigma is what is judged
+        ratios.append((result.hard_iron_ut - inst.hard_iron_ut) / result.hard_iron_sigma_ut)
+    ratios = np.array(ratios)
+    assert 0.8 <= np.sqrt(np.mean(ratios**2)) <= 1.2
+    assert np.all(np.sqrt(np.mean(ratios**2, axis=0)) >= 0.7)  # no one component over-stated by a third
+    assert np.all(np.sqrt(np.mean(ratios**2, axis=0)) <= 1.4)
