@@ -36,9 +36,11 @@ import bench_broad as bb  # noqa: E402
 from _doc_table import markdown_table, parse_args, publish  # noqa: E402
 from compass.filter import DEFAULT_GYRO_SCALE_ERROR  # noqa: E402
 
-METHODS = ("VQF", "before", "fitted", "fitted bound")
+METHODS = ("VQF", "before", "fitted", "fitted bound", "consider", "consider + noise")
 """The columns: VQF (online, its defaults), ours with the default 0.5 %, with the fitted scale error as the RMS over
-rate directions (``from_model``'s), and as the bound over every direction (:func:`bound_scale_error`, not kept)."""
+rate directions (``from_model``'s), as the bound over every direction (:func:`bound_scale_error`, not kept), and the
+fitted one as each entry's sigma of a Schmidt (consider) state for the scale and cross-axis error
+(``FilterConfig.gyro_scale_model`` "consider"), without and with the random walk kept beside it."""
 
 LOCKOUT_TRIALS = ("01", "02", "04", "06", "10", "15", "24")
 """The seven BROAD trials of the lock-out investigation (/work/brief/lockout.md)."""
@@ -70,10 +72,12 @@ def bound_scale_error(fitted) -> float:
 def _changes(method: str, scale: dict) -> dict | None:
     """The FilterConfig changes of a column (None: VQF); the default scale error left out (the same filter)."""
     value = {"before": DEFAULT_GYRO_SCALE_ERROR, "fitted": scale.get("rms"),
-             "fitted bound": scale.get("bound")}.get(method)
-    if method not in ("before", "fitted", "fitted bound"):
+             "fitted bound": scale.get("bound")}.get(method, scale.get("rms"))
+    if method == "VQF":
         return None
-    return {} if value == DEFAULT_GYRO_SCALE_ERROR else {"gyro_scale_error": value}
+    changes = {} if value == DEFAULT_GYRO_SCALE_ERROR else {"gyro_scale_error": value}
+    model = {"consider": "consider", "consider + noise": "consider+noise"}.get(method)
+    return changes if model is None else changes | {"gyro_scale_model": model}
 
 
 def scored(trial, scale: dict) -> dict[str, tuple[float, float, float]]:
