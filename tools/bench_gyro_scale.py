@@ -1,7 +1,8 @@
 """The gyro's scale error on low-cost boards (issue 22): the filter before (main's defaults: 0.5 % on every board),
 with the scale error its calibration's gyro-aided fit says as the RMS over rate directions (``||E||_F / sqrt 3``,
 ``FilterConfig.from_model``'s) and as the bound over every direction (largest singular value and worst sigma column:
-tried, not kept), beside VQF, in one run.
+tried, not kept), and as the prior of a Schmidt (consider) state for the scale and cross-axis error
+(``FilterConfig.gyro_scale_model`` "consider", without and with the random walk: issue 22), beside VQF, in one run.
 
 Run: ``python tools/bench_gyro_scale.py [--dev-seeds 11,12] [--seeds 13-20] [--levels 0,1,3,5] [--aniso 5]
 [--broad 01,02,...]`` (``--broad all``: every trial; ``--broad none``: no BROAD; ``--levels ''``: no isotropic

@@ -1,7 +1,35 @@
 """The gyro filter: a multiplicative (error-state) Kalman filter with gyro-bias states.
 
 The per-sample path is closed-form arithmetic on Python floats (:mod:`._kalman` for the
-covariance): no generic filterpy call, no numpy array and no Rotation object per sample.  The model is in :mod:`compass.filter`.
+covariance): no generic filterpy call, no numpy array (but the opt-in consider block below) and no Rotation object per
+sample.  The model is in :mod:`compass.filter`.
+
+**The gyro's scale error as a consider state** (``FilterConfig.gyro_scale_model`` "consider"; issue 22).  The gyro
+reads ``w_g = (I + E) w + b + n`` with ``E`` its scale and cross-axis error (constant over a run).  The filter turns
+by ``w = w_g - b_hat``, so the true rate is ``w - db - E w`` to first order and the attitude error obeys
+
+.. math:: \\epsilon_{k+1} = \\epsilon_k - R\\,(\\delta b + E\\,w)\\,\\Delta t, \\qquad
+          E\\,w = W c, \\quad W = I_3 \\otimes w^T, \\quad c = \\operatorname{vec}_{row} E .
+
+With ``c`` appended to ``x = (eps, db)`` the transition is ``F = [[F_x, B], [0, I]]``, ``B = [-R W dt; 0]`` (6 x 9):
+
+.. math:: P_{xx} \\leftarrow F_x P_{xx} F_x^T + Q + F_x P_{xc} B^T + B P_{cx} F_x^T + B P_{cc} B^T, \\qquad
+          P_{xc} \\leftarrow F_x P_{xc} + B P_{cc}, \\qquad P_{cc} \\leftarrow P_{cc} .
+
+No measurement sees ``E`` (``H = [H_x, 0]``: the tilt, heading and rest rows read ``eps`` and ``db`` only), so the
+innovation's variance and ``K_x`` are the 6-state filter's, and Schmidt's filter sets ``K_c = 0``: ``P_xx`` updates as
+before, ``P_xc <- (I - K_x H_x) P_xc`` (the x-rows of the full-state Joseph update for any ``K_x``, the heading's
+decoupled gain included), ``P_cc`` is the prior for ever.  For a turn about one axis, ``P_xc``'s attitude rows are
+``-sum_k R_k W dt P_cc``: a spin of ``theta`` about the vertical with the z scale factor's variance ``s^2`` gives
+the heading variance ``s^2 theta^2`` (the error ``s theta`` is coherent: the random walk of density
+``s^2 |w|^2 tau_s`` gives ``s^2 |w| theta tau_s``, too small by ``sqrt(T / tau_s)`` after ``T`` seconds), and a turn
+back by ``theta`` cancels it, where the random walk keeps growing.  The prior ``P_cc``: diagonal, the scale factors
+(``E_ii``) ``gyro_scale_error^2`` (the board's one number, ``s`` for ``E = s I``), the cross-axis entries the default
+prior ``DEFAULT_GYRO_SCALE_ERROR^2`` (the file keeps one number, not the fit's nine).  Neglected: ``E``'s share of
+the inertial low-pass's turn error (the tilt row's ``H_c``, of order ``E`` times the angle turned over the
+low-pass's age, like the bias's ``age`` term); it enters as the low-pass's residual.  What is not ``E`` and stays
+white: the rate noise ``sigma_g``, and ("consider+noise") the random walk for what a constant ``E`` does not explain
+(a scale factor that moves with temperature or rate, the g-sensitivity, the attitude error in ``R``).
 """
 
 from __future__ import annotations

@@ -286,9 +286,8 @@ def predict_consider(p: tuple, cross: np.ndarray, r: tuple, w: tuple, dt: float,
         ``F P_xx F^T + Q + F P_xc B^T + B P_cx F^T + B P_cc B^T`` with ``B = [-R W dt; 0]``,
         ``W = I_3 kron w^T`` (3 x 9, ``E w = W c``): the attitude rows gain, the bias block is unchanged.
     """
-    rm = np.reshape(r, (3, 3))
-    b = np.kron(np.eye(3), np.reshape(w, (1, 3)))  # W
-    b = rm @ b * (-dt)
+    rm = np.array(r).reshape(3, 3)
+    b = np.multiply.outer(rm * -dt, w).reshape(3, 9)  # B = -R W dt: B[i, 3 k + j] = -R_ik w_j dt
     ya = cross[:3] - dt * (rm @ cross[3:])  # (F P_xc)'s attitude rows; its bias rows are P_xc's
     s = ya @ b.T
     bv = b * var_c  # B P_cc
