@@ -208,6 +208,7 @@ def _seeds(text: str) -> list[int]:
 
 
 def main(argv=None) -> int:
+    global METHODS  # --methods: the columns of this run
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--dev-seeds", default="11,12", help="the seeds the change was developed on")
     parser.add_argument("--seeds", default="13-20", help="seeds it was not developed on ('' for none)")
@@ -215,8 +216,10 @@ def main(argv=None) -> int:
     parser.add_argument("--aniso", default="", help="z-axis-only gyro scale errors of the simulated boards, %%")
     parser.add_argument("--broad", default=",".join(LOCKOUT_TRIALS), help="BROAD trial numbers, 'all' or 'none'")
     parser.add_argument("--kinds", default="", help="comma-separated compass.sim.motion kinds (default: every one)")
+    parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated columns (default: every one)")
     parser.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "broad"))
     args = parse_args(parser, argv)
+    METHODS = tuple(m for m in METHODS if m in args.methods.split(","))
     kinds = [k for k in args.kinds.split(",") if k]
     boards = (("", [float(v) for v in args.levels.split(",") if v]),
               ("_aniso", [f"z{float(v):g}" for v in args.aniso.split(",") if v]))
