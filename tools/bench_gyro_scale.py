@@ -1,11 +1,10 @@
 """The gyro's scale error on low-cost boards (issue 22): the filter before (main's defaults: 0.5 % on every board),
 with the scale error its calibration's gyro-aided fit says as the RMS over rate directions (``||E||_F / sqrt 3``,
 ``FilterConfig.from_model``'s) and as the bound over every direction (largest singular value and worst sigma column:
-tried, not kept), and as the prior of a Schmidt (consider) state for the scale and cross-axis error
-(``FilterConfig.gyro_scale_model`` "consider", without and with the random walk: issue 22), beside VQF, in one run.
+tried, not kept), beside VQF, in one run.
 
 Run: ``python tools/bench_gyro_scale.py [--dev-seeds 11,12] [--seeds 13-20] [--levels 0,1,3,5] [--aniso 5]
-[--broad 01,02,...]`` (``--broad all``: every trial; ``--broad none``: no BROAD; ``--levels ''``: no isotropic
+[--broad 01,02,...] [--methods VQF,fitted]`` (``--broad all``: every trial; ``--broad none``: no BROAD; ``--levels ''``: no isotropic
 boards; ``--aniso L``: boards whose z axis alone reads L % high; ``--write-docs``: the tables into docs/benchmarks.md).
 
 Simulated boards: every :mod:`compass.sim.motion` kind, 60 s, the BROAD-like board of ``tools/bench_broad.py``
@@ -37,11 +36,9 @@ import bench_broad as bb  # noqa: E402
 from _doc_table import markdown_table, parse_args, publish  # noqa: E402
 from compass.filter import DEFAULT_GYRO_SCALE_ERROR  # noqa: E402
 
-METHODS = ("VQF", "before", "fitted", "fitted bound", "consider", "consider + noise")
+METHODS = ("VQF", "before", "fitted", "fitted bound")
 """The columns: VQF (online, its defaults), ours with the default 0.5 %, with the fitted scale error as the RMS over
-rate directions (``from_model``'s), as the bound over every direction (:func:`bound_scale_error`, not kept), and the
-fitted one as each entry's sigma of a Schmidt (consider) state for the scale and cross-axis error
-(``FilterConfig.gyro_scale_model`` "consider"), without and with the random walk kept beside it."""
+rate directions (``from_model``'s), and as the bound over every direction (:func:`bound_scale_error`, not kept)."""
 
 LOCKOUT_TRIALS = ("01", "02", "04", "06", "10", "15", "24")
 """The seven BROAD trials of the lock-out investigation (/work/brief/lockout.md)."""
@@ -73,12 +70,10 @@ def bound_scale_error(fitted) -> float:
 def _changes(method: str, scale: dict) -> dict | None:
     """The FilterConfig changes of a column (None: VQF); the default scale error left out (the same filter)."""
     value = {"before": DEFAULT_GYRO_SCALE_ERROR, "fitted": scale.get("rms"),
-             "fitted bound": scale.get("bound")}.get(method, scale.get("rms"))
-    if method == "VQF":
+             "fitted bound": scale.get("bound")}.get(method)
+    if method not in ("before", "fitted", "fitted bound"):
         return None
-    changes = {} if value == DEFAULT_GYRO_SCALE_ERROR else {"gyro_scale_error": value}
-    model = {"consider": "consider", "consider + noise": "consider+noise"}.get(method)
-    return changes if model is None else changes | {"gyro_scale_model": model}
+    return {} if value == DEFAULT_GYRO_SCALE_ERROR else {"gyro_scale_error": value}
 
 
 def scored(trial, scale: dict) -> dict[str, tuple[float, float, float]]:

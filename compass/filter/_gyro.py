@@ -1,35 +1,7 @@
 """The gyro filter: a multiplicative (error-state) Kalman filter with gyro-bias states.
 
 The per-sample path is closed-form arithmetic on Python floats (:mod:`._kalman` for the
-covariance): no generic filterpy call, no numpy array (but the opt-in consider block below) and no Rotation object per
-sample.  The model is in :mod:`compass.filter`.
-
-**The gyro's scale error as a consider state** (``FilterConfig.gyro_scale_model`` "consider"; issue 22).  The gyro
-reads ``w_g = (I + E) w + b + n`` with ``E`` its scale and cross-axis error (constant over a run).  The filter turns
-by ``w = w_g - b_hat``, so the true rate is ``w - db - E w`` to first order and the attitude error obeys
-
-.. math:: \\epsilon_{k+1} = \\epsilon_k - R\\,(\\delta b + E\\,w)\\,\\Delta t, \\qquad
-          E\\,w = W c, \\quad W = I_3 \\otimes w^T, \\quad c = \\operatorname{vec}_{row} E .
-
-With ``c`` appended to ``x = (eps, db)`` the transition is ``F = [[F_x, B], [0, I]]``, ``B = [-R W dt; 0]`` (6 x 9):
-
-.. math:: P_{xx} \\leftarrow F_x P_{xx} F_x^T + Q + F_x P_{xc} B^T + B P_{cx} F_x^T + B P_{cc} B^T, \\qquad
-          P_{xc} \\leftarrow F_x P_{xc} + B P_{cc}, \\qquad P_{cc} \\leftarrow P_{cc} .
-
-No measurement sees ``E`` (``H = [H_x, 0]``: the tilt, heading and rest rows read ``eps`` and ``db`` only), so the
-innovation's variance and ``K_x`` are the 6-state filter's, and Schmidt's filter sets ``K_c = 0``: ``P_xx`` updates as
-before, ``P_xc <- (I - K_x H_x) P_xc`` (the x-rows of the full-state Joseph update for any ``K_x``, the heading's
-decoupled gain included), ``P_cc`` is the prior for ever.  For a turn about one axis, ``P_xc``'s attitude rows are
-``-sum_k R_k W dt P_cc``: a spin of ``theta`` about the vertical with the z scale factor's variance ``s^2`` gives
-the heading variance ``s^2 theta^2`` (the error ``s theta`` is coherent: the random walk of density
-``s^2 |w|^2 tau_s`` gives ``s^2 |w| theta tau_s``, too small by ``sqrt(T / tau_s)`` after ``T`` seconds), and a turn
-back by ``theta`` cancels it, where the random walk keeps growing.  The prior ``P_cc``: diagonal, the scale factors
-(``E_ii``) ``gyro_scale_error^2`` (the board's one number, ``s`` for ``E = s I``), the cross-axis entries the default
-prior ``DEFAULT_GYRO_SCALE_ERROR^2`` (the file keeps one number, not the fit's nine).  Neglected: ``E``'s share of
-the inertial low-pass's turn error (the tilt row's ``H_c``, of order ``E`` times the angle turned over the
-low-pass's age, like the bias's ``age`` term); it enters as the low-pass's residual.  What is not ``E`` and stays
-white: the rate noise ``sigma_g``, and ("consider+noise") the random walk for what a constant ``E`` does not explain
-(a scale factor that moves with temperature or rate, the g-sensitivity, the attitude error in ``R``).
+covariance): no generic filterpy call, no numpy array and no Rotation object per sample.  The model is in :mod:`compass.filter`.
 """
 
 from __future__ import annotations
@@ -42,10 +14,10 @@ from scipy.spatial.transform import Rotation
 from scipy.special import chdtri  # chi2.ppf(q, k) == chdtri(k, 1 - q), without importing scipy.stats (a second of start-up)
 
 from ._base import _P0_ATTITUDE, AttitudeFilter, exp_matrix, mat_mul
-from ._kalman import PackedCovariance, pack, predict_consider, predict_gyro, update_axis, update_heading, update_tilt
+from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_heading, update_tilt
 from ._gate import GateState
 from ._place import PLACE_EVENT, PlaceDetector, PlaceState
-from ._records import _REST_RATE_SIGMA, _REST_TAU_S, DEFAULT_GYRO_SCALE_ERROR, Diagnostics, SkipCounts
+from ._records import _REST_RATE_SIGMA, _REST_TAU_S, Diagnostics, SkipCounts
 
 __all__ = ["GyroFilter", "GyroState"]
 
@@ -126,9 +98,6 @@ class GyroState(PackedCovariance):
         its clock: the next sample tells which), else None.
     place : PlaceState
         The place detector's window (``FilterConfig.follow_place``).
-    cross : ndarray of shape (6, 9), or None
-        Covariance of ``(eps, db)`` with the consider states ``vec E`` (the gyro's scale and cross-axis error,
-        row by row; ``FilterConfig.gyro_scale_model`` "consider"), None without them.
     """
 
     t_s: float | None
@@ -154,7 +123,6 @@ class GyroState(PackedCovariance):
     acc_lp_rate: tuple = (0.0, 0.0, 0.0)
     age_lp: tuple = (0.0, 0.0)
     acc_residual: tuple = (0.0, 0.0, 0.0)
-    cross: np.ndarray | None = None
 
 
 class GyroFilter(AttitudeFilter):
@@ -177,18 +145,6 @@ class GyroFilter(AttitudeFilter):
         # a decoupled field update injects its heading apart: one exponential of (eps_x, eps_y, eps_z) would
         # tilt by a second-order term eps_z * eps_tilt / 2
         self._split_injection = self.config.field_update != "kalman"
-        model = self.config.gyro_scale_model
-        if model not in ("noise", "consider", "consider+noise"):
-            raise ValueError(f"FilterConfig.gyro_scale_model must be one of noise, consider, consider+noise, got {model!r}")
-        self._scale_noise = model != "consider"
-        # each entry's prior: the scale factors (the diagonal) the board's one number (E = s I gives s), the cross-axis
-        # entries the default prior spread (the fit's one number is the scale factors' on every board measured)
-        self._scale_entries_var = np.where(np.eye(3, dtype=bool), self.config.gyro_scale_error**2,
-                                           DEFAULT_GYRO_SCALE_ERROR**2).ravel()
-        if model == "noise":
-            self._s.cross = None
-        elif self._s.cross is None or np.shape(self._s.cross) != (6, 9):
-            self._s.cross = np.zeros((6, 9))
 
     @property
     def at_rest(self) -> bool:
@@ -242,8 +198,6 @@ class GyroFilter(AttitudeFilter):
         p0, p1, p2 = _P0_ATTITUDE
         s.covariance = (p0, 0.0, 0.0, 0.0, 0.0, 0.0, p1, 0.0, 0.0, 0.0, 0.0, p2, 0.0, 0.0, 0.0) + s.covariance[15:]
         self._x[:] = [0.0] * 6
-        if s.cross is not None:  # the new attitude's error is the two-vector solution's, independent of E
-            s.cross[:3] = 0.0
         s.acc_lp, s.acc_lp_rate, s.age_lp = a[:3], (0.0, 0.0, 0.0), (0.0, 0.0)
         s.acc_lp_age_s = 0.0
         s.residual_var, s.acc_residual = 0.0, (0.0, 0.0, 0.0)
@@ -279,11 +233,8 @@ class GyroFilter(AttitudeFilter):
                                  e[2] * vx + e[5] * vy + e[8] * vz)
         # P <- F P F^T + Q, F = [[I, -R dt], [0, I]]
         c = self.coefficients
-        q_att = (c.gyro_var + c.scale_var * (wx * wx + wy * wy + wz * wz)) * dt if self._scale_noise else c.gyro_var * dt
-        cross = s.cross
+        q_att = (c.gyro_var + c.scale_var * (wx * wx + wy * wy + wz * wz)) * dt
         s.covariance = predict_gyro(s.covariance, m, dt, q_att, c.bias_walk_var * dt)
-        if cross is not None:
-            s.covariance = predict_consider(s.covariance, cross, m, (wx, wy, wz), dt, self._scale_entries_var)
 
     def _rest(self, dt: float, a) -> None:
         """VQF's rest detector; at rest the gyro reading measures its bias."""
@@ -312,9 +263,9 @@ class GyroFilter(AttitudeFilter):
             return
         var = self.coefficients.rest_rate_var_density / dt + _REST_RATE_SIGMA**2
         x = self._x
-        p = update_axis(p, x, 3, gx - bx, var, s.cross)
-        p = update_axis(p, x, 4, gy - by, var, s.cross)
-        s.covariance = update_axis(p, x, 5, gz - bz, var, s.cross)
+        p = update_axis(p, x, 3, gx - bx, var)
+        p = update_axis(p, x, 4, gy - by, var)
+        s.covariance = update_axis(p, x, 5, gz - bz, var)
 
     def _tilt(self, dt: float, a) -> bool:
         """Tilt from the specific force low-passed in the inertial frame (:mod:`compass.filter`).
@@ -362,7 +313,7 @@ class GyroFilter(AttitudeFilter):
         # error leaving it would otherwise pass for a turn the gyro did not read, i.e. for a bias
         hold = cfg.start_bias_hold and s.since_start_s < cfg.accel_time_constant_s
         s.covariance = update_tilt(s.covariance, self._x, (-age * m[3], -age * m[4], -age * m[5]), d0,
-                                   (age * m[0], age * m[1], age * m[2]), d1, var, hold, s.cross)
+                                   (age * m[0], age * m[1], age * m[2]), d1, var, hold)
         return True
 
     def _low_pass2(self, dt: float, ax: float, ay: float, az: float) -> tuple:
@@ -419,14 +370,14 @@ class GyroFilter(AttitudeFilter):
             if dt > 0.0:
                 var += self.gate.field_heading_var(s.gate) * 2.0 * self.config.field_error_time_s / dt
             if mode == "kalman":
-                s.covariance = update_axis(p, self._x, 2, innovation, var, s.cross)
+                s.covariance = update_axis(p, self._x, 2, innovation, var)
                 return
             tilt = (0.0, 0.0)
             if tilt_in_model:  # the azimuth moves by tan(dip) times the tilt about the field's horizontal direction
                 t, azimuth = math.tan(math.radians(s.gate.ref_dip_deg)), s.gate.ref_azimuth_rad
                 tilt = (t * math.cos(azimuth), t * math.sin(azimuth))
             s.covariance = update_heading(p, self._x, innovation, var, None if mode == "no-tilt" else (m[6], m[7], m[8]),
-                                          tilt, s.cross)
+                                          tilt)
 
     def _follow_place(self, dt: float, b) -> None:
         """The place detector's window; a new place's field becomes the reference (:mod:`compass.filter._place`)."""

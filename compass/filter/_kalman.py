@@ -15,7 +15,7 @@ from operator import itemgetter
 
 import numpy as np
 
-__all__ = ["pack", "unpack", "predict_gyro", "predict_consider", "update_axis", "update_heading", "update_tilt"]
+__all__ = ["pack", "unpack", "predict_gyro", "update_axis", "update_heading", "update_tilt"]
 
 _UPPER = [(i, j) for i in range(6) for j in range(i, 6)]
 _INDEX = {ij: k for k, ij in enumerate(_UPPER)} | {(j, i): k for k, (i, j) in enumerate(_UPPER)}
@@ -101,21 +101,18 @@ def predict_gyro(p: tuple, r: tuple, dt: float, q_att: float, q_bias: float) -> 
         p33 + q_bias, p34, p35, p44 + q_bias, p45, p55 + q_bias)
 
 
-def update_axis(p: tuple, x: list, i: int, z: float, var: float, cross: np.ndarray | None = None) -> tuple:
+def update_axis(p: tuple, x: list, i: int, z: float, var: float) -> tuple:
     """Scalar measurement ``z = x_true[i] + n`` with ``var n = var`` (a direct measurement of component ``i``).
 
     ``x`` (the error state accumulated so far this sample; the innovation is ``z - x[i]``) is
-    updated in place; the updated packed covariance is returned.  ``cross``: the 6 x 9 covariance of
-    ``(eps, db)`` with the consider states (:func:`predict_consider`), updated in place (``(I - K h) P_xc``).
+    updated in place; the updated packed covariance is returned.
     """
     c = _COLUMN[i](p)
-    if cross is not None:
-        _consider_downdate(cross, np.array(c) / (c[i] + var), cross[i].copy())
     return _downdate(p, x, c, c[i] + var, z - x[i])
 
 
 def update_heading(p: tuple, x: list, z: float, var: float, up_h: tuple | None = None,
-                   tilt: tuple = (0.0, 0.0), cross: np.ndarray | None = None) -> tuple:
+                   tilt: tuple = (0.0, 0.0)) -> tuple:
     """The gyro filter's heading measurement ``z = tilt . x_true[:2] + x_true[2] + n`` (``var n = var``),
     decoupled from the tilt.
 
@@ -135,7 +132,7 @@ def update_heading(p: tuple, x: list, z: float, var: float, up_h: tuple | None =
     definite whatever ``K``; the considered block is unchanged.
 
     ``x`` (the error state accumulated so far this sample; the innovation is ``z - h . x``) is
-    updated in place; the updated packed covariance is returned; ``cross`` as :func:`update_axis`'s.
+    updated in place; the updated packed covariance is returned.
     """
     t0, t1 = tilt
     c = tuple(a + t0 * b + t1 * d for a, b, d in zip(_COLUMN[2](p), _COLUMN[0](p), _COLUMN[1](p)))
@@ -150,13 +147,10 @@ def update_heading(p: tuple, x: list, z: float, var: float, up_h: tuple | None =
         k = (0.0, 0.0, c[2] * inv, kb * u0, kb * u1, kb * u2)
     for i in range(2, 6):
         x[i] += k[i] * nu
-    if cross is not None:
-        _consider_downdate(cross, np.array(k), t0 * cross[0] + t1 * cross[1] + cross[2])
     return tuple(p[n] - k[i] * c[j] - c[i] * k[j] + s * k[i] * k[j] for n, (i, j) in enumerate(_UPPER))
 
 
-def update_tilt(p: tuple, x: list, w: tuple, z0: float, v: tuple, z1: float, var: float, hold_bias: bool = False,
-                cross: np.ndarray | None = None) -> tuple:
+def update_tilt(p: tuple, x: list, w: tuple, z0: float, v: tuple, z1: float, var: float, hold_bias: bool = False) -> tuple:
     """The gyro filter's two tilt rows, one after the other: scalar measurements ``z = h . x_true + n``
     with ``h = (0, -1, 0, w)`` and ``z0``, then ``h = (1, 0, 0, v)`` and ``z1``, both with ``var n = var``.
 
@@ -167,7 +161,7 @@ def update_tilt(p: tuple, x: list, w: tuple, z0: float, v: tuple, z1: float, var
 
     ``hold_bias``: the bias states (3-5) are *considered*, not estimated (Schmidt-Kalman): their
     gains are zero, so neither they nor their variances change, while their uncertainty still widens
-    the tilt states' (``P - K_a (H P)`` with ``K_b = 0``).  ``cross`` as :func:`update_axis`'s.
+    the tilt states' (``P - K_a (H P)`` with ``K_b = 0``).
     """
     (p00, p01, p02, p03, p04, p05, p11, p12, p13, p14, p15, p22, p23, p24, p25,
      p33, p34, p35, p44, p45, p55) = p
@@ -198,8 +192,6 @@ def update_tilt(p: tuple, x: list, w: tuple, z0: float, v: tuple, z1: float, var
     p33 -= k3 * c3; p34 -= k3 * c4; p35 -= k3 * c5
     p44 -= k4 * c4; p45 -= k4 * c5
     p55 -= k5 * c5
-    if cross is not None:
-        _consider_downdate(cross, np.array((k0, k1, k2, k3, k4, k5)), h3 * cross[3] + h4 * cross[4] + h5 * cross[5] - cross[1])
     # h = (1, 0, 0, v)
     h3, h4, h5 = v
     c0 = p00 + p03 * h3 + p04 * h4 + p05 * h5
@@ -226,8 +218,6 @@ def update_tilt(p: tuple, x: list, w: tuple, z0: float, v: tuple, z1: float, var
     p33 -= k3 * c3; p34 -= k3 * c4; p35 -= k3 * c5
     p44 -= k4 * c4; p45 -= k4 * c5
     p55 -= k5 * c5
-    if cross is not None:
-        _consider_downdate(cross, np.array((k0, k1, k2, k3, k4, k5)), cross[0] + h3 * cross[3] + h4 * cross[4] + h5 * cross[5])
     x[:] = (x0, x1, x2, x3, x4, x5)
     return (p00, p01, p02, p03, p04, p05, p11, p12, p13, p14, p15, p22, p23, p24, p25, p33, p34, p35, p44, p45, p55)
 
@@ -251,49 +241,3 @@ def _downdate(p: tuple, x: list, c: tuple, s: float, nu: float) -> tuple:
             p33 - k3 * c3, p34 - k3 * c4, p35 - k3 * c5,
             p44 - k4 * c4, p45 - k4 * c5,
             p55 - k5 * c5)
-
-
-def _consider_downdate(cross: np.ndarray, k: np.ndarray, h_cross: np.ndarray) -> None:
-    """Schmidt's update of the cross-covariance with the consider states, in place: ``P_xc <- P_xc - K (h P_xc)``
-    (``h_cross = h P_xc``, the measurement's row times it, taken before the update; the consider states' gain is
-    zero, so ``P_cc`` is unchanged and this is the x-rows of the full-state update for any gain ``K``)."""
-    cross -= np.outer(k, h_cross)
-
-
-def predict_consider(p: tuple, cross: np.ndarray, r: tuple, w: tuple, dt: float, var_c: float) -> tuple:
-    """The consider states' share of the gyro filter's propagation: ``eps`` moves by ``-R (E w) dt`` with ``E``
-    the gyro's scale and cross-axis error, ``c = vec E`` row by row (``c[3 i + j] = E_ij``), constant, of
-    covariance ``diag(var_c)`` (never updated).
-
-    Parameters
-    ----------
-    p : tuple of 21 floats
-        ``F P_xx F^T + Q`` (:func:`predict_gyro`'s result for this step).
-    cross : ndarray, shape (6, 9)
-        ``P_xc`` before the step, updated in place to ``F P_xc + B P_cc``.
-    r : tuple of 9 floats
-        ``R`` row-major, the one :func:`predict_gyro` used.
-    w : tuple of 3 floats
-        The bias-corrected rate, rad/s, housing frame.
-    dt : float
-        Time step, s.
-    var_c : ndarray, shape (9,)
-        Variance of each entry of ``E``, row by row.
-
-    Returns
-    -------
-    tuple of 21 floats
-        ``F P_xx F^T + Q + F P_xc B^T + B P_cx F^T + B P_cc B^T`` with ``B = [-R W dt; 0]``,
-        ``W = I_3 kron w^T`` (3 x 9, ``E w = W c``): the attitude rows gain, the bias block is unchanged.
-    """
-    rm = np.array(r).reshape(3, 3)
-    b = np.multiply.outer(rm * -dt, w).reshape(3, 9)  # B = -R W dt: B[i, 3 k + j] = -R_ik w_j dt
-    ya = cross[:3] - dt * (rm @ cross[3:])  # (F P_xc)'s attitude rows; its bias rows are P_xc's
-    s = ya @ b.T
-    bv = b * var_c  # B P_cc
-    s = s + s.T + bv @ b.T
-    ab = b @ cross[3:].T  # B P_cb, the attitude-bias block's share
-    cross[:3] = ya + bv
-    return (p[0] + s[0, 0], p[1] + s[0, 1], p[2] + s[0, 2], p[3] + ab[0, 0], p[4] + ab[0, 1], p[5] + ab[0, 2],
-            p[6] + s[1, 1], p[7] + s[1, 2], p[8] + ab[1, 0], p[9] + ab[1, 1], p[10] + ab[1, 2],
-            p[11] + s[2, 2], p[12] + ab[2, 0], p[13] + ab[2, 1], p[14] + ab[2, 2]) + p[15:]

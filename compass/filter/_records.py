@@ -154,12 +154,6 @@ class FilterConfig:
         times the tilt about the field's horizontal direction) in the measurement model instead of
         white noise: the heading it teaches keeps its correlation with the tilt's error, and a later
         tilt correction carries the heading along.
-    gyro_scale_model : str
-        How the gyro filter counts the gyro's scale and cross-axis error ``E`` (issue 22; the model in
-        :mod:`compass.filter._gyro`): ``"noise"`` a random walk of density ``gyro_scale_error^2 |w|^2 tau_s``
-        about every axis; ``"consider"`` a Schmidt (consider) state ``vec E``, each entry of variance
-        ``gyro_scale_error^2``, never estimated: a turn one way grows the attitude's variance as the square of
-        the angle, a turn back cancels it; ``"consider+noise"`` both.
     start_bias_hold : bool
         The gyro filter holds its bias (does not estimate it from the tilt: a Schmidt update) for
         ``accel_time_constant_s`` after the start, while the inertial low-pass still carries its start
@@ -205,7 +199,6 @@ class FilterConfig:
     place_window_s: float = 4.0
     residual_in_band: bool = False
     field_update: str = "kalman"
-    gyro_scale_model: str = "noise"
     calibration_uncertainty: object = None
 
     def __post_init__(self):
