@@ -214,6 +214,9 @@ def main(argv=None) -> int:
     parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated columns (default: every one)")
     parser.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "broad"))
     args = parse_args(parser, argv)
+    unknown = set(args.methods.split(",")) - set(METHODS)
+    if unknown:
+        parser.error(f"--methods: unknown column(s) {', '.join(sorted(unknown))}; the columns: {', '.join(METHODS)}")
     METHODS = tuple(m for m in METHODS if m in args.methods.split(","))
     kinds = [k for k in args.kinds.split(",") if k]
     boards = (("", [float(v) for v in args.levels.split(",") if v]),
