@@ -4,7 +4,7 @@ with the scale error its calibration's gyro-aided fit says as the RMS over rate 
 tried, not kept), beside VQF, in one run.
 
 Run: ``python tools/bench_gyro_scale.py [--dev-seeds 11,12] [--seeds 13-20] [--levels 0,1,3,5] [--aniso 5]
-[--broad 01,02,...]`` (``--broad all``: every trial; ``--broad none``: no BROAD; ``--levels ''``: no isotropic
+[--broad 01,02,...] [--methods VQF,fitted]`` (``--broad all``: every trial; ``--broad none``: no BROAD; ``--levels ''``: no isotropic
 boards; ``--aniso L``: boards whose z axis alone reads L % high; ``--write-docs``: the tables into docs/benchmarks.md).
 
 Simulated boards: every :mod:`compass.sim.motion` kind, 60 s, the BROAD-like board of ``tools/bench_broad.py``
@@ -203,6 +203,7 @@ def _seeds(text: str) -> list[int]:
 
 
 def main(argv=None) -> int:
+    global METHODS  # --methods: the columns of this run
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--dev-seeds", default="11,12", help="the seeds the change was developed on")
     parser.add_argument("--seeds", default="13-20", help="seeds it was not developed on ('' for none)")
@@ -210,8 +211,13 @@ def main(argv=None) -> int:
     parser.add_argument("--aniso", default="", help="z-axis-only gyro scale errors of the simulated boards, %%")
     parser.add_argument("--broad", default=",".join(LOCKOUT_TRIALS), help="BROAD trial numbers, 'all' or 'none'")
     parser.add_argument("--kinds", default="", help="comma-separated compass.sim.motion kinds (default: every one)")
+    parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated columns (default: every one)")
     parser.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "broad"))
     args = parse_args(parser, argv)
+    unknown = set(args.methods.split(",")) - set(METHODS)
+    if unknown:
+        parser.error(f"--methods: unknown column(s) {', '.join(sorted(unknown))}; the columns: {', '.join(METHODS)}")
+    METHODS = tuple(m for m in METHODS if m in args.methods.split(","))
     kinds = [k for k in args.kinds.split(",") if k]
     boards = (("", [float(v) for v in args.levels.split(",") if v]),
               ("_aniso", [f"z{float(v):g}" for v in args.aniso.split(",") if v]))
