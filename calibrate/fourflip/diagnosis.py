@@ -29,6 +29,7 @@ import numpy as np
 from compass.io.fourflip import FourFlipRecording
 from compass.sim.bench import BenchSamples
 
+from ._unseen import platform_prior
 from ._mlfit import MLFit, fit_ml, score_effect, step_size_output, structured_covariance, with_covariance
 from ..diagnosis.evidence import DECISIVE_BIC, Proposal, gather_forms, is_unexplained, select_effects
 from ..diagnosis.report import format_diagnosis
@@ -37,7 +38,7 @@ from .effects import VARIANTS, FourFlipEffect
 from ..noise import DITHER_FRACTION, chi2_sf, dithered, lattice_step, noise_floor
 
 __all__ = ["DECISIVE_BIC", "UNEXPLAINED_WARNING", "diagnose_fourflip", "examine_residual", "format_diagnosis",
-           "residual_structure"]
+           "platform_unseen_warning", "residual_structure"]
 
 STRUCTURE_HARMONICS = 6
 UNEXPLAINED_WARNING = ("structure remains in the residual above the noise floor: the recording has an effect "
@@ -163,7 +164,45 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
     }
     if unexplained:
         current, diagnosis["unexplained_cost"] = _widen(current, noise, rec.channels)
+    current, unseen = _unseen_platform(current, noise, rec.channels)
+    if unseen is not None:
+        diagnosis["platform_field_unseen"] = unseen
     return base, current, diagnosis
+
+
+def platform_unseen_warning(unseen: dict) -> str:
+    """The report's words for the platform field's unseen parts (``diagnosis["platform_field_unseen"]``)."""
+    return (f"the platform field's x part (along the flip axis) and z part (vertical) are not seen by the bench: "
+            f"the offsets absorb the x part and the dip and gains the z part; each is taken as 0 +- "
+            f"{unseen['prior_sigma_fieldunit']:.3g} field units (from the fitted y part "
+            f"{unseen['fitted_y_fieldunit']:+.3g}: a magnetised part's field has no preferred direction), which "
+            f"adds {unseen['heading_deg']:.3g} deg to the heading sigma at runtime (in the file's sigmas)")
+
+
+def _unseen_platform(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict | None]:
+    """The fit with the platform field's unseen x and z parts in its covariance
+    (:func:`calibrate.fourflip._unseen.platform_prior`), and what they cost: each offset's sigma and a level
+    housing's heading sigma (:func:`calibrate.diagnosis.robust.heading_sigma_deg`) they add,
+    ``sqrt(with^2 - without^2)``; None when the platform field is not in the fit."""
+    wide, prior = platform_prior(fit, noise)
+    if prior is None:
+        return fit, None
+    c = len(channels)
+    offsets = [4 * k + 2 for k in range(c)]
+    off_sigma = [np.sqrt(np.diag(f.covariance)[offsets]) * f.physics.gains for f in (fit, wide)]
+    heading = [_heading_sigma(f) for f in (fit, wide)]
+    return wide, {
+        "fitted_y_fieldunit": prior["fitted_y_fieldunit"],
+        "prior_sigma_fieldunit": prior["prior_sigma_fieldunit"],
+        "offset_sigma_added": {name: float(v) for name, v in zip(channels, extra_sigma(off_sigma[1], off_sigma[0]))},
+        "heading_deg": float(extra_sigma(heading[1], heading[0])),
+        "heading_sigma_deg": {"without": heading[0], "with": heading[1]},
+        "method": ("the platform field's x part (along the flip axis: an offset a_x b_x in every flip) and z part "
+                   "(added to the Earth's vertical field: the dip and the gains) are not seen by the bench; each is "
+                   "taken as zero with the variance p_y^2 + s_y^2 of the fitted y part (a magnetised part's field has "
+                   "no preferred direction; one draw's estimate), its move of the parameters propagated into the "
+                   "file's sigmas"),
+    }
 
 
 def _widen(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:

@@ -12,7 +12,9 @@ Identifiability notes (what the bench cannot see):
   (IGRF/WMM dip at the site) reveals it.
 - ``platform_field``: its vertical component adds to the Earth's vertical field at every angle
   and flip (absorbed by the dip and the gains), and its component along the flip axis X adds
-  ``a_x b_x`` in every flip (absorbed by the offsets); only the y component is fitted.
+  ``a_x b_x`` in every flip (absorbed by the offsets); only the y component is fitted.  The other two
+  are not read as zero: each takes a stated prior carried into the file's sigmas
+  (:mod:`calibrate.fourflip._unseen`).
 - ``encoder_error``: a constant encoder offset is the field azimuth; harmonics 1..3 are fitted.
 - ``gain_drift`` and ``temperature``'s gain are confounded in the same way.
 - ``offset_drift`` and ``temperature`` are confounded when the temperature only rises with time;
@@ -162,7 +164,8 @@ class PlatformField(FourFlipEffect):
     """Field fixed to the turntable; only its y component (turntable frame) shows.
 
     Seen by a channel in flip k it adds ``(Rx(kappa) a) . b_p``: the x part is ``a_x b_x`` in every
-    flip (an offset) and the z part adds to the Earth's vertical field (the dip and gains).
+    flip (an offset) and the z part adds to the Earth's vertical field (the dip and gains); their prior
+    is :func:`calibrate.fourflip._unseen.platform_prior`.
     """
 
     def n_params(self, c):

@@ -1,0 +1,101 @@
+"""The platform field's unseen x and z parts: a stated prior carried into the file's sigmas."""
+
+import numpy as np
+import pytest
+
+from calibrate import calibrate_fourflip
+from calibrate.fourflip._mlfit import fit_ml
+from calibrate.fourflip._unseen import platform_prior, unseen_platform_sensitivity
+from calibrate.fourflip.effects import EFFECTS
+from calibrate.fourflip.fit import physics_from_harmonics
+from calibrate.noise import lattice_step, noise_floor
+from compass.io.fourflip import read_fourflip
+from compass.sim.bench import BenchSamples
+from compass.sim.fourflip import simulate_fourflip, write_fourflip
+
+C = 3
+OFFSETS = [4 * k + 2 for k in range(C)]
+GAINS = [4 * k + 3 for k in range(C)]
+DIRECTIONS = [4 * k + j for k in range(C) for j in (0, 1)]
+DIP = 4 * C
+
+
+def _fits(rec, effects):
+    samples = BenchSamples.from_recording(rec)
+    noise = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs, lattice_step(rec.outputs))
+    start = physics_from_harmonics(rec, None, 1.0)
+    return fit_ml(samples, rec.outputs, rec.channels, start, noise, effects=effects), noise
+
+
+@pytest.fixture(scope="module")
+def platform_fit(tmp_path_factory):
+    path, _ = write_fourflip(simulate_fourflip(seed=200, effects=("platform_field",)),
+                             tmp_path_factory.mktemp("plat") / "rec.csv")
+    rec = read_fourflip(path)
+    fit, noise = _fits(rec, (EFFECTS["platform_field"],))
+    return rec, fit, noise
+
+
+def test_the_x_part_moves_each_offset_by_a_x_and_nothing_else(platform_fit):
+    _, fit, noise = platform_fit
+    g = unseen_platform_sensitivity(fit, noise)
+    a_x = fit.physics.directions[:, 0]
+    # reference relation: offset_i (output units) += gain_i a_i,x b_x, b_x in the y parameter's units (field_norm);
+    # the offset parameter counts the starting gain
+    moved = a_x * fit.physics.field_norm * fit.physics.gains / fit.layout.start.gains
+    assert np.abs(g[OFFSETS, 0]) == pytest.approx(np.abs(moved), rel=1e-6)
+    assert np.ptp(np.sign(g[OFFSETS, 0] * a_x)) == 0  # one sign for every channel: the same b_x
+    others = np.setdiff1d(np.arange(g.shape[0]), OFFSETS)
+    assert np.max(np.abs(g[others, 0])) < 1e-6 * np.max(np.abs(a_x))
+
+
+def test_the_z_part_moves_the_dip_and_one_common_gain_by_the_vertical_fields_geometry(platform_fit):
+    _, fit, noise = platform_fit
+    g = unseen_platform_sensitivity(fit, noise)[:, 1]
+    dip = np.radians(fit.physics.dip_deg)
+    # a vertical b_z: ln|B| moves by sin(dip) b_z / |B| and the dip by cos(dip) b_z / |B| (b_z in units of |B|)
+    assert np.abs(g[GAINS]) == pytest.approx(np.full(C, abs(np.sin(dip))), rel=1e-3)
+    assert np.ptp(g[GAINS]) < 1e-6
+    assert abs(g[DIP]) == pytest.approx(abs(np.cos(dip)), rel=1e-3)
+    assert np.max(np.abs(g[OFFSETS + DIRECTIONS])) < 1e-6
+    # the fitted y part, in field units, keeps its output against the gains' common scale
+    i = fit._block_start(fit.effects[0])
+    assert g[i] == pytest.approx(-fit.x[i] * g[GAINS[0]], rel=1e-3)
+
+
+def test_the_offset_covariance_grows_by_a_a_t_times_the_prior_variance(platform_fit):
+    _, fit, noise = platform_fit
+    wide, unseen = platform_prior(fit, noise)
+    i = fit._block_start(fit.effects[0])
+    var = fit.x[i] ** 2 + fit.covariance[i, i]
+    a = fit.physics.directions[:, 0] * fit.physics.field_norm * fit.physics.gains / fit.layout.start.gains
+    added = wide.covariance[np.ix_(OFFSETS, OFFSETS)] - fit.covariance[np.ix_(OFFSETS, OFFSETS)]
+    assert added == pytest.approx(var * np.outer(a, a), rel=1e-5, abs=1e-12 * var)
+    assert unseen["prior_sigma_fieldunit"] == pytest.approx(np.sqrt(var) * fit.physics.field_norm, rel=1e-12)
+    # the directions do not move with b_x or b_z: their covariance is the fit's
+    assert wide.direction_covariance == pytest.approx(fit.direction_covariance, rel=1e-6, abs=1e-18)
+
+
+def test_a_fit_without_the_platform_field_keeps_its_sigmas(write_session):
+    rec, _ = write_session(seed=201)
+    fit, noise = _fits(rec, ())
+    same, unseen = platform_prior(fit, noise)
+    assert unseen is None and same is fit
+    result = calibrate_fourflip(rec, diagnose=True)
+    assert result.diagnosis["effects"] == [] and "platform_field_unseen" not in result.diagnosis
+    assert not any("not seen by the bench" in w for w in result.warnings)
+
+
+def test_the_report_says_the_x_and_z_parts_are_unseen_and_their_heading_cost(platform_fit):
+    rec, _, _ = platform_fit
+    result = calibrate_fourflip(rec, diagnose=True)
+    unseen = result.diagnosis["platform_field_unseen"]
+    assert unseen["heading_deg"] > 0
+    assert unseen["heading_sigma_deg"]["with"] > unseen["heading_sigma_deg"]["without"]
+    text = result.report()
+    assert "x part (along the flip axis) and z part (vertical) are not seen by the bench" in text
+    assert f"adds {unseen['heading_deg']:.3g} deg to the heading sigma" in text
+    # the prior from the y part as the file states it (whose sigma the z part widens a little: it moves p_y
+    # with the gains' common scale, by ~p_y sin(dip) b_z)
+    y = result.effects[0]["parameters"]["platform_field.y_fieldunit"]
+    assert unseen["prior_sigma_fieldunit"] == pytest.approx(np.hypot(y["value"], y["sigma"]), rel=1e-3)
