@@ -29,16 +29,16 @@ when the sigma is honest; over every recording, and over those called unexplaine
 are widened), each gain's error over its stated sigma (the truth: the session's mean gain), a level
 housing's runtime heading error from the calibration alone (every 5 degrees of heading, no noise, through
 each channel's fitted curve and the fitted directions) over the heading sigma the file's sigmas give
-(:func:`calibrate.diagnosis.robust.heading_sigma_deg`; both over every recording and over those called
-unexplained), that heading error in degrees where the loop says unexplained beside the part of the stated
-heading sigma the structure adds, and the median and worst time of ``calibrate_fourflip(diagnose=True)``.
+(this tree's :func:`calibrate.diagnosis.robust.heading_sigma_deg` for both versions, computed here from what
+each version's fit returns; both over every recording and over those called unexplained), that heading error
+in degrees where the loop says unexplained beside the part of the stated heading sigma the structure adds, and the median and worst time of ``calibrate_fourflip(diagnose=True)``.
 The gains and the heading check the locked path's move of the gains end to end, which only a test and a
 scratch probe did before.
 
-The baseline is ``git archive REF`` of this repository (default ``e2f2257``, main when this work
-started), run in a child process with that tree first on ``PYTHONPATH``; this tree runs in
+The baseline is ``git archive REF`` of this repository (default ``4242716``, main before the gain and
+heading columns), run in a child process with that tree first on ``PYTHONPATH``; this tree runs in
 another child (two at once, one BLAS thread each).  Seeds: ``--seed`` .. ``--seed + n - 1``; the
-loop's constants were chosen on seeds 1000 and up, the reported numbers use 0..19.  The unexplained
+loop's constants were chosen on seeds 1000 and up, the docs table uses 60..79.  The unexplained
 widening (a process in time, :func:`calibrate.diagnosis.robust.time_correlated_covariance`) was
 developed on seeds 0..29 of spike bursts, precessing axis, rate memory, random walk, air-con cycle
 and four stacked; ``pink offsets`` and ``gain walk`` were never used to choose it.  Its alternative, one
@@ -220,9 +220,14 @@ def heading_error_deg(result, truth: Truth, n_headings: int = N_HEADINGS) -> flo
 
 
 def run_one(case: str, seed: int) -> dict:
-    """Calibrate one recording with the diagnosis; what the table needs."""
+    """Calibrate one recording with the diagnosis; what the table needs.
+
+    Run in either version's child process, so it returns what the heading sigma is made of (the fitted
+    directions, their covariances, each channel's gain and its offset and gain sigmas, the dip) as plain
+    arrays, and :func:`with_heading_sigma` computes that sigma in the parent with this tree's formula for
+    both versions.  A sigma the fit left undefined (None: not finite) is ``nan`` here.
+    """
     from calibrate import calibrate_fourflip
-    from calibrate.diagnosis.robust import heading_sigma_deg
 
     rec, truth = session(seed, case)
     start, cpu = time.perf_counter(), time.process_time()
@@ -232,17 +237,32 @@ def run_one(case: str, seed: int) -> dict:
     err = np.degrees(np.arccos(np.clip(np.sum(result.directions * truth.directions, axis=1), -1, 1)))
     sigma = np.array([c.direction_sigma_deg for c in result.channels])
     gain = np.array([c.response.gain for c in result.channels])
-    gain_sigma = np.array([c.gain_sigma for c in result.channels])
+    gain_sigma = np.array([np.nan if c.gain_sigma is None else c.gain_sigma for c in result.channels])
+    offset_sigma = np.array([np.nan if c.offset_sigma is None else c.offset_sigma for c in result.channels])
     cost = d.get("unexplained_cost") or {}
     return {"case": case, "seed": seed, "effects": d["effects"], "unexplained": bool(d["unexplained"]),
             "ratio": (err / sigma).tolist(), "err_deg": err.tolist(), "sigma_deg": sigma.tolist(),
             "gain_ratio": ((gain - truth.gains) / gain_sigma).tolist(),
             "heading_err_deg": heading_error_deg(result, truth),
-            "heading_sigma_deg": heading_sigma_deg(
-                result.directions, np.stack([c.direction_covariance for c in result.channels]),
-                np.column_stack([[c.offset_sigma**2 for c in result.channels], gain_sigma**2]), gain,
-                result.dip_deg, FIELD_UT, N_HEADINGS),
+            "directions": result.directions.tolist(),
+            "direction_covariance": np.stack([c.direction_covariance for c in result.channels]).tolist(),
+            "gain": gain.tolist(), "gain_sigma": gain_sigma.tolist(), "offset_sigma": offset_sigma.tolist(),
+            "dip_deg": float(result.dip_deg),
             "heading_cost_deg": cost.get("heading_deg"), "time_s": wall, "cpu_s": cpu}
+
+
+def with_heading_sigma(row: dict) -> dict:
+    """``row`` (from :func:`run_one`, either version) with its heading sigma, deg, from this tree's formula.
+
+    :func:`calibrate.diagnosis.robust.heading_sigma_deg` on the row's directions, their covariances and each
+    channel's offset and gain variances (an undefined sigma, ``nan``, counts as zero there).
+    """
+    from calibrate.diagnosis.robust import heading_sigma_deg
+
+    response_var = np.column_stack([row["offset_sigma"], row["gain_sigma"]]) ** 2
+    sigma = heading_sigma_deg(np.array(row["directions"]), np.array(row["direction_covariance"]), response_var,
+                              np.array(row["gain"]), row["dip_deg"], FIELD_UT, N_HEADINGS)
+    return dict(row, heading_sigma_deg=sigma)
 
 
 def worker(cases, seeds) -> None:
@@ -256,7 +276,9 @@ def _spawn(tree: Path | None, cases, seeds) -> subprocess.Popen:
 
     cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", "--cases", ",".join(cases),
            "--seed", str(seeds[0]), "--n", str(len(seeds))]
-    env = tree_env(tree if tree is not None else Path(__file__).resolve().parents[1])
+    root = Path(__file__).resolve().parents[1]
+    env = tree_env(tree if tree is not None else root)
+    env["PYTHONPATH"] += os.pathsep + str(root)  # on the path already: _doc_table would put it first otherwise
     return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, text=True, cwd=tempfile.gettempdir())
 
 
@@ -270,17 +292,18 @@ def _summary(rows) -> dict:
     cpu = np.array([r["cpu_s"] for r in rows])
     heading = [r["heading_cost_deg"] for r in rows if r["heading_cost_deg"] is not None]
 
-    def rms(key, among):
-        values = [np.atleast_1d(r[key]) for r in among]
-        return float(np.sqrt(np.mean(np.concatenate(values) ** 2))) if values else None
+    def rms(key, among):  # values without a defined sigma (nan) left out; counted in no_gain_sigma
+        values = np.concatenate([np.atleast_1d(r[key]) for r in among]) if among else np.array([])
+        values = values[np.isfinite(values)]
+        return float(np.sqrt(np.mean(values**2))) if values.size else None
 
+    rows = [dict(r, heading_ratio=r["heading_err_deg"] / r["heading_sigma_deg"]) for r in rows]
     unexplained = [r for r in rows if r["unexplained"]]
-    for r in rows:
-        r["heading_ratio"] = r["heading_err_deg"] / r["heading_sigma_deg"]
     return {"gain": rms("gain_ratio", rows), "gain_unexplained": rms("gain_ratio", unexplained),
+            "no_gain_sigma": int(np.sum(~np.isfinite(np.concatenate([r["gain_ratio"] for r in rows])))),
             "heading_ratio": rms("heading_ratio", rows), "heading_ratio_unexplained": rms("heading_ratio", unexplained),
             "heading_err_unexplained": rms("heading_err_deg", unexplained),
-"named": f"{top} {count}/{len(rows)}", "unexplained": sum(r["unexplained"] for r in rows),
+            "named": f"{top} {count}/{len(rows)}", "unexplained": sum(r["unexplained"] for r in rows),
             "ratio": float(np.sqrt(np.mean(ratios**2))), "ratio_unexplained": flagged, "err": float(np.sqrt(np.mean(np.concatenate(
                 [r["err_deg"] for r in rows]) ** 2))), "median": float(np.median(times)), "worst": float(times.max()),
             "worst_cpu": float(cpu.max()),
@@ -309,7 +332,7 @@ def main() -> None:
     parser.add_argument("--n", type=int, default=20, help="seeds per case (default 20)")
     parser.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
     parser.add_argument("--cases", default=",".join(CASES), help="comma-separated subset of the cases")
-    parser.add_argument("--baseline", default="e2f2257", help="git ref of the baseline, or 'none'")
+    parser.add_argument("--baseline", default="4242716", help="git ref of the baseline, or 'none'")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = parse_args(parser)
     cases = [c for c in args.cases.split(",") if c]
@@ -330,7 +353,7 @@ def main() -> None:
 
         def collect(name):  # each worker's pipe read as it writes (a full pipe would stall the other)
             for line in procs[name].stdout:
-                rows[name].append(json.loads(line))
+                rows[name].append(with_heading_sigma(json.loads(line)))
                 if name == "this":
                     print(f"  {line.strip()[:110]}", file=sys.stderr, flush=True)
 
@@ -357,20 +380,23 @@ def main() -> None:
                 continue
             s = summary[name] = _summary(mine)
             cell = {key: "-" if s[key] is None else format(s[key], fmt) for key, fmt in (
-                ("heading", ".3f"), ("ratio_unexplained", ".2f"), ("gain_unexplained", ".2f"),
+                ("heading", ".3f"), ("ratio_unexplained", ".2f"), ("gain", ".2f"), ("gain_unexplained", ".2f"),
                 ("heading_ratio_unexplained", ".2f"), ("heading_err_unexplained", ".3f"))}
             print(f"{case if name == 'base' or args.baseline == 'none' else '':<20}{name:<9}{s['named'][:40]:<41}"
                   f"{s['unexplained']:>5}/{s['n']:<2}{s['ratio']:>8.2f}{cell['ratio_unexplained']:>8}{s['err']:>9.3f}"
-                  f"{s['gain']:>9.2f}{cell['gain_unexplained']:>8}{s['heading_ratio']:>8.2f}"
+                  f"{cell['gain']:>9}{cell['gain_unexplained']:>8}{s['heading_ratio']:>8.2f}"
                   f"{cell['heading_ratio_unexplained']:>8}{cell['heading']:>9}{cell['heading_err_unexplained']:>8}"
                   f"{s['median']:>9.2f}{s['worst']:>8.2f}{s['worst_cpu']:>7.2f}")
         table.append(_table_row(case, summary))
+        for name, s in summary.items():
+            if s["no_gain_sigma"]:
+                print(f"{'':<20}{name:<9}{s['no_gain_sigma']} gain(s) without a finite sigma, left out of gain e/s")
     print("\nerr/sig: RMS over channels and seeds of the direction error over the file's direction_sigma_deg "
           "(1: honest);\nunexpl. (after err/sig): the same over the recordings called unexplained (their sigmas widened).\n"
           "gain e/s: RMS of each gain's error (from the session's mean gain) over the file's gain sigma; unexpl.: "
           "over the recordings called unexplained.\nhdg e/s: RMS over recordings of a level housing's runtime heading "
           "error from the calibration alone (RMS over 72 headings, no noise)\nover the heading sigma the file's "
-          "sigmas give (calibrate.diagnosis.robust.heading_sigma_deg); unexpl.: over the recordings called "
+          "sigmas give (this tree's calibrate.diagnosis.robust.heading_sigma_deg for both versions); unexpl.: over the recordings called "
           "unexplained.\nhdg cost: median unexplained_cost.heading_deg (the stated part the structure adds) where the "
           "loop says unexplained;\nhdg err: RMS runtime heading error, deg, over the recordings called unexplained "
           "(what the unexplained fit costs in fact).\n"

@@ -176,10 +176,11 @@ On tools/bench_loop.py seeds 0-19 a gain walk went 0.48 -> 0.58 but a gain swing
 (``gain sine``, made to judge it) 0.85 -> 0.68, out of the band; the four-flip keeps the offsets alone.
 
 Why the offsets' process over-covers a gain walk (measured, not fixed).  On tools/bench_loop.py's ``gain walk``
-every recording the process model takes is over-covered about twice (err/sig 0.42, 0.59, 0.57 over its 6, 8 and
+every recording the process model takes is over-covered about twice (err/sig 0.42, 0.58, 0.57 over its 6, 8 and
 5 recordings on seeds 0-19, 20-39 and 40-59; stated sigmas 4.1-4.3 times the naive ones where the errors are
-1.8-2.0 times); the locked path, taken on 3 of the 22, errs the other way (0.99 over 2 recordings, 1.60 over 1;
-the gains 3.3 and 4.5 sigmas off on seeds 4 and 7), and the case's err/sig over unexplained recordings is whichever mix a seed set draws (0.58 on
+1.8-2.0 times); the locked path, taken on 3 of the 22, does not over-cover the directions (0.99 over 2
+recordings, 1.60 over 1: inside one recording's spread) but under-covers the gains (3.3 and 4.5 sigmas off on
+seeds 4 and 7), and the case's err/sig over unexplained recordings is whichever mix a seed set draws (0.58 on
 20-39, 0.83 on 40-59, where one locked recording lifts five at 0.57).  What the structure is: ``K_c g_c(t)
 x_c(t)``, the signal times the gain's wander.  Per turn ``x_c = m_ck + A_ck cos(phi + a_ck)``, the level ``m_ck``
 the field's component along the turn axis, which changes size and sign from flip to flip (zero for a channel

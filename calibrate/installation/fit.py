@@ -34,12 +34,13 @@ _MIN_TURN_DEG = 90.0  # least turn of the field about the vertical fitted
 PARAMETERS = ("hard_iron_x", "hard_iron_y", "hard_iron_z") + tuple(f"soft_iron_{e}" for e in SOFT_IRON_ENTRIES)
 
 NOT_SEEN_BY_SWING = (
-    "not seen by a swing: the accelerometer disturbed slowly (a hand-held swing's sway, about 1 s and 2 % of g): it "
-    "tilts the up direction the fit takes as gravity, which moves the vertical hard iron several of its stated "
-    "sigmas, and neither the |B| rows (the accelerometer does not enter them) nor |a| (a tilt-like disturbance "
-    "leaves it at g) show it, so it may not be called unexplained and its sigmas are not widened; swing slowly on "
-    "a turntable, or pause at rest at each heading, where that matters")
-"""What a swing cannot see, in the report's words (docs/benchmarks.md, the swing's field wander section)."""
+    "not seen by a swing: the accelerometer disturbed slowly (a hand-held swing's sway, about 1 s and 2 % of g):\n"
+    "    it tilts the up direction the fit takes as gravity, which moves the vertical hard iron several of its\n"
+    "    stated sigmas, and neither the |B| rows (the accelerometer does not enter them) nor |a| (a tilt-like\n"
+    "    disturbance leaves it at g) show it, so it might not be called unexplained and its sigmas are not\n"
+    "    widened; swing slowly on a turntable, or pause at rest at each heading, where that matters")
+"""What a swing cannot see, in the report's words, wrapped as the report prints it (docs/benchmarks.md, the swing's
+field wander section)."""
 
 _WORDS = {
     "hard_iron_x": "the hard iron along X",

@@ -49,8 +49,9 @@ def test_small_swing_hard_iron_error_over_sigma_is_honest():
         result, inst, _ = _swing(seed, 5.0, 1.0, 2000)
         ratios.append((result.hard_iron_ut - inst.hard_iron_ut) / result.hard_iron_sigma_ut)
     ratios = np.array(ratios)
-    # after the correction these seeds read 0.77 (0.79 at +-10 deg): the statistic's spread over designs, not an
-    # over-stated sigma (the next test; docs/benchmarks.md, "The clean swing's 0.76"), so the lower edge is 0.7
+    # after the correction these seeds read 0.77 (0.79 at +-10 deg), low as the benchmark's 0.76 is (the lowest
+    # 20-seed group of seeds 0-199, which read 0.91 together, unexplained); the sigma at a fixed design is honest
+    # (the next test; docs/benchmarks.md, "The clean swing's 0.76"), so the lower edge is 0.7
     assert 0.7 <= np.sqrt(np.mean(ratios**2)) <= 1.25
     assert abs(ratios[:, 2].mean()) < 3.0 / np.sqrt(len(ratios))  # no bias along the vertical, to 3 s.e.
 
@@ -58,8 +59,8 @@ def test_small_swing_hard_iron_error_over_sigma_is_honest():
 def test_clean_swing_sigma_is_the_spread_of_its_error_over_redrawn_noise():
     # one design (seed 0's sensor, product and path, +-10 deg, 1000 rows), its noise drawn afresh each time: the
     # stated sigma of each hard-iron component against the error's spread over the draws.  The benchmark's 0.76
-    # on seeds 0-19 is its spread over designs and draws (docs/benchmarks.md, "The clean swing's 0.76"); here
-    # the sigma itself is judged.  48 draws x 3 components: the pooled RMS of err/sig to about +-7 %.
+    # on seeds 0-19 is the lowest 20-seed group of a population at 0.91 (docs/benchmarks.md, "The clean swing's
+    # 0.76"); here the sigma itself is judged.  48 draws x 3 components: the pooled RMS of err/sig to about +-7 %.
     truth = simulate_fourflip(seed=0).truth
     bench = from_dict(model_to_dict(true_model(truth)) | {"format": "compass-calibration/1", "model": "channels"})
     inst = random_installation(500)
