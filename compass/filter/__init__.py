@@ -80,6 +80,8 @@ turns and slower when still.
 At **rest** (gyro and accelerometer steady within 2 deg/s and 0.05 g for 1.5 s and the gyro's
 low-passed rate below 2 deg/s, VQF's rest detector and bias bound) the gyro reads its bias: a
 direct bias measurement on every axis, so the heading does not drift while the field is rejected.
+A reading counts only once the rest has held ``rest_confirm_s`` (1 s) beyond it: the onset of a slow
+turn stays under the detector's thresholds until its 0.5 s low-pass catches up, and is not a bias.
 
 The **gate** (VQF's and Fusion's magnetic rejection): the field is used only while its magnitude
 and its dip against the filter's own up direction match a reference within tolerances, and (once

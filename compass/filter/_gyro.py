@@ -7,6 +7,7 @@ covariance): no generic filterpy call, no numpy array and no Rotation object per
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -83,6 +84,10 @@ class GyroState(PackedCovariance):
         The rest detector's low-passed gyro and accelerometer.
     rest_s : float
         How long the rest detector has held, s.
+    rest_pending : deque of tuples
+        The gyro readings at rest not yet confirmed (``(gx, gy, gz, dt)``, rad/s and s, oldest first): each
+        measures the bias once the rest has held ``FilterConfig.rest_confirm_s`` beyond it; dropped when the
+        rest ends.
     accel_bad_s : float
         How long the accelerometer has been out of range, s.
     steps : int
@@ -123,6 +128,7 @@ class GyroState(PackedCovariance):
     acc_lp_rate: tuple = (0.0, 0.0, 0.0)
     age_lp: tuple = (0.0, 0.0)
     acc_residual: tuple = (0.0, 0.0, 0.0)
+    rest_pending: deque = field(default_factory=deque)
 
 
 class GyroFilter(AttitudeFilter):
@@ -202,6 +208,7 @@ class GyroFilter(AttitudeFilter):
         s.acc_lp_age_s = 0.0
         s.residual_var, s.acc_residual = 0.0, (0.0, 0.0, 0.0)
         s.rest_gyro, s.rest_acc, s.rest_s = s.rate_rad_s, a[:3], 0.0
+        s.rest_pending.clear()
         s.since_start_s = 0.0
 
     def _restart_accel(self, a) -> None:
@@ -210,6 +217,7 @@ class GyroFilter(AttitudeFilter):
             s.acc_lp, s.acc_lp_age_s, s.residual_var, s.acc_residual = a[:3], 0.0, 0.0, (0.0, 0.0, 0.0)
             s.acc_lp_rate, s.age_lp = (0.0, 0.0, 0.0), (s.since_start_s, 0.0)  # the low-pass content is new: age 0
         s.rest_acc, s.rest_s = a[:3], 0.0
+        s.rest_pending.clear()
 
     def _propagate(self, dt: float) -> None:
         """Nominal attitude by the exact exponential of the bias-corrected rate; inertial low-pass; covariance."""
@@ -237,7 +245,9 @@ class GyroFilter(AttitudeFilter):
         s.covariance = predict_gyro(s.covariance, m, dt, q_att, c.bias_walk_var * dt)
 
     def _rest(self, dt: float, a) -> None:
-        """VQF's rest detector; at rest the gyro reading measures its bias."""
+        """VQF's rest detector; at rest the gyro reading measures its bias, once the rest has held
+        ``FilterConfig.rest_confirm_s`` beyond it (rest confirmed on both sides: the onset of a slow turn, below
+        the detector's thresholds until its low-pass catches up, is not taken for the bias)."""
         s = self._s
         alpha = -math.expm1(-dt / _REST_TAU_S)
         (gx, gy, gz), (rx, ry, rz) = s.rate_rad_s, s.rest_gyro
@@ -251,9 +261,18 @@ class GyroFilter(AttitudeFilter):
         steady = (rx * rx + ry * ry + rz * rz < limit2  # a slow steady turn is no rest (VQF's biasClip)
                   and (gx - rx) ** 2 + (gy - ry) ** 2 + (gz - rz) ** 2 < limit2
                   and (ax - cx) ** 2 + (ay - cy) ** 2 + (az - cz) ** 2 < (_REST_ACCEL * s.gravity) ** 2)
-        s.rest_s = s.rest_s + dt if steady else 0.0
+        if not steady:
+            s.rest_s = 0.0
+            s.rest_pending.clear()
+            return
+        s.rest_s += dt
         if s.rest_s < self._REST_MIN_S or not self.config.rest_bias_estimation:
             return
+        pending = s.rest_pending
+        pending.append((gx, gy, gz, dt))
+        if s.rest_s < self._REST_MIN_S + self.config.rest_confirm_s:
+            return
+        gx, gy, gz, dt = pending.popleft()
         # the low-passed rate must also agree with the bias estimate (3 sigma): once the bias is known,
         # the onset of a slow turn is not taken for a bias change
         p, (bx, by, bz) = s.covariance, s.bias_rad_s

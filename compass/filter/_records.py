@@ -120,6 +120,13 @@ class FilterConfig:
         ``tumble.gyro.gyro_matrix``); None = the identity.
     rest_bias_estimation : bool
         At rest the gyro reading measures its bias (VQF's ``restBiasEstEnabled``).
+    rest_confirm_s : float
+        The gyro filter takes a reading at rest for its bias only once the rest has held this much longer,
+        seconds (rest confirmed on both sides; 0: at once, as before issue 22).  The onset of a slow turn stays
+        below the rest detector's thresholds until its low-pass (0.5 s) catches up: taken for the bias, a turn
+        of a few tenths of a deg/s becomes a bias error the field and the accelerometer must then undo
+        (simulated tapping: 0.1 deg/s, 2 deg of heading; docs/benchmarks.md).  The default, 1 s, is two of the
+        detector's time constants (86 % of a step).
     motion_adaptive_accel : bool
         The tilt measurement's noise grows with the motion the accelerometer sees (False: the white
         ``accel_noise`` only).
@@ -192,6 +199,7 @@ class FilterConfig:
     mag_latency_s: float = 0.0
     gyro_matrix: tuple | None = None
     rest_bias_estimation: bool = True
+    rest_confirm_s: float = 1.0
     motion_adaptive_accel: bool = True
     field_error_from_dip: bool = True
     start_bias_hold: bool = True
@@ -203,7 +211,8 @@ class FilterConfig:
 
     def __post_init__(self):
         for f in fields(self):
-            if (f.name in ("dip_deg", "gravity", "mag_latency_s", "gyro_matrix", "calibration_uncertainty")
+            if (f.name in ("dip_deg", "gravity", "mag_latency_s", "rest_confirm_s", "gyro_matrix",
+                           "calibration_uncertainty")
                     or f.type in ("bool", "str")):
                 continue
             value = getattr(self, f.name)
@@ -214,6 +223,8 @@ class FilterConfig:
                 raise ValueError(f"FilterConfig.{name} must be above 1, got {getattr(self, name)!r}")
         if not (np.isfinite(self.mag_latency_s) and self.mag_latency_s >= 0.0):
             raise ValueError(f"FilterConfig.mag_latency_s must be a non-negative number, got {self.mag_latency_s!r}")
+        if not (np.isfinite(self.rest_confirm_s) and self.rest_confirm_s >= 0.0):
+            raise ValueError(f"FilterConfig.rest_confirm_s must be a non-negative number, got {self.rest_confirm_s!r}")
         if self.field_update not in FIELD_UPDATES:
             raise ValueError(f"FilterConfig.field_update must be one of {', '.join(FIELD_UPDATES)}, "
                              f"got {self.field_update!r}")
