@@ -85,11 +85,9 @@ class GyroState(PackedCovariance):
     rest_s : float
         How long the rest detector has held, s.
     rest_pending : deque of tuples
-        The gyro readings at rest not yet confirmed (``(gx, gy, gz, dt, rest_s)``, rad/s and s, oldest first): each
+        The gyro readings at rest not yet confirmed (``(gx, gy, gz, dt)``, rad/s and s, oldest first): each
         measures the bias once the rest has held ``FilterConfig.rest_confirm_s`` beyond it; dropped when the
         rest ends.
-    rest_from_start : bool
-        The rest detector has held since the attitude (re)started (``FilterConfig.start_rest_bias``).
     accel_bad_s : float
         How long the accelerometer has been out of range, s.
     steps : int
@@ -131,7 +129,6 @@ class GyroState(PackedCovariance):
     age_lp: tuple = (0.0, 0.0)
     acc_residual: tuple = (0.0, 0.0, 0.0)
     rest_pending: deque = field(default_factory=deque)
-    rest_from_start: bool = True
 
 
 class GyroFilter(AttitudeFilter):
@@ -212,7 +209,6 @@ class GyroFilter(AttitudeFilter):
         s.residual_var, s.acc_residual = 0.0, (0.0, 0.0, 0.0)
         s.rest_gyro, s.rest_acc, s.rest_s = s.rate_rad_s, a[:3], 0.0
         s.rest_pending.clear()
-        s.rest_from_start = True
         s.since_start_s = 0.0
 
     def _restart_accel(self, a) -> None:
@@ -222,7 +218,6 @@ class GyroFilter(AttitudeFilter):
             s.acc_lp_rate, s.age_lp = (0.0, 0.0, 0.0), (s.since_start_s, 0.0)  # the low-pass content is new: age 0
         s.rest_acc, s.rest_s = a[:3], 0.0
         s.rest_pending.clear()
-        s.rest_from_start = False
 
     def _propagate(self, dt: float) -> None:
         """Nominal attitude by the exact exponential of the bias-corrected rate; inertial low-pass; covariance."""
@@ -268,40 +263,28 @@ class GyroFilter(AttitudeFilter):
                   and (ax - cx) ** 2 + (ay - cy) ** 2 + (az - cz) ** 2 < (_REST_ACCEL * s.gravity) ** 2)
         if not steady:
             s.rest_s = 0.0
-            s.rest_from_start = False
             s.rest_pending.clear()
             return
         s.rest_s += dt
-        cfg = self.config
-        if not cfg.rest_bias_estimation:
+        if s.rest_s < self._REST_MIN_S or not self.config.rest_bias_estimation:
             return
         pending = s.rest_pending
-        # the rest the recording starts in counts from its first reading (start_rest_bias): no motion precedes
-        # it whose end the detector's 1.5 s would have to wait out
-        if s.rest_s >= self._REST_MIN_S or (s.rest_from_start and cfg.start_rest_bias):
-            pending.append((gx, gy, gz, dt, s.rest_s))
-        if s.rest_s < self._REST_MIN_S:
+        pending.append((gx, gy, gz, dt))
+        if s.rest_s < self._REST_MIN_S + self.config.rest_confirm_s:
             return
-        while pending and pending[0][4] <= s.rest_s - cfg.rest_confirm_s:
-            self._rest_reading(*pending.popleft()[:4])
-
-    def _rest_reading(self, gx: float, gy: float, gz: float, dt: float) -> None:
-        """One confirmed gyro reading at rest (rad/s, over ``dt`` s) measures the bias."""
-        s = self._s
-        rx, ry, rz = s.rest_gyro
+        gx, gy, gz, dt = pending.popleft()
         # the low-passed rate must also agree with the bias estimate (3 sigma): once the bias is known,
         # the onset of a slow turn is not taken for a bias change
-        p, (bx, by, bz), x = s.covariance, s.bias_rad_s, self._x
-        bx, by, bz = bx + x[3], by + x[4], bz + x[5]  # with what this sample's earlier readings taught
+        p, (bx, by, bz) = s.covariance, s.bias_rad_s
         floor = self.coefficients.rest_floor_var
         if (rx - bx) ** 2 > 9.0 * (p[15] + floor) or (ry - by) ** 2 > 9.0 * (p[18] + floor) \
                 or (rz - bz) ** 2 > 9.0 * (p[20] + floor):
             return
         var = self.coefficients.rest_rate_var_density / dt + _REST_RATE_SIGMA**2
-        b0, b1, b2 = s.bias_rad_s  # the error state's innovation is against the nominal bias
-        p = update_axis(p, x, 3, gx - b0, var)
-        p = update_axis(p, x, 4, gy - b1, var)
-        s.covariance = update_axis(p, x, 5, gz - b2, var)
+        x = self._x
+        p = update_axis(p, x, 3, gx - bx, var)
+        p = update_axis(p, x, 4, gy - by, var)
+        s.covariance = update_axis(p, x, 5, gz - bz, var)
 
     def _tilt(self, dt: float, a) -> bool:
         """Tilt from the specific force low-passed in the inertial frame (:mod:`compass.filter`).

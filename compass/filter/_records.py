@@ -133,11 +133,6 @@ class FilterConfig:
     field_error_from_dip : bool
         The field's heading error is measured from the wander of its dip (False: the floor
         ``mag_heading_sigma_deg`` only).
-    start_rest_bias : bool
-        The rest the gyro filter starts in (the rest detector holding since the attitude began) measures the bias
-        from its first reading, each reading once confirmed by ``rest_confirm_s`` of rest beyond it and once the
-        detector has held its 1.5 s (issue 22).  Other rests count only from the detector's 1.5 s on: a reading
-        then may be the tail of the motion before it; at the start no motion precedes.  False: every rest alike.
     follow_place : bool
         The gyro filter's reference field follows the place: a field the gate rejects that stays
         constant in the world frame over ``place_window_s`` while the housing turns (and is not a
@@ -208,7 +203,6 @@ class FilterConfig:
     motion_adaptive_accel: bool = True
     field_error_from_dip: bool = True
     start_bias_hold: bool = True
-    start_rest_bias: bool = True
     follow_place: bool = True
     place_window_s: float = 4.0
     residual_in_band: bool = False
