@@ -239,6 +239,10 @@ def run_one(case: str, seed: int) -> dict:
     gain = np.array([c.response.gain for c in result.channels])
     gain_sigma = np.array([np.nan if c.gain_sigma is None else c.gain_sigma for c in result.channels])
     offset_sigma = np.array([np.nan if c.offset_sigma is None else c.offset_sigma for c in result.channels])
+    stats = result.statistics  # the offsets' correlation across channels (a warm-up's time constant shares it)
+    at = [stats.names.index(f"{c.name}.offset_fieldunit") for c in result.channels]
+    block = np.asarray(stats.covariance)[np.ix_(at, at)]
+    offset_corr = block / np.sqrt(np.outer(np.diag(block), np.diag(block)))
     cost = d.get("unexplained_cost") or {}
     return {"case": case, "seed": seed, "effects": d["effects"], "unexplained": bool(d["unexplained"]),
             "ratio": (err / sigma).tolist(), "err_deg": err.tolist(), "sigma_deg": sigma.tolist(),
@@ -247,6 +251,7 @@ def run_one(case: str, seed: int) -> dict:
             "directions": result.directions.tolist(),
             "direction_covariance": np.stack([c.direction_covariance for c in result.channels]).tolist(),
             "gain": gain.tolist(), "gain_sigma": gain_sigma.tolist(), "offset_sigma": offset_sigma.tolist(),
+            "offset_covariance": (offset_corr * np.outer(offset_sigma, offset_sigma)).tolist(),
             "dip_deg": float(result.dip_deg),
             "heading_cost_deg": cost.get("heading_deg"), "time_s": wall, "cpu_s": cpu}
 
@@ -254,14 +259,16 @@ def run_one(case: str, seed: int) -> dict:
 def with_heading_sigma(row: dict) -> dict:
     """``row`` (from :func:`run_one`, either version) with its heading sigma, deg, from this tree's formula.
 
-    :func:`calibrate.diagnosis.robust.heading_sigma_deg` on the row's directions, their covariances and each
-    channel's offset and gain variances (an undefined sigma, ``nan``, counts as zero there).
+    :func:`calibrate.diagnosis.robust.heading_sigma_deg` on the row's directions, their covariances, each
+    channel's offset and gain variances and the offsets' covariance across channels (an undefined sigma,
+    ``nan``, counts as zero there).
     """
     from calibrate.diagnosis.robust import heading_sigma_deg
 
     response_var = np.column_stack([row["offset_sigma"], row["gain_sigma"]]) ** 2
     sigma = heading_sigma_deg(np.array(row["directions"]), np.array(row["direction_covariance"]), response_var,
-                              np.array(row["gain"]), row["dip_deg"], FIELD_UT, N_HEADINGS)
+                              np.array(row["gain"]), row["dip_deg"], FIELD_UT, N_HEADINGS,
+                              offset_covariance=np.array(row["offset_covariance"]))
     return dict(row, heading_sigma_deg=sigma)
 
 

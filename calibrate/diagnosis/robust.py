@@ -364,7 +364,8 @@ def extra_sigma(wide: np.ndarray, naive: np.ndarray) -> np.ndarray:
 
 
 def heading_sigma_deg(directions: np.ndarray, direction_covariance: np.ndarray, response_var: np.ndarray,
-                      gains: np.ndarray, dip_deg: float, field_norm: float, n_headings: int = 72) -> float:
+                      gains: np.ndarray, dip_deg: float, field_norm: float, n_headings: int = 72,
+                      offset_covariance: np.ndarray | None = None) -> float:
     """RMS heading sigma of a level housing over every heading, from the calibration's uncertainty alone.
 
     The runtime solves the field ``m = P x`` from each channel's component ``x_c = B_H . a_c``
@@ -373,6 +374,12 @@ def heading_sigma_deg(directions: np.ndarray, direction_covariance: np.ndarray, 
     horizontal field.  Per channel ``var(dx_c) = B^T Sigma_a B + (var V0 + x^2 var K) / K^2``
     (the terms of :meth:`compass.model.SensorModel.component_variance`); the noise of one sample
     is left out (it averages down at runtime, the calibration's error does not).
+
+    The offsets' errors need not be independent across channels: a shared parameter (a warm-up's
+    time constant, whose error moves each settled offset by its own amplitude times one number) makes
+    them correlated, and the heading's variance from them is ``l^T (C_V / K K^T) l`` with the signed
+    levers ``l_c = (e_perp . P_c) / |B_h|``, not the sum of ``l_c^2 var V0_c / K_c^2``.  The direction and
+    gain terms stay per channel.
 
     Parameters
     ----------
@@ -390,6 +397,9 @@ def heading_sigma_deg(directions: np.ndarray, direction_covariance: np.ndarray, 
         |B| in the gains' field unit.
     n_headings : int
         Headings averaged over.
+    offset_covariance : ndarray, shape (c, c), optional
+        The offsets' covariance across channels (output units^2); its diagonal replaces
+        ``response_var[:, 0]``.  None: the offsets are taken as independent.
 
     Returns
     -------
@@ -404,9 +414,13 @@ def heading_sigma_deg(directions: np.ndarray, direction_covariance: np.ndarray, 
     solver = np.linalg.pinv(directions)  # (3, c): m = solver @ x
     x = b @ directions.T  # (h, c)
     var = (np.einsum("hi,cij,hj->hc", b, np.nan_to_num(direction_covariance), b)
-           + (np.nan_to_num(response_var[:, 0]) + x**2 * np.nan_to_num(response_var[:, 1])) / gains**2)
-    lever = (across @ solver) ** 2  # (h, c)
-    return float(np.degrees(np.sqrt(np.mean(np.sum(lever * var, axis=1))) / (field_norm * np.cos(dip))))
+           + x**2 * np.nan_to_num(response_var[:, 1]) / gains**2)
+    if offset_covariance is None:
+        offset_covariance = np.diag(response_var[:, 0])
+    offset_field = np.nan_to_num(np.asarray(offset_covariance, dtype=float)) / np.outer(gains, gains)
+    lever = across @ solver  # (h, c), signed
+    total = np.sum(lever**2 * var, axis=1) + np.einsum("hc,cd,hd->h", lever, offset_field, lever)
+    return float(np.degrees(np.sqrt(np.mean(total)) / (field_norm * np.cos(dip))))
 
 
 
