@@ -252,6 +252,8 @@ def run_one(case: str, seed: int) -> dict:
             "direction_covariance": np.stack([c.direction_covariance for c in result.channels]).tolist(),
             "gain": gain.tolist(), "gain_sigma": gain_sigma.tolist(), "offset_sigma": offset_sigma.tolist(),
             "offset_covariance": (offset_corr * np.outer(offset_sigma, offset_sigma)).tolist(),
+            "joint_covariance": [None if getattr(c, "joint_covariance", None) is None else c.joint_covariance.tolist()
+                                 for c in result.channels],
             "dip_deg": float(result.dip_deg),
             "heading_cost_deg": cost.get("heading_deg"), "time_s": wall, "cpu_s": cpu}
 
@@ -261,14 +263,17 @@ def with_heading_sigma(row: dict) -> dict:
 
     :func:`calibrate.diagnosis.robust.heading_sigma_deg` on the row's directions, their covariances, each
     channel's offset and gain variances and the offsets' covariance across channels (an undefined sigma,
-    ``nan``, counts as zero there).
+    ``nan``, counts as zero there); each channel's joint direction, offset and gain covariance where the
+    version's result has it (``joint_covariance``; a baseline without it takes them as independent).
     """
     from calibrate.diagnosis.robust import heading_sigma_deg
 
     response_var = np.column_stack([row["offset_sigma"], row["gain_sigma"]]) ** 2
+    joint = row.get("joint_covariance") or [None]
+    joint = None if any(j is None for j in joint) else np.array(joint, dtype=float)  # None: a version without it
     sigma = heading_sigma_deg(np.array(row["directions"]), np.array(row["direction_covariance"]), response_var,
                               np.array(row["gain"]), row["dip_deg"], FIELD_UT, N_HEADINGS,
-                              offset_covariance=np.array(row["offset_covariance"]))
+                              offset_covariance=np.array(row["offset_covariance"]), channel_covariance=joint)
     return dict(row, heading_sigma_deg=sigma)
 
 
