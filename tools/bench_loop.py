@@ -30,7 +30,10 @@ are widened), each gain's error over its stated sigma (the truth: the session's 
 housing's runtime heading error from the calibration alone (every 5 degrees of heading, no noise, through
 each channel's fitted curve and the fitted directions) over the heading sigma the file's sigmas give
 (this tree's :func:`calibrate.diagnosis.robust.heading_sigma_deg` for both versions, computed here from what
-each version's fit returns; both over every recording and over those called unexplained), that heading error
+each version's fit returns: each channel's joint direction, offset and gain covariance where the version's result
+has it, ``joint_covariance``, else the three taken as independent, as versions before 20e785c; the offsets'
+correlation across channels from the fit's covariance; both over every recording and over those called
+unexplained), that heading error
 in degrees where the loop says unexplained beside the part of the stated heading sigma the structure adds, and the median and worst time of ``calibrate_fourflip(diagnose=True)``.
 The gains and the heading check the locked path's move of the gains end to end, which only a test and a
 scratch probe did before.
@@ -408,7 +411,8 @@ def main() -> None:
           "gain e/s: RMS of each gain's error (from the session's mean gain) over the file's gain sigma; unexpl.: "
           "over the recordings called unexplained.\nhdg e/s: RMS over recordings of a level housing's runtime heading "
           "error from the calibration alone (RMS over 72 headings, no noise)\nover the heading sigma the file's "
-          "sigmas give (this tree's calibrate.diagnosis.robust.heading_sigma_deg for both versions); unexpl.: over the recordings called "
+          "sigmas give (this tree's calibrate.diagnosis.robust.heading_sigma_deg for both versions; a version without "
+          "joint_covariance takes each channel's direction, offset and gain as independent); unexpl.: over the recordings called "
           "unexplained.\nhdg cost: median unexplained_cost.heading_deg (the stated part the structure adds) where the "
           "loop says unexplained;\nhdg err: RMS runtime heading error, deg, over the recordings called unexplained "
           "(what the unexplained fit costs in fact).\n"
