@@ -30,7 +30,10 @@ are widened), each gain's error over its stated sigma (the truth: the session's 
 housing's runtime heading error from the calibration alone (every 5 degrees of heading, no noise, through
 each channel's fitted curve and the fitted directions) over the heading sigma the file's sigmas give
 (this tree's :func:`calibrate.diagnosis.robust.heading_sigma_deg` for both versions, computed here from what
-each version's fit returns; both over every recording and over those called unexplained), that heading error
+each version's fit returns: each channel's joint direction, offset and gain covariance where the version's result
+has it, ``joint_covariance``, else the three taken as independent, as versions before 20e785c; the offsets'
+correlation across channels from the fit's covariance; both over every recording and over those called
+unexplained), that heading error
 in degrees where the loop says unexplained beside the part of the stated heading sigma the structure adds, and the median and worst time of ``calibrate_fourflip(diagnose=True)``.
 The gains and the heading check the locked path's move of the gains end to end, which only a test and a
 scratch probe did before.
@@ -239,6 +242,10 @@ def run_one(case: str, seed: int) -> dict:
     gain = np.array([c.response.gain for c in result.channels])
     gain_sigma = np.array([np.nan if c.gain_sigma is None else c.gain_sigma for c in result.channels])
     offset_sigma = np.array([np.nan if c.offset_sigma is None else c.offset_sigma for c in result.channels])
+    stats = result.statistics  # the offsets' correlation across channels (a warm-up's time constant shares it)
+    at = [stats.names.index(f"{c.name}.offset_fieldunit") for c in result.channels]
+    block = np.asarray(stats.covariance)[np.ix_(at, at)]
+    offset_corr = block / np.sqrt(np.outer(np.diag(block), np.diag(block)))
     cost = d.get("unexplained_cost") or {}
     return {"case": case, "seed": seed, "effects": d["effects"], "unexplained": bool(d["unexplained"]),
             "ratio": (err / sigma).tolist(), "err_deg": err.tolist(), "sigma_deg": sigma.tolist(),
@@ -247,6 +254,9 @@ def run_one(case: str, seed: int) -> dict:
             "directions": result.directions.tolist(),
             "direction_covariance": np.stack([c.direction_covariance for c in result.channels]).tolist(),
             "gain": gain.tolist(), "gain_sigma": gain_sigma.tolist(), "offset_sigma": offset_sigma.tolist(),
+            "offset_covariance": (offset_corr * np.outer(offset_sigma, offset_sigma)).tolist(),
+            "joint_covariance": [None if getattr(c, "joint_covariance", None) is None else c.joint_covariance.tolist()
+                                 for c in result.channels],
             "dip_deg": float(result.dip_deg),
             "heading_cost_deg": cost.get("heading_deg"), "time_s": wall, "cpu_s": cpu}
 
@@ -254,14 +264,19 @@ def run_one(case: str, seed: int) -> dict:
 def with_heading_sigma(row: dict) -> dict:
     """``row`` (from :func:`run_one`, either version) with its heading sigma, deg, from this tree's formula.
 
-    :func:`calibrate.diagnosis.robust.heading_sigma_deg` on the row's directions, their covariances and each
-    channel's offset and gain variances (an undefined sigma, ``nan``, counts as zero there).
+    :func:`calibrate.diagnosis.robust.heading_sigma_deg` on the row's directions, their covariances, each
+    channel's offset and gain variances and the offsets' covariance across channels (an undefined sigma,
+    ``nan``, counts as zero there); each channel's joint direction, offset and gain covariance where the
+    version's result has it (``joint_covariance``; a baseline without it takes them as independent).
     """
     from calibrate.diagnosis.robust import heading_sigma_deg
 
     response_var = np.column_stack([row["offset_sigma"], row["gain_sigma"]]) ** 2
+    joint = row.get("joint_covariance") or [None]
+    joint = None if any(j is None for j in joint) else np.array(joint, dtype=float)  # None: a version without it
     sigma = heading_sigma_deg(np.array(row["directions"]), np.array(row["direction_covariance"]), response_var,
-                              np.array(row["gain"]), row["dip_deg"], FIELD_UT, N_HEADINGS)
+                              np.array(row["gain"]), row["dip_deg"], FIELD_UT, N_HEADINGS,
+                              offset_covariance=np.array(row["offset_covariance"]), channel_covariance=joint)
     return dict(row, heading_sigma_deg=sigma)
 
 
@@ -396,7 +411,8 @@ def main() -> None:
           "gain e/s: RMS of each gain's error (from the session's mean gain) over the file's gain sigma; unexpl.: "
           "over the recordings called unexplained.\nhdg e/s: RMS over recordings of a level housing's runtime heading "
           "error from the calibration alone (RMS over 72 headings, no noise)\nover the heading sigma the file's "
-          "sigmas give (this tree's calibrate.diagnosis.robust.heading_sigma_deg for both versions); unexpl.: over the recordings called "
+          "sigmas give (this tree's calibrate.diagnosis.robust.heading_sigma_deg for both versions; a version without "
+          "joint_covariance takes each channel's direction, offset and gain as independent); unexpl.: over the recordings called "
           "unexplained.\nhdg cost: median unexplained_cost.heading_deg (the stated part the structure adds) where the "
           "loop says unexplained;\nhdg err: RMS runtime heading error, deg, over the recordings called unexplained "
           "(what the unexplained fit costs in fact).\n"

@@ -364,7 +364,9 @@ def extra_sigma(wide: np.ndarray, naive: np.ndarray) -> np.ndarray:
 
 
 def heading_sigma_deg(directions: np.ndarray, direction_covariance: np.ndarray, response_var: np.ndarray,
-                      gains: np.ndarray, dip_deg: float, field_norm: float, n_headings: int = 72) -> float:
+                      gains: np.ndarray, dip_deg: float, field_norm: float, n_headings: int = 72,
+                      offset_covariance: np.ndarray | None = None,
+                      channel_covariance: np.ndarray | None = None) -> float:
     """RMS heading sigma of a level housing over every heading, from the calibration's uncertainty alone.
 
     The runtime solves the field ``m = P x`` from each channel's component ``x_c = B_H . a_c``
@@ -373,6 +375,17 @@ def heading_sigma_deg(directions: np.ndarray, direction_covariance: np.ndarray, 
     horizontal field.  Per channel ``var(dx_c) = B^T Sigma_a B + (var V0 + x^2 var K) / K^2``
     (the terms of :meth:`compass.model.SensorModel.component_variance`); the noise of one sample
     is left out (it averages down at runtime, the calibration's error does not).
+
+    The offsets' errors need not be independent across channels: a shared parameter (a warm-up's
+    time constant, whose error moves each settled offset by its own amplitude times one number) makes
+    them correlated, and the heading's variance from them is ``l^T (C_V / K K^T) l`` with the signed
+    levers ``l_c = (e_perp . P_c) / |B_h|``, not the sum of ``l_c^2 var V0_c / K_c^2``.  Within a channel
+    the direction, offset and gain errors need not be independent either (a warm-up during the first flip
+    ties a channel's offset to its direction): with their joint covariance ``S_c`` the component's
+    variance is ``w^T S_c w``, ``w = (B, 1 / K, x / K)`` (each error moves the solved component the same
+    way: ``-B . da - (dV0 + x dK) / K``).  Measured on four-flip recordings with a warm-up
+    (tools/bench_loop.py): the joint terms raise the heading sigma ~1.18x, the cross-channel offsets'
+    ~1.00x on a near-orthogonal triad (the cross terms average out over headings).
 
     Parameters
     ----------
@@ -390,6 +403,13 @@ def heading_sigma_deg(directions: np.ndarray, direction_covariance: np.ndarray, 
         |B| in the gains' field unit.
     n_headings : int
         Headings averaged over.
+    offset_covariance : ndarray, shape (c, c), optional
+        The offsets' covariance across channels (output units^2); its off-diagonal terms are used (the
+        diagonal is ``response_var[:, 0]``'s).  None: the offsets are taken as independent.
+    channel_covariance : ndarray, shape (c, 5, 5), optional
+        Each channel's joint covariance of its direction (3, rad), offset and gain (the units of
+        ``response_var``); it replaces ``direction_covariance`` and ``response_var``.  None: the three
+        taken as independent.
 
     Returns
     -------
@@ -403,10 +423,19 @@ def heading_sigma_deg(directions: np.ndarray, direction_covariance: np.ndarray, 
     across = np.column_stack([np.sin(psi), np.cos(psi), np.zeros_like(psi)])  # horizontal, perpendicular to b's
     solver = np.linalg.pinv(directions)  # (3, c): m = solver @ x
     x = b @ directions.T  # (h, c)
-    var = (np.einsum("hi,cij,hj->hc", b, np.nan_to_num(direction_covariance), b)
-           + (np.nan_to_num(response_var[:, 0]) + x**2 * np.nan_to_num(response_var[:, 1])) / gains**2)
-    lever = (across @ solver) ** 2  # (h, c)
-    return float(np.degrees(np.sqrt(np.mean(np.sum(lever * var, axis=1))) / (field_norm * np.cos(dip))))
+    c = len(gains)
+    if channel_covariance is None:
+        channel_covariance = np.zeros((c, 5, 5))
+        channel_covariance[:, :3, :3] = direction_covariance
+        channel_covariance[:, 3, 3], channel_covariance[:, 4, 4] = response_var[:, 0], response_var[:, 1]
+    w = np.concatenate([np.broadcast_to(b[:, None, :], x.shape + (3,)), np.broadcast_to(1.0 / gains, x.shape)[..., None],
+                        (x / gains)[..., None]], axis=-1)  # (h, c, 5): the solved component's move per error
+    var = np.einsum("hci,cij,hcj->hc", w, np.nan_to_num(np.asarray(channel_covariance, dtype=float)), w)
+    cross = np.zeros((c, c)) if offset_covariance is None else np.nan_to_num(np.asarray(offset_covariance, dtype=float))
+    cross = (cross - np.diag(np.diag(cross))) / np.outer(gains, gains)
+    lever = across @ solver  # (h, c), signed
+    total = np.sum(lever**2 * var, axis=1) + np.einsum("hc,cd,hd->h", lever, cross, lever)
+    return float(np.degrees(np.sqrt(np.mean(total)) / (field_norm * np.cos(dip))))
 
 
 

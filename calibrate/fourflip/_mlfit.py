@@ -158,6 +158,20 @@ class MLFit:
         """RMS angular uncertainty of each direction, degrees, shape (c,)."""
         return _direction_sigma_deg(self.direction_covariance)
 
+    def channel_covariance(self) -> np.ndarray:
+        """Each channel's joint covariance of its unit direction (3), offset (output units) and gain (output units
+        per field unit), shape (c, 5, 5): the (u, v, offset, log gain) block taken through the layout's map."""
+        c = self.layout.c
+        gains = self.physics.gains
+        out = np.empty((c, 5, 5))
+        for ch in range(c):
+            m = np.zeros((5, _BASE_PER_CHANNEL))
+            m[:3, :2] = _direction_map(self.layout, self.x, ch)
+            m[3, 2], m[4, 3] = self.layout.start.gains[ch], gains[ch]  # offset = V0 + p K0, gain = K0 exp(q)
+            block = slice(_BASE_PER_CHANNEL * ch, _BASE_PER_CHANNEL * (ch + 1))
+            out[ch] = m @ self.covariance[block, block] @ m.T
+        return out
+
     def effect_parameters(self, effect: FourFlipEffect) -> tuple[list, np.ndarray, np.ndarray]:
         """(names, values, sigmas) of one effect's block in reporting units."""
         start = self._block_start(effect)
@@ -382,14 +396,18 @@ def _covariance(jac: np.ndarray, names) -> tuple[np.ndarray, list]:
     return inv, singular
 
 
+def _direction_map(layout: _Layout, x, c: int) -> np.ndarray:
+    """``d a / d (u, v)`` of channel ``c``'s unit direction, shape (3, 2)."""
+    dirs, n = layout.directions(x)
+    projector = (np.eye(3) - np.outer(dirs[c], dirs[c])) / np.linalg.norm(n[c])
+    return projector @ layout.basis[c].T
+
+
 def _direction_covariance(layout: _Layout, x, cov) -> np.ndarray:
     """Covariance of each unit direction from its (u, v) block."""
-    dirs, n = layout.directions(x)
     out = np.empty((layout.c, 3, 3))
     for c in range(layout.c):
-        norm = np.linalg.norm(n[c])
-        projector = (np.eye(3) - np.outer(dirs[c], dirs[c])) / norm
-        g = projector @ layout.basis[c].T  # (3, 2): d a / d (u, v)
+        g = _direction_map(layout, x, c)
         block = cov[_BASE_PER_CHANNEL * c:_BASE_PER_CHANNEL * c + 2, _BASE_PER_CHANNEL * c:_BASE_PER_CHANNEL * c + 2]
         out[c] = g @ block @ g.T
     return out

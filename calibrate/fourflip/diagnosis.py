@@ -247,12 +247,17 @@ def _widen(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
 
 
 def _heading_sigma(fit: MLFit) -> float:
-    """A level housing's RMS heading sigma over headings from the fit's direction, offset and gain sigmas."""
+    """A level housing's RMS heading sigma over headings from each channel's joint direction, offset and gain
+    covariance (:meth:`MLFit.channel_covariance`: a warm-up during the first flip ties a channel's offset to its
+    direction) and the offsets' covariance across channels (a shared warm-up time constant correlates them)."""
     phys = fit.physics
     c = len(phys.gains)
-    var = np.diag(fit.covariance)[:4 * c].reshape(c, 4)[:, 2:] * phys.gains[:, None] ** 2  # offset, log gain
+    joint = fit.channel_covariance()
+    offsets = 4 * np.arange(c) + 2
+    offset_cov = fit.covariance[np.ix_(offsets, offsets)] * np.outer(fit.layout.start.gains, fit.layout.start.gains)
+    var = np.stack([joint[:, 3, 3], joint[:, 4, 4]], axis=1)
     return heading_sigma_deg(phys.directions, fit.direction_covariance, var, phys.gains, phys.dip_deg,
-                             phys.field_norm)
+                             phys.field_norm, offset_covariance=offset_cov, channel_covariance=joint)
 
 
 def _verdict(samples, fit: MLFit, noise, judged: np.ndarray) -> tuple[tuple[float, int, float], bool | None]:

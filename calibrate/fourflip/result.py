@@ -31,6 +31,9 @@ class ChannelCalibration:
     response : Response
     offset_sigma, gain_sigma : float or None
         Standard errors, output units and output units per field unit.
+    joint_covariance : ndarray, shape (5, 5), or None
+        Joint covariance of the direction (3), offset and gain (the units above): their errors are
+        correlated within a channel (a warm-up during the first flip ties the offset to the direction).
     """
 
     name: str
@@ -39,6 +42,7 @@ class ChannelCalibration:
     response: Response
     offset_sigma: float | None = None
     gain_sigma: float | None = None
+    joint_covariance: np.ndarray | None = None
 
     @property
     def direction_sigma_deg(self) -> float | None:

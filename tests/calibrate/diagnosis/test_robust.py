@@ -121,6 +121,28 @@ def test_heading_sigma_of_one_tilted_direction():
     assert got == pytest.approx(np.degrees(s * np.sqrt(3.0 / 8.0)), rel=1e-6)
 
 
+def test_heading_sigma_carries_the_offsets_cross_covariance():
+    """Correlated offsets on a non-orthogonal triad: the stated sigma is the RMS over headings of the heading error's
+    sigma taken through the solver (the reference relation ``l^T C l``), checked against offsets drawn from ``C``;
+    independent offsets (None) give the diagonal's value, which differs here."""
+    directions = np.array([[1.0, 0.0, 0.0], [np.sqrt(0.5), np.sqrt(0.5), 0.0], [0.0, 0.0, 1.0]])
+    gains = np.array([0.02, 0.03, 0.025])
+    sigma = np.array([0.004, 0.006, 0.005])
+    corr = np.array([[1.0, -0.8, 0.5], [-0.8, 1.0, -0.6], [0.5, -0.6, 1.0]])  # a shared parameter's pattern
+    cov_v = corr * np.outer(sigma, sigma)
+    zero_dir, zero_gain = np.zeros((3, 3, 3)), np.column_stack([sigma**2, np.zeros(3)])
+    got = heading_sigma_deg(directions, zero_dir, zero_gain, gains, 60.0, 50.0, offset_covariance=cov_v)
+    independent = heading_sigma_deg(directions, zero_dir, zero_gain, gains, 60.0, 50.0)
+    rng = np.random.default_rng(3)
+    offsets = rng.multivariate_normal(np.zeros(3), cov_v, size=20000) / gains  # field units
+    psi = np.linspace(0.0, 2 * np.pi, 72, endpoint=False)
+    across = np.column_stack([np.sin(psi), np.cos(psi), np.zeros_like(psi)])
+    turn = offsets @ np.linalg.pinv(directions).T @ across.T / (50.0 * np.cos(np.radians(60.0)))  # (draws, h)
+    drawn = np.degrees(np.sqrt(np.mean(turn**2)))
+    assert got == pytest.approx(drawn, rel=0.03)
+    assert abs(independent / got - 1.0) > 0.1
+
+
 def _two_channel_fit(rng, structure):
     """Two channels of 4 x 300 samples at 1 s (60 s gaps), each ``level_g + slope t`` per channel over
     segment ``g`` (a per-segment level, as a flip's mounting) plus white noise and ``structure``
