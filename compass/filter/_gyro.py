@@ -85,9 +85,9 @@ class GyroState(PackedCovariance):
     rest_s : float
         How long the rest detector has held, s.
     rest_pending : deque of tuples
-        The gyro readings at rest not yet confirmed (``(gx, gy, gz, dt)``, rad/s and s, oldest first): each
-        measures the bias once the rest has held ``FilterConfig.rest_confirm_s`` beyond it; dropped when the
-        rest ends.
+        The gyro readings at rest not yet confirmed (``(gx, gy, gz, dt, rest_s)``, rad/s and s, the rest's
+        duration when each was read, oldest first): each measures the bias once the rest has held
+        ``FilterConfig.rest_confirm_s`` beyond it; dropped when the rest ends.
     accel_bad_s : float
         How long the accelerometer has been out of range, s.
     steps : int
@@ -269,10 +269,14 @@ class GyroFilter(AttitudeFilter):
         if s.rest_s < self._REST_MIN_S or not self.config.rest_bias_estimation:
             return
         pending = s.rest_pending
-        pending.append((gx, gy, gz, dt))
-        if s.rest_s < self._REST_MIN_S + self.config.rest_confirm_s:
-            return
-        gx, gy, gz, dt = pending.popleft()
+        pending.append((gx, gy, gz, dt, s.rest_s))
+        while pending and s.rest_s - pending[0][4] >= self.config.rest_confirm_s:  # by time: the rate may change
+            self._rest_reading(*pending.popleft()[:4])
+
+    def _rest_reading(self, gx: float, gy: float, gz: float, dt: float) -> None:
+        """One confirmed gyro reading at rest (rad/s, over ``dt`` s) as a measurement of the bias."""
+        s = self._s
+        rx, ry, rz = s.rest_gyro
         # the low-passed rate must also agree with the bias estimate (3 sigma): once the bias is known,
         # the onset of a slow turn is not taken for a bias change
         p, (bx, by, bz) = s.covariance, s.bias_rad_s

@@ -17,27 +17,29 @@ REST_S = 6.0  # still, then a turn about the vertical ramps in over 1 s to 4 deg
 PEAK = math.radians(4.0)
 
 
-def onset_recording(seed: int):
+def onset_recording(seed: int, t: np.ndarray | None = None):
     """A still housing, then the onset of a slow turn about the world vertical (a raised cosine), with a
-    constant gyro bias and white gyro noise; the accelerometer and field exact."""
+    constant gyro bias and white gyro noise (its density the same at any rate); the accelerometer and field
+    exact.  ``t``: the sample times, s (default: :data:`RATE_HZ` throughout)."""
     rng = np.random.default_rng(seed)
-    t = np.arange(0.0, REST_S + 3.0, 1.0 / RATE_HZ)
+    t = np.arange(0.0, REST_S + 3.0, 1.0 / RATE_HZ) if t is None else t
+    rate_hz = 1.0 / np.gradient(t)[:, None]
     ramp = np.clip(t - REST_S, 0.0, 1.0)
     rate_z = PEAK * (0.5 - 0.5 * np.cos(np.pi * ramp))
-    heading = np.concatenate([[0.0], np.cumsum(rate_z[1:]) / RATE_HZ])
+    heading = np.concatenate([[0.0], np.cumsum(rate_z[1:] * np.diff(t))])
     tilt = Rotation.from_euler("XY", [8.0, -5.0], degrees=True)
     rotation = Rotation.from_euler("z", heading[:, None]) * tilt  # R_world<-housing: turned about the world vertical
     rate_h = tilt.inv().apply(np.column_stack([np.zeros_like(t), np.zeros_like(t), rate_z]))
-    gyro = rate_h + BIAS + GYRO_NOISE * math.sqrt(RATE_HZ) * rng.normal(size=(len(t), 3))
+    gyro = rate_h + BIAS + GYRO_NOISE * np.sqrt(rate_hz) * rng.normal(size=(len(t), 3))
     accel = rotation.apply(np.tile([0.0, 0.0, 9.81], (len(t), 1)), inverse=True)
     field = rotation.apply(np.tile(world_field(65.0, 48.0), (len(t), 1)), inverse=True)
     return t, accel, gyro, field, rate_z
 
 
-def bias_error_after_onset(confirm_s: float, seed: int) -> tuple[float, float]:
+def bias_error_after_onset(confirm_s: float, seed: int, t: np.ndarray | None = None) -> tuple[float, float]:
     """|bias error| (rad/s) at the first sample whose true rate exceeds 2 deg/s (the rest detector has let go
     by then) and at the last still sample (the rest's own estimate)."""
-    t, accel, gyro, field, rate_z = onset_recording(seed)
+    t, accel, gyro, field, rate_z = onset_recording(seed, t)
     config = FilterConfig(field_norm=48.0, dip_deg=65.0, mag_noise=0.05, rest_confirm_s=confirm_s)
     track = run_filter(t, accel, gyro, field, config)
     moving = int(np.argmax(rate_z > math.radians(2.0)))
@@ -57,6 +59,15 @@ def test_the_onset_of_a_slow_turn_is_not_taken_for_the_bias(seed):
     assert confirmed < bound  # the onset left the bias where the rest put it
     # without the confirmation the onset's first tenths of a deg/s pass for bias, beyond the rest's 3 sigma
     assert unconfirmed > bound
+
+
+def test_the_confirmation_is_a_time_not_a_count_of_readings():
+    # the rest starts at 10 Hz and the rate rises to RATE_HZ before the turn: counted in readings, the 1 s
+    # queue of 10 would pass within 0.04 s at the new rate and the onset would be taken for bias
+    t = np.concatenate([np.arange(0.0, REST_S - 1.0, 1.0 / 10.0), np.arange(REST_S - 1.0, REST_S + 3.0, 1.0 / RATE_HZ)])
+    bound = 2.0 * math.sqrt(3.0) * GYRO_NOISE / math.sqrt(3.5)
+    confirmed, confirmed_at_rest = bias_error_after_onset(1.0, 0, t)
+    assert confirmed_at_rest < bound and confirmed < bound
 
 
 @pytest.mark.parametrize("value", [-0.5, math.nan])
