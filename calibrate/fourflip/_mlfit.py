@@ -160,7 +160,11 @@ class MLFit:
 
     def channel_covariance(self) -> np.ndarray:
         """Each channel's joint covariance of its unit direction (3), offset (output units) and gain (output units
-        per field unit), shape (c, 5, 5): the (u, v, offset, log gain) block taken through the layout's map."""
+        per field unit), shape (c, 5, 5): the (u, v, offset, log gain) block taken through the layout's map.
+
+        A parameter the fit could not determine (its covariance row NaN) makes NaN only the rows and columns
+        that depend on it: the others keep their terms, as the per-parameter sigmas do.
+        """
         c = self.layout.c
         gains = self.physics.gains
         out = np.empty((c, 5, 5))
@@ -169,12 +173,16 @@ class MLFit:
             m[:3, :2] = _direction_map(self.layout, self.x, ch)
             m[3, 2], m[4, 3] = self.layout.start.gains[ch], gains[ch]  # offset = V0 + p K0, gain = K0 exp(q)
             block = slice(_BASE_PER_CHANNEL * ch, _BASE_PER_CHANNEL * (ch + 1))
-            out[ch] = m @ self.covariance[block, block] @ m.T
+            cov = self.covariance[block, block]
+            out[ch] = m @ np.nan_to_num(cov, nan=0.0) @ m.T
+            unknown = np.any(m[:, ~np.isfinite(np.diag(cov))] != 0.0, axis=1)
+            out[ch][unknown, :] = np.nan
+            out[ch][:, unknown] = np.nan
         return out
 
     def effect_parameters(self, effect: FourFlipEffect) -> tuple[list, np.ndarray, np.ndarray]:
         """(names, values, sigmas) of one effect's block in reporting units."""
-        start = self._block_start(effect)
+        start = self.block_start(effect)
         n = effect.n_params(len(self.physics.gains))
         scale = effect.report_scale(self.physics)
         block = slice(start, start + n)
@@ -185,11 +193,11 @@ class MLFit:
         c = len(self.physics.gains)
         out = {}
         for e in self.effects:
-            start = self._block_start(e)
+            start = self.block_start(e)
             out[e.name] = self.x[start:start + e.n_params(c)]
         return out
 
-    def _block_start(self, effect: FourFlipEffect) -> int:
+    def block_start(self, effect: FourFlipEffect) -> int:
         c = len(self.physics.gains)
         start = _BASE_PER_CHANNEL * c + 2
         for e in self.effects:

@@ -66,7 +66,7 @@ def platform_prior(fit: MLFit, noise: np.ndarray) -> tuple[MLFit, dict | None]:
     effect = next((e for e in fit.effects if isinstance(e, PlatformField)), None)
     if effect is None:
         return fit, None
-    i = fit._block_start(effect)
+    i = fit.block_start(effect)
     var = float(fit.x[i] ** 2 + fit.covariance[i, i])  # fit units (field_norm)
     if not np.isfinite(var):
         return fit, None

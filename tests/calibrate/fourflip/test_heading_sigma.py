@@ -72,3 +72,21 @@ def test_joint_covariance_keeps_the_files_sigmas(warm_up_fit):
     var = np.diag(fit.covariance)[:4 * c].reshape(c, 4)[:, 2:] * fit.physics.gains[:, None] ** 2
     np.testing.assert_allclose(joint[:, 4, 4], var[:, 1], rtol=1e-9)
     np.testing.assert_allclose(joint[:, 3, 3], var[:, 0], rtol=0.05)
+
+
+def test_an_undetermined_parameter_leaves_the_channels_other_terms(warm_up_fit):
+    """A log gain the fit could not determine (its covariance row and column NaN) makes NaN only the gain's
+    row and column of that channel's joint covariance; its direction and offset terms are those of the fit
+    with the gain known."""
+    from dataclasses import replace
+
+    fit = warm_up_fit
+    cov = fit.covariance.copy()
+    cov[3, :] = cov[:, 3] = np.nan  # channel 0's log gain
+    joint, known = replace(fit, covariance=cov).channel_covariance(), fit.channel_covariance()
+    assert np.all(np.isnan(joint[0, 4, :])) and np.all(np.isnan(joint[0, :, 4]))
+    assert np.all(np.isfinite(joint[0, :4, :4]))
+    # without the gain's correlations the rest of the block is the known one with the gain's column removed
+    expected = replace(fit, covariance=np.nan_to_num(cov, nan=0.0)).channel_covariance()
+    np.testing.assert_allclose(joint[0, :4, :4], expected[0, :4, :4], rtol=1e-12)
+    np.testing.assert_allclose(joint[1:], known[1:], rtol=1e-12)

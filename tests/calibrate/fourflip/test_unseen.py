@@ -59,14 +59,14 @@ def test_the_z_part_moves_the_dip_and_one_common_gain_by_the_vertical_fields_geo
     assert abs(g[DIP]) == pytest.approx(abs(np.cos(dip)), rel=1e-3)
     assert np.max(np.abs(g[OFFSETS + DIRECTIONS])) < 1e-6
     # the fitted y part, in field units, keeps its output against the gains' common scale
-    i = fit._block_start(fit.effects[0])
+    i = fit.block_start(fit.effects[0])
     assert g[i] == pytest.approx(-fit.x[i] * g[GAINS[0]], rel=1e-3)
 
 
 def test_the_offset_covariance_grows_by_a_a_t_times_the_prior_variance(platform_fit):
     _, fit, noise = platform_fit
     wide, unseen = platform_prior(fit, noise)
-    i = fit._block_start(fit.effects[0])
+    i = fit.block_start(fit.effects[0])
     var = fit.x[i] ** 2 + fit.covariance[i, i]
     a = fit.physics.directions[:, 0] * fit.physics.field_norm * fit.physics.gains / fit.layout.start.gains
     added = wide.covariance[np.ix_(OFFSETS, OFFSETS)] - fit.covariance[np.ix_(OFFSETS, OFFSETS)]
