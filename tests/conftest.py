@@ -1,8 +1,19 @@
+import signal
+
 import numpy as np
 import pytest
 
 from compass.io.fourflip import read_fourflip
 from compass.sim.fourflip import simulate_fourflip, write_fourflip
+
+
+def pytest_configure(config):
+    """Ctrl-C reaches the commands the tests start, however the run itself was started: a shell's background
+    job (``cmd &`` without job control) inherits SIGINT ignored, and an ignored signal stays ignored across
+    exec, so a test's SIGINT to ``compass bench`` did nothing (the session ran to its end, status 0).  A
+    handler is reset to the default at exec, where Python installs its own."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def angle_deg(a, b):
