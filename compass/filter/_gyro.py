@@ -80,12 +80,6 @@ class GyroState(PackedCovariance):
         the time since the start less its output.
     residual_var : float
         Variance of what the low-pass leaves of the motion acceleration, (fraction of g)^2.
-    leak : tuple of 3 floats
-        ``FilterConfig.motion_time_from_data``: the raw motion ``f - LP f`` low-passed again (first order,
-        ``accel_time_constant_s``) in the inertial frame, seen in H: the leak's estimate, accelerometer units.
-    leak_power, leak_rate_power : float
-        The averages of its squared part across the up and of its derivative's times ``accel_time_constant_s``
-        (accelerometer units squared): their ratio gives the leak's correlation time.
     rest_gyro, rest_acc : tuple of 3 floats, or None
         The rest detector's low-passed gyro and accelerometer.
     rest_s : float
@@ -135,9 +129,6 @@ class GyroState(PackedCovariance):
     age_lp: tuple = (0.0, 0.0)
     acc_residual: tuple = (0.0, 0.0, 0.0)
     rest_pending: deque = field(default_factory=deque)
-    leak: tuple = (0.0, 0.0, 0.0)
-    leak_power: float = 0.0
-    leak_rate_power: float = 0.0
 
 
 class GyroFilter(AttitudeFilter):
@@ -156,8 +147,6 @@ class GyroFilter(AttitudeFilter):
         self._x = [0.0] * 6  # the error state (eps, db), folded into the nominal state after each sample
         self._second_order = self.config.accel_lowpass_order == 2
         self._lp2_dt, self._lp2 = None, None  # the second-order low-pass's step and its coefficients
-        self._leak_time = self.config.motion_time_from_data and self.config.motion_adaptive_accel
-        self._leak_size = self._leak_time and self.config.leak_from_data
         self._place = PlaceDetector(self.config) if self.config.follow_place and self.config.gate else None
         # a decoupled field update injects its heading apart: one exponential of (eps_x, eps_y, eps_z) would
         # tilt by a second-order term eps_z * eps_tilt / 2
@@ -218,7 +207,6 @@ class GyroFilter(AttitudeFilter):
         s.acc_lp, s.acc_lp_rate, s.age_lp = a[:3], (0.0, 0.0, 0.0), (0.0, 0.0)
         s.acc_lp_age_s = 0.0
         s.residual_var, s.acc_residual = 0.0, (0.0, 0.0, 0.0)
-        s.leak, s.leak_power, s.leak_rate_power = (0.0, 0.0, 0.0), 0.0, 0.0
         s.rest_gyro, s.rest_acc, s.rest_s = s.rate_rad_s, a[:3], 0.0
         s.rest_pending.clear()
         s.since_start_s = 0.0
@@ -228,7 +216,6 @@ class GyroFilter(AttitudeFilter):
         if s.acc_lp is not None:
             s.acc_lp, s.acc_lp_age_s, s.residual_var, s.acc_residual = a[:3], 0.0, 0.0, (0.0, 0.0, 0.0)
             s.acc_lp_rate, s.age_lp = (0.0, 0.0, 0.0), (s.since_start_s, 0.0)  # the low-pass content is new: age 0
-            s.leak, s.leak_power, s.leak_rate_power = (0.0, 0.0, 0.0), 0.0, 0.0
         s.rest_acc, s.rest_s = a[:3], 0.0
         s.rest_pending.clear()
 
@@ -252,10 +239,6 @@ class GyroFilter(AttitudeFilter):
                 vx, vy, vz = s.acc_lp_rate
                 s.acc_lp_rate = (e[0] * vx + e[3] * vy + e[6] * vz, e[1] * vx + e[4] * vy + e[7] * vz,
                                  e[2] * vx + e[5] * vy + e[8] * vz)
-            if self._leak_time:  # and so is the leak's estimate
-                vx, vy, vz = s.leak
-                s.leak = (e[0] * vx + e[3] * vy + e[6] * vz, e[1] * vx + e[4] * vy + e[7] * vz,
-                          e[2] * vx + e[5] * vy + e[8] * vz)
         # P <- F P F^T + Q, F = [[I, -R dt], [0, I]]
         c = self.coefficients
         q_att = (c.gyro_var + c.scale_var * (wx * wx + wy * wy + wz * wz)) * dt
@@ -337,18 +320,13 @@ class GyroFilter(AttitudeFilter):
                 raw2 = (ax - lx) ** 2 + (ay - ly) ** 2 + (az - lz) ** 2
             residual = (lp_norm / g - 1.0) ** 2 + raw2 / (g * g) * c.attenuation2
             s.residual_var += -math.expm1(-dt / cfg.motion_time_s) * (residual - s.residual_var)
-            if self._leak_time and lp_norm > 0.0:
-                self._leak_step(dt, ax - lx, ay - ly, az - lz, lx / lp_norm, ly / lp_norm, lz / lp_norm)
         else:
             lp_norm = math.sqrt(lx * lx + ly * ly + lz * lz)
         if not lp_norm > 0 or abs(lp_norm / g - 1.0) > cfg.accel_tolerance:
             return False
         var = c.accel_var
         if dt > 0.0 and cfg.motion_adaptive_accel:
-            if self._leak_size:
-                var += s.leak_power / (2.0 * g * g) * 2.0 * self.motion_time_s / dt
-            else:
-                var += s.residual_var * 2.0 * (self.motion_time_s if self._leak_time else cfg.motion_time_s) / dt
+            var += s.residual_var * 2.0 * cfg.motion_time_s / dt
         m = s.matrix
         ux, uy, uz = lx / lp_norm, ly / lp_norm, lz / lp_norm
         d0 = m[0] * ux + m[1] * uy + m[2] * uz  # R u - z, x and y
@@ -360,31 +338,6 @@ class GyroFilter(AttitudeFilter):
         s.covariance = update_tilt(s.covariance, self._x, (-age * m[3], -age * m[4], -age * m[5]), d0,
                                    (age * m[0], age * m[1], age * m[2]), d1, var, hold)
         return True
-
-    @property
-    def motion_time_s(self) -> float:
-        """The motion residual's correlation time the tilt noise uses, s: ``FilterConfig.motion_time_s``, or with
-        ``motion_time_from_data`` the leak's, ``tau sqrt(leak_power / leak_rate_power)`` (at most ``tau``;
-        ``motion_time_s`` until the leak has a derivative)."""
-        s, cfg = self._s, self.config
-        if not (self._leak_time and s.leak_rate_power > 0.0):
-            return cfg.motion_time_s
-        return cfg.accel_time_constant_s * min(1.0, math.sqrt(s.leak_power / s.leak_rate_power))
-
-    def _leak_step(self, dt: float, rx: float, ry: float, rz: float, ux: float, uy: float, uz: float) -> None:
-        """One step of the leak's estimate ``q <- q + alpha (r - q)`` (``r`` the raw motion, H) and of the averaged
-        powers of ``q`` and ``r - q = tau dq/dt`` across the up ``u`` (unit, H)."""
-        s = self._s
-        alpha = -math.expm1(-dt / self.config.accel_time_constant_s)
-        qx, qy, qz = s.leak
-        qx, qy, qz = qx + alpha * (rx - qx), qy + alpha * (ry - qy), qz + alpha * (rz - qz)
-        s.leak = (qx, qy, qz)
-        dx, dy, dz = rx - qx, ry - qy, rz - qz
-        q_up, d_up = qx * ux + qy * uy + qz * uz, dx * ux + dy * uy + dz * uz
-        q2 = qx * qx + qy * qy + qz * qz - q_up * q_up
-        d2 = dx * dx + dy * dy + dz * dz - d_up * d_up
-        s.leak_power += alpha * (q2 - s.leak_power)
-        s.leak_rate_power += alpha * (d2 - s.leak_rate_power)
 
     def _low_pass2(self, dt: float, ax: float, ay: float, az: float) -> tuple:
         """One step of the second-order (Butterworth) inertial low-pass; its output, also kept in the state.

@@ -146,17 +146,6 @@ class FilterConfig:
         and squared; issue 22): a 25 Hz vibration or a 2 ms tap, which the inertial low-pass removes almost
         entirely, no longer makes the filter distrust the accelerometer for ``motion_time_s`` (False: the raw
         motion, as before).
-    motion_time_from_data : bool
-        The correlation time in the tilt noise's ``2 tau_v / dt`` is read from the data instead of the constant
-        ``motion_time_s`` (issue 22): the leak's time scale ``tau sqrt(<|q_h|^2> / <|r_h - q_h|^2>)``, with ``r``
-        the raw motion ``f - LP f`` and ``q = H r`` its first-order low-pass (``tau = accel_time_constant_s``), so
-        that ``r - q = tau dq/dt``: the ratio of the leak's power to its derivative's (``1 / omega`` for a motion at
-        ``omega``), both across the filter's up and averaged over ``accel_time_constant_s``.  The residual's
-        size and its averaging keep ``motion_time_s`` unless ``leak_from_data`` (False: the constant, as before).
-    leak_from_data : bool
-        With ``motion_time_from_data``, the residual's size is the leak's too: each tilt row's noise is
-        ``<|q_h|^2> / (2 g^2)`` (the leak across the up, its two horizontal components) instead of the norm error
-        plus the raw motion attenuated at ``motion_time_s``.
     calibration_uncertainty : compass.iron_uncertainty.TumbleUncertainty or ChannelUncertainty or None
         The calibration's own uncertainty (``SensorModel.calibration_uncertainty``; :meth:`from_model` sets
         it): never fused (a constant error, not noise), only added to the reported heading sigma at each
@@ -217,8 +206,6 @@ class FilterConfig:
     follow_place: bool = True
     place_window_s: float = 4.0
     residual_in_band: bool = False
-    motion_time_from_data: bool = False
-    leak_from_data: bool = False
     field_update: str = "kalman"
     calibration_uncertainty: object = None
 

@@ -517,39 +517,3 @@ def test_the_motion_residual_in_band_drops_a_vibration_and_keeps_the_motion(freq
     expected = 1.0 / (1.0 + (2.0 * np.pi * freq_hz * tau_r) ** 2)
     assert raw > 0.0
     assert band / raw == pytest.approx(expected, rel=0.1)
-
-
-def _motion_time(freq_hz, from_data=True, axis=0, amp=2.0, rate=100.0, seconds=30.0):
-    """Mean of the gyro filter's ``motion_time_s`` over the last 4 s of a still, level housing shaken at ``freq_hz``
-    along ``axis`` (0: sideways, 2: along the up)."""
-    cfg = FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.1, motion_time_from_data=from_data)
-    f = AttitudeFilter(cfg, gyro=True)
-    field = np.array([25.0, 0.0, -43.3])
-    kept = []
-    for k, tk in enumerate(np.arange(int(seconds * rate)) / rate):
-        accel = [0.0, 0.0, 9.81]
-        accel[axis] += amp * np.sin(2.0 * np.pi * freq_hz * tk)
-        f.update(tk, accel, [0.0, 0.0, 0.0], field)
-        if tk > seconds - 4.0 and k % 5 == 0:
-            kept.append(f.motion_time_s)
-    return float(np.mean(kept)), cfg
-
-
-@pytest.mark.parametrize("freq_hz", [0.5, 2.0])
-def test_the_motion_time_read_from_the_data_is_one_over_the_shakes_angular_frequency(freq_hz):
-    """motion_time_from_data: the leak ``q = H r`` and ``r - q = tau dq/dt`` keep the ratio ``|H| / |1 - H| =
-    1 / (omega tau)`` at every frequency (first order), so ``tau sqrt(<|q_h|^2> / <|r_h - q_h|^2>)`` is ``1 / omega``;
-    the powers are averaged over tau (2 s): read after the start's transient (``t exp(-t / tau)``, 30 s)."""
-    read, _ = _motion_time(freq_hz)
-    assert read == pytest.approx(1.0 / (2.0 * np.pi * freq_hz), rel=0.05)
-
-
-def test_the_motion_time_is_the_constant_without_the_option_or_without_motion_across_the_up():
-    """The option off: ``FilterConfig.motion_time_s``; a shake along the up leaves no leak across it (the powers stay
-    zero) and the constant stays; a motion slower than ``1 / tau`` is capped at tau."""
-    off, cfg = _motion_time(0.5, from_data=False)
-    assert off == cfg.motion_time_s
-    vertical, _ = _motion_time(0.5, axis=2)
-    assert vertical == pytest.approx(cfg.motion_time_s, rel=1e-6)
-    slow, _ = _motion_time(0.02)
-    assert slow == pytest.approx(cfg.accel_time_constant_s, rel=1e-6)
