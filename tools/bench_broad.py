@@ -12,7 +12,8 @@ own; a simulated board: its own fast rotation at another seed), never from the t
 compensation on motions whose only error is the latency; ``--diagnose`` prints the inclination by turn rate of the
 filter, of its inertial low-pass's direction and of VQF, and the one start's parts switched back; ``--bands`` splits
 the tilt error by time scale (the filter, the filter with every field reading refused, VQF, and the motion the
-inertial low-pass leaves, truth-based) per trial and group (``--write-docs``: its table in docs/benchmarks.md).  Peers are benchmark
+inertial low-pass leaves, truth-based) per trial and group (``--write-docs``: its table in docs/benchmarks.md); ``--leak``
+prints the leak of the inertial low-passes (ours, with a 1 s Kalman pole, VQF's) and its correlation times, truth-based.  Peers are benchmark
 extras (``pip install -e '.[bench]'``), never runtime dependencies; a peer that is not installed is
 reported and skipped.
 
