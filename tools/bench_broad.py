@@ -12,7 +12,8 @@ own; a simulated board: its own fast rotation at another seed), never from the t
 compensation on motions whose only error is the latency; ``--diagnose`` prints the inclination by turn rate of the
 filter, of its inertial low-pass's direction and of VQF, and the one start's parts switched back; ``--bands`` splits
 the tilt error by time scale (the filter, the filter with every field reading refused, VQF, and the motion the
-inertial low-pass leaves, truth-based) per trial and group (``--write-docs``: its table in docs/benchmarks.md).  Peers are benchmark
+inertial low-pass leaves, truth-based) per trial and group (``--write-docs``: its table in docs/benchmarks.md); ``--leak``
+prints the leak of the inertial low-passes (ours, with a 1 s Kalman pole, VQF's) and its correlation times, truth-based.  Peers are benchmark
 extras (``pip install -e '.[bench]'``), never runtime dependencies; a peer that is not installed is
 reported and skipped.
 
@@ -496,6 +497,59 @@ def _motion_left_deg(trial) -> np.ndarray:
     return np.degrees(lfilter([alpha], [1.0, alpha - 1.0], motion_world[:, :2] / GRAVITY, axis=0))
 
 
+def leak_time_scales(leak: np.ndarray, raw: np.ndarray, rows: np.ndarray, tau_s: float, rate_hz: float,
+                     bandwidth_s: float = 1.0) -> tuple[float, float, float]:
+    """Correlation times of a leak series (``--leak``), s: the observable estimate ``tau sqrt(<|q|^2> / <|r - q|^2>)``
+    from the raw motion ``raw`` (``r = f - H f``, ``q = H r``, first order, time constant ``tau_s``: ``r - q = tau
+    dq/dt``, so it is ``1 / w`` for a motion at ``w``), the leak's own time scale ``sqrt(<l^2> / <l'^2>)``, and the
+    time ``N / (2 <l^2>)`` its density ``N = 2 T var(LP_T l)`` gives at a first-order ``T = bandwidth_s``; over
+    ``rows``."""
+    from scipy.signal import lfilter
+
+    def low_pass(x, tau):
+        alpha = -np.expm1(-1.0 / (rate_hz * tau))
+        return lfilter([alpha], [1.0, alpha - 1.0], x, axis=0)
+
+    q = low_pass(raw, tau_s)
+    estimate = tau_s * np.sqrt(np.mean(q[rows] ** 2) / np.mean((raw - q)[rows] ** 2))
+    rate = np.gradient(leak, 1.0 / rate_hz, axis=0)
+    scale = np.sqrt(np.mean(leak[rows] ** 2) / np.mean(rate[rows] ** 2))
+    density = 2.0 * bandwidth_s * np.mean(low_pass(leak, bandwidth_s)[rows] ** 2)
+    return float(estimate), float(scale), float(density / (2.0 * np.mean(leak[rows] ** 2)))
+
+
+def leak_diagnosis(trial) -> tuple[float, ...]:
+    """The leak (``--leak``, truth-based, a diagnosis only): the horizontal motion acceleration over g (the
+    accelerometer put into the world by the *reference* attitude, less gravity and less its mean over the first
+    second of the initial rest, the accelerometer's own offset) through our first-order low-pass (``FilterConfig``
+    default), then through a 1 s first-order pole as the Kalman gain adds, and through VQF's Butterworth
+    (``tauAcc`` 3 s, its own coefficients): RMS per axis over the movement rows, deg; then the leak's correlation
+    times (:func:`leak_time_scales`)."""
+    from scipy.signal import lfilter
+    from vqf import PyVQF
+
+    from compass.filter import FilterConfig
+
+    ok = trial.ref_valid & np.all(np.isfinite(trial.ref_quat_enu), axis=1)
+    index = np.maximum.accumulate(np.where(ok, np.arange(len(ok)), 0))
+    index[:np.argmax(ok)] = np.argmax(ok)
+    world = Rotation.from_quat(trial.ref_quat_enu[index], scalar_first=True).apply(trial.accel_m_s2) / GRAVITY
+    rest = slice(0, max(1, int(trial.rate_hz)))
+    motion = world[:, :2] - world[rest, :2].mean(axis=0)
+    tau = FilterConfig(field_norm=1.0, dip_deg=0.0, mag_noise=1.0).accel_time_constant_s
+
+    def low_pass(x, t):
+        alpha = -np.expm1(-1.0 / (trial.rate_hz * t))
+        return lfilter([alpha], [1.0, alpha - 1.0], x, axis=0)
+
+    ours = low_pass(motion, tau)
+    b, a = PyVQF.filterCoeffs(3.0, 1.0 / trial.rate_hz)
+    rows = trial.movement
+    rms = [float(np.degrees(np.sqrt(np.mean(x[rows] ** 2))))
+           for x in (ours, low_pass(ours, 1.0), lfilter(b, np.r_[1.0, a], motion, axis=0))]
+    return tuple(rms) + leak_time_scales(ours, motion - ours, rows, tau, trial.rate_hz)
+
+
 def band_diagnosis(trial) -> dict[str, tuple]:
     """Print the tilt error of the filter (defaults), of the filter with every field reading refused, and of VQF,
     RMS over the scored samples, split by time scale (:func:`_bands`), beside the motion acceleration the
@@ -680,6 +734,9 @@ def main(argv=None) -> int:
     parser.add_argument("--no-timing", action="store_true", help="skip the microseconds-per-sample section")
     parser.add_argument("--diagnose", action="store_true",
                         help="only the issue-22 diagnoses: inclination by turn rate, the start's parts switched back")
+    parser.add_argument("--leak", action="store_true",
+                        help="only the leak of the inertial low-passes (truth-based): ours, with a 1 s Kalman pole, "
+                             "VQF's, and its correlation times, per trial")
     parser.add_argument("--bands", action="store_true",
                         help="only the inclination's time scales: ours, ours with the field refused, VQF, and the "
                              "motion the inertial low-pass leaves (truth-based), per trial and group")
@@ -747,6 +804,13 @@ def main(argv=None) -> int:
         print(f"no BROAD trials in {args.data}")
         return 2
 
+    if args.leak:
+        print("leak per axis over the movement rows, deg: our first-order low-pass, with a 1 s Kalman pole, VQF's "
+              "Butterworth 3 s; its correlation time, s: observable estimate / true time scale / at a 1 s bandwidth")
+        for f in files:
+            trial = read_broad(f)
+            print(f"  {trial.name[:36]:36s} " + " ".join(f"{v:5.2f}" for v in leak_diagnosis(trial)))
+        return 0
     if args.bands:
         print("tilt error by time scale, deg: heading / inclination RMS (BROAD's metric), then the world-frame tilt "
               "error's RMS over the scored samples by period: " + ", ".join(

@@ -4,8 +4,10 @@ with the scale error its calibration's gyro-aided fit says as the RMS over rate 
 tried, not kept), beside VQF, in one run.
 
 Run: ``python tools/bench_gyro_scale.py [--dev-seeds 11,12] [--seeds 13-20] [--levels 0,1,3,5] [--aniso 5]
-[--broad 01,02,...] [--methods VQF,fitted]`` (``--broad all``: every trial; ``--broad none``: no BROAD; ``--levels ''``: no isotropic
-boards; ``--aniso L``: boards whose z axis alone reads L % high; ``--write-docs``: the tables into docs/benchmarks.md).
+[--broad 01,02,...] [--methods VQF,fitted] [--candidates "motion time from data"]`` (``--broad all``: every trial; ``--broad none``: no BROAD; ``--levels ''``: no isotropic
+boards; ``--aniso L``: boards whose z axis alone reads L % high; ``--candidates A,B``: a column per
+:data:`bench_broad.CANDIDATES` name, its ``FilterConfig`` changes on top of "fitted", the pipeline the calibration
+file gives; ``--write-docs``: the tables into docs/benchmarks.md).
 
 Simulated boards: every :mod:`compass.sim.motion` kind, 60 s, the BROAD-like board of ``tools/bench_broad.py``
 (:func:`bench_broad.board_errors`) with its gyro scale replaced: per axis, a seeded sign, the largest axis at the
@@ -68,7 +70,10 @@ def bound_scale_error(fitted) -> float:
 
 
 def _changes(method: str, scale: dict) -> dict | None:
-    """The FilterConfig changes of a column (None: VQF); the default scale error left out (the same filter)."""
+    """The FilterConfig changes of a column (None: VQF); the default scale error left out (the same filter); a
+    :data:`bench_broad.CANDIDATES` name (``--candidates``): its changes on top of "fitted"."""
+    if method in bb.CANDIDATES:
+        return _changes("fitted", scale) | bb.CANDIDATES[method][0]
     value = {"before": DEFAULT_GYRO_SCALE_ERROR, "fitted": scale.get("rms"),
              "fitted bound": scale.get("bound")}.get(method)
     if method not in ("before", "fitted", "fitted bound"):
@@ -212,12 +217,20 @@ def main(argv=None) -> int:
     parser.add_argument("--broad", default=",".join(LOCKOUT_TRIALS), help="BROAD trial numbers, 'all' or 'none'")
     parser.add_argument("--kinds", default="", help="comma-separated compass.sim.motion kinds (default: every one)")
     parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated columns (default: every one)")
+    parser.add_argument("--candidates", default="",
+                        help="comma-separated bench_broad candidate names: a column each, on top of 'fitted'")
     parser.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "broad"))
     args = parse_args(parser, argv)
     unknown = set(args.methods.split(",")) - set(METHODS)
     if unknown:
         parser.error(f"--methods: unknown column(s) {', '.join(sorted(unknown))}; the columns: {', '.join(METHODS)}")
     METHODS = tuple(m for m in METHODS if m in args.methods.split(","))
+    extra = [c for c in args.candidates.split(",") if c]
+    unknown = [c for c in extra if c not in bb.CANDIDATES or bb.CANDIDATES[c][1:] != (True, False)
+               or c in bb.FITTED_CANDIDATES]
+    if unknown:
+        parser.error(f"--candidates: unknown (or not a FilterConfig change) {unknown}")
+    METHODS += tuple(extra)
     kinds = [k for k in args.kinds.split(",") if k]
     boards = (("", [float(v) for v in args.levels.split(",") if v]),
               ("_aniso", [f"z{float(v):g}" for v in args.aniso.split(",") if v]))

@@ -46,7 +46,10 @@ low-pass a Butterworth with the same mean age (VQF's kind), which leaves ``omega
 displacement instead of the velocity over tau: better in fast turns, worse in translation and in
 heading on BROAD, so not the default (docs/benchmarks.md, inclination in turns).  Reading each low-pass's
 leak at every period (``H (1 - H) f``) instead of at ``tau_v`` alone, and blending the two low-passes by
-least variance, were measured and not kept (docs/benchmarks.md, the leak each low-pass leaves).
+least variance, were measured and not kept (docs/benchmarks.md, the leak each low-pass leaves); so was reading
+``tau_v`` (and the leak's size) from the data: the leak's own time scale is shorter than 0.5 s on every BROAD trial,
+and trusting the accelerometer more costs the hand-turned trials and tapping (docs/benchmarks.md, the leak's
+correlation time read from the data).
 
 Magnetometer: its measurement row is the heading (as VQF's and x-io Fusion's): ``psi_meas = eps_z +
 n_psi``, ``psi_meas`` minus the azimuth (toward West) of the field rotated into the world by the

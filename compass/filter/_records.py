@@ -65,7 +65,9 @@ class FilterConfig:
         heading on BROAD and on simulated boards (issue 22, docs/benchmarks.md): 1 is the default.
     motion_time_s : float
         Time scale on which the housing's velocity varies (hand-held motion), seconds: the
-        correlation time of what the low-pass leaves of the motion acceleration.
+        correlation time of what the low-pass leaves of the motion acceleration.  A constant: read from the
+        data (the leak's ``sqrt(<q^2> / <q'^2>)``, 0.03-0.31 s on BROAD) it made the attached-magnet
+        inclination worse, 0.72 -> 0.78 deg (docs/benchmarks.md, issue 22).
     field_error_time_s : float
         Correlation time of the field's own heading error (calibration residue, inhomogeneity) as the
         housing moves and turns, seconds: how often the field brings independent heading information.

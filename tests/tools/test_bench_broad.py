@@ -56,3 +56,22 @@ def test_write_docs_without_bands_is_refused(bench, capsys):
         bench.main(["--write-docs"])
     assert stop.value.code == 2
     assert "--write-docs writes the --bands table only" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("freq_hz", [0.3, 1.0])
+def test_the_leaks_time_scales_are_one_over_omega_for_a_sinusoid(bench, freq_hz):
+    """``--leak``: for a motion at ``w`` the first-order relations give ``tau |q| / |r - q| = 1 / (w tau) tau``, and a
+    sinusoid's ``sqrt(<l^2> / <l'^2>)`` is ``1 / w`` (both after the start's transient); its density at a 1 s bandwidth
+    is that of a sinusoid through the pole, ``1 / (1 + (w T)^2)`` of its variance times ``T``."""
+    rate, tau, w = 200.0, 2.0, 2.0 * np.pi * freq_hz
+    t = np.arange(int(60.0 * rate)) / rate
+    motion = np.sin(w * t)
+    alpha = -np.expm1(-1.0 / (rate * tau))
+    from scipy.signal import lfilter
+
+    leak = lfilter([alpha], [1.0, alpha - 1.0], motion)
+    rows = t > 30.0
+    estimate, scale, density = bench.leak_time_scales(leak, motion - leak, rows, tau, rate)
+    assert estimate == pytest.approx(1.0 / w, rel=0.02)
+    assert scale == pytest.approx(1.0 / w, rel=0.02)
+    assert density == pytest.approx(1.0 / (1.0 + w**2), rel=0.05)
