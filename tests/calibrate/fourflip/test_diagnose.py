@@ -174,6 +174,19 @@ def test_unexplained_structure_widens_the_files_sigmas_and_says_the_cost(write_s
     model = from_dict(result.to_json()).model
     assert np.degrees(np.sqrt(np.trace(model.direction_covariance, axis1=1, axis2=2))) == pytest.approx(
         [entry["widened"] for entry in cost["direction_sigma_deg"].values()], rel=1e-6)
+    # each channel's joint covariance in the file is the widened one: its marginals are the file's (widened)
+    # sigmas, and the runtime's heading sigma from it is the diagnosis's widened one (but for the offsets'
+    # correlation across channels, which the file does not keep)
+    for c, joint in enumerate(model.joint_covariance):
+        np.testing.assert_allclose(joint[:3, :3], model.direction_covariance[c], rtol=1e-9, atol=1e-12 * joint[0, 0])
+        assert np.sqrt(np.diag(joint)[3:]) == pytest.approx(model.response_sigma[c], rel=1e-12)
+    from compass.frames import r_world_from_housing, world_field
+
+    rot = r_world_from_housing(np.arange(0.0, 360.0, 5.0), 0.0, 0.0)
+    fields = rot.apply(world_field(model.dip_deg, model.field_norm), inverse=True)
+    own = model.calibration_uncertainty
+    runtime = np.sqrt(np.mean([own.heading_sigma_deg(m, b) ** 2 for m, b in zip(rot.as_matrix(), fields)]))
+    assert runtime == pytest.approx(cost["heading_sigma_deg"]["widened"], rel=0.01)
     # the runtime's heading sigma (compass attitude / live) carries it: against the same file with the
     # naive fit's sigmas (its joint covariance and their marginals), every level sample's heading sigma is larger
     from compass.attitude import solve_attitude

@@ -1,5 +1,7 @@
 """The platform field's unseen x and z parts: a stated prior carried into the file's sigmas."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -99,3 +101,27 @@ def test_the_report_says_the_x_and_z_parts_are_unseen_and_their_heading_cost(pla
     # with the gains' common scale, by ~p_y sin(dip) b_z)
     y = result.effects[0]["parameters"]["platform_field.y_fieldunit"]
     assert unseen["prior_sigma_fieldunit"] == pytest.approx(np.hypot(y["value"], y["sigma"]), rel=1e-3)
+
+
+def test_the_files_joint_covariance_carries_the_prior_and_its_marginals_are_the_files_sigmas(platform_fit):
+    """With the platform prior in, each channel's ``joint_covariance`` is the widened one: its marginals are the
+    file's sigmas (which hold the prior), and the runtime's heading sigma from the file is the diagnosis's
+    ``heading_sigma_deg.with`` but for the offsets' correlation across channels (the prior's ``a_x b_x`` moves
+    every offset by one ``b_x``; the file keeps each channel's block)."""
+    from compass.calibration import dumps, from_dict
+    from compass.frames import r_world_from_housing, world_field
+
+    rec, _, _ = platform_fit
+    result = calibrate_fourflip(rec, diagnose=True)
+    doc = json.loads(dumps(result.to_json()))
+    for ch in doc["channels"].values():
+        joint = np.array(ch["joint_covariance"])
+        np.testing.assert_allclose(joint[:3, :3], ch["direction_covariance"], rtol=1e-9, atol=1e-12 * joint[0, 0])
+        assert np.sqrt(np.diag(joint)[3:]) == pytest.approx([ch["response_sigma"]["offset"],
+                                                             ch["response_sigma"]["gain"]], rel=1e-12)
+    model = from_dict(doc).model
+    rot = r_world_from_housing(np.arange(0.0, 360.0, 5.0), 0.0, 0.0)
+    fields = rot.apply(world_field(model.dip_deg, model.field_norm), inverse=True)
+    own = model.calibration_uncertainty
+    runtime = np.sqrt(np.mean([own.heading_sigma_deg(m, b) ** 2 for m, b in zip(rot.as_matrix(), fields)]))
+    assert runtime == pytest.approx(result.diagnosis["platform_field_unseen"]["heading_sigma_deg"]["with"], rel=0.01)
