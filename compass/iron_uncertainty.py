@@ -66,6 +66,12 @@ it (tools/bench_undetermined_prior.py)."""
 ROTATION_PRIOR_AXIS_DEG = ROTATION_PRIOR_DEG / math.sqrt(3.0)
 """1-sigma of each component of the undetermined rotation vector, degrees (``ROTATION_PRIOR_DEG / sqrt(3)``:
 three independent components of this sigma give a total angle of RMS :data:`ROTATION_PRIOR_DEG`)."""
+JOINT_TOLERANCE = 1e-6
+"""Relative disagreement accepted between a joint covariance's marginals and the sigmas beside it, and its
+asymmetry and most negative eigenvalue (each parameter scaled by its own sigma; the direction's three by the
+RMS direction sigma)."""
+
+
 _COST_HEADINGS_DEG = np.arange(0.0, 360.0, 30.0)  # level headings the cost of a prior is averaged over
 
 
@@ -402,12 +408,6 @@ def channel_priors(unit_directions, gains, field_norm: float, names, direction_g
         ("the offset", gone[1], f"{100 * HARD_IRON_PRIOR:.0f} % of |B|"),
         ("the gain", gone[2], f"{100 * SOFT_IRON_PRIOR:.0f} %")) if g.any())
     return cov, sigma, words
-
-
-JOINT_TOLERANCE = 1e-6
-"""Relative disagreement accepted between a joint covariance's marginals and the sigmas beside it, and its
-asymmetry and most negative eigenvalue (each parameter scaled by its own sigma; the direction's three by the
-RMS direction sigma)."""
 
 
 def independent_joint(direction_covariance, response_sigma) -> np.ndarray:
