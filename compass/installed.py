@@ -13,7 +13,9 @@ reads a calibration then works unchanged.  The bench's uncertainty (direction co
 and gain sigmas) is carried through this map, and the installation's own (covariance of ``h`` and
 of the six soft-iron entries) is added: ``da' = (I - a' a'^T) dS a / k``, ``dk = a' . dS a``,
 ``dV0 = K a . dh`` (cross-correlations between bench and installation are neglected: they come
-from independent recordings).
+from independent recordings).  A bench channel's joint covariance of its direction, offset and gain
+(``SensorModel.joint_covariance``) goes through the same map, its correlations kept, with the
+installation's terms added to its diagonal blocks: its marginals stay the installed sigmas.
 
 With an ``alignment`` (``R_product<-housing``) the installed model is written in the product's
 frame: directions ``A a'``; the module's accelerometer must be turned the same way
@@ -125,6 +127,8 @@ def installed_model(base: SensorModel, hard_iron, soft_iron, covariance=None, al
         gain_var = gains**2 * np.einsum("ci,cij,cj->c", directions, spread, directions)
         old = np.zeros((len(a), 2)) if response_sigma is None else response_sigma
         response_sigma = np.sqrt(old**2 + np.column_stack([offset_var, gain_var]))
+    joint = _installed_joint(base, project @ s.T[None] / k[:, None, None], k,
+                             None if covariance is None else (added, offset_var, gain_var))
     gyro_matrix = base.gyro_matrix
     if alignment is not None:
         rot = np.asarray(alignment, dtype=float)
@@ -133,10 +137,37 @@ def installed_model(base: SensorModel, hard_iron, soft_iron, covariance=None, al
             gyro_matrix = rot @ gyro_matrix @ rot.T
         if direction_cov is not None:
             direction_cov = rot[None] @ direction_cov @ rot.T[None]
+        if joint is not None:
+            turn = np.eye(5)
+            turn[:3, :3] = rot
+            joint = tuple(None if j is None else turn @ j @ turn.T for j in joint)
     # a tumble base's own uncertainty is in its frame and for its iron alone: not carried (the installation's
     # covariance is); its magnetometer latency is the module's timing and its gyro matrix the module's gyro, kept;
     # a channel base's priors for null sigmas stay in its (transformed) numbers, their words were said when the
     # base was read
     return replace(base, directions=directions, responses=tuple(responses), direction_covariance=direction_cov,
                    response_sigma=response_sigma, form="installed", iron_uncertainty=None, gyro_matrix=gyro_matrix,
-                   sigma_priors=None)
+                   sigma_priors=None, joint_covariance=joint)
+
+
+def _installed_joint(base: SensorModel, direction_jac: np.ndarray, k: np.ndarray, added) -> tuple | None:
+    """Each bench channel's joint covariance through the installation's map (module docstring): the direction
+    by ``direction_jac`` (c, 3, 3), the offset as it is, the gain times ``k``; ``added`` (the installation's
+    direction covariance (c, 3, 3), offset and gain variances (c,)) on the diagonal blocks, or None.  None when
+    the base has none."""
+    if base.joint_covariance is None:
+        return None
+    out = []
+    for c, joint in enumerate(base.joint_covariance):
+        if joint is None:
+            out.append(None)
+            continue
+        m = np.zeros((5, 5))
+        m[:3, :3], m[3, 3], m[4, 4] = direction_jac[c], 1.0, k[c]
+        moved = m @ joint @ m.T
+        if added is not None:
+            moved[:3, :3] += added[0][c]
+            moved[3, 3] += added[1][c]
+            moved[4, 4] += added[2][c]
+        out.append(moved)
+    return tuple(out)

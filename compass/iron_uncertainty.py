@@ -44,8 +44,8 @@ from functools import cached_property
 
 import numpy as np
 
-__all__ = ["TumbleUncertainty", "ChannelUncertainty", "channel_priors", "with_calibration_sigma",
-           "with_calibration_sigma_many", "undetermined_words",
+__all__ = ["TumbleUncertainty", "ChannelUncertainty", "channel_priors", "joint_problem", "independent_joint",
+           "with_calibration_sigma", "with_calibration_sigma_many", "undetermined_words",
            "HARD_IRON_PRIOR", "SOFT_IRON_PRIOR", "ROTATION_PRIOR_DEG",
            "ROTATION_PRIOR_AXIS_DEG"]
 
@@ -66,6 +66,12 @@ it (tools/bench_undetermined_prior.py)."""
 ROTATION_PRIOR_AXIS_DEG = ROTATION_PRIOR_DEG / math.sqrt(3.0)
 """1-sigma of each component of the undetermined rotation vector, degrees (``ROTATION_PRIOR_DEG / sqrt(3)``:
 three independent components of this sigma give a total angle of RMS :data:`ROTATION_PRIOR_DEG`)."""
+JOINT_TOLERANCE = 1e-6
+"""Relative disagreement accepted between a joint covariance's marginals and the sigmas beside it, and its
+asymmetry and most negative eigenvalue (each parameter scaled by its own sigma; the direction's three by the
+RMS direction sigma)."""
+
+
 _COST_HEADINGS_DEG = np.arange(0.0, 360.0, 30.0)  # level headings the cost of a prior is averaged over
 
 
@@ -244,8 +250,18 @@ class ChannelUncertainty:
         \\mathrm{var}_c = B^T \\Sigma_{a_c} B + \\frac{\\sigma_{V0,c}^2 + x_c^2 \\sigma_{K,c}^2}{K_c^2},
         \\qquad \\Sigma_B = P\\,\\mathrm{diag}(\\mathrm{var})\\,P^T ,
 
-    ``x_c = a_c . B`` the field along the channel's unit direction ``a_c``.  The channels' errors are taken as
-    independent (the file gives no correlations between channels).
+    ``x_c = a_c . B`` the field along the channel's unit direction ``a_c``.  Within a channel the direction,
+    offset and gain errors need not be independent (a four-flip's warm-up during the first flip ties a channel's
+    offset to its direction): with the channel's joint covariance ``S_c`` of ``(a_c, V0_c, K_c)`` (the file's
+    ``joint_covariance``, whose marginals are its sigmas) the component's variance is
+
+    .. math::
+
+        \\mathrm{var}_c = w^T S_c w, \\qquad w = (B, 1 / K_c, x_c / K_c),
+
+    every error moving the solved component the same way (``-(B . da + dV0 / K + x dK / K)``); with ``S_c``
+    block-diagonal this is the line above (:func:`calibrate.diagnosis.robust.heading_sigma_deg` is the four-flip's
+    own).  The channels' errors are taken as independent (the file gives no correlations between channels).
 
     Attributes
     ----------
@@ -263,6 +279,11 @@ class ChannelUncertainty:
     prior : ChannelUncertainty or None
         The priors' part alone (zeros elsewhere): what they add (:meth:`cost_deg`); None when nothing is
         undetermined.
+    joint_covariance : ndarray, shape (c, 5, 5), or None
+        Each channel's joint covariance of its direction (rad^2), offset and gain (the units of
+        ``response_sigma``); when given it is used in place of ``direction_covariance`` and ``response_sigma``
+        (a channel the file gives none for holds its independent form: :func:`independent_joint`).  None: the
+        three taken as independent.
     """
 
     unit_directions: np.ndarray
@@ -272,6 +293,7 @@ class ChannelUncertainty:
     response_sigma: np.ndarray | None = None
     undetermined: tuple = ()
     prior: "ChannelUncertainty | None" = None
+    joint_covariance: np.ndarray | None = None
 
     def cost_deg(self, field_norm: float, dip_deg: float) -> float:
         """As :meth:`TumbleUncertainty.cost_deg`."""
@@ -282,6 +304,11 @@ class ChannelUncertainty:
         squared."""
         b = np.asarray(field_h, dtype=float)
         x = np.einsum("...i,ci->...c", b, self.unit_directions)
+        if self.joint_covariance is not None:
+            w = np.concatenate([np.broadcast_to(b[..., None, :], x.shape + (3,)),
+                                np.broadcast_to(1.0 / self.gains, x.shape)[..., None], (x / self.gains)[..., None]],
+                               axis=-1)  # (..., c, 5): the solved component's move per error
+            return np.einsum("...ci,cij,...cj->...c", w, self.joint_covariance, w)
         var = np.zeros_like(x)
         if self.direction_covariance is not None:
             var += np.einsum("...i,cij,...j->...c", b, self.direction_covariance, b)
@@ -297,16 +324,18 @@ class ChannelUncertainty:
     @cached_property
     def _scalars(self) -> tuple:
         """Per channel, as Python floats: ``a_c``, ``P``'s column, ``Sigma_a`` row by row (or None), the offset
-        and gain variances over ``K^2`` (0 when not given)."""
+        and gain variances over ``K^2`` (0 when not given), and ``1 / K`` with the joint covariance row by row
+        (None without one; it then replaces the three before)."""
+        rows = lambda m: tuple(tuple(float(v) for v in row) for row in m)  # noqa: E731
         out = []
         for c in range(len(self.gains)):
-            cov = None if self.direction_covariance is None else \
-                tuple(tuple(float(v) for v in row) for row in self.direction_covariance[c])
+            cov = None if self.direction_covariance is None else rows(self.direction_covariance[c])
             k2 = float(self.gains[c]) ** 2
             off, gain = (0.0, 0.0) if self.response_sigma is None else \
                 (float(self.response_sigma[c, 0]) ** 2 / k2, float(self.response_sigma[c, 1]) ** 2 / k2)
+            joint = None if self.joint_covariance is None else rows(self.joint_covariance[c])
             out.append((tuple(float(v) for v in self.unit_directions[c]), tuple(float(v) for v in self.solver[:, c]),
-                        cov, off, gain))
+                        cov, off, gain, 1.0 / float(self.gains[c]), joint))
         return tuple(out)
 
     def heading_sigma_deg(self, matrix, field_h) -> float:
@@ -323,11 +352,15 @@ class ChannelUncertainty:
         if not horizontal2 > 0.0:
             return math.inf
         var = 0.0
-        for a, p, cov, off, gain in self._scalars:
+        for a, p, cov, off, gain, inverse_gain, joint in self._scalars:
             x = a[0] * bx + a[1] * by + a[2] * bz
-            v = off + x * x * gain
-            if cov is not None:
-                v += sum(b[i] * (cov[i][0] * bx + cov[i][1] * by + cov[i][2] * bz) for i in range(3))
+            if joint is not None:  # w^T S w, w = (B, 1 / K, x / K)
+                w = (bx, by, bz, inverse_gain, x * inverse_gain)
+                v = sum(w[i] * sum(joint[i][j] * w[j] for j in range(5)) for i in range(5))
+            else:
+                v = off + x * x * gain
+                if cov is not None:
+                    v += sum(b[i] * (cov[i][0] * bx + cov[i][1] * by + cov[i][2] * bz) for i in range(3))
             pn = p[0] * n[0] + p[1] * n[1] + p[2] * n[2]
             var += v * pn * pn
         return math.degrees(math.sqrt(var) / horizontal2)
@@ -375,6 +408,57 @@ def channel_priors(unit_directions, gains, field_norm: float, names, direction_g
         ("the offset", gone[1], f"{100 * HARD_IRON_PRIOR:.0f} % of |B|"),
         ("the gain", gone[2], f"{100 * SOFT_IRON_PRIOR:.0f} %")) if g.any())
     return cov, sigma, words
+
+
+def independent_joint(direction_covariance, response_sigma) -> np.ndarray:
+    """The joint covariance (5, 5) of a channel's direction, offset and gain taken as independent: ``Sigma_a`` and
+    the offset and gain variances on the diagonal (zeros for a None part)."""
+    out = np.zeros((5, 5))
+    if direction_covariance is not None:
+        out[:3, :3] = direction_covariance
+    if response_sigma is not None:
+        out[3, 3], out[4, 4] = np.square(np.asarray(response_sigma, dtype=float))
+    return out
+
+
+def joint_problem(joint, direction_covariance, response_sigma) -> str | None:
+    """Why ``joint`` is not a channel's joint covariance whose marginals are the sigmas beside it; None when it is.
+
+    Parameters
+    ----------
+    joint : array_like, shape (5, 5)
+        Of the direction (rad), offset and gain (output units, output units per field unit).
+    direction_covariance : array_like, shape (3, 3), or None
+        rad^2.
+    response_sigma : sequence of 2 (float or None), or None
+        The offset's and the gain's sigmas.
+
+    Returns
+    -------
+    str or None
+        The reason in words (a message's tail, after the key's name).
+    """
+    joint = np.asarray(joint, dtype=float)
+    if joint.shape != (5, 5):
+        return f"must be 5 x 5 (the direction's 3, the offset, the gain), got shape {joint.shape}"
+    if not np.all(np.isfinite(joint)):
+        return "must be finite"
+    if direction_covariance is None or response_sigma is None or any(v is None for v in response_sigma):
+        return ("comes without the channel's direction_covariance and both response_sigma entries: its marginals "
+                "must be those")
+    sigma = np.array(response_sigma, dtype=float)
+    scale = np.concatenate([np.full(3, np.sqrt(max(np.trace(direction_covariance), 0.0))), sigma])
+    scale[scale == 0.0] = 1.0
+    unit = joint / np.outer(scale, scale)
+    if np.max(np.abs(unit - unit.T)) > JOINT_TOLERANCE:
+        return "must be symmetric"
+    if np.linalg.eigvalsh(0.5 * (unit + unit.T))[0] < -JOINT_TOLERANCE:
+        return "must be a covariance (positive semi-definite)"
+    if (np.max(np.abs(unit[:3, :3] - np.asarray(direction_covariance) / scale[0] ** 2)) > JOINT_TOLERANCE
+            or np.any(np.abs(np.sqrt(np.maximum(np.diag(joint)[3:], 0.0)) - sigma) > JOINT_TOLERANCE * scale[3:])):
+        return ("must have the channel's direction_covariance and response_sigma as its marginals (its direction "
+                "block and the square roots of its last two diagonal entries)")
+    return None
 
 
 def with_calibration_sigma(sigma_deg: float, uncertainty, matrix, field_h) -> float:

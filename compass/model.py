@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from functools import cached_property
 import numpy as np
 
-from .iron_uncertainty import ChannelUncertainty, TumbleUncertainty
+from .iron_uncertainty import ChannelUncertainty, TumbleUncertainty, independent_joint, joint_problem
 from .response import LinearResponse, Response
 from .temperature import TemperatureCompensation
 
@@ -90,6 +90,13 @@ class SensorModel:
         covariance (c, 3, 3), response sigma (c, 2), words)`` from
         :func:`compass.iron_uncertainty.channel_priors`, already in :attr:`direction_covariance` and
         :attr:`response_sigma`; None when nothing took one.
+    joint_covariance : tuple of (ndarray of shape (5, 5) or None), or None
+        Each channel's joint covariance of its direction (rad^2), offset and gain (the units of
+        :attr:`response_sigma`), whose marginals are :attr:`direction_covariance` and :attr:`response_sigma`
+        (checked): a four-flip's, whose direction, offset and gain errors are correlated within a channel (a
+        warm-up during the first flip).  The runtime's calibration sigma then keeps the correlations
+        (:class:`compass.iron_uncertainty.ChannelUncertainty`); a channel's None takes the three as
+        independent; None when no channel has one.
     mag_latency_s : float
         How late the magnetometer reads against the gyro, s: a tumble's gyro-aided fit's
         ``tumble.gyro.mag_latency_s`` when it saw one (positive, beyond 3 sigma), else 0.
@@ -122,12 +129,15 @@ class SensorModel:
     gyro_matrix: np.ndarray | None = None
     gyro_scale_error: tuple[float, float] | None = None
     sigma_priors: tuple | None = None
+    joint_covariance: tuple | None = None
 
     def __post_init__(self):
         c = len(self.channels)
         if np.shape(self.directions) != (c, 3) or len(self.responses) != c:
             raise ValueError(f"expected {c} directions of shape (3,) and {c} responses, got "
                              f"{np.shape(self.directions)} and {len(self.responses)}")
+        if self.joint_covariance is not None:
+            self._check_joint()
         if not np.all(np.isfinite(self.directions)):
             raise ValueError("sensing directions must be finite")
         if not self.field_norm > 0:
@@ -150,6 +160,23 @@ class SensorModel:
         if smallest < MIN_SINGULAR_VALUE:
             raise NotAFieldVector(f"the sensing directions of {', '.join(self.channels)} do not span three "
                                   f"dimensions (smallest singular value {smallest:.2g}): the field cannot be solved")
+
+    def _check_joint(self) -> None:
+        """:attr:`joint_covariance` one entry a channel, each None or a covariance whose marginals are the
+        channel's sigmas (:func:`compass.iron_uncertainty.joint_problem`), else ValueError."""
+        joint = tuple(self.joint_covariance)
+        if len(joint) != len(self.channels):
+            raise ValueError(f"joint_covariance must hold one entry per channel ({len(self.channels)}), got {len(joint)}")
+        for c, s in enumerate(joint):
+            if s is None:
+                continue
+            cov = None if self.direction_covariance is None else self.direction_covariance[c]
+            sigma = None if self.response_sigma is None else self.response_sigma[c]
+            problem = joint_problem(s, cov, sigma)
+            if problem is not None:
+                raise ValueError(f"channel {self.channels[c]}'s joint_covariance {problem}")
+        object.__setattr__(self, "joint_covariance", tuple(None if s is None else np.asarray(s, dtype=float)
+                                                           for s in joint))
 
     # ------------------------------------------------------------------ derived
 
@@ -189,13 +216,18 @@ class SensorModel:
 
     @cached_property
     def _channel_uncertainty(self) -> ChannelUncertainty:
+        joint = None
+        if self.joint_covariance is not None:  # a channel without one: its sigmas (priors included), independent
+            joint = np.stack([independent_joint(None if self.direction_covariance is None else self.direction_covariance[c],
+                                                None if self.response_sigma is None else self.response_sigma[c])
+                              if s is None else s for c, s in enumerate(self.joint_covariance)])
         if self.sigma_priors is None:
             return ChannelUncertainty(self.unit_directions, self.solver, self.gains, self.direction_covariance,
-                                      self.response_sigma)
+                                      self.response_sigma, joint_covariance=joint)
         cov, sigma, words = self.sigma_priors
         prior = ChannelUncertainty(self.unit_directions, self.solver, self.gains, cov, sigma)
         return ChannelUncertainty(self.unit_directions, self.solver, self.gains, self.direction_covariance,
-                                  self.response_sigma, words, prior)
+                                  self.response_sigma, words, prior, joint)
 
     @cached_property
     def calibration_uncertainty(self) -> TumbleUncertainty | ChannelUncertainty | None:
@@ -283,6 +315,9 @@ class SensorModel:
 
             \\mathrm{var}_c = \\frac{\\sigma_{v,c}^2}{f_c'(x_c)^2} + B^T \\Sigma_{a_c} B
                 + \\frac{\\sigma_{V0,c}^2 + x_c^2 \\sigma_{K,c}^2}{K_c^2}
+
+        (with a channel's :attr:`joint_covariance` the last two terms are its quadratic form ``w^T S_c w``,
+        the correlations kept: :class:`compass.iron_uncertainty.ChannelUncertainty`)
 
         Parameters
         ----------

@@ -33,7 +33,11 @@ each channel's fitted curve and the fitted directions) over the heading sigma th
 each version's fit returns: each channel's joint direction, offset and gain covariance where the version's result
 has it, ``joint_covariance``, else the three taken as independent, as versions before 20e785c; the offsets'
 correlation across channels from the fit's covariance; both over every recording and over those called
-unexplained), that heading error
+unexplained), the same error over the heading sigma the runtime gives from the calibration file itself
+(``rt hdg e/s``: the file read by this tree's :mod:`compass.calibration`, the RMS over the same headings of
+``SensorModel.calibration_uncertainty``'s heading sigma at a level attitude, what ``compass attitude`` and
+``compass live`` add; a version whose file has no ``joint_covariance`` gets the three taken as independent, as
+the runtime did before it), that heading error
 in degrees where the loop says unexplained beside the part of the stated heading sigma the structure adds, and the median and worst time of ``calibrate_fourflip(diagnose=True)``.
 The gains and the heading check the locked path's move of the gains end to end, which only a test and a
 scratch probe did before.
@@ -231,6 +235,7 @@ def run_one(case: str, seed: int) -> dict:
     both versions.  A sigma the fit left undefined (None: not finite) is ``nan`` here.
     """
     from calibrate import calibrate_fourflip
+    from compass.calibration import dumps
 
     rec, truth = session(seed, case)
     start, cpu = time.perf_counter(), time.process_time()
@@ -257,7 +262,7 @@ def run_one(case: str, seed: int) -> dict:
             "offset_covariance": (offset_corr * np.outer(offset_sigma, offset_sigma)).tolist(),
             "joint_covariance": [None if getattr(c, "joint_covariance", None) is None else c.joint_covariance.tolist()
                                  for c in result.channels],
-            "dip_deg": float(result.dip_deg),
+            "dip_deg": float(result.dip_deg), "document": json.loads(dumps(result.to_json())),
             "heading_cost_deg": cost.get("heading_deg"), "time_s": wall, "cpu_s": cpu}
 
 
@@ -277,7 +282,21 @@ def with_heading_sigma(row: dict) -> dict:
     sigma = heading_sigma_deg(np.array(row["directions"]), np.array(row["direction_covariance"]), response_var,
                               np.array(row["gain"]), row["dip_deg"], FIELD_UT, N_HEADINGS,
                               offset_covariance=np.array(row["offset_covariance"]), channel_covariance=joint)
-    return dict(row, heading_sigma_deg=sigma)
+    return dict(row, heading_sigma_deg=sigma, runtime_sigma_deg=runtime_sigma_deg(row["document"]))
+
+
+def runtime_sigma_deg(document: dict) -> float:
+    """The heading sigma ``compass attitude`` and ``compass live`` add from a calibration file (this tree's reader
+    and runtime): RMS over :data:`N_HEADINGS` level headings in a ``FIELD_UT`` field at the file's dip of
+    ``SensorModel.calibration_uncertainty``'s heading sigma, degrees."""
+    from compass.calibration import from_dict
+    from compass.frames import r_world_from_housing, world_field
+
+    model = from_dict(document).model
+    rot = r_world_from_housing(np.arange(N_HEADINGS) * 360.0 / N_HEADINGS, 0.0, 0.0)
+    fields = rot.apply(world_field(model.dip_deg, FIELD_UT), inverse=True)
+    own = model.calibration_uncertainty
+    return float(np.sqrt(np.mean([own.heading_sigma_deg(m, b) ** 2 for m, b in zip(rot.as_matrix(), fields)])))
 
 
 def worker(cases, seeds) -> None:
@@ -312,12 +331,14 @@ def _summary(rows) -> dict:
         values = values[np.isfinite(values)]
         return float(np.sqrt(np.mean(values**2))) if values.size else None
 
-    rows = [dict(r, heading_ratio=r["heading_err_deg"] / r["heading_sigma_deg"]) for r in rows]
+    rows = [dict(r, heading_ratio=r["heading_err_deg"] / r["heading_sigma_deg"],
+                 runtime_ratio=r["heading_err_deg"] / r["runtime_sigma_deg"]) for r in rows]
     unexplained = [r for r in rows if r["unexplained"]]
     return {"gain": rms("gain_ratio", rows), "gain_unexplained": rms("gain_ratio", unexplained),
             "no_gain_sigma": int(np.sum(~np.isfinite(np.concatenate([r["gain_ratio"] for r in rows])))),
             "heading_ratio": rms("heading_ratio", rows), "heading_ratio_unexplained": rms("heading_ratio", unexplained),
             "heading_err_unexplained": rms("heading_err_deg", unexplained),
+            "runtime_ratio": rms("runtime_ratio", rows), "runtime_ratio_unexplained": rms("runtime_ratio", unexplained),
             "named": f"{top} {count}/{len(rows)}", "unexplained": sum(r["unexplained"] for r in rows),
             "ratio": float(np.sqrt(np.mean(ratios**2))), "ratio_unexplained": flagged, "err": float(np.sqrt(np.mean(np.concatenate(
                 [r["err_deg"] for r in rows]) ** 2))), "median": float(np.median(times)), "worst": float(times.max()),
@@ -338,7 +359,8 @@ def _table_row(case: str, summary: dict) -> list:
     this = summary["this"]
     return [case, this["named"], both("unexplained", "d"), both("ratio", ".2f"), both("ratio_unexplained", ".2f"),
             both("err", ".3f"), both("gain", ".2f"), both("gain_unexplained", ".2f"), both("heading_ratio", ".2f"),
-            both("heading_ratio_unexplained", ".2f"), "-" if this["heading"] is None else f"{this['heading']:.3f}",
+            both("heading_ratio_unexplained", ".2f"), both("runtime_ratio", ".2f"), both("runtime_ratio_unexplained", ".2f"),
+            "-" if this["heading"] is None else f"{this['heading']:.3f}",
             both("heading_err_unexplained", ".3f"), both("worst_cpu", ".2f")]
 
 
@@ -383,7 +405,7 @@ def main() -> None:
     print(f"bench_loop: {args.n} seeds from {args.seed} per case, 1440 samples, noise {NOISE_UT} uT; "
           f"baseline {args.baseline}\n")
     head = f"{'case':<20}{'version':<9}{'named (commonest)':<41}{'unexpl.':>8}{'err/sig':>8}{'unexpl.':>8}{'err deg':>9}" \
-           f"{'gain e/s':>9}{'unexpl.':>8}{'hdg e/s':>8}{'unexpl.':>8}{'hdg cost':>9}{'hdg err':>8}" \
+           f"{'gain e/s':>9}{'unexpl.':>8}{'hdg e/s':>8}{'unexpl.':>8}{'rt e/s':>8}{'unexpl.':>8}{'hdg cost':>9}{'hdg err':>8}" \
            f"{'median s':>9}{'worst s':>8}{'cpu s':>7}"
     print(head)
     table = []
@@ -396,11 +418,13 @@ def main() -> None:
             s = summary[name] = _summary(mine)
             cell = {key: "-" if s[key] is None else format(s[key], fmt) for key, fmt in (
                 ("heading", ".3f"), ("ratio_unexplained", ".2f"), ("gain", ".2f"), ("gain_unexplained", ".2f"),
-                ("heading_ratio_unexplained", ".2f"), ("heading_err_unexplained", ".3f"))}
+                ("heading_ratio_unexplained", ".2f"), ("heading_err_unexplained", ".3f"),
+                ("runtime_ratio_unexplained", ".2f"))}
             print(f"{case if name == 'base' or args.baseline == 'none' else '':<20}{name:<9}{s['named'][:40]:<41}"
                   f"{s['unexplained']:>5}/{s['n']:<2}{s['ratio']:>8.2f}{cell['ratio_unexplained']:>8}{s['err']:>9.3f}"
                   f"{cell['gain']:>9}{cell['gain_unexplained']:>8}{s['heading_ratio']:>8.2f}"
-                  f"{cell['heading_ratio_unexplained']:>8}{cell['heading']:>9}{cell['heading_err_unexplained']:>8}"
+                  f"{cell['heading_ratio_unexplained']:>8}{s['runtime_ratio']:>8.2f}{cell['runtime_ratio_unexplained']:>8}"
+                  f"{cell['heading']:>9}{cell['heading_err_unexplained']:>8}"
                   f"{s['median']:>9.2f}{s['worst']:>8.2f}{s['worst_cpu']:>7.2f}")
         table.append(_table_row(case, summary))
         for name, s in summary.items():
@@ -413,7 +437,8 @@ def main() -> None:
           "error from the calibration alone (RMS over 72 headings, no noise)\nover the heading sigma the file's "
           "sigmas give (this tree's calibrate.diagnosis.robust.heading_sigma_deg for both versions; a version without "
           "joint_covariance takes each channel's direction, offset and gain as independent); unexpl.: over the recordings called "
-          "unexplained.\nhdg cost: median unexplained_cost.heading_deg (the stated part the structure adds) where the "
+          "unexplained.\nrt e/s: the same error over the heading sigma the runtime (compass attitude / live) gives from the "
+          "calibration file, read by this tree (a file without joint_covariance: the three independent); unexpl.: likewise.\nhdg cost: median unexplained_cost.heading_deg (the stated part the structure adds) where the "
           "loop says unexplained;\nhdg err: RMS runtime heading error, deg, over the recordings called unexplained "
           "(what the unexplained fit costs in fact).\n"
           "median s, worst s: wall time of calibrate_fourflip(diagnose=True); cpu s: the largest CPU time of one "
@@ -422,7 +447,8 @@ def main() -> None:
     publish(args, "docs/benchmarks.md", "bench_loop", markdown_table(
         ["case", "named (this)", f"unexplained {versions}", f"err/sig {versions}", f"err/sig unexplained {versions}",
          f"err deg {versions}", f"gain err/sig {versions}", f"gain err/sig unexplained {versions}",
-         f"heading err/sig {versions}", f"heading err/sig unexplained {versions}", "heading cost deg (this)",
+         f"heading err/sig {versions}", f"heading err/sig unexplained {versions}", f"runtime heading err/sig {versions}",
+         f"runtime heading err/sig unexplained {versions}", "heading cost deg (this)",
          f"heading err deg unexplained {versions}", f"worst CPU s {versions}"], table),
         caption=f"{args.n} recordings per case from seed {args.seed}, baseline {args.baseline}", echo=False)
 

@@ -61,6 +61,10 @@ def main(argv=None) -> int:
                 if "platform_field_unseen" not in result.diagnosis:
                     continue
                 named += 1
+                if not result.diagnosis["platform_field_unseen"]["prior_stated"]:  # said in the warnings; no sigma
+                    print(f"  scale {scale:g} seed {seed}: named, its y part undetermined: no prior stated",
+                          file=sys.stderr)
+                    continue
                 before, now, gain = _errors(result, session.truth)
                 off_before.append(before)
                 off_now.append(now)

@@ -53,26 +53,31 @@ def unseen_platform_sensitivity(fit: MLFit, noise: np.ndarray) -> np.ndarray:
 def platform_prior(fit: MLFit, noise: np.ndarray) -> tuple[MLFit, dict | None]:
     """The fit with the platform field's unseen x and z parts carried into its covariance, and what they are.
 
-    Returns the fit unchanged and None when the platform field is not among its effects.
+    Returns the fit unchanged and None when the platform field is not among its effects.  When the fitted y
+    part's variance ``p_y^2 + s_y^2`` is not finite (the fit could not determine the y part) no prior can be
+    stated: the fit comes back unchanged with ``prior_sigma_fieldunit`` None, for the caller to say so (the
+    file's sigmas then leave the unseen parts out).
 
     Returns
     -------
     fit : MLFit
         Its covariance plus ``G diag(var, var) G^T`` (:func:`unseen_platform_sensitivity`).
     unseen : dict or None
-        ``prior_sigma_fieldunit`` (each of x and z), ``fitted_y_fieldunit`` and the added covariance
-        (``added_covariance``, fit units) for the caller to state the cost.
+        ``prior_sigma_fieldunit`` (each of x and z; None: not stated), ``fitted_y_fieldunit`` (None when not
+        finite) and the added covariance (``added_covariance``, fit units; absent when not stated) for the
+        caller to state the cost.
     """
     effect = next((e for e in fit.effects if isinstance(e, PlatformField)), None)
     if effect is None:
         return fit, None
     i = fit.block_start(effect)
     var = float(fit.x[i] ** 2 + fit.covariance[i, i])  # fit units (field_norm)
+    scale = float(effect.report_scale(fit.physics))
     if not np.isfinite(var):
-        return fit, None
+        y = float(fit.x[i] * scale)
+        return fit, {"fitted_y_fieldunit": y if np.isfinite(y) else None, "prior_sigma_fieldunit": None}
     g = unseen_platform_sensitivity(fit, noise)
     added = var * (g @ g.T)
-    scale = float(effect.report_scale(fit.physics))
     return with_covariance(fit, fit.covariance + added), {
         "fitted_y_fieldunit": float(fit.x[i] * scale),
         "prior_sigma_fieldunit": float(np.sqrt(var) * scale),

@@ -171,7 +171,13 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
 
 
 def platform_unseen_warning(unseen: dict) -> str:
-    """The report's words for the platform field's unseen parts (``diagnosis["platform_field_unseen"]``)."""
+    """The report's words for the platform field's unseen parts (``diagnosis["platform_field_unseen"]``): the prior
+    they took and its cost, or that none could be stated."""
+    if not unseen["prior_stated"]:
+        return ("the platform field's x part (along the flip axis) and z part (vertical) are not seen by the bench, and "
+                "the fit could not determine its y part (no finite variance), so no prior for them is stated: the "
+                "file's offset, gain and dip sigmas leave them out and the heading sigma at runtime is too small by "
+                "an amount nobody can say; recalibrate with the turntable's magnetised part removed")
     return (f"the platform field's x part (along the flip axis) and z part (vertical) are not seen by the bench: "
             f"the offsets absorb the x part and the dip and gains the z part; each is taken as 0 +- "
             f"{unseen['prior_sigma_fieldunit']:.3g} field units (from the fitted y part "
@@ -183,15 +189,22 @@ def _unseen_platform(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, di
     """The fit with the platform field's unseen x and z parts in its covariance
     (:func:`calibrate.fourflip._unseen.platform_prior`), and what they cost: each offset's sigma and a level
     housing's heading sigma (:func:`calibrate.diagnosis.robust.heading_sigma_deg`) they add,
-    ``sqrt(with^2 - without^2)``; None when the platform field is not in the fit."""
+    ``sqrt(with^2 - without^2)``; None when the platform field is not in the fit.  When the fitted y part's
+    variance is not finite no prior is stated: the fit unchanged, and ``prior_stated`` false with the reason."""
     wide, prior = platform_prior(fit, noise)
     if prior is None:
         return fit, None
+    if prior["prior_sigma_fieldunit"] is None:
+        return fit, {"prior_stated": False, "fitted_y_fieldunit": prior["fitted_y_fieldunit"],
+                     "method": ("the platform field's x and z parts are not seen by the bench; the fitted y part's "
+                                "variance p_y^2 + s_y^2, the prior's, is not finite (the fit could not determine the y "
+                                "part), so no prior is stated and the file's sigmas leave the unseen parts out")}
     c = len(channels)
     offsets = [4 * k + 2 for k in range(c)]
     off_sigma = [np.sqrt(np.diag(f.covariance)[offsets]) * f.physics.gains for f in (fit, wide)]
     heading = [_heading_sigma(f) for f in (fit, wide)]
     return wide, {
+        "prior_stated": True,
         "fitted_y_fieldunit": prior["fitted_y_fieldunit"],
         "prior_sigma_fieldunit": prior["prior_sigma_fieldunit"],
         "offset_sigma_added": {name: float(v) for name, v in zip(channels, extra_sigma(off_sigma[1], off_sigma[0]))},

@@ -284,10 +284,9 @@ def result_from_ml(fit: MLFit, rec: FourFlipRecording, noise, field_ut, *, effec
     per = 4
     channels = []
     x_range = _seen_range(phys, samples if samples is not None else BenchSamples.from_recording(rec))
-    joint = fit.channel_covariance()
+    joint = fit.channel_covariance()  # the file's offset and gain sigmas are its marginals (the runtime reads both)
     for c, name in enumerate(rec.channels):
-        off_sigma = float(sigma[per * c + 2] * phys.gains[c]) if np.isfinite(sigma[per * c + 2]) else None
-        gain_sigma = float(sigma[per * c + 3] * phys.gains[c]) if np.isfinite(sigma[per * c + 3]) else None
+        off_sigma, gain_sigma = (float(np.sqrt(v)) if np.isfinite(v) else None for v in np.diag(joint[c])[3:])
         response = _response_from_physics(phys, c, x_range[c])
         channels.append(ChannelCalibration(name, phys.directions[c], fit.direction_covariance[c], response,
                                            off_sigma, gain_sigma, joint[c]))

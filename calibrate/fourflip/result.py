@@ -34,6 +34,9 @@ class ChannelCalibration:
     joint_covariance : ndarray, shape (5, 5), or None
         Joint covariance of the direction (3), offset and gain (the units above): their errors are
         correlated within a channel (a warm-up during the first flip ties the offset to the direction).
+        Its marginals are ``direction_covariance``, ``offset_sigma`` and ``gain_sigma`` (widened with them when
+        the diagnosis said unexplained, with the platform field's prior when it is in); written as the channel's
+        ``joint_covariance`` when finite (a parameter the fit left undetermined makes its rows NaN).
     """
 
     name: str
@@ -148,8 +151,10 @@ class FourFlipResult(CalibrationResult):
         """The calibration file of SPEC section 2, as a JSON-ready dictionary."""
         channels = {}
         for ch in self.channels:
+            joint = ch.joint_covariance
             entry = channel_entry(ch.direction, ch.response.to_json(), covariance=ch.direction_covariance,
-                                  response_sigma=None if ch.offset_sigma is None else (ch.offset_sigma, ch.gain_sigma))
+                                  response_sigma=None if ch.offset_sigma is None else (ch.offset_sigma, ch.gain_sigma),
+                                  joint_covariance=joint if joint is not None and np.all(np.isfinite(joint)) else None)
             sig = ch.angles_sigma_deg
             if sig:
                 entry["angles_sigma_deg"] = sig

@@ -23,7 +23,8 @@ def header(kind: str) -> dict:
     return {"format": FORMAT, KIND_KEY: kind}
 
 
-def channel_entry(direction, response: dict, *, covariance=None, response_sigma=None, angles: bool = True) -> dict:
+def channel_entry(direction, response: dict, *, covariance=None, response_sigma=None, joint_covariance=None,
+                  angles: bool = True) -> dict:
     """One channel of the channel form (SPEC section 2).
 
     Parameters
@@ -36,6 +37,10 @@ def channel_entry(direction, response: dict, *, covariance=None, response_sigma=
         Covariance of the direction (rad^2), written with ``direction_sigma_deg`` (null without it).
     response_sigma : (float, float), optional
         Standard errors of (offset, gain), output units and output units per field unit.
+    joint_covariance : array_like, shape (5, 5), optional
+        The joint covariance of the direction (3, rad), offset and gain (the units above) whose marginals are
+        ``covariance`` and ``response_sigma`` (written as ``joint_covariance``; the runtime's heading sigma then
+        keeps their correlations: :class:`compass.iron_uncertainty.ChannelUncertainty`).  Finite.
     angles : bool
         Add seed 000's angles ``theta_deg, gamma_deg, elevation_deg, psi_deg``.
 
@@ -55,6 +60,8 @@ def channel_entry(direction, response: dict, *, covariance=None, response_sigma=
         entry["direction_covariance"] = np.asarray(covariance, dtype=float).tolist()
     if response_sigma is not None:
         entry["response_sigma"] = {"offset": _plain(response_sigma[0]), "gain": _plain(response_sigma[1])}
+    if joint_covariance is not None:
+        entry["joint_covariance"] = np.asarray(joint_covariance, dtype=float).tolist()
     return entry
 
 
@@ -83,6 +90,8 @@ def model_to_dict(model) -> dict:
         if model.response_sigma is not None:
             entry["response_sigma"] = {k: None if prior_sigma is not None and prior_sigma[c, i] > 0
                                        else float(model.response_sigma[c, i]) for i, k in enumerate(("offset", "gain"))}
+        if model.joint_covariance is not None and model.joint_covariance[c] is not None:
+            entry["joint_covariance"] = model.joint_covariance[c].tolist()
         channels[name] = entry
     out = header("channels") | {"channels": channels, "dip_deg": model.dip_deg, "field_ut": model.field_ut}
     if model.temperature is not None and model.temperature.reference_c is not None:

@@ -281,7 +281,7 @@ def _channel_model(d: dict):
     channels = d.get("channels")
     if not isinstance(channels, dict) or not channels:
         raise CalibrationFileError("expected 'channels': an object of channel name -> direction and response")
-    names, directions, responses, covariances, sigmas = [], [], [], [], []
+    names, directions, responses, covariances, sigmas, joints = [], [], [], [], [], []
     for name, ch in channels.items():
         key = ("channels", name)
         if name in RESERVED_NAMES or not name.strip():
@@ -314,6 +314,7 @@ def _channel_model(d: dict):
                                            f"{gain / gain_sigma:.1f} sigma from zero (a dead or disconnected sensor); "
                                            "recalibrate the module after repair", key=key)
         sigmas.append(rs)
+        joints.append(_joint_covariance(ch.get("joint_covariance"), cov, rs, check.sub(key, "joint_covariance")))
     gains = np.array([r.gain for r in responses])
     covariance, sigma, priors = _channel_sigmas(names, np.array(directions), gains, field_ut or 1.0, covariances,
                                                 sigmas)
@@ -330,6 +331,7 @@ def _channel_model(d: dict):
             response_sigma=sigma,
             temperature=_temperature(d, names, gains),
             sigma_priors=priors,
+            joint_covariance=None if all(j is None for j in joints) else tuple(joints),
         )
     except CalibrationFileError:
         raise
@@ -337,6 +339,20 @@ def _channel_model(d: dict):
         raise NoFieldVector(f"cannot give a field vector: {exc}", key="channels") from None
     except ValueError as exc:
         raise CalibrationFileError(f"are unusable: {exc}", key="channels") from None
+
+
+def _joint_covariance(value, direction_covariance, response_sigma, key):
+    """A channel's ``joint_covariance`` (5 x 5: its direction's, offset's and gain's covariance, whose marginals are
+    the channel's ``direction_covariance`` and ``response_sigma``), or None when absent or null."""
+    from ..iron_uncertainty import joint_problem
+
+    if value is None:
+        return None
+    joint = check.array(value, (5, 5), key)
+    problem = joint_problem(joint, direction_covariance, response_sigma)
+    if problem is not None:
+        raise CalibrationFileError(problem, key=key)
+    return joint
 
 
 def _channel_sigmas(names, directions, gains, field_norm, covariances, sigmas) -> tuple:

@@ -51,14 +51,18 @@ def test_a_recording_reads_its_gains_and_heading_within_their_sigmas(bench, case
     # each ratio is a standard normal's size (3 gains) or a heading's RMS error over its sigma: 5 sigma bounds
     assert np.all(np.abs(row["gain_ratio"]) < 5.0)
     assert 0.0 < row["heading_err_deg"] < 5.0 * row["heading_sigma_deg"]
+    # the runtime's heading sigma from the file (rt e/s) is the four-flip's own but for the offsets' correlation
+    # across channels, which the file does not keep
+    assert row["runtime_sigma_deg"] == pytest.approx(row["heading_sigma_deg"], rel=0.01)
 
 
 def test_the_summary_leaves_out_a_gain_without_sigma_and_counts_it(bench):
     row = {"effects": [], "unexplained": False, "ratio": [1.0, 1.0, 1.0], "err_deg": [0.01] * 3, "time_s": 0.1,
            "cpu_s": 0.1, "heading_cost_deg": None, "gain_ratio": [3.0, float("nan"), 4.0],
-           "heading_err_deg": 0.02, "heading_sigma_deg": 0.01}
+           "heading_err_deg": 0.02, "heading_sigma_deg": 0.01, "runtime_sigma_deg": 0.04}
     summary = bench._summary([row])
     assert summary["gain"] == pytest.approx(np.sqrt(12.5))
     assert summary["no_gain_sigma"] == 1
     assert summary["heading_ratio"] == pytest.approx(2.0)
+    assert summary["runtime_ratio"] == pytest.approx(0.5)
     assert "heading_ratio" not in row  # the input rows are left as they were

@@ -174,13 +174,29 @@ def test_unexplained_structure_widens_the_files_sigmas_and_says_the_cost(write_s
     model = from_dict(result.to_json()).model
     assert np.degrees(np.sqrt(np.trace(model.direction_covariance, axis1=1, axis2=2))) == pytest.approx(
         [entry["widened"] for entry in cost["direction_sigma_deg"].values()], rel=1e-6)
+    # each channel's joint covariance in the file is the widened one: its marginals are the file's (widened)
+    # sigmas, and the runtime's heading sigma from it is the diagnosis's widened one (but for the offsets'
+    # correlation across channels, which the file does not keep)
+    for c, joint in enumerate(model.joint_covariance):
+        np.testing.assert_allclose(joint[:3, :3], model.direction_covariance[c], rtol=1e-9, atol=1e-12 * joint[0, 0])
+        assert np.sqrt(np.diag(joint)[3:]) == pytest.approx(model.response_sigma[c], rel=1e-12)
+    from compass.frames import r_world_from_housing, world_field
+
+    rot = r_world_from_housing(np.arange(0.0, 360.0, 5.0), 0.0, 0.0)
+    fields = rot.apply(world_field(model.dip_deg, model.field_norm), inverse=True)
+    own = model.calibration_uncertainty
+    runtime = np.sqrt(np.mean([own.heading_sigma_deg(m, b) ** 2 for m, b in zip(rot.as_matrix(), fields)]))
+    assert runtime == pytest.approx(cost["heading_sigma_deg"]["widened"], rel=0.01)
     # the runtime's heading sigma (compass attitude / live) carries it: against the same file with the
-    # naive direction covariance, every level sample's heading sigma is larger
+    # naive fit's sigmas (its joint covariance and their marginals), every level sample's heading sigma is larger
     from compass.attitude import solve_attitude
 
+    joint = naive.channel_covariance()
+    naive_model = replace(model, direction_covariance=naive.direction_covariance, joint_covariance=tuple(joint),
+                          response_sigma=np.sqrt(np.diagonal(joint, axis1=1, axis2=2)[:, 3:]))
     raw = rec.outputs[::40]
     wide = solve_attitude(model, raw, level=True).heading_sigma_deg
-    plain = solve_attitude(replace(model, direction_covariance=naive.direction_covariance), raw, level=True)
+    plain = solve_attitude(naive_model, raw, level=True)
     assert np.all(wide > plain.heading_sigma_deg)
     # and compass live / the replay / run_filter (issue 24): the same stream, every row's heading sigma larger
     import io
@@ -193,7 +209,7 @@ def test_unexplained_structure_widens_the_files_sigmas_and_says_the_cost(write_s
     t = np.arange(0.0, 8.0, 0.01)
     s = simulate_device(model, t, seed=3)
     sigmas = []
-    for m in (model, replace(model, direction_covariance=naive.direction_covariance)):
+    for m in (model, naive_model):
         out = io.StringIO()
         replay(LiveSession(m, out=out), t, s.raw, s.accel, s.gyro)
         rows = np.array([line.split(",") for line in out.getvalue().splitlines()[2:]], dtype=float)

@@ -1,5 +1,7 @@
 """The platform field's unseen x and z parts: a stated prior carried into the file's sigmas."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -99,3 +101,64 @@ def test_the_report_says_the_x_and_z_parts_are_unseen_and_their_heading_cost(pla
     # with the gains' common scale, by ~p_y sin(dip) b_z)
     y = result.effects[0]["parameters"]["platform_field.y_fieldunit"]
     assert unseen["prior_sigma_fieldunit"] == pytest.approx(np.hypot(y["value"], y["sigma"]), rel=1e-3)
+
+
+def test_the_files_joint_covariance_carries_the_prior_and_its_marginals_are_the_files_sigmas(platform_fit):
+    """With the platform prior in, each channel's ``joint_covariance`` is the widened one: its marginals are the
+    file's sigmas (which hold the prior), and the runtime's heading sigma from the file is the diagnosis's
+    ``heading_sigma_deg.with`` but for the offsets' correlation across channels (the prior's ``a_x b_x`` moves
+    every offset by one ``b_x``; the file keeps each channel's block)."""
+    from compass.calibration import dumps, from_dict
+    from compass.frames import r_world_from_housing, world_field
+
+    rec, _, _ = platform_fit
+    result = calibrate_fourflip(rec, diagnose=True)
+    doc = json.loads(dumps(result.to_json()))
+    for ch in doc["channels"].values():
+        joint = np.array(ch["joint_covariance"])
+        np.testing.assert_allclose(joint[:3, :3], ch["direction_covariance"], rtol=1e-9, atol=1e-12 * joint[0, 0])
+        assert np.sqrt(np.diag(joint)[3:]) == pytest.approx([ch["response_sigma"]["offset"],
+                                                             ch["response_sigma"]["gain"]], rel=1e-12)
+    model = from_dict(doc).model
+    rot = r_world_from_housing(np.arange(0.0, 360.0, 5.0), 0.0, 0.0)
+    fields = rot.apply(world_field(model.dip_deg, model.field_norm), inverse=True)
+    own = model.calibration_uncertainty
+    runtime = np.sqrt(np.mean([own.heading_sigma_deg(m, b) ** 2 for m, b in zip(rot.as_matrix(), fields)]))
+    assert runtime == pytest.approx(result.diagnosis["platform_field_unseen"]["heading_sigma_deg"]["with"], rel=0.01)
+
+
+def test_a_y_part_without_a_finite_variance_states_no_prior_and_says_so(platform_fit, monkeypatch):
+    """The fitted y part's variance not finite (the fit could not determine it): no prior can be stated; the fit
+    comes back unchanged, and the diagnosis and the report's warnings say the unseen parts are left out (they
+    were dropped without a word)."""
+    from dataclasses import replace
+
+    import calibrate.fourflip.diagnosis as diagnosis
+    from calibrate.fourflip.diagnosis import _unseen_platform, platform_unseen_warning
+
+    rec, fit, noise = platform_fit
+    i = fit.block_start(fit.effects[0])
+    cov = fit.covariance.copy()
+    cov[i, :] = cov[:, i] = np.nan
+    undetermined = replace(fit, covariance=cov)
+    same, unseen = platform_prior(undetermined, noise)
+    assert same is undetermined and unseen["prior_sigma_fieldunit"] is None
+    assert unseen["fitted_y_fieldunit"] == pytest.approx(fit.x[i] * fit.physics.field_norm, rel=1e-12)
+    same, unseen = _unseen_platform(undetermined, noise, rec.channels)
+    assert same is undetermined and unseen["prior_stated"] is False
+    assert "no prior for them is stated" in platform_unseen_warning(unseen)
+
+    real = diagnosis.platform_prior
+
+    def y_undetermined(f, n):  # the loop's final fit with its y part's row and column NaN
+        j = f.block_start(f.effects[0])
+        c = f.covariance.copy()
+        c[j, :] = c[:, j] = np.nan
+        return real(replace(f, covariance=c), n)
+
+    monkeypatch.setattr(diagnosis, "platform_prior", y_undetermined)
+    result = calibrate_fourflip(rec, diagnose=True)
+    assert result.diagnosis["platform_field_unseen"]["prior_stated"] is False
+    said = [w for w in result.warnings if "not seen by the bench" in w]
+    assert len(said) == 1 and "no prior for them is stated" in said[0] and "no prior for them is stated" in result.report()
+    assert "adds" not in said[0]
