@@ -13,16 +13,14 @@ choice; each caller hands it what differs as small callables:
 3. Take the refit with the largest delta-BIC; stop unless it is decisive (above
    :data:`DECISIVE_BIC`).
 4. Veto it, and stop, if it explains less than :data:`MIN_SHARE` of the structured residual
-   (the chi-square above its dof), unless it is what turns a residual with structure into one without
-   (``verdict`` of the fit before and with it), or if one of the caller's ``checks`` objects (e.g.
-   :func:`determined`: a singular covariance; the tumble's: a wider field-gravity angle spread); else
-   record a step (``write_step``) and repeat, at most :data:`MAX_STEPS` times.  The exception: the
-   chi-square above its dof is mostly the noise floor's own error on a long recording (the four-flip's
-   second-difference floor, 3.7 % in sigma, moves it by about 160 on 4320 residuals; chi-square's own
-   spread is 93), so a real effect of delta-chi-square 70-130 read a 23-28 % share and was dropped with
-   the residual left unexplained, where with it the structure test found nothing (docs/benchmarks.md,
-   "An odd cubic the loop did not name").  A small share in a residual already without structure
-   still vetoes (a second effect fitting what an effect outside the vocabulary left).
+   (the chi-square above its dof) while structure remains with it (``verdict`` of the fit with it), or if
+   one of the caller's ``checks`` objects (e.g. :func:`determined`: a singular covariance; the tumble's: a
+   wider field-gravity angle spread); else record a step (``write_step``) and repeat, at most
+   :data:`MAX_STEPS` times.  The share alone does not veto: the chi-square above its dof is mostly the
+   noise floor's own error on a long recording (the four-flip's second-difference floor, 3.7 % in sigma,
+   moves it by about 160 on 4320 residuals; chi-square's own spread is 93), so a real effect of
+   delta-chi-square 70-130 read a 23-28 % share and was dropped with the residual left unexplained, where
+   with it the structure test found nothing (docs/benchmarks.md, "An odd cubic the loop did not name").
 5. Revisit what is in (when the caller can ``revise``: refit a model with a given list of effects):
    after each addition, every effect already in is refitted without it (its evidence now) and its
    other forms are score-tested there; a form that beats the current one by more than
@@ -63,8 +61,8 @@ STRUCTURE_P = 1e-3
 DECISIVE_BIC = 10.0
 """delta-BIC above which evidence counts as decisive (Kass and Raftery's 'very strong')."""
 MIN_SHARE = 0.3
-"""Smallest share of the structured residual an effect must explain to be tried further, unless the
-residual has structure without it and none with it (it explained all there was, whatever the share reads)."""
+"""Smallest share of the structured residual an effect must explain to be tried further, when structure
+remains with it (an effect that leaves none has explained all there was, whatever the share reads)."""
 MAX_STEPS = 4
 """Most effects added to one model."""
 MAX_REFITS = 4
@@ -494,7 +492,7 @@ def _revisit(current, steps: list, pool: Sequence, revise: Callable, score: Call
 
 def _veto(p: Proposal, checks: Sequence[Check], verdict: Callable) -> tuple[str | None, dict]:
     """The first veto of a proposal (the share first, then ``checks``), and what the checks measured."""
-    if p.share < MIN_SHARE and not (verdict(p.current)[1] is True and verdict(p.trial)[1] is False):
+    if p.share < MIN_SHARE and verdict(p.trial)[1] is not False:
         return f"it explains only {100 * p.share:.0f} % of the structured residual", {}
     measured = {}
     for check in checks:
