@@ -127,8 +127,9 @@ def _static(case: str, x: np.ndarray) -> np.ndarray:
     return x
 
 
-def session(seed: int, case: str):
-    """One recording of ``case`` and what is behind it (:class:`Truth`)."""
+def session(seed: int, case: str, noise_ut: float = NOISE_UT):
+    """One recording of ``case`` and what is behind it (:class:`Truth`); ``noise_ut`` the white noise, uT (0: the
+    same recording without it: every other draw is the same)."""
     from compass.io.fourflip import FourFlipRecording
 
     rng = np.random.default_rng(seed)
@@ -191,7 +192,7 @@ def session(seed: int, case: str):
         rate = np.gradient(x, axis=0)
         rate[np.r_[True, flip[1:] != flip[:-1]]] = 0.0
         offsets = offsets + 0.08 * np.sign(rate) * gains
-    out = offsets + drift + g * x + rng.normal(size=x.shape) * gains * NOISE_UT
+    out = offsets + drift + g * x + rng.normal(size=x.shape) * gains * noise_ut
     if case == "spike bursts":
         for start in rng.choice(flip.size - 6, size=12, replace=False):
             length, channel = rng.integers(3, 7), rng.integers(3)
@@ -241,6 +242,11 @@ def run_one(case: str, seed: int) -> dict:
     start, cpu = time.perf_counter(), time.process_time()
     result = calibrate_fourflip(rec, diagnose=True)
     wall, cpu = time.perf_counter() - start, time.process_time() - cpu
+    return summarise(case, seed, truth, result, wall, cpu)
+
+
+def summarise(case: str, seed: int, truth: Truth, result, wall: float, cpu: float) -> dict:
+    """:func:`run_one`'s row of one calibrated recording (``result``, ``wall`` and ``cpu`` seconds)."""
     d = result.diagnosis
     err = np.degrees(np.arccos(np.clip(np.sum(result.directions * truth.directions, axis=1), -1, 1)))
     sigma = np.array([c.direction_sigma_deg for c in result.channels])

@@ -1,10 +1,13 @@
-"""The shared evidence loop revisits what it added: a form replaced once a later effect is in, an effect dropped."""
+"""The shared evidence loop revisits what it added (a form replaced once a later effect is in, an effect dropped) and
+vetoes a small share only where structure remains."""
 
 import numpy as np
 import pytest
 
-from calibrate.diagnosis.evidence import FitRecord, _revisit, linearised_score, select_effects
+from calibrate.diagnosis.evidence import (DECISIVE_BIC, MIN_SHARE, FitRecord, _revisit, linearised_score,
+                                         select_effects)
 from calibrate.effects import EffectForm
+from calibrate.noise import chi2_sf
 
 N = 500
 
@@ -51,12 +54,13 @@ def _problem(y, t, z):
                                   step, revisions, lambda text: None)
         return current, steps, revisions
 
-    def run(pool, revise=True):
+    def run(pool, revise=True, verdict=lambda f: (None, False)):
         return select_effects(fit(()), pool, score=score, refit=lambda c, e, s: fit(c.effects + (e,)),
                               n_params=lambda e: len(e.columns(t, z)), log_n=np.log(N),
                               base_step={"model": "base", "residual_rms": 0.0}, write_step=step,
-                              verdict=lambda f: (None, False), revise=(lambda c, e: fit(e)) if revise else None)
+                              verdict=verdict, revise=(lambda c, e: fit(e)) if revise else None)
 
+    run.fit = fit
     return run, revisit
 
 
@@ -91,3 +95,45 @@ def test_an_effect_that_no_longer_earns_its_place_is_dropped():
     _, revisit = _problem(3 * z + 20 * t + rng.normal(size=N), t, z)
     current, steps, revisions = revisit((LIN, ZED), [LIN, ZED])
     assert [e.form for e in current.effects] == ["linear", "z"] and revisions == []
+
+
+def _low_floor_problem(unknown: float):
+    """y = 0.7 t + 1.0 ``unknown`` sin(3 pi t) + noise of sigma 1.25, weighted as if the floor were 1: the chi-square
+    above its dof (about 280 of it white) dwarfs the trend's drop (about 80, delta-BIC about 75).  The verdict
+    regresses the residual on t, t^2 and the third half-wave against the residual's own variance."""
+    rng = np.random.default_rng(2)
+    t = np.linspace(-1.0, 1.0, N)
+    y = 0.7 * t + unknown * np.sin(3 * np.pi * t) + 1.25 * rng.normal(size=N)
+    run, _ = _problem(y, t, np.zeros(N))
+    probe = np.column_stack([t, t * t, np.sin(3 * np.pi * t), np.cos(3 * np.pi * t)])
+
+    def verdict(f):
+        r = np.asarray(f.residuals)
+        coef, *_ = np.linalg.lstsq(probe, r, rcond=None)
+        found = probe @ coef
+        stat = float(found @ found / (np.sum((r - found) ** 2) / (N - probe.shape[1] - f.x.size)))
+        p = chi2_sf(stat, probe.shape[1])
+        return (stat, probe.shape[1], p), p < 1e-3
+
+    base, trial = run.fit(()), run.fit((LIN,))
+    share = (base.chi2 - trial.chi2) / (base.chi2 - base.dof)
+    return run([LIN], verdict=verdict), share, base.bic() - trial.bic()
+
+
+def test_a_small_share_does_not_veto_an_effect_that_leaves_no_structure():
+    """The share is read against chi2 - dof, which a floor 25 % low fills with white noise: the trend explains
+    under MIN_SHARE of it, yet with the trend in the residual is white, so it is claimed (it was vetoed and the
+    residual called unexplained before)."""
+    chosen, share, gain = _low_floor_problem(0.0)
+    assert share < MIN_SHARE and gain > 3 * DECISIVE_BIC  # the case the share alone vetoed
+    assert [e.name for e in chosen.fit.effects] == ["trend"]
+    assert chosen.unexplained is False and chosen.not_claimed == []
+
+
+def test_a_small_share_still_vetoes_an_effect_that_leaves_structure():
+    """The same trend beside a structure no effect describes (a third half-wave): with the trend in, structure
+    remains, so the trend's small share vetoes it and nothing is claimed."""
+    chosen, share, gain = _low_floor_problem(1.0)
+    assert share < MIN_SHARE and gain > 3 * DECISIVE_BIC
+    assert chosen.fit.effects == () and chosen.unexplained is True
+    assert len(chosen.not_claimed) == 1 and "it explains only" in chosen.not_claimed[0]
