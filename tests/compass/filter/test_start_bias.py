@@ -94,7 +94,7 @@ def test_the_heading_row_does_not_move_the_bias_before_the_start_rest_measures_i
     # tilted, still: the true vertical bias turns the heading by 0.3 deg/s, the field sees it; with the hold the
     # bias stays at its start until the rest's first confirmed readings (1.5 s), then the rest measures it
     t, accel, gyro, field = recording(3, 4.0, tilt=(8.0, -5.0))
-    track = run_filter(t, accel, gyro, field, config(start_field_bias_hold=hold))
+    track = run_filter(t, accel, gyro, field, config(start_field_bias_hold=hold))  # not the default: measured
     started = np.all(np.isfinite(track.gyro_bias), axis=1)
     early = started & (t < 1.45)
     assert early.sum() > 100
@@ -110,7 +110,7 @@ def test_the_heading_row_does_not_move_the_bias_before_the_start_rest_measures_i
 def test_in_motion_from_the_start_the_heading_row_holds_the_bias_for_the_tilts_hold_only():
     # turning at 20 deg/s from the first sample: no rest; the heading row moves the bias after the tilt's 2 s hold
     t, accel, gyro, field = recording(4, 4.0, turn_rad_s=math.radians(20.0), tilt=(8.0, -5.0))
-    cfg = config()
+    cfg = config(start_field_bias_hold=True)
     track = run_filter(t, accel, gyro, field, cfg)
     started = np.all(np.isfinite(track.gyro_bias), axis=1)
     first = track.t_s[np.argmax(started)]
