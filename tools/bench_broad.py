@@ -123,6 +123,10 @@ CANDIDATES = {  # name: (FilterConfig changes, hard-iron tracker on, noise from 
     "- dip-wander field error": ({"field_error_from_dip": False}, True, False),
     "- rest bias": ({"rest_bias_estimation": False}, True, False),
     "rest unconfirmed (before)": ({"rest_confirm_s": 0.0}, True, False),  # issue 22: the rest's tail taken for bias
+    # issue 22: the start's rest counted from the detector's 1.5 s; the field's heading row held off the start's bias
+    "start rest from 1.5 s (before)": ({"start_rest_bias": False}, True, False),
+    "start heading row held": ({"start_field_bias_hold": True}, True, False),
+    "start heading row held only": ({"start_rest_bias": False, "start_field_bias_hold": True}, True, False),
     "- motion-adaptive accel": ({"motion_adaptive_accel": False}, True, False),
     "- inertial low-pass": ({"accel_time_constant_s": 0.01}, True, False),
     "- gyro scale-error noise": ({"gyro_scale_error": 1e-9}, True, False),

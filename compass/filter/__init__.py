@@ -85,6 +85,8 @@ low-passed rate below 2 deg/s, VQF's rest detector and bias bound) the gyro read
 direct bias measurement on every axis, so the heading does not drift while the field is rejected.
 A reading counts only once the rest has held ``rest_confirm_s`` (1 s) beyond it: the onset of a slow
 turn stays under the detector's thresholds until its 0.5 s low-pass catches up, and is not a bias.
+The rest the attitude starts in counts from its first reading (``start_rest_bias``: no motion
+precedes it).
 
 The **gate** (VQF's and Fusion's magnetic rejection): the field is used only while its magnitude
 and its dip against the filter's own up direction match a reference within tolerances, and (once

@@ -88,6 +88,9 @@ class GyroState(PackedCovariance):
         The gyro readings at rest not yet confirmed (``(gx, gy, gz, dt, rest_s)``, rad/s and s, the rest's
         duration when each was read, oldest first): each measures the bias once the rest has held
         ``FilterConfig.rest_confirm_s`` beyond it; dropped when the rest ends.
+    start_rest : bool
+        The rest detector has held since the attitude (re)started and none of its readings has measured the bias
+        yet (``FilterConfig.start_rest_bias``, ``start_field_bias_hold``).
     accel_bad_s : float
         How long the accelerometer has been out of range, s.
     steps : int
@@ -129,6 +132,7 @@ class GyroState(PackedCovariance):
     age_lp: tuple = (0.0, 0.0)
     acc_residual: tuple = (0.0, 0.0, 0.0)
     rest_pending: deque = field(default_factory=deque)
+    start_rest: bool = True
 
 
 class GyroFilter(AttitudeFilter):
@@ -209,6 +213,7 @@ class GyroFilter(AttitudeFilter):
         s.residual_var, s.acc_residual = 0.0, (0.0, 0.0, 0.0)
         s.rest_gyro, s.rest_acc, s.rest_s = s.rate_rad_s, a[:3], 0.0
         s.rest_pending.clear()
+        s.start_rest = True
         s.since_start_s = 0.0
 
     def _restart_accel(self, a) -> None:
@@ -218,6 +223,7 @@ class GyroFilter(AttitudeFilter):
             s.acc_lp_rate, s.age_lp = (0.0, 0.0, 0.0), (s.since_start_s, 0.0)  # the low-pass content is new: age 0
         s.rest_acc, s.rest_s = a[:3], 0.0
         s.rest_pending.clear()
+        s.start_rest = False
 
     def _propagate(self, dt: float) -> None:
         """Nominal attitude by the exact exponential of the bias-corrected rate; inertial low-pass; covariance."""
@@ -247,7 +253,8 @@ class GyroFilter(AttitudeFilter):
     def _rest(self, dt: float, a) -> None:
         """VQF's rest detector; at rest the gyro reading measures its bias, once the rest has held
         ``FilterConfig.rest_confirm_s`` beyond it (rest confirmed on both sides: the onset of a slow turn, below
-        the detector's thresholds until its low-pass catches up, is not taken for the bias)."""
+        the detector's thresholds until its low-pass catches up, is not taken for the bias).  The rest the attitude
+        starts in counts from its first reading (``FilterConfig.start_rest_bias``): no motion precedes it."""
         s = self._s
         alpha = -math.expm1(-dt / _REST_TAU_S)
         (gx, gy, gz), (rx, ry, rz) = s.rate_rad_s, s.rest_gyro
@@ -264,12 +271,17 @@ class GyroFilter(AttitudeFilter):
         if not steady:
             s.rest_s = 0.0
             s.rest_pending.clear()
+            s.start_rest = False
             return
         s.rest_s += dt
-        if s.rest_s < self._REST_MIN_S or not self.config.rest_bias_estimation:
+        cfg = self.config
+        if not cfg.rest_bias_estimation:
             return
         pending = s.rest_pending
-        pending.append((gx, gy, gz, dt, s.rest_s))
+        if s.rest_s >= self._REST_MIN_S or (s.start_rest and cfg.start_rest_bias):
+            pending.append((gx, gy, gz, dt, s.rest_s))
+        if s.rest_s < self._REST_MIN_S:
+            return
         while pending and s.rest_s - pending[0][4] >= self.config.rest_confirm_s:  # by time: the rate may change
             self._rest_reading(*pending.popleft()[:4])
 
@@ -279,16 +291,18 @@ class GyroFilter(AttitudeFilter):
         rx, ry, rz = s.rest_gyro
         # the low-passed rate must also agree with the bias estimate (3 sigma): once the bias is known,
         # the onset of a slow turn is not taken for a bias change
-        p, (bx, by, bz) = s.covariance, s.bias_rad_s
+        p, (bx, by, bz), x = s.covariance, s.bias_rad_s, self._x
+        bx, by, bz = bx + x[3], by + x[4], bz + x[5]  # with what this sample's earlier readings taught (a start's burst)
         floor = self.coefficients.rest_floor_var
         if (rx - bx) ** 2 > 9.0 * (p[15] + floor) or (ry - by) ** 2 > 9.0 * (p[18] + floor) \
                 or (rz - bz) ** 2 > 9.0 * (p[20] + floor):
             return
         var = self.coefficients.rest_rate_var_density / dt + _REST_RATE_SIGMA**2
-        x = self._x
-        p = update_axis(p, x, 3, gx - bx, var)
-        p = update_axis(p, x, 4, gy - by, var)
-        s.covariance = update_axis(p, x, 5, gz - bz, var)
+        s.start_rest = False
+        b0, b1, b2 = s.bias_rad_s  # update_axis takes the innovation against the nominal bias
+        p = update_axis(p, x, 3, gx - b0, var)
+        p = update_axis(p, x, 4, gy - b1, var)
+        s.covariance = update_axis(p, x, 5, gz - b2, var)
 
     def _tilt(self, dt: float, a) -> bool:
         """Tilt from the specific force low-passed in the inertial frame (:mod:`compass.filter`).
@@ -392,15 +406,24 @@ class GyroFilter(AttitudeFilter):
             var = c.yaw_var if tilt_in_model else c.yaw_var + c.tan_dip2 * (p[0] + p[6]) / 2.0
             if dt > 0.0:
                 var += self.gate.field_heading_var(s.gate) * 2.0 * self.config.field_error_time_s / dt
+            # the start's bias is held (FilterConfig.start_field_bias_hold): the field's heading error would pass for it
+            hold = self.config.start_field_bias_hold and self._start_holds_bias()
             if mode == "kalman":
-                s.covariance = update_axis(p, self._x, 2, innovation, var)
+                s.covariance = update_axis(p, self._x, 2, innovation, var, hold)
                 return
             tilt = (0.0, 0.0)
             if tilt_in_model:  # the azimuth moves by tan(dip) times the tilt about the field's horizontal direction
                 t, azimuth = math.tan(math.radians(s.gate.ref_dip_deg)), s.gate.ref_azimuth_rad
                 tilt = (t * math.cos(azimuth), t * math.sin(azimuth))
             s.covariance = update_heading(p, self._x, innovation, var, None if mode == "no-tilt" else (m[6], m[7], m[8]),
-                                          tilt)
+                                          tilt, hold)
+
+    def _start_holds_bias(self) -> bool:
+        """The field's heading row does not move the bias: the tilt's hold (``accel_time_constant_s``) is not over, or
+        the rest the attitude started in holds and has not measured the bias yet (``FilterConfig.start_field_bias_hold``)."""
+        s = self._s
+        return s.since_start_s < self.config.accel_time_constant_s or (
+            s.start_rest and s.rest_s > 0.0 and self.config.rest_bias_estimation)
 
     def _follow_place(self, dt: float, b) -> None:
         """The place detector's window; a new place's field becomes the reference (:mod:`compass.filter._place`)."""

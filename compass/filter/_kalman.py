@@ -101,18 +101,19 @@ def predict_gyro(p: tuple, r: tuple, dt: float, q_att: float, q_bias: float) -> 
         p33 + q_bias, p34, p35, p44 + q_bias, p45, p55 + q_bias)
 
 
-def update_axis(p: tuple, x: list, i: int, z: float, var: float) -> tuple:
+def update_axis(p: tuple, x: list, i: int, z: float, var: float, hold_bias: bool = False) -> tuple:
     """Scalar measurement ``z = x_true[i] + n`` with ``var n = var`` (a direct measurement of component ``i``).
 
     ``x`` (the error state accumulated so far this sample; the innovation is ``z - x[i]``) is
-    updated in place; the updated packed covariance is returned.
+    updated in place; the updated packed covariance is returned.  ``hold_bias`` (``i`` < 3): the bias
+    states (3-5) are *considered*, as in :func:`update_tilt`.
     """
     c = _COLUMN[i](p)
-    return _downdate(p, x, c, c[i] + var, z - x[i])
+    return _downdate(p, x, c, c[i] + var, z - x[i], hold_bias)
 
 
 def update_heading(p: tuple, x: list, z: float, var: float, up_h: tuple | None = None,
-                   tilt: tuple = (0.0, 0.0)) -> tuple:
+                   tilt: tuple = (0.0, 0.0), hold_bias: bool = False) -> tuple:
     """The gyro filter's heading measurement ``z = tilt . x_true[:2] + x_true[2] + n`` (``var n = var``),
     decoupled from the tilt.
 
@@ -131,6 +132,8 @@ def update_heading(p: tuple, x: list, z: float, var: float, up_h: tuple | None =
     ``(I - K h) P (I - K h)^T + K var K^T = P - K c^T - c K^T + s K K^T``: symmetric and positive
     definite whatever ``K``; the considered block is unchanged.
 
+    ``hold_bias``: no bias component is estimated (all three considered).
+
     ``x`` (the error state accumulated so far this sample; the innovation is ``z - h . x``) is
     updated in place; the updated packed covariance is returned.
     """
@@ -139,7 +142,9 @@ def update_heading(p: tuple, x: list, z: float, var: float, up_h: tuple | None =
     s = c[2] + t0 * c[0] + t1 * c[1] + var
     inv = 1.0 / s
     nu = z - x[2] - t0 * x[0] - t1 * x[1]
-    if up_h is None:
+    if hold_bias:
+        k = (0.0, 0.0, c[2] * inv, 0.0, 0.0, 0.0)
+    elif up_h is None:
         k = (0.0, 0.0, c[2] * inv, c[3] * inv, c[4] * inv, c[5] * inv)
     else:
         u0, u1, u2 = up_h
@@ -222,13 +227,16 @@ def update_tilt(p: tuple, x: list, w: tuple, z0: float, v: tuple, z1: float, var
     return (p00, p01, p02, p03, p04, p05, p11, p12, p13, p14, p15, p22, p23, p24, p25, p33, p34, p35, p44, p45, p55)
 
 
-def _downdate(p: tuple, x: list, c: tuple, s: float, nu: float) -> tuple:
-    """``K = c / s`` (``c = P h``); ``x += K nu``; returns ``P - K c^T``."""
+def _downdate(p: tuple, x: list, c: tuple, s: float, nu: float, hold_bias: bool = False) -> tuple:
+    """``K = c / s`` (``c = P h``; with ``hold_bias`` its bias part zero, a Schmidt update); ``x += K nu``;
+    returns ``P - K c^T`` (its upper triangle: with ``K_b = 0`` the Joseph form's for that gain)."""
     (p00, p01, p02, p03, p04, p05, p11, p12, p13, p14, p15, p22, p23, p24, p25,
      p33, p34, p35, p44, p45, p55) = p
     c0, c1, c2, c3, c4, c5 = c
     inv = 1.0 / s
     k0, k1, k2, k3, k4, k5 = c0 * inv, c1 * inv, c2 * inv, c3 * inv, c4 * inv, c5 * inv
+    if hold_bias:
+        k3 = k4 = k5 = 0.0
     x[0] += k0 * nu
     x[1] += k1 * nu
     x[2] += k2 * nu
