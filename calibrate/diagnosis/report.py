@@ -82,23 +82,28 @@ def format_diagnosis(block: dict, unit: str = "output units") -> str:
     test = (block.get("structure_test") or {}).get("name", "structure test")
     lines.append(residual_line(block, verdict, test))
     lines += cost_lines(block.get("unexplained_cost"))
+    if "wander_cost" in block:  # explained sample by sample, a wander across blocks of time (the four-flip)
+        lines.append(f"  but its sums over blocks of time wander beyond white noise (family p-value "
+                     f"{block['block_test']['p_value']:.2g}): the sigmas are widened for it")
+        lines += cost_lines(block["wander_cost"], "wander")
     return "\n".join(lines)
 
 
-def cost_lines(cost: dict | None) -> list[str]:
-    """Report lines of what an unexplained residual costs (``unexplained_cost``), none without one."""
+def cost_lines(cost: dict | None, what: str = "unexplained") -> list[str]:
+    """Report lines of what an unexplained residual costs (``unexplained_cost``; ``what``: the words that name the
+    structure, "wander" for the four-flip's ``wander_cost``), none without one."""
     if not cost:
         return []
     lines = []
     if "direction_deg" in cost:
         sig = cost.get("direction_sigma_deg", {})
-        lines.append("  unexplained cost: direction sigmas widened by " + ", ".join(
+        lines.append(f"  {what} cost: direction sigmas widened by " + ", ".join(
             f"{name} {v:.3f} deg" + (f" ({sig[name]['naive']:.3f} -> {sig[name]['widened']:.3f})" if name in sig else "")
             for name, v in cost["direction_deg"].items()))
     if "hard_iron" in cost:
         # "stated", not "widened", when any stated sigma is under the naive (a walk modelled: see below)
         verb = "stated" if any(v["widened"] < v["naive"] for v in cost["hard_iron"].values()) else "widened"
-        lines.append(f"  unexplained cost: hard-iron sigmas {verb} " + ", ".join(
+        lines.append(f"  {what} cost: hard-iron sigmas {verb} " + ", ".join(
             f"{axis} {v['naive']:.3g} -> {v['widened']:.3g}" for axis, v in cost["hard_iron"].items()))
         if any(v["widened"] < v["naive"] and "noise_only" in v for v in cost["hard_iron"].values()):
             lines.append("      (under the naive where its chi-square scale counted the walk the blocks model as white "
@@ -107,10 +112,11 @@ def cost_lines(cost: dict | None) -> list[str]:
     if "heading_deg" in cost:
         h = cost.get("heading_sigma_deg")
         if h and h["widened"] < h["naive"]:  # restated under the naive (the hard-iron line above says why)
-            lines.append(f"  unexplained cost at runtime: heading sigma of a level housing {h['naive']:.3f} -> "
+            lines.append(f"  {what} cost at runtime: heading sigma of a level housing {h['naive']:.3f} -> "
                          f"{h['widened']:.3f} deg RMS over headings (under the naive, as the hard iron's)")
         else:
-            lines.append(f"  unexplained cost at runtime: heading sigma of a level housing widened by {cost['heading_deg']:.3f} "
+            lines.append(f"  {what} cost at runtime: heading sigma of a level housing widened by "
+                         f"{cost['heading_deg']:.3f} "
                          "deg" + (f" ({h['naive']:.3f} -> {h['widened']:.3f} deg RMS over headings)" if h else ""))
     if "method" in cost:
         lines.append(f"      ({cost['method']})")

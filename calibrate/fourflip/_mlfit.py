@@ -36,8 +36,8 @@ from ..diagnosis.forms import session_bin
 from ._jacobian import Partials
 from .effects import FourFlipEffect
 
-__all__ = ["BIN_DEG", "Bins", "MLFit", "cramer_rao", "fit_ml", "score_effect", "structured_covariance",
-           "step_size_output", "tangent_basis", "with_covariance"]
+__all__ = ["BIN_DEG", "Bins", "MLFit", "block_p_values", "cramer_rao", "fit_ml", "score_effect",
+           "structured_covariance", "step_size_output", "tangent_basis", "with_covariance"]
 
 _BASE_PER_CHANNEL = 4  # u, v, offset, log gain
 _MAX_ITERATIONS = 100  # residual evaluations of one Levenberg-Marquardt fit (the Jacobian is analytic)
@@ -445,13 +445,34 @@ def structured_covariance(fit: MLFit, noise: np.ndarray):
     from ..diagnosis.robust import TurnPhase, structure_in_time
 
     bins = fit.bins
-    weighted = (bins.outputs - _Predictor(bins.samples)(fit.physics)) * (bins.root_n / noise)
-    # without a t_s column, the recording's order at one bin a second
-    t_s = bins.samples.t_s if bins.samples.t_s is not None else np.arange(weighted.shape[0], dtype=float)
-    bread = fit.covariance / (fit.chi2 / max(fit.dof, 1))
+    weighted, t_s, bread = _weighted_residual(fit, noise)
     locked = TurnPhase(np.radians(bins.samples.platform_deg), bins.samples.flip_index,
                        shapes=_gain_and_lag(fit, noise))
     return structure_in_time(fit.jac, weighted, t_s, bread, locked=locked)
+
+
+def block_p_values(fit: MLFit, noise: np.ndarray) -> np.ndarray:
+    """Each band's p-value for structure in the fit's residual summed over time blocks
+    (:func:`calibrate.diagnosis.robust.band_p_values`; white beyond the floor first), on the bins the fit ran on.
+
+    Returns
+    -------
+    ndarray, shape (N_BANDS + 1,)
+    """
+    from ..diagnosis.robust import band_p_values
+
+    weighted, t_s, bread = _weighted_residual(fit, noise)
+    return band_p_values(fit.jac, weighted, t_s, bread)
+
+
+def _weighted_residual(fit: MLFit, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The fit's residual at its bins over the noise floor (white noise: unit variance), each bin's time, s, and
+    the bread ``(J^T J)^-1`` (the covariance without its chi-square scale)."""
+    bins = fit.bins
+    weighted = (bins.outputs - _Predictor(bins.samples)(fit.physics)) * (bins.root_n / noise)
+    # without a t_s column, the recording's order at one bin a second
+    t_s = bins.samples.t_s if bins.samples.t_s is not None else np.arange(weighted.shape[0], dtype=float)
+    return weighted, t_s, fit.covariance / (fit.chi2 / max(fit.dof, 1))
 
 
 def _gain_and_lag(fit: MLFit, noise: np.ndarray) -> np.ndarray:

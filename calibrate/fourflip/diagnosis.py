@@ -20,6 +20,12 @@ with the tumble and the fits against known inputs):
    the added effects may have absorbed part of an effect the toolkit does not model (a field
    gradient with the sensor off the turntable axis mimics an encoder error), so none is claimed,
    the base model is kept and every candidate tried is reported with its evidence.
+7. An explained fit is asked once more, across the recording: the residual summed over 10 s blocks, the band
+   test of the unexplained widening (:func:`calibrate.diagnosis.robust.band_p_values`) as one family
+   (:func:`calibrate.diagnosis.robust.family_p_value`, ``block_test``).  Where it passes, a wander the named
+   effects do not follow (a random walk of an offset, under a polynomial drift) remains below the floor in
+   each sample but moves the directions between flips; the fit keeps its verdict and effects and its
+   covariance is widened as an unexplained one's (``wander_cost``; robust.py, "A wander under an explained fit").
 """
 
 from __future__ import annotations
@@ -30,20 +36,27 @@ from compass.io.fourflip import FourFlipRecording
 from compass.sim.bench import BenchSamples
 
 from ._unseen import platform_prior
-from ._mlfit import MLFit, fit_ml, score_effect, step_size_output, structured_covariance, with_covariance
+from ._mlfit import (MLFit, block_p_values, fit_ml, score_effect, step_size_output, structured_covariance,
+                     with_covariance)
 from ..diagnosis.evidence import DECISIVE_BIC, Proposal, gather_forms, is_unexplained, select_effects
 from ..diagnosis.report import format_diagnosis
-from ..diagnosis.robust import BLOCK_S, extra_sigma, heading_sigma_deg, widened
+from ..diagnosis.robust import BAND_P_VALUE, BLOCK_S, extra_sigma, family_p_value, heading_sigma_deg, widened
 from .effects import VARIANTS, FourFlipEffect
 from ..noise import DITHER_FRACTION, chi2_sf, dithered, lattice_step, noise_floor
 
-__all__ = ["DECISIVE_BIC", "UNEXPLAINED_WARNING", "diagnose_fourflip", "examine_residual", "format_diagnosis",
+__all__ = ["DECISIVE_BIC", "UNEXPLAINED_WARNING", "WANDER_WARNING", "diagnose_fourflip", "examine_residual",
+           "format_diagnosis",
            "platform_unseen_warning", "residual_structure"]
 
 STRUCTURE_HARMONICS = 6
 UNEXPLAINED_WARNING = ("structure remains in the residual above the noise floor: the recording has an effect "
                        "the model lacks (see the diagnosis); the uncertainties are widened to cover it "
                        "(the diagnosis's unexplained_cost)")
+
+WANDER_WARNING = ("the residual is at the noise floor sample by sample, but its sums over 10 s blocks wander beyond "
+                  "white noise (a drift that is not smooth in time, such as a random walk of an offset, which the "
+                  "named effects do not follow): it moves the directions between flips, and the uncertainties are "
+                  "widened to cover it (the diagnosis's wander_cost)")
 
 
 def residual_structure(samples: BenchSamples, residuals: np.ndarray, noise: np.ndarray) -> tuple[float, int, float]:
@@ -164,6 +177,11 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
     }
     if unexplained:
         current, diagnosis["unexplained_cost"] = _widen(current, noise, rec.channels)
+    elif unexplained is False:  # at the floor sample by sample: does a wander remain across blocks of time?
+        family = family_p_value(block_p_values(current, noise))
+        diagnosis["block_test"] = {"p_value": family, "threshold": BAND_P_VALUE}
+        if family <= BAND_P_VALUE:
+            current, diagnosis["wander_cost"] = _widen(current, noise, rec.channels)
     current, unseen = _unseen_platform(current, noise, rec.channels)
     if unseen is not None:
         diagnosis["platform_field_unseen"] = unseen

@@ -5,8 +5,9 @@ import pytest
 import scipy.linalg
 
 from calibrate.diagnosis import robust as robust_module
-from calibrate.diagnosis.robust import (BAND_P_VALUE, BLOCK_S, N_BANDS, TurnPhase, band_p_values, cluster_covariance,
-                                       extra_sigma, heading_sigma_deg, structure_in_time,
+from calibrate.diagnosis.robust import (BAND_P_VALUE, BLOCK_S, N_BANDS, NULL_DRAWS, TurnPhase, band_p_values,
+                                       cluster_covariance, extra_sigma, family_p_value, heading_sigma_deg,
+                                       structure_in_time,
                                        time_correlated_covariance, widened)
 
 
@@ -482,3 +483,15 @@ def test_a_turn_phase_of_the_wrong_length_is_refused():
     with pytest.raises(ValueError, match="shapes of"):
         structure_in_time(jac, r + 5.0 * np.cos(3 * locked.phase_rad)[:, None], t, bread,
                           locked=locked._replace(shapes=np.zeros((n, 3, 1))))
+
+
+def test_family_p_value_is_bonferroni_and_can_pass_at_the_simulations_resolution():
+    """The four-flip's test of an explained fit across blocks of time: ten band tests as one family at
+    BAND_P_VALUE.  The smallest simulated band p-value, 1 / (NULL_DRAWS + 1), times the number of tests must be
+    under the threshold, or the family could never pass."""
+    assert family_p_value(np.array([0.5, 0.02, 0.3])) == pytest.approx(0.06)
+    assert family_p_value(np.array([0.9, 0.8])) == 1.0
+    assert (N_BANDS + 1) / (NULL_DRAWS + 1) <= BAND_P_VALUE
+    assert family_p_value(np.full(N_BANDS + 1, 1.0 / (NULL_DRAWS + 1))) <= BAND_P_VALUE
+    with pytest.raises(ValueError, match="at least one"):
+        family_p_value(np.array([]))

@@ -228,9 +228,43 @@ def test_clean_recording_keeps_its_sigmas(write_session):
     rec, _ = write_session(seed=201)
     result = calibrate_fourflip(rec, diagnose=True)
     assert result.diagnosis["unexplained"] is False and "unexplained_cost" not in result.diagnosis
+    # asked across blocks of time too (issue 24): white noise passes the family test, nothing is widened
+    assert result.diagnosis["block_test"]["p_value"] > result.diagnosis["block_test"]["threshold"]
+    assert "wander_cost" not in result.diagnosis and not any("wander" in w for w in result.warnings)
     naive = fit_ml(BenchSamples.from_recording(rec), rec.outputs, rec.channels,
                    physics_from_harmonics(rec, result.field_ut, 1.0), np.array(result.noise))
     assert [c.direction_sigma_deg for c in result.channels] == pytest.approx(naive.direction_sigma_deg(), rel=1e-3)
+
+
+def test_a_wander_under_a_named_drift_widens_the_explained_fit(write_session):
+    """An offset random walk (0.004 uT a sample, outside the vocabulary) the loop calls explained with an
+    offset drift named: below the floor in each sample, but its 10 s block sums fail the band test as a family
+    (p at most 0.01), so the file's sigmas are widened as an unexplained fit's and the diagnosis, the warnings
+    and the report say so; the verdict and the named drift stay.  The naive sigmas miss the error (a channel's
+    direction over 2.5 naive sigmas off: why it matters).  Not asserted: that the widened sigmas cover it; on
+    this walk they do not (robust.py, "A wander under an explained fit"; docs/benchmarks.md)."""
+    from compass.calibration import from_dict
+
+    rec, truth = write_session(seed=201)
+    rng = np.random.default_rng(1)
+    walk = np.cumsum(rng.normal(scale=0.004, size=rec.outputs.shape), axis=0) * np.array(truth["gains_per_ut"])
+    result = calibrate_fourflip(replace(rec, outputs=rec.outputs + walk), diagnose=True)
+    d = result.diagnosis
+    assert d["unexplained"] is False and "offset_drift" in d["effects"]
+    assert d["block_test"]["p_value"] <= d["block_test"]["threshold"] == 0.01
+    cost = d["wander_cost"]
+    err = angle_deg(result.directions, truth["directions"])
+    naive = np.array([cost["direction_sigma_deg"][ch]["naive"] for ch in rec.channels])
+    assert np.max(err / naive) > 2.5, err / naive
+    for ch in result.channels:
+        entry = cost["direction_sigma_deg"][ch.name]
+        assert ch.direction_sigma_deg == pytest.approx(entry["widened"]) and entry["widened"] >= entry["naive"]
+    assert cost["heading_sigma_deg"]["widened"] > cost["heading_sigma_deg"]["naive"]
+    assert any("wander beyond white noise" in w for w in result.warnings)
+    assert "wander cost at runtime: heading sigma" in result.report()
+    model = from_dict(result.to_json()).model  # the runtime reads the widened directions' covariance
+    assert np.degrees(np.sqrt(np.trace(model.direction_covariance, axis1=1, axis2=2))) == pytest.approx(
+        [cost["direction_sigma_deg"][ch]["widened"] for ch in rec.channels], rel=1e-6)
 
 
 @pytest.mark.parametrize("ratio, verdict", [(2.5, False), (6.0, None)])
