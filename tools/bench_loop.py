@@ -236,7 +236,6 @@ def run_one(case: str, seed: int) -> dict:
     both versions.  A sigma the fit left undefined (None: not finite) is ``nan`` here.
     """
     from calibrate import calibrate_fourflip
-    from compass.calibration import dumps
 
     rec, truth = session(seed, case)
     start, cpu = time.perf_counter(), time.process_time()
@@ -247,6 +246,8 @@ def run_one(case: str, seed: int) -> dict:
 
 def summarise(case: str, seed: int, truth: Truth, result, wall: float, cpu: float) -> dict:
     """:func:`run_one`'s row of one calibrated recording (``result``, ``wall`` and ``cpu`` seconds)."""
+    from compass.calibration import dumps
+
     d = result.diagnosis
     err = np.degrees(np.arccos(np.clip(np.sum(result.directions * truth.directions, axis=1), -1, 1)))
     sigma = np.array([c.direction_sigma_deg for c in result.channels])
