@@ -4,7 +4,7 @@ with the scale error its calibration's gyro-aided fit says as the RMS over rate 
 tried, not kept), beside VQF, in one run.
 
 Run: ``python tools/bench_gyro_scale.py [--dev-seeds 11,12] [--seeds 13-20] [--levels 0,1,3,5] [--aniso 5]
-[--broad 01,02,...] [--methods VQF,fitted] [--candidates "motion time from data"]`` (``--broad all``: every trial; ``--broad none``: no BROAD; ``--levels ''``: no isotropic
+[--broad 01,02,...] [--methods VQF,fitted] [--candidates "start rest from 1.5 s (before)"]`` (``--broad all``: every trial; ``--broad none``: no BROAD; ``--levels ''``: no isotropic
 boards; ``--aniso L``: boards whose z axis alone reads L % high; ``--candidates A,B``: a column per
 :data:`bench_broad.CANDIDATES` name, its ``FilterConfig`` changes on top of "fitted", the pipeline the calibration
 file gives; ``--write-docs``: the tables into docs/benchmarks.md).

@@ -84,7 +84,7 @@ def format_diagnosis(block: dict, unit: str = "output units") -> str:
     lines += cost_lines(block.get("unexplained_cost"))
     if "wander_cost" in block:  # explained sample by sample, a wander across blocks of time (the four-flip)
         lines.append(f"  but its sums over blocks of time wander beyond white noise (family p-value "
-                     f"{block['block_test']['p_value']:.2g}): the sigmas are widened for it")
+                     f"{block['block_test']['p_value']:.4g} <= {block['block_test']['threshold']:g}): the sigmas are widened for it")
         lines += cost_lines(block["wander_cost"], "wander")
     return "\n".join(lines)
 

@@ -745,11 +745,13 @@ def family_p_value(p_values: np.ndarray) -> float:
     Raises
     ------
     ValueError
-        No p-values.
+        No p-values, or one not finite.
     """
     p_values = np.asarray(p_values, dtype=float)
     if p_values.size == 0:
         raise ValueError("a family p-value needs at least one test's p-value")
+    if not np.isfinite(p_values).all():
+        raise ValueError(f"a family p-value needs finite p-values, got {p_values.tolist()}")
     return float(min(1.0, p_values.size * p_values.min()))
 
 

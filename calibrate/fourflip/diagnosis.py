@@ -217,9 +217,7 @@ def _unseen_platform(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, di
                      "method": ("the platform field's x and z parts are not seen by the bench; the fitted y part's "
                                 "variance p_y^2 + s_y^2, the prior's, is not finite (the fit could not determine the y "
                                 "part), so no prior is stated and the file's sigmas leave the unseen parts out")}
-    c = len(channels)
-    offsets = [4 * k + 2 for k in range(c)]
-    off_sigma = [np.sqrt(np.diag(f.covariance)[offsets]) * f.physics.gains for f in (fit, wide)]
+    off_sigma = [np.sqrt(f.channel_covariance()[:, 3, 3]) for f in (fit, wide)]  # the file's offset sigma's scale
     heading = [_heading_sigma(f) for f in (fit, wide)]
     return wide, {
         "prior_stated": True,

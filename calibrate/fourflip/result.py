@@ -35,7 +35,8 @@ class ChannelCalibration:
         Joint covariance of the direction (3), offset and gain (the units above): their errors are
         correlated within a channel (a warm-up during the first flip ties the offset to the direction).
         Its marginals are ``direction_covariance``, ``offset_sigma`` and ``gain_sigma`` (widened with them when
-        the diagnosis said unexplained, with the platform field's prior when it is in); written as the channel's
+        the diagnosis said unexplained or found a wander under an explained fit, with the platform field's prior
+        when it is in); written as the channel's
         ``joint_covariance`` when finite (a parameter the fit left undetermined makes its rows NaN).
     """
 

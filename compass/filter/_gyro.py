@@ -422,7 +422,7 @@ class GyroFilter(AttitudeFilter):
         """The field's heading row does not move the bias: the tilt's hold (``accel_time_constant_s``) is not over, or
         the rest the attitude started in holds and has not measured the bias yet (``FilterConfig.start_field_bias_hold``)."""
         s = self._s
-        return s.since_start_s < self.config.accel_time_constant_s or (
+        return (self.config.start_bias_hold and s.since_start_s < self.config.accel_time_constant_s) or (
             s.start_rest and s.rest_s > 0.0 and self.config.rest_bias_estimation)
 
     def _follow_place(self, dt: float, b) -> None:

@@ -139,7 +139,8 @@ class FilterConfig:
         The rest the gyro filter starts in (the rest detector holding since the attitude began) measures the bias
         from its first reading, each once the rest has held ``rest_confirm_s`` beyond it and the detector its 1.5 s
         (issue 22).  Other rests count from the detector's 1.5 s on: a reading before may be the tail of the motion
-        before the rest; at the start no motion precedes.  False: every rest alike.
+        before the rest; at the start no motion precedes.  A restart after a gap longer than ``max_gap_s`` is a start too: what
+        came before the gap is not known, and the kept bias's sigma gates a reading that disagrees.  False: every rest alike.
     start_field_bias_hold : bool
         The gyro filter's field (heading) update does not move the bias (a Schmidt update) at the start: while
         the tilt holds it (``start_bias_hold``, ``accel_time_constant_s``), and on while the rest the attitude

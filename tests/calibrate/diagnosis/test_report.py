@@ -27,6 +27,6 @@ def test_a_wander_cost_is_named_as_a_wander_not_as_unexplained():
              "residual_rms_before": 1.0, "residual_rms_after": 1.0,
              "unexplained": False, "block_test": {"p_value": 0.001, "threshold": 0.01}, "wander_cost": cost}
     text = format_diagnosis(block)
-    assert "wander beyond white noise (family p-value 0.001)" in text
+    assert "wander beyond white noise (family p-value 0.001 <= 0.01)" in text
     assert "wander cost at runtime: heading sigma of a level housing widened by 0.030 deg" in text
     assert "unexplained cost" not in text

@@ -495,3 +495,5 @@ def test_family_p_value_is_bonferroni_and_can_pass_at_the_simulations_resolution
     assert family_p_value(np.full(N_BANDS + 1, 1.0 / (NULL_DRAWS + 1))) <= BAND_P_VALUE
     with pytest.raises(ValueError, match="at least one"):
         family_p_value(np.array([]))
+    with pytest.raises(ValueError, match="finite"):  # min() would have read [0.001, nan] as 1: no structure
+        family_p_value(np.array([0.001, np.nan]))

@@ -120,6 +120,15 @@ def test_in_motion_from_the_start_the_heading_row_holds_the_bias_for_the_tilts_h
     assert np.abs(track.gyro_bias[free]).max() > 1e-4
 
 
+def test_without_the_tilts_hold_the_heading_row_is_not_held_in_motion():
+    # start_bias_hold off: the tilt's 2 s hold is gone, and with no rest at the start the heading row's hold has
+    # nothing to follow, so start_field_bias_hold changes nothing (it held the heading row for 2 s regardless)
+    t, accel, gyro, field = recording(4, 4.0, turn_rad_s=math.radians(20.0), tilt=(8.0, -5.0))
+    held, free = (run_filter(t, accel, gyro, field, config(start_bias_hold=False, start_field_bias_hold=hold))
+                  for hold in (True, False))
+    np.testing.assert_array_equal(held.gyro_bias, free.gyro_bias)
+
+
 @pytest.mark.parametrize("which", ["axis", "heading"])
 def test_the_held_bias_update_is_the_joseph_form_of_its_gain(which):
     """update_axis / update_heading with ``hold_bias``: the gain zero on the bias (3-5; update_heading also on
