@@ -63,12 +63,20 @@ def test_gyro_bias_learnt_at_rest_within_its_own_sigma():
 @pytest.mark.parametrize("kind", ["slow_translation", "fast_translation"])
 def test_translation_needs_the_inertial_low_pass_and_the_motion_noise(kind):
     # the accelerometer sees the motion acceleration (1-6 m/s^2, a raw tilt error of 6-30 deg): the
-    # low-pass in the inertial frame averages it out, the motion-adaptive noise slows the correction
-    rec = simulate_motion(kind, duration_s=30.0, seed=4, errors=ERRORS)
-    heading, inclination = rms_errors(rec)
-    assert inclination < rms_errors(rec, accel_time_constant_s=0.01)[1]
-    assert inclination < rms_errors(rec, motion_adaptive_accel=False)[1]
-    assert heading < rms_errors(rec, motion_adaptive_accel=False)[0]
+    # low-pass in the inertial frame averages it out, the motion-adaptive noise slows the correction.  RMS over
+    # four seeds: with the start rest's bias measured from its first reading the inclination is 0.05-0.15 deg,
+    # and one seed's draw can favour either filter (seed 4's slow translation: 0.055 with the low-pass, 0.047
+    # without; over seeds 4-7 0.086 against 0.105)
+    recs = [simulate_motion(kind, duration_s=30.0, seed=seed, errors=ERRORS) for seed in (4, 5, 6, 7)]
+
+    def over_seeds(**changes):
+        return np.sqrt(np.mean(np.square([rms_errors(rec, **changes) for rec in recs]), axis=0))
+
+    heading, inclination = over_seeds()
+    assert inclination < over_seeds(accel_time_constant_s=0.01)[1]
+    not_adaptive = over_seeds(motion_adaptive_accel=False)
+    assert inclination < not_adaptive[1]
+    assert heading < not_adaptive[0]
 
 
 def test_a_bad_sample_in_motion_changes_nothing_after_it():
