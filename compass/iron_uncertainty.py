@@ -44,7 +44,7 @@ from functools import cached_property
 
 import numpy as np
 
-__all__ = ["TumbleUncertainty", "ChannelUncertainty", "channel_priors", "joint_problem", "independent_joint",
+__all__ = ["TumbleUncertainty", "ChannelUncertainty", "channel_priors", "joint_problem", "joint_weights", "independent_joint",
            "with_calibration_sigma", "with_calibration_sigma_many", "undetermined_words",
            "HARD_IRON_PRIOR", "SOFT_IRON_PRIOR", "ROTATION_PRIOR_DEG",
            "ROTATION_PRIOR_AXIS_DEG"]
@@ -303,12 +303,10 @@ class ChannelUncertainty:
         """``var_c`` (class docstring) at ``field_h`` (shape (..., 3), field units): shape (..., c), field units
         squared."""
         b = np.asarray(field_h, dtype=float)
-        x = np.einsum("...i,ci->...c", b, self.unit_directions)
         if self.joint_covariance is not None:
-            w = np.concatenate([np.broadcast_to(b[..., None, :], x.shape + (3,)),
-                                np.broadcast_to(1.0 / self.gains, x.shape)[..., None], (x / self.gains)[..., None]],
-                               axis=-1)  # (..., c, 5): the solved component's move per error
+            w = joint_weights(b, self.unit_directions, self.gains)
             return np.einsum("...ci,cij,...cj->...c", w, self.joint_covariance, w)
+        x = np.einsum("...i,ci->...c", b, self.unit_directions)
         var = np.zeros_like(x)
         if self.direction_covariance is not None:
             var += np.einsum("...i,cij,...j->...c", b, self.direction_covariance, b)
@@ -408,6 +406,28 @@ def channel_priors(unit_directions, gains, field_norm: float, names, direction_g
         ("the offset", gone[1], f"{100 * HARD_IRON_PRIOR:.0f} % of |B|"),
         ("the gain", gone[2], f"{100 * SOFT_IRON_PRIOR:.0f} %")) if g.any())
     return cov, sigma, words
+
+
+def joint_weights(field_h, unit_directions, gains) -> np.ndarray:
+    """``w = (B, 1 / K_c, x_c / K_c)`` at ``field_h``: how each error of a channel's joint covariance (its direction,
+    rad; offset; gain) moves the solved component, so its variance is ``w^T S_c w`` (:class:`ChannelUncertainty`).
+
+    Parameters
+    ----------
+    field_h : array_like, shape (..., 3)
+        The field in H, field units.
+    unit_directions : ndarray, shape (c, 3)
+    gains : ndarray, shape (c,)
+        Output units per field unit.
+
+    Returns
+    -------
+    ndarray, shape (..., c, 5)
+    """
+    b = np.asarray(field_h, dtype=float)
+    x = np.einsum("...i,ci->...c", b, unit_directions)
+    return np.concatenate([np.broadcast_to(b[..., None, :], x.shape + (3,)),
+                           np.broadcast_to(1.0 / gains, x.shape)[..., None], (x / gains)[..., None]], axis=-1)
 
 
 def independent_joint(direction_covariance, response_sigma) -> np.ndarray:

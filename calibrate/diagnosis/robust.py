@@ -244,6 +244,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy.optimize import lsq_linear
 
+from compass.iron_uncertainty import joint_weights
+
 from .evidence import DECISIVE_BIC
 
 __all__ = ["BLOCK_S", "LEVERAGE_ONE", "LOCKED_HARMONICS", "N_BANDS", "OffsetStep", "TimeStructure", "TurnPhase",
@@ -442,14 +444,12 @@ def heading_sigma_deg(directions: np.ndarray, direction_covariance: np.ndarray, 
                                            np.full_like(psi, -np.sin(dip))])
     across = np.column_stack([np.sin(psi), np.cos(psi), np.zeros_like(psi)])  # horizontal, perpendicular to b's
     solver = np.linalg.pinv(directions)  # (3, c): m = solver @ x
-    x = b @ directions.T  # (h, c)
     c = len(gains)
     if channel_covariance is None:
         channel_covariance = np.zeros((c, 5, 5))
         channel_covariance[:, :3, :3] = direction_covariance
         channel_covariance[:, 3, 3], channel_covariance[:, 4, 4] = response_var[:, 0], response_var[:, 1]
-    w = np.concatenate([np.broadcast_to(b[:, None, :], x.shape + (3,)), np.broadcast_to(1.0 / gains, x.shape)[..., None],
-                        (x / gains)[..., None]], axis=-1)  # (h, c, 5): the solved component's move per error
+    w = joint_weights(b, directions, gains)  # (h, c, 5): the solved component's move per error
     var = np.einsum("hci,cij,hcj->hc", w, np.nan_to_num(np.asarray(channel_covariance, dtype=float)), w)
     cross = np.zeros((c, c)) if offset_covariance is None else np.nan_to_num(np.asarray(offset_covariance, dtype=float))
     cross = (cross - np.diag(np.diag(cross))) / np.outer(gains, gains)
