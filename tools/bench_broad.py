@@ -135,7 +135,6 @@ CANDIDATES = {  # name: (FilterConfig changes, hard-iron tracker on, noise from 
     "field update: heading only": ({"field_update": "heading"}, True, False),  # ... nor the horizontal gyro bias
     "field update: heading and tilt model": ({"field_update": "heading-tilt"}, True, False),  # ... tilt in its model
     "motion residual in band": ({"residual_in_band": True}, True, False),  # issue 22: vibration and taps
-    "scale error as a rate state": ({"scale_error_state": True}, True, False),  # issue 22: the tilt loop's shape
     "noise from rest": ({}, True, True),
     "mag_latency_s 0.014": ({"mag_latency_s": 0.014}, True, False),  # calibrate.realdata's loop, on 01 and 02
     "mag_latency_s fitted": ({"mag_latency_s": "fitted"}, True, False),  # issue 22: another recording's tumble file

@@ -15,11 +15,10 @@ from scipy.spatial.transform import Rotation
 from scipy.special import chdtri  # chi2.ppf(q, k) == chdtri(k, 1 - q), without importing scipy.stats (a second of start-up)
 
 from ._base import _P0_ATTITUDE, AttitudeFilter, exp_matrix, mat_mul
-from . import _rate_error
 from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_heading, update_tilt
 from ._gate import GateState
 from ._place import PLACE_EVENT, PlaceDetector, PlaceState
-from ._records import _REST_RATE_SIGMA, _REST_TAU_S, _SCALE_CORRELATION_S, Diagnostics, SkipCounts
+from ._records import _REST_RATE_SIGMA, _REST_TAU_S, Diagnostics, SkipCounts
 
 __all__ = ["GyroFilter", "GyroState"]
 
@@ -30,11 +29,6 @@ _TURN_BOUND = float(chdtri(1, 0.001))  # a new place's North turned beyond its h
 _NORTH = {(True, True): " (North moves with it)", (False, True): " (within the heading error: North kept)",
           (False, False): " (North re-learnt from it: the last one was adopted on a timeout)"}
 _ORTHONORMALISE_EVERY = 1000  # samples between re-orthonormalisations of the nominal matrix
-
-
-def _unit(i: int) -> tuple:
-    """The measurement row of error state ``i`` alone, 9 states."""
-    return tuple(1.0 if k == i else 0.0 for k in range(9))
 
 
 def heading_innovation(m: tuple, bx: float, by: float, bz: float, azimuth_rad: float = 0.0) -> float:
@@ -112,11 +106,6 @@ class GyroState(PackedCovariance):
         its clock: the next sample tells which), else None.
     place : PlaceState
         The place detector's window (``FilterConfig.follow_place``).
-    rate_error : tuple of 3 floats
-        The world-frame rate error the gyro's scale error makes, rad/s (``FilterConfig.scale_error_state``; zero
-        without it): the attitude turns by it, and it decays with ``_SCALE_CORRELATION_S``.
-    rate_error_cov : tuple of 24 floats, or None
-        Its covariance with ``(eps, db)`` and its own (:mod:`compass.filter._rate_error`); None without the option.
     """
 
     t_s: float | None
@@ -144,8 +133,6 @@ class GyroState(PackedCovariance):
     acc_residual: tuple = (0.0, 0.0, 0.0)
     rest_pending: deque = field(default_factory=deque)
     start_rest: bool = True
-    rate_error: tuple = (0.0, 0.0, 0.0)
-    rate_error_cov: tuple | None = None
 
 
 class GyroFilter(AttitudeFilter):
@@ -156,17 +143,12 @@ class GyroFilter(AttitudeFilter):
     def _initial_state(self) -> GyroState:
         cfg = self.config
         p = pack(np.diag(_P0_ATTITUDE + (cfg.gyro_bias_sigma0**2,) * 3))
-        state = GyroState(None, None, p, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), cfg.gravity, None, 0.0, 0.0, None, None,
-                          0.0, 0.0, 0, GateState.initial(cfg, self.coefficients))
-        if cfg.scale_error_state:
-            state.rate_error_cov = _rate_error.EXTRA_ZERO
-        return state
+        return GyroState(None, None, p, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), cfg.gravity, None, 0.0, 0.0, None, None,
+                         0.0, 0.0, 0, GateState.initial(cfg, self.coefficients))
 
     def _bind(self) -> None:
         self._gyro_range2 = self.config.gyro_range_rad_s**2
-        self._augmented = self.config.scale_error_state  # (eps, db, r): compass.filter._rate_error
-        self._x = [0.0] * (9 if self._augmented else 6)  # the error state, folded into the nominal state after each sample
-        self._decay_dt, self._decay = None, 1.0  # the rate error's decay over a step, and the step
+        self._x = [0.0] * 6  # the error state (eps, db), folded into the nominal state after each sample
         self._second_order = self.config.accel_lowpass_order == 2
         self._lp2_dt, self._lp2 = None, None  # the second-order low-pass's step and its coefficients
         self._place = PlaceDetector(self.config) if self.config.follow_place and self.config.gate else None
@@ -225,9 +207,7 @@ class GyroFilter(AttitudeFilter):
         s.place.clear()
         p0, p1, p2 = _P0_ATTITUDE
         s.covariance = (p0, 0.0, 0.0, 0.0, 0.0, 0.0, p1, 0.0, 0.0, 0.0, 0.0, p2, 0.0, 0.0, 0.0) + s.covariance[15:]
-        self._x[:] = [0.0] * len(self._x)
-        if self._augmented:
-            s.rate_error, s.rate_error_cov = (0.0, 0.0, 0.0), _rate_error.restart(s.rate_error_cov)
+        self._x[:] = [0.0] * 6
         s.acc_lp, s.acc_lp_rate, s.age_lp = a[:3], (0.0, 0.0, 0.0), (0.0, 0.0)
         s.acc_lp_age_s = 0.0
         s.residual_var, s.acc_residual = 0.0, (0.0, 0.0, 0.0)
@@ -252,9 +232,6 @@ class GyroFilter(AttitudeFilter):
         wx, wy, wz = gx - bx, gy - by, gz - bz
         e = exp_matrix(wx * dt, wy * dt, wz * dt)
         m = mat_mul(s.matrix, e)
-        if self._augmented:  # the estimated rate error turns the attitude (world frame), and decays
-            rx, ry, rz = s.rate_error
-            m = mat_mul(exp_matrix(rx * dt, ry * dt, rz * dt), m)
         s.steps += 1
         if s.steps % _ORTHONORMALISE_EVERY == 0:
             u, _, vt = np.linalg.svd(np.reshape(m, (3, 3)))
@@ -270,18 +247,7 @@ class GyroFilter(AttitudeFilter):
                                  e[2] * vx + e[5] * vy + e[8] * vz)
         # P <- F P F^T + Q, F = [[I, -R dt], [0, I]]
         c = self.coefficients
-        w2 = wx * wx + wy * wy + wz * wz
-        if self._augmented:  # the scale error's noise on the rate error: variance s^2 |w|^2 / 2, today's density
-            if dt != self._decay_dt:
-                self._decay_dt, self._decay = dt, math.exp(-dt / _SCALE_CORRELATION_S)
-            decay = self._decay
-            rx, ry, rz = s.rate_error
-            s.rate_error = (rx * decay, ry * decay, rz * decay)
-            q_rate = c.scale_var * w2 / (2.0 * _SCALE_CORRELATION_S) * (1.0 - decay * decay)
-            s.covariance, s.rate_error_cov = _rate_error.predict(s.covariance, s.rate_error_cov, m, dt, c.gyro_var * dt,
-                                                                 c.bias_walk_var * dt, q_rate, decay)
-            return
-        q_att = (c.gyro_var + c.scale_var * w2) * dt
+        q_att = (c.gyro_var + c.scale_var * (wx * wx + wy * wy + wz * wz)) * dt
         s.covariance = predict_gyro(s.covariance, m, dt, q_att, c.bias_walk_var * dt)
 
     def _rest(self, dt: float, a) -> None:
@@ -334,12 +300,6 @@ class GyroFilter(AttitudeFilter):
         var = self.coefficients.rest_rate_var_density / dt + _REST_RATE_SIGMA**2
         s.start_rest = False
         b0, b1, b2 = s.bias_rad_s  # update_axis takes the innovation against the nominal bias
-        if self._augmented:
-            extra = s.rate_error_cov
-            for i, z in ((3, gx - b0), (4, gy - b1), (5, gz - b2)):
-                p, extra = _rate_error.update(p, extra, x, _unit(i), z, var, (True,) * 9)
-            s.covariance, s.rate_error_cov = p, extra
-            return
         p = update_axis(p, x, 3, gx - b0, var)
         p = update_axis(p, x, 4, gy - b1, var)
         s.covariance = update_axis(p, x, 5, gz - b2, var)
@@ -389,14 +349,6 @@ class GyroFilter(AttitudeFilter):
         # the bias is held (not estimated from the tilt) while the low-pass still carries its start: a start
         # error leaving it would otherwise pass for a turn the gyro did not read, i.e. for a bias
         hold = cfg.start_bias_hold and s.since_start_s < cfg.accel_time_constant_s
-        if self._augmented:
-            estimated = (True,) * 3 + (not hold,) * 3 + (True,) * 3
-            p, extra = _rate_error.update(s.covariance, s.rate_error_cov, self._x,
-                                          (0.0, -1.0, 0.0, -age * m[3], -age * m[4], -age * m[5], 0.0, 0.0, 0.0), d0,
-                                          var, estimated)
-            s.covariance, s.rate_error_cov = _rate_error.update(
-                p, extra, self._x, (1.0, 0.0, 0.0, age * m[0], age * m[1], age * m[2], 0.0, 0.0, 0.0), d1, var, estimated)
-            return True
         s.covariance = update_tilt(s.covariance, self._x, (-age * m[3], -age * m[4], -age * m[5]), d0,
                                    (age * m[0], age * m[1], age * m[2]), d1, var, hold)
         return True
@@ -457,10 +409,6 @@ class GyroFilter(AttitudeFilter):
             # the start's bias is held (FilterConfig.start_field_bias_hold): the field's heading error would pass for it
             hold = self.config.start_field_bias_hold and self._start_holds_bias()
             if mode == "kalman":
-                if self._augmented:
-                    s.covariance, s.rate_error_cov = _rate_error.update(
-                        p, s.rate_error_cov, self._x, _unit(2), innovation, var, (True,) * 3 + (not hold,) * 3 + (True,) * 3)
-                    return
                 s.covariance = update_axis(p, self._x, 2, innovation, var, hold)
                 return
             tilt = (0.0, 0.0)
@@ -518,10 +466,7 @@ class GyroFilter(AttitudeFilter):
     def _inject(self) -> None:
         """Fold the error state into the nominal attitude and bias, reset it to zero."""
         s, x = self._s, self._x
-        e0, e1, e2, d0, d1, d2 = x[:6]
-        if self._augmented:
-            rx, ry, rz = s.rate_error
-            s.rate_error = (rx + x[6], ry + x[7], rz + x[8])
+        e0, e1, e2, d0, d1, d2 = x
         if self._split_injection:  # the tilt's turn, then the heading's about the world vertical (which keeps the tilt)
             if e0 or e1:
                 s.matrix = mat_mul(exp_matrix(e0, e1, 0.0), s.matrix)
@@ -536,4 +481,4 @@ class GyroFilter(AttitudeFilter):
                 (vx, vy, vz), age = s.acc_lp, s.acc_lp_age_s
                 s.acc_lp = (vx - age * (vy * d2 - vz * d1), vy - age * (vz * d0 - vx * d2),
                             vz - age * (vx * d1 - vy * d0))
-        x[:] = [0.0] * len(x)
+        x[:] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)

@@ -176,13 +176,6 @@ class FilterConfig:
         times the tilt about the field's horizontal direction) in the measurement model instead of
         white noise: the heading it teaches keeps its correlation with the tilt's error, and a later
         tilt correction carries the heading along.
-    scale_error_state : bool
-        The gyro filter carries the rate error its gyro's scale error makes as a state (issue 22): a world-frame
-        Gauss-Markov rate of correlation ``_SCALE_CORRELATION_S`` (1 s) and variance ``gyro_scale_error^2 |w|^2 / 2``
-        per axis, the white attitude noise ``gyro_scale_error^2 * 1 s * |w|^2`` it replaces being its low-frequency
-        density (:mod:`compass.filter._rate_error`).  On paper it cuts the accelerometer's leak at the hand's periods
-        more steeply at the same mean age (``tools/leak_shape.py``).  Needs ``field_update`` "kalman".  Off: measured,
-        not adopted (docs/benchmarks.md, "The leak's shape on paper").
     start_bias_hold : bool
         The gyro filter holds its bias (does not estimate it from the tilt: a Schmidt update) for
         ``accel_time_constant_s`` after the start, while the inertial low-pass still carries its start
@@ -231,7 +224,6 @@ class FilterConfig:
     place_window_s: float = 4.0
     residual_in_band: bool = False
     field_update: str = "kalman"
-    scale_error_state: bool = False
     calibration_uncertainty: object = None
 
     def __post_init__(self):
@@ -253,8 +245,6 @@ class FilterConfig:
         if self.field_update not in FIELD_UPDATES:
             raise ValueError(f"FilterConfig.field_update must be one of {', '.join(FIELD_UPDATES)}, "
                              f"got {self.field_update!r}")
-        if self.scale_error_state and self.field_update != "kalman":
-            raise ValueError(f"FilterConfig.scale_error_state needs field_update 'kalman', got {self.field_update!r}")
         if self.accel_lowpass_order not in (1, 2):
             raise ValueError(f"FilterConfig.accel_lowpass_order must be 1 or 2, got {self.accel_lowpass_order!r}")
         if not -90.0 < self.dip_deg < 90.0:
