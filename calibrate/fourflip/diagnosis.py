@@ -35,10 +35,11 @@ import numpy as np
 from compass.io.fourflip import FourFlipRecording
 from compass.sim.bench import BenchSamples
 
+from ._form import response_form_check, response_form_test
 from ._unseen import platform_prior
 from ._mlfit import (MLFit, block_p_values, fit_ml, score_effect, step_size_output, structured_covariance,
                      with_covariance)
-from ..diagnosis.evidence import DECISIVE_BIC, Proposal, gather_forms, is_unexplained, select_effects
+from ..diagnosis.evidence import DECISIVE_BIC, STRUCTURE_P, Proposal, gather_forms, is_unexplained, select_effects
 from ..diagnosis.report import format_diagnosis
 from ..diagnosis.robust import BAND_P_VALUE, BLOCK_S, extra_sigma, family_p_value, heading_sigma_deg, widened
 from .effects import VARIANTS, FourFlipEffect
@@ -128,6 +129,7 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
     base = fit_ml(samples, rec.outputs, rec.channels, start, noise)
     floor = float(np.sqrt(np.mean(noise**2)))
     judged = dithered(lattice_step(rec.outputs), noise)
+    forms = []  # each verdict's response form test that rejected the response (the last one is reported)
 
     def refit(current: MLFit, effect: FourFlipEffect, block: np.ndarray) -> MLFit:
         return fit_ml(samples, rec.outputs, rec.channels, current.physics, noise,
@@ -154,8 +156,8 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         score=lambda current, effect: score_effect(current, noise, effect),
         refit=refit, n_params=lambda e: e.n_params(len(rec.channels)), log_n=np.log(rec.outputs.size),
         base_step={"model": "base", "residual_rms": _pooled_rms(base.residuals), "chi2_per_dof": base.reduced_chi2},
-        write_step=claim, verdict=lambda f: _verdict(samples, f, noise, judged),
-        rejected_as=lambda e: e.name, progress=say, revise=revise,
+        write_step=claim, verdict=lambda f: _verdict(samples, f, noise, judged, forms),
+        checks=(response_form_check(noise),), rejected_as=lambda e: e.name, progress=say, revise=revise,
         unclaimable=None if judged.all() else "the ADC's undithered rounding is structured by itself and may be it")
     current, steps, rejected, unexplained = chosen.fit, chosen.steps, chosen.not_claimed, chosen.unexplained
     structure, dof, p_value = chosen.structure
@@ -173,6 +175,7 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         "not_claimed": rejected,
         "not_applicable": skipped,
         "revisions": chosen.revisions,
+        **({"response_form_test": forms[-1].as_dict(rec.channels)} if forms and unexplained else {}),
         "calibration_change": _calibration_change(base, current, rec.channels),
     }
     if unexplained:
@@ -289,14 +292,21 @@ def _heading_sigma(fit: MLFit) -> float:
                              phys.field_norm, offset_covariance=offset_cov, channel_covariance=joint)
 
 
-def _verdict(samples, fit: MLFit, noise, judged: np.ndarray) -> tuple[tuple[float, int, float], bool | None]:
+def _verdict(samples, fit: MLFit, noise, judged: np.ndarray, forms: list) -> tuple[tuple[float, int, float], bool | None]:
     """Structure test of a fit's residual over the ``judged`` channels and whether it is unexplained
-    (None when no channel can be judged)."""
+    (None when no channel can be judged).  A fit with a nonlinear response is unexplained also when the
+    response's form is rejected (:func:`calibrate.fourflip._form.response_form_test`, p below
+    :data:`~calibrate.diagnosis.evidence.STRUCTURE_P`: a curve the vocabulary's powers cannot follow); that
+    test is appended to ``forms``."""
     if not judged.any():
         return (float("nan"), 0, float("nan")), None
     structure, dof, p_value = residual_structure(samples, fit.residuals[:, judged], noise[judged])
     rms = _pooled_rms(fit.residuals[:, judged])
-    return (structure, dof, p_value), is_unexplained(p_value, rms, float(np.sqrt(np.mean(noise[judged] ** 2))))
+    form = response_form_test(fit, noise)
+    curved = form is not None and form.p_value_over(judged) < STRUCTURE_P
+    if curved:
+        forms.append(form)
+    return (structure, dof, p_value), curved or is_unexplained(p_value, rms, float(np.sqrt(np.mean(noise[judged] ** 2))))
 
 
 def _not_judged(channels, judged: np.ndarray) -> str:
