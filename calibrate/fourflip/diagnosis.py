@@ -129,7 +129,6 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
     base = fit_ml(samples, rec.outputs, rec.channels, start, noise)
     floor = float(np.sqrt(np.mean(noise**2)))
     judged = dithered(lattice_step(rec.outputs), noise)
-    forms = []  # each verdict's response form test that rejected the response (the last one is reported)
 
     def refit(current: MLFit, effect: FourFlipEffect, block: np.ndarray) -> MLFit:
         return fit_ml(samples, rec.outputs, rec.channels, current.physics, noise,
@@ -156,10 +155,13 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         score=lambda current, effect: score_effect(current, noise, effect),
         refit=refit, n_params=lambda e: e.n_params(len(rec.channels)), log_n=np.log(rec.outputs.size),
         base_step={"model": "base", "residual_rms": _pooled_rms(base.residuals), "chi2_per_dof": base.reduced_chi2},
-        write_step=claim, verdict=lambda f: _verdict(samples, f, noise, judged, forms),
+        write_step=claim, verdict=lambda f: _verdict(samples, f, noise, judged),
         checks=(response_form_check(noise),), rejected_as=lambda e: e.name, progress=say, revise=revise,
         unclaimable=None if judged.all() else "the ADC's undithered rounding is structured by itself and may be it")
     current, steps, rejected, unexplained = chosen.fit, chosen.steps, chosen.not_claimed, chosen.unexplained
+    form = response_form_test(current, noise)
+    if form is not None and unexplained is False and form.p_value_over(judged) < STRUCTURE_P:
+        unexplained = True  # white by the structure test, but the response's curve is not the vocabulary's form
     structure, dof, p_value = chosen.structure
     rms_after = _pooled_rms(current.residuals)
     diagnosis = {
@@ -175,7 +177,7 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         "not_claimed": rejected,
         "not_applicable": skipped,
         "revisions": chosen.revisions,
-        **({"response_form_test": forms[-1].as_dict(rec.channels)} if forms and unexplained else {}),
+        **({} if form is None else {"response_form_test": form.as_dict(rec.channels)}),
         "calibration_change": _calibration_change(base, current, rec.channels),
     }
     if unexplained:
@@ -292,21 +294,14 @@ def _heading_sigma(fit: MLFit) -> float:
                              phys.field_norm, offset_covariance=offset_cov, channel_covariance=joint)
 
 
-def _verdict(samples, fit: MLFit, noise, judged: np.ndarray, forms: list) -> tuple[tuple[float, int, float], bool | None]:
+def _verdict(samples, fit: MLFit, noise, judged: np.ndarray) -> tuple[tuple[float, int, float], bool | None]:
     """Structure test of a fit's residual over the ``judged`` channels and whether it is unexplained
-    (None when no channel can be judged).  A fit with a nonlinear response is unexplained also when the
-    response's form is rejected (:func:`calibrate.fourflip._form.response_form_test`, p below
-    :data:`~calibrate.diagnosis.evidence.STRUCTURE_P`: a curve the vocabulary's powers cannot follow); that
-    test is appended to ``forms``."""
+    (None when no channel can be judged)."""
     if not judged.any():
         return (float("nan"), 0, float("nan")), None
     structure, dof, p_value = residual_structure(samples, fit.residuals[:, judged], noise[judged])
     rms = _pooled_rms(fit.residuals[:, judged])
-    form = response_form_test(fit, noise)
-    curved = form is not None and form.p_value_over(judged) < STRUCTURE_P
-    if curved:
-        forms.append(form)
-    return (structure, dof, p_value), curved or is_unexplained(p_value, rms, float(np.sqrt(np.mean(noise[judged] ** 2))))
+    return (structure, dof, p_value), is_unexplained(p_value, rms, float(np.sqrt(np.mean(noise[judged] ** 2))))
 
 
 def _not_judged(channels, judged: np.ndarray) -> str:
