@@ -20,6 +20,12 @@ with the tumble and the fits against known inputs):
    the added effects may have absorbed part of an effect the toolkit does not model (a field
    gradient with the sensor off the turntable axis mimics an encoder error), so none is claimed,
    the base model is kept and every candidate tried is reported with its evidence.
+   A nonlinear response in the model is tested against a general curve of each channel's field
+   (:func:`calibrate.fourflip._form.response_form_test`).  Where it rejects the response's form, an effect
+   proposed next that takes less than that curve would is not claimed (:func:`~calibrate.fourflip._form.
+   response_form_check`: a knee's misfit reads as per-flip offsets, a platform field's signature), and a fit
+   the structure test calls white is called unexplained with the response kept (the vocabulary's nearest
+   curve; a linear file would be further off) and widened.
 7. An explained fit is asked once more, across the recording: the residual summed over 10 s blocks, the band
    test of the unexplained widening (:func:`calibrate.diagnosis.robust.band_p_values`) as one family
    (:func:`calibrate.diagnosis.robust.family_p_value`, ``block_test``).  Where it passes, a wander the named

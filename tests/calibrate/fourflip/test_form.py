@@ -97,5 +97,6 @@ def test_a_knee_is_said_not_taken_as_a_platform_field(bench):
     assert "unexplained_cost" in d
     assert d["response_form_test"]["p_value"] < STRUCTURE_P
     assert any(line.startswith("platform_field") and "vocabulary's form" in line for line in d["not_claimed"])
+    assert "the fitted response's curve is not the vocabulary's form" in result.report()
     err = np.degrees(np.arccos(np.clip(np.sum(result.directions * truth.directions, axis=1), -1, 1)))
     assert np.all(err < 2.0 * np.array([c.direction_sigma_deg for c in result.channels]))
