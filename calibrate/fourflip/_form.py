@@ -24,10 +24,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.polynomial import legendre
 
+from compass.sim.bench import channel_outputs, housing_field
+
 from ..diagnosis.evidence import STRUCTURE_P, Check, Proposal, linear_score, unit_columns
 from ..noise import chi2_sf
 from ._jacobian import Partials
-from ._mlfit import MLFit, _Predictor
+from ._mlfit import MLFit
 
 __all__ = ["CURVE_DEGREE", "RESPONSE", "ResponseForm", "response_form_check", "response_form_test"]
 
@@ -92,9 +94,9 @@ def response_form_test(fit: MLFit, noise: np.ndarray) -> ResponseForm | None:
         return None
     bins, phys = fit.bins, fit.physics
     weights = np.broadcast_to(bins.root_n / noise, bins.outputs.shape)
-    predict = _Predictor(bins.samples)
-    r0 = ((bins.outputs - predict(phys)) * weights).ravel()
-    parts = Partials(phys, bins.samples, predict.field(phys))
+    b_h = housing_field(phys, bins.samples)
+    r0 = ((bins.outputs - channel_outputs(phys, bins.samples, b_h @ phys.directions.T)) * weights).ravel()
+    parts = Partials(phys, bins.samples, b_h)
     curve = legendre.legvander(parts.x / phys.field_norm, CURVE_DEGREE)[..., 2:]  # (g, c, CURVE_DEGREE - 1)
     j_b = unit_columns(np.nan_to_num(fit.jac))
     normal_b = j_b.T @ j_b
