@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .evidence import VERDICTS, added_step_lines, remark_lines, residual_line
+from .evidence import STRUCTURE_P, VERDICTS, added_step_lines, remark_lines, residual_line
 
 __all__ = ["Diagnosis", "cost_lines", "format_diagnosis"]
 
@@ -80,6 +80,12 @@ def format_diagnosis(block: dict, unit: str = "output units") -> str:
     if block.get("not_judged") and block["unexplained"] is not None:
         lines.append(f"  left out of the verdict: {block['not_judged']}")
     test = (block.get("structure_test") or {}).get("name", "structure test")
+    form = block.get("response_form_test")  # the four-flip's: the fitted response against a general curve
+    if form and form["p_value"] < STRUCTURE_P:
+        drops = ", ".join(f"{name} {v:.0f}" for name, v in form["delta_chi2"].items())
+        lines.append(f"  the fitted response's curve is not the vocabulary's form: a general curve of each channel's "
+                     f"field ({form['curve']}) would take chi2 {drops} ({form['dof']} dof each, p = "
+                     f"{form['p_value']:.2g}); the file keeps the nearest curve the vocabulary has")
     lines.append(residual_line(block, verdict, test))
     lines += cost_lines(block.get("unexplained_cost"))
     if "wander_cost" in block:  # explained sample by sample, a wander across blocks of time (the four-flip)

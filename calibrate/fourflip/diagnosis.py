@@ -20,6 +20,12 @@ with the tumble and the fits against known inputs):
    the added effects may have absorbed part of an effect the toolkit does not model (a field
    gradient with the sensor off the turntable axis mimics an encoder error), so none is claimed,
    the base model is kept and every candidate tried is reported with its evidence.
+   A nonlinear response in the model is tested against a general curve of each channel's field
+   (:func:`calibrate.fourflip._form.response_form_test`).  Where it rejects the response's form, an effect
+   proposed next that takes less than that curve would is not claimed (:func:`~calibrate.fourflip._form.
+   response_form_check`: a knee's misfit reads as per-flip offsets, a platform field's signature), and a fit
+   the structure test calls white is called unexplained with the response kept (the vocabulary's nearest
+   curve; a linear file would be further off) and widened.
 7. An explained fit is asked once more, across the recording: the residual summed over 10 s blocks, the band
    test of the unexplained widening (:func:`calibrate.diagnosis.robust.band_p_values`) as one family
    (:func:`calibrate.diagnosis.robust.family_p_value`, ``block_test``).  Where it passes, a wander the named
@@ -35,10 +41,11 @@ import numpy as np
 from compass.io.fourflip import FourFlipRecording
 from compass.sim.bench import BenchSamples
 
+from ._form import response_form_check, response_form_test
 from ._unseen import platform_prior
 from ._mlfit import (MLFit, block_p_values, fit_ml, score_effect, step_size_output, structured_covariance,
                      with_covariance)
-from ..diagnosis.evidence import DECISIVE_BIC, Proposal, gather_forms, is_unexplained, select_effects
+from ..diagnosis.evidence import DECISIVE_BIC, STRUCTURE_P, Proposal, gather_forms, is_unexplained, select_effects
 from ..diagnosis.report import format_diagnosis
 from ..diagnosis.robust import BAND_P_VALUE, BLOCK_S, extra_sigma, family_p_value, heading_sigma_deg, widened
 from .effects import VARIANTS, FourFlipEffect
@@ -155,9 +162,12 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         refit=refit, n_params=lambda e: e.n_params(len(rec.channels)), log_n=np.log(rec.outputs.size),
         base_step={"model": "base", "residual_rms": _pooled_rms(base.residuals), "chi2_per_dof": base.reduced_chi2},
         write_step=claim, verdict=lambda f: _verdict(samples, f, noise, judged),
-        rejected_as=lambda e: e.name, progress=say, revise=revise,
+        checks=(response_form_check(noise),), rejected_as=lambda e: e.name, progress=say, revise=revise,
         unclaimable=None if judged.all() else "the ADC's undithered rounding is structured by itself and may be it")
     current, steps, rejected, unexplained = chosen.fit, chosen.steps, chosen.not_claimed, chosen.unexplained
+    form = response_form_test(current, noise)
+    if form is not None and unexplained is False and form.p_value_over(judged) < STRUCTURE_P:
+        unexplained = True  # white by the structure test, but the response's curve is not the vocabulary's form
     structure, dof, p_value = chosen.structure
     rms_after = _pooled_rms(current.residuals)
     diagnosis = {
@@ -173,6 +183,7 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         "not_claimed": rejected,
         "not_applicable": skipped,
         "revisions": chosen.revisions,
+        **({} if form is None else {"response_form_test": form.as_dict(rec.channels)}),
         "calibration_change": _calibration_change(base, current, rec.channels),
     }
     if unexplained:
