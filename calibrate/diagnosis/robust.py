@@ -512,6 +512,7 @@ class _BlockMoments(NamedTuple):
     floor_rhs: float  # z^T keep^+ z - rank(keep)
     traces: np.ndarray  # tr(B_k keep_bc B_l keep_da), (bands, c, c, bands, c, c)
     t_start: np.ndarray  # each block's first time, s, (nb,)
+    size: np.ndarray  # each block's count of rows, (nb,)
 
 
 class _Locked(NamedTuple):
@@ -640,7 +641,7 @@ def _block_moments(jac, weighted, t_s, bread, block_s, n_bands) -> _BlockMoments
         factors.append(u[:, kept] * np.sqrt(w[kept]))
     splits = np.cumsum([f.shape[1] for f in factors])
     return _BlockMoments(b, good, summed_jac, y, bands, blocks, root, np.hstack(factors), splits,
-                         floor_rhs, traces, t_start)
+                         floor_rhs, traces, t_start, size)
 
 
 def _with_floor(m: _BlockMoments, outer: np.ndarray, quadratic: np.ndarray, floor_quadratic: np.ndarray):
@@ -839,7 +840,7 @@ class OffsetStep(NamedTuple):
 
 def structure_in_time(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: np.ndarray,
                       block_s: float = BLOCK_S, n_bands: int = N_BANDS,
-                      locked: TurnPhase | None = None) -> TimeStructure:
+                      locked: TurnPhase | None = None, about_mean: bool = False) -> TimeStructure:
     """Covariance of a fit's parameters under the structure its residual shows: one offset step, structure locked
     to the turn, or a process in time.
 
@@ -857,6 +858,10 @@ def structure_in_time(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, br
         As :func:`time_correlated_covariance`.
     locked : TurnPhase, optional
         Each row's turn and angle in it (and the shapes of each channel's own turn structure).
+    about_mean : bool
+        Take the step's and the process's move of the parameters about each channel's mean level over the
+        recording (module docstring, "About the session's mean"): the offsets a fit states are then the
+        session's mean levels, which a structure's own mean moves with the fit.  False: about zero.
 
     Returns
     -------
@@ -872,7 +877,7 @@ def structure_in_time(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, br
     m = _block_moments(jac, weighted, t_s, bread, block_s, n_bands)
     p_values = _band_p_values(m)
     if np.any(p_values <= BAND_P_VALUE):
-        found = _offset_step(m, bread)
+        found = _offset_step(m, bread, about_mean)
         if found is not None:
             return found
         if locked is not None:
@@ -880,10 +885,24 @@ def structure_in_time(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, br
             rest = _block_moments(aug.jac, aug.weighted, t_s, aug.bread, block_s, n_bands)
             if np.all(_band_p_values(rest) > BAND_P_VALUE):  # the locked structure is the whole structure
                 return TimeStructure(aug.own(aug.bread), None, True)
-    return TimeStructure(_stationary_covariance(m, p_values, bread), None)
+    return TimeStructure(_stationary_covariance(m, p_values, bread, about_mean), None)
 
 
-def _offset_step(m: _BlockMoments, bread: np.ndarray) -> TimeStructure | None:
+def _moved_by_levels(m: _BlockMoments, about_mean: bool) -> np.ndarray:
+    """``G`` (rows channel-major, (c nb, k')), or with ``about_mean`` ``Q^T G``: each channel's block levels ``u``
+    taken about their mean over the recording's rows, ``Q u = u - 1 (n^T u) / n^T 1`` (``n`` the blocks' row
+    counts), so that ``H^-1 G^T Q u`` is the parameters' move less that of the levels' mean (module docstring,
+    "About the session's mean")."""
+    g = m.summed_jac
+    if not about_mean:
+        return g
+    c, nb = m.y.shape
+    per = g.reshape(c, nb, -1)
+    weight = m.size / np.sum(m.size)
+    return (per - weight[None, :, None] * np.sum(per, axis=1, keepdims=True)).reshape(c * nb, -1)
+
+
+def _offset_step(m: _BlockMoments, bread: np.ndarray, about_mean: bool = False) -> TimeStructure | None:
     """The best single offset step and its covariance if it is decisive and leaves white block sums, else None."""
     c, nb = m.y.shape
     if nb < 2:
@@ -915,15 +934,17 @@ def _offset_step(m: _BlockMoments, bread: np.ndarray) -> TimeStructure | None:
     rest = m._replace(y=m.y - size * keep_s.reshape(c, nb), floor_rhs=m.floor_rhs - size**2 * info_s)
     if np.any(_band_p_values(rest) <= BAND_P_VALUE):
         return None
-    move = m.b @ (m.summed_jac.T @ s)  # H^-1 G^T s: the parameters' move per unit of step
+    move = m.b @ (_moved_by_levels(m, about_mean).T @ s)  # H^-1 G^T s (Q s): the parameters' move per unit of step
     out = np.full(bread.shape, np.nan)
     # size^2 less its noise's variance (1 / info) is unbiased for the step's square
     out[np.ix_(m.good, m.good)] = m.b + max(size**2 - 1.0 / info_s, 0.0) * np.outer(move, move)
     return TimeStructure(out, OffsetStep(int(channel), float(m.t_start[j]), size, size**2 * info_s))
 
 
-def _stationary_covariance(m: _BlockMoments, p_values: np.ndarray, bread: np.ndarray) -> np.ndarray:
-    """Stage 2 of :func:`time_correlated_covariance` on stage 1's ``p_values``."""
+def _stationary_covariance(m: _BlockMoments, p_values: np.ndarray, bread: np.ndarray,
+                           about_mean: bool = False) -> np.ndarray:
+    """Stage 2 of :func:`time_correlated_covariance` on stage 1's ``p_values`` (``about_mean``: as
+    :func:`structure_in_time`'s; the spectrum is fitted as before, only its move is taken about the mean)."""
     c = m.y.shape[0]
     loads = _loadings(c)
     outer = np.einsum("vi,vj->vij", loads, loads)
@@ -936,7 +957,7 @@ def _stationary_covariance(m: _BlockMoments, p_values: np.ndarray, bread: np.nda
     # non-negative: each channel's own process and processes common to each pair of channels, alike or opposed
     floor, power = _spectrum(m, gram, rhs, used)
     out = np.full(bread.shape, np.nan)
-    b, g = m.b, m.summed_jac
+    b, g = m.b, _moved_by_levels(m, about_mean)
     out[np.ix_(m.good, m.good)] = (1.0 + floor) * b + b @ g.T @ _structure(m, power, outer) @ g @ b
     return out
 
