@@ -228,15 +228,17 @@ it. So the unexplained four-flip takes the move about each channel's mean (``abo
 as ``Q u = u - 1 (n^T u) / (n^T 1)`` per channel (``n`` the blocks' row counts), the move ``H^-1 G^T Q u``, for the
 process (``Q^T G`` in place of ``G``) and for a step alike. Nothing estimated changes (``keep`` annihilates the
 constants, so the moment equations, the band tests and the step's choice are the same), and nothing but the offsets
-moves: the directions' and gains' covariance is the same to rounding; the offsets keep the floor's factor and the
-structure's move less its mean. Why it matters: a level housing's heading reads the x and y channels' offsets, and
-taken about zero the offsets' part of its sigma was a median 29 times (5-175) the heading error their error from the
-session's level makes, on tools/bench_loop.py's random walk (its 11 unexplained recordings of seeds 60-79: the
-heading's err/sig 0.65 where the directions' read 0.98; 1.01 about the mean). Its limit: a structure that is not in
-the sensor's offset (a field turning with the bench, ``precessing axis``) has a session mean too, which the offsets
-absorb as an error that is not a wander's level; the residual cannot tell the two apart (the mean is invisible
-either way), and here it is taken as zero, as the constant tilt below is (measured on precessing axis, its 16
-recordings of seeds 60-79 the process model took: the heading error the offsets make is 4.7 times its sigma about
+moves: the directions' and gains' covariance is the same (exactly where a channel's rows weigh alike, as in the line
+fit of the tests; the four-flip's bins of unequal counts make the offset's column nearly the constant, and the
+directions' and gains' err/sig on tools/bench_loop.py moved by at most 0.02); the offsets keep the floor's factor
+and the structure's move less its mean. Why it matters: a level housing's heading reads the x and y channels'
+offsets, and taken about zero the offsets' part of its sigma was a median 29 times (5-175) the heading error their
+error from the session's level makes, on tools/bench_loop.py's random walk (its 11 unexplained recordings of seeds
+60-79: the heading's err/sig 0.65 where the directions' read 0.98; 1.01 about the mean). Its limit: a structure that
+is not in the sensor's offset (a field turning with the bench, ``precessing axis``) has a session mean too, which
+the offsets absorb as an error that is not a wander's level; the residual cannot tell the two apart (the mean is
+invisible either way), and here it is taken as zero, as the constant tilt below is (measured on precessing axis, its
+16 recordings of seeds 60-79 the process model took: the heading error the offsets make is 4.7 times its sigma about
 the mean, 0.76 times about zero; the heading as a whole, whose sigma its directions dominate, 1.00 about the mean,
 0.67 about zero; docs/benchmarks.md). The explained fit's wander widening (``wander_cost``) keeps the move about
 zero. Not the cause of the heading's over-cover (measured on the same recordings, 28 unexplained ones of four
