@@ -421,7 +421,7 @@ def _direction_covariance(layout: _Layout, x, cov) -> np.ndarray:
     return out
 
 
-def structured_covariance(fit: MLFit, noise: np.ndarray):
+def structured_covariance(fit: MLFit, noise: np.ndarray, about_mean: bool = False):
     """Covariance of a fit's parameters under the structure its residual shows: one offset step, structure
     locked to the turn, or a process in time.
 
@@ -434,6 +434,9 @@ def structured_covariance(fit: MLFit, noise: np.ndarray):
     from what the fit left of it.  Per-flip clusters (CR2, :func:`calibrate.diagnosis.robust.cluster_covariance`)
     took flips as independent and left a random walk and an air-con cycle at 1.3-1.6 times the
     widened sigma (tools/bench_loop.py).
+
+    ``about_mean``: the step's and the process's move taken about each channel's mean level over the session
+    (the offsets then state the session's mean level: robust.py, "About the session's mean").
 
     Returns
     -------
@@ -448,7 +451,7 @@ def structured_covariance(fit: MLFit, noise: np.ndarray):
     weighted, t_s, bread = _weighted_residual(fit, noise)
     locked = TurnPhase(np.radians(bins.samples.platform_deg), bins.samples.flip_index,
                        shapes=_gain_and_lag(fit, noise))
-    return structure_in_time(fit.jac, weighted, t_s, bread, locked=locked)
+    return structure_in_time(fit.jac, weighted, t_s, bread, locked=locked, about_mean=about_mean)
 
 
 def block_p_values(fit: MLFit, noise: np.ndarray) -> np.ndarray:

@@ -187,7 +187,7 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         "calibration_change": _calibration_change(base, current, rec.channels),
     }
     if unexplained:
-        current, diagnosis["unexplained_cost"] = _widen(current, noise, rec.channels)
+        current, diagnosis["unexplained_cost"] = _widen(current, noise, rec.channels, about_mean=True)
     elif unexplained is False:  # at the floor sample by sample: does a wander remain across blocks of time?
         family = family_p_value(block_p_values(current, noise))
         diagnosis["block_test"] = {"p_value": family, "threshold": BAND_P_VALUE}
@@ -245,15 +245,17 @@ def _unseen_platform(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, di
     }
 
 
-def _widen(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
+def _widen(fit: MLFit, noise: np.ndarray, channels, about_mean: bool = False) -> tuple[MLFit, dict]:
     """The fit with its covariance widened to cover the residual's structure, and what that costs.
 
     :func:`calibrate.fourflip._mlfit.structured_covariance` and
     :func:`calibrate.diagnosis.robust.widened`; the cost is the part of each direction's sigma and of
     a level housing's heading sigma (:func:`calibrate.diagnosis.robust.heading_sigma_deg`) the
-    structure adds, ``sqrt(widened^2 - naive^2)``.
+    structure adds, ``sqrt(widened^2 - naive^2)``.  ``about_mean`` (the unexplained fit's): the structure's
+    move taken about each channel's mean level over the session, the level the file's offset states
+    (:func:`calibrate.diagnosis.robust.structure_in_time`; robust.py, "About the session's mean").
     """
-    structure = structured_covariance(fit, noise)
+    structure = structured_covariance(fit, noise, about_mean=about_mean)
     wide = with_covariance(fit, widened(fit.covariance, structure.covariance))
     before, after = fit.direction_sigma_deg(), wide.direction_sigma_deg()
     heading = [_heading_sigma(f) for f in (fit, wide)]
@@ -283,6 +285,9 @@ def _widen(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
                           f"output units ({field:.3g} field units) near t = {step.t_s:g} s (within {BLOCK_S:g} s; what "
                           "remains is white), its move of the parameters propagated; the file's sigmas are the larger "
                           "of it and the naive ones")
+    if about_mean and not structure.locked:
+        cost["method"] += ("; the move is taken about each channel's mean level over the session, the level the "
+                           "file's offsets state (a wander's own mean is no error of it)")
     return wide, cost
 
 

@@ -497,3 +497,27 @@ def test_family_p_value_is_bonferroni_and_can_pass_at_the_simulations_resolution
         family_p_value(np.array([]))
     with pytest.raises(ValueError, match="finite"):  # min() would have read [0.001, nan] as 1: no structure
         family_p_value(np.array([0.001, np.nan]))
+
+
+def test_about_the_session_mean_a_wanders_own_mean_moves_no_offset():
+    """One channel over four turns, its offset wandering as a random walk: the offset ``a`` the fit states is the
+    walk's mean over the session plus the noise's, and ``b, c`` (whole turns: no mean) take the walk's within-turn
+    part.  Taken about zero, the process's move of ``a`` is the walk's own mean extrapolated from what the fit
+    leaves (its stated sigma many times its error from the session's mean level: the old four-flip's offsets, 5-220
+    times on these); about the session's mean (``about_mean``) it moves nothing in ``a`` but by the floor's factor,
+    ``a``'s error from the session's mean level is within three of its sigmas, and ``b, c``'s covariance is the
+    same to rounding (module docstring, "About the session's mean")."""
+    rng = np.random.default_rng(11)
+    for _ in range(3):
+        walk = np.cumsum(rng.normal(scale=0.1, size=1440))
+        t, _, jac, r, bread, x = _turn_fit(rng, lambda rng, phi, turn: walk)
+        zero = structure_in_time(jac, r, t, bread)
+        mean = structure_in_time(jac, r, t, bread, about_mean=True)
+        assert zero.step is None and mean.step is None  # the process model: a walk is no single step
+        np.testing.assert_allclose(mean.covariance[1:, 1:], zero.covariance[1:, 1:], rtol=1e-9,
+                                   atol=1e-12 * np.abs(zero.covariance).max())
+        assert zero.covariance[0, 0] > 4.0 * bread[0, 0]  # the walk's own mean, extrapolated
+        # a's variance about the mean is the floor's factor times the naive one (the walk within each 10 s block
+        # counts as white beyond the floor: 1.9 on the first replicate), a fraction of the extrapolated mean's
+        assert mean.covariance[0, 0] < 0.25 * zero.covariance[0, 0]
+        assert abs(x[0] - walk.mean()) < 3.0 * np.sqrt(widened(bread, mean.covariance)[0, 0])
