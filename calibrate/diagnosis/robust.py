@@ -250,6 +250,7 @@ from .evidence import DECISIVE_BIC
 
 __all__ = ["BLOCK_S", "LEVERAGE_ONE", "LOCKED_HARMONICS", "N_BANDS", "OffsetStep", "TimeStructure", "TurnPhase",
            "band_edges_hz", "band_p_values", "cluster_covariance", "extra_sigma", "family_p_value", "heading_sigma_deg",
+           "offset_step",
            "structure_in_time", "time_correlated_covariance", "widened"]
 
 BLOCK_S = 10.0
@@ -881,6 +882,16 @@ def structure_in_time(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, br
             if np.all(_band_p_values(rest) > BAND_P_VALUE):  # the locked structure is the whole structure
                 return TimeStructure(aug.own(aug.bread), None, True)
     return TimeStructure(_stationary_covariance(m, p_values, bread), None)
+
+
+def offset_step(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: np.ndarray,
+                block_s: float = BLOCK_S, n_bands: int = N_BANDS) -> TimeStructure | None:
+    """:func:`structure_in_time`'s first alternative alone: the one offset step that is decisive and leaves white
+    block sums (module docstring, "One step, not a process"), with its covariance, or None.
+
+    Parameters and raises as :func:`time_correlated_covariance`.
+    """
+    return _offset_step(_block_moments(jac, weighted, t_s, bread, block_s, n_bands), bread)
 
 
 def _offset_step(m: _BlockMoments, bread: np.ndarray) -> TimeStructure | None:

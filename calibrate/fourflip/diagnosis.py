@@ -36,8 +36,8 @@ from compass.io.fourflip import FourFlipRecording
 from compass.sim.bench import BenchSamples
 
 from ._unseen import platform_prior
-from ._mlfit import (MLFit, block_p_values, fit_ml, score_effect, step_size_output, structured_covariance,
-                     with_covariance)
+from ._mlfit import (MLFit, block_p_values, fit_ml, offset_step, score_effect, step_size_output, structured_covariance,
+                     walk_covariance, with_covariance)
 from ..diagnosis.evidence import DECISIVE_BIC, Proposal, gather_forms, is_unexplained, select_effects
 from ..diagnosis.report import format_diagnosis
 from ..diagnosis.robust import BAND_P_VALUE, BLOCK_S, extra_sigma, family_p_value, heading_sigma_deg, widened
@@ -181,7 +181,7 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         family = family_p_value(block_p_values(current, noise))
         diagnosis["block_test"] = {"p_value": family, "threshold": BAND_P_VALUE}
         if family <= BAND_P_VALUE:
-            current, diagnosis["wander_cost"] = _widen(current, noise, rec.channels)
+            current, diagnosis["wander_cost"] = _widen_walk(current, noise, rec.channels)
     current, unseen = _unseen_platform(current, noise, rec.channels)
     if unseen is not None:
         diagnosis["platform_field_unseen"] = unseen
@@ -234,15 +234,15 @@ def _unseen_platform(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, di
     }
 
 
-def _widen(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
+def _widen(fit: MLFit, noise: np.ndarray, channels, structure=None) -> tuple[MLFit, dict]:
     """The fit with its covariance widened to cover the residual's structure, and what that costs.
 
-    :func:`calibrate.fourflip._mlfit.structured_covariance` and
+    :func:`calibrate.fourflip._mlfit.structured_covariance` (or the ``structure`` given) and
     :func:`calibrate.diagnosis.robust.widened`; the cost is the part of each direction's sigma and of
     a level housing's heading sigma (:func:`calibrate.diagnosis.robust.heading_sigma_deg`) the
     structure adds, ``sqrt(widened^2 - naive^2)``.
     """
-    structure = structured_covariance(fit, noise)
+    structure = structured_covariance(fit, noise) if structure is None else structure
     wide = with_covariance(fit, widened(fit.covariance, structure.covariance))
     before, after = fit.direction_sigma_deg(), wide.direction_sigma_deg()
     heading = [_heading_sigma(f) for f in (fit, wide)]
@@ -273,6 +273,38 @@ def _widen(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
                           "remains is white), its move of the parameters propagated; the file's sigmas are the larger "
                           "of it and the naive ones")
     return wide, cost
+
+
+def _widen_walk(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
+    """The fit with its covariance widened for a wander across blocks of time, and what that costs: one step of one
+    channel's offset where that explains the whole structure (:func:`_widen`), else a random walk of each
+    channel's offset.
+
+    :func:`calibrate.fourflip._mlfit.walk_covariance` (one walk size per channel from the residual's block sums,
+    its move of the parameters propagated whole; :mod:`calibrate.diagnosis.walk`) and
+    :func:`calibrate.diagnosis.robust.widened`; the cost as :func:`_widen`'s, and each channel's walk in field
+    units per square root of a second.
+    """
+    step = offset_step(fit, noise)
+    if step is not None:  # one step of one channel's offset leaves white block sums: its own move, as before
+        return _widen(fit, noise, channels, step)
+    walk = walk_covariance(fit, noise)
+    wide = with_covariance(fit, widened(fit.covariance, walk.covariance))
+    before, after = fit.direction_sigma_deg(), wide.direction_sigma_deg()
+    heading = [_heading_sigma(f) for f in (fit, wide)]
+    per_sample = walk.q_per_sqrt_s * noise / np.median(np.broadcast_to(fit.bins.root_n, (fit.bins.outputs.shape[0], 1)))
+    return wide, {
+        "direction_deg": {name: float(v) for name, v in zip(channels, extra_sigma(after, before))},
+        "heading_deg": float(extra_sigma(heading[1], heading[0])),
+        "direction_sigma_deg": {name: {"naive": float(b), "widened": float(a)}
+                                for name, b, a in zip(channels, before, after)},
+        "heading_sigma_deg": {"naive": heading[0], "widened": heading[1]},
+        "walk_fieldunit_per_sqrt_s": {name: float(q) for name, q in zip(channels, per_sample / fit.physics.gains)},
+        "method": ("the residual's wander taken as a random walk of each channel's offset (one size per channel, "
+                   "estimated by restricted maximum likelihood from the residual's 10 s block sums with what the fit "
+                   "absorbed accounted for, the white floor beside it), its move of the parameters propagated "
+                   "whole; the file's sigmas are the larger of it and the naive ones"),
+    }
 
 
 def _heading_sigma(fit: MLFit) -> float:
