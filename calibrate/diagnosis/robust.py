@@ -210,12 +210,14 @@ stated sigma on that walk's 9 explained recordings of seeds 60-79).  The block s
 ten samples of ``w~`` coherently, so its share of the block sums' variance is ten times its share per sample.  The
 four-flip therefore asks the band test of every fit it called explained, as one family (:func:`family_p_value`:
 Bonferroni over the ten tests, the family's rate under white noise ``BAND_P_VALUE``, so about one clean
-recording in a hundred is widened by chance) and, where it passes, widens as for an unexplained residual
-(:func:`structure_in_time`).  What it does not fix (measured, docs/benchmarks.md): the widening's three
-alternatives were chosen on strong structure; on a weak walk the locked-to-the-turn columns take enough of it
-for the remainder to pass the band test (absence of evidence, not evidence of a locked structure), and their
-move, which leaves each turn's level out, under-covers; the process model alone instead (tried) widened two
-of nine walks' offsets 25 times through the lowest band, which the named cubic absorbs almost whole.
+recording in a hundred is widened by chance) and, where it passes, widens it: one channel's offset step where
+that leaves white block sums (:func:`offset_step`), else a random walk of each channel's offset, one size per
+channel from the block sums, its move propagated whole (:mod:`calibrate.diagnosis.walk`).  The earlier widening
+reused :func:`structure_in_time` here (measured, docs/benchmarks.md): on a weak walk the locked-to-the-turn
+columns took enough of it for the remainder to pass the band test (absence of evidence, not evidence of a locked
+structure), and their move, which leaves each turn's level out, under-covered; the process model alone instead
+widened two of nine walks' offsets 25 times through the lowest band, which the named cubic absorbs almost whole.
+The walk's one size per channel has a known shape, so its extrapolation into what the drift absorbs is fixed.
 
 Checks on paper.  White noise: every right-hand side is centred, no band passes but by chance, the
 floor's factor is unbiased: ``V = H^-1`` (the naive covariance) on average without the

@@ -25,7 +25,8 @@ with the tumble and the fits against known inputs):
    (:func:`calibrate.diagnosis.robust.family_p_value`, ``block_test``).  Where it passes, a wander the named
    effects do not follow (a random walk of an offset, under a polynomial drift) remains below the floor in
    each sample but moves the directions between flips; the fit keeps its verdict and effects and its
-   covariance is widened as an unexplained one's (``wander_cost``; robust.py, "A wander under an explained fit").
+   covariance is widened (``wander_cost``): for one channel's offset step where that explains the whole structure,
+   else for a random walk of each channel's offset, its size from the block sums (:mod:`calibrate.diagnosis.walk`).
 """
 
 from __future__ import annotations
