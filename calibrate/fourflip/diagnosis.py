@@ -293,7 +293,7 @@ def _widen_walk(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
     wide = with_covariance(fit, widened(fit.covariance, walk.covariance))
     before, after = fit.direction_sigma_deg(), wide.direction_sigma_deg()
     heading = [_heading_sigma(f) for f in (fit, wide)]
-    per_sample = walk.q_per_sqrt_s * noise / np.median(np.broadcast_to(fit.bins.root_n, (fit.bins.outputs.shape[0], 1)))
+    per_sample = walk.q_per_sqrt_s * noise  # output units per sqrt(s): q is in noise sigmas of one sample
     return wide, {
         "direction_deg": {name: float(v) for name, v in zip(channels, extra_sigma(after, before))},
         "heading_deg": float(extra_sigma(heading[1], heading[0])),
