@@ -7,7 +7,8 @@ states is the session's mean level: a constant is the channel's offset, which th
 covariance is the centred minimum kernel
 
 .. math:: K(t, t') = \\min(t, t') - \\bar m(t) - \\bar m(t') + \\bar{\\bar m}, \\qquad
-          \\bar m(t) = \\sum_i \\omega_i \\min(t, t_i), \\quad \\bar{\\bar m} = \\sum_{ij} \\omega_i \\omega_j \\min(t_i, t_j),
+          \\bar m(t) = \\sum_i \\omega_i \\min(t, t_i), \\quad
+          \\bar{\\bar m} = \\sum_{ij} \\omega_i \\omega_j \\min(t_i, t_j),
 
 ``omega`` each row's share of the samples.  One number per channel, ``q_c``: its shape is known, so what
 the fit absorbs of it (the named drift's polynomial takes its lowest part, each flip's mounting part of a
