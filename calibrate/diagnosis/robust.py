@@ -210,12 +210,14 @@ stated sigma on that walk's 9 explained recordings of seeds 60-79).  The block s
 ten samples of ``w~`` coherently, so its share of the block sums' variance is ten times its share per sample.  The
 four-flip therefore asks the band test of every fit it called explained, as one family (:func:`family_p_value`:
 Bonferroni over the ten tests, the family's rate under white noise ``BAND_P_VALUE``, so about one clean
-recording in a hundred is widened by chance) and, where it passes, widens as for an unexplained residual
-(:func:`structure_in_time`).  What it does not fix (measured, docs/benchmarks.md): the widening's three
-alternatives were chosen on strong structure; on a weak walk the locked-to-the-turn columns take enough of it
-for the remainder to pass the band test (absence of evidence, not evidence of a locked structure), and their
-move, which leaves each turn's level out, under-covers; the process model alone instead (tried) widened two
-of nine walks' offsets 25 times through the lowest band, which the named cubic absorbs almost whole.
+recording in a hundred is widened by chance) and, where it passes, widens it: one channel's offset step where
+that leaves white block sums (:func:`offset_step`), else a random walk of each channel's offset, one size per
+channel from the block sums, its move propagated whole (:mod:`calibrate.diagnosis.walk`).  The earlier widening
+reused :func:`structure_in_time` here (measured, docs/benchmarks.md): on a weak walk the locked-to-the-turn
+columns took enough of it for the remainder to pass the band test (absence of evidence, not evidence of a locked
+structure), and their move, which leaves each turn's level out, under-covered; the process model alone instead
+widened two of nine walks' offsets 25 times through the lowest band, which the named cubic absorbs almost whole.
+The walk's one size per channel has a known shape, so its extrapolation into what the drift absorbs is fixed.
 
 About the session's mean. A structure's mean over the recording in one channel is a constant, and the channel's
 offset column is the constant: the fit absorbs it whole, it moves that offset by exactly its size and nothing else
@@ -279,6 +281,7 @@ from .evidence import DECISIVE_BIC
 
 __all__ = ["BLOCK_S", "LEVERAGE_ONE", "LOCKED_HARMONICS", "N_BANDS", "OffsetStep", "TimeStructure", "TurnPhase",
            "band_edges_hz", "band_p_values", "cluster_covariance", "extra_sigma", "family_p_value", "heading_sigma_deg",
+           "offset_step",
            "structure_in_time", "time_correlated_covariance", "widened"]
 
 BLOCK_S = 10.0
@@ -929,6 +932,16 @@ def _moved_by_levels(m: _BlockMoments, about_mean: bool) -> np.ndarray:
     per = g.reshape(c, nb, -1)
     weight = m.size / np.sum(m.size)
     return (per - weight[None, :, None] * np.sum(per, axis=1, keepdims=True)).reshape(c * nb, -1)
+
+
+def offset_step(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: np.ndarray,
+                block_s: float = BLOCK_S, n_bands: int = N_BANDS) -> TimeStructure | None:
+    """:func:`structure_in_time`'s first alternative alone: the one offset step that is decisive and leaves white
+    block sums (module docstring, "One step, not a process"), with its covariance, or None.
+
+    Parameters and raises as :func:`time_correlated_covariance`.
+    """
+    return _offset_step(_block_moments(jac, weighted, t_s, bread, block_s, n_bands), bread)
 
 
 def _offset_step(m: _BlockMoments, bread: np.ndarray, about_mean: bool = False) -> TimeStructure | None:

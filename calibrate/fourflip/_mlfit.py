@@ -36,8 +36,8 @@ from ..diagnosis.forms import session_bin
 from ._jacobian import Partials
 from .effects import FourFlipEffect
 
-__all__ = ["BIN_DEG", "Bins", "MLFit", "block_p_values", "cramer_rao", "fit_ml", "score_effect",
-           "structured_covariance", "step_size_output", "tangent_basis", "with_covariance"]
+__all__ = ["BIN_DEG", "Bins", "MLFit", "block_p_values", "cramer_rao", "fit_ml", "offset_step", "score_effect",
+           "structured_covariance", "step_size_output", "tangent_basis", "walk_covariance", "with_covariance"]
 
 _BASE_PER_CHANNEL = 4  # u, v, offset, log gain
 _MAX_ITERATIONS = 100  # residual evaluations of one Levenberg-Marquardt fit (the Jacobian is analytic)
@@ -452,6 +452,36 @@ def structured_covariance(fit: MLFit, noise: np.ndarray, about_mean: bool = Fals
     locked = TurnPhase(np.radians(bins.samples.platform_deg), bins.samples.flip_index,
                        shapes=_gain_and_lag(fit, noise))
     return structure_in_time(fit.jac, weighted, t_s, bread, locked=locked, about_mean=about_mean)
+
+
+def walk_covariance(fit: MLFit, noise: np.ndarray):
+    """Covariance of a fit's parameters with each channel's offset a random walk whose size the residual's block sums
+    give (:func:`calibrate.diagnosis.walk.offset_walk`), on the bins the fit ran on.
+
+    Returns
+    -------
+    calibrate.diagnosis.walk.OffsetWalk
+        Its covariance in the fit's parameters (as ``fit.covariance``; NaN where that is), each channel's walk in
+        noise sigmas of a sample per square root of a second, and the floor's own factor.
+    """
+    from ..diagnosis.walk import offset_walk
+
+    weighted, t_s, bread = _weighted_residual(fit, noise)
+    return offset_walk(fit.jac, weighted, t_s, bread, row_weight=fit.bins.root_n)
+
+
+def offset_step(fit: MLFit, noise: np.ndarray):
+    """The one step of one channel's offset that explains the whole structure of the fit's residual, with its
+    covariance (:func:`calibrate.diagnosis.robust.offset_step`), or None; on the bins the fit ran on.
+
+    Returns
+    -------
+    calibrate.diagnosis.robust.TimeStructure or None
+    """
+    from ..diagnosis.robust import offset_step as step_of
+
+    weighted, t_s, bread = _weighted_residual(fit, noise)
+    return step_of(fit.jac, weighted, t_s, bread)
 
 
 def block_p_values(fit: MLFit, noise: np.ndarray) -> np.ndarray:

@@ -31,7 +31,8 @@ with the tumble and the fits against known inputs):
    (:func:`calibrate.diagnosis.robust.family_p_value`, ``block_test``).  Where it passes, a wander the named
    effects do not follow (a random walk of an offset, under a polynomial drift) remains below the floor in
    each sample but moves the directions between flips; the fit keeps its verdict and effects and its
-   covariance is widened as an unexplained one's (``wander_cost``; robust.py, "A wander under an explained fit").
+   covariance is widened (``wander_cost``): for one channel's offset step where that explains the whole structure,
+   else for a random walk of each channel's offset, its size from the block sums (:mod:`calibrate.diagnosis.walk`).
 """
 
 from __future__ import annotations
@@ -43,8 +44,8 @@ from compass.sim.bench import BenchSamples
 
 from ._form import response_form_check, response_form_test
 from ._unseen import platform_prior
-from ._mlfit import (MLFit, block_p_values, fit_ml, score_effect, step_size_output, structured_covariance,
-                     with_covariance)
+from ._mlfit import (MLFit, block_p_values, fit_ml, offset_step, score_effect, step_size_output, structured_covariance,
+                     walk_covariance, with_covariance)
 from ..diagnosis.evidence import DECISIVE_BIC, STRUCTURE_P, Proposal, gather_forms, is_unexplained, select_effects
 from ..diagnosis.report import format_diagnosis
 from ..diagnosis.robust import BAND_P_VALUE, BLOCK_S, extra_sigma, family_p_value, heading_sigma_deg, widened
@@ -192,7 +193,7 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         family = family_p_value(block_p_values(current, noise))
         diagnosis["block_test"] = {"p_value": family, "threshold": BAND_P_VALUE}
         if family <= BAND_P_VALUE:
-            current, diagnosis["wander_cost"] = _widen(current, noise, rec.channels)
+            current, diagnosis["wander_cost"] = _widen_walk(current, noise, rec.channels)
     current, unseen = _unseen_platform(current, noise, rec.channels)
     if unseen is not None:
         diagnosis["platform_field_unseen"] = unseen
@@ -245,26 +246,21 @@ def _unseen_platform(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, di
     }
 
 
-def _widen(fit: MLFit, noise: np.ndarray, channels, about_mean: bool = False) -> tuple[MLFit, dict]:
+def _widen(fit: MLFit, noise: np.ndarray, channels, about_mean: bool = False, structure=None) -> tuple[MLFit, dict]:
     """The fit with its covariance widened to cover the residual's structure, and what that costs.
 
-    :func:`calibrate.fourflip._mlfit.structured_covariance` and
+    :func:`calibrate.fourflip._mlfit.structured_covariance` (or the ``structure`` given) and
     :func:`calibrate.diagnosis.robust.widened`; the cost is the part of each direction's sigma and of
     a level housing's heading sigma (:func:`calibrate.diagnosis.robust.heading_sigma_deg`) the
     structure adds, ``sqrt(widened^2 - naive^2)``.  ``about_mean`` (the unexplained fit's): the structure's
     move taken about each channel's mean level over the session, the level the file's offset states
     (:func:`calibrate.diagnosis.robust.structure_in_time`; robust.py, "About the session's mean").
     """
-    structure = structured_covariance(fit, noise, about_mean=about_mean)
+    if structure is None:
+        structure = structured_covariance(fit, noise, about_mean=about_mean)
     wide = with_covariance(fit, widened(fit.covariance, structure.covariance))
-    before, after = fit.direction_sigma_deg(), wide.direction_sigma_deg()
-    heading = [_heading_sigma(f) for f in (fit, wide)]
     cost = {
-        "direction_deg": {name: float(v) for name, v in zip(channels, extra_sigma(after, before))},
-        "heading_deg": float(extra_sigma(heading[1], heading[0])),
-        "direction_sigma_deg": {name: {"naive": float(b), "widened": float(a)}
-                                for name, b, a in zip(channels, before, after)},
-        "heading_sigma_deg": {"naive": heading[0], "widened": heading[1]},
+        **_sigma_cost(fit, wide, channels),
         "method": ("the residual's structure taken as a stationary process in time over the whole recording (each "
                    "channel's own and common to pairs), its spectrum in octave bands estimated from the residual's "
                    "block sums with what the fit absorbed accounted for, propagated into the parameters; the file's "
@@ -289,6 +285,46 @@ def _widen(fit: MLFit, noise: np.ndarray, channels, about_mean: bool = False) ->
         cost["method"] += ("; the move is taken about each channel's mean level over the session, the level the "
                            "file's offsets state (a wander's own mean is no error of it)")
     return wide, cost
+
+
+def _widen_walk(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
+    """The fit with its covariance widened for a wander across blocks of time, and what that costs: one step of one
+    channel's offset where that explains the whole structure (:func:`_widen`), else a random walk of each
+    channel's offset.
+
+    :func:`calibrate.fourflip._mlfit.walk_covariance` (one walk size per channel from the residual's block sums,
+    its move of the parameters propagated whole; :mod:`calibrate.diagnosis.walk`) and
+    :func:`calibrate.diagnosis.robust.widened`; the cost as :func:`_widen`'s, and each channel's walk in field
+    units per square root of a second.
+    """
+    step = offset_step(fit, noise)
+    if step is not None:  # one step of one channel's offset leaves white block sums: its own move, as before
+        return _widen(fit, noise, channels, structure=step)
+    walk = walk_covariance(fit, noise)
+    wide = with_covariance(fit, widened(fit.covariance, walk.covariance))
+    per_sample = walk.q_per_sqrt_s * noise  # output units per sqrt(s): q is in noise sigmas of one sample
+    return wide, {
+        **_sigma_cost(fit, wide, channels),
+        "walk_fieldunit_per_sqrt_s": {name: float(q) for name, q in zip(channels, per_sample / fit.physics.gains)},
+        "method": ("the residual's wander taken as a random walk of each channel's offset (one size per channel, "
+                   "estimated by restricted maximum likelihood from the residual's 10 s block sums with what the fit "
+                   "absorbed accounted for, the white floor beside it), its move of the parameters propagated "
+                   "whole; the file's sigmas are the larger of it and the naive ones"),
+    }
+
+
+def _sigma_cost(fit: MLFit, wide: MLFit, channels) -> dict:
+    """What a widening adds to each direction's sigma and to a level housing's heading sigma (deg),
+    ``sqrt(widened^2 - naive^2)``, with both sigmas."""
+    before, after = fit.direction_sigma_deg(), wide.direction_sigma_deg()
+    heading = [_heading_sigma(f) for f in (fit, wide)]
+    return {
+        "direction_deg": {name: float(v) for name, v in zip(channels, extra_sigma(after, before))},
+        "heading_deg": float(extra_sigma(heading[1], heading[0])),
+        "direction_sigma_deg": {name: {"naive": float(b), "widened": float(a)}
+                                for name, b, a in zip(channels, before, after)},
+        "heading_sigma_deg": {"naive": heading[0], "widened": heading[1]},
+    }
 
 
 def _heading_sigma(fit: MLFit) -> float:
