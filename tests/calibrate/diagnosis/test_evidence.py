@@ -137,3 +137,50 @@ def test_a_small_share_still_vetoes_an_effect_that_leaves_structure():
     assert share < MIN_SHARE and gain > 3 * DECISIVE_BIC
     assert chosen.fit.effects == () and chosen.unexplained is True
     assert len(chosen.not_claimed) == 1 and "it explains only" in chosen.not_claimed[0]
+
+
+
+
+class _Sine(EffectForm):
+    """A toy effect of the hidden-effect case: ``narrow`` one period, ``broad`` with a second column that
+    holds most of the half-period of the absent effect ``half``."""
+
+    def columns(self, t, z):
+        u, v = np.sin(2 * np.pi * t), np.sin(np.pi * t)
+        return {"narrow": [u], "broad": [u, v + 0.5 * np.sin(3 * np.pi * t)], "half": [v]}[self.form]
+
+
+NARROW = _Sine("response", "narrow", "one period")
+BROAD = _Sine("response", "broad", "one period and a near half-period")
+HALF = _Sine("encoder", "half", "a half-period")
+
+
+def _hidden_problem(half_amplitude: float):
+    """y = 3 sin(2 pi t) + ``half_amplitude`` sin(pi t) + noise: the broad form of the response holds 80 % of the
+    half-period in its second column, so it is taken first and the half-period is not decisive with it in."""
+    t = np.linspace(-1.0, 1.0, N, endpoint=False)
+    y = 3 * np.sin(2 * np.pi * t) + half_amplitude * np.sin(np.pi * t) + np.random.default_rng(1).normal(size=N)
+    run, _ = _problem(y, t, np.zeros(N))
+    return run
+
+
+def test_an_absent_effect_a_form_took_the_place_of_is_given_back():
+    """The broad response takes the half-period's place (the encoder's promise with it in is under DECISIVE_BIC), yet
+    the half-period and the narrow response beat it by more than DECISIVE_BIC: revisiting, the model without the
+    response finds the half-period decisive, and the narrow form goes back on top (the old loop kept the broad form)."""
+    run = _hidden_problem(0.53)
+    broad, true = run.fit((BROAD,)), run.fit((HALF, NARROW))
+    promise = broad.chi2 - run.fit((BROAD, HALF)).chi2 - np.log(N)
+    assert promise < DECISIVE_BIC < broad.bic() - true.bic()  # the case: hidden from the loop, decisive together
+    assert [e.form for e in run([NARROW, BROAD, HALF], revise=False).fit.effects] == ["broad"]
+    chosen = run([NARROW, BROAD, HALF])
+    assert [e.form for e in chosen.fit.effects] == ["half", "narrow"]
+    assert [s.get("form") for s in chosen.steps] == [None, "half", "narrow"]
+    assert len(chosen.revisions) == 1 and "encoder (half) added where response (broad)" in chosen.revisions[0]
+    assert chosen.fit.x[1:] == pytest.approx([0.53, 3.0], abs=0.2)
+
+
+def test_no_effect_is_given_back_where_none_is_hidden():
+    """Without the half-period the narrow response is chosen and nothing is revisited."""
+    chosen = _hidden_problem(0.0)([NARROW, BROAD, HALF])
+    assert [e.form for e in chosen.fit.effects] == ["narrow"] and chosen.revisions == []
