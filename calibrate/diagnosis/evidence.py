@@ -26,9 +26,7 @@ choice; each caller hands it what differs as small callables:
    other forms are score-tested there; a form that beats the current one by more than
    :data:`DECISIVE_BIC` replaces it (a drift taken as linear before a cubic was in may be quadratic
    once it is), and an effect whose evidence has fallen to :data:`DECISIVE_BIC` or below is
-   dropped; and each effect absent from the model is score-tested in the model without each effect in,
-   so that a form which took an absent effect's place (a quadratic-and-cubic response taking an encoder
-   error's harmonics) gives it back (:func:`_hidden_effect`); repeat while something changes (:func:`_revisit`).
+   dropped; repeat while something changes (:func:`_revisit`).
 6. Judge the final fit (``verdict``).  If structure remains after effects were added, they may
    have absorbed part of something the toolkit does not model: none is claimed, each is reported
    as not claimed, and the base fit is kept and judged again.
@@ -409,7 +407,7 @@ def select_effects(base: Fit, pool: Sequence, *, score: Callable, refit: Callabl
         steps.append(write_step(best, measured))
         say(f"added {best.effect.name} (delta-BIC {best.gain:.0f})")
         current = best.trial
-        if revise is not None:
+        if revise is not None and len(current.effects) > 1:
             current, steps = _revisit(current, steps, pool, revise, score, refit, n_params, log_n, write_step,
                                       revisions, say)
 
@@ -436,34 +434,22 @@ MAX_REVISIONS = 4
 def _revisit(current, steps: list, pool: Sequence, revise: Callable, score: Callable, refit: Callable,
              n_params: Callable, log_n: float, write_step: Callable, revisions: list,
              say: Callable) -> tuple[Any, list]:
-    """Re-test the forms of the effects in ``current``, look for effects they hide, and drop those no longer decisive.
+    """Re-test the forms of the effects in ``current`` but the last added, and drop those no longer decisive.
 
-    For each effect in but the last added, the model without it is refitted (``revise``): the
-    effect's evidence is what removing it costs in BIC.  Its other forms are score-tested against
-    that model, and the most promising one is refitted (``refit``) when its first-order evidence
-    beats the current form's by more than :data:`DECISIVE_BIC`.  For every effect in, the last added
-    too, an absent effect may have been taken by it (:func:`_hidden_effect`).  The change that beats
-    ``current`` most, by more than :data:`DECISIVE_BIC`, is taken, else the effect with the least
-    evidence is dropped if that evidence is at most :data:`DECISIVE_BIC`; repeat, at most
-    :data:`MAX_REVISIONS` times.  ``steps`` (the base step, then one per effect in order) follows the
-    effects: a replaced form goes to the end with a new step (the evidence of the replacement), an
-    effect given back goes to the end before the form that took its place, a dropped effect loses its step.
+    For each such effect the model without it is refitted (``revise``): the effect's evidence is
+    what removing it costs in BIC.  Its other forms are score-tested against that model, and the
+    most promising one is refitted (``refit``) when its first-order evidence beats the current
+    form's by more than :data:`DECISIVE_BIC`; the best decisive replacement is taken, else the
+    effect with the least evidence is dropped if that evidence is at most :data:`DECISIVE_BIC`;
+    repeat, at most :data:`MAX_REVISIONS` times.  ``steps`` (the base step, then one per effect in
+    order) follows the effects: a replaced form goes to the end with a new step (the evidence of the
+    replacement), a dropped effect loses its step.
     """
     for _ in range(MAX_REVISIONS):
         effects = current.effects
-        hidden = _hideable(current, pool, score, n_params, log_n)
-        changes, drops = [], []
-        for i, old in enumerate(effects):
-            last = i == len(effects) - 1
-            if last and not hidden:
-                break
+        swaps, drops = [], []
+        for i, old in enumerate(effects[:-1]):
             without = revise(current, effects[:i] + effects[i + 1:])
-            found = _hidden_effect(without, old, hidden, pool, score, refit, n_params, log_n, say)
-            if found is not None:
-                first, trial = found
-                changes.append((current.bic() - trial.bic(), i, (without, first), trial))
-            if last:
-                continue
             evidence = without.bic() - current.bic()
             drops.append((evidence, i, without))
             scored = []
@@ -477,30 +463,19 @@ def _revisit(current, steps: list, pool: Sequence, revise: Callable, score: Call
                 continue
             say(f"revisiting {old.label}: refitting as {form.label}")
             trial = refit(without, form, start)
-            changes.append((current.bic() - trial.bic(), i, (without,), trial))
-        best = max(changes, key=lambda item: item[0], default=None)
+            swaps.append((current.bic() - trial.bic(), i, form, without, trial))
+        best_swap = max(swaps, key=lambda item: item[0], default=None)
         weakest = min(drops, key=lambda item: item[0], default=None)
-        if best is not None and best[0] > DECISIVE_BIC:
-            gain, i, fits, trial = best
-            old, new = effects[i], trial.effects[len(effects) - 1:]
-            added = []
-            for before, after in zip(fits, fits[1:] + (trial,)):
-                share = (before.chi2 - after.chi2) / max(before.chi2 - before.dof, 1e-12)
-                added.append(write_step(Proposal(after.effects[-1], before, after, float("nan"),
-                                                 before.bic() - after.bic(), share), {}))
-            if len(new) == 1:
-                added[0]["evidence"] = (f"{new[0].description}: revisited once {effects[-1].label} was in, it "
-                                        f"replaces {old.label} (delta-BIC {gain:.0f} over it)")
-                revisions.append(f"{old.label} replaced by {new[0].label} (delta-BIC {gain:.0f}) once "
-                                 f"{effects[-1].label} was in")
-            else:
-                added[0]["evidence"] = (f"{new[0].description}: revisited once {effects[-1].label} was in, "
-                                        f"{old.label} had taken its place")
-                added[1]["evidence"] = (f"{new[1].description}: added back once {new[0].label} was in (the two "
-                                        f"beat the model with {old.label} by delta-BIC {gain:.0f})")
-                revisions.append(f"{new[0].label} added where {old.label} had taken its place, then {new[1].label} "
-                                 f"(delta-BIC {gain:.0f} over the model with {old.label})")
-            steps = steps[:i + 1] + steps[i + 2:] + added
+        if best_swap is not None and best_swap[0] > DECISIVE_BIC:
+            gain, i, form, without, trial = best_swap
+            old = effects[i]
+            share = (without.chi2 - trial.chi2) / max(without.chi2 - without.dof, 1e-12)
+            step = write_step(Proposal(form, without, trial, float("nan"), without.bic() - trial.bic(), share), {})
+            step["evidence"] = (f"{form.description}: revisited once {effects[-1].label} was in, it replaces "
+                                f"{old.label} (delta-BIC {gain:.0f} over it)")
+            steps = steps[:i + 1] + steps[i + 2:] + [step]
+            revisions.append(f"{old.label} replaced by {form.label} (delta-BIC {gain:.0f}) once {effects[-1].label} "
+                             "was in")
             say(revisions[-1])
             current = trial
         elif weakest is not None and weakest[0] <= DECISIVE_BIC:
@@ -513,66 +488,6 @@ def _revisit(current, steps: list, pool: Sequence, revise: Callable, score: Call
         else:
             break
     return current, steps
-
-
-def _hideable(current, pool: Sequence, score: Callable, n_params: Callable, log_n: float) -> list:
-    """The forms of the effects absent from ``current`` that no form makes decisive in it, while room remains.
-
-    Only these can have been hidden by an effect in (one decisive in ``current`` is the loop's next
-    proposal); none when ``current`` holds :data:`MAX_STEPS` effects.
-    """
-    present = {e.name for e in current.effects}
-    if len(present) >= MAX_STEPS:
-        return []
-    promise: dict = {}
-    for form in (f for f in pool if f.name not in present):
-        drop, _ = score(current, form)
-        promise[form.name] = max(promise.get(form.name, -np.inf), drop - n_params(form) * log_n)
-    return [f for f in pool if f.name in promise and promise[f.name] <= DECISIVE_BIC]
-
-
-def _hidden_effect(without, old, hidden: Sequence, pool: Sequence, score: Callable, refit: Callable,
-                   n_params: Callable, log_n: float, say: Callable):
-    """An absent effect ``old`` took the place of, given back, and ``old`` added again on top.
-
-    The ``hidden`` forms (:func:`_hideable`) are score-tested in ``without`` (the model without
-    ``old``); the most promising is refitted there (``refit``) when it promises more than
-    :data:`DECISIVE_BIC`, and ``old``'s most promising form is then score-tested and refitted on top
-    (an encoder error's harmonics taken by a quadratic-and-cubic response: with the encoder error
-    in, the response may be an odd cubic).
-
-    Parameters
-    ----------
-    without : Fit
-        The model refitted without ``old``.
-    old : object
-        The effect left out.
-    hidden : sequence
-        Candidate forms of the absent effects.
-    pool, score, refit, n_params, log_n, say
-        As for :func:`select_effects`.
-
-    Returns
-    -------
-    tuple of Fit or None
-        The fit with the absent effect, and the fit with ``old``'s form added back; None when no
-        absent effect is decisive in ``without``.
-    """
-    scored = []
-    for form in hidden:
-        drop, start = score(without, form)
-        scored.append((drop - n_params(form) * log_n, form, start))
-    promise, form, start = max(scored, key=lambda item: item[0], default=(-np.inf, None, None))
-    if promise <= DECISIVE_BIC:
-        return None
-    say(f"revisiting {old.label}: refitting without it, with {form.label}")
-    first = refit(without, form, start)
-    scored = []
-    for back in (f for f in pool if f.name == old.name):
-        drop, start = score(first, back)
-        scored.append((drop - n_params(back) * log_n, back, start))
-    _, back, start = max(scored, key=lambda item: item[0])
-    return first, refit(first, back, start)
 
 
 def _veto(p: Proposal, checks: Sequence[Check], verdict: Callable) -> tuple[str | None, dict]:
