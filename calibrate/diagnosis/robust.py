@@ -632,8 +632,33 @@ def _without_locked(jac, weighted, bread, locked: TurnPhase | None) -> _Locked:
     return _Locked(np.hstack([jac, q]), (rows - q @ gamma).reshape(n, c), aug_bread, k, shift, noise)
 
 
-def _block_moments(jac, weighted, t_s, bread, block_s, n_bands) -> _BlockMoments:
-    """Block sums, what the fit keeps of them and the band kernels (raises as :func:`time_correlated_covariance`)."""
+class BlockLayout(NamedTuple):
+    """A fit's residual checked and cut into blocks of time (:func:`block_layout`)."""
+
+    jac: np.ndarray
+    """Jacobian of the weighted residual, (n c, k), rows time-major."""
+    weighted: np.ndarray
+    """Weighted residual, (n, c)."""
+    t_s: np.ndarray
+    """Sample times, s, (n,)."""
+    good: np.ndarray
+    """The parameters with a finite ``bread`` diagonal, (k,) bool."""
+    bread: np.ndarray
+    """``bread`` over the good parameters."""
+    block: np.ndarray
+    """Each sample's block, (n,) int, 0 .. nb - 1."""
+    nb: int
+    """Number of blocks."""
+
+
+def block_layout(jac, weighted, t_s, bread, block_s: float) -> BlockLayout:
+    """A fit's residual checked and cut into blocks of ``block_s`` seconds from its first sample.
+
+    Raises
+    ------
+    ValueError
+        Mismatched shapes or a non-positive block length.
+    """
     jac = np.asarray(jac, dtype=float)
     weighted = np.atleast_2d(np.asarray(weighted, dtype=float).T).T
     t_s = np.asarray(t_s, dtype=float)
@@ -643,9 +668,14 @@ def _block_moments(jac, weighted, t_s, bread, block_s, n_bands) -> _BlockMoments
     if not block_s > 0:
         raise ValueError(f"block_s must be positive, got {block_s}")
     good = np.isfinite(np.diag(bread))
-    b = bread[np.ix_(good, good)]
     block = np.unique(np.floor((t_s - t_s.min()) / block_s), return_inverse=True)[1].ravel()
-    nb = block.max() + 1
+    return BlockLayout(jac, weighted, t_s, good, bread[np.ix_(good, good)], block, int(block.max()) + 1)
+
+
+def _block_moments(jac, weighted, t_s, bread, block_s, n_bands) -> _BlockMoments:
+    """Block sums, what the fit keeps of them and the band kernels (raises as :func:`time_correlated_covariance`)."""
+    jac, weighted, t_s, good, b, block, nb = block_layout(jac, weighted, t_s, bread, block_s)
+    n, c = weighted.shape
     size = np.bincount(block, minlength=nb).astype(float)
     t_block = np.bincount(block, weights=t_s, minlength=nb) / size
     t_start = np.full(nb, np.inf)

@@ -61,7 +61,7 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import minimize
 
-from .robust import BLOCK_S
+from .robust import BLOCK_S, block_layout
 
 __all__ = ["FLOOR_LOWER", "OffsetWalk", "offset_walk"]
 
@@ -108,21 +108,11 @@ def offset_walk(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: n
     ValueError
         Mismatched shapes, a non-positive block length or row weight.
     """
-    jac = np.asarray(jac, dtype=float)
-    weighted = np.atleast_2d(np.asarray(weighted, dtype=float).T).T
-    t_s = np.asarray(t_s, dtype=float)
+    jac, weighted, t_s, good, b, block, nb = block_layout(jac, weighted, t_s, bread, block_s)
     n, c = weighted.shape
-    if jac.shape[0] != n * c or t_s.size != n:
-        raise ValueError(f"expected {jac.shape[0]} residuals as ({t_s.size} times) x channels, got {weighted.shape}")
-    if not block_s > 0:
-        raise ValueError(f"block_s must be positive, got {block_s}")
     d = np.broadcast_to(np.asarray(row_weight, dtype=float).ravel(), (n,))
     if not np.all(d > 0):
         raise ValueError("row weights must be positive")
-    good = np.isfinite(np.diag(bread))
-    b = bread[np.ix_(good, good)]
-    block = np.unique(np.floor((t_s - t_s.min()) / block_s), return_inverse=True)[1].ravel()
-    nb = block.max() + 1
     rows_j = np.nan_to_num(jac[:, good]).reshape(n, c, -1)
 
     def block_sum(values):  # (n, ...) -> (nb, ...)
