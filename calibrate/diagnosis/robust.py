@@ -242,10 +242,11 @@ the offsets absorb as an error that is not a wander's level; the residual cannot
 invisible either way), and here it is taken as zero, as the constant tilt below is (measured on precessing axis, its
 16 recordings of seeds 60-79 the process model took: the heading error the offsets make is 4.7 times its sigma about
 the mean, 0.76 times about zero; the heading as a whole, whose sigma its directions dominate, 1.00 about the mean,
-0.67 about zero; docs/benchmarks.md). The explained fit's wander widening (``wander_cost``) keeps the move about
-zero. Not the cause of the heading's over-cover (measured on the same recordings, 28 unexplained ones of four
-cases): correlations across channels the file cannot carry (the heading's sigma from the full covariance and from
-each channel's block with the offsets' cross terms agree within 0.98-1.07), or :func:`widened`'s clipping of the
+0.67 about zero; docs/benchmarks.md). The explained fit's wander widening (``wander_cost``) takes it about the mean
+too: its offset walk by construction (:mod:`calibrate.diagnosis.walk`), its one offset step like this one.  Not
+the cause of the heading's over-cover (measured on the same recordings, 28 unexplained ones of four cases):
+correlations across channels the file cannot carry (the heading's sigma from the full covariance and from each
+channel's block with the offsets' cross terms agree within 0.98-1.07), or :func:`widened`'s clipping of the
 difference's negative eigenvalues (its heading sigma is the process covariance's own within 1.5 %).
 
 Checks on paper.  White noise: every right-hand side is centred, no band passes but by chance, the
@@ -279,10 +280,10 @@ from compass.iron_uncertainty import joint_weights
 
 from .evidence import DECISIVE_BIC
 
-__all__ = ["BLOCK_S", "LEVERAGE_ONE", "LOCKED_HARMONICS", "N_BANDS", "OffsetStep", "TimeStructure", "TurnPhase",
-           "band_edges_hz", "band_p_values", "cluster_covariance", "extra_sigma", "family_p_value", "heading_sigma_deg",
-           "offset_step",
-           "structure_in_time", "time_correlated_covariance", "widened"]
+__all__ = ["BLOCK_S", "BlockLayout", "LEVERAGE_ONE", "LOCKED_HARMONICS", "N_BANDS", "OffsetStep", "TimeStructure",
+           "TurnPhase", "band_edges_hz", "band_p_values", "block_layout", "cluster_covariance", "extra_sigma",
+           "family_p_value", "heading_sigma_deg", "offset_step", "structure_in_time", "time_correlated_covariance",
+           "widened"]
 
 BLOCK_S = 10.0
 """Time blocks of :func:`time_correlated_covariance`, s: structure faster than this counts as white."""
@@ -965,13 +966,14 @@ def _moved_by_levels(m: _BlockMoments, about_mean: bool) -> np.ndarray:
 
 
 def offset_step(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: np.ndarray,
-                block_s: float = BLOCK_S, n_bands: int = N_BANDS) -> TimeStructure | None:
+                block_s: float = BLOCK_S, n_bands: int = N_BANDS, about_mean: bool = False) -> TimeStructure | None:
     """:func:`structure_in_time`'s first alternative alone: the one offset step that is decisive and leaves white
-    block sums (module docstring, "One step, not a process"), with its covariance, or None.
+    block sums (module docstring, "One step, not a process"), with its covariance (the step's move taken about each
+    channel's mean level with ``about_mean``: "About the session's mean"), or None.
 
     Parameters and raises as :func:`time_correlated_covariance`.
     """
-    return _offset_step(_block_moments(jac, weighted, t_s, bread, block_s, n_bands), bread)
+    return _offset_step(_block_moments(jac, weighted, t_s, bread, block_s, n_bands), bread, about_mean)
 
 
 def _offset_step(m: _BlockMoments, bread: np.ndarray, about_mean: bool = False) -> TimeStructure | None:

@@ -1,7 +1,7 @@
 """A random walk of each channel's offset under a fit: its size from the residual's block sums, its cost.
 
 The model.  Channel ``c``'s offset wanders as a random walk, ``w_c(t)`` with ``E[dw_c^2] = q_c^2 dt``
-(``q_c`` in the weighted residual's units per square root of a second: noise sigmas of one row), the
+(``q_c`` in the weighted residual's units per square root of a second: noise sigmas of one sample), the
 channels independent.  Taken relative to its mean over the recording's samples (the offset the file
 states is the session's mean level: a constant is the channel's offset, which the fit takes whole), its
 covariance is the centred minimum kernel
@@ -26,8 +26,8 @@ the sandwich, whole: the walk's part the drift's columns or the mountings absorb
 and its correlation with the directions in ``H^-1`` carries it on to them.  Each direction's two components
 across the flip axis are read from the level differences between flips (about 420 s apart on a four-flip):
 those differ by ``q sqrt(420 s)`` of the walk, and no polynomial of low order in time follows them, so a
-walk far below the floor in each sample (tools/bench_loop.py's, 0.004 uT a second against 0.15 uT of noise)
-moves the directions by several of their white-noise sigmas.
+walk far below the floor in each sample (tools/bench_loop.py's, 0.004 uT per square root of a second against
+0.15 uT of noise) moves the directions by several of their white-noise sigmas.
 
 Its size from the residual.  The block sums ``z = A r`` of the residual ``r = (I - P)(e + s)``, ``P = J H^-1
 J^T``: ``z = keep^{(1)} e' + L w``, ``L = A (I - P) D U`` (``A D U - G H^-1 G_d^T``, ``G = A J``), so
@@ -75,7 +75,8 @@ class OffsetWalk(NamedTuple):
     covariance: np.ndarray
     """(k, k) the parameters' covariance under the walk (module docstring's ``V``), NaN where the bread is."""
     q_per_sqrt_s: np.ndarray
-    """(c,) each channel's walk, the weighted residual's units (noise sigmas of a row) per square root of a second."""
+    """(c,) each channel's walk, the weighted residual's units (noise sigmas of one sample) per square root of a
+    second."""
     floor_factor: float
     """``f``: the residual's white part is ``1 + f`` times the floor's variance."""
 

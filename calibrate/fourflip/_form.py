@@ -50,7 +50,7 @@ class ResponseForm:
     dof : int
         Degrees of freedom of each channel's drop under white noise.
     p_value : float
-        The channels' smallest p-value times their number (at most 1).
+        The judged channels' smallest p-value times their number (at most 1; 1 when none is judged).
     """
 
     delta_chi2: np.ndarray
@@ -68,7 +68,7 @@ class ResponseForm:
                 "p_value": self.p_value, "curve": f"Legendre degrees 2..{CURVE_DEGREE} of x / |B| per channel"}
 
 
-def response_form_test(fit: MLFit, noise: np.ndarray) -> ResponseForm | None:
+def response_form_test(fit: MLFit, noise: np.ndarray, judged: np.ndarray | None = None) -> ResponseForm | None:
     """Test a fit's nonlinear response against a general curve of each channel's field component.
 
     Parameters
@@ -77,6 +77,8 @@ def response_form_test(fit: MLFit, noise: np.ndarray) -> ResponseForm | None:
         A fit with a ``nonlinear_response`` among its effects.
     noise : ndarray, shape (c,)
         Noise floor per channel, output units (the fit's weights).
+    judged : ndarray of bool, shape (c,), optional
+        The channels whose residual is judged (the p-value's); every channel by default.
 
     Returns
     -------
@@ -110,10 +112,10 @@ def response_form_test(fit: MLFit, noise: np.ndarray) -> ResponseForm | None:
                                     normal_b=normal_b)
     dof = q - sum(1 for k in response.powers if 2 <= k <= CURVE_DEGREE)
     test = ResponseForm(drops, dof, 1.0)
-    return replace(test, p_value=test.p_value_over(np.ones(c, dtype=bool)))
+    return replace(test, p_value=test.p_value_over(np.ones(c, dtype=bool) if judged is None else judged))
 
 
-def response_form_check(noise: np.ndarray) -> Check:
+def response_form_check(noise: np.ndarray, judged: np.ndarray | None = None) -> Check:
     """A veto (:data:`calibrate.diagnosis.evidence.Check`) of an effect proposed after a response the test rejects.
 
     Where the model already has a nonlinear response, :func:`response_form_test` rejects its form
@@ -126,10 +128,12 @@ def response_form_check(noise: np.ndarray) -> Check:
     ----------
     noise : ndarray, shape (c,)
         Noise floor per channel, output units.
+    judged : ndarray of bool, shape (c,), optional
+        The channels whose residual is judged (:func:`response_form_test`).
     """
 
     def check(p: Proposal):
-        form = response_form_test(p.current, noise)
+        form = response_form_test(p.current, noise, judged)
         if form is None or form.p_value >= STRUCTURE_P:
             return None, {}
         drop, curve = p.current.chi2 - p.trial.chi2, float(np.sum(form.delta_chi2))

@@ -470,9 +470,10 @@ def walk_covariance(fit: MLFit, noise: np.ndarray):
     return offset_walk(fit.jac, weighted, t_s, bread, row_weight=fit.bins.root_n)
 
 
-def offset_step(fit: MLFit, noise: np.ndarray):
+def offset_step(fit: MLFit, noise: np.ndarray, about_mean: bool = False):
     """The one step of one channel's offset that explains the whole structure of the fit's residual, with its
-    covariance (:func:`calibrate.diagnosis.robust.offset_step`), or None; on the bins the fit ran on.
+    covariance (:func:`calibrate.diagnosis.robust.offset_step`; its move taken about each channel's mean level over
+    the session with ``about_mean``), or None; on the bins the fit ran on.
 
     Returns
     -------
@@ -481,7 +482,7 @@ def offset_step(fit: MLFit, noise: np.ndarray):
     from ..diagnosis.robust import offset_step as step_of
 
     weighted, t_s, bread = _weighted_residual(fit, noise)
-    return step_of(fit.jac, weighted, t_s, bread)
+    return step_of(fit.jac, weighted, t_s, bread, about_mean=about_mean)
 
 
 def block_p_values(fit: MLFit, noise: np.ndarray) -> np.ndarray:

@@ -163,11 +163,11 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         refit=refit, n_params=lambda e: e.n_params(len(rec.channels)), log_n=np.log(rec.outputs.size),
         base_step={"model": "base", "residual_rms": _pooled_rms(base.residuals), "chi2_per_dof": base.reduced_chi2},
         write_step=claim, verdict=lambda f: _verdict(samples, f, noise, judged),
-        checks=(response_form_check(noise),), rejected_as=lambda e: e.name, progress=say, revise=revise,
+        checks=(response_form_check(noise, judged),), rejected_as=lambda e: e.name, progress=say, revise=revise,
         unclaimable=None if judged.all() else "the ADC's undithered rounding is structured by itself and may be it")
     current, steps, rejected, unexplained = chosen.fit, chosen.steps, chosen.not_claimed, chosen.unexplained
-    form = response_form_test(current, noise)
-    if form is not None and unexplained is False and form.p_value_over(judged) < STRUCTURE_P:
+    form = response_form_test(current, noise, judged)
+    if form is not None and unexplained is False and form.p_value < STRUCTURE_P:
         unexplained = True  # white by the structure test, but the response's curve is not the vocabulary's form
     structure, dof, p_value = chosen.structure
     rms_after = _pooled_rms(current.residuals)
@@ -297,9 +297,9 @@ def _widen_walk(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
     :func:`calibrate.diagnosis.robust.widened`; the cost as :func:`_widen`'s, and each channel's walk in field
     units per square root of a second.
     """
-    step = offset_step(fit, noise)
-    if step is not None:  # one step of one channel's offset leaves white block sums: its own move, as before
-        return _widen(fit, noise, channels, structure=step)
+    step = offset_step(fit, noise, about_mean=True)
+    if step is not None:  # one step of one channel's offset leaves white block sums: its own move about the mean
+        return _widen(fit, noise, channels, about_mean=True, structure=step)
     walk = walk_covariance(fit, noise)
     wide = with_covariance(fit, widened(fit.covariance, walk.covariance))
     per_sample = walk.q_per_sqrt_s * noise  # output units per sqrt(s): q is in noise sigmas of one sample

@@ -60,6 +60,24 @@ def test_a_knee_is_a_curve_the_cubic_cannot_follow(bench):
     assert form.delta_chi2[0] < 1e-3 * form.delta_chi2[1]
 
 
+def test_the_p_value_is_over_the_judged_channels_only(bench):
+    """Reference relation: the p-value is the judged channels' smallest chi-square tail times their number; the
+    knee's channel b left out (an ADC's undithered channel is not judged), it no longer rejects the form, and
+    with no channel judged it is 1."""
+    from scipy.stats import chi2
+
+    fit, noise = _cubic_fit(bench, "knee", 67)
+    every = response_form_test(fit, noise)
+    judged = np.array([True, False, True])
+    some = response_form_test(fit, noise, judged)
+    assert some.delta_chi2 == pytest.approx(every.delta_chi2)
+    tails = chi2.sf(every.delta_chi2, every.dof)
+    assert every.p_value == pytest.approx(min(1.0, 3 * tails.min()))
+    assert some.p_value == pytest.approx(min(1.0, 2 * tails[judged].min()))
+    assert every.p_value < STRUCTURE_P <= some.p_value
+    assert response_form_test(fit, noise, np.zeros(3, dtype=bool)).p_value == 1.0
+
+
 def test_no_response_no_test(bench):
     rec, _ = bench.session(60, "clean")
     noise = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs, lattice_step(rec.outputs))
