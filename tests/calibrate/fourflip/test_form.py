@@ -118,3 +118,17 @@ def test_a_knee_is_said_not_taken_as_a_platform_field(bench):
     assert "the fitted response's curve is not the vocabulary's form" in result.report()
     err = np.degrees(np.arccos(np.clip(np.sum(result.directions * truth.directions, axis=1), -1, 1)))
     assert np.all(err < 2.0 * np.array([c.direction_sigma_deg for c in result.channels]))
+
+
+def test_the_report_says_the_curve_not_structure_made_it_unexplained(bench):
+    """Knee seed 67: white by the structure test, unexplained by the form test; the report's verdict names the curve
+    rather than 'structure remains', beside the structure test's p-value that says the rest is white."""
+    from calibrate import calibrate_fourflip
+
+    rec, _ = bench.session(67, "knee")
+    result = calibrate_fourflip(rec, diagnose=True)
+    d = result.diagnosis
+    assert d["unexplained"] is True and d["structure_test"]["p_value"] >= STRUCTURE_P
+    assert d["response_form_test"]["p_value"] < STRUCTURE_P
+    verdict = next(line for line in result.report().splitlines() if "UNEXPLAINED" in line)
+    assert "curve is not a form the model has" in verdict and "structure remains" not in verdict
