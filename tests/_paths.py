@@ -9,3 +9,13 @@ TEST_DATA = ROOT / "tests" / "data"
 
 SHARED = ROOT.parent / "shared"
 """The team's shared folder beside the checkout (real recordings under data/)."""
+
+
+def load_tool(name: str):
+    """The script ``tools/NAME.py`` imported as a module (tools/ is not a package)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, ROOT / "tools" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

@@ -7,14 +7,13 @@ helper's replacement changes nothing outside the markers and refuses a doc witho
 
 from __future__ import annotations
 
-import importlib.util
 import re
 import sys
 from pathlib import Path
 
 import pytest
 
-from tests._paths import ROOT
+from tests._paths import ROOT, load_tool
 from tests._proc import Proc
 
 DOCS = sorted((ROOT / "docs").glob("*.md"))
@@ -22,10 +21,7 @@ PUBLISH_RE = re.compile(r"""publish\(\s*\w+,\s*["']([^"']+)["'],\s*(f?)["']([^"'
 
 
 def _helper():
-    spec = importlib.util.spec_from_file_location("_doc_table", ROOT / "tools" / "_doc_table.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("_doc_table")
 
 
 dt = _helper()

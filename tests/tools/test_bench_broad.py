@@ -1,20 +1,16 @@
 """tools/bench_broad.py's time-scale split of the tilt error (``--bands``): reference relations on synthetic series."""
 
-import importlib.util
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from tests._paths import ROOT
+from tests._paths import load_tool
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_broad", ROOT / "tools" / "bench_broad.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("bench_broad")
 
 
 @pytest.mark.parametrize("period_s", [0.1, 0.6, 2.0, 6.0, 40.0])

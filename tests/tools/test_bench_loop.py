@@ -1,7 +1,6 @@
 """tools/bench_loop.py's truth and runtime heading error: zero for the truth itself, a rigid turn read back exactly,
 a recording's gains and heading within their sigmas."""
 
-import importlib.util
 from types import SimpleNamespace
 
 import numpy as np
@@ -9,15 +8,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from compass.response import Response
-from tests._paths import ROOT
+from tests._paths import load_tool
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_loop", ROOT / "tools" / "bench_loop.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("bench_loop")
 
 
 def _as_result(directions, offsets, gains):

@@ -1,18 +1,14 @@
 """tools/bench_swing_sigma.py's command line: bad seed counts are refused in one line, not a traceback."""
 
-import importlib.util
 
 import pytest
 
-from tests._paths import ROOT
+from tests._paths import load_tool
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_swing_sigma", ROOT / "tools" / "bench_swing_sigma.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("bench_swing_sigma")
 
 
 @pytest.mark.parametrize("argv, message", [(["--n", "0"], "--n: expected at least one seed, got 0"),

@@ -1,21 +1,17 @@
 """tools/leak_shape.py's transfer functions: reference relations of the steady-state Kalman filter and VQF's low-pass."""
 
-import importlib.util
 import math
 
 import numpy as np
 import pytest
 from scipy import signal
 
-from tests._paths import ROOT
+from tests._paths import load_tool
 
 
 @pytest.fixture(scope="module")
 def shape():
-    spec = importlib.util.spec_from_file_location("leak_shape", ROOT / "tools" / "leak_shape.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("leak_shape")
 
 
 def todays_density(shape, turn_rad_s, leak_deg):

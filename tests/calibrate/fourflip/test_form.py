@@ -1,6 +1,5 @@
 """The response form test: a curve the vocabulary's powers cannot follow is said, not absorbed by another effect."""
 
-import importlib.util
 from types import SimpleNamespace
 
 import numpy as np
@@ -13,17 +12,14 @@ from calibrate.fourflip.effects import VARIANTS
 from calibrate.fourflip.fit import physics_from_harmonics
 from calibrate.noise import lattice_step, noise_floor
 from compass.sim.bench import BenchSamples
-from tests._paths import ROOT
+from tests._paths import load_tool
 
 CUBIC = VARIANTS["nonlinear_response"][0]
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_loop", ROOT / "tools" / "bench_loop.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("bench_loop")
 
 
 def _cubic_fit(bench, case, seed, noise_ut=None):
