@@ -44,8 +44,8 @@ from functools import cached_property
 
 import numpy as np
 
-__all__ = ["TumbleUncertainty", "ChannelUncertainty", "channel_priors", "joint_problem", "joint_weights", "independent_joint",
-           "with_calibration_sigma", "with_calibration_sigma_many", "undetermined_words",
+__all__ = ["TumbleUncertainty", "ChannelUncertainty", "channel_priors", "joint_problem", "joint_weights",
+           "independent_joint", "with_calibration_sigma", "with_calibration_sigma_many", "undetermined_words",
            "HARD_IRON_PRIOR", "SOFT_IRON_PRIOR", "ROTATION_PRIOR_DEG",
            "ROTATION_PRIOR_AXIS_DEG"]
 
