@@ -15,6 +15,11 @@ white noise at the floor each channel's chi-square drop follows chi-square with 
 degrees of freedom less the powers the fitted response has (those columns lie in the fit's own span, as do
 degrees 0 and 1: the offset and the gain).  The channels' smallest p-value, times their number
 (Bonferroni), is the test's.
+
+Where the test rejects, :func:`response_misfit` sizes what the misfit did to the parameters: the same curves
+fitted beside them, linearised at the fit, and the bias their determined components show propagated (the
+unexplained fit's widening, beside the structure in time; docs/benchmarks.md, "A static misfit of the response
+curve, covered").
 """
 
 from __future__ import annotations

@@ -25,7 +25,9 @@ with the tumble and the fits against known inputs):
    proposed next that takes less than that curve would is not claimed (:func:`~calibrate.fourflip._form.
    response_form_check`: a knee's misfit reads as per-flip offsets, a platform field's signature), and a fit
    the structure test calls white is called unexplained with the response kept (the vocabulary's nearest
-   curve; a linear file would be further off) and widened.
+   curve; a linear file would be further off) and widened, also for the curve's static misfit
+   (:func:`~calibrate.fourflip._form.response_misfit`: its bias in the parameters, which no structure in time
+   covers).
 7. An explained fit is asked once more, across the recording: the residual summed over 10 s blocks, the band
    test of the unexplained widening (:func:`calibrate.diagnosis.robust.band_p_values`) as one family
    (:func:`calibrate.diagnosis.robust.family_p_value`, ``block_test``).  Where it passes, a wander the named
