@@ -15,6 +15,11 @@ white noise at the floor each channel's chi-square drop follows chi-square with 
 degrees of freedom less the powers the fitted response has (those columns lie in the fit's own span, as do
 degrees 0 and 1: the offset and the gain).  The channels' smallest p-value, times their number
 (Bonferroni), is the test's.
+
+Where the test rejects, :func:`response_misfit` sizes what the misfit did to the parameters: the same curves
+fitted beside them, linearised at the fit, and the bias their determined components show propagated (the
+unexplained fit's widening, beside the structure in time; docs/benchmarks.md, "A static misfit of the response
+curve, covered").
 """
 
 from __future__ import annotations
@@ -26,12 +31,13 @@ from numpy.polynomial import legendre
 
 from compass.sim.bench import channel_outputs, housing_field
 
-from ..diagnosis.evidence import STRUCTURE_P, Check, Proposal, linear_score, unit_columns
+from ..diagnosis.evidence import SINGULAR_RCOND, STRUCTURE_P, Check, Proposal, linear_score, unit_columns
 from ..noise import chi2_sf
 from ._jacobian import Partials
 from ._mlfit import MLFit
 
-__all__ = ["CURVE_DEGREE", "RESPONSE", "ResponseForm", "response_form_check", "response_form_test"]
+__all__ = ["CURVE_DEGREE", "MAX_MOVE_SIGMAS", "RESPONSE", "ResponseForm", "ResponseMisfit", "response_form_check",
+           "response_form_test", "response_misfit"]
 
 CURVE_DEGREE = 8
 """Highest Legendre degree of the general curve (degrees 2..8: seven columns per channel)."""
@@ -94,25 +100,124 @@ def response_form_test(fit: MLFit, noise: np.ndarray, judged: np.ndarray | None 
     response = next((e for e in fit.effects if e.name == RESPONSE), None)
     if response is None:
         return None
+    r0, j_b, blocks = _curve_columns(fit, noise)
+    normal_b = j_b.T @ j_b
+    c, q = blocks.shape[0], blocks.shape[-1]
+    x = np.concatenate([fit.x, np.zeros(q)])
+    drops = np.empty(c)
+    for ch in range(c):
+        drops[ch], _ = linear_score(None, x, fit.x.size, j_b, block_jacobian=blocks[ch], r0=r0, normal_b=normal_b)
+    dof = q - sum(1 for k in response.powers if 2 <= k <= CURVE_DEGREE)
+    test = ResponseForm(drops, dof, 1.0)
+    return replace(test, p_value=test.p_value_over(np.ones(c, dtype=bool) if judged is None else judged))
+
+
+MAX_MOVE_SIGMAS = 3.0
+"""A curve component whose noise alone moves some parameter by more than this many of its sigmas is not determined
+by the recording (:func:`response_misfit`): its bias is not estimated."""
+
+
+@dataclass(frozen=True)
+class ResponseMisfit:
+    """The fit's parameters' bias from a static misfit of the response curve (:func:`response_misfit`).
+
+    Attributes
+    ----------
+    bias_covariance : ndarray, shape (p, p)
+        The squared bias the curve's determined components put in the parameters, each estimated without its
+        noise's part, in the fit's parameters (as ``fit.covariance``).
+    delta_chi2 : float
+        The chi-square the judged channels' general curves take jointly, the fit's own columns projected off.
+    taken : tuple of int
+        How many of the curves' components the bias takes, and how many the fit leaves to the curves.
+    """
+
+    bias_covariance: np.ndarray
+    delta_chi2: float
+    taken: tuple[int, int]
+
+    def cover(self, covariance: np.ndarray) -> np.ndarray:
+        """The cover of the stated parameters' error for the fit's covariance ``C``: ``C`` plus the squared bias."""
+        return covariance + self.bias_covariance
+
+
+def response_misfit(fit: MLFit, noise: np.ndarray, judged: np.ndarray | None = None) -> ResponseMisfit:
+    """What a static misfit of the response curve did to the fit's parameters.
+
+    The judged channels' general curves (:func:`response_form_test`'s columns ``L``) enter beside the fit's
+    Jacobian ``J`` as nuisance parameters, linearised at the fit.  With ``J^T W r = 0`` at the fit the augmented
+    least squares moves the parameters by ``-A c``, ``A = (J^T W J)^-1 J^T W L`` (what ``J`` absorbs of each
+    curve column) and ``c = -(L~^T W L~)^+ L~^T W r`` the curves' coefficients on the residual, ``L~ = L - J A``:
+    the stated parameters, the fit's, are off by ``delta = A c`` (the bias) plus the augmented fit's error.
+
+    In the eigenbasis of ``L~^T W L~`` (unit columns) each component ``k`` has a signed root chi-square ``z_k``
+    (unit variance under white noise, independent of the fit's own noise as ``J^T W L~ = 0``) and moves the
+    parameters by ``m_k`` per unit ``z``.  ``z_k^2 - 1`` is the unbiased estimate of its squared bias in
+    ``z``'s units (``delta delta^T`` would count the noise ``m_k m_k^T`` once more), so the bias taken is
+    ``sum_k max(z_k^2 - 1, 0) m_k m_k^T`` (each component's sign left free: no cancellation between them is
+    trusted).  A component whose ``m_k`` is over :data:`MAX_MOVE_SIGMAS` of some parameter's sigma (at the noise
+    floor, as ``z``'s: the covariance without its chi-square scale) is not
+    determined (a channel that sees only the horizontal field has its degrees 2-8 on ``|x| < H``, where they
+    mimic the offset, gain and cubic): its ``z`` is noise many times any bias it could show, and it is left
+    out; a degenerate one (a degree the response's own powers hold) carries no information and is dropped as
+    :func:`calibrate.diagnosis.evidence.linear_score` drops it.
+
+    Parameters
+    ----------
+    fit : MLFit
+        A fit with a nonlinear response.
+    noise : ndarray, shape (c,)
+        Noise floor per channel, output units (the fit's weights).
+    judged : ndarray of bool, shape (c,), optional
+        The channels whose curve is taken (an undithered ADC's rounding is a curve of its field by itself);
+        every channel by default.
+    """
+    r0, j_b, blocks = _curve_columns(fit, noise)
+    chosen = np.ones(blocks.shape[0], dtype=bool) if judged is None else np.asarray(judged, dtype=bool)
+    curve = np.concatenate([blocks[ch] for ch in np.flatnonzero(chosen)], axis=1)
+    scale = np.linalg.norm(np.nan_to_num(fit.jac), axis=0)
+    scale[scale == 0] = 1.0
+    absorbed, *_ = np.linalg.lstsq(j_b.T @ j_b, j_b.T @ curve, rcond=SINGULAR_RCOND**2)  # A, J's unit columns
+    norm = np.linalg.norm(curve, axis=0)  # the columns' own norm: one J absorbs whole is left near zero and dropped
+    norm[norm == 0] = 1.0
+    tilde = (curve - j_b @ absorbed) / norm
+    w, v = np.linalg.eigh(tilde.T @ tilde)
+    determined = w > SINGULAR_RCOND**2 * max(w.max(), 1e-300)
+    w, v = w[determined], v[:, determined]
+    z = (v.T @ (tilde.T @ r0)) / np.sqrt(w)  # each component's signed root chi-square
+    moves = (absorbed / norm) @ v / np.sqrt(w) / scale[:, None]  # (p, k): the parameters' move per unit z
+    sigma = np.sqrt(np.diag(fit.covariance) / (fit.chi2 / max(fit.dof, 1)))  # the noise floor's, as z's
+    finite = np.isfinite(sigma) & (sigma > 0)
+    taken = np.all(np.abs(moves[finite]) <= MAX_MOVE_SIGMAS * sigma[finite, None], axis=0)
+    weight = np.where(taken, np.maximum(z**2 - 1.0, 0.0), 0.0)
+    return ResponseMisfit(bias_covariance=(moves * weight) @ moves.T, delta_chi2=float(z @ z),
+                          taken=(int(np.count_nonzero(weight)), int(z.size)))
+
+
+def _curve_columns(fit: MLFit, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The fit's weighted residual, its Jacobian with unit columns and each channel's general-curve columns.
+
+    Returns
+    -------
+    r0 : ndarray, shape (n,)
+        The weighted residual (data - model over the noise floor, each bin's count in), ``n`` bins times channels.
+    j_b : ndarray, shape (n, p)
+        ``fit.jac`` with every non-zero column scaled to unit norm (undetermined entries 0).
+    blocks : ndarray, shape (c, n, CURVE_DEGREE - 1)
+        Channel ``ch``'s columns ``-K_ch(t) P_k(x_ch / |B|)`` times the weights on its own rows (zero elsewhere):
+        the residual's derivative by the coefficient of ``|B| P_k(x / |B|)`` added to its curve.
+    """
     bins, phys = fit.bins, fit.physics
     weights = np.broadcast_to(bins.root_n / noise, bins.outputs.shape)
     b_h = housing_field(phys, bins.samples)
     r0 = ((bins.outputs - channel_outputs(phys, bins.samples, b_h @ phys.directions.T)) * weights).ravel()
     parts = Partials(phys, bins.samples, b_h)
     curve = legendre.legvander(parts.x / phys.field_norm, CURVE_DEGREE)[..., 2:]  # (g, c, CURVE_DEGREE - 1)
-    j_b = unit_columns(np.nan_to_num(fit.jac))
-    normal_b = j_b.T @ j_b
     c, q = phys.gains.size, curve.shape[-1]
-    x = np.concatenate([fit.x, np.zeros(q)])
-    drops = np.empty(c)
+    blocks = np.zeros((c,) + bins.outputs.shape + (q,))
     for ch in range(c):
-        block = np.zeros(bins.outputs.shape + (q,))
-        block[:, ch, :] = -(parts.gain_t[:, ch, None] * curve[:, ch, :]) * weights[:, ch, None]
-        drops[ch], _ = linear_score(None, x, fit.x.size, j_b, block_jacobian=block.reshape(-1, q), r0=r0,
-                                    normal_b=normal_b)
-    dof = q - sum(1 for k in response.powers if 2 <= k <= CURVE_DEGREE)
-    test = ResponseForm(drops, dof, 1.0)
-    return replace(test, p_value=test.p_value_over(np.ones(c, dtype=bool) if judged is None else judged))
+        blocks[ch, :, ch, :] = -(parts.gain_t[:, ch, None] * curve[:, ch, :]) * weights[:, ch, None]
+    return r0, unit_columns(np.nan_to_num(fit.jac)), blocks.reshape(c, r0.size, q)
 
 
 def response_form_check(noise: np.ndarray, judged: np.ndarray | None = None) -> Check:

@@ -25,7 +25,9 @@ with the tumble and the fits against known inputs):
    proposed next that takes less than that curve would is not claimed (:func:`~calibrate.fourflip._form.
    response_form_check`: a knee's misfit reads as per-flip offsets, a platform field's signature), and a fit
    the structure test calls white is called unexplained with the response kept (the vocabulary's nearest
-   curve; a linear file would be further off) and widened.
+   curve; a linear file would be further off) and widened, also for the curve's static misfit
+   (:func:`~calibrate.fourflip._form.response_misfit`: its bias in the parameters, which no structure in time
+   covers).
 7. An explained fit is asked once more, across the recording: the residual summed over 10 s blocks, the band
    test of the unexplained widening (:func:`calibrate.diagnosis.robust.band_p_values`) as one family
    (:func:`calibrate.diagnosis.robust.family_p_value`, ``block_test``).  Where it passes, a wander the named
@@ -42,7 +44,7 @@ import numpy as np
 from compass.io.fourflip import FourFlipRecording
 from compass.sim.bench import BenchSamples
 
-from ._form import response_form_check, response_form_test
+from ._form import ResponseMisfit, response_form_check, response_form_test, response_misfit
 from ._unseen import platform_prior
 from ._mlfit import (MLFit, block_p_values, fit_ml, offset_step, score_effect, step_size_output, structured_covariance,
                      walk_covariance, with_covariance)
@@ -188,7 +190,8 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         "calibration_change": _calibration_change(base, current, rec.channels),
     }
     if unexplained:
-        current, diagnosis["unexplained_cost"] = _widen(current, noise, rec.channels, about_mean=True)
+        misfit = None if form is None or form.p_value >= STRUCTURE_P else response_misfit(current, noise, judged)
+        current, diagnosis["unexplained_cost"] = _widen(current, noise, rec.channels, about_mean=True, misfit=misfit)
     elif unexplained is False:  # at the floor sample by sample: does a wander remain across blocks of time?
         family = family_p_value(block_p_values(current, noise))
         diagnosis["block_test"] = {"p_value": family, "threshold": BAND_P_VALUE}
@@ -246,7 +249,8 @@ def _unseen_platform(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, di
     }
 
 
-def _widen(fit: MLFit, noise: np.ndarray, channels, about_mean: bool = False, structure=None) -> tuple[MLFit, dict]:
+def _widen(fit: MLFit, noise: np.ndarray, channels, about_mean: bool = False, structure=None,
+           misfit: ResponseMisfit | None = None) -> tuple[MLFit, dict]:
     """The fit with its covariance widened to cover the residual's structure, and what that costs.
 
     :func:`calibrate.fourflip._mlfit.structured_covariance` (or the ``structure`` given) and
@@ -254,7 +258,10 @@ def _widen(fit: MLFit, noise: np.ndarray, channels, about_mean: bool = False, st
     a level housing's heading sigma (:func:`calibrate.diagnosis.robust.heading_sigma_deg`) the
     structure adds, ``sqrt(widened^2 - naive^2)``.  ``about_mean`` (the unexplained fit's): the structure's
     move taken about each channel's mean level over the session, the level the file's offset states
-    (:func:`calibrate.diagnosis.robust.structure_in_time`; robust.py, "About the session's mean").
+    (:func:`calibrate.diagnosis.robust.structure_in_time`; robust.py, "About the session's mean").  ``misfit``
+    (a fit whose response's curve the form test rejects): the naive covariance plus the curve's squared bias in
+    the parameters (:func:`calibrate.fourflip._form.response_misfit`), a static misfit as a function of the field
+    that no structure in time covers; the file's covariance the larger of the two (``response_misfit`` its cost).
     """
     if structure is None:
         structure = structured_covariance(fit, noise, about_mean=about_mean)
@@ -284,7 +291,22 @@ def _widen(fit: MLFit, noise: np.ndarray, channels, about_mean: bool = False, st
     if about_mean and not structure.locked:
         cost["method"] += ("; the move is taken about each channel's mean level over the session, the level the "
                            "file's offsets state (a wander's own mean is no error of it)")
+    if misfit is not None:
+        cost["response_misfit"] = _misfit_cost(fit, misfit, channels)
+        wide = with_covariance(fit, widened(wide.covariance, misfit.cover(fit.covariance)))
+        cost.update(_sigma_cost(fit, wide, channels))
+        cost["method"] += ("; the response's curve is not the vocabulary's form: a general curve of each judged "
+                           "channel's field component (Legendre degrees 2-8) fitted beside the fit's parameters, the "
+                           "bias each of its components the recording determines put in them estimated without its "
+                           "noise and added to the naive covariance (response_misfit); the file's sigmas are the "
+                           "larger of that and the above")
     return wide, cost
+
+
+def _misfit_cost(fit: MLFit, misfit: ResponseMisfit, channels) -> dict:
+    """What the response curve's misfit alone adds (:func:`_sigma_cost`), and the chi-square its curves take."""
+    return {**_sigma_cost(fit, with_covariance(fit, widened(fit.covariance, misfit.cover(fit.covariance))), channels),
+            "delta_chi2": misfit.delta_chi2, "components": {"taken": misfit.taken[0], "determined": misfit.taken[1]}}
 
 
 def _widen_walk(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
