@@ -42,31 +42,15 @@ likelihood, not the moment equations at ``K = 0`` (:mod:`calibrate.diagnosis.rob
 the block sums see is far above white noise in the low blocks' differences, where the equations at zero
 weigh it as white noise does and lose most of its information.
 
-The size's own uncertainty.  ``q_c`` comes from one realisation of the walk, seen in few of the block sums'
-modes (the kernel's eigenvalues fall as the inverse square of their order, so only the longest periods hold
-it above the floor): where ``m`` modes hold it, ``q_c^2`` is about a scaled chi-square with ``m`` degrees of
-freedom, and a move sized with it is off by ``q / q_hat``, whose mean square ``E[q^2 / q_hat^2] = m / (m - 2)``
-exceeds 1.  ``V`` is linear in each ``q_c^2``, so the move's variance averaged over what the data allow of
-the size is ``V`` at ``q_c^2``'s posterior mean, which the covariance states.  The prior is Jeffreys' (the
-root of ``q_c^2``'s Fisher information under this likelihood): where the walk is well above the floor in its
-``m`` modes it is ``1 / q_c^2``, the posterior is an inverse gamma, its mean ``m / (m - 2)`` times the
-estimate, and ``E[q^2 / mean] = 1`` for any true ``q`` (the stated sigma is honest on average over
-realisations, whatever the wander); where the walk is below the floor in every mode it is flat and the
-posterior proper, so a channel whose estimate is zero states the walk its block sums cannot exclude, not
-none.  With many modes above the floor (a large walk, a long session) the mean is the estimate.  The floor
-and the other channels' walks are held at their estimates (each is read from many more modes).
-
 Checks on paper.  White noise: ``E[zeta zeta^T] = I``, the likelihood is largest near ``f = 0, q = 0`` (at the
-boundary half the time), ``V`` is the naive ``H^-1`` up to the floor's factor and the move of the walk the block
-sums cannot exclude (the size's posterior mean; the four-flip asks for ``V`` only where the band test fires,
-about 1 in 100 white recordings).  A smooth drift the fit names (a polynomial in time, a warm-up) lies in the
-span of ``J``: ``(I - P)`` takes it whole, ``z`` is white noise's, ``q ~ 0`` and the covariance is white
-noise's.  A smooth drift the fit does not follow leaves a smooth remainder, which the walk's kernel (largest at
-the longest periods) takes as a walk of the size that leaves it: the widening is that of a walk leaving the same
-block sums, not of the drift (the four-flip asks this only where the block sums fail the band test,
-:mod:`calibrate.fourflip.diagnosis`).  A walk common to the channels is taken as independent walks of the same
-size in each: the directions' moves from different channels' walks add in quadrature where they would add with
-their signs.
+boundary half the time), ``V`` is the naive ``H^-1`` up to the floor's factor.  A smooth drift the fit names
+(a polynomial in time, a warm-up) lies in the span of ``J``: ``(I - P)`` takes it whole, ``z`` is white noise's,
+``q ~ 0`` and nothing is widened.  A smooth drift the fit does not follow leaves a smooth remainder, which the
+walk's kernel (largest at the longest periods) takes as a walk of the size that leaves it: the widening is
+that of a walk leaving the same block sums, not of the drift (the four-flip asks this only where the block
+sums fail the band test, :mod:`calibrate.fourflip.diagnosis`).  A walk common to the channels is taken as
+independent walks of the same size in each: the directions' moves from different channels' walks add in
+quadrature where they would add with their signs.
 """
 
 from __future__ import annotations
@@ -74,8 +58,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.integrate import trapezoid
-from scipy.linalg import cho_factor, cho_solve, solve_triangular
+from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import minimize
 
 from .robust import BLOCK_S, block_layout
@@ -94,9 +77,6 @@ class OffsetWalk(NamedTuple):
     q_per_sqrt_s: np.ndarray
     """(c,) each channel's walk, the weighted residual's units (noise sigmas of one sample) per square root of a
     second."""
-    stated_q_per_sqrt_s: np.ndarray
-    """(c,) the walk the covariance states, as ``q_per_sqrt_s``: the root of ``q_c^2``'s posterior mean (module
-    docstring, "The size's own uncertainty"), at least ``q_per_sqrt_s``'s order."""
     floor_factor: float
     """``f``: the residual's white part is ``1 + f`` times the floor's variance."""
 
@@ -157,11 +137,10 @@ def offset_walk(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: n
     kernel_root = v * np.sqrt(np.maximum(w, 0.0))
     factors = [to_white.T @ lift[:, ch * nb:(ch + 1) * nb] @ kernel_root for ch in range(c)]  # M_c = F_c F_c^T
     floor, q2 = _restricted_ml(zeta, factors)
-    stated = np.array([_posterior_mean_q2(zeta, factors, floor, q2, ch) for ch in range(c)])
-    moved = sum(stated[ch] * g_d[ch * nb:(ch + 1) * nb].T @ kernel @ g_d[ch * nb:(ch + 1) * nb] for ch in range(c))
+    moved = sum(q2[ch] * g_d[ch * nb:(ch + 1) * nb].T @ kernel @ g_d[ch * nb:(ch + 1) * nb] for ch in range(c))
     out = np.full(bread.shape, np.nan)
     out[np.ix_(good, good)] = (1.0 + floor) * b + b @ moved @ b
-    return OffsetWalk(out, np.sqrt(q2), np.sqrt(stated), floor)
+    return OffsetWalk(out, np.sqrt(q2), floor)
 
 
 def _centred_walk_kernel(t_block: np.ndarray, samples: np.ndarray) -> np.ndarray:
@@ -196,33 +175,3 @@ def _restricted_ml(zeta: np.ndarray, factors: list) -> tuple[float, np.ndarray]:
     bounds = [(FLOOR_LOWER, None)] + [(0.0, None)] * len(factors)
     solution = minimize(objective, start, jac=True, method="L-BFGS-B", bounds=bounds).x
     return float(solution[0]), solution[1:] / scale
-
-
-def _posterior_mean_q2(zeta: np.ndarray, factors: list, floor: float, q2: np.ndarray, channel: int,
-                       grid: int = 4001) -> float:
-    """Posterior mean of ``q_c^2`` (``c = channel``) under the restricted likelihood of ``zeta`` and the Jeffreys
-    prior of that likelihood, the floor and the other channels' walks held at their estimates ``floor``, ``q2``.
-
-    With ``S_0`` the covariance without channel ``c``'s walk and ``mu_i``, ``y_i`` the eigenvalues of
-    ``S_0^{-1/2} M_c S_0^{-1/2}`` and ``zeta``'s coordinates on their eigenvectors (what is orthogonal to them
-    does not depend on ``q_c``), at ``t = q_c^2``
-
-    .. math:: -2 \\log L(t) = \\sum_i \\log(1 + t \\mu_i) + \\frac{y_i^2}{1 + t \\mu_i}, \\qquad
-              p(t) \\propto \\Big(\\sum_i \\frac{\\mu_i^2}{(1 + t \\mu_i)^2}\\Big)^{1/2},
-
-    the prior the root of ``t``'s Fisher information; integrated over ``log t`` on a grid from ``1e-6`` times the
-    walk that matches the white floor in its strongest mode (below it the integrand is flat and adds nothing) to
-    ``1e4`` times the larger of that and the estimate."""
-    others = sum((q * f @ f.T for ch, (q, f) in enumerate(zip(q2, factors)) if ch != channel),
-                 np.zeros((zeta.size, zeta.size)))
-    root = np.linalg.cholesky((1.0 + floor) * np.eye(zeta.size) + others)
-    u, s, _ = np.linalg.svd(solve_triangular(root, factors[channel], lower=True), full_matrices=False)
-    mu = s[s > s.max(initial=0.0) * 1e-8] ** 2
-    if mu.size == 0:
-        return 0.0
-    y2 = (u[:, :mu.size].T @ solve_triangular(root, zeta, lower=True)) ** 2
-    t = np.geomspace(1e-6 / mu.max(), 1e4 * max(q2[channel], 1.0 / mu.max()), grid)
-    one = 1.0 + np.outer(t, mu)
-    log_post = -0.5 * np.sum(np.log(one) + y2 / one, axis=1) + 0.5 * np.log(np.sum((mu / one) ** 2, axis=1))
-    weight = t * np.exp(log_post - log_post.max())  # dt = t d(log t)
-    return float(trapezoid(weight * t, np.log(t)) / trapezoid(weight, np.log(t)))

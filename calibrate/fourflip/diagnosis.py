@@ -295,25 +295,21 @@ def _widen_walk(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:
     :func:`calibrate.fourflip._mlfit.walk_covariance` (one walk size per channel from the residual's block sums,
     its move of the parameters propagated whole; :mod:`calibrate.diagnosis.walk`) and
     :func:`calibrate.diagnosis.robust.widened`; the cost as :func:`_widen`'s, and each channel's walk in field
-    units per square root of a second, estimated and stated (its size's posterior mean, what the covariance
-    uses).
+    units per square root of a second.
     """
     step = offset_step(fit, noise, about_mean=True)
     if step is not None:  # one step of one channel's offset leaves white block sums: its own move about the mean
         return _widen(fit, noise, channels, about_mean=True, structure=step)
     walk = walk_covariance(fit, noise)
     wide = with_covariance(fit, widened(fit.covariance, walk.covariance))
-    to_field = noise / fit.physics.gains  # q is in noise sigmas of one sample per sqrt(s)
+    per_sample = walk.q_per_sqrt_s * noise  # output units per sqrt(s): q is in noise sigmas of one sample
     return wide, {
         **_sigma_cost(fit, wide, channels),
-        "walk_fieldunit_per_sqrt_s": {name: float(q) for name, q in zip(channels, walk.q_per_sqrt_s * to_field)},
-        "walk_stated_fieldunit_per_sqrt_s": {name: float(q) for name, q in
-                                             zip(channels, walk.stated_q_per_sqrt_s * to_field)},
+        "walk_fieldunit_per_sqrt_s": {name: float(q) for name, q in zip(channels, per_sample / fit.physics.gains)},
         "method": ("the residual's wander taken as a random walk of each channel's offset (one size per channel, "
                    "estimated by restricted maximum likelihood from the residual's 10 s block sums with what the fit "
-                   "absorbed accounted for, the white floor beside it; stated at its posterior mean, the estimate's "
-                   "own uncertainty from one realisation included), its move of the parameters propagated whole; "
-                   "the file's sigmas are the larger of it and the naive ones"),
+                   "absorbed accounted for, the white floor beside it), its move of the parameters propagated "
+                   "whole; the file's sigmas are the larger of it and the naive ones"),
     }
 
 
