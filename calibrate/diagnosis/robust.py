@@ -165,7 +165,8 @@ as was thought, the harmonics' power spread into ``cos phi`` and ``sin phi``, bu
 each turn's own lag (``4h / (pi A_c)``, largest where the channel's turning amplitude ``A_c`` is small), a
 structure the residual shows almost whole, whose absorbed part the stationary model assumes as large.
 
-A gain process times the signal (tried, not adopted).  A gain that wanders, ``K_c (1 + g_c(t))``,
+A gain process times the signal (tried, not adopted; the carrier's reading above replaced it).  A gain that
+wanders, ``K_c (1 + g_c(t))``,
 adds ``K_c x_c(t) g_c(t)`` to channel ``c``'s reading: a product, the gain's slow process times the
 signal ``x_c``, not a stationary residual.  Modelling the residual as ``o_c(t) + g_c(t) \\hat x_c(t) +
 e_c(t)`` (block sums of ``r`` and of ``r \\hat x``, each kind propagated through its own Jacobian
@@ -175,27 +176,58 @@ power between them; the offsets' share propagates with an offset's larger levera
 On tools/bench_loop.py seeds 0-19 a gain walk went 0.48 -> 0.58 but a gain swinging at a 500 s period
 (``gain sine``, made to judge it) 0.85 -> 0.68, out of the band; the four-flip keeps the offsets alone.
 
-Why the offsets' process over-covers a gain walk (measured, not fixed).  On tools/bench_loop.py's ``gain walk``
-every recording the process model takes is over-covered about twice (err/sig 0.42, 0.58, 0.57 over its 6, 8 and
-5 recordings on seeds 0-19, 20-39 and 40-59; stated sigmas 4.1-4.3 times the naive ones where the errors are
-1.8-2.0 times); the locked path, taken on 3 of the 22, does not over-cover the directions (0.99 over 2
-recordings, 1.60 over 1: inside one recording's spread) but under-covers the gains (3.3 and 4.5 sigmas off on
-seeds 4 and 7), and the case's err/sig over unexplained recordings is whichever mix a seed set draws (0.58 on
-20-39, 0.83 on 40-59, where one locked recording lifts five at 0.57).  What the structure is: ``K_c g_c(t)
-x_c(t)``, the signal times the gain's wander.  Per turn ``x_c = m_ck + A_ck cos(phi + a_ck)``, the level ``m_ck``
-the field's component along the turn axis, which changes size and sign from flip to flip (zero for a channel
-along the flip axis; for the others the vertical field in two flips, opposite in sign, and about zero in the
-other two).  The walk's slow part in the residual is ``m_ck g_c(t)``: the offsets' model takes it as a
-stationary wander of every flip alike and moves each flip's level by as much; but the levels a gain walk moves
-go with the level's own sign, and the gain absorbs their common part, so the level differences the directions
-are read from move much less (the widening came from the lowest bands, periods of 640 s and more, the
-longest beyond the record: 6-300 times the naive variance in one direction coordinate on seeds 22, 32, 38).  A gain process alone (``cov s =
-X K X``, ``X`` the fitted signal: the same moment equations with ``L = A (I - P) X A^T`` for ``keep``'s
-lift, the block sums ``L^T keep^+ z``) covers it (0.58 -> 1.10 on seeds 20-39) but under-covers every
-structure that is not a gain (random walk 2.36, pink offsets 1.64, four stacked 2-4 a channel); choosing
-between the two by the moment equations' fitted objective (same data, same metric, same parameters) picked the
-gain for 8/8 gain walks and 1/14 random walks, but for 7/19 of a precessing axis (1.10 -> 1.54): a field
-turning is neither, and the objective has no test of its difference's size.  Not adopted.
+Why the offsets' process over-covers a gain walk (measured; the carrier's reading above takes it where decisive). On
+tools/bench_loop.py's ``gain walk`` every recording the process model takes is over-covered about twice (err/sig
+0.42, 0.58, 0.57 over its 6, 8 and 5 recordings on seeds 0-19, 20-39 and 40-59; stated sigmas 4.1-4.3 times the
+naive ones where the errors are 1.8-2.0 times); the locked path, taken on 3 of the 22, does not over-cover the
+directions (0.99 over 2 recordings, 1.60 over 1: inside one recording's spread) but under-covers the gains (3.3 and
+4.5 sigmas off on seeds 4 and 7), and the case's err/sig over unexplained recordings is whichever mix a seed set
+draws (0.58 on 20-39, 0.83 on 40-59, where one locked recording lifts five at 0.57). What the structure is: ``K_c
+g_c(t) x_c(t)``, the signal times the gain's wander. Per turn ``x_c = m_ck + A_ck cos(phi + a_ck)``, the level
+``m_ck`` the field's component along the turn axis, which changes size and sign from flip to flip (zero for a
+channel along the flip axis; for the others the vertical field in two flips, opposite in sign, and about zero in the
+other two). The walk's slow part in the residual is ``m_ck g_c(t)``: the offsets' model takes it as a stationary
+wander of every flip alike and moves each flip's level by as much; but the levels a gain walk moves go with the
+level's own sign, and the gain absorbs their common part, so the level differences the directions are read from move
+much less (the widening came from the lowest bands, periods of 640 s and more, the longest beyond the record: 6-300
+times the naive variance in one direction coordinate on seeds 22, 32, 38). A gain process alone (``cov s = X K X``,
+``X`` the fitted signal: the same moment equations with ``L = A (I - P) X A^T`` for ``keep``'s lift, the block sums
+``L^T keep^+ z``) covers it (0.58 -> 1.10 on seeds 20-39) but under-covers every structure that is not a gain
+(random walk 2.36, pink offsets 1.64, four stacked 2-4 a channel); choosing between the two by the moment equations'
+fitted objective (same data, same metric, same parameters) picked the gain for 8/8 gain walks and 1/14 random walks,
+but for 7/19 of a precessing axis (1.10 -> 1.54): a field turning is neither, and the objective has no test of its
+difference's size. Not adopted.
+
+A gain's wander: its carrier.  A gain wandering, ``K_c (1 + g_c(t))``, leaves ``w_ic g_c(t_i)`` in the weighted
+residual, ``w`` the channel's fitted signal less its offset (weighted; ``carrier``): it turns with the turntable
+(its sign changes within a turn) and its level over a turn changes size and sign from flip to flip.  With ``g``
+constant within a block, ``s = C v`` (``C`` the carrier's rows of each block, ``v`` the block levels), and the move
+is ``H^-1 J^T C v = H^-1 G_w^T v``, ``G_w = C^T J``: through the gain's column (``J^T C 1`` is its own, a constant
+``v`` moves the channel's gain alone, by ``v``; so ``about_mean`` takes ``v`` about its mean over the rows as it
+takes an offset's levels, the gain the file states being the session's mean) and the directions'.  The block sums
+demodulated by the carrier, ``z_w = C^T r``, obey the offsets' moment equations with ``keep_w = C^T (I - P) C``:
+the same band tests and spectrum estimate ``v``'s process (:func:`_block_moments` with a carrier).  The offsets'
+reading takes the same structure as block levels ``u_b ~ w_b v_b`` of a stationary process: the modulated process
+it fits, and what it extrapolates into what the fit absorbed (the gain takes the common part of the flips' level
+changes), are the wrong shape.  Are the two separable from one recording?  Not within a block: a block is 10 deg
+of the turn, the carrier nearly constant in it, so ``z_w ~ w_b z`` block by block and the demodulated sums repeat
+the plain ones (why fitting both carriers' processes together shared the power between them: below).  Only across
+blocks, by the shape of the block levels over the recording: an offset's wander is stationary, a gain's is the
+known ``w_b`` (changing sign within each turn and from flip to flip) times a stationary one.  So the two are
+readings of the same block sums ``z``, each spectrum fitted by its own moment equations, compared by the Gaussian
+likelihood of ``z`` in ``keep``'s range, ``(1 + f) keep + L K_v L^T`` (``L = A (I - P) C``) against ``(1 + f) keep
++ keep K keep``; the gain's is taken where it is decisively likelier (``2 d ln L > DECISIVE_BIC``), then
+propagated with its own floor as the offsets' is.  The comparison fixes the floor's factor at its nominal
+``f = 0`` and fits each spectrum without it: free, the moment fit trades the floor against the white block levels
+of band 0 and lands on ``f = -1`` in most recordings, which leaves ``keep``'s least-seen combinations nearly
+variance-free, and the likelihoods then differed by 1e2-1e11 either way (with the floor clipped at ``f >= 0``
+instead, the offsets' reading, at ``f = -1``, counted the white twice and lost a random walk and two precessing
+axes to the gain: err/sig 0.6 -> 2.5, 1.1 -> 2.3, 1.8 -> 5.8 on tools/bench_loop.py seeds 60-79).  Degenerate: a
+channel whose signal barely turns in a flip (along the turn axis) has a carrier nearly constant over that flip,
+where a gain's wander is an offset's times the flip's level, told apart only by the level's change between flips;
+a channel along the flip axis as well (its level near zero) carries almost none of its gain's wander, and moves
+by almost none.  A structure that is neither (a field turning with the table) goes to whichever reading is
+likelier; on tools/bench_loop.py's precessing axis the offsets' (docs/benchmarks.md).
 
 A wander under an explained fit.  A random walk of an offset, ``w(t)`` with ``E[w(t) w(t')] = q^2 min(t, t')``,
 under a fit that named a smooth drift (a polynomial in time, a warm-up): the polynomial takes the walk's
@@ -673,19 +705,28 @@ def block_layout(jac, weighted, t_s, bread, block_s: float) -> BlockLayout:
     return BlockLayout(jac, weighted, t_s, good, bread[np.ix_(good, good)], block, int(block.max()) + 1)
 
 
-def _block_moments(jac, weighted, t_s, bread, block_s, n_bands) -> _BlockMoments:
-    """Block sums, what the fit keeps of them and the band kernels (raises as :func:`time_correlated_covariance`)."""
+def _block_moments(jac, weighted, t_s, bread, block_s, n_bands, carrier=None) -> _BlockMoments:
+    """Block sums, what the fit keeps of them and the band kernels (raises as :func:`time_correlated_covariance`).
+
+    ``carrier`` (n, c), optional: each row's carrier ``w`` (module docstring, "A gain's wander: its carrier"), the
+    block sums then ``C^T r`` and ``keep = C^T (I - P) C`` with ``C`` the carrier's rows summed into blocks; none:
+    one on every row (an offset's).
+    """
     jac, weighted, t_s, good, b, block, nb = block_layout(jac, weighted, t_s, bread, block_s)
     n, c = weighted.shape
     size = np.bincount(block, minlength=nb).astype(float)
     t_block = np.bincount(block, weights=t_s, minlength=nb) / size
     t_start = np.full(nb, np.inf)
     np.minimum.at(t_start, block, t_s)
-    summed_jac = np.zeros((nb, c, b.shape[0]))  # G = A J, A the block sums; rows channel-major below
-    np.add.at(summed_jac, block, np.nan_to_num(jac[:, good]).reshape(n, c, -1))
+    carried = np.ones((n, c)) if carrier is None else np.asarray(carrier, dtype=float)
+    if carried.shape != (n, c):
+        raise ValueError(f"expected a carrier of {n} rows and {c} channels, got {carried.shape}")
+    summed_jac = np.zeros((nb, c, b.shape[0]))  # G = C^T J, C the carrier summed into blocks; channel-major below
+    np.add.at(summed_jac, block, np.nan_to_num(jac[:, good]).reshape(n, c, -1) * carried[:, :, None])
     summed_jac = summed_jac.transpose(1, 0, 2).reshape(c * nb, -1)
-    keep = np.diag(np.tile(size, c)) - summed_jac @ b @ summed_jac.T  # A (I - P) A^T = A (I - P) U
-    y = np.concatenate([np.bincount(block, weights=w, minlength=nb) for w in weighted.T]).reshape(c, nb)
+    info = np.concatenate([np.bincount(block, weights=w**2, minlength=nb) for w in carried.T])  # diag(C^T C)
+    keep = np.diag(info) - summed_jac @ b @ summed_jac.T  # C^T (I - P) C
+    y = np.concatenate([np.bincount(block, weights=w, minlength=nb) for w in (weighted * carried).T]).reshape(c, nb)
     edges = band_edges_hz(block_s, n_bands)
     lag = t_block[:, None] - t_block[None, :]
     bands = np.stack([np.eye(nb)] + [_band_kernel(lag, lo, hi) for lo, hi in zip(edges[:-1], edges[1:])])
@@ -886,6 +927,9 @@ class TimeStructure(NamedTuple):
     locked: bool = False
     """Whether structure locked to the turn explains the whole structure (its move propagated); with no step
     either, a stationary process in time."""
+    gain: bool = False
+    """Whether the stationary process is a gain's wander, its block levels times the carrier (module docstring,
+    "A gain's wander: its carrier"), rather than the offsets'."""
 
 
 class OffsetStep(NamedTuple):
@@ -903,7 +947,8 @@ class OffsetStep(NamedTuple):
 
 def structure_in_time(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: np.ndarray,
                       block_s: float = BLOCK_S, n_bands: int = N_BANDS,
-                      locked: TurnPhase | None = None, about_mean: bool = False) -> TimeStructure:
+                      locked: TurnPhase | None = None, about_mean: bool = False,
+                      carrier: np.ndarray | None = None) -> TimeStructure:
     """Covariance of a fit's parameters under the structure its residual shows: one offset step, structure locked
     to the turn, or a process in time.
 
@@ -913,7 +958,8 @@ def structure_in_time(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, br
     the structure is that step and its move of the parameters is propagated (module docstring, "One
     step, not a process").  Otherwise, given ``locked``, the structure locked to the turn is taken out;
     if what remains passes the test in every band, its move of the parameters is propagated (module
-    docstring, "Locked to the turn").  Otherwise the stationary process of :func:`time_correlated_covariance`.
+    docstring, "Locked to the turn").  Otherwise the stationary process of :func:`time_correlated_covariance`,
+    or, given ``carrier``, a gain's wander where that is decisively likelier.
 
     Parameters
     ----------
@@ -925,6 +971,10 @@ def structure_in_time(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, br
         Take the step's and the process's move of the parameters about each channel's mean level over the
         recording (module docstring, "About the session's mean"): the offsets a fit states are then the
         session's mean levels, which a structure's own mean moves with the fit.  False: about zero.
+    carrier : ndarray, shape (n, c), optional
+        Each channel's fitted signal less its offset, in the weighted residual's units: where it is given and the
+        process in time stands, a gain's wander (the process times it) is taken instead of the offsets' where it is
+        decisively the likelier reading of the block sums (module docstring, "A gain's wander: its carrier").
 
     Returns
     -------
@@ -948,6 +998,10 @@ def structure_in_time(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, br
             rest = _block_moments(aug.jac, aug.weighted, t_s, aug.bread, block_s, n_bands)
             if np.all(_band_p_values(rest) > BAND_P_VALUE):  # the locked structure is the whole structure
                 return TimeStructure(aug.own(aug.bread), None, True)
+    if carrier is not None:
+        gain = _gain_process(m, p_values, jac, weighted, t_s, bread, block_s, n_bands, carrier)
+        if gain is not None:
+            return TimeStructure(_process_covariance(*gain, bread, about_mean), None, gain=True)
     return TimeStructure(_stationary_covariance(m, p_values, bread, about_mean), None)
 
 
@@ -1019,6 +1073,12 @@ def _stationary_covariance(m: _BlockMoments, p_values: np.ndarray, bread: np.nda
                            about_mean: bool = False) -> np.ndarray:
     """Stage 2 of :func:`time_correlated_covariance` on stage 1's ``p_values`` (``about_mean``: as
     :func:`structure_in_time`'s; the spectrum is fitted as before, only its move is taken about the mean)."""
+    return _process_covariance(m, *_process(m, p_values), bread, about_mean)
+
+
+def _process(m: _BlockMoments, p_values: np.ndarray, free_floor: bool = True) -> tuple[float, np.ndarray]:
+    """The floor's factor (at least -1; zero unless ``free_floor``) and the non-negative spectrum, (bands,
+    loadings), of the block sums ``m`` on the bands stage 1's ``p_values`` keep."""
     c = m.y.shape[0]
     loads = _loadings(c)
     outer = np.einsum("vi,vj->vij", loads, loads)
@@ -1029,19 +1089,66 @@ def _stationary_covariance(m: _BlockMoments, p_values: np.ndarray, bread: np.nda
     used[0, c:] = False  # white beyond the floor: each channel's own
     # stage 2: the floor's factor (at least -1) and the spectrum on the bands that carry structure,
     # non-negative: each channel's own process and processes common to each pair of channels, alike or opposed
-    floor, power = _spectrum(m, gram, rhs, used)
+    return _spectrum(m, gram, rhs, used, free_floor)
+
+
+def _block_process(m: _BlockMoments, power: np.ndarray) -> np.ndarray:
+    """``K``, the block levels' covariance (c nb, c nb), of the spectrum ``power`` (:func:`_process`)."""
+    loads = _loadings(m.y.shape[0])
+    return _structure(m, power, np.einsum("vi,vj->vij", loads, loads))
+
+
+def _process_covariance(m: _BlockMoments, floor: float, power: np.ndarray, bread: np.ndarray,
+                        about_mean: bool) -> np.ndarray:
+    """``(1 + f) H^-1 + H^-1 G^T K G H^-1`` (``Q^T G`` for ``G`` with ``about_mean``), NaN where ``bread`` is."""
     out = np.full(bread.shape, np.nan)
     b, g = m.b, _moved_by_levels(m, about_mean)
-    out[np.ix_(m.good, m.good)] = (1.0 + floor) * b + b @ g.T @ _structure(m, power, outer) @ g @ b
+    out[np.ix_(m.good, m.good)] = (1.0 + floor) * b + b @ g.T @ _block_process(m, power) @ g @ b
     return out
 
 
-def _spectrum(m: _BlockMoments, gram: np.ndarray, rhs: np.ndarray, used: np.ndarray) -> tuple[float, np.ndarray]:
-    """The floor's factor (at least -1) and the non-negative spectrum on the ``used`` (band, loading) pairs."""
-    on = np.concatenate([[True], used.ravel()])
+def _log_likelihood(m: _BlockMoments, covariance: np.ndarray) -> float:
+    """Gaussian log-likelihood (less its constant) of the block sums ``m.y`` in ``keep``'s range, their covariance
+    ``covariance`` (c nb, c nb); ``-inf`` where that is singular there."""
+    basis = m.root / np.linalg.norm(m.root, axis=0)  # keep's eigenvectors over its range
+    z = basis.T @ m.y.ravel()
+    try:
+        lower = np.linalg.cholesky(basis.T @ covariance @ basis)
+    except np.linalg.LinAlgError:
+        return -np.inf
+    return float(-np.sum(np.log(np.diag(lower))) - 0.5 * np.sum(np.linalg.solve(lower, z) ** 2))
+
+
+def _gain_process(m: _BlockMoments, p_values: np.ndarray, jac, weighted, t_s, bread, block_s, n_bands,
+                  carrier) -> tuple[_BlockMoments, float, np.ndarray] | None:
+    """The gain carrier's block moments, floor and spectrum where a gain's wander is decisively the likelier reading
+    of the block sums ``m`` (stage 1's ``p_values``) than an offset's (module docstring, "A gain's wander: its
+    carrier"), else None."""
+    g = _block_moments(jac, weighted, t_s, bread, block_s, n_bands, carrier)
+    g_values = _band_p_values(g)
+    if not np.any(g_values <= BAND_P_VALUE):
+        return None
+    c, nb = m.y.shape
+    block = block_layout(jac, weighted, t_s, bread, block_s).block
+    sums = np.concatenate([np.bincount(block, weights=w, minlength=nb) for w in np.asarray(carrier, dtype=float).T])
+    lift = np.diag(sums) - m.summed_jac @ m.b @ g.summed_jac.T  # A (I - P) C: the gain's levels in the block sums
+    keep = m.blocks.reshape(c * nb, c * nb)
+    # the two readings compared at the floor's nominal factor (f = 0): see the module docstring
+    as_gain = keep + lift @ _block_process(g, _process(g, g_values, free_floor=False)[1]) @ lift.T
+    as_offsets = keep + keep @ _block_process(m, _process(m, p_values, free_floor=False)[1]) @ keep
+    if 2.0 * (_log_likelihood(m, as_gain) - _log_likelihood(m, as_offsets)) <= DECISIVE_BIC:
+        return None
+    return (g, *_process(g, g_values))
+
+
+def _spectrum(m: _BlockMoments, gram: np.ndarray, rhs: np.ndarray, used: np.ndarray,
+              free_floor: bool = True) -> tuple[float, np.ndarray]:
+    """The floor's factor (at least -1; zero unless ``free_floor``) and the non-negative spectrum on the ``used``
+    (band, loading) pairs."""
+    on = np.concatenate([[free_floor], used.ravel()])
     scale = np.sqrt(np.maximum(np.diag(gram)[on], np.finfo(float).tiny))
     half, target = _half_system(gram[np.ix_(on, on)] / np.outer(scale, scale), rhs[on] / scale)
-    lower = np.r_[-1.0, np.zeros(on.sum() - 1)] * scale
+    lower = np.r_[np.full(int(free_floor), -1.0), np.zeros(int(used.sum()))] * scale
     solution = np.zeros(on.size)
     solution[on] = lsq_linear(half, target, bounds=(lower, np.inf)).x / scale
     return float(solution[0]), solution[1:].reshape(used.shape)

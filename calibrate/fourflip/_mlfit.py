@@ -431,7 +431,9 @@ def structured_covariance(fit: MLFit, noise: np.ndarray, about_mean: bool = Fals
     and its harmonics 2 and up of the turn angle), its move of the parameters; otherwise each
     channel's structure a stationary process over the whole recording (across flips: a slow wander
     or a room's temperature cycle carries over from one flip to the next), its spectrum estimated
-    from what the fit left of it.  Per-flip clusters (CR2, :func:`calibrate.diagnosis.robust.cluster_covariance`)
+    from what the fit left of it, read as the offsets' wander or, where decisively likelier, as each
+    gain's (the process times the channel's signal, :func:`_signal`: robust.py, "A gain's wander: its
+    carrier").  Per-flip clusters (CR2, :func:`calibrate.diagnosis.robust.cluster_covariance`)
     took flips as independent and left a random walk and an air-con cycle at 1.3-1.6 times the
     widened sigma (tools/bench_loop.py).
 
@@ -451,7 +453,8 @@ def structured_covariance(fit: MLFit, noise: np.ndarray, about_mean: bool = Fals
     weighted, t_s, bread = _weighted_residual(fit, noise)
     locked = TurnPhase(np.radians(bins.samples.platform_deg), bins.samples.flip_index,
                        shapes=_gain_and_lag(fit, noise))
-    return structure_in_time(fit.jac, weighted, t_s, bread, locked=locked, about_mean=about_mean)
+    return structure_in_time(fit.jac, weighted, t_s, bread, locked=locked, about_mean=about_mean,
+                             carrier=_signal(fit, noise))
 
 
 def walk_covariance(fit: MLFit, noise: np.ndarray):
@@ -509,6 +512,13 @@ def _weighted_residual(fit: MLFit, noise: np.ndarray) -> tuple[np.ndarray, np.nd
     return weighted, t_s, fit.covariance / (fit.chi2 / max(fit.dof, 1))
 
 
+def _signal(fit: MLFit, noise: np.ndarray) -> np.ndarray:
+    """Each channel's fitted signal less its offset at the fit's bins, in the weighted residual's units, shape
+    (g, c): a gain's wander ``g(t)`` leaves ``signal * g`` in the weighted residual (its carrier)."""
+    bins, phys = fit.bins, fit.physics
+    return (_Predictor(bins.samples)(phys) - phys.offsets) * (bins.root_n / noise)
+
+
 def _gain_and_lag(fit: MLFit, noise: np.ndarray) -> np.ndarray:
     """Each channel's signal less its mean over each turn (a gain of that turn's turning part) and the signal's
     rate in the turn angle (per radian: a lag of that turn) at the fit's bins, in the weighted residual's units,
@@ -521,7 +531,7 @@ def _gain_and_lag(fit: MLFit, noise: np.ndarray) -> np.ndarray:
     bins, phys = fit.bins, fit.physics
     weights = bins.root_n / noise
     predict = _Predictor(bins.samples)
-    signal = (predict(phys) - phys.offsets) * weights
+    signal = _signal(fit, noise)
     turned = replace(bins.samples, platform_deg=bins.samples.platform_deg + RATE_STEP_DEG)
     rate = (_Predictor(turned)(phys) - predict(phys)) * weights / np.radians(RATE_STEP_DEG)
     flip = np.unique(bins.samples.flip_index, return_inverse=True)[1].ravel()

@@ -273,6 +273,11 @@ def _widen(fit: MLFit, noise: np.ndarray, channels, about_mean: bool = False, st
                    "block sums with what the fit absorbed accounted for, propagated into the parameters; the file's "
                    "sigmas are the larger of it and the naive ones"),
     }
+    if structure.gain:
+        cost["method"] = ("the residual's structure taken as each channel's gain wandering, a stationary process in "
+                          "time times the channel's signal (its spectrum in octave bands estimated from the residual's "
+                          "block sums demodulated by the signal, decisively likelier than an offsets' wander), "
+                          "propagated into the parameters; the file's sigmas are the larger of it and the naive ones")
     if structure.locked:
         cost["method"] = ("the residual's structure is locked to the turntable's turn (each turn's own gain of the "
                           "turning signal and lag in each channel, and the turn angle's harmonics 2 and up; what "
@@ -288,7 +293,10 @@ def _widen(fit: MLFit, noise: np.ndarray, channels, about_mean: bool = False, st
                           f"output units ({field:.3g} field units) near t = {step.t_s:g} s (within {BLOCK_S:g} s; what "
                           "remains is white), its move of the parameters propagated; the file's sigmas are the larger "
                           "of it and the naive ones")
-    if about_mean and not structure.locked:
+    if about_mean and structure.gain:
+        cost["method"] += ("; the move is taken about each channel's mean gain over the session, the gain the file "
+                           "states")
+    elif about_mean and not structure.locked:
         cost["method"] += ("; the move is taken about each channel's mean level over the session, the level the "
                            "file's offsets state (a wander's own mean is no error of it)")
     if misfit is not None:
