@@ -190,3 +190,28 @@ def test_curve_covariance_keeps_the_five_terms(cubic_fit):
     at = [fit.names.index(f"{ch}.x3_rel_at_B") for ch in fit.layout.channels]
     np.testing.assert_allclose(curved[:, 6, 6], np.diag(fit.covariance)[at] / fit.physics.field_norm ** 4, rtol=1e-9)
     assert np.all(curved[:, 5, :] == 0.0) and np.all(curved[:, 7, :] == 0.0)
+
+
+def test_curve_covariance_of_a_quadratic_and_cubic(cubic_fit):
+    """The quadratic-and-cubic form: each coefficient ``c_k = p_k / |B|^(k - 1)``, so the block holds the two
+    parameters' covariance scaled by ``|B|^-1`` and ``|B|^-2`` in rows 5 and 6, the quintic's row zero."""
+    from dataclasses import replace
+
+    fit = cubic_fit
+    both = VARIANTS["nonlinear_response"][1]
+    assert both.powers == (2, 3)
+    c = len(fit.physics.gains)
+    start = len(fit.x) - c  # the cubic form's block, replaced by the two powers' with a drawn covariance
+    names = fit.names[:start] + both.param_names(fit.layout.channels)
+    cov = np.zeros((start + 2 * c, start + 2 * c))
+    cov[:start, :start] = fit.covariance[:start, :start]
+    rng = np.random.default_rng(3)
+    root = rng.normal(size=(2 * c, 2 * c))
+    cov[start:, start:] = 1e-6 * root @ root.T
+    other = replace(fit, effects=(both,), names=names, covariance=cov, x=np.r_[fit.x[:start], np.zeros(2 * c)])
+    curved, norm = other.curve_covariance(), fit.physics.field_norm
+    scale = np.array([1.0 / norm, 1.0 / norm**2])
+    for ch in range(c):
+        block = cov[start + 2 * ch:start + 2 * ch + 2, start + 2 * ch:start + 2 * ch + 2]
+        np.testing.assert_allclose(curved[ch, 5:7, 5:7], block * np.outer(scale, scale), rtol=1e-12)
+    assert np.all(curved[:, 7, :] == 0.0)
