@@ -31,7 +31,8 @@ housing's runtime heading error from the calibration alone (every 5 degrees of h
 each channel's fitted curve and the fitted directions) over the heading sigma the file's sigmas give
 (this tree's :func:`calibrate.diagnosis.robust.heading_sigma_deg` for both versions, computed here from what
 each version's fit returns: each channel's joint direction, offset and gain covariance where the version's result
-has it, ``joint_covariance``, else the three taken as independent, as versions before 20e785c; the offsets'
+has it, ``joint_covariance``, else the three taken as independent, as versions before 20e785c, with the response
+curve's coefficients where the version has them, ``curve_covariance``, else the curve's errors left out; the offsets'
 correlation across channels from the fit's covariance; both over every recording and over those called
 unexplained), the same error over the heading sigma the runtime gives from the calibration file itself
 (``rt hdg e/s``: the file read by this tree's :mod:`compass.calibration`, the RMS over the same headings of
@@ -459,7 +460,8 @@ def main() -> None:
           "over the recordings called unexplained.\nhdg e/s: RMS over recordings of a level housing's runtime heading "
           "error from the calibration alone (RMS over 72 headings, no noise)\nover the heading sigma the file's "
           "sigmas give (this tree's calibrate.diagnosis.robust.heading_sigma_deg for both versions; a version without "
-          "joint_covariance takes each channel's direction, offset and gain as independent); unexpl.: over the recordings called "
+          "joint_covariance takes each channel's direction, offset and gain as independent, one without "
+          "curve_covariance leaves a response curve's errors out); unexpl.: over the recordings called "
           "unexplained.\nrt e/s: the same error over the heading sigma the runtime (compass attitude / live) gives from the "
           "calibration file, read by this tree (a file without joint_covariance: the three independent); unexpl.: likewise.\nhdg cost: median unexplained_cost.heading_deg (the stated part the structure adds) where the "
           "loop says unexplained;\nhdg err: RMS runtime heading error, deg, over the recordings called unexplained "
