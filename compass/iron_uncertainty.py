@@ -45,9 +45,13 @@ from functools import cached_property
 import numpy as np
 
 __all__ = ["TumbleUncertainty", "ChannelUncertainty", "channel_priors", "joint_problem", "joint_weights",
-           "independent_joint", "with_calibration_sigma", "with_calibration_sigma_many", "undetermined_words",
+           "CURVE_POWERS", "independent_joint", "with_calibration_sigma", "with_calibration_sigma_many",
+           "undetermined_words",
            "HARD_IRON_PRIOR", "SOFT_IRON_PRIOR", "ROTATION_PRIOR_DEG",
            "ROTATION_PRIOR_AXIS_DEG"]
+
+CURVE_POWERS = (2, 3, 5)
+"""The powers of a response curve's coefficients, in the order :func:`joint_weights` takes them."""
 
 HARD_IRON_PRIOR = 0.1
 """1-sigma of a hard-iron component the fit left undetermined, as a fraction of |B|: a product's iron moves the
@@ -408,9 +412,14 @@ def channel_priors(unit_directions, gains, field_norm: float, names, direction_g
     return cov, sigma, words
 
 
-def joint_weights(field_h, unit_directions, gains) -> np.ndarray:
+def joint_weights(field_h, unit_directions, gains, curves=None) -> np.ndarray:
     """``w = (B, 1 / K_c, x_c / K_c)`` at ``field_h``: how each error of a channel's joint covariance (its direction,
     rad; offset; gain) moves the solved component, so its variance is ``w^T S_c w`` (:class:`ChannelUncertainty`).
+
+    With a response curve ``g(x) = x + sum_k c_k x^k`` (``curves``, over :data:`CURVE_POWERS`) the solved
+    component's error is ``-B . da - (dV0 + g dK + K sum_k x^k dc_k) / (K g')``, so
+    ``w = (B, 1 / (K g'), g / (K g'), x^2 / g', x^3 / g', x^5 / g')``: the joint covariance then carries the
+    curve's coefficients after the gain (:meth:`calibrate.fourflip._mlfit.MLFit.curve_covariance`).
 
     Parameters
     ----------
@@ -419,15 +428,25 @@ def joint_weights(field_h, unit_directions, gains) -> np.ndarray:
     unit_directions : ndarray, shape (c, 3)
     gains : ndarray, shape (c,)
         Output units per field unit.
+    curves : ndarray, shape (c, 3), optional
+        Each channel's curve coefficients (quadratic, cubic, quintic; 1 / field unit^(k - 1)).  None: linear.
 
     Returns
     -------
-    ndarray, shape (..., c, 5)
+    ndarray, shape (..., c, 5), or (..., c, 8) with ``curves``
     """
     b = np.asarray(field_h, dtype=float)
     x = np.einsum("...i,ci->...c", b, unit_directions)
-    return np.concatenate([np.broadcast_to(b[..., None, :], x.shape + (3,)),
-                           np.broadcast_to(1.0 / gains, x.shape)[..., None], (x / gains)[..., None]], axis=-1)
+    if curves is None:
+        return np.concatenate([np.broadcast_to(b[..., None, :], x.shape + (3,)),
+                               np.broadcast_to(1.0 / gains, x.shape)[..., None], (x / gains)[..., None]], axis=-1)
+    curves = np.asarray(curves, dtype=float)
+    powers = np.array(CURVE_POWERS)
+    terms = x[..., None] ** powers  # (..., c, 3)
+    g = x + np.sum(curves * terms, axis=-1)
+    slope = 1.0 + np.sum(powers * curves * x[..., None] ** (powers - 1), axis=-1)  # g'(x)
+    return np.concatenate([np.broadcast_to(b[..., None, :], x.shape + (3,)), (1.0 / (gains * slope))[..., None],
+                           (g / (gains * slope))[..., None], terms / slope[..., None]], axis=-1)
 
 
 def independent_joint(direction_covariance, response_sigma) -> np.ndarray:

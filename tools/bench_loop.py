@@ -31,7 +31,8 @@ housing's runtime heading error from the calibration alone (every 5 degrees of h
 each channel's fitted curve and the fitted directions) over the heading sigma the file's sigmas give
 (this tree's :func:`calibrate.diagnosis.robust.heading_sigma_deg` for both versions, computed here from what
 each version's fit returns: each channel's joint direction, offset and gain covariance where the version's result
-has it, ``joint_covariance``, else the three taken as independent, as versions before 20e785c; the offsets'
+has it, ``joint_covariance``, else the three taken as independent, as versions before 20e785c, with the response
+curve's coefficients where the version has them, ``curve_covariance``, else the curve's errors left out; the offsets'
 correlation across channels from the fit's covariance; both over every recording and over those called
 unexplained), the same error over the heading sigma the runtime gives from the calibration file itself
 (``rt hdg e/s``: the file read by this tree's :mod:`compass.calibration`, the RMS over the same headings of
@@ -269,6 +270,10 @@ def summarise(case: str, seed: int, truth: Truth, result, wall: float, cpu: floa
             "offset_covariance": (offset_corr * np.outer(offset_sigma, offset_sigma)).tolist(),
             "joint_covariance": [None if getattr(c, "joint_covariance", None) is None else c.joint_covariance.tolist()
                                  for c in result.channels],
+            "curve_covariance": [None if getattr(c, "curve_covariance", None) is None else c.curve_covariance.tolist()
+                                 for c in result.channels],
+            "curves": [[float(getattr(c.response, k, 0.0)) for k in ("quadratic", "cubic", "quintic")]
+                       for c in result.channels],
             "dip_deg": float(result.dip_deg), "document": json.loads(dumps(result.to_json())),
             "heading_cost_deg": cost.get("heading_deg"), "time_s": wall, "cpu_s": cpu}
 
@@ -279,17 +284,29 @@ def with_heading_sigma(row: dict) -> dict:
     :func:`calibrate.diagnosis.robust.heading_sigma_deg` on the row's directions, their covariances, each
     channel's offset and gain variances and the offsets' covariance across channels (an undefined sigma,
     ``nan``, counts as zero there); each channel's joint direction, offset and gain covariance where the
-    version's result has it (``joint_covariance``; a baseline without it takes them as independent).
+    version's result has it (``joint_covariance``; a baseline without it takes them as independent), with the
+    response curve's coefficients where it has those (``curve_covariance``; a baseline without it, or a linear
+    response, leaves the curve's errors out).
     """
     from calibrate.diagnosis.robust import heading_sigma_deg
 
     response_var = np.column_stack([row["offset_sigma"], row["gain_sigma"]]) ** 2
-    joint = row.get("joint_covariance") or [None]
-    joint = None if any(j is None for j in joint) else np.array(joint, dtype=float)  # None: a version without it
+    joint, curves = _stacked(row.get("joint_covariance")), None
+    curved = _stacked(row.get("curve_covariance"))
+    if curved is not None:
+        joint, curves = curved, np.array(row["curves"])
     sigma = heading_sigma_deg(np.array(row["directions"]), np.array(row["direction_covariance"]), response_var,
                               np.array(row["gain"]), row["dip_deg"], FIELD_UT, N_HEADINGS,
-                              offset_covariance=np.array(row["offset_covariance"]), channel_covariance=joint)
+                              offset_covariance=np.array(row["offset_covariance"]), channel_covariance=joint,
+                              curves=curves)
     return dict(row, heading_sigma_deg=sigma, runtime_sigma_deg=runtime_sigma_deg(row["document"]))
+
+
+def _stacked(per_channel) -> np.ndarray | None:
+    """Each channel's covariance stacked, or None when a version's row lacks it (or any channel has none)."""
+    if not per_channel or any(j is None for j in per_channel):
+        return None
+    return np.array(per_channel, dtype=float)
 
 
 def runtime_sigma_deg(document: dict) -> float:
@@ -443,7 +460,8 @@ def main() -> None:
           "over the recordings called unexplained.\nhdg e/s: RMS over recordings of a level housing's runtime heading "
           "error from the calibration alone (RMS over 72 headings, no noise)\nover the heading sigma the file's "
           "sigmas give (this tree's calibrate.diagnosis.robust.heading_sigma_deg for both versions; a version without "
-          "joint_covariance takes each channel's direction, offset and gain as independent); unexpl.: over the recordings called "
+          "joint_covariance takes each channel's direction, offset and gain as independent, one without "
+          "curve_covariance leaves a response curve's errors out); unexpl.: over the recordings called "
           "unexplained.\nrt e/s: the same error over the heading sigma the runtime (compass attitude / live) gives from the "
           "calibration file, read by this tree (a file without joint_covariance: the three independent); unexpl.: likewise.\nhdg cost: median unexplained_cost.heading_deg (the stated part the structure adds) where the "
           "loop says unexplained;\nhdg err: RMS runtime heading error, deg, over the recordings called unexplained "

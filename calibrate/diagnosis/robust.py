@@ -453,7 +453,7 @@ def extra_sigma(wide: np.ndarray, naive: np.ndarray) -> np.ndarray:
 def heading_sigma_deg(directions: np.ndarray, direction_covariance: np.ndarray, response_var: np.ndarray,
                       gains: np.ndarray, dip_deg: float, field_norm: float, n_headings: int = 72,
                       offset_covariance: np.ndarray | None = None,
-                      channel_covariance: np.ndarray | None = None) -> float:
+                      channel_covariance: np.ndarray | None = None, curves: np.ndarray | None = None) -> float:
     """RMS heading sigma of a level housing over every heading, from the calibration's uncertainty alone.
 
     The runtime solves the field ``m = P x`` from each channel's component ``x_c = B_H . a_c``
@@ -473,6 +473,11 @@ def heading_sigma_deg(directions: np.ndarray, direction_covariance: np.ndarray, 
     way: ``-B . da - (dV0 + x dK) / K``).  Measured on four-flip recordings with a warm-up
     (tools/bench_loop.py): the joint terms raise the heading sigma ~1.18x, the cross-channel offsets'
     ~1.00x on a near-orthogonal triad (the cross terms average out over headings).
+
+    A response curve ``g(x) = x + sum_k c_k x^k`` (``curves``) adds its coefficients' errors to the joint
+    covariance, ``w = (B, 1 / (K g'), g / (K g'), x^k / g')`` (:func:`compass.iron_uncertainty.joint_weights`):
+    a curve and a gain trade against each other over the field range a channel sees (correlation near -1),
+    so together they move the heading less than the gain's variance alone says.
 
     Parameters
     ----------
@@ -496,7 +501,10 @@ def heading_sigma_deg(directions: np.ndarray, direction_covariance: np.ndarray, 
     channel_covariance : ndarray, shape (c, 5, 5), optional
         Each channel's joint covariance of its direction (3, rad), offset and gain (the units of
         ``response_var``); it replaces ``direction_covariance`` and ``response_var``.  None: the three
-        taken as independent.
+        taken as independent.  Shape (c, 8, 8) with ``curves``: the curve's coefficients after the gain
+        (:meth:`calibrate.fourflip._mlfit.MLFit.curve_covariance`).
+    curves : ndarray, shape (c, 3), optional
+        Each channel's curve coefficients (quadratic, cubic, quintic; 1 / field unit^(k - 1)).  None: linear.
 
     Returns
     -------
@@ -511,10 +519,12 @@ def heading_sigma_deg(directions: np.ndarray, direction_covariance: np.ndarray, 
     solver = np.linalg.pinv(directions)  # (3, c): m = solver @ x
     c = len(gains)
     if channel_covariance is None:
+        if curves is not None:
+            raise ValueError("a curve's coefficients need the joint covariance that carries their errors")
         channel_covariance = np.zeros((c, 5, 5))
         channel_covariance[:, :3, :3] = direction_covariance
         channel_covariance[:, 3, 3], channel_covariance[:, 4, 4] = response_var[:, 0], response_var[:, 1]
-    w = joint_weights(b, directions, gains)  # (h, c, 5): the solved component's move per error
+    w = joint_weights(b, directions, gains, curves)  # (h, c, 5 or 8): the solved component's move per error
     var = np.einsum("hci,cij,hcj->hc", w, np.nan_to_num(np.asarray(channel_covariance, dtype=float)), w)
     cross = np.zeros((c, c)) if offset_covariance is None else np.nan_to_num(np.asarray(offset_covariance, dtype=float))
     cross = (cross - np.diag(np.diag(cross))) / np.outer(gains, gains)

@@ -29,12 +29,13 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from compass.frames import direction_sigma_deg as _direction_sigma_deg
+from compass.iron_uncertainty import CURVE_POWERS
 from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, channel_outputs, housing_field
 
 from ..diagnosis.evidence import SINGULAR_RCOND, linear_score, unit_columns
 from ..diagnosis.forms import session_bin
 from ._jacobian import Partials
-from .effects import FourFlipEffect
+from .effects import FourFlipEffect, NonlinearResponse
 
 __all__ = ["BIN_DEG", "Bins", "MLFit", "block_p_values", "cramer_rao", "fit_ml", "offset_step", "score_effect",
            "structured_covariance", "step_size_output", "tangent_basis", "walk_covariance", "with_covariance"]
@@ -174,6 +175,41 @@ class MLFit:
             m[3, 2], m[4, 3] = self.layout.start.gains[ch], gains[ch]  # offset = V0 + p K0, gain = K0 exp(q)
             block = slice(_BASE_PER_CHANNEL * ch, _BASE_PER_CHANNEL * (ch + 1))
             cov = self.covariance[block, block]
+            out[ch] = m @ np.nan_to_num(cov, nan=0.0) @ m.T
+            unknown = np.any(m[:, ~np.isfinite(np.diag(cov))] != 0.0, axis=1)
+            out[ch][unknown, :] = np.nan
+            out[ch][:, unknown] = np.nan
+        return out
+
+    def curve_covariance(self) -> np.ndarray | None:
+        """Each channel's joint covariance of its direction, offset and gain (:meth:`channel_covariance`'s five)
+        and its response curve's coefficients (quadratic, cubic, quintic: 1 / field unit^(k - 1), as
+        :class:`compass.response.CubicResponse` holds them), shape (c, 8, 8); a power the fit does not carry
+        has zero rows.  None when the fit has no curve (a linear response).
+
+        A curve and a gain trade against each other over the range a channel sees (their errors are correlated
+        near -1), so the two together move a heading less than the gain's variance alone says.  NaN as in
+        :meth:`channel_covariance` where a parameter is undetermined.
+        """
+        curves = [e for e in self.effects if isinstance(e, NonlinearResponse)]
+        if not curves:
+            return None
+        c = self.layout.c
+        gains, norm = self.physics.gains, self.physics.field_norm
+        out = np.empty((c, 8, 8))
+        for ch in range(c):
+            columns = list(range(_BASE_PER_CHANNEL * ch, _BASE_PER_CHANNEL * (ch + 1)))
+            rows = []
+            for e in curves:  # each power's parameter: the relative output change at |B|, coefficient p / |B|^(k-1)
+                at = self.block_start(e) + len(e.powers) * ch
+                columns += [at + i for i in range(len(e.powers))]
+                rows += [(5 + CURVE_POWERS.index(k), norm ** (1 - k)) for k in e.powers]
+            m = np.zeros((8, len(columns)))
+            m[:3, :2] = _direction_map(self.layout, self.x, ch)
+            m[3, 2], m[4, 3] = self.layout.start.gains[ch], gains[ch]
+            for j, (row, scale) in enumerate(rows):
+                m[row, _BASE_PER_CHANNEL + j] = scale
+            cov = self.covariance[np.ix_(columns, columns)]
             out[ch] = m @ np.nan_to_num(cov, nan=0.0) @ m.T
             unknown = np.any(m[:, ~np.isfinite(np.diag(cov))] != 0.0, axis=1)
             out[ch][unknown, :] = np.nan
@@ -402,6 +438,14 @@ def _covariance(jac: np.ndarray, names) -> tuple[np.ndarray, list]:
         inv[involved, :] = np.nan
         inv[:, involved] = np.nan
     return inv, singular
+
+
+def curve_coefficients(physics: BenchPhysics) -> np.ndarray:
+    """Each channel's response curve coefficients over :data:`~compass.iron_uncertainty.CURVE_POWERS` (quadratic,
+    cubic, quintic; 1 / field unit^(k - 1)), zero for a power the physics does not carry, shape (c, 3)."""
+    c = len(physics.gains)
+    return np.column_stack([np.zeros(c) if v is None else np.asarray(v, dtype=float)
+                            for v in (physics.quadratic, physics.cubic, physics.quintic)])
 
 
 def _direction_map(layout: _Layout, x, c: int) -> np.ndarray:

@@ -46,8 +46,8 @@ from compass.sim.bench import BenchSamples
 
 from ._form import ResponseMisfit, response_form_check, response_form_test, response_misfit
 from ._unseen import platform_prior
-from ._mlfit import (MLFit, block_p_values, fit_ml, offset_step, score_effect, step_size_output, structured_covariance,
-                     walk_covariance, with_covariance)
+from ._mlfit import (MLFit, block_p_values, curve_coefficients, fit_ml, offset_step, score_effect, step_size_output,
+                     structured_covariance, walk_covariance, with_covariance)
 from ..diagnosis.evidence import DECISIVE_BIC, STRUCTURE_P, Proposal, gather_forms, is_unexplained, select_effects
 from ..diagnosis.report import format_diagnosis
 from ..diagnosis.robust import BAND_P_VALUE, BLOCK_S, extra_sigma, family_p_value, heading_sigma_deg, widened
@@ -360,15 +360,19 @@ def _sigma_cost(fit: MLFit, wide: MLFit, channels) -> dict:
 def _heading_sigma(fit: MLFit) -> float:
     """A level housing's RMS heading sigma over headings from each channel's joint direction, offset and gain
     covariance (:meth:`MLFit.channel_covariance`: a warm-up during the first flip ties a channel's offset to its
-    direction) and the offsets' covariance across channels (a shared warm-up time constant correlates them)."""
+    direction), with its response curve's coefficients where the fit has a curve (:meth:`MLFit.curve_covariance`:
+    the curve trades against the gain), and the offsets' covariance across channels (a shared warm-up time
+    constant correlates them)."""
     phys = fit.physics
     c = len(phys.gains)
-    joint = fit.channel_covariance()
+    joint, curved = fit.channel_covariance(), fit.curve_covariance()
     offsets = 4 * np.arange(c) + 2
     offset_cov = fit.covariance[np.ix_(offsets, offsets)] * np.outer(fit.layout.start.gains, fit.layout.start.gains)
     var = np.stack([joint[:, 3, 3], joint[:, 4, 4]], axis=1)
+    curves = None if curved is None else curve_coefficients(phys)
     return heading_sigma_deg(phys.directions, fit.direction_covariance, var, phys.gains, phys.dip_deg,
-                             phys.field_norm, offset_covariance=offset_cov, channel_covariance=joint)
+                             phys.field_norm, offset_covariance=offset_cov,
+                             channel_covariance=joint if curved is None else curved, curves=curves)
 
 
 def _verdict(samples, fit: MLFit, noise, judged: np.ndarray) -> tuple[tuple[float, int, float], bool | None]:

@@ -287,11 +287,12 @@ def result_from_ml(fit: MLFit, rec: FourFlipRecording, noise, field_ut, *, effec
     channels = []
     x_range = _seen_range(phys, samples if samples is not None else BenchSamples.from_recording(rec))
     joint = fit.channel_covariance()  # the file's offset and gain sigmas are its marginals (the runtime reads both)
+    curved = fit.curve_covariance()
     for c, name in enumerate(rec.channels):
         off_sigma, gain_sigma = (float(np.sqrt(v)) if np.isfinite(v) else None for v in np.diag(joint[c])[3:])
         response = _response_from_physics(phys, c, x_range[c])
         channels.append(ChannelCalibration(name, phys.directions[c], fit.direction_covariance[c], response,
-                                           off_sigma, gain_sigma, joint[c]))
+                                           off_sigma, gain_sigma, joint[c], None if curved is None else curved[c]))
     dip_index = per * len(rec.channels)
     dip_sigma = float(np.degrees(sigma[dip_index])) if np.isfinite(sigma[dip_index]) else None
     warnings = list(extra_warnings)

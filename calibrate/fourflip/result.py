@@ -38,6 +38,10 @@ class ChannelCalibration:
         the diagnosis said unexplained or found a wander under an explained fit, with the platform field's prior
         when it is in); written as the channel's
         ``joint_covariance`` when finite (a parameter the fit left undetermined makes its rows NaN).
+    curve_covariance : ndarray, shape (8, 8), or None
+        With a nonlinear response: ``joint_covariance`` and the curve's coefficients (quadratic, cubic, quintic,
+        as ``response`` holds them) after it (:meth:`calibrate.fourflip._mlfit.MLFit.curve_covariance`); the
+        heading sigma's terms (:func:`calibrate.diagnosis.robust.heading_sigma_deg`).  Not in the file.
     """
 
     name: str
@@ -47,6 +51,7 @@ class ChannelCalibration:
     offset_sigma: float | None = None
     gain_sigma: float | None = None
     joint_covariance: np.ndarray | None = None
+    curve_covariance: np.ndarray | None = None
 
     @property
     def direction_sigma_deg(self) -> float | None:
