@@ -165,18 +165,17 @@ as was thought, the harmonics' power spread into ``cos phi`` and ``sin phi``, bu
 each turn's own lag (``4h / (pi A_c)``, largest where the channel's turning amplitude ``A_c`` is small), a
 structure the residual shows almost whole, whose absorbed part the stationary model assumes as large.
 
-A gain process times the signal (tried, not adopted; the carrier's reading above replaced it).  A gain that
-wanders, ``K_c (1 + g_c(t))``,
-adds ``K_c x_c(t) g_c(t)`` to channel ``c``'s reading: a product, the gain's slow process times the
-signal ``x_c``, not a stationary residual.  Modelling the residual as ``o_c(t) + g_c(t) \\hat x_c(t) +
+A gain process times the signal (tried, not adopted; the carrier's reading below replaced it).  A gain that
+wanders, ``K_c (1 + g_c(t))``, adds ``K_c x_c(t) g_c(t)`` to channel ``c``'s reading: a product, the gain's slow
+process times the signal ``x_c``, not a stationary residual.  Modelling the residual as ``o_c(t) + g_c(t) \\hat x_c(t) +
 e_c(t)`` (block sums of ``r`` and of ``r \\hat x``, each kind propagated through its own Jacobian
 columns) was built and measured (docs/benchmarks.md): within a 10 s block the signal
 barely changes, so an offset and a gain give the two sums in the same ratio and the fit shares the
 power between them; the offsets' share propagates with an offset's larger leverage on the directions.
 On tools/bench_loop.py seeds 0-19 a gain walk went 0.48 -> 0.58 but a gain swinging at a 500 s period
-(``gain sine``, made to judge it) 0.85 -> 0.68, out of the band; the four-flip keeps the offsets alone.
+(``gain sine``, made to judge it) 0.85 -> 0.68, out of the band; the four-flip then kept the offsets alone.
 
-Why the offsets' process over-covers a gain walk (measured; the carrier's reading above takes it where decisive). On
+Why the offsets' process over-covers a gain walk (measured; the carrier's reading below takes it where decisive). On
 tools/bench_loop.py's ``gain walk`` every recording the process model takes is over-covered about twice (err/sig
 0.42, 0.58, 0.57 over its 6, 8 and 5 recordings on seeds 0-19, 20-39 and 40-59; stated sigmas 4.1-4.3 times the
 naive ones where the errors are 1.8-2.0 times); the locked path, taken on 3 of the 22, does not over-cover the
@@ -990,7 +989,7 @@ def structure_in_time(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, br
     -------
     TimeStructure
         The covariance, shape (k, k), NaN where ``bread`` is; the step, or None; whether the locked
-        structure was taken.
+        structure was taken; whether the process is read as a gain's wander through ``carrier``.
 
     Raises
     ------
@@ -1133,7 +1132,8 @@ def _gain_process(m: _BlockMoments, p_values: np.ndarray, jac, weighted, t_s, br
                   carrier) -> tuple[_BlockMoments, float, np.ndarray] | None:
     """The gain carrier's block moments, floor and spectrum where a gain's wander is decisively the likelier reading
     of the block sums ``m`` (stage 1's ``p_values``) than an offset's (module docstring, "A gain's wander: its
-    carrier"), else None."""
+    carrier"), else None.  Decisive: twice the log-likelihood ratio over ``DECISIVE_BIC``, with no charge for a
+    reading that fits more bands' spectra than the other (each reading's bands are those its own tests found)."""
     g = _block_moments(jac, weighted, t_s, bread, block_s, n_bands, carrier)
     g_values = _band_p_values(g)
     if not np.any(g_values <= BAND_P_VALUE):

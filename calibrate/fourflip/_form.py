@@ -37,7 +37,7 @@ from ._jacobian import Partials
 from ._mlfit import MLFit
 
 __all__ = ["CURVE_DEGREE", "MAX_MOVE_SIGMAS", "RESPONSE", "ResponseForm", "ResponseMisfit", "response_form_check",
-           "response_form_test", "response_misfit"]
+           "response_form_test", "response_misfit", "curve_components"]
 
 CURVE_DEGREE = 8
 """Highest Legendre degree of the general curve (degrees 2..8: seven columns per channel)."""
@@ -129,7 +129,8 @@ class ResponseMisfit:
     delta_chi2 : float
         The chi-square the judged channels' general curves take jointly, the fit's own columns projected off.
     taken : tuple of int
-        How many of the curves' components the bias takes, and how many the fit leaves to the curves.
+        How many of the curves' components put a bias in (determined, and ``z^2 > 1``), and how many are not
+        degenerate (the fit's own columns leave them to the curves).
     """
 
     bias_covariance: np.ndarray
@@ -154,12 +155,12 @@ def response_misfit(fit: MLFit, noise: np.ndarray, judged: np.ndarray | None = N
     (unit variance under white noise, independent of the fit's own noise as ``J^T W L~ = 0``) and moves the
     parameters by ``m_k`` per unit ``z``.  ``z_k^2 - 1`` is the unbiased estimate of its squared bias in
     ``z``'s units (``delta delta^T`` would count the noise ``m_k m_k^T`` once more), so the bias taken is
-    ``sum_k max(z_k^2 - 1, 0) m_k m_k^T`` (each component's sign left free: no cancellation between them is
-    trusted).  A component whose ``m_k`` is over :data:`MAX_MOVE_SIGMAS` of some parameter's sigma (at the noise
-    floor, as ``z``'s: the covariance without its chi-square scale) is not
-    determined (a channel that sees only the horizontal field has its degrees 2-8 on ``|x| < H``, where they
-    mimic the offset, gain and cubic): its ``z`` is noise many times any bias it could show, and it is left
-    out; a degenerate one (a degree the response's own powers hold) carries no information and is dropped as
+    ``sum_k max(z_k^2 - 1, 0) m_k m_k^T`` (the components taken as independent in sign: the expected squared bias,
+    not a bound on it).  A component whose ``m_k`` is over :data:`MAX_MOVE_SIGMAS` of some parameter's sigma (at
+    the noise floor, as ``z``'s: the covariance without its chi-square scale) is not determined (a channel that
+    sees only the horizontal field has its degrees 2-8 on ``|x| < H``, where they mimic the offset, gain and
+    cubic): its ``z`` is noise many times any bias it could show, and it is left out; a degenerate one (a degree
+    the response's own powers hold) carries no information and is dropped as
     :func:`calibrate.diagnosis.evidence.linear_score` drops it.
 
     Parameters
@@ -171,6 +172,40 @@ def response_misfit(fit: MLFit, noise: np.ndarray, judged: np.ndarray | None = N
     judged : ndarray of bool, shape (c,), optional
         The channels whose curve is taken (an undithered ADC's rounding is a curve of its field by itself);
         every channel by default.
+
+    Returns
+    -------
+    ResponseMisfit
+        The squared bias in the fit's parameters, the curves' chi-square, and the components counted.
+    """
+    z, moves, taken = curve_components(fit, noise, judged)
+    weight = np.where(taken, np.maximum(z**2 - 1.0, 0.0), 0.0)
+    return ResponseMisfit(bias_covariance=(moves * weight) @ moves.T, delta_chi2=float(z @ z),
+                          taken=(int(np.count_nonzero(weight)), int(z.size)))
+
+
+def curve_components(fit: MLFit, noise: np.ndarray,
+                     judged: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The general curves' components beside the fit (:func:`response_misfit`'s model): each one's signed root
+    chi-square, its move of the parameters per unit of it, and whether it is determined.
+
+    Linearised at the fit, the least squares of ``[J L]`` on the residual moves the fit's parameters by
+    ``-sum_k m_k z_k`` and has the parameters' covariance ``(J^T W J)^-1 + sum_k m_k m_k^T``
+    at the noise floor (tests/calibrate/fourflip/test_form.py holds both to the augmented fit).
+
+    Parameters
+    ----------
+    fit, noise, judged
+        As :func:`response_misfit`.
+
+    Returns
+    -------
+    z : ndarray, shape (k,)
+        Each non-degenerate component's signed root chi-square (unit variance under white noise).
+    moves : ndarray, shape (p, k)
+        ``m_k``, the parameters' move per unit ``z_k``, in the fit's parameters.
+    taken : ndarray of bool, shape (k,)
+        The components within :data:`MAX_MOVE_SIGMAS` of every parameter's noise-floor sigma per unit ``z``.
     """
     r0, j_b, blocks = _curve_columns(fit, noise)
     chosen = np.ones(blocks.shape[0], dtype=bool) if judged is None else np.asarray(judged, dtype=bool)
@@ -188,10 +223,7 @@ def response_misfit(fit: MLFit, noise: np.ndarray, judged: np.ndarray | None = N
     moves = (absorbed / norm) @ v / np.sqrt(w) / scale[:, None]  # (p, k): the parameters' move per unit z
     sigma = np.sqrt(np.diag(fit.covariance) / (fit.chi2 / max(fit.dof, 1)))  # the noise floor's, as z's
     finite = np.isfinite(sigma) & (sigma > 0)
-    taken = np.all(np.abs(moves[finite]) <= MAX_MOVE_SIGMAS * sigma[finite, None], axis=0)
-    weight = np.where(taken, np.maximum(z**2 - 1.0, 0.0), 0.0)
-    return ResponseMisfit(bias_covariance=(moves * weight) @ moves.T, delta_chi2=float(z @ z),
-                          taken=(int(np.count_nonzero(weight)), int(z.size)))
+    return z, moves, np.all(np.abs(moves[finite]) <= MAX_MOVE_SIGMAS * sigma[finite, None], axis=0)
 
 
 def _curve_columns(fit: MLFit, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -54,14 +54,18 @@ from ..diagnosis.robust import BAND_P_VALUE, BLOCK_S, extra_sigma, family_p_valu
 from .effects import VARIANTS, FourFlipEffect
 from ..noise import DITHER_FRACTION, chi2_sf, dithered, lattice_step, noise_floor
 
-__all__ = ["DECISIVE_BIC", "UNEXPLAINED_WARNING", "WANDER_WARNING", "diagnose_fourflip", "examine_residual",
-           "format_diagnosis",
-           "platform_unseen_warning", "residual_structure"]
+__all__ = ["DECISIVE_BIC", "FORM_WARNING", "UNEXPLAINED_WARNING", "WANDER_WARNING", "diagnose_fourflip",
+           "examine_residual", "format_diagnosis", "platform_unseen_warning", "residual_structure",
+           "unexplained_warning"]
 
 STRUCTURE_HARMONICS = 6
 UNEXPLAINED_WARNING = ("structure remains in the residual above the noise floor: the recording has an effect "
                        "the model lacks (see the diagnosis); the uncertainties are widened to cover it "
                        "(the diagnosis's unexplained_cost)")
+
+FORM_WARNING = ("the fitted response's curve is not a form the model has (a general curve of each channel's "
+                "field follows it better; the rest of the residual is white): the file keeps the nearest curve the "
+                "model has, and the uncertainties are widened to cover its misfit (the diagnosis's unexplained_cost)")
 
 WANDER_WARNING = ("the residual is at the noise floor sample by sample, but its sums over 10 s blocks wander beyond "
                   "white noise (a drift that is not smooth in time, such as a random walk of an offset, which the "
@@ -203,6 +207,14 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
     return base, current, diagnosis
 
 
+def unexplained_warning(diagnosis: dict) -> str:
+    """The warning of an unexplained fit: :data:`FORM_WARNING` where the response form test alone made it unexplained
+    (the structure test white), else :data:`UNEXPLAINED_WARNING`."""
+    form = diagnosis.get("response_form_test")
+    white = diagnosis["structure_test"]["p_value"] >= STRUCTURE_P
+    return FORM_WARNING if white and form is not None and form["p_value"] < STRUCTURE_P else UNEXPLAINED_WARNING
+
+
 def platform_unseen_warning(unseen: dict) -> str:
     """The report's words for the platform field's unseen parts (``diagnosis["platform_field_unseen"]``): the prior
     they took and its cost, or that none could be stated."""
@@ -303,18 +315,19 @@ def _widen(fit: MLFit, noise: np.ndarray, channels, about_mean: bool = False, st
         cost["response_misfit"] = _misfit_cost(fit, misfit, channels)
         wide = with_covariance(fit, widened(wide.covariance, misfit.cover(fit.covariance)))
         cost.update(_sigma_cost(fit, wide, channels))
-        cost["method"] += ("; the response's curve is not the vocabulary's form: a general curve of each judged "
-                           "channel's field component (Legendre degrees 2-8) fitted beside the fit's parameters, the "
-                           "bias each of its components the recording determines put in them estimated without its "
-                           "noise and added to the naive covariance (response_misfit); the file's sigmas are the "
-                           "larger of that and the above")
+        cost["method"] = ("the response's curve is not the vocabulary's form: a general curve of each judged "
+                          "channel's field component (Legendre degrees 2-8) fitted beside the fit's parameters, the "
+                          "bias each of its components the recording determines put in them estimated without its "
+                          "noise and added to the naive covariance (response_misfit); the file's sigmas are the "
+                          "larger of that and the structure in time's widening: " + cost["method"])
     return wide, cost
 
 
 def _misfit_cost(fit: MLFit, misfit: ResponseMisfit, channels) -> dict:
     """What the response curve's misfit alone adds (:func:`_sigma_cost`), and the chi-square its curves take."""
     return {**_sigma_cost(fit, with_covariance(fit, widened(fit.covariance, misfit.cover(fit.covariance))), channels),
-            "delta_chi2": misfit.delta_chi2, "components": {"taken": misfit.taken[0], "determined": misfit.taken[1]}}
+            "delta_chi2": misfit.delta_chi2,
+            "components": {"with_bias": misfit.taken[0], "not_degenerate": misfit.taken[1]}}
 
 
 def _widen_walk(fit: MLFit, noise: np.ndarray, channels) -> tuple[MLFit, dict]:

@@ -33,7 +33,8 @@ from ._mlfit import MLFit, fit_ml
 from ..contract import Calibrator, CannotCalibrate, FitStatistics
 from ..health import AXIS_TOLERANCE_DEG, ChannelHealth, check_channels
 from ..health import to_json as health_json
-from .diagnosis import UNEXPLAINED_WARNING, WANDER_WARNING, diagnose_fourflip, examine_residual, platform_unseen_warning
+from .diagnosis import (UNEXPLAINED_WARNING, WANDER_WARNING, diagnose_fourflip, examine_residual,
+                        platform_unseen_warning, unexplained_warning)
 from ..noise import SPIKE_SIGMAS, find_spikes, lattice_step, noise_floor, quantisation_note
 from .result import FourFlipResult, ChannelCalibration
 from ..site_field import compare_with_site
@@ -220,7 +221,7 @@ def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progres
             n: {"value": float(v), "sigma": float(e)} for n, v, e in zip(names, values, sigmas)}}
         reference = effect.reference(fit.physics)
         effects.append({**entry, "reference": reference} if reference else entry)
-    warnings = (UNEXPLAINED_WARNING,) if diagnosis["unexplained"] else ()
+    warnings = (unexplained_warning(diagnosis),) if diagnosis["unexplained"] else ()
     if "wander_cost" in diagnosis:
         warnings += (WANDER_WARNING,)
     if "platform_field_unseen" in diagnosis:

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from calibrate.diagnosis.evidence import STRUCTURE_P
-from calibrate.fourflip._form import response_form_check, response_form_test, response_misfit
+from calibrate.fourflip.diagnosis import FORM_WARNING, UNEXPLAINED_WARNING
+from calibrate.fourflip._form import (_curve_columns, curve_components, response_form_check, response_form_test,
+                                      response_misfit)
 from calibrate.fourflip._mlfit import fit_ml
 from calibrate.fourflip.effects import VARIANTS
 from calibrate.fourflip.fit import physics_from_harmonics
@@ -128,6 +130,7 @@ def test_the_report_says_the_curve_not_structure_made_it_unexplained(bench):
     assert d["response_form_test"]["p_value"] < STRUCTURE_P
     verdict = next(line for line in result.report().splitlines() if "UNEXPLAINED" in line)
     assert "curve is not a form the model has" in verdict and "structure remains" not in verdict
+    assert FORM_WARNING in result.warnings and UNEXPLAINED_WARNING not in result.warnings  # the warning says so too
 
 
 def test_no_misfit_no_cover(bench):
@@ -140,6 +143,32 @@ def test_no_misfit_no_cover(bench):
     assert np.all(misfit.bias_covariance == 0.0)
     np.testing.assert_array_equal(misfit.cover(fit.covariance), fit.covariance)
     assert response_misfit(fit, noise, np.array([True, False, True])).taken[1] == 12
+
+
+def test_the_components_are_the_augmented_fit(bench):
+    """Reference relation, on the knee (seed 67, one channel's curve): the least squares of the fit's Jacobian with
+    the curve's determined components beside it moves the parameters by the components' ``-sum m_k z_k`` and has
+    the covariance ``(J^T W J)^-1 + sum m_k m_k^T`` at the noise floor, solved directly."""
+    fit, noise = _cubic_fit(bench, "knee", 67)
+    judged = np.array([False, True, False])
+    z, moves, _ = curve_components(fit, noise, judged)
+    r0, j_b, blocks = _curve_columns(fit, noise)
+    scale = np.linalg.norm(np.nan_to_num(fit.jac), axis=0)
+    scale[scale == 0] = 1.0
+    curve = blocks[1] / np.linalg.norm(blocks[1], axis=0)
+    absorbed = np.linalg.lstsq(j_b, curve, rcond=None)[0]
+    w, v = np.linalg.eigh((curve - j_b @ absorbed).T @ (curve - j_b @ absorbed))
+    augmented = np.hstack([j_b, curve @ v[:, w > 1e-12 * w.max()]])
+    solved = np.linalg.lstsq(augmented, r0, rcond=None)[0][:j_b.shape[1]] / scale
+    bread = fit.covariance / (fit.chi2 / fit.dof)
+    good = np.isfinite(np.diag(bread))
+    sigma = np.sqrt(np.diag(bread)[good])
+    move = moves @ z
+    assert z.size == 6 and np.max(np.abs(move[good]) / sigma) > 0.1  # a move worth checking
+    assert np.max(np.abs(solved[good] + move[good]) / sigma) < 1e-4  # to the lstsq's conditioning
+    inverse = np.linalg.pinv(augmented.T @ augmented)[:j_b.shape[1], :j_b.shape[1]] / np.outer(scale, scale)
+    expected = bread + moves @ moves.T
+    np.testing.assert_allclose(np.diag(inverse)[good], np.diag(expected)[good], rtol=1e-6)
 
 
 def test_the_bias_is_a_covariance(bench):
@@ -171,6 +200,6 @@ def test_a_knee_the_cubic_absorbed_is_covered(bench):
     assert d["unexplained"] is True and d["response_form_test"]["p_value"] < STRUCTURE_P
     cost = d["unexplained_cost"]
     assert "response_misfit" in cost and "not the vocabulary's form" in cost["method"]
-    assert cost["response_misfit"]["components"]["taken"] > 0
+    assert cost["response_misfit"]["components"]["with_bias"] > 0
     err = np.degrees(np.arccos(np.clip(np.sum(result.directions * truth.directions, axis=1), -1, 1)))
     assert np.all(err < 1.5 * np.array([c.direction_sigma_deg for c in result.channels]))
