@@ -209,9 +209,11 @@ H^-1 J^T w~``, a sum over a whole flip that grows as the flip's count (``n``) wh
 stated sigma on that walk's 9 explained recordings of seeds 60-79).  The block sums see it: a 10 s block sums
 ten samples of ``w~`` coherently, so its share of the block sums' variance is ten times its share per sample.  The
 four-flip therefore asks the band test of every fit it called explained, as one family (:func:`family_p_value`:
-Bonferroni over the ten tests, the family's rate under white noise ``BAND_P_VALUE``, so about one clean
-recording in a hundred is widened by chance) and, where it passes, widens it: one channel's offset step where
-that leaves white block sums (:func:`offset_step`), else a random walk of each channel's offset, one size per
+Bonferroni over the ten tests) beside the walk's likelihood-ratio test
+(:func:`calibrate.diagnosis.walk.walk_p_value`, most powerful against a walk, whose power sits in the lowest
+bands), the two by Bonferroni at half ``BAND_P_VALUE`` each, the rate under white noise ``BAND_P_VALUE``, so about
+one clean recording in a hundred is widened by chance, and, where it passes, widens it: one channel's offset step
+where that leaves white block sums (:func:`offset_step`), else a random walk of each channel's offset, one size per
 channel from the block sums, its move propagated whole (:mod:`calibrate.diagnosis.walk`).  The earlier widening
 reused :func:`structure_in_time` here (measured, docs/benchmarks.md): on a weak walk the locked-to-the-turn
 columns took enough of it for the remainder to pass the band test (absence of evidence, not evidence of a locked
