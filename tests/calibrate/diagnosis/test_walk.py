@@ -109,7 +109,7 @@ def test_the_walk_test_and_its_family_hold_their_size_on_white_noise():
     """Under white noise the walk test's p-value is uniform where its statistic is not zero (its null is simulated
     from the same N(0, I) the block sums follow): it passes at 0.1 in 10 % of replicates, within three binomial
     standard errors; the Bonferroni family with the band test (the four-flip's ``block_test``) passes at 0.2 in at
-    most 20 %, within the same tolerance (at 0.01, 10 per 1000 replicates: tools/bench_walktest.py)."""
+    most 20 %, within the same tolerance (at 0.01 on a four-flip's design: 9 of 1000, tools/bench_walktest.py)."""
     t_s, own, jac, bread = _design()
     rng = np.random.default_rng(17)
     n, walk, family = 150, 0, 0
