@@ -240,9 +240,11 @@ H^-1 J^T w~``, a sum over a whole flip that grows as the flip's count (``n``) wh
 stated sigma on that walk's 9 explained recordings of seeds 60-79).  The block sums see it: a 10 s block sums
 ten samples of ``w~`` coherently, so its share of the block sums' variance is ten times its share per sample.  The
 four-flip therefore asks the band test of every fit it called explained, as one family (:func:`family_p_value`:
-Bonferroni over the ten tests, the family's rate under white noise ``BAND_P_VALUE``, so about one clean
-recording in a hundred is widened by chance) and, where it passes, widens it: one channel's offset step where
-that leaves white block sums (:func:`offset_step`), else a random walk of each channel's offset, one size per
+Bonferroni over the ten tests) beside the walk's likelihood-ratio test
+(:func:`calibrate.diagnosis.walk.walk_p_value`, most powerful against a walk, whose power sits in the lowest
+bands), the two by Bonferroni at half ``BAND_P_VALUE`` each, the rate under white noise ``BAND_P_VALUE``, so about
+one clean recording in a hundred is widened by chance, and, where it passes, widens it: one channel's offset step
+where that leaves white block sums (:func:`offset_step`), else a random walk of each channel's offset, one size per
 channel from the block sums, its move propagated whole (:mod:`calibrate.diagnosis.walk`).  The earlier widening
 reused :func:`structure_in_time` here (measured, docs/benchmarks.md): on a weak walk the locked-to-the-turn
 columns took enough of it for the remainder to pass the band test (absence of evidence, not evidence of a locked
@@ -785,8 +787,9 @@ def _quadratic(m: _BlockMoments, z: np.ndarray) -> np.ndarray:
     return np.stack([p @ p.transpose(0, 2, 1) for p in np.split(projected, m.splits[:-1], axis=2)], axis=1)
 
 
-def _band_p_values(m: _BlockMoments) -> np.ndarray:
-    """Each band's score-test p-value for structure, against its null distribution under white noise by simulation."""
+def _band_p_values(m: _BlockMoments, draws: int = NULL_DRAWS) -> np.ndarray:
+    """Each band's score-test p-value for structure, against its null distribution under white noise by simulation
+    (``draws`` of it)."""
     c = m.y.shape[0]
     entries = [(i, j) for i in range(c) for j in range(i, c)]
     basis = np.zeros((len(entries), c, c))
@@ -815,26 +818,27 @@ def _band_p_values(m: _BlockMoments) -> np.ndarray:
     # from chi-square): its null by simulation, z = A r ~ N(0, keep) under white noise, with a fixed seed
     rng = np.random.default_rng(0)
     exceed = np.zeros(len(m.bands))
-    for start in range(0, NULL_DRAWS, NULL_CHUNK):
-        g = rng.standard_normal((min(NULL_CHUNK, NULL_DRAWS - start), m.root.shape[1]))
+    for start in range(0, draws, NULL_CHUNK):
+        g = rng.standard_normal((min(NULL_CHUNK, draws - start), m.root.shape[1]))
         z = (g @ m.root.T).reshape(len(g), c, -1)
         exceed += np.sum(statistics(_quadratic(m, z), np.sum(g**2, axis=1)) >= observed, axis=0)
-    return (1.0 + exceed) / (1.0 + NULL_DRAWS)
+    return (1.0 + exceed) / (1.0 + draws)
 
 
 def band_p_values(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: np.ndarray,
-                  block_s: float = BLOCK_S, n_bands: int = N_BANDS) -> np.ndarray:
+                  block_s: float = BLOCK_S, n_bands: int = N_BANDS, draws: int = NULL_DRAWS) -> np.ndarray:
     """Stage 1 of :func:`time_correlated_covariance` alone: each band's p-value for structure (white first).
 
-    Parameters as :func:`time_correlated_covariance`.  Under white noise each is uniform on
-    ``[1 / (NULL_DRAWS + 1), 1]`` up to the simulation's error; a band counts at ``BAND_P_VALUE``.
+    Parameters as :func:`time_correlated_covariance`; ``draws`` of the null (the first ``NULL_DRAWS`` are
+    stage 1's).  Under white noise each is uniform on ``[1 / (draws + 1), 1]`` up to the simulation's error; a
+    band counts at ``BAND_P_VALUE``.
 
     Returns
     -------
     ndarray, shape (n_bands + 1,)
         White beyond the floor, then the bands from 0 Hz upward.
     """
-    return _band_p_values(_block_moments(jac, weighted, t_s, bread, block_s, n_bands))
+    return _band_p_values(_block_moments(jac, weighted, t_s, bread, block_s, n_bands), draws)
 
 
 def family_p_value(p_values: np.ndarray) -> float:

@@ -38,7 +38,8 @@ from ._jacobian import Partials
 from .effects import FourFlipEffect, NonlinearResponse
 
 __all__ = ["BIN_DEG", "Bins", "MLFit", "block_p_values", "cramer_rao", "fit_ml", "offset_step", "score_effect",
-           "structured_covariance", "step_size_output", "tangent_basis", "walk_covariance", "with_covariance"]
+           "structured_covariance", "step_size_output", "tangent_basis", "walk_covariance", "walk_p_value",
+           "with_covariance"]
 
 _BASE_PER_CHANNEL = 4  # u, v, offset, log gain
 _MAX_ITERATIONS = 100  # residual evaluations of one Levenberg-Marquardt fit (the Jacobian is analytic)
@@ -532,9 +533,10 @@ def offset_step(fit: MLFit, noise: np.ndarray, about_mean: bool = False):
     return step_of(fit.jac, weighted, t_s, bread, about_mean=about_mean)
 
 
-def block_p_values(fit: MLFit, noise: np.ndarray) -> np.ndarray:
+def block_p_values(fit: MLFit, noise: np.ndarray, draws: int) -> np.ndarray:
     """Each band's p-value for structure in the fit's residual summed over time blocks
-    (:func:`calibrate.diagnosis.robust.band_p_values`; white beyond the floor first), on the bins the fit ran on.
+    (:func:`calibrate.diagnosis.robust.band_p_values`, ``draws`` of its null; white beyond the floor first), on the
+    bins the fit ran on.
 
     Returns
     -------
@@ -543,7 +545,16 @@ def block_p_values(fit: MLFit, noise: np.ndarray) -> np.ndarray:
     from ..diagnosis.robust import band_p_values
 
     weighted, t_s, bread = _weighted_residual(fit, noise)
-    return band_p_values(fit.jac, weighted, t_s, bread)
+    return band_p_values(fit.jac, weighted, t_s, bread, draws=draws)
+
+
+def walk_p_value(fit: MLFit, noise: np.ndarray) -> float:
+    """The p-value of "no channel's offset walks" in the fit's residual summed over time blocks
+    (:func:`calibrate.diagnosis.walk.walk_p_value`), on the bins the fit ran on."""
+    from ..diagnosis.walk import walk_p_value as p_value_of
+
+    weighted, t_s, bread = _weighted_residual(fit, noise)
+    return p_value_of(fit.jac, weighted, t_s, bread, row_weight=fit.bins.root_n)
 
 
 def _weighted_residual(fit: MLFit, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

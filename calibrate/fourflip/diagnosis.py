@@ -30,7 +30,9 @@ with the tumble and the fits against known inputs):
    covers).
 7. An explained fit is asked once more, across the recording: the residual summed over 10 s blocks, the band
    test of the unexplained widening (:func:`calibrate.diagnosis.robust.band_p_values`) as one family
-   (:func:`calibrate.diagnosis.robust.family_p_value`, ``block_test``).  Where it passes, a wander the named
+   (:func:`calibrate.diagnosis.robust.family_p_value`) and the likelihood-ratio test of no walk of any channel's
+   offset (:func:`calibrate.diagnosis.walk.walk_p_value`: the walk's power sits in the lowest modes, which the
+   band family spreads over ten tests), the two by Bonferroni (``block_test``).  Where it passes, a wander the named
    effects do not follow (a random walk of an offset, under a polynomial drift) remains below the floor in
    each sample but moves the directions between flips; the fit keeps its verdict and effects and its
    covariance is widened (``wander_cost``): for one channel's offset step where that explains the whole structure,
@@ -47,10 +49,11 @@ from compass.sim.bench import BenchSamples
 from ._form import ResponseMisfit, response_form_check, response_form_test, response_misfit
 from ._unseen import platform_prior
 from ._mlfit import (MLFit, block_p_values, curve_coefficients, fit_ml, offset_step, score_effect, step_size_output,
-                     structured_covariance, walk_covariance, with_covariance)
+                     structured_covariance, walk_covariance, walk_p_value, with_covariance)
 from ..diagnosis.evidence import DECISIVE_BIC, STRUCTURE_P, Proposal, gather_forms, is_unexplained, select_effects
 from ..diagnosis.report import format_diagnosis
-from ..diagnosis.robust import BAND_P_VALUE, BLOCK_S, extra_sigma, family_p_value, heading_sigma_deg, widened
+from ..diagnosis.robust import (BAND_P_VALUE, BLOCK_S, NULL_DRAWS, extra_sigma, family_p_value, heading_sigma_deg,
+                                widened)
 from .effects import VARIANTS, FourFlipEffect
 from ..noise import DITHER_FRACTION, chi2_sf, dithered, lattice_step, noise_floor
 
@@ -59,6 +62,9 @@ __all__ = ["DECISIVE_BIC", "FORM_WARNING", "UNEXPLAINED_WARNING", "WANDER_WARNIN
            "unexplained_warning"]
 
 STRUCTURE_HARMONICS = 6
+WANDER_BAND_DRAWS = 2 * NULL_DRAWS
+"""Null draws of the block test's band family under an explained fit: at half ``BAND_P_VALUE`` beside the walk's
+test it passes where one band's statistic is beyond every draw, ``(N_BANDS + 1) / (WANDER_BAND_DRAWS + 1)``."""
 UNEXPLAINED_WARNING = ("structure remains in the residual above the noise floor: the recording has an effect "
                        "the model lacks (see the diagnosis); the uncertainties are widened to cover it "
                        "(the diagnosis's unexplained_cost)")
@@ -197,8 +203,11 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         misfit = None if form is None or form.p_value >= STRUCTURE_P else response_misfit(current, noise, judged)
         current, diagnosis["unexplained_cost"] = _widen(current, noise, rec.channels, about_mean=True, misfit=misfit)
     elif unexplained is False:  # at the floor sample by sample: does a wander remain across blocks of time?
-        family = family_p_value(block_p_values(current, noise))
-        diagnosis["block_test"] = {"p_value": family, "threshold": BAND_P_VALUE}
+        bands = family_p_value(block_p_values(current, noise, WANDER_BAND_DRAWS))
+        walk = walk_p_value(current, noise)
+        family = family_p_value(np.array([bands, walk]))  # each at half BAND_P_VALUE: white noise's rate as before
+        diagnosis["block_test"] = {"p_value": family, "threshold": BAND_P_VALUE, "bands_p_value": bands,
+                                   "walk_p_value": walk}
         if family <= BAND_P_VALUE:
             current, diagnosis["wander_cost"] = _widen_walk(current, noise, rec.channels)
     current, unseen = _unseen_platform(current, noise, rec.channels)
