@@ -15,7 +15,9 @@ of the six soft-iron entries) is added: ``da' = (I - a' a'^T) dS a / k``, ``dk =
 ``dV0 = K a . dh`` (cross-correlations between bench and installation are neglected: they come
 from independent recordings).  A bench channel's joint covariance of its direction, offset and gain
 (``SensorModel.joint_covariance``) goes through the same map, its correlations kept, with the
-installation's terms added to its diagonal blocks: its marginals stay the installed sigmas.
+installation's terms added to its diagonal blocks: its marginals stay the installed sigmas.  A bench channel's
+response curve's coefficients (an 8 x 8 joint covariance) are not carried: the installed curve is the bench's
+shifted and scaled (``f(k x' + a . h)``), not a cubic in ``x'``, so its 5 x 5 block goes through the map.
 
 With an ``alignment`` (``R_product<-housing``) the installed model is written in the product's
 frame: directions ``A a'``; the module's accelerometer must be turned the same way
@@ -164,7 +166,7 @@ def _installed_joint(base: SensorModel, direction_jac: np.ndarray, k: np.ndarray
             continue
         m = np.zeros((5, 5))
         m[:3, :3], m[3, 3], m[4, 4] = direction_jac[c], 1.0, k[c]
-        moved = m @ joint @ m.T
+        moved = m @ joint[:5, :5] @ m.T  # a curve's coefficients left behind (module docstring)
         if added is not None:
             moved[:3, :3] += added[0][c]
             moved[3, 3] += added[1][c]

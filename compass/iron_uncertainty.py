@@ -264,8 +264,11 @@ class ChannelUncertainty:
         \\mathrm{var}_c = w^T S_c w, \\qquad w = (B, 1 / K_c, x_c / K_c),
 
     every error moving the solved component the same way (``-(B . da + dV0 / K + x dK / K)``); with ``S_c``
-    block-diagonal this is the line above (:func:`calibrate.diagnosis.robust.heading_sigma_deg` is the four-flip's
-    own).  The channels' errors are taken as independent (the file gives no correlations between channels).
+    block-diagonal this is the line above.  A channel read through a response curve ``g(x) = x + sum_k c_k x^k``
+    whose ``S_c`` carries the curve's coefficients too (8 x 8, ``curves``) takes :func:`joint_weights`' curve
+    levers ``w = (B, 1 / (K g'), g / (K g'), x^k / g')`` at its ``x``.  This is the one formula
+    :func:`calibrate.diagnosis.robust.heading_sigma_deg` (the four-flip's own) uses too.  The channels' errors are
+    taken as independent (the file gives no correlations between channels).
 
     Attributes
     ----------
@@ -283,11 +286,16 @@ class ChannelUncertainty:
     prior : ChannelUncertainty or None
         The priors' part alone (zeros elsewhere): what they add (:meth:`cost_deg`); None when nothing is
         undetermined.
-    joint_covariance : ndarray, shape (c, 5, 5), or None
+    joint_covariance : ndarray, shape (c, 5, 5) or (c, 8, 8), or None
         Each channel's joint covariance of its direction (rad^2), offset and gain (the units of
         ``response_sigma``); when given it is used in place of ``direction_covariance`` and ``response_sigma``
         (a channel the file gives none for holds its independent form: :func:`independent_joint`).  None: the
-        three taken as independent.
+        three taken as independent.  (c, 8, 8) with ``curves``: the curve's coefficients after the gain
+        (quadratic, cubic, quintic; zero rows for a channel without them).
+    curves : ndarray, shape (c, 3), or None
+        Each channel's curve coefficients (quadratic, cubic, quintic; 1 / field unit^(k - 1), as
+        :class:`compass.response.CubicResponse` holds them), zeros for a channel without an 8 x 8 joint covariance;
+        None: linear levers.
     """
 
     unit_directions: np.ndarray
@@ -298,6 +306,13 @@ class ChannelUncertainty:
     undetermined: tuple = ()
     prior: "ChannelUncertainty | None" = None
     joint_covariance: np.ndarray | None = None
+    curves: np.ndarray | None = None
+
+    def __post_init__(self):
+        size = 5 if self.curves is None else 8
+        if self.joint_covariance is not None and np.shape(self.joint_covariance)[1:] != (size, size):
+            raise ValueError(f"joint_covariance must be (c, {size}, {size}) "
+                             f"{'with' if size == 8 else 'without'} curves, got {np.shape(self.joint_covariance)}")
 
     def cost_deg(self, field_norm: float, dip_deg: float) -> float:
         """As :meth:`TumbleUncertainty.cost_deg`."""
@@ -308,7 +323,7 @@ class ChannelUncertainty:
         squared."""
         b = np.asarray(field_h, dtype=float)
         if self.joint_covariance is not None:
-            w = joint_weights(b, self.unit_directions, self.gains)
+            w = joint_weights(b, self.unit_directions, self.gains, self.curves)
             return np.einsum("...ci,cij,...cj->...c", w, self.joint_covariance, w)
         x = np.einsum("...i,ci->...c", b, self.unit_directions)
         var = np.zeros_like(x)
@@ -326,8 +341,9 @@ class ChannelUncertainty:
     @cached_property
     def _scalars(self) -> tuple:
         """Per channel, as Python floats: ``a_c``, ``P``'s column, ``Sigma_a`` row by row (or None), the offset
-        and gain variances over ``K^2`` (0 when not given), and ``1 / K`` with the joint covariance row by row
-        (None without one; it then replaces the three before)."""
+        and gain variances over ``K^2`` (0 when not given), ``1 / K`` with the joint covariance row by row
+        (None without one; it then replaces the three before), and the curve's coefficients (quadratic, cubic,
+        quintic; zeros without ``curves``)."""
         rows = lambda m: tuple(tuple(float(v) for v in row) for row in m)  # noqa: E731
         out = []
         for c in range(len(self.gains)):
@@ -336,8 +352,9 @@ class ChannelUncertainty:
             off, gain = (0.0, 0.0) if self.response_sigma is None else \
                 (float(self.response_sigma[c, 0]) ** 2 / k2, float(self.response_sigma[c, 1]) ** 2 / k2)
             joint = None if self.joint_covariance is None else rows(self.joint_covariance[c])
+            curve = (0.0, 0.0, 0.0) if self.curves is None else tuple(float(v) for v in self.curves[c])
             out.append((tuple(float(v) for v in self.unit_directions[c]), tuple(float(v) for v in self.solver[:, c]),
-                        cov, off, gain, 1.0 / float(self.gains[c]), joint))
+                        cov, off, gain, 1.0 / float(self.gains[c]), joint, curve))
         return tuple(out)
 
     def heading_sigma_deg(self, matrix, field_h) -> float:
@@ -354,11 +371,14 @@ class ChannelUncertainty:
         if not horizontal2 > 0.0:
             return math.inf
         var = 0.0
-        for a, p, cov, off, gain, inverse_gain, joint in self._scalars:
+        for a, p, cov, off, gain, inverse_gain, joint, curve in self._scalars:
             x = a[0] * bx + a[1] * by + a[2] * bz
-            if joint is not None:  # w^T S w, w = (B, 1 / K, x / K)
-                w = (bx, by, bz, inverse_gain, x * inverse_gain)
-                v = sum(w[i] * sum(joint[i][j] * w[j] for j in range(5)) for i in range(5))
+            if joint is not None:  # w^T S w, w = (B, 1 / (K g'), g / (K g'), x^k / g'): joint_weights'
+                q, c3, c5 = curve
+                slope = 1.0 + 2.0 * q * x + 3.0 * c3 * x * x + 5.0 * c5 * x**4
+                w = (bx, by, bz, inverse_gain / slope, (x + q * x * x + c3 * x**3 + c5 * x**5) * inverse_gain / slope,
+                     x * x / slope, x**3 / slope, x**5 / slope)[:len(joint)]
+                v = sum(w[i] * sum(joint[i][j] * w[j] for j in range(len(w))) for i in range(len(w)))
             else:
                 v = off + x * x * gain
                 if cov is not None:
@@ -460,17 +480,20 @@ def independent_joint(direction_covariance, response_sigma) -> np.ndarray:
     return out
 
 
-def joint_problem(joint, direction_covariance, response_sigma) -> str | None:
+def joint_problem(joint, direction_covariance, response_sigma, curve: bool = False) -> str | None:
     """Why ``joint`` is not a channel's joint covariance whose marginals are the sigmas beside it; None when it is.
 
     Parameters
     ----------
-    joint : array_like, shape (5, 5)
-        Of the direction (rad), offset and gain (output units, output units per field unit).
+    joint : array_like, shape (5, 5) or (8, 8)
+        Of the direction (rad), offset and gain (output units, output units per field unit); 8 x 8: then the
+        response curve's quadratic, cubic and quintic coefficients (1 / field unit^(k - 1)).
     direction_covariance : array_like, shape (3, 3), or None
         rad^2.
     response_sigma : sequence of 2 (float or None), or None
         The offset's and the gain's sigmas.
+    curve : bool
+        Whether the channel's response has a curve's coefficients (a cubic response): an 8 x 8 needs one.
 
     Returns
     -------
@@ -478,15 +501,19 @@ def joint_problem(joint, direction_covariance, response_sigma) -> str | None:
         The reason in words (a message's tail, after the key's name).
     """
     joint = np.asarray(joint, dtype=float)
-    if joint.shape != (5, 5):
-        return f"must be 5 x 5 (the direction's 3, the offset, the gain), got shape {joint.shape}"
+    if joint.shape not in ((5, 5), (8, 8)):
+        return (f"must be 5 x 5 (the direction's 3, the offset, the gain) or 8 x 8 (then the response curve's "
+                f"quadratic, cubic, quintic), got shape {joint.shape}")
+    if joint.shape == (8, 8) and not curve:
+        return "is 8 x 8 (a response curve's coefficients) but the channel's response has no curve (not cubic)"
     if not np.all(np.isfinite(joint)):
         return "must be finite"
     if direction_covariance is None or response_sigma is None or any(v is None for v in response_sigma):
         return ("comes without the channel's direction_covariance and both response_sigma entries: its marginals "
                 "must be those")
     sigma = np.array(response_sigma, dtype=float)
-    scale = np.concatenate([np.full(3, np.sqrt(max(np.trace(direction_covariance), 0.0))), sigma])
+    scale = np.concatenate([np.full(3, np.sqrt(max(np.trace(direction_covariance), 0.0))), sigma,
+                            np.sqrt(np.maximum(np.diag(joint)[5:], 0.0))])
     scale[scale == 0.0] = 1.0
     unit = joint / np.outer(scale, scale)
     if np.max(np.abs(unit - unit.T)) > JOINT_TOLERANCE:
@@ -494,7 +521,7 @@ def joint_problem(joint, direction_covariance, response_sigma) -> str | None:
     if np.linalg.eigvalsh(0.5 * (unit + unit.T))[0] < -JOINT_TOLERANCE:
         return "must be a covariance (positive semi-definite)"
     if (np.max(np.abs(unit[:3, :3] - np.asarray(direction_covariance) / scale[0] ** 2)) > JOINT_TOLERANCE
-            or np.any(np.abs(np.sqrt(np.maximum(np.diag(joint)[3:], 0.0)) - sigma) > JOINT_TOLERANCE * scale[3:])):
+            or np.any(np.abs(np.sqrt(np.maximum(np.diag(joint)[3:5], 0.0)) - sigma) > JOINT_TOLERANCE * scale[3:5])):
         return ("must have the channel's direction_covariance and response_sigma as its marginals (its direction "
                 "block and the square roots of its last two diagonal entries)")
     return None

@@ -28,7 +28,7 @@ from functools import cached_property
 import numpy as np
 
 from .iron_uncertainty import ChannelUncertainty, TumbleUncertainty, independent_joint, joint_problem
-from .response import LinearResponse, Response
+from .response import CubicResponse, LinearResponse, Response
 from .temperature import TemperatureCompensation
 
 __all__ = ["NotAFieldVector", "SensorModel"]
@@ -90,13 +90,15 @@ class SensorModel:
         covariance (c, 3, 3), response sigma (c, 2), words)`` from
         :func:`compass.iron_uncertainty.channel_priors`, already in :attr:`direction_covariance` and
         :attr:`response_sigma`; None when nothing took one.
-    joint_covariance : tuple of (ndarray of shape (5, 5) or None), or None
+    joint_covariance : tuple of (ndarray of shape (5, 5) or (8, 8), or None), or None
         Each channel's joint covariance of its direction (rad^2), offset and gain (the units of
         :attr:`response_sigma`), whose marginals are :attr:`direction_covariance` and :attr:`response_sigma`
         (checked): a four-flip's, whose direction, offset and gain errors are correlated within a channel (a
-        warm-up during the first flip).  The runtime's calibration sigma then keeps the correlations
-        (:class:`compass.iron_uncertainty.ChannelUncertainty`); a channel's None takes the three as
-        independent; None when no channel has one.
+        warm-up during the first flip).  8 x 8 for a channel with a cubic response: then its curve's quadratic,
+        cubic and quintic coefficients (1 / field unit^(k - 1), as the response holds them), which trade against
+        the gain.  The runtime's calibration sigma then keeps the correlations, through the curve's levers at the
+        channel's field (:class:`compass.iron_uncertainty.ChannelUncertainty`); a channel's None takes the three
+        as independent; None when no channel has one.
     mag_latency_s : float
         How late the magnetometer reads against the gyro, s: a tumble's gyro-aided fit's
         ``tumble.gyro.mag_latency_s`` when it saw one (positive, beyond 3 sigma), else 0.
@@ -172,7 +174,7 @@ class SensorModel:
                 continue
             cov = None if self.direction_covariance is None else self.direction_covariance[c]
             sigma = None if self.response_sigma is None else self.response_sigma[c]
-            problem = joint_problem(s, cov, sigma)
+            problem = joint_problem(s, cov, sigma, isinstance(self.responses[c], CubicResponse))
             if problem is not None:
                 raise ValueError(f"channel {self.channels[c]}'s joint_covariance {problem}")
         object.__setattr__(self, "joint_covariance", tuple(None if s is None else np.asarray(s, dtype=float)
@@ -214,20 +216,36 @@ class SensorModel:
         w = 1.0 / noise**2 if known else np.ones(len(a))
         return np.linalg.solve(a.T @ (w[:, None] * a), a.T * w[None, :])
 
+    def _joint_and_curves(self) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """:attr:`joint_covariance` stacked for :class:`compass.iron_uncertainty.ChannelUncertainty`: a channel
+        without one holds its sigmas (priors included) as independent; all 8 x 8 when any channel carries its
+        curve (the others with zero curve rows), with each channel's curve coefficients (zeros for a channel whose
+        joint covariance is 5 x 5: its levers are the linear ones, as before curves), else curves None."""
+        if self.joint_covariance is None:
+            return None, None
+        joints = [independent_joint(None if self.direction_covariance is None else self.direction_covariance[c],
+                                    None if self.response_sigma is None else self.response_sigma[c])
+                  if s is None else s for c, s in enumerate(self.joint_covariance)]
+        curved = [len(s) == 8 for s in joints]
+        if not any(curved):
+            return np.stack(joints), None
+        out = np.zeros((len(joints), 8, 8))
+        for c, s in enumerate(joints):
+            out[c, :len(s), :len(s)] = s
+        curves = np.array([[getattr(r, k) for k in ("quadratic", "cubic", "quintic")] if is_curved else [0.0] * 3
+                           for r, is_curved in zip(self.responses, curved)], dtype=float)
+        return out, curves
+
     @cached_property
     def _channel_uncertainty(self) -> ChannelUncertainty:
-        joint = None
-        if self.joint_covariance is not None:  # a channel without one: its sigmas (priors included), independent
-            joint = np.stack([independent_joint(None if self.direction_covariance is None else self.direction_covariance[c],
-                                                None if self.response_sigma is None else self.response_sigma[c])
-                              if s is None else s for c, s in enumerate(self.joint_covariance)])
+        joint, curves = self._joint_and_curves()
         if self.sigma_priors is None:
             return ChannelUncertainty(self.unit_directions, self.solver, self.gains, self.direction_covariance,
-                                      self.response_sigma, joint_covariance=joint)
+                                      self.response_sigma, joint_covariance=joint, curves=curves)
         cov, sigma, words = self.sigma_priors
         prior = ChannelUncertainty(self.unit_directions, self.solver, self.gains, cov, sigma)
         return ChannelUncertainty(self.unit_directions, self.solver, self.gains, self.direction_covariance,
-                                  self.response_sigma, words, prior, joint)
+                                  self.response_sigma, words, prior, joint, curves)
 
     @cached_property
     def calibration_uncertainty(self) -> TumbleUncertainty | ChannelUncertainty | None:
@@ -317,7 +335,8 @@ class SensorModel:
                 + \\frac{\\sigma_{V0,c}^2 + x_c^2 \\sigma_{K,c}^2}{K_c^2}
 
         (with a channel's :attr:`joint_covariance` the last two terms are its quadratic form ``w^T S_c w``,
-        the correlations kept: :class:`compass.iron_uncertainty.ChannelUncertainty`)
+        the correlations kept, through its curve's levers when it is 8 x 8:
+        :class:`compass.iron_uncertainty.ChannelUncertainty`)
 
         Parameters
         ----------

@@ -309,7 +309,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.optimize import lsq_linear
 
-from compass.iron_uncertainty import joint_weights
+from compass.iron_uncertainty import ChannelUncertainty, joint_weights
 
 from .evidence import DECISIVE_BIC
 
@@ -478,7 +478,9 @@ def heading_sigma_deg(directions: np.ndarray, direction_covariance: np.ndarray, 
     A response curve ``g(x) = x + sum_k c_k x^k`` (``curves``) adds its coefficients' errors to the joint
     covariance, ``w = (B, 1 / (K g'), g / (K g'), x^k / g')`` (:func:`compass.iron_uncertainty.joint_weights`):
     a curve and a gain trade against each other over the field range a channel sees (correlation near -1),
-    so together they move the heading less than the gain's variance alone says.
+    so together they move the heading less than the gain's variance alone says.  The per-channel variance is the
+    runtime's own (:meth:`compass.iron_uncertainty.ChannelUncertainty.component_variance`, one formula); the
+    offsets' cross terms move the components by ``dV0 / (K g')`` at each heading's ``x``, the offset's lever.
 
     Parameters
     ----------
@@ -525,12 +527,14 @@ def heading_sigma_deg(directions: np.ndarray, direction_covariance: np.ndarray, 
         channel_covariance = np.zeros((c, 5, 5))
         channel_covariance[:, :3, :3] = direction_covariance
         channel_covariance[:, 3, 3], channel_covariance[:, 4, 4] = response_var[:, 0], response_var[:, 1]
-    w = joint_weights(b, directions, gains, curves)  # (h, c, 5 or 8): the solved component's move per error
-    var = np.einsum("hci,cij,hcj->hc", w, np.nan_to_num(np.asarray(channel_covariance, dtype=float)), w)
+    own = ChannelUncertainty(directions, solver, gains, curves=curves,
+                             joint_covariance=np.nan_to_num(np.asarray(channel_covariance, dtype=float)))
+    var = own.component_variance(b)  # (h, c)
     cross = np.zeros((c, c)) if offset_covariance is None else np.nan_to_num(np.asarray(offset_covariance, dtype=float))
-    cross = (cross - np.diag(np.diag(cross))) / np.outer(gains, gains)
+    cross = cross - np.diag(np.diag(cross))
     lever = across @ solver  # (h, c), signed
-    total = np.sum(lever**2 * var, axis=1) + np.einsum("hc,cd,hd->h", lever, cross, lever)
+    moved = lever * joint_weights(b, directions, gains, curves)[..., 3]  # times the offset's lever 1 / (K g')
+    total = np.sum(lever**2 * var, axis=1) + np.einsum("hc,cd,hd->h", moved, cross, moved)
     return float(np.degrees(np.sqrt(np.mean(total)) / (field_norm * np.cos(dip))))
 
 

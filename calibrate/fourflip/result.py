@@ -41,7 +41,9 @@ class ChannelCalibration:
     curve_covariance : ndarray, shape (8, 8), or None
         With a nonlinear response: ``joint_covariance`` and the curve's coefficients (quadratic, cubic, quintic,
         as ``response`` holds them) after it (:meth:`calibrate.fourflip._mlfit.MLFit.curve_covariance`); the
-        heading sigma's terms (:func:`calibrate.diagnosis.robust.heading_sigma_deg`).  Not in the file.
+        heading sigma's terms (:func:`calibrate.diagnosis.robust.heading_sigma_deg`).  Written as the channel's
+        ``joint_covariance`` in place of the 5 x 5 when finite (the runtime's heading sigma then carries the
+        curve's errors too).
     """
 
     name: str
@@ -158,6 +160,8 @@ class FourFlipResult(CalibrationResult):
         channels = {}
         for ch in self.channels:
             joint = ch.joint_covariance
+            if ch.curve_covariance is not None and np.all(np.isfinite(ch.curve_covariance)):
+                joint = ch.curve_covariance
             entry = channel_entry(ch.direction, ch.response.to_json(), covariance=ch.direction_covariance,
                                   response_sigma=None if ch.offset_sigma is None else (ch.offset_sigma, ch.gain_sigma),
                                   joint_covariance=joint if joint is not None and np.all(np.isfinite(joint)) else None)

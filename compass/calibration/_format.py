@@ -37,10 +37,12 @@ def channel_entry(direction, response: dict, *, covariance=None, response_sigma=
         Covariance of the direction (rad^2), written with ``direction_sigma_deg`` (null without it).
     response_sigma : (float, float), optional
         Standard errors of (offset, gain), output units and output units per field unit.
-    joint_covariance : array_like, shape (5, 5), optional
+    joint_covariance : array_like, shape (5, 5) or (8, 8), optional
         The joint covariance of the direction (3, rad), offset and gain (the units above) whose marginals are
         ``covariance`` and ``response_sigma`` (written as ``joint_covariance``; the runtime's heading sigma then
-        keeps their correlations: :class:`compass.iron_uncertainty.ChannelUncertainty`).  Finite.
+        keeps their correlations: :class:`compass.iron_uncertainty.ChannelUncertainty`).  Finite.  8 x 8 for a
+        cubic ``response``: its quadratic, cubic and quintic coefficients after the gain, in the response's units
+        (1 / field unit^(k - 1)).
     angles : bool
         Add seed 000's angles ``theta_deg, gamma_deg, elevation_deg, psi_deg``.
 

@@ -314,7 +314,8 @@ def _channel_model(d: dict):
                                            f"{gain / gain_sigma:.1f} sigma from zero (a dead or disconnected sensor); "
                                            "recalibrate the module after repair", key=key)
         sigmas.append(rs)
-        joints.append(_joint_covariance(ch.get("joint_covariance"), cov, rs, check.sub(key, "joint_covariance")))
+        joints.append(_joint_covariance(ch.get("joint_covariance"), cov, rs, responses[-1],
+                                        check.sub(key, "joint_covariance")))
     gains = np.array([r.gain for r in responses])
     covariance, sigma, priors = _channel_sigmas(names, np.array(directions), gains, field_ut or 1.0, covariances,
                                                 sigmas)
@@ -341,15 +342,22 @@ def _channel_model(d: dict):
         raise CalibrationFileError(f"are unusable: {exc}", key="channels") from None
 
 
-def _joint_covariance(value, direction_covariance, response_sigma, key):
+def _joint_covariance(value, direction_covariance, response_sigma, response, key):
     """A channel's ``joint_covariance`` (5 x 5: its direction's, offset's and gain's covariance, whose marginals are
-    the channel's ``direction_covariance`` and ``response_sigma``), or None when absent or null."""
+    the channel's ``direction_covariance`` and ``response_sigma``; 8 x 8 for a cubic ``response``: then its
+    quadratic, cubic and quintic coefficients' too), or None when absent or null."""
     from ..iron_uncertainty import joint_problem
+    from ..response import CubicResponse
 
     if value is None:
         return None
-    joint = check.array(value, (5, 5), key)
-    problem = joint_problem(joint, direction_covariance, response_sigma)
+    size = len(value) if isinstance(value, list) else 0
+    if size not in (5, 8):
+        raise CalibrationFileError(f"must be 5x5 (the direction's 3, the offset, the gain) or 8x8 (then the "
+                                   f"response curve's quadratic, cubic, quintic) nested lists of numbers, got "
+                                   f"{check.show(value)}", key=key)
+    joint = check.array(value, (size, size), key)
+    problem = joint_problem(joint, direction_covariance, response_sigma, isinstance(response, CubicResponse))
     if problem is not None:
         raise CalibrationFileError(problem, key=key)
     return joint

@@ -118,10 +118,10 @@ def _bad(doc, how):
 
 
 @pytest.mark.parametrize("how, words", [
-    ("shape", "must be 5x5 nested lists of numbers"), ("non-finite", "must be finite"),
+    ("shape", "must be 5x5 (the direction's 3, the offset, the gain) or 8x8"), ("non-finite", "must be finite"),
     ("asymmetric", "must be symmetric"), ("not PSD", "must be a covariance (positive semi-definite)"),
     ("not the file's sigmas", "must have the channel's direction_covariance and response_sigma as its marginals"),
-    ("text", "must be 5x5 nested lists of numbers")])
+    ("text", "must be 5x5 (the direction's 3, the offset, the gain) or 8x8")])
 def test_a_malformed_key_is_refused_naming_the_file_and_key(warm_up, tmp_path, capsys, how, words):
     cal = tmp_path / "cal.json"
     cal.write_text(json.dumps(_bad(warm_up, how)))  # json writes inf as Infinity, as a careless tool would
@@ -164,3 +164,88 @@ def test_an_installed_model_keeps_the_correlations_and_its_marginals_are_its_sig
                                    atol=1e-12 * model.direction_covariance[c].max())
     same = installed_model(base, np.zeros(3), np.eye(3))
     assert _runtime_rms_deg(same) == pytest.approx(_runtime_rms_deg(base), rel=1e-9)
+
+
+@pytest.fixture(scope="module")
+def cubic(tmp_path_factory):
+    """A four-flip of a saturating sensor (the loop fits a cubic), calibrated; its file's document."""
+    from calibrate import calibrate_fourflip
+    from compass.io.fourflip import read_fourflip
+    from compass.sim.fourflip import simulate_fourflip, write_fourflip
+
+    path, _ = write_fourflip(simulate_fourflip(seed=200, effects=("nonlinear_response",)),
+                             tmp_path_factory.mktemp("cubic") / "rec.csv")
+    result = calibrate_fourflip(read_fourflip(path), diagnose=True)
+    assert "nonlinear_response" in result.diagnosis["effects"]
+    return result, json.loads(dumps(result.to_json()))
+
+
+def _curves(model) -> np.ndarray:
+    return np.array([[r.quadratic, r.cubic, r.quintic] for r in model.responses])
+
+
+def test_a_file_with_a_curve_round_trips_its_8x8_block(cubic):
+    """The file's ``joint_covariance`` of a cubic channel is the fit's 8 x 8 (direction, offset, gain, quadratic,
+    cubic, quintic in the response's units); read, written by ``model_to_dict`` and read again it is unchanged."""
+    from compass.calibration import model_to_dict
+
+    result, doc = cubic
+    model = from_dict(doc).model
+    for c, ch in enumerate(result.channels):
+        assert np.shape(doc["channels"][ch.name]["joint_covariance"]) == (8, 8)
+        np.testing.assert_array_equal(model.joint_covariance[c], ch.curve_covariance)
+        assert doc["channels"][ch.name]["response"]["cubic"] == ch.response.cubic
+    again = from_dict(json.loads(dumps(model_to_dict(model)))).model
+    for a, b in zip(again.joint_covariance, model.joint_covariance):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_the_runtime_heading_sigma_with_a_curve_is_the_four_flips_own(cubic):
+    """Reference relation: the runtime's heading sigma (per sample, RMS over level headings) from a file with the
+    curve's block is :func:`calibrate.diagnosis.robust.heading_sigma_deg` with the curves; the vectorised path
+    agrees; the 5 x 5 block alone (a file before the curve's) reads and gives the linear levers' number."""
+    _, doc = cubic
+    model = from_dict(doc).model
+    runtime = _runtime_rms_deg(model)
+    curved = heading_sigma_deg(model.unit_directions, model.direction_covariance, model.response_sigma**2,
+                               model.gains, model.dip_deg, model.field_norm, N_HEADINGS,
+                               channel_covariance=np.stack(model.joint_covariance), curves=_curves(model))
+    assert runtime == pytest.approx(curved, rel=1e-9)
+    rot = r_world_from_housing(np.arange(0.0, 360.0, 30.0), 7.0, -4.0)
+    fields = rot.apply(world_field(model.dip_deg, model.field_norm), inverse=True)
+    own = model.calibration_uncertainty
+    scalar = [with_calibration_sigma(0.3, own, m, b) for m, b in zip(rot.as_matrix(), fields)]
+    np.testing.assert_allclose(with_calibration_sigma_many(np.full(len(fields), 0.3), own, rot.as_matrix(), fields),
+                               scalar, rtol=1e-9)
+    old = json.loads(json.dumps(doc))
+    for ch in old["channels"].values():
+        ch["joint_covariance"] = np.array(ch["joint_covariance"])[:5, :5].tolist()
+    linear = from_dict(old).model
+    assert linear.calibration_uncertainty.curves is None
+    assert _runtime_rms_deg(linear) == pytest.approx(_four_flip_rms_deg(linear, np.stack(linear.joint_covariance)),
+                                                     rel=1e-9)
+    assert abs(runtime / _runtime_rms_deg(linear) - 1.0) > 0.01  # the curve's errors matter here
+
+
+@pytest.mark.parametrize("how, words", [
+    ("6x6", "must be 5x5 (the direction's 3, the offset, the gain) or 8x8"),
+    ("asymmetric", "must be symmetric"),
+    ("linear", "is 8 x 8 (a response curve's coefficients) but the channel's response has no curve")])
+def test_a_malformed_curve_block_is_refused_naming_the_file_channel_and_key(cubic, tmp_path, how, words):
+    _, doc = cubic
+    bad = json.loads(json.dumps(doc))
+    name, ch = next(iter(bad["channels"].items()))
+    joint = np.array(ch["joint_covariance"])
+    if how == "6x6":
+        joint = joint[:6, :6]
+    elif how == "asymmetric":
+        joint[4, 6] += 0.5 * np.sqrt(joint[4, 4] * joint[6, 6])
+    else:
+        ch["response"] = {k: v for k, v in ch["response"].items() if k not in ("cubic", "quadratic", "quintic")}
+        ch["response"]["model"] = "linear"
+    ch["joint_covariance"] = joint.tolist()
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps(bad))
+    with pytest.raises(CalibrationFileError) as info:
+        load(cal)
+    assert str(info.value).startswith(f"{cal}: channel '{name}': 'joint_covariance' ") and words in str(info.value)
