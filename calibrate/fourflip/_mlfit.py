@@ -37,9 +37,9 @@ from ..diagnosis.forms import session_bin
 from ._jacobian import Partials
 from .effects import FourFlipEffect, NonlinearResponse
 
-__all__ = ["BIN_DEG", "Bins", "MLFit", "block_p_values", "cramer_rao", "fit_ml", "offset_step", "score_effect",
-           "structured_covariance", "step_size_output", "tangent_basis", "walk_covariance", "walk_p_value",
-           "with_covariance"]
+__all__ = ["BIN_DEG", "Bins", "MLFit", "block_p_values", "cramer_rao", "curve_coefficients", "fit_ml", "offset_step",
+           "score_effect", "structured_covariance", "step_size_output", "tangent_basis", "walk_covariance",
+           "walk_p_value", "with_covariance"]
 
 _BASE_PER_CHANNEL = 4  # u, v, offset, log gain
 _MAX_ITERATIONS = 100  # residual evaluations of one Levenberg-Marquardt fit (the Jacobian is analytic)
@@ -167,20 +167,7 @@ class MLFit:
         A parameter the fit could not determine (its covariance row NaN) makes NaN only the rows and columns
         that depend on it: the others keep their terms, as the per-parameter sigmas do.
         """
-        c = self.layout.c
-        gains = self.physics.gains
-        out = np.empty((c, 5, 5))
-        for ch in range(c):
-            m = np.zeros((5, _BASE_PER_CHANNEL))
-            m[:3, :2] = _direction_map(self.layout, self.x, ch)
-            m[3, 2], m[4, 3] = self.layout.start.gains[ch], gains[ch]  # offset = V0 + p K0, gain = K0 exp(q)
-            block = slice(_BASE_PER_CHANNEL * ch, _BASE_PER_CHANNEL * (ch + 1))
-            cov = self.covariance[block, block]
-            out[ch] = m @ np.nan_to_num(cov, nan=0.0) @ m.T
-            unknown = np.any(m[:, ~np.isfinite(np.diag(cov))] != 0.0, axis=1)
-            out[ch][unknown, :] = np.nan
-            out[ch][:, unknown] = np.nan
-        return out
+        return self._joint_covariance(())
 
     def curve_covariance(self) -> np.ndarray | None:
         """Each channel's joint covariance of its direction, offset and gain (:meth:`channel_covariance`'s five)
@@ -192,12 +179,14 @@ class MLFit:
         near -1), so the two together move a heading less than the gain's variance alone says.  NaN as in
         :meth:`channel_covariance` where a parameter is undetermined.
         """
-        curves = [e for e in self.effects if isinstance(e, NonlinearResponse)]
-        if not curves:
-            return None
-        c = self.layout.c
+        curves = tuple(e for e in self.effects if isinstance(e, NonlinearResponse))
+        return self._joint_covariance(curves) if curves else None
+
+    def _joint_covariance(self, curves: tuple) -> np.ndarray:
+        """:meth:`channel_covariance` (no ``curves``) or :meth:`curve_covariance` (the fit's curve effects)."""
+        c, size = self.layout.c, 5 + (len(CURVE_POWERS) if curves else 0)
         gains, norm = self.physics.gains, self.physics.field_norm
-        out = np.empty((c, 8, 8))
+        out = np.empty((c, size, size))
         for ch in range(c):
             columns = list(range(_BASE_PER_CHANNEL * ch, _BASE_PER_CHANNEL * (ch + 1)))
             rows = []
@@ -205,9 +194,9 @@ class MLFit:
                 at = self.block_start(e) + len(e.powers) * ch
                 columns += [at + i for i in range(len(e.powers))]
                 rows += [(5 + CURVE_POWERS.index(k), norm ** (1 - k)) for k in e.powers]
-            m = np.zeros((8, len(columns)))
+            m = np.zeros((size, len(columns)))
             m[:3, :2] = _direction_map(self.layout, self.x, ch)
-            m[3, 2], m[4, 3] = self.layout.start.gains[ch], gains[ch]
+            m[3, 2], m[4, 3] = self.layout.start.gains[ch], gains[ch]  # offset = V0 + p K0, gain = K0 exp(q)
             for j, (row, scale) in enumerate(rows):
                 m[row, _BASE_PER_CHANNEL + j] = scale
             cov = self.covariance[np.ix_(columns, columns)]
@@ -441,12 +430,17 @@ def _covariance(jac: np.ndarray, names) -> tuple[np.ndarray, list]:
     return inv, singular
 
 
+_CURVE_FIELDS = {2: "quadratic", 3: "cubic", 5: "quintic"}
+"""The :class:`~compass.sim.bench.BenchPhysics` field of each power of
+:data:`~compass.iron_uncertainty.CURVE_POWERS`."""
+
+
 def curve_coefficients(physics: BenchPhysics) -> np.ndarray:
     """Each channel's response curve coefficients over :data:`~compass.iron_uncertainty.CURVE_POWERS` (quadratic,
     cubic, quintic; 1 / field unit^(k - 1)), zero for a power the physics does not carry, shape (c, 3)."""
     c = len(physics.gains)
-    return np.column_stack([np.zeros(c) if v is None else np.asarray(v, dtype=float)
-                            for v in (physics.quadratic, physics.cubic, physics.quintic)])
+    held = (getattr(physics, _CURVE_FIELDS[k]) for k in CURVE_POWERS)
+    return np.column_stack([np.zeros(c) if v is None else np.asarray(v, dtype=float) for v in held])
 
 
 def _direction_map(layout: _Layout, x, c: int) -> np.ndarray:
