@@ -20,12 +20,13 @@ with the tumble and the fits against known inputs):
    the added effects may have absorbed part of an effect the toolkit does not model (a field
    gradient with the sensor off the turntable axis mimics an encoder error), so none is claimed,
    the base model is kept and every candidate tried is reported with its evidence.
-   A nonlinear response in the model is tested against a general curve of each channel's field
-   (:func:`calibrate.fourflip._form.response_form_test`).  Where it rejects the response's form, an effect
+   The final fit's response (its nonlinear response, or the linear one where the loop named none: a cubic at
+   steep dip whose first harmonic reads as a gain) is tested against a general curve of each channel's field
+   (:func:`calibrate.fourflip._form.response_form_test`).  Where a nonlinear response's form is rejected, an effect
    proposed next that takes less than that curve would is not claimed (:func:`~calibrate.fourflip._form.
-   response_form_check`: a knee's misfit reads as per-flip offsets, a platform field's signature), and a fit
-   the structure test calls white is called unexplained with the response kept (the vocabulary's nearest
-   curve; a linear file would be further off) and widened, also for the curve's static misfit
+   response_form_check`: a knee's misfit reads as per-flip offsets, a platform field's signature); where the
+   final fit's is, a fit the structure test calls white is called unexplained with the response kept (the
+   vocabulary's nearest curve; a linear file would be further off) and widened, also for the curve's static misfit
    (:func:`~calibrate.fourflip._form.response_misfit`: its bias in the parameters, which no structure in time
    covers).
 7. An explained fit is asked once more, across the recording: the residual summed over 10 s blocks, the band
@@ -169,8 +170,8 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         unclaimable=None if judged.all() else "the ADC's undithered rounding is structured by itself and may be it")
     current, steps, rejected, unexplained = chosen.fit, chosen.steps, chosen.not_claimed, chosen.unexplained
     form = response_form_test(current, noise, judged)
-    if form is not None and unexplained is False and form.p_value < STRUCTURE_P:
-        unexplained = True  # white by the structure test, but the response's curve is not the vocabulary's form
+    if unexplained is False and form.p_value < STRUCTURE_P:
+        unexplained = True  # white by the structure test, but the response's curve (or a linear one) is not the form
     structure, dof, p_value = chosen.structure
     rms_after = _pooled_rms(current.residuals)
     diagnosis = {
@@ -186,11 +187,11 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         "not_claimed": rejected,
         "not_applicable": skipped,
         "revisions": chosen.revisions,
-        **({} if form is None else {"response_form_test": form.as_dict(rec.channels)}),
+        "response_form_test": form.as_dict(rec.channels),
         "calibration_change": _calibration_change(base, current, rec.channels),
     }
     if unexplained:
-        misfit = None if form is None or form.p_value >= STRUCTURE_P else response_misfit(current, noise, judged)
+        misfit = None if form.p_value >= STRUCTURE_P else response_misfit(current, noise, judged)
         current, diagnosis["unexplained_cost"] = _widen(current, noise, rec.channels, about_mean=True, misfit=misfit)
     elif unexplained is False:  # at the floor sample by sample: does a wander remain across blocks of time?
         family = family_p_value(block_p_values(current, noise))
