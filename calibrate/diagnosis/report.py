@@ -83,9 +83,11 @@ def format_diagnosis(block: dict, unit: str = "output units") -> str:
     form = block.get("response_form_test")  # the four-flip's: the fitted response against a general curve
     if form and form["p_value"] < STRUCTURE_P:
         drops = ", ".join(f"{name} {v:.0f}" for name, v in form["delta_chi2"].items())
+        kept = ("the nearest curve the vocabulary has" if "nonlinear_response" in block["effects"]
+                else "the linear response (the loop named no curve)")
         lines.append(f"  the fitted response's curve is not the vocabulary's form: a general curve of each channel's "
                      f"field ({form['curve']}) would take chi2 {drops} ({form['dof']} dof each, p = "
-                     f"{form['p_value']:.2g}); the file keeps the nearest curve the vocabulary has")
+                     f"{form['p_value']:.2g}); the file keeps {kept}")
         if block["unexplained"] is True and (block.get("structure_test") or {}).get("p_value", 0.0) >= STRUCTURE_P:
             verdict = "UNEXPLAINED: the fitted response's curve is not a form the model has; the rest is white"
     lines.append(residual_line(block, verdict, test))

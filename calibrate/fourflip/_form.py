@@ -1,4 +1,4 @@
-"""Is the response curve the vocabulary's form?  A lack-of-fit test of a fitted nonlinear response.
+"""Is the response curve the vocabulary's form?  A lack-of-fit test of a fit's response, curved or linear.
 
 The vocabulary's ``nonlinear_response`` bends each channel by a few powers of its own field component
 ``x = a . B`` (a cubic, or powers 2 and 3, or 3 and 5).  A sensor whose curve has another shape (a knee:
@@ -14,7 +14,9 @@ can absorb projected off (the score test of :func:`calibrate.diagnosis.evidence.
 white noise at the floor each channel's chi-square drop follows chi-square with ``CURVE_DEGREE - 1``
 degrees of freedom less the powers the fitted response has (those columns lie in the fit's own span, as do
 degrees 0 and 1: the offset and the gain).  The channels' smallest p-value, times their number
-(Bonferroni), is the test's.
+(Bonferroni), is the test's.  A fit without a nonlinear response is tested as well: its columns include degree
+3, the cubic itself, which the loop may have left unnamed (a cubic whose first harmonic at steep dip reads as a
+gain; docs/benchmarks.md, "An unnamed cubic, asked the form test").
 
 Where the test rejects, :func:`response_misfit` sizes what the misfit did to the parameters: the same curves
 fitted beside them, linearised at the fit, and the bias their determined components show propagated (the
@@ -74,13 +76,14 @@ class ResponseForm:
                 "p_value": self.p_value, "curve": f"Legendre degrees 2..{CURVE_DEGREE} of x / |B| per channel"}
 
 
-def response_form_test(fit: MLFit, noise: np.ndarray, judged: np.ndarray | None = None) -> ResponseForm | None:
-    """Test a fit's nonlinear response against a general curve of each channel's field component.
+def response_form_test(fit: MLFit, noise: np.ndarray, judged: np.ndarray | None = None) -> ResponseForm:
+    """Test a fit's response (its ``nonlinear_response``, or linear without one) against a general curve of each
+    channel's field component.
 
     Parameters
     ----------
     fit : MLFit
-        A fit with a ``nonlinear_response`` among its effects.
+        The fit, with or without a ``nonlinear_response`` among its effects.
     noise : ndarray, shape (c,)
         Noise floor per channel, output units (the fit's weights).
     judged : ndarray of bool, shape (c,), optional
@@ -88,8 +91,8 @@ def response_form_test(fit: MLFit, noise: np.ndarray, judged: np.ndarray | None 
 
     Returns
     -------
-    ResponseForm or None
-        None when the fit has no nonlinear response (nothing to test).
+    ResponseForm
+        Each channel's drop, with ``CURVE_DEGREE - 1`` degrees of freedom less the fitted response's powers.
 
     Notes
     -----
@@ -97,9 +100,6 @@ def response_form_test(fit: MLFit, noise: np.ndarray, judged: np.ndarray | None 
     gains ``|B| P_k(x / |B|)`` (the weights as the fit's); :func:`calibrate.diagnosis.evidence.linear_score`
     projects the fit's Jacobian off it and returns ``r^T J~ (J~^T J~)^+ J~^T r``.
     """
-    response = next((e for e in fit.effects if e.name == RESPONSE), None)
-    if response is None:
-        return None
     r0, j_b, blocks = _curve_columns(fit, noise)
     normal_b = j_b.T @ j_b
     c, q = blocks.shape[0], blocks.shape[-1]
@@ -107,9 +107,14 @@ def response_form_test(fit: MLFit, noise: np.ndarray, judged: np.ndarray | None 
     drops = np.empty(c)
     for ch in range(c):
         drops[ch], _ = linear_score(None, x, fit.x.size, j_b, block_jacobian=blocks[ch], r0=r0, normal_b=normal_b)
-    dof = q - sum(1 for k in response.powers if 2 <= k <= CURVE_DEGREE)
+    dof = q - sum(1 for k in _response_powers(fit) if 2 <= k <= CURVE_DEGREE)
     test = ResponseForm(drops, dof, 1.0)
     return replace(test, p_value=test.p_value_over(np.ones(c, dtype=bool) if judged is None else judged))
+
+
+def _response_powers(fit: MLFit) -> tuple[int, ...]:
+    """The powers of the fit's nonlinear response (none for a linear one)."""
+    return next((tuple(e.powers) for e in fit.effects if e.name == RESPONSE), ())
 
 
 MAX_MOVE_SIGMAS = 3.0
@@ -166,7 +171,7 @@ def response_misfit(fit: MLFit, noise: np.ndarray, judged: np.ndarray | None = N
     Parameters
     ----------
     fit : MLFit
-        A fit with a nonlinear response.
+        The fit, with or without a nonlinear response.
     noise : ndarray, shape (c,)
         Noise floor per channel, output units (the fit's weights).
     judged : ndarray of bool, shape (c,), optional
@@ -270,8 +275,10 @@ def response_form_check(noise: np.ndarray, judged: np.ndarray | None = None) -> 
     """
 
     def check(p: Proposal):
+        if not _response_powers(p.current):  # a linear response's misfit is what the proposed cubic may take
+            return None, {}
         form = response_form_test(p.current, noise, judged)
-        if form is None or form.p_value >= STRUCTURE_P:
+        if form.p_value >= STRUCTURE_P:
             return None, {}
         drop, curve = p.current.chi2 - p.trial.chi2, float(np.sum(form.delta_chi2))
         if drop >= curve:

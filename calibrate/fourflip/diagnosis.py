@@ -20,15 +20,18 @@ with the tumble and the fits against known inputs):
    the added effects may have absorbed part of an effect the toolkit does not model (a field
    gradient with the sensor off the turntable axis mimics an encoder error), so none is claimed,
    the base model is kept and every candidate tried is reported with its evidence.
-   A nonlinear response in the model is tested against a general curve of each channel's field
-   (:func:`calibrate.fourflip._form.response_form_test`).  Where it rejects the response's form, an effect
-   proposed next that takes less than that curve would is not claimed (:func:`~calibrate.fourflip._form.
-   response_form_check`: a knee's misfit reads as per-flip offsets, a platform field's signature), and a fit
-   the structure test calls white is called unexplained with the response kept (the vocabulary's nearest
-   curve; a linear file would be further off) and widened, also for the curve's static misfit
+   The final fit's response (its nonlinear response, or the linear one where the loop named none and the residual
+   is white: a cubic at steep dip whose first harmonic reads as a gain) is tested against a general curve of each
+   channel's field (:func:`calibrate.fourflip._form.response_form_test`).  Where a nonlinear response's form is
+   rejected, an effect proposed next that takes less than that curve would is not claimed
+   (:func:`~calibrate.fourflip._form.response_form_check`: a knee's misfit reads as per-flip offsets, a platform
+   field's signature); where the final fit's is, a fit the structure test calls white is called unexplained with
+   the response kept (the vocabulary's nearest curve; a linear file would be further off) and widened, also for
+   the curve's static misfit
    (:func:`~calibrate.fourflip._form.response_misfit`: its bias in the parameters, which no structure in time
    covers).
-7. An explained fit is asked once more, across the recording: the residual summed over 10 s blocks, the band
+7. A fit the structure test calls white (explained, or unexplained by the form test alone, whose misfit cover then
+   comes on top) is asked once more, across the recording: the residual summed over 10 s blocks, the band
    test of the unexplained widening (:func:`calibrate.diagnosis.robust.band_p_values`) as one family
    (:func:`calibrate.diagnosis.robust.family_p_value`) and the likelihood-ratio test of no walk of any channel's
    offset (:func:`calibrate.diagnosis.walk.walk_p_value`: the walk's power sits in the lowest modes, which the
@@ -46,7 +49,7 @@ import numpy as np
 from compass.io.fourflip import FourFlipRecording
 from compass.sim.bench import BenchSamples
 
-from ._form import ResponseMisfit, response_form_check, response_form_test, response_misfit
+from ._form import RESPONSE, ResponseMisfit, response_form_check, response_form_test, response_misfit
 from ._unseen import platform_prior
 from ._mlfit import (MLFit, block_p_values, curve_coefficients, fit_ml, offset_step, score_effect, step_size_output,
                      structured_covariance, walk_covariance, walk_p_value, with_covariance)
@@ -70,8 +73,8 @@ UNEXPLAINED_WARNING = ("structure remains in the residual above the noise floor:
                        "(the diagnosis's unexplained_cost)")
 
 FORM_WARNING = ("the fitted response's curve is not a form the model has (a general curve of each channel's "
-                "field follows it better; the rest of the residual is white): the file keeps the nearest curve the "
-                "model has, and the uncertainties are widened to cover its misfit (the diagnosis's unexplained_cost)")
+                "field follows it better; the rest of the residual is white): the file keeps the response the model "
+                "fitted, and the uncertainties are widened to cover its misfit (the diagnosis's unexplained_cost)")
 
 WANDER_WARNING = ("the residual is at the noise floor sample by sample, but its sums over 10 s blocks wander beyond "
                   "white noise (a drift that is not smooth in time, such as a random walk of an offset, which the "
@@ -178,9 +181,12 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         checks=(response_form_check(noise, judged),), rejected_as=lambda e: e.name, progress=say, revise=revise,
         unclaimable=None if judged.all() else "the ADC's undithered rounding is structured by itself and may be it")
     current, steps, rejected, unexplained = chosen.fit, chosen.steps, chosen.not_claimed, chosen.unexplained
-    form = response_form_test(current, noise, judged)
-    if form is not None and unexplained is False and form.p_value < STRUCTURE_P:
-        unexplained = True  # white by the structure test, but the response's curve is not the vocabulary's form
+    white = unexplained is False
+    curved = any(e.name == RESPONSE for e in current.effects)
+    # a linear fit is asked only where its residual is white: a structured one's rejection would be no curve's
+    form = response_form_test(current, noise, judged) if white or curved else None
+    if white and form.p_value < STRUCTURE_P:
+        unexplained = True  # white by the structure test, but the response's curve (or a linear one) is not the form
     structure, dof, p_value = chosen.structure
     rms_after = _pooled_rms(current.residuals)
     diagnosis = {
@@ -199,10 +205,7 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         **({} if form is None else {"response_form_test": form.as_dict(rec.channels)}),
         "calibration_change": _calibration_change(base, current, rec.channels),
     }
-    if unexplained:
-        misfit = None if form is None or form.p_value >= STRUCTURE_P else response_misfit(current, noise, judged)
-        current, diagnosis["unexplained_cost"] = _widen(current, noise, rec.channels, about_mean=True, misfit=misfit)
-    elif unexplained is False:  # at the floor sample by sample: does a wander remain across blocks of time?
+    if white:  # at the floor sample by sample: does a wander remain across blocks of time?
         bands = family_p_value(block_p_values(current, noise, WANDER_BAND_DRAWS))
         walk = walk_p_value(current, noise)
         family = family_p_value(np.array([bands, walk]))  # each at half BAND_P_VALUE: white noise's rate as before
@@ -210,6 +213,9 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
                                    "walk_p_value": walk}
         if family <= BAND_P_VALUE:
             current, diagnosis["wander_cost"] = _widen_walk(current, noise, rec.channels)
+    if unexplained:  # a white fit here only by the form test: its misfit's cover on top of any wander's
+        misfit = None if form is None or form.p_value >= STRUCTURE_P else response_misfit(current, noise, judged)
+        current, diagnosis["unexplained_cost"] = _widen(current, noise, rec.channels, about_mean=True, misfit=misfit)
     current, unseen = _unseen_platform(current, noise, rec.channels)
     if unseen is not None:
         diagnosis["platform_field_unseen"] = unseen
