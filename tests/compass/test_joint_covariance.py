@@ -31,6 +31,18 @@ def warm_up(tmp_path_factory):
     return json.loads(dumps(result.to_json()))
 
 
+def _assert_paths_agree(model):
+    """The scalar and the vectorised (run_filter's) heading sigma with the calibration's own agree at tilted
+    attitudes; returns those attitudes' housing fields and the calibration's own uncertainty."""
+    rot = r_world_from_housing(np.arange(0.0, 360.0, 30.0), 7.0, -4.0)
+    fields = rot.apply(world_field(model.dip_deg, model.field_norm), inverse=True)
+    own = model.calibration_uncertainty
+    scalar = [with_calibration_sigma(0.3, own, m, b) for m, b in zip(rot.as_matrix(), fields)]
+    np.testing.assert_allclose(with_calibration_sigma_many(np.full(len(fields), 0.3), own, rot.as_matrix(), fields),
+                               scalar, rtol=1e-9)
+    return fields, own
+
+
 def _runtime_rms_deg(model) -> float:
     """RMS over level headings of the runtime's calibration heading sigma (what live adds), degrees."""
     rot = r_world_from_housing(np.arange(N_HEADINGS) * 360.0 / N_HEADINGS, 0.0, 0.0)
@@ -64,12 +76,7 @@ def test_the_runtime_heading_sigma_with_the_key_is_the_four_flips_own(warm_up):
     runtime = _runtime_rms_deg(model)
     assert runtime == pytest.approx(_four_flip_rms_deg(model, joint), rel=1e-9)
     assert abs(runtime / _four_flip_rms_deg(model) - 1.0) > 0.02  # the correlations matter here (4 %)
-    rot = r_world_from_housing(np.arange(0.0, 360.0, 30.0), 7.0, -4.0)
-    fields = rot.apply(world_field(model.dip_deg, model.field_norm), inverse=True)
-    own = model.calibration_uncertainty
-    scalar = [with_calibration_sigma(0.3, own, m, b) for m, b in zip(rot.as_matrix(), fields)]
-    np.testing.assert_allclose(with_calibration_sigma_many(np.full(len(fields), 0.3), own, rot.as_matrix(), fields),
-                               scalar, rtol=1e-9)
+    fields, own = _assert_paths_agree(model)
     from dataclasses import replace
 
     quiet = replace(model, noise=None)
@@ -211,12 +218,7 @@ def test_the_runtime_heading_sigma_with_a_curve_is_the_four_flips_own(cubic):
                                model.gains, model.dip_deg, model.field_norm, N_HEADINGS,
                                channel_covariance=np.stack(model.joint_covariance), curves=_curves(model))
     assert runtime == pytest.approx(curved, rel=1e-9)
-    rot = r_world_from_housing(np.arange(0.0, 360.0, 30.0), 7.0, -4.0)
-    fields = rot.apply(world_field(model.dip_deg, model.field_norm), inverse=True)
-    own = model.calibration_uncertainty
-    scalar = [with_calibration_sigma(0.3, own, m, b) for m, b in zip(rot.as_matrix(), fields)]
-    np.testing.assert_allclose(with_calibration_sigma_many(np.full(len(fields), 0.3), own, rot.as_matrix(), fields),
-                               scalar, rtol=1e-9)
+    _assert_paths_agree(model)
     old = json.loads(json.dumps(doc))
     for ch in old["channels"].values():
         ch["joint_covariance"] = np.array(ch["joint_covariance"])[:5, :5].tolist()
