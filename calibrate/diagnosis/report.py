@@ -88,7 +88,7 @@ def format_diagnosis(block: dict, unit: str = "output units") -> str:
         lines.append(f"  the fitted response's curve is not the vocabulary's form: a general curve of each channel's "
                      f"field ({form['curve']}) would take chi2 {drops} ({form['dof']} dof each, p = "
                      f"{form['p_value']:.2g}); the file keeps {kept}")
-        if block["unexplained"] is True and (block.get("structure_test") or {}).get("p_value", 0.0) >= STRUCTURE_P:
+        if block["unexplained"] is True and block.get("unexplained_by") == "response_form_test":
             verdict = "UNEXPLAINED: the fitted response's curve is not a form the model has; the rest is white"
     lines.append(residual_line(block, verdict, test))
     lines += cost_lines(block.get("unexplained_cost"))

@@ -61,12 +61,12 @@ others at zero, ``cov = (1 + f)(I + rho M_c)``; the floor's factor profiled out,
 ``max_rho [r ln(|zeta|^2 / (|zeta|^2 - sum_i a_i^2 rho s_i / (1 + rho s_i))) - sum_i ln(1 + rho s_i)]``,
 ``a = U_c^T zeta``, ``M_c = U_c diag(s) U_c^T``: no floor to trust (a ratio in ``zeta``), and a grid over
 ``rho`` in place of the maximisation (the null below uses the same grid, so the test's size is exact).  The
-statistic is the sum over the channels, the joint ratio of ``q = 0`` against every ``q_c >= 0`` (the model
-:func:`offset_walk` sizes) where the channels' ``M_c`` do not overlap.  Its null is not the boundary's
-asymptotic mixture (half chi-square 0, half chi-square 1 a channel): with so few effective modes the ratio
-is zero in about 61 % of white-noise draws, not 50 %, and beyond the mixture's 1 % point in 0.76 %.  So its
-null is simulated as the band test's is: under white noise ``zeta ~ N(0, I)`` exactly (a linear fit), with a
-fixed seed.
+statistic is the sum of the channels' ratios, each with its own floor profiled out (the model
+:func:`offset_walk` sizes has one walk a channel; not the joint ratio, whose floor is shared, but its null is
+simulated alike).  Its null is not the boundary's asymptotic mixture (half chi-square 0, half chi-square 1 a
+channel): with so few effective modes the ratio is zero in about 61 % of white-noise draws, not 50 %, and beyond
+the mixture's 1 % point in 0.76 %.  So its null is simulated as the band test's is: under white noise
+``zeta ~ N(0, I)`` exactly (a linear fit), with a fixed seed.
 """
 
 from __future__ import annotations
@@ -172,7 +172,11 @@ def walk_p_value(jac: np.ndarray, weighted: np.ndarray, t_s: np.ndarray, bread: 
         total = np.sum(zeta**2, axis=1)
         return np.sum([_likelihood_ratio(zeta @ u, total, s2, r) for u, s2 in modes], axis=0)
 
+    if not np.any(design.zeta):  # a residual of zero: nothing to test
+        return 1.0
     observed = statistic(design.zeta[None])[0]
+    if observed <= 0.0:  # no walk better than none: every null draw is at least as large
+        return 1.0
     rng = np.random.default_rng(0)  # the fit is deterministic, so is its test
     exceed = 0
     for start in range(0, WALK_NULL_DRAWS, NULL_CHUNK):

@@ -38,8 +38,8 @@ from ..noise import chi2_sf
 from ._jacobian import Partials
 from ._mlfit import MLFit
 
-__all__ = ["CURVE_DEGREE", "MAX_MOVE_SIGMAS", "RESPONSE", "ResponseForm", "ResponseMisfit", "response_form_check",
-           "response_form_test", "response_misfit", "curve_components"]
+__all__ = ["CURVE_DEGREE", "MAX_MOVE_SIGMAS", "RESPONSE", "ResponseForm", "ResponseMisfit", "curve_components",
+           "response_form_check", "response_form_test", "response_misfit"]
 
 CURVE_DEGREE = 8
 """Highest Legendre degree of the general curve (degrees 2..8: seven columns per channel)."""

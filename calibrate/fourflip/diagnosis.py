@@ -185,7 +185,8 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
     curved = any(e.name == RESPONSE for e in current.effects)
     # a linear fit is asked only where its residual is white: a structured one's rejection would be no curve's
     form = response_form_test(current, noise, judged) if white or curved else None
-    if white and form.p_value < STRUCTURE_P:
+    by_form = white and form.p_value < STRUCTURE_P
+    if by_form:
         unexplained = True  # white by the structure test, but the response's curve (or a linear one) is not the form
     structure, dof, p_value = chosen.structure
     rms_after = _pooled_rms(current.residuals)
@@ -197,6 +198,7 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         "residual_rms_before": steps[0]["residual_rms"],
         "residual_rms_after": rms_after,
         "unexplained": unexplained,
+        **({"unexplained_by": "response_form_test"} if by_form else {}),
         "structure_test": {"delta_chi2": structure, "dof": dof, "p_value": p_value},
         **({} if judged.all() else {"not_judged": _not_judged(rec.channels, judged)}),
         "not_claimed": rejected,
@@ -205,17 +207,20 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         **({} if form is None else {"response_form_test": form.as_dict(rec.channels)}),
         "calibration_change": _calibration_change(base, current, rec.channels),
     }
+    naive, walked = current, None  # each widening sizes its structure from the naive fit
     if white:  # at the floor sample by sample: does a wander remain across blocks of time?
-        bands = family_p_value(block_p_values(current, noise, WANDER_BAND_DRAWS))
-        walk = walk_p_value(current, noise)
+        bands = family_p_value(block_p_values(naive, noise, WANDER_BAND_DRAWS))
+        walk = walk_p_value(naive, noise)
         family = family_p_value(np.array([bands, walk]))  # each at half BAND_P_VALUE: white noise's rate as before
         diagnosis["block_test"] = {"p_value": family, "threshold": BAND_P_VALUE, "bands_p_value": bands,
                                    "walk_p_value": walk}
         if family <= BAND_P_VALUE:
-            current, diagnosis["wander_cost"] = _widen_walk(current, noise, rec.channels)
-    if unexplained:  # a white fit here only by the form test: its misfit's cover on top of any wander's
-        misfit = None if form is None or form.p_value >= STRUCTURE_P else response_misfit(current, noise, judged)
-        current, diagnosis["unexplained_cost"] = _widen(current, noise, rec.channels, about_mean=True, misfit=misfit)
+            walked, diagnosis["wander_cost"] = _widen_walk(naive, noise, rec.channels)
+            current = walked
+    if unexplained:  # structure remains, or (white) the form test rejects: the larger of this and any wander's cover
+        misfit = None if form is None or form.p_value >= STRUCTURE_P else response_misfit(naive, noise, judged)
+        wide, diagnosis["unexplained_cost"] = _widen(naive, noise, rec.channels, about_mean=True, misfit=misfit)
+        current = wide if walked is None else with_covariance(naive, widened(walked.covariance, wide.covariance))
     current, unseen = _unseen_platform(current, noise, rec.channels)
     if unseen is not None:
         diagnosis["platform_field_unseen"] = unseen
@@ -225,9 +230,7 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
 def unexplained_warning(diagnosis: dict) -> str:
     """The warning of an unexplained fit: :data:`FORM_WARNING` where the response form test alone made it unexplained
     (the structure test white), else :data:`UNEXPLAINED_WARNING`."""
-    form = diagnosis.get("response_form_test")
-    white = diagnosis["structure_test"]["p_value"] >= STRUCTURE_P
-    return FORM_WARNING if white and form is not None and form["p_value"] < STRUCTURE_P else UNEXPLAINED_WARNING
+    return FORM_WARNING if diagnosis.get("unexplained_by") == "response_form_test" else UNEXPLAINED_WARNING
 
 
 def platform_unseen_warning(unseen: dict) -> str:

@@ -122,6 +122,13 @@ def test_the_walk_test_and_its_family_hold_their_size_on_white_noise():
     assert family / n < 0.2 + 3 * np.sqrt(0.2 * 0.8 / n), family
 
 
+def test_a_residual_of_zero_is_no_walk():
+    """Degenerate case: a fit that leaves nothing (every block sum zero) shows no walk: p = 1, not the null's
+    smallest p-value (a ratio of 0 / 0 compared with every draw)."""
+    t_s, _, jac, bread = _design()
+    assert walk_p_value(jac, np.zeros((t_s.size, 2)), t_s, bread) == 1.0
+
+
 def test_the_walk_test_sees_a_walk_more_often_than_the_band_family():
     """On the same walks (two thirds of the size above: seen in about half the replicates) the walk's
     likelihood-ratio test at half ``BAND_P_VALUE`` passes more often than the band family at the whole of it (53

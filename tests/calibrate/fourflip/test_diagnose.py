@@ -239,7 +239,8 @@ def test_clean_recording_keeps_its_sigmas(write_session):
 def test_a_wander_under_a_named_drift_widens_the_explained_fit(write_session):
     """An offset random walk (0.004 uT a sample, outside the vocabulary) the loop calls explained with an
     offset drift named: below the floor in each sample, but its 10 s block sums fail the block test (the band
-    family and the walk's likelihood-ratio test by Bonferroni, p at most 0.01), so the file's sigmas are widened for a random walk of each channel's offset and the
+    family and the walk's likelihood-ratio test by Bonferroni, p at most 0.01), so the file's sigmas are widened
+    for a random walk of each channel's offset and the
     diagnosis, the warnings and the report say so; the verdict and the named drift stay.  The naive sigmas miss
     the error (a channel's direction over 2.5 naive sigmas off: why it matters); the widened ones cover it (RMS
     over the channels 0.86), and the walk's stated size is the simulated one's (0.004 uT a 0.5 s sample: 0.0057 uT

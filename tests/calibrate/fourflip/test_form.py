@@ -162,7 +162,7 @@ def test_the_report_says_the_curve_not_structure_made_it_unexplained(bench):
     result = calibrate_fourflip(rec, diagnose=True)
     d = result.diagnosis
     assert d["unexplained"] is True and d["structure_test"]["p_value"] >= STRUCTURE_P
-    assert d["response_form_test"]["p_value"] < STRUCTURE_P
+    assert d["response_form_test"]["p_value"] < STRUCTURE_P and d["unexplained_by"] == "response_form_test"
     verdict = next(line for line in result.report().splitlines() if "UNEXPLAINED" in line)
     assert "curve is not a form the model has" in verdict and "structure remains" not in verdict
     assert FORM_WARNING in result.warnings and UNEXPLAINED_WARNING not in result.warnings  # the warning says so too
@@ -238,3 +238,21 @@ def test_a_knee_the_cubic_absorbed_is_covered(bench):
     assert cost["response_misfit"]["components"]["with_bias"] > 0
     err = np.degrees(np.arccos(np.clip(np.sum(result.directions * truth.directions, axis=1), -1, 1)))
     assert np.all(err < 1.5 * np.array([c.direction_sigma_deg for c in result.channels]))
+
+
+def test_a_wander_and_a_misfit_are_each_sized_from_the_naive_fit(bench):
+    """bench_loop's knee, seed 101: white by the structure test, its curve rejected by the form test, and its block
+    sums wander; both widenings are sized from the naive fit (the same naive sigmas in both costs), not the misfit's
+    from the fit the walk already widened, and the file states the larger of the two."""
+    from calibrate import calibrate_fourflip
+
+    rec, _ = bench.session(101, "knee")
+    result = calibrate_fourflip(rec, diagnose=True)
+    d = result.diagnosis
+    assert d["unexplained_by"] == "response_form_test" and "wander_cost" in d and "unexplained_cost" in d
+    wander, cost = d["wander_cost"]["direction_sigma_deg"], d["unexplained_cost"]["direction_sigma_deg"]
+    for name in wander:
+        assert cost[name]["naive"] == pytest.approx(wander[name]["naive"], rel=1e-12)
+    stated = np.array([c.direction_sigma_deg for c in result.channels])
+    larger = [max(wander[n]["widened"], cost[n]["widened"]) for n in wander]
+    assert np.all(stated >= np.array(larger) * (1 - 1e-9))
