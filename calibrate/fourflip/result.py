@@ -42,8 +42,8 @@ class ChannelCalibration:
         With a nonlinear response: ``joint_covariance`` and the curve's coefficients (quadratic, cubic, quintic,
         as ``response`` holds them) after it (:meth:`calibrate.fourflip._mlfit.MLFit.curve_covariance`); the
         heading sigma's terms (:func:`calibrate.diagnosis.robust.heading_sigma_deg`).  Written as the channel's
-        ``joint_covariance`` in place of the 5 x 5 when finite (the runtime's heading sigma then carries the
-        curve's errors too).
+        ``curve_joint_covariance`` beside the 5 x 5 when finite (the runtime's heading sigma then carries the
+        curve's errors too; a reader before that key keeps the 5 x 5).
     """
 
     name: str

@@ -39,10 +39,10 @@ def channel_entry(direction, response: dict, *, covariance=None, response_sigma=
         Standard errors of (offset, gain), output units and output units per field unit.
     joint_covariance : array_like, shape (5, 5) or (8, 8), optional
         The joint covariance of the direction (3, rad), offset and gain (the units above) whose marginals are
-        ``covariance`` and ``response_sigma`` (written as ``joint_covariance``; the runtime's heading sigma then
-        keeps their correlations: :class:`compass.iron_uncertainty.ChannelUncertainty`).  Finite.  8 x 8 for a
-        cubic ``response``: its quadratic, cubic and quintic coefficients after the gain, in the response's units
-        (1 / field unit^(k - 1)).
+        ``covariance`` and ``response_sigma`` (the runtime's heading sigma then keeps their correlations:
+        :class:`compass.iron_uncertainty.ChannelUncertainty`).  Finite.  8 x 8 for a cubic ``response``: its
+        quadratic, cubic and quintic coefficients after the gain, in the response's units
+        (1 / field unit^(k - 1)).  Written by :func:`_joint_entries`.
     angles : bool
         Add seed 000's angles ``theta_deg, gamma_deg, elevation_deg, psi_deg``.
 
@@ -63,8 +63,30 @@ def channel_entry(direction, response: dict, *, covariance=None, response_sigma=
     if response_sigma is not None:
         entry["response_sigma"] = {"offset": _plain(response_sigma[0]), "gain": _plain(response_sigma[1])}
     if joint_covariance is not None:
-        entry["joint_covariance"] = np.asarray(joint_covariance, dtype=float).tolist()
+        entry.update(_joint_entries(joint_covariance))
     return entry
+
+
+def _joint_entries(joint) -> dict:
+    """A channel's joint covariance as its file keys: the 5 x 5 (direction 3, offset, gain) under
+    ``joint_covariance``, as every reader of :data:`FORMAT` reads it, and an 8 x 8 (with a response curve's
+    quadratic, cubic and quintic after the gain) whole under ``curve_joint_covariance`` too (a reader before
+    that key ignores it and keeps the 5 x 5).
+
+    Parameters
+    ----------
+    joint : array_like, shape (5, 5) or (8, 8)
+        Units as :func:`channel_entry`'s ``joint_covariance``.
+
+    Returns
+    -------
+    dict
+    """
+    joint = np.asarray(joint, dtype=float)
+    entries = {"joint_covariance": joint[:5, :5].tolist()}
+    if joint.shape == (8, 8):
+        entries["curve_joint_covariance"] = joint.tolist()
+    return entries
 
 
 def model_to_dict(model) -> dict:
@@ -93,7 +115,7 @@ def model_to_dict(model) -> dict:
             entry["response_sigma"] = {k: None if prior_sigma is not None and prior_sigma[c, i] > 0
                                        else float(model.response_sigma[c, i]) for i, k in enumerate(("offset", "gain"))}
         if model.joint_covariance is not None and model.joint_covariance[c] is not None:
-            entry["joint_covariance"] = model.joint_covariance[c].tolist()
+            entry.update(_joint_entries(model.joint_covariance[c]))
         channels[name] = entry
     out = header("channels") | {"channels": channels, "dip_deg": model.dip_deg, "field_ut": model.field_ut}
     if model.temperature is not None and model.temperature.reference_c is not None:

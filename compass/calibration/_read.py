@@ -314,8 +314,7 @@ def _channel_model(d: dict):
                                            f"{gain / gain_sigma:.1f} sigma from zero (a dead or disconnected sensor); "
                                            "recalibrate the module after repair", key=key)
         sigmas.append(rs)
-        joints.append(_joint_covariance(ch.get("joint_covariance"), cov, rs, responses[-1],
-                                        check.sub(key, "joint_covariance")))
+        joints.append(_channel_joint(ch, cov, rs, responses[-1], key))
     gains = np.array([r.gain for r in responses])
     covariance, sigma, priors = _channel_sigmas(names, np.array(directions), gains, field_ut or 1.0, covariances,
                                                 sigmas)
@@ -342,20 +341,37 @@ def _channel_model(d: dict):
         raise CalibrationFileError(f"are unusable: {exc}", key="channels") from None
 
 
-def _joint_covariance(value, direction_covariance, response_sigma, response, key):
-    """A channel's ``joint_covariance`` (5 x 5: its direction's, offset's and gain's covariance, whose marginals are
-    the channel's ``direction_covariance`` and ``response_sigma``; 8 x 8 for a cubic ``response``: then its
-    quadratic, cubic and quintic coefficients' too), or None when absent or null."""
+def _channel_joint(ch: dict, direction_covariance, response_sigma, response, key: tuple):
+    """A channel's joint covariance for the model: its ``curve_joint_covariance`` (8 x 8) when there, whose
+    top-left 5 x 5 must be its ``joint_covariance``, else its ``joint_covariance`` (5 x 5), else None."""
+    from ..iron_uncertainty import JOINT_TOLERANCE
+
+    joint = _joint_covariance(ch.get("joint_covariance"), direction_covariance, response_sigma, response, 5,
+                              check.sub(key, "joint_covariance"))
+    curve_key = check.sub(key, "curve_joint_covariance")
+    curved = _joint_covariance(ch.get("curve_joint_covariance"), direction_covariance, response_sigma, response, 8,
+                               curve_key)
+    if curved is None:
+        return joint
+    if joint is None:
+        raise CalibrationFileError("comes without the channel's joint_covariance (its top-left 5x5)", key=curve_key)
+    scale = np.sqrt(np.diag(joint))
+    scale[scale == 0.0] = 1.0
+    if np.max(np.abs(curved[:5, :5] - joint) / np.outer(scale, scale)) > JOINT_TOLERANCE:
+        raise CalibrationFileError("must have the channel's joint_covariance as its top-left 5x5", key=curve_key)
+    return curved
+
+
+def _joint_covariance(value, direction_covariance, response_sigma, response, size: int, key):
+    """A channel's ``joint_covariance`` (``size`` 5: its direction's, offset's and gain's covariance, whose marginals
+    are the channel's ``direction_covariance`` and ``response_sigma``) or ``curve_joint_covariance`` (``size`` 8,
+    only for a cubic ``response``: then its quadratic, cubic and quintic coefficients' too), or None when absent or
+    null."""
     from ..iron_uncertainty import joint_problem
     from ..response import CubicResponse
 
     if value is None:
         return None
-    size = len(value) if isinstance(value, list) else 0
-    if size not in (5, 8):
-        raise CalibrationFileError(f"must be 5x5 (the direction's 3, the offset, the gain) or 8x8 (then the "
-                                   f"response curve's quadratic, cubic, quintic) nested lists of numbers, got "
-                                   f"{check.show(value)}", key=key)
     joint = check.array(value, (size, size), key)
     problem = joint_problem(joint, direction_covariance, response_sigma, isinstance(response, CubicResponse))
     if problem is not None:

@@ -125,10 +125,10 @@ def _bad(doc, how):
 
 
 @pytest.mark.parametrize("how, words", [
-    ("shape", "must be 5x5 (the direction's 3, the offset, the gain) or 8x8"), ("non-finite", "must be finite"),
+    ("shape", "must be 5x5 nested lists of numbers"), ("non-finite", "must be finite"),
     ("asymmetric", "must be symmetric"), ("not PSD", "must be a covariance (positive semi-definite)"),
     ("not the file's sigmas", "must have the channel's direction_covariance and response_sigma as its marginals"),
-    ("text", "must be 5x5 (the direction's 3, the offset, the gain) or 8x8")])
+    ("text", "must be 5x5 nested lists of numbers")])
 def test_a_malformed_key_is_refused_naming_the_file_and_key(warm_up, tmp_path, capsys, how, words):
     cal = tmp_path / "cal.json"
     cal.write_text(json.dumps(_bad(warm_up, how)))  # json writes inf as Infinity, as a careless tool would
@@ -192,25 +192,50 @@ def _curves(model) -> np.ndarray:
 
 
 def test_a_file_with_a_curve_round_trips_its_8x8_block(cubic):
-    """The file's ``joint_covariance`` of a cubic channel is the fit's 8 x 8 (direction, offset, gain, quadratic,
-    cubic, quintic in the response's units); read, written by ``model_to_dict`` and read again it is unchanged."""
+    """The file's ``curve_joint_covariance`` of a cubic channel is the fit's 8 x 8 (direction, offset, gain,
+    quadratic, cubic, quintic in the response's units), its ``joint_covariance`` the top-left 5 x 5; read into the
+    model as the 8 x 8, written by ``model_to_dict`` and read again it is unchanged."""
     from compass.calibration import model_to_dict
 
     result, doc = cubic
     model = from_dict(doc).model
     for c, ch in enumerate(result.channels):
-        assert np.shape(doc["channels"][ch.name]["joint_covariance"]) == (8, 8)
+        entry = doc["channels"][ch.name]
+        assert np.shape(entry["curve_joint_covariance"]) == (8, 8)
+        np.testing.assert_array_equal(entry["joint_covariance"], ch.curve_covariance[:5, :5])
         np.testing.assert_array_equal(model.joint_covariance[c], ch.curve_covariance)
-        assert doc["channels"][ch.name]["response"]["cubic"] == ch.response.cubic
-    again = from_dict(json.loads(dumps(model_to_dict(model)))).model
+        assert entry["response"]["cubic"] == ch.response.cubic
+    again_doc = json.loads(dumps(model_to_dict(model)))
+    assert again_doc["channels"] == {k: {n: v[n] for n in again_doc["channels"][k]} for k, v in doc["channels"].items()}
+    again = from_dict(again_doc).model
     for a, b in zip(again.joint_covariance, model.joint_covariance):
         np.testing.assert_array_equal(a, b)
+
+
+def _old_reader_accepts(value) -> bool:
+    """The check a reader before ``curve_joint_covariance`` (db2dbd0's ``_read``) made of ``joint_covariance``:
+    5 x 5 nested lists of finite numbers."""
+    return (isinstance(value, list) and len(value) == 5
+            and all(isinstance(row, list) and len(row) == 5 for row in value)
+            and np.all(np.isfinite(np.array(value, dtype=float))))
+
+
+def test_a_file_with_a_curve_passes_an_older_readers_check(cubic):
+    """Same format, older runtimes: every channel's ``joint_covariance`` written, by the calibration and by
+    ``model_to_dict``, is 5 x 5 (an older reader refused an 8 x 8 and ignores the unknown key)."""
+    from compass.calibration import model_to_dict
+
+    _, doc = cubic
+    for written in (doc, json.loads(dumps(model_to_dict(from_dict(doc).model)))):
+        assert all(_old_reader_accepts(ch["joint_covariance"]) for ch in written["channels"].values())
+        assert all("curve_joint_covariance" in ch for ch in written["channels"].values())
 
 
 def test_the_runtime_heading_sigma_with_a_curve_is_the_four_flips_own(cubic):
     """Reference relation: the runtime's heading sigma (per sample, RMS over level headings) from a file with the
     curve's block is :func:`calibrate.diagnosis.robust.heading_sigma_deg` with the curves; the vectorised path
-    agrees; the 5 x 5 block alone (a file before the curve's) reads and gives the linear levers' number."""
+    agrees; the 5 x 5 block alone (a file without ``curve_joint_covariance``) reads and gives the linear levers'
+    number."""
     _, doc = cubic
     model = from_dict(doc).model
     runtime = _runtime_rms_deg(model)
@@ -221,7 +246,7 @@ def test_the_runtime_heading_sigma_with_a_curve_is_the_four_flips_own(cubic):
     _assert_paths_agree(model)
     old = json.loads(json.dumps(doc))
     for ch in old["channels"].values():
-        ch["joint_covariance"] = np.array(ch["joint_covariance"])[:5, :5].tolist()
+        del ch["curve_joint_covariance"]
     linear = from_dict(old).model
     assert linear.calibration_uncertainty.curves is None
     assert _runtime_rms_deg(linear) == pytest.approx(_four_flip_rms_deg(linear, np.stack(linear.joint_covariance)),
@@ -229,25 +254,36 @@ def test_the_runtime_heading_sigma_with_a_curve_is_the_four_flips_own(cubic):
     assert abs(runtime / _runtime_rms_deg(linear) - 1.0) > 0.01  # the curve's errors matter here
 
 
-@pytest.mark.parametrize("how, words", [
-    ("6x6", "must be 5x5 (the direction's 3, the offset, the gain) or 8x8"),
-    ("asymmetric", "must be symmetric"),
-    ("linear", "is 8 x 8 (a response curve's coefficients) but the channel's response has no curve")])
-def test_a_malformed_curve_block_is_refused_naming_the_file_channel_and_key(cubic, tmp_path, how, words):
+@pytest.mark.parametrize("how, key, words", [
+    ("6x6", "curve_joint_covariance", "must be 8x8 nested lists of numbers"),
+    ("asymmetric", "curve_joint_covariance", "must be symmetric"),
+    ("linear", "curve_joint_covariance", "is 8 x 8 (a response curve's coefficients) but the channel's response "
+     "has no curve"),
+    ("mismatched", "curve_joint_covariance", "must have the channel's joint_covariance as its top-left 5x5"),
+    ("alone", "curve_joint_covariance", "comes without the channel's joint_covariance"),
+    ("8x8 in the old key", "joint_covariance", "must be 5x5 nested lists of numbers")])
+def test_a_malformed_curve_block_is_refused_naming_the_file_channel_and_key(cubic, tmp_path, how, key, words):
     _, doc = cubic
     bad = json.loads(json.dumps(doc))
     name, ch = next(iter(bad["channels"].items()))
-    joint = np.array(ch["joint_covariance"])
+    joint = np.array(ch["curve_joint_covariance"])
     if how == "6x6":
         joint = joint[:6, :6]
     elif how == "asymmetric":
         joint[4, 6] += 0.5 * np.sqrt(joint[4, 4] * joint[6, 6])
-    else:
+    elif how == "linear":
         ch["response"] = {k: v for k, v in ch["response"].items() if k not in ("cubic", "quadratic", "quintic")}
         ch["response"]["model"] = "linear"
-    ch["joint_covariance"] = joint.tolist()
+    elif how == "mismatched":  # a 5 x 5 with the same marginals, the direction's correlations with the rest dropped
+        ch["joint_covariance"] = np.block([[joint[:3, :3], np.zeros((3, 2))],
+                                           [np.zeros((2, 3)), np.diag(np.diag(joint)[3:5])]]).tolist()
+    elif how == "alone":
+        del ch["joint_covariance"]
+    else:
+        ch["joint_covariance"] = joint.tolist()
+    ch["curve_joint_covariance"] = joint.tolist()
     cal = tmp_path / "cal.json"
     cal.write_text(json.dumps(bad))
     with pytest.raises(CalibrationFileError) as info:
         load(cal)
-    assert str(info.value).startswith(f"{cal}: channel '{name}': 'joint_covariance' ") and words in str(info.value)
+    assert str(info.value).startswith(f"{cal}: channel '{name}': '{key}' ") and words in str(info.value)
