@@ -593,6 +593,7 @@ class _BlockMoments(NamedTuple):
     traces: np.ndarray  # tr(B_k keep_bc B_l keep_da), (bands, c, c, bands, c, c)
     t_start: np.ndarray  # each block's first time, s, (nb,)
     size: np.ndarray  # each block's count of rows, (nb,)
+    block: np.ndarray  # each row's block, (n,)
 
 
 class _Locked(NamedTuple):
@@ -760,7 +761,7 @@ def _block_moments(jac, weighted, t_s, bread, block_s, n_bands, carrier=None) ->
         factors.append(u[:, kept] * np.sqrt(w[kept]))
     splits = np.cumsum([f.shape[1] for f in factors])
     return _BlockMoments(b, good, summed_jac, y, bands, blocks, root, np.hstack(factors), splits,
-                         floor_rhs, traces, t_start, size)
+                         floor_rhs, traces, t_start, size, block)
 
 
 def _with_floor(m: _BlockMoments, outer: np.ndarray, quadratic: np.ndarray, floor_quadratic: np.ndarray):
@@ -1147,8 +1148,7 @@ def _gain_process(m: _BlockMoments, p_values: np.ndarray, jac, weighted, t_s, br
     if not np.any(g_values <= BAND_P_VALUE):
         return None
     c, nb = m.y.shape
-    block = block_layout(jac, weighted, t_s, bread, block_s).block
-    sums = np.concatenate([np.bincount(block, weights=w, minlength=nb) for w in np.asarray(carrier, dtype=float).T])
+    sums = np.concatenate([np.bincount(m.block, weights=w, minlength=nb) for w in np.asarray(carrier, dtype=float).T])
     lift = np.diag(sums) - m.summed_jac @ m.b @ g.summed_jac.T  # A (I - P) C: the gain's levels in the block sums
     keep = m.blocks.reshape(c * nb, c * nb)
     # the two readings compared at the floor's nominal factor (f = 0): see the module docstring
