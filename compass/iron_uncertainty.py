@@ -45,13 +45,16 @@ from functools import cached_property
 import numpy as np
 
 __all__ = ["TumbleUncertainty", "ChannelUncertainty", "channel_priors", "joint_problem", "joint_weights",
-           "CURVE_POWERS", "independent_joint", "with_calibration_sigma", "with_calibration_sigma_many",
+           "CURVE_POWERS", "CURVE_FIELDS", "independent_joint", "with_calibration_sigma", "with_calibration_sigma_many",
            "undetermined_words",
            "HARD_IRON_PRIOR", "SOFT_IRON_PRIOR", "ROTATION_PRIOR_DEG",
            "ROTATION_PRIOR_AXIS_DEG"]
 
 CURVE_POWERS = (2, 3, 5)
 """The powers of a response curve's coefficients, in the order :func:`joint_weights` takes them."""
+CURVE_FIELDS = ("quadratic", "cubic", "quintic")
+"""The name of each power of :data:`CURVE_POWERS`, in its order: the field of
+:class:`~compass.response.CubicResponse` and of :class:`~compass.sim.bench.BenchPhysics` that holds it."""
 
 HARD_IRON_PRIOR = 0.1
 """1-sigma of a hard-iron component the fit left undetermined, as a fraction of |B|: a product's iron moves the

@@ -27,7 +27,8 @@ from dataclasses import dataclass
 from functools import cached_property
 import numpy as np
 
-from .iron_uncertainty import ChannelUncertainty, TumbleUncertainty, independent_joint, joint_problem
+from .iron_uncertainty import (CURVE_FIELDS, ChannelUncertainty, TumbleUncertainty, independent_joint,
+                              joint_problem)
 from .response import CubicResponse, LinearResponse, Response
 from .temperature import TemperatureCompensation
 
@@ -232,7 +233,7 @@ class SensorModel:
         out = np.zeros((len(joints), 8, 8))
         for c, s in enumerate(joints):
             out[c, :len(s), :len(s)] = s
-        curves = np.array([[getattr(r, k) for k in ("quadratic", "cubic", "quintic")] if is_curved else [0.0] * 3
+        curves = np.array([[getattr(r, k) for k in CURVE_FIELDS] if is_curved else [0.0] * len(CURVE_FIELDS)
                            for r, is_curved in zip(self.responses, curved)], dtype=float)
         return out, curves
 

@@ -26,6 +26,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from compass.frames import field_in_bench
+from compass.iron_uncertainty import CURVE_FIELDS, CURVE_POWERS
 from compass.sim.bench import BenchPhysics, BenchSamples, housing_field, true_platform_deg
 
 from ..effects import time_powers
@@ -61,7 +62,8 @@ class Partials:
         self.b_h = housing_field(physics, samples) if b_h is None else b_h
         x = self.b_h @ physics.directions.T
         bent, slope = x.copy(), np.ones_like(x)
-        for k, coef in ((2, physics.quadratic), (3, physics.cubic), (5, physics.quintic)):
+        for k, name in zip(CURVE_POWERS, CURVE_FIELDS):
+            coef = getattr(physics, name)
             if coef is not None:
                 bent += coef * x**k
                 slope += k * coef * x ** (k - 1)

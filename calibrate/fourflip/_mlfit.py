@@ -29,7 +29,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from compass.frames import direction_sigma_deg as _direction_sigma_deg
-from compass.iron_uncertainty import CURVE_POWERS
+from compass.iron_uncertainty import CURVE_FIELDS, CURVE_POWERS
 from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, channel_outputs, housing_field
 
 from ..diagnosis.evidence import SINGULAR_RCOND, linear_score, unit_columns
@@ -430,16 +430,11 @@ def _covariance(jac: np.ndarray, names) -> tuple[np.ndarray, list]:
     return inv, singular
 
 
-_CURVE_FIELDS = {2: "quadratic", 3: "cubic", 5: "quintic"}
-"""The :class:`~compass.sim.bench.BenchPhysics` field of each power of
-:data:`~compass.iron_uncertainty.CURVE_POWERS`."""
-
-
 def curve_coefficients(physics: BenchPhysics) -> np.ndarray:
     """Each channel's response curve coefficients over :data:`~compass.iron_uncertainty.CURVE_POWERS` (quadratic,
     cubic, quintic; 1 / field unit^(k - 1)), zero for a power the physics does not carry, shape (c, 3)."""
     c = len(physics.gains)
-    held = (getattr(physics, _CURVE_FIELDS[k]) for k in CURVE_POWERS)
+    held = (getattr(physics, name) for name in CURVE_FIELDS)
     return np.column_stack([np.zeros(c) if v is None else np.asarray(v, dtype=float) for v in held])
 
 

@@ -23,6 +23,7 @@ from scipy.optimize import isotonic_regression
 
 from compass.frames import seed_angles
 from compass.io.fourflip import FourFlipRecording
+from compass.iron_uncertainty import CURVE_FIELDS
 from compass.model import MIN_SINGULAR_VALUE
 from compass.response import CubicResponse, LinearResponse, TableResponse
 from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, housing_field
@@ -339,8 +340,8 @@ def _seen_range(physics: BenchPhysics, samples: BenchSamples) -> np.ndarray:
 
 
 def _response_from_physics(phys: BenchPhysics, c: int, x_range) -> LinearResponse | CubicResponse:
-    terms = {k: float(v[c]) for k, v in (("quadratic", phys.quadratic), ("cubic", phys.cubic),
-                                         ("quintic", phys.quintic)) if v is not None}
+    held = {name: getattr(phys, name) for name in CURVE_FIELDS}
+    terms = {name: float(v[c]) for name, v in held.items() if v is not None}
     if terms:
         return CubicResponse(float(phys.offsets[c]), float(phys.gains[c]), tuple(x_range), **terms)
     return LinearResponse(float(phys.offsets[c]), float(phys.gains[c]), tuple(x_range))
