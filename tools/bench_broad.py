@@ -128,6 +128,7 @@ CANDIDATES = {  # name: (FilterConfig changes, hard-iron tracker on, noise from 
     "start heading row held": ({"start_field_bias_hold": True}, True, False),
     "start heading row held only": ({"start_rest_bias": False, "start_field_bias_hold": True}, True, False),
     "- motion-adaptive accel": ({"motion_adaptive_accel": False}, True, False),
+    "lever arm": ({"lever_arm": True}, True, False),  # issue 22: a hand-held turn's lever arm out of the low-pass
     "- inertial low-pass": ({"accel_time_constant_s": 0.01}, True, False),
     "- gyro scale-error noise": ({"gyro_scale_error": 1e-9}, True, False),
     "second-order inertial low-pass": ({"accel_lowpass_order": 2}, True, False),  # issue 22's turn analysis
@@ -414,12 +415,14 @@ def _run_with_state(trial, config, field):
     return matrix, low_pass
 
 
-def turn_diagnosis(trial) -> None:
-    """Inclination RMS of the filter's output, of its inertial low-pass's direction applied outright, and of
-    VQF, over the scored samples and by gyro rate |w| (rad/s)."""
+def low_pass_inclination(trial, changes=None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The scored rows (a mask) and, on them, the inclination error (deg) of the filter's output and of its inertial
+    low-pass's direction applied outright (the filter's ``low_pass``: the tilt's measurement), the pipeline of
+    :func:`ours` with the FilterConfig ``changes``."""
+    from compass.evaluation import orientation_errors
     from compass.hard_iron import track_hard_iron
 
-    config = ours_config(trial, trial.mag_ut)
+    config = ours_config(trial, trial.mag_ut, changes)
     field = track_hard_iron(trial.mag_ut, trial.accel_m_s2, trial.rate_hz, dip_deg=config.dip_deg).corrected(trial.mag_ut)
     matrix, low_pass = _run_with_state(trial, config, field)
     up = np.einsum("nij,nj->ni", matrix, low_pass)
@@ -433,17 +436,20 @@ def turn_diagnosis(trial) -> None:
     scored = trial.movement & trial.ref_valid & ok
     ref = Rotation.from_quat(trial.ref_quat_enu[scored], scalar_first=True)
 
-    def inclination(quat_enu):
-        from compass.evaluation import orientation_errors
+    def inclination(matrices):
+        return orientation_errors(nwu_to_enu(Rotation.from_matrix(matrices[scored])), ref)[2]
 
-        return orientation_errors(Rotation.from_quat(quat_enu[scored], scalar_first=True), ref)[2]
+    return scored, {"ours": inclination(matrix), "low-pass direction": inclination(tilted)}
 
-    def enu(matrices):  # rows without an attitude are not scored: the identity stands in for them
-        matrices = np.where(ok[:, None, None], np.nan_to_num(matrices), np.eye(3))
-        return nwu_to_enu(Rotation.from_matrix(matrices)).as_quat(scalar_first=True)
 
-    series = {"ours": inclination(enu(matrix)), "low-pass direction": inclination(enu(tilted)),
-              "vqf": inclination(vqf_online(trial))}
+def turn_diagnosis(trial) -> None:
+    """Inclination RMS of the filter's output, of its inertial low-pass's direction applied outright, and of
+    VQF, over the scored samples and by gyro rate |w| (rad/s)."""
+    from compass.evaluation import orientation_errors
+
+    scored, series = low_pass_inclination(trial)
+    ref = Rotation.from_quat(trial.ref_quat_enu[scored], scalar_first=True)
+    series["vqf"] = orientation_errors(Rotation.from_quat(vqf_online(trial)[scored], scalar_first=True), ref)[2]
     rate = np.linalg.norm(trial.gyro_rad_s[scored], axis=1)
     for lo, hi in ((0.0, np.inf), (0.0, 1.0), (1.0, 2.0), (2.0, np.inf)):
         k = (rate >= lo) & (rate < hi)

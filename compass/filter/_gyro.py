@@ -17,6 +17,7 @@ from scipy.special import chdtri  # chi2.ppf(q, k) == chdtri(k, 1 - q), without 
 from ._base import _P0_ATTITUDE, AttitudeFilter, exp_matrix, mat_mul
 from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_heading, update_tilt
 from ._gate import GateState
+from ._lever import LeverState, add_sample, leftover
 from ._place import PLACE_EVENT, PlaceDetector, PlaceState
 from ._records import _REST_RATE_SIGMA, _REST_TAU_S, Diagnostics, SkipCounts
 
@@ -106,6 +107,8 @@ class GyroState(PackedCovariance):
         its clock: the next sample tells which), else None.
     place : PlaceState
         The place detector's window (``FilterConfig.follow_place``).
+    lever : LeverState
+        The lever arm's fit and the low-pass of its velocity (``FilterConfig.lever_arm``).
     """
 
     t_s: float | None
@@ -133,6 +136,7 @@ class GyroState(PackedCovariance):
     acc_residual: tuple = (0.0, 0.0, 0.0)
     rest_pending: deque = field(default_factory=deque)
     start_rest: bool = True
+    lever: LeverState = field(default_factory=LeverState)
 
 
 class GyroFilter(AttitudeFilter):
@@ -150,6 +154,7 @@ class GyroFilter(AttitudeFilter):
         self._gyro_range2 = self.config.gyro_range_rad_s**2
         self._x = [0.0] * 6  # the error state (eps, db), folded into the nominal state after each sample
         self._second_order = self.config.accel_lowpass_order == 2
+        self._lever = self.config.lever_arm
         self._lp2_dt, self._lp2 = None, None  # the second-order low-pass's step and its coefficients
         self._place = PlaceDetector(self.config) if self.config.follow_place and self.config.gate else None
         # a decoupled field update injects its heading apart: one exponential of (eps_x, eps_y, eps_z) would
@@ -171,8 +176,14 @@ class GyroFilter(AttitudeFilter):
 
     @property
     def low_pass(self) -> tuple | None:
-        """The specific force low-passed in the inertial frame, seen in H, accelerometer units (None before the start)."""
-        return self._s.acc_lp
+        """The specific force low-passed in the inertial frame, seen in H, accelerometer units (None before the start);
+        with ``FilterConfig.lever_arm`` less what it leaves of the lever arm's acceleration: the tilt's measurement."""
+        s = self._s
+        if not self._lever or s.acc_lp is None or s.lever.low_pass is None:
+            return s.acc_lp
+        (gx, gy, gz), (bx, by, bz), (lx, ly, lz) = s.rate_rad_s, s.bias_rad_s, s.acc_lp
+        kx, ky, kz = leftover(s.lever, 0.0, self.config.accel_time_constant_s, (gx - bx, gy - by, gz - bz))  # no step
+        return lx - kx, ly - ky, lz - kz
 
     def update(self, t_s: float, accel, gyro, field_h) -> bool:
         begun = self._begin(t_s, accel, gyro, field_h)
@@ -210,6 +221,7 @@ class GyroFilter(AttitudeFilter):
         self._x[:] = [0.0] * 6
         s.acc_lp, s.acc_lp_rate, s.age_lp = a[:3], (0.0, 0.0, 0.0), (0.0, 0.0)
         s.acc_lp_age_s = 0.0
+        s.lever.low_pass = None
         s.residual_var, s.acc_residual = 0.0, (0.0, 0.0, 0.0)
         s.rest_gyro, s.rest_acc, s.rest_s = s.rate_rad_s, a[:3], 0.0
         s.rest_pending.clear()
@@ -221,6 +233,7 @@ class GyroFilter(AttitudeFilter):
         if s.acc_lp is not None:
             s.acc_lp, s.acc_lp_age_s, s.residual_var, s.acc_residual = a[:3], 0.0, 0.0, (0.0, 0.0, 0.0)
             s.acc_lp_rate, s.age_lp = (0.0, 0.0, 0.0), (s.since_start_s, 0.0)  # the low-pass content is new: age 0
+            s.lever.low_pass = None
         s.rest_acc, s.rest_s = a[:3], 0.0
         s.rest_pending.clear()
         s.start_rest = False
@@ -245,6 +258,10 @@ class GyroFilter(AttitudeFilter):
                 vx, vy, vz = s.acc_lp_rate
                 s.acc_lp_rate = (e[0] * vx + e[3] * vy + e[6] * vz, e[1] * vx + e[4] * vy + e[7] * vz,
                                  e[2] * vx + e[5] * vy + e[8] * vz)
+            elif self._lever and s.lever.low_pass is not None:  # and the lever arm's velocity's
+                vx, vy, vz = s.lever.low_pass
+                s.lever.low_pass = (e[0] * vx + e[3] * vy + e[6] * vz, e[1] * vx + e[4] * vy + e[7] * vz,
+                                    e[2] * vx + e[5] * vy + e[8] * vz)
         # P <- F P F^T + Q, F = [[I, -R dt], [0, I]]
         c = self.coefficients
         q_att = (c.gyro_var + c.scale_var * (wx * wx + wy * wy + wz * wz)) * dt
@@ -323,6 +340,8 @@ class GyroFilter(AttitudeFilter):
                 lx, ly, lz = lx + alpha * (ax - lx), ly + alpha * (ay - ly), lz + alpha * (az - lz)
                 s.acc_lp = (lx, ly, lz)
                 s.acc_lp_age_s = (1.0 - alpha) * (s.acc_lp_age_s + dt)
+                if self._lever:
+                    lx, ly, lz = self._lever_step(dt, alpha, a, lx, ly, lz)
             lp_norm = math.sqrt(lx * lx + ly * ly + lz * lz)
             if cfg.residual_in_band:  # only what varies on the motion's time scale: a vibration or a tap is not left
                 beta = -math.expm1(-dt * 2.0 * math.pi / cfg.motion_time_s)
@@ -335,6 +354,8 @@ class GyroFilter(AttitudeFilter):
             residual = (lp_norm / g - 1.0) ** 2 + raw2 / (g * g) * c.attenuation2
             s.residual_var += -math.expm1(-dt / cfg.motion_time_s) * (residual - s.residual_var)
         else:
+            if self._lever:  # no step: the lever arm's leftover as it stands
+                lx, ly, lz = self._lever_step(0.0, 0.0, a, lx, ly, lz)
             lp_norm = math.sqrt(lx * lx + ly * ly + lz * lz)
         if not lp_norm > 0 or abs(lp_norm / g - 1.0) > cfg.accel_tolerance:
             return False
@@ -352,6 +373,17 @@ class GyroFilter(AttitudeFilter):
         s.covariance = update_tilt(s.covariance, self._x, (-age * m[3], -age * m[4], -age * m[5]), d0,
                                    (age * m[0], age * m[1], age * m[2]), d1, var, hold)
         return True
+
+    def _lever_step(self, dt: float, alpha: float, a, lx: float, ly: float, lz: float) -> tuple:
+        """The lever arm's fit takes this sample, held ``dt`` s; the low-pass ``(lx, ly, lz)`` (stepped with gain
+        ``alpha``; 0 and 0: no step) less what it leaves of the lever arm's acceleration
+        (:mod:`compass.filter._lever`)."""
+        s = self._s
+        (gx, gy, gz), (bx, by, bz), m, g = s.rate_rad_s, s.bias_rad_s, s.matrix, s.gravity
+        w = (gx - bx, gy - by, gz - bz)
+        add_sample(s.lever, dt, w, (a[0] - g * m[6], a[1] - g * m[7], a[2] - g * m[8]))
+        kx, ky, kz = leftover(s.lever, alpha, self.config.accel_time_constant_s, w)
+        return lx - kx, ly - ky, lz - kz
 
     def _low_pass2(self, dt: float, ax: float, ay: float, az: float) -> tuple:
         """One step of the second-order (Butterworth) inertial low-pass; its output, also kept in the state.

@@ -161,6 +161,10 @@ class FilterConfig:
         and squared; issue 22): a 25 Hz vibration or a 2 ms tap, which the inertial low-pass removes almost
         entirely, no longer makes the filter distrust the accelerometer for ``motion_time_s`` (False: the raw
         motion, as before).
+    lever_arm : bool
+        The gyro filter's tilt measurement takes out what the first-order inertial low-pass leaves of a hand-held
+        turn about a centre away from the IMU, ``(v - LP v) / tau`` with ``v = w x r``, the lever arm ``r``
+        fitted as it runs (:mod:`compass.filter._lever`; issue 22).  Only with ``accel_lowpass_order`` 1.
     calibration_uncertainty : compass.iron_uncertainty.TumbleUncertainty or ChannelUncertainty or None
         The calibration's own uncertainty (``SensorModel.calibration_uncertainty``; :meth:`from_model` sets
         it): never fused (a constant error, not noise), only added to the reported heading sigma at each
@@ -224,6 +228,7 @@ class FilterConfig:
     place_window_s: float = 4.0
     residual_in_band: bool = False
     field_update: str = "kalman"
+    lever_arm: bool = False
     calibration_uncertainty: object = None
 
     def __post_init__(self):
@@ -247,6 +252,8 @@ class FilterConfig:
                              f"got {self.field_update!r}")
         if self.accel_lowpass_order not in (1, 2):
             raise ValueError(f"FilterConfig.accel_lowpass_order must be 1 or 2, got {self.accel_lowpass_order!r}")
+        if self.lever_arm and self.accel_lowpass_order != 1:
+            raise ValueError("FilterConfig.lever_arm needs accel_lowpass_order 1 (the first-order low-pass's leftover)")
         if not -90.0 < self.dip_deg < 90.0:
             raise ValueError(f"FilterConfig.dip_deg must be in (-90, 90), got {self.dip_deg!r}")
         if self.gravity is not None and not (np.isfinite(self.gravity) and self.gravity > 0):
