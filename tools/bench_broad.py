@@ -128,7 +128,6 @@ CANDIDATES = {  # name: (FilterConfig changes, hard-iron tracker on, noise from 
     "start heading row held": ({"start_field_bias_hold": True}, True, False),
     "start heading row held only": ({"start_rest_bias": False, "start_field_bias_hold": True}, True, False),
     "- motion-adaptive accel": ({"motion_adaptive_accel": False}, True, False),
-    "lever arm": ({"lever_arm": True}, True, False),  # issue 22: a hand-held turn's lever arm out of the low-pass
     "- inertial low-pass": ({"accel_time_constant_s": 0.01}, True, False),
     "- gyro scale-error noise": ({"gyro_scale_error": 1e-9}, True, False),
     "second-order inertial low-pass": ({"accel_lowpass_order": 2}, True, False),  # issue 22's turn analysis
@@ -155,6 +154,7 @@ TURN_VARIANTS = {  # issue 22's turn analysis, run only when named in --candidat
     "Butterworth 3 s and motion 1 s": ({"accel_lowpass_order": 2, "accel_time_constant_s": 3.0, "motion_time_s": 1.0},
                                     True, False),
     "gyro_scale_error 0.01": ({"gyro_scale_error": 0.01}, True, False),
+    "lever arm": ({"lever_arm": True}, True, False),  # a hand-held turn's lever arm out of the low-pass
 }
 
 
