@@ -26,11 +26,10 @@ with the tumble and the fits against known inputs):
    rejected, an effect proposed next that takes less than that curve would is not claimed
    (:func:`~calibrate.fourflip._form.response_form_check`: a knee's misfit reads as per-flip offsets, a platform
    field's signature); where the final fit's is, a fit the structure test calls white is called unexplained with
-   the response kept (the vocabulary's nearest curve; a linear file would be further off) and widened for the
-   curve's static misfit alone
+   the response kept (the vocabulary's nearest curve; a linear file would be further off) and widened, also for
+   the curve's static misfit
    (:func:`~calibrate.fourflip._form.response_misfit`: its bias in the parameters, which no structure in time
-   covers; a structure in time sized from a residual white in time would be the same misfit seen again), and a
-   fit whose structure remains for its structure in time and the misfit, the larger of the two.
+   covers).
 7. A fit the structure test calls white (explained, or unexplained by the form test alone, whose misfit cover then
    comes on top) is asked once more, across the recording: the residual summed over 10 s blocks, the band
    test of the unexplained widening (:func:`calibrate.diagnosis.robust.band_p_values`) as one family
@@ -220,10 +219,7 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
             current = walked
     if unexplained:  # structure remains, or (white) the form test rejects: the larger of this and any wander's cover
         misfit = None if form is None or form.p_value >= STRUCTURE_P else response_misfit(naive, noise, judged)
-        if by_form:  # white in time: a structure in time sized from it would be the curve's misfit seen again
-            wide, diagnosis["unexplained_cost"] = _widen_misfit(naive, misfit, rec.channels)
-        else:
-            wide, diagnosis["unexplained_cost"] = _widen(naive, noise, rec.channels, about_mean=True, misfit=misfit)
+        wide, diagnosis["unexplained_cost"] = _widen(naive, noise, rec.channels, about_mean=True, misfit=misfit)
         current = wide if walked is None else with_covariance(naive, widened(walked.covariance, wide.covariance))
     current, unseen = _unseen_platform(current, noise, rec.channels)
     if unseen is not None:
@@ -343,28 +339,6 @@ def _widen(fit: MLFit, noise: np.ndarray, channels, about_mean: bool = False, st
                           "noise and added to the naive covariance (response_misfit); the file's sigmas are the "
                           "larger of that and the structure in time's widening: " + cost["method"])
     return wide, cost
-
-
-def _widen_misfit(fit: MLFit, misfit: ResponseMisfit, channels) -> tuple[MLFit, dict]:
-    """The fit with its covariance widened by the response curve's misfit alone, and what that costs: the cover of a
-    fit the structure test calls white and the form test rejects.
-
-    The structure test finds no structure in time, so what a structure in time's widening would size from the
-    residual is the curve's misfit again (structure locked to the turn spans a curve of the turning field, and
-    the block sums of a curve of the field wander), and the larger of two estimates of one bias states more than
-    either (docs/benchmarks.md, "One misfit, not two covers").  The file's covariance is the naive one plus the
-    curve's squared bias (:func:`calibrate.fourflip._form.response_misfit`).
-    """
-    wide = with_covariance(fit, widened(fit.covariance, misfit.cover(fit.covariance)))
-    return wide, {
-        **_sigma_cost(fit, wide, channels),
-        "response_misfit": _misfit_cost(fit, misfit, channels),
-        "method": ("the response's curve is not the vocabulary's form and the residual is white in time: a general "
-                   "curve of each judged channel's field component (Legendre degrees 2-8) fitted beside the fit's "
-                   "parameters, the bias each of its components the recording determines put in them estimated "
-                   "without its noise and added to the naive covariance (response_misfit); no structure in time "
-                   "is sized beside it (it would be the same misfit seen again)"),
-    }
 
 
 def _misfit_cost(fit: MLFit, misfit: ResponseMisfit, channels) -> dict:

@@ -119,27 +119,6 @@ def test_an_unnamed_cubic_is_said_and_covered(bench):
     assert np.all(err < 1.25 * np.array([c.direction_sigma_deg for c in result.channels]))
 
 
-def test_a_curve_white_in_time_is_covered_once(bench):
-    """Reference relation, odd cubic seed 64: white by the structure test and by the block test (no wander), the
-    form test rejects its linear response; the file's sigmas are the naive covariance plus the curve's squared bias
-    alone (unexplained_cost's widened sigma equals response_misfit's own), not the larger of that and a structure
-    in time sized from the same residual (which took the directions' err/sig 0.56 -> 0.48)."""
-    from calibrate import calibrate_fourflip
-
-    rec, _ = bench.session(64, "odd cubic")
-    result = calibrate_fourflip(rec, diagnose=True)
-    d = result.diagnosis
-    assert d["unexplained_by"] == "response_form_test" and "wander_cost" not in d
-    cost = d["unexplained_cost"]
-    widened = np.array([cost["direction_sigma_deg"][n]["widened"] for n in rec.channels])
-    alone = np.array([cost["response_misfit"]["direction_sigma_deg"][n]["widened"] for n in rec.channels])
-    naive = np.array([cost["direction_sigma_deg"][n]["naive"] for n in rec.channels])
-    np.testing.assert_allclose(widened, alone, rtol=1e-12)
-    np.testing.assert_allclose([c.direction_sigma_deg for c in result.channels], alone, rtol=1e-9)
-    assert np.all(alone > naive)  # the bias is taken
-    assert "no structure in time" in cost["method"]
-
-
 def test_the_check_vetoes_only_what_the_curve_could_take(bench):
     """On the noisy knee, an effect buying less chi-square than the general curve is vetoed with the test in its
     reason; one buying more (a real gain drift stacked with a cubic) is not."""
