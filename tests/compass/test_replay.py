@@ -391,3 +391,63 @@ def test_live_says_an_unnamed_deg_s_gyro_and_writes_nothing_non_finite(stream):
     said = [text for level, text in events if level == "warn" and "--gyro-unit" in text]
     assert len(said) == 1 and re.search(r"turns \d+ times more", said[0])
     assert np.all(np.isfinite(np.array(rows[1:], dtype=float)))
+
+
+def _with_column(path, column, values):
+    """``path`` rewritten with ``column``'s cells replaced by ``values`` (one per data row)."""
+    lines = path.read_text().splitlines()
+    k = lines[0].split(",").index(column)
+    rows = [line.split(",") for line in lines[1:]]
+    for row, value in zip(rows, values):
+        row[k] = repr(float(value))
+    path.write_text("\n".join([lines[0]] + [",".join(row) for row in rows]) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("case, words", [
+    ("t_s constant", "column 't_s': t_s is 0 in all 3000 rows: the filter needs each sample's time"),
+    ("t_s in ms", "column 't_s': t_s steps by 10 s (median): each step is a gap over the filter's 0.5 s"),
+    ("dead gyro", "column 'gx': the gyro gx,gy,gz read in rad/s never turns while the accelerometer sees the housing "
+                  "tilt: a dead gyro?"),
+    ("rad/s named deg/s", "read in deg/s turns 60 times less than the accelerometer sees the housing tilt"),
+    ("five rows", "no attitude from its 5 rows (the filter's start seeds the reference field from at least 10 rows; "
+                  "give --site"),
+])
+def test_the_command_refuses_what_it_would_fuse_wrong_in_one_line(files, stream, capsys, case, words):
+    """Time stamps that do not tell the time between samples (all equal, or in ms: every step a gap that restarts
+    the filter), a gyro that reads zero while the housing tilts (fused as a still housing), a rad/s gyro whose header
+    says deg/s (fused 57 times too slow), fewer rows than the start needs: exit 2, one line naming the file and column,
+    nothing written.  Each ran before, with a wrong attitude and at most a warning at the end (or 3000 restart
+    lines), or (five rows) a refusal that listed the session's counters instead of the reason."""
+    _, t, s = stream
+    cal, recording = files
+    rec = recording()
+    if case == "t_s constant":
+        _with_column(rec, "t_s", np.zeros(len(t)))
+    elif case == "t_s in ms":
+        _with_column(rec, "t_s", 1e3 * t)
+    elif case == "dead gyro":
+        for column in ("gx", "gy", "gz"):
+            _with_column(rec, column, np.zeros(len(t)))
+    elif case == "rad/s named deg/s":
+        text = rec.read_text()
+        rec.write_text(text.replace("gx,gy,gz", "Gyroscope X (deg/s),Gyroscope Y (deg/s),Gyroscope Z (deg/s)", 1))
+    else:
+        rec.write_text("\n".join(rec.read_text().splitlines()[:6]) + "\n")
+    out = cal.parent / "att.csv"
+    code = main(["attitude", str(cal), str(rec), "--out", str(out), "--filter"])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert str(rec) in err and words in err, err
+    assert not out.exists()
+
+
+def test_live_says_a_dead_gyro_instead_of_failing(stream):
+    """A module whose gyro sends zeros while the housing tilts: compass live said nothing and then stopped on a
+    division by zero (1 / ratio); now it warns once, naming a dead gyro, and writes nothing non-finite."""
+    model, t, s = stream
+    events = []
+    _, rows = _session_rows(model, _lines(model, t, replace(s, gyro=np.zeros_like(s.gyro))), events)
+    said = [text for level, text in events if level == "warn" and "dead gyro" in text]
+    assert len(said) == 1 and len(rows) == len(t) + 1
+    assert np.all(np.isfinite(np.array(rows[1:], dtype=float)))
