@@ -451,3 +451,18 @@ def test_live_says_a_dead_gyro_instead_of_failing(stream):
     said = [text for level, text in events if level == "warn" and "dead gyro" in text]
     assert len(said) == 1 and len(rows) == len(t) + 1
     assert np.all(np.isfinite(np.array(rows[1:], dtype=float)))
+
+
+def test_live_says_once_a_t_s_in_milliseconds(stream):
+    """A module sending its clock in ms as t_s: every step is a 10 s gap that restarts the filter (said as a gap each
+    time, and nothing else); now the cause is said once, after the first samples, and nothing written is
+    non-finite."""
+    model, t, s = stream
+    events = []
+    _, rows = _session_rows(model, _lines(model, 1e3 * t, s), events)
+    said = [text for level, text in events if level == "warn" and "does it send milliseconds?" in text]
+    assert len(said) == 1 and "t_s steps by 10 s" in said[0]
+    assert np.all(np.isfinite(np.array(rows[1:], dtype=float)))
+    seconds = []
+    _session_rows(model, _lines(model, t, s), seconds)
+    assert not any("milliseconds" in text for _, text in seconds)
