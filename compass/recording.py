@@ -166,6 +166,7 @@ def solve_recording(calibration, recording, *, level=False, max_tilt_deg=5.0, ac
     if tilt_sensor is None:
         accel = table.group(ACCEL)
         if accel is not None:
+            table.check_dead_axis(ACCEL)
             check_accel_up(accel, table.rows, where=table.path)
     else:  # a 3-D platform calibration: ax, ay[, az] are its tilt sensor's raw outputs
         tilt_raw = table.group(tilt_sensor.columns)

@@ -215,6 +215,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
         raise RecordingError(table.path, "has no ax,ay,az columns: the filter needs an accelerometer for the tilt "
                                          "(without one: compass attitude --level, no --filter)",
                              row=table.header_row, column="ax")
+    table.check_dead_axis(("ax", "ay", "az"))
     t_s = table.column("t_s")
     _check_time_steps(table, t_s, config.max_gap_s)
     if gyro is not None and (read_options is None or read_options.gyro_unit is None):

@@ -466,3 +466,35 @@ def test_live_says_once_a_t_s_in_milliseconds(stream):
     seconds = []
     _session_rows(model, _lines(model, t, s), seconds)
     assert not any("milliseconds" in text for _, text in seconds)
+
+
+@pytest.mark.parametrize("mode", [["--filter"], []])
+def test_a_dead_accelerometer_axis_is_refused_naming_it(files, stream, capsys, mode):
+    """az reading 0 in every row while ax and ay follow the tilt: the filter learnt gravity and the reference's dip
+    from it (dip -6 deg against 60) and the per-row solution flagged two thirds of the rows disturbed, both without
+    a word; now exit 2 in one line naming the column, replayed or solved per row.  A still housing, whose axes a
+    coarse resolution can hold constant, is not refused (test_a_still_log_at_a_coarse_resolution_is_solved)."""
+    _, t, _ = stream
+    cal, recording = files
+    rec = _with_column(recording(), "az", np.zeros(len(t)))
+    out = cal.parent / "att.csv"
+    code = main(["attitude", str(cal), str(rec), "--out", str(out), *mode])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert f"{rec}, column 'az': is constant (0 in all 3000 rows) while ax, ay change" in err
+    assert not out.exists()
+
+
+def test_a_still_log_at_a_coarse_resolution_is_solved(files, stream, tmp_path):
+    """A housing lying still for 3 s, its accelerometer logged at 0.01 g (ax and ay read 0.00 throughout, az
+    1.00 or next to it): no axis changes, none is called dead, the recording is solved."""
+    model, t, s = stream
+    cal, _ = files
+    still = t < 3.0
+    accel = np.round(s.accel[still], 2)
+    accel[:, :2] = 0.0
+    columns = {"t_s": t[still]} | {c: s.raw[still, k] for k, c in enumerate(model.channels)} \
+        | {c: accel[:, k] for k, c in enumerate(("ax", "ay", "az"))}
+    rec = tmp_path / "still.csv"
+    rec.write_text(format_table(columns, {}, {c: "%.17g" for c in columns}))
+    assert main(["attitude", str(cal), str(rec), "--out", str(tmp_path / "att.csv"), "--filter"]) == 0
