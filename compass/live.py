@@ -17,7 +17,7 @@ import numpy as np
 
 from .calibration import ImuCorrection
 from .filter import AttitudeFilter, Estimate, FilterConfig, FilterStart
-from .io.streams import StreamDecoder, StreamOptions, field_scale_check
+from .io.streams import JUDGE_SAMPLES, StreamDecoder, StreamOptions, field_scale_check
 from .iron_uncertainty import undetermined_words, with_calibration_sigma
 from .serial_reader import Chunk, LinkEvent
 from .site import upside_down
@@ -191,6 +191,7 @@ class LiveSession:
     _axes_rows: list | None = field(default_factory=list)  # (accel, field) pairs for the axis check; None once judged
     _dips: list | None = None  # measured dips of the first estimates, against a given reference
     _bench_accel: bool | None = None  # the bench's offsets apply to this stream's unit; None: not judged yet
+    _times: list | None = field(default_factory=list)  # the first samples' t_s for the step check; None once judged
     _last_rx: float = 0.0
 
     def __post_init__(self):
@@ -258,6 +259,7 @@ class LiveSession:
     def _chunk(self, samples: list, t_rx: float) -> None:
         """A chunk's samples: what is not sequential once for all of them (the calibration's field, the
         reference seeding's screen), then each sample through the seeding or the filter."""
+        self._judge_steps(samples)
         fields, in_range = self._fields(samples)
         field_rows, in_range = fields.tolist(), in_range.tolist()
         imu = self.imu
@@ -276,6 +278,21 @@ class LiveSession:
                 self._starting(reading)
             else:
                 self._sample(reading)
+
+    def _judge_steps(self, samples: list) -> None:
+        """Say once when the module's ``t_s`` steps by a median over the filter's ``max_gap_s`` (s) in its first
+        :data:`~compass.io.streams.JUDGE_SAMPLES` samples: every sample restarts the filter (a firmware's
+        milliseconds sent as t_s; the replay refuses such a recording)."""
+        if self._times is None:
+            return
+        self._times += [s.t_s for s in samples if s.t_s is not None]
+        if len(self._times) < JUDGE_SAMPLES:
+            return
+        step, self._times = float(np.median(np.diff(self._times))), None
+        if step > self.config.max_gap_s:
+            self._event("warn", f"the module's t_s steps by {step:g} s (median of its first {JUDGE_SAMPLES} samples): "
+                                f"each step is a gap over the filter's {self.config.max_gap_s:g} s and restarts it; "
+                                "does it send milliseconds? (the line protocol's t_s is in seconds)")
 
     def _judge_accel(self, samples: list) -> bool:
         """Whether the bench's accelerometer offsets and scales apply: judged once, on the first chunk with

@@ -166,6 +166,7 @@ def solve_recording(calibration, recording, *, level=False, max_tilt_deg=5.0, ac
     if tilt_sensor is None:
         accel = table.group(ACCEL)
         if accel is not None:
+            table.check_dead_axis(ACCEL)
             check_accel_up(accel, table.rows, where=table.path)
     else:  # a 3-D platform calibration: ax, ay[, az] are its tilt sensor's raw outputs
         tilt_raw = table.group(tilt_sensor.columns)
@@ -241,23 +242,26 @@ def solve_recording(calibration, recording, *, level=False, max_tilt_deg=5.0, ac
         warnings.append(f"{calibration} was made with --method patent (seed 000's rule as written, kept for "
                         "comparison): its dip rule and tabulated response can be off by degrees and its sigmas count "
                         "sensor noise only; calibrate with the default method for use")
-    linear_beyond = _linear_beyond(model, raw, temp_c)
+    linear_beyond = _linear_beyond(model, raw, temp_c, result.skipped)
     if linear_beyond:
         metadata["extrapolated"] = linear_beyond
     gyro = np.column_stack([table.column(n) for n in GYRO]) if all(table.has(n) for n in GYRO) else None
     return SolvedRecording(result, model, columns, metadata, warnings, linear_beyond, raw, accel, gyro)
 
 
-def _linear_beyond(model, raw, temp_c) -> str:
+def _linear_beyond(model, raw, temp_c, skipped) -> str:
     """Words for the rows that read a linear channel beyond the field it was calibrated over ('' if none).
 
     Not in ``in_range`` (which flags nonlinear curves extrapolated): a line beyond its range is the
-    same line, wrong only by a nonlinearity the bench could not see (:mod:`compass.response`).
+    same line, wrong only by a nonlinearity the bench could not see (:mod:`compass.response`).  Rows
+    ``skipped`` (non-zero: never solved, :data:`compass.sample_check.SKIP_REASONS`; None: none) extrapolate nothing.
     """
     x, _ = model.components(raw, temp_c)
+    solved = np.ones(len(raw), dtype=bool) if skipped is None else np.asarray(skipped) == 0
     rows, names = np.zeros(len(raw), dtype=bool), []
     for c, (name, r) in enumerate(zip(model.channels, model.responses)):
         beyond = np.zeros(len(raw), dtype=bool) if r.nonlinear else r.beyond_range(x[:, c]) & np.isfinite(x[:, c])
+        beyond &= solved
         if beyond.any():
             rows |= beyond
             names.append(f"{name} (calibrated over {r.x_range[0]:.3g}..{r.x_range[1]:.3g})")

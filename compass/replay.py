@@ -22,6 +22,7 @@ import numpy as np
 from . import limits
 from .io.lines import Header, Sample
 from .io.progress import Tally, working
+from .io.table import RecordingError
 from .live import LiveSession
 
 __all__ = ["replay", "replay_file"]
@@ -168,10 +169,9 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     from .errors import BadInput
     from .filter import PLACE_EVENT, FilterConfig
     from .io.atomic import atomic_write_text, check_writable
-    from .io.table import RecordingError, read_table
+    from .io.table import read_table
     from .io.streams import JUDGE_SAMPLES, field_scale_check
-    from .io.units import gyro_turn_ratio, gyro_unit_verdict
-    from .site import Site, reference_from_site
+    from .site import MIN_REFERENCE_ROWS, Site, reference_from_site
     from .viz import check_rerun_target
 
     out = check_writable(out, force)
@@ -215,15 +215,11 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
         raise RecordingError(table.path, "has no ax,ay,az columns: the filter needs an accelerometer for the tilt "
                                          "(without one: compass attitude --level, no --filter)",
                              row=table.header_row, column="ax")
+    table.check_dead_axis(("ax", "ay", "az"))
     t_s = table.column("t_s")
-    if gyro is not None:
-        ratio = gyro_turn_ratio(t_s, gyro, accel)
-        named = read_options is not None and read_options.gyro_unit is not None
-        if gyro_unit_verdict(ratio) == "more" and not named:
-            raise RecordingError(table.path, f"the gyro gx,gy,gz read in rad/s turns {ratio:.0f} times more than the "
-                                             "accelerometer sees the housing tilt (a deg/s gyro gives 57): give "
-                                             "--gyro-unit deg/s (or --gyro-unit rad/s if it really is)",
-                                 row=table.header_row, column="gx")
+    _check_time_steps(table, t_s, config.max_gap_s)
+    if gyro is not None and (read_options is None or read_options.gyro_unit is None):
+        _check_gyro_turn(table)
     raw = np.column_stack([table.column(name) for name in model.channels])
     wrong_unit = field_scale_check(model)(raw[:JUDGE_SAMPLES])  # as the stream decoder judges live
     if wrong_unit is not None:
@@ -263,7 +259,9 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     if session.turned_over is not None:
         raise BadInput(f"{calibration}: {session.turned_over}")
     if session.samples == 0:
-        raise RecordingError(table.path, f"no attitude from its {len(t_s)} rows ({session.summary()})")
+        why = (f"the filter's start seeds the reference field from at least {MIN_REFERENCE_ROWS} rows; give --site "
+               "LAT,LON --date D" if len(t_s) < MIN_REFERENCE_ROWS and reference is None else session.summary())
+        raise RecordingError(table.path, f"no attitude from its {len(t_s)} rows ({why})")
     atomic_write_text(out, buffer.getvalue())
     print(f"wrote {out} ({session.samples} attitudes from {len(t_s)} rows, filter: "
           f"{'gyro' if gyro is not None else 'two-vector (no gx,gy,gz)'}; reference field: "
@@ -271,3 +269,45 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
           + (f"; it moved to a new place's field {len(moves)} time{'s' if len(moves) > 1 else ''}: {moves[-1]}"
              if moves else "") + ")" + (f"\nwrote {rerun}" if rerun is not None and str(rerun) != "spawn" else ""))
     return session
+
+
+def _check_time_steps(table, t_s, max_gap_s: float) -> None:
+    """RecordingError when ``t_s`` does not tell the filter the time between samples.
+
+    A ``t_s`` that never increases integrates no gyro and predicts nothing; a median step beyond the filter's
+    ``max_gap_s`` (s) restarts it at every sample (a time in ms read as s steps 1000 times too far).
+    """
+    if len(t_s) < 2:
+        return
+    if t_s[-1] == t_s[0]:
+        raise RecordingError(table.path, f"t_s is {t_s[0]:g} in all {len(t_s)} rows: the filter needs each sample's "
+                                         "time (seconds)", row=table.header_row, column="t_s")
+    step = float(np.median(np.diff(t_s)))
+    if step > max_gap_s:
+        raise RecordingError(table.path, f"t_s steps by {step:g} s (median): each step is a gap over the filter's "
+                                         f"{max_gap_s:g} s and restarts it; a time in ms (name the column 'Time (ms)')"
+                                         "? a log too slow to filter (without --filter each row is solved alone)?",
+                             row=table.header_row, column="t_s")
+
+
+def _check_gyro_turn(table) -> None:
+    """RecordingError when the gyro, read in its unit (rad/s unless the header names one), turns tens of times more or
+    less than the accelerometer sees the housing tilt, or not at all (:func:`compass.io.units.gyro_unit_verdict` of
+    the table's :attr:`~compass.io.table.Table.gyro_turn_ratio`): the filter would fuse it."""
+    from .io.units import gyro_unit_verdict
+
+    ratio = table.gyro_turn_ratio
+    verdict = gyro_unit_verdict(ratio)
+    if verdict is None:
+        return
+    if ratio == 0.0:
+        words = ("never turns while the accelerometer sees the housing tilt: a dead gyro? (without gx,gy,gz columns "
+                 "the two-vector filter runs)")
+    elif verdict == "more":
+        words = (f"turns {ratio:.0f} times more than the accelerometer sees the housing tilt (a deg/s gyro gives 57): "
+                 "give --gyro-unit deg/s (or --gyro-unit rad/s if it really is)")
+    else:
+        words = (f"turns {1 / ratio:.0f} times less than the accelerometer sees the housing tilt (a rad/s gyro read "
+                 "as deg/s gives 1/57): give --gyro-unit rad/s (or the unit it is in)")
+    raise RecordingError(table.path, f"the gyro gx,gy,gz read in {table.units.get('gx', 'rad/s')} {words}",
+                         row=table.header_row, column="gx")

@@ -26,7 +26,7 @@ import numpy as np
 
 __all__ = ["WMM_MODEL", "WMM_DATES", "Site", "SiteField", "ReferenceField", "wmm_field", "decimal_year",
            "known_reference", "reference_from_site",
-           "reference_from_recording", "upside_down"]
+           "reference_from_recording", "upside_down", "MIN_REFERENCE_ROWS"]
 
 WMM_MODEL = "WMM2025"
 WMM_DATES = (dt.date(2010, 1, 1), dt.date(2029, 12, 31))
@@ -35,7 +35,7 @@ A site's date outside them is refused: the models' secular variation is a 5-year
 so 1800 or 2040 would be an extrapolation with no published uncertainty."""
 _QUIET_ACCEL = 0.02  # a row is quiet when | |a| / g - 1 | is below this (g: the median |a|)
 _OUTLIER_SIGMAS = 5.0  # rows farther than this many robust sigmas from the median are left out
-_MIN_ROWS = 10  # fewest quiet rows from which a reference is estimated
+MIN_REFERENCE_ROWS = 10  # fewest quiet rows from which a reference is estimated
 _MIN_SIGNED_DIP_DEG = 10.0  # below this |dip| a sign flip of the field is within tilt errors: not judged
 
 
@@ -291,11 +291,11 @@ def reference_from_recording(field_h, up_h, accel_norm=None) -> ReferenceField:
     if accel_norm is not None:
         a = np.asarray(accel_norm, dtype=float)
         ok &= np.abs(a / np.median(a[ok]) - 1.0) < _QUIET_ACCEL if np.any(ok) else ok
-    if np.sum(ok) < _MIN_ROWS:
+    if np.sum(ok) < MIN_REFERENCE_ROWS:
         usable = int(np.sum(np.isfinite(b_norm) & (b_norm > 0)))
         what = (f"only {int(np.sum(ok))} rows read gravity alone (|a| within {100 * _QUIET_ACCEL:g} % of g)"
-                if usable >= _MIN_ROWS else f"the recording has {usable} usable rows")
-        raise ValueError(f"{what} and the site's field needs at least {_MIN_ROWS} quiet rows to be estimated from "
+                if usable >= MIN_REFERENCE_ROWS else f"the recording has {usable} usable rows")
+        raise ValueError(f"{what} and the site's field needs at least {MIN_REFERENCE_ROWS} quiet rows to be estimated from "
                          "the recording; give --site LAT,LON --date D")
     dip = np.degrees(np.arcsin(np.clip(-np.einsum("ij,ij->i", b, u) / b_norm, -1.0, 1.0)))
     keep = ok.copy()
@@ -305,7 +305,7 @@ def reference_from_recording(field_h, up_h, accel_norm=None) -> ReferenceField:
         if spread > 0:
             keep &= np.abs(values - centre) <= _OUTLIER_SIGMAS * spread
     n = int(np.sum(keep))
-    if n < _MIN_ROWS:
+    if n < MIN_REFERENCE_ROWS:
         raise ValueError(f"only {n} rows agree on the field: the site's field cannot be estimated from the "
                          f"recording; give --site LAT,LON --date D")
     stats = []

@@ -394,7 +394,10 @@ class StreamDecoder:
         self._gyro_judged = True
         unit = self.options.gyro_unit or "rad/s"
         verdict = units.gyro_unit_verdict(ratio)
-        if verdict is not None:
+        if ratio == 0.0:  # every rate exactly zero (no unit gives that): the check_gyro_unit words
+            self.events.append(("warn", "the gyro never turns while the accelerometer sees the housing tilt: a dead "
+                                        "gyro?"))
+        elif verdict is not None:
             more = f"{ratio:.0f} times more" if verdict == "more" else f"{1 / ratio:.0f} times less"
             self.events.append(("warn", f"the gyro read in {unit} turns {more} than the accelerometer sees the housing "
                                         f"tilt (a unit taken for another gives 57): is --gyro-unit right?"))

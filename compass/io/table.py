@@ -266,6 +266,26 @@ class Table:
                                          column=name)
 
 
+    def check_dead_axis(self, names) -> None:
+        """RecordingError naming the first of a vector sensor's columns ``names`` (all present) that never changes
+        while the others change by more than :data:`DEAD_AXIS_SHARE` of the vector's median length: a dead or
+        disconnected axis.  A still housing logged at a coarse resolution changes none of them; a real axis that
+        a turn leaves alone still reads its noise."""
+        v = np.column_stack([self.column(name) for name in names])
+        span = np.ptp(v, axis=0)
+        moved = span > DEAD_AXIS_SHARE * np.median(np.linalg.norm(v, axis=1))
+        for k, name in enumerate(names):
+            if span[k] == 0.0 and np.any(np.delete(moved, k)):
+                raise RecordingError(self.path, f"is constant ({v[0, k]:g} in all {len(v)} rows) while "
+                                                f"{', '.join(n for n, m in zip(names, moved) if m)} change: a dead "
+                                                "or disconnected axis?", column=name)
+
+
+DEAD_AXIS_SHARE = 0.1
+"""A vector sensor's axis that never changes while another changes by more than this share of the vector's median
+length is dead (:meth:`Table.check_dead_axis`): a tilt of 6 degrees moves an accelerometer's axes that much."""
+
+
 def read_table(path, options: ReadOptions | None = None) -> Table:
     """Read and validate a numeric CSV recording.
 

@@ -391,3 +391,110 @@ def test_live_says_an_unnamed_deg_s_gyro_and_writes_nothing_non_finite(stream):
     said = [text for level, text in events if level == "warn" and "--gyro-unit" in text]
     assert len(said) == 1 and re.search(r"turns \d+ times more", said[0])
     assert np.all(np.isfinite(np.array(rows[1:], dtype=float)))
+
+
+def _with_column(path, column, values):
+    """``path`` rewritten with ``column``'s cells replaced by ``values`` (one per data row)."""
+    lines = path.read_text().splitlines()
+    k = lines[0].split(",").index(column)
+    rows = [line.split(",") for line in lines[1:]]
+    for row, value in zip(rows, values):
+        row[k] = repr(float(value))
+    path.write_text("\n".join([lines[0]] + [",".join(row) for row in rows]) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("case, words", [
+    ("t_s constant", "column 't_s': t_s is 0 in all 3000 rows: the filter needs each sample's time"),
+    ("t_s in ms", "column 't_s': t_s steps by 10 s (median): each step is a gap over the filter's 0.5 s"),
+    ("dead gyro", "column 'gx': the gyro gx,gy,gz read in rad/s never turns while the accelerometer sees the housing "
+                  "tilt: a dead gyro?"),
+    ("rad/s named deg/s", "read in deg/s turns 60 times less than the accelerometer sees the housing tilt"),
+    ("five rows", "no attitude from its 5 rows (the filter's start seeds the reference field from at least 10 rows; "
+                  "give --site"),
+])
+def test_the_command_refuses_what_it_would_fuse_wrong_in_one_line(files, stream, capsys, case, words):
+    """Time stamps that do not tell the time between samples (all equal, or in ms: every step a gap that restarts
+    the filter), a gyro that reads zero while the housing tilts (fused as a still housing), a rad/s gyro whose header
+    says deg/s (fused 57 times too slow), fewer rows than the start needs: exit 2, one line naming the file and column,
+    nothing written.  Each ran before, with a wrong attitude and at most a warning at the end (or 3000 restart
+    lines), or (five rows) a refusal that listed the session's counters instead of the reason."""
+    _, t, s = stream
+    cal, recording = files
+    rec = recording()
+    if case == "t_s constant":
+        _with_column(rec, "t_s", np.zeros(len(t)))
+    elif case == "t_s in ms":
+        _with_column(rec, "t_s", 1e3 * t)
+    elif case == "dead gyro":
+        for column in ("gx", "gy", "gz"):
+            _with_column(rec, column, np.zeros(len(t)))
+    elif case == "rad/s named deg/s":
+        text = rec.read_text()
+        rec.write_text(text.replace("gx,gy,gz", "Gyroscope X (deg/s),Gyroscope Y (deg/s),Gyroscope Z (deg/s)", 1))
+    else:
+        rec.write_text("\n".join(rec.read_text().splitlines()[:6]) + "\n")
+    out = cal.parent / "att.csv"
+    code = main(["attitude", str(cal), str(rec), "--out", str(out), "--filter"])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert str(rec) in err and words in err, err
+    assert not out.exists()
+
+
+def test_live_says_a_dead_gyro_instead_of_failing(stream):
+    """A module whose gyro sends zeros while the housing tilts: compass live said nothing and then stopped on a
+    division by zero (1 / ratio); now it warns once, naming a dead gyro, and writes nothing non-finite."""
+    model, t, s = stream
+    events = []
+    _, rows = _session_rows(model, _lines(model, t, replace(s, gyro=np.zeros_like(s.gyro))), events)
+    said = [text for level, text in events if level == "warn" and "dead gyro" in text]
+    assert len(said) == 1 and len(rows) == len(t) + 1
+    assert np.all(np.isfinite(np.array(rows[1:], dtype=float)))
+
+
+def test_live_says_once_a_t_s_in_milliseconds(stream):
+    """A module sending its clock in ms as t_s: every step is a 10 s gap that restarts the filter (said as a gap each
+    time, and nothing else); now the cause is said once, after the first samples, and nothing written is
+    non-finite."""
+    model, t, s = stream
+    events = []
+    _, rows = _session_rows(model, _lines(model, 1e3 * t, s), events)
+    said = [text for level, text in events if level == "warn" and "does it send milliseconds?" in text]
+    assert len(said) == 1 and "t_s steps by 10 s" in said[0]
+    assert np.all(np.isfinite(np.array(rows[1:], dtype=float)))
+    seconds = []
+    _session_rows(model, _lines(model, t, s), seconds)
+    assert not any("milliseconds" in text for _, text in seconds)
+
+
+@pytest.mark.parametrize("mode", [["--filter"], []])
+def test_a_dead_accelerometer_axis_is_refused_naming_it(files, stream, capsys, mode):
+    """az reading 0 in every row while ax and ay follow the tilt: the filter learnt gravity and the reference's dip
+    from it (dip -6 deg against 60) and the per-row solution flagged two thirds of the rows disturbed, both without
+    a word; now exit 2 in one line naming the column, replayed or solved per row.  A still housing, whose axes a
+    coarse resolution can hold constant, is not refused (test_a_still_log_at_a_coarse_resolution_is_solved)."""
+    _, t, _ = stream
+    cal, recording = files
+    rec = _with_column(recording(), "az", np.zeros(len(t)))
+    out = cal.parent / "att.csv"
+    code = main(["attitude", str(cal), str(rec), "--out", str(out), *mode])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert f"{rec}, column 'az': is constant (0 in all 3000 rows) while ax, ay change" in err
+    assert not out.exists()
+
+
+def test_a_still_log_at_a_coarse_resolution_is_solved(files, stream, tmp_path):
+    """A housing lying still for 3 s, its accelerometer logged at 0.01 g (ax and ay read 0.00 throughout, az
+    1.00 or next to it): no axis changes, none is called dead, the recording is solved."""
+    model, t, s = stream
+    cal, _ = files
+    still = t < 3.0
+    accel = np.round(s.accel[still], 2)
+    accel[:, :2] = 0.0
+    columns = {"t_s": t[still]} | {c: s.raw[still, k] for k, c in enumerate(model.channels)} \
+        | {c: accel[:, k] for k, c in enumerate(("ax", "ay", "az"))}
+    rec = tmp_path / "still.csv"
+    rec.write_text(format_table(columns, {}, {c: "%.17g" for c in columns}))
+    assert main(["attitude", str(cal), str(rec), "--out", str(tmp_path / "att.csv"), "--filter"]) == 0
