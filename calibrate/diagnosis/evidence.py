@@ -9,7 +9,10 @@ choice; each caller hands it what differs as small callables:
    buy to first order, and a start for the form's parameters), and rank the forms by the evidence
    the score promises, ``drop - k ln n`` for ``k`` parameters and ``n`` observations.
 2. Keep the most promising form of each effect and refit the first :data:`MAX_REFITS` in full
-   (``refit``), down to :data:`DECISIVE_BIC` and :data:`REFIT_FRACTION` of the best promise.
+   (``refit``), down to a promise of zero and :data:`REFIT_FRACTION` of the best one.  The promise is
+   first order: an effect that moves what is in (an encoder error whose harmonics a response's powers 2
+   and 3 had taken) can buy more in full than promised, so one promising less than :data:`DECISIVE_BIC`
+   is refitted too, and its refit, not its promise, must be decisive.
 3. Take the refit with the largest delta-BIC; stop unless it is decisive (above
    :data:`DECISIVE_BIC`).
 4. Veto it, and stop, if it explains less than :data:`MIN_SHARE` of the structured residual
@@ -390,7 +393,7 @@ def select_effects(base: Fit, pool: Sequence, *, score: Callable, refit: Callabl
         say("score tests (expected chi2 drop): " + ", ".join(f"{e.label} {d:.0f}" for _, d, e, _ in scored))
         best = None
         for expected, drop, effect, start in scored[:MAX_REFITS]:
-            if expected <= max(DECISIVE_BIC, REFIT_FRACTION * scored[0][0]):
+            if expected <= max(0.0, REFIT_FRACTION * scored[0][0]):
                 break
             say(f"refitting with {effect.label}")
             trial = refit(current, effect, start)

@@ -22,7 +22,8 @@ with the tumble and the fits against known inputs):
    the base model is kept and every candidate tried is reported with its evidence.
    The final fit's response (its nonlinear response, or the linear one where the loop named none and the residual
    is white: a cubic at steep dip whose first harmonic reads as a gain) is tested against a general curve of each
-   channel's field (:func:`calibrate.fourflip._form.response_form_test`).  Where a nonlinear response's form is
+   channel's field (:func:`calibrate.fourflip._form.response_form_test`; a linear one also on the cubic's columns
+   alone).  Where a nonlinear response's form is
    rejected, an effect proposed next that takes less than that curve would is not claimed
    (:func:`~calibrate.fourflip._form.response_form_check`: a knee's misfit reads as per-flip offsets, a platform
    field's signature); where the final fit's is, a fit the structure test calls white is called unexplained with

@@ -137,3 +137,34 @@ def test_a_small_share_still_vetoes_an_effect_that_leaves_structure():
     assert share < MIN_SHARE and gain > 3 * DECISIVE_BIC
     assert chosen.fit.effects == () and chosen.unexplained is True
     assert len(chosen.not_claimed) == 1 and "it explains only" in chosen.not_claimed[0]
+
+
+def test_an_effect_promising_less_than_decisive_is_refitted_and_judged_by_its_refit():
+    """The score's promise is first order; where it under-states what the refit buys (here half of it, as for an
+    encoder error whose harmonics a response's powers had taken), an effect promising under DECISIVE_BIC is refitted
+    and claimed on its refit's decisive delta-BIC; on noise alone, whose promise is nothing, nothing is refitted."""
+    rng = np.random.default_rng(3)
+    t = np.linspace(-1.0, 1.0, N)
+    z = rng.normal(size=N)
+    for size, named in ((0.3, ["zed"]), (0.0, [])):
+        run, _ = _problem(size * z + rng.normal(size=N), t, z)
+        refits, promises = [], []
+
+        def halved(current, effect):
+            drop = current.chi2 - run.fit(current.effects + (effect,)).chi2
+            promises.append(0.5 * drop - np.log(N))
+            return 0.5 * drop, np.zeros(1)
+
+        def refit(current, effect, start):
+            refits.append(run.fit(current.effects + (effect,)))
+            return refits[-1]
+
+        chosen = select_effects(run.fit(()), [ZED], score=halved, refit=refit, n_params=lambda e: 1, log_n=np.log(N),
+                                base_step={"model": "base", "residual_rms": 0.0},
+                                write_step=lambda p, m: {"added": p.effect.name, "delta_bic": p.gain},
+                                verdict=lambda f: (None, False))
+        assert [e.name for e in chosen.fit.effects] == named
+        if named:
+            assert 0.0 < promises[0] < DECISIVE_BIC < chosen.steps[1]["delta_bic"]
+        else:
+            assert promises[0] <= 0.0 and refits == []
