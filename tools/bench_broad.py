@@ -394,24 +394,14 @@ def simulated_section(available, peer_names, seeds: int, first_seed: int = 0, na
 
 def _run_with_state(trial, config, field):
     """run_filter's start and per-sample update, reading the nominal matrix and the inertial low-pass per sample."""
-    from compass.filter import FilterStart
+    from compass.filter import FilterStart, through_start
 
     n = len(trial)
     matrix, low_pass = np.full((n, 3, 3), np.nan), np.full((n, 3), np.nan)
     rows = list(zip(trial.t_s.tolist(), trial.accel_m_s2.tolist(), trial.gyro_rad_s.tolist(), field.tolist()))
-    start, filt = FilterStart(config), None
-    for i in range(n):
-        if filt is None:
-            start.add(i, *rows[i])
-            if not start.done:
-                continue
-            filt = start.make_filter(True)
-            todo = start.take_held()
-        else:
-            todo = [i]
-        for j in todo:
-            if filt.update(*rows[j]):
-                matrix[j], low_pass[j] = np.reshape(filt.matrix, (3, 3)), filt.low_pass
+    for filt, j in through_start(FilterStart(config), rows):
+        if filt.update(*rows[j]):
+            matrix[j], low_pass[j] = np.reshape(filt.matrix, (3, 3)), filt.low_pass
     return matrix, low_pass
 
 

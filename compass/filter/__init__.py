@@ -126,9 +126,10 @@ from ._place import PLACE_EVENT
 from ._records import (DEFAULT_GYRO_SCALE_ERROR, SKIP_REASONS, Diagnostics, Estimate, FilterCoefficients, FilterConfig,
                        SkipCounts, fitted_scale_error)
 from ._run import FilterTrack, reference_field, run_filter
-from ._start import FilterStart, StartValues
+from ._start import FilterStart, StartValues, through_start
 from ._two_vector import TwoVectorFilter, TwoVectorState
 
 __all__ = ["DEFAULT_GYRO_SCALE_ERROR", "fitted_scale_error", "FilterConfig", "FilterCoefficients", "Estimate", "Diagnostics", "SkipCounts", "SKIP_REASONS",
            "AttitudeFilter", "GyroFilter", "GyroState", "TwoVectorFilter", "TwoVectorState", "MagneticGate",
-           "GateState", "FilterTrack", "run_filter", "reference_field", "FilterStart", "StartValues", "PLACE_EVENT"]
+           "GateState", "FilterTrack", "run_filter", "reference_field", "FilterStart", "StartValues", "through_start",
+           "PLACE_EVENT"]

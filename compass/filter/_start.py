@@ -188,3 +188,23 @@ class FilterStart:
         up_norm = float(np.linalg.norm(up))
         up = tuple((up / up_norm).tolist()) if up_norm > 0 else None
         return float(np.median(norms)), up, field
+
+
+def through_start(start: FilterStart, rows, gyro: bool = True):
+    """Each row as the filter takes it: the start window's rows held until the window is complete, then each.
+
+    ``rows`` yields ``(t_s, accel, gyro, field_h)``; yields ``(filter, i)``, ``i`` the row's index, for the caller
+    to update or step the filter with row ``i`` (the start's rows first, in order, once its filter exists).
+    """
+    filt = None
+    for i, row in enumerate(rows):
+        if filt is None:
+            start.add(i, *row)
+            if not start.done:
+                continue
+            filt = start.make_filter(gyro)
+            todo = start.take_held()
+        else:
+            todo = [i]
+        for j in todo:
+            yield filt, j

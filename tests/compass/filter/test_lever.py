@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from compass.filter import FilterConfig, FilterStart, run_filter
+from compass.filter import FilterConfig, FilterStart, run_filter, through_start
 from compass.filter._lever import MEMORY_S, PRIOR, LeverState, leftover
 
 RATE_HZ = 200.0
@@ -47,18 +47,9 @@ def config(lever_arm=True):
 
 def run(t, accel, gyro, field, cfg):
     """FilterStart and the per-sample ``step()`` as ``compass live`` calls them: the filter and its estimates."""
-    start, filt, out = FilterStart(cfg, None), None, [None] * len(t)
-    for i, row in enumerate(zip(t, accel, gyro, field)):
-        if filt is None:
-            start.add(i, *row)
-            if not start.done:
-                continue
-            filt = start.make_filter(True)
-            todo = start.take_held()
-        else:
-            todo = [i]
-        for j in todo:
-            out[j] = filt.step(t[j], accel[j], gyro[j], field[j])
+    filt, out = None, [None] * len(t)
+    for filt, j in through_start(FilterStart(cfg, None), zip(t, accel, gyro, field)):
+        out[j] = filt.step(t[j], accel[j], gyro[j], field[j])
     return filt, out
 
 
