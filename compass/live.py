@@ -288,7 +288,7 @@ class LiveSession:
         self._times += [s.t_s for s in samples if s.t_s is not None]
         if len(self._times) < JUDGE_SAMPLES:
             return
-        step, self._times = float(np.median(np.diff(self._times))), None
+        step, self._times = float(np.median(np.diff(self._times[:JUDGE_SAMPLES]))), None
         if step > self.config.max_gap_s:
             self._event("warn", f"the module's t_s steps by {step:g} s (median of its first {JUDGE_SAMPLES} samples): "
                                 f"each step is a gap over the filter's {self.config.max_gap_s:g} s and restarts it; "

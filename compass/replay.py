@@ -218,8 +218,8 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     table.check_dead_axis(("ax", "ay", "az"))
     t_s = table.column("t_s")
     _check_time_steps(table, t_s, config.max_gap_s)
-    if gyro is not None and (read_options is None or read_options.gyro_unit is None):
-        _check_gyro_turn(table)
+    if gyro is not None:
+        _check_gyro_turn(table, gyro, named=read_options is not None and read_options.gyro_unit is not None)
     raw = np.column_stack([table.column(name) for name in model.channels])
     wrong_unit = field_scale_check(model)(raw[:JUDGE_SAMPLES])  # as the stream decoder judges live
     if wrong_unit is not None:
@@ -290,17 +290,21 @@ def _check_time_steps(table, t_s, max_gap_s: float) -> None:
                              row=table.header_row, column="t_s")
 
 
-def _check_gyro_turn(table) -> None:
-    """RecordingError when the gyro, read in its unit (rad/s unless the header names one), turns tens of times more or
-    less than the accelerometer sees the housing tilt, or not at all (:func:`compass.io.units.gyro_unit_verdict` of
-    the table's :attr:`~compass.io.table.Table.gyro_turn_ratio`): the filter would fuse it."""
+def _check_gyro_turn(table, gyro: np.ndarray, named: bool) -> None:
+    """RecordingError when the gyro would be fused wrong (:func:`compass.io.units.gyro_unit_verdict` of the table's
+    :attr:`~compass.io.table.Table.gyro_turn_ratio`): dead (every rate constant while the accelerometer sees the
+    housing tilt), or, its unit not given (``named`` false), turning tens of times more than that tilt (a deg/s gyro
+    read as rad/s), or tens of times less where the header names deg/s (a rad/s gyro so labelled).  A gyro that turns
+    less with no unit named stays the reader's warning: a board still most of the time, its accelerometer jittering
+    by degrees, reads so too."""
     from .io.units import gyro_unit_verdict
 
     ratio = table.gyro_turn_ratio
     verdict = gyro_unit_verdict(ratio)
-    if verdict is None:
+    dead = ratio == 0.0 and bool(np.all(np.ptp(gyro, axis=0) == 0.0))
+    if verdict is None or (not dead and (named or (verdict == "less" and table.units.get("gx") != "deg/s"))):
         return
-    if ratio == 0.0:
+    if dead:
         words = ("never turns while the accelerometer sees the housing tilt: a dead gyro? (without gx,gy,gz columns "
                  "the two-vector filter runs)")
     elif verdict == "more":

@@ -17,7 +17,7 @@ from scipy.special import chdtri  # chi2.ppf(q, k) == chdtri(k, 1 - q), without 
 from ._base import _P0_ATTITUDE, AttitudeFilter, exp_matrix, mat_mul
 from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_heading, update_tilt
 from ._gate import GateState
-from ._lever import LeverState, add_sample, leftover
+from ._lever import LeverState, add_sample, leftover, restart, restart_block
 from ._place import PLACE_EVENT, PlaceDetector, PlaceState
 from ._records import _REST_RATE_SIGMA, _REST_TAU_S, Diagnostics, SkipCounts
 
@@ -200,6 +200,8 @@ class GyroFilter(AttitudeFilter):
             d.accel_used = self._tilt(dt, a)
         else:
             d.accel_used = False
+            if self._lever:
+                restart_block(self._s.lever)
         self._heading(t_s, dt, b)
         self._inject()
         return True
@@ -221,7 +223,7 @@ class GyroFilter(AttitudeFilter):
         self._x[:] = [0.0] * 6
         s.acc_lp, s.acc_lp_rate, s.age_lp = a[:3], (0.0, 0.0, 0.0), (0.0, 0.0)
         s.acc_lp_age_s = 0.0
-        s.lever.low_pass = None
+        restart(s.lever)
         s.residual_var, s.acc_residual = 0.0, (0.0, 0.0, 0.0)
         s.rest_gyro, s.rest_acc, s.rest_s = s.rate_rad_s, a[:3], 0.0
         s.rest_pending.clear()
@@ -233,7 +235,7 @@ class GyroFilter(AttitudeFilter):
         if s.acc_lp is not None:
             s.acc_lp, s.acc_lp_age_s, s.residual_var, s.acc_residual = a[:3], 0.0, 0.0, (0.0, 0.0, 0.0)
             s.acc_lp_rate, s.age_lp = (0.0, 0.0, 0.0), (s.since_start_s, 0.0)  # the low-pass content is new: age 0
-            s.lever.low_pass = None
+            restart(s.lever)
         s.rest_acc, s.rest_s = a[:3], 0.0
         s.rest_pending.clear()
         s.start_rest = False

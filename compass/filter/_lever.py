@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["LeverState", "add_sample", "leftover"]
+__all__ = ["LeverState", "add_sample", "leftover", "restart", "restart_block"]
 
 BLOCK_S = 0.05
 """Length of the blocks both sides of the fit are averaged over, s (short against a hand's turn)."""
@@ -63,6 +63,19 @@ class LeverState:
     block_q: tuple = (0.0,) * 6
     block_w0: tuple | None = None
     low_pass: tuple | None = None
+
+
+def restart_block(st: LeverState) -> None:
+    """Drop the open block (a sample without the accelerometer: the rate's change over the skipped time would be
+    taken over the block's shorter one); the fit is kept."""
+    st.block_s, st.block_y, st.block_q, st.block_w0 = 0.0, (0.0, 0.0, 0.0), (0.0,) * 6, None
+
+
+def restart(st: LeverState) -> None:
+    """The low-pass restarts (a gap, the filter's start): its velocity's low-pass and the open block go with it;
+    the fit is kept (the grip is the same housing's)."""
+    restart_block(st)
+    st.low_pass = None
 
 
 def add_sample(st: LeverState, dt: float, w: tuple, y: tuple) -> None:

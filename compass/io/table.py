@@ -268,12 +268,19 @@ class Table:
 
     def check_dead_axis(self, names) -> None:
         """RecordingError naming the first of a vector sensor's columns ``names`` (all present) that never changes
-        while the others change by more than :data:`DEAD_AXIS_SHARE` of the vector's median length: a dead or
-        disconnected axis.  A still housing logged at a coarse resolution changes none of them; a real axis that
-        a turn leaves alone still reads its noise."""
+        while the others change by more than :data:`DEAD_AXIS_SHARE` of the vector's median length, and the
+        vector's length (steady for a sensor of a steady field: gravity) spreads by more than twice that share: a
+        dead or disconnected axis.  A still housing logged at a coarse resolution changes none of them; a live
+        coarse axis a gentle tilt leaves on one code (near level the vertical axis moves by ``1 - cos``, the others
+        by ``sin``) keeps the length; a dead one takes its part out of it."""
         v = np.column_stack([self.column(name) for name in names])
         span = np.ptp(v, axis=0)
-        moved = span > DEAD_AXIS_SHARE * np.median(np.linalg.norm(v, axis=1))
+        norm = np.linalg.norm(v, axis=1)
+        scale = np.median(norm)
+        moved = span > DEAD_AXIS_SHARE * scale
+        low, high = np.percentile(norm, [5.0, 95.0])
+        if not high - low > 2.0 * DEAD_AXIS_SHARE * scale:
+            return
         for k, name in enumerate(names):
             if span[k] == 0.0 and np.any(np.delete(moved, k)):
                 raise RecordingError(self.path, f"is constant ({v[0, k]:g} in all {len(v)} rows) while "

@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from compass.cli import main
 from compass.filter import FilterConfig, run_filter
 from compass.io.lines import format_line
-from compass.io.table import format_table, read_table
+from compass.io.table import RecordingError, format_table, read_table
 from compass.live import LiveSession
 from compass.replay import replay
 from compass.serial_reader import Chunk
@@ -498,3 +498,47 @@ def test_a_still_log_at_a_coarse_resolution_is_solved(files, stream, tmp_path):
     rec = tmp_path / "still.csv"
     rec.write_text(format_table(columns, {}, {c: "%.17g" for c in columns}))
     assert main(["attitude", str(cal), str(rec), "--out", str(tmp_path / "att.csv"), "--filter"]) == 0
+
+
+def _tilting_accel(g: float = 9.80665, count_g: float = 1.0 / 21.33):
+    """A housing rocking +-10 deg about x and +-8 deg about y (periods 7 s and 5 s, 30 s at 100 Hz), its
+    accelerometer logged to ``count_g`` g (an MMA7660-like 6-bit part): near level the vertical axis moves by
+    ``1 - cos``, under one count, while x and y move by ``sin``, several counts."""
+    t = np.arange(0.0, 30.0, 0.01)
+    rot = Rotation.from_euler("xy", np.radians(np.column_stack([10 * np.sin(2 * np.pi * t / 7),
+                                                                8 * np.sin(2 * np.pi * t / 5)])))
+    up = rot.inv().apply([0.0, 0.0, g])
+    return np.round(up / (count_g * g)) * (count_g * g)
+
+
+@pytest.mark.parametrize("dead", [False, True])
+def test_a_coarse_axis_a_gentle_tilt_leaves_on_one_code_is_not_called_dead(tmp_path, dead):
+    """The live coarse az reads one code throughout while ax and ay follow the tilt; the vector keeps its length
+    (within the counts), so it is no dead axis.  The same log with az reading 0 (the length then ax and ay's alone,
+    0 to 0.2 g) is refused naming az."""
+    accel = _tilting_accel()
+    assert np.ptp(accel[:, 2]) == 0.0 and np.all(np.ptp(accel[:, :2], axis=0) > 0.1 * 9.80665)
+    if dead:
+        accel[:, 2] = 0.0
+    path = tmp_path / "coarse.csv"
+    columns = {"t_s": np.arange(len(accel)) * 0.01} | {c: accel[:, k] for k, c in enumerate(("ax", "ay", "az"))}
+    path.write_text(format_table(columns, {}, {c: "%.17g" for c in columns}))
+    table = read_table(path)
+    if dead:
+        with pytest.raises(RecordingError, match="column 'az': is constant"):
+            table.check_dead_axis(("ax", "ay", "az"))
+    else:
+        table.check_dead_axis(("ax", "ay", "az"))
+
+
+def test_a_gyro_turning_less_with_no_unit_named_is_said_not_refused(files, capsys):
+    """A gyro turning 60 times less than the tilt with no unit named matches no unit taken for another (rad/s read
+    as deg/s needs the header's deg/s, refused in test_the_command_refuses_what_it_would_fuse_wrong_in_one_line;
+    a board still most of the time, its accelerometer jittering by degrees, reads so too): the reader's warning,
+    and the recording is replayed."""
+    cal, recording = files
+    out = cal.parent / "att.csv"
+    code = main(["attitude", str(cal), str(recording(gyro_scale=1.0 / 60.0)), "--out", str(out), "--filter"])
+    err = capsys.readouterr().err
+    assert code == 0 and "times less" in err and "Traceback" not in err, err
+    assert np.all(np.isfinite(read_table(out).column("heading_deg")))

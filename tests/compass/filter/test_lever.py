@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from compass.filter import FilterConfig, FilterStart, run_filter, through_start
-from compass.filter._lever import MEMORY_S, PRIOR, LeverState, leftover
+from compass.filter._lever import MEMORY_S, PRIOR, LeverState, add_sample, restart_block
 
 RATE_HZ = 200.0
 G = 9.81
@@ -90,10 +90,21 @@ def test_taking_the_arm_out_lowers_the_inclination_error(turn):
     assert on < 0.7 * off
 
 
-def test_a_zero_arm_leaves_nothing():
+def test_a_sample_without_the_accelerometer_drops_the_open_block():
+    """A block opened at rest, the accelerometer's sample skipped while the rate rose to 3 rad/s about z, then a
+    steady turn whose specific force is exactly ``w x (w x r)``: with the block dropped the fit is the ridge solution
+    on x (``info r / (info + PRIOR)``) and nothing on y; kept, the rise would be read as an angular acceleration of
+    3 rad/s over the block's 0.05 s, ``dw/dt x r`` 6 m/s^2 along y that the specific force does not show."""
+    arm, w = np.array([0.1, 0.0, 0.0]), (0.0, 0.0, 3.0)
+    y = tuple(np.cross(w, np.cross(w, arm)).tolist())
     st = LeverState()
-    assert leftover(st, 0.01, 2.0, (1.0, -2.0, 3.0)) == (0.0, 0.0, 0.0)
-    assert leftover(st, 0.01, 2.0, (-3.0, 0.5, 2.0)) == (0.0, 0.0, 0.0)
+    add_sample(st, 0.005, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    restart_block(st)  # as GyroFilter.update does on a sample without the accelerometer
+    for _ in range(200):
+        add_sample(st, 0.005, w, y)
+    assert st.info[0] > 50.0  # 1 s of the turn: M's xx is -9, info about 81 s^-3
+    assert st.arm[0] == pytest.approx(st.info[0] * arm[0] / (st.info[0] + PRIOR), rel=1e-9)
+    assert abs(st.arm[1]) < 1e-12 and abs(st.arm[2]) < 1e-12
 
 
 def test_run_filter_and_step_agree(turn):
