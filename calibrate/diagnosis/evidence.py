@@ -331,11 +331,18 @@ def _withdrawn(step: dict) -> str:
             "structured residual, but structure the model lacks remains, so it may be part of that: not claimed)")
 
 
+def _refit_if_decisive(current: Fit, effect, start, quick_refit: Callable, refit: Callable) -> Fit:
+    """A candidate promising less than decisive: its refit cut short (a lower bound of its delta-BIC), refitted in
+    full only when that bound is decisive (:func:`select_effects`'s ``quick_refit``)."""
+    trial = quick_refit(current, effect, start)
+    return refit(current, effect, start) if current.bic() - trial.bic() > DECISIVE_BIC else trial
+
+
 def select_effects(base: Fit, pool: Sequence, *, score: Callable, refit: Callable, n_params: Callable[[Any], int],
                    log_n: float, base_step: dict, write_step: Callable[[Proposal, dict], dict],
                    verdict: Callable, checks: Sequence[Check] = (), rejected_as: Callable[[Any], str] | None = None,
                    progress: Callable[[str], None] | None = None, revise: Callable | None = None,
-                   unclaimable: str | None = None) -> Selection:
+                   unclaimable: str | None = None, quick_refit: Callable | None = None) -> Selection:
     """Add the effects the evidence supports to a base fit, one at a time (see the module docstring).
 
     Parameters
@@ -371,6 +378,10 @@ def select_effects(base: Fit, pool: Sequence, *, score: Callable, refit: Callabl
     unclaimable : str, optional
         Why no effect can be claimed from this recording whatever the evidence (e.g. structure of the
         recording's own making, as an ADC's undithered rounding): effects are tried and reported, not claimed.
+    quick_refit : callable, optional
+        ``quick_refit(current, effect, start) -> Fit``: the refit cut short, whose chi-square bounds the converged
+        one's from above (its delta-BIC a lower bound), for a candidate promising less than :data:`DECISIVE_BIC`:
+        refitted in full only when even the bound is decisive.  None: such a candidate is refitted in full.
 
     Returns
     -------
@@ -396,7 +407,8 @@ def select_effects(base: Fit, pool: Sequence, *, score: Callable, refit: Callabl
             if expected <= max(0.0, REFIT_FRACTION * scored[0][0]):
                 break
             say(f"refitting with {effect.label}")
-            trial = refit(current, effect, start)
+            trial = refit(current, effect, start) if expected > DECISIVE_BIC or quick_refit is None else \
+                _refit_if_decisive(current, effect, start, quick_refit, refit)
             gain = current.bic() - trial.bic()
             share = (current.chi2 - trial.chi2) / max(current.chi2 - current.dof, 1e-12)
             if best is None or gain > best.gain:

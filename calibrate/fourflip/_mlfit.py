@@ -356,6 +356,7 @@ def fit_ml(
     noise: np.ndarray,
     effects=(),
     effect_start: dict | None = None,
+    max_evaluations: int = _MAX_ITERATIONS,
 ) -> MLFit:
     """Fit the four-flip model with the given effects by weighted least squares.
 
@@ -371,6 +372,9 @@ def fit_ml(
     effects : sequence of FourFlipEffect
     effect_start : dict, optional
         Starting values of effect blocks by name (zero otherwise).
+    max_evaluations : int
+        Residual evaluations allowed; a fit cut short is the best point reached (Levenberg-Marquardt takes only
+        steps that lower the chi-square, so its chi-square bounds the converged one's from above).
     """
     bins = Bins.of(samples, outputs)
     weights = bins.root_n / noise
@@ -393,7 +397,7 @@ def fit_ml(
         plain = layout.x0()
         if np.sum(residual(plain) ** 2) < np.sum(residual(x0) ** 2):
             x0 = plain
-    res = least_squares(residual, x0, jac=jacobian, method="lm", x_scale="jac", max_nfev=_MAX_ITERATIONS)
+    res = least_squares(residual, x0, jac=jacobian, method="lm", x_scale="jac", max_nfev=max_evaluations)
     x = res.x
     jac = res.jac
     physics = layout.physics(x)

@@ -1,6 +1,8 @@
 """The shared evidence loop revisits what it added (a form replaced once a later effect is in, an effect dropped) and
 vetoes a small share only where structure remains."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -168,3 +170,42 @@ def test_an_effect_promising_less_than_decisive_is_refitted_and_judged_by_its_re
             assert 0.0 < promises[0] < DECISIVE_BIC < chosen.steps[1]["delta_bic"]
         else:
             assert promises[0] <= 0.0 and refits == []
+
+
+@pytest.mark.parametrize("size, named", [(0.5, ["zed"]), (0.37, [])])
+def test_a_refit_cut_short_decides_whether_a_sub_decisive_candidate_is_refitted_in_full(size, named):
+    """A candidate promising under DECISIVE_BIC is first refitted cut short (``quick_refit``: here the fit a
+    quarter of the way from the current one's chi-square to the converged one's, a lower bound of its drop): the
+    full refit runs only where that bound is decisive, and the claim is the full refit's; where the bound is not,
+    the full refit never runs and nothing is claimed, even if the converged fit might have been decisive."""
+    rng = np.random.default_rng(3)
+    t = np.linspace(-1.0, 1.0, N)
+    z = rng.normal(size=N)
+    run, _ = _problem(size * z + rng.normal(size=N), t, z)
+    full, quick = [], []
+
+    def refit(current, effect, start):
+        full.append(run.fit(current.effects + (effect,)))
+        return full[-1]
+
+    def cut_short(current, effect, start):
+        converged = run.fit(current.effects + (effect,))
+        quick.append(dataclasses.replace(converged, chi2=current.chi2 - 0.25 * (current.chi2 - converged.chi2)))
+        return quick[-1]
+
+    def halved(current, effect):  # the first-order promise under decisive in both cases
+        drop = current.chi2 - run.fit(current.effects + (effect,)).chi2
+        return min(0.5 * drop, DECISIVE_BIC + np.log(N) - 1.0), np.zeros(1)
+
+    base = run.fit(())
+    chosen = select_effects(base, [ZED], score=halved, refit=refit, n_params=lambda e: 1, log_n=np.log(N),
+                            base_step={"model": "base", "residual_rms": 0.0},
+                            write_step=lambda p, m: {"added": p.effect.name, "delta_bic": p.gain},
+                            verdict=lambda f: (None, False), quick_refit=cut_short)
+    assert [e.name for e in chosen.fit.effects] == named and len(quick) == 1
+    bound = base.bic() - quick[0].bic()
+    if named:
+        assert bound > DECISIVE_BIC and len(full) == 1 and chosen.fit is full[0]
+    else:
+        assert bound <= DECISIVE_BIC and full == []
+        assert base.bic() - run.fit((ZED,)).bic() > DECISIVE_BIC  # the converged one would have been claimed
