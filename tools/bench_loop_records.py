@@ -29,11 +29,12 @@ import bench_loop as bl  # noqa: E402
 
 
 def record(case: str, seed: int) -> dict:
-    """One recording's row: dip (deg), effects, unexplained, direction and gain err/sig, heading err, sigma (deg)."""
+    """One recording's row: dip (deg), effects, unexplained, direction and gain err/sig, heading err, sigma (deg),
+    CPU time of the calibration (s)."""
     row = bl.with_heading_sigma(bl.run_one(case, seed))
     return {"seed": seed, "dip": bl.session(seed, case)[1].dip_deg, "effects": row["effects"],
             "unexplained": row["unexplained"], "ratio": np.array(row["ratio"]), "gain": np.array(row["gain_ratio"]),
-            "heading_err": row["heading_err_deg"], "heading_sigma": row["heading_sigma_deg"]}
+            "heading_err": row["heading_err_deg"], "heading_sigma": row["heading_sigma_deg"], "cpu_s": row["cpu_s"]}
 
 
 def _rms(rows: list[dict]) -> str:
@@ -52,7 +53,7 @@ def main() -> None:
     args = parser.parse_args()
     print(f"bench_loop_records: {args.case}, seeds {args.seed}..{args.seed + args.n - 1}, this tree")
     print(f"{'seed':>5}{'dip':>6}  {'named':<64}{'unexpl.':<8}{'err/sig a, b, c':<20}{'hdg e/s':>8}{'hdg err':>9}"
-          f"{'hdg sig':>9}  gain e/s a, b, c")
+          f"{'hdg sig':>9}{'cpu s':>7}  gain e/s a, b, c")
     rows = []
     for seed in range(args.seed, args.seed + args.n):
         r = record(args.case, seed)
@@ -60,7 +61,7 @@ def main() -> None:
         named, flag = ", ".join(r["effects"]) or "none", "yes" if r["unexplained"] else ""
         print(f"{seed:>5}{r['dip']:>6.1f}  {named:<64}{flag:<8}"
               f"{', '.join(f'{v:.2f}' for v in r['ratio']):<20}{r['heading_err'] / r['heading_sigma']:>8.2f}"
-              f"{r['heading_err']:>9.3f}{r['heading_sigma']:>9.3f}  {', '.join(f'{v:.1f}' for v in r['gain'])}",
+              f"{r['heading_err']:>9.3f}{r['heading_sigma']:>9.3f}{r['cpu_s']:>7.2f}  {', '.join(f'{v:.1f}' for v in r['gain'])}",
               flush=True)
     worst = max(rows, key=lambda r: r["heading_err"] / r["heading_sigma"])
     print(f"\nevery recording {_rms(rows)}")
