@@ -468,6 +468,21 @@ def test_live_says_once_a_t_s_in_milliseconds(stream):
     assert not any("milliseconds" in text for _, text in seconds)
 
 
+def test_live_says_once_a_t_s_that_never_increases(stream):
+    """A module whose t_s stays at one value (a clock not running): the filter integrates no gyro, and compass live
+    took it without a word (the replay refuses it); now it is said once, after the first samples, and nothing
+    written is non-finite.  A t_s that runs is not so warned."""
+    model, t, s = stream
+    events = []
+    _, rows = _session_rows(model, _lines(model, np.full_like(t, 3.0), s), events)
+    said = [text for level, text in events if level == "warn" and "t_s is 3 in all" in text]
+    assert len(said) == 1 and not any("milliseconds" in text for _, text in events)
+    assert np.all(np.isfinite(np.array(rows[1:], dtype=float)))
+    running = []
+    _session_rows(model, _lines(model, t, s), running)
+    assert not any("in all of its first" in text for _, text in running)
+
+
 @pytest.mark.parametrize("mode", [["--filter"], []])
 def test_a_dead_accelerometer_axis_is_refused_naming_it(files, stream, capsys, mode):
     """az reading 0 in every row while ax and ay follow the tilt: the filter learnt gravity and the reference's dip
