@@ -907,7 +907,7 @@ def _table(title, rows, columns, extra=None):
     print(f"\n{title}")
     print(f"{'':44s} " + " ".join(f"{c:>15s}" for c in columns) + ("   choice" if extra else ""))
     for name, row in rows.items():
-        print(f"{name:44s} " + " ".join(f"{row[c][0]:7.2f} /{row[c][1]:5.2f}".rjust(15) for c in columns)
+        print(f"{name:44s} " + " ".join(f"{row[c][0]:7.3f} /{row[c][1]:6.3f}".rjust(15) for c in columns)
               + (f"   {extra[name]}" if extra else ""))
 
 
@@ -916,7 +916,7 @@ def _ablation(results, candidates, groups):
     means = {g: _mean(results, ts, candidates) for g, ts in groups.items()}
     print(f"{'candidate':28s} " + " ".join(f"{g + f' ({len(ts)})':>19s}" for g, ts in groups.items()))
     for c in candidates:
-        print(f"{c:28s} " + " ".join(f"{means[g][c][0]:8.2f} /{means[g][c][1]:6.2f}".rjust(19) for g in groups))
+        print(f"{c:28s} " + " ".join(f"{means[g][c][0]:8.3f} /{means[g][c][1]:6.3f}".rjust(19) for g in groups))
 
 
 if __name__ == "__main__":

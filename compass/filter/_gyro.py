@@ -17,7 +17,7 @@ from scipy.special import chdtri  # chi2.ppf(q, k) == chdtri(k, 1 - q), without 
 from ._base import _P0_ATTITUDE, AttitudeFilter, exp_matrix, mat_mul
 from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_heading, update_tilt
 from ._gate import GateState
-from ._lever import LeverState, add_sample, leftover, restart, restart_block
+from ._lever import LeverState, acceleration, add_sample, leftover, restart, restart_block
 from ._place import PLACE_EVENT, PlaceDetector, PlaceState
 from ._records import _REST_RATE_SIGMA, _REST_TAU_S, Diagnostics, SkipCounts
 
@@ -181,8 +181,8 @@ class GyroFilter(AttitudeFilter):
         s = self._s
         if not self._lever or s.acc_lp is None or s.lever.low_pass is None:
             return s.acc_lp
-        (gx, gy, gz), (bx, by, bz), (lx, ly, lz) = s.rate_rad_s, s.bias_rad_s, s.acc_lp
-        kx, ky, kz = leftover(s.lever, 0.0, self.config.accel_time_constant_s, (gx - bx, gy - by, gz - bz))  # no step
+        lx, ly, lz = s.acc_lp
+        kx, ky, kz = leftover(s.lever, 0.0, self.config.accel_time_constant_s, self._rate())  # no step
         return lx - kx, ly - ky, lz - kz
 
     def update(self, t_s: float, accel, gyro, field_h) -> bool:
@@ -342,8 +342,10 @@ class GyroFilter(AttitudeFilter):
                 lx, ly, lz = lx + alpha * (ax - lx), ly + alpha * (ay - ly), lz + alpha * (az - lz)
                 s.acc_lp = (lx, ly, lz)
                 s.acc_lp_age_s = (1.0 - alpha) * (s.acc_lp_age_s + dt)
-                if self._lever:
+                if self._lever:  # the arm's leftover out of the measurement, its acceleration out of the motion
                     lx, ly, lz = self._lever_step(dt, alpha, a, lx, ly, lz)
+                    px, py, pz = acceleration(s.lever, dt, self._rate())
+                    ax, ay, az = ax - px, ay - py, az - pz
             lp_norm = math.sqrt(lx * lx + ly * ly + lz * lz)
             if cfg.residual_in_band:  # only what varies on the motion's time scale: a vibration or a tap is not left
                 beta = -math.expm1(-dt * 2.0 * math.pi / cfg.motion_time_s)
@@ -381,11 +383,15 @@ class GyroFilter(AttitudeFilter):
         ``alpha``; 0 and 0: no step) less what it leaves of the lever arm's acceleration
         (:mod:`compass.filter._lever`)."""
         s = self._s
-        (gx, gy, gz), (bx, by, bz), m, g = s.rate_rad_s, s.bias_rad_s, s.matrix, s.gravity
-        w = (gx - bx, gy - by, gz - bz)
+        m, g, w = s.matrix, s.gravity, self._rate()
         add_sample(s.lever, dt, w, (a[0] - g * m[6], a[1] - g * m[7], a[2] - g * m[8]))
         kx, ky, kz = leftover(s.lever, alpha, self.config.accel_time_constant_s, w)
         return lx - kx, ly - ky, lz - kz
+
+    def _rate(self) -> tuple:
+        """The bias-corrected rate, rad/s (H)."""
+        (gx, gy, gz), (bx, by, bz) = self._s.rate_rad_s, self._s.bias_rad_s
+        return gx - bx, gy - by, gz - bz
 
     def _low_pass2(self, dt: float, ax: float, ay: float, az: float) -> tuple:
         """One step of the second-order (Butterworth) inertial low-pass; its output, also kept in the state.

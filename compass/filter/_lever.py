@@ -11,6 +11,11 @@ filter's attitude) on ``M``, both averaged alike over blocks of :data:`BLOCK_S` 
 rate's change over its length, so no sample is differentiated), forgotten over :data:`MEMORY_S`, with a ridge
 prior ``r = 0`` of weight :data:`PRIOR`: a translation (``M`` about 0) leaves ``r`` at 0.  The centre's own
 acceleration is the fit's noise.
+
+The tilt's noise follows the motion the low-pass leaks (``residual_var``, from ``f`` less the low-pass).  With the
+arm's leftover taken out of the measurement, ``M r`` no longer leaks, so :func:`acceleration` takes it out of that
+residual too: what remains is the centre's own acceleration and the fit's error ``M (r - r_fit)``, whose leftover
+is what the measurement still carries of the arm.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["LeverState", "add_sample", "leftover", "restart", "restart_block"]
+__all__ = ["LeverState", "acceleration", "add_sample", "leftover", "restart", "restart_block"]
 
 BLOCK_S = 0.05
 """Length of the blocks both sides of the fit are averaged over, s (short against a hand's turn)."""
@@ -53,6 +58,9 @@ class LeverState:
     low_pass : tuple of 3 floats, or None
         The velocity ``w x r`` low-passed in the inertial frame (as the specific force is), seen in H,
         accelerometer units times s; None until the low-pass (re)starts.
+    rate : tuple of 3 floats, or None
+        The previous accelerometer sample's rate, rad/s (H), for :func:`acceleration`'s ``dw/dt``; None after a
+        restart or a sample without the accelerometer.
     """
 
     arm: tuple = (0.0, 0.0, 0.0)
@@ -63,12 +71,14 @@ class LeverState:
     block_q: tuple = (0.0,) * 6
     block_w0: tuple | None = None
     low_pass: tuple | None = None
+    rate: tuple | None = None
 
 
 def restart_block(st: LeverState) -> None:
     """Drop the open block (a sample without the accelerometer: the rate's change over the skipped time would be
     taken over the block's shorter one); the fit is kept."""
     st.block_s, st.block_y, st.block_q, st.block_w0 = 0.0, (0.0, 0.0, 0.0), (0.0,) * 6, None
+    st.rate = None
 
 
 def restart(st: LeverState) -> None:
@@ -145,3 +155,18 @@ def leftover(st: LeverState, alpha: float, tau: float, w: tuple) -> tuple:
     lx, ly, lz = lx + alpha * (vx - lx), ly + alpha * (vy - ly), lz + alpha * (vz - lz)
     st.low_pass = (lx, ly, lz)
     return (vx - lx) / tau, (vy - ly) / tau, (vz - lz) / tau
+
+
+def acceleration(st: LeverState, dt: float, w: tuple) -> tuple:
+    """The lever arm's acceleration ``M r = dw/dt x r + w x (w x r)`` (H, accelerometer units) with the fitted arm,
+    ``dw/dt`` the rate's change since the previous sample over ``dt`` s (0 for the first after a restart); keeps
+    ``w`` (rad/s, H) for the next sample."""
+    (wx, wy, wz), (rx, ry, rz) = w, st.arm
+    vx, vy, vz = wy * rz - wz * ry, wz * rx - wx * rz, wx * ry - wy * rx  # w x r
+    ax, ay, az = wy * vz - wz * vy, wz * vx - wx * vz, wx * vy - wy * vx  # w x (w x r)
+    if st.rate is not None:
+        inv = 1.0 / dt
+        dx, dy, dz = (wx - st.rate[0]) * inv, (wy - st.rate[1]) * inv, (wz - st.rate[2]) * inv
+        ax, ay, az = ax + dy * rz - dz * ry, ay + dz * rx - dx * rz, az + dx * ry - dy * rx
+    st.rate = w
+    return ax, ay, az

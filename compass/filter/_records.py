@@ -164,7 +164,8 @@ class FilterConfig:
     lever_arm : bool
         The gyro filter's tilt measurement takes out what the first-order inertial low-pass leaves of a hand-held
         turn about a centre away from the IMU, ``(v - LP v) / tau`` with ``v = w x r``, the lever arm ``r``
-        fitted as it runs (:mod:`compass.filter._lever`; issue 22).  Only with ``accel_lowpass_order`` 1.
+        fitted as it runs (:mod:`compass.filter._lever`; issue 22), and its acceleration ``M r`` out of the motion
+        the tilt's noise follows (``motion_adaptive_accel``).  Only with ``accel_lowpass_order`` 1.
     calibration_uncertainty : compass.iron_uncertainty.TumbleUncertainty or ChannelUncertainty or None
         The calibration's own uncertainty (``SensorModel.calibration_uncertainty``; :meth:`from_model` sets
         it): never fused (a constant error, not noise), only added to the reported heading sigma at each
