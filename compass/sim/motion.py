@@ -37,7 +37,8 @@ from scipy.spatial.transform import Rotation
 
 from ..frames import world_field
 
-__all__ = ["KINDS", "SensorErrors", "Place", "HousingField", "MotionRecording", "simulate_motion"]
+__all__ = ["KINDS", "SensorErrors", "Place", "HousingField", "MotionRecording", "simulate_motion", "read_sensors",
+           "moving_rows"]
 
 GRAVITY = 9.81
 KINDS = ("slow_rotation", "fast_rotation", "slow_translation", "fast_translation", "breaks", "tapping", "vibration")
@@ -251,14 +252,45 @@ def simulate_motion(kind: str, *, duration_s: float = 60.0, rate_hz: float = 285
     field_h = rotation.apply(field_w, inverse=True)
     if housing_field is not None:
         field_h = field_h + np.where((t >= housing_field.t_s)[:, None], np.asarray(housing_field.field_ut, float), 0.0)
-    # sensors
-    e = errors
+    gyro, accel, mag = read_sensors(rng, t, rate_hz, rate, specific, field_h, errors)
+    return MotionRecording(kind, t, rotation, rate, specific, moving_rows(rate, accel_world), gyro, accel, mag,
+                           field_ut, dip_deg, errors, tuple(places), housing_field)
+
+
+def read_sensors(rng, t, rate_hz: float, rate, specific, field_h, errors: SensorErrors):
+    """The IMU's readings of a true motion: gyro ``(I + S) omega + b + n``, accelerometer ``(I + S_a) f + b_a + n``,
+    magnetometer the field ``latency_s`` late plus noise (noise drawn from ``rng`` in that order).
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+    t : ndarray, shape (n,)
+        Sample times, s.
+    rate_hz : float
+        The sample rate (the gyro's noise density to per-sample noise), Hz.
+    rate : ndarray, shape (n, 3)
+        True angular rate in H, rad/s.
+    specific : ndarray, shape (n, 3)
+        True specific force in H, m/s^2.
+    field_h : ndarray, shape (n, 3)
+        True field in H, uT.
+    errors : SensorErrors
+
+    Returns
+    -------
+    gyro_rad_s, accel_m_s2, mag_ut : ndarray, shape (n, 3)
+    """
+    e, n = errors, len(t)
     gyro = rate * (1.0 + np.asarray(e.gyro_scale)) + e.gyro_bias_rad_s \
         + e.gyro_noise * np.sqrt(rate_hz) * rng.normal(size=(n, 3))
-    accel = specific * (1.0 + np.asarray(e.accel_scale)) + e.accel_bias_m_s2 + e.accel_noise_m_s2 * rng.normal(size=(n, 3))
+    accel = specific * (1.0 + np.asarray(e.accel_scale)) + e.accel_bias_m_s2 \
+        + e.accel_noise_m_s2 * rng.normal(size=(n, 3))
     if e.mag_latency_s > 0.0:
         field_h = np.column_stack([np.interp(t - e.mag_latency_s, t, field_h[:, i]) for i in range(3)])
-    mag = field_h + e.mag_noise_ut * rng.normal(size=(n, 3))
-    moving = (np.linalg.norm(rate, axis=1) > np.radians(1.0)) | (np.linalg.norm(accel_world, axis=1) > 0.05)
-    return MotionRecording(kind, t, rotation, rate, specific, moving, gyro, accel, mag, field_ut, dip_deg, e,
-                           tuple(places), housing_field)
+    return gyro, accel, field_h + e.mag_noise_ut * rng.normal(size=(n, 3))
+
+
+def moving_rows(rate, accel_world) -> np.ndarray:
+    """:attr:`MotionRecording.moving`: rate (rad/s, shape (n, 3)) above 1 deg/s or motion acceleration (m/s^2,
+    shape (n, 3)) above 0.05 m/s^2, shape (n,)."""
+    return (np.linalg.norm(rate, axis=1) > np.radians(1.0)) | (np.linalg.norm(accel_world, axis=1) > 0.05)
