@@ -12,7 +12,8 @@ choice; each caller hands it what differs as small callables:
    (``refit``), down to a promise of zero and :data:`REFIT_FRACTION` of the best one.  The promise is
    first order: an effect that moves what is in (an encoder error whose harmonics a response's powers 2
    and 3 had taken) can buy more in full than promised, so one promising less than :data:`DECISIVE_BIC`
-   is refitted too, and its refit, not its promise, must be decisive.
+   is refitted too (cut short first, :func:`_refit_by_promise`), and its refit, not its promise, must be
+   decisive.
 3. Take the refit with the largest delta-BIC; stop unless it is decisive (above
    :data:`DECISIVE_BIC`).
 4. Veto it, and stop, if it explains less than :data:`MIN_SHARE` of the structured residual
@@ -26,10 +27,11 @@ choice; each caller hands it what differs as small callables:
    with it the structure test found nothing (docs/benchmarks.md, "An odd cubic the loop did not name").
 5. Revisit what is in (when the caller can ``revise``: refit a model with a given list of effects):
    after each addition, every effect already in is refitted without it (its evidence now) and its
-   other forms are score-tested there; a form that beats the current one by more than
-   :data:`DECISIVE_BIC` replaces it (a drift taken as linear before a cubic was in may be quadratic
-   once it is), and an effect whose evidence has fallen to :data:`DECISIVE_BIC` or below is
-   dropped; repeat while something changes (:func:`_revisit`).
+   other forms are score-tested there; the most promising one is refitted as a candidate is in step 2
+   (:func:`_refit_by_promise`), and one that beats the current form by more than :data:`DECISIVE_BIC` in its
+   refit replaces it (a drift taken as linear before a cubic was in may be quadratic once it is), and an
+   effect whose evidence has fallen to :data:`DECISIVE_BIC` or below is dropped; repeat while something
+   changes (:func:`_revisit`).
 6. Judge the final fit (``verdict``).  If structure remains after effects were added, they may
    have absorbed part of something the toolkit does not model: none is claimed, each is reported
    as not claimed, and the base fit is kept and judged again.
@@ -331,11 +333,37 @@ def _withdrawn(step: dict) -> str:
             "structured residual, but structure the model lacks remains, so it may be part of that: not claimed)")
 
 
-def _refit_if_decisive(current: Fit, effect, start, quick_refit: Callable, refit: Callable) -> Fit:
-    """A candidate promising less than decisive: its refit cut short (a lower bound of its delta-BIC), refitted in
-    full only when that bound is decisive (:func:`select_effects`'s ``quick_refit``)."""
+def _refit_by_promise(current: Fit, effect, start, promise: float, refit: Callable,
+                      quick_refit: Callable | None, against: Fit | None = None) -> Fit:
+    """The refit of a candidate whose first-order evidence is ``promise``, the way every candidate is refitted.
+
+    Promising more than :data:`DECISIVE_BIC` (or without ``quick_refit``), it is refitted in full.  Under it, the
+    score test may still under-state what the refit buys (it is first order), so it is refitted cut short first
+    (``quick_refit``): Levenberg-Marquardt takes only steps that lower the chi-square, so the cut-short fit's
+    delta-BIC against ``against`` bounds the full refit's from below, and the full refit runs only when that bound
+    is decisive; else the cut-short fit is returned (its delta-BIC, not decisive, decides nothing).
+
+    Parameters
+    ----------
+    current : Fit
+        The fit the refit starts from (``effect`` added to its effects).
+    effect : object
+        The candidate form.
+    start : ndarray
+        The score test's start of the form's parameters.
+    promise : float
+        Its first-order delta-BIC against ``against``.
+    refit, quick_refit : callable
+        ``(current, effect, start) -> Fit``, in full and cut short (:func:`select_effects`).
+    against : Fit, optional
+        The fit the gain is measured against (default ``current``; a revisit's swap starts from the model without
+        the effect it replaces and is measured against the model with it).
+    """
+    if promise > DECISIVE_BIC or quick_refit is None:
+        return refit(current, effect, start)
     trial = quick_refit(current, effect, start)
-    return refit(current, effect, start) if current.bic() - trial.bic() > DECISIVE_BIC else trial
+    reference = current if against is None else against
+    return refit(current, effect, start) if reference.bic() - trial.bic() > DECISIVE_BIC else trial
 
 
 def select_effects(base: Fit, pool: Sequence, *, score: Callable, refit: Callable, n_params: Callable[[Any], int],
@@ -381,7 +409,8 @@ def select_effects(base: Fit, pool: Sequence, *, score: Callable, refit: Callabl
     quick_refit : callable, optional
         ``quick_refit(current, effect, start) -> Fit``: the refit cut short, whose chi-square bounds the converged
         one's from above (its delta-BIC a lower bound), for a candidate promising less than :data:`DECISIVE_BIC`:
-        refitted in full only when even the bound is decisive.  None: such a candidate is refitted in full.
+        refitted in full only when even the bound is decisive (a revisit's swap too).  None: such a candidate is
+        refitted in full.
 
     Returns
     -------
@@ -407,8 +436,7 @@ def select_effects(base: Fit, pool: Sequence, *, score: Callable, refit: Callabl
             if expected <= max(0.0, REFIT_FRACTION * scored[0][0]):
                 break
             say(f"refitting with {effect.label}")
-            trial = refit(current, effect, start) if expected > DECISIVE_BIC or quick_refit is None else \
-                _refit_if_decisive(current, effect, start, quick_refit, refit)
+            trial = _refit_by_promise(current, effect, start, expected, refit, quick_refit)
             gain = current.bic() - trial.bic()
             share = (current.chi2 - trial.chi2) / max(current.chi2 - current.dof, 1e-12)
             if best is None or gain > best.gain:
@@ -424,7 +452,7 @@ def select_effects(base: Fit, pool: Sequence, *, score: Callable, refit: Callabl
         current = best.trial
         if revise is not None and len(current.effects) > 1:
             current, steps = _revisit(current, steps, pool, revise, score, refit, n_params, log_n, write_step,
-                                      revisions, say)
+                                      revisions, say, quick_refit)
 
     structure, unexplained = verdict(current)
     if unclaimable and len(steps) > 1:
@@ -448,13 +476,17 @@ MAX_REVISIONS = 4
 
 def _revisit(current, steps: list, pool: Sequence, revise: Callable, score: Callable, refit: Callable,
              n_params: Callable, log_n: float, write_step: Callable, revisions: list,
-             say: Callable) -> tuple[Any, list]:
+             say: Callable, quick_refit: Callable | None = None) -> tuple[Any, list]:
     """Re-test the forms of the effects in ``current`` but the last added, and drop those no longer decisive.
 
     For each such effect the model without it is refitted (``revise``): the effect's evidence is
     what removing it costs in BIC.  Its other forms are score-tested against that model, and the
-    most promising one is refitted (``refit``) when its first-order evidence beats the current
-    form's by more than :data:`DECISIVE_BIC`; the best decisive replacement is taken, else the
+    most promising one is refitted from it when its first-order evidence beats the current form's at all,
+    as :func:`select_effects` refits a candidate (:func:`_refit_by_promise`): the swap's promise over
+    ``current`` is the form's first-order delta-BIC against the model without the effect less that
+    effect's evidence; under :data:`DECISIVE_BIC` the refit is cut short first (``quick_refit``), started
+    from the model without it, and its delta-BIC against ``current`` (a lower bound of the converged
+    swap's) decides whether it runs in full.  The best replacement decisive in its refit is taken, else the
     effect with the least evidence is dropped if that evidence is at most :data:`DECISIVE_BIC`;
     repeat, at most :data:`MAX_REVISIONS` times.  ``steps`` (the base step, then one per effect in
     order) follows the effects: a replaced form goes to the end with a new step (the evidence of the
@@ -474,10 +506,10 @@ def _revisit(current, steps: list, pool: Sequence, revise: Callable, score: Call
             if not scored:
                 continue
             promise, form, start = max(scored, key=lambda item: item[0])
-            if promise <= evidence + DECISIVE_BIC:
+            if promise <= evidence:  # first order, the swap buys nothing over the current form
                 continue
             say(f"revisiting {old.label}: refitting as {form.label}")
-            trial = refit(without, form, start)
+            trial = _refit_by_promise(without, form, start, promise - evidence, refit, quick_refit, against=current)
             swaps.append((current.bic() - trial.bic(), i, form, without, trial))
         best_swap = max(swaps, key=lambda item: item[0], default=None)
         weakest = min(drops, key=lambda item: item[0], default=None)

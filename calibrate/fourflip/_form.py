@@ -69,32 +69,36 @@ class ResponseForm:
         response the smaller of that and the cubic's, times two.
     cubic_delta_chi2 : float or None
         A linear response's: the first-order chi-square drop of the degree-3 columns of every judged channel
-        jointly (one degree of freedom a channel); None for a fit with a curve.
+        jointly; None for a fit with a curve.
+    cubic_dof : int
+        Degrees of freedom of ``cubic_delta_chi2`` under white noise: its columns, one a judged channel (0 without
+        it).
     """
 
     delta_chi2: np.ndarray
     dof: int
     p_value: float
     cubic_delta_chi2: float | None = None
+    cubic_dof: int = 0
 
     def p_value_over(self, mask: np.ndarray) -> float:
         """The test's p-value over the channels ``mask`` selects (1 when none is); a linear response's is the
-        smaller of the general curves' and the cubic's (:data:`CUBIC_DEGREE`, ``cubic_delta_chi2`` with one degree
-        of freedom a judged channel), times two."""
+        smaller of the general curves' and the cubic's (:data:`CUBIC_DEGREE`, ``cubic_delta_chi2`` on its own
+        ``cubic_dof``, the channels its columns were taken from, whatever ``mask`` selects), times two."""
         p = [chi2_sf(d, self.dof) for d in self.delta_chi2[mask]]
         if not p:
             return 1.0
         curves = min(1.0, len(p) * min(p))
         if self.cubic_delta_chi2 is None:
             return curves
-        return min(1.0, 2.0 * min(curves, chi2_sf(self.cubic_delta_chi2, len(p))))
+        return min(1.0, 2.0 * min(curves, chi2_sf(self.cubic_delta_chi2, self.cubic_dof)))
 
     def as_dict(self, channels) -> dict:
         """The diagnosis block's ``response_form_test``."""
         block = {"delta_chi2": {ch: float(v) for ch, v in zip(channels, self.delta_chi2)}, "dof": self.dof,
                  "p_value": self.p_value, "curve": f"Legendre degrees 2..{CURVE_DEGREE} of x / |B| per channel"}
         if self.cubic_delta_chi2 is not None:
-            block["cubic_delta_chi2"] = self.cubic_delta_chi2
+            block |= {"cubic_delta_chi2": self.cubic_delta_chi2, "cubic_dof": self.cubic_dof}
         return block
 
 
@@ -132,12 +136,13 @@ def response_form_test(fit: MLFit, noise: np.ndarray, judged: np.ndarray | None 
     powers = _response_powers(fit)
     dof = q - sum(1 for k in powers if 2 <= k <= CURVE_DEGREE)
     chosen = np.ones(c, dtype=bool) if judged is None else np.asarray(judged, dtype=bool)
-    cubic = None
+    cubic, cubic_dof = None, 0
     if not powers and chosen.any():  # the vocabulary's cubic, one column a judged channel, jointly
         columns = np.stack([blocks[ch][:, CUBIC_DEGREE - 2] for ch in np.flatnonzero(chosen)], axis=1)
         x3 = np.concatenate([fit.x, np.zeros(columns.shape[1])])
         cubic, _ = linear_score(None, x3, fit.x.size, j_b, block_jacobian=columns, r0=r0, normal_b=normal_b)
-    test = ResponseForm(drops, dof, 1.0, cubic)
+        cubic_dof = columns.shape[1]
+    test = ResponseForm(drops, dof, 1.0, cubic, cubic_dof)
     return replace(test, p_value=test.p_value_over(chosen))
 
 

@@ -209,3 +209,53 @@ def test_a_refit_cut_short_decides_whether_a_sub_decisive_candidate_is_refitted_
     else:
         assert bound <= DECISIVE_BIC and full == []
         assert base.bic() - run.fit((ZED,)).bic() > DECISIVE_BIC  # the converged one would have been claimed
+
+
+@pytest.mark.parametrize("bound_over_decisive, swapped", [(1.0, True), (-1.0, False)])
+def test_a_swap_promising_under_decisive_is_refitted_cut_short_then_judged_by_its_refit(bound_over_decisive, swapped):
+    """The revisit decides a swap as the loop decides an addition.  y = 10 t + 2 t^2 + 3 z with z = -2/3 t^2 + w,
+    the model holding the linear trend, then z: the quadratic form's first-order promise over the linear one is put
+    at half of DECISIVE_BIC (the old rule asked DECISIVE_BIC of the promise, and kept the linear form), while its
+    refit from the model without the trend buys far more.  Cut short (here: the converged fit's chi-square plus a
+    slack, its delta-BIC against the model with the linear form a lower bound), the swap is refitted in full only where
+    that bound is decisive, and taken on the full refit's delta-BIC; where the bound is not, the full refit never
+    runs and the linear form stays, though the converged swap would have been decisive."""
+    rng = np.random.default_rng(0)
+    t = np.linspace(-1.0, 1.0, N)
+    z = -2.0 / 3.0 * t * t + rng.normal(size=N)
+    run, _ = _problem(10 * t + 2 * t * t + 3 * z + rng.normal(size=N), t, z)
+    current = run.fit((LIN, ZED))
+    converged = run.fit((ZED, QUAD))
+    gain = current.bic() - converged.bic()
+    assert gain > DECISIVE_BIC + 1.0  # the converged swap is decisive in both cases
+    full, quick, promises = [], [], []
+
+    def score(without, form):
+        evidence = without.bic() - current.bic()
+        promises.append(0.5 * DECISIVE_BIC)  # the swap's first-order promise over the current form
+        return evidence + 2 * np.log(N) + promises[-1], np.zeros(2)
+
+    def refit(without, form, start):
+        full.append(run.fit(without.effects + (form,)))
+        return full[-1]
+
+    def cut_short(without, form, start):
+        slack = gain - DECISIVE_BIC - bound_over_decisive
+        quick.append(dataclasses.replace(run.fit(without.effects + (form,)), chi2=converged.chi2 + slack))
+        return quick[-1]
+
+    steps = [{"model": "base"}, {"added": "trend", "form": "linear"}, {"added": "zed", "form": "z"}]
+    revisions = []
+    final, steps = _revisit(current, steps, [LIN, QUAD, ZED], lambda c, e: run.fit(e), score, refit,
+                            lambda e: len(e.columns(t, z)), np.log(N),
+                            lambda p, m: {"added": p.effect.name, "form": p.effect.form, "delta_bic": p.gain},
+                            revisions, lambda text: None, quick_refit=cut_short)
+    assert 0.0 < promises[0] <= DECISIVE_BIC and len(quick) == 1
+    assert current.bic() - quick[0].bic() == pytest.approx(DECISIVE_BIC + bound_over_decisive)
+    if swapped:
+        assert len(full) == 1 and final is full[0]
+        assert [e.form for e in final.effects] == ["z", "quadratic"]
+        assert len(revisions) == 1 and "replaced by trend (quadratic)" in revisions[0]
+    else:
+        assert full == [] and revisions == []
+        assert final is current

@@ -134,6 +134,23 @@ def test_a_linear_response_is_also_asked_the_cubic_alone(bench):
     assert response_form_test(curved, noise).cubic_delta_chi2 is None
 
 
+def test_the_cubic_keeps_the_dof_of_the_channels_it_was_taken_over(bench):
+    """Reference relation: the cubic's joint drop over the judged channels (a and c: 2 columns) is a chi-square on 2
+    dof whichever channels the p-value is asked over; asked over all three, the curves' part counts three channels and
+    the cubic's still 2 (its dof used to be read from the mask: 3, a tail 4x larger on odd cubic seed 64)."""
+    from scipy.stats import chi2
+
+    fit, noise = _linear_fit(bench, "odd cubic", 64)
+    judged = np.array([True, False, True])
+    form = response_form_test(fit, noise, judged)
+    assert form.as_dict("abc")["cubic_dof"] == 2
+    tail = chi2.sf(form.cubic_delta_chi2, 2)
+    assert form.p_value == pytest.approx(min(1.0, 2 * min(2 * chi2.sf(form.delta_chi2[judged], form.dof).min(), tail)))
+    curves = 3 * chi2.sf(form.delta_chi2, form.dof).min()
+    assert tail < 0.5 * chi2.sf(form.cubic_delta_chi2, 3) and tail < curves  # the case where the dof decides
+    assert form.p_value_over(np.ones(3, dtype=bool)) == pytest.approx(min(1.0, 2 * min(curves, tail)))
+
+
 def test_an_unnamed_cubic_the_curves_dilute_is_said_alone(bench):
     """bench_loop's four stacked, seed 66 (dip 61.9 deg): the loop names the encoder error, the warm-up and the gain
     drift, not the 1 % cubic (its refit's delta-BIC -6.5), and the structure test calls the residual white; over
@@ -152,7 +169,7 @@ def test_an_unnamed_cubic_the_curves_dilute_is_said_alone(bench):
     assert d["unexplained"] is True and d["unexplained_by"] == "response_form_test"
     assert form["cubic_delta_chi2"] > chi2.isf(STRUCTURE_P / 2, 3)
     assert "response_misfit" in d["unexplained_cost"] and d["unexplained_cost"]["heading_deg"] > 0
-    assert "the odd cubic alone, one dof a channel: chi2" in result.report()
+    assert "the odd cubic alone, one dof a judged channel: chi2" in result.report()
     err = np.degrees(np.arccos(np.clip(np.sum(result.directions * truth.directions, axis=1), -1, 1)))
     assert np.all(err < 1.8 * np.array([c.direction_sigma_deg for c in result.channels]))
 
