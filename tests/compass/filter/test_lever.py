@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from compass.filter import FilterConfig, FilterStart, run_filter, through_start
-from compass.filter._lever import MEMORY_S, PRIOR, LeverState, acceleration, add_sample, restart_block
+from compass.filter._lever import BLOCK_S, MEMORY_S, PRIOR, LeverState, acceleration, add_sample, restart_block
 
 RATE_HZ = 200.0
 G = 9.81
@@ -19,12 +19,15 @@ FIELD_NWU = np.array([20.0, 0.0, -40.0])  # uT, dip 63 deg
 ARM_M = np.array([0.15, 0.03, -0.02])  # the IMU's offset from the turn's centre in H, m
 
 
-def off_centre_turn(arm=ARM_M, seconds=70.0, seed=1):
+def off_centre_turn(arm=ARM_M, seconds=70.0, seed=1, still_from_s=None):
     """A housing still for 2 s, then turned by hand about a fixed centre ``arm`` (H, m) from the IMU: three
-    sinusoidal rates (about 2 rad/s), the attitude stepped as the filter steps it; the sensors with white noise."""
+    sinusoidal rates (about 2 rad/s), the attitude stepped as the filter steps it; the sensors with white noise.
+    With ``still_from_s`` the rates ramp down to zero over 2 s from then on (the housing held still)."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, seconds, 1.0 / RATE_HZ)
     ramp = np.clip((t - 2.0) / 2.0, 0.0, 1.0)[:, None]
+    if still_from_s is not None:
+        ramp = ramp * np.clip((still_from_s + 2.0 - t) / 2.0, 0.0, 1.0)[:, None]
     w = ramp * np.stack([1.5 * np.sin(2 * np.pi * 0.31 * t), 1.2 * np.sin(2 * np.pi * 0.43 * t + 1.0),
                          2.0 * np.sin(2 * np.pi * 0.23 * t + 2.0)], axis=1)
     steps = Rotation.from_rotvec(w / RATE_HZ)
@@ -114,20 +117,40 @@ def test_the_arm_is_taken_out_of_the_motion_variance():
 
 
 def test_the_arms_acceleration_is_m_r():
-    """A rate rising linearly (``dw/dt`` exact by the difference): ``dw/dt x r + w x (w x r)``; zero for ``r = 0``;
-    the first sample after a restart has no ``dw/dt``."""
+    """A rate rising linearly: once the rate's change has been low-passed over many ``BLOCK_S``, ``dw/dt x r + w x
+    (w x r)``; zero for ``r = 0``; the first sample after a restart has no ``dw/dt``, and the next takes
+    ``1 - exp(-dt / BLOCK_S)`` of it."""
     arm, dt = (0.1, -0.05, 0.02), 0.005
     w0, dw = np.array([0.5, -1.0, 2.0]), np.array([3.0, 1.0, -2.0])
     st, zero = LeverState(arm=arm), LeverState()
-    first = acceleration(st, dt, tuple(w0))
-    assert np.allclose(first, np.cross(w0, np.cross(w0, arm)), rtol=1e-12, atol=0.0)
-    w1 = w0 + dw * dt
-    assert np.allclose(acceleration(st, dt, tuple(w1)), np.cross(dw, arm) + np.cross(w1, np.cross(w1, arm)),
-                       rtol=1e-9, atol=1e-12)
-    assert acceleration(zero, dt, tuple(w0)) == (0.0, 0.0, 0.0)
-    assert acceleration(zero, dt, tuple(w1)) == (0.0, 0.0, 0.0)
+    assert np.allclose(acceleration(st, dt, tuple(w0)), np.cross(w0, np.cross(w0, arm)), rtol=1e-12, atol=0.0)
+    settled = int(20 * BLOCK_S / dt)
+    for k in range(1, settled + 1):
+        w = w0 + dw * dt * k
+        got = acceleration(st, dt, tuple(w))
+        assert acceleration(zero, dt, tuple(w)) == (0.0, 0.0, 0.0)
+    assert np.allclose(got, np.cross(dw, arm) + np.cross(w, np.cross(w, arm)), rtol=1e-6, atol=1e-9)
     restart_block(st)
-    assert np.allclose(acceleration(st, dt, tuple(w1)), np.cross(w1, np.cross(w1, arm)), rtol=1e-12, atol=0.0)
+    assert np.allclose(acceleration(st, dt, tuple(w)), np.cross(w, np.cross(w, arm)), rtol=1e-12, atol=0.0)
+    share = -np.expm1(-dt / BLOCK_S)
+    w_next = w + dw * dt
+    assert np.allclose(acceleration(st, dt, tuple(w_next)),
+                       share * np.cross(dw, arm) + np.cross(w_next, np.cross(w_next, arm)), rtol=1e-9, atol=1e-12)
+
+
+def test_the_arm_leaves_the_motion_variance_at_rest_as_it_was():
+    """Held still after a turn that fitted a 10 cm arm, the tilt's motion variance is what it is without the arm:
+    the gyro's white noise differenced sample to sample (``sqrt(2) sigma / dt``, 1.2 rad/s^2, 0.12 m/s^2 through the
+    arm) read five to six times that variance; low-passed over ``BLOCK_S`` it is ``dt / BLOCK_S`` of it."""
+    t, accel, gyro, field, _ = off_centre_turn(seconds=50.0, still_from_s=30.0)
+    variances = {}
+    for lever_arm in (False, True):
+        out = np.full(len(t), np.nan)
+        for filt, j in through_start(FilterStart(config(lever_arm), None), zip(t, accel, gyro, field)):
+            filt.step(t[j], accel[j], gyro[j], field[j])
+            out[j] = filt.state.residual_var
+        variances[lever_arm] = float(np.nanmean(out[t > 40.0]))
+    assert variances[True] == pytest.approx(variances[False], rel=0.2)
 
 
 def test_a_sample_without_the_accelerometer_drops_the_open_block():
