@@ -16,9 +16,9 @@ angular acceleration are ``omega = s' theta u``, ``alpha = s'' theta u`` (H), an
     f = R^T (p_imu'' + g z) = R^T (p'' + g z) + alpha x r + omega x (omega x r)
 
 (differentiate ``R r`` twice with ``R' = R [omega]x``).  The gyro's true rate over ``(t_k-1, t_k]`` is the
-path's exact mean body rate ``(s(tau_k) - s(tau_k-1)) theta u / dt``, so ``R_k = R_k-1 Exp(rate_k dt)`` holds
-exactly (motion.py's convention; moves never share an interval: a dwell of >= 0.5 s separates them).  The field
-is homogeneous (NWU world, SPEC section 1); the sensors are :func:`compass.sim.motion.read_sensors`.
+path's mean body rate ``Log(R_k-1^T R_k) / dt``, so ``R_k = R_k-1 Exp(rate_k dt)`` holds exactly (motion.py's
+convention), also where an interval spans the end of one move and the start of the next.  The field is
+homogeneous (NWU world, SPEC section 1); the sensors are :func:`compass.sim.motion.read_sensors`.
 """
 
 from __future__ import annotations
@@ -68,10 +68,9 @@ class RobotPath:
     step_m: np.ndarray
     lever_arm_m: np.ndarray
 
-    def _phase(self, t, move=None):
+    def _phase(self, t):
         """The move in force at ``t`` (the last started; the first before it) and its ``tau`` in [0, 1]."""
-        if move is None:
-            move = np.clip(np.searchsorted(self.start_s, t, side="right") - 1, 0, len(self.start_s) - 1)
+        move = np.clip(np.searchsorted(self.start_s, t, side="right") - 1, 0, len(self.start_s) - 1)
         return move, np.clip((t - self.start_s[move]) / self.duration_s[move], 0.0, 1.0)
 
     def attitude(self, t) -> Rotation:
@@ -87,11 +86,11 @@ class RobotPath:
         return self.position_m[move] + s[:, None] * self.step_m[move] + self.attitude(t).apply(self.lever_arm_m)
 
     def mean_rate(self, t) -> np.ndarray:
-        """The exact mean body rate over ``(t_k-1, t_k]`` (0 for the first sample), H, rad/s, shape (n, 3)."""
-        move, tau = self._phase(t)
-        _, tau_before = self._phase(np.r_[t[0], t[:-1]], move)
-        s = _minimum_jerk(tau, self.duration_s[move])[0] - _minimum_jerk(tau_before, self.duration_s[move])[0]
-        return s[:, None] * self.rotvec[move] / np.diff(t, prepend=t[0] - 1.0)[:, None]
+        """The exact mean body rate ``Log(R_k-1^T R_k) / (t_k - t_k-1)`` over ``(t_k-1, t_k]`` (0 for the first
+        sample), H, rad/s, shape (n, 3); ``t`` increasing, at most half a turn per interval."""
+        attitude = self.attitude(t)
+        step = (attitude[:-1].inv() * attitude[1:]).as_rotvec() / np.diff(t)[:, None]
+        return np.r_[np.zeros((1, 3)), step]
 
     def specific_force(self, t) -> tuple[np.ndarray, np.ndarray]:
         """The IMU's specific force in H (m/s^2) and its motion acceleration ``p_imu''`` in the world (m/s^2) at

@@ -32,8 +32,11 @@ def test_lever_arm_is_in_the_specific_force():
     assert np.max(np.linalg.norm(path.specific_force(t)[0] - centre.specific_force(t)[0], axis=1)) > 0.5
 
 
-def test_noise_free_gyro_integrates_to_the_truth():
-    rec = simulate_robot(3, duration_s=30.0, errors=NOISELESS)
+@pytest.mark.parametrize("dwell_s", [(0.5, 2.0), (0.0, 0.0)])
+def test_noise_free_gyro_integrates_to_the_truth(dwell_s):
+    """Also with moves back to back (no dwell), where a sample interval spans the end of one and the start of the
+    next."""
+    rec = simulate_robot(3, duration_s=30.0, errors=NOISELESS, dwell_s=dwell_s)
     dt = rec.t_s[1] - rec.t_s[0]
     quats = np.empty((len(rec.t_s), 4))
     r = rec.rotation[0]
