@@ -2,9 +2,9 @@
 
 Issue 22's hidden check turns low-cost boards on a robot's flange; :mod:`compass.sim.motion` is hand-held.
 Here the flange moves between random waypoints (orientations tilted up to ``max_tilt_deg`` about a random
-horizontal axis at any heading; positions within ``reach_m`` of a centre), each move ``move_s`` long with a
-minimum-jerk profile ``s(tau) = 10 tau^3 - 15 tau^4 + 6 tau^5`` in position and in rotation angle about the
-move's fixed axis, with dwells ``dwell_s`` between moves:
+horizontal axis at any heading; positions within ``reach_m`` of a centre), each move a length drawn from
+``move_range_s`` with a minimum-jerk profile ``s(tau) = 10 tau^3 - 15 tau^4 + 6 tau^5`` in position and in
+rotation angle about the move's fixed axis, with dwells drawn from ``dwell_range_s`` between moves:
 
     R(t) = R_a Exp(s(tau) theta u),    p(t) = p_a + s(tau) (p_b - p_a),    tau = (t - t_a) / T,
 
@@ -116,16 +116,19 @@ def _waypoint(rng, max_tilt_deg: float, reach_m: float) -> tuple[Rotation, np.nd
     return attitude, reach_m * rng.uniform() ** (1.0 / 3.0) * direction / np.linalg.norm(direction)
 
 
-def robot_path(rng, *, duration_s: float = 60.0, rest_s: float = 3.0, move_s=(1.0, 3.0), dwell_s=(0.5, 2.0),
-               max_tilt_deg: float = 60.0, reach_m: float = 0.5, lever_arm_m=(0.05, 0.15)) -> RobotPath:
-    """Random waypoints and moves: still for ``rest_s`` at both ends, moves of ``move_s`` (s, uniform) between
-    dwells of ``dwell_s`` (s, uniform), the IMU at ``lever_arm_m`` (m, uniform length, random direction).
+def robot_path(rng, *, duration_s: float = 60.0, rest_s: float = 3.0, move_range_s=(1.0, 3.0),
+               dwell_range_s=(0.5, 2.0), max_tilt_deg: float = 60.0, reach_m: float = 0.5,
+               lever_arm_range_m=(0.05, 0.15)) -> RobotPath:
+    """Random waypoints and moves: still for ``rest_s`` at both ends, moves of a length uniform in
+    ``move_range_s`` (s) between dwells uniform in ``dwell_range_s`` (s), the IMU at a lever arm of length uniform
+    in ``lever_arm_range_m`` (m) in a random direction.
 
     Parameters
     ----------
     rng : numpy.random.Generator
     duration_s, rest_s : float
-    move_s, dwell_s, lever_arm_m : pair of floats
+    move_range_s, dwell_range_s, lever_arm_range_m : pair of floats
+        Each a (min, max).
     max_tilt_deg, reach_m : float
 
     Returns
@@ -133,12 +136,12 @@ def robot_path(rng, *, duration_s: float = 60.0, rest_s: float = 3.0, move_s=(1.
     RobotPath
     """
     direction = rng.normal(size=3)
-    arm = rng.uniform(*lever_arm_m) * direction / np.linalg.norm(direction)
+    arm = rng.uniform(*lever_arm_range_m) * direction / np.linalg.norm(direction)
     attitude, position = _waypoint(rng, max_tilt_deg, reach_m)
     starts, lengths, attitudes, rotvecs, positions, steps = [], [], [], [], [], []
     t = rest_s
     while True:
-        length = rng.uniform(*move_s)
+        length = rng.uniform(*move_range_s)
         if t + length > duration_s - rest_s:
             break
         target, target_position = _waypoint(rng, max_tilt_deg, reach_m)
@@ -150,9 +153,9 @@ def robot_path(rng, *, duration_s: float = 60.0, rest_s: float = 3.0, move_s=(1.
         steps.append(target_position - position)
         attitude = attitude * Rotation.from_rotvec(rotvecs[-1])  # the waypoint the move reaches exactly
         position = target_position
-        t += length + rng.uniform(*dwell_s)
+        t += length + rng.uniform(*dwell_range_s)
     if not starts:
-        raise ValueError(f"no move of {move_s[0]:g} s fits between {rest_s:g} s rests in {duration_s:g} s")
+        raise ValueError(f"no move of {move_range_s[0]:g} s fits between {rest_s:g} s rests in {duration_s:g} s")
     return RobotPath(np.array(starts), np.array(lengths), Rotation.from_quat(attitudes), np.array(rotvecs),
                      np.array(positions), np.array(steps), arm)
 
@@ -171,8 +174,8 @@ def simulate_robot(seed: int, *, duration_s: float = 60.0, rate_hz: float = 285.
     field_ut, dip_deg : float
         The homogeneous field (a Berlin-like default).
     **path
-        :func:`robot_path`'s options (``rest_s``, ``move_s``, ``dwell_s``, ``max_tilt_deg``, ``reach_m``,
-        ``lever_arm_m``).
+        :func:`robot_path`'s options (``rest_s``, ``move_range_s``, ``dwell_range_s``, ``max_tilt_deg``,
+        ``reach_m``, ``lever_arm_range_m``).
 
     Returns
     -------
