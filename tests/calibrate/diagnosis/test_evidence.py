@@ -124,8 +124,8 @@ def _low_floor_problem(unknown: float):
 
 def test_a_small_share_does_not_veto_an_effect_that_leaves_no_structure():
     """The share is read against chi2 - dof, which a floor 25 % low fills with white noise: the trend explains
-    under MIN_SHARE of it, yet with the trend in the residual is white, so it is claimed (it was vetoed and the
-    residual called unexplained before)."""
+    under MIN_SHARE of it, yet with the trend in the residual is white, so it is claimed (the share alone would
+    veto it and call the residual unexplained)."""
     chosen, share, gain = _low_floor_problem(0.0)
     assert share < MIN_SHARE and gain > 3 * DECISIVE_BIC  # the case the share alone vetoed
     assert [e.name for e in chosen.fit.effects] == ["trend"]
@@ -215,7 +215,7 @@ def test_a_refit_cut_short_decides_whether_a_sub_decisive_candidate_is_refitted_
 def test_a_swap_promising_under_decisive_is_refitted_cut_short_then_judged_by_its_refit(bound_over_decisive, swapped):
     """The revisit decides a swap as the loop decides an addition.  y = 10 t + 2 t^2 + 3 z with z = -2/3 t^2 + w,
     the model holding the linear trend, then z: the quadratic form's first-order promise over the linear one is put
-    at half of DECISIVE_BIC (the old rule asked DECISIVE_BIC of the promise, and kept the linear form), while its
+    at half of DECISIVE_BIC (a swap refitted only on a decisive promise keeps the linear form), while its
     refit from the model without the trend buys far more.  Cut short (here: the converged fit's chi-square plus a
     slack, its delta-BIC against the model with the linear form a lower bound), the swap is refitted in full only where
     that bound is decisive, and taken on the full refit's delta-BIC; where the bound is not, the full refit never
