@@ -17,7 +17,7 @@ import numpy as np
 
 from .calibration import ImuCorrection
 from .filter import AttitudeFilter, Estimate, FilterConfig, FilterStart
-from .io.streams import JUDGE_SAMPLES, StreamDecoder, StreamOptions, field_scale_check
+from .io.streams import JUDGE_SAMPLES, StreamDecoder, StreamOptions, field_scale_check, time_steps_verdict
 from .iron_uncertainty import undetermined_words, with_calibration_sigma
 from .serial_reader import Chunk, LinkEvent
 from .site import upside_down
@@ -280,26 +280,18 @@ class LiveSession:
                 self._sample(reading)
 
     def _judge_steps(self, samples: list) -> None:
-        """Say once when the module's ``t_s`` does not tell the filter the time between samples, judged on its first
-        :data:`~compass.io.streams.JUDGE_SAMPLES` samples (the replay refuses such a recording): the same value in
-        all of them (no gyro is integrated, nothing predicted: a clock not running, a counter not sent), or a median
-        step over the filter's ``max_gap_s`` (s), which restarts the filter at every sample (a firmware's
-        milliseconds sent as t_s)."""
+        """Say once when the module's ``t_s`` does not tell the filter the time between samples
+        (:func:`~compass.io.streams.time_steps_verdict`, which the replay refuses), judged on its first
+        :data:`~compass.io.streams.JUDGE_SAMPLES` samples: a clock not running, a counter not sent, a firmware's
+        milliseconds sent as t_s."""
         if self._times is None:
             return
         self._times += [s.t_s for s in samples if s.t_s is not None]
         if len(self._times) < JUDGE_SAMPLES:
             return
-        first, self._times = self._times[:JUDGE_SAMPLES], None
-        step = float(np.median(np.diff(first)))
-        if first[-1] == first[0]:
-            self._event("warn", f"the module's t_s is {first[0]:g} in all of its first {JUDGE_SAMPLES} samples: the "
-                                "filter integrates no gyro while it does not increase (the line protocol's t_s is the "
-                                "sample's time in seconds)")
-        elif step > self.config.max_gap_s:
-            self._event("warn", f"the module's t_s steps by {step:g} s (median of its first {JUDGE_SAMPLES} samples): "
-                                f"each step is a gap over the filter's {self.config.max_gap_s:g} s and restarts it; "
-                                "does it send milliseconds? (the line protocol's t_s is in seconds)")
+        verdict, self._times = time_steps_verdict(self._times[:JUDGE_SAMPLES], self.config.max_gap_s), None
+        if verdict is not None:
+            self._event("warn", f"the module's {verdict}")
 
     def _judge_accel(self, samples: list) -> bool:
         """Whether the bench's accelerometer offsets and scales apply: judged once, on the first chunk with

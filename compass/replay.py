@@ -170,7 +170,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     from .filter import PLACE_EVENT, FilterConfig
     from .io.atomic import atomic_write_text, check_writable
     from .io.table import read_table
-    from .io.streams import JUDGE_SAMPLES, field_scale_check
+    from .io.streams import JUDGE_SAMPLES, field_scale_check, time_steps_verdict
     from .site import MIN_REFERENCE_ROWS, Site, reference_from_site
     from .viz import check_rerun_target
 
@@ -217,7 +217,11 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
                              row=table.header_row, column="ax")
     table.check_dead_axis(("ax", "ay", "az"))
     t_s = table.column("t_s")
-    _check_time_steps(table, t_s, config.max_gap_s)
+    wrong_time = time_steps_verdict(t_s, config.max_gap_s)
+    if wrong_time is not None:
+        raise RecordingError(table.path, f"{wrong_time}; a column in ms is read as such when named 'Time (ms)', and "
+                                         "without --filter each row is solved alone",
+                             row=table.header_row, column="t_s")
     if gyro is not None:
         _check_gyro_turn(table, gyro, named=read_options is not None and read_options.gyro_unit is not None)
     raw = np.column_stack([table.column(name) for name in model.channels])
@@ -269,25 +273,6 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
           + (f"; it moved to a new place's field {len(moves)} time{'s' if len(moves) > 1 else ''}: {moves[-1]}"
              if moves else "") + ")" + (f"\nwrote {rerun}" if rerun is not None and str(rerun) != "spawn" else ""))
     return session
-
-
-def _check_time_steps(table, t_s, max_gap_s: float) -> None:
-    """RecordingError when ``t_s`` does not tell the filter the time between samples.
-
-    A ``t_s`` that never increases integrates no gyro and predicts nothing; a median step beyond the filter's
-    ``max_gap_s`` (s) restarts it at every sample (a time in ms read as s steps 1000 times too far).
-    """
-    if len(t_s) < 2:
-        return
-    if t_s[-1] == t_s[0]:
-        raise RecordingError(table.path, f"t_s is {t_s[0]:g} in all {len(t_s)} rows: the filter needs each sample's "
-                                         "time (seconds)", row=table.header_row, column="t_s")
-    step = float(np.median(np.diff(t_s)))
-    if step > max_gap_s:
-        raise RecordingError(table.path, f"t_s steps by {step:g} s (median): each step is a gap over the filter's "
-                                         f"{max_gap_s:g} s and restarts it; a time in ms (name the column 'Time (ms)')"
-                                         "? a log too slow to filter (without --filter each row is solved alone)?",
-                             row=table.header_row, column="t_s")
 
 
 def _check_gyro_turn(table, gyro: np.ndarray, named: bool) -> None:

@@ -208,23 +208,30 @@ def session(seed: int, case: str, noise_ut: float = NOISE_UT):
                       lambda field: level + slope * _static(case, np.asarray(field) @ directions.T))
 
 
-def heading_error_deg(result, truth: Truth, n_headings: int = N_HEADINGS) -> float:
-    """RMS over headings of a level housing's heading error at runtime from the calibration alone (no noise), deg.
+def level_heading_errors(responses, directions: np.ndarray, truth: Truth, psi: np.ndarray) -> np.ndarray:
+    """A level housing's runtime heading error at angles ``psi`` (rad, counter-clockwise from magnetic north: SPEC's
+    heading is ``-psi``) from a calibration alone (no noise), rad, shape (n,).
 
-    The housing level at heading ``psi`` in the session's field (``FIELD_UT``, its dip), its outputs from
-    :attr:`Truth.output`; each channel's response inverted (its fitted curve), the field solved through the
-    pseudo-inverse of the fitted directions, the heading read from its horizontal part; the frame and sign
-    conventions are those of :func:`calibrate.diagnosis.robust.heading_sigma_deg`, whose stated sigma this
-    is compared with.
+    The housing sees ``B = (H cos psi, -H sin psi, -Z)`` in the session's field (``FIELD_UT``, its dip), its outputs
+    from :attr:`Truth.output`; each channel's ``responses`` inverted (its fitted curve), the field solved through
+    the pseudo-inverse of the fitted unit ``directions`` (H, shape (c, 3)), the angle read from its horizontal
+    part; the frame and sign conventions are those of :func:`calibrate.diagnosis.robust.heading_sigma_deg`, whose
+    stated sigma this is compared with.
     """
-    psi = np.linspace(0.0, 2 * np.pi, n_headings, endpoint=False)
     dip = np.radians(truth.dip_deg)
     field = FIELD_UT * np.column_stack([np.cos(dip) * np.cos(psi), -np.cos(dip) * np.sin(psi),
                                         np.full_like(psi, -np.sin(dip))])
     out = truth.output(field)
-    x = np.column_stack([ch.response.field_component(out[:, i])[0] for i, ch in enumerate(result.channels)])
-    m = x @ np.linalg.pinv(result.directions).T
-    error = np.angle(np.exp(1j * (np.arctan2(-m[:, 1], m[:, 0]) - psi)))
+    x = np.column_stack([r.field_component(out[:, i])[0] for i, r in enumerate(responses)])
+    m = x @ np.linalg.pinv(directions).T
+    return np.angle(np.exp(1j * (np.arctan2(-m[:, 1], m[:, 0]) - psi)))
+
+
+def heading_error_deg(result, truth: Truth, n_headings: int = N_HEADINGS) -> float:
+    """RMS over ``n_headings`` equal steps of :func:`level_heading_errors` through ``result``'s fitted responses and
+    directions, deg."""
+    psi = np.linspace(0.0, 2 * np.pi, n_headings, endpoint=False)
+    error = level_heading_errors([ch.response for ch in result.channels], result.directions, truth, psi)
     return float(np.degrees(np.sqrt(np.mean(error**2))))
 
 

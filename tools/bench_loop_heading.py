@@ -1,9 +1,9 @@
 """One recording of :mod:`bench_loop`: what its level heading error is made of, and whether it is bias or noise.
 
-A level housing at heading ``psi`` sees ``B = (H cos psi, -H sin psi, -Z)`` (``H = |B| cos D``, ``Z = |B| sin D``,
-``D`` the dip).  To first order in each parameter's error (``do`` the offset's in field units, ``e`` the gain's
-relative error, ``da`` the sensing direction's, channels a and b nearly along housing X and Y), the heading read
-through the calibration is off by
+A level housing at the angle ``psi`` counter-clockwise from magnetic north (SPEC's heading ``-psi``) sees
+``B = (H cos psi, -H sin psi, -Z)`` (``H = |B| cos D``, ``Z = |B| sin D``, ``D`` the dip).  To first order in each
+parameter's error (``do`` the offset's in field units, ``e`` the gain's relative error, ``da`` the sensing
+direction's, channels a and b nearly along housing X and Y), the angle read through the calibration is off by
 
 .. math::
 
@@ -74,22 +74,6 @@ def forced_effects(forms: list[tuple[str, str]]):
         diagnosis.select_effects = real
 
 
-def _level(truth: bl.Truth, psi: np.ndarray) -> np.ndarray:
-    """The session's field in a level housing at headings ``psi`` (rad), uT, (n, 3)."""
-    dip = np.radians(truth.dip_deg)
-    return bl.FIELD_UT * np.column_stack([np.cos(dip) * np.cos(psi), -np.cos(dip) * np.sin(psi),
-                                          np.full_like(psi, -np.sin(dip))])
-
-
-def heading_errors(responses, directions: np.ndarray, truth: bl.Truth, psi: np.ndarray) -> np.ndarray:
-    """The level heading's error at ``psi`` (rad) through ``responses`` and ``directions`` (as
-    :func:`bench_loop.heading_error_deg`), rad."""
-    out = truth.output(_level(truth, psi))
-    x = np.column_stack([r.field_component(out[:, i])[0] for i, r in enumerate(responses)])
-    m = x @ np.linalg.pinv(directions).T
-    return np.angle(np.exp(1j * (np.arctan2(-m[:, 1], m[:, 0]) - psi)))
-
-
 def harmonics_deg(error: np.ndarray) -> np.ndarray:
     """Amplitudes of harmonics 0-4 of an error sampled at equal steps over a turn, deg."""
     amplitude = 2.0 * np.abs(np.fft.rfft(error)) / error.size
@@ -133,11 +117,11 @@ def describe(label: str, case: str, seed: int, result, truth: bl.Truth) -> None:
     fitted = [c.response for c in result.channels]
     true_offsets = [replace(r, offset=level[i]) for i, r in enumerate(fitted)]
     true_gains = [replace(r, gain=truth.gains[i]) for i, r in enumerate(fitted)]
-    parts = {"as calibrated": heading_errors(fitted, result.directions, truth, psi),
-             "true offsets": heading_errors(true_offsets, result.directions, truth, psi),
-             "true gains": heading_errors(true_gains, result.directions, truth, psi),
-             "true directions": heading_errors(fitted, truth.directions, truth, psi),
-             "true offsets, directions": heading_errors(true_offsets, truth.directions, truth, psi)}
+    parts = {"as calibrated": bl.level_heading_errors(fitted, result.directions, truth, psi),
+             "true offsets": bl.level_heading_errors(true_offsets, result.directions, truth, psi),
+             "true gains": bl.level_heading_errors(true_gains, result.directions, truth, psi),
+             "true directions": bl.level_heading_errors(fitted, truth.directions, truth, psi),
+             "true offsets, directions": bl.level_heading_errors(true_offsets, truth.directions, truth, psi)}
     terms = expansion(result, truth, psi)
     parts |= {f"expansion: {k}": v for k, v in terms.items()}
     parts["expansion: sum"] = sum(terms.values())

@@ -86,7 +86,7 @@ def format_diagnosis(block: dict, unit: str = "output units") -> str:
         kept = ("the nearest curve the vocabulary has" if "nonlinear_response" in block["effects"]
                 else "the linear response (the loop named no curve)")
         cubic = form.get("cubic_delta_chi2")  # a linear response's: the vocabulary's cubic alone, the judged channels
-        cubic = "" if cubic is None else f"; the odd cubic alone, one dof a judged channel: chi2 {cubic:.0f}"
+        cubic = "" if cubic is None else f"; the odd cubic alone: chi2 {cubic:.0f} on {form['cubic_dof']} dof"
         lines.append(f"  the fitted response's curve is not the vocabulary's form: a general curve of each channel's "
                      f"field ({form['curve']}) would take chi2 {drops} ({form['dof']} dof each{cubic}, p = "
                      f"{form['p_value']:.2g}); the file keeps {kept}")

@@ -56,7 +56,7 @@ from .lines import _GROUPS, _SCALARS, LineDecoder, LineStats, Sample
 from .stream_options import EXAMPLE_COLUMNS, FORMATS, StreamOptions, add_stream_arguments
 
 __all__ = ["FORMATS", "JUDGE_SAMPLES", "StreamOptions", "StreamDecoder", "field_scale_check",
-           "add_stream_arguments"]
+           "time_steps_verdict", "add_stream_arguments"]
 
 JUDGE_SAMPLES = 25
 """Samples held while the field's unit is judged against the calibration (a quarter second at 100 Hz)."""
@@ -121,6 +121,27 @@ def field_scale_check(model):
                 f"or use a calibration made in the stream's unit")
 
     return check
+
+
+def time_steps_verdict(t_s, max_gap_s: float) -> str | None:
+    """Words when the sample times ``t_s`` (s, shape (n,)) do not tell a filter the time between samples, None
+    otherwise.
+
+    Every value the same: the filter integrates no gyro and predicts nothing.  A median step over the filter's
+    ``max_gap_s`` (s): each step is a gap that restarts it (a time in ms read as s steps 1000 times too far).
+    Fewer than two times are not judged.
+    """
+    t_s = np.asarray(t_s, dtype=float)
+    if len(t_s) < 2:
+        return None
+    if t_s.max() == t_s.min():
+        return (f"t_s is {t_s[0]:g} in all {len(t_s)} samples: the filter integrates no gyro while it does not "
+                "increase (t_s is each sample's time in seconds)")
+    step = float(np.median(np.diff(t_s)))
+    if step > max_gap_s:
+        return (f"t_s steps by {step:g} s (median of {len(t_s)} samples): each step is a gap over the filter's "
+                f"{max_gap_s:g} s and restarts it; a time in milliseconds? (t_s is in seconds)")
+    return None
 
 
 class StreamDecoder:

@@ -2,9 +2,9 @@
 
 Issue 22's hidden check turns low-cost boards on a robot's flange; :mod:`compass.sim.motion` is hand-held.
 Here the flange moves between random waypoints (orientations tilted up to ``max_tilt_deg`` about a random
-horizontal axis at any heading; positions within ``reach_m`` of a centre), each move ``move_s`` long with a
-minimum-jerk profile ``s(tau) = 10 tau^3 - 15 tau^4 + 6 tau^5`` in position and in rotation angle about the
-move's fixed axis, with dwells ``dwell_s`` between moves:
+horizontal axis at any heading; positions within ``reach_m`` of a centre), each move a length drawn from
+``move_range_s`` with a minimum-jerk profile ``s(tau) = 10 tau^3 - 15 tau^4 + 6 tau^5`` in position and in
+rotation angle about the move's fixed axis, with dwells drawn from ``dwell_range_s`` between moves:
 
     R(t) = R_a Exp(s(tau) theta u),    p(t) = p_a + s(tau) (p_b - p_a),    tau = (t - t_a) / T,
 
@@ -16,9 +16,9 @@ angular acceleration are ``omega = s' theta u``, ``alpha = s'' theta u`` (H), an
     f = R^T (p_imu'' + g z) = R^T (p'' + g z) + alpha x r + omega x (omega x r)
 
 (differentiate ``R r`` twice with ``R' = R [omega]x``).  The gyro's true rate over ``(t_k-1, t_k]`` is the
-path's exact mean body rate ``(s(tau_k) - s(tau_k-1)) theta u / dt``, so ``R_k = R_k-1 Exp(rate_k dt)`` holds
-exactly (motion.py's convention; moves never share an interval: a dwell of >= 0.5 s separates them).  The field
-is homogeneous (NWU world, SPEC section 1); the sensors are :func:`compass.sim.motion.read_sensors`.
+path's mean body rate ``Log(R_k-1^T R_k) / dt``, so ``R_k = R_k-1 Exp(rate_k dt)`` holds exactly (motion.py's
+convention), also where an interval spans the end of one move and the start of the next.  The field is
+homogeneous (NWU world, SPEC section 1); the sensors are :func:`compass.sim.motion.read_sensors`.
 """
 
 from __future__ import annotations
@@ -68,10 +68,9 @@ class RobotPath:
     step_m: np.ndarray
     lever_arm_m: np.ndarray
 
-    def _phase(self, t, move=None):
+    def _phase(self, t):
         """The move in force at ``t`` (the last started; the first before it) and its ``tau`` in [0, 1]."""
-        if move is None:
-            move = np.clip(np.searchsorted(self.start_s, t, side="right") - 1, 0, len(self.start_s) - 1)
+        move = np.clip(np.searchsorted(self.start_s, t, side="right") - 1, 0, len(self.start_s) - 1)
         return move, np.clip((t - self.start_s[move]) / self.duration_s[move], 0.0, 1.0)
 
     def attitude(self, t) -> Rotation:
@@ -87,11 +86,11 @@ class RobotPath:
         return self.position_m[move] + s[:, None] * self.step_m[move] + self.attitude(t).apply(self.lever_arm_m)
 
     def mean_rate(self, t) -> np.ndarray:
-        """The exact mean body rate over ``(t_k-1, t_k]`` (0 for the first sample), H, rad/s, shape (n, 3)."""
-        move, tau = self._phase(t)
-        _, tau_before = self._phase(np.r_[t[0], t[:-1]], move)
-        s = _minimum_jerk(tau, self.duration_s[move])[0] - _minimum_jerk(tau_before, self.duration_s[move])[0]
-        return s[:, None] * self.rotvec[move] / np.diff(t, prepend=t[0] - 1.0)[:, None]
+        """The exact mean body rate ``Log(R_k-1^T R_k) / (t_k - t_k-1)`` over ``(t_k-1, t_k]`` (0 for the first
+        sample), H, rad/s, shape (n, 3); ``t`` increasing, at most half a turn per interval."""
+        attitude = self.attitude(t)
+        step = (attitude[:-1].inv() * attitude[1:]).as_rotvec() / np.diff(t)[:, None]
+        return np.r_[np.zeros((1, 3)), step]
 
     def specific_force(self, t) -> tuple[np.ndarray, np.ndarray]:
         """The IMU's specific force in H (m/s^2) and its motion acceleration ``p_imu''`` in the world (m/s^2) at
@@ -117,16 +116,19 @@ def _waypoint(rng, max_tilt_deg: float, reach_m: float) -> tuple[Rotation, np.nd
     return attitude, reach_m * rng.uniform() ** (1.0 / 3.0) * direction / np.linalg.norm(direction)
 
 
-def robot_path(rng, *, duration_s: float = 60.0, rest_s: float = 3.0, move_s=(1.0, 3.0), dwell_s=(0.5, 2.0),
-               max_tilt_deg: float = 60.0, reach_m: float = 0.5, lever_arm_m=(0.05, 0.15)) -> RobotPath:
-    """Random waypoints and moves: still for ``rest_s`` at both ends, moves of ``move_s`` (s, uniform) between
-    dwells of ``dwell_s`` (s, uniform), the IMU at ``lever_arm_m`` (m, uniform length, random direction).
+def robot_path(rng, *, duration_s: float = 60.0, rest_s: float = 3.0, move_range_s=(1.0, 3.0),
+               dwell_range_s=(0.5, 2.0), max_tilt_deg: float = 60.0, reach_m: float = 0.5,
+               lever_arm_range_m=(0.05, 0.15)) -> RobotPath:
+    """Random waypoints and moves: still for ``rest_s`` at both ends, moves of a length uniform in
+    ``move_range_s`` (s) between dwells uniform in ``dwell_range_s`` (s), the IMU at a lever arm of length uniform
+    in ``lever_arm_range_m`` (m) in a random direction.
 
     Parameters
     ----------
     rng : numpy.random.Generator
     duration_s, rest_s : float
-    move_s, dwell_s, lever_arm_m : pair of floats
+    move_range_s, dwell_range_s, lever_arm_range_m : pair of floats
+        Each a (min, max).
     max_tilt_deg, reach_m : float
 
     Returns
@@ -134,12 +136,12 @@ def robot_path(rng, *, duration_s: float = 60.0, rest_s: float = 3.0, move_s=(1.
     RobotPath
     """
     direction = rng.normal(size=3)
-    arm = rng.uniform(*lever_arm_m) * direction / np.linalg.norm(direction)
+    arm = rng.uniform(*lever_arm_range_m) * direction / np.linalg.norm(direction)
     attitude, position = _waypoint(rng, max_tilt_deg, reach_m)
     starts, lengths, attitudes, rotvecs, positions, steps = [], [], [], [], [], []
     t = rest_s
     while True:
-        length = rng.uniform(*move_s)
+        length = rng.uniform(*move_range_s)
         if t + length > duration_s - rest_s:
             break
         target, target_position = _waypoint(rng, max_tilt_deg, reach_m)
@@ -151,9 +153,9 @@ def robot_path(rng, *, duration_s: float = 60.0, rest_s: float = 3.0, move_s=(1.
         steps.append(target_position - position)
         attitude = attitude * Rotation.from_rotvec(rotvecs[-1])  # the waypoint the move reaches exactly
         position = target_position
-        t += length + rng.uniform(*dwell_s)
+        t += length + rng.uniform(*dwell_range_s)
     if not starts:
-        raise ValueError(f"no move of {move_s[0]:g} s fits between {rest_s:g} s rests in {duration_s:g} s")
+        raise ValueError(f"no move of {move_range_s[0]:g} s fits between {rest_s:g} s rests in {duration_s:g} s")
     return RobotPath(np.array(starts), np.array(lengths), Rotation.from_quat(attitudes), np.array(rotvecs),
                      np.array(positions), np.array(steps), arm)
 
@@ -172,8 +174,8 @@ def simulate_robot(seed: int, *, duration_s: float = 60.0, rate_hz: float = 285.
     field_ut, dip_deg : float
         The homogeneous field (a Berlin-like default).
     **path
-        :func:`robot_path`'s options (``rest_s``, ``move_s``, ``dwell_s``, ``max_tilt_deg``, ``reach_m``,
-        ``lever_arm_m``).
+        :func:`robot_path`'s options (``rest_s``, ``move_range_s``, ``dwell_range_s``, ``max_tilt_deg``,
+        ``reach_m``, ``lever_arm_range_m``).
 
     Returns
     -------

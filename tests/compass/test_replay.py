@@ -405,8 +405,9 @@ def _with_column(path, column, values):
 
 
 @pytest.mark.parametrize("case, words", [
-    ("t_s constant", "column 't_s': t_s is 0 in all 3000 rows: the filter needs each sample's time"),
-    ("t_s in ms", "column 't_s': t_s steps by 10 s (median): each step is a gap over the filter's 0.5 s"),
+    ("t_s constant", "column 't_s': t_s is 0 in all 3000 samples: the filter integrates no gyro"),
+    ("t_s in ms", "column 't_s': t_s steps by 10 s (median of 3000 samples): each step is a gap over the filter's "
+                  "0.5 s"),
     ("dead gyro", "column 'gx': the gyro gx,gy,gz read in rad/s never turns while the accelerometer sees the housing "
                   "tilt: a dead gyro?"),
     ("rad/s named deg/s", "read in deg/s turns 60 times less than the accelerometer sees the housing tilt"),
@@ -417,8 +418,8 @@ def test_the_command_refuses_what_it_would_fuse_wrong_in_one_line(files, stream,
     """Time stamps that do not tell the time between samples (all equal, or in ms: every step a gap that restarts
     the filter), a gyro that reads zero while the housing tilts (fused as a still housing), a rad/s gyro whose header
     says deg/s (fused 57 times too slow), fewer rows than the start needs: exit 2, one line naming the file and column,
-    nothing written.  Each ran before, with a wrong attitude and at most a warning at the end (or 3000 restart
-    lines), or (five rows) a refusal that listed the session's counters instead of the reason."""
+    nothing written (replayed, each gives a wrong attitude, or 3000 restart lines); five rows are refused with the
+    reason, not the session's counters."""
     _, t, s = stream
     cal, recording = files
     rec = recording()
@@ -443,8 +444,8 @@ def test_the_command_refuses_what_it_would_fuse_wrong_in_one_line(files, stream,
 
 
 def test_live_says_a_dead_gyro_instead_of_failing(stream):
-    """A module whose gyro sends zeros while the housing tilts: compass live said nothing and then stopped on a
-    division by zero (1 / ratio); now it warns once, naming a dead gyro, and writes nothing non-finite."""
+    """A module whose gyro sends zeros while the housing tilts (its turn ratio 1 / 0): compass live warns once,
+    naming a dead gyro, and writes nothing non-finite."""
     model, t, s = stream
     events = []
     _, rows = _session_rows(model, _lines(model, t, replace(s, gyro=np.zeros_like(s.gyro))), events)
@@ -454,13 +455,13 @@ def test_live_says_a_dead_gyro_instead_of_failing(stream):
 
 
 def test_live_says_once_a_t_s_in_milliseconds(stream):
-    """A module sending its clock in ms as t_s: every step is a 10 s gap that restarts the filter (said as a gap each
-    time, and nothing else); now the cause is said once, after the first samples, and nothing written is
-    non-finite."""
+    """A module sending its clock in ms as t_s: every step is a 10 s gap that restarts the filter; the cause is said
+    once, after the first samples, and nothing written is non-finite.  A t_s in seconds is
+    not so warned."""
     model, t, s = stream
     events = []
     _, rows = _session_rows(model, _lines(model, 1e3 * t, s), events)
-    said = [text for level, text in events if level == "warn" and "does it send milliseconds?" in text]
+    said = [text for level, text in events if level == "warn" and "a time in milliseconds?" in text]
     assert len(said) == 1 and "t_s steps by 10 s" in said[0]
     assert np.all(np.isfinite(np.array(rows[1:], dtype=float)))
     seconds = []
@@ -469,9 +470,9 @@ def test_live_says_once_a_t_s_in_milliseconds(stream):
 
 
 def test_live_says_once_a_t_s_that_never_increases(stream):
-    """A module whose t_s stays at one value (a clock not running): the filter integrates no gyro, and compass live
-    took it without a word (the replay refuses it); now it is said once, after the first samples, and nothing
-    written is non-finite.  A t_s that runs is not so warned."""
+    """A module whose t_s stays at one value (a clock not running): the filter integrates no gyro; compass live
+    says so once, after the first samples (the replay refuses such a recording), and writes nothing non-finite.  A
+    t_s that runs is not so warned."""
     model, t, s = stream
     events = []
     _, rows = _session_rows(model, _lines(model, np.full_like(t, 3.0), s), events)
@@ -480,15 +481,15 @@ def test_live_says_once_a_t_s_that_never_increases(stream):
     assert np.all(np.isfinite(np.array(rows[1:], dtype=float)))
     running = []
     _session_rows(model, _lines(model, t, s), running)
-    assert not any("in all of its first" in text for _, text in running)
+    assert not any("does not increase" in text for _, text in running)
 
 
 @pytest.mark.parametrize("mode", [["--filter"], []])
 def test_a_dead_accelerometer_axis_is_refused_naming_it(files, stream, capsys, mode):
-    """az reading 0 in every row while ax and ay follow the tilt: the filter learnt gravity and the reference's dip
-    from it (dip -6 deg against 60) and the per-row solution flagged two thirds of the rows disturbed, both without
-    a word; now exit 2 in one line naming the column, replayed or solved per row.  A still housing, whose axes a
-    coarse resolution can hold constant, is not refused (test_a_still_log_at_a_coarse_resolution_is_solved)."""
+    """az reading 0 in every row while ax and ay follow the tilt: fused, the filter would learn gravity and the
+    reference's dip from it (dip -6 deg against 60), and the per-row solution flag two thirds of the rows disturbed:
+    exit 2 in one line naming the column, replayed or solved per row.  A still housing, whose axes a coarse
+    resolution can hold constant, is not refused (test_a_still_log_at_a_coarse_resolution_is_solved)."""
     _, t, _ = stream
     cal, recording = files
     rec = _with_column(recording(), "az", np.zeros(len(t)))

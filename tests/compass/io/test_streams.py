@@ -9,7 +9,7 @@ import pytest
 from compass.io import motioncal as mc
 from compass.io.fixed_lines import CsvDecoder, MotionCalDecoder, parse_columns
 from compass.io.lines import format_line
-from compass.io.streams import JUDGE_SAMPLES, StreamDecoder, StreamOptions, field_scale_check
+from compass.io.streams import JUDGE_SAMPLES, StreamDecoder, StreamOptions, field_scale_check, time_steps_verdict
 from compass.live import LiveSession
 from compass.serial_reader import Chunk
 from compass.sim.device import simulate_device, tumble_motion
@@ -192,6 +192,19 @@ def test_a_magnet_is_not_a_unit():
     d = StreamDecoder(CHANNELS, field_check=field_scale_check(model))
     out = d.feed(_stream_samples(model, magnet=60.0))  # |B| about doubled: no unit's factor explains it
     assert len(out) == JUDGE_SAMPLES and d.fatal is None
+
+
+@pytest.mark.parametrize("t_s, words", [
+    (np.full(25, 3.0), "t_s is 3 in all 25 samples"),
+    (10.0 * np.arange(25), "t_s steps by 10 s (median of 25 samples)"),
+    (np.r_[0.0, 0.01, 0.02, 0.01, 0.0], None),  # back to its first value: not every value the same
+    (0.01 * np.arange(25), None),
+    (np.array([7.0]), None),
+])
+def test_time_steps_verdict(t_s, words):
+    """A t_s with every value the same, or a median step over max_gap_s (0.5 s), is said; a running one is not."""
+    verdict = time_steps_verdict(t_s, 0.5)
+    assert verdict is None if words is None else words in verdict
 
 
 def test_fewer_samples_than_the_check_are_judged_at_the_end():

@@ -27,13 +27,16 @@ def test_lever_arm_is_in_the_specific_force():
     """With the arm gone the specific force changes by alpha x r + w x (w x r): the arm is not lost."""
     path = robot_path(np.random.default_rng(2), duration_s=30.0)
     t = np.linspace(0.0, 30.0, 3001)
-    centre = robot_path(np.random.default_rng(2), duration_s=30.0, lever_arm_m=(0.0, 0.0))
+    centre = robot_path(np.random.default_rng(2), duration_s=30.0, lever_arm_range_m=(0.0, 0.0))
     np.testing.assert_allclose(path.attitude(t).as_quat(), centre.attitude(t).as_quat(), atol=0.0)
     assert np.max(np.linalg.norm(path.specific_force(t)[0] - centre.specific_force(t)[0], axis=1)) > 0.5
 
 
-def test_noise_free_gyro_integrates_to_the_truth():
-    rec = simulate_robot(3, duration_s=30.0, errors=NOISELESS)
+@pytest.mark.parametrize("dwell_range_s", [(0.5, 2.0), (0.0, 0.0)])
+def test_noise_free_gyro_integrates_to_the_truth(dwell_range_s):
+    """Also with moves back to back (no dwell), where a sample interval spans the end of one and the start of the
+    next."""
+    rec = simulate_robot(3, duration_s=30.0, errors=NOISELESS, dwell_range_s=dwell_range_s)
     dt = rec.t_s[1] - rec.t_s[0]
     quats = np.empty((len(rec.t_s), 4))
     r = rec.rotation[0]
