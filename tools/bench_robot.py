@@ -40,7 +40,7 @@ REMOVED = {  # name: (SensorErrors changes, simulate_robot path options)
     "gyro scale": ({"gyro_scale": (0.0, 0.0, 0.0)}, {}),
     "accel bias and scale": ({"accel_bias_m_s2": (0.0, 0.0, 0.0), "accel_scale": (0.0, 0.0, 0.0)}, {}),
     "magnetometer latency": ({"mag_latency_s": 0.0}, {}),
-    "lever arm": ({}, {"lever_arm_m": (0.0, 0.0)}),
+    "lever arm": ({}, {"lever_arm_range_m": (0.0, 0.0)}),
 }
 
 
