@@ -49,10 +49,10 @@ the first-order low-pass the velocity of a hand-held turn about a centre away fr
 ``v = w x r`` and the arm ``r`` fitted as it runs (:mod:`._lever`), and its acceleration ``M r`` out of the motion
 the tilt's noise follows: the low-pass's direction improves on every BROAD trial, the output's inclination in the
 disturbed group alone, while the undisturbed inclination and the heading get worse, so not the default either.
-Reading each low-pass's leak at every period (``H (1 - H) f``) instead of at ``tau_v`` alone, and blending the two low-passes by
-least variance, were measured and not kept (docs/benchmarks.md, the leak each low-pass leaves); so was reading
-``tau_v`` (and the leak's size) from the data: the leak's own time scale is shorter than 0.5 s on every BROAD trial,
-and trusting the accelerometer more costs the hand-turned trials and tapping (docs/benchmarks.md, the leak's
+Reading each low-pass's leak at every period (``H (1 - H) f``) instead of at ``tau_v`` alone, and blending the two
+low-passes by least variance, were measured and not kept (docs/benchmarks.md, the leak each low-pass leaves); so was
+reading ``tau_v`` (and the leak's size) from the data: the leak's own time scale is shorter than 0.5 s on every BROAD
+trial, and trusting the accelerometer more costs the hand-turned trials and tapping (docs/benchmarks.md, the leak's
 correlation time read from the data).  Shaping the gain instead (docs/benchmarks.md, the leak's shape on paper): a leak
 shaped in the state passes more hand motion, not less; the scale error as a 1 s Gauss-Markov rate-error state keeps
 the mean age and cuts the 2 s leak by a fifth on paper, and on BROAD moves no group's inclination and costs heading.
