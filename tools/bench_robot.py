@@ -57,9 +57,10 @@ FILE_REMOVED = ((),) + tuple((name,) for name in REMOVED) + (
 
 
 def methods(names) -> dict:
-    """Our candidates ``names`` (bench_broad's) and VQF when it is installed."""
+    """Our candidates ``names`` (bench_broad's), "fitted" (the scale error of the trial's calibration file,
+    ``trial.fitted``: :func:`calibration`) and VQF when it is installed."""
     out = {name: ours(*(CANDIDATES | TURN_VARIANTS)[name]) for name in names}
-    out["fitted"] = ours({"gyro_scale_error": "fitted"})  # the trial's calibration file (:func:`calibration`)
+    out["fitted"] = ours({"gyro_scale_error": "fitted"})
     if find_spec("vqf") is None:
         print("skipping vqf: not installed (PYTHONPATH=$PWD:/tmp/lever_pkgs, or pip install -e '.[bench]')")
     else:
