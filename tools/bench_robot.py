@@ -7,10 +7,15 @@ the board at a lever arm).  Each seed is a 60 s :func:`compass.sim.robot.simulat
 :func:`bench_broad.board_errors`' two boards (the board's errors drawn from the same seed), run through
 bench_broad's pipeline (its :func:`bench_broad.ours`, FilterConfig from the initial rest, the hard-iron tracker)
 with the candidates "defaults" and "lever arm" (``--candidates``: any of bench_broad's candidates and turn
-variants), and through VQF given the same samples (skipped with a word when
-not installed).  The scores: heading and inclination RMS (BROAD's error quaternion, no offset removed) over the
-samples after the first 5 s, all of them and split into moves (:attr:`MotionRecording.moving`) and dwells.
-``--ablate``: the means with each board error (and the lever arm) removed in turn, where a loss comes from.
+variants), with "fitted": the gyro scale error of the board's calibration file (another path of the same board,
+seed + :data:`CAL_SEED`, the rows at a sixth of the rate, through ``compass calibrate``'s gyro-aided path and the
+calibration reader, :func:`bench_broad.file_values`, as tools/bench_gyro_scale.py; the truth is never read; the
+``--candidates`` "mag_latency_s fitted" and "gyro_matrix fitted" read the same file), and through VQF given the
+same samples (skipped with a word when not installed).  The scores: heading and inclination RMS (BROAD's error
+quaternion, no offset removed) over the samples after the first 5 s, all of them and split into moves
+(:attr:`MotionRecording.moving`) and dwells.  ``--ablate``: the means with each board error (and the lever arm, the
+flange's translation) removed in turn, where a loss comes from; ``--files``: the calibration files' gyro scale
+against the truth's, the same errors removed, what biases the fit.
 """
 
 from __future__ import annotations
@@ -28,12 +33,15 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
-from bench_broad import CANDIDATES, TURN_VARIANTS, _Simulated, board_errors, ours, vqf_online  # noqa: E402
+from bench_broad import (CANDIDATES, TURN_VARIANTS, _Simulated, _values_words, board_errors, file_values,  # noqa: E402
+                         ours, vqf_online)
 from compass.evaluation import orientation_errors  # noqa: E402
 from compass.sim.robot import simulate_robot  # noqa: E402
 
 BOARDS = ("broad-like", "low-cost")
 CANDIDATES_RUN = "defaults,lever arm"
+CAL_SEED = 1000
+"""The calibration path of a board at seed ``s`` is the robot path ``s + CAL_SEED`` (the same SensorErrors)."""
 PHASES = ("all", "moves", "dwells")
 SKIP_S = 5.0
 REMOVED = {  # name: (SensorErrors changes, simulate_robot path options)
@@ -41,12 +49,18 @@ REMOVED = {  # name: (SensorErrors changes, simulate_robot path options)
     "accel bias and scale": ({"accel_bias_m_s2": (0.0, 0.0, 0.0), "accel_scale": (0.0, 0.0, 0.0)}, {}),
     "magnetometer latency": ({"mag_latency_s": 0.0}, {}),
     "lever arm": ({}, {"lever_arm_range_m": (0.0, 0.0)}),
+    "flange translation": ({}, {"reach_m": 0.0}),
 }
+FILE_REMOVED = ((),) + tuple((name,) for name in REMOVED) + (
+    ("accel bias and scale", "lever arm", "flange translation"),)
+"""``--files``' rows: nothing removed, each of :data:`REMOVED`, and every error of the accelerometer's gravity."""
 
 
 def methods(names) -> dict:
-    """Our candidates ``names`` (bench_broad's) and VQF when it is installed."""
+    """Our candidates ``names`` (bench_broad's), "fitted" (the scale error of the trial's calibration file,
+    ``trial.fitted``: :func:`calibration`) and VQF when it is installed."""
     out = {name: ours(*(CANDIDATES | TURN_VARIANTS)[name]) for name in names}
+    out["fitted"] = ours({"gyro_scale_error": "fitted"})
     if find_spec("vqf") is None:
         print("skipping vqf: not installed (PYTHONPATH=$PWD:/tmp/lever_pkgs, or pip install -e '.[bench]')")
     else:
@@ -64,21 +78,45 @@ def scores(trial, quat_enu) -> dict[str, tuple[float, float]]:
             for p, k in rows.items()}
 
 
+def calibration(seed, errors, path) -> dict:
+    """The values of the board's calibration file (:func:`bench_broad.file_values`) from the robot path
+    ``seed + CAL_SEED`` with the board's ``errors`` and the ``path`` options, the rows at a sixth of the rate."""
+    cal = simulate_robot(seed + CAL_SEED, errors=errors, **path)
+    keep = np.zeros(len(cal.t_s), bool)
+    keep[::6] = True
+    return file_values(cal.t_s, cal.gyro_rad_s, cal.accel_m_s2, cal.mag_ut, keep)
+
+
+def file_words(values, errors) -> str:
+    """The file's scale error (the filter's, in quadrature with the default) and gyro matrix beside the truth's."""
+    true = np.asarray(errors.gyro_scale)
+    return (f"scale error {100 * values['gyro_scale_error']:.2f} % (truth's RMS {100 * np.sqrt(np.mean(true**2)):.2f}"
+            f" %), {_values_words(values)}; true diag " + ", ".join(f"{v:+.2f}" for v in 100 * (1 / (1 + true) - 1))
+            + " %")
+
+
+def removing(board, seed, removed) -> tuple:
+    """The board's SensorErrors and the path options with the errors of :data:`REMOVED` named in ``removed`` out."""
+    errors = {k: v for name in removed for k, v in REMOVED[name][0].items()}
+    path = {k: v for name in removed for k, v in REMOVED[name][1].items()}
+    return replace(board_errors(board, seed), **errors), path
+
+
 def run(seeds, runners, removed=(), quiet=False) -> dict:
     """``{board: {seed: {method: {phase: (heading, inclination)}}}}``, the errors of :data:`REMOVED` named in
     ``removed`` taken out of the board (or the path)."""
-    errors = {k: v for name in removed for k, v in REMOVED[name][0].items()}
-    path = {k: v for name in removed for k, v in REMOVED[name][1].items()}
     out = {}
     for board in BOARDS:
         out[board] = {}
         for seed in seeds:
-            rec = simulate_robot(seed, errors=replace(board_errors(board, seed), **errors), **path)
-            trial = _Simulated(rec, f"robot {seed}")
+            board_seed, path = removing(board, seed, removed)
+            trial = _Simulated(simulate_robot(seed, errors=board_seed, **path), f"robot {seed}")
+            trial.fitted = calibration(seed, board_seed, path)
             out[board][seed] = {name: scores(trial, fn(trial)) for name, fn in runners.items()}
             if not quiet:
                 print(f"  {board} seed {seed}: " + ", ".join(f"{m} {v['all'][0]:.3f}/{v['all'][1]:.3f}"
                                                              for m, v in out[board][seed].items()), flush=True)
+                print(f"    its file: {file_words(trial.fitted, board_seed)}", flush=True)
     return out
 
 
@@ -94,6 +132,30 @@ def ablation(seeds, runners) -> None:
             cells = [np.mean([[*row[m]["moves"], *row[m]["dwells"]] for row in rows.values()], axis=0) for m in names]
             print(f"{board + ', ' + removed:36s} " + " ".join(
                 f"{c[0]:6.3f} /{c[1]:6.3f} |{c[2]:6.3f} /{c[3]:6.3f}".rjust(33) for c in cells), flush=True)
+
+
+def file_ablation(seeds) -> None:
+    """Per board, the calibration file's gyro scale against the truth's, means over the seeds, with the errors of
+    each of :data:`FILE_REMOVED` taken out (of the calibration path; nothing is scored)."""
+    print("\nthe calibration file's gyro scale (mean over the seeds): the filter's scale error, the truth's RMS over "
+          "the axes,\nthe fitted matrix's diagonal (as written) less the true correction's, RMS, and its stated "
+          "sigma, %")
+    print(f"{'board, removed':75s} {'file':>6s} {'truth':>6s} {'diag error':>10s} {'sigma':>6s}")
+    for board in BOARDS:
+        for removed in FILE_REMOVED:
+            cells = []
+            for seed in seeds:
+                errors, path = removing(board, seed, removed)
+                values = calibration(seed, errors, path)
+                matrix, sigma = (np.full((3, 3), np.nan) if a is None else np.array(a, dtype=float)
+                                 for a in values["fitted"])  # None (not fitted, not seen): nan
+                true = 1.0 / (1.0 + np.asarray(errors.gyro_scale)) - 1.0
+                cells.append([values["gyro_scale_error"], np.sqrt(np.mean(np.asarray(errors.gyro_scale) ** 2)),
+                              np.sqrt(np.mean((np.diag(matrix) - 1.0 - true) ** 2)),
+                              np.sqrt(np.mean(np.diag(sigma) ** 2))])
+            print(f"{board + ', ' + (' and '.join(removed) or 'nothing'):75s} "
+                  + " ".join(f"{100 * v:{w}.2f}" for v, w in zip(np.nanmean(cells, axis=0), (6, 6, 10, 6))),
+                  flush=True)
 
 
 def table(results, names) -> None:
@@ -116,15 +178,19 @@ def main(argv=None) -> int:
     parser.add_argument("--candidates", default=CANDIDATES_RUN, help=f"comma-separated (default: {CANDIDATES_RUN})")
     parser.add_argument("--ablate", action="store_true",
                         help="only the means with each board error (and the lever arm) removed in turn")
+    parser.add_argument("--files", action="store_true",
+                        help="only the calibration files' gyro scale against the truth's, board errors removed")
     args = parser.parse_args(argv)
     names = [c.strip() for c in args.candidates.split(",") if c.strip()]
-    unknown = [c for c in names if c not in CANDIDATES | TURN_VARIANTS or c.endswith("fitted")]
+    unknown = [c for c in names if c not in CANDIDATES | TURN_VARIANTS]
     if unknown or not names:
-        parser.error(f"--candidates: unknown or fitted (no tumble recording here) {unknown}")
+        parser.error(f"--candidates: unknown {unknown}")
     runners = methods(names)
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     print(f"robot-arm paths (compass.sim.robot, 60 s, seeds {seeds.start}-{seeds.stop - 1}), two boards")
-    if args.ablate:
+    if args.files:
+        file_ablation(seeds)
+    elif args.ablate:
         ablation(seeds, runners)
     else:
         table(run(seeds, runners), list(runners))
