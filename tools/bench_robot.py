@@ -1,6 +1,7 @@
 """Simulated robot-arm paths (compass.sim.robot) through our filter and VQF, side by side (issue 22).
 
-Run: ``PYTHONPATH=$PWD:/tmp/lever_pkgs python tools/bench_robot.py [--seeds 5] [--first-seed 0] [--candidates A,B]``.
+Run: ``python tools/bench_robot.py [--seeds 5] [--first-seed 0] [--candidates A,B]`` (VQF from ``pip install -e
+'.[bench]'``).
 
 Issue 22's hidden check turns low-cost boards on an industrial robot's flange (point-to-point moves, dwells,
 the board at a lever arm).  Each seed is a 60 s :func:`compass.sim.robot.simulate_robot` path read by
@@ -36,6 +37,7 @@ sys.path.insert(0, str(ROOT / "tools"))
 from bench_broad import (CANDIDATES, TURN_VARIANTS, _Simulated, _values_words, board_errors, file_values,  # noqa: E402
                          ours, vqf_online)
 from compass.evaluation import orientation_errors  # noqa: E402
+from compass.sim.motion import GRAVITY  # noqa: E402
 from compass.sim.robot import simulate_robot  # noqa: E402
 
 BOARDS = ("broad-like", "low-cost")
@@ -62,7 +64,7 @@ def methods(names) -> dict:
     out = {name: ours(*(CANDIDATES | TURN_VARIANTS)[name]) for name in names}
     out["fitted"] = ours({"gyro_scale_error": "fitted"})
     if find_spec("vqf") is None:
-        print("skipping vqf: not installed (PYTHONPATH=$PWD:/tmp/lever_pkgs, or pip install -e '.[bench]')")
+        print("skipping vqf: not installed (pip install -e '.[bench]')")
     else:
         out["vqf"] = vqf_online
     return out
@@ -102,6 +104,18 @@ def removing(board, seed, removed) -> tuple:
     return replace(board_errors(board, seed), **errors), path
 
 
+def path_words(rec) -> str:
+    """A path in words: its moves (runs of :attr:`MotionRecording.moving`), the median turn of one (the true rate's
+    size integrated over it, deg), the peak rate (deg/s) and the peak ``||f| - g|`` (m/s^2)."""
+    dt = np.diff(rec.t_s, prepend=rec.t_s[0])
+    speed = np.linalg.norm(rec.rate_rad_s, axis=1)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], rec.moving.astype(int), [0]])))
+    turns = [np.degrees(np.sum(speed[a:b] * dt[a:b])) for a, b in zip(edges[::2], edges[1::2])]
+    lift = np.abs(np.linalg.norm(rec.specific_force_m_s2, axis=1) - GRAVITY)
+    return (f"{len(turns)} moves, median turn {np.median(turns):.0f} deg, peak rate {np.degrees(speed.max()):.0f} "
+            f"deg/s, peak ||f| - g| {lift.max():.1f} m/s^2")
+
+
 def run(seeds, runners, removed=(), quiet=False) -> dict:
     """``{board: {seed: {method: {phase: (heading, inclination)}}}}``, the errors of :data:`REMOVED` named in
     ``removed`` taken out of the board (or the path)."""
@@ -110,7 +124,10 @@ def run(seeds, runners, removed=(), quiet=False) -> dict:
         out[board] = {}
         for seed in seeds:
             board_seed, path = removing(board, seed, removed)
-            trial = _Simulated(simulate_robot(seed, errors=board_seed, **path), f"robot {seed}")
+            rec = simulate_robot(seed, errors=board_seed, **path)
+            if not quiet and board == BOARDS[0]:
+                print(f"  path {seed}: {path_words(rec)}", flush=True)
+            trial = _Simulated(rec, f"robot {seed}")
             trial.fitted = calibration(seed, board_seed, path)
             out[board][seed] = {name: scores(trial, fn(trial)) for name, fn in runners.items()}
             if not quiet:
