@@ -379,11 +379,14 @@ def still_mask(accel: np.ndarray, turns_rad: np.ndarray, t_s: np.ndarray) -> np.
     turned between the rows (rad, the gyro's path) and ``sigma_G^2 = (s^2 + 2 c^2) / 3`` what the gyro matrix's
     prior (scale ``s``, axes ``c``, :data:`GYRO_MATRIX_PRIOR`) turns a carried direction by, per axis and radian
     (a 60 deg turn: 1.4 deg).  A row is still when ``chi2_k`` is below the :data:`STILL_PROBABILITY` quantile
-    of its chi-square.  Numbers: noise of 0.005 g a row is 0.29 deg; 1 m/s^2 that comes or goes within the window
-    tilts its rows by up to 5.8 deg, 400 times the noise's variance a row, far beyond the quantile (~70 for 24 rows
-    at 48 Hz).  An acceleration that holds over the whole window tilts its rows alike and is not seen (a robot's
-    minimum-jerk moves change theirs within a few tenths of a second); nor is the gyro's bias modelled (0.5 deg/s
-    over the window: 0.13 deg).
+    of its chi-square times ``m``, the median over the rows of the ``|a|`` test of ``chi2_k`` over its chi-square's
+    median (at least 1): a hand's small accelerations, which the fit weighs as the accelerometer's noise (its
+    robust sigma), are the median, a robot's moves the tail (without ``m``, 26 of the 2678 rows of BROAD 01's
+    slow rotation would stay; with it, 1991).  Numbers: noise of 0.005 g a row is 0.29 deg; 1 m/s^2 that comes or
+    goes within the window tilts its rows by up to 5.8 deg, 400 times the noise's variance a row, far beyond the
+    quantile (~70 for 24 rows at 48 Hz).  An acceleration that holds over the whole window tilts its rows alike
+    and is not seen (a robot's minimum-jerk moves change theirs within a few tenths of a second); nor is the
+    gyro's bias modelled (0.5 deg/s over the window: 0.13 deg).
 
     Parameters
     ----------
@@ -426,9 +429,10 @@ def still_mask(accel: np.ndarray, turns_rad: np.ndarray, t_s: np.ndarray) -> np.
         s1 += w[:, None] * carried[j]
         count += inside
     chi2 = s0 - np.sum(s1**2, axis=1) / s0  # sum w |v|^2 - |sum w v|^2 / sum w, |v| = 1
-    dof = 2.0 * (count - 1.0)
-    limit = chdtri(np.maximum(dof, 1.0), 1.0 - STILL_PROBABILITY)
-    return static_mask(accel) & (dof > 0) & (chi2 <= limit)
+    dof = np.maximum(2.0 * (count - 1.0), 1.0)
+    static = static_mask(accel) & (count > 1)
+    scale = max(float(np.median(chi2[static] / chdtri(dof[static], 0.5))), 1.0) if np.any(static) else 1.0
+    return static & (chi2 <= scale * chdtri(dof, 1.0 - STILL_PROBABILITY))
 
 
 def _windows(turns: np.ndarray, dt: np.ndarray) -> np.ndarray:

@@ -35,7 +35,7 @@ def test_a_robots_moves_pass_the_norm_test_and_not_the_direction_test(robot):
     assert not np.any(new & ~old)  # the |a| test stays
     tilted = old & (tilt > 3.0)  # a sideways 0.5 m/s^2 or more
     assert np.count_nonzero(tilted) > 100
-    assert np.count_nonzero(new & tilted) < 0.1 * np.count_nonzero(tilted)
+    assert np.count_nonzero(new & tilted) < 0.2 * np.count_nonzero(tilted)  # 13 of 141 at seed 5
     truly_still = old & (tilt < 0.01)
     assert np.count_nonzero(new & truly_still) > 0.6 * np.count_nonzero(truly_still)  # the dwells' edges go
 
