@@ -6,7 +6,7 @@ one IMU), NWU world (SPEC section 1):
 
 .. math:: x_k = D\,u_k + h + e_k, \qquad u_k = R_k^T b_W, \qquad b_W = (\cos\delta, 0, -\sin\delta),
 
-.. math:: \hat a_k = R_k^T \hat z + f_k \quad (\text{quasi-static rows}), \qquad
+.. math:: \hat a_k = R_k^T \hat z + f_k \quad (\text{still rows}), \qquad
           R_k = Q_j\,\Delta R_k(\beta, G), \quad \Delta R_k = \prod_{i \in j,\, i \le k} \mathrm{Exp}\big(G\,(\phi_i - \beta\,\Delta t_i)\big),
 
 with ``x_k`` the raw magnetometer (recording units; with a latency ``tau`` against the gyro it reads
@@ -67,7 +67,8 @@ Each window restarts the integration with its own ``Q_j``: a window closes after
 per sample),
 while each window still holds turns large enough to see the rotation between the sensors.  The
 windows keep the information that ties them together: one field (``|B|``, dip) and the gravity of
-every quasi-static row.
+every still row (:func:`still_mask`: ``|a|`` near g and the direction still once the gyro's turns
+are taken out, not a robot's moves, whose tilt would read as a turn the gyro did not make).
 
 Latency.  A magnetometer ``tau`` late reads the housing-frame field of ``t - tau``; turning at ``w``
 the housing sees it turned back by ``tau w``: ``x_k = D (u_k + tau w_k x u_k) + h``.  ``|x - h|``
@@ -81,7 +82,7 @@ residual rose from 0.30 to 0.74 uT; fitted, the latency came back at 19.98 +/- 0
 on trials 01 and 06 alike).  The first-order form leaves ``(tau |w|)^2 / 2`` of the field: 0.2 % at
 20 ms and 4 rad/s.
 
-Cost.  ``n`` rows (``n_s`` of them quasi-static), ``n_w`` windows (a fast recording closes one every
+Cost.  ``n`` rows (``n_s`` of them still), ``n_w`` windows (a fast recording closes one every
 60 deg: 482 on BROAD 06's 125 s, 1151 on a simulated 300 s fast rotation), 26 global parameters
 (``D``, ``h``, ``delta``, ``beta``, ``tau``, ``G``; 17 before ``G``) and 3 per window.  The joint least squares over all
 ``17 + 3 n_w`` (1463 on BROAD 06) with scipy's ``trf`` and ``lsmr`` on the sparse Jacobian took ~40
@@ -113,6 +114,7 @@ from scipy import sparse
 from scipy.linalg import polar
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
+from scipy.special import chdtri
 
 from compass.calibration import MAX_GYRO_MATRIX_ERROR, gyro_matrix_mismatch, gyro_matrix_seen, latency_seen
 
@@ -124,8 +126,9 @@ from .ellipsoid import MAX_RELATIVE_SIGMA, OUTLIER_SIGMAS, EllipsoidFit, plain_f
 from .motion import FAST_MOTION_WARNING
 from .result import TumbleResult
 
-__all__ = ["GyroFit", "GyroMismatch", "falls_back", "fit_with_gyro", "with_gyro", "turn_axes", "turn_rates",
-           "GYRO_MATRIX_PRIOR", "LATENCY_PRIOR_S", "WINDOW_S", "WINDOW_TURN_DEG", "MAX_ROTATION_SIGMA_DEG"]
+__all__ = ["GyroFit", "GyroMismatch", "falls_back", "fit_with_gyro", "with_gyro", "still_mask", "turn_axes",
+           "turn_rates", "GYRO_MATRIX_PRIOR", "LATENCY_PRIOR_S", "WINDOW_S", "WINDOW_TURN_DEG",
+           "MAX_ROTATION_SIGMA_DEG", "STILL_WINDOW_S", "STILL_PROBABILITY"]
 
 WINDOW_S = 10.0
 """A window of integrated gyro turns closes after this long, s."""
@@ -168,6 +171,16 @@ GYRO_MATRIX_PRIOR = np.where(np.eye(3, dtype=bool), GYRO_SCALE_PRIOR, GYRO_CROSS
 _FIXED_GYRO = np.full(9, 1e-9)
 """The prior sigma that holds ``G`` at the identity (``fit_gyro_matrix=False``)."""
 
+STILL_WINDOW_S = 0.5
+"""The window (centred, s) over which a gravity row's direction, carried by the gyro, must hold still
+(:func:`still_mask`): a few of a robot's moves' time scales (1-3 s moves) and shorter than its dwells."""
+
+MIN_SIGMA_A = 1e-4
+"""The least noise an accelerometer's direction is given, rad (a noise-free simulation's)."""
+
+STILL_PROBABILITY = 0.99
+"""A row is still when its window's chi-square is below this quantile of the noise's (:func:`still_mask`)."""
+
 MIN_INLIER_FRACTION = 0.5
 """A fit that keeps fewer of the samples says the model does not hold (:class:`GyroMismatch`)."""
 
@@ -202,7 +215,7 @@ class GyroFit:
         ``G``: the housing-frame rate is ``G (w - beta)``, ``w`` the gyro's reading (dimensionless); the
         prior's sigma where the data saw nothing.
     n_windows, n_static : int
-        Windows of integration; quasi-static accelerometer rows used.
+        Windows of integration; still accelerometer rows used (:func:`still_mask`).
     inliers : ndarray of bool, shape (n,)
         Samples kept after trimming (magnetometer residual within ``OUTLIER_SIGMAS``).
     mag_rms, noise : float
@@ -350,6 +363,76 @@ def turn_rates(turns_rad: np.ndarray, dt_s: np.ndarray) -> np.ndarray:
     span_dt[:-1] += dt[1:]
     span_turn[0], span_dt[0] = turns[1] if len(turns) > 1 else turns[0], dt[1] if len(dt) > 1 else dt[0]
     return np.divide(span_turn, span_dt[:, None], out=np.zeros_like(span_turn), where=span_dt[:, None] > 0)
+
+
+def still_mask(accel: np.ndarray, turns_rad: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+    r"""Rows where the accelerometer reads gravity alone: :func:`~calibrate.tumble.alignment.static_mask`'s ``|a|``
+    test, and its direction still over :data:`STILL_WINDOW_S` once the gyro's turns are taken out.
+
+    A sideways acceleration ``a`` changes ``|a|`` by ``a^2 / 2g`` (0.5 % at 1 m/s^2, within the ``|a|`` test's 2 %)
+    but tilts the direction by ``a / g`` (5.8 deg): a robot's moves pass the ``|a|`` test.  Gravity alone turns
+    with the housing only, ``d a_hat / dt = -w x a_hat``, so carried by the gyro into one frame, ``R_j a_hat_j``
+    (``R_j`` the gyro's orientation at row ``j``), it is constant.  Over the rows ``j`` within the window of row
+    ``k`` the statistic is ``chi2_k = sum_j w_j |R_j a_hat_j - mean|^2`` (the weighted mean; 2 degrees of freedom a
+    row less 2), with ``1 / w_j = sigma_a^2 + sigma_G^2 theta_jk^2``: ``sigma_a`` the accelerometer's white noise
+    over ``|a|`` (rad, per axis, from second differences; at least :data:`MIN_SIGMA_A`), ``theta_jk`` the angle
+    turned between the rows (rad, the gyro's path) and ``sigma_G^2 = (s^2 + 2 c^2) / 3`` what the gyro matrix's
+    prior (scale ``s``, axes ``c``, :data:`GYRO_MATRIX_PRIOR`) turns a carried direction by, per axis and radian
+    (a 60 deg turn: 1.4 deg).  A row is still when ``chi2_k`` is below the :data:`STILL_PROBABILITY` quantile
+    of its chi-square times ``m``, the median over the rows of the ``|a|`` test of ``chi2_k`` over its chi-square's
+    median (at least 1): a hand's small accelerations, which the fit weighs as the accelerometer's noise (its
+    robust sigma), are the median, a robot's moves the tail (without ``m``, 26 of the 2678 rows of BROAD 01's
+    slow rotation would stay; with it, 1991).  Numbers: noise of 0.005 g a row is 0.29 deg; 1 m/s^2 that comes or
+    goes within the window tilts its rows by up to 5.8 deg, 400 times the noise's variance a row, far beyond the
+    quantile (~70 for 24 rows at 48 Hz).  An acceleration that holds over the whole window tilts its rows alike
+    and is not seen (a robot's minimum-jerk moves change theirs within a few tenths of a second); nor is the
+    gyro's bias modelled (0.5 deg/s over the window: 0.13 deg).
+
+    Parameters
+    ----------
+    accel : ndarray, shape (n, 3)
+        Accelerometer (specific force, +1 g up at rest), any unit, housing frame.
+    turns_rad : ndarray, shape (n, 3)
+        The gyro's turn from the previous row to each (rotation vector, rad, housing frame; row 0 ignored).
+    t_s : ndarray, shape (n,)
+        Time of each row, s, non-decreasing.
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+    """
+    accel, turns, t_s = (np.asarray(a, dtype=float) for a in (accel, turns_rad, t_s))
+    n = len(accel)
+    norm = np.linalg.norm(accel, axis=1)
+    sigma_a = max(float(np.median(second_difference_sigma(second_differences(accel)))) / float(np.median(norm)),
+                  MIN_SIGMA_A)
+    step = turns.copy()
+    step[0] = 0.0
+    quat = Rotation.from_rotvec(step).as_quat()
+    shift = 1
+    while shift < n:  # R_j = Exp(phi_1) ... Exp(phi_j): the prefix products (Hillis-Steele scan)
+        quat[shift:] = _qmul(quat[:-shift], quat[shift:])
+        shift *= 2
+    carried = Rotation.from_quat(quat).apply(accel / np.maximum(norm, 1e-300)[:, None])
+    path = np.cumsum(np.linalg.norm(step, axis=1))
+    var_g = (GYRO_SCALE_PRIOR**2 + 2.0 * GYRO_CROSS_PRIOR**2) / 3.0
+    first = np.searchsorted(t_s, t_s - STILL_WINDOW_S / 2.0, side="left")
+    last = np.searchsorted(t_s, t_s + STILL_WINDOW_S / 2.0, side="right") - 1
+    rows = np.arange(n)
+    s0, s1, count = np.zeros(n), np.zeros((n, 3)), np.zeros(n)
+    for offset in range(int(np.min(first - rows)), int(np.max(last - rows)) + 1):
+        j = rows + offset
+        inside = (j >= first) & (j <= last)
+        j = np.clip(j, 0, n - 1)
+        w = np.where(inside, 1.0 / (sigma_a**2 + var_g * (path[j] - path) ** 2), 0.0)
+        s0 += w
+        s1 += w[:, None] * carried[j]
+        count += inside
+    chi2 = s0 - np.sum(s1**2, axis=1) / s0  # sum w |v|^2 - |sum w v|^2 / sum w, |v| = 1
+    dof = np.maximum(2.0 * (count - 1.0), 1.0)
+    static = static_mask(accel) & (count > 1)
+    scale = max(float(np.median(chi2[static] / chdtri(dof[static], 0.5))), 1.0) if np.any(static) else 1.0
+    return static & (chi2 <= scale * chdtri(dof, 1.0 - STILL_PROBABILITY))
 
 
 def _windows(turns: np.ndarray, dt: np.ndarray) -> np.ndarray:
@@ -764,7 +847,7 @@ def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_nor
     ValueError
         Inputs of different lengths, non-finite, or a time that decreases.
     GyroMismatch
-        Fewer than 20 quasi-static rows, or the model rejects most samples (said in words).
+        Fewer than 20 still rows (:func:`still_mask`), or the model rejects most samples (said in words).
     """
     mag, accel, turns = (np.asarray(a, dtype=float) for a in (mag, accel, turns_rad))
     t_s = np.asarray(t_s, dtype=float)
@@ -777,9 +860,9 @@ def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_nor
     dt = np.diff(t_s, prepend=t_s[0])
     if np.any(dt < 0):
         raise ValueError("t_s must be non-decreasing")
-    static = static_mask(accel)
+    static = still_mask(accel, turns, t_s)
     if np.count_nonzero(static) < 20:
-        raise GyroMismatch(f"only {np.count_nonzero(static)} quasi-static accelerometer rows; the gyro-aided fit needs 20")
+        raise GyroMismatch(f"only {np.count_nonzero(static)} still accelerometer rows; the gyro-aided fit needs 20")
     if noise is None:
         noise = float(np.median(second_difference_sigma(second_differences(mag))))
     accel_norm = np.linalg.norm(accel, axis=1, keepdims=True)
@@ -805,7 +888,7 @@ def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_nor
     prob = _Problem(mag, turns, dt, window, a_unit, static, q_start, max(noise, 1e-12), 1.0, rate, prior,
                     f_scale=ROBUST_F_SCALE, gyro_prior=GYRO_MATRIX_PRIOR if fit_gyro_matrix else _FIXED_GYRO)
     r_a = prob.residuals(prob.rows(p0), q_start.as_matrix())[1]  # the accelerometer's scatter at the start
-    prob.sigma_a = max(float(robust_sigma(np.linalg.norm(r_a, axis=1))), 1e-4)
+    prob.sigma_a = max(float(robust_sigma(np.linalg.norm(r_a, axis=1))), MIN_SIGMA_A)
     thin, _ = _on_rows(prob, t_s, rate, _robust_rows(window), f_scale=ROBUST_F_SCALE)
     # scipy applies the loss to every residual, the priors' (latency, G) too: beyond ROBUST_F_SCALE prior sigmas
     # they pull less than quadratically in this stage; the plain stage after it has the Gaussian prior
@@ -840,7 +923,7 @@ def _robust_rows(window: np.ndarray) -> np.ndarray:
 
 def _on_rows(prob: _Problem, t_s, rate, rows, *, f_scale, keep_a=None) -> tuple[_Problem, np.ndarray]:
     """``prob`` on ``rows`` only (``f_scale`` its loss), and the windows that keep rows: a dropped sample's turn and
-    time go to the next kept one; the accelerometer's quasi-static rows among ``rows`` stay (those of them
+    time go to the next kept one; the accelerometer's still rows among ``rows`` stay (those of them
     ``keep_a`` marks, when given); a window left without rows goes."""
     turns = np.diff(np.cumsum(prob.turns, axis=0)[rows], axis=0, prepend=np.zeros((1, 3)))
     dt = np.diff(t_s[rows], prepend=t_s[rows[0]])
@@ -955,10 +1038,10 @@ def ellipsoid_from(g: GyroFit, like: EllipsoidFit, mag: np.ndarray) -> Ellipsoid
                    success=g.success, message=g.message, params=params, degenerate=False)
 
 
-def misalignment_from(g: GyroFit, mag_cal: np.ndarray, accel: np.ndarray) -> Misalignment:
+def misalignment_from(g: GyroFit, mag_cal: np.ndarray, accel: np.ndarray, static: np.ndarray) -> Misalignment:
     """The gyro-aided rotation and dip as a :class:`Misalignment`, with the field-gravity angle spread
-    before and after the rotation and the BIC of the rotation against the dip alone on those angles."""
-    static = static_mask(accel)
+    before and after the rotation and the BIC of the rotation against the dip alone on those angles, over the
+    rows ``static`` marks (:func:`still_mask`'s)."""
     before = field_gravity_angles(mag_cal[static], accel[static])
     after = field_gravity_angles(mag_cal[static], accel[static], g.mag_to_accel)
     n = len(before)
@@ -1002,7 +1085,8 @@ def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_ra
         return replace(result, warnings=result.warnings + (f"gyro-aided fit not used: {g.words()}",),
                        gyro=dict(block, used=False))
     fit = ellipsoid_from(g, start, mag)
-    mis = misalignment_from(g, fit.calibrated(mag[g.inliers]), accel[g.inliers])
+    still = still_mask(accel, turns_rad, t_s)[g.inliers]
+    mis = misalignment_from(g, fit.calibrated(mag[g.inliers]), accel[g.inliers], still)
     diagnosis = diagnose_tumble(mag, fit, t_s=t_s, temp_c=temp_c, accel=accel, missing=result.coverage.missing,
                                 candidates=()).with_alignment(mis, fit)
     superseded = _SUPERSEDED + ("incomplete coverage", f"the {result.ellipsoid} kind is poorly determined")
