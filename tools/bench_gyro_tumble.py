@@ -239,7 +239,10 @@ def broad(every=4):
 
 
 def _matrix_words(block: dict) -> str:
-    """The fitted ``G - I`` (%): its diagonal and largest off-diagonal entry, with the largest sigma."""
+    """The fitted ``G - I`` (%): its diagonal and largest off-diagonal entry, with the largest sigma; or that the
+    file holds none (a matrix its reader would refuse is not written: ``GyroFit.gyro_matrix_usable``)."""
+    if block.get("gyro_matrix") is None:
+        return "no gyro matrix written (not usable)"
     g = 100 * (np.array(block["gyro_matrix"]) - np.eye(3))
     sigma = 100 * np.array([[np.inf if v is None else v for v in row] for row in block["gyro_matrix_sigma"]])
     return (f"diag {', '.join(f'{v:+.2f}' for v in np.diag(g))}, off-diag up to "
