@@ -18,7 +18,9 @@ import numpy as np
 from .calibration import ImuCorrection
 from .filter import AttitudeFilter, Estimate, FilterConfig, FilterStart
 from .io.streams import JUDGE_SAMPLES, StreamDecoder, StreamOptions, field_scale_check, time_steps_verdict
+from .io.units import MAX_ABS_VALUE
 from .iron_uncertainty import undetermined_words, with_calibration_sigma
+from .sample_check import GyroRail
 from .serial_reader import Chunk, LinkEvent
 from .site import upside_down
 
@@ -41,6 +43,15 @@ UPSIDE_DOWN_SAMPLES = 100
 AXES_ROWS = 2000
 """Rows (every :data:`AXES_EVERY`-th estimate) the axis check (:func:`compass.axes.check_axes`) judges, once."""
 AXES_EVERY = 5
+
+
+def invalid_words(stats) -> str:
+    """``"3 invalid (a number no module sends, not finite or beyond 1e+12: gx = nan first)"``: a
+    :class:`compass.io.lines.LineStats`'s invalid lines in words, naming the first one's cell when the decoder knows
+    it (``"0 invalid"`` without one)."""
+    first = "" if stats.invalid_cell is None else f": {stats.invalid_cell} first"
+    return f"{stats.invalid} invalid" + (f" (a number no module sends, not finite or beyond {MAX_ABS_VALUE:g}{first})"
+                                         if stats.invalid else "")
 
 
 def matrix_quaternion(matrix_rows) -> tuple[float, float, float, float]:
@@ -149,6 +160,10 @@ class LiveSession:
     rejected : dict of str to (int, float, float)
         Estimates whose field the gate rejected, by gate: count, sum of ``field_ratio``, sum of
         ``dip_deg`` (for :meth:`closing_hint`).
+    wrong_gravity : str or None
+        Set when the start window is complete and the given gravity (``FilterConfig.gravity``, ``--gravity``) is not
+        what 1 g reads (:attr:`compass.filter.FilterStart.gravity_words`): why, in words; the session then solves
+        nothing more (the commands stop on it, as on :attr:`turned_over`); None otherwise.
     axes : str or None
         Set when the field-gravity angle of the first :data:`AXES_ROWS` sampled estimates (or of the whole
         stream, on close) wanders in a way one sign pattern of the field's axes removes: what to
@@ -171,6 +186,7 @@ class LiveSession:
     quaternion: bool = False
     decoder: StreamDecoder = field(init=False)
     turned_over: str | None = None
+    wrong_gravity: str | None = None
     axes: str | None = None
     estimate: Estimate | None = None
     in_range: bool = True
@@ -192,6 +208,7 @@ class LiveSession:
     _dips: list | None = None  # measured dips of the first estimates, against a given reference
     _bench_accel: bool | None = None  # the bench's offsets apply to this stream's unit; None: not judged yet
     _times: list | None = field(default_factory=list)  # the first samples' t_s for the step check; None once judged
+    _rail: GyroRail = field(default_factory=GyroRail)  # a gyro axis held at its range: said once
     _last_rx: float = 0.0
 
     def __post_init__(self):
@@ -242,9 +259,10 @@ class LiveSession:
             for level, text in self.decoder.drain_events():
                 self._event(level, text)
         stats = self.decoder.stats
-        bad = stats.garbage + stats.partial
+        bad = stats.garbage + stats.partial + stats.invalid
         if bad != self._bad_reported and item.t_rx - self._bad_reported_at >= 1.0:
-            self._event("warn", f"line noise: {stats.garbage} garbage and {stats.partial} partial lines so far")
+            self._event("warn", f"line noise: {stats.garbage} garbage, {stats.partial} partial and "
+                                f"{invalid_words(stats)} lines so far")
             self._bad_reported, self._bad_reported_at = bad, item.t_rx
 
     def feed_samples(self, samples: list, t_rx: float) -> None:
@@ -260,6 +278,7 @@ class LiveSession:
         """A chunk's samples: what is not sequential once for all of them (the calibration's field, the
         reference seeding's screen), then each sample through the seeding or the filter."""
         self._judge_steps(samples)
+        self._judge_rail(samples, t_rx)
         fields, in_range = self._fields(samples)
         field_rows, in_range = fields.tolist(), in_range.tolist()
         imu = self.imu
@@ -272,6 +291,8 @@ class LiveSession:
             readings.append(Reading(sample, accel, gyro, fields[k], field_rows[k], in_range[k],
                                     t_rx if sample.t_rx is None else sample.t_rx))  # its arrival, if the decoder held it
         for reading in readings:
+            if self.wrong_gravity is not None:
+                return
             if self._start is not None and reading.sample.header.accel is not None:
                 # without an accelerometer there is no attitude, and nothing to seed the reference from: the
                 # filter is made at once and says so (holding the samples would grow without end)
@@ -292,6 +313,16 @@ class LiveSession:
         verdict, self._times = time_steps_verdict(self._times[:JUDGE_SAMPLES], self.config.max_gap_s), None
         if verdict is not None:
             self._event("warn", f"the module's {verdict}")
+
+    def _judge_rail(self, samples: list, t_rx: float) -> None:
+        """Say once when a gyro axis holds its range (:class:`compass.sample_check.GyroRail`), on the gyro as sent."""
+        if self._rail.said:
+            return
+        sent = [s for s in samples if s.gyro is not None]
+        if sent:
+            words = self._rail.feed([s.gyro for s in sent], [t_rx - self._t0 if s.t_s is None else s.t_s for s in sent])
+            if words is not None:
+                self._event("warn", words)
 
     def _judge_accel(self, samples: list) -> bool:
         """Whether the bench's accelerometer offsets and scales apply: judged once, on the first chunk with
@@ -340,6 +371,9 @@ class LiveSession:
     def _started(self) -> None:
         """The start window is complete: its reference, the filter it starts, the held samples solved."""
         start, self._start = self._start, None
+        self.wrong_gravity = start.gravity_words
+        if self.wrong_gravity is not None:  # the commands stop on it: nothing is solved
+            return
         if start.values.reference is not self.reference:  # not the site's, already in use
             self._use_reference(start.values.reference)
         held = start.take_held()
@@ -421,8 +455,11 @@ class LiveSession:
             self.output_latencies_s.append(time.perf_counter() - t_rx)
 
     def _filter_event(self, filt: AttitudeFilter, header) -> None:
-        self._event("info", f"filter: {'gyro (error-state EKF with bias)' if filt.gyro else 'two-vector'}"
-                            f"{'' if header.accel is not None else '; no accelerometer: no attitude'}")
+        kind = "gyro (error-state EKF with bias)" if filt.gyro else "two-vector"
+        if header.accel is not None:
+            self._event("info", f"filter: {kind}")
+        else:
+            self._event("warn", f"filter: {kind}; no accelerometer: no attitude")
 
     def _judge_axes(self) -> None:
         """The sampled estimates' field-gravity angle against the sign patterns of the field's axes (once)."""
@@ -539,7 +576,8 @@ class LiveSession:
             self._judge_turn()
         if self._axes_rows:
             self._judge_axes()
-        if self.sink is not None:  # a field turned over gives wrong headings: not kept
-            self.sink.close() if self.samples > 0 and self.turned_over is None else self.sink.discard()
+        if self.sink is not None:  # a field turned over, or an accelerometer never used, gives wrong attitudes
+            keep = self.samples > 0 and self.turned_over is None and self.wrong_gravity is None
+            self.sink.close() if keep else self.sink.discard()
         if self.out is not None:
             self.out.flush()

@@ -52,7 +52,8 @@ def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *
     Returns
     -------
     LiveSession
-        ``session``, closed: its ``samples``, ``skipped`` and :meth:`~LiveSession.summary` tell what happened.
+        ``session``, closed: its ``samples``, ``skipped`` and :meth:`~LiveSession.summary` tell what happened;
+        stopped early when it found the given gravity not what 1 g reads (its ``wrong_gravity``).
     """
     t_s = np.asarray(t_s, dtype=float)
     raw = np.asarray(raw, dtype=float)
@@ -75,6 +76,8 @@ def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *
         session.feed_samples(samples, time.perf_counter())
         if progress is not None:
             progress(hi, n)
+        if session.wrong_gravity is not None:  # the session solves nothing more
+            break
     session.close()
     return session
 
@@ -136,8 +139,10 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     date : str, optional
         With ``site``: ``YYYY-MM-DD``.
     gravity : float, optional
-        What 1 g reads in the accelerometer's unit (after ``--accel-unit``); default: the median |a| of
-        the start window.
+        What 1 g reads in the accelerometer's unit (in g when ``read_options`` or the header names the unit: the
+        accelerometer is then converted to g, as ``compass live --accel-unit`` converts it); default: the median |a|
+        of the start window.  One beyond a factor 2 of that median is refused (the filter would never use the
+        accelerometer: :attr:`compass.filter.FilterStart.gravity_words`).
     mag_latency : bool
         Compensate the calibration's fitted magnetometer latency (``compass live --mag-latency``;
         :meth:`compass.filter.FilterConfig.from_model`).
@@ -170,6 +175,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     from .filter import PLACE_EVENT, FilterConfig
     from .io.atomic import atomic_write_text, check_writable
     from .io.table import read_table
+    from .io import units
     from .io.streams import JUDGE_SAMPLES, field_scale_check, time_steps_verdict
     from .site import MIN_REFERENCE_ROWS, Site, reference_from_site
     from .viz import check_rerun_target
@@ -216,6 +222,8 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
                                          "(without one: compass attitude --level, no --filter)",
                              row=table.header_row, column="ax")
     table.check_dead_axis(("ax", "ay", "az"))
+    if "ax" in table.units:  # a unit named (--accel-unit, the header): in g, as compass live --accel-unit converts
+        accel = accel * units.ACCEL_UNITS[table.units["ax"]]
     t_s = table.column("t_s")
     wrong_time = time_steps_verdict(t_s, config.max_gap_s)
     if wrong_time is not None:
@@ -262,6 +270,8 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
         raise
     if session.turned_over is not None:
         raise BadInput(f"{calibration}: {session.turned_over}")
+    if session.wrong_gravity is not None:
+        raise RecordingError(table.path, session.wrong_gravity, column="ax")
     if session.samples == 0:
         why = (f"the filter's start seeds the reference field from at least {MIN_REFERENCE_ROWS} rows; give --site "
                "LAT,LON --date D" if len(t_s) < MIN_REFERENCE_ROWS and reference is None else session.summary())
@@ -277,17 +287,20 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
 
 def _check_gyro_turn(table, gyro: np.ndarray, named: bool) -> None:
     """RecordingError when the gyro would be fused wrong (:func:`compass.io.units.gyro_unit_verdict` of the table's
-    :attr:`~compass.io.table.Table.gyro_turn_ratio`): dead (every rate constant while the accelerometer sees the
-    housing tilt), or, its unit not given (``named`` false), turning tens of times more than that tilt (a deg/s gyro
-    read as rad/s), or tens of times less where the header names deg/s (a rad/s gyro so labelled).  A gyro that turns
-    less with no unit named stays the reader's warning: a board still most of the time, its accelerometer jittering
-    by degrees, reads so too."""
-    from .io.units import gyro_unit_verdict
+    :attr:`~compass.io.table.Table.gyro_turn_ratio`): dead (every rate zero while the accelerometer sees the housing
+    tilt), stuck at a rail (every rate one value off zero, its turn tens of times off that tilt, named unit or not:
+    :func:`compass.io.units.stuck_gyro_words`), or, its unit not given (``named`` false), turning tens of times more
+    than that tilt (a deg/s gyro read as rad/s), or tens of times less where the header names deg/s (a rad/s gyro so
+    labelled).  A gyro that turns less with no unit named stays the reader's warning: a board still most of the time,
+    its accelerometer jittering by degrees, reads so too."""
+    from .io.units import gyro_unit_verdict, stuck_gyro_words
 
     ratio = table.gyro_turn_ratio
     verdict = gyro_unit_verdict(ratio)
     dead = ratio == 0.0 and bool(np.all(np.ptp(gyro, axis=0) == 0.0))
-    if verdict is None or (not dead and (named or (verdict == "less" and table.units.get("gx") != "deg/s"))):
+    stuck = "" if verdict is None else stuck_gyro_words(gyro)
+    if verdict is None or (not dead and not stuck and (named or (verdict == "less"
+                                                                 and table.units.get("gx") != "deg/s"))):
         return
     if dead:
         words = ("never turns while the accelerometer sees the housing tilt: a dead gyro? (without gx,gy,gz columns "
@@ -298,5 +311,5 @@ def _check_gyro_turn(table, gyro: np.ndarray, named: bool) -> None:
     else:
         words = (f"turns {1 / ratio:.0f} times less than the accelerometer sees the housing tilt (a rad/s gyro read "
                  "as deg/s gives 1/57): give --gyro-unit rad/s (or the unit it is in)")
-    raise RecordingError(table.path, f"the gyro gx,gy,gz read in {table.units.get('gx', 'rad/s')} {words}",
+    raise RecordingError(table.path, f"the gyro gx,gy,gz read in {table.units.get('gx', 'rad/s')} {words}{stuck}",
                          row=table.header_row, column="gx")

@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["SKIP_REASONS", "FIELD_RATIO_LIMIT", "ACCEL_RATIO_LIMIT", "GYRO_LIMIT_RAD_S", "skip_codes"]
+__all__ = ["SKIP_REASONS", "FIELD_RATIO_LIMIT", "ACCEL_RATIO_LIMIT", "GYRO_LIMIT_RAD_S", "RAIL_MIN_RAD_S",
+           "RAIL_SAMPLES", "skip_codes", "GyroRail"]
 
 SKIP_REASONS = ("ok", "field not finite", "field out of range", "accel not finite or out of range",
                 "gyro not finite or out of range")
@@ -26,6 +27,11 @@ SKIP_REASONS = ("ok", "field not finite", "field out of range", "accel not finit
 FIELD_RATIO_LIMIT = 100.0
 ACCEL_RATIO_LIMIT = 1000.0
 GYRO_LIMIT_RAD_S = 1e4
+RAIL_MIN_RAD_S = 2.0
+"""Smallest |rate| a gyro's rail can be, rad/s: below the smallest full scale of MEMS gyros (125 deg/s, 2.18 rad/s)."""
+RAIL_SAMPLES = 10
+"""Samples in a row holding one rate of at least :data:`RAIL_MIN_RAD_S` that make a rail: a turning gyro's noise
+(0.1 deg/s, more than a 16-bit count at 2000 deg/s full scale) changes its reading from sample to sample."""
 
 
 def skip_codes(field, field_scale: float, accel=None, accel_scale: float | None = None, gyro=None) -> np.ndarray:
@@ -92,3 +98,55 @@ def _gyro_bad(gyro) -> np.ndarray | None:
     w, norm = _measured(gyro)
     absent = np.all(np.isnan(w), axis=1)
     return (~np.all(np.isfinite(w), axis=1) | (norm > GYRO_LIMIT_RAD_S)) & ~absent
+
+
+class GyroRail:
+    """Watch a gyro for an axis held at its range (saturated): the same rate of at least :data:`RAIL_MIN_RAD_S`
+    in :data:`RAIL_SAMPLES` samples in a row.
+
+    A gyro turned faster than its full scale reads the full scale: the turn beyond it is lost, and the attitude
+    is off by it (a 565 deg/s flick on a 250 deg/s gyro: 35 deg of heading) until the field and the
+    accelerometer correct it.  Nothing here changes the samples: :meth:`feed` says it, once.
+
+    Examples
+    --------
+    >>> rail = GyroRail()
+    >>> rail.feed([[0.1, 0.0, 4.3633]] * 12, [0.01 * k for k in range(12)])[:47]
+    "the gyro's z axis reads 4.363 rad/s (250 deg/s)"
+    >>> rail.feed([[0.1, 0.0, 4.3633]] * 12, [0.01 * k for k in range(12)]) is None  # said once
+    True
+    """
+
+    def __init__(self):
+        self.said = False
+        self._last = np.full(3, np.nan)  # the last sample fed
+        self._run = np.zeros(3, dtype=int)  # repeats of it ending there, per axis
+
+    def feed(self, gyro, t_s) -> str | None:
+        """The next samples, in order: words the first time an axis holds a rail, else None.
+
+        Parameters
+        ----------
+        gyro : array_like, shape (n, 3)
+            Angular rate as the module sends it (its axes), rad/s.
+        t_s : array_like, shape (n,)
+            The samples' times, seconds (for the words).
+        """
+        g = np.asarray(gyro, dtype=float).reshape(-1, 3)
+        if self.said or len(g) == 0:
+            return None
+        held = (g == np.vstack([self._last, g[:-1]])) & (np.abs(g) >= RAIL_MIN_RAD_S)  # repeats the sample before
+        k = np.arange(len(g))[:, None]
+        since = np.maximum.accumulate(np.where(held, -1, k), axis=0)  # the last sample that repeated nothing
+        run = np.where(held, k - since + np.where(since < 0, self._run, 0), 0)  # repeats ending at each sample
+        self._last, self._run = g[-1].copy(), run[-1]
+        hits = np.argwhere(run + 1 >= RAIL_SAMPLES)
+        if len(hits) == 0:
+            return None
+        i, axis = hits[0]
+        self.said = True
+        rate = float(g[i, axis])
+        return (f"the gyro's {'xyz'[axis]} axis reads {rate:.4g} rad/s ({np.degrees(rate):.0f} deg/s) in "
+                f"{RAIL_SAMPLES} samples in a row by t_s {float(np.asarray(t_s, dtype=float)[i]):.2f} s: saturated at "
+                "its range? The turn beyond the range is lost, and the attitude is off by it until the field and the "
+                "accelerometer bring it back")

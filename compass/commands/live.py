@@ -68,8 +68,8 @@ def register(sub) -> None:
     p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day (default today, UTC)")
     add_mag_latency_argument(p)
     p.add_argument("--gravity", type=limits.GRAVITY.option("--gravity"), metavar="G",
-                   help="what 1 g reads in the module's accelerometer unit (default: the median |a| of the first "
-                        "quiet second)")
+                   help="what 1 g reads in the module's accelerometer unit, in g with --accel-unit (default: the "
+                        "median |a| of the first quiet second; one beyond a factor 2 of that is refused)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.add_argument("--duration", type=limits.DURATION_S.option("--duration"),
                    help="stop after this many seconds (default: until Ctrl-C)")
@@ -90,7 +90,7 @@ def register(sub) -> None:
 def run(args) -> int:
     from ..cli import BadInput
     from ..io.atomic import atomic_stream, check_writable
-    from ..live import LiveSession
+    from ..live import LiveSession, invalid_words
     from ..filter import FilterConfig
     from ..replay import gyro_matrix_note, mag_latency_note
     from ..calibration import load
@@ -141,8 +141,13 @@ def run(args) -> int:
                                   imu=cal.imu, stream=stream,
                                   sign_from_bench=cal.provenance.hemisphere_assumed)
             _run_session(args, reader, session, out, tty, every_s)
-            if session.turned_over is not None:  # judged on close: a stream shorter than the check
-                raise BadInput(f"{args.cal}: {session.turned_over}")
+            _refuse(args, session)  # judged on close: a stream shorter than the check
+            header = session.decoder.header
+            if session.samples == 0 and session.decoder.stats.samples > 0 and header is not None \
+                    and header.accel is None:
+                raise BadInput(f"{args.port}: its {session.decoder.stats.samples} samples carry no ax,ay,az (the "
+                               f"header: {','.join(header.names)}): no attitude without the accelerometer's tilt, "
+                               "the field alone fixes two of the three angles")
             if session.decoder.fatal is not None:  # judged on close: fewer samples than the unit check holds
                 raise BadInput(f"{args.port}: {session.decoder.fatal} ({args.cal}): is it the right calibration?")
     finally:
@@ -163,7 +168,8 @@ def run(args) -> int:
     if session.decoder.stats.samples == 0:
         s = session.decoder.stats
         why = ("the port never opened" if not reader.connected_once else
-               f"{s.rejected_headers} unusable header(s), {s.bad_lines} bad line(s)" if s.rejected_headers or s.bad_lines
+               f"{s.rejected_headers} unusable header(s), {s.bad_lines} bad line(s)"
+               + (f", {invalid_words(s)}" if s.invalid else "") if s.rejected_headers or s.bad_lines
                else "nothing arrived: check the module, its baud rate and that it sends the header")
         print(f"compass live: no sample arrived from {args.port} in {elapsed:.1f} s ({why})", file=sys.stderr)
         return 1
@@ -171,9 +177,20 @@ def run(args) -> int:
 
 
 def _recorded(session) -> bool:
-    """The session's outputs are worth keeping: rows written (not lines decoded), and the field was not
-    found turned over (its headings are wrong)."""
-    return session is not None and session.samples > 0 and session.turned_over is None
+    """The session's outputs are worth keeping: rows written (not lines decoded), the field not found turned
+    over (its headings are wrong) and the accelerometer used (:attr:`~compass.live.LiveSession.wrong_gravity`)."""
+    return (session is not None and session.samples > 0 and session.turned_over is None
+            and session.wrong_gravity is None)
+
+
+def _refuse(args, session) -> None:
+    """BadInput when the session found the field turned over against ``--site``, or ``--gravity`` not what 1 g reads."""
+    from ..cli import BadInput
+
+    if session.turned_over is not None:
+        raise BadInput(f"{args.cal}: {session.turned_over}")
+    if session.wrong_gravity is not None:
+        raise BadInput(f"{args.port}: {session.wrong_gravity}")
 
 
 def _run_session(args, reader, session, out, tty: bool, every_s: float) -> None:
@@ -187,8 +204,7 @@ def _run_session(args, reader, session, out, tty: bool, every_s: float) -> None:
         with stop_when_asked(args.duration) as stop:
             for item in reader.items(stop):
                 session.feed(item)
-                if session.turned_over is not None:
-                    raise BadInput(f"{args.cal}: {session.turned_over}")
+                _refuse(args, session)
                 if session.decoder.fatal is not None:
                     raise BadInput(f"{args.port}: {session.decoder.fatal} ({args.cal}): is it the right calibration?")
                 now = time.perf_counter()

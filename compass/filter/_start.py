@@ -35,6 +35,10 @@ from ._records import FilterConfig
 __all__ = ["FilterStart", "StartValues"]
 
 _TYPICAL_ROWS = 8  # accepted |a| before the screen judges an absurd accelerometer against their median
+GRAVITY_FACTOR = 2.0
+"""A given gravity (``--gravity``) more than this factor from the window's median |a| is not what 1 g reads: the
+filter, which takes the tilt only within ``FilterConfig.accel_tolerance`` of it, would never use the accelerometer
+(a unit's factor: 9.81 for m/s^2 against g, 1000 for mg; an uncalibrated accelerometer's 0.77-1.30 g stays inside)."""
 _REST_RATE = math.radians(2.0)  # VQF's rest threshold, rad/s
 
 
@@ -54,6 +58,8 @@ class StartValues:
         Field at the window's first row, housing frame, field units.
     rows : int
         Rows of the window the values come from.
+    window_gravity : float or None
+        The window's median |a|, accelerometer units (``gravity`` unless the user gave one).
     """
 
     reference: object
@@ -61,6 +67,7 @@ class StartValues:
     up_h: tuple | None
     field_h: tuple | None
     rows: int
+    window_gravity: float | None = None
 
 
 class FilterStart:
@@ -96,6 +103,19 @@ class FilterStart:
     @property
     def done(self) -> bool:
         return self.values is not None
+
+    @property
+    def gravity_words(self) -> str | None:
+        """Once :attr:`done`: why the given gravity (``FilterConfig.gravity``) cannot be what 1 g reads, beyond
+        :data:`GRAVITY_FACTOR` of the window's median |a|, in words; None when it can, or none was given."""
+        v = self.values
+        given, seen = self.config.gravity, None if v is None else v.window_gravity
+        if given is None or seen is None or not seen > 0.0 or max(given / seen, seen / given) <= GRAVITY_FACTOR:
+            return None
+        return (f"--gravity {given:g} is not what 1 g reads: the accelerometer's median |a| over the start's {v.rows} "
+                f"rows is {seen:.4g}, {seen / given:.3g} times it, and the filter takes the tilt only within "
+                f"{100 * self.config.accel_tolerance:g} % of 1 g (never, here): give --gravity in the accelerometer's "
+                "unit (in g when --accel-unit names one), or leave it out to take the start's median")
 
     def add(self, payload, t_s: float, accel, gyro, field_h) -> str | None:
         """Screen and hold one sample; the reason it is skipped (one of :data:`compass.filter.SKIP_REASONS`,
@@ -152,10 +172,9 @@ class FilterStart:
     def _finish(self, seeded) -> None:
         given = self.given
         reference = seeded if given is None else (given.complete(seeded) if seeded is not None else given)
-        gravity, up, field = self._first_attitude()
-        if self.config.gravity is not None:
-            gravity = self.config.gravity
-        self.values = StartValues(reference, gravity, up, field, len(self._rows))
+        seen, up, field = self._first_attitude()
+        gravity = seen if self.config.gravity is None else self.config.gravity
+        self.values = StartValues(reference, gravity, up, field, len(self._rows), seen)
         self._rows = []
 
     def _first_attitude(self):

@@ -179,6 +179,9 @@ class LineStats:
     lost : int
         Samples never received: missing ``seq`` values, or without ``seq`` the gap in ``t_s``
         against the module's sample interval, less the bad lines received in between.
+    invalid_cell : str or None
+        The first invalid line's first number no module sends, ``"gx = nan"`` (None: none yet, or a decoder
+        that does not name it).
     """
 
     samples: int = 0
@@ -191,6 +194,7 @@ class LineStats:
     unheaded: int = 0
     repeated: int = 0
     lost: int = 0
+    invalid_cell: str | None = None
 
     @property
     def bad_lines(self) -> int:
@@ -356,6 +360,9 @@ class LineDecoder:
             sample = self._decode(header, cells)
         except _NotFinite:
             self.stats.invalid += 1
+            if self.stats.invalid_cell is None:
+                self.stats.invalid_cell = next((f"{name} = {cell}" for name, cell in zip(header.names, cells)
+                                                if _is_number(cell) and not _plausible(float(cell))), None)
             return None
         except ValueError:
             self.stats.garbage += 1

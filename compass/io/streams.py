@@ -421,7 +421,8 @@ class StreamDecoder:
         elif verdict is not None:
             more = f"{ratio:.0f} times more" if verdict == "more" else f"{1 / ratio:.0f} times less"
             self.events.append(("warn", f"the gyro read in {unit} turns {more} than the accelerometer sees the housing "
-                                        f"tilt (a unit taken for another gives 57): is --gyro-unit right?"))
+                                        f"tilt (a unit taken for another gives 57): is --gyro-unit right?"
+                                        f"{units.stuck_gyro_words(gyro[sane])}"))
 
 
 def _number(cell: str) -> bool:

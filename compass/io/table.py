@@ -616,7 +616,9 @@ def _check_values(path, header, data, rows) -> None:
     finite = np.isfinite(data)
     if not finite.all():
         i, j = np.argwhere(~finite)[0]
-        raise RecordingError(path, f"expected a finite number, found {float(data[i, j])!r}", row=int(rows[i]),
+        every = "" if finite[:, j].any() else (f" (as in all {len(data)} rows of {header[j]}: a sensor not recorded? "
+                                                "leave its columns out)")
+        raise RecordingError(path, f"expected a finite number, found {float(data[i, j])!r}{every}", row=int(rows[i]),
                              column=header[j])
     big = np.abs(data) > units.MAX_ABS_VALUE
     if big.any():

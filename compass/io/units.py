@@ -26,7 +26,7 @@ import numpy as np
 
 __all__ = ["RecordingWarning", "GYRO_UNITS", "ACCEL_UNITS", "MAG_UNITS", "ANGLE_UNITS", "STANDARD_GRAVITY",
            "EARTH_FIELD_UT", "MAX_ABS_VALUE", "MIN_SPAN", "unit_of_header", "gyro_turn_ratio", "GYRO_UNIT_RATIO",
-           "gyro_unit_verdict", "check_gyro_unit",
+           "gyro_unit_verdict", "stuck_gyro_words", "check_gyro_unit",
            "check_field_norm", "looks_like_radians", "check_accel_up", "check_two_axis_tilt", "note"]
 
 STANDARD_GRAVITY = 9.80665
@@ -153,6 +153,28 @@ def gyro_unit_verdict(ratio: float | None) -> str | None:
     return None
 
 
+def stuck_gyro_words(gyro_rad_s) -> str:
+    """``"; it holds ... in every sample: a gyro stuck at a rail?"`` when every axis reads one value off zero
+    throughout, else ``""``: the clause every reader of a gyro adds to a :func:`gyro_unit_verdict`.
+
+    Only where the gyro's turn already disagrees with the accelerometer's tilt: a constant rate that agrees with it
+    is a steady turn read without noise (a simulation's).  A turning gyro's noise changes its reading from sample to
+    sample; one stuck at its full scale (disconnected, or a part that failed) turns tens of times more or less than
+    the housing tilts, which alone would read as a unit taken for another.  All zeros is said as a dead gyro (a turn
+    ratio of 0) by the callers.
+
+    Parameters
+    ----------
+    gyro_rad_s : array_like, shape (n, 3)
+        The rates judged, in the unit assumed.
+    """
+    gyro = np.asarray(gyro_rad_s, dtype=float).reshape(-1, 3)
+    if len(gyro) < 2 or not np.any(gyro[0]) or not np.all(np.ptp(gyro, axis=0) == 0.0):
+        return ""
+    return (f"; it holds {', '.join(f'{v:.6g}' for v in gyro[0])} in every sample: a gyro stuck at a rail "
+            "(disconnected, or a part that failed)?")
+
+
 def check_gyro_unit(t_s, gyro_rad_s, accel, *, named: bool, where: str) -> float | None:
     """Warn when the gyro's turn does not match the accelerometer's (:func:`gyro_unit_verdict`).
 
@@ -167,13 +189,13 @@ def check_gyro_unit(t_s, gyro_rad_s, accel, *, named: bool, where: str) -> float
     if verdict == "more":
         note(f"{where}: the gyro gx,gy,gz read in rad/s ({source}) turns {ratio:.0f} times more than the "
              f"accelerometer sees the housing tilt (a deg/s gyro read as rad/s gives 57): if it is in deg/s, "
-             f"say so with --gyro-unit deg/s")
+             f"say so with --gyro-unit deg/s{stuck_gyro_words(gyro_rad_s)}")
     elif ratio == 0.0:
         note(f"{where}: the gyro gx,gy,gz never turns while the accelerometer sees the housing tilt: a dead gyro?")
     elif verdict == "less":
         note(f"{where}: the gyro gx,gy,gz read in rad/s ({source}) turns {1 / ratio:.0f} times less than the "
              f"accelerometer sees the housing tilt (a rad/s gyro read as deg/s gives 1/57): if it is in rad/s, "
-             f"say so with --gyro-unit rad/s")
+             f"say so with --gyro-unit rad/s{stuck_gyro_words(gyro_rad_s)}")
     return ratio
 
 

@@ -172,10 +172,10 @@ def files(tmp_path, stream):
     cal = tmp_path / "cal.json"
     save(cal, model_to_dict(model))
 
-    def recording(name="rec.csv", *, gyro=True, accel=True, gyro_scale=1.0, first_row=None):
+    def recording(name="rec.csv", *, gyro=True, accel=True, gyro_scale=1.0, accel_scale=1.0, first_row=None):
         columns = {"t_s": t} | {c: s.raw[:, k] for k, c in enumerate(model.channels)}
         if accel:
-            columns |= {c: s.accel[:, k] for k, c in enumerate(("ax", "ay", "az"))}
+            columns |= {c: accel_scale * s.accel[:, k] for k, c in enumerate(("ax", "ay", "az"))}
         if gyro:
             columns |= {c: gyro_scale * s.gyro[:, k] for k, c in enumerate(("gx", "gy", "gz"))}
         path = tmp_path / name
@@ -413,17 +413,36 @@ def _with_column(path, column, values):
     ("rad/s named deg/s", "read in deg/s turns 60 times less than the accelerometer sees the housing tilt"),
     ("five rows", "no attitude from its 5 rows (the filter's start seeds the reference field from at least 10 rows; "
                   "give --site"),
+    ("gyro at a rail", "(or --gyro-unit rad/s if it really is); it holds 4.3633, 4.3633, -4.3633 in every sample: a "
+                       "gyro stuck at a rail"),
+    ("gyro all NaN", "row 2, column 'gx': expected a finite number, found nan (as in all 3000 rows of gx: a sensor not "
+                     "recorded? leave its columns out)"),
+    ("t_s restarting", "row 1502, column 't_s': t_s must not decrease (goes from 14.99"),
+    ("gravity in m/s^2", "column 'ax': --gravity 9.80665 is not what 1 g reads: the accelerometer's median |a| over "
+                         "the start's 101 rows is 1,"),
 ])
 def test_the_command_refuses_what_it_would_fuse_wrong_in_one_line(files, stream, capsys, case, words):
     """Time stamps that do not tell the time between samples (all equal, or in ms: every step a gap that restarts
-    the filter), a gyro that reads zero while the housing tilts (fused as a still housing), a rad/s gyro whose header
-    says deg/s (fused 57 times too slow), fewer rows than the start needs: exit 2, one line naming the file and column,
-    nothing written (replayed, each gives a wrong attitude, or 3000 restart lines); five rows are refused with the
-    reason, not the session's counters."""
+    the filter; a clock restarting mid-file), a gyro that reads zero while the housing tilts (fused as a still
+    housing) or one value off zero (stuck at a rail: said besides the unit it would be), a rad/s gyro whose header
+    says deg/s (fused 57 times too slow), a gyro column of NaN, fewer rows than the start needs, a --gravity in m/s^2 where
+    --accel-unit m/s2 makes the accelerometer read in g (it was never used: 0 % of the rows): exit 2, one line naming
+    the file and column, nothing written (replayed, each gives a wrong attitude, or 3000 restart lines); five rows are
+    refused with the reason, not the session's counters."""
     _, t, s = stream
     cal, recording = files
-    rec = recording()
-    if case == "t_s constant":
+    rec = recording(accel_scale=9.80665 if case == "gravity in m/s^2" else 1.0)
+    extra = ["--accel-unit", "m/s2", "--gravity", "9.80665"] if case == "gravity in m/s^2" else []
+    if case == "gyro at a rail":
+        for column, rail in (("gx", 4.3633), ("gy", 4.3633), ("gz", -4.3633)):
+            _with_column(rec, column, np.full(len(t), rail))
+    elif case == "gyro all NaN":
+        _with_column(rec, "gx", np.full(len(t), np.nan))
+    elif case == "t_s restarting":
+        _with_column(rec, "t_s", np.where(t < 15.0, t, t - 15.0))
+    elif case == "gravity in m/s^2":
+        pass
+    elif case == "t_s constant":
         _with_column(rec, "t_s", np.zeros(len(t)))
     elif case == "t_s in ms":
         _with_column(rec, "t_s", 1e3 * t)
@@ -436,7 +455,7 @@ def test_the_command_refuses_what_it_would_fuse_wrong_in_one_line(files, stream,
     else:
         rec.write_text("\n".join(rec.read_text().splitlines()[:6]) + "\n")
     out = cal.parent / "att.csv"
-    code = main(["attitude", str(cal), str(rec), "--out", str(out), "--filter"])
+    code = main(["attitude", str(cal), str(rec), "--out", str(out), "--filter", *extra])
     err = capsys.readouterr().err
     assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
     assert str(rec) in err and words in err, err
@@ -558,3 +577,69 @@ def test_a_gyro_turning_less_with_no_unit_named_is_said_not_refused(files, capsy
     err = capsys.readouterr().err
     assert code == 0 and "times less" in err and "Traceback" not in err, err
     assert np.all(np.isfinite(read_table(out).column("heading_deg")))
+
+
+def test_an_accelerometer_unit_named_is_read_in_g_on_both_paths(files, stream, capsys):
+    """A recording whose accelerometer is in m/s^2, named with --accel-unit m/s2: the replay reads it in g as compass
+    live does, so --gravity 1 means the same on both paths and they write the same rows (the replay kept m/s^2 and
+    never used the accelerometer at --gravity 1, 0 % of the rows); the accelerometer is used in most rows."""
+    from compass.io.streams import StreamOptions
+
+    model, t, s = stream
+    cal, recording = files
+    out = cal.parent / "att.csv"
+    rec = recording(accel_scale=9.80665)
+    assert main(["attitude", str(cal), str(rec), "--out", str(out), "--filter", "--accel-unit", "m/s2",
+                 "--gravity", "1"]) == 0
+    assert "Traceback" not in capsys.readouterr().err
+    live = LiveSession(model, config=FilterConfig.from_model(model, gravity=1.0), out=io.StringIO(), quaternion=True,
+                       stream=StreamOptions(accel_unit="m/s2"))
+    data = _lines(model, t, replace(s, accel=9.80665 * s.accel))
+    for k in range(0, len(data), 997):
+        live.feed(Chunk(time.perf_counter(), data[k:k + 997]))
+    live.close()
+    assert _csv_rows(out.read_text()) == _csv_rows(live.out.getvalue())
+    assert np.mean(read_table(out).column("accel_used")) > 0.9
+
+
+def _flick(t_s):
+    """Rocking gently, flicked 90 deg in heading in 0.25 s at 10 s and back at 20 s (565 deg/s at the peak)."""
+    t = np.asarray(t_s, dtype=float)
+    turn = sum(sign * 0.5 * (1.0 - np.cos(np.pi * np.clip((t - t0) / 0.25, 0.0, 1.0)))
+               for t0, sign in ((10, 1), (20, -1)))
+    return 30.0 + 90.0 * turn, 10.0 * np.sin(2 * np.pi * t / 7), 8.0 * np.sin(2 * np.pi * t / 5), np.zeros(len(t))
+
+
+@pytest.mark.parametrize("saturated", [True, False])
+def test_a_gyro_saturating_at_its_range_is_said_once_on_both_paths(tmp_path, capsys, saturated):
+    """A 565 deg/s flick read by a 250 deg/s gyro: gz holds its rail for 18 samples, the heading is 35 deg off for
+    seconds after (the field's innovation gate rejects the truth).  Replayed (the command) and live (the session fed
+    the module's bytes), the rail is said once, naming the axis, its rate and the time, and everything written is
+    finite; the same flick within the gyro's range is not said."""
+    from compass.calibration import model_to_dict, save
+
+    model = default_model()
+    t = np.arange(0.0, 30.0, 1.0 / RATE_HZ)
+    s = simulate_device(model, t, motion=_flick, seed=3, gyro_bias=GYRO_BIAS)
+    rail = np.radians(250.0)
+    if saturated:
+        s = replace(s, gyro=np.clip(s.gyro, -rail, rail))
+    assert np.count_nonzero(np.abs(s.gyro[:, 2]) >= rail) == 36  # 18 samples a flick beyond (or at) the range
+    cal, rec, out = tmp_path / "cal.json", tmp_path / "rec.csv", tmp_path / "att.csv"
+    save(cal, model_to_dict(model))
+    columns = {"t_s": t} | {c: s.raw[:, k] for k, c in enumerate(model.channels)} \
+        | {c: s.accel[:, k] for k, c in enumerate(("ax", "ay", "az"))} \
+        | {c: s.gyro[:, k] for k, c in enumerate(("gx", "gy", "gz"))}
+    rec.write_text(format_table(columns, {}, {c: "%.17g" for c in columns}))
+    words = "the gyro's z axis reads -4.363 rad/s (-250 deg/s) in 10 samples in a row by t_s 10.1"
+    assert main(["attitude", str(cal), str(rec), "--out", str(out), "--filter"]) == 0
+    err = capsys.readouterr().err
+    said = [line for line in err.splitlines() if "saturated at its range?" in line]
+    assert len(said) == int(saturated) and all(words in line for line in said) and "Traceback" not in err, err
+    table = read_table(out)
+    assert all(np.all(np.isfinite(table.column(c))) for c in table.columns)
+    events = []
+    _, rows = _session_rows(model, _lines(model, t, s), events)
+    said = [text for level, text in events if level == "warn" and "saturated at its range?" in text]
+    assert len(said) == int(saturated) and all(words in text for text in said)
+    assert np.all(np.isfinite(np.array(rows[1:], dtype=float)))

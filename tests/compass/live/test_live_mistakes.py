@@ -48,8 +48,9 @@ def _serve(lines: bytes, server: socket.socket, errors: list) -> None:
         errors.append(exc)
 
 
-def _live_on_socket(monkeypatch, lines: bytes, cal, *extra):
-    """Run `compass live` on a local socket serving ``lines``; (exit status, thread alive, errors)."""
+def _live_on_socket(monkeypatch, lines: bytes, cal, *extra, quiet=True):
+    """Run `compass live` on a local socket serving ``lines`` (``quiet``: with --quiet); (exit status, thread alive,
+    errors)."""
     import compass.serial_reader as sr
 
     original = sr._nonblocking_fd
@@ -66,7 +67,7 @@ def _live_on_socket(monkeypatch, lines: bytes, cal, *extra):
     thread.start()
     url = f"socket://127.0.0.1:{server.getsockname()[1]}"
     try:
-        status = main(["live", "--port", url, "--cal", str(cal), "--quiet", *extra])
+        status = main(["live", "--port", url, "--cal", str(cal), *(["--quiet"] if quiet else []), *extra])
     finally:
         thread.join(30.0)
         server.close()
@@ -157,3 +158,74 @@ def test_a_session_whose_field_is_rejected_throughout_ends_with_a_hint():
     assert hints["right"] is None
     assert "mostly for its dip" in hints["wrong"] and f"against the reference's {model.dip_deg - 25:.1f} deg" in hints["wrong"]
     assert "Is --cal the calibration" in hints["wrong"]
+
+
+# ---------------------------------------------------------------- issue 22's bad input, through `compass live`
+
+def _spinning(t_s):
+    """Already turning at the first line: 40 deg/s in heading, pitch and roll swinging (degrees, no magnet)."""
+    return 40.0 * t_s, 20.0 * np.sin(2.0 * t_s), 25.0 * np.cos(1.3 * t_s), np.zeros(len(t_s))
+
+
+def _module_lines(case: str) -> bytes:
+    """The simulated module's 30 s at 100 Hz as it sends them (t_s, channels, ax,ay,az, gx,gy,gz), spoiled as
+    ``case`` says."""
+    from compass.sim.device import simulate_device
+
+    model = default_model()
+    t = np.arange(0.0, 30.0, 0.01)
+    s = simulate_device(model, t, motion=_spinning, seed=2) if case == "starts moving" else \
+        simulate_device(model, t, seed=5, gyro_bias=[0.004, -0.003, 0.002])
+    names = ["t_s", *model.channels] + ([] if case == "no accelerometer" else ["ax", "ay", "az"]) \
+        + ([] if case == "no gyro" else ["gx", "gy", "gz"])
+    accel = 9.80665 * s.accel if case.startswith("accel in m/s^2") else s.accel
+    gyro = {"gyro in deg/s": np.degrees(s.gyro), "gyro at a rail": np.tile([4.3633, 4.3633, -4.3633], (len(t), 1)),
+            "gyro all NaN": np.full_like(s.gyro, np.nan)}.get(case, s.gyro)
+    columns = [t, s.raw] + ([] if case == "no accelerometer" else [accel]) + ([] if case == "no gyro" else [gyro])
+    rows = [",".join(f"{v:.9g}" for v in row) for row in np.column_stack(columns).tolist()]
+    if case == "first line garbage":
+        rows[0] = "reset" + rows[0][5:]
+    return (",".join(names) + "\r\n" + "\r\n".join(rows) + "\r\n").encode()
+
+
+@pytest.mark.parametrize("case, options, status, words", [
+    ("no gyro", [], 0, "[info] filter: two-vector"),
+    ("no accelerometer", [], 2, "its 3000 samples carry no ax,ay,az (the header: t_s,mx,my,mz,gx,gy,gz): no attitude "
+                                "without the accelerometer's tilt"),
+    ("gyro in deg/s", [], 0, "times more than the accelerometer sees the housing "
+                             "tilt (a unit taken for another gives 57): is --gyro-unit right?"),
+    ("first line garbage", [], 0, "[warn] line noise: 1 garbage, 0 partial and 0 invalid lines so far"),
+    ("starts moving", [], 0, "[info] filter: gyro"),
+    ("gyro at a rail", [], 0, "is --gyro-unit right?; it holds 4.3633, 4.3633, -4.3633 in every sample: a gyro stuck "
+                              "at a rail"),
+    ("gyro all NaN", [], 1, "3000 invalid (a number no module sends, not finite or beyond 1e+12: gx = nan first)"),
+    ("accel in m/s^2", ["--accel-unit", "m/s2", "--gravity", "1"], 0, "[info] filter: gyro"),
+    ("accel in m/s^2, gravity in m/s^2", ["--accel-unit", "m/s2", "--gravity", "9.80665"], 2,
+     "--gravity 9.80665 is not what 1 g reads: the accelerometer's median |a| over the start's 101 rows is 1,"),
+])
+def test_live_on_bad_input_says_it_and_writes_nothing_non_finite(tmp_path, monkeypatch, cal, capsys, case, options,
+                                                                 status, words):
+    """Issue 22's bad input through `compass live` (a socket sends the module's lines): no gyro (the two-vector
+    filter, said), no accelerometer (refused when the session ends: exit 2 naming the header; it said nothing and
+    exited 0), a gyro in deg/s (said), a first line of garbage (line noise, said), a start in motion, a gyro stuck at
+    a rail (said besides the unit it would be), a gyro of NaN (every line invalid: 'no sample arrived' names the
+    cell), --gravity 9.80665 where --accel-unit m/s2 reads the accelerometer in g (refused; it was never used).
+    No traceback; the attitude CSV, when written, holds finite numbers only and a row a sample solved."""
+    att = tmp_path / "att.csv"
+    code, alive, errors = _live_on_socket(monkeypatch, _module_lines(case), cal, "--duration", "5", "--out", str(att),
+                                          *options, quiet=False)
+    captured = capsys.readouterr()
+    said = captured.out + captured.err
+    assert code == status and not alive and not errors, said
+    assert words in said and "Traceback" not in said, said
+    if status == 2:
+        assert len(captured.err.strip().splitlines()) == 1 and not att.exists()
+        return
+    if status == 0:
+        from compass.io.table import read_table
+
+        table = read_table(att)
+        assert f"{len(table.data)} attitudes from" in said  # a row a sample solved (the rest: after --duration)
+        assert all(np.all(np.isfinite(table.column(c))) for c in table.columns)
+        if case.startswith("accel"):
+            assert np.mean(table.column("accel_used")) > 0.9
