@@ -145,7 +145,8 @@ class AccelCalibration:
             text = f"accelerometer left as read: nothing seen off zero or determined from {self.n_rest} still rows"
         else:
             text = (f"accelerometer calibrated from {self.n_rest} still rows: offsets {off} % of 1 g, scales {scale} "
-                    f"%, |a| at rest spread {100 * self.spread_before:.2f} -> {100 * self.spread_after:.2f} % of 1 g")
+                    f"% (against 1 g read as the still rows' median |a|, {self.one_g:.4g}), |a| at rest spread "
+                    f"{100 * self.spread_before:.2f} -> {100 * self.spread_after:.2f} % of 1 g")
         if self.held:
             text += (f"; not determined by the still rows' directions (held at zero / the identity): "
                      f"{', '.join(self.held)}")

@@ -1,13 +1,16 @@
 """The accelerometer's own calibration (:mod:`calibrate.tumble.accelerometer`): the fit recovers a simulated
 ``A``, ``b`` within sigmas from the injected noise, says what a cap leaves undetermined, refuses what never rests;
-the file round-trips."""
+the file round-trips, and the runtime applies it at the filter's one entry (start window and filter alike)."""
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from calibrate.tumble import calibrate_tumble
 from calibrate.tumble.accelerometer import MIN_REST_ROWS, NoAccelCalibration, fit_accelerometer
 from compass.calibration import CalibrationFileError, from_dict
+from compass.filter import FilterConfig, run_filter
+from compass.frames import world_field
 from compass.sim.tumble import simulate_tumble
 
 G, NOISE, RATE_HZ = 9.81, 0.02, 50.0
@@ -107,3 +110,33 @@ def test_the_file_round_trips_and_a_file_without_the_key_reads_as_before():
     bad = cal.to_json() | {"matrix": (cal.matrix + np.triu(np.full((3, 3), 0.1), 1)).tolist()}
     with pytest.raises(CalibrationFileError, match="symmetric"):
         from_dict(doc | {"accelerometer": bad})
+
+
+def _stream(seconds=30.0):
+    """A housing swinging slowly (exact gravity and field, 100 Hz), its accelerometer read through ``A_TRUE``,
+    ``B_TRUE``: the raw rows and the corrected ones (what 1 g reads: ``G``)."""
+    t = np.arange(int(seconds * 100)) / 100.0
+    rot = Rotation.from_euler("xyz", np.column_stack([30 * np.sin(0.3 * t), 20 * np.sin(0.2 * t), 40 * t]),
+                              degrees=True)
+    gyro = np.vstack([(rot[:-1].inv() * rot[1:]).as_rotvec() * 100.0, np.zeros(3)])
+    f = rot.apply([0.0, 0.0, G], inverse=True)
+    field = rot.apply(world_field(60.0, 50.0), inverse=True)
+    return t, f @ np.linalg.inv(A_TRUE).T + B_TRUE, f, gyro, field
+
+
+def test_the_runtime_applies_the_correction_at_the_one_entry():
+    t, raw, f, gyro, field = _stream()
+    base = FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.3)
+    corrected = run_filter(t, f, gyro, field, base).quat
+    config = FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.3,
+                          accel_correction=(tuple(map(tuple, A_TRUE)), tuple(B_TRUE)))
+    # the raw rows through the correction (start window and filter alike) are the corrected rows
+    assert np.allclose(run_filter(t, raw, gyro, field, config).quat, corrected, atol=1e-9)
+    # the identity and no offset change nothing: a file without the key behaves as before
+    identity = FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.3,
+                            accel_correction=(tuple(map(tuple, np.eye(3))), (0.0, 0.0, 0.0)))
+    assert np.array_equal(run_filter(t, f, gyro, field, identity).quat, corrected)
+    # and uncorrected, the raw rows tilt it
+    assert not np.allclose(run_filter(t, raw, gyro, field, base).quat, corrected, atol=1e-3)
+    with pytest.raises(ValueError, match="accel_correction"):
+        FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.3, accel_correction=(np.eye(3), (0.0, 0.0)))
