@@ -140,3 +140,17 @@ def test_the_runtime_applies_the_correction_at_the_one_entry():
     assert not np.allclose(run_filter(t, raw, gyro, field, base).quat, corrected, atol=1e-3)
     with pytest.raises(ValueError, match="accel_correction"):
         FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.3, accel_correction=(np.eye(3), (0.0, 0.0)))
+
+
+def test_an_installation_turns_the_correction_into_the_products_frame():
+    from compass.installed import installed_model
+
+    sim = simulate_tumble(seed=1, n=1500)
+    raw, t = _dwells(_directions(40))
+    cal = fit_accelerometer(raw, t)
+    base = from_dict(calibrate_tumble(sim.mag, sim.accel).to_json() | {"accelerometer": cal.to_json()}).model
+    rot = Rotation.from_euler("xyz", [10.0, -20.0, 35.0], degrees=True).as_matrix()
+    matrix, offset = installed_model(base, np.zeros(3), np.eye(3), alignment=rot).accel_correction
+    # the filter reads the module's accelerometer turned into the product's frame, R a: corrected there, R A (a - b)
+    assert np.allclose((raw[:20] @ rot.T - offset) @ matrix.T, cal.apply(raw[:20]) @ rot.T)
+    assert np.array_equal(installed_model(base, np.zeros(3), np.eye(3)).accel_correction[0], cal.matrix)
