@@ -79,7 +79,8 @@ MAX_OFFSET_SIGMA = 0.005
 """An offset is applied when its sigma is at most this fraction of ``g_0`` (0.3 deg of tilt); held at zero otherwise.
 Looser (0.02, a third of the MPU-9250's +-60 mg zero-g tolerance) left the cross terms free to trade with the
 offsets across a robot's cap: the corrected direction's error on robot paths 60-69 rose from 0.23 to 0.44 deg
-(low-cost board) and 2.75 to 2.91 deg (bad-accel board); holding nothing, to 18-19 deg."""
+(low-cost board) and 2.75 to 2.91 deg (bad-accel board); holding nothing, to 18-19 deg (both before
+:data:`SEEN_SIGMAS`, which took the first to 0.22; ``tools/bench_accel_fit.py``)."""
 
 MAX_MATRIX_SIGMA = 0.005
 """An entry of ``A`` is applied when its sigma is at most this (0.3 deg of tilt); held at the identity's otherwise."""
@@ -106,9 +107,9 @@ class AccelCalibration:
     Attributes
     ----------
     offset, offset_sigma : ndarray, shape (3,)
-        ``b``, recording units; zero (its sigma NaN) where not determined.
+        ``b``, recording units; zero (its sigma NaN) where held or not seen.
     matrix, matrix_sigma : ndarray, shape (3, 3)
-        ``A``, symmetric, dimensionless; the identity's entries (their sigma NaN) where not determined.
+        ``A``, symmetric, dimensionless; the identity's entries (their sigma NaN) where held or not seen.
     one_g : float
         ``g_0``: what 1 g reads, recording units (the corrected reading's size at rest).
     held : tuple of str
