@@ -131,12 +131,14 @@ def installed_model(base: SensorModel, hard_iron, soft_iron, covariance=None, al
         response_sigma = np.sqrt(old**2 + np.column_stack([offset_var, gain_var]))
     joint = _installed_joint(base, project @ s.T[None] / k[:, None, None], k,
                              None if covariance is None else (added, offset_var, gain_var))
-    gyro_matrix = base.gyro_matrix
+    gyro_matrix, accel = base.gyro_matrix, base.accel_correction
     if alignment is not None:
         rot = np.asarray(alignment, dtype=float)
         directions = directions @ rot.T
         if gyro_matrix is not None:  # the gyro read in the product's frame too
             gyro_matrix = rot @ gyro_matrix @ rot.T
+        if accel is not None:  # the accelerometer read in the product's frame too: R A (a - b) = R A R^T (R a - R b)
+            accel = (rot @ accel[0] @ rot.T, rot @ accel[1])
         if direction_cov is not None:
             direction_cov = rot[None] @ direction_cov @ rot.T[None]
         if joint is not None:
@@ -144,12 +146,13 @@ def installed_model(base: SensorModel, hard_iron, soft_iron, covariance=None, al
             turn[:3, :3] = rot
             joint = tuple(None if j is None else turn @ j @ turn.T for j in joint)
     # a tumble base's own uncertainty is in its frame and for its iron alone: not carried (the installation's
-    # covariance is); its magnetometer latency is the module's timing and its gyro matrix the module's gyro, kept;
+    # covariance is); its magnetometer latency is the module's timing, its gyro matrix the module's gyro and its
+    # accelerometer correction the module's accelerometer, kept;
     # a channel base's priors for null sigmas stay in its (transformed) numbers, their words were said when the
     # base was read
     return replace(base, directions=directions, responses=tuple(responses), direction_covariance=direction_cov,
                    response_sigma=response_sigma, form="installed", iron_uncertainty=None, gyro_matrix=gyro_matrix,
-                   sigma_priors=None, joint_covariance=joint)
+                   accel_correction=accel, sigma_priors=None, joint_covariance=joint)
 
 
 def _installed_joint(base: SensorModel, direction_jac: np.ndarray, k: np.ndarray, added) -> tuple | None:

@@ -236,8 +236,10 @@ def file_values(t_s, gyro, accel, mag, keep) -> dict:
     model = from_dict(doc).model
     g = model.gyro_matrix
     fitted = doc.get("tumble", {}).get("gyro", {})  # what the fit wrote, for the words only
+    accel = model.accel_correction
     return {"mag_latency_s": model.mag_latency_s, "gyro_matrix": None if g is None else tuple(map(tuple, g)),
             "gyro_scale_error": fitted_scale_error(model, False),
+            "accel_correction": None if accel is None else (tuple(map(tuple, accel[0])), tuple(accel[1])),
             "fitted": (fitted.get("gyro_matrix"), fitted.get("gyro_matrix_sigma"))}
 
 
@@ -268,7 +270,7 @@ def broad_fitted(data: Path) -> dict[str, dict]:
     return out
 
 
-NONE_FITTED = {"mag_latency_s": 0.0, "gyro_matrix": None, "gyro_scale_error": 0.005}
+NONE_FITTED = {"mag_latency_s": 0.0, "gyro_matrix": None, "gyro_scale_error": 0.005, "accel_correction": None}
 
 BROAD_FITTED: dict[str, dict] = {}
 """Each BROAD trial's held-out file values (:func:`held_out`), by name; a simulated trial carries its own."""
@@ -329,9 +331,11 @@ class _Simulated:
 
 
 def board_errors(board: str, seed: int):
-    """The simulated IMU's errors: ``"broad-like"`` (0.5 % gyro scale, small biases) or ``"low-cost"``
+    """The simulated IMU's errors: ``"broad-like"`` (0.5 % gyro scale, small biases), ``"low-cost"``
     (gyro scale 1-2 %, bias up to 1 deg/s, accelerometer scale 2 % and offset 0.15 m/s^2, magnetometer
-    20 ms late), drawn per seed; nothing here was chosen for a filter change."""
+    20 ms late) or ``"bad-accel"`` (the low-cost board with an uncalibrated accelerometer: offsets 1-2 m/s^2 and
+    scales 5-10 % of either sign, as the real board that read 0.77-1.30 g at rest), drawn per seed; nothing here
+    was chosen for a filter change."""
     from compass.sim.motion import SensorErrors
 
     rng = np.random.default_rng(1000 + seed)
@@ -339,10 +343,17 @@ def board_errors(board: str, seed: int):
     if board == "broad-like":
         return SensorErrors(gyro_bias_rad_s=tuple(rng.normal(0.0, np.radians(0.3), 3)),
                             gyro_scale=tuple(sign * 0.005), mag_latency_s=0.0)
-    return SensorErrors(gyro_bias_rad_s=tuple(rng.normal(0.0, np.radians(0.5), 3)),
-                        gyro_scale=tuple(sign * rng.uniform(0.01, 0.02, 3)),
-                        accel_bias_m_s2=tuple(rng.uniform(-0.15, 0.15, 3)), accel_scale=tuple(rng.uniform(-0.02, 0.02, 3)),
-                        gyro_noise=3e-4, accel_noise_m_s2=0.1, mag_latency_s=0.02)
+    low_cost = SensorErrors(gyro_bias_rad_s=tuple(rng.normal(0.0, np.radians(0.5), 3)),
+                            gyro_scale=tuple(sign * rng.uniform(0.01, 0.02, 3)),
+                            accel_bias_m_s2=tuple(rng.uniform(-0.15, 0.15, 3)),
+                            accel_scale=tuple(rng.uniform(-0.02, 0.02, 3)),
+                            gyro_noise=3e-4, accel_noise_m_s2=0.1, mag_latency_s=0.02)
+    if board == "low-cost":
+        return low_cost
+    if board != "bad-accel":
+        raise ValueError(f"unknown board {board!r}")
+    return replace(low_cost, accel_bias_m_s2=tuple(rng.uniform(1.0, 2.0, 3) * rng.choice([-1.0, 1.0], 3)),
+                   accel_scale=tuple(rng.uniform(0.05, 0.10, 3) * rng.choice([-1.0, 1.0], 3)))
 
 
 def simulated(methods, seeds) -> dict:

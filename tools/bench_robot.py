@@ -5,7 +5,7 @@ Run: ``python tools/bench_robot.py [--seeds 5] [--first-seed 0] [--candidates A,
 
 Issue 22's hidden check turns low-cost boards on an industrial robot's flange (point-to-point moves, dwells,
 the board at a lever arm).  Each seed is a 60 s :func:`compass.sim.robot.simulate_robot` path read by
-:func:`bench_broad.board_errors`' two boards (the board's errors drawn from the same seed), run through
+:func:`bench_broad.board_errors`' three boards (the board's errors drawn from the same seed), run through
 bench_broad's pipeline (its :func:`bench_broad.ours`, FilterConfig from the initial rest, the hard-iron tracker)
 with the candidates "defaults" and "lever arm" (``--candidates``: any of bench_broad's candidates and turn
 variants), with "fitted": the gyro scale error of the board's calibration file (another path of the same board,
@@ -40,7 +40,7 @@ from compass.evaluation import orientation_errors  # noqa: E402
 from compass.sim.motion import GRAVITY  # noqa: E402
 from compass.sim.robot import simulate_robot  # noqa: E402
 
-BOARDS = ("broad-like", "low-cost")
+BOARDS = ("broad-like", "low-cost", "bad-accel")
 CANDIDATES_RUN = "defaults,lever arm"
 CAL_SEED = 1000
 """The calibration path of a board at seed ``s`` is the robot path ``s + CAL_SEED`` (the same SensorErrors)."""
@@ -59,10 +59,12 @@ FILE_REMOVED = ((),) + tuple((name,) for name in REMOVED) + (
 
 
 def methods(names) -> dict:
-    """Our candidates ``names`` (bench_broad's), "fitted" (the scale error of the trial's calibration file,
-    ``trial.fitted``: :func:`calibration`) and VQF when it is installed."""
+    """Our candidates ``names`` (bench_broad's), "fitted" (the scale error and the accelerometer's correction of the
+    trial's calibration file, ``trial.fitted``: :func:`calibration`), "fitted, accel as read" (its scale error only)
+    and VQF when it is installed."""
     out = {name: ours(*(CANDIDATES | TURN_VARIANTS)[name]) for name in names}
-    out["fitted"] = ours({"gyro_scale_error": "fitted"})
+    out["fitted, accel as read"] = ours({"gyro_scale_error": "fitted"})
+    out["fitted"] = ours({"gyro_scale_error": "fitted", "accel_correction": "fitted"})
     if find_spec("vqf") is None:
         print("skipping vqf: not installed (pip install -e '.[bench]')")
     else:
@@ -204,7 +206,7 @@ def main(argv=None) -> int:
         parser.error(f"--candidates: unknown {unknown}")
     runners = methods(names)
     seeds = range(args.first_seed, args.first_seed + args.seeds)
-    print(f"robot-arm paths (compass.sim.robot, 60 s, seeds {seeds.start}-{seeds.stop - 1}), two boards")
+    print(f"robot-arm paths (compass.sim.robot, 60 s, seeds {seeds.start}-{seeds.stop - 1}), {len(BOARDS)} boards")
     if args.files:
         file_ablation(seeds)
     elif args.ablate:

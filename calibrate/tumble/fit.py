@@ -15,6 +15,7 @@ from ..health import AXIS_TOLERANCE_DEG, DEAD_SIGMAS, ChannelHealth, check_chann
 from ..health import to_json as health_json
 from ..noise import lattice_step, second_difference_sigma, second_differences
 from ..site_field import compare_with_site
+from .accelerometer import NoAccelCalibration, fit_accelerometer
 from .alignment import MAX_ANGLE_WIDENING, field_gravity_angles, fit_misalignment, refine_jointly, static_mask
 from .diagnosis import UNEXPLAINED_WARNING, diagnose_tumble
 from .ellipsoid import fit_ellipsoid
@@ -99,7 +100,9 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, ellips
         Raw magnetometer, recording units, magnetometer frame; repeated values already removed
         (:func:`compass.io.tumble.read_tumble` does that).
     accel : ndarray, shape (n, 3), optional
-        Accelerometer at the same rows (specific force), any unit.
+        Accelerometer at the same rows (specific force), any unit.  With ``t_s``, its own calibration is fitted on
+        its still rows first (:func:`calibrate.tumble.accelerometer.fit_accelerometer`) and everything after takes
+        the corrected rows as gravity.
     ellipsoid : {"auto", "offset", "diagonal", "full"}
     field_ut : float, optional
         Known |B|; the file's ``soft_iron`` then gives microtesla.
@@ -133,6 +136,9 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, ellips
     if field_ut is not None and not field_ut > 0:
         raise ValueError(f"field_ut must be positive, got {field_ut}")
     mag = raw = np.asarray(mag, dtype=float)
+    accel_cal, accel_words = _accelerometer(accel, t_s)
+    if accel_cal is not None:
+        accel = accel_cal.apply(accel)
     noise = _noise_floor(mag, axis_noise)
     chosen, candidates, coverage = fit_ellipsoid(mag, ellipsoid)
     warnings = []
@@ -147,7 +153,8 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, ellips
         refused = (f"no usable calibration: no ellipsoid kind is determined, and the simplest ({chosen.ellipsoid}) is "
                    f"{chosen.reason}")
         return TumbleResult(chosen, candidates, coverage, None, field_ut, noise, len(mag), n_repeats,
-                            tuple(warnings + [refused]), refused)
+                            tuple(warnings + [refused]), refused, accelerometer=accel_cal,
+                            accelerometer_words=accel_words)
     if not chosen.determined:
         warnings.append(f"the {chosen.ellipsoid} kind is poorly determined: {chosen.reason}")
     n_out = int(np.count_nonzero(~chosen.inliers))
@@ -188,13 +195,27 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, ellips
         if axes is not None:
             if site_dip_deg is not None:
                 return TumbleResult(chosen, candidates, coverage, misalignment, field_ut, noise, len(mag), n_repeats,
-                                    tuple(warnings + [axes.text]), axes.text, diagnosis)
+                                    tuple(warnings + [axes.text]), axes.text, diagnosis, accelerometer=accel_cal,
+                                    accelerometer_words=accel_words)
             warnings.append(axes.text)
     # the field changed partway: structure in |m| that no effect explains, and gravity agrees less with the result
     changed = diagnosis.block["unexplained"] and misalignment is not None
     refused = _widening(raw, accel, chosen.calibrated(mag), misalignment.rotation) if changed else ""
     return TumbleResult(chosen, candidates, coverage, misalignment, field_ut, noise, len(mag), n_repeats,
-                        tuple(warnings + ([refused] if refused else [])), refused, diagnosis)
+                        tuple(warnings + ([refused] if refused else [])), refused, diagnosis, accelerometer=accel_cal,
+                        accelerometer_words=accel_words)
+
+
+def _accelerometer(accel, t_s) -> tuple:
+    """``(AccelCalibration or None, why not in words)`` of the tumble's accelerometer (``("", "")`` without one)."""
+    if accel is None:
+        return None, ""
+    if t_s is None:
+        return None, "no accelerometer calibration: the recording has no times to find its still rows"
+    try:
+        return fit_accelerometer(accel, t_s), ""
+    except NoAccelCalibration as exc:
+        return None, f"no accelerometer calibration: {exc}"
 
 
 def _unless_fast(misalignment, mag_cal, accel, t_s, keep, warnings: list):

@@ -1060,7 +1060,8 @@ def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_ra
     result : TumbleResult
         :func:`calibrate.tumble.calibrate_tumble`'s on the same samples (the start values).
     mag, accel, turns_rad, t_s, temp_c, fit_latency, fit_gyro_matrix :
-        As :func:`fit_with_gyro` (``temp_c`` for the diagnosis).
+        As :func:`fit_with_gyro` (``temp_c`` for the diagnosis); ``accel`` raw, corrected here by ``result``'s
+        accelerometer calibration (:meth:`TumbleResult.corrected_accel`).
 
     Returns
     -------
@@ -1072,6 +1073,7 @@ def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_ra
     """
     start = result.fit
     mis = result.misalignment
+    accel = result.corrected_accel(accel)  # the accelerometer's own calibration: the gravity rows as the fit took them
     try:
         g = fit_with_gyro(mag, accel, turns_rad, t_s, hard_iron=start.hard_iron, soft_iron=start.soft_iron,
                           field_norm=start.field_norm, mag_to_accel=result.mag_to_accel,

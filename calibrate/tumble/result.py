@@ -11,6 +11,7 @@ from compass.calibration import header
 
 from ..contract import CalibrationResult, FitStatistics, fit_report
 from ..diagnosis.forms import json_float
+from .accelerometer import AccelCalibration
 from .alignment import Misalignment
 from .coverage import Coverage
 from .ellipsoid import EllipsoidFit
@@ -51,6 +52,11 @@ class TumbleResult(CalibrationResult):
     gyro : dict or None
         The gyro-aided fit's block (:mod:`calibrate.tumble.gyro`; ``used``: whether ``fit`` and
         ``misalignment`` are its), None when it was not tried.
+    accelerometer : AccelCalibration or None
+        The accelerometer's own correction (:mod:`calibrate.tumble.accelerometer`), fitted on the still rows and
+        applied to every accelerometer row the fit takes as gravity; None when not fitted.
+    accelerometer_words : str
+        Why it was not fitted (empty when it was, or without an accelerometer).
     """
 
     fit: EllipsoidFit
@@ -68,6 +74,8 @@ class TumbleResult(CalibrationResult):
     """The file's ``"channel_health"`` block (:mod:`calibrate.health`), set by :class:`TumbleCalibrator`."""
     raw_unit: str = "recording units"
     gyro: dict | None = None
+    accelerometer: AccelCalibration | None = None
+    accelerometer_words: str = ""
 
     calibration_kind = "tumble"
 
@@ -133,6 +141,21 @@ class TumbleResult(CalibrationResult):
         """``m = soft_iron @ (raw - hard_iron)``, shape (n, 3), magnetometer frame, file units."""
         return (np.asarray(mag, dtype=float) - self.hard_iron) @ self.soft_iron.T
 
+    def corrected_accel(self, accel) -> np.ndarray | None:
+        """The accelerometer rows corrected by :attr:`accelerometer` (as read without it), recording units."""
+        if accel is None or self.accelerometer is None:
+            return None if accel is None else np.asarray(accel, dtype=float)
+        return self.accelerometer.apply(accel)
+
+    def accelerometer_block(self) -> dict | None:
+        """The file's ``accelerometer`` key: the correction, or null values and why; None without an accelerometer
+        tried."""
+        if self.accelerometer is not None:
+            return self.accelerometer.to_json()
+        if not self.accelerometer_words:
+            return None
+        return {"offset": None, "matrix": None, "words": self.accelerometer_words}
+
     def to_json(self) -> dict:
         """The calibration file (SPEC section 2, tumble kind), JSON-ready.
 
@@ -181,7 +204,8 @@ class TumbleResult(CalibrationResult):
                 "gyro": self.gyro,
             },
             "warnings": list(self.warnings),
-        } | ({"channel_health": self.health} if self.health else {})
+        } | ({"channel_health": self.health} if self.health else {}) | (
+            {"accelerometer": self.accelerometer_block()} if self.accelerometer_block() is not None else {})
 
     def report(self) -> str:
         """A fit report for a person: values +- sigma, the kinds compared, coverage and warnings in words."""
@@ -212,6 +236,9 @@ class TumbleResult(CalibrationResult):
                 lines.append("  mag-to-accel rotation vector " + ", ".join(
                     f"{v:+.3f} +- {s:.3f}" for v, s in zip(mis.rotvec_deg, mis.rotvec_sigma_deg)) + " deg")
             lines.append(f"  field-gravity angle spread {mis.spread_before_deg:.3f} -> {mis.spread_after_deg:.3f} deg")
+        block = self.accelerometer_block()
+        if block is not None:
+            lines.append(f"  {block['words']}")
         if not self.refused:  # what the runtime will say of the file (compass.iron_uncertainty), read as it reads it
             from compass.calibration import from_dict
             from compass.iron_uncertainty import undetermined_words

@@ -441,6 +441,7 @@ def _tumble(d: dict) -> tuple:
         mag_latency_s=_mag_latency_s(block.get("gyro")),
         gyro_matrix=_gyro_matrix(block.get("gyro")),
         gyro_scale_error=_gyro_scale_error(block.get("gyro")),
+        accel_correction=_accel_correction(d.get("accelerometer")),
     )
     norm = block.get("field_norm_recording_units")
     if norm is None and field_ut is None:
@@ -582,6 +583,28 @@ def _gyro_matrix(gyro) -> np.ndarray | None:
         return None
     seen = gyro_matrix_seen(g, sigma)
     return np.where(seen, g, np.eye(3)) if seen.any() else None
+
+
+MAX_ACCEL_MATRIX_ERROR = 0.5
+"""An entry of the accelerometer's matrix ``A - I`` beyond this is refused (a unit or an axis wrong, not a scale)."""
+
+
+def _accel_correction(block) -> tuple | None:
+    """``(matrix, offset)`` of a tumble file's ``accelerometer`` block (``f = matrix @ (a - offset)``, the
+    recording's unit; :mod:`calibrate.tumble.accelerometer`), None when absent or not fitted (null values).
+    Refused: not numbers of the shapes, a matrix not symmetric or an entry of ``A - I`` beyond
+    +-:data:`MAX_ACCEL_MATRIX_ERROR`."""
+    if block is None:
+        return None
+    block = check.obj(block, "accelerometer")
+    if block.get("matrix") is None and block.get("offset") is None:
+        return None
+    matrix = _nested_3x3(block.get("matrix"), "accelerometer.matrix")
+    offset = check.array(block.get("offset"), (3,), "accelerometer.offset")
+    if not np.allclose(matrix, matrix.T) or np.any(np.abs(matrix - np.eye(3)) > MAX_ACCEL_MATRIX_ERROR):
+        raise CalibrationFileError(f"must be symmetric and within {MAX_ACCEL_MATRIX_ERROR:g} of the identity, got "
+                                   f"{matrix.tolist()}", key="accelerometer.matrix")
+    return matrix, offset
 
 
 def _gyro_scale_error(gyro) -> tuple[float, float] | None:

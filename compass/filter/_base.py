@@ -276,6 +276,8 @@ class AttitudeFilter:
             w = self._vector(gyro, "gyro", 0.0, self._gyro_range2)
             if w is not None:
                 s.rate_rad_s = self.config.housing_rate(w)  # the gyro's scale and axes, before anything reads the rate
+        if accel is not None and self.config.accel_correction is not None:
+            accel = self.config.housing_accel(accel)  # the accelerometer's own calibration, before anything reads it
         a, b = self._screen(t_s, accel, field_h, dt)
         s.t_s = t_s
         if s.matrix is not None and dt > self.config.max_gap_s:

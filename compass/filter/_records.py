@@ -120,6 +120,10 @@ class FilterConfig:
         ``G``: each gyro reading ``w`` is taken as the housing-frame rate ``G w`` before anything else uses it
         (its scale and axis errors against the housing; a tumble's gyro-aided fit,
         ``tumble.gyro.gyro_matrix``); None = the identity.
+    accel_correction : pair (3 tuples of 3 floats, 3 floats), or None
+        ``(A, b)``: each accelerometer reading ``a`` is taken as ``A (a - b)`` before anything else uses it (the
+        accelerometer's own offsets, scales and cross-axis sensitivity; a tumble file's ``accelerometer`` block,
+        :mod:`calibrate.tumble.accelerometer`, in that recording's unit); None = as read.
     rest_bias_estimation : bool
         At rest the gyro reading measures its bias (VQF's ``restBiasEstEnabled``).
     rest_confirm_s : float
@@ -218,6 +222,7 @@ class FilterConfig:
     field_range: float = 10.0
     mag_latency_s: float = 0.0
     gyro_matrix: tuple | None = None
+    accel_correction: tuple | None = None
     rest_bias_estimation: bool = True
     rest_confirm_s: float = 1.0
     motion_adaptive_accel: bool = True
@@ -235,7 +240,7 @@ class FilterConfig:
     def __post_init__(self):
         for f in fields(self):
             if (f.name in ("dip_deg", "gravity", "mag_latency_s", "rest_confirm_s", "gyro_matrix",
-                           "calibration_uncertainty")
+                           "accel_correction", "calibration_uncertainty")
                     or f.type in ("bool", "str")):
                 continue
             value = getattr(self, f.name)
@@ -265,6 +270,8 @@ class FilterConfig:
                 raise ValueError("FilterConfig.gyro_matrix must be a finite 3 x 3 matrix (tuple of 3 tuples) of positive "
                                  f"determinant, got {self.gyro_matrix!r}")
             object.__setattr__(self, "gyro_matrix", tuple(tuple(float(v) for v in row) for row in g))
+        if self.accel_correction is not None:
+            object.__setattr__(self, "accel_correction", _accel_correction(self.accel_correction))
 
     def housing_rate(self, w) -> tuple:
         """The housing-frame rate ``G w`` of a gyro reading ``w`` (rad/s, 3 floats), ``G`` :attr:`gyro_matrix`
@@ -273,6 +280,17 @@ class FilterConfig:
         if g is None:  # the per-sample path: the reading's own tuple, no copy
             return w[:3]
         return tuple(r[0] * w[0] + r[1] * w[1] + r[2] * w[2] for r in g)
+
+    def housing_accel(self, a) -> tuple:
+        """The corrected reading ``A (a - b)`` of an accelerometer reading ``a`` (3 floats), ``(A, b)``
+        :attr:`accel_correction` (None: ``a`` as read): the one place an accelerometer sample is corrected, for the
+        filter and its start alike."""
+        c = self.accel_correction
+        if c is None:
+            return a
+        m, (bx, by, bz) = c
+        x, y, z = a[0] - bx, a[1] - by, a[2] - bz
+        return tuple(r[0] * x + r[1] * y + r[2] * z for r in m)
 
     @classmethod
     def from_model(cls, model, *, mag_latency: bool = False, gravity: float | None = None,
@@ -304,6 +322,10 @@ class FilterConfig:
         the sigma; :func:`compass.calibration.gyro_scale_error`) in quadrature with the default 0.005
         (:func:`fitted_scale_error`); the default when the file has no fit.  ``gyro_scale_error`` given (``--gyro-scale-error``) overrides it.
 
+        The accelerometer's own calibration (``model.accel_correction``: a tumble file's ``accelerometer`` block) is
+        always carried: every accelerometer row is corrected by it (:meth:`housing_accel`), in the tumble recording's
+        unit (a stream in another unit must not get it).
+
         Change other fields with ``dataclasses.replace``.
 
         Raises
@@ -323,7 +345,23 @@ class FilterConfig:
                    gyro_scale_error=gyro_scale_error,
                    mag_latency_s=model.mag_latency_s if mag_latency else 0.0, gravity=gravity,
                    gyro_matrix=model.gyro_matrix if gyro_matrix else None,
+                   accel_correction=model.accel_correction,
                    calibration_uncertainty=model.calibration_uncertainty)
+
+
+def _accel_correction(value) -> tuple:
+    """:attr:`FilterConfig.accel_correction` as ``(3 tuples of 3 floats, 3 floats)``, checked (finite, the matrix of
+    positive determinant)."""
+    try:
+        m, b = value
+        m, b = np.asarray(m, dtype=float), np.asarray(b, dtype=float)
+    except (TypeError, ValueError):
+        m = b = None
+    if (m is None or m.shape != (3, 3) or b.shape != (3,) or not np.all(np.isfinite(m)) or not np.all(np.isfinite(b))
+            or not np.linalg.det(m) > 0):
+        raise ValueError("FilterConfig.accel_correction must be (a finite 3 x 3 matrix of positive determinant, "
+                         f"3 finite offsets), got {value!r}")
+    return tuple(tuple(float(v) for v in row) for row in m), tuple(float(v) for v in b)
 
 
 def fitted_scale_error(model, gyro_matrix: bool) -> float:

@@ -7,7 +7,7 @@ quiet second (:class:`compass.site.QuietSeed`; a stream that never holds still: 
 - the **reference field** |B| and dip: the one given (a site, ``--site``), else the window's quiet
   rows (:func:`compass.site.reference_from_recording`), never the calibration bench's;
 - **gravity's size**: ``FilterConfig.gravity`` when the user said what 1 g reads, else the median
-  |a| over the window's rows;
+  |a| over the window's rows (each corrected by ``FilterConfig.accel_correction`` as the filter corrects it);
 - the **first attitude**: the up and field directions at the window's first row, each the
   component-wise median of the window's rows turned into that row's frame by the gyro (the rotation
   the gyro reads between samples, corrected by ``FilterConfig.gyro_matrix`` as the filter corrects
@@ -128,7 +128,9 @@ class FilterStart:
         if code:
             sensor, values = ((None, None), ("field", field_h), ("field", field_h), ("accel", accel), ("gyro", gyro))[code]
             return f"{sensor} {'out of range' if np.all(np.isfinite(values)) else 'not finite'}"
-        a = None if accel is None or not np.all(np.isfinite(accel)) else tuple(float(v) for v in accel)
+        # the accelerometer, corrected as the filter corrects it (FilterConfig.housing_accel)
+        a = None if accel is None or not np.all(np.isfinite(accel)) else self.config.housing_accel(
+            tuple(float(v) for v in accel))
         if a is not None:
             self._norms.append(math.hypot(*a))
         # the housing's rate, corrected as the filter corrects it (FilterConfig.housing_rate)
