@@ -138,7 +138,7 @@ def installed_model(base: SensorModel, hard_iron, soft_iron, covariance=None, al
         if gyro_matrix is not None:  # the gyro read in the product's frame too
             gyro_matrix = rot @ gyro_matrix @ rot.T
         if accel is not None:  # the accelerometer read in the product's frame too: R A (a - b) = R A R^T (R a - R b)
-            accel = (rot @ accel[0] @ rot.T, rot @ accel[1])
+            accel = (rot @ accel[0] @ rot.T, rot @ accel[1], accel[2])
         if direction_cov is not None:
             direction_cov = rot[None] @ direction_cov @ rot.T[None]
         if joint is not None:

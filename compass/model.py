@@ -114,10 +114,10 @@ class SensorModel:
         ``(with gyro_matrix applied, the gyro as read)``; None when the file has no usable fit.  Both are
         rotation-invariant (an installation keeps them).  :meth:`compass.filter.FilterConfig.from_model` sets the
         filter's ``gyro_scale_error`` from it.
-    accel_correction : (ndarray (3, 3), ndarray (3,)) or None
-        The accelerometer's own calibration ``(A, b)``: the corrected reading is ``A (a - b)`` (a tumble file's
-        ``accelerometer`` block, :mod:`calibrate.tumble.accelerometer`; the recording's unit, 1 g reading its
-        ``one_g``); None when the file has none.  :meth:`compass.filter.FilterConfig.from_model` passes it to the
+    accel_correction : (ndarray (3, 3), ndarray (3,), float) or None
+        The accelerometer's own calibration ``(A, b, one_g)``: the corrected reading is ``A (a - b)`` (a tumble
+        file's ``accelerometer`` block, :mod:`calibrate.tumble.accelerometer`; the recording's unit, in which 1 g
+        reads ``one_g``); None when the file has none.  :meth:`compass.filter.FilterConfig.from_model` passes it to the
         filter, which applies it to every accelerometer row.
     """
 

@@ -590,8 +590,9 @@ MAX_ACCEL_MATRIX_ERROR = 0.5
 
 
 def _accel_correction(block) -> tuple | None:
-    """``(matrix, offset)`` of a tumble file's ``accelerometer`` block (``f = matrix @ (a - offset)``, the
-    recording's unit; :mod:`calibrate.tumble.accelerometer`), None when absent or not fitted (null values).
+    """``(matrix, offset, one_g)`` of a tumble file's ``accelerometer`` block (``f = matrix @ (a - offset)``, the
+    recording's unit, in which 1 g reads ``one_g``; :mod:`calibrate.tumble.accelerometer`), None when absent or not
+    fitted (null values).
     Refused: not numbers of the shapes, a matrix not symmetric or an entry of ``A - I`` beyond
     +-:data:`MAX_ACCEL_MATRIX_ERROR`."""
     if block is None:
@@ -601,10 +602,11 @@ def _accel_correction(block) -> tuple | None:
         return None
     matrix = _nested_3x3(block.get("matrix"), "accelerometer.matrix")
     offset = check.array(block.get("offset"), (3,), "accelerometer.offset")
+    one_g = check.number(block.get("one_g"), "accelerometer.one_g", positive=True)
     if not np.allclose(matrix, matrix.T) or np.any(np.abs(matrix - np.eye(3)) > MAX_ACCEL_MATRIX_ERROR):
         raise CalibrationFileError(f"must be symmetric and within {MAX_ACCEL_MATRIX_ERROR:g} of the identity, got "
                                    f"{matrix.tolist()}", key="accelerometer.matrix")
-    return matrix, offset
+    return matrix, offset, one_g
 
 
 def _gyro_scale_error(gyro) -> tuple[float, float] | None:

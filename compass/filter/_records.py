@@ -120,10 +120,11 @@ class FilterConfig:
         ``G``: each gyro reading ``w`` is taken as the housing-frame rate ``G w`` before anything else uses it
         (its scale and axis errors against the housing; a tumble's gyro-aided fit,
         ``tumble.gyro.gyro_matrix``); None = the identity.
-    accel_correction : pair (3 tuples of 3 floats, 3 floats), or None
-        ``(A, b)``: each accelerometer reading ``a`` is taken as ``A (a - b)`` before anything else uses it (the
-        accelerometer's own offsets, scales and cross-axis sensitivity; a tumble file's ``accelerometer`` block,
-        :mod:`calibrate.tumble.accelerometer`, in that recording's unit); None = as read.
+    accel_correction : (3 tuples of 3 floats, 3 floats, float), or None
+        ``(A, b, one_g)``: each accelerometer reading ``a`` is taken as ``A (a - b)`` before anything else uses it
+        (the accelerometer's own offsets, scales and cross-axis sensitivity; a tumble file's ``accelerometer``
+        block, :mod:`calibrate.tumble.accelerometer`, in that recording's unit, in which 1 g reads ``one_g``: a
+        stream in another unit is refused at the start, :attr:`FilterStart.gravity_words`); None = as read.
     rest_bias_estimation : bool
         At rest the gyro reading measures its bias (VQF's ``restBiasEstEnabled``).
     rest_confirm_s : float
@@ -288,7 +289,7 @@ class FilterConfig:
         c = self.accel_correction
         if c is None:
             return a
-        m, (bx, by, bz) = c
+        m, (bx, by, bz), _ = c
         x, y, z = a[0] - bx, a[1] - by, a[2] - bz
         return tuple(r[0] * x + r[1] * y + r[2] * z for r in m)
 
@@ -350,18 +351,18 @@ class FilterConfig:
 
 
 def _accel_correction(value) -> tuple:
-    """:attr:`FilterConfig.accel_correction` as ``(3 tuples of 3 floats, 3 floats)``, checked (finite, the matrix of
-    positive determinant)."""
+    """:attr:`FilterConfig.accel_correction` as ``(3 tuples of 3 floats, 3 floats, float)``, checked (finite, the
+    matrix of positive determinant, what 1 g reads above zero)."""
     try:
-        m, b = value
-        m, b = np.asarray(m, dtype=float), np.asarray(b, dtype=float)
+        m, b, one_g = value
+        m, b, one_g = np.asarray(m, dtype=float), np.asarray(b, dtype=float), float(one_g)
     except (TypeError, ValueError):
-        m = b = None
+        m = b = one_g = None
     if (m is None or m.shape != (3, 3) or b.shape != (3,) or not np.all(np.isfinite(m)) or not np.all(np.isfinite(b))
-            or not np.linalg.det(m) > 0):
+            or not np.linalg.det(m) > 0 or not 0.0 < one_g < math.inf):
         raise ValueError("FilterConfig.accel_correction must be (a finite 3 x 3 matrix of positive determinant, "
-                         f"3 finite offsets), got {value!r}")
-    return tuple(tuple(float(v) for v in row) for row in m), tuple(float(v) for v in b)
+                         f"3 finite offsets, what 1 g reads), got {value!r}")
+    return tuple(tuple(float(v) for v in row) for row in m), tuple(float(v) for v in b), one_g
 
 
 def fitted_scale_error(model, gyro_matrix: bool) -> float:

@@ -106,11 +106,20 @@ class FilterStart:
 
     @property
     def gravity_words(self) -> str | None:
-        """Once :attr:`done`: why the given gravity (``FilterConfig.gravity``) cannot be what 1 g reads, beyond
-        :data:`GRAVITY_FACTOR` of the window's median |a|, in words; None when it can, or none was given."""
+        """Once :attr:`done`: why the given gravity (``FilterConfig.gravity``), or the unit of the accelerometer's
+        own calibration (``FilterConfig.accel_correction``'s ``one_g``), cannot be what 1 g reads, beyond
+        :data:`GRAVITY_FACTOR` of the window's median |a| (corrected), in words; None when they can, or none was
+        given."""
         v = self.values
-        given, seen = self.config.gravity, None if v is None else v.window_gravity
-        if given is None or seen is None or not seen > 0.0 or max(given / seen, seen / given) <= GRAVITY_FACTOR:
+        seen = None if v is None else v.window_gravity
+        if seen is None or not seen > 0.0:
+            return None
+        given, correction = self.config.gravity, self.config.accel_correction
+        if correction is not None and max(correction[2] / seen, seen / correction[2]) > GRAVITY_FACTOR:
+            return (f"the calibration's accelerometer correction was fitted where 1 g read {correction[2]:.4g}, but "
+                    f"this stream's corrected |a| over the start's {v.rows} rows is {seen:.4g}: another unit; send "
+                    "the accelerometer in the calibration recording's unit (without --accel-unit converting it)")
+        if given is None or max(given / seen, seen / given) <= GRAVITY_FACTOR:
             return None
         return (f"--gravity {given:g} is not what 1 g reads: the accelerometer's median |a| over the start's {v.rows} "
                 f"rows is {seen:.4g}, {seen / given:.3g} times it, and the filter takes the tilt only within "

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 from calibrate.tumble import calibrate_tumble
 from calibrate.tumble.accelerometer import MIN_REST_ROWS, NoAccelCalibration, fit_accelerometer
 from compass.calibration import CalibrationFileError, from_dict
-from compass.filter import FilterConfig, run_filter
+from compass.filter import FilterConfig, FilterStart, run_filter
 from compass.frames import world_field
 from compass.sim.tumble import simulate_tumble
 
@@ -105,8 +105,8 @@ def test_the_file_round_trips_and_a_file_without_the_key_reads_as_before():
     assert from_dict(doc).model.accel_correction is None
     raw, t = _dwells(_directions(40))
     cal = fit_accelerometer(raw, t)
-    matrix, offset = from_dict(doc | {"accelerometer": cal.to_json()}).model.accel_correction
-    assert np.array_equal(matrix, cal.matrix) and np.array_equal(offset, cal.offset)
+    matrix, offset, one_g = from_dict(doc | {"accelerometer": cal.to_json()}).model.accel_correction
+    assert np.array_equal(matrix, cal.matrix) and np.array_equal(offset, cal.offset) and one_g == cal.one_g
     bad = cal.to_json() | {"matrix": (cal.matrix + np.triu(np.full((3, 3), 0.1), 1)).tolist()}
     with pytest.raises(CalibrationFileError, match="symmetric"):
         from_dict(doc | {"accelerometer": bad})
@@ -129,17 +129,17 @@ def test_the_runtime_applies_the_correction_at_the_one_entry():
     base = FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.3)
     corrected = run_filter(t, f, gyro, field, base).quat
     config = FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.3,
-                          accel_correction=(tuple(map(tuple, A_TRUE)), tuple(B_TRUE)))
+                          accel_correction=(tuple(map(tuple, A_TRUE)), tuple(B_TRUE), G))
     # the raw rows through the correction (start window and filter alike) are the corrected rows
     assert np.allclose(run_filter(t, raw, gyro, field, config).quat, corrected, atol=1e-9)
     # the identity and no offset change nothing: a file without the key behaves as before
     identity = FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.3,
-                            accel_correction=(tuple(map(tuple, np.eye(3))), (0.0, 0.0, 0.0)))
+                            accel_correction=(tuple(map(tuple, np.eye(3))), (0.0, 0.0, 0.0), G))
     assert np.array_equal(run_filter(t, f, gyro, field, identity).quat, corrected)
     # and uncorrected, the raw rows tilt it
     assert not np.allclose(run_filter(t, raw, gyro, field, base).quat, corrected, atol=1e-3)
     with pytest.raises(ValueError, match="accel_correction"):
-        FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.3, accel_correction=(np.eye(3), (0.0, 0.0)))
+        FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.3, accel_correction=(np.eye(3), (0.0, 0.0), G))
 
 
 def test_an_installation_turns_the_correction_into_the_products_frame():
@@ -150,7 +150,23 @@ def test_an_installation_turns_the_correction_into_the_products_frame():
     cal = fit_accelerometer(raw, t)
     base = from_dict(calibrate_tumble(sim.mag, sim.accel).to_json() | {"accelerometer": cal.to_json()}).model
     rot = Rotation.from_euler("xyz", [10.0, -20.0, 35.0], degrees=True).as_matrix()
-    matrix, offset = installed_model(base, np.zeros(3), np.eye(3), alignment=rot).accel_correction
+    matrix, offset, one_g = installed_model(base, np.zeros(3), np.eye(3), alignment=rot).accel_correction
     # the filter reads the module's accelerometer turned into the product's frame, R a: corrected there, R A (a - b)
     assert np.allclose((raw[:20] @ rot.T - offset) @ matrix.T, cal.apply(raw[:20]) @ rot.T)
     assert np.array_equal(installed_model(base, np.zeros(3), np.eye(3)).accel_correction[0], cal.matrix)
+    assert one_g == cal.one_g  # the unit does not turn
+
+
+def test_a_stream_in_another_unit_than_the_correction_is_refused_at_the_start():
+    t, raw, f, gyro, field = _stream()
+    correction = (tuple(map(tuple, A_TRUE)), tuple(B_TRUE), G)
+    config = FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.3, accel_correction=correction)
+    rows = list(zip(t, raw, gyro, field))
+    same = FilterStart(config)
+    for i, row in enumerate(rows[:300]):
+        same.add(i, *row)
+    assert same.done and same.gravity_words is None
+    other = FilterStart(config)  # the same board read in m/s^2 where the correction was fitted in g
+    for i, (ti, a, w, b) in enumerate(rows[:300]):
+        other.add(i, ti, a * 9.80665, w, b)
+    assert other.done and "another unit" in other.gravity_words and f"{G:.4g}" in other.gravity_words
