@@ -151,6 +151,10 @@ MAX_TILT_DEG = Range(0.0, 90.0, "deg", hi_open=True)
 GRAVITY = Range(0.0, 1e6, lo_open=True)
 """What 1 g reads in an accelerometer's unit (1 in g, 9.81 in m/s^2, 1000 in mg, counts): positive,
 at most a million (a 20-bit count)."""
+ONE_G_RATIO = Range(0.7, 1.4)
+"""A stream's corrected median |a| over what 1 g read in a calibration's recording (a bench's offsets and scales, a
+tumble's accelerometer correction): within, the same unit; units differ by 4x or more (ranges' counts, m/s^2
+against g, mg), motion, noise and a board's own errors by less."""
 GYRO_SCALE_ERROR = Range(0.0, 0.2, lo_open=True)
 """``--gyro-scale-error``: a fraction of the rate, above 0 and up to 20 % (beyond, the gyro's unit or an axis is
 wrong, not its scale: ``compass.calibration.MAX_GYRO_MATRIX_ERROR``)."""

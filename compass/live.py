@@ -161,8 +161,9 @@ class LiveSession:
         Estimates whose field the gate rejected, by gate: count, sum of ``field_ratio``, sum of
         ``dip_deg`` (for :meth:`closing_hint`).
     wrong_gravity : str or None
-        Set when the start window is complete and the given gravity (``FilterConfig.gravity``, ``--gravity``) is not
-        what 1 g reads (:attr:`compass.filter.FilterStart.gravity_words`): why, in words; the session then solves
+        Set when the start window is complete and the given gravity (``FilterConfig.gravity``, ``--gravity``), or
+        the unit of the calibration's accelerometer correction, is not what 1 g reads
+        (:attr:`compass.filter.FilterStart.gravity_words`): why, in words; the session then solves
         nothing more (the commands stop on it, as on :attr:`turned_over`); None otherwise.
     axes : str or None
         Set when the field-gravity angle of the first :data:`AXES_ROWS` sampled estimates (or of the whole

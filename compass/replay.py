@@ -53,7 +53,8 @@ def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *
     -------
     LiveSession
         ``session``, closed: its ``samples``, ``skipped`` and :meth:`~LiveSession.summary` tell what happened;
-        stopped early when it found the given gravity not what 1 g reads (its ``wrong_gravity``).
+        stopped early when it found the given gravity, or the accelerometer correction's unit, not what 1 g reads
+        (its ``wrong_gravity``).
     """
     t_s = np.asarray(t_s, dtype=float)
     raw = np.asarray(raw, dtype=float)
@@ -139,8 +140,8 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     date : str, optional
         With ``site``: ``YYYY-MM-DD``.
     gravity : float, optional
-        What 1 g reads in the accelerometer's unit (in g when ``read_options`` or the header names the unit: the
-        accelerometer is then converted to g, as ``compass live --accel-unit`` converts it); default: the median |a|
+        What 1 g reads in the accelerometer's unit (in g when ``read_options`` names the unit, ``--accel-unit``:
+        the accelerometer is then converted to g, as ``compass live --accel-unit`` converts it); default: the median |a|
         of the start window.  One beyond a factor 2 of that median is refused (the filter would never use the
         accelerometer: :attr:`compass.filter.FilterStart.gravity_words`).
     mag_latency : bool
@@ -222,7 +223,9 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
                                          "(without one: compass attitude --level, no --filter)",
                              row=table.header_row, column="ax")
     table.check_dead_axis(("ax", "ay", "az"))
-    if "ax" in table.units:  # a unit named (--accel-unit, the header): in g, as compass live --accel-unit converts
+    if read_options is not None and read_options.accel_unit is not None:
+        # --accel-unit: in g, as compass live --accel-unit converts; a unit the header names alone stays the file's,
+        # as the calibrations (a bench's offsets, a tumble's accelerometer correction) read theirs
         accel = accel * units.ACCEL_UNITS[table.units["ax"]]
     t_s = table.column("t_s")
     wrong_time = time_steps_verdict(t_s, config.max_gap_s)
@@ -305,6 +308,10 @@ def _check_gyro_turn(table, gyro: np.ndarray, named: bool) -> None:
     if dead:
         words = ("never turns while the accelerometer sees the housing tilt: a dead gyro? (without gx,gy,gz columns "
                  "the two-vector filter runs)")
+    elif stuck:  # no unit makes a constant rate turn as the housing does
+        words = (f"turns {max(ratio, 1 / ratio):.0f} times {'more' if verdict == 'more' else 'less'} than the "
+                 "accelerometer sees the housing tilt")
+        stuck += " Without gx,gy,gz columns the two-vector filter runs"
     elif verdict == "more":
         words = (f"turns {ratio:.0f} times more than the accelerometer sees the housing tilt (a deg/s gyro gives 57): "
                  "give --gyro-unit deg/s (or --gyro-unit rad/s if it really is)")

@@ -227,7 +227,7 @@ def _non_finite(path: Path) -> str:
     used = [k for k, name in enumerate(rows[0]) if name in ANGLES]
     values = np.array([[float(row[k]) for k in used] for row in rows[1:]])
     shares = "/".join(f"{100 * np.mean([float(row[rows[0].index(c)]) for row in rows[1:]]):.0f}"
-                      for c in ("accel_used", "mag_used"))
+                      if c in rows[0] else "-" for c in ("accel_used", "mag_used"))  # the per-row path has neither
     return f"{int(np.sum(~np.all(np.isfinite(values), axis=1)))}/{len(values)} | {shares}"
 
 

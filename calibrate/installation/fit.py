@@ -303,8 +303,10 @@ class InstallationCalibrator(Calibrator):
             raise CannotCalibrate(f"{rec.path}: its channels ({', '.join(rec.channels)}) are not the bench "
                                   f"calibration's ({', '.join(base.channels)})")
         order = [rec.channels.index(c) for c in base.channels]
-        # the bench's mag_to_accel first: the fit's up direction is the housing's, as the runtime's
-        rec = replace(rec, channels=base.channels, raw=rec.raw[:, order], accel=bench.imu.in_model_frame(rec.accel)[0])
+        # the bench's mag_to_accel first (and a tumble's own accelerometer calibration): the fit's up direction is
+        # the housing's, as the runtime's
+        accel = base.corrected_accel(bench.imu.in_model_frame(rec.accel)[0])[0]
+        rec = replace(rec, channels=base.channels, raw=rec.raw[:, order], accel=accel)
         b, in_range = base.field(rec.raw, rec.temp_c)
         a_norm = np.linalg.norm(rec.accel, axis=1)
         quiet = (np.abs(a_norm / np.median(a_norm) - 1.0) < _QUIET) & np.all(np.isfinite(b), axis=1)

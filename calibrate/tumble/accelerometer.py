@@ -41,7 +41,7 @@ for want of determination is said in :meth:`AccelCalibration.words`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -242,8 +242,8 @@ def _fit(accel, one_g, sigma, free, x0):
     """Robust then plain fit of the ``free`` parameters: (parameters, sigmas, covariance, inliers)."""
     prob = _Problem(accel, one_g, sigma, free)
     bound = (3.0 * prob.prior)[free]  # keeps A from a sign flip of an axis, which leaves |f| unchanged
-    robust = least_squares(prob.residual, np.clip(x0, -0.9 * bound, 0.9 * bound), jac=prob.jacobian, loss="soft_l1", f_scale=3.0, method="trf",
-                           bounds=(-bound, bound), x_scale="jac")
+    robust = least_squares(prob.residual, np.clip(x0, -0.9 * bound, 0.9 * bound), jac=prob.jacobian, loss="soft_l1",
+                           f_scale=3.0, method="trf", bounds=(-bound, bound), x_scale="jac")
     r = prob.residual(robust.x)[:len(accel)] * sigma
     sigma = max(float(robust_sigma(r)), 1e-9 * one_g)
     keep = np.abs(r) < OUTLIER_SIGMAS * sigma
@@ -316,7 +316,7 @@ def fit_accelerometer(accel: np.ndarray, t_s: np.ndarray) -> AccelCalibration:
                            int(np.count_nonzero(keep)),
                            float(robust_sigma(norm / one_g - 1.0)), 0.0)
     after = np.linalg.norm(cal.apply(rows), axis=1) / one_g - 1.0
-    return AccelCalibration(**(cal.__dict__ | {"spread_after": float(robust_sigma(after))}))
+    return replace(cal, spread_after=float(robust_sigma(after)))
 
 
 def _to_hold(index: np.ndarray, ratio: np.ndarray, cov: np.ndarray) -> int:

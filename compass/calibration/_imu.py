@@ -27,6 +27,8 @@ from functools import cached_property
 
 import numpy as np
 
+from ..limits import ONE_G_RATIO
+
 __all__ = ["ImuCorrection"]
 
 
@@ -111,7 +113,8 @@ class ImuCorrection:
         return self.rotate(self.undo_bench(accel) if bench else accel)
 
     def fits(self, accel) -> bool:
-        """The readings (n, 3), corrected, read 1 g as the bench's did (median |a| within [0.7, 1.4] of it).
+        """The readings (n, 3), corrected, read 1 g as the bench's did (median |a| within
+        :data:`compass.limits.ONE_G_RATIO` of it).
 
         Always True without a bench correction (nothing to judge).
         """
@@ -119,7 +122,7 @@ class ImuCorrection:
             return True
         norms = np.linalg.norm(self.undo_bench(np.atleast_2d(accel)), axis=1)
         norms = norms[np.isfinite(norms)]
-        return norms.size > 0 and 0.7 <= float(np.median(norms)) / self.one_g <= 1.4
+        return norms.size > 0 and float(np.median(norms)) / self.one_g in ONE_G_RATIO
 
     @property
     def not_fitting(self) -> str:

@@ -603,9 +603,10 @@ def _accel_correction(block) -> tuple | None:
     matrix = _nested_3x3(block.get("matrix"), "accelerometer.matrix")
     offset = check.array(block.get("offset"), (3,), "accelerometer.offset")
     one_g = check.number(block.get("one_g"), "accelerometer.one_g", positive=True)
-    if not np.allclose(matrix, matrix.T) or np.any(np.abs(matrix - np.eye(3)) > MAX_ACCEL_MATRIX_ERROR):
-        raise CalibrationFileError(f"must be symmetric and within {MAX_ACCEL_MATRIX_ERROR:g} of the identity, got "
-                                   f"{matrix.tolist()}", key="accelerometer.matrix")
+    if (not np.allclose(matrix, matrix.T) or np.any(np.abs(matrix - np.eye(3)) > MAX_ACCEL_MATRIX_ERROR)
+            or not np.linalg.det(matrix) > 0.0):
+        raise CalibrationFileError(f"must be symmetric, of positive determinant and within {MAX_ACCEL_MATRIX_ERROR:g} "
+                                   f"of the identity, got {matrix.tolist()}", key="accelerometer.matrix")
     return matrix, offset, one_g
 
 

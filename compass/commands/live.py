@@ -184,7 +184,8 @@ def _recorded(session) -> bool:
 
 
 def _refuse(args, session) -> None:
-    """BadInput when the session found the field turned over against ``--site``, or ``--gravity`` not what 1 g reads."""
+    """BadInput when the session found the field turned over against ``--site``, or ``--gravity`` (or the
+    calibration's accelerometer correction's unit) not what 1 g reads."""
     from ..cli import BadInput
 
     if session.turned_over is not None:

@@ -90,6 +90,12 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig, *, reference=Non
     Returns
     -------
     FilterTrack
+
+    Raises
+    ------
+    ValueError
+        Shapes that do not match; a ``config.gravity`` or an accelerometer correction whose unit is not the
+        stream's (:attr:`FilterStart.gravity_words`), as ``compass live`` and the replay refuse them.
     """
     t_s = np.asarray(t_s, dtype=float)
     accel = np.asarray(accel, dtype=float)
@@ -138,6 +144,8 @@ def run_filter(t_s, accel, gyro, field_h, config: FilterConfig, *, reference=Non
     def begin():
         """The filter from the start window, and the held samples through it."""
         nonlocal filt, update, d
+        if start.gravity_words is not None:  # as compass live and the replay refuse it
+            raise ValueError(start.gravity_words)
         filt = start.make_filter(gyro is not None)
         for name in SKIP_REASONS:  # what the start skipped counts with the filter's own skips
             for _ in range(getattr(start_skips, name.replace(" ", "_"))):

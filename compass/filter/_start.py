@@ -27,6 +27,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..limits import ONE_G_RATIO
 from ..sample_check import skip_codes
 from ..site import QuietSeed
 from ._base import AttitudeFilter, exp_matrix, mat_mul
@@ -106,16 +107,16 @@ class FilterStart:
 
     @property
     def gravity_words(self) -> str | None:
-        """Once :attr:`done`: why the given gravity (``FilterConfig.gravity``), or the unit of the accelerometer's
-        own calibration (``FilterConfig.accel_correction``'s ``one_g``), cannot be what 1 g reads, beyond
-        :data:`GRAVITY_FACTOR` of the window's median |a| (corrected), in words; None when they can, or none was
-        given."""
+        """Once :attr:`done`: why the given gravity (``FilterConfig.gravity``: beyond :data:`GRAVITY_FACTOR` of the
+        window's median |a|), or the unit of the accelerometer's own calibration (``FilterConfig.accel_correction``'s
+        ``one_g``: the window's corrected median |a| over it outside :data:`compass.limits.ONE_G_RATIO`), cannot be
+        what 1 g reads, in words; None when they can, or none was given."""
         v = self.values
         seen = None if v is None else v.window_gravity
         if seen is None or not seen > 0.0:
             return None
         given, correction = self.config.gravity, self.config.accel_correction
-        if correction is not None and max(correction[2] / seen, seen / correction[2]) > GRAVITY_FACTOR:
+        if correction is not None and seen / correction[2] not in ONE_G_RATIO:
             return (f"the calibration's accelerometer correction was fitted where 1 g read {correction[2]:.4g}, but "
                     f"this stream's corrected |a| over the start's {v.rows} rows is {seen:.4g}: another unit; send "
                     "the accelerometer in the calibration recording's unit (without --accel-unit converting it)")

@@ -413,8 +413,9 @@ def _with_column(path, column, values):
     ("rad/s named deg/s", "read in deg/s turns 60 times less than the accelerometer sees the housing tilt"),
     ("five rows", "no attitude from its 5 rows (the filter's start seeds the reference field from at least 10 rows; "
                   "give --site"),
-    ("gyro at a rail", "(or --gyro-unit rad/s if it really is); it holds 4.3633, 4.3633, -4.3633 in every sample: a "
-                       "gyro stuck at a rail"),
+    ("gyro at a rail", "than the accelerometer sees the housing tilt; it holds 4.3633, 4.3633, -4.3633 in every "
+                       "sample: a gyro stuck at a rail (disconnected, or a part that failed)? Without gx,gy,gz columns "
+                       "the two-vector filter runs"),
     ("gyro all NaN", "row 2, column 'gx': expected a finite number, found nan (as in all 3000 rows of gx: a sensor not "
                      "recorded? leave its columns out)"),
     ("t_s restarting", "row 1502, column 't_s': t_s must not decrease (goes from 14.99"),
@@ -425,9 +426,9 @@ def test_the_command_refuses_what_it_would_fuse_wrong_in_one_line(files, stream,
     """Time stamps that do not tell the time between samples (all equal, or in ms: every step a gap that restarts
     the filter; a clock restarting mid-file), a gyro that reads zero while the housing tilts (fused as a still
     housing) or one value off zero (stuck at a rail: said besides the unit it would be), a rad/s gyro whose header
-    says deg/s (fused 57 times too slow), a gyro column of NaN, fewer rows than the start needs, a --gravity in m/s^2 where
-    --accel-unit m/s2 makes the accelerometer read in g (it was never used: 0 % of the rows): exit 2, one line naming
-    the file and column, nothing written (replayed, each gives a wrong attitude, or 3000 restart lines); five rows are
+    says deg/s (fused 57 times too slow), a gyro column of NaN, fewer rows than the start needs, a --gravity in m/s^2
+    where --accel-unit m/s2 makes the accelerometer read in g (it was never used: 0 % of the rows): exit 2, one line
+    naming the file and column, nothing written (replayed, each gives a wrong attitude, or 3000 restart lines); five rows are
     refused with the reason, not the session's counters."""
     _, t, s = stream
     cal, recording = files

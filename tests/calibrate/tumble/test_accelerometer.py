@@ -110,6 +110,9 @@ def test_the_file_round_trips_and_a_file_without_the_key_reads_as_before():
     bad = cal.to_json() | {"matrix": (cal.matrix + np.triu(np.full((3, 3), 0.1), 1)).tolist()}
     with pytest.raises(CalibrationFileError, match="symmetric"):
         from_dict(doc | {"accelerometer": bad})
+    singular = cal.to_json() | {"matrix": [[0.5, 0.5, 0.0], [0.5, 0.5, 0.0], [0.0, 0.0, 1.0]]}
+    with pytest.raises(CalibrationFileError, match="positive determinant"):
+        from_dict(doc | {"accelerometer": singular})
 
 
 def _stream(seconds=30.0):
@@ -170,3 +173,27 @@ def test_a_stream_in_another_unit_than_the_correction_is_refused_at_the_start():
     for i, (ti, a, w, b) in enumerate(rows[:300]):
         other.add(i, ti, a * 9.80665, w, b)
     assert other.done and "another unit" in other.gravity_words and f"{G:.4g}" in other.gravity_words
+
+
+def test_the_per_row_path_corrects_as_the_filter_does_and_not_in_another_unit():
+    from compass.io.units import RecordingWarning
+
+    sim = simulate_tumble(seed=1, n=1500)
+    raw, t = _dwells(_directions(40))
+    cal = fit_accelerometer(raw, t)
+    model = from_dict(calibrate_tumble(sim.mag, sim.accel).to_json() | {"accelerometer": cal.to_json()}).model
+    config = FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.3, accel_correction=model.accel_correction)
+    corrected, applied = model.corrected_accel(raw[:50])
+    assert applied and np.allclose(corrected, [config.housing_accel(tuple(a)) for a in raw[:50]], atol=1e-12)
+    with pytest.warns(RecordingWarning, match="another unit"):
+        same, applied = model.corrected_accel(raw[:50] * 9.80665)
+    assert not applied and np.array_equal(same, raw[:50] * 9.80665)
+
+
+def test_run_filter_refuses_a_stream_in_another_unit_as_live_does():
+    t, raw, f, gyro, field = _stream(seconds=5.0)
+    config = FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.3,
+                          accel_correction=(tuple(map(tuple, A_TRUE)), tuple(B_TRUE), G))
+    assert np.all(np.isfinite(run_filter(t, raw, gyro, field, config).quat[-10:]))
+    with pytest.raises(ValueError, match="another unit"):
+        run_filter(t, raw / 9.80665, gyro, field, config)
