@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from copy import copy
 from dataclasses import replace
 from importlib.util import find_spec
 from pathlib import Path
@@ -61,7 +62,7 @@ FILE_REMOVED = ((),) + tuple((name,) for name in REMOVED) + (
 def methods(names) -> dict:
     """Our candidates ``names`` (bench_broad's), "fitted" (the scale error and the accelerometer's correction of the
     trial's calibration file, ``trial.fitted``: :func:`calibration`), "fitted, accel as read" (its scale error only)
-    and VQF when it is installed."""
+    and VQF when it is installed (as read, and given the file's accelerometer correction)."""
     out = {name: ours(*(CANDIDATES | TURN_VARIANTS)[name]) for name in names}
     out["fitted, accel as read"] = ours({"gyro_scale_error": "fitted"})
     out["fitted"] = ours({"gyro_scale_error": "fitted", "accel_correction": "fitted"})
@@ -69,7 +70,19 @@ def methods(names) -> dict:
         print("skipping vqf: not installed (pip install -e '.[bench]')")
     else:
         out["vqf"] = vqf_online
+        out["vqf, accel fitted"] = vqf_accel_fitted
     return out
+
+
+def vqf_accel_fitted(trial):
+    """VQF given the file's accelerometer correction too (``A (a - b)``; as read where the file has none)."""
+    correction = trial.fitted["accel_correction"]
+    if correction is None:
+        return vqf_online(trial)
+    matrix, offset, _ = correction
+    given = copy(trial)
+    given.accel_m_s2 = (trial.accel_m_s2 - np.asarray(offset)) @ np.asarray(matrix).T
+    return vqf_online(given)
 
 
 def scores(trial, quat_enu) -> dict[str, tuple[float, float]]:
