@@ -40,9 +40,9 @@ def register(sub) -> None:
                         "present): the same start, gate and Kalman filter, the columns of live --out plus the "
                         "quaternion qw,qx,qy,qz (R_world<-housing); instead of solving each row alone")
     p.add_argument("--gravity", type=limits.GRAVITY.option("--gravity"), metavar="G",
-                   help="with --filter: what 1 g reads in the accelerometer's unit, in g when --accel-unit or the "
-                        "header names one (default: the median |a| of the recording's first quiet second; one beyond "
-                        "a factor 2 of that is refused)")
+                   help="with --filter: what 1 g reads in the accelerometer's unit, in g when --accel-unit names one "
+                        "(default: the median |a| of the recording's first quiet second; one beyond a factor 2 of "
+                        "that is refused)")
     add_mag_latency_argument(p, with_filter=True)
     p.add_argument("--force", action="store_true", help="overwrite an existing output file")
     add_rerun_option(p)
