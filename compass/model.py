@@ -303,29 +303,29 @@ class SensorModel:
         pairs = [r.field_component(raw[..., c]) for c, r in enumerate(self.responses)]
         return np.stack([p[0] for p in pairs], axis=-1), np.stack([p[1] for p in pairs], axis=-1) & valid
 
-    def corrected_accel(self, accel) -> tuple[np.ndarray | None, bool]:
+    def corrected_accel(self, accel) -> np.ndarray | None:
         """Accelerometer readings (n, 3) through :attr:`accel_correction` (``A (a - b)``, as
-        :meth:`compass.filter.FilterConfig.housing_accel` corrects each sample), and whether it was applied.
+        :meth:`compass.filter.FilterConfig.housing_accel` corrects each sample).
 
-        Not applied (a :class:`compass.io.units.RecordingWarning`) when the corrected median |a| does not read 1 g
+        As given (and a :class:`compass.io.units.RecordingWarning`) when the corrected median |a| does not read 1 g
         as the calibration's recording did (``one_g``, within :data:`compass.limits.ONE_G_RATIO`, as
-        :meth:`compass.calibration.ImuCorrection.fits` judges): another unit.  ``accel`` None, or no correction: as given, False.
+        :meth:`compass.calibration.ImuCorrection.fits` judges): another unit.  As given without a correction.
         """
         if accel is None or self.accel_correction is None:
-            return accel, False
+            return accel
         matrix, offset, one_g = self.accel_correction
         corrected = (np.asarray(accel, dtype=float) - offset) @ np.asarray(matrix).T
         norms = np.linalg.norm(corrected, axis=1)
         norms = norms[np.isfinite(norms)]
         if norms.size and float(np.median(norms)) / one_g in ONE_G_RATIO:
-            return corrected, True
+            return corrected
         import warnings
 
         from .io.units import RecordingWarning
 
         warnings.warn(RecordingWarning(f"the accelerometer does not read 1 g as in the calibration's recording "
                                        f"({one_g:.4g}): another unit? Its correction is not applied"))
-        return accel, False
+        return accel
 
     def field(self, raw, temp_c=None) -> tuple[np.ndarray, np.ndarray]:
         """Field vector in the housing frame H from channel outputs.

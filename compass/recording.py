@@ -173,7 +173,7 @@ def solve_recording(calibration, recording, *, level=False, max_tilt_deg=5.0, ac
         accel = tilt_sensor.up(tilt_raw)
     # the bench's offsets undone, turned into H (and an installed file's product frame)
     accel, bench_fix_applied = cal.imu.in_model_frame(accel)
-    accel = model.corrected_accel(accel)[0]  # a tumble's own accelerometer calibration, as the filter applies it
+    accel = model.corrected_accel(accel)  # a tumble's own accelerometer calibration, as the filter applies it
     tilt = table.group(TILT)
     if accel is not None:
         _check_rows(table, np.sum(accel**2, axis=1) > 0, "ax", "accelerometer reads zero: expected gravity")

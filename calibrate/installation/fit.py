@@ -305,7 +305,7 @@ class InstallationCalibrator(Calibrator):
         order = [rec.channels.index(c) for c in base.channels]
         # the bench's mag_to_accel first (and a tumble's own accelerometer calibration): the fit's up direction is
         # the housing's, as the runtime's
-        accel = base.corrected_accel(bench.imu.in_model_frame(rec.accel)[0])[0]
+        accel = base.corrected_accel(bench.imu.in_model_frame(rec.accel)[0])
         rec = replace(rec, channels=base.channels, raw=rec.raw[:, order], accel=accel)
         b, in_range = base.field(rec.raw, rec.temp_c)
         a_norm = np.linalg.norm(rec.accel, axis=1)

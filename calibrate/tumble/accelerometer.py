@@ -321,7 +321,8 @@ def fit_accelerometer(accel: np.ndarray, t_s: np.ndarray) -> AccelCalibration:
 
 def _to_hold(index: np.ndarray, ratio: np.ndarray, cov: np.ndarray) -> int:
     """The parameter to hold next (of ``index``, the free ones): the least determined (the largest ``ratio``, sigma
-    over its limit), or the cross term it trades with (correlation beyond :data:`TRADE_CORRELATION`) when it is an offset:
+    over its limit), or the cross term it trades with (correlation beyond :data:`TRADE_CORRELATION`) when it is an
+    offset:
     on a cap the offset across the cap's axis ``n`` and the cross term of that axis with ``n`` differ only in
     ``t^2``, and a board's offsets (tens of mg) outweigh its cross-axis sensitivity (the datasheet's 2 %)."""
     k = int(np.argmax(ratio))

@@ -170,7 +170,7 @@ class TumbleResult(CalibrationResult):
         """
         if self.refused:
             raise ValueError(f"a refused tumble calibration has no calibration file: {self.refused}")
-        fit, mis = self.fit, self.misalignment
+        fit, mis, accelerometer = self.fit, self.misalignment, self.accelerometer_block()
         return header("tumble") | {
             "hard_iron": fit.hard_iron.tolist(),
             "soft_iron": self.soft_iron.tolist(),
@@ -205,7 +205,7 @@ class TumbleResult(CalibrationResult):
             },
             "warnings": list(self.warnings),
         } | ({"channel_health": self.health} if self.health else {}) | (
-            {"accelerometer": self.accelerometer_block()} if self.accelerometer_block() is not None else {})
+            {} if accelerometer is None else {"accelerometer": accelerometer})
 
     def report(self) -> str:
         """A fit report for a person: values +- sigma, the kinds compared, coverage and warnings in words."""

@@ -428,8 +428,8 @@ def test_the_command_refuses_what_it_would_fuse_wrong_in_one_line(files, stream,
     housing) or one value off zero (stuck at a rail: said besides the unit it would be), a rad/s gyro whose header
     says deg/s (fused 57 times too slow), a gyro column of NaN, fewer rows than the start needs, a --gravity in m/s^2
     where --accel-unit m/s2 makes the accelerometer read in g (it was never used: 0 % of the rows): exit 2, one line
-    naming the file and column, nothing written (replayed, each gives a wrong attitude, or 3000 restart lines); five rows are
-    refused with the reason, not the session's counters."""
+    naming the file and column, nothing written (replayed, each gives a wrong attitude, or 3000 restart lines); five
+    rows are refused with the reason, not the session's counters."""
     _, t, s = stream
     cal, recording = files
     rec = recording(accel_scale=9.80665 if case == "gravity in m/s^2" else 1.0)
