@@ -1,13 +1,14 @@
 """A gyro that saturates in flicks: the filter before (``--baseline``) and now, and VQF, on the same clipped samples.
 
-Run: ``python tools/bench_gyro_rail.py [--first-seed 60] [--seeds 10] [--rails 250,500] [--baseline 5e858bb]``
-(VQF from ``PYTHONPATH=...:/tmp/lever_pkgs`` or ``pip install -e '.[bench]'``).
+Run: ``python tools/bench_gyro_rail.py [--first-seed 60] [--seeds 10] [--rails 250,500] [--baseline 5e858bb]
+[--lever-m 0.1]`` (VQF from ``PYTHONPATH=...:/tmp/lever_pkgs`` or ``pip install -e '.[bench]'``).
 
 Each seed is the simulated module (:func:`compass.sim.device.simulate_device`, 200 Hz, 58 s, 0.15 uT) rocked
 gently (pitch and roll 5-10 deg, seeded frequencies) and flicked four times, 12 s apart from 10 s: about the
 vertical (90 deg of heading) twice, about pitch and about roll (60 deg) once each, in a seeded order, each a half
 cosine whose peak rate is 1.2-3 times the rail (seeded).  Its gyro is read as a 16-bit part at that full scale
-(quantised to rail / 32768 and clipped at the rail), once at 250 and once at 500 deg/s; at 2000 deg/s nothing
+(quantised to rail / 32768 and clipped at the rail), once at 250 and once at 500 deg/s, the accelerometer
+``--lever-m`` from the turn's centre (a wrist's 0.1 m: up to 3 g in a flick; 0: at it); at 2000 deg/s nothing
 clips, and the filter before and now must agree bit for bit (printed).  Printed per rail and method, pooled over
 the seeds: heading and inclination RMS over the run (after 5 s), the same over the 10 s after each flick, and the
 time from the flick's end until both errors stay within 2 deg for 1 s (10 s: not within the window); per flick
