@@ -106,7 +106,8 @@ class GyroRail:
 
     A gyro turned faster than its full scale reads the full scale: the turn beyond it is lost, and the attitude
     is off by it (a 565 deg/s flick on a 250 deg/s gyro: 35 deg of heading) until the field and the
-    accelerometer correct it.  Nothing here changes the samples: :meth:`feed` says it, once.
+    accelerometer correct it; the gyro filter learns the rail by the same rule and takes the hidden turn as noise
+    (:mod:`compass.filter._rail`).  Nothing here changes the samples: :meth:`feed` says it, once.
 
     Examples
     --------

@@ -24,6 +24,11 @@ persists (correlation time ~1 s), and the bias random walk:
     Q_\\epsilon = \\big(\\sigma_g^2 + s^2 |\\omega|^2 \\tau_s\\big)\\,\\Delta t\\; I, \\qquad
     Q_b = \\sigma_{bw}^2 \\Delta t\\; I .
 
+A gyro axis held at its rail (saturated) hides the turn beyond it: after ``T`` s at the rail ``r`` the attitude is
+off by an unknown excess of one sign, and ``Q_epsilon`` gains ``(k r T)^2`` on each world axis over the run (``k``
+= 1; the inertial low-pass restarts, and the field waits while the tilt it widened would move its azimuth:
+:mod:`._rail`).  Readings that never reach a rail change nothing.
+
 Accelerometer: it reads specific force ``f = R^T (g z + a_motion)``.  Hand-held motion has bounded
 velocity, so ``a_motion`` has no power at low frequency: the specific force is low-passed (time
 constant ``accel_time_constant_s``, tau) in the gyro-propagated inertial frame, as VQF does, which

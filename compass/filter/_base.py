@@ -272,8 +272,10 @@ class AttitudeFilter:
         if s.t_back_s is not None:  # kept aside, the sample skipped: the next time tells a corrupted one from a restart
             self._skip("t_s went back")
             return None
+        self._reading = None
         if gyro is not None and self.gyro:
             w = self._vector(gyro, "gyro", 0.0, self._gyro_range2)
+            self._reading = w  # as sent: where it reads a rail (GyroFilter)
             if w is not None:
                 s.rate_rad_s = self.config.housing_rate(w)  # the gyro's scale and axes, before anything reads the rate
         if accel is not None and self.config.accel_correction is not None:

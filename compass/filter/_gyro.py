@@ -19,6 +19,7 @@ from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_h
 from ._gate import GateState
 from ._lever import LeverState, acceleration, add_sample, leftover, restart, restart_block
 from ._place import PLACE_EVENT, PlaceDetector, PlaceState
+from ._rail import RAIL_MIN2, RailState, rail_variances
 from ._records import _REST_RATE_SIGMA, _REST_TAU_S, Diagnostics, SkipCounts
 
 __all__ = ["GyroFilter", "GyroState"]
@@ -109,6 +110,11 @@ class GyroState(PackedCovariance):
         The place detector's window (``FilterConfig.follow_place``).
     lever : LeverState
         The lever arm's fit and the low-pass of its velocity (``FilterConfig.lever_arm``).
+    rail : RailState
+        The watch for a gyro axis held at its rail (:mod:`compass.filter._rail`).
+    acc_lp_span_s : float
+        Time since a run on the gyro's rail last restarted the inertial low-pass, s (inf: none since the start):
+        until it reaches ``accel_time_constant_s`` the first-order low-pass is the mean of the samples since.
     """
 
     t_s: float | None
@@ -137,6 +143,8 @@ class GyroState(PackedCovariance):
     rest_pending: deque = field(default_factory=deque)
     start_rest: bool = True
     lever: LeverState = field(default_factory=LeverState)
+    rail: RailState = field(default_factory=RailState)
+    acc_lp_span_s: float = math.inf
 
 
 class GyroFilter(AttitudeFilter):
@@ -194,6 +202,10 @@ class GyroFilter(AttitudeFilter):
         if dt > 0.0:
             self._propagate(dt)
             self._s.since_start_s += dt
+            w = self._reading
+            if w is not None and (w[3] >= RAIL_MIN2 or self._s.rail.last is not None) and self._rail(dt, w) \
+                    and a is not None:
+                self._restart_low_pass(a)
         if a is not None:
             if dt > 0.0:
                 self._rest(dt, a)
@@ -269,6 +281,39 @@ class GyroFilter(AttitudeFilter):
         q_att = (c.gyro_var + c.scale_var * (wx * wx + wy * wy + wz * wz)) * dt
         s.covariance = predict_gyro(s.covariance, m, dt, q_att, c.bias_walk_var * dt)
 
+    def _rail(self, dt: float, w: tuple) -> bool:
+        """The turn a gyro axis held at its rail hid, as attitude noise (:mod:`compass.filter._rail`): its variance
+        on each world axis, uncorrelated; ``w`` the reading as sent, ``(x, y, z, |w|^2)``, rad/s.  True when an axis
+        is on its rail."""
+        s, g = self._s, self.config.gyro_matrix
+        added = rail_variances(s.rail, w, dt)
+        s.rail.tilt_open = s.rail.tilt_open or bool(added)
+        for i, var in added:
+            if g is not None:  # about the housing axis G e_i, of length |G e_i|
+                var *= g[0][i] ** 2 + g[1][i] ** 2 + g[2][i] ** 2
+            p = s.covariance
+            s.covariance = (p[0] + var,) + p[1:6] + (p[6] + var,) + p[7:11] + (p[11] + var,) + p[12:]
+        return bool(added)
+
+    def _rail_tilt_open(self) -> bool:
+        """Whether the tilt a run on the gyro's rail left uncertain still moves the field's azimuth by more than the
+        heading's settled sigma (``tan(dip)`` times it).  That error is the tilt state's, the same in every sample, not
+        noise: field samples taken through it would settle the heading on it, so the heading waits for the
+        accelerometer (:mod:`compass.filter._rail`)."""
+        c, s = self.coefficients, self._s
+        s.rail.tilt_open = c.tan_dip2 * self.tilt_var > c.settled_var
+        return s.rail.tilt_open
+
+    def _restart_low_pass(self, a) -> None:
+        """The inertial low-pass from this sample on: its content was turned by the clipped gyro, so it carries the
+        turn the rail hid and the tilt measurement is blind to it.  The first-order one is then the mean of the
+        samples since (``acc_lp_span_s``) until ``accel_time_constant_s`` has passed (one sample's motion does not
+        stay in it for a time constant); the motion's measured residual is kept."""
+        s = self._s
+        s.acc_lp, s.acc_lp_rate, s.age_lp = a[:3], (0.0, 0.0, 0.0), (s.since_start_s, 0.0)
+        s.acc_lp_age_s, s.acc_lp_span_s = 0.0, 0.0
+        restart(s.lever)
+
     def _rest(self, dt: float, a) -> None:
         """VQF's rest detector; at rest the gyro reading measures its bias, once the rest has held
         ``FilterConfig.rest_confirm_s`` beyond it (rest confirmed on both sides: the onset of a slow turn, below
@@ -339,6 +384,9 @@ class GyroFilter(AttitudeFilter):
                 lx, ly, lz = self._low_pass2(dt, ax, ay, az)
             else:
                 alpha = -math.expm1(-dt / cfg.accel_time_constant_s)
+                if s.acc_lp_span_s < cfg.accel_time_constant_s:  # restarted by the gyro's rail: the mean since
+                    s.acc_lp_span_s += dt
+                    alpha = max(alpha, dt / s.acc_lp_span_s)
                 lx, ly, lz = lx + alpha * (ax - lx), ly + alpha * (ay - ly), lz + alpha * (az - lz)
                 s.acc_lp = (lx, ly, lz)
                 s.acc_lp_age_s = (1.0 - alpha) * (s.acc_lp_age_s + dt)
@@ -438,6 +486,8 @@ class GyroFilter(AttitudeFilter):
             self._follow_place(dt, b)
         innovation = heading_innovation(m, bx, by, bz, s.gate.ref_azimuth_rad)
         d.mag_used = self._gate_field(t_s, dt, b, innovation) == "ok"
+        if d.mag_used and s.rail.tilt_open and self._rail_tilt_open():
+            d.mag_used, d.gate = False, "dip"
         if d.mag_used:
             p = s.covariance
             mode = self.config.field_update
