@@ -30,7 +30,7 @@ HINT_MIN_SAMPLES = 50
 """Fewest estimates a closing hint judges."""
 HINT_REJECTED_SHARE = 0.8
 """Share of estimates with the field rejected above which the session ends with a hint."""
-GATE_CODES = {"ok": 0, "norm": 1, "dip": 2, "innovation": 3, "absent": 4}
+GATE_CODES = {"ok": 0, "norm": 1, "dip": 2, "innovation": 3, "absent": 4, "rail": 5}
 CSV_COLUMNS = ("t_s", "heading_deg", "pitch_deg", "roll_deg", "heading_sigma_deg", "tilt_sigma_deg", "field_ratio",
                "dip_deg", "mag_used", "gate", "accel_used", "in_range", "latency_ms")
 _CSV_ROW = "%.4f,%.3f,%.3f,%.3f,%.3f,%.3f,%.4f,%.2f,%d,%d,%d,%d,%.3f"
@@ -549,7 +549,9 @@ class LiveSession:
                     "norm": f"its |B| read {ratio_sum / n:.3f} of the reference's on average (the gate allows "
                             f"1 +- {self.config.field_tolerance:g})",
                     "innovation": "the heading it gave disagreed with the gyro's (a gyro unit? --gyro-unit)",
-                    "absent": "no field reading came"}.get(gate, gate)
+                    "absent": "no field reading came",
+                    "rail": "it waited for the accelerometer to bring back the tilt a gyro axis held at its range left "
+                            "open (a gyro stuck at a rail? a turn beyond the gyro's range?)"}.get(gate, gate)
         site = (f"; the reference is {ref.description}: a site far from the module, or a date long past, does "
                 f"the same" if ref is not None and ref.source == "site" else "")
         return (f"the field was rejected in {100 * total / self.samples:.0f} % of the estimates, mostly for its "

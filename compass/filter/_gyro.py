@@ -19,7 +19,7 @@ from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_h
 from ._gate import GateState
 from ._lever import LeverState, acceleration, add_sample, leftover, restart, restart_block
 from ._place import PLACE_EVENT, PlaceDetector, PlaceState
-from ._rail import RAIL_MIN2, RailState, rail_variances
+from ._rail import RAIL_MIN2, RAIL_WAIT_S, RailState, rail_variances
 from ._records import _REST_RATE_SIGMA, _REST_TAU_S, Diagnostics, SkipCounts
 
 __all__ = ["GyroFilter", "GyroState"]
@@ -31,6 +31,7 @@ _TURN_BOUND = float(chdtri(1, 0.001))  # a new place's North turned beyond its h
 _NORTH = {(True, True): " (North moves with it)", (False, True): " (within the heading error: North kept)",
           (False, False): " (North re-learnt from it: the last one was adopted on a timeout)"}
 _ORTHONORMALISE_EVERY = 1000  # samples between re-orthonormalisations of the nominal matrix
+_ANGLE_VAR_MAX = math.pi**2  # rad^2: an attitude error is an angle; the gyro's rail adds no more (compass.filter._rail)
 
 
 def heading_innovation(m: tuple, bx: float, by: float, bz: float, azimuth_rad: float = 0.0) -> float:
@@ -114,7 +115,8 @@ class GyroState(PackedCovariance):
         The watch for a gyro axis held at its rail (:mod:`compass.filter._rail`).
     acc_lp_span_s : float
         Time since a run on the gyro's rail last restarted the inertial low-pass, s (inf: none since the start):
-        until it reaches ``accel_time_constant_s`` the first-order low-pass is the mean of the samples since.
+        until it reaches ``accel_time_constant_s`` the first-order low-pass is the mean of the samples since (the
+        second-order one restarts and does not read it).
     """
 
     t_s: float | None
@@ -214,6 +216,9 @@ class GyroFilter(AttitudeFilter):
             d.accel_used = False
             if self._lever:
                 restart_block(self._s.lever)
+        rail = self._s.rail
+        if rail.tilt_open:
+            rail.unmeasured_s = 0.0 if d.accel_used else rail.unmeasured_s + dt
         self._heading(t_s, dt, b)
         self._inject()
         return True
@@ -234,8 +239,9 @@ class GyroFilter(AttitudeFilter):
         s.covariance = (p0, 0.0, 0.0, 0.0, 0.0, 0.0, p1, 0.0, 0.0, 0.0, 0.0, p2, 0.0, 0.0, 0.0) + s.covariance[15:]
         self._x[:] = [0.0] * 6
         s.acc_lp, s.acc_lp_rate, s.age_lp = a[:3], (0.0, 0.0, 0.0), (0.0, 0.0)
-        s.acc_lp_age_s = 0.0
+        s.acc_lp_age_s, s.acc_lp_span_s = 0.0, math.inf
         restart(s.lever)
+        s.rail.restart()
         s.residual_var, s.acc_residual = 0.0, (0.0, 0.0, 0.0)
         s.rest_gyro, s.rest_acc, s.rest_s = s.rate_rad_s, a[:3], 0.0
         s.rest_pending.clear()
@@ -287,22 +293,25 @@ class GyroFilter(AttitudeFilter):
         is on its rail."""
         s, g = self._s, self.config.gyro_matrix
         added = rail_variances(s.rail, w, dt)
-        s.rail.tilt_open = s.rail.tilt_open or bool(added)
+        if added and not s.rail.tilt_open:
+            s.rail.tilt_open, s.rail.unmeasured_s = True, 0.0
         for i, var in added:
             if g is not None:  # about the housing axis G e_i, of length |G e_i|
                 var *= g[0][i] ** 2 + g[1][i] ** 2 + g[2][i] ** 2
             p = s.covariance
-            s.covariance = (p[0] + var,) + p[1:6] + (p[6] + var,) + p[7:11] + (p[11] + var,) + p[12:]
+            # each diagonal entry stops at pi^2 (an angle); a non-negative diagonal added keeps P positive
+            d0, d1, d2 = (min(var, max(0.0, _ANGLE_VAR_MAX - p[k])) for k in (0, 6, 11))
+            s.covariance = (p[0] + d0,) + p[1:6] + (p[6] + d1,) + p[7:11] + (p[11] + d2,) + p[12:]
         return bool(added)
 
     def _rail_tilt_open(self) -> bool:
         """Whether the tilt a run on the gyro's rail left uncertain still moves the field's azimuth by more than the
         heading's settled sigma (``tan(dip)`` times it).  That error is the tilt state's, the same in every sample, not
         noise: field samples taken through it would settle the heading on it, so the heading waits for the
-        accelerometer (:mod:`compass.filter._rail`)."""
-        c, s = self.coefficients, self._s
-        s.rail.tilt_open = c.tan_dip2 * self.tilt_var > c.settled_var
-        return s.rail.tilt_open
+        accelerometer, while one measures the tilt (:data:`~compass.filter._rail.RAIL_WAIT_S`; :mod:`._rail`)."""
+        c, rail = self.coefficients, self._s.rail
+        rail.tilt_open = c.tan_dip2 * self.tilt_var > c.settled_var and rail.unmeasured_s < RAIL_WAIT_S
+        return rail.tilt_open
 
     def _restart_low_pass(self, a) -> None:
         """The inertial low-pass from this sample on: its content was turned by the clipped gyro, so it carries the
@@ -487,7 +496,7 @@ class GyroFilter(AttitudeFilter):
         innovation = heading_innovation(m, bx, by, bz, s.gate.ref_azimuth_rad)
         d.mag_used = self._gate_field(t_s, dt, b, innovation) == "ok"
         if d.mag_used and s.rail.tilt_open and self._rail_tilt_open():
-            d.mag_used, d.gate = False, "dip"
+            d.mag_used, d.gate = False, "rail"
         if d.mag_used:
             p = s.covariance
             mode = self.config.field_update

@@ -15,7 +15,7 @@ so the run's total is ``(k r T)^2`` on each world axis.  ``k`` is :data:`RAIL_EX
 sine of peak ``rho r`` loses ``k(rho) r T`` with ``k`` = 0.13, 0.33, 0.65, 0.98, 1.30, 3.2 at ``rho`` = 1.2, 1.5, 2,
 2.5, 3, 6 (a triangular profile about 3/4 of that): ``k = 1`` is one sigma for the flicks of 2.5-3 times the rail a
 hand gives a 250 deg/s part (a 565 deg/s flick: 2.3 times, 35 deg lost over 0.18 s), three sigma for a 6 times one.
-The error is capped at pi (an angle).  The direction is known, but the rank-one ``u u^T`` correlates the heading with
+The error of one run is capped at pi (an angle).  The direction is known, but the rank-one ``u u^T`` correlates the heading with
 the tilt, so the accelerometer's tilt then sets the heading (by ``u_z / u_h``), and reads an unseen clip of another
 axis (one not yet learnt) or the low-pass's motion along ``u``.  The isotropic bound (each component of the error
 is at most ``|u| k r T``) has no such path: measured before the field's wait below (``tools/bench_gyro_rail.py``,
@@ -27,9 +27,11 @@ attitude back at once.  The heading's gate tests the innovation only while the h
 ``settled_var``, ``(heading_tolerance_deg / 3)^2``: an inflated heading is not settled, so the field's 35 deg
 innovation is accepted, weighted by that variance (its |B| and dip tests stay).  But while the tilt the run widened
 moves the field's azimuth by more than the settled heading sigma (``tan(dip)`` times the tilt sigma), the field
-waits, its gate said as ``"dip"``: that azimuth error is the tilt state's, the same in every sample, not noise, and
+waits, its gate said as ``"rail"``: that azimuth error is the tilt state's, the same in every sample, not noise, and
 field samples taken through it settle the heading on it (without this wait two held-out seeds kept 30-45 deg of
-heading after a roll flick, then locked out by the innovation test).  The inertial low-pass was turned by the
+heading after a roll flick, then locked out by the innovation test).  It waits for an accelerometer that measures
+the tilt: one absent or refused for :data:`RAIL_WAIT_S` ends the wait (a stream without one would wait for ever).
+The added variance stops at ``pi^2`` on each axis, over every run (an angle).  The inertial low-pass was turned by the
 clipped rate too, so its content carries the same error and the tilt measurement is blind to it: each sample on
 the rail restarts it, and the first-order one is then the mean of the samples since until
 ``accel_time_constant_s`` has passed (``GyroFilter._restart_low_pass``).
@@ -44,7 +46,7 @@ rails differ by one count, 3e-5 of the range).  A turning gyro repeats a reading
 about ``count / (sqrt(4 pi) sigma)`` = 0.17; ten in a row, 1e-7 per sample and axis (one false rail in about three
 days of turning faster than 2 rad/s at 100 Hz), and a false rail then inflates only readings within 0.1 % of it,
 each by about ``(r dt)^2`` (1 deg at 2 rad/s, 100 Hz), which the field takes back.  Readings that never reach a rail
-change nothing (the state stays idle while no axis reads 2 rad/s).
+change nothing (the state stays idle while ``|w|`` is below 2 rad/s).
 """
 
 from __future__ import annotations
@@ -54,14 +56,17 @@ from dataclasses import dataclass, field
 
 from ..sample_check import RAIL_MIN_RAD_S, RAIL_SAMPLES
 
-__all__ = ["RAIL_EXCESS", "RAIL_MIN2", "RAIL_TOLERANCE", "RailState", "rail_variances"]
+__all__ = ["RAIL_EXCESS", "RAIL_MIN2", "RAIL_TOLERANCE", "RAIL_WAIT_S", "RailState", "rail_variances"]
 
 RAIL_EXCESS = 1.0
 """``k``: the unknown excess rate over a run on the rail, as a fraction of the rail (one sigma; see the module)."""
 RAIL_TOLERANCE = 1e-3
 """Relative distance from a learnt rail within which a reading is on it."""
 RAIL_MIN2 = RAIL_MIN_RAD_S**2
-"""Its square, (rad/s)^2: no axis of a reading below it is on a rail."""
+"""Its square, (rad/s)^2: no reading whose ``|w|`` is below it is on a rail."""
+RAIL_WAIT_S = 2.0
+"""Longest the field waits for an accelerometer that does not measure the tilt after a run on the rail, s (the
+inertial low-pass's time constant)."""
 
 
 @dataclass(slots=True)
@@ -71,7 +76,7 @@ class RailState:
     Attributes
     ----------
     last : tuple of 3 floats, or None
-        The last reading as sent, rad/s, while one of its axes reads at least ``RAIL_MIN_RAD_S`` (None: idle).
+        The last reading as sent, rad/s, while its ``|w|`` is at least ``RAIL_MIN_RAD_S`` (None: idle).
     repeats : list of 3 ints
         Readings in a row equal to the one before (at least ``RAIL_MIN_RAD_S``), ending at the last one.
     run_s : list of 3 floats
@@ -83,6 +88,10 @@ class RailState:
     tilt_open : bool
         A run on the rail has widened the tilt, and the field's heading waits until it is back
         (``GyroFilter._rail_tilt_open``).
+    unmeasured_s : float
+        While ``tilt_open``: time since the accelerometer last measured the tilt, s.  The field waits for it at most
+        :data:`RAIL_WAIT_S`: an accelerometer absent or refused that long is not coming, and the field is then used
+        as it would be without the rail.
     """
 
     last: tuple | None = None
@@ -91,6 +100,13 @@ class RailState:
     added_s: list = field(default_factory=lambda: [0.0, 0.0, 0.0])
     rail_rad_s: list = field(default_factory=lambda: [math.nan] * 3)
     tilt_open: bool = False
+    unmeasured_s: float = 0.0
+
+    def restart(self) -> None:
+        """The attitude restarted (its covariance reset): every run ends and the field does not wait; the learnt
+        rails stay (they are the part's)."""
+        self.last, self.tilt_open, self.unmeasured_s = None, False, 0.0
+        self.repeats[:], self.run_s[:], self.added_s[:] = [0, 0, 0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
 
 
 def rail_variances(state: RailState, w: tuple, dt: float) -> list:

@@ -514,7 +514,8 @@ class Diagnostics:
     mag_used : bool
         The gate let the field in and the heading update was applied.
     gate : str
-        ``"ok"``, or why the field was not used: ``"norm"``, ``"dip"``, ``"innovation"``, ``"absent"``.
+        ``"ok"``, or why the field was not used: ``"norm"``, ``"dip"``, ``"innovation"``, ``"absent"``,
+        ``"rail"`` (waits for the tilt a gyro axis held at its rail left open: :mod:`compass.filter._rail`).
     accel_used : bool
         The accelerometer (tilt) update was applied.
     skipped : str

@@ -25,8 +25,8 @@ entity                              content
 ``compass/heading_deg`` ...         ``Scalars``: heading_deg, pitch_deg, roll_deg, heading_true_deg
                                     (with a site), field_ratio,
                                     dip_deg, gate (CSV code: 0 used, 1 |B|, 2 dip, 3 innovation,
-                                    4 no field), mag_used, accel_used, in_range, disturbed,
-                                    latency_ms (live)
+                                    4 no field, 5 waits for the tilt a gyro rail left), mag_used,
+                                    accel_used, in_range, disturbed, latency_ms (live)
 ``compass/<angle>/sigma_band``      ``Scalars`` x2: the angle -1 sigma and +1 sigma
 ``compass/field_ratio/gate_limits`` ``Scalars`` x2: the gate's limits (also ``dip_deg``)
 ``compass/state/field``, ``/gravity``, ``StateChange``: the flags in words, a row where they change
@@ -50,10 +50,11 @@ __all__ = ["attitude_views", "log_attitude_statics", "log_reference", "send_atti
            "log_attitude", "log_evaluation", "evaluation_views", "record_attitude", "record_evaluation",
            "reference_dip", "GATE_LEGEND", "FLAGS"]
 
-GATE_LEGEND = "gate: 0 used, 1 |B| off, 2 dip off, 3 heading innovation, 4 no field"
+GATE_LEGEND = "gate: 0 used, 1 |B| off, 2 dip off, 3 heading innovation, 4 no field, 5 waits: gyro rail"
 # the flags in words, one lane each in the state timeline (``compass/state/<lane>``)
 _FIELD_STATES = {0: "field used", 1: "field rejected: |B| off", 2: "field rejected: dip off",
-                 3: "field rejected: heading innovation", 4: "no field"}
+                 3: "field rejected: heading innovation", 4: "no field",
+                 5: "field waits: the tilt a gyro rail left"}
 _STATES = {"field": None,  # from the gate code, else from disturbed
            "gravity": ("accel_used", {1: "gravity used", 0: "gravity not used (moving)"}),
            "range": ("in_range", {1: "in calibrated range", 0: "OUT of calibrated range"})}

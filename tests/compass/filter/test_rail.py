@@ -7,7 +7,7 @@ import pytest
 from compass.evaluation import orientation_errors
 from compass.filter import AttitudeFilter, FilterConfig, run_filter
 from compass.filter import _gyro
-from compass.filter._rail import RAIL_EXCESS, RailState, rail_variances
+from compass.filter._rail import RAIL_EXCESS, RAIL_WAIT_S, RailState, rail_variances
 from compass.sample_check import RAIL_MIN_RAD_S, RAIL_SAMPLES
 from compass.sim.device import default_model, simulate_device
 from scipy.spatial.transform import Rotation
@@ -111,15 +111,19 @@ def test_heading_back_after_a_clipped_flick(flicked):
 
 
 def test_nothing_changes_where_nothing_clips(flicked, monkeypatch):
-    """Identity: the same flick unclipped (its rates pass RAIL_MIN_RAD_S, its readings never repeat) gives the same
-    attitudes, bit for bit, as a filter whose rail watch never fires."""
+    """Identity: the same flick unclipped (its rates pass RAIL_MIN_RAD_S), with one reading at its peak repeated
+    ``RAIL_SAMPLES - 1`` times in a row (a chance repeat one short of a rail), gives the same attitudes, bit for
+    bit, as a filter whose rail watch never fires."""
     model, s = flicked
     config = FilterConfig.from_model(model)
     field = model.field(s.raw)[0]
-    track = run_filter(s.t_s, s.accel, s.gyro, field, config)
+    gyro = s.gyro.copy()
+    peak = int(np.argmax(np.abs(gyro[:, 2])))
+    gyro[peak:peak + RAIL_SAMPLES - 1] = gyro[peak]
+    assert np.abs(gyro[peak, 2]) > RAIL_MIN_RAD_S
+    track = run_filter(s.t_s, s.accel, gyro, field, config)
     monkeypatch.setattr(_gyro, "rail_variances", lambda state, w, dt: [])
-    silent = run_filter(s.t_s, s.accel, s.gyro, field, config)
-    assert np.any(np.abs(s.gyro) > RAIL_MIN_RAD_S)
+    silent = run_filter(s.t_s, s.accel, gyro, field, config)
     np.testing.assert_array_equal(track.quat, silent.quat)
     np.testing.assert_array_equal(track.heading_sigma_deg, silent.heading_sigma_deg)
 
@@ -133,3 +137,51 @@ def test_state_round_trip_keeps_the_rail():
         h.update(0.31, None, [0.0, 0.0, RAIL], None)
     assert f.state.covariance == g.state.covariance
     assert f.state.rail == g.state.rail
+
+
+def test_field_does_not_wait_without_an_accelerometer(flicked):
+    """Without an accelerometer after the flick nothing can bring the tilt back: the field waits at most
+    ``RAIL_WAIT_S`` and is then used as without the rail (the heading sigma falls back below 10 deg)."""
+    model, s = flicked
+    accel = s.accel.copy()
+    accel[s.t_s >= 8.0] = np.nan  # the accelerometer gone before the flick
+    track = run_filter(s.t_s, accel, np.clip(s.gyro, -RAIL, RAIL), model.field(s.raw)[0],
+                       FilterConfig.from_model(model))
+    assert np.any(track.gate[(s.t_s >= 10.0) & (s.t_s < 10.25 + RAIL_WAIT_S)] == "rail")
+    later = (s.t_s >= 10.25 + RAIL_WAIT_S + 0.5) & (s.t_s < 19.0)
+    assert not np.any(track.gate[later] == "rail")
+    assert np.mean(track.gate[later] == "ok") > 0.9
+    assert np.max(track.heading_sigma_deg[(s.t_s >= 18.0) & (s.t_s < 19.0)]) < 10.0
+
+
+def test_added_variance_stops_at_an_angle():
+    """Runs on the rail without a measurement between them add at most ``pi^2`` to each attitude variance in all
+    (beside the same readings never repeating: the propagation's own noise)."""
+    on, off = _filter_on_rail(0.0), _filter_on_rail(1e-9)
+    for k in range(31, 400):  # 3.7 s more on the rail, off it once a second
+        for f, jitter in ((on, 0.0), (off, 1e-9)):
+            f.update(k * DT, None, [0.0, 0.0, (RAIL + jitter * (-1) ** k) if k % 100 else 0.5], None)
+    p, q = on.state.covariance_matrix, off.state.covariance_matrix
+    added = np.diag(p)[:3] - np.diag(q)[:3]
+    assert np.all(added <= math.pi**2) and np.all(added > 0.9 * math.pi**2)
+    assert np.all(np.linalg.eigvalsh(p) > 0.0)
+
+
+def test_gyro_matrix_scales_the_hidden_turn():
+    """With the gyro's matrix ``G`` the hidden turn is about ``G e_z``: the variance added is ``|G e_z|^2`` times."""
+    scale = 1.05
+    config = FilterConfig(field_norm=50.0, dip_deg=60.0, mag_noise=0.1,
+                          gyro_matrix=((1.0, 0.0, 0.02), (0.0, 1.0, 0.0), (0.0, 0.0, scale)))
+    f = AttitudeFilter(config, gyro=True)
+    f.update(0.0, [0.0, 0.0, 1.0], [0.0, 0.0, 0.0], [25.0, 0.0, -43.3])
+    f.update(DT, None, [0.0, 0.0, RAIL], None)
+    state = f.state
+    for k in range(2, RAIL_SAMPLES + 1):
+        f.update(k * DT, None, [0.0, 0.0, RAIL], None)
+    g = AttitudeFilter(config, gyro=True)
+    g.state = state
+    for k in range(2, RAIL_SAMPLES + 1):
+        g.update(k * DT, None, [0.0, 0.0, RAIL * (1.0 + 1e-9 * (-1) ** k)], None)  # never a repeat
+    added = f.state.covariance_matrix[2, 2] - g.state.covariance_matrix[2, 2]
+    expected = (RAIL_EXCESS * RAIL * RAIL_SAMPLES * DT) ** 2 * (0.02**2 + scale**2)  # |G e_z|^2
+    assert added == pytest.approx(expected, rel=1e-4)
