@@ -127,7 +127,7 @@ class AccelCalibration:
     spread_before, spread_after : float
         Robust sigma of ``|a| / g_0 - 1`` over the still rows, raw and corrected.
     to_pin : tuple of str
-        The held offsets and scales the gyro-aided fit may determine (:func:`pinnable`, :func:`_pin_prior`).
+        The held offsets and scales the gyro-aided fit may determine (:func:`_pinnable`, :func:`_pin_prior`).
     pin_prior : ndarray, shape (len(to_pin),)
         Their prior sigmas (:func:`_pin_prior`).
     held_steps : ndarray, shape (len(to_pin), 9)
@@ -365,15 +365,15 @@ def fit_accelerometer(accel: np.ndarray, t_s: np.ndarray) -> AccelCalibration:
                            int(np.count_nonzero(keep)),
                            float(robust_sigma(norm / one_g - 1.0)), 0.0)
     prior = _pin_prior(p, undetermined)
-    pin = undetermined & (prior > 0) & np.array([pinnable(n) for n in _NAMES])
-    cal = replace(cal, to_pin=tuple(np.array(_NAMES)[pin]), pin_prior=prior[pin],
+    pin = undetermined & (prior > 0) & np.array([_pinnable(n) for n in _NAMES])
+    cal = replace(cal, to_pin=tuple(n for n, k in zip(_NAMES, pin) if k), pin_prior=prior[pin],
                   held_steps=_held_steps(_Problem(rows[keep], one_g, sigma, np.ones(9, bool)), p, ~undetermined,
                                          pin))
     after = np.linalg.norm(cal.apply(rows), axis=1) / one_g - 1.0
     return replace(cal, spread_after=float(robust_sigma(after)))
 
 
-def pinnable(name: str) -> bool:
+def _pinnable(name: str) -> bool:
     """Whether a held parameter goes to the gyro-aided fit (:func:`calibrate.tumble.gyro.with_gyro`): an offset or
     a scale, the cap's pair along its axis.  A held cross term trades with the offset across the axis
     (:func:`_to_hold`); fitted beside too (a first version: the default windows, every value applied), the pair
