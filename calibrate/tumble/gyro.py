@@ -1103,9 +1103,8 @@ def misalignment_from(g: GyroFit, mag_cal: np.ndarray, accel: np.ndarray, static
 def _pin_accelerometer(result: TumbleResult, mag, accel, turns_rad, t_s, start_values: dict) -> TumbleResult:
     """``result`` with the accelerometer's held offsets and scales (``to_pin``) fitted beside a gyro-aided fit with
     windows :data:`ACCEL_WINDOW_FACTOR` times longer, those seen off zero (:data:`ACCEL_SEEN_SIGMAS`) applied, the
-    others held
-    (:meth:`~calibrate.tumble.accelerometer.AccelCalibration.pinned`); ``result`` itself when nothing is held or
-    that fit fails.  ``accel`` raw, recording units."""
+    others held (:meth:`~calibrate.tumble.accelerometer.AccelCalibration.pinned`); ``result`` itself when nothing is
+    held or that fit fails.  ``accel`` raw, recording units."""
     cal = result.accelerometer
     if cal is None or not cal.to_pin:
         return result
