@@ -240,7 +240,8 @@ def file_values(t_s, gyro, accel, mag, keep) -> dict:
     return {"mag_latency_s": model.mag_latency_s, "gyro_matrix": None if g is None else tuple(map(tuple, g)),
             "gyro_scale_error": fitted_scale_error(model, False),
             "accel_correction": None if accel is None else (tuple(map(tuple, accel[0])), tuple(accel[1]), accel[2]),
-            "fitted": (fitted.get("gyro_matrix"), fitted.get("gyro_matrix_sigma"))}
+            "fitted": (fitted.get("gyro_matrix"), fitted.get("gyro_matrix_sigma")),
+            "accel_from_gyro": tuple((doc.get("accelerometer") or {}).get("from_gyro", ()))}
 
 
 def _values_words(values: dict) -> str:

@@ -26,8 +26,13 @@ across the cap (robot paths 60-69: the corrected direction's RMS error 14.4 -> 2
 0.80 -> 0.23 deg).  The gyro knows the directions between dwells (``f_{d+1} = Q^T f_d``, ``Q`` its turn between
 them: linear in ``A`` and ``b``); added as rows (its scale and axes at their prior, 1.4 deg over 60 deg) it did not
 help on those paths (2.75 -> 2.91 deg, 0.23 -> 0.20 deg): the gyro's own errors and the dwells' ends, where the
-robot still accelerates, weigh as much as what it pins; it is not used (a joint fit in the gyro-aided fit, with
-the gyro's matrix fitted, is what remains).
+robot still accelerates, weigh as much as what it pins; it is not used.  What does pin it: the gyro-aided fit
+(:func:`calibrate.tumble.gyro.with_gyro`) with the held offsets and scales as parameters beside the gyro's matrix,
+moved along :attr:`AccelCalibration.held_steps` (the fitted ones follow, ``|f|`` on the still rows unchanged to first
+order), each with a prior sigma of the board's determined ones (:func:`_pin_prior`): there the field and gravity
+keep their angle and every row's direction is tied to the others' by the gyro's turns, which sees ``b_n (1 - cos
+t)``.  A value seen off zero is applied (:meth:`AccelCalibration.pinned`; robot paths 60-69, bad-accel board: the
+corrected direction's error 2.75 -> 0.55 deg, low-cost 0.22 -> 0.27; docs/benchmarks.md).
 
 Estimator: :func:`scipy.optimize.least_squares` on ``(|A (a_k - b)| - g_0) / sigma`` with a Gaussian prior
 (:data:`OFFSET_PRIOR`, :data:`SCALE_PRIOR`, :data:`CROSS_PRIOR`: loose, a real board read 0.77-1.30 g), robust
@@ -41,7 +46,7 @@ for want of determination is said in :meth:`AccelCalibration.words`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -121,6 +126,16 @@ class AccelCalibration:
         Still rows fitted (:func:`rest_rows`, outliers out).
     spread_before, spread_after : float
         Robust sigma of ``|a| / g_0 - 1`` over the still rows, raw and corrected.
+    to_pin : tuple of str
+        The held offsets and scales the gyro-aided fit may determine (:func:`_pinnable`, :func:`_pin_prior`).
+    pin_prior : ndarray, shape (len(to_pin),)
+        Their prior sigmas (:func:`_pin_prior`).
+    held_steps : ndarray, shape (len(to_pin), 9)
+        Per parameter of :attr:`to_pin`, the change of all nine (:data:`_NAMES`' order) per unit of it with the
+        determined ones refitted to the still rows (to first order: ``|f|`` on them unchanged; :func:`_held_steps`);
+        what :meth:`held_change` moves.
+    from_gyro : tuple of str
+        The parameters the still rows left held that the gyro-aided fit determined (:meth:`pinned`).
     """
 
     offset: np.ndarray
@@ -133,10 +148,41 @@ class AccelCalibration:
     n_rest: int
     spread_before: float
     spread_after: float
+    to_pin: tuple = ()
+    pin_prior: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    held_steps: np.ndarray = field(default_factory=lambda: np.zeros((0, 9)))
+    from_gyro: tuple = ()
 
     def apply(self, accel) -> np.ndarray:
         """Corrected readings ``A (a - b)``, shape (..., 3), recording units, the accelerometer's frame."""
         return (np.asarray(accel, dtype=float) - self.offset) @ self.matrix.T
+
+    def params(self) -> np.ndarray:
+        """The nine parameters (:data:`_NAMES`' order): ``A - I``'s entries, then ``b``."""
+        return np.r_[[self.matrix[i, j] - (i == j) for i, j in _PAIRS], self.offset]
+
+    def held_change(self, accel) -> np.ndarray:
+        """``d f / d c``: the corrected rows' change per unit of each of :attr:`to_pin` moved along
+        :attr:`held_steps`, shape (n, 3, len(to_pin)), recording units per unit."""
+        d = np.asarray(accel, dtype=float) - self.offset
+        out = [d @ (_matrix(step) - np.eye(3)).T - self.matrix @ step[6:] for step in self.held_steps]
+        return np.stack(out, axis=2) if out else np.zeros((len(d), 3, 0))
+
+    def pinned(self, values, sigmas) -> AccelCalibration:
+        """This calibration with :attr:`to_pin` moved by ``values`` along :attr:`held_steps` (the gyro-aided fit's,
+        :func:`calibrate.tumble.gyro.with_gyro`), those with a finite sigma (``sigmas``) stated, leaving :attr:`held`
+        for :attr:`from_gyro`; the others (value zero, sigma NaN: not seen) stay held.  A parameter not seen off zero
+        that the step moves leaves :attr:`unseen` (its sigma not stated)."""
+        sigmas = np.asarray(sigmas, float)
+        change = np.where(np.isfinite(sigmas), values, 0.0) @ self.held_steps
+        p = self.params() + change
+        sig = np.r_[_sym_values(self.matrix_sigma), self.offset_sigma]
+        sig[[_NAMES.index(n) for n in self.to_pin]] = sigmas
+        pinned = tuple(n for n, s in zip(self.to_pin, sigmas) if np.isfinite(s))
+        return replace(self, offset=p[6:], matrix=_matrix(p), offset_sigma=sig[6:], matrix_sigma=_sym(sig[:6]),
+                       held=tuple(n for n in self.held if n not in pinned), to_pin=(), pin_prior=np.zeros(0),
+                       unseen=tuple(n for n in self.unseen if change[_NAMES.index(n)] == 0.0),
+                       held_steps=np.zeros((0, 9)), from_gyro=pinned)
 
     def words(self) -> str:
         """What was fitted and what held, for the report and the file."""
@@ -151,6 +197,9 @@ class AccelCalibration:
         if self.held:
             text += (f"; not determined by the still rows' directions (held at zero / the identity): "
                      f"{', '.join(self.held)}")
+        if self.from_gyro:
+            text += (f"; not determined by the still rows' |a|, fitted beside the gyro-aided fit (the directions "
+                     f"the gyro turned between them): {', '.join(self.from_gyro)}")
         if self.unseen:
             text += f"; not seen off zero (left as read): {', '.join(self.unseen)}"
         return text
@@ -161,7 +210,7 @@ class AccelCalibration:
                 "offset_sigma": [json_float(v) for v in self.offset_sigma],
                 "matrix_sigma": [[json_float(v) for v in row] for row in self.matrix_sigma],
                 "one_g": self.one_g, "unit": "recording units", "n_rest": self.n_rest, "held": list(self.held),
-                "unseen": list(self.unseen),
+                "unseen": list(self.unseen), "from_gyro": list(self.from_gyro),
                 "words": self.words()}
 
 
@@ -315,8 +364,47 @@ def fit_accelerometer(accel: np.ndarray, t_s: np.ndarray) -> AccelCalibration:
                            tuple(n for n, f, u in zip(_NAMES, free, undetermined) if not f and not u),
                            int(np.count_nonzero(keep)),
                            float(robust_sigma(norm / one_g - 1.0)), 0.0)
+    prior = _pin_prior(p, undetermined)
+    pin = undetermined & (prior > 0) & np.array([_pinnable(n) for n in _NAMES])
+    cal = replace(cal, to_pin=tuple(n for n, k in zip(_NAMES, pin) if k), pin_prior=prior[pin],
+                  held_steps=_held_steps(_Problem(rows[keep], one_g, sigma, np.ones(9, bool)), p, ~undetermined,
+                                         pin))
     after = np.linalg.norm(cal.apply(rows), axis=1) / one_g - 1.0
     return replace(cal, spread_after=float(robust_sigma(after)))
+
+
+def _pinnable(name: str) -> bool:
+    """Whether a held parameter goes to the gyro-aided fit (:func:`calibrate.tumble.gyro.with_gyro`): an offset or
+    a scale, the cap's pair along its axis.  A held cross term trades with the offset across the axis
+    (:func:`_to_hold`); fitted beside too (a first version: the default windows, every value applied), the pair
+    wandered (low-cost board, robot paths 60-64: the corrected direction's error 0.23 -> 0.80 deg, offsets across the
+    axis up to 0.5 m/s^2 off; ``tools/bench_accel_fit.py``)."""
+    return name.startswith(("offset", "scale"))
+
+
+def _pin_prior(p: np.ndarray, held: np.ndarray) -> np.ndarray:
+    """The prior sigma of each parameter for the gyro-aided fit (:class:`AccelCalibration`'s ``to_pin``): a held
+    offset's, the RMS of the board's determined offsets (those not seen off zero as zero), a held scale's, of its
+    determined scales (the axes of one chip share a tolerance); zero (not fitted) where none is determined."""
+    out = np.zeros(9)
+    for group in (slice(0, 3), slice(6, 9)):
+        known = ~held[group]
+        out[group] = np.sqrt(np.mean(p[group][known] ** 2)) if known.any() else 0.0
+    return out
+
+
+def _held_steps(prob: _Problem, p: np.ndarray, free: np.ndarray, held: np.ndarray) -> np.ndarray:
+    """Per ``held`` parameter, the change of all nine per unit of it with the ``free`` ones refitted (first order, on
+    ``prob``'s rows: ``-J_free^+ J_held``; the other parameters stay), shape (count of held, 9).  ``free``: the
+    determined ones, those not seen off zero too (held at zero for their size only, they keep the cap's determined
+    combination: on the low-cost board, robot path 65, the offset along the axis pinned at its truth with the
+    scale along it left at zero took the corrected direction's error 0.12 -> 0.35 deg; moved too, 0.12)."""
+    jac = prob.jacobian(p)[:len(prob.accel)]
+    steps = np.zeros((np.count_nonzero(held), 9))
+    steps[:, held] = np.eye(len(steps))
+    if free.any():
+        steps[:, free] = -np.linalg.lstsq(jac[:, free], jac[:, held], rcond=None)[0].T
+    return steps
 
 
 def _to_hold(index: np.ndarray, ratio: np.ndarray, cov: np.ndarray) -> int:
@@ -332,6 +420,11 @@ def _to_hold(index: np.ndarray, ratio: np.ndarray, cov: np.ndarray) -> int:
     if index[k] >= 6 and 3 <= index[j] < 6 and abs(corr[j]) > TRADE_CORRELATION:
         return int(index[j])
     return int(index[k])
+
+
+def _sym_values(m: np.ndarray) -> np.ndarray:
+    """The six entries of the symmetric ``m`` in :data:`_PAIRS`' order."""
+    return np.array([m[i, j] for i, j in _PAIRS])
 
 
 def _sym(v: np.ndarray) -> np.ndarray:

@@ -107,7 +107,7 @@ differ by 0.3 sigma, each the plain optimum of its own samples).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import sparse
@@ -181,6 +181,23 @@ MIN_SIGMA_A = 1e-4
 STILL_PROBABILITY = 0.99
 """A row is still when its window's chi-square is below this quantile of the noise's (:func:`still_mask`)."""
 
+ACCEL_WINDOW_FACTOR = 3.0
+"""The accelerometer's held parameters (:func:`with_gyro`) are fitted with windows this many times longer
+(:data:`WINDOW_TURN_DEG`, :data:`WINDOW_S`).  Each window's orientation is a nuisance parameter: with the default
+windows the offset along a robot cap's axis came out biased by the magnetometer's noise (Neyman and Scott's
+problem: on robot paths without lever arm or flange translation, bad-accel seeds 60, 61, 62, 64, by -1.29, -0.45,
+-0.57, -0.20 m/s^2 at 5-12 stated sigmas; -0.09, -0.19, -0.12, -0.01 with windows three times as long; with the
+magnetometer's noise 0.1 uT instead of 0.7 the bias fell 25 times).  The gyro matrix is fitted afterwards with the
+default windows on the corrected rows, as without a held parameter."""
+
+ACCEL_SEEN_SIGMAS = 5.0
+"""A held parameter fitted beside (:data:`ACCEL_WINDOW_FACTOR`) is applied when this many of its stated sigmas off
+zero, and stays held otherwise.  The stated sigma is the still rows' white scatter's and does not hold what remains of
+the windows' bias: on development paths 60-69 the low-cost board's offset along the cap's axis came out 3.3 of them
+off (seed 66: -0.053 +/- 0.013 against -0.010 m/s^2), and with 3 (the accelerometer's own
+:data:`~calibrate.tumble.accelerometer.SEEN_SIGMAS`) applied, the board's corrected direction's error rose 0.218 ->
+0.260 deg (``tools/bench_accel_fit.py``)."""
+
 MIN_INLIER_FRACTION = 0.5
 """A fit that keeps fewer of the samples says the model does not hold (:class:`GyroMismatch`)."""
 
@@ -228,6 +245,8 @@ class GyroFit:
         How the housing turned (:func:`turn_axes`), in words.
     success : bool
     message : str
+    accel, accel_sigma : ndarray, shape (k,)
+        The accelerometer's parameters fitted beside (``accel_change`` of :func:`fit_with_gyro`; empty without).
     """
 
     hard_iron: np.ndarray
@@ -256,6 +275,8 @@ class GyroFit:
     turns: str
     success: bool
     message: str
+    accel: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    accel_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def latency_known(self) -> bool:
@@ -435,14 +456,14 @@ def still_mask(accel: np.ndarray, turns_rad: np.ndarray, t_s: np.ndarray) -> np.
     return static & (chi2 <= scale * chdtri(dof, 1.0 - STILL_PROBABILITY))
 
 
-def _windows(turns: np.ndarray, dt: np.ndarray) -> np.ndarray:
-    """Index of the window of each sample (a window closes after WINDOW_TURN_DEG or WINDOW_S)."""
-    limit = np.radians(WINDOW_TURN_DEG)
+def _windows(turns: np.ndarray, dt: np.ndarray, factor: float = 1.0) -> np.ndarray:
+    """Index of the window of each sample (a window closes after ``factor`` times WINDOW_TURN_DEG or WINDOW_S)."""
+    limit, longest = np.radians(factor * WINDOW_TURN_DEG), factor * WINDOW_S
     out = np.empty(len(turns), dtype=int)
     j, angle, time, count = 0, 0.0, 0.0, 0
     step = np.linalg.norm(turns, axis=1)
     for k in range(len(turns)):
-        if count >= MIN_WINDOW_SAMPLES and (angle + step[k] > limit or time + dt[k] > WINDOW_S):
+        if count >= MIN_WINDOW_SAMPLES and (angle + step[k] > limit or time + dt[k] > longest):
             j, angle, time, count = j + 1, 0.0, 0.0, 0
         elif count:
             angle, time = angle + step[k], time + dt[k]
@@ -526,6 +547,8 @@ class _Rows:
     omega: np.ndarray  # G (rate - beta), (n, 3)
     resp: np.ndarray  # D M_k Delta R_k^T / sigma_m: the reading's response to the window's field Q_j^T b_W, (n, 3, 3)
     e: np.ndarray  # (x_k - h) / sigma_m, (n, 3)
+    a_unit: np.ndarray  # the still rows' gravity direction f / |f|, f = a + (d a / d c) c, (n_s, 3)
+    a_norm: np.ndarray  # |f|, (n_s,)
 
 
 @dataclass(frozen=True)
@@ -593,13 +616,18 @@ class _Problem:
     """
 
     N_GLOBAL = 26
+    """The global parameters before the accelerometer's ``c`` (:attr:`n_global` with them)."""
     N_PRIOR = 10
-    """The prior residuals at the end: the latency's (1) and the gyro matrix's (9)."""
+    """The prior residuals at the end before ``c``'s: the latency's (1) and the gyro matrix's (9)."""
 
-    def __init__(self, mag, turns, dt, window, a_unit, static, q_start, sigma_m, sigma_a, rate,
-                 tau_prior_s=LATENCY_PRIOR_S, f_scale=None, gyro_prior=None):
+    def __init__(self, mag, turns, dt, window, accel, static, q_start, sigma_m, sigma_a, rate,
+                 tau_prior_s=LATENCY_PRIOR_S, f_scale=None, gyro_prior=None, accel_change=None, accel_prior=None):
         self.mag, self.turns, self.dt, self.window, self.rate = mag, turns, dt, window, rate
-        self.a_unit, self.static = a_unit[static], np.flatnonzero(static)
+        self.accel, self.static = accel[static], np.flatnonzero(static)
+        k = 0 if accel_change is None else accel_change.shape[2]
+        self.accel_change = np.zeros((len(self.static), 3, 0)) if k == 0 else accel_change[static]
+        self.accel_prior = np.ones(0) if k == 0 else np.asarray(accel_prior, float)
+        self.n_global, self.n_prior = self.N_GLOBAL + k, self.N_PRIOR + k
         self.window_a = window[self.static]
         self.orientation = q_start  # Q_j of each window, Rotation: the last solution
         self.sigma_m, self.sigma_a, self.tau_prior_s, self.f_scale = sigma_m, sigma_a, tau_prior_s, f_scale
@@ -650,9 +678,11 @@ class _Problem:
         omega = rate_b @ gyro.T
         late = np.eye(3) + tau * _skew(omega)  # u(t_k - tau) = (I + tau [w]x) u(t_k), first order
         resp = (d / self.sigma_m) @ late @ np.transpose(rel, (0, 2, 1))
+        f = self.accel + self.accel_change @ p[self.N_GLOBAL:]
+        a_norm = np.linalg.norm(f, axis=1)
         return _Rows(p, d, np.array([np.cos(delta), 0.0, -np.sin(delta)]),
                      np.array([-np.sin(delta), 0.0, -np.cos(delta)]), tau, rel, psi, phi, gyro, rate_b, omega, resp,
-                     (self.mag - p[9:12]) / self.sigma_m)
+                     (self.mag - p[9:12]) / self.sigma_m, f / a_norm[:, None], a_norm)
 
     def residuals(self, rows: _Rows, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The magnetometer's (n, 3) and the accelerometer's residuals (n_s, 3) at the windows' orientations
@@ -660,7 +690,7 @@ class _Problem:
         v = (q.transpose(0, 2, 1) @ rows.b_w)[self.window]  # Q^T b_W
         r_m = rows.e - (rows.resp @ v[..., None])[..., 0]
         up = (np.transpose(rows.rel[self.static], (0, 2, 1)) @ q[self.window_a, 2, :, None])[..., 0]  # Delta R^T Q^T z
-        return r_m, (self.a_unit - up) / self.sigma_a
+        return r_m, (rows.a_unit - up) / self.sigma_a
 
     def _sums(self, rows: _Rows, w_m=None, w_a=None) -> _Sums:
         """The windows' :class:`_Sums` with the rows' weights (None: 1)."""
@@ -671,11 +701,11 @@ class _Problem:
         rel_a = rows.rel[self.static]
         if w_a is None:
             a = np.bincount(self.window_a, minlength=self.n_w)[:, None] * np.eye(3).ravel()
-            u = self._sum_a @ (rel_a @ self.a_unit[..., None])[..., 0]
+            u = self._sum_a @ (rel_a @ rows.a_unit[..., None])[..., 0]
         else:
             rel_w = rel_a * w_a[:, None, :]
             a = self._sum_a @ (rel_w @ np.transpose(rel_a, (0, 2, 1))).reshape(-1, 9)
-            u = self._sum_a @ (rel_w @ self.a_unit[..., None])[..., 0]
+            u = self._sum_a @ (rel_w @ rows.a_unit[..., None])[..., 0]
         return _Sums(s.reshape(-1, 3, 3), t, a.reshape(-1, 3, 3) / self.sigma_a**2, u / self.sigma_a**2)
 
     def _robust_cost(self, r_m, r_a) -> np.ndarray:
@@ -737,7 +767,8 @@ class _Problem:
         q = self._solve_windows(rows)
         self._last = (p, rows, q)
         r_m, r_a = self.residuals(rows, q)
-        return np.concatenate([r_m.ravel(), r_a.ravel(), [rows.tau / self.tau_prior_s], self.prior_e(p)])
+        return np.concatenate([r_m.ravel(), r_a.ravel(), [rows.tau / self.tau_prior_s], self.prior_e(p),
+                               p[self.N_GLOBAL:] / self.accel_prior])
 
     def prior_e(self, p) -> np.ndarray:
         """The gyro matrix's prior residuals, ``(G - I) / sigma`` (9)."""
@@ -752,8 +783,7 @@ class _Problem:
         v = (q_t @ rows.b_w)[self.window]
         u = (np.transpose(rows.rel, (0, 2, 1)) @ v[..., None])[..., 0]  # Delta R^T Q^T b_W: the field at t_k
         w_u = np.cross(omega, u)
-        blocks = np.empty((n, 3, self.N_GLOBAL))
-        blocks[:, :, :9] = 0.0
+        blocks = np.zeros((n, 3, self.n_global))
         for i in range(3):
             blocks[:, i, 3 * i:3 * i + 3] = -(u + tau * w_u) / self.sigma_m
         blocks[:, :, 9:12] = -np.eye(3) / self.sigma_m
@@ -767,10 +797,14 @@ class _Problem:
         blocks[:, :, 16] = -w_u @ d.T
         late_e = (k_u[..., :, None] * rows.rate_b[:, None, None, :]).reshape(n, 3, 9)  # [u]x dE (rate - beta)
         blocks[:, :, 17:26] = tau * d @ late_e - turned @ g_e
-        a_blocks = np.zeros((len(s), 3, self.N_GLOBAL))  # accelerometer rows: up = Delta R^T Q^T z
+        a_blocks = np.zeros((len(s), 3, self.n_global))  # accelerometer rows: up = Delta R^T Q^T z
         a_turn = np.transpose(rows.rel[s], (0, 2, 1)) @ _skew(q[self.window_a, 2, :]) / self.sigma_a
         a_blocks[:, :, 13:16] = a_turn @ g[s]
         a_blocks[:, :, 17:26] = -(a_turn @ g_e[s])
+        u, change = rows.a_unit, self.accel_change  # d (f / |f|) = (I - u u^T) df / |f|
+        along = np.einsum("ni,nik->nk", u, change)
+        a_blocks[:, :, self.N_GLOBAL:] = ((change - u[..., None] * along[:, None])
+                                          / (rows.a_norm * self.sigma_a)[:, None, None])
         return blocks, a_blocks
 
     def jacobian(self, p):
@@ -789,15 +823,16 @@ class _Problem:
         h = (np.transpose(k_b, (0, 2, 1)) @ sums.s @ k_b + np.transpose(k_z, (0, 2, 1)) @ sums.a @ k_z)
         resp_t_w = np.transpose(rows.resp, (0, 2, 1)) * c_m[:, None, :]
         rel_w = rows.rel[self.static] * c_a[:, None, :] / self.sigma_a
-        c = (np.transpose(k_b, (0, 2, 1)) @ (self._sum_m @ (resp_t_w @ j_m).reshape(len(j_m), -1)).reshape(-1, 3, self.N_GLOBAL)
-             + np.transpose(k_z, (0, 2, 1)) @ (self._sum_a @ (rel_w @ j_a).reshape(len(j_a), -1)).reshape(-1, 3, self.N_GLOBAL))
+        c = (np.transpose(k_b, (0, 2, 1)) @ (self._sum_m @ (resp_t_w @ j_m).reshape(len(j_m), -1)).reshape(-1, 3, self.n_global)
+             + np.transpose(k_z, (0, 2, 1)) @ (self._sum_a @ (rel_w @ j_a).reshape(len(j_a), -1)).reshape(-1, 3, self.n_global))
         x = np.linalg.pinv(h, rcond=_RCOND, hermitian=True) @ -c  # (n_w, 3, 26): each window's turn per unit of p
         j_m += rows.resp @ (k_b @ x)[self.window]  # J_g - J_l x, -J_l = resp Q^T [b]x
         j_a += np.transpose(rows.rel[self.static], (0, 2, 1)) @ (k_z @ x)[self.window_a] / self.sigma_a
-        prior = np.zeros((1 + 9, self.N_GLOBAL))
+        prior = np.zeros((self.n_prior, self.n_global))
         prior[0, 16] = 1.0 / self.tau_prior_s
-        prior[1:, 17:26] = np.eye(9) / self.gyro_prior
-        return np.vstack([j_m.reshape(-1, self.N_GLOBAL), j_a.reshape(-1, self.N_GLOBAL), prior])
+        prior[1:10, 17:26] = np.eye(9) / self.gyro_prior
+        prior[10:, self.N_GLOBAL:] = np.diag(1.0 / self.accel_prior)
+        return np.vstack([j_m.reshape(-1, self.n_global), j_a.reshape(-1, self.n_global), prior])
 
 
 def _start_orientations(mag_h, a_unit, window, b_w):
@@ -812,7 +847,8 @@ def _start_orientations(mag_h, a_unit, window, b_w):
 
 
 def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_norm, mag_to_accel=None,
-                  dip_deg=None, noise=None, fit_latency=True, fit_gyro_matrix=True) -> GyroFit:
+                  dip_deg=None, noise=None, fit_latency=True, fit_gyro_matrix=True, accel_change=None,
+                  accel_prior=None) -> GyroFit:
     """Fit the gyro-aided model from a start (the present tumble fit's values).
 
     Parameters
@@ -837,6 +873,13 @@ def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_nor
     fit_gyro_matrix : bool
         Fit the gyro's scale and axes ``G`` (prior :data:`GYRO_MATRIX_PRIOR`); False holds it at the
         identity (the model before it, for comparison).
+    accel_change : ndarray, shape (n, 3, k), optional
+        The accelerometer's parameters ``c`` (k) fitted beside: a row reads gravity along ``accel + accel_change @
+        c`` (``accel``'s unit per unit of ``c``; :meth:`calibrate.tumble.accelerometer.AccelCalibration.held_change`,
+        the parameters its still rows left held); None: none.
+    accel_prior : ndarray, shape (k,), optional
+        Their prior sigmas (Gaussian, about zero).  With them the windows are :data:`ACCEL_WINDOW_FACTOR` times
+        longer.
 
     Returns
     -------
@@ -878,15 +921,17 @@ def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_nor
         cos = np.sum(mag_h[static] * a_unit[static], axis=1) / np.linalg.norm(mag_h[static], axis=1)
         dip_deg = float(np.degrees(np.median(np.arccos(np.clip(cos, -1, 1)))) - 90.0)
     delta0 = np.radians(dip_deg)
-    window = _windows(turns, dt)
+    k = 0 if accel_change is None else np.shape(accel_change)[2]
+    window = _windows(turns, dt, 1.0 if k == 0 else ACCEL_WINDOW_FACTOR)
     rate = turn_rates(turns, dt)
     b_w = np.array([np.cos(delta0), 0.0, -np.sin(delta0)])
     q_start = _start_orientations(mag_h, a_unit, window, b_w)
     p0 = np.concatenate([(field_norm * np.linalg.inv(t0)).ravel(), hard_iron, [delta0], np.zeros(3), [0.0],
-                         np.zeros(9)])
+                         np.zeros(9), np.zeros(k)])
     prior = LATENCY_PRIOR_S if fit_latency else _FIXED_S
-    prob = _Problem(mag, turns, dt, window, a_unit, static, q_start, max(noise, 1e-12), 1.0, rate, prior,
-                    f_scale=ROBUST_F_SCALE, gyro_prior=GYRO_MATRIX_PRIOR if fit_gyro_matrix else _FIXED_GYRO)
+    prob = _Problem(mag, turns, dt, window, accel, static, q_start, max(noise, 1e-12), 1.0, rate, prior,
+                    f_scale=ROBUST_F_SCALE, gyro_prior=GYRO_MATRIX_PRIOR if fit_gyro_matrix else _FIXED_GYRO,
+                    accel_change=None if k == 0 else np.asarray(accel_change, float), accel_prior=accel_prior)
     r_a = prob.residuals(prob.rows(p0), q_start.as_matrix())[1]  # the accelerometer's scatter at the start
     prob.sigma_a = max(float(robust_sigma(np.linalg.norm(r_a, axis=1))), MIN_SIGMA_A)
     thin, _ = _on_rows(prob, t_s, rate, _robust_rows(window), f_scale=ROBUST_F_SCALE)
@@ -898,7 +943,7 @@ def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_nor
     fun = prob.residual(robust.x)  # every row's residual, every window's orientation solved on all its rows
     r = fun[:3 * n].reshape(n, 3)
     inliers = np.linalg.norm(r, axis=1) < OUTLIER_SIGMAS * np.sqrt(3.0)
-    keep_a = np.linalg.norm(fun[3 * n:-_Problem.N_PRIOR].reshape(-1, 3), axis=1) < OUTLIER_SIGMAS * np.sqrt(3.0)
+    keep_a = np.linalg.norm(fun[3 * n:-prob.n_prior].reshape(-1, 3), axis=1) < OUTLIER_SIGMAS * np.sqrt(3.0)
     if np.count_nonzero(inliers) < MIN_INLIER_FRACTION * n or np.count_nonzero(keep_a) < 20:
         raise GyroMismatch(f"the magnetometer and the gyro disagree: the fit rejected {n - np.count_nonzero(inliers)} of "
                            f"{n} samples beyond {OUTLIER_SIGMAS:g} noise sigmas (a magnetometer late against the gyro, "
@@ -929,14 +974,16 @@ def _on_rows(prob: _Problem, t_s, rate, rows, *, f_scale, keep_a=None) -> tuple[
     dt = np.diff(t_s[rows], prepend=t_s[rows[0]])
     static = np.zeros(len(prob.mag), dtype=bool)
     static[prob.static if keep_a is None else prob.static[keep_a]] = True
-    a_unit = np.zeros((len(prob.mag), 3))
-    a_unit[prob.static] = prob.a_unit
+    accel = np.zeros((len(prob.mag), 3))
+    accel[prob.static] = prob.accel
+    change = np.zeros((len(prob.mag),) + prob.accel_change.shape[1:])
+    change[prob.static] = prob.accel_change
     used = np.unique(prob.window[rows])
     remap = np.full(prob.n_w, -1)
     remap[used] = np.arange(len(used))
-    return _Problem(prob.mag[rows], turns, dt, remap[prob.window[rows]], a_unit[rows], static[rows],
+    return _Problem(prob.mag[rows], turns, dt, remap[prob.window[rows]], accel[rows], static[rows],
                     prob.orientation[used], prob.sigma_m, prob.sigma_a, rate[rows], prob.tau_prior_s, f_scale,
-                    prob.gyro_prior), used
+                    prob.gyro_prior, change[rows], prob.accel_prior), used
 
 
 def _global_covariance(jac: np.ndarray, chi2: float) -> np.ndarray | None:
@@ -977,12 +1024,14 @@ def _result(final, cov, prob, inliers, noise, turns, n_w) -> GyroFit:
         sig_h, sig_s, sig_f, sig_rot, sig_dip = (np.full(3, np.inf), np.full((3, 3), np.inf), np.inf,
                                                  np.full(3, np.inf), np.inf)
         sig_beta, sig_tau, sig_g = np.full(3, np.inf), np.inf, np.full((3, 3), np.inf)
+        sig_c = np.full(len(q) - _Problem.N_GLOBAL, np.inf)
     else:
         sig_h = np.sqrt(np.clip(np.diag(cov)[9:12], 0, None))
         sig_dip = float(np.degrees(np.sqrt(max(cov[12, 12], 0.0))))
         sig_beta = np.sqrt(np.clip(np.diag(cov)[13:16], 0, None))
         sig_tau = float(np.sqrt(max(cov[16, 16], 0.0)))
         sig_g = np.sqrt(np.clip(np.diag(cov)[17:26], 0, None)).reshape(3, 3)
+        sig_c = np.sqrt(np.clip(np.diag(cov)[_Problem.N_GLOBAL:], 0, None))
         grads = np.empty((9 + 1 + 3, 9))  # d(S, F, rotvec) / d(D)
         for j in range(9):
             step = np.zeros_like(q)
@@ -1009,7 +1058,8 @@ def _result(final, cov, prob, inliers, noise, turns, n_w) -> GyroFit:
     return GyroFit(h, sig_h, s, sig_s, f_norm, sig_f, rot, np.degrees(rot.as_rotvec()), sig_rot,
                    float(np.degrees(delta)), sig_dip, q[13:16], sig_beta, float(q[16]), sig_tau,
                    np.eye(3) + q[17:26].reshape(3, 3), sig_g, n_w, len(prob.static),
-                   inliers, mag_rms, float(noise), tuple(undetermined), turn_axes(turns[inliers]), success, message)
+                   inliers, mag_rms, float(noise), tuple(undetermined), turn_axes(turns[inliers]), success, message,
+                   q[_Problem.N_GLOBAL:], sig_c)
 
 
 _SUPERSEDED = ("used the ", "no magnetometer-accelerometer rotation fitted", UNEXPLAINED_WARNING, FAST_MOTION_WARNING)
@@ -1050,6 +1100,23 @@ def misalignment_from(g: GyroFit, mag_cal: np.ndarray, accel: np.ndarray, static
                         int(np.count_nonzero(static)), float(np.std(before)), float(np.std(after)), float(delta_bic))
 
 
+def _pin_accelerometer(result: TumbleResult, mag, accel, turns_rad, t_s, start_values: dict) -> TumbleResult:
+    """``result`` with the accelerometer's held offsets and scales (``to_pin``) fitted beside a gyro-aided fit with
+    windows :data:`ACCEL_WINDOW_FACTOR` times longer, those seen off zero (:data:`ACCEL_SEEN_SIGMAS`) applied, the
+    others held (:meth:`~calibrate.tumble.accelerometer.AccelCalibration.pinned`); ``result`` itself when nothing is
+    held or that fit fails.  ``accel`` raw, recording units."""
+    cal = result.accelerometer
+    if cal is None or not cal.to_pin:
+        return result
+    try:
+        g = fit_with_gyro(mag, cal.apply(accel), turns_rad, t_s, accel_change=cal.held_change(accel),
+                          accel_prior=cal.pin_prior, **start_values)
+    except (GyroMismatch, np.linalg.LinAlgError):  # the main fit says why
+        return result
+    seen = np.abs(g.accel) > ACCEL_SEEN_SIGMAS * g.accel_sigma
+    return replace(result, accelerometer=cal.pinned(g.accel, np.where(seen, g.accel_sigma, np.nan)))
+
+
 def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_rad: np.ndarray, t_s: np.ndarray,
               temp_c: np.ndarray | None = None, *, fit_latency: bool = True,
               fit_gyro_matrix: bool = True) -> TumbleResult:
@@ -1061,7 +1128,8 @@ def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_ra
         :func:`calibrate.tumble.calibrate_tumble`'s on the same samples (the start values).
     mag, accel, turns_rad, t_s, temp_c, fit_latency, fit_gyro_matrix :
         As :func:`fit_with_gyro` (``temp_c`` for the diagnosis); ``accel`` raw, corrected here by ``result``'s
-        accelerometer calibration (:meth:`TumbleResult.corrected_accel`).
+        accelerometer calibration (:meth:`TumbleResult.corrected_accel`), whose held offsets and scales are first
+        fitted beside a gyro-aided fit (:func:`_pin_accelerometer`; the returned result carries it).
 
     Returns
     -------
@@ -1073,12 +1141,13 @@ def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_ra
     """
     start = result.fit
     mis = result.misalignment
-    accel = result.corrected_accel(accel)  # the accelerometer's own calibration: the gravity rows as the fit took them
+    start_values = {"hard_iron": start.hard_iron, "soft_iron": start.soft_iron, "field_norm": start.field_norm,
+                    "mag_to_accel": result.mag_to_accel, "dip_deg": None if mis is None else mis.dip_deg,
+                    "noise": result.noise, "fit_latency": fit_latency, "fit_gyro_matrix": fit_gyro_matrix}
+    result = _pin_accelerometer(result, mag, accel, turns_rad, t_s, start_values)
+    accel = result.corrected_accel(accel)  # the accelerometer's own calibration: the gravity rows as the fit takes them
     try:
-        g = fit_with_gyro(mag, accel, turns_rad, t_s, hard_iron=start.hard_iron, soft_iron=start.soft_iron,
-                          field_norm=start.field_norm, mag_to_accel=result.mag_to_accel,
-                          dip_deg=None if mis is None else mis.dip_deg, noise=result.noise, fit_latency=fit_latency,
-                          fit_gyro_matrix=fit_gyro_matrix)
+        g = fit_with_gyro(mag, accel, turns_rad, t_s, **start_values)
     except (GyroMismatch, np.linalg.LinAlgError) as exc:  # the present fit stands, said why
         return replace(result, warnings=result.warnings + (f"gyro-aided fit not used: {exc}",),
                        gyro={"method": "gyro", "used": False, "words": str(exc)})

@@ -198,3 +198,44 @@ def test_run_filter_refuses_a_stream_in_another_unit_as_live_does():
     assert np.all(np.isfinite(run_filter(t, raw, gyro, field, config).quat[-10:]))
     with pytest.raises(ValueError, match="another unit"):
         run_filter(t, raw / 9.80665, gyro, field, config)
+
+
+def _robot_cap(seed):
+    """A robot's calibration path (its gravity within a ~60 deg cap) read by a board with large accelerometer errors
+    (the bad-accel board's kind), the rows at a sixth of the rate: (raw rows, turns, true errors)."""
+    from compass.io.tumble import gyro_turns
+    from compass.sim.motion import SensorErrors
+    from compass.sim.robot import simulate_robot
+
+    errors = SensorErrors(gyro_bias_rad_s=(0.004, -0.006, 0.003), gyro_scale=(0.015, -0.012, 0.018),
+                          accel_bias_m_s2=(1.5, -1.2, 1.4), accel_scale=(0.07, -0.06, 0.08), gyro_noise=3e-4,
+                          accel_noise_m_s2=0.1, mag_latency_s=0.02)
+    rec = simulate_robot(seed, errors=errors)
+    keep = np.zeros(len(rec.t_s), bool)
+    keep[::6] = True
+    rows = (rec.mag_ut[keep], rec.accel_m_s2[keep], gyro_turns(rec.t_s, rec.gyro_rad_s, keep), rec.t_s[keep])
+    return rec, rows, errors
+
+
+def test_on_a_robot_cap_the_gyro_aided_fit_pins_the_held_offset():
+    import warnings
+
+    from calibrate.tumble.gyro import with_gyro
+
+    rec, (mag, acc, turns, t), errors = _robot_cap(1064)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        alone = calibrate_tumble(mag, acc, t_s=t)
+        res = with_gyro(alone, mag, acc, turns, t)
+    before, after = alone.accelerometer, res.accelerometer
+    assert "offset z" in before.held and after.from_gyro == ("offset z",) and "offset z" not in after.held
+    assert "fitted beside the gyro-aided fit" in after.words()
+    # the offset along the cap's axis within 4 of its stated sigmas (the still rows' white scatter's) of the truth
+    assert abs(after.offset[2] - errors.accel_bias_m_s2[2]) < 4 * after.offset_sigma[2]
+    # gravity's direction across the cap (the truth's specific force through the board's errors, noise-free)
+    f = rec.specific_force_m_s2[::50]
+    read = f * (1.0 + np.asarray(errors.accel_scale)) + np.asarray(errors.accel_bias_m_s2)
+    rms = [np.sqrt(np.mean(_angle_deg(c.apply(read), f) ** 2)) for c in (before, after)]
+    assert rms[1] < 0.5 * rms[0]
+    block = from_dict(res.to_json()).model.accel_correction
+    assert np.allclose(block[1], after.offset) and res.to_json()["accelerometer"]["from_gyro"] == ["offset z"]
