@@ -200,15 +200,15 @@ def test_run_filter_refuses_a_stream_in_another_unit_as_live_does():
         run_filter(t, raw / 9.80665, gyro, field, config)
 
 
-def _robot_cap(seed):
+def _robot_cap(seed, accel_bias_m_s2=(1.5, -1.2, 1.4), accel_scale=(0.07, -0.06, 0.08)):
     """A robot's calibration path (its gravity within a ~60 deg cap) read by a board with large accelerometer errors
-    (the bad-accel board's kind), the rows at a sixth of the rate: (raw rows, turns, true errors)."""
+    (the bad-accel board's kind, or those given), the rows at a sixth of the rate: (raw rows, turns, true errors)."""
     from compass.io.tumble import gyro_turns
     from compass.sim.motion import SensorErrors
     from compass.sim.robot import simulate_robot
 
     errors = SensorErrors(gyro_bias_rad_s=(0.004, -0.006, 0.003), gyro_scale=(0.015, -0.012, 0.018),
-                          accel_bias_m_s2=(1.5, -1.2, 1.4), accel_scale=(0.07, -0.06, 0.08), gyro_noise=3e-4,
+                          accel_bias_m_s2=accel_bias_m_s2, accel_scale=accel_scale, gyro_noise=3e-4,
                           accel_noise_m_s2=0.1, mag_latency_s=0.02)
     rec = simulate_robot(seed, errors=errors)
     keep = np.zeros(len(rec.t_s), bool)
@@ -239,3 +239,23 @@ def test_on_a_robot_cap_the_gyro_aided_fit_pins_the_held_offset():
     assert rms[1] < 0.5 * rms[0]
     block = from_dict(res.to_json()).model.accel_correction
     assert np.allclose(block[1], after.offset) and res.to_json()["accelerometer"]["from_gyro"] == ["offset z"]
+
+
+def test_a_held_offset_smaller_than_the_windows_bias_stays_held():
+    """A low-cost board's offsets (0.15 m/s^2 across the cap, 0.01 along it): what the gyro-aided fit reads along the
+    axis is below :data:`~calibrate.tumble.gyro.ACCEL_PIN_FLOOR` of g, not told from the windows' bias, and the
+    offset along the cap's axis stays held at zero (the still rows' calibration unchanged)."""
+    import warnings
+
+    from calibrate.tumble.gyro import with_gyro
+
+    _, (mag, acc, turns, t), _ = _robot_cap(1066, (-0.0135, 0.149, -0.0099), (0.013, 0.002, 0.014))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        alone = calibrate_tumble(mag, acc, t_s=t)
+        res = with_gyro(alone, mag, acc, turns, t)
+    before, after = alone.accelerometer, res.accelerometer
+    assert "offset z" in before.to_pin
+    assert after.from_gyro == () and "offset z" in after.held
+    np.testing.assert_array_equal(after.offset, before.offset)
+    np.testing.assert_array_equal(after.matrix, before.matrix)
