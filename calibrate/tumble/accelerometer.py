@@ -136,6 +136,8 @@ class AccelCalibration:
         what :meth:`held_change` moves.
     from_gyro : tuple of str
         The parameters the still rows left held that the gyro-aided fit determined (:meth:`pinned`).
+    moved : tuple of str
+        The others that moved with them along :attr:`held_steps`, their sigmas grown by it (:meth:`pinned`).
     """
 
     offset: np.ndarray
@@ -152,6 +154,7 @@ class AccelCalibration:
     pin_prior: np.ndarray = field(default_factory=lambda: np.zeros(0))
     held_steps: np.ndarray = field(default_factory=lambda: np.zeros((0, 9)))
     from_gyro: tuple = ()
+    moved: tuple = ()
 
     def apply(self, accel) -> np.ndarray:
         """Corrected readings ``A (a - b)``, shape (..., 3), recording units, the accelerometer's frame."""
@@ -171,18 +174,25 @@ class AccelCalibration:
     def pinned(self, values, sigmas) -> AccelCalibration:
         """This calibration with :attr:`to_pin` moved by ``values`` along :attr:`held_steps` (the gyro-aided fit's,
         :func:`calibrate.tumble.gyro.with_gyro`), those with a finite sigma (``sigmas``) stated, leaving :attr:`held`
-        for :attr:`from_gyro`; the others (value zero, sigma NaN: not seen) stay held.  A parameter not seen off zero
-        that the step moves leaves :attr:`unseen` (its sigma not stated)."""
+        for :attr:`from_gyro`; the others (value zero, sigma NaN: not seen) stay held.  Every parameter the steps
+        move has the pinned ones' sigmas through its step added to its variance (``sum_c (step_c sigma_c)^2``); one
+        not seen off zero that they move leaves :attr:`unseen` with that sigma (the words name them)."""
         sigmas = np.asarray(sigmas, float)
-        change = np.where(np.isfinite(sigmas), values, 0.0) @ self.held_steps
+        applied = np.isfinite(sigmas)
+        change = np.where(applied, values, 0.0) @ self.held_steps
         p = self.params() + change
         sig = np.r_[_sym_values(self.matrix_sigma), self.offset_sigma]
+        moved_var = (sigmas[applied, None] * self.held_steps[applied]) ** 2
+        added = moved_var.sum(axis=0)
+        sig = np.sqrt(np.where(np.isfinite(sig), sig**2, 0.0) + added)
+        sig[added == 0.0] = np.r_[_sym_values(self.matrix_sigma), self.offset_sigma][added == 0.0]
         sig[[_NAMES.index(n) for n in self.to_pin]] = sigmas
         pinned = tuple(n for n, s in zip(self.to_pin, sigmas) if np.isfinite(s))
         return replace(self, offset=p[6:], matrix=_matrix(p), offset_sigma=sig[6:], matrix_sigma=_sym(sig[:6]),
                        held=tuple(n for n in self.held if n not in pinned), to_pin=(), pin_prior=np.zeros(0),
                        unseen=tuple(n for n in self.unseen if change[_NAMES.index(n)] == 0.0),
-                       held_steps=np.zeros((0, 9)), from_gyro=pinned)
+                       held_steps=np.zeros((0, 9)), from_gyro=pinned,
+                       moved=tuple(n for n, c in zip(_NAMES, change) if c != 0.0 and n not in pinned))
 
     def words(self) -> str:
         """What was fitted and what held, for the report and the file."""
@@ -200,6 +210,8 @@ class AccelCalibration:
         if self.from_gyro:
             text += (f"; not determined by the still rows' |a|, fitted beside the gyro-aided fit (the directions "
                      f"the gyro turned between them): {', '.join(self.from_gyro)}")
+            if self.moved:
+                text += f" (refitted with it: {', '.join(self.moved)})"
         if self.unseen:
             text += f"; not seen off zero (left as read): {', '.join(self.unseen)}"
         return text
@@ -366,9 +378,10 @@ def fit_accelerometer(accel: np.ndarray, t_s: np.ndarray) -> AccelCalibration:
                            float(robust_sigma(norm / one_g - 1.0)), 0.0)
     prior = _pin_prior(p, undetermined)
     pin = undetermined & (prior > 0) & np.array([_pinnable(n) for n in _NAMES])
-    cal = replace(cal, to_pin=tuple(n for n, k in zip(_NAMES, pin) if k), pin_prior=prior[pin],
-                  held_steps=_held_steps(_Problem(rows[keep], one_g, sigma, np.ones(9, bool)), p, ~undetermined,
-                                         pin))
+    if pin.any():
+        cal = replace(cal, to_pin=tuple(n for n, k in zip(_NAMES, pin) if k), pin_prior=prior[pin],
+                      held_steps=_held_steps(_Problem(rows[keep], one_g, sigma, np.ones(9, bool)), p, ~undetermined,
+                                             pin))
     after = np.linalg.norm(cal.apply(rows), axis=1) / one_g - 1.0
     return replace(cal, spread_after=float(robust_sigma(after)))
 

@@ -607,7 +607,8 @@ class _Problem:
     The global parameters ``p`` (26): ``D`` (9, row-major), ``h`` (3), ``delta`` (1, rad), ``beta`` (3,
     rad/s), ``tau`` (1, s: the magnetometer's latency against the gyro), ``E = G - I`` (9, row-major: the gyro's
     scale and axes; the turn's derivative ``d phi_i = dE (phi_i^raw - beta dt_i)``, chained through the prefix
-    products as ``beta``'s, :meth:`_turn_derivatives`).  The windows' orientations
+    products as ``beta``'s, :meth:`_turn_derivatives`), then the accelerometer's held parameters ``c`` (k, with
+    ``accel_change``: :func:`fit_with_gyro`; their prior rows after the gyro matrix's).  The windows' orientations
     ``Q_j`` are not parameters of the outer least squares: for each ``p`` every window's is solved
     (:meth:`residual`: Newton steps on each window's 3 x 3 problem, all windows at once, each started
     from its last solution; with the plain loss a window's loss is a quadratic form in its field and
@@ -786,7 +787,7 @@ class _Problem:
 
     def global_jacobian(self, rows: _Rows, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``J_g``: the residual's derivative w.r.t. ``p`` at the fixed orientations ``q``, magnetometer
-        (n, 3, 26) and accelerometer rows (n_s, 3, 26)."""
+        (n, 3, n_global) and accelerometer rows (n_s, 3, n_global)."""
         n, s = len(self.mag), self.static
         d, tau, omega = rows.d / self.sigma_m, rows.tau, rows.omega
         q_t = np.transpose(q, (0, 2, 1))
@@ -818,7 +819,7 @@ class _Problem:
         return blocks, a_blocks
 
     def jacobian(self, p):
-        """The reduced residual's Jacobian at ``p`` (dense, (m, 26); see the class docstring)."""
+        """The reduced residual's Jacobian at ``p`` (dense, (m, n_global); see the class docstring)."""
         p = np.array(p, dtype=float)
         if self._last is None or not np.array_equal(p, self._last[0]):
             self.residual(p)
@@ -835,7 +836,7 @@ class _Problem:
         rel_w = rows.rel[self.static] * c_a[:, None, :] / self.sigma_a
         c = (np.transpose(k_b, (0, 2, 1)) @ (self._sum_m @ (resp_t_w @ j_m).reshape(len(j_m), -1)).reshape(-1, 3, self.n_global)
              + np.transpose(k_z, (0, 2, 1)) @ (self._sum_a @ (rel_w @ j_a).reshape(len(j_a), -1)).reshape(-1, 3, self.n_global))
-        x = np.linalg.pinv(h, rcond=_RCOND, hermitian=True) @ -c  # (n_w, 3, 26): each window's turn per unit of p
+        x = np.linalg.pinv(h, rcond=_RCOND, hermitian=True) @ -c  # (n_w, 3, n_global): each window's turn per unit of p
         j_m += rows.resp @ (k_b @ x)[self.window]  # J_g - J_l x, -J_l = resp Q^T [b]x
         j_a += np.transpose(rows.rel[self.static], (0, 2, 1)) @ (k_z @ x)[self.window_a] / self.sigma_a
         prior = np.zeros((self.n_prior, self.n_global))
@@ -932,6 +933,10 @@ def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_nor
         dip_deg = float(np.degrees(np.median(np.arccos(np.clip(cos, -1, 1)))) - 90.0)
     delta0 = np.radians(dip_deg)
     k = 0 if accel_change is None else np.shape(accel_change)[2]
+    if k and (accel_prior is None or np.shape(accel_prior) != (k,) or not np.all(np.asarray(accel_prior) > 0)
+              or np.shape(accel_change) != (len(mag), 3, k)):
+        raise ValueError(f"accel_change must be (n, 3, k) with accel_prior (k,) positive sigmas; got "
+                         f"{np.shape(accel_change)} and {np.shape(accel_prior)}")
     window = _windows(turns, dt, 1.0 if k == 0 else ACCEL_WINDOW_FACTOR)
     rate = turn_rates(turns, dt)
     b_w = np.array([np.cos(delta0), 0.0, -np.sin(delta0)])
@@ -997,7 +1002,8 @@ def _on_rows(prob: _Problem, t_s, rate, rows, *, f_scale, keep_a=None) -> tuple[
 
 
 def _global_covariance(jac: np.ndarray, chi2: float) -> np.ndarray | None:
-    """Covariance of the 26 global parameters, the windows' orientations marginalised (None if singular).
+    """Covariance of the global parameters (26, and the accelerometer's ``c``), the windows' orientations
+    marginalised (None if singular).
 
     ``jac`` is the reduced Jacobian of the plain fit (:class:`_Problem`): ``J^T J`` is the Schur
     complement of the joint normal equations' block-diagonal window part, each 3 x 3 block
@@ -1122,7 +1128,9 @@ def _pin_accelerometer(result: TumbleResult, mag, accel, turns_rad, t_s, start_v
     try:
         g = fit_with_gyro(mag, cal.apply(accel), turns_rad, t_s, accel_change=cal.held_change(accel),
                           accel_prior=cal.pin_prior, **start_values)
-    except (GyroMismatch, np.linalg.LinAlgError):  # the main fit says why
+    except (GyroMismatch, np.linalg.LinAlgError, ValueError):  # optional: the main fit says why, if it fails too
+        return result
+    if not (g.success and np.all(np.isfinite(g.accel)) and np.all(np.isfinite(g.accel_sigma))):
         return result
     floor = ACCEL_PIN_FLOOR * np.array([cal.one_g if name.startswith("offset") else 1.0 for name in cal.to_pin])
     seen = (np.abs(g.accel) > ACCEL_SEEN_SIGMAS * g.accel_sigma) & (np.abs(g.accel) > floor)
@@ -1141,7 +1149,8 @@ def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_ra
     mag, accel, turns_rad, t_s, temp_c, fit_latency, fit_gyro_matrix :
         As :func:`fit_with_gyro` (``temp_c`` for the diagnosis); ``accel`` raw, corrected here by ``result``'s
         accelerometer calibration (:meth:`TumbleResult.corrected_accel`), whose held offsets and scales are first
-        fitted beside a gyro-aided fit (:func:`_pin_accelerometer`; the returned result carries it).
+        fitted beside a gyro-aided fit (:func:`_pin_accelerometer`; the returned result carries them only where the
+        gyro-aided fit is used).
 
     Returns
     -------
@@ -1156,8 +1165,8 @@ def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_ra
     start_values = {"hard_iron": start.hard_iron, "soft_iron": start.soft_iron, "field_norm": start.field_norm,
                     "mag_to_accel": result.mag_to_accel, "dip_deg": None if mis is None else mis.dip_deg,
                     "noise": result.noise, "fit_latency": fit_latency, "fit_gyro_matrix": fit_gyro_matrix}
-    result = _pin_accelerometer(result, mag, accel, turns_rad, t_s, start_values)
-    accel = result.corrected_accel(accel)  # the accelerometer's own calibration: the gravity rows as the fit takes them
+    pinned = _pin_accelerometer(result, mag, accel, turns_rad, t_s, start_values)  # kept only if the fit is used
+    accel = pinned.corrected_accel(accel)  # the accelerometer's own calibration: the gravity rows as the fit takes them
     try:
         g = fit_with_gyro(mag, accel, turns_rad, t_s, **start_values)
     except (GyroMismatch, np.linalg.LinAlgError) as exc:  # the present fit stands, said why
@@ -1177,5 +1186,5 @@ def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_ra
     words = [("incomplete coverage: " + result.coverage.words() + "; " if result.coverage.missing else "") + g.words()]
     if diagnosis.block["unexplained"]:
         words.append(UNEXPLAINED_WARNING)
-    return replace(result, fit=diagnosis.fit, misalignment=mis, diagnosis=diagnosis,
+    return replace(pinned, fit=diagnosis.fit, misalignment=mis, diagnosis=diagnosis,
                    warnings=tuple(words + kept), gyro=dict(block, used=True))

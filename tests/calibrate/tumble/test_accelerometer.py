@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from calibrate.tumble import calibrate_tumble
-from calibrate.tumble.accelerometer import MIN_REST_ROWS, NoAccelCalibration, fit_accelerometer
+from calibrate.tumble.accelerometer import _NAMES, _PAIRS, MIN_REST_ROWS, NoAccelCalibration, fit_accelerometer
 from compass.calibration import CalibrationFileError, from_dict
 from compass.filter import FilterConfig, FilterStart, run_filter
 from compass.frames import world_field
@@ -239,6 +239,15 @@ def test_on_a_robot_cap_the_gyro_aided_fit_pins_the_held_offset():
     assert rms[1] < 0.5 * rms[0]
     block = from_dict(res.to_json()).model.accel_correction
     assert np.allclose(block[1], after.offset) and res.to_json()["accelerometer"]["from_gyro"] == ["offset z"]
+    # what moved with it is named, its sigma grown by the pinned one's through the step (never left unstated)
+    sig_before, sig_after = ([c.matrix_sigma[i, j] for i, j in _PAIRS] + list(c.offset_sigma) for c in (before, after))
+    sig_before, sig_after = np.array(sig_before), np.array(sig_after)
+    moved = before.params() != after.params()
+    assert after.moved and set(after.moved) | {"offset z"} == {n for n, m in zip(_NAMES, moved) if m}
+    assert np.all(np.isfinite(sig_after[moved]))
+    known = moved & np.isfinite(sig_before)
+    assert np.all(sig_after[known] > sig_before[known])
+    assert "refitted with it" in after.words()
 
 
 def test_a_held_offset_smaller_than_the_windows_bias_stays_held():
