@@ -26,6 +26,8 @@ import numbers
 import re
 from dataclasses import dataclass
 
+import numpy as np
+
 __all__ = ["Range", "FIELD_UT", "DIP_DEG", "TILT_DEG", "ANGLE_DEG", "NOISE_UT", "SAMPLES", "SEED", "RATE_HZ",
            "DURATION_S", "WAIT_S", "BAUD", "FRACTION", "CHANNELS", "SCALE", "IRON_UT", "ACCEL_NOISE_G", "MAX_TILT_DEG", "GRAVITY", "GYRO_SCALE_ERROR"]
 
@@ -155,6 +157,16 @@ ONE_G_RATIO = Range(0.7, 1.4)
 """A stream's corrected median |a| over what 1 g read in a calibration's recording (a bench's offsets and scales, a
 tumble's accelerometer correction): within, the same unit; units differ by 4x or more (ranges' counts, m/s^2
 against g, mg), motion, noise and a board's own errors by less."""
+
+
+def reads_one_g(accel, one_g: float) -> bool:
+    """Whether accelerometer rows (n, 3), corrected, read 1 g as a calibration's recording did (``one_g``): their
+    finite rows' median |a| over it within :data:`ONE_G_RATIO`; False without a finite row."""
+    norms = np.linalg.norm(np.atleast_2d(np.asarray(accel, dtype=float)), axis=1)
+    norms = norms[np.isfinite(norms)]
+    return norms.size > 0 and float(np.median(norms)) / one_g in ONE_G_RATIO
+
+
 GYRO_SCALE_ERROR = Range(0.0, 0.2, lo_open=True)
 """``--gyro-scale-error``: a fraction of the rate, above 0 and up to 20 % (beyond, the gyro's unit or an axis is
 wrong, not its scale: ``compass.calibration.MAX_GYRO_MATRIX_ERROR``)."""

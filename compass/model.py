@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from functools import cached_property
 import numpy as np
 
-from .limits import ONE_G_RATIO
+from .limits import reads_one_g
 from .iron_uncertainty import (CURVE_FIELDS, ChannelUncertainty, TumbleUncertainty, independent_joint,
                               joint_problem)
 from .response import CubicResponse, LinearResponse, Response
@@ -307,17 +307,15 @@ class SensorModel:
         """Accelerometer readings (n, 3) through :attr:`accel_correction` (``A (a - b)``, as
         :meth:`compass.filter.FilterConfig.housing_accel` corrects each sample).
 
-        As given (and a :class:`compass.io.units.RecordingWarning`) when the corrected median |a| does not read 1 g
-        as the calibration's recording did (``one_g``, within :data:`compass.limits.ONE_G_RATIO`, as
-        :meth:`compass.calibration.ImuCorrection.fits` judges): another unit.  As given without a correction.
+        As given (and a :class:`compass.io.units.RecordingWarning`) when the corrected rows do not read 1 g as the
+        calibration's recording did (``one_g``: :func:`compass.limits.reads_one_g`, the rule
+        :meth:`compass.calibration.ImuCorrection.fits` uses): another unit.  As given without a correction.
         """
         if accel is None or self.accel_correction is None:
             return accel
         matrix, offset, one_g = self.accel_correction
         corrected = (np.asarray(accel, dtype=float) - offset) @ np.asarray(matrix).T
-        norms = np.linalg.norm(corrected, axis=1)
-        norms = norms[np.isfinite(norms)]
-        if norms.size and float(np.median(norms)) / one_g in ONE_G_RATIO:
+        if reads_one_g(corrected, one_g):
             return corrected
         import warnings
 

@@ -181,11 +181,9 @@ class AccelCalibration:
         applied = np.isfinite(sigmas)
         change = np.where(applied, values, 0.0) @ self.held_steps
         p = self.params() + change
-        sig = np.r_[_sym_values(self.matrix_sigma), self.offset_sigma]
-        moved_var = (sigmas[applied, None] * self.held_steps[applied]) ** 2
-        added = moved_var.sum(axis=0)
-        sig = np.sqrt(np.where(np.isfinite(sig), sig**2, 0.0) + added)
-        sig[added == 0.0] = np.r_[_sym_values(self.matrix_sigma), self.offset_sigma][added == 0.0]
+        before = np.r_[_sym_values(self.matrix_sigma), self.offset_sigma]
+        added = np.sum((sigmas[applied, None] * self.held_steps[applied]) ** 2, axis=0)
+        sig = np.where(added > 0.0, np.sqrt(np.nan_to_num(before) ** 2 + added), before)
         sig[[_NAMES.index(n) for n in self.to_pin]] = sigmas
         pinned = tuple(n for n, s in zip(self.to_pin, sigmas) if np.isfinite(s))
         return replace(self, offset=p[6:], matrix=_matrix(p), offset_sigma=sig[6:], matrix_sigma=_sym(sig[:6]),

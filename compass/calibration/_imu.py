@@ -27,7 +27,7 @@ from functools import cached_property
 
 import numpy as np
 
-from ..limits import ONE_G_RATIO
+from ..limits import reads_one_g
 
 __all__ = ["ImuCorrection"]
 
@@ -114,15 +114,13 @@ class ImuCorrection:
 
     def fits(self, accel) -> bool:
         """The readings (n, 3), corrected, read 1 g as the bench's did (median |a| within
-        :data:`compass.limits.ONE_G_RATIO` of it).
+        :data:`compass.limits.ONE_G_RATIO` of it: :func:`compass.limits.reads_one_g`).
 
         Always True without a bench correction (nothing to judge).
         """
         if self.offset is None:
             return True
-        norms = np.linalg.norm(self.undo_bench(np.atleast_2d(accel)), axis=1)
-        norms = norms[np.isfinite(norms)]
-        return norms.size > 0 and float(np.median(norms)) / self.one_g in ONE_G_RATIO
+        return reads_one_g(self.undo_bench(np.atleast_2d(accel)), self.one_g)
 
     @property
     def not_fitting(self) -> str:

@@ -15,25 +15,24 @@ so the run's total is ``(k r T)^2`` on each world axis.  ``k`` is :data:`RAIL_EX
 sine of peak ``rho r`` loses ``k(rho) r T`` with ``k`` = 0.13, 0.33, 0.65, 0.98, 1.30, 3.2 at ``rho`` = 1.2, 1.5, 2,
 2.5, 3, 6 (a triangular profile about 3/4 of that): ``k = 1`` is one sigma for the flicks of 2.5-3 times the rail a
 hand gives a 250 deg/s part (a 565 deg/s flick: 2.3 times, 35 deg lost over 0.18 s), three sigma for a 6 times one.
-The error of one run is capped at pi (an angle).  The direction is known, but the rank-one ``u u^T`` correlates the heading with
-the tilt, so the accelerometer's tilt then sets the heading (by ``u_z / u_h``), and reads an unseen clip of another
-axis (one not yet learnt) or the low-pass's motion along ``u``.  The isotropic bound (each component of the error
+The error of one run is capped at pi (an angle). The direction is known, but the rank-one ``u u^T`` correlates the
+heading with the tilt, so the accelerometer's tilt then sets the heading (by ``u_z / u_h``), and reads an unseen clip of
+another axis (one not yet learnt) or the low-pass's motion along ``u``. The isotropic bound (each component of the error
 is at most ``|u| k r T``) has no such path: measured before the field's wait below (``tools/bench_gyro_rail.py``,
-development seeds, no lever arm, 500 deg/s rail), the rank-one left 11.8 deg of heading RMS, the isotropic 0.7;
-with a 0.1 m lever arm the rank-one 7.9 / 7.9 deg (heading / inclination), the heading and tilt shares without
-their correlation 8.9 / 5.9, the isotropic 8.2 / 5.3 (docs/benchmarks.md).  The mean excess is
-not added to the rate: its size is unknown, and the noise alone lets the field and the accelerometer take the
-attitude back at once.  The heading's gate tests the innovation only while the heading variance is below
-``settled_var``, ``(heading_tolerance_deg / 3)^2``: an inflated heading is not settled, so the field's 35 deg
-innovation is accepted, weighted by that variance (its |B| and dip tests stay).  But while the tilt the run widened
-moves the field's azimuth by more than the settled heading sigma (``tan(dip)`` times the tilt sigma), the field
-waits, its gate said as ``"rail"``: that azimuth error is the tilt state's, the same in every sample, not noise, and
-field samples taken through it settle the heading on it (without this wait two held-out seeds kept 30-45 deg of
-heading after a roll flick, then locked out by the innovation test).  It waits for an accelerometer that measures
-the tilt: one absent or refused for :data:`RAIL_WAIT_S` ends the wait (a stream without one would wait for ever).
-The added variance stops at ``pi^2`` on each axis, over every run (an angle).  The inertial low-pass was turned by the
-clipped rate too, so its content carries the same error and the tilt measurement is blind to it: each sample on
-the rail restarts it, and the first-order one is then the mean of the samples since until
+development seeds, no lever arm, 500 deg/s rail), the rank-one left 11.8 deg of heading RMS, the isotropic 0.7; with a
+0.1 m lever arm the rank-one 7.9 / 7.9 deg (heading / inclination), the heading and tilt shares without their
+correlation 8.9 / 5.9, the isotropic 8.2 / 5.3 (docs/benchmarks.md). The mean excess is not added to the rate: its size
+is unknown, and the noise alone lets the field and the accelerometer take the attitude back at once. The heading's gate
+tests the innovation only while the heading variance is below ``settled_var``, ``(heading_tolerance_deg / 3)^2``: an
+inflated heading is not settled, so the field's 35 deg innovation is accepted, weighted by that variance (its |B| and
+dip tests stay). But while the tilt the run widened moves the field's azimuth by more than the settled heading sigma
+(``tan(dip)`` times the tilt sigma), the field waits, its gate said as ``"rail"``: that azimuth error is the tilt
+state's, the same in every sample, not noise, and field samples taken through it settle the heading on it (without this
+wait two held-out seeds kept 30-45 deg of heading after a roll flick, then locked out by the innovation test). It waits
+for an accelerometer that measures the tilt: one absent or refused for :data:`RAIL_WAIT_S` ends the wait (a stream
+without one would wait for ever). The added variance stops at ``pi^2`` on each axis, over every run (an angle). The
+inertial low-pass was turned by the clipped rate too, so its content carries the same error and the tilt measurement is
+blind to it: each sample on the rail restarts it, and the first-order one is then the mean of the samples since until
 ``accel_time_constant_s`` has passed (``GyroFilter._restart_low_pass``).
 
 **Which samples are on the rail** (per axis, causally, on the reading as sent): a rail is learnt from
@@ -102,11 +101,15 @@ class RailState:
     tilt_open: bool = False
     unmeasured_s: float = 0.0
 
-    def restart(self) -> None:
-        """The attitude restarted (its covariance reset): every run ends and the field does not wait; the learnt
-        rails stay (they are the part's)."""
-        self.last, self.tilt_open, self.unmeasured_s = None, False, 0.0
+    def end_runs(self) -> None:
+        """Every run ends (idle); the learnt rails stay (they are the part's)."""
+        self.last = None
         self.repeats[:], self.run_s[:], self.added_s[:] = [0, 0, 0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+
+    def restart(self) -> None:
+        """The attitude restarted (its covariance reset): every run ends and the field does not wait."""
+        self.end_runs()
+        self.tilt_open, self.unmeasured_s = False, 0.0
 
 
 def rail_variances(state: RailState, w: tuple, dt: float) -> list:
@@ -123,8 +126,7 @@ def rail_variances(state: RailState, w: tuple, dt: float) -> list:
     """
     if w[3] < RAIL_MIN2:  # no axis at RAIL_MIN_RAD_S: every run ends
         if state.last is not None:
-            state.last = None
-            state.repeats[:], state.run_s[:], state.added_s[:] = [0, 0, 0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+            state.end_runs()
         return []
     last, out = state.last, []
     for i in range(3):
