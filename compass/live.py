@@ -430,9 +430,11 @@ class LiveSession:
             n, ratio, dip = self.rejected.get(est.gate, (0, 0.0, 0.0))
             self.rejected[est.gate] = (n + 1, ratio + est.field_ratio, dip + est.dip_deg)
         if est.gate != self._gate:
+            reading = f"|B| ratio {est.field_ratio:.3f}, dip {est.dip_deg:.1f} deg"
             self._event("info" if est.mag_used else "warn",
                         "field used again" if est.mag_used else
-                        f"field rejected ({est.gate}): |B| ratio {est.field_ratio:.3f}, dip {est.dip_deg:.1f} deg")
+                        f"field waits for the accelerometer's tilt after a gyro axis held its range (rail): {reading}"
+                        if est.gate == "rail" else f"field rejected ({est.gate}): {reading}")
             self._gate = est.gate
         latency = time.perf_counter() - t_rx
         held = held or sample.t_rx is not None  # held back by the decoder (its unit check)
