@@ -6,11 +6,12 @@ data: ``../shared/data/broad``; ``--quick``: five trials, one per kind of motion
 ``--candidates A,B`` runs only those candidates (and the turn variants, printed per trial, never chosen);
 the simulated boards (``compass.sim.motion``, a BROAD-like and a low-cost IMU) follow the BROAD tables
 (``--sim-seeds N``, 0 for none; ``--sim-first-seed K``: seeds K to K + N - 1, to judge a change on seeds
-it was not developed on; ``--sim-only``; with ``--candidates``, the named candidates); the candidate ``mag_latency_s fitted`` takes the latency from a
-tumble calibration file of another recording (BROAD: :data:`CAL_TRIALS`' motion phases, the trial scored never its
-own; a simulated board: its own fast rotation at another seed), never from the truth; ``--latency-check`` runs the
-compensation on motions whose only error is the latency; ``--diagnose`` prints the inclination by turn rate of the
-filter, of its inertial low-pass's direction and of VQF, and the one start's parts switched back; ``--bands`` splits
+it was not developed on; ``--sim-only``; with ``--candidates``, the named candidates; ``--sim-mag-hz F``: their
+magnetometer converts at F Hz, each reading held until the next); the candidate ``mag_latency_s fitted`` takes the
+latency from a tumble calibration file of another recording (BROAD: :data:`CAL_TRIALS`' motion phases, the trial
+scored never its own; a simulated board: its own fast rotation at another seed), never from the truth;
+``--latency-check`` runs the compensation on motions whose only error is the latency; ``--diagnose`` prints the
+inclination by turn rate of the filter, of its inertial low-pass's direction and of VQF, and the one start's parts switched back; ``--bands`` splits
 the tilt error by time scale (the filter, the filter with every field reading refused, VQF, and the motion the
 inertial low-pass leaves, truth-based) per trial and group (``--write-docs``: its table in docs/benchmarks.md); ``--leak``
 prints the leak of the inertial low-passes (ours, with a 1 s Kalman pole, VQF's) and its correlation times, truth-based.  Peers are benchmark
@@ -357,10 +358,14 @@ def board_errors(board: str, seed: int):
                    accel_scale=tuple(rng.uniform(0.05, 0.10, 3) * rng.choice([-1.0, 1.0], 3)))
 
 
-def simulated(methods, seeds) -> dict:
+def simulated(methods, seeds, mag_hz: float = 0.0) -> dict:
     """``{board: {kind: {method: (heading, inclination)}}}``: every kind of compass.sim.motion, 60 s,
-    mean RMS over ``seeds`` (BROAD's metric over the moving samples)."""
+    mean RMS over ``seeds`` (BROAD's metric over the moving samples); ``mag_hz``: the boards' magnetometer converts
+    at that rate, each reading held on the rows until the next (0: a new reading every row)."""
     from compass.sim.motion import KINDS, simulate_motion
+
+    def errors(board, seed):
+        return replace(board_errors(board, seed), mag_rate_hz=mag_hz)
 
     out = {}
     for board in ("broad-like", "low-cost"):
@@ -368,9 +373,11 @@ def simulated(methods, seeds) -> dict:
         fitted = {}
         if any(m in methods for m in FITTED_CANDIDATES):
             for seed in seeds:  # the board's tumble recording: another motion seed, the rows at 1/6 of the rate
-                cal = simulate_motion("fast_rotation", seed=500 + seed, errors=board_errors(board, seed))
+                cal = simulate_motion("fast_rotation", seed=500 + seed, errors=errors(board, seed))
                 keep = np.zeros(len(cal.t_s), bool)
                 keep[::6] = True
+                if mag_hz > 0.0:  # its new readings, as compass.io.tumble reads a recording
+                    keep = np.r_[True, np.any(cal.mag_ut[1:] != cal.mag_ut[:-1], axis=1)]
                 fitted[seed] = file_values(cal.t_s, cal.gyro_rad_s, cal.accel_m_s2, cal.mag_ut, keep)
                 truth = 100 * (1 / (1 + np.asarray(board_errors(board, seed).gyro_scale)) - 1)
                 print(f"  {board} seed {seed}: from its tumble file {_values_words(fitted[seed])} (true gyro matrix "
@@ -378,7 +385,7 @@ def simulated(methods, seeds) -> dict:
         for kind in KINDS:
             runs = []
             for seed in seeds:
-                trial = _Simulated(simulate_motion(kind, seed=seed, errors=board_errors(board, seed)), kind)
+                trial = _Simulated(simulate_motion(kind, seed=seed, errors=errors(board, seed)), kind)
                 trial.fitted = fitted.get(seed, NONE_FITTED)
                 row = []
                 for method in methods.values():
@@ -391,13 +398,14 @@ def simulated(methods, seeds) -> dict:
     return out
 
 
-def simulated_section(available, peer_names, seeds: int, first_seed: int = 0, named=()) -> None:
+def simulated_section(available, peer_names, seeds: int, first_seed: int = 0, named=(), mag_hz: float = 0.0) -> None:
     """Print the simulated boards: VQF (when installed) beside the candidates ``named`` (``--candidates``),
-    else :data:`SIM_CANDIDATES`; seeds ``first_seed`` to ``first_seed + seeds - 1``."""
+    else :data:`SIM_CANDIDATES`; seeds ``first_seed`` to ``first_seed + seeds - 1``; ``mag_hz``: :func:`simulated`'s."""
     methods = {k: available[k] for k in peer_names[:1] + [c for c in named or SIM_CANDIDATES if c in available]}
+    held = f", the magnetometer held at {mag_hz:g} Hz" if mag_hz else ""
     print(f"\nsimulated motions (compass.sim.motion, every kind, 60 s, seeds {first_seed}-{first_seed + seeds - 1}, "
-          "two boards): heading RMS / inclination RMS, deg")
-    sim = simulated(methods, range(first_seed, first_seed + seeds))
+          f"two boards{held}): heading RMS / inclination RMS, deg")
+    sim = simulated(methods, range(first_seed, first_seed + seeds), mag_hz)
     _table("simulated groups (mean over the kinds)",
            {b: {m: tuple(np.mean([sim[b][k][m] for k in sim[b]], axis=0)) for m in methods} for b in sim}, list(methods))
 
@@ -763,6 +771,9 @@ def main(argv=None) -> int:
                         help="only the simulated motions with a late magnetometer alone, compensated or not")
     parser.add_argument("--sim-first-seed", type=int, default=0,
                         help="the first simulated seed (judge a change on seeds it was not developed on)")
+    parser.add_argument("--sim-mag-hz", type=float, default=0.0,
+                        help="the simulated boards' magnetometer rate, Hz: each reading held until the next (default: "
+                             "a new reading every row)")
     args = parse_args(parser, argv)
     if args.write_docs and not args.bands:
         parser.error("--write-docs writes the --bands table only: use it with --bands")
@@ -806,7 +817,7 @@ def main(argv=None) -> int:
         latency_check(range(max(args.sim_seeds, 1)))
         return 0
     if args.sim_only:
-        simulated_section(available, peer_names, max(args.sim_seeds, 1), args.sim_first_seed, named)
+        simulated_section(available, peer_names, max(args.sim_seeds, 1), args.sim_first_seed, named, args.sim_mag_hz)
         return 0
 
     files = sorted(Path(args.data).glob("*.mat"))
@@ -890,7 +901,7 @@ def main(argv=None) -> int:
     _ablation(results, list(candidates), groups | {"all": list(results)})
 
     if args.sim_seeds > 0:
-        simulated_section(available, peer_names, args.sim_seeds, args.sim_first_seed, named)
+        simulated_section(available, peer_names, args.sim_seeds, args.sim_first_seed, named, args.sim_mag_hz)
 
     if not args.no_timing:
         first = trials.get("01_undisturbed_slow_rotation_A", next(iter(trials.values())))

@@ -16,7 +16,8 @@ same samples (skipped with a word when not installed).  The scores: heading and 
 quaternion, no offset removed) over the samples after the first 5 s, all of them and split into moves
 (:attr:`MotionRecording.moving`) and dwells.  ``--ablate``: the means with each board error (and the lever arm, the
 flange's translation) removed in turn, where a loss comes from; ``--files``: the calibration files' gyro scale
-against the truth's, the same errors removed, what biases the fit.
+against the truth's, the same errors removed, what biases the fit; ``--mag-hz F``: every board's magnetometer converts
+at F Hz, each reading held on the rows until the next (a board streaming faster than its magnetometer).
 """
 
 from __future__ import annotations
@@ -97,10 +98,14 @@ def scores(trial, quat_enu) -> dict[str, tuple[float, float]]:
 
 def calibration(seed, errors, path) -> dict:
     """The values of the board's calibration file (:func:`bench_broad.file_values`) from the robot path
-    ``seed + CAL_SEED`` with the board's ``errors`` and the ``path`` options, the rows at a sixth of the rate."""
+    ``seed + CAL_SEED`` with the board's ``errors`` and the ``path`` options, the rows at a sixth of the rate (a
+    magnetometer that holds its readings, ``errors.mag_rate_hz``: its new readings, as ``compass.io.tumble`` reads a
+    recording)."""
     cal = simulate_robot(seed + CAL_SEED, errors=errors, **path)
     keep = np.zeros(len(cal.t_s), bool)
     keep[::6] = True
+    if errors.mag_rate_hz > 0.0:
+        keep = np.r_[True, np.any(cal.mag_ut[1:] != cal.mag_ut[:-1], axis=1)]
     return file_values(cal.t_s, cal.gyro_rad_s, cal.accel_m_s2, cal.mag_ut, keep)
 
 
@@ -131,14 +136,16 @@ def path_words(rec) -> str:
             f"deg/s, peak ||f| - g| {lift.max():.1f} m/s^2")
 
 
-def run(seeds, runners, removed=(), quiet=False) -> dict:
+def run(seeds, runners, removed=(), quiet=False, mag_hz=0.0) -> dict:
     """``{board: {seed: {method: {phase: (heading, inclination)}}}}``, the errors of :data:`REMOVED` named in
-    ``removed`` taken out of the board (or the path)."""
+    ``removed`` taken out of the board (or the path); ``mag_hz``: the magnetometer converts at that rate, each
+    reading held on the rows until the next (``SensorErrors.mag_rate_hz``; 0: every row)."""
     out = {}
     for board in BOARDS:
         out[board] = {}
         for seed in seeds:
             board_seed, path = removing(board, seed, removed)
+            board_seed = replace(board_seed, mag_rate_hz=mag_hz)
             rec = simulate_robot(seed, errors=board_seed, **path)
             if not quiet and board == BOARDS[0]:
                 print(f"  path {seed}: {path_words(rec)}", flush=True)
@@ -212,6 +219,9 @@ def main(argv=None) -> int:
                         help="only the means with each board error (and the lever arm) removed in turn")
     parser.add_argument("--files", action="store_true",
                         help="only the calibration files' gyro scale against the truth's, board errors removed")
+    parser.add_argument("--mag-hz", type=float, default=0.0,
+                        help="the magnetometer's own rate, Hz: each reading held until the next, on the scored and the "
+                             "calibration path (a board streaming faster than its magnetometer; default: every row)")
     args = parser.parse_args(argv)
     names = [c.strip() for c in args.candidates.split(",") if c.strip()]
     unknown = [c for c in names if c not in CANDIDATES | TURN_VARIANTS]
@@ -219,13 +229,15 @@ def main(argv=None) -> int:
         parser.error(f"--candidates: unknown {unknown}")
     runners = methods(names)
     seeds = range(args.first_seed, args.first_seed + args.seeds)
-    print(f"robot-arm paths (compass.sim.robot, 60 s, seeds {seeds.start}-{seeds.stop - 1}), {len(BOARDS)} boards")
+    held = f", the magnetometer held at {args.mag_hz:g} Hz" if args.mag_hz else ""
+    print(f"robot-arm paths (compass.sim.robot, 60 s, seeds {seeds.start}-{seeds.stop - 1}), {len(BOARDS)} boards"
+          + held)
     if args.files:
         file_ablation(seeds)
     elif args.ablate:
         ablation(seeds, runners)
     else:
-        table(run(seeds, runners), list(runners))
+        table(run(seeds, runners, mag_hz=args.mag_hz), list(runners))
     return 0
 
 

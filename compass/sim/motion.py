@@ -69,6 +69,9 @@ class SensorErrors:
         Per-sample white noise of each axis, uT.
     mag_latency_s : float
         The magnetometer reads the field this late, s.
+    mag_rate_hz : float
+        The magnetometer's own conversion rate, Hz: each reading is held on the rows until its next conversion, as
+        a stream faster than a magnetometer sends it (0: a new reading every row).
     """
 
     gyro_bias_rad_s: tuple = (0.0, 0.0, 0.0)
@@ -79,6 +82,7 @@ class SensorErrors:
     accel_noise_m_s2: float = 0.05
     mag_noise_ut: float = 0.7
     mag_latency_s: float = 0.0
+    mag_rate_hz: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -259,7 +263,8 @@ def simulate_motion(kind: str, *, duration_s: float = 60.0, rate_hz: float = 285
 
 def read_sensors(rng, t, rate_hz: float, rate, specific, field_h, errors: SensorErrors):
     """The IMU's readings of a true motion: gyro ``(I + S) omega + b + n``, accelerometer ``(I + S_a) f + b_a + n``,
-    magnetometer the field ``latency_s`` late plus noise (noise drawn from ``rng`` in that order).
+    magnetometer the field ``latency_s`` late plus noise (noise drawn from ``rng`` in that order), each reading held
+    until the next conversion when ``errors.mag_rate_hz`` is set.
 
     Parameters
     ----------
@@ -287,7 +292,12 @@ def read_sensors(rng, t, rate_hz: float, rate, specific, field_h, errors: Sensor
         + e.accel_noise_m_s2 * rng.normal(size=(n, 3))
     if e.mag_latency_s > 0.0:
         field_h = np.column_stack([np.interp(t - e.mag_latency_s, t, field_h[:, i]) for i in range(3)])
-    return gyro, accel, field_h + e.mag_noise_ut * rng.normal(size=(n, 3))
+    mag = field_h + e.mag_noise_ut * rng.normal(size=(n, 3))
+    if e.mag_rate_hz > 0.0:  # a conversion at the first row of each period, held until the next
+        period = np.floor((t - t[0]) * e.mag_rate_hz + 1e-9)
+        converted = np.r_[True, period[1:] != period[:-1]]
+        mag = mag[np.maximum.accumulate(np.where(converted, np.arange(n), 0))]
+    return gyro, accel, mag
 
 
 def moving_rows(rate, accel_world) -> np.ndarray:
