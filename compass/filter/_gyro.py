@@ -22,7 +22,7 @@ from ._place import PLACE_EVENT, PlaceDetector, PlaceState
 from ._rail import RAIL_MIN2, RAIL_WAIT_S, RailState, rail_variances
 from ._records import _REST_RATE_SIGMA, _REST_TAU_S, Diagnostics, SkipCounts
 
-__all__ = ["GyroFilter", "GyroState"]
+__all__ = ["FIELD_HOLD_S", "GyroFilter", "GyroState"]
 
 _REST_GYRO = math.radians(2.0)  # VQF's rest detector: rate deviation, rad/s
 _REST_GYRO2 = _REST_GYRO**2
@@ -32,6 +32,9 @@ _NORTH = {(True, True): " (North moves with it)", (False, True): " (within the h
           (False, False): " (North re-learnt from it: the last one was adopted on a timeout)"}
 _ORTHONORMALISE_EVERY = 1000  # samples between re-orthonormalisations of the nominal matrix
 _ANGLE_VAR_MAX = math.pi**2  # rad^2: an attitude error is an angle; the gyro's rail adds no more (compass.filter._rail)
+FIELD_HOLD_S = 0.1
+"""Longest a field reading repeated row after row is taken as the magnetometer's last conversion held, s: a 10 Hz
+magnetometer's period (the slow ones stream at 15-20 Hz: HMC5883L's default, BNO055's, x-io NGIMU's log)."""
 
 
 def heading_innovation(m: tuple, bx: float, by: float, bz: float, azimuth_rad: float = 0.0) -> float:
@@ -117,6 +120,12 @@ class GyroState(PackedCovariance):
         Time since a run on the gyro's rail last restarted the inertial low-pass, s (inf: none since the start):
         until it reaches ``accel_time_constant_s`` the first-order low-pass is the mean of the samples since (the
         second-order one restarts and does not read it).
+    field_sent : tuple of 3 floats, or None
+        The last field reading as sent (None: none yet): one equal to it in all three components is that reading
+        held, not a new one (:meth:`GyroFilter._fresh_field`).
+    field_step_s : float
+        Time since the last new field reading, s (the field's own step: its correlated error and the place
+        window count time between new readings).
     """
 
     t_s: float | None
@@ -147,6 +156,8 @@ class GyroState(PackedCovariance):
     lever: LeverState = field(default_factory=LeverState)
     rail: RailState = field(default_factory=RailState)
     acc_lp_span_s: float = math.inf
+    field_sent: tuple | None = None
+    field_step_s: float = 0.0
 
 
 class GyroFilter(AttitudeFilter):
@@ -219,9 +230,33 @@ class GyroFilter(AttitudeFilter):
         rail = self._s.rail
         if rail.tilt_open:
             rail.unmeasured_s = 0.0 if d.accel_used else rail.unmeasured_s + dt
-        self._heading(t_s, dt, b)
+        fresh, field_dt = self._fresh_field(dt, b)
+        self._heading(t_s, field_dt, fresh, held=fresh is None and b is not None)
         self._inject()
         return True
+
+    def _fresh_field(self, dt: float, b) -> tuple:
+        """The field reading if it is a new one, and the time since the last new one, s.
+
+        A magnetometer slower than the stream repeats its last reading until its next conversion (x-io's
+        NGIMU log in ``../shared/data``: 80 % of rows; BROAD: 29 %).  A repeat is no new measurement: fused again,
+        its noise would count as independent once per row, the heading would lean on the field as if it came at
+        the stream's rate, and its age would grow unseen.  A reading equal to the last one in all three components
+        is taken as that one held (``(None, dt)``; the row keeps that reading's verdict); a new one comes with the
+        time since the last new one (absent readings count in it as held ones do).  A working sensor's noise makes
+        three equal components by chance rare (a 0.15 uT count under 0.5 uT of noise: about 1e-3 per row at rest),
+        and a chance repeat only drops a reading equal to one already used.  A reading held for
+        :data:`FIELD_HOLD_S` is fused again, as a new one: held that long, the field itself is taken to be that
+        constant (a still sensor whose noise is below its count, a noise-free simulation, a stuck sensor for the
+        gate to judge).
+        """
+        s = self._s
+        s.field_step_s += dt
+        if b is None or (b[:3] == s.field_sent and s.field_step_s < FIELD_HOLD_S):
+            return None, dt
+        s.field_sent, step = b[:3], s.field_step_s
+        s.field_step_s = 0.0
+        return b, step
 
     # ------------------------------------------------------------------ the steps of one sample
     def _start(self, a, b) -> None:
@@ -246,7 +281,7 @@ class GyroFilter(AttitudeFilter):
         s.rest_gyro, s.rest_acc, s.rest_s = s.rate_rad_s, a[:3], 0.0
         s.rest_pending.clear()
         s.start_rest = True
-        s.since_start_s = 0.0
+        s.since_start_s = s.field_step_s = 0.0
 
     def _restart_accel(self, a) -> None:
         s = self._s
@@ -477,9 +512,13 @@ class GyroFilter(AttitudeFilter):
         s.acc_lp_age_s = since - s.age_lp[0]
         return lx, ly, lz
 
-    def _heading(self, t_s: float, dt: float, b) -> None:
-        """Gate the field; when accepted, correct the heading (only) with its azimuth."""
+    def _heading(self, t_s: float, dt: float, b, held: bool = False) -> None:
+        """Gate the field; when accepted, correct the heading (only) with its azimuth.  ``dt`` is the time since the
+        last new field reading, s; ``held``: ``b`` is None because the reading repeats the last one, whose verdict
+        (gate, ``mag_used``, |B| ratio, dip) the diagnostics keep: the row's reading is that one, fused once."""
         s, c, d = self._s, self.coefficients, self._s.diagnostics
+        if held:
+            return
         if b is None:
             d.field_ratio, d.dip_deg, d.mag_used, d.gate = math.nan, math.nan, False, "absent"
             return
@@ -503,8 +542,9 @@ class GyroFilter(AttitudeFilter):
             # the tilt's share of the measured azimuth: white noise in var, or (heading-tilt) in the model
             tilt_in_model = mode == "heading-tilt"
             var = c.yaw_var if tilt_in_model else c.yaw_var + c.tan_dip2 * (p[0] + p[6]) / 2.0
-            if dt > 0.0:
-                var += self.gate.field_heading_var(s.gate) * 2.0 * self.config.field_error_time_s / dt
+            if dt > 0.0:  # correlated over T: 2 T / dt readings make one independent one (one at most)
+                span = 2.0 * self.config.field_error_time_s
+                var += self.gate.field_heading_var(s.gate) * span / min(dt, span)
             # the start's bias is held (FilterConfig.start_field_bias_hold): the field's heading error would pass for it
             hold = self.config.start_field_bias_hold and self._start_holds_bias()
             if mode == "kalman":
