@@ -203,6 +203,7 @@ class LiveSession:
     _bad_reported_at: float = 0.0
     _gate: str = "ok"
     _temp_c: float | None = None
+    _raw: tuple | None = None  # the last magnetometer reading as sent: a repeat is that reading held
     _header_seen: object = None
     _start: FilterStart | None = None
     _axes_rows: list | None = field(default_factory=list)  # (accel, field) pairs for the axis check; None once judged
@@ -341,15 +342,18 @@ class LiveSession:
 
     def _fields(self, samples: list) -> tuple[np.ndarray, np.ndarray]:
         """The samples' field in H (temperature-compensated when the calibration can), shape (n, 3), and
-        their in-range flags, shape (n,); an empty ``temp_c`` cell keeps the last temperature."""
+        their in-range flags, shape (n,); an empty ``temp_c`` cell keeps the last temperature, and so does a
+        magnetometer reading repeated from the row before (its last conversion held, compensated at its own
+        temperature: the filter knows a held reading by its field, which must repeat too)."""
         raw = np.array([s.raw for s in samples], dtype=float)
         effect = self.model.temperature
         if effect is None or effect.reference_c is None:
             return self.model.field(raw)
         temps = []
-        for s in samples:
-            if s.temp_c is not None:
+        for s, reading in zip(samples, map(tuple, raw.tolist())):
+            if s.temp_c is not None and reading != self._raw:
                 self._temp_c = s.temp_c
+            self._raw = reading
             temps.append(self._temp_c)
         known = np.array([t is not None for t in temps])
         if known.all():

@@ -1,22 +1,21 @@
 """BROAD trials through peer filters and the toolkit's pipeline, side by side, with BROAD's metric.
 
-Run: ``python tools/bench_broad.py [DATA_DIR] [--quick] [--trials 01,32] [--cal CAL.json]`` (default
-data: ``../shared/data/broad``; ``--quick``: five trials, one per kind of motion).  Issue 22:
-``--peers vqf`` runs only the named peers (Madgwick's pure-Python loop is the slowest part of a run);
-``--candidates A,B`` runs only those candidates (and the turn variants, printed per trial, never chosen);
-the simulated boards (``compass.sim.motion``, a BROAD-like and a low-cost IMU) follow the BROAD tables
-(``--sim-seeds N``, 0 for none; ``--sim-first-seed K``: seeds K to K + N - 1, to judge a change on seeds
-it was not developed on; ``--sim-only``; with ``--candidates``, the named candidates; ``--sim-mag-hz F``: their
-magnetometer converts at F Hz, each reading held until the next); the candidate ``mag_latency_s fitted`` takes the
-latency from a tumble calibration file of another recording (BROAD: :data:`CAL_TRIALS`' motion phases, the trial
-scored never its own; a simulated board: its own fast rotation at another seed), never from the truth;
-``--latency-check`` runs the compensation on motions whose only error is the latency; ``--diagnose`` prints the
-inclination by turn rate of the filter, of its inertial low-pass's direction and of VQF, and the one start's parts switched back; ``--bands`` splits
-the tilt error by time scale (the filter, the filter with every field reading refused, VQF, and the motion the
-inertial low-pass leaves, truth-based) per trial and group (``--write-docs``: its table in docs/benchmarks.md); ``--leak``
-prints the leak of the inertial low-passes (ours, with a 1 s Kalman pole, VQF's) and its correlation times, truth-based.  Peers are benchmark
-extras (``pip install -e '.[bench]'``), never runtime dependencies; a peer that is not installed is
-reported and skipped.
+Run: ``python tools/bench_broad.py [DATA_DIR] [--quick] [--trials 01,32] [--cal CAL.json]`` (default data:
+``../shared/data/broad``; ``--quick``: five trials, one per kind of motion).  Issue 22: ``--peers vqf`` runs only the
+named peers (Madgwick's pure-Python loop is the slowest part of a run); ``--candidates A,B`` runs only those
+candidates (and the turn variants, printed per trial, never chosen); the simulated boards (``compass.sim.motion``, a
+BROAD-like and a low-cost IMU) follow the BROAD tables (``--sim-seeds N``, 0 for none; ``--sim-first-seed K``: seeds K
+to K + N - 1, to judge a change on seeds it was not developed on; ``--sim-only``; with ``--candidates``, the named
+candidates; ``--sim-mag-hz F``: their magnetometer converts at F Hz, each reading held until the next); the candidate
+``mag_latency_s fitted`` takes the latency from a tumble calibration file of another recording (BROAD:
+:data:`CAL_TRIALS`' motion phases, the trial scored never its own; a simulated board: its own fast rotation at another
+seed), never from the truth; ``--latency-check`` runs the compensation on motions whose only error is the latency;
+``--diagnose`` prints the inclination by turn rate of the filter, of its inertial low-pass's direction and of VQF, and
+the one start's parts switched back; ``--bands`` splits the tilt error by time scale (the filter, the filter with
+every field reading refused, VQF, and the motion the inertial low-pass leaves, truth-based) per trial and group
+(``--write-docs``: its table in docs/benchmarks.md); ``--leak`` prints the leak of the inertial low-passes (ours, with
+a 1 s Kalman pole, VQF's) and its correlation times, truth-based.  Peers are benchmark extras (``pip install -e
+'.[bench]'``), never runtime dependencies; a peer that is not installed is reported and skipped.
 
 The protocol (issue 13): every design choice of the toolkit's pipeline is a *candidate* (the
 defaults; each mechanism removed, the ablation; each physical constant at half and twice its

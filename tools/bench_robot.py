@@ -223,6 +223,8 @@ def main(argv=None) -> int:
                         help="the magnetometer's own rate, Hz: each reading held until the next, on the scored and the "
                              "calibration path (a board streaming faster than its magnetometer; default: every row)")
     args = parser.parse_args(argv)
+    if args.mag_hz and (args.ablate or args.files):
+        parser.error("--mag-hz runs the table of every board: not with --ablate or --files")
     names = [c.strip() for c in args.candidates.split(",") if c.strip()]
     unknown = [c for c in names if c not in CANDIDATES | TURN_VARIANTS]
     if unknown or not names:

@@ -32,9 +32,13 @@ _NORTH = {(True, True): " (North moves with it)", (False, True): " (within the h
           (False, False): " (North re-learnt from it: the last one was adopted on a timeout)"}
 _ORTHONORMALISE_EVERY = 1000  # samples between re-orthonormalisations of the nominal matrix
 _ANGLE_VAR_MAX = math.pi**2  # rad^2: an attitude error is an angle; the gyro's rail adds no more (compass.filter._rail)
-FIELD_HOLD_S = 0.1
-"""Longest a field reading repeated row after row is taken as the magnetometer's last conversion held, s: a 10 Hz
-magnetometer's period (the slow ones stream at 15-20 Hz: HMC5883L's default, BNO055's, x-io NGIMU's log)."""
+FIELD_HOLD_S = 1.0
+"""Longest a field reading repeated row after row is taken as the magnetometer's last conversion held, s: a 1 Hz
+magnetometer's period.  Parts streamed for attitude convert at 8-100 Hz (AK8963's 8 Hz mode, QMC5883L's and
+LIS3MDL's 10 Hz, HMC5883L's 15 Hz, BNO055's 20 Hz), and a limit within their period would fuse a held reading again
+just before its successor, stale and with the field's weight.  Beyond it the field itself is taken to be constant: a
+reading fused again after ``T`` s carries ``T`` s of the correlated error's weight, so a still constant field loses
+nothing to the long limit."""
 
 
 def heading_innovation(m: tuple, bx: float, by: float, bz: float, azimuth_rad: float = 0.0) -> float:
@@ -248,7 +252,9 @@ class GyroFilter(AttitudeFilter):
         and a chance repeat only drops a reading equal to one already used.  A reading held for
         :data:`FIELD_HOLD_S` is fused again, as a new one: held that long, the field itself is taken to be that
         constant (a still sensor whose noise is below its count, a noise-free simulation, a stuck sensor for the
-        gate to judge).
+        gate to judge).  The test is on the field as given: a correction that changes between the rows of one
+        reading (a temperature compensation at each row's temperature, a hard-iron step) makes it look new, so
+        ``compass live`` compensates a held reading at its own row's temperature.
         """
         s = self._s
         s.field_step_s += dt
@@ -282,6 +288,7 @@ class GyroFilter(AttitudeFilter):
         s.rest_pending.clear()
         s.start_rest = True
         s.since_start_s = s.field_step_s = 0.0
+        s.field_sent = None  # the start's field is a new reading whatever came before the restart
 
     def _restart_accel(self, a) -> None:
         s = self._s

@@ -32,14 +32,16 @@ class _Collect:
         pass
 
 
-def _stream(model, n, temps):
-    """A header with temp_c, then ``n`` samples; ``temps[i]`` None leaves the cell empty."""
+def _stream(model, n, temps, hold=1):
+    """A header with temp_c, then ``n`` samples; ``temps[i]`` None leaves the cell empty; the magnetometer's
+    reading held on ``hold`` rows (a magnetometer slower than the stream)."""
     s = simulate_device(model, np.arange(n) / 100.0, seed=6)
+    mag = s.raw[np.arange(n) // hold * hold]
     lines = [format_line(["t_s", "seq", "mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz", "temp_c"])]
     for i in range(n):
-        cells = [f"{s.t_s[i]:.4f}", i] + [f"{v:.7g}" for v in s.raw[i]] + [f"{v:.5f}" for v in s.accel[i]]
+        cells = [f"{s.t_s[i]:.4f}", i] + [f"{v:.7g}" for v in mag[i]] + [f"{v:.5f}" for v in s.accel[i]]
         lines.append(format_line(cells + [f"{v:.5f}" for v in s.gyro[i]] + ["" if temps[i] is None else temps[i]]))
-    return b"".join(lines), np.array([[float(f"{v:.7g}") for v in row] for row in s.raw])  # as sent
+    return b"".join(lines), np.array([[float(f"{v:.7g}") for v in row] for row in mag])  # as sent
 
 
 def test_a_chunk_s_field_is_each_sample_s_with_the_last_temperature_carried():
@@ -65,3 +67,26 @@ def test_a_chunk_s_field_is_each_sample_s_with_the_last_temperature_carried():
         expected.append(model.field(raw[i][None, :], last)[0][0])
     np.testing.assert_allclose(np.array(sink.fields) * session.config.field_norm, expected, rtol=1e-12, atol=1e-12)
     assert not np.allclose(expected, model.field(raw)[0])  # the temperature mattered
+
+
+def test_a_held_reading_keeps_its_field_while_the_temperature_moves():
+    """A magnetometer reading repeated on the rows after it (its conversion held) is compensated at the temperature
+    of the row it came on: its field repeats too, which is how the filter knows it held (compass.filter._gyro)."""
+    base = default_model()
+    gains = np.array([r.gain for r in base.responses])
+    model = dataclasses.replace(base, temperature=TemperatureCompensation(25.0, 2e-3 * gains, np.zeros(3)))
+    n, hold = 300, 3
+    temps = [f"{25.0 + 0.05 * i:.2f}" for i in range(n)]  # a new temperature on every row
+    stream, raw = _stream(model, n, temps, hold)
+    sink = _Collect()
+    session = LiveSession(model, out=io.StringIO(), sink=sink)
+    for k in range(0, len(stream), 700):
+        session.feed(Chunk(time.perf_counter(), stream[k:k + 700]))
+    session.close()
+    fields = np.array(sink.fields)
+    assert len(fields) == n
+    held = np.arange(n) % hold != 0
+    np.testing.assert_array_equal(fields[held], fields[np.flatnonzero(held) - 1])
+    new = np.flatnonzero(~held)
+    expected = [model.field(raw[i][None, :], float(temps[i]))[0][0] for i in new]
+    np.testing.assert_allclose(fields[new] * session.config.field_norm, expected, rtol=1e-12, atol=1e-12)
