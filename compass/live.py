@@ -17,7 +17,8 @@ import numpy as np
 
 from .calibration import ImuCorrection
 from .filter import AttitudeFilter, Estimate, FilterConfig, FilterStart
-from .io.streams import JUDGE_SAMPLES, StreamDecoder, StreamOptions, field_scale_check, time_steps_verdict
+from .io.streams import (HELD_JUDGE_SAMPLES, JUDGE_SAMPLES, StreamDecoder, StreamOptions, field_scale_check,
+                         held_field_words, time_steps_verdict)
 from .io.units import MAX_ABS_VALUE
 from .iron_uncertainty import undetermined_words, with_calibration_sigma
 from .sample_check import GyroRail
@@ -210,6 +211,7 @@ class LiveSession:
     _dips: list | None = None  # measured dips of the first estimates, against a given reference
     _bench_accel: bool | None = None  # the bench's offsets apply to this stream's unit; None: not judged yet
     _times: list | None = field(default_factory=list)  # the first samples' t_s for the step check; None once judged
+    _held: list | None = field(default_factory=list)  # the first (t_s, raw) for the held-reading words; None once said
     _rail: GyroRail = field(default_factory=GyroRail)  # a gyro axis held at its range: said once
     _last_rx: float = 0.0
 
@@ -281,6 +283,7 @@ class LiveSession:
         reference seeding's screen), then each sample through the seeding or the filter."""
         self._judge_steps(samples)
         self._judge_rail(samples, t_rx)
+        self._judge_held(samples)
         fields, in_range = self._fields(samples)
         field_rows, in_range = fields.tolist(), in_range.tolist()
         imu = self.imu
@@ -315,6 +318,21 @@ class LiveSession:
         verdict, self._times = time_steps_verdict(self._times[:JUDGE_SAMPLES], self.config.max_gap_s), None
         if verdict is not None:
             self._event("warn", f"the module's {verdict}")
+
+    def _judge_held(self, samples: list) -> None:
+        """Say once (info) when the magnetometer repeats its last reading on many of the first
+        :data:`~compass.io.streams.HELD_JUDGE_SAMPLES` rows (:func:`~compass.io.streams.held_field_words`): the
+        filter fuses each reading once (``compass.filter._gyro``), and the person learns the magnetometer's rate."""
+        if self._held is None:
+            return
+        self._held += [(s.t_s, s.raw) for s in samples]
+        if len(self._held) < HELD_JUDGE_SAMPLES:
+            return
+        rows, self._held = self._held[:HELD_JUDGE_SAMPLES], None
+        times = [t for t, _ in rows]
+        words = held_field_words([r for _, r in rows], None if None in times else times)
+        if words is not None:
+            self._event("info", words)
 
     def _judge_rail(self, samples: list, t_rx: float) -> None:
         """Say once when a gyro axis holds its range (:class:`compass.sample_check.GyroRail`), on the gyro as sent."""

@@ -55,11 +55,16 @@ from .fixed_lines import CsvDecoder, MotionCalDecoder
 from .lines import _GROUPS, _SCALARS, LineDecoder, LineStats, Sample
 from .stream_options import EXAMPLE_COLUMNS, FORMATS, StreamOptions, add_stream_arguments
 
-__all__ = ["FORMATS", "JUDGE_SAMPLES", "StreamOptions", "StreamDecoder", "field_scale_check",
-           "time_steps_verdict", "add_stream_arguments"]
+__all__ = ["FORMATS", "JUDGE_SAMPLES", "HELD_JUDGE_SAMPLES", "StreamOptions", "StreamDecoder", "field_scale_check",
+           "time_steps_verdict", "held_field_words", "add_stream_arguments"]
 
 JUDGE_SAMPLES = 25
 """Samples held while the field's unit is judged against the calibration (a quarter second at 100 Hz)."""
+HELD_JUDGE_SAMPLES = 200
+"""Samples whose magnetometer readings say how often it repeats the last one (:func:`held_field_words`)."""
+HELD_SHARE = 0.2
+"""Share of rows repeating the last magnetometer reading from which it is said (a working sensor's chance repeats
+are about 1e-3 of rows)."""
 _MOTIONCAL_TAGS = ("Raw:", "Uni:", "Cal1:", "Cal2:")
 _AUTO_WAIT_S = 3.0  # bare numbers for this long without a header: a CSV without --columns
 _AUTO_WAIT_LINES = 500  # the same when no receive time is given
@@ -142,6 +147,34 @@ def time_steps_verdict(t_s, max_gap_s: float) -> str | None:
         return (f"t_s steps by {step:g} s (median of {len(t_s)} samples): each step is a gap over the filter's "
                 f"{max_gap_s:g} s and restarts it; a time in milliseconds? (t_s is in seconds)")
     return None
+
+
+def held_field_words(raw, t_s=None) -> str | None:
+    """Words when the magnetometer repeats its last reading on :data:`HELD_SHARE` of the rows or more (it converts
+    slower than the stream sends), None otherwise.
+
+    Parameters
+    ----------
+    raw : array_like, shape (n, c)
+        The magnetometer's readings as sent, in order.
+    t_s : array_like, shape (n,), optional
+        Their times, s: the words then give both rates (median steps).
+    """
+    raw = np.asarray(raw, dtype=float)
+    if len(raw) < 2:
+        return None
+    new = np.r_[True, np.any(raw[1:] != raw[:-1], axis=1)]
+    share = 1.0 - float(np.mean(new))
+    if share < HELD_SHARE:
+        return None
+    rates = ""
+    if t_s is not None and len(t_s) == len(raw) and np.count_nonzero(new) > 1:
+        t_s = np.asarray(t_s, dtype=float)
+        stream, magnetometer = np.median(np.diff(t_s)), np.median(np.diff(t_s[new]))
+        if stream > 0.0 and magnetometer > 0.0:
+            rates = f" (a new reading every {1e3 * magnetometer:.0f} ms, at {1.0 / stream:.0f} Hz rows)"
+    return (f"the magnetometer repeats its last reading on {100 * share:.0f} % of the first {len(raw)} rows"
+            f"{rates}: it converts slower than the stream; each reading is fused once, on the row it is new")
 
 
 class StreamDecoder:

@@ -9,7 +9,8 @@ import pytest
 from compass.io import motioncal as mc
 from compass.io.fixed_lines import CsvDecoder, MotionCalDecoder, parse_columns
 from compass.io.lines import format_line
-from compass.io.streams import JUDGE_SAMPLES, StreamDecoder, StreamOptions, field_scale_check, time_steps_verdict
+from compass.io.streams import (HELD_SHARE, JUDGE_SAMPLES, StreamDecoder, StreamOptions, field_scale_check,
+                                held_field_words, time_steps_verdict)
 from compass.live import LiveSession
 from compass.serial_reader import Chunk
 from compass.sim.device import simulate_device, tumble_motion
@@ -343,3 +344,17 @@ def test_the_first_line_after_a_reconnect_is_trusted_only_when_it_shows_its_star
     assert len(mcd.feed(b"Raw:0,0,8192,0,0,0,200,0,-400\r\n")) == 1  # a tagged line starts where it starts
     mcd.resync()
     assert mcd.feed(b"0,0,0,0,200,0,-400\r\n") == [] and mcd.stats.partial == 1
+
+
+def test_held_field_words_say_the_share_and_both_rates_and_nothing_below_the_share():
+    rng = np.random.default_rng(4)
+    t = np.arange(300) / 200.0
+    fresh = rng.normal(size=(300, 3))
+    assert held_field_words(fresh, t) is None
+    held = fresh[np.arange(300) // 4 * 4]  # 50 Hz in 200 Hz rows: 3 of 4 rows repeat
+    words = held_field_words(held, t)
+    assert "75 % of the first 300 rows" in words and "every 20 ms, at 200 Hz rows" in words
+    assert "ms" not in held_field_words(held)  # no times: the share only
+    few = fresh.copy()
+    few[1:int(HELD_SHARE * 300) - 5] = few[0]  # just under the share
+    assert held_field_words(few, t) is None

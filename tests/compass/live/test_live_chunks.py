@@ -90,3 +90,19 @@ def test_a_held_reading_keeps_its_field_while_the_temperature_moves():
     new = np.flatnonzero(~held)
     expected = [model.field(raw[i][None, :], float(temps[i]))[0][0] for i in new]
     np.testing.assert_allclose(fields[new] * session.config.field_norm, expected, rtol=1e-12, atol=1e-12)
+
+
+def test_a_magnetometer_slower_than_the_stream_is_said_once_with_its_rate():
+    model = default_model()
+    said = {}
+    for hold in (1, 5):
+        stream, _ = _stream(model, 400, [None] * 400, hold)
+        events = []
+        session = LiveSession(model, out=io.StringIO(), on_event=lambda level, text: events.append((level, text)))
+        session.feed(Chunk(time.perf_counter(), stream))
+        session.close()
+        said[hold] = [(level, text) for level, text in events if "repeats its last reading" in text]
+    assert said[1] == []
+    (level, text), = said[5]  # once
+    assert level == "info"
+    assert "80 % of the first 200 rows" in text and "every 50 ms, at 100 Hz rows" in text
