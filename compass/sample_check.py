@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["SKIP_REASONS", "FIELD_RATIO_LIMIT", "ACCEL_RATIO_LIMIT", "GYRO_LIMIT_RAD_S", "RAIL_MIN_RAD_S",
-           "RAIL_SAMPLES", "skip_codes", "GyroRail"]
+           "RAIL_SAMPLES", "skip_codes", "new_readings", "GyroRail"]
 
 SKIP_REASONS = ("ok", "field not finite", "field out of range", "accel not finite or out of range",
                 "gyro not finite or out of range")
@@ -98,6 +98,20 @@ def _gyro_bad(gyro) -> np.ndarray | None:
     w, norm = _measured(gyro)
     absent = np.all(np.isnan(w), axis=1)
     return (~np.all(np.isfinite(w), axis=1) | (norm > GYRO_LIMIT_RAD_S)) & ~absent
+
+
+def new_readings(readings) -> np.ndarray:
+    """Rows whose reading differs from the row before's in some component (the first row is new), shape (n,): a
+    sensor slower than the stream repeats its last reading until its next conversion, and a repeat is no new
+    measurement.
+
+    Parameters
+    ----------
+    readings : array_like, shape (n, c)
+        One sensor's readings as sent, in order.
+    """
+    readings = np.asarray(readings)
+    return np.r_[True, np.any(readings[1:] != readings[:-1], axis=1)]
 
 
 class GyroRail:

@@ -361,6 +361,7 @@ def simulated(methods, seeds, mag_hz: float = 0.0) -> dict:
     """``{board: {kind: {method: (heading, inclination)}}}``: every kind of compass.sim.motion, 60 s,
     mean RMS over ``seeds`` (BROAD's metric over the moving samples); ``mag_hz``: the boards' magnetometer converts
     at that rate, each reading held on the rows until the next (0: a new reading every row)."""
+    from compass.sample_check import new_readings
     from compass.sim.motion import KINDS, simulate_motion
 
     def errors(board, seed):
@@ -376,7 +377,7 @@ def simulated(methods, seeds, mag_hz: float = 0.0) -> dict:
                 keep = np.zeros(len(cal.t_s), bool)
                 keep[::6] = True
                 if mag_hz > 0.0:  # its new readings, as compass.io.tumble reads a recording
-                    keep = np.r_[True, np.any(cal.mag_ut[1:] != cal.mag_ut[:-1], axis=1)]
+                    keep = new_readings(cal.mag_ut)
                 fitted[seed] = file_values(cal.t_s, cal.gyro_rad_s, cal.accel_m_s2, cal.mag_ut, keep)
                 truth = 100 * (1 / (1 + np.asarray(board_errors(board, seed).gyro_scale)) - 1)
                 print(f"  {board} seed {seed}: from its tumble file {_values_words(fitted[seed])} (true gyro matrix "

@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from calibrate.tumble import calibrate_tumble, field_gravity_angles, static_mask
 from compass.frames import heading_pitch_roll, world_field
+from compass.sample_check import new_readings
 from compass.sim.tumble import simulate_tumble
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -116,8 +117,7 @@ def check_floor():
 
 
 def drop_repeats(m, *others):
-    keep = np.ones(len(m), bool)
-    keep[1:] = np.any(m[1:] != m[:-1], axis=1)
+    keep = new_readings(m)
     return (m[keep],) + tuple(o[keep] for o in others)
 
 

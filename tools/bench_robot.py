@@ -40,6 +40,7 @@ from bench_broad import (CANDIDATES, TURN_VARIANTS, _Simulated, _values_words, b
                          ours, vqf_online)
 from compass.evaluation import orientation_errors  # noqa: E402
 from compass.sim.motion import GRAVITY  # noqa: E402
+from compass.sample_check import new_readings  # noqa: E402
 from compass.sim.robot import simulate_robot  # noqa: E402
 
 BOARDS = ("broad-like", "low-cost", "bad-accel")
@@ -105,7 +106,7 @@ def calibration(seed, errors, path) -> dict:
     keep = np.zeros(len(cal.t_s), bool)
     keep[::6] = True
     if errors.mag_rate_hz > 0.0:
-        keep = np.r_[True, np.any(cal.mag_ut[1:] != cal.mag_ut[:-1], axis=1)]
+        keep = new_readings(cal.mag_ut)
     return file_values(cal.t_s, cal.gyro_rad_s, cal.accel_m_s2, cal.mag_ut, keep)
 
 

@@ -235,7 +235,8 @@ class GyroFilter(AttitudeFilter):
         if rail.tilt_open:
             rail.unmeasured_s = 0.0 if d.accel_used else rail.unmeasured_s + dt
         fresh, field_dt = self._fresh_field(dt, b)
-        self._heading(t_s, field_dt, fresh, held=fresh is None and b is not None)
+        if fresh is not None or b is None:  # a held reading keeps the verdict it had when new
+            self._heading(t_s, field_dt, fresh)
         self._inject()
         return True
 
@@ -519,13 +520,10 @@ class GyroFilter(AttitudeFilter):
         s.acc_lp_age_s = since - s.age_lp[0]
         return lx, ly, lz
 
-    def _heading(self, t_s: float, dt: float, b, held: bool = False) -> None:
+    def _heading(self, t_s: float, dt: float, b) -> None:
         """Gate the field; when accepted, correct the heading (only) with its azimuth.  ``dt`` is the time since the
-        last new field reading, s; ``held``: ``b`` is None because the reading repeats the last one, whose verdict
-        (gate, ``mag_used``, |B| ratio, dip) the diagnostics keep: the row's reading is that one, fused once."""
+        last new field reading, s (:meth:`_fresh_field`)."""
         s, c, d = self._s, self.coefficients, self._s.diagnostics
-        if held:
-            return
         if b is None:
             d.field_ratio, d.dip_deg, d.mag_used, d.gate = math.nan, math.nan, False, "absent"
             return

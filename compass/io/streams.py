@@ -50,12 +50,13 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..sample_check import new_readings
 from . import units
 from .fixed_lines import CsvDecoder, MotionCalDecoder
 from .lines import _GROUPS, _SCALARS, LineDecoder, LineStats, Sample
 from .stream_options import EXAMPLE_COLUMNS, FORMATS, StreamOptions, add_stream_arguments
 
-__all__ = ["FORMATS", "JUDGE_SAMPLES", "HELD_JUDGE_SAMPLES", "StreamOptions", "StreamDecoder", "field_scale_check",
+__all__ = ["FORMATS", "JUDGE_SAMPLES", "HELD_JUDGE_SAMPLES", "HELD_SHARE", "StreamOptions", "StreamDecoder", "field_scale_check",
            "time_steps_verdict", "held_field_words", "add_stream_arguments"]
 
 JUDGE_SAMPLES = 25
@@ -163,7 +164,7 @@ def held_field_words(raw, t_s=None) -> str | None:
     raw = np.asarray(raw, dtype=float)
     if len(raw) < 2:
         return None
-    new = np.r_[True, np.any(raw[1:] != raw[:-1], axis=1)]
+    new = new_readings(raw)
     share = 1.0 - float(np.mean(new))
     if share < HELD_SHARE:
         return None

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..sample_check import new_readings
 from . import units
 from .table import ReadOptions, RecordingError, Table, read_table
 
@@ -99,8 +100,7 @@ def tumble_from_table(table: Table) -> TumbleRecording:
     t_s = table.time_s()
     temp_c = table.column("temp_c") if table.has("temp_c") else None
 
-    keep = np.ones(len(mag), dtype=bool)
-    keep[1:] = np.any(mag[1:] != mag[:-1], axis=1)
+    keep = new_readings(mag)
     if accel is not None and not np.any(accel):
         raise RecordingError(table.path, "the accelerometer reads (0, 0, 0) in every row", column="ax")
     if np.count_nonzero(keep) < MIN_SAMPLES:

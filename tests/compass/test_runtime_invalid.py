@@ -8,7 +8,7 @@ import numpy as np
 
 from compass.cli import main
 from compass.live import LiveSession
-from compass.sample_check import skip_codes
+from compass.sample_check import new_readings, skip_codes
 from compass.serial_reader import Chunk
 from compass.sim.device import PtyDevice, default_model, simulate_device
 from compass.calibration import model_to_dict
@@ -105,3 +105,9 @@ def test_attitude_skips_once_however_many_rows_are_absurd():
     flagged = att.skipped != 0
     assert np.all(np.isnan(att.heading_deg[flagged])) and np.all(np.isfinite(att.heading_deg[~flagged]))
     assert np.all(att.disturbed[flagged] == 1) and flagged.any() and not flagged.all()
+
+
+def test_new_readings_are_the_rows_that_differ_from_the_row_before_in_some_component():
+    readings = np.array([[1.0, 2.0, 3.0], [1.0, 2.0, 3.0], [1.0, 2.0, 3.5], [1.0, 2.0, 3.5], [1.0, 2.0, 3.0]])
+    np.testing.assert_array_equal(new_readings(readings), [True, False, True, False, True])
+    assert new_readings(readings[:1]).tolist() == [True]
