@@ -150,7 +150,7 @@ def add_read_arguments(parser) -> None:
     g.add_argument("--columns", type=column_map, metavar="NAME=COLUMN,...",
                    help="which file column is which, e.g. mx='Mag X',my='Mag Y',mz='Mag Z',t_s=time (also a "
                         "'# columns: ...' line in the file); names match without regard to case; az=-AccZ "
-                        "negates a column")
+                        "negates a column; mx=my,my=mx swaps two (each maps to the header as read)")
     g.add_argument("--gyro-unit", choices=tuple(units.GYRO_UNITS), default=None,
                    help="unit of gx,gy,gz (default: the header's, else rad/s as SPEC says)")
     g.add_argument("--accel-unit", choices=tuple(units.ACCEL_UNITS), default=None,
@@ -640,18 +640,27 @@ def _interpret(table: Table, options: ReadOptions, meta_rows: dict) -> Table:
             mapping, source = parse_column_map(table.metadata["columns"], source="'# columns:'"), "'# columns:' line"
         except ValueError as exc:
             raise RecordingError(path, str(exc), row=meta_rows.get("columns")) from None
-    negate = []
+    negate, as_read, taken = [], tuple(header), {}  # every name maps to the header as read: mx=my,my=mx swaps two
     for ours, theirs in mapping.items():
-        sign = -1 if theirs.startswith("-") and theirs not in header else 1
+        sign = -1 if theirs.startswith("-") and theirs not in as_read else 1
         theirs = theirs[1:].strip() if sign < 0 else theirs
-        matches = [i for i, c in enumerate(header) if c == theirs] or \
-                  [i for i, c in enumerate(header) if c.lower() == theirs.lower()]
+        matches = [i for i, c in enumerate(as_read) if c == theirs] or \
+                  [i for i, c in enumerate(as_read) if c.lower() == theirs.lower()]
         if len(matches) != 1:
             raise RecordingError(path, f"{source} maps {ours} to '{theirs}', which the header does not have "
-                                       f"(header has: {', '.join(header)})", row=table.header_line, column=theirs)
+                                       f"(header has: {', '.join(as_read)})", row=table.header_line, column=theirs)
+        if matches[0] in taken:
+            raise RecordingError(path, f"{source} maps both {taken[matches[0]]} and {ours} to '{theirs}': one column "
+                                       "reads one quantity", row=table.header_line, column=theirs)
+        taken[matches[0]] = ours
         header[matches[0]] = ours
         if sign < 0:
             negate.append(matches[0])
+    for ours in mapping:
+        if header.count(ours) > 1:  # the header's own column of that name was not mapped away
+            raise RecordingError(path, f"{source} maps {ours} to another column, and the header's own column '{ours}' "
+                                       f"is left as it is: map that one too (two columns cannot both be {ours})",
+                                 row=table.header_line, column=ours)
     if negate:
         table.data[:, negate] *= -1.0
     recognised: dict[str, list] = {}

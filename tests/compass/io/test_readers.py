@@ -91,6 +91,31 @@ def test_mapping_can_negate_a_column(tmp_path):
     np.testing.assert_array_equal(table.column("mz"), -np.arange(2.0, 12.0, 3.0))
 
 
+def test_mapping_swaps_columns_already_named_as_ours(tmp_path):
+    """Every name maps to the header as read: a magnetometer whose x and y are the IMU's y and x swaps in one go."""
+    rec = _csv(tmp_path / "t.csv", ["mx", "my", "mz"], np.arange(12.0).reshape(4, 3))
+    table = read_table(rec, ReadOptions(columns={"mx": "my", "my": "mx", "mz": "-mz"}))
+    np.testing.assert_array_equal(table.column("mx"), np.arange(1.0, 12.0, 3.0))
+    np.testing.assert_array_equal(table.column("my"), np.arange(0.0, 12.0, 3.0))
+    np.testing.assert_array_equal(table.column("mz"), -np.arange(2.0, 12.0, 3.0))
+
+
+def test_mapping_onto_a_name_the_header_keeps_is_refused(tmp_path, capsys):
+    sim = simulate_tumble(seed=2, n=300)
+    rec = _csv(tmp_path / "t.csv", ["mx", "my", "mz"], sim.mag)
+    status, _, err = _run(capsys, "calibrate", rec, "--out", tmp_path / "c.json", "--columns", "mx=my")
+    _one_line_refusal(status, err, "t.csv", "column 'mx'", "the header's own column 'mx' is left as it is")
+    assert not (tmp_path / "c.json").exists()
+
+
+@pytest.mark.parametrize("mapping", ["mx=a,my=a,mz=c", "mx=-a,my=a,mz=c"])
+def test_two_names_mapped_onto_one_column_are_refused(tmp_path, capsys, mapping):
+    sim = simulate_tumble(seed=2, n=300)
+    rec = _csv(tmp_path / "t.csv", ["a", "b", "c"], sim.mag)
+    status, _, err = _run(capsys, "calibrate", rec, "--out", tmp_path / "c.json", "--columns", mapping)
+    _one_line_refusal(status, err, "t.csv", "column 'a'", "maps both mx and my to 'a'")
+
+
 def test_upper_case_names_are_spec_names(tmp_path, capsys):
     sim = simulate_tumble(seed=3, n=300)
     rec = _csv(tmp_path / "t.csv", ["T_S", "MX", "MY", "MZ", "AX", "AY", "AZ"], np.column_stack([sim.t_s, sim.mag, sim.accel]))
