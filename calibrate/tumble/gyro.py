@@ -834,8 +834,9 @@ class _Problem:
         h = (np.transpose(k_b, (0, 2, 1)) @ sums.s @ k_b + np.transpose(k_z, (0, 2, 1)) @ sums.a @ k_z)
         resp_t_w = np.transpose(rows.resp, (0, 2, 1)) * c_m[:, None, :]
         rel_w = rows.rel[self.static] * c_a[:, None, :] / self.sigma_a
-        c = (np.transpose(k_b, (0, 2, 1)) @ (self._sum_m @ (resp_t_w @ j_m).reshape(len(j_m), -1)).reshape(-1, 3, self.n_global)
-             + np.transpose(k_z, (0, 2, 1)) @ (self._sum_a @ (rel_w @ j_a).reshape(len(j_a), -1)).reshape(-1, 3, self.n_global))
+        flat = 3 * self.n_global  # explicit: no accelerometer row kept in any window leaves j_a empty, and -1 with it
+        c = (np.transpose(k_b, (0, 2, 1)) @ (self._sum_m @ (resp_t_w @ j_m).reshape(len(j_m), flat)).reshape(-1, 3, self.n_global)
+             + np.transpose(k_z, (0, 2, 1)) @ (self._sum_a @ (rel_w @ j_a).reshape(len(j_a), flat)).reshape(-1, 3, self.n_global))
         x = np.linalg.pinv(h, rcond=_RCOND, hermitian=True) @ -c  # (n_w, 3, n_global): each window's turn per unit of p
         j_m += rows.resp @ (k_b @ x)[self.window]  # J_g - J_l x, -J_l = resp Q^T [b]x
         j_a += np.transpose(rows.rel[self.static], (0, 2, 1)) @ (k_z @ x)[self.window_a] / self.sigma_a
