@@ -21,16 +21,33 @@ hemisphere (its dip's sign) breaks the tie; without a site, the check names both
 when one makes the readings consistent where they were not, or when the dip has the wrong sign for
 the site; it names the axis (or axes) to negate.  Used by the tumble and installation calibrations
 and, at runtime, by :class:`compass.live.LiveSession` (so ``compass live`` and the replay).
+
+**With a gyro** the axes need no calibration at all.  A constant field turns in the housing against the housing's
+turn: between two rows ``a`` and ``b`` whose relative rotation the gyro gives as ``D`` (gyro frame, ``R_b = R_a D``),
+a field ``v`` in the gyro's axes goes to ``D^T v``.  A magnetometer whose axes are ``Q`` of the gyro's (``m = h + Q v``,
+``Q`` a signed permutation: a chip mounted turned or mirrored against the IMU, as MPU-9250's AK8963 reads the
+IMU's ``(y, x, -z)``) then reads
+
+.. math:: m_b - M m_a = (I - M) h, \\qquad M = Q D^T Q^T ,
+
+linear in the hard iron ``h``.  Each signed permutation gets its least-squares ``h`` and misfit (rows
+paired :data:`PAIR_TURN_DEG` apart, so the turn is far above the noise; soft iron and latency are a few per cent of
+it); ``Q`` and ``-Q`` give the same ``M`` (a reversed field turns as the field does), so the gyro names a pair and the
+field's dip sign (the accelerometer, and the site's hemisphere) picks one.  Unlike the accelerometer's test this one
+works on a recording that covers a fraction of the sphere, before any fit: a robot path's 18 % with the MPU-9250's
+axes calibrated "fine" and gave 114 deg of heading error.  :func:`axes_from_gyro` returns a verdict only when one
+pair fits clearly better than the axes as read and than every other pair; it is used by the tumble calibration.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from itertools import product
+from itertools import permutations, product
 
 import numpy as np
 
-__all__ = ["AxisVerdict", "check_axes", "MIN_SIGNED_DIP_DEG"]
+__all__ = ["AxisVerdict", "GyroAxesVerdict", "axes_from_gyro", "check_axes", "MIN_SIGNED_DIP_DEG", "PAIR_TURN_DEG",
+           "signed_permutations"]
 
 MIN_SIGNED_DIP_DEG = 10.0
 """The site's |dip| above which its sign is judged (near the magnetic equator a tilt error reaches it)."""
@@ -186,3 +203,215 @@ def _columns(signs, names) -> str:
 def _angle_deg(matrix: np.ndarray) -> float:
     """Rotation angle of a 3x3 (proper) rotation matrix, degrees."""
     return float(np.degrees(np.arccos(np.clip((np.trace(matrix) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+PAIR_TURN_DEG = 10.0
+"""The gyro's turn between the two rows of a pair, degrees: a 45 uT field moves by 7.8 uT, ten times a low-cost
+magnetometer's noise."""
+PAIR_SPAN_S = 2.0
+"""Longest time between the rows of a pair, s: a still housing's gyro bias (1 deg/s on a low-cost part) turns it
+no more than a fifth of :data:`PAIR_TURN_DEG` meanwhile."""
+_GYRO_GAIN = 1.5  # the axes named must fit this many times better than the axes as read, and than every other pair
+_MIN_PAIRS = 20
+
+
+@dataclass(frozen=True)
+class GyroAxesVerdict:
+    """What :func:`axes_from_gyro` found: the magnetometer's axes are not the gyro's.
+
+    Attributes
+    ----------
+    matrix : ndarray, shape (3, 3)
+        ``Q``, a signed permutation: the magnetometer reads ``h + Q v`` for a field ``v`` in the gyro's axes (the one of
+        ``Q``, ``-Q`` the field's dip sign picked; either, when nothing told it).
+    left_handed : bool or None
+        ``det Q = -1``: one (or three) of the magnetometer's axes reversed against the gyro's; None when the field's
+        sign was not told (``Q`` and ``-Q`` differ in handedness).
+    misfit, misfit_as_read, misfit_next : float
+        RMS misfit of the turned field with ``Q``, with the axes as read, and with the next best pair, recording units.
+    columns : str
+        The remap as ``--columns NAME=COLUMN`` (a file's header: ``compass calibrate``, ``compass attitude``).
+    cells : str
+        The remap as ``compass live``'s positional ``--columns`` names the magnetometer's cells, in their order.
+    finding : str
+        What is wrong, in words.
+    remap : str
+        The remap in words: both forms, and what the field's sign rests on.
+    """
+
+    matrix: np.ndarray
+    left_handed: bool | None
+    misfit: float
+    misfit_as_read: float
+    misfit_next: float
+    columns: str
+    cells: str
+    finding: str
+    remap: str
+
+    @property
+    def text(self) -> str:
+        """One line for a calibration: what is wrong and the remap, to be given to the runtime too."""
+        return f"{self.finding}; read it in the gyro's axes: {self.remap}"
+
+
+def signed_permutations() -> list[np.ndarray]:
+    """The 48 signed permutation matrices (the identity first): every way three axes can be read as three others."""
+    out = []
+    for perm in permutations(range(3)):
+        for signs in product((1.0, -1.0), repeat=3):
+            q = np.zeros((3, 3))
+            q[np.arange(3), perm] = signs
+            out.append(q)
+    return out
+
+
+def _orientations(turns_rad: np.ndarray):
+    """``R_k = Exp(turn_0) ... Exp(turn_k)`` for every row (a ``Rotation`` of ``n``), the gyro's turns composed in
+    order: a prefix product in ``log2 n`` vectorised steps (each ``R_i <- R_(i-k) R_i`` for ``i >= k``)."""
+    from scipy.spatial.transform import Rotation
+
+    r, k = Rotation.from_rotvec(turns_rad), 1
+    while k < len(r):
+        r = Rotation.concatenate([r[:k], r[:-k] * r[k:]])
+        k *= 2
+    return r
+
+
+def _turn_pairs(turns_rad: np.ndarray, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rows ``a < b`` in turn, each ``b`` the first row at least :data:`PAIR_TURN_DEG` from ``a`` (at most
+    :data:`PAIR_SPAN_S` later; none there: the next ``a`` is the first row beyond), and ``D`` (shape (k, 3, 3)), the
+    housing's turn from ``a`` to ``b`` in the gyro frame (``R_b = R_a D``)."""
+    attitude = _orientations(turns_rad)
+    step = np.radians(PAIR_TURN_DEG)
+    a, n, out_a, out_b = 0, len(turns_rad), [], []
+    while a < n - 1:
+        end = max(int(np.searchsorted(t_s, t_s[a] + PAIR_SPAN_S, side="right")), a + 1)
+        turned = (attitude[a].inv() * attitude[a + 1:end]).magnitude() >= step if end > a + 1 else np.zeros(0, bool)
+        if not turned.any():
+            a = end
+            continue
+        b = a + 1 + int(np.argmax(turned))
+        out_a.append(a)
+        out_b.append(b)
+        a = b
+    ia, ib = np.array(out_a, dtype=int), np.array(out_b, dtype=int)
+    turns = (attitude[ia].inv() * attitude[ib]).as_matrix() if len(ia) else np.zeros((0, 3, 3))
+    return ia, ib, turns
+
+
+def _misfit(q: np.ndarray, m_a: np.ndarray, m_b: np.ndarray, turns: np.ndarray) -> tuple[float, np.ndarray]:
+    """RMS misfit (recording units) of ``m_b - M m_a = (I - M) h`` with ``M = Q D^T Q^T``, and the least-squares
+    ``h``."""
+    m = np.einsum("ij,nkj,lk->nil", q, turns, q)  # Q D^T Q^T
+    design = (np.eye(3) - m).reshape(-1, 3)
+    target = (m_b - np.einsum("nij,nj->ni", m, m_a)).reshape(-1)
+    h = np.linalg.lstsq(design, target, rcond=None)[0]
+    return float(np.sqrt(np.mean((target - design @ h) ** 2))), h
+
+
+def axes_from_gyro(mag, turns_rad, t_s, *, up=None, site_dip_deg: float | None = None,
+                   names=("mx", "my", "mz")) -> GyroAxesVerdict | None:
+    """The magnetometer's axes against the gyro's, from the gyro's turns between rows (see the module).
+
+    Each of the 24 signed permutations ``Q`` with a positive first row (``-Q`` fits alike) gets the least-squares
+    hard iron and misfit of ``m_b - Q D^T Q^T m_a = (I - Q D^T Q^T) h`` over row pairs :data:`PAIR_TURN_DEG` apart.
+
+    Parameters
+    ----------
+    mag : array_like, shape (n, 3)
+        Raw magnetometer (any unit, any hard iron), its axes as read; rows not finite are left out (their turn kept).
+    turns_rad : array_like, shape (n, 3)
+        The housing's turn from the row before to each row, rad, gyro frame (:func:`compass.io.tumble.gyro_turns`);
+        a turn not finite is taken as none.
+    t_s : array_like, shape (n,)
+        The rows' times, s, non-decreasing.
+    up : array_like, shape (n, 3), optional
+        The accelerometer at the rows (gyro frame, any unit, +1 g up at rest): its dip sign picks ``Q`` or ``-Q``.
+    site_dip_deg : float, optional
+        The site's dip: its sign is the field's (judged for ``|dip| >= 10 deg``); default the northern hemisphere's.
+    names : tuple of 3 str
+        The magnetometer's axes' names for the words.
+
+    Returns
+    -------
+    GyroAxesVerdict or None
+        None when the axes as read fit best, when the best pair does not fit :data:`_GYRO_GAIN` times better than
+        the axes as read and than every other pair (a housing turned about one axis leaves pairs tied), or with
+        fewer than 20 pairs.
+    """
+    m = np.asarray(mag, dtype=float)
+    turns = np.asarray(turns_rad, dtype=float)
+    t = np.asarray(t_s, dtype=float)
+    rows = np.flatnonzero(np.all(np.isfinite(m), axis=1) & np.isfinite(t))
+    if len(rows) < _MIN_PAIRS:
+        return None
+    turned = np.cumsum(np.where(np.isfinite(turns), turns, 0.0), axis=0)
+    kept = np.zeros((len(rows), 3))
+    kept[1:] = turned[rows[1:]] - turned[rows[:-1]]  # a row without a reading still turned the housing
+    m, t = m[rows], t[rows]
+    ia, ib, d = _turn_pairs(kept, t)
+    if len(ia) < _MIN_PAIRS:
+        return None
+    fits = sorted(((q, *_misfit(q, m[ia], m[ib], d)) for q in signed_permutations() if q[0].sum() > 0),
+                  key=lambda f: f[1])
+    as_read = next(f[1] for f in fits if np.array_equal(f[0], np.eye(3)))
+    (best_q, best, h), following = fits[0], fits[1][1]
+    if np.array_equal(best_q, np.eye(3)) or not (as_read >= _GYRO_GAIN * best and following >= _GYRO_GAIN * best):
+        return None
+    up = None if up is None else np.asarray(up, dtype=float)[rows]
+    q, told, sign_words = _dip_sign(best_q, m - h, up, site_dip_deg, names)
+    left = bool(np.linalg.det(q) < 0) if told else None
+    how = {True: "mirrored against the gyro (left-handed)", False: "mounted turned against the gyro",
+           None: "mounted turned or mirrored against the gyro (the field's sign, not told here, decides which)"}[left]
+    finding = (f"the magnetometer's axes are not the gyro's: the field turns as the gyro says only with "
+               f"{_read_as(q, names)} (misfit {best:.3g} against {as_read:.3g} as read), so the magnetometer is {how}")
+    columns, cells = _remap(q, names), _cells(q, names)
+    remap = (f"compass calibrate and compass attitude {columns} (COLUMN(name): the file's column now read as name), "
+             f"compass live --columns naming the magnetometer's cells {cells} in their order{sign_words}")
+    return GyroAxesVerdict(q, left, best, as_read, following, columns, cells, finding, remap)
+
+
+def _dip_sign(q: np.ndarray, centred: np.ndarray, up, site_dip_deg, names) -> tuple[np.ndarray, bool, str]:
+    """``Q`` or ``-Q``, whichever gives the field the dip sign expected (the site's, else down); whether the readings
+    told it; words for what the choice rests on."""
+    dip = 0.0
+    if up is not None:
+        v = centred @ q  # Q^T m per row: the field in the gyro's axes
+        with np.errstate(invalid="ignore", divide="ignore"):
+            sine = -np.einsum("ij,ij->i", up, v) / (np.linalg.norm(up, axis=1) * np.linalg.norm(v, axis=1))
+        sine = sine[np.isfinite(sine)]
+        dip = float(np.degrees(np.arcsin(np.clip(np.median(sine), -1.0, 1.0)))) if len(sine) else 0.0
+    if abs(dip) < MIN_SIGNED_DIP_DEG:
+        return q, False, (f" (the readings do not say which way the field points: if the heading reads 180 deg off, "
+                          f"{_remap(-q, names)})")
+    known = site_dip_deg is not None and abs(site_dip_deg) >= MIN_SIGNED_DIP_DEG
+    chosen = q if np.sign(dip) == (np.sign(site_dip_deg) if known else 1.0) else -q
+    other = f"{_remap(-chosen, names)}, or"
+    where = "" if known else (f" (the field taken to point down, as north of the magnetic equator; south of it: "
+                              f"{other} give --site)")
+    return chosen, True, f"{where}; an accelerometer that reads gravity as down (--accel-sign -1) flips the pick"
+
+
+def _remap(q: np.ndarray, names) -> str:
+    """The ``--columns NAME=COLUMN`` option that reads the magnetometer in the gyro's axes: ``v = Q^T m``."""
+    parts = []
+    for j in range(3):
+        i = int(np.argmax(np.abs(q[:, j])))
+        parts.append(f"{names[j]}={'-' if q[i, j] < 0 else ''}COLUMN({names[i]})")
+    return "--columns " + ",".join(parts)
+
+
+def _cells(q: np.ndarray, names) -> str:
+    """The names of the magnetometer's cells, in their order, that read it in the gyro's axes (cell ``i`` reads
+    ``Q_ij v_j``)."""
+    return ",".join(f"{'-' if q[i].sum() < 0 else ''}{names[int(np.argmax(np.abs(q[i])))]}" for i in range(3))
+
+
+def _read_as(q: np.ndarray, names) -> str:
+    """``Q`` in words: which of the gyro's axes each magnetometer axis reads."""
+    parts = []
+    for i in range(3):
+        j = int(np.argmax(np.abs(q[i])))
+        parts.append(f"{names[i]} read as the gyro's {'+' if q[i, j] > 0 else '-'}{'xyz'[j]}")
+    return ", ".join(parts)

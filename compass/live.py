@@ -44,6 +44,9 @@ UPSIDE_DOWN_SAMPLES = 100
 AXES_ROWS = 2000
 """Rows (every :data:`AXES_EVERY`-th estimate) the axis check (:func:`compass.axes.check_axes`) judges, once."""
 AXES_EVERY = 5
+GYRO_AXES_ROWS = 6000
+"""Rows (every one, the gyro's turn between them integrated) the gyro's axis check (:func:`compass.axes.axes_from_gyro`)
+judges, once: a minute at 100 Hz."""
 
 
 def invalid_words(stats) -> str:
@@ -169,7 +172,9 @@ class LiveSession:
     axes : str or None
         Set when the field-gravity angle of the first :data:`AXES_ROWS` sampled estimates (or of the whole
         stream, on close) wanders in a way one sign pattern of the field's axes removes: what to
-        negate, in words (said as a warning event); None otherwise.
+        negate, in words (said as a warning event); or when the field's turns over the first
+        :data:`GYRO_AXES_ROWS` rows match the gyro's only with other axes (:func:`compass.axes.axes_from_gyro`): what
+        they are; None otherwise.
     skipped : dict of str to int
         Readings never fused, by reason (:data:`compass.filter.SKIP_REASONS`): the filter's screen (a
         non-finite or out-of-range sensor part is skipped, the rest of the sample used) and, in the
@@ -208,6 +213,7 @@ class LiveSession:
     _header_seen: object = None
     _start: FilterStart | None = None
     _axes_rows: list | None = field(default_factory=list)  # (accel, field) pairs for the axis check; None once judged
+    _gyro_axes_rows: list | None = field(default_factory=list)  # (t_s, gyro, field, accel) for the gyro's axis check
     _dips: list | None = None  # measured dips of the first estimates, against a given reference
     _bench_accel: bool | None = None  # the bench's offsets apply to this stream's unit; None: not judged yet
     _times: list | None = field(default_factory=list)  # the first samples' t_s for the step check; None once judged
@@ -425,6 +431,12 @@ class LiveSession:
         t_s = sample.t_s if sample.t_s is not None else t_rx - self._t0
         filt = self._filter
         est = filt.step(t_s, accel, gyro, field_row)
+        if self._gyro_axes_rows is not None and gyro is not None:
+            absent = (math.nan,) * 3
+            self._gyro_axes_rows.append((t_s, *gyro, *(absent if field_row is None else field_row),
+                                         *(absent if accel is None else accel)))
+            if len(self._gyro_axes_rows) >= GYRO_AXES_ROWS:
+                self._judge_gyro_axes()
         if filt.events:
             for text in filt.drain_events():
                 self._event("warn", text)
@@ -499,6 +511,28 @@ class LiveSession:
         if verdict is not None:
             self.axes = verdict.text
             self._event("warn", verdict.text)
+
+    def _judge_gyro_axes(self) -> None:
+        """The field's turns against the gyro's over the first rows (once): a stream whose magnetometer columns are
+        not those the calibration was made with (a ``--columns`` remap not given again) reads turned axes."""
+        from .axes import axes_from_gyro
+        from .io.tumble import gyro_turns
+        from .sample_check import new_readings
+
+        rows, self._gyro_axes_rows = np.array(self._gyro_axes_rows, dtype=float), None
+        if len(rows) < 2:
+            return
+        t, gyro, field_h, accel = rows[:, 0], rows[:, 1:4], rows[:, 4:7], rows[:, 7:10]
+        keep = new_readings(field_h)
+        channels = tuple(self.model.channels)
+        site_dip = None if self.reference is None else self.reference.dip_deg
+        verdict = axes_from_gyro(field_h[keep], gyro_turns(t, np.where(np.isfinite(gyro), gyro, 0.0), keep), t[keep],
+                                 up=accel[keep], site_dip_deg=site_dip,
+                                 names=channels if len(channels) == 3 else ("mx", "my", "mz"))
+        if verdict is not None:
+            self.axes, self._axes_rows = verdict.finding, None  # the accelerometer's sign patterns are then moot
+            self._event("warn", f"{verdict.finding}: is the stream read with the remap its calibration was made with? "
+                                f"Else recalibrate reading it in the gyro's axes: {verdict.remap}")
 
     def _judge_turn(self) -> None:
         """The measured dips so far against the given reference: :attr:`turned_over` (once)."""
@@ -601,6 +635,8 @@ class LiveSession:
             self._started()
         if self._dips:  # a stream shorter than the check: judged on what it gave
             self._judge_turn()
+        if self._gyro_axes_rows:
+            self._judge_gyro_axes()
         if self._axes_rows:
             self._judge_axes()
         if self.sink is not None:  # a field turned over, or an accelerometer never used, gives wrong attitudes

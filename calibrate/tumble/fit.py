@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from compass.axes import check_axes
+from compass.axes import axes_from_gyro, check_axes
 from compass.io.tumble import TumbleRecording
 
 from ..contract import Calibrator, CannotCalibrate, metadata_field_ut
@@ -206,6 +206,22 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, ellips
                         accelerometer_words=accel_words)
 
 
+COVERED_DEG = 10.0
+"""The fitted magnetometer-accelerometer rotation within this of the axes the gyro named covers them, degrees."""
+
+
+def _rotation_covers(result: TumbleResult, q: np.ndarray) -> bool:
+    """Whether ``result``'s fitted rotation ``C`` (calibrated magnetometer -> accelerometer) takes the magnetometer's
+    axes ``Q`` (:func:`compass.axes.axes_from_gyro`) into the gyro's, ``C ~ Q^T``, or ``-Q^T`` (the same chip with
+    the field's sign the other way, which :func:`compass.axes.check_axes` judges); a refused result covers nothing."""
+    m = result.misalignment
+    if result.refused or m is None or m.rotation is None:
+        return False
+    c = m.rotation.as_matrix()
+    return any(np.linalg.det(t) > 0 and Rotation.from_matrix(c @ t.T).magnitude() < np.radians(COVERED_DEG)
+               for t in (q.T, -q.T))
+
+
 def _accelerometer(accel, t_s) -> tuple:
     """``(AccelCalibration or None, why not in words)`` of the tumble's accelerometer (``("", "")`` without one)."""
     if accel is None:
@@ -288,12 +304,21 @@ class TumbleCalibrator(Calibrator):
         axis_noise = _axis_noise(np.asarray(recording.mag, float)) if len(recording.mag) >= 3 else None
         require_varying_axes(recording.path, recording.mag, axis_noise)
         site = compare_with_site(0.0, None, recording.metadata, recording.path)
+        site_dip_deg = None if site is None else site["model_dip_deg"]
+        axes = None if recording.gyro_turn_rad is None else axes_from_gyro(
+            recording.mag, recording.gyro_turn_rad, recording.t_s, up=recording.accel, site_dip_deg=site_dip_deg)
         result = calibrate_tumble(recording.mag, recording.accel, ellipsoid=self.ellipsoid, field_ut=field_ut,
                                   n_repeats=recording.n_repeats, t_s=recording.t_s, temp_c=recording.temp_c,
-                                  site_dip_deg=None if site is None else site["model_dip_deg"], axis_noise=axis_noise)
+                                  site_dip_deg=site_dip_deg, axis_noise=axis_noise)
         if self.ellipsoid == "auto" and recording.gyro_turn_rad is not None and falls_back(result):  # the gyro pins what |m| cannot
             result = with_gyro(result, recording.mag, recording.accel, recording.gyro_turn_rad, recording.t_s,
                                recording.temp_c)
+        if axes is not None:  # the magnetometer's axes are not the gyro's: right only where the fitted rotation is
+            if not _rotation_covers(result, axes.matrix):
+                raise CannotCalibrate(f"{recording.path}: {axes.text}")
+            result = replace(result, warnings=result.warnings + (
+                f"{axes.finding}; the fitted rotation to the accelerometer covers it (the runtime reads the stream as "
+                "this recording was read)",))
         if result.refused:
             raise CannotCalibrate(f"{recording.path}: {result.refused}")
         health = channel_health(result, recording.mag, axis_noise)
