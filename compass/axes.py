@@ -36,7 +36,8 @@ it); ``Q`` and ``-Q`` give the same ``M`` (a reversed field turns as the field d
 field's dip sign (the accelerometer, and the site's hemisphere) picks one.  Unlike the accelerometer's test this one
 works on a recording that covers a fraction of the sphere, before any fit: a robot path's 18 % with the MPU-9250's
 axes calibrated "fine" and gave 114 deg of heading error.  :func:`axes_from_gyro` returns a verdict only when one
-pair fits clearly better than the axes as read and than every other pair; it is used by the tumble calibration.
+pair fits clearly better than the axes as read and than every other pair; it is used by the tumble
+calibration and, on the first rows of a stream, by :class:`compass.live.LiveSession`.
 """
 
 from __future__ import annotations
