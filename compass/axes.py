@@ -384,14 +384,14 @@ def _dip_sign(q: np.ndarray, centred: np.ndarray, up, site_dip_deg, names) -> tu
         sine = sine[np.isfinite(sine)]
         dip = float(np.degrees(np.arcsin(np.clip(np.median(sine), -1.0, 1.0)))) if len(sine) else 0.0
     if abs(dip) < MIN_SIGNED_DIP_DEG:
-        return q, False, (f" (the readings do not say which way the field points: if the heading reads 180 deg off, "
-                          f"{_remap(-q, names)})")
+        return q, False, (" (the readings do not say which way the field points: if the heading reads 180 deg off, "
+                          "every sign in the remap turned)")
     known = site_dip_deg is not None and abs(site_dip_deg) >= MIN_SIGNED_DIP_DEG
     chosen = q if np.sign(dip) == (np.sign(site_dip_deg) if known else 1.0) else -q
-    other = f"{_remap(-chosen, names)}, or"
-    where = "" if known else (f" (the field taken to point down, as north of the magnetic equator; south of it: "
-                              f"{other} give --site)")
-    return chosen, True, f"{where}; an accelerometer that reads gravity as down (--accel-sign -1) flips the pick"
+    where = "" if known else (" (the field taken to point down, as north of the magnetic equator; south of it, every "
+                              "sign in the remap turned, or give the site: # site_lat_deg, # site_lon_deg and # date "
+                              "lines in a file, --site to compass live)")
+    return chosen, True, f"{where}; an accelerometer that reads gravity as down (as read) turns the pick"
 
 
 def _remap(q: np.ndarray, names) -> str:

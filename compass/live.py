@@ -431,11 +431,12 @@ class LiveSession:
         t_s = sample.t_s if sample.t_s is not None else t_rx - self._t0
         filt = self._filter
         est = filt.step(t_s, accel, gyro, field_row)
-        if self._gyro_axes_rows is not None and gyro is not None:
+        axes_rows = self._gyro_axes_rows  # rows in time: a clock that goes back (a restart) ends them
+        if axes_rows is not None and gyro is not None and math.isfinite(t_s) and (not axes_rows or t_s >= axes_rows[-1][0]):
             absent = (math.nan,) * 3
-            self._gyro_axes_rows.append((t_s, *gyro, *(absent if field_row is None else field_row),
-                                         *(absent if accel is None else accel)))
-            if len(self._gyro_axes_rows) >= GYRO_AXES_ROWS:
+            axes_rows.append((t_s, *gyro, *(absent if field_row is None else field_row),
+                              *(absent if accel is None else accel)))
+            if len(axes_rows) >= GYRO_AXES_ROWS:
                 self._judge_gyro_axes()
         if filt.events:
             for text in filt.drain_events():
@@ -525,7 +526,8 @@ class LiveSession:
         t, gyro, field_h, accel = rows[:, 0], rows[:, 1:4], rows[:, 4:7], rows[:, 7:10]
         keep = new_readings(field_h)
         channels = tuple(self.model.channels)
-        site_dip = None if self.reference is None else self.reference.dip_deg
+        known = self.reference is not None and self.reference.source == "site"  # a recording's dip is this field's own
+        site_dip = self.reference.dip_deg if known else None
         verdict = axes_from_gyro(field_h[keep], gyro_turns(t, np.where(np.isfinite(gyro), gyro, 0.0), keep), t[keep],
                                  up=accel[keep], site_dip_deg=site_dip,
                                  names=channels if len(channels) == 3 else ("mx", "my", "mz"))

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from compass.axes import axes_from_gyro, check_axes
+from compass.axes import MIN_SIGNED_DIP_DEG, axes_from_gyro, check_axes
 from compass.io.tumble import TumbleRecording
 
 from ..contract import Calibrator, CannotCalibrate, metadata_field_ut
@@ -210,16 +210,27 @@ COVERED_DEG = 10.0
 """The fitted magnetometer-accelerometer rotation within this of the axes the gyro named covers them, degrees."""
 
 
-def _rotation_covers(result: TumbleResult, q: np.ndarray) -> bool:
-    """Whether ``result``'s fitted rotation ``C`` (calibrated magnetometer -> accelerometer) takes the magnetometer's
-    axes ``Q`` (:func:`compass.axes.axes_from_gyro`) into the gyro's, ``C ~ Q^T``, or ``-Q^T`` (the same chip with
-    the field's sign the other way, which :func:`compass.axes.check_axes` judges); a refused result covers nothing."""
+def _covered_words(result: TumbleResult, axes, site_dip_deg: float | None, path: str) -> str:
+    """The warning for magnetometer axes the gyro named (:func:`compass.axes.axes_from_gyro`) that ``result``'s fitted
+    rotation ``C`` (calibrated magnetometer -> accelerometer) takes into the gyro's: ``C ~ Q^T``; or ``C ~ -Q^T``, the
+    same chip with the field reversed, where the field's sign is not known (no site, or one near the magnetic equator:
+    :func:`compass.axes.check_axes` then judges the dip).  Raises CannotCalibrate with the remap otherwise."""
     m = result.misalignment
-    if result.refused or m is None or m.rotation is None:
-        return False
-    c = m.rotation.as_matrix()
-    return any(np.linalg.det(t) > 0 and Rotation.from_matrix(c @ t.T).magnitude() < np.radians(COVERED_DEG)
-               for t in (q.T, -q.T))
+    c = None if result.refused or m is None or m.rotation is None else m.rotation.as_matrix()
+
+    def near(t: np.ndarray) -> bool:
+        return c is not None and np.linalg.det(t) > 0 and Rotation.from_matrix(c @ t.T).magnitude() < np.radians(
+            COVERED_DEG)
+
+    sign_known = site_dip_deg is not None and abs(site_dip_deg) >= MIN_SIGNED_DIP_DEG
+    if near(axes.matrix.T):
+        return ("the magnetometer's axes are not the gyro's, and the rotation fitted to the accelerometer turns them "
+                "into the gyro's (the runtime reads the stream as this recording was read)")
+    if near(-axes.matrix.T) and not sign_known:
+        return (f"{axes.finding}; the rotation fitted to the accelerometer reads it as a half turn with the field "
+                f"reversed, right only south of the magnetic equator; north of it, read it in the gyro's axes: "
+                f"{axes.remap}")
+    raise CannotCalibrate(f"{path}: {axes.text}")
 
 
 def _accelerometer(accel, t_s) -> tuple:
@@ -314,11 +325,8 @@ class TumbleCalibrator(Calibrator):
             result = with_gyro(result, recording.mag, recording.accel, recording.gyro_turn_rad, recording.t_s,
                                recording.temp_c)
         if axes is not None:  # the magnetometer's axes are not the gyro's: right only where the fitted rotation is
-            if not _rotation_covers(result, axes.matrix):
-                raise CannotCalibrate(f"{recording.path}: {axes.text}")
-            result = replace(result, warnings=result.warnings + (
-                f"{axes.finding}; the fitted rotation to the accelerometer covers it (the runtime reads the stream as "
-                "this recording was read)",))
+            covered = _covered_words(result, axes, site_dip_deg, recording.path)
+            result = replace(result, warnings=result.warnings + (covered,))
         if result.refused:
             raise CannotCalibrate(f"{recording.path}: {result.refused}")
         health = channel_health(result, recording.mag, axis_noise)

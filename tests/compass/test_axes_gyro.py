@@ -71,7 +71,7 @@ def test_the_words_name_each_axis_and_both_forms_of_the_remap(robot):
     assert "mx read as the gyro's +y, my read as the gyro's +x, mz read as the gyro's -z" in verdict.finding
     assert verdict.columns == "--columns mx=COLUMN(my),my=COLUMN(mx),mz=-COLUMN(mz)"
     assert verdict.cells == "my,mx,-mz"
-    assert "mounted turned" in verdict.finding and "south of it: --columns mx=-COLUMN(my)" in verdict.remap
+    assert "mounted turned" in verdict.finding and "south of it, every sign in the remap turned" in verdict.remap
     quarter = _verdict(*robot, QUARTER_Z)  # m = (-v_y, v_x, v_z): v_x is my, v_y is -mx; the cells read -y, x, z
     assert quarter.columns == "--columns mx=COLUMN(my),my=-COLUMN(mx),mz=COLUMN(mz)" and quarter.cells == "-my,mx,mz"
 
@@ -157,21 +157,44 @@ def test_a_quarter_turn_the_gyro_aided_fit_finds_stands_with_a_warning(robot, tm
     path = _write(tmp_path / "robot.csv", rec.t_s[keep], _raw(rec, keep, QUARTER_Z), rec.accel_m_s2[keep],
                   rec.gyro_rad_s[keep])
     result = TumbleCalibrator().fit(read_tumble(path))
-    assert any("not the gyro's" in w and "covers it" in w for w in result.warnings)
+    assert any("not the gyro's" in w and "turns them into the gyro's" in w for w in result.warnings)
     assert Rotation.from_matrix(result.misalignment.rotation.as_matrix() @ QUARTER_Z).magnitude() < np.radians(10.0)
 
 
-def test_a_whole_sphere_tumble_whose_rotation_covers_the_axes_stands_with_a_warning(tmp_path):
-    from calibrate.tumble import TumbleCalibrator
-    from compass.io.tumble import read_tumble
+def _whole_sphere(path, q, metadata=""):
+    """A simulated tumble over the whole sphere (dip +60 deg) read by a chip with axes ``q``, with its gyro."""
     from compass.sim.tumble import simulate_tumble
 
     sim = simulate_tumble(seed=5, n=1500)
     gyro = np.zeros((len(sim.t_s), 3))  # row i's rate turns the housing over (t_i-1, t_i]
     gyro[1:] = (sim.attitude[:-1].inv() * sim.attitude[1:]).as_rotvec() / np.diff(sim.t_s)[:, None]
-    path = _write(tmp_path / "tumble.csv", sim.t_s, sim.mag @ ICM20948.T, sim.accel * 9.80665, gyro)
+    rows = np.column_stack([sim.t_s, sim.mag @ q.T, sim.accel, gyro])
+    np.savetxt(path, rows, delimiter=",", header=metadata + "t_s,mx,my,mz,ax,ay,az,gx,gy,gz", comments="", fmt="%.6f")
+    return path
+
+
+def test_a_mirrored_chip_over_the_whole_sphere_stands_as_a_half_turn_only_without_a_site(tmp_path):
+    """The fit takes a mirrored x as the half turn -Q^T with the field pointing up: right in the south, so without a
+    site it stands (check_axes says the field points up); at a northern site it is refused with the remap."""
+    from calibrate.contract import CannotCalibrate
+    from calibrate.tumble import TumbleCalibrator
+    from compass.io.tumble import read_tumble
+
+    result = TumbleCalibrator().fit(read_tumble(_whole_sphere(tmp_path / "t.csv", MIRRORED_X)))
+    assert any("the field points up" in w for w in result.warnings)
+    assert any("mirrored" in w and "right only south of the magnetic equator" in w for w in result.warnings)
+    north = "# site_lat_deg: 52.5\n# site_lon_deg: 13.4\n# date: 2026-11-27\n"
+    with pytest.raises(CannotCalibrate, match="mirrored against the gyro"):
+        TumbleCalibrator().fit(read_tumble(_whole_sphere(tmp_path / "north.csv", MIRRORED_X, north)))
+
+
+def test_a_whole_sphere_tumble_whose_rotation_covers_the_axes_stands_with_a_warning(tmp_path):
+    from calibrate.tumble import TumbleCalibrator
+    from compass.io.tumble import read_tumble
+
+    path = _whole_sphere(tmp_path / "tumble.csv", ICM20948)
     result = TumbleCalibrator().fit(read_tumble(path))
-    assert any("not the gyro's" in w and "covers it" in w for w in result.warnings)
+    assert any("not the gyro's" in w and "turns them into the gyro's" in w for w in result.warnings)
     assert Rotation.from_matrix(result.misalignment.rotation.as_matrix() @ ICM20948).magnitude() < np.radians(10.0)
 
 
@@ -228,3 +251,27 @@ def test_the_gyro_aided_fit_of_axes_it_cannot_match_refuses_in_words_not_a_trace
             TumbleCalibrator().fit(read_tumble(path))
         except CannotCalibrate:
             pass
+
+
+def test_a_live_stream_s_own_dip_does_not_pick_the_sign():
+    """Without a site the session's reference is the stream's first quiet second, read through the wrong axes: its
+    dip (here far above the 10 deg cut) must not be taken for the site's; the pick stays the field pointing down."""
+    from compass.live import LiveSession
+    from compass.replay import replay
+    from compass.sim.device import default_model, simulate_device, tumble_motion
+
+    def still_then_tumble(t):
+        t = np.asarray(t, dtype=float)
+        heading, pitch, roll, magnitude = tumble_motion(np.maximum(t - 3.0, 0.0))
+        still = t < 3.0
+        return np.where(still, 0.0, heading), np.where(still, 0.0, pitch), np.where(still, 0.0, roll), magnitude
+
+    model = default_model()
+    t = np.arange(0.0, 63.0, 0.01)
+    s = simulate_device(model, t, motion=still_then_tumble, seed=3)
+    events = []
+    session = replay(LiveSession(model, on_event=lambda level, text: events.append(text)), t, s.raw @ CYCLIC.T, s.accel,
+                     s.gyro)
+    assert session.reference.source == "recording" and abs(session.reference.dip_deg) >= 10.0
+    said = [e for e in events if "not the gyro's" in e]
+    assert len(said) == 1 and "mounted turned against the gyro" in said[0] and "cells my,mz,mx" in said[0]
