@@ -210,11 +210,12 @@ COVERED_DEG = 10.0
 """The fitted magnetometer-accelerometer rotation within this of the axes the gyro named covers them, degrees."""
 
 
-def _covered_words(result: TumbleResult, axes, site_dip_deg: float | None, path: str) -> str:
-    """The warning for magnetometer axes the gyro named (:func:`compass.axes.axes_from_gyro`) that ``result``'s fitted
-    rotation ``C`` (calibrated magnetometer -> accelerometer) takes into the gyro's: ``C ~ Q^T``; or ``C ~ -Q^T``, the
-    same chip with the field reversed, where the field's sign is not known (no site, or one near the magnetic equator:
-    :func:`compass.axes.check_axes` then judges the dip).  Raises CannotCalibrate with the remap otherwise."""
+def _named_axes_warning(result: TumbleResult, axes, site_dip_deg: float | None, path: str) -> str:
+    """The warning for magnetometer axes the gyro named (:func:`compass.axes.axes_from_gyro`) where ``result``'s fitted
+    rotation ``C`` (calibrated magnetometer -> accelerometer) takes them into the gyro's: ``C ~ Q^T``; or
+    ``C ~ -Q^T``, the same chip with the field reversed, where the field's sign is not known (no site, or one near
+    the magnetic equator: :func:`compass.axes.check_axes` then judges the dip).  Raises CannotCalibrate with the
+    remap otherwise."""
     m = result.misalignment
     c = None if result.refused or m is None or m.rotation is None else m.rotation.as_matrix()
 
@@ -325,8 +326,8 @@ class TumbleCalibrator(Calibrator):
             result = with_gyro(result, recording.mag, recording.accel, recording.gyro_turn_rad, recording.t_s,
                                recording.temp_c)
         if axes is not None:  # the magnetometer's axes are not the gyro's: right only where the fitted rotation is
-            covered = _covered_words(result, axes, site_dip_deg, recording.path)
-            result = replace(result, warnings=result.warnings + (covered,))
+            warning = _named_axes_warning(result, axes, site_dip_deg, recording.path)
+            result = replace(result, warnings=result.warnings + (warning,))
         if result.refused:
             raise CannotCalibrate(f"{recording.path}: {result.refused}")
         health = channel_health(result, recording.mag, axis_noise)
