@@ -17,6 +17,8 @@ import numpy as np
 
 from .calibration import ImuCorrection
 from .filter import AttitudeFilter, Estimate, FilterConfig, FilterStart
+from .io.clock import SampleClock
+from .io.sample_log import SampleLog
 from .io.streams import (HELD_JUDGE_SAMPLES, JUDGE_SAMPLES, StreamDecoder, StreamOptions, field_scale_check,
                          held_field_words, time_steps_verdict)
 from .io.units import MAX_ABS_VALUE
@@ -136,6 +138,9 @@ class LiveSession:
     quaternion : bool
         The CSV also carries the attitude quaternion ``qw,qx,qy,qz`` (scalar first,
         ``R_world<-housing``, SPEC section 1; the replay's output).
+    record : compass.io.sample_log.SampleLog, optional
+        Receives every decoded sample, dated, as a recording the replay reproduces the session from
+        (``compass live --record``).
 
     Attributes
     ----------
@@ -191,6 +196,7 @@ class LiveSession:
     sign_from_bench: bool = True
     stream: StreamOptions | None = None
     quaternion: bool = False
+    record: SampleLog | None = None
     decoder: StreamDecoder = field(init=False)
     turned_over: str | None = None
     wrong_gravity: str | None = None
@@ -220,6 +226,7 @@ class LiveSession:
     _held: list | None = field(default_factory=list)  # the first (t_s, raw) for the held-reading words; None once said
     _rail: GyroRail = field(default_factory=GyroRail)  # a gyro axis held at its range: said once
     _last_rx: float = 0.0
+    _clock: SampleClock = field(default_factory=SampleClock)  # dates the samples of a stream without t_s
 
     def __post_init__(self):
         self.decoder = StreamDecoder(self.model.channels, self.stream, field_check=field_scale_check(self.model))
@@ -257,6 +264,7 @@ class LiveSession:
         if isinstance(item, LinkEvent):
             if item.kind == "connected":
                 self.decoder.resync()
+                self._clock.restart()
             self._event("warn" if item.kind == "disconnected" else "info", item.message)
             return
         if self._t0 is None:
@@ -287,8 +295,13 @@ class LiveSession:
     def _chunk(self, samples: list, t_rx: float) -> None:
         """A chunk's samples: what is not sequential once for all of them (the calibration's field, the
         reference seeding's screen), then each sample through the seeding or the filter."""
-        self._judge_steps(samples)
-        self._judge_rail(samples, t_rx)
+        self._judge_steps(samples)  # the module's own t_s
+        samples = self._dated(samples, t_rx)
+        if self.record is not None:
+            stopped = self.record.write(samples, self.decoder.options.accel_known(self.decoder.format))
+            if stopped is not None:
+                self._event("warn", stopped)
+        self._judge_rail(samples)
         self._judge_held(samples)
         fields, in_range = self._fields(samples)
         field_rows, in_range = fields.tolist(), in_range.tolist()
@@ -310,6 +323,24 @@ class LiveSession:
                 self._starting(reading)
             else:
                 self._sample(reading)
+
+    def _dated(self, samples: list, t_rx: float) -> list:
+        """The samples, those without ``t_s`` dated by :class:`~compass.io.clock.SampleClock` from their arrival
+        (their chunk's, or the decoder's when it held them), seconds since the session's first chunk."""
+        if all(s.t_s is not None for s in samples):
+            return samples
+        dated, run = list(samples), []
+        for k, sample in enumerate(samples + [None]):  # runs of clockless samples that arrived together
+            arrival = None if sample is None or sample.t_s is not None else \
+                (t_rx if sample.t_rx is None else sample.t_rx)
+            if run and arrival != run[0][1]:
+                times = self._clock.date(len(run), run[0][1]) - self._t0
+                for (j, _), t_s in zip(run, times.tolist()):
+                    dated[j] = replace(dated[j], t_s=t_s)
+                run = []
+            if arrival is not None:
+                run.append((k, arrival))
+        return dated
 
     def _judge_steps(self, samples: list) -> None:
         """Say once when the module's ``t_s`` does not tell the filter the time between samples
@@ -335,18 +366,17 @@ class LiveSession:
         if len(self._held) < HELD_JUDGE_SAMPLES:
             return
         rows, self._held = self._held[:HELD_JUDGE_SAMPLES], None
-        times = [t for t, _ in rows]
-        words = held_field_words([r for _, r in rows], None if None in times else times)
+        words = held_field_words([r for _, r in rows], [t for t, _ in rows])
         if words is not None:
             self._event("info", words)
 
-    def _judge_rail(self, samples: list, t_rx: float) -> None:
+    def _judge_rail(self, samples: list) -> None:
         """Say once when a gyro axis holds its range (:class:`compass.sample_check.GyroRail`), on the gyro as sent."""
         if self._rail.said:
             return
         sent = [s for s in samples if s.gyro is not None]
         if sent:
-            words = self._rail.feed([s.gyro for s in sent], [t_rx - self._t0 if s.t_s is None else s.t_s for s in sent])
+            words = self._rail.feed([s.gyro for s in sent], [s.t_s for s in sent])
             if words is not None:
                 self._event("warn", words)
 
@@ -389,9 +419,7 @@ class LiveSession:
 
     def _starting(self, reading: Reading) -> None:
         """Hold a sample in the start window (:class:`compass.filter.FilterStart`); start when it is complete."""
-        sample = reading.sample
-        t_s = sample.t_s if sample.t_s is not None else reading.t_rx - self._t0
-        reason = self._start.add(reading, t_s, reading.accel, reading.gyro, reading.field_h)
+        reason = self._start.add(reading, reading.sample.t_s, reading.accel, reading.gyro, reading.field_h)
         if reason is not None:
             self._count_skip(reason)
         elif self._start.done:
@@ -428,7 +456,7 @@ class LiveSession:
             elif header.temp_c is None:
                 self._event("warn", "the calibration has a temperature effect but the module sends no temp_c: "
                                     f"readings are taken as at {effect.reference_c:.1f} degC")
-        t_s = sample.t_s if sample.t_s is not None else t_rx - self._t0
+        t_s = sample.t_s
         filt = self._filter
         est = filt.step(t_s, accel, gyro, field_row)
         axes_rows = self._gyro_axes_rows  # rows in time: a clock that goes back (a restart) ends them

@@ -62,6 +62,9 @@ def register(sub) -> None:
                    help="baud rate (default 115200; ignored by ptys and sockets)")
     add_rerun_option(p)
     p.add_argument("--out", help="also write the attitude stream to this CSV file")
+    p.add_argument("--record", metavar="RAW.csv",
+                   help="also write every sample the module sends, dated (a stream without t_s: from when its lines "
+                        "arrive), as a recording `compass attitude CAL RAW.csv --filter` replays to the same rows")
     p.add_argument("--site", metavar="LAT,LON[,ALT_M]",
                    help="where the module is (degrees, metres): reference field and true north from the World "
                         "Magnetic Model (default: the field of the first quiet second, magnetic heading only)")
@@ -90,6 +93,7 @@ def register(sub) -> None:
 def run(args) -> int:
     from ..cli import BadInput
     from ..io.atomic import atomic_stream, check_writable
+    from ..io.sample_log import SampleLog
     from ..live import LiveSession, invalid_words
     from ..filter import FilterConfig
     from ..replay import gyro_matrix_note, mag_latency_note
@@ -97,6 +101,10 @@ def run(args) -> int:
 
     if args.calibrate == "tumble":
         from ._live_tumble import run_tumble
+
+        if args.record is not None:
+            raise BadInput("--record goes with an attitude session: --calibrate tumble writes its samples to "
+                           "CAL.tumble.csv beside --out")
 
         return run_tumble(args)
     if args.cal is None:
@@ -116,6 +124,9 @@ def run(args) -> int:
     stream = stream_options(args)
     reader = open_reader(args)
     out_path = None if args.out is None else check_writable(args.out, args.force)
+    record_path = None if args.record is None else check_writable(args.record, args.force)
+    if record_path is not None and out_path is not None and record_path.resolve() == out_path.resolve():
+        raise BadInput(f"--record and --out are both {args.out}: give two files")
     check_rerun_target(args.rerun, args.force)
 
     tty = sys.stdout.isatty()
@@ -125,7 +136,7 @@ def run(args) -> int:
         if not args.quiet:
             print(("\r\x1b[K" if tty else "") + f"[{level}] {text}", flush=True)
 
-    session, sink, out, start = None, None, None, time.perf_counter()
+    session, sink, out, log, start = None, None, None, None, time.perf_counter()
     try:
         if args.rerun is not None:
             from ..viz import RerunSink
@@ -137,8 +148,11 @@ def run(args) -> int:
             # recorded nothing, or found the field turned over, leaves --out (an older file) as it was
             if out_path is not None:
                 out = outputs.enter_context(atomic_stream(out_path, keep=lambda: _recorded(session)))
+            if record_path is not None:  # kept whenever it holds a sample: the raw samples are good as they are
+                log = SampleLog(outputs.enter_context(atomic_stream(record_path, keep=lambda: log.rows > 0)),
+                                model.channels, args.port, _replay_options(args, reference))
             session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event, reference=reference,
-                                  imu=cal.imu, stream=stream,
+                                  imu=cal.imu, stream=stream, record=log,
                                   sign_from_bench=cal.provenance.hemisphere_assumed)
             _run_session(args, reader, session, out, tty, every_s)
             _refuse(args, session)  # judged on close: a stream shorter than the check
@@ -160,6 +174,7 @@ def run(args) -> int:
                 print()
             # both outputs hold what was recorded up to the end, a failure included (the session closed them)
             wrote = [str(p) for p in (out_path, args.rerun) if recorded and p is not None and str(p) != "spawn"]
+            wrote += [f"{record_path} ({log.rows} samples)"] if log is not None and log.rows else []
             print(f"compass live: {elapsed:.1f} s, {reader.disconnects} disconnect(s); {session.summary()}"
                   + (f"; wrote {', '.join(wrote)}" if wrote else ""), flush=True)
             hint = session.closing_hint()
@@ -221,6 +236,21 @@ def _run_session(args, reader, session, out, tty: bool, every_s: float) -> None:
     finally:
         reader.close()
         session.close()
+
+
+def _replay_options(args, reference) -> str:
+    """The options of this session a replay of its ``--record`` needs to write the same rows."""
+    from ..site import Site
+
+    words = []
+    if reference is not None:  # the day too: the field of --site without --date is today's
+        words.append(f"--site {args.site} --date {Site.parse(args.site, args.date).date.isoformat()}")
+    if args.gravity is not None:
+        words.append(f"--gravity {args.gravity!r}")
+    words += [flag for flag, on in (("--mag-latency", args.mag_latency), ("--gyro-matrix", args.gyro_matrix)) if on]
+    if args.gyro_scale_error is not None:
+        words.append(f"--gyro-scale-error {args.gyro_scale_error!r}")
+    return " ".join(words)
 
 
 def _site_reference(args, model):

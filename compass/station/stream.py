@@ -10,8 +10,7 @@ decodes it (checksums, partial lines, lost samples, the unit checks).  A later h
 columns ends the session.
 
 A stream without a module clock (MotionCal's lines, a CSV without ``t_s``) is dated on arrival
-(:class:`ReceiveClock`: the last sample of a chunk at its receive time, the others before it at the
-sample period the receive times show over the last seconds), so the station then works in the
+(:class:`compass.io.clock.SampleClock`, as ``compass live`` dates it), so the station then works in the
 host's time, which is the module's when the module runs in real time.
 """
 
@@ -19,12 +18,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..io.clock import SampleClock
 from ..io.stream_options import StreamOptions
 from ..io.streams import StreamDecoder
 from .session import SessionEnded
 from .turn import Reading
 
-__all__ = ["StationStream", "ReceiveClock", "RESERVED"]
+__all__ = ["StationStream", "RESERVED"]
 
 RESERVED = ("t_s", "seq", "temp_c", "ax", "ay", "az", "gx", "gy", "gz", "flip_deg", "platform_deg")
 _MOTIONCAL_CHANNELS = ("mx", "my", "mz")
@@ -71,7 +71,7 @@ class StationStream:
         self._pending = b""
         self._cut = False  # the pending bytes may start mid-line (a (re)connect, or kept only in part)
         self._rejected = 0
-        self._clock = ReceiveClock()
+        self._clock = SampleClock()
 
     def describe(self) -> str:
         """The stream's format in a few words, for the readout."""
@@ -83,11 +83,11 @@ class StationStream:
         return events
 
     def resync(self) -> None:
-        """After a (re)connect: the first bytes may be the tail of a line, and the receive clock starts again."""
+        """After a (re)connect: the first bytes may be the tail of a line, and the sample clock starts again (its period kept)."""
         (self.decoder or self._probe).resync()
         self._pending = b""
         self._cut = True
-        self._clock = ReceiveClock()
+        self._clock.restart()
 
     def feed(self, chunk: bytes, t_rx: float | None = None) -> list[Reading]:
         """Readings of the complete lines in ``chunk`` received at ``t_rx`` (seconds, any clock: it dates the
@@ -168,37 +168,3 @@ class StationStream:
         return [Reading(float(t), s.raw[:c], s.accel, s.gyro,
                         float(s.raw[c]) if self.encoder_column is not None else None, s.temp_c)
                 for t, s in zip(times, samples)]
-
-
-class ReceiveClock:
-    """Sample times of a stream without a module clock, from the chunks' receive times.
-
-    The sample period is the receive time over the samples received in the last ``window_s`` (at
-    least two chunks); a chunk's last sample is dated at its receive time, the others one period
-    apart before it.  A chunk's receive time is late by the read's latency, which varies from chunk
-    to chunk: the period, taken over many chunks, does not see it; a sample's time carries it (a
-    few milliseconds on a serial port).
-
-    Parameters
-    ----------
-    window_s : float
-        Span of receive times the period is taken over, seconds.
-    """
-
-    def __init__(self, window_s: float = 5.0):
-        self.window_s = window_s
-        self._received: list = []  # (t_rx, samples received up to and with this chunk)
-        self._count = 0
-
-    def date(self, m: int, t_rx: float) -> np.ndarray:
-        """Times of the ``m`` samples of a chunk received at ``t_rx``, seconds, shape (m,)."""
-        first = self._received[0] if self._received else None
-        self._count += m
-        self._received.append((t_rx, self._count))
-        while len(self._received) > 2 and t_rx - self._received[1][0] >= self.window_s:
-            self._received.pop(0)
-        if first is None or t_rx <= self._received[0][0]:
-            return np.full(m, float(t_rx))
-        t0, n0 = self._received[0]
-        period = (t_rx - t0) / (self._count - n0)
-        return t_rx - period * np.arange(m - 1, -1, -1, dtype=float)

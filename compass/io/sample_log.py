@@ -1,0 +1,73 @@
+"""The samples a live session takes, written as a recording ``compass attitude --filter`` replays.
+
+``compass live --record RAW.csv`` writes, row by row as they arrive, every sample the decoder hands the
+session: its time (the module's ``t_s``, or the date :class:`compass.io.clock.SampleClock` gave a stream
+without one), the calibration's channels in the unit it reads them (``--mag-unit`` applied), ``temp_c``,
+the accelerometer (in g when its unit is known: ``--accel-unit`` or MotionCal's lines) and the gyro in
+rad/s, each number written exactly (``repr``), so the replay takes the very floats the live filter took
+and writes the same rows.  The first lines say how it was recorded and the replay that reproduces it (with
+the session's own options: the site and its date, a given gravity, the calibration's latency and gyro matrix).
+A later header with other columns ends the recording (said once): one file has one set of columns.
+"""
+
+from __future__ import annotations
+
+__all__ = ["SampleLog"]
+
+
+class SampleLog:
+    """Writes a session's samples as a CSV recording (SPEC section 2 columns).
+
+    Parameters
+    ----------
+    out : text file
+        Receives the lines (the command's atomic stream).
+    channels : tuple of str
+        The calibration's channel names, in the order of ``Sample.raw``.
+    source : str
+        Where the samples came from (the port), for the first line.
+    replay_options : str
+        The session's options the replay needs too (``--site LAT,LON --date YYYY-MM-DD --gravity G`` ...).
+    """
+
+    def __init__(self, out, channels, source: str, replay_options: str = ""):
+        self.out, self.channels, self.source = out, tuple(channels), source
+        self.replay_options = replay_options
+        self.rows = 0
+        self.stopped: str | None = None
+        self._shape: tuple | None = None
+
+    def write(self, samples: list, accel_in_g: bool) -> str | None:
+        """Write the samples (each with its ``t_s``); words when this ends the recording (the columns changed)."""
+        for sample in samples:
+            if self.stopped is not None:
+                return None
+            shape = (sample.temp_c is not None, sample.accel is not None, sample.gyro is not None)
+            if self._shape is None:
+                self._begin(shape, accel_in_g)
+            elif shape != self._shape:
+                self.stopped = (f"the module's columns changed after {self.rows} samples: --record holds those "
+                                f"(one file has one set of columns)")
+                return self.stopped
+            cells = [sample.t_s, *sample.raw.tolist()]
+            if shape[0]:
+                cells.append(sample.temp_c)
+            for vector in (sample.accel, sample.gyro):
+                if vector is not None:
+                    cells += vector.tolist()
+            self.out.write(",".join(map(repr, map(float, cells))) + "\n")
+            self.rows += 1
+        return None
+
+    def _begin(self, shape: tuple, accel_in_g: bool) -> None:
+        self._shape = shape
+        temp, accel, gyro = shape
+        unit = " --accel-unit g" if accel and accel_in_g else ""
+        names = ["t_s", *self.channels] + (["temp_c"] if temp else []) + (["ax", "ay", "az"] if accel else []) \
+            + (["gx", "gy", "gz"] if gyro else [])
+        options = f" {self.replay_options}" if self.replay_options else ""
+        self.out.write(f"# source: compass live --record, {self.source}\n"
+                       f"# replay: compass attitude CAL.json THIS.csv --out ATT.csv --filter{unit}{options}\n"
+                       f"# units: the calibration's for {','.join(self.channels)}"
+                       + (f"; accelerometer in {'g' if accel_in_g else 'the module unit'}" if accel else "")
+                       + ("; gyro in rad/s" if gyro else "") + "\n" + ",".join(names) + "\n")

@@ -1,0 +1,175 @@
+"""A module that sends no t_s, read in bursts: ``compass live`` dates its samples (``SampleClock``), and
+``--record`` writes them so the replay gives the same rows."""
+
+import datetime as dt
+import io
+from argparse import Namespace
+
+import numpy as np
+import pytest
+
+from compass.calibration import model_to_dict, save
+from compass.cli import main
+from compass.commands.live import _replay_options
+from compass.filter import FilterConfig, run_filter
+from compass.io.lines import Sample
+from compass.io.sample_log import SampleLog
+from compass.io.streams import StreamOptions
+from compass.io.table import read_table
+from compass.live import LiveSession
+from compass.serial_reader import Chunk
+from compass.sim.device import default_model, simulate_device, tumble_motion
+
+RATE_HZ = 100.0
+COLUMNS = ("ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz")
+
+
+def wrap(d):
+    return np.mod(np.asarray(d) + 180.0, 360.0) - 180.0
+
+
+def _bursts(t_send, seed):
+    """Each sample's arrival: reads every 1-20 ms, 2 % of them after a 50-200 ms stall (a busy host)."""
+    rng = np.random.default_rng(seed)
+    gaps = rng.uniform(0.001, 0.020, int(2 * t_send[-1] / 0.001) + 10)
+    stalls = rng.random(len(gaps)) < 0.02
+    gaps[stalls] = rng.uniform(0.05, 0.2, int(stalls.sum()))
+    reads = 100.0 + np.cumsum(gaps)
+    return reads[np.searchsorted(reads, 100.0 + t_send + 0.001)]
+
+
+@pytest.fixture(scope="module")
+def clockless():
+    """A tumbling module's samples as bare numbers without t_s, and when each arrived."""
+    model = default_model()
+    t = np.arange(0.0, 30.0, 1.0 / RATE_HZ)
+    s = simulate_device(model, t, motion=tumble_motion, seed=3)
+    lines = [(",".join(map(repr, row)) + "\r\n").encode() for row in np.column_stack([s.accel, s.gyro, s.raw]).tolist()]
+    return model, t, s, lines, _bursts(t, 3)
+
+
+def _live(model, lines, t_rx, record=None):
+    out = io.StringIO()
+    session = LiveSession(model, out=out, stream=StreamOptions(columns=COLUMNS), record=record)
+    k = 0
+    while k < len(lines):
+        m = int(np.searchsorted(t_rx, t_rx[k], side="right"))
+        session.feed(Chunk(float(t_rx[k]), b"".join(lines[k:m])))
+        k = m
+    session.close()
+    return session, out.getvalue()
+
+
+def _rows(text):
+    return [line.split(",") for line in text.splitlines() if not line.startswith("#")]
+
+
+def test_live_dates_a_bursty_stream_at_its_period_and_solves_it_as_with_the_module_clock(clockless):
+    """Dated at each burst's arrival the gyro is integrated over the wrong steps (0, then the burst); dated by the
+    sample clock the attitude is the one the module's own times give, within a fraction of the arrival dating's
+    error."""
+    model, t, s, lines, t_rx = clockless
+    assert np.mean(np.diff(t_rx) == 0.0) > 0.3 and np.max(np.diff(t_rx)) > 0.05
+    session, text = _live(model, lines, t_rx)
+    rows = _rows(text)[1:]
+    assert session.samples == len(rows) == len(t)
+    t_live = np.array([float(r[0]) for r in rows])
+    settled = (t >= 2.0) & (t < t[-1] - 0.25)  # the module's last lines may come in a late read: a pause, dated so
+    np.testing.assert_allclose(np.diff(t_live)[settled[1:]], 1.0 / RATE_HZ, atol=2.5e-3)  # the CSV's 4 decimals
+    heading = np.array([float(r[1]) for r in rows])
+    field = model.field(s.raw)[0]
+    config = FilterConfig.from_model(model)
+    with_module_clock = run_filter(t, s.accel, s.gyro, field, config).heading_deg
+    on_arrival = run_filter(t_rx - t_rx[0], s.accel, s.gyro, field, config).heading_deg
+    dated_error = np.abs(wrap(heading - with_module_clock))[settled]
+    arrival_error = np.abs(wrap(on_arrival - with_module_clock))[settled]
+    assert np.sqrt(np.mean(dated_error ** 2)) < 0.2 * np.sqrt(np.mean(arrival_error ** 2))
+    assert np.max(dated_error) < 1.0
+
+
+def test_the_record_replays_to_the_rows_live_wrote(clockless, tmp_path):
+    """``--record``'s file through ``compass attitude --filter``: every column but the latency as live wrote it."""
+    model, t, s, lines, t_rx = clockless
+    raw = io.StringIO()
+    log = SampleLog(raw, model.channels, "socket://test")
+    session, live_text = _live(model, lines, t_rx, record=log)
+    assert log.rows == len(t) and log.stopped is None
+    recording = tmp_path / "raw.csv"
+    recording.write_text(raw.getvalue())
+    table = read_table(recording)
+    assert table.metadata["source"] == "compass live --record, socket://test"
+    np.testing.assert_array_equal(table.column("gx"), s.gyro[:, 0])  # exactly the floats the filter took
+    cal = tmp_path / "cal.json"
+    save(cal, model_to_dict(model))
+    att = tmp_path / "att.csv"
+    assert main(["attitude", str(cal), str(recording), "--out", str(att), "--filter"]) == 0
+    replayed = [r[:-5] + r[-4:] for r in _rows(att.read_text())[1:]]
+    live = [r[:-1] for r in _rows(live_text)[1:]]
+    assert len(replayed) == len(live) and [r[:12] for r in replayed] == [r[:12] for r in live]
+
+
+def test_a_header_with_other_columns_ends_the_record_and_says_so():
+    model = default_model()
+    s = simulate_device(model, np.arange(0.0, 2.0, 0.01), seed=1)
+    raw = io.StringIO()
+    log = SampleLog(raw, model.channels, "pty")
+    full = [Sample(r, a, g, t_s=float(k)) for k, (r, a, g) in enumerate(zip(s.raw, s.accel, s.gyro))]
+    assert log.write(full[:5], accel_in_g=False) is None
+    words = log.write([Sample(s.raw[5], s.accel[5], None, t_s=5.0)], accel_in_g=False)
+    assert "columns changed after 5 samples" in words
+    assert log.write(full[6:], accel_in_g=False) is None and log.rows == 5
+    assert raw.getvalue().count("\n") == 5 + 4  # three comment lines, the names, five rows
+
+
+def test_the_command_records_a_clockless_module_and_the_replay_writes_its_rows(tmp_path, capsys):
+    """``compass live --record`` on a socket sending bare numbers without t_s, then ``compass attitude --filter`` on
+    the file: the same rows as live's ``--out`` (the latency aside)."""
+    from .test_live import _serve_repeatedly
+
+    model = default_model()
+    cal = tmp_path / "cal.json"
+    save(cal, model_to_dict(model))
+    s = simulate_device(model, np.arange(0.0, 0.2, 0.01), seed=4)
+    payload = b"".join((",".join(map(repr, row)) + "\r\n").encode()
+                       for row in np.column_stack([s.accel, s.gyro, s.raw]).tolist())
+    raw, att, replayed = tmp_path / "raw.csv", tmp_path / "att.csv", tmp_path / "replayed.csv"
+    server, thread, port = _serve_repeatedly(payload)
+    try:
+        code = main(["live", "--port", port, "--cal", str(cal), "--columns", ",".join(COLUMNS), "--out", str(att),
+                     "--record", str(raw), "--duration", "3", "--quiet"])
+    finally:
+        server.close()
+        thread.join(15)
+    out = capsys.readouterr().out
+    assert code == 0 and f"{raw} (" in out
+    assert main(["attitude", str(cal), str(raw), "--out", str(replayed), "--filter"]) == 0
+    live_rows = [r[:-1] for r in _rows(att.read_text())[1:]]
+    replay_rows = [r[:-5] for r in _rows(replayed.read_text())[1:]]
+    assert len(live_rows) > 100 and live_rows == replay_rows
+
+
+def test_the_command_refuses_a_record_it_cannot_keep(tmp_path, capsys):
+    cal = tmp_path / "cal.json"
+    save(cal, model_to_dict(default_model()))
+    old = tmp_path / "raw.csv"
+    old.write_text("an older recording")
+    for args, words in ((["--record", str(old)], "exists"),
+                        (["--record", str(tmp_path / "a.csv"), "--out", str(tmp_path / "a.csv")], "two files"),
+                        (["--record", str(tmp_path / "b.csv"), "--calibrate", "tumble", "--out", "t.json"],
+                         "CAL.tumble.csv")):
+        assert main(["live", "--port", "/dev/null", "--cal", str(cal), *args]) == 2
+        assert words in capsys.readouterr().err
+    assert old.read_text() == "an older recording"
+
+
+def test_the_record_names_the_replay_options_of_the_session():
+    """The site with its day (the field of --site without --date is today's), a given gravity, the flags."""
+    args = Namespace(site="52.2,0.1", date=None, gravity=1.02, mag_latency=True, gyro_matrix=False,
+                     gyro_scale_error=0.03)
+    words = _replay_options(args, reference=object())
+    today = dt.datetime.now(dt.timezone.utc).date().isoformat()
+    assert words == f"--site 52.2,0.1 --date {today} --gravity 1.02 --mag-latency --gyro-scale-error 0.03"
+    raw = io.StringIO()
+    log = SampleLog(raw, ("mx", "my", "mz"), "pty", words)
+    log.write([Sample(np.zeros(3), np.ones(3), None, t_s=0.0)], accel_in_g=True)
+    assert f"--filter --accel-unit g {words}\n" in raw.getvalue()

@@ -1,0 +1,203 @@
+"""A stream without a clock, dated on arrival: the attitude each way of dating gives (issue 22, item 1).
+
+Run: ``python tools/bench_clock.py [--seeds 2] [--rate 100]`` (about 3 min on a loaded 2-core machine).
+
+A module that sends no ``t_s`` (the PJRC and Adafruit calibration sketches' ``Raw:`` lines, bare numbers) is
+dated by the host from when its bytes arrive.  Each of :func:`compass.sim.motion.simulate_motion`'s kinds (60 s
+at ``--rate``, :func:`bench_broad.board_errors`' two boards, seeds 0..) is sent in real time and read in
+chunks as one of :data:`ARRIVALS` says; every sample of a chunk arrives at once.  Its samples are dated four
+ways and run through the toolkit's pipeline (:func:`bench_broad.ours`: hard-iron tracker and filter), scored
+as BROAD scores (heading / inclination RMS over the moving samples, deg):
+
+- "true": the module's own times (the best any dating can do);
+- "arrival": each sample at its chunk's arrival (``compass live`` before :class:`compass.io.clock.SampleClock`);
+- "receive clock": the last sample of a chunk at its arrival, the others one period (the last 5 s' mean)
+  before it (the bench station's clock before);
+- "sample clock": :class:`compass.io.clock.SampleClock` (both now), fed run by run as ``compass live`` feeds it.
+
+The dating error (the dated time less the true, less their median, after the first 2 s) is printed per
+arrival model, with the widest step each dating gives where the module paused, and the samples a dating left
+unsolved (a date earlier than the one before: the filter skips it; scored over the rest).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tools"))
+
+from bench_broad import _Simulated, board_errors, ours_track  # noqa: E402
+
+WIRE_S = 0.001
+"""A line's time on the wire, s."""
+PAUSE_AT_S, PAUSE_S = 30.0, 0.4
+"""Where and how long the module pauses in the arrival model "module paused 0.4 s" (under the filter's 0.5 s gap), s."""
+
+
+def busy_host(t_send: np.ndarray, rng) -> np.ndarray:
+    """Arrival of each sample: the host reads every 1-20 ms, and 1 % of its reads come after a 50-200 ms stall."""
+    gaps = rng.uniform(0.001, 0.020, int(2 * (t_send[-1] - t_send[0]) / 0.001) + 10)
+    stalls = rng.random(len(gaps)) < 0.01
+    gaps[stalls] = rng.uniform(0.05, 0.2, int(stalls.sum()))
+    reads = t_send[0] + np.cumsum(gaps)
+    return reads[np.searchsorted(reads, t_send + WIRE_S)]
+
+
+def usb_adapter(t_send: np.ndarray, rng) -> np.ndarray:
+    """An FTDI-style USB adapter: what arrived is sent every 16 ms (its latency timer), read 0-2 ms later."""
+    flush = np.ceil((t_send + WIRE_S) / 0.016) * 0.016
+    return flush + rng.uniform(0.0, 0.002, len(flush))[np.unique(flush, return_inverse=True)[1]]
+
+
+def module_paused(t_send: np.ndarray, rng) -> np.ndarray:
+    """A busy host, and the module sends nothing for :data:`PAUSE_S` from :data:`PAUSE_AT_S` (the samples then are
+    not sent: dropped from the recording by :func:`kept`)."""
+    return busy_host(t_send, rng)
+
+
+def lines_lost(t_send: np.ndarray, rng) -> np.ndarray:
+    """A busy host, and 1 % of the lines lost on the way (dropped from the recording by :func:`kept`)."""
+    return busy_host(t_send, rng)
+
+
+ARRIVALS = {"busy host": busy_host, "USB adapter 16 ms": usb_adapter, "module paused 0.4 s": module_paused,
+            "1 % of lines lost": lines_lost}
+
+
+def kept(t_send: np.ndarray, arrival: str, seed: int) -> np.ndarray:
+    """The samples that reach the host under ``arrival``."""
+    if arrival == "module paused 0.4 s":
+        return (t_send < PAUSE_AT_S) | (t_send >= PAUSE_AT_S + PAUSE_S)
+    if arrival == "1 % of lines lost":
+        return np.random.default_rng(2000 + seed).random(len(t_send)) >= 0.01
+    return np.ones(len(t_send), bool)
+
+
+def chunk_runs(t_rx: np.ndarray) -> list[tuple[int, int]]:
+    """``(start, stop)`` of each run of samples that arrived together."""
+    edges = np.flatnonzero(np.diff(t_rx) != 0.0) + 1
+    bounds = np.concatenate([[0], edges, [len(t_rx)]])
+    return list(zip(bounds[:-1].tolist(), bounds[1:].tolist()))
+
+
+def dated(t_rx: np.ndarray, clock) -> np.ndarray:
+    """Each run's samples dated by ``clock.date(m, t_rx)``."""
+    out = np.empty_like(t_rx)
+    for start, stop in chunk_runs(t_rx):
+        out[start:stop] = clock.date(stop - start, float(t_rx[start]))
+    return out
+
+
+class ReceiveClock:
+    """The bench station's clock before :class:`compass.io.clock.SampleClock` (to 7750442): a chunk's last
+    sample at its arrival, the others one period apart before it, the period over the last 5 s of chunks."""
+
+    def __init__(self, window_s: float = 5.0):
+        self.window_s, self._received, self._count = window_s, [], 0
+
+    def date(self, m: int, t_rx: float) -> np.ndarray:
+        first = self._received[0] if self._received else None
+        self._count += m
+        self._received.append((t_rx, self._count))
+        while len(self._received) > 2 and t_rx - self._received[1][0] >= self.window_s:
+            self._received.pop(0)
+        if first is None or t_rx <= self._received[0][0]:
+            return np.full(m, float(t_rx))
+        t0, n0 = self._received[0]
+        period = (t_rx - t0) / (self._count - n0)
+        return t_rx - period * np.arange(m - 1, -1, -1, dtype=float)
+
+
+def datings(t_true: np.ndarray, t_rx: np.ndarray) -> dict[str, np.ndarray]:
+    """The four datings of one stream, seconds."""
+    from compass.io.clock import SampleClock
+
+    return {"true": t_true, "arrival": t_rx, "receive clock": dated(t_rx, ReceiveClock()),
+            "sample clock": dated(t_rx, SampleClock())}
+
+
+def dating_error_ms(t: np.ndarray, t_true: np.ndarray) -> np.ndarray:
+    """|dated - true - median|, ms, after the first 2 s."""
+    e = (t - t_true)[t_true >= t_true[0] + 2.0]
+    return 1e3 * np.abs(e - np.median(e))
+
+
+def solved_attitude(trial) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`bench_broad.ours`' attitude (``R_ENU<-body``, scalar first; identity where unsolved) and the rows
+    solved (a time earlier than the one before is skipped by the filter: no attitude there)."""
+    from compass.io.broad import nwu_to_enu
+
+    quat = np.asarray(ours_track(trial).quat)
+    solved = np.linalg.norm(quat, axis=1) > 0.5
+    quat = np.where(solved[:, None], quat, [0.0, 0.0, 0.0, 1.0])
+    return nwu_to_enu(Rotation.from_quat(quat)).as_quat(scalar_first=True), solved
+
+
+def run(seeds: int, rate_hz: float, arrivals) -> None:
+    from compass.evaluation import error_series
+    from compass.sim.motion import KINDS, simulate_motion
+
+    names = ("true", "arrival", "receive clock", "sample clock")
+    print("heading / inclination RMS over the moving samples, deg, mean over the kinds and seeds "
+          f"({', '.join(KINDS)}; seeds 0-{seeds - 1}; {rate_hz:g} Hz)")
+    print(f"{'arrival model, board':38s} " + " ".join(f"{n:>15s}" for n in names))
+    for arrival in arrivals:
+        model = ARRIVALS[arrival]
+        errors = {n: [] for n in names}
+        unsolved = dict.fromkeys(names, 0)
+        gaps = []
+        for board in ("broad-like", "low-cost"):
+            cells = []
+            for kind in KINDS:
+                for seed in range(seeds):
+                    rec = simulate_motion(kind, seed=seed, rate_hz=rate_hz, errors=board_errors(board, seed))
+                    keep = kept(rec.t_s, arrival, seed)
+                    t_rx = model(rec.t_s[keep], np.random.default_rng(seed))
+                    trial = _Simulated(rec, kind)
+                    for name in ("t_s", "gyro_rad_s", "accel_m_s2", "mag_ut", "movement", "ref_quat_enu"):
+                        setattr(trial, name, getattr(trial, name)[keep])
+                    row, t_true = [], trial.t_s
+                    for name, t in datings(t_true, t_rx).items():
+                        if board == "broad-like":
+                            errors[name].append(dating_error_ms(t, t_true))
+                            if arrival == "module paused 0.4 s":
+                                gaps.append((name, float(np.max(np.diff(t)))))
+                        trial.t_s = t
+                        quat, solved = solved_attitude(trial)
+                        unsolved[name] += int(np.sum(~solved))
+                        e = error_series(quat, trial.ref_quat_enu, trial.movement & solved, trial.rate_hz)
+                        row.append((e.heading_rms_deg, e.inclination_rms_deg))
+                    cells.append(row)
+            mean = np.mean(cells, axis=0)
+            print(f"{arrival + ', ' + board:38s} " + " ".join(f"{h:6.2f} / {i:5.2f}".rjust(15) for h, i in mean),
+                  flush=True)
+        print(f"{'  dating error p50 / p99 / max, ms':38s} " + " ".join(
+            "{:.2f}/{:.1f}/{:.1f}".format(*np.percentile(np.concatenate(errors[n]), [50, 99, 100])).rjust(15)
+            for n in names))
+        if any(unsolved.values()):
+            print(f"{'  samples unsolved (a date went back)':38s} " + " ".join(f"{unsolved[n]:15d}" for n in names))
+        if gaps:
+            widest = {n: np.mean([g for m, g in gaps if m == n]) for n in names}
+            print(f"{'  widest step dated (the pause), s':38s} " + " ".join(f"{widest[n]:15.3f}" for n in names))
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--seeds", type=int, default=2, help="motion seeds per kind (default 2)")
+    p.add_argument("--rate", type=float, default=100.0, help="the module's sample rate, Hz (default 100)")
+    p.add_argument("--arrival", choices=tuple(ARRIVALS), action="append",
+                   help="only this arrival model (repeatable; default: all)")
+    args = p.parse_args(argv)
+    run(args.seeds, args.rate, args.arrival or tuple(ARRIVALS))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
