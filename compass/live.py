@@ -227,6 +227,7 @@ class LiveSession:
     _rail: GyroRail = field(default_factory=GyroRail)  # a gyro axis held at its range: said once
     _last_rx: float = 0.0
     _clock: SampleClock = field(default_factory=SampleClock)  # dates the samples of a stream without t_s
+    _lost: int = 0  # samples known lost (broken lines, seq gaps) the clock has not counted yet
 
     def __post_init__(self):
         self.decoder = StreamDecoder(self.model.channels, self.stream, field_check=field_scale_check(self.model))
@@ -270,7 +271,11 @@ class LiveSession:
         if self._t0 is None:
             self._t0 = item.t_rx
         self._last_rx = item.t_rx
+        stats = self.decoder.stats
+        broken, lost = stats.garbage + stats.partial + stats.invalid, stats.lost
         samples = self.decoder.feed(item.data, item.t_rx)
+        # a broken line dropped, or a seq gap, is a sample lost: the clock counts it before the next sample
+        self._lost += max(stats.garbage + stats.partial + stats.invalid - broken, stats.lost - lost)
         if samples:
             self._chunk(samples, item.t_rx)
         if self.decoder.events:
@@ -326,15 +331,18 @@ class LiveSession:
 
     def _dated(self, samples: list, t_rx: float) -> list:
         """The samples, those without ``t_s`` dated by :class:`~compass.io.clock.SampleClock` from their arrival
-        (their chunk's, or the decoder's when it held them), seconds since the session's first chunk."""
+        (their chunk's, or the decoder's when it held them), seconds since the session's first chunk; the samples
+        known lost since the last dated (``_lost``) counted before the first of them."""
         if all(s.t_s is not None for s in samples):
+            self._lost = 0  # the module's clock tells its gaps
             return samples
         dated, run = list(samples), []
         for k, sample in enumerate(samples + [None]):  # runs of clockless samples that arrived together
             arrival = None if sample is None or sample.t_s is not None else \
                 (t_rx if sample.t_rx is None else sample.t_rx)
             if run and arrival != run[0][1]:
-                times = self._clock.date(len(run), run[0][1]) - self._t0
+                times = self._clock.date(len(run), run[0][1], self._lost) - self._t0
+                self._lost = 0
                 for (j, _), t_s in zip(run, times.tolist()):
                     dated[j] = replace(dated[j], t_s=t_s)
                 run = []

@@ -13,7 +13,9 @@ as BROAD scores (heading / inclination RMS over the moving samples, deg):
 - "arrival": each sample at its chunk's arrival (``compass live`` before :class:`compass.io.clock.SampleClock`);
 - "receive clock": the last sample of a chunk at its arrival, the others one period (the last 5 s' mean)
   before it (the bench station's clock before);
-- "sample clock": :class:`compass.io.clock.SampleClock` (both now), fed run by run as ``compass live`` feeds it.
+- "sample clock": :class:`compass.io.clock.SampleClock` (both now), fed run by run as ``compass live`` feeds it
+  (with "1 % of lines broken", the lost lines' count before each run, as ``compass live`` counts the broken lines
+  its decoder dropped; "1 % of lines lost" loses them without a trace).
 
 The dating error (the dated time less the true, less their median, after the first 2 s) is printed per
 arrival model, with the widest step each dating gives where the module paused, and the samples a dating left
@@ -68,14 +70,16 @@ def lines_lost(t_send: np.ndarray, rng) -> np.ndarray:
 
 
 ARRIVALS = {"busy host": busy_host, "USB adapter 16 ms": usb_adapter, "module paused 0.4 s": module_paused,
-            "1 % of lines lost": lines_lost}
+            "1 % of lines lost": lines_lost, "1 % of lines broken": lines_lost}
+BROKEN = "1 % of lines broken"
+"""The arrival model whose lost lines leave a broken line the decoder counts (``compass live`` tells the clock)."""
 
 
 def kept(t_send: np.ndarray, arrival: str, seed: int) -> np.ndarray:
     """The samples that reach the host under ``arrival``."""
     if arrival == "module paused 0.4 s":
         return (t_send < PAUSE_AT_S) | (t_send >= PAUSE_AT_S + PAUSE_S)
-    if arrival == "1 % of lines lost":
+    if arrival in ("1 % of lines lost", BROKEN):
         return np.random.default_rng(2000 + seed).random(len(t_send)) >= 0.01
     return np.ones(len(t_send), bool)
 
@@ -87,11 +91,13 @@ def chunk_runs(t_rx: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(bounds[:-1].tolist(), bounds[1:].tolist()))
 
 
-def dated(t_rx: np.ndarray, clock) -> np.ndarray:
-    """Each run's samples dated by ``clock.date(m, t_rx)``."""
+def dated(t_rx: np.ndarray, clock, lost: np.ndarray | None = None) -> np.ndarray:
+    """Each run's samples dated by ``clock.date(m, t_rx)``; ``lost``: samples known lost before each sample,
+    counted before its run (as ``compass live`` counts a broken line before the chunk's samples)."""
     out = np.empty_like(t_rx)
     for start, stop in chunk_runs(t_rx):
-        out[start:stop] = clock.date(stop - start, float(t_rx[start]))
+        known = {} if lost is None else {"lost": int(lost[start:stop].sum())}
+        out[start:stop] = clock.date(stop - start, float(t_rx[start]), **known)
     return out
 
 
@@ -115,12 +121,12 @@ class ReceiveClock:
         return t_rx - period * np.arange(m - 1, -1, -1, dtype=float)
 
 
-def datings(t_true: np.ndarray, t_rx: np.ndarray) -> dict[str, np.ndarray]:
-    """The four datings of one stream, seconds."""
+def datings(t_true: np.ndarray, t_rx: np.ndarray, lost: np.ndarray | None) -> dict[str, np.ndarray]:
+    """The four datings of one stream, seconds (``lost``: see :func:`dated`; the sample clock's only)."""
     from compass.io.clock import SampleClock
 
     return {"true": t_true, "arrival": t_rx, "receive clock": dated(t_rx, ReceiveClock()),
-            "sample clock": dated(t_rx, SampleClock())}
+            "sample clock": dated(t_rx, SampleClock(), lost)}
 
 
 def dating_error_ms(t: np.ndarray, t_true: np.ndarray) -> np.ndarray:
@@ -164,7 +170,8 @@ def run(seeds: int, rate_hz: float, arrivals) -> None:
                     for name in ("t_s", "gyro_rad_s", "accel_m_s2", "mag_ut", "movement", "ref_quat_enu"):
                         setattr(trial, name, getattr(trial, name)[keep])
                     row, t_true = [], trial.t_s
-                    for name, t in datings(t_true, t_rx).items():
+                    lost = np.diff(np.flatnonzero(keep), prepend=-1) - 1 if arrival == BROKEN else None
+                    for name, t in datings(t_true, t_rx, lost).items():
                         if board == "broad-like":
                             errors[name].append(dating_error_ms(t, t_true))
                             if arrival == "module paused 0.4 s":

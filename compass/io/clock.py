@@ -18,8 +18,9 @@ so neither a delay nor a stall biases it.  A chunk later than the envelope foret
 :data:`BREAK_S` is a break (the module paused, a disconnect, lines lost), and one earlier by over :data:`EARLY_S` a rate
 that went up: the clock starts again at it, so a gap shows as a gap, the period kept until :data:`SETTLE_S`
 of new chunks refit it.  A sample is never dated after its chunk's arrival nor before the sample before it
-(on one host clock: one that goes back starts the dates again).  Lines lost under :data:`BREAK_S` are not
-seen at once: the samples after them are dated up to their span early until every chunk of the last
+(on one host clock: one that goes back starts the dates again).  Lines known lost (broken lines the decoder
+dropped, a ``seq`` gap) are counted at once; lines lost silently under :data:`BREAK_S` are not seen at
+once: the samples after them are dated up to their span early until every chunk of the last
 :data:`SHIFT_S` shows them; they are then counted (:meth:`SampleClock._follow_a_shift`).
 """
 
@@ -88,11 +89,16 @@ class SampleClock:
         self._recent.clear()
         self._settling = self.period_s is not None
 
-    def date(self, m: int, t_rx: float) -> np.ndarray:
-        """Times of the ``m`` samples of a chunk that arrived at ``t_rx``, seconds on ``t_rx``'s clock, shape (m,)."""
+    def date(self, m: int, t_rx: float, lost: int = 0) -> np.ndarray:
+        """Times of the ``m`` samples of a chunk that arrived at ``t_rx``, seconds on ``t_rx``'s clock, shape (m,).
+
+        ``lost``: samples known lost before them (broken lines the decoder dropped, a ``seq`` gap), counted at
+        once; one counted that was not (a line of noise) only dates the next samples at their chunk's arrival.
+        """
         t_rx = float(t_rx)
         if m <= 0:
             return np.empty(0)
+        self._count += max(lost, 0)
         first = self._count
         self._count += m
         k = self._count - 1

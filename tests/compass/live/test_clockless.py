@@ -173,3 +173,19 @@ def test_the_record_names_the_replay_options_of_the_session():
     log = SampleLog(raw, ("mx", "my", "mz"), "pty", words)
     log.write([Sample(np.zeros(3), np.ones(3), None, t_s=0.0)], accel_in_g=True)
     assert f"--filter --accel-unit g {words}\n" in raw.getvalue()
+
+
+def test_a_broken_line_is_a_sample_lost_and_the_next_is_dated_after_it(clockless):
+    """A line cut short (the decoder drops it as partial) stands for a sample: the next one is dated two periods
+    after the one before, at once (a silent loss would be seen only after 0.25 s of chunks)."""
+    model, t, s, lines, _ = clockless
+    lines = list(lines)
+    lines[1000] = lines[1000][:12] + b"\r\n"  # the line cut after a few cells
+    out = io.StringIO()
+    session = LiveSession(model, out=out, stream=StreamOptions(columns=COLUMNS))
+    for t_k, line in zip(100.0 + t + 0.001, lines):  # one line a read, on time
+        session.feed(Chunk(float(t_k), line))
+    session.close()
+    assert session.decoder.stats.partial == 1
+    t_live = np.array([float(r[0]) for r in _rows(out.getvalue())[1:]])
+    np.testing.assert_allclose(t_live, np.delete(t, 1000), atol=1e-4)  # the CSV's 4 decimals
