@@ -336,18 +336,8 @@ class LiveSession:
         if all(s.t_s is not None for s in samples):
             self._lost = 0  # the module's clock tells its gaps
             return samples
-        dated, run = list(samples), []
-        for k, sample in enumerate(samples + [None]):  # runs of clockless samples that arrived together
-            arrival = None if sample is None or sample.t_s is not None else \
-                (t_rx if sample.t_rx is None else sample.t_rx)
-            if run and arrival != run[0][1]:
-                times = self._clock.date(len(run), run[0][1], self._lost) - self._t0
-                self._lost = 0
-                for (j, _), t_s in zip(run, times.tolist()):
-                    dated[j] = replace(dated[j], t_s=t_s)
-                run = []
-            if arrival is not None:
-                run.append((k, arrival))
+        dated = self._clock.dated(samples, t_rx, self._t0, self._lost)
+        self._lost = 0
         return dated
 
     def _judge_steps(self, samples: list) -> None:

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from compass.io.atomic import atomic_write_text
+from compass.io.clock import SampleClock
 from compass.io.streams import StreamDecoder
 
 from .coverage import sphere_coverage
@@ -56,6 +57,7 @@ class TumbleCollector:
         self.fit = None
         self._t0 = None
         self._last_rx = 0.0
+        self._clock = SampleClock()  # dates the samples of a stream without t_s, as compass live does
 
     def feed(self, item) -> list:
         """Take one item of :meth:`SerialReader.items`; returns the decoder's events (level, text)."""
@@ -64,6 +66,7 @@ class TumbleCollector:
         if isinstance(item, LinkEvent):
             if item.kind == "connected":
                 self.decoder.resync()
+                self._clock.restart()
             return [("warn" if item.kind == "disconnected" else "info", item.message)]
         if self._t0 is None:
             self._t0 = item.t_rx
@@ -78,9 +81,8 @@ class TumbleCollector:
         return self.decoder.drain_events()
 
     def _add(self, samples: list, t_rx: float) -> None:
-        for s in samples:
-            t_s = s.t_s if s.t_s is not None else (t_rx if s.t_rx is None else s.t_rx) - self._t0
-            self.rows.append((t_s, *s.raw, *(s.accel if s.accel is not None else (np.nan,) * 3),
+        for s in self._clock.dated(samples, t_rx, self._t0):
+            self.rows.append((s.t_s, *s.raw, *(s.accel if s.accel is not None else (np.nan,) * 3),
                               np.nan if s.temp_c is None else s.temp_c))
 
     @property

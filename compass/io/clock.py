@@ -27,6 +27,7 @@ once: the samples after them are dated up to their span early until every chunk 
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import replace
 
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
@@ -88,6 +89,34 @@ class SampleClock:
         self._envelope.clear()
         self._recent.clear()
         self._settling = self.period_s is not None
+
+    def dated(self, samples: list, t_rx: float, t0: float, lost: int = 0) -> list:
+        """The decoder's samples, those without ``t_s`` dated (seconds since ``t0``, on ``t_rx``'s clock).
+
+        Parameters
+        ----------
+        samples : list of compass.io.lines.Sample
+            In arrival order; one the decoder held back carries its own arrival (``Sample.t_rx``).
+        t_rx : float
+            When the chunk they came out of arrived, s.
+        t0 : float
+            The session's first arrival, s.
+        lost : int
+            Samples known lost before the first of them (:meth:`date`).
+        """
+        dated, run = list(samples), []
+        for k, sample in enumerate(samples + [None]):  # runs of clockless samples that arrived together
+            arrival = None if sample is None or sample.t_s is not None else \
+                (t_rx if sample.t_rx is None else sample.t_rx)
+            if run and arrival != run[0][1]:
+                times = self.date(len(run), run[0][1], lost) - t0
+                lost = 0
+                for (j, _), t_s in zip(run, times.tolist()):
+                    dated[j] = replace(dated[j], t_s=t_s)
+                run = []
+            if arrival is not None:
+                run.append((k, arrival))
+        return dated
 
     def date(self, m: int, t_rx: float, lost: int = 0) -> np.ndarray:
         """Times of the ``m`` samples of a chunk that arrived at ``t_rx``, seconds on ``t_rx``'s clock, shape (m,).
