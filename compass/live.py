@@ -29,6 +29,8 @@ from .site import upside_down
 
 __all__ = ["LiveSession", "Reading", "GATE_CODES", "CSV_COLUMNS", "QUATERNION_COLUMNS"]
 
+_CLOCK_WORDS_AFTER_S = 2.0
+"""A stream without t_s is said once its dates span this, s (its rate read over them)."""
 HINT_MIN_SAMPLES = 50
 """Fewest estimates a closing hint judges."""
 HINT_REJECTED_SHARE = 0.8
@@ -228,6 +230,7 @@ class LiveSession:
     _last_rx: float = 0.0
     _clock: SampleClock = field(default_factory=SampleClock)  # dates the samples of a stream without t_s
     _lost: int = 0  # samples known lost (broken lines, seq gaps) the clock has not counted yet
+    _clock_said: bool = False
 
     def __post_init__(self):
         self.decoder = StreamDecoder(self.model.channels, self.stream, field_check=field_scale_check(self.model))
@@ -338,6 +341,11 @@ class LiveSession:
             return samples
         dated = self._clock.dated(samples, t_rx, self._t0, self._lost)
         self._lost = 0
+        period = self._clock.period_s
+        if not self._clock_said and period is not None and dated[-1].t_s >= _CLOCK_WORDS_AFTER_S:
+            self._clock_said = True
+            self._event("info", f"the module sends no t_s: its samples are dated from when they arrive, one period "
+                                f"apart ({1.0 / period:.1f} Hz), not in the port's bursts")
         return dated
 
     def _judge_steps(self, samples: list) -> None:

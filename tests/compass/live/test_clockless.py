@@ -48,9 +48,10 @@ def clockless():
     return model, t, s, lines, _bursts(t, 3)
 
 
-def _live(model, lines, t_rx, record=None):
+def _live(model, lines, t_rx, record=None, events=None):
     out = io.StringIO()
-    session = LiveSession(model, out=out, stream=StreamOptions(columns=COLUMNS), record=record)
+    session = LiveSession(model, out=out, stream=StreamOptions(columns=COLUMNS), record=record,
+                          on_event=None if events is None else lambda level, text: events.append(text))
     k = 0
     while k < len(lines):
         m = int(np.searchsorted(t_rx, t_rx[k], side="right"))
@@ -70,7 +71,10 @@ def test_live_dates_a_bursty_stream_at_its_period_and_solves_it_as_with_the_modu
     error."""
     model, t, s, lines, t_rx = clockless
     assert np.mean(np.diff(t_rx) == 0.0) > 0.3 and np.max(np.diff(t_rx)) > 0.05
-    session, text = _live(model, lines, t_rx)
+    events = []
+    session, text = _live(model, lines, t_rx, events=events)
+    said = [e for e in events if "sends no t_s" in e]
+    assert len(said) == 1 and "(100.0 Hz)" in said[0]
     rows = _rows(text)[1:]
     assert session.samples == len(rows) == len(t)
     t_live = np.array([float(r[0]) for r in rows])
