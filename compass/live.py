@@ -53,6 +53,12 @@ GYRO_AXES_ROWS = 6000
 judges, once: a minute at 100 Hz."""
 
 
+def _lines_lost(stats) -> int:
+    """Samples the decoder knows lost: broken lines it dropped and ``seq`` gaps (which it counts less the broken
+    lines between: each is counted once)."""
+    return stats.garbage + stats.partial + stats.invalid + stats.lost
+
+
 def invalid_words(stats) -> str:
     """``"3 invalid (a number no module sends, not finite or beyond 1e+12: gx = nan first)"``: a
     :class:`compass.io.lines.LineStats`'s invalid lines in words, naming the first one's cell when the decoder knows
@@ -275,10 +281,9 @@ class LiveSession:
             self._t0 = item.t_rx
         self._last_rx = item.t_rx
         stats = self.decoder.stats
-        broken, lost = stats.garbage + stats.partial + stats.invalid, stats.lost
+        before = _lines_lost(stats)
         samples = self.decoder.feed(item.data, item.t_rx)
-        # a broken line dropped, or a seq gap, is a sample lost: the clock counts it before the next sample
-        self._lost += max(stats.garbage + stats.partial + stats.invalid - broken, stats.lost - lost)
+        self._lost += _lines_lost(stats) - before  # the clock counts them before the next sample
         if samples:
             self._chunk(samples, item.t_rx)
         if self.decoder.events:

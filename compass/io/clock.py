@@ -44,10 +44,12 @@ EARLY_S = 0.02
 """A chunk this much earlier than the envelope foretells (its samples sent faster than the period) starts the
 clock again, s: at the period no chunk arrives before its last sample's send time plus the least delay."""
 RATE_CHANGE = 0.01
-"""The period over the last :data:`ENVELOPE_S` off the whole span's by this fraction: the rate changed, and the clock
-starts again with it (a rate that went up moves the envelope's newest point, not its foretelling)."""
+"""The period over the last :data:`ENVELOPE_S` off the whole span's by this fraction (over the last four times that,
+by a quarter of it): the rate changed, and the clock starts again with it (a rate that went up moves the envelope's
+newest point, not its foretelling)."""
 SETTLE_S = 0.25
-"""Span of chunk ends after a start again over which the period is kept, then refitted, s."""
+"""Span of chunk ends after a start again before the period is refitted, s: from it a period :data:`RATE_CHANGE` off
+the kept one replaces it, from :data:`ENVELOPE_S` any."""
 SHIFT_S = 0.25
 """Lines lost under :data:`BREAK_S` are followed once the chunks of this span all show them, s."""
 _SHIFT_CHUNKS = 16
@@ -76,7 +78,7 @@ class SampleClock:
         self.period_s: float | None = None
         self._ends: deque = deque()  # (index of a chunk's last sample, its arrival time): the period's span
         self._envelope: deque = deque()  # (a_j, k_j, a_j - T k_j) of the envelope's span, the last increasing
-        self._recent: deque = deque()  # the arrivals of the chunks of the last SHIFT_S
+        self._recent: deque = deque()  # the arrivals of the chunks of the last SHIFT_S (at least _SHIFT_CHUNKS)
         self._count = 0
         self._last_t: float | None = None
         self._fitted_at = -np.inf
@@ -89,6 +91,7 @@ class SampleClock:
         self._envelope.clear()
         self._recent.clear()
         self._settling = self.period_s is not None
+        self._fitted_at = -np.inf
 
     def dated(self, samples: list, t_rx: float, t0: float, lost: int = 0) -> list:
         """The decoder's samples, those without ``t_s`` dated (seconds since ``t0``, on ``t_rx``'s clock).
@@ -119,10 +122,18 @@ class SampleClock:
         return dated
 
     def date(self, m: int, t_rx: float, lost: int = 0) -> np.ndarray:
-        """Times of the ``m`` samples of a chunk that arrived at ``t_rx``, seconds on ``t_rx``'s clock, shape (m,).
+        """Times of the ``m`` samples of a chunk, seconds on ``t_rx``'s clock, shape (m,) (empty for ``m`` 0).
 
-        ``lost``: samples known lost before them (broken lines the decoder dropped, a ``seq`` gap), counted at
-        once; one counted that was not (a line of noise) only dates the next samples at their chunk's arrival.
+        Parameters
+        ----------
+        m : int
+            Samples in the chunk, in order.
+        t_rx : float
+            When the chunk arrived, s (chunks in arrival order; one earlier than the last starts the dates again).
+        lost : int
+            Samples known lost before them (broken lines the decoder dropped, a ``seq`` gap), counted at once; one
+            counted that was not (a line of noise) only dates the next samples at their chunk's arrival.  Negative
+            counts as 0.
         """
         t_rx = float(t_rx)
         if m <= 0:
@@ -134,9 +145,14 @@ class SampleClock:
         if self._ends and t_rx < self._ends[-1][1]:  # the host's clock went back: dates on the new one
             self.restart()
             self._last_t = None
-        elif self._ends and self.period_s is not None and not self._settling \
-                and not -EARLY_S <= t_rx - self._foretold(k, self._ends[-1][1]) <= BREAK_S:
-            self.restart()  # a gap (the module paused, lines lost), or a chunk before its time: the rate went up
+        elif self._ends and self.period_s is not None:
+            if self._settling:  # from the chunk before alone: the period kept may be another rate's
+                k_last, a_last = self._ends[-1]
+                late = t_rx - (a_last + self.period_s * (k - k_last))
+            else:
+                late = t_rx - self._foretold(k, self._ends[-1][1])
+            if late > BREAK_S or (late < -EARLY_S and not self._settling):
+                self.restart()  # a gap (the module paused, lines lost), or a chunk before its time: the rate went up
         self._ends.append((k, t_rx))
         while t_rx - self._ends[0][1] > PERIOD_S:
             self._ends.popleft()
@@ -146,8 +162,8 @@ class SampleClock:
                 self._add_to_envelope(kj, aj)
         elif self.period_s is not None:
             self._add_to_envelope(k, t_rx)
-            lost = self._follow_a_shift(t_rx)
-            first, k = first + lost, k + lost
+            counted = self._follow_a_shift(t_rx)
+            first, k = first + counted, k + counted
         if self.period_s is None:
             times = np.full(m, t_rx)
         else:
@@ -165,25 +181,27 @@ class SampleClock:
         self._envelope.append((a, k, offset))
 
     def _follow_a_shift(self, now: float) -> int:
-        """Lines lost: every chunk since the last :data:`SHIFT_S` (at least :data:`_SHIFT_CHUNKS` of them) sits
-        above the envelope's older points by half a period or more (at least :data:`_SHIFT_MIN_S`).  The samples
-        since are then counted with the lost ones, ``round(shift / T)``, the envelope keeps those recent chunks
-        and the period's span drops the chunks between (they may be either side of the loss).  Returns the count
-        of lines lost (0: none seen)."""
-        env, since, chunks = self._envelope, now - SHIFT_S, self._recent
+        """Lines lost: every chunk of the last :data:`SHIFT_S` (or of the last :data:`_SHIFT_CHUNKS`, when they span
+        more) sits above the envelope's older points by half a period or more (at least :data:`_SHIFT_MIN_S`).
+        The samples since are then counted with the lines lost, ``round(shift / T)`` (at least one), the envelope
+        keeps those recent chunks and the period's span drops the chunks between (they may be either side of the
+        loss).  A period drifting by under :data:`RATE_CHANGE` is counted so too until the period's fit follows
+        it.  Returns the count of lines lost (0: none seen)."""
+        env, chunks = self._envelope, self._recent
         chunks.append(now)
-        while chunks[0] < since:
+        while len(chunks) > _SHIFT_CHUNKS and chunks[0] < now - SHIFT_S:
             chunks.popleft()
-        if len(chunks) < _SHIFT_CHUNKS or env[0][0] >= since or env[-1][0] < since:
+        since = chunks[0]
+        if len(chunks) < _SHIFT_CHUNKS or env[0][0] >= since:
             return 0
         recent = next(point for point in env if point[0] >= since)  # the least offset of the recent chunks
-        shift = recent[2] - env[0][2]
-        if shift <= max(0.5 * self.period_s, _SHIFT_MIN_S):
+        shift = (recent[2] - env[0][2]) / self.period_s
+        if shift * self.period_s <= max(0.5 * self.period_s, _SHIFT_MIN_S):
             return 0
-        lost, before = max(1, round(shift / self.period_s)), env[0][0]
+        lost, before = max(1, round(shift)), env[0][0]
+        self._envelope = deque((a, k + lost, b - self.period_s * lost) for a, k, b in env if a >= since)
         self._ends = deque([(k, a) for k, a in self._ends if a <= before]
                            + [(k + lost, a) for k, a in self._ends if a >= since])
-        self._envelope = deque((a, k + lost, b - self.period_s * lost) for a, k, b in env if a >= since)
         self._count += lost
         return lost
 
@@ -203,21 +221,29 @@ class SampleClock:
         if k1 == k0 or a1 - a0 <= _TIE_S:  # no span to read a period from
             return False
         if self._settling:
-            if a1 - a0 < SETTLE_S:
+            if a1 - a0 < SETTLE_S or a1 - self._fitted_at < min(_REFIT_S, 0.1 * (a1 - a0)):
                 return False
+            self._fitted_at = a1
+            period = _period(np.array(self._ends, dtype=float))
+            if a1 - a0 < ENVELOPE_S and abs(period / self.period_s - 1.0) <= RATE_CHANGE:
+                return False  # the period kept is as good as a short span tells
             self._settling = False
-        elif a1 - self._fitted_at < min(_REFIT_S, 0.1 * (a1 - a0)):
+            self.period_s = period
+            return True
+        if a1 - self._fitted_at < min(_REFIT_S, 0.1 * (a1 - a0)):
             return False
         self._fitted_at = a1
         ends = np.array(self._ends, dtype=float)
         self.period_s = _period(ends)
-        recent = ends[ends[:, 1] >= a1 - ENVELOPE_S]
-        if a1 - a0 > 2.0 * ENVELOPE_S and len(recent) >= 3 and recent[-1, 1] - recent[0, 1] > 0.5 * ENVELOPE_S:
-            period = _period(recent)
-            if abs(period / self.period_s - 1.0) > RATE_CHANGE:  # the rate changed within the span: start again
-                self.period_s = period                        # from this chunk at the recent period
-                self.restart()
-                self._ends.append((k1, a1))
+        for span_s, change in ((ENVELOPE_S, RATE_CHANGE), (4.0 * ENVELOPE_S, 0.25 * RATE_CHANGE)):
+            recent = ends[ends[:, 1] >= a1 - span_s]
+            if a1 - a0 > 2.0 * span_s and len(recent) >= 3 and recent[-1, 1] - recent[0, 1] > 0.5 * span_s:
+                period = _period(recent)
+                if abs(period / self.period_s - 1.0) > change:  # the rate changed within the span: start again
+                    self.period_s = period                     # from this chunk at the recent period
+                    self.restart()
+                    self._ends.append((k1, a1))
+                    break
         return True
 
 

@@ -38,7 +38,16 @@ class SampleLog:
         self._shape: tuple | None = None
 
     def write(self, samples: list, accel_in_g: bool) -> str | None:
-        """Write the samples (each with its ``t_s``); words when this ends the recording (the columns changed)."""
+        """Write the samples; words when this ends the recording (the columns changed), else None.
+
+        Parameters
+        ----------
+        samples : list of compass.io.lines.Sample
+            Each with its ``t_s`` (the module's, or its date), s.
+        accel_in_g : bool
+            The accelerometer's unit is known, so it is in g (said in the first lines, with the replay's
+            ``--accel-unit g``).
+        """
         for sample in samples:
             if self.stopped is not None:
                 return None

@@ -83,7 +83,8 @@ class StationStream:
         return events
 
     def resync(self) -> None:
-        """After a (re)connect: the first bytes may be the tail of a line, and the sample clock starts again (its period kept)."""
+        """After a (re)connect: the first bytes may be the tail of a line, and the sample clock starts again (its
+        period kept)."""
         (self.decoder or self._probe).resync()
         self._pending = b""
         self._cut = True

@@ -120,3 +120,20 @@ def test_an_empty_chunk_and_a_host_clock_that_goes_back():
     _dated(np.arange(0.0, 3.0, PERIOD_S), clock)
     times = clock.date(3, 1.0)  # another host clock: dated on it, never after the arrival
     assert np.all(times <= 1.0)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_period_is_the_line_under_every_chunk_end_closest_to_all(seed):
+    """The hull's slope at the middle is the linear programme's answer: the line below every (k, a) with the least
+    summed distance (Moon, Skelly and Towsley 1999), here scipy's linprog."""
+    from scipy.optimize import linprog
+
+    from compass.io.clock import _period
+
+    rng = np.random.default_rng(seed)
+    k = np.sort(rng.choice(5000, 300, replace=False)).astype(float)
+    a = 3.0 + 0.01 * k + rng.exponential(0.004, len(k))
+    x = k - k.mean()  # centred, so the two unknowns are of one scale
+    lp = linprog(c=[-len(k), -x.sum()], A_ub=np.column_stack([np.ones_like(x), x]), b_ub=a, bounds=[(None, None)] * 2)
+    assert lp.success
+    assert _period(np.column_stack([k, a])) == pytest.approx(lp.x[1], rel=1e-9)
