@@ -154,7 +154,8 @@ def run(args) -> int:
             session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event, reference=reference,
                                   imu=cal.imu, stream=stream, record=log,
                                   sign_from_bench=cal.provenance.hemisphere_assumed)
-            _run_session(args, reader, session, out, tty, every_s)
+            streamed = [f for f in (out, None if log is None else log.out) if f is not None]
+            _run_session(args, reader, session, streamed, tty, every_s)
             _refuse(args, session)  # judged on close: a stream shorter than the check
             header = session.decoder.header
             if session.samples == 0 and session.decoder.stats.samples > 0 and header is not None \
@@ -209,8 +210,9 @@ def _refuse(args, session) -> None:
         raise BadInput(f"{args.port}: {session.wrong_gravity}")
 
 
-def _run_session(args, reader, session, out, tty: bool, every_s: float) -> None:
-    """Feed the reader's items to the session until stopped (Ctrl-C, SIGTERM, --duration); print the readout."""
+def _run_session(args, reader, session, files: list, tty: bool, every_s: float) -> None:
+    """Feed the reader's items to the session until stopped (Ctrl-C, SIGTERM, --duration); print the readout and
+    flush ``files`` (the streamed outputs) at its pace, so a killed session leaves them a readout old at most."""
     from ..cli import BadInput
     from ..serial_reader import PortUnavailable
 
@@ -227,8 +229,8 @@ def _run_session(args, reader, session, out, tty: bool, every_s: float) -> None:
                 if now - last >= every_s:
                     rate = (session.decoder.stats.samples - last_count) / (now - last)
                     last, last_count = now, session.decoder.stats.samples
-                    if out is not None:
-                        out.flush()
+                    for f in files:
+                        f.flush()
                     if not args.quiet:
                         print(("\r\x1b[K" if tty else "") + session.readout(rate), end="" if tty else "\n", flush=True)
     except PortUnavailable as exc:

@@ -82,7 +82,7 @@ class SampleClock:
         self._count = 0
         self._last_t: float | None = None
         self._fitted_at = -np.inf
-        self._settling = False  # started again with the period kept: no refit nor break until SETTLE_S of chunks
+        self._settling = False  # started again with the period kept: breaks judged from the chunk before
 
     def restart(self) -> None:
         """Forget the chunks so far (a reconnect, a break: the samples go on, their delays may not); the period is
@@ -195,10 +195,10 @@ class SampleClock:
         if len(chunks) < _SHIFT_CHUNKS or env[0][0] >= since:
             return 0
         recent = next(point for point in env if point[0] >= since)  # the least offset of the recent chunks
-        shift = (recent[2] - env[0][2]) / self.period_s
-        if shift * self.period_s <= max(0.5 * self.period_s, _SHIFT_MIN_S):
+        shift_s = recent[2] - env[0][2]
+        if shift_s <= max(0.5 * self.period_s, _SHIFT_MIN_S):
             return 0
-        lost, before = max(1, round(shift)), env[0][0]
+        lost, before = max(1, round(shift_s / self.period_s)), env[0][0]
         self._envelope = deque((a, k + lost, b - self.period_s * lost) for a, k, b in env if a >= since)
         self._ends = deque([(k, a) for k, a in self._ends if a <= before]
                            + [(k + lost, a) for k, a in self._ends if a >= since])
@@ -218,23 +218,19 @@ class SampleClock:
         """The period from the chunk ends: their lower hull's slope at its middle (the first-to-last slope of two);
         True when it was refitted."""
         (k0, a0), (k1, a1) = self._ends[0], self._ends[-1]
-        if k1 == k0 or a1 - a0 <= _TIE_S:  # no span to read a period from
-            return False
+        if k1 == k0 or a1 - a0 <= _TIE_S or (self._settling and a1 - a0 < SETTLE_S) \
+                or a1 - self._fitted_at < min(_REFIT_S, 0.1 * (a1 - a0)):
+            return False  # no span to read a period from, or not yet time to read it again
+        self._fitted_at = a1
+        ends = np.array(self._ends, dtype=float)
+        period = _period(ends)
         if self._settling:
-            if a1 - a0 < SETTLE_S or a1 - self._fitted_at < min(_REFIT_S, 0.1 * (a1 - a0)):
-                return False
-            self._fitted_at = a1
-            period = _period(np.array(self._ends, dtype=float))
             if a1 - a0 < ENVELOPE_S and abs(period / self.period_s - 1.0) <= RATE_CHANGE:
                 return False  # the period kept is as good as a short span tells
             self._settling = False
             self.period_s = period
             return True
-        if a1 - self._fitted_at < min(_REFIT_S, 0.1 * (a1 - a0)):
-            return False
-        self._fitted_at = a1
-        ends = np.array(self._ends, dtype=float)
-        self.period_s = _period(ends)
+        self.period_s = period
         for span_s, change in ((ENVELOPE_S, RATE_CHANGE), (4.0 * ENVELOPE_S, 0.25 * RATE_CHANGE)):
             recent = ends[ends[:, 1] >= a1 - span_s]
             if a1 - a0 > 2.0 * span_s and len(recent) >= 3 and recent[-1, 1] - recent[0, 1] > 0.5 * span_s:

@@ -16,8 +16,6 @@ host's time, which is the module's when the module runs in real time.
 
 from __future__ import annotations
 
-import numpy as np
-
 from ..io.clock import SampleClock
 from ..io.stream_options import StreamOptions
 from ..io.streams import StreamDecoder
@@ -159,13 +157,9 @@ class StationStream:
     def _readings(self, samples, t_rx) -> list[Reading]:
         if not samples:
             return []
-        times = np.array([np.nan if s.t_s is None else s.t_s for s in samples])
-        clockless = np.isnan(times)
-        if clockless.any():
-            if t_rx is None:
-                raise ValueError("a stream without t_s needs the chunks' receive times (t_rx)")
-            times[clockless] = self._clock.date(int(clockless.sum()), t_rx)
+        if t_rx is None and any(s.t_s is None for s in samples):
+            raise ValueError("a stream without t_s needs the chunks' receive times (t_rx)")
         c = len(self.channels)
-        return [Reading(float(t), s.raw[:c], s.accel, s.gyro,
+        return [Reading(float(s.t_s), s.raw[:c], s.accel, s.gyro,
                         float(s.raw[c]) if self.encoder_column is not None else None, s.temp_c)
-                for t, s in zip(times, samples)]
+                for s in self._clock.dated(samples, t_rx, 0.0)]
