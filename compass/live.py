@@ -53,12 +53,6 @@ GYRO_AXES_ROWS = 6000
 judges, once: a minute at 100 Hz."""
 
 
-def _lines_lost(stats) -> int:
-    """Samples the decoder knows lost: broken lines it dropped and ``seq`` gaps (which it counts less the broken
-    lines between: each is counted once)."""
-    return stats.garbage + stats.partial + stats.invalid + stats.lost
-
-
 def invalid_words(stats) -> str:
     """``"3 invalid (a number no module sends, not finite or beyond 1e+12: gx = nan first)"``: a
     :class:`compass.io.lines.LineStats`'s invalid lines in words, naming the first one's cell when the decoder knows
@@ -235,7 +229,6 @@ class LiveSession:
     _rail: GyroRail = field(default_factory=GyroRail)  # a gyro axis held at its range: said once
     _last_rx: float = 0.0
     _clock: SampleClock = field(default_factory=SampleClock)  # dates the samples of a stream without t_s
-    _lost: int = 0  # samples known lost (broken lines, seq gaps) the clock has not counted yet
     _clock_said: bool = False
 
     def __post_init__(self):
@@ -280,17 +273,14 @@ class LiveSession:
         if self._t0 is None:
             self._t0 = item.t_rx
         self._last_rx = item.t_rx
-        stats = self.decoder.stats
-        before = _lines_lost(stats)
         samples = self.decoder.feed(item.data, item.t_rx)
-        self._lost += _lines_lost(stats) - before  # the clock counts them before the next sample
         if samples:
             self._chunk(samples, item.t_rx)
         if self.decoder.events:
             for level, text in self.decoder.drain_events():
                 self._event(level, text)
         stats = self.decoder.stats
-        bad = stats.garbage + stats.partial + stats.invalid
+        bad = stats.broken
         if bad != self._bad_reported and item.t_rx - self._bad_reported_at >= 1.0:
             self._event("warn", f"line noise: {stats.garbage} garbage, {stats.partial} partial and "
                                 f"{invalid_words(stats)} lines so far")
@@ -340,12 +330,10 @@ class LiveSession:
     def _dated(self, samples: list, t_rx: float) -> list:
         """The samples, those without ``t_s`` dated by :class:`~compass.io.clock.SampleClock` from their arrival
         (their chunk's, or the decoder's when it held them), seconds since the session's first chunk; the samples
-        known lost since the last dated (``_lost``) counted before the first of them."""
+        the decoder knows lost counted in their place."""
         if all(s.t_s is not None for s in samples):
-            self._lost = 0  # the module's clock tells its gaps
             return samples
-        dated = self._clock.dated(samples, t_rx, self._t0, self._lost)
-        self._lost = 0
+        dated = self._clock.dated(samples, t_rx, self._t0)
         period = self._clock.period_s
         if not self._clock_said and period is not None and dated[-1].t_s >= _CLOCK_WORDS_AFTER_S:
             self._clock_said = True

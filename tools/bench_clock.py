@@ -14,8 +14,8 @@ as BROAD scores (heading / inclination RMS over the moving samples, deg):
 - "receive clock": the last sample of a chunk at its arrival, the others one period (the last 5 s' mean)
   before it (the bench station's clock before);
 - "sample clock": :class:`compass.io.clock.SampleClock` (both now), fed run by run as ``compass live`` feeds it
-  (with "1 % of lines broken", the lost lines' count before each run, as ``compass live`` counts the broken lines
-  its decoder dropped; "1 % of lines lost" loses them without a trace).
+  (with "1 % of lines broken", the lines lost before each sample, as the decoder tells ``compass live`` of the broken
+  lines it dropped; "1 % of lines lost" loses them without a trace).
 
 The dating error (the dated time less the true, less their median, after the first 2 s) is printed per
 arrival model, with the widest step each dating gives where the module paused, and the samples a dating left
@@ -92,11 +92,11 @@ def chunk_runs(t_rx: np.ndarray) -> list[tuple[int, int]]:
 
 
 def dated(t_rx: np.ndarray, clock, lost: np.ndarray | None = None) -> np.ndarray:
-    """Each run's samples dated by ``clock.date(m, t_rx)``; ``lost``: samples known lost before each sample,
-    counted before its run (as ``compass live`` counts a broken line before the chunk's samples)."""
+    """Each run's samples dated by ``clock.date(m, t_rx)``; ``lost``: samples known lost before each sample (as the
+    decoder tells ``compass live`` of a broken line: ``Sample.lost_before``)."""
     out = np.empty_like(t_rx)
     for start, stop in chunk_runs(t_rx):
-        known = {} if lost is None else {"lost": int(lost[start:stop].sum())}
+        known = {} if lost is None else {"lost": lost[start:stop]}
         out[start:stop] = clock.date(stop - start, float(t_rx[start]), **known)
     return out
 

@@ -151,13 +151,7 @@ class _FixedDecoder(LineDecoder):
         if not all(map(math.isfinite, values)):
             self.stats.invalid += 1
             return None
-        sample = layout.sample(values)
-        if not self._count_gap(sample):
-            self.stats.repeated += 1
-            return None
-        self.stats.samples += 1
-        self._bad_at_sample = self.stats.bad_lines
-        return sample
+        return self._accepted(layout.sample(values))
 
     def _cells(self, text: str) -> list[str] | None:
         """The sample cells of a line, or None when it is not a sample (counted by the subclass)."""

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import statistics
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -141,6 +141,10 @@ class Sample:
     t_rx : float or None
         When its bytes arrived (s, the reader's clock), for a sample a decoder held back before handing it
         out (:class:`compass.io.streams.StreamDecoder`); None: it arrived with the chunk it comes out of.
+    lost_before : int
+        Samples the decoder knows were lost between the sample before and this one: broken lines
+        (:attr:`LineStats.broken`) and a ``seq`` or ``t_s`` gap, each counted once (0 for the first sample).
+        A stream without ``t_s`` is dated with them in their place (:class:`compass.io.clock.SampleClock`).
     """
 
     raw: np.ndarray
@@ -151,6 +155,7 @@ class Sample:
     temp_c: float | None = None
     header: Header | None = None
     t_rx: float | None = None
+    lost_before: int = 0
 
 
 @dataclass
@@ -200,6 +205,11 @@ class LineStats:
     def bad_lines(self) -> int:
         """Sample lines received but not used: garbage, invalid, partial, header-less, repeated."""
         return self.garbage + self.invalid + self.partial + self.unheaded + self.repeated
+
+    @property
+    def broken(self) -> int:
+        """Lines of a sample that could not be used, each a sample lost: garbage, invalid, partial."""
+        return self.garbage + self.invalid + self.partial
 
     @property
     def dropped(self) -> int:
@@ -263,6 +273,7 @@ class LineDecoder:
     _last_t_s: float | None = None
     _dt_s: deque = field(default_factory=lambda: deque(maxlen=_DT_WINDOW))
     _bad_at_sample: int = 0  # bad lines at the last good sample
+    _broken_at_sample: int = 0  # broken lines at the last good sample
     _anchor: tuple = (None, None)  # (seq, t_s) of the sample before the last
     _last_lost: int = 0  # samples counted lost at the last sample
     _last_rejected: tuple | None = None
@@ -367,12 +378,19 @@ class LineDecoder:
         except ValueError:
             self.stats.garbage += 1
             return None
+        return self._accepted(sample)
+
+    def _accepted(self, sample: Sample) -> Sample | None:
+        """A decoded sample counted, with the samples lost before it (:attr:`Sample.lost_before`); None when its
+        ``seq`` repeats the last one's."""
         if not self._count_gap(sample):
             self.stats.repeated += 1
             return None
-        self.stats.samples += 1
-        self._bad_at_sample = self.stats.bad_lines
-        return sample
+        stats = self.stats
+        lost = stats.broken - self._broken_at_sample + self._last_lost if stats.samples else 0
+        stats.samples += 1
+        self._bad_at_sample, self._broken_at_sample = stats.bad_lines, stats.broken
+        return replace(sample, lost_before=lost) if lost > 0 else sample
 
     def _decode(self, header: Header, cells: list[str]) -> Sample:
         """ValueError when a required cell is empty or a cell is not a number; _NotFinite for a number

@@ -80,15 +80,30 @@ def test_a_module_that_pauses_is_dated_with_the_gap():
 
 
 @pytest.mark.parametrize("lost", [1, 3, 9])
-def test_lines_lost_put_the_dates_back_on_the_send_times_within_half_a_second(lost):
-    """A few lines lost (under the break's 0.1 s): from 0.5 s after them the dates are back within 1 ms of the send
+def test_lines_lost_put_the_dates_back_on_the_send_times_within_a_third_of_a_second(lost):
+    """A few lines lost (under the break's 0.1 s): from 0.3 s after them the dates are back within 1 ms of the send
     times (less the delay before the loss), where the envelope alone would take its 2 s."""
     t = np.arange(0.0, 20.0, PERIOD_S)
     t = np.delete(t, np.arange(1000, 1000 + lost))
     dated = _dated(_arrivals(t, np.random.default_rng(5), stall_share=0.0))
     before = np.median((dated - t)[500:1000])
-    after = (dated - t)[t > 10.0 + lost * PERIOD_S + 0.5] - before
+    after = (dated - t)[t > 10.0 + lost * PERIOD_S + 0.3] - before
     assert np.max(np.abs(after)) < 1e-3
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_stream_that_loses_one_line_in_a_hundred_silently_is_dated_a_period_early_seldom(seed):
+    """1 % of the lines lost without a trace (about one a second) and reads in bursts: a loss dates the samples after
+    it a period early until a run of chunks shows it (here about ten chunks, 0.1 s), so fewer than 15 % of the
+    samples after the first 5 s are dated over half a period off (the envelope alone: every sample for 2 s after
+    each loss), and the period stays within 1e-3 of the send times' (a loss not counted reads as a slower rate)."""
+    t = np.arange(0.0, 60.0, PERIOD_S)
+    t = t[np.random.default_rng(100 + seed).random(len(t)) >= 0.01]
+    clock = SampleClock()
+    error = _dated(_arrivals(t, np.random.default_rng(seed)), clock) - t
+    error -= np.median(error)
+    assert np.mean(np.abs(error[t > 5.0]) > 0.5 * PERIOD_S) < 0.15
+    assert abs(clock.period_s / PERIOD_S - 1.0) < 1e-3
 
 
 def test_a_restart_keeps_the_period_until_new_chunks_refit_it():

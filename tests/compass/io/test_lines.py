@@ -69,6 +69,15 @@ def test_seq_gaps_counted_once_with_partial_lines():
     assert d.stats.partial == 1 and d.stats.lost == 2 and d.stats.dropped == 3
 
 
+def test_each_sample_carries_the_samples_lost_just_before_it():
+    """A broken line and a seq gap are lost samples in their place: seq 2 cut short and 4-5 missing count one before
+    seq 3 and two before seq 6 (a broken line inside a gap counted once), garbage without seq one before the next."""
+    _, out = decode(b"seq,mx,my,mz\n1,1,2,3\n2,1,2\n3,1,2,3\n", b"4,1,2,3,4\n6,1,2,3\n7,1,2,3\n")
+    assert [(s.seq, s.lost_before) for s in out] == [(1, 0), (3, 1), (6, 2), (7, 0)]
+    _, out = decode(b"mx,my,mz\n1,2,3\n1,2\nx,y,z,w\n1,2,3\n# a comment\n1,2,3\n")
+    assert [s.lost_before for s in out] == [0, 2, 0]
+
+
 def test_header_without_a_channel_stops_samples_until_a_good_one():
     d, out = decode(b"mx,my,mz\n1,2,3\n", b"mx,my,ax,ay,az\n1,2,3,4,5\n", b"mx,my,mz\n7,8,9\n")
     assert len(out) == 2 and d.stats.unheaded == 1

@@ -193,3 +193,19 @@ def test_a_broken_line_is_a_sample_lost_and_the_next_is_dated_after_it(clockless
     assert session.decoder.stats.partial == 1
     t_live = np.array([float(r[0]) for r in _rows(out.getvalue())[1:]])
     np.testing.assert_allclose(t_live, np.delete(t, 1000), atol=1e-4)  # the CSV's 4 decimals
+
+
+def test_a_broken_line_inside_a_chunk_is_dated_in_its_place(clockless):
+    """Lines read ten at a time, on time, one in the middle of a chunk cut short: the samples before it in the chunk
+    keep their times and those after it are a period later (counted at the chunk's start, every sample of the chunk
+    before it would be a period late)."""
+    model, t, s, lines, _ = clockless
+    lines = list(lines)
+    lines[1005] = lines[1005][:12] + b"\r\n"
+    out = io.StringIO()
+    session = LiveSession(model, out=out, stream=StreamOptions(columns=COLUMNS))
+    for k in range(0, len(lines), 10):
+        session.feed(Chunk(100.0 + float(t[min(k + 9, len(t) - 1)]) + 0.001, b"".join(lines[k:k + 10])))
+    session.close()
+    error = np.array([float(r[0]) for r in _rows(out.getvalue())[1:]]) - np.delete(t, 1005)
+    np.testing.assert_allclose(error[500:], error[-1], atol=1e-4)  # the CSV's 4 decimals; the first chunks wait
