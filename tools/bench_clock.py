@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -69,14 +70,33 @@ def lines_lost(t_send: np.ndarray, rng) -> np.ndarray:
     return busy_host(t_send, rng)
 
 
+def paced_by_delay(t_send: np.ndarray, rng) -> np.ndarray:
+    """A busy host, and a module that waits one period after each sample's work (an Arduino ``delay()`` loop): its
+    samples are sent :data:`WORK_SHARE` of a period apart more or less at random (chosen by :func:`kept`)."""
+    return busy_host(t_send, rng)
+
+
 ARRIVALS = {"busy host": busy_host, "USB adapter 16 ms": usb_adapter, "module paused 0.4 s": module_paused,
-            "1 % of lines lost": lines_lost, "1 % of lines broken": lines_lost}
+            "1 % of lines lost": lines_lost, "1 % of lines broken": lines_lost, "paced by delay()": paced_by_delay}
 BROKEN = "1 % of lines broken"
 """The arrival model whose lost lines leave a broken line the decoder counts (``compass live`` tells the clock)."""
 
 
+WORK_SHARE = 0.15
+"""The module paced by ``delay()``: each loop's work takes 0 to this share of a period on top of the delay."""
+PACED_OVERSAMPLE = 10
+"""The paced module's samples are picked from a simulation this many times the rate (their send times on its grid)."""
+
+
 def kept(t_send: np.ndarray, arrival: str, seed: int) -> np.ndarray:
-    """The samples that reach the host under ``arrival``."""
+    """The samples that reach the host under ``arrival`` (for "paced by delay()", ``t_send`` is the simulation's fine
+    grid, :data:`PACED_OVERSAMPLE` times the rate: the samples the module sends)."""
+    if arrival == "paced by delay()":
+        step = PACED_OVERSAMPLE * (1.0 + np.random.default_rng(3000 + seed).uniform(0.0, WORK_SHARE, len(t_send)))
+        picks = np.round(np.cumsum(step)).astype(int)
+        keep = np.zeros(len(t_send), bool)
+        keep[picks[picks < len(t_send)]] = True
+        return keep
     if arrival == "module paused 0.4 s":
         return (t_send < PAUSE_AT_S) | (t_send >= PAUSE_AT_S + PAUSE_S)
     if arrival in ("1 % of lines lost", BROKEN):
@@ -163,12 +183,16 @@ def run(seeds: int, rate_hz: float, arrivals) -> None:
             cells = []
             for kind in KINDS:
                 for seed in range(seeds):
-                    rec = simulate_motion(kind, seed=seed, rate_hz=rate_hz, errors=board_errors(board, seed))
+                    fine = PACED_OVERSAMPLE if arrival == "paced by delay()" else 1
+                    board_error = board_errors(board, seed)  # the gyro's per-sample noise as at the module's rate:
+                    board_error = replace(board_error, gyro_noise=board_error.gyro_noise / np.sqrt(fine))  # picked
+                    rec = simulate_motion(kind, seed=seed, rate_hz=fine * rate_hz, errors=board_error)
                     keep = kept(rec.t_s, arrival, seed)
                     t_rx = model(rec.t_s[keep], np.random.default_rng(seed))
                     trial = _Simulated(rec, kind)
                     for name in ("t_s", "gyro_rad_s", "accel_m_s2", "mag_ut", "movement", "ref_quat_enu"):
                         setattr(trial, name, getattr(trial, name)[keep])
+                    trial.rate_hz = (len(trial.t_s) - 1) / (trial.t_s[-1] - trial.t_s[0])
                     row, t_true = [], trial.t_s
                     lost = np.diff(np.flatnonzero(keep), prepend=-1) - 1 if arrival == BROKEN else None
                     for name, t in datings(t_true, t_rx, lost).items():
