@@ -20,9 +20,8 @@ that went up: the clock starts again at it, so a gap shows as a gap, the period 
 of new chunks refit it.  A sample is never dated after its chunk's arrival nor before the sample before it
 (on one host clock: one that goes back starts the dates again).  Lines known lost (broken lines the decoder
 dropped, a ``seq`` gap) are counted at once; lines lost silently under :data:`BREAK_S` are not seen at
-once: the samples after them are dated up to their span early until a run of chunks each
-:data:`SHIFT_LATE` of a period late, longer than chance gives, shows them; they are then counted
-(:meth:`SampleClock._follow_a_shift`).
+once: the samples after them are dated up to their span early until every chunk of the last
+:data:`SHIFT_S` shows them; they are then counted (:meth:`SampleClock._follow_a_shift`).
 """
 
 from __future__ import annotations
@@ -33,8 +32,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-__all__ = ["SampleClock", "ENVELOPE_S", "PERIOD_S", "BREAK_S", "EARLY_S", "RATE_CHANGE", "SETTLE_S", "SHIFT_LATE",
-           "SHIFT_ALPHA"]
+__all__ = ["SampleClock", "ENVELOPE_S", "PERIOD_S", "BREAK_S", "EARLY_S", "RATE_CHANGE", "SETTLE_S", "SHIFT_S"]
 
 ENVELOPE_S = 2.0
 """Span of chunk ends whose lower envelope dates a sample, s of arrival time."""
@@ -52,14 +50,10 @@ newest point, not its foretelling)."""
 SETTLE_S = 0.25
 """Span of chunk ends after a start again before the period is refitted, s: from it a period :data:`RATE_CHANGE` off
 the kept one replaces it, from :data:`ENVELOPE_S` any."""
-SHIFT_LATE = 0.9
-"""A chunk this many periods above the envelope (at least :data:`_SHIFT_MIN_S`) is late enough to follow a lost line."""
-SHIFT_ALPHA = 1e-6
-"""A run of late chunks is taken for lines lost once chunks that late, each as likely as the last :data:`ENVELOPE_S`
-of chunks were late, would come in such a run by chance this seldom (and the run is longer than any of the last
-:data:`PERIOD_S` without a loss)."""
-_SHIFT_CHUNKS = 3
-"""The fewest late chunks in a row taken for lines lost."""
+SHIFT_S = 0.25
+"""Lines lost under :data:`BREAK_S` are followed once the chunks of this span all show them, s."""
+_SHIFT_CHUNKS = 16
+"""The fewest chunks a shift is judged on: a few chunks after a stall may all have come late."""
 _SHIFT_MIN_S = 0.002
 """The least shift followed, s: below it the recent chunks' least delay varies by itself."""
 _TIE_S = 1e-9
@@ -84,7 +78,7 @@ class SampleClock:
         self.period_s: float | None = None
         self._ends: deque = deque()  # (index of a chunk's last sample, its arrival time): the period's span
         self._envelope: deque = deque()  # (a_j, k_j, a_j - T k_j) of the envelope's span, the last increasing
-        self._late = _LateChunks()
+        self._recent: deque = deque()  # the arrivals of the chunks of the last SHIFT_S (at least _SHIFT_CHUNKS)
         self._count = 0
         self._last_t: float | None = None
         self._fitted_at = -np.inf
@@ -95,7 +89,7 @@ class SampleClock:
         kept until :data:`SETTLE_S` of new chunks refit it."""
         self._ends.clear()
         self._envelope.clear()
-        self._late = _LateChunks()
+        self._recent.clear()
         self._settling = self.period_s is not None
         self._fitted_at = -np.inf
 
@@ -142,7 +136,12 @@ class SampleClock:
         t_rx = float(t_rx)
         if m <= 0:
             return np.empty(0)
-        steps = np.ones(m, dtype=int) if lost is None else 1 + np.maximum(np.asarray(lost, dtype=int), 0)
+        steps = np.ones(m, dtype=int)
+        if lost is not None:
+            lost = np.asarray(lost, dtype=int)
+            if lost.shape != (m,):
+                raise ValueError(f"lost: one count a sample, shape ({m},), got shape {lost.shape}")
+            steps += np.maximum(lost, 0)
         index = self._count - 1 + np.cumsum(steps)
         k = int(index[-1])
         self._count = k + 1
@@ -155,8 +154,9 @@ class SampleClock:
                 late = t_rx - (a_last + self.period_s * (k - k_last))
             else:
                 late = t_rx - self._foretold(k, self._ends[-1][1])
-            if late > BREAK_S or (late < -EARLY_S and not self._settling):
-                self.restart()  # a gap (the module paused, lines lost), or a chunk before its time: the rate went up
+            if late > BREAK_S or (late < -EARLY_S and (not self._settling or k - self._ends[-1][0] > m)):
+                self.restart()  # a gap (the module paused, lines lost), or a chunk before its time: the rate went up,
+                # or lines counted lost that were not (a settling clock judges no rate, but a count it can)
         self._ends.append((k, t_rx))
         while t_rx - self._ends[0][1] > PERIOD_S:
             self._ends.popleft()
@@ -165,7 +165,8 @@ class SampleClock:
             for kj, aj in [end for end in self._ends if t_rx - end[1] <= ENVELOPE_S]:
                 self._add_to_envelope(kj, aj)
         elif self.period_s is not None:
-            index = index + self._follow_a_shift(k, t_rx)
+            self._add_to_envelope(k, t_rx)
+            index = index + self._follow_a_shift(t_rx)
         if self.period_s is None:
             times = np.full(m, t_rx)
         else:
@@ -182,29 +183,28 @@ class SampleClock:
             self._envelope.pop()  # never the least again: a later, lower (or, within rounding, equal) point outlives it
         self._envelope.append((a, k, offset))
 
-    def _follow_a_shift(self, k: int, now: float) -> int:
-        """Adds chunk end ``(k, now)`` to the envelope, and follows lines lost silently: each chunk after them arrives a
-        period later than the envelope foretells, so a run of chunks all :data:`SHIFT_LATE` of a period late (at least
-        :data:`_SHIFT_MIN_S`), longer than chance gives (:class:`_LateChunks`), counts ``round(shift / T)`` lines lost
-        (at least one), ``shift`` the run's least lateness; the envelope keeps the run's chunks and the period's span
-        drops the chunks between (they may be either side of the loss).  A period drifting by under
-        :data:`RATE_CHANGE` is counted so too until the period's fit follows it.  Returns the count of lines lost (0:
-        none seen)."""
-        env = self._envelope
-        while env and now - env[0][0] > ENVELOPE_S:
-            env.popleft()
-        lateness = now - self.period_s * k - env[0][2] if env else 0.0
-        self._add_to_envelope(k, now)
-        if not self._late.add(now, lateness > max(SHIFT_LATE * self.period_s, _SHIFT_MIN_S)):
+    def _follow_a_shift(self, now: float) -> int:
+        """Lines lost: every chunk of the last :data:`SHIFT_S` (or of the last :data:`_SHIFT_CHUNKS`, when they span
+        more) sits above the envelope's older points by half a period or more (at least :data:`_SHIFT_MIN_S`).
+        The samples since are then counted with the lines lost, ``round(shift / T)`` (at least one), the envelope
+        keeps those recent chunks and the period's span drops the chunks between (they may be either side of the
+        loss).  A period drifting by under :data:`RATE_CHANGE` is counted so too until the period's fit follows
+        it.  Returns the count of lines lost (0: none seen)."""
+        env, chunks = self._envelope, self._recent
+        chunks.append(now)
+        while len(chunks) > _SHIFT_CHUNKS and chunks[0] < now - SHIFT_S:
+            chunks.popleft()
+        since = chunks[0]
+        if len(chunks) < _SHIFT_CHUNKS or env[0][0] >= since:
             return 0
-        since, floor = self._late.follow(), env[0]
-        if floor[0] >= since:
-            return 0  # the envelope's points before the run are gone: nothing to measure the shift from
-        recent = next(point for point in env if point[0] >= since)  # the least offset of the late run
-        lost, before = max(1, round((recent[2] - floor[2]) / self.period_s)), floor[0]
-        self._envelope = deque((a, kj + lost, b - self.period_s * lost) for a, kj, b in env if a >= since)
-        self._ends = deque([(kj, a) for kj, a in self._ends if a <= before]
-                           + [(kj + lost, a) for kj, a in self._ends if a >= since])
+        recent = next(point for point in env if point[0] >= since)  # the least offset of the recent chunks
+        shift_s = recent[2] - env[0][2]
+        if shift_s <= max(0.5 * self.period_s, _SHIFT_MIN_S):
+            return 0
+        lost, before = max(1, round(shift_s / self.period_s)), env[0][0]
+        self._envelope = deque((a, k + lost, b - self.period_s * lost) for a, k, b in env if a >= since)
+        self._ends = deque([(k, a) for k, a in self._ends if a <= before]
+                           + [(k + lost, a) for k, a in self._ends if a >= since])
         self._count += lost
         return lost
 
@@ -244,58 +244,6 @@ class SampleClock:
                     self._ends.append((k1, a1))
                     break
         return True
-
-
-class _LateChunks:
-    """Runs of chunks late by most of a period, and whether the present one is longer than chance gives.
-
-    Chunk ``i`` is late with probability ``p``, the share of late chunks over the last :data:`ENVELOPE_S` before the
-    present run (with one late and one on time added, so never 0 or 1); ``n`` late chunks in a row come by chance with
-    probability ``p ** n``.  A run is taken for a loss once that is under :data:`SHIFT_ALPHA`, it has at least
-    :data:`_SHIFT_CHUNKS` chunks, and it is longer than every run of the last :data:`PERIOD_S` that was not (delays
-    that drift with the module's phase against a USB adapter's timer come in runs).
-    """
-
-    def __init__(self):
-        self._seen: deque = deque()  # (arrival, late) of the chunks of the last ENVELOPE_S before the present run
-        self._late_seen = 0
-        self._runs: deque = deque()  # (last arrival, length) of the runs of the last PERIOD_S, the longest first
-        self._run: list = []  # the arrivals of the present run
-
-    def add(self, now: float, late: bool) -> bool:
-        """Adds a chunk; True when the run it ends is taken for lines lost (:meth:`follow` then)."""
-        if late:
-            self._run.append(now)
-        else:
-            self._close(now)
-            self._remember(now, False)
-        while self._seen and self._seen[0][0] < now - ENVELOPE_S:
-            self._late_seen -= self._seen.popleft()[1]
-        while self._runs and self._runs[0][0] < now - PERIOD_S:
-            self._runs.popleft()
-        if len(self._run) < _SHIFT_CHUNKS or (self._runs and len(self._run) <= self._runs[0][1]):
-            return False
-        p = (self._late_seen + 1) / (len(self._seen) + 2)
-        return len(self._run) * np.log(p) < np.log(SHIFT_ALPHA)
-
-    def follow(self) -> float:
-        """Forgets the run taken for a loss (its chunks are on time once it is counted); returns its first arrival."""
-        since, self._run = self._run[0], []
-        return since
-
-    def _close(self, now: float) -> None:
-        if not self._run:
-            return
-        while self._runs and self._runs[-1][1] <= len(self._run):
-            self._runs.pop()
-        self._runs.append((self._run[-1], len(self._run)))
-        for a in self._run:
-            self._remember(a, True)
-        self._run = []
-
-    def _remember(self, a: float, late: bool) -> None:
-        self._seen.append((a, late))
-        self._late_seen += late
 
 
 def _period(ends: np.ndarray) -> float:

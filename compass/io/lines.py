@@ -142,9 +142,10 @@ class Sample:
         When its bytes arrived (s, the reader's clock), for a sample a decoder held back before handing it
         out (:class:`compass.io.streams.StreamDecoder`); None: it arrived with the chunk it comes out of.
     lost_before : int
-        Samples the decoder knows were lost between the sample before and this one: broken lines
-        (:attr:`LineStats.broken`) and a ``seq`` or ``t_s`` gap, each counted once (0 for the first sample).
-        A stream without ``t_s`` is dated with them in their place (:class:`compass.io.clock.SampleClock`).
+        Samples the decoder knows were lost between the sample before and this one (0 for the first sample): the
+        ``seq`` gap when both carry ``seq``, else the sample lines between them it could not use (garbage, invalid,
+        partial, header-less).  A stream without ``t_s`` is dated with them in their place
+        (:class:`compass.io.clock.SampleClock`).
     """
 
     raw: np.ndarray
@@ -273,7 +274,7 @@ class LineDecoder:
     _last_t_s: float | None = None
     _dt_s: deque = field(default_factory=lambda: deque(maxlen=_DT_WINDOW))
     _bad_at_sample: int = 0  # bad lines at the last good sample
-    _broken_at_sample: int = 0  # broken lines at the last good sample
+    _seq_gap: int | None = None  # samples the last sample's seq says were lost before it (None: no seq to tell)
     _anchor: tuple = (None, None)  # (seq, t_s) of the sample before the last
     _last_lost: int = 0  # samples counted lost at the last sample
     _last_rejected: tuple | None = None
@@ -387,9 +388,14 @@ class LineDecoder:
             self.stats.repeated += 1
             return None
         stats = self.stats
-        lost = stats.broken - self._broken_at_sample + self._last_lost if stats.samples else 0
+        if not stats.samples:
+            lost = 0
+        elif self._seq_gap is not None:
+            lost = self._seq_gap  # the module's counter tells: a broken line between two seqs is no sample of its own
+        else:
+            lost = stats.bad_lines - self._bad_at_sample  # a sample line that came and could not be used
         stats.samples += 1
-        self._bad_at_sample, self._broken_at_sample = stats.bad_lines, stats.broken
+        self._bad_at_sample = stats.bad_lines
         return replace(sample, lost_before=lost) if lost > 0 else sample
 
     def _decode(self, header: Header, cells: list[str]) -> Sample:
@@ -405,7 +411,7 @@ class LineDecoder:
 
     def _count_gap(self, sample: Sample) -> bool:
         """Count samples lost before ``sample`` (``seq``, else ``t_s`` gaps); False if its ``seq`` repeats."""
-        missing = 0
+        missing, self._seq_gap = 0, None
         if sample.seq is not None and sample.seq == self._last_seq:
             return False
         outlier = self._last_was_outlier(sample)
@@ -428,6 +434,8 @@ class LineDecoder:
         if sample.t_s is not None:
             self._last_t_s = sample.t_s
         missing = max(0, missing - outlier)  # the outlier was the sample of one of the slots
+        if sample.seq is not None and self._anchor[0] is not None:
+            self._seq_gap = missing
         self._last_lost = 0
         if missing:
             already = self.stats.bad_lines - self._bad_at_sample  # bad lines since the last sample: counted

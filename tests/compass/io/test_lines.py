@@ -71,11 +71,16 @@ def test_seq_gaps_counted_once_with_partial_lines():
 
 def test_each_sample_carries_the_samples_lost_just_before_it():
     """A broken line and a seq gap are lost samples in their place: seq 2 cut short and 4-5 missing count one before
-    seq 3 and two before seq 6 (a broken line inside a gap counted once), garbage without seq one before the next."""
+    seq 3 and two before seq 6 (a broken line inside a gap counted once); without seq, each line of a sample that
+    could not be used counts one."""
     _, out = decode(b"seq,mx,my,mz\n1,1,2,3\n2,1,2\n3,1,2,3\n", b"4,1,2,3,4\n6,1,2,3\n7,1,2,3\n")
     assert [(s.seq, s.lost_before) for s in out] == [(1, 0), (3, 1), (6, 2), (7, 0)]
     _, out = decode(b"mx,my,mz\n1,2,3\n1,2\nx,y,z,w\n1,2,3\n# a comment\n1,2,3\n")
     assert [s.lost_before for s in out] == [0, 2, 0]
+    # with seq the counter tells: a line of noise between two seqs in a row is no lost sample, a line broken in two
+    # one, a repeat and lines without a usable header stand for the slots they leave
+    _, out = decode(b"seq,mx,my,mz\n1,1,2,3\n\x01zz\n2,1,2,3\n3,1\n,2,3\n4,1,2,3\n4,1,2,3\n6,1,2,3\n")
+    assert [(s.seq, s.lost_before) for s in out] == [(1, 0), (2, 0), (4, 1), (6, 1)]
 
 
 def test_header_without_a_channel_stops_samples_until_a_good_one():
