@@ -18,15 +18,10 @@ so neither a delay nor a stall biases it.  A chunk later than the envelope foret
 :data:`BREAK_S` is a break (the module paused, a disconnect, lines lost), and one earlier by over :data:`EARLY_S` a rate
 that went up: the clock starts again at it, so a gap shows as a gap, the period kept until :data:`SETTLE_S`
 of new chunks refit it.  A sample is never dated after its chunk's arrival nor before the sample before it
-(on one host clock: one that goes back starts the dates again), and a chunk's samples not before the chunk before
-arrived, :data:`MIN_STEP` of a period apart (the reader takes all that has come: they were not there when it last
-read; :class:`compass.serial_reader.SerialReader` reads so).  Lines known lost (broken lines the decoder dropped, a
-``seq`` gap: ``Sample.lost_before``) are counted at once, in their place; lines lost silently under
-:data:`BREAK_S` are not seen at once: the samples after them are dated up to their span early (but not before the
-chunk before) until every chunk of the last :data:`SHIFT_S` shows them; they are then counted
-(:meth:`SampleClock._follow_a_shift`).  The send times of a module paced by ``delay()`` wander off any one period:
-where they drift late the envelope dates them early, by up to the drift over its span, and no earlier than the
-chunk before.
+(on one host clock: one that goes back starts the dates again).  Lines known lost (broken lines the decoder
+dropped, a ``seq`` gap) are counted at once; lines lost silently under :data:`BREAK_S` are not seen at
+once: the samples after them are dated up to their span early until every chunk of the last
+:data:`SHIFT_S` shows them; they are then counted (:meth:`SampleClock._follow_a_shift`).
 """
 
 from __future__ import annotations
@@ -37,7 +32,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-__all__ = ["SampleClock", "ENVELOPE_S", "PERIOD_S", "BREAK_S", "EARLY_S", "RATE_CHANGE", "SETTLE_S", "SHIFT_S", "MIN_STEP"]
+__all__ = ["SampleClock", "ENVELOPE_S", "PERIOD_S", "BREAK_S", "EARLY_S", "RATE_CHANGE", "SETTLE_S", "SHIFT_S"]
 
 ENVELOPE_S = 2.0
 """Span of chunk ends whose lower envelope dates a sample, s of arrival time."""
@@ -61,9 +56,6 @@ _SHIFT_CHUNKS = 16
 """The fewest chunks a shift is judged on: a few chunks after a stall may all have come late."""
 _SHIFT_MIN_S = 0.002
 """The least shift followed, s: below it the recent chunks' least delay varies by itself."""
-MIN_STEP = 0.9
-"""No sample is sent sooner than this share of the period after the one before (a module's loop varies by a few %):
-the samples of a chunk are dated at least that far apart after the chunk before's arrival."""
 _TIE_S = 1e-9
 """Envelope offsets this close are equal (rounding): the later point stands, so a steady stream is dated at its
 arrivals exactly, s."""
@@ -89,7 +81,6 @@ class SampleClock:
         self._recent: deque = deque()  # the arrivals of the chunks of the last SHIFT_S (at least _SHIFT_CHUNKS)
         self._count = 0
         self._last_t: float | None = None
-        self._last_rx: float | None = None  # the chunk before's arrival: this chunk's samples were sent after it
         self._fitted_at = -np.inf
         self._settling = False  # started again with the period kept: breaks judged from the chunk before
 
@@ -101,7 +92,6 @@ class SampleClock:
         self._recent.clear()
         self._settling = self.period_s is not None
         self._fitted_at = -np.inf
-        self._last_rx = None
 
     def dated(self, samples: list, t_rx: float, t0: float) -> list:
         """The decoder's samples, those without ``t_s`` dated (seconds since ``t0``, on ``t_rx``'s clock), the samples
@@ -181,10 +171,6 @@ class SampleClock:
             times = np.full(m, t_rx)
         else:
             times = np.minimum(self._foretold(index, t_rx), t_rx)
-            after = None if self._last_rx is None else self._last_rx + MIN_STEP * self.period_s * np.arange(m)
-            if after is not None and after[-1] <= t_rx:  # a reader takes all that has come: these were not there
-                times = np.maximum(times, after)         # when it last read (more than fit since: it did not)
-        self._last_rx = t_rx
         if self._last_t is not None:
             times = np.maximum(times, self._last_t)
         times = np.maximum.accumulate(times)

@@ -173,17 +173,3 @@ def test_a_count_of_lines_lost_that_were_not_restarts_a_settling_clock():
 def test_lost_counts_must_be_one_a_sample(lost):
     with pytest.raises(ValueError, match="one count a sample"):
         SampleClock().date(3, 1.0, lost)
-
-
-def test_a_chunk_is_dated_after_the_chunk_before_arrived():
-    """A reader that takes all that has come (every 25 ms here) did not have a chunk's samples when it last read: a
-    line lost without a trace dates the samples after it a period early until the 0.25 s rule counts it, but never
-    before the chunk before's arrival, nor closer than MIN_STEP of a period to the sample before."""
-    t = np.delete(np.arange(0.0, 20.0, PERIOD_S), 1000)
-    reads = np.arange(0.0, 21.0, 0.025) + 0.0123
-    t_rx = reads[np.searchsorted(reads, t + 0.001)]
-    dated = _dated(t_rx)
-    error = dated - t - np.median((dated - t)[500:999])
-    after = (t > 10.0) & (t < 10.2)
-    assert np.all(np.diff(dated)[t[1:] > 1.0] > 0.5 * PERIOD_S)  # (the first chunk: at its arrival, no period yet)
-    assert np.mean(np.abs(error[after])) < 0.85 * PERIOD_S  # 0.78 here; the envelope alone: 1.0
