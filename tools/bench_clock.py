@@ -70,6 +70,21 @@ def lines_lost(t_send: np.ndarray, rng) -> np.ndarray:
     return busy_host(t_send, rng)
 
 
+def wifi_bridge(t_send: np.ndarray, rng) -> np.ndarray:
+    """A serial-to-WiFi bridge read over ``socket://``: it sends what it holds every 10 ms, each segment taking 3 ms plus
+    an exponential 8 ms (in order), read 0-0.5 ms after it comes, all that has come: the delay varies before the host's
+    buffer, so a sample missing from one read may have been sent before it."""
+    form = np.ceil((t_send + WIRE_S) / 0.010) * 0.010
+    packets = np.unique(form)
+    comes = np.maximum.accumulate(packets + 0.003 + rng.exponential(0.008, len(packets)))
+    read, i, last = np.empty(len(packets)), 0, -np.inf
+    while i < len(packets):
+        last = max(last, comes[i]) + rng.uniform(0.0, 0.0005)
+        j = int(np.searchsorted(comes, last, side="right"))
+        read[i:j], i = last, j
+    return read[np.searchsorted(packets, form)]
+
+
 def paced_by_delay(t_send: np.ndarray, rng) -> np.ndarray:
     """A busy host, and a module that waits one period after each sample's work (an Arduino ``delay()`` loop): its
     samples are sent :data:`WORK_SHARE` of a period apart more or less at random (chosen by :func:`kept`)."""
@@ -77,7 +92,8 @@ def paced_by_delay(t_send: np.ndarray, rng) -> np.ndarray:
 
 
 ARRIVALS = {"busy host": busy_host, "USB adapter 16 ms": usb_adapter, "module paused 0.4 s": module_paused,
-            "1 % of lines lost": lines_lost, "1 % of lines broken": lines_lost, "paced by delay()": paced_by_delay}
+            "1 % of lines lost": lines_lost, "1 % of lines broken": lines_lost, "paced by delay()": paced_by_delay,
+            "WiFi bridge": wifi_bridge}
 BROKEN = "1 % of lines broken"
 """The arrival model whose lost lines leave a broken line the decoder counts (``compass live`` tells the clock)."""
 
