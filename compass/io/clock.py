@@ -145,7 +145,8 @@ class SampleClock:
         index = self._count - 1 + np.cumsum(steps)
         k = int(index[-1])
         self._count = k + 1
-        if self._ends and t_rx < self._ends[-1][1]:  # the host's clock went back: dates on the new one
+        before = self._ends[-1][1] if self._ends else self._last_t  # after a restart the last date tells
+        if before is not None and t_rx < before:  # the host's clock went back: dates on the new one
             self.restart()
             self._last_t = None
         elif self._ends and self.period_s is not None:

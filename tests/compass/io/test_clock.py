@@ -46,17 +46,25 @@ def test_a_bursty_stream_is_dated_at_its_period_within_a_millisecond(seed):
     np.testing.assert_allclose(np.diff(dated[late]), PERIOD_S, atol=2e-3)
 
 
-@given(st.lists(st.tuples(st.integers(1, 30), st.floats(0.0, 0.3)), min_size=1, max_size=200))
+@given(st.lists(st.tuples(st.integers(1, 30), st.floats(-0.05, 0.3), st.integers(-2, 40), st.booleans()),
+                min_size=1, max_size=200))
 @settings(max_examples=60, deadline=None)
 def test_no_sample_is_dated_after_its_arrival_or_before_the_one_before(chunks):
-    """Whatever the chunks: the dates never decrease and never pass the arrival."""
+    """Whatever the chunks, lines counted lost and reconnects: the dates never decrease (but on a host clock that
+    goes back) and never pass the arrival."""
     clock = SampleClock()
     t_rx, last = 0.0, -np.inf
-    for m, gap in chunks:
+    for m, gap, lost, reconnect in chunks:
+        if reconnect:
+            clock.restart()
+        back = gap < 0.0
         t_rx += gap
-        times = clock.date(m, t_rx)
-        assert times.shape == (m,)
-        assert np.all(np.diff(times) >= 0.0) and times[0] >= last and np.all(times <= t_rx)
+        counts = np.zeros(m, int)
+        counts[m // 2] = lost
+        times = clock.date(m, t_rx, counts)
+        assert times.shape == (m,) and np.all(np.isfinite(times))
+        assert np.all(np.diff(times) >= 0.0) and np.all(times <= t_rx)
+        assert back or times[0] >= last
         last = times[-1]
 
 
