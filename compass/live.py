@@ -280,7 +280,7 @@ class LiveSession:
             for level, text in self.decoder.drain_events():
                 self._event(level, text)
         stats = self.decoder.stats
-        bad = stats.broken
+        bad = stats.garbage + stats.partial + stats.invalid
         if bad != self._bad_reported and item.t_rx - self._bad_reported_at >= 1.0:
             self._event("warn", f"line noise: {stats.garbage} garbage, {stats.partial} partial and "
                                 f"{invalid_words(stats)} lines so far")

@@ -208,11 +208,6 @@ class LineStats:
         return self.garbage + self.invalid + self.partial + self.unheaded + self.repeated
 
     @property
-    def broken(self) -> int:
-        """Lines of a sample that could not be used, each a sample lost: garbage, invalid, partial."""
-        return self.garbage + self.invalid + self.partial
-
-    @property
     def dropped(self) -> int:
         """Samples the receiver did not use: bad lines and samples lost in transit."""
         return self.bad_lines + self.lost
