@@ -181,7 +181,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     from .site import MIN_REFERENCE_ROWS, Site, reference_from_site
     from .viz import check_rerun_target
 
-    out = check_writable(out, force)
+    out = check_writable(out, force, inputs=(calibration, recording))
     rerun = check_rerun_target(rerun, force)
     if gravity is not None:
         try:

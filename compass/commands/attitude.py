@@ -90,7 +90,7 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
     """
     from ..recording import solve_recording
 
-    out = check_writable(out, force)
+    out = check_writable(out, force, inputs=(calibration, recording))
     rerun = check_rerun_target(rerun, force)
     solved = solve_recording(calibration, recording, level=level, max_tilt_deg=max_tilt_deg,
                              accel_noise_g=accel_noise_g, site=site, date=date, read_options=read_options)

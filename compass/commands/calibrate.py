@@ -114,7 +114,7 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
     from ..calibration import CalibrationFileError, save
     from ..cli import BadInput
 
-    out = check_writable(out, force)
+    out = check_writable(out, force, inputs=(recording, base))
     table = read_table(recording, read_options)
     if base is not None and kind is None:
         kind = "installed"  # --base: the recording is an installation on top of that bench calibration

@@ -154,7 +154,7 @@ def _stored(args) -> tuple[str, str]:
 
 def _emit(args, text: str) -> None:
     if args.out:
-        out = check_writable(args.out, args.force)
+        out = check_writable(args.out, args.force, inputs=(args.calibration,))
         atomic_write_text(out, text)
         print(f"wrote {out}")
     else:

@@ -123,8 +123,8 @@ def run(args) -> int:
     reference = _site_reference(args, model)
     stream = stream_options(args)
     reader = open_reader(args)
-    out_path = None if args.out is None else check_writable(args.out, args.force)
-    record_path = None if args.record is None else check_writable(args.record, args.force)
+    out_path = None if args.out is None else check_writable(args.out, args.force, inputs=(args.cal,))
+    record_path = None if args.record is None else check_writable(args.record, args.force, inputs=(args.cal,))
     if record_path is not None and out_path is not None and record_path.resolve() == out_path.resolve():
         raise BadInput(f"--record and --out are both {args.out}: give two files")
     check_rerun_target(args.rerun, args.force)

@@ -3,7 +3,9 @@
 Every output goes to a temporary file in the target's folder, named ``.NAME.PID.RANDOM.tmp``, is
 flushed to disk and renamed over the target in one step (``os.replace``).  The result has the mode
 a plain ``open()`` would give it: ``0o666`` less the user's umask for a new file, the old file's
-mode when ``--force`` replaces one.  A writer killed in the write window (``kill -9``) leaves its
+mode when ``--force`` replaces one.  A symbolic link is followed (its target is replaced, the link kept), and
+a character device or a pipe (``/dev/stdout``, ``/dev/null``, a named pipe) is written through, as it comes: there
+is no file to replace.  A writer killed in the write window (``kill -9``) leaves its
 temporary file; the next write to the same target removes the ones whose writer process is gone
 (only files of this naming pattern, and never one whose process still runs).
 """
@@ -25,19 +27,32 @@ class OutputError(ValueError):
     """An output path that cannot be written (exit status 2 on the command line)."""
 
 
-def check_writable(path, force: bool) -> Path:
+def check_writable(path, force: bool, inputs=()) -> Path:
     """Refuse to overwrite ``path`` unless ``force``; make sure it can be written (before long work).
+
+    Parameters
+    ----------
+    path : path-like
+    force : bool
+    inputs : sequence of path-like or None
+        The command's input files: ``path`` may be none of them, ``--force`` or not (it would be read
+        and replaced by what was made of it).
 
     Raises
     ------
     FileExistsError
         The file exists and ``force`` is False.
     OutputError
-        The path is a folder, or its folder cannot be created or written.
+        The path is a folder or one of ``inputs``, or its folder cannot be created or written.
     """
-    path = Path(path)
+    path = _target(path)
     if path.is_dir():
         raise OutputError(f"{path} is a folder: expected a file name")
+    for source in inputs:
+        if source is not None and path.exists() and Path(source).exists() and path.samefile(source):
+            raise OutputError(f"{path} is also an input of this command ({source}): give another file")
+    if _written_through(path):
+        return path
     if path.exists() and not force:
         raise FileExistsError(f"{path} exists; use --force to overwrite it")
     try:
@@ -73,7 +88,11 @@ def atomic_open(path, mode: str = "w"):
     """
     if mode not in ("w", "wb"):
         raise ValueError(f"mode must be 'w' or 'wb', got {mode!r}")
-    path = Path(path)
+    path = _target(path)
+    if _written_through(path):
+        with _open_through(path, mode) as fh:
+            yield fh
+        return
     fd, tmp = _temporary(path)
     try:
         with os.fdopen(fd, mode, **({"encoding": "utf-8"} if mode == "w" else {})) as fh:
@@ -105,7 +124,11 @@ def atomic_stream(path, keep):
     keep : callable returning bool
         Asked once, when the block ends.
     """
-    path = Path(path)
+    path = _target(path)
+    if _written_through(path):  # nothing to keep or drop: the rows went where they were sent
+        with _open_through(path, "w") as fh:
+            yield fh
+        return
     fd, tmp = _temporary(path)
     fh = os.fdopen(fd, "w", encoding="utf-8", buffering=1 << 16)
     kept = False
@@ -152,6 +175,40 @@ def save_figure(fig, path, **savefig_kwargs) -> Path:
     with atomic_open(path, "wb") as fh:
         fig.savefig(fh, **savefig_kwargs)
     return path
+
+
+def _target(path) -> Path:
+    """The file a write to ``path`` replaces: a symbolic link's target (the link stays a link)."""
+    path = Path(path)
+    return Path(os.path.realpath(path)) if path.is_symlink() else path
+
+
+def _written_through(path: Path) -> bool:
+    """Whether ``path`` is a character device or a pipe, written as it comes rather than replaced.
+
+    Raises
+    ------
+    OutputError
+        ``path`` is a block device or a socket: never an output.
+    """
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        return False
+    if stat.S_ISBLK(mode) or stat.S_ISSOCK(mode):
+        raise OutputError(f"{path} is a {'block device' if stat.S_ISBLK(mode) else 'socket'}: expected a file name")
+    return stat.S_ISCHR(mode) or stat.S_ISFIFO(mode)
+
+
+@contextlib.contextmanager
+def _open_through(path: Path, mode: str):
+    """``path`` (a character device or a pipe) opened for writing, an error as :class:`OutputError`."""
+    try:
+        fh = open(path, mode, **({"encoding": "utf-8"} if mode == "w" else {}))
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
+    with fh:
+        yield fh
 
 
 def _temporary(path: Path) -> tuple[int, str]:

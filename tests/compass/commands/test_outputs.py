@@ -153,3 +153,41 @@ def test_live_out_is_streamed_with_the_umask(tmp_path, umask_027, monkeypatch):
     assert status == 0 and not alive and not errors and time.monotonic() - started < 60
     assert mode(att) == umask_027 and temporaries(tmp_path) == []
     assert att.read_text().count("\n") > 150
+
+
+def test_a_symbolic_link_is_followed_and_kept_and_a_pipe_is_written_through(tmp_path):
+    from compass.io.atomic import atomic_open, atomic_stream, check_writable
+    target, link = tmp_path / "target.csv", tmp_path / "link.csv"
+    target.write_text("old\n")
+    link.symlink_to(target.name)
+    with pytest.raises(FileExistsError):
+        check_writable(link, force=False)
+    check_writable(link, force=True)
+    with atomic_open(link) as fh:
+        fh.write("new\n")
+    assert link.is_symlink() and target.read_text() == "new\n"  # was: the link replaced by a file
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)  # a reader, so opening it for writing does not block
+    try:
+        assert check_writable(fifo, force=False) == fifo  # nothing is replaced: no --force needed
+        with atomic_stream(fifo, keep=lambda: False) as fh:
+            fh.write("row\n")
+        assert os.read(reader, 100) == b"row\n"
+    finally:
+        os.close(reader)
+    assert stat.S_ISFIFO(fifo.lstat().st_mode) and temporaries(tmp_path) == []
+
+
+
+def test_an_output_that_is_an_input_is_refused_even_with_force(tmp_path, capsys):
+    rec, cal = tmp_path / "rec.csv", tmp_path / "cal.json"
+    assert main(["simulate", "fourflip", "--out", str(rec), "--seed", "1"]) == 0
+    assert main(["calibrate", str(rec), "--out", str(cal), "--quiet", "--no-diagnose"]) == 0
+    before = rec.read_bytes(), cal.read_bytes()
+    capsys.readouterr()
+    assert main(["calibrate", str(rec), "--out", str(rec), "--quiet", "--no-diagnose", "--force"]) == 2
+    assert main(["attitude", str(cal), str(rec), "--out", str(cal), "--force"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("is also an input of this command") == 2 and "Traceback" not in err
+    assert (rec.read_bytes(), cal.read_bytes()) == before
