@@ -43,7 +43,7 @@ def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *
         The calibration's channel outputs, in its channel order.
     accel, gyro : array_like, shape (n, 3), or None
         Accelerometer (any unit, +up at rest) and gyro (rad/s; the stream's ``--gyro-unit`` converts on decoding) in the
-        module's frame, as the module sends them.
+        module's frame, as the module sends them (a row all NaN: not sent on that row).
     temp_c : array_like, shape (n,), optional
         Sensor temperature, degrees Celsius (NaN: not sent in that row).
     progress : callable, optional
@@ -70,7 +70,7 @@ def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *
     temps = None if temp_c is None else np.asarray(temp_c, dtype=float)
     for lo in range(0, n, _CHUNK_ROWS):
         hi = min(lo + _CHUNK_ROWS, n)
-        samples = [Sample(raw[k], None if accel is None else accel[k], None if gyro is None else gyro[k],
+        samples = [Sample(raw[k], _sent(accel, k), _sent(gyro, k),
                           float(t_s[k]), None,
                           None if temps is None or not np.isfinite(temps[k]) else float(temps[k]), header)
                    for k in range(lo, hi)]
@@ -81,6 +81,13 @@ def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *
             break
     session.close()
     return session
+
+
+def _sent(vectors, k: int):
+    """Row ``k`` of a group (None when the group is absent, or NaN on that row: not sent, as a live record says)."""
+    if vectors is None or np.isnan(vectors[k]).all():
+        return None
+    return vectors[k]
 
 
 def mag_latency_note(model, has_gyro: bool = True) -> tuple[str, str]:

@@ -7,12 +7,28 @@ the accelerometer (in g when its unit is known: ``--accel-unit`` or MotionCal's 
 rad/s, each number written exactly (``repr``), so the replay takes the very floats the live filter took
 and writes the same rows.  The first lines say how it was recorded and the replay that reproduces it (with
 the session's own options: the site and its date, a given gravity, the calibration's latency and gyro matrix).
-A later header with other columns ends the recording (said once): one file has one set of columns.
+The columns are the module's header's; a row on which the module sent an optional group empty (``temp_c``, the
+accelerometer's or the gyro's, as the line protocol allows) has ``nan`` in its cells, which the replay reads as
+that group not sent on that row, as the live session took it.  A later header with other columns ends the
+recording (said once): one file has one set of columns.
 """
 
 from __future__ import annotations
 
+from .table import ABSENT_KEY
+
 __all__ = ["SampleLog"]
+
+_ABSENT = float("nan")
+
+
+def _columns(sample) -> tuple:
+    """Whether the sample's header has ``temp_c``, the accelerometer and the gyro (the sample's own groups when it
+    was made without one)."""
+    h = sample.header
+    if h is None:
+        return sample.temp_c is not None, sample.accel is not None, sample.gyro is not None
+    return h.temp_c is not None, h.accel is not None, h.gyro is not None
 
 
 class SampleLog:
@@ -51,7 +67,7 @@ class SampleLog:
         for sample in samples:
             if self.stopped is not None:
                 return None
-            shape = (sample.temp_c is not None, sample.accel is not None, sample.gyro is not None)
+            shape = _columns(sample)
             if self._shape is None:
                 self._begin(shape, accel_in_g)
             elif shape != self._shape:
@@ -60,10 +76,10 @@ class SampleLog:
                 return self.stopped
             cells = [sample.t_s, *sample.raw.tolist()]
             if shape[0]:
-                cells.append(sample.temp_c)
-            for vector in (sample.accel, sample.gyro):
-                if vector is not None:
-                    cells += vector.tolist()
+                cells.append(_ABSENT if sample.temp_c is None else sample.temp_c)
+            for present, vector in zip(shape[1:], (sample.accel, sample.gyro)):
+                if present:
+                    cells += [_ABSENT] * 3 if vector is None else vector.tolist()
             self.out.write(",".join(map(repr, map(float, cells))) + "\n")
             self.rows += 1
         return None
@@ -77,6 +93,8 @@ class SampleLog:
         options = f" {self.replay_options}" if self.replay_options else ""
         self.out.write(f"# source: compass live --record, {self.source}\n"
                        f"# replay: compass attitude CAL.json THIS.csv --out ATT.csv --filter{unit}{options}\n"
-                       f"# units: the calibration's for {','.join(self.channels)}"
+                       + (f"# {ABSENT_KEY}: nan where the module sent the group empty on that row\n"
+                          if temp or accel or gyro else "")
+                       + f"# units: the calibration's for {','.join(self.channels)}"
                        + (f"; accelerometer in {'g' if accel_in_g else 'the module unit'}" if accel else "")
                        + ("; gyro in rad/s" if gyro else "") + "\n" + ",".join(names) + "\n")

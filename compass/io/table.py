@@ -37,13 +37,18 @@ from . import units
 from ..limits import FIELD_UT
 from .units import note
 
-__all__ = ["RecordingError", "Table", "ReadOptions", "read_table", "add_read_arguments", "format_table", "VOCABULARY"]
+__all__ = ["RecordingError", "Table", "ReadOptions", "read_table", "add_read_arguments", "format_table", "VOCABULARY",
+           "ABSENT_KEY"]
 
 VOCABULARY = ("t_s", "temp_c", "flip_deg", "platform_deg", "platform_z_deg", "platform_y_deg", "platform_x_deg",
               "mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz", "bx_ref", "by_ref", "bz_ref", "pitch_deg",
               "roll_deg", "heading_ref_deg")
 """Column names SPEC gives a meaning (matched without regard to case)."""
 _GYRO, _ACCEL, _MAG = ("gx", "gy", "gz"), ("ax", "ay", "az"), ("mx", "my", "mz")
+ABSENT_KEY = "absent"
+"""A ``# absent: ...`` line (``compass live --record`` writes it): ``nan`` in ``temp_c`` or in a whole accelerometer
+or gyro group is that group not sent on that row (the line protocol's empty cells), not a bad cell."""
+_OPTIONAL_GROUPS = (("temp_c",), _ACCEL, _GYRO)
 _LOG_SENSORS = {"gyroscope": "g", "gyro": "g", "gyr": "g", "accelerometer": "a", "accel": "a", "acc": "a",
                 "magnetometer": "m", "mag": "m"}
 _LOG_NAME = re.compile(r"^(?P<sensor>[a-z]+)[ _]?(?P<axis>[xyz])\s*(?:\((?P<unit>[^)]*)\))?$", re.IGNORECASE)
@@ -360,7 +365,7 @@ def read_table(path, options: ReadOptions | None = None) -> Table:
     if data.shape[1] != len(header):
         _scan_for_bad_cell(path, header, sep, decimal_comma, header_line)
         raise RecordingError(path, f"expected {len(header)} cells a row, found {data.shape[1]}", row=int(rows[0]))
-    _check_values(path, header, data, rows)
+    _check_values(path, header, data, rows, _absent_groups(header) if ABSENT_KEY in metadata else ())
     return _interpret(Table(str(path), tuple(header), data, rows, metadata, header_line), options, meta_rows)
 
 
@@ -608,19 +613,27 @@ def _scan_for_bad_cell(path, header, sep, decimal_comma, header_line) -> None:
             _locate_bad_cell(path, header, sep, decimal_comma, number, stripped)
 
 
-def _check_values(path, header, data, rows) -> None:
-    """RecordingError at the first non-finite cell, or the first beyond ``MAX_ABS_VALUE``."""
+def _absent_groups(header) -> list:
+    """Column indices of each optional group the header has whole (:data:`ABSENT_KEY`)."""
+    return [[header.index(c) for c in group] for group in _OPTIONAL_GROUPS if all(c in header for c in group)]
+
+
+def _check_values(path, header, data, rows, absent=()) -> None:
+    """RecordingError at the first non-finite cell, or the first beyond ``MAX_ABS_VALUE``; ``absent``: column
+    indices of groups whose cells may be NaN together (that group not sent on that row)."""
     lo, hi = data.min(), data.max()  # NaN propagates; no copy of the data
     if -units.MAX_ABS_VALUE <= lo and hi <= units.MAX_ABS_VALUE:
         return
     finite = np.isfinite(data)
+    for group in absent:
+        finite[:, group] |= np.isnan(data[:, group]).all(axis=1)[:, None]
     if not finite.all():
         i, j = np.argwhere(~finite)[0]
         every = "" if finite[:, j].any() else (f" (as in all {len(data)} rows of {header[j]}: a sensor not recorded? "
                                                 "leave its columns out)")
         raise RecordingError(path, f"expected a finite number, found {float(data[i, j])!r}{every}", row=int(rows[i]),
                              column=header[j])
-    big = np.abs(data) > units.MAX_ABS_VALUE
+    big = np.abs(np.nan_to_num(data)) > units.MAX_ABS_VALUE
     if big.any():
         i, j = np.argwhere(big)[0]
         raise RecordingError(path, f"{data[i, j]:g} is beyond {units.MAX_ABS_VALUE:g} in magnitude, which no sensor "
@@ -748,8 +761,9 @@ def _convert_units(table: Table, header, data, options: ReadOptions, named: dict
     _check_accel_unit(path, header, data, named.get("ax"))
     ratio = None
     if all(c in header for c in _GYRO + _ACCEL + ("t_s",)):
-        cols = lambda names: data[:, [header.index(c) for c in names]]  # noqa: E731
-        ratio = units.check_gyro_unit(data[:, header.index("t_s")], cols(_GYRO), cols(_ACCEL),
+        sent = np.isfinite(data[:, [header.index(c) for c in _GYRO + _ACCEL]]).all(axis=1)  # ABSENT_KEY's rows out
+        cols = lambda names: data[sent][:, [header.index(c) for c in names]]  # noqa: E731
+        ratio = units.check_gyro_unit(data[sent, header.index("t_s")], cols(_GYRO), cols(_ACCEL),
                                       named=options.gyro_unit is not None or "gx" in named, where=path)
     return data, ratio
 
@@ -758,7 +772,7 @@ def _check_accel_unit(path, header, data, unit) -> None:
     """Warn when the accelerometer's typical |a| is not 1 g in the unit named."""
     if unit is None or not all(c in header for c in _ACCEL):
         return
-    norm = float(np.median(np.linalg.norm(data[:, [header.index(c) for c in _ACCEL]], axis=1)))
+    norm = float(np.nanmedian(np.linalg.norm(data[:, [header.index(c) for c in _ACCEL]], axis=1)))
     g = norm * units.ACCEL_UNITS[unit]
     if not 0.8 <= g <= 1.25:
         other = [u for u, f in units.ACCEL_UNITS.items() if 0.8 <= norm * f <= 1.25]

@@ -122,7 +122,7 @@ def test_a_header_with_other_columns_ends_the_record_and_says_so():
     words = log.write([Sample(s.raw[5], s.accel[5], None, t_s=5.0)], accel_in_g=False)
     assert "columns changed after 5 samples" in words
     assert log.write(full[6:], accel_in_g=False) is None and log.rows == 5
-    assert raw.getvalue().count("\n") == 5 + 4  # three comment lines, the names, five rows
+    assert raw.getvalue().count("\n") == 5 + 5  # four comment lines, the names, five rows
 
 
 def test_the_command_records_a_clockless_module_and_the_replay_writes_its_rows(tmp_path, capsys):
@@ -209,3 +209,42 @@ def test_a_broken_line_inside_a_chunk_is_dated_in_its_place(clockless):
     session.close()
     error = np.array([float(r[0]) for r in _rows(out.getvalue())[1:]]) - np.delete(t, 1005)
     np.testing.assert_allclose(error[500:], error[-1], atol=1e-4)  # the CSV's 4 decimals; the first chunks wait
+
+
+def test_a_group_sent_empty_on_some_lines_is_recorded_and_replayed_as_live_took_it(tmp_path):
+    """The line protocol lets a module leave ``temp_c`` (here on most lines), the gyro or the accelerometer empty on
+    a line: the record keeps every sample (it stopped at the first such line) and replays to live's rows."""
+    import dataclasses
+
+    from compass.io.lines import format_line
+    from compass.temperature import TemperatureCompensation
+
+    base = default_model()
+    gains = np.array([r.gain for r in base.responses])
+    model = dataclasses.replace(base, temperature=TemperatureCompensation(25.0, 2e-3 * gains, np.zeros(3)))
+    n = 600
+    s = simulate_device(model, np.arange(n) / RATE_HZ, seed=5)
+    lines = [format_line(["t_s", "mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz", "temp_c"])]
+    for i in range(n):
+        accel = [""] * 3 if i == 250 else s.accel[i].tolist()
+        gyro = [""] * 3 if i in (300, 301) else s.gyro[i].tolist()
+        temp = 25.0 + i / 60.0 if i % 50 == 7 else ""
+        lines.append(format_line([float(s.t_s[i]), *s.raw[i].tolist(), *accel, *gyro, temp]))
+    raw, out = io.StringIO(), io.StringIO()
+    log = SampleLog(raw, model.channels, "pty")
+    session = LiveSession(model, out=out, record=log)
+    stream = b"".join(lines)
+    for k in range(0, len(stream), 700):
+        session.feed(Chunk(100.0 + k / 1e5, stream[k:k + 700]))
+    session.close()
+    assert log.stopped is None and log.rows == n
+    recording, cal, att = tmp_path / "raw.csv", tmp_path / "cal.json", tmp_path / "att.csv"
+    recording.write_text(raw.getvalue())
+    table = read_table(recording)
+    assert np.isnan(table.column("gx")[300]) and np.isnan(table.column("ax")[250])
+    assert np.sum(np.isfinite(table.column("temp_c"))) == n // 50
+    save(cal, model_to_dict(model))
+    assert main(["attitude", str(cal), str(recording), "--out", str(att), "--filter"]) == 0
+    replayed = [r[:-5] + r[-4:] for r in _rows(att.read_text())[1:]]
+    live = [r[:-1] for r in _rows(out.getvalue())[1:]]
+    assert len(live) > n - 100 and [r[:12] for r in replayed] == [r[:12] for r in live]
