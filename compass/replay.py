@@ -218,7 +218,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     except ValueError as exc:
         raise BadInput(str(exc)) from None
 
-    table = read_table(recording, read_options)
+    table = read_table(recording, read_options, live_times=True)  # a live record's times as the module sent them
     table.ignore_unknown(set(model.channels) | {"t_s", "temp_c", "ax", "ay", "az", "gx", "gy", "gz"},
                          what=f"{calibration} (its channels: {', '.join(model.channels)})")
     if not table.has("t_s"):

@@ -15,7 +15,7 @@ recording (said once): one file has one set of columns.
 
 from __future__ import annotations
 
-from .table import ABSENT_KEY
+from .table import ABSENT_KEY, LIVE_RECORD
 
 __all__ = ["SampleLog"]
 
@@ -91,7 +91,7 @@ class SampleLog:
         names = ["t_s", *self.channels] + (["temp_c"] if temp else []) + (["ax", "ay", "az"] if accel else []) \
             + (["gx", "gy", "gz"] if gyro else [])
         options = f" {self.replay_options}" if self.replay_options else ""
-        self.out.write(f"# source: compass live --record, {self.source}\n"
+        self.out.write(f"# source: {LIVE_RECORD}, {self.source}\n"
                        f"# replay: compass attitude CAL.json THIS.csv --out ATT.csv --filter{unit}{options}\n"
                        + (f"# {ABSENT_KEY}: nan where the module sent the group empty on that row\n"
                           if temp or accel or gyro else "")

@@ -38,13 +38,15 @@ from ..limits import FIELD_UT
 from .units import note
 
 __all__ = ["RecordingError", "Table", "ReadOptions", "read_table", "add_read_arguments", "format_table", "VOCABULARY",
-           "ABSENT_KEY"]
+           "ABSENT_KEY", "LIVE_RECORD"]
 
 VOCABULARY = ("t_s", "temp_c", "flip_deg", "platform_deg", "platform_z_deg", "platform_y_deg", "platform_x_deg",
               "mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz", "bx_ref", "by_ref", "bz_ref", "pitch_deg",
               "roll_deg", "heading_ref_deg")
 """Column names SPEC gives a meaning (matched without regard to case)."""
 _GYRO, _ACCEL, _MAG = ("gx", "gy", "gz"), ("ax", "ay", "az"), ("mx", "my", "mz")
+LIVE_RECORD = "compass live --record"
+"""How a ``compass live --record`` file's ``# source:`` line starts (:class:`compass.io.sample_log.SampleLog`)."""
 ABSENT_KEY = "absent"
 """A ``# absent: ...`` line (``compass live --record`` writes it): ``nan`` in ``temp_c`` or in a whole accelerometer
 or gyro group is that group not sent on that row (the line protocol's empty cells), not a bad cell."""
@@ -298,7 +300,7 @@ DEAD_AXIS_SHARE = 0.1
 length is dead (:meth:`Table.check_dead_axis`): a tilt of 6 degrees moves an accelerometer's axes that much."""
 
 
-def read_table(path, options: ReadOptions | None = None) -> Table:
+def read_table(path, options: ReadOptions | None = None, *, live_times: bool = False) -> Table:
     """Read and validate a numeric CSV recording.
 
     Parameters
@@ -306,6 +308,10 @@ def read_table(path, options: ReadOptions | None = None) -> Table:
     path : str or Path
     options : ReadOptions, optional
         Column mapping and units named by the user.
+    live_times : bool
+        A ``compass live --record`` file (its ``# source:`` line) may have a ``t_s`` that goes back, as the module
+        sent it (a clock the module restarted, a corrupted time): the replay hands it to the filter, which skips or
+        adopts it as the live session did.  Any other file's ``t_s`` must not decrease.
 
     Raises
     ------
@@ -366,7 +372,8 @@ def read_table(path, options: ReadOptions | None = None) -> Table:
         _scan_for_bad_cell(path, header, sep, decimal_comma, header_line)
         raise RecordingError(path, f"expected {len(header)} cells a row, found {data.shape[1]}", row=int(rows[0]))
     _check_values(path, header, data, rows, _absent_groups(header) if ABSENT_KEY in metadata else ())
-    return _interpret(Table(str(path), tuple(header), data, rows, metadata, header_line), options, meta_rows)
+    return _interpret(Table(str(path), tuple(header), data, rows, metadata, header_line), options, meta_rows,
+                      live_times and metadata.get("source", "").startswith(LIVE_RECORD))
 
 
 def _load(path, header, sep, decimal_comma, header_line, lines) -> np.ndarray:
@@ -642,7 +649,7 @@ def _check_values(path, header, data, rows, absent=()) -> None:
                              row=int(rows[i]), column=header[j])
 
 
-def _interpret(table: Table, options: ReadOptions, meta_rows: dict) -> Table:
+def _interpret(table: Table, options: ReadOptions, meta_rows: dict, time_may_go_back: bool = False) -> Table:
     """Names and units: mapping, log headers, case; conversions to SPEC's units; t_s and field_ut."""
     path, header = table.path, list(table.columns)
     original = dict(zip(header, header))
@@ -709,7 +716,8 @@ def _interpret(table: Table, options: ReadOptions, meta_rows: dict) -> Table:
     converted, gyro_ratio = _convert_units(table, header, data, options, named_units)
     table = Table(path, tuple(header), converted, table.rows, table.metadata, table.header_line, original, named_units,
                   gyro_ratio)
-    _check_time(table)
+    if not time_may_go_back:
+        _check_time(table)
     _check_field_ut(table, meta_rows)
     return table
 

@@ -248,3 +248,40 @@ def test_a_group_sent_empty_on_some_lines_is_recorded_and_replayed_as_live_took_
     replayed = [r[:-5] + r[-4:] for r in _rows(att.read_text())[1:]]
     live = [r[:-1] for r in _rows(out.getvalue())[1:]]
     assert len(live) > n - 100 and [r[:12] for r in replayed] == [r[:12] for r in live]
+
+
+def test_a_time_that_goes_back_is_recorded_and_replayed_as_live_took_it(tmp_path):
+    """One corrupted t_s (skipped by the filter) and a module that restarts its clock (adopted): the record keeps
+    the times as sent and the replay, which refused a t_s that decreases, gives live's rows; any other file's
+    decreasing t_s is still refused."""
+    from compass.io.lines import format_line
+    from compass.io.table import RecordingError
+
+    model = default_model()
+    n = 700
+    s = simulate_device(model, np.arange(n) / RATE_HZ, seed=8)
+    t_sent = s.t_s.copy()
+    t_sent[200] = 0.5  # one corrupted time
+    t_sent[400:] -= t_sent[400] - 0.01  # the module restarted its clock
+    lines = [format_line(["t_s", "mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz"])]
+    lines += [format_line([float(t_sent[i]), *s.raw[i].tolist(), *s.accel[i].tolist(), *s.gyro[i].tolist()])
+              for i in range(n)]
+    raw, out = io.StringIO(), io.StringIO()
+    log = SampleLog(raw, model.channels, "pty")
+    session = LiveSession(model, out=out, record=log)
+    stream = b"".join(lines)
+    for k in range(0, len(stream), 700):
+        session.feed(Chunk(100.0 + k / 1e5, stream[k:k + 700]))
+    session.close()
+    assert log.rows == n and session.skipped.get("t_s went back", 0) >= 2
+    recording, cal, att = tmp_path / "raw.csv", tmp_path / "cal.json", tmp_path / "att.csv"
+    recording.write_text(raw.getvalue())
+    save(cal, model_to_dict(model))
+    assert main(["attitude", str(cal), str(recording), "--out", str(att), "--filter"]) == 0
+    replayed = [r[:-5] + r[-4:] for r in _rows(att.read_text())[1:]]
+    live = [r[:-1] for r in _rows(out.getvalue())[1:]]
+    assert len(live) > n - 100 and [r[:12] for r in replayed] == [r[:12] for r in live]
+    other = tmp_path / "other.csv"
+    other.write_text(raw.getvalue().replace("# source: compass live --record", "# source: a logger"))
+    with pytest.raises(RecordingError, match="must not decrease"):
+        read_table(other, live_times=True)
