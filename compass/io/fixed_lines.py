@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import motioncal as mc
-from .lines import _GROUPS, _SCALARS, Header, LineDecoder, Sample
+from .lines import _GROUPS, _SCALARS, Header, LineDecoder, Sample, _plausible
 from .units import STANDARD_GRAVITY
 
 __all__ = ["Layout", "CsvDecoder", "MotionCalDecoder", "parse_columns", "MOTIONCAL_COLUMNS"]
@@ -148,7 +148,7 @@ class _FixedDecoder(LineDecoder):
         except ValueError:
             self.stats.garbage += 1
             return None
-        if not all(map(math.isfinite, values)):
+        if not all(map(_plausible, values)):  # not finite, or beyond what any sensor, time or angle reads
             self.stats.invalid += 1
             return None
         return self._accepted(layout.sample(values))
