@@ -30,9 +30,13 @@ def port_unavailable(exc):
     return BadInput(f"{exc}: check the name, or --wait S for a port that is not there yet")
 
 
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM) + ((signal.SIGHUP,) if hasattr(signal, "SIGHUP") else ())
+"""Ctrl-C, ``kill``, and the terminal or ssh session closed: each ends a session as Ctrl-C does (files kept)."""
+
+
 @contextlib.contextmanager
 def stop_when_asked(duration_s: float | None):
-    """An event that Ctrl-C, SIGTERM or ``duration_s`` seconds set (the reading loop ends within one
+    """An event that Ctrl-C, SIGTERM, SIGHUP or ``duration_s`` seconds set (the reading loop ends within one
     read timeout); a second Ctrl-C interrupts.  The signal handlers are restored and the timer
     cancelled when the block ends.  Off the main thread only the timer sets it."""
     stop = threading.Event()
@@ -43,7 +47,7 @@ def stop_when_asked(duration_s: float | None):
         stop.set()
 
     previous = ({} if threading.current_thread() is not threading.main_thread() else
-                {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)})
+                {sig: signal.signal(sig, handler) for sig in _STOP_SIGNALS})
     timer = None
     if duration_s is not None:
         timer = threading.Timer(duration_s, stop.set)

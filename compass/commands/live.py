@@ -3,7 +3,7 @@
 Reads the module's stream (:mod:`compass.io.streams`: our line protocol, MotionCal's lines, bare
 numbers) from a serial port or pyserial URL, filters
 (:mod:`compass.filter`), prints a one-line readout and optionally records the attitude CSV and a
-Rerun recording.  Ctrl-C (or SIGTERM, or ``--duration``) ends it cleanly: files flushed, summary
+Rerun recording.  Ctrl-C (or SIGTERM, SIGHUP, or ``--duration``) ends it cleanly: files flushed, summary
 with the dropped-line count printed.
 """
 

@@ -7,7 +7,10 @@ mode when ``--force`` replaces one.  A symbolic link is followed (its target is 
 a character device or a pipe (``/dev/stdout``, ``/dev/null``, a named pipe) is written through, as it comes: there
 is no file to replace.  A writer killed in the write window (``kill -9``) leaves its
 temporary file; the next write to the same target removes the ones whose writer process is gone
-(only files of this naming pattern, and never one whose process still runs).
+(only files of this naming pattern, and never one whose process still runs), except a stream's
+(:func:`atomic_stream`, ``.NAME.PID.RANDOM.stream.tmp``: a ``compass live`` session killed with ``kill -9`` or a
+power cut), which holds the rows that session had: it is kept, renamed ``STEM.partial-PID.SUFFIX`` beside the
+target, and said.
 """
 
 from __future__ import annotations
@@ -129,7 +132,7 @@ def atomic_stream(path, keep):
         with _open_through(path, "w") as fh:
             yield fh
         return
-    fd, tmp = _temporary(path)
+    fd, tmp = _temporary(path, _STREAM_SUFFIX)
     fh = os.fdopen(fd, "w", encoding="utf-8", buffering=1 << 16)
     kept = False
     try:
@@ -211,12 +214,16 @@ def _open_through(path: Path, mode: str):
         yield fh
 
 
-def _temporary(path: Path) -> tuple[int, str]:
-    """A new ``.NAME.PID.RANDOM.tmp`` beside ``path`` (its folder made): (descriptor, name)."""
+_STREAM_SUFFIX = ".stream.tmp"
+"""How :func:`atomic_stream`'s temporary files end: rows a killed session had, kept by the next write."""
+
+
+def _temporary(path: Path, suffix: str = ".tmp") -> tuple[int, str]:
+    """A new ``.NAME.PID.RANDOM`` + ``suffix`` beside ``path`` (its folder made): (descriptor, name)."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         remove_stale_temporaries(path)
-        return tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp")
+        return tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=suffix)
     except OSError as exc:
         raise OutputError(f"{path}: cannot write ({exc.strerror})") from None
 
@@ -235,12 +242,29 @@ def remove_stale_temporaries(path) -> list[Path]:
         if not pid_text.isdigit() or _process_exists(int(pid_text)):
             continue
         try:
-            if stat.S_ISREG(candidate.lstat().st_mode):
-                candidate.unlink()
-                removed.append(candidate)
+            info = candidate.lstat()
+            if not stat.S_ISREG(info.st_mode):
+                continue
+            if candidate.name.endswith(_STREAM_SUFFIX) and info.st_size > 0:
+                _keep_partial(candidate, path, pid_text)
+                continue
+            candidate.unlink()
+            removed.append(candidate)
         except OSError:
             pass  # gone meanwhile, or not ours to remove
     return removed
+
+
+def _keep_partial(stream: Path, path: Path, pid: str) -> None:
+    """A killed session's stream renamed ``STEM.partial-PID.SUFFIX`` beside ``path`` (left where it is if that
+    name is taken), and said."""
+    from .units import note
+
+    kept = path.with_name(f"{path.stem}.partial-{pid}{path.suffix}")
+    if kept.exists():
+        return
+    os.replace(stream, kept)
+    note(f"{kept}: the rows a session writing {path} had when it was killed (process {pid}), kept")
 
 
 def _process_exists(pid: int) -> bool:

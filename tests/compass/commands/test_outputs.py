@@ -191,3 +191,37 @@ def test_an_output_that_is_an_input_is_refused_even_with_force(tmp_path, capsys)
     err = capsys.readouterr().err
     assert err.count("is also an input of this command") == 2 and "Traceback" not in err
     assert (rec.read_bytes(), cal.read_bytes()) == before
+
+
+def test_a_killed_stream_s_rows_are_kept_visible_by_the_next_write(tmp_path):
+    """``compass live --out`` killed with kill -9 leaves its stream's temporary file; the next write to the same
+    target keeps it as ``STEM.partial-PID.SUFFIX`` and says so (it deleted it), and drops an empty one."""
+    from compass.io.atomic import atomic_stream
+    from compass.io.units import RecordingWarning
+
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait(30)
+    target = tmp_path / "att.csv"
+    rows = tmp_path / f".att.csv.{gone.pid}.abc.stream.tmp"
+    rows.write_text("t_s,heading_deg\n0.01,12.5\n")
+    empty = tmp_path / f".att.csv.{gone.pid}.def.stream.tmp"
+    empty.write_text("")
+    with pytest.warns(RecordingWarning, match=f"att.partial-{gone.pid}.csv: the rows a session writing"):
+        with atomic_stream(target, keep=lambda: True) as fh:
+            fh.write("t_s,heading_deg\n")
+    kept = tmp_path / f"att.partial-{gone.pid}.csv"
+    assert kept.read_text() == "t_s,heading_deg\n0.01,12.5\n" and target.exists()
+    assert temporaries(tmp_path) == []
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+def test_a_session_is_stopped_not_killed_by_ctrl_c_kill_and_a_closed_terminal(signum):
+    """The reading loop's stop event is set by each signal (SIGHUP: an ssh session dropped killed live and its
+    files before); the handlers before are restored after."""
+    from compass.commands._port import stop_when_asked
+
+    before = signal.getsignal(signum)
+    with stop_when_asked(None) as stop:
+        os.kill(os.getpid(), signum)
+        assert stop.wait(10)
+    assert signal.getsignal(signum) is before
