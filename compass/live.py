@@ -51,6 +51,16 @@ AXES_EVERY = 5
 GYRO_AXES_ROWS = 6000
 """Rows (every one, the gyro's turn between them integrated) the gyro's axis check (:func:`compass.axes.axes_from_gyro`)
 judges, once: a minute at 100 Hz."""
+_FIELD_TURN_WINDOW_S = 1.0
+"""The gyro's unit against the field's turn is judged over windows this long, s: a hand's slow turn (20 deg/s)
+moves the field by 10 deg in them at a dip of 60 deg, over the 5 deg a window needs."""
+_FIELD_SMOOTH_S = 0.05
+"""The field is averaged over this long before its turn is read, s (BROAD's 0.7 uT of noise on 41 uT turns a still
+field by 1-4 deg from one sample to another a second later)."""
+_FIELD_UNIT_RATIO = 25.0
+"""A gyro that turns this many times more than the field reads in another unit: on BROAD's 14 trials the honest
+ratio is 1.0-1.7 undisturbed, up to 6.3 with a magnet in the room (30); a deg/s gyro read as rad/s gives 57 times
+that (the field turns less than the housing about an axis near it)."""
 
 
 def invalid_words(stats) -> str:
@@ -551,6 +561,8 @@ class LiveSession:
         if len(rows) < 2:
             return
         t, gyro, field_h, accel = rows[:, 0], rows[:, 1:4], rows[:, 4:7], rows[:, 7:10]
+        if self.decoder.gyro_unit_said or self._judge_gyro_unit(t, gyro, field_h):
+            return  # the axes cannot be judged against a gyro read in another unit
         keep = new_readings(field_h)
         channels = tuple(self.model.channels)
         known = self.reference is not None and self.reference.source == "site"  # a recording's dip is this field's own
@@ -562,6 +574,29 @@ class LiveSession:
             self.axes, self._axes_rows = verdict.finding, None  # the accelerometer's sign patterns are then moot
             self._event("warn", f"{verdict.finding}: is the stream read with the remap its calibration was made with? "
                                 f"Else recalibrate reading it in the gyro's axes: {verdict.remap}")
+
+    def _judge_gyro_unit(self, t, gyro, field_h) -> bool:
+        """Whether the gyro turns tens of times more (or less) than the calibrated field does (said once): a unit
+        taken for another.  The stream's check reads the accelerometer's tilt, which a housing turned about the
+        vertical, or slowly, never gives it; the field turns then too (``|dip| < 90``)."""
+        from scipy.ndimage import uniform_filter1d
+
+        from .io.units import gyro_turn_ratio, stuck_gyro_words
+
+        sent = np.all(np.isfinite(field_h), axis=1) & np.all(np.isfinite(gyro), axis=1)
+        t, gyro, field_h = t[sent], gyro[sent], field_h[sent]
+        if len(t) < 3 or not t[-1] > t[0]:
+            return False
+        block = max(1, int(round(_FIELD_SMOOTH_S * (len(t) - 1) / (t[-1] - t[0]))))
+        field_h = uniform_filter1d(field_h, block, axis=0)  # a still field's noise alone tilts it by degrees
+        ratio = gyro_turn_ratio(t, gyro, field_h, window_s=_FIELD_TURN_WINDOW_S)
+        if ratio is None or not ratio > _FIELD_UNIT_RATIO:
+            return False  # less: the field turns without the gyro by itself (a magnet passing by), no unit's mark
+        unit = self.decoder.options.gyro_unit or "rad/s"
+        self._event("warn", f"the gyro read in {unit} turns {ratio:.0f} times more than the calibrated field turns "
+                            f"with the housing (a deg/s gyro read as rad/s gives 57-100): is --gyro-unit right?"
+                            f"{stuck_gyro_words(gyro)}")
+        return True
 
     def _judge_turn(self) -> None:
         """The measured dips so far against the given reference: :attr:`turned_over` (once)."""

@@ -237,6 +237,7 @@ class StreamDecoder:
         self._accel: list = []
         self._gyro_rows: list = []
         self._gyro_judged = False
+        self.gyro_unit_said = False  # the gyro's unit (or a dead gyro) said from the accelerometer's tilt
         self._gyro_windows = 0
         if self.options.requested != "auto":
             self._adopt(self.options.requested, "as named")
@@ -449,6 +450,7 @@ class StreamDecoder:
         self._gyro_judged = True
         unit = self.options.gyro_unit or "rad/s"
         verdict = units.gyro_unit_verdict(ratio)
+        self.gyro_unit_said = ratio == 0.0 or verdict is not None
         if ratio == 0.0:  # every rate exactly zero (no unit gives that): the check_gyro_unit words
             self.events.append(("warn", "the gyro never turns while the accelerometer sees the housing tilt: a dead "
                                         "gyro?"))

@@ -229,3 +229,30 @@ def test_live_on_bad_input_says_it_and_writes_nothing_non_finite(tmp_path, monke
         assert all(np.all(np.isfinite(table.column(c))) for c in table.columns)
         if case.startswith("accel"):
             assert np.mean(table.column("accel_used")) > 0.9
+
+
+@pytest.mark.parametrize("scale", [1.0, np.degrees(1.0)])
+def test_a_deg_per_s_gyro_turned_only_about_the_vertical_is_said_from_the_field(scale):
+    """A level housing turned slowly about the vertical tilts the accelerometer by nothing, so the stream's unit
+    check (the gyro against the accelerometer's tilt) never judges; the field turns with it (by cos(dip) of the
+    turn), which tells a gyro in deg/s read as rad/s (ratio 57 / cos(dip)) from one read right (about 1 / cos(dip))."""
+    import io
+
+    from compass.live import LiveSession
+    from compass.replay import replay
+    from compass.sim.device import simulate_device
+
+    def slow_turn(t_s):
+        return 20.0 * np.asarray(t_s), np.zeros_like(t_s), np.zeros_like(t_s), np.zeros_like(t_s)
+
+    model = default_model()
+    t = np.arange(0.0, 30.0, 0.01)
+    s = simulate_device(model, t, motion=slow_turn, seed=2)
+    events = []
+    session = LiveSession(model, out=io.StringIO(), on_event=lambda level, text: events.append(text))
+    replay(session, t, s.raw, s.accel, s.gyro * scale)
+    said = [e for e in events if "--gyro-unit" in e]
+    assert len(said) == (1 if scale > 1.0 else 0), said
+    if said:
+        assert "times more than the calibrated field turns" in said[0]
+        assert not any("axes are not the gyro's" in e for e in events)  # no remap offered for a unit's fault
