@@ -47,7 +47,7 @@ from itertools import permutations, product
 
 import numpy as np
 
-__all__ = ["AxisVerdict", "GyroAxesVerdict", "axes_from_gyro", "check_axes", "MIN_SIGNED_DIP_DEG", "PAIR_TURN_DEG",
+__all__ = ["AxisVerdict", "GyroAxesVerdict", "accel_axes_from_gyro", "axes_from_gyro", "check_axes", "MIN_SIGNED_DIP_DEG", "PAIR_TURN_DEG",
            "signed_permutations"]
 
 MIN_SIGNED_DIP_DEG = 10.0
@@ -342,25 +342,13 @@ def axes_from_gyro(mag, turns_rad, t_s, *, up=None, site_dip_deg: float | None =
         fewer than 20 pairs.
     """
     m = np.asarray(mag, dtype=float)
-    turns = np.asarray(turns_rad, dtype=float)
-    t = np.asarray(t_s, dtype=float)
-    rows = np.flatnonzero(np.all(np.isfinite(m), axis=1) & np.isfinite(t))
-    if len(rows) < _MIN_PAIRS:
+    found = _fits(m, turns_rad, t_s, np.ones(len(m), dtype=bool))
+    clear = None if found is None else _clear_best(found[0])
+    if clear is None:
         return None
-    turned = np.cumsum(np.where(np.isfinite(turns), turns, 0.0), axis=0)
-    kept = np.zeros((len(rows), 3))
-    kept[1:] = turned[rows[1:]] - turned[rows[:-1]]  # a row without a reading still turned the housing
-    m, t = m[rows], t[rows]
-    ia, ib, d = _turn_pairs(kept, t)
-    if len(ia) < _MIN_PAIRS:
-        return None
-    fits = sorted(((q, *_misfit(q, m[ia], m[ib], d)) for q in signed_permutations() if q[0].sum() > 0),
-                  key=lambda f: f[1])
-    as_read = next(f[1] for f in fits if np.array_equal(f[0], np.eye(3)))
-    (best_q, best, h), following = fits[0], fits[1][1]
-    if np.array_equal(best_q, np.eye(3)) or not (as_read >= _GYRO_GAIN * best and following >= _GYRO_GAIN * best):
-        return None
-    up = None if up is None else np.asarray(up, dtype=float)[rows]
+    (best_q, _, best, h), as_read, following = clear
+    m = m[found[1]]
+    up = None if up is None else np.asarray(up, dtype=float)[found[1]]
     q, told, sign_words = _dip_sign(best_q, m - h, up, site_dip_deg, names)
     left = bool(np.linalg.det(q) < 0) if told else None
     how = {True: "mirrored against the gyro (left-handed)", False: "mounted turned against the gyro",
@@ -371,6 +359,83 @@ def axes_from_gyro(mag, turns_rad, t_s, *, up=None, site_dip_deg: float | None =
     remap = (f"compass calibrate and compass attitude {columns} (COLUMN(name): the file's column now read as name), "
              f"compass live --columns naming the magnetometer's cells {cells} in their order{sign_words}")
     return GyroAxesVerdict(q, left, best, as_read, following, columns, cells, finding, remap)
+
+
+def _fits(vectors: np.ndarray, turns_rad, t_s, usable: np.ndarray, turn_signs=(1.0,)):
+    """Every signed-permutation pair's (first row's sum positive) fit of a vector sensor's readings (a constant
+    vector in the world plus an offset) turned as the gyro's turns (times each of ``turn_signs``) say, over the
+    ``usable`` finite rows paired :data:`PAIR_TURN_DEG` apart: ``([(Q, turn sign, misfit, offset), ...] best first,
+    rows used)``, or None with fewer than :data:`_MIN_PAIRS` pairs."""
+    turns = np.asarray(turns_rad, dtype=float)
+    t = np.asarray(t_s, dtype=float)
+    rows = np.flatnonzero(np.all(np.isfinite(vectors), axis=1) & np.isfinite(t) & usable)
+    if len(rows) < _MIN_PAIRS:
+        return None
+    turned = np.cumsum(np.where(np.isfinite(turns), turns, 0.0), axis=0)
+    kept = np.zeros((len(rows), 3))
+    kept[1:] = turned[rows[1:]] - turned[rows[:-1]]  # a row left out still turned the housing
+    v, t = vectors[rows], t[rows]
+    fits = []
+    for sign in turn_signs:
+        ia, ib, d = _turn_pairs(sign * kept, t)
+        if len(ia) < _MIN_PAIRS:
+            return None
+        fits += [(q, sign, *_misfit(q, v[ia], v[ib], d)) for q in signed_permutations() if q[0].sum() > 0]
+    return sorted(fits, key=lambda f: f[2]), rows
+
+
+def _clear_best(fits):
+    """The best fit when it is not the axes as read and fits :data:`_GYRO_GAIN` times better than they and every
+    other pair; else None.  Returns ``(best fit, misfit as read, next misfit)``."""
+    as_read = next(f[2] for f in fits if np.array_equal(f[0], np.eye(3)) and f[1] > 0)
+    best, following = fits[0], fits[1][2]
+    if (np.array_equal(best[0], np.eye(3)) and best[1] > 0) or not (as_read >= _GYRO_GAIN * best[2]
+                                                                     and following >= _GYRO_GAIN * best[2]):
+        return None
+    return best, as_read, following
+
+
+def accel_axes_from_gyro(accel, turns_rad, t_s, *, names=("ax", "ay", "az")) -> str | None:
+    """Words when the accelerometer's axes are not the gyro's (one of them has an axis reversed, or two swapped:
+    a board's wiring, a column mapped wrong), None otherwise.
+
+    Gravity is a constant vector in the world, so on rows where the specific force is gravity alone (``|a|`` within
+    2 % of its median: a hand's or a robot's acceleration mostly leaves it) the accelerometer turns as the field
+    does in :func:`axes_from_gyro`, with its offset for the hard iron.  Negating all three axes turns it alike
+    (gravity read as down), so the pair named is up to that sign.  A gyro with one axis reversed (left-handed)
+    turns every rotation backwards (``Exp(S w) = S Exp(-w) S`` for a reflection ``S``), which no reading of the
+    accelerometer's axes undoes: the gyro's turns negated are tried too.
+
+    Parameters
+    ----------
+    accel : array_like, shape (n, 3)
+        The accelerometer, any unit, its axes as read; rows not finite are left out.
+    turns_rad, t_s : array_like
+        As :func:`axes_from_gyro`'s.
+    names : tuple of 3 str
+        The accelerometer's axes' names for the words.
+    """
+    a = np.asarray(accel, dtype=float)
+    norm = np.linalg.norm(a, axis=1)
+    if not np.isfinite(norm).any():  # no accelerometer in the stream
+        return None
+    with np.errstate(invalid="ignore"):
+        still = np.abs(norm / np.nanmedian(norm) - 1.0) < _STILL_SHARE
+    found = _fits(a, turns_rad, t_s, still, turn_signs=(1.0, -1.0))
+    clear = None if found is None else _clear_best(found[0])
+    if clear is None:
+        return None
+    (q, sign, best, _), as_read, _ = clear
+    turned = "" if sign > 0 else "the gyro's turns reversed and "
+    return (f"the accelerometer's axes are not the gyro's: gravity turns as the gyro says only with {turned}"
+            f"{_read_as(q, names)} (misfit {best:.3g} against {as_read:.3g} as read; or every accelerometer sign "
+            f"turned): an axis of the accelerometer or of the gyro is reversed, or two swapped, and the attitude is "
+            f"wrong; check the columns' order and signs")
+
+
+_STILL_SHARE = 0.02
+"""Rows whose specific force is within this share of its median size are taken as gravity alone
+(:func:`accel_axes_from_gyro`)."""
 
 
 def _dip_sign(q: np.ndarray, centred: np.ndarray, up, site_dip_deg, names) -> tuple[np.ndarray, bool, str]:

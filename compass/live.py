@@ -553,7 +553,7 @@ class LiveSession:
     def _judge_gyro_axes(self) -> None:
         """The field's turns against the gyro's over the first rows (once): a stream whose magnetometer columns are
         not those the calibration was made with (a ``--columns`` remap not given again) reads turned axes."""
-        from .axes import axes_from_gyro
+        from .axes import accel_axes_from_gyro, axes_from_gyro
         from .io.tumble import gyro_turns
         from .sample_check import new_readings
 
@@ -563,6 +563,11 @@ class LiveSession:
         t, gyro, field_h, accel = rows[:, 0], rows[:, 1:4], rows[:, 4:7], rows[:, 7:10]
         if self.decoder.gyro_unit_said or self._judge_gyro_unit(t, gyro, field_h):
             return  # the axes cannot be judged against a gyro read in another unit
+        accel_words = accel_axes_from_gyro(accel, gyro_turns(t, np.where(np.isfinite(gyro), gyro, 0.0),
+                                                             np.ones(len(t), dtype=bool)), t)
+        if accel_words is not None:  # the field's axes are then judged against a gyro that is itself in question
+            self._event("warn", accel_words)
+            return
         keep = new_readings(field_h)
         channels = tuple(self.model.channels)
         known = self.reference is not None and self.reference.source == "site"  # a recording's dip is this field's own

@@ -275,3 +275,23 @@ def test_a_live_stream_s_own_dip_does_not_pick_the_sign():
     assert session.reference.source == "recording" and abs(session.reference.dip_deg) >= 10.0
     said = [e for e in events if "not the gyro's" in e]
     assert len(said) == 1 and "mounted turned against the gyro" in said[0] and "cells my,mz,mx" in said[0]
+
+
+@pytest.mark.parametrize("accel_axes, gyro_axes, reversed_turns", [
+    (np.diag([1.0, 1.0, -1.0]), np.eye(3), False),  # an accelerometer axis reversed
+    (CYCLIC, np.eye(3), False),  # the accelerometer's columns in another order
+    (np.eye(3), np.diag([1.0, 1.0, -1.0]), True),  # a gyro axis reversed: every turn backwards
+    (np.eye(3), MPU9250 @ MIRRORED_X, True),  # the gyro's x and y swapped
+])
+def test_an_accelerometer_or_gyro_axis_reversed_or_swapped_is_said(robot, accel_axes, gyro_axes, reversed_turns):
+    """Gravity turns against the gyro's turns as a field does: the robot path's still rows tell a reversed or
+    swapped axis of either sensor (the gyro's mirrored turns tried too), and the axes as read say nothing."""
+    from compass.axes import accel_axes_from_gyro
+
+    rec, _ = robot
+    every = np.ones(len(rec.t_s), bool)
+    assert accel_axes_from_gyro(rec.accel_m_s2, gyro_turns(rec.t_s, rec.gyro_rad_s, every), rec.t_s) is None
+    words = accel_axes_from_gyro(rec.accel_m_s2 @ accel_axes.T,
+                                 gyro_turns(rec.t_s, rec.gyro_rad_s @ gyro_axes.T, every), rec.t_s)
+    assert words is not None and "the accelerometer's axes are not the gyro's" in words
+    assert ("the gyro's turns reversed" in words) == reversed_turns
