@@ -15,11 +15,14 @@ bad input prints its one line only.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import importlib
 import os
 import re
+import signal
 import sys
+import threading
 import warnings
 
 from .errors import BadInput
@@ -175,6 +178,35 @@ class _WarningsFirst:
         return getattr(self._stream, name)
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP during a command: raised where it runs, so every output being written is removed (its
+    temporary file) or kept whole, as on Ctrl-C; ``compass live`` stops its session on them instead."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt():
+    """SIGTERM and SIGHUP raise :class:`_Terminated` in the block (the main thread only; handlers restored after).
+    Killed by the default handler, a command left its temporary files behind (a 16 MB ``.att.rrd.*.tmp``)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        raise _Terminated(signum)
+
+    stops = [signal.SIGTERM] + ([signal.SIGHUP] if hasattr(signal, "SIGHUP") else [])
+    previous = {sig: signal.signal(sig, handler) for sig in stops}
+    try:
+        yield
+    finally:
+        for sig, before in previous.items():
+            signal.signal(sig, before)
+
+
 def main(argv=None) -> int:
     _one_blas_thread()
     _keep_freed_memory()
@@ -211,10 +243,14 @@ def main(argv=None) -> int:
         # the end, it came after the report and "wrote cal.json"); bad input stays one line
         sys.stdout = _WarningsFirst(stdout, emit)
         try:
-            status = int(args.func(args) or 0)
+            with _terminate_as_interrupt():
+                status = int(args.func(args) or 0)
         except _bad_input_types() as exc:  # the one line says it all: no warnings around it
             print(f"compass {args.command}: {exc}", file=sys.stderr)
             return 2
+        except _Terminated as exc:
+            status = 128 + exc.signum
+            print(f"compass {args.command}: stopped by signal {exc.signum}: nothing half-written kept", file=sys.stderr)
         except KeyboardInterrupt:
             status = 130
             print(f"compass {args.command}: interrupted", file=sys.stderr)

@@ -225,3 +225,20 @@ def test_a_session_is_stopped_not_killed_by_ctrl_c_kill_and_a_closed_terminal(si
         os.kill(os.getpid(), signum)
         assert stop.wait(10)
     assert signal.getsignal(signum) is before
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP])
+def test_a_command_killed_by_sigterm_or_sighup_leaves_no_temporary_file(tmp_path, signum):
+    """``kill`` (or a closed terminal) during a write raises where the command runs, so the output's temporary file
+    is removed as on Ctrl-C (a replay killed while writing --rerun left 16 MB of ``.att.rrd.*.tmp``); the command's
+    exit status is 128 + the signal's number."""
+    from compass.cli import _Terminated, _terminate_as_interrupt
+    from compass.io.atomic import atomic_open
+
+    target, before = tmp_path / "att.csv", signal.getsignal(signum)
+    with pytest.raises(_Terminated) as raised, _terminate_as_interrupt(), atomic_open(target) as fh:
+        fh.write("half a row")
+        os.kill(os.getpid(), signum)
+        time.sleep(5)  # the handler raises here, at once
+    assert raised.value.signum == signum and not target.exists() and temporaries(tmp_path) == []
+    assert signal.getsignal(signum) is before  # the handler before is back
