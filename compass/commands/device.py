@@ -103,6 +103,8 @@ def run(args) -> int:
         model = default_model() if args.format == "compass" else board_model()
     if args.link is not None and os.path.lexists(args.link) and not os.path.islink(args.link):
         raise BadInput(f"--link {args.link}: exists and is not a symbolic link; it would be replaced")
+    if args.link is not None and not os.path.isdir(os.path.dirname(os.path.abspath(args.link))):
+        raise BadInput(f"--link {args.link}: its folder does not exist")
     try:
         device = PtyDevice(model, rate_hz=args.rate, seed=args.seed, link=args.link, garbage_rate=args.garbage,
                            truncate_rate=args.truncate, disconnect_at_s=args.disconnect_at,

@@ -218,6 +218,8 @@ def test_live_bad_input_exits_2(tmp_path, capsys):
     keep.write_text("keep")
     assert main(["device", "--pty", "--link", str(keep), "--duration", "0.1"]) == 2
     assert "not a symbolic link" in capsys.readouterr().err and keep.read_text() == "keep"
+    assert main(["device", "--pty", "--link", str(tmp_path / "nosuch" / "pty"), "--duration", "0.1"]) == 2
+    assert "its folder does not exist" in capsys.readouterr().err  # was exit 1, "failed: FileNotFoundError"
 
 
 def test_live_exits_when_asked_while_waiting_for_the_port(tmp_path, capsys):
