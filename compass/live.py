@@ -186,6 +186,12 @@ class LiveSession:
         the unit of the calibration's accelerometer correction, is not what 1 g reads
         (:attr:`compass.filter.FilterStart.gravity_words`): why, in words; the session then solves
         nothing more (the commands stop on it, as on :attr:`turned_over`); None otherwise.
+    wrong_time : str or None
+        Set when the module's first :data:`~compass.io.streams.JUDGE_SAMPLES` times do not tell the filter the time
+        between samples (:func:`~compass.io.streams.time_steps_verdict`: ``t_s`` in milliseconds restarts the gyro
+        filter at every sample, one that never changes turns nothing): why, in words; the commands stop on it, as
+        the replay refuses such a recording; None otherwise, and for a stream without a gyro (the two-vector filter
+        solves each row alone: said only).
     axes : str or None
         Set when the field-gravity angle of the first :data:`AXES_ROWS` sampled estimates (or of the whole
         stream, on close) wanders in a way one sign pattern of the field's axes removes: what to
@@ -212,6 +218,7 @@ class LiveSession:
     decoder: StreamDecoder = field(init=False)
     turned_over: str | None = None
     wrong_gravity: str | None = None
+    wrong_time: str | None = None
     axes: str | None = None
     estimate: Estimate | None = None
     in_range: bool = True
@@ -328,7 +335,7 @@ class LiveSession:
             readings.append(Reading(sample, accel, gyro, fields[k], field_rows[k], in_range[k],
                                     t_rx if sample.t_rx is None else sample.t_rx))  # its arrival, if the decoder held it
         for reading in readings:
-            if self.wrong_gravity is not None:
+            if self.wrong_gravity is not None or self.wrong_time is not None:
                 return
             if self._start is not None and reading.sample.header.accel is not None:
                 # without an accelerometer there is no attitude, and nothing to seed the reference from: the
@@ -362,8 +369,15 @@ class LiveSession:
         if len(self._times) < JUDGE_SAMPLES:
             return
         verdict, self._times = time_steps_verdict(self._times[:JUDGE_SAMPLES], self.config.max_gap_s), None
-        if verdict is not None:
+        if verdict is None:
+            return
+        if samples[-1].header is not None and samples[-1].header.gyro is None:  # each row solved alone: said only
             self._event("warn", f"the module's {verdict}")
+            return
+        # the gyro filter restarts at every step, or integrates no turn: the commands stop on it
+        self.wrong_time = (f"the module's {verdict}; send t_s in seconds, or leave it out (the samples are then "
+                           "dated by their arrival)")
+        self._event("warn", self.wrong_time)
 
     def _judge_held(self, samples: list) -> None:
         """Say once (info) when the magnetometer repeats its last reading on many of the first

@@ -181,7 +181,7 @@ def _module_lines(case: str) -> bytes:
     accel = 9.80665 * s.accel if case.startswith("accel in m/s^2") else s.accel
     gyro = {"gyro in deg/s": np.degrees(s.gyro), "gyro at a rail": np.tile([4.3633, 4.3633, -4.3633], (len(t), 1)),
             "gyro all NaN": np.full_like(s.gyro, np.nan)}.get(case, s.gyro)
-    columns = [t, s.raw] + ([] if case == "no accelerometer" else [accel]) + ([] if case == "no gyro" else [gyro])
+    columns = [1e3 * t if case == "t_s in ms" else t, s.raw] + ([] if case == "no accelerometer" else [accel]) + ([] if case == "no gyro" else [gyro])
     rows = [",".join(f"{v:.9g}" for v in row) for row in np.column_stack(columns).tolist()]
     if case == "first line garbage":
         rows[0] = "reset" + rows[0][5:]
@@ -199,6 +199,8 @@ def _module_lines(case: str) -> bytes:
     ("gyro at a rail", [], 0, "is --gyro-unit right?; it holds 4.3633, 4.3633, -4.3633 in every sample: a gyro stuck "
                               "at a rail"),
     ("gyro all NaN", [], 1, "3000 invalid (a number no module sends, not finite or beyond 1e+12: gx = nan first)"),
+    ("t_s in ms", [], 2, "t_s steps by 10 s (median of 25 samples): each step is a gap over the filter's 0.5 s and "
+                         "restarts it; a time in milliseconds? (t_s is in seconds); send t_s in seconds, or leave it"),
     ("accel in m/s^2", ["--accel-unit", "m/s2", "--gravity", "1"], 0, "[info] filter: gyro"),
     ("accel in m/s^2, gravity in m/s^2", ["--accel-unit", "m/s2", "--gravity", "9.80665"], 2,
      "--gravity 9.80665 is not what 1 g reads: the accelerometer's median |a| over the start's 101 rows is 1,"),
