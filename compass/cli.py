@@ -180,7 +180,7 @@ class _WarningsFirst:
 
 class _Terminated(KeyboardInterrupt):
     """SIGTERM or SIGHUP during a command: raised where it runs, so every output being written is removed (its
-    temporary file) or kept whole, as on Ctrl-C; ``compass live`` stops its session on them instead."""
+    temporary file) or kept whole, as on Ctrl-C; ``compass live`` and ``compass device`` stop on them instead."""
 
     def __init__(self, signum: int):
         super().__init__(signum)
@@ -190,7 +190,7 @@ class _Terminated(KeyboardInterrupt):
 @contextlib.contextmanager
 def _terminate_as_interrupt():
     """SIGTERM and SIGHUP raise :class:`_Terminated` in the block (the main thread only; handlers restored after).
-    Killed by the default handler, a command left its temporary files behind (a 16 MB ``.att.rrd.*.tmp``)."""
+    Killed by the default handler, a command left its temporary files behind (a replay's ``.att.rrd.*.tmp``)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -199,7 +199,8 @@ def _terminate_as_interrupt():
         raise _Terminated(signum)
 
     stops = [signal.SIGTERM] + ([signal.SIGHUP] if hasattr(signal, "SIGHUP") else [])
-    previous = {sig: signal.signal(sig, handler) for sig in stops}
+    # a signal ignored on entry stays so: nohup's SIGHUP, and the terminal closed, must not end the command
+    previous = {sig: signal.signal(sig, handler) for sig in stops if signal.getsignal(sig) is not signal.SIG_IGN}
     try:
         yield
     finally:
@@ -250,7 +251,7 @@ def main(argv=None) -> int:
             return 2
         except _Terminated as exc:
             status = 128 + exc.signum
-            print(f"compass {args.command}: stopped by signal {exc.signum}: nothing half-written kept", file=sys.stderr)
+            print(f"compass {args.command}: stopped by signal {exc.signum}", file=sys.stderr)
         except KeyboardInterrupt:
             status = 130
             print(f"compass {args.command}: interrupted", file=sys.stderr)

@@ -51,16 +51,7 @@ AXES_EVERY = 5
 GYRO_AXES_ROWS = 6000
 """Rows (every one, the gyro's turn between them integrated) the gyro's axis check (:func:`compass.axes.axes_from_gyro`)
 judges, once: a minute at 100 Hz."""
-_FIELD_TURN_WINDOW_S = 1.0
-"""The gyro's unit against the field's turn is judged over windows this long, s: a hand's slow turn (20 deg/s)
-moves the field by 10 deg in them at a dip of 60 deg, over the 5 deg a window needs."""
-_FIELD_SMOOTH_S = 0.05
-"""The field is averaged over this long before its turn is read, s (BROAD's 0.7 uT of noise on 41 uT turns a still
-field by 1-4 deg from one sample to another a second later)."""
-_FIELD_UNIT_RATIO = 25.0
-"""A gyro that turns this many times more than the field reads in another unit: on BROAD's 14 trials the honest
-ratio is 1.0-1.7 undisturbed, up to 6.3 with a magnet in the room (30); a deg/s gyro read as rad/s gives 57 times
-that (the field turns less than the housing about an axis near it)."""
+
 
 
 def invalid_words(stats) -> str:
@@ -595,26 +586,18 @@ class LiveSession:
                                 f"Else recalibrate reading it in the gyro's axes: {verdict.remap}")
 
     def _judge_gyro_unit(self, t, gyro, field_h) -> bool:
-        """Whether the gyro turns tens of times more (or less) than the calibrated field does (said once): a unit
+        """Whether the gyro turns tens of times more than the calibrated field does (said once): a unit
         taken for another.  The stream's check reads the accelerometer's tilt, which a housing turned about the
         vertical, or slowly, never gives it; the field turns then too (``|dip| < 90``)."""
-        from scipy.ndimage import uniform_filter1d
+        from .io.units import FIELD_UNIT_RATIO, gyro_field_ratio, stuck_gyro_words
 
-        from .io.units import gyro_turn_ratio, stuck_gyro_words
-
-        sent = np.all(np.isfinite(field_h), axis=1) & np.all(np.isfinite(gyro), axis=1)
-        t, gyro, field_h = t[sent], gyro[sent], field_h[sent]
-        if len(t) < 3 or not t[-1] > t[0]:
-            return False
-        block = max(1, int(round(_FIELD_SMOOTH_S * (len(t) - 1) / (t[-1] - t[0]))))
-        field_h = uniform_filter1d(field_h, block, axis=0)  # a still field's noise alone tilts it by degrees
-        ratio = gyro_turn_ratio(t, gyro, field_h, window_s=_FIELD_TURN_WINDOW_S)
-        if ratio is None or not ratio > _FIELD_UNIT_RATIO:
+        ratio = gyro_field_ratio(t, gyro, field_h)
+        if ratio is None or not ratio > FIELD_UNIT_RATIO:
             return False  # less: the field turns without the gyro by itself (a magnet passing by), no unit's mark
         unit = self.decoder.options.gyro_unit or "rad/s"
         self._event("warn", f"the gyro read in {unit} turns {ratio:.0f} times more than the calibrated field turns "
                             f"with the housing (a deg/s gyro read as rad/s gives 57-100): is --gyro-unit right?"
-                            f"{stuck_gyro_words(gyro)}")
+                            f"{stuck_gyro_words(gyro[np.all(np.isfinite(gyro), axis=1)])}")
         return True
 
     def _judge_turn(self) -> None:

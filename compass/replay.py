@@ -77,7 +77,7 @@ def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *
         session.feed_samples(samples, time.perf_counter())
         if progress is not None:
             progress(hi, n)
-        if session.wrong_gravity is not None:  # the session solves nothing more
+        if session.wrong_gravity is not None or session.wrong_time is not None:  # it solves nothing more
             break
     session.close()
     return session
@@ -218,7 +218,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     except ValueError as exc:
         raise BadInput(str(exc)) from None
 
-    table = read_table(recording, read_options, live_times=True)  # a live record's times as the module sent them
+    table = read_table(recording, read_options, live_record=True)  # a live record as the module sent it
     table.ignore_unknown(set(model.channels) | {"t_s", "temp_c", "ax", "ay", "az", "gx", "gy", "gz"},
                          what=f"{calibration} (its channels: {', '.join(model.channels)})")
     if not table.has("t_s"):
@@ -282,6 +282,8 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
         raise BadInput(f"{calibration}: {session.turned_over}")
     if session.wrong_gravity is not None:
         raise RecordingError(table.path, session.wrong_gravity, column="ax")
+    if session.wrong_time is not None:  # its first samples' times, as live judged them (the file's whole passed)
+        raise RecordingError(table.path, session.wrong_time, column="t_s")
     if session.samples == 0:
         why = (f"the filter's start seeds the reference field from at least {MIN_REFERENCE_ROWS} rows; give --site "
                "LAT,LON --date D" if len(t_s) < MIN_REFERENCE_ROWS and reference is None else session.summary())
@@ -305,6 +307,7 @@ def _check_gyro_turn(table, gyro: np.ndarray, named: bool) -> None:
     its accelerometer jittering by degrees, reads so too."""
     from .io.units import gyro_unit_verdict, stuck_gyro_words
 
+    gyro = gyro[np.all(np.isfinite(gyro), axis=1)]  # a live record's rows the gyro was not sent on
     ratio = table.gyro_turn_ratio
     verdict = gyro_unit_verdict(ratio)
     dead = ratio == 0.0 and bool(np.all(np.ptp(gyro, axis=0) == 0.0))

@@ -215,9 +215,10 @@ def send_packet(port: str, packet, *, baud: int = 115200, wait_s: float = 5.0) -
 
 
 def run_motioncal(cal, *, out, force: bool, port, unit: str, max_rotation_deg: float, baud: int,
-                 wait_s: float) -> int:
+                 wait_s: float, inputs=()) -> int:
     """The ``--format motioncal`` branch of ``compass export``: the packet of ``cal`` written to ``out``
-    (refused if it exists, unless ``force``), sent to ``port``, or else described on stdout."""
+    (refused if it exists, unless ``force``, and if it is one of ``inputs``), sent to ``port``, or else described on
+    stdout."""
     import sys
 
     from ..io.atomic import atomic_open, check_writable
@@ -227,7 +228,7 @@ def run_motioncal(cal, *, out, force: bool, port, unit: str, max_rotation_deg: f
     for note in notes:
         print(f"compass export: note: {note}", file=sys.stderr)
     if out:
-        out = check_writable(out, force)
+        out = check_writable(out, force, inputs=inputs)
         with atomic_open(out, "wb") as f:
             f.write(encode_packet(packet))
         print(f"wrote {out} ({len(encode_packet(packet))} bytes)")

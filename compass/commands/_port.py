@@ -7,7 +7,7 @@ import contextlib
 import signal
 import threading
 
-__all__ = ["open_reader", "port_unavailable", "stop_when_asked", "stream_options"]
+__all__ = ["open_reader", "port_unavailable", "stop_signals", "stop_when_asked", "stream_options"]
 
 
 def open_reader(args):
@@ -30,8 +30,11 @@ def port_unavailable(exc):
     return BadInput(f"{exc}: check the name, or --wait S for a port that is not there yet")
 
 
-_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM) + ((signal.SIGHUP,) if hasattr(signal, "SIGHUP") else ())
-"""Ctrl-C, ``kill``, and the terminal or ssh session closed: each ends a session as Ctrl-C does (files kept)."""
+def stop_signals() -> list:
+    """Ctrl-C, ``kill``, and the terminal or ssh session closed (SIGHUP): each ends a session as Ctrl-C does (files
+    kept); one ignored when asked (``nohup``'s SIGHUP) is left alone."""
+    signals = [signal.SIGINT, signal.SIGTERM] + ([signal.SIGHUP] if hasattr(signal, "SIGHUP") else [])
+    return [sig for sig in signals if signal.getsignal(sig) is not signal.SIG_IGN]
 
 
 @contextlib.contextmanager
@@ -47,7 +50,7 @@ def stop_when_asked(duration_s: float | None):
         stop.set()
 
     previous = ({} if threading.current_thread() is not threading.main_thread() else
-                {sig: signal.signal(sig, handler) for sig in _STOP_SIGNALS})
+                {sig: signal.signal(sig, handler) for sig in stop_signals()})
     timer = None
     if duration_s is not None:
         timer = threading.Timer(duration_s, stop.set)

@@ -14,6 +14,7 @@ import threading
 
 from .. import limits
 from ..limits import Range
+from ._port import stop_signals
 
 
 DEVICE_FORMATS = ("compass", "motioncal", "motioncal-raw", "csv")  # compass.sim.stream_formats, not imported at start
@@ -81,10 +82,14 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from ..cli import BadInput
+
+    for option, link in (("--link", args.link), ("--grbl-link", getattr(args, "grbl_link", None))):
+        if link is not None and not os.path.isdir(os.path.dirname(os.path.abspath(link))):
+            raise BadInput(f"{option} {link}: its folder does not exist")
     if args.bench:
         return _run_bench(args)
     from ..calibration import load, model_to_dict, save
-    from ..cli import BadInput
     from ..sim.device import MOTIONS, PtyDevice, default_model
     from ..sim.stream_formats import board_model
 
@@ -103,8 +108,6 @@ def run(args) -> int:
         model = default_model() if args.format == "compass" else board_model()
     if args.link is not None and os.path.lexists(args.link) and not os.path.islink(args.link):
         raise BadInput(f"--link {args.link}: exists and is not a symbolic link; it would be replaced")
-    if args.link is not None and not os.path.isdir(os.path.dirname(os.path.abspath(args.link))):
-        raise BadInput(f"--link {args.link}: its folder does not exist")
     try:
         device = PtyDevice(model, rate_hz=args.rate, seed=args.seed, link=args.link, garbage_rate=args.garbage,
                            truncate_rate=args.truncate, disconnect_at_s=args.disconnect_at,
@@ -183,9 +186,9 @@ def _run_bench(args) -> int:
 
 
 def _run_until_signal(device, duration) -> None:
-    """Run a simulated device until ``duration`` passes or Ctrl-C / SIGTERM, restoring the handlers after."""
+    """Run a simulated device until ``duration`` passes or Ctrl-C / SIGTERM / SIGHUP, restoring the handlers after."""
     stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in stop_signals()}
     try:
         device.run(stop, duration)
     finally:

@@ -108,7 +108,8 @@ def run(args) -> int:
     if args.format == "motioncal":
         from ._export_motioncal import run_motioncal
 
-        return run_motioncal(cal, out=args.out, force=args.force, port=args.port, unit=option["unit"],
+        return run_motioncal(cal, out=args.out, force=args.force, inputs=(args.calibration,), port=args.port,
+                             unit=option["unit"],
                              max_rotation_deg=option["max_rotation_deg"], baud=option["baud"], wait_s=option["wait"])
     form = firmware_form(cal)
     note = unit_note(form, option["unit"])

@@ -123,11 +123,12 @@ def run(args) -> int:
     reference = _site_reference(args, model)
     stream = stream_options(args)
     reader = open_reader(args)
-    out_path = None if args.out is None else check_writable(args.out, args.force, inputs=(args.cal,))
-    record_path = None if args.record is None else check_writable(args.record, args.force, inputs=(args.cal,))
+    inputs = (args.cal, args.port)  # --out /dev/ttyUSB0 (the options mixed up) would write into the module
+    out_path = None if args.out is None else check_writable(args.out, args.force, inputs=inputs)
+    record_path = None if args.record is None else check_writable(args.record, args.force, inputs=inputs)
     if record_path is not None and out_path is not None and record_path.resolve() == out_path.resolve():
         raise BadInput(f"--record and --out are both {args.out}: give two files")
-    check_rerun_target(args.rerun, args.force)
+    rerun = check_rerun_target(args.rerun, args.force)  # a symbolic link's target, the link kept
 
     tty = sys.stdout.isatty()
     every_s = 0.1 if tty else 1.0
@@ -141,7 +142,7 @@ def run(args) -> int:
         if args.rerun is not None:
             from ..viz import RerunSink
 
-            sink = RerunSink.for_model(args.rerun, model, config)
+            sink = RerunSink.for_model(rerun, model, config)
         with contextlib.ExitStack() as outputs:
             # --out is a stream, written as it goes into a temporary file beside it, which replaces --out when
             # the session ends with rows (a failure included: what was recorded is kept); a session that

@@ -180,20 +180,30 @@ def save_figure(fig, path, **savefig_kwargs) -> Path:
     return path
 
 
+_STANDARD_STREAMS = ("/dev/stdout", "/dev/stderr", "/dev/fd/", "/proc/self/fd/")
+"""Names of the process's own open files: written through whatever they are (a terminal, a pipe, a shell's ``> f``)."""
+
+
 def _target(path) -> Path:
-    """The file a write to ``path`` replaces: a symbolic link's target (the link stays a link)."""
+    """The path a write to ``path`` goes to: a symbolic link's target (the link stays a link), unless the link names
+    a standard stream, a character device or a pipe (written through under the name given: ``/dev/stdout`` resolves
+    to a ``pipe:[N]`` that no name opens)."""
     path = Path(path)
-    return Path(os.path.realpath(path)) if path.is_symlink() else path
+    if not path.is_symlink() or _written_through(path):
+        return path
+    return Path(os.path.realpath(path))
 
 
 def _written_through(path: Path) -> bool:
-    """Whether ``path`` is a character device or a pipe, written as it comes rather than replaced.
+    """Whether ``path`` is a standard stream, a character device or a pipe, written as it comes rather than replaced.
 
     Raises
     ------
     OutputError
         ``path`` is a block device or a socket: never an output.
     """
+    if str(path) in _STANDARD_STREAMS[:2] or str(path).startswith(_STANDARD_STREAMS[2:]):
+        return True
     try:
         mode = path.stat().st_mode
     except OSError:
@@ -229,7 +239,8 @@ def _temporary(path: Path, suffix: str = ".tmp") -> tuple[int, str]:
 
 
 def remove_stale_temporaries(path) -> list[Path]:
-    """Remove ``.NAME.PID.*.tmp`` files of ``path`` left by writers that are gone; returns them."""
+    """Remove ``.NAME.PID.*.tmp`` files of ``path`` left by writers that are gone; returns them.  A stream's that
+    holds rows (``*.stream.tmp``) is kept instead, renamed and said (:func:`_keep_partial`), not returned."""
     path = Path(path)
     prefix = f".{path.name}."
     removed = []
@@ -264,7 +275,8 @@ def _keep_partial(stream: Path, path: Path, pid: str) -> None:
     if kept.exists():
         return
     os.replace(stream, kept)
-    note(f"{kept}: the rows a session writing {path} had when it was killed (process {pid}), kept")
+    note(f"{kept}: the rows a session writing {path} had when it was killed (process {pid}), kept; its last line "
+         "may be cut short (delete it to replay the file)")
 
 
 def _process_exists(pid: int) -> bool:

@@ -49,7 +49,8 @@ LIVE_RECORD = "compass live --record"
 """How a ``compass live --record`` file's ``# source:`` line starts (:class:`compass.io.sample_log.SampleLog`)."""
 ABSENT_KEY = "absent"
 """A ``# absent: ...`` line (``compass live --record`` writes it): ``nan`` in ``temp_c`` or in a whole accelerometer
-or gyro group is that group not sent on that row (the line protocol's empty cells), not a bad cell."""
+or gyro group is that group not sent on that row (the line protocol's empty cells), not a bad cell, where the replay
+reads it (:func:`read_table`'s ``live_record``)."""
 _OPTIONAL_GROUPS = (("temp_c",), _ACCEL, _GYRO)
 _LOG_SENSORS = {"gyroscope": "g", "gyro": "g", "gyr": "g", "accelerometer": "a", "accel": "a", "acc": "a",
                 "magnetometer": "m", "mag": "m"}
@@ -243,7 +244,8 @@ class Table:
         return np.column_stack([self.column(n) for n in names])
 
     def time_s(self) -> np.ndarray | None:
-        """The optional ``t_s`` column (checked non-decreasing on reading), None when absent."""
+        """The optional ``t_s`` column (checked non-decreasing on reading, but in a live record the replay reads), None
+        when absent."""
         return self.column("t_s") if self.has("t_s") else None
 
     @property
@@ -281,6 +283,9 @@ class Table:
         coarse axis a gentle tilt leaves on one code (near level the vertical axis moves by ``1 - cos``, the others
         by ``sin``) keeps the length; a dead one takes its part out of it."""
         v = np.column_stack([self.column(name) for name in names])
+        v = v[np.all(np.isfinite(v), axis=1)]  # a live record's rows the sensor was not sent on
+        if len(v) == 0:
+            return
         span = np.ptp(v, axis=0)
         norm = np.linalg.norm(v, axis=1)
         scale = np.median(norm)
@@ -300,7 +305,7 @@ DEAD_AXIS_SHARE = 0.1
 length is dead (:meth:`Table.check_dead_axis`): a tilt of 6 degrees moves an accelerometer's axes that much."""
 
 
-def read_table(path, options: ReadOptions | None = None, *, live_times: bool = False) -> Table:
+def read_table(path, options: ReadOptions | None = None, *, live_record: bool = False) -> Table:
     """Read and validate a numeric CSV recording.
 
     Parameters
@@ -308,10 +313,11 @@ def read_table(path, options: ReadOptions | None = None, *, live_times: bool = F
     path : str or Path
     options : ReadOptions, optional
         Column mapping and units named by the user.
-    live_times : bool
-        A ``compass live --record`` file (its ``# source:`` line) may have a ``t_s`` that goes back, as the module
-        sent it (a clock the module restarted, a corrupted time): the replay hands it to the filter, which skips or
-        adopts it as the live session did.  Any other file's ``t_s`` must not decrease.
+    live_record : bool
+        Read a ``compass live --record`` file (its ``# source:`` line) as the replay hands it to the live pipeline:
+        its ``t_s`` may go back, as the module sent it (a clock the module restarted, a corrupted time: the filter
+        skips or adopts it as the live session did), and with its ``# absent:`` line a ``nan`` group is one the
+        module sent empty on that row.  Any other file, or any other reader, refuses both.
 
     Raises
     ------
@@ -371,9 +377,13 @@ def read_table(path, options: ReadOptions | None = None, *, live_times: bool = F
     if data.shape[1] != len(header):
         _scan_for_bad_cell(path, header, sep, decimal_comma, header_line)
         raise RecordingError(path, f"expected {len(header)} cells a row, found {data.shape[1]}", row=int(rows[0]))
-    _check_values(path, header, data, rows, _absent_groups(header) if ABSENT_KEY in metadata else ())
+    live_record = live_record and metadata.get("source", "").startswith(LIVE_RECORD)
+    absent = _absent_groups(header) if ABSENT_KEY in metadata else ()
+    _check_values(path, header, data, rows, absent if live_record else (),
+                  " (a group the module sent empty on that row: the replay, compass attitude --filter, reads it so)"
+                  if absent and not live_record else "")
     return _interpret(Table(str(path), tuple(header), data, rows, metadata, header_line), options, meta_rows,
-                      live_times and metadata.get("source", "").startswith(LIVE_RECORD))
+                      live_record)
 
 
 def _load(path, header, sep, decimal_comma, header_line, lines) -> np.ndarray:
@@ -625,9 +635,10 @@ def _absent_groups(header) -> list:
     return [[header.index(c) for c in group] for group in _OPTIONAL_GROUPS if all(c in header for c in group)]
 
 
-def _check_values(path, header, data, rows, absent=()) -> None:
-    """RecordingError at the first non-finite cell, or the first beyond ``MAX_ABS_VALUE``; ``absent``: column
-    indices of groups whose cells may be NaN together (that group not sent on that row)."""
+def _check_values(path, header, data, rows, absent=(), hint: str = "") -> None:
+    """RecordingError at the first non-finite cell (``hint`` added to its words), or the first beyond
+    ``MAX_ABS_VALUE``; ``absent``: column indices of groups whose cells may be NaN together (that group not sent on
+    that row)."""
     lo, hi = data.min(), data.max()  # NaN propagates; no copy of the data
     if -units.MAX_ABS_VALUE <= lo and hi <= units.MAX_ABS_VALUE:
         return
@@ -638,8 +649,8 @@ def _check_values(path, header, data, rows, absent=()) -> None:
         i, j = np.argwhere(~finite)[0]
         every = "" if finite[:, j].any() else (f" (as in all {len(data)} rows of {header[j]}: a sensor not recorded? "
                                                 "leave its columns out)")
-        raise RecordingError(path, f"expected a finite number, found {float(data[i, j])!r}{every}", row=int(rows[i]),
-                             column=header[j])
+        raise RecordingError(path, f"expected a finite number, found {float(data[i, j])!r}{every or hint}",
+                             row=int(rows[i]), column=header[j])
     big = np.abs(np.nan_to_num(data)) > units.MAX_ABS_VALUE
     if big.any():
         i, j = np.argwhere(big)[0]

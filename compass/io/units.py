@@ -26,6 +26,7 @@ import numpy as np
 
 __all__ = ["RecordingWarning", "GYRO_UNITS", "ACCEL_UNITS", "MAG_UNITS", "ANGLE_UNITS", "STANDARD_GRAVITY",
            "EARTH_FIELD_UT", "MAX_ABS_VALUE", "MIN_SPAN", "unit_of_header", "gyro_turn_ratio", "GYRO_UNIT_RATIO",
+           "gyro_field_ratio", "FIELD_UNIT_RATIO", "FIELD_TURN_WINDOW_S", "FIELD_SMOOTH_S",
            "gyro_unit_verdict", "stuck_gyro_words", "check_gyro_unit",
            "check_field_norm", "looks_like_radians", "check_accel_up", "check_two_axis_tilt", "note"]
 
@@ -127,6 +128,51 @@ def gyro_turn_ratio(t_s, gyro_rad_s, accel, *, window_s: float = 0.25, min_tilt_
     if np.count_nonzero(used) < 5:
         return None
     return float(np.median(turn[used] / tilt[used]))
+
+
+FIELD_TURN_WINDOW_S = 1.0
+""":func:`gyro_field_ratio`'s windows, s: a hand's slow turn (20 deg/s) moves the field by 10 deg in them at a dip of
+60 deg, over the 5 deg a window needs."""
+FIELD_SMOOTH_S = 0.05
+"""The field is averaged over this long before :func:`gyro_field_ratio` reads its turn, s (BROAD's 0.7 uT of noise on
+41 uT turns a still field by 1-4 deg from one sample to another a second later)."""
+FIELD_UNIT_RATIO = 25.0
+"""A gyro that turns this many times more than the field (:func:`gyro_field_ratio`) reads in another unit: on
+BROAD's 14 trials the honest ratio is 1.0-1.7 undisturbed, up to 6.3 with a magnet in the room (``python
+tools/bench_runtime_checks.py``); a deg/s gyro read as rad/s gives 57 times that (the field turns less than the
+housing about an axis near it)."""
+
+
+def gyro_field_ratio(t_s, gyro_rad_s, field) -> float | None:
+    """:func:`gyro_turn_ratio` with the field in place of the accelerometer: how much more the gyro says the housing
+    turned than the field turned with it, over :data:`FIELD_TURN_WINDOW_S` windows, the field averaged over
+    :data:`FIELD_SMOOTH_S` first; rows not finite left out.  A housing turned about the vertical, or slowly, tilts
+    the accelerometer by too little to judge, but turns the field (by ``cos(dip)`` of the turn about the vertical).
+
+    Parameters
+    ----------
+    t_s : ndarray, shape (n,)
+        Non-decreasing time, s.
+    gyro_rad_s : ndarray, shape (n, 3)
+        Angular rate in the unit assumed (rad/s).
+    field : ndarray, shape (n, 3)
+        The calibrated field in the housing frame, any unit.
+
+    Returns
+    -------
+    float or None
+        The median ratio (:func:`gyro_turn_ratio`), None when too few windows turned the field.
+    """
+    from scipy.ndimage import uniform_filter1d
+
+    t, gyro, field = (np.asarray(a, dtype=float) for a in (t_s, gyro_rad_s, field))
+    sent = np.all(np.isfinite(field), axis=1) & np.all(np.isfinite(gyro), axis=1) & np.isfinite(t)
+    t, gyro, field = t[sent], gyro[sent], field[sent]
+    if len(t) < 3 or not t[-1] > t[0]:
+        return None
+    block = max(1, int(round(FIELD_SMOOTH_S * (len(t) - 1) / (t[-1] - t[0]))))
+    field = uniform_filter1d(field, block, axis=0)  # a still field's noise alone tilts it by degrees
+    return gyro_turn_ratio(t, gyro, field, window_s=FIELD_TURN_WINDOW_S)
 
 
 GYRO_UNIT_RATIO = 15.0

@@ -188,8 +188,9 @@ def test_an_output_that_is_an_input_is_refused_even_with_force(tmp_path, capsys)
     capsys.readouterr()
     assert main(["calibrate", str(rec), "--out", str(rec), "--quiet", "--no-diagnose", "--force"]) == 2
     assert main(["attitude", str(cal), str(rec), "--out", str(cal), "--force"]) == 2
+    assert main(["export", str(cal), "--format", "fusion", "--out", str(cal), "--force"]) == 2
     err = capsys.readouterr().err
-    assert err.count("is also an input of this command") == 2 and "Traceback" not in err
+    assert err.count("is also an input of this command") == 3 and "Traceback" not in err
     assert (rec.read_bytes(), cal.read_bytes()) == before
 
 
@@ -242,3 +243,32 @@ def test_a_command_killed_by_sigterm_or_sighup_leaves_no_temporary_file(tmp_path
         time.sleep(5)  # the handler raises here, at once
     assert raised.value.signum == signum and not target.exists() and temporaries(tmp_path) == []
     assert signal.getsignal(signum) is before  # the handler before is back
+
+
+def test_standard_output_is_written_through_into_a_pipe_or_a_shell_redirect(tmp_path):
+    """``--out /dev/stdout``: its link resolves to a ``pipe:[N]`` no name opens (refused, 'No such file'), or to the
+    redirect's file (replaced by a rename, the shell's descriptor left on the old one); both are written through."""
+    script = "from compass.io.atomic import atomic_write_text, check_writable\n" \
+             "atomic_write_text(check_writable('/dev/stdout', False), 'a row\\n')\n"
+    piped = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert piped.returncode == 0 and piped.stdout == "a row\n", piped.stderr
+    redirect = tmp_path / "out.csv"
+    with open(redirect, "w") as fh:
+        done = subprocess.run([sys.executable, "-c", script], stdout=fh, stderr=subprocess.PIPE, text=True, timeout=60)
+    assert done.returncode == 0 and redirect.read_text() == "a row\n", done.stderr
+
+
+def test_a_signal_ignored_on_entry_stays_ignored(monkeypatch):
+    """``nohup compass live ...``: SIGHUP ignored must not end the command when the ssh session drops."""
+    from compass.cli import _terminate_as_interrupt
+    from compass.commands._port import stop_when_asked
+
+    before = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        with _terminate_as_interrupt(), stop_when_asked(None) as stop:
+            os.kill(os.getpid(), signal.SIGHUP)
+            time.sleep(0.2)
+            assert not stop.is_set()
+        assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, before)

@@ -15,7 +15,7 @@ from compass.filter import FilterConfig, run_filter
 from compass.io.lines import Sample
 from compass.io.sample_log import SampleLog
 from compass.io.streams import StreamOptions
-from compass.io.table import read_table
+from compass.io.table import RecordingError, read_table
 from compass.live import LiveSession
 from compass.serial_reader import Chunk
 from compass.sim.device import default_model, simulate_device, tumble_motion
@@ -240,8 +240,10 @@ def test_a_group_sent_empty_on_some_lines_is_recorded_and_replayed_as_live_took_
     assert log.stopped is None and log.rows == n
     recording, cal, att = tmp_path / "raw.csv", tmp_path / "cal.json", tmp_path / "att.csv"
     recording.write_text(raw.getvalue())
-    table = read_table(recording)
+    table = read_table(recording, live_record=True)
     assert np.isnan(table.column("gx")[300]) and np.isnan(table.column("ax")[250])
+    with pytest.raises(RecordingError, match="expected a finite number"):
+        read_table(recording)  # the calibration's and the per-row solver's reader: no sensor left out silently
     assert np.sum(np.isfinite(table.column("temp_c"))) == n // 50
     save(cal, model_to_dict(model))
     assert main(["attitude", str(cal), str(recording), "--out", str(att), "--filter"]) == 0
@@ -255,7 +257,6 @@ def test_a_time_that_goes_back_is_recorded_and_replayed_as_live_took_it(tmp_path
     the times as sent and the replay, which refused a t_s that decreases, gives live's rows; any other file's
     decreasing t_s is still refused."""
     from compass.io.lines import format_line
-    from compass.io.table import RecordingError
 
     model = default_model()
     n = 700
@@ -284,4 +285,4 @@ def test_a_time_that_goes_back_is_recorded_and_replayed_as_live_took_it(tmp_path
     other = tmp_path / "other.csv"
     other.write_text(raw.getvalue().replace("# source: compass live --record", "# source: a logger"))
     with pytest.raises(RecordingError, match="must not decrease"):
-        read_table(other, live_times=True)
+        read_table(other, live_record=True)
