@@ -211,6 +211,26 @@ def test_a_broken_line_inside_a_chunk_is_dated_in_its_place(clockless):
     np.testing.assert_allclose(error[500:], error[-1], atol=1e-4)  # the CSV's 4 decimals; the first chunks wait
 
 
+def _record_then_replay(model, lines, tmp_path):
+    """``lines`` through a live session recording them (chunks of 700 bytes), then its record through the replay
+    command: the log, the session, the record's path, live's rows and the replay's (the latency and the quaternion
+    left out of both)."""
+    raw, out = io.StringIO(), io.StringIO()
+    log = SampleLog(raw, model.channels, "pty")
+    session = LiveSession(model, out=out, record=log)
+    stream = b"".join(lines)
+    for k in range(0, len(stream), 700):
+        session.feed(Chunk(100.0 + k / 1e5, stream[k:k + 700]))
+    session.close()
+    recording, cal, att = tmp_path / "raw.csv", tmp_path / "cal.json", tmp_path / "att.csv"
+    recording.write_text(raw.getvalue())
+    save(cal, model_to_dict(model))
+    assert main(["attitude", str(cal), str(recording), "--out", str(att), "--filter"]) == 0
+    replayed = [r[:-5] + r[-4:] for r in _rows(att.read_text())[1:]]
+    live = [r[:-1] for r in _rows(out.getvalue())[1:]]
+    return log, session, recording, [r[:12] for r in live], [r[:12] for r in replayed]
+
+
 def test_a_group_sent_empty_on_some_lines_is_recorded_and_replayed_as_live_took_it(tmp_path):
     """The line protocol lets a module leave ``temp_c`` (here on most lines), the gyro or the accelerometer empty on
     a line: the record keeps every sample (it stopped at the first such line) and replays to live's rows."""
@@ -230,26 +250,14 @@ def test_a_group_sent_empty_on_some_lines_is_recorded_and_replayed_as_live_took_
         gyro = [""] * 3 if i in (300, 301) else s.gyro[i].tolist()
         temp = 25.0 + i / 60.0 if i % 50 == 7 else ""
         lines.append(format_line([float(s.t_s[i]), *s.raw[i].tolist(), *accel, *gyro, temp]))
-    raw, out = io.StringIO(), io.StringIO()
-    log = SampleLog(raw, model.channels, "pty")
-    session = LiveSession(model, out=out, record=log)
-    stream = b"".join(lines)
-    for k in range(0, len(stream), 700):
-        session.feed(Chunk(100.0 + k / 1e5, stream[k:k + 700]))
-    session.close()
+    log, _, recording, live, replayed = _record_then_replay(model, lines, tmp_path)
     assert log.stopped is None and log.rows == n
-    recording, cal, att = tmp_path / "raw.csv", tmp_path / "cal.json", tmp_path / "att.csv"
-    recording.write_text(raw.getvalue())
+    assert len(live) > n - 100 and replayed == live
     table = read_table(recording, live_record=True)
     assert np.isnan(table.column("gx")[300]) and np.isnan(table.column("ax")[250])
     with pytest.raises(RecordingError, match="expected a finite number"):
         read_table(recording)  # the calibration's and the per-row solver's reader: no sensor left out silently
     assert np.sum(np.isfinite(table.column("temp_c"))) == n // 50
-    save(cal, model_to_dict(model))
-    assert main(["attitude", str(cal), str(recording), "--out", str(att), "--filter"]) == 0
-    replayed = [r[:-5] + r[-4:] for r in _rows(att.read_text())[1:]]
-    live = [r[:-1] for r in _rows(out.getvalue())[1:]]
-    assert len(live) > n - 100 and [r[:12] for r in replayed] == [r[:12] for r in live]
 
 
 def test_a_time_that_goes_back_is_recorded_and_replayed_as_live_took_it(tmp_path):
@@ -267,22 +275,10 @@ def test_a_time_that_goes_back_is_recorded_and_replayed_as_live_took_it(tmp_path
     lines = [format_line(["t_s", "mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz"])]
     lines += [format_line([float(t_sent[i]), *s.raw[i].tolist(), *s.accel[i].tolist(), *s.gyro[i].tolist()])
               for i in range(n)]
-    raw, out = io.StringIO(), io.StringIO()
-    log = SampleLog(raw, model.channels, "pty")
-    session = LiveSession(model, out=out, record=log)
-    stream = b"".join(lines)
-    for k in range(0, len(stream), 700):
-        session.feed(Chunk(100.0 + k / 1e5, stream[k:k + 700]))
-    session.close()
+    log, session, recording, live, replayed = _record_then_replay(model, lines, tmp_path)
     assert log.rows == n and session.skipped.get("t_s went back", 0) >= 2
-    recording, cal, att = tmp_path / "raw.csv", tmp_path / "cal.json", tmp_path / "att.csv"
-    recording.write_text(raw.getvalue())
-    save(cal, model_to_dict(model))
-    assert main(["attitude", str(cal), str(recording), "--out", str(att), "--filter"]) == 0
-    replayed = [r[:-5] + r[-4:] for r in _rows(att.read_text())[1:]]
-    live = [r[:-1] for r in _rows(out.getvalue())[1:]]
-    assert len(live) > n - 100 and [r[:12] for r in replayed] == [r[:12] for r in live]
+    assert len(live) > n - 100 and replayed == live
     other = tmp_path / "other.csv"
-    other.write_text(raw.getvalue().replace("# source: compass live --record", "# source: a logger"))
+    other.write_text(recording.read_text().replace("# source: compass live --record", "# source: a logger"))
     with pytest.raises(RecordingError, match="must not decrease"):
         read_table(other, live_record=True)
