@@ -270,7 +270,7 @@ class AttitudeFilter:
             return None
         dt = 0.0 if s.t_s is None else self._time_step(t_s)
         if s.t_back_s is not None:  # kept aside, the sample skipped: the next time tells a corrupted one from a restart
-            self._skip("t_s went back")
+            self._skip("t_s went back" if s.t_back_s < s.t_s else "t_s jumped ahead")
             return None
         self._reading = None
         if gyro is not None and self.gyro:
@@ -301,10 +301,15 @@ class AttitudeFilter:
         """The step to ``t_s`` from the last time, s.  A time that goes back is kept aside (``t_back_s``; its
         sample is skipped): if the next one goes on from the old clock, it was a corrupted value and the step
         is taken from the old clock (one bad time never turns the gyro through a made-up interval); if it goes
-        on from the new one, the module restarted its clock, which is adopted."""
+        on from the new one, the module restarted its clock, which is adopted.  So is a time over ``max_gap_s``
+        ahead while the gyro filter runs: a corrupted value costs its sample, not a restart; a real gap restarts
+        the filter at the sample after it (the two-vector filter solves each sample alone: no sample kept aside)."""
         s = self._s
         back, s.t_back_s = s.t_back_s, None
         if t_s >= s.t_s:
+            if back is None and self.gyro and s.matrix is not None and t_s - s.t_s > self.config.max_gap_s:
+                s.t_back_s = t_s  # a jump ahead: the next time tells a corrupted one from a gap
+                return 0.0
             return t_s - s.t_s
         if back is not None and t_s >= back:  # the second time on the new clock: a restart
             s.t_s = back

@@ -112,8 +112,9 @@ class GyroState(PackedCovariance):
     since_start_s : float
         Time since the attitude (re)started, s: the bias is held for ``accel_time_constant_s``.
     t_back_s : float or None
-        A time earlier than ``t_s`` the last sample gave (a corrupted clock, or the module restarting
-        its clock: the next sample tells which), else None.
+        A time the last sample gave that left the clock: earlier than ``t_s`` (a corrupted clock, or the module
+        restarting its clock), or over ``max_gap_s`` after it in the gyro filter (a corrupted clock, or a real gap);
+        the next sample tells which.  Else None.
     place : PlaceState
         The place detector's window (``FilterConfig.follow_place``).
     lever : LeverState

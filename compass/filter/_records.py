@@ -464,7 +464,7 @@ def _attenuation(ratio: float, order: int) -> float:
     return ratio if order == 1 else 2.0 * ratio * ratio
 
 
-SKIP_REASONS = ("t_s not finite", "t_s went back",
+SKIP_REASONS = ("t_s not finite", "t_s went back", "t_s jumped ahead",
                 "gyro not finite", "gyro out of range", "accel not finite", "accel out of range",
                 "field not finite", "field out of range")
 """Why a sample (or one sensor's part of it) was skipped, never fused."""
@@ -480,6 +480,7 @@ class SkipCounts:
 
     t_s_not_finite: int = 0
     t_s_went_back: int = 0
+    t_s_jumped_ahead: int = 0
     gyro_not_finite: int = 0
     gyro_out_of_range: int = 0
     accel_not_finite: int = 0

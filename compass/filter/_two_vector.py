@@ -40,8 +40,9 @@ class TwoVectorState(PackedCovariance):
     skipped : SkipCounts
     diagnostics : Diagnostics
     t_back_s : float or None
-        A time earlier than ``t_s`` the last sample gave (a corrupted clock, or the module restarting
-        its clock: the next sample tells which), else None.
+        A time the last sample gave that left the clock: earlier than ``t_s`` (a corrupted clock, or the module
+        restarting its clock), or over ``max_gap_s`` after it in the gyro filter (a corrupted clock, or a real gap);
+        the next sample tells which.  Else None.
     """
 
     t_s: float | None

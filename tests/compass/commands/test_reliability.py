@@ -97,10 +97,13 @@ def test_a_clock_that_jumps_without_seq_is_not_counted_as_lost():
     assert any("t_s jumped" in e for e in events)
 
 
-@pytest.mark.parametrize("bad_t_s", [-1.0, 0.0, 1.0])
-def test_one_time_that_goes_back_costs_the_gyro_filter_that_sample_only(bad_t_s):
+@pytest.mark.parametrize("bad_t_s, reason", [(-1.0, "t_s went back"), (0.0, "t_s went back"),
+                                              (1.0, "t_s went back"), (1e11, "t_s jumped ahead"),
+                                              (7.5, "t_s jumped ahead")])
+def test_one_time_that_goes_back_costs_the_gyro_filter_that_sample_only(bad_t_s, reason):
     """It was a step of zero, and the next sample's step was taken from it: 2.5 s of gyro, a filter restart
-    and 1 deg of heading; now the sample is skipped and the step taken from the clock before it."""
+    and 1 deg of heading; now the sample is skipped and the step taken from the clock before it.  A time ahead by
+    more than the filter's gap (one digit flipped, 1e11) restarted the filter: it too costs only its sample."""
     from compass.filter import AttitudeFilter, FilterConfig
 
     fields, _ = MODEL.field(SIM.raw)
@@ -117,7 +120,22 @@ def test_one_time_that_goes_back_costs_the_gyro_filter_that_sample_only(bad_t_s)
     corrupted, f = headings(times)
     dropped, _ = headings(SIM.t_s, drop=150)
     np.testing.assert_array_equal(corrupted, dropped)
-    assert f.skipped.as_dict() == {"t_s went back": 1} and not f.events
+    assert f.skipped.as_dict() == {reason: 1} and not f.events
+
+
+def test_a_real_gap_restarts_the_gyro_filter_at_the_sample_after_it():
+    """A pause (every time after it ahead by 3 s): its first sample is kept aside, the next goes on from it, and the
+    filter restarts there, said once; the two-vector filter, which solves each sample alone, keeps every sample."""
+    from compass.filter import AttitudeFilter, FilterConfig
+
+    fields, _ = MODEL.field(SIM.raw)
+    times = np.where(np.arange(300) < 150, SIM.t_s, SIM.t_s + 3.0)
+    f = AttitudeFilter(FilterConfig.from_model(MODEL), gyro=True)
+    est = [f.step(t, a, g, b) for t, a, g, b in zip(times, SIM.accel, SIM.gyro, fields)]
+    assert [k for k, e in enumerate(est) if e is None] == [150] and f.skipped.as_dict() == {"t_s jumped ahead": 1}
+    assert [e for e in f.events if "gap" in e] == ["filter restarted after a 3.02 s gap in the samples"]  # from 149
+    two = AttitudeFilter(FilterConfig.from_model(MODEL), gyro=False)
+    assert all(two.step(t, a, None, b) is not None for t, a, b in zip(times, SIM.accel, fields))
 
 
 def test_a_clock_restarted_by_the_module_is_adopted_after_one_sample():
