@@ -218,8 +218,9 @@ class AttitudeFilter:
         Parameters
         ----------
         t_s : float
-            Sample time, seconds (non-decreasing: a sample whose time goes back is skipped, and the
-            next one tells a corrupted time from a restarted clock: :meth:`_time_step`).
+            Sample time, seconds (non-decreasing: a sample whose time goes back, or in the running gyro filter jumps
+            over ``max_gap_s`` ahead, is skipped, and the next one tells a corrupted time from a restarted clock or
+            a real gap: :meth:`_time_step`).
         accel : array_like, shape (3,), or None
             Accelerometer in H, any unit (specific force, +up at rest).
         gyro : array_like, shape (3,), or None
@@ -232,7 +233,7 @@ class AttitudeFilter:
         -------
         Estimate or None
             None until the first sample with an accelerometer and a field reading initialises the
-            attitude, and for a sample with a non-finite time or one that goes back.
+            attitude, and for a sample with a non-finite time or one kept aside (gone back, jumped ahead).
         """
         if not self.update(t_s, accel, gyro, field_h):
             return None

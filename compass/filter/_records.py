@@ -103,7 +103,8 @@ class FilterConfig:
         A continuous rejection this long adopts the current field as the reference, seconds.
     max_gap_s : float
         A time step longer than this restarts the attitude from the next two-vector solution
-        (the gyro bias is kept), seconds.
+        (the gyro bias is kept), seconds; the gyro filter, once running, first keeps such a sample aside (skipped:
+        a corrupted time, if the next one goes on from the old clock) and restarts at the sample after it.
     gyro_range_rad_s : float
         A gyro sample whose |omega| exceeds this is absurd (beyond any MEMS gyro's range, 4000 deg/s
         by default): skipped, the last good rate is held, rad/s.
