@@ -303,12 +303,15 @@ class AttitudeFilter:
         sample is skipped): if the next one goes on from the old clock, it was a corrupted value and the step
         is taken from the old clock (one bad time never turns the gyro through a made-up interval); if it goes
         on from the new one, the module restarted its clock, which is adopted.  So is a time over ``max_gap_s``
-        ahead while the gyro filter runs: a corrupted value costs its sample, not a restart; a real gap restarts
-        the filter at the sample after it (the two-vector filter solves each sample alone: no sample kept aside)."""
+        ahead while the gyro filter runs (not at the step right after a (re)start: a stream whose every step is a
+        gap restarts at each sample, none skipped): a corrupted value costs its sample, not a restart; a real gap
+        restarts the filter at the sample after it (the two-vector filter solves each sample alone: none kept
+        aside)."""
         s = self._s
         back, s.t_back_s = s.t_back_s, None
         if t_s >= s.t_s:
-            if back is None and self.gyro and s.matrix is not None and t_s - s.t_s > self.config.max_gap_s:
+            if back is None and self.gyro and s.matrix is not None and s.since_start_s > 0.0 \
+                    and t_s - s.t_s > self.config.max_gap_s:
                 s.t_back_s = t_s  # a jump ahead: the next time tells a corrupted one from a gap
                 return 0.0
             return t_s - s.t_s

@@ -136,6 +136,9 @@ def test_a_real_gap_restarts_the_gyro_filter_at_the_sample_after_it():
     assert [e for e in f.events if "gap" in e] == ["filter restarted after a 3.02 s gap in the samples"]  # from 149
     two = AttitudeFilter(FilterConfig.from_model(MODEL), gyro=False)
     assert all(two.step(t, a, None, b) is not None for t, a, b in zip(times, SIM.accel, fields))
+    slow = AttitudeFilter(FilterConfig.from_model(MODEL), gyro=True)  # every step a gap: each sample restarts it,
+    est = [slow.step(t, a, g, b) for t, a, g, b in zip(np.arange(300.0), SIM.accel, SIM.gyro, fields)]
+    assert all(e is not None for e in est) and not slow.skipped.as_dict()  # none kept aside (every other was)
 
 
 def test_a_clock_restarted_by_the_module_is_adopted_after_one_sample():
