@@ -53,7 +53,6 @@ GYRO_AXES_ROWS = 6000
 judges, once: a minute at 100 Hz."""
 
 
-
 def invalid_words(stats) -> str:
     """``"3 invalid (a number no module sends, not finite or beyond 1e+12: gx = nan first)"``: a
     :class:`compass.io.lines.LineStats`'s invalid lines in words, naming the first one's cell when the decoder knows

@@ -180,8 +180,10 @@ def save_figure(fig, path, **savefig_kwargs) -> Path:
     return path
 
 
-_STANDARD_STREAMS = ("/dev/stdout", "/dev/stderr", "/dev/fd/", "/proc/self/fd/")
-"""Names of the process's own open files: written through whatever they are (a terminal, a pipe, a shell's ``> f``)."""
+_STANDARD_STREAMS = ("/dev/stdout", "/dev/stderr")
+_OPEN_FILE_FOLDERS = ("/dev/fd/", "/proc/self/fd/")
+"""Names of the process's own open files (with :data:`_STANDARD_STREAMS`): written through whatever they are (a
+terminal, a pipe, a shell's ``> f``)."""
 
 
 def _target(path) -> Path:
@@ -202,7 +204,7 @@ def _written_through(path: Path) -> bool:
     OutputError
         ``path`` is a block device or a socket: never an output.
     """
-    if str(path) in _STANDARD_STREAMS[:2] or str(path).startswith(_STANDARD_STREAMS[2:]):
+    if str(path) in _STANDARD_STREAMS or str(path).startswith(_OPEN_FILE_FOLDERS):
         return True
     try:
         mode = path.stat().st_mode

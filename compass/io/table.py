@@ -244,8 +244,8 @@ class Table:
         return np.column_stack([self.column(n) for n in names])
 
     def time_s(self) -> np.ndarray | None:
-        """The optional ``t_s`` column (checked non-decreasing on reading, but in a live record the replay reads), None
-        when absent."""
+        """The optional ``t_s`` column, None when absent (checked non-decreasing on reading, except a live record's
+        read by the replay: :func:`read_table`'s ``live_record``)."""
         return self.column("t_s") if self.has("t_s") else None
 
     @property

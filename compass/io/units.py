@@ -138,7 +138,7 @@ FIELD_SMOOTH_S = 0.05
 41 uT turns a still field by 1-4 deg from one sample to another a second later)."""
 FIELD_UNIT_RATIO = 25.0
 """A gyro that turns this many times more than the field (:func:`gyro_field_ratio`) reads in another unit: on
-BROAD's 14 trials the honest ratio is 1.0-1.7 undisturbed, up to 6.3 with a magnet in the room (``python
+BROAD's 14 trials the honest ratio over a whole trial is 1.1-2.2, 5.4 with a magnet in the room (``python
 tools/bench_runtime_checks.py``); a deg/s gyro read as rad/s gives 57 times that (the field turns less than the
 housing about an axis near it)."""
 
