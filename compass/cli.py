@@ -198,9 +198,9 @@ def _terminate_as_interrupt():
     def handler(signum, frame):
         raise _Terminated(signum)
 
-    from .commands._port import stop_signals  # those not ignored on entry: nohup's SIGHUP stays ignored
-
-    previous = {sig: signal.signal(sig, handler) for sig in stop_signals() if sig != signal.SIGINT}
+    stops = [signal.SIGTERM] + ([signal.SIGHUP] if hasattr(signal, "SIGHUP") else [])
+    # a signal ignored on entry stays so: nohup's SIGHUP, and the terminal closed, must not end the command
+    previous = {sig: signal.signal(sig, handler) for sig in stops if signal.getsignal(sig) is not signal.SIG_IGN}
     try:
         yield
     finally:
