@@ -48,7 +48,7 @@ from itertools import permutations, product
 import numpy as np
 
 __all__ = ["AxisVerdict", "GyroAxesVerdict", "accel_axes_from_gyro", "axes_from_gyro", "check_axes", "MIN_SIGNED_DIP_DEG", "PAIR_TURN_DEG",
-           "signed_permutations"]
+           "signed_permutations", "turned_enough"]
 
 MIN_SIGNED_DIP_DEG = 10.0
 """The site's |dip| above which its sign is judged (near the magnetic equator a tilt error reaches it)."""
@@ -299,6 +299,23 @@ def _turn_pairs(turns_rad: np.ndarray, t_s: np.ndarray) -> tuple[np.ndarray, np.
     ia, ib = np.array(out_a, dtype=int), np.array(out_b, dtype=int)
     turns = (attitude[ia].inv() * attitude[ib]).as_matrix() if len(ia) else np.zeros((0, 3, 3))
     return ia, ib, turns
+
+
+def turned_enough(turns_rad, t_s) -> bool:
+    """Whether the housing turned enough for the axis checks (:func:`axes_from_gyro`, :func:`accel_axes_from_gyro`):
+    at least their fewest row pairs :data:`PAIR_TURN_DEG` apart.  A housing at rest, or turned more slowly than
+    :data:`PAIR_TURN_DEG` in :data:`PAIR_SPAN_S`, gives them nothing to judge.
+
+    Parameters
+    ----------
+    turns_rad : array_like, shape (n, 3)
+        The housing's turn from the row before to each row, rad, gyro frame; a turn not finite is taken as none.
+    t_s : array_like, shape (n,)
+        The rows' times, s, non-decreasing.
+    """
+    turns = np.asarray(turns_rad, dtype=float)
+    ia, _, _ = _turn_pairs(np.where(np.isfinite(turns), turns, 0.0), np.asarray(t_s, dtype=float))
+    return len(ia) >= _MIN_PAIRS
 
 
 def _misfit(q: np.ndarray, m_a: np.ndarray, m_b: np.ndarray, turns: np.ndarray) -> tuple[float, np.ndarray]:

@@ -50,7 +50,8 @@ AXES_ROWS = 2000
 AXES_EVERY = 5
 GYRO_AXES_ROWS = 6000
 """Rows (every one, the gyro's turn between them integrated) the gyro's axis check (:func:`compass.axes.axes_from_gyro`)
-judges, once: a minute at 100 Hz."""
+judges, once: a minute at 100 Hz.  Rows that did not turn the housing enough (:func:`compass.axes.turned_enough`: a
+module left at rest) are not judged: the older half goes and the check waits for more."""
 
 
 def invalid_words(stats) -> str:
@@ -554,21 +555,28 @@ class LiveSession:
             self.axes = verdict.text
             self._event("warn", verdict.text)
 
-    def _judge_gyro_axes(self) -> None:
-        """The field's turns against the gyro's over the first rows (once): a stream whose magnetometer columns are
-        not those the calibration was made with (a ``--columns`` remap not given again) reads turned axes."""
-        from .axes import accel_axes_from_gyro, axes_from_gyro
+    def _judge_gyro_axes(self, last: bool = False) -> None:
+        """The field's turns against the gyro's over the first rows that turned the housing (once): a stream whose
+        magnetometer columns are not those the calibration was made with (a ``--columns`` remap not given again)
+        reads turned axes.  Rows that did not turn enough wait for more, unless they are the ``last``."""
+        from .axes import accel_axes_from_gyro, axes_from_gyro, turned_enough
         from .io.tumble import gyro_turns
         from .sample_check import new_readings
 
-        rows, self._gyro_axes_rows = np.array(self._gyro_axes_rows, dtype=float), None
+        rows = np.array(self._gyro_axes_rows, dtype=float)
+        t, gyro = rows[:, 0], rows[:, 1:4]
+        finite_gyro = np.where(np.isfinite(gyro), gyro, 0.0)
+        turns = gyro_turns(t, finite_gyro, np.ones(len(t), dtype=bool))
+        if not last and not turned_enough(turns, t):
+            del self._gyro_axes_rows[:len(rows) // 2]  # at rest: the newer half may be where the turns begin
+            return
+        self._gyro_axes_rows = None
         if len(rows) < 2:
             return
-        t, gyro, field_h, accel = rows[:, 0], rows[:, 1:4], rows[:, 4:7], rows[:, 7:10]
+        field_h, accel = rows[:, 4:7], rows[:, 7:10]
         if self.decoder.gyro_unit_said or self._judge_gyro_unit(t, gyro, field_h):
             return  # the axes cannot be judged against a gyro read in another unit
-        accel_words = accel_axes_from_gyro(accel, gyro_turns(t, np.where(np.isfinite(gyro), gyro, 0.0),
-                                                             np.ones(len(t), dtype=bool)), t)
+        accel_words = accel_axes_from_gyro(accel, turns, t)
         if accel_words is not None:  # the field's axes are then judged against a gyro that is itself in question
             self._event("warn", accel_words)
             return
@@ -576,7 +584,7 @@ class LiveSession:
         channels = tuple(self.model.channels)
         known = self.reference is not None and self.reference.source == "site"  # a recording's dip is this field's own
         site_dip = self.reference.dip_deg if known else None
-        verdict = axes_from_gyro(field_h[keep], gyro_turns(t, np.where(np.isfinite(gyro), gyro, 0.0), keep), t[keep],
+        verdict = axes_from_gyro(field_h[keep], gyro_turns(t, finite_gyro, keep), t[keep],
                                  up=accel[keep], site_dip_deg=site_dip,
                                  names=channels if len(channels) == 3 else ("mx", "my", "mz"))
         if verdict is not None:
@@ -701,7 +709,7 @@ class LiveSession:
         if self._dips:  # a stream shorter than the check: judged on what it gave
             self._judge_turn()
         if self._gyro_axes_rows:
-            self._judge_gyro_axes()
+            self._judge_gyro_axes(last=True)
         if self._axes_rows:
             self._judge_axes()
         if self.sink is not None:  # a field turned over, or an accelerometer never used, gives wrong attitudes

@@ -2,8 +2,9 @@
 
 - The gyro's unit against the calibrated field's turn (:func:`compass.io.units.gyro_field_ratio`, said over
   :data:`compass.io.units.FIELD_UNIT_RATIO`): the ratio on BROAD's trials, as read and with the gyro in deg/s read as
-  rad/s, over the first 6000 rows (what ``compass live`` judges on a long stream: BROAD's initial rest, nothing to
-  judge) and the whole trial (what it judges on close, and the replay of a shorter one).
+  rad/s, over the first 6000 rows that turn the housing (what ``compass live`` judges on a long stream: the older
+  half of a window at rest dropped until one turns, :func:`compass.axes.turned_enough`) and the whole trial (what it
+  judges on close, and the replay of a shorter one).
 - The accelerometer's axes against the gyro's (:func:`compass.axes.accel_axes_from_gyro`): said or not on every BROAD
   trial as read, with the accelerometer's z reversed and with the gyro's x and y swapped; on the simulated hand-held
   kinds (seeds 0-1) and robot paths (seeds 0-2, a low-cost board) as read and with the gyro's z reversed.
@@ -26,7 +27,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from compass.axes import accel_axes_from_gyro  # noqa: E402
+from compass.axes import accel_axes_from_gyro, turned_enough  # noqa: E402
 from compass.io.broad import read_broad  # noqa: E402
 from compass.io.tumble import gyro_turns  # noqa: E402
 from compass.io.units import FIELD_UNIT_RATIO, gyro_field_ratio  # noqa: E402
@@ -41,6 +42,18 @@ def _said(accel, gyro, t) -> str:
     return "said" if words is not None else "-"
 
 
+def first_judged(t, gyro) -> slice:
+    """The rows ``compass live`` judges: the first :data:`FIRST_ROWS` whose turns are enough, the older half of each
+    window that is not dropped (``LiveSession._judge_gyro_axes``); all rows when none is."""
+    start = 0
+    while start + FIRST_ROWS <= len(t):
+        rows = slice(start, start + FIRST_ROWS)
+        if turned_enough(gyro_turns(t[rows], gyro[rows], np.ones(FIRST_ROWS, dtype=bool)), t[rows]):
+            return rows
+        start += FIRST_ROWS // 2
+    return slice(0, len(t))
+
+
 def _ratio(value) -> str:
     return "-" if value is None else f"{value:.1f}"
 
@@ -53,8 +66,8 @@ def broad_rows(folder: Path) -> list[str]:
         trial = read_broad(path)
         t = np.arange(len(trial.gyro_rad_s)) / trial.rate_hz
         g, a, m = trial.gyro_rad_s, trial.accel_m_s2, trial.mag_ut
-        n = FIRST_ROWS
-        first, whole = gyro_field_ratio(t[:n], g[:n], m[:n]), gyro_field_ratio(t, g, m)
+        n = first_judged(t, g)
+        first, whole = gyro_field_ratio(t[n], g[n], m[n]), gyro_field_ratio(t, g, m)
         degrees = gyro_field_ratio(t, np.degrees(g), m)
         lines.append(f"{path.stem:<42} {_ratio(first) + ' / ' + _ratio(whole):>18} {_ratio(degrees):>12} "
                      f"{_said(a, g, t):>13} {_said(a @ REVERSE_Z, g, t):>12} {_said(a, g @ SWAP_XY, t):>17}")
@@ -71,10 +84,11 @@ def simulated_rows() -> list[str]:
                   for seed in (0, 1)]
     recordings += [(f"robot {seed} (low-cost)", simulate_robot(seed, duration_s=40.0, errors=low_cost))
                    for seed in (0, 1, 2)]
-    lines = ["simulated: the accelerometer's axes (first 6000 rows)",
+    lines = ["simulated: the accelerometer's axes (the first 6000 rows that turn)",
              f"{'recording':<28} {'as read':>8} {'gyro z reversed':>16}"]
     for name, rec in recordings:
-        t, g, a = rec.t_s[:FIRST_ROWS], rec.gyro_rad_s[:FIRST_ROWS], rec.accel_m_s2[:FIRST_ROWS]
+        n = first_judged(rec.t_s, rec.gyro_rad_s)
+        t, g, a = rec.t_s[n], rec.gyro_rad_s[n], rec.accel_m_s2[n]
         lines.append(f"{name:<28} {_said(a, g, t):>8} {_said(a, g @ REVERSE_Z, t):>16}")
     return lines
 

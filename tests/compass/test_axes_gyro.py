@@ -220,6 +220,32 @@ def test_a_live_stream_read_with_other_columns_than_the_calibration_is_named():
     assert len(said) == 1 and "the remap its calibration was made with" in said[0] and "cells my,mx,-mz" in said[0]
 
 
+def test_a_module_left_at_rest_for_longer_than_the_check_s_rows_is_judged_once_it_turns():
+    """A session that starts with more than GYRO_AXES_ROWS rows at rest (a module on the desk while the user gets
+    ready): the check waits for the turns instead of judging the rest, and says the swapped columns once."""
+    from compass.live import GYRO_AXES_ROWS, LiveSession
+    from compass.replay import replay
+    from compass.sim.device import default_model, simulate_device, tumble_motion
+
+    rest_s = 70.0
+
+    def still_then_tumble(t):
+        t = np.asarray(t, dtype=float)
+        heading, pitch, roll, magnitude = tumble_motion(np.maximum(t - rest_s, 0.0))
+        still = t < rest_s
+        return np.where(still, 0.0, heading), np.where(still, 0.0, pitch), np.where(still, 0.0, roll), magnitude
+
+    model = default_model()
+    t = np.arange(0.0, rest_s + 30.0, 0.01)
+    assert np.count_nonzero(t < rest_s) > GYRO_AXES_ROWS
+    s = simulate_device(model, t, motion=still_then_tumble, seed=3)
+    events = []
+    swapped = s.raw[:, [1, 0, 2]] * [1.0, 1.0, -1.0]
+    session = replay(LiveSession(model, on_event=lambda level, text: events.append(text)), t, swapped, s.accel, s.gyro)
+    said = [e for e in events if "not the gyro's" in e]
+    assert session.axes is not None and len(said) == 1 and "cells my,mx,-mz" in said[0]
+
+
 def test_the_gyro_aided_fit_of_axes_it_cannot_match_refuses_in_words_not_a_traceback(tmp_path):
     """The fit behind the check (switched off here), on a turned chip where no accelerometer row survives its
     outlier test: a result or a refusal (CannotCalibrate), not a ValueError from an empty Jacobian block."""
