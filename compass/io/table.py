@@ -15,12 +15,16 @@ Real logs are read as they come:
   mapped to ``t_s, gx.., ax.., mx..`` with the units they name;
 - units named (:mod:`compass.io.units`) are converted to SPEC's: gyro to rad/s, ``*_deg`` columns
   from radians, magnetometer to uT, the accelerometer's sign;
-- every cell must be a finite number (Python's ``1_5`` is not) of magnitude at most
-  :data:`~compass.io.units.MAX_ABS_VALUE`; ``t_s`` must not decrease; ``# field_ut:`` must be a
-  positive number.
+- a cell is a number (Python's ``1_5`` is not), bare or inside one pair of double quotes (a
+  spreadsheet's ``"12.5"``); every cell of a column SPEC names (:data:`VOCABULARY`) must be a finite
+  number of magnitude at most :data:`~compass.io.units.MAX_ABS_VALUE`; another column may hold text
+  (a logger's ``status``): its cells are skipped, and :meth:`Table.column` refuses it at its first
+  cell that is not a number when a reader uses it (a four-flip's channel, a calibration's);
+- ``t_s`` must not decrease; ``# field_ut:`` must be a positive number.
 
 Memory: the body is parsed by ``np.loadtxt`` from a stream of lines, so reading takes about what
-``np.loadtxt`` takes (``tools/bench_scale.py``).
+``np.loadtxt`` takes (``tools/bench_scale.py``); a text column costs one Python call a cell, and a
+text cell the first row did not show one more reading of the file.
 """
 
 from __future__ import annotations
@@ -197,6 +201,9 @@ class Table:
         How much more the gyro turns than the accelerometer sees the housing tilt
         (:func:`compass.io.units.gyro_turn_ratio`, judged once on reading, its note issued then); None
         without ``gx,gy,gz``, ``ax,ay,az`` and ``t_s``, or when the housing did not tilt enough to tell.
+    text_cells : dict of str to (int, str)
+        The columns holding a cell that is not a number (never one of :data:`VOCABULARY`): column ->
+        (row, cell) of the first.  Their data are NaN and :meth:`column` refuses them at that cell.
     """
 
     path: str
@@ -208,6 +215,7 @@ class Table:
     original: dict = field(default_factory=dict)
     units: dict = field(default_factory=dict)
     gyro_turn_ratio: float | None = None
+    text_cells: dict = field(default_factory=dict)
 
     def _index(self, name: str) -> int | None:
         if name in self.columns:
@@ -219,11 +227,15 @@ class Table:
         return self._index(name) is not None
 
     def column(self, name: str) -> np.ndarray:
-        """One column's values (name matched without regard to case); RecordingError naming it if missing."""
+        """One column's values (name matched without regard to case); RecordingError naming it if missing, or at
+        its first cell that is not a number (:attr:`text_cells`)."""
         i = self._index(name)
         if i is None:
             raise RecordingError(self.path, f"missing required column '{name}' (header has: {', '.join(self.columns)})",
                                  row=self.header_row, column=name)
+        if self.columns[i] in self.text_cells:
+            raise _not_a_number(self.path, self.original.get(self.columns[i], self.columns[i]),
+                                *self.text_cells[self.columns[i]])
         return self.data[:, i]
 
     def group(self, names) -> np.ndarray | None:
@@ -351,55 +363,67 @@ def read_table(path, options: ReadOptions | None = None, *, live_record: bool = 
         first = lines.peek_data()
         if first is None:
             raise RecordingError(path, "header only: no data rows", row=header_line)
-        decimal_comma = sep not in (",", None) and any(_DECIMAL_COMMA.match(c) for c in first[1].split(sep))
+        decimal_comma = sep not in (",", None) and any(_DECIMAL_COMMA.match(_unquoted(c)) for c in first[1].split(sep))
+        text = _bad_cells(path, header, sep, decimal_comma, *first, {})  # a logger's text columns, as row 1 shows
         data = None
         if not decimal_comma and not lines.skipped:  # numpy's reader straight over the rest of the stream
             try:
-                data = np.loadtxt(itertools.chain([first[1]], lines.stream), delimiter=sep, ndmin=2, dtype=float,
-                                  comments="#")
+                data = np.loadtxt(itertools.chain([first[1]], lines.stream), comments="#", **_numbers(sep, text))
             except UnicodeDecodeError:
                 raise _not_utf8(path) from None
-            except ValueError:  # the numbering pass below finds and names the bad cell
+            except ValueError:  # the numbering pass below finds the text cells, or finds and names the bad one
                 data = None
             last = _last_content_line(path)
             if data is not None and data.shape[0] == last - first[0] + 1:  # no line skipped: rows in order
                 rows = np.arange(first[0], last + 1)
             else:
                 data = None
-    if data is None:  # decimal commas, or blank or comment lines among the rows: number every line
+    if data is None:  # decimal commas, blank or comment lines among the rows, or a text cell: number every line
+        data, rows, text = _load(path, header, sep, decimal_comma, header_line, text, metadata, meta_rows)
+    if data.shape[1] != len(header):  # a one-row file whose row np.loadtxt cut at a '#' (its comments)
+        raise RecordingError(path, f"expected {len(header)} cells a row, found {data.shape[1]}", row=int(rows[0]))
+    live_record = live_record and metadata.get("source", "").startswith(LIVE_RECORD)
+    absent = _absent_groups(header) if ABSENT_KEY in metadata else ()
+    _check_values(path, header, data, rows, text, absent if live_record else (),
+                  " (a group the module sent empty on that row: the replay, compass attitude --filter, reads it so)"
+                  if absent and not live_record else "")
+    text_cells = {header[j]: cell for j, cell in text.items()}
+    return _interpret(Table(str(path), tuple(header), data, rows, metadata, header_line, text_cells=text_cells),
+                      options, meta_rows, live_record)
+
+
+def _numbers(sep, text) -> dict:
+    """``np.loadtxt``'s options for the data lines: the cells of the columns ``text`` (indices) skipped as NaN."""
+    return dict(delimiter=sep, ndmin=2, dtype=float, converters=dict.fromkeys(text, _skip_cell))
+
+
+def _skip_cell(cell: str) -> float:
+    """A text column's cell, as the table holds it: NaN."""
+    return np.nan
+
+
+def _load(path, header, sep, decimal_comma, header_line, text, metadata, meta_rows) -> tuple:
+    """``np.loadtxt`` over the numbered data lines: (data, each row's line number, the text columns).
+
+    ``text`` (column index -> (row, cell)) are the columns known to hold text; a column found to hold a cell that
+    is not a number (:func:`_scan_for_bad_cells`) joins them and the file is read again, at most once a column.
+    """
+    while True:
         with open(path, encoding="utf-8-sig", newline=None) as stream:
             lines = _Lines(path, stream)
             for _ in lines.content(metadata, meta_rows):
                 break
             lines.peek_data()
-            data = _load(path, header, sep, decimal_comma, header_line, lines.data(decimal_comma))
-            rows = lines.rows()
-    if data.shape[1] != len(header):
-        _scan_for_bad_cell(path, header, sep, decimal_comma, header_line)
-        raise RecordingError(path, f"expected {len(header)} cells a row, found {data.shape[1]}", row=int(rows[0]))
-    live_record = live_record and metadata.get("source", "").startswith(LIVE_RECORD)
-    absent = _absent_groups(header) if ABSENT_KEY in metadata else ()
-    _check_values(path, header, data, rows, absent if live_record else (),
-                  " (a group the module sent empty on that row: the replay, compass attitude --filter, reads it so)"
-                  if absent and not live_record else "")
-    return _interpret(Table(str(path), tuple(header), data, rows, metadata, header_line), options, meta_rows,
-                      live_record)
-
-
-def _load(path, header, sep, decimal_comma, header_line, lines) -> np.ndarray:
-    """``np.loadtxt`` over the data lines ``lines``; on failure the first bad cell is found and named."""
-    try:
-        return np.loadtxt(lines, delimiter=sep, ndmin=2, dtype=float, comments=None)
-    except _BadCell as exc:
-        _locate_bad_cell(path, header, sep, decimal_comma, exc.row, exc.line)
-        raise RecordingError(path, "could not parse the row as numbers", row=exc.row) from None
-    except RecordingError:
-        raise
-    except UnicodeDecodeError:
-        raise _not_utf8(path) from None
-    except ValueError:
-        _scan_for_bad_cell(path, header, sep, decimal_comma, header_line)
-        raise RecordingError(path, "could not parse the data rows as numbers") from None
+            try:
+                data = np.loadtxt(lines.data(sep, decimal_comma), comments=None, **_numbers(sep, text))
+                return data, lines.rows(), text
+            except UnicodeDecodeError:
+                raise _not_utf8(path) from None
+            except RecordingError:
+                raise
+            except ValueError:  # a text cell in a column of numbers so far, or a bad cell count: found below
+                pass
+        text = text | _scan_for_bad_cells(path, header, sep, decimal_comma, header_line, text)
 
 
 def _last_content_line(path) -> int:
@@ -436,13 +460,6 @@ def format_table(columns: dict, metadata: dict | None = None, formats: dict | No
         block = [a[start:start + block_rows].tolist() for a in arrays]
         parts.append("\n".join(map(row_format.__mod__, zip(*block))) + "\n")
     return "".join(parts)
-
-
-class _BadCell(Exception):
-    """Raised from inside the line stream: a line that ``np.loadtxt`` would accept but we do not."""
-
-    def __init__(self, row: int, line: str):
-        self.row, self.line = row, line
 
 
 class _Lines:
@@ -494,7 +511,7 @@ class _Lines:
         return False
 
     def peek_data(self):
-        """The first data line after the header, (number, stripped), without consuming it."""
+        """The first data line after the header, (number, line without its newline), without consuming it."""
         while True:
             try:
                 line = self._next()
@@ -504,26 +521,28 @@ class _Lines:
             if self._comment(stripped):
                 self.skipped.append(self.number)
                 continue
-            self._peeked = (self.number, stripped)
+            self._peeked = (self.number, line.rstrip("\n"))  # a tab file's empty last cell kept
             self.first_data = self.number
             return self._peeked
 
-    def data(self, decimal_comma: bool):
+    def data(self, sep, decimal_comma: bool):
         if self._peeked is not None:
-            yield self._check(*self._peeked, decimal_comma)
+            yield self._taken(*self._peeked, sep, decimal_comma)
         for line in self.stream:
             self.number += 1
             stripped = line.strip()
             if self._comment(stripped):
                 self.skipped.append(self.number)
                 continue
-            yield self._check(self.number, stripped, decimal_comma)
+            yield self._taken(self.number, line.rstrip("\n"), sep, decimal_comma)
 
-    def _check(self, number: int, stripped: str, decimal_comma: bool) -> str:
-        if "_" in stripped:  # float("1_5") is 15 in Python; not a number in a CSV
-            raise _BadCell(number, stripped)
+    def _taken(self, number: int, line: str, sep, decimal_comma: bool) -> str:
+        """A data line as ``np.loadtxt`` reads it (decimal commas as points, cells :func:`_unquoted`), its number
+        kept."""
         self.last_data = number
-        return stripped.replace(",", ".") if decimal_comma else stripped
+        if '"' in line:
+            return (sep or " ").join(_unquoted(c) for c in _split(line, sep, decimal_comma))
+        return line.replace(",", ".") if decimal_comma else line
 
     def rows(self) -> np.ndarray:
         rows = np.arange(self.first_data, self.last_data + 1)
@@ -599,13 +618,31 @@ def _strict_float(cell: str) -> float | None:
     return float(cell) if _NUMBER.match(cell) else None
 
 
+def _unquoted(cell: str) -> str:
+    """A data cell without the one pair of double quotes around it (``"12.5"``, a spreadsheet's export), if any."""
+    inner = cell.strip()
+    return inner[1:-1] if len(inner) >= 2 and inner[0] == inner[-1] == '"' else cell
+
+
+def _is_number(cell: str) -> bool:
+    """Whether a data cell is a number: :func:`_strict_float`'s form, bare or :func:`_unquoted`."""
+    return _strict_float(_unquoted(cell)) is not None
+
+
+def _not_a_number(path, column: str, row: int, cell: str) -> RecordingError:
+    """The error for a cell of a used column that is not a number."""
+    hint = " (digit separators such as '_' are not read)" if "_" in cell else ""
+    return RecordingError(path, f"expected a number, found {cell!r}{hint}", row=row, column=column)
+
+
 def _split(line: str, sep, decimal_comma: bool) -> list[str]:
     cells = line.split(sep) if sep else line.split()
     return [c.replace(",", ".") for c in cells] if decimal_comma else cells
 
 
-def _locate_bad_cell(path, header, sep, decimal_comma, row, line) -> None:
-    """RecordingError for the first bad cell of one line (or its cell count)."""
+def _bad_cells(path, header, sep, decimal_comma, row, line, text) -> dict:
+    """The cells of one data line that are not numbers, in the columns not in ``text``: column index ->
+    (row, cell); RecordingError for a line with the wrong number of cells."""
     cells = _split(line, sep, decimal_comma)
     if len(cells) != len(header):
         hint = ""
@@ -613,21 +650,26 @@ def _locate_bad_cell(path, header, sep, decimal_comma, row, line) -> None:
             hint = ("; decimal commas with a comma separator? Save the file with ';' between cells (decimal commas "
                     "are then read) or with decimal points")
         raise RecordingError(path, f"expected {len(header)} cells, found {len(cells)}{hint}", row=row)
-    for name, cell in zip(header, cells):
-        if _strict_float(cell) is None:
-            what = cell.strip()
-            hint = " (digit separators such as '_' are not read)" if "_" in what else ""
-            raise RecordingError(path, f"expected a number, found {what!r}{hint}", row=row, column=name)
+    return {j: (row, cell.strip()) for j, cell in enumerate(cells) if j not in text and not _is_number(cell)}
 
 
-def _scan_for_bad_cell(path, header, sep, decimal_comma, header_line) -> None:
-    """Find and raise the first bad line after the header (the slow path, only after a failure)."""
+def _scan_for_bad_cells(path, header, sep, decimal_comma, header_line, text) -> dict:
+    """:func:`_bad_cells` of the first data line that has some (the slow path, only after ``np.loadtxt`` failed).
+
+    Raises
+    ------
+    RecordingError
+        A line with the wrong number of cells, or no line with such a cell.
+    """
     with open(path, encoding="utf-8-sig", newline=None, errors="replace") as stream:
         for number, line in enumerate(stream, start=1):
             stripped = line.strip()
             if number <= header_line or not stripped or stripped.startswith("#"):
                 continue
-            _locate_bad_cell(path, header, sep, decimal_comma, number, stripped)
+            found = _bad_cells(path, header, sep, decimal_comma, number, line.rstrip("\n"), text)
+            if found:
+                return found
+    raise RecordingError(path, "could not parse the data rows as numbers")
 
 
 def _absent_groups(header) -> list:
@@ -635,14 +677,15 @@ def _absent_groups(header) -> list:
     return [[header.index(c) for c in group] for group in _OPTIONAL_GROUPS if all(c in header for c in group)]
 
 
-def _check_values(path, header, data, rows, absent=(), hint: str = "") -> None:
+def _check_values(path, header, data, rows, text, absent=(), hint: str = "") -> None:
     """RecordingError at the first non-finite cell (``hint`` added to its words), or the first beyond
-    ``MAX_ABS_VALUE``; ``absent``: column indices of groups whose cells may be NaN together (that group not sent on
-    that row)."""
+    ``MAX_ABS_VALUE``; ``text``: column indices whose cells were skipped (NaN); ``absent``: column indices of groups
+    whose cells may be NaN together (that group not sent on that row)."""
     lo, hi = data.min(), data.max()  # NaN propagates; no copy of the data
     if -units.MAX_ABS_VALUE <= lo and hi <= units.MAX_ABS_VALUE:
         return
     finite = np.isfinite(data)
+    finite[:, list(text)] = True
     for group in absent:
         finite[:, group] |= np.isnan(data[:, group]).all(axis=1)[:, None]
     if not finite.all():
@@ -723,14 +766,26 @@ def _interpret(table: Table, options: ReadOptions, meta_rows: dict, time_may_go_
                                        f"in the header: '{table.columns[folded.index(name)]}' and '{table.columns[i]}')",
                                  row=table.header_line, column=header[i])
     original = {new: original[old] for new, old in zip(header, table.columns)}
+    text_cells = {new: table.text_cells[old] for new, old in zip(header, table.columns) if old in table.text_cells}
+    _check_named_numbers(path, header, original, text_cells)
     data = table.data
     converted, gyro_ratio = _convert_units(table, header, data, options, named_units)
     table = Table(path, tuple(header), converted, table.rows, table.metadata, table.header_line, original, named_units,
-                  gyro_ratio)
+                  gyro_ratio, text_cells)
     if not time_may_go_back:
         _check_time(table)
     _check_field_ut(table, meta_rows)
     return table
+
+
+def _check_named_numbers(path, header, original, text_cells) -> None:
+    """RecordingError at the first cell (by row) that is not a number in a column SPEC names (:data:`VOCABULARY`):
+    the reader itself uses those (units, ``t_s``); another column's text is refused only where it is used
+    (:meth:`Table.column`)."""
+    named = [(row, header.index(name), name, cell) for name, (row, cell) in text_cells.items() if name in VOCABULARY]
+    if named:
+        row, _, name, cell = min(named)
+        raise _not_a_number(path, original[name], row, cell)
 
 
 def _log_name(name: str) -> tuple[str | None, str | None]:
