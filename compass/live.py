@@ -35,7 +35,7 @@ HINT_MIN_SAMPLES = 50
 """Fewest estimates a closing hint judges."""
 HINT_REJECTED_SHARE = 0.8
 """Share of estimates with the field rejected above which the session ends with a hint."""
-GATE_CODES = {"ok": 0, "norm": 1, "dip": 2, "innovation": 3, "absent": 4, "rail": 5}
+GATE_CODES = {"ok": 0, "norm": 1, "dip": 2, "innovation": 3, "absent": 4, "rail": 5, "magnet": 6}
 CSV_COLUMNS = ("t_s", "heading_deg", "pitch_deg", "roll_deg", "heading_sigma_deg", "tilt_sigma_deg", "field_ratio",
                "dip_deg", "mag_used", "gate", "accel_used", "in_range", "latency_ms")
 _CSV_ROW = "%.4f,%.3f,%.3f,%.3f,%.3f,%.3f,%.4f,%.2f,%d,%d,%d,%d,%.3f"
@@ -681,6 +681,7 @@ class LiveSession:
                             f"1 +- {self.config.field_tolerance:g})",
                     "innovation": "the heading it gave disagreed with the gyro's (a gyro unit? --gyro-unit)",
                     "absent": "no field reading came",
+                    "magnet": "it turned with the housing (a magnet or iron on it)",
                     "rail": "it waited for the accelerometer to bring back the tilt a gyro axis held at its range left "
                             "open (a gyro stuck at a rail? a turn beyond the gyro's range?)"}.get(gate, gate)
         site = (f"; the reference is {ref.description}: a site far from the module, or a date long past, does "

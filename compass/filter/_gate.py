@@ -6,7 +6,9 @@ is settled) its heading innovation is small.  The reference starts from the conf
 and follows the accepted field slowly (``field_reference_tau_s``), so a field that changes across a
 room is followed while a fast change (a magnet) is rejected.  A rejection longer than
 ``gate_timeout_s`` means the environment changed: the current |B| and dip become the reference
-(VQF's ``magNewTime``).
+(VQF's ``magNewTime``).  While a field is told to turn with the housing (a magnet on it:
+``GateState.magnet_on_housing``, :mod:`compass.filter._place`) a sample must pass the innovation test too
+and no time makes the field the place's.
 """
 
 from __future__ import annotations
@@ -41,6 +43,12 @@ class GateState:
         The heading's North has come down from the start's field through the gyro and verified
         moves; False once a timeout re-learnt it from a field nothing verified (a magnet on the
         housing held long enough): a later move cannot then measure a turn of North against it.
+    magnet_on_housing : bool
+        The rejected field was seen steady in the housing frame while the housing turned, not in the world's
+        (:mod:`compass.filter._place`): a magnet or iron on the housing.  A sample is refused (``"magnet"``) unless
+        it passes the heading innovation test too, settled or not (a sample its field lets through by chance turns
+        the heading: a tracked hard iron's corrected field passes), and the timeout does not adopt it; a window of
+        the reference's own field steady in the world frame, or a new place, ends it.
     """
 
     ref_norm: float
@@ -49,6 +57,7 @@ class GateState:
     dip_excess_var: float
     ref_azimuth_rad: float = 0.0
     north_from_gyro: bool = True
+    magnet_on_housing: bool = False
 
     def world_field(self) -> tuple[float, float, float]:
         """The reference field in the world frame (NWU), field units."""
@@ -80,6 +89,8 @@ class MagneticGate:
 
     ADOPTED = "adopted"
     """:meth:`check`'s answer when a long rejection made the current field the new reference."""
+    MAGNET = "magnet"
+    """:meth:`check`'s answer while a magnet is told on the housing (``GateState.magnet_on_housing``)."""
 
     def __init__(self, config: FilterConfig, coefficients: FilterCoefficients):
         self.config = config
@@ -107,18 +118,19 @@ class MagneticGate:
         Returns
         -------
         str
-            ``"ok"``, ``"absent"``, ``"norm"``, ``"dip"``, ``"innovation"``, or :attr:`ADOPTED`.
+            ``"ok"``, ``"absent"``, ``"norm"``, ``"dip"``, ``"innovation"``, :attr:`MAGNET` or :attr:`ADOPTED`.
         """
         cfg = self.config
         if b_norm == 0.0:
             return "absent"
         if not cfg.gate:
             return "ok"
+        magnet = state.magnet_on_housing
         if abs(b_norm / state.ref_norm - 1.0) > cfg.field_tolerance:
             reason = "norm"
         elif abs(dip_deg - state.ref_dip_deg) > cfg.dip_tolerance_deg:
             reason = "dip"
-        elif settled and abs(math.degrees(innovation_rad)) > cfg.heading_tolerance_deg:
+        elif (settled or magnet) and abs(math.degrees(innovation_rad)) > cfg.heading_tolerance_deg:
             reason = "innovation"
         else:
             state.rejected_since_s = None
@@ -131,6 +143,9 @@ class MagneticGate:
                 state.ref_norm += alpha * (b_norm - state.ref_norm)
                 state.ref_dip_deg += alpha * (dip_deg - state.ref_dip_deg)
             return "ok"
+        if magnet:  # no timeout: its field is never the place's
+            state.rejected_since_s = None
+            return self.MAGNET
         if state.rejected_since_s is None:
             state.rejected_since_s = t_s
         elif t_s - state.rejected_since_s > cfg.gate_timeout_s:

@@ -18,7 +18,7 @@ from ._base import _P0_ATTITUDE, AttitudeFilter, exp_matrix, mat_mul
 from ._kalman import PackedCovariance, pack, predict_gyro, update_axis, update_heading, update_tilt
 from ._gate import GateState
 from ._lever import LeverState, acceleration, add_sample, leftover, restart, restart_block
-from ._place import PLACE_EVENT, PlaceDetector, PlaceState
+from ._place import MAGNET, MAGNET_EVENT, PLACE_EVENT, REFERENCE, PlaceDetector, PlaceState
 from ._rail import RAIL_MIN2, RAIL_WAIT_S, RailState, rail_variances
 from ._records import _REST_RATE_SIGMA, _REST_TAU_S, Diagnostics, SkipCounts
 
@@ -582,7 +582,23 @@ class GyroFilter(AttitudeFilter):
         direction_var = max(c.env_floor_var * c.cos_dip2, g.dip_excess_var)
         move = self._place.judge(s.place, g.ref_norm, g.ref_dip_deg, direction_var, self.tilt_var, self.heading_var,
                                  (c.gyro_var, c.scale_var, max(p[15], p[18], p[20])))
-        if move is None:
+        if move is None or (move.kind == REFERENCE and not g.magnet_on_housing):
+            return
+        if move.kind == REFERENCE:
+            g.magnet_on_housing = False
+            self.events.append(f"the field is the reference's again (|B| {move.field_norm:.4g}, dip {move.dip_deg:.1f} "
+                               f"deg, steady in the world frame over {self.config.place_window_s:g} s): used again")
+            return
+        if move.kind == MAGNET:
+            if not g.magnet_on_housing:
+                g.magnet_on_housing = True
+                self.events.append(
+                    f"{MAGNET_EVENT} (steady in the housing frame over {self.config.place_window_s:g} s while it "
+                    f"turned: {move.magnet_rms:.3g} rms within {move.magnet_bound_rms:.3g}; a new place would leave "
+                    f"{move.place_rms:.3g}, beyond {move.place_bound_rms:.3g}): a magnet or iron on the housing, "
+                    f"|B| {move.field_norm:.4g} against {g.ref_norm:.4g}: never adopted, and a sample used only where "
+                    f"it agrees with the gyro's heading, until the reference's field is back or a new place is seen "
+                    f"(the product's own iron: calibrate the installation, compass calibrate --base)")
             return
         # North moves with the field only where the turn is beyond what the heading's own error and the field's
         # explain (chi-square, one degree of freedom): otherwise it is that error, which the field then corrects
@@ -596,7 +612,7 @@ class GyroFilter(AttitudeFilter):
             f"place (steady in the world frame over {self.config.place_window_s:g} s while the housing turned: "
             f"{move.place_rms:.3g} rms within {move.place_bound_rms:.3g}; a magnet on the housing would leave "
             f"{move.magnet_rms:.3g}, beyond {move.magnet_bound_rms:.3g}), the new reference")
-        g.ref_norm, g.ref_dip_deg = move.field_norm, move.dip_deg
+        g.ref_norm, g.ref_dip_deg, g.magnet_on_housing = move.field_norm, move.dip_deg, False
         if turned:
             g.ref_azimuth_rad = move.azimuth_rad
         elif not g.north_from_gyro:  # the heading came from an unverified field: the new one re-teaches it at once

@@ -30,6 +30,7 @@ filter never sees what was injected (tests compare its output with :attr:`Motion
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -114,7 +115,7 @@ class Place:
 
 @dataclass(frozen=True)
 class HousingField:
-    """A magnet (or magnetised part) fixed to the housing from a moment on.
+    """A magnet (or magnetised part) fixed to the housing from a moment on, until another.
 
     Attributes
     ----------
@@ -122,10 +123,13 @@ class HousingField:
         When it is put on, s.
     field_ut : tuple of 3 floats
         The constant field it adds in H, uT.
+    until_s : float
+        When it is taken off, s (default: never).
     """
 
     t_s: float
     field_ut: tuple
+    until_s: float = math.inf
 
 
 @dataclass(frozen=True)
@@ -255,7 +259,8 @@ def simulate_motion(kind: str, *, duration_s: float = 60.0, rate_hz: float = 285
         field_w = field_w + share[:, None] * (place.world() - field_w)
     field_h = rotation.apply(field_w, inverse=True)
     if housing_field is not None:
-        field_h = field_h + np.where((t >= housing_field.t_s)[:, None], np.asarray(housing_field.field_ut, float), 0.0)
+        on = (t >= housing_field.t_s) & (t < housing_field.until_s)
+        field_h = field_h + np.where(on[:, None], np.asarray(housing_field.field_ut, float), 0.0)
     gyro, accel, mag = read_sensors(rng, t, rate_hz, rate, specific, field_h, errors)
     return MotionRecording(kind, t, rotation, rate, specific, moving_rows(rate, accel_world), gyro, accel, mag,
                            field_ut, dip_deg, errors, tuple(places), housing_field)

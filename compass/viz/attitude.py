@@ -25,7 +25,7 @@ entity                              content
 ``compass/heading_deg`` ...         ``Scalars``: heading_deg, pitch_deg, roll_deg, heading_true_deg
                                     (with a site), field_ratio,
                                     dip_deg, gate (CSV code: 0 used, 1 |B|, 2 dip, 3 innovation,
-                                    4 no field, 5 waits for the tilt a gyro rail left), mag_used,
+                                    4 no field, 5 waits for the tilt a gyro rail left, 6 magnet), mag_used,
                                     accel_used, in_range, disturbed, latency_ms (live)
 ``compass/<angle>/sigma_band``      ``Scalars`` x2: the angle -1 sigma and +1 sigma
 ``compass/field_ratio/gate_limits`` ``Scalars`` x2: the gate's limits (also ``dip_deg``)
@@ -50,7 +50,8 @@ __all__ = ["attitude_views", "log_attitude_statics", "log_reference", "send_atti
            "log_attitude", "log_evaluation", "evaluation_views", "record_attitude", "record_evaluation",
            "reference_dip", "GATE_LEGEND", "FLAGS"]
 
-GATE_LEGEND = "gate: 0 used, 1 |B| off, 2 dip off, 3 heading innovation, 4 no field, 5 waits: gyro rail"
+GATE_LEGEND = ("gate: 0 used, 1 |B| off, 2 dip off, 3 heading innovation, 4 no field, 5 waits: gyro rail, "
+               "6 turns with the housing: magnet")
 # the flags in words, one lane each in the state timeline (``compass/state/<lane>``)
 _FIELD_STATES = {0: "field used", 1: "field rejected: |B| off", 2: "field rejected: dip off",
                  3: "field rejected: heading innovation", 4: "no field",

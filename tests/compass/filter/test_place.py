@@ -58,11 +58,12 @@ def test_a_world_fixed_field_is_a_new_place_and_a_housing_fixed_one_is_not():
     assert move is not None
     assert move.field_norm == pytest.approx(70.0, rel=0.01) and move.dip_deg == pytest.approx(40.0, abs=0.5)
     assert abs(np.degrees(move.azimuth_rad)) < 0.5
-    assert move.place_rms < move.place_bound_rms and move.magnet_rms > move.magnet_bound_rms
+    assert move.kind == "place" and move.place_rms < move.place_bound_rms and move.magnet_rms > move.magnet_bound_rms
     # the same |B| change made by a magnet on the housing: constant in H, it turns in the world frame
     magnet = np.array([15.0, -10.0, 12.0])
     field_h = rotation.apply(world_field(60.0, 50.0), inverse=True) + magnet + NOISE_UT * rng.normal(size=(n, 3))
-    assert _judge(rotation, field_h) is None
+    told = _judge(rotation, field_h)
+    assert told.kind == "magnet" and told.place_rms > told.place_bound_rms and told.magnet_rms < told.magnet_bound_rms
 
 
 def test_a_still_housing_cannot_tell_a_place_from_a_magnet():
@@ -80,8 +81,8 @@ def test_steel_that_turns_the_field_moves_the_heading_reference_with_it():
     assert np.degrees(move.azimuth_rad) == pytest.approx(-15.0, abs=0.5)  # toward West: -15
 
 
-def _walk(follow, *, places=(), housing_field=None, seed=3, reference=None):
-    rec = simulate_motion("slow_rotation", duration_s=45.0, rate_hz=RATE_HZ, seed=seed, errors=ERRORS,
+def _walk(follow, *, places=(), housing_field=None, seed=3, reference=None, duration_s=45.0):
+    rec = simulate_motion("slow_rotation", duration_s=duration_s, rate_hz=RATE_HZ, seed=seed, errors=ERRORS,
                           places=places, housing_field=housing_field)
     cfg = FilterConfig(field_norm=rec.field_ut, dip_deg=rec.dip_deg, mag_noise=NOISE_UT, follow_place=follow)
     track = run_filter(rec.t_s, rec.accel_m_s2, rec.gyro_rad_s, rec.mag_ut, cfg)
@@ -108,11 +109,35 @@ def test_a_walk_into_a_new_room_is_followed_and_the_heading_reacquired():
     assert np.sqrt(np.mean(heading_before[after] ** 2)) > 3.0 * np.sqrt(np.mean(heading[after] ** 2))
 
 
-def test_a_magnet_on_the_housing_is_not_followed():
+def test_a_magnet_on_the_housing_is_not_followed_nor_adopted_when_the_gate_times_out():
+    """A magnet told on a turning housing is never the reference: not by a move, not by the gate's timeout (whose
+    field would be wrong by the magnet's at every attitude); the heading follows the gyro, better than with it."""
     magnet = HousingField(15.0, (15.0, -10.0, 12.0))  # |m| 22 uT against 43 uT: the gate rejects it
-    rec, track, _ = _walk(True, housing_field=magnet)
-    assert not any(text.startswith(MOVED) for _, text in track.events)
-    assert np.mean(track.mag_used[(rec.t_s > 16.0) & (rec.t_s < 15.0 + FilterConfig(1.0, 0.0, 1.0).gate_timeout_s)]) < 0.2
+    rec, track, heading = _walk(True, housing_field=magnet, duration_s=60.0)
+    assert not any(text.startswith(MOVED) or "adopting" in text for _, text in track.events)
+    said = [t for t, text in track.events if text.startswith("the field turns with the housing")]
+    assert len(said) == 1 and magnet.t_s < said[0] < magnet.t_s + 3 * FilterConfig(1.0, 0.0, 1.0).place_window_s
+    assert np.mean(track.mag_used[rec.t_s > 16.0]) < 0.05
+    # the timeout's adoption, as the version before the magnet was told did: the heading after it
+    late = rec.t_s > magnet.t_s + FilterConfig(1.0, 0.0, 1.0).gate_timeout_s + 2.0
+    _, before, heading_before = _walk(False, housing_field=magnet, duration_s=60.0)
+    assert any("adopting" in text for _, text in before.events)
+    assert np.sqrt(np.mean(heading[late] ** 2)) < 0.5 * np.sqrt(np.mean(heading_before[late] ** 2))
+
+
+def test_a_magnet_taken_off_gives_the_field_back_and_the_heading_its_reference():
+    """Told on, refused whole (a sample its field lets through by chance would turn the heading); taken off, the
+    reference's field steady in the world frame is said and used again within a few windows."""
+    magnet = HousingField(15.0, (15.0, -10.0, 12.0), until_s=35.0)
+    rec, track, heading = _walk(True, housing_field=magnet, duration_s=60.0)
+    window = FilterConfig(1.0, 0.0, 1.0).place_window_s
+    told = [t for t, text in track.events if text.startswith("the field turns with the housing")]
+    back = [t for t, text in track.events if text.startswith("the field is the reference's again")]
+    assert len(told) == 1 and len(back) == 1 and magnet.until_s < back[0] < magnet.until_s + 3 * window
+    on = (rec.t_s > told[0]) & (rec.t_s < magnet.until_s)
+    assert not track.mag_used[on].any()
+    assert np.mean(track.mag_used[rec.t_s > back[0] + 1.0]) > 0.9
+    assert np.sqrt(np.mean(heading[rec.t_s > back[0] + 5.0] ** 2)) < 1.0
 
 
 def _device_stream(model, rec):
