@@ -52,6 +52,11 @@ GYRO_AXES_ROWS = 6000
 """Rows (every one, the gyro's turn between them integrated) the gyro's axis check (:func:`compass.axes.axes_from_gyro`)
 judges, once: a minute at 100 Hz.  Rows that did not turn the housing enough (:func:`compass.axes.turned_enough`: a
 module left at rest) are not judged: the older half goes and the check waits for more."""
+GYRO_UNIT_WINDOW_S = 10.0
+"""Seconds of rows over which the gyro's turn is judged against the calibrated field's
+(:func:`compass.io.units.gyro_field_ratio`), window after window through the session until one says it: a deg/s gyro
+read as rad/s is said within seconds of the first turns, not at the axis check's :data:`GYRO_AXES_ROWS`; a window
+whose field turned without the housing (a magnet moved by hand) tells nothing, so no window clears it."""
 
 
 def invalid_words(stats) -> str:
@@ -183,6 +188,10 @@ class LiveSession:
         filter at every sample, one that never changes turns nothing): why, in words; the commands stop on it, as
         the replay refuses such a recording; None otherwise, and for a stream without a gyro (the two-vector filter
         solves each row alone: said only).
+    gyro_unit : str or None
+        Set when the gyro turns more than :data:`compass.io.units.FIELD_UNIT_RATIO` times the calibrated field over a
+        :data:`GYRO_UNIT_WINDOW_S` window: the words said as a warning, repeated on close (a deg/s gyro read as rad/s
+        turns the attitude 57 times too fast); None otherwise.
     axes : str or None
         Set when the field-gravity angle of the first :data:`AXES_ROWS` sampled estimates (or of the whole
         stream, on close) wanders in a way one sign pattern of the field's axes removes: what to
@@ -210,6 +219,7 @@ class LiveSession:
     turned_over: str | None = None
     wrong_gravity: str | None = None
     wrong_time: str | None = None
+    gyro_unit: str | None = None
     axes: str | None = None
     estimate: Estimate | None = None
     in_range: bool = True
@@ -230,6 +240,7 @@ class LiveSession:
     _start: FilterStart | None = None
     _axes_rows: list | None = field(default_factory=list)  # (accel, field) pairs for the axis check; None once judged
     _gyro_axes_rows: list | None = field(default_factory=list)  # (t_s, gyro, field, accel) for the gyro's axis check
+    _unit_rows: list = field(default_factory=list)  # (t_s, gyro, field) of the gyro unit's window
     _dips: list | None = None  # measured dips of the first estimates, against a given reference
     _bench_accel: bool | None = None  # the bench's offsets apply to this stream's unit; None: not judged yet
     _times: list | None = field(default_factory=list)  # the first samples' t_s for the step check; None once judged
@@ -473,6 +484,14 @@ class LiveSession:
         t_s = sample.t_s
         filt = self._filter
         est = filt.step(t_s, accel, gyro, field_row)
+        unit_rows = self._unit_rows  # rows in time: a clock that goes back (a restart) starts the window again
+        if (self.gyro_unit is None and not self.decoder.gyro_unit_said and gyro is not None and field_row is not None
+                and math.isfinite(t_s)):
+            if unit_rows and t_s < unit_rows[-1][0]:
+                unit_rows.clear()
+            unit_rows.append((t_s, *gyro, *field_row))
+            if t_s - unit_rows[0][0] >= GYRO_UNIT_WINDOW_S:
+                self._judge_gyro_unit_window()
         axes_rows = self._gyro_axes_rows  # rows in time: a clock that goes back (a restart) ends them
         if axes_rows is not None and gyro is not None and math.isfinite(t_s) and (not axes_rows or t_s >= axes_rows[-1][0]):
             absent = (math.nan,) * 3
@@ -574,7 +593,9 @@ class LiveSession:
         if len(rows) < 2:
             return
         field_h, accel = rows[:, 4:7], rows[:, 7:10]
-        if self.decoder.gyro_unit_said or self._judge_gyro_unit(t, gyro, field_h):
+        if not self.decoder.gyro_unit_said and self.gyro_unit is None:
+            self._judge_gyro_unit(t, gyro, field_h)
+        if self.decoder.gyro_unit_said or self.gyro_unit is not None:
             return  # the axes cannot be judged against a gyro read in another unit
         accel_words = accel_axes_from_gyro(accel, turns, t)
         if accel_words is not None:  # the field's axes are then judged against a gyro that is itself in question
@@ -592,19 +613,28 @@ class LiveSession:
             self._event("warn", f"{verdict.finding}: is the stream read with the remap its calibration was made with? "
                                 f"Else recalibrate reading it in the gyro's axes: {verdict.remap}")
 
+    def _judge_gyro_unit_window(self) -> None:
+        """The gyro's unit against the calibrated field's turn over the :data:`GYRO_UNIT_WINDOW_S` window just
+        complete; the next window starts."""
+        rows = np.array(self._unit_rows, dtype=float)
+        self._unit_rows.clear()
+        self._judge_gyro_unit(rows[:, 0], rows[:, 1:4], rows[:, 4:7])
+
     def _judge_gyro_unit(self, t, gyro, field_h) -> bool:
-        """Whether the gyro turns tens of times more than the calibrated field does (said once): a unit
-        taken for another.  The stream's check reads the accelerometer's tilt, which a housing turned about the
-        vertical, or slowly, never gives it; the field turns then too (``|dip| < 90``)."""
+        """Whether the gyro turns tens of times more than the calibrated field does (said once, kept in
+        :attr:`gyro_unit`): a unit taken for another.  The stream's check reads the accelerometer's tilt, which a
+        housing turned about the vertical, or slowly, never gives it; the field turns then too (``|dip| < 90``)."""
         from .io.units import FIELD_UNIT_RATIO, gyro_field_ratio, stuck_gyro_words
 
         ratio = gyro_field_ratio(t, gyro, field_h)
         if ratio is None or not ratio > FIELD_UNIT_RATIO:
             return False  # less: the field turns without the gyro by itself (a magnet passing by), no unit's mark
         unit = self.decoder.options.gyro_unit or "rad/s"
-        self._event("warn", f"the gyro read in {unit} turns {ratio:.0f} times more than the calibrated field turns "
-                            f"with the housing (a deg/s gyro read as rad/s gives 57-100): is --gyro-unit right?"
-                            f"{stuck_gyro_words(gyro[np.all(np.isfinite(gyro), axis=1)])}")
+        self.gyro_unit = (f"the gyro read in {unit} turns {ratio:.0f} times more than the calibrated field turns with "
+                          f"the housing (a deg/s gyro read as rad/s gives 57-100): is --gyro-unit right?"
+                          f"{stuck_gyro_words(gyro[np.all(np.isfinite(gyro), axis=1)])}")
+        self.decoder.gyro_unit_said = True  # the stream's own check (the accelerometer's tilt) says it no more
+        self._event("warn", self.gyro_unit)
         return True
 
     def _judge_turn(self) -> None:
@@ -668,8 +698,11 @@ class LiveSession:
         when it was mostly used (or too few estimates to tell).
 
         A session with the wrong sensor's calibration showed MAG-REJECTED:dip throughout and ended
-        without a word; so did a ``--site`` whose |B| or dip the module does not read.
+        without a word; so did a ``--site`` whose |B| or dip the module does not read.  A gyro that turned tens of
+        times more than the field (:attr:`gyro_unit`) is the hint first: every attitude was wrong.
         """
+        if self.gyro_unit is not None:
+            return f"{self.gyro_unit} The attitudes turned that many times too fast"
         total = sum(n for n, _, _ in self.rejected.values())
         if self.samples < HINT_MIN_SAMPLES or total < HINT_REJECTED_SHARE * self.samples:
             return None

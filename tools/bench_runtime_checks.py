@@ -2,9 +2,9 @@
 
 - The gyro's unit against the calibrated field's turn (:func:`compass.io.units.gyro_field_ratio`, said over
   :data:`compass.io.units.FIELD_UNIT_RATIO`): the ratio on BROAD's trials, as read and with the gyro in deg/s read as
-  rad/s, over the first 6000 rows that turn the housing (what ``compass live`` judges on a long stream: the older
-  half of a window at rest dropped until one turns, :func:`compass.axes.turned_enough`) and the whole trial (what it
-  judges on close, and the replay of a shorter one).
+  rad/s, over the first :data:`compass.live.GYRO_UNIT_WINDOW_S` window that turned the field enough (what ``compass
+  live`` and the replay judge: window after window from the start), the largest over every such window (the margin
+  to the bound), and the whole trial.
 - The accelerometer's axes against the gyro's (:func:`compass.axes.accel_axes_from_gyro`): said or not on every BROAD
   trial as read, with the accelerometer's z reversed and with the gyro's x and y swapped; on the simulated hand-held
   kinds (seeds 0-1) and robot paths (seeds 0-2, a low-cost board) as read and with the gyro's z reversed.
@@ -31,6 +31,7 @@ from compass.axes import accel_axes_from_gyro, turned_enough  # noqa: E402
 from compass.io.broad import read_broad  # noqa: E402
 from compass.io.tumble import gyro_turns  # noqa: E402
 from compass.io.units import FIELD_UNIT_RATIO, gyro_field_ratio  # noqa: E402
+from compass.live import GYRO_UNIT_WINDOW_S  # noqa: E402
 
 FIRST_ROWS = 6000  # compass.live.GYRO_AXES_ROWS: the rows live judges
 SWAP_XY = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
@@ -58,18 +59,32 @@ def _ratio(value) -> str:
     return "-" if value is None else f"{value:.1f}"
 
 
+def unit_windows(t, gyro, field) -> list[tuple[float, float]]:
+    """``(end s, ratio)`` of :func:`gyro_field_ratio` over each :data:`compass.live.GYRO_UNIT_WINDOW_S` window that
+    turned the field enough, in order (live judges each, and says the first over the bound)."""
+    n = int(round(GYRO_UNIT_WINDOW_S / np.median(np.diff(t))))
+    ratios = ((t[i + n - 1], gyro_field_ratio(t[i:i + n], gyro[i:i + n], field[i:i + n]))
+              for i in range(0, len(t) - n + 1, n))
+    return [(end, r) for end, r in ratios if r is not None]
+
+
+def _said_at(windows) -> str:
+    """When live says the unit: the end of the first window over :data:`FIELD_UNIT_RATIO`, s."""
+    return next((f"{end:.0f} s" for end, r in windows if r > FIELD_UNIT_RATIO), "never")
+
+
 def broad_rows(folder: Path) -> list[str]:
     lines = [f"BROAD: the gyro against the field (said over {FIELD_UNIT_RATIO:g}) and the accelerometer's axes",
-             f"{'trial':<42} {'ratio first/whole':>18} {'deg/s whole':>12} {'axes as read':>13} {'az reversed':>12} "
-             f"{'gyro x,y swapped':>17}"]
+             f"{'trial':<42} {'ratio first/max/whole':>22} {'said at':>8} {'deg/s said at':>14} {'axes as read':>13} "
+             f"{'az reversed':>12} {'gyro x,y swapped':>17}"]
     for path in sorted(folder.glob("*.mat")):
         trial = read_broad(path)
         t = np.arange(len(trial.gyro_rad_s)) / trial.rate_hz
         g, a, m = trial.gyro_rad_s, trial.accel_m_s2, trial.mag_ut
-        n = first_judged(t, g)
-        first, whole = gyro_field_ratio(t[n], g[n], m[n]), gyro_field_ratio(t, g, m)
-        degrees = gyro_field_ratio(t, np.degrees(g), m)
-        lines.append(f"{path.stem:<42} {_ratio(first) + ' / ' + _ratio(whole):>18} {_ratio(degrees):>12} "
+        windows, degrees = unit_windows(t, g, m), unit_windows(t, np.degrees(g), m)
+        ratios = f"{_ratio(windows[0][1])} / {_ratio(max(r for _, r in windows))}" if windows else "- / -"
+        lines.append(f"{path.stem:<42} {ratios + ' / ' + _ratio(gyro_field_ratio(t, g, m)):>22} "
+                     f"{_said_at(windows):>8} {_said_at(degrees):>14} "
                      f"{_said(a, g, t):>13} {_said(a @ REVERSE_Z, g, t):>12} {_said(a, g @ SWAP_XY, t):>17}")
     return lines
 

@@ -237,7 +237,7 @@ class StreamDecoder:
         self._accel: list = []
         self._gyro_rows: list = []
         self._gyro_judged = False
-        self.gyro_unit_said = False  # the gyro's unit (or a dead gyro) said from the accelerometer's tilt
+        self.gyro_unit_said = False  # the gyro's unit (or a dead gyro) said: from the accelerometer's tilt, or by its user
         self._gyro_windows = 0
         if self.options.requested != "auto":
             self._adopt(self.options.requested, "as named")
@@ -422,7 +422,7 @@ class StreamDecoder:
                 if not 0.8 <= norm <= 1.25:
                     self.events.append(("warn", f"the accelerometer reads a median |a| of {norm:.3g} g in its first "
                                                 f"{_ACCEL_SAMPLES} samples, not 1 g: is --accel-unit right?"))
-        if self._gyro_judged:
+        if self._gyro_judged or self.gyro_unit_said:
             return
         self._gyro_rows += [(s.t_s, t_rx, s.accel, s.gyro) for s in samples if s.accel is not None and s.gyro is not None]
         if len(self._gyro_rows) >= 3:

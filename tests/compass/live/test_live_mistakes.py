@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from compass.cli import main
+from compass.live import GYRO_UNIT_WINDOW_S
 from compass.sim.device import default_model
 from compass.calibration import model_to_dict
 
@@ -192,8 +193,7 @@ def _module_lines(case: str) -> bytes:
     ("no gyro", [], 0, "[info] filter: two-vector"),
     ("no accelerometer", [], 2, "its 3000 samples carry no ax,ay,az (the header: t_s,mx,my,mz,gx,gy,gz): no attitude "
                                 "without the accelerometer's tilt"),
-    ("gyro in deg/s", [], 0, "times more than the accelerometer sees the housing "
-                             "tilt (a unit taken for another gives 57): is --gyro-unit right?"),
+    ("gyro in deg/s", [], 0, "is --gyro-unit right?"),  # from the accelerometer's tilt or the field's turn, first
     ("first line garbage", [], 0, "[warn] line noise: 1 garbage, 0 partial and 0 invalid lines so far"),
     ("starts moving", [], 0, "[info] filter: gyro"),
     ("gyro at a rail", [], 0, "is --gyro-unit right?; it holds 4.3633, 4.3633, -4.3633 in every sample: a gyro stuck "
@@ -251,10 +251,15 @@ def test_a_deg_per_s_gyro_turned_only_about_the_vertical_is_said_from_the_field(
     t = np.arange(0.0, 30.0, 0.01)
     s = simulate_device(model, t, motion=slow_turn, seed=2)
     events = []
-    session = LiveSession(model, out=io.StringIO(), on_event=lambda level, text: events.append(text))
+    session = LiveSession(model, out=io.StringIO(), on_event=lambda level, text: events.append((session.samples, text)))
     replay(session, t, s.raw, s.accel, s.gyro * scale)
-    said = [e for e in events if "--gyro-unit" in e]
+    said = [(n, e) for n, e in events if "--gyro-unit" in e]
     assert len(said) == (1 if scale > 1.0 else 0), said
     if said:
-        assert "times more than the calibrated field turns" in said[0]
-        assert not any("axes are not the gyro's" in e for e in events)  # no remap offered for a unit's fault
+        n, words = said[0]
+        assert "times more than the calibrated field turns" in words
+        assert not any("axes are not the gyro's" in e for _, e in events)  # no remap offered for a unit's fault
+        # said within its first window (GYRO_UNIT_WINDOW_S, 10 s here), not on close; and again as the closing hint
+        assert n <= 1.2 * GYRO_UNIT_WINDOW_S / 0.01 and words in session.closing_hint()
+    else:
+        assert session.gyro_unit is None
