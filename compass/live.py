@@ -19,7 +19,8 @@ from .calibration import ImuCorrection
 from .filter import AttitudeFilter, Estimate, FilterConfig, FilterStart
 from .io.clock import SampleClock
 from .io.sample_log import SampleLog
-from .io.streams import (HELD_JUDGE_SAMPLES, JUDGE_SAMPLES, StreamDecoder, StreamOptions, field_scale_check,
+from .io.streams import (HELD_JUDGE_SAMPLES, JUDGE_SAMPLES, MIN_TURNED_PAIRS, TURNED_DEG, TURNED_DEG_WITHOUT_GYRO,
+                         StreamDecoder, StreamOptions, field_scale_check, fixed_field_words, gravity_pairs,
                          held_field_words, time_steps_verdict)
 from .io.units import MAX_ABS_VALUE
 from .iron_uncertainty import undetermined_words, with_calibration_sigma
@@ -52,6 +53,14 @@ GYRO_AXES_ROWS = 6000
 """Rows (every one, the gyro's turn between them integrated) the gyro's axis check (:func:`compass.axes.axes_from_gyro`)
 judges, once: a minute at 100 Hz.  Rows that did not turn the housing enough (:func:`compass.axes.turned_enough`: a
 module left at rest) are not judged: the older half goes and the check waits for more."""
+FIELD_TURN_ROWS = 6000
+"""Rows the field's turn check (:meth:`LiveSession._judge_field_turn`) keeps while it waits for the housing to turn;
+the older half goes when they are too few turned pairs."""
+FIELD_TURN_EVERY = 100
+"""Rows between two tries of the field's turn check (a second at 100 Hz)."""
+FIELD_TURN_SPAN_S = 10.0
+"""Longest time between two rows the gyro confirms the housing's turn between, s: a still housing's gyro bias (0.01
+rad/s) turns it by 6 deg meanwhile, under half of :data:`compass.io.streams.TURNED_DEG`."""
 
 
 def invalid_words(stats) -> str:
@@ -183,6 +192,12 @@ class LiveSession:
         filter at every sample, one that never changes turns nothing): why, in words; the commands stop on it, as
         the replay refuses such a recording; None otherwise, and for a stream without a gyro (the two-vector filter
         solves each row alone: said only).
+    wrong_field : str or None
+        Set once the housing turned (gravity by :data:`~compass.io.streams.TURNED_DEG` between
+        :data:`~compass.io.streams.MIN_TURNED_PAIRS` pairs of quasi-static rows, the gyro confirming the turn) while
+        the calibrated field stayed put in it (:func:`~compass.io.streams.fixed_field_words`: gauss read as uT with a
+        hard iron near |B| passes the decoder's norm check): why, and the unit that makes it turn, in words; the
+        session then solves nothing more and the commands stop on it (exit 2); None otherwise.
     axes : str or None
         Set when the field-gravity angle of the first :data:`AXES_ROWS` sampled estimates (or of the whole
         stream, on close) wanders in a way one sign pattern of the field's axes removes: what to
@@ -210,6 +225,7 @@ class LiveSession:
     turned_over: str | None = None
     wrong_gravity: str | None = None
     wrong_time: str | None = None
+    wrong_field: str | None = None
     axes: str | None = None
     estimate: Estimate | None = None
     in_range: bool = True
@@ -230,6 +246,7 @@ class LiveSession:
     _start: FilterStart | None = None
     _axes_rows: list | None = field(default_factory=list)  # (accel, field) pairs for the axis check; None once judged
     _gyro_axes_rows: list | None = field(default_factory=list)  # (t_s, gyro, field, accel) for the gyro's axis check
+    _turn_rows: list | None = field(default_factory=list)  # (t_s, accel, gyro, raw) for the field's turn check
     _dips: list | None = None  # measured dips of the first estimates, against a given reference
     _bench_accel: bool | None = None  # the bench's offsets apply to this stream's unit; None: not judged yet
     _times: list | None = field(default_factory=list)  # the first samples' t_s for the step check; None once judged
@@ -284,6 +301,8 @@ class LiveSession:
         samples = self.decoder.feed(item.data, item.t_rx)
         if samples:
             self._chunk(samples, item.t_rx)
+        if self.decoder.fatal is not None:
+            self._record_withheld(item.t_rx)
         if self.decoder.events:
             for level, text in self.decoder.drain_events():
                 self._event(level, text)
@@ -326,7 +345,7 @@ class LiveSession:
             readings.append(Reading(sample, accel, gyro, fields[k], field_rows[k], in_range[k],
                                     t_rx if sample.t_rx is None else sample.t_rx))  # its arrival, if the decoder held it
         for reading in readings:
-            if self.wrong_gravity is not None or self.wrong_time is not None:
+            if self.wrong_gravity is not None or self.wrong_time is not None or self.wrong_field is not None:
                 return
             if self._start is not None and reading.sample.header.accel is not None:
                 # without an accelerometer there is no attitude, and nothing to seed the reference from: the
@@ -334,6 +353,13 @@ class LiveSession:
                 self._starting(reading)
             else:
                 self._sample(reading)
+
+    def _record_withheld(self, t_rx: float) -> None:
+        """Write the samples the decoder withheld for its unit check under ``--record`` (the session stops on its
+        words: what the module sent is kept, as before any other stop)."""
+        withheld = self.decoder.take_withheld()
+        if withheld and self.record is not None:
+            self.record.write(self._dated(withheld, t_rx), self.decoder.options.accel_known(self.decoder.format))
 
     def _dated(self, samples: list, t_rx: float) -> list:
         """The samples, those without ``t_s`` dated by :class:`~compass.io.clock.SampleClock` from their arrival
@@ -480,6 +506,12 @@ class LiveSession:
                               *(absent if accel is None else accel)))
             if len(axes_rows) >= GYRO_AXES_ROWS:
                 self._judge_gyro_axes()
+        turn_rows = self._turn_rows
+        if turn_rows is not None and accel is not None and math.isfinite(t_s) and (not turn_rows
+                                                                                   or t_s >= turn_rows[-1][0]):
+            turn_rows.append((t_s, *accel, *((math.nan,) * 3 if gyro is None else gyro), *sample.raw))
+            if len(turn_rows) % FIELD_TURN_EVERY == 0:
+                self._judge_field_turn()
         if filt.events:
             for text in filt.drain_events():
                 self._event("warn", text)
@@ -592,6 +624,33 @@ class LiveSession:
             self._event("warn", f"{verdict.finding}: is the stream read with the remap its calibration was made with? "
                                 f"Else recalibrate reading it in the gyro's axes: {verdict.remap}")
 
+    def _judge_field_turn(self) -> None:
+        """Whether the calibrated field stays put in the housing while the housing turns (:attr:`wrong_field`), once
+        :data:`~compass.io.streams.MIN_TURNED_PAIRS` pairs of rows show the turn: gravity turned by
+        :data:`~compass.io.streams.TURNED_DEG` and, with a gyro, the gyro by half that within
+        :data:`FIELD_TURN_SPAN_S` (without one, by :data:`~compass.io.streams.TURNED_DEG_WITHOUT_GYRO`: a housing that
+        brakes along a line tilts the accelerometer without turning).  Fewer: the older half of
+        :data:`FIELD_TURN_ROWS` goes, and the check waits for more."""
+        from .axes import _orientations
+
+        rows = np.array(self._turn_rows, dtype=float)
+        t, accel, gyro, raw = rows[:, 0], rows[:, 1:4], rows[:, 4:7], rows[:, 7:]
+        with_gyro = bool(np.all(np.isfinite(gyro)))
+        i, j, alpha = gravity_pairs(accel, min_deg=TURNED_DEG if with_gyro else TURNED_DEG_WITHOUT_GYRO)
+        if with_gyro and len(i):
+            attitude = _orientations(gyro * np.diff(t, prepend=t[0])[:, None])
+            turned = (attitude[i].inv() * attitude[j]).magnitude()
+            keep = (t[j] - t[i] <= FIELD_TURN_SPAN_S) & (turned >= alpha / 2.0)
+            i, j, alpha = i[keep], j[keep], alpha[keep]
+        if len(i) < MIN_TURNED_PAIRS:
+            if len(rows) >= FIELD_TURN_ROWS:
+                del self._turn_rows[:len(rows) // 2]
+            return
+        self._turn_rows = None
+        self.wrong_field = fixed_field_words(self.model, raw, i, j, alpha)
+        if self.wrong_field is not None:
+            self._event("warn", self.wrong_field)
+
     def _judge_gyro_unit(self, t, gyro, field_h) -> bool:
         """Whether the gyro turns tens of times more than the calibrated field does (said once): a unit
         taken for another.  The stream's check reads the accelerometer's tilt, which a housing turned about the
@@ -703,13 +762,17 @@ class LiveSession:
         samples = self.decoder.flush()  # held for the unit check: judged on what came
         if samples:
             self._chunk(samples, self._last_rx)
+        if self.decoder.fatal is not None:
+            self._record_withheld(self._last_rx)
         for level, text in self.decoder.drain_events():
             self._event(level, text)
         if self._start is not None and self._start.held and self._start.finish():
             self._started()
         if self._dips:  # a stream shorter than the check: judged on what it gave
             self._judge_turn()
-        if self._gyro_axes_rows:
+        if self._turn_rows and self.wrong_field is None:
+            self._judge_field_turn()
+        if self._gyro_axes_rows and self.wrong_field is None:
             self._judge_gyro_axes(last=True)
         if self._axes_rows:
             self._judge_axes()
