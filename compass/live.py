@@ -19,7 +19,8 @@ from .calibration import ImuCorrection
 from .filter import AttitudeFilter, Estimate, FilterConfig, FilterStart
 from .io.clock import SampleClock
 from .io.sample_log import SampleLog
-from .io.streams import (HELD_JUDGE_SAMPLES, JUDGE_SAMPLES, StreamDecoder, StreamOptions, field_scale_check,
+from .io.streams import (HELD_JUDGE_SAMPLES, JUDGE_SAMPLES, MIN_TURNED_PAIRS, TURNED_DEG, TURNED_DEG_WITHOUT_GYRO,
+                         StreamDecoder, StreamOptions, field_scale_check, fixed_field_words, gravity_pairs,
                          held_field_words, time_steps_verdict)
 from .io.units import MAX_ABS_VALUE
 from .iron_uncertainty import undetermined_words, with_calibration_sigma
@@ -57,6 +58,14 @@ GYRO_UNIT_WINDOW_S = 10.0
 (:func:`compass.io.units.gyro_field_ratio`), window after window through the session until one says it: a deg/s gyro
 read as rad/s is said within seconds of the first turns, not at the axis check's :data:`GYRO_AXES_ROWS`; a window
 whose field turned without the housing (a magnet moved by hand) tells nothing, so no window clears it."""
+FIELD_TURN_ROWS = 6000
+"""Rows the field's turn check (:meth:`LiveSession._judge_field_turn`) keeps while it waits for the housing to turn;
+the older half goes when they are too few turned pairs."""
+FIELD_TURN_EVERY = 100
+"""Rows between two tries of the field's turn check (a second at 100 Hz)."""
+FIELD_TURN_SPAN_S = 10.0
+"""Longest time between two rows the gyro confirms the housing's turn between, s: a still housing's gyro bias (0.01
+rad/s) turns it by 6 deg meanwhile, under half of :data:`compass.io.streams.TURNED_DEG`."""
 
 
 def invalid_words(stats) -> str:
@@ -192,6 +201,12 @@ class LiveSession:
         Set when the gyro turns more than :data:`compass.io.units.FIELD_UNIT_RATIO` times the calibrated field over a
         :data:`GYRO_UNIT_WINDOW_S` window: the words said as a warning, repeated on close (a deg/s gyro read as rad/s
         turns the attitude 57 times too fast); None otherwise.
+    wrong_field : str or None
+        Set once the housing turned (gravity by :data:`~compass.io.streams.TURNED_DEG` between
+        :data:`~compass.io.streams.MIN_TURNED_PAIRS` pairs of quasi-static rows, the gyro confirming the turn) while
+        the calibrated field stayed put in it (:func:`~compass.io.streams.fixed_field_words`: gauss read as uT with a
+        hard iron near |B| passes the decoder's norm check): why, and the unit that makes it turn, in words; the
+        session then solves nothing more and the commands stop on it (exit 2); None otherwise.
     axes : str or None
         Set when the field-gravity angle of the first :data:`AXES_ROWS` sampled estimates (or of the whole
         stream, on close) wanders in a way one sign pattern of the field's axes removes: what to
@@ -220,6 +235,7 @@ class LiveSession:
     wrong_gravity: str | None = None
     wrong_time: str | None = None
     gyro_unit: str | None = None
+    wrong_field: str | None = None
     axes: str | None = None
     estimate: Estimate | None = None
     in_range: bool = True
@@ -241,6 +257,7 @@ class LiveSession:
     _axes_rows: list | None = field(default_factory=list)  # (accel, field) pairs for the axis check; None once judged
     _gyro_axes_rows: list | None = field(default_factory=list)  # (t_s, gyro, field, accel) for the gyro's axis check
     _unit_rows: list = field(default_factory=list)  # (t_s, gyro, field) of the gyro unit's window
+    _turn_rows: list | None = field(default_factory=list)  # (t_s, accel, gyro, raw) for the field's turn check
     _dips: list | None = None  # measured dips of the first estimates, against a given reference
     _bench_accel: bool | None = None  # the bench's offsets apply to this stream's unit; None: not judged yet
     _times: list | None = field(default_factory=list)  # the first samples' t_s for the step check; None once judged
@@ -295,6 +312,8 @@ class LiveSession:
         samples = self.decoder.feed(item.data, item.t_rx)
         if samples:
             self._chunk(samples, item.t_rx)
+        if self.decoder.fatal is not None:
+            self._record_withheld(item.t_rx)
         if self.decoder.events:
             for level, text in self.decoder.drain_events():
                 self._event(level, text)
@@ -337,7 +356,7 @@ class LiveSession:
             readings.append(Reading(sample, accel, gyro, fields[k], field_rows[k], in_range[k],
                                     t_rx if sample.t_rx is None else sample.t_rx))  # its arrival, if the decoder held it
         for reading in readings:
-            if self.wrong_gravity is not None or self.wrong_time is not None:
+            if self.wrong_gravity is not None or self.wrong_time is not None or self.wrong_field is not None:
                 return
             if self._start is not None and reading.sample.header.accel is not None:
                 # without an accelerometer there is no attitude, and nothing to seed the reference from: the
@@ -345,6 +364,13 @@ class LiveSession:
                 self._starting(reading)
             else:
                 self._sample(reading)
+
+    def _record_withheld(self, t_rx: float) -> None:
+        """Write the samples the decoder withheld for its unit check under ``--record`` (the session stops on its
+        words: what the module sent is kept, as before any other stop)."""
+        withheld = self.decoder.take_withheld()
+        if withheld and self.record is not None:
+            self.record.write(self._dated(withheld, t_rx), self.decoder.options.accel_known(self.decoder.format))
 
     def _dated(self, samples: list, t_rx: float) -> list:
         """The samples, those without ``t_s`` dated by :class:`~compass.io.clock.SampleClock` from their arrival
@@ -499,6 +525,12 @@ class LiveSession:
                               *(absent if accel is None else accel)))
             if len(axes_rows) >= GYRO_AXES_ROWS:
                 self._judge_gyro_axes()
+        turn_rows = self._turn_rows
+        if turn_rows is not None and accel is not None and math.isfinite(t_s) and (not turn_rows
+                                                                                   or t_s >= turn_rows[-1][0]):
+            turn_rows.append((t_s, *accel, *((math.nan,) * 3 if gyro is None else gyro), *sample.raw))
+            if len(turn_rows) % FIELD_TURN_EVERY == 0:
+                self._judge_field_turn()
         if filt.events:
             for text in filt.drain_events():
                 self._event("warn", text)
@@ -620,6 +652,33 @@ class LiveSession:
         self._unit_rows.clear()
         self._judge_gyro_unit(rows[:, 0], rows[:, 1:4], rows[:, 4:7])
 
+    def _judge_field_turn(self) -> None:
+        """Whether the calibrated field stays put in the housing while the housing turns (:attr:`wrong_field`), once
+        :data:`~compass.io.streams.MIN_TURNED_PAIRS` pairs of rows show the turn: gravity turned by
+        :data:`~compass.io.streams.TURNED_DEG` and, with a gyro, the gyro by half that within
+        :data:`FIELD_TURN_SPAN_S` (without one, by :data:`~compass.io.streams.TURNED_DEG_WITHOUT_GYRO`: a housing that
+        brakes along a line tilts the accelerometer without turning).  Fewer: the older half of
+        :data:`FIELD_TURN_ROWS` goes, and the check waits for more."""
+        from .axes import _orientations
+
+        rows = np.array(self._turn_rows, dtype=float)
+        t, accel, gyro, raw = rows[:, 0], rows[:, 1:4], rows[:, 4:7], rows[:, 7:]
+        with_gyro = bool(np.all(np.isfinite(gyro)))
+        i, j, alpha = gravity_pairs(accel, min_deg=TURNED_DEG if with_gyro else TURNED_DEG_WITHOUT_GYRO)
+        if with_gyro and len(i):
+            attitude = _orientations(gyro * np.diff(t, prepend=t[0])[:, None])
+            turned = (attitude[i].inv() * attitude[j]).magnitude()
+            keep = (t[j] - t[i] <= FIELD_TURN_SPAN_S) & (turned >= alpha / 2.0)
+            i, j, alpha = i[keep], j[keep], alpha[keep]
+        if len(i) < MIN_TURNED_PAIRS:
+            if len(rows) >= FIELD_TURN_ROWS:
+                del self._turn_rows[:len(rows) // 2]
+            return
+        self._turn_rows = None
+        self.wrong_field = fixed_field_words(self.model, raw, i, j, alpha)
+        if self.wrong_field is not None:
+            self._event("warn", self.wrong_field)
+
     def _judge_gyro_unit(self, t, gyro, field_h) -> bool:
         """Whether the gyro turns tens of times more than the calibrated field does (said once, kept in
         :attr:`gyro_unit`): a unit taken for another.  The stream's check reads the accelerometer's tilt, which a
@@ -627,11 +686,15 @@ class LiveSession:
         from .io.units import FIELD_UNIT_RATIO, gyro_field_ratio, stuck_gyro_words
 
         ratio = gyro_field_ratio(t, gyro, field_h)
-        if ratio is None or not ratio > FIELD_UNIT_RATIO:
-            return False  # less: the field turns without the gyro by itself (a magnet passing by), no unit's mark
+        if ratio is None or not ratio > FIELD_UNIT_RATIO or self.decoder.gyro_unit_right:
+            # less: the field turns without the gyro by itself (a magnet passing by), no unit's mark; a gyro that
+            # turned as the accelerometer saw the housing tilt is right, and the field is what does not turn
+            # (_judge_field_turn's case)
+            return False
         unit = self.decoder.options.gyro_unit or "rad/s"
         self.gyro_unit = (f"the gyro read in {unit} turns {ratio:.0f} times more than the calibrated field turns with "
-                          f"the housing (a deg/s gyro read as rad/s gives 57-100): is --gyro-unit right?"
+                          f"the housing (a deg/s gyro read as rad/s gives 57-100; so does a field read in a unit too "
+                          f"small, which stays put: --mag-unit): is --gyro-unit right?"
                           f"{stuck_gyro_words(gyro[np.all(np.isfinite(gyro), axis=1)])}")
         self.decoder.gyro_unit_said = True  # the stream's own check (the accelerometer's tilt) says it no more
         self._event("warn", self.gyro_unit)
@@ -736,13 +799,17 @@ class LiveSession:
         samples = self.decoder.flush()  # held for the unit check: judged on what came
         if samples:
             self._chunk(samples, self._last_rx)
+        if self.decoder.fatal is not None:
+            self._record_withheld(self._last_rx)
         for level, text in self.decoder.drain_events():
             self._event(level, text)
         if self._start is not None and self._start.held and self._start.finish():
             self._started()
         if self._dips:  # a stream shorter than the check: judged on what it gave
             self._judge_turn()
-        if self._gyro_axes_rows:
+        if self._turn_rows and self.wrong_field is None:
+            self._judge_field_turn()
+        if self._gyro_axes_rows and self.wrong_field is None:
             self._judge_gyro_axes(last=True)
         if self._axes_rows:
             self._judge_axes()

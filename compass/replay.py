@@ -54,7 +54,8 @@ def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *
     LiveSession
         ``session``, closed: its ``samples``, ``skipped`` and :meth:`~LiveSession.summary` tell what happened;
         stopped early when it found the given gravity, or the accelerometer correction's unit, not what 1 g reads
-        (its ``wrong_gravity``).
+        (its ``wrong_gravity``), the module's times not telling the time between samples (``wrong_time``), or the
+        field staying put in the housing while it turns (``wrong_field``).
     """
     t_s = np.asarray(t_s, dtype=float)
     raw = np.asarray(raw, dtype=float)
@@ -77,7 +78,7 @@ def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *
         session.feed_samples(samples, time.perf_counter())
         if progress is not None:
             progress(hi, n)
-        if session.wrong_gravity is not None or session.wrong_time is not None:  # it solves nothing more
+        if session.wrong_gravity is not None or session.wrong_time is not None or session.wrong_field is not None:
             break
     session.close()
     return session
@@ -184,7 +185,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     from .io.atomic import atomic_write_text, check_writable
     from .io.table import read_table
     from .io import units
-    from .io.streams import JUDGE_SAMPLES, field_scale_check, time_steps_verdict
+    from .io.streams import field_scale_check, judge_field_unit, time_steps_verdict
     from .site import MIN_REFERENCE_ROWS, Site, reference_from_site
     from .viz import check_rerun_target
 
@@ -243,7 +244,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     if gyro is not None:
         _check_gyro_turn(table, gyro, named=read_options is not None and read_options.gyro_unit is not None)
     raw = np.column_stack([table.column(name) for name in model.channels])
-    wrong_unit = field_scale_check(model)(raw[:JUDGE_SAMPLES])  # as the stream decoder judges live
+    wrong_unit = judge_field_unit(field_scale_check(model), raw, accel)  # as the stream decoder judges live
     if wrong_unit is not None:
         raise RecordingError(table.path, f"{wrong_unit} ({calibration}): is it the right calibration?",
                              row=table.header_row, column=model.channels[0])
@@ -284,6 +285,8 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
         raise RecordingError(table.path, session.wrong_gravity, column="ax")
     if session.wrong_time is not None:  # its first samples' times, as live judged them (the file's whole passed)
         raise RecordingError(table.path, session.wrong_time, column="t_s")
+    if session.wrong_field is not None:
+        raise RecordingError(table.path, f"{session.wrong_field} ({calibration})", column=model.channels[0])
     if session.samples == 0:
         why = (f"the filter's start seeds the reference field from at least {MIN_REFERENCE_ROWS} rows; give --site "
                "LAT,LON --date D" if len(t_s) < MIN_REFERENCE_ROWS and reference is None else session.summary())

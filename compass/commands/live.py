@@ -197,7 +197,7 @@ def _recorded(session) -> bool:
     """The session's outputs are worth keeping: rows written (not lines decoded), the field not found turned
     over (its headings are wrong) and the accelerometer used (:attr:`~compass.live.LiveSession.wrong_gravity`)."""
     return (session is not None and session.samples > 0 and session.turned_over is None
-            and session.wrong_gravity is None and session.wrong_time is None)
+            and session.wrong_gravity is None and session.wrong_time is None and session.wrong_field is None)
 
 
 def _refuse(args, session) -> None:
@@ -211,6 +211,8 @@ def _refuse(args, session) -> None:
         raise BadInput(f"{args.port}: {session.wrong_gravity}")
     if session.wrong_time is not None:
         raise BadInput(f"{args.port}: {session.wrong_time}")
+    if session.wrong_field is not None:
+        raise BadInput(f"{args.port}: {session.wrong_field} ({args.cal})")
 
 
 def _run_session(args, reader, session, files: list, tty: bool, every_s: float) -> None:

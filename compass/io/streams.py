@@ -27,8 +27,13 @@ Checks, like the file readers' (a check never changes the data):
 - the field against the calibration (``field_check``, :func:`field_scale_check`): the first
   :data:`JUDGE_SAMPLES` samples are held until the calibration's field of them has the calibration's
   |B|, or differs from it by a unit's factor (a stream in mG against a calibration in uT reads ten
-  times too strong): then :attr:`StreamDecoder.fatal` says so with the factor, and nothing is handed
-  out (the command exits 2; a reference seeded from such samples made the heading go wrong silently);
+  times too strong): the samples are then held until the housing turned (:func:`housing_turned`, at most
+  :data:`UNIT_HOLD_SAMPLES`), which tells a unit (the scaled field keeps its norm and turns with the housing) from
+  another board's calibration, and :attr:`StreamDecoder.fatal` says which, with the factor; nothing is handed out
+  (the command exits 2, the samples kept under ``--record``: :meth:`StreamDecoder.take_withheld`; a reference seeded
+  from such samples made the heading go wrong silently).  A unit too small whose field is |B| all the same (gauss
+  read as uT, a hard iron near |B|) stays put in the housing: the session tells it once the housing turns
+  (:func:`fixed_field_words`, :attr:`compass.live.LiveSession.wrong_field`);
 - an accelerometer whose unit is known reads about 1 g at rest (a warning event otherwise);
 - the gyro turns as much as the accelerometer sees the housing tilt (:func:`compass.io.units.gyro_turn_ratio`:
   a deg/s gyro read as rad/s turns 57 times too much; a warning event), judged on the first 10 s window
@@ -56,8 +61,12 @@ from .fixed_lines import CsvDecoder, MotionCalDecoder
 from .lines import _GROUPS, _SCALARS, LineDecoder, LineStats, Sample
 from .stream_options import EXAMPLE_COLUMNS, FORMATS, StreamOptions, add_stream_arguments
 
-__all__ = ["FORMATS", "JUDGE_SAMPLES", "HELD_JUDGE_SAMPLES", "HELD_SHARE", "StreamOptions", "StreamDecoder", "field_scale_check",
-           "time_steps_verdict", "held_field_words", "add_stream_arguments"]
+__all__ = ["FORMATS", "JUDGE_SAMPLES", "HELD_JUDGE_SAMPLES", "HELD_SHARE", "UNIT_HOLD_SAMPLES", "TURNED_DEG",
+           "TURNED_DEG_WITHOUT_GYRO", "FIXED_SHARE", "TURN_SHARE", "NORM_SHARE", "MIN_TURNED_PAIRS", "StreamOptions",
+           "StreamDecoder", "field_scale_check", "judge_field_unit", "gravity_pairs", "housing_turned", "turn_share",
+           "norm_share",
+           "field_unit_factor", "fixed_field_words", "unit_pairs", "time_steps_verdict", "held_field_words",
+           "add_stream_arguments"]
 
 JUDGE_SAMPLES = 25
 """Samples held while the field's unit is judged against the calibration (a quarter second at 100 Hz)."""
@@ -73,12 +82,177 @@ _AUTO_MAX_BYTES = 1 << 18
 _ACCEL_SAMPLES = 50
 _GYRO_WINDOW_S = 10.0
 _GYRO_WINDOWS = 6  # windows tried before the gyro check gives up (a module that lies still)
+
+
+UNIT_HOLD_SAMPLES = 1000
+"""Most samples held while a field a unit's factor would bring to |B| waits for the housing to turn (10 s at 100 Hz):
+a unit taken for another and another board's calibration read alike until it does (:func:`field_scale_check`)."""
+TURNED_DEG = 20.0
+"""Gravity's turn in the housing between two quasi-static rows that shows the housing turned, deg.  A housing turned by
+it moves a 50 uT field by 17 uT unless it turned about the field's own axis."""
+TURNED_DEG_WITHOUT_GYRO = 40.0
+"""The same without a gyro to confirm the turn, deg: a housing that does not turn but accelerates along a line (a car
+that brakes) tilts the accelerometer's |a|-within-5 % rows by up to 2 atan(0.32) = 35 deg between two of them."""
+FIXED_SHARE = 0.2
+"""Median ratio of the field's turn in the housing to gravity's, over pairs of rows :data:`TURNED_DEG` apart, under
+which the field stays put in the housing: a field in its calibration's unit turns as much as gravity does (the ratio
+is ``sin`` of the turn axis's angle to the field over ``sin`` of its angle to gravity, near 1 but for turns about the
+field's own axis); one read in a unit a factor ``k < 1`` too small is ``-W h`` plus ``k`` times the field, and turns
+``k |B| / |W h|`` of that (0.01-0.015 for gauss read as uT)."""
+TURN_SHARE = 0.5
+"""Median :func:`turn_share` from which a unit-scaled field turns with the housing as a calibrated one does: a tilt
+about any horizontal axis turns a field of dip 60 deg by 0.87 of gravity's turn or more, a turn about the vertical by
+more than gravity's; another board's calibration leaves a field whose turning part is a fraction of it (0.19 for
+``tools/bench_field_unit.py``'s gain 1.5)."""
+NORM_SHARE = 0.15
+"""Median ratio, over pairs of rows the housing turned between (:func:`gravity_pairs`), of the change in a
+unit-scaled field's norm to the change of the field itself, within which the unit explains the readings.  A
+calibrated field keeps its norm while it turns: noise and the fit's residual (1 % of |B|) over a change of 0.3 |B|
+or more give 0.03-0.06.  Another board's calibration leaves ``c + v``, a constant ``c`` and a part ``v`` that turns,
+whose norm changes by ``|cos|`` of the angle between ``c`` and the change of ``v``: 0.5 for a random direction."""
+_STILL_SHARE = 0.05  # |a| within this share of its median: a quasi-static row
+_PAIR_ROWS = 150  # quasi-static rows (evenly spread) whose pairs are judged
+MIN_TURNED_PAIRS = 20
+"""Pairs of rows :data:`TURNED_DEG` apart that tell a field that turns from one that stays put."""
 _UNIT_FACTORS = sorted({a / b for a in units.MAG_UNITS.values() for b in units.MAG_UNITS.values()} - {1.0})
 
 
+def gravity_pairs(accel, *, min_deg: float = TURNED_DEG):
+    """Pairs of quasi-static rows between which gravity turned by ``min_deg`` or more in the housing.
+
+    Parameters
+    ----------
+    accel : array_like, shape (n, 3)
+        Accelerometer, any unit; a row not finite, or whose ``|a|`` is not within 5 % of the median, is not used.
+    min_deg : float
+
+    Returns
+    -------
+    i, j : ndarray of int, shape (k,)
+        Row indices, ``i < j``, of at most :data:`_PAIR_ROWS` rows evenly spread over the quasi-static ones.
+    alpha_rad : ndarray, shape (k,)
+        Gravity's turn between them, rad.
+    """
+    accel = np.asarray(accel, dtype=float).reshape(-1, 3)
+    with np.errstate(over="ignore", invalid="ignore"):
+        norm = np.linalg.norm(accel, axis=1)
+    usable = np.isfinite(norm) & (norm > 0.0)
+    empty = np.zeros(0, dtype=int)
+    if np.count_nonzero(usable) < 2:
+        return empty, empty, np.zeros(0)
+    middle = np.median(norm[usable])
+    still = np.flatnonzero(usable & (np.abs(norm - middle) < _STILL_SHARE * middle))
+    rows = np.unique(still[np.linspace(0, len(still) - 1, min(len(still), _PAIR_ROWS)).astype(int)]) if len(still) \
+        else empty
+    up = accel[rows] / norm[rows, None]
+    alpha = np.arccos(np.clip(up @ up.T, -1.0, 1.0))
+    i, j = np.nonzero(np.triu(alpha >= np.radians(min_deg), 1))
+    return rows[i], rows[j], alpha[i, j]
+
+
+def housing_turned(accel) -> bool:
+    """Whether gravity turned by :data:`TURNED_DEG` in the housing between enough pairs of
+    quasi-static rows of ``accel`` (shape (n, 3), any unit): :data:`MIN_TURNED_PAIRS`, enough to tell a field that
+    turns from one that stays."""
+    return len(gravity_pairs(accel)[0]) >= MIN_TURNED_PAIRS
+
+
+def turn_share(field, i, j, alpha_rad) -> float:
+    """Median ratio of the field's turn between rows ``i`` and ``j`` to gravity's (``alpha_rad``):
+    :data:`FIXED_SHARE` tells a field that stays put in the housing.
+
+    Parameters
+    ----------
+    field : array_like, shape (n, 3)
+        The calibrated field in the housing frame, any unit.
+    i, j, alpha_rad : ndarray, shape (k,)
+        :func:`gravity_pairs`.
+    """
+    field = np.asarray(field, dtype=float)
+    with np.errstate(over="ignore", invalid="ignore"):
+        unit = field / np.linalg.norm(field, axis=1, keepdims=True)
+    beta = np.arccos(np.clip(np.sum(unit[i] * unit[j], axis=1), -1.0, 1.0))
+    share = beta / alpha_rad
+    share = share[np.isfinite(share)]
+    return float(np.median(share)) if share.size else math.nan
+
+
+def _norms(model, raw: np.ndarray) -> np.ndarray:
+    """``|B_H|`` of every row over the calibration's |B| (NaN where not finite)."""
+    with np.errstate(over="ignore", invalid="ignore"):  # a factor of 1e5 on a wild reading
+        fields, _ = model.field(raw)
+        norms = np.linalg.norm(fields, axis=1) / float(model.field_norm)
+    return np.where(np.isfinite(norms), norms, np.nan)
+
+
+def _ratio(norms: np.ndarray) -> float:
+    """The median of the finite ``norms`` (NaN without one)."""
+    finite = norms[np.isfinite(norms)]
+    return float(np.median(finite)) if finite.size else math.nan
+
+
+def norm_share(field, i, j) -> float:
+    """Median ratio of the change in the field's norm between rows ``i`` and ``j`` to the change of the field
+    (:data:`NORM_SHARE`): near 0 for a field that keeps its norm while it turns.
+
+    Parameters
+    ----------
+    field : array_like, shape (n, 3)
+        The calibrated field in the housing frame, any unit.
+    i, j : ndarray of int, shape (k,)
+    """
+    field = np.asarray(field, dtype=float)
+    with np.errstate(over="ignore", invalid="ignore"):
+        norms = np.linalg.norm(field, axis=1)
+        share = np.abs(norms[i] - norms[j]) / np.linalg.norm(field[i] - field[j], axis=1)
+    share = share[np.isfinite(share)]
+    return float(np.median(share)) if share.size else math.nan
+
+
+def unit_pairs(k: float) -> str:
+    """``"mG taken as uT"``: the units of :data:`compass.io.units.MAG_UNITS` a factor ``k`` lies between."""
+    return " or ".join(f"{a} taken as {b}" for a, fa in units.MAG_UNITS.items() for b, fb in units.MAG_UNITS.items()
+                       if a != b and math.isclose(fa / fb, k))
+
+
+def field_unit_factor(model, raw, i, j, alpha_rad) -> tuple[float, float, float] | None:
+    """The unit factor between two of :data:`compass.io.units.MAG_UNITS` that explains the readings, None when none
+    does.
+
+    A factor explains them when the field of the readings scaled by it has the calibration's |B| (median within
+    1.25), keeps its norm while the housing turns (:func:`norm_share` within :data:`NORM_SHARE`) and turns with it
+    (:func:`turn_share` at least :data:`TURN_SHARE`), over the pairs of rows the housing turned between.
+
+    Parameters
+    ----------
+    model : compass.model.SensorModel
+    raw : array_like, shape (n, c)
+        The stream's channel values, as read.
+    i, j, alpha_rad : ndarray, shape (k,)
+        :func:`gravity_pairs`.
+
+    Returns
+    -------
+    (k, ratio, norm_share) or None
+        The factor, the scaled field's median |B_H| / |B| and its :func:`norm_share`; the best one.
+    """
+    raw = np.asarray(raw, dtype=float)
+    fits = []
+    for k in _UNIT_FACTORS:
+        with np.errstate(over="ignore", invalid="ignore"):
+            field = model.field(k * raw)[0]
+        r = _ratio(np.linalg.norm(field, axis=1) / float(model.field_norm))
+        if not (r > 0 and abs(math.log(r)) < math.log(1.25)):
+            continue
+        share = norm_share(field, i, j)
+        if share <= NORM_SHARE and turn_share(field, i, j, alpha_rad) >= TURN_SHARE:
+            fits.append((abs(math.log(r)), k, r, share))
+    return min(fits)[1:] if fits else None
+
+
 def field_scale_check(model):
-    """A ``field_check`` for :class:`StreamDecoder`: words when a stream's field is the calibration's |B|
-    times a unit's factor (10, 1000, 0.01, ...), None otherwise.
+    """A ``field_check`` for :class:`StreamDecoder`: words when a stream's field is not the calibration's |B| but a
+    unit's factor (10, 1000, 0.01, ...) would bring it there, None otherwise.
 
     Parameters
     ----------
@@ -89,44 +263,114 @@ def field_scale_check(model):
     Returns
     -------
     callable
-        ``check(raw) -> str | None`` with ``raw`` of shape (n, c), the stream's channel values.
+        ``check(raw, accel=None) -> str | None`` with ``raw`` of shape (n, c), the stream's channel values, and
+        ``accel`` of shape (n, 3) its accelerometer (any unit) or None.
 
     Notes
     -----
-    The median ``|B_H| / |B|`` of the samples is taken as is when within 1.5 of 1 (noise, a magnet
-    nearby and the site's |B| stay within it; the filter's gate judges those).  Outside, the same
-    ratio is computed with the readings scaled by each factor between two of
-    :data:`compass.io.units.MAG_UNITS`; a factor that brings it within 1.25 of 1 is a unit taken for
-    another.  A ratio no factor explains (a strong magnet) is not a unit: None.
+    The median ``|B_H| / |B|`` of the first :data:`JUDGE_SAMPLES` rows is taken as is when within 1.5 of 1 (noise,
+    a magnet nearby and the site's |B| stay within it; the filter's gate judges those): None.  Outside, the same
+    ratio is computed with the readings scaled by each factor between two of :data:`compass.io.units.MAG_UNITS`;
+    none within 1.25 of 1 (a strong magnet): None.  One within it is a unit taken for another only if it explains
+    every row (:func:`field_unit_factor`), which the rows tell once the housing turned (:func:`housing_turned`):
+    another board's calibration makes the scaled field's norm vary with the attitude.  Words either way: the unit
+    to name, or that the calibration does not fit the board, or, the housing not turned, both.
     """
     magnitude = float(model.field_norm)
     unit = "uT" if model.field_ut is not None else "in the calibration's unit"
 
-    def ratio(raw: np.ndarray) -> float:
-        with np.errstate(over="ignore", invalid="ignore"):  # a factor of 1e5 on a wild reading
-            fields, _ = model.field(raw)
-            norms = np.linalg.norm(fields, axis=1)
-        norms = norms[np.isfinite(norms)]
-        return float(np.median(norms)) / magnitude if norms.size else math.nan
-
-    def check(raw) -> str | None:
+    def check(raw, accel=None) -> str | None:
         raw = np.asarray(raw, dtype=float)
-        r1 = ratio(raw)
+        first = raw[:JUDGE_SAMPLES]
+        r1 = _ratio(_norms(model, first))
         if math.isfinite(r1) and abs(math.log(r1)) <= math.log(1.5):
             return None
-        fits = [(abs(math.log(r)), k, r) for k in _UNIT_FACTORS
-                for r in (ratio(k * raw),) if math.isfinite(r) and r > 0 and abs(math.log(r)) < math.log(1.25)]
-        if not fits:
+        near = [(abs(math.log(r)), k, r) for k in _UNIT_FACTORS for r in (_ratio(_norms(model, k * first)),)
+                if math.isfinite(r) and r > 0 and abs(math.log(r)) < math.log(1.25)]
+        if not near:
             return None
-        _, k, r = min(fits)
-        pairs = [f"{a} taken as {b}" for a, fa in units.MAG_UNITS.items() for b, fb in units.MAG_UNITS.items()
-                 if a != b and math.isclose(fa / fb, k)]
-        return (f"the calibration makes this stream's field {r1:.3g} times its |B| ({magnitude:.4g} {unit}); "
-                f"scaled by {k:g} it would be {r:.3f} times: the stream's field is in another unit than the "
-                f"calibration's ({' or '.join(pairs)}): name the stream's unit with --mag-unit (converted to uT), "
-                f"or use a calibration made in the stream's unit")
+        said = f"the calibration makes this stream's field {r1:.3g} times its |B| ({magnitude:.4g} {unit})"
+        if accel is None or not housing_turned(accel):
+            _, k, r = min(near)
+            return (f"{said}; scaled by {k:g} it would be {r:.3f} times: a unit taken for another "
+                    f"({unit_pairs(k)}: --mag-unit names the stream's unit) or a calibration not this board's, which "
+                    f"the module's turns tell apart: it did not turn by {TURNED_DEG:g} deg in its first {len(raw)} "
+                    f"samples (turn it as the session starts)")
+        pairs = gravity_pairs(accel)
+        fit = field_unit_factor(model, raw, *pairs)
+        if fit is None:
+            _, k, r = min(near)
+            with np.errstate(over="ignore", invalid="ignore"):
+                field = model.field(k * raw)[0]
+            return (f"{said}; scaled by {k:g} ({unit_pairs(k)}) it would be {r:.3f} times, but as the module turns it "
+                    f"turns {turn_share(field, *pairs):.2f} times as much as gravity and its norm changes by "
+                    f"{norm_share(field, *pairs[:2]):.2f} of its change (a unit's turns {TURN_SHARE:g} times as "
+                    f"much or more, its norm kept within {NORM_SHARE:g}): the calibration does not fit this board; "
+                    f"is --cal this board's calibration?")
+        k, r, share = fit
+        return (f"{said}; scaled by {k:g} it would be {r:.3f} times, its norm kept as the module turns: the "
+                f"stream's field is in another unit than the calibration's ({unit_pairs(k)}): name the stream's "
+                f"unit with --mag-unit (converted to uT), or use a calibration made in the stream's unit")
 
     return check
+
+
+def fixed_field_words(model, raw, i, j, alpha_rad) -> str | None:
+    """Words when the calibrated field stays put in the housing while gravity turns in it (a unit's factor
+    ``k < 1`` too small, :data:`FIXED_SHARE`), None when it turns with the housing.
+
+    Parameters
+    ----------
+    model : compass.model.SensorModel
+    raw : array_like, shape (n, c)
+        The stream's channel values, as read.
+    i, j, alpha_rad : ndarray, shape (k,)
+        Pairs of rows between which the housing turned (:func:`gravity_pairs`, confirmed by the gyro where there is
+        one), and gravity's turn between them, rad.
+
+    Notes
+    -----
+    Gauss read as uT with a hard iron ``|W h|`` near |B| passes :func:`field_scale_check`: the field read is about
+    ``-W h``, of about the right norm, and fixed in the housing.  A correct stream whose ``|W h|`` is about |B| reads
+    as near |B| scaled by 0.01, so only the turn tells them apart.  The factor named (:func:`field_unit_factor`) is
+    the one that makes the field both of the calibration's |B| and turning; none: the calibration does not fit.
+    """
+    raw = np.asarray(raw, dtype=float)
+    share = turn_share(model.field(raw)[0], i, j, alpha_rad)
+    if not share < FIXED_SHARE:
+        return None
+    turned = float(np.degrees(np.max(alpha_rad)))
+    said = (f"the calibrated field turns {share:.3f} times as much as gravity in the housing (median over "
+            f"{len(i)} pairs of rows up to {turned:.0f} deg apart; a field in the calibration's unit turns about as "
+            f"much): it stays put in the housing")
+    fit = field_unit_factor(model, raw, i, j, alpha_rad)
+    if fit is None:
+        return (f"{said}, and no unit's factor makes it turn at the calibration's |B|: the calibration does not fit "
+                f"this board (or a magnet on the housing outweighs the Earth's field); is --cal this board's "
+                f"calibration?")
+    k, r, _ = fit
+    return (f"{said}; scaled by {k:g} it is {r:.3f} times the calibration's |B|, keeps it and turns with "
+            f"the housing: the stream's field is in another unit than the calibration's ({unit_pairs(k)}): name the "
+            f"stream's unit with --mag-unit (converted to uT), or use a calibration made in the stream's unit")
+
+
+def judge_field_unit(check, raw, accel=None) -> str | None:
+    """What :class:`StreamDecoder` says of a whole recording's field with ``check`` (:func:`field_scale_check`):
+    judged on the first :data:`JUDGE_SAMPLES` rows, and while it has words on the first :data:`UNIT_HOLD_SAMPLES`
+    in steps of :data:`JUDGE_SAMPLES` until the housing turned (:func:`housing_turned`).
+
+    Parameters
+    ----------
+    raw : array_like, shape (n, c)
+    accel : array_like, shape (n, 3), optional
+    """
+    raw = np.asarray(raw, dtype=float)
+    n = min(JUDGE_SAMPLES, len(raw))
+    while True:
+        words = check(raw[:n], None if accel is None else accel[:n])
+        if words is None or accel is None or n >= min(len(raw), UNIT_HOLD_SAMPLES) or housing_turned(accel[:n]):
+            return words
+        n = min(n + JUDGE_SAMPLES, len(raw), UNIT_HOLD_SAMPLES)
 
 
 def time_steps_verdict(t_s, max_gap_s: float) -> str | None:
@@ -187,8 +431,9 @@ class StreamDecoder:
         The calibration's channel names (``("mx", "my", "mz")`` for a tumble).
     options : StreamOptions
     field_check : callable, optional
-        ``check(raw (n, c)) -> str | None`` (:func:`field_scale_check`): the first :data:`JUDGE_SAMPLES`
-        samples are held for it; words set :attr:`fatal`.
+        ``check(raw (n, c), accel (n, 3) or None) -> str | None`` (:func:`field_scale_check`): the first
+        :data:`JUDGE_SAMPLES` samples are held for it, and while it has words until the housing turned
+        (:data:`UNIT_HOLD_SAMPLES` at most); words set :attr:`fatal`.
     unscaled : sequence of str
         Channels carried beside the field that ``--mag-unit`` leaves as sent (a turntable's encoder
         column, degrees).
@@ -232,12 +477,14 @@ class StreamDecoder:
         self._resynced = False
         self._check = field_check
         self._held: list = []
+        self._judge_at = JUDGE_SAMPLES
         self._factors = (1.0, 1.0, 1.0)
         self._accel_known = False
         self._accel: list = []
         self._gyro_rows: list = []
         self._gyro_judged = False
         self.gyro_unit_said = False  # the gyro's unit (or a dead gyro) said: from the accelerometer's tilt, or by its user
+        self.gyro_unit_right = False  # the gyro turned as the accelerometer saw the housing tilt
         self._gyro_windows = 0
         if self.options.requested != "auto":
             self._adopt(self.options.requested, "as named")
@@ -316,7 +563,7 @@ class StreamDecoder:
             self.stats.unheaded += len(self._pending.replace(b"\r", b"\n").split(b"\n")[:-1])
             self._pending = b""
             return []
-        return self._judge() if self._held and self._fatal is None else []
+        return self._judge(final=True) if self._held and self._fatal is None else []
 
     # ----------------------------------------------------------------- internals
 
@@ -401,16 +648,30 @@ class StreamDecoder:
         if self._check is None:
             return samples
         self._held += samples if t_rx is None else [replace(s, t_rx=t_rx) for s in samples]
-        return self._judge() if len(self._held) >= JUDGE_SAMPLES else []
+        return self._judge() if len(self._held) >= self._judge_at else []
 
-    def _judge(self) -> list:
-        held, self._held = self._held, []
-        check, self._check = self._check, None
-        words = check(np.array([s.raw for s in held]))
-        if words is not None:
-            self._fatal = words
-            return []
+    def take_withheld(self) -> list:
+        """The samples held for the unit check and never handed out (its words in :attr:`fatal`): a command keeps
+        them under ``--record``, as it keeps what a session received before any other stop."""
+        held, self._held = (self._held, []) if self._fatal is not None else ([], self._held)
         return held
+
+    def _judge(self, final: bool = False) -> list:
+        """The held samples judged (:func:`field_scale_check`): handed out, or held until the housing turned (words
+        that a unit or another board's calibration would both explain; :data:`UNIT_HOLD_SAMPLES` at most), or
+        withheld with the words in :attr:`fatal`."""
+        held = self._held
+        accel = [s.accel for s in held]
+        accel = None if any(a is None for a in accel) else np.array(accel)
+        words = self._check(np.array([s.raw for s in held]), accel)
+        if words is None:
+            self._held, self._check = [], None
+            return held
+        if not final and accel is not None and len(held) < UNIT_HOLD_SAMPLES and not housing_turned(accel):
+            self._judge_at = len(held) + JUDGE_SAMPLES  # judged again on more samples
+            return []
+        self._fatal, self._check = words, None
+        return []
 
     def _observe(self, samples: list, t_rx: float | None) -> None:
         """The accelerometer's |a| in g (when its unit is known) and the gyro's turn against its tilt: warnings."""
@@ -451,6 +712,7 @@ class StreamDecoder:
         unit = self.options.gyro_unit or "rad/s"
         verdict = units.gyro_unit_verdict(ratio)
         self.gyro_unit_said = ratio == 0.0 or verdict is not None
+        self.gyro_unit_right = not self.gyro_unit_said
         if ratio == 0.0:  # every rate exactly zero (no unit gives that): the check_gyro_unit words
             self.events.append(("warn", "the gyro never turns while the accelerometer sees the housing tilt: a dead "
                                         "gyro?"))

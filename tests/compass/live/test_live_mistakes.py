@@ -112,14 +112,15 @@ def test_evaluate_refuses_a_bench_calibration(tmp_path, capsys):
 
 
 def test_a_module_sending_mg_to_a_calibration_in_ut_is_said_with_the_factor_not_taken(tmp_path, monkeypatch, capsys):
-    """The field is judged on the first samples before any is used (it used to seed a 10x reference)."""
-    from compass.sim.device import simulate_device
+    """The field is judged on the first samples before any is used (it used to seed a 10x reference), the unit named
+    once the housing turned (a tumble)."""
+    from compass.sim.device import simulate_device, tumble_motion
     from compass.sim.stream_formats import board_model
 
     model = board_model()
     cal = tmp_path / "board.json"
     cal.write_text(json.dumps(model_to_dict(model)))
-    s = simulate_device(model, np.arange(300) / 100.0, seed=2)
+    s = simulate_device(model, np.arange(300) / 100.0, seed=2, motion=tumble_motion)
     rows = b"".join(b"%.2f,%.2f,%.2f,%.5f,%.5f,%.5f\r\n" % (*(10.0 * m), *a) for m, a in zip(s.raw, s.accel))
     att = tmp_path / "att.csv"
     status, alive, errors = _live_on_socket(monkeypatch, b"mx,my,mz,ax,ay,az\r\n" + rows, cal, "--duration", "20",
