@@ -40,11 +40,13 @@ GYRO_SCALE_ERROR_HELP = ("the gyro's scale and axis error the filter allows for,
 
 def add_mag_latency_argument(p, *, with_filter: bool = False) -> None:
     """``--mag-latency`` (``FilterConfig.from_model(model, mag_latency=True)``), ``--gyro-matrix``
-    (``gyro_matrix=True``) and ``--gyro-scale-error`` (``gyro_scale_error=F``), for ``live`` and ``attitude --filter``."""
-    p.add_argument("--mag-latency", action="store_true",
-                   help=("with --filter: " if with_filter else "") + MAG_LATENCY_HELP)
-    p.add_argument("--gyro-matrix", action="store_true",
-                   help=("with --filter: " if with_filter else "") + GYRO_MATRIX_HELP)
+    (``gyro_matrix=True``) and ``--gyro-scale-error`` (``gyro_scale_error=F``), for ``live`` and ``attitude --filter``
+    (there also ``--no-mag-latency`` and ``--no-gyro-matrix``, against a record's ``# replay:`` line; not given: None)."""
+    import argparse
+
+    switch = dict(action=argparse.BooleanOptionalAction, default=None) if with_filter else dict(action="store_true")
+    p.add_argument("--mag-latency", **switch, help=("with --filter: " if with_filter else "") + MAG_LATENCY_HELP)
+    p.add_argument("--gyro-matrix", **switch, help=("with --filter: " if with_filter else "") + GYRO_MATRIX_HELP)
     p.add_argument("--gyro-scale-error", type=limits.GYRO_SCALE_ERROR.option("--gyro-scale-error"), metavar="FRACTION",
                    help=("with --filter: " if with_filter else "") + GYRO_SCALE_ERROR_HELP)
 
@@ -244,12 +246,15 @@ def _run_session(args, reader, session, files: list, tty: bool, every_s: float) 
 
 
 def _replay_options(args, reference) -> str:
-    """The options of this session a replay of its ``--record`` needs to write the same rows."""
+    """The options of this session a replay of its ``--record`` needs to write the same rows (the replay takes them
+    as defaults: :func:`compass.io.sample_log.read_replay_line`)."""
+    import shlex
+
     from ..site import Site
 
     words = []
     if reference is not None:  # the day too: the field of --site without --date is today's
-        words.append(f"--site {args.site} --date {Site.parse(args.site, args.date).date.isoformat()}")
+        words.append(f"--site {shlex.quote(args.site)} --date {Site.parse(args.site, args.date).date.isoformat()}")
     if args.gravity is not None:
         words.append(f"--gravity {args.gravity!r}")
     words += [flag for flag, on in (("--mag-latency", args.mag_latency), ("--gyro-matrix", args.gyro_matrix)) if on]

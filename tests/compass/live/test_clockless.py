@@ -13,11 +13,12 @@ from compass.cli import main
 from compass.commands.live import _replay_options
 from compass.filter import FilterConfig, run_filter
 from compass.io.lines import Sample
-from compass.io.sample_log import SampleLog
+from compass.io.sample_log import SampleLog, parse_replay_line
 from compass.io.streams import StreamOptions
 from compass.io.table import RecordingError, read_table
 from compass.live import LiveSession
 from compass.serial_reader import Chunk
+from compass.site import Site, reference_from_site
 from compass.sim.device import default_model, simulate_device, tumble_motion
 
 RATE_HZ = 100.0
@@ -48,10 +49,10 @@ def clockless():
     return model, t, s, lines, _bursts(t, 3)
 
 
-def _live(model, lines, t_rx, record=None, events=None):
+def _live(model, lines, t_rx, record=None, events=None, **options):
     out = io.StringIO()
     session = LiveSession(model, out=out, stream=StreamOptions(columns=COLUMNS), record=record,
-                          on_event=None if events is None else lambda level, text: events.append(text))
+                          on_event=None if events is None else lambda level, text: events.append(text), **options)
     k = 0
     while k < len(lines):
         m = int(np.searchsorted(t_rx, t_rx[k], side="right"))
@@ -110,6 +111,49 @@ def test_the_record_replays_to_the_rows_live_wrote(clockless, tmp_path):
     replayed = [r[:-5] + r[-4:] for r in _rows(att.read_text())[1:]]
     live = [r[:-1] for r in _rows(live_text)[1:]]
     assert len(replayed) == len(live) and [r[:12] for r in replayed] == [r[:12] for r in live]
+
+
+def test_the_plain_replay_takes_the_record_s_options_and_one_given_here_wins(clockless, tmp_path, capsys):
+    """A session run with --site and --gyro-scale-error 0.03: the plain replay of its record writes its rows, saying
+    in one line which options it took from the '# replay:' line and ignoring one it cannot apply; a --gyro-scale-error
+    given on the command line replaces the record's (the rows of a session run with it)."""
+    model, t, s, lines, t_rx = clockless
+    reference = reference_from_site(Site.parse("48.15,11.58", "2025-06-01"),
+                                   field_ut=None if model.field_ut is None else 1.0)  # as compass live
+    raw = io.StringIO()
+    log = SampleLog(raw, model.channels, "socket://test",
+                    "--site 48.15,11.58 --date 2025-06-01 --gyro-scale-error 0.03 --duration 30")
+    _, live_text = _live(model, lines, t_rx, record=log, reference=reference,
+                         config=FilterConfig.from_model(model, gyro_scale_error=0.03))
+    _, other_text = _live(model, lines, t_rx, reference=reference,
+                          config=FilterConfig.from_model(model, gyro_scale_error=0.01))
+    recording, cal = tmp_path / "raw.csv", tmp_path / "cal.json"
+    recording.write_text(raw.getvalue())
+    save(cal, model_to_dict(model))
+    capsys.readouterr()
+    rows = {}
+    for name, given in (("plain", []), ("given", ["--gyro-scale-error", "0.01"])):
+        att = tmp_path / f"{name}.csv"
+        assert main(["attitude", str(cal), str(recording), "--out", str(att), "--filter", *given]) == 0
+        rows[name] = [r[:-5] + r[-4:] for r in _rows(att.read_text())[1:]]
+        rows[name + " said"] = [line for line in capsys.readouterr().err.splitlines() if "'# replay:' line" in line]
+    live, other = [r[:-1] for r in _rows(live_text)[1:]], [r[:-1] for r in _rows(other_text)[1:]]
+    assert [r[:12] for r in rows["plain"]] == [r[:12] for r in live] != [r[:12] for r in other]
+    assert [r[:12] for r in rows["given"]] == [r[:12] for r in other]
+    took, ignored = rows["plain said"]
+    assert took == ("[info] raw.csv's '# replay:' line: took --site 48.15,11.58 --date 2025-06-01 --gyro-scale-error "
+                    "0.03 (the options the live session ran with)")
+    assert ignored == "[warn] raw.csv's '# replay:' line: ignored --duration 30 (not an option of the replay)"
+    assert "took --site 48.15,11.58 --date 2025-06-01 (the options the live session ran with); the options given " \
+           "here replaced its --gyro-scale-error 0.03" in rows["given said"][0]
+
+
+def test_the_replay_line_s_options_are_read_back_and_what_it_cannot_apply_is_named():
+    read = parse_replay_line("compass attitude CAL.json THIS.csv --out ATT.csv --filter --accel-unit g --site "
+                             "'-33.9, 151.2' --gravity=1.02 --mag-latency --port /dev/ttyUSB0 --gyro-scale-error x")
+    assert read.values == {"accel_unit": "g", "site": "-33.9, 151.2", "gravity": 1.02, "mag_latency": True}
+    assert read.ignored == ("--port /dev/ttyUSB0 (not an option of the replay)", "--gyro-scale-error x (not a number)")
+    assert parse_replay_line("compass attitude 'CAL.json --filter").ignored == ("the whole line (No closing quotation)",)
 
 
 def test_a_header_with_other_columns_ends_the_record_and_says_so():
