@@ -26,7 +26,7 @@ from .io.progress import Tally, working
 from .io.table import ReadOptions, RecordingError
 from .live import LiveSession
 
-__all__ = ["replay", "replay_file"]
+__all__ = ["hemisphere_note", "record_defaults", "replay", "replay_file"]
 
 _CHUNK_ROWS = 4096  # samples handed to the session at once (the pipeline's vectorised parts run per chunk)
 
@@ -133,6 +133,41 @@ def gyro_matrix_note(model, has_gyro: bool = True) -> tuple[str, str]:
                         f"{cross:.2f} % (the entries its fit did not see off the identity held at it)")
     return "warn", ("--gyro-matrix: the calibration holds no gyro matrix entry its fit saw off the identity (a tumble "
                     "with a gyro writes tumble.gyro.gyro_matrix): the gyro as read")
+
+
+def hemisphere_note(cal, site_given: bool) -> str | None:
+    """Words when the calibration's field sign rests on a hemisphere nothing checks, None otherwise.
+
+    A four-flip bench whose hemisphere was assumed (its data cannot tell ``(a, B)`` from ``(-a, -B)``), or a field
+    that points up (dip at most -10 deg: right in the southern hemisphere, a reversed magnetometer axis in the
+    northern, as the calibration warned), with no site whose reference field would stop a session on a field turned
+    over (:func:`compass.site.upside_down`): if the assumption is wrong, every heading is 180 deg off.
+
+    Parameters
+    ----------
+    cal : compass.calibration.Calibration
+    site_given : bool
+        The session has a site's reference field (``--site``, or the calibration's site block where it is used).
+    """
+    from .axes import MIN_SIGNED_DIP_DEG
+
+    dip = cal.model.dip_deg
+    if site_given:
+        return None
+    if cal.provenance.hemisphere_assumed:
+        north = dip is None or dip >= 0.0
+        assumed = (f"its bench assumed the {'northern' if north else 'southern'} hemisphere (a four-flip bench cannot "
+                   "tell (a, B) from (-a, -B))")
+        wrong = f"in the {'southern' if north else 'northern'} hemisphere"
+        cure = "recalibrate with the bench's latitude ('# site_lat_deg:' in its recording, or compass calibrate --site)"
+    elif dip is not None and dip <= -MIN_SIGNED_DIP_DEG:
+        assumed = f"its field points up (dip {dip:+.1f} deg), which is right only in the southern hemisphere"
+        wrong = "in the northern hemisphere (a magnetometer axis reversed)"
+        cure = "recalibrate with that axis negated, as the calibration's warning says (--columns mz=-COLUMN, ...)"
+    else:
+        return None
+    return (f"{assumed}, and no --site checks it: {wrong} every heading is 180 deg off. Give --site LAT,LON (a field "
+            f"pointing the other way from the site's is then refused), or {cure}")
 
 
 def record_defaults(recording, given: dict) -> tuple[dict, list]:
@@ -264,6 +299,9 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     source = "site"
     if site is None and cal.site is not None:
         site, source = cal.site, "calibration site"
+    hemisphere = hemisphere_note(cal, site_given=site is not None)
+    if hemisphere is not None and not quiet:
+        print(f"[warn] {calibration}: {hemisphere}", file=sys.stderr)
     try:
         reference = None if site is None else reference_from_site(
             site, field_ut=None if model.field_ut is None else 1.0, source=source)

@@ -98,7 +98,7 @@ def run(args) -> int:
     from ..io.sample_log import SampleLog
     from ..live import LiveSession, invalid_words
     from ..filter import FilterConfig
-    from ..replay import gyro_matrix_note, mag_latency_note
+    from ..replay import gyro_matrix_note, hemisphere_note, mag_latency_note
     from ..calibration import load
 
     if args.calibrate == "tumble":
@@ -123,6 +123,9 @@ def run(args) -> int:
             level, text = note(model)
             print(f"[{level}] {text}", flush=True)
     reference = _site_reference(args, model)
+    hemisphere = hemisphere_note(cal, site_given=reference is not None)
+    if hemisphere is not None:  # under --quiet too: the closing hint's kind, said at the start
+        print(f"compass live: warning: {args.cal}: {hemisphere}", file=sys.stderr, flush=True)
     stream = stream_options(args)
     reader = open_reader(args)
     inputs = (args.cal, args.port)  # --out /dev/ttyUSB0 (the options mixed up) would write into the module

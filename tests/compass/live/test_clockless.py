@@ -326,3 +326,27 @@ def test_a_time_that_goes_back_is_recorded_and_replayed_as_live_took_it(tmp_path
     other.write_text(recording.read_text().replace("# source: compass live --record", "# source: a logger"))
     with pytest.raises(RecordingError, match="must not decrease"):
         read_table(other, live_record=True)
+
+
+def test_live_says_once_at_the_start_that_a_field_pointing_up_rests_on_the_hemisphere(tmp_path, capsys):
+    """A calibration whose field points up (a reversed magnetometer axis in the northern hemisphere, as its
+    calibration warned) and no --site: said once, under --quiet too, with what fixes it."""
+    from .test_live import _serve_repeatedly
+
+    model = default_model()
+    cal = tmp_path / "cal.json"
+    save(cal, model_to_dict(model) | {"dip_deg": -60.0})
+    s = simulate_device(model, np.arange(0.0, 0.2, 0.01), seed=4)
+    payload = b"".join((",".join(map(repr, row)) + "\r\n").encode()
+                       for row in np.column_stack([s.accel, s.gyro, s.raw]).tolist())
+    server, thread, port = _serve_repeatedly(payload)
+    try:
+        code = main(["live", "--port", port, "--cal", str(cal), "--columns", ",".join(COLUMNS), "--duration", "1",
+                     "--quiet"])
+    finally:
+        server.close()
+        thread.join(15)
+    said = [line for line in capsys.readouterr().err.splitlines() if "180 deg off" in line]
+    assert code == 0 and len(said) == 1
+    assert said[0].startswith(f"compass live: warning: {cal}: its field points up (dip -60.0 deg)")
+    assert "Give --site LAT,LON" in said[0] and "recalibrate with that axis negated" in said[0]
