@@ -170,7 +170,7 @@ def run(args) -> int:
                                f"header: {','.join(header.names)}): no attitude without the accelerometer's tilt, "
                                "the field alone fixes two of the three angles")
             if session.decoder.fatal is not None:  # judged on close: fewer samples than the unit check holds
-                raise BadInput(f"{args.port}: {session.decoder.fatal} ({args.cal}): is it the right calibration?")
+                raise BadInput(_fatal_words(args, session.decoder))
     finally:
         recorded = _recorded(session)
         if sink is not None and session is None:
@@ -205,6 +205,15 @@ def _recorded(session) -> bool:
             and session.wrong_gravity is None and session.wrong_time is None)
 
 
+def _fatal_words(args, decoder) -> str:
+    """Why the stream cannot be used (:attr:`compass.io.streams.StreamDecoder.fatal`), asking after the calibration
+    only when its format is known: the unit check or the channels found the calibration and the stream apart.  Before
+    that the stream itself is at fault (bare numbers whose columns are not named: the words say how to name them)."""
+    if decoder.format is None:
+        return f"{args.port}: {decoder.fatal}"
+    return f"{args.port}: {decoder.fatal} ({args.cal}): is it the right calibration?"
+
+
 def _refuse(args, session) -> None:
     """BadInput when the session found the field turned over against ``--site``, or ``--gravity`` (or the
     calibration's accelerometer correction's unit) not what 1 g reads."""
@@ -232,7 +241,7 @@ def _run_session(args, reader, session, files: list, tty: bool, every_s: float) 
                 session.feed(item)
                 _refuse(args, session)
                 if session.decoder.fatal is not None:
-                    raise BadInput(f"{args.port}: {session.decoder.fatal} ({args.cal}): is it the right calibration?")
+                    raise BadInput(_fatal_words(args, session.decoder))
                 now = time.perf_counter()
                 if now - last >= every_s:
                     rate = (session.decoder.stats.samples - last_count) / (now - last)

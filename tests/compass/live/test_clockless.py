@@ -350,3 +350,24 @@ def test_live_says_once_at_the_start_that_a_field_pointing_up_rests_on_the_hemis
     assert code == 0 and len(said) == 1
     assert said[0].startswith(f"compass live: warning: {cal}: its field points up (dip -60.0 deg)")
     assert "Give --site LAT,LON" in said[0] and "recalibrate with that axis negated" in said[0]
+
+
+def test_bare_numbers_without_columns_are_refused_naming_the_columns_not_the_calibration(tmp_path, capsys):
+    from .test_live import _serve_repeatedly
+
+    model = default_model()
+    cal = tmp_path / "cal.json"
+    save(cal, model_to_dict(model))
+    s = simulate_device(model, np.arange(0.0, 0.5, 0.01), seed=4)
+    payload = b"".join((",".join(map(repr, row)) + "\r\n").encode()
+                       for row in np.column_stack([s.accel, s.gyro, s.raw]).tolist())
+    server, thread, port = _serve_repeatedly(payload)
+    try:
+        code = main(["live", "--port", port, "--cal", str(cal), "--duration", "10", "--quiet"])
+    finally:
+        server.close()
+        thread.join(15)
+    err = capsys.readouterr().err
+    assert code == 2 and "bare numbers without a header" in err
+    assert "name its cells with --columns, e.g. --columns t_s,ax,ay,az,gx,gy,gz,mx,my,mz\n" in err
+    assert "calibration" not in err
