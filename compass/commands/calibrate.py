@@ -170,14 +170,15 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
 
 
 def _check_time_steps(table) -> None:
-    """RecordingError when ``t_s`` does not count seconds between samples, as the runtime refuses it
-    (:func:`compass.io.streams.time_steps_verdict` against the filter's ``max_gap_s``): a time in milliseconds read
-    as seconds (``--columns t_s=time_ms``) steps 1000 times too far, and a gyro-aided fit would turn by as much."""
+    """RecordingError when a recording with a gyro has a ``t_s`` that does not count seconds between samples, as the
+    runtime refuses it (:func:`compass.io.streams.time_steps_verdict` against the filter's ``max_gap_s``): a time in
+    milliseconds read as seconds (``--columns t_s=time_ms``) steps 1000 times too far, and a gyro-aided fit would turn
+    by as much.  Without a gyro ``t_s`` is no sample clock (a four-flip bench's rows are seconds apart)."""
     from ..filter import FilterConfig
     from ..io.streams import time_steps_verdict
     from ..io.table import RecordingError
 
-    if not table.has("t_s"):
+    if not (table.has("t_s") and table.has("gx")):
         return
     wrong = time_steps_verdict(table.column("t_s"), FilterConfig.max_gap_s)
     if wrong is not None:
