@@ -473,7 +473,9 @@ def _dip_sign(q: np.ndarray, centred: np.ndarray, up, site_dip_deg, names) -> tu
     where = "" if known else (" (the field taken to point down, as north of the magnetic equator; south of it, every "
                               "sign in the remap turned, or give the site: # site_lat_deg, # site_lon_deg and # date "
                               "lines in a file, --site to compass live)")
-    return chosen, True, f"{where}; an accelerometer that reads gravity as down (as read) turns the pick"
+    return chosen, True, (f"{where}; an accelerometer that reads gravity as down (as read) turns the pick: then every "
+                          "sign in the remap turned is right, or read the accelerometer negated (--accel-sign -1; "
+                          "compass live: -ax,-ay,-az in --columns)")
 
 
 def _remap(q: np.ndarray, names) -> str:

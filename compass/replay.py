@@ -15,6 +15,7 @@ import io
 import sys
 import time
 from contextlib import nullcontext
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,10 +23,10 @@ import numpy as np
 from . import limits
 from .io.lines import Header, Sample
 from .io.progress import Tally, working
-from .io.table import RecordingError
+from .io.table import ReadOptions, RecordingError
 from .live import LiveSession
 
-__all__ = ["replay", "replay_file"]
+__all__ = ["hemisphere_note", "record_defaults", "replay", "replay_file"]
 
 _CHUNK_ROWS = 4096  # samples handed to the session at once (the pipeline's vectorised parts run per chunk)
 
@@ -135,9 +136,84 @@ def gyro_matrix_note(model, has_gyro: bool = True) -> tuple[str, str]:
                     "with a gyro writes tumble.gyro.gyro_matrix): the gyro as read")
 
 
-def replay_file(calibration, recording, out, *, site=None, date=None, gravity=None, mag_latency=False, gyro_matrix=False,
+def hemisphere_note(cal, site_given: bool) -> str | None:
+    """Words when the calibration's field sign rests on a hemisphere nothing checks, None otherwise.
+
+    A four-flip bench whose hemisphere was assumed (its data cannot tell ``(a, B)`` from ``(-a, -B)``), or a field
+    that points up (dip at most -10 deg: right in the southern hemisphere, a reversed magnetometer axis in the
+    northern, as the calibration warned), with no site whose reference field would stop a session on a field turned
+    over (:func:`compass.site.upside_down`): if the assumption is wrong, every heading is 180 deg off.
+
+    Parameters
+    ----------
+    cal : compass.calibration.Calibration
+    site_given : bool
+        The session has a site's reference field (``--site``, or the calibration's site block where it is used).
+    """
+    from .axes import MIN_SIGNED_DIP_DEG
+
+    dip = cal.model.dip_deg
+    if site_given:
+        return None
+    if cal.provenance.hemisphere_assumed:
+        north = dip is None or dip >= 0.0
+        assumed = (f"its bench assumed the {'northern' if north else 'southern'} hemisphere (a four-flip bench cannot "
+                   "tell (a, B) from (-a, -B))")
+        wrong = f"in the {'southern' if north else 'northern'} hemisphere"
+        cure = "recalibrate with the bench's latitude ('# site_lat_deg:' in its recording, or compass calibrate --site)"
+    elif dip is not None and dip <= -MIN_SIGNED_DIP_DEG:
+        assumed = f"its field points up (dip {dip:+.1f} deg), which is right only in the southern hemisphere"
+        wrong = "in the northern hemisphere (a magnetometer axis reversed)"
+        cure = "recalibrate with that axis negated, as the calibration's warning says (--columns mz=-COLUMN, ...)"
+    else:
+        return None
+    return (f"{assumed}, and no --site checks it: {wrong} every heading is 180 deg off. Give --site LAT,LON (a field "
+            f"pointing the other way from the site's is then refused), or {cure}")
+
+
+def record_defaults(recording, given: dict) -> tuple[dict, list]:
+    """The replay's options: each one given, else the one the record's ``# replay:`` line names (a ``compass live
+    --record`` file's: :func:`compass.io.sample_log.read_replay_line`), so the plain replay writes the session's rows.
+
+    Parameters
+    ----------
+    recording : path
+    given : dict
+        Keyword (:data:`compass.io.sample_log.REPLAY_FLAGS`, :data:`~compass.io.sample_log.REPLAY_VALUES`) -> the
+        value given, None when not given.  A ``site`` given also sets aside the record's ``date`` (its site's day).
+
+    Returns
+    -------
+    options : dict
+        ``given`` with the record's values in place of its None.
+    notes : list of (level, words)
+        Which options came from the record (and which the ones given replaced), which of the line's were ignored.
+    """
+    from .io.sample_log import read_replay_line
+
+    recorded = read_replay_line(recording)
+    options, taken, replaced = dict(given), [], []
+    for key, value in recorded.values.items():
+        if given[key] is None and not (key == "date" and given["site"] is not None):
+            options[key] = value
+            taken.append(recorded.written[key])
+        else:
+            replaced.append(recorded.written[key])
+    line = f"{Path(recording).name}'s '# replay:' line"
+    words = [f"took {' '.join(taken)} (the options the live session ran with)"] if taken else []
+    words += [f"the options given here replaced its {' '.join(replaced)}"] if replaced else []
+    notes = [("info", f"{line}: {'; '.join(words)}")] if words else []
+    if recorded.ignored:
+        notes.append(("warn", f"{line}: ignored {'; '.join(recorded.ignored)}"))
+    return options, notes
+
+
+def replay_file(calibration, recording, out, *, site=None, date=None, gravity=None, mag_latency=None, gyro_matrix=None,
                 gyro_scale_error=None, force=False, rerun=None, read_options=None, quiet=False) -> LiveSession:
     """``compass attitude CAL REC --out ATT --filter``: the recording through ``compass live``'s pipeline.
+
+    An option not given (None) takes the value a live record's ``# replay:`` line names (:func:`record_defaults`),
+    the ``--accel-unit`` of ``read_options`` too.
 
     Parameters
     ----------
@@ -152,11 +228,11 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
         the accelerometer is then converted to g, as ``compass live --accel-unit`` converts it); default: the median |a|
         of the start window.  One beyond a factor 2 of that median is refused (the filter would never use the
         accelerometer: :attr:`compass.filter.FilterStart.gravity_words`).
-    mag_latency : bool
+    mag_latency : bool, optional
         Compensate the calibration's fitted magnetometer latency (``compass live --mag-latency``;
-        :meth:`compass.filter.FilterConfig.from_model`).
-    gyro_matrix : bool
-        Correct each gyro sample by the calibration's fitted gyro matrix (``compass live --gyro-matrix``;
+        :meth:`compass.filter.FilterConfig.from_model`); default the record's, else off.
+    gyro_matrix : bool, optional
+        Default the record's, else off.  Correct each gyro sample by the calibration's fitted gyro matrix (``compass live --gyro-matrix``;
         :meth:`compass.filter.FilterConfig.from_model`).
     gyro_scale_error : float, optional
         The gyro scale error the filter allows for, fraction of the rate (``compass live --gyro-scale-error``); default
@@ -191,6 +267,17 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
 
     out = check_writable(out, force, inputs=(calibration, recording))
     rerun = check_rerun_target(rerun, force)
+    read_options = read_options or ReadOptions()
+    options, notes = record_defaults(recording, dict(site=site, date=date, gravity=gravity, mag_latency=mag_latency,
+                                                     gyro_matrix=gyro_matrix, gyro_scale_error=gyro_scale_error,
+                                                     accel_unit=read_options.accel_unit))
+    site, date, gravity, gyro_scale_error = options["site"], options["date"], options["gravity"], options["gyro_scale_error"]
+    mag_latency, gyro_matrix = bool(options["mag_latency"]), bool(options["gyro_matrix"])
+    read_options = replace(read_options, accel_unit=options["accel_unit"])
+    for level, text in notes if not quiet else ():
+        print(f"[{level}] {text}", file=sys.stderr)
+    if date is not None and site is None:
+        raise BadInput("--date needs --site LAT,LON[,ALT_M]: the date only chooses the field at a site")
     if gravity is not None:
         try:
             limits.GRAVITY.check(gravity, "--gravity")
@@ -213,6 +300,9 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
     source = "site"
     if site is None and cal.site is not None:
         site, source = cal.site, "calibration site"
+    hemisphere = hemisphere_note(cal, site_given=site is not None)
+    if hemisphere is not None and not quiet:
+        print(f"[warn] {calibration}: {hemisphere}", file=sys.stderr)
     try:
         reference = None if site is None else reference_from_site(
             site, field_ut=None if model.field_ut is None else 1.0, source=source)
@@ -231,7 +321,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
                                          "(without one: compass attitude --level, no --filter)",
                              row=table.header_row, column="ax")
     table.check_dead_axis(("ax", "ay", "az"))
-    if read_options is not None and read_options.accel_unit is not None:
+    if read_options.accel_unit is not None:
         # --accel-unit: in g, as compass live --accel-unit converts; a unit the header names alone stays the file's,
         # as the calibrations (a bench's offsets, a tumble's accelerometer correction) read theirs
         accel = accel * units.ACCEL_UNITS[table.units["ax"]]
@@ -242,7 +332,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
                                          "without --filter each row is solved alone",
                              row=table.header_row, column="t_s")
     if gyro is not None:
-        _check_gyro_turn(table, gyro, named=read_options is not None and read_options.gyro_unit is not None)
+        _check_gyro_turn(table, gyro, named=read_options.gyro_unit is not None)
     raw = np.column_stack([table.column(name) for name in model.channels])
     wrong_unit = judge_field_unit(field_scale_check(model), raw, accel)  # as the stream decoder judges live
     if wrong_unit is not None:

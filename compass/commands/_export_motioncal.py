@@ -21,7 +21,8 @@ iron and a soft iron, nothing else.  A calibration is exported when its field is
 
 The accelerometer zero-g and gyro zero-rate are sent as 0, as MotionCal sends them.  With ``--port``
 the packet is written to the device and its ``Cal1:``/``Cal2:`` echoes are read for ``--wait``
-seconds: the first echo of the values sent confirms it; echoes of other values only are said (exit 1).
+seconds: the first echo of the values sent confirms it; echoes of other values only, or no echo at all (the
+packet not confirmed), are said (exit 1).
 """
 
 from __future__ import annotations
@@ -169,8 +170,7 @@ def send_packet(port: str, packet, *, baud: int = 115200, wait_s: float = 5.0) -
     Returns
     -------
     status : int
-        0: an echo of the values sent came (or no echo at all: not confirmed, said); 1: only echoes of
-        other values came.
+        0: an echo of the values sent came; 1: only echoes of other values came, or none (not confirmed).
     words : str
     """
     import serial
@@ -207,8 +207,9 @@ def send_packet(port: str, packet, *, baud: int = 115200, wait_s: float = 5.0) -
     finally:
         link.close()
     if seen == 0:
-        return 0, (f"sent {len(data)} bytes to {port}; no Cal1:/Cal2: echo in {wait_s:g} s, so not confirmed "
-                   f"(a sketch that echoes prints them every second or so)")
+        return 1, (f"sent {len(data)} bytes to {port}; no Cal1:/Cal2: echo in {wait_s:g} s: not confirmed that the "
+                   f"device took it (a sketch that echoes prints them every second or so: check the port and --baud, "
+                   f"or wait longer with --wait)")
     _, words = echo_matches(packet, *last)
     return 1, (f"sent {len(data)} bytes to {port}; for {wait_s:g} s the device echoes other values ({words}): it did "
                f"not take the packet (a sketch without MotionCal's receiver?)")

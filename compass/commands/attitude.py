@@ -38,7 +38,10 @@ def register(sub) -> None:
     p.add_argument("--filter", action="store_true",
                    help="run compass live's pipeline over the recording (needs t_s and ax,ay,az; gx,gy,gz used when "
                         "present): the same start, gate and Kalman filter, the columns of live --out plus the "
-                        "quaternion qw,qx,qy,qz (R_world<-housing); instead of solving each row alone")
+                        "quaternion qw,qx,qy,qz (R_world<-housing); instead of solving each row alone. On a "
+                        "compass live --record file the options its '# replay:' line names (--site, --date, "
+                        "--gravity, --mag-latency, --gyro-matrix, --gyro-scale-error, --accel-unit) are the defaults, "
+                        "so the plain command writes the session's rows; one given here wins")
     p.add_argument("--gravity", type=limits.GRAVITY.option("--gravity"), metavar="G",
                    help="with --filter: what 1 g reads in the accelerometer's unit, in g when --accel-unit names one "
                         "(default: the median |a| of the recording's first quiet second; one beyond a factor 2 of "
@@ -53,9 +56,7 @@ def register(sub) -> None:
 def run(args) -> int:
     from ..cli import BadInput
 
-    if args.date is not None and args.site is None:
-        raise BadInput("--date needs --site LAT,LON[,ALT_M]: the date only chooses the field at a site")
-    if args.filter:
+    if args.filter:  # the options a live record's '# replay:' line names are the defaults (--date's site too)
         from ..replay import replay_file
 
         if args.level:
@@ -64,6 +65,8 @@ def run(args) -> int:
                     mag_latency=args.mag_latency, gyro_matrix=args.gyro_matrix,
                     gyro_scale_error=args.gyro_scale_error, force=args.force, rerun=args.rerun, read_options=ReadOptions.from_args(args))
         return 0
+    if args.date is not None and args.site is None:
+        raise BadInput("--date needs --site LAT,LON[,ALT_M]: the date only chooses the field at a site")
     if args.gravity is not None:
         raise BadInput("--gravity goes with --filter (the per-row solution normalises each accelerometer row)")
     if args.mag_latency:

@@ -116,6 +116,7 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
 
     out = check_writable(out, force, inputs=(recording, base))
     table = read_table(recording, read_options)
+    _check_time_steps(table)
     if base is not None and kind is None:
         kind = "installed"  # --base: the recording is an installation on top of that bench calibration
     try:
@@ -166,3 +167,21 @@ def calibrate_file(recording, out, *, method="ml", diagnose=True, report=None, f
         paths = result.plots(rec, report)
         print("wrote " + ", ".join(str(p) for p in paths))
     return result
+
+
+def _check_time_steps(table) -> None:
+    """RecordingError when a recording with a gyro has a ``t_s`` that does not count seconds between samples, as the
+    runtime refuses it (:func:`compass.io.streams.time_steps_verdict` against the filter's ``max_gap_s``): a time in
+    milliseconds read as seconds (``--columns t_s=time_ms``) steps 1000 times too far, and a gyro-aided fit would turn
+    by as much.  Without a gyro ``t_s`` is no sample clock (a four-flip bench's rows are seconds apart)."""
+    from ..filter import FilterConfig
+    from ..io.streams import time_steps_verdict
+    from ..io.table import RecordingError
+
+    if not (table.has("t_s") and table.has("gx")):
+        return
+    wrong = time_steps_verdict(table.column("t_s"), FilterConfig.max_gap_s)
+    if wrong is not None:
+        column = table.original.get("t_s", "t_s")
+        raise RecordingError(table.path, f"{wrong}: a time in ms is read with --columns t_ms={column} (t_us=: in us), "
+                                         "or from a header 'Time (ms)'", row=table.header_line, column=column)

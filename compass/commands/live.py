@@ -40,11 +40,13 @@ GYRO_SCALE_ERROR_HELP = ("the gyro's scale and axis error the filter allows for,
 
 def add_mag_latency_argument(p, *, with_filter: bool = False) -> None:
     """``--mag-latency`` (``FilterConfig.from_model(model, mag_latency=True)``), ``--gyro-matrix``
-    (``gyro_matrix=True``) and ``--gyro-scale-error`` (``gyro_scale_error=F``), for ``live`` and ``attitude --filter``."""
-    p.add_argument("--mag-latency", action="store_true",
-                   help=("with --filter: " if with_filter else "") + MAG_LATENCY_HELP)
-    p.add_argument("--gyro-matrix", action="store_true",
-                   help=("with --filter: " if with_filter else "") + GYRO_MATRIX_HELP)
+    (``gyro_matrix=True``) and ``--gyro-scale-error`` (``gyro_scale_error=F``), for ``live`` and ``attitude --filter``
+    (there also ``--no-mag-latency`` and ``--no-gyro-matrix``, against a record's ``# replay:`` line; not given: None)."""
+    import argparse
+
+    switch = dict(action=argparse.BooleanOptionalAction, default=None) if with_filter else dict(action="store_true")
+    p.add_argument("--mag-latency", **switch, help=("with --filter: " if with_filter else "") + MAG_LATENCY_HELP)
+    p.add_argument("--gyro-matrix", **switch, help=("with --filter: " if with_filter else "") + GYRO_MATRIX_HELP)
     p.add_argument("--gyro-scale-error", type=limits.GYRO_SCALE_ERROR.option("--gyro-scale-error"), metavar="FRACTION",
                    help=("with --filter: " if with_filter else "") + GYRO_SCALE_ERROR_HELP)
 
@@ -96,7 +98,7 @@ def run(args) -> int:
     from ..io.sample_log import SampleLog
     from ..live import LiveSession, invalid_words
     from ..filter import FilterConfig
-    from ..replay import gyro_matrix_note, mag_latency_note
+    from ..replay import gyro_matrix_note, hemisphere_note, mag_latency_note
     from ..calibration import load
 
     if args.calibrate == "tumble":
@@ -121,6 +123,9 @@ def run(args) -> int:
             level, text = note(model)
             print(f"[{level}] {text}", flush=True)
     reference = _site_reference(args, model)
+    hemisphere = hemisphere_note(cal, site_given=reference is not None)
+    if hemisphere is not None:  # under --quiet too: the closing hint's kind, said at the start
+        print(f"compass live: warning: {args.cal}: {hemisphere}", file=sys.stderr, flush=True)
     stream = stream_options(args)
     reader = open_reader(args)
     inputs = (args.cal, args.port)  # --out /dev/ttyUSB0 (the options mixed up) would write into the module
@@ -165,7 +170,7 @@ def run(args) -> int:
                                f"header: {','.join(header.names)}): no attitude without the accelerometer's tilt, "
                                "the field alone fixes two of the three angles")
             if session.decoder.fatal is not None:  # judged on close: fewer samples than the unit check holds
-                raise BadInput(f"{args.port}: {session.decoder.fatal} ({args.cal}): is it the right calibration?")
+                raise BadInput(_fatal_words(args, session.decoder))
     finally:
         recorded = _recorded(session)
         if sink is not None and session is None:
@@ -200,6 +205,15 @@ def _recorded(session) -> bool:
             and session.wrong_gravity is None and session.wrong_time is None and session.wrong_field is None)
 
 
+def _fatal_words(args, decoder) -> str:
+    """Why the stream cannot be used (:attr:`compass.io.streams.StreamDecoder.fatal`), asking after the calibration
+    only when its format is known: the unit check or the channels found the calibration and the stream apart.  Before
+    that the stream itself is at fault (bare numbers whose columns are not named: the words say how to name them)."""
+    if decoder.format is None:
+        return f"{args.port}: {decoder.fatal}"
+    return f"{args.port}: {decoder.fatal} ({args.cal}): is it the right calibration?"
+
+
 def _refuse(args, session) -> None:
     """BadInput when the session found the field turned over against ``--site``, or ``--gravity`` (or the
     calibration's accelerometer correction's unit) not what 1 g reads."""
@@ -229,7 +243,7 @@ def _run_session(args, reader, session, files: list, tty: bool, every_s: float) 
                 session.feed(item)
                 _refuse(args, session)
                 if session.decoder.fatal is not None:
-                    raise BadInput(f"{args.port}: {session.decoder.fatal} ({args.cal}): is it the right calibration?")
+                    raise BadInput(_fatal_words(args, session.decoder))
                 now = time.perf_counter()
                 if now - last >= every_s:
                     rate = (session.decoder.stats.samples - last_count) / (now - last)
@@ -246,12 +260,15 @@ def _run_session(args, reader, session, files: list, tty: bool, every_s: float) 
 
 
 def _replay_options(args, reference) -> str:
-    """The options of this session a replay of its ``--record`` needs to write the same rows."""
+    """The options of this session a replay of its ``--record`` needs to write the same rows (the replay takes them
+    as defaults: :func:`compass.io.sample_log.read_replay_line`)."""
+    import shlex
+
     from ..site import Site
 
     words = []
     if reference is not None:  # the day too: the field of --site without --date is today's
-        words.append(f"--site {args.site} --date {Site.parse(args.site, args.date).date.isoformat()}")
+        words.append(f"--site {shlex.quote(args.site)} --date {Site.parse(args.site, args.date).date.isoformat()}")
     if args.gravity is not None:
         words.append(f"--gravity {args.gravity!r}")
     words += [flag for flag, on in (("--mag-latency", args.mag_latency), ("--gyro-matrix", args.gyro_matrix)) if on]

@@ -11,13 +11,32 @@ The columns are the module's header's; a row on which the module sent an optiona
 accelerometer's or the gyro's, as the line protocol allows) has ``nan`` in its cells, which the replay reads as
 that group not sent on that row, as the live session took it.  A later header with other columns ends the
 recording (said once): one file has one set of columns.
+
+:func:`read_replay_line` reads that ``# replay:`` line back: the replay takes its options as defaults, so the plain
+``compass attitude CAL THIS.csv --out ATT.csv --filter`` writes the session's rows.
 """
 
 from __future__ import annotations
 
-from .table import ABSENT_KEY, LIVE_RECORD
+import shlex
+from dataclasses import dataclass
 
-__all__ = ["SampleLog"]
+from .table import ABSENT_KEY, LIVE_RECORD
+from .units import ACCEL_UNITS
+
+__all__ = ["REPLAY_FLAGS", "REPLAY_VALUES", "RecordedReplay", "SampleLog", "parse_replay_line", "read_replay_line"]
+
+REPLAY_FLAGS = {"--mag-latency": "mag_latency", "--gyro-matrix": "gyro_matrix"}
+"""The replay's switches a ``# replay:`` line may name -> :func:`compass.replay.replay_file`'s keyword."""
+REPLAY_VALUES = {"--site": "site", "--date": "date", "--gravity": "gravity", "--gyro-scale-error": "gyro_scale_error",
+                 "--accel-unit": "accel_unit"}
+"""The replay's options with a value a ``# replay:`` line may name -> the keyword (``accel_unit``: the
+:class:`compass.io.table.ReadOptions` field)."""
+_NUMBERS = ("gravity", "gyro_scale_error")
+_OWN = {"--out": 1, "--filter": 0}
+"""The replay command's own options in the line (with how many values): the command line gives them."""
+_MAX_HEADER_LINES = 64
+"""Lines read for the ``# source:`` and ``# replay:`` lines (a record writes four before its header)."""
 
 _ABSENT = float("nan")
 
@@ -98,3 +117,98 @@ class SampleLog:
                        + f"# units: the calibration's for {','.join(self.channels)}"
                        + (f"; accelerometer in {'g' if accel_in_g else 'the module unit'}" if accel else "")
                        + ("; gyro in rad/s" if gyro else "") + "\n" + ",".join(names) + "\n")
+
+
+@dataclass(frozen=True)
+class RecordedReplay:
+    """The options a live record's ``# replay:`` line names.
+
+    Attributes
+    ----------
+    values : dict
+        Keyword (:data:`REPLAY_FLAGS`, :data:`REPLAY_VALUES`) -> value: ``True`` for a switch, a float for
+        ``gravity`` and ``gyro_scale_error``, else the text.
+    written : dict of str to str
+        Keyword -> the option as the line writes it (``--site 48.15,11.58``), for the words.
+    ignored : tuple of str
+        The line's options the replay does not take (a port, a duration) or cannot read, as written, each with why.
+    """
+
+    values: dict
+    written: dict
+    ignored: tuple = ()
+
+
+def read_replay_line(path) -> RecordedReplay:
+    """The options of ``path``'s ``# replay:`` line when it is a ``compass live --record`` file (its ``# source:``
+    line); none otherwise, and for a file that cannot be read (the table's reader then says why)."""
+    metadata = {}
+    try:
+        with open(path, encoding="utf-8-sig") as f:
+            for _, line in zip(range(_MAX_HEADER_LINES), f):
+                stripped = line.strip()
+                if stripped and not stripped.startswith("#"):
+                    break
+                key, sep, value = stripped[1:].partition(":")
+                if sep:
+                    metadata.setdefault(key.strip(), value.strip())
+    except (OSError, UnicodeDecodeError):
+        return RecordedReplay({}, {})
+    if not metadata.get("source", "").startswith(LIVE_RECORD) or "replay" not in metadata:
+        return RecordedReplay({}, {})
+    return parse_replay_line(metadata["replay"])
+
+
+def parse_replay_line(text: str) -> RecordedReplay:
+    """The options of a ``# replay:`` line (``compass attitude CAL.json THIS.csv --out ATT.csv --filter ...``).
+
+    Examples
+    --------
+    >>> r = parse_replay_line("compass attitude CAL.json THIS.csv --out ATT.csv --filter --gravity 1.02 --port /dev/x")
+    >>> r.values, r.ignored
+    ({'gravity': 1.02}, ('--port /dev/x (not an option of the replay)',))
+    """
+    try:
+        words = shlex.split(text)
+    except ValueError as exc:
+        return RecordedReplay({}, {}, (f"the whole line ({exc})",))
+    values, written, ignored = {}, {}, []
+    k = next((i for i, w in enumerate(words) if w.startswith("--")), len(words))  # compass attitude CAL THIS
+    while k < len(words):
+        option, _, value = words[k].partition("=")
+        k += 1
+        if not value and option in REPLAY_VALUES and k < len(words) and not words[k].startswith("--"):
+            value, k = words[k], k + 1
+        if option in _OWN:
+            k += 0 if value else _OWN[option]
+        elif option in REPLAY_FLAGS:
+            values[REPLAY_FLAGS[option]], written[REPLAY_FLAGS[option]] = True, option
+        elif option in REPLAY_VALUES:
+            key, why = REPLAY_VALUES[option], _unreadable(REPLAY_VALUES[option], value)
+            if why:
+                ignored.append(f"{option} {value}".strip() + f" ({why})")
+            else:
+                values[key] = float(value) if key in _NUMBERS else value
+                written[key] = f"{option} {shlex.quote(value)}"
+        else:
+            rest = [words[k - 1]]
+            while k < len(words) and not words[k].startswith("--"):
+                rest.append(words[k])
+                k += 1
+            why = "not an option" if not option.startswith("--") else "not an option of the replay"
+            ignored.append(f"{' '.join(rest)} ({why})")
+    return RecordedReplay(values, written, tuple(ignored))
+
+
+def _unreadable(key: str, value: str) -> str:
+    """Why a ``# replay:`` line's value of ``key`` cannot be taken ('' when it can)."""
+    if not value:
+        return "no value"
+    if key in _NUMBERS:
+        try:
+            float(value)
+        except ValueError:
+            return "not a number"
+    if key == "accel_unit" and value not in ACCEL_UNITS:
+        return f"not one of {', '.join(ACCEL_UNITS)}"
+    return ""

@@ -59,6 +59,8 @@ _OPTIONAL_GROUPS = (("temp_c",), _ACCEL, _GYRO)
 _LOG_SENSORS = {"gyroscope": "g", "gyro": "g", "gyr": "g", "accelerometer": "a", "accel": "a", "acc": "a",
                 "magnetometer": "m", "mag": "m"}
 _LOG_NAME = re.compile(r"^(?P<sensor>[a-z]+)[ _]?(?P<axis>[xyz])\s*(?:\((?P<unit>[^)]*)\))?$", re.IGNORECASE)
+_TIME_COLUMNS = {"t_ms": "ms", "t_us": "us"}
+"""``--columns`` names of a time in milliseconds, microseconds: read as ``t_s``, converted."""
 _TIME_NAME = re.compile(r"^time\s*\((?P<unit>s|ms|us)\)$", re.IGNORECASE)
 _NUMBER = re.compile(r"^\s*[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?\s*$|^\s*[+-]?(?:nan|inf|infinity)\s*$",
                      re.IGNORECASE)
@@ -161,7 +163,8 @@ def add_read_arguments(parser) -> None:
     g = parser.add_argument_group("reading the recording (columns and units)")
     g.add_argument("--columns", type=column_map, metavar="NAME=COLUMN,...",
                    help="which file column is which, e.g. mx='Mag X',my='Mag Y',mz='Mag Z',t_s=time (also a "
-                        "'# columns: ...' line in the file); names match without regard to case; az=-AccZ "
+                        "'# columns: ...' line in the file; t_ms=, t_us=: a time in ms, us); names match without "
+                        "regard to case; az=-AccZ "
                         "negates a column; mx=my,my=mx swaps two (each maps to the header as read)")
     g.add_argument("--gyro-unit", choices=tuple(units.GYRO_UNITS), default=None,
                    help="unit of gx,gy,gz (default: the header's, else rad/s as SPEC says)")
@@ -728,6 +731,8 @@ def _interpret(table: Table, options: ReadOptions, meta_rows: dict, time_may_go_
                                        "reads one quantity", row=table.header_line, column=theirs)
         taken[matches[0]] = ours
         header[matches[0]] = ours
+        if ours in _TIME_COLUMNS:  # t_ms=COLUMN, t_us=COLUMN: a time in ms, us (as compass live's --columns names it)
+            header[matches[0]], named_units["t_s"] = "t_s", _TIME_COLUMNS[ours]
         if sign < 0:
             negate.append(matches[0])
     for ours in mapping:

@@ -72,6 +72,9 @@ def test_the_words_name_each_axis_and_both_forms_of_the_remap(robot):
     assert verdict.columns == "--columns mx=COLUMN(my),my=COLUMN(mx),mz=-COLUMN(mz)"
     assert verdict.cells == "my,mx,-mz"
     assert "mounted turned" in verdict.finding and "south of it, every sign in the remap turned" in verdict.remap
+    assert verdict.remap.endswith("an accelerometer that reads gravity as down (as read) turns the pick: then every "
+                                  "sign in the remap turned is right, or read the accelerometer negated "
+                                  "(--accel-sign -1; compass live: -ax,-ay,-az in --columns)")
     quarter = _verdict(*robot, QUARTER_Z)  # m = (-v_y, v_x, v_z): v_x is my, v_y is -mx; the cells read -y, x, z
     assert quarter.columns == "--columns mx=COLUMN(my),my=-COLUMN(mx),mz=COLUMN(mz)" and quarter.cells == "-my,mx,mz"
 

@@ -161,3 +161,22 @@ def test_freed_array_memory_is_reused_not_faulted_in_again():
                              check=True)
         faults[mode] = int(run.stdout.strip())
     assert faults["keep"] < faults["default"] / 5, faults
+
+
+def test_calibrate_refuses_a_time_in_ms_mapped_to_seconds_and_reads_it_as_t_ms(tmp_path, capsys):
+    """``--columns t_s=time_ms`` on a 100 Hz recording with a gyro steps 10 s a sample: refused as the runtime refuses
+    it (the filter's 0.5 s gap), with the mapping that reads it; ``t_ms=time_ms`` reads it in seconds."""
+    from compass.io.table import ReadOptions, read_table
+
+    rng = np.random.default_rng(0)
+    rows = 200
+    recording = tmp_path / "ms.csv"
+    recording.write_text("time_ms,mx,my,mz,gx,gy,gz\n" + "".join(f"{10.0 * k:.1f}," + ",".join(f"{v:.4f}" for v in m)
+                                                              + "\n" for k, m in enumerate(rng.normal(0, 1, (rows, 6)))))
+    code = main(["calibrate", str(recording), "--out", str(tmp_path / "cal.json"), "--columns", "t_s=time_ms"])
+    err = capsys.readouterr().err
+    assert code == 2 and "column 'time_ms': t_s steps by 10 s (median of 200 samples)" in err
+    assert "a time in ms is read with --columns t_ms=time_ms (t_us=: in us)" in err
+    table = read_table(recording, ReadOptions(columns={"t_ms": "time_ms"}))
+    np.testing.assert_allclose(table.column("t_s"), 0.01 * np.arange(rows))
+    assert table.units["t_s"] == "ms" and table.original["t_s"] == "time_ms"

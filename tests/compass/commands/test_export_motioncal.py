@@ -195,16 +195,19 @@ def test_a_device_that_keeps_other_values_is_said(tmp_path):
     assert status == 1 and "echoes other values" in words and "Cal1[8] 0.000 for 32.000" in words
 
 
-def test_no_echo_is_not_a_confirmation(tmp_path):
+def test_no_echo_is_not_a_confirmation_and_exits_1(tmp_path, capsys):
     cal = _board_cal(tmp_path)
     packet, _ = packet_of(load(cal))
     master, slave = os.openpty()
     try:
         status, words = send_packet(os.ttyname(slave), packet, wait_s=0.5)
+        code = main(["export", str(cal), "--format", "motioncal", "--port", os.ttyname(slave), "--wait", "0.5"])
     finally:
         os.close(master)
         os.close(slave)
-    assert status == 0 and "not confirmed" in words
+    assert status == 1 and "no Cal1:/Cal2: echo in 0.5 s: not confirmed that the device took it" in words
+    said = capsys.readouterr()
+    assert code == 1 and "not confirmed that the device took it" in said.err and "not confirmed" not in said.out
 
 
 def test_export_without_out_prints_the_numbers_and_bytes(tmp_path, capsys):

@@ -13,11 +13,12 @@ from compass.cli import main
 from compass.commands.live import _replay_options
 from compass.filter import FilterConfig, run_filter
 from compass.io.lines import Sample
-from compass.io.sample_log import SampleLog
+from compass.io.sample_log import SampleLog, parse_replay_line
 from compass.io.streams import StreamOptions
 from compass.io.table import RecordingError, read_table
 from compass.live import LiveSession
 from compass.serial_reader import Chunk
+from compass.site import Site, reference_from_site
 from compass.sim.device import default_model, simulate_device, tumble_motion
 
 RATE_HZ = 100.0
@@ -48,10 +49,10 @@ def clockless():
     return model, t, s, lines, _bursts(t, 3)
 
 
-def _live(model, lines, t_rx, record=None, events=None):
+def _live(model, lines, t_rx, record=None, events=None, **options):
     out = io.StringIO()
     session = LiveSession(model, out=out, stream=StreamOptions(columns=COLUMNS), record=record,
-                          on_event=None if events is None else lambda level, text: events.append(text))
+                          on_event=None if events is None else lambda level, text: events.append(text), **options)
     k = 0
     while k < len(lines):
         m = int(np.searchsorted(t_rx, t_rx[k], side="right"))
@@ -110,6 +111,49 @@ def test_the_record_replays_to_the_rows_live_wrote(clockless, tmp_path):
     replayed = [r[:-5] + r[-4:] for r in _rows(att.read_text())[1:]]
     live = [r[:-1] for r in _rows(live_text)[1:]]
     assert len(replayed) == len(live) and [r[:12] for r in replayed] == [r[:12] for r in live]
+
+
+def test_the_plain_replay_takes_the_record_s_options_and_one_given_here_wins(clockless, tmp_path, capsys):
+    """A session run with --site and --gyro-scale-error 0.03: the plain replay of its record writes its rows, saying
+    in one line which options it took from the '# replay:' line and ignoring one it cannot apply; a --gyro-scale-error
+    given on the command line replaces the record's (the rows of a session run with it)."""
+    model, t, s, lines, t_rx = clockless
+    reference = reference_from_site(Site.parse("48.15,11.58", "2025-06-01"),
+                                   field_ut=None if model.field_ut is None else 1.0)  # as compass live
+    raw = io.StringIO()
+    log = SampleLog(raw, model.channels, "socket://test",
+                    "--site 48.15,11.58 --date 2025-06-01 --gyro-scale-error 0.03 --duration 30")
+    _, live_text = _live(model, lines, t_rx, record=log, reference=reference,
+                         config=FilterConfig.from_model(model, gyro_scale_error=0.03))
+    _, other_text = _live(model, lines, t_rx, reference=reference,
+                          config=FilterConfig.from_model(model, gyro_scale_error=0.01))
+    recording, cal = tmp_path / "raw.csv", tmp_path / "cal.json"
+    recording.write_text(raw.getvalue())
+    save(cal, model_to_dict(model))
+    capsys.readouterr()
+    rows = {}
+    for name, given in (("plain", []), ("given", ["--gyro-scale-error", "0.01"])):
+        att = tmp_path / f"{name}.csv"
+        assert main(["attitude", str(cal), str(recording), "--out", str(att), "--filter", *given]) == 0
+        rows[name] = [r[:-5] + r[-4:] for r in _rows(att.read_text())[1:]]
+        rows[name + " said"] = [line for line in capsys.readouterr().err.splitlines() if "'# replay:' line" in line]
+    live, other = [r[:-1] for r in _rows(live_text)[1:]], [r[:-1] for r in _rows(other_text)[1:]]
+    assert [r[:12] for r in rows["plain"]] == [r[:12] for r in live] != [r[:12] for r in other]
+    assert [r[:12] for r in rows["given"]] == [r[:12] for r in other]
+    took, ignored = rows["plain said"]
+    assert took == ("[info] raw.csv's '# replay:' line: took --site 48.15,11.58 --date 2025-06-01 --gyro-scale-error "
+                    "0.03 (the options the live session ran with)")
+    assert ignored == "[warn] raw.csv's '# replay:' line: ignored --duration 30 (not an option of the replay)"
+    assert "took --site 48.15,11.58 --date 2025-06-01 (the options the live session ran with); the options given " \
+           "here replaced its --gyro-scale-error 0.03" in rows["given said"][0]
+
+
+def test_the_replay_line_s_options_are_read_back_and_what_it_cannot_apply_is_named():
+    read = parse_replay_line("compass attitude CAL.json THIS.csv --out ATT.csv --filter --accel-unit g --site "
+                             "'-33.9, 151.2' --gravity=1.02 --mag-latency --port /dev/ttyUSB0 --gyro-scale-error x")
+    assert read.values == {"accel_unit": "g", "site": "-33.9, 151.2", "gravity": 1.02, "mag_latency": True}
+    assert read.ignored == ("--port /dev/ttyUSB0 (not an option of the replay)", "--gyro-scale-error x (not a number)")
+    assert parse_replay_line("compass attitude 'CAL.json --filter").ignored == ("the whole line (No closing quotation)",)
 
 
 def test_a_header_with_other_columns_ends_the_record_and_says_so():
@@ -282,3 +326,48 @@ def test_a_time_that_goes_back_is_recorded_and_replayed_as_live_took_it(tmp_path
     other.write_text(recording.read_text().replace("# source: compass live --record", "# source: a logger"))
     with pytest.raises(RecordingError, match="must not decrease"):
         read_table(other, live_record=True)
+
+
+def test_live_says_once_at_the_start_that_a_field_pointing_up_rests_on_the_hemisphere(tmp_path, capsys):
+    """A calibration whose field points up (a reversed magnetometer axis in the northern hemisphere, as its
+    calibration warned) and no --site: said once, under --quiet too, with what fixes it."""
+    from .test_live import _serve_repeatedly
+
+    model = default_model()
+    cal = tmp_path / "cal.json"
+    save(cal, model_to_dict(model) | {"dip_deg": -60.0})
+    s = simulate_device(model, np.arange(0.0, 0.2, 0.01), seed=4)
+    payload = b"".join((",".join(map(repr, row)) + "\r\n").encode()
+                       for row in np.column_stack([s.accel, s.gyro, s.raw]).tolist())
+    server, thread, port = _serve_repeatedly(payload)
+    try:
+        code = main(["live", "--port", port, "--cal", str(cal), "--columns", ",".join(COLUMNS), "--duration", "1",
+                     "--quiet"])
+    finally:
+        server.close()
+        thread.join(15)
+    said = [line for line in capsys.readouterr().err.splitlines() if "180 deg off" in line]
+    assert code == 0 and len(said) == 1
+    assert said[0].startswith(f"compass live: warning: {cal}: its field points up (dip -60.0 deg)")
+    assert "Give --site LAT,LON" in said[0] and "recalibrate with that axis negated" in said[0]
+
+
+def test_bare_numbers_without_columns_are_refused_naming_the_columns_not_the_calibration(tmp_path, capsys):
+    from .test_live import _serve_repeatedly
+
+    model = default_model()
+    cal = tmp_path / "cal.json"
+    save(cal, model_to_dict(model))
+    s = simulate_device(model, np.arange(0.0, 0.5, 0.01), seed=4)
+    payload = b"".join((",".join(map(repr, row)) + "\r\n").encode()
+                       for row in np.column_stack([s.accel, s.gyro, s.raw]).tolist())
+    server, thread, port = _serve_repeatedly(payload)
+    try:
+        code = main(["live", "--port", port, "--cal", str(cal), "--duration", "10", "--quiet"])
+    finally:
+        server.close()
+        thread.join(15)
+    err = capsys.readouterr().err
+    assert code == 2 and "bare numbers without a header" in err
+    assert "name its cells with --columns, e.g. --columns t_s,ax,ay,az,gx,gy,gz,mx,my,mz\n" in err
+    assert "calibration" not in err
