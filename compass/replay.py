@@ -136,8 +136,10 @@ def gyro_matrix_note(model, has_gyro: bool = True) -> tuple[str, str]:
                     "with a gyro writes tumble.gyro.gyro_matrix): the gyro as read")
 
 
-def hemisphere_note(cal, site_given: bool) -> str | None:
-    """Words when the calibration's field sign rests on a hemisphere nothing checks, None otherwise.
+def hemisphere_note(cal, site_given: bool) -> tuple[str, str] | None:
+    """``(level, words)`` when the calibration's field sign rests on a hemisphere nothing checks, None otherwise:
+    ``"info"`` for a four-flip bench's assumed hemisphere (every such bench without a latitude), ``"warn"`` for a
+    field that points up (a reversed axis, unless the bench was south of the magnetic equator).
 
     A four-flip bench whose hemisphere was assumed (its data cannot tell ``(a, B)`` from ``(-a, -B)``), or a field
     that points up (dip at most -10 deg: right in the southern hemisphere, a reversed magnetometer axis in the
@@ -155,6 +157,7 @@ def hemisphere_note(cal, site_given: bool) -> str | None:
     dip = cal.model.dip_deg
     if site_given:
         return None
+    level = "info" if cal.provenance.hemisphere_assumed else "warn"
     if cal.provenance.hemisphere_assumed:
         north = dip is None or dip >= 0.0
         assumed = (f"its bench assumed the {'northern' if north else 'southern'} hemisphere (a four-flip bench cannot "
@@ -167,8 +170,8 @@ def hemisphere_note(cal, site_given: bool) -> str | None:
         cure = "recalibrate with that axis negated, as the calibration's warning says (--columns mz=-COLUMN, ...)"
     else:
         return None
-    return (f"{assumed}, and no --site checks it: {wrong} every heading is 180 deg off. Give --site LAT,LON (a field "
-            f"pointing the other way from the site's is then refused), or {cure}")
+    return level, (f"{assumed}, and no --site checks it: {wrong} every heading is 180 deg off. Give --site LAT,LON (a "
+                   f"field pointing the other way from the site's is then refused), or {cure}")
 
 
 def record_defaults(recording, given: dict) -> tuple[dict, list]:
@@ -302,7 +305,7 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
         site, source = cal.site, "calibration site"
     hemisphere = hemisphere_note(cal, site_given=site is not None)
     if hemisphere is not None and not quiet:
-        print(f"[warn] {calibration}: {hemisphere}", file=sys.stderr)
+        print(f"[{hemisphere[0]}] {calibration}: {hemisphere[1]}", file=sys.stderr)
     try:
         reference = None if site is None else reference_from_site(
             site, field_ut=None if model.field_ut is None else 1.0, source=source)

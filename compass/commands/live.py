@@ -69,7 +69,8 @@ def register(sub) -> None:
                         "arrive), as a recording `compass attitude CAL RAW.csv --filter` replays to the same rows")
     p.add_argument("--site", metavar="LAT,LON[,ALT_M]",
                    help="where the module is (degrees, metres): reference field and true north from the World "
-                        "Magnetic Model (default: the field of the first quiet second, magnetic heading only)")
+                        "Magnetic Model (default: the calibration's site block, else the field of the first quiet "
+                        "second, magnetic heading only)")
     p.add_argument("--date", metavar="YYYY-MM-DD", help="with --site: the day (default today, UTC)")
     add_mag_latency_argument(p)
     p.add_argument("--gravity", type=limits.GRAVITY.option("--gravity"), metavar="G",
@@ -122,10 +123,11 @@ def run(args) -> int:
         if flag and not args.quiet:
             level, text = note(model)
             print(f"[{level}] {text}", flush=True)
-    reference = _site_reference(args, model)
+    reference = _site_reference(args, model, cal.site)
     hemisphere = hemisphere_note(cal, site_given=reference is not None)
-    if hemisphere is not None:  # under --quiet too: the closing hint's kind, said at the start
-        print(f"compass live: warning: {args.cal}: {hemisphere}", file=sys.stderr, flush=True)
+    if hemisphere is not None and (hemisphere[0] == "warn" or not args.quiet):  # a warning under --quiet too
+        print(f"compass live: {'warning' if hemisphere[0] == 'warn' else 'note'}: {args.cal}: {hemisphere[1]}",
+              file=sys.stderr, flush=True)
     stream = stream_options(args)
     reader = open_reader(args)
     inputs = (args.cal, args.port)  # --out /dev/ttyUSB0 (the options mixed up) would write into the module
@@ -156,7 +158,7 @@ def run(args) -> int:
                 out = outputs.enter_context(atomic_stream(out_path, keep=lambda: _recorded(session)))
             if record_path is not None:  # kept whenever it holds a sample: the raw samples are good as they are
                 log = SampleLog(outputs.enter_context(atomic_stream(record_path, keep=lambda: log.rows > 0)),
-                                model.channels, args.port, _replay_options(args, reference))
+                                model.channels, args.port, _replay_options(args))
             session = LiveSession(model, config=config, out=out, sink=sink, on_event=on_event, reference=reference,
                                   imu=cal.imu, stream=stream, record=log,
                                   sign_from_bench=cal.provenance.hemisphere_assumed)
@@ -259,7 +261,7 @@ def _run_session(args, reader, session, files: list, tty: bool, every_s: float) 
         session.close()
 
 
-def _replay_options(args, reference) -> str:
+def _replay_options(args) -> str:
     """The options of this session a replay of its ``--record`` needs to write the same rows (the replay takes them
     as defaults: :func:`compass.io.sample_log.read_replay_line`)."""
     import shlex
@@ -267,7 +269,8 @@ def _replay_options(args, reference) -> str:
     from ..site import Site
 
     words = []
-    if reference is not None:  # the day too: the field of --site without --date is today's
+    if args.site is not None:  # the day too: the field of --site without --date is today's (the calibration's site
+        # block, without --site, is the replay's default as it is live's)
         words.append(f"--site {shlex.quote(args.site)} --date {Site.parse(args.site, args.date).date.isoformat()}")
     if args.gravity is not None:
         words.append(f"--gravity {args.gravity!r}")
@@ -277,16 +280,20 @@ def _replay_options(args, reference) -> str:
     return " ".join(words)
 
 
-def _site_reference(args, model):
-    """The WMM's field at ``--site`` (None without one: the session seeds it from the stream)."""
+def _site_reference(args, model, calibration_site):
+    """The WMM's field at ``--site``, else at the calibration's site block (as the replay takes it), None without
+    either: the session seeds it from the stream."""
     from ..cli import BadInput
     from ..site import Site, reference_from_site
 
-    if args.site is None:
-        if args.date is not None:
-            raise BadInput("--date needs --site LAT,LON[,ALT_M]: the date only chooses the field at a site")
-        return None
+    if args.site is None and args.date is not None:
+        raise BadInput("--date needs --site LAT,LON[,ALT_M]: the date only chooses the field at a site")
+    field_ut = None if model.field_ut is None else 1.0
     try:
-        return reference_from_site(Site.parse(args.site, args.date), field_ut=None if model.field_ut is None else 1.0)
+        if args.site is not None:
+            return reference_from_site(Site.parse(args.site, args.date), field_ut=field_ut)
+        if calibration_site is not None:
+            return reference_from_site(calibration_site, field_ut=field_ut, source="calibration site")
     except ValueError as exc:
         raise BadInput(str(exc)) from None
+    return None

@@ -646,14 +646,15 @@ def test_a_gyro_saturating_at_its_range_is_said_once_on_both_paths(tmp_path, cap
     assert np.all(np.isfinite(np.array(rows[1:], dtype=float)))
 
 
-@pytest.mark.parametrize("kind, dip_deg, words", [
-    ("fourflip", 60.0, "its bench assumed the northern hemisphere (a four-flip bench cannot tell (a, B) from (-a, -B)), "
+@pytest.mark.parametrize("kind, dip_deg, level, words", [
+    ("fourflip", 60.0, "info", "its bench assumed the northern hemisphere (a four-flip bench cannot tell (a, B) from (-a, -B)), "
                        "and no --site checks it: in the southern hemisphere every heading is 180 deg off"),
-    ("channels", -60.0, "its field points up (dip -60.0 deg), which is right only in the southern hemisphere, and no "
+    ("channels", -60.0, "warn", "its field points up (dip -60.0 deg), which is right only in the southern hemisphere, and no "
                         "--site checks it: in the northern hemisphere (a magnetometer axis reversed) every heading is "
                         "180 deg off")])
 def test_a_field_sign_resting_on_an_assumed_hemisphere_is_said_once_unless_a_site_checks_it(files, capsys, kind,
-                                                                                              dip_deg, words):
+                                                                                              dip_deg, level, words):
+    """An assumed bench hemisphere (every four-flip without a latitude) is a note; a field pointing up, a warning."""
     import json
 
     from compass.calibration import load
@@ -664,7 +665,7 @@ def test_a_field_sign_resting_on_an_assumed_hemisphere_is_said_once_unless_a_sit
     cal.write_text(json.dumps(document))
     assert main(["attitude", str(cal), str(recording()), "--out", str(cal.parent / "att.csv"), "--filter"]) == 0
     said = [line for line in capsys.readouterr().err.splitlines() if "180 deg off" in line]
-    assert len(said) == 1 and f"[warn] {cal}: {words}. Give --site LAT,LON" in said[0]
+    assert len(said) == 1 and f"[{level}] {cal}: {words}. Give --site LAT,LON" in said[0]
     assert hemisphere_note(load(cal), site_given=True) is None
     plain = json.loads(cal.read_text()) | {"model": "channels", "dip_deg": abs(dip_deg)}  # measured, pointing down
     cal.write_text(json.dumps(plain))

@@ -214,7 +214,7 @@ def test_the_record_names_the_replay_options_of_the_session():
     """The site with its day (the field of --site without --date is today's), a given gravity, the flags."""
     args = Namespace(site="52.2,0.1", date=None, gravity=1.02, mag_latency=True, gyro_matrix=False,
                      gyro_scale_error=0.03)
-    words = _replay_options(args, reference=object())
+    words = _replay_options(args)
     today = dt.datetime.now(dt.timezone.utc).date().isoformat()
     assert words == f"--site 52.2,0.1 --date {today} --gravity 1.02 --mag-latency --gyro-scale-error 0.03"
     raw = io.StringIO()

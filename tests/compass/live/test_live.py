@@ -523,3 +523,21 @@ def test_live_undoes_the_bench_accelerometer_offsets_only_in_the_bench_unit(unit
     tilt = np.sqrt(np.mean(np.concatenate([wrap(rows[late, 2] - pitch[late]), wrap(rows[late, 3] - roll[late])]) ** 2))
     said = any("does not read 1 g" in e for e in events)
     assert said != applied and (tilt < 0.5) == applied  # 0.03 g left in: about 1.7 deg
+
+
+def test_live_takes_the_calibration_s_site_as_the_replay_does_and_site_wins():
+    """The reference field: ``--site``, else the calibration's site block (compass attitude's default too, so a
+    replay of the record writes live's rows), else none (the stream's first quiet second)."""
+    from types import SimpleNamespace
+
+    from compass.commands.live import _site_reference
+    from compass.site import Site
+
+    model = default_model()
+    bench = Site.parse("48.15,11.58", "2025-06-01")
+    none = SimpleNamespace(site=None, date=None)
+    assert _site_reference(none, model, None) is None
+    from_file = _site_reference(none, model, bench)
+    assert from_file.source == "calibration site" and from_file.dip_deg == pytest.approx(bench.field().dip_deg)
+    given = _site_reference(SimpleNamespace(site="-33.9,18.4", date="2025-06-01"), model, bench)
+    assert given.source == "site" and given.dip_deg < 0.0 < from_file.dip_deg
