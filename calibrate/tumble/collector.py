@@ -6,6 +6,10 @@ converging ellipsoid fit, in the style of MotionCal.
 :attr:`TumbleCollector.enough` writes the samples as a tumble recording
 (:meth:`TumbleCollector.write_recording`) that :class:`calibrate.tumble.TumbleCalibrator` then fits
 like any other.
+
+The recording keeps what the module sent of ``ax,ay,az``, ``gx,gy,gz`` (rad/s, as the decoder hands them and
+as the tumble reader takes them by default) and ``temp_c``: with the gyro, ``compass calibrate`` fits the turns
+between samples too (the gyro-aided fit of :mod:`calibrate.tumble.gyro`).
 """
 
 from __future__ import annotations
@@ -27,6 +31,8 @@ CHANNELS = ("mx", "my", "mz")
 MIN_SAMPLES = 50
 """Samples below which no fit is tried (and the command refuses to calibrate)."""
 _FIT_SAMPLES = 2000  # the live fit uses at most this many samples, evenly spread
+_COLUMNS = ("t_s", *CHANNELS, "ax", "ay", "az", "gx", "gy", "gz", "temp_c")
+_GROUPS = ((1, 4), (4, 7), (7, 10), (10, 11))  # the samples' columns: magnetometer, accelerometer, gyro, temp_c
 
 
 class TumbleCollector:
@@ -81,14 +87,15 @@ class TumbleCollector:
         return self.decoder.drain_events()
 
     def _add(self, samples: list, t_rx: float) -> None:
+        absent = (np.nan,) * 3
         for s in self._clock.dated(samples, t_rx, self._t0):
-            self.rows.append((s.t_s, *s.raw, *(s.accel if s.accel is not None else (np.nan,) * 3),
-                              np.nan if s.temp_c is None else s.temp_c))
+            self.rows.append((s.t_s, *s.raw, *(absent if s.accel is None else s.accel),
+                              *(absent if s.gyro is None else s.gyro), np.nan if s.temp_c is None else s.temp_c))
 
     @property
     def samples(self) -> np.ndarray:
-        """(n, 8): t_s, mx, my, mz, ax, ay, az, temp_c (NaN where not sent)."""
-        return np.array(self.rows, dtype=float).reshape(-1, 8)
+        """(n, 11): t_s, mx, my, mz, ax, ay, az, gx, gy, gz, temp_c (NaN where not sent; the gyro in rad/s)."""
+        return np.array(self.rows, dtype=float).reshape(-1, len(_COLUMNS))
 
     def update(self) -> None:
         """Fit the ellipsoid to the samples so far and measure their coverage about its centre."""
@@ -125,17 +132,14 @@ class TumbleCollector:
         return text + f"  [{self.decoder.describe()}]"
 
     def write_recording(self, path) -> Path:
-        """The samples as a tumble recording (SPEC section 2): accelerometer and temp_c columns when
-        every sample had them."""
+        """The samples as a tumble recording (SPEC section 2): the accelerometer's, the gyro's (rad/s) and
+        temp_c columns when every sample had them."""
         data = self.samples
-        columns, keep = ["t_s", *CHANNELS], [0, 1, 2, 3]
-        if np.all(np.isfinite(data[:, 4:7])):
-            columns += ["ax", "ay", "az"]
-            keep += [4, 5, 6]
-        if np.all(np.isfinite(data[:, 7])):
-            columns.append("temp_c")
-            keep.append(7)
-        lines = ["# source: compass live --calibrate tumble", ",".join(columns)]
-        lines += [",".join(f"{v:.9g}" for v in row) for row in data[:, keep]]
+        keep = list(range(*_GROUPS[0]))
+        for lo, hi in _GROUPS[1:]:
+            if np.all(np.isfinite(data[:, lo:hi])):
+                keep += range(lo, hi)
+        lines = ["# source: compass live --calibrate tumble", ",".join(_COLUMNS[j] for j in [0, *keep])]
+        lines += [",".join(f"{v:.9g}" for v in row) for row in data[:, [0, *keep]]]
         atomic_write_text(path, "\n".join(lines) + "\n")
         return Path(path)

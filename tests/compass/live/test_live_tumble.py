@@ -73,3 +73,45 @@ def test_live_tumble_bad_options(tmp_path, capsys):
     assert "--min-coverage" in capsys.readouterr().err
     assert main(["live", "--port", "/dev/null"]) == 2
     assert "--cal CAL.json is required" in capsys.readouterr().err
+
+
+def _protocol_lines(t_s, sim) -> bytes:
+    """The samples as the line protocol: t_s, the magnetometer, the accelerometer and the gyro (rad/s)."""
+    from compass.io.lines import format_line
+
+    head = format_line(["t_s", "mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz"])
+    return head + b"".join(format_line([f"{t:.4f}", *(f"{v:.9g}" for v in (*m, *a, *g))])
+                           for t, m, a, g in zip(t_s, sim.mag, sim.accel, sim.gyro))
+
+
+def _recording(path):
+    """(header, rows) of a tumble recording, its comment lines apart."""
+    lines = [line for line in path.read_text().splitlines() if not line.startswith("#")]
+    return lines[0].split(","), np.array([[float(v) for v in line.split(",")] for line in lines[1:]])
+
+
+@pytest.fixture(scope="module")
+def partial():
+    """A hand-held motion with a gyro, cut at 30 % of the sphere: the ellipsoid alone fits only the hard iron."""
+    from compass.sim.partial_tumble import simulate_partial_tumble
+
+    return simulate_partial_tumble("slow_rotation", seed=0, coverage=0.3)
+
+
+def test_live_tumble_keeps_the_gyro_and_the_calibration_fits_its_turns(tmp_path, monkeypatch, partial, capsys):
+    """The recording held t_s and the magnetometer and accelerometer only, so a partial tumble got the offset-only
+    fit: the gyro is kept in rad/s, as the tumble reader takes gx,gy,gz, and the gyro-aided fit uses it."""
+    from tests.compass.live.test_live_mistakes import _live_on_socket
+
+    out = tmp_path / "cal.json"
+    status, alive, errors = _live_on_socket(monkeypatch, _protocol_lines(partial.t_s, partial), None, "--calibrate",
+                                            "tumble", "--out", str(out), "--duration", "3")
+    assert status == 0 and not alive and not errors, capsys.readouterr()
+    header, rows = _recording(tmp_path / "cal.tumble.csv")
+    assert header == ["t_s", "mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz"]
+    np.testing.assert_allclose(rows[:, 7:10], partial.gyro, rtol=1e-8, atol=1e-12)  # as sent, to its 9 digits
+    cal = json.loads(out.read_text())
+    assert cal["tumble"]["kind"] == "full" and cal["tumble"]["gyro"]["used"] is True
+    h, sigma = np.array(cal["hard_iron"]), np.array(cal["tumble"]["hard_iron_sigma"])
+    assert np.all(np.abs(h - partial.truth["hard_iron"]) < 4.0 * sigma), (h, sigma, partial.truth["hard_iron"])
+
