@@ -3,12 +3,14 @@ turn the module, in the style of MotionCal.
 
 The module's samples (any stream :mod:`compass.io.streams` reads: our line protocol, MotionCal's
 ``Raw:``/``Uni:`` lines, bare numbers with ``--columns``; ``mx,my,mz`` and optionally ``ax,ay,az``,
-``t_s``, ``temp_c``; a field unit named or fixed by the format is converted to uT) are collected while the readout (and, with ``--rerun``, the viewer) shows the coverage growing, the
+``t_s``, ``temp_c``, ``gx,gy,gz``; a field unit named or fixed by the format is converted to uT) are collected
+while the readout (and, with ``--rerun``, the viewer) shows the coverage growing, the
 ellipsoid fit's hard iron converging and, in words, the orientations still missing. When every
 half-axis has been along the field and ``--min-coverage`` of the sphere's cells hold a sample (or on
 Ctrl-C, or after ``--duration``), the samples are written as a tumble recording beside the
-calibration (``CAL.tumble.csv``) and calibrated by the same code as ``compass calibrate`` (same
-checks, refusals and diagnosis).
+calibration (``CAL.tumble.csv``, the gyro kept: the gyro-aided fit uses it; its ``t_s`` going on across
+a restart of the module's clock, :class:`calibrate.tumble.collector.ClockRestart`) and calibrated by the
+same code as ``compass calibrate`` (same checks, refusals and diagnosis).
 """
 
 from __future__ import annotations
@@ -89,6 +91,8 @@ def run_tumble(args) -> int:
             collector.update()
             why = "coverage reached" if collector.enough else "stopped before the coverage was reached"
             print(f"compass live: {why}; {collector.readout()}", flush=True)
+            if collector.restarts:  # said when it happened too, unless --quiet
+                print(f"compass live: {collector.clock_words()}", flush=True)
             print(f"wrote {collector.write_recording(recording)}", flush=True)
             result = calibrate_cmd.calibrate_file(recording, out, kind="tumble", force=True, quiet=args.quiet)
         finally:

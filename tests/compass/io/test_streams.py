@@ -325,13 +325,13 @@ def test_the_live_tumble_collects_the_same_samples_from_every_format(tmp_path):
 
     raw_lines = sample_lines("motioncal-raw", t, smp.raw, smp.accel, smp.gyro)
     decoded = MotionCalDecoder(CHANNELS).feed(b"".join(raw_lines))
-    ours = [format_line(["mx", "my", "mz", "ax", "ay", "az"]) + format_line([f"{v:.9g}" for v in (*d.raw, *d.accel)])
-            for d in decoded]
+    ours = [format_line(["mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz"])
+            + format_line([f"{v:.9g}" for v in (*d.raw, *d.accel, *d.gyro)]) for d in decoded]
     assert recording(raw_lines, None, "raw.csv") == recording(ours, None, "ours.csv")
     csv = sample_lines("csv", t, smp.raw, smp.accel, smp.gyro)
-    plain = [format_line(["t_s", "mx", "my", "mz", "ax", "ay", "az"])
-             + format_line([f"{tt:.4f}", *(f"{v:.7g}" for v in m), *(f"{v:.6f}" for v in a)])
-             for tt, m, a in zip(t, smp.raw, smp.accel)]
+    plain = [format_line(["t_s", "mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz"])
+             + format_line([f"{tt:.4f}", *(f"{v:.7g}" for v in m), *(f"{v:.6f}" for v in (*a, *g))])
+             for tt, m, a, g in zip(t, smp.raw, smp.accel, smp.gyro)]
     assert recording(csv, StreamOptions(columns=CSV_COLUMNS), "csv.csv") == recording(plain, None, "plain.csv")
 
 

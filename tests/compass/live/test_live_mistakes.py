@@ -50,8 +50,8 @@ def _serve(lines: bytes, server: socket.socket, errors: list) -> None:
 
 
 def _live_on_socket(monkeypatch, lines: bytes, cal, *extra, quiet=True):
-    """Run `compass live` on a local socket serving ``lines`` (``quiet``: with --quiet); (exit status, thread alive,
-    errors)."""
+    """Run `compass live` on a local socket serving ``lines`` (``quiet``: with --quiet; ``cal`` None: no --cal, for
+    --calibrate tumble); (exit status, thread alive, errors)."""
     import compass.serial_reader as sr
 
     original = sr._nonblocking_fd
@@ -68,7 +68,8 @@ def _live_on_socket(monkeypatch, lines: bytes, cal, *extra, quiet=True):
     thread.start()
     url = f"socket://127.0.0.1:{server.getsockname()[1]}"
     try:
-        status = main(["live", "--port", url, "--cal", str(cal), *(["--quiet"] if quiet else []), *extra])
+        status = main(["live", "--port", url, *([] if cal is None else ["--cal", str(cal)]),
+                       *(["--quiet"] if quiet else []), *extra])
     finally:
         thread.join(30.0)
         server.close()

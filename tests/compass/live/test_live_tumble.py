@@ -73,3 +73,77 @@ def test_live_tumble_bad_options(tmp_path, capsys):
     assert "--min-coverage" in capsys.readouterr().err
     assert main(["live", "--port", "/dev/null"]) == 2
     assert "--cal CAL.json is required" in capsys.readouterr().err
+
+
+def _protocol_lines(t_s, sim) -> bytes:
+    """The samples as the line protocol: t_s, the magnetometer, the accelerometer and the gyro (rad/s)."""
+    from compass.io.lines import format_line
+
+    head = format_line(["t_s", "mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz"])
+    return head + b"".join(format_line([f"{t:.4f}", *(f"{v:.9g}" for v in (*m, *a, *g))])
+                           for t, m, a, g in zip(t_s, sim.mag, sim.accel, sim.gyro))
+
+
+def _recording(path):
+    """(header, rows) of a tumble recording, its comment lines apart."""
+    lines = [line for line in path.read_text().splitlines() if not line.startswith("#")]
+    return lines[0].split(","), np.array([[float(v) for v in line.split(",")] for line in lines[1:]])
+
+
+@pytest.fixture(scope="module")
+def partial():
+    """A hand-held motion with a gyro, cut at 30 % of the sphere: the ellipsoid alone fits only the hard iron."""
+    from compass.sim.partial_tumble import simulate_partial_tumble
+
+    return simulate_partial_tumble("slow_rotation", seed=0, coverage=0.3)
+
+
+def test_live_tumble_keeps_the_gyro_and_the_calibration_fits_its_turns(tmp_path, monkeypatch, partial, capsys):
+    """The recording held t_s and the magnetometer and accelerometer only, so a partial tumble got the offset-only
+    fit: the gyro is kept in rad/s, as the tumble reader takes gx,gy,gz, and the gyro-aided fit uses it."""
+    from tests.compass.live.test_live_mistakes import _live_on_socket
+
+    out = tmp_path / "cal.json"
+    status, alive, errors = _live_on_socket(monkeypatch, _protocol_lines(partial.t_s, partial), None, "--calibrate",
+                                            "tumble", "--out", str(out), "--duration", "3")
+    assert status == 0 and not alive and not errors, capsys.readouterr()
+    header, rows = _recording(tmp_path / "cal.tumble.csv")
+    assert header == ["t_s", "mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz"]
+    np.testing.assert_allclose(rows[:, 7:10], partial.gyro, rtol=1e-8, atol=1e-12)  # as sent, to its 9 digits
+    cal = json.loads(out.read_text())
+    assert cal["tumble"]["kind"] == "full" and cal["tumble"]["gyro"]["used"] is True
+    h, sigma = np.array(cal["hard_iron"]), np.array(cal["tumble"]["hard_iron_sigma"])
+    assert np.all(np.abs(h - partial.truth["hard_iron"]) < 4.0 * sigma), (h, sigma, partial.truth["hard_iron"])
+
+
+def test_live_tumble_calibrates_across_a_restart_of_the_modules_clock_and_says_so(tmp_path, monkeypatch, partial,
+                                                                                   capsys):
+    """A module reset halfway (t_s from 0 again) made `compass calibrate` refuse the recording live had just
+    written ("t_s must not decrease", exit 2, no calibration): its t_s now goes on across the restart at the
+    stream's median step, said in words, and the calibration is the one of the same samples without the reset."""
+    from tests.compass.live.test_live_mistakes import _live_on_socket
+
+    half = len(partial.t_s) // 2
+    t_s = partial.t_s.copy()
+    t_s[half:] -= t_s[half]
+    runs = {}
+    for name, times in (("reset", t_s), ("steady", partial.t_s)):
+        out = tmp_path / f"{name}.json"
+        status, alive, errors = _live_on_socket(monkeypatch, _protocol_lines(times, partial), None, "--calibrate",
+                                                "tumble", "--out", str(out), "--duration", "3", quiet=name == "steady")
+        runs[name] = capsys.readouterr().out
+        assert status == 0 and not alive and not errors, runs[name]
+    said = runs["reset"]
+    assert f"[warn] the module's clock went back from {partial.t_s[half - 1]:.6g} s to 0 s at sample {half + 1}" in said
+    assert f"compass live: the module's clock restarted 1 time, at sample {half + 1}" in said  # in the summary too
+    assert "clock" not in runs["steady"]
+    recording = tmp_path / "reset.tumble.csv"
+    assert "# clock: the module's clock restarted 1 time" in recording.read_text()
+    _, rows = _recording(recording)
+    np.testing.assert_allclose(rows[:, 0], partial.t_s, atol=1e-9)  # the median step is the stream's own
+    cal, steady = (json.loads((tmp_path / f"{name}.json").read_text()) for name in ("reset", "steady"))
+    assert cal["tumble"]["gyro"]["used"] is True
+    np.testing.assert_allclose(cal["hard_iron"], steady["hard_iron"], rtol=1e-6)
+    # the user may calibrate the recording again: `compass calibrate` reads it as live did
+    assert main(["calibrate", str(recording), "--out", str(tmp_path / "again.json"), "--quiet"]) == 0
+    np.testing.assert_array_equal(json.loads((tmp_path / "again.json").read_text())["hard_iron"], cal["hard_iron"])
