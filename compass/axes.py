@@ -48,7 +48,7 @@ from itertools import permutations, product
 import numpy as np
 
 __all__ = ["AxisVerdict", "GyroAxesVerdict", "accel_axes_from_gyro", "axes_from_gyro", "check_axes", "MIN_SIGNED_DIP_DEG", "PAIR_TURN_DEG",
-           "signed_permutations", "turned_enough"]
+           "signed_permutations", "turned_enough", "orientations"]
 
 MIN_SIGNED_DIP_DEG = 10.0
 """The site's |dip| above which its sign is judged (near the magnetic equator a tilt error reaches it)."""
@@ -267,9 +267,15 @@ def signed_permutations() -> list[np.ndarray]:
     return out
 
 
-def _orientations(turns_rad: np.ndarray):
+def orientations(turns_rad: np.ndarray):
     """``R_k = Exp(turn_0) ... Exp(turn_k)`` for every row (a ``Rotation`` of ``n``), the gyro's turns composed in
-    order: a prefix product in ``log2 n`` vectorised steps (each ``R_i <- R_(i-k) R_i`` for ``i >= k``)."""
+    order: a prefix product in ``log2 n`` vectorised steps (each ``R_i <- R_(i-k) R_i`` for ``i >= k``).
+
+    Parameters
+    ----------
+    turns_rad : ndarray, shape (n, 3)
+        The housing's turn from the row before to each row, rad, gyro frame (the first row's: from the start).
+    """
     from scipy.spatial.transform import Rotation
 
     r, k = Rotation.from_rotvec(turns_rad), 1
@@ -283,7 +289,7 @@ def _turn_pairs(turns_rad: np.ndarray, t_s: np.ndarray) -> tuple[np.ndarray, np.
     """Rows ``a < b`` in turn, each ``b`` the first row at least :data:`PAIR_TURN_DEG` from ``a`` (at most
     :data:`PAIR_SPAN_S` later; none there: the next ``a`` is the first row beyond), and ``D`` (shape (k, 3, 3)), the
     housing's turn from ``a`` to ``b`` in the gyro frame (``R_b = R_a D``)."""
-    attitude = _orientations(turns_rad)
+    attitude = orientations(turns_rad)
     step = np.radians(PAIR_TURN_DEG)
     a, n, out_a, out_b = 0, len(turns_rad), [], []
     while a < n - 1:

@@ -19,9 +19,9 @@ from .calibration import ImuCorrection
 from .filter import AttitudeFilter, Estimate, FilterConfig, FilterStart
 from .io.clock import SampleClock
 from .io.sample_log import SampleLog
-from .io.streams import (HELD_JUDGE_SAMPLES, JUDGE_SAMPLES, MIN_TURNED_PAIRS, TURNED_DEG, TURNED_DEG_WITHOUT_GYRO,
+from .io.streams import (HELD_JUDGE_SAMPLES, JUDGE_SAMPLES, MIN_TURNED_PAIRS, TURNED_DEG,
                          StreamDecoder, StreamOptions, field_scale_check, fixed_field_words, gravity_pairs,
-                         held_field_words, time_steps_verdict)
+                         held_field_words, time_steps_verdict, world_fixed_turn)
 from .io.units import MAX_ABS_VALUE
 from .iron_uncertainty import undetermined_words, with_calibration_sigma
 from .sample_check import GyroRail
@@ -511,8 +511,8 @@ class LiveSession:
         filt = self._filter
         est = filt.step(t_s, accel, gyro, field_row)
         unit_rows = self._unit_rows  # rows in time: a clock that goes back (a restart) starts the window again
-        if (self.gyro_unit is None and not self.decoder.gyro_unit_said and gyro is not None and field_row is not None
-                and math.isfinite(t_s)):
+        if (self.gyro_unit is None and not self.decoder.gyro_unit_said and not self.decoder.gyro_unit_right
+                and gyro is not None and field_row is not None and math.isfinite(t_s)):
             if unit_rows and t_s < unit_rows[-1][0]:
                 unit_rows.clear()
             unit_rows.append((t_s, *gyro, *field_row))
@@ -525,10 +525,11 @@ class LiveSession:
                               *(absent if accel is None else accel)))
             if len(axes_rows) >= GYRO_AXES_ROWS:
                 self._judge_gyro_axes()
-        turn_rows = self._turn_rows
-        if turn_rows is not None and accel is not None and math.isfinite(t_s) and (not turn_rows
-                                                                                   or t_s >= turn_rows[-1][0]):
-            turn_rows.append((t_s, *accel, *((math.nan,) * 3 if gyro is None else gyro), *sample.raw))
+        turn_rows = self._turn_rows  # with a gyro only: without one a turn cannot be told from a brake's tilt
+        if turn_rows is not None and accel is not None and gyro is not None and math.isfinite(t_s):
+            if turn_rows and t_s < turn_rows[-1][0]:  # the module's clock restarted: the turns start again
+                turn_rows.clear()
+            turn_rows.append((t_s, *accel, *gyro, *sample.raw))
             if len(turn_rows) % FIELD_TURN_EVERY == 0:
                 self._judge_field_turn()
         if filt.events:
@@ -655,27 +656,30 @@ class LiveSession:
     def _judge_field_turn(self) -> None:
         """Whether the calibrated field stays put in the housing while the housing turns (:attr:`wrong_field`), once
         :data:`~compass.io.streams.MIN_TURNED_PAIRS` pairs of rows show the turn: gravity turned by
-        :data:`~compass.io.streams.TURNED_DEG` and, with a gyro, the gyro by half that within
-        :data:`FIELD_TURN_SPAN_S` (without one, by :data:`~compass.io.streams.TURNED_DEG_WITHOUT_GYRO`: a housing that
-        brakes along a line tilts the accelerometer without turning).  Fewer: the older half of
-        :data:`FIELD_TURN_ROWS` goes, and the check waits for more."""
-        from .axes import _orientations
+        :data:`~compass.io.streams.TURNED_DEG`, the gyro by half that within :data:`FIELD_TURN_SPAN_S`, and a field
+        fixed in the world would have turned by half that too (the gyro's turn applied to it: a tilt about the field's
+        own direction turns it by nothing, as it does at low dip when the housing rolls facing North, which against
+        gravity's turn would read as a field that stays put).  Fewer: the older half of :data:`FIELD_TURN_ROWS` goes,
+        and the check waits for more."""
+        from .axes import orientations
 
         rows = np.array(self._turn_rows, dtype=float)
         t, accel, gyro, raw = rows[:, 0], rows[:, 1:4], rows[:, 4:7], rows[:, 7:]
-        with_gyro = bool(np.all(np.isfinite(gyro)))
-        i, j, alpha = gravity_pairs(accel, min_deg=TURNED_DEG if with_gyro else TURNED_DEG_WITHOUT_GYRO)
-        if with_gyro and len(i):
-            attitude = _orientations(gyro * np.diff(t, prepend=t[0])[:, None])
-            turned = (attitude[i].inv() * attitude[j]).magnitude()
-            keep = (t[j] - t[i] <= FIELD_TURN_SPAN_S) & (turned >= alpha / 2.0)
-            i, j, alpha = i[keep], j[keep], alpha[keep]
+        i, j, alpha = gravity_pairs(accel, min_deg=TURNED_DEG)
+        turn = None
+        if len(i):
+            attitude = orientations(np.where(np.isfinite(gyro), gyro, 0.0) * np.diff(t, prepend=t[0])[:, None])
+            turn = attitude[i].inv() * attitude[j]  # R_j = R_i D
+            expected = world_fixed_turn(self.model.field(raw)[0], i, turn)
+            keep = ((t[j] - t[i] <= FIELD_TURN_SPAN_S) & (turn.magnitude() >= alpha / 2.0)
+                    & (expected >= np.radians(TURNED_DEG) / 2.0))
+            i, j, alpha, turn = i[keep], j[keep], alpha[keep], turn[keep] if keep.any() else None
         if len(i) < MIN_TURNED_PAIRS:
             if len(rows) >= FIELD_TURN_ROWS:
                 del self._turn_rows[:len(rows) // 2]
             return
         self._turn_rows = None
-        self.wrong_field = fixed_field_words(self.model, raw, i, j, alpha)
+        self.wrong_field = fixed_field_words(self.model, raw, i, j, alpha, turn)
         if self.wrong_field is not None:
             self._event("warn", self.wrong_field)
 
@@ -762,10 +766,12 @@ class LiveSession:
 
         A session with the wrong sensor's calibration showed MAG-REJECTED:dip throughout and ended
         without a word; so did a ``--site`` whose |B| or dip the module does not read.  A gyro that turned tens of
-        times more than the field (:attr:`gyro_unit`) is the hint first: every attitude was wrong.
+        times more than the field (:attr:`gyro_unit`) is the hint first.  None after a stop: its words say why.
         """
+        if self.turned_over or self.wrong_gravity or self.wrong_time or self.wrong_field:
+            return None  # the session stopped on it, in words
         if self.gyro_unit is not None:
-            return f"{self.gyro_unit} The attitudes turned that many times too fast"
+            return f"{self.gyro_unit} If it was, the attitudes turned that many times too fast"
         total = sum(n for n, _, _ in self.rejected.values())
         if self.samples < HINT_MIN_SAMPLES or total < HINT_REJECTED_SHARE * self.samples:
             return None

@@ -409,6 +409,9 @@ def upside_down(dip_deg: np.ndarray, reference: ReferenceField, *, bench_sign_am
              if bench_sign_ambiguous else
              "Check the signs of the recording's magnetometer and accelerometer columns against the calibration's "
              "(a negated axis, e.g. az=-AccZ in --columns) and the site")
+    if reference.source == "calibration site":  # the bench's site, taken where no --site said the module's
+        cause += ("; or the module is not at its calibration's site (the reference taken without --site): give "
+                  "--site LAT,LON where it is")
     return (f"the calibrated readings have the field pointing {way[0]} (median dip {median:+.1f} deg) where the "
             f"{reference.source} reference has it pointing {way[1]} (dip {reference.dip_deg:+.1f} deg): the "
             f"calibration's field is upside down, and every heading would be 180 deg off. {cause}")

@@ -278,6 +278,7 @@ class GyroFilter(AttitudeFilter):
             m = Rotation.from_rotvec([0.0, 0.0, s.gate.ref_azimuth_rad]).as_matrix() @ m
         s.matrix = tuple(m.ravel().tolist())
         s.place.clear()
+        s.gate.magnet_on_housing = False  # told against the attitude before: the place rule judges the new one again
         p0, p1, p2 = _P0_ATTITUDE
         s.covariance = (p0, 0.0, 0.0, 0.0, 0.0, 0.0, p1, 0.0, 0.0, 0.0, 0.0, p2, 0.0, 0.0, 0.0) + s.covariance[15:]
         self._x[:] = [0.0] * 6

@@ -517,7 +517,9 @@ class Diagnostics:
         The gate let the field in and the heading update was applied.
     gate : str
         ``"ok"``, or why the field was not used: ``"norm"``, ``"dip"``, ``"innovation"``, ``"absent"``,
-        ``"rail"`` (waits for the tilt a gyro axis held at its rail left open: :mod:`compass.filter._rail`).
+        ``"rail"`` (waits for the tilt a gyro axis held at its rail left open: :mod:`compass.filter._rail`),
+        ``"magnet"`` (a magnet told on the housing, the sample not agreeing with the gyro's heading:
+        :mod:`compass.filter._place`).
     accel_used : bool
         The accelerometer (tilt) update was applied.
     skipped : str

@@ -62,11 +62,10 @@ from .lines import _GROUPS, _SCALARS, LineDecoder, LineStats, Sample
 from .stream_options import EXAMPLE_COLUMNS, FORMATS, StreamOptions, add_stream_arguments
 
 __all__ = ["FORMATS", "JUDGE_SAMPLES", "HELD_JUDGE_SAMPLES", "HELD_SHARE", "UNIT_HOLD_SAMPLES", "TURNED_DEG",
-           "TURNED_DEG_WITHOUT_GYRO", "FIXED_SHARE", "TURN_SHARE", "NORM_SHARE", "MIN_TURNED_PAIRS", "StreamOptions",
-           "StreamDecoder", "field_scale_check", "judge_field_unit", "gravity_pairs", "housing_turned", "turn_share",
-           "norm_share",
-           "field_unit_factor", "fixed_field_words", "unit_pairs", "time_steps_verdict", "held_field_words",
-           "add_stream_arguments"]
+           "FIXED_SHARE", "TURN_SHARE", "NORM_SHARE", "MIN_TURNED_PAIRS", "StreamOptions", "StreamDecoder",
+           "field_scale_check", "judge_field_unit", "gravity_pairs", "housing_turned", "turn_share", "norm_share",
+           "field_unit_factor", "world_fixed_turn", "fixed_field_words", "unit_pairs", "time_steps_verdict",
+           "held_field_words", "add_stream_arguments"]
 
 JUDGE_SAMPLES = 25
 """Samples held while the field's unit is judged against the calibration (a quarter second at 100 Hz)."""
@@ -90,15 +89,12 @@ a unit taken for another and another board's calibration read alike until it doe
 TURNED_DEG = 20.0
 """Gravity's turn in the housing between two quasi-static rows that shows the housing turned, deg.  A housing turned by
 it moves a 50 uT field by 17 uT unless it turned about the field's own axis."""
-TURNED_DEG_WITHOUT_GYRO = 40.0
-"""The same without a gyro to confirm the turn, deg: a housing that does not turn but accelerates along a line (a car
-that brakes) tilts the accelerometer's |a|-within-5 % rows by up to 2 atan(0.32) = 35 deg between two of them."""
 FIXED_SHARE = 0.2
-"""Median ratio of the field's turn in the housing to gravity's, over pairs of rows :data:`TURNED_DEG` apart, under
-which the field stays put in the housing: a field in its calibration's unit turns as much as gravity does (the ratio
-is ``sin`` of the turn axis's angle to the field over ``sin`` of its angle to gravity, near 1 but for turns about the
-field's own axis); one read in a unit a factor ``k < 1`` too small is ``-W h`` plus ``k`` times the field, and turns
-``k |B| / |W h|`` of that (0.01-0.015 for gauss read as uT)."""
+"""Median ratio of the field's turn in the housing to the turn the gyro gives a field fixed in the world, over pairs
+of rows the housing turned :data:`TURNED_DEG` between, under which the field stays put in the housing: a field in its
+calibration's unit turns as the gyro says (ratio about 1 at any dip, noise and the gyro's bias aside); one read in a
+unit a factor ``k < 1`` too small is ``-W h`` plus ``k`` times the field, and turns ``k |B| / |W h|`` of that
+(0.01-0.015 for gauss read as uT)."""
 TURN_SHARE = 0.5
 """Median :func:`turn_share` from which a unit-scaled field turns with the housing as a calibrated one does: a tilt
 about any horizontal axis turns a field of dip 60 deg by 0.87 of gravity's turn or more, a turn about the vertical by
@@ -158,15 +154,16 @@ def housing_turned(accel) -> bool:
 
 
 def turn_share(field, i, j, alpha_rad) -> float:
-    """Median ratio of the field's turn between rows ``i`` and ``j`` to gravity's (``alpha_rad``):
-    :data:`FIXED_SHARE` tells a field that stays put in the housing.
+    """Median ratio of the field's turn between rows ``i`` and ``j`` to a reference turn ``alpha_rad``: gravity's
+    (:func:`gravity_pairs`), or the one the gyro gives a field fixed in the world (:data:`FIXED_SHARE` then tells a
+    field that stays put in the housing).
 
     Parameters
     ----------
     field : array_like, shape (n, 3)
         The calibrated field in the housing frame, any unit.
     i, j, alpha_rad : ndarray, shape (k,)
-        :func:`gravity_pairs`.
+        The pairs of rows and the reference turn between them, rad.
     """
     field = np.asarray(field, dtype=float)
     with np.errstate(over="ignore", invalid="ignore"):
@@ -215,13 +212,32 @@ def unit_pairs(k: float) -> str:
                        if a != b and math.isclose(fa / fb, k))
 
 
-def field_unit_factor(model, raw, i, j, alpha_rad) -> tuple[float, float, float] | None:
+def world_fixed_turn(field, i, turn) -> np.ndarray:
+    """The turn of ``field[i]`` as a field fixed in the world, by the housing's turn ``turn`` (``R_j = R_i D``: it reads
+    ``D^T field[i]`` at ``j``), rad, shape (k,): what an honest field turns by between the rows, at any dip.
+
+    Parameters
+    ----------
+    field : array_like, shape (n, 3)
+        The calibrated field in the housing frame, any unit.
+    i : ndarray of int, shape (k,)
+    turn : scipy.spatial.transform.Rotation, k rotations
+        ``D``, the gyro's turn of the housing from each ``i`` to its pair.
+    """
+    v = np.asarray(field, dtype=float)[i]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cosine = np.sum(v * turn.inv().apply(v), axis=1) / np.sum(v * v, axis=1)
+    return np.arccos(np.clip(np.nan_to_num(cosine, nan=1.0), -1.0, 1.0))
+
+
+def field_unit_factor(model, raw, i, j, alpha_rad, turn=None) -> tuple[float, float, float] | None:
     """The unit factor between two of :data:`compass.io.units.MAG_UNITS` that explains the readings, None when none
     does.
 
     A factor explains them when the field of the readings scaled by it has the calibration's |B| (median within
     1.25), keeps its norm while the housing turns (:func:`norm_share` within :data:`NORM_SHARE`) and turns with it
-    (:func:`turn_share` at least :data:`TURN_SHARE`), over the pairs of rows the housing turned between.
+    (:func:`turn_share` at least :data:`TURN_SHARE` of gravity's turn, or of its own :func:`world_fixed_turn` where the
+    gyro's ``turn`` is given), over the pairs of rows the housing turned between.
 
     Parameters
     ----------
@@ -230,6 +246,9 @@ def field_unit_factor(model, raw, i, j, alpha_rad) -> tuple[float, float, float]
         The stream's channel values, as read.
     i, j, alpha_rad : ndarray, shape (k,)
         :func:`gravity_pairs`.
+    turn : scipy.spatial.transform.Rotation, k rotations, optional
+        The gyro's turn of the housing over each pair (then the reference turn, which gravity's is only where the
+        field is far from the turn axis: at low dip a roll facing North turns it by ``sin(dip)`` of gravity's).
 
     Returns
     -------
@@ -245,7 +264,8 @@ def field_unit_factor(model, raw, i, j, alpha_rad) -> tuple[float, float, float]
         if not (r > 0 and abs(math.log(r)) < math.log(1.25)):
             continue
         share = norm_share(field, i, j)
-        if share <= NORM_SHARE and turn_share(field, i, j, alpha_rad) >= TURN_SHARE:
+        reference = alpha_rad if turn is None else world_fixed_turn(field, i, turn)
+        if share <= NORM_SHARE and turn_share(field, i, j, reference) >= TURN_SHARE:
             fits.append((abs(math.log(r)), k, r, share))
     return min(fits)[1:] if fits else None
 
@@ -315,9 +335,10 @@ def field_scale_check(model):
     return check
 
 
-def fixed_field_words(model, raw, i, j, alpha_rad) -> str | None:
-    """Words when the calibrated field stays put in the housing while gravity turns in it (a unit's factor
-    ``k < 1`` too small, :data:`FIXED_SHARE`), None when it turns with the housing.
+def fixed_field_words(model, raw, i, j, alpha_rad, turn) -> str | None:
+    """Words when the calibrated field stays put in the housing while the housing turns (a unit's factor ``k < 1``
+    too small: it turns less than :data:`FIXED_SHARE` of what the gyro's turn gives a field fixed in the world),
+    None when it turns with the housing.
 
     Parameters
     ----------
@@ -325,8 +346,12 @@ def fixed_field_words(model, raw, i, j, alpha_rad) -> str | None:
     raw : array_like, shape (n, c)
         The stream's channel values, as read.
     i, j, alpha_rad : ndarray, shape (k,)
-        Pairs of rows between which the housing turned (:func:`gravity_pairs`, confirmed by the gyro where there is
-        one), and gravity's turn between them, rad.
+        Pairs of rows between which the housing turned (:func:`gravity_pairs`, confirmed by the gyro), and gravity's
+        turn between them, rad (the unit's factor is judged against it: :func:`field_unit_factor`).
+    turn : scipy.spatial.transform.Rotation, k rotations
+        The gyro's turn of the housing from ``i`` to ``j``: the field is judged against its :func:`world_fixed_turn`,
+        what an honest field turns by at any dip (against gravity's turn, a roll about the field's own direction at
+        low dip would read as a field that stays put).
 
     Notes
     -----
@@ -336,14 +361,16 @@ def fixed_field_words(model, raw, i, j, alpha_rad) -> str | None:
     the one that makes the field both of the calibration's |B| and turning; none: the calibration does not fit.
     """
     raw = np.asarray(raw, dtype=float)
-    share = turn_share(model.field(raw)[0], i, j, alpha_rad)
+    field = model.field(raw)[0]
+    expected = world_fixed_turn(field, i, turn)
+    share = turn_share(field, i, j, expected)
     if not share < FIXED_SHARE:
         return None
-    turned = float(np.degrees(np.max(alpha_rad)))
-    said = (f"the calibrated field turns {share:.3f} times as much as gravity in the housing (median over "
-            f"{len(i)} pairs of rows up to {turned:.0f} deg apart; a field in the calibration's unit turns about as "
-            f"much): it stays put in the housing")
-    fit = field_unit_factor(model, raw, i, j, alpha_rad)
+    turned = float(np.degrees(np.max(expected)))
+    said = (f"the calibrated field turns {share:.3f} times what the gyro's turns give a field fixed in the world "
+            f"(median over {len(i)} pairs of rows, up to {turned:.0f} deg; a field in the calibration's unit turns "
+            f"about as much): it stays put in the housing")
+    fit = field_unit_factor(model, raw, i, j, alpha_rad, turn)
     if fit is None:
         return (f"{said}, and no unit's factor makes it turn at the calibration's |B|: the calibration does not fit "
                 f"this board (or a magnet on the housing outweighs the Earth's field); is --cal this board's "

@@ -55,7 +55,7 @@ GATE_LEGEND = ("gate: 0 used, 1 |B| off, 2 dip off, 3 heading innovation, 4 no f
 # the flags in words, one lane each in the state timeline (``compass/state/<lane>``)
 _FIELD_STATES = {0: "field used", 1: "field rejected: |B| off", 2: "field rejected: dip off",
                  3: "field rejected: heading innovation", 4: "no field",
-                 5: "field waits: the tilt a gyro rail left"}
+                 5: "field waits: the tilt a gyro rail left", 6: "field rejected: turns with the housing (magnet)"}
 _STATES = {"field": None,  # from the gate code, else from disturbed
            "gravity": ("accel_used", {1: "gravity used", 0: "gravity not used (moving)"}),
            "range": ("in_range", {1: "in calibrated range", 0: "OUT of calibrated range"})}
