@@ -51,10 +51,16 @@ def still(t):
     return np.full(t.shape, 30.0), np.zeros(t.shape), np.zeros(t.shape), np.zeros(t.shape)
 
 
-def board(hard_iron=HARD_IRON, gain=1.0, field_norm=50.0):
+def roll_north(t):
+    """Rolled by +-25 deg facing magnetic North: near the magnetic equator the field lies along the roll's axis."""
+    t = np.asarray(t, float)
+    return np.zeros(t.shape), np.zeros(t.shape), 25.0 * np.sin(2 * np.pi * t / 6.0), np.zeros(t.shape)
+
+
+def board(hard_iron=HARD_IRON, gain=1.0, field_norm=50.0, dip_deg=60.0):
     directions = Rotation.from_rotvec([0.004, -0.006, 0.003]).apply(np.eye(3))
     responses = tuple(LinearResponse(o, k * gain, (-1e4, 1e4)) for o, k in zip(hard_iron, (0.96, 1.04, 1.01)))
-    return SensorModel(("mx", "my", "mz"), directions, responses, field_norm, field_norm, 60.0,
+    return SensorModel(("mx", "my", "mz"), directions, responses, field_norm, field_norm, dip_deg,
                        noise=np.full(3, 0.15 * gain))
 
 
@@ -102,6 +108,10 @@ def cases():
     for share in (0.9, 1.0, 1.1):
         hi = HARD_IRON / np.linalg.norm(HARD_IRON) * 50.0 * share
         yield f"honest uT, |h| = {share:g} |B| (mirror)", board(hi), board(hi), turns, 1.0, 0, "taken"
+    for dip in (5.0, 10.0):
+        equator = board(dip_deg=dip)
+        yield f"honest uT, dip {dip:g} deg, rolled facing North", equator, equator, roll_north, 1.0, 0, "taken"
+        yield f"G read as uT, dip {dip:g} deg, rolled facing North", equator, equator, roll_north, 0.01, 0, "G"
     yield "mG read as uT", own, own, turns, 10.0, 0, "mG"
     yield "nT read as uT", own, own, turns, 1000.0, 0, "nT"
     for share in (0.5, 0.7, 0.77, 1.0, 1.3, 1.6):
