@@ -695,6 +695,11 @@ class StreamDecoder:
             self._held, self._check = [], None
             return held
         if not final and accel is not None and len(held) < UNIT_HOLD_SAMPLES and not housing_turned(accel):
+            if self._judge_at == JUDGE_SAMPLES:  # the first hold: said, or the session looks stalled
+                self.events.append(("info", f"the field is not the calibration's |B| but a unit's factor would make "
+                                            f"it so: samples held until the module turns by {TURNED_DEG:g} deg (at "
+                                            f"most {UNIT_HOLD_SAMPLES}), which tells a unit from another board's "
+                                            f"calibration: turn the module"))
             self._judge_at = len(held) + JUDGE_SAMPLES  # judged again on more samples
             return []
         self._fatal, self._check = words, None

@@ -100,8 +100,8 @@ def test_mg_read_as_ut_is_named_once_the_housing_turns_and_its_samples_are_recor
     s = simulate_device(board, t, motion=_turns, seed=1)
     lines = [format_line(["t_s", "mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz"])] + [
         format_line([f"{v:.7g}" for v in (tk, *(10.0 * m), *a, *g)]) for tk, m, a, g in zip(t, s.raw, s.accel, s.gyro)]
-    out = io.StringIO()
-    session = LiveSession(board, record=SampleLog(out, CHANNELS, "test"))
+    out, said = io.StringIO(), []
+    session = LiveSession(board, record=SampleLog(out, CHANNELS, "test"), on_event=lambda level, text: said.append(text))
     for k, line in enumerate(lines):
         session.feed(Chunk(float(k) / 100.0, line))
         if session.decoder.fatal is not None:
@@ -110,6 +110,8 @@ def test_mg_read_as_ut_is_named_once_the_housing_turns_and_its_samples_are_recor
     assert fatal is not None and "scaled by 0.1" in fatal and "mG taken as uT" in fatal and "--mag-unit" in fatal
     received = session.decoder.stats.samples
     assert JUDGE_SAMPLES < received < 1000 and session.record.rows == received  # kept, as before any other stop
+    held = [text for text in said if "samples held until the module turns" in text]
+    assert len(held) == 1 and "turn the module" in held[0]  # said once as the hold begins: not a stalled session
 
 
 @pytest.mark.parametrize("dip_deg", [5.0, 10.0, 60.0])
