@@ -310,13 +310,13 @@ def field_scale_check(model):
         if not near:
             return None
         said = f"the calibration makes this stream's field {r1:.3g} times its |B| ({magnitude:.4g} {unit})"
-        if accel is None or not housing_turned(accel):
+        pairs = None if accel is None else gravity_pairs(accel)
+        if pairs is None or len(pairs[0]) < MIN_TURNED_PAIRS:  # not housing_turned: its pairs are used below
             _, k, r = min(near)
             return (f"{said}; scaled by {k:g} it would be {r:.3f} times: a unit taken for another "
                     f"({unit_pairs(k)}: --mag-unit names the stream's unit) or a calibration not this board's, which "
                     f"the module's turns tell apart: it did not turn by {TURNED_DEG:g} deg in its first {len(raw)} "
                     f"samples (turn it as the session starts)")
-        pairs = gravity_pairs(accel)
         fit = field_unit_factor(model, raw, *pairs)
         if fit is None:
             _, k, r = min(near)
