@@ -157,12 +157,16 @@ class ReceiveClock:
         return t_rx - period * np.arange(m - 1, -1, -1, dtype=float)
 
 
-def datings(t_true: np.ndarray, t_rx: np.ndarray, lost: np.ndarray | None) -> dict[str, np.ndarray]:
-    """The four datings of one stream, seconds (``lost``: see :func:`dated`; the sample clock's only)."""
+def datings(t_true: np.ndarray, t_rx: np.ndarray, lost: np.ndarray | None) -> tuple[dict[str, np.ndarray], int]:
+    """The four datings of one stream, seconds (``lost``: see :func:`dated`; the sample clock's only), and the lines
+    the sample clock counted lost without a trace (``SampleClock.lost_unseen``, what ``compass live``'s summary
+    says)."""
     from compass.io.clock import SampleClock
 
-    return {"true": t_true, "arrival": t_rx, "receive clock": dated(t_rx, ReceiveClock()),
-            "sample clock": dated(t_rx, SampleClock(), lost)}
+    clock = SampleClock()
+    times = {"true": t_true, "arrival": t_rx, "receive clock": dated(t_rx, ReceiveClock()),
+             "sample clock": dated(t_rx, clock, lost)}
+    return times, clock.lost_unseen
 
 
 def dating_error_ms(t: np.ndarray, t_true: np.ndarray) -> np.ndarray:
@@ -194,7 +198,7 @@ def run(seeds: int, rate_hz: float, arrivals) -> None:
         model = ARRIVALS[arrival]
         errors = {n: [] for n in names}
         unsolved = dict.fromkeys(names, 0)
-        gaps = []
+        gaps, counted = [], [0, 0]  # lines lost without a trace, broad-like: (truly, counted by the sample clock)
         for board in ("broad-like", "low-cost"):
             cells = []
             for kind in KINDS:
@@ -211,7 +215,11 @@ def run(seeds: int, rate_hz: float, arrivals) -> None:
                     trial.rate_hz = (len(trial.t_s) - 1) / (trial.t_s[-1] - trial.t_s[0])
                     row, t_true = [], trial.t_s
                     lost = np.diff(np.flatnonzero(keep), prepend=-1) - 1 if arrival == BROKEN else None
-                    for name, t in datings(t_true, t_rx, lost).items():
+                    times, unseen = datings(t_true, t_rx, lost)
+                    if board == "broad-like" and lost is None:
+                        counted[0] += int(np.count_nonzero(~keep)) if arrival == "1 % of lines lost" else 0
+                        counted[1] += unseen
+                    for name, t in times.items():
                         if board == "broad-like":
                             errors[name].append(dating_error_ms(t, t_true))
                             if arrival == "module paused 0.4 s":
@@ -230,6 +238,8 @@ def run(seeds: int, rate_hz: float, arrivals) -> None:
             for n in names))
         if any(unsolved.values()):
             print(f"{'  samples unsolved (a date went back)':38s} " + " ".join(f"{unsolved[n]:15d}" for n in names))
+        if any(counted):
+            print(f"{'  lost without a trace / counted':38s} {counted[0]:d} / {counted[1]:d} (sample clock, broad-like)")
         if gaps:
             widest = {n: np.mean([g for m, g in gaps if m == n]) for n in names}
             print(f"{'  widest step dated (the pause), s':38s} " + " ".join(f"{widest[n]:15.3f}" for n in names))

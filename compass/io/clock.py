@@ -72,10 +72,15 @@ class SampleClock:
     ----------
     period_s : float or None
         The sample period, s (None until two chunks have arrived).
+    lost_unseen : int
+        Lines lost without a trace (no broken line, no ``seq``) that the arrival times showed
+        (:meth:`_follow_a_shift`), so far: an estimate (a rate drifting by under :data:`RATE_CHANGE` reads as a
+        line lost now and then until the period's fit follows it).
     """
 
     def __init__(self):
         self.period_s: float | None = None
+        self.lost_unseen = 0
         self._ends: deque = deque()  # (index of a chunk's last sample, its arrival time): the period's span
         self._envelope: deque = deque()  # (a_j, k_j, a_j - T k_j) of the envelope's span, the last increasing
         self._recent: deque = deque()  # the arrivals of the chunks of the last SHIFT_S (at least _SHIFT_CHUNKS)
@@ -207,6 +212,7 @@ class SampleClock:
         self._ends = deque([(k, a) for k, a in self._ends if a <= before]
                            + [(k + lost, a) for k, a in self._ends if a >= since])
         self._count += lost
+        self.lost_unseen += lost
         return lost
 
     def _foretold(self, k, now: float):
