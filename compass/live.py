@@ -26,7 +26,7 @@ from .io.units import MAX_ABS_VALUE
 from .iron_uncertainty import undetermined_words, with_calibration_sigma
 from .sample_check import GyroRail
 from .serial_reader import Chunk, LinkEvent
-from .site import upside_down
+from .site import ReferenceField, upside_down
 
 __all__ = ["LiveSession", "Reading", "GATE_CODES", "CSV_COLUMNS", "QUATERNION_COLUMNS"]
 
@@ -199,8 +199,9 @@ class LiveSession:
         solves each row alone: said only).
     gyro_unit : str or None
         Set when the gyro turns more than :data:`compass.io.units.FIELD_UNIT_RATIO` times the calibrated field over a
-        :data:`GYRO_UNIT_WINDOW_S` window: the words said as a warning, repeated on close (a deg/s gyro read as rad/s
-        turns the attitude 57 times too fast); None otherwise.
+        :data:`GYRO_UNIT_WINDOW_S` window (a deg/s gyro read as rad/s turns the attitude 57 times too fast; a field
+        read in a unit too small stays put): why, in words; the commands stop on it, as on :attr:`wrong_field`;
+        None otherwise.
     wrong_field : str or None
         Set once the housing turned (gravity by :data:`~compass.io.streams.TURNED_DEG` between
         :data:`~compass.io.streams.MIN_TURNED_PAIRS` pairs of quasi-static rows, the gyro confirming the turn) while
@@ -259,6 +260,8 @@ class LiveSession:
     _unit_rows: list = field(default_factory=list)  # (t_s, gyro, field) of the gyro unit's window
     _turn_rows: list | None = field(default_factory=list)  # (t_s, accel, gyro, raw) for the field's turn check
     _dips: list | None = None  # measured dips of the first estimates, against a given reference
+    _dip_reference: ReferenceField | None = None  # the reference they are judged against: the given, or the
+    # calibration's own dip
     _bench_accel: bool | None = None  # the bench's offsets apply to this stream's unit; None: not judged yet
     _times: list | None = field(default_factory=list)  # the first samples' t_s for the step check; None once judged
     _held: list | None = field(default_factory=list)  # the first (t_s, raw) for the held-reading words; None once said
@@ -271,7 +274,9 @@ class LiveSession:
         self.decoder = StreamDecoder(self.model.channels, self.stream, field_check=field_scale_check(self.model))
         if self.config is None:
             self.config = FilterConfig.from_model(self.model)
-        if self.reference is not None:  # the user's reference: check it is not the calibration's field turned over
+        # the user's reference, else the dip the calibration measured: check the stream's field is not turned over
+        self._dip_reference = self.reference if self.reference is not None else self._calibration_dip()
+        if self._dip_reference is not None:
             self._dips = []
         # the site's reference (also one whose |B| is unknown in a calibration's unit that is not the uT: the
         # start completes it) or, without a site, the stream's own
@@ -289,6 +294,17 @@ class LiveSession:
     @property
     def _declination(self):
         return None if self.reference is None else self.reference.declination_deg
+
+    def _calibration_dip(self) -> ReferenceField | None:
+        """The dip the calibration measured against its own accelerometer as a reference to judge the stream's field
+        turned over by (:func:`~compass.site.upside_down`: an accelerometer that reads gravity turns the dip's
+        sign); None where the calibration's dip sign is an assumption (a four-flip bench without its latitude) or
+        it has none."""
+        dip = self.model.dip_deg
+        if self.sign_from_bench or dip is None or not np.isfinite(dip):
+            return None
+        return ReferenceField(float(dip), 0.0, float(self.model.field_norm), 0.0, "calibration",
+                              f"the calibration's dip {dip:+.1f} deg")
 
     def _use_reference(self, reference) -> None:
         self.reference = reference
@@ -356,7 +372,8 @@ class LiveSession:
             readings.append(Reading(sample, accel, gyro, fields[k], field_rows[k], in_range[k],
                                     t_rx if sample.t_rx is None else sample.t_rx))  # its arrival, if the decoder held it
         for reading in readings:
-            if self.wrong_gravity is not None or self.wrong_time is not None or self.wrong_field is not None:
+            if self.wrong_gravity is not None or self.wrong_time is not None or self.wrong_field is not None \
+                    or self.gyro_unit is not None:
                 return
             if self._start is not None and reading.sample.header.accel is not None:
                 # without an accelerometer there is no attitude, and nothing to seed the reference from: the
@@ -705,8 +722,10 @@ class LiveSession:
         return True
 
     def _judge_turn(self) -> None:
-        """The measured dips so far against the given reference: :attr:`turned_over` (once)."""
-        self.turned_over = upside_down(np.array(self._dips), self.reference, bench_sign_ambiguous=self.sign_from_bench)
+        """The measured dips so far against the given reference, or the calibration's own dip: :attr:`turned_over`
+        (once)."""
+        self.turned_over = upside_down(np.array(self._dips), self._dip_reference,
+                                       bench_sign_ambiguous=self.sign_from_bench)
         self._dips = None
 
     def _count_skip(self, reason: str) -> None:
@@ -765,13 +784,11 @@ class LiveSession:
         when it was mostly used (or too few estimates to tell).
 
         A session with the wrong sensor's calibration showed MAG-REJECTED:dip throughout and ended
-        without a word; so did a ``--site`` whose |B| or dip the module does not read.  A gyro that turned tens of
-        times more than the field (:attr:`gyro_unit`) is the hint first.  None after a stop: its words say why.
+        without a word; so did a ``--site`` whose |B| or dip the module does not read.  None after a stop: its words
+        say why.
         """
-        if self.turned_over or self.wrong_gravity or self.wrong_time or self.wrong_field:
+        if self.turned_over or self.wrong_gravity or self.wrong_time or self.wrong_field or self.gyro_unit:
             return None  # the session stopped on it, in words
-        if self.gyro_unit is not None:
-            return f"{self.gyro_unit} If it was, the attitudes turned that many times too fast"
         total = sum(n for n, _, _ in self.rejected.values())
         if self.samples < HINT_MIN_SAMPLES or total < HINT_REJECTED_SHARE * self.samples:
             return None
@@ -820,7 +837,8 @@ class LiveSession:
         if self._axes_rows:
             self._judge_axes()
         if self.sink is not None:  # a field turned over, or an accelerometer never used, gives wrong attitudes
-            keep = self.samples > 0 and self.turned_over is None and self.wrong_gravity is None
+            keep = self.samples > 0 and self.turned_over is None and self.wrong_gravity is None \
+                and self.gyro_unit is None
             self.sink.close() if keep else self.sink.discard()
         if self.out is not None:
             self.out.flush()

@@ -55,8 +55,9 @@ def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *
     LiveSession
         ``session``, closed: its ``samples``, ``skipped`` and :meth:`~LiveSession.summary` tell what happened;
         stopped early when it found the given gravity, or the accelerometer correction's unit, not what 1 g reads
-        (its ``wrong_gravity``), the module's times not telling the time between samples (``wrong_time``), or the
-        field staying put in the housing while it turns (``wrong_field``).
+        (its ``wrong_gravity``), the module's times not telling the time between samples (``wrong_time``), the
+        field staying put in the housing while it turns (``wrong_field``), or the gyro turning tens of times more than
+        the field (``gyro_unit``).
     """
     t_s = np.asarray(t_s, dtype=float)
     raw = np.asarray(raw, dtype=float)
@@ -79,7 +80,8 @@ def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *
         session.feed_samples(samples, time.perf_counter())
         if progress is not None:
             progress(hi, n)
-        if session.wrong_gravity is not None or session.wrong_time is not None or session.wrong_field is not None:
+        if session.wrong_gravity is not None or session.wrong_time is not None or session.wrong_field is not None \
+                or session.gyro_unit is not None:
             break
     session.close()
     return session
@@ -380,6 +382,8 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
         raise RecordingError(table.path, session.wrong_time, column="t_s")
     if session.wrong_field is not None:
         raise RecordingError(table.path, f"{session.wrong_field} ({calibration})", column=model.channels[0])
+    if session.gyro_unit is not None:
+        raise RecordingError(table.path, session.gyro_unit, column="gx")
     if session.samples == 0:
         why = (f"the filter's start seeds the reference field from at least {MIN_REFERENCE_ROWS} rows; give --site "
                "LAT,LON --date D" if len(t_s) < MIN_REFERENCE_ROWS and reference is None else session.summary())

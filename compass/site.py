@@ -205,8 +205,9 @@ class ReferenceField:
     field_norm, field_sigma : float
         Reference |B| in the sensor model's field units and its 1-sigma, same units.
     source : str
-        ``"site"`` (given by the user), ``"calibration site"`` (the file's ``site`` block) or
-        ``"recording"`` (estimated from the quiet rows).
+        ``"site"`` (given by the user), ``"calibration site"`` (the file's ``site`` block),
+        ``"calibration"`` (the dip the calibration measured against its own accelerometer: judges a stream's
+        field turned over, never seeds the filter) or ``"recording"`` (estimated from the quiet rows).
     description : str
         One line for the output's metadata.
     declination_deg, declination_sigma_deg : float or None
@@ -378,10 +379,12 @@ def upside_down(dip_deg: np.ndarray, reference: ReferenceField, *, bench_sign_am
     The bench data cannot tell ``(a, B)`` from ``(-a, -B)``: a calibration made in one hemisphere
     while the other was assumed has every sensing direction negated, so the field it measures is
     ``-B``, whose dip is the site's with the sign turned.  Every row then differs from the reference
-    by about twice the dip (all disturbed) and the heading is 180 deg off.  Judged on the median over
-    the rows (a magnet for part of the recording does not move it), only for a reference the user
-    gave (a site: never the recording's own) with ``|dip| >= 10 deg``, where no tilt error reaches
-    the mirrored dip.  Meaningful only for dips measured against a full up vector (a three-axis
+    by about twice the dip (all disturbed) and the heading is 180 deg off.  So does a stream whose
+    accelerometer reads gravity instead of specific force (``-a``): its dip is the calibration's with
+    the sign turned.  Judged on the median over the rows (a magnet for part of the recording does not
+    move it), only for a reference the user gave (a site) or the calibration measured (its own dip
+    against its accelerometer), never the recording's own, with ``|dip| >= 10 deg``, where no tilt
+    error reaches the mirrored dip.  Meaningful only for dips measured against a full up vector (a three-axis
     accelerometer): an assumed level housing or a two-axis tilt sensor upside down mirror the dip
     themselves.
 
@@ -412,6 +415,15 @@ def upside_down(dip_deg: np.ndarray, reference: ReferenceField, *, bench_sign_am
     if reference.source == "calibration site":  # the bench's site, taken where no --site said the module's
         cause += ("; or the module is not at its calibration's site (the reference taken without --site): give "
                   "--site LAT,LON where it is")
-    return (f"the calibrated readings have the field pointing {way[0]} (median dip {median:+.1f} deg) where the "
-            f"{reference.source} reference has it pointing {way[1]} (dip {reference.dip_deg:+.1f} deg): the "
-            f"calibration's field is upside down, and every heading would be 180 deg off. {cause}")
+    if reference.source == "calibration":  # the calibration's own dip, measured against its accelerometer
+        cause = ("An accelerometer that reads gravity, not specific force (az about -1 g when level at rest, where "
+                 "SPEC's reads +1 g)? Read it negated with --accel-sign -1. Else check the signs of the stream's "
+                 "magnetometer and accelerometer columns against the calibration's (a negated axis, e.g. az=-AccZ in "
+                 "--columns); or the module is across the magnetic equator from where it was calibrated: give --site "
+                 "LAT,LON where it is")
+    against = (f"its calibration measured it pointing {way[1]} (dip {reference.dip_deg:+.1f} deg): the stream reads "
+               f"the field upside down against its calibration" if reference.source == "calibration" else
+               f"the {reference.source} reference has it pointing {way[1]} (dip {reference.dip_deg:+.1f} deg): the "
+               f"calibration's field is upside down")
+    return (f"the calibrated readings have the field pointing {way[0]} (median dip {median:+.1f} deg) where "
+            f"{against}, and every heading would be 180 deg off. {cause}")

@@ -204,7 +204,8 @@ def _recorded(session) -> bool:
     """The session's outputs are worth keeping: rows written (not lines decoded), the field not found turned
     over (its headings are wrong) and the accelerometer used (:attr:`~compass.live.LiveSession.wrong_gravity`)."""
     return (session is not None and session.samples > 0 and session.turned_over is None
-            and session.wrong_gravity is None and session.wrong_time is None and session.wrong_field is None)
+            and session.wrong_gravity is None and session.wrong_time is None and session.wrong_field is None
+            and session.gyro_unit is None)
 
 
 def _fatal_words(args, decoder) -> str:
@@ -217,8 +218,9 @@ def _fatal_words(args, decoder) -> str:
 
 
 def _refuse(args, session) -> None:
-    """BadInput when the session found the field turned over against ``--site``, or ``--gravity`` (or the
-    calibration's accelerometer correction's unit) not what 1 g reads."""
+    """BadInput when the session found the field turned over (against ``--site`` or the calibration's dip),
+    ``--gravity`` (or the calibration's accelerometer correction's unit) not what 1 g reads, the times not telling
+    the steps, the field staying put in the housing or the gyro turning tens of times more than the field."""
     from ..cli import BadInput
 
     if session.turned_over is not None:
@@ -229,6 +231,8 @@ def _refuse(args, session) -> None:
         raise BadInput(f"{args.port}: {session.wrong_time}")
     if session.wrong_field is not None:
         raise BadInput(f"{args.port}: {session.wrong_field} ({args.cal})")
+    if session.gyro_unit is not None:
+        raise BadInput(f"{args.port}: {session.gyro_unit}")
 
 
 def _run_session(args, reader, session, files: list, tty: bool, every_s: float) -> None:

@@ -1,4 +1,4 @@
-"""The options that say what a module's stream is (``--format``, ``--columns``, ``--*-unit``).
+"""The options that say what a module's stream is (``--format``, ``--columns``, ``--*-unit``, ``--accel-sign``).
 
 Kept apart from the decoders (:mod:`compass.io.streams`) so that building the command-line parser
 imports none of them.
@@ -18,7 +18,7 @@ EXAMPLE_COLUMNS = "t_s,ax,ay,az,gx,gy,gz,mx,my,mz"
 
 @dataclass(frozen=True)
 class StreamOptions:
-    """What the user says about a stream (``--format``, ``--columns``, ``--*-unit``).
+    """What the user says about a stream (``--format``, ``--columns``, ``--*-unit``, ``--accel-sign``).
 
     Attributes
     ----------
@@ -28,6 +28,9 @@ class StreamOptions:
     mag_unit : {"uT", "nT", "G", "mG"} or None
     accel_unit : {"g", "m/s2"} or None
     gyro_unit : {"rad/s", "deg/s"} or None
+    accel_sign : {1, -1}
+        -1: the accelerometer reads gravity (-1 g on Z when level at rest), negated to read specific force (SPEC),
+        whatever the format.
 
     Raises
     ------
@@ -40,6 +43,7 @@ class StreamOptions:
     mag_unit: str | None = None
     accel_unit: str | None = None
     gyro_unit: str | None = None
+    accel_sign: int = 1
 
     def __post_init__(self):
         if self.format not in FORMATS:
@@ -53,6 +57,8 @@ class StreamOptions:
         if self.format == "motioncal" and named:
             raise ValueError(f"MotionCal lines have fixed units (Raw: counts of 0.1 uT, 1/8192 g and 1/16 deg/s; "
                              f"Uni: uT, m/s^2 and rad/s): leave out {', '.join(named)}")
+        if self.accel_sign not in (1, -1):
+            raise ValueError(f"--accel-sign must be 1 or -1, got {self.accel_sign!r}")
         for kind, table in (("mag", units.MAG_UNITS), ("accel", units.ACCEL_UNITS), ("gyro", units.GYRO_UNITS)):
             unit = getattr(self, f"{kind}_unit")
             if unit is not None and unit not in table:
@@ -68,14 +74,15 @@ class StreamOptions:
         """From the options :func:`add_stream_arguments` registered (ValueError for a contradiction)."""
         return cls(format=getattr(args, "format", "auto") or "auto", columns=getattr(args, "columns", None),
                    mag_unit=getattr(args, "mag_unit", None), accel_unit=getattr(args, "accel_unit", None),
-                   gyro_unit=getattr(args, "gyro_unit", None))
+                   gyro_unit=getattr(args, "gyro_unit", None), accel_sign=getattr(args, "accel_sign", 1))
 
     def factors(self, fmt: str) -> tuple[float, float, float]:
-        """Multipliers of the decoded field, accelerometer and gyro (to uT, g, rad/s where a unit is named)."""
+        """Multipliers of the decoded field, accelerometer and gyro (to uT, g, rad/s where a unit is named; the
+        accelerometer's times ``accel_sign``)."""
         if fmt == "motioncal":
-            return 1.0, 1.0, 1.0  # scaled by the format itself
+            return 1.0, float(self.accel_sign), 1.0  # scaled by the format itself
         return (1.0 if self.mag_unit is None else units.MAG_UNITS[self.mag_unit],
-                1.0 if self.accel_unit is None else units.ACCEL_UNITS[self.accel_unit],
+                self.accel_sign * (1.0 if self.accel_unit is None else units.ACCEL_UNITS[self.accel_unit]),
                 1.0 if self.gyro_unit is None else units.GYRO_UNITS[self.gyro_unit])
 
     def accel_known(self, fmt: str) -> bool:
@@ -84,7 +91,8 @@ class StreamOptions:
 
 
 def add_stream_arguments(parser) -> None:
-    """Register ``--format``, ``--columns``, ``--mag-unit``, ``--accel-unit``, ``--gyro-unit`` (:class:`StreamOptions`)."""
+    """Register ``--format``, ``--columns``, ``--mag-unit``, ``--accel-unit``, ``--gyro-unit``, ``--accel-sign``
+    (:class:`StreamOptions`)."""
     import argparse
 
     def columns(text):
@@ -110,3 +118,6 @@ def add_stream_arguments(parser) -> None:
     g.add_argument("--gyro-unit", choices=tuple(units.GYRO_UNITS), default=None,
                    help="unit of the stream's gx,gy,gz (default rad/s, the line protocol's); a deg/s gyro taken as "
                         "rad/s turns the attitude 57 times too fast")
+    g.add_argument("--accel-sign", type=int, choices=(1, -1), default=1,
+                   help="-1: the accelerometer reads gravity (-1 g on Z when level at rest), negated to read specific "
+                        "force, +1 g on Z (SPEC); any format")

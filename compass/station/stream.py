@@ -141,7 +141,8 @@ class StationStream:
         extra = (column,) if column is not None else ()
         units = (None,) * 3 if fmt == "motioncal" else (self.options.mag_unit, self.options.accel_unit,
                                                           self.options.gyro_unit)  # MotionCal's are its own
-        options = StreamOptions(fmt, self.options.columns if fmt == "csv" else None, *units)
+        options = StreamOptions(fmt, self.options.columns if fmt == "csv" else None, *units,
+                                accel_sign=self.options.accel_sign)
         self.decoder = StreamDecoder(channels + extra, options, unscaled=extra)
         self.decoder.drain_events()  # the format was said by the probe
         self.format, self.header, self.channels = fmt, names, channels

@@ -654,7 +654,9 @@ def test_a_gyro_saturating_at_its_range_is_said_once_on_both_paths(tmp_path, cap
                         "180 deg off")])
 def test_a_field_sign_resting_on_an_assumed_hemisphere_is_said_once_unless_a_site_checks_it(files, capsys, kind,
                                                                                               dip_deg, level, words):
-    """An assumed bench hemisphere (every four-flip without a latitude) is a note; a field pointing up, a warning."""
+    """An assumed bench hemisphere (every four-flip without a latitude) is a note; a field pointing up, a warning.
+    The recording's field points down: against a calibration that measured it pointing up the session stops too
+    (the stream's accelerometer reading gravity, or the module across the magnetic equator: the same dips)."""
     import json
 
     from compass.calibration import load
@@ -663,9 +665,13 @@ def test_a_field_sign_resting_on_an_assumed_hemisphere_is_said_once_unless_a_sit
     cal, recording = files
     document = json.loads(cal.read_text()) | {"model": kind, "dip_deg": dip_deg}
     cal.write_text(json.dumps(document))
-    assert main(["attitude", str(cal), str(recording()), "--out", str(cal.parent / "att.csv"), "--filter"]) == 0
-    said = [line for line in capsys.readouterr().err.splitlines() if "180 deg off" in line]
+    status = main(["attitude", str(cal), str(recording()), "--out", str(cal.parent / "att.csv"), "--filter"])
+    err = capsys.readouterr().err.splitlines()
+    assert status == (0 if kind == "fourflip" else 2)
+    said = [line for line in err if "180 deg off" in line and line.startswith("[")]
     assert len(said) == 1 and f"[{level}] {cal}: {words}. Give --site LAT,LON" in said[0]
+    stopped = [line for line in err if "against its calibration" in line]
+    assert len(stopped) == (status == 2) and all("--accel-sign -1" in line for line in stopped)
     assert hemisphere_note(load(cal), site_given=True) is None
     plain = json.loads(cal.read_text()) | {"model": "channels", "dip_deg": abs(dip_deg)}  # measured, pointing down
     cal.write_text(json.dumps(plain))

@@ -330,13 +330,16 @@ def test_a_time_that_goes_back_is_recorded_and_replayed_as_live_took_it(tmp_path
 
 def test_live_says_once_at_the_start_that_a_field_pointing_up_rests_on_the_hemisphere(tmp_path, capsys):
     """A calibration whose field points up (a reversed magnetometer axis in the northern hemisphere, as its
-    calibration warned) and no --site: said once, under --quiet too, with what fixes it."""
+    calibration warned), a stream that reads it so too, and no --site: said once, under --quiet too, with what
+    fixes it."""
+    from dataclasses import replace
+
     from .test_live import _serve_repeatedly
 
     model = default_model()
     cal = tmp_path / "cal.json"
     save(cal, model_to_dict(model) | {"dip_deg": -60.0})
-    s = simulate_device(model, np.arange(0.0, 0.2, 0.01), seed=4)
+    s = simulate_device(replace(model, dip_deg=-60.0), np.arange(0.0, 0.2, 0.01), seed=4)
     payload = b"".join((",".join(map(repr, row)) + "\r\n").encode()
                        for row in np.column_stack([s.accel, s.gyro, s.raw]).tolist())
     server, thread, port = _serve_repeatedly(payload)

@@ -278,6 +278,33 @@ def _run(session, stream):
     session.close()
 
 
+def test_an_accelerometer_that_reads_gravity_is_stopped_against_the_calibrations_own_dip():
+    """No site given: the calibration's own dip (measured against its accelerometer) judges the stream. A module
+    whose accelerometer reads gravity (-a) mirrors the dip and every heading is 180 deg off: stopped, naming
+    --accel-sign -1, which reads it right; a four-flip's assumed hemisphere judges nothing."""
+    from dataclasses import replace
+
+    from compass.io.streams import StreamOptions
+
+    model = default_model()
+    device = PtyDevice(model, rate_hz=100.0)
+    t = np.arange(1200) / 100.0
+    honest = simulate_device(model, t, seed=3)
+    negated = device._header + b"".join(device._lines(replace(honest, accel=-honest.accel), 0))
+    wrong = LiveSession(model, out=io.StringIO(), sign_from_bench=False)
+    _run(wrong, negated)
+    assert "--accel-sign -1" in wrong.turned_over and f"dip {model.dip_deg:+.1f} deg" in wrong.turned_over
+    assumed = LiveSession(model, out=io.StringIO())  # sign_from_bench: the calibration's dip sign an assumption
+    _run(assumed, negated)
+    assert assumed.turned_over is None
+    fixed = LiveSession(model, out=io.StringIO(), sign_from_bench=False, stream=StreamOptions(accel_sign=-1))
+    _run(fixed, negated)
+    assert fixed.turned_over is None
+    rows = np.array([line.split(",") for line in fixed.out.getvalue().splitlines()[2:]], dtype=float)
+    err = wrap(rows[:, 1] - scripted_motion(rows[:, 0])[0])
+    assert len(rows) == len(t) and np.sqrt(np.mean(err[rows[:, 0] > 2.0] ** 2)) < 1.0
+
+
 def test_live_at_another_site_seeds_its_reference_from_the_first_quiet_second():
     from compass.site import known_reference
 

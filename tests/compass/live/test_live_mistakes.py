@@ -236,10 +236,11 @@ def test_live_on_bad_input_says_it_and_writes_nothing_non_finite(tmp_path, monke
 
 
 @pytest.mark.parametrize("scale", [1.0, np.degrees(1.0)])
-def test_a_deg_per_s_gyro_turned_only_about_the_vertical_is_said_from_the_field(scale):
+def test_a_deg_per_s_gyro_turned_only_about_the_vertical_is_stopped_from_the_field(scale):
     """A level housing turned slowly about the vertical tilts the accelerometer by nothing, so the stream's unit
     check (the gyro against the accelerometer's tilt) never judges; the field turns with it (by cos(dip) of the
-    turn), which tells a gyro in deg/s read as rad/s (ratio 57 / cos(dip)) from one read right (about 1 / cos(dip))."""
+    turn), which tells a gyro in deg/s read as rad/s (ratio 57 / cos(dip)) from one read right (about 1 / cos(dip)):
+    the session stops on it (its attitudes turned 57 times too fast), the replay refusing it in words."""
     import io
 
     from compass.live import LiveSession
@@ -261,7 +262,8 @@ def test_a_deg_per_s_gyro_turned_only_about_the_vertical_is_said_from_the_field(
         n, words = said[0]
         assert "times more than the calibrated field turns" in words
         assert not any("axes are not the gyro's" in e for _, e in events)  # no remap offered for a unit's fault
-        # said within its first window (GYRO_UNIT_WINDOW_S, 10 s here), not on close; and again as the closing hint
-        assert n <= 1.2 * GYRO_UNIT_WINDOW_S / 0.01 and words in session.closing_hint()
+        # said within its first window (GYRO_UNIT_WINDOW_S, 10 s here), not on close, and the session stopped there
+        assert n <= 1.2 * GYRO_UNIT_WINDOW_S / 0.01 and session.gyro_unit == words
+        assert session.samples <= 1.2 * GYRO_UNIT_WINDOW_S / 0.01 and session.closing_hint() is None
     else:
-        assert session.gyro_unit is None
+        assert session.gyro_unit is None and session.samples == len(t)
