@@ -656,7 +656,8 @@ class _Problem:
         self.accel_prior = np.ones(0) if k == 0 else np.asarray(accel_prior, float)
         self.n_global, self.n_prior = self.N_GLOBAL + k, self.N_PRIOR + k
         self.window_a = window[self.static]
-        self.orientation = q_start  # Q_j of each window, Rotation: the last solution
+        self.orientation = q_start  # Q_j of each window, Rotation: the solution at the lowest loss so far (the next start)
+        self._lowest = np.inf  # that loss
         self.sigma_m, self.sigma_a, self.tau_prior_s, self.f_scale = sigma_m, sigma_a, tau_prior_s, f_scale
         self.gyro_prior = GYRO_MATRIX_PRIOR if gyro_prior is None else np.asarray(gyro_prior, float).ravel()
         n, n_s = len(mag), len(self.static)
@@ -752,9 +753,10 @@ class _Problem:
             scale = scale + np.abs(np.sum(v0 * quad, axis=1)) + np.abs(np.sum(v0 * t, axis=1))
         return change, 1e-13 * scale
 
-    def _solve_windows(self, rows: _Rows) -> np.ndarray:
-        """Every window's orientation (n_w, 3, 3) that minimises its loss at ``rows``' global parameters (Newton
-        steps, :func:`_window_newton`, a window's step halved while it raises that window's loss)."""
+    def _solve_windows(self, rows: _Rows) -> tuple[Rotation, np.ndarray]:
+        """Every window's orientation (Rotation and matrices (n_w, 3, 3)) that minimises its loss at ``rows``' global
+        parameters (Newton steps from :attr:`orientation`, :func:`_window_newton`, a window's step halved while it
+        raises that window's loss)."""
         q_rot = self.orientation
         q = q_rot.as_matrix()
         plain = self.f_scale is None
@@ -784,18 +786,26 @@ class _Problem:
                 trial_rot = Rotation.from_rotvec(step) * q_rot
                 trial = trial_rot.as_matrix()
             q_rot, q = trial_rot, trial
-        self.orientation = q_rot
-        return q
+        return q_rot, q
 
     def residual(self, p):
-        """The residual at ``p``, every window's orientation solved (in noise sigmas; the prior last)."""
+        """The residual at ``p``, every window's orientation solved (in noise sigmas; the prior last).
+
+        The windows' solution becomes the next solve's start only when the loss is the lowest so far: the outer
+        least squares' trial steps it rejects (a far step, where a window's solution can turn half a turn) do not
+        leave their windows' solutions as the start at its own iterate, where a window would stay in that minimum.
+        """
         p = np.array(p, dtype=float)
         rows = self.rows(p)
-        q = self._solve_windows(rows)
+        q_rot, q = self._solve_windows(rows)
         self._last = (p, rows, q)
         r_m, r_a = self.residuals(rows, q)
-        return np.concatenate([r_m.ravel(), r_a.ravel(), [rows.tau / self.tau_prior_s], self.prior_e(p),
-                               p[self.N_GLOBAL:] / self.accel_prior])
+        r = np.concatenate([r_m.ravel(), r_a.ravel(), [rows.tau / self.tau_prior_s], self.prior_e(p),
+                            p[self.N_GLOBAL:] / self.accel_prior])
+        loss = float(np.sum(_soft_l1_cost(r, self.f_scale)))
+        if loss <= self._lowest:
+            self._lowest, self.orientation = loss, q_rot
+        return r
 
     def prior_e(self, p) -> np.ndarray:
         """The gyro matrix's prior residuals, ``(G - I) / sigma`` (9)."""

@@ -519,3 +519,25 @@ def test_lines_lost_while_turning_leave_the_gyro_aided_fit_on_the_truth(partial)
     assert np.all(np.abs(fit.soft_iron - _shape(sim.truth["soft_iron"])) < 4 * fit.soft_iron_sigma + 1e-3)
     err = Rotation.from_matrix(sim.truth["mag_to_accel"]).inv() * res.misalignment.rotation
     assert np.degrees(err.magnitude()) < 4 * np.linalg.norm(res.misalignment.rotvec_sigma_deg) + 0.1
+
+
+def test_a_trial_step_the_fit_rejects_leaves_no_window_half_a_turn_off():
+    # a slow partial tumble whose link lost a second or more of lines every 2 s, each burst ending as the hand slowed
+    # (below 25 deg/s): the robust fit's first trial step (the hard iron 18 uT off) turned one window's solution
+    # 178 deg, and as each solve started from the last one, that window stayed there at the fit's own iterate: the
+    # fit stopped where it started and rejected 820 of the 1592 samples (GyroMismatch).  Started from the solution at
+    # the lowest loss so far, the fit keeps every sample and lands on the truth
+    sim = simulate_partial_tumble("slow_rotation", seed=0, coverage=0.3)
+    rate_deg_s = np.degrees(np.linalg.norm(sim.gyro, axis=1))
+    keep, start = np.ones(len(sim.t_s), bool), 100
+    while True:
+        end = start + 50 + int(np.argmax(rate_deg_s[start + 50:] < 25.0))
+        if end >= len(keep) - 10 or rate_deg_s[end] >= 25.0:
+            break
+        keep[start:end] = False
+        start = end + 100
+    t_s, mag, accel = sim.t_s[keep], sim.mag[keep], sim.accel[keep]
+    turns = gyro_turns(t_s, sim.gyro[keep], np.ones(len(t_s), bool))
+    res = with_gyro(calibrate_tumble(mag, accel, t_s=t_s), mag, accel, turns, t_s)
+    assert res.gyro["used"] and res.gyro["n_outliers"] == 0
+    assert np.all(np.abs(res.hard_iron - sim.truth["hard_iron"]) < 4 * res.fit.hard_iron_sigma + 0.05)
