@@ -1,6 +1,6 @@
 """The gyro-aided tumble fit beside the present one, on simulated partial motions and on BROAD.
 
-Run: ``python tools/bench_gyro_tumble.py [--seeds 4] [--quick] [--no-broad] [--no-sim]`` (seeded;
+Run: ``python tools/bench_gyro_tumble.py [--seeds 4] [--quick] [--no-broad] [--no-sim] [--gaps]`` (seeded;
 about 25 min with ``--seeds 2`` on the shared machine, BROAD's fast rotation 06 the longest; ``--quick``
 one seed and no BROAD); ``python tools/bench_gyro_tumble.py --timing [--baseline main]`` for the timing
 part alone (below).
@@ -32,6 +32,13 @@ scores it (leave one out): its calibrated field levelled with the optical refere
 spread about its median (deg rms; the offset between magnetic and optical north removed), beside
 the raw (the maker's calibration) and the present fit; a refused calibration (nothing written)
 scores as the raw.
+
+Gaps (``--gaps``): the same simulated motions with bursts of lines lost (``lost`` s after every ``kept`` s that
+arrived; the module turned in each gap), the gyro-aided fit (:func:`calibrate.tumble.gyro.with_gyro`) with its
+windows closed at every step over :data:`calibrate.tumble.gyro.GAP_S` (``gaps closed``) beside the same code with the
+limit set to infinity here (``across gaps``: the turns integrated across each gap, rate x gap, as before the limit):
+samples rejected as outliers, the magnetometer's residual rms (uT; 0.3 injected), the errors against the truth as
+above and the largest hard-iron error over its sigma; a fit not used is said.
 
 Timing (``--timing``): the gyro-aided fit (:func:`calibrate.tumble.gyro.fit_with_gyro`, from the
 present fit's values as :func:`~calibrate.tumble.gyro.with_gyro` starts it) on long fast recordings:
@@ -184,6 +191,49 @@ def simulated(seeds):
             print(("{:<40}{:>6}{:>6}{:>12}" + "{:>13.3f}" * 4 + "  {}").format(
                 label if name == "present" else "", int(np.mean(n_s)) if name == "present" else "",
                 f"{100 * np.mean(cov_s):.0f}%" if name == "present" else "", name, *mean, extra))
+
+
+GAP_CASES = (("fast_rotation", 0.25, 0.6, 1.0), ("fast_rotation", 0.25, 0.6, 0.4), ("slow_rotation", 0.3, 0.6, 1.0),
+             ("slow_rotation", 0.3, 1.0, 2.0))
+"""(motion, coverage, lines lost s, kept s between losses) of the ``--gaps`` table."""
+
+
+def _arrived(t_s: np.ndarray, lost_s: float, kept_s: float) -> np.ndarray:
+    """The rows that arrive when ``lost_s`` of lines are lost after every ``kept_s`` that arrived."""
+    hz = 1.0 / np.median(np.diff(t_s))
+    return np.arange(len(t_s)) % int(round((lost_s + kept_s) * hz)) < int(round(kept_s * hz))
+
+
+def gaps(seeds):
+    import calibrate.tumble.gyro as gyro
+
+    print(f"Bursts of lines lost (seeds {list(seeds)}): the gyro-aided fit with its windows closed at each gap beside "
+          "the same code integrating the turns across them")
+    head = ["case", "seed", "n", "fit", "windows", "outliers", "rms uT", "h err %|B|", "S err", "rot err deg",
+            "max h err/sig"]
+    print(("{:<44}{:>5}{:>6}{:>13}" + "{:>9}" * 3 + "{:>14}" * 4).format(*head))
+    for kind, cov, lost, kept in GAP_CASES:
+        for seed in seeds:
+            sim = simulate_partial_tumble(kind, seed=seed, coverage=cov)
+            keep = _arrived(sim.t_s, lost, kept)
+            t_s, mag, accel = sim.t_s[keep], sim.mag[keep], sim.accel[keep]
+            turns = gyro_turns(t_s, sim.gyro[keep], np.ones(len(t_s), bool))
+            present = calibrate_tumble(mag, accel, t_s=t_s)
+            for label, limit in (("gaps closed", gyro.GAP_S), ("across gaps", np.inf)):
+                closed, gyro.GAP_S = gyro.GAP_S, limit
+                try:
+                    r = with_gyro(present, mag, accel, turns, t_s)
+                finally:
+                    gyro.GAP_S = closed
+                case = f"{kind} {100 * cov:.0f} %, {lost:g} s lost every {lost + kept:g} s" if label == "gaps closed" else ""
+                lead = ("{:<44}{:>5}{:>6}{:>13}").format(case, seed if case else "", len(t_s) if case else "", label)
+                if not r.gyro["used"]:
+                    print(lead + "  not used: " + next(w for w in r.warnings if w.startswith("gyro-aided"))[:110])
+                    continue
+                errors = _errors(r.hard_iron, r.fit.soft_iron, r.misalignment.rotation, sim.truth, sim.mag, sim.attitude)
+                h_sig = np.max(np.abs(r.hard_iron - sim.truth["hard_iron"]) / r.fit.hard_iron_sigma)
+                print(lead + ("{:>9}{:>9}{:>9.3f}" + "{:>14.3f}" * 4).format(
+                    r.gyro["n_windows"], r.gyro["n_outliers"], r.gyro["mag_residual_rms"], *errors[:3], h_sig))
 
 
 def broad(every=4):
@@ -423,6 +473,7 @@ def main(argv=None):
     p.add_argument("--quick", action="store_true")
     p.add_argument("--no-broad", action="store_true")
     p.add_argument("--no-sim", action="store_true", help="BROAD only")
+    p.add_argument("--gaps", action="store_true", help="only the fit on recordings with bursts of lines lost")
     p.add_argument("--timing", action="store_true", help="only the timing of the gyro-aided fit on long fast recordings")
     p.add_argument("--baseline", default="main", help="git revision the timing compares with ('none' to skip)")
     p.add_argument("--blas-threads", default="1",
@@ -430,6 +481,10 @@ def main(argv=None):
     args = p.parse_args(argv)
     warnings.simplefilter("ignore")
     started = time.perf_counter()
+    if args.gaps:
+        gaps(range(1 if args.quick else args.seeds))
+        print(f"\n({time.perf_counter() - started:.0f} s)")
+        return
     if args.timing:
         timing(args.baseline, args.blas_threads)
         print(f"\n({time.perf_counter() - started:.0f} s)")

@@ -9,11 +9,14 @@ like any other.
 
 The recording keeps what the module sent of ``ax,ay,az``, ``gx,gy,gz`` (rad/s, as the decoder hands them and
 as the tumble reader takes them by default) and ``temp_c``: with the gyro, ``compass calibrate`` fits the turns
-between samples too (the gyro-aided fit of :mod:`calibrate.tumble.gyro`).  Its ``t_s`` never goes back: when
-the module's clock restarts (a reset, t_s back to about 0), the times after it go on from the last one
-by the stream's median step (the step across the restart is unknown; the ellipsoid fit uses no time, the
-gyro-aided fit integrates that one step's rate over it), said in words when it happens
-(:class:`ClockRestart`) and in the recording's ``# clock:`` line.
+between samples too (the gyro-aided fit of :mod:`calibrate.tumble.gyro`).  Its ``t_s`` never goes back.  A time that goes back, or
+jumps more than the runtime filter's ``max_gap_s`` ahead, is kept aside and the next sample tells what it was, as
+the runtime filter tells it (:meth:`compass.filter.AttitudeFilter._time_step`): when the next goes on from the old
+clock it was a corrupted value (a digit flipped on the serial line), and its sample is left out
+(:class:`CorruptedTime`); when the next goes on from the new one, the module's clock restarted (a reset, t_s back to
+about 0: the times after it go on from the last one by the stream's median step, the step across the restart being
+unknown, :class:`ClockRestart`) or the stream paused (a real gap, kept as it is).  Each is said in words when it is
+told and in the recording's ``# clock:`` line; a sample still kept aside when the stream ends is left out, said too.
 """
 
 from __future__ import annotations
@@ -25,12 +28,13 @@ import numpy as np
 
 from compass.io.atomic import atomic_write_text
 from compass.io.clock import SampleClock
+from compass.filter import FilterConfig
 from compass.io.streams import StreamDecoder
 
 from .coverage import sphere_coverage
 from .ellipsoid import fit_ellipsoid
 
-__all__ = ["CHANNELS", "MIN_SAMPLES", "ClockRestart", "TumbleCollector"]
+__all__ = ["CHANNELS", "MIN_SAMPLES", "ClockRestart", "CorruptedTime", "TumbleCollector"]
 
 CHANNELS = ("mx", "my", "mz")
 MIN_SAMPLES = 50
@@ -39,6 +43,7 @@ _FIT_SAMPLES = 2000  # the live fit uses at most this many samples, evenly sprea
 _STEP_SAMPLES = 1000  # the median step across a restart is the last this many samples'
 _COLUMNS = ("t_s", *CHANNELS, "ax", "ay", "az", "gx", "gy", "gz", "temp_c")
 _GROUPS = ((1, 4), (4, 7), (7, 10), (10, 11))  # the samples' columns: magnetometer, accelerometer, gyro, temp_c
+_MAX_STEP_S = FilterConfig.max_gap_s  # a time further ahead than this is kept aside until the next tells what it was
 
 
 @dataclass(frozen=True)
@@ -68,6 +73,40 @@ class ClockRestart:
                 f"step, {1e3 * self.step_s:.3g} ms (the step across a restart is unknown)")
 
 
+@dataclass(frozen=True)
+class CorruptedTime:
+    """A sample whose time was out of step with the module's clock, left out of the recording.
+
+    Attributes
+    ----------
+    sample : int
+        1-based sample of the recording it came before.
+    t_s : float
+        Its time, s.
+    last_s : float
+        The module's time of the sample before it, s.
+    next_s : float or None
+        The time of the sample after it, which went on from ``last_s``'s clock, s (None: the stream ended first, and
+        nothing told a corrupted value from a restart or a gap).
+    """
+
+    sample: int
+    t_s: float
+    last_s: float
+    next_s: float | None
+
+    def words(self) -> str:
+        """One sentence: the time, its neighbours, what was told from them and that the sample is left out."""
+        way = "went back" if self.t_s < self.last_s else "jumped ahead"
+        if self.next_s is None:
+            return (f"the last sample's time {way} from {self.last_s:.6g} s to {self.t_s:.6g} s and the stream ended: "
+                    "nothing after it tells a corrupted time from a restart or a gap, so it is left out of the tumble "
+                    "recording")
+        return (f"a corrupted time before sample {self.sample}: {self.t_s:.6g} s between {self.last_s:.6g} s and "
+                f"{self.next_s:.6g} s (the next sample goes on from the module's clock, not from it), so it is not a "
+                "restart; its sample is left out of the tumble recording")
+
+
 class TumbleCollector:
     """Samples of a tumble, their coverage and the converging fit.
 
@@ -87,7 +126,9 @@ class TumbleCollector:
     fit : EllipsoidFit or None
         The latest ellipsoid fit (hard iron, its sigma).
     restarts : list of ClockRestart
-        Every time the module's clock went back, in order.
+        Every time the module's clock restarted (two samples in a row on the new clock), in order.
+    corrupted : list of CorruptedTime
+        Every sample left out for a time out of step with the module's clock, in order.
     """
 
     def __init__(self, *, min_coverage: float = 0.8, stream=None):
@@ -97,8 +138,11 @@ class TumbleCollector:
         self.coverage = None
         self.fit = None
         self.restarts: list[ClockRestart] = []
+        self.corrupted: list[CorruptedTime] = []
         self._t0 = None
         self._last_t = None  # the module's time of the last sample, s
+        self._held = None  # (t_s, the other columns) of a sample kept aside until the next tells its time
+        self._unsaid: list = []  # the clock's events not yet returned, (level, text)
         self._offset_s = 0.0  # added to the module's time since its last restart, s
         self._last_rx = 0.0
         self._clock = SampleClock()  # dates the samples of a stream without t_s, as compass live does
@@ -115,37 +159,67 @@ class TumbleCollector:
         if self._t0 is None:
             self._t0 = item.t_rx
         self._last_rx = item.t_rx
-        said = len(self.restarts)
         self._add(self.decoder.feed(item.data, item.t_rx), item.t_rx)
-        return (self.decoder.drain_events() if self.decoder.events else []) + self._restart_events(said)
+        return (self.decoder.drain_events() if self.decoder.events else []) + self._clock_events()
 
     def finish(self) -> list:
-        """At the end of the stream: the samples the decoder still held; returns its events."""
-        said = len(self.restarts)
+        """At the end of the stream: the samples the decoder still held (a sample still kept aside for its time is
+        left out, :class:`CorruptedTime`); returns the events."""
         if self._t0 is not None:
             self._add(self.decoder.flush(), self._last_rx)
-        return self.decoder.drain_events() + self._restart_events(said)
+        if self._held is not None:
+            self._leave_out(self._held[0], None)
+            self._held = None
+        return self.decoder.drain_events() + self._clock_events()
 
     def _add(self, samples: list, t_rx: float) -> None:
         absent = (np.nan,) * 3
         for s in self._clock.dated(samples, t_rx, self._t0):
-            self.rows.append((self._continued(s.t_s), *s.raw, *(absent if s.accel is None else s.accel),
-                              *(absent if s.gyro is None else s.gyro), np.nan if s.temp_c is None else s.temp_c))
+            self._take(s.t_s, (*s.raw, *(absent if s.accel is None else s.accel),
+                               *(absent if s.gyro is None else s.gyro), np.nan if s.temp_c is None else s.temp_c))
 
-    def _continued(self, t_s: float) -> float:
-        """The recording's time of a sample at the module's ``t_s``: a time that goes back (the module's clock
-        restarted) goes on from the last one by the median step (:class:`ClockRestart`)."""
+    def _take(self, t_s: float, values: tuple) -> None:
+        """One sample at the module's ``t_s``: the sample kept aside before it told by this time, then this one
+        kept aside when its time goes back or jumps over ``max_gap_s`` ahead, else recorded."""
+        held, self._held = self._held, None
+        if held is not None:
+            if self._on_new_clock(held[0], t_s):
+                self._record(*held)
+            else:
+                self._leave_out(held[0], t_s)
+        if self._last_t is not None and not 0.0 <= t_s - self._last_t <= _MAX_STEP_S:
+            self._held = (t_s, values)
+        else:
+            self._record(t_s, values)
+
+    def _on_new_clock(self, held_s: float, next_s: float) -> bool:
+        """Whether the time after a sample kept aside at ``held_s`` goes on from it (a restart or a gap), not from the
+        old clock's last time (``held_s`` was a corrupted value)."""
+        if held_s < self._last_t:
+            return held_s <= next_s < self._last_t
+        return next_s >= held_s
+
+    def _leave_out(self, t_s: float, next_s: float | None) -> None:
+        """A sample kept aside for its time is left out (:class:`CorruptedTime`), said."""
+        self.corrupted.append(CorruptedTime(len(self.rows) + 1, t_s, self._last_t, next_s))
+        self._unsaid.append(("warn", self.corrupted[-1].words()))
+
+    def _record(self, t_s: float, values: tuple) -> None:
+        """A sample into the recording at the module's ``t_s``: a time that goes back (the module's clock
+        restarted) goes on from the last one by the median step (:class:`ClockRestart`, said)."""
         if self._last_t is not None and t_s < self._last_t:
             recent = np.array([row[0] for row in self.rows[-_STEP_SAMPLES:]])
             step = float(np.median(np.diff(recent))) if len(recent) > 1 else 0.0
             self.restarts.append(ClockRestart(len(self.rows) + 1, self._last_t, t_s, step))
+            self._unsaid.append(("warn", self.restarts[-1].words()))
             self._offset_s = float(recent[-1]) + step - t_s
         self._last_t = t_s
-        return t_s + self._offset_s
+        self.rows.append((t_s + self._offset_s, *values))
 
-    def _restart_events(self, said: int) -> list:
-        """The restarts since ``said`` of them were said, as events (level, text)."""
-        return [("warn", restart.words()) for restart in self.restarts[said:]]
+    def _clock_events(self) -> list:
+        """The restarts and corrupted times not yet said, as events (level, text)."""
+        events, self._unsaid = self._unsaid, []
+        return events
 
     @property
     def samples(self) -> np.ndarray:
@@ -188,26 +262,35 @@ class TumbleCollector:
         return text + f"  [{self.decoder.describe()}]"
 
     def clock_words(self) -> str | None:
-        """The module's clock restarts in one sentence (None without any): the recording's ``# clock:`` line."""
-        if not self.restarts:
-            return None
-        at = ", ".join(f"sample {r.sample} ({r.from_s:.6g} -> {r.to_s:.6g} s)" for r in self.restarts)
-        steps = sorted({f"{1e3 * r.step_s:.3g}" for r in self.restarts})
-        return (f"the module's clock restarted {len(self.restarts)} time{'s' * (len(self.restarts) > 1)}, at {at}; "
-                f"t_s goes on across {'it' if len(self.restarts) == 1 else 'each'} at the stream's median step, "
-                f"{'/'.join(steps)} ms")
+        """The module's clock restarts and the samples left out for their time, in one sentence each (None without
+        any): the recording's ``# clock:`` line."""
+        said = []
+        if self.restarts:
+            at = ", ".join(f"sample {r.sample} ({r.from_s:.6g} -> {r.to_s:.6g} s)" for r in self.restarts)
+            steps = sorted({f"{1e3 * r.step_s:.3g}" for r in self.restarts})
+            said.append(f"the module's clock restarted {len(self.restarts)} time{'s' * (len(self.restarts) > 1)}, at "
+                        f"{at}; t_s goes on across {'it' if len(self.restarts) == 1 else 'each'} at the stream's "
+                        f"median step, {'/'.join(steps)} ms")
+        if self.corrupted:
+            at = ", ".join(f"before sample {c.sample} ({c.t_s:.6g} s after {c.last_s:.6g} s)" for c in self.corrupted)
+            n = len(self.corrupted)
+            said.append(f"{n} sample{'s' * (n > 1)} left out for a time out of step with the module's clock (a "
+                        f"corrupted value, not a restart), {at}")
+        return "; ".join(said) if said else None
 
     def write_recording(self, path) -> Path:
         """The samples as a tumble recording (SPEC section 2): the accelerometer's, the gyro's (rad/s) and
-        temp_c columns when every sample had them; a ``# clock:`` line when the module's clock restarted."""
+        temp_c columns when every sample had them; a ``# clock:`` line when the module's clock restarted or a sample
+        was left out for its time (:meth:`clock_words`)."""
         data = self.samples
         keep = list(range(*_GROUPS[0]))
         for lo, hi in _GROUPS[1:]:
             if np.all(np.isfinite(data[:, lo:hi])):
                 keep += range(lo, hi)
         lines = ["# source: compass live --calibrate tumble"]
-        if self.restarts:
-            lines.append(f"# clock: {self.clock_words()}")
+        clock = self.clock_words()
+        if clock is not None:
+            lines.append(f"# clock: {clock}")
         lines.append(",".join(_COLUMNS[j] for j in [0, *keep]))
         lines += [",".join(f"{v:.9g}" for v in row) for row in data[:, [0, *keep]]]
         atomic_write_text(path, "\n".join(lines) + "\n")

@@ -62,7 +62,10 @@ identity (beyond 3 sigmas, the sigma under 0.5 %), and never one beyond 3 prior 
 (:func:`compass.calibration.gyro_matrix_seen`).  What stays unmodelled (a bias that wanders, an accelerometer's own
 scale errors, which tilt gravity unevenly) grows with the angle turned and the time.
 Each window restarts the integration with its own ``Q_j``: a window closes after
-:data:`WINDOW_TURN_DEG` of turn or :data:`WINDOW_S` seconds, so a 1 % scale error costs at most
+:data:`WINDOW_TURN_DEG` of turn or :data:`WINDOW_S` seconds, and before any step over :data:`GAP_S` (a
+restart, lines lost, a pause: the gyro's rate times the gap is not the turn made, so none is integrated
+across it; :func:`still_mask` compares rows within :data:`STILL_WINDOW_S`, which no such step fits in), so
+a 1 % scale error costs at most
 ~0.6 deg of orientation inside a window if it were not fitted (an 0.3 uT noise on a 50 uT field is 0.34 deg
 per sample),
 while each window still holds turns large enough to see the rotation between the sensors.  The
@@ -117,6 +120,7 @@ from scipy.spatial.transform import Rotation
 from scipy.special import chdtri
 
 from compass.calibration import MAX_GYRO_MATRIX_ERROR, gyro_matrix_mismatch, gyro_matrix_seen, latency_seen
+from compass.filter import FilterConfig
 
 from ..diagnosis.forms import json_float
 from ..noise import robust_sigma, second_difference_sigma, second_differences
@@ -127,7 +131,7 @@ from .motion import FAST_MOTION_WARNING
 from .result import TumbleResult
 
 __all__ = ["GyroFit", "GyroMismatch", "falls_back", "fit_with_gyro", "with_gyro", "still_mask", "turn_axes",
-           "turn_rates", "GYRO_MATRIX_PRIOR", "LATENCY_PRIOR_S", "WINDOW_S", "WINDOW_TURN_DEG",
+           "turn_rates", "GAP_S", "GYRO_MATRIX_PRIOR", "LATENCY_PRIOR_S", "WINDOW_S", "WINDOW_TURN_DEG",
            "MAX_ROTATION_SIGMA_DEG", "STILL_WINDOW_S", "STILL_PROBABILITY"]
 
 WINDOW_S = 10.0
@@ -135,6 +139,12 @@ WINDOW_S = 10.0
 
 WINDOW_TURN_DEG = 60.0
 """... or after the housing turned this much since the window's start, deg."""
+
+GAP_S = FilterConfig.max_gap_s
+"""A step between samples longer than this is a gap (the runtime filter's ``max_gap_s``, 0.5 s, beyond which it
+restarts): across it the gyro's ``rate x step`` is not the turn made (a restart of the module's clock, lines lost on a
+stream without one, a pause in the recording), so a window closes there (:func:`_windows`) and the rate at a sample
+beside it is taken from its other side (:func:`turn_rates`)."""
 
 MIN_WINDOW_SAMPLES = 5
 
@@ -385,14 +395,16 @@ def turn_rates(turns_rad: np.ndarray, dt_s: np.ndarray) -> np.ndarray:
     """The gyro's rate at each sample (rad/s, housing frame, shape (n, 3)) from the turns between samples.
 
     ``turns_rad[k]`` covers ``(t_k-1, t_k]``; the rate at ``t_k`` is the mean over ``(t_k-1, t_k+1]``
-    (centred; one-sided at either end; zero where no time passed).
+    (centred; one-sided at either end and beside a step over :data:`GAP_S`, whose turn is the rate after the gap
+    times its length, not the rate at ``t_k``; zero where no time passed).
     """
     turns, dt = np.asarray(turns_rad, float), np.asarray(dt_s, float)
+    used = (dt <= GAP_S) & (np.arange(len(dt)) > 0)  # row 0's turn and the steps over a gap tell no rate
+    turns, dt = np.where(used[:, None], turns, 0.0), np.where(used, dt, 0.0)
     span_turn = turns.copy()
     span_dt = dt.copy()
     span_turn[:-1] += turns[1:]
     span_dt[:-1] += dt[1:]
-    span_turn[0], span_dt[0] = turns[1] if len(turns) > 1 else turns[0], dt[1] if len(dt) > 1 else dt[0]
     return np.divide(span_turn, span_dt[:, None], out=np.zeros_like(span_turn), where=span_dt[:, None] > 0)
 
 
@@ -417,7 +429,8 @@ def still_mask(accel: np.ndarray, turns_rad: np.ndarray, t_s: np.ndarray) -> np.
     goes within the window tilts its rows by up to 5.8 deg, 400 times the noise's variance a row, far beyond the
     quantile (~70 for 24 rows at 48 Hz).  An acceleration that holds over the whole window tilts its rows alike
     and is not seen (a robot's minimum-jerk moves change theirs within a few tenths of a second); nor is the
-    gyro's bias modelled (0.5 deg/s over the window: 0.13 deg).
+    gyro's bias modelled (0.5 deg/s over the window: 0.13 deg).  The rows of a window span at most
+    :data:`STILL_WINDOW_S`, no longer than :data:`GAP_S`: no direction is carried across a gap.
 
     Parameters
     ----------
@@ -467,13 +480,16 @@ def still_mask(accel: np.ndarray, turns_rad: np.ndarray, t_s: np.ndarray) -> np.
 
 
 def _windows(turns: np.ndarray, dt: np.ndarray, factor: float = 1.0) -> np.ndarray:
-    """Index of the window of each sample (a window closes after ``factor`` times WINDOW_TURN_DEG or WINDOW_S)."""
+    """Index of the window of each sample: a window closes after ``factor`` times WINDOW_TURN_DEG or WINDOW_S (once it
+    holds MIN_WINDOW_SAMPLES), and before any step over :data:`GAP_S`, however few samples it holds (the turn across a
+    gap is unknown: the sample after it starts a window, whose first turn is not used)."""
     limit, longest = np.radians(factor * WINDOW_TURN_DEG), factor * WINDOW_S
     out = np.empty(len(turns), dtype=int)
     j, angle, time, count = 0, 0.0, 0.0, 0
     step = np.linalg.norm(turns, axis=1)
     for k in range(len(turns)):
-        if count >= MIN_WINDOW_SAMPLES and (angle + step[k] > limit or time + dt[k] > longest):
+        full = count >= MIN_WINDOW_SAMPLES and (angle + step[k] > limit or time + dt[k] > longest)
+        if count and (dt[k] > GAP_S or full):
             j, angle, time, count = j + 1, 0.0, 0.0, 0
         elif count:
             angle, time = angle + step[k], time + dt[k]
@@ -640,7 +656,8 @@ class _Problem:
         self.accel_prior = np.ones(0) if k == 0 else np.asarray(accel_prior, float)
         self.n_global, self.n_prior = self.N_GLOBAL + k, self.N_PRIOR + k
         self.window_a = window[self.static]
-        self.orientation = q_start  # Q_j of each window, Rotation: the last solution
+        self.orientation = q_start  # Q_j of each window, Rotation: the solution at the lowest loss so far (the next start)
+        self._lowest = np.inf  # that loss
         self.sigma_m, self.sigma_a, self.tau_prior_s, self.f_scale = sigma_m, sigma_a, tau_prior_s, f_scale
         self.gyro_prior = GYRO_MATRIX_PRIOR if gyro_prior is None else np.asarray(gyro_prior, float).ravel()
         n, n_s = len(mag), len(self.static)
@@ -736,9 +753,10 @@ class _Problem:
             scale = scale + np.abs(np.sum(v0 * quad, axis=1)) + np.abs(np.sum(v0 * t, axis=1))
         return change, 1e-13 * scale
 
-    def _solve_windows(self, rows: _Rows) -> np.ndarray:
-        """Every window's orientation (n_w, 3, 3) that minimises its loss at ``rows``' global parameters (Newton
-        steps, :func:`_window_newton`, a window's step halved while it raises that window's loss)."""
+    def _solve_windows(self, rows: _Rows) -> tuple[Rotation, np.ndarray]:
+        """Every window's orientation (Rotation and matrices (n_w, 3, 3)) that minimises its loss at ``rows``' global
+        parameters (Newton steps from :attr:`orientation`, :func:`_window_newton`, a window's step halved while it
+        raises that window's loss)."""
         q_rot = self.orientation
         q = q_rot.as_matrix()
         plain = self.f_scale is None
@@ -768,18 +786,26 @@ class _Problem:
                 trial_rot = Rotation.from_rotvec(step) * q_rot
                 trial = trial_rot.as_matrix()
             q_rot, q = trial_rot, trial
-        self.orientation = q_rot
-        return q
+        return q_rot, q
 
     def residual(self, p):
-        """The residual at ``p``, every window's orientation solved (in noise sigmas; the prior last)."""
+        """The residual at ``p``, every window's orientation solved (in noise sigmas; the prior last).
+
+        The windows' solution becomes the next solve's start only when the loss is the lowest so far: the outer
+        least squares' trial steps it rejects (a far step, where a window's solution can turn half a turn) do not
+        leave their windows' solutions as the start at its own iterate, where a window would stay in that minimum.
+        """
         p = np.array(p, dtype=float)
         rows = self.rows(p)
-        q = self._solve_windows(rows)
+        q_rot, q = self._solve_windows(rows)
         self._last = (p, rows, q)
         r_m, r_a = self.residuals(rows, q)
-        return np.concatenate([r_m.ravel(), r_a.ravel(), [rows.tau / self.tau_prior_s], self.prior_e(p),
-                               p[self.N_GLOBAL:] / self.accel_prior])
+        r = np.concatenate([r_m.ravel(), r_a.ravel(), [rows.tau / self.tau_prior_s], self.prior_e(p),
+                            p[self.N_GLOBAL:] / self.accel_prior])
+        loss = float(np.sum(_soft_l1_cost(r, self.f_scale)))
+        if loss <= self._lowest:
+            self._lowest, self.orientation = loss, q_rot
+        return r
 
     def prior_e(self, p) -> np.ndarray:
         """The gyro matrix's prior residuals, ``(G - I) / sigma`` (9)."""

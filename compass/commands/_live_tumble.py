@@ -9,7 +9,8 @@ ellipsoid fit's hard iron converging and, in words, the orientations still missi
 half-axis has been along the field and ``--min-coverage`` of the sphere's cells hold a sample (or on
 Ctrl-C, or after ``--duration``), the samples are written as a tumble recording beside the
 calibration (``CAL.tumble.csv``, the gyro kept: the gyro-aided fit uses it; its ``t_s`` going on across
-a restart of the module's clock, :class:`calibrate.tumble.collector.ClockRestart`) and calibrated by the
+a restart of the module's clock, :class:`calibrate.tumble.collector.ClockRestart`, a sample with a corrupted time
+left out, :class:`calibrate.tumble.collector.CorruptedTime`) and calibrated by the
 same code as ``compass calibrate`` (same checks, refusals and diagnosis).
 """
 
@@ -91,8 +92,9 @@ def run_tumble(args) -> int:
             collector.update()
             why = "coverage reached" if collector.enough else "stopped before the coverage was reached"
             print(f"compass live: {why}; {collector.readout()}", flush=True)
-            if collector.restarts:  # said when it happened too, unless --quiet
-                print(f"compass live: {collector.clock_words()}", flush=True)
+            clock = collector.clock_words()
+            if clock is not None:  # restarts and corrupted times: said when told too, unless --quiet
+                print(f"compass live: {clock}", flush=True)
             print(f"wrote {collector.write_recording(recording)}", flush=True)
             result = calibrate_cmd.calibrate_file(recording, out, kind="tumble", force=True, quiet=args.quiet)
         finally:
