@@ -298,3 +298,20 @@ def test_simulate_fleet_command_writes_sessions_and_truth_and_never_overwrites(t
     capsys.readouterr()
     assert main(["simulate", "fleet", "--n", "4", "--out", str(out)]) == 2
     assert "exists; use --force" in capsys.readouterr().err
+
+
+def test_a_clipped_channel_s_session_is_refused_naming_it(fleet, tmp_path):
+    from calibrate.batch import SessionJob, calibrate_session, sha256_of
+
+    folder, truth = fleet
+    lines = (folder / "line" / _clean(truth, 2)["file"]).read_text().splitlines()
+    header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    v2 = lines[header].split(",").index("v2")
+    rail = 0.9 * max(float(line.split(",")[v2]) for line in lines[header + 1:])
+    clipped = tmp_path / "clipped.csv"
+    clipped.write_text("\n".join(lines[: header + 1] + [
+        ",".join(f"{min(float(c), rail):.3f}" if k == v2 else c for k, c in enumerate(line.split(",")))
+        for line in lines[header + 1:]]) + "\n")
+    out = calibrate_session(SessionJob(str(clipped), sha256_of(clipped), 65.0, 50.0))
+    assert out["refused"].startswith(f"{clipped}, row ") and "column 'v2': reads its extreme" in out["refused"]
+    assert "clipped (saturated)" in out["refused"] and "'v1'" not in out["refused"] and "'v3'" not in out["refused"]
