@@ -9,6 +9,13 @@ recording: a recording that cannot be calibrated comes back ``refused`` with the
 :func:`run_batch` hands the sessions not yet stored to an executor and, in the calling process
 only, judges each outcome as it arrives and stores it in its own transaction: a batch killed at any
 moment keeps every session it finished and no half of one, and its re-run skips them.
+
+A module id with one session time is one bench session: when different recordings (different
+hashes, in this run or in the store) claim the same id and time, no one can tell which is the
+module's (a copied header, a mistyped id).  Each such session is stored ``rejected`` (``refused``
+if it could not be calibrated) with the words naming every recording, so none of them is accepted
+or exported; :attr:`BatchSummary.duplicates` lists them.  The same recording given again is one
+session, never a duplicate.
 """
 
 from __future__ import annotations
@@ -23,7 +30,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
-__all__ = ["BatchSummary", "SessionJob", "calibrate_session", "executor_outcomes", "run_batch"]
+__all__ = ["BatchSummary", "SessionJob", "calibrate_session", "duplicate_reason", "executor_outcomes", "run_batch",
+           "session_identity", "shared_identities"]
 
 _METADATA_LINES = 200
 """Comment lines read for ``module_id`` and ``date`` when the recording itself cannot be read."""
@@ -64,6 +72,12 @@ def _header_metadata(path) -> dict:
     return out
 
 
+def session_identity(path) -> tuple[str, str]:
+    """A recording's module id (``# module_id:``, else the file name) and session time (:func:`_session_time`)."""
+    metadata = _header_metadata(path)
+    return metadata.get("module_id") or Path(path).stem, _session_time(path, metadata)
+
+
 def _session_time(path, metadata: dict) -> str:
     """The session's time: ``# session_time:`` or ``# date:`` as written, else the file's mtime (UTC, ISO)."""
     for key in ("session_time", "date"):
@@ -94,10 +108,9 @@ def calibrate_session(job: SessionJob) -> dict:
     from .session import file_text, find_kind, fit_recording
 
     start = time.perf_counter()
-    metadata = _header_metadata(job.path)
-    out = {"path": job.path, "sha256": job.sha256, "module_id": metadata.get("module_id") or Path(job.path).stem,
-           "session_time": _session_time(job.path, metadata), "kind": None, "calibration": None, "figures": {},
-           "warnings": [], "refused": None}
+    module_id, session_time = session_identity(job.path)
+    out = {"path": job.path, "sha256": job.sha256, "module_id": module_id, "session_time": session_time,
+           "kind": None, "calibration": None, "figures": {}, "warnings": [], "refused": None}
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", RecordingWarning)
@@ -209,6 +222,9 @@ class BatchSummary:
         Status -> number of sessions stored by this run.
     hashes : list of str
         Every recording's hash (the report's sessions).
+    duplicates : dict
+        ``(module_id, session_time)`` -> the paths of the different recordings (among this run's and
+        the store's) that claim it, for each claimed by more than one (:func:`shared_identities`).
     seconds : float
         Wall time of the calibrations.
     """
@@ -217,7 +233,44 @@ class BatchSummary:
     skipped: int = 0
     counts: dict = field(default_factory=lambda: {"accepted": 0, "rejected": 0, "refused": 0})
     hashes: list = field(default_factory=list)
+    duplicates: dict = field(default_factory=dict)
     seconds: float = 0.0
+
+
+def shared_identities(identities: dict, hashes: dict, store) -> dict:
+    """Module id and session time claimed by more than one recording: the recordings' paths.
+
+    Parameters
+    ----------
+    identities : dict
+        Path -> ``(module_id, session_time)`` (:func:`session_identity`) of this run's recordings.
+    hashes : dict
+        Path -> the recording's SHA-256.
+    store : compass.production.store.Store
+        Its sessions of the same module and session time count too (of any toolkit version or spec).
+
+    Returns
+    -------
+    dict
+        ``(module_id, session_time)`` -> sorted absolute paths, one a distinct recording hash, for
+        each identity with more than one (the same recording given twice is one).
+    """
+    claims: dict[tuple[str, str], dict[str, str]] = {}
+    for p, identity in identities.items():
+        claims.setdefault(identity, {}).setdefault(hashes[p], os.path.abspath(p))
+    for (module_id, session_time), by_hash in claims.items():
+        for row in store.sessions(module_id=module_id):
+            if row.session_time == session_time:
+                by_hash.setdefault(row.recording_sha256, row.recording_path)
+    return {identity: sorted(by_hash.values()) for identity, by_hash in claims.items() if len(by_hash) > 1}
+
+
+def duplicate_reason(identity: tuple[str, str], paths) -> str:
+    """The verdict's words for a session whose module id and session time another recording claims."""
+    module_id, session_time = identity
+    return (f"duplicate module id '{module_id}': {len(paths)} different recordings claim its session at "
+            f"{session_time}: {', '.join(paths)}; which one is this module's is unknown, so none is accepted: "
+            "correct the wrong recording's '# module_id:' and record the module again (a later session decides)")
 
 
 def run_batch(paths, spec, store, *, toolkit_version: str, workers: int | None = None,
@@ -248,6 +301,8 @@ def run_batch(paths, spec, store, *, toolkit_version: str, workers: int | None =
     summary = BatchSummary(total=len(paths))
     hashes = {p: sha256_of(p) for p in paths}
     summary.hashes = list(hashes.values())
+    identities = {p: session_identity(p) for p in paths}
+    summary.duplicates = shared_identities(identities, hashes, store)
     known = store.known(toolkit_version, spec.sha256)
     jobs, seen = [], set(known)
     for p in paths:
@@ -262,6 +317,11 @@ def run_batch(paths, spec, store, *, toolkit_version: str, workers: int | None =
             verdict = Verdict("refused", (outcome["refused"],))
         else:
             verdict = spec.judge(outcome["figures"])
+        shared = summary.duplicates.get(identities[outcome["path"]])
+        if shared:  # calibrated or not, it cannot be this module's verdict: the recording is ambiguous
+            verdict = Verdict("refused" if verdict.status == "refused" else "rejected",
+                              (duplicate_reason(identities[outcome["path"]], shared), *verdict.reasons),
+                              verdict.notes)
         store.add(module_id=outcome["module_id"], session_time=outcome["session_time"],
                   recording_path=os.path.abspath(outcome["path"]), recording_sha256=outcome["sha256"],
                   toolkit_version=toolkit_version, kind=outcome["kind"], status=verdict.status,

@@ -60,7 +60,7 @@ def run(args) -> int:
     from ..io.atomic import check_writable
     from ..production.report import write_report
     from ..production.spec import SpecError, load_spec
-    from ..production.store import Store, StoreError
+    from ..production.store import Store, StoreError, module_outcomes
 
     if args.scheduler is not None and args.workers is not None:
         raise BadInput("--scheduler runs on that cluster's workers: leave out --workers")
@@ -93,8 +93,13 @@ def run(args) -> int:
     print(f"{summary.total} recordings: {sum(c.values())} calibrated now ({c['accepted']} accepted, "
           f"{c['rejected']} rejected, {c['refused']} refused) in {summary.seconds:.1f} s, "
           f"{summary.skipped} already stored")
-    accepted = sum(r.status == "accepted" for r in rows)
-    print(f"yield {accepted}/{len(rows)} ({100.0 * accepted / max(len(rows), 1):.1f} %)")
+    modules = module_outcomes(rows)
+    accepted = sum(m.status == "accepted" for m in modules)
+    print(f"yield {accepted}/{len(modules)} modules ({100.0 * accepted / max(len(modules), 1):.1f} %; "
+          f"{len(rows)} sessions)")
+    for (module_id, session_time), shared in summary.duplicates.items():
+        print(f"duplicate module id {module_id}: {len(shared)} different recordings claim its session at "
+              f"{session_time}: {', '.join(shared)}: none accepted, export --module {module_id} refuses it")
     for control in controls:
         row = control.alarm_row
         if row is not None:

@@ -115,6 +115,7 @@ def fourflip_from_table(table: Table) -> FourFlipRecording:
         )
     _check_coverage(table, flip_index, platform, looks_like_radians(flip), looks_like_radians(platform))
     table.check_constant(channels)
+    table.check_clipped(channels)
     outputs = np.column_stack([table.column(c) for c in channels])
     optional = {c: table.column(c) if table.has(c) else None for c in ("t_s", "temp_c")}
     accel = None

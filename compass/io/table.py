@@ -290,6 +290,42 @@ class Table:
                                          column=name)
 
 
+    def check_clipped(self, names, keep=None) -> None:
+        """RecordingError naming the first of ``names`` that sits on its own extreme value (its largest or its
+        smallest, exactly) in at least :data:`CLIPPED_SHARE` of its samples and :data:`CLIPPED_MIN_SAMPLES`
+        of them, while its other values rarely repeat (at most :data:`CLIPPED_REPEAT_SHARE`): a clipped
+        (saturated) channel, whose true value went past the sensor's or the ADC's range.
+
+        A channel resolved more finely than its noise (the honest case of a float log) repeats a value only
+        by chance, its extreme value almost never; a clipped one reads its rail on every sample beyond it.  A
+        channel quantised as coarsely as its noise (an integer ADC read with a noise of a few counts, or less)
+        repeats values anywhere, and reads one code for a whole flip along its axis: its extremes prove
+        nothing and it is not judged here.  ``keep`` (bool, one a row) leaves out rows that repeat the
+        sensor's last reading (:func:`compass.sample_check.new_readings`)."""
+        rows = self.rows if keep is None else self.rows[keep]
+        for name in names:
+            v = self.column(name)
+            if keep is not None:
+                v = v[keep]
+            finite = np.isfinite(v)
+            v, at_rows = v[finite], rows[finite]
+            for extreme in (v.max(), v.min()) if len(v) else ():
+                on = v == extreme
+                count = int(on.sum())
+                if count < max(CLIPPED_MIN_SAMPLES, CLIPPED_SHARE * len(v)):
+                    continue
+                rest = v[(v != v.max()) & (v != v.min())]
+                repeats = 1.0 - len(np.unique(rest)) / len(rest) if len(rest) else 1.0
+                if repeats > CLIPPED_REPEAT_SHARE:
+                    continue
+                first = int(at_rows[np.flatnonzero(on)[0]])
+                raise RecordingError(self.path, f"reads its extreme {extreme:+g} on {count} of {len(v)} samples, "
+                                                f"where its other values repeat on {100.0 * repeats:.1f} % of "
+                                                "them: clipped (saturated), the field went past the sensor's "
+                                                "or the ADC's range: lower the channel's gain (or its offset, "
+                                                "or the field at the bench) and record again",
+                                     row=first, column=name)
+
     def check_dead_axis(self, names) -> None:
         """RecordingError naming the first of a vector sensor's columns ``names`` (all present) that never changes
         while the others change by more than :data:`DEAD_AXIS_SHARE` of the vector's median length, and the
@@ -318,6 +354,21 @@ class Table:
 DEAD_AXIS_SHARE = 0.1
 """A vector sensor's axis that never changes while another changes by more than this share of the vector's median
 length is dead (:meth:`Table.check_dead_axis`): a tilt of 6 degrees moves an accelerometer's axes that much."""
+
+CLIPPED_SHARE = 0.02
+"""A channel on its extreme value in this share of its samples (and :data:`CLIPPED_MIN_SAMPLES`) is clipped
+(:meth:`Table.check_clipped`).  A rail 0.3 % below a turning channel's peak holds it for 2 % of each turn
+(``arccos(0.997) / 180 deg``); one flip of a four-flip is a quarter of its samples."""
+
+CLIPPED_MIN_SAMPLES = 8
+"""Fewest samples on one exact extreme value that count as a rail: a channel resolved more finely than its
+noise repeats its largest value by chance about as often as any other, twice at most in practice."""
+
+CLIPPED_REPEAT_SHARE = 0.1
+"""A channel whose values other than its extremes repeat on more than this share of its samples is quantised
+as coarsely as its noise (an integer ADC): an exact repeat of its extreme proves no rail and it is not judged.
+Values drawn at random over ``K`` codes repeat on about ``n / (2 K)`` of ``n`` samples: 360 samples of a
+float log over 10^5 codes 0.2 %, an integer channel spanning 600 counts 30 %."""
 
 
 def read_table(path, options: ReadOptions | None = None, *, live_record: bool = False) -> Table:

@@ -108,6 +108,7 @@ def tumble_from_table(table: Table) -> TumbleRecording:
                              f"(after dropping repeated values); a tumble calibration needs at least {MIN_SAMPLES}",
                              column="mx")
     table.check_constant(MAG_COLUMNS)
+    table.check_clipped(MAG_COLUMNS, keep)
     turns = _gyro(table, accel, t_s, keep)
     accel, t_s, temp_c = (None if a is None else a[keep] for a in (accel, t_s, temp_c))
     if accel is not None:

@@ -1,8 +1,10 @@
 """The fleet report: ``report.html`` (static, plots inline as PNG) and ``figures.csv``.
 
-What a line's engineer reads after a batch: the yield, every judged figure's distribution against
-its limit, the EWMA control chart of the spec's ``[control] figures`` over session time (a drifting
-line flagged at the session where it left its limits), and the worst modules with their reasons.
+What a line's engineer reads after a batch: the yield over modules (each decided as
+:func:`compass.production.store.module_outcome` says; duplicate module ids named), every judged
+figure's distribution against its limit, the EWMA control chart of the spec's ``[control] figures``
+over session time (a drifting line flagged at the session where it left its limits), and the worst
+modules with their reasons.
 ``figures.csv`` has one row a session with every figure, for the user's own analysis.
 """
 
@@ -20,6 +22,7 @@ import numpy as np
 from ..io.atomic import atomic_write_text
 from .control import ewma_chart
 from .figures import FIGURES
+from .store import module_outcomes
 
 __all__ = ["ControlResult", "control_results", "write_csv", "write_report"]
 
@@ -177,7 +180,8 @@ def write_report(out_dir, rows, spec, *, spec_source: str, toolkit_version: str,
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     csv_path = write_csv(out_dir / "figures.csv", rows)
-    counts = {s: sum(r.status == s for r in rows) for s in ("accepted", "rejected", "refused")}
+    modules = module_outcomes(rows)
+    counts = {s: sum(m.status == s for m in modules) for s in ("accepted", "rejected", "refused", "duplicate")}
     total = len(rows)
     controls = control_results(rows, spec)
     e = html.escape
@@ -190,16 +194,29 @@ def write_report(out_dir, rows, spec, *, spec_source: str, toolkit_version: str,
              ".grid{display:flex;flex-wrap:wrap;gap:8px}.grid figure{margin:0}"
              ".note{color:#555;font-size:13px}.alarm{background:#fdecea;padding:6px 10px;border-left:4px solid #c0392b}"
              ".calm{background:#eaf5ea;padding:6px 10px;border-left:4px solid #2e7d32}</style></head><body>"]
-    yield_pct = 100.0 * counts["accepted"] / total if total else float("nan")
+    yield_pct = 100.0 * counts["accepted"] / len(modules) if modules else float("nan")
     times = [r.session_time for r in rows]
     parts.append(f"<h1>{e(title)}</h1><p class='note'>{total} sessions"
                  + (f" from {e(times[0])} to {e(times[-1])}" if times else "")
                  + f"; spec {e(spec_source)} (sha256 {spec.sha256[:12]}); compass {e(toolkit_version)}. "
                  "Every module's figures: <a href='figures.csv'>figures.csv</a>.</p>")
-    parts.append("<h2>Yield</h2><table><tr><th>accepted</th><th>rejected (a limit failed)</th>"
-                 "<th>refused (could not be calibrated)</th><th>yield</th></tr>"
+    parts.append(f"<h2>Yield</h2><p class='note'>{len(modules)} modules (module ids) in {total} sessions; a "
+                 "module is decided by its latest accepted session, else its latest session.</p>"
+                 "<table><tr><th>accepted</th><th>rejected (a limit failed)</th>"
+                 "<th>refused (could not be calibrated)</th><th>duplicate id (different recordings, one "
+                 "session time)</th><th>yield</th></tr>"
                  f"<tr><td class='num ok'>{counts['accepted']}</td><td class='num bad'>{counts['rejected']}</td>"
-                 f"<td class='num bad'>{counts['refused']}</td><td class='num'><b>{yield_pct:.1f} %</b></td></tr></table>")
+                 f"<td class='num bad'>{counts['refused']}</td><td class='num bad'>{counts['duplicate']}</td>"
+                 f"<td class='num'><b>{yield_pct:.1f} %</b></td></tr></table>")
+    duplicates = [m for m in modules if m.status == "duplicate"]
+    if duplicates:
+        parts.append("<p class='alarm'><b>Duplicate module ids</b>: different recordings claim one module's "
+                     "session; none of them is accepted or exported until the wrong one is corrected and the "
+                     "module recorded again.<br>"
+                     + "<br>".join(f"{e(m.module_id)} at {e(m.row.session_time)}: "
+                                   + ", ".join(e(r.recording_path) for r in sorted((m.row, *m.rivals),
+                                                                                   key=lambda r: r.recording_path))
+                                   for m in duplicates) + "</p>")
     parts.append("<h2>Is the line drifting?</h2><p class='note'>EWMA control charts over session time "
                  f"(lambda {spec.ewma_lambda:g}, limits {spec.width_sigmas:g} sigma from the first "
                  f"{spec.baseline_sessions} sessions; refused sessions left out; each value enters the average "

@@ -9,7 +9,9 @@ older file forward, a newer one is refused in words)::
 ``status`` is ``accepted``, ``rejected`` or ``refused`` (not calibrated); ``reasons``, ``notes``
 and ``figures`` are JSON; ``calibration`` is the calibration file's text (NULL when refused).
 A session is the same when its recording's hash, the toolkit version and the spec are: a re-run
-of a batch skips it (:meth:`Store.known`).  Every row is written in its own transaction, so a
+of a batch skips it (:meth:`Store.known`).  A module's calibration is its latest accepted session
+(:func:`module_outcome`); two different recordings of one module id at one session time are a tie
+that :meth:`Store.latest_accepted` refuses to break.  Every row is written in its own transaction, so a
 process killed mid-batch leaves every finished session stored and no half of one.
 
 Only the batch's parent process writes (SQLite serialises writers; many writing workers would
@@ -27,7 +29,8 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
-__all__ = ["MIGRATIONS", "SCHEMA_VERSION", "SessionRow", "Store", "StoreError"]
+__all__ = ["MIGRATIONS", "SCHEMA_VERSION", "ModuleOutcome", "SessionRow", "Store", "StoreError", "module_outcome",
+           "module_outcomes"]
 
 MIGRATIONS = (
     # 0 -> 1
@@ -91,6 +94,54 @@ def _row(values) -> SessionRow:
     for key in ("reasons", "notes", "figures"):
         d[key] = json.loads(d[key])
     return SessionRow(**d)
+
+
+@dataclass(frozen=True)
+class ModuleOutcome:
+    """What one module's sessions come to: the session that decides it, and any recording rivalling it.
+
+    Attributes
+    ----------
+    module_id : str
+    status : {"accepted", "rejected", "refused", "duplicate"}
+        ``accepted``: the module has an accepted session and no other recording claims its session
+        time; ``duplicate``: another recording (a different hash) claims the deciding session's
+        time, so which one is the module's is unknown; otherwise the latest session's verdict.
+    row : SessionRow
+        The latest accepted session, else the latest session.
+    rivals : tuple of SessionRow
+        The other recordings at ``row``'s session time (one row a recording hash).
+    """
+
+    module_id: str
+    status: str
+    row: SessionRow
+    rivals: tuple[SessionRow, ...]
+
+
+def module_outcome(rows) -> ModuleOutcome:
+    """The outcome of one module from its sessions in session-time order (:meth:`Store.sessions`).
+
+    The latest accepted session decides (a later session of the module supersedes an earlier one);
+    the same recording stored twice (another toolkit version or spec) is one recording.  Sessions at
+    one session time are not ordered by anything but their files' names, so two different
+    recordings there are a tie, never a choice.
+    """
+    rows = list(rows)
+    accepted = [r for r in rows if r.status == "accepted"]
+    row = accepted[-1] if accepted else rows[-1]
+    rivals = {r.recording_sha256: r for r in rows
+              if r.session_time == row.session_time and r.recording_sha256 != row.recording_sha256}
+    status = "duplicate" if rivals else row.status
+    return ModuleOutcome(row.module_id, status, row, tuple(rivals.values()))
+
+
+def module_outcomes(rows) -> list[ModuleOutcome]:
+    """:func:`module_outcome` of every module among ``rows`` (session-time order), in order of first session."""
+    by_module: dict[str, list[SessionRow]] = {}
+    for r in rows:
+        by_module.setdefault(r.module_id, []).append(r)
+    return [module_outcome(group) for group in by_module.values()]
 
 
 class Store:
@@ -185,23 +236,32 @@ class Store:
         return rows
 
     def latest_accepted(self, module_id: str) -> SessionRow:
-        """The module's latest accepted session.
+        """The module's latest accepted session (:func:`module_outcome`).
 
         Raises
         ------
         StoreError
-            No session of that module, or none accepted (the message says which and why).
+            No session of that module, none accepted (the message says which and why), or another
+            recording claims the latest accepted session's time (the message names every recording).
         """
         rows = self.sessions(module_id=module_id)
         if not rows:
             raise StoreError(f"{self.path}: no session of module '{module_id}'")
-        accepted = [r for r in rows if r.status == "accepted"]
-        if not accepted:
-            last = rows[-1]
-            why = "; ".join(last.reasons) or last.status
+        outcome = module_outcome(rows)
+        row = outcome.row
+        if row.status != "accepted":
+            why = "; ".join(row.reasons) or row.status
             raise StoreError(f"{self.path}: module '{module_id}' has no accepted calibration ({len(rows)} "
-                             f"session(s); the latest, {last.session_time}, was {last.status}: {why})")
-        return accepted[-1]
+                             f"session(s); the latest, {row.session_time}, was {row.status}: {why})")
+        if outcome.rivals:
+            claims = ", ".join(f"{r.recording_path} (sha256 {r.recording_sha256[:12]}, {r.status})"
+                               for r in sorted((row, *outcome.rivals), key=lambda r: r.recording_path))
+            raise StoreError(f"{self.path}: module '{module_id}': {1 + len(outcome.rivals)} different recordings "
+                             f"claim its latest accepted session, {row.session_time}: {claims}; none is later, so "
+                             "which calibration is this module's is unknown: correct the wrong recording's "
+                             "'# module_id:' and record the module again (a later session decides), or export "
+                             "the calibration file of the right recording")
+        return row
 
     def count(self) -> int:
         return self._db.execute("SELECT COUNT(*) FROM sessions").fetchone()[0]

@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 import signal
 import sqlite3
 import time
@@ -12,7 +13,7 @@ from calibrate.batch import run_batch
 from compass.calibration import from_dict
 from compass.cli import main
 from compass.production.spec import load_spec
-from compass.production.store import Store
+from compass.production.store import Store, StoreError
 from compass.sim.fleet import FleetOptions, simulate_fleet
 from tests._proc import Proc, compass_command
 
@@ -117,6 +118,71 @@ def test_store_and_export_read_the_batch(fleet, capsys):
     assert ": refused (fourflip)" in shown and "column 'v1': expected a number, found 'ERR'" in shown
     assert main(["export", "--module", accepted]) == 2
     assert "--module needs --store PATH" in capsys.readouterr().err
+
+
+def _clean(truth, k):
+    return [m for m in truth["modules"] if not m["should_fail"]][k]
+
+
+def _relabel(source, like, out):
+    """``source``'s samples under ``like``'s '# module_id:' and '# date:' (a header copied by mistake)."""
+    header = {line.split(":")[0]: line for line in like.read_text().splitlines() if line.startswith("#")}
+    out.write_text("\n".join(header.get(line.split(":")[0], line) if line.startswith("#") else line
+                             for line in source.read_text().splitlines()) + "\n")
+    return out
+
+
+def test_two_recordings_claiming_one_module_and_session_are_both_rejected_and_export_refuses(fleet, tmp_path, capsys):
+    folder, truth = fleet
+    own, other = _clean(truth, 0), _clean(truth, 1)
+    line = tmp_path / "line"
+    line.mkdir()
+    real = line / own["file"]
+    real.write_bytes((folder / "line" / own["file"]).read_bytes())
+    (line / "copy_of_real.csv").write_bytes(real.read_bytes())  # the same recording twice is one session
+    fake = _relabel(folder / "line" / other["file"], real, line / f"{own['module_id']}_rerun.csv")
+    (line / other["file"]).write_bytes((folder / "line" / other["file"]).read_bytes())
+    out = tmp_path / "r"
+    assert main(["batch", str(line), "--out", str(out), "--workers", "0"]) == 0
+    captured = capsys.readouterr()
+    mid = own["module_id"]
+    assert f"duplicate module id {mid}: 2 different recordings claim its session at {own['session_time']}: " \
+           f"{real}, {fake}: none accepted" in captured.out
+    assert "yield 1/2 modules (50.0 %; 3 sessions)" in captured.out  # the other module accepted, mid not
+    assert captured.err.count(f"{mid} rejected: duplicate module id '{mid}'") == 2
+    store = out / "calibrations.sqlite"
+    with Store(store, create=False) as s:
+        rows = s.sessions(module_id=mid)
+        assert s.count() == 3 and [r.status for r in rows] == ["rejected", "rejected"]
+        assert all(f"{real}, {fake}" in r.reasons[0] and r.calibration is not None for r in rows)
+    assert main(["export", "--module", mid, "--store", str(store)]) == 2
+    err = capsys.readouterr().err
+    assert f"module '{mid}' has no accepted calibration" in err and f"{real}, {fake}" in err
+    report = (out / "report.html").read_text()
+    assert "Duplicate module ids" in report and f"{mid} at {own['session_time']}: {real}, {fake}" in report
+    assert main(["batch", str(line), "--out", str(out), "--workers", "0", "--force"]) == 0  # a re-run keeps it
+    assert "0 calibrated now" in capsys.readouterr().out
+
+
+def test_a_tie_with_a_stored_session_is_rejected_and_a_later_session_wins(fleet, tmp_path, capsys):
+    folder, truth = fleet
+    own, other = _clean(truth, 0), _clean(truth, 1)
+    real = folder / "line" / own["file"]
+    fake = _relabel(folder / "line" / other["file"], real, tmp_path / "rerun.csv")
+    spec = load_spec()
+    with Store(tmp_path / "s.sqlite") as store:
+        run_batch([real], spec, store, toolkit_version="t", workers=0)
+        summary = run_batch([fake], spec, store, toolkit_version="t", workers=0)  # a later batch
+        assert summary.duplicates == {(own["module_id"], own["session_time"]): sorted([str(real), str(fake)])}
+        first, second = store.sessions(module_id=own["module_id"])
+        assert first.status == "accepted" and second.status == "rejected"
+        words = re.escape(f"2 different recordings claim its latest accepted session, {own['session_time']}: {real} ")
+        with pytest.raises(StoreError, match=words + f"\\(sha256 .*, accepted\\), {re.escape(str(fake))} "):
+            store.latest_accepted(own["module_id"])
+        later = tmp_path / "later.csv"
+        later.write_text(real.read_text().replace(f"# date: {own['session_time']}", "# date: 2099-01-01T00:00:00"))
+        run_batch([later], spec, store, toolkit_version="t", workers=0)
+        assert store.latest_accepted(own["module_id"]).recording_path == str(later)
 
 
 def test_a_malformed_spec_is_exit_2_naming_the_key(fleet, tmp_path, capsys):
@@ -232,3 +298,20 @@ def test_simulate_fleet_command_writes_sessions_and_truth_and_never_overwrites(t
     capsys.readouterr()
     assert main(["simulate", "fleet", "--n", "4", "--out", str(out)]) == 2
     assert "exists; use --force" in capsys.readouterr().err
+
+
+def test_a_clipped_channel_s_session_is_refused_naming_it(fleet, tmp_path):
+    from calibrate.batch import SessionJob, calibrate_session, sha256_of
+
+    folder, truth = fleet
+    lines = (folder / "line" / _clean(truth, 2)["file"]).read_text().splitlines()
+    header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    v2 = lines[header].split(",").index("v2")
+    rail = 0.9 * max(float(line.split(",")[v2]) for line in lines[header + 1:])
+    clipped = tmp_path / "clipped.csv"
+    clipped.write_text("\n".join(lines[: header + 1] + [
+        ",".join(f"{min(float(c), rail):.3f}" if k == v2 else c for k, c in enumerate(line.split(",")))
+        for line in lines[header + 1:]]) + "\n")
+    out = calibrate_session(SessionJob(str(clipped), sha256_of(clipped), 65.0, 50.0))
+    assert out["refused"].startswith(f"{clipped}, row ") and "column 'v2': reads its extreme" in out["refused"]
+    assert "clipped (saturated)" in out["refused"] and "'v1'" not in out["refused"] and "'v3'" not in out["refused"]

@@ -138,3 +138,57 @@ def test_time_going_back_names_its_row(tmp_path, header, row):
     p = _write(tmp_path, [header] + [row.format(t=t) for t in (0, 1, 2, 1.5, 3)])
     with pytest.raises(RecordingError, match=r"row 5, column 't_s': t_s must not decrease \(goes from 2.0 to 1.5\)"):
         parse(read_table(p))
+
+
+def _simulated(tmp_path, kind, seed, change, columns):
+    """``compass simulate KIND``'s recording with ``change`` applied to the cells of ``columns``."""
+    source = tmp_path / f"{kind}{seed}.csv"
+    assert main(["simulate", kind, "--out", str(source), "--seed", str(seed), "--force"]) == 0
+    lines = source.read_text().splitlines()
+    header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    names = lines[header].split(",")
+    out = lines[: header + 1]
+    for line in lines[header + 1:]:
+        cells = line.split(",")
+        for name in columns:
+            cells[names.index(name)] = change(name, float(cells[names.index(name)]))
+        out.append(",".join(cells))
+    return _write(tmp_path, out, name=f"{kind}{seed}_changed.csv")
+
+
+@pytest.mark.parametrize("counts_per_volt", [None, 2 ** 16 / 5.0])  # a float log; a 16-bit ADC on 0-5 V
+def test_a_clipped_channel_is_named_and_no_healthy_one_blamed(tmp_path, capsys, counts_per_volt):
+    def clip_v2(name, volts):  # the simulated channels swing 1.6-3.3 V: v2 railed at 3.0 V
+        volts = min(volts, 3.0) if name == "v2" else volts
+        return f"{volts:.7f}" if counts_per_volt is None else str(round(volts * counts_per_volt))
+
+    path = _simulated(tmp_path, "fourflip", 1, clip_v2, ("v1", "v2", "v3"))
+    with pytest.raises(RecordingError, match="reads its extreme .* clipped \\(saturated\\)") as info:
+        read_fourflip(path)
+    rail = 3.0 if counts_per_volt is None else round(3.0 * counts_per_volt)
+    values = [float(line.split(",")[-2]) for line in path.read_text().splitlines()[1:] if not line.startswith(("#", "t_s"))]
+    assert info.value.column == "v2" and values.count(rail) >= 8
+    assert main(["calibrate", str(path), "--out", str(tmp_path / "cal.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{path}, row {info.value.row}, column 'v2'" in err and "'v1'" not in err
+    assert not (tmp_path / "cal.json").exists()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("bits", [None, 8, 10, 12, 16])
+def test_honest_recordings_quantised_by_an_adc_are_not_called_clipped(tmp_path, seed, bits):
+    """An integer channel reads one code for a whole flip along its axis: its extreme repeats honestly."""
+    def counts(name, volts):
+        return f"{volts:.7f}" if bits is None else str(round(volts * 2 ** bits / 5.0))
+
+    assert read_fourflip(_simulated(tmp_path, "fourflip", seed, counts, ("v1", "v2", "v3"))).n_samples > 0
+
+
+def test_a_clipped_tumble_channel_is_named_and_a_quantised_one_read(tmp_path):
+    from compass.io.tumble import read_tumble
+
+    clipped = _simulated(tmp_path, "tumble", 2, lambda name, ut: f"{max(-30.0, min(30.0, ut)):.3f}", ("mx",))
+    with pytest.raises(RecordingError, match="reads its extreme -30 on .* clipped") as info:
+        read_tumble(clipped)
+    assert info.value.column == "mx"
+    read_tumble(_simulated(tmp_path, "tumble", 2, lambda name, ut: f"{round(ut, 1):.1f}", ("mx", "my", "mz")))

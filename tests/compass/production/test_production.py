@@ -10,7 +10,7 @@ from compass.model import SensorModel
 from compass.production.control import ewma_chart
 from compass.production.figures import FIGURES, classify_warning, heading_error_deg, module_figures
 from compass.production.spec import SpecError, load_spec, parse_spec
-from compass.production.store import SCHEMA_VERSION, Store, StoreError
+from compass.production.store import SCHEMA_VERSION, Store, StoreError, module_outcome, module_outcomes
 from compass.response import LinearResponse
 
 
@@ -180,6 +180,34 @@ def test_store_keeps_sessions_once_and_finds_the_latest_accepted(tmp_path):
             store.latest_accepted("M3")
     with sqlite3.connect(tmp_path / "s.sqlite") as db:
         assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
+
+
+def test_two_recordings_of_one_module_at_one_session_time_are_a_tie_latest_accepted_refuses(tmp_path):
+    with Store(tmp_path / "s.sqlite") as store:
+        _add(store, "M5", "2026-03-02T07:24", "h5", calibration='{"own": 1}')
+        store.add(module_id="M5", session_time="2026-03-02T07:24", recording_path="/r/M5_rerun.csv",
+                  recording_sha256="h10", toolkit_version="1.0", kind="fourflip", status="accepted", reasons=[],
+                  notes=[], figures={}, calibration='{"other": 1}', spec_text="[limits]\n", spec_sha256="s1")
+        _add(store, "M5", "2026-03-02T07:24", "h5")  # the same recording again is not a rival
+        store.add(module_id="M5", session_time="2026-03-02T07:24", recording_path="/r/M5.csv",
+                  recording_sha256="h5", toolkit_version="1.1", kind="fourflip", status="accepted", reasons=[],
+                  notes=[], figures={}, calibration='{"own": 1}', spec_text="[limits]\n", spec_sha256="s1")
+        count = store.count()
+        with pytest.raises(StoreError, match="module 'M5': 2 different recordings claim its latest accepted session, "
+                                             "2026-03-02T07:24: /r/M5.csv .*/r/M5_rerun.csv .*none is later"):
+            store.latest_accepted("M5")
+        assert store.count() == count  # a refusal writes nothing
+        outcome = module_outcome(store.sessions(module_id="M5"))
+        assert outcome.status == "duplicate" and len(outcome.rivals) == 1  # h5 stored twice is one rival
+        assert {outcome.row.recording_sha256, outcome.rivals[0].recording_sha256} == {"h5", "h10"}
+        _add(store, "M5", "2026-03-05T09:00", "h5b", calibration='{"again": 1}')  # a later session decides
+        assert store.latest_accepted("M5").calibration == '{"again": 1}'
+        _add(store, "M6", "2026-03-02T08:00", "h6", calibration='{"six": 1}')
+        _add(store, "M6", "2026-03-02T08:00", "h6x", status="rejected")  # a rival of any verdict ties
+        with pytest.raises(StoreError, match="/r/M6.csv \\(sha256 h6, accepted\\), /r/M6.csv \\(sha256 h6x, rejected"):
+            store.latest_accepted("M6")
+        outcomes = {o.module_id: o.status for o in module_outcomes(store.sessions())}
+    assert outcomes == {"M5": "accepted", "M6": "duplicate"}
 
 
 def test_a_store_from_a_newer_schema_is_refused_and_left_alone(tmp_path):
