@@ -14,8 +14,8 @@ jumps more than the runtime filter's ``max_gap_s`` ahead, is kept aside and the 
 the runtime filter tells it (:meth:`compass.filter.AttitudeFilter._time_step`): when the next goes on from the old
 clock it was a corrupted value (a digit flipped on the serial line), and its sample is left out
 (:class:`CorruptedTime`); when the next goes on from the new one, the module's clock restarted (a reset, t_s back to
-about 0: the times after it go on from the last one by the stream's median step, the step across the restart being
-unknown, :class:`ClockRestart`) or the stream paused (a real gap, kept as it is).  Each is said in words when it is
+about 0: the times after it go on from the last one after :data:`RESTART_GAP_S` and the stream's median step, a
+gap the gyro-aided fit integrates no turn across, the step across the restart being unknown, :class:`ClockRestart`) or the stream paused (a real gap, kept as it is).  Each is said in words when it is
 told and in the recording's ``# clock:`` line; a sample still kept aside when the stream ends is left out, said too.
 """
 
@@ -44,6 +44,10 @@ _STEP_SAMPLES = 1000  # the median step across a restart is the last this many s
 _COLUMNS = ("t_s", *CHANNELS, "ax", "ay", "az", "gx", "gy", "gz", "temp_c")
 _GROUPS = ((1, 4), (4, 7), (7, 10), (10, 11))  # the samples' columns: magnetometer, accelerometer, gyro, temp_c
 _MAX_STEP_S = FilterConfig.max_gap_s  # a time further ahead than this is kept aside until the next tells what it was
+RESTART_GAP_S = 2.0 * FilterConfig.max_gap_s
+"""The recording's gap across a restart of the module's clock, s (plus the median step): the step is unknown, and a
+gap over ``max_gap_s`` closes the gyro-aided fit's window (:data:`calibrate.tumble.gyro.GAP_S`), so the turn made
+during the reset is never taken for one step's."""
 
 
 @dataclass(frozen=True)
@@ -57,8 +61,7 @@ class ClockRestart:
     from_s, to_s : float
         The module's time before it and its own, s.
     step_s : float
-        The step the recording takes across it: the median of the steps before, s (0 with fewer than two
-        samples before).
+        The step the recording takes across it: :data:`RESTART_GAP_S` plus the median of the steps before, s.
     """
 
     sample: int
@@ -69,8 +72,8 @@ class ClockRestart:
     def words(self) -> str:
         """One sentence: what went back, where, and the step taken across it."""
         return (f"the module's clock went back from {self.from_s:.6g} s to {self.to_s:.6g} s at sample "
-                f"{self.sample} (a reset?): the tumble recording's t_s goes on across it at the stream's median "
-                f"step, {1e3 * self.step_s:.3g} ms (the step across a restart is unknown)")
+                f"{self.sample} (a reset?): the tumble recording's t_s goes on across it after {self.step_s:.3g} s, a "
+                f"gap the gyro-aided fit integrates no turn across (the step across a restart is unknown)")
 
 
 @dataclass(frozen=True)
@@ -206,10 +209,11 @@ class TumbleCollector:
 
     def _record(self, t_s: float, values: tuple) -> None:
         """A sample into the recording at the module's ``t_s``: a time that goes back (the module's clock
-        restarted) goes on from the last one by the median step (:class:`ClockRestart`, said)."""
+        restarted) goes on from the last one after :data:`RESTART_GAP_S` and the median step (:class:`ClockRestart`,
+        said)."""
         if self._last_t is not None and t_s < self._last_t:
             recent = np.array([row[0] for row in self.rows[-_STEP_SAMPLES:]])
-            step = float(np.median(np.diff(recent))) if len(recent) > 1 else 0.0
+            step = RESTART_GAP_S + (float(np.median(np.diff(recent))) if len(recent) > 1 else 0.0)
             self.restarts.append(ClockRestart(len(self.rows) + 1, self._last_t, t_s, step))
             self._unsaid.append(("warn", self.restarts[-1].words()))
             self._offset_s = float(recent[-1]) + step - t_s
@@ -267,10 +271,10 @@ class TumbleCollector:
         said = []
         if self.restarts:
             at = ", ".join(f"sample {r.sample} ({r.from_s:.6g} -> {r.to_s:.6g} s)" for r in self.restarts)
-            steps = sorted({f"{1e3 * r.step_s:.3g}" for r in self.restarts})
+            steps = sorted({f"{r.step_s:.3g}" for r in self.restarts})
             said.append(f"the module's clock restarted {len(self.restarts)} time{'s' * (len(self.restarts) > 1)}, at "
-                        f"{at}; t_s goes on across {'it' if len(self.restarts) == 1 else 'each'} at the stream's "
-                        f"median step, {'/'.join(steps)} ms")
+                        f"{at}; t_s goes on across {'it' if len(self.restarts) == 1 else 'each'} after "
+                        f"{'/'.join(steps)} s, a gap the gyro-aided fit integrates no turn across")
         if self.corrupted:
             at = ", ".join(f"before sample {c.sample} ({c.t_s:.6g} s after {c.last_s:.6g} s)" for c in self.corrupted)
             n = len(self.corrupted)

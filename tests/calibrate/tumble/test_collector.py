@@ -44,11 +44,18 @@ def test_a_corrupted_time_leaves_its_sample_out_and_the_recording_on_the_modules
     assert "1 sample left out" in collector.clock_words() and "restarted" not in collector.clock_words()
 
 
-def test_two_samples_on_the_new_clock_are_a_restart_gone_across_at_the_median_step(tmp_path):
+def test_two_samples_on_the_new_clock_are_a_restart_gone_across_after_a_gap(tmp_path):
+    """A restart's step is unknown: the recording goes on after RESTART_GAP_S and the median step, a gap over
+    the gyro-aided fit's GAP_S, so no turn is integrated across it."""
+    from calibrate.tumble.collector import RESTART_GAP_S
+    from calibrate.tumble.gyro import GAP_S
+
     t_s = _honest()
     t_s[20:] -= t_s[20]  # a reset: 0, 0.01, ...
     collector, events, _ = _collect(t_s)
-    np.testing.assert_allclose(collector.samples[:, 0], _honest(), atol=1e-9)
+    np.testing.assert_allclose(collector.samples[:, 0], _honest() + np.where(np.arange(len(t_s)) >= 20,
+                                                                              RESTART_GAP_S, 0.0), atol=1e-9)
+    assert np.diff(collector.samples[:, 0])[19] > GAP_S
     assert collector.corrupted == [] and len(collector.restarts) == 1
     r = collector.restarts[0]
     assert (r.sample, r.from_s, r.to_s) == (21, pytest.approx(10.19), 0.0)
