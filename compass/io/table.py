@@ -684,8 +684,13 @@ def _is_number(cell: str) -> bool:
 
 
 def _not_a_number(path, column: str, row: int, cell: str) -> RecordingError:
-    """The error for a cell of a used column that is not a number."""
-    hint = " (digit separators such as '_' are not read)" if "_" in cell else ""
+    """The error for a cell of a used column that is not a number: its own column's name is a header repeated (a
+    logger that restarted mid-file writes its header again)."""
+    if _unquoted(cell).strip() == column.strip():
+        hint = (" (the row repeats the header: a logger that restarted and wrote it again? delete that row, or split "
+                "the file there)")
+    else:
+        hint = " (digit separators such as '_' are not read)" if "_" in cell else ""
     return RecordingError(path, f"expected a number, found {cell!r}{hint}", row=row, column=column)
 
 

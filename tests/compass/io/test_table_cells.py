@@ -168,3 +168,13 @@ def test_compass_attitude_filter_refuses_text_in_a_used_column_in_one_line(devic
     assert code == 2, err
     assert err.strip() == f"compass attitude: {rec}, row 302, column 'my': expected a number, found 'OK'"
     assert not (tmp_path / "att.csv").exists()
+
+
+@pytest.mark.parametrize("sep", [",", ";"])
+def test_a_header_repeated_mid_file_is_named_as_such(tmp_path, sep):
+    """A logger that restarted writes its header again: the refusal names the row and says it repeats the header,
+    not that a digit separator ('t_s' has a '_') is not read."""
+    path = _write(tmp_path / "again.csv", NAMES, _rows(), sep=sep, lines_between=[sep.join(NAMES)])
+    with pytest.raises(RecordingError, match=f"^{path}, row 5, column 't_s': expected a number, found 't_s' "
+                                             r"\(the row repeats the header"):
+        read_table(path).column("t_s")
