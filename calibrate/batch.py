@@ -253,14 +253,18 @@ def shared_identities(identities: dict, hashes: dict, store) -> dict:
     -------
     dict
         ``(module_id, session_time)`` -> sorted absolute paths, one a distinct recording hash, for
-        each identity with more than one (the same recording given twice is one).
+        each identity with more than one (the same recording given twice is one; a session time of a day alone,
+        :func:`compass.production.store.timed`, or a stored recording at the same path is none).
     """
+    from compass.production.store import timed
+
     claims: dict[tuple[str, str], dict[str, str]] = {}
     for p, identity in identities.items():
-        claims.setdefault(identity, {}).setdefault(hashes[p], os.path.abspath(p))
+        if timed(identity[1]):  # at a day alone (compass bench's '# date:') a same-day session is a later one
+            claims.setdefault(identity, {}).setdefault(hashes[p], os.path.abspath(p))
     for (module_id, session_time), by_hash in claims.items():
-        for row in store.sessions(module_id=module_id):
-            if row.session_time == session_time:
+        for row in store.sessions(module_id=module_id):  # the same file stored before, edited: superseded
+            if row.session_time == session_time and row.recording_path not in by_hash.values():
                 by_hash.setdefault(row.recording_sha256, row.recording_path)
     return {identity: sorted(by_hash.values()) for identity, by_hash in claims.items() if len(by_hash) > 1}
 

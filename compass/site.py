@@ -37,6 +37,11 @@ _QUIET_ACCEL = 0.02  # a row is quiet when | |a| / g - 1 | is below this (g: the
 _OUTLIER_SIGMAS = 5.0  # rows farther than this many robust sigmas from the median are left out
 MIN_REFERENCE_ROWS = 10  # fewest quiet rows from which a reference is estimated
 _MIN_SIGNED_DIP_DEG = 10.0  # below this |dip| a sign flip of the field is within tilt errors: not judged
+_MIRROR_DIP_DEG = 10.0
+"""Against the calibration's own dip (no site known), a stream's median dip within this of the mirrored one is
+judged turned over, degrees: a negated accelerometer mirrors it exactly where the module was calibrated, within a
+few degrees across a region; one merely of the other sign (a module near or across the magnetic equator, whose
+headings are right) is not."""
 
 
 def decimal_year(date: dt.date) -> float:
@@ -383,8 +388,8 @@ def upside_down(dip_deg: np.ndarray, reference: ReferenceField, *, bench_sign_am
     accelerometer reads gravity instead of specific force (``-a``): its dip is the calibration's with
     the sign turned.  Judged on the median over the rows (a magnet for part of the recording does not
     move it), only for a reference the user gave (a site) or the calibration measured (its own dip
-    against its accelerometer), never the recording's own, with ``|dip| >= 10 deg``, where no tilt
-    error reaches the mirrored dip.  Meaningful only for dips measured against a full up vector (a three-axis
+    against its accelerometer: then only within :data:`_MIRROR_DIP_DEG` of the mirrored dip), never the
+    recording's own, with ``|dip| >= 10 deg``, where no tilt error reaches the mirrored dip.  Meaningful only for dips measured against a full up vector (a three-axis
     accelerometer): an assumed level housing or a two-axis tilt sensor upside down mirror the dip
     themselves.
 
@@ -405,6 +410,9 @@ def upside_down(dip_deg: np.ndarray, reference: ReferenceField, *, bench_sign_am
         return None
     median = float(np.median(dips))
     if abs(median + reference.dip_deg) >= abs(median - reference.dip_deg):
+        return None
+    if reference.source == "calibration" and (abs(median + reference.dip_deg) > _MIRROR_DIP_DEG
+                                              or abs(median) < _MIN_SIGNED_DIP_DEG):
         return None
     way = ("up", "down") if reference.dip_deg > 0 else ("down", "up")
     cause = ("A bench in the other hemisphere calibrated without its latitude? (the bench data cannot tell "

@@ -289,7 +289,6 @@ class Table:
                                                     f"{units.MIN_SPAN:g}, which no sensor's turn is in any unit",
                                          column=name)
 
-
     def check_clipped(self, names, keep=None) -> None:
         """RecordingError naming the first of ``names`` that sits on its own extreme value (its largest or its
         smallest, exactly) in at least :data:`CLIPPED_SHARE` of its samples and :data:`CLIPPED_MIN_SAMPLES`

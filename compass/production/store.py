@@ -119,19 +119,27 @@ class ModuleOutcome:
     rivals: tuple[SessionRow, ...]
 
 
+def timed(session_time: str) -> bool:
+    """Whether a session time tells the time of day (``2026-03-02T07:24:00``), not the day alone (``# date:``, which
+    ``compass bench`` writes: a module recorded again the same day is a later session, not a rival)."""
+    return "T" in session_time or ":" in session_time
+
+
 def module_outcome(rows) -> ModuleOutcome:
     """The outcome of one module from its sessions in session-time order (:meth:`Store.sessions`).
 
     The latest accepted session decides (a later session of the module supersedes an earlier one);
     the same recording stored twice (another toolkit version or spec) is one recording.  Sessions at
-    one session time are not ordered by anything but their files' names, so two different
-    recordings there are a tie, never a choice.
+    one session time of day (:func:`timed`) are not ordered by anything but their files' names, so two
+    different recordings there are a tie, never a choice, unless they are the same file (edited, or
+    recorded again over it: one module's, not rivals); at a day alone the later file name decides.
     """
     rows = list(rows)
     accepted = [r for r in rows if r.status == "accepted"]
     row = accepted[-1] if accepted else rows[-1]
     rivals = {r.recording_sha256: r for r in rows
-              if r.session_time == row.session_time and r.recording_sha256 != row.recording_sha256}
+              if r.session_time == row.session_time and timed(r.session_time)
+              and r.recording_sha256 != row.recording_sha256 and r.recording_path != row.recording_path}
     status = "duplicate" if rivals else row.status
     return ModuleOutcome(row.module_id, status, row, tuple(rivals.values()))
 

@@ -191,3 +191,18 @@ def test_simulated_installation_frames():
         assert rms(wrap(att.heading_deg - heading_pitch_roll(housing)[0])) < 1.2 * rms(att.heading_sigma_deg)
     level = heading_pitch_roll(r_world_from_housing(100.0, 0.0, 0.0) * Installation(np.zeros(3), np.eye(3), 7.0).alignment)
     assert level[0][0] == pytest.approx(93.0)
+
+
+@pytest.mark.parametrize("calibrated, measured, stopped", [(60.0, -60.2, True), (64.0, -68.0, True),
+                                                           (12.0, -2.0, False), (65.0, -45.0, False),
+                                                           (60.0, 58.0, False)])
+def test_the_calibrations_own_dip_judges_only_a_mirrored_field(calibrated, measured, stopped):
+    """Against the dip a calibration measured (no site), only a dip within 10 deg of the mirrored one is a field
+    turned over (an accelerometer reading gravity mirrors it where the module was calibrated); one merely of the
+    other sign, a module near or across the magnetic equator whose headings are right, is not."""
+    from compass.site import ReferenceField, upside_down
+
+    reference = ReferenceField(calibrated, 0.0, 50.0, 0.0, "calibration", "the calibration's dip")
+    words = upside_down(np.full(100, measured), reference, bench_sign_ambiguous=False)
+    assert (words is not None) == stopped
+    assert words is None or "--accel-sign -1" in words

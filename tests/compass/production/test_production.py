@@ -158,8 +158,9 @@ def test_ewma_needs_more_sessions_than_its_baseline():
 # ---------------------------------------------------------------------------------------------- store
 
 
-def _add(store, module, time, sha, status="accepted", calibration="{}"):
-    return store.add(module_id=module, session_time=time, recording_path=f"/r/{module}.csv", recording_sha256=sha,
+def _add(store, module, time, sha, status="accepted", calibration="{}", path=None):
+    return store.add(module_id=module, session_time=time, recording_path=path or f"/r/{module}.csv",
+                     recording_sha256=sha,
                      toolkit_version="1.0", kind="fourflip", status=status, reasons=[] if status == "accepted"
                      else ["gain_spread 0.5 above the limit 0.3"], notes=[], figures={"gain_spread": 0.1},
                      calibration=calibration, spec_text="[limits]\n", spec_sha256="s1")
@@ -203,11 +204,18 @@ def test_two_recordings_of_one_module_at_one_session_time_are_a_tie_latest_accep
         _add(store, "M5", "2026-03-05T09:00", "h5b", calibration='{"again": 1}')  # a later session decides
         assert store.latest_accepted("M5").calibration == '{"again": 1}'
         _add(store, "M6", "2026-03-02T08:00", "h6", calibration='{"six": 1}')
-        _add(store, "M6", "2026-03-02T08:00", "h6x", status="rejected")  # a rival of any verdict ties
-        with pytest.raises(StoreError, match="/r/M6.csv \\(sha256 h6, accepted\\), /r/M6.csv \\(sha256 h6x, rejected"):
+        _add(store, "M6", "2026-03-02T08:00", "h6x", status="rejected", path="/r/M6b.csv")  # any verdict ties
+        with pytest.raises(StoreError, match="/r/M6.csv \\(sha256 h6, accepted\\), /r/M6b.csv \\(sha256 h6x, rejected"):
             store.latest_accepted("M6")
+        # the same file edited (or recorded again over it), and a day alone (compass bench's # date:): no tie
+        _add(store, "M7", "2026-03-02T08:00", "h7", calibration='{"seven": 1}')
+        _add(store, "M7", "2026-03-02T08:00", "h7b", calibration='{"seven": 2}')
+        _add(store, "M8", "2026-03-02", "h8", calibration='{"eight": 1}', path="/r/M8a.csv")
+        _add(store, "M8", "2026-03-02", "h8b", calibration='{"eight": 2}', path="/r/M8b.csv")
+        assert store.latest_accepted("M7").calibration in ('{"seven": 1}', '{"seven": 2}')
+        assert store.latest_accepted("M8").calibration == '{"eight": 2}'  # the later file name, as before
         outcomes = {o.module_id: o.status for o in module_outcomes(store.sessions())}
-    assert outcomes == {"M5": "accepted", "M6": "duplicate"}
+    assert outcomes == {"M5": "accepted", "M6": "duplicate", "M7": "accepted", "M8": "accepted"}
 
 
 def test_a_store_from_a_newer_schema_is_refused_and_left_alone(tmp_path):
