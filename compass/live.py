@@ -182,7 +182,8 @@ class LiveSession:
         row would have no field ratio nor dip to write.
     turned_over : str or None
         Set once the first :data:`UPSIDE_DOWN_SAMPLES` estimates show the field turned over against a
-        given reference (``--site``): why, in words (the command stops on it); None otherwise.
+        given reference (``--site``), or mirrored against the dip the calibration measured: why, in words (the
+        command stops on it); None otherwise.
     rejected : dict of str to (int, float, float)
         Estimates whose field the gate rejected, by gate: count, sum of ``field_ratio``, sum of
         ``dip_deg`` (for :meth:`closing_hint`).
@@ -198,8 +199,9 @@ class LiveSession:
         the replay refuses such a recording; None otherwise, and for a stream without a gyro (the two-vector filter
         solves each row alone: said only).
     gyro_unit : str or None
-        Set when the gyro turns more than :data:`compass.io.units.FIELD_UNIT_RATIO` times the calibrated field over a
-        :data:`GYRO_UNIT_WINDOW_S` window (a deg/s gyro read as rad/s turns the attitude 57 times too fast; a field
+        Set when the decoder finds the gyro would be fused wrong against the accelerometer's tilt
+        (:func:`compass.io.units.gyro_fault_words`, the replay's refusal), or when it turns more than
+        :data:`compass.io.units.FIELD_UNIT_RATIO` times the calibrated field over a :data:`GYRO_UNIT_WINDOW_S` window (a deg/s gyro read as rad/s turns the attitude 57 times too fast; a field
         read in a unit too small stays put): why, in words; the commands stop on it, as on :attr:`wrong_field`;
         None otherwise.
     wrong_field : str or None
@@ -295,6 +297,14 @@ class LiveSession:
     def _declination(self):
         return None if self.reference is None else self.reference.declination_deg
 
+    @property
+    def stopped(self) -> bool:
+        """Whether the session found a reason its attitudes are wrong (:attr:`turned_over`, :attr:`wrong_gravity`,
+        :attr:`wrong_time`, :attr:`wrong_field`, :attr:`gyro_unit`): it solves nothing more, keeps no output but
+        ``--record``, and the commands stop on it in its words."""
+        return any(words is not None for words in (self.turned_over, self.wrong_gravity, self.wrong_time,
+                                                   self.wrong_field, self.gyro_unit))
+
     def _calibration_dip(self) -> ReferenceField | None:
         """The dip the calibration measured against its own accelerometer as a reference to judge the stream's field
         turned over by (:func:`~compass.site.upside_down`: an accelerometer that reads gravity turns the dip's
@@ -358,6 +368,9 @@ class LiveSession:
             stopped = self.record.write(samples, self.decoder.options.accel_known(self.decoder.format))
             if stopped is not None:
                 self._event("warn", stopped)
+        if self.gyro_unit is None and self.decoder.gyro_fault is not None:  # against the accelerometer's tilt, as
+            self.gyro_unit = self.decoder.gyro_fault  # the replay refuses it
+            self._event("warn", self.gyro_unit)
         self._judge_rail(samples)
         self._judge_held(samples)
         fields, in_range = self._fields(samples)
@@ -372,8 +385,7 @@ class LiveSession:
             readings.append(Reading(sample, accel, gyro, fields[k], field_rows[k], in_range[k],
                                     t_rx if sample.t_rx is None else sample.t_rx))  # its arrival, if the decoder held it
         for reading in readings:
-            if self.wrong_gravity is not None or self.wrong_time is not None or self.wrong_field is not None \
-                    or self.gyro_unit is not None:
+            if self.stopped:
                 return
             if self._start is not None and reading.sample.header.accel is not None:
                 # without an accelerometer there is no attitude, and nothing to seed the reference from: the
@@ -787,7 +799,7 @@ class LiveSession:
         without a word; so did a ``--site`` whose |B| or dip the module does not read.  None after a stop: its words
         say why.
         """
-        if self.turned_over or self.wrong_gravity or self.wrong_time or self.wrong_field or self.gyro_unit:
+        if self.stopped:
             return None  # the session stopped on it, in words
         total = sum(n for n, _, _ in self.rejected.values())
         if self.samples < HINT_MIN_SAMPLES or total < HINT_REJECTED_SHARE * self.samples:
@@ -837,8 +849,7 @@ class LiveSession:
         if self._axes_rows:
             self._judge_axes()
         if self.sink is not None:  # a field turned over, or an accelerometer never used, gives wrong attitudes
-            keep = self.samples > 0 and self.turned_over is None and self.wrong_gravity is None \
-                and self.gyro_unit is None
+            keep = self.samples > 0 and not self.stopped
             self.sink.close() if keep else self.sink.discard()
         if self.out is not None:
             self.out.flush()

@@ -80,8 +80,7 @@ def replay(session: LiveSession, t_s, raw, accel=None, gyro=None, temp_c=None, *
         session.feed_samples(samples, time.perf_counter())
         if progress is not None:
             progress(hi, n)
-        if session.wrong_gravity is not None or session.wrong_time is not None or session.wrong_field is not None \
-                or session.gyro_unit is not None:
+        if session.stopped:
             break
     session.close()
     return session
@@ -398,35 +397,12 @@ def replay_file(calibration, recording, out, *, site=None, date=None, gravity=No
 
 
 def _check_gyro_turn(table, gyro: np.ndarray, named: bool) -> None:
-    """RecordingError when the gyro would be fused wrong (:func:`compass.io.units.gyro_unit_verdict` of the table's
-    :attr:`~compass.io.table.Table.gyro_turn_ratio`): dead (every rate zero while the accelerometer sees the housing
-    tilt), stuck at a rail (every rate one value off zero, its turn tens of times off that tilt, named unit or not:
-    :func:`compass.io.units.stuck_gyro_words`), or, its unit not given (``named`` false), turning tens of times more
-    than that tilt (a deg/s gyro read as rad/s), or tens of times less where the header names deg/s (a rad/s gyro so
-    labelled).  A gyro that turns less with no unit named stays the reader's warning: a board still most of the time,
-    its accelerometer jittering by degrees, reads so too."""
-    from .io.units import gyro_unit_verdict, stuck_gyro_words
+    """RecordingError when the gyro would be fused wrong (:func:`compass.io.units.gyro_fault_words` of the table's
+    :attr:`~compass.io.table.Table.gyro_turn_ratio`; ``named``: its unit given)."""
+    from .io.units import gyro_fault_words
 
     gyro = gyro[np.all(np.isfinite(gyro), axis=1)]  # a live record's rows the gyro was not sent on
-    ratio = table.gyro_turn_ratio
-    verdict = gyro_unit_verdict(ratio)
-    dead = ratio == 0.0 and bool(np.all(np.ptp(gyro, axis=0) == 0.0))
-    stuck = "" if verdict is None else stuck_gyro_words(gyro)
-    if verdict is None or (not dead and not stuck and (named or (verdict == "less"
-                                                                 and table.units.get("gx") != "deg/s"))):
-        return
-    if dead:
-        words = ("never turns while the accelerometer sees the housing tilt: a dead gyro? (without gx,gy,gz columns "
-                 "the two-vector filter runs)")
-    elif stuck:  # no unit makes a constant rate turn as the housing does
-        words = (f"turns {max(ratio, 1 / ratio):.0f} times {'more' if verdict == 'more' else 'less'} than the "
-                 "accelerometer sees the housing tilt")
-        stuck += " Without gx,gy,gz columns the two-vector filter runs"
-    elif verdict == "more":
-        words = (f"turns {ratio:.0f} times more than the accelerometer sees the housing tilt (a deg/s gyro gives 57): "
-                 "give --gyro-unit deg/s (or --gyro-unit rad/s if it really is)")
-    else:
-        words = (f"turns {1 / ratio:.0f} times less than the accelerometer sees the housing tilt (a rad/s gyro read "
-                 "as deg/s gives 1/57): give --gyro-unit rad/s (or the unit it is in)")
-    raise RecordingError(table.path, f"the gyro gx,gy,gz read in {table.units.get('gx', 'rad/s')} {words}{stuck}",
-                         row=table.header_row, column="gx")
+    words = gyro_fault_words(table.gyro_turn_ratio, gyro, named=named, labelled_deg=table.units.get("gx") == "deg/s")
+    if words is not None:
+        raise RecordingError(table.path, f"the gyro gx,gy,gz read in {table.units.get('gx', 'rad/s')} {words}",
+                             row=table.header_row, column="gx")

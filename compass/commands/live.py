@@ -201,11 +201,9 @@ def run(args) -> int:
 
 
 def _recorded(session) -> bool:
-    """The session's outputs are worth keeping: rows written (not lines decoded), the field not found turned
-    over (its headings are wrong) and the accelerometer used (:attr:`~compass.live.LiveSession.wrong_gravity`)."""
-    return (session is not None and session.samples > 0 and session.turned_over is None
-            and session.wrong_gravity is None and session.wrong_time is None and session.wrong_field is None
-            and session.gyro_unit is None)
+    """The session's outputs are worth keeping: rows written (not lines decoded) and no reason found that its
+    attitudes are wrong (:attr:`~compass.live.LiveSession.stopped`)."""
+    return session is not None and session.samples > 0 and not session.stopped
 
 
 def _fatal_words(args, decoder) -> str:

@@ -512,6 +512,7 @@ class StreamDecoder:
         self._gyro_judged = False
         self.gyro_unit_said = False  # the gyro's unit (or a dead gyro) said: from the accelerometer's tilt, or by its user
         self.gyro_unit_right = False  # the gyro turned as the accelerometer saw the housing tilt
+        self.gyro_fault: str | None = None  # why the gyro would be fused wrong (units.gyro_fault_words): live stops
         self._gyro_windows = 0
         if self.options.requested != "auto":
             self._adopt(self.options.requested, "as named")
@@ -745,7 +746,11 @@ class StreamDecoder:
         verdict = units.gyro_unit_verdict(ratio)
         self.gyro_unit_said = ratio == 0.0 or verdict is not None
         self.gyro_unit_right = not self.gyro_unit_said
-        if ratio == 0.0:  # every rate exactly zero (no unit gives that): the check_gyro_unit words
+        named = self.options.gyro_unit is not None or self.format == "motioncal"  # MotionCal's units are its own
+        fault = units.gyro_fault_words(ratio, gyro[sane], named=named)
+        if fault is not None:  # the session stops on it, in its words
+            self.gyro_fault = f"the gyro read in {unit} {fault}"
+        elif ratio == 0.0:  # every rate exactly zero (no unit gives that): the check_gyro_unit words
             self.events.append(("warn", "the gyro never turns while the accelerometer sees the housing tilt: a dead "
                                         "gyro?"))
         elif verdict is not None:

@@ -28,7 +28,7 @@ __all__ = ["RecordingWarning", "GYRO_UNITS", "ACCEL_UNITS", "MAG_UNITS", "ANGLE_
            "EARTH_FIELD_UT", "MAX_ABS_VALUE", "MIN_SPAN", "unit_of_header", "gyro_turn_ratio", "GYRO_UNIT_RATIO",
            "gyro_field_ratio", "FIELD_UNIT_RATIO", "FIELD_TURN_WINDOW_S", "FIELD_SMOOTH_S",
            "gyro_unit_verdict", "stuck_gyro_words", "check_gyro_unit",
-           "check_field_norm", "looks_like_radians", "check_accel_up", "check_two_axis_tilt", "note"]
+           "check_field_norm", "looks_like_radians", "check_accel_up", "check_two_axis_tilt", "note", "gyro_fault_words"]
 
 STANDARD_GRAVITY = 9.80665
 """m/s^2 per g."""
@@ -197,6 +197,46 @@ def gyro_unit_verdict(ratio: float | None) -> str | None:
     if ratio < 1.0 / GYRO_UNIT_RATIO:
         return "less"
     return None
+
+
+def gyro_fault_words(ratio: float | None, gyro_rad_s, *, named: bool, labelled_deg: bool = False) -> str | None:
+    """Why a gyro would be fused wrong, judged on its turn against the accelerometer's tilt (``ratio``,
+    :func:`gyro_turn_ratio`), in words after "the gyro read in UNIT"; None when it is fused as it is.
+
+    Dead (every rate zero while the housing tilts), stuck at a rail (every rate one value off zero, its turn tens of
+    times off the tilt, named unit or not: :func:`stuck_gyro_words`), or, its unit not given (``named`` false),
+    turning tens of times more than the tilt (a deg/s gyro read as rad/s), or tens of times less where its label says
+    deg/s (``labelled_deg``: a rad/s gyro so labelled).  A gyro that turns less with no unit named is not refused: a
+    board still most of the time, its accelerometer jittering by degrees, reads so too.  The replay and ``compass
+    live`` stop on the same words.
+
+    Parameters
+    ----------
+    ratio : float or None
+    gyro_rad_s : array_like, shape (n, 3)
+        The rates judged (finite rows), in the unit assumed.
+    named : bool
+        The user named the gyro's unit.
+    labelled_deg : bool
+        The recording's header names deg/s.
+    """
+    gyro = np.asarray(gyro_rad_s, dtype=float).reshape(-1, 3)
+    verdict = gyro_unit_verdict(ratio)
+    dead = ratio == 0.0 and len(gyro) > 0 and bool(np.all(np.ptp(gyro, axis=0) == 0.0))
+    stuck = "" if verdict is None else stuck_gyro_words(gyro)
+    if verdict is None or (not dead and not stuck and (named or (verdict == "less" and not labelled_deg))):
+        return None
+    if dead:
+        return ("never turns while the accelerometer sees the housing tilt: a dead gyro? (without gx,gy,gz columns "
+                "the two-vector filter runs)")
+    if stuck:  # no unit makes a constant rate turn as the housing does
+        return (f"turns {max(ratio, 1 / ratio):.0f} times {'more' if verdict == 'more' else 'less'} than the "
+                f"accelerometer sees the housing tilt{stuck} Without gx,gy,gz columns the two-vector filter runs")
+    if verdict == "more":
+        return (f"turns {ratio:.0f} times more than the accelerometer sees the housing tilt (a deg/s gyro gives 57): "
+                "give --gyro-unit deg/s (or --gyro-unit rad/s if it really is)")
+    return (f"turns {1 / ratio:.0f} times less than the accelerometer sees the housing tilt (a rad/s gyro read as "
+            "deg/s gives 1/57): give --gyro-unit rad/s (or the unit it is in)")
 
 
 def stuck_gyro_words(gyro_rad_s) -> str:

@@ -225,21 +225,21 @@ def test_an_accelerometer_unit_that_does_not_read_1_g_is_warned():
     assert len(warnings) == 1 and "9.81 g" in warnings[0] and "--accel-unit" in warnings[0]
 
 
-def test_a_deg_per_s_gyro_read_as_rad_per_s_is_warned():
+def test_a_deg_per_s_gyro_read_as_rad_per_s_is_a_fault_live_stops_on():
     model = board_model()
     t = np.arange(1200) / 100.0
     smp = simulate_device(model, t, seed=3, motion=tumble_motion)  # turned briskly: tilts of 5 deg in 0.25 s
     columns = ("t_s", "mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz")
 
-    def warnings(gyro):
+    def decoded(gyro):
         d = StreamDecoder(CHANNELS, StreamOptions(columns=columns))
         rows = np.column_stack([t, smp.raw, smp.accel, gyro])
         d.feed(b"".join((",".join(f"{v:.7g}" for v in r) + "\r\n").encode() for r in rows))
-        return [text for level, text in d.drain_events() if level == "warn"]
+        return d.gyro_fault, [text for level, text in d.drain_events() if level == "warn"]
 
-    assert warnings(smp.gyro) == []
-    said = warnings(np.degrees(smp.gyro))
-    assert len(said) == 1 and "times more" in said[0] and "--gyro-unit" in said[0]
+    assert decoded(smp.gyro) == (None, [])
+    fault, said = decoded(np.degrees(smp.gyro))
+    assert said == [] and "times more" in fault and "give --gyro-unit deg/s" in fault
 
 
 def test_device_formats_are_the_commands_choices():

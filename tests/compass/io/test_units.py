@@ -47,7 +47,7 @@ def test_a_gyro_in_the_other_unit_is_named_by_the_reader(factor, words):
 
 
 def test_the_stream_decoder_judges_by_the_same_verdict(monkeypatch):
-    """The live stream's warning follows the verdict's threshold: moved above 57, a deg/s gyro passes there too."""
+    """The live stream's fault follows the verdict's threshold: moved above 57, a deg/s gyro passes there too."""
     from compass.io.streams import StreamDecoder, StreamOptions
     from compass.sim.device import simulate_device, tumble_motion
     from compass.sim.stream_formats import board_model
@@ -60,7 +60,8 @@ def test_the_stream_decoder_judges_by_the_same_verdict(monkeypatch):
         d = StreamDecoder(("mx", "my", "mz"), StreamOptions(columns=columns))
         rows = np.column_stack([t, smp.raw, smp.accel, gyro])
         d.feed(b"".join((",".join(f"{v:.7g}" for v in r) + "\r\n").encode() for r in rows))
-        return [text for level, text in d.drain_events() if level == "warn" and "gyro" in text]
+        return [text for level, text in d.drain_events() if level == "warn" and "gyro" in text] \
+            + ([] if d.gyro_fault is None else [d.gyro_fault])
 
     assert len(warned(np.degrees(smp.gyro))) == 1
     monkeypatch.setattr(units, "GYRO_UNIT_RATIO", 100.0)
