@@ -424,10 +424,11 @@ def upside_down(dip_deg: np.ndarray, reference: ReferenceField, *, bench_sign_am
         cause += ("; or the module is not at its calibration's site (the reference taken without --site): give "
                   "--site LAT,LON where it is")
     if reference.source == "calibration":  # the calibration's own dip, measured against its accelerometer
-        cause = ("An accelerometer that reads gravity, not specific force (az about -1 g when level at rest, where "
-                 "SPEC's reads +1 g)? Read it negated with --accel-sign -1. Else check the signs of the stream's "
-                 "magnetometer and accelerometer columns against the calibration's (a negated axis, e.g. az=-AccZ in "
-                 "--columns); or the module is across the magnetic equator from where it was calibrated: give --site "
+        cause = ("An accelerometer that reads gravity, not specific force (all three axes reversed: az about -1 g "
+                 "when level at rest, where SPEC's reads +1 g)? Read it negated with --accel-sign -1. Else check the "
+                 "signs of the stream's magnetometer and accelerometer columns against the calibration's (two axes "
+                 "reversed, a chip mounted turned: negate those, e.g. ay=-AccY,az=-AccZ in --columns; the axes check "
+                 "names them); or the module is across the magnetic equator from where it was calibrated: give --site "
                  "LAT,LON where it is")
     against = (f"its calibration measured it pointing {way[1]} (dip {reference.dip_deg:+.1f} deg): the stream reads "
                f"the field upside down against its calibration" if reference.source == "calibration" else

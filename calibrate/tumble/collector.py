@@ -144,6 +144,7 @@ class TumbleCollector:
         self.corrupted: list[CorruptedTime] = []
         self._t0 = None
         self._last_t = None  # the module's time of the last sample, s
+        self._running = False  # the last sample came within max_gap_s of the one before (not a slow stream's step)
         self._held = None  # (t_s, the other columns) of a sample kept aside until the next tells its time
         self._unsaid: list = []  # the clock's events not yet returned, (level, text)
         self._offset_s = 0.0  # added to the module's time since its last restart, s
@@ -170,8 +171,11 @@ class TumbleCollector:
         left out, :class:`CorruptedTime`); returns the events."""
         if self._t0 is not None:
             self._add(self.decoder.flush(), self._last_rx)
-        if self._held is not None:
-            self._leave_out(self._held[0], None)
+        if self._held is not None:  # nothing tells it: a time ahead is kept (a gap, which the gyro-aided fit does
+            if self._held[0] > self._last_t:  # not integrate across), one that went back left out
+                self._record(*self._held)
+            else:
+                self._leave_out(self._held[0], None)
             self._held = None
         return self.decoder.drain_events() + self._clock_events()
 
@@ -183,14 +187,16 @@ class TumbleCollector:
 
     def _take(self, t_s: float, values: tuple) -> None:
         """One sample at the module's ``t_s``: the sample kept aside before it told by this time, then this one
-        kept aside when its time goes back or jumps over ``max_gap_s`` ahead, else recorded."""
+        kept aside when its time goes back, or jumps over ``max_gap_s`` ahead of a stream running within it (a
+        stream whose every step is over it, under 2 Hz, is recorded as it comes, as the runtime filter keeps no
+        sample aside right after a restart), else recorded."""
         held, self._held = self._held, None
         if held is not None:
             if self._on_new_clock(held[0], t_s):
                 self._record(*held)
             else:
                 self._leave_out(held[0], t_s)
-        if self._last_t is not None and not 0.0 <= t_s - self._last_t <= _MAX_STEP_S:
+        if self._last_t is not None and (t_s < self._last_t or (t_s - self._last_t > _MAX_STEP_S and self._running)):
             self._held = (t_s, values)
         else:
             self._record(t_s, values)
@@ -217,6 +223,7 @@ class TumbleCollector:
             self.restarts.append(ClockRestart(len(self.rows) + 1, self._last_t, t_s, step))
             self._unsaid.append(("warn", self.restarts[-1].words()))
             self._offset_s = float(recent[-1]) + step - t_s
+        self._running = self._last_t is not None and 0.0 <= t_s - self._last_t <= _MAX_STEP_S
         self._last_t = t_s
         self.rows.append((t_s + self._offset_s, *values))
 

@@ -82,3 +82,18 @@ def test_a_sample_kept_aside_when_the_stream_ends_is_left_out_and_said(tmp_path)
     said = [text for text in events if "stream ended" in text]
     assert len(said) == 1 and "left out" in said[0]
     assert "# clock: 1 sample left out" in collector.write_recording(tmp_path / "e.csv").read_text()
+
+
+def test_a_stream_slower_than_the_gap_is_recorded_as_it_comes():
+    """Every step over max_gap_s (a 1 Hz module): no sample is kept aside (none would come within the gap to tell
+    it), none is left out, nothing is said; a time ahead at the end of a running stream is kept (a gap)."""
+    slow = 10.0 + 1.0 * np.arange(N)
+    collector, events, _ = _collect(slow)
+    np.testing.assert_allclose(collector.samples[:, 0], slow, atol=1e-9)
+    assert collector.corrupted == [] and collector.restarts == [] and collector.clock_words() is None
+    assert not [text for text in events if "clock" in text or "time" in text]
+    t_s = _honest()
+    t_s[-1] += 5.0
+    collector, _, _ = _collect(t_s)
+    np.testing.assert_allclose(collector.samples[:, 0], t_s, atol=1e-9)
+    assert collector.corrupted == []
