@@ -94,7 +94,8 @@ class SolvedRecording:
         ratio = np.nanpercentile(result.field_ratio, [10, 50, 90])
         dip = np.nanpercentile(result.dip_deg, [10, 50, 90])
         check = ("is the site (and --date) where the recording was made, and the calibration this sensor's?"
-                 if ref.source == "site" else "iron near the module, or another sensor's calibration?")
+                 if ref.source == "site" else "iron near the module, another sensor's calibration, or channels swapped or "
+                 "negated against the calibration's (--columns)? Their headings are not to be trusted")
         # the median says a reference the rows do not read (another site); the 10-90 % spread, rows that
         # scatter about a reference taken from themselves (iron turning with the module)
         return (f"{100 * disturbed.mean():.0f} % of the rows disagree with the {ref.source} reference: they read "

@@ -101,8 +101,8 @@ def attitude_file(calibration, recording, out, *, level=False, max_tilt_deg=5.0,
         print(f"warning: {text}", file=sys.stderr)
     atomic_write_text(out, solved.to_csv())
     print(f"wrote {out} ({solved.summary()})" + (f"\n  note: {solved.extrapolated}" if solved.extrapolated else ""))
-    if solved.disagreement():
-        print(f"  note: {solved.disagreement()}")
+    if solved.disagreement():  # most headings untrustworthy: a warning, beside the others
+        print(f"warning: {solved.disagreement()}", file=sys.stderr)
     if rerun is not None:
         from ..viz.attitude import record_attitude
 

@@ -62,8 +62,31 @@ def test_attitude_says_why_every_row_disagrees_with_the_site(tmp_path, capsys):
                  "--samples", "200", "--seed", "3"]) == 0
     capsys.readouterr()
     assert main(["attitude", str(cal), str(run), "--out", str(tmp_path / "a.csv")]) == 0
-    assert "disagree" not in capsys.readouterr().out  # its own reference: agrees
+    assert "disagree" not in capsys.readouterr().err  # its own reference: agrees
     assert main(["attitude", str(cal), str(run), "--out", str(tmp_path / "b.csv"), "--site", "48.14,11.58",
                  "--date", "2026-06-01"]) == 0
-    out = capsys.readouterr().out
-    assert "100 % of the rows disagree with the site reference" in out and "is the site (and --date)" in out
+    err = capsys.readouterr().err  # a warning: most headings are not to be trusted
+    assert "warning: 100 % of the rows disagree with the site reference" in err and "is the site (and --date)" in err
+
+
+def test_attitude_warns_when_channels_are_swapped_against_the_calibration(tmp_path, capsys):
+    """Two channels swapped in the recording (its own reference seeded from the spoiled rows): most rows disagree,
+    warned on stderr naming swapped channels among the causes (it was a note on stdout the tester missed)."""
+    from compass.io.table import read_table
+
+    rec, cal, run = tmp_path / "bench.csv", tmp_path / "cal.json", tmp_path / "run.csv"
+    assert main(["simulate", "fourflip", "--out", str(rec), "--seed", "3"]) == 0
+    assert main(["calibrate", str(rec), "--out", str(cal), "--quiet", "--no-diagnose"]) == 0
+    assert main(["simulate", "runtime", "--truth", str(tmp_path / "bench.truth.json"), "--out", str(run),
+                 "--samples", "300", "--seed", "3"]) == 0
+    text = run.read_text().splitlines()
+    header = next(k for k, line in enumerate(text) if not line.startswith("#"))
+    names = text[header].split(",")
+    i, j = names.index("v1"), names.index("v2")
+    names[i], names[j] = names[j], names[i]
+    (tmp_path / "swapped.csv").write_text("\n".join(text[:header] + [",".join(names)] + text[header + 1:]) + "\n")
+    assert read_table(tmp_path / "swapped.csv").has("v1")
+    capsys.readouterr()
+    assert main(["attitude", str(cal), str(tmp_path / "swapped.csv"), "--out", str(tmp_path / "s.csv")]) == 0
+    err = capsys.readouterr().err
+    assert "of the rows disagree with the recording reference" in err and "channels swapped or negated" in err
