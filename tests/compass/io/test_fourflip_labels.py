@@ -111,3 +111,15 @@ def test_without_an_accelerometer_the_exchange_is_a_symmetry(write_session, seed
     assert abs(turned.dip_deg - honest.dip_deg) < 0.05 * honest.dip_sigma_deg
     assert abs(np.mod(turned.azimuth_deg - honest.azimuth_deg, 360.0) - 180.0) < 0.01
     assert turned.statistics.chi2 == pytest.approx(honest.statistics.chi2, rel=1e-6)
+
+
+@pytest.mark.parametrize("seed", [1, 7])
+def test_without_an_accelerometer_channels_reversed_by_a_relabelling_are_said(write_session, seed):
+    """The channels' layout is the one clue left: v1, v2, v3 come out along -X, -Y, +Z."""
+    rec, _ = write_session(seed=seed)
+    index = np.array([0, 3, 2, 1])[rec.flip_index]
+    swapped = calibrate_fourflip(replace(rec, flip_index=index, flip_deg=np.mod(360.0 - rec.flip_deg, 360.0)))
+    said = [w for w in swapped.warnings if "relabelled" in w]
+    assert len(said) == 1 and "v1 -X, v2 -Y, v3 +Z" in said[0] and "90 -> 270, 270 -> 90" in said[0]
+    assert "flips 90 and 270 exchanged" in said[0]
+    assert not any("relabelled" in w for w in calibrate_fourflip(rec).warnings)
