@@ -34,7 +34,7 @@ import numpy as np
 
 from .names import RESERVED_NAMES
 from .table import ReadOptions, RecordingError, Table, read_table
-from .units import looks_like_radians
+from .units import looks_like_radians, note
 
 __all__ = ["FourFlipRecording", "read_fourflip", "NOMINAL_FLIPS_DEG", "RESERVED_COLUMNS"]
 
@@ -154,7 +154,7 @@ def fourflip_from_table(table: Table) -> FourFlipRecording:
     if all(table.has(c) for c in ("ax", "ay", "az")):
         accel = np.column_stack([table.column(c) for c in ("ax", "ay", "az")])
         _check_flip_labels(table, flip_index, accel)
-    return FourFlipRecording(
+    recording = FourFlipRecording(
         flip_deg=nominal[flip_index] + wrapped[np.arange(len(flip)), flip_index],
         flip_index=flip_index,
         platform_deg=platform,
@@ -166,6 +166,28 @@ def fourflip_from_table(table: Table) -> FourFlipRecording:
         metadata=dict(table.metadata),
         path=table.path,
     )
+    repeats = _repeated_rows(table)
+    return recording.subset(~repeats) if repeats.any() else recording
+
+
+def _repeated_rows(table: Table) -> np.ndarray:
+    """Rows that repeat the row before exactly, ``t_s`` included (a logger writing a sample twice), said and dropped.
+
+    A repeated sample is no new measurement: kept, it halves the noise the neighbours' differences show (the
+    noise floor) and weighs its sample twice.  Without ``t_s`` two equal rows can be two readings of a quantised
+    channel at one stop, and are kept.
+    """
+    repeats = np.zeros(len(table.rows), dtype=bool)
+    if not table.has("t_s") or len(table.rows) < 2:
+        return repeats
+    a, b = table.data[1:], table.data[:-1]
+    repeats[1:] = np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1)
+    if repeats.any():
+        first = int(np.flatnonzero(repeats)[0])
+        note(f"{table.path}: {int(repeats.sum())} of {len(repeats)} rows repeat the row before exactly, t_s included "
+             f"(first: row {int(table.rows[first])} repeats row {int(table.rows[first - 1])}): a logger writing "
+             "samples twice; the repeats are dropped (a repeated sample is no new measurement)")
+    return repeats
 
 
 def _check_coverage(table: Table, flip_index: np.ndarray, platform: np.ndarray, flip_radians: bool,
