@@ -32,6 +32,7 @@ from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, housing
 from . import _harmonic as hm
 from .accelerometer import with_accelerometer
 from ._mlfit import MLFit, fit_ml
+from ._phases import flip_azimuths, zero_off_words
 from ..contract import Calibrator, CannotCalibrate, FitStatistics
 from ..health import AXIS_TOLERANCE_DEG, ChannelHealth, check_channels
 from ..health import to_json as health_json
@@ -94,6 +95,11 @@ def calibrate_fourflip(
     spikes = find_spikes(rec.platform_deg, rec.flip_index, rec.outputs, noise)
     if spikes.any():
         rec = rec.subset(~spikes)
+    # three channels or more: with fewer a flip's azimuth trades against a direction the pair cannot fix
+    azimuths = flip_azimuths(rec.platform_deg, rec.flip_index, rec.outputs) if len(rec.channels) >= 3 else None
+    zero_off = None if azimuths is None else zero_off_words(rec.path, azimuths)
+    if zero_off is not None:  # one field azimuth in every flip, or the fit spreads the difference everywhere
+        raise CannotCalibrate(zero_off)
     result = _estimate(rec, BenchSamples.from_recording(rec), noise, method, field_ut, dip_sign, diagnose, progress)
     result = with_accelerometer(result, rec)  # ax, ay, az: the accelerometer's alignment and the turntable's tilt
     vertical = hm.vector_harmonic(hm.fit_harmonics(rec.platform_deg, rec.flip_index, rec.outputs), 1.0,
