@@ -393,8 +393,9 @@ def _warnings(r: AccelerometerAlignment, nominal_angle_deg, dip_sigma_deg) -> tu
     if half_turn_about_x:
         out.append(f"the accelerometer reads -1 g along Z in flip 0 (mag_to_accel is a half turn about X, "
                    f"{r.angle_deg:.1f} deg): it reads gravity rather than specific force (then recalibrate with "
-                   "--accel-sign -1, and use it at runtime too) or it is mounted upside down about X; the flips "
-                   "cannot tell these apart, since X never sees gravity")
+                   "--accel-sign -1, and use it at runtime too) or it is mounted upside down about X, or every flip "
+                   "is labelled 180 deg off (the cube started with its +Z face down); the flips cannot tell these "
+                   "apart, since X never sees gravity")
     elif np.max(nominal_angle_deg) > _NOMINAL_WARN_DEG:
         out.append(f"the accelerometer's gravity is {np.max(nominal_angle_deg):.1f} deg from where the flips put it "
                    "in the housing frame: its axes are not the housing's (names, signs, mounting); the fitted "

@@ -20,6 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 from scipy.optimize import isotonic_regression
+from scipy.spatial.transform import Rotation
 
 from compass.frames import seed_angles
 from compass.io.fourflip import FourFlipRecording
@@ -31,6 +32,7 @@ from compass.sim.bench import BenchPhysics, BenchSamples, bench_outputs, housing
 from . import _harmonic as hm
 from .accelerometer import with_accelerometer
 from ._mlfit import MLFit, fit_ml
+from ._phases import flip_azimuths, zero_off_words
 from ..contract import Calibrator, CannotCalibrate, FitStatistics
 from ..health import AXIS_TOLERANCE_DEG, ChannelHealth, check_channels
 from ..health import to_json as health_json
@@ -40,7 +42,8 @@ from ..noise import SPIKE_SIGMAS, find_spikes, lattice_step, noise_floor, quanti
 from .result import FourFlipResult, ChannelCalibration
 from ..site_field import compare_with_site
 
-__all__ = ["METHODS", "FourFlipCalibrator", "calibrate_fourflip", "channel_health", "physics_from_harmonics", "result_from_ml"]
+__all__ = ["METHODS", "FourFlipCalibrator", "calibrate_fourflip", "channel_health", "physics_from_harmonics",
+           "relabelling_warning", "result_from_ml"]
 
 METHODS = ("ml", "harmonic", "patent")
 _TABLE_BINS = 36
@@ -92,6 +95,11 @@ def calibrate_fourflip(
     spikes = find_spikes(rec.platform_deg, rec.flip_index, rec.outputs, noise)
     if spikes.any():
         rec = rec.subset(~spikes)
+    # three channels or more: with fewer a flip's azimuth trades against a direction the pair cannot fix
+    azimuths = flip_azimuths(rec.platform_deg, rec.flip_index, rec.outputs) if len(rec.channels) >= 3 else None
+    zero_off = None if azimuths is None else zero_off_words(rec.path, azimuths)
+    if zero_off is not None:  # one field azimuth in every flip, or the fit spreads the difference everywhere
+        raise CannotCalibrate(zero_off)
     result = _estimate(rec, BenchSamples.from_recording(rec), noise, method, field_ut, dip_sign, diagnose, progress)
     result = with_accelerometer(result, rec)  # ax, ay, az: the accelerometer's alignment and the turntable's tilt
     vertical = hm.vector_harmonic(hm.fit_harmonics(rec.platform_deg, rec.flip_index, rec.outputs), 1.0,
@@ -109,6 +117,9 @@ def calibrate_fourflip(
             warnings = warnings + (f"the channels' sensing directions do not span three dimensions (smallest singular "
                                    f"value {smallest:.2g}): single-axis calibrations, valid as such, but no field vector "
                                    "(compass attitude and live refuse this file)",)
+        if rec.accel is None:  # with one, the reader checked the labels against gravity
+            relabelled = relabelling_warning(unit, rec.channels)
+            warnings = warnings + ((relabelled,) if relabelled else ())
     if vertical < _VERTICAL_SIGMAS:
         warnings = warnings + (f"the flip means hardly show the vertical field ({vertical:.1f} sigma: dip near 0, or "
                                "every channel along housing X): the data cannot tell these directions from their "
@@ -124,6 +135,67 @@ def calibrate_fourflip(
     if site_check is not None:
         extra["site_check"] = site_check
     return replace(result, extra=extra, warnings=warnings, kept=~spikes if spikes.any() else None)
+
+
+def _label_maps():
+    """The relabellings ``recorded = s * true + 90 n`` (mod 360) and what each does to the fitted directions.
+
+    Each is an exact symmetry of the magnetic model (:mod:`compass.io.fourflip`'s notes): with
+    ``recorded = true + 90 n`` the fit returns ``Rx(-90 n) a``, with ``recorded = -true - 90 n`` it
+    returns ``Rz(pi) Rx(-90 n) a`` (the field's azimuth absorbs the half turn about Z).
+    """
+    for s in (1, -1):
+        for n in range(4):
+            turn = Rotation.from_euler("x", -90.0 * n, degrees=True)
+            if s == -1:
+                turn = Rotation.from_euler("z", 180.0, degrees=True) * turn
+            recorded = {k: int((k + 90 * n) % 360) if s == 1 else int((-k - 90 * n) % 360) for k in (0, 90, 180, 270)}
+            if any(recorded[k] != k for k in recorded):
+                yield recorded, turn
+
+
+def relabelling_warning(directions, channels) -> str | None:
+    """Words when the channels sit on the housing's axes, some reversed, and a relabelling of the flips puts
+    every one on a positive axis: the recording's flips are likelier mislabelled than the module's channels.
+
+    A magnetometer-only recording fits every relabelling of its flips equally well (each turns every
+    direction by one rotation, :func:`_label_maps`), so only the channels' layout can tell; a module with
+    channels reversed on purpose is told to ignore it.
+
+    Parameters
+    ----------
+    directions : ndarray, shape (c, 3)
+        Fitted unit sensing directions in H.
+    channels : sequence of str
+    """
+    directions = np.asarray(directions, float)
+    cos_tol = np.cos(np.radians(AXIS_TOLERANCE_DEG))
+
+    def positive_axes(d):
+        """Per channel its nearest signed axis (index, sign), None unless each is within the tolerance and
+        the channels cover X, Y and Z."""
+        i = np.argmax(np.abs(d), axis=1)
+        near = np.abs(d[np.arange(len(d)), i])
+        if np.any(near < cos_tol) or len(set(i.tolist())) < 3:
+            return None
+        return i, np.sign(d[np.arange(len(d)), i])
+
+    now = positive_axes(directions)
+    if len(directions) < 3 or now is None or np.all(now[1] > 0):
+        return None
+    for recorded, turn in _label_maps():
+        then = positive_axes(turn.apply(directions, inverse=True))
+        if then is not None and np.all(then[1] > 0):
+            said = ", ".join(f"{c} {'+' if sg > 0 else '-'}{'XYZ'[i]}" for c, i, sg in zip(channels, *now))
+            swaps = ", ".join(f"{r} -> {k}" for r, k in sorted((r, k) for k, r in recorded.items() if r != k))
+            exchanged = " (flips 90 and 270 exchanged: the cube turned the other way about X)" \
+                if recorded == {0: 0, 90: 270, 180: 180, 270: 90} else ""
+            return (f"the channels come out along {said}; with flip_deg relabelled {swaps}{exchanged} every one "
+                    "would be along a positive housing axis. Without an accelerometer the flips' labels cannot be "
+                    "checked (any relabelling fits as well, every direction turned): if the channels are along +X, "
+                    "+Y, +Z, relabel the flips or re-record them as SPEC turns the cube (right-hand about +X: flip "
+                    "90 brings +Y up); if they are mounted reversed, ignore this")
+    return None
 
 
 class FourFlipCalibrator(Calibrator):

@@ -1,4 +1,30 @@
-"""The four-flip recording of SPEC section 2 (seed 000's bench session)."""
+r"""The four-flip recording of SPEC section 2 (seed 000's bench session).
+
+Which face was down in each flip
+--------------------------------
+SPEC section 1 puts a housing direction at ``a_W = Rz(phi) Rx(kappa) a_H`` on the bench.  An
+accelerometer riding in the housing reads the specific force, +g up, so in the housing frame it reads
+
+.. math::
+
+    f_H = R_x(\kappa)^T R_z(\phi)^T (0, 0, g)^T = g\,(0, \sin\kappa, \cos\kappa)^T,
+
+whatever the turntable angle: +Z, +Y, -Z, -Y up (the -Z, -Y, +Z, +Y face down) in flips 0, 90, 180,
+270.  The four directions are distinct, so with an accelerometer whose axes are the housing's (SPEC's
+runtime convention; a few degrees of mounting error are fitted later as ``mag_to_accel``) each flip's
+label is checked: a flip whose mean gravity lies within 45 deg of another flip's face had that face
+down, and the recording is refused (:func:`_check_flip_labels`).
+
+Without an accelerometer the labels cannot be checked.  A cube turned the other way about X (flips 90
+and 270 exchanged) is an exact symmetry of the magnetic model: with ``Rz(pi)`` the half turn about Z,
+``Rx(-kappa) Rz(pi) = Rz(pi) Rx(kappa)``, so the directions ``a' = Rz(pi) a`` under the exchanged
+labels give every output of the directions ``a`` under the right ones with the field's azimuth ``delta``
+turned to ``delta + 180 deg``; the dip, the gains and the offsets are unchanged, and so is the
+turntable's sense (it enters as ``Rz(phi + pi)``).  Likewise a shift of every label by 90 deg is the
+directions turned 90 deg about X.  The fit is then as good as with the right labels, and every
+direction comes out turned: only the operator's turning the cube as SPEC says (right-hand about +X:
+flip 90 brings +Y up) fixes it.
+"""
 
 from __future__ import annotations
 
@@ -8,7 +34,7 @@ import numpy as np
 
 from .names import RESERVED_NAMES
 from .table import ReadOptions, RecordingError, Table, read_table
-from .units import looks_like_radians
+from .units import looks_like_radians, note
 
 __all__ = ["FourFlipRecording", "read_fourflip", "NOMINAL_FLIPS_DEG", "RESERVED_COLUMNS"]
 
@@ -18,6 +44,12 @@ FLIP_TOLERANCE_DEG = 10.0
 MAX_GAP_DEG = 90.0
 """Largest turntable gap in one flip that still locates the output minimum."""
 MIN_SAMPLES_PER_FLIP = 8
+FACE_DOWN = ("-Z", "-Y", "+Z", "+Y")
+"""The housing face down in flips 0, 90, 180, 270 (SPEC section 1)."""
+UP_IN_HOUSING = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])
+"""What a level accelerometer with the housing's axes reads in flips 0, 90, 180, 270, per g."""
+LABEL_CHECK_DEG = 45.0
+"""A flip's mean gravity within this angle of another flip's face: that face was down (faces are 90 deg apart)."""
 _RADIANS_HINT = ("; {column} never leaves 0..2*pi: radians? The column is in degrees; convert it, or name the "
                  "unit with --angle-unit rad")
 RESERVED_COLUMNS = RESERVED_NAMES  # every other column is a channel
@@ -121,7 +153,8 @@ def fourflip_from_table(table: Table) -> FourFlipRecording:
     accel = None
     if all(table.has(c) for c in ("ax", "ay", "az")):
         accel = np.column_stack([table.column(c) for c in ("ax", "ay", "az")])
-    return FourFlipRecording(
+        _check_flip_labels(table, flip_index, accel)
+    recording = FourFlipRecording(
         flip_deg=nominal[flip_index] + wrapped[np.arange(len(flip)), flip_index],
         flip_index=flip_index,
         platform_deg=platform,
@@ -133,6 +166,28 @@ def fourflip_from_table(table: Table) -> FourFlipRecording:
         metadata=dict(table.metadata),
         path=table.path,
     )
+    repeats = _repeated_rows(table)
+    return recording.subset(~repeats) if repeats.any() else recording
+
+
+def _repeated_rows(table: Table) -> np.ndarray:
+    """Rows that repeat the row before exactly, ``t_s`` included (a logger writing a sample twice), said and dropped.
+
+    A repeated sample is no new measurement: kept, it halves the noise the neighbours' differences show (the
+    noise floor) and weighs its sample twice.  Without ``t_s`` two equal rows can be two readings of a quantised
+    channel at one stop, and are kept.
+    """
+    repeats = np.zeros(len(table.rows), dtype=bool)
+    if not table.has("t_s") or len(table.rows) < 2:
+        return repeats
+    a, b = table.data[1:], table.data[:-1]
+    repeats[1:] = np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1)
+    if repeats.any():
+        first = int(np.flatnonzero(repeats)[0])
+        note(f"{table.path}: {int(repeats.sum())} of {len(repeats)} rows repeat the row before exactly, t_s included "
+             f"(first: row {int(table.rows[first])} repeats row {int(table.rows[first - 1])}): a logger writing "
+             "samples twice; the repeats are dropped (a repeated sample is no new measurement)")
+    return repeats
 
 
 def _check_coverage(table: Table, flip_index: np.ndarray, platform: np.ndarray, flip_radians: bool,
@@ -160,3 +215,65 @@ def _check_coverage(table: Table, flip_index: np.ndarray, platform: np.ndarray, 
                 row=int(rows[0]),
                 column="platform_deg",
             )
+
+
+def faces_down(flip_index: np.ndarray, accel: np.ndarray) -> np.ndarray:
+    """Per flip 0, 90, 180, 270, the index of the flip whose face the accelerometer says was down.
+
+    Parameters
+    ----------
+    flip_index : ndarray of int, shape (n,)
+    accel : ndarray, shape (n, 3)
+        Accelerometer in the housing (specific force, any unit).
+
+    Returns
+    -------
+    ndarray of int, shape (4,)
+        ``k`` where flip k's mean gravity is within :data:`LABEL_CHECK_DEG` of what flip k's face gives
+        (:data:`UP_IN_HOUSING`), another flip's index where it is within that of another's, -1 where
+        of none (a direction along X, an accelerometer whose axes are not the housing's, or no reading).
+    """
+    out = np.full(4, -1)
+    scale = np.median(np.linalg.norm(accel, axis=1))
+    for k in range(4):
+        mean = accel[flip_index == k].mean(axis=0)
+        norm = np.linalg.norm(mean)
+        if not (np.isfinite(norm) and norm > 0.1 * scale):
+            continue
+        cos = UP_IN_HOUSING @ (mean / norm)
+        j = int(np.argmax(cos))
+        if cos[j] > np.cos(np.radians(LABEL_CHECK_DEG)):
+            out[k] = j
+    return out
+
+
+def _check_flip_labels(table: Table, flip_index: np.ndarray, accel: np.ndarray) -> None:
+    """Refuse a recording whose accelerometer puts another flip's face down in some flip (see the module's notes).
+
+    Left to the accelerometer fit's own words: every flip reading the face opposite its own (an
+    accelerometer that reads gravity, not specific force: ``--accel-sign -1``), every flip reading the
+    same face (a stuck accelerometer), a flip whose gravity is near no face.
+    """
+    seen = faces_down(flip_index, accel)
+    wrong = [k for k in range(4) if seen[k] >= 0 and seen[k] != k]
+    if not wrong or np.all(seen == (np.arange(4) + 2) % 4) or np.all(seen == seen[0]):
+        return
+    said = "; ".join(f"flip {NOMINAL_FLIPS_DEG[k]:g} had the {FACE_DOWN[seen[k]]} face down (flip "
+                     f"{NOMINAL_FLIPS_DEG[seen[k]]:g}'s; flip {NOMINAL_FLIPS_DEG[k]:g} puts the {FACE_DOWN[k]} face down)"
+                     for k in wrong)
+    if np.array_equal(seen, [0, 3, 2, 1]):
+        head = "flips 90 and 270 look exchanged (the cube turned the other way about X)"
+        axes = "ax and ay reversed (a chip turned half round about Z): read it with --columns ax=-ax,ay=-ay"
+    else:
+        head = "the flips look mislabelled"
+        axes = "map its columns to the housing's axes with --columns (it reads +1 g on +Z in flip 0, on +Y in flip 90)"
+    rows = table.rows[flip_index == wrong[0]]
+    raise RecordingError(
+        table.path,
+        f"{head}; the accelerometer (ax, ay, az) reads gravity as: {said}. SPEC turns the cube right-hand about +X "
+        "(flip 90 brings +Y up, -Y face down). Relabel flip_deg to the faces that were down, or re-record; a "
+        "magnetometer-only fit cannot tell (a mislabelled recording fits as well, with every direction turned). "
+        f"If the labels are right, the accelerometer's axes are not the housing's: {axes}",
+        row=int(rows[0]),
+        column="flip_deg",
+    )

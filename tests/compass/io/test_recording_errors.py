@@ -192,3 +192,24 @@ def test_a_clipped_tumble_channel_is_named_and_a_quantised_one_read(tmp_path):
         read_tumble(clipped)
     assert info.value.column == "mx"
     read_tumble(_simulated(tmp_path, "tumble", 2, lambda name, ut: f"{round(ut, 1):.1f}", ("mx", "my", "mz")))
+
+
+def test_rows_written_twice_are_said_and_dropped(tmp_path, write_session):
+    """Every row twice (t_s included): named, dropped, and the fit as on the recording written once."""
+    from compass.io.units import RecordingWarning
+
+    once, _ = write_session(seed=3)
+    lines = (tmp_path / "rec.csv").read_text().splitlines()
+    head = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    twice = _write(tmp_path, lines[:head + 1] + [line for line in lines[head + 1:] for _ in (0, 1)], "twice.csv")
+    with pytest.warns(RecordingWarning, match=rf"{len(once.t_s)} of {2 * len(once.t_s)} rows repeat the row before "
+                                              rf"exactly, t_s included \(first: row {head + 3} repeats row {head + 2}\)"):
+        read = read_fourflip(twice)
+    assert np.array_equal(read.outputs, once.outputs) and np.array_equal(read.t_s, once.t_s)
+
+
+def test_equal_rows_without_a_time_are_kept(tmp_path):
+    """Two readings of a quantised channel at one stop may be equal: without t_s they are not judged."""
+    rows = _rows()
+    rec = read_fourflip(_write(tmp_path, [GOOD_HEADER] + rows[:1] + rows))
+    assert rec.n_samples == len(rows) + 1
