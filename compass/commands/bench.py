@@ -35,7 +35,9 @@ def register(sub) -> None:
     p.add_argument("--turntable", required=True, metavar="SOURCE",
                    help="the turntable's angle: column:NAME (an encoder column in the stream), grbl:PORT (a GRBL "
                         "controller turning the table), manual:STEP_DEG (a graduated table turned by hand to "
-                        "marks), gyro (the module's gyro about the table axis)")
+                        "marks), gyro (the module's gyro about the table axis); a - before NAME or STEP_DEG "
+                        "(column:-enc, manual:-30) negates an encoder or a graduation that counts clockwise seen from "
+                        "above (the station stops on an angle that counts against the module's gyro)")
     p.add_argument("--module-id", default="unknown", help="the module's serial or name (written into the recording)")
     p.add_argument("--operator", default=os.environ.get("USER", "unknown"), help="who ran the session")
     p.add_argument("--site", metavar="LAT,LON[,ALT_M]", help="where the bench stands (its hemisphere and the WMM "

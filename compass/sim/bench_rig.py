@@ -94,6 +94,10 @@ class BenchRig:
         Per-sample white noise.
     fmt : str
         The stream format, one of :data:`RIG_FORMATS` (MotionCal's carry no encoder column).
+    table_clockwise : bool
+        The table's encoder and graduation count clockwise seen from above, against SPEC's turntable angle (a
+        mistake the station must catch): the encoder column sends ``-phi``, and the operator finds stop ``m`` at
+        the true angle ``-m``.
 
     Attributes
     ----------
@@ -107,12 +111,13 @@ class BenchRig:
     def __init__(self, *, seed: int = 0, rate_hz: float = 100.0, noise_ut: float = 0.15,
                  operator: Operator | None = None, gyro_bias_dps: float = 0.0, gyro_scale_error: float = 0.0,
                  encoder_step_deg: float | None = None, encoder_column: str = "enc", accel_noise_g: float = 0.002,
-                 gyro_noise_dps: float = 0.05, fmt: str = "compass"):
+                 gyro_noise_dps: float = 0.05, fmt: str = "compass", table_clockwise: bool = False):
         if fmt not in RIG_FORMATS:
             raise ValueError(f"format {fmt!r}: expected one of {', '.join(RIG_FORMATS)}")
         if fmt.startswith("motioncal") and encoder_step_deg is not None:
             raise ValueError("MotionCal lines carry no encoder column: use the gyro, manual stops or a GRBL table")
         self.fmt = fmt
+        self.table_sign = -1.0 if table_clockwise else 1.0
         session = simulate_fourflip(seed=seed, n_channels=3, noise_ut=noise_ut, step_deg=45.0)
         self.truth = session.truth
         self.physics: BenchPhysics = session.base_physics()
@@ -166,8 +171,9 @@ class BenchRig:
             self._move(start, self._turn_s(full), full, 0.0)
         elif do == "stop" and self.operator_turns:
             error = float(self._rng.uniform(-op.read_half_width_deg, op.read_half_width_deg))
-            delta = (float(instruction["stop_deg"]) + error - self._phi) % 360.0
-            delta = delta - 360.0 if delta > 350.0 else delta  # a touch past the mark: back a little
+            sign = self.table_sign  # the way the marks go up
+            delta = (sign * (float(instruction["stop_deg"]) + error) - self._phi) * sign % 360.0
+            delta = sign * (delta - 360.0 if delta > 350.0 else delta)  # a touch past the mark: back a little
             if abs(delta) > 1e-9:
                 self._move(start, max(0.8, self._turn_s(delta)), delta, 0.0)
 
@@ -244,7 +250,7 @@ class BenchRig:
         gyro = omega * self.gyro_scale + self.gyro_bias + self.gyro_noise * rng.normal(size=(n, 3))
         encoder = None
         if self.encoder_step_deg is not None:
-            encoder = np.mod(phi, 360.0)
+            encoder = np.mod(self.table_sign * phi, 360.0)
             if self.encoder_step_deg > 0:
                 encoder = np.mod(np.round(encoder / self.encoder_step_deg) * self.encoder_step_deg, 360.0)
         return {"outputs": outputs, "accel": accel, "gyro": gyro, "encoder_deg": encoder, "phi_deg": phi,

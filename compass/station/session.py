@@ -15,7 +15,11 @@ Per flip (SPEC section 1: flip kappa about the turntable's X axis):
    turn ends on a still second once 360 deg are covered (or after 3 s still short of it), or
    *stops* (stop sources): each stop is asked for, reached and held a still second, its mean kept;
 3. the flip's rows are checked (coverage and widest gap, turn rate against the sample rate, the
-   face the data show) and kept on disk, or the turn is asked for again with the reason.
+   face the data show) and kept on disk, or the turn is asked for again with the reason.  An angle source
+   that is not the gyro (an encoder column, a graduation, a GRBL axis) must count the turn the way the
+   module's gyro saw it about the table's axis (:func:`compass.station.sources.gyro_turn_deg`): one that
+   counts against it would mirror the calibration, and ends the session before its flip is kept, naming
+   the fix; without a gyro, the direction is the source's word alone, said once.
 
 The module's header and sample rate must not change during a session: a change ends it
 (:class:`SessionEnded`, the flips done are kept).
@@ -30,6 +34,7 @@ import numpy as np
 
 from ..io.fourflip import NOMINAL_FLIPS_DEG
 from .checks import circle_axis, coverage_gap, face_name, is_still, nearest_face, up_in_housing
+from .sources import gyro_turn_deg
 from .store import FlipRows
 from .turn import Reading, ReadingBuffer, TurnData, TurnRejected, WrongFace
 
@@ -156,8 +161,9 @@ class Station:
         self._still_since = None
         self._moved = False
         self._warned_faces: set = set()
-        self._stop_rows: list = []
+        self._stop_rows: list = []  # (still window, angle, the gyro's turn from the stop before), per stop
         self._stop_index = 0
+        self._said_no_gyro = False
         self._first_stop = not self.done
         if self.done:
             self.columns = next(iter(self.done.values())).columns  # a resumed session keeps its columns
@@ -360,7 +366,7 @@ class Station:
         window = self._window()
         self._first_stop = False
         angle = self.source.position_deg(self.instruction.stop_deg)
-        self._stop_rows.append((window, angle))
+        self._stop_rows.append((window, angle, gyro_turn_deg(self._buffer.arrays(), self.progress.flip_deg)))
         self.progress.covered_deg = 360.0 * len(self._stop_rows) / len(self.source.stops())
         self._stop_index += 1
         if self._stop_index < len(self.source.stops()):
@@ -419,17 +425,20 @@ class Station:
             raise TurnRejected(f"turned at {fastest:.0f} deg/s: at {rate:.3g} Hz that is {fastest / rate:.1f} deg "
                                f"between samples; turn at most {self.max_step_deg * rate:.0f} deg/s")
         self._check_face(kept.accel, platform, kept.outputs)
+        self._check_sense(_turned_deg(platform), gyro_turn_deg(kept, flip))
         return self._rows(kept.t_s, platform, kept.outputs, kept.accel, kept.temp_c, sigma)
 
     def _stops_rows(self) -> FlipRows:
-        windows = [w for w, _ in self._stop_rows]
-        platform = np.array([a for _, a in self._stop_rows])
+        windows = [w for w, _, _ in self._stop_rows]
+        platform = np.array([a for _, a, _ in self._stop_rows])
+        moves = [g for _, _, g in self._stop_rows[1:]]  # the first stop's move came from wherever the table stood
         mean = (lambda name: None if getattr(windows[0], name) is None
                 else np.array([getattr(w, name).mean(axis=0) for w in windows]))
         t_s = np.array([w.t_s.mean() for w in windows])
         outputs = np.array([w.outputs.mean(axis=0) for w in windows])
         accel = mean("accel")
         self._check_face(accel, platform, outputs)
+        self._check_sense(_turned_deg(platform), None if None in moves else float(np.sum(moves)))
         return self._rows(t_s, platform, outputs, accel, mean("temp_c"), self.source.angle_sigma_deg)
 
     def _check_face(self, accel, platform, outputs) -> None:
@@ -446,6 +455,34 @@ class Station:
             how = "the field's circle shows"
         if face != expected:
             raise WrongFace(f"wrong face down: {how} {face} up; flip {flip:g} needs {face_name(flip)}")
+
+    def _check_sense(self, source_deg: float, gyro_deg: float | None) -> None:
+        """The source's angle must turn the way the gyro turned about the table's axis (module docstring).
+
+        Raises
+        ------
+        SessionEnded
+            The gyro turned at least half as far as the source says, the other way.
+        """
+        if getattr(self.source, "from_gyro", False):
+            return
+        if gyro_deg is None:
+            if not self._said_no_gyro:
+                self._said_no_gyro = True
+                self.events.append(("warn", f"the module sends no gyro: the turn's direction is --turntable "
+                                            f"{self.source.spec}'s word alone (an angle counting clockwise seen from "
+                                            f"above would mirror the calibration unseen: check that it goes up as "
+                                            f"the table turns counterclockwise)"))
+            return
+        if source_deg * gyro_deg < 0 and abs(gyro_deg) >= 0.5 * abs(source_deg):
+            kept = ", ".join(f"{f:g}" for f in sorted(self.done)) or "none"
+            raise SessionEnded(
+                f"the turntable's angle (--turntable {self.source.spec}) went {'down' if source_deg < 0 else 'up'} "
+                f"{abs(source_deg):.0f} deg over flip {self.progress.flip_deg:g}'s turn while the module's gyro "
+                f"turned {abs(gyro_deg):.0f} deg {'counterclockwise' if gyro_deg > 0 else 'clockwise'} seen from "
+                f"above: the angle counts clockwise, against SPEC's counterclockwise, and would mirror the "
+                f"calibration; {self.source.reverse_words()}, and run the session again (if the angle is right, "
+                f"the gyro's axes are not the housing's); flips kept: {kept}")
 
     def _rows(self, t_s, platform, outputs, accel, temp_c, sigma) -> FlipRows:
         """The flip's recording rows (the gyro is not kept: the four-flip fit does not use it)."""
@@ -469,3 +506,10 @@ class Station:
         self.events.append(("info", f"flip {rows.flip_deg:g} kept: {len(rows.table)} rows, turn rate "
                                     f"{self.progress.turn_dps:.0f} deg/s, angle sigma {rows.angle_sigma_deg:.3g} deg"))
         self._next_flip()
+
+
+def _turned_deg(platform_deg: np.ndarray) -> float:
+    """How far a source's angle went from the first sample to the last, unwrapped (no step of 180 deg or more
+    between samples), degrees: positive when it went up."""
+    unwrapped = np.unwrap(np.asarray(platform_deg, float), period=360.0)
+    return float(unwrapped[-1] - unwrapped[0]) if unwrapped.size else 0.0

@@ -296,3 +296,45 @@ def test_a_corrupted_time_on_the_line_does_not_stop_the_session(tmp_path):
     stream.feed = feed
     drive(rig, station, stream, max_s=300.0)
     assert corrupted[0] and station.finished, station.drain()
+
+
+@pytest.mark.parametrize("spec, seen, fix, rig_options", [
+    # the operator turns counterclockwise as asked, the encoder counts down
+    ("column:enc", "went down \\d+ deg over flip 0's turn while the module's gyro turned \\d+ deg counterclockwise",
+     "use --turntable column:-enc (the column negated)", {"encoder_step_deg": 0.1}),
+    # the operator turns to the marks 30, 60, ... of a compass rose: clockwise
+    ("manual:30", "went up 330 deg over flip 0's turn while the module's gyro turned \\d+ deg clockwise",
+     "use --turntable manual:-30 (a graduation counting clockwise)", {"operator": Operator(read_half_width_deg=0.5)}),
+])
+def test_an_angle_counting_clockwise_stops_before_a_flip_is_kept(tmp_path, spec, seen, fix, rig_options):
+    """An encoder or a graduation counting clockwise seen from above mirrors the calibration (every direction
+    about 175 deg off, at the noise floor): the module's gyro turned the other way, so the first flip stops the
+    session, naming the fix; the fix calibrates."""
+    rig = BenchRig(seed=5, table_clockwise=True, **rig_options)
+    with pytest.raises(SessionEnded, match=re.escape(f"(--turntable {spec}) ") + seen + r" seen from above: the angle counts "
+                       r"clockwise, against SPEC's counterclockwise, and would mirror the calibration; "
+                       + re.escape(fix)):
+        run_session(tmp_path, spec, rig)
+    assert SessionStore(tmp_path / "cal.json").finished() == {}
+    (tmp_path / "fixed").mkdir()
+    rig = BenchRig(seed=5, table_clockwise=True, **rig_options)
+    station, events, recording = run_session(tmp_path / "fixed", spec.replace(":", ":-"), rig)
+    assert station.finished and not [e for e in events if e[0] == "warn"], events
+    ratio, error = direction_error_over_crb(rig, recording, rig.rate_hz if spec.startswith("manual") else 1)
+    assert np.sqrt(np.mean(ratio**2)) < 12.0, (ratio, error)  # test_each_source_calibrates_a_simulated_bench's bound
+
+
+def test_without_a_gyro_the_turn_direction_is_the_sources_word_alone(tmp_path):
+    rig = BenchRig(seed=4, encoder_step_deg=0.1)
+    source = parse_turntable("column:enc")
+    station = Station(source, rig.channels)
+    stream = StationStream("enc")
+    original = stream.feed
+    stream.feed = lambda data, t_rx=None: [r.__class__(r.t_s, r.outputs, r.accel, None, r.encoder_deg, r.temp_c)
+                                           for r in original(data, t_rx)]
+    drive(rig, station, stream, max_s=300.0)
+    said = [text for level, text in station.drain() if level == "warn"]
+    assert station.finished
+    assert said == ["the module sends no gyro: the turn's direction is --turntable column:enc's word alone (an angle "
+                    "counting clockwise seen from above would mirror the calibration unseen: check that it goes up as "
+                    "the table turns counterclockwise)"]
