@@ -140,6 +140,7 @@ class BenchRig:
         self._last_n = None
         self._sent = 0
         self.send_accel = True  # False: the module stops sending ax,ay,az (a changed header)
+        self._clock_zero_s = 0.0  # the module's clock reads the rig's time less this (restart_clock)
         self.operator_turns = True  # False: a motor turns the table (turn_table); the operator only flips
         self.truth = {**self.truth, "gyro_bias_rad_s": self.gyro_bias.tolist(), "gyro_scale": self.gyro_scale.tolist()}
 
@@ -256,6 +257,11 @@ class BenchRig:
         return {"outputs": outputs, "accel": accel, "gyro": gyro, "encoder_deg": encoder, "phi_deg": phi,
                 "kappa_deg": kappa}
 
+    def restart_clock(self, t_s: float) -> None:
+        """The module resets at rig time ``t_s``: the ``t_s`` it sends starts from 0 again (the table, the
+        operator and the noise go on in the rig's time)."""
+        self._clock_zero_s = float(t_s)
+
     def columns(self) -> list[str]:
         """The module's header columns."""
         extra = [self.encoder_column] if self.encoder_step_deg is not None else []
@@ -267,7 +273,8 @@ class BenchRig:
         return tuple(n for n in self.columns() if n != "seq")
 
     def lines(self, t_s) -> bytes:
-        """The lines of samples at times ``t_s``, in order, in the rig's format (module docstring)."""
+        """The lines of samples at rig times ``t_s``, in order, in the rig's format (module docstring); the ``t_s`` sent
+        is the module's clock (:meth:`restart_clock`)."""
         m = self.measure(t_s)
         if self.fmt.startswith("motioncal"):
             from .stream_formats import sample_lines
@@ -275,7 +282,7 @@ class BenchRig:
             return b"".join(sample_lines(self.fmt, np.atleast_1d(t_s), m["outputs"] / VOLTS_PER_UT, m["accel"],
                                          m["gyro"]))
         if self.fmt == "csv":
-            parts = [np.atleast_1d(t_s)[:, None], m["outputs"]] + [m["accel"]] * self.send_accel
+            parts = [np.atleast_1d(t_s)[:, None] - self._clock_zero_s, m["outputs"]] + [m["accel"]] * self.send_accel
             parts.append(np.degrees(m["gyro"]))
             if m["encoder_deg"] is not None:
                 parts.append(m["encoder_deg"][:, None])
@@ -291,7 +298,7 @@ class BenchRig:
         fmt = ",".join(["%.7g"] * c + ["%.6f"] * imu + ["%.4f"] * (rows.shape[1] - c - imu))
         out = []
         for t, row in zip(np.atleast_1d(t_s), rows):
-            out.append(format_line([f"{t:.4f}", self._sent, fmt % tuple(row)]))
+            out.append(format_line([f"{t - self._clock_zero_s:.4f}", self._sent, fmt % tuple(row)]))
             self._sent += 1
         return b"".join(out)
 

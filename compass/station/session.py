@@ -22,7 +22,10 @@ Per flip (SPEC section 1: flip kappa about the turntable's X axis):
    the fix; without a gyro, the direction is the source's word alone, said once.
 
 The module's header and sample rate must not change during a session: a change ends it
-(:class:`SessionEnded`, the flips done are kept).
+(:class:`SessionEnded`, the flips done are kept).  Its clock may restart (a reset, a replug, a
+``--resume`` after a power-up: ``t_s`` from about 0 again): the step in progress is redone, and a flip
+kept after it has its ``t_s`` go on from the flips kept before, after :data:`_RESTART_GAP_S` and its
+median step, said and kept in the recording's ``# clock:`` line (SPEC: ``t_s`` non-decreasing).
 """
 
 from __future__ import annotations
@@ -44,6 +47,10 @@ _CHECK_EVERY_S = 0.1  # how often (module time) the station judges its windows
 _FACE_TOLERANCE_DEG = 25.0  # gravity this close to the face asked for is that face
 _RATE_TOLERANCE = 0.1  # relative change of the sample rate that ends a session
 _JUMP_S = 2.0  # a reading this far after the last is kept only when the next one follows it (a corrupted t_s)
+_RESTART_GAP_S = 1.0
+"""The recording's gap across a restart of the module's clock, s (plus the flip's median step): the real pause is
+unknown; the four-flip fit reads ``t_s`` only for slow drifts (``offset_drift``, ``gain_drift``), which then see the
+flips on both sides as one after the other."""
 
 
 class SessionEnded(ValueError):
@@ -187,7 +194,16 @@ class Station:
         kept = ", ".join(f"{f:g}" for f in sorted(self.done)) or "none"
         self.events.append(("warn", f"{reason}: flip {self.progress.flip_deg:g}'s "
                                     f"{self.instruction.do} is redone when it is back (flips kept: {kept})"))
+        self._new_clock()
         self._restart_step("the module's port was lost")
+
+    def _new_clock(self) -> None:
+        """Forget the readings' times (a new link or a restarted clock): the next reading's time is taken as it is."""
+        self._last_t = None
+        self._jump_to = None
+        self._recent.clear()
+        self._dts.clear()
+        self._next_check = -np.inf
 
     def feed(self, reading: Reading) -> None:
         """Take one sample; may change :attr:`instruction`, add events, finish a flip.
@@ -199,6 +215,12 @@ class Station:
         """
         if self.finished or not self._in_time(reading.t_s):
             return
+        if self._last_t is not None and reading.t_s < self._last_t:  # the module's clock restarted
+            self.events.append(("warn", f"the module's clock went back from {self._last_t:.6g} s to {reading.t_s:.6g} "
+                                        f"s (a reset?): flip {self.progress.flip_deg:g}'s {self.instruction.do} is "
+                                        f"redone"))
+            self._new_clock()
+            self._restart_step("the module's clock restarted")
         self._check_rate(reading.t_s)
         self._buffer.append(reading)
         self._recent.append(reading)
@@ -222,15 +244,16 @@ class Station:
     def _in_time(self, t_s: float) -> bool:
         """Whether a reading's time can be taken: after the last one, and a jump of over :data:`_JUMP_S` only when
         the next reading follows it (a t_s corrupted on the line, which a stream without checksums lets through,
-        would otherwise stop the session's clock: nothing is judged until module time reaches it)."""
+        would otherwise stop the session's clock: nothing is judged until module time reaches it); a time that went
+        back likewise, when the next follows it (the module's clock restarted)."""
         last = self._last_t
         if last is None or not np.isfinite(t_s):
             return bool(np.isfinite(t_s))
-        if t_s <= last:
-            return False
-        if t_s - last <= _JUMP_S:
+        if 0.0 < t_s - last <= _JUMP_S:
             self._jump_to = None
             return True
+        if t_s == last:
+            return False
         jumped, self._jump_to = self._jump_to, t_s
         return jumped is not None and 0.0 < t_s - jumped <= _JUMP_S
 
@@ -492,11 +515,35 @@ class Station:
             if values is not None:
                 columns += names
                 parts.append(np.asarray(values).reshape(len(t_s), -1))
+        t_s, clock = self._after_kept(np.asarray(t_s, float))
+        parts[0] = t_s[:, None]
         if self.columns is not None and tuple(columns) != self.columns:
             raise SessionEnded(f"the module's columns changed: the flips kept have {','.join(self.columns)}, flip "
                                f"{self.progress.flip_deg:g} has {','.join(columns)}")
         self.columns = tuple(columns)
-        return FlipRows(self.progress.flip_deg, tuple(columns), np.column_stack(parts), float(sigma))
+        return FlipRows(self.progress.flip_deg, tuple(columns), np.column_stack(parts), float(sigma), clock)
+
+    def _after_kept(self, t_s: np.ndarray) -> tuple[np.ndarray, str | None]:
+        """A flip's times going on from the flips kept when the module's clock restarted since they were (their last
+        ``t_s`` is not before the flip's first): after :data:`_RESTART_GAP_S` and the flip's median step.
+
+        Returns
+        -------
+        t_s : ndarray, shape (n,)
+            The recording's times, seconds.
+        clock : str or None
+            The restart in words (also said as an event), None when the times go on.
+        """
+        if not self.done or not len(t_s):
+            return t_s, None
+        last = max(float(rows.table[:, rows.columns.index("t_s")].max()) for rows in self.done.values())
+        if t_s[0] > last:
+            return t_s, None
+        step = _RESTART_GAP_S + (float(np.median(np.diff(t_s))) if len(t_s) > 1 else 0.0)
+        words = (f"the module's clock restarted before flip {self.progress.flip_deg:g} (its t_s from "
+                 f"{t_s[0]:.6g} s, the flips kept end at {last:.6g} s): the recording's t_s goes on after {step:.3g} s")
+        self.events.append(("info", words))
+        return t_s + (last + step - t_s[0]), words
 
     def _keep(self, rows: FlipRows) -> None:
         if self.on_flip is not None:

@@ -240,3 +240,32 @@ def test_an_encoder_counting_clockwise_stops_with_the_fix_and_writes_no_calibrat
            "--turntable column:-enc (the column negated), and run the session again" in err[-1]
     assert not (tmp_path / "cal.json").exists() and not (tmp_path / "cal.fourflip.csv").exists()
     assert not list((tmp_path / "cal.flips").glob("flip_*.csv"))
+
+
+def test_resume_on_a_module_whose_clock_restarted_calibrates(tmp_path):
+    """Ctrl-C after flip 90, the module replugged (a new device: its t_s from 0 again), --resume: the recording's
+    t_s goes on across the restart (it was refused at the end: 't_s must not decrease', no calibration), and
+    compass calibrate rereads it to the same calibration."""
+    with start_device(tmp_path, "encoder", speed=SPEED / 2) as device:
+        with Proc(bench_args(tmp_path, "column:enc"), kill_after_s=300) as bench:
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 200 and not any("flip 90 kept" in line for line in bench.err):
+                time.sleep(0.2)
+            assert bench.stop(signal.SIGINT) == 130, bench.transcript()
+        device.stop()
+    (tmp_path / "prompt.json").unlink()
+    with start_device(tmp_path, "encoder", "--force") as device:  # the same module (seed), its truth written again
+        with Proc(bench_args(tmp_path, "column:enc", "--resume"), kill_after_s=300) as resumed:
+            status = finish(resumed)
+            err = "".join(resumed.err)
+        device.stop()
+    assert status == 0, err
+    assert "the module's clock restarted before flip 180" in err, err
+    recording = (tmp_path / "cal.fourflip.csv").read_text()
+    assert "# clock: the module's clock restarted before flip 180 (its t_s from " in recording
+    assert np.all(direction_errors_deg(tmp_path)[0] < 0.021)  # as an uninterrupted session's
+    with Proc(compass_command("calibrate", str(tmp_path / "cal.fourflip.csv"), "--out", str(tmp_path / "again.json"),
+                              "--quiet"), kill_after_s=120) as again:
+        assert finish(again, 110) == 0, again.transcript()
+    first, second = (json.loads((tmp_path / name).read_text())["channels"] for name in ("cal.json", "again.json"))
+    assert {c: v["direction"] for c, v in first.items()} == {c: v["direction"] for c, v in second.items()}

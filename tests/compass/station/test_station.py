@@ -338,3 +338,41 @@ def test_without_a_gyro_the_turn_direction_is_the_sources_word_alone(tmp_path):
     assert said == ["the module sends no gyro: the turn's direction is --turntable column:enc's word alone (an angle "
                     "counting clockwise seen from above would mirror the calibration unseen: check that it goes up as "
                     "the table turns counterclockwise)"]
+
+
+def test_a_restart_of_the_modules_clock_redoes_the_step_and_the_recording_goes_on(tmp_path):
+    """The module resets after flip 90 is kept (its t_s from 0 again, the port kept): the step in progress is redone,
+    the later flips' t_s go on from the flips kept (SPEC: non-decreasing), said in the recording's # clock: line, and
+    the recording calibrates as an uninterrupted one does (test_each_source_calibrates_a_simulated_bench's bound)."""
+    rig = BenchRig(seed=11, encoder_step_deg=0.0)
+    restarted = []
+
+    def reset_after_flip_90(r, t):
+        if not restarted and len(list(tmp_path.glob("cal.flips/flip_*.csv"))) == 2:
+            restarted.append(t)
+            r.restart_clock(t)
+
+    station, events, recording = run_session(tmp_path, "column:enc", rig, on_block=reset_after_flip_90)
+    assert restarted and station.finished, events
+    went_back = [text for level, text in events if "clock went back" in text]
+    assert len(went_back) == 1 and went_back[0].endswith("s (a reset?): flip 180's flip is redone"), events
+    assert np.all(np.diff(recording.t_s) >= 0)
+    clock = recording.metadata["clock"]
+    assert clock.startswith("the module's clock restarted before flip 180 (its t_s from ") and \
+        "the recording's t_s goes on after 1.01 s" in clock, clock
+    ratio, error = direction_error_over_crb(rig, recording)
+    assert np.sqrt(np.mean(ratio**2)) < 2.5, (ratio, error)
+
+
+def test_the_flips_keep_the_clock_words_on_disk(tmp_path):
+    from compass.station.store import FlipRows
+
+    store = SessionStore(tmp_path / "cal.json")
+    store.start({})
+    columns = ("t_s", "flip_deg", "platform_deg", "v1")
+    for flip in (0.0, 90.0, 180.0, 270.0):
+        clock = "the module's clock restarted before flip 180" if flip == 180.0 else None
+        store.save(FlipRows(flip, columns, np.array([[flip, flip, 0.0, 1.0]]), 0.1, clock))
+    assert store.finished()[180.0].clock == "the module's clock restarted before flip 180"
+    text = store.write_recording({"turntable": "column:enc"}).read_text()
+    assert "# clock: the module's clock restarted before flip 180\n" in text
