@@ -90,6 +90,15 @@ def run(args) -> int:
     check_writable(recording_path(out), args.force)
     metadata = _metadata(args, source, site)
     store = SessionStore(out)
+    if store.folder.exists() and not store.folder.is_dir():
+        raise BadInput(f"{store.folder} is a file, not the session's folder (compass bench keeps the finished flips "
+                       f"in {store.folder.name}/ beside --out): move it away, or give another --out")
+    if args.resume and store.exists() and not store.finished():
+        raise BadInput(f"--resume: {store.folder} holds an earlier session that kept no flip: run without --resume "
+                       f"to start over")
+    if store.discard_empty():
+        print(f"compass bench: {store.folder} held an earlier session that kept no flip: starting over",
+              file=sys.stderr)
     description, done = None, {}
     if store.exists() and not args.resume:
         if not args.force:
@@ -185,6 +194,7 @@ def run(args) -> int:
         raise
     finally:
         stop.set()
+        store.discard_empty()  # a session that ended before its first flip leaves nothing to resume
         reader.close()
         if hasattr(source, "close"):
             source.close()

@@ -134,6 +134,16 @@ class SessionStore:
         atomic_write_text(path, "\n".join(lines) + "\n")
         return path
 
+    def discard_empty(self) -> bool:
+        """Remove a session that kept no flip (its ``session.json``, and the folder when nothing else is in it);
+        whether there was one."""
+        if not self.exists() or self.finished():
+            return False
+        (self.folder / "session.json").unlink()
+        if not any(self.folder.iterdir()):
+            self.folder.rmdir()
+        return True
+
     def discard(self) -> None:
         """Remove the folder (after the recording holds everything)."""
         shutil.rmtree(self.folder, ignore_errors=True)

@@ -239,7 +239,7 @@ def test_an_encoder_counting_clockwise_stops_with_the_fix_and_writes_no_calibrat
     assert "the angle counts clockwise, against SPEC's counterclockwise, and would mirror the calibration; use " \
            "--turntable column:-enc (the column negated), and run the session again" in err[-1]
     assert not (tmp_path / "cal.json").exists() and not (tmp_path / "cal.fourflip.csv").exists()
-    assert not list((tmp_path / "cal.flips").glob("flip_*.csv"))
+    assert not (tmp_path / "cal.flips").exists()  # no flip kept: nothing to resume, nothing in the way of the rerun
 
 
 def test_resume_on_a_module_whose_clock_restarted_calibrates(tmp_path):
@@ -269,3 +269,27 @@ def test_resume_on_a_module_whose_clock_restarted_calibrates(tmp_path):
         assert finish(again, 110) == 0, again.transcript()
     first, second = (json.loads((tmp_path / name).read_text())["channels"] for name in ("cal.json", "again.json"))
     assert {c: v["direction"] for c, v in first.items()} == {c: v["direction"] for c, v in second.items()}
+
+
+def test_the_sessions_folder_is_checked_before_the_port(tmp_path):
+    """A file in the way of CAL.flips/ is said before the port is opened (it was '[Errno 17] File exists' after); a
+    session that kept no flip is no earlier session to resume: it is cleared, and --resume says so."""
+    base = compass_command("bench", "--port", str(tmp_path / "no-such-port"), "--out", str(tmp_path / "cal.json"),
+                           "--turntable", "column:enc", "--yes")
+    (tmp_path / "cal.flips").write_text("not a session\n")
+    with Proc(base, kill_after_s=60) as p:
+        assert finish(p, 50) == 2
+        assert p.err == [f"compass bench: {tmp_path / 'cal.flips'} is a file, not the session's folder (compass bench "
+                         f"keeps the finished flips in cal.flips/ beside --out): move it away, or give another --out\n"]
+    (tmp_path / "cal.flips").unlink()
+    from compass.station import SessionStore
+
+    SessionStore(tmp_path / "cal.json").start({"turntable": "column:enc"})  # a session ended before its first flip
+    with Proc(base + ["--resume"], kill_after_s=60) as p:
+        assert finish(p, 50) == 2
+        assert "holds an earlier session that kept no flip: run without --resume to start over" in p.err[-1], p.err
+    with Proc(base, kill_after_s=60) as p:
+        assert finish(p, 50) == 2  # the port: the folder was cleared first
+        assert "held an earlier session that kept no flip: starting over" in p.err[0], p.err
+        assert "cannot open port" in p.err[-1], p.err
+    assert not (tmp_path / "cal.flips").exists()
