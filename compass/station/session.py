@@ -171,6 +171,7 @@ class Station:
         self._stop_rows: list = []  # (still window, angle, the gyro's turn from the stop before), per stop
         self._stop_index = 0
         self._said_no_gyro = False
+        self._offset_s = None  # the recording's t_s less the module's on its current clock (found at the next flip)
         self._first_stop = not self.done
         if self.done:
             self.columns = next(iter(self.done.values())).columns  # a resumed session keeps its columns
@@ -194,16 +195,7 @@ class Station:
         kept = ", ".join(f"{f:g}" for f in sorted(self.done)) or "none"
         self.events.append(("warn", f"{reason}: flip {self.progress.flip_deg:g}'s "
                                     f"{self.instruction.do} is redone when it is back (flips kept: {kept})"))
-        self._new_clock()
         self._restart_step("the module's port was lost")
-
-    def _new_clock(self) -> None:
-        """Forget the readings' times (a new link or a restarted clock): the next reading's time is taken as it is."""
-        self._last_t = None
-        self._jump_to = None
-        self._recent.clear()
-        self._dts.clear()
-        self._next_check = -np.inf
 
     def feed(self, reading: Reading) -> None:
         """Take one sample; may change :attr:`instruction`, add events, finish a flip.
@@ -240,6 +232,16 @@ class Station:
             self._on_turn_step()
         elif step == "stop":
             self._on_stop_step()
+
+    def _new_clock(self) -> None:
+        """The module's clock restarted: the readings' times are forgotten, and the recording's offset of the new
+        clock is found when its first flip is kept (:meth:`_after_kept`)."""
+        self._last_t = None
+        self._jump_to = None
+        self._recent.clear()
+        self._dts.clear()
+        self._next_check = -np.inf
+        self._offset_s = None
 
     def _in_time(self, t_s: float) -> bool:
         """Whether a reading's time can be taken: after the last one, and a jump of over :data:`_JUMP_S` only when
@@ -524,8 +526,9 @@ class Station:
         return FlipRows(self.progress.flip_deg, tuple(columns), np.column_stack(parts), float(sigma), clock)
 
     def _after_kept(self, t_s: np.ndarray) -> tuple[np.ndarray, str | None]:
-        """A flip's times going on from the flips kept when the module's clock restarted since they were (their last
-        ``t_s`` is not before the flip's first): after :data:`_RESTART_GAP_S` and the flip's median step.
+        """A flip's times on the recording's clock: the module's, going on from the flips kept when its clock restarted
+        since they were (seen going back, or, in a resumed session, their last ``t_s`` not before the flip's first):
+        after :data:`_RESTART_GAP_S` and the flip's median step; the later flips on the same clock keep that offset.
 
         Returns
         -------
@@ -534,6 +537,9 @@ class Station:
         clock : str or None
             The restart in words (also said as an event), None when the times go on.
         """
+        if self._offset_s is not None:
+            return t_s + self._offset_s, None
+        self._offset_s = 0.0
         if not self.done or not len(t_s):
             return t_s, None
         last = max(float(rows.table[:, rows.columns.index("t_s")].max()) for rows in self.done.values())
@@ -543,7 +549,8 @@ class Station:
         words = (f"the module's clock restarted before flip {self.progress.flip_deg:g} (its t_s from "
                  f"{t_s[0]:.6g} s, the flips kept end at {last:.6g} s): the recording's t_s goes on after {step:.3g} s")
         self.events.append(("info", words))
-        return t_s + (last + step - t_s[0]), words
+        self._offset_s = last + step - t_s[0]
+        return t_s + self._offset_s, words
 
     def _keep(self, rows: FlipRows) -> None:
         if self.on_flip is not None:

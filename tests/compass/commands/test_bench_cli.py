@@ -262,7 +262,10 @@ def test_resume_on_a_module_whose_clock_restarted_calibrates(tmp_path):
     assert status == 0, err
     assert "the module's clock restarted before flip 180" in err, err
     recording = (tmp_path / "cal.fourflip.csv").read_text()
-    assert "# clock: the module's clock restarted before flip 180 (its t_s from " in recording
+    clock = next(line for line in recording.splitlines() if line.startswith("# clock: "))
+    assert clock.startswith("# clock: the module's clock restarted before flip 180 (its t_s from ") and \
+        clock.count("restarted") == 1 and clock.endswith("the recording's t_s goes on after 1.01 s"), clock  # flip
+    # 270 is on the same clock
     assert np.all(direction_errors_deg(tmp_path)[0] < 0.021)  # as an uninterrupted session's
     with Proc(compass_command("calibrate", str(tmp_path / "cal.fourflip.csv"), "--out", str(tmp_path / "again.json"),
                               "--quiet"), kill_after_s=120) as again:
