@@ -35,7 +35,9 @@ def register(sub) -> None:
     p.add_argument("--turntable", required=True, metavar="SOURCE",
                    help="the turntable's angle: column:NAME (an encoder column in the stream), grbl:PORT (a GRBL "
                         "controller turning the table), manual:STEP_DEG (a graduated table turned by hand to "
-                        "marks), gyro (the module's gyro about the table axis)")
+                        "marks), gyro (the module's gyro about the table axis); a - before NAME or STEP_DEG "
+                        "(column:-enc, manual:-30) negates an encoder or a graduation that counts clockwise seen from "
+                        "above (the station stops on an angle that counts against the module's gyro)")
     p.add_argument("--module-id", default="unknown", help="the module's serial or name (written into the recording)")
     p.add_argument("--operator", default=os.environ.get("USER", "unknown"), help="who ran the session")
     p.add_argument("--site", metavar="LAT,LON[,ALT_M]", help="where the bench stands (its hemisphere and the WMM "
@@ -88,6 +90,15 @@ def run(args) -> int:
     check_writable(recording_path(out), args.force)
     metadata = _metadata(args, source, site)
     store = SessionStore(out)
+    if store.folder.exists() and not store.folder.is_dir():
+        raise BadInput(f"{store.folder} is a file, not the session's folder (compass bench keeps the finished flips "
+                       f"in {store.folder.name}/ beside --out): move it away, or give another --out")
+    if args.resume and store.exists() and not store.finished():
+        raise BadInput(f"--resume: {store.folder} holds an earlier session that kept no flip: run without --resume "
+                       f"to start over")
+    if store.discard_empty():
+        print(f"compass bench: {store.folder} held an earlier session that kept no flip: starting over",
+              file=sys.stderr)
     description, done = None, {}
     if store.exists() and not args.resume:
         if not args.force:
@@ -183,6 +194,7 @@ def run(args) -> int:
         raise
     finally:
         stop.set()
+        store.discard_empty()  # a session that ended before its first flip leaves nothing to resume
         reader.close()
         if hasattr(source, "close"):
             source.close()

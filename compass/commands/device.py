@@ -71,6 +71,9 @@ def register(sub) -> None:
                        help="--bench: write the simulated sensor's truth (directions, offsets, gains, dip)")
     bench.add_argument("--mistake", action="append", default=[], choices=("short_turn", "wrong_face"),
                        help="--bench: the operator makes this mistake once (repeatable)")
+    bench.add_argument("--table-clockwise", action="store_true",
+                       help="--bench: the table's encoder and graduation count clockwise seen from above, against "
+                            "SPEC's counterclockwise turntable angle (compass bench must stop)")
     bench.add_argument("--rate-change-at", type=limits.WAIT_S.option("--rate-change-at"), metavar="S", help="--bench: halve the rate at this module time")
     bench.add_argument("--header-change-at", type=limits.WAIT_S.option("--header-change-at"), metavar="S",
                        help="--bench: stop sending the accelerometer at this module time")
@@ -151,7 +154,7 @@ def _run_bench(args) -> int:
         rig = BenchRig(seed=args.seed, rate_hz=args.rate, operator=operator,
                        encoder_step_deg=args.encoder_step if kind == "encoder" else None,
                        gyro_bias_dps=0.5 if kind == "gyro" else 0.0, gyro_scale_error=0.01 if kind == "gyro" else 0.0,
-                       fmt=args.format)
+                       fmt=args.format, table_clockwise=args.table_clockwise)
     except ValueError as exc:
         raise BadInput(f"--bench --format {args.format} --turntable {kind}: {exc}") from None
     if args.format == "csv":

@@ -94,6 +94,10 @@ class BenchRig:
         Per-sample white noise.
     fmt : str
         The stream format, one of :data:`RIG_FORMATS` (MotionCal's carry no encoder column).
+    table_clockwise : bool
+        The table's encoder and graduation count clockwise seen from above, against SPEC's turntable angle (a
+        mistake the station must catch): the encoder column sends ``-phi``, and the operator finds stop ``m`` at
+        the true angle ``-m``.
 
     Attributes
     ----------
@@ -107,12 +111,13 @@ class BenchRig:
     def __init__(self, *, seed: int = 0, rate_hz: float = 100.0, noise_ut: float = 0.15,
                  operator: Operator | None = None, gyro_bias_dps: float = 0.0, gyro_scale_error: float = 0.0,
                  encoder_step_deg: float | None = None, encoder_column: str = "enc", accel_noise_g: float = 0.002,
-                 gyro_noise_dps: float = 0.05, fmt: str = "compass"):
+                 gyro_noise_dps: float = 0.05, fmt: str = "compass", table_clockwise: bool = False):
         if fmt not in RIG_FORMATS:
             raise ValueError(f"format {fmt!r}: expected one of {', '.join(RIG_FORMATS)}")
         if fmt.startswith("motioncal") and encoder_step_deg is not None:
             raise ValueError("MotionCal lines carry no encoder column: use the gyro, manual stops or a GRBL table")
         self.fmt = fmt
+        self.table_sign = -1.0 if table_clockwise else 1.0
         session = simulate_fourflip(seed=seed, n_channels=3, noise_ut=noise_ut, step_deg=45.0)
         self.truth = session.truth
         self.physics: BenchPhysics = session.base_physics()
@@ -135,6 +140,7 @@ class BenchRig:
         self._last_n = None
         self._sent = 0
         self.send_accel = True  # False: the module stops sending ax,ay,az (a changed header)
+        self._clock_zero_s = 0.0  # the module's clock reads the rig's time less this (restart_clock)
         self.operator_turns = True  # False: a motor turns the table (turn_table); the operator only flips
         self.truth = {**self.truth, "gyro_bias_rad_s": self.gyro_bias.tolist(), "gyro_scale": self.gyro_scale.tolist()}
 
@@ -166,8 +172,9 @@ class BenchRig:
             self._move(start, self._turn_s(full), full, 0.0)
         elif do == "stop" and self.operator_turns:
             error = float(self._rng.uniform(-op.read_half_width_deg, op.read_half_width_deg))
-            delta = (float(instruction["stop_deg"]) + error - self._phi) % 360.0
-            delta = delta - 360.0 if delta > 350.0 else delta  # a touch past the mark: back a little
+            sign = self.table_sign  # the way the marks go up
+            delta = (sign * (float(instruction["stop_deg"]) + error) - self._phi) * sign % 360.0
+            delta = sign * (delta - 360.0 if delta > 350.0 else delta)  # a touch past the mark: back a little
             if abs(delta) > 1e-9:
                 self._move(start, max(0.8, self._turn_s(delta)), delta, 0.0)
 
@@ -244,11 +251,16 @@ class BenchRig:
         gyro = omega * self.gyro_scale + self.gyro_bias + self.gyro_noise * rng.normal(size=(n, 3))
         encoder = None
         if self.encoder_step_deg is not None:
-            encoder = np.mod(phi, 360.0)
+            encoder = np.mod(self.table_sign * phi, 360.0)
             if self.encoder_step_deg > 0:
                 encoder = np.mod(np.round(encoder / self.encoder_step_deg) * self.encoder_step_deg, 360.0)
         return {"outputs": outputs, "accel": accel, "gyro": gyro, "encoder_deg": encoder, "phi_deg": phi,
                 "kappa_deg": kappa}
+
+    def restart_clock(self, t_s: float) -> None:
+        """The module resets at rig time ``t_s``: the ``t_s`` it sends starts from 0 again (the table, the
+        operator and the noise go on in the rig's time)."""
+        self._clock_zero_s = float(t_s)
 
     def columns(self) -> list[str]:
         """The module's header columns."""
@@ -261,7 +273,8 @@ class BenchRig:
         return tuple(n for n in self.columns() if n != "seq")
 
     def lines(self, t_s) -> bytes:
-        """The lines of samples at times ``t_s``, in order, in the rig's format (module docstring)."""
+        """The lines of samples at rig times ``t_s``, in order, in the rig's format (module docstring); the ``t_s`` sent
+        is the module's clock (:meth:`restart_clock`)."""
         m = self.measure(t_s)
         if self.fmt.startswith("motioncal"):
             from .stream_formats import sample_lines
@@ -269,7 +282,7 @@ class BenchRig:
             return b"".join(sample_lines(self.fmt, np.atleast_1d(t_s), m["outputs"] / VOLTS_PER_UT, m["accel"],
                                          m["gyro"]))
         if self.fmt == "csv":
-            parts = [np.atleast_1d(t_s)[:, None], m["outputs"]] + [m["accel"]] * self.send_accel
+            parts = [np.atleast_1d(t_s)[:, None] - self._clock_zero_s, m["outputs"]] + [m["accel"]] * self.send_accel
             parts.append(np.degrees(m["gyro"]))
             if m["encoder_deg"] is not None:
                 parts.append(m["encoder_deg"][:, None])
@@ -285,7 +298,7 @@ class BenchRig:
         fmt = ",".join(["%.7g"] * c + ["%.6f"] * imu + ["%.4f"] * (rows.shape[1] - c - imu))
         out = []
         for t, row in zip(np.atleast_1d(t_s), rows):
-            out.append(format_line([f"{t:.4f}", self._sent, fmt % tuple(row)]))
+            out.append(format_line([f"{t - self._clock_zero_s:.4f}", self._sent, fmt % tuple(row)]))
             self._sent += 1
         return b"".join(out)
 

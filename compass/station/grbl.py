@@ -255,6 +255,11 @@ class GrblSource:
         """The controller's reported position of the axis, modulo 360, degrees."""
         return float(np.mod(self._position, 360.0))
 
+    def reverse_words(self) -> str:
+        """How to reverse the angle's sense, in words (the station's stop when it counts against the gyro)."""
+        return (f"invert the {self.axis} axis' direction in the controller (GRBL's $3, the direction port invert mask) "
+                f"so that a positive move turns the table counterclockwise seen from above")
+
     # ---------------------------------------------------------------- continuous turns
     def clock_pair(self, t_rx: float, t_s: float) -> None:
         """A chunk of the module's stream received at host time ``t_rx`` whose last sample is at module time ``t_s``."""

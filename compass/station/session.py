@@ -15,10 +15,17 @@ Per flip (SPEC section 1: flip kappa about the turntable's X axis):
    turn ends on a still second once 360 deg are covered (or after 3 s still short of it), or
    *stops* (stop sources): each stop is asked for, reached and held a still second, its mean kept;
 3. the flip's rows are checked (coverage and widest gap, turn rate against the sample rate, the
-   face the data show) and kept on disk, or the turn is asked for again with the reason.
+   face the data show) and kept on disk, or the turn is asked for again with the reason.  An angle source
+   that is not the gyro (an encoder column, a graduation, a GRBL axis) must count the turn the way the
+   module's gyro saw it about the table's axis (:func:`compass.station.sources.gyro_turn_deg`): one that
+   counts against it would mirror the calibration, and ends the session before its flip is kept, naming
+   the fix; without a gyro, the direction is the source's word alone, said once.
 
 The module's header and sample rate must not change during a session: a change ends it
-(:class:`SessionEnded`, the flips done are kept).
+(:class:`SessionEnded`, the flips done are kept).  Its clock may restart (a reset, a replug, a
+``--resume`` after a power-up: ``t_s`` from about 0 again): the step in progress is redone, and a flip
+kept after it has its ``t_s`` go on from the flips kept before, after :data:`_RESTART_GAP_S` and its
+median step, said and kept in the recording's ``# clock:`` line (SPEC: ``t_s`` non-decreasing).
 """
 
 from __future__ import annotations
@@ -30,6 +37,7 @@ import numpy as np
 
 from ..io.fourflip import NOMINAL_FLIPS_DEG
 from .checks import circle_axis, coverage_gap, face_name, is_still, nearest_face, up_in_housing
+from .sources import gyro_turn_deg
 from .store import FlipRows
 from .turn import Reading, ReadingBuffer, TurnData, TurnRejected, WrongFace
 
@@ -39,6 +47,10 @@ _CHECK_EVERY_S = 0.1  # how often (module time) the station judges its windows
 _FACE_TOLERANCE_DEG = 25.0  # gravity this close to the face asked for is that face
 _RATE_TOLERANCE = 0.1  # relative change of the sample rate that ends a session
 _JUMP_S = 2.0  # a reading this far after the last is kept only when the next one follows it (a corrupted t_s)
+_RESTART_GAP_S = 1.0
+"""The recording's gap across a restart of the module's clock, s (plus the flip's median step): the real pause is
+unknown; the four-flip fit reads ``t_s`` only for slow drifts (``offset_drift``, ``gain_drift``), which then see the
+flips on both sides as one after the other."""
 
 
 class SessionEnded(ValueError):
@@ -156,8 +168,10 @@ class Station:
         self._still_since = None
         self._moved = False
         self._warned_faces: set = set()
-        self._stop_rows: list = []
+        self._stop_rows: list = []  # (still window, angle, the gyro's turn from the stop before), per stop
         self._stop_index = 0
+        self._said_no_gyro = False
+        self._offset_s = None  # the recording's t_s less the module's on its current clock (found at the next flip)
         self._first_stop = not self.done
         if self.done:
             self.columns = next(iter(self.done.values())).columns  # a resumed session keeps its columns
@@ -193,6 +207,12 @@ class Station:
         """
         if self.finished or not self._in_time(reading.t_s):
             return
+        if self._last_t is not None and reading.t_s < self._last_t:  # the module's clock restarted
+            self.events.append(("warn", f"the module's clock went back from {self._last_t:.6g} s to {reading.t_s:.6g} "
+                                        f"s (a reset?): flip {self.progress.flip_deg:g}'s {self.instruction.do} is "
+                                        f"redone"))
+            self._new_clock()
+            self._restart_step("the module's clock restarted")
         self._check_rate(reading.t_s)
         self._buffer.append(reading)
         self._recent.append(reading)
@@ -213,18 +233,29 @@ class Station:
         elif step == "stop":
             self._on_stop_step()
 
+    def _new_clock(self) -> None:
+        """The module's clock restarted: the readings' times are forgotten, and the recording's offset of the new
+        clock is found when its first flip is kept (:meth:`_after_kept`)."""
+        self._last_t = None
+        self._jump_to = None
+        self._recent.clear()
+        self._dts.clear()
+        self._next_check = -np.inf
+        self._offset_s = None
+
     def _in_time(self, t_s: float) -> bool:
         """Whether a reading's time can be taken: after the last one, and a jump of over :data:`_JUMP_S` only when
         the next reading follows it (a t_s corrupted on the line, which a stream without checksums lets through,
-        would otherwise stop the session's clock: nothing is judged until module time reaches it)."""
+        would otherwise stop the session's clock: nothing is judged until module time reaches it); a time that went
+        back likewise, when the next follows it (the module's clock restarted)."""
         last = self._last_t
         if last is None or not np.isfinite(t_s):
             return bool(np.isfinite(t_s))
-        if t_s <= last:
-            return False
-        if t_s - last <= _JUMP_S:
+        if 0.0 < t_s - last <= _JUMP_S:
             self._jump_to = None
             return True
+        if t_s == last:
+            return False
         jumped, self._jump_to = self._jump_to, t_s
         return jumped is not None and 0.0 < t_s - jumped <= _JUMP_S
 
@@ -360,7 +391,7 @@ class Station:
         window = self._window()
         self._first_stop = False
         angle = self.source.position_deg(self.instruction.stop_deg)
-        self._stop_rows.append((window, angle))
+        self._stop_rows.append((window, angle, gyro_turn_deg(self._buffer.arrays(), self.progress.flip_deg)))
         self.progress.covered_deg = 360.0 * len(self._stop_rows) / len(self.source.stops())
         self._stop_index += 1
         if self._stop_index < len(self.source.stops()):
@@ -419,17 +450,20 @@ class Station:
             raise TurnRejected(f"turned at {fastest:.0f} deg/s: at {rate:.3g} Hz that is {fastest / rate:.1f} deg "
                                f"between samples; turn at most {self.max_step_deg * rate:.0f} deg/s")
         self._check_face(kept.accel, platform, kept.outputs)
+        self._check_sense(_turned_deg(platform), gyro_turn_deg(kept, flip))
         return self._rows(kept.t_s, platform, kept.outputs, kept.accel, kept.temp_c, sigma)
 
     def _stops_rows(self) -> FlipRows:
-        windows = [w for w, _ in self._stop_rows]
-        platform = np.array([a for _, a in self._stop_rows])
+        windows = [w for w, _, _ in self._stop_rows]
+        platform = np.array([a for _, a, _ in self._stop_rows])
+        moves = [g for _, _, g in self._stop_rows[1:]]  # the first stop's move came from wherever the table stood
         mean = (lambda name: None if getattr(windows[0], name) is None
                 else np.array([getattr(w, name).mean(axis=0) for w in windows]))
         t_s = np.array([w.t_s.mean() for w in windows])
         outputs = np.array([w.outputs.mean(axis=0) for w in windows])
         accel = mean("accel")
         self._check_face(accel, platform, outputs)
+        self._check_sense(_turned_deg(platform), None if None in moves else float(np.sum(moves)))
         return self._rows(t_s, platform, outputs, accel, mean("temp_c"), self.source.angle_sigma_deg)
 
     def _check_face(self, accel, platform, outputs) -> None:
@@ -447,6 +481,34 @@ class Station:
         if face != expected:
             raise WrongFace(f"wrong face down: {how} {face} up; flip {flip:g} needs {face_name(flip)}")
 
+    def _check_sense(self, source_deg: float, gyro_deg: float | None) -> None:
+        """The source's angle must turn the way the gyro turned about the table's axis (module docstring).
+
+        Raises
+        ------
+        SessionEnded
+            The gyro turned at least half as far as the source says, the other way.
+        """
+        if getattr(self.source, "from_gyro", False):
+            return
+        if gyro_deg is None:
+            if not self._said_no_gyro:
+                self._said_no_gyro = True
+                self.events.append(("warn", f"the module sends no gyro: the turn's direction is --turntable "
+                                            f"{self.source.spec}'s word alone (an angle counting clockwise seen from "
+                                            f"above would mirror the calibration unseen: check that it goes up as "
+                                            f"the table turns counterclockwise)"))
+            return
+        if source_deg * gyro_deg < 0 and abs(gyro_deg) >= 0.5 * abs(source_deg):
+            kept = ", ".join(f"{f:g}" for f in sorted(self.done)) or "none"
+            raise SessionEnded(
+                f"the turntable's angle (--turntable {self.source.spec}) went {'down' if source_deg < 0 else 'up'} "
+                f"{abs(source_deg):.0f} deg over flip {self.progress.flip_deg:g}'s turn while the module's gyro "
+                f"turned {abs(gyro_deg):.0f} deg {'counterclockwise' if gyro_deg > 0 else 'clockwise'} seen from "
+                f"above: the angle counts clockwise, against SPEC's counterclockwise, and would mirror the "
+                f"calibration; {self.source.reverse_words()}, and run the session again (if the angle is right, "
+                f"the gyro's axes are not the housing's); flips kept: {kept}")
+
     def _rows(self, t_s, platform, outputs, accel, temp_c, sigma) -> FlipRows:
         """The flip's recording rows (the gyro is not kept: the four-flip fit does not use it)."""
         columns = ["t_s", "flip_deg", "platform_deg", *self.channels]
@@ -455,11 +517,40 @@ class Station:
             if values is not None:
                 columns += names
                 parts.append(np.asarray(values).reshape(len(t_s), -1))
+        t_s, clock = self._after_kept(np.asarray(t_s, float))
+        parts[0] = t_s[:, None]
         if self.columns is not None and tuple(columns) != self.columns:
             raise SessionEnded(f"the module's columns changed: the flips kept have {','.join(self.columns)}, flip "
                                f"{self.progress.flip_deg:g} has {','.join(columns)}")
         self.columns = tuple(columns)
-        return FlipRows(self.progress.flip_deg, tuple(columns), np.column_stack(parts), float(sigma))
+        return FlipRows(self.progress.flip_deg, tuple(columns), np.column_stack(parts), float(sigma), clock)
+
+    def _after_kept(self, t_s: np.ndarray) -> tuple[np.ndarray, str | None]:
+        """A flip's times on the recording's clock: the module's, going on from the flips kept when its clock restarted
+        since they were (seen going back, or, in a resumed session, their last ``t_s`` not before the flip's first):
+        after :data:`_RESTART_GAP_S` and the flip's median step; the later flips on the same clock keep that offset.
+
+        Returns
+        -------
+        t_s : ndarray, shape (n,)
+            The recording's times, seconds.
+        clock : str or None
+            The restart in words (also said as an event), None when the times go on.
+        """
+        if self._offset_s is not None:
+            return t_s + self._offset_s, None
+        self._offset_s = 0.0
+        if not self.done or not len(t_s):
+            return t_s, None
+        last = max(float(rows.table[:, rows.columns.index("t_s")].max()) for rows in self.done.values())
+        if t_s[0] > last:
+            return t_s, None
+        step = _RESTART_GAP_S + (float(np.median(np.diff(t_s))) if len(t_s) > 1 else 0.0)
+        words = (f"the module's clock restarted before flip {self.progress.flip_deg:g} (its t_s from "
+                 f"{t_s[0]:.6g} s, the flips kept end at {last:.6g} s): the recording's t_s goes on after {step:.3g} s")
+        self.events.append(("info", words))
+        self._offset_s = last + step - t_s[0]
+        return t_s + self._offset_s, words
 
     def _keep(self, rows: FlipRows) -> None:
         if self.on_flip is not None:
@@ -469,3 +560,10 @@ class Station:
         self.events.append(("info", f"flip {rows.flip_deg:g} kept: {len(rows.table)} rows, turn rate "
                                     f"{self.progress.turn_dps:.0f} deg/s, angle sigma {rows.angle_sigma_deg:.3g} deg"))
         self._next_flip()
+
+
+def _turned_deg(platform_deg: np.ndarray) -> float:
+    """How far a source's angle went from the first sample to the last, unwrapped (no step of 180 deg or more
+    between samples), degrees: positive when it went up."""
+    unwrapped = np.unwrap(np.asarray(platform_deg, float), period=360.0)
+    return float(unwrapped[-1] - unwrapped[0]) if unwrapped.size else 0.0

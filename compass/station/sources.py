@@ -20,12 +20,46 @@ from scipy.integrate import cumulative_trapezoid
 from .checks import coverage_gap, up_in_housing
 from .turn import TurnData, TurnRejected, still_spans
 
-__all__ = ["ColumnSource", "GyroSource", "ManualSource", "parse_turntable", "READ_HALF_WIDTH_DEG"]
+__all__ = ["ColumnSource", "GyroSource", "ManualSource", "gyro_turn_deg", "parse_turntable", "READ_HALF_WIDTH_DEG"]
 
 READ_HALF_WIDTH_DEG = 0.5
 """How closely an operator reads a graduated table's mark, degrees (uniform error within +-this)."""
 _MIN_STILL_S = 0.5  # still time the gyro needs at each end of a turn for its bias
 _MARGIN_S = 0.5  # still time next to the motion left out of the bias
+
+
+def gyro_turn_deg(data: TurnData, flip_deg: float) -> float | None:
+    """The table's turn over ``data`` as the module's gyro saw it, degrees (counterclockwise seen from above positive).
+
+    The gyro's rate about the housing direction that points up in the flip
+    (:func:`compass.station.checks.up_in_housing`: right-hand about up, SPEC's sense of the turntable angle), less
+    its bias (the mean rate over the still spans, :func:`compass.station.turn.still_spans`; none when no span is
+    still), integrated in time:
+
+    .. math:: \\psi = \\int (\\omega_H(t) - \\bar\\omega_{still}) \\cdot u_H(\\kappa) \\, dt
+
+    Parameters
+    ----------
+    data : TurnData
+        The samples over the turn (``gyro`` in rad/s, in H).
+    flip_deg : float
+        The flip the turn is made in, degrees.
+
+    Returns
+    -------
+    float or None
+        Degrees; None when the module sends no gyro (or fewer than three samples).
+    """
+    if data.gyro is None or len(data) < 3:
+        return None
+    still = still_spans(data)
+    bias = data.gyro[still].mean(axis=0) if still.any() else np.zeros(3)
+    return _turn_about_deg(data, up_in_housing(flip_deg), bias)
+
+
+def _turn_about_deg(data: TurnData, up_h: np.ndarray, bias: np.ndarray) -> float:
+    """The gyro's rate less ``bias`` (rad/s) about ``up_h`` (unit, in H) integrated over ``data``, degrees."""
+    return float(np.degrees(np.trapezoid((data.gyro - bias) @ up_h, data.t_s)))
 
 
 class ColumnSource:
@@ -34,17 +68,25 @@ class ColumnSource:
     Parameters
     ----------
     column : str
-        The column's name in the module's header (degrees, any range).
+        The column's name in the module's header (degrees, any range); a leading ``-`` (``column:-enc``)
+        negates it: an encoder counting clockwise seen from above, SPEC's angle being counterclockwise.
     """
 
     kind = "continuous"
     hold_s = 1.0
 
     def __init__(self, column: str):
-        if not column:
+        name = column[1:] if column.startswith("-") else column
+        if not name:
             raise ValueError("--turntable column:NAME needs the encoder column's name")
-        self.column = column
+        self.column = name
+        self.sign = -1.0 if column.startswith("-") else 1.0
         self.spec = f"column:{column}"
+
+    def reverse_words(self) -> str:
+        """How to reverse the angle's sense, in words (the station's stop when it counts against the gyro)."""
+        flipped = self.column if self.sign < 0 else f"-{self.column}"
+        return f"use --turntable column:{flipped} (the column negated)"
 
     def begin(self, flip_deg: float) -> None:
         """Nothing to prepare: the encoder is absolute."""
@@ -54,7 +96,8 @@ class ColumnSource:
         return coverage_gap(data.encoder_deg)[0] if len(data) else 0.0
 
     def angles(self, data: TurnData, flip_deg: float) -> tuple[np.ndarray, np.ndarray, float]:
-        """``(platform_deg, keep, angle_sigma_deg)``: the encoder's readings, every sample kept.
+        """``(platform_deg, keep, angle_sigma_deg)``: the encoder's readings (negated for ``column:-NAME``), every
+        sample kept.
 
         The stated sigma is the encoder's resolution (the smallest step between its readings) over
         sqrt(12): a quantised reading's error.
@@ -62,7 +105,7 @@ class ColumnSource:
         enc = data.encoder_deg
         steps = np.diff(np.unique(np.round(enc, 9)))
         resolution = float(steps.min()) if steps.size else 0.0
-        return enc.copy(), np.ones(len(enc), bool), resolution / np.sqrt(12.0)
+        return self.sign * enc, np.ones(len(enc), bool), resolution / np.sqrt(12.0)
 
 
 class GyroSource:
@@ -82,6 +125,7 @@ class GyroSource:
     kind = "continuous"
     spec = "gyro"
     hold_s = 2.0  # asked-for stillness at each end of a turn, seconds
+    from_gyro = True  # the angle is the gyro's own: nothing to check its sense against
 
     def __init__(self):
         self._up = up_in_housing(0.0)
@@ -94,9 +138,8 @@ class GyroSource:
         """Degrees turned since the turn was asked for, roughly (bias from its first half second)."""
         if data.gyro is None or len(data) < 3:
             return 0.0
-        t, g = data.t_s, data.gyro
-        bias = g[t - t[0] <= _MIN_STILL_S].mean(axis=0)
-        return float(np.degrees(np.trapezoid((g - bias) @ self._up, t)))
+        bias = data.gyro[data.t_s - data.t_s[0] <= _MIN_STILL_S].mean(axis=0)
+        return _turn_about_deg(data, self._up, bias)
 
     def angles(self, data: TurnData, flip_deg: float) -> tuple[np.ndarray, np.ndarray, float]:
         """``(platform_deg, keep, angle_sigma_deg)`` of the turn's samples (the last motion and its stills).
@@ -192,18 +235,27 @@ class ManualSource:
     ----------
     step_deg : float
         Spacing of the stops, degrees; must divide 360 and be at most 45.
+    clockwise : bool
+        The graduation counts clockwise seen from above (a compass rose; ``manual:-STEP_DEG``): a mark's angle is
+        recorded negated, SPEC's angle being counterclockwise.
     """
 
     kind = "stops"
     operator_moves = True
 
-    def __init__(self, step_deg: float):
+    def __init__(self, step_deg: float, clockwise: bool = False):
         if not (0 < step_deg <= 45.0) or abs(360.0 / step_deg - round(360.0 / step_deg)) > 1e-9:
             raise ValueError(f"--turntable manual:STEP_DEG: the step must divide 360 and be at most 45 deg, "
                              f"got {step_deg:g}")
         self.step_deg = float(step_deg)
-        self.spec = f"manual:{step_deg:g}"
+        self.sign = -1.0 if clockwise else 1.0
+        self.spec = f"manual:{'-' * clockwise}{step_deg:g}"
         self.angle_sigma_deg = READ_HALF_WIDTH_DEG / np.sqrt(3.0)
+
+    def reverse_words(self) -> str:
+        """How to reverse the angle's sense, in words (the station's stop when it counts against the gyro)."""
+        return f"use --turntable manual:{'' if self.sign < 0 else '-'}{self.step_deg:g} (a graduation counting " \
+               f"{'counterclockwise' if self.sign < 0 else 'clockwise'})"
 
     def stops(self) -> np.ndarray:
         """The stops of one flip, degrees."""
@@ -213,12 +265,13 @@ class ManualSource:
         """Nothing to command: the instruction asks the operator."""
 
     def position_deg(self, angle_deg: float) -> float:
-        """The angle recorded for a stop: the mark asked for."""
-        return float(angle_deg)
+        """The angle recorded for a stop: the mark asked for (negated, modulo 360, for a clockwise graduation)."""
+        return float(np.mod(self.sign * angle_deg, 360.0))
 
 
 def parse_turntable(text: str, *, grbl_options: dict | None = None):
-    """The angle source named by ``--turntable`` (``column:NAME``, ``grbl:PORT``, ``manual:STEP_DEG``, ``gyro``).
+    """The angle source named by ``--turntable`` (``column:NAME``, ``grbl:PORT``, ``manual:STEP_DEG``, ``gyro``; a ``-``
+    before NAME or STEP_DEG: the table's angle counts clockwise seen from above).
 
     Raises
     ------
@@ -235,7 +288,7 @@ def parse_turntable(text: str, *, grbl_options: dict | None = None):
             step = float(rest)
         except ValueError:
             raise ValueError(f"--turntable {text}: expected manual:STEP_DEG, a number of degrees") from None
-        return ManualSource(step)
+        return ManualSource(abs(step), clockwise=rest.strip().startswith("-"))
     if kind == "grbl":
         if not rest:
             raise ValueError("--turntable grbl:PORT needs the GRBL controller's port")

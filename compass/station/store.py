@@ -5,7 +5,8 @@ sample rate, the angle source, the metadata) and one ``flip_KKK.csv`` per finish
 written atomically (:mod:`compass.io.atomic`), so Ctrl-C or a crash loses at most the turn in
 progress and ``compass bench --resume`` continues from the flips found.  At the end the flips
 are joined into ``CAL.fourflip.csv`` (SPEC section 2's four-flip recording with the station's
-metadata), which ``compass calibrate`` reads.
+metadata, and a ``# clock:`` line when the module's clock restarted between flips: its ``t_s`` goes
+on across each restart, :meth:`compass.station.Station`), which ``compass calibrate`` reads.
 """
 
 from __future__ import annotations
@@ -49,12 +50,15 @@ class FlipRows:
     table : ndarray, shape (n, len(columns))
     angle_sigma_deg : float
         The angle source's stated uncertainty for this flip, degrees.
+    clock : str or None
+        The module's clock restarted before this flip, in words (its ``t_s`` goes on from the flips kept).
     """
 
     flip_deg: float
     columns: tuple[str, ...]
     table: np.ndarray
     angle_sigma_deg: float
+    clock: str | None = None
 
 
 class SessionStore:
@@ -84,7 +88,8 @@ class SessionStore:
     def save(self, rows: FlipRows) -> Path:
         """Keep a finished flip (atomically)."""
         path = self.folder / f"flip_{int(rows.flip_deg):03d}.csv"
-        lines = [f"# angle_sigma_deg: {rows.angle_sigma_deg:.6g}", ",".join(rows.columns)]
+        lines = [f"# angle_sigma_deg: {rows.angle_sigma_deg:.6g}"] + [f"# clock: {rows.clock}"] * (rows.clock is not None)
+        lines.append(",".join(rows.columns))
         lines += [",".join(f"{x:.9g}" for x in row) for row in rows.table]
         atomic_write_text(path, "\n".join(lines) + "\n")
         return path
@@ -97,16 +102,19 @@ class SessionStore:
             if not path.exists():
                 continue
             text = path.read_text().splitlines()
-            sigma = float(text[0].split(":", 1)[1])
-            columns = tuple(text[1].split(","))
-            table = np.array([[float(x) for x in line.split(",")] for line in text[2:] if line], float)
-            found[flip] = FlipRows(flip, columns, table.reshape(-1, len(columns)), sigma)
+            meta = {k.strip(): v.strip() for k, v in (line[1:].split(":", 1) for line in text if line.startswith("#"))}
+            rows = [line for line in text if line and not line.startswith("#")]
+            columns = tuple(rows[0].split(","))
+            table = np.array([[float(x) for x in line.split(",")] for line in rows[1:]], float)
+            found[flip] = FlipRows(flip, columns, table.reshape(-1, len(columns)), float(meta["angle_sigma_deg"]),
+                                   meta.get("clock"))
         return found
 
     def write_recording(self, metadata: dict, force: bool = False) -> Path:
         """Join the four flips into the recording beside the calibration file; returns its path.
 
-        The stated ``angle_sigma_deg`` is the largest of the flips'.
+        The stated ``angle_sigma_deg`` is the largest of the flips'; the flips' clock restarts make one
+        ``# clock:`` line.
         """
         flips = self.finished()
         if len(flips) != len(NOMINAL_FLIPS_DEG):
@@ -114,6 +122,9 @@ class SessionStore:
         columns = flips[0.0].columns
         sigma = max(f.angle_sigma_deg for f in flips.values())
         meta = {**metadata, "angle_sigma_deg": f"{sigma:.4g}"}
+        clocks = [flips[f].clock for f in NOMINAL_FLIPS_DEG if flips[f].clock is not None]
+        if clocks:
+            meta["clock"] = "; ".join(clocks)
         lines = [f"# {k}: {v}" for k, v in meta.items()] + [",".join(columns)]
         for flip in NOMINAL_FLIPS_DEG:
             lines += [",".join(f"{x:.9g}" for x in row) for row in flips[flip].table]
@@ -122,6 +133,16 @@ class SessionStore:
             raise FileExistsError(f"{path} exists; use --force to overwrite it")
         atomic_write_text(path, "\n".join(lines) + "\n")
         return path
+
+    def discard_empty(self) -> bool:
+        """Remove a session that kept no flip (its ``session.json``, and the folder when nothing else is in it);
+        whether there was one."""
+        if not self.exists() or self.finished():
+            return False
+        (self.folder / "session.json").unlink()
+        if not any(self.folder.iterdir()):
+            self.folder.rmdir()
+        return True
 
     def discard(self) -> None:
         """Remove the folder (after the recording holds everything)."""

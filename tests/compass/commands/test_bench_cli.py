@@ -224,3 +224,75 @@ def test_a_header_change_mid_session_ends_it_in_one_line(tmp_path):
     assert last.startswith("compass bench: the module's header changed from t_s,seq,v1,v2,v3,ax,ay,az,gx,gy,gz,enc "
                            "to t_s,seq,v1,v2,v3,gx,gy,gz,enc"), last
     assert "--resume continues" in last and (tmp_path / "cal.flips" / "flip_000.csv").exists()
+
+
+def test_an_encoder_counting_clockwise_stops_with_the_fix_and_writes_no_calibration(tmp_path):
+    """The encoder counts against the module's gyro: without the stop every direction came out mirrored (about 175
+    deg off at a stated sigma of 0.004 deg), exit 0."""
+    with start_device(tmp_path, "encoder", "--table-clockwise") as device:
+        with Proc(bench_args(tmp_path, "column:enc"), kill_after_s=300) as bench:
+            status = finish(bench)
+            err = list(bench.err)
+        device.stop()
+    assert status == 2, "".join(err)
+    assert err[-1].startswith("compass bench: the turntable's angle (--turntable column:enc) went down "), err[-1]
+    assert "the angle counts clockwise, against SPEC's counterclockwise, and would mirror the calibration; use " \
+           "--turntable column:-enc (the column negated), and run the session again" in err[-1]
+    assert not (tmp_path / "cal.json").exists() and not (tmp_path / "cal.fourflip.csv").exists()
+    assert not (tmp_path / "cal.flips").exists()  # no flip kept: nothing to resume, nothing in the way of the rerun
+
+
+def test_resume_on_a_module_whose_clock_restarted_calibrates(tmp_path):
+    """Ctrl-C after flip 90, the module replugged (a new device: its t_s from 0 again), --resume: the recording's
+    t_s goes on across the restart (it was refused at the end: 't_s must not decrease', no calibration), and
+    compass calibrate rereads it to the same calibration."""
+    with start_device(tmp_path, "encoder", speed=SPEED / 2) as device:
+        with Proc(bench_args(tmp_path, "column:enc"), kill_after_s=300) as bench:
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 200 and not any("flip 90 kept" in line for line in bench.err):
+                time.sleep(0.2)
+            assert bench.stop(signal.SIGINT) == 130, bench.transcript()
+        device.stop()
+    (tmp_path / "prompt.json").unlink()
+    with start_device(tmp_path, "encoder", "--force") as device:  # the same module (seed), its truth written again
+        with Proc(bench_args(tmp_path, "column:enc", "--resume"), kill_after_s=300) as resumed:
+            status = finish(resumed)
+            err = "".join(resumed.err)
+        device.stop()
+    assert status == 0, err
+    assert "the module's clock restarted before flip 180" in err, err
+    recording = (tmp_path / "cal.fourflip.csv").read_text()
+    clock = next(line for line in recording.splitlines() if line.startswith("# clock: "))
+    assert clock.startswith("# clock: the module's clock restarted before flip 180 (its t_s from ") and \
+        clock.count("restarted") == 1 and clock.endswith("the recording's t_s goes on after 1.01 s"), clock  # flip
+    # 270 is on the same clock
+    assert np.all(direction_errors_deg(tmp_path)[0] < 0.021)  # as an uninterrupted session's
+    with Proc(compass_command("calibrate", str(tmp_path / "cal.fourflip.csv"), "--out", str(tmp_path / "again.json"),
+                              "--quiet"), kill_after_s=120) as again:
+        assert finish(again, 110) == 0, again.transcript()
+    first, second = (json.loads((tmp_path / name).read_text())["channels"] for name in ("cal.json", "again.json"))
+    assert {c: v["direction"] for c, v in first.items()} == {c: v["direction"] for c, v in second.items()}
+
+
+def test_the_sessions_folder_is_checked_before_the_port(tmp_path):
+    """A file in the way of CAL.flips/ is said before the port is opened (it was '[Errno 17] File exists' after); a
+    session that kept no flip is no earlier session to resume: it is cleared, and --resume says so."""
+    base = compass_command("bench", "--port", str(tmp_path / "no-such-port"), "--out", str(tmp_path / "cal.json"),
+                           "--turntable", "column:enc", "--yes")
+    (tmp_path / "cal.flips").write_text("not a session\n")
+    with Proc(base, kill_after_s=60) as p:
+        assert finish(p, 50) == 2
+        assert p.err == [f"compass bench: {tmp_path / 'cal.flips'} is a file, not the session's folder (compass bench "
+                         f"keeps the finished flips in cal.flips/ beside --out): move it away, or give another --out\n"]
+    (tmp_path / "cal.flips").unlink()
+    from compass.station import SessionStore
+
+    SessionStore(tmp_path / "cal.json").start({"turntable": "column:enc"})  # a session ended before its first flip
+    with Proc(base + ["--resume"], kill_after_s=60) as p:
+        assert finish(p, 50) == 2
+        assert "holds an earlier session that kept no flip: run without --resume to start over" in p.err[-1], p.err
+    with Proc(base, kill_after_s=60) as p:
+        assert finish(p, 50) == 2  # the port: the folder was cleared first
+        assert "held an earlier session that kept no flip: starting over" in p.err[0], p.err
+        assert "cannot open port" in p.err[-1], p.err
+    assert not (tmp_path / "cal.flips").exists()

@@ -19,7 +19,8 @@ from compass.station.checks import circle_axis, coverage_gap, face_name, is_stil
 
 
 def run_session(tmp_path, spec, rig, *, max_s=600.0, on_block=None):
-    """Drive a session; return (station, events, recording or None)."""
+    """Drive a session (``on_block(rig, t_s, station)`` before each block); return (station, events, recording or
+    None)."""
     source = parse_turntable(spec)
     stream = StationStream(getattr(source, "column", None))
     store = SessionStore(tmp_path / "cal.json")
@@ -31,7 +32,7 @@ def run_session(tmp_path, spec, rig, *, max_s=600.0, on_block=None):
     def block(r, t):
         events.extend(original())
         if on_block is not None:
-            on_block(r, t)
+            on_block(r, t, station)
 
     drive(rig, station, stream, max_s=max_s, on_block=block)
     events.extend(station.drain())
@@ -132,7 +133,7 @@ def test_without_an_accelerometer_the_wrong_face_shows_in_the_field_circle(tmp_p
 def test_a_rate_change_ends_the_session_and_keeps_the_flips(tmp_path):
     rig = BenchRig(seed=7, encoder_step_deg=0.1)
 
-    def halve_at_flip_180(r, t):
+    def halve_at_flip_180(r, t, station):
         if station_flips() >= 2 and r.rate_hz == 100.0:
             r.rate_hz = 50.0
 
@@ -296,3 +297,88 @@ def test_a_corrupted_time_on_the_line_does_not_stop_the_session(tmp_path):
     stream.feed = feed
     drive(rig, station, stream, max_s=300.0)
     assert corrupted[0] and station.finished, station.drain()
+
+
+@pytest.mark.parametrize("spec, seen, fix, rig_options", [
+    # the operator turns counterclockwise as asked, the encoder counts down
+    ("column:enc", "went down \\d+ deg over flip 0's turn while the module's gyro turned \\d+ deg counterclockwise",
+     "use --turntable column:-enc (the column negated)", {"encoder_step_deg": 0.1}),
+    # the operator turns to the marks 30, 60, ... of a compass rose: clockwise
+    ("manual:30", "went up 330 deg over flip 0's turn while the module's gyro turned \\d+ deg clockwise",
+     "use --turntable manual:-30 (a graduation counting clockwise)", {"operator": Operator(read_half_width_deg=0.5)}),
+])
+def test_an_angle_counting_clockwise_stops_before_a_flip_is_kept(tmp_path, spec, seen, fix, rig_options):
+    """An encoder or a graduation counting clockwise seen from above mirrors the calibration (every direction
+    about 175 deg off, at the noise floor): the module's gyro turned the other way, so the first flip stops the
+    session, naming the fix; the fix calibrates."""
+    rig = BenchRig(seed=5, table_clockwise=True, **rig_options)
+    with pytest.raises(SessionEnded, match=re.escape(f"(--turntable {spec}) ") + seen + r" seen from above: the angle counts "
+                       r"clockwise, against SPEC's counterclockwise, and would mirror the calibration; "
+                       + re.escape(fix)):
+        run_session(tmp_path, spec, rig)
+    assert SessionStore(tmp_path / "cal.json").finished() == {}
+    (tmp_path / "fixed").mkdir()
+    rig = BenchRig(seed=5, table_clockwise=True, **rig_options)
+    station, events, recording = run_session(tmp_path / "fixed", spec.replace(":", ":-"), rig)
+    assert station.finished and not [e for e in events if e[0] == "warn"], events
+    ratio, error = direction_error_over_crb(rig, recording, rig.rate_hz if spec.startswith("manual") else 1)
+    assert np.sqrt(np.mean(ratio**2)) < 12.0, (ratio, error)  # test_each_source_calibrates_a_simulated_bench's bound
+
+
+def test_without_a_gyro_the_turn_direction_is_the_sources_word_alone(tmp_path):
+    rig = BenchRig(seed=4, encoder_step_deg=0.1)
+    source = parse_turntable("column:enc")
+    station = Station(source, rig.channels)
+    stream = StationStream("enc")
+    original = stream.feed
+    stream.feed = lambda data, t_rx=None: [r.__class__(r.t_s, r.outputs, r.accel, None, r.encoder_deg, r.temp_c)
+                                           for r in original(data, t_rx)]
+    drive(rig, station, stream, max_s=300.0)
+    said = [text for level, text in station.drain() if level == "warn"]
+    assert station.finished
+    assert said == ["the module sends no gyro: the turn's direction is --turntable column:enc's word alone (an angle "
+                    "counting clockwise seen from above would mirror the calibration unseen: check that it goes up as "
+                    "the table turns counterclockwise)"]
+
+
+@pytest.mark.parametrize("replug", [False, True])
+def test_a_restart_of_the_modules_clock_redoes_the_step_and_the_recording_goes_on(tmp_path, replug):
+    """The module resets after flip 90 is kept (its t_s from 0 again; the port kept, or unplugged and back): the step
+    in progress is redone, the later flips' t_s go on from the flips kept (SPEC: non-decreasing), said once in the
+    recording's # clock: line, and the recording calibrates as an uninterrupted one does
+    (test_each_source_calibrates_a_simulated_bench's bound)."""
+    rig = BenchRig(seed=11, encoder_step_deg=0.0)
+    restarted = []
+
+    def reset_after_flip_90(r, t, station):
+        if not restarted and len(station.done) == 2:
+            restarted.append(t)
+            r.restart_clock(t)
+            if replug:
+                station.link_lost("unplugged")
+
+    station, events, recording = run_session(tmp_path, "column:enc", rig, on_block=reset_after_flip_90)
+    assert restarted and station.finished, events
+    went_back = [text for level, text in events if "clock went back" in text]
+    assert len(went_back) == 1 and went_back[0].endswith("s (a reset?): flip 180's flip is redone"), events
+    assert np.all(np.diff(recording.t_s) >= 0)
+    clock = recording.metadata["clock"]
+    assert clock.startswith("the module's clock restarted before flip 180 (its t_s from ") and \
+        clock.count("restarted") == 1 and clock.endswith("the recording's t_s goes on after 1.01 s"), clock  # flip 270
+    # is on the same clock
+    ratio, error = direction_error_over_crb(rig, recording)
+    assert np.sqrt(np.mean(ratio**2)) < 2.5, (ratio, error)
+
+
+def test_the_flips_keep_the_clock_words_on_disk(tmp_path):
+    from compass.station.store import FlipRows
+
+    store = SessionStore(tmp_path / "cal.json")
+    store.start({})
+    columns = ("t_s", "flip_deg", "platform_deg", "v1")
+    for flip in (0.0, 90.0, 180.0, 270.0):
+        clock = "the module's clock restarted before flip 180" if flip == 180.0 else None
+        store.save(FlipRows(flip, columns, np.array([[flip, flip, 0.0, 1.0]]), 0.1, clock))
+    assert store.finished()[180.0].clock == "the module's clock restarted before flip 180"
+    text = store.write_recording({"turntable": "column:enc"}).read_text()
+    assert "# clock: the module's clock restarted before flip 180\n" in text
