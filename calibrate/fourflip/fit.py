@@ -154,6 +154,10 @@ def _label_maps():
                 yield recorded, turn
 
 
+_EXCHANGE_90_270 = {0: 0, 90: 270, 180: 180, 270: 90}
+"""flip_deg as recorded for each true flip when the cube was turned the other way about X."""
+
+
 def relabelling_warning(directions, channels) -> str | None:
     """Words when the channels sit on the housing's axes, some reversed, and a relabelling of the flips puts
     every one on a positive axis: the recording's flips are likelier mislabelled than the module's channels.
@@ -184,17 +188,19 @@ def relabelling_warning(directions, channels) -> str | None:
     if len(directions) < 3 or now is None or np.all(now[1] > 0):
         return None
     for recorded, turn in _label_maps():
+        if recorded != _EXCHANGE_90_270:  # the mistake a person makes (the cube turned the other way about X); the
+            continue  # other relabellings would say it of honest layouts (FRD's +X -Y -Z is a half turn about X)
         then = positive_axes(turn.apply(directions, inverse=True))
-        if then is not None and np.all(then[1] > 0):
+        # each channel on its own axis still, only its sign turned (a relabelling that moves a channel onto
+        # another axis would turn the calibration, not right it)
+        if then is not None and np.all(then[1] > 0) and np.array_equal(then[0], now[0]):
             said = ", ".join(f"{c} {'+' if sg > 0 else '-'}{'XYZ'[i]}" for c, i, sg in zip(channels, *now))
-            swaps = ", ".join(f"{r} -> {k}" for r, k in sorted((r, k) for k, r in recorded.items() if r != k))
-            exchanged = " (flips 90 and 270 exchanged: the cube turned the other way about X)" \
-                if recorded == {0: 0, 90: 270, 180: 180, 270: 90} else ""
-            return (f"the channels come out along {said}; with flip_deg relabelled {swaps}{exchanged} every one "
-                    "would be along a positive housing axis. Without an accelerometer the flips' labels cannot be "
-                    "checked (any relabelling fits as well, every direction turned): if the channels are along +X, "
-                    "+Y, +Z, relabel the flips or re-record them as SPEC turns the cube (right-hand about +X: flip "
-                    "90 brings +Y up); if they are mounted reversed, ignore this")
+            return (f"the channels come out along {said}; with flip_deg relabelled 90 -> 270, 270 -> 90 (flips 90 "
+                    "and 270 exchanged: the cube turned the other way about X) every one would be along a positive "
+                    "housing axis. Without an accelerometer the flips' labels cannot be checked (any relabelling fits "
+                    "as well, every direction turned): if the channels are along +X, +Y, +Z, relabel the flips or "
+                    "re-record them as SPEC turns the cube (right-hand about +X: flip 90 brings +Y up); if they are "
+                    "mounted reversed, ignore this")
     return None
 
 

@@ -174,14 +174,17 @@ def _repeated_rows(table: Table) -> np.ndarray:
     """Rows that repeat the row before exactly, ``t_s`` included (a logger writing a sample twice), said and dropped.
 
     A repeated sample is no new measurement: kept, it halves the noise the neighbours' differences show (the
-    noise floor) and weighs its sample twice.  Without ``t_s`` two equal rows can be two readings of a quantised
-    channel at one stop, and are kept.
+    noise floor) and weighs its sample twice.  Without ``t_s``, or with a ``t_s`` coarser than the samples (two
+    different rows at one time: whole seconds at 4 Hz), two equal rows can be two readings of a quantised channel at
+    one stop, and are kept.
     """
     repeats = np.zeros(len(table.rows), dtype=bool)
     if not table.has("t_s") or len(table.rows) < 2:
         return repeats
     a, b = table.data[1:], table.data[:-1]
     repeats[1:] = np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1)
+    if np.any((np.diff(table.column("t_s")) == 0.0) & ~repeats[1:]):
+        return np.zeros(len(table.rows), dtype=bool)
     if repeats.any():
         first = int(np.flatnonzero(repeats)[0])
         note(f"{table.path}: {int(repeats.sum())} of {len(repeats)} rows repeat the row before exactly, t_s included "
@@ -247,33 +250,42 @@ def faces_down(flip_index: np.ndarray, accel: np.ndarray) -> np.ndarray:
     return out
 
 
-def _check_flip_labels(table: Table, flip_index: np.ndarray, accel: np.ndarray) -> None:
-    """Refuse a recording whose accelerometer puts another flip's face down in some flip (see the module's notes).
+def _turned_labels(seen: np.ndarray) -> bool:
+    """Whether the faces ``seen`` down in flips 0, 90, 180, 270 are the right ones under one turn of the whole
+    accelerometer: a symmetry of the square of faces about X (a shift of every label, or a reflection of their
+    order), which a turn about X, or a half turn about an axis in the YZ plane, gives."""
+    k = np.arange(4)
+    return any(np.array_equal(seen, (k + s) % 4) or np.array_equal(seen, (s - k) % 4) for s in range(4))
 
-    Left to the accelerometer fit's own words: every flip reading the face opposite its own (an
-    accelerometer that reads gravity, not specific force: ``--accel-sign -1``), every flip reading the
-    same face (a stuck accelerometer), a flip whose gravity is near no face.
+
+def _check_flip_labels(table: Table, flip_index: np.ndarray, accel: np.ndarray) -> None:
+    """Refuse a recording whose accelerometer puts another flip's face down in some flip where no turn of the
+    accelerometer explains it (see the module's notes); warn where one does.
+
+    Every flip on a face, in an order one turn of the whole accelerometer gives (:func:`_turned_labels`): the
+    same data as an accelerometer mounted turned against the housing, which the fit's ``mag_to_accel`` takes
+    into account; said with both readings, not refused.  Left to the accelerometer fit's own words: every flip
+    reading the face opposite its own (an accelerometer that reads gravity, not specific force:
+    ``--accel-sign -1``), a flip whose gravity is near no face (an accelerometer whose axes are turned otherwise
+    against the housing's).
     """
     seen = faces_down(flip_index, accel)
     wrong = [k for k in range(4) if seen[k] >= 0 and seen[k] != k]
-    if not wrong or np.all(seen == (np.arange(4) + 2) % 4) or np.all(seen == seen[0]):
+    if not wrong or np.any(seen < 0) or np.all(seen == (np.arange(4) + 2) % 4) or np.all(seen == seen[0]):
         return
     said = "; ".join(f"flip {NOMINAL_FLIPS_DEG[k]:g} had the {FACE_DOWN[seen[k]]} face down (flip "
                      f"{NOMINAL_FLIPS_DEG[seen[k]]:g}'s; flip {NOMINAL_FLIPS_DEG[k]:g} puts the {FACE_DOWN[k]} face down)"
                      for k in wrong)
-    if np.array_equal(seen, [0, 3, 2, 1]):
-        head = "flips 90 and 270 look exchanged (the cube turned the other way about X)"
-        axes = "ax and ay reversed (a chip turned half round about Z): read it with --columns ax=-ax,ay=-ay"
-    else:
-        head = "the flips look mislabelled"
-        axes = "map its columns to the housing's axes with --columns (it reads +1 g on +Z in flip 0, on +Y in flip 90)"
+    head = ("flips 90 and 270 look exchanged (the cube turned the other way about X)" if np.array_equal(seen, [0, 3, 2, 1])
+            else "the flips look mislabelled")
+    where = (f"{head}; the accelerometer (ax, ay, az) reads gravity as: {said}. SPEC turns the cube right-hand about "
+             "+X (flip 90 brings +Y up, -Y face down)")
+    if _turned_labels(seen):
+        note(f"{table.path}: {where}. Either the labels are wrong, and every fitted direction and every heading will "
+             "be turned (relabel flip_deg to the faces that were down, or re-record), or the accelerometer is mounted "
+             "turned against the housing, which the fitted mag_to_accel takes into account: the data cannot tell "
+             "which (a magnetometer-only fit neither)")
+        return
     rows = table.rows[flip_index == wrong[0]]
-    raise RecordingError(
-        table.path,
-        f"{head}; the accelerometer (ax, ay, az) reads gravity as: {said}. SPEC turns the cube right-hand about +X "
-        "(flip 90 brings +Y up, -Y face down). Relabel flip_deg to the faces that were down, or re-record; a "
-        "magnetometer-only fit cannot tell (a mislabelled recording fits as well, with every direction turned). "
-        f"If the labels are right, the accelerometer's axes are not the housing's: {axes}",
-        row=int(rows[0]),
-        column="flip_deg",
-    )
+    raise RecordingError(table.path, f"{where}, in an order no mounting of the accelerometer gives: relabel flip_deg "
+                                     "to the faces that were down, or re-record", row=int(rows[0]), column="flip_deg")

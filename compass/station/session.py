@@ -17,7 +17,7 @@ Per flip (SPEC section 1: flip kappa about the turntable's X axis):
 3. the flip's rows are checked (coverage and widest gap, turn rate against the sample rate, the
    face the data show) and kept on disk, or the turn is asked for again with the reason.  An angle source
    that is not the gyro (an encoder column, a graduation, a GRBL axis) must count the turn the way the
-   module's gyro saw it about the table's axis (:func:`compass.station.sources.gyro_turn_deg`): one that
+   module's gyro saw it about the table's axis (:func:`compass.station.turn.gyro_turn_deg`): one that
    counts against it would mirror the calibration, and ends the session before its flip is kept, naming
    the fix; without a gyro, the direction is the source's word alone, said once.
 
@@ -37,9 +37,8 @@ import numpy as np
 
 from ..io.fourflip import NOMINAL_FLIPS_DEG
 from .checks import circle_axis, coverage_gap, face_name, is_still, nearest_face, up_in_housing
-from .sources import gyro_turn_deg
 from .store import FlipRows
-from .turn import Reading, ReadingBuffer, TurnData, TurnRejected, WrongFace
+from .turn import Reading, ReadingBuffer, TurnData, TurnRejected, WrongFace, gyro_turn_deg
 
 __all__ = ["Instruction", "SessionEnded", "Station"]
 
@@ -507,7 +506,9 @@ class Station:
                 f"turned {abs(gyro_deg):.0f} deg {'counterclockwise' if gyro_deg > 0 else 'clockwise'} seen from "
                 f"above: the angle counts clockwise, against SPEC's counterclockwise, and would mirror the "
                 f"calibration; {self.source.reverse_words()}, and run the session again (if the angle is right, "
-                f"the gyro's axes are not the housing's); flips kept: {kept}")
+                f"the gyro's axes are not the housing's: its axis about the table reads negated, as an FRD board's or "
+                f"a chip turned half round does; send it in the housing's axes, or on a headerless stream name its "
+                f"cells negated in --columns, e.g. -gz); flips kept: {kept}")
 
     def _rows(self, t_s, platform, outputs, accel, temp_c, sigma) -> FlipRows:
         """The flip's recording rows (the gyro is not kept: the four-flip fit does not use it)."""

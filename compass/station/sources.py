@@ -18,48 +18,14 @@ import numpy as np
 from scipy.integrate import cumulative_trapezoid
 
 from .checks import coverage_gap, up_in_housing
-from .turn import TurnData, TurnRejected, still_spans
+from .turn import TurnData, TurnRejected, still_spans, turn_about_deg
 
-__all__ = ["ColumnSource", "GyroSource", "ManualSource", "gyro_turn_deg", "parse_turntable", "READ_HALF_WIDTH_DEG"]
+__all__ = ["ColumnSource", "GyroSource", "ManualSource", "parse_turntable", "READ_HALF_WIDTH_DEG"]
 
 READ_HALF_WIDTH_DEG = 0.5
 """How closely an operator reads a graduated table's mark, degrees (uniform error within +-this)."""
 _MIN_STILL_S = 0.5  # still time the gyro needs at each end of a turn for its bias
 _MARGIN_S = 0.5  # still time next to the motion left out of the bias
-
-
-def gyro_turn_deg(data: TurnData, flip_deg: float) -> float | None:
-    """The table's turn over ``data`` as the module's gyro saw it, degrees (counterclockwise seen from above positive).
-
-    The gyro's rate about the housing direction that points up in the flip
-    (:func:`compass.station.checks.up_in_housing`: right-hand about up, SPEC's sense of the turntable angle), less
-    its bias (the mean rate over the still spans, :func:`compass.station.turn.still_spans`; none when no span is
-    still), integrated in time:
-
-    .. math:: \\psi = \\int (\\omega_H(t) - \\bar\\omega_{still}) \\cdot u_H(\\kappa) \\, dt
-
-    Parameters
-    ----------
-    data : TurnData
-        The samples over the turn (``gyro`` in rad/s, in H).
-    flip_deg : float
-        The flip the turn is made in, degrees.
-
-    Returns
-    -------
-    float or None
-        Degrees; None when the module sends no gyro (or fewer than three samples).
-    """
-    if data.gyro is None or len(data) < 3:
-        return None
-    still = still_spans(data)
-    bias = data.gyro[still].mean(axis=0) if still.any() else np.zeros(3)
-    return _turn_about_deg(data, up_in_housing(flip_deg), bias)
-
-
-def _turn_about_deg(data: TurnData, up_h: np.ndarray, bias: np.ndarray) -> float:
-    """The gyro's rate less ``bias`` (rad/s) about ``up_h`` (unit, in H) integrated over ``data``, degrees."""
-    return float(np.degrees(np.trapezoid((data.gyro - bias) @ up_h, data.t_s)))
 
 
 class ColumnSource:
@@ -139,7 +105,7 @@ class GyroSource:
         if data.gyro is None or len(data) < 3:
             return 0.0
         bias = data.gyro[data.t_s - data.t_s[0] <= _MIN_STILL_S].mean(axis=0)
-        return _turn_about_deg(data, self._up, bias)
+        return turn_about_deg(data, self._up, bias)
 
     def angles(self, data: TurnData, flip_deg: float) -> tuple[np.ndarray, np.ndarray, float]:
         """``(platform_deg, keep, angle_sigma_deg)`` of the turn's samples (the last motion and its stills).

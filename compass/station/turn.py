@@ -10,9 +10,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checks import is_still
+from .checks import is_still, up_in_housing
 
-__all__ = ["Reading", "ReadingBuffer", "TurnData", "TurnRejected", "WrongFace", "still_spans"]
+__all__ = ["Reading", "ReadingBuffer", "TurnData", "TurnRejected", "WrongFace", "gyro_turn_deg", "still_spans",
+           "turn_about_deg"]
 
 
 class TurnRejected(ValueError):
@@ -168,3 +169,37 @@ def still_spans(data: TurnData, window_s: float = 0.5) -> np.ndarray:
         if b - a >= 5:
             still[a:b] = is_still(t[a:b], data.outputs[a:b])
     return still
+
+
+def gyro_turn_deg(data: TurnData, flip_deg: float) -> float | None:
+    """The table's turn over ``data`` as the module's gyro saw it, degrees (counterclockwise seen from above positive).
+
+    The gyro's rate about the housing direction that points up in the flip
+    (:func:`compass.station.checks.up_in_housing`: right-hand about up, SPEC's sense of the turntable angle), less
+    its bias (the mean rate over the still spans, :func:`still_spans`; none when no span is
+    still), integrated in time:
+
+    .. math:: \\psi = \\int (\\omega_H(t) - \\bar\\omega_{still}) \\cdot u_H(\\kappa) \\, dt
+
+    Parameters
+    ----------
+    data : TurnData
+        The samples over the turn (``gyro`` in rad/s, in H).
+    flip_deg : float
+        The flip the turn is made in, degrees.
+
+    Returns
+    -------
+    float or None
+        Degrees; None when the module sends no gyro (or fewer than three samples).
+    """
+    if data.gyro is None or len(data) < 3:
+        return None
+    still = still_spans(data)
+    bias = data.gyro[still].mean(axis=0) if still.any() else np.zeros(3)
+    return turn_about_deg(data, up_in_housing(flip_deg), bias)
+
+
+def turn_about_deg(data: TurnData, up_h: np.ndarray, bias: np.ndarray) -> float:
+    """The gyro's rate less ``bias`` (rad/s) about ``up_h`` (unit, in H) integrated over ``data``, degrees."""
+    return float(np.degrees(np.trapezoid((data.gyro - bias) @ up_h, data.t_s)))

@@ -213,3 +213,16 @@ def test_equal_rows_without_a_time_are_kept(tmp_path):
     rows = _rows()
     rec = read_fourflip(_write(tmp_path, [GOOD_HEADER] + rows[:1] + rows))
     assert rec.n_samples == len(rows) + 1
+
+
+def test_equal_rows_under_a_coarse_time_are_kept(tmp_path, write_session):
+    """A t_s coarser than the samples (whole seconds at a stop): different rows share a time, so two equal rows
+    there may be two readings of a quantised channel, and nothing is dropped (the review's case)."""
+    once, _ = write_session(seed=3)
+    lines = (tmp_path / "rec.csv").read_text().splitlines()
+    head = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    t = lines[head].split(",").index("t_s")
+    coarse = [",".join(f"{np.floor(float(c)):g}" if j == t else c for j, c in enumerate(line.split(",")))
+              for line in lines[head + 1:]]
+    path = _write(tmp_path, lines[:head + 1] + coarse[:1] + coarse, "coarse.csv")
+    assert read_fourflip(path).n_samples == len(coarse) + 1
