@@ -159,8 +159,9 @@ _EXCHANGE_90_270 = {0: 0, 90: 270, 180: 180, 270: 90}
 
 
 def relabelling_warning(directions, channels) -> str | None:
-    """Words when the channels sit on the housing's axes, some reversed, and a relabelling of the flips puts
-    every one on a positive axis: the recording's flips are likelier mislabelled than the module's channels.
+    """Words when the channels sit on the housing's axes, some reversed, and flips 90 and 270 exchanged would put
+    every one on the positive side of its own axis: the recording's flips are likelier mislabelled than the
+    module's channels.
 
     A magnetometer-only recording fits every relabelling of its flips equally well (each turns every
     direction by one rotation, :func:`_label_maps`), so only the channels' layout can tell; a module with
@@ -187,21 +188,20 @@ def relabelling_warning(directions, channels) -> str | None:
     now = positive_axes(directions)
     if len(directions) < 3 or now is None or np.all(now[1] > 0):
         return None
-    for recorded, turn in _label_maps():
-        if recorded != _EXCHANGE_90_270:  # the mistake a person makes (the cube turned the other way about X); the
-            continue  # other relabellings would say it of honest layouts (FRD's +X -Y -Z is a half turn about X)
-        then = positive_axes(turn.apply(directions, inverse=True))
-        # each channel on its own axis still, only its sign turned (a relabelling that moves a channel onto
-        # another axis would turn the calibration, not right it)
-        if then is not None and np.all(then[1] > 0) and np.array_equal(then[0], now[0]):
-            said = ", ".join(f"{c} {'+' if sg > 0 else '-'}{'XYZ'[i]}" for c, i, sg in zip(channels, *now))
-            return (f"the channels come out along {said}; with flip_deg relabelled 90 -> 270, 270 -> 90 (flips 90 "
-                    "and 270 exchanged: the cube turned the other way about X) every one would be along a positive "
-                    "housing axis. Without an accelerometer the flips' labels cannot be checked (any relabelling fits "
-                    "as well, every direction turned): if the channels are along +X, +Y, +Z, relabel the flips or "
-                    "re-record them as SPEC turns the cube (right-hand about +X: flip 90 brings +Y up); if they are "
-                    "mounted reversed, ignore this")
-    return None
+    # only the mistake a person makes (the cube turned the other way about X): the other relabellings would say it
+    # of honest layouts (FRD's +X -Y -Z is a half turn about X)
+    turn = next(turn for recorded, turn in _label_maps() if recorded == _EXCHANGE_90_270)
+    then = positive_axes(turn.apply(directions, inverse=True))
+    # each channel on its own axis still, only its sign turned (a relabelling that moves a channel onto another
+    # axis would turn the calibration, not right it)
+    if then is None or not np.all(then[1] > 0) or not np.array_equal(then[0], now[0]):
+        return None
+    said = ", ".join(f"{c} {'+' if sg > 0 else '-'}{'XYZ'[i]}" for c, i, sg in zip(channels, *now))
+    return (f"the channels come out along {said}; with flip_deg relabelled 90 -> 270, 270 -> 90 (flips 90 and 270 "
+            "exchanged: the cube turned the other way about X) every one would be along a positive housing axis. "
+            "Without an accelerometer the flips' labels cannot be checked (any relabelling fits as well, every "
+            "direction turned): if the channels are along +X, +Y, +Z, relabel the flips or re-record them as SPEC "
+            "turns the cube (right-hand about +X: flip 90 brings +Y up); if they are mounted reversed, ignore this")
 
 
 class FourFlipCalibrator(Calibrator):

@@ -131,3 +131,14 @@ def test_without_an_accelerometer_channels_reversed_by_a_relabelling_are_said(wr
     assert len(said) == 1 and "v1 -X, v2 -Y, v3 +Z" in said[0] and "90 -> 270, 270 -> 90" in said[0]
     assert "flips 90 and 270 exchanged" in said[0]
     assert not any("relabelled" in w for w in calibrate_fourflip(rec).warnings)
+
+
+@pytest.mark.parametrize("layout, said", [((-1, -1, 1), True), ((1, -1, -1), False), ((1, 1, -1), False),
+                                          ((-1, 1, 1), False)])
+def test_the_relabelling_words_only_for_the_exchange_that_puts_each_channel_right_on_its_own_axis(layout, said):
+    """-X -Y +Z is +X +Y +Z with flips 90/270 exchanged; FRD's +X -Y -Z (a half turn about X) and a left-handed set
+    (+X +Y -Z: no relabelling keeps each channel on its axis) are honest layouts, not told to relabel."""
+    from calibrate.fourflip.fit import relabelling_warning
+
+    words = relabelling_warning(np.diag(np.array(layout, float)), ("mx", "my", "mz"))
+    assert (words is not None) == said
