@@ -398,8 +398,10 @@ def _warnings(r: AccelerometerAlignment, nominal_angle_deg, dip_sigma_deg) -> tu
                    "apart, since X never sees gravity")
     elif np.max(nominal_angle_deg) > _NOMINAL_WARN_DEG:
         out.append(f"the accelerometer's gravity is {np.max(nominal_angle_deg):.1f} deg from where the flips put it "
-                   "in the housing frame: its axes are not the housing's (names, signs, mounting); the fitted "
-                   "mag_to_accel takes this into account, but check the wiring")
+                   "in the housing frame: its axes are not the housing's (names, signs, mounting), which the fitted "
+                   "mag_to_accel takes into account, or the flips are mislabelled (flips 90 and 270 exchanged, the "
+                   "cube turned the other way about X, is the same data as a chip turned half round about Z), which "
+                   "turns every direction and heading: check the flips' labels, then the wiring")
     if r.glitches_dropped:
         out.append(f"{r.glitches_dropped} accelerometer sample(s) left out as glitches (more than {_GLITCH_SIGMAS:g} "
                    "robust sigmas off their turn): knocks or line errors")

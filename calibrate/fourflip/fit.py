@@ -117,7 +117,8 @@ def calibrate_fourflip(
             warnings = warnings + (f"the channels' sensing directions do not span three dimensions (smallest singular "
                                    f"value {smallest:.2g}): single-axis calibrations, valid as such, but no field vector "
                                    "(compass attitude and live refuse this file)",)
-        if rec.accel is None:  # with one, the reader checked the labels against gravity
+        if rec.accel is None:  # with one, the reader checked the labels against gravity (and the alignment's
+            # words name them where a turned accelerometer and turned labels are the same data)
             relabelled = relabelling_warning(unit, rec.channels)
             warnings = warnings + ((relabelled,) if relabelled else ())
     if vertical < _VERTICAL_SIGMAS:
@@ -192,9 +193,7 @@ def relabelling_warning(directions, channels) -> str | None:
     # of honest layouts (FRD's +X -Y -Z is a half turn about X)
     turn = next(turn for recorded, turn in _label_maps() if recorded == _EXCHANGE_90_270)
     then = positive_axes(turn.apply(directions, inverse=True))
-    # each channel on its own axis still, only its sign turned (a relabelling that moves a channel onto another
-    # axis would turn the calibration, not right it)
-    if then is None or not np.all(then[1] > 0) or not np.array_equal(then[0], now[0]):
+    if then is None or not np.all(then[1] > 0):  # the half turn about Z keeps each channel on its own axis
         return None
     said = ", ".join(f"{c} {'+' if sg > 0 else '-'}{'XYZ'[i]}" for c, i, sg in zip(channels, *now))
     return (f"the channels come out along {said}; with flip_deg relabelled 90 -> 270, 270 -> 90 (flips 90 and 270 "

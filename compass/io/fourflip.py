@@ -11,9 +11,10 @@ accelerometer riding in the housing reads the specific force, +g up, so in the h
 
 whatever the turntable angle: +Z, +Y, -Z, -Y up (the -Z, -Y, +Z, +Y face down) in flips 0, 90, 180,
 270.  The four directions are distinct, so with an accelerometer whose axes are the housing's (SPEC's
-runtime convention; a few degrees of mounting error are fitted later as ``mag_to_accel``) each flip's
-label is checked: a flip whose mean gravity lies within 45 deg of another flip's face had that face
-down, and the recording is refused (:func:`_check_flip_labels`).
+runtime convention; a mounting error is fitted later as ``mag_to_accel``) each flip's label is checked: a
+flip whose mean gravity lies within 45 deg of another flip's face had that face down.  Faces in an order no
+mounting gives are refused; in an order one turn of the whole accelerometer gives (the same data as a chip
+mounted turned) they are said with both readings (:func:`_check_flip_labels`).
 
 Without an accelerometer the labels cannot be checked.  A cube turned the other way about X (flips 90
 and 270 exchanged) is an exact symmetry of the magnetic model: with ``Rz(pi)`` the half turn about Z,
@@ -48,6 +49,8 @@ FACE_DOWN = ("-Z", "-Y", "+Z", "+Y")
 """The housing face down in flips 0, 90, 180, 270 (SPEC section 1)."""
 UP_IN_HOUSING = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])
 """What a level accelerometer with the housing's axes reads in flips 0, 90, 180, 270, per g."""
+_COARSE_SHARE = 0.01
+"""Pairs of different consecutive rows at one ``t_s`` above this share of the rows: a ``t_s`` coarser than the samples."""
 LABEL_CHECK_DEG = 45.0
 """A flip's mean gravity within this angle of another flip's face: that face was down (faces are 90 deg apart)."""
 _RADIANS_HINT = ("; {column} never leaves 0..2*pi: radians? The column is in degrees; convert it, or name the "
@@ -183,7 +186,11 @@ def _repeated_rows(table: Table) -> np.ndarray:
         return repeats
     a, b = table.data[1:], table.data[:-1]
     repeats[1:] = np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1)
-    if np.any((np.diff(table.column("t_s")) == 0.0) & ~repeats[1:]):
+    coarse = np.count_nonzero((np.diff(table.column("t_s")) == 0.0) & ~repeats[1:])
+    if coarse > _COARSE_SHARE * len(repeats):  # different rows at one time, not one clock's hiccup
+        if repeats.any():
+            note(f"{table.path}: {int(repeats.sum())} rows repeat the row before exactly, kept: t_s is coarser than "
+                 f"the samples ({coarse} pairs of different rows share a time), so they may be two readings")
         return np.zeros(len(table.rows), dtype=bool)
     if repeats.any():
         first = int(np.flatnonzero(repeats)[0])
@@ -271,7 +278,10 @@ def _check_flip_labels(table: Table, flip_index: np.ndarray, accel: np.ndarray) 
     """
     seen = faces_down(flip_index, accel)
     wrong = [k for k in range(4) if seen[k] >= 0 and seen[k] != k]
-    if not wrong or np.any(seen < 0) or np.all(seen == (np.arange(4) + 2) % 4) or np.all(seen == seen[0]):
+    unseen = set(np.flatnonzero(seen < 0).tolist())
+    mounted = unseen in ({0, 2}, {1, 3}, {0, 1, 2, 3})  # an accelerometer turned against the housing loses flips in
+    # pairs (gravity in a flip and in the flip opposite are opposite); one flip alone near no face is not a mounting
+    if not wrong or mounted or np.all(seen == (np.arange(4) + 2) % 4) or np.all(seen == seen[0]):
         return
     said = "; ".join(f"flip {NOMINAL_FLIPS_DEG[k]:g} had the {FACE_DOWN[seen[k]]} face down (flip "
                      f"{NOMINAL_FLIPS_DEG[seen[k]]:g}'s; flip {NOMINAL_FLIPS_DEG[k]:g} puts the {FACE_DOWN[k]} face down)"
@@ -280,12 +290,15 @@ def _check_flip_labels(table: Table, flip_index: np.ndarray, accel: np.ndarray) 
             else "the flips look mislabelled")
     where = (f"{head}; the accelerometer (ax, ay, az) reads gravity as: {said}. SPEC turns the cube right-hand about "
              "+X (flip 90 brings +Y up, -Y face down)")
-    if _turned_labels(seen):
+    if not unseen and _turned_labels(seen):
         note(f"{table.path}: {where}. Either the labels are wrong, and every fitted direction and every heading will "
              "be turned (relabel flip_deg to the faces that were down, or re-record), or the accelerometer is mounted "
              "turned against the housing, which the fitted mag_to_accel takes into account: the data cannot tell "
              "which (a magnetometer-only fit neither)")
         return
     rows = table.rows[flip_index == wrong[0]]
-    raise RecordingError(table.path, f"{where}, in an order no mounting of the accelerometer gives: relabel flip_deg "
-                                     "to the faces that were down, or re-record", row=int(rows[0]), column="flip_deg")
+    twice = len(set(seen[seen >= 0].tolist())) < np.count_nonzero(seen >= 0)
+    cure = ("one face was down in two flips: re-record the flip never made" if twice else
+            "relabel flip_deg to the faces that were down, or re-record")
+    raise RecordingError(table.path, f"{where}, in an order no mounting of the accelerometer gives: {cure}",
+                         row=int(rows[0]), column="flip_deg")

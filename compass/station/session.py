@@ -500,15 +500,16 @@ class Station:
             return
         if source_deg * gyro_deg < 0 and abs(gyro_deg) >= 0.5 * abs(source_deg):
             kept = ", ".join(f"{f:g}" for f in sorted(self.done)) or "none"
+            gyro_axis = "g" + "xyz"[int(np.argmax(np.abs(up_in_housing(self.progress.flip_deg))))]
             raise SessionEnded(
                 f"the turntable's angle (--turntable {self.source.spec}) went {'down' if source_deg < 0 else 'up'} "
                 f"{abs(source_deg):.0f} deg over flip {self.progress.flip_deg:g}'s turn while the module's gyro "
                 f"turned {abs(gyro_deg):.0f} deg {'counterclockwise' if gyro_deg > 0 else 'clockwise'} seen from "
                 f"above: the angle counts clockwise, against SPEC's counterclockwise, and would mirror the "
                 f"calibration; {self.source.reverse_words()}, and run the session again (if the angle is right, "
-                f"the gyro's axes are not the housing's: its axis about the table reads negated, as an FRD board's or "
-                f"a chip turned half round does; send it in the housing's axes, or on a headerless stream name its "
-                f"cells negated in --columns, e.g. -gz); flips kept: {kept}")
+                f"the gyro's axes are not the housing's: its {gyro_axis} about the table reads negated, as an FRD "
+                f"board's or a chip turned half round does; send it in the housing's axes, or on a headerless stream "
+                f"name the cell negated in --columns, -{gyro_axis}); flips kept: {kept}")
 
     def _rows(self, t_s, platform, outputs, accel, temp_c, sigma) -> FlipRows:
         """The flip's recording rows (the gyro is not kept: the four-flip fit does not use it)."""

@@ -142,3 +142,25 @@ def test_the_relabelling_words_only_for_the_exchange_that_puts_each_channel_righ
 
     words = relabelling_warning(np.diag(np.array(layout, float)), ("mx", "my", "mz"))
     assert (words is not None) == said
+
+
+def test_one_flip_near_no_face_does_not_hide_mislabelled_others(tmp_path):
+    """Flips 0 and 90 exchanged, flip 270's accelerometer near zero: refused (a mounting loses flips in opposite
+    pairs, never one alone)."""
+    session = simulate_fourflip(seed=4, accelerometer=SimAccelerometer(misalign_deg=1.0))
+    accel = np.where((session.samples.flip_index == 3)[:, None], 0.01, session.accel)
+    path = _relabelled(tmp_path, replace(session, accel=accel), {0: 90, 90: 0, 180: 180, 270: 270})
+    with pytest.raises(ValueError, match="no mounting"):
+        read_fourflip(path)
+
+
+def test_the_calibrations_words_name_the_labels_beside_the_mounting(tmp_path, capsys):
+    """Flips 90/270 exchanged (the same data as a half-turned chip): the calibration file's own warnings name the
+    labels, not only the wiring."""
+    import json
+
+    session = simulate_fourflip(seed=2, accelerometer=SimAccelerometer(misalign_deg=2.0))
+    path = _relabelled(tmp_path, session, EXCHANGE_90_270)
+    assert main(["calibrate", str(path), "--out", str(tmp_path / "c.json"), "--quiet"]) == 0
+    words = " ".join(json.loads((tmp_path / "c.json").read_text())["warnings"])
+    assert "the flips are mislabelled" in words and "check the flips' labels" in words

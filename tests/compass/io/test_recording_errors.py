@@ -226,3 +226,18 @@ def test_equal_rows_under_a_coarse_time_are_kept(tmp_path, write_session):
               for line in lines[head + 1:]]
     path = _write(tmp_path, lines[:head + 1] + coarse[:1] + coarse, "coarse.csv")
     assert read_fourflip(path).n_samples == len(coarse) + 1
+
+
+def test_rows_written_twice_are_dropped_despite_one_clock_hiccup(tmp_path, write_session):
+    """One pair of different rows at one t_s (a clock's hiccup) does not make the whole t_s coarse: the repeats are
+    still dropped (the review's case)."""
+    once, _ = write_session(seed=3)
+    lines = (tmp_path / "rec.csv").read_text().splitlines()
+    head = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    t = lines[head].split(",").index("t_s")
+    body = lines[head + 1:]
+    cells = body[11].split(",")
+    cells[t] = body[10].split(",")[t]  # row 11 at row 10's time
+    body[11] = ",".join(cells)
+    path = _write(tmp_path, lines[:head + 1] + [line for line in body for _ in (0, 1)], "hiccup.csv")
+    assert read_fourflip(path).n_samples == len(body)
