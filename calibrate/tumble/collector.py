@@ -9,14 +9,17 @@ like any other.
 
 The recording keeps what the module sent of ``ax,ay,az``, ``gx,gy,gz`` (rad/s, as the decoder hands them and
 as the tumble reader takes them by default) and ``temp_c``: with the gyro, ``compass calibrate`` fits the turns
-between samples too (the gyro-aided fit of :mod:`calibrate.tumble.gyro`).  Its ``t_s`` never goes back.  A time that goes back, or
-jumps more than the runtime filter's ``max_gap_s`` ahead, is kept aside and the next sample tells what it was, as
-the runtime filter tells it (:meth:`compass.filter.AttitudeFilter._time_step`): when the next goes on from the old
-clock it was a corrupted value (a digit flipped on the serial line), and its sample is left out
-(:class:`CorruptedTime`); when the next goes on from the new one, the module's clock restarted (a reset, t_s back to
-about 0: the times after it go on from the last one after :data:`RESTART_GAP_S` and the stream's median step, a
-gap the gyro-aided fit integrates no turn across, the step across the restart being unknown, :class:`ClockRestart`) or the stream paused (a real gap, kept as it is).  Each is said in words when it is
-told and in the recording's ``# clock:`` line; a sample still kept aside when the stream ends is left out, said too.
+between samples too (the gyro-aided fit of :mod:`calibrate.tumble.gyro`).  Its ``t_s`` never goes back.  A time
+that goes back, or jumps more than the runtime filter's ``max_gap_s`` ahead of a stream running within it, is kept
+aside and the next sample tells what it was, as the runtime filter tells it
+(:meth:`compass.filter.AttitudeFilter._time_step`): when the next goes on from the old clock it was a corrupted
+value (a digit flipped on the serial line), and its sample is left out (:class:`CorruptedTime`); when the next goes
+on from the new one, the module's clock restarted (a reset, t_s back to about 0: the times after it go on from the
+last one after :data:`compass.io.clock.RESTART_GAP_S` and the stream's median step, a gap the gyro-aided fit
+integrates no turn across, the step across the restart being unknown, :class:`ClockRestart`) or the stream paused
+(a real gap, kept as it is).  Each is said in words when it is told and in the recording's ``# clock:`` line; a
+sample still kept aside when the stream ends is kept when its time went ahead (a gap) and left out, said, when it
+went back.
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from compass.io.atomic import atomic_write_text
-from compass.io.clock import SampleClock
+from compass.io.clock import RESTART_GAP_S, SampleClock
 from compass.filter import FilterConfig
 from compass.io.streams import StreamDecoder
 
@@ -44,10 +47,6 @@ _STEP_SAMPLES = 1000  # the median step across a restart is the last this many s
 _COLUMNS = ("t_s", *CHANNELS, "ax", "ay", "az", "gx", "gy", "gz", "temp_c")
 _GROUPS = ((1, 4), (4, 7), (7, 10), (10, 11))  # the samples' columns: magnetometer, accelerometer, gyro, temp_c
 _MAX_STEP_S = FilterConfig.max_gap_s  # a time further ahead than this is kept aside until the next tells what it was
-RESTART_GAP_S = 2.0 * FilterConfig.max_gap_s
-"""The recording's gap across a restart of the module's clock, s (plus the median step): the step is unknown, and a
-gap over ``max_gap_s`` closes the gyro-aided fit's window (:data:`calibrate.tumble.gyro.GAP_S`), so the turn made
-during the reset is never taken for one step's."""
 
 
 @dataclass(frozen=True)
@@ -61,7 +60,8 @@ class ClockRestart:
     from_s, to_s : float
         The module's time before it and its own, s.
     step_s : float
-        The step the recording takes across it: :data:`RESTART_GAP_S` plus the median of the steps before, s.
+        The step the recording takes across it: :data:`compass.io.clock.RESTART_GAP_S` plus the median of the
+        steps before, s.
     """
 
     sample: int
@@ -215,8 +215,8 @@ class TumbleCollector:
 
     def _record(self, t_s: float, values: tuple) -> None:
         """A sample into the recording at the module's ``t_s``: a time that goes back (the module's clock
-        restarted) goes on from the last one after :data:`RESTART_GAP_S` and the median step (:class:`ClockRestart`,
-        said)."""
+        restarted) goes on from the last one after :data:`compass.io.clock.RESTART_GAP_S` and the median step
+        (:class:`ClockRestart`, said)."""
         if self._last_t is not None and t_s < self._last_t:
             recent = np.array([row[0] for row in self.rows[-_STEP_SAMPLES:]])
             step = RESTART_GAP_S + (float(np.median(np.diff(recent))) if len(recent) > 1 else 0.0)

@@ -32,7 +32,8 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-__all__ = ["SampleClock", "ENVELOPE_S", "PERIOD_S", "BREAK_S", "EARLY_S", "RATE_CHANGE", "SETTLE_S", "SHIFT_S"]
+__all__ = ["SampleClock", "RESTART_GAP_S", "ENVELOPE_S", "PERIOD_S", "BREAK_S", "EARLY_S", "RATE_CHANGE", "SETTLE_S",
+           "SHIFT_S"]
 
 ENVELOPE_S = 2.0
 """Span of chunk ends whose lower envelope dates a sample, s of arrival time."""
@@ -59,6 +60,12 @@ _SHIFT_MIN_S = 0.002
 _TIE_S = 1e-9
 """Envelope offsets this close are equal (rounding): the later point stands, so a steady stream is dated at its
 arrivals exactly, s."""
+RESTART_GAP_S = 1.0
+"""A recording's gap across a restart of the module's clock (its ``t_s`` back to about 0), s, plus the median step:
+the real pause is unknown, and a gap over the filter's ``max_gap_s`` (0.5 s) closes the gyro-aided tumble fit's
+window (``calibrate.tumble.gyro.GAP_S``), so the turn made during a reset is never taken for one step's; the
+four-flip fit reads ``t_s`` only for slow drifts, which see the flips on both sides as one after the other.  The
+live tumble collector and the bench station both go on across a restart so."""
 _REFIT_S = 1.0
 """The period is refitted once this much arrival time has passed (or a tenth of the span, when shorter), s."""
 

@@ -24,7 +24,7 @@ Per flip (SPEC section 1: flip kappa about the turntable's X axis):
 The module's header and sample rate must not change during a session: a change ends it
 (:class:`SessionEnded`, the flips done are kept).  Its clock may restart (a reset, a replug, a
 ``--resume`` after a power-up: ``t_s`` from about 0 again): the step in progress is redone, and a flip
-kept after it has its ``t_s`` go on from the flips kept before, after :data:`_RESTART_GAP_S` and its
+kept after it has its ``t_s`` go on from the flips kept before, after :data:`compass.io.clock.RESTART_GAP_S` and its
 median step, said and kept in the recording's ``# clock:`` line (SPEC: ``t_s`` non-decreasing).
 """
 
@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..io.clock import RESTART_GAP_S
 from ..io.fourflip import NOMINAL_FLIPS_DEG
 from .checks import circle_axis, coverage_gap, face_name, is_still, nearest_face, up_in_housing
 from .store import FlipRows
@@ -46,10 +47,6 @@ _CHECK_EVERY_S = 0.1  # how often (module time) the station judges its windows
 _FACE_TOLERANCE_DEG = 25.0  # gravity this close to the face asked for is that face
 _RATE_TOLERANCE = 0.1  # relative change of the sample rate that ends a session
 _JUMP_S = 2.0  # a reading this far after the last is kept only when the next one follows it (a corrupted t_s)
-_RESTART_GAP_S = 1.0
-"""The recording's gap across a restart of the module's clock, s (plus the flip's median step): the real pause is
-unknown; the four-flip fit reads ``t_s`` only for slow drifts (``offset_drift``, ``gain_drift``), which then see the
-flips on both sides as one after the other."""
 
 
 class SessionEnded(ValueError):
@@ -530,7 +527,8 @@ class Station:
     def _after_kept(self, t_s: np.ndarray) -> tuple[np.ndarray, str | None]:
         """A flip's times on the recording's clock: the module's, going on from the flips kept when its clock restarted
         since they were (seen going back, or, in a resumed session, their last ``t_s`` not before the flip's first):
-        after :data:`_RESTART_GAP_S` and the flip's median step; the later flips on the same clock keep that offset.
+        after :data:`compass.io.clock.RESTART_GAP_S` and the flip's median step; the later flips on the same clock keep
+        that offset.
 
         Returns
         -------
@@ -547,7 +545,7 @@ class Station:
         last = max(float(rows.table[:, rows.columns.index("t_s")].max()) for rows in self.done.values())
         if t_s[0] > last:
             return t_s, None
-        step = _RESTART_GAP_S + (float(np.median(np.diff(t_s))) if len(t_s) > 1 else 0.0)
+        step = RESTART_GAP_S + (float(np.median(np.diff(t_s))) if len(t_s) > 1 else 0.0)
         words = (f"the module's clock restarted before flip {self.progress.flip_deg:g} (its t_s from "
                  f"{t_s[0]:.6g} s, the flips kept end at {last:.6g} s): the recording's t_s goes on after {step:.3g} s")
         self.events.append(("info", words))

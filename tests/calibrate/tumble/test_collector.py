@@ -47,7 +47,7 @@ def test_a_corrupted_time_leaves_its_sample_out_and_the_recording_on_the_modules
 def test_two_samples_on_the_new_clock_are_a_restart_gone_across_after_a_gap(tmp_path):
     """A restart's step is unknown: the recording goes on after RESTART_GAP_S and the median step, a gap over
     the gyro-aided fit's GAP_S, so no turn is integrated across it."""
-    from calibrate.tumble.collector import RESTART_GAP_S
+    from compass.io.clock import RESTART_GAP_S
     from calibrate.tumble.gyro import GAP_S
 
     t_s = _honest()

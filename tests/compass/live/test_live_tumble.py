@@ -122,7 +122,7 @@ def test_live_tumble_calibrates_across_a_restart_of_the_modules_clock_and_says_s
     written ("t_s must not decrease", exit 2, no calibration): its t_s now goes on across the restart after a gap
     (RESTART_GAP_S and the stream's median step: the gyro-aided fit integrates no turn across it), said in words,
     and the calibration is, within its stated sigma, the one of the same samples without the reset."""
-    from calibrate.tumble.collector import RESTART_GAP_S
+    from compass.io.clock import RESTART_GAP_S
     from tests.compass.live.test_live_mistakes import _live_on_socket
 
     half = len(partial.t_s) // 2
