@@ -87,13 +87,14 @@ def run(args) -> int:
                             progress=lambda line: print(line, file=sys.stderr, flush=True))
         rows = [r for r in store.sessions(hashes=summary.hashes)
                 if r.toolkit_version == toolkit and r.spec_sha256 == spec.sha256]
+        rivals = store.rivals(rows)
     html_path, csv_path, controls = write_report(out, rows, spec, spec_source=args.spec or "default",
-                                                 toolkit_version=toolkit)
+                                                 toolkit_version=toolkit, rivals=rivals)
     c = summary.counts
     print(f"{summary.total} recordings: {sum(c.values())} calibrated now ({c['accepted']} accepted, "
           f"{c['rejected']} rejected, {c['refused']} refused) in {summary.seconds:.1f} s, "
           f"{summary.skipped} already stored")
-    modules = module_outcomes(rows)
+    modules = module_outcomes(rows, rivals)
     accepted = sum(m.status == "accepted" for m in modules)
     print(f"yield {accepted}/{len(modules)} modules ({100.0 * accepted / max(len(modules), 1):.1f} %; "
           f"{len(rows)} sessions)")

@@ -72,8 +72,9 @@ def register(sub) -> None:
     bench.add_argument("--mistake", action="append", default=[], choices=("short_turn", "wrong_face"),
                        help="--bench: the operator makes this mistake once (repeatable)")
     bench.add_argument("--table-clockwise", action="store_true",
-                       help="--bench: the table's encoder and graduation count clockwise seen from above, against "
-                            "SPEC's counterclockwise turntable angle (compass bench must stop)")
+                       help="--bench: the table's encoder and graduation count clockwise seen from above, and the "
+                            "GRBL controller's $3 mask inverts the axis (a positive move turns the table clockwise), "
+                            "against SPEC's counterclockwise turntable angle (compass bench must stop)")
     bench.add_argument("--rate-change-at", type=limits.WAIT_S.option("--rate-change-at"), metavar="S", help="--bench: halve the rate at this module time")
     bench.add_argument("--header-change-at", type=limits.WAIT_S.option("--header-change-at"), metavar="S",
                        help="--bench: stop sending the accelerometer at this module time")
@@ -166,7 +167,7 @@ def _run_bench(args) -> int:
         from ..sim.grbl import GrblPty
 
         table = GrblPty(rig, link=args.grbl_link, fault=args.grbl_fault, speed=args.speed,
-                        on_path=lambda path: print(f"grbl {path}", flush=True))
+                        on_path=lambda path: print(f"grbl {path}", flush=True), invert_direction=args.table_clockwise)
         table.open()
     if args.save_truth is not None:
         atomic_write_text(args.save_truth, json.dumps(rig.truth, indent=2) + "\n")

@@ -170,8 +170,13 @@ def _ratio_over_limit(value, limits) -> float:
     return worst
 
 
-def write_report(out_dir, rows, spec, *, spec_source: str, toolkit_version: str, title: str = "Fleet report"):
+def write_report(out_dir, rows, spec, *, spec_source: str, toolkit_version: str, title: str = "Fleet report",
+                 rivals=()):
     """Write ``report.html`` and ``figures.csv`` into ``out_dir`` for these sessions (time order).
+
+    ``rivals`` are the store's other recordings claiming a session of ``rows``
+    (:meth:`compass.production.store.Store.rivals`): their modules count as duplicate ids, listed with every file; they
+    are not sessions of the report.
 
     Returns
     -------
@@ -180,7 +185,7 @@ def write_report(out_dir, rows, spec, *, spec_source: str, toolkit_version: str,
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     csv_path = write_csv(out_dir / "figures.csv", rows)
-    modules = module_outcomes(rows)
+    modules = module_outcomes(rows, rivals)
     counts = {s: sum(m.status == s for m in modules) for s in ("accepted", "rejected", "refused", "duplicate")}
     total = len(rows)
     controls = control_results(rows, spec)

@@ -144,10 +144,14 @@ def module_outcome(rows) -> ModuleOutcome:
     return ModuleOutcome(row.module_id, status, row, tuple(rivals.values()))
 
 
-def module_outcomes(rows) -> list[ModuleOutcome]:
-    """:func:`module_outcome` of every module among ``rows`` (session-time order), in order of first session."""
+def module_outcomes(rows, rivals=()) -> list[ModuleOutcome]:
+    """:func:`module_outcome` of every module among ``rows`` (session-time order), in order of first session.
+
+    ``rivals`` (:meth:`Store.rivals`: other recordings in the store claiming a session of ``rows``) take part in their
+    modules' outcomes: a module one of them rivals is a duplicate id, as it would be with both in ``rows``.
+    """
     by_module: dict[str, list[SessionRow]] = {}
-    for r in rows:
+    for r in sorted([*rows, *rivals], key=lambda r: (r.session_time, r.recording_path, r.id)):
         by_module.setdefault(r.module_id, []).append(r)
     return [module_outcome(group) for group in by_module.values()]
 
@@ -242,6 +246,22 @@ class Store:
             hashes = set(hashes)
             rows = [r for r in rows if r.recording_sha256 in hashes]
         return rows
+
+    def rivals(self, rows) -> list[SessionRow]:
+        """Stored sessions of other recordings claiming a session of ``rows``: the same module id and session time of
+        day (:func:`timed`), another hash and another path than every row of that session (:func:`module_outcome`'s
+        rivals), in session-time order.  A batch's report counts a module they rival as a duplicate id."""
+        claimed: dict[tuple[str, str], list[SessionRow]] = {}
+        for r in rows:
+            if timed(r.session_time):
+                claimed.setdefault((r.module_id, r.session_time), []).append(r)
+        found = {}
+        for (module_id, session_time), own in claimed.items():
+            for r in self.sessions(module_id=module_id):
+                if r.session_time == session_time and all(
+                        r.recording_sha256 != o.recording_sha256 and r.recording_path != o.recording_path for o in own):
+                    found[r.id] = r
+        return sorted(found.values(), key=lambda r: (r.session_time, r.recording_path, r.id))
 
     def latest_accepted(self, module_id: str) -> SessionRow:
         """The module's latest accepted session (:func:`module_outcome`).

@@ -6,7 +6,9 @@ line it accepts (``$X``, ``G90``/``G91``, ``G0``/``G1`` moves on A with ``F`` in
 to the real-time ``?``.  A move turns the rig's table (:meth:`BenchRig.turn_table`) in module
 time, at the feed rate.  Faults: ``alarm`` (after its third move it pushes ``ALARM:2``, then
 reports ``Alarm`` and refuses moves with ``error:9``) and ``silent`` (after its third move it
-answers nothing).
+answers nothing).  ``invert_direction`` is GRBL's ``$3`` direction invert mask set for the axis the
+wrong way for the table: a positive move turns the table clockwise seen from above (the reported
+``MPos`` counts up all the same, the negated table angle).
 
 :class:`GrblController` is the controller itself (bytes in, replies out, in module time);
 :class:`GrblPty` serves it on a pty, :class:`LoopbackPort` hands it to
@@ -43,11 +45,14 @@ class GrblController:
         A status report gives the position this long (uniform from 0) before it is asked for, seconds.
     seed : int
         Seeds the report delays.
+    invert_direction : bool
+        The ``$3`` mask turns the table clockwise seen from above on a positive move (module docstring).
     """
 
-    def __init__(self, rig, *, fault=None, report_delay_s: float = 0.0, seed: int = 0):
+    def __init__(self, rig, *, fault=None, report_delay_s: float = 0.0, seed: int = 0, invert_direction: bool = False):
         self.rig = rig
         self.fault = fault
+        self.sign = -1.0 if invert_direction else 1.0  # the table's turn per degree of the axis
         self.report_delay_s = report_delay_s
         self.moves = 0
         self._t_s = 0.0  # the module's clock, as the device last set it
@@ -90,7 +95,12 @@ class GrblController:
         t = self._now()
         state = "Alarm" if self._alarm else ("Idle" if self.rig.idle_at(t) else "Run")
         seen = t - float(self._rng.uniform(0.0, self.report_delay_s)) if self.report_delay_s else t
-        return f"<{state}|MPos:0.000,0.000,0.000,{float(self.rig.pose(seen)[0][0]):.3f}|FS:0,0>"
+        return f"<{state}|MPos:0.000,0.000,0.000,{self._axis_deg(seen):.3f}|FS:0,0>"
+
+    def _axis_deg(self, t_s: float) -> float:
+        """The axis' machine position at module time ``t_s``: the table's angle, negated under ``invert_direction``,
+        degrees."""
+        return self.sign * float(self.rig.pose(t_s)[0][0])
 
     def _line(self, line: str) -> str | None:
         if line == "$X":
@@ -111,8 +121,8 @@ class GrblController:
             self._feed = float(move.group(2))
         value = float(move.group(1))
         t = self._now()
-        delta = value if self._relative else value - float(self.rig.pose(t)[0][0])
-        self.rig.turn_table(t, delta, self._feed / 60.0)
+        delta = value if self._relative else value - self._axis_deg(t)
+        self.rig.turn_table(t, self.sign * delta, self._feed / 60.0)
         self.moves += 1
         if self.fault == "alarm" and self.moves >= 3:
             self._alarm = True
@@ -152,10 +162,13 @@ class GrblPty:
     speed : float
         Module seconds per wall second (the rig's clock runs that much faster).
     on_path : callable, optional
+    invert_direction : bool
+        A positive move turns the table clockwise seen from above (:class:`GrblController`).
     """
 
-    def __init__(self, rig, *, link=None, fault=None, speed: float = 1.0, on_path=None):
-        self.controller = GrblController(rig, fault=fault)
+    def __init__(self, rig, *, link=None, fault=None, speed: float = 1.0, on_path=None,
+                 invert_direction: bool = False):
+        self.controller = GrblController(rig, fault=fault, invert_direction=invert_direction)
         self.link = None if link is None else Path(link)
         self.speed = speed
         self.on_path = on_path

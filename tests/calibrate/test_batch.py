@@ -185,6 +185,35 @@ def test_a_tie_with_a_stored_session_is_rejected_and_a_later_session_wins(fleet,
         assert store.latest_accepted(own["module_id"]).recording_path == str(later)
 
 
+def test_a_later_batch_counts_a_store_only_rival_as_a_duplicate_and_a_recalibration_as_its_session(fleet, tmp_path,
+                                                                                                    capsys):
+    """The second batch's yield over its two modules: one claims a session another recording in the store (not in this
+    batch) holds, a duplicate id listed with both files, not a failed limit; the other was calibrated again later, a
+    normal thing on a line, decided by its new session."""
+    folder, truth = fleet
+    own, other = _clean(truth, 0), _clean(truth, 1)
+    first, second = tmp_path / "a", tmp_path / "b"
+    first.mkdir()
+    second.mkdir()
+    real = first / own["file"]
+    real.write_bytes((folder / "line" / own["file"]).read_bytes())
+    (first / other["file"]).write_bytes((folder / "line" / other["file"]).read_bytes())
+    fake = _relabel(folder / "line" / other["file"], real, second / f"{own['module_id']}_rerun.csv")
+    again = second / other["file"]
+    again.write_text((first / other["file"]).read_text().replace(f"# date: {other['session_time']}",
+                                                                 "# date: 2099-01-01T00:00:00"))
+    store = tmp_path / "s.sqlite"
+    assert main(["batch", str(first), "--out", str(tmp_path / "r1"), "--workers", "0", "--store", str(store)]) == 0
+    capsys.readouterr()
+    assert main(["batch", str(second), "--out", str(tmp_path / "r2"), "--workers", "0", "--store", str(store)]) == 0
+    assert "yield 1/2 modules (50.0 %; 2 sessions)" in capsys.readouterr().out
+    report = (tmp_path / "r2" / "report.html").read_text()
+    accepted, rejected, refused, duplicate = 1, 0, 0, 1
+    assert (f"<tr><td class='num ok'>{accepted}</td><td class='num bad'>{rejected}</td><td class='num bad'>{refused}"
+            f"</td><td class='num bad'>{duplicate}</td><td class='num'><b>50.0 %</b></td></tr>") in report
+    assert f"{own['module_id']} at {own['session_time']}: {real}, {fake}" in report
+
+
 def test_a_malformed_spec_is_exit_2_naming_the_key(fleet, tmp_path, capsys):
     folder, _ = fleet
     spec = tmp_path / "acceptance.toml"

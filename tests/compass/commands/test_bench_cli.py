@@ -178,6 +178,17 @@ def test_a_grbl_fault_ends_the_session_in_one_line(tmp_path, fault, message):
     assert err[-1].startswith("compass bench: " + message.format(tmp_path / "grbl")), err[-1]
 
 
+def test_a_grbl_axis_inverted_by_its_direction_mask_stops_with_the_fix_and_writes_no_calibration(tmp_path):
+    """The controller's $3 mask inverts the axis: its position counts up as the table turns clockwise seen from
+    above (test_a_grbl_table_turns_itself's session otherwise, which calibrates)."""
+    status, err = grbl_session(tmp_path, "--table-clockwise")
+    assert status == 2, "".join(err)
+    assert err[-1].startswith("compass bench: the turntable's angle (--turntable grbl) went up 330 deg over flip 0's turn "
+                              "while the module's gyro turned "), err[-1]
+    assert "invert the A axis' direction in the controller (GRBL's $3, the direction port invert mask) so that a " \
+           "positive move turns the table counterclockwise seen from above, and run the session again" in err[-1]
+    assert not (tmp_path / "cal.json").exists() and not list(tmp_path.glob("cal.flips/flip_*.csv"))
+
 
 def test_a_headerless_csv_stream_calibrates_as_our_protocol_does(tmp_path):
     """The simulated module sends bare numbers (its gyro in deg/s); the station is told their columns and units."""

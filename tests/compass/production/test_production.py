@@ -218,6 +218,24 @@ def test_two_recordings_of_one_module_at_one_session_time_are_a_tie_latest_accep
     assert outcomes == {"M5": "accepted", "M6": "duplicate", "M7": "accepted", "M8": "accepted"}
 
 
+def test_a_batchs_rows_see_the_stores_rivals_of_their_sessions_and_nothing_else(tmp_path):
+    """Store.rivals: another recording (hash and path) at a row's module id and session time of day; not the same
+    recording under another spec, the same file edited, a day alone, nor the module's sessions at other times."""
+    with Store(tmp_path / "s.sqlite") as store:
+        _add(store, "M1", "2026-03-02T07:24", "h1", path="/r/M1.csv")  # the rival
+        _add(store, "M1", "2026-03-01T07:00", "h0", path="/r/M1_early.csv")  # an earlier session
+        _add(store, "M1", "2026-03-02T07:24", "h2", path="/r/M1_rerun.csv", status="rejected")  # the batch's
+        _add(store, "M2", "2026-03-02T08:00", "h3", path="/r/M2.csv")  # the same file, edited
+        _add(store, "M2", "2026-03-02T08:00", "h4", path="/r/M2.csv")
+        _add(store, "M3", "2026-03-02", "h5", path="/r/M3a.csv")  # a day alone
+        _add(store, "M3", "2026-03-02", "h6", path="/r/M3b.csv")
+        rows = store.sessions(hashes={"h2", "h4", "h6"})
+        rivals = store.rivals(rows)
+        assert [r.recording_sha256 for r in rivals] == ["h1"]
+        outcomes = {o.module_id: o.status for o in module_outcomes(rows, rivals)}
+    assert outcomes == {"M1": "duplicate", "M2": "accepted", "M3": "accepted"}
+
+
 def test_a_store_from_a_newer_schema_is_refused_and_left_alone(tmp_path):
     path = tmp_path / "new.sqlite"
     with sqlite3.connect(path) as db:

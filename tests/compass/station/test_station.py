@@ -238,19 +238,21 @@ def test_mag_unit_converts_the_field_but_not_the_encoder():
     assert np.allclose([r.gyro for r in as_sent], np.radians(cells[:, gx:gx + 3]))  # --gyro-unit deg/s
 
 
-def test_a_grbl_table_turning_continuously_calibrates_near_the_bound(tmp_path):
-    """The station's GRBL source in one continuous turn a flip, against the simulated controller in process
-    (reports up to 10 ms old when read, as tools/bench_station.py: 1.6x the CRB RMS over sessions at 720 deg/min;
-    one session's RMS over three channels spreads as chi_3 / sqrt(3), x2.3 at 99.9 %: bound 4)."""
-    from compass.sim.grbl import GrblController, LoopbackPort
+def run_grbl_session(tmp_path, rig, controller, **source_options):
+    """Drive a session of the station's GRBL source against ``controller`` in process, in lock step (the host's clock
+    is the module's); return (station, events, recording or None).
+
+    Raises
+    ------
+    SessionEnded
+        As the station does.
+    """
+    from compass.sim.grbl import LoopbackPort
     from compass.station.grbl import GrblSource
 
-    rig = BenchRig(seed=13)
     rig.operator_turns = False
-    controller = GrblController(rig, report_delay_s=0.01, seed=13)
     now = [0.0]
-    source = GrblSource("simulated", link=LoopbackPort(controller), clock=lambda: now[0], mode="continuous",
-                        feed_deg_min=720.0)
+    source = GrblSource("simulated", link=LoopbackPort(controller), clock=lambda: now[0], **source_options)
     source.open()
     store = SessionStore(tmp_path / "cal.json")
     store.start({})
@@ -265,12 +267,55 @@ def test_a_grbl_table_turning_continuously_calibrates_near_the_bound(tmp_path):
 
     drive(rig, station, StationStream(None), max_s=600.0, on_block=on_block)
     events = station.drain()
+    recording = read_fourflip(store.write_recording({"turntable": source.spec})) if station.finished else None
+    return station, events, recording
+
+
+def test_a_grbl_table_turning_continuously_calibrates_near_the_bound(tmp_path):
+    """The station's GRBL source in one continuous turn a flip, against the simulated controller in process
+    (reports up to 10 ms old when read, as tools/bench_station.py: 1.6x the CRB RMS over sessions at 720 deg/min;
+    one session's RMS over three channels spreads as chi_3 / sqrt(3), x2.3 at 99.9 %: bound 4)."""
+    from compass.sim.grbl import GrblController
+
+    rig = BenchRig(seed=13)
+    controller = GrblController(rig, report_delay_s=0.01, seed=13)
+    station, events, recording = run_grbl_session(tmp_path, rig, controller, mode="continuous", feed_deg_min=720.0)
     assert station.finished and "flip 0: the table turns once round" in [text for _, text in events], events
-    recording = read_fourflip(store.write_recording({"turntable": source.spec}))
     truth = np.mod(rig.pose(recording.t_s)[0], 360.0)
     angle_error = (recording.platform_deg - truth + 180.0) % 360.0 - 180.0
     assert np.sqrt(np.mean(angle_error**2)) < 0.1  # 12 deg/s at most, reports 0-10 ms late: 0.05 deg RMS a turn
     ratio, error = direction_error_over_crb(rig, recording)
+    assert np.sqrt(np.mean(ratio**2)) < 4.0, (ratio, error)
+
+
+@pytest.mark.parametrize("mode, turned", [("stops", "went up 330 deg"), ("continuous", "went up 360 deg")])
+def test_a_grbl_axis_inverted_by_its_direction_mask_stops_before_a_flip_is_kept(tmp_path, mode, turned):
+    """GRBL's $3 mask inverts the axis: the controller's position counts up while the table turns clockwise seen
+    from above (mirrored directions).  The module's gyro turned the other way, so the first flip stops the session
+    naming the mask; nothing is kept."""
+    from compass.sim.grbl import GrblController
+
+    rig = BenchRig(seed=13)
+    controller = GrblController(rig, invert_direction=True)
+    with pytest.raises(SessionEnded, match=re.escape(turned) + r" over flip 0's turn while the module's gyro turned "
+                       r"\d+ deg clockwise seen from above: .*; invert the A axis' direction in the controller "
+                       + re.escape("(GRBL's $3, the direction port invert mask)")):
+        run_grbl_session(tmp_path, rig, controller, mode=mode, step_deg=30.0, feed_deg_min=720.0)
+    assert SessionStore(tmp_path / "cal.json").finished() == {}
+
+
+def test_the_same_grbl_session_with_the_axis_not_inverted_calibrates(tmp_path):
+    """test_a_grbl_axis_inverted_by_its_direction_mask_stops_before_a_flip_is_kept's session, the controller's
+    positive move turning the table counterclockwise: stops every 30 deg at exact angles, each the mean of a still
+    second, at the CRB of those rows (RMS ratio 1.13, 0.85, 1.23, 0.53 on seeds 13, 1, 2, 3; one session's RMS over
+    three channels spreads as chi_3 / sqrt(3), x2.3 at 99.9 %: bound 4)."""
+    from compass.sim.grbl import GrblController
+
+    rig = BenchRig(seed=13)
+    station, events, recording = run_grbl_session(tmp_path, rig, GrblController(rig), mode="stops", step_deg=30.0,
+                                                  feed_deg_min=720.0)
+    assert station.finished and not [e for e in events if e[0] == "warn"], events
+    ratio, error = direction_error_over_crb(rig, recording, rig.rate_hz)
     assert np.sqrt(np.mean(ratio**2)) < 4.0, (ratio, error)
 
 
