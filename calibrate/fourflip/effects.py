@@ -366,7 +366,8 @@ VARIANTS: dict[str, tuple[FourFlipEffect, ...]] = {
     "flip_error": (FlipError("flip_error", "",
                              "flip-to-flip inconsistency that turning the 90/180/270 flips by small angles removes"),),
     "turntable_zero": (TurntableZero(
-        "turntable_zero", "", "each flip's turn seen from another zero: the field's azimuth differs between flips"),),
+        "turntable_zero", "", "the field's azimuth differs between flips by a constant each (the cube set down turned "
+        "about the vertical after a flip, or the table's zero moved)"),),
     "temperature": (Temperature("temperature", "", "offset and gain changes that follow temp_c"),),
     "gain_drift": tuple(GainDrift("gain_drift", f"degree {d}", "a slow trend in time in each channel's gain (the swing "
                                   f"of its curve growing or shrinking; polynomial of degree {d} in t_s)", degree=d)
