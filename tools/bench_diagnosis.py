@@ -82,6 +82,7 @@ SHORT = {
     "offset_drift": "drift",
     "platform_field": "platform",
     "flip_error": "flip",
+    "turntable_zero": "zero",
     "temperature": "temp",
 }
 KINDS = ("X", "Y", "Z")

@@ -2,11 +2,11 @@
 
 The toolkit's own simulator shares the forward model with the estimator; this one does not: plain
 numpy rotation matrices, 2 degree steps, and effects written here in their own forms, some of
-which the toolkit models (a symmetric or asymmetric non-linearity) and some it does not (per-flip
-yaw of the cube on the turntable, a first-order lag of the output, cross-talk between channels).
+which the toolkit models (a symmetric or asymmetric non-linearity, a per-flip yaw of the cube on the
+turntable) and some it does not (a first-order lag of the output, cross-talk between channels).
 It prints what the loop named, whether it called the residual unexplained, the residual before
-and after over the noise floor, and the direction error over the reported sigma (1 when the
-sigma is honest), against the directions the simulator used.
+and after over the noise floor, the direction error (degrees) and the direction error over the
+reported sigma (1 when the sigma is honest), against the directions the simulator used.
 
 Run: ``python tools/bench_independent_sim.py [--n 5] [--write-docs]`` (``--write-docs``: the table into
 docs/calibration.md, ``tools/_doc_table.py``).
@@ -85,9 +85,10 @@ def main(argv=None) -> int:
     args = parse_args(parser, argv)
     table = []
     print(f"Independent simulator: {args.n} recordings per case, 4 flips x 180 samples, noise {NOISE_UT} uT\n")
-    print(f"{'case':<24}{'named effects':<28}{'unexplained':>12}{'rms/floor before -> after':>28}{'err/sigma':>11}")
+    print(f"{'case':<24}{'named effects':<28}{'unexplained':>12}{'rms/floor before -> after':>28}{'err, deg':>10}"
+          f"{'err/sigma':>11}")
     for case, size in CASES:
-        named, unexplained, before, after, ratios = Counter(), 0, [], [], []
+        named, unexplained, before, after, errors, ratios = Counter(), 0, [], [], [], []
         for seed in range(args.n):
             rec, truth = session(seed, case, size)
             result = calibrate_fourflip(rec, diagnose=True)
@@ -97,19 +98,21 @@ def main(argv=None) -> int:
             before.append(d["residual_rms_before"] / d["noise_floor"])
             after.append(d["residual_rms_after"] / d["noise_floor"])
             err = np.degrees(np.arccos(np.clip(np.sum(result.directions * truth, axis=1), -1, 1)))
+            errors.extend(err)
             ratios.extend(err / np.array([c.direction_sigma_deg for c in result.channels]))
         names = "; ".join(f"{k} x{v}" for k, v in named.items())
+        rms_error, rms_ratio = np.sqrt(np.mean(np.square(errors))), np.sqrt(np.mean(np.square(ratios)))
         print(f"{case:<24}{names:<28}{unexplained:>9}/{args.n}{np.mean(before):>16.2f} -> {np.mean(after):<9.2f}"
-              f"{np.sqrt(np.mean(np.square(ratios))):>11.2f}")
+              f"{rms_error:>10.3f}{rms_ratio:>11.2f}")
         table.append([case, names, f"{unexplained}/{args.n}", f"{np.mean(before):.2f} -> {np.mean(after):.2f}",
-                      f"{np.sqrt(np.mean(np.square(ratios))):.2f}"])
-    print("\nerr/sigma: RMS of each channel's direction error over its reported sigma (against the effective"
-          "\ndirection for cross-talk: the leak is part of what the channel senses). Per-flip yaw is not"
-          "\nidentifiable as such (a rotation of the housing frame about Z absorbs one combination): it is"
-          "\nreported unexplained, with no claim. A lag common to all flips is a shift of the field azimuth.")
+                      f"{rms_error:.3f}", f"{rms_ratio:.2f}"])
+    print("\nerr, deg: RMS of each channel's direction error; err/sigma: the same over its reported sigma (against the"
+          "\neffective direction for cross-talk: the leak is part of what the channel senses). A per-flip yaw is the"
+          "\nturntable_zero effect (flip 0's is the field azimuth). A lag common to all flips is a shift of the field"
+          "\nazimuth.")
     publish(args, "docs/calibration.md", "bench_independent_sim",
-            markdown_table(["case", "effects named", "unexplained", "residual / floor, before -> after", "err/sigma"],
-                           table),
+            markdown_table(["case", "effects named", "unexplained", "residual / floor, before -> after", "err, deg",
+                            "err/sigma"], table),
             caption=f"{args.n} recordings per case, 4 flips x 180 samples, noise {NOISE_UT} uT")
     return 0
 

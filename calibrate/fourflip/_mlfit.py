@@ -256,7 +256,7 @@ class _Predictor:
 
 def _geometry_key(physics: BenchPhysics) -> tuple:
     """Everything :func:`housing_field` depends on, hashable."""
-    arrays = (physics.encoder_fourier, physics.flip_rotvec_deg, physics.platform_field)
+    arrays = (physics.encoder_fourier, physics.turntable_zero_deg, physics.flip_rotvec_deg, physics.platform_field)
     return (physics.dip_deg, physics.azimuth_deg, physics.field_norm,
             *(None if a is None else np.asarray(a).tobytes() for a in arrays))
 

@@ -13,8 +13,9 @@ with ``u_x = a_x`` in every flip and ``u_y = a_y, -a_z, -a_y, a_z`` in flips 0, 
 are fitted (variable projection: given them, X, Y, Z are linear) from the harmonics alone, before any
 direction is.  A flip whose turntable angles are off by ``D`` (the table's zero moved, the cube set
 down turned about the vertical, that flip's angles read from another reference) has
-``delta_k = delta + D``; the joint fit, which has one ``delta``, spreads that over the directions, the
-dip and the gains, or calls a healthy channel dead.
+``delta_k = delta + D``; the joint fit's base model, which has one ``delta``, spreads that over the
+directions, the dip and the gains, or calls a healthy channel dead.  A few degrees is the diagnosis's effect
+``turntable_zero`` (fitted, from a start at zero); a quarter or half turn (a wrong mark) is refused here.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ a degree or less; a zero read from the wrong mark, by a quarter or half turn), w
 :data:`ZERO_OFF_SIGMAS`.  Not less: a strongly nonlinear response shifts the flips' azimuths by a few degrees with
 a misfit one azimuth per flip still explains (the simulator's ``nonlinear_response`` at scale 4: 5.3 deg on seeds 7
 and 19, refused at 5 deg; up to 12.3 deg over 2000 seeds, the review's scan; 7.6 at scale 2), and a setting error
-of a few degrees is the joint fit's diagnosis's (which widens the sigmas and calls it unexplained)."""
+of a few degrees is the joint fit's diagnosis's (its effect ``turntable_zero``)."""
 ZERO_OFF_SIGMAS = 5.0
 MAX_REDUCED_CHI2 = 4.0
 """The azimuths are judged only when one per flip explains the harmonics (a reduced chi-square below

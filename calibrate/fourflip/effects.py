@@ -10,6 +10,8 @@ Identifiability notes (what the bench cannot see):
   a fixed tilt of the turntable axis turns the field the same way at every flip and is absorbed
   by the dip (and field azimuth): it never shows in the residual.  Only an external reference
   (IGRF/WMM dip at the site) reveals it.
+- ``turntable_zero``: flip 0's zero is the field azimuth's, so only flips 90, 180 and 270 have one; a zero
+  common to every flip is the field azimuth.
 - ``platform_field``: its vertical component adds to the Earth's vertical field at every angle
   and flip (absorbed by the dip and the gains), and its component along the flip axis X adds
   ``a_x b_x`` in every flip (absorbed by the offsets); only the y component is fitted.  The other two
@@ -155,6 +157,38 @@ class FlipError(FourFlipEffect):
     def jacobian(self, physics, p, samples, partials):
         which = (samples.flip_index[:, None] == np.arange(1, 4)[None, :]).astype(float)  # (n, 3)
         return partials.per_flip[:, :, None] * which[:, None, :]
+
+    def report_scale(self, physics):
+        return np.degrees(1.0)
+
+
+class TurntableZero(FourFlipEffect):
+    """Each flip's turntable zero differs from flip 0's: the true angle is ``platform_deg + D_k`` in flip k.
+
+    The cube set down turned about the vertical after a flip (no fence, or a fence it does not touch), or the
+    table's reading re-zeroed between flips.  Flip 0's zero is the field azimuth's, so only flips 90, 180 and 270
+    have one; it is not a flip angle error (``flip_error``, about the cube's X edge) nor a harmonic of the angle
+    (``encoder_error``): a constant per flip, told apart by each flip's own first harmonic
+    (:mod:`calibrate.fourflip._phases`).
+    """
+
+    def n_params(self, c):
+        return 3
+
+    def param_names(self, channels):
+        return ["flip90.turntable_zero_deg", "flip180.turntable_zero_deg", "flip270.turntable_zero_deg"]
+
+    @property
+    def formula(self):
+        return ("true turntable angle = platform_deg + flip<k>.turntable_zero_deg in flip k (flip 0's is 0: it defines "
+                "the field's azimuth), degrees")
+
+    def apply(self, physics, p, samples):
+        return physics.with_(turntable_zero_deg=np.degrees(np.concatenate([[0.0], p])))
+
+    def jacobian(self, physics, p, samples, partials):
+        which = (samples.flip_index[:, None] == np.arange(1, 4)[None, :]).astype(float)  # (n, 3)
+        return partials.per_turn[:, :, None] * which[:, None, :]
 
     def report_scale(self, physics):
         return np.degrees(1.0)
@@ -331,6 +365,9 @@ VARIANTS: dict[str, tuple[FourFlipEffect, ...]] = {
         "per-flip offsets that follow each channel's direction in the turntable frame (a field turning with the turntable)"),),
     "flip_error": (FlipError("flip_error", "",
                              "flip-to-flip inconsistency that turning the 90/180/270 flips by small angles removes"),),
+    "turntable_zero": (TurntableZero(
+        "turntable_zero", "", "the field's azimuth differs between flips by a constant each (the cube set down turned "
+        "about the vertical after a flip, or the table's zero moved)"),),
     "temperature": (Temperature("temperature", "", "offset and gain changes that follow temp_c"),),
     "gain_drift": tuple(GainDrift("gain_drift", f"degree {d}", "a slow trend in time in each channel's gain (the swing "
                                   f"of its curve growing or shrinking; polynomial of degree {d} in t_s)", degree=d)

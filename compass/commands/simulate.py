@@ -10,7 +10,8 @@ from __future__ import annotations
 from .. import limits
 from ..limits import Range
 
-SIM_EFFECTS = ("nonlinear_response", "encoder_error", "offset_drift", "platform_field", "flip_error", "temperature",
+SIM_EFFECTS = ("nonlinear_response", "encoder_error", "offset_drift", "platform_field", "flip_error", "turntable_zero",
+               "temperature",
                "field_gradient", "gain_drift")
 """The four-flip simulator's effects (``compass.sim.fourflip.SIM_EFFECTS``, checked equal in the tests)."""
 

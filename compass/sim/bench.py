@@ -88,6 +88,9 @@ class BenchPhysics:
         (1 / field unit^4) of the response (``nonlinear_response``).
     encoder_fourier : ndarray, shape (m, 2), optional
         Encoder error ``e(phi) = sum_k A_k cos(k phi) + B_k sin(k phi)``, degrees, k = 1..m.
+    turntable_zero_deg : ndarray, shape (4,), optional
+        Each flip's turntable zero against the recorded angles, degrees: the true angle is
+        ``platform_deg + turntable_zero_deg[flip]`` (the cube set down turned about the vertical).
     flip_rotvec_deg : ndarray, shape (4, 3), optional
         Rotation vector (degrees, bench axes at turntable angle 0) of each flip's pose error
         ``E_k``: a true pose ``Rz(phi) E_k Rx(kappa)``; its x component is an error of the flip
@@ -120,6 +123,7 @@ class BenchPhysics:
     cubic: np.ndarray | None = None
     quintic: np.ndarray | None = None
     encoder_fourier: np.ndarray | None = None
+    turntable_zero_deg: np.ndarray | None = None
     flip_rotvec_deg: np.ndarray | None = None
     platform_field: np.ndarray | None = None
     drift: np.ndarray | None = None
@@ -139,19 +143,20 @@ class BenchPhysics:
 
 
 def true_platform_deg(physics: BenchPhysics, samples: BenchSamples) -> np.ndarray:
-    """Turntable angle after the encoder error, degrees, shape (n,)."""
+    """Turntable angle after the encoder error and each flip's zero, degrees, shape (n,)."""
     phi = samples.platform_deg
+    true = phi if physics.turntable_zero_deg is None else phi + np.asarray(physics.turntable_zero_deg)[samples.flip_index]
     if physics.encoder_fourier is None:
-        return phi
+        return true
     k = np.arange(1, len(physics.encoder_fourier) + 1)
     arg = np.radians(phi)[:, None] * k[None, :]
-    return phi + np.cos(arg) @ physics.encoder_fourier[:, 0] + np.sin(arg) @ physics.encoder_fourier[:, 1]
+    return true + np.cos(arg) @ physics.encoder_fourier[:, 0] + np.sin(arg) @ physics.encoder_fourier[:, 1]
 
 
 def housing_field(physics: BenchPhysics, samples: BenchSamples) -> np.ndarray:
     """The field in the housing frame H at each sample, shape (n, 3), field units."""
     b_w = field_in_bench(physics.dip_deg, physics.azimuth_deg, physics.field_norm)
-    if physics.encoder_fourier is None and physics.flip_rotvec_deg is None:
+    if physics.encoder_fourier is None and physics.turntable_zero_deg is None and physics.flip_rotvec_deg is None:
         full, flip = samples.recorded_rotations
         b_h = np.einsum("nji,j->ni", full, b_w)
         if physics.platform_field is not None:

@@ -33,6 +33,7 @@ SIM_EFFECTS = (
     "offset_drift",
     "platform_field",
     "flip_error",
+    "turntable_zero",
     "temperature",
     "field_gradient",
     "gain_drift",
@@ -215,6 +216,13 @@ def simulate_fourflip(
         errors[1:, 0] = s * rng.choice([-1, 1], 3) * rng.uniform(0.3, 0.7, 3)
         physics = physics.with_(flip_rotvec_deg=errors)
         truth_effects.append({"name": "flip_error", "parameters": {"flip_rotvec_deg": errors.tolist()}})
+    if "turntable_zero" in effects:
+        # the cube set down turned about the vertical after a flip (no fence, or re-zeroed table): its yaw on the table
+        yaw = np.zeros((4, 3))
+        yaw[1:, 2] = s * rng.choice([-1, 1], 3) * rng.uniform(0.3, 1.0, 3)
+        rotvec = yaw if physics.flip_rotvec_deg is None else physics.flip_rotvec_deg + yaw
+        physics = physics.with_(flip_rotvec_deg=rotvec)
+        truth_effects.append({"name": "turntable_zero", "parameters": {"yaw_deg": yaw[:, 2].tolist()}})
     if "platform_field" in effects:
         b_p = s * rng.choice([-1, 1], 3) * rng.uniform(0.3, 0.6, 3)
         physics = physics.with_(platform_field=b_p)

@@ -67,6 +67,29 @@ def test_flip_error_parameters_recovered(write_session):
         assert abs(p["value"] - true[k][0]) < 4 * p["sigma"], (flip, p, true[k][0])
 
 
+def test_turntable_zero_parameters_recovered(write_session):
+    rec, truth = write_session(seed=204, effects=("turntable_zero",))
+    result = calibrate_fourflip(rec, diagnose=True)
+    params = result.effects[0]["parameters"]
+    true = [e for e in truth["effects"] if e["name"] == "turntable_zero"][0]["parameters"]["yaw_deg"]
+    for k, flip in enumerate((90, 180, 270), start=1):
+        p = params[f"flip{flip}.turntable_zero_deg"]
+        assert abs(p["value"] - true[k]) < 4 * p["sigma"], (flip, p, true[k])
+
+
+@pytest.mark.parametrize("by_deg", [-4.0, 12.0])
+def test_a_flip_set_down_turned_is_fitted_not_widened(write_session, by_deg):
+    """One flip's turntable angles read from a zero a few degrees off (under the refusal's 15 deg): the diagnosis
+    names the flip's zero and the directions come back at the clean recording's error, not spread over the fit."""
+    rec, truth = write_session(seed=3)
+    moved = replace(rec, platform_deg=np.where(rec.flip_index == 2, rec.platform_deg + by_deg, rec.platform_deg))
+    result = calibrate_fourflip(moved, diagnose=True)
+    assert result.diagnosis["effects"] == ["turntable_zero"]
+    p = result.effects[0]["parameters"]["flip180.turntable_zero_deg"]
+    assert abs(p["value"] + by_deg) < 4 * p["sigma"]  # true angle = recorded - by_deg
+    _check_explained(result, truth)
+
+
 def test_noise_floor_matches_injected_noise(write_session):
     from calibrate.noise import noise_floor
 
