@@ -10,7 +10,8 @@
   (:class:`compass.io.fixed_lines.CsvDecoder`);
 
 and ``auto`` (the default) tells them apart from the first lines: ``Raw:``, ``Uni:``, ``Cal1:`` or
-``Cal2:`` is MotionCal, a line naming protocol columns is ours, and bare numbers with no header in
+``Cal2:`` is MotionCal, a log's header (x-io's ``Time (s),Gyroscope X (deg/s),...``) is a CSV whose columns and
+units it names, a line naming protocol columns is ours, and bare numbers with no header in
 the first seconds are a CSV that needs ``--columns`` (said, the session ends).  ``--columns`` alone
 means ``csv``.  The format found is stated as an event and in :meth:`StreamDecoder.describe`.
 
@@ -60,6 +61,7 @@ from . import units
 from .fixed_lines import CsvDecoder, MotionCalDecoder
 from .lines import _GROUPS, _SCALARS, LineDecoder, LineStats, Sample
 from .stream_options import EXAMPLE_COLUMNS, FORMATS, StreamOptions, add_stream_arguments
+from .table import log_column_name
 
 __all__ = ["FORMATS", "JUDGE_SAMPLES", "HELD_JUDGE_SAMPLES", "HELD_SHARE", "UNIT_HOLD_SAMPLES", "TURNED_DEG",
            "FIXED_SHARE", "TURN_SHARE", "NORM_SHARE", "MIN_TURNED_PAIRS", "StreamOptions", "StreamDecoder",
@@ -630,6 +632,10 @@ class StreamDecoder:
             cells = [c.strip() for c in (text[:star] if star > 0 else text).split(",")]
             if text.startswith(_MOTIONCAL_TAGS):
                 return self._decided("motioncal", "found from its Raw:/Uni:/Cal lines", kept + lines[k:], tail)
+            log = _log_header(cells)
+            if log is not None:
+                self._resynced &= bool(kept)  # a whole header line: the line after it starts whole
+                return self._log_decided(*log, text, kept + lines[k + 1:], tail)
             if text and not text.startswith("#") and not _number(cells[0]) and known & set(cells):
                 return self._decided("compass", "found from its header line", kept + lines[k:], tail)
             if not text:
@@ -658,6 +664,16 @@ class StreamDecoder:
             self.stats.garbage += 1
             self._pending = b""
         return b""
+
+    def _log_decided(self, names: tuple, named_units: dict, text: str, lines: list, tail: bytes) -> bytes:
+        """A log's header line (``text``): its cells become the CSV's columns, and the units it names are the
+        stream's where the user named none (as the file readers read that header)."""
+        given = {kind: getattr(self.options, f"{kind}_unit") for kind in ("mag", "accel", "gyro")}
+        self.options = replace(self.options, columns=names,
+                               **{f"{kind}_unit": given[kind] or named_units.get(kind) for kind in given})
+        said = ", ".join(f"{kind} in {unit}" for kind, unit in named_units.items() if given[kind] is None)
+        return self._decided("csv", f"found from its log header {text[:60]!r}: columns {','.join(names)}"
+                                    + (f", {said} as it names them" if said else ""), lines, tail)
 
     def _decided(self, fmt: str, how: str, lines: list, tail: bytes) -> bytes:
         self._adopt(fmt, how)
@@ -758,6 +774,25 @@ class StreamDecoder:
             self.events.append(("warn", f"the gyro read in {unit} turns {more} than the accelerometer sees the housing "
                                         f"tilt (a unit taken for another gives 57): is --gyro-unit right?"
                                         f"{units.stuck_gyro_words(gyro[sane])}"))
+
+
+def _log_header(cells) -> tuple[tuple, dict] | None:
+    """A log's header (x-io's ``Time (s),Gyroscope X (deg/s),...``, read as the file readers read it,
+    :func:`compass.io.table.log_column_name`): the cells as ``--columns`` names (a cell that names nothing of ours
+    kept as it is, ignored) and the units it names, ``{"mag"|"accel"|"gyro": unit}``; None unless it renames a cell
+    and names a magnetometer's three axes."""
+    names, named_units, renamed = [], {}, False
+    for cell in cells:
+        canon, unit = log_column_name(cell)
+        if canon == "t_s":
+            canon, unit = {"s": "t_s", "ms": "t_ms", "us": "t_us"}[unit.lower()], None
+        renamed |= canon is not None
+        names.append(canon or cell)
+        if canon is not None and unit is not None:
+            named_units[{"g": "gyro", "a": "accel", "m": "mag"}[canon[0]]] = unit
+    if not renamed or not {"mx", "my", "mz"} <= set(names) or len(set(names)) != len(names) or "" in names:
+        return None
+    return tuple(names), named_units
 
 
 def _number(cell: str) -> bool:

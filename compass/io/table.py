@@ -42,7 +42,7 @@ from ..limits import FIELD_UT
 from .units import note
 
 __all__ = ["RecordingError", "Table", "ReadOptions", "read_table", "add_read_arguments", "format_table", "VOCABULARY",
-           "ABSENT_KEY", "LIVE_RECORD"]
+           "ABSENT_KEY", "LIVE_RECORD", "log_column_name"]
 
 VOCABULARY = ("t_s", "temp_c", "flip_deg", "platform_deg", "platform_z_deg", "platform_y_deg", "platform_x_deg",
               "mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz", "bx_ref", "by_ref", "bz_ref", "pitch_deg",
@@ -801,7 +801,7 @@ def _interpret(table: Table, options: ReadOptions, meta_rows: dict, time_may_go_
     for i, name in enumerate(header):
         if name in mapping:
             continue
-        canon, unit = _log_name(name)
+        canon, unit = log_column_name(name)
         if canon is not None and canon not in header:
             header[i] = canon
             recognised.setdefault(canon[0] if canon != "t_s" else canon, []).append((canon, name, unit))
@@ -848,7 +848,7 @@ def _check_named_numbers(path, header, original, text_cells) -> None:
         raise _not_a_number(path, original[name], row, cell)
 
 
-def _log_name(name: str) -> tuple[str | None, str | None]:
+def log_column_name(name: str) -> tuple[str | None, str | None]:
     """A log header's sensor column as (toolkit name, unit): ``"Gyroscope X (deg/s)"`` -> ``("gx", "deg/s")``."""
     m = _TIME_NAME.match(name)
     if m:

@@ -160,6 +160,28 @@ def test_a_reconnect_before_the_format_is_known_counts_what_it_drops():
     assert d.format == "compass"
 
 
+def test_a_log_header_names_the_columns_and_their_units_as_the_file_readers_read_it():
+    """x-io's header (the logs in shared/data/xio-fusion): its cells are the columns, its units converted; the line
+    after it is whole even after a reconnect; a unit the user names wins, as in the file readers."""
+    header = b"Time (s),Gyroscope X (deg/s),Gyroscope Y (deg/s),Gyroscope Z (deg/s),Accelerometer X (g)," \
+             b"Accelerometer Y (g),Accelerometer Z (g),Magnetometer X (uT),Magnetometer Y (uT),Magnetometer Z (uT)\r\n"
+    row = b"0.01,90,0,0,0,0,1,20,0,-40\r\n"
+    d = StreamDecoder(CHANNELS)
+    d.resync()
+    out = d.feed(header + row)
+    assert d.format == "csv" and d.describe() == "csv t_s,gx,gy,gz,ax,ay,az,mx,my,mz" and d.fatal is None
+    assert len(out) == 1 and d.stats.garbage == d.stats.partial == 0
+    np.testing.assert_allclose(out[0].gyro, [np.pi / 2, 0.0, 0.0])
+    np.testing.assert_allclose(out[0].raw, [20.0, 0.0, -40.0])
+    assert out[0].t_s == 0.01
+    assert any("log header" in t and "gyro in deg/s" in t for _, t in d.drain_events())
+    d = StreamDecoder(CHANNELS, StreamOptions(gyro_unit="rad/s"))
+    np.testing.assert_allclose(d.feed(header + row)[0].gyro, [90.0, 0.0, 0.0])
+    d = StreamDecoder(CHANNELS)
+    d.feed(b"Time (ms),Accelerometer X (g),Accelerometer Y (g),Accelerometer Z (g)\r\n1,0,0,1\r\n")
+    assert d.format is None  # no magnetometer named: not a log header of ours (nothing adopted)
+
+
 def test_named_units_are_converted():
     d = StreamDecoder(CHANNELS, StreamOptions(columns=("mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz"),
                                               mag_unit="mG", accel_unit="m/s2", gyro_unit="deg/s"))
