@@ -276,6 +276,7 @@ def _keep_partial(stream: Path, path: Path, pid: str) -> None:
     kept = path.with_name(f"{path.stem}.partial-{pid}{path.suffix}")
     if kept.exists():
         return
+    os.chmod(stream, output_mode(kept))  # a new output's mode (mkstemp's is private)
     os.replace(stream, kept)
     note(f"{kept}: the rows a session writing {path} had when it was killed (process {pid}), kept; its last line "
          "may be cut short (delete it to replay the file)")

@@ -205,6 +205,7 @@ def test_a_killed_stream_s_rows_are_kept_visible_by_the_next_write(tmp_path):
     target = tmp_path / "att.csv"
     rows = tmp_path / f".att.csv.{gone.pid}.abc.stream.tmp"
     rows.write_text("t_s,heading_deg\n0.01,12.5\n")
+    rows.chmod(0o600)  # as mkstemp leaves it
     empty = tmp_path / f".att.csv.{gone.pid}.def.stream.tmp"
     empty.write_text("")
     with pytest.warns(RecordingWarning, match=f"att.partial-{gone.pid}.csv: the rows a session writing"):
@@ -212,6 +213,7 @@ def test_a_killed_stream_s_rows_are_kept_visible_by_the_next_write(tmp_path):
             fh.write("t_s,heading_deg\n")
     kept = tmp_path / f"att.partial-{gone.pid}.csv"
     assert kept.read_text() == "t_s,heading_deg\n0.01,12.5\n" and target.exists()
+    assert stat.S_IMODE(kept.stat().st_mode) == stat.S_IMODE(target.stat().st_mode)  # a new output's, not private
     assert temporaries(tmp_path) == []
 
 
