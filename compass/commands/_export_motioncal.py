@@ -48,7 +48,7 @@ def _fibonacci_sphere(n: int) -> np.ndarray:
     return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
-def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0):
+def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0, axes=None):
     """The packet of a calibration and notes on what it leaves out (module docstring).
 
     Parameters
@@ -59,6 +59,9 @@ def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0):
         Unit of the calibration's magnetometer readings.
     max_rotation_deg : float
         Largest rotation between the corrected field and the accelerometer's frame that is left out.
+    axes : tuple of 3 str, optional
+        ``--axes``: the channels the device reads as its sensor's x, y, z; default from their names
+        (:func:`compass.commands._export_form.axis_order`).
 
     Returns
     -------
@@ -76,6 +79,7 @@ def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0):
     from ..cli import BadInput
     from ..io.motioncal import CalPacket
     from ..io.units import MAG_UNITS
+    from ._export_form import axes_words, axis_order, mirrored_words
 
     def refuse(why: str):
         return BadInput(f"{cal.path}: a {cal.kind} calibration cannot go into MotionCal's packet: {why}")
@@ -91,6 +95,7 @@ def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0):
         raise refuse(f"its alignment turns the field {math.degrees(angle):.2f} deg into the product's frame, and the "
                      f"packet corrects the magnetometer in its own frame with no rotation: export the bench "
                      f"calibration it was installed from, or calibrate the installed module by a tumble")
+    order = list(axis_order(cal, axes))
     magnitude = float(model.field_norm)
     field_b = magnitude * _fibonacci_sphere(400)
     x = field_b @ model.unit_directions.T
@@ -108,12 +113,13 @@ def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0):
     if all(r.model == "linear" for r in model.responses):  # the same map, exactly: no fit's rounding in the bytes
         offset = model.zero_outputs
         matrix = np.linalg.inv(model.gains[:, None] * model.unit_directions)
+    matrix, offset = matrix[:, order], offset[order]  # the device's x, y, z
     to_model = cal.imu.rotation  # R_model<-accel: the bench's mag_to_accel (an installed alignment was refused)
     in_accel = matrix if to_model is None else to_model.T @ matrix
     rotation, soft = polar(in_accel, side="right")
-    if np.linalg.det(rotation) < 0:
-        raise refuse("an axis of its field is mirrored against the accelerometer's (a negative determinant): the "
-                     "packet's symmetric matrix cannot flip it; check the axes' signs")
+    mirrored = mirrored_words(rotation, axes_words(cal, order))
+    if mirrored:
+        raise refuse(mirrored)
     angle_deg = math.degrees(Rotation.from_matrix(rotation).magnitude())
     if angle_deg > max_rotation_deg:
         raise refuse(f"its field is turned {angle_deg:.2f} deg against the accelerometer's frame, which the packet's "
@@ -139,7 +145,7 @@ def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0):
     if not 0.5 <= scale <= 2.0:
         raise refuse(f"its soft iron would scale the device's uT by {scale:.3g}: its readings are not in {unit} "
                      f"(volts, counts?), and the receiver reads the magnetometer in uT")
-    notes = ["accelerometer zero-g and gyro zero-rate sent as 0, as MotionCal sends them"]
+    notes = [axes_words(cal, order), "accelerometer zero-g and gyro zero-rate sent as 0, as MotionCal sends them"]
     if angle_deg > 0.005:
         notes.append(f"left out: the field's {angle_deg:.2f} deg rotation against the accelerometer (under "
                      f"--max-rotation-deg {max_rotation_deg:g})")
@@ -151,14 +157,15 @@ def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0):
     return packet, notes
 
 
-def describe(packet) -> str:
-    """The sixteen numbers and the bytes, as text."""
+def describe(packet, comments=()) -> str:
+    """The sixteen numbers and the bytes, as text, after ``comments`` (lines of words, each written as ``# ...``)."""
     from ..io.motioncal import encode_packet
 
     s = packet.soft_iron
     data = encode_packet(packet)
     return ("# compass export: MotionCal calibration packet (68 bytes: 117, 84, 16 little-endian floats, CRC-16)\n"
-            f"hard_iron_ut {' '.join(f'{v:.6g}' for v in packet.hard_iron_ut)}\n"
+            + "".join(f"# {line}\n" for line in comments)
+            + f"hard_iron_ut {' '.join(f'{v:.6g}' for v in packet.hard_iron_ut)}\n"
             f"field_ut {packet.field_ut:.6g}\n"
             + "".join(f"soft_iron {' '.join(f'{v:.6g}' for v in row)}\n" for row in s)
             + "bytes " + data.hex(" ") + "\n")
@@ -216,7 +223,7 @@ def send_packet(port: str, packet, *, baud: int = 115200, wait_s: float = 5.0) -
 
 
 def run_motioncal(cal, *, out, force: bool, port, unit: str, max_rotation_deg: float, baud: int,
-                 wait_s: float, inputs=()) -> int:
+                 wait_s: float, inputs=(), axes=None) -> int:
     """The ``--format motioncal`` branch of ``compass export``: the packet of ``cal`` written to ``out``
     (refused if it exists, unless ``force``, and if it is one of ``inputs``), sent to ``port``, or else described on
     stdout."""
@@ -225,7 +232,7 @@ def run_motioncal(cal, *, out, force: bool, port, unit: str, max_rotation_deg: f
     from ..io.atomic import atomic_open, check_writable
     from ..io.motioncal import encode_packet
 
-    packet, notes = packet_of(cal, unit=unit, max_rotation_deg=max_rotation_deg)
+    packet, notes = packet_of(cal, unit=unit, max_rotation_deg=max_rotation_deg, axes=axes)
     for note in notes:
         print(f"compass export: note: {note}", file=sys.stderr)
     if out:
@@ -238,5 +245,7 @@ def run_motioncal(cal, *, out, force: bool, port, unit: str, max_rotation_deg: f
         print(f"compass export: {words}", file=sys.stderr if status else sys.stdout)
         return status
     if not out:
-        print(describe(packet), end="")
+        from ._export_form import axes_words, axis_order
+
+        print(describe(packet, [axes_words(cal, axis_order(cal, axes))]), end="")
     return 0

@@ -59,6 +59,9 @@ def register(sub) -> None:
     p.add_argument("--fusion-api", choices=tuple(FUSION_FUNCTIONS), default=None,
                    help="fusion: the Fusion release line (1.3, the default: FusionModelMagnetic, as imufusion 1.3; "
                         "1.2: FusionCalibrationMagnetic); compile-tested against 1.2.0, 1.2.11, 1.3.0 and 1.3.3")
+    p.add_argument("--axes", metavar="CX,CY,CZ", default=None,
+                   help="the calibration's channels the firmware reads as its sensor's x, y, z, in that order "
+                        "(default: from the names: mx,my,mz, x,y,z, mag_x..; names that say no axis are refused)")
     p.add_argument("--out", default=None, help="file to write (default: print)")
     p.add_argument("--force", action="store_true", help="overwrite --out")
     m = p.add_argument_group("motioncal")
@@ -105,13 +108,16 @@ def run(args) -> int:
             return 0
         cal = _parse(text, name)
     option = {dest: DEFAULTS[dest] if getattr(args, dest) is None else getattr(args, dest) for dest in DEFAULTS}
+    axes = _axes(args.axes)
     if args.format == "motioncal":
         from ._export_motioncal import run_motioncal
 
         return run_motioncal(cal, out=args.out, force=args.force, inputs=(args.calibration,), port=args.port,
-                             unit=option["unit"],
+                             unit=option["unit"], axes=axes,
                              max_rotation_deg=option["max_rotation_deg"], baud=option["baud"], wait_s=option["wait"])
-    form = firmware_form(cal)
+    form = firmware_form(cal, axes)
+    if args.format == "ardupilot" and form["mag_to_accel"] is not None:
+        _check_ardupilot(cal, form)
     note = unit_note(form, option["unit"])
     if note:
         print(f"compass export: warning: {cal.path}: {note}", file=sys.stderr)
@@ -119,6 +125,27 @@ def run(args) -> int:
         print(f"compass export: warning: {cal.path}: {OUTPUT_UNITS_NOTE}", file=sys.stderr)
     _emit(args, export_text(form, args.format, unit=option["unit"], fusion_api=option["fusion_api"]))
     return 0
+
+
+def _axes(text):
+    """``--axes`` as three names, or None; BadInput for a malformed one."""
+    from ..cli import BadInput
+    from ._export_form import parse_axes
+
+    try:
+        return None if text is None else parse_axes(text)
+    except ValueError as exc:
+        raise BadInput(f"--axes: {exc}") from None
+
+
+def _check_ardupilot(cal, form: dict) -> None:
+    """BadInput when the rotation ArduPilot leaves out is none (a reflection)."""
+    from ..cli import BadInput
+    from ._export_form import mirrored_words
+
+    why = mirrored_words(form["mag_to_accel"], form["axes"])
+    if why:
+        raise BadInput(f"{cal.path}: a {cal.kind} calibration cannot go into ArduPilot's COMPASS_* parameters: {why}")
 
 
 def _refuse_unused(args) -> None:
@@ -184,23 +211,35 @@ def _parse(text: str, name: str):
         raise BadInput(str(exc) if name in str(exc) else f"{name}: {exc}") from None
 
 
-def firmware_form(cal) -> dict:
+def firmware_form(cal, axes=None) -> dict:
     """A calibration (:class:`compass.calibration.Calibration`) in firmware terms; BadInput (exit 2) else.
+
+    Parameters
+    ----------
+    cal : compass.calibration.Calibration
+    axes : tuple of 3 str, optional
+        ``--axes``: the channels the firmware reads as its sensor's x, y, z; default from their names
+        (:func:`compass.commands._export_form.axis_order`).
 
     Returns
     -------
     dict
         ``hard_iron`` (3,), ``soft_iron`` (3, 3), ``mag_to_accel`` (3, 3) or None, numpy arrays
-        (validated: finite, soft iron symmetric positive definite, a proper rotation), and
-        ``field_norm_recording_units`` (|B| in the recording's unit, float or None).
+        (validated: finite, soft iron symmetric positive definite), in the firmware's x, y, z order:
+        ``mag_to_accel @ soft_iron @ (raw - hard_iron)`` is the field in the accelerometer's frame (the
+        housing's without one) for ``raw`` the sensor's ``(x, y, z)``; ``axes`` (the words for the
+        order) and ``field_norm_recording_units`` (|B| in the recording's unit, float or None).
     """
     from ..cli import BadInput
+    from ._export_form import axes_words, axis_order
 
     if cal.tumble is None:
         try:
-            form = channel_form(cal.model)
+            check_channels(cal.model)
         except ValueError as exc:
             raise BadInput(f"{cal.path}: a {cal.kind} calibration cannot be exported: {exc}") from None
+        order = axis_order(cal, axes)
+        form = channel_form(cal.model, order)
         # the field in the accelerometer's frame, as Fusion fuses it: back from the model's frame (H, or an
         # installed file's product frame) through the bench's mag_to_accel and the installation's alignment
         to_model = cal.imu.rotation
@@ -208,29 +247,19 @@ def firmware_form(cal) -> dict:
             form["mag_to_accel"] = to_model.T @ form["mag_to_accel"]
         form["rotation_words"] = ("magnetometer-to-accelerometer rotation" if to_model is not None else
                                   "rotation of the sensor's axes into the housing's (the file has no accelerometer)")
-        form["output_units"] = True
-        return form
+        return form | {"axes": axes_words(cal, order)}
     t = cal.tumble
-    return {"hard_iron": t.hard_iron, "soft_iron": t.soft_iron, "mag_to_accel": t.mag_to_accel,
-            "field_norm_recording_units": t.field_norm_recording_units}
+    order = axis_order(cal, axes)
+    form = {"hard_iron": t.hard_iron, "soft_iron": t.soft_iron, "mag_to_accel": t.mag_to_accel,
+            "field_norm_recording_units": t.field_norm_recording_units, "axes": axes_words(cal, order)}
+    if order != (0, 1, 2):
+        matrix = t.soft_iron if t.mag_to_accel is None else t.mag_to_accel @ t.soft_iron
+        form |= _split(matrix[:, order], t.hard_iron[list(order)])
+    return form
 
 
-def channel_form(model) -> dict:
-    """The firmware form of a channel-form model (bench or installed): ``raw = o + G B_H``, so
-    ``B_H = G^-1 (raw - o)`` with ``G = diag(gain) A`` (rows: each channel's gain times its direction).
-
-    ``G^-1`` is split into a rotation times a symmetric matrix (polar decomposition,
-    ``scipy.linalg.polar``): the symmetric part is the soft iron, the rotation goes where the
-    tumble's magnetometer-to-accelerometer rotation goes (folded in for Fusion, reported for
-    ArduPilot).
-
-    Raises
-    ------
-    ValueError
-        Not three channels, or a nonlinear response (no matrix and offset reproduce it).
-    """
-    from scipy.linalg import polar
-
+def check_channels(model) -> None:
+    """ValueError unless the model is three linear channels (what a matrix and an offset reproduce)."""
     from ..response import LinearResponse
 
     if len(model.channels) != 3:
@@ -240,9 +269,36 @@ def channel_form(model) -> dict:
     if nonlinear:
         raise ValueError(f"channel(s) {', '.join(nonlinear)} have a nonlinear response, which a matrix and an offset "
                          f"cannot reproduce: export is for linear channels")
-    rotation, soft = polar(np.linalg.inv(model.gains[:, None] * model.unit_directions), side="right")
-    return {"hard_iron": model.zero_outputs, "soft_iron": soft, "mag_to_accel": rotation,
-            "field_norm_recording_units": None, "output_units": True}
+
+
+def channel_form(model, order=(0, 1, 2)) -> dict:
+    """The firmware form of a channel-form model (bench or installed): ``raw = o + G B_H``, so
+    ``B_H = G^-1 (raw - o)`` with ``G = diag(gain) A`` (rows: each channel's gain times its direction),
+    its rows taken in ``order`` (the channels the firmware reads as x, y, z).
+
+    ``G^-1`` is split into a rotation times a symmetric matrix (:func:`_split`): the symmetric part is
+    the soft iron, the rotation goes where the tumble's magnetometer-to-accelerometer rotation goes
+    (folded in for Fusion, left out by ArduPilot).
+
+    Raises
+    ------
+    ValueError
+        Not three channels, or a nonlinear response (no matrix and offset reproduce it).
+    """
+    check_channels(model)
+    rows = list(order)
+    form = _split(np.linalg.inv(model.gains[rows, None] * model.unit_directions[rows]), model.zero_outputs[rows])
+    return form | {"field_norm_recording_units": None, "output_units": True}
+
+
+def _split(matrix: np.ndarray, offset: np.ndarray) -> dict:
+    """``matrix (raw - offset)`` as ``mag_to_accel @ soft_iron @ (raw - hard_iron)``: the polar decomposition
+    (``scipy.linalg.polar``), the symmetric part the soft iron.  ``mag_to_accel`` is orthogonal; its
+    determinant is -1 when the sensor's x, y, z are a left-handed set against the field's frame."""
+    from scipy.linalg import polar
+
+    rotation, soft = polar(matrix, side="right")
+    return {"hard_iron": offset, "soft_iron": soft, "mag_to_accel": rotation}
 
 
 def unit_note(cal: dict, unit: str) -> str:
@@ -265,13 +321,14 @@ def unit_note(cal: dict, unit: str) -> str:
 
 
 def export_text(cal: dict, fmt: str, *, unit: str = "uT", fusion_api: str = "1.3") -> str:
-    """Firmware text for a tumble calibration.
+    """Firmware text for a calibration's firmware form.
 
     Parameters
     ----------
     cal : dict
         ``hard_iron`` (3,), ``soft_iron`` (3, 3), ``mag_to_accel`` (3, 3) or None, as numpy arrays
-        (:func:`firmware_form`); optional ``field_norm_recording_units`` for the unit check.
+        (:func:`firmware_form`); optional ``field_norm_recording_units`` for the unit check and ``axes`` (the
+        channels read as x, y, z, in words) for the comment.
     fmt : {"fusion", "ardupilot"}
     unit : str
         Recording unit of the magnetometer (ArduPilot only).
@@ -288,23 +345,26 @@ def export_text(cal: dict, fmt: str, *, unit: str = "uT", fusion_api: str = "1.3
         m = s if c is None else c @ s
         note = "" if c is None else " (mag-to-accel rotation folded in)"
         unit_line = f"// warning: {unit_note(cal, unit)}\n" if unit_note(cal, unit) else ""
+        axes_line = f"// {cal['axes']}\n" if cal.get("axes") else ""
         # designated members: Fusion 1.3's FusionMatrix is float array[9], 1.2's array[3][3]; both name
         # the elements xx..zz (row-major) and a vector's axis x, y, z, so one text compiles against either
         elements = ", ".join(f".{r}{col} = {c_float(m[i, j])}" for i, r in enumerate("xyz") for j, col in enumerate("xyz"))
         axes = ", ".join(f".{a} = {c_float(v)}" for a, v in zip("xyz", h))
         return (f"// compass export: x-io Fusion {fusion_api}, {FUSION_FUNCTIONS[fusion_api]}(magnetometer, "
-                f"softIronMatrix, hardIronOffset){note}\n" + unit_line +
+                f"softIronMatrix, hardIronOffset){note}\n" + axes_line + unit_line +
                 f"const FusionMatrix softIronMatrix = {{.element = {{{elements}}}}};\n"
                 f"const FusionVector hardIronOffset = {{.axis = {{{axes}}}}};\n")
     shape = s / np.cbrt(np.linalg.det(s))
     ofs = -h * MAG_UNITS[_UNITS[unit]] / MAG_UNITS["mG"]  # ArduPilot's offsets are in milligauss
     lines = ["# compass export: ArduPilot COMPASS_* (offsets in milligauss, matrix = soft-iron shape, det 1)"]
+    if cal.get("axes"):
+        lines.append(f"# {cal['axes']}")
     if unit_note(cal, unit):
         lines.append(f"# warning: {unit_note(cal, unit)}")
     if cal.get("output_units"):
         lines.append(f"# warning: {OUTPUT_UNITS_NOTE}")
-    if c is not None:
-        angle = np.degrees(np.arccos(np.clip((np.trace(c) - 1.0) / 2.0, -1.0, 1.0)))
+    angle = 0.0 if c is None else np.degrees(np.arccos(np.clip((np.trace(c) - 1.0) / 2.0, -1.0, 1.0)))
+    if angle > 0.005:
         what = cal.get("rotation_words", "magnetometer-to-accelerometer rotation")
         lines.append(f"# not exported: {what} of {angle:.2f} deg (no ArduPilot parameter)")
     lines += [f"COMPASS_OFS_{a},{v:.4f}" for a, v in zip("XYZ", ofs)]

@@ -120,10 +120,10 @@ def test_refusals_say_why(cals, tmp_path, capsys):
         channel["response"] |= {"model": "cubic", "cubic": 2e-6}
     cubic = tmp_path / "cubic.json"
     cubic.write_text(json.dumps(doc))
-    err = refused(cubic, "--max-rotation-deg", "10")
+    err = refused(cubic, "--max-rotation-deg", "10", "--axes", "v1,v2,v3")
     assert "fourflip calibration" in err and "nonlinear response" in err and "% of |B|" in err
     # the bench's outputs are volts: the receiver reads uT
-    assert "not in uT" in refused(cals / "bench.json", "--max-rotation-deg", "10")
+    assert "not in uT" in refused(cals / "bench.json", "--max-rotation-deg", "10", "--axes", "v1,v2,v3")
     # a tumble recorded in mG: its |B| is not the Earth's in uT, and the unit that fits is named
     doc = json.loads((cals / "t.json").read_text())
     doc["hard_iron"] = [10 * h for h in doc["hard_iron"]]

@@ -19,7 +19,7 @@ TUMBLE = {"format": "compass-calibration/1", "model": "tumble", "hard_iron": [1.
 
 def unit_bench() -> dict:
     """A bench calibration in units of the bench's |B| (no field_ut): MotionCal's packet, in uT, refuses it."""
-    model = SensorModel(("v1", "v2", "v3"), np.eye(3), (LinearResponse(1.0, 2.0, (-1.0, 1.0)),) * 3, 1.0, dip_deg=60.0)
+    model = SensorModel(("mx", "my", "mz"), np.eye(3), (LinearResponse(1.0, 2.0, (-1.0, 1.0)),) * 3, 1.0, dip_deg=60.0)
     return model_to_dict(model) | {"noise_floor": [0.01] * 3}
 
 
