@@ -11,8 +11,9 @@ iron and a soft iron, nothing else.  A calibration is exported when its field is
 2. the field is taken into the accelerometer's frame (the bench's ``mag_to_accel``, as the sketches'
    fusion expects) and the matrix split into a rotation times a symmetric matrix
    (``scipy.linalg.polar``): the symmetric part is ``W``; a rotation above ``--max-rotation-deg``
-   is refused (the packet has no place for it: left out, it turns the heading by up to its angle),
-   a smaller one is left out and said; an installed calibration's alignment (the product's yaw) is
+   is refused (the packet has no place for it), a smaller one is left out and said with its heading cost
+   at the calibration's dip (:func:`compass.commands._export_form.left_out`: more than its angle, up to
+   about ``angle (1 + tan dip)``), a reflection refused; an installed calibration's alignment (the product's yaw) is
    refused outright: the packet corrects the magnetometer in its own frame;
 3. units: the receiver reads uT.  ``--unit`` names the unit of the calibration's readings (default
    uT); the field magnitude must then be the Earth's (12.5-130 uT, twice the World Magnetic Model's
@@ -79,7 +80,7 @@ def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0, axes=None
     from ..cli import BadInput
     from ..io.motioncal import CalPacket
     from ..io.units import MAG_UNITS
-    from ._export_form import axes_words, axis_order, mirrored_words
+    from ._export_form import axes_words, axis_order, left_out, rotation_words
 
     def refuse(why: str):
         return BadInput(f"{cal.path}: a {cal.kind} calibration cannot go into MotionCal's packet: {why}")
@@ -117,14 +118,8 @@ def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0, axes=None
     to_model = cal.imu.rotation  # R_model<-accel: the bench's mag_to_accel (an installed alignment was refused)
     in_accel = matrix if to_model is None else to_model.T @ matrix
     rotation, soft = polar(in_accel, side="right")
-    mirrored = mirrored_words(rotation, axes_words(cal, order))
-    if mirrored:
-        raise refuse(mirrored)
-    angle_deg = math.degrees(Rotation.from_matrix(rotation).magnitude())
-    if angle_deg > max_rotation_deg:
-        raise refuse(f"its field is turned {angle_deg:.2f} deg against the accelerometer's frame, which the packet's "
-                     f"symmetric matrix cannot hold (left out, the heading turns by up to that angle); raise "
-                     f"--max-rotation-deg to send it without")
+    rotation_note = left_out(cal, rotation, axes=axes_words(cal, order), max_rotation_deg=max_rotation_deg,
+                             what=rotation_words(cal), form="MotionCal's packet")
     per_ut = MAG_UNITS[_UNITS[unit]]
     if cal.kind == "tumble":
         field_per_ut = per_ut  # a tumble's field is in its recording's unit
@@ -146,9 +141,8 @@ def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0, axes=None
         raise refuse(f"its soft iron would scale the device's uT by {scale:.3g}: its readings are not in {unit} "
                      f"(volts, counts?), and the receiver reads the magnetometer in uT")
     notes = [axes_words(cal, order), "accelerometer zero-g and gyro zero-rate sent as 0, as MotionCal sends them"]
-    if angle_deg > 0.005:
-        notes.append(f"left out: the field's {angle_deg:.2f} deg rotation against the accelerometer (under "
-                     f"--max-rotation-deg {max_rotation_deg:g})")
+    if rotation_note:
+        notes.append(f"left out: {rotation_note}")
     if miss > 1e-6:
         notes.append(f"the matrix and offset reproduce the calibration to {100 * miss:.2g} % of |B|")
     if model.temperature is not None:

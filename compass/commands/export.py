@@ -19,7 +19,12 @@ installed one: :func:`channel_form`), as a matrix and an offset from raw counts 
 - ``ardupilot``: AP_Compass adds ``COMPASS_OFS`` then multiplies by the symmetric matrix of
   ``COMPASS_DIA`` (diagonal) and ``COMPASS_ODI`` (xy, xz, yz), in milligauss.  So
   ``OFS = -hard_iron`` converted to milligauss and the matrix is the soft iron's shape (det 1).
-  ArduPilot has no parameter for a small rotation; it is reported, not exported.
+  ArduPilot has no parameter for a rotation: one up to ``--max-rotation-deg`` (default 1 deg) is left out
+  and its heading cost at the calibration's dip said (:func:`compass.commands._export_form.left_out`), a
+  larger one or a reflection refused.
+
+Every format takes the channels in the order the firmware reads its sensor, x, y, z
+(:func:`compass.commands._export_form.axis_order`).
 """
 
 from __future__ import annotations
@@ -62,6 +67,12 @@ def register(sub) -> None:
     p.add_argument("--axes", metavar="CX,CY,CZ", default=None,
                    help="the calibration's channels the firmware reads as its sensor's x, y, z, in that order "
                         "(default: from the names: mx,my,mz, x,y,z, mag_x..; names that say no axis are refused)")
+    p.add_argument("--max-rotation-deg", type=limits.Range(0.0, 180.0, "deg").option("--max-rotation-deg"),
+                   default=None,
+                   help="ardupilot, motioncal: largest rotation between the sensor's axes and the accelerometer's "
+                        "(the housing's without one) left out of the symmetric matrix, which cannot hold one (default "
+                        "1 deg); its heading cost at the calibration's dip is said, a larger one refused (fusion "
+                        "folds it in)")
     p.add_argument("--out", default=None, help="file to write (default: print)")
     p.add_argument("--force", action="store_true", help="overwrite --out")
     m = p.add_argument_group("motioncal")
@@ -71,10 +82,6 @@ def register(sub) -> None:
                                                                                    "115200)")
     m.add_argument("--wait", type=limits.DURATION_S.option("--wait"), default=None, metavar="S",
                    help="with --port: how long to wait for the device's echo of the values sent (default 5 s)")
-    m.add_argument("--max-rotation-deg", type=limits.Range(0.0, 180.0, "deg").option("--max-rotation-deg"),
-                   default=None,
-                   help="largest rotation between the field and the accelerometer left out of the packet, which "
-                        "cannot hold one (default 1 deg); a larger one is refused")
     p.set_defaults(func=run)
 
 
@@ -87,7 +94,7 @@ DEFAULTS = {"unit": "uT", "fusion_api": "1.3", "baud": 115200, "wait": 5.0, "max
 """Values of the options not given (argparse leaves them None, so one given where it does nothing is refused)."""
 _OPTION_FOR = {"unit": "--format fusion, ardupilot or motioncal", "fusion_api": "--format fusion",
                "port": "--format motioncal", "baud": "--format motioncal with --port",
-               "wait": "--format motioncal with --port", "max_rotation_deg": "--format motioncal"}
+               "wait": "--format motioncal with --port", "max_rotation_deg": "--format ardupilot or motioncal"}
 """What each format-specific option is for, in words."""
 
 
@@ -116,8 +123,8 @@ def run(args) -> int:
                              unit=option["unit"], axes=axes,
                              max_rotation_deg=option["max_rotation_deg"], baud=option["baud"], wait_s=option["wait"])
     form = firmware_form(cal, axes)
-    if args.format == "ardupilot" and form["mag_to_accel"] is not None:
-        _check_ardupilot(cal, form)
+    if args.format == "ardupilot":
+        form["left_out"] = _left_out_by_ardupilot(cal, form, option["max_rotation_deg"])
     note = unit_note(form, option["unit"])
     if note:
         print(f"compass export: warning: {cal.path}: {note}", file=sys.stderr)
@@ -138,21 +145,25 @@ def _axes(text):
         raise BadInput(f"--axes: {exc}") from None
 
 
-def _check_ardupilot(cal, form: dict) -> None:
-    """BadInput when the rotation ArduPilot leaves out is none (a reflection)."""
-    from ..cli import BadInput
-    from ._export_form import mirrored_words
+def _left_out_by_ardupilot(cal, form: dict, max_rotation_deg: float) -> str | None:
+    """Words for the rotation ArduPilot's symmetric matrix leaves out (said on stderr), None for none; BadInput for
+    one above ``max_rotation_deg`` or a reflection (:func:`compass.commands._export_form.left_out`)."""
+    from ._export_form import left_out, rotation_words
 
-    why = mirrored_words(form["mag_to_accel"], form["axes"])
-    if why:
-        raise BadInput(f"{cal.path}: a {cal.kind} calibration cannot go into ArduPilot's COMPASS_* parameters: {why}")
+    if form["mag_to_accel"] is None:
+        return None
+    words = left_out(cal, form["mag_to_accel"], axes=form["axes"], max_rotation_deg=max_rotation_deg,
+                     what=rotation_words(cal), form="ArduPilot's COMPASS_* parameters")
+    if words:
+        print(f"compass export: note: left out: {words}", file=sys.stderr)
+    return words
 
 
 def _refuse_unused(args) -> None:
     """BadInput for a format-specific option given where it does nothing (:data:`_OPTION_FOR`)."""
     from ..cli import BadInput
 
-    used = {"fusion": {"unit", "fusion_api"}, "ardupilot": {"unit"}, None: set(),
+    used = {"fusion": {"unit", "fusion_api"}, "ardupilot": {"unit", "max_rotation_deg"}, None: set(),
             "motioncal": {"unit", "max_rotation_deg", "port"} | ({"baud", "wait"} if args.port else set())}
     for dest, what in _OPTION_FOR.items():
         if getattr(args, dest) is not None and dest not in used[args.format]:
@@ -245,8 +256,6 @@ def firmware_form(cal, axes=None) -> dict:
         to_model = cal.imu.rotation
         if to_model is not None:
             form["mag_to_accel"] = to_model.T @ form["mag_to_accel"]
-        form["rotation_words"] = ("magnetometer-to-accelerometer rotation" if to_model is not None else
-                                  "rotation of the sensor's axes into the housing's (the file has no accelerometer)")
         return form | {"axes": axes_words(cal, order)}
     t = cal.tumble
     order = axis_order(cal, axes)
@@ -327,8 +336,9 @@ def export_text(cal: dict, fmt: str, *, unit: str = "uT", fusion_api: str = "1.3
     ----------
     cal : dict
         ``hard_iron`` (3,), ``soft_iron`` (3, 3), ``mag_to_accel`` (3, 3) or None, as numpy arrays
-        (:func:`firmware_form`); optional ``field_norm_recording_units`` for the unit check and ``axes`` (the
-        channels read as x, y, z, in words) for the comment.
+        (:func:`firmware_form`); optional ``field_norm_recording_units`` for the unit check, ``axes`` (the
+        channels read as x, y, z, in words) and ``left_out`` (ArduPilot: the rotation it leaves out and its
+        heading cost, in words) for the comments.
     fmt : {"fusion", "ardupilot"}
     unit : str
         Recording unit of the magnetometer (ArduPilot only).
@@ -363,10 +373,8 @@ def export_text(cal: dict, fmt: str, *, unit: str = "uT", fusion_api: str = "1.3
         lines.append(f"# warning: {unit_note(cal, unit)}")
     if cal.get("output_units"):
         lines.append(f"# warning: {OUTPUT_UNITS_NOTE}")
-    angle = 0.0 if c is None else np.degrees(np.arccos(np.clip((np.trace(c) - 1.0) / 2.0, -1.0, 1.0)))
-    if angle > 0.005:
-        what = cal.get("rotation_words", "magnetometer-to-accelerometer rotation")
-        lines.append(f"# not exported: {what} of {angle:.2f} deg (no ArduPilot parameter)")
+    if cal.get("left_out"):
+        lines.append(f"# not exported (no ArduPilot parameter): {cal['left_out']}")
     lines += [f"COMPASS_OFS_{a},{v:.4f}" for a, v in zip("XYZ", ofs)]
     lines += [f"COMPASS_DIA_{a},{v:.6f}" for a, v in zip("XYZ", np.diag(shape))]
     lines += [f"COMPASS_ODI_{a},{v:.6f}" for a, v in zip("XYZ", (shape[0, 1], shape[0, 2], shape[1, 2]))]

@@ -110,7 +110,7 @@ def test_refusals_say_why(cals, tmp_path, capsys):
         return err
 
     # the tumble's 2 deg between magnetometer and accelerometer: the packet's symmetric matrix cannot hold it
-    assert "turned 2." in refused(cals / "t.json") and "--max-rotation-deg" in refused(cals / "t.json")
+    assert "rotation is 2." in refused(cals / "t.json") and "--max-rotation-deg" in refused(cals / "t.json")
     # an installed yaw
     err = refused(cals / "inst.json", "--max-rotation-deg", "10")
     assert "installed calibration" in err and "alignment turns the field 3." in err

@@ -61,8 +61,8 @@ def test_a_stored_calibration_that_is_not_json_is_named_too(tmp_path, capsys):
 UNUSED = [
     ("fusion", ["--baud", "9600"], "--baud is for --format motioncal with --port; it does nothing with --format fusion"),
     ("fusion", ["--wait", "2"], "--wait is for --format motioncal with --port; it does nothing with --format fusion"),
-    ("fusion", ["--max-rotation-deg", "2"], "--max-rotation-deg is for --format motioncal; it does nothing with "
-                                            "--format fusion"),
+    ("fusion", ["--max-rotation-deg", "2"], "--max-rotation-deg is for --format ardupilot or motioncal; it does "
+                                            "nothing with --format fusion"),
     ("ardupilot", ["--fusion-api", "1.2"], "--fusion-api is for --format fusion; it does nothing with --format "
                                            "ardupilot"),
     ("ardupilot", ["--port", "/dev/null"], "--port is for --format motioncal; it does nothing with --format ardupilot"),
