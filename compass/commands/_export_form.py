@@ -25,7 +25,49 @@ most ``theta / cos delta`` (a horizontal axis at ``tan n_z = cot delta``), below
 
 from __future__ import annotations
 
-__all__ = ["axis_order", "axes_words", "heading_cost_deg", "left_out", "parse_axes", "rotation_words"]
+__all__ = ["UNUSABLE", "axis_order", "axes_words", "heading_cost_deg", "left_out", "parse_axes", "rotation_words",
+           "warnings_of"]
+
+
+UNUSABLE = ("not_converged", "undetermined")
+"""Warning classes (:data:`compass.production.figures.WARNING_CLASSES`) whose numbers a firmware must not take
+without ``--force``: a fit that did not converge, a part the recording did not determine.  The others (coverage,
+unexplained structure with widened sigmas...) are repeated and exported."""
+
+
+def warnings_of(cal, *, force: bool) -> list[str]:
+    """The calibration's own warnings, which an export repeats (stderr, and the output's comments).
+
+    Parameters
+    ----------
+    cal : compass.calibration.Calibration
+    force : bool
+        ``--force``: export a calibration whose warnings are of an :data:`UNUSABLE` class all the same.
+
+    Returns
+    -------
+    list of str
+        The file's warnings, and the diagnosis's unexplained structure when no warning says it.
+
+    Raises
+    ------
+    compass.cli.BadInput
+        A warning of an :data:`UNUSABLE` class, without ``force``: the first one, in its words.
+    """
+    from ..cli import BadInput
+    from ..production.figures import classify_warning
+
+    words = list(cal.provenance.warnings)
+    classes = [classify_warning(w) for w in words]
+    if cal.provenance.unexplained and "unexplained" not in classes:
+        words.append("the residual diagnosis left structure above the noise floor unexplained: the uncertainties "
+                     "were widened to cover it")
+    unusable = [(c, w) for c, w in zip(classes, words) if c in UNUSABLE]
+    if unusable and not force:
+        kinds = sorted({c.replace("_", " ") for c, _ in unusable})
+        raise BadInput(f"{cal.path}: its own warnings say its numbers are not to be used ({', '.join(kinds)}): "
+                       f"{unusable[0][1]}; recalibrate, or export it all the same with --force")
+    return words
 
 
 def parse_axes(text: str) -> tuple[str, str, str]:

@@ -217,10 +217,10 @@ def send_packet(port: str, packet, *, baud: int = 115200, wait_s: float = 5.0) -
 
 
 def run_motioncal(cal, *, out, force: bool, port, unit: str, max_rotation_deg: float, baud: int,
-                 wait_s: float, inputs=(), axes=None) -> int:
+                 wait_s: float, inputs=(), axes=None, warnings=()) -> int:
     """The ``--format motioncal`` branch of ``compass export``: the packet of ``cal`` written to ``out``
     (refused if it exists, unless ``force``, and if it is one of ``inputs``), sent to ``port``, or else described on
-    stdout."""
+    stdout (after ``warnings``, the calibration's own, as comments)."""
     import sys
 
     from ..io.atomic import atomic_open, check_writable
@@ -241,5 +241,6 @@ def run_motioncal(cal, *, out, force: bool, port, unit: str, max_rotation_deg: f
     if not out:
         from ._export_form import axes_words, axis_order
 
-        print(describe(packet, [axes_words(cal, axis_order(cal, axes))]), end="")
+        print(describe(packet, [axes_words(cal, axis_order(cal, axes))]
+                       + [f"warning: the calibration warns: {w}" for w in warnings]), end="")
     return 0

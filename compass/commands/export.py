@@ -36,6 +36,7 @@ import numpy as np
 from .. import limits
 from ..io.atomic import atomic_write_text, check_writable
 from ..io.units import EARTH_FIELD_UT, MAG_UNITS
+from ._export_form import warnings_of
 
 __all__ = ["register", "export_text", "firmware_form", "read_calibration", "channel_form", "unit_note"]
 
@@ -74,7 +75,9 @@ def register(sub) -> None:
                         "1 deg); its heading cost at the calibration's dip is said, a larger one refused (fusion "
                         "folds it in)")
     p.add_argument("--out", default=None, help="file to write (default: print)")
-    p.add_argument("--force", action="store_true", help="overwrite --out")
+    p.add_argument("--force", action="store_true",
+                   help="overwrite --out; export a calibration whose own warnings say its numbers are not to be used "
+                        "(a fit that did not converge, a part not determined) all the same")
     m = p.add_argument_group("motioncal")
     m.add_argument("--port", help="send the packet to the device on this serial port (pyserial URL) and read back its "
                                   "Cal1:/Cal2: echo")
@@ -116,13 +119,16 @@ def run(args) -> int:
         cal = _parse(text, name)
     option = {dest: DEFAULTS[dest] if getattr(args, dest) is None else getattr(args, dest) for dest in DEFAULTS}
     axes = _axes(args.axes)
+    warnings = warnings_of(cal, force=args.force)
+    for words in warnings:
+        print(f"compass export: warning: {cal.path}: the calibration warns: {words}", file=sys.stderr)
     if args.format == "motioncal":
         from ._export_motioncal import run_motioncal
 
         return run_motioncal(cal, out=args.out, force=args.force, inputs=(args.calibration,), port=args.port,
-                             unit=option["unit"], axes=axes,
+                             unit=option["unit"], axes=axes, warnings=warnings,
                              max_rotation_deg=option["max_rotation_deg"], baud=option["baud"], wait_s=option["wait"])
-    form = firmware_form(cal, axes)
+    form = firmware_form(cal, axes) | {"warnings": warnings}
     if args.format == "ardupilot":
         form["left_out"] = _left_out_by_ardupilot(cal, form, option["max_rotation_deg"])
     note = unit_note(form, option["unit"])
@@ -337,8 +343,8 @@ def export_text(cal: dict, fmt: str, *, unit: str = "uT", fusion_api: str = "1.3
     cal : dict
         ``hard_iron`` (3,), ``soft_iron`` (3, 3), ``mag_to_accel`` (3, 3) or None, as numpy arrays
         (:func:`firmware_form`); optional ``field_norm_recording_units`` for the unit check, ``axes`` (the
-        channels read as x, y, z, in words) and ``left_out`` (ArduPilot: the rotation it leaves out and its
-        heading cost, in words) for the comments.
+        channels read as x, y, z, in words), ``warnings`` (the calibration's own) and ``left_out`` (ArduPilot: the
+        rotation it leaves out and its heading cost, in words) for the comments.
     fmt : {"fusion", "ardupilot"}
     unit : str
         Recording unit of the magnetometer (ArduPilot only).
@@ -356,6 +362,7 @@ def export_text(cal: dict, fmt: str, *, unit: str = "uT", fusion_api: str = "1.3
         note = "" if c is None else " (mag-to-accel rotation folded in)"
         unit_line = f"// warning: {unit_note(cal, unit)}\n" if unit_note(cal, unit) else ""
         axes_line = f"// {cal['axes']}\n" if cal.get("axes") else ""
+        axes_line += "".join(f"// warning: the calibration warns: {w}\n" for w in cal.get("warnings", ()))
         # designated members: Fusion 1.3's FusionMatrix is float array[9], 1.2's array[3][3]; both name
         # the elements xx..zz (row-major) and a vector's axis x, y, z, so one text compiles against either
         elements = ", ".join(f".{r}{col} = {c_float(m[i, j])}" for i, r in enumerate("xyz") for j, col in enumerate("xyz"))
@@ -369,6 +376,7 @@ def export_text(cal: dict, fmt: str, *, unit: str = "uT", fusion_api: str = "1.3
     lines = ["# compass export: ArduPilot COMPASS_* (offsets in milligauss, matrix = soft-iron shape, det 1)"]
     if cal.get("axes"):
         lines.append(f"# {cal['axes']}")
+    lines += [f"# warning: the calibration warns: {w}" for w in cal.get("warnings", ())]
     if unit_note(cal, unit):
         lines.append(f"# warning: {unit_note(cal, unit)}")
     if cal.get("output_units"):
