@@ -22,8 +22,9 @@ iron and a soft iron, nothing else.  A calibration is exported when its field is
 
 The accelerometer zero-g and gyro zero-rate are sent as 0, as MotionCal sends them.  With ``--port``
 the packet is written to the device and its ``Cal1:``/``Cal2:`` echoes are read for ``--wait``
-seconds: the first echo of the values sent confirms it; echoes of other values only, or no echo at all (the
-packet not confirmed), are said (exit 1).
+seconds: the first echo of the values sent confirms it; echoes of other values only, no echo at all, or the
+device lost while sending (the packet not confirmed) are said (exit 1: a slow or rounding echo may come from a
+device that took it; a port that cannot be opened is exit 2).
 """
 
 from __future__ import annotations
@@ -171,7 +172,8 @@ def send_packet(port: str, packet, *, baud: int = 115200, wait_s: float = 5.0) -
     Returns
     -------
     status : int
-        0: an echo of the values sent came; 1: only echoes of other values came, or none (not confirmed).
+        0: an echo of the values sent came; 1: only echoes of other values came, or none, or the device was lost
+        while sending (not confirmed).
     words : str
     """
     import serial
@@ -203,8 +205,9 @@ def send_packet(port: str, packet, *, baud: int = 115200, wait_s: float = 5.0) -
             if ok:
                 return 0, f"sent {len(data)} bytes to {port}; the device echoes the values sent (Cal1/Cal2: {words})"
             decoder.echo = {}  # wait for the next pair: an echo may have left before the packet arrived
-    except (serial.SerialException, OSError) as exc:
-        raise BadInput(f"port {port}: {str(exc).strip() or type(exc).__name__} while sending the packet") from None
+    except (serial.SerialException, OSError) as exc:  # a device lost, not bad input: exit 1
+        return 1, (f"port {port}: {str(exc).strip() or type(exc).__name__} while sending the packet: the device was "
+                   f"lost (unplugged?); not confirmed that it took the packet")
     finally:
         link.close()
     if seen == 0:
@@ -212,8 +215,9 @@ def send_packet(port: str, packet, *, baud: int = 115200, wait_s: float = 5.0) -
                    f"device took it (a sketch that echoes prints them every second or so: check the port and --baud, "
                    f"or wait longer with --wait)")
     _, words = echo_matches(packet, *last)
-    return 1, (f"sent {len(data)} bytes to {port}; for {wait_s:g} s the device echoes other values ({words}): it did "
-               f"not take the packet (a sketch without MotionCal's receiver?)")
+    return 1, (f"sent {len(data)} bytes to {port}; for {wait_s:g} s the device echoes other values ({words}): not "
+               f"confirmed that it took the packet (a sketch that echoes late or to fewer decimals may have: --wait "
+               f"longer, or read its Cal1:/Cal2: lines; one without MotionCal's receiver never takes it)")
 
 
 def run_motioncal(cal, *, out, force: bool, port, unit: str, max_rotation_deg: float, baud: int,
