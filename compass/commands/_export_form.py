@@ -7,8 +7,9 @@ order the recording's columns came in, which a logger may have written as ``my,m
 columns and the offset must be put in the chip's order, or the firmware's field is a swapped one (104 deg
 RMS of heading for ``my,mx,mz``).  :func:`axis_order` takes the order from the channels' names as the
 recording readers read them (:func:`compass.io.table.magnetometer_axis`: ``mx``, ``Magnetometer X``,
-``mag_x``, ``x``), or from ``--axes``; names that say no axis (``v1,v2,v3``) are refused rather than
-taken in their order.
+``mag_x``, ``x``), or from ``--axes``; names that say no axis (``v1,v2,v3``, a bench's channels) are taken in
+the recording's column order, the order the module sent them (said in the output), and names that say some axes
+but not each of x, y, z once are refused.
 
 ArduPilot's and MotionCal's matrices are symmetric: the rotation between the sensor's axes and the
 accelerometer's (the housing's without one) is left out (:func:`left_out`).  Its cost in heading is more
@@ -97,8 +98,8 @@ def axis_order(cal, axes: tuple[str, str, str] | None = None) -> tuple[int, int,
     Raises
     ------
     compass.cli.BadInput
-        ``axes`` names a channel the calibration does not have; or, without ``axes``, the names do not
-        say each of x, y, z once.
+        ``axes`` names a channel the calibration does not have; or, without ``axes``, the names say some axes
+        but not each of x, y, z once.
     """
     from ..cli import BadInput
     from ..io.table import magnetometer_axis
@@ -113,16 +114,23 @@ def axis_order(cal, axes: tuple[str, str, str] | None = None) -> tuple[int, int,
     said = [magnetometer_axis(n) for n in channels]
     if sorted(a for a in said if a is not None) == ["x", "y", "z"]:
         return tuple(said.index(a) for a in "xyz")
-    raise BadInput(f"{cal.path}: its channels {', '.join(channels)} do not say which is the sensor's x, y and z "
-                   f"(names mx,my,mz, x,y,z or mag_x.. say it), and the firmware reads its chip in that order: give "
-                   f"the channels in the firmware's x, y, z order with --axes (--axes {','.join(channels)} if "
-                   f"{channels[0]} is x)")
+    if all(a is None for a in said):
+        return 0, 1, 2
+    raise BadInput(f"{cal.path}: its channels {', '.join(channels)} name some of the sensor's axes but not each of "
+                   f"x, y and z once, and the firmware reads its chip in that order: give the channels in the "
+                   f"firmware's x, y, z order with --axes (--axes {','.join(channels)} if {channels[0]} is x)")
 
 
-def axes_words(cal, order) -> str:
-    """``"x, y, z = channels my, mx, mz"``: the order an export wrote, for its comment."""
+def axes_words(cal, order, axes=None) -> str:
+    """``"sensor x, y, z = the calibration's channels my, mx, mz"``: the order an export wrote (``axes``: the
+    ``--axes`` given), for its comment; names that say no axis are said to be taken in their column order."""
+    from ..io.table import magnetometer_axis
+
     names = [cal.model.channels[i] for i in order]
-    return f"sensor x, y, z = the calibration's channels {', '.join(names)}"
+    words = f"sensor x, y, z = the calibration's channels {', '.join(names)}"
+    if axes is None and all(magnetometer_axis(n) is None for n in names):
+        words += " in the recording's column order (their names say no axis; --axes names another)"
+    return words
 
 
 def rotation_words(cal) -> str:

@@ -29,6 +29,7 @@ device that took it; a port that cannot be opened is exit 2).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 
@@ -119,7 +120,7 @@ def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0, axes=None
     to_model = cal.imu.rotation  # R_model<-accel: the bench's mag_to_accel (an installed alignment was refused)
     in_accel = matrix if to_model is None else to_model.T @ matrix
     rotation, soft = polar(in_accel, side="right")
-    rotation_note = left_out(cal, rotation, axes=axes_words(cal, order), max_rotation_deg=max_rotation_deg,
+    rotation_note = left_out(cal, rotation, axes=axes_words(cal, order, axes), max_rotation_deg=max_rotation_deg,
                              what=rotation_words(cal), form="MotionCal's packet")
     per_ut = MAG_UNITS[_UNITS[unit]]
     if cal.kind == "tumble":
@@ -141,7 +142,7 @@ def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0, axes=None
     if not 0.5 <= scale <= 2.0:
         raise refuse(f"its soft iron would scale the device's uT by {scale:.3g}: its readings are not in {unit} "
                      f"(volts, counts?), and the receiver reads the magnetometer in uT")
-    notes = [axes_words(cal, order), "accelerometer zero-g and gyro zero-rate sent as 0, as MotionCal sends them"]
+    notes = [axes_words(cal, order, axes), "accelerometer zero-g and gyro zero-rate sent as 0, as MotionCal sends them"]
     if rotation_note:
         notes.append(f"left out: {rotation_note}")
     if miss > 1e-6:
@@ -164,6 +165,15 @@ def describe(packet, comments=()) -> str:
             f"field_ut {packet.field_ut:.6g}\n"
             + "".join(f"soft_iron {' '.join(f'{v:.6g}' for v in row)}\n" for row in s)
             + "bytes " + data.hex(" ") + "\n")
+
+
+try:
+    import termios
+
+    _TERMIOS_ERRORS = (termios.error,)
+    """What a serial port's drain and flush raise on a device gone (EIO), not an OSError (POSIX only)."""
+except ImportError:  # Windows
+    _TERMIOS_ERRORS = ()
 
 
 def send_packet(port: str, packet, *, baud: int = 115200, wait_s: float = 5.0) -> tuple[int, str]:
@@ -205,11 +215,12 @@ def send_packet(port: str, packet, *, baud: int = 115200, wait_s: float = 5.0) -
             if ok:
                 return 0, f"sent {len(data)} bytes to {port}; the device echoes the values sent (Cal1/Cal2: {words})"
             decoder.echo = {}  # wait for the next pair: an echo may have left before the packet arrived
-    except (serial.SerialException, OSError) as exc:  # a device lost, not bad input: exit 1
+    except (serial.SerialException, OSError, *_TERMIOS_ERRORS) as exc:  # a device lost, not bad input: exit 1
         return 1, (f"port {port}: {str(exc).strip() or type(exc).__name__} while sending the packet: the device was "
                    f"lost (unplugged?); not confirmed that it took the packet")
     finally:
-        link.close()
+        with contextlib.suppress(serial.SerialException, OSError, *_TERMIOS_ERRORS):
+            link.close()
     if seen == 0:
         return 1, (f"sent {len(data)} bytes to {port}; no Cal1:/Cal2: echo in {wait_s:g} s: not confirmed that the "
                    f"device took it (a sketch that echoes prints them every second or so: check the port and --baud, "
@@ -245,6 +256,6 @@ def run_motioncal(cal, *, out, force: bool, port, unit: str, max_rotation_deg: f
     if not out:
         from ._export_form import axes_words, axis_order
 
-        print(describe(packet, [axes_words(cal, axis_order(cal, axes))]
+        print(describe(packet, [axes_words(cal, axis_order(cal, axes), axes)]
                        + [f"warning: the calibration warns: {w}" for w in warnings]), end="")
     return 0

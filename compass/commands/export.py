@@ -67,7 +67,8 @@ def register(sub) -> None:
                         "1.2: FusionCalibrationMagnetic); compile-tested against 1.2.0, 1.2.11, 1.3.0 and 1.3.3")
     p.add_argument("--axes", metavar="CX,CY,CZ", default=None,
                    help="the calibration's channels the firmware reads as its sensor's x, y, z, in that order "
-                        "(default: from the names: mx,my,mz, x,y,z, mag_x..; names that say no axis are refused)")
+                        "(default: from the names: mx,my,mz, x,y,z, mag_x..; names that say no axis, a bench's v1,v2,v3: "
+                        "their column order, said in the output)")
     p.add_argument("--max-rotation-deg", type=limits.Range(0.0, 180.0, "deg").option("--max-rotation-deg"),
                    default=None,
                    help="ardupilot, motioncal: largest rotation between the sensor's axes and the accelerometer's "
@@ -262,11 +263,11 @@ def firmware_form(cal, axes=None) -> dict:
         to_model = cal.imu.rotation
         if to_model is not None:
             form["mag_to_accel"] = to_model.T @ form["mag_to_accel"]
-        return form | {"axes": axes_words(cal, order)}
+        return form | {"axes": axes_words(cal, order, axes)}
     t = cal.tumble
     order = axis_order(cal, axes)
     form = {"hard_iron": t.hard_iron, "soft_iron": t.soft_iron, "mag_to_accel": t.mag_to_accel,
-            "field_norm_recording_units": t.field_norm_recording_units, "axes": axes_words(cal, order)}
+            "field_norm_recording_units": t.field_norm_recording_units, "axes": axes_words(cal, order, axes)}
     if order != (0, 1, 2):
         matrix = t.soft_iron if t.mag_to_accel is None else t.mag_to_accel @ t.soft_iron
         form |= _split(matrix[:, order], t.hard_iron[list(order)])
