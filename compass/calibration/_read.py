@@ -163,9 +163,32 @@ def _calibration(d: dict, kind: str, path) -> Calibration:
     site = None if d.get("site") is None else _block(_site, d, "site")
     method = d.get("method")
     dip_sigma = d.get("dip_sigma_deg")
+    warnings = _warnings(d)
+    if installation is not None:
+        warnings += tuple(f"base calibration: {w}" for w in installation.base.provenance.warnings)
     provenance = Provenance(method if isinstance(method, str) else None, hemisphere,
-                            float(dip_sigma) if _is_number(dip_sigma) else None)
+                            float(dip_sigma) if _is_number(dip_sigma) else None, warnings, _unexplained(d))
     return Calibration(kind, model, imu, tilt, site, provenance, installation, tumble, path, d)
+
+
+def _warnings(d: dict) -> tuple[str, ...]:
+    """The file's ``warnings``: a list of words (absent: none)."""
+    words = d.get("warnings")
+    if words is None:
+        return ()
+    if not isinstance(words, list) or not all(isinstance(w, str) for w in words):
+        raise CalibrationFileError(f"must be a list of words, got {check.show(words)}", key="warnings")
+    return tuple(words)
+
+
+def _unexplained(d: dict) -> bool | None:
+    """The diagnosis's ``unexplained`` (an installed file's under ``installation``), a reported flag: None when it
+    is not a bool."""
+    inst = d.get("installation")
+    block = inst.get("diagnosis") if isinstance(inst, dict) and isinstance(inst.get("diagnosis"), dict) else \
+        d.get("diagnosis")
+    flag = block.get("unexplained") if isinstance(block, dict) else None
+    return flag if isinstance(flag, bool) else None
 
 
 def _parse_int(text: str) -> int | float:

@@ -27,11 +27,18 @@ class Provenance:
         its data cannot tell ``(a, B)`` from ``(-a, -B)``, so a field read turned over points there.
     dip_sigma_deg : float or None
         The reported standard error of ``dip_deg``, degrees; None when the file gives none.
+    warnings : tuple of str
+        The calibration's warnings in words (the file's ``warnings``; an installed file's own, then its
+        base's, marked ``base calibration:``); what a firmware export repeats.
+    unexplained : bool or None
+        The diagnosis's ``unexplained`` (an installed file's installation's, else its own); None when absent.
     """
 
     method: str | None = None
     hemisphere_assumed: bool = False
     dip_sigma_deg: float | None = None
+    warnings: tuple[str, ...] = ()
+    unexplained: bool | None = None
 
 
 @dataclass(frozen=True, eq=False)

@@ -11,8 +11,9 @@ iron and a soft iron, nothing else.  A calibration is exported when its field is
 2. the field is taken into the accelerometer's frame (the bench's ``mag_to_accel``, as the sketches'
    fusion expects) and the matrix split into a rotation times a symmetric matrix
    (``scipy.linalg.polar``): the symmetric part is ``W``; a rotation above ``--max-rotation-deg``
-   is refused (the packet has no place for it: left out, it turns the heading by up to its angle),
-   a smaller one is left out and said; an installed calibration's alignment (the product's yaw) is
+   is refused (the packet has no place for it), a smaller one is left out and said with its heading cost
+   at the calibration's dip (:func:`compass.commands._export_form.left_out`: more than its angle, up to
+   about ``angle (1 + tan dip)``), a reflection refused; an installed calibration's alignment (the product's yaw) is
    refused outright: the packet corrects the magnetometer in its own frame;
 3. units: the receiver reads uT.  ``--unit`` names the unit of the calibration's readings (default
    uT); the field magnitude must then be the Earth's (12.5-130 uT, twice the World Magnetic Model's
@@ -21,12 +22,14 @@ iron and a soft iron, nothing else.  A calibration is exported when its field is
 
 The accelerometer zero-g and gyro zero-rate are sent as 0, as MotionCal sends them.  With ``--port``
 the packet is written to the device and its ``Cal1:``/``Cal2:`` echoes are read for ``--wait``
-seconds: the first echo of the values sent confirms it; echoes of other values only, or no echo at all (the
-packet not confirmed), are said (exit 1).
+seconds: the first echo of the values sent confirms it; echoes of other values only, no echo at all, or the
+device lost while sending (the packet not confirmed) are said (exit 1: a slow or rounding echo may come from a
+device that took it; a port that cannot be opened is exit 2).
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 
@@ -48,7 +51,7 @@ def _fibonacci_sphere(n: int) -> np.ndarray:
     return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
-def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0):
+def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0, axes=None):
     """The packet of a calibration and notes on what it leaves out (module docstring).
 
     Parameters
@@ -59,6 +62,9 @@ def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0):
         Unit of the calibration's magnetometer readings.
     max_rotation_deg : float
         Largest rotation between the corrected field and the accelerometer's frame that is left out.
+    axes : tuple of 3 str, optional
+        ``--axes``: the channels the device reads as its sensor's x, y, z; default from their names
+        (:func:`compass.commands._export_form.axis_order`).
 
     Returns
     -------
@@ -76,6 +82,7 @@ def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0):
     from ..cli import BadInput
     from ..io.motioncal import CalPacket
     from ..io.units import MAG_UNITS
+    from ._export_form import axes_words, axis_order, left_out, rotation_words
 
     def refuse(why: str):
         return BadInput(f"{cal.path}: a {cal.kind} calibration cannot go into MotionCal's packet: {why}")
@@ -91,6 +98,7 @@ def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0):
         raise refuse(f"its alignment turns the field {math.degrees(angle):.2f} deg into the product's frame, and the "
                      f"packet corrects the magnetometer in its own frame with no rotation: export the bench "
                      f"calibration it was installed from, or calibrate the installed module by a tumble")
+    order = list(axis_order(cal, axes))
     magnitude = float(model.field_norm)
     field_b = magnitude * _fibonacci_sphere(400)
     x = field_b @ model.unit_directions.T
@@ -108,17 +116,12 @@ def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0):
     if all(r.model == "linear" for r in model.responses):  # the same map, exactly: no fit's rounding in the bytes
         offset = model.zero_outputs
         matrix = np.linalg.inv(model.gains[:, None] * model.unit_directions)
+    matrix, offset = matrix[:, order], offset[order]  # the device's x, y, z
     to_model = cal.imu.rotation  # R_model<-accel: the bench's mag_to_accel (an installed alignment was refused)
     in_accel = matrix if to_model is None else to_model.T @ matrix
     rotation, soft = polar(in_accel, side="right")
-    if np.linalg.det(rotation) < 0:
-        raise refuse("an axis of its field is mirrored against the accelerometer's (a negative determinant): the "
-                     "packet's symmetric matrix cannot flip it; check the axes' signs")
-    angle_deg = math.degrees(Rotation.from_matrix(rotation).magnitude())
-    if angle_deg > max_rotation_deg:
-        raise refuse(f"its field is turned {angle_deg:.2f} deg against the accelerometer's frame, which the packet's "
-                     f"symmetric matrix cannot hold (left out, the heading turns by up to that angle); raise "
-                     f"--max-rotation-deg to send it without")
+    rotation_note = left_out(cal, rotation, axes=axes_words(cal, order, axes), max_rotation_deg=max_rotation_deg,
+                             what=rotation_words(cal), form="MotionCal's packet")
     per_ut = MAG_UNITS[_UNITS[unit]]
     if cal.kind == "tumble":
         field_per_ut = per_ut  # a tumble's field is in its recording's unit
@@ -139,10 +142,9 @@ def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0):
     if not 0.5 <= scale <= 2.0:
         raise refuse(f"its soft iron would scale the device's uT by {scale:.3g}: its readings are not in {unit} "
                      f"(volts, counts?), and the receiver reads the magnetometer in uT")
-    notes = ["accelerometer zero-g and gyro zero-rate sent as 0, as MotionCal sends them"]
-    if angle_deg > 0.005:
-        notes.append(f"left out: the field's {angle_deg:.2f} deg rotation against the accelerometer (under "
-                     f"--max-rotation-deg {max_rotation_deg:g})")
+    notes = [axes_words(cal, order, axes), "accelerometer zero-g and gyro zero-rate sent as 0, as MotionCal sends them"]
+    if rotation_note:
+        notes.append(f"left out: {rotation_note}")
     if miss > 1e-6:
         notes.append(f"the matrix and offset reproduce the calibration to {100 * miss:.2g} % of |B|")
     if model.temperature is not None:
@@ -151,17 +153,27 @@ def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0):
     return packet, notes
 
 
-def describe(packet) -> str:
-    """The sixteen numbers and the bytes, as text."""
+def describe(packet, comments=()) -> str:
+    """The sixteen numbers and the bytes, as text, after ``comments`` (lines of words, each written as ``# ...``)."""
     from ..io.motioncal import encode_packet
 
     s = packet.soft_iron
     data = encode_packet(packet)
     return ("# compass export: MotionCal calibration packet (68 bytes: 117, 84, 16 little-endian floats, CRC-16)\n"
-            f"hard_iron_ut {' '.join(f'{v:.6g}' for v in packet.hard_iron_ut)}\n"
+            + "".join(f"# {line}\n" for line in comments)
+            + f"hard_iron_ut {' '.join(f'{v:.6g}' for v in packet.hard_iron_ut)}\n"
             f"field_ut {packet.field_ut:.6g}\n"
             + "".join(f"soft_iron {' '.join(f'{v:.6g}' for v in row)}\n" for row in s)
             + "bytes " + data.hex(" ") + "\n")
+
+
+try:
+    import termios
+
+    _TERMIOS_ERRORS = (termios.error,)
+    """What a serial port's drain and flush raise on a device gone (EIO), not an OSError (POSIX only)."""
+except ImportError:  # Windows
+    _TERMIOS_ERRORS = ()
 
 
 def send_packet(port: str, packet, *, baud: int = 115200, wait_s: float = 5.0) -> tuple[int, str]:
@@ -170,7 +182,8 @@ def send_packet(port: str, packet, *, baud: int = 115200, wait_s: float = 5.0) -
     Returns
     -------
     status : int
-        0: an echo of the values sent came; 1: only echoes of other values came, or none (not confirmed).
+        0: an echo of the values sent came; 1: only echoes of other values came, or none, or the device was lost
+        while sending (not confirmed).
     words : str
     """
     import serial
@@ -202,30 +215,33 @@ def send_packet(port: str, packet, *, baud: int = 115200, wait_s: float = 5.0) -
             if ok:
                 return 0, f"sent {len(data)} bytes to {port}; the device echoes the values sent (Cal1/Cal2: {words})"
             decoder.echo = {}  # wait for the next pair: an echo may have left before the packet arrived
-    except (serial.SerialException, OSError) as exc:
-        raise BadInput(f"port {port}: {str(exc).strip() or type(exc).__name__} while sending the packet") from None
+    except (serial.SerialException, OSError, *_TERMIOS_ERRORS) as exc:  # a device lost, not bad input: exit 1
+        return 1, (f"port {port}: {str(exc).strip() or type(exc).__name__} while sending the packet: the device was "
+                   f"lost (unplugged?); not confirmed that it took the packet")
     finally:
-        link.close()
+        with contextlib.suppress(serial.SerialException, OSError, *_TERMIOS_ERRORS):
+            link.close()
     if seen == 0:
         return 1, (f"sent {len(data)} bytes to {port}; no Cal1:/Cal2: echo in {wait_s:g} s: not confirmed that the "
                    f"device took it (a sketch that echoes prints them every second or so: check the port and --baud, "
                    f"or wait longer with --wait)")
     _, words = echo_matches(packet, *last)
-    return 1, (f"sent {len(data)} bytes to {port}; for {wait_s:g} s the device echoes other values ({words}): it did "
-               f"not take the packet (a sketch without MotionCal's receiver?)")
+    return 1, (f"sent {len(data)} bytes to {port}; for {wait_s:g} s the device echoes other values ({words}): not "
+               f"confirmed that it took the packet (a sketch that echoes late or to fewer decimals may have: --wait "
+               f"longer, or read its Cal1:/Cal2: lines; one without MotionCal's receiver never takes it)")
 
 
 def run_motioncal(cal, *, out, force: bool, port, unit: str, max_rotation_deg: float, baud: int,
-                 wait_s: float, inputs=()) -> int:
+                 wait_s: float, inputs=(), axes=None, warnings=()) -> int:
     """The ``--format motioncal`` branch of ``compass export``: the packet of ``cal`` written to ``out``
     (refused if it exists, unless ``force``, and if it is one of ``inputs``), sent to ``port``, or else described on
-    stdout."""
+    stdout (after ``warnings``, the calibration's own, as comments)."""
     import sys
 
     from ..io.atomic import atomic_open, check_writable
     from ..io.motioncal import encode_packet
 
-    packet, notes = packet_of(cal, unit=unit, max_rotation_deg=max_rotation_deg)
+    packet, notes = packet_of(cal, unit=unit, max_rotation_deg=max_rotation_deg, axes=axes)
     for note in notes:
         print(f"compass export: note: {note}", file=sys.stderr)
     if out:
@@ -238,5 +254,8 @@ def run_motioncal(cal, *, out, force: bool, port, unit: str, max_rotation_deg: f
         print(f"compass export: {words}", file=sys.stderr if status else sys.stdout)
         return status
     if not out:
-        print(describe(packet), end="")
+        from ._export_form import axes_words, axis_order
+
+        print(describe(packet, [axes_words(cal, axis_order(cal, axes), axes)]
+                       + [f"warning: the calibration warns: {w}" for w in warnings]), end="")
     return 0

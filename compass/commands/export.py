@@ -19,7 +19,12 @@ installed one: :func:`channel_form`), as a matrix and an offset from raw counts 
 - ``ardupilot``: AP_Compass adds ``COMPASS_OFS`` then multiplies by the symmetric matrix of
   ``COMPASS_DIA`` (diagonal) and ``COMPASS_ODI`` (xy, xz, yz), in milligauss.  So
   ``OFS = -hard_iron`` converted to milligauss and the matrix is the soft iron's shape (det 1).
-  ArduPilot has no parameter for a small rotation; it is reported, not exported.
+  ArduPilot has no parameter for a rotation: one up to ``--max-rotation-deg`` (default 1 deg) is left out
+  and its heading cost at the calibration's dip said (:func:`compass.commands._export_form.left_out`), a
+  larger one or a reflection refused.
+
+Every format takes the channels in the order the firmware reads its sensor, x, y, z
+(:func:`compass.commands._export_form.axis_order`).
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ import numpy as np
 from .. import limits
 from ..io.atomic import atomic_write_text, check_writable
 from ..io.units import EARTH_FIELD_UT, MAG_UNITS
+from ._export_form import warnings_of
 
 __all__ = ["register", "export_text", "firmware_form", "read_calibration", "channel_form", "unit_note"]
 
@@ -59,8 +65,20 @@ def register(sub) -> None:
     p.add_argument("--fusion-api", choices=tuple(FUSION_FUNCTIONS), default=None,
                    help="fusion: the Fusion release line (1.3, the default: FusionModelMagnetic, as imufusion 1.3; "
                         "1.2: FusionCalibrationMagnetic); compile-tested against 1.2.0, 1.2.11, 1.3.0 and 1.3.3")
+    p.add_argument("--axes", metavar="CX,CY,CZ", default=None,
+                   help="the calibration's channels the firmware reads as its sensor's x, y, z, in that order "
+                        "(default: from the names: mx,my,mz, x,y,z, mag_x..; names that say no axis, a bench's v1,v2,v3: "
+                        "their column order, said in the output)")
+    p.add_argument("--max-rotation-deg", type=limits.Range(0.0, 180.0, "deg").option("--max-rotation-deg"),
+                   default=None,
+                   help="ardupilot, motioncal: largest rotation between the sensor's axes and the accelerometer's "
+                        "(the housing's without one) left out of the symmetric matrix, which cannot hold one (default "
+                        "1 deg); its heading cost at the calibration's dip is said, a larger one refused (fusion "
+                        "folds it in)")
     p.add_argument("--out", default=None, help="file to write (default: print)")
-    p.add_argument("--force", action="store_true", help="overwrite --out")
+    p.add_argument("--force", action="store_true",
+                   help="overwrite --out; export a calibration whose own warnings say its numbers are not to be used "
+                        "(a fit that did not converge, a part not determined) all the same")
     m = p.add_argument_group("motioncal")
     m.add_argument("--port", help="send the packet to the device on this serial port (pyserial URL) and read back its "
                                   "Cal1:/Cal2: echo")
@@ -68,10 +86,6 @@ def register(sub) -> None:
                                                                                    "115200)")
     m.add_argument("--wait", type=limits.DURATION_S.option("--wait"), default=None, metavar="S",
                    help="with --port: how long to wait for the device's echo of the values sent (default 5 s)")
-    m.add_argument("--max-rotation-deg", type=limits.Range(0.0, 180.0, "deg").option("--max-rotation-deg"),
-                   default=None,
-                   help="largest rotation between the field and the accelerometer left out of the packet, which "
-                        "cannot hold one (default 1 deg); a larger one is refused")
     p.set_defaults(func=run)
 
 
@@ -84,7 +98,7 @@ DEFAULTS = {"unit": "uT", "fusion_api": "1.3", "baud": 115200, "wait": 5.0, "max
 """Values of the options not given (argparse leaves them None, so one given where it does nothing is refused)."""
 _OPTION_FOR = {"unit": "--format fusion, ardupilot or motioncal", "fusion_api": "--format fusion",
                "port": "--format motioncal", "baud": "--format motioncal with --port",
-               "wait": "--format motioncal with --port", "max_rotation_deg": "--format motioncal"}
+               "wait": "--format motioncal with --port", "max_rotation_deg": "--format ardupilot or motioncal"}
 """What each format-specific option is for, in words."""
 
 
@@ -105,13 +119,19 @@ def run(args) -> int:
             return 0
         cal = _parse(text, name)
     option = {dest: DEFAULTS[dest] if getattr(args, dest) is None else getattr(args, dest) for dest in DEFAULTS}
+    axes = _axes(args.axes)
+    warnings = warnings_of(cal, force=args.force)
+    for words in warnings:
+        print(f"compass export: warning: {cal.path}: the calibration warns: {words}", file=sys.stderr)
     if args.format == "motioncal":
         from ._export_motioncal import run_motioncal
 
         return run_motioncal(cal, out=args.out, force=args.force, inputs=(args.calibration,), port=args.port,
-                             unit=option["unit"],
+                             unit=option["unit"], axes=axes, warnings=warnings,
                              max_rotation_deg=option["max_rotation_deg"], baud=option["baud"], wait_s=option["wait"])
-    form = firmware_form(cal)
+    form = firmware_form(cal, axes) | {"warnings": warnings}
+    if args.format == "ardupilot":
+        form["left_out"] = _left_out_by_ardupilot(cal, form, option["max_rotation_deg"])
     note = unit_note(form, option["unit"])
     if note:
         print(f"compass export: warning: {cal.path}: {note}", file=sys.stderr)
@@ -121,11 +141,36 @@ def run(args) -> int:
     return 0
 
 
+def _axes(text):
+    """``--axes`` as three names, or None; BadInput for a malformed one."""
+    from ..cli import BadInput
+    from ._export_form import parse_axes
+
+    try:
+        return None if text is None else parse_axes(text)
+    except ValueError as exc:
+        raise BadInput(f"--axes: {exc}") from None
+
+
+def _left_out_by_ardupilot(cal, form: dict, max_rotation_deg: float) -> str | None:
+    """Words for the rotation ArduPilot's symmetric matrix leaves out (said on stderr), None for none; BadInput for
+    one above ``max_rotation_deg`` or a reflection (:func:`compass.commands._export_form.left_out`)."""
+    from ._export_form import left_out, rotation_words
+
+    if form["mag_to_accel"] is None:
+        return None
+    words = left_out(cal, form["mag_to_accel"], axes=form["axes"], max_rotation_deg=max_rotation_deg,
+                     what=rotation_words(cal), form="ArduPilot's COMPASS_* parameters")
+    if words:
+        print(f"compass export: note: left out: {words}", file=sys.stderr)
+    return words
+
+
 def _refuse_unused(args) -> None:
     """BadInput for a format-specific option given where it does nothing (:data:`_OPTION_FOR`)."""
     from ..cli import BadInput
 
-    used = {"fusion": {"unit", "fusion_api"}, "ardupilot": {"unit"}, None: set(),
+    used = {"fusion": {"unit", "fusion_api"}, "ardupilot": {"unit", "max_rotation_deg"}, None: set(),
             "motioncal": {"unit", "max_rotation_deg", "port"} | ({"baud", "wait"} if args.port else set())}
     for dest, what in _OPTION_FOR.items():
         if getattr(args, dest) is not None and dest not in used[args.format]:
@@ -184,53 +229,53 @@ def _parse(text: str, name: str):
         raise BadInput(str(exc) if name in str(exc) else f"{name}: {exc}") from None
 
 
-def firmware_form(cal) -> dict:
+def firmware_form(cal, axes=None) -> dict:
     """A calibration (:class:`compass.calibration.Calibration`) in firmware terms; BadInput (exit 2) else.
+
+    Parameters
+    ----------
+    cal : compass.calibration.Calibration
+    axes : tuple of 3 str, optional
+        ``--axes``: the channels the firmware reads as its sensor's x, y, z; default from their names
+        (:func:`compass.commands._export_form.axis_order`).
 
     Returns
     -------
     dict
         ``hard_iron`` (3,), ``soft_iron`` (3, 3), ``mag_to_accel`` (3, 3) or None, numpy arrays
-        (validated: finite, soft iron symmetric positive definite, a proper rotation), and
-        ``field_norm_recording_units`` (|B| in the recording's unit, float or None).
+        (validated: finite, soft iron symmetric positive definite), in the firmware's x, y, z order:
+        ``mag_to_accel @ soft_iron @ (raw - hard_iron)`` is the field in the accelerometer's frame (the
+        housing's without one) for ``raw`` the sensor's ``(x, y, z)``; ``axes`` (the words for the
+        order) and ``field_norm_recording_units`` (|B| in the recording's unit, float or None).
     """
     from ..cli import BadInput
+    from ._export_form import axes_words, axis_order
 
     if cal.tumble is None:
         try:
-            form = channel_form(cal.model)
+            check_channels(cal.model)
         except ValueError as exc:
             raise BadInput(f"{cal.path}: a {cal.kind} calibration cannot be exported: {exc}") from None
+        order = axis_order(cal, axes)
+        form = channel_form(cal.model, order)
         # the field in the accelerometer's frame, as Fusion fuses it: back from the model's frame (H, or an
         # installed file's product frame) through the bench's mag_to_accel and the installation's alignment
         to_model = cal.imu.rotation
         if to_model is not None:
             form["mag_to_accel"] = to_model.T @ form["mag_to_accel"]
-        form["rotation_words"] = ("magnetometer-to-accelerometer rotation" if to_model is not None else
-                                  "rotation of the sensor's axes into the housing's (the file has no accelerometer)")
-        form["output_units"] = True
-        return form
+        return form | {"axes": axes_words(cal, order, axes)}
     t = cal.tumble
-    return {"hard_iron": t.hard_iron, "soft_iron": t.soft_iron, "mag_to_accel": t.mag_to_accel,
-            "field_norm_recording_units": t.field_norm_recording_units}
+    order = axis_order(cal, axes)
+    form = {"hard_iron": t.hard_iron, "soft_iron": t.soft_iron, "mag_to_accel": t.mag_to_accel,
+            "field_norm_recording_units": t.field_norm_recording_units, "axes": axes_words(cal, order, axes)}
+    if order != (0, 1, 2):
+        matrix = t.soft_iron if t.mag_to_accel is None else t.mag_to_accel @ t.soft_iron
+        form |= _split(matrix[:, order], t.hard_iron[list(order)])
+    return form
 
 
-def channel_form(model) -> dict:
-    """The firmware form of a channel-form model (bench or installed): ``raw = o + G B_H``, so
-    ``B_H = G^-1 (raw - o)`` with ``G = diag(gain) A`` (rows: each channel's gain times its direction).
-
-    ``G^-1`` is split into a rotation times a symmetric matrix (polar decomposition,
-    ``scipy.linalg.polar``): the symmetric part is the soft iron, the rotation goes where the
-    tumble's magnetometer-to-accelerometer rotation goes (folded in for Fusion, reported for
-    ArduPilot).
-
-    Raises
-    ------
-    ValueError
-        Not three channels, or a nonlinear response (no matrix and offset reproduce it).
-    """
-    from scipy.linalg import polar
-
+def check_channels(model) -> None:
+    """ValueError unless the model is three linear channels (what a matrix and an offset reproduce)."""
     from ..response import LinearResponse
 
     if len(model.channels) != 3:
@@ -240,9 +285,36 @@ def channel_form(model) -> dict:
     if nonlinear:
         raise ValueError(f"channel(s) {', '.join(nonlinear)} have a nonlinear response, which a matrix and an offset "
                          f"cannot reproduce: export is for linear channels")
-    rotation, soft = polar(np.linalg.inv(model.gains[:, None] * model.unit_directions), side="right")
-    return {"hard_iron": model.zero_outputs, "soft_iron": soft, "mag_to_accel": rotation,
-            "field_norm_recording_units": None, "output_units": True}
+
+
+def channel_form(model, order=(0, 1, 2)) -> dict:
+    """The firmware form of a channel-form model (bench or installed): ``raw = o + G B_H``, so
+    ``B_H = G^-1 (raw - o)`` with ``G = diag(gain) A`` (rows: each channel's gain times its direction),
+    its rows taken in ``order`` (the channels the firmware reads as x, y, z).
+
+    ``G^-1`` is split into a rotation times a symmetric matrix (:func:`_split`): the symmetric part is
+    the soft iron, the rotation goes where the tumble's magnetometer-to-accelerometer rotation goes
+    (folded in for Fusion, left out by ArduPilot).
+
+    Raises
+    ------
+    ValueError
+        Not three channels, or a nonlinear response (no matrix and offset reproduce it).
+    """
+    check_channels(model)
+    rows = list(order)
+    form = _split(np.linalg.inv(model.gains[rows, None] * model.unit_directions[rows]), model.zero_outputs[rows])
+    return form | {"field_norm_recording_units": None, "output_units": True}
+
+
+def _split(matrix: np.ndarray, offset: np.ndarray) -> dict:
+    """``matrix (raw - offset)`` as ``mag_to_accel @ soft_iron @ (raw - hard_iron)``: the polar decomposition
+    (``scipy.linalg.polar``), the symmetric part the soft iron.  ``mag_to_accel`` is orthogonal; its
+    determinant is -1 when the sensor's x, y, z are a left-handed set against the field's frame."""
+    from scipy.linalg import polar
+
+    rotation, soft = polar(matrix, side="right")
+    return {"hard_iron": offset, "soft_iron": soft, "mag_to_accel": rotation}
 
 
 def unit_note(cal: dict, unit: str) -> str:
@@ -265,13 +337,15 @@ def unit_note(cal: dict, unit: str) -> str:
 
 
 def export_text(cal: dict, fmt: str, *, unit: str = "uT", fusion_api: str = "1.3") -> str:
-    """Firmware text for a tumble calibration.
+    """Firmware text for a calibration's firmware form.
 
     Parameters
     ----------
     cal : dict
         ``hard_iron`` (3,), ``soft_iron`` (3, 3), ``mag_to_accel`` (3, 3) or None, as numpy arrays
-        (:func:`firmware_form`); optional ``field_norm_recording_units`` for the unit check.
+        (:func:`firmware_form`); optional ``field_norm_recording_units`` for the unit check, ``axes`` (the
+        channels read as x, y, z, in words), ``warnings`` (the calibration's own) and ``left_out`` (ArduPilot: the
+        rotation it leaves out and its heading cost, in words) for the comments.
     fmt : {"fusion", "ardupilot"}
     unit : str
         Recording unit of the magnetometer (ArduPilot only).
@@ -288,25 +362,28 @@ def export_text(cal: dict, fmt: str, *, unit: str = "uT", fusion_api: str = "1.3
         m = s if c is None else c @ s
         note = "" if c is None else " (mag-to-accel rotation folded in)"
         unit_line = f"// warning: {unit_note(cal, unit)}\n" if unit_note(cal, unit) else ""
+        axes_line = f"// {cal['axes']}\n" if cal.get("axes") else ""
+        axes_line += "".join(f"// warning: the calibration warns: {w}\n" for w in cal.get("warnings", ()))
         # designated members: Fusion 1.3's FusionMatrix is float array[9], 1.2's array[3][3]; both name
         # the elements xx..zz (row-major) and a vector's axis x, y, z, so one text compiles against either
         elements = ", ".join(f".{r}{col} = {c_float(m[i, j])}" for i, r in enumerate("xyz") for j, col in enumerate("xyz"))
         axes = ", ".join(f".{a} = {c_float(v)}" for a, v in zip("xyz", h))
         return (f"// compass export: x-io Fusion {fusion_api}, {FUSION_FUNCTIONS[fusion_api]}(magnetometer, "
-                f"softIronMatrix, hardIronOffset){note}\n" + unit_line +
+                f"softIronMatrix, hardIronOffset){note}\n" + axes_line + unit_line +
                 f"const FusionMatrix softIronMatrix = {{.element = {{{elements}}}}};\n"
                 f"const FusionVector hardIronOffset = {{.axis = {{{axes}}}}};\n")
     shape = s / np.cbrt(np.linalg.det(s))
     ofs = -h * MAG_UNITS[_UNITS[unit]] / MAG_UNITS["mG"]  # ArduPilot's offsets are in milligauss
     lines = ["# compass export: ArduPilot COMPASS_* (offsets in milligauss, matrix = soft-iron shape, det 1)"]
+    if cal.get("axes"):
+        lines.append(f"# {cal['axes']}")
+    lines += [f"# warning: the calibration warns: {w}" for w in cal.get("warnings", ())]
     if unit_note(cal, unit):
         lines.append(f"# warning: {unit_note(cal, unit)}")
     if cal.get("output_units"):
         lines.append(f"# warning: {OUTPUT_UNITS_NOTE}")
-    if c is not None:
-        angle = np.degrees(np.arccos(np.clip((np.trace(c) - 1.0) / 2.0, -1.0, 1.0)))
-        what = cal.get("rotation_words", "magnetometer-to-accelerometer rotation")
-        lines.append(f"# not exported: {what} of {angle:.2f} deg (no ArduPilot parameter)")
+    if cal.get("left_out"):
+        lines.append(f"# not exported (no ArduPilot parameter): {cal['left_out']}")
     lines += [f"COMPASS_OFS_{a},{v:.4f}" for a, v in zip("XYZ", ofs)]
     lines += [f"COMPASS_DIA_{a},{v:.6f}" for a, v in zip("XYZ", np.diag(shape))]
     lines += [f"COMPASS_ODI_{a},{v:.6f}" for a, v in zip("XYZ", (shape[0, 1], shape[0, 2], shape[1, 2]))]

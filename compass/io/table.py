@@ -42,7 +42,7 @@ from ..limits import FIELD_UT
 from .units import note
 
 __all__ = ["RecordingError", "Table", "ReadOptions", "read_table", "add_read_arguments", "format_table", "VOCABULARY",
-           "ABSENT_KEY", "LIVE_RECORD", "log_column_name"]
+           "ABSENT_KEY", "LIVE_RECORD", "log_column_name", "magnetometer_axis"]
 
 VOCABULARY = ("t_s", "temp_c", "flip_deg", "platform_deg", "platform_z_deg", "platform_y_deg", "platform_x_deg",
               "mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz", "bx_ref", "by_ref", "bz_ref", "pitch_deg",
@@ -846,6 +846,23 @@ def _check_named_numbers(path, header, original, text_cells) -> None:
     if named:
         row, _, name, cell = min(named)
         raise _not_a_number(path, original[name], row, cell)
+
+
+def magnetometer_axis(name: str) -> str | None:
+    """The magnetometer axis (``"x"``, ``"y"`` or ``"z"``) a column's name says, as this reader reads the name.
+
+    ``mx``, ``my``, ``mz`` in any case, a log's ``Magnetometer X (uT)``, ``mag_x``, ``MagX`` (:func:`log_column_name`),
+    and a bare ``x``, ``y``, ``z``; None for any other name (``v1``, ``ch_a``).
+
+    Examples
+    --------
+    >>> [magnetometer_axis(n) for n in ("MY", "Magnetometer Z (uT)", "mag_x", "x", "v1", "ay")]
+    ['y', 'z', 'x', 'x', None, None]
+    """
+    canon = name.lower() if name.lower() in _MAG else log_column_name(name)[0]
+    if canon in _MAG:
+        return canon[1]
+    return name.lower() if name.lower() in ("x", "y", "z") else None
 
 
 def log_column_name(name: str) -> tuple[str | None, str | None]:

@@ -6,6 +6,7 @@ import os
 import shutil
 import subprocess
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -110,7 +111,7 @@ def test_refusals_say_why(cals, tmp_path, capsys):
         return err
 
     # the tumble's 2 deg between magnetometer and accelerometer: the packet's symmetric matrix cannot hold it
-    assert "turned 2." in refused(cals / "t.json") and "--max-rotation-deg" in refused(cals / "t.json")
+    assert "rotation is 2." in refused(cals / "t.json") and "--max-rotation-deg" in refused(cals / "t.json")
     # an installed yaw
     err = refused(cals / "inst.json", "--max-rotation-deg", "10")
     assert "installed calibration" in err and "alignment turns the field 3." in err
@@ -120,10 +121,10 @@ def test_refusals_say_why(cals, tmp_path, capsys):
         channel["response"] |= {"model": "cubic", "cubic": 2e-6}
     cubic = tmp_path / "cubic.json"
     cubic.write_text(json.dumps(doc))
-    err = refused(cubic, "--max-rotation-deg", "10")
+    err = refused(cubic, "--max-rotation-deg", "10", "--axes", "v1,v2,v3")
     assert "fourflip calibration" in err and "nonlinear response" in err and "% of |B|" in err
     # the bench's outputs are volts: the receiver reads uT
-    assert "not in uT" in refused(cals / "bench.json", "--max-rotation-deg", "10")
+    assert "not in uT" in refused(cals / "bench.json", "--max-rotation-deg", "10", "--axes", "v1,v2,v3")
     # a tumble recorded in mG: its |B| is not the Earth's in uT, and the unit that fits is named
     doc = json.loads((cals / "t.json").read_text())
     doc["hard_iron"] = [10 * h for h in doc["hard_iron"]]
@@ -193,6 +194,39 @@ def test_a_device_that_keeps_other_values_is_said(tmp_path):
         os.close(master)
         os.close(slave)
     assert status == 1 and "echoes other values" in words and "Cal1[8] 0.000 for 32.000" in words
+    # a slow echo, or one to fewer decimals, comes from a device that may have taken it: never "did not take"
+    assert "not confirmed that it took the packet" in words and "did not take" not in words
+
+
+def test_a_device_lost_while_sending_is_a_failure_not_bad_input(tmp_path, capsys):
+    """A module unplugged mid-send exited 2, the bad-input code: a lost device is exit 1, not confirmed."""
+    cal = _board_cal(tmp_path)
+    master, slave = os.openpty()
+    os.set_blocking(master, False)
+    closed = threading.Event()
+
+    def unplug():  # reads the first bytes of the packet, then goes away as an unplugged USB device does
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline:
+            try:
+                if os.read(master, 4096):
+                    break
+            except BlockingIOError:
+                time.sleep(0.01)
+        os.close(master)
+        closed.set()
+
+    thread = threading.Thread(target=unplug, daemon=True)
+    thread.start()
+    try:
+        code = main(["export", str(cal), "--format", "motioncal", "--port", os.ttyname(slave), "--wait", "5"])
+    finally:
+        thread.join(15.0)
+        if not closed.is_set():
+            os.close(master)
+        os.close(slave)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and "the device was lost (unplugged?); not confirmed that it took the packet" in err[-1]
 
 
 def test_no_echo_is_not_a_confirmation_and_exits_1(tmp_path, capsys):

@@ -19,7 +19,7 @@ TUMBLE = {"format": "compass-calibration/1", "model": "tumble", "hard_iron": [1.
 
 def unit_bench() -> dict:
     """A bench calibration in units of the bench's |B| (no field_ut): MotionCal's packet, in uT, refuses it."""
-    model = SensorModel(("v1", "v2", "v3"), np.eye(3), (LinearResponse(1.0, 2.0, (-1.0, 1.0)),) * 3, 1.0, dip_deg=60.0)
+    model = SensorModel(("mx", "my", "mz"), np.eye(3), (LinearResponse(1.0, 2.0, (-1.0, 1.0)),) * 3, 1.0, dip_deg=60.0)
     return model_to_dict(model) | {"noise_floor": [0.01] * 3}
 
 
@@ -61,8 +61,8 @@ def test_a_stored_calibration_that_is_not_json_is_named_too(tmp_path, capsys):
 UNUSED = [
     ("fusion", ["--baud", "9600"], "--baud is for --format motioncal with --port; it does nothing with --format fusion"),
     ("fusion", ["--wait", "2"], "--wait is for --format motioncal with --port; it does nothing with --format fusion"),
-    ("fusion", ["--max-rotation-deg", "2"], "--max-rotation-deg is for --format motioncal; it does nothing with "
-                                            "--format fusion"),
+    ("fusion", ["--max-rotation-deg", "2"], "--max-rotation-deg is for --format ardupilot or motioncal; it does "
+                                            "nothing with --format fusion"),
     ("ardupilot", ["--fusion-api", "1.2"], "--fusion-api is for --format fusion; it does nothing with --format "
                                            "ardupilot"),
     ("ardupilot", ["--port", "/dev/null"], "--port is for --format motioncal; it does nothing with --format ardupilot"),

@@ -188,7 +188,7 @@ def test_an_output_that_is_an_input_is_refused_even_with_force(tmp_path, capsys)
     capsys.readouterr()
     assert main(["calibrate", str(rec), "--out", str(rec), "--quiet", "--no-diagnose", "--force"]) == 2
     assert main(["attitude", str(cal), str(rec), "--out", str(cal), "--force"]) == 2
-    assert main(["export", str(cal), "--format", "fusion", "--out", str(cal), "--force"]) == 2
+    assert main(["export", str(cal), "--format", "fusion", "--axes", "v1,v2,v3", "--out", str(cal), "--force"]) == 2
     err = capsys.readouterr().err
     assert err.count("is also an input of this command") == 3 and "Traceback" not in err
     assert (rec.read_bytes(), cal.read_bytes()) == before
