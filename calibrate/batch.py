@@ -30,8 +30,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
-__all__ = ["BatchSummary", "SessionJob", "calibrate_session", "duplicate_reason", "executor_outcomes", "run_batch",
-           "session_identity", "shared_identities"]
+__all__ = ["BatchSummary", "SessionJob", "bench_field_ut", "calibrate_session", "duplicate_reason", "executor_outcomes",
+           "run_batch", "session_identity", "shared_identities"]
 
 _METADATA_LINES = 200
 """Comment lines read for ``module_id`` and ``date`` when the recording itself cannot be read."""
@@ -45,6 +45,7 @@ class SessionJob:
     sha256: str
     site_dip_deg: float
     site_field_ut: float
+    bench_field_ut: float | None = None
 
 
 def sha256_of(path) -> str:
@@ -89,6 +90,25 @@ def _session_time(path, metadata: dict) -> str:
         return ""
 
 
+def bench_field_ut(metadata: dict, spec_bench_field_ut: float | None) -> float | None:
+    """The bench's |B| in uT for a recording without ``# field_ut:`` (its calibration's field unit is the bench's |B|).
+
+    The World Magnetic Model's |B| at the recording's site and date (``# site_lat_deg:``, ``# site_lon_deg:``,
+    optional ``# site_alt_m:``, ``# date:``: what ``compass bench --site`` writes), else the spec's
+    ``[site] bench_field_ut``, else None (the offset cannot be put in uT).
+    """
+    from compass.site import Site
+
+    if all(metadata.get(k) for k in ("site_lat_deg", "site_lon_deg", "date")):
+        try:
+            site = Site.parse(",".join(metadata[k] for k in ("site_lat_deg", "site_lon_deg", "site_alt_m")
+                                       if metadata.get(k)), metadata["date"][:10])
+        except ValueError:
+            return spec_bench_field_ut  # a bad site key: the calibration itself refuses it, naming the key
+        return site.field().field_ut
+    return spec_bench_field_ut
+
+
 def calibrate_session(job: SessionJob) -> dict:
     """Calibrate one recording and compute its figures; a plain dict (crosses process boundaries).
 
@@ -126,8 +146,9 @@ def calibrate_session(job: SessionJob) -> dict:
         model = from_dict(json.loads(text)).model
         # the diagnosis block of the contract (calibrate.contract: to_json()["diagnosis"])
         out["figures"] = module_figures(model, document.get("diagnosis"), out["warnings"],
-                                        site_dip_deg=job.site_dip_deg,
-                                        site_field_ut=job.site_field_ut)
+                                        site_dip_deg=job.site_dip_deg, site_field_ut=job.site_field_ut,
+                                        bench_field_ut=bench_field_ut(_header_metadata(job.path),
+                                                                      job.bench_field_ut))
     except (RecordingError, CannotCalibrate, CalibrationFileError) as exc:
         out["refused"] = str(exc)
     except Exception as exc:  # noqa: BLE001 - one module's failure is its verdict, never the batch's end
@@ -314,7 +335,7 @@ def run_batch(paths, spec, store, *, toolkit_version: str, workers: int | None =
             summary.skipped += 1
             continue
         seen.add(hashes[p])  # the same recording twice in one batch is one session
-        jobs.append(SessionJob(p, hashes[p], spec.site_dip_deg, spec.site_field_ut))
+        jobs.append(SessionJob(p, hashes[p], spec.site_dip_deg, spec.site_field_ut, spec.bench_field_ut))
     start = time.perf_counter()
     for done, outcome in enumerate(executor_outcomes(jobs, workers=workers, scheduler=scheduler, dask=dask), 1):
         if outcome["refused"] is not None:
@@ -334,6 +355,7 @@ def run_batch(paths, spec, store, *, toolkit_version: str, workers: int | None =
         summary.counts[verdict.status] += 1
         if progress is not None:
             why = f": {verdict.reasons[0]}" if verdict.reasons else ""
-            progress(f"[{done}/{len(jobs)}] {outcome['module_id']} {verdict.status}{why}")
+            unjudged = f"; a limit not judged: {'; '.join(verdict.notes)}" if verdict.notes else ""
+            progress(f"[{done}/{len(jobs)}] {outcome['module_id']} {verdict.status}{why}{unjudged}")
     summary.seconds = time.perf_counter() - start
     return summary

@@ -298,7 +298,7 @@ def test_batch_takes_any_kind(fleet, tmp_path):
     assert set(rows) == {"tumble", "fourflip"}
     assert rows["tumble"].module_id == "tumble" and rows["fourflip"].module_id == "M0001"
     assert rows["tumble"].status != "refused"
-    assert "direction_sigma_deg: not given by this calibration" in rows["tumble"].notes
+    assert "direction_sigma_deg: not judged: not given by this calibration" in rows["tumble"].notes
 
 
 def test_dask_local_cluster_gives_the_pool_s_verdicts(fleet, tmp_path):
@@ -344,3 +344,43 @@ def test_a_clipped_channel_s_session_is_refused_naming_it(fleet, tmp_path):
     out = calibrate_session(SessionJob(str(clipped), sha256_of(clipped), 65.0, 50.0))
     assert out["refused"].startswith(f"{clipped}, row ") and "column 'v2': reads its extreme" in out["refused"]
     assert "clipped (saturated)" in out["refused"] and "'v1'" not in out["refused"] and "'v3'" not in out["refused"]
+
+
+def _without_field_ut(source, out, extra=()):
+    """``source`` as ``compass bench`` writes a recording (no '# field_ut:'), its module id the file name, ``extra`` added."""
+    lines = [line for line in source.read_text().splitlines() if not line.startswith(("# field_ut:", "# module_id:"))]
+    out.write_text("\n".join([*extra, *lines]) + "\n")
+    return out
+
+
+def test_a_magnetised_module_without_field_ut_is_judged_by_the_bench_field_or_said_unjudged(fleet, tmp_path):
+    folder, truth = fleet
+    magnetised = folder / "line" / truth["modules"][[m["defect"] for m in truth["modules"]].index("magnetised")]["file"]
+    bare = _without_field_ut(magnetised, tmp_path / "bare.csv")
+    sited = _without_field_ut(magnetised, tmp_path / "sited.csv",
+                              ["# site_lat_deg: 48.1", "# site_lon_deg: 11.6", "# site_alt_m: 520"])
+    lines = []
+    with Store(tmp_path / "s.sqlite") as store:
+        run_batch([bare, sited], load_spec(), store, toolkit_version="t", workers=0, progress=lines.append)
+        rows = {r.recording_path: r for r in store.sessions()}
+    assert rows[str(sited)].status == "rejected" and "offset_ut" in rows[str(sited)].reasons[0]  # WMM: 48.6 uT
+    assert rows[str(bare)].status == "accepted"
+    assert any("a limit not judged: offset_ut: not judged: the bench's |B| in uT is unknown" in x for x in lines)
+    spec = tmp_path / "spec.toml"
+    spec.write_text(load_spec().text.replace("[site]", "[site]\nbench_field_ut = 48.0", 1))
+    with Store(tmp_path / "t.sqlite") as store:
+        run_batch([bare], load_spec(spec), store, toolkit_version="t", workers=0)
+        assert store.sessions()[0].reasons[0].startswith("offset_ut ")
+
+
+def test_bench_writes_the_sites_field_as_field_ut():
+    import argparse
+
+    from compass.commands.bench import _metadata
+    from compass.site import Site
+
+    site = Site.parse("48.1,11.6,520", "2026-03-02")
+    args = argparse.Namespace(module_id="M1", operator="op", date=None)
+    meta = _metadata(args, argparse.Namespace(spec="grbl"), site)
+    assert float(meta["field_ut"]) == pytest.approx(site.field().field_ut, abs=1e-3)
+    assert "field_ut" not in _metadata(args, argparse.Namespace(spec="grbl"), None)

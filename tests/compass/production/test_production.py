@@ -60,7 +60,7 @@ def test_judge_names_every_figure_past_its_limit_and_notes_the_missing():
     assert any(r.startswith("snr_min 20 ratio below the limit 100") for r in bad.reasons)
     assert any(r.startswith("unexplained") for r in bad.reasons)
     assert "warning of class 'channel'" in bad.reasons and "warning of class 'other'" not in bad.reasons
-    assert bad.notes == ("direction_sigma_deg: not given by this calibration",)
+    assert bad.notes == ("direction_sigma_deg: not judged: not given by this calibration",)
     strict = parse_spec("[limits]\ndirection_sigma_deg = { max = 0.3 }\n[missing]\nfail = true\n")
     assert strict.judge(_figures(direction_sigma_deg=None)).status == "rejected"
 
@@ -127,6 +127,21 @@ def test_geometry_figures_of_a_channel_tilted_twenty_degrees():
     assert f["residual_over_floor"] == pytest.approx(2.0)
     assert f["direction_sigma_deg"] == pytest.approx(np.degrees(1e-3) * math.sqrt(2))
     assert f["warning_classes"] == ["not_converged"] and f["unexplained"] is False
+
+
+def test_offset_without_field_ut_is_put_in_uT_by_the_bench_field_else_left_unjudged_in_words():
+    # gains per bench |B| (field_norm 1): an offset of 10 output units at gain 2 is 5 |B|
+    model = SensorModel(("x", "y", "z"), np.eye(3), tuple(LinearResponse(o, 2.0) for o in (10.0, 0.0, -4.0)),
+                        field_norm=1.0, field_ut=None, dip_deg=60.0, noise=np.full(3, 0.01))
+    known = module_figures(model, None, [], site_dip_deg=60.0, site_field_ut=50.0, bench_field_ut=48.0)
+    assert known["offset_ut"] == pytest.approx(5.0 * 48.0) and known["unjudged"] == {}
+    unknown = module_figures(model, None, [], site_dip_deg=60.0, site_field_ut=50.0)
+    assert unknown["offset_ut"] is None
+    assert "bench's |B| in uT is unknown" in unknown["unjudged"]["offset_ut"] and "5 bench |B|" in unknown[
+        "unjudged"]["offset_ut"]
+    note = parse_spec("[limits]\noffset_ut = { max = 180 }\n").judge(_figures(offset_ut=None, **{
+        "unjudged": unknown["unjudged"]})).notes
+    assert note == (f"offset_ut: not judged: {unknown['unjudged']['offset_ut']}",)
 
 
 # ---------------------------------------------------------------------------------------------- control chart
