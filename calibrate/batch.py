@@ -80,10 +80,22 @@ def session_identity(path) -> tuple[str, str]:
 
 
 def _session_time(path, metadata: dict) -> str:
-    """The session's time: ``# session_time:`` or ``# date:`` as written, else the file's mtime (UTC, ISO)."""
+    """The session's time: ``# session_time:`` or ``# date:`` as its UTC instant or day
+    (:func:`compass.production.store.session_time_text`), else the file's mtime (UTC, ISO).
+
+    Raises
+    ------
+    SessionTimeError
+        The recording's time is neither form (the message names the file and the key).
+    """
+    from compass.production.store import SessionTimeError, session_time_text
+
     for key in ("session_time", "date"):
         if metadata.get(key):
-            return metadata[key]
+            try:
+                return session_time_text(metadata[key])
+            except SessionTimeError as exc:
+                raise SessionTimeError(f"{path}: '# {key}:' {exc}") from None
     try:
         return datetime.fromtimestamp(os.path.getmtime(path), timezone.utc).isoformat(timespec="seconds")
     except OSError:
@@ -277,7 +289,7 @@ def shared_identities(identities: dict, hashes: dict, store) -> dict:
         each identity with more than one (the same recording given twice is one; a session time of a day alone,
         :func:`compass.production.store.timed`, or a stored recording at the same path is none).
     """
-    from compass.production.store import timed
+    from compass.production.store import same_session, timed
 
     claims: dict[tuple[str, str], dict[str, str]] = {}
     for p, identity in identities.items():
@@ -285,7 +297,7 @@ def shared_identities(identities: dict, hashes: dict, store) -> dict:
             claims.setdefault(identity, {}).setdefault(hashes[p], os.path.abspath(p))
     for (module_id, session_time), by_hash in claims.items():
         for row in store.sessions(module_id=module_id):  # the same file stored before, edited: superseded
-            if row.session_time == session_time and row.recording_path not in by_hash.values():
+            if same_session(row.session_time, session_time) and row.recording_path not in by_hash.values():
                 by_hash.setdefault(row.recording_sha256, row.recording_path)
     return {identity: sorted(by_hash.values()) for identity, by_hash in claims.items() if len(by_hash) > 1}
 
@@ -319,14 +331,19 @@ def run_batch(paths, spec, store, *, toolkit_version: str, workers: int | None =
     Returns
     -------
     BatchSummary
+
+    Raises
+    ------
+    SessionTimeError
+        A recording's session time cannot be read (before anything is calibrated or stored).
     """
     from compass.production.spec import Verdict
 
     paths = [str(p) for p in paths]
     summary = BatchSummary(total=len(paths))
+    identities = {p: session_identity(p) for p in paths}
     hashes = {p: sha256_of(p) for p in paths}
     summary.hashes = list(hashes.values())
-    identities = {p: session_identity(p) for p in paths}
     summary.duplicates = shared_identities(identities, hashes, store)
     known = store.known(toolkit_version, spec.sha256)
     jobs, seen = [], set(known)

@@ -26,11 +26,11 @@ from __future__ import annotations
 import json
 import sqlite3
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import date, datetime, timezone
 from pathlib import Path
 
-__all__ = ["MIGRATIONS", "SCHEMA_VERSION", "ModuleOutcome", "SessionRow", "Store", "StoreError", "module_outcome",
-           "module_outcomes"]
+__all__ = ["MIGRATIONS", "SCHEMA_VERSION", "ModuleOutcome", "SessionRow", "SessionTimeError", "Store", "StoreError",
+           "module_outcome", "module_outcomes", "same_session", "session_instant", "session_time_text", "timed"]
 
 MIGRATIONS = (
     # 0 -> 1
@@ -119,10 +119,68 @@ class ModuleOutcome:
     rivals: tuple[SessionRow, ...]
 
 
+class SessionTimeError(ValueError):
+    """A session time that is neither an ISO 8601 time nor a day (the message quotes it)."""
+
+
+def session_time_text(text: str) -> str:
+    """A recording's session time as stored: the UTC instant (``2026-03-02T07:30:00+00:00``), or the day alone.
+
+    ``datetime.fromisoformat``'s forms: an offset (``+02:00``, ``Z``) is applied; a time without one is taken as
+    UTC (the bench PC's zone is not in the file; the file's modification time is UTC too); a day alone
+    (``2026-03-02``: ``compass bench``'s ``# date:``) stays a day (:func:`timed`).
+
+    Raises
+    ------
+    SessionTimeError
+        Neither form (``2026-3-9``: not zero-padded; ``03/02/2026``).
+    """
+    text = text.strip()
+    if len(text) == 10:  # YYYY-MM-DD (fromisoformat would take it for midnight)
+        try:
+            return date.fromisoformat(text).isoformat()
+        except ValueError:
+            pass
+    try:
+        instant = datetime.fromisoformat(text)
+    except ValueError:
+        raise SessionTimeError(f"{text!r} is not an ISO 8601 time (2026-03-02T09:30:00+02:00, 2026-03-02T07:30:00Z) "
+                               "nor a day (2026-03-02)") from None
+    if instant.tzinfo is None:
+        instant = instant.replace(tzinfo=timezone.utc)
+    return instant.astimezone(timezone.utc).isoformat()
+
+
 def timed(session_time: str) -> bool:
     """Whether a session time tells the time of day (``2026-03-02T07:24:00``), not the day alone (``# date:``, which
     ``compass bench`` writes: a module recorded again the same day is a later session, not a rival)."""
     return "T" in session_time or ":" in session_time
+
+
+def session_instant(session_time: str) -> datetime:
+    """The UTC instant a stored session time orders by (a day alone: its start, 00:00 UTC).
+
+    Stores written before session times were normalised hold them as the recording wrote them; they are
+    parsed here (:func:`session_time_text`).
+
+    Raises
+    ------
+    SessionTimeError
+    """
+    text = session_time_text(session_time)
+    if not timed(text):
+        return datetime.combine(date.fromisoformat(text), datetime.min.time(), timezone.utc)
+    return datetime.fromisoformat(text)
+
+
+def same_session(a: str, b: str) -> bool:
+    """Whether two session times of day are one instant (``...Z`` and ``...+00:00`` are); days alone never are."""
+    return timed(a) and timed(b) and session_instant(a) == session_instant(b)
+
+
+def _order(r: "SessionRow"):
+    """Session-time order: the instant, then the recording's path (days alone keep their files' order), then the row."""
+    return session_instant(r.session_time), r.recording_path, r.id
 
 
 def module_outcome(rows) -> ModuleOutcome:
@@ -138,7 +196,7 @@ def module_outcome(rows) -> ModuleOutcome:
     accepted = [r for r in rows if r.status == "accepted"]
     row = accepted[-1] if accepted else rows[-1]
     rivals = {r.recording_sha256: r for r in rows
-              if r.session_time == row.session_time and timed(r.session_time)
+              if same_session(r.session_time, row.session_time)
               and r.recording_sha256 != row.recording_sha256 and r.recording_path != row.recording_path}
     status = "duplicate" if rivals else row.status
     return ModuleOutcome(row.module_id, status, row, tuple(rivals.values()))
@@ -151,7 +209,7 @@ def module_outcomes(rows, rivals=()) -> list[ModuleOutcome]:
     modules' outcomes: a module one of them rivals is a duplicate id, as it would be with both in ``rows``.
     """
     by_module: dict[str, list[SessionRow]] = {}
-    for r in sorted([*rows, *rivals], key=lambda r: (r.session_time, r.recording_path, r.id)):
+    for r in sorted([*rows, *rivals], key=_order):
         by_module.setdefault(r.module_id, []).append(r)
     return [module_outcome(group) for group in by_module.values()]
 
@@ -241,27 +299,34 @@ class Store:
         sql, args = f"SELECT {', '.join(_COLUMNS)} FROM sessions", []
         if module_id is not None:
             sql, args = sql + " WHERE module_id = ?", [module_id]
-        rows = [_row(r) for r in self._db.execute(sql + " ORDER BY session_time, recording_path, id", args)]
+        rows = [_row(r) for r in self._db.execute(sql, args)]
         if hashes is not None:
             hashes = set(hashes)
             rows = [r for r in rows if r.recording_sha256 in hashes]
-        return rows
+        keys = {}
+        for r in rows:
+            try:
+                keys[r.id] = _order(r)
+            except SessionTimeError as exc:  # a store written before session times were checked
+                raise StoreError(f"{self.path}: the session of {r.recording_path} is stored at {exc}: it cannot be "
+                                 "ordered; correct the recording's '# session_time:' and run the batch again") from None
+        return sorted(rows, key=lambda r: keys[r.id])
 
     def rivals(self, rows) -> list[SessionRow]:
         """Stored sessions of other recordings claiming a session of ``rows``: the same module id and session time of
         day (:func:`timed`), another hash and another path than every row of that session (:func:`module_outcome`'s
         rivals), in session-time order.  A batch's report counts a module they rival as a duplicate id."""
-        claimed: dict[tuple[str, str], list[SessionRow]] = {}
+        claimed: dict[tuple[str, datetime], list[SessionRow]] = {}
         for r in rows:
             if timed(r.session_time):
-                claimed.setdefault((r.module_id, r.session_time), []).append(r)
+                claimed.setdefault((r.module_id, session_instant(r.session_time)), []).append(r)
         found = {}
-        for (module_id, session_time), own in claimed.items():
+        for (module_id, _), own in claimed.items():
             for r in self.sessions(module_id=module_id):
-                if r.session_time == session_time and all(
+                if same_session(r.session_time, own[0].session_time) and all(
                         r.recording_sha256 != o.recording_sha256 and r.recording_path != o.recording_path for o in own):
                     found[r.id] = r
-        return sorted(found.values(), key=lambda r: (r.session_time, r.recording_path, r.id))
+        return sorted(found.values(), key=_order)
 
     def latest_accepted(self, module_id: str) -> SessionRow:
         """The module's latest accepted session (:func:`module_outcome`).

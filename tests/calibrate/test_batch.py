@@ -384,3 +384,16 @@ def test_bench_writes_the_sites_field_as_field_ut():
     meta = _metadata(args, argparse.Namespace(spec="grbl"), site)
     assert float(meta["field_ut"]) == pytest.approx(site.field().field_ut, abs=1e-3)
     assert "field_ut" not in _metadata(args, argparse.Namespace(spec="grbl"), None)
+
+
+def test_a_batch_with_an_unreadable_session_time_stops_before_storing_naming_the_file(fleet, tmp_path):
+    folder, truth = fleet
+    good = folder / "line" / truth["modules"][0]["file"]
+    bad = tmp_path / "bad.csv"
+    bad.write_text("# date: 2026-3-9\n" + "\n".join(line for line in good.read_text().splitlines()
+                                                       if not line.startswith("# date:")) + "\n")
+    code, out, err = _batch(good, bad, "--out", tmp_path / "r", "--workers", "0", timeout_s=120.0)
+    assert code == 2 and "Traceback" not in err
+    assert f"{bad}: '# date:' '2026-3-9' is not an ISO 8601 time" in err
+    with Store(tmp_path / "r" / "calibrations.sqlite", create=False) as store:
+        assert store.count() == 0

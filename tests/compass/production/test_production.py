@@ -10,7 +10,8 @@ from compass.model import SensorModel
 from compass.production.control import ewma_chart
 from compass.production.figures import FIGURES, classify_warning, heading_error_deg, module_figures
 from compass.production.spec import SpecError, load_spec, parse_spec
-from compass.production.store import SCHEMA_VERSION, Store, StoreError, module_outcome, module_outcomes
+from compass.production.store import (SCHEMA_VERSION, SessionTimeError, Store, StoreError, module_outcome,
+                                     module_outcomes, session_time_text)
 from compass.response import LinearResponse
 
 
@@ -231,6 +232,36 @@ def test_two_recordings_of_one_module_at_one_session_time_are_a_tie_latest_accep
         assert store.latest_accepted("M8").calibration == '{"eight": 2}'  # the later file name, as before
         outcomes = {o.module_id: o.status for o in module_outcomes(store.sessions())}
     assert outcomes == {"M5": "accepted", "M6": "duplicate", "M7": "accepted", "M8": "accepted"}
+
+
+@pytest.mark.parametrize("written, stored", [
+    ("2026-03-02T09:30:00+02:00", "2026-03-02T07:30:00+00:00"),
+    ("2026-03-02T07:24:00Z", "2026-03-02T07:24:00+00:00"),
+    ("2026-03-02T07:24:00", "2026-03-02T07:24:00+00:00"),  # no offset: taken as UTC
+    (" 2026-03-02 ", "2026-03-02"),  # a day stays a day
+])
+def test_a_session_time_is_stored_as_its_utc_instant_or_its_day(written, stored):
+    assert session_time_text(written) == stored
+
+
+@pytest.mark.parametrize("written", ["2026-3-9", "03/02/2026", "Monday", "2026-03-02T25:00"])
+def test_a_session_time_in_no_iso_form_is_refused_quoting_it(written):
+    with pytest.raises(SessionTimeError, match=f"'{written}' is not an ISO 8601 time"):
+        session_time_text(written)
+
+
+def test_sessions_order_and_tie_on_instants_also_in_a_store_that_kept_the_text_as_written(tmp_path):
+    with Store(tmp_path / "s.sqlite") as store:  # rows as an older batch stored them: the recording's text
+        _add(store, "MA", "2026-03-02T09:30:00+02:00", "a1", calibration='{"first": 1}', path="/r/A1.csv")
+        _add(store, "MA", "2026-03-02T08:00:00+00:00", "a2", calibration='{"second": 1}', path="/r/A2.csv")
+        _add(store, "MC", "2026-03-02T07:24:00Z", "c1", path="/r/C1.csv")
+        _add(store, "MC", "2026-03-02T07:24:00+00:00", "c2", path="/r/C2.csv")
+        assert store.latest_accepted("MA").calibration == '{"second": 1}'  # 08:00 UTC after 07:30 UTC
+        with pytest.raises(StoreError, match="2 different recordings claim its latest accepted session"):
+            store.latest_accepted("MC")  # one instant written two ways
+        _add(store, "MB", "2026-3-9", "b1", path="/r/B1.csv")
+        with pytest.raises(StoreError, match="the session of /r/B1.csv is stored at '2026-3-9' is not an ISO"):
+            store.sessions(module_id="MB")
 
 
 def test_a_batchs_rows_see_the_stores_rivals_of_their_sessions_and_nothing_else(tmp_path):
