@@ -206,7 +206,8 @@ def write_report(out_dir, rows, spec, *, spec_source: str, toolkit_version: str,
                  + f"; spec {e(spec_source)} (sha256 {spec.sha256[:12]}); compass {e(toolkit_version)}. "
                  "Every module's figures: <a href='figures.csv'>figures.csv</a>.</p>")
     parts.append(f"<h2>Yield</h2><p class='note'>{len(modules)} modules (module ids) in {total} sessions; a "
-                 "module is decided by its latest accepted session, else its latest session.</p>"
+                 "module is decided by its latest session's verdict (a later rejection supersedes an "
+                 "earlier acceptance).</p>"
                  "<table><tr><th>accepted</th><th>rejected (a limit failed)</th>"
                  "<th>refused (could not be calibrated)</th><th>duplicate id (different recordings, one "
                  "session time)</th><th>yield</th></tr>"

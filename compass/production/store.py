@@ -9,9 +9,9 @@ older file forward, a newer one is refused in words)::
 ``status`` is ``accepted``, ``rejected`` or ``refused`` (not calibrated); ``reasons``, ``notes``
 and ``figures`` are JSON; ``calibration`` is the calibration file's text (NULL when refused).
 A session is the same when its recording's hash, the toolkit version and the spec are: a re-run
-of a batch skips it (:meth:`Store.known`).  A module's calibration is its latest accepted session
-(:func:`module_outcome`); two different recordings of one module id at one session time are a tie
-that :meth:`Store.latest_accepted` refuses to break.  Every row is written in its own transaction, so a
+of a batch skips it (:meth:`Store.known`).  A module's calibration is its latest session, when that
+is accepted (:func:`module_outcome`); two different recordings of one module id at one session time
+are a tie that :meth:`Store.exportable` refuses to break.  Every row is written in its own transaction, so a
 process killed mid-batch leaves every finished session stored and no half of one.
 
 Only the batch's parent process writes (SQLite serialises writers; many writing workers would
@@ -104,11 +104,11 @@ class ModuleOutcome:
     ----------
     module_id : str
     status : {"accepted", "rejected", "refused", "duplicate"}
-        ``accepted``: the module has an accepted session and no other recording claims its session
-        time; ``duplicate``: another recording (a different hash) claims the deciding session's
-        time, so which one is the module's is unknown; otherwise the latest session's verdict.
+        The latest session's verdict (a later session supersedes an earlier one, whatever their
+        verdicts: the module may have changed since); ``duplicate``: another recording (a different
+        hash) claims that session's time, so which one is the module's is unknown.
     row : SessionRow
-        The latest accepted session, else the latest session.
+        The latest session.
     rivals : tuple of SessionRow
         The other recordings at ``row``'s session time (one row a recording hash).
     """
@@ -178,6 +178,14 @@ def same_session(a: str, b: str) -> bool:
     return timed(a) and timed(b) and session_instant(a) == session_instant(b)
 
 
+def _at(rows, session_time: str) -> list:
+    """The rows at a session time given by a user (any ISO form; a day matches a day-stamped session)."""
+    wanted = session_time_text(session_time)
+    if timed(wanted):
+        return [r for r in rows if same_session(r.session_time, wanted)]
+    return [r for r in rows if not timed(r.session_time) and session_time_text(r.session_time) == wanted]
+
+
 def _order(r: "SessionRow"):
     """Session-time order: the instant, then the recording's path (days alone keep their files' order), then the row."""
     return session_instant(r.session_time), r.recording_path, r.id
@@ -186,15 +194,15 @@ def _order(r: "SessionRow"):
 def module_outcome(rows) -> ModuleOutcome:
     """The outcome of one module from its sessions in session-time order (:meth:`Store.sessions`).
 
-    The latest accepted session decides (a later session of the module supersedes an earlier one);
-    the same recording stored twice (another toolkit version or spec) is one recording.  Sessions at
+    The latest session decides (a later session of the module supersedes an earlier one, a later
+    rejection an earlier acceptance); the same recording stored twice (another toolkit version or
+    spec) is one recording, its latest judgment deciding.  Sessions at
     one session time of day (:func:`timed`) are not ordered by anything but their files' names, so two
     different recordings there are a tie, never a choice, unless they are the same file (edited, or
     recorded again over it: one module's, not rivals); at a day alone the later file name decides.
     """
     rows = list(rows)
-    accepted = [r for r in rows if r.status == "accepted"]
-    row = accepted[-1] if accepted else rows[-1]
+    row = rows[-1]
     rivals = {r.recording_sha256: r for r in rows
               if same_session(r.session_time, row.session_time)
               and r.recording_sha256 != row.recording_sha256 and r.recording_path != row.recording_path}
@@ -328,32 +336,44 @@ class Store:
                     found[r.id] = r
         return sorted(found.values(), key=_order)
 
-    def latest_accepted(self, module_id: str) -> SessionRow:
-        """The module's latest accepted session (:func:`module_outcome`).
+    def exportable(self, module_id: str, session_time: str | None = None) -> SessionRow:
+        """The module's calibration to hand out: its latest session (:func:`module_outcome`), or the one at
+        ``session_time``, when that session is accepted and no other recording claims its time.
 
         Raises
         ------
         StoreError
-            No session of that module, none accepted (the message says which and why), or another
-            recording claims the latest accepted session's time (the message names every recording).
+            No session of that module (at that time); the session not accepted (the message names it, its
+            reasons and the latest accepted session before it); or another recording claims its time (the
+            message names every recording).
         """
         rows = self.sessions(module_id=module_id)
         if not rows:
             raise StoreError(f"{self.path}: no session of module '{module_id}'")
+        if session_time is not None:
+            chosen = _at(rows, session_time)
+            if not chosen:
+                raise StoreError(f"{self.path}: module '{module_id}' has no session at {session_time}; its sessions: "
+                                 + ", ".join(dict.fromkeys(r.session_time for r in rows)))
+            rows = rows[:rows.index(chosen[-1]) + 1]
         outcome = module_outcome(rows)
         row = outcome.row
-        if row.status != "accepted":
-            why = "; ".join(row.reasons) or row.status
-            raise StoreError(f"{self.path}: module '{module_id}' has no accepted calibration ({len(rows)} "
-                             f"session(s); the latest, {row.session_time}, was {row.status}: {why})")
         if outcome.rivals:
             claims = ", ".join(f"{r.recording_path} (sha256 {r.recording_sha256[:12]}, {r.status})"
                                for r in sorted((row, *outcome.rivals), key=lambda r: r.recording_path))
             raise StoreError(f"{self.path}: module '{module_id}': {1 + len(outcome.rivals)} different recordings "
-                             f"claim its latest accepted session, {row.session_time}: {claims}; none is later, so "
+                             f"claim its session {row.session_time}: {claims}; none is later, so "
                              "which calibration is this module's is unknown: correct the wrong recording's "
                              "'# module_id:' and record the module again (a later session decides), or export "
                              "the calibration file of the right recording")
+        if row.status != "accepted":
+            why = "; ".join(row.reasons) or row.status
+            earlier = [r for r in rows if r.status == "accepted"]
+            hint = (f"; an earlier session, {earlier[-1].session_time}, was accepted: export --module {module_id} "
+                    f"--session {earlier[-1].session_time} hands it out, if the module has not changed since"
+                    if earlier else "; no session of it was accepted")
+            raise StoreError(f"{self.path}: module '{module_id}': its {'' if session_time else 'latest '}session, "
+                             f"{row.session_time} ({row.recording_path}), was {row.status}: {why}{hint}")
         return row
 
     def count(self) -> int:

@@ -111,7 +111,7 @@ def test_store_and_export_read_the_batch(fleet, capsys):
     weak = _module(truth, "weak_channel")
     assert main(["export", "--module", weak, "--store", str(store), "--format", "fusion"]) == 2
     err = capsys.readouterr().err
-    assert f"module '{weak}' has no accepted calibration" in err and "gain_spread" in err
+    assert f"module '{weak}': its latest session" in err and "rejected: gain_spread" in err
     assert main(["store", "show", _module(truth, "corrupt"), "--store", str(store)]) == 0
     shown = capsys.readouterr().out
     # its kind is found from the header (a channel may hold text until a reader uses it), the cell then refused
@@ -157,7 +157,7 @@ def test_two_recordings_claiming_one_module_and_session_are_both_rejected_and_ex
         assert all(f"{real}, {fake}" in r.reasons[0] and r.calibration is not None for r in rows)
     assert main(["export", "--module", mid, "--store", str(store)]) == 2
     err = capsys.readouterr().err
-    assert f"module '{mid}' has no accepted calibration" in err and f"{real}, {fake}" in err
+    assert f"module '{mid}': 2 different recordings claim its session" in err and f"{real} (sha256" in err
     report = (out / "report.html").read_text()
     assert "Duplicate module ids" in report and f"{mid} at {own['session_time']}: {real}, {fake}" in report
     assert main(["batch", str(line), "--out", str(out), "--workers", "0", "--force"]) == 0  # a re-run keeps it
@@ -176,13 +176,13 @@ def test_a_tie_with_a_stored_session_is_rejected_and_a_later_session_wins(fleet,
         assert summary.duplicates == {(own["module_id"], own["session_time"]): sorted([str(real), str(fake)])}
         first, second = store.sessions(module_id=own["module_id"])
         assert first.status == "accepted" and second.status == "rejected"
-        words = re.escape(f"2 different recordings claim its latest accepted session, {own['session_time']}: {real} ")
+        words = re.escape(f"2 different recordings claim its session {own['session_time']}: {real} ")
         with pytest.raises(StoreError, match=words + f"\\(sha256 .*, accepted\\), {re.escape(str(fake))} "):
-            store.latest_accepted(own["module_id"])
+            store.exportable(own["module_id"])
         later = tmp_path / "later.csv"
         later.write_text(real.read_text().replace(f"# date: {own['session_time']}", "# date: 2099-01-01T00:00:00"))
         run_batch([later], spec, store, toolkit_version="t", workers=0)
-        assert store.latest_accepted(own["module_id"]).recording_path == str(later)
+        assert store.exportable(own["module_id"]).recording_path == str(later)
 
 
 def test_a_later_batch_counts_a_store_only_rival_as_a_duplicate_and_a_recalibration_as_its_session(fleet, tmp_path,
@@ -397,3 +397,28 @@ def test_a_batch_with_an_unreadable_session_time_stops_before_storing_naming_the
     assert f"{bad}: '# date:' '2026-3-9' is not an ISO 8601 time" in err
     with Store(tmp_path / "r" / "calibrations.sqlite", create=False) as store:
         assert store.count() == 0
+
+
+def test_a_module_rejected_at_its_later_session_counts_failed_and_export_refuses_unless_asked_for_the_earlier(
+        fleet, tmp_path, capsys):
+    folder, truth = fleet
+    own = _clean(truth, 0)
+    magnetised = next(m for m in truth["modules"] if m["defect"] == "magnetised")
+    line = tmp_path / "line"
+    line.mkdir()
+    monday = line / "monday.csv"
+    monday.write_bytes((folder / "line" / own["file"]).read_bytes())
+    tuesday = _relabel(folder / "line" / magnetised["file"], monday, line / "tuesday.csv")  # the module, magnetised since
+    tuesday.write_text(tuesday.read_text().replace(f"# date: {own['session_time']}", "# date: 2026-03-03T07:00:00Z"))
+    store = tmp_path / "r" / "calibrations.sqlite"
+    assert main(["batch", str(line), "--out", str(tmp_path / "r"), "--workers", "0"]) == 0
+    assert "yield 0/1 modules (0.0 %; 2 sessions)" in capsys.readouterr().out
+    assert main(["export", "--module", own["module_id"], "--store", str(store)]) == 2
+    err = capsys.readouterr().err
+    assert (f"its latest session, 2026-03-03T07:00:00+00:00 ({tuesday}), was rejected: offset_ut" in err
+            and f"--session {own['session_time']} hands it out" in err)
+    out = tmp_path / "monday.json"
+    assert main(["export", "--module", own["module_id"], "--store", str(store), "--session", own["session_time"],
+                 "--out", str(out)]) == 0
+    with Store(store, create=False) as kept:
+        assert out.read_text() == next(r.calibration for r in kept.sessions() if r.recording_path == str(monday))

@@ -182,19 +182,29 @@ def _add(store, module, time, sha, status="accepted", calibration="{}", path=Non
                      calibration=calibration, spec_text="[limits]\n", spec_sha256="s1")
 
 
-def test_store_keeps_sessions_once_and_finds_the_latest_accepted(tmp_path):
+def test_store_keeps_sessions_once_and_hands_out_the_latest_only_when_accepted(tmp_path):
     with Store(tmp_path / "s.sqlite") as store:
         assert _add(store, "M1", "2026-01-01T08:00", "h1", calibration='{"a": 1}')
+        assert store.exportable("M1").calibration == '{"a": 1}'
         assert _add(store, "M1", "2026-01-02T08:00", "h2", status="rejected", calibration='{"a": 2}')
         assert not _add(store, "M1", "2026-01-01T08:00", "h1")  # same recording, version, spec
         assert store.count() == 2
         assert store.known("1.0", "s1") == {"h1", "h2"} and store.known("1.1", "s1") == set()
-        assert store.latest_accepted("M1").calibration == '{"a": 1}'
+        with pytest.raises(StoreError, match=r"module 'M1': its latest session, 2026-01-02T08:00 \(/r/M1.csv\), was "
+                                             r"rejected: gain_spread .*an earlier session, 2026-01-01T08:00, was "
+                                             r"accepted: export --module M1 --session 2026-01-01T08:00 hands it out"):
+            store.exportable("M1")
+        assert module_outcome(store.sessions(module_id="M1")).status == "rejected"
+        assert store.exportable("M1", "2026-01-01T08:00:00Z").calibration == '{"a": 1}'  # asked for explicitly
+        with pytest.raises(StoreError, match="its session, 2026-01-02T08:00 .*was rejected"):
+            store.exportable("M1", "2026-01-02T08:00")
+        with pytest.raises(StoreError, match="no session at 2026-01-03; its sessions: 2026-01-01T08:00, 2026-01-02"):
+            store.exportable("M1", "2026-01-03")
         _add(store, "M2", "2026-01-03T08:00", "h3", status="rejected")
-        with pytest.raises(StoreError, match="module 'M2' has no accepted calibration .*rejected: gain_spread"):
-            store.latest_accepted("M2")
+        with pytest.raises(StoreError, match="module 'M2': its latest session, .*rejected: gain_spread .*; no session of it was accepted"):
+            store.exportable("M2")
         with pytest.raises(StoreError, match="no session of module 'M3'"):
-            store.latest_accepted("M3")
+            store.exportable("M3")
     with sqlite3.connect(tmp_path / "s.sqlite") as db:
         assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
 
@@ -210,26 +220,26 @@ def test_two_recordings_of_one_module_at_one_session_time_are_a_tie_latest_accep
                   recording_sha256="h5", toolkit_version="1.1", kind="fourflip", status="accepted", reasons=[],
                   notes=[], figures={}, calibration='{"own": 1}', spec_text="[limits]\n", spec_sha256="s1")
         count = store.count()
-        with pytest.raises(StoreError, match="module 'M5': 2 different recordings claim its latest accepted session, "
+        with pytest.raises(StoreError, match="module 'M5': 2 different recordings claim its session "
                                              "2026-03-02T07:24: /r/M5.csv .*/r/M5_rerun.csv .*none is later"):
-            store.latest_accepted("M5")
+            store.exportable("M5")
         assert store.count() == count  # a refusal writes nothing
         outcome = module_outcome(store.sessions(module_id="M5"))
         assert outcome.status == "duplicate" and len(outcome.rivals) == 1  # h5 stored twice is one rival
         assert {outcome.row.recording_sha256, outcome.rivals[0].recording_sha256} == {"h5", "h10"}
         _add(store, "M5", "2026-03-05T09:00", "h5b", calibration='{"again": 1}')  # a later session decides
-        assert store.latest_accepted("M5").calibration == '{"again": 1}'
+        assert store.exportable("M5").calibration == '{"again": 1}'
         _add(store, "M6", "2026-03-02T08:00", "h6", calibration='{"six": 1}')
         _add(store, "M6", "2026-03-02T08:00", "h6x", status="rejected", path="/r/M6b.csv")  # any verdict ties
         with pytest.raises(StoreError, match="/r/M6.csv \\(sha256 h6, accepted\\), /r/M6b.csv \\(sha256 h6x, rejected"):
-            store.latest_accepted("M6")
+            store.exportable("M6")
         # the same file edited (or recorded again over it), and a day alone (compass bench's # date:): no tie
         _add(store, "M7", "2026-03-02T08:00", "h7", calibration='{"seven": 1}')
         _add(store, "M7", "2026-03-02T08:00", "h7b", calibration='{"seven": 2}')
         _add(store, "M8", "2026-03-02", "h8", calibration='{"eight": 1}', path="/r/M8a.csv")
         _add(store, "M8", "2026-03-02", "h8b", calibration='{"eight": 2}', path="/r/M8b.csv")
-        assert store.latest_accepted("M7").calibration in ('{"seven": 1}', '{"seven": 2}')
-        assert store.latest_accepted("M8").calibration == '{"eight": 2}'  # the later file name, as before
+        assert store.exportable("M7").calibration in ('{"seven": 1}', '{"seven": 2}')
+        assert store.exportable("M8").calibration == '{"eight": 2}'  # the later file name, as before
         outcomes = {o.module_id: o.status for o in module_outcomes(store.sessions())}
     assert outcomes == {"M5": "accepted", "M6": "duplicate", "M7": "accepted", "M8": "accepted"}
 
@@ -256,9 +266,9 @@ def test_sessions_order_and_tie_on_instants_also_in_a_store_that_kept_the_text_a
         _add(store, "MA", "2026-03-02T08:00:00+00:00", "a2", calibration='{"second": 1}', path="/r/A2.csv")
         _add(store, "MC", "2026-03-02T07:24:00Z", "c1", path="/r/C1.csv")
         _add(store, "MC", "2026-03-02T07:24:00+00:00", "c2", path="/r/C2.csv")
-        assert store.latest_accepted("MA").calibration == '{"second": 1}'  # 08:00 UTC after 07:30 UTC
-        with pytest.raises(StoreError, match="2 different recordings claim its latest accepted session"):
-            store.latest_accepted("MC")  # one instant written two ways
+        assert store.exportable("MA").calibration == '{"second": 1}'  # 08:00 UTC after 07:30 UTC
+        with pytest.raises(StoreError, match="2 different recordings claim its session"):
+            store.exportable("MC")  # one instant written two ways
         _add(store, "MB", "2026-3-9", "b1", path="/r/B1.csv")
         with pytest.raises(StoreError, match="the session of /r/B1.csv is stored at '2026-3-9' is not an ISO"):
             store.sessions(module_id="MB")
