@@ -28,8 +28,9 @@ A spec is a TOML file (``compass batch --spec SPEC.toml``; the shipped default i
     lambda = 0.2
     width_sigmas = 4.0
 
-A key the reader does not know, a value of the wrong type, or a limit on an unknown figure is a
-:class:`SpecError` naming the file and the key (exit status 2 on the command line).
+A key the reader does not know, a value of the wrong type, a limit on an unknown figure, or no limit
+at all (a spec that judges no figure accepts every module) is a :class:`SpecError` naming the file
+and the key (exit status 2 on the command line).
 """
 
 from __future__ import annotations
@@ -207,6 +208,10 @@ def parse_spec(text: str, *, source: str = "<spec>") -> AcceptanceSpec:
         width_sigmas=_number(control, "width_sigmas", source, "control.", default=4.0, positive=True),
         text=text,
     )
+    if not spec.limits:
+        raise SpecError(f"{source}: no [limits]: the spec judges no figure, so every module would be accepted "
+                        f"(an empty or truncated file?); give limits like [limits] gain_spread = {{ max = 0.3 }} "
+                        f"(the default spec: {DEFAULT_SPEC})")
     return spec
 
 

@@ -12,7 +12,7 @@ import pytest
 from calibrate.batch import run_batch
 from compass.calibration import from_dict
 from compass.cli import main
-from compass.production.spec import load_spec
+from compass.production.spec import DEFAULT_SPEC, load_spec
 from compass.production.store import Store, StoreError
 from compass.sim.fleet import FleetOptions, simulate_fleet
 from tests._proc import Proc, compass_command
@@ -221,6 +221,18 @@ def test_a_malformed_spec_is_exit_2_naming_the_key(fleet, tmp_path, capsys):
     assert main(["batch", str(folder / "line"), "--spec", str(spec), "--out", str(tmp_path / "r")]) == 2
     assert capsys.readouterr().err.strip().splitlines() == [
         f"compass batch: {spec}: 'limits.gain_spread.max': expected a number, got 'wide'"]
+    assert not (tmp_path / "r").exists()
+
+
+def test_an_empty_spec_is_exit_2_naming_the_file_not_every_module_accepted(fleet, tmp_path, capsys):
+    folder, _ = fleet
+    spec = tmp_path / "empty.toml"
+    spec.write_text("")
+    assert main(["batch", str(folder / "line"), "--spec", str(spec), "--out", str(tmp_path / "r")]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"compass batch: {spec}: no [limits]: the spec judges no figure, so every module would be accepted (an empty "
+        "or truncated file?); give limits like [limits] gain_spread = { max = 0.3 } (the default spec: "
+        f"{DEFAULT_SPEC})"]
     assert not (tmp_path / "r").exists()
 
 

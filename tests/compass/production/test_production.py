@@ -35,6 +35,9 @@ def test_the_default_spec_loads_and_limits_only_known_figures():
     ("[control]\nbaseline_sessions = 2.5\n", "'control.baseline_sessions': expected a whole number"),
     ("[limit]\n", "'limit': unknown key"),
     ("[limits\n", "not valid TOML"),
+    ("", "no [limits]: the spec judges no figure"),  # an empty or truncated file
+    ("[site]\ndip_deg = 60.0\n", "no [limits]: the spec judges no figure"),
+    ("[limits]\n[unexplained]\nfail = true\n", "no [limits]: the spec judges no figure"),
 ])
 def test_a_malformed_spec_is_refused_naming_the_key(text, key):
     with pytest.raises(SpecError, match=f"^acceptance.toml: .*{key}".replace("[", r"\[").replace("(", r"\(")
