@@ -12,7 +12,9 @@ moment keeps every session it finished and no half of one, and its re-run skips 
 
 A module id with one session time is one bench session: when different recordings (different
 hashes, in this run or in the store) claim the same id and time, no one can tell which is the
-module's (a copied header, a mistyped id).  Each such session is stored ``rejected`` (``refused``
+module's (a copied header, a mistyped id).  The store is looked at before the run and again in each
+session's transaction, under the store's write lock, so a rival another batch stored meanwhile is
+caught too.  Each such session is stored ``rejected`` (``refused``
 if it could not be calibrated) with the words naming every recording, so none of them is accepted
 or exported; :attr:`BatchSummary.duplicates` lists them.  The same recording given again is one
 session, never a duplicate.
@@ -289,16 +291,15 @@ def shared_identities(identities: dict, hashes: dict, store) -> dict:
         each identity with more than one (the same recording given twice is one; a session time of a day alone,
         :func:`compass.production.store.timed`, or a stored recording at the same path is none).
     """
-    from compass.production.store import same_session, timed
+    from compass.production.store import timed
 
     claims: dict[tuple[str, str], dict[str, str]] = {}
     for p, identity in identities.items():
         if timed(identity[1]):  # at a day alone (compass bench's '# date:') a same-day session is a later one
             claims.setdefault(identity, {}).setdefault(hashes[p], os.path.abspath(p))
-    for (module_id, session_time), by_hash in claims.items():
-        for row in store.sessions(module_id=module_id):  # the same file stored before, edited: superseded
-            if same_session(row.session_time, session_time) and row.recording_path not in by_hash.values():
-                by_hash.setdefault(row.recording_sha256, row.recording_path)
+    for identity, by_hash in claims.items():  # the same file stored before, edited: superseded, not a claimant
+        for row in store.claimants(*identity, hashes=set(by_hash), paths=set(by_hash.values())):
+            by_hash.setdefault(row.recording_sha256, row.recording_path)
     return {identity: sorted(by_hash.values()) for identity, by_hash in claims.items() if len(by_hash) > 1}
 
 
@@ -308,6 +309,31 @@ def duplicate_reason(identity: tuple[str, str], paths) -> str:
     return (f"duplicate module id '{module_id}': {len(paths)} different recordings claim its session at "
             f"{session_time}: {', '.join(paths)}; which one is this module's is unknown, so none is accepted: "
             "correct the wrong recording's '# module_id:' and record the module again (a later session decides)")
+
+
+def _commit(store, outcome: dict, verdict, identity: tuple[str, str], summary: BatchSummary, *, toolkit_version: str,
+            spec):
+    """Store one session with its verdict, in one transaction holding the store's write lock; the verdict stored.
+
+    The store is looked at again inside the transaction: another batch may have stored a recording claiming this
+    session since the run began (:attr:`BatchSummary.duplicates` then gains it)."""
+    from compass.production.spec import Verdict
+
+    path = os.path.abspath(outcome["path"])
+    with store.transaction():
+        stored = store.claimants(*identity, hashes={outcome["sha256"]}, paths={path})
+        if stored:
+            summary.duplicates[identity] = sorted({*summary.duplicates.get(identity, [path]),
+                                                   *(r.recording_path for r in stored)})
+        shared = summary.duplicates.get(identity)
+        if shared:  # calibrated or not, it cannot be this module's verdict: the recording is ambiguous
+            verdict = Verdict("refused" if verdict.status == "refused" else "rejected",
+                              (duplicate_reason(identity, shared), *verdict.reasons), verdict.notes)
+        store.add(module_id=outcome["module_id"], session_time=outcome["session_time"], recording_path=path,
+                  recording_sha256=outcome["sha256"], toolkit_version=toolkit_version, kind=outcome["kind"],
+                  status=verdict.status, reasons=verdict.reasons, notes=verdict.notes, figures=outcome["figures"],
+                  calibration=outcome["calibration"], spec_text=spec.text, spec_sha256=spec.sha256)
+    return verdict
 
 
 def run_batch(paths, spec, store, *, toolkit_version: str, workers: int | None = None,
@@ -359,16 +385,8 @@ def run_batch(paths, spec, store, *, toolkit_version: str, workers: int | None =
             verdict = Verdict("refused", (outcome["refused"],))
         else:
             verdict = spec.judge(outcome["figures"])
-        shared = summary.duplicates.get(identities[outcome["path"]])
-        if shared:  # calibrated or not, it cannot be this module's verdict: the recording is ambiguous
-            verdict = Verdict("refused" if verdict.status == "refused" else "rejected",
-                              (duplicate_reason(identities[outcome["path"]], shared), *verdict.reasons),
-                              verdict.notes)
-        store.add(module_id=outcome["module_id"], session_time=outcome["session_time"],
-                  recording_path=os.path.abspath(outcome["path"]), recording_sha256=outcome["sha256"],
-                  toolkit_version=toolkit_version, kind=outcome["kind"], status=verdict.status,
-                  reasons=verdict.reasons, notes=verdict.notes, figures=outcome["figures"],
-                  calibration=outcome["calibration"], spec_text=spec.text, spec_sha256=spec.sha256)
+        verdict = _commit(store, outcome, verdict, identities[outcome["path"]], summary,
+                          toolkit_version=toolkit_version, spec=spec)
         summary.counts[verdict.status] += 1
         if progress is not None:
             why = f": {verdict.reasons[0]}" if verdict.reasons else ""

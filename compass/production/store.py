@@ -15,7 +15,8 @@ are a tie that :meth:`Store.exportable` refuses to break.  Every row is written 
 process killed mid-batch leaves every finished session stored and no half of one.
 
 Only the batch's parent process writes (SQLite serialises writers; many writing workers would
-wait on its lock).  Readers (``compass store``, ``compass export --module``) may run beside it: the
+wait on its lock); two batches may write one store, each session's duplicate check and row in one
+:meth:`Store.transaction` that holds the write lock from its start.  Readers (``compass store``, ``compass export --module``) may run beside it: the
 store keeps a write-ahead log (``PATH-wal``, ``PATH-shm`` beside it while open), so they never block
 the writer.  Keep it on a local disk (SQLite's WAL needs shared memory, which network file systems
 do not give).
@@ -25,6 +26,7 @@ from __future__ import annotations
 
 import json
 import sqlite3
+from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import date, datetime, timezone
 from pathlib import Path
@@ -256,17 +258,25 @@ class Store:
     def _migrate(self, version: int) -> None:
         """Apply the migrations after ``version``, all in one transaction with the new version."""
         db = self._db
-        db.execute("BEGIN IMMEDIATE")
-        try:
+        with self.transaction():
             current = db.execute("PRAGMA user_version").fetchone()[0]  # another process may have migrated
             for sql in MIGRATIONS[current:]:
                 for statement in filter(str.strip, sql.split(";")):
                     db.execute(statement)
             db.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
-            db.execute("COMMIT")
+
+    @contextmanager
+    def transaction(self):
+        """One write transaction holding the store's write lock from its start (SQLite's ``BEGIN IMMEDIATE``): what
+        is read inside it is what its writes commit against, whatever another process writes meanwhile (that one
+        waits); rolled back whole on any exception."""
+        self._db.execute("BEGIN IMMEDIATE")
+        try:
+            yield self
         except BaseException:
-            db.execute("ROLLBACK")
+            self._db.execute("ROLLBACK")
             raise
+        self._db.execute("COMMIT")
 
     def close(self) -> None:
         self._db.close()
@@ -282,7 +292,7 @@ class Store:
     def add(self, *, module_id: str, session_time: str, recording_path: str, recording_sha256: str,
             toolkit_version: str, kind: str | None, status: str, reasons, notes, figures: dict,
             calibration: str | None, spec_text: str, spec_sha256: str) -> bool:
-        """Store one session in one transaction; False when the same session is already stored."""
+        """Store one session (its own transaction, or part of :meth:`transaction`); False when already stored."""
         stored_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
         cur = self._db.execute(
             "INSERT OR IGNORE INTO sessions (module_id, session_time, recording_path, recording_sha256, "
@@ -330,11 +340,18 @@ class Store:
                 claimed.setdefault((r.module_id, session_instant(r.session_time)), []).append(r)
         found = {}
         for (module_id, _), own in claimed.items():
-            for r in self.sessions(module_id=module_id):
-                if same_session(r.session_time, own[0].session_time) and all(
-                        r.recording_sha256 != o.recording_sha256 and r.recording_path != o.recording_path for o in own):
-                    found[r.id] = r
+            found.update((r.id, r) for r in self.claimants(module_id, own[0].session_time,
+                                                           hashes={o.recording_sha256 for o in own},
+                                                           paths={o.recording_path for o in own}))
         return sorted(found.values(), key=_order)
+
+    def claimants(self, module_id: str, session_time: str, *, hashes, paths) -> list[SessionRow]:
+        """Stored sessions of other recordings claiming a module id and session time of day (:func:`same_session`):
+        a hash not in ``hashes`` and a path not in ``paths`` (the same file edited is the module's own)."""
+        if not timed(session_time):
+            return []
+        return [r for r in self.sessions(module_id=module_id) if same_session(r.session_time, session_time)
+                and r.recording_sha256 not in hashes and r.recording_path not in paths]
 
     def exportable(self, module_id: str, session_time: str | None = None) -> SessionRow:
         """The module's calibration to hand out: its latest session (:func:`module_outcome`), or the one at

@@ -434,3 +434,27 @@ def test_a_module_rejected_at_its_later_session_counts_failed_and_export_refuses
                  "--out", str(out)]) == 0
     with Store(store, create=False) as kept:
         assert out.read_text() == next(r.calibration for r in kept.sessions() if r.recording_path == str(monday))
+
+
+def test_a_rival_another_batch_stores_mid_run_is_caught_at_commit(fleet, tmp_path):
+    """Two batches on one store: a recording claiming a module's session, stored by another process after this batch
+    looked at the store and before it commits that module, makes its session a duplicate all the same."""
+    folder, truth = fleet
+    first, own = _clean(truth, 0), _clean(truth, 1)
+    real = folder / "line" / own["file"]
+    fake = _relabel(folder / "line" / _clean(truth, 2)["file"], real, tmp_path / "copied_header.csv")
+    path = tmp_path / "s.sqlite"
+
+    def other_batch(line):  # after the first session's commit, before the second's
+        if line.startswith("[1/2]"):
+            with Store(path) as other:
+                run_batch([fake], load_spec(), other, toolkit_version="t", workers=0)
+
+    with Store(path) as store:
+        summary = run_batch([folder / "line" / first["file"], real], load_spec(), store, toolkit_version="t",
+                            workers=0, progress=other_batch)
+        rows = {r.recording_path: r for r in store.sessions(module_id=own["module_id"])}
+    assert rows[str(fake)].status == "accepted"  # the other batch saw no rival when it stored
+    assert rows[str(real)].status == "rejected" and rows[str(real)].reasons[0].startswith(
+        f"duplicate module id '{own['module_id']}': 2 different recordings claim its session")
+    assert summary.duplicates == {(own["module_id"], own["session_time"]): sorted([str(real), str(fake)])}
