@@ -390,7 +390,7 @@ def run_batch(paths, spec, store, *, toolkit_version: str, workers: int | None =
         summary.counts[verdict.status] += 1
         if progress is not None:
             why = f": {verdict.reasons[0]}" if verdict.reasons else ""
-            unjudged = f"; a limit not judged: {'; '.join(verdict.notes)}" if verdict.notes else ""
+            unjudged = f"; {'; '.join(verdict.notes)}" if verdict.notes else ""
             progress(f"[{done}/{len(jobs)}] {outcome['module_id']} {verdict.status}{why}{unjudged}")
     summary.seconds = time.perf_counter() - start
     return summary
