@@ -12,7 +12,9 @@ moment keeps every session it finished and no half of one, and its re-run skips 
 
 A module id with one session time is one bench session: when different recordings (different
 hashes, in this run or in the store) claim the same id and time, no one can tell which is the
-module's (a copied header, a mistyped id).  Each such session is stored ``rejected`` (``refused``
+module's (a copied header, a mistyped id).  The store is looked at before the run and again in each
+session's transaction, under the store's write lock, so a rival another batch stored meanwhile is
+caught too.  Each such session is stored ``rejected`` (``refused``
 if it could not be calibrated) with the words naming every recording, so none of them is accepted
 or exported; :attr:`BatchSummary.duplicates` lists them.  The same recording given again is one
 session, never a duplicate.
@@ -30,8 +32,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
-__all__ = ["BatchSummary", "SessionJob", "calibrate_session", "duplicate_reason", "executor_outcomes", "run_batch",
-           "session_identity", "shared_identities"]
+__all__ = ["BatchSummary", "SessionJob", "bench_field_ut", "calibrate_session", "duplicate_reason", "executor_outcomes",
+           "run_batch", "session_identity", "shared_identities"]
 
 _METADATA_LINES = 200
 """Comment lines read for ``module_id`` and ``date`` when the recording itself cannot be read."""
@@ -45,6 +47,7 @@ class SessionJob:
     sha256: str
     site_dip_deg: float
     site_field_ut: float
+    bench_field_ut: float | None = None
 
 
 def sha256_of(path) -> str:
@@ -79,14 +82,45 @@ def session_identity(path) -> tuple[str, str]:
 
 
 def _session_time(path, metadata: dict) -> str:
-    """The session's time: ``# session_time:`` or ``# date:`` as written, else the file's mtime (UTC, ISO)."""
+    """The session's time: ``# session_time:`` or ``# date:`` as its UTC instant or day
+    (:func:`compass.production.store.session_time_text`), else the file's mtime (UTC, ISO).
+
+    Raises
+    ------
+    SessionTimeError
+        The recording's time is neither form (the message names the file and the key).
+    """
+    from compass.production.store import SessionTimeError, session_time_text
+
     for key in ("session_time", "date"):
         if metadata.get(key):
-            return metadata[key]
+            try:
+                return session_time_text(metadata[key])
+            except SessionTimeError as exc:
+                raise SessionTimeError(f"{path}: '# {key}:' {exc}") from None
     try:
         return datetime.fromtimestamp(os.path.getmtime(path), timezone.utc).isoformat(timespec="seconds")
     except OSError:
         return ""
+
+
+def bench_field_ut(metadata: dict, spec_bench_field_ut: float | None) -> float | None:
+    """The bench's |B| in uT for a recording without ``# field_ut:`` (its calibration's field unit is the bench's |B|).
+
+    The World Magnetic Model's |B| at the recording's site and date (``# site_lat_deg:``, ``# site_lon_deg:``,
+    optional ``# site_alt_m:``, ``# date:``: what ``compass bench --site`` writes), else the spec's
+    ``[site] bench_field_ut``, else None (the offset cannot be put in uT).
+    """
+    from compass.site import Site
+
+    if all(metadata.get(k) for k in ("site_lat_deg", "site_lon_deg", "date")):
+        try:
+            site = Site.parse(",".join(metadata[k] for k in ("site_lat_deg", "site_lon_deg", "site_alt_m")
+                                       if metadata.get(k)), metadata["date"][:10])
+        except ValueError:
+            return spec_bench_field_ut  # a bad site key: the calibration itself refuses it, naming the key
+        return site.field().field_ut
+    return spec_bench_field_ut
 
 
 def calibrate_session(job: SessionJob) -> dict:
@@ -126,8 +160,9 @@ def calibrate_session(job: SessionJob) -> dict:
         model = from_dict(json.loads(text)).model
         # the diagnosis block of the contract (calibrate.contract: to_json()["diagnosis"])
         out["figures"] = module_figures(model, document.get("diagnosis"), out["warnings"],
-                                        site_dip_deg=job.site_dip_deg,
-                                        site_field_ut=job.site_field_ut)
+                                        site_dip_deg=job.site_dip_deg, site_field_ut=job.site_field_ut,
+                                        bench_field_ut=bench_field_ut(_header_metadata(job.path),
+                                                                      job.bench_field_ut))
     except (RecordingError, CannotCalibrate, CalibrationFileError) as exc:
         out["refused"] = str(exc)
     except Exception as exc:  # noqa: BLE001 - one module's failure is its verdict, never the batch's end
@@ -262,10 +297,9 @@ def shared_identities(identities: dict, hashes: dict, store) -> dict:
     for p, identity in identities.items():
         if timed(identity[1]):  # at a day alone (compass bench's '# date:') a same-day session is a later one
             claims.setdefault(identity, {}).setdefault(hashes[p], os.path.abspath(p))
-    for (module_id, session_time), by_hash in claims.items():
-        for row in store.sessions(module_id=module_id):  # the same file stored before, edited: superseded
-            if row.session_time == session_time and row.recording_path not in by_hash.values():
-                by_hash.setdefault(row.recording_sha256, row.recording_path)
+    for identity, by_hash in claims.items():  # the same file stored before, edited: superseded, not a claimant
+        for row in store.claimants(*identity, hashes=set(by_hash), paths=set(by_hash.values())):
+            by_hash.setdefault(row.recording_sha256, row.recording_path)
     return {identity: sorted(by_hash.values()) for identity, by_hash in claims.items() if len(by_hash) > 1}
 
 
@@ -275,6 +309,31 @@ def duplicate_reason(identity: tuple[str, str], paths) -> str:
     return (f"duplicate module id '{module_id}': {len(paths)} different recordings claim its session at "
             f"{session_time}: {', '.join(paths)}; which one is this module's is unknown, so none is accepted: "
             "correct the wrong recording's '# module_id:' and record the module again (a later session decides)")
+
+
+def _commit(store, outcome: dict, verdict, identity: tuple[str, str], summary: BatchSummary, *, toolkit_version: str,
+            spec):
+    """Store one session with its verdict, in one transaction holding the store's write lock; the verdict stored.
+
+    The store is looked at again inside the transaction: another batch may have stored a recording claiming this
+    session since the run began (:attr:`BatchSummary.duplicates` then gains it)."""
+    from compass.production.spec import Verdict
+
+    path = os.path.abspath(outcome["path"])
+    with store.transaction():
+        stored = store.claimants(*identity, hashes={outcome["sha256"]}, paths={path})
+        if stored:
+            summary.duplicates[identity] = sorted({*summary.duplicates.get(identity, [path]),
+                                                   *(r.recording_path for r in stored)})
+        shared = summary.duplicates.get(identity)
+        if shared:  # calibrated or not, it cannot be this module's verdict: the recording is ambiguous
+            verdict = Verdict("refused" if verdict.status == "refused" else "rejected",
+                              (duplicate_reason(identity, shared), *verdict.reasons), verdict.notes)
+        store.add(module_id=outcome["module_id"], session_time=outcome["session_time"], recording_path=path,
+                  recording_sha256=outcome["sha256"], toolkit_version=toolkit_version, kind=outcome["kind"],
+                  status=verdict.status, reasons=verdict.reasons, notes=verdict.notes, figures=outcome["figures"],
+                  calibration=outcome["calibration"], spec_text=spec.text, spec_sha256=spec.sha256)
+    return verdict
 
 
 def run_batch(paths, spec, store, *, toolkit_version: str, workers: int | None = None,
@@ -298,14 +357,19 @@ def run_batch(paths, spec, store, *, toolkit_version: str, workers: int | None =
     Returns
     -------
     BatchSummary
+
+    Raises
+    ------
+    SessionTimeError
+        A recording's session time cannot be read (before anything is calibrated or stored).
     """
     from compass.production.spec import Verdict
 
     paths = [str(p) for p in paths]
     summary = BatchSummary(total=len(paths))
+    identities = {p: session_identity(p) for p in paths}
     hashes = {p: sha256_of(p) for p in paths}
     summary.hashes = list(hashes.values())
-    identities = {p: session_identity(p) for p in paths}
     summary.duplicates = shared_identities(identities, hashes, store)
     known = store.known(toolkit_version, spec.sha256)
     jobs, seen = [], set(known)
@@ -314,26 +378,19 @@ def run_batch(paths, spec, store, *, toolkit_version: str, workers: int | None =
             summary.skipped += 1
             continue
         seen.add(hashes[p])  # the same recording twice in one batch is one session
-        jobs.append(SessionJob(p, hashes[p], spec.site_dip_deg, spec.site_field_ut))
+        jobs.append(SessionJob(p, hashes[p], spec.site_dip_deg, spec.site_field_ut, spec.bench_field_ut))
     start = time.perf_counter()
     for done, outcome in enumerate(executor_outcomes(jobs, workers=workers, scheduler=scheduler, dask=dask), 1):
         if outcome["refused"] is not None:
             verdict = Verdict("refused", (outcome["refused"],))
         else:
             verdict = spec.judge(outcome["figures"])
-        shared = summary.duplicates.get(identities[outcome["path"]])
-        if shared:  # calibrated or not, it cannot be this module's verdict: the recording is ambiguous
-            verdict = Verdict("refused" if verdict.status == "refused" else "rejected",
-                              (duplicate_reason(identities[outcome["path"]], shared), *verdict.reasons),
-                              verdict.notes)
-        store.add(module_id=outcome["module_id"], session_time=outcome["session_time"],
-                  recording_path=os.path.abspath(outcome["path"]), recording_sha256=outcome["sha256"],
-                  toolkit_version=toolkit_version, kind=outcome["kind"], status=verdict.status,
-                  reasons=verdict.reasons, notes=verdict.notes, figures=outcome["figures"],
-                  calibration=outcome["calibration"], spec_text=spec.text, spec_sha256=spec.sha256)
+        verdict = _commit(store, outcome, verdict, identities[outcome["path"]], summary,
+                          toolkit_version=toolkit_version, spec=spec)
         summary.counts[verdict.status] += 1
         if progress is not None:
             why = f": {verdict.reasons[0]}" if verdict.reasons else ""
-            progress(f"[{done}/{len(jobs)}] {outcome['module_id']} {verdict.status}{why}")
+            unjudged = f"; {'; '.join(verdict.notes)}" if verdict.notes else ""
+            progress(f"[{done}/{len(jobs)}] {outcome['module_id']} {verdict.status}{why}{unjudged}")
     summary.seconds = time.perf_counter() - start
     return summary

@@ -60,7 +60,7 @@ def run(args) -> int:
     from ..io.atomic import check_writable
     from ..production.report import write_report
     from ..production.spec import SpecError, load_spec
-    from ..production.store import Store, StoreError, module_outcomes
+    from ..production.store import SessionTimeError, Store, StoreError, module_outcomes
 
     if args.scheduler is not None and args.workers is not None:
         raise BadInput("--scheduler runs on that cluster's workers: leave out --workers")
@@ -82,9 +82,12 @@ def run(args) -> int:
     except StoreError as exc:
         raise BadInput(str(exc)) from None
     with store:
-        summary = run_batch(paths, spec, store, toolkit_version=toolkit, workers=args.workers,
-                            scheduler=args.scheduler, dask=args.dask,
-                            progress=lambda line: print(line, file=sys.stderr, flush=True))
+        try:
+            summary = run_batch(paths, spec, store, toolkit_version=toolkit, workers=args.workers,
+                                scheduler=args.scheduler, dask=args.dask,
+                                progress=lambda line: print(line, file=sys.stderr, flush=True))
+        except SessionTimeError as exc:
+            raise BadInput(str(exc)) from None
         rows = [r for r in store.sessions(hashes=summary.hashes)
                 if r.toolkit_version == toolkit and r.spec_sha256 == spec.sha256]
         rivals = store.rivals(rows)

@@ -40,8 +40,9 @@ def register(sub) -> None:
                         "above (the station stops on an angle that counts against the module's gyro)")
     p.add_argument("--module-id", default="unknown", help="the module's serial or name (written into the recording)")
     p.add_argument("--operator", default=os.environ.get("USER", "unknown"), help="who ran the session")
-    p.add_argument("--site", metavar="LAT,LON[,ALT_M]", help="where the bench stands (its hemisphere and the WMM "
-                                                              "check of the dip)")
+    p.add_argument("--site", metavar="LAT,LON[,ALT_M]", help="where the bench stands (its hemisphere, the WMM "
+                                                              "check of the dip, and the WMM's |B| written as "
+                                                              "'# field_ut:', so offsets come out in uT)")
     p.add_argument("--date", metavar="YYYY-MM-DD", help="the session's date (default today, UTC)")
     p.add_argument("--yes", action="store_true", help="no prompts: proceed when the data show the next flip done")
     p.add_argument("--resume", action="store_true", help="continue the session whose flips are kept in CAL.flips/")
@@ -217,8 +218,9 @@ def _metadata(args, source, site) -> dict:
             "date": (site.date.isoformat() if site is not None else args.date)
             or dt.datetime.now(dt.timezone.utc).date().isoformat(),
             "source": "compass bench"}
-    if site is not None:
-        meta.update(site_lat_deg=f"{site.lat_deg:g}", site_lon_deg=f"{site.lon_deg:g}", site_alt_m=f"{site.alt_m:g}")
+    if site is not None:  # the WMM's |B| there: the field unit, so the calibration's offsets are in uT
+        meta.update(site_lat_deg=f"{site.lat_deg:g}", site_lon_deg=f"{site.lon_deg:g}", site_alt_m=f"{site.alt_m:g}",
+                    field_ut=f"{site.field().field_ut:.3f}")
     return meta
 
 

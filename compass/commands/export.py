@@ -53,9 +53,13 @@ def register(sub) -> None:
                                       "it to a MotionCal sketch")
     p.add_argument("calibration", nargs="?", help="calibration JSON written by 'compass calibrate': tumble, or three "
                                                   "linear channels (bench, installed)")
-    p.add_argument("--module", metavar="ID", help="instead of a file: the module's latest accepted calibration in "
-                                                 "--store (without --format: the calibration file itself)")
+    p.add_argument("--module", metavar="ID", help="instead of a file: the module's calibration in --store, from its "
+                                                 "latest session, refused unless that is accepted (without "
+                                                 "--format: the calibration file itself)")
     p.add_argument("--store", metavar="PATH", help="with --module: the calibration store (compass batch)")
+    p.add_argument("--session", metavar="TIME", help="with --module: the module's session at TIME (as 'compass store "
+                                                     "show' lists it, or any ISO form of that instant) instead of its "
+                                                     "latest: an earlier accepted one, knowing a later one was not")
     p.add_argument("--format", choices=FORMATS,
                    help="fusion: C initialisers; ardupilot: .param lines; motioncal: the 68-byte packet MotionCal "
                         "sends (to --out, or to the device on --port)")
@@ -107,6 +111,8 @@ def run(args) -> int:
 
     if (args.module is None) == (args.calibration is None):
         raise BadInput("give a calibration file or --module ID --store PATH (one of them)")
+    if args.session is not None and args.module is None:
+        raise BadInput("--session picks a session of --module ID in --store; a calibration file has none")
     if args.format is None and args.module is None:
         raise BadInput("--format is required with a calibration file (fusion, ardupilot or motioncal)")
     _refuse_unused(args)
@@ -182,15 +188,17 @@ def _refuse_unused(args) -> None:
 
 
 def _stored(args) -> tuple[str, str]:
-    """``--module ID --store PATH``: the latest accepted calibration's text and what to call it."""
+    """``--module ID --store PATH [--session TIME]``: the calibration's text and what to call it."""
     from ..cli import BadInput
-    from ..production.store import Store, StoreError
+    from ..production.store import SessionTimeError, Store, StoreError
 
     if args.store is None:
         raise BadInput("--module needs --store PATH (the calibration store compass batch wrote)")
     try:
         with Store(args.store, create=False) as store:
-            row = store.latest_accepted(args.module)
+            row = store.exportable(args.module, args.session)
+    except SessionTimeError as exc:
+        raise BadInput(f"--session {exc}") from None
     except StoreError as exc:
         raise BadInput(str(exc)) from None
     print(f"compass export: module {row.module_id}, session {row.session_time} (accepted; recording "

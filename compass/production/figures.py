@@ -132,7 +132,8 @@ def heading_error_deg(model, dip_deg: float, field: float, headings_deg=np.arang
     return float(np.degrees(np.sqrt(np.mean(var.sum(axis=1)))))
 
 
-def module_figures(model, diagnosis: dict | None, warnings, *, site_dip_deg: float, site_field_ut: float) -> dict:
+def module_figures(model, diagnosis: dict | None, warnings, *, site_dip_deg: float, site_field_ut: float,
+                   bench_field_ut: float | None = None) -> dict:
     """Every figure of :data:`FIGURES` for one calibrated module.
 
     Parameters
@@ -145,12 +146,17 @@ def module_figures(model, diagnosis: dict | None, warnings, *, site_dip_deg: flo
         The calibration's warnings, in words.
     site_dip_deg, site_field_ut : float
         Where the heading budget is predicted (the spec's ``[site]``).
+    bench_field_ut : float or None
+        The bench's |B| in uT when the model does not carry it (``model.field_ut`` None: its gains are
+        per bench |B|): from the recording's site or the spec (:func:`calibrate.batch.bench_field_ut`).
+        With neither, ``offset_ut`` cannot be put in uT and is left unjudged, said in ``unjudged``.
 
     Returns
     -------
     dict
         Figure name -> float or None; ``unexplained`` -> bool or None; ``warning_classes`` -> sorted
-        list of the warnings' classes.
+        list of the warnings' classes; ``unjudged`` -> figure name -> why it could not be computed
+        for this module (a figure the kind never gives has no entry).
     """
     a = model.unit_directions
     gains = model.gains
@@ -164,10 +170,16 @@ def module_figures(model, diagnosis: dict | None, warnings, *, site_dip_deg: flo
     out["axis_misalignment_deg"] = _axis_misalignment_deg(a)
     median_gain = float(np.median(np.abs(gains)))
     out["gain_spread"] = float((np.max(gains) - np.min(gains)) / median_gain) if median_gain > 0 else None
-    if model.field_ut is not None:
+    field_ut = model.field_ut if model.field_ut is not None else bench_field_ut
+    out["unjudged"] = {}
+    if field_ut is not None:
         with np.errstate(divide="ignore", invalid="ignore"):
-            zero_ut = np.abs(model.zero_outputs / gains) * (model.field_ut / field)
+            zero_ut = np.abs(model.zero_outputs / gains) * (field_ut / field)  # offset in |B|, times |B| in uT
         out["offset_ut"] = float(np.max(zero_ut)) if np.all(np.isfinite(zero_ut)) else None
+    else:
+        out["unjudged"]["offset_ut"] = ("the bench's |B| in uT is unknown (the recording has no '# field_ut:' nor "
+                                        "site keys, the spec no [site] bench_field_ut): the offset is "
+                                        f"{float(np.max(np.abs(model.zero_outputs / gains)) / field):.3g} bench |B|")
     if model.noise is not None and np.all(np.asarray(model.noise) > 0):
         snr = np.abs(gains) * field / np.asarray(model.noise, float)
         out["snr_min"] = float(np.min(snr))
@@ -178,7 +190,7 @@ def module_figures(model, diagnosis: dict | None, warnings, *, site_dip_deg: flo
             out["residual_over_floor"] = float(after / floor)
         if after is not None and median_gain > 0:
             out["fit_error_pct"] = float(100.0 * after / (median_gain * field))
-    site_field = site_field_ut * field / model.field_ut if model.field_ut is not None else field
+    site_field = site_field_ut * field / field_ut if field_ut is not None else field
     out["heading_error_deg"] = heading_error_deg(model, site_dip_deg, site_field)
     out["bench_dip_deg"] = None if model.dip_deg is None else float(model.dip_deg)
     unexplained = None if diagnosis is None else diagnosis.get("unexplained")

@@ -206,7 +206,8 @@ def write_report(out_dir, rows, spec, *, spec_source: str, toolkit_version: str,
                  + f"; spec {e(spec_source)} (sha256 {spec.sha256[:12]}); compass {e(toolkit_version)}. "
                  "Every module's figures: <a href='figures.csv'>figures.csv</a>.</p>")
     parts.append(f"<h2>Yield</h2><p class='note'>{len(modules)} modules (module ids) in {total} sessions; a "
-                 "module is decided by its latest accepted session, else its latest session.</p>"
+                 "module is decided by its latest session's verdict (a later rejection supersedes an "
+                 "earlier acceptance).</p>"
                  "<table><tr><th>accepted</th><th>rejected (a limit failed)</th>"
                  "<th>refused (could not be calibrated)</th><th>duplicate id (different recordings, one "
                  "session time)</th><th>yield</th></tr>"
@@ -265,6 +266,15 @@ def write_report(out_dir, rows, spec, *, spec_source: str, toolkit_version: str,
         parts.append("</table>")
     else:
         parts.append("<p class='calm'>Every module was accepted.</p>")
+    unjudged = [r for r in rows if r.notes]
+    if unjudged:
+        parts.append(f"<h2>Limits not judged ({len(unjudged)} sessions)</h2><p class='note'>A limit of the spec "
+                     "these sessions' verdicts could not apply, and why ([missing] fail = true rejects them).</p>"
+                     "<table><tr><th>module</th><th>session time</th><th>verdict</th><th>not judged</th></tr>")
+        for r in unjudged:
+            parts.append(f"<tr><td>{e(r.module_id)}</td><td class='when'>{e(r.session_time)}</td><td>{e(r.status)}"
+                         f"</td><td>{'<br>'.join(e(x) for x in r.notes)}</td></tr>")
+        parts.append("</table>")
     parts.append("</body></html>\n")
     html_path = out_dir / "report.html"
     atomic_write_text(html_path, "".join(parts))

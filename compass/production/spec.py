@@ -6,6 +6,8 @@ A spec is a TOML file (``compass batch --spec SPEC.toml``; the shipped default i
     [site]                      # where the heading budget is predicted
     dip_deg = 65.0
     field_ut = 50.0
+    bench_field_ut = 49.5       # optional: the bench's |B| (uT), for recordings that give neither
+                                # '# field_ut:' nor the site keys (offset_ut needs it)
 
     [limits]                    # figure = { max = .. } and/or { min = .. }
     direction_sigma_deg = { max = 0.3 }
@@ -26,8 +28,9 @@ A spec is a TOML file (``compass batch --spec SPEC.toml``; the shipped default i
     lambda = 0.2
     width_sigmas = 4.0
 
-A key the reader does not know, a value of the wrong type, or a limit on an unknown figure is a
-:class:`SpecError` naming the file and the key (exit status 2 on the command line).
+A key the reader does not know, a value of the wrong type, a limit on an unknown figure, or no limit
+at all (a spec that judges no figure accepts every module) is a :class:`SpecError` naming the file
+and the key (exit status 2 on the command line).
 """
 
 from __future__ import annotations
@@ -84,6 +87,8 @@ class AcceptanceSpec:
     limits : dict
         Figure name -> ``(low or None, high or None)``.
     site_dip_deg, site_field_ut : float
+    bench_field_ut : float or None
+        The bench's |B| in uT, for a recording that says neither ``# field_ut:`` nor its site.
     fail_unexplained, fail_missing : bool
     fail_on_warnings : tuple of str
         Warning classes that reject a module.
@@ -97,6 +102,7 @@ class AcceptanceSpec:
     limits: dict
     site_dip_deg: float = 65.0
     site_field_ut: float = 50.0
+    bench_field_ut: float | None = None
     fail_unexplained: bool = True
     fail_missing: bool = False
     fail_on_warnings: tuple[str, ...] = ()
@@ -118,7 +124,8 @@ class AcceptanceSpec:
             value = figures.get(name)
             unit = FIGURES[name].unit
             if value is None or not math.isfinite(value):
-                (reasons if self.fail_missing else notes).append(f"{name}: not given by this calibration")
+                why = figures.get("unjudged", {}).get(name, "not given by this calibration")
+                (reasons if self.fail_missing else notes).append(f"{name}: not judged: {why}")
                 continue
             if high is not None and value > high:
                 reasons.append(f"{name} {value:.4g} {unit} above the limit {high:g}")
@@ -163,7 +170,7 @@ def parse_spec(text: str, *, source: str = "<spec>") -> AcceptanceSpec:
         raise SpecError(f"{source}: not valid TOML: {exc}") from None
     _known(doc, _SECTIONS, source, "")
     site = _table(doc, "site", source)
-    _known(site, {"dip_deg", "field_ut"}, source, "site.")
+    _known(site, {"dip_deg", "field_ut", "bench_field_ut"}, source, "site.")
     limits = {}
     for name, entry in _table(doc, "limits", source).items():
         key = f"limits.{name}"
@@ -190,6 +197,7 @@ def parse_spec(text: str, *, source: str = "<spec>") -> AcceptanceSpec:
         limits=limits,
         site_dip_deg=_number(site, "dip_deg", source, "site.", default=65.0, low=-90.0, high=90.0),
         site_field_ut=_number(site, "field_ut", source, "site.", default=50.0, positive=True),
+        bench_field_ut=_number(site, "bench_field_ut", source, "site.", positive=True),
         fail_unexplained=_bool(unexplained, "fail", source, "unexplained.", default=True),
         fail_missing=_bool(missing, "fail", source, "missing.", default=False),
         fail_on_warnings=fail_on,
@@ -200,6 +208,10 @@ def parse_spec(text: str, *, source: str = "<spec>") -> AcceptanceSpec:
         width_sigmas=_number(control, "width_sigmas", source, "control.", default=4.0, positive=True),
         text=text,
     )
+    if not spec.limits:
+        raise SpecError(f"{source}: no [limits]: the spec judges no figure, so every module would be accepted "
+                        f"(an empty or truncated file?); give limits like [limits] gain_spread = {{ max = 0.3 }} "
+                        f"(the default spec: {DEFAULT_SPEC})")
     return spec
 
 

@@ -9,13 +9,14 @@ older file forward, a newer one is refused in words)::
 ``status`` is ``accepted``, ``rejected`` or ``refused`` (not calibrated); ``reasons``, ``notes``
 and ``figures`` are JSON; ``calibration`` is the calibration file's text (NULL when refused).
 A session is the same when its recording's hash, the toolkit version and the spec are: a re-run
-of a batch skips it (:meth:`Store.known`).  A module's calibration is its latest accepted session
-(:func:`module_outcome`); two different recordings of one module id at one session time are a tie
-that :meth:`Store.latest_accepted` refuses to break.  Every row is written in its own transaction, so a
+of a batch skips it (:meth:`Store.known`).  A module's calibration is its latest session, when that
+is accepted (:func:`module_outcome`); two different recordings of one module id at one session time
+are a tie that :meth:`Store.exportable` refuses to break.  Every row is written in its own transaction, so a
 process killed mid-batch leaves every finished session stored and no half of one.
 
 Only the batch's parent process writes (SQLite serialises writers; many writing workers would
-wait on its lock).  Readers (``compass store``, ``compass export --module``) may run beside it: the
+wait on its lock); two batches may write one store, each session's duplicate check and row in one
+:meth:`Store.transaction` that holds the write lock from its start.  Readers (``compass store``, ``compass export --module``) may run beside it: the
 store keeps a write-ahead log (``PATH-wal``, ``PATH-shm`` beside it while open), so they never block
 the writer.  Keep it on a local disk (SQLite's WAL needs shared memory, which network file systems
 do not give).
@@ -25,12 +26,13 @@ from __future__ import annotations
 
 import json
 import sqlite3
+from contextlib import contextmanager
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import date, datetime, timezone
 from pathlib import Path
 
-__all__ = ["MIGRATIONS", "SCHEMA_VERSION", "ModuleOutcome", "SessionRow", "Store", "StoreError", "module_outcome",
-           "module_outcomes"]
+__all__ = ["MIGRATIONS", "SCHEMA_VERSION", "ModuleOutcome", "SessionRow", "SessionTimeError", "Store", "StoreError",
+           "module_outcome", "module_outcomes", "same_session", "session_instant", "session_time_text", "timed"]
 
 MIGRATIONS = (
     # 0 -> 1
@@ -104,11 +106,11 @@ class ModuleOutcome:
     ----------
     module_id : str
     status : {"accepted", "rejected", "refused", "duplicate"}
-        ``accepted``: the module has an accepted session and no other recording claims its session
-        time; ``duplicate``: another recording (a different hash) claims the deciding session's
-        time, so which one is the module's is unknown; otherwise the latest session's verdict.
+        The latest session's verdict (a later session supersedes an earlier one, whatever their
+        verdicts: the module may have changed since); ``duplicate``: another recording (a different
+        hash) claims that session's time, so which one is the module's is unknown.
     row : SessionRow
-        The latest accepted session, else the latest session.
+        The latest session.
     rivals : tuple of SessionRow
         The other recordings at ``row``'s session time (one row a recording hash).
     """
@@ -119,26 +121,92 @@ class ModuleOutcome:
     rivals: tuple[SessionRow, ...]
 
 
+class SessionTimeError(ValueError):
+    """A session time that is neither an ISO 8601 time nor a day (the message quotes it)."""
+
+
+def session_time_text(text: str) -> str:
+    """A recording's session time as stored: the UTC instant (``2026-03-02T07:30:00+00:00``), or the day alone.
+
+    ``datetime.fromisoformat``'s forms: an offset (``+02:00``, ``Z``) is applied; a time without one is taken as
+    UTC (the bench PC's zone is not in the file; the file's modification time is UTC too); a day alone
+    (``2026-03-02``: ``compass bench``'s ``# date:``) stays a day (:func:`timed`).
+
+    Raises
+    ------
+    SessionTimeError
+        Neither form (``2026-3-9``: not zero-padded; ``03/02/2026``).
+    """
+    text = text.strip()
+    if len(text) == 10:  # YYYY-MM-DD (fromisoformat would take it for midnight)
+        try:
+            return date.fromisoformat(text).isoformat()
+        except ValueError:
+            pass
+    try:
+        instant = datetime.fromisoformat(text)
+    except ValueError:
+        raise SessionTimeError(f"{text!r} is not an ISO 8601 time (2026-03-02T09:30:00+02:00, 2026-03-02T07:30:00Z) "
+                               "nor a day (2026-03-02)") from None
+    if instant.tzinfo is None:
+        instant = instant.replace(tzinfo=timezone.utc)
+    return instant.astimezone(timezone.utc).isoformat()
+
+
 def timed(session_time: str) -> bool:
     """Whether a session time tells the time of day (``2026-03-02T07:24:00``), not the day alone (``# date:``, which
     ``compass bench`` writes: a module recorded again the same day is a later session, not a rival)."""
     return "T" in session_time or ":" in session_time
 
 
+def session_instant(session_time: str) -> datetime:
+    """The UTC instant a stored session time orders by (a day alone: its start, 00:00 UTC).
+
+    Stores written before session times were normalised hold them as the recording wrote them; they are
+    parsed here (:func:`session_time_text`).
+
+    Raises
+    ------
+    SessionTimeError
+    """
+    text = session_time_text(session_time)
+    if not timed(text):
+        return datetime.combine(date.fromisoformat(text), datetime.min.time(), timezone.utc)
+    return datetime.fromisoformat(text)
+
+
+def same_session(a: str, b: str) -> bool:
+    """Whether two session times of day are one instant (``...Z`` and ``...+00:00`` are); days alone never are."""
+    return timed(a) and timed(b) and session_instant(a) == session_instant(b)
+
+
+def _at(rows, session_time: str) -> list:
+    """The rows at a session time given by a user (any ISO form; a day matches a day-stamped session)."""
+    wanted = session_time_text(session_time)
+    if timed(wanted):
+        return [r for r in rows if same_session(r.session_time, wanted)]
+    return [r for r in rows if not timed(r.session_time) and session_time_text(r.session_time) == wanted]
+
+
+def _order(r: "SessionRow"):
+    """Session-time order: the instant, then the recording's path (days alone keep their files' order), then the row."""
+    return session_instant(r.session_time), r.recording_path, r.id
+
+
 def module_outcome(rows) -> ModuleOutcome:
     """The outcome of one module from its sessions in session-time order (:meth:`Store.sessions`).
 
-    The latest accepted session decides (a later session of the module supersedes an earlier one);
-    the same recording stored twice (another toolkit version or spec) is one recording.  Sessions at
+    The latest session decides (a later session of the module supersedes an earlier one, a later
+    rejection an earlier acceptance); the same recording stored twice (another toolkit version or
+    spec) is one recording, its latest judgment deciding.  Sessions at
     one session time of day (:func:`timed`) are not ordered by anything but their files' names, so two
     different recordings there are a tie, never a choice, unless they are the same file (edited, or
     recorded again over it: one module's, not rivals); at a day alone the later file name decides.
     """
     rows = list(rows)
-    accepted = [r for r in rows if r.status == "accepted"]
-    row = accepted[-1] if accepted else rows[-1]
+    row = rows[-1]
     rivals = {r.recording_sha256: r for r in rows
-              if r.session_time == row.session_time and timed(r.session_time)
+              if same_session(r.session_time, row.session_time)
               and r.recording_sha256 != row.recording_sha256 and r.recording_path != row.recording_path}
     status = "duplicate" if rivals else row.status
     return ModuleOutcome(row.module_id, status, row, tuple(rivals.values()))
@@ -151,7 +219,7 @@ def module_outcomes(rows, rivals=()) -> list[ModuleOutcome]:
     modules' outcomes: a module one of them rivals is a duplicate id, as it would be with both in ``rows``.
     """
     by_module: dict[str, list[SessionRow]] = {}
-    for r in sorted([*rows, *rivals], key=lambda r: (r.session_time, r.recording_path, r.id)):
+    for r in sorted([*rows, *rivals], key=_order):
         by_module.setdefault(r.module_id, []).append(r)
     return [module_outcome(group) for group in by_module.values()]
 
@@ -190,17 +258,25 @@ class Store:
     def _migrate(self, version: int) -> None:
         """Apply the migrations after ``version``, all in one transaction with the new version."""
         db = self._db
-        db.execute("BEGIN IMMEDIATE")
-        try:
+        with self.transaction():
             current = db.execute("PRAGMA user_version").fetchone()[0]  # another process may have migrated
             for sql in MIGRATIONS[current:]:
                 for statement in filter(str.strip, sql.split(";")):
                     db.execute(statement)
             db.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
-            db.execute("COMMIT")
+
+    @contextmanager
+    def transaction(self):
+        """One write transaction holding the store's write lock from its start (SQLite's ``BEGIN IMMEDIATE``): what
+        is read inside it is what its writes commit against, whatever another process writes meanwhile (that one
+        waits); rolled back whole on any exception."""
+        self._db.execute("BEGIN IMMEDIATE")
+        try:
+            yield self
         except BaseException:
-            db.execute("ROLLBACK")
+            self._db.execute("ROLLBACK")
             raise
+        self._db.execute("COMMIT")
 
     def close(self) -> None:
         self._db.close()
@@ -216,7 +292,7 @@ class Store:
     def add(self, *, module_id: str, session_time: str, recording_path: str, recording_sha256: str,
             toolkit_version: str, kind: str | None, status: str, reasons, notes, figures: dict,
             calibration: str | None, spec_text: str, spec_sha256: str) -> bool:
-        """Store one session in one transaction; False when the same session is already stored."""
+        """Store one session (its own transaction, or part of :meth:`transaction`); False when already stored."""
         stored_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
         cur = self._db.execute(
             "INSERT OR IGNORE INTO sessions (module_id, session_time, recording_path, recording_sha256, "
@@ -241,54 +317,80 @@ class Store:
         sql, args = f"SELECT {', '.join(_COLUMNS)} FROM sessions", []
         if module_id is not None:
             sql, args = sql + " WHERE module_id = ?", [module_id]
-        rows = [_row(r) for r in self._db.execute(sql + " ORDER BY session_time, recording_path, id", args)]
+        rows = [_row(r) for r in self._db.execute(sql, args)]
         if hashes is not None:
             hashes = set(hashes)
             rows = [r for r in rows if r.recording_sha256 in hashes]
-        return rows
+        keys = {}
+        for r in rows:
+            try:
+                keys[r.id] = _order(r)
+            except SessionTimeError as exc:  # a store written before session times were checked
+                raise StoreError(f"{self.path}: the session of {r.recording_path} is stored at {exc}: it cannot be "
+                                 "ordered; correct the recording's '# session_time:' and run the batch again") from None
+        return sorted(rows, key=lambda r: keys[r.id])
 
     def rivals(self, rows) -> list[SessionRow]:
         """Stored sessions of other recordings claiming a session of ``rows``: the same module id and session time of
         day (:func:`timed`), another hash and another path than every row of that session (:func:`module_outcome`'s
         rivals), in session-time order.  A batch's report counts a module they rival as a duplicate id."""
-        claimed: dict[tuple[str, str], list[SessionRow]] = {}
+        claimed: dict[tuple[str, datetime], list[SessionRow]] = {}
         for r in rows:
             if timed(r.session_time):
-                claimed.setdefault((r.module_id, r.session_time), []).append(r)
+                claimed.setdefault((r.module_id, session_instant(r.session_time)), []).append(r)
         found = {}
-        for (module_id, session_time), own in claimed.items():
-            for r in self.sessions(module_id=module_id):
-                if r.session_time == session_time and all(
-                        r.recording_sha256 != o.recording_sha256 and r.recording_path != o.recording_path for o in own):
-                    found[r.id] = r
-        return sorted(found.values(), key=lambda r: (r.session_time, r.recording_path, r.id))
+        for (module_id, _), own in claimed.items():
+            found.update((r.id, r) for r in self.claimants(module_id, own[0].session_time,
+                                                           hashes={o.recording_sha256 for o in own},
+                                                           paths={o.recording_path for o in own}))
+        return sorted(found.values(), key=_order)
 
-    def latest_accepted(self, module_id: str) -> SessionRow:
-        """The module's latest accepted session (:func:`module_outcome`).
+    def claimants(self, module_id: str, session_time: str, *, hashes, paths) -> list[SessionRow]:
+        """Stored sessions of other recordings claiming a module id and session time of day (:func:`same_session`):
+        a hash not in ``hashes`` and a path not in ``paths`` (the same file edited is the module's own)."""
+        if not timed(session_time):
+            return []
+        return [r for r in self.sessions(module_id=module_id) if same_session(r.session_time, session_time)
+                and r.recording_sha256 not in hashes and r.recording_path not in paths]
+
+    def exportable(self, module_id: str, session_time: str | None = None) -> SessionRow:
+        """The module's calibration to hand out: its latest session (:func:`module_outcome`), or the one at
+        ``session_time``, when that session is accepted and no other recording claims its time.
 
         Raises
         ------
         StoreError
-            No session of that module, none accepted (the message says which and why), or another
-            recording claims the latest accepted session's time (the message names every recording).
+            No session of that module (at that time); the session not accepted (the message names it, its
+            reasons and the latest accepted session before it); or another recording claims its time (the
+            message names every recording).
         """
         rows = self.sessions(module_id=module_id)
         if not rows:
             raise StoreError(f"{self.path}: no session of module '{module_id}'")
+        if session_time is not None:
+            chosen = _at(rows, session_time)
+            if not chosen:
+                raise StoreError(f"{self.path}: module '{module_id}' has no session at {session_time}; its sessions: "
+                                 + ", ".join(dict.fromkeys(r.session_time for r in rows)))
+            rows = rows[:rows.index(chosen[-1]) + 1]
         outcome = module_outcome(rows)
         row = outcome.row
-        if row.status != "accepted":
-            why = "; ".join(row.reasons) or row.status
-            raise StoreError(f"{self.path}: module '{module_id}' has no accepted calibration ({len(rows)} "
-                             f"session(s); the latest, {row.session_time}, was {row.status}: {why})")
         if outcome.rivals:
             claims = ", ".join(f"{r.recording_path} (sha256 {r.recording_sha256[:12]}, {r.status})"
                                for r in sorted((row, *outcome.rivals), key=lambda r: r.recording_path))
             raise StoreError(f"{self.path}: module '{module_id}': {1 + len(outcome.rivals)} different recordings "
-                             f"claim its latest accepted session, {row.session_time}: {claims}; none is later, so "
+                             f"claim its session {row.session_time}: {claims}; none is later, so "
                              "which calibration is this module's is unknown: correct the wrong recording's "
                              "'# module_id:' and record the module again (a later session decides), or export "
                              "the calibration file of the right recording")
+        if row.status != "accepted":
+            why = "; ".join(row.reasons) or row.status
+            earlier = [r for r in rows if r.status == "accepted"]
+            hint = (f"; an earlier session, {earlier[-1].session_time}, was accepted: export --module {module_id} "
+                    f"--session {earlier[-1].session_time} hands it out, if the module has not changed since"
+                    if earlier else "; no session of it was accepted")
+            raise StoreError(f"{self.path}: module '{module_id}': its {'' if session_time else 'latest '}session, "
+                             f"{row.session_time} ({row.recording_path}), was {row.status}: {why}{hint}")
         return row
 
     def count(self) -> int:

@@ -12,7 +12,7 @@ import pytest
 from calibrate.batch import run_batch
 from compass.calibration import from_dict
 from compass.cli import main
-from compass.production.spec import load_spec
+from compass.production.spec import DEFAULT_SPEC, load_spec
 from compass.production.store import Store, StoreError
 from compass.sim.fleet import FleetOptions, simulate_fleet
 from tests._proc import Proc, compass_command
@@ -111,7 +111,7 @@ def test_store_and_export_read_the_batch(fleet, capsys):
     weak = _module(truth, "weak_channel")
     assert main(["export", "--module", weak, "--store", str(store), "--format", "fusion"]) == 2
     err = capsys.readouterr().err
-    assert f"module '{weak}' has no accepted calibration" in err and "gain_spread" in err
+    assert f"module '{weak}': its latest session" in err and "rejected: gain_spread" in err
     assert main(["store", "show", _module(truth, "corrupt"), "--store", str(store)]) == 0
     shown = capsys.readouterr().out
     # its kind is found from the header (a channel may hold text until a reader uses it), the cell then refused
@@ -157,7 +157,7 @@ def test_two_recordings_claiming_one_module_and_session_are_both_rejected_and_ex
         assert all(f"{real}, {fake}" in r.reasons[0] and r.calibration is not None for r in rows)
     assert main(["export", "--module", mid, "--store", str(store)]) == 2
     err = capsys.readouterr().err
-    assert f"module '{mid}' has no accepted calibration" in err and f"{real}, {fake}" in err
+    assert f"module '{mid}': 2 different recordings claim its session" in err and f"{real} (sha256" in err
     report = (out / "report.html").read_text()
     assert "Duplicate module ids" in report and f"{mid} at {own['session_time']}: {real}, {fake}" in report
     assert main(["batch", str(line), "--out", str(out), "--workers", "0", "--force"]) == 0  # a re-run keeps it
@@ -176,13 +176,13 @@ def test_a_tie_with_a_stored_session_is_rejected_and_a_later_session_wins(fleet,
         assert summary.duplicates == {(own["module_id"], own["session_time"]): sorted([str(real), str(fake)])}
         first, second = store.sessions(module_id=own["module_id"])
         assert first.status == "accepted" and second.status == "rejected"
-        words = re.escape(f"2 different recordings claim its latest accepted session, {own['session_time']}: {real} ")
+        words = re.escape(f"2 different recordings claim its session {own['session_time']}: {real} ")
         with pytest.raises(StoreError, match=words + f"\\(sha256 .*, accepted\\), {re.escape(str(fake))} "):
-            store.latest_accepted(own["module_id"])
+            store.exportable(own["module_id"])
         later = tmp_path / "later.csv"
         later.write_text(real.read_text().replace(f"# date: {own['session_time']}", "# date: 2099-01-01T00:00:00"))
         run_batch([later], spec, store, toolkit_version="t", workers=0)
-        assert store.latest_accepted(own["module_id"]).recording_path == str(later)
+        assert store.exportable(own["module_id"]).recording_path == str(later)
 
 
 def test_a_later_batch_counts_a_store_only_rival_as_a_duplicate_and_a_recalibration_as_its_session(fleet, tmp_path,
@@ -221,6 +221,18 @@ def test_a_malformed_spec_is_exit_2_naming_the_key(fleet, tmp_path, capsys):
     assert main(["batch", str(folder / "line"), "--spec", str(spec), "--out", str(tmp_path / "r")]) == 2
     assert capsys.readouterr().err.strip().splitlines() == [
         f"compass batch: {spec}: 'limits.gain_spread.max': expected a number, got 'wide'"]
+    assert not (tmp_path / "r").exists()
+
+
+def test_an_empty_spec_is_exit_2_naming_the_file_not_every_module_accepted(fleet, tmp_path, capsys):
+    folder, _ = fleet
+    spec = tmp_path / "empty.toml"
+    spec.write_text("")
+    assert main(["batch", str(folder / "line"), "--spec", str(spec), "--out", str(tmp_path / "r")]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"compass batch: {spec}: no [limits]: the spec judges no figure, so every module would be accepted (an empty "
+        "or truncated file?); give limits like [limits] gain_spread = { max = 0.3 } (the default spec: "
+        f"{DEFAULT_SPEC})"]
     assert not (tmp_path / "r").exists()
 
 
@@ -298,7 +310,7 @@ def test_batch_takes_any_kind(fleet, tmp_path):
     assert set(rows) == {"tumble", "fourflip"}
     assert rows["tumble"].module_id == "tumble" and rows["fourflip"].module_id == "M0001"
     assert rows["tumble"].status != "refused"
-    assert "direction_sigma_deg: not given by this calibration" in rows["tumble"].notes
+    assert "direction_sigma_deg: not judged: not given by this calibration" in rows["tumble"].notes
 
 
 def test_dask_local_cluster_gives_the_pool_s_verdicts(fleet, tmp_path):
@@ -344,3 +356,105 @@ def test_a_clipped_channel_s_session_is_refused_naming_it(fleet, tmp_path):
     out = calibrate_session(SessionJob(str(clipped), sha256_of(clipped), 65.0, 50.0))
     assert out["refused"].startswith(f"{clipped}, row ") and "column 'v2': reads its extreme" in out["refused"]
     assert "clipped (saturated)" in out["refused"] and "'v1'" not in out["refused"] and "'v3'" not in out["refused"]
+
+
+def _without_field_ut(source, out, extra=()):
+    """``source`` as ``compass bench`` writes a recording (no '# field_ut:'), its module id the file name, ``extra`` added."""
+    lines = [line for line in source.read_text().splitlines() if not line.startswith(("# field_ut:", "# module_id:"))]
+    out.write_text("\n".join([*extra, *lines]) + "\n")
+    return out
+
+
+def test_a_magnetised_module_without_field_ut_is_judged_by_the_bench_field_or_said_unjudged(fleet, tmp_path):
+    folder, truth = fleet
+    magnetised = folder / "line" / truth["modules"][[m["defect"] for m in truth["modules"]].index("magnetised")]["file"]
+    bare = _without_field_ut(magnetised, tmp_path / "bare.csv")
+    sited = _without_field_ut(magnetised, tmp_path / "sited.csv",
+                              ["# site_lat_deg: 48.1", "# site_lon_deg: 11.6", "# site_alt_m: 520"])
+    lines = []
+    with Store(tmp_path / "s.sqlite") as store:
+        run_batch([bare, sited], load_spec(), store, toolkit_version="t", workers=0, progress=lines.append)
+        rows = {r.recording_path: r for r in store.sessions()}
+    assert rows[str(sited)].status == "rejected" and "offset_ut" in rows[str(sited)].reasons[0]  # WMM: 48.6 uT
+    assert rows[str(bare)].status == "accepted"
+    assert any("accepted; offset_ut: not judged: the bench's |B| in uT is unknown" in x for x in lines)
+    spec = tmp_path / "spec.toml"
+    spec.write_text(load_spec().text.replace("[site]", "[site]\nbench_field_ut = 48.0", 1))
+    with Store(tmp_path / "t.sqlite") as store:
+        run_batch([bare], load_spec(spec), store, toolkit_version="t", workers=0)
+        assert store.sessions()[0].reasons[0].startswith("offset_ut ")
+
+
+def test_bench_writes_the_sites_field_as_field_ut():
+    import argparse
+
+    from compass.commands.bench import _metadata
+    from compass.site import Site
+
+    site = Site.parse("48.1,11.6,520", "2026-03-02")
+    args = argparse.Namespace(module_id="M1", operator="op", date=None)
+    meta = _metadata(args, argparse.Namespace(spec="grbl"), site)
+    assert float(meta["field_ut"]) == pytest.approx(site.field().field_ut, abs=1e-3)
+    assert "field_ut" not in _metadata(args, argparse.Namespace(spec="grbl"), None)
+
+
+def test_a_batch_with_an_unreadable_session_time_stops_before_storing_naming_the_file(fleet, tmp_path):
+    folder, truth = fleet
+    good = folder / "line" / truth["modules"][0]["file"]
+    bad = tmp_path / "bad.csv"
+    bad.write_text("# date: 2026-3-9\n" + "\n".join(line for line in good.read_text().splitlines()
+                                                       if not line.startswith("# date:")) + "\n")
+    code, out, err = _batch(good, bad, "--out", tmp_path / "r", "--workers", "0", timeout_s=120.0)
+    assert code == 2 and "Traceback" not in err
+    assert f"{bad}: '# date:' '2026-3-9' is not an ISO 8601 time" in err
+    with Store(tmp_path / "r" / "calibrations.sqlite", create=False) as store:
+        assert store.count() == 0
+
+
+def test_a_module_rejected_at_its_later_session_counts_failed_and_export_refuses_unless_asked_for_the_earlier(
+        fleet, tmp_path, capsys):
+    folder, truth = fleet
+    own = _clean(truth, 0)
+    magnetised = next(m for m in truth["modules"] if m["defect"] == "magnetised")
+    line = tmp_path / "line"
+    line.mkdir()
+    monday = line / "monday.csv"
+    monday.write_bytes((folder / "line" / own["file"]).read_bytes())
+    tuesday = _relabel(folder / "line" / magnetised["file"], monday, line / "tuesday.csv")  # the module, magnetised since
+    tuesday.write_text(tuesday.read_text().replace(f"# date: {own['session_time']}", "# date: 2026-03-03T07:00:00Z"))
+    store = tmp_path / "r" / "calibrations.sqlite"
+    assert main(["batch", str(line), "--out", str(tmp_path / "r"), "--workers", "0"]) == 0
+    assert "yield 0/1 modules (0.0 %; 2 sessions)" in capsys.readouterr().out
+    assert main(["export", "--module", own["module_id"], "--store", str(store)]) == 2
+    err = capsys.readouterr().err
+    assert (f"its latest session, 2026-03-03T07:00:00+00:00 ({tuesday}), was rejected: offset_ut" in err
+            and f"--session {own['session_time']} hands it out" in err)
+    out = tmp_path / "monday.json"
+    assert main(["export", "--module", own["module_id"], "--store", str(store), "--session", own["session_time"],
+                 "--out", str(out)]) == 0
+    with Store(store, create=False) as kept:
+        assert out.read_text() == next(r.calibration for r in kept.sessions() if r.recording_path == str(monday))
+
+
+def test_a_rival_another_batch_stores_mid_run_is_caught_at_commit(fleet, tmp_path):
+    """Two batches on one store: a recording claiming a module's session, stored by another process after this batch
+    looked at the store and before it commits that module, makes its session a duplicate all the same."""
+    folder, truth = fleet
+    first, own = _clean(truth, 0), _clean(truth, 1)
+    real = folder / "line" / own["file"]
+    fake = _relabel(folder / "line" / _clean(truth, 2)["file"], real, tmp_path / "copied_header.csv")
+    path = tmp_path / "s.sqlite"
+
+    def other_batch(line):  # after the first session's commit, before the second's
+        if line.startswith("[1/2]"):
+            with Store(path) as other:
+                run_batch([fake], load_spec(), other, toolkit_version="t", workers=0)
+
+    with Store(path) as store:
+        summary = run_batch([folder / "line" / first["file"], real], load_spec(), store, toolkit_version="t",
+                            workers=0, progress=other_batch)
+        rows = {r.recording_path: r for r in store.sessions(module_id=own["module_id"])}
+    assert rows[str(fake)].status == "accepted"  # the other batch saw no rival when it stored
+    assert rows[str(real)].status == "rejected" and rows[str(real)].reasons[0].startswith(
+        f"duplicate module id '{own['module_id']}': 2 different recordings claim its session")
+    assert summary.duplicates == {(own["module_id"], own["session_time"]): sorted([str(real), str(fake)])}

@@ -50,7 +50,7 @@ def test_a_stored_calibration_is_named_as_the_module_in_its_store_never_a_tempor
 def test_a_stored_calibration_that_is_not_json_is_named_too(tmp_path, capsys):
     store = tmp_path / "calibrations.sqlite"
     with Store(store) as s:
-        s.add(module_id="M3", session_time="t", recording_path="r", recording_sha256="h", toolkit_version="v",
+        s.add(module_id="M3", session_time="2026-03-02T07:00:00+00:00", recording_path="r", recording_sha256="h", toolkit_version="v",
               kind="tumble", status="accepted", reasons=[], notes=[], figures={}, calibration="{not json",
               spec_text="", spec_sha256="0")
     assert main(["export", "--module", "M3", "--store", str(store), "--format", "fusion"]) == 2

@@ -10,7 +10,8 @@ from compass.model import SensorModel
 from compass.production.control import ewma_chart
 from compass.production.figures import FIGURES, classify_warning, heading_error_deg, module_figures
 from compass.production.spec import SpecError, load_spec, parse_spec
-from compass.production.store import SCHEMA_VERSION, Store, StoreError, module_outcome, module_outcomes
+from compass.production.store import (SCHEMA_VERSION, SessionTimeError, Store, StoreError, module_outcome,
+                                     module_outcomes, session_time_text)
 from compass.response import LinearResponse
 
 
@@ -34,6 +35,9 @@ def test_the_default_spec_loads_and_limits_only_known_figures():
     ("[control]\nbaseline_sessions = 2.5\n", "'control.baseline_sessions': expected a whole number"),
     ("[limit]\n", "'limit': unknown key"),
     ("[limits\n", "not valid TOML"),
+    ("", "no [limits]: the spec judges no figure"),  # an empty or truncated file
+    ("[site]\ndip_deg = 60.0\n", "no [limits]: the spec judges no figure"),
+    ("[limits]\n[unexplained]\nfail = true\n", "no [limits]: the spec judges no figure"),
 ])
 def test_a_malformed_spec_is_refused_naming_the_key(text, key):
     with pytest.raises(SpecError, match=f"^acceptance.toml: .*{key}".replace("[", r"\[").replace("(", r"\(")
@@ -60,7 +64,7 @@ def test_judge_names_every_figure_past_its_limit_and_notes_the_missing():
     assert any(r.startswith("snr_min 20 ratio below the limit 100") for r in bad.reasons)
     assert any(r.startswith("unexplained") for r in bad.reasons)
     assert "warning of class 'channel'" in bad.reasons and "warning of class 'other'" not in bad.reasons
-    assert bad.notes == ("direction_sigma_deg: not given by this calibration",)
+    assert bad.notes == ("direction_sigma_deg: not judged: not given by this calibration",)
     strict = parse_spec("[limits]\ndirection_sigma_deg = { max = 0.3 }\n[missing]\nfail = true\n")
     assert strict.judge(_figures(direction_sigma_deg=None)).status == "rejected"
 
@@ -129,6 +133,21 @@ def test_geometry_figures_of_a_channel_tilted_twenty_degrees():
     assert f["warning_classes"] == ["not_converged"] and f["unexplained"] is False
 
 
+def test_offset_without_field_ut_is_put_in_uT_by_the_bench_field_else_left_unjudged_in_words():
+    # gains per bench |B| (field_norm 1): an offset of 10 output units at gain 2 is 5 |B|
+    model = SensorModel(("x", "y", "z"), np.eye(3), tuple(LinearResponse(o, 2.0) for o in (10.0, 0.0, -4.0)),
+                        field_norm=1.0, field_ut=None, dip_deg=60.0, noise=np.full(3, 0.01))
+    known = module_figures(model, None, [], site_dip_deg=60.0, site_field_ut=50.0, bench_field_ut=48.0)
+    assert known["offset_ut"] == pytest.approx(5.0 * 48.0) and known["unjudged"] == {}
+    unknown = module_figures(model, None, [], site_dip_deg=60.0, site_field_ut=50.0)
+    assert unknown["offset_ut"] is None
+    assert "bench's |B| in uT is unknown" in unknown["unjudged"]["offset_ut"] and "5 bench |B|" in unknown[
+        "unjudged"]["offset_ut"]
+    note = parse_spec("[limits]\noffset_ut = { max = 180 }\n").judge(_figures(offset_ut=None, **{
+        "unjudged": unknown["unjudged"]})).notes
+    assert note == (f"offset_ut: not judged: {unknown['unjudged']['offset_ut']}",)
+
+
 # ---------------------------------------------------------------------------------------------- control chart
 
 
@@ -166,19 +185,29 @@ def _add(store, module, time, sha, status="accepted", calibration="{}", path=Non
                      calibration=calibration, spec_text="[limits]\n", spec_sha256="s1")
 
 
-def test_store_keeps_sessions_once_and_finds_the_latest_accepted(tmp_path):
+def test_store_keeps_sessions_once_and_hands_out_the_latest_only_when_accepted(tmp_path):
     with Store(tmp_path / "s.sqlite") as store:
         assert _add(store, "M1", "2026-01-01T08:00", "h1", calibration='{"a": 1}')
+        assert store.exportable("M1").calibration == '{"a": 1}'
         assert _add(store, "M1", "2026-01-02T08:00", "h2", status="rejected", calibration='{"a": 2}')
         assert not _add(store, "M1", "2026-01-01T08:00", "h1")  # same recording, version, spec
         assert store.count() == 2
         assert store.known("1.0", "s1") == {"h1", "h2"} and store.known("1.1", "s1") == set()
-        assert store.latest_accepted("M1").calibration == '{"a": 1}'
+        with pytest.raises(StoreError, match=r"module 'M1': its latest session, 2026-01-02T08:00 \(/r/M1.csv\), was "
+                                             r"rejected: gain_spread .*an earlier session, 2026-01-01T08:00, was "
+                                             r"accepted: export --module M1 --session 2026-01-01T08:00 hands it out"):
+            store.exportable("M1")
+        assert module_outcome(store.sessions(module_id="M1")).status == "rejected"
+        assert store.exportable("M1", "2026-01-01T08:00:00Z").calibration == '{"a": 1}'  # asked for explicitly
+        with pytest.raises(StoreError, match="its session, 2026-01-02T08:00 .*was rejected"):
+            store.exportable("M1", "2026-01-02T08:00")
+        with pytest.raises(StoreError, match="no session at 2026-01-03; its sessions: 2026-01-01T08:00, 2026-01-02"):
+            store.exportable("M1", "2026-01-03")
         _add(store, "M2", "2026-01-03T08:00", "h3", status="rejected")
-        with pytest.raises(StoreError, match="module 'M2' has no accepted calibration .*rejected: gain_spread"):
-            store.latest_accepted("M2")
+        with pytest.raises(StoreError, match="module 'M2': its latest session, .*rejected: gain_spread .*; no session of it was accepted"):
+            store.exportable("M2")
         with pytest.raises(StoreError, match="no session of module 'M3'"):
-            store.latest_accepted("M3")
+            store.exportable("M3")
     with sqlite3.connect(tmp_path / "s.sqlite") as db:
         assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
 
@@ -194,28 +223,58 @@ def test_two_recordings_of_one_module_at_one_session_time_are_a_tie_latest_accep
                   recording_sha256="h5", toolkit_version="1.1", kind="fourflip", status="accepted", reasons=[],
                   notes=[], figures={}, calibration='{"own": 1}', spec_text="[limits]\n", spec_sha256="s1")
         count = store.count()
-        with pytest.raises(StoreError, match="module 'M5': 2 different recordings claim its latest accepted session, "
+        with pytest.raises(StoreError, match="module 'M5': 2 different recordings claim its session "
                                              "2026-03-02T07:24: /r/M5.csv .*/r/M5_rerun.csv .*none is later"):
-            store.latest_accepted("M5")
+            store.exportable("M5")
         assert store.count() == count  # a refusal writes nothing
         outcome = module_outcome(store.sessions(module_id="M5"))
         assert outcome.status == "duplicate" and len(outcome.rivals) == 1  # h5 stored twice is one rival
         assert {outcome.row.recording_sha256, outcome.rivals[0].recording_sha256} == {"h5", "h10"}
         _add(store, "M5", "2026-03-05T09:00", "h5b", calibration='{"again": 1}')  # a later session decides
-        assert store.latest_accepted("M5").calibration == '{"again": 1}'
+        assert store.exportable("M5").calibration == '{"again": 1}'
         _add(store, "M6", "2026-03-02T08:00", "h6", calibration='{"six": 1}')
         _add(store, "M6", "2026-03-02T08:00", "h6x", status="rejected", path="/r/M6b.csv")  # any verdict ties
         with pytest.raises(StoreError, match="/r/M6.csv \\(sha256 h6, accepted\\), /r/M6b.csv \\(sha256 h6x, rejected"):
-            store.latest_accepted("M6")
+            store.exportable("M6")
         # the same file edited (or recorded again over it), and a day alone (compass bench's # date:): no tie
         _add(store, "M7", "2026-03-02T08:00", "h7", calibration='{"seven": 1}')
         _add(store, "M7", "2026-03-02T08:00", "h7b", calibration='{"seven": 2}')
         _add(store, "M8", "2026-03-02", "h8", calibration='{"eight": 1}', path="/r/M8a.csv")
         _add(store, "M8", "2026-03-02", "h8b", calibration='{"eight": 2}', path="/r/M8b.csv")
-        assert store.latest_accepted("M7").calibration in ('{"seven": 1}', '{"seven": 2}')
-        assert store.latest_accepted("M8").calibration == '{"eight": 2}'  # the later file name, as before
+        assert store.exportable("M7").calibration in ('{"seven": 1}', '{"seven": 2}')
+        assert store.exportable("M8").calibration == '{"eight": 2}'  # the later file name, as before
         outcomes = {o.module_id: o.status for o in module_outcomes(store.sessions())}
     assert outcomes == {"M5": "accepted", "M6": "duplicate", "M7": "accepted", "M8": "accepted"}
+
+
+@pytest.mark.parametrize("written, stored", [
+    ("2026-03-02T09:30:00+02:00", "2026-03-02T07:30:00+00:00"),
+    ("2026-03-02T07:24:00Z", "2026-03-02T07:24:00+00:00"),
+    ("2026-03-02T07:24:00", "2026-03-02T07:24:00+00:00"),  # no offset: taken as UTC
+    (" 2026-03-02 ", "2026-03-02"),  # a day stays a day
+])
+def test_a_session_time_is_stored_as_its_utc_instant_or_its_day(written, stored):
+    assert session_time_text(written) == stored
+
+
+@pytest.mark.parametrize("written", ["2026-3-9", "03/02/2026", "Monday", "2026-03-02T25:00"])
+def test_a_session_time_in_no_iso_form_is_refused_quoting_it(written):
+    with pytest.raises(SessionTimeError, match=f"'{written}' is not an ISO 8601 time"):
+        session_time_text(written)
+
+
+def test_sessions_order_and_tie_on_instants_also_in_a_store_that_kept_the_text_as_written(tmp_path):
+    with Store(tmp_path / "s.sqlite") as store:  # rows as an older batch stored them: the recording's text
+        _add(store, "MA", "2026-03-02T09:30:00+02:00", "a1", calibration='{"first": 1}', path="/r/A1.csv")
+        _add(store, "MA", "2026-03-02T08:00:00+00:00", "a2", calibration='{"second": 1}', path="/r/A2.csv")
+        _add(store, "MC", "2026-03-02T07:24:00Z", "c1", path="/r/C1.csv")
+        _add(store, "MC", "2026-03-02T07:24:00+00:00", "c2", path="/r/C2.csv")
+        assert store.exportable("MA").calibration == '{"second": 1}'  # 08:00 UTC after 07:30 UTC
+        with pytest.raises(StoreError, match="2 different recordings claim its session"):
+            store.exportable("MC")  # one instant written two ways
+        _add(store, "MB", "2026-3-9", "b1", path="/r/B1.csv")
+        with pytest.raises(StoreError, match="the session of /r/B1.csv is stored at '2026-3-9' is not an ISO"):
+            store.sessions(module_id="MB")
 
 
 def test_a_batchs_rows_see_the_stores_rivals_of_their_sessions_and_nothing_else(tmp_path):
