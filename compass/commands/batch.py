@@ -72,7 +72,11 @@ def run(args) -> int:
     if out.exists() and not out.is_dir():
         raise BadInput(f"--out {out}: is a file, expected a folder")
     for name in ("report.html", "figures.csv"):
-        check_writable(out / name, args.force)
+        try:
+            check_writable(out / name, args.force)
+        except FileExistsError:
+            raise BadInput(f"{out / name} exists (an earlier batch's report: a re-run resumes the batch, skipping what "
+                           f"the store has, and writes the report anew with --force; or give another --out)") from None
     paths = _recordings(args)
     out.mkdir(parents=True, exist_ok=True)
     store_path = Path(args.store) if args.store else out / "calibrations.sqlite"

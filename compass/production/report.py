@@ -242,13 +242,19 @@ def write_report(out_dir, rows, spec, *, spec_source: str, toolkit_version: str,
                          f"its average left the limits {c.chart.centre:.6g} +- "
                          f"{c.chart.high[-1] - c.chart.centre:.2g} {FIGURES[c.figure].unit}.</p>")
         parts.append(f"<img alt='EWMA chart of {e(c.figure)}' src='{_control_png(c)}'>")
-    parts.append("<h2>Figures against their limits</h2><p class='note'>Calibrated sessions only; the dashed "
-                 "line is the spec's limit. A figure the calibration kind does not give is left out.</p>"
-                 "<div class='grid'>")
-    for name, limits in spec.limits.items():
-        parts.append(f"<figure><img alt='{e(name)}' src='{_distribution_png(name, rows, limits)}'>"
-                     f"<figcaption class='note'>{e(FIGURES[name].meaning)}</figcaption></figure>")
-    parts.append("</div>")
+    parts.append("<h2>Figures against their limits</h2>")
+    shown = [(name, limits) for name, limits in spec.limits.items()
+             if any(r.status in ("accepted", "rejected") and _finite(r.figures.get(name)) for r in rows)]
+    if shown:
+        parts.append("<p class='note'>Calibrated sessions only; the dashed line is the spec's limit. A figure the "
+                     "calibration kind does not give is left out.</p><div class='grid'>")
+        for name, limits in shown:
+            parts.append(f"<figure><img alt='{e(name)}' src='{_distribution_png(name, rows, limits)}'>"
+                         f"<figcaption class='note'>{e(FIGURES[name].meaning)}</figcaption></figure>")
+        parts.append("</div>")
+    else:
+        parts.append("<p class='note'>No calibrated session gives a figure the spec judges: nothing to plot (every "
+                     "session was refused; see the failed modules below).</p>")
     failed = [r for r in rows if r.status != "accepted"]
     failed.sort(key=lambda r: (r.status != "refused",
                                -max([_ratio_over_limit(r.figures.get(n), lim) for n, lim in spec.limits.items()]

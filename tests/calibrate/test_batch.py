@@ -85,7 +85,7 @@ def test_a_rerun_skips_what_is_stored_and_the_report_needs_force(fleet, capsys):
     if not (out / "report.html").exists():
         pytest.skip("needs test_batch_judges_stores_and_reports_every_module's results")
     assert main(["batch", str(folder / "line"), "--out", str(out), "--workers", "0"]) == 2
-    assert "report.html exists; use --force" in capsys.readouterr().err
+    assert "report.html exists (an earlier batch's report: a re-run resumes the batch" in capsys.readouterr().err
     with Store(out / "calibrations.sqlite", create=False) as store:
         summary = run_batch(sorted((folder / "line").glob("*.csv")), load_spec(), store,
                             toolkit_version=store.sessions()[0].toolkit_version, workers=0)
@@ -212,6 +212,18 @@ def test_a_later_batch_counts_a_store_only_rival_as_a_duplicate_and_a_recalibrat
     assert (f"<tr><td class='num ok'>{accepted}</td><td class='num bad'>{rejected}</td><td class='num bad'>{refused}"
             f"</td><td class='num bad'>{duplicate}</td><td class='num'><b>50.0 %</b></td></tr>") in report
     assert f"{own['module_id']} at {own['session_time']}: {real}, {fake}" in report
+
+
+def test_an_all_refused_batch_report_says_nothing_to_plot_not_empty_plots(tmp_path, capsys):
+    line = tmp_path / "line"
+    line.mkdir()
+    for k in range(2):  # no channel columns: refused, each naming its file
+        (line / f"M{k}.csv").write_text(f"# module_id: M{k}\nflip_deg,platform_deg\n0,0\n0,1\n")
+    assert main(["batch", str(line), "--out", str(tmp_path / "r"), "--workers", "0"]) == 0
+    assert "yield 0/2 modules" in capsys.readouterr().out
+    report = (tmp_path / "r" / "report.html").read_text()
+    assert "nothing to plot (every session was refused" in report and "<figure>" not in report
+    assert "Failed modules (2)" in report
 
 
 def test_a_malformed_spec_is_exit_2_naming_the_key(fleet, tmp_path, capsys):
