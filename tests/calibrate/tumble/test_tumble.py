@@ -94,7 +94,8 @@ def test_cli_end_to_end_and_exports(tmp_path, capsys):
     m = (sim.mag - h) @ s.T
     assert np.std(np.linalg.norm(m, axis=1)) / data["field_norm"] < 0.02
     capsys.readouterr()
-    assert main(["export", str(cal), "--format", "ardupilot"]) == 0
+    # the simulated mag-to-accel rotation is a few degrees: left out beyond the default 1 deg only when asked
+    assert main(["export", str(cal), "--format", "ardupilot", "--max-rotation-deg", "10"]) == 0
     out = capsys.readouterr().out
     params = dict(line.split(",") for line in out.splitlines() if not line.startswith("#"))
     np.testing.assert_allclose([float(params[f"COMPASS_OFS_{a}"]) for a in "XYZ"], -10 * h, atol=1e-3)
