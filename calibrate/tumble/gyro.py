@@ -1183,7 +1183,8 @@ def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_ra
     -------
     TumbleResult
         When the gyro-aided fit is determined: a ``full`` ellipsoid and the rotation to the housing
-        from it, the residual diagnosis of it (no effect is added: the gyro-aided model has none),
+        from it, the residual diagnosis of it as fitted (its own ``|m| - F``, not refitted to ``|m|`` alone; no
+        effect is added: the gyro-aided model has none),
         the coverage warning saying what the gyro determined, and ``gyro`` its block.  Otherwise
         ``result`` with a warning saying what stays undetermined even with the gyro.
     """
@@ -1207,7 +1208,7 @@ def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_ra
     still = still_mask(accel, turns_rad, t_s)[g.inliers]
     mis = misalignment_from(g, fit.calibrated(mag[g.inliers]), accel[g.inliers], still)
     diagnosis = diagnose_tumble(mag, fit, t_s=t_s, temp_c=temp_c, accel=accel, missing=result.coverage.missing,
-                                candidates=()).with_alignment(mis, fit)
+                                candidates=(), refit=False).with_alignment(mis, fit)
     superseded = _SUPERSEDED + ("incomplete coverage", f"the {result.ellipsoid} kind is poorly determined")
     kept = [w for w in result.warnings if not w.startswith(superseded)]
     words = [("incomplete coverage: " + result.coverage.words() + "; " if result.coverage.missing else "") + g.words()]
