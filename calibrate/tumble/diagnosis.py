@@ -91,7 +91,8 @@ from ..noise import chi2_sf, second_difference_sigma, second_differences
 from .alignment import MAX_ANGLE_WIDENING, Misalignment, field_gravity_angles, static_mask
 from .ellipsoid import EllipsoidFit, fit_covariance, plain_fit, propagate, radial_jacobian, shape_matrix, sym_sqrt
 
-__all__ = ["TumbleEffect", "TUMBLE_FORMS", "TumbleDiagnosis", "UNEXPLAINED_WARNING", "diagnose_tumble",
+__all__ = ["TumbleEffect", "TUMBLE_FORMS", "TumbleDiagnosis", "NOT_CONVERGED_WARNING", "UNEXPLAINED_WARNING",
+           "diagnose_tumble",
            "ellipsoid_parameter_names", "radial_noise_floor", "residual_structure"]
 
 _AXES = ("mx", "my", "mz")
@@ -107,6 +108,9 @@ _JACOBIAN_CHUNK_ROWS = 32768
 UNEXPLAINED_WARNING = ("structure remains in |m| - F above the noise floor that no modelled effect accounts for "
                        "(a field that changed during the recording, a disturbance, an effect the toolkit does not "
                        "model): see the diagnosis; the uncertainties are then optimistic")
+NOT_CONVERGED_WARNING = "the fit did not converge"
+"""How the warning for a final fit stopped short of its minimum starts (:func:`calibrate.tumble.fit.calibrate_tumble`;
+the production class ``not_converged``, which ``compass export`` refuses)."""
 _FD_STEP = 1e-6
 
 

@@ -125,7 +125,7 @@ from compass.filter import FilterConfig
 from ..diagnosis.forms import json_float
 from ..noise import robust_sigma, second_difference_sigma, second_differences
 from .alignment import Misalignment, field_gravity_angles, static_mask
-from .diagnosis import UNEXPLAINED_WARNING, diagnose_tumble
+from .diagnosis import NOT_CONVERGED_WARNING, UNEXPLAINED_WARNING, diagnose_tumble
 from .ellipsoid import MAX_RELATIVE_SIGMA, OUTLIER_SIGMAS, EllipsoidFit, plain_fit
 from .motion import FAST_MOTION_WARNING
 from .result import TumbleResult
@@ -1105,9 +1105,11 @@ def _result(final, cov, prob, inliers, noise, turns, n_w) -> GyroFit:
                    q[_Problem.N_GLOBAL:], sig_c)
 
 
-_SUPERSEDED = ("used the ", "no magnetometer-accelerometer rotation fitted", UNEXPLAINED_WARNING, FAST_MOTION_WARNING)
+_SUPERSEDED = ("used the ", "no magnetometer-accelerometer rotation fitted", UNEXPLAINED_WARNING, FAST_MOTION_WARNING,
+               NOT_CONVERGED_WARNING)
 """Warnings of the present fit that a determined gyro-aided fit answers (its kind, its withheld rotation,
-its residual's verdict, which is judged anew, the fast motion that withheld the rotation: the latency is fitted)."""
+its residual's verdict, which is judged anew, the fast motion that withheld the rotation: the latency is fitted;
+its convergence: the gyro-aided fit replaces it, and is used only converged)."""
 
 
 def falls_back(result: TumbleResult) -> bool:
