@@ -52,6 +52,8 @@ def format_diagnosis(block: dict, unit: str = "output units") -> str:
     for step in block["steps"]:
         if step.get("model") == "base":
             kind = f" ({step['kind']} ellipsoid)" if "kind" in step else ""
+            if step.get("refitted") is False:  # made from more than the residual (the tumble's gyro-aided fit)
+                kind = kind[:-1] + ", as fitted with the gyro, not refitted to |m|)" if kind else " (as fitted)"
             lines.append(f"  base model{kind}: residual rms {step['residual_rms']:.4g}")
         else:
             lines += added_step_lines(step)

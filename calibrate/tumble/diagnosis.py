@@ -91,7 +91,8 @@ from ..noise import chi2_sf, second_difference_sigma, second_differences
 from .alignment import MAX_ANGLE_WIDENING, Misalignment, field_gravity_angles, static_mask
 from .ellipsoid import EllipsoidFit, fit_covariance, plain_fit, propagate, radial_jacobian, shape_matrix, sym_sqrt
 
-__all__ = ["TumbleEffect", "TUMBLE_FORMS", "TumbleDiagnosis", "UNEXPLAINED_WARNING", "diagnose_tumble",
+__all__ = ["TumbleEffect", "TUMBLE_FORMS", "TumbleDiagnosis", "NOT_CONVERGED_WARNING", "UNEXPLAINED_WARNING",
+           "diagnose_tumble",
            "ellipsoid_parameter_names", "radial_noise_floor", "residual_structure"]
 
 _AXES = ("mx", "my", "mz")
@@ -107,6 +108,9 @@ _JACOBIAN_CHUNK_ROWS = 32768
 UNEXPLAINED_WARNING = ("structure remains in |m| - F above the noise floor that no modelled effect accounts for "
                        "(a field that changed during the recording, a disturbance, an effect the toolkit does not "
                        "model): see the diagnosis; the uncertainties are then optimistic")
+NOT_CONVERGED_WARNING = "the fit did not converge"
+"""How the warning for a final fit stopped short of its minimum starts (:func:`calibrate.tumble.fit.calibrate_tumble`;
+the production class ``not_converged``, which ``compass export`` refuses)."""
 _FD_STEP = 1e-6
 
 
@@ -465,6 +469,13 @@ class _Model:
         return _Fit(tuple(effects), res.x, res.jac, cov, res.fun * self.floor, float(res.fun @ res.fun),
                     res.fun.size, bool(res.success), str(res.message))
 
+    def held(self, x, success: bool, message: str) -> _Fit:
+        """The ellipsoid at ``x`` as another fit made it, not refitted: its residual and Jacobian here; no covariance
+        (inf: ``|m|`` alone is not what determined ``x``, so its ``J^T J`` does not give ``x``'s)."""
+        r = self.weighted(x, ())
+        return _Fit((), np.array(x, dtype=float), self.jacobian(x, ()), np.full((x.size, x.size), np.inf),
+                    r * self.floor, float(r @ r), r.size, bool(success), str(message))
+
     def gradient(self, fit: _Fit, c: np.ndarray) -> np.ndarray:
         """``L u`` (``u = w / |w|``, ``w = c L``) of each row, shape (rows, 3): the radial residual's gradient by the
         corrected reading ``c`` (normalised units) over ``F``, with ``fit``'s shape ``L``."""
@@ -714,7 +725,7 @@ def _with_heading(cost: dict, field_norm: float, dip_deg: float) -> dict:
 
 def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | None = None,
                     temp_c: np.ndarray | None = None, accel: np.ndarray | None = None, missing=(),
-                    candidates=None) -> TumbleDiagnosis:
+                    candidates=None, refit: bool = True) -> TumbleDiagnosis:
     """Run the diagnosis loop on a tumble's chosen ellipsoid.
 
     Parameters
@@ -733,6 +744,20 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
         Half-axes the field never came near (:attr:`calibrate.tumble.Coverage.missing`).
     candidates : sequence of str, optional
         Effect names to consider (default: every name in :data:`TUMBLE_FORMS`).
+    refit : bool
+        Whether the base model is ``fit``'s kind refitted to ``|m|`` on its inliers (``fit`` is then that fit's
+        optimum, as :func:`~calibrate.tumble.ellipsoid.fit_ellipsoid` makes it, and the refit only weighs it by the
+        floor).  False: ``fit`` was made from more than ``|m|`` (the gyro-aided fit, :mod:`calibrate.tumble.gyro`)
+        and is diagnosed as it is: its own ``|m| - F``, no effect tried (``candidates`` must be empty), no widening
+        from ``|m|`` alone.  Refitted to ``|m|`` alone, such a fit moves to what ``|m|`` prefers: off the field's
+        cap of directions, where ``|m|`` does not determine the full ellipsoid, a sphere growing without bound
+        (a simulated 15 % tumble: ``F`` 50 -> 1300, stopped at the evaluation limit), whose residual, scaled by the
+        held ``F``, read 0.003 against a noise floor of 0.3.
+
+    Notes
+    -----
+    The residual is ``F (|w| - 1)`` with ``F`` the given fit's field norm (:meth:`_Model.radial`): the distance from
+    the surface, in recording units, for a fit near ``fit``, which every fit of the loop is (it starts there).
 
     Returns
     -------
@@ -751,6 +776,8 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
         if v is not None and np.shape(v) != shape:
             raise ValueError(f"{label} must have one value per magnetometer sample {shape}, got shape {np.shape(v)}")
     names = list(TUMBLE_FORMS) if candidates is None else list(candidates)
+    if not refit and names:
+        raise ValueError(f"a fit diagnosed as it is (refit=False) has no effects tried, got candidates {names}")
     unknown = [c for c in names if c not in TUMBLE_FORMS]
     if unknown:
         raise ValueError(f"unknown tumble effect(s) {unknown}; known: {', '.join(TUMBLE_FORMS)}")
@@ -798,17 +825,18 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
         structure = residual_structure(f.residuals / floor, z / row_norms(z)[:, None], bands)
         return structure, is_unexplained(structure[2], rms(f.residuals), floor)
 
-    base = model.fit((), fit.params)
+    base = model.fit((), fit.params) if refit else model.held(fit.params, fit.success, fit.message)
     chosen = select_effects(
         base, pool, score=model.score, refit=model.refit, n_params=lambda e: e.n_params(_N_AXES),
         log_n=np.log(base.residuals.size),
-        base_step={"model": "base", "kind": fit.ellipsoid, "residual_rms": rms(base.residuals)},
+        base_step={"model": "base", "kind": fit.ellipsoid, "residual_rms": rms(base.residuals)}
+        | ({} if refit else {"refitted": False}),
         write_step=claim, verdict=verdict, checks=(determined("the ellipsoid"), keeps_the_angle))
     current, steps = chosen.fit, chosen.steps
     (structure, dof, p_value), unexplained = chosen.structure, chosen.unexplained
 
     covariance, cost = current.covariance, None
-    if unexplained:  # the sigmas grow to cover the structure that remains (calibrate.diagnosis.blocks)
+    if unexplained and refit:  # the sigmas grow to cover the structure that remains (calibrate.diagnosis.blocks)
         covariance = widened_in_time(current.jac, current.residuals / floor, time_blocks(bands[0]),
                                      current.covariance, hard=np.arange(3))
     final_fit, raw_ref, effects = fit, mag, ()

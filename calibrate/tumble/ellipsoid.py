@@ -197,6 +197,10 @@ GAUSS_NEWTON_STEPS = 6
 GAUSS_NEWTON_TOL = 1e-6
 """:func:`plain_fit` has converged when the chi-square the next Gauss-Newton step would remove is below this
 many reduced chi-squares: the step is under ``sqrt(1e-6)``, a thousandth of a standard error, in every direction."""
+AT_LIMIT_TOL = 1e-2
+"""A fit MINPACK stopped at its evaluation limit is at its minimum in fact when the next Gauss-Newton step would
+remove less than this many reduced chi-squares: the step is under a tenth of a standard error in every direction,
+so its numbers are the minimum's to the data's precision (:func:`plain_fit`)."""
 
 
 class Normal(NamedTuple):
@@ -298,8 +302,28 @@ def plain_fit(fun, x0: np.ndarray, jac, args=(), max_nfev: int = MAX_NFEV, norma
     nfev += int(info["nfev"])
     del info  # MINPACK's (m, k) work array
     r, j = fun(x, *args), jac(x, *args)
-    return OptimizeResult(x=x, fun=r, jac=j, chi2=float(r @ r), jtj=j.T @ j, success=status in (1, 2, 3, 4),
-                          message=message, nfev=nfev)
+    chi2, jtj = float(r @ r), j.T @ j
+    success = status in (1, 2, 3, 4)
+    if not success:  # stopped at its evaluation limit: at the minimum in fact, or still on its way?
+        message = _at_the_limit(message, chi2, jtj, j.T @ r, max(r.size - x.size, 1))
+        success = message.startswith("at its minimum")
+    return OptimizeResult(x=x, fun=r, jac=j, chi2=chi2, jtj=jtj, success=success, message=message, nfev=nfev)
+
+
+def _at_the_limit(message: str, chi2: float, jtj: np.ndarray, jtr: np.ndarray, dof: int) -> str:
+    """Words for a fit MINPACK stopped with ``message`` (its evaluation limit): "at its minimum ..." when the next
+    Gauss-Newton step would remove under :data:`AT_LIMIT_TOL` reduced chi-squares (under a tenth of a standard
+    error), else how far it still had to go."""
+    try:
+        drop = float(jtr @ cho_solve(cho_factor(jtj), jtr))
+    except ValueError:  # not positive definite, or non-finite: the minimum is not located
+        return f"{message}; its normal equations are singular there: no minimum located"
+    steps = np.sqrt(max(drop, 0.0) / max(chi2 / dof, 1e-300))  # the step's size in standard errors
+    if drop <= AT_LIMIT_TOL * chi2 / dof:
+        return (f"at its minimum, stopped at the evaluation limit ({message}): the next Gauss-Newton step moves it "
+                f"{steps:.2g} standard errors and removes {drop:.2g} of chi-square {chi2:.6g}")
+    return (f"{message}; the next Gauss-Newton step would still move it {steps:.3g} standard errors (chi-square "
+            f"{chi2:.6g} less {drop:.3g})")
 
 
 def robust_rows(n: int) -> slice:

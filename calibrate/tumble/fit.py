@@ -17,7 +17,7 @@ from ..noise import lattice_step, second_difference_sigma, second_differences
 from ..site_field import compare_with_site
 from .accelerometer import NoAccelCalibration, fit_accelerometer
 from .alignment import MAX_ANGLE_WIDENING, field_gravity_angles, fit_misalignment, refine_jointly, static_mask
-from .diagnosis import UNEXPLAINED_WARNING, diagnose_tumble
+from .diagnosis import NOT_CONVERGED_WARNING, UNEXPLAINED_WARNING, diagnose_tumble
 from .ellipsoid import fit_ellipsoid
 from .gyro import falls_back, with_gyro
 from .motion import fast_motion
@@ -198,12 +198,29 @@ def calibrate_tumble(mag: np.ndarray, accel: np.ndarray | None = None, *, ellips
                                     tuple(warnings + [axes.text]), axes.text, diagnosis, accelerometer=accel_cal,
                                     accelerometer_words=accel_words)
             warnings.append(axes.text)
+    warnings += not_converged(chosen, diagnosis)
     # the field changed partway: structure in |m| that no effect explains, and gravity agrees less with the result
     changed = diagnosis.block["unexplained"] and misalignment is not None
     refused = _widening(raw, accel, chosen.calibrated(mag), misalignment.rotation) if changed else ""
     return TumbleResult(chosen, candidates, coverage, misalignment, field_ut, noise, len(mag), n_repeats,
                         tuple(warnings + ([refused] if refused else [])), refused, diagnosis, accelerometer=accel_cal,
                         accelerometer_words=accel_words)
+
+
+def not_converged(fit, diagnosis) -> list[str]:
+    """The warning (one, or none) for a final fit that stopped short of its minimum: the file's ellipsoid ``fit`` (the
+    joint fit with the rotation to the housing, when made) or the diagnosis's final fit, whose statistics the report
+    prints.  A fit stopped at its evaluation limit at its minimum in fact is converged
+    (:func:`calibrate.tumble.ellipsoid.plain_fit`); one still moving is not, and its values and sigmas are not the
+    data's: the export refuses it (the production class ``not_converged``)."""
+    stats = diagnosis.statistics
+    stopped = [f"{what}: {message}" for what, ok, message in (
+        ("the ellipsoid", fit.success, fit.message), ("the diagnosis's final fit", stats.success, stats.message))
+        if not ok]
+    if not stopped:
+        return []
+    return [f"{NOT_CONVERGED_WARNING} ({'; '.join(stopped)}): its values are not at the data's minimum and their "
+            "sigmas do not hold; do not use it as it is"]
 
 
 COVERED_DEG = 10.0

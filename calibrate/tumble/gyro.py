@@ -125,7 +125,7 @@ from compass.filter import FilterConfig
 from ..diagnosis.forms import json_float
 from ..noise import robust_sigma, second_difference_sigma, second_differences
 from .alignment import Misalignment, field_gravity_angles, static_mask
-from .diagnosis import UNEXPLAINED_WARNING, diagnose_tumble
+from .diagnosis import NOT_CONVERGED_WARNING, UNEXPLAINED_WARNING, diagnose_tumble
 from .ellipsoid import MAX_RELATIVE_SIGMA, OUTLIER_SIGMAS, EllipsoidFit, plain_fit
 from .motion import FAST_MOTION_WARNING
 from .result import TumbleResult
@@ -1105,9 +1105,11 @@ def _result(final, cov, prob, inliers, noise, turns, n_w) -> GyroFit:
                    q[_Problem.N_GLOBAL:], sig_c)
 
 
-_SUPERSEDED = ("used the ", "no magnetometer-accelerometer rotation fitted", UNEXPLAINED_WARNING, FAST_MOTION_WARNING)
+_SUPERSEDED = ("used the ", "no magnetometer-accelerometer rotation fitted", UNEXPLAINED_WARNING, FAST_MOTION_WARNING,
+               NOT_CONVERGED_WARNING)
 """Warnings of the present fit that a determined gyro-aided fit answers (its kind, its withheld rotation,
-its residual's verdict, which is judged anew, the fast motion that withheld the rotation: the latency is fitted)."""
+its residual's verdict, which is judged anew, the fast motion that withheld the rotation: the latency is fitted;
+its convergence: the gyro-aided fit replaces it, and is used only converged)."""
 
 
 def falls_back(result: TumbleResult) -> bool:
@@ -1183,7 +1185,8 @@ def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_ra
     -------
     TumbleResult
         When the gyro-aided fit is determined: a ``full`` ellipsoid and the rotation to the housing
-        from it, the residual diagnosis of it (no effect is added: the gyro-aided model has none),
+        from it, the residual diagnosis of it as fitted (its own ``|m| - F``, not refitted to ``|m|`` alone; no
+        effect is added: the gyro-aided model has none),
         the coverage warning saying what the gyro determined, and ``gyro`` its block.  Otherwise
         ``result`` with a warning saying what stays undetermined even with the gyro.
     """
@@ -1207,7 +1210,7 @@ def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_ra
     still = still_mask(accel, turns_rad, t_s)[g.inliers]
     mis = misalignment_from(g, fit.calibrated(mag[g.inliers]), accel[g.inliers], still)
     diagnosis = diagnose_tumble(mag, fit, t_s=t_s, temp_c=temp_c, accel=accel, missing=result.coverage.missing,
-                                candidates=()).with_alignment(mis, fit)
+                                candidates=(), refit=False).with_alignment(mis, fit)
     superseded = _SUPERSEDED + ("incomplete coverage", f"the {result.ellipsoid} kind is poorly determined")
     kept = [w for w in result.warnings if not w.startswith(superseded)]
     words = [("incomplete coverage: " + result.coverage.words() + "; " if result.coverage.missing else "") + g.words()]

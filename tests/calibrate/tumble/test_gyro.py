@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from calibrate.tumble import TumbleCalibrator, calibrate_tumble
 from calibrate.tumble import gyro
+from calibrate.tumble.diagnosis import diagnose_tumble
 from calibrate.tumble.gyro import (_Problem, _robust_rows, _windows, falls_back, fit_with_gyro, turn_rates,
                                     with_gyro)
 from compass.cli import main
@@ -541,3 +542,35 @@ def test_a_trial_step_the_fit_rejects_leaves_no_window_half_a_turn_off():
     res = with_gyro(calibrate_tumble(mag, accel, t_s=t_s), mag, accel, turns, t_s)
     assert res.gyro["used"] and res.gyro["n_outliers"] == 0
     assert np.all(np.abs(res.hard_iron - sim.truth["hard_iron"]) < 4 * res.fit.hard_iron_sigma + 0.05)
+
+
+def test_the_diagnosis_of_a_gyro_aided_fit_is_of_that_fit_in_recording_units(tmp_path):
+    # 15 % of the sphere: |m| alone does not determine the full ellipsoid there; refitted to |m| alone from the gyro's
+    # point it grew without bound and its residual, scaled by the gyro fit's F, was reported as the base's
+    noise_ut = 0.3
+    sim = simulate_partial_tumble("fast_rotation", seed=3, coverage=0.15, noise_ut=noise_ut)
+    path, _ = write_partial_tumble(sim, tmp_path / "cap.csv")
+    res = TumbleCalibrator().fit(read_tumble(path))
+    assert res.gyro["used"]
+    block = res.diagnosis.block
+    fit = res.fit
+    own = float(np.sqrt(np.mean(fit.residuals[fit.inliers] ** 2)))  # |S (x - h)| - F of the fit the file holds
+    # one residual: the rotation to the housing leaves |m| as it is, so before and after are the same number
+    assert block["residual_rms_before"] == pytest.approx(own, rel=1e-9)
+    assert block["residual_rms_after"] == pytest.approx(own, rel=1e-9)
+    # at the injected noise: the rms of ~300 residuals is within 5 of its sigmas (1 / sqrt(2 n)) of it
+    n = int(np.count_nonzero(fit.inliers))
+    assert abs(own / noise_ut - 1.0) < 5.0 / np.sqrt(2.0 * n)
+    assert abs(block["noise_floor"] / noise_ut - 1.0) < 0.2
+    stats = res.statistics
+    assert stats.success, stats.message
+    assert abs(stats.reduced_chi2 - 1.0) < 5.0 * np.sqrt(2.0 / stats.dof)
+    assert block["unexplained"] is False
+    assert block["steps"][0]["refitted"] is False and "not refitted to |m|" in res.report()
+
+
+def test_a_fit_diagnosed_as_it_is_tries_no_effect(partial):
+    sim, _ = partial
+    fit = calibrate_tumble(sim.mag, sim.accel).fit
+    with pytest.raises(ValueError, match="refit=False"):
+        diagnose_tumble(sim.mag, fit, candidates=("offset_drift",), refit=False)

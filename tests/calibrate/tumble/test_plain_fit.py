@@ -109,3 +109,18 @@ def test_gauss_newton_on_the_normal_equations_reaches_the_same_optimum():
     sigma = np.sqrt(np.diag(fit_covariance(tall, len(y))))
     assert np.max(np.abs(summed.x - tall.x) / sigma) < 1e-9
     np.testing.assert_allclose(fit_covariance(summed, len(y)), fit_covariance(tall, len(y)), rtol=1e-9)
+
+
+def test_a_fit_stopped_at_its_evaluation_limit_is_judged_by_the_step_left(monkeypatch):
+    """MINPACK stopped by ``max_nfev``: converged in fact when the next Gauss-Newton step moves it under a tenth of a
+    standard error (its numbers are the minimum's to the data's precision), not converged when it still had far to go."""
+    y = _problem()
+    best = _minpack(y, np.zeros(9))
+    sigma = np.sqrt(np.diag(fit_covariance(plain_fit(radial_residual, best, radial_jacobian, args=("full", y)), len(y))))
+    monkeypatch.setattr(ellipsoid, "GAUSS_NEWTON_STEPS", 0)  # MINPACK from the start
+    near = plain_fit(radial_residual, best + 0.05 * sigma, radial_jacobian, args=("full", y), max_nfev=2)
+    far = plain_fit(radial_residual, np.zeros(9), radial_jacobian, args=("full", y), max_nfev=1)
+    assert near.success and near.message.startswith("at its minimum, stopped at the evaluation limit"), near.message
+    assert np.max(np.abs(near.x - best) / sigma) < 0.1
+    assert not far.success and "maxfev" in far.message and "would still move it" in far.message, far.message
+    assert np.max(np.abs(far.x - best) / sigma) > 1.0

@@ -174,3 +174,25 @@ def test_uncalibrated_accelerometer_alone_does_not_refuse_a_right_calibration():
     fitted = np.std(field_gravity_angles(res.calibrated(sim.mag)[static], sim.tilt[static]))
     assert fitted > 1.05 * raw and not res.diagnosis.block["unexplained"]
     assert not res.refused
+
+
+def test_a_final_fit_that_did_not_converge_is_a_warning_the_export_refuses(monkeypatch):
+    from calibrate.tumble import diagnosis
+    from compass.production.figures import classify_warning
+
+    fitted = diagnosis.plain_fit
+
+    def stopped(*args, **kwargs):  # the diagnosis's fit, stopped still on its way
+        res = fitted(*args, **kwargs)
+        res.success, res.message = False, ("Number of calls to function has reached maxfev = 1000.; the next "
+                                           "Gauss-Newton step would still move it 3 standard errors")
+        return res
+
+    sim = simulate_tumble(seed=1, n=1500)
+    assert not any(w.startswith(diagnosis.NOT_CONVERGED_WARNING) for w in calibrate_tumble(sim.mag, sim.accel).warnings)
+    monkeypatch.setattr(diagnosis, "plain_fit", stopped)
+    res = calibrate_tumble(sim.mag, sim.accel)
+    words = [w for w in res.warnings if w.startswith(diagnosis.NOT_CONVERGED_WARNING)]
+    assert len(words) == 1 and "maxfev = 1000" in words[0], res.warnings
+    assert classify_warning(words[0]) == "not_converged"
+    assert words[0] in res.to_json()["warnings"] and "not converged" in res.report()
