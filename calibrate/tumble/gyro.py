@@ -312,11 +312,19 @@ class GyroFit:
     widened_covariance: np.ndarray | None = None
 
     def widened(self) -> "GyroFit":
-        """This fit with every sigma from :attr:`widened_covariance` (the parameters, and what is determined, as they
-        are: the widening covers structure the model lacks, it adds no information); itself without one."""
+        """This fit with the magnetometer's sigmas from :attr:`widened_covariance` (the parameters, and what is
+        determined, as they are: the widening covers structure the model lacks, it adds no information); itself
+        without one.
+
+        The gyro's own sigmas (bias, latency, matrix) and the accelerometer's stay the naive ones: the structure is
+        the field's (``|m| - F``, :func:`calibrate.tumble.diagnosis.diagnose_tumble`), and the runtime reads the gyro
+        block's sigmas as the gyro's scale error (:func:`compass.calibration.gyro_scale_error`), which a widening
+        here would change in the filter without a benchmark of it."""
         if self.params is None or self.widened_covariance is None:
             return self
-        return replace(self, covariance=self.widened_covariance, **_sigmas(self.params, self.widened_covariance))
+        wide = _sigmas(self.params, self.widened_covariance)
+        return replace(self, covariance=self.widened_covariance,
+                       **{k: v for k, v in wide.items() if k in _MAGNETIC_SIGMAS})
 
     @property
     def latency_known(self) -> bool:
@@ -1119,6 +1127,10 @@ def _unpack(q):
     f_norm = np.cbrt(np.linalg.det(d))
     c, s = polar(f_norm * np.linalg.inv(d))
     return q[9:12], (s + s.T) / 2.0, float(f_norm), c, float(q[12])
+
+
+_MAGNETIC_SIGMAS = ("hard_iron_sigma", "soft_iron_sigma", "field_norm_sigma", "rotvec_sigma_deg", "dip_sigma_deg")
+"""The sigmas :meth:`GyroFit.widened` takes from the widened covariance."""
 
 
 def _sigmas(q: np.ndarray, cov: np.ndarray | None) -> dict:
