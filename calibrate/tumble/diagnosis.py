@@ -92,7 +92,7 @@ from .alignment import MAX_ANGLE_WIDENING, Misalignment, field_gravity_angles, s
 from .ellipsoid import EllipsoidFit, fit_covariance, plain_fit, propagate, radial_jacobian, shape_matrix, sym_sqrt
 
 __all__ = ["TumbleEffect", "TUMBLE_FORMS", "TumbleDiagnosis", "NOT_CONVERGED_WARNING", "UNEXPLAINED_WARNING",
-           "diagnose_tumble",
+           "diagnose_tumble", "unexplained_cost",
            "ellipsoid_parameter_names", "radial_noise_floor", "residual_structure"]
 
 _AXES = ("mx", "my", "mz")
@@ -704,12 +704,16 @@ def residual_structure(weighted: np.ndarray, directions: np.ndarray, bands) -> t
     return drop, int(rank), chi2_sf(drop, rank)
 
 
-def _cost(naive_sigma: np.ndarray, wide_sigma: np.ndarray) -> dict:
-    """The diagnosis's ``unexplained_cost``: the hard iron's sigma per axis, naive and widened (recording units)."""
+_COST_METHOD = (f"a hard-iron walk between {TIME_BLOCKS} blocks of consecutive samples propagated to the fit, "
+                "the CR2 sandwich over them for the rest (calibrate.diagnosis.blocks)")
+
+
+def unexplained_cost(naive_sigma: np.ndarray, wide_sigma: np.ndarray, method: str = _COST_METHOD) -> dict:
+    """The diagnosis's ``unexplained_cost``: the hard iron's sigma per axis, naive and widened (recording units), and
+    how it was widened (``method``, in words)."""
     return {"hard_iron": {ax: {"naive": float(a), "widened": float(b)}
                           for ax, a, b in zip(_AXES, naive_sigma, wide_sigma)},
-            "method": f"a hard-iron walk between {TIME_BLOCKS} blocks of consecutive samples propagated to the fit, "
-                      "the CR2 sandwich over them for the rest (calibrate.diagnosis.blocks)"}
+            "method": method}
 
 
 def _with_heading(cost: dict, field_norm: float, dip_deg: float) -> dict:
@@ -845,7 +849,7 @@ def diagnose_tumble(mag: np.ndarray, fit: EllipsoidFit, *, t_s: np.ndarray | Non
         final_fit = replace(fit, hard_iron_sigma=np.fmax(sig_h, fit.hard_iron_sigma),
                             soft_iron_sigma=np.fmax(sig_s, fit.soft_iron_sigma),
                             field_norm_sigma=float(np.fmax(sig_f, fit.field_norm_sigma)))
-        cost = _cost(fit.hard_iron_sigma, final_fit.hard_iron_sigma)
+        cost = unexplained_cost(fit.hard_iron_sigma, final_fit.hard_iron_sigma)
     if current.effects:
         k = model.k
         h, sig_h, s_mat, sig_s, f_norm, sig_f = propagate(fit.ellipsoid, current.x[:k], covariance,

@@ -122,10 +122,12 @@ from scipy.special import chdtri
 from compass.calibration import MAX_GYRO_MATRIX_ERROR, gyro_matrix_mismatch, gyro_matrix_seen, latency_seen
 from compass.filter import FilterConfig
 
+from ..diagnosis.blocks import TIME_BLOCKS, time_blocks, widened_in_time
+from ..diagnosis.robust import extra_sigma
 from ..diagnosis.forms import json_float
 from ..noise import robust_sigma, second_difference_sigma, second_differences
 from .alignment import Misalignment, field_gravity_angles, static_mask
-from .diagnosis import NOT_CONVERGED_WARNING, UNEXPLAINED_WARNING, diagnose_tumble
+from .diagnosis import NOT_CONVERGED_WARNING, UNEXPLAINED_WARNING, diagnose_tumble, unexplained_cost as diagnosis_cost
 from .ellipsoid import MAX_RELATIVE_SIGMA, OUTLIER_SIGMAS, EllipsoidFit, plain_fit
 from .motion import FAST_MOTION_WARNING
 from .result import TumbleResult
@@ -267,6 +269,14 @@ class GyroFit:
     message : str
     accel, accel_sigma : ndarray, shape (k,)
         The accelerometer's parameters fitted beside (``accel_change`` of :func:`fit_with_gyro`; empty without).
+    params : ndarray, shape (26 + k,) or None
+        The global parameters (:class:`_Problem`: ``D`` row-major, ``h``, ``delta`` rad, ``beta`` rad/s, ``tau`` s,
+        ``G - I`` row-major, the accelerometer's ``c``).
+    covariance : ndarray, shape (26 + k, 26 + k) or None
+        Their covariance, the windows' orientations marginalised (the sigmas above; None: singular).
+    widened_covariance : ndarray, shape (26 + k, 26 + k) or None
+        The same grown to cover structure in the residual that changes with time (:func:`_widened_covariance`): what
+        :meth:`widened` states when the diagnosis finds the residual unexplained.
     """
 
     hard_iron: np.ndarray
@@ -297,6 +307,24 @@ class GyroFit:
     message: str
     accel: np.ndarray = field(default_factory=lambda: np.zeros(0))
     accel_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    params: np.ndarray | None = None
+    covariance: np.ndarray | None = None
+    widened_covariance: np.ndarray | None = None
+
+    def widened(self) -> "GyroFit":
+        """This fit with the magnetometer's sigmas from :attr:`widened_covariance` (the parameters, and what is
+        determined, as they are: the widening covers structure the model lacks, it adds no information); itself
+        without one.
+
+        The gyro's own sigmas (bias, latency, matrix) and the accelerometer's stay the naive ones: the structure is
+        the field's (``|m| - F``, :func:`calibrate.tumble.diagnosis.diagnose_tumble`), and the runtime reads the gyro
+        block's sigmas as the gyro's scale error (:func:`compass.calibration.gyro_scale_error`), which a widening
+        here would change in the filter without a benchmark of it."""
+        if self.params is None or self.widened_covariance is None:
+            return self
+        wide = _sigmas(self.params, self.widened_covariance)
+        return replace(self, covariance=self.widened_covariance,
+                       **{k: v for k, v in wide.items() if k in _MAGNETIC_SIGMAS})
 
     @property
     def latency_known(self) -> bool:
@@ -993,7 +1021,54 @@ def fit_with_gyro(mag, accel, turns_rad, t_s, *, hard_iron, soft_iron, field_nor
     kept, used = _on_rows(prob, t_s, rate, np.flatnonzero(inliers), f_scale=None, keep_a=keep_a)
     final = plain_fit(kept.residual, robust.x, kept.jacobian, max_nfev=MAX_NFEV)
     chi2 = float(final.fun @ final.fun) / max(final.fun.size - final.x.size - 3 * len(used), 1)  # and the windows'
-    return _result(final, _global_covariance(final.jac, chi2), kept, inliers, noise, turns, n_w=len(used))
+    cov = _global_covariance(final.jac, chi2)
+    wide = None if cov is None else _widened_covariance(final, kept, t_s[inliers], cov / chi2, cov)
+    return _result(final, cov, kept, inliers, noise, turns, n_w=len(used), widened_cov=wide)
+
+
+def _widened_covariance(final, prob: _Problem, t_s: np.ndarray, bread: np.ndarray, naive: np.ndarray) -> np.ndarray:
+    r"""The global parameters' covariance grown to cover structure in the residual that changes with time.
+
+    The plain fit's residual ``r`` (in noise sigmas: the magnetometer's ``3 n`` rows, the still accelerometer's
+    ``3 n_s``, then the priors') and its reduced Jacobian ``J`` (the windows' orientations projected out,
+    :class:`_Problem`) are those of a least squares in the global parameters alone, so a structure ``s`` in the data
+    rows the model lacks moves them by ``B J^T s`` (``B = (J^T J)^{-1}``, every row's, the priors' too: they inform the
+    parameters, they carry no structure).  The naive covariance takes ``s`` for white noise.  Here the rows are
+    clustered in :data:`~calibrate.diagnosis.blocks.TIME_BLOCKS` blocks of consecutive samples (a sample's three
+    magnetometer rows and its accelerometer rows share its block) and the covariance is the naive one grown to the CR2
+    sandwich over them (:func:`~calibrate.diagnosis.blocks.widened_in_time` without ``hard``).  A window's rows are
+    tied by its orientation, solved on them; the windows (``WINDOW_S``, 10 s at most) are short beside a block (an
+    eighth of the recording), so few cross a block's border.
+
+    The hard-iron walk model of :mod:`calibrate.diagnosis.blocks` is not used: its competitor, a level per block of
+    each sort of row, is the radial residual's (a field whose size changed); in this vector residual a world field
+    that wanders is turned with the housing, which a block that sees a narrow band of orientations cannot tell from
+    a hard iron's level, and the walk model took it for one.  Measured on a simulated 60 s fast tumble with the gyro
+    (seeds 0-7, a smooth random walk of 1 uT rms added): with a hard iron walking, the hard iron's error over its
+    sigma had an rms of 10 naive, 1.5 with the walk model, 0.6 with CR2 alone; with the world field wandering, 20,
+    4.2 and 1.8.  CR2 over blocks treats the blocks as independent; a wander over the whole session is not, and there
+    it errs low (:mod:`calibrate.diagnosis.blocks`).
+
+    Parameters
+    ----------
+    final : OptimizeResult
+        The plain fit on ``prob`` (``fun``, ``jac``).
+    prob : _Problem
+        The inliers' problem.
+    t_s : ndarray, shape (n,)
+        Its samples' times, s.
+    bread, naive : ndarray, shape (k, k)
+        ``(J^T J)^{-1}`` and the fit's covariance (the bread scaled by its chi-square).
+
+    Returns
+    -------
+    ndarray, shape (k, k)
+    """
+    n, n_s = len(prob.mag), len(prob.static)
+    n_data = 3 * (n + n_s)
+    block = time_blocks(t_s)
+    blocks = np.concatenate([np.repeat(block, 3), np.repeat(block[prob.static], 3)])
+    return widened_in_time(final.jac[:n_data], final.fun[:n_data], blocks, naive, bread=bread)
 
 
 def _robust_rows(window: np.ndarray) -> np.ndarray:
@@ -1054,7 +1129,39 @@ def _unpack(q):
     return q[9:12], (s + s.T) / 2.0, float(f_norm), c, float(q[12])
 
 
-def _result(final, cov, prob, inliers, noise, turns, n_w) -> GyroFit:
+_MAGNETIC_SIGMAS = ("hard_iron_sigma", "soft_iron_sigma", "field_norm_sigma", "rotvec_sigma_deg", "dip_sigma_deg")
+"""The sigmas :meth:`GyroFit.widened` takes from the widened covariance."""
+
+
+def _sigmas(q: np.ndarray, cov: np.ndarray | None) -> dict:
+    """The stated sigmas of :class:`GyroFit` from the global parameters ``q`` and their covariance (None:
+    singular, every sigma infinite): ``S``, ``F`` and the rotation to the housing through :func:`_unpack`'s
+    derivatives by ``D``, the others read off the diagonal."""
+    h, s, f_norm, c, delta = _unpack(q)
+    if cov is None:
+        return dict(hard_iron_sigma=np.full(3, np.inf), soft_iron_sigma=np.full((3, 3), np.inf),
+                    field_norm_sigma=np.inf, rotvec_sigma_deg=np.full(3, np.inf), dip_sigma_deg=np.inf,
+                    gyro_bias_sigma_rad_s=np.full(3, np.inf), latency_sigma_s=np.inf,
+                    gyro_matrix_sigma=np.full((3, 3), np.inf), accel_sigma=np.full(len(q) - _Problem.N_GLOBAL, np.inf))
+    rot = Rotation.from_matrix(c)
+    grads = np.empty((9 + 1 + 3, 9))  # d(S, F, rotvec) / d(D)
+    for j in range(9):
+        step = np.zeros_like(q)
+        step[j] = 1e-7 * max(abs(q[j]), f_norm)
+        _, s_j, f_j, c_j, _ = _unpack(q + step)
+        grads[:9, j] = (s_j - s).ravel() / step[j]
+        grads[9, j] = (f_j - f_norm) / step[j]
+        grads[10:, j] = (Rotation.from_matrix(c_j) * rot.inv()).as_rotvec() / step[j]
+    var = np.einsum("ij,jk,ik->i", grads, cov[:9, :9], grads)
+    sig = np.sqrt(np.clip(var, 0, None))
+    diag = np.clip(np.diag(cov), 0, None)
+    return dict(hard_iron_sigma=np.sqrt(diag[9:12]), soft_iron_sigma=sig[:9].reshape(3, 3), field_norm_sigma=float(sig[9]),
+                rotvec_sigma_deg=np.degrees(sig[10:]), dip_sigma_deg=float(np.degrees(np.sqrt(diag[12]))),
+                gyro_bias_sigma_rad_s=np.sqrt(diag[13:16]), latency_sigma_s=float(np.sqrt(diag[16])),
+                gyro_matrix_sigma=np.sqrt(diag[17:26]).reshape(3, 3), accel_sigma=np.sqrt(diag[_Problem.N_GLOBAL:]))
+
+
+def _result(final, cov, prob, inliers, noise, turns, n_w, widened_cov=None) -> GyroFit:
     q = final.x
     h, s, f_norm, c, delta = _unpack(q)
     rot = Rotation.from_matrix(c)
@@ -1063,29 +1170,8 @@ def _result(final, cov, prob, inliers, noise, turns, n_w) -> GyroFit:
     message = str(final.message) if right_handed else "the response has a negative determinant: a reversed axis"
     n_mag = 3 * len(prob.mag)
     mag_rms = float(np.sqrt(np.mean((final.fun[:n_mag] * prob.sigma_m) ** 2)))
-    if cov is None:
-        sig_h, sig_s, sig_f, sig_rot, sig_dip = (np.full(3, np.inf), np.full((3, 3), np.inf), np.inf,
-                                                 np.full(3, np.inf), np.inf)
-        sig_beta, sig_tau, sig_g = np.full(3, np.inf), np.inf, np.full((3, 3), np.inf)
-        sig_c = np.full(len(q) - _Problem.N_GLOBAL, np.inf)
-    else:
-        sig_h = np.sqrt(np.clip(np.diag(cov)[9:12], 0, None))
-        sig_dip = float(np.degrees(np.sqrt(max(cov[12, 12], 0.0))))
-        sig_beta = np.sqrt(np.clip(np.diag(cov)[13:16], 0, None))
-        sig_tau = float(np.sqrt(max(cov[16, 16], 0.0)))
-        sig_g = np.sqrt(np.clip(np.diag(cov)[17:26], 0, None)).reshape(3, 3)
-        sig_c = np.sqrt(np.clip(np.diag(cov)[_Problem.N_GLOBAL:], 0, None))
-        grads = np.empty((9 + 1 + 3, 9))  # d(S, F, rotvec) / d(D)
-        for j in range(9):
-            step = np.zeros_like(q)
-            step[j] = 1e-7 * max(abs(q[j]), f_norm)
-            _, s_j, f_j, c_j, _ = _unpack(q + step)
-            grads[:9, j] = (s_j - s).ravel() / step[j]
-            grads[9, j] = (f_j - f_norm) / step[j]
-            grads[10:, j] = (Rotation.from_matrix(c_j) * rot.inv()).as_rotvec() / step[j]
-        var = np.einsum("ij,jk,ik->i", grads, cov[:9, :9], grads)
-        sig = np.sqrt(np.clip(var, 0, None))
-        sig_s, sig_f, sig_rot = sig[:9].reshape(3, 3), float(sig[9]), np.degrees(sig[10:])
+    sigmas = _sigmas(q, cov)
+    sig_h, sig_s, sig_rot = sigmas["hard_iron_sigma"], sigmas["soft_iron_sigma"], sigmas["rotvec_sigma_deg"]
     undetermined = []
     bad_h = [_AXES[i] for i in range(3) if not sig_h[i] <= MAX_RELATIVE_SIGMA * f_norm]
     if bad_h:
@@ -1098,11 +1184,12 @@ def _result(final, cov, prob, inliers, noise, turns, n_w) -> GyroFit:
     if bad_r:
         undetermined.append(f"the rotation to the housing about {', '.join(bad_r)} (sigma up to "
                             f"{np.max(sig_rot):.2g} deg)")
-    return GyroFit(h, sig_h, s, sig_s, f_norm, sig_f, rot, np.degrees(rot.as_rotvec()), sig_rot,
-                   float(np.degrees(delta)), sig_dip, q[13:16], sig_beta, float(q[16]), sig_tau,
-                   np.eye(3) + q[17:26].reshape(3, 3), sig_g, n_w, len(prob.static),
+    return GyroFit(h, sig_h, s, sig_s, f_norm, sigmas["field_norm_sigma"], rot, np.degrees(rot.as_rotvec()), sig_rot,
+                   float(np.degrees(delta)), sigmas["dip_sigma_deg"], q[13:16], sigmas["gyro_bias_sigma_rad_s"],
+                   float(q[16]), sigmas["latency_sigma_s"], np.eye(3) + q[17:26].reshape(3, 3),
+                   sigmas["gyro_matrix_sigma"], n_w, len(prob.static),
                    inliers, mag_rms, float(noise), tuple(undetermined), turn_axes(turns[inliers]), success, message,
-                   q[_Problem.N_GLOBAL:], sig_c)
+                   q[_Problem.N_GLOBAL:], sigmas["accel_sigma"], np.array(q, dtype=float), cov, widened_cov)
 
 
 _SUPERSEDED = ("used the ", "no magnetometer-accelerometer rotation fitted", UNEXPLAINED_WARNING, FAST_MOTION_WARNING,
@@ -1110,6 +1197,19 @@ _SUPERSEDED = ("used the ", "no magnetometer-accelerometer rotation fitted", UNE
 """Warnings of the present fit that a determined gyro-aided fit answers (its kind, its withheld rotation,
 its residual's verdict, which is judged anew, the fast motion that withheld the rotation: the latency is fitted;
 its convergence: the gyro-aided fit replaces it, and is used only converged)."""
+
+
+def _unexplained_cost(naive: GyroFit, wide: GyroFit) -> dict:
+    """The diagnosis's ``unexplained_cost`` of a gyro-aided fit: the hard iron's sigma per axis (recording units) and
+    the rotation to the housing's per component (the field's direction in the housing, deg), naive and widened
+    (the heading's is added once the dip is known, :meth:`~calibrate.tumble.diagnosis.TumbleDiagnosis.with_alignment`)."""
+    names = [f"mag_to_accel.{a}" for a in _AXES]
+    cost = diagnosis_cost(naive.hard_iron_sigma, wide.hard_iron_sigma, method=(
+        f"the gyro-aided fit's own residual (magnetometer and still accelerometer rows) in {TIME_BLOCKS} blocks of "
+        "consecutive samples, the CR2 sandwich over them (calibrate.tumble.gyro)"))
+    return dict(cost, direction_deg=dict(zip(names, map(float, extra_sigma(wide.rotvec_sigma_deg, naive.rotvec_sigma_deg)))),
+                direction_sigma_deg={k: {"naive": float(a), "widened": float(b)}
+                                     for k, a, b in zip(names, naive.rotvec_sigma_deg, wide.rotvec_sigma_deg)})
 
 
 def falls_back(result: TumbleResult) -> bool:
@@ -1208,9 +1308,17 @@ def with_gyro(result: TumbleResult, mag: np.ndarray, accel: np.ndarray, turns_ra
                        gyro=dict(block, used=False))
     fit = ellipsoid_from(g, start, mag)
     still = still_mask(accel, turns_rad, t_s)[g.inliers]
-    mis = misalignment_from(g, fit.calibrated(mag[g.inliers]), accel[g.inliers], still)
     diagnosis = diagnose_tumble(mag, fit, t_s=t_s, temp_c=temp_c, accel=accel, missing=result.coverage.missing,
-                                candidates=(), refit=False).with_alignment(mis, fit)
+                                candidates=(), refit=False)
+    if diagnosis.block["unexplained"] and g.widened_covariance is not None:  # the sigmas grow to cover the structure
+        naive, g = g, g.widened()
+        fit = ellipsoid_from(g, start, mag)
+        diagnosis = replace(diagnosis, fit=fit, block=dict(
+            diagnosis.block, hard_iron_change=dict(diagnosis.block["hard_iron_change"], sigma=g.hard_iron_sigma.tolist()),
+            unexplained_cost=_unexplained_cost(naive, g)))
+        block = g.to_json()
+    mis = misalignment_from(g, fit.calibrated(mag[g.inliers]), accel[g.inliers], still)
+    diagnosis = diagnosis.with_alignment(mis, fit)
     superseded = _SUPERSEDED + ("incomplete coverage", f"the {result.ellipsoid} kind is poorly determined")
     kept = [w for w in result.warnings if not w.startswith(superseded)]
     words = [("incomplete coverage: " + result.coverage.words() + "; " if result.coverage.missing else "") + g.words()]
