@@ -125,7 +125,8 @@ def flip_azimuths(platform_deg, flip_index, outputs) -> FlipAzimuths | None:
 
 def zero_off_words(path, azimuths: FlipAzimuths) -> str | None:
     """Words naming the flip(s) whose azimuth is off the others' (beyond both thresholds), else None (also when the
-    azimuths do not explain the harmonics: :data:`MAX_REDUCED_CHI2`).
+    azimuths do not explain the harmonics: :data:`MAX_REDUCED_CHI2`, and when every flip is within the thresholds of
+    flip 0's: the diagnosis's ``turntable_zero`` fits those from zero, two flips 8 deg off either way included).
 
     The others are the largest group that agree among themselves; with no group of three, every pair
     that disagrees is named.
@@ -135,7 +136,7 @@ def zero_off_words(path, azimuths: FlipAzimuths) -> str | None:
     a, s = azimuths.azimuth_deg, azimuths.sigma_deg
     diff = np.mod(a[:, None] - a[None, :] + 180.0, 360.0) - 180.0
     off = (np.abs(diff) > ZERO_OFF_DEG) & (np.abs(diff) > ZERO_OFF_SIGMAS * np.hypot(s[:, None], s[None, :]))
-    if not off.any():
+    if not off[0].any():  # each flip's zero within reach of flip 0's, where the diagnosis's turntable_zero starts
         return None
     flips = (0, 90, 180, 270)
     agree = (~off).sum(axis=1)  # how many flips (itself included) each agrees with

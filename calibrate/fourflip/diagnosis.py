@@ -61,8 +61,8 @@ from ..diagnosis.robust import (BAND_P_VALUE, BLOCK_S, NULL_DRAWS, extra_sigma, 
 from .effects import VARIANTS, FourFlipEffect
 from ..noise import DITHER_FRACTION, chi2_sf, dithered, lattice_step, noise_floor
 
-__all__ = ["DECISIVE_BIC", "FORM_WARNING", "UNEXPLAINED_WARNING", "WANDER_WARNING", "diagnose_fourflip",
-           "examine_residual", "format_diagnosis", "platform_unseen_warning", "residual_structure",
+__all__ = ["DECISIVE_BIC", "FEW_CHANNELS_WARNING", "FORM_WARNING", "UNEXPLAINED_WARNING", "WANDER_WARNING",
+           "diagnose_fourflip", "examine_residual", "format_diagnosis", "platform_unseen_warning", "residual_structure",
            "unexplained_warning"]
 
 STRUCTURE_HARMONICS = 6
@@ -76,6 +76,11 @@ test it passes where one band's statistic is beyond every draw, ``(N_BANDS + 1) 
 UNEXPLAINED_WARNING = ("structure remains in the residual above the noise floor: the recording has an effect "
                        "the model lacks (see the diagnosis); the uncertainties are widened to cover it "
                        "(the diagnosis's unexplained_cost)")
+
+FEW_CHANNELS_WARNING = ("with fewer than three channels the bench cannot tell a flip's turntable zero (the cube set "
+                        "down turned, the table's zero moved) from a channel's direction, and a zero off by a few "
+                        "degrees turned a simulated channel's direction by up to 175 deg, beyond any widened sigma: "
+                        "check that every flip was set down square on one zero (calibrate.fourflip._phases)")
 
 FORM_WARNING = ("the fitted response's curve is not a form the model has (a general curve of each channel's "
                 "field follows it better; the rest of the residual is white): the file keeps the response the model "
@@ -116,6 +121,23 @@ def residual_structure(samples: BenchSamples, residuals: np.ndarray, noise: np.n
     return total, dof, chi2_sf(total, dof)
 
 
+def small_angles(p: Proposal) -> tuple[str | None, dict]:
+    """A veto (:data:`calibrate.diagnosis.evidence.Check`) of an effect of angles fitted beyond what a bench can
+    have (:attr:`~calibrate.fourflip.effects.FourFlipEffect.max_angle_deg`): a face tens of degrees off square, a
+    cube set down turned as far, is a fit trading its angles against the directions (one channel: a flip's
+    turntable zero against its direction), not a measurement of them."""
+    limit = p.effect.max_angle_deg
+    if limit is None:
+        return None, {}
+    _, values, _ = p.trial.effect_parameters(p.effect)
+    worst = float(np.max(np.abs(values)))
+    if worst <= limit:
+        return None, {}
+    return (f"its angles reach {worst:.1f} deg, beyond the {limit:g} deg a cube's faces or its setting down can be "
+            "off: the fit trades them against the directions (too few channels to tell them apart, or flips "
+            "mislabelled)"), {}
+
+
 def _pooled_rms(values: np.ndarray) -> float:
     return float(np.sqrt(np.mean(values**2)))
 
@@ -150,7 +172,8 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
     if noise is None:
         noise = noise_floor(rec.platform_deg, rec.flip_index, rec.outputs, lattice_step(rec.outputs))
     names = list(candidates) if candidates is not None else list(VARIANTS)
-    pool, skipped = gather_forms(names, VARIANTS, lambda e: e.applicable(samples))
+    pool, skipped = gather_forms(names, VARIANTS,
+                                 lambda e: e.applicable(samples) or e.too_few_channels(len(rec.channels)))
 
     say("fitting the base model")
     base = fit_ml(samples, rec.outputs, rec.channels, start, noise)
@@ -188,7 +211,8 @@ def diagnose_fourflip(rec: FourFlipRecording, start, noise: np.ndarray | None = 
         refit=refit, n_params=lambda e: e.n_params(len(rec.channels)), log_n=np.log(rec.outputs.size),
         base_step={"model": "base", "residual_rms": _pooled_rms(base.residuals), "chi2_per_dof": base.reduced_chi2},
         write_step=claim, verdict=lambda f: _verdict(samples, f, noise, judged),
-        checks=(response_form_check(noise, judged),), rejected_as=lambda e: e.name, progress=say, revise=revise,
+        checks=(small_angles, response_form_check(noise, judged)), rejected_as=lambda e: e.name, progress=say,
+        revise=revise,
         unclaimable=None if judged.all() else "the ADC's undithered rounding is structured by itself and may be it",
         quick_refit=quick_refit)
     current, steps, rejected, unexplained = chosen.fit, chosen.steps, chosen.not_claimed, chosen.unexplained

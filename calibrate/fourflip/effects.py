@@ -31,6 +31,7 @@ import numpy as np
 
 from compass.sim.bench import BenchPhysics, BenchSamples
 
+from ._phases import ZERO_OFF_DEG
 from ..effects import EffectForm, TemperatureForm, TimePolynomial, WarmUpForm, time_powers, warm_up_tau_s
 
 __all__ = ["FourFlipEffect", "EFFECTS", "VARIANTS", "effect_by_name"]
@@ -60,6 +61,14 @@ class FourFlipEffect(EffectForm):
     def report_scale(self, physics: BenchPhysics) -> np.ndarray | float:
         """Factor from fit parameters to the reported values (units in ``param_names``)."""
         return 1.0
+
+    max_angle_deg = None
+    """For an effect of angles (degrees): the largest a bench can have; a fit beyond it is not claimed
+    (:func:`calibrate.fourflip.diagnosis.small_angles`)."""
+
+    def too_few_channels(self, n_channels: int) -> str | None:
+        """Why a recording of ``n_channels`` cannot show the effect apart from the directions, else None."""
+        return None
 
     def reference(self, physics: BenchPhysics) -> dict:
         """Where the effect is zero, so where the file's responses hold (written with the effect)."""
@@ -161,6 +170,8 @@ class FlipError(FourFlipEffect):
     def report_scale(self, physics):
         return np.degrees(1.0)
 
+    max_angle_deg = ZERO_OFF_DEG
+
 
 class TurntableZero(FourFlipEffect):
     """Each flip's turntable zero differs from flip 0's: the true angle is ``platform_deg + D_k`` in flip k.
@@ -192,6 +203,14 @@ class TurntableZero(FourFlipEffect):
 
     def report_scale(self, physics):
         return np.degrees(1.0)
+
+    max_angle_deg = ZERO_OFF_DEG
+
+    def too_few_channels(self, n_channels):
+        if n_channels < 3:
+            return (f"with {n_channels} channel{'s' * (n_channels > 1)} a flip's zero trades against a direction: "
+                    "three or more tell them apart (calibrate.fourflip._phases)")
+        return None
 
 
 class PlatformField(FourFlipEffect):

@@ -36,7 +36,7 @@ from ._phases import flip_azimuths, zero_off_words
 from ..contract import Calibrator, CannotCalibrate, FitStatistics
 from ..health import AXIS_TOLERANCE_DEG, ChannelHealth, check_channels
 from ..health import to_json as health_json
-from .diagnosis import (UNEXPLAINED_WARNING, WANDER_WARNING, diagnose_fourflip, examine_residual,
+from .diagnosis import (FEW_CHANNELS_WARNING, UNEXPLAINED_WARNING, WANDER_WARNING, diagnose_fourflip, examine_residual,
                         platform_unseen_warning, unexplained_warning)
 from ..noise import SPIKE_SIGMAS, find_spikes, lattice_step, noise_floor, quantisation_note
 from .result import FourFlipResult, ChannelCalibration
@@ -290,7 +290,12 @@ def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progres
     start = physics_from_harmonics(rec, field_ut, dip_sign)
     if not diagnose:
         fit = fit_ml(samples, rec.outputs, rec.channels, start, noise)
-        return result_from_ml(fit, rec, noise, field_ut, samples=samples)
+        looked = examine_residual(samples, fit.residuals, noise)  # the diagnosis's yardstick, without its loop
+        warnings = ((f"the residual carries structure above the noise floor (chi2/dof {fit.reduced_chi2:.3g}, "
+                     f"structure test p = {looked['structure_test']['p_value']:.2g}): the recording has an effect the "
+                     "base model lacks, and these sigmas do not cover it; without --no-diagnose the diagnosis names "
+                     "it or widens them"),) if looked["unexplained"] else ()
+        return result_from_ml(fit, rec, noise, field_ut, samples=samples, extra_warnings=warnings)
     base, fit, diagnosis = diagnose_fourflip(rec, start, noise, progress=progress)
     effects = []
     for effect in fit.effects:
@@ -300,6 +305,8 @@ def _estimate(rec, samples, noise, method, field_ut, dip_sign, diagnose, progres
         reference = effect.reference(fit.physics)
         effects.append({**entry, "reference": reference} if reference else entry)
     warnings = (unexplained_warning(diagnosis),) if diagnosis["unexplained"] else ()
+    if diagnosis["unexplained"] and len(rec.channels) < 3:
+        warnings += (FEW_CHANNELS_WARNING,)
     if "wander_cost" in diagnosis:
         warnings += (WANDER_WARNING,)
     if "platform_field_unseen" in diagnosis:

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -182,6 +183,10 @@ class CsvDecoder(_FixedDecoder):
     """
 
     columns: tuple = ()
+    relayout: Callable[[str], tuple | None] | None = None
+    """Asked of a line of text where numbers should be: the columns it names when it is a log's header (a module
+    that sends its header again, in another order after a firmware change or restart), else None; without it such
+    a line is garbage (a header the user named away with ``--columns``)."""
 
     def __post_init__(self):
         super().__post_init__()
@@ -196,7 +201,15 @@ class CsvDecoder(_FixedDecoder):
         try:
             float(cells[0])
         except ValueError:
-            self.stats.garbage += 1  # text where numbers should be (a banner, a header the user named away)
+            columns = None if self.relayout is None else self.relayout(text)
+            if columns is None:
+                self.stats.garbage += 1  # text where numbers should be (a banner, a header the user named away)
+            else:
+                self.stats.headers += 1
+                if tuple(columns) != tuple(self.columns):  # the lines after it are read in its order
+                    self.columns, self.header, self.mismatch = tuple(columns), None, None
+                    self.layout = Layout.from_names(self.columns, self.channels)
+                    self._start()
             return None
         return cells
 

@@ -214,13 +214,14 @@ class LineStats:
 
 
 def line_text(line: bytes, stats) -> str | None:
-    """A line's ASCII text without surrounding space; None for a line longer than
-    :data:`MAX_LINE_BYTES` or not ASCII (counted in ``stats.garbage``) and "" for an empty one."""
+    """A line's text without surrounding space; None for a line longer than :data:`MAX_LINE_BYTES` or not UTF-8
+    (counted in ``stats.garbage``) and "" for an empty one.  UTF-8, not ASCII alone: a log's header names its
+    units so (``Gyroscope X (°/s)``, ``Magnetometer X (µT)``); a sample line's text is a number's or garbage."""
     if len(line) > MAX_LINE_BYTES:
         stats.garbage += 1
         return None
     try:
-        return line.decode("ascii").strip()
+        return line.decode("utf-8").strip()
     except UnicodeDecodeError:
         stats.garbage += 1
         return None

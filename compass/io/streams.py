@@ -494,6 +494,7 @@ class StreamDecoder:
             raise ValueError(f"unscaled channel(s) {', '.join(sorted(unknown))} are not among {', '.join(self.channels)}")
         self._field_unit = np.array([c not in set(unscaled) for c in self.channels])
         self.options = StreamOptions() if options is None else options
+        self._given = self.options  # what the user said (a log header's units are taken where it said none)
         self.stats = LineStats()
         self.events: list = []
         self.format: str | None = None
@@ -508,6 +509,7 @@ class StreamDecoder:
         self._held: list = []
         self._judge_at = JUDGE_SAMPLES
         self._factors = (1.0, 1.0, 1.0)
+        self._factors_before: dict = {}  # id(header) -> factors, of a chunk's samples read before a header came again
         self._accel_known = False
         self._accel: list = []
         self._gyro_rows: list = []
@@ -624,7 +626,7 @@ class StreamDecoder:
         kept = []
         for k, line in enumerate(lines):
             try:
-                text = line.decode("ascii").strip()
+                text = line.decode("utf-8").strip()  # a log's header may name its units so (deg as °, u as µ)
             except UnicodeDecodeError:
                 self.stats.garbage += 1
                 continue
@@ -667,25 +669,54 @@ class StreamDecoder:
 
     def _log_decided(self, names: tuple, named_units: dict, text: str, lines: list, tail: bytes) -> bytes:
         """A log's header line (``text``): its cells become the CSV's columns, and the units it names are the
-        stream's where the user named none (as the file readers read that header)."""
-        given = {kind: getattr(self.options, f"{kind}_unit") for kind in ("mag", "accel", "gyro")}
+        stream's where the user named none (as the file readers read that header); one sent again later is read
+        too (:meth:`_relayout`)."""
+        said = self._log_options(names, named_units)
+        pending = self._decided("csv", f"found from its log header {text[:60]!r}: columns {','.join(names)}"
+                                       + (f", {said} as it names them" if said else ""), lines, tail)
+        self._inner.relayout = self._relayout
+        return pending
+
+    def _log_options(self, names: tuple, named_units: dict) -> str:
+        """:attr:`options` with a log header's columns and units (a unit the user named wins); the units taken, in
+        words."""
+        given = {kind: getattr(self._given, f"{kind}_unit") for kind in ("mag", "accel", "gyro")}
         self.options = replace(self.options, columns=names,
                                **{f"{kind}_unit": given[kind] or named_units.get(kind) for kind in given})
-        said = ", ".join(f"{kind} in {unit}" for kind, unit in named_units.items() if given[kind] is None)
-        return self._decided("csv", f"found from its log header {text[:60]!r}: columns {','.join(names)}"
-                                    + (f", {said} as it names them" if said else ""), lines, tail)
+        return ", ".join(f"{kind} in {unit}" for kind, unit in named_units.items() if given[kind] is None)
+
+    def _relayout(self, text: str) -> tuple | None:
+        """A log's header sent again (:attr:`compass.io.fixed_lines.CsvDecoder.relayout`): its columns, its units
+        taken from here on (said when they changed); None for a line that is no log header."""
+        log = _log_header([c.strip() for c in text.split(",")])
+        if log is None:
+            return None
+        before = (self.options.columns, self._factors)
+        self._factors_before[id(self._inner.header)] = self._factors  # for the chunk's samples read before it
+        said = self._log_options(*log)
+        self._factors = self.options.factors(self.format)
+        if (self.options.columns, self._factors) != before:
+            self.events.append(("warn", f"the stream's log header came again with other columns or units: columns "
+                                        f"{','.join(log[0])}{', ' + said if said else ''}, read so from here on"))
+        return log[0]
 
     def _decided(self, fmt: str, how: str, lines: list, tail: bytes) -> bytes:
         self._adopt(fmt, how)
         self._pending = b""
         return b"".join(line + b"\n" for line in lines) + tail
 
+    def _scaled(self, s: Sample) -> Sample:
+        """A decoded sample in the toolkit's units: the factors of the header it was read under (one sent again
+        within the chunk changed them for the samples after it, :meth:`_relayout`)."""
+        mag, acc, gyr = self._factors_before.get(id(s.header), self._factors)
+        if (mag, acc, gyr) == (1.0, 1.0, 1.0):
+            return s
+        return replace(s, raw=s.raw * np.where(self._field_unit, mag, 1.0),
+                       accel=None if s.accel is None else s.accel * acc, gyro=None if s.gyro is None else s.gyro * gyr)
+
     def _out(self, samples: list, t_rx: float | None) -> list:
-        mag, acc, gyr = self._factors
-        if (mag, acc, gyr) != (1.0, 1.0, 1.0):
-            mag = np.where(self._field_unit, mag, 1.0)
-            samples = [replace(s, raw=s.raw * mag, accel=None if s.accel is None else s.accel * acc,
-                               gyro=None if s.gyro is None else s.gyro * gyr) for s in samples]
+        samples = [self._scaled(s) for s in samples]
+        self._factors_before.clear()  # the chunk's samples are scaled: its headers' ids may be reused
         self._observe(samples, t_rx)
         if self._fatal is not None:
             return []

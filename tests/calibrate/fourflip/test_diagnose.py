@@ -90,6 +90,27 @@ def test_a_flip_set_down_turned_is_fitted_not_widened(write_session, by_deg):
     _check_explained(result, truth)
 
 
+def test_one_channel_claims_no_flip_angles_and_says_what_it_cannot_tell(write_session):
+    """One channel cannot tell a flip's turntable zero from its direction: the effect is not examined, a flip_error
+    fitted to tens of degrees is not claimed, and the words say so (the direction came back 175 deg off, explained)."""
+    from calibrate.fourflip.diagnosis import FEW_CHANNELS_WARNING
+
+    rec, _ = write_session(seed=7, n_channels=1, effects=("turntable_zero",), effect_scale=5.0)
+    result = calibrate_fourflip(rec, diagnose=True)
+    d = result.diagnosis
+    assert "turntable_zero" in d["not_applicable"] and not {"turntable_zero", "flip_error"} & set(d["effects"])
+    assert d["unexplained"] is True and FEW_CHANNELS_WARNING in result.warnings
+    assert any(text.startswith("flip_error") and "beyond the 15 deg" in text for text in d["not_claimed"])
+
+
+def test_no_diagnose_says_structure_it_leaves(write_session):
+    rec, _ = write_session(seed=5)
+    moved = replace(rec, platform_deg=np.where(rec.flip_index == 1, rec.platform_deg + 14.0, rec.platform_deg))
+    result = calibrate_fourflip(moved, diagnose=False)
+    assert any(w.startswith("the residual carries structure above the noise floor") for w in result.warnings)
+    assert not any("carries structure" in w for w in calibrate_fourflip(rec, diagnose=False).warnings)
+
+
 def test_noise_floor_matches_injected_noise(write_session):
     from calibrate.noise import noise_floor
 

@@ -47,6 +47,19 @@ def test_a_flip_with_its_zero_off_is_refused_naming_it(write_session, flip, by_d
     assert "dead" not in str(info.value) and "subtract" in str(info.value)
 
 
+def test_two_flips_turned_either_way_within_reach_of_flip_0_are_fitted_not_refused(write_session):
+    """Flips 90 and 270 set down 8 deg either way are 16 deg apart but each within ZERO_OFF_DEG of flip 0, where the
+    diagnosis's turntable_zero starts: fitted (they were refused as 'flip 90 against flip 270')."""
+    rec, truth = write_session(seed=3)
+    moved = _zero_moved(_zero_moved(rec, 1, 8.0), 3, -8.0)
+    result = calibrate_fourflip(moved, diagnose=True)
+    assert result.diagnosis["effects"] == ["turntable_zero"] and result.diagnosis["unexplained"] is False
+    params = result.effects[0]["parameters"]
+    for name, by in (("flip90", 8.0), ("flip270", -8.0)):
+        p = params[f"{name}.turntable_zero_deg"]
+        assert abs(p["value"] + by) < PULL * p["sigma"]
+
+
 def test_with_an_accelerometer_too(write_session):
     rec, _ = write_session(seed=4, accelerometer=SimAccelerometer(misalign_deg=0.5))
     with pytest.raises(CannotCalibrate, match="flip 180's turntable angles are [+]90"):

@@ -182,6 +182,27 @@ def test_a_log_header_names_the_columns_and_their_units_as_the_file_readers_read
     assert d.format is None  # no magnetometer named: not a log header of ours (nothing adopted)
 
 
+def test_a_log_header_sent_again_in_another_order_is_read_from_there_and_unicode_units_are_read():
+    """A module that restarts with other firmware sends its header again, mag before gyro: the lines after it are
+    read in its order (they were read in the old one, 105 deg RMS of heading off); units written with ° and µ are
+    read as the file readers read them."""
+    first = "Time (s),Gyroscope X (°/s),Gyroscope Y (°/s),Gyroscope Z (°/s),Magnetometer X (µT),Magnetometer Y (µT)," \
+            "Magnetometer Z (µT)\r\n"
+    again = "Time (s),Magnetometer X (mG),Magnetometer Y (mG),Magnetometer Z (mG),Gyroscope X (°/s)," \
+            "Gyroscope Y (°/s),Gyroscope Z (°/s)\r\n"
+    d = StreamDecoder(CHANNELS)
+    out = d.feed((first + "0.0,90,0,0,20,0,-40\r\n" + again + "0.01,200,0,-400,0,90,0\r\n").encode("utf-8"))
+    assert d.format == "csv" and len(out) == 2 and d.stats.garbage == 0
+    np.testing.assert_allclose(out[0].gyro, [np.pi / 2, 0.0, 0.0])
+    np.testing.assert_allclose(out[1].gyro, [0.0, np.pi / 2, 0.0])
+    np.testing.assert_allclose(out[0].raw, [20.0, 0.0, -40.0])
+    np.testing.assert_allclose(out[1].raw, [20.0, 0.0, -40.0])  # 200 mG is 20 uT
+    assert any(level == "warn" and "log header came again" in t for level, t in d.drain_events())
+    d = StreamDecoder(CHANNELS)
+    d.feed((first + "0.0,90,0,0,20,0,-40\r\n" + first + "0.01,90,0,0,20,0,-40\r\n").encode("utf-8"))
+    assert not any("came again" in t for _, t in d.drain_events()) and d.stats.garbage == 0  # the same: no word
+
+
 def test_named_units_are_converted():
     d = StreamDecoder(CHANNELS, StreamOptions(columns=("mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz"),
                                               mag_unit="mG", accel_unit="m/s2", gyro_unit="deg/s"))
