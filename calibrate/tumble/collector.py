@@ -150,6 +150,9 @@ class TumbleCollector:
         self._offset_s = 0.0  # added to the module's time since its last restart, s
         self._last_rx = 0.0
         self._clock = SampleClock()  # dates the samples of a stream without t_s, as compass live does
+        self._streamed = 0  # rows written by stream_rows
+        self._stream_columns = None  # the columns stream_rows writes (those of the first sample)
+        self._stream_clock = None  # the clock words stream_rows said last
 
     def feed(self, item) -> list:
         """Take one item of :meth:`SerialReader.items`; returns the decoder's events (level, text)."""
@@ -288,6 +291,39 @@ class TumbleCollector:
             said.append(f"{n} sample{'s' * (n > 1)} left out for a time out of step with the module's clock (a "
                         f"corrupted value, not a restart), {at}")
         return "; ".join(said) if said else None
+
+    def stream_rows(self, out) -> int:
+        """The rows recorded since the last call, to the text stream ``out`` as a tumble recording is written as it
+        grows; returns the rows written so far.
+
+        The first call writes the ``# source:`` line and the header (the columns of the groups the first sample had:
+        a group missing on a later row is ``nan`` there, which the reader names; one that appears later is not kept),
+        and a ``# clock:`` line (:meth:`clock_words`, a later one replacing the earlier) goes where the clock's words
+        change.  ``compass live --calibrate tumble`` streams its collection so to a temporary file beside
+        ``CAL.tumble.csv`` (:func:`compass.io.atomic.atomic_stream`), which a session killed outright leaves (the
+        next write to ``CAL.tumble.csv`` keeps it as ``CAL.tumble.partial-PID.csv``); :meth:`write_recording` writes
+        the recording at a clean end.
+        """
+        if self._streamed == len(self.rows):
+            return self._streamed
+        new = np.array(self.rows[self._streamed:], dtype=float).reshape(-1, len(_COLUMNS))
+        lines = []
+        if self._stream_columns is None:
+            keep = list(range(*_GROUPS[0]))
+            for lo, hi in _GROUPS[1:]:
+                if np.all(np.isfinite(new[0, lo:hi])):
+                    keep += range(lo, hi)
+            self._stream_columns = [0, *keep]
+            lines += ["# source: compass live --calibrate tumble (streamed as collected)",
+                      ",".join(_COLUMNS[j] for j in self._stream_columns)]
+        clock = self.clock_words()
+        if clock != self._stream_clock:
+            self._stream_clock = clock
+            lines.append(f"# clock: {clock}")
+        lines += [",".join(f"{v:.9g}" for v in row) for row in new[:, self._stream_columns]]
+        out.write("\n".join(lines) + "\n")
+        self._streamed = len(self.rows)
+        return self._streamed
 
     def write_recording(self, path) -> Path:
         """The samples as a tumble recording (SPEC section 2): the accelerometer's, the gyro's (rad/s) and

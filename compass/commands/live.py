@@ -107,7 +107,8 @@ def run(args) -> int:
 
         if args.record is not None:
             raise BadInput("--record goes with an attitude session: --calibrate tumble writes its samples to "
-                           "CAL.tumble.csv beside --out")
+                           "CAL.tumble.csv beside --out, streamed as they come (a session killed outright leaves "
+                           "them beside it, kept as CAL.tumble.partial-PID.csv by the next session)")
 
         return run_tumble(args)
     if args.cal is None:

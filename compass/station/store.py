@@ -61,6 +61,13 @@ class FlipRows:
     clock: str | None = None
 
 
+def _first_t_s(rows: FlipRows) -> float:
+    """When a kept flip began on the recording's clock, seconds (-inf without ``t_s`` or rows: first)."""
+    if "t_s" not in rows.columns or not len(rows.table):
+        return -np.inf
+    return float(rows.table[0, rows.columns.index("t_s")])
+
+
 class SessionStore:
     """Finished flips and the session's description in ``CAL.flips/``.
 
@@ -113,20 +120,24 @@ class SessionStore:
     def write_recording(self, metadata: dict, force: bool = False) -> Path:
         """Join the four flips into the recording beside the calibration file; returns its path.
 
-        The stated ``angle_sigma_deg`` is the largest of the flips'; the flips' clock restarts make one
-        ``# clock:`` line.
+        The flips are written in the order they were recorded (by their first ``t_s``), so the recording's
+        ``t_s`` does not decrease (SPEC section 2) when a flip was recorded again after the others (its file
+        deleted and the session resumed: its ``t_s`` goes on from the flips kept, :meth:`Station._after_kept`);
+        the four-flip fit takes each row by its ``flip_deg``, not by its place.  The stated ``angle_sigma_deg``
+        is the largest of the flips'; the flips' clock restarts make one ``# clock:`` line, in time order.
         """
         flips = self.finished()
         if len(flips) != len(NOMINAL_FLIPS_DEG):
             raise ValueError(f"{self.folder}: {len(flips)} of 4 flips done")
         columns = flips[0.0].columns
+        order = sorted(NOMINAL_FLIPS_DEG, key=lambda f: _first_t_s(flips[f]))
         sigma = max(f.angle_sigma_deg for f in flips.values())
         meta = {**metadata, "angle_sigma_deg": f"{sigma:.4g}"}
-        clocks = [flips[f].clock for f in NOMINAL_FLIPS_DEG if flips[f].clock is not None]
+        clocks = [flips[f].clock for f in order if flips[f].clock is not None]
         if clocks:
             meta["clock"] = "; ".join(clocks)
         lines = [f"# {k}: {v}" for k, v in meta.items()] + [",".join(columns)]
-        for flip in NOMINAL_FLIPS_DEG:
+        for flip in order:
             lines += [",".join(f"{x:.9g}" for x in row) for row in flips[flip].table]
         path = recording_path(self.out)
         if path.exists() and not force:

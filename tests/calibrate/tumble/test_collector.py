@@ -97,3 +97,31 @@ def test_a_stream_slower_than_the_gap_is_recorded_as_it_comes():
     collector, _, _ = _collect(t_s)
     np.testing.assert_allclose(collector.samples[:, 0], t_s, atol=1e-9)
     assert collector.corrupted == []
+
+
+def test_the_rows_streamed_as_they_come_are_the_recordings_rows_and_clock(tmp_path):
+    """What `live --calibrate tumble` streams while it collects (the file a session killed outright leaves): in pieces,
+    across a restart of the module's clock, the same header and rows as the recording written at the end, and its
+    # clock: line (the last one said, where the reader takes it)."""
+    import io
+
+    from compass.io.table import read_table
+
+    t_s = _honest()
+    t_s[20:] -= t_s[20]
+    mag = np.random.default_rng(0).normal(scale=30.0, size=(N, 3))
+    collector, out = TumbleCollector(), io.StringIO()
+    collector.feed(Chunk(0.0, format_line(["t_s", "mx", "my", "mz"])))
+    assert collector.stream_rows(out) == 0 and out.getvalue() == ""  # nothing before the first sample
+    for k, (t, m) in enumerate(zip(t_s, mag)):
+        collector.feed(Chunk(STEP_S * (k + 1), format_line([f"{t:.2f}", *(f"{v:.6f}" for v in m)])))
+        if k % 7 == 0:
+            collector.stream_rows(out)
+    collector.finish()
+    assert collector.stream_rows(out) == N
+    streamed, written = tmp_path / "streamed.csv", collector.write_recording(tmp_path / "written.csv")
+    streamed.write_text(out.getvalue())
+    a, b = read_table(streamed), read_table(written)
+    assert a.columns == b.columns == ("t_s", "mx", "my", "mz")
+    np.testing.assert_array_equal(a.data, b.data)
+    assert a.metadata["clock"] == b.metadata["clock"] == collector.clock_words() and "restarted" in a.metadata["clock"]

@@ -151,3 +151,49 @@ def test_live_tumble_calibrates_across_a_restart_of_the_modules_clock_and_says_s
     # the user may calibrate the recording again: `compass calibrate` reads it as live did
     assert main(["calibrate", str(recording), "--out", str(tmp_path / "again.json"), "--quiet"]) == 0
     np.testing.assert_array_equal(json.loads((tmp_path / "again.json").read_text())["hard_iron"], cal["hard_iron"])
+
+
+def test_a_live_tumble_killed_outright_keeps_the_samples_it_had(tmp_path):
+    """`kill -9` (a laptop that dies) in the middle of a collection: the samples went to a temporary file beside
+    CAL.tumble.csv as they came, every row up to the last readout is on disk, and the next write to CAL.tumble.csv
+    keeps them as CAL.tumble.partial-PID.csv, a tumble recording `compass calibrate` reads."""
+    import signal
+
+    from compass.io.atomic import remove_stale_temporaries
+    from compass.io.units import RecordingWarning
+
+    cal, link, out = tmp_path / "dev.json", tmp_path / "dev", tmp_path / "live.json"
+    recording = tmp_path / "live.tumble.csv"
+    with Proc(compass_command("device", "--pty", "--motion", "tumble", "--save-cal", str(cal), "--link", str(link),
+                              "--rate", "100", "--seed", "3", "--duration", "90"), kill_after_s=120) as device:
+        assert device.wait_for(lambda line: line.strip() == str(link), 30.0), device.transcript()
+        with Proc(compass_command("live", "--port", str(link), "--calibrate", "tumble", "--out", str(out),
+                                  "--min-coverage", "1.0", "--duration", "60"), kill_after_s=100) as live:
+            said = []  # the readouts "tumble: N samples, ..."
+
+            def enough(line):
+                if line.startswith("tumble: ") and " samples" in line:
+                    said.append(int(line.split()[1]))
+                return len(said) >= 8 and said[-1] >= 500
+
+            assert live.wait_for(enough, 60.0), live.transcript()
+            status = live.stop(sig=signal.SIGKILL)
+            pid = live.popen.pid
+            transcript = live.transcript()
+        device.stop()
+    assert status == -signal.SIGKILL, transcript
+    assert "as they come (a session killed outright leaves it" in transcript
+    assert not recording.exists() and not out.exists()
+    streams = list(tmp_path.glob(f".live.tumble.csv.{pid}.*.stream.tmp"))
+    assert len(streams) == 1, sorted(p.name for p in tmp_path.iterdir())
+    header, rows = _recording(streams[0])
+    assert header == ["t_s", "mx", "my", "mz", "ax", "ay", "az", "gx", "gy", "gz"]
+    assert len(rows) >= said[-1] and np.all(np.isfinite(rows)) and np.all(np.diff(rows[:, 0]) > 0)
+
+    with pytest.warns(RecordingWarning, match=f"had when it was killed \\(process {pid}\\), kept"):
+        remove_stale_temporaries(recording)  # what the next write to live.tumble.csv does first
+    kept = tmp_path / f"live.tumble.partial-{pid}.csv"
+    assert kept.exists() and not streams[0].exists()
+    assert "# source: compass live --calibrate tumble (streamed as collected)" in kept.read_text()
+    assert main(["calibrate", str(kept), "--out", str(tmp_path / "again.json"), "--quiet"]) == 0
+    assert json.loads((tmp_path / "again.json").read_text())["tumble"]["n_samples"] == len(rows)

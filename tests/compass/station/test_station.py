@@ -427,3 +427,37 @@ def test_the_flips_keep_the_clock_words_on_disk(tmp_path):
     assert store.finished()[180.0].clock == "the module's clock restarted before flip 180"
     text = store.write_recording({"turntable": "column:enc"}).read_text()
     assert "# clock: the module's clock restarted before flip 180\n" in text
+
+
+def test_a_flip_recorded_again_after_the_others_is_written_in_time_order_and_calibrates(tmp_path):
+    """Flip 90's file deleted after the session and the session resumed on a module whose clock started again
+    (``compass bench --resume`` after a refusal that says "re-record the flip"): the new flip 90 goes on from the flips
+    kept, so it is the latest; the recording is written in time order (t_s non-decreasing, SPEC section 2, which the
+    reader checks) and calibrates as an uninterrupted one does (test_each_source_calibrates_a_simulated_bench's
+    bound; the exact encoder reads the true turntable angle)."""
+    rig = BenchRig(seed=11, encoder_step_deg=0.0)
+    station, events, first = run_session(tmp_path, "column:enc", rig)
+    assert station.finished, events
+    store = SessionStore(tmp_path / "cal.json")
+    (store.folder / "flip_090.csv").unlink()
+    done = store.finished()
+    assert sorted(done) == [0.0, 180.0, 270.0]
+    source = parse_turntable("column:enc")
+    again = Station(source, rig.channels, done=done, on_flip=store.save, rate_hz=station.rate_hz)
+    drive(BenchRig(seed=11, encoder_step_deg=0.0), again, StationStream(source.column), max_s=600.0)
+    events = again.drain()
+    assert again.finished and sorted(store.finished()) == [0.0, 90.0, 180.0, 270.0], events
+    assert any("clock restarted before flip 90" in text for _, text in events), events
+
+    recording = read_fourflip(store.write_recording({"turntable": "column:enc"}, force=True))  # the first one's
+    assert np.all(np.diff(recording.t_s) >= 0)
+    starts = [recording.t_s[recording.flip_index == k][0] for k in range(4)]
+    assert starts[1] > max(starts[0], starts[2], starts[3])  # flip 90 last in time, and last in the file
+    assert np.all(recording.flip_index[-len(store.finished()[90.0].table):] == 1)
+    assert "clock restarted before flip 90" in recording.metadata["clock"]
+    result = calibrate_fourflip(recording, method="ml")
+    truth = np.asarray(rig.truth["directions"])
+    error = np.degrees(np.arccos(np.clip(np.sum(result.directions * truth, axis=1), -1.0, 1.0)))
+    samples = BenchSamples(np.mod(recording.platform_deg, 360.0), recording.flip_deg, recording.flip_index)
+    crb, _ = cramer_rao(rig.physics, samples, recording.channels, rig.noise)
+    assert np.sqrt(np.mean((error / crb) ** 2)) < 2.5, (error, crb)
