@@ -298,10 +298,12 @@ class _Layout:
         per = x[: _BASE_PER_CHANNEL * self.c].reshape(self.c, _BASE_PER_CHANNEL)
         directions, _ = self.directions(x)
         start = self.start
+        with np.errstate(over="ignore"):  # a trial step the optimiser takes too far: inf, its residual refused
+            gains = start.gains * np.exp(per[:, 3])
         physics = BenchPhysics(
             directions=directions,
             offsets=start.offsets + per[:, 2] * start.gains,
-            gains=start.gains * np.exp(per[:, 3]),
+            gains=gains,
             dip_deg=float(np.degrees(x[_BASE_PER_CHANNEL * self.c])),
             azimuth_deg=float(np.degrees(x[_BASE_PER_CHANNEL * self.c + 1])),
             field_norm=start.field_norm,

@@ -660,8 +660,9 @@ class StreamDecoder:
         waited = (t_rx is not None and self._first_numeric_t is not None
                   and t_rx - self._first_numeric_t >= _AUTO_WAIT_S and self._numeric_lines >= 5)
         if self._fatal is None and (waited or self._numeric_lines >= _AUTO_WAIT_LINES):
-            self._fatal = (f"the stream sends bare numbers without a header ({self._numeric_lines} lines): name its "
-                           f"cells with --columns, e.g. --columns {EXAMPLE_COLUMNS}")
+            self._fatal = (f"the stream sends bare numbers without a header ({self._numeric_lines} lines; a module "
+                           f"that sends its header once, at boot, sent it before the port was open: reset it with the "
+                           f"port open): name its cells with --columns, e.g. --columns {EXAMPLE_COLUMNS}")
         if len(self._pending) > _AUTO_MAX_BYTES:  # an endless line: counted once, as the decoders do
             self.stats.garbage += 1
             self._pending = b""

@@ -175,9 +175,24 @@ def session_instant(session_time: str) -> datetime:
     return datetime.fromisoformat(text)
 
 
+_UNREADABLE = datetime.min.replace(tzinfo=timezone.utc)
+"""Where a stored session time that cannot be read orders (:func:`stored_instant`)."""
+
+
+def stored_instant(session_time: str) -> datetime:
+    """:func:`session_instant` of a stored session time; one an older store kept as written that is no ISO time
+    (``2026-3-9``) is :data:`_UNREADABLE`: it orders first, so it is never a module's latest session over one
+    that can be read, and it ties with none."""
+    try:
+        return session_instant(session_time)
+    except SessionTimeError:
+        return _UNREADABLE
+
+
 def same_session(a: str, b: str) -> bool:
-    """Whether two session times of day are one instant (``...Z`` and ``...+00:00`` are); days alone never are."""
-    return timed(a) and timed(b) and session_instant(a) == session_instant(b)
+    """Whether two session times of day are one instant (``...Z`` and ``...+00:00`` are); days alone never are, nor
+    a stored time that cannot be read."""
+    return timed(a) and timed(b) and stored_instant(a) == stored_instant(b) != _UNREADABLE
 
 
 def _at(rows, session_time: str) -> list:
@@ -190,7 +205,7 @@ def _at(rows, session_time: str) -> list:
 
 def _order(r: "SessionRow"):
     """Session-time order: the instant, then the recording's path (days alone keep their files' order), then the row."""
-    return session_instant(r.session_time), r.recording_path, r.id
+    return stored_instant(r.session_time), r.recording_path, r.id
 
 
 def module_outcome(rows) -> ModuleOutcome:
@@ -321,14 +336,7 @@ class Store:
         if hashes is not None:
             hashes = set(hashes)
             rows = [r for r in rows if r.recording_sha256 in hashes]
-        keys = {}
-        for r in rows:
-            try:
-                keys[r.id] = _order(r)
-            except SessionTimeError as exc:  # a store written before session times were checked
-                raise StoreError(f"{self.path}: the session of {r.recording_path} is stored at {exc}: it cannot be "
-                                 "ordered; correct the recording's '# session_time:' and run the batch again") from None
-        return sorted(rows, key=lambda r: keys[r.id])
+        return sorted(rows, key=_order)
 
     def rivals(self, rows) -> list[SessionRow]:
         """Stored sessions of other recordings claiming a session of ``rows``: the same module id and session time of
@@ -337,7 +345,7 @@ class Store:
         claimed: dict[tuple[str, datetime], list[SessionRow]] = {}
         for r in rows:
             if timed(r.session_time):
-                claimed.setdefault((r.module_id, session_instant(r.session_time)), []).append(r)
+                claimed.setdefault((r.module_id, stored_instant(r.session_time)), []).append(r)
         found = {}
         for (module_id, _), own in claimed.items():
             found.update((r.id, r) for r in self.claimants(module_id, own[0].session_time,

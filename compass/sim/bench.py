@@ -145,7 +145,8 @@ class BenchPhysics:
 def true_platform_deg(physics: BenchPhysics, samples: BenchSamples) -> np.ndarray:
     """Turntable angle after the encoder error and each flip's zero, degrees, shape (n,)."""
     phi = samples.platform_deg
-    true = phi if physics.turntable_zero_deg is None else phi + np.asarray(physics.turntable_zero_deg)[samples.flip_index]
+    zero = physics.turntable_zero_deg
+    true = phi if zero is None else phi + np.asarray(zero)[samples.flip_index]
     if physics.encoder_fourier is None:
         return true
     k = np.arange(1, len(physics.encoder_fourier) + 1)
@@ -202,7 +203,8 @@ def channel_outputs(physics: BenchPhysics, samples: BenchSamples, x: np.ndarray)
         powers = tau[:, None] ** np.arange(1, physics.drift.shape[1] + 1)[None, :]
         offsets = offsets + powers @ physics.drift.T
     if physics.warmup is not None and samples.t_s is not None:
-        settling = np.exp(-(samples.t_s - physics.drift_t0) / physics.warmup_tau_s)
+        with np.errstate(over="ignore"):  # a fit's trial time constant near zero or negative: inf, its residual refused
+            settling = np.exp(-(samples.t_s - physics.drift_t0) / physics.warmup_tau_s)
         offsets = offsets + settling[:, None] * physics.warmup[None, :]
     if physics.gain_drift is not None and samples.t_s is not None:
         tau = (samples.t_s - physics.gain_drift_t0) / physics.gain_drift_scale_s

@@ -272,9 +272,14 @@ def test_sessions_order_and_tie_on_instants_also_in_a_store_that_kept_the_text_a
         assert store.exportable("MA").calibration == '{"second": 1}'  # 08:00 UTC after 07:30 UTC
         with pytest.raises(StoreError, match="2 different recordings claim its session"):
             store.exportable("MC")  # one instant written two ways
-        _add(store, "MB", "2026-3-9", "b1", path="/r/B1.csv")
-        with pytest.raises(StoreError, match="the session of /r/B1.csv is stored at '2026-3-9' is not an ISO"):
-            store.sessions(module_id="MB")
+        _add(store, "MB", "2026-3-9", "b1", calibration='{"unreadable": 1}', path="/r/B1.csv")
+        _add(store, "MB", "2026-03-10", "b2", calibration='{"readable": 1}', path="/r/B2.csv")
+        # a time an older store kept that is no ISO time still lists, first: never the latest over a readable one
+        assert [r.recording_path for r in store.sessions(module_id="MB")] == ["/r/B1.csv", "/r/B2.csv"]
+        assert store.exportable("MB").calibration == '{"readable": 1}'
+        _add(store, "MD", "9:30 2/3/26", "d1", path="/r/D1.csv")
+        _add(store, "MD", "9:30 2/3/26", "d2", path="/r/D2.csv")
+        assert len(store.sessions(module_id="MD")) == 2 and not store.rivals(store.sessions(module_id="MD"))
 
 
 def test_a_batchs_rows_see_the_stores_rivals_of_their_sessions_and_nothing_else(tmp_path):
