@@ -210,6 +210,9 @@ class CsvDecoder(_FixedDecoder):
                     self.columns, self.header, self.mismatch = tuple(columns), None, None
                     self.layout = Layout.from_names(self.columns, self.channels)
                     self._start()
+                elif self.header is not None:  # the same columns, maybe other units: the samples after it carry
+                    self.layout = Layout.from_names(self.columns, self.channels)  # a header of their own
+                    self.header = self.layout.header
             return None
         return cells
 

@@ -505,6 +505,7 @@ class StreamDecoder:
         self._seen = 0  # kept lines already counted
         self._first_numeric_t: float | None = None
         self._resynced = False
+        self._cut_first = False  # the next complete line may be the tail of one (after a resync)
         self._check = field_check
         self._held: list = []
         self._judge_at = JUDGE_SAMPLES
@@ -574,7 +575,7 @@ class StreamDecoder:
         lines = self._pending.replace(b"\r", b"\n").split(b"\n")
         self.stats.unheaded += len(lines) - 1  # the bare-number lines kept: samples before any header
         self.stats.partial += bool(lines[-1])  # a line the (re)connect cut
-        self._pending, self._seen, self._resynced = b"", 0, True
+        self._pending, self._seen, self._resynced, self._cut_first = b"", 0, True, True
 
     def feed(self, chunk: bytes, t_rx: float | None = None) -> list[Sample]:
         """Samples of the complete lines so far, in the toolkit's units; ``t_rx`` (s, any clock) dates the chunk
@@ -634,7 +635,11 @@ class StreamDecoder:
             cells = [c.strip() for c in (text[:star] if star > 0 else text).split(",")]
             if text.startswith(_MOTIONCAL_TAGS):
                 return self._decided("motioncal", "found from its Raw:/Uni:/Cal lines", kept + lines[k:], tail)
+            cut, self._cut_first = self._cut_first, False
             log = _log_header(cells)
+            if log is not None and cut and log_column_name(cells[0])[0] is None:
+                self.stats.partial += 1  # a header's tail after a (re)connect ("scope Z (deg/s),Magnetometer X...")
+                continue
             if log is not None:
                 self._resynced &= bool(kept)  # a whole header line: the line after it starts whole
                 return self._log_decided(*log, text, kept + lines[k + 1:], tail)

@@ -175,6 +175,11 @@ def test_a_log_header_names_the_columns_and_their_units_as_the_file_readers_read
     np.testing.assert_allclose(out[0].raw, [20.0, 0.0, -40.0])
     assert out[0].t_s == 0.01
     assert any("log header" in t and "gyro in deg/s" in t for _, t in d.drain_events())
+    d = StreamDecoder(CHANNELS)  # a header's tail after a reconnect is no header (it named 'scope Z (deg/s)' a column)
+    d.resync()
+    d.feed(header[header.index(b"scope Z"):] + row + header + row)
+    assert d.describe() == "csv t_s,gx,gy,gz,ax,ay,az,mx,my,mz"  # the whole header's, read after the cut one
+    assert d.stats.partial == 2  # the cut header, and the row after it (untrusted before a header, as any)
     d = StreamDecoder(CHANNELS, StreamOptions(gyro_unit="rad/s"))
     np.testing.assert_allclose(d.feed(header + row)[0].gyro, [90.0, 0.0, 0.0])
     d = StreamDecoder(CHANNELS)
@@ -201,6 +206,10 @@ def test_a_log_header_sent_again_in_another_order_is_read_from_there_and_unicode
     d = StreamDecoder(CHANNELS)
     d.feed((first + "0.0,90,0,0,20,0,-40\r\n" + first + "0.01,90,0,0,20,0,-40\r\n").encode("utf-8"))
     assert not any("came again" in t for _, t in d.drain_events()) and d.stats.garbage == 0  # the same: no word
+    d = StreamDecoder(CHANNELS)  # the same columns in other units: the samples after it in those (review)
+    out = d.feed((first + "0.0,90,0,0,20,0,-40\r\n" + first.replace("µT", "mG") + "0.01,90,0,0,200,0,-400\r\n")
+                 .encode("utf-8"))
+    np.testing.assert_allclose([s.raw for s in out], [[20.0, 0.0, -40.0]] * 2)
 
 
 def test_named_units_are_converted():
