@@ -116,7 +116,9 @@ def packet_of(cal, *, unit: str = "uT", max_rotation_deg: float = 1.0, axes=None
     if all(r.model == "linear" for r in model.responses):  # the same map, exactly: no fit's rounding in the bytes
         offset = model.zero_outputs
         matrix = np.linalg.inv(model.gains[:, None] * model.unit_directions)
-    matrix, offset = matrix[:, order], offset[order]  # the device's x, y, z
+    matrix, offset = matrix[:, order], offset[order]  # the device's x, y, z in
+    if cal.tumble is not None and cal.tumble.mag_to_accel is None:  # out, the sensor's own frame: in that order too
+        matrix = matrix[order]
     to_model = cal.imu.rotation  # R_model<-accel: the bench's mag_to_accel (an installed alignment was refused)
     in_accel = matrix if to_model is None else to_model.T @ matrix
     rotation, soft = polar(in_accel, side="right")

@@ -276,9 +276,11 @@ def firmware_form(cal, axes=None) -> dict:
     order = axis_order(cal, axes)
     form = {"hard_iron": t.hard_iron, "soft_iron": t.soft_iron, "mag_to_accel": t.mag_to_accel,
             "field_norm_recording_units": t.field_norm_recording_units, "axes": axes_words(cal, order, axes)}
-    if order != (0, 1, 2):
-        matrix = t.soft_iron if t.mag_to_accel is None else t.mag_to_accel @ t.soft_iron
-        form |= _split(matrix[:, order], t.hard_iron[list(order)])
+    if order != (0, 1, 2):  # the sensor's x, y, z in: its columns; out, the accelerometer's frame, else the sensor's
+        if t.mag_to_accel is None:  # own, in the same order: its rows too (P S P^T, symmetric)
+            form |= _split(t.soft_iron[np.ix_(order, order)], t.hard_iron[list(order)])
+        else:
+            form |= _split(t.mag_to_accel @ t.soft_iron[:, order], t.hard_iron[list(order)])
     return form
 
 
