@@ -139,7 +139,34 @@ class EncoderError(FourFlipEffect):
         return np.degrees(1.0)
 
 
-class FlipError(FourFlipEffect):
+class _FlipAngle(FourFlipEffect):
+    """An angle of each of flips 90, 180 and 270, degrees (flip 0's defines the frame): its parameters, their
+    reporting, their Jacobian through the output's partial by the angle (:meth:`_partial`), and the most a bench
+    can have (:data:`calibrate.fourflip._phases.ZERO_OFF_DEG`)."""
+
+    suffix = ""
+    """The parameters' names: ``flip<k>.<suffix>``."""
+    max_angle_deg = ZERO_OFF_DEG
+
+    def n_params(self, c):
+        return 3
+
+    def param_names(self, channels):
+        return [f"flip{k}.{self.suffix}" for k in (90, 180, 270)]
+
+    def _partial(self, partials) -> np.ndarray:
+        """d output / d angle (rad), shape (n, c)."""
+        raise NotImplementedError
+
+    def jacobian(self, physics, p, samples, partials):
+        which = (samples.flip_index[:, None] == np.arange(1, 4)[None, :]).astype(float)  # (n, 3)
+        return self._partial(partials)[:, :, None] * which[:, None, :]
+
+    def report_scale(self, physics):
+        return np.degrees(1.0)
+
+
+class FlipError(_FlipAngle):
     """The real flip angles of flips 90, 180, 270 differ from the recorded ones.
 
     The cube turns about its X edge, which stays on the turntable's X axis, so a face that is
@@ -148,11 +175,7 @@ class FlipError(FourFlipEffect):
     yaws of the flips, leaves every output unchanged.)
     """
 
-    def n_params(self, c):
-        return 3
-
-    def param_names(self, channels):
-        return ["flip90.error_deg", "flip180.error_deg", "flip270.error_deg"]
+    suffix = "error_deg"
 
     @property
     def formula(self):
@@ -163,17 +186,11 @@ class FlipError(FourFlipEffect):
         rotvec[1:, 0] = np.degrees(p)
         return physics.with_(flip_rotvec_deg=rotvec)
 
-    def jacobian(self, physics, p, samples, partials):
-        which = (samples.flip_index[:, None] == np.arange(1, 4)[None, :]).astype(float)  # (n, 3)
-        return partials.per_flip[:, :, None] * which[:, None, :]
-
-    def report_scale(self, physics):
-        return np.degrees(1.0)
-
-    max_angle_deg = ZERO_OFF_DEG
+    def _partial(self, partials):
+        return partials.per_flip
 
 
-class TurntableZero(FourFlipEffect):
+class TurntableZero(_FlipAngle):
     """Each flip's turntable zero differs from flip 0's: the true angle is ``platform_deg + D_k`` in flip k.
 
     The cube set down turned about the vertical after a flip (no fence, or a fence it does not touch), or the
@@ -183,11 +200,7 @@ class TurntableZero(FourFlipEffect):
     (:mod:`calibrate.fourflip._phases`).
     """
 
-    def n_params(self, c):
-        return 3
-
-    def param_names(self, channels):
-        return ["flip90.turntable_zero_deg", "flip180.turntable_zero_deg", "flip270.turntable_zero_deg"]
+    suffix = "turntable_zero_deg"
 
     @property
     def formula(self):
@@ -197,14 +210,8 @@ class TurntableZero(FourFlipEffect):
     def apply(self, physics, p, samples):
         return physics.with_(turntable_zero_deg=np.degrees(np.concatenate([[0.0], p])))
 
-    def jacobian(self, physics, p, samples, partials):
-        which = (samples.flip_index[:, None] == np.arange(1, 4)[None, :]).astype(float)  # (n, 3)
-        return partials.per_turn[:, :, None] * which[:, None, :]
-
-    def report_scale(self, physics):
-        return np.degrees(1.0)
-
-    max_angle_deg = ZERO_OFF_DEG
+    def _partial(self, partials):
+        return partials.per_turn
 
     def too_few_channels(self, n_channels):
         if n_channels < 3:

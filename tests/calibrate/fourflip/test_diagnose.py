@@ -57,23 +57,17 @@ def test_unmodelled_gradient_is_unexplained_without_false_claim(write_session):
     assert any("structure remains" in w for w in result.warnings)
 
 
-def test_flip_error_parameters_recovered(write_session):
-    rec, truth = write_session(seed=204, effects=("flip_error",))
+@pytest.mark.parametrize("effect, key, name", [
+    ("flip_error", lambda p: np.asarray(p["flip_rotvec_deg"])[:, 0], "error_deg"),
+    ("turntable_zero", lambda p: np.asarray(p["yaw_deg"]), "turntable_zero_deg"),
+])
+def test_flip_angles_recovered(write_session, effect, key, name):
+    rec, truth = write_session(seed=204, effects=(effect,))
     result = calibrate_fourflip(rec, diagnose=True)
     params = result.effects[0]["parameters"]
-    true = [e for e in truth["effects"] if e["name"] == "flip_error"][0]["parameters"]["flip_rotvec_deg"]
+    true = key([e for e in truth["effects"] if e["name"] == effect][0]["parameters"])
     for k, flip in enumerate((90, 180, 270), start=1):
-        p = params[f"flip{flip}.error_deg"]
-        assert abs(p["value"] - true[k][0]) < 4 * p["sigma"], (flip, p, true[k][0])
-
-
-def test_turntable_zero_parameters_recovered(write_session):
-    rec, truth = write_session(seed=204, effects=("turntable_zero",))
-    result = calibrate_fourflip(rec, diagnose=True)
-    params = result.effects[0]["parameters"]
-    true = [e for e in truth["effects"] if e["name"] == "turntable_zero"][0]["parameters"]["yaw_deg"]
-    for k, flip in enumerate((90, 180, 270), start=1):
-        p = params[f"flip{flip}.turntable_zero_deg"]
+        p = params[f"flip{flip}.{name}"]
         assert abs(p["value"] - true[k]) < 4 * p["sigma"], (flip, p, true[k])
 
 
