@@ -144,10 +144,16 @@ def check_channels(path, channels, *, axis_tolerance_deg: float | None = AXIS_TO
             others = [o.snr for o in channels if o is not ch]
             beside = f" (the other channels' {_ratio(float(np.median(others)))})" if others else ""
             sigma = (f", direction +- {ch.direction_sigma_deg:.3g} deg" if ch.direction_sigma_deg is not None else "")
-            raise CannotCalibrate(f"{path}: channel '{ch.name}' does not respond to the field: its response "
-                                  f"{ch.response:.3g} +- {ch.response_sigma:.2g} output units is "
-                                  f"{ch.response_sigmas:.1f} sigma from zero{sigma}, signal-to-noise "
-                                  f"{_ratio(ch.snr)}{beside}: a dead or disconnected sensor")
+            figures = (f"its response {ch.response:.3g} +- {ch.response_sigma:.2g} output units is "
+                       f"{ch.response_sigmas:.1f} sigma from zero{sigma}, signal-to-noise {_ratio(ch.snr)}{beside}")
+            if ch.response_sigmas >= DEAD_SIGMAS:  # it responds: the fit cannot place its direction
+                raise CannotCalibrate(f"{path}: channel '{ch.name}' responds to the field but its direction is not "
+                                      f"determined: {figures}: the recording's angles are not what the model can "
+                                      "follow (a flip's turntable counting the other way or read from another "
+                                      "reference, flips mislabelled) or the sensor is far from linear: check the "
+                                      "recording's platform_deg and flip_deg before the sensor")
+            raise CannotCalibrate(f"{path}: channel '{ch.name}' does not respond to the field: {figures}: a dead or "
+                                  "disconnected sensor")
     warnings = []
     for ch in channels:
         others = [o.snr for o in channels if o is not ch]

@@ -43,6 +43,17 @@ def test_fourflip_dead_channel_is_refused_naming_it(write_session, method):
         FourFlipCalibrator(method=method, diagnose=False).fit(replace(rec, outputs=outputs))
 
 
+def test_a_responding_channel_whose_direction_the_fit_cannot_place_is_not_called_dead():
+    """37 sigma of response and a direction +- 15 deg (a flip's turntable counting the other way: round hH) was
+    'a dead or disconnected sensor'; the words now point at the recording's angles."""
+    healthy = ChannelHealth("v1", 1.0, 0.025, 0.003, np.array([1.0, 0.0, 0.0]), 0.02)
+    unplaced = ChannelHealth("v3", 0.943, 0.025, 0.003, np.array([0.0, 0.0, 1.0]), 15.5)
+    with pytest.raises(CannotCalibrate, match=r"channel 'v3' responds to the field but its direction is not "
+                                              r"determined: .*37.7 sigma from zero.*platform_deg") as info:
+        check_channels("rec.csv", [healthy, unplaced])
+    assert "dead" not in str(info.value)
+
+
 def test_fourflip_drowned_channel_is_warned_with_its_snr(write_session):
     rec, truth = write_session(seed=22)
     rng = np.random.default_rng(1)
