@@ -637,7 +637,7 @@ class StreamDecoder:
                 return self._decided("motioncal", "found from its Raw:/Uni:/Cal lines", kept + lines[k:], tail)
             cut, self._cut_first = self._cut_first, False
             log = _log_header(cells)
-            if log is not None and cut and log_column_name(cells[0])[0] is None:
+            if log is not None and cut and log_column_name(cells[0])[0] is None and cells[0] not in known:
                 self.stats.partial += 1  # a header's tail after a (re)connect ("scope Z (deg/s),Magnetometer X...")
                 continue
             if log is not None:
@@ -799,8 +799,9 @@ class StreamDecoder:
         verdict = units.gyro_unit_verdict(ratio)
         self.gyro_unit_said = ratio == 0.0 or verdict is not None
         self.gyro_unit_right = not self.gyro_unit_said
-        named = self.options.gyro_unit is not None or self.format == "motioncal"  # MotionCal's units are its own
-        fault = units.gyro_fault_words(ratio, gyro[sane], named=named)
+        named = self._given.gyro_unit is not None or self.format == "motioncal"  # MotionCal's units are its own
+        labelled = self._given.gyro_unit is None and self.options.gyro_unit == "deg/s"  # a log header says deg/s
+        fault = units.gyro_fault_words(ratio, gyro[sane], named=named, labelled_deg=labelled)
         if fault is not None:  # the session stops on it, in its words
             self.gyro_fault = f"the gyro read in {unit} {fault}"
         elif ratio == 0.0:  # every rate exactly zero (no unit gives that): the check_gyro_unit words

@@ -180,6 +180,10 @@ def test_a_log_header_names_the_columns_and_their_units_as_the_file_readers_read
     d.feed(header[header.index(b"scope Z"):] + row + header + row)
     assert d.describe() == "csv t_s,gx,gy,gz,ax,ay,az,mx,my,mz"  # the whole header's, read after the cut one
     assert d.stats.partial == 2  # the cut header, and the row after it (untrusted before a header, as any)
+    d = StreamDecoder(CHANNELS)  # our names beside a log's, first after a connect: whole (the audit's case)
+    d.resync()
+    d.feed(b"t_s,Gyroscope X (deg/s),Gyroscope Y (deg/s),Gyroscope Z (deg/s),mx,my,mz\r\n" + b"0.01,90,0,0,20,0,-40\r\n")
+    assert d.describe() == "csv t_s,gx,gy,gz,mx,my,mz" and d.stats.partial == 0
     d = StreamDecoder(CHANNELS, StreamOptions(gyro_unit="rad/s"))
     np.testing.assert_allclose(d.feed(header + row)[0].gyro, [90.0, 0.0, 0.0])
     d = StreamDecoder(CHANNELS)
@@ -292,6 +296,17 @@ def test_a_deg_per_s_gyro_read_as_rad_per_s_is_a_fault_live_stops_on():
     assert decoded(smp.gyro) == (None, [])
     fault, said = decoded(np.degrees(smp.gyro))
     assert said == [] and "times more" in fault and "give --gyro-unit deg/s" in fault
+
+    def labelled(gyro, options=StreamOptions()):  # a log header labels the gyro deg/s: the replay's judgement
+        d = StreamDecoder(CHANNELS, options)
+        header = "Time (s),mx,my,mz,ax,ay,az,Gyroscope X (deg/s),Gyroscope Y (deg/s),Gyroscope Z (deg/s)\r\n"
+        rows = np.column_stack([t, smp.raw, smp.accel, gyro])
+        d.feed(header.encode() + b"".join((",".join(f"{v:.7g}" for v in r) + "\r\n").encode() for r in rows))
+        return d.gyro_fault
+
+    assert labelled(np.degrees(smp.gyro)) is None  # deg/s as labelled: fused
+    assert "times less" in labelled(smp.gyro) and "give --gyro-unit rad/s" in labelled(smp.gyro)  # rad/s so labelled
+    assert labelled(smp.gyro, StreamOptions(gyro_unit="deg/s")) is None  # named by the user: warned, not stopped
 
 
 def test_device_formats_are_the_commands_choices():
