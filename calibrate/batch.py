@@ -104,23 +104,15 @@ def _session_time(path, metadata: dict) -> str:
         return ""
 
 
-def bench_field_ut(metadata: dict, spec_bench_field_ut: float | None) -> float | None:
-    """The bench's |B| in uT for a recording without ``# field_ut:`` (its calibration's field unit is the bench's |B|).
+def bench_field_ut(document: dict, spec_bench_field_ut: float | None) -> float | None:
+    """The bench's |B| in uT for a calibration without ``# field_ut:`` (its field unit is the bench's |B|).
 
-    The World Magnetic Model's |B| at the recording's site and date (``# site_lat_deg:``, ``# site_lon_deg:``,
-    optional ``# site_alt_m:``, ``# date:``: what ``compass bench --site`` writes), else the spec's
-    ``[site] bench_field_ut``, else None (the offset cannot be put in uT).
+    The World Magnetic Model's |B| the calibration's site check compared with (its ``site_check``: the recording's
+    ``# site_lat_deg:``, ``# site_lon_deg:``, ``# site_alt_m:`` and ``# date:``, what ``compass bench --site``
+    writes; :func:`calibrate.site_field.compare_with_site`), else the spec's ``[site] bench_field_ut``, else None
+    (the offset cannot be put in uT).
     """
-    from compass.site import Site
-
-    if all(metadata.get(k) for k in ("site_lat_deg", "site_lon_deg", "date")):
-        try:
-            site = Site.parse(",".join(metadata[k] for k in ("site_lat_deg", "site_lon_deg", "site_alt_m")
-                                       if metadata.get(k)), metadata["date"][:10])
-        except ValueError:
-            return spec_bench_field_ut  # a bad site key: the calibration itself refuses it, naming the key
-        return site.field().field_ut
-    return spec_bench_field_ut
+    return (document.get("site_check") or {}).get("model_field_ut", spec_bench_field_ut)
 
 
 def calibrate_session(job: SessionJob) -> dict:
@@ -159,10 +151,10 @@ def calibrate_session(job: SessionJob) -> dict:
         out["calibration"] = text
         model = from_dict(json.loads(text)).model
         # the diagnosis block of the contract (calibrate.contract: to_json()["diagnosis"])
+        bench = None if model.field_ut is not None else bench_field_ut(document, job.bench_field_ut)
         out["figures"] = module_figures(model, document.get("diagnosis"), out["warnings"],
                                         site_dip_deg=job.site_dip_deg, site_field_ut=job.site_field_ut,
-                                        bench_field_ut=bench_field_ut(_header_metadata(job.path),
-                                                                      job.bench_field_ut))
+                                        bench_field_ut=bench)
     except (RecordingError, CannotCalibrate, CalibrationFileError) as exc:
         out["refused"] = str(exc)
     except Exception as exc:  # noqa: BLE001 - one module's failure is its verdict, never the batch's end
