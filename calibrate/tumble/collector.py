@@ -309,18 +309,14 @@ class TumbleCollector:
         new = np.array(self.rows[self._streamed:], dtype=float).reshape(-1, len(_COLUMNS))
         lines = []
         if self._stream_columns is None:
-            keep = list(range(*_GROUPS[0]))
-            for lo, hi in _GROUPS[1:]:
-                if np.all(np.isfinite(new[0, lo:hi])):
-                    keep += range(lo, hi)
-            self._stream_columns = [0, *keep]
+            self._stream_columns = _columns_kept(new[:1])
             lines += ["# source: compass live --calibrate tumble (streamed as collected)",
                       ",".join(_COLUMNS[j] for j in self._stream_columns)]
         clock = self.clock_words()
         if clock != self._stream_clock:
             self._stream_clock = clock
             lines.append(f"# clock: {clock}")
-        lines += [",".join(f"{v:.9g}" for v in row) for row in new[:, self._stream_columns]]
+        lines += _row_lines(new, self._stream_columns)
         out.write("\n".join(lines) + "\n")
         self._streamed = len(self.rows)
         return self._streamed
@@ -330,15 +326,27 @@ class TumbleCollector:
         temp_c columns when every sample had them; a ``# clock:`` line when the module's clock restarted or a sample
         was left out for its time (:meth:`clock_words`)."""
         data = self.samples
-        keep = list(range(*_GROUPS[0]))
-        for lo, hi in _GROUPS[1:]:
-            if np.all(np.isfinite(data[:, lo:hi])):
-                keep += range(lo, hi)
+        columns = _columns_kept(data)
         lines = ["# source: compass live --calibrate tumble"]
         clock = self.clock_words()
         if clock is not None:
             lines.append(f"# clock: {clock}")
-        lines.append(",".join(_COLUMNS[j] for j in [0, *keep]))
-        lines += [",".join(f"{v:.9g}" for v in row) for row in data[:, [0, *keep]]]
+        lines.append(",".join(_COLUMNS[j] for j in columns))
+        lines += _row_lines(data, columns)
         atomic_write_text(path, "\n".join(lines) + "\n")
         return Path(path)
+
+
+def _columns_kept(data: np.ndarray) -> list[int]:
+    """The columns a recording of ``data`` (rows of :data:`_COLUMNS`) writes: the time, the field, and each other group
+    every row has."""
+    keep = [0, *range(*_GROUPS[0])]
+    for lo, hi in _GROUPS[1:]:
+        if np.all(np.isfinite(data[:, lo:hi])):
+            keep += range(lo, hi)
+    return keep
+
+
+def _row_lines(data: np.ndarray, columns) -> list[str]:
+    """``data``'s rows as a recording's lines, the ``columns`` given."""
+    return [",".join(f"{v:.9g}" for v in row) for row in data[:, columns]]
