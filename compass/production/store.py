@@ -200,7 +200,8 @@ def _at(rows, session_time: str) -> list:
     wanted = session_time_text(session_time)
     if timed(wanted):
         return [r for r in rows if same_session(r.session_time, wanted)]
-    return [r for r in rows if not timed(r.session_time) and session_time_text(r.session_time) == wanted]
+    day = session_instant(wanted)
+    return [r for r in rows if not timed(r.session_time) and stored_instant(r.session_time) == day]
 
 
 def _order(r: "SessionRow"):

@@ -277,6 +277,7 @@ def test_sessions_order_and_tie_on_instants_also_in_a_store_that_kept_the_text_a
         # a time an older store kept that is no ISO time still lists, first: never the latest over a readable one
         assert [r.recording_path for r in store.sessions(module_id="MB")] == ["/r/B1.csv", "/r/B2.csv"]
         assert store.exportable("MB").calibration == '{"readable": 1}'
+        assert store.exportable("MB", "2026-03-10").calibration == '{"readable": 1}'  # a day picked past the unreadable
         _add(store, "MD", "9:30 2/3/26", "d1", path="/r/D1.csv")
         _add(store, "MD", "9:30 2/3/26", "d2", path="/r/D2.csv")
         assert len(store.sessions(module_id="MD")) == 2 and not store.rivals(store.sessions(module_id="MD"))
